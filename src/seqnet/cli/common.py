@@ -1,0 +1,61 @@
+"""Argument helpers shared by CLI commands."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any, Sequence
+
+from ..errors import ConfigError
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer ≥ 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {v}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not (v > 0 and v != float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
+    return v
+
+
+def index_range(text: str) -> tuple[int, int]:
+    """argparse type: ``START:STOP`` (half-open index range)."""
+    try:
+        a, b = (int(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected START:STOP (e.g. 0:1650), got {text!r}") from None
+    if not 0 <= a < b:
+        raise argparse.ArgumentTypeError(f"expected 0 <= START < STOP, got {text!r}")
+    return a, b
+
+
+def add_device(p: argparse.ArgumentParser) -> None:
+    """``--device`` (auto: CUDA when present)."""
+    p.add_argument("--device", default="auto", help="torch device: auto (GPU when present), cpu, cuda, cuda:1 ...")
+
+
+def parse_list(values: Sequence[str] | None, valid: Sequence[str] | None = None, what: str = "value") -> list[str]:
+    """Split comma-separated CLI values and check them against ``valid``."""
+    out = [v.strip() for item in (values or []) for v in item.split(",") if v.strip()]
+    if valid is not None:
+        for v in out:
+            if v not in valid:
+                raise ConfigError(f"unknown {what} {v!r}; valid: {', '.join(valid)}")
+    return out
+
+
+def drop_none(d: dict[str, Any]) -> dict[str, Any]:
+    """The entries of ``d`` whose value is not None."""
+    return {k: v for k, v in d.items() if v is not None}

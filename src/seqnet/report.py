@@ -1,0 +1,73 @@
+"""Reports: comparison tables (plain text and Markdown) and Recall@K plots."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from .utils import atomic_path
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return "  n/a" if math.isnan(v) else f"{v:.3f}"
+    return str(v)
+
+
+def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int]) -> tuple[list[str], list[list[str]]]:
+    """Header and rows: method, R@K for each K, queries, total time (ms)."""
+    header = ["method", *(f"R@{k}" for k in ks), "queries", "time ms"]
+    rows = []
+    for name, r in methods.items():
+        timing = r.get("timing_ms", {})
+        rows.append([name, *(_fmt(r.get(f"recall@{k}", float("nan"))) for k in ks), str(r.get("queries", "")),
+                     f"{timing.get('total', float('nan')):.1f}"])
+    return header, rows
+
+
+def format_table(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 10, 20, 100)) -> str:
+    """A fixed-width text table of results (one row per method)."""
+    header, rows = results_rows(methods, ks)
+    widths = [max(len(x) for x in col) for col in zip(header, *rows)]
+    line = lambda cells: "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))  # noqa: E731
+    return "\n".join([line(header), line(["-" * w for w in widths]), *(line(r) for r in rows)])
+
+
+def format_markdown(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 20)) -> str:
+    """A Markdown table of results, with per-stage timings."""
+    header, rows = results_rows(methods, ks)
+    stages = sorted({s for r in methods.values() for s in r.get("timing_ms", {}) if s != "total"})
+    header = [*header, *(f"{s} ms" for s in stages)]
+    for row, r in zip(rows, methods.values()):
+        row.extend(f"{r.get('timing_ms', {}).get(s, float('nan')):.1f}" if s in r.get("timing_ms", {}) else "–" for s in stages)
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(out) + "\n"
+
+
+def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title: str = "") -> Path:
+    """Save Recall@K curves (K = 1..len) as a PNG, one line per method (paper Fig. 3 style)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for name, c in curves.items():
+        ax.plot(np.arange(1, len(c) + 1), c, marker="o", markersize=3, label=name)
+    ax.set_xlabel("K (number of top reference candidates)")
+    ax.set_ylabel("Recall@K")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+    return path

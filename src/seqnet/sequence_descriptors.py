@@ -1,0 +1,113 @@
+"""Sequence descriptors: smoothing, Delta descriptors and the SeqNet temporal-convolution model.
+
+Each turns a window of L single-image descriptors ``[M, L, D]`` into one L2-normalised descriptor
+``[M, D']``:
+
+* :func:`smoothing` — mean of the (L2-normalised) frames of the window;
+* :func:`delta` — Delta descriptor (Garg et al. 2020): mean of the second half of the window minus
+  mean of the first half (halves of ``L // 2`` frames; the middle frame of an odd window is unused);
+* :class:`SeqNet` — SeqNet S_L (Garg & Milford 2021): Conv1d over time (D → D_out, kernel w, bias,
+  no padding, stride 1), mean over the ``L - w + 1`` outputs, L2 norm. ``S_1`` is ``L = w = 1``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+from tqdm.auto import tqdm
+
+from .errors import ConfigError
+from .utils import as_tensor, l2_normalize
+from .windows import gather_windows
+
+SEQUENCE_METHODS = ("smoothing", "delta")
+
+
+def smoothing(windows: torch.Tensor) -> torch.Tensor:
+    """Window average: ``[M, L, D]`` → L2-normalised ``[M, D]``."""
+    return l2_normalize(l2_normalize(windows).mean(dim=1))
+
+
+def delta(windows: torch.Tensor) -> torch.Tensor:
+    """Delta descriptor: ``[M, L, D]`` (L ≥ 2) → L2-normalised ``[M, D]``."""
+    seq_len = windows.shape[1]
+    if seq_len < 2:
+        raise ConfigError(f"Delta descriptors need seq_len >= 2, got {seq_len}")
+    h = seq_len // 2
+    w = l2_normalize(windows)
+    return l2_normalize(w[:, seq_len - h :].mean(dim=1) - w[:, :h].mean(dim=1))
+
+
+class SeqNet(nn.Module):
+    """SeqNet S_L: ``[B, L, D]`` (or ``[B, D]`` for S_1) → L2-normalised ``[B, D_out]``."""
+
+    def __init__(self, in_dims: int, out_dims: int, seq_len: int, w: int) -> None:
+        super().__init__()
+        if not 1 <= w <= seq_len:
+            raise ConfigError(f"SeqNet needs 1 <= w <= seq_len, got w={w}, seq_len={seq_len}")
+        if in_dims < 1 or out_dims < 1:
+            raise ConfigError(f"SeqNet dims must be >= 1, got in_dims={in_dims}, out_dims={out_dims}")
+        self.in_dims, self.out_dims, self.seq_len, self.w = in_dims, out_dims, seq_len, w
+        self.conv = nn.Conv1d(in_dims, out_dims, kernel_size=w, bias=True)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.ndim == 2:
+            x = x[:, None, :]
+        if x.shape[-1] != self.in_dims:
+            raise ConfigError(f"SeqNet expects D={self.in_dims} inputs, got D={x.shape[-1]}")
+        if x.shape[1] < self.w:
+            raise ConfigError(f"SeqNet with w={self.w} needs windows of >= {self.w} frames, got {x.shape[1]}")
+        y = self.conv(x.permute(0, 2, 1))  # [B, D_out, L - w + 1]
+        return F.normalize(y.mean(dim=-1), dim=-1)
+
+    def config(self) -> dict[str, int]:
+        """Architecture hyper-parameters (stored in checkpoints)."""
+        return {"in_dims": self.in_dims, "out_dims": self.out_dims, "seq_len": self.seq_len, "w": self.w}
+
+
+def describe_windows(
+    desc: np.ndarray | torch.Tensor,
+    idx: np.ndarray,
+    fn: Callable[[torch.Tensor], torch.Tensor],
+    batch_size: int = 4096,
+    device: torch.device | str | None = None,
+    progress: str | None = None,
+) -> torch.Tensor:
+    """Apply a window function to every window.
+
+    Args:
+        desc: ``[N, D]`` single-image descriptors.
+        idx: ``[M, L]`` frame indices of the windows (see :func:`seqnet.windows.window_indices`).
+        fn: ``[B, L, D]`` → ``[B, D']`` (``smoothing``, ``delta`` or a :class:`SeqNet`).
+        batch_size: windows per batch (bounds memory).
+        device: where to compute (default: where ``desc`` is).
+        progress: tqdm label, or None for no bar.
+
+    Returns:
+        ``[M, D']`` float32 tensor on CPU.
+    """
+    d = as_tensor(desc)
+    out = []
+    starts = range(0, len(idx), batch_size)
+    for s in tqdm(starts, desc=progress, disable=progress is None or len(starts) < 2, leave=False):
+        block = np.asarray(idx[s : s + batch_size])
+        rows = np.unique(block)
+        sub = d[torch.from_numpy(rows)].to(device) if device is not None else d[torch.from_numpy(rows)]
+        local = np.searchsorted(rows, block)
+        with torch.no_grad():
+            out.append(fn(gather_windows(sub, local)).float().cpu())
+    if not out:
+        return torch.zeros((0, d.shape[1]), dtype=torch.float32)
+    return torch.cat(out)
+
+
+def get_sequence_fn(method: str) -> Callable[[torch.Tensor], torch.Tensor]:
+    """The window function named ``method`` (one of :data:`SEQUENCE_METHODS`)."""
+    fns = {"smoothing": smoothing, "delta": delta}
+    if method not in fns:
+        raise ConfigError(f"unknown sequence descriptor {method!r}; valid: {', '.join(fns)}")
+    return fns[method]
