@@ -1,0 +1,44 @@
+"""Shared test fixtures: tiny synthetic data and the location of ../shared/data."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+torch.set_num_threads(2)
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("SEQNET_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+
+def shared_data(sub: str) -> Path:
+    """Path of ``../shared/data/<sub>``; skips the test with a message when it is absent."""
+    path = SHARED_DATA / sub
+    if not path.exists():
+        pytest.skip(f"shared data not found: {path} (set SEQNET_SHARED_DATA or place ../shared/data beside the repo)")
+    return path
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(0)
+
+
+@pytest.fixture(scope="session")
+def synth_dataset():
+    """A small synthetic dataset (UTM positions, splits, sequence bounds)."""
+    from seqnet.synth import make_synthetic
+
+    return make_synthetic(places=200, dim=16, seed=1)
+
+
+@pytest.fixture
+def synth_dir(tmp_path, synth_dataset):
+    """The small synthetic dataset saved in the directory format."""
+    from seqnet.traverse import save_dataset
+
+    return save_dataset(synth_dataset, tmp_path / "ds")
