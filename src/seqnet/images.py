@@ -1,0 +1,155 @@
+"""Listing and loading images of a folder or of a list file.
+
+A *source* is either a folder (its images with a known extension, in natural sort order, so
+``img-2.png`` comes before ``img-10.png``) or a text file with one image path per line (relative
+paths are relative to the list file's folder; blank lines and ``#`` comments are ignored).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError, ImageError
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
+
+
+@dataclasses.dataclass
+class ImageList:
+    """Image files and the names they are reported under (path relative to the folder/list file)."""
+
+    paths: list[Path]
+    names: list[str]
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+
+def natural_key(text: str) -> list:
+    """Sort key that orders embedded numbers numerically (``a2`` < ``a10``)."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", text)]
+
+
+def list_images(source: str | Path) -> ImageList:
+    """The images of a folder or a list file, in order; raise :class:`ImageError` when there are none."""
+    src = Path(source)
+    if src.is_dir():
+        files = [p for p in src.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS]
+        files.sort(key=lambda p: natural_key(p.name))
+        if not files:
+            raise ImageError(
+                f"no images in folder {src} (looked for {', '.join(IMAGE_EXTENSIONS)}; "
+                "hint: pass a folder of images or a text file listing them)"
+            )
+        return ImageList(paths=files, names=[p.name for p in files])
+    if src.is_file():
+        return _read_list_file(src)
+    raise ImageError(f"image folder or list file not found: {src}")
+
+
+def _read_list_file(src: Path) -> ImageList:
+    if src.suffix.lower() in IMAGE_EXTENSIONS:
+        return ImageList(paths=[src], names=[src.name])
+    try:
+        lines = src.read_text(encoding="utf-8").splitlines()
+    except UnicodeDecodeError:
+        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths") from None
+    names = [s.strip() for s in lines if s.strip() and not s.strip().startswith("#")]
+    if not names:
+        raise ImageError(f"list file {src} names no images (expected one image path per line)")
+    paths = [Path(n) if Path(n).is_absolute() else src.parent / n for n in names]
+    return ImageList(paths=paths, names=names)
+
+
+def read_image(path: Path, grey: bool = False) -> np.ndarray:
+    """Decode one image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``); :class:`ImageError` if unreadable."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+            return np.asarray(im.convert("L" if grey else "RGB"))
+    except FileNotFoundError:
+        raise ImageError(f"image not found: {path}") from None
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as e:
+        raise ImageError(
+            f"cannot read image {path} ({type(e).__name__}: {e}; hint: --skip-corrupted leaves such images out)"
+        ) from None
+
+
+def prepare_image(
+    img: np.ndarray, size: tuple[int, int] | None = None, crop_bottom: int = 0, path: Path | None = None
+) -> np.ndarray:
+    """Crop ``crop_bottom`` rows off the bottom (e.g. a car bonnet), then resize to ``size=(W, H)``."""
+    from PIL import Image
+
+    if crop_bottom:
+        if crop_bottom >= img.shape[0]:
+            raise ImageError(f"crop-bottom {crop_bottom} removes all {img.shape[0]} rows of image {path}")
+        img = img[: img.shape[0] - crop_bottom]
+    if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+        img = np.asarray(Image.fromarray(img).resize(tuple(int(v) for v in size), Image.BILINEAR))
+    return img
+
+
+def load_images(
+    paths: Sequence[Path],
+    size: tuple[int, int] | None = None,
+    crop_bottom: int = 0,
+    grey: bool = False,
+    skip_corrupted: bool = False,
+) -> tuple[np.ndarray, list[int]]:
+    """Load images into one uint8 array ``[N, H, W, 3]`` (``[N, H, W]`` when ``grey``).
+
+    Args:
+        paths: image files.
+        size: ``(W, H)`` to resize to after cropping; None keeps the native size, which must then be
+            the same for all images.
+        crop_bottom: rows removed from the bottom of each image before resizing.
+        grey: decode as greyscale.
+        skip_corrupted: leave unreadable images out instead of raising.
+
+    Returns:
+        ``(images, skipped)`` where ``skipped`` lists the indices (into ``paths``) left out.
+    """
+    if size is not None and (len(size) != 2 or min(size) < 1):
+        raise ConfigError(f"image size must be (width, height) with both >= 1, got {size}")
+    if crop_bottom < 0:
+        raise ConfigError(f"crop-bottom must be >= 0 rows, got {crop_bottom}")
+    out: list[np.ndarray] = []
+    skipped: list[int] = []
+    first: Path | None = None
+    for i, p in enumerate(paths):
+        try:
+            img = read_image(Path(p), grey=grey)
+        except ImageError:
+            if not skip_corrupted:
+                raise
+            skipped.append(i)
+            continue
+        img = prepare_image(img, size, crop_bottom, Path(p))
+        if out and img.shape != out[0].shape:
+            raise ImageError(
+                f"image {p} has size {img.shape[1]}x{img.shape[0]} but {first} has "
+                f"{out[0].shape[1]}x{out[0].shape[0]} (hint: pass a resize size to bring all images to one size)"
+            )
+        first = first or Path(p)
+        out.append(img)
+    if not out:
+        shape = (0, *(size[::-1] if size else (0, 0))) + (() if grey else (3,))
+        return np.zeros(shape, dtype=np.uint8), skipped
+    return np.stack(out), skipped
+
+
+def iter_batches(n: int, batch_size: int, todo: np.ndarray | None = None) -> Iterator[np.ndarray]:
+    """Index batches ``[b]`` over ``range(n)`` (only where ``todo`` is True, when given)."""
+    if batch_size < 1:
+        raise ConfigError(f"batch size must be >= 1, got {batch_size}")
+    idx = np.arange(n) if todo is None else np.flatnonzero(todo)
+    for s in range(0, idx.size, batch_size):
+        yield idx[s : s + batch_size]

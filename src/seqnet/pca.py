@@ -1,0 +1,112 @@
+"""PCA (optionally whitened) for reducing single-image descriptors; saved as ``.npz``."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CheckpointError, ConfigError
+from .utils import atomic_path
+
+
+@dataclasses.dataclass
+class PCA:
+    """A fitted PCA projection.
+
+    Attributes:
+        mean: ``[D]`` float32 mean of the fitting data.
+        components: ``[dims, D]`` float32 principal axes (orthonormal rows, by decreasing variance).
+        scales: ``[dims]`` float32 per-component scale (1/sqrt(variance + eps) when whitened, else 1).
+        whiten: whether ``scales`` whiten the output.
+        l2: whether :meth:`transform` L2-normalises its output by default.
+    """
+
+    mean: np.ndarray
+    components: np.ndarray
+    scales: np.ndarray
+    whiten: bool = False
+    l2: bool = True
+
+    @property
+    def dims(self) -> int:
+        """Output dimension."""
+        return int(self.components.shape[0])
+
+    @property
+    def input_dim(self) -> int:
+        """Input dimension D."""
+        return int(self.components.shape[1])
+
+    def transform(self, x: np.ndarray, l2: bool | None = None) -> np.ndarray:
+        """Project ``[N, D]`` to ``[N, dims]`` float32 (L2-normalised rows when ``l2``, default ``self.l2``)."""
+        x = np.asarray(x, dtype=np.float32)
+        if x.ndim != 2 or x.shape[1] != self.input_dim:
+            raise ConfigError(
+                f"PCA expects [N, {self.input_dim}] descriptors, got shape {x.shape} "
+                "(hint: the PCA was fitted on descriptors of another method or size)"
+            )
+        y = ((x - self.mean) @ self.components.T) * self.scales
+        if self.l2 if l2 is None else l2:
+            y = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-12)
+        return y.astype(np.float32)
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the PCA as ``.npz`` atomically; returns the path."""
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, mean=self.mean, components=self.components, scales=self.scales,
+                         whiten=np.array(self.whiten), l2=np.array(self.l2))
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> PCA:
+        """Read a PCA written by :meth:`save`; raise :class:`CheckpointError` when it is not one."""
+        keys = ("mean", "components", "scales", "whiten", "l2")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                missing = [k for k in keys if k not in z.files]
+                if missing:
+                    raise CheckpointError(f"{path}: not a seqnet PCA file (missing {', '.join(missing)})")
+                arrays = {k: z[k] for k in keys}
+        except (OSError, ValueError, EOFError) as e:
+            raise CheckpointError(f"cannot read PCA file {path} ({e})") from None
+        return cls(mean=arrays["mean"].astype(np.float32), components=arrays["components"].astype(np.float32),
+                   scales=arrays["scales"].astype(np.float32), whiten=bool(arrays["whiten"]), l2=bool(arrays["l2"]))
+
+
+def fit_pca(x: np.ndarray, dims: int, whiten: bool = False, l2: bool = True, eps: float = 1e-9) -> PCA:
+    """Fit a PCA of ``[N, D]`` data keeping ``dims`` components.
+
+    Args:
+        x: ``[N, D]`` training descriptors.
+        dims: output dimension, 1 <= dims <= min(N, D).
+        whiten: scale each component to unit variance.
+        l2: default of :meth:`PCA.transform`'s output L2-normalisation.
+        eps: added to the variances before whitening.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2:
+        raise ConfigError(f"PCA needs [N, D] data, got shape {x.shape}")
+    n, d = x.shape
+    if not 1 <= dims <= min(n, d):
+        raise ConfigError(
+            f"PCA dims={dims} must be between 1 and min(N, D) = min({n}, {d}) = {min(n, d)} "
+            "(hint: fit on more images or ask for fewer output dims)"
+        )
+    mean = x.mean(axis=0)
+    xc = x - mean
+    if d <= n:
+        evals, evecs = np.linalg.eigh(xc.T @ xc / max(n - 1, 1))
+        order = np.argsort(evals)[::-1][:dims]
+        comps, var = evecs[:, order].T, evals[order]
+    else:
+        _, s, vt = np.linalg.svd(xc, full_matrices=False)
+        comps, var = vt[:dims], (s[:dims] ** 2) / max(n - 1, 1)
+    comps = comps * np.where(comps[np.arange(dims), np.abs(comps).argmax(axis=1)] < 0, -1.0, 1.0)[:, None]
+    scales = 1.0 / np.sqrt(np.maximum(var, 0.0) + eps) if whiten else np.ones(dims)
+    return PCA(mean=mean.astype(np.float32), components=comps.astype(np.float32),
+               scales=scales.astype(np.float32), whiten=whiten, l2=l2)
