@@ -1,0 +1,218 @@
+"""``seqnet dataset ...``: build datasets from CSV / UTM-named / seqNet files, check them, list presets."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from ..errors import ConfigError
+from .common import positive_float
+
+PRESET_HELP = "dataset preset (nordland, oxford-v1.0, oxford-pnv, brisbane, msls): radius, training radii, splits"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("dataset", help="build and check datasets (CSV, UTM image names, seqNet .db files)",
+                       description="Build datasets in the seqnet directory format and check them (docs/datasets.md).")
+    dsub = p.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND", required=True)
+    _register_csv(dsub)
+    _register_utm(dsub)
+    _register_seqnet(dsub)
+    c = dsub.add_parser("check", help="validate a dataset directory and print a summary")
+    c.add_argument("dir", metavar="DIR", help="seqnet dataset directory")
+    c.add_argument("--json", action="store_true", help="print the summary as JSON")
+    c.set_defaults(func=run_check)
+    ps = dsub.add_parser("presets", help="list the dataset presets")
+    ps.add_argument("--json", action="store_true", help="print the presets as JSON")
+    ps.set_defaults(func=run_presets)
+
+
+def _common(p: argparse.ArgumentParser, radius: bool = True) -> None:
+    p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
+    p.add_argument("--preset", help=PRESET_HELP)
+    if radius:
+        p.add_argument("--radius", type=positive_float, help="localisation radius (metres or frames; default: preset)")
+    p.add_argument("--pos-radius", type=positive_float, help="training positive radius (stored as metadata)")
+    p.add_argument("--neg-radius", type=positive_float, help="training negative radius (stored as metadata)")
+    p.add_argument("--split", action="append", default=[], metavar="NAME=A:B[,C:D]",
+                   help="named index split (both traverses, or reference,query); repeatable")
+    p.add_argument("--name", help="dataset name (default: the output directory name)")
+    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+
+
+def _register_csv(dsub: argparse._SubParsersAction) -> None:
+    p = dsub.add_parser("from-csv", help="from position CSVs (name + easting,northing or frame) and descriptor files",
+                        description="CSV header: an image column (name/image/filename/...) and easting,northing "
+                                    "(metres) or frame; optional sequence column. Rows are matched to descriptors "
+                                    "by image name (HDF5 'names' or --*-names file), else taken in order.")
+    for side in ("ref", "query"):
+        p.add_argument(f"--{side}-csv", required=True, help=f"{side} positions CSV")
+        p.add_argument(f"--{side}-desc", required=True, help=f"{side} descriptors (.npy, .h5, .hdf5)")
+        p.add_argument(f"--{side}-names", help=f"names of the {side} descriptors (one per line, for .npy)")
+    _common(p)
+    p.set_defaults(func=run_from_csv)
+
+
+def _register_utm(dsub: argparse._SubParsersAction) -> None:
+    p = dsub.add_parser("from-utm-names", help="from descriptor files whose image names carry @easting@northing@",
+                        description="Positions are parsed from image names like '@0543256.96@4477929.94@17@T@...jpg' "
+                                    "(Pittsburgh, Tokyo 24/7, MSLS-style).")
+    for side in ("ref", "query"):
+        p.add_argument(f"--{side}-desc", required=True, help=f"{side} descriptors (.npy, .h5, .hdf5)")
+        p.add_argument(f"--{side}-names", help=f"{side} image names, one per line (default: HDF5 'names')")
+        p.add_argument(f"--{side}-seq-bounds", help=f"{side} sequence bounds file ('start end' per image)")
+    _common(p)
+    p.set_defaults(func=run_from_utm)
+
+
+def _register_seqnet(dsub: argparse._SubParsersAction) -> None:
+    p = dsub.add_parser("from-seqnet", help="from the original seqNet .db struct files and descriptor .npy files",
+                        description="One split per --db (its whichSet). Descriptors: one file for all --db, or one "
+                                    "per --db; for Nordland the whole clean-list array works too (indexed by frame). "
+                                    "Without --db, --preset nordland builds the whole frame list with the paper's "
+                                    "index splits.")
+    p.add_argument("--db", action="append", default=[], metavar="FILE.db", help="seqNet struct file; repeatable")
+    p.add_argument("--ref-desc", action="append", required=True, metavar="R.npy", help="reference descriptors")
+    p.add_argument("--query-desc", action="append", required=True, metavar="Q.npy", help="query descriptors")
+    p.add_argument("--ref-seq-bounds", action="append", metavar="FILE", help="MSLS reference seqBounds, one per --db")
+    p.add_argument("--query-seq-bounds", action="append", metavar="FILE", help="MSLS query seqBounds, one per --db")
+    p.add_argument("--names", help="frame-list image names (without --db), e.g. nordland_clean_imageNames.txt")
+    p.add_argument("--radius", type=positive_float, help="localisation radius (default: preset, else the struct)")
+    p.add_argument("--name", help="dataset name")
+    p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
+    p.add_argument("--preset", help=PRESET_HELP)
+    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.set_defaults(func=run_from_seqnet)
+
+
+def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | None:
+    """``NAME=A:B`` or ``NAME=A:B,C:D`` items → splits (None when there are none)."""
+    out: dict[str, dict[str, tuple[int, int]]] = {}
+    for item in items:
+        try:
+            name, spec = item.split("=", 1)
+            parts = [tuple(int(x) for x in r.split(":")) for r in spec.split(",")]
+            if len(parts) not in (1, 2) or any(len(r) != 2 for r in parts):
+                raise ValueError
+        except ValueError:
+            raise ConfigError(f"--split {item!r}: expected NAME=A:B or NAME=A:B,C:D (reference, query)") from None
+        out[name] = {"reference": parts[0], "query": parts[-1]}  # type: ignore[dict-item]
+    return out or None
+
+
+def _finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
+    from ..convert import summarize_dataset
+    from ..traverse import save_dataset
+
+    save_dataset(ds, args.out, overwrite=args.overwrite)
+    s = summarize_dataset(ds)
+    print(f"wrote {args.out}: reference {s['reference']['images']} and query {s['query']['images']} images, "
+          f"D={s['reference']['dim']}, radius {ds.radius:g} {ds.position_unit}, "
+          f"{s['queries_with_match']} queries with a true match, splits: {', '.join(ds.splits) or 'none'}")
+    return 0
+
+
+def _extra(args: argparse.Namespace) -> dict:
+    return {"pos_radius": args.pos_radius, "neg_radius": args.neg_radius}
+
+
+def run_from_csv(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..convert import assemble_dataset, traverse_from_csv
+
+    ref, unit_r = traverse_from_csv(args.ref_csv, args.ref_desc, args.ref_names, "reference")
+    qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
+    if unit_r != unit_q:
+        raise ConfigError(f"reference positions are in {unit_r} but query positions in {unit_q}")
+    ds = assemble_dataset(ref, qry, unit_r, args.radius, args.preset, parse_splits(args.split),
+                          args.name or Path(args.out).name, _extra(args))
+    return _finish(ds, args)
+
+
+def run_from_utm(args: argparse.Namespace) -> int:
+    import dataclasses
+    from pathlib import Path
+
+    from ..convert import assemble_dataset, read_seq_bounds, traverse_from_utm_names
+
+    sides = []
+    for side, label in (("ref", "reference"), ("query", "query")):
+        t = traverse_from_utm_names(getattr(args, f"{side}_desc"), getattr(args, f"{side}_names"), label)
+        bounds = getattr(args, f"{side}_seq_bounds")
+        if bounds:
+            t = dataclasses.replace(t, seq_bounds=read_seq_bounds(bounds, len(t)))
+        sides.append(t)
+    ds = assemble_dataset(sides[0], sides[1], "metres", args.radius, args.preset, parse_splits(args.split),
+                          args.name or Path(args.out).name, _extra(args))
+    return _finish(ds, args)
+
+
+def run_from_seqnet(args: argparse.Namespace) -> int:
+    from ..convert import read_descriptor_file, read_names
+    from ..structfiles import dataset_from_frame_lists, dataset_from_structs, read_db_struct
+
+    ref = [read_descriptor_file(f)[0] for f in args.ref_desc]
+    qry = [read_descriptor_file(f)[0] for f in args.query_desc]
+    if not args.db:
+        if not args.preset or len(ref) != 1 or len(qry) != 1:
+            raise ConfigError("without --db, give --preset nordland and one --ref-desc and --query-desc "
+                              "(descriptors of the whole frame list)")
+        names = read_names(args.names) if args.names else None
+        ds = dataset_from_frame_lists(ref[0], qry[0], args.preset, names, args.name)
+    else:
+        structs = [read_db_struct(f) for f in args.db]
+        ds = dataset_from_structs(structs, ref, qry, args.preset, args.ref_seq_bounds, args.query_seq_bounds,
+                                  args.radius, args.name)
+    return _finish(ds, args)
+
+
+def run_check(args: argparse.Namespace) -> int:
+    from ..convert import summarize_dataset
+    from ..errors import DatasetError
+    from ..traverse import load_dataset
+
+    ds = load_dataset(args.dir)
+    s = summarize_dataset(ds)
+    if args.json:
+        print(json.dumps(s, indent=2, default=str))
+    else:
+        print(format_summary(s))
+    if s["queries_with_match"] == 0:
+        raise DatasetError(f"{args.dir}: no query has a reference within radius {ds.radius:g} {ds.position_unit} "
+                           "(hint: check the radius, the position unit and that both traverses share one "
+                           "coordinate frame)")
+    return 0
+
+
+def format_summary(s: dict) -> str:
+    """Human-readable lines of a :func:`seqnet.convert.summarize_dataset` summary."""
+    lines = [f"dataset {s['name']}: radius {s['radius']:g} {s['position_unit']}"]
+    for side in ("reference", "query"):
+        t = s[side]
+        seq = t.get("sequences")
+        seq_txt = ", no sequence bounds"
+        if seq:
+            seq_txt = (f", {seq['count']} sequences (length {seq['min_len']}..{seq['max_len']}, "
+                       f"median {seq['median_len']:g})")
+        lines.append(f"  {side}: {t['images']} images, D={t['dim']}{seq_txt}")
+    lines.append(f"  queries with a true match: {s['queries_with_match']} of {s['query']['images']}")
+    for name, sp in s["splits"].items():
+        lines.append(f"  split {name}: reference {sp['reference'][0]}:{sp['reference'][1]}, query "
+                     f"{sp['query'][0]}:{sp['query'][1]}, {sp['queries_with_match']} queries with a match")
+    if s["metadata"]:
+        lines.append("  metadata: " + json.dumps(s["metadata"], default=str))
+    return "\n".join(lines)
+
+
+def run_presets(args: argparse.Namespace) -> int:
+    from ..presets import PRESETS
+
+    if args.json:
+        print(json.dumps(PRESETS, indent=2))
+        return 0
+    for name, p in PRESETS.items():
+        splits = ", ".join(f"{k} {a}:{b}" for k, (a, b) in (p.get("splits") or {}).items()) or "from struct files"
+        print(f"{name}: radius {p['radius']:g} {p['position_unit']}, pos/neg {p['pos_radius']:g}/{p['neg_radius']:g}, "
+              f"L={p['seq_len']} w={p['w']}, splits: {splits}\n    {p['description']}")
+    return 0
