@@ -1,0 +1,89 @@
+"""The Nordland64 benchmark: PCA folding, place listing and a tiny end-to-end run on the shared data."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from conftest import shared_data
+
+from seqnet.cli import main as cli_main
+from seqnet.errors import ConfigError, DatasetError
+from seqnet.nordland64 import fold_pca, list_places, resolve_config, training_dataset
+from seqnet.pca import fit_pca
+from seqnet.sequence_descriptors import SeqNet
+from seqnet.traverse import Dataset, Traverse
+
+
+def test_fold_pca_is_exact(rng):
+    x = rng.standard_normal((40, 7, 32)).astype(np.float32)
+    pca = fit_pca(x.reshape(-1, 32), 12, whiten=True, l2=False)
+    torch.manual_seed(0)
+    model = SeqNet(12, 6, seq_len=7, w=3)
+    projected = torch.from_numpy(pca.transform(x.reshape(-1, 32), l2=False).reshape(40, 7, 12))
+    folded = fold_pca(model, pca)
+    assert folded.in_dims == 32 and folded.config()["w"] == 3
+    with torch.no_grad():
+        torch.testing.assert_close(folded(torch.from_numpy(x)), model(projected), atol=1e-5, rtol=1e-4)
+
+
+def test_training_dataset_symmetric(rng):
+    d_r, d_q = rng.random((50, 4), dtype=np.float32), rng.random((50, 4), dtype=np.float32)
+    pos = np.arange(50) / 1.0
+    ds = Dataset(Traverse(d_r, pos), Traverse(d_q, pos), radius=1.0, position_unit="frames",
+                 splits={"train": {"reference": (0, 30), "query": (0, 30)},
+                         "val": {"reference": (35, 45), "query": (35, 45)}},
+                 extra={"pos_radius": 1.0, "neg_radius": 4.0})
+    t = training_dataset(ds, None, symmetric=True)
+    assert t.splits["train"]["query"] == (0, 60) and t.splits["val"]["query"] == (60, 70)
+    np.testing.assert_array_equal(t.query.descriptors[30:60], d_r[:30])  # summer queries -> winter refs
+    np.testing.assert_array_equal(t.reference.descriptors[30:60], d_q[:30])
+    np.testing.assert_array_equal(t.query.descriptors[60:], d_q[35:45])  # val stays winter -> summer
+    assert t.reference.positions[30, 0] > 100 and t.query.seq_bounds[59].tolist() == [30, 60]
+    assert training_dataset(ds, None, symmetric=False).splits["train"]["query"] == (0, 30)
+
+
+def test_config_rejects_unknown_keys():
+    with pytest.raises(ConfigError, match="unknown configuration key 'epochz'"):
+        resolve_config({"epochz": 3})
+    assert resolve_config(None)["test_range"] == [1940, 2761]
+
+
+def test_list_places_and_bad_data(tmp_path):
+    data = shared_data("nordland64")
+    names, pos = list_places(data)
+    assert len(names) == 2761 and names[0] == "images-00210.png" and pos[0] == 21.0
+    assert np.all(np.diff(pos) > 0)
+    with pytest.raises(DatasetError, match="summer is missing"):
+        list_places(tmp_path)
+
+
+def test_tiny_benchmark_end_to_end(tmp_path, capsys):
+    data = shared_data("nordland64")
+    out = tmp_path / "b"
+    args = ["benchmark", "nordland64", "--data", str(data), "--out", str(out), "--train-range", "0:120",
+            "--val-range", "130:170", "--test-range", "180:260", "--epochs", "1", "--threads", "2", "--pca-dims", "64"]
+    assert cli_main(args) == 0
+    res = json.loads((out / "results.json").read_text())
+    methods = res["methods"]
+    assert list(methods) == ["single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch",
+                             "delta+seqmatch", "hvpr", "hvpr-single", "hvpr-delta"]
+    assert all(0.0 <= m["recall@1"] <= m["recall@20"] <= 1.0 for m in methods.values())
+    assert methods["single"]["queries"] == 76  # places 180..259 with a full centred L=5 window and a match
+    assert res["config"]["benchmark"]["test_range"] == [180, 260] and "total" in res["config"]["timings_s"]
+    assert (out / "recall_at_k.png").stat().st_size > 1000 and "| hvpr |" in (out / "results.md").read_text()
+    assert (out / "models" / "seqnet.pt").is_file() and (out / "dataset" / "dataset.json").is_file()
+    # a second run reuses the cached descriptors and models
+    assert cli_main(args) == 0
+    again = json.loads((out / "results.json").read_text())["methods"]
+    assert {m: r["recall@5"] for m, r in again.items()} == {m: r["recall@5"] for m, r in methods.items()}
+    assert "nordland64 test 180:260" in capsys.readouterr().out
+
+
+def test_bad_range_is_reported(tmp_path, capsys):
+    data = shared_data("nordland64")
+    rc = cli_main(["benchmark", "nordland64", "--data", str(data), "--out", str(tmp_path / "b"),
+                   "--test-range", "2000:9000"])
+    assert rc == 2 and "--test-range 2000:9000 is outside 0:2761" in capsys.readouterr().err
