@@ -1,0 +1,207 @@
+"""Model checkpoints: seqnet's own format and the original SeqNet code's ``*.pth.tar`` files.
+
+seqnet format (``RUN/last.pt``, ``RUN/best.pt``), a ``torch.save`` dict::
+
+    {"format": "seqnet-checkpoint/1", "model": {"in_dims", "out_dims", "seq_len", "w"},
+     "state_dict": {"conv.weight": [D_out, D, w], "conv.bias": [D_out]}, "epoch", "best_score",
+     "metrics", "config", "train_state": {optimiser, scheduler, RNG states, ...}}
+
+Original format (``checkpoint.pth.tar`` / ``model_best.pth.tar``): ``{"state_dict":
+{"pool.0.conv.weight", "pool.0.conv.bias"}, "epoch", "best_score", ...}``, with the run's flags
+(``seqL``, ``w``, ``outDims``, ``pooling``) in ``checkpoints/flags.json`` beside it.
+
+Checkpoints are read with ``torch.load(weights_only=True)``: they can hold tensors and plain data
+only, never code.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .errors import CheckpointError, ConfigError
+from .sequence_descriptors import SeqNet
+from .utils import atomic_path, logger
+
+CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
+ROLES = ("seqnet", "s1")
+
+
+def model_role(model: SeqNet) -> str:
+    """``"s1"`` for an S_1 model (``seq_len == w == 1``), else ``"seqnet"`` (S_L)."""
+    return "s1" if model.seq_len == 1 and model.w == 1 else "seqnet"
+
+
+def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
+    """Write ``model`` (architecture + weights) and ``fields`` to ``path`` atomically."""
+    payload = {"format": CHECKPOINT_FORMAT, "model": model.config(),
+               "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, **fields}
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return path
+
+
+def _numpy_globals() -> list[Any]:
+    """numpy objects allowed in checkpoints (the original code stored numpy scalars)."""
+    core = np._core if hasattr(np, "_core") else np.core  # type: ignore[attr-defined]
+    out: list[Any] = [np.dtype, *(type(np.dtype(t)) for t in (np.float64, np.float32, np.int64, np.int32, np.bool_))]
+    for name in ("scalar", "_reconstruct"):
+        fn = getattr(core.multiarray, name)
+        out += [fn, (fn, f"numpy.core.multiarray.{name}"), (fn, f"numpy._core.multiarray.{name}")]
+    return out + [np.ndarray]
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Load a checkpoint file as a dict; :class:`CheckpointError` if missing or unreadable."""
+    path = Path(path)
+    if not path.is_file():
+        hint = " (it is a directory; pass RUN/best.pt)" if path.is_dir() else ""
+        raise CheckpointError(f"checkpoint not found: {path}{hint}")
+    try:
+        with torch.serialization.safe_globals(_numpy_globals()):
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, zipfile errors ...
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise CheckpointError(f"cannot read checkpoint {path}: corrupted or not a torch checkpoint ({first[:200]}); "
+                              "hint: re-copy the file or use RUN/last.pt / RUN/best.pt") from None
+    if not isinstance(payload, dict) or "state_dict" not in payload:
+        got = f"dict with keys {list(payload)[:8]}" if isinstance(payload, dict) else type(payload).__name__
+        raise CheckpointError(f"{path} is not a SeqNet checkpoint: expected a dict with a 'state_dict', got {got}")
+    return payload
+
+
+def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None = None) -> SeqNet:
+    """The SeqNet model stored in a checkpoint (seqnet or original format), on CPU, in eval mode.
+
+    Args:
+        path: checkpoint file.
+        seq_len: sequence length L; needed only for an original checkpoint without ``flags.json``
+            (otherwise it overrides the stored L, which only sets the default window length).
+        in_dims: expected input dimension D (e.g. the dataset's); a mismatch raises CheckpointError.
+    """
+    payload = read_checkpoint(path)
+    if payload.get("format") == CHECKPOINT_FORMAT:
+        model = _from_seqnet(payload, Path(path))
+    else:
+        model = _from_original(payload, Path(path), seq_len)
+    if seq_len is not None and seq_len != model.seq_len:
+        if seq_len < model.w:
+            raise CheckpointError(f"seq_len={seq_len} is shorter than the model's filter w={model.w} ({path})")
+        logger.info("%s: using seq_len=%d instead of the stored %d", path, seq_len, model.seq_len)
+        model.seq_len = int(seq_len)
+    if in_dims is not None and in_dims != model.in_dims:
+        raise CheckpointError(f"{path} expects D={model.in_dims} input descriptors but the data has D={in_dims} "
+                              "(hint: use the descriptors the model was trained on)")
+    return model.eval()
+
+
+def _build(cfg: dict[str, Any], state: dict[str, torch.Tensor], path: Path) -> SeqNet:
+    try:
+        model = SeqNet(int(cfg["in_dims"]), int(cfg["out_dims"]), int(cfg["seq_len"]), int(cfg["w"]))
+        model.load_state_dict(state)
+    except (KeyError, TypeError, ValueError, RuntimeError) as e:
+        reason = str(e).splitlines()[0]
+        raise CheckpointError(f"{path}: weights do not fit the stored architecture {cfg} ({reason})") from None
+    return model
+
+
+def _from_seqnet(payload: dict[str, Any], path: Path) -> SeqNet:
+    cfg = payload.get("model")
+    if not isinstance(cfg, dict):
+        raise CheckpointError(f"{path}: no 'model' architecture entry (in_dims, out_dims, seq_len, w)")
+    return _build(cfg, payload["state_dict"], path)
+
+
+def find_flags(path: Path) -> Path | None:
+    """``flags.json`` of an original-code run: beside the checkpoint, or in ``checkpoints/`` of its
+    directory or of its parent directory."""
+    here = path.resolve().parent
+    for cand in (here / "flags.json", here / "checkpoints" / "flags.json", here.parent / "checkpoints" / "flags.json"):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def _original_weights(payload: dict[str, Any], path: Path) -> tuple[torch.Tensor, torch.Tensor]:
+    state = {k.removeprefix("module."): v for k, v in payload["state_dict"].items()}
+    weights = [k for k in state if k.endswith("conv.weight")]
+    if len(weights) != 1 or not torch.is_tensor(state[weights[0]]) or state[weights[0]].ndim != 3:
+        raise CheckpointError(f"{path}: expected one Conv1d weight 'pool.0.conv.weight' [D_out, D, w] in state_dict, "
+                              f"found keys {sorted(state)[:8]}")
+    bias = state.get(weights[0][: -len("weight")] + "bias")
+    if bias is None:
+        raise CheckpointError(f"{path}: state_dict has {weights[0]} but no matching conv bias")
+    return state[weights[0]], bias
+
+
+def _from_original(payload: dict[str, Any], path: Path, seq_len: int | None) -> SeqNet:
+    weight, bias = _original_weights(payload, path)
+    out_dims, in_dims, w = (int(x) for x in weight.shape)
+    flags_path = find_flags(path)
+    flags: dict[str, Any] = {}
+    if flags_path is not None:
+        try:
+            flags = json.loads(flags_path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise CheckpointError(f"{flags_path}: not valid JSON ({e})") from None
+        for key, actual in (("w", w), ("outDims", out_dims)):
+            if flags.get(key) is not None and int(flags[key]) != actual:
+                raise CheckpointError(f"{flags_path}: {key}={flags[key]} does not match the weights "
+                                      f"{tuple(weight.shape)} in {path}")
+    stored = 1 if str(flags.get("pooling", "")).lower() == "s1+seqmatch" else flags.get("seqL")
+    if seq_len is None and stored is None:
+        raise CheckpointError(f"{path}: original SeqNet checkpoint (D={in_dims} → {out_dims}, w={w}) without "
+                              "flags.json giving seqL; pass the sequence length (seqnet eval --seq-len L, or "
+                              "load_model(path, seq_len=L))")
+    cfg = {"in_dims": in_dims, "out_dims": out_dims, "seq_len": int(stored if stored is not None else seq_len), "w": w}
+    logger.info("loaded original SeqNet checkpoint %s (epoch %s): %s", path, payload.get("epoch"), cfg)
+    return _build(cfg, {"conv.weight": weight, "conv.bias": bias}, path)
+
+
+def read_resume(
+    src: Path, overrides: Mapping[str, Any] | None, overridable: tuple[str, ...]
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The configuration and checkpoint of a run to resume (``src``: run directory or its ``last.pt``).
+
+    ``overrides`` may only change the keys in ``overridable``; others must equal the run's.
+    """
+    payload = read_checkpoint(src / "last.pt" if src.is_dir() else src)
+    if "train_state" not in payload or "config" not in payload:
+        raise CheckpointError(f"{src} holds no training state to resume (pass a run directory or its last.pt)")
+    cfg = dict(payload["config"])
+    for key, value in (overrides or {}).items():
+        if value is None or value == cfg.get(key):
+            continue
+        if key not in overridable:
+            raise ConfigError(f"cannot change {key!r} when resuming (the run has {cfg.get(key)!r}, got {value!r}); "
+                              f"only {', '.join(overridable)} may change")
+        cfg[key] = value
+    return cfg, payload
+
+
+def capture_rng(generator: torch.Generator) -> dict[str, Any]:
+    """Every random state a training run depends on (python, numpy, torch, CUDA, its generator)."""
+    kind, keys, pos, has_gauss, gauss = np.random.get_state()
+    return {"python": random.getstate(), "generator": generator.get_state(), "torch": torch.get_rng_state(),
+            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+            "numpy": {"kind": kind, "keys": torch.from_numpy(np.asarray(keys, dtype=np.int64)), "pos": int(pos),
+                      "has_gauss": int(has_gauss), "gauss": float(gauss)}}
+
+
+def restore_rng(state: dict[str, Any], generator: torch.Generator) -> None:
+    """Restore what :func:`capture_rng` captured."""
+    py = state["python"]
+    random.setstate((py[0], tuple(py[1]), py[2]))
+    generator.set_state(state["generator"])
+    torch.set_rng_state(state["torch"])
+    if state.get("cuda") and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["gauss"]))

@@ -1,0 +1,218 @@
+"""Triplet mining for SeqNet training (NetVLAD style), vectorised over a batch of queries.
+
+For each training query (a window of the query traverse):
+
+* **positive**: among the reference windows within ``pos_radius`` (position distance), the
+  closest in descriptor space (descriptors cached by the current model);
+* **negatives**: ``n_sample`` reference windows drawn at random among those farther than
+  ``neg_radius``, plus the query's hard negatives of the previous round (NetVLAD's negative
+  cache); the ``n_neg`` closest of them in descriptor space are kept, and only those that violate
+  the margin (``d_neg < d_pos + margin``) make triplets. A query without any is skipped.
+
+Everything is one ``[B, R]`` distance matrix and masks: no loop per query or per negative.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from .errors import ConfigError, DatasetError
+from .matching import pairwise_distances, topk_smallest
+from .sequence_descriptors import SeqNet, describe_windows
+from .traverse import Dataset, Traverse
+from .utils import as_tensor, logger
+from .windows import window_starts
+
+
+@dataclasses.dataclass
+class Mined:
+    """Triplets mined for a batch of B queries (indices are reference items, -1 = none).
+
+    Attributes:
+        positive: ``[B]`` chosen positive; ``d_pos``: ``[B]`` its cached-descriptor distance.
+        negatives: ``[B, K]`` hardest negatives, closest first; ``valid``: ``[B, K]`` bool.
+        d_neg: ``[B, K]`` cached-descriptor distances of ``negatives`` (inf where none).
+    """
+
+    positive: torch.Tensor
+    d_pos: torch.Tensor
+    negatives: torch.Tensor
+    valid: torch.Tensor
+    d_neg: torch.Tensor
+
+    @property
+    def has_triplet(self) -> torch.Tensor:
+        """``[B]`` bool: the query has a positive and at least one valid negative."""
+        return (self.positive >= 0) & self.valid.any(dim=1)
+
+
+def check_radii(pos_radius: float, neg_radius: float) -> tuple[float, float]:
+    """Validate the positive and negative radii (``0 < pos_radius <= neg_radius``)."""
+    p, n = float(pos_radius), float(neg_radius)
+    if not (np.isfinite(p) and p > 0 and np.isfinite(n) and n >= p):
+        raise ConfigError(
+            f"need 0 < pos_radius <= neg_radius, got pos_radius={pos_radius}, neg_radius={neg_radius} "
+            "(hint: --pos-radius / --neg-radius, in the dataset's position unit)"
+        )
+    return p, n
+
+
+def queries_with_pairs(q_pos: np.ndarray, r_pos: np.ndarray, pos_radius: float, neg_radius: float) -> np.ndarray:
+    """``[M]`` bool: whether query position ``q_pos [M, P]`` has at least one reference position
+    ``r_pos [R, P]`` within ``pos_radius`` and at least one farther than ``neg_radius``."""
+    tree = cKDTree(np.asarray(r_pos, dtype=np.float64))
+    q = np.asarray(q_pos, dtype=np.float64)
+    n_pos = tree.query_ball_point(q, pos_radius, return_length=True)
+    n_near = tree.query_ball_point(q, neg_radius, return_length=True)
+    return (np.asarray(n_pos) > 0) & (np.asarray(n_near) < len(r_pos))
+
+
+def radius_masks(
+    q_pos: torch.Tensor, r_pos: torch.Tensor, pos_radius: float, neg_radius: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Positive (``dist <= pos_radius``) and negative (``dist > neg_radius``) masks ``[B, R]``.
+
+    ``q_pos [B, P]`` and ``r_pos [R, P]`` should be float64 (UTM coordinates lose metres in float32).
+    """
+    origin = r_pos[:1]
+    dist = torch.cdist(q_pos - origin, r_pos - origin, compute_mode="donot_use_mm_for_euclid_dist")
+    return dist <= pos_radius, dist > neg_radius
+
+
+def closest_positive(dist: torch.Tensor, pos_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Closest positive of each row of ``dist [B, R]`` among ``pos_mask [B, R]``: ``(idx [B], d [B])``,
+    ``idx = -1`` and ``d = inf`` where a row has no positive."""
+    d, idx = dist.masked_fill(~pos_mask, float("inf")).min(dim=1)
+    return torch.where(torch.isfinite(d), idx, torch.full_like(idx, -1)), d
+
+
+def sample_negatives(neg_mask: torch.Tensor, n_sample: int, generator: torch.Generator) -> torch.Tensor:
+    """``[B, R]`` bool: up to ``n_sample`` distinct negatives per row drawn uniformly from ``neg_mask``.
+
+    The random keys come from ``generator`` (a CPU generator, so runs are reproducible anywhere).
+    """
+    b, r = neg_mask.shape
+    if n_sample >= r:
+        return neg_mask.clone()
+    keys = torch.rand((b, r), generator=generator).to(neg_mask.device).masked_fill_(~neg_mask, 2.0)
+    kth = torch.topk(keys, n_sample, dim=1, largest=False).values[:, -1:]
+    return neg_mask & (keys <= kth)
+
+
+def hardest_negatives(
+    dist: torch.Tensor, candidates: torch.Tensor, d_pos: torch.Tensor, n_neg: int, margin: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The ``n_neg`` candidates closest in descriptor space, kept where they violate the margin.
+
+    Args:
+        dist: ``[B, R]`` descriptor distances; candidates: ``[B, R]`` bool; d_pos: ``[B]``.
+
+    Returns:
+        ``(idx [B, K], valid [B, K], d [B, K])``, closest first; ``idx = -1`` where not valid.
+    """
+    d, idx = topk_smallest(dist.masked_fill(~candidates, float("inf")), n_neg)
+    valid = torch.isfinite(d) & (d < d_pos[:, None] + margin)
+    return torch.where(valid, idx, torch.full_like(idx, -1)), valid, d
+
+
+def mine_batch(
+    q_feat: torch.Tensor,
+    r_feat: torch.Tensor,
+    pos_mask: torch.Tensor,
+    neg_mask: torch.Tensor,
+    n_neg: int,
+    n_sample: int,
+    margin: float,
+    generator: torch.Generator,
+    neg_cache: torch.Tensor | None = None,
+) -> Mined:
+    """Mine one positive and up to ``n_neg`` hard negatives per query.
+
+    Args:
+        q_feat: ``[B, D']`` cached descriptors of the batch queries.
+        r_feat: ``[R, D']`` cached descriptors of all training reference windows.
+        pos_mask, neg_mask: ``[B, R]`` from :func:`radius_masks`.
+        n_neg: negatives per query K; n_sample: random negatives drawn per query.
+        margin: triplet margin (a negative is kept only if ``d_neg < d_pos + margin``).
+        generator: CPU generator for the sampling.
+        neg_cache: optional ``[B, C]`` previous hard negatives per query (-1 = none), added to the sample.
+    """
+    dist = pairwise_distances(q_feat, r_feat)
+    pos, d_pos = closest_positive(dist, pos_mask)
+    cand = sample_negatives(neg_mask, n_sample, generator)
+    if neg_cache is not None and neg_cache.numel():
+        rows = torch.arange(cand.shape[0], device=cand.device)[:, None].expand_as(neg_cache)
+        ok = neg_cache >= 0
+        cand[rows[ok], neg_cache[ok]] = True
+        cand &= neg_mask
+    neg, valid, d_neg = hardest_negatives(dist, cand, d_pos, n_neg, margin)
+    valid &= (pos >= 0)[:, None]
+    neg = torch.where(valid, neg, torch.full_like(neg, -1))
+    return Mined(pos, d_pos, neg, valid, d_neg)
+
+
+@dataclasses.dataclass
+class TripletSource:
+    """Training windows on the compute device.
+
+    ``q_desc [Nq, D]`` / ``r_desc [Nr, D]`` frame descriptors; ``q_idx [M, L]`` frames of the M
+    training queries (those with a positive and a negative); ``r_idx [R, L]`` frames of every
+    reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` float64 positions of the windows' frames.
+    """
+
+    q_desc: torch.Tensor
+    r_desc: torch.Tensor
+    q_idx: torch.Tensor
+    r_idx: torch.Tensor
+    q_pos: torch.Tensor
+    r_pos: torch.Tensor
+
+    @property
+    def n_queries(self) -> int:
+        return int(self.q_idx.shape[0])
+
+
+def _full_windows(t: Traverse, seq_len: int, mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """Frames with a full window inside their sequence ``[M]`` and the windows' frames ``[M, L]``."""
+    starts, valid = window_starts(len(t), seq_len, mode, t.seq_bounds)
+    items = np.flatnonzero(valid)
+    if items.size == 0:
+        raise DatasetError(f"train split: no {t.name} frame has a full window of seq_len={seq_len} inside its "
+                           "sequence (hint: a longer train range or a shorter --seq-len)")
+    return items, starts[items][:, None] + np.arange(seq_len)[None, :]
+
+
+def triplet_source(ds: Dataset, cfg: Mapping[str, Any], device: torch.device) -> TripletSource:
+    """Windows, positions and descriptors of the training split ``ds`` (already split).
+
+    ``cfg`` gives ``seq_len``, ``window``, ``pos_radius`` and ``neg_radius``. Raises
+    :class:`DatasetError` when no query has both a positive and a negative.
+    """
+    q_items, q_idx = _full_windows(ds.query, cfg["seq_len"], cfg["window"])
+    r_items, r_idx = _full_windows(ds.reference, cfg["seq_len"], cfg["window"])
+    q_pos, r_pos = ds.query.positions[q_items], ds.reference.positions[r_items]
+    keep = queries_with_pairs(q_pos, r_pos, cfg["pos_radius"], cfg["neg_radius"])
+    if not keep.any():
+        raise DatasetError(f"{ds.name}: none of {len(q_items)} training queries has a reference within pos_radius="
+                           f"{cfg['pos_radius']:g} and one beyond neg_radius={cfg['neg_radius']:g} {ds.position_unit} "
+                           "(hint: check the train ranges of reference and query, or --pos-radius / --neg-radius)")
+    logger.info("training on %d queries (%d without a positive or a negative left out), %d reference windows",
+                int(keep.sum()), int((~keep).sum()), len(r_items))
+    as_long = lambda a: torch.as_tensor(a, dtype=torch.long, device=device)  # noqa: E731
+    return TripletSource(as_tensor(ds.query.descriptors, device), as_tensor(ds.reference.descriptors, device),
+                         as_long(q_idx[keep]), as_long(r_idx), torch.as_tensor(q_pos[keep], device=device),
+                         torch.as_tensor(r_pos, device=device))
+
+
+def compute_cache(model: SeqNet, src: TripletSource, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Current-model descriptors of the queries ``rows`` ``[S, D']`` and of all reference windows ``[R, D']``."""
+    dev = src.q_desc.device
+    q = describe_windows(src.q_desc, src.q_idx[rows].cpu().numpy(), model, device=dev)
+    r = describe_windows(src.r_desc, src.r_idx.cpu().numpy(), model, device=dev, progress="mining cache")
+    return q.to(dev), r.to(dev)
