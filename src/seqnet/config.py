@@ -7,7 +7,8 @@ the result beside its outputs (``config.json`` or the ``"config"`` key of a resu
 from __future__ import annotations
 
 import copy
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from .errors import ConfigError
 

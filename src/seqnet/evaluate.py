@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import torch
@@ -23,7 +24,7 @@ from .sequence_descriptors import SeqNet, delta, describe_windows, smoothing
 from .sequence_matching import rerank_seqmatch, seqmatch_topk
 from .traverse import Dataset
 from .utils import as_tensor, get_device, l2_normalize, logger
-from .windows import check_seq_len, window_indices, window_starts
+from .windows import check_seq_len, window_indices, window_offset, window_starts
 
 
 @dataclasses.dataclass
@@ -73,8 +74,8 @@ class _Features:
             return fq[self.q_items], fr[self.r_items]
         if name == "s1":
             model = self.models["s1"]
-            return tuple(describe_windows(t.descriptors, np.arange(len(t))[:, None], model, device=self.device, progress="S_1")
-                         for t in (q, r))  # type: ignore[return-value]
+            return tuple(describe_windows(t.descriptors, np.arange(len(t))[:, None], model, device=self.device,
+                                          progress="S_1") for t in (q, r))  # type: ignore[return-value]
         if name == "delta_frames":
             return tuple(describe_windows(t.descriptors, window_indices(len(t), self.L, self.mode, t.seq_bounds), delta,
                                           device=self.device) for t in (q, r))  # type: ignore[return-value]
@@ -126,12 +127,22 @@ def resolve_eval_config(overrides: Mapping[str, Any] | None, ds: Dataset) -> dic
     cfg["extra_radii"] = [check_radius(r) for r in cfg["extra_radii"]]
     if not cfg["methods"]:
         raise ConfigError("no methods given; valid: see `seqnet eval --help`")
-    if int(cfg["top_k"]) < 1:
-        raise ConfigError(f"top_k must be >= 1, got {cfg['top_k']}")
+    if isinstance(cfg["top_k"], bool) or not isinstance(cfg["top_k"], (int, np.integer)) or cfg["top_k"] < 1:
+        raise ConfigError(f"top_k must be an integer >= 1, got {cfg['top_k']!r}")
+    ks = cfg["ks"]
+    if not ks or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1 for k in ks):
+        raise ConfigError(f"ks must be a non-empty list of integers >= 1, got {ks!r}")
+    cfg["ks"] = [int(k) for k in ks]
+    window_offset(cfg["seq_len"], cfg["window"])  # validates the window mode
+    if cfg["backend"] not in ("torch", "faiss"):
+        raise ConfigError(f"k-NN backend {cfg['backend']!r} is not one of ('torch', 'faiss')")
+    get_device(cfg["device"])  # validates the device
     return cfg
 
 
-def evaluate(ds: Dataset, config: Mapping[str, Any] | None = None, models: Mapping[str, SeqNet] | None = None) -> Evaluation:
+def evaluate(
+    ds: Dataset, config: Mapping[str, Any] | None = None, models: Mapping[str, SeqNet] | None = None
+) -> Evaluation:
     """Evaluate methods on ``ds`` (already restricted to the split to evaluate).
 
     Args:
@@ -145,10 +156,18 @@ def evaluate(ds: Dataset, config: Mapping[str, Any] | None = None, models: Mappi
     models = dict(models or {})
     cfg = resolve_eval_config(config, ds)
     methods = [parse_method(n, set(models), cfg["shortlist"], cfg["rerank"]) for n in cfg["methods"]]
+    uses_delta = [m.name for m in methods if "delta" in (m.shortlist, m.rerank)]
+    if uses_delta and cfg["seq_len"] < 2:
+        raise ConfigError(f"method(s) {', '.join(uses_delta)} use Delta descriptors, which need seq_len >= 2 "
+                          f"(got {cfg['seq_len']}); use a longer --seq-len or other methods")
     for role, model in models.items():
         if model.in_dims != ds.query.dim:
-            raise ConfigError(f"the {role} model expects D={model.in_dims} descriptors but the dataset has D={ds.query.dim}")
-    check_seq_len(cfg["seq_len"], min(len(ds.query), len(ds.reference)), "seq_len")
+            raise ConfigError(f"the {role} model expects D={model.in_dims} descriptors "
+                              f"but the dataset has D={ds.query.dim}")
+    for side, t in (("query", ds.query), ("reference", ds.reference)):
+        if cfg["seq_len"] > len(t):
+            raise ConfigError(f"seq_len={cfg['seq_len']} is longer than the {side} traverse of dataset "
+                              f"{ds.name!r} ({len(t)} frames); use a shorter --seq-len")
     dev = get_device(cfg["device"])
     for model in models.values():
         model.to(dev).eval()
@@ -165,7 +184,8 @@ def evaluate(ds: Dataset, config: Mapping[str, Any] | None = None, models: Mappi
         rec = recall_at_k(ranked, q_pos, r_pos, cfg["radius"], cfg["ks"])
         entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
         entry.update(queries=rec["queries"], no_positive=rec["no_positive"],
-                     no_full_window=int(len(ds.query) - len(f.q_items)), timing_ms={k: round(v, 3) for k, v in timing.items()})
+                     no_full_window=int(len(ds.query) - len(f.q_items)),
+                     timing_ms={k: round(v, 3) for k, v in timing.items()})
         if cfg["extra_radii"]:
             entry["radii"] = {str(r): {k: v for k, v in recall_at_k(ranked, q_pos, r_pos, r, cfg["ks"]).items()}
                               for r in cfg["extra_radii"]}

@@ -67,6 +67,7 @@ def parse_method(name: str, have_models: set[str], shortlist: str | None = None,
         raise ConfigError(f"unknown method {name!r}; valid: {', '.join(valid_methods())}")
     missing = m.models() - have_models
     if missing:
-        hints = {"seqnet": "an S_L model (--model or --shortlist-model CKPT)", "s1": "an S_1 model (--model or --rerank-model CKPT)"}
+        hints = {"seqnet": "an S_L model (--model or --shortlist-model CKPT)",
+                 "s1": "an S_1 model (--model or --rerank-model CKPT)"}
         raise ConfigError(f"method {name!r} needs " + " and ".join(hints[x] for x in sorted(missing)))
     return m

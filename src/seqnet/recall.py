@@ -7,7 +7,7 @@ any reference inside the radius are excluded from the denominator and counted.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -30,10 +30,11 @@ def check_radius(radius: float) -> float:
 
 def has_positive(q_pos: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndarray:
     """``[M]`` bool: whether any reference position ``r_pos [R, P]`` lies within ``radius``."""
-    if len(r_pos) == 0:
+    if len(r_pos) == 0 or len(q_pos) == 0:
         return np.zeros(len(q_pos), dtype=bool)
-    dist, _ = cKDTree(r_pos).query(q_pos, k=1)
-    return np.asarray(dist) <= radius
+    _, nearest = cKDTree(r_pos).query(q_pos, k=1)
+    # the same distance formula as :func:`hits`, so "has a positive" and "is a hit" agree exactly
+    return np.linalg.norm(r_pos[nearest] - q_pos, axis=-1) <= radius
 
 
 def hits(retrieved: np.ndarray, q_pos: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndarray:
@@ -63,22 +64,45 @@ def recall_at_k(
         Recall is ``nan`` when no query has a positive.
     """
     radius = check_radius(radius)
-    if any(int(k) < 1 for k in ks):
-        raise ConfigError(f"every K must be >= 1, got {list(ks)}")
-    retrieved = np.asarray(retrieved, dtype=np.int64).reshape(len(q_pos), -1)
+    ks = list(ks)
+    if not ks or any(int(k) < 1 for k in ks):
+        raise ConfigError(f"every K must be >= 1 (and at least one K given), got {ks}")
+    q_pos, r_pos = _positions(q_pos, "query"), _positions(r_pos, "reference")
+    if q_pos.shape[1] != r_pos.shape[1]:
+        raise ConfigError(f"query positions are {q_pos.shape[1]}-D but reference positions {r_pos.shape[1]}-D")
+    retrieved = np.asarray(retrieved)
+    if retrieved.ndim == 1:
+        retrieved = retrieved[:, None]
+    if retrieved.ndim != 2 or retrieved.shape[0] != len(q_pos):
+        raise ConfigError(f"retrieved must be [{len(q_pos)}, K] (one row per query), got shape {retrieved.shape}")
+    retrieved = retrieved.astype(np.int64, copy=False)
+    if retrieved.size and (retrieved.min() < -1 or retrieved.max() >= len(r_pos)):
+        raise ConfigError(f"retrieved indices must lie in 0..{len(r_pos) - 1} (or -1 for none)")
     pos = has_positive(q_pos, r_pos, radius)
-    cum = np.logical_or.accumulate(hits(retrieved, q_pos, r_pos, radius), axis=1) if retrieved.shape[1] else None
-    out: dict[str, float | int] = {}
     n = int(pos.sum())
+    cum = None
+    if n and retrieved.shape[1]:
+        cum = np.logical_or.accumulate(hits(retrieved, q_pos, r_pos, radius), axis=1)
+    out: dict[str, float | int] = {}
     for k in ks:
-        if cum is None or n == 0:
+        if n == 0:
             out[f"recall@{k}"] = float("nan")
-            continue
-        col = min(int(k), cum.shape[1]) - 1
-        out[f"recall@{k}"] = float(cum[pos, col].mean())
+        elif cum is None:  # nothing retrieved: no query is localised
+            out[f"recall@{k}"] = 0.0
+        else:
+            out[f"recall@{k}"] = float(cum[pos, min(int(k), cum.shape[1]) - 1].mean())
     out["queries"] = n
     out["no_positive"] = int(len(pos) - n)
     return out
+
+
+def _positions(p: np.ndarray, side: str) -> np.ndarray:
+    p = np.asarray(p, dtype=np.float64)
+    if p.ndim == 1:
+        p = p[:, None]
+    if p.ndim != 2:
+        raise ConfigError(f"{side} positions must be [N, P], got shape {p.shape}")
+    return p
 
 
 def recall_curve(

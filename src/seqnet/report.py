@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -31,8 +32,12 @@ def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int]) ->
 def format_table(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 10, 20, 100)) -> str:
     """A fixed-width text table of results (one row per method)."""
     header, rows = results_rows(methods, ks)
-    widths = [max(len(x) for x in col) for col in zip(header, *rows)]
-    line = lambda cells: "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))  # noqa: E731
+    widths = [max(len(x) for x in col) for col in zip(header, *rows, strict=True)]
+
+    def line(cells: Sequence[str]) -> str:
+        pairs = enumerate(zip(cells, widths, strict=True))
+        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in pairs)
+
     return "\n".join([line(header), line(["-" * w for w in widths]), *(line(r) for r in rows)])
 
 
@@ -41,8 +46,9 @@ def format_markdown(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] 
     header, rows = results_rows(methods, ks)
     stages = sorted({s for r in methods.values() for s in r.get("timing_ms", {}) if s != "total"})
     header = [*header, *(f"{s} ms" for s in stages)]
-    for row, r in zip(rows, methods.values()):
-        row.extend(f"{r.get('timing_ms', {}).get(s, float('nan')):.1f}" if s in r.get("timing_ms", {}) else "–" for s in stages)
+    for row, r in zip(rows, methods.values(), strict=True):
+        timing = r.get("timing_ms", {})
+        row.extend(f"{timing[s]:.1f}" if s in timing else "–" for s in stages)
     out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     out += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(out) + "\n"

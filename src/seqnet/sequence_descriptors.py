@@ -12,7 +12,7 @@ Each turns a window of L single-image descriptors ``[M, L, D]`` into one L2-norm
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -91,6 +91,9 @@ def describe_windows(
         ``[M, D']`` float32 tensor on CPU.
     """
     d = as_tensor(desc)
+    idx = np.asarray(idx)
+    if idx.ndim != 2:
+        raise ConfigError(f"window indices must be [M, L], got shape {idx.shape}")
     out = []
     starts = range(0, len(idx), batch_size)
     for s in tqdm(starts, desc=progress, disable=progress is None or len(starts) < 2, leave=False):
@@ -100,8 +103,10 @@ def describe_windows(
         local = np.searchsorted(rows, block)
         with torch.no_grad():
             out.append(fn(gather_windows(sub, local)).float().cpu())
-    if not out:
-        return torch.zeros((0, d.shape[1]), dtype=torch.float32)
+    if not out:  # no windows: still run fn (on an empty batch) for its output width and checks
+        empty = d.new_zeros((0, idx.shape[1], d.shape[1]))
+        with torch.no_grad():
+            return fn(empty.to(device) if device is not None else empty).float().cpu()
     return torch.cat(out)
 
 

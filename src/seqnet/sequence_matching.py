@@ -14,18 +14,19 @@ then re-rank the shortlist by SeqMatch on single descriptors.
 
 from __future__ import annotations
 
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
 from .errors import ConfigError
-from .matching import _check_pair, _rows_per_block, _tensor, knn, pairwise_distances, topk_smallest
+from .matching import _check_pair, _rows_per_block, _tensor, finish_distances, knn, sq_norms, topk_smallest
 from .utils import ArrayLike, get_device, to_numpy
 from .windows import check_seq_len
 
 
+@torch.no_grad()
 def seqmatch(
     query: ArrayLike,
     ref: ArrayLike,
@@ -56,12 +57,14 @@ def seqmatch(
     r = _check_pair(q, r)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
     if candidates is None:
-        out = torch.cat([m for _, m in _full_blocks(q, r, seq_len, reverse, block_bytes)])
+        out = _full_map(q, r, seq_len, reverse, block_bytes)
     else:
-        cand = torch.as_tensor(to_numpy(candidates) if not isinstance(candidates, torch.Tensor) else candidates)
+        cand = candidates if isinstance(candidates, torch.Tensor) else torch.as_tensor(np.asarray(candidates))
         na = q.shape[0] - seq_len + 1
         if cand.ndim != 2 or cand.shape[0] != na:
             raise ConfigError(f"candidates must be [{na}, K] (one row per query window), got {tuple(cand.shape)}")
+        if cand.is_floating_point() and cand.numel() and not bool((cand == cand.round()).all()):
+            raise ConfigError("candidates must be integer window starts (or -1 for none)")
         starts = torch.arange(na, device=dev)
         out = window_scores(q, r, seq_len, starts, cand.to(dev), reverse, block_bytes)
     if isinstance(query, torch.Tensor):
@@ -69,25 +72,84 @@ def seqmatch(
     return to_numpy(out)
 
 
+# Rows of the distance matrix finalised (norm trick, sqrt) and summed at a time on CPU: small
+# enough to stay in cache, so the distance block is read back from memory only once.
+_CACHE_BYTES = 1 << 20
+_MAX_CHUNKS = 1 << 30
+
+
+def _chunk_rows(q: torch.Tensor, r: torch.Tensor, n: int) -> int:
+    """Rows per chunk for the element-wise passes over a block of ``n`` rows."""
+    if q.device.type != "cpu":
+        return max(1, n)
+    by_cache = _CACHE_BYTES // max(1, r.shape[0] * q.element_size())
+    return max(8, by_cache, -(-n // _MAX_CHUNKS))
+
+
 def _block_rows(q: torch.Tensor, r: torch.Tensor, seq_len: int, block_bytes: int | None) -> int:
     """Query windows per block: the distance block and the score block fit the budget."""
-    return max(seq_len, _rows_per_block(2 * r.shape[0] * q.element_size(), block_bytes))
+    return max(1, _rows_per_block(2 * r.shape[0] * q.element_size(), block_bytes))
+
+
+def _full_map(q: torch.Tensor, r: torch.Tensor, seq_len: int, reverse: bool, block_bytes: int | None) -> torch.Tensor:
+    """The whole ``[Nq−L+1, Nr−L+1]`` SeqMatch map (one block: computed inside the GEMM's buffer)."""
+    na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
+    if na <= _block_rows(q, r, seq_len, block_bytes):
+        return next(_full_blocks(q, r, seq_len, reverse, block_bytes))[1]
+    out = torch.empty((na, nb), dtype=q.dtype, device=q.device)
+    for _ in _full_blocks(q, r, seq_len, reverse, block_bytes, out=out):
+        pass
+    return out
 
 
 def _full_blocks(
-    q: torch.Tensor, r: torch.Tensor, seq_len: int, reverse: bool, block_bytes: int | None
+    q: torch.Tensor,
+    r: torch.Tensor,
+    seq_len: int,
+    reverse: bool,
+    block_bytes: int | None,
+    out: torch.Tensor | None = None,
 ) -> Iterator[tuple[int, torch.Tensor]]:
-    """Yield ``(first_window, M[block, Nr−L+1])`` over blocks of query windows."""
+    """Yield ``(first_window, M[block, Nr−L+1])`` over blocks of query windows.
+
+    Per block: one GEMM ``q[a0 : a1+L−1] @ r.T`` (the only pass over D); then, one cache-sized
+    chunk of rows at a time, the norm trick + sqrt in place and the L shifted sums. The scores go
+    to ``out[a0:a1]`` when ``out`` is given, else they are packed row by row into the front of the
+    GEMM's own buffer (row ``a`` of the scores only overwrites distance rows ``<= a``, which no
+    later chunk reads), so a block needs no second ``[rows, Nr]`` buffer.
+    """
     na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
     rows = _block_rows(q, r, seq_len, block_bytes)
+    r_sq, q_sq = sq_norms(r), sq_norms(q)
+    chunk = _chunk_rows(q, r, min(rows, na))
+    cols = [(seq_len - 1 - t) if reverse else t for t in range(seq_len)]  # reference shift of frame t
     for a0 in range(0, na, rows):
         a1 = min(na, a0 + rows)
-        dist = pairwise_distances(q[a0 : a1 + seq_len - 1], r)
-        m = dist[: a1 - a0, (seq_len - 1 if reverse else 0) :][:, :nb].clone()
-        for t in range(1, seq_len):
-            c = seq_len - 1 - t if reverse else t
-            m.add_(dist[t : t + a1 - a0, c : c + nb])
-        yield a0, m
+        n = a1 - a0
+        dist = torch.mm(q[a0 : a1 + seq_len - 1], r.T)  # [n + L - 1, Nr] inner products
+        if out is not None:
+            dest = out[a0:a1]
+        elif chunk >= n:  # one chunk: sum straight into a new buffer
+            dest = torch.empty((n, nb), dtype=q.dtype, device=q.device)
+        else:  # sum each chunk into a small buffer, then pack it into the front of ``dist``
+            dest, tmp = None, torch.empty((chunk, nb), dtype=q.dtype, device=q.device)
+        packed = dist.view(-1)
+        done = 0  # rows of ``dist`` already turned into distances
+        for s in range(0, n, chunk):
+            e = min(n, s + chunk)
+            if e + seq_len - 1 > done:
+                finish_distances(dist[done : e + seq_len - 1], q_sq[a0 + done : a0 + e + seq_len - 1], r_sq)
+                done = e + seq_len - 1
+            ms = dest[s:e] if dest is not None else tmp[: e - s]
+            if seq_len == 1:
+                ms.copy_(dist[s:e, :nb])
+            else:
+                torch.add(dist[s:e, cols[0] : cols[0] + nb], dist[s + 1 : e + 1, cols[1] : cols[1] + nb], out=ms)
+                for t in range(2, seq_len):
+                    ms.add_(dist[s + t : e + t, cols[t] : cols[t] + nb])
+            if dest is None:
+                packed[s * nb : e * nb].view(e - s, nb).copy_(ms)
+        yield a0, (dest if dest is not None else packed[: n * nb].view(n, nb))
 
 
 def window_scores(
@@ -105,6 +167,12 @@ def window_scores(
     """
     nb = r.shape[0] - seq_len + 1
     cand = cand.long()
+    q_starts = q_starts.long()
+    if cand.ndim != 2 or q_starts.ndim != 1 or cand.shape[0] != q_starts.shape[0]:
+        raise ConfigError(
+            f"window pairs need query starts [M] and candidates [M, K], got {tuple(q_starts.shape)} "
+            f"and {tuple(cand.shape)}"
+        )
     if cand.numel() and (cand.min() < -1 or cand.max() >= nb):
         raise ConfigError(f"candidate window starts must lie in 0..{nb - 1} (or -1 for none)")
     if q_starts.numel() and (q_starts.min() < 0 or q_starts.max() > q.shape[0] - seq_len):
@@ -123,6 +191,7 @@ def window_scores(
     return out.masked_fill_(missing, float("inf"))
 
 
+@torch.no_grad()
 def seqmatch_topk(
     query: ArrayLike,
     ref: ArrayLike,
@@ -144,24 +213,39 @@ def seqmatch_topk(
     q, r = _tensor(query, dev, "query"), _tensor(ref, dev, "reference")
     r = _check_pair(q, r)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
-    q_starts, r_cols = np.asarray(q_starts, np.int64), torch.as_tensor(np.asarray(r_starts, np.int64), device=dev)
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise ConfigError(f"k must be an integer >= 1, got {k!r}")
+    na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
+    q_starts = _starts(q_starts, na, "query")
+    r_starts = _starts(r_starts, nb, "reference")
+    r_cols = torch.as_tensor(r_starts, device=dev)
     order = np.argsort(q_starts, kind="stable")
+    sorted_starts = q_starts[order]
     vals = torch.zeros((len(q_starts), min(k, len(r_starts))), dtype=q.dtype, device=dev)
     idx = torch.zeros(vals.shape, dtype=torch.long, device=dev)
-    na = q.shape[0] - seq_len + 1
-    rows = _block_rows(q, r, seq_len, block_bytes)
+    n_blocks = -(-na // _block_rows(q, r, seq_len, block_bytes))
     blocks = _full_blocks(q, r, seq_len, reverse, block_bytes)
-    n_blocks = -(-na // rows)
     for a0, m in tqdm(blocks, total=n_blocks, desc=progress, disable=progress is None or n_blocks < 2, leave=False):
-        lo, hi = np.searchsorted(q_starts[order], [a0, a0 + m.shape[0]])
+        lo, hi = np.searchsorted(sorted_starts, [a0, a0 + m.shape[0]])
         sel = order[lo:hi]
         if sel.size == 0:
             continue
-        rows = torch.as_tensor(q_starts[sel] - a0, device=dev)
-        v, i = topk_smallest(m[rows][:, r_cols], k)
+        local = torch.as_tensor(q_starts[sel] - a0, device=dev)
+        v, i = topk_smallest(m[local][:, r_cols], k)
         sel_t = torch.as_tensor(sel, device=dev)
         vals[sel_t], idx[sel_t] = v, i
     return to_numpy(vals), to_numpy(idx)
+
+
+def _starts(starts: ArrayLike, n: int, side: str) -> np.ndarray:
+    """Validate window starts: a 1-D integer array with values in ``0..n-1``."""
+    a = np.asarray(to_numpy(starts) if isinstance(starts, torch.Tensor) else starts)
+    if a.ndim != 1 or (a.size and a.dtype.kind not in "iu"):
+        raise ConfigError(f"{side} window starts must be a 1-D integer array, got shape {a.shape}, dtype {a.dtype}")
+    a = a.astype(np.int64, copy=False)
+    if a.size and (a.min() < 0 or a.max() >= n):
+        raise ConfigError(f"{side} window starts must lie in 0..{n - 1}, got values in {a.min()}..{a.max()}")
+    return a
 
 
 def hvpr(
@@ -192,12 +276,13 @@ def hvpr(
     Returns:
         ``(items [M, K], scores [M, K])``: reference items ranked by SeqMatch score (ascending).
     """
-    if top_k < 1:
-        raise ConfigError(f"top_k must be >= 1, got {top_k}")
+    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 1:
+        raise ConfigError(f"top_k must be an integer >= 1, got {top_k!r}")
     _, cand = knn(shortlist_query, shortlist_ref, top_k, backend=backend, device=device)
     return rerank_seqmatch(rerank_query, rerank_ref, seq_len, q_starts, r_starts, cand, reverse, device)
 
 
+@torch.no_grad()
 def rerank_seqmatch(
     rerank_query: ArrayLike,
     rerank_ref: ArrayLike,
@@ -210,16 +295,28 @@ def rerank_seqmatch(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Re-rank candidate reference items ``[M, K]`` by SeqMatch (see :func:`hvpr`).
 
-    Returns ``(items [M, K], scores [M, K])`` sorted by ascending score (stable: ties keep the
-    shortlist order).
+    ``candidates`` holds indices into ``r_starts``; ``-1`` marks no candidate (scored ``inf``,
+    ranked last, returned as ``-1``). Returns ``(items [M, K], scores [M, K])`` sorted by
+    ascending score (stable: ties keep the shortlist order).
     """
     dev = get_device(device)
     q, r = _tensor(rerank_query, dev, "query"), _tensor(rerank_ref, dev, "reference")
     r = _check_pair(q, r)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
-    r_starts_t = torch.as_tensor(np.asarray(r_starts, np.int64), device=dev)
-    cand_t = torch.as_tensor(np.asarray(candidates, np.int64), device=dev)
-    q_starts_t = torch.as_tensor(np.asarray(q_starts, np.int64), device=dev)
-    scores = window_scores(q, r, seq_len, q_starts_t, r_starts_t[cand_t], reverse)
+    na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
+    q_starts_np = _starts(q_starts, na, "query")
+    r_starts_t = torch.as_tensor(_starts(r_starts, nb, "reference"), device=dev)
+    cand = np.asarray(to_numpy(candidates) if isinstance(candidates, torch.Tensor) else candidates)
+    if cand.ndim != 2 or cand.shape[0] != len(q_starts_np) or (cand.size and cand.dtype.kind not in "iu"):
+        raise ConfigError(
+            f"candidates must be an integer [{len(q_starts_np)}, K] array (one row per query item), "
+            f"got shape {cand.shape}, dtype {cand.dtype}"
+        )
+    if cand.size and (cand.min() < -1 or cand.max() >= len(r_starts_t)):
+        raise ConfigError(f"candidates must be reference items in 0..{len(r_starts_t) - 1} (or -1 for none)")
+    cand_t = torch.as_tensor(cand.astype(np.int64, copy=False), device=dev)
+    q_starts_t = torch.as_tensor(q_starts_np, device=dev)
+    cand_starts = torch.where(cand_t >= 0, r_starts_t[cand_t.clamp_min(0)], -1) if len(r_starts_t) else cand_t
+    scores = window_scores(q, r, seq_len, q_starts_t, cand_starts, reverse)
     order = torch.sort(scores, dim=1, stable=True).indices
     return to_numpy(cand_t.gather(1, order)), to_numpy(scores.gather(1, order))

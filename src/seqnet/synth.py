@@ -47,7 +47,8 @@ def _traverse(
     rng: np.random.Generator, z: np.ndarray, xy: np.ndarray, noise: float, condition: np.ndarray, name: str
 ) -> tuple[Traverse, np.ndarray]:
     places = len(z)
-    speed = np.clip(1.0 + 0.25 * np.sin(np.arange(4 * places) / rng.uniform(15, 30)) + 0.1 * rng.standard_normal(4 * places), 0.6, 1.5)
+    wave = 0.25 * np.sin(np.arange(4 * places) / rng.uniform(15, 30))
+    speed = np.clip(1.0 + wave + 0.1 * rng.standard_normal(4 * places), 0.6, 1.5)
     route_pos = np.concatenate([[0.0], np.cumsum(speed)])
     route_pos = route_pos[route_pos <= places - 1]
     lo = np.floor(route_pos).astype(int)
@@ -61,7 +62,7 @@ def _traverse(
     cuts = np.sort(rng.choice(np.arange(n // 8, n - n // 8), size=3, replace=False))
     edges = np.concatenate([[0], cuts, [n]])
     bounds = np.zeros((n, 2), dtype=np.int64)
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
         bounds[a:b] = (a, b)
     names = [f"{name}_{i:06d}.png" for i in range(n)]
     return Traverse(desc.astype(np.float32), xy_f, names, bounds, name), route_pos

@@ -22,6 +22,7 @@ import dataclasses
 import json
 import shutil
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -56,11 +57,22 @@ class Traverse:
     name: str = "traverse"
 
     def __post_init__(self) -> None:
-        self.positions = np.asarray(self.positions, dtype=np.float64)
+        if not isinstance(self.descriptors, np.ndarray):
+            try:
+                self.descriptors = np.asarray(self.descriptors)
+            except (TypeError, ValueError) as e:
+                raise DatasetError(f"{self.name}: descriptors are not an [N, D] array ({e})") from None
+        try:
+            self.positions = np.asarray(self.positions, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise DatasetError(f"{self.name}: positions must be numbers ({e})") from None
         if self.positions.ndim == 1:
             self.positions = self.positions[:, None]
         if self.seq_bounds is not None:
-            self.seq_bounds = np.asarray(self.seq_bounds, dtype=np.int64)
+            b = np.asarray(self.seq_bounds)
+            if b.size and b.dtype.kind not in "iu":
+                raise DatasetError(f"{self.name}: seq_bounds must hold integers, got dtype {b.dtype}")
+            self.seq_bounds = b.astype(np.int64, copy=False)
         validate_traverse(self)
 
     def __len__(self) -> int:
@@ -71,7 +83,7 @@ class Traverse:
         """Descriptor dimension D."""
         return int(self.descriptors.shape[1])
 
-    def subset(self, start: int, stop: int) -> "Traverse":
+    def subset(self, start: int, stop: int) -> Traverse:
         """Frames ``[start, stop)`` as a new traverse; sequence bounds are clipped to the range."""
         n = len(self)
         if not (0 <= start < stop <= n):
@@ -90,7 +102,7 @@ class Traverse:
             name=self.name,
         )
 
-    def with_descriptors(self, descriptors: np.ndarray) -> "Traverse":
+    def with_descriptors(self, descriptors: np.ndarray) -> Traverse:
         """Same traverse (positions, names, bounds) with other descriptors ``[N, D']``."""
         return dataclasses.replace(self, descriptors=descriptors)
 
@@ -106,15 +118,17 @@ class Dataset:
     reference: Traverse
     query: Traverse
     radius: float
-    position_unit: str = "metres"
+    position_unit: str | None = None  # None: "frames" for [N, 1] positions, "metres" for [N, 2]
     splits: dict[str, dict[str, tuple[int, int]]] = dataclasses.field(default_factory=dict)
     name: str = "dataset"
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.position_unit is None:
+            self.position_unit = "frames" if self.reference.positions.shape[1] == 1 else "metres"
         validate_dataset(self)
 
-    def split(self, split: str | None) -> "Dataset":
+    def split(self, split: str | None) -> Dataset:
         """The dataset restricted to a named split (None or "all": the whole dataset)."""
         if split in (None, "all"):
             return self
@@ -211,7 +225,8 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
         raise DatasetError(f"dataset path is not a directory: {root}")
     meta_path = root / "dataset.json"
     if not meta_path.is_file():
-        raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing (hint: `seqnet synth DIR` writes an example)")
+        raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing "
+                           "(hint: `seqnet synth DIR` writes an example)")
     try:
         meta = json.loads(meta_path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -225,13 +240,16 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
     except (TypeError, ValueError):
         raise DatasetError(f"{meta_path}: radius must be a number, got {meta['radius']!r}") from None
     trav = meta.get("traverses", {"reference": "reference", "query": "query"})
+    if not isinstance(trav, dict) or not all(isinstance(v, str) for v in trav.values()):
+        raise DatasetError(f"{meta_path}: 'traverses' must be an object like "
+                           '{"reference": "ref", "query": "qry"}')
     ref = load_traverse(root / trav.get("reference", "reference"), "reference", mmap)
     qry = load_traverse(root / trav.get("query", "query"), "query", mmap)
     return Dataset(
         reference=ref,
         query=qry,
         radius=radius,
-        position_unit=meta.get("position_unit", "frames" if ref.positions.shape[1] == 1 else "metres"),
+        position_unit=meta.get("position_unit"),
         splits=_parse_splits(meta.get("splits", {}), meta_path),
         name=str(meta.get("name", root.name)),
         extra={k: v for k, v in meta.items() if k not in _META_KEYS},
@@ -268,7 +286,10 @@ def load_traverse(path: Path, name: str, mmap: bool = True) -> Traverse:
     pos = _load_positions(path)
     names = h5_names
     if (path / "names.txt").is_file():
-        names = (path / "names.txt").read_text(encoding="utf-8").splitlines()
+        try:
+            names = (path / "names.txt").read_text(encoding="utf-8").splitlines()
+        except UnicodeDecodeError as e:
+            raise DatasetError(f"{path / 'names.txt'}: not UTF-8 text ({e.reason} at byte {e.start})") from None
     bounds = None
     if (path / "seq_bounds.npy").is_file():
         bounds = _load_npy(path / "seq_bounds.npy", mmap=False)
@@ -289,10 +310,23 @@ def load_descriptors(path: Path, mmap: bool = True) -> tuple[np.ndarray, list[st
 
 
 def _load_npy(f: Path, mmap: bool) -> np.ndarray:
+    with open(f, "rb") as fh:
+        magic = fh.read(6)
+    if magic != b"\x93NUMPY":
+        what = "not in .npy format (no NumPy header)"
+        if not magic:
+            what = "empty"
+        elif magic.startswith(b"PK"):
+            what = "a .npz archive"
+        raise DatasetError(f"cannot read {f} as a .npy array: the file is {what}")
     try:
-        return np.load(f, mmap_mode="r" if mmap else None, allow_pickle=False)
+        arr = np.load(f, mmap_mode="r" if mmap else None, allow_pickle=False)
     except (ValueError, OSError, EOFError) as e:
-        raise DatasetError(f"cannot read {f} as a .npy array ({e})") from None
+        msg = "it holds Python objects (pickled data), not numbers" if "pickle" in str(e) else str(e)
+        raise DatasetError(f"cannot read {f} as a .npy array ({msg})") from None
+    if not isinstance(arr, np.ndarray):  # pragma: no cover - np.load only returns arrays after the magic check
+        raise DatasetError(f"cannot read {f} as a .npy array")
+    return arr
 
 
 def _load_h5(f: Path) -> tuple[np.ndarray, list[str] | None]:
@@ -300,11 +334,13 @@ def _load_h5(f: Path) -> tuple[np.ndarray, list[str] | None]:
 
     try:
         with h5py.File(f, "r") as h:
-            if "descriptors" not in h:
+            if not isinstance(h.get("descriptors"), h5py.Dataset):
                 raise DatasetError(f"{f}: HDF5 file has no dataset 'descriptors' (found: {list(h.keys())})")
             desc = np.asarray(h["descriptors"][()])
-            names = [n.decode() if isinstance(n, bytes) else str(n) for n in h["names"][()]] if "names" in h else None
-    except OSError as e:
+            names = None
+            if isinstance(h.get("names"), h5py.Dataset):
+                names = [n.decode() if isinstance(n, bytes) else str(n) for n in np.atleast_1d(h["names"][()])]
+    except (OSError, TypeError, ValueError, UnicodeDecodeError) as e:
         raise DatasetError(f"cannot read {f} as HDF5 ({e})") from None
     return desc, names
 
@@ -316,9 +352,13 @@ def _load_positions(path: Path) -> np.ndarray:
             if f.suffix == ".npy":
                 return _load_npy(f, mmap=False)
             try:
-                arr = np.loadtxt(f, delimiter="," if f.suffix == ".csv" else None, ndmin=2)
-            except ValueError as e:
-                raise DatasetError(f"cannot parse {f} as numbers ({e})") from None
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # an empty file is reported below, not warned about
+                    arr = np.loadtxt(f, delimiter="," if f.suffix == ".csv" else None, ndmin=2)
+            except (ValueError, UnicodeDecodeError) as e:
+                raise DatasetError(f"cannot parse {f} as numbers ({' '.join(str(e).split())})") from None
+            if arr.size == 0:
+                raise DatasetError(f"{f} holds no positions (the file is empty)")
             return arr
     raise DatasetError(f"no positions file in {path}; expected one of {', '.join(POSITION_FILES)}")
 
@@ -327,30 +367,48 @@ def _load_positions(path: Path) -> np.ndarray:
 
 
 def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path:
-    """Write ``ds`` in the directory format; built in a temp dir and renamed, so never half-written."""
+    """Write ``ds`` in the directory format; never leaves a half-written dataset behind.
+
+    Everything is written into a temporary sibling directory which is then renamed onto ``path``.
+    With ``overwrite``, an existing ``path`` is first renamed aside and deleted only after the new
+    directory is in place (restored if that rename fails).
+    """
     root = Path(path)
+    if root.exists() and not root.is_dir():
+        raise DatasetError(f"output path {root} exists and is not a directory")
     if root.exists() and any(root.iterdir()) and not overwrite:
         raise DatasetError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")
     root.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}."))
+    tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".tmp"))
+    old: Path | None = None
     try:
         for side, t in (("reference", ds.reference), ("query", ds.query)):
             save_traverse(t, tmp / side)
         meta = {
+            **{k: v for k, v in ds.extra.items() if k not in _META_KEYS},
             "format": FORMAT,
             "name": ds.name,
             "radius": ds.radius,
             "position_unit": ds.position_unit,
             "splits": {k: {s: list(v[s]) for s in ("reference", "query")} for k, v in ds.splits.items()},
-            **ds.extra,
         }
         write_json_atomic(tmp / "dataset.json", meta)
         if root.exists():
-            shutil.rmtree(root)
-        tmp.rename(root)
+            old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
+            old.rmdir()
+            root.rename(old)
+        try:
+            tmp.rename(root)
+        except OSError:
+            if old is not None:
+                old.rename(root)
+                old = None
+            raise
     finally:
         if tmp.exists():
-            shutil.rmtree(tmp)
+            shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and old.exists():
+            shutil.rmtree(old, ignore_errors=True)
     logger.info("wrote dataset %s (reference %d, query %d images)", root, len(ds.reference), len(ds.query))
     return root
 

@@ -7,22 +7,35 @@ import json
 import logging
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import torch
+
+from .errors import ConfigError
 
 logger = logging.getLogger("seqnet")
 
 ArrayLike = np.ndarray | torch.Tensor
 
 
-def get_device(device: str | None = None) -> torch.device:
+def get_device(device: str | torch.device | None = None) -> torch.device:
     """Return ``device`` or, when None/"auto", CUDA when available else CPU."""
     if device in (None, "auto"):
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
+    if isinstance(device, torch.device):
+        return device
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError, ValueError):
+        raise ConfigError(f"unknown device {device!r}; use auto, cpu, cuda or cuda:N") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {device!r} requested but CUDA is not available; use --device cpu or auto")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise ConfigError(f"device {device!r} does not exist ({torch.cuda.device_count()} CUDA device(s))")
+    return dev
 
 
 def as_tensor(x: ArrayLike, device: torch.device | str | None = None) -> torch.Tensor:

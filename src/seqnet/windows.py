@@ -40,6 +40,8 @@ def _bounds(n: int, seq_bounds: np.ndarray | None) -> tuple[np.ndarray, np.ndarr
     if seq_bounds is None:
         return np.zeros(n, dtype=np.int64), np.full(n, n, dtype=np.int64)
     b = np.asarray(seq_bounds, dtype=np.int64)
+    if b.shape != (n, 2):
+        raise ConfigError(f"seq_bounds must be [{n}, 2] (one [start, end) row per frame), got shape {b.shape}")
     return b[:, 0], b[:, 1]
 
 
@@ -58,6 +60,8 @@ def window_starts(
         ``(starts [N] int64, valid [N] bool)``; ``starts`` may be out of range where not valid.
     """
     check_seq_len(seq_len)
+    if n < 0:
+        raise ConfigError(f"number of frames must be >= 0, got {n}")
     starts = np.arange(n, dtype=np.int64) - window_offset(seq_len, mode)
     lo, hi = _bounds(n, seq_bounds)
     valid = (starts >= lo) & (starts + seq_len <= hi)

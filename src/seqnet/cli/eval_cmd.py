@@ -14,14 +14,16 @@ from .common import add_device, parse_list, positive_float, positive_int
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="evaluate place-recognition methods (Recall@K) on a dataset",
-                       description="Evaluate methods on a seqnet dataset directory. Methods: " + ", ".join(valid_methods()))
+                       description="Evaluate methods on a seqnet dataset directory. Methods: "
+                       + ", ".join(valid_methods()))
     p.add_argument("--dataset", required=True, help="seqnet dataset directory (see docs/dataset_format.md)")
     p.add_argument("--method", "--methods", dest="methods", action="append", metavar="M[,M...]",
                    help="methods to run (repeatable or comma-separated; default: all that need no model)")
     p.add_argument("--seq-len", type=positive_int, help="window length L (default 5)")
     p.add_argument("--window", choices=["centred", "causal"], help="window position (default centred)")
     p.add_argument("--radius", type=positive_float, help="localisation radius (default: the dataset's)")
-    p.add_argument("--extra-radius", type=positive_float, action="append", default=[], help="also report at this radius")
+    p.add_argument("--extra-radius", type=positive_float, action="append", default=[],
+                   help="also report at this radius")
     p.add_argument("--split", help="split to evaluate: train, val, test or all (default: test when defined, else all)")
     p.add_argument("--top-k", type=positive_int, help="HVPR shortlist size (default 20)")
     p.add_argument("--shortlist", help="HVPR shortlister for 'hvpr': single, s1, smoothing, delta, seqnet")
@@ -29,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="trained model checkpoint (S_L → 'seqnet', S_1 → 's1'); repeatable")
     p.add_argument("--shortlist-model", metavar="CKPT", help="S_L checkpoint used by 'seqnet' and HVPR shortlisting")
-    p.add_argument("--rerank-model", metavar="CKPT", help="S_1 checkpoint used by 's1', 's1+seqmatch' and HVPR re-ranking")
+    p.add_argument("--rerank-model", metavar="CKPT",
+                   help="S_1 checkpoint used by 's1', 's1+seqmatch' and HVPR re-ranking")
     p.add_argument("--backend", choices=["torch", "faiss"], help="k-NN backend (default torch)")
     p.add_argument("--json", metavar="FILE", help="write results (and resolved config) as JSON")
     add_device(p)
@@ -62,6 +65,10 @@ def run(args: argparse.Namespace) -> int:
     if methods is None:
         methods = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch", "hvpr"]
         methods += [m for m, role in (("s1", "s1"), ("seqnet", "seqnet"), ("s1+seqmatch", "s1")) if role in models]
+        if args.seq_len == 1:  # Delta descriptors need L >= 2: leave out the default methods that use them
+            shortlister = args.shortlist or ("seqnet" if "seqnet" in models else "delta")
+            hvpr_delta = "delta" in (shortlister, args.rerank)
+            methods = [m for m in methods if m not in ("delta", "delta+seqmatch") and not (m == "hvpr" and hvpr_delta)]
     config = {"methods": methods, "seq_len": args.seq_len, "window": args.window, "radius": args.radius,
               "extra_radii": args.extra_radius, "top_k": args.top_k, "shortlist": args.shortlist,
               "rerank": args.rerank, "backend": args.backend, "device": args.device, "split": split}

@@ -1,0 +1,185 @@
+"""The CLI: `seqnet synth` and `seqnet eval`, and every user error as one stderr line + exit code 2."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from seqnet.cli import main
+
+
+@pytest.fixture(scope="module")
+def small_dir(tmp_path_factory):
+    """A small synthetic dataset written by `seqnet synth` (module scope: written once)."""
+    root = tmp_path_factory.mktemp("cli") / "ds"
+    assert main(["-q", "synth", str(root), "--places", "120", "--dim", "8", "--seed", "3"]) == 0
+    return root
+
+
+@pytest.fixture
+def ds_copy(small_dir, tmp_path):
+    dst = tmp_path / "ds"
+    shutil.copytree(small_dir, dst)
+    return dst
+
+
+def run_error(capsys, argv, pattern):
+    """Run the CLI expecting a user error: exit 2, one stderr line naming the problem, no traceback."""
+    capsys.readouterr()
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    assert rc == 2, (rc, out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    assert pattern in lines[0], lines[0]
+    return lines[0]
+
+
+def test_synth_then_eval(small_dir, capsys, tmp_path):
+    out_json = tmp_path / "res" / "results.json"
+    rc = main(["eval", "--dataset", str(small_dir), "--method", "single,raw+seqmatch", "--method", "hvpr",
+               "--seq-len", "3", "--json", str(out_json)])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    assert "raw+seqmatch" in out and "queries evaluated" in out and "[test]" in out
+    res = json.loads(out_json.read_text())
+    assert list(res["methods"]) == ["single", "raw+seqmatch", "hvpr"]
+    assert res["config"]["seq_len"] == 3 and res["config"]["split"] == "test"
+    assert res["config"]["dataset_path"] == str(small_dir)
+    assert not [p for p in out_json.parent.iterdir() if p.name != "results.json"]  # no temp files left
+
+
+def test_eval_defaults_all_split_and_seq_len_one(small_dir, capsys):
+    argv = ["-q", "eval", "--dataset", str(small_dir), "--split", "all", "--seq-len", "1", "--backend", "faiss"]
+    assert main(argv) == 0
+    out, err = capsys.readouterr()
+    assert "single" in out and "delta" not in out  # Delta methods need L >= 2: left out of the defaults
+    assert err == ""
+
+
+def test_logging_follows_captured_stderr(small_dir, capsys):
+    # main() runs many times in one process: log lines must go to the current sys.stderr each time
+    for _ in range(2):
+        assert main(["eval", "--dataset", str(small_dir), "--method", "single", "--seq-len", "2"]) == 0
+        _, err = capsys.readouterr()
+        assert "single: R@1" in err and "Logging error" not in err
+
+
+def test_synth_outputs(tmp_path, capsys):
+    assert main(["synth", str(tmp_path / "s"), "--places", "100", "--dim", "8"]) == 0
+    out, _ = capsys.readouterr()
+    assert "wrote" in out and (tmp_path / "s" / "dataset.json").is_file()
+
+
+# ----------------------------------------------------------------------------- error paths
+
+
+def test_nonexistent_dataset(tmp_path, capsys):
+    run_error(capsys, ["eval", "--dataset", str(tmp_path / "nope")], "dataset directory not found")
+
+
+def test_garbage_descriptors(ds_copy, capsys):
+    (ds_copy / "query" / "descriptors.npy").write_bytes(b"this is not a numpy file\n" * 10)
+    line = run_error(capsys, ["eval", "--dataset", str(ds_copy)], "descriptors.npy")
+    assert line.startswith("seqnet eval: error: ")
+
+
+@pytest.mark.parametrize("value, pattern", [("0", "--seq-len"), ("abc", "--seq-len"), ("-3", "--seq-len"),
+                                            ("100000", "longer than the")])
+def test_bad_seq_len(small_dir, capsys, value, pattern):
+    run_error(capsys, ["eval", "--dataset", str(small_dir), "--seq-len", value], pattern)
+
+
+def test_dim_mismatch(ds_copy, capsys):
+    n = len(np.load(ds_copy / "query" / "descriptors.npy"))
+    np.save(ds_copy / "query" / "descriptors.npy", np.ones((n, 9), np.float32))
+    run_error(capsys, ["eval", "--dataset", str(ds_copy)], "dimension mismatch: reference D=8, query D=9")
+
+
+def test_count_mismatch_and_nan(ds_copy, capsys):
+    d = np.load(ds_copy / "reference" / "descriptors.npy")
+    d[4, 0] = np.nan
+    np.save(ds_copy / "reference" / "descriptors.npy", d)
+    run_error(capsys, ["eval", "--dataset", str(ds_copy)], "NaN or inf (first at row 4)")
+    d[4, 0] = 0.0
+    np.save(ds_copy / "reference" / "descriptors.npy", d[:-1])
+    run_error(capsys, ["eval", "--dataset", str(ds_copy)], "positions for")
+
+
+def test_missing_json_and_bad_json(ds_copy, capsys):
+    (ds_copy / "dataset.json").write_text("{")
+    run_error(capsys, ["eval", "--dataset", str(ds_copy)], "not valid JSON")
+    (ds_copy / "dataset.json").unlink()
+    run_error(capsys, ["eval", "--dataset", str(ds_copy)], "dataset.json is missing")
+
+
+@pytest.mark.parametrize("argv, pattern", [
+    (["--method", "nope"], "unknown method 'nope'"),
+    (["--split", "holdout"], "no split 'holdout'"),
+    (["--radius", "0"], "--radius"),
+    (["--window", "middle"], "--window"),
+    (["--method", "seqnet"], "needs an S_L model"),
+    (["--seq-len", "1", "--method", "delta"], "need seq_len >= 2"),
+    (["--device", "quantum"], "unknown device"),
+    (["--top-k", "0"], "--top-k"),
+    (["--shortlist", "nope"], "shortlister"),
+])
+def test_bad_options(small_dir, capsys, tmp_path, argv, pattern):
+    out_json = tmp_path / "r.json"
+    run_error(capsys, ["eval", "--dataset", str(small_dir), "--json", str(out_json), *argv], pattern)
+    assert not out_json.exists()  # nothing half-written
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_usage_errors(capsys):
+    run_error(capsys, [], "required: COMMAND")
+    run_error(capsys, ["eval"], "required: --dataset")
+    run_error(capsys, ["frobnicate"], "invalid choice")
+    run_error(capsys, ["eval", "--dataset", "x", "--bogus"], "unrecognized arguments")
+
+
+def test_help_and_version_exit_zero(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    with pytest.raises(SystemExit) as e:
+        main(["eval", "--help"])
+    assert e.value.code == 0 and "--seq-len" in capsys.readouterr().out
+
+
+def test_synth_errors(small_dir, tmp_path, capsys):
+    run_error(capsys, ["synth", str(small_dir)], "exists and is not empty")
+    run_error(capsys, ["synth", str(tmp_path / "x"), "--places", "50"], "places must be >= 100")
+    run_error(capsys, ["synth", str(tmp_path / "y"), "--dim", "0"], "--dim")
+    (tmp_path / "file").write_text("x")
+    run_error(capsys, ["synth", str(tmp_path / "file"), "--overwrite"], "not a directory")
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]  # no temporary directories left
+
+
+def test_synth_overwrite(ds_copy, capsys):
+    before = len(np.load(ds_copy / "query" / "descriptors.npy"))
+    assert main(["-q", "synth", str(ds_copy), "--places", "150", "--dim", "8", "--overwrite"]) == 0
+    assert len(np.load(ds_copy / "query" / "descriptors.npy")) != before
+
+
+def test_console_script_subprocess(ds_copy):
+    """The installed `seqnet` script: a real process, exit code 2, one stderr line, no traceback."""
+    (ds_copy / "query" / "descriptors.npy").write_bytes(b"garbage")
+    exe = shutil.which("seqnet") or str(Path(sys.executable).with_name("seqnet"))
+    env = {**os.environ, "PYTHONWARNINGS": "default"}
+    proc = subprocess.run([exe, "eval", "--dataset", str(ds_copy)], capture_output=True, text=True, timeout=120,
+                          env=env)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert lines[0].startswith("seqnet eval: error: cannot read") and "descriptors.npy" in lines[0]
+    assert proc.stdout == ""
