@@ -25,6 +25,8 @@ from .backbones import EfficientNetLite0, VGG16Encoder
 from .errors import CheckpointError, ConfigError
 from .utils import atomic_path, logger
 
+NETVLAD_LAYER = 10  # EfficientNet-Lite0 block 10: 112 channels at stride 16 (like VGG-16 conv5_3)
+
 
 class NetVLAD(nn.Module):
     """NetVLAD pooling ``[B, C, H, W]`` → ``[B, K*C]`` (input L2 per location, intra-norm, L2)."""
@@ -174,7 +176,7 @@ def _load_encoder(ckpt: dict, enc_state: dict[str, torch.Tensor], path: Path) ->
     if arch == "vgg16":
         return VGG16Encoder.from_state_dict(enc_state, str(path))
     if arch == "efficientnet-lite0":
-        enc = EfficientNetLite0(layer=ckpt.get("layer", 15), pretrained=False)
+        enc = EfficientNetLite0(layer=ckpt.get("layer", NETVLAD_LAYER), pretrained=False)
         _load(enc, enc_state, f"{path}: encoder")
         return enc
     raise CheckpointError(f"{path}: unknown encoder arch {arch!r}; valid: vgg16, efficientnet-lite0")
@@ -236,7 +238,7 @@ def netvlad_for(checkpoint: str | None = None, use_wpca: bool = True, cache: Pat
                           "weights (hint: --backbone efficientnet-lite0, or pass --checkpoint)")
     if fit_batches is None or n_fit < 1:
         raise ConfigError("NetVLAD without a checkpoint needs images to fit its clusters on (hint: --fit-on)")
-    encoder = build_backbone(backbone, 15 if layer is None else layer)
+    encoder = build_backbone(backbone, NETVLAD_LAYER if layer is None else layer)
     model = fit_netvlad(encoder, fit_batches(), n_fit, clusters, seed, device)
     if cache is not None:
         save_netvlad(model, cache)

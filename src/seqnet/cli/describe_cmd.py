@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backbone", default="efficientnet-lite0", choices=["efficientnet-lite0", "vgg16"],
                    help="CNN backbone (default efficientnet-lite0, ImageNet weights shipped with its package)")
     p.add_argument("--layer", help="efficientnet-lite0 feature layer: 'head' or block index 0..15 "
-                                   "(default: head for gem/gmp, 15 for netvlad)")
+                                   "(default: head for gem/gmp, 10 for netvlad)")
     p.add_argument("--gem-p", type=positive_float, default=3.0, help="gem: pooling power p (default 3)")
     p.add_argument("--checkpoint", metavar="CKPT",
                    help="NetVLAD checkpoint (pytorch-NetVlad / Patch-NetVLAD format, e.g. pitts_WPCA4096.pth.tar); "
