@@ -161,3 +161,16 @@ def test_cli_netvlad_checkpoint_and_errors(folder, tmp_path, capsys):
 def load_descriptors_h5(path):
     with h5py.File(path) as h:
         return h["descriptors"][()], [n.decode() for n in h["names"][()]]
+
+
+def test_fit_sets(folder, tmp_path):
+    from seqnet.describe import fit_paths_of, make_options
+
+    paths = sorted(folder.iterdir())
+    assert fit_paths_of(make_options("pixels", fit=3), paths) == paths[:3]
+    assert len(fit_paths_of(make_options("pixels", fit_max=4), paths)) == 4
+    (tmp_path / "fit.txt").write_text("imgs/f1.png\nimgs/f2.png\n")
+    assert [p.name for p in fit_paths_of(make_options("pixels", fit=str(tmp_path / "fit.txt")), paths)] == [
+        "f1.png", "f2.png"]
+    with pytest.raises(ConfigError, match=r"dims=3 must be between 1 and min\(N, D\) = min\(2, 512\)"):
+        describe_images(paths, "pixels", dim=3, fit=2, progress=False)
