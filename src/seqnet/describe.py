@@ -79,8 +79,8 @@ def make_options(method: str, **options: Any) -> DescribeOptions:
     if bad:
         raise ConfigError(f"unknown describe option {bad[0]!r}; valid: {', '.join(valid)}")
     opts = DescribeOptions(**{k: v for k, v in options.items() if v is not None or k in ("size", "dim", "layer")})
-    if opts.batch_size < 1:
-        raise ConfigError(f"batch size must be >= 1, got {opts.batch_size}")
+    if opts.batch_size < 1 or opts.crop_bottom < 0:
+        raise ConfigError(f"batch size must be >= 1 and crop-bottom >= 0, got {opts.batch_size} and {opts.crop_bottom}")
     if opts.dim is not None and opts.dim < 1:
         raise ConfigError(f"output dim must be >= 1, got {opts.dim}")
     if opts.gem_p <= 0:

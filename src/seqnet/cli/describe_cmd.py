@@ -41,7 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--crop-bottom", type=int, default=0, metavar="ROWS",
                    help="rows removed from the bottom before resizing (e.g. a car bonnet)")
     p.add_argument("--batch-size", type=positive_int, default=8, help="images per batch (default 8)")
-    p.add_argument("--dim", type=positive_int, help="reduce descriptors to DIM with PCA (saved as <out>.pca.npz)")
+    p.add_argument("--dim", type=positive_int,
+                   help="reduce descriptors to DIM with PCA (saved as <stem>.pca.npz beside the output)")
     p.add_argument("--whiten", action="store_true", help="whiten the PCA output")
     p.add_argument("--fit-on", type=fit_source, metavar="SRC|N",
                    help="images to fit PCA / NetVLAD clusters on: a folder or list file, or N for the first N "
