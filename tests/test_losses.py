@@ -8,7 +8,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from seqnet.errors import ConfigError
-from seqnet.losses import batch_triplet_loss, scatter_negatives
+from seqnet.losses import batch_triplet_loss, triplet_loss
 
 
 def _loop_loss(q, p, n, valid, margin):
@@ -71,17 +71,15 @@ def test_default_mask_uses_every_negative():
     torch.testing.assert_close(out.loss, ref)
 
 
-def test_scatter_negatives_places_rows_in_order():
-    valid = torch.tensor([[True, True, False], [False, False, False], [True, False, False]])
-    flat = torch.arange(6, dtype=torch.float32).reshape(3, 2).requires_grad_()
-    out = scatter_negatives(flat, valid)
-    assert out.shape == (3, 3, 2)
-    assert out[0, 0].tolist() == [0, 1] and out[0, 1].tolist() == [2, 3] and out[2, 0].tolist() == [4, 5]
-    assert out[~valid].abs().sum() == 0
-    out.sum().backward()
-    assert torch.all(flat.grad == 1)
+def test_flat_triplets_equal_the_masked_batch():
+    q, p, n, valid = _batch(seed=5)
+    anchor = valid.nonzero()[:, 0]
+    flat = triplet_loss(q, p, n[valid], anchor, 0.3)
+    masked = batch_triplet_loss(q, p, n, 0.3, valid)
+    torch.testing.assert_close(flat.loss, masked.loss)
+    torch.testing.assert_close(flat.per_triplet, masked.per_triplet[valid])
     with pytest.raises(ConfigError):
-        scatter_negatives(flat[:2], valid)
+        triplet_loss(q, p, n[valid], anchor[:-1], 0.3)
 
 
 @pytest.mark.parametrize("bad", ["shape_p", "shape_n", "mask", "margin"])

@@ -4,7 +4,7 @@ For each training query (a window of the query traverse):
 
 * **positive**: among the reference windows within ``pos_radius`` (position distance), the
   closest in descriptor space (descriptors cached by the current model);
-* **negatives**: ``n_sample`` reference windows drawn at random among those farther than
+* **negatives**: about ``n_sample`` reference windows drawn at random among those farther than
   ``neg_radius``, plus the query's hard negatives of the previous round (NetVLAD's negative
   cache); the ``n_neg`` closest of them in descriptor space are kept, and only those that violate
   the margin (``d_neg < d_pos + margin``) make triplets. A query without any is skipped.
@@ -15,7 +15,7 @@ Everything is one ``[B, R]`` distance matrix and masks: no loop per query or per
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -23,8 +23,8 @@ import torch
 from scipy.spatial import cKDTree
 
 from .errors import ConfigError, DatasetError
-from .matching import pairwise_distances, topk_smallest
-from .sequence_descriptors import SeqNet, describe_windows
+from .matching import pairwise_distances
+from .sequence_descriptors import describe_windows
 from .traverse import Dataset, Traverse
 from .utils import as_tensor, logger
 from .windows import window_starts
@@ -50,6 +50,15 @@ class Mined:
     def has_triplet(self) -> torch.Tensor:
         """``[B]`` bool: the query has a positive and at least one valid negative."""
         return (self.positive >= 0) & self.valid.any(dim=1)
+
+    def __getitem__(self, rows: slice | torch.Tensor) -> Mined:
+        """The triplets of some of the queries (a slice or an index / mask over B)."""
+        return Mined(*(getattr(self, f.name)[rows] for f in dataclasses.fields(self)))
+
+    @staticmethod
+    def cat(parts: list[Mined]) -> Mined:
+        """Concatenate the triplets of consecutive query blocks."""
+        return Mined(*(torch.cat([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(Mined)))
 
 
 def check_radii(pos_radius: float, neg_radius: float) -> tuple[float, float]:
@@ -93,16 +102,19 @@ def closest_positive(dist: torch.Tensor, pos_mask: torch.Tensor) -> tuple[torch.
 
 
 def sample_negatives(neg_mask: torch.Tensor, n_sample: int, generator: torch.Generator) -> torch.Tensor:
-    """``[B, R]`` bool: up to ``n_sample`` distinct negatives per row drawn uniformly from ``neg_mask``.
+    """``[B, R]`` bool: a uniform random subset of each row's negatives ``neg_mask [B, R]``, of
+    ``n_sample`` negatives on average (each kept with probability ``n_sample / count``; every
+    negative when a row has at most ``n_sample``). Like NetVLAD's draw of ``n_sample`` with
+    replacement, the number of distinct samples varies; one random number per (query, reference)
+    and no sort, so it costs O(B·R).
 
-    The random keys come from ``generator`` (a CPU generator, so runs are reproducible anywhere).
+    The random numbers come from ``generator`` (a CPU generator, so runs are reproducible anywhere).
     """
     b, r = neg_mask.shape
     if n_sample >= r:
         return neg_mask.clone()
-    keys = torch.rand((b, r), generator=generator).to(neg_mask.device).masked_fill_(~neg_mask, 2.0)
-    kth = torch.topk(keys, n_sample, dim=1, largest=False).values[:, -1:]
-    return neg_mask & (keys <= kth)
+    keep = (n_sample / neg_mask.sum(dim=1, keepdim=True).clamp_min(1)).clamp_max(1.0)  # [B, 1]
+    return neg_mask & (torch.rand((b, r), generator=generator).to(neg_mask.device) < keep)
 
 
 def hardest_negatives(
@@ -116,7 +128,8 @@ def hardest_negatives(
     Returns:
         ``(idx [B, K], valid [B, K], d [B, K])``, closest first; ``idx = -1`` where not valid.
     """
-    d, idx = topk_smallest(dist.masked_fill(~candidates, float("inf")), n_neg)
+    k = min(int(n_neg), dist.shape[1])
+    d, idx = torch.topk(dist.masked_fill(~candidates, float("inf")), k, dim=1, largest=False, sorted=True)
     valid = torch.isfinite(d) & (d < d_pos[:, None] + margin)
     return torch.where(valid, idx, torch.full_like(idx, -1)), valid, d
 
@@ -210,9 +223,47 @@ def triplet_source(ds: Dataset, cfg: Mapping[str, Any], device: torch.device) ->
                          torch.as_tensor(r_pos, device=device))
 
 
-def compute_cache(model: SeqNet, src: TripletSource, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Current-model descriptors of the queries ``rows`` ``[S, D']`` and of all reference windows ``[R, D']``."""
+def compute_cache(
+    model: Callable[[torch.Tensor], torch.Tensor], src: TripletSource, rows: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Current-model descriptors of the queries ``rows`` ``[S, D']`` and of all reference windows ``[R, D']``.
+
+    ``model`` maps windows ``[B, L, D]`` to descriptors ``[B, D']`` (a :class:`SeqNet` or an equivalent).
+    """
     dev = src.q_desc.device
     q = describe_windows(src.q_desc, src.q_idx[rows].cpu().numpy(), model, device=dev)
     r = describe_windows(src.r_desc, src.r_idx.cpu().numpy(), model, device=dev, progress="mining cache")
     return q.to(dev), r.to(dev)
+
+
+def mine_queries(
+    src: TripletSource,
+    rows: torch.Tensor,
+    q_feat: torch.Tensor,
+    r_feat: torch.Tensor,
+    cfg: Mapping[str, Any],
+    generator: torch.Generator,
+    neg_cache: torch.Tensor,
+    block_elems: int = 2**24,
+) -> Mined:
+    """Mine the triplets of the training queries ``rows [S]`` from one cache, in blocks of queries.
+
+    ``q_feat [S, D']`` / ``r_feat [R, D']`` are the cached descriptors; ``cfg`` gives ``pos_radius``,
+    ``neg_radius``, ``n_negatives``, ``n_neg_sample`` and ``margin``. ``neg_cache [M, K]`` (CPU,
+    -1 = none) holds each training query's previous hard negatives and is updated for the queries
+    that get triplets. Mining the queries of a cache period together is what mining them batch by
+    batch gives (the cache is fixed meanwhile and each query is visited once per epoch), with a few
+    large tensor operations instead of many small ones. Blocks keep ``[block, R]`` under
+    ``block_elems`` elements.
+    """
+    block = max(1, block_elems // max(1, r_feat.shape[0]))
+    parts = []
+    for s in range(0, len(rows), block):
+        r = rows[s : s + block]
+        pos_mask, neg_mask = radius_masks(src.q_pos[r], src.r_pos, cfg["pos_radius"], cfg["neg_radius"])
+        m = mine_batch(q_feat[s : s + block], r_feat, pos_mask, neg_mask, int(cfg["n_negatives"]),
+                       int(cfg["n_neg_sample"]), cfg["margin"], generator, neg_cache[r.cpu()].to(q_feat.device))
+        keep = m.has_triplet
+        neg_cache[r[keep].cpu()] = m.negatives[keep].cpu()
+        parts.append(m)
+    return Mined.cat(parts)

@@ -12,6 +12,7 @@ TensorBoard logs. Defaults: :data:`TRAIN_CONFIG_DEFAULTS` (the paper's).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import random
 import time
@@ -21,14 +22,15 @@ from typing import Any
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from . import __version__
 from .checkpoints import capture_rng, model_role, read_checkpoint, read_resume, restore_rng, save_checkpoint
 from .config import TRAIN_DEFAULTS, merge
 from .errors import CheckpointError, ConfigError, DatasetError
-from .losses import batch_triplet_loss, scatter_negatives
-from .mining import TripletSource, check_radii, compute_cache, mine_batch, radius_masks, triplet_source
+from .losses import triplet_loss
+from .mining import Mined, TripletSource, check_radii, compute_cache, mine_queries, triplet_source
 from .sequence_descriptors import SeqNet
 from .traverse import Dataset, load_dataset
 from .utils import get_device, logger, write_json_atomic
@@ -136,25 +138,39 @@ def _restore(run: Run, payload: Mapping[str, Any]) -> None:
                 run.best_epoch)
 
 
-def train_step(
-    run: Run, src: TripletSource, rows: torch.Tensor, q_feat: torch.Tensor, r_feat: torch.Tensor
-) -> dict[str, float]:
-    """Mine triplets for the queries ``rows [B]`` (cached descriptors ``q_feat [B, D']``, ``r_feat
-    [R, D']``) and take one optimiser step on all of the batch's triplets at once."""
-    cfg = run.cfg
-    pos_mask, neg_mask = radius_masks(src.q_pos[rows], src.r_pos, cfg["pos_radius"], cfg["neg_radius"])
-    mined = mine_batch(q_feat, r_feat, pos_mask, neg_mask, int(cfg["n_negatives"]), int(cfg["n_neg_sample"]),
-                       cfg["margin"], run.generator, run.neg_cache[rows.cpu()].to(q_feat.device))
+@functools.lru_cache(maxsize=16)
+def _tap_average(seq_len: int, w: int) -> torch.Tensor:
+    """``[w, L]``: entry ``[k, l]`` is ``1/T`` when frame ``l`` meets filter tap ``k`` at one of the
+    ``T = L − w + 1`` positions of the convolution, else 0."""
+    tap = torch.arange(seq_len)[None, :] - torch.arange(w)[:, None]
+    t = seq_len - w + 1
+    return ((tap >= 0) & (tap < t)).float() / t
+
+
+def seqnet_forward(model: SeqNet, windows: torch.Tensor) -> torch.Tensor:
+    """``model(windows)`` for ``[B, L, D]`` windows, computed as one GEMM (same value, fewer FLOPs).
+
+    The network is linear up to its L2 norm: the mean over the ``T = L − w + 1`` outputs of the
+    convolution is ``b + Σ_k W_k · mean_{t<T} x[t + k]``. So the windows are averaged first
+    (``[B, w, D]``) and multiplied once by the ``[D_out, D·w]`` weight (a view of the conv weight).
+    """
+    avg = _tap_average(windows.shape[1], model.w).to(windows.device, windows.dtype)
+    shifted = (avg @ windows).transpose(1, 2).reshape(len(windows), -1)  # [B, D·w]
+    return F.normalize(F.linear(shifted, model.conv.weight.reshape(model.out_dims, -1), model.conv.bias), dim=-1)
+
+
+def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined) -> dict[str, float]:
+    """One optimiser step on all triplets of the queries ``rows [B]`` (``mined``: their triplets)."""
     keep = mined.has_triplet
-    run.neg_cache[rows[keep].cpu()] = mined.negatives[keep].cpu()
-    stats = {"queries": float(keep.sum()), "skipped": float((~keep).sum()), "triplets": 0.0, "active": 0.0, "loss": 0.0}
-    if not keep.any():
+    b = int(keep.sum())
+    stats = {"queries": float(b), "skipped": float(len(rows) - b), "triplets": 0.0, "active": 0.0, "loss": 0.0}
+    if b == 0:
         return stats
-    valid, b = mined.valid[keep], int(keep.sum())
+    valid = mined.valid[keep]
     ref = torch.cat([mined.positive[keep], mined.negatives[keep][valid]])
     windows = torch.cat([gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])])
-    emb = run.model(windows)  # [B + B + T, D']: queries, positives, negatives
-    out = batch_triplet_loss(emb[:b], emb[b : 2 * b], scatter_negatives(emb[2 * b :], valid), cfg["margin"], valid)
+    emb = seqnet_forward(run.model, windows)  # [B + B + T, D']: queries, positives, negatives
+    out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.cfg["margin"])
     run.optimizer.zero_grad(set_to_none=True)
     out.loss.backward()
     run.optimizer.step()
@@ -163,7 +179,8 @@ def train_step(
 
 
 def train_epoch(run: Run, src: TripletSource, epoch: int) -> dict[str, float]:
-    """One pass over every training query; returns the mean batch loss and triplet counts."""
+    """One pass over every training query (shuffled); every ``cache_refresh`` queries the mining
+    descriptors are recomputed and those queries' triplets mined. Returns the mean batch loss and counts."""
     n, bs = src.n_queries, int(run.cfg["batch_size"])
     order = torch.randperm(n, generator=run.generator).to(src.q_idx.device)
     chunk = int(run.cfg["cache_refresh"]) or n
@@ -173,13 +190,15 @@ def train_epoch(run: Run, src: TripletSource, epoch: int) -> dict[str, float]:
     with tqdm(total=n_batches, desc=f"epoch {epoch}/{run.cfg['epochs']}", leave=False, disable=None) as bar:
         for s in range(0, n, chunk):
             sub = order[s : s + chunk]
-            q_feat, r_feat = compute_cache(run.model, src, sub)
+            q_feat, r_feat = compute_cache(functools.partial(seqnet_forward, run.model), src, sub)
+            mined = mine_queries(src, sub, q_feat, r_feat, run.cfg, run.generator, run.neg_cache)
             for b in range(0, len(sub), bs):
-                st = train_step(run, src, sub[b : b + bs], q_feat[b : b + bs], r_feat)
+                st = train_step(run, src, sub[b : b + bs], mined[b : b + bs])
                 steps += st["triplets"] > 0
                 totals = {k: v + st[k] for k, v in totals.items()}
                 bar.update(1)
-                bar.set_postfix(loss=f"{st['loss']:.4f}", active=int(st["active"]))
+                if not bar.disable:
+                    bar.set_postfix(loss=f"{st['loss']:.4f}", active=int(st["active"]), refresh=False)
     totals["loss"] /= max(steps, 1)
     return totals
 
