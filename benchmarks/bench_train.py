@@ -4,26 +4,31 @@ Both train the same model on the same data (the train split of a synthetic datas
 epoch structure (shuffled queries; mining descriptors recomputed every ``cache_refresh`` queries;
 batches of 16 queries, 10 hard negatives each among ``n_neg_sample`` sampled):
 
-* ``batched`` — :func:`seqnet.train.train_epoch`: triplets of a whole batch mined with one
-  ``[B, R]`` distance matrix and masks, one forward pass, one broadcast triplet loss;
+* ``batched`` — :func:`seqnet.train.train_epoch`: the triplets of all queries of a cache period
+  mined at once (``[S, R]`` distance matrix and masks), then per batch one forward pass (SeqNet in
+  its one-GEMM form) and one triplet loss over all the batch's triplets;
 * ``loop`` — the original seqNet/NetVLAD way: the mining cache built in batches of 24 windows, then
   per query a faiss index over its positives and over its sampled negatives (plus its negative
-  cache), windows gathered per negative, and the loss summed over a Python loop of one
-  ``nn.TripletMarginLoss`` call per (query, positive, negative) triplet.
+  cache), windows gathered per negative, the model's Conv1d forward, and the loss summed over a
+  Python loop of one ``nn.TripletMarginLoss`` call per (query, positive, negative) triplet
+  (``--loop-forward gemm`` gives the loop seqnet's forward, to isolate the cost of the loops).
 
-With ``n_neg_sample`` >= the number of reference windows both sample every negative, so both mine
-the same triplets: the first batch's loss must agree (checked), which shows the loop is the same
-step. Target: ``loop / batched >= 10`` seconds per epoch on CPU.
+A check runs the first batch of both from the same model with every negative sampled: both mine the
+same triplets, so the losses must agree, which shows the loop is the same step. Target:
+``loop / batched >= 10`` per epoch on CPU. Both wall-clock and process CPU time are reported (CPU
+time is much less disturbed by other jobs on a shared machine). One torch thread by default: the
+tensors are small, and on a shared machine extra OpenMP threads mostly measure contention.
 
 Usage::
 
-    python benchmarks/bench_train.py                   # defaults: 1000 places, D = 64, 2 threads
-    python benchmarks/bench_train.py --dim 256 --json out.json --check
+    python benchmarks/bench_train.py                   # defaults: 1000 places, D = 64, 1 thread
+    python benchmarks/bench_train.py --threads 2 --dim 256 --json out.json --check
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -40,7 +45,7 @@ from torch import nn
 
 from seqnet.mining import mine_queries, triplet_source
 from seqnet.synth import make_synthetic
-from seqnet.train import Run, open_run, resolve_train_config, train_epoch, train_step
+from seqnet.train import Run, open_run, resolve_train_config, seqnet_forward, train_epoch, train_step
 
 TARGET = 10.0
 
@@ -52,8 +57,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seq-len", type=int, default=5, help="sequence length L (default 5)")
     p.add_argument("--w", type=int, default=3, help="SeqNet filter width (default 3)")
     p.add_argument("--n-neg-sample", type=int, default=1000, help="negatives sampled per query (default 1000)")
-    p.add_argument("--repeats", type=int, default=2, help="epochs timed per implementation; best kept (default 2)")
-    p.add_argument("--threads", type=int, default=2, help="torch intra-op threads (default 2)")
+    p.add_argument("--loop-forward", choices=["conv", "gemm"], default="conv",
+                   help="forward pass of the loop: the model's Conv1d as the original (default) or seqnet's GEMM form "
+                        "(isolates the cost of the loops)")
+    p.add_argument("--repeats", type=int, default=5, help="epochs timed per implementation; best kept (default 5)")
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     p.add_argument("--check", action="store_true", help="exit with status 1 when the target is missed")
@@ -63,8 +71,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 class LoopTrainer:
     """The original code's training step (datasets.py ``__getitem__`` + train.py loop), on a Run."""
 
-    def __init__(self, run: Run, src, cfg: dict, exhaustive: bool = False) -> None:
+    def __init__(self, run: Run, src, cfg: dict, exhaustive: bool = False, forward: str = "conv") -> None:
         self.run, self.src, self.cfg, self.exhaustive = run, src, cfg, exhaustive
+        self.forward = run.model if forward == "conv" else functools.partial(seqnet_forward, run.model)
         q_pos, r_pos = src.q_pos.numpy(), src.r_pos.numpy()
         tree = cKDTree(r_pos)
         self.positives = [np.sort(p) for p in tree.query_ball_point(q_pos, cfg["pos_radius"])]
@@ -82,7 +91,7 @@ class LoopTrainer:
         with torch.no_grad():
             for desc, idx in ((self.r_desc, self.r_idx), (self.q_desc, self.q_idx[rows])):
                 batches = (torch.from_numpy(desc[idx[s : s + 24]]) for s in range(0, len(idx), 24))
-                feats = [self.run.model(x).numpy() for x in batches]
+                feats = [self.forward(x).numpy() for x in batches]
                 out.append(np.concatenate(feats))
         return out[1], out[0]
 
@@ -115,7 +124,7 @@ class LoopTrainer:
         query, positive, negatives = zip(*batch, strict=True)
         counts = [n.shape[0] for n in negatives]
         b, n_neg = len(batch), sum(counts)
-        emb = self.run.model(torch.cat([torch.stack(query), torch.stack(positive), torch.cat(negatives)]))  # L2-normed
+        emb = self.forward(torch.cat([torch.stack(query), torch.stack(positive), torch.cat(negatives)]))  # L2-normed
         e_q, e_p, e_n = torch.split(emb, [b, b, n_neg])
         self.run.optimizer.zero_grad()
         loss = 0
@@ -175,7 +184,7 @@ def time_epochs(args: argparse.Namespace, tmp: Path) -> dict[str, dict[str, floa
     for rep in range(args.repeats):
         for name in ("batched", "loop"):
             cfg, src, run = setup(args, tmp / f"{name}{rep}")
-            loop = LoopTrainer(run, src, cfg) if name == "loop" else None
+            loop = LoopTrainer(run, src, cfg, forward=args.loop_forward) if name == "loop" else None
             t0, c0 = time.perf_counter(), time.process_time()
             loop.epoch() if loop is not None else train_epoch(run, src, 1)
             wall[name].append(time.perf_counter() - t0)
@@ -195,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         batched_loss, loop_loss = same_step_check(args, Path(d))
         t = time_epochs(args, Path(d))
     ratio = {k: t[k]["loop"] / t[k]["batched"] for k in ("wall", "cpu")}
-    res = {"places": args.places, "dim": args.dim, "seq_len": args.seq_len, "w": args.w, "threads": args.threads,
+    res = {"places": args.places, "dim": args.dim, "loop_forward": args.loop_forward, "seq_len": args.seq_len,
+           "w": args.w, "threads": args.threads,
            "n_neg_sample": args.n_neg_sample, "train_queries": t["sizes"]["queries"],
            "reference_windows": t["sizes"]["references"],
            "first_batch_loss": {"batched": batched_loss, "loop": loop_loss},

@@ -94,6 +94,15 @@ def test_resume_rejects_changed_architecture(synth_dataset, tmp_path):
         train(synth_dataset, FAST, tmp_path / "nothing", resume=True)
 
 
+def test_resume_on_data_of_another_dimension_is_a_checkpoint_error(synth_dataset, tmp_path):
+    from seqnet.synth import make_synthetic
+
+    train(synth_dataset, {**FAST, "epochs": 1}, tmp_path / "r")
+    other = make_synthetic(places=200, dim=8, seed=1)
+    with pytest.raises(CheckpointError, match="does not fit"):
+        train(other, {"epochs": 2}, tmp_path / "r", resume=True)
+
+
 def _no_positive_dataset(ds):
     n_r, n_q = len(ds.reference), len(ds.query)
     splits = {**ds.splits, "train": {"reference": (0, n_r // 4), "query": (n_q - n_q // 4, n_q)}}
