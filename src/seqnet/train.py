@@ -317,4 +317,5 @@ def main(conf: Mapping[str, Any]) -> Run:
         path = read_checkpoint(src / "last.pt" if src.is_dir() else src).get("config", {}).get("dataset_path")
     if path is None:
         raise ConfigError("no dataset: give --dataset DIR")
-    return train(load_dataset(path), conf.get("config"), out, resume=resume or False, dataset_path=str(path))
+    return train(load_dataset(path), conf.get("config"), out, resume=resume or False,
+                 dataset_path=str(Path(path).resolve()))

@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"trained {role} (w={result.model.w}, D={result.model.in_dims}->{result.model.out_dims}) for "
           f"{result.epoch} epochs; best val R@1 {best} at epoch {result.best_epoch}")
     print(f"checkpoints: {result.out_dir / 'best.pt'} (best), {result.out_dir / 'last.pt'} (last)")
-    flag = "--rerank-model" if role == "S_1" else "--shortlist-model"
+    flag = "--rerank-model" if role == "S_1" else f"--seq-len {result.model.seq_len} --shortlist-model"
     data = result.cfg.get("dataset_path", "DIR")
     print(f"evaluate: seqnet eval --dataset {data} {flag} {result.out_dir / 'best.pt'}")
     return 0
