@@ -4,11 +4,22 @@ from __future__ import annotations
 
 import json
 
+import pytest
+import torch
+
 from seqnet.cli import main as cli_main
 from seqnet.demo import BASELINES, DEMO_METHODS, LEARNED, run_demo
 
 
-def test_cli_demo_trains_and_evaluates_every_method(tmp_path, capsys):
+@pytest.fixture
+def keep_threads():
+    """The demo CLI sets torch's thread count (default 1); restore it for the other tests."""
+    n = torch.get_num_threads()
+    yield
+    torch.set_num_threads(n)
+
+
+def test_cli_demo_trains_and_evaluates_every_method(tmp_path, capsys, keep_threads):
     assert DEMO_METHODS == BASELINES + LEARNED
     (tmp_path / "train_seqnet").mkdir()
     (tmp_path / "train_seqnet" / "last.pt").write_text("a previous demo's run: replaced")

@@ -22,7 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--epochs", type=positive_int,
                    help="training epochs per model (default: the demo's, 15, with early stopping)")
     p.add_argument("--no-train", action="store_true", help="evaluate the baselines only (no training)")
-    p.add_argument("--threads", type=positive_int, help="CPU threads for torch (default: torch's)")
+    p.add_argument("--threads", type=positive_int, default=1,
+                   help="CPU threads for torch (default 1: the demo's tensors are small, and on a busy machine "
+                        "more threads mostly wait for each other)")
     add_device(p)
     p.set_defaults(func=run)
 
