@@ -44,14 +44,18 @@ def test_full_map_vs_loop(qr, L, reverse):
     np.testing.assert_allclose(m, naive_seqmatch(q, r, L, reverse), rtol=1e-9, atol=1e-9)
 
 
-@pytest.mark.parametrize("block_bytes", [1, 300, 2000])
+@pytest.mark.parametrize("block_bytes", [1, 300, 2000, None])
 @pytest.mark.parametrize("reverse", [False, True])
-def test_many_blocks_and_chunks(qr, block_bytes, reverse, monkeypatch):
-    monkeypatch.setattr(sm, "_CACHE_BYTES", 1)  # smallest row chunks: many chunks per block
+@pytest.mark.parametrize("L", [1, 4])
+def test_many_blocks_and_chunks(qr, block_bytes, reverse, L, monkeypatch):
+    monkeypatch.setattr(sm, "_CHUNK_BYTES", 1)  # smallest row chunks: many chunks per block
     q, r = qr
     q = np.concatenate([q, q[::-1], q])  # 51 query frames: several chunks
-    m = seqmatch(q, r, 4, reverse=reverse, device="cpu", block_bytes=block_bytes)
-    np.testing.assert_allclose(m, naive_seqmatch(q, r, 4, reverse), rtol=1e-9, atol=1e-9)
+    m = seqmatch(q, r, L, reverse=reverse, device="cpu", block_bytes=block_bytes)
+    np.testing.assert_allclose(m, naive_seqmatch(q, r, L, reverse), rtol=1e-9, atol=1e-9)
+    vals, items = seqmatch_topk(q, r, L, 3, np.arange(len(q) - L + 1), np.arange(len(r) - L + 1), reverse=reverse,
+                                device="cpu", block_bytes=block_bytes)
+    np.testing.assert_allclose(vals, np.sort(m, axis=1)[:, :3], rtol=1e-9, atol=1e-9)
 
 
 def test_torch_input_returns_tensor_and_float32(qr):

@@ -57,7 +57,8 @@ def sq_norms(x: torch.Tensor) -> torch.Tensor:
 
 def finish_distances(d: torch.Tensor, q_sq: torch.Tensor, r_sq: torch.Tensor, squared: bool = False) -> torch.Tensor:
     """In place: turn inner products ``d = q @ r.T`` into (squared) Euclidean distances."""
-    d.mul_(-2.0).add_(r_sq[None, :]).add_(q_sq[:, None]).clamp_min_(0.0)
+    torch.add(r_sq, d, alpha=-2.0, out=d)  # ‖r‖² − 2 q·r in one pass
+    d.add_(q_sq[:, None]).clamp_min_(0.0)
     return d if squared else d.sqrt_()
 
 

@@ -72,18 +72,19 @@ def seqmatch(
     return to_numpy(out)
 
 
-# Rows of the distance matrix finalised (norm trick, sqrt) and summed at a time on CPU: small
-# enough to stay in cache, so the distance block is read back from memory only once.
-_CACHE_BYTES = 1 << 20
-_MAX_CHUNKS = 1 << 30
+# Bytes of distance rows finalised (norm trick, sqrt) and summed at a time on CPU, or None for the
+# whole block at once. Cache-sized chunks (e.g. 1 MiB) read the distance block back from memory
+# only once and are fastest on an idle machine, but each chunk costs ~10 parallel regions (thread
+# barriers); on an oversubscribed machine (more busy threads than cores) those barriers dominate,
+# while whole-block passes stay within ~10% of the bare GEMM either way. Hence the default None.
+_CHUNK_BYTES: int | None = None
 
 
 def _chunk_rows(q: torch.Tensor, r: torch.Tensor, n: int) -> int:
     """Rows per chunk for the element-wise passes over a block of ``n`` rows."""
-    if q.device.type != "cpu":
+    if q.device.type != "cpu" or _CHUNK_BYTES is None:
         return max(1, n)
-    by_cache = _CACHE_BYTES // max(1, r.shape[0] * q.element_size())
-    return max(8, by_cache, -(-n // _MAX_CHUNKS))
+    return max(8, _CHUNK_BYTES // max(1, r.shape[0] * q.element_size()))
 
 
 def _block_rows(q: torch.Tensor, r: torch.Tensor, seq_len: int, block_bytes: int | None) -> int:
@@ -112,11 +113,12 @@ def _full_blocks(
 ) -> Iterator[tuple[int, torch.Tensor]]:
     """Yield ``(first_window, M[block, Nr−L+1])`` over blocks of query windows.
 
-    Per block: one GEMM ``q[a0 : a1+L−1] @ r.T`` (the only pass over D); then, one cache-sized
-    chunk of rows at a time, the norm trick + sqrt in place and the L shifted sums. The scores go
-    to ``out[a0:a1]`` when ``out`` is given, else they are packed row by row into the front of the
-    GEMM's own buffer (row ``a`` of the scores only overwrites distance rows ``<= a``, which no
-    later chunk reads), so a block needs no second ``[rows, Nr]`` buffer.
+    Per block: one GEMM ``q[a0 : a1+L−1] @ r.T`` (the only pass over D), then, in place, the norm
+    trick + sqrt (4 element-wise passes) and the L shifted sums (L − 1 passes) written straight
+    into the result: ``out[a0:a1]`` when ``out`` is given, else a new buffer. With row chunks
+    (``_CHUNK_BYTES``) each chunk is summed into a small buffer and packed row by row into the
+    front of the GEMM's own buffer (score row ``a`` only overwrites distance rows ``<= a``, which no
+    later chunk reads), so the block needs no second ``[rows, Nr]`` buffer.
     """
     na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
     rows = _block_rows(q, r, seq_len, block_bytes)
