@@ -415,3 +415,19 @@ def test_pickle_free_loading(ds_dir):
     # names and positions never go through pickle; sanity check of the test helper itself
     assert pickle.loads(pickle.dumps(1)) == 1
     assert load_dataset(ds_dir).query.names[0] == "query0.png"
+
+
+def test_saved_files_get_normal_permissions(ds, tmp_path):
+    root = save_dataset(ds, tmp_path / "perm")
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert (root.stat().st_mode & 0o777) == 0o777 & ~mask  # not mkdtemp's 0700
+    for f in (root / "dataset.json", root / "query" / "descriptors.npy", root / "query" / "positions.npy"):
+        assert (f.stat().st_mode & 0o777) == 0o666 & ~mask, f  # not mkstemp's 0600
+
+
+def test_names_with_line_breaks_rejected(rng, tmp_path):
+    t = Traverse(rng.standard_normal((2, 3)).astype(np.float32), np.arange(2.0), names=["a.png", "b\n.png"])
+    with pytest.raises(DatasetError, match="line break"):
+        save_dataset(Dataset(t, t, radius=1.0), tmp_path / "n")
+    assert list(tmp_path.iterdir()) == []

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from .errors import DatasetError
-from .utils import logger, save_npy_atomic, write_json_atomic
+from .utils import current_umask, logger, save_npy_atomic, write_json_atomic
 
 FORMAT = "seqnet-dataset/1"
 POSITION_UNITS = ("frames", "metres")
@@ -382,6 +382,7 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path
     tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".tmp"))
     old: Path | None = None
     try:
+        tmp.chmod(0o777 & ~current_umask())  # mkdtemp makes it 0700; a plain mkdir would not
         for side, t in (("reference", ds.reference), ("query", ds.query)):
             save_traverse(t, tmp / side)
         meta = {
@@ -419,6 +420,9 @@ def save_traverse(t: Traverse, path: Path) -> None:
     save_npy_atomic(path / "descriptors.npy", np.ascontiguousarray(t.descriptors, dtype=np.float32))
     save_npy_atomic(path / "positions.npy", t.positions)
     if t.names is not None:
+        bad = next((n for n in t.names if "\n" in n or "\r" in n), None)
+        if bad is not None:
+            raise DatasetError(f"{t.name}: image name {bad!r} contains a line break (names.txt: one name a line)")
         (path / "names.txt").write_text("\n".join(t.names) + "\n", encoding="utf-8")
     if t.seq_bounds is not None:
         save_npy_atomic(path / "seq_bounds.npy", t.seq_bounds)
