@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from seqnet import sequence_matching
 from seqnet.sequence_matching import seqmatch
 
 GEMM_TARGET = 1.15
@@ -50,6 +51,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=2, help="torch intra-op threads (default 2)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--chunk-kib", type=int, default=None,
+                   help="experiment: finish/sum the distance block in row chunks of this many KiB "
+                        "(default: the library's choice, whole blocks)")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     p.add_argument("--check", action="store_true", help="exit with status 1 when a target is missed")
     return p.parse_args(argv)
@@ -84,6 +88,8 @@ def cdist_loop(qw: torch.Tensor, rw: torch.Tensor, pairs: np.ndarray) -> torch.T
 
 def run(args: argparse.Namespace) -> dict:
     torch.set_num_threads(args.threads)
+    if args.chunk_kib is not None:
+        sequence_matching._CHUNK_BYTES = args.chunk_kib * 1024
     device = torch.device(args.device)
     gen = torch.Generator().manual_seed(args.seed)
     q = torch.nn.functional.normalize(torch.randn(args.nq, args.dim, generator=gen), dim=1).to(device)
@@ -130,6 +136,7 @@ def run(args: argparse.Namespace) -> dict:
         "config": {"nq": args.nq, "nr": args.nr, "dim": args.dim, "seq_len": L, "dtype": "float32",
                    "repeats": args.repeats, "threads": args.threads, "device": str(device),
                    "loop_pairs_sampled": int(n_pairs), "torch": torch.__version__,
+                   "chunk_bytes": sequence_matching._CHUNK_BYTES,
                    "machine": platform.processor() or platform.machine(), "cpu_count": os.cpu_count()},
         "load_average_start": load_start,
         "load_average_end": os.getloadavg(),
