@@ -28,7 +28,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import math
 import os
@@ -45,7 +44,7 @@ from torch import nn
 
 from seqnet.mining import mine_queries, triplet_source
 from seqnet.synth import make_synthetic
-from seqnet.train import Run, open_run, resolve_train_config, seqnet_forward, train_epoch, train_step
+from seqnet.train import Run, open_run, resolve_train_config, train_epoch, train_step
 
 TARGET = 10.0
 
@@ -73,7 +72,7 @@ class LoopTrainer:
 
     def __init__(self, run: Run, src, cfg: dict, exhaustive: bool = False, forward: str = "conv") -> None:
         self.run, self.src, self.cfg, self.exhaustive = run, src, cfg, exhaustive
-        self.forward = run.model if forward == "conv" else functools.partial(seqnet_forward, run.model)
+        self.forward = run.model.forward_conv if forward == "conv" else run.model
         q_pos, r_pos = src.q_pos.numpy(), src.r_pos.numpy()
         tree = cKDTree(r_pos)
         self.positives = [np.sort(p) for p in tree.query_ball_point(q_pos, cfg["pos_radius"])]

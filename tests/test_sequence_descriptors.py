@@ -157,3 +157,15 @@ def test_sequence_descriptor_property(n, L, d, seed):
     w32 = torch.from_numpy(desc.astype(np.float32))[torch.from_numpy(idx)]
     for fn in (smoothing, delta):
         torch.testing.assert_close(describe_windows(desc, idx, fn, batch_size=4), fn(w32), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("seq_len,w", [(1, 1), (5, 3), (10, 5), (4, 4), (6, 1)])
+def test_seqnet_gemm_forward_equals_conv(seq_len, w):
+    torch.manual_seed(0)
+    model = SeqNet(12, 9, seq_len, w)
+    x = torch.randn(7, seq_len, 12)
+    assert torch.allclose(model(x), model.forward_conv(x), atol=1e-6)
+    # and the gradients agree, so training with the GEMM form trains the same network
+    g1 = torch.autograd.grad(model(x).sum(), model.conv.weight)[0]
+    g2 = torch.autograd.grad(model.forward_conv(x).sum(), model.conv.weight)[0]
+    assert torch.allclose(g1, g2, atol=1e-5)

@@ -51,6 +51,8 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "neg_radius": None,
     "seed": 0,
     "device": "auto",
+    "train_split": "train",
+    "val_split": "val",
 }
 
 SYNTH_DEFAULTS: dict[str, Any] = {

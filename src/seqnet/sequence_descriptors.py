@@ -12,6 +12,7 @@ Each turns a window of L single-image descriptors ``[M, L, D]`` into one L2-norm
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -42,6 +43,15 @@ def delta(windows: torch.Tensor) -> torch.Tensor:
     return l2_normalize(w[:, seq_len - h :].mean(dim=1) - w[:, :h].mean(dim=1))
 
 
+@functools.lru_cache(maxsize=16)
+def _tap_average(seq_len: int, w: int) -> torch.Tensor:
+    """``[w, L]``: entry ``[k, l]`` is ``1/T`` when frame ``l`` meets filter tap ``k`` at one of the
+    ``T = L − w + 1`` positions of the convolution, else 0."""
+    tap = torch.arange(seq_len)[None, :] - torch.arange(w)[:, None]
+    t = seq_len - w + 1
+    return ((tap >= 0) & (tap < t)).float() / t
+
+
 class SeqNet(nn.Module):
     """SeqNet S_L: ``[B, L, D]`` (or ``[B, D]`` for S_1) → L2-normalised ``[B, D_out]``."""
 
@@ -54,14 +64,31 @@ class SeqNet(nn.Module):
         self.in_dims, self.out_dims, self.seq_len, self.w = in_dims, out_dims, seq_len, w
         self.conv = nn.Conv1d(in_dims, out_dims, kernel_size=w, bias=True)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def _check(self, x: torch.Tensor) -> torch.Tensor:
         if x.ndim == 2:
             x = x[:, None, :]
         if x.shape[-1] != self.in_dims:
             raise ConfigError(f"SeqNet expects D={self.in_dims} inputs, got D={x.shape[-1]}")
         if x.shape[1] < self.w:
             raise ConfigError(f"SeqNet with w={self.w} needs windows of >= {self.w} frames, got {x.shape[1]}")
-        y = self.conv(x.permute(0, 2, 1))  # [B, D_out, L - w + 1]
+        return x
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``[B, L, D]`` → ``[B, D_out]``, computed as one GEMM (same value as :meth:`forward_conv`).
+
+        The network is linear up to its L2 norm: the mean over the ``T = L − w + 1`` outputs of the
+        convolution is ``b + Σ_k W_k · mean_{t<T} x[t + k]``. So the windows are averaged per filter
+        tap first (``[B, w, D]``) and multiplied once by the ``[D_out, D·w]`` weight, T times fewer
+        multiplications than the convolution.
+        """
+        x = self._check(x)
+        avg = _tap_average(x.shape[1], self.w).to(x.device, x.dtype)
+        shifted = (avg @ x).transpose(1, 2).reshape(len(x), self.in_dims * self.w)  # [B, D·w], D-major like the weight
+        return F.normalize(F.linear(shifted, self.conv.weight.reshape(self.out_dims, -1), self.conv.bias), dim=-1)
+
+    def forward_conv(self, x: torch.Tensor) -> torch.Tensor:
+        """The literal SeqNet forward: Conv1d over time, mean over time, L2 norm (``[B, L, D]`` → ``[B, D_out]``)."""
+        y = self.conv(self._check(x).permute(0, 2, 1))  # [B, D_out, L - w + 1]
         return F.normalize(y.mean(dim=-1), dim=-1)
 
     def config(self) -> dict[str, int]:

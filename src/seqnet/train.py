@@ -12,7 +12,6 @@ TensorBoard logs. Defaults: :data:`TRAIN_CONFIG_DEFAULTS` (the paper's).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import random
 import time
@@ -22,7 +21,6 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from . import __version__
@@ -37,7 +35,7 @@ from .utils import get_device, logger, write_json_atomic
 from .windows import WINDOW_MODES, check_seq_len, gather_windows
 
 # Keys beyond seqnet.config.TRAIN_DEFAULTS (belong there): the splits used for training / validation.
-TRAIN_CONFIG_DEFAULTS: dict[str, Any] = {**TRAIN_DEFAULTS, "train_split": "train", "val_split": "val"}
+TRAIN_CONFIG_DEFAULTS = TRAIN_DEFAULTS  # the single source of training defaults (seqnet.config)
 RESUME_OVERRIDABLE = ("epochs", "patience", "device")
 VAL_KS = [1, 5, 10, 20]
 
@@ -138,27 +136,6 @@ def _restore(run: Run, payload: Mapping[str, Any]) -> None:
                 run.best_epoch)
 
 
-@functools.lru_cache(maxsize=16)
-def _tap_average(seq_len: int, w: int) -> torch.Tensor:
-    """``[w, L]``: entry ``[k, l]`` is ``1/T`` when frame ``l`` meets filter tap ``k`` at one of the
-    ``T = L − w + 1`` positions of the convolution, else 0."""
-    tap = torch.arange(seq_len)[None, :] - torch.arange(w)[:, None]
-    t = seq_len - w + 1
-    return ((tap >= 0) & (tap < t)).float() / t
-
-
-def seqnet_forward(model: SeqNet, windows: torch.Tensor) -> torch.Tensor:
-    """``model(windows)`` for ``[B, L, D]`` windows, computed as one GEMM (same value, fewer FLOPs).
-
-    The network is linear up to its L2 norm: the mean over the ``T = L − w + 1`` outputs of the
-    convolution is ``b + Σ_k W_k · mean_{t<T} x[t + k]``. So the windows are averaged first
-    (``[B, w, D]``) and multiplied once by the ``[D_out, D·w]`` weight (a view of the conv weight).
-    """
-    avg = _tap_average(windows.shape[1], model.w).to(windows.device, windows.dtype)
-    shifted = (avg @ windows).transpose(1, 2).reshape(len(windows), -1)  # [B, D·w]
-    return F.normalize(F.linear(shifted, model.conv.weight.reshape(model.out_dims, -1), model.conv.bias), dim=-1)
-
-
 def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined) -> dict[str, float]:
     """One optimiser step on all triplets of the queries ``rows [B]`` (``mined``: their triplets)."""
     keep = mined.has_triplet
@@ -169,7 +146,7 @@ def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined) -
     valid = mined.valid[keep]
     ref = torch.cat([mined.positive[keep], mined.negatives[keep][valid]])
     windows = torch.cat([gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])])
-    emb = seqnet_forward(run.model, windows)  # [B + B + T, D']: queries, positives, negatives
+    emb = run.model(windows)  # [B + B + T, D']: queries, positives, negatives
     out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.cfg["margin"])
     run.optimizer.zero_grad(set_to_none=True)
     out.loss.backward()
@@ -190,7 +167,7 @@ def train_epoch(run: Run, src: TripletSource, epoch: int) -> dict[str, float]:
     with tqdm(total=n_batches, desc=f"epoch {epoch}/{run.cfg['epochs']}", leave=False, disable=None) as bar:
         for s in range(0, n, chunk):
             sub = order[s : s + chunk]
-            q_feat, r_feat = compute_cache(functools.partial(seqnet_forward, run.model), src, sub)
+            q_feat, r_feat = compute_cache(run.model, src, sub)
             mined = mine_queries(src, sub, q_feat, r_feat, run.cfg, run.generator, run.neg_cache)
             for b in range(0, len(sub), bs):
                 st = train_step(run, src, sub[b : b + bs], mined[b : b + bs])

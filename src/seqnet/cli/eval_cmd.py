@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dataset", required=True, help="seqnet dataset directory (see docs/dataset_format.md)")
     p.add_argument("--method", "--methods", dest="methods", action="append", metavar="M[,M...]",
                    help="methods to run (repeatable or comma-separated; default: all that need no model)")
-    p.add_argument("--seq-len", type=positive_int, help="window length L (default 5)")
+    p.add_argument("--seq-len", type=positive_int, help="window length L (default: the S_L model's, else 5)")
     p.add_argument("--window", choices=["centred", "causal"], help="window position (default centred)")
     p.add_argument("--radius", type=positive_float, help="localisation radius (default: the dataset's)")
     p.add_argument("--extra-radius", type=positive_float, action="append", default=[],
@@ -48,10 +48,10 @@ def load_models(args: argparse.Namespace) -> dict:
 
     models = {}
     for path in args.model:
-        model = load_model(path)
+        model = load_model(path)  # an original checkpoint without flags.json: use --shortlist-model + --seq-len
         models[model_role(model)] = model
     if args.shortlist_model:
-        models["seqnet"] = load_model(args.shortlist_model)
+        models["seqnet"] = load_model(args.shortlist_model, seq_len=args.seq_len)
     if args.rerank_model:
         models["s1"] = load_model(args.rerank_model)
     return models
@@ -61,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     ds = load_dataset(args.dataset)
     split = args.split or ("test" if "test" in ds.splits else "all")
     models = load_models(args)
+    if args.seq_len is None and "seqnet" in models:  # evaluate with the S_L model's own window length
+        args.seq_len = models["seqnet"].seq_len
     methods = parse_list(args.methods, valid_methods(), "method") or None
     if methods is None:
         methods = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch", "hvpr"]
