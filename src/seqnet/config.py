@@ -59,6 +59,8 @@ SYNTH_DEFAULTS: dict[str, Any] = {
     "places": 600,
     "dim": 64,
     "seed": 0,
+    "noise": 1.5,  # independent per-frame noise (relative to the place signal)
+    "nuisance": 1.0,  # slowly varying, condition-specific appearance change in a few directions
 }
 
 

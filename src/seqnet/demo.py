@@ -24,8 +24,9 @@ BASELINES = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch"]
 LEARNED = ["seqnet", "s1+seqmatch", "hvpr"]  # hvpr: shortlist with S_L, re-rank by SeqMatch on S_1
 DEMO_METHODS = BASELINES + LEARNED
 DEMO_SEQ_LEN = 5
+DEMO_PLACES = 2000
 # Fast demo training settings (not the paper's): see the module docstring and docs/training.md.
-DEMO_TRAIN: dict[str, Any] = {"optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "epochs": 15, "patience": 4,
+DEMO_TRAIN: dict[str, Any] = {"optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "epochs": 40, "patience": 8,
                               "out_dims": 256}
 DEMO_MODELS = {"seqnet": {"seq_len": DEMO_SEQ_LEN, "w": 3}, "s1": {"seq_len": 1, "w": 1}}
 
@@ -48,7 +49,7 @@ def train_demo_models(ds: Dataset, root: Path, data_dir: Path, device: str = "au
     return models, seconds
 
 
-def run_demo(out: str | Path | None = None, places: int = 1000, seed: int = 0, device: str = "auto",
+def run_demo(out: str | Path | None = None, places: int = DEMO_PLACES, seed: int = 0, device: str = "auto",
              epochs: int | None = None, train_models: bool = True) -> Evaluation:
     """Generate a synthetic dataset, save and reload it, train S_L and S_1, and evaluate every method.
 

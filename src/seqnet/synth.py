@@ -43,8 +43,19 @@ def _route_xy(places: int) -> np.ndarray:
     return 500000.0 + np.cumsum(steps, axis=0) + np.array([0.0, 6.0e6])
 
 
+def _nuisance(rng: np.random.Generator, n: int, basis: np.ndarray, rho: float = 0.97) -> np.ndarray:
+    """``[n, D]`` slowly varying appearance change (lighting, weather) inside the span of ``basis [k, D]``."""
+    c = np.empty((n, len(basis)))
+    c[0] = rng.standard_normal(len(basis))
+    eps = rng.standard_normal(c.shape) * np.sqrt(1 - rho**2)
+    for i in range(1, n):
+        c[i] = rho * c[i - 1] + eps[i]
+    return c @ basis
+
+
 def _traverse(
-    rng: np.random.Generator, z: np.ndarray, xy: np.ndarray, noise: float, condition: np.ndarray, name: str
+    rng: np.random.Generator, z: np.ndarray, xy: np.ndarray, noise: float, condition: np.ndarray, name: str,
+    nuisance: np.ndarray,
 ) -> tuple[Traverse, np.ndarray]:
     places = len(z)
     wave = 0.25 * np.sin(np.arange(4 * places) / rng.uniform(15, 30))
@@ -56,7 +67,7 @@ def _traverse(
     frac = (route_pos - lo)[:, None]
     latent = (1 - frac) * z[lo] + frac * z[hi]
     xy_f = (1 - frac) * xy[lo] + frac * xy[hi]
-    desc = latent @ condition + noise * rng.standard_normal(latent.shape)
+    desc = latent @ condition + _nuisance(rng, len(latent), nuisance) + noise * rng.standard_normal(latent.shape)
     desc /= np.linalg.norm(desc, axis=1, keepdims=True)
     n = len(route_pos)
     cuts = np.sort(rng.choice(np.arange(n // 8, n - n // 8), size=3, replace=False))
@@ -68,16 +79,25 @@ def _traverse(
     return Traverse(desc.astype(np.float32), xy_f, names, bounds, name), route_pos
 
 
-def make_synthetic(places: int = 600, dim: int = 64, seed: int = 0, noise: float = 2.0) -> Dataset:
+def make_synthetic(
+    places: int | None = None, dim: int | None = None, seed: int | None = None,
+    noise: float | None = None, nuisance: float | None = None,
+) -> Dataset:
     """Build a synthetic dataset (UTM positions in metres, radius 5 m, train/val/test splits).
+
+    Arguments left as None take their value from :data:`seqnet.config.SYNTH_DEFAULTS`.
 
     Args:
         places: number of places along the route (≥ 100).
         dim: descriptor dimension D (≥ 8).
         seed: random seed (the same seed gives the same dataset).
-        noise: per-frame noise level relative to the place signal.
+        noise: per-frame noise level relative to the place signal (isotropic, independent per frame).
+        nuisance: strength of the slowly varying, condition-specific appearance change that lives in a
+            few directions shared by both traverses (averaging a window cannot remove it; a learned
+            projection can).
     """
-    cfg = merge(SYNTH_DEFAULTS, {"places": places, "dim": dim, "seed": seed})
+    cfg = merge(SYNTH_DEFAULTS, {"places": places, "dim": dim, "seed": seed, "noise": noise, "nuisance": nuisance})
+    places, noise, nuisance = cfg["places"], cfg["noise"], cfg["nuisance"]
     if cfg["places"] < 100:
         raise ConfigError(f"places must be >= 100, got {cfg['places']}")
     if cfg["dim"] < 8:
@@ -88,8 +108,10 @@ def make_synthetic(places: int = 600, dim: int = 64, seed: int = 0, noise: float
     eye = np.eye(cfg["dim"])
     ref_cond = eye + 0.3 * rng.standard_normal(eye.shape) / np.sqrt(cfg["dim"])
     qry_cond = eye * rng.uniform(0.3, 1.7, cfg["dim"]) + 0.8 * rng.standard_normal(eye.shape) / np.sqrt(cfg["dim"])
-    ref, ref_route = _traverse(rng, z, xy, noise, ref_cond, "reference")
-    qry, qry_route = _traverse(rng, z, xy, noise, qry_cond, "query")
+    k = max(2, cfg["dim"] // 8)
+    basis = np.linalg.qr(rng.standard_normal((cfg["dim"], k)))[0].T * nuisance * np.sqrt(cfg["dim"] / k)
+    ref, ref_route = _traverse(rng, z, xy, noise, ref_cond, "reference", basis)
+    qry, qry_route = _traverse(rng, z, xy, noise, qry_cond, "query", basis)
     splits = {}
     for split, (a, b) in {"train": (0.0, 0.6), "val": (0.6, 0.75), "test": (0.75, 1.0)}.items():
         rng_r = np.searchsorted(ref_route, [a * (places - 1), b * (places - 1)])

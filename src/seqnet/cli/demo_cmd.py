@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..demo import DEMO_SEQ_LEN, run_demo
+from ..demo import DEMO_PLACES, DEMO_SEQ_LEN, run_demo
 from ..report import format_table
 from ..utils import set_threads, write_json_atomic
 from .common import add_device, positive_int
@@ -17,7 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "learned methods (seqnet, s1+seqmatch, hvpr = S_L shortlist + S_1 SeqMatch) on the "
                                    "test split.")
     p.add_argument("--out", metavar="DIR", help="keep the dataset, training runs and results here (default: temporary)")
-    p.add_argument("--places", type=positive_int, default=1000, help="places along the synthetic route (default 1000)")
+    p.add_argument("--places", type=positive_int, default=DEMO_PLACES,
+                   help=f"places along the synthetic route (default {DEMO_PLACES})")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--epochs", type=positive_int,
                    help="training epochs per model (default: the demo's, 15, with early stopping)")
