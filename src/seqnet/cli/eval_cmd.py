@@ -65,8 +65,9 @@ def run(args: argparse.Namespace) -> int:
         args.seq_len = models["seqnet"].seq_len
     methods = parse_list(args.methods, valid_methods(), "method") or None
     if methods is None:
-        methods = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch", "hvpr"]
-        methods += [m for m, role in (("s1", "s1"), ("seqnet", "seqnet"), ("s1+seqmatch", "s1")) if role in models]
+        needs = {"s1": "s1", "seqnet": "seqnet", "s1+seqmatch": "s1"}
+        order = ["single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch", "delta+seqmatch", "hvpr"]
+        methods = [m for m in order if needs.get(m, "") in models or m not in needs]
         if args.seq_len == 1:  # Delta descriptors need L >= 2: leave out the default methods that use them
             shortlister = args.shortlist or ("seqnet" if "seqnet" in models else "delta")
             hvpr_delta = "delta" in (shortlister, args.rerank)
