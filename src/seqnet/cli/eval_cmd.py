@@ -66,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
     methods = parse_list(args.methods, valid_methods(), "method") or None
     if methods is None:
         needs = {"s1": "s1", "seqnet": "seqnet", "s1+seqmatch": "s1"}
-        order = ["single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch", "delta+seqmatch", "hvpr"]
+        order = ["single", "s1", "smoothing", "delta", "seqnet",
+                 "raw+seqmatch", "s1+seqmatch", "delta+seqmatch", "hvpr"]
         methods = [m for m in order if needs.get(m, "") in models or m not in needs]
         if args.seq_len == 1:  # Delta descriptors need L >= 2: leave out the default methods that use them
             shortlister = args.shortlist or ("seqnet" if "seqnet" in models else "delta")
