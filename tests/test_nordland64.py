@@ -43,6 +43,25 @@ def test_training_dataset_symmetric(rng):
     np.testing.assert_array_equal(t.query.descriptors[60:], d_q[35:45])  # val stays winter -> summer
     assert t.reference.positions[30, 0] > 100 and t.query.seq_bounds[59].tolist() == [30, 60]
     assert training_dataset(ds, None, symmetric=False).splits["train"]["query"] == (0, 30)
+    flipped = rng.random((2, 30, 4), dtype=np.float32)
+    t = training_dataset(ds, None, symmetric=True, flipped=flipped)
+    assert t.splits["train"]["query"] == (0, 120) and t.splits["val"]["query"] == (120, 130)
+    np.testing.assert_array_equal(t.reference.descriptors[30:60], flipped[0])  # mirrored summer -> winter
+    np.testing.assert_array_equal(t.query.descriptors[90:120], flipped[0])  # and winter -> summer
+    gaps = np.diff(t.query.positions[:120, 0])
+    assert np.all(np.abs(gaps[[29, 59, 89]]) > 100)  # sequences never within a radius of each other
+
+
+def test_flipped_pixels_are_mirrored_descriptors():
+    from seqnet.describe import make_describer
+    from seqnet.nordland64 import _describe_flipped
+
+    data = shared_data("nordland64")
+    paths = [data / "summer" / f"images-{i:05d}.png" for i in (210, 220, 230)]
+    d = make_describer("pixels", paths, progress=False)
+    plain, _ = d.describe(paths)
+    perm = np.arange(plain.shape[1]).reshape(32, 64)[:, ::-1].ravel()
+    np.testing.assert_allclose(_describe_flipped(d, paths), plain[:, perm], atol=1e-6)
 
 
 def test_config_rejects_unknown_keys():

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import shutil
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -29,7 +30,7 @@ from .pca import PCA, fit_pca
 from .presets import BENCHMARKS
 from .sequence_descriptors import SeqNet
 from .traverse import Dataset, Traverse, load_dataset, save_dataset
-from .utils import logger, write_json_atomic
+from .utils import logger, save_npy_atomic, write_json_atomic
 
 SEASONS = ("summer", "winter")
 FRAME_NUMBER = re.compile(r"(\d+)")
@@ -58,30 +59,46 @@ def list_places(data: str | Path, names_file: str = "nordland_clean_imageNames.t
 def describe_config(cfg: Mapping[str, Any]) -> dict[str, Any]:
     """The settings that determine the single-image descriptors (the cache key)."""
     return {"descriptor": cfg["descriptor"], "options": dict(cfg["descriptor_options"]),
-            "fit_range": list(cfg["train_range"]) if cfg["descriptor"] != "pixels" else None}
+            "fit_range": list(cfg["train_range"]) if cfg["descriptor"] != "pixels" else None,
+            "flip_train": bool(cfg["flip"])}
 
 
-def describe_seasons(data: Path, names: list[str], cfg: Mapping[str, Any],
-                     offset: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Descriptors ``[N, D]`` of the reference (summer) and query (winter) images of ``names``.
+def describe_seasons(data: Path, names: list[str], cfg: Mapping[str, Any], offset: int = 0) -> dict[str, np.ndarray]:
+    """Descriptors ``[N, D]`` of the summer (reference) and winter (query) images of ``names``, and
+    with ``cfg["flip"]`` of the horizontally flipped train images (``summer_flip``, ``winter_flip``).
 
     Anything fitted (NetVLAD clusters, PCA of the describer) is fitted on the train range only
     (``names[i]`` is place ``offset + i``).
     """
     from .describe import make_describer
 
-    opts = dict(cfg["descriptor_options"])
     a, b = cfg["train_range"]
-    fit = [data / s / n for s in SEASONS for n in names[a - offset : b - offset]]
-    describer = make_describer(cfg["descriptor"], fit, **{"fit": fit, **opts})
-    out = []
+    fit = [data / s / n for s in SEASONS for n in names[a - offset : b - offset]]  # the train images
+    describer = make_describer(cfg["descriptor"], fit, **{"fit": fit, **dict(cfg["descriptor_options"])})
+    out, train_names = {}, names[a - offset : b - offset]
     for season in SEASONS:
         logger.info("describing %d %s images (%s)", len(names), season, cfg["descriptor"])
         desc, got = describer.describe([data / season / n for n in names], names)
         if len(got) != len(names):
             raise DatasetError(f"{len(names) - len(got)} {season} images could not be read")
-        out.append(desc)
-    return out[0], out[1]
+        out[season] = desc
+        if cfg["flip"]:
+            out[f"{season}_flip"] = _describe_flipped(describer, [data / season / n for n in train_names])
+    return out
+
+
+def _describe_flipped(describer: Any, paths: list[Path], batch: int = 256) -> np.ndarray:
+    """Descriptors ``[N, D]`` of the images ``paths`` mirrored left-right (training augmentation)."""
+    from tqdm.auto import tqdm
+
+    from .images import iter_batches, load_images
+
+    size, out = describer.opts.resolved_size(describer.method), []
+    for idx in tqdm(list(iter_batches(len(paths), batch)), desc="describe flipped", unit="batch", leave=False):
+        imgs, _ = load_images([paths[i] for i in idx], size=size, crop_bottom=describer.opts.crop_bottom,
+                              grey=describer.method == "pixels")
+        out.append(describer(np.ascontiguousarray(imgs[:, :, ::-1])))
+    return np.concatenate(out).astype(np.float32)
 
 
 def _splits(cfg: Mapping[str, Any], n: int) -> tuple[int, dict[str, dict[str, tuple[int, int]]]]:
@@ -96,8 +113,9 @@ def _splits(cfg: Mapping[str, Any], n: int) -> tuple[int, dict[str, dict[str, tu
     return lo, {k: {"reference": (a - lo, b - lo), "query": (a - lo, b - lo)} for k, (a, b) in ranges.items()}
 
 
-def build_dataset(data: str | Path, cfg: Mapping[str, Any], out: Path) -> Dataset:
-    """The nordland64 dataset (raw descriptors, all places, splits), cached in ``out/dataset``."""
+def build_dataset(data: str | Path, cfg: Mapping[str, Any], out: Path) -> tuple[Dataset, np.ndarray | None]:
+    """The nordland64 dataset (raw descriptors, places in use, splits), cached in ``out/dataset``, and
+    the flipped train descriptors ``[2, n_train, D]`` (summer, winter; None without ``cfg["flip"]``)."""
     data = Path(data)
     names, pos = list_places(data, cfg["names_file"])
     lo, splits = _splits(cfg, len(names))
@@ -107,27 +125,33 @@ def build_dataset(data: str | Path, cfg: Mapping[str, Any], out: Path) -> Datase
     cache = out / "dataset"
     if (cache / "dataset.json").is_file():
         ds = load_dataset(cache, mmap=False)
-        if ds.extra.get("describe") == json.loads(json.dumps(key)) and ds.reference.names == names:
+        flip_ok = not cfg["flip"] or (cache / "flip_train.npy").is_file()
+        if ds.extra.get("describe") == json.loads(json.dumps(key)) and ds.reference.names == names and flip_ok:
             logger.info("using cached descriptors in %s", cache)
             ds.splits = splits
-            return ds
+            return ds, np.load(cache / "flip_train.npy") if cfg["flip"] else None
     t0 = time.perf_counter()
-    ref, qry = describe_seasons(data, names, cfg, lo)
-    ds = Dataset(reference=Traverse(ref, pos, names=names, name="summer"),
-                 query=Traverse(qry, pos, names=list(names), name="winter"), radius=float(cfg["radius"]),
+    d = describe_seasons(data, names, cfg, lo)
+    ds = Dataset(reference=Traverse(d["summer"], pos, names=names, name="summer"),
+                 query=Traverse(d["winter"], pos, names=list(names), name="winter"), radius=float(cfg["radius"]),
                  position_unit="frames", splits=splits, name="nordland64",
                  extra={"pos_radius": cfg["pos_radius"], "neg_radius": cfg["neg_radius"], "describe": key,
                         "describe_seconds": round(time.perf_counter() - t0, 2), "source": str(data),
                         "first_place": lo})
     save_dataset(ds, cache, overwrite=True)
-    return ds
+    flipped = np.stack([d["summer_flip"], d["winter_flip"]]) if cfg["flip"] else None
+    if flipped is not None:
+        save_npy_atomic(cache / "flip_train.npy", flipped)
+    return ds, flipped
 
 
-def training_dataset(ds: Dataset, pca: PCA | None, symmetric: bool) -> Dataset:
+def training_dataset(ds: Dataset, pca: PCA | None, symmetric: bool, flipped: np.ndarray | None = None) -> Dataset:
     """The train + val splits of ``ds`` (descriptors PCA-projected) for :func:`seqnet.train.train`.
 
-    With ``symmetric``, the train range is used both ways (winter → summer and summer → winter,
-    as two sequences far apart in position); the val split stays winter → summer.
+    With ``symmetric``, the train range is used both ways (winter → summer and summer → winter);
+    ``flipped`` ``[2, n_train, D]`` (summer, winter descriptors of the mirrored train images) adds
+    the mirrored route. Each is its own sequence, far from the others in position; the val split
+    stays winter → summer.
     """
     (a, b), (c, d) = ds.splits["train"]["query"], ds.splits["val"]["query"]
 
@@ -135,8 +159,10 @@ def training_dataset(ds: Dataset, pca: PCA | None, symmetric: bool) -> Dataset:
         return np.asarray(x, dtype=np.float32) if pca is None else pca.transform(x, l2=False)
 
     r, q, p = proj(ds.reference.descriptors), proj(ds.query.descriptors), ds.reference.positions[:, 0]
-    parts = [(r[a:b], q[a:b], p[a:b])] + ([(q[a:b], r[a:b], p[a:b] + 10 * p.max() + 100)] if symmetric else [])
-    parts.append((r[c:d], q[c:d], p[c:d]))
+    pairs = [(r[a:b], q[a:b])] + ([(proj(flipped[0]), proj(flipped[1]))] if flipped is not None else [])
+    pairs += [(y, x) for x, y in pairs] if symmetric else []
+    gap = 10 * float(p.max()) + 100  # positions of different sequences never within a radius
+    parts = [(x, y, p[a:b] + i * gap) for i, (x, y) in enumerate(pairs)] + [(r[c:d], q[c:d], p[c:d])]
     sizes = np.cumsum([0] + [len(x[0]) for x in parts])
     bounds = np.concatenate([np.tile([[s, e]], (e - s, 1)) for s, e in zip(sizes[:-1], sizes[1:], strict=True)])
     ref = Traverse(np.concatenate([x[0] for x in parts]), np.concatenate([x[2] for x in parts]), seq_bounds=bounds)
@@ -166,13 +192,26 @@ def fold_pca(model: SeqNet, pca: PCA) -> SeqNet:
 
 
 def _train_key(cfg: Mapping[str, Any]) -> str:
-    keys = ("train_range", "val_range", "pca_dims", "pca_whiten", "symmetric", "pos_radius", "neg_radius",
+    keys = ("train_range", "val_range", "pca_dims", "pca_whiten", "symmetric", "flip", "pos_radius", "neg_radius",
             "train", "train_s1", "names_file")
     blob = json.dumps({"describe": describe_config(cfg), **{k: cfg[k] for k in keys}}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def train_models(ds: Dataset, cfg: Mapping[str, Any], out: Path) -> tuple[dict[str, SeqNet], dict[str, float]]:
+def fit_train_pca(ds: Dataset, cfg: Mapping[str, Any]) -> PCA | None:
+    """PCA to ``cfg["pca_dims"]`` (capped by the data) of both seasons' train descriptors; None when 0."""
+    if not cfg["pca_dims"]:
+        return None
+    a, b = ds.splits["train"]["query"]
+    x = np.concatenate([ds.reference.descriptors[a:b], ds.query.descriptors[a:b]])
+    dims = min(int(cfg["pca_dims"]), *x.shape)
+    if dims < int(cfg["pca_dims"]):
+        logger.warning("PCA: %d dims asked, %d possible with %d training images", cfg["pca_dims"], dims, len(x))
+    return fit_pca(x, dims, whiten=bool(cfg["pca_whiten"]), l2=False)
+
+
+def train_models(ds: Dataset, cfg: Mapping[str, Any], out: Path,
+                 flipped: np.ndarray | None = None) -> tuple[dict[str, SeqNet], dict[str, float]]:
     """Train S_L and S_1 (PCA-projected inputs, epoch chosen on val), fold the PCA in; save to ``out/models``.
 
     Models trained with the same settings before (``out/models/key.json``) are reused.
@@ -186,24 +225,14 @@ def train_models(ds: Dataset, cfg: Mapping[str, Any], out: Path) -> tuple[dict[s
         logger.info("reusing the models trained with the same settings in %s", models_dir)
         info = json.loads(key_file.read_text())
         return {r: load_model(models_dir / f"{r}.pt") for r in ("seqnet", "s1")}, info["seconds"]
-    a, b = ds.splits["train"]["query"]
-    pca = None
-    if cfg["pca_dims"]:
-        train_x = np.concatenate([ds.reference.descriptors[a:b], ds.query.descriptors[a:b]])
-        dims = min(int(cfg["pca_dims"]), *train_x.shape)
-        if dims < int(cfg["pca_dims"]):
-            logger.warning("PCA: %d dims asked, %d possible with %d training images", cfg["pca_dims"], dims,
-                           len(train_x))
-        pca = fit_pca(train_x, dims, whiten=bool(cfg["pca_whiten"]), l2=False)
+    pca = fit_train_pca(ds, cfg)
+    if pca is not None:
         pca.save(models_dir / "pca.npz")
-    tds = training_dataset(ds, pca, bool(cfg["symmetric"]))
+    tds = training_dataset(ds, pca, bool(cfg["symmetric"]), flipped)
     models, seconds = {}, {}
     for role, tcfg in (("seqnet", cfg["train"]), ("s1", {**cfg["train"], **cfg["train_s1"]})):
         run_dir = out / "runs" / role
-        if run_dir.exists():
-            import shutil
-
-            shutil.rmtree(run_dir)
+        shutil.rmtree(run_dir, ignore_errors=True)
         logger.info("training %s (%s) on places %s", role, "S_1" if role == "s1" else "S_L", cfg["train_range"])
         t0 = time.perf_counter()
         run = train(tds, {**tcfg, "device": cfg["device"]}, run_dir)
@@ -226,7 +255,7 @@ def evaluate_split(ds: Dataset, models: Mapping[str, SeqNet], cfg: Mapping[str, 
 def write_report(ev: Evaluation, val: Evaluation, cfg: Mapping[str, Any], seconds: Mapping[str, float],
                  out: Path) -> None:
     """``results.json`` (eval schema + benchmark config and timings), ``val_results.json``,
-    ``results.md`` (Table-I style) and ``recall_at_k.png`` (Recall@K, K = 1..20)."""
+    ``results.md`` (Table-I style) and ``recall_at_k.png`` (Recall@K, K = 1..20, test range)."""
     from .recall import recall_curve
     from .report import format_markdown, plot_recall_curves
     from .utils import write_text_atomic
@@ -234,9 +263,14 @@ def write_report(ev: Evaluation, val: Evaluation, cfg: Mapping[str, Any], second
     ev.results["config"].update(benchmark=dict(cfg), timings_s=dict(seconds))
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
-    write_json_atomic(out / "config.json", dict(cfg))
     curves = {m: recall_curve(r, ev.q_pos, ev.r_pos, ev.radius, 20) for m, r in ev.retrieved.items()}
-    plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={cfg['seq_len']})")
+    import matplotlib
+    from cycler import cycler
+
+    tab20 = matplotlib.colormaps["tab20"].colors
+    styles = cycler(color=[*tab20[::2], *tab20[1::2]]) + cycler(linestyle=["-"] * 10 + ["--"] * 10)
+    with matplotlib.rc_context({"axes.prop_cycle": styles}):  # > 10 methods: no repeated colours
+        plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={cfg['seq_len']})")
     first = next(iter(ev.results["methods"].values()))
     (a, b), (c, d) = cfg["test_range"], cfg["val_range"]
     lines = [
@@ -263,11 +297,11 @@ def main(conf: Mapping[str, Any] | None, data: str | Path, out: str | Path) -> E
         torch.set_num_threads(int(cfg["threads"]))
     t0 = time.perf_counter()
     seconds: dict[str, float] = {}
-    ds = build_dataset(data, cfg, out)
+    ds, flipped = build_dataset(data, cfg, out)
     seconds["descriptors"] = round(time.perf_counter() - t0, 2)
     logger.info("nordland64: %d places, D=%d; train %s, val %s, test %s", len(ds.query), ds.query.dim,
                 cfg["train_range"], cfg["val_range"], cfg["test_range"])
-    models, train_s = train_models(ds, cfg, out)
+    models, train_s = train_models(ds, cfg, out, flipped)
     seconds.update({f"train_{k}": v for k, v in train_s.items()})
     t1 = time.perf_counter()
     val = evaluate_split(ds, models, cfg, "val")
@@ -275,5 +309,6 @@ def main(conf: Mapping[str, Any] | None, data: str | Path, out: str | Path) -> E
     seconds["evaluation"] = round(time.perf_counter() - t1, 2)
     seconds["total"] = round(time.perf_counter() - t0, 2)
     write_report(ev, val, cfg, seconds, out)
+    write_json_atomic(out / "config.json", {**cfg, "data": str(data)})
     logger.info("nordland64 done in %.0f s: %s", seconds["total"], out / "results.md")
     return ev

@@ -23,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     n.add_argument("--val-range", type=index_range, metavar="A:B", help="validation places (default 1660:1930)")
     n.add_argument("--test-range", type=index_range, metavar="A:B", help="test places (default 1940:2761)")
     n.add_argument("--descriptor", choices=DESCRIPTORS, help="single-image descriptor (default pixels)")
+    n.add_argument("--patch", type=int, help="pixels patch-normalisation size (default: preset; 8 = SeqSLAM's)")
     n.add_argument("--seq-len", type=positive_int, help="sequence length L of S_L, evaluation and SeqMatch (default 5)")
     n.add_argument("--w", type=positive_int, help="S_L temporal kernel width (default 3)")
     n.add_argument("--epochs", type=positive_int, help="training epochs of S_L and S_1 (default: preset)")
@@ -39,6 +40,8 @@ def nordland64_overrides(args: argparse.Namespace) -> dict:
 
     base = BENCHMARKS["nordland64"]
     train = {k: v for k, v in (("seq_len", args.seq_len), ("w", args.w), ("epochs", args.epochs)) if v is not None}
+    if args.seq_len is not None and args.w is None:
+        train["w"] = min(base["train"]["w"], args.seq_len)
     conf = {
         "train_range": list(args.train_range) if args.train_range else None,
         "val_range": list(args.val_range) if args.val_range else None,
@@ -48,7 +51,9 @@ def nordland64_overrides(args: argparse.Namespace) -> dict:
         "train": {**base["train"], **train} if train else None,
     }
     if args.descriptor and args.descriptor != "pixels":
-        conf["descriptor_options"] = {"progress": True}
+        conf["descriptor_options"] = {"size": "auto"}  # CNNs: the describer's default input size
+    elif args.patch is not None:
+        conf["descriptor_options"] = {**base["descriptor_options"], "patch": args.patch}
     return conf
 
 
