@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     n.add_argument("--descriptor", choices=DESCRIPTORS, help="single-image descriptor (default pixels)")
     n.add_argument("--patch", type=int, help="pixels patch-normalisation size (default: preset; 8 = SeqSLAM's)")
     n.add_argument("--seq-len", type=positive_int, help="sequence length L of S_L, evaluation and SeqMatch (default 5)")
-    n.add_argument("--w", type=positive_int, help="S_L temporal kernel width (default 3)")
+    n.add_argument("--w", type=positive_int, help="S_L temporal kernel width (default 5)")
     n.add_argument("--epochs", type=positive_int, help="training epochs of S_L and S_1 (default: preset)")
     n.add_argument("--pca-dims", type=int, help="PCA size before training (0: none; default: preset)")
     n.add_argument("--top-k", type=positive_int, help="HVPR shortlist size (default 20)")
