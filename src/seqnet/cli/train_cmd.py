@@ -7,19 +7,9 @@ import math
 
 from ..train import TRAIN_CONFIG_DEFAULTS, main
 from ..utils import set_threads
-from .common import add_device, positive_float, positive_int
+from .common import add_device, non_negative_int, positive_float, positive_int
 
 _D = TRAIN_CONFIG_DEFAULTS
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
-    return v
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -59,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--n-negatives", type=positive_int, help=f"hard negatives per query (default {_D['n_negatives']})")
     t.add_argument("--n-neg-sample", type=positive_int,
                    help=f"negatives sampled per query to mine from (default {_D['n_neg_sample']})")
-    t.add_argument("--cache-refresh", type=_non_negative_int, help="recompute the mining descriptors every N queries "
+    t.add_argument("--cache-refresh", type=non_negative_int, help="recompute the mining descriptors every N queries "
                    f"(default {_D['cache_refresh']}; 0: once per epoch)")
     t.add_argument("--train-split", help="split to train on (default train; 'all': the whole dataset)")
     t.add_argument("--val-split", help="split to validate on (default val; 'none': no validation, best.pt = last)")
