@@ -264,13 +264,7 @@ def write_report(ev: Evaluation, val: Evaluation, cfg: Mapping[str, Any], second
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
     curves = {m: recall_curve(r, ev.q_pos, ev.r_pos, ev.radius, 20) for m, r in ev.retrieved.items()}
-    import matplotlib
-    from cycler import cycler
-
-    tab20 = matplotlib.colormaps["tab20"].colors
-    styles = cycler(color=[*tab20[::2], *tab20[1::2]]) + cycler(linestyle=["-"] * 10 + ["--"] * 10)
-    with matplotlib.rc_context({"axes.prop_cycle": styles}):  # > 10 methods: no repeated colours
-        plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={cfg['seq_len']})")
+    plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={cfg['seq_len']})")
     first = next(iter(ev.results["methods"].values()))
     (a, b), (c, d) = cfg["test_range"], cfg["val_range"]
     lines = [

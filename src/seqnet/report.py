@@ -60,10 +60,15 @@ def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
+    tab20 = matplotlib.colormaps["tab20"].colors
+    colours = [*tab20[::2], *tab20[1::2]]  # 20 distinct colours: solid lines first, then dashed
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    for name, c in curves.items():
-        ax.plot(np.arange(1, len(c) + 1), c, marker="o", markersize=3, label=name)
+    for i, (name, c) in enumerate(curves.items()):
+        ax.plot(np.arange(1, len(c) + 1), c, marker="o", markersize=3, label=name,
+                color=colours[i % 20], linestyle="-" if i % 20 < 10 else "--")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("K (number of top reference candidates)")
     ax.set_ylabel("Recall@K")
     ax.set_ylim(0, 1.02)
