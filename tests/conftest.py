@@ -39,6 +39,6 @@ def synth_dataset():
 @pytest.fixture
 def synth_dir(tmp_path, synth_dataset):
     """The small synthetic dataset saved in the directory format."""
-    from seqnet.traverse import save_dataset
+    from seqnet.dataset_io import save_dataset
 
     return save_dataset(synth_dataset, tmp_path / "ds")

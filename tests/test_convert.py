@@ -15,8 +15,8 @@ from seqnet.convert import (
     summarize_dataset,
     traverse_from_csv,
 )
+from seqnet.dataset_io import load_dataset
 from seqnet.errors import DatasetError
-from seqnet.traverse import load_dataset
 
 
 def _write_csv(path, rows, header="name,easting,northing"):
@@ -144,7 +144,8 @@ def test_check_summary_and_errors(synth_dir, tmp_path, capsys):
 
 
 def test_check_fails_when_no_query_matches(tmp_path, rng, capsys):
-    from seqnet.traverse import Dataset, Traverse, save_dataset
+    from seqnet.dataset_io import save_dataset
+    from seqnet.traverse import Dataset, Traverse
 
     d = rng.random((10, 4), dtype=np.float32)
     ds = Dataset(Traverse(d, np.arange(10)), Traverse(d, np.arange(10) + 1000.0), radius=1.0)

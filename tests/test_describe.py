@@ -11,9 +11,9 @@ from test_netvlad import make_checkpoint
 
 import seqnet.describe as describe_mod
 from seqnet.cli import main
+from seqnet.dataset_io import load_descriptors
 from seqnet.describe import describe_folder, describe_images, make_describer
 from seqnet.errors import ConfigError, ImageError
-from seqnet.traverse import load_descriptors
 
 
 @pytest.fixture

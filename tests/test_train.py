@@ -137,7 +137,7 @@ def test_cli_train_then_eval_end_to_end(synth_dir, tmp_path, capsys):
 
 
 def test_cli_train_bad_inputs_exit_2_with_one_line(synth_dataset, synth_dir, tmp_path, capsys):
-    from seqnet.traverse import save_dataset
+    from seqnet.dataset_io import save_dataset
 
     bad = save_dataset(_no_positive_dataset(synth_dataset), tmp_path / "bad")
     cases = [["--dataset", str(bad), "--out", str(tmp_path / "o1")],

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from .dataset_io import load_dataset, save_dataset
 from .errors import CheckpointError, ConfigError, DatasetError, ImageError, SeqnetError
 from .evaluate import Evaluation, evaluate
 from .matching import knn, pairwise_distances, topk_smallest
@@ -16,7 +17,7 @@ from .recall import recall_at_k
 from .sequence_descriptors import SeqNet, delta, smoothing
 from .sequence_matching import hvpr, seqmatch
 from .synth import make_synthetic
-from .traverse import Dataset, Traverse, load_dataset, save_dataset
+from .traverse import Dataset, Traverse
 from .windows import window_indices, window_starts
 
 __all__ = [

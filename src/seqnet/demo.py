@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from .checkpoints import load_model
+from .dataset_io import load_dataset, save_dataset
 from .evaluate import Evaluation, evaluate
 from .synth import make_synthetic
 from .train import train
-from .traverse import Dataset, load_dataset, save_dataset
+from .traverse import Dataset
 from .utils import logger
 
 BASELINES = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch"]

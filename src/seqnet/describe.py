@@ -7,7 +7,7 @@ Library entry points::
 
 Output files: ``.h5``/``.hdf5`` (datasets ``descriptors`` [N, D] float32 and ``names``) or ``.npy``
 with the names in a text file beside it (``names.txt`` for ``descriptors.npy``, else
-``<stem>.names.txt``) — the formats :func:`seqnet.traverse.load_descriptors` reads. Work in progress
+``<stem>.names.txt``) — the formats :func:`seqnet.dataset_io.load_descriptors` reads. Work in progress
 lives in a hidden ``.<out>.partial.h5`` with a per-image status mask, so a re-run resumes; fitted
 state (PCA, NetVLAD clusters) is saved beside the output as ``<stem>.pca.npz`` and
 ``<stem>.netvlad.pth.tar``.

@@ -24,12 +24,13 @@ import numpy as np
 import torch
 
 from .config import merge
+from .dataset_io import load_dataset, save_dataset
 from .errors import ConfigError, DatasetError
 from .evaluate import Evaluation, evaluate
 from .pca import PCA, fit_pca
 from .presets import BENCHMARKS
 from .sequence_descriptors import SeqNet
-from .traverse import Dataset, Traverse, load_dataset, save_dataset
+from .traverse import Dataset, Traverse
 from .utils import logger, save_npy_atomic, write_json_atomic
 
 SEASONS = ("summer", "winter")

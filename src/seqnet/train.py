@@ -26,11 +26,12 @@ from tqdm.auto import tqdm
 from . import __version__
 from .checkpoints import capture_rng, model_role, read_checkpoint, read_resume, restore_rng, save_checkpoint
 from .config import TRAIN_DEFAULTS, merge
+from .dataset_io import load_dataset
 from .errors import CheckpointError, ConfigError, DatasetError
 from .losses import triplet_loss
 from .mining import Mined, TripletSource, check_radii, compute_cache, mine_queries, triplet_source
 from .sequence_descriptors import SeqNet
-from .traverse import Dataset, load_dataset
+from .traverse import Dataset
 from .utils import get_device, logger, write_json_atomic
 from .windows import WINDOW_MODES, check_seq_len, gather_windows
 

@@ -102,7 +102,7 @@ def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | No
 
 def _finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
     from ..convert import summarize_dataset
-    from ..traverse import save_dataset
+    from ..dataset_io import save_dataset
 
     save_dataset(ds, args.out, overwrite=args.overwrite)
     s = summarize_dataset(ds)
@@ -169,8 +169,8 @@ def run_from_seqnet(args: argparse.Namespace) -> int:
 
 def run_check(args: argparse.Namespace) -> int:
     from ..convert import summarize_dataset
+    from ..dataset_io import load_dataset
     from ..errors import DatasetError
-    from ..traverse import load_dataset
 
     ds = load_dataset(args.dir)
     s = summarize_dataset(ds)

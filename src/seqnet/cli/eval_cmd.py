@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from ..dataset_io import load_dataset
 from ..evaluate import evaluate
 from ..methods import valid_methods
 from ..report import format_table
-from ..traverse import load_dataset
 from ..utils import write_json_atomic
 from .common import add_device, parse_list, positive_float, positive_int
 

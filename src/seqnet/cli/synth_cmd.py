@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from ..config import SYNTH_DEFAULTS
+from ..dataset_io import save_dataset
 from ..synth import make_synthetic
-from ..traverse import save_dataset
 from .common import positive_float, positive_int
 
 

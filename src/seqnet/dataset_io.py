@@ -1,0 +1,235 @@
+"""Reading and writing the seqnet dataset directory format (see docs/dataset_format.md).
+
+:func:`load_dataset` validates everything it reads and says precisely what is wrong;
+:func:`save_dataset` builds the directory next to its target and renames it into place, so a
+crash never leaves a half-written dataset.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import DatasetError
+from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse
+from .utils import current_umask, logger, save_npy_atomic, write_json_atomic
+
+# ----------------------------------------------------------------------------- reading
+
+
+def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
+    """Load and validate a dataset directory; raise :class:`DatasetError` saying what is wrong."""
+    root = Path(path)
+    if not root.exists():
+        raise DatasetError(f"dataset directory not found: {root}")
+    if not root.is_dir():
+        raise DatasetError(f"dataset path is not a directory: {root}")
+    meta_path = root / "dataset.json"
+    if not meta_path.is_file():
+        raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing "
+                           "(hint: `seqnet synth DIR` writes an example)")
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{meta_path}: not valid JSON ({e})") from None
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{meta_path}: must hold a JSON object")
+    if "radius" not in meta:
+        raise DatasetError(f"{meta_path}: missing key 'radius' (localisation radius, metres or frames)")
+    try:
+        radius = float(meta["radius"])
+    except (TypeError, ValueError):
+        raise DatasetError(f"{meta_path}: radius must be a number, got {meta['radius']!r}") from None
+    trav = meta.get("traverses", {"reference": "reference", "query": "query"})
+    if not isinstance(trav, dict) or not all(isinstance(v, str) for v in trav.values()):
+        raise DatasetError(f"{meta_path}: 'traverses' must be an object like "
+                           '{"reference": "ref", "query": "qry"}')
+    ref = load_traverse(root / trav.get("reference", "reference"), "reference", mmap)
+    qry = load_traverse(root / trav.get("query", "query"), "query", mmap)
+    return Dataset(
+        reference=ref,
+        query=qry,
+        radius=radius,
+        position_unit=meta.get("position_unit"),
+        splits=_parse_splits(meta.get("splits", {}), meta_path),
+        name=str(meta.get("name", root.name)),
+        extra={k: v for k, v in meta.items() if k not in _META_KEYS},
+    )
+
+
+_META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses"}
+
+
+def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]]:
+    if not isinstance(raw, dict):
+        raise DatasetError(f"{where}: 'splits' must be an object like {{\"test\": [0, 100]}}")
+    out: dict[str, dict[str, tuple[int, int]]] = {}
+    for name, rng in raw.items():
+        try:
+            if isinstance(rng, dict):
+                out[name] = {k: (int(rng[k][0]), int(rng[k][1])) for k in ("reference", "query")}
+            else:
+                a, b = int(rng[0]), int(rng[1])
+                out[name] = {"reference": (a, b), "query": (a, b)}
+        except (KeyError, TypeError, ValueError, IndexError):
+            raise DatasetError(
+                f"{where}: split {name!r} must be [start, stop] or "
+                "{\"reference\": [start, stop], \"query\": [start, stop]}"
+            ) from None
+    return out
+
+
+def load_traverse(path: Path, name: str, mmap: bool = True) -> Traverse:
+    """Load one traverse directory (descriptors, positions, optional names and seq_bounds)."""
+    if not path.is_dir():
+        raise DatasetError(f"{name} traverse directory not found: {path}")
+    desc, h5_names = load_descriptors(path, mmap)
+    pos = _load_positions(path)
+    names = h5_names
+    if (path / "names.txt").is_file():
+        try:
+            names = (path / "names.txt").read_text(encoding="utf-8").splitlines()
+        except UnicodeDecodeError as e:
+            raise DatasetError(f"{path / 'names.txt'}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    bounds = None
+    if (path / "seq_bounds.npy").is_file():
+        bounds = _load_npy(path / "seq_bounds.npy", mmap=False)
+        if not np.issubdtype(bounds.dtype, np.integer):
+            raise DatasetError(f"{path / 'seq_bounds.npy'}: must hold integers, got {bounds.dtype}")
+    return Traverse(descriptors=desc, positions=pos, names=names, seq_bounds=bounds, name=f"{name} ({path})")
+
+
+def load_descriptors(path: Path, mmap: bool = True) -> tuple[np.ndarray, list[str] | None]:
+    """Load ``descriptors.npy`` (memory-mapped) or ``descriptors.h5`` from a traverse directory."""
+    for fname in DESCRIPTOR_FILES:
+        f = path / fname
+        if f.is_file():
+            if f.suffix == ".npy":
+                return _load_npy(f, mmap), None
+            return _load_h5(f)
+    raise DatasetError(f"no descriptor file in {path}; expected one of {', '.join(DESCRIPTOR_FILES)}")
+
+
+def _load_npy(f: Path, mmap: bool) -> np.ndarray:
+    with open(f, "rb") as fh:
+        magic = fh.read(6)
+    if magic != b"\x93NUMPY":
+        what = "not in .npy format (no NumPy header)"
+        if not magic:
+            what = "empty"
+        elif magic.startswith(b"PK"):
+            what = "a .npz archive"
+        raise DatasetError(f"cannot read {f} as a .npy array: the file is {what}")
+    try:
+        arr = np.load(f, mmap_mode="r" if mmap else None, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as e:
+        msg = "it holds Python objects (pickled data), not numbers" if "pickle" in str(e) else str(e)
+        raise DatasetError(f"cannot read {f} as a .npy array ({msg})") from None
+    if not isinstance(arr, np.ndarray):  # pragma: no cover - np.load only returns arrays after the magic check
+        raise DatasetError(f"cannot read {f} as a .npy array")
+    return arr
+
+
+def _load_h5(f: Path) -> tuple[np.ndarray, list[str] | None]:
+    import h5py
+
+    try:
+        with h5py.File(f, "r") as h:
+            if not isinstance(h.get("descriptors"), h5py.Dataset):
+                raise DatasetError(f"{f}: HDF5 file has no dataset 'descriptors' (found: {list(h.keys())})")
+            desc = np.asarray(h["descriptors"][()])
+            names = None
+            if isinstance(h.get("names"), h5py.Dataset):
+                names = [n.decode() if isinstance(n, bytes) else str(n) for n in np.atleast_1d(h["names"][()])]
+    except (OSError, TypeError, ValueError, UnicodeDecodeError) as e:
+        raise DatasetError(f"cannot read {f} as HDF5 ({e})") from None
+    return desc, names
+
+
+def _load_positions(path: Path) -> np.ndarray:
+    for fname in POSITION_FILES:
+        f = path / fname
+        if f.is_file():
+            if f.suffix == ".npy":
+                return _load_npy(f, mmap=False)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # an empty file is reported below, not warned about
+                    arr = np.loadtxt(f, delimiter="," if f.suffix == ".csv" else None, ndmin=2)
+            except (ValueError, UnicodeDecodeError) as e:
+                raise DatasetError(f"cannot parse {f} as numbers ({' '.join(str(e).split())})") from None
+            if arr.size == 0:
+                raise DatasetError(f"{f} holds no positions (the file is empty)")
+            return arr
+    raise DatasetError(f"no positions file in {path}; expected one of {', '.join(POSITION_FILES)}")
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path:
+    """Write ``ds`` in the directory format; never leaves a half-written dataset behind.
+
+    Everything is written into a temporary sibling directory which is then renamed onto ``path``.
+    With ``overwrite``, an existing ``path`` is first renamed aside and deleted only after the new
+    directory is in place (restored if that rename fails).
+    """
+    root = Path(path)
+    if root.exists() and not root.is_dir():
+        raise DatasetError(f"output path {root} exists and is not a directory")
+    if root.exists() and any(root.iterdir()) and not overwrite:
+        raise DatasetError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".tmp"))
+    old: Path | None = None
+    try:
+        tmp.chmod(0o777 & ~current_umask())  # mkdtemp makes it 0700; a plain mkdir would not
+        for side, t in (("reference", ds.reference), ("query", ds.query)):
+            save_traverse(t, tmp / side)
+        meta = {
+            **{k: v for k, v in ds.extra.items() if k not in _META_KEYS},
+            "format": FORMAT,
+            "name": ds.name,
+            "radius": ds.radius,
+            "position_unit": ds.position_unit,
+            "splits": {k: {s: list(v[s]) for s in ("reference", "query")} for k, v in ds.splits.items()},
+        }
+        write_json_atomic(tmp / "dataset.json", meta)
+        if root.exists():
+            old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
+            old.rmdir()
+            root.rename(old)
+        try:
+            tmp.rename(root)
+        except OSError:
+            if old is not None:
+                old.rename(root)
+                old = None
+            raise
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and old.exists():
+            shutil.rmtree(old, ignore_errors=True)
+    logger.info("wrote dataset %s (reference %d, query %d images)", root, len(ds.reference), len(ds.query))
+    return root
+
+
+def save_traverse(t: Traverse, path: Path) -> None:
+    """Write one traverse directory (descriptors.npy, positions.npy, names.txt, seq_bounds.npy)."""
+    path.mkdir(parents=True, exist_ok=True)
+    save_npy_atomic(path / "descriptors.npy", np.ascontiguousarray(t.descriptors, dtype=np.float32))
+    save_npy_atomic(path / "positions.npy", t.positions)
+    if t.names is not None:
+        bad = next((n for n in t.names if "\n" in n or "\r" in n), None)
+        if bad is not None:
+            raise DatasetError(f"{t.name}: image name {bad!r} contains a line break (names.txt: one name a line)")
+        (path / "names.txt").write_text("\n".join(t.names) + "\n", encoding="utf-8")
+    if t.seq_bounds is not None:
+        save_npy_atomic(path / "seq_bounds.npy", t.seq_bounds)
