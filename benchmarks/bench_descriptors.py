@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from seqnet.describe import make_describer
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.describe.describers import make_describer
 from seqnet.evaluate import evaluate
-from seqnet.traverse import Dataset, Traverse
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SEQNET_SHARED_DATA", REPO.parent / "shared" / "data")) / "nordland64"

@@ -32,8 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from seqnet import sequence_matching
-from seqnet.sequence_matching import seqmatch
+from seqnet.seqmatch import seqmatch
 
 GEMM_TARGET = 1.15
 LOOP_TARGET = 1000.0
@@ -88,8 +87,7 @@ def cdist_loop(qw: torch.Tensor, rw: torch.Tensor, pairs: np.ndarray) -> torch.T
 
 def run(args: argparse.Namespace) -> dict:
     torch.set_num_threads(args.threads)
-    if args.chunk_kib is not None:
-        sequence_matching._CHUNK_BYTES = args.chunk_kib * 1024
+    chunk = args.chunk_kib * 1024 if args.chunk_kib is not None else None
     device = torch.device(args.device)
     gen = torch.Generator().manual_seed(args.seed)
     q = torch.nn.functional.normalize(torch.randn(args.nq, args.dim, generator=gen), dim=1).to(device)
@@ -106,7 +104,7 @@ def run(args: argparse.Namespace) -> dict:
 
     # warm-up (allocator, BLAS threads); then every repeat times the GEMM, seqmatch and one slice of
     # the sampled loop, in alternating order, so that changing machine load hits all three alike
-    m = seqmatch(q, r, L, device=str(device))
+    m = seqmatch(q, r, L, device=str(device), chunk_bytes=chunk)
     _ = q @ r.T
     cdist_loop(qw, rw, pairs[: min(50, n_pairs)])
     t_gemm, t_seq, t_loop, loop_scores = [], [], 0.0, np.empty(n_pairs)
@@ -116,7 +114,7 @@ def run(args: argparse.Namespace) -> dict:
             if which == "gemm":
                 t_gemm.append(_timed(lambda: q @ r.T, device))
             elif which == "seq":
-                t_seq.append(_timed(lambda: seqmatch(q, r, L, device=str(device)), device))
+                t_seq.append(_timed(lambda: seqmatch(q, r, L, device=str(device), chunk_bytes=chunk), device))
             else:
                 sl = slices[i]
                 t0 = time.perf_counter()
@@ -136,7 +134,7 @@ def run(args: argparse.Namespace) -> dict:
         "config": {"nq": args.nq, "nr": args.nr, "dim": args.dim, "seq_len": L, "dtype": "float32",
                    "repeats": args.repeats, "threads": args.threads, "device": str(device),
                    "loop_pairs_sampled": int(n_pairs), "torch": torch.__version__,
-                   "chunk_bytes": sequence_matching._CHUNK_BYTES,
+                   "chunk_bytes": chunk,
                    "machine": platform.processor() or platform.machine(), "cpu_count": os.cpu_count()},
         "load_average_start": load_start,
         "load_average_end": os.getloadavg(),

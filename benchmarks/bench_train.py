@@ -42,9 +42,9 @@ import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
-from seqnet.mining import mine_queries, triplet_source
-from seqnet.synth import make_synthetic
-from seqnet.train import Run, open_run, resolve_train_config, train_epoch, train_step
+from seqnet.data.synth import make_synthetic
+from seqnet.train.loop import Run, open_run, resolve_train_config, train_epoch, train_step
+from seqnet.train.mining import mine_queries, triplet_source
 
 TARGET = 10.0
 

@@ -31,7 +31,7 @@ def rng() -> np.random.Generator:
 @pytest.fixture(scope="session")
 def synth_dataset():
     """A small synthetic dataset (UTM positions, splits, sequence bounds)."""
-    from seqnet.synth import make_synthetic
+    from seqnet.data.synth import make_synthetic
 
     return make_synthetic(places=200, dim=16, seed=1)
 
@@ -39,6 +39,6 @@ def synth_dataset():
 @pytest.fixture
 def synth_dir(tmp_path, synth_dataset):
     """The small synthetic dataset saved in the directory format."""
-    from seqnet.dataset_io import save_dataset
+    from seqnet.data.io import save_dataset
 
     return save_dataset(synth_dataset, tmp_path / "ds")

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from seqnet.checkpoints import find_flags, load_model, model_role, read_checkpoint, save_checkpoint
 from seqnet.cli import main as cli_main
 from seqnet.errors import CheckpointError
 from seqnet.sequence_descriptors import SeqNet
+from seqnet.train.checkpoints import find_flags, load_model, model_role, read_checkpoint, save_checkpoint
 
 
 def _reference_descriptors(weight: torch.Tensor, bias: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -130,7 +130,8 @@ def test_cli_eval_with_corrupted_checkpoint_exits_2(tmp_path, synth_dir, capsys)
 
 def test_cli_eval_with_original_checkpoint(tmp_path, synth_dir, capsys):
     path, _, _ = _original_run(tmp_path, d=16, d_out=8, w=3, seq_len=5)
-    assert cli_main(["eval", "--dataset", str(synth_dir), "--model", str(path), "--method", "seqnet,hvpr"]) == 0
+    argv = ["eval", "--dataset", str(synth_dir), "--model", str(path), "--method", "seqnet,hvpr-seqnet:raw+seqmatch"]
+    assert cli_main(argv) == 0
     out = capsys.readouterr().out
     assert "seqnet" in out and "hvpr" in out
     wrong, _, _ = _original_run(tmp_path / "w", d=20)

@@ -45,13 +45,14 @@ def run_error(capsys, argv, pattern):
 
 def test_synth_then_eval(small_dir, capsys, tmp_path):
     out_json = tmp_path / "res" / "results.json"
-    rc = main(["eval", "--dataset", str(small_dir), "--method", "single,raw+seqmatch", "--method", "hvpr",
+    rc = main(["eval", "--dataset", str(small_dir), "--method", "single,raw+seqmatch",
+               "--method", "hvpr-delta:raw+seqmatch",
                "--seq-len", "3", "--json", str(out_json)])
     out, err = capsys.readouterr()
     assert rc == 0, err
     assert "raw+seqmatch" in out and "queries evaluated" in out and "[test]" in out
     res = json.loads(out_json.read_text())
-    assert list(res["methods"]) == ["single", "raw+seqmatch", "hvpr"]
+    assert list(res["methods"]) == ["single", "raw+seqmatch", "hvpr-delta:raw+seqmatch"]
     assert res["config"]["seq_len"] == 3 and res["config"]["split"] == "test"
     assert res["config"]["dataset_path"] == str(small_dir)
     assert not [p for p in out_json.parent.iterdir() if p.name != "results.json"]  # no temp files left
@@ -130,7 +131,8 @@ def test_missing_json_and_bad_json(ds_copy, capsys):
     (["--seq-len", "1", "--method", "delta"], "need seq_len >= 2"),
     (["--device", "quantum"], "unknown device"),
     (["--top-k", "0"], "--top-k"),
-    (["--shortlist", "nope"], "shortlister"),
+    (["--method", "hvpr-nope"], "shortlister"),
+    (["--shortlist", "seqnet"], "unrecognized arguments"),
 ])
 def test_bad_options(small_dir, capsys, tmp_path, argv, pattern):
     out_json = tmp_path / "r.json"
@@ -157,7 +159,7 @@ def test_help_and_version_exit_zero(capsys):
 
 def test_synth_errors(small_dir, tmp_path, capsys):
     run_error(capsys, ["synth", str(small_dir)], "exists and is not empty")
-    run_error(capsys, ["synth", str(tmp_path / "x"), "--places", "50"], "places must be >= 100")
+    run_error(capsys, ["synth", str(tmp_path / "x"), "--places", "50"], "--places: expected an integer >= 100")
     run_error(capsys, ["synth", str(tmp_path / "y"), "--dim", "0"], "--dim")
     (tmp_path / "file").write_text("x")
     run_error(capsys, ["synth", str(tmp_path / "file"), "--overwrite"], "not a directory")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from seqnet.cli import main
-from seqnet.convert import (
+from seqnet.data.convert import (
     match_names,
     parse_utm_name,
     read_positions_csv,
@@ -15,7 +15,7 @@ from seqnet.convert import (
     summarize_dataset,
     traverse_from_csv,
 )
-from seqnet.dataset_io import load_dataset
+from seqnet.data.io import load_dataset
 from seqnet.errors import DatasetError
 
 
@@ -144,8 +144,8 @@ def test_check_summary_and_errors(synth_dir, tmp_path, capsys):
 
 
 def test_check_fails_when_no_query_matches(tmp_path, rng, capsys):
-    from seqnet.dataset_io import save_dataset
-    from seqnet.traverse import Dataset, Traverse
+    from seqnet.data.io import save_dataset
+    from seqnet.data.traverse import Dataset, Traverse
 
     d = rng.random((10, 4), dtype=np.float32)
     ds = Dataset(Traverse(d, np.arange(10)), Traverse(d, np.arange(10) + 1000.0), radius=1.0)

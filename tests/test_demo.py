@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from seqnet.cli import main as cli_main
-from seqnet.demo import BASELINES, DEMO_METHODS, LEARNED, run_demo
+from seqnet.pipelines.demo import BASELINES, DEMO_METHODS, LEARNED, run_demo
 
 
 @pytest.fixture
@@ -40,5 +40,5 @@ def test_cli_demo_trains_and_evaluates_every_method(tmp_path, capsys, keep_threa
 
 def test_run_demo_without_training_gives_baselines_only():
     ev = run_demo(None, places=200, train_models=False, device="cpu")
-    assert list(ev.results["methods"]) == [*BASELINES, "hvpr"]
+    assert list(ev.results["methods"]) == [*BASELINES, "hvpr-delta:raw+seqmatch"]
     assert ev.results["config"]["train_seconds"] == {}

@@ -9,10 +9,10 @@ import torch
 from PIL import Image
 from test_netvlad import make_checkpoint
 
-import seqnet.describe as describe_mod
+import seqnet.describe.describers as describe_mod
 from seqnet.cli import main
-from seqnet.dataset_io import load_descriptors
-from seqnet.describe import describe_folder, describe_images, make_describer
+from seqnet.data.io import load_descriptors
+from seqnet.describe.describers import describe_folder, describe_images, make_describer
 from seqnet.errors import ConfigError, ImageError
 
 
@@ -164,7 +164,7 @@ def load_descriptors_h5(path):
 
 
 def test_fit_sets(folder, tmp_path):
-    from seqnet.describe import fit_paths_of, make_options
+    from seqnet.describe.describers import fit_paths_of, make_options
 
     paths = sorted(folder.iterdir())
     assert fit_paths_of(make_options("pixels", fit=3), paths) == paths[:3]

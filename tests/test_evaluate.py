@@ -8,30 +8,30 @@ import numpy as np
 import pytest
 import torch
 
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.distances import knn
 from seqnet.errors import ConfigError
-from seqnet.evaluate import evaluate
-from seqnet.matching import knn
-from seqnet.methods import parse_method, valid_methods
+from seqnet.evaluate import EvalConfig, evaluate
+from seqnet.methods import default_methods, parse_method, valid_methods
 from seqnet.recall import recall_at_k
+from seqnet.seqmatch import seqmatch
 from seqnet.sequence_descriptors import SeqNet, delta, smoothing
-from seqnet.sequence_matching import seqmatch
-from seqnet.traverse import Dataset, Traverse
 from seqnet.utils import l2_normalize
 from seqnet.windows import window_indices, window_starts
 
-ALL = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch", "hvpr"]
+ALL = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch", "hvpr-delta:raw+seqmatch"]
 
 
 @pytest.fixture(scope="module")
 def test_split():
-    from seqnet.synth import make_synthetic
+    from seqnet.data.synth import make_synthetic
 
     return make_synthetic(places=200, dim=16, seed=1).split("test")
 
 
 @pytest.fixture(scope="module")
 def ev(test_split):
-    return evaluate(test_split, {"methods": ALL, "seq_len": 5, "device": "cpu"})
+    return evaluate(test_split, EvalConfig(**{"methods": ALL, "seq_len": 5, "device": "cpu"}))
 
 
 def stable_order(scores):
@@ -92,7 +92,7 @@ def test_seqmatch_methods_match_direct_map(ev, test_split):
 
 def test_hvpr_is_delta_shortlist_reranked_by_raw_seqmatch(ev, test_split):
     shortlist = ev.retrieved["delta"]
-    hv = ev.retrieved["hvpr"]
+    hv = ev.retrieved["hvpr-delta:raw+seqmatch"]
     q, r = test_split.query, test_split.reference
     qs, rs = window_starts(len(q), 5)[0][ev.q_items], window_starts(len(r), 5)[0][ev.r_items]
     raw_q = l2_normalize(torch.from_numpy(np.asarray(q.descriptors))).double().numpy()
@@ -118,9 +118,9 @@ def test_sequences_beat_single_frames(ev):
 
 
 def test_faiss_backend_and_extra_radii(test_split):
-    a = evaluate(test_split, {"methods": ["single", "delta"], "device": "cpu"})
-    b = evaluate(test_split, {"methods": ["single", "delta"], "device": "cpu", "backend": "faiss",
-                              "extra_radii": [2.5, 50.0], "ks": [1, 3]})
+    a = evaluate(test_split, EvalConfig(**{"methods": ["single", "delta"], "device": "cpu"}))
+    b = evaluate(test_split, EvalConfig(**{"methods": ["single", "delta"], "device": "cpu", "backend": "faiss",
+                              "extra_radii": [2.5, 50.0], "ks": [1, 3]}))
     # the same neighbours up to float32 near-ties: top-1 agrees for (almost) every query
     for name in ("single", "delta"):
         assert (a.retrieved[name][:, 0] == b.retrieved[name][:, 0]).mean() >= 0.95, name
@@ -134,13 +134,16 @@ def test_faiss_backend_and_extra_radii(test_split):
 def test_with_models(test_split):
     torch.manual_seed(0)
     models = {"seqnet": SeqNet(16, 8, 5, 3), "s1": SeqNet(16, 8, 1, 1)}
-    ev = evaluate(test_split, {"methods": ["seqnet", "s1", "s1+seqmatch", "hvpr"], "device": "cpu"}, models)
+    ev = evaluate(test_split, EvalConfig(methods=("seqnet", "s1", "s1+seqmatch", "hvpr"), device="cpu"), models)
+    assert ev.results["methods"]["hvpr"]["method"] == {
+        "kind": "hvpr", "shortlist": "seqnet", "rerank": "s1+seqmatch", "seq_len": 5, "rerank_seq_len": 5, "top_k": 20,
+        "models": {"s1": models["s1"].config(), "seqnet": models["seqnet"].config()}}
     assert set(ev.results["config"]["models"]) == {"seqnet", "s1"}
     assert all(0 <= e["recall@5"] <= 1 for e in ev.results["methods"].values())
     with pytest.raises(ConfigError, match="expects D=7 descriptors but the dataset has D=16"):
-        evaluate(test_split, {"methods": ["seqnet"]}, {"seqnet": SeqNet(7, 8, 5, 3)})
+        evaluate(test_split, EvalConfig(**{"methods": ["seqnet"]}), {"seqnet": SeqNet(7, 8, 5, 3)})
     with pytest.raises(ConfigError, match="needs an S_L model"):
-        evaluate(test_split, {"methods": ["seqnet"]})
+        evaluate(test_split, EvalConfig(**{"methods": ["seqnet"]}))
 
 
 def toy(n_q=9, n_r=9, q_bounds=None, dim=3, seed=0):
@@ -151,7 +154,7 @@ def toy(n_q=9, n_r=9, q_bounds=None, dim=3, seed=0):
 
 
 def test_seq_len_equal_to_traverse_length():
-    ev = evaluate(toy(5, 7), {"methods": ["single", "raw+seqmatch", "smoothing"], "seq_len": 5, "device": "cpu"})
+    ev = evaluate(toy(5, 7), EvalConfig(**{"methods": ["single", "raw+seqmatch", "smoothing"], "seq_len": 5, "device": "cpu"}))
     assert ev.q_items.tolist() == [2]  # the only frame with a full centred window
     assert ev.results["methods"]["single"]["no_full_window"] == 4
     assert ev.retrieved["raw+seqmatch"].shape == (1, 3)
@@ -159,30 +162,30 @@ def test_seq_len_equal_to_traverse_length():
 
 def test_seq_len_longer_than_traverse():
     with pytest.raises(ConfigError, match="longer than the query traverse"):
-        evaluate(toy(4, 9), {"methods": ["single"], "seq_len": 5})
+        evaluate(toy(4, 9), EvalConfig(**{"methods": ["single"], "seq_len": 5}))
 
 
 def test_bounds_make_every_window_invalid():
     bounds = np.array([[0, 2], [0, 2], [2, 4], [2, 4], [4, 6], [4, 6]])
     with pytest.raises(ConfigError, match="no query frame has a full window"):
-        evaluate(toy(6, 9, bounds), {"methods": ["single"], "seq_len": 3})
+        evaluate(toy(6, 9, bounds), EvalConfig(**{"methods": ["single"], "seq_len": 3}))
 
 
 def test_seq_len_one():
-    ev = evaluate(toy(), {"methods": ["single", "raw+seqmatch", "smoothing"], "seq_len": 1, "device": "cpu"})
+    ev = evaluate(toy(), EvalConfig(methods=("single", "raw+seqmatch", "smoothing"), seq_len=1, device="cpu"))
     np.testing.assert_array_equal(ev.retrieved["single"], ev.retrieved["raw+seqmatch"])
     with pytest.raises(ConfigError, match="need seq_len >= 2"):
-        evaluate(toy(), {"methods": ["single", "delta", "hvpr"], "seq_len": 1})
+        evaluate(toy(), EvalConfig(**{"methods": ["single", "delta"], "seq_len": 1}))
 
 
 def test_causal_window():
-    ev = evaluate(toy(), {"methods": ["single"], "seq_len": 3, "window": "causal", "device": "cpu"})
+    ev = evaluate(toy(), EvalConfig(**{"methods": ["single"], "seq_len": 3, "window": "causal", "device": "cpu"}))
     assert ev.q_items.tolist() == list(range(2, 9))
 
 
 @pytest.mark.parametrize("cfg, pattern", [
-    ({"bogus": 1}, "unknown configuration key"),
-    ({"methods": []}, "no methods"),
+    ({"bogus": 1}, "unknown EvalConfig key"),
+    ({"methods": []}, "non-empty list"),
     ({"methods": ["nope"]}, "unknown method"),
     ({"seq_len": 0}, "seq_len"),
     ({"radius": -1.0}, "radius"),
@@ -196,13 +199,13 @@ def test_causal_window():
 ])
 def test_config_errors(cfg, pattern):
     with pytest.raises(ConfigError, match=pattern):
-        evaluate(toy(), cfg)
+        EvalConfig.from_dict(cfg)
 
 
 def test_no_positive_queries_counted():
     ds = toy()
     far = Traverse(ds.query.descriptors, ds.query.positions + np.array([[0.0]] * 4 + [[100.0]] * 5))
-    ev = evaluate(Dataset(ds.reference, far, radius=1.0), {"methods": ["single"], "seq_len": 1, "device": "cpu"})
+    ev = evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(**{"methods": ["single"], "seq_len": 1, "device": "cpu"}))
     entry = ev.results["methods"]["single"]
     assert entry["queries"] == 4 and entry["no_positive"] == 5
 
@@ -210,7 +213,7 @@ def test_no_positive_queries_counted():
 def test_all_queries_without_positive_gives_nan():
     ds = toy()
     far = Traverse(ds.query.descriptors, ds.query.positions + 100.0)
-    ev = evaluate(Dataset(ds.reference, far, radius=1.0), {"methods": ["single"], "seq_len": 1, "device": "cpu"})
+    ev = evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(**{"methods": ["single"], "seq_len": 1, "device": "cpu"}))
     assert math.isnan(ev.results["methods"]["single"]["recall@1"])
 
 
@@ -218,21 +221,56 @@ def test_all_queries_without_positive_gives_nan():
 
 
 def test_parse_method():
-    assert parse_method("single", set()).kind == "knn"
-    m = parse_method("delta+seqmatch", set())
-    assert (m.kind, m.rerank) == ("seqmatch", "delta")
-    m = parse_method("hvpr", set())
-    assert (m.kind, m.shortlist, m.rerank) == ("hvpr", "delta", "raw")
-    m = parse_method("hvpr", {"seqnet", "s1"})
-    assert (m.shortlist, m.rerank) == ("seqnet", "s1") and m.models() == {"seqnet", "s1"}
-    m = parse_method("hvpr-smoothing", set(), rerank="delta")
-    assert (m.shortlist, m.rerank) == ("smoothing", "delta")
+    assert parse_method("single").kind == "knn"
+    m = parse_method("delta+seqmatch")
+    assert (m.kind, m.frames, m.matcher, m.rerank) == ("match", "delta", "seqmatch", "delta+seqmatch")
+    m = parse_method("hvpr")  # always the paper's HVPR, whatever models are given
+    assert (m.kind, m.shortlist, m.rerank) == ("hvpr", "seqnet", "s1+seqmatch") and m.models() == {"seqnet", "s1"}
+    m = parse_method("hvpr-smoothing:delta+seqmatch-rev")
+    assert (m.shortlist, m.frames, m.matcher) == ("smoothing", "delta", "seqmatch-rev") and m.models() == set()
+    assert parse_method("hvpr-delta").rerank == "s1+seqmatch" and parse_method("hvpr-delta").models() == {"s1"}
+    assert parse_method("delta-orig+seqmatch").min_len() == 2
     assert len(valid_methods()) == len(set(valid_methods()))
-    with pytest.raises(ConfigError, match="unknown method"):
-        parse_method("seqslam", set())
-    with pytest.raises(ConfigError, match="re-ranker"):
-        parse_method("hvpr", set(), rerank="smoothing")
-    with pytest.raises(ConfigError, match="shortlister"):
-        parse_method("hvpr", set(), shortlist="nope")
-    with pytest.raises(ConfigError, match="S_1 model"):
-        parse_method("s1+seqmatch", {"seqnet"})
+    for name in valid_methods():
+        assert parse_method(name).name == name
+    for bad, pattern in (("seqslam", "unknown method"), ("hvpr-nope", "shortlister"),
+                         ("hvpr-delta:smoothing", "re-ranker"), ("hvpr-delta:raw+nope", "re-ranker"), ("", "non-empty")):
+        with pytest.raises(ConfigError, match=pattern):
+            parse_method(bad)
+
+
+def test_default_methods():
+    assert default_methods(set(), 5) == ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch",
+                                         "hvpr-delta:raw+seqmatch"]
+    both = default_methods({"seqnet", "s1"}, 5)
+    assert "hvpr" in both and "hvpr-delta:raw+seqmatch" not in both and "s1+seqmatch" in both
+    assert default_methods(set(), 1) == ["single", "smoothing", "raw+seqmatch"]
+
+
+def test_missing_model_is_an_error_not_a_substitute(test_split):
+    with pytest.raises(ConfigError, match="needs an S_1 model"):
+        evaluate(test_split, EvalConfig(methods=("hvpr-delta",), device="cpu"))
+    with pytest.raises(ConfigError, match="needs an S_L model"):
+        evaluate(test_split, EvalConfig(methods=("hvpr",), device="cpu"), {"s1": SeqNet(16, 8, 1, 1)})
+
+
+def test_rerank_seq_len_separate_from_seq_len(test_split):
+    """L_m for the matchers, L for the descriptors; items need both windows to fit."""
+    ev = evaluate(test_split, EvalConfig(methods=("delta", "raw+seqmatch", "hvpr-delta:raw+seqmatch"), seq_len=3,
+                                         rerank_seq_len=7, device="cpu"))
+    q = test_split.query
+    ok3 = window_starts(len(q), 3, "centred", q.seq_bounds)[1]
+    ok7 = window_starts(len(q), 7, "centred", q.seq_bounds)[1]
+    np.testing.assert_array_equal(ev.q_items, np.flatnonzero(ok3 & ok7))
+    entry = ev.results["methods"]["hvpr-delta:raw+seqmatch"]["method"]
+    assert entry["seq_len"] == 3 and entry["rerank_seq_len"] == 7
+    r = test_split.reference
+    qs = window_starts(len(q), 7)[0][ev.q_items]
+    rs = window_starts(len(r), 7)[0][ev.r_items]
+    raw_q = l2_normalize(torch.from_numpy(np.asarray(q.descriptors))).double()
+    raw_r = l2_normalize(torch.from_numpy(np.asarray(r.descriptors))).double()
+    full = seqmatch(raw_q, raw_r, 7, device="cpu").numpy()
+    got = ev.retrieved["raw+seqmatch"]
+    for m, a in enumerate(qs):
+        row = full[a, rs]
+        np.testing.assert_allclose(row[got[m]], np.sort(row)[: got.shape[1]], atol=1e-4)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from seqnet.describe.images import list_images, load_images
 from seqnet.errors import ImageError
-from seqnet.images import list_images, load_images
 
 
 def _save(path, h=8, w=12, value=0):

@@ -8,7 +8,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from seqnet.errors import ConfigError
-from seqnet.losses import batch_triplet_loss, triplet_loss
+from seqnet.train.losses import batch_triplet_loss, triplet_loss
 
 
 def _loop_loss(q, p, n, valid, margin):

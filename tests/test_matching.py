@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from seqnet.distances import knn, pairwise_distances, topk_smallest
 from seqnet.errors import ConfigError
-from seqnet.matching import knn, pairwise_distances, topk_smallest
 
 
 def naive_topk(scores: np.ndarray, k: int):

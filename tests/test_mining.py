@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from seqnet.errors import ConfigError, DatasetError
-from seqnet.mining import (
+from seqnet.train.mining import (
     check_radii,
     closest_positive,
     hardest_negatives,

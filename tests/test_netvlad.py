@@ -7,9 +7,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from seqnet.backbones import VGG16Encoder
+from seqnet.describe.cnn import VGG16Encoder
+from seqnet.describe.netvlad import NetVLAD, kmeans, load_netvlad, save_netvlad
 from seqnet.errors import CheckpointError, ConfigError
-from seqnet.netvlad import NetVLAD, kmeans, load_netvlad, save_netvlad
 
 TINY = (4, 8, 8, 16, 16)  # VGG-16 layout with narrow channels
 VGG_CONV_KEYS = [0, 2, 5, 7, 10, 12, 14, 17, 19, 21, 24, 26, 28]

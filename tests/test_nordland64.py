@@ -10,11 +10,11 @@ import torch
 from conftest import shared_data
 
 from seqnet.cli import main as cli_main
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.describe.pca import fit_pca
 from seqnet.errors import ConfigError, DatasetError
-from seqnet.nordland64 import fold_pca, list_places, resolve_config, training_dataset
-from seqnet.pca import fit_pca
+from seqnet.pipelines.nordland64 import fold_pca, list_places, resolve_config, training_dataset
 from seqnet.sequence_descriptors import SeqNet
-from seqnet.traverse import Dataset, Traverse
 
 
 def test_fold_pca_is_exact(rng):
@@ -53,8 +53,8 @@ def test_training_dataset_symmetric(rng):
 
 
 def test_flipped_pixels_are_mirrored_descriptors():
-    from seqnet.describe import make_describer
-    from seqnet.nordland64 import _describe_flipped
+    from seqnet.describe.describers import make_describer
+    from seqnet.pipelines.nordland64 import _describe_flipped
 
     data = shared_data("nordland64")
     paths = [data / "summer" / f"images-{i:05d}.png" for i in (210, 220, 230)]

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from seqnet.describe.pca import PCA, fit_pca
 from seqnet.errors import CheckpointError, ConfigError
-from seqnet.pca import PCA, fit_pca
 
 
 @pytest.mark.parametrize("n,d", [(200, 16), (10, 50)])

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from seqnet.describe.pixels import patch_normalise, pixels_descriptor, to_grey
 from seqnet.errors import ConfigError
-from seqnet.pixels import patch_normalise, pixels_descriptor, to_grey
 
 
 def test_shape_norm_and_dtype(rng):

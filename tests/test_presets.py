@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from seqnet.data.presets import PRESETS, get_preset, preset_metadata, preset_splits
 from seqnet.errors import ConfigError
-from seqnet.presets import PRESETS, get_preset, preset_metadata, preset_splits
 
 
 def test_nordland_preset_matches_paper():

@@ -8,9 +8,10 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import seqnet.sequence_matching as sm
+from seqnet.distances import knn
 from seqnet.errors import ConfigError
-from seqnet.sequence_matching import hvpr, rerank_seqmatch, seqmatch, seqmatch_topk, window_scores
+from seqnet.hvpr import hvpr, rerank
+from seqnet.seqmatch import seqmatch, seqmatch_topk, window_scores
 
 
 def naive_pair(q, r, a, b, L, reverse=False):
@@ -47,10 +48,12 @@ def test_full_map_vs_loop(qr, L, reverse):
 @pytest.mark.parametrize("block_bytes", [1, 300, 2000, None])
 @pytest.mark.parametrize("reverse", [False, True])
 @pytest.mark.parametrize("L", [1, 4])
-def test_many_blocks_and_chunks(qr, block_bytes, reverse, L, monkeypatch):
-    monkeypatch.setattr(sm, "_CHUNK_BYTES", 1)  # smallest row chunks: many chunks per block
+def test_many_blocks_and_chunks(qr, block_bytes, reverse, L):
     q, r = qr
     q = np.concatenate([q, q[::-1], q])  # 51 query frames: several chunks
+    # chunk_bytes=1: the smallest row chunks, many chunks per block
+    m = seqmatch(q, r, L, reverse=reverse, device="cpu", block_bytes=block_bytes, chunk_bytes=1)
+    np.testing.assert_allclose(m, naive_seqmatch(q, r, L, reverse), rtol=1e-9, atol=1e-9)
     m = seqmatch(q, r, L, reverse=reverse, device="cpu", block_bytes=block_bytes)
     np.testing.assert_allclose(m, naive_seqmatch(q, r, L, reverse), rtol=1e-9, atol=1e-9)
     vals, items = seqmatch_topk(q, r, L, 3, np.arange(len(q) - L + 1), np.arange(len(r) - L + 1), reverse=reverse,
@@ -230,7 +233,8 @@ def test_hvpr_vs_loop(rng, reverse):
     L = 3
     q_starts, r_starts = np.arange(0, 18, 2), np.arange(0, 23)
     sq, sr = rng.standard_normal((len(q_starts), 6)), rng.standard_normal((len(r_starts), 6))
-    items, scores = hvpr(sq, sr, q, r, L, q_starts, r_starts, top_k=5, reverse=reverse, device="cpu")
+    matcher = "seqmatch-rev" if reverse else "seqmatch"
+    scores, items = hvpr(sq, sr, q, r, L, q_starts, r_starts, top_k=5, matcher=matcher, device="cpu")
     n_items, n_scores = naive_hvpr(sq, sr, q, r, L, q_starts, r_starts, 5, reverse)
     np.testing.assert_array_equal(items, n_items)
     np.testing.assert_allclose(scores, n_scores, rtol=1e-9)
@@ -242,12 +246,12 @@ def test_hvpr_faiss_backend_matches(rng):
     starts = np.arange(10)
     a = hvpr(sq, sr, q, r, 3, starts, starts, top_k=4, device="cpu")
     b = hvpr(sq, sr, q, r, 3, starts, starts, top_k=4, backend="faiss", device="cpu")
-    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
 
 
 def test_hvpr_top_k_larger_than_references(rng):
     q, r = rng.standard_normal((6, 3)), rng.standard_normal((6, 3))
-    items, scores = hvpr(q[:4], r[:4], q, r, 3, np.arange(4), np.arange(4), top_k=50, device="cpu")
+    scores, items = hvpr(q[:4], r[:4], q, r, 3, np.arange(4), np.arange(4), top_k=50, device="cpu")
     assert items.shape == (4, 4) and sorted(items[0].tolist()) == [0, 1, 2, 3]
     with pytest.raises(ConfigError, match="top_k"):
         hvpr(q, r, q, r, 3, np.arange(4), np.arange(4), top_k=0)
@@ -256,7 +260,7 @@ def test_hvpr_top_k_larger_than_references(rng):
 def test_rerank_missing_candidates_rank_last(rng):
     q, r = rng.standard_normal((10, 3)), rng.standard_normal((12, 3))
     cand = np.array([[2, -1, 0], [-1, -1, -1]])
-    items, scores = rerank_seqmatch(q, r, 3, np.array([0, 5]), np.arange(10), cand, device="cpu")
+    scores, items = rerank(q, r, 3, np.array([0, 5]), np.arange(10), cand, device="cpu")
     assert items[0, -1] == -1 and np.isinf(scores[0, -1]) and set(items[0, :2].tolist()) == {0, 2}
     assert items[1].tolist() == [-1, -1, -1] and np.isinf(scores[1]).all()
     assert scores[0, 0] == pytest.approx(min(naive_pair(q, r, 0, b, 3) for b in (0, 2)))
@@ -265,8 +269,21 @@ def test_rerank_missing_candidates_rank_last(rng):
 def test_rerank_errors(rng):
     q, r = rng.standard_normal((10, 3)), rng.standard_normal((12, 3))
     with pytest.raises(ConfigError, match="candidates must be reference items"):
-        rerank_seqmatch(q, r, 3, np.array([0]), np.arange(4), np.array([[4]]), device="cpu")
+        rerank(q, r, 3, np.array([0]), np.arange(4), np.array([[4]]), device="cpu")
     with pytest.raises(ConfigError, match="one row per query item"):
-        rerank_seqmatch(q, r, 3, np.array([0, 1]), np.arange(4), np.array([[1]]), device="cpu")
+        rerank(q, r, 3, np.array([0, 1]), np.arange(4), np.array([[1]]), device="cpu")
     with pytest.raises(ConfigError, match="reference window starts"):
-        rerank_seqmatch(q, r, 3, np.array([0]), np.array([10]), np.array([[0]]), device="cpu")
+        rerank(q, r, 3, np.array([0]), np.array([10]), np.array([[0]]), device="cpu")
+
+
+def test_hvpr_returns_full_ranking(rng):
+    """With k > K the shortlist is re-ranked and the rest of the k-NN list follows (score inf)."""
+    q, r = rng.standard_normal((10, 3)), rng.standard_normal((12, 3))
+    sq, sr = rng.standard_normal((8, 5)), rng.standard_normal((10, 5))
+    scores, items = hvpr(sq, sr, q, r, 3, np.arange(8), np.arange(10), top_k=3, k=7, device="cpu")
+    _, ranked = knn(sq, sr, 7)
+    assert items.shape == (8, 7)
+    np.testing.assert_array_equal(items[:, 3:], ranked[:, 3:])
+    assert np.isinf(scores[:, 3:]).all() and np.isfinite(scores[:, :3]).all()
+    np.testing.assert_array_equal(np.sort(items[:, :3], axis=1), np.sort(ranked[:, :3], axis=1))
+    assert (np.diff(scores[:, :3], axis=1) >= 0).all()

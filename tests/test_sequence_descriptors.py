@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seqnet.errors import ConfigError
-from seqnet.sequence_descriptors import SeqNet, delta, describe_windows, get_sequence_fn, smoothing
+from seqnet.sequence_descriptors import SEQUENCE_DESCRIPTORS, SeqNet, delta, delta_orig, describe_windows, smoothing
 from seqnet.windows import window_indices
 
 
@@ -64,10 +64,34 @@ def test_zero_frames_stay_finite():
     assert torch.isfinite(smoothing(w)).all() and torch.isfinite(delta(w)).all()
 
 
-def test_get_sequence_fn():
-    assert get_sequence_fn("delta") is delta and get_sequence_fn("smoothing") is smoothing
-    with pytest.raises(ConfigError, match="unknown sequence descriptor"):
-        get_sequence_fn("seqslam")
+def test_sequence_descriptor_table():
+    assert SEQUENCE_DESCRIPTORS["delta"].window_fn({}) is delta
+    assert SEQUENCE_DESCRIPTORS["smoothing"].window_fn({}) is smoothing
+    assert SEQUENCE_DESCRIPTORS["delta"].min_len == 2 and SEQUENCE_DESCRIPTORS["single"].length(5) == 1
+    with pytest.raises(ConfigError, match="needs a trained S_L model"):
+        SEQUENCE_DESCRIPTORS["seqnet"].window_fn({})
+    model = SeqNet(4, 4, 1, 1)
+    assert model.role == "s1" and SEQUENCE_DESCRIPTORS["s1"].window_fn({"s1": model}) is model
+    assert SeqNet(4, 4, 5, 3).role == "seqnet"
+
+
+@pytest.mark.parametrize("L", [2, 3, 4, 5, 6])
+def test_delta_orig_vs_loop(rng, L):
+    """The original code's Delta: weights +-1/(L/2), first L//2 negative, raw frames, then L2."""
+    w = rng.standard_normal((4, L, 6))
+    out = delta_orig(torch.from_numpy(w)).numpy()
+    for m in range(4):
+        acc = np.zeros(6)
+        for t in range(L):
+            acc += (-1.0 if t < L // 2 else 1.0) / (L / 2.0) * w[m, t]
+        np.testing.assert_allclose(out[m], unit(acc), rtol=1e-9, atol=1e-12)
+    if L == 5:  # the weights quoted in the docs: (-0.4, -0.4, +0.4, +0.4, +0.4)
+        one = np.zeros((1, 5, 5))
+        one[0, np.arange(5), np.arange(5)] = 1.0
+        got = delta_orig(torch.from_numpy(one)).numpy()[0]
+        np.testing.assert_allclose(got, unit(np.array([-0.4, -0.4, 0.4, 0.4, 0.4])), rtol=1e-9)
+    with pytest.raises(ConfigError, match="seq_len >= 2"):
+        delta_orig(torch.zeros(2, 1, 3))
 
 
 # ----------------------------------------------------------------------------- SeqNet

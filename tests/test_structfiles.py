@@ -7,9 +7,9 @@ import pytest
 from conftest import shared_data
 
 from seqnet.cli import main
-from seqnet.dataset_io import load_dataset
+from seqnet.data.io import load_dataset
+from seqnet.data.structfiles import dataset_from_frame_lists, dataset_from_structs, read_db_struct
 from seqnet.errors import DatasetError
-from seqnet.structfiles import dataset_from_frame_lists, dataset_from_structs, read_db_struct
 
 NORDLAND_TEST = "nordland_test_d-1_d2-1.db"
 NORDLAND_VAL = "nordland_val_d-1_d2-1.db"

@@ -9,10 +9,10 @@ import math
 import pytest
 import torch
 
-from seqnet.checkpoints import load_model, model_role, read_checkpoint
 from seqnet.cli import main as cli_main
 from seqnet.errors import CheckpointError, ConfigError, DatasetError
-from seqnet.train import resolve_train_config, train
+from seqnet.train.checkpoints import load_model, model_role, read_checkpoint
+from seqnet.train.loop import resolve_train_config, train
 
 FAST = {"optimizer": "adam", "lr": 1e-2, "batch_size": 16, "cache_refresh": 40, "n_neg_sample": 50,
         "seq_len": 3, "w": 2, "out_dims": 8, "device": "cpu"}
@@ -95,7 +95,7 @@ def test_resume_rejects_changed_architecture(synth_dataset, tmp_path):
 
 
 def test_resume_on_data_of_another_dimension_is_a_checkpoint_error(synth_dataset, tmp_path):
-    from seqnet.synth import make_synthetic
+    from seqnet.data.synth import make_synthetic
 
     train(synth_dataset, {**FAST, "epochs": 1}, tmp_path / "r")
     other = make_synthetic(places=200, dim=8, seed=1)
@@ -137,7 +137,7 @@ def test_cli_train_then_eval_end_to_end(synth_dir, tmp_path, capsys):
 
 
 def test_cli_train_bad_inputs_exit_2_with_one_line(synth_dataset, synth_dir, tmp_path, capsys):
-    from seqnet.dataset_io import save_dataset
+    from seqnet.data.io import save_dataset
 
     bad = save_dataset(_no_positive_dataset(synth_dataset), tmp_path / "bad")
     cases = [["--dataset", str(bad), "--out", str(tmp_path / "o1")],

@@ -11,10 +11,10 @@ import h5py
 import numpy as np
 import pytest
 
-import seqnet.dataset_io as tv
-from seqnet.dataset_io import load_dataset, save_dataset
+import seqnet.data.io as tv
+from seqnet.data.io import load_dataset, save_dataset
+from seqnet.data.traverse import Dataset, Traverse
 from seqnet.errors import DatasetError
-from seqnet.traverse import Dataset, Traverse
 
 
 def make_dataset(rng, n_ref=12, n_qry=10, dim=4, bounds=True, **kw) -> Dataset:

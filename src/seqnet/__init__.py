@@ -7,21 +7,22 @@ Main entry points::
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
-
-from .dataset_io import load_dataset, save_dataset
+from ._version import __version__
+from .data.io import load_dataset, save_dataset
+from .data.synth import make_synthetic
+from .data.traverse import Dataset, Traverse
+from .distances import knn, pairwise_distances, topk_smallest
 from .errors import CheckpointError, ConfigError, DatasetError, ImageError, SeqnetError
-from .evaluate import Evaluation, evaluate
-from .matching import knn, pairwise_distances, topk_smallest
+from .evaluate import EvalConfig, Evaluation, evaluate
+from .hvpr import hvpr
 from .recall import recall_at_k
+from .seqmatch import seqmatch
 from .sequence_descriptors import SeqNet, delta, smoothing
-from .sequence_matching import hvpr, seqmatch
-from .synth import make_synthetic
-from .traverse import Dataset, Traverse
 from .windows import window_indices, window_starts
 
 __all__ = [
-    "CheckpointError", "ConfigError", "DatasetError", "Dataset", "Evaluation", "ImageError", "SeqNet",
+    "__version__", "CheckpointError", "ConfigError", "DatasetError", "Dataset", "EvalConfig", "Evaluation",
+    "ImageError", "SeqNet",
     "SeqnetError", "Traverse", "delta", "evaluate", "hvpr", "knn", "load_dataset", "make_synthetic",
     "pairwise_distances", "recall_at_k", "save_dataset", "seqmatch", "smoothing", "topk_smallest",
     "window_indices", "window_starts",

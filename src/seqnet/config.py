@@ -1,83 +1,152 @@
-"""Defaults in one place, named presets as data, and override merging.
+"""One configuration style for every stage: small frozen dataclasses that validate themselves.
 
-Every command resolves its configuration as ``merge(DEFAULTS, preset, user overrides)`` and writes
-the result beside its outputs (``config.json`` or the ``"config"`` key of a results file).
+A stage's configuration is a ``@dataclasses.dataclass(frozen=True)`` deriving from :class:`Config`;
+its defaults are its field defaults, ``__post_init__`` validates (and normalises) every field with
+the ``check_*`` helpers below, and the mixin adds :meth:`Config.from_dict` (unknown keys are an
+error naming the valid ones), :meth:`Config.replace` (``None`` means "keep") and
+:meth:`Config.to_dict` (JSON-ready, written beside every run's outputs).
 """
 
 from __future__ import annotations
 
-import copy
-from collections.abc import Mapping
-from typing import Any
+import dataclasses
+import math
+import typing
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any, TypeVar
+
+import numpy as np
 
 from .errors import ConfigError
 
-EVAL_DEFAULTS: dict[str, Any] = {
-    "methods": ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch", "hvpr"],
-    "seq_len": 5,  # L: window length of sequence descriptors and of SeqMatch
-    "window": "centred",  # "centred" (paper) or "causal" (online)
-    "radius": None,  # None: the dataset's localisation radius
-    "extra_radii": [],
-    "ks": [1, 5, 10, 20, 100],
-    "top_k": 20,  # HVPR shortlist size
-    "shortlist": None,  # HVPR shortlister; None: "seqnet" with a model, else "delta"
-    "rerank": None,  # HVPR re-ranking descriptor; None: "s1" with a model, else "raw"
-    "split": "test",  # used when the dataset defines it, else the whole dataset
-    "backend": "torch",  # k-NN: "torch" or "faiss"
-    "device": "auto",
-}
-
-# Paper defaults (SeqNet supplementary): margin 0.3, SGD lr 1e-4, momentum 0.9, wd 1e-3,
-# lr x0.5 every 50 epochs, batch 16 queries, 10 hard negatives from 1000 sampled.
-TRAIN_DEFAULTS: dict[str, Any] = {
-    "seq_len": 5,
-    "w": 3,
-    "out_dims": None,  # None: same as the input dimension
-    "window": "centred",
-    "margin": 0.3,
-    "optimizer": "sgd",
-    "lr": 1e-4,
-    "momentum": 0.9,
-    "weight_decay": 1e-3,
-    "lr_step": 50,
-    "lr_gamma": 0.5,
-    "batch_size": 16,
-    "epochs": 200,
-    "patience": None,
-    "n_negatives": 10,
-    "n_neg_sample": 1000,
-    "cache_refresh": 1000,  # queries between refreshes of the mining cache
-    "pos_radius": None,  # None: the dataset's / preset's value
-    "neg_radius": None,
-    "seed": 0,
-    "device": "auto",
-    "train_split": "train",
-    "val_split": "val",
-}
-
-SYNTH_DEFAULTS: dict[str, Any] = {
-    "places": 600,
-    "dim": 64,
-    "seed": 0,
-    "noise": 1.5,  # independent per-frame noise (relative to the place signal)
-    "nuisance": 1.0,  # slowly varying, condition-specific appearance change in a few directions
-}
+C = TypeVar("C", bound="Config")
 
 
-def merge(base: Mapping[str, Any], *overrides: Mapping[str, Any] | None) -> dict[str, Any]:
-    """Deep-merge ``overrides`` onto a copy of ``base``; ``None`` values in overrides are skipped.
+class Config:
+    """Mixin for frozen dataclass configurations (see the module docstring)."""
 
-    Raises :class:`ConfigError` for keys that ``base`` does not define.
-    """
-    out = copy.deepcopy(dict(base))
-    for ov in overrides:
-        for key, value in (ov or {}).items():
-            if key not in out:
-                raise ConfigError(f"unknown configuration key {key!r}; valid: {', '.join(sorted(out))}")
+    @classmethod
+    def from_dict(cls: type[C], values: Mapping[str, Any] | None = None) -> C:
+        """Build from a mapping (e.g. a ``config.json``); nested configs may be given as mappings."""
+        values = dict(values or {})
+        _reject_unknown(cls, values)
+        nested = _nested_types(cls)
+        for key, sub in nested.items():
+            if isinstance(values.get(key), Mapping):
+                values[key] = sub.from_dict(values[key])
+        return cls(**values)  # type: ignore[call-arg]
+
+    def replace(self: C, **changes: Any) -> C:
+        """A copy with ``changes`` applied; ``None`` values keep the current value; nested configs
+        accept a mapping of their own changes. Validation runs again on the result."""
+        _reject_unknown(type(self), changes)
+        nested = _nested_types(type(self))
+        out = {}
+        for key, value in changes.items():
             if value is None:
                 continue
-            if isinstance(out[key], dict) and isinstance(value, Mapping):
-                out[key] = merge(out[key], value)
-            else:
-                out[key] = copy.deepcopy(value)
-    return out
+            if key in nested and isinstance(value, Mapping):
+                value = getattr(self, key).replace(**value)
+            out[key] = value
+        return dataclasses.replace(self, **out)  # type: ignore[type-var]
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (tuples become lists, nested configs dicts)."""
+        return _jsonable(dataclasses.asdict(self))  # type: ignore[call-overload]
+
+    def _set(self, name: str, value: Any) -> None:
+        """Normalise a field inside ``__post_init__`` (the dataclass is frozen)."""
+        object.__setattr__(self, name, value)
+
+
+def _reject_unknown(cls: type, values: Mapping[str, Any]) -> None:
+    valid = [f.name for f in dataclasses.fields(cls) if f.init]
+    bad = [k for k in values if k not in valid]
+    if bad:
+        raise ConfigError(f"unknown {cls.__name__} key {bad[0]!r}; valid: {', '.join(valid)}")
+
+
+def _nested_types(cls: type) -> dict[str, type[Config]]:
+    hints = typing.get_type_hints(cls)
+    return {k: t for k, t in hints.items() if isinstance(t, type) and issubclass(t, Config)}
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+# ----------------------------------------------------------------------------- validators
+
+
+def check_int(name: str, value: Any, minimum: int | None = None, maximum: int | None = None) -> int:
+    """``value`` as an int within ``[minimum, maximum]``; bools and non-integers are refused."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if not ok or (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
+        rng = _range_text(minimum, maximum)
+        raise ConfigError(f"{name} must be an integer{rng}, got {value!r}")
+    return int(value)
+
+
+def check_float(name: str, value: Any, minimum: float | None = None, maximum: float | None = None,
+                strict: bool = False) -> float:
+    """``value`` as a finite float ``>= minimum`` (``> minimum`` when ``strict``) and ``<= maximum``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if isinstance(value, (bool, str)) or not math.isfinite(v):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+    low_bad = minimum is not None and (v <= minimum if strict else v < minimum)
+    if low_bad or (maximum is not None and v > maximum):
+        op = ">" if strict else ">="
+        rng = f" {op} {minimum:g}" if minimum is not None else ""
+        rng += (" and" if rng else "") + (f" <= {maximum:g}" if maximum is not None else "")
+        raise ConfigError(f"{name} must be a number{rng}, got {value!r}")
+    return v
+
+
+def check_choice(name: str, value: Any, choices: Iterable[str]) -> str:
+    """``value`` if it is one of ``choices``, else :class:`ConfigError` listing them."""
+    choices = list(choices)
+    if not isinstance(value, str) or value not in choices:
+        raise ConfigError(f"unknown {name} {value!r}; valid: {', '.join(choices)}")
+    return value
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """``value`` if it is a bool (numbers and strings are refused: ``"false"`` is truthy)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ConfigError(f"{name} must be true or false, got {value!r}")
+    return bool(value)
+
+
+def check_ints(name: str, values: Any, minimum: int | None = None) -> tuple[int, ...]:
+    """A non-empty sequence of integers ``>= minimum``, as a tuple."""
+    if isinstance(values, (str, bytes)) or not isinstance(values, (Sequence, np.ndarray)) or len(values) == 0:
+        raise ConfigError(f"{name} must be a non-empty list of integers{_range_text(minimum, None)}, got {values!r}")
+    return tuple(check_int(name, v, minimum) for v in values)
+
+
+def check_range(name: str, value: Any) -> tuple[int, int]:
+    """A half-open index range ``(start, stop)`` with ``0 <= start < stop``."""
+    try:
+        a, b = (check_int(name, v, 0) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} must be a [start, stop] pair of integers, got {value!r}") from None
+    if a >= b:
+        raise ConfigError(f"{name} must satisfy start < stop, got {a}:{b}")
+    return a, b
+
+
+def _range_text(minimum: int | None, maximum: int | None) -> str:
+    if minimum is not None and maximum is not None:
+        return f" in {minimum}..{maximum}"
+    if minimum is not None:
+        return f" >= {minimum}"
+    return f" <= {maximum}" if maximum is not None else ""

@@ -1,30 +1,93 @@
 """Evaluation: run methods on a dataset and report Recall@K with per-stage timing.
 
-Queries are the frames whose full window (length ``seq_len``) fits inside their sequence; the
-same query and reference sets are used for every method so numbers are comparable. The number of
-queries left out (no full window, or no reference within the radius) is reported.
+Queries are the frames whose windows (L frames for sequence descriptors, L_m for the sequence
+matchers) fit inside their sequence; the same query and reference items are used for every method
+so numbers are comparable. The number of queries left out (no full window, or no reference within
+the radius) is reported.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
-from .config import EVAL_DEFAULTS, merge
+from .config import Config, check_choice, check_int, check_ints
+from .data.traverse import Dataset
+from .distances import KNN_BACKENDS, knn
 from .errors import ConfigError
-from .matching import knn
-from .methods import Method, parse_method
+from .features import Descriptors, Side
+from .hvpr import hvpr
+from .matchers import SEQUENCE_MATCHERS
+from .methods import FRAME_FEATURES, Method, default_methods, parse_method
 from .recall import check_radius, recall_at_k
-from .sequence_descriptors import SeqNet, delta, describe_windows, smoothing
-from .sequence_matching import rerank_seqmatch, seqmatch_topk
-from .traverse import Dataset
-from .utils import as_tensor, get_device, l2_normalize, logger
-from .windows import check_seq_len, window_indices, window_offset, window_starts
+from .sequence_descriptors import SeqNet
+from .utils import get_device, logger
+from .windows import WINDOW_MODES
+
+DEFAULT_SEQ_LEN = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalConfig(Config):
+    """Settings of :func:`evaluate` (see ``seqnet eval --help``).
+
+    Attributes:
+        methods: method names (:mod:`seqnet.methods`); None: every default method the models allow.
+        seq_len: window length L of the sequence descriptors (None: the S_L model's, else 5).
+        rerank_seq_len: length L_m of the sequence matchers (None: L).
+        window: ``"centred"`` (the paper's) or ``"causal"`` (online).
+        radius: localisation radius (None: the dataset's); a retrieved reference is correct within it (≤).
+        extra_radii: further radii to report.
+        ks: the K of Recall@K.
+        top_k: HVPR shortlist size K.
+        split: the split evaluated by :func:`main` (None: test when defined, else all).
+        backend: k-NN backend (a key of :data:`seqnet.distances.KNN_BACKENDS`).
+        device: torch device (auto: CUDA when present).
+    """
+
+    methods: tuple[str, ...] | None = None
+    seq_len: int | None = None
+    rerank_seq_len: int | None = None
+    window: str = "centred"
+    radius: float | None = None
+    extra_radii: tuple[float, ...] = ()
+    ks: tuple[int, ...] = (1, 5, 10, 20, 100)
+    top_k: int = 20
+    split: str | None = None
+    backend: str = "torch"
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.methods is not None:
+            if isinstance(self.methods, str) or not self.methods:
+                raise ConfigError(f"methods must be a non-empty list of method names, got {self.methods!r}")
+            self._set("methods", tuple(parse_method(m).name for m in self.methods))
+        for key in ("seq_len", "rerank_seq_len"):
+            if getattr(self, key) is not None:
+                self._set(key, check_int(key, getattr(self, key), 1))
+        check_choice("window mode", self.window, WINDOW_MODES)
+        if self.radius is not None:
+            self._set("radius", check_radius(self.radius))
+        self._set("extra_radii", tuple(check_radius(r) for r in self.extra_radii))
+        self._set("ks", check_ints("ks", self.ks, 1))
+        self._set("top_k", check_int("top_k", self.top_k, 1))
+        check_choice("k-NN backend", self.backend, KNN_BACKENDS)
+        get_device(self.device)  # validates the device name
+
+    @property
+    def length(self) -> int:
+        """L (the default when unset)."""
+        return self.seq_len or DEFAULT_SEQ_LEN
+
+    @property
+    def match_len(self) -> int:
+        """L_m: the sequence matchers' length."""
+        return self.rerank_seq_len or self.length
 
 
 @dataclasses.dataclass
@@ -33,6 +96,7 @@ class Evaluation:
 
     results: dict[str, Any]
     retrieved: dict[str, np.ndarray]  # method -> [M, K] indices into r_items, best first
+    scores: dict[str, np.ndarray]  # method -> [M, K] scores of ``retrieved`` (lower is better)
     q_pos: np.ndarray  # [M, P] positions of the evaluated query frames
     r_pos: np.ndarray  # [R, P] positions of the indexed reference frames
     radius: float
@@ -40,157 +104,154 @@ class Evaluation:
     r_items: np.ndarray  # [R] reference frame of each indexed reference
 
 
-class _Features:
-    """Descriptors of one evaluation, computed once and timed (ms)."""
-
-    def __init__(self, ds: Dataset, cfg: Mapping[str, Any], models: Mapping[str, SeqNet], device: torch.device):
-        self.ds, self.models, self.device = ds, models, device
-        self.L, self.mode = cfg["seq_len"], cfg["window"]
-        self.q_starts, q_valid = window_starts(len(ds.query), self.L, self.mode, ds.query.seq_bounds)
-        self.r_starts, r_valid = window_starts(len(ds.reference), self.L, self.mode, ds.reference.seq_bounds)
-        self.q_items, self.r_items = np.flatnonzero(q_valid), np.flatnonzero(r_valid)
-        self.cache: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
-        self.ms: dict[str, float] = {}
-
-    def get(self, name: str) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(query, reference)`` descriptors named ``name``: frames (``raw``, ``s1``,
-        ``delta_frames``) or items (``single``, ``smoothing``, ``delta``, ``seqnet``, ``s1_items``)."""
-        if name not in self.cache:
-            t0 = time.perf_counter()
-            self.cache[name] = self._compute(name)
-            self.ms[name] = (time.perf_counter() - t0) * 1e3 + sum(self.ms.get(d, 0.0) for d in self._deps(name))
-        return self.cache[name]
-
-    @staticmethod
-    def _deps(name: str) -> tuple[str, ...]:
-        return {"single": ("raw",), "s1_items": ("s1",)}.get(name, ())
-
-    def _compute(self, name: str) -> tuple[torch.Tensor, torch.Tensor]:
-        q, r = self.ds.query, self.ds.reference
-        if name == "raw":
-            return l2_normalize(as_tensor(q.descriptors)), l2_normalize(as_tensor(r.descriptors))
-        if name in ("single", "s1_items"):
-            fq, fr = self.get("raw" if name == "single" else "s1")
-            return fq[self.q_items], fr[self.r_items]
-        if name == "s1":
-            model = self.models["s1"]
-            return tuple(describe_windows(t.descriptors, np.arange(len(t))[:, None], model, device=self.device,
-                                          progress="S_1") for t in (q, r))  # type: ignore[return-value]
-        if name == "delta_frames":
-            return tuple(describe_windows(t.descriptors, window_indices(len(t), self.L, self.mode, t.seq_bounds), delta,
-                                          device=self.device) for t in (q, r))  # type: ignore[return-value]
-        fn = {"smoothing": smoothing, "delta": delta}.get(name) or self.models["seqnet"]
-        out = []
-        for t, starts, items in ((q, self.q_starts, self.q_items), (r, self.r_starts, self.r_items)):
-            idx = starts[items][:, None] + np.arange(self.L)[None, :]
-            out.append(describe_windows(t.descriptors, idx, fn, device=self.device, progress=name))
-        return out[0], out[1]
+Ranking = tuple[np.ndarray, np.ndarray, dict[str, float]]  # scores [M, K], items [M, K], timing ms
 
 
-_ITEM_FEATURE = {"single": "single", "s1": "s1_items", "smoothing": "smoothing", "delta": "delta", "seqnet": "seqnet"}
-_FRAME_FEATURE = {"raw": "raw", "s1": "s1", "delta": "delta_frames"}
+def _run_knn(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
+    fq, fr = f.items(m.shortlist)
+    t0 = time.perf_counter()
+    scores, ranked = knn(fq, fr, k, backend=conf.backend, device=str(f.device))
+    return scores, ranked, {"descriptors": f.time_ms("items", m.shortlist),
+                            "retrieval": (time.perf_counter() - t0) * 1e3}
 
 
-def _run_method(m: Method, f: _Features, cfg: Mapping[str, Any]) -> tuple[np.ndarray, dict[str, float]]:
-    """Rank reference items for every query item; returns ``([M, K] items, timing_ms)``."""
-    k_max, dev = max(cfg["ks"]), f.device
-    timing: dict[str, float] = {}
-    if m.kind in ("knn", "hvpr"):
-        fq, fr = f.get(_ITEM_FEATURE[m.shortlist])
-        t0 = time.perf_counter()
-        k = max(k_max, cfg["top_k"]) if m.kind == "hvpr" else k_max
-        _, ranked = knn(fq, fr, k, backend=cfg["backend"], device=str(dev))
-        timing["shortlist" if m.kind == "hvpr" else "retrieval"] = (time.perf_counter() - t0) * 1e3
-        timing["descriptors"] = f.ms[_ITEM_FEATURE[m.shortlist]]
-    if m.kind in ("seqmatch", "hvpr"):
-        sq, sr = f.get(_FRAME_FEATURE[m.rerank])
-        timing["descriptors"] = timing.get("descriptors", 0.0) + f.ms[_FRAME_FEATURE[m.rerank]]
-        t0 = time.perf_counter()
-        qs, rs = f.q_starts[f.q_items], f.r_starts[f.r_items]
-        if m.kind == "seqmatch":
-            _, ranked = seqmatch_topk(sq, sr, f.L, k_max, qs, rs, device=str(dev), progress="SeqMatch")
-            timing["seqmatch"] = (time.perf_counter() - t0) * 1e3
-        else:
-            top = min(cfg["top_k"], ranked.shape[1])
-            head, _ = rerank_seqmatch(sq, sr, f.L, qs, rs, ranked[:, :top], device=str(dev))
-            ranked = np.concatenate([head, ranked[:, top:]], axis=1)
-            timing["rerank"] = (time.perf_counter() - t0) * 1e3
-    timing["total"] = sum(timing.values())
-    return ranked, timing
+def _run_match(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
+    feature = _frame_feature(m)
+    sq, sr = f.frames(feature)
+    t0 = time.perf_counter()
+    scores, ranked = SEQUENCE_MATCHERS[m.matcher].topk(sq, sr, conf.match_len, k, f.query.match_starts,
+                                                       f.reference.match_starts, device=str(f.device))
+    return scores, ranked, {"descriptors": f.time_ms("frames", feature),
+                            "seqmatch": (time.perf_counter() - t0) * 1e3}
 
 
-def resolve_eval_config(overrides: Mapping[str, Any] | None, ds: Dataset) -> dict[str, Any]:
-    """Merge ``overrides`` onto :data:`EVAL_DEFAULTS` and validate against the dataset."""
-    cfg = merge(EVAL_DEFAULTS, overrides)
-    check_seq_len(cfg["seq_len"])
-    cfg["radius"] = check_radius(ds.radius if cfg["radius"] is None else cfg["radius"])
-    cfg["extra_radii"] = [check_radius(r) for r in cfg["extra_radii"]]
-    if not cfg["methods"]:
-        raise ConfigError("no methods given; valid: see `seqnet eval --help`")
-    if isinstance(cfg["top_k"], bool) or not isinstance(cfg["top_k"], (int, np.integer)) or cfg["top_k"] < 1:
-        raise ConfigError(f"top_k must be an integer >= 1, got {cfg['top_k']!r}")
-    ks = cfg["ks"]
-    if not ks or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1 for k in ks):
-        raise ConfigError(f"ks must be a non-empty list of integers >= 1, got {ks!r}")
-    cfg["ks"] = [int(k) for k in ks]
-    window_offset(cfg["seq_len"], cfg["window"])  # validates the window mode
-    if cfg["backend"] not in ("torch", "faiss"):
-        raise ConfigError(f"k-NN backend {cfg['backend']!r} is not one of ('torch', 'faiss')")
-    get_device(cfg["device"])  # validates the device
-    return cfg
+def _run_hvpr(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
+    feature = _frame_feature(m)
+    (fq, fr), (sq, sr) = f.items(m.shortlist), f.frames(feature)
+    t0 = time.perf_counter()
+    scores, ranked = hvpr(fq, fr, sq, sr, conf.match_len, f.query.match_starts, f.reference.match_starts,
+                          top_k=conf.top_k, k=k, matcher=m.matcher, backend=conf.backend, device=str(f.device))
+    return scores, ranked, {"descriptors": f.time_ms("items", m.shortlist) + f.time_ms("frames", feature),
+                            "hvpr": (time.perf_counter() - t0) * 1e3}
 
 
-def evaluate(
-    ds: Dataset, config: Mapping[str, Any] | None = None, models: Mapping[str, SeqNet] | None = None
-) -> Evaluation:
+def _frame_feature(m: Method) -> str:
+    return FRAME_FEATURES[m.frames]
+
+
+RUNNERS: dict[str, Callable[[Method, Descriptors, EvalConfig, int], Ranking]] = {
+    "knn": _run_knn, "match": _run_match, "hvpr": _run_hvpr}
+
+
+def check_inputs(ds: Dataset, conf: EvalConfig, methods: list[Method], models: Mapping[str, SeqNet]) -> None:
+    """Every check that does not need descriptors: models present and fitting, lengths."""
+    for m in methods:
+        missing = m.models() - set(models)
+        if missing:
+            need = " and ".join("an S_1 model (--rerank-model CKPT)" if r == "s1" else
+                                "an S_L model (--shortlist-model CKPT)" for r in sorted(missing))
+            raise ConfigError(f"method {m.name!r} needs {need}")
+        if m.min_len() > conf.length:
+            raise ConfigError(f"method {m.name!r} uses Delta descriptors, which need seq_len >= {m.min_len()} "
+                              f"(got {conf.length}); use a longer --seq-len or other methods")
+    for role, model in models.items():
+        if model.in_dims != ds.query.dim:
+            raise ConfigError(f"the {role} model expects D={model.in_dims} descriptors "
+                              f"but the dataset has D={ds.query.dim}")
+    for side, t in (("query", ds.query), ("reference", ds.reference)):
+        longest = max(conf.length, conf.match_len)
+        if longest > len(t):
+            raise ConfigError(f"seq_len={longest} is longer than the {side} traverse of dataset {ds.name!r} "
+                              f"({len(t)} frames); use a shorter --seq-len")
+
+
+def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[str, Any]:
+    """What a method resolved to: kind, shortlister, re-ranker, lengths, K, models."""
+    info = m.summary()
+    info["seq_len"] = conf.length
+    if m.rerank:
+        info["rerank_seq_len"] = conf.match_len
+    if m.kind == "hvpr":
+        info["top_k"] = conf.top_k
+    info["models"] = {r: models[r].config() for r in sorted(m.models())}
+    return info
+
+
+def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqNet] | None = None) -> Evaluation:
     """Evaluate methods on ``ds`` (already restricted to the split to evaluate).
 
     Args:
         ds: dataset (reference + query traverses, radius).
-        config: overrides of :data:`seqnet.config.EVAL_DEFAULTS`.
+        conf: settings (default :class:`EvalConfig`).
         models: trained models by role: ``{"seqnet": S_L, "s1": S_1}`` (optional).
 
     Returns:
         :class:`Evaluation` whose ``results`` follow the ``--json`` schema.
     """
     models = dict(models or {})
-    cfg = resolve_eval_config(config, ds)
-    methods = [parse_method(n, set(models), cfg["shortlist"], cfg["rerank"]) for n in cfg["methods"]]
-    uses_delta = [m.name for m in methods if "delta" in (m.shortlist, m.rerank)]
-    if uses_delta and cfg["seq_len"] < 2:
-        raise ConfigError(f"method(s) {', '.join(uses_delta)} use Delta descriptors, which need seq_len >= 2 "
-                          f"(got {cfg['seq_len']}); use a longer --seq-len or other methods")
-    for role, model in models.items():
-        if model.in_dims != ds.query.dim:
-            raise ConfigError(f"the {role} model expects D={model.in_dims} descriptors "
-                              f"but the dataset has D={ds.query.dim}")
-    for side, t in (("query", ds.query), ("reference", ds.reference)):
-        if cfg["seq_len"] > len(t):
-            raise ConfigError(f"seq_len={cfg['seq_len']} is longer than the {side} traverse of dataset "
-                              f"{ds.name!r} ({len(t)} frames); use a shorter --seq-len")
-    dev = get_device(cfg["device"])
+    conf = conf or EvalConfig()
+    if conf.seq_len is None and "seqnet" in models:
+        conf = conf.replace(seq_len=models["seqnet"].seq_len)
+    conf = conf.replace(radius=ds.radius if conf.radius is None else conf.radius,
+                        methods=conf.methods or default_methods(models, conf.length), seq_len=conf.length)
+    methods = [parse_method(n) for n in conf.methods]
+    check_inputs(ds, conf, methods, models)
+    dev = get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
-    f = _Features(ds, cfg, models, dev)
-    if len(f.q_items) == 0 or len(f.r_items) == 0:
-        raise ConfigError(f"no {'query' if len(f.q_items) == 0 else 'reference'} frame has a full window of "
-                          f"seq_len={cfg['seq_len']} inside its sequence; use a shorter --seq-len")
-    q_pos, r_pos = ds.query.positions[f.q_items], ds.reference.positions[f.r_items]
+    sides = [Side.of(t, conf.length, conf.match_len, conf.window) for t in (ds.query, ds.reference)]
+    f = Descriptors(*sides, conf.length, conf.window, models, dev)
+    q_pos, r_pos = ds.query.positions[f.query.items], ds.reference.positions[f.reference.items]
     results: dict[str, Any] = {}
-    retrieved: dict[str, np.ndarray] = {}
+    retrieved, scores = {}, {}
+    k_max = max(conf.ks)
     for m in methods:
-        ranked, timing = _run_method(m, f, cfg)
-        retrieved[m.name] = ranked
-        rec = recall_at_k(ranked, q_pos, r_pos, cfg["radius"], cfg["ks"])
+        scores[m.name], retrieved[m.name], timing = RUNNERS[m.kind](m, f, conf, k_max)
+        timing["total"] = sum(timing.values())
+        rec = recall_at_k(retrieved[m.name], q_pos, r_pos, conf.radius, conf.ks)
         entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
         entry.update(queries=rec["queries"], no_positive=rec["no_positive"],
-                     no_full_window=int(len(ds.query) - len(f.q_items)),
-                     timing_ms={k: round(v, 3) for k, v in timing.items()})
-        if cfg["extra_radii"]:
-            entry["radii"] = {str(r): {k: v for k, v in recall_at_k(ranked, q_pos, r_pos, r, cfg["ks"]).items()}
-                              for r in cfg["extra_radii"]}
+                     no_full_window=int(len(ds.query) - len(f.query.items)),
+                     timing_ms={k: round(v, 3) for k, v in timing.items()}, method=_entry(m, conf, models))
+        if conf.extra_radii:
+            entry["radii"] = {str(r): recall_at_k(retrieved[m.name], q_pos, r_pos, r, conf.ks)
+                              for r in conf.extra_radii}
         results[m.name] = entry
         logger.info("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
-    out = {"methods": results, "config": {**cfg, "dataset": ds.name, "device": str(dev),
+    out = {"methods": results, "config": {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                                           "models": {k: v.config() for k, v in models.items()}}}
-    return Evaluation(out, retrieved, q_pos, r_pos, cfg["radius"], f.q_items, f.r_items)
+    return Evaluation(out, retrieved, scores, q_pos, r_pos, conf.radius, f.query.items, f.reference.items)
+
+
+def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
+                rerank_model: str | Path | None = None, seq_len: int | None = None) -> dict[str, SeqNet]:
+    """Models by role: ``paths`` by their stored role, then the S_L ``shortlist_model`` (an original
+    checkpoint without flags.json takes ``seq_len``) and the S_1 ``rerank_model``."""
+    from .train.checkpoints import load_model
+
+    models = {}
+    for path in paths:
+        model = load_model(path)
+        models[model.role] = model
+    if shortlist_model:
+        models["seqnet"] = load_model(shortlist_model, seq_len=seq_len)
+    if rerank_model:
+        models["s1"] = load_model(rerank_model)
+    return models
+
+
+def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
+         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None) -> Path:
+    """hloc-style stage: evaluate ``conf.split`` of the dataset directory ``dataset`` with the model
+    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs) and returns its path."""
+    from .data.io import load_dataset
+    from .files import write_json_atomic
+
+    ds = load_dataset(dataset)
+    split = conf.split or ("test" if "test" in ds.splits else "all")
+    loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    ev = evaluate(ds.split(split), conf.replace(split=split), loaded)
+    ev.results["config"]["dataset_path"] = str(dataset)
+    ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
+                            "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
+    return write_json_atomic(Path(out) / "results.json", ev.results)

@@ -1,73 +1,118 @@
-"""Place-recognition methods as data: what each method name means.
+"""Place-recognition methods, named from the tables of descriptors and matchers.
 
-* single-frame / sequence-descriptor retrieval (k-NN): ``single``, ``s1``, ``smoothing``, ``delta``,
-  ``seqnet`` (S_L);
-* SeqMatch over single descriptors: ``raw+seqmatch``, ``s1+seqmatch``, ``delta+seqmatch``;
-* HVPR: ``hvpr`` (default shortlister and re-ranker) or ``hvpr-<shortlister>`` (e.g. ``hvpr-delta``).
+A method name is one of:
+
+* ``<descriptor>`` — k-NN retrieval with a key of :data:`SEQUENCE_DESCRIPTORS` (``single``, ``s1``,
+  ``smoothing``, ``delta``, ``delta-orig``, ``seqnet``);
+* ``<frames>+<matcher>`` — a sequence matcher (:data:`SEQUENCE_MATCHERS`: ``seqmatch``,
+  ``seqmatch-rev``, ...) over the whole map on frame descriptors (:data:`FRAME_FEATURES`: ``raw``,
+  ``s1``, ``delta``, ...), e.g. ``raw+seqmatch``, ``s1+seqmatch``;
+* ``hvpr-<descriptor>[:<frames>+<matcher>]`` — HVPR: shortlist the top K by k-NN on the descriptor,
+  re-rank them with the matcher (default ``s1+seqmatch``, the paper's re-ranker);
+* ``hvpr`` — the paper's HVPR: ``hvpr-seqnet:s1+seqmatch`` (S_L shortlist, SeqMatch on S_1).
+
+A name means the same thing whatever models are given: a method whose model is missing is an
+error naming the model, never a silent substitute.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Collection
+from typing import Any
 
 from .errors import ConfigError
+from .matchers import SEQUENCE_MATCHERS
+from .sequence_descriptors import SEQUENCE_DESCRIPTORS
 
-SHORTLISTERS = ("single", "s1", "smoothing", "delta", "seqnet")
-SEQMATCH_INPUTS = ("raw", "s1", "delta")
-NEEDS_MODEL = {"s1": "s1", "seqnet": "seqnet"}
+# frame descriptors a matcher can run on: "raw" is each frame's own descriptor; every other sequence
+# descriptor is computed over each frame's window (clamped at sequence bounds)
+FRAME_FEATURES: dict[str, str] = {"raw": "single", **{k: k for k in SEQUENCE_DESCRIPTORS if k != "single"}}
+HVPR_RERANK = "s1+seqmatch"  # the paper's re-ranker
+HVPR_ALIAS = "hvpr"
+METHOD_KINDS = ("knn", "match", "hvpr")
 
 
 @dataclasses.dataclass(frozen=True)
 class Method:
-    """A parsed method: ``kind`` is "knn", "seqmatch" or "hvpr"."""
+    """A parsed method name (see the module docstring)."""
 
     name: str
-    kind: str
-    shortlist: str | None = None  # knn / hvpr: descriptor used for k-NN
-    rerank: str | None = None  # seqmatch / hvpr: single descriptor for SeqMatch
+    kind: str  # one of METHOD_KINDS
+    shortlist: str | None = None  # knn / hvpr: key of SEQUENCE_DESCRIPTORS
+    frames: str | None = None  # match / hvpr: key of FRAME_FEATURES
+    matcher: str | None = None  # match / hvpr: key of SEQUENCE_MATCHERS
+
+    @property
+    def rerank(self) -> str | None:
+        """``<frames>+<matcher>``, or None for k-NN methods."""
+        return f"{self.frames}+{self.matcher}" if self.frames else None
+
+    def descriptors(self) -> list[str]:
+        """The sequence descriptors this method computes (shortlist, then frame descriptor)."""
+        return [d for d in (self.shortlist, self.frames and FRAME_FEATURES[self.frames]) if d]
 
     def models(self) -> set[str]:
-        """Model roles (``"seqnet"``, ``"s1"``) this method needs."""
-        used = {self.shortlist, self.rerank}
-        return {NEEDS_MODEL[u] for u in used if u in NEEDS_MODEL}
+        """Model roles (``"seqnet"`` = S_L, ``"s1"`` = S_1) this method needs."""
+        return {m for d in self.descriptors() if (m := SEQUENCE_DESCRIPTORS[d].model)}
+
+    def min_len(self) -> int:
+        """The shortest sequence length L its descriptors accept."""
+        return max(SEQUENCE_DESCRIPTORS[d].min_len for d in self.descriptors())
+
+    def summary(self) -> dict[str, Any]:
+        """What the method is (stored in results): kind, shortlister, re-ranker."""
+        return {"kind": self.kind, "shortlist": self.shortlist, "rerank": self.rerank}
+
+
+def _parse_rerank(text: str, name: str) -> tuple[str, str]:
+    frames, sep, matcher = text.rpartition("+")
+    if not sep or frames not in FRAME_FEATURES or matcher not in SEQUENCE_MATCHERS:
+        raise ConfigError(f"method {name!r}: re-ranker {text!r} is not <frames>+<matcher> with frames one of "
+                          f"{', '.join(FRAME_FEATURES)} and matcher one of {', '.join(SEQUENCE_MATCHERS)}")
+    return frames, matcher
+
+
+def parse_method(name: str) -> Method:
+    """Parse a method name (see the module docstring); :class:`ConfigError` names the valid forms."""
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"a method name must be a non-empty string, got {name!r}; "
+                          f"valid: {', '.join(valid_methods())}")
+    if name in SEQUENCE_DESCRIPTORS:
+        return Method(name, "knn", shortlist=name)
+    if name == HVPR_ALIAS:
+        return Method(name, "hvpr", "seqnet", *_parse_rerank(HVPR_RERANK, name))
+    if name.startswith("hvpr-"):
+        shortlist, _, rerank = name[5:].partition(":")
+        if shortlist not in SEQUENCE_DESCRIPTORS:
+            raise ConfigError(f"method {name!r}: unknown HVPR shortlister {shortlist!r}; "
+                              f"valid: {', '.join(SEQUENCE_DESCRIPTORS)}")
+        return Method(name, "hvpr", shortlist, *_parse_rerank(rerank or HVPR_RERANK, name))
+    if "+" in name:
+        frames, matcher = name.rsplit("+", 1)
+        if frames in FRAME_FEATURES and matcher in SEQUENCE_MATCHERS:
+            return Method(name, "match", frames=frames, matcher=matcher)
+    raise ConfigError(f"unknown method {name!r}; valid: {', '.join(valid_methods())}, or "
+                      "hvpr-<shortlister>:<frames>+<matcher>")
 
 
 def valid_methods() -> list[str]:
-    """All method names accepted by :func:`parse_method`."""
-    return [
-        *SHORTLISTERS,
-        *(f"{s}+seqmatch" for s in SEQMATCH_INPUTS),
-        "hvpr",
-        *(f"hvpr-{s}" for s in SHORTLISTERS),
-    ]
+    """The method names without the optional ``:<frames>+<matcher>`` re-ranker suffix."""
+    return [*SEQUENCE_DESCRIPTORS, *(f"{f}+{m}" for m in SEQUENCE_MATCHERS for f in FRAME_FEATURES), HVPR_ALIAS,
+            *(f"hvpr-{d}" for d in SEQUENCE_DESCRIPTORS)]
 
 
-def parse_method(name: str, have_models: set[str], shortlist: str | None = None, rerank: str | None = None) -> Method:
-    """Parse a method name; ``hvpr`` defaults depend on the trained models available.
+# The methods run when none are named, in pipeline order; those whose models or L are missing are left out.
+DEFAULT_METHODS = ("single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch", "delta+seqmatch",
+                   "hvpr", "hvpr-delta:raw+seqmatch")
 
-    Args:
-        name: method name (see :func:`valid_methods`).
-        have_models: the model roles available (subset of ``{"seqnet", "s1"}``).
-        shortlist: default HVPR shortlister (None: ``seqnet`` if available else ``delta``).
-        rerank: HVPR re-ranking descriptor (None: ``s1`` if available else ``raw``).
+
+def default_methods(models: Collection[str], seq_len: int) -> list[str]:
+    """:data:`DEFAULT_METHODS` that the available model roles and the sequence length L allow.
+
+    ``hvpr-delta:raw+seqmatch`` (the model-free HVPR) is only a default when the paper's ``hvpr``
+    cannot run.
     """
-    if name in SHORTLISTERS:
-        m = Method(name, "knn", shortlist=name)
-    elif name.endswith("+seqmatch") and name[: -len("+seqmatch")] in SEQMATCH_INPUTS:
-        m = Method(name, "seqmatch", rerank=name[: -len("+seqmatch")])
-    elif name == "hvpr" or (name.startswith("hvpr-") and name[5:] in SHORTLISTERS):
-        sl = name[5:] if name != "hvpr" else shortlist or ("seqnet" if "seqnet" in have_models else "delta")
-        rr = rerank or ("s1" if "s1" in have_models else "raw")
-        if sl not in SHORTLISTERS:
-            raise ConfigError(f"unknown HVPR shortlister {sl!r}; valid: {', '.join(SHORTLISTERS)}")
-        if rr not in SEQMATCH_INPUTS:
-            raise ConfigError(f"unknown HVPR re-ranker {rr!r}; valid: {', '.join(SEQMATCH_INPUTS)}")
-        m = Method(name, "hvpr", shortlist=sl, rerank=rr)
-    else:
-        raise ConfigError(f"unknown method {name!r}; valid: {', '.join(valid_methods())}")
-    missing = m.models() - have_models
-    if missing:
-        hints = {"seqnet": "an S_L model (--model or --shortlist-model CKPT)",
-                 "s1": "an S_1 model (--model or --rerank-model CKPT)"}
-        raise ConfigError(f"method {name!r} needs " + " and ".join(hints[x] for x in sorted(missing)))
-    return m
+    parsed = [parse_method(n) for n in DEFAULT_METHODS]
+    ok = [m.name for m in parsed if m.models() <= set(models) and m.min_len() <= seq_len]
+    return [n for n in ok if not (n == "hvpr-delta:raw+seqmatch" and HVPR_ALIAS in ok)]

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .utils import atomic_path
+from .files import atomic_path
 
 
 def _fmt(v: Any) -> str:

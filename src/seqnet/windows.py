@@ -78,8 +78,12 @@ def window_indices(
     """
     starts, _ = window_starts(n, seq_len, mode, seq_bounds)
     lo, hi = _bounds(n, seq_bounds)
-    idx = starts[:, None] + np.arange(seq_len, dtype=np.int64)[None, :]
-    return np.clip(idx, lo[:, None], hi[:, None] - 1)
+    return np.clip(window_frames(starts, seq_len), lo[:, None], hi[:, None] - 1)
+
+
+def window_frames(starts: np.ndarray, seq_len: int) -> np.ndarray:
+    """Frame indices ``[M, L]`` of the windows that start at ``starts [M]``: ``starts[m] + t``."""
+    return np.asarray(starts, dtype=np.int64)[:, None] + np.arange(seq_len, dtype=np.int64)[None, :]
 
 
 def gather_windows(desc: torch.Tensor, idx: np.ndarray | torch.Tensor) -> torch.Tensor:

@@ -28,6 +28,10 @@ class _ArgumentParserError(SeqnetError):
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors raise instead of printing the usage and exiting."""
 
+    def __init__(self, *args, **kwargs) -> None:  # noqa: ANN002, ANN003 - argparse's signature
+        kwargs.setdefault("allow_abbrev", False)  # "--shortlist" must not silently mean "--shortlist-model"
+        super().__init__(*args, **kwargs)
+
     def error(self, message: str) -> NoReturn:  # type: ignore[override]
         raise _ArgumentParserError(f"{self.prog}: error: {message} (see `{self.prog} --help`)")
 

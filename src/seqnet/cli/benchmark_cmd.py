@@ -36,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def nordland64_overrides(args: argparse.Namespace) -> dict:
     """Benchmark config overrides from the command-line flags (None: keep the default)."""
-    from ..presets import BENCHMARKS
+    from ..data.presets import BENCHMARKS
 
     base = BENCHMARKS["nordland64"]
     train = {k: v for k, v in (("seq_len", args.seq_len), ("w", args.w), ("epochs", args.epochs)) if v is not None}
@@ -58,7 +58,7 @@ def nordland64_overrides(args: argparse.Namespace) -> dict:
 
 
 def run_nordland64(args: argparse.Namespace) -> int:
-    from ..nordland64 import main
+    from ..pipelines.nordland64 import main
     from ..report import format_table
 
     ev = main(nordland64_overrides(args), args.data, args.out)

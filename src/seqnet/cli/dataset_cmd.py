@@ -101,8 +101,8 @@ def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | No
 
 
 def _finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
-    from ..convert import summarize_dataset
-    from ..dataset_io import save_dataset
+    from ..data.convert import summarize_dataset
+    from ..data.io import save_dataset
 
     save_dataset(ds, args.out, overwrite=args.overwrite)
     s = summarize_dataset(ds)
@@ -119,7 +119,7 @@ def _extra(args: argparse.Namespace) -> dict:
 def run_from_csv(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..convert import assemble_dataset, traverse_from_csv
+    from ..data.convert import assemble_dataset, traverse_from_csv
 
     ref, unit_r = traverse_from_csv(args.ref_csv, args.ref_desc, args.ref_names, "reference")
     qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
@@ -134,7 +134,7 @@ def run_from_utm(args: argparse.Namespace) -> int:
     import dataclasses
     from pathlib import Path
 
-    from ..convert import assemble_dataset, read_seq_bounds, traverse_from_utm_names
+    from ..data.convert import assemble_dataset, read_seq_bounds, traverse_from_utm_names
 
     sides = []
     for side, label in (("ref", "reference"), ("query", "query")):
@@ -149,8 +149,8 @@ def run_from_utm(args: argparse.Namespace) -> int:
 
 
 def run_from_seqnet(args: argparse.Namespace) -> int:
-    from ..convert import read_descriptor_file, read_names
-    from ..structfiles import dataset_from_frame_lists, dataset_from_structs, read_db_struct
+    from ..data.convert import read_descriptor_file, read_names
+    from ..data.structfiles import dataset_from_frame_lists, dataset_from_structs, read_db_struct
 
     ref = [read_descriptor_file(f)[0] for f in args.ref_desc]
     qry = [read_descriptor_file(f)[0] for f in args.query_desc]
@@ -168,8 +168,8 @@ def run_from_seqnet(args: argparse.Namespace) -> int:
 
 
 def run_check(args: argparse.Namespace) -> int:
-    from ..convert import summarize_dataset
-    from ..dataset_io import load_dataset
+    from ..data.convert import summarize_dataset
+    from ..data.io import load_dataset
     from ..errors import DatasetError
 
     ds = load_dataset(args.dir)
@@ -206,7 +206,7 @@ def format_summary(s: dict) -> str:
 
 
 def run_presets(args: argparse.Namespace) -> int:
-    from ..presets import PRESETS
+    from ..data.presets import PRESETS
 
     if args.json:
         print(json.dumps(PRESETS, indent=2))

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-from ..demo import DEMO_PLACES, DEMO_SEQ_LEN, run_demo
+from ..files import write_json_atomic
+from ..pipelines.demo import DEMO_PLACES, DEMO_SEQ_LEN, run_demo
 from ..report import format_table
-from ..utils import set_threads, write_json_atomic
+from ..utils import set_threads
 from .common import add_device, positive_int
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..describe import METHODS, describe_folder
+from ..describe.describers import METHODS, describe_folder
 from ..utils import set_threads
 from .common import add_device, positive_float, positive_int
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from ..train import TRAIN_CONFIG_DEFAULTS, main
+from ..train.loop import TRAIN_CONFIG_DEFAULTS, main
 from ..utils import set_threads
 from .common import add_device, non_negative_int, positive_float, positive_int
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import DatasetError
+from ..errors import DatasetError
 
 FORMAT = "seqnet-dataset/1"
 POSITION_UNITS = ("frames", "metres")

@@ -23,15 +23,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from .config import merge
-from .dataset_io import load_dataset, save_dataset
-from .errors import ConfigError, DatasetError
-from .evaluate import Evaluation, evaluate
-from .pca import PCA, fit_pca
-from .presets import BENCHMARKS
-from .sequence_descriptors import SeqNet
-from .traverse import Dataset, Traverse
-from .utils import logger, save_npy_atomic, write_json_atomic
+from ..config_legacy import merge
+from ..data.io import load_dataset, save_dataset
+from ..data.presets import BENCHMARKS
+from ..data.traverse import Dataset, Traverse
+from ..describe.pca import PCA, fit_pca
+from ..errors import ConfigError, DatasetError
+from ..evaluate import EvalConfig, Evaluation, evaluate
+from ..files import save_npy_atomic, write_json_atomic
+from ..sequence_descriptors import SeqNet
+from ..utils import logger
 
 SEASONS = ("summer", "winter")
 FRAME_NUMBER = re.compile(r"(\d+)")
@@ -71,7 +72,7 @@ def describe_seasons(data: Path, names: list[str], cfg: Mapping[str, Any], offse
     Anything fitted (NetVLAD clusters, PCA of the describer) is fitted on the train range only
     (``names[i]`` is place ``offset + i``).
     """
-    from .describe import make_describer
+    from ..describe.describers import make_describer
 
     a, b = cfg["train_range"]
     fit = [data / s / n for s in SEASONS for n in names[a - offset : b - offset]]  # the train images
@@ -92,7 +93,7 @@ def _describe_flipped(describer: Any, paths: list[Path], batch: int = 256) -> np
     """Descriptors ``[N, D]`` of the images ``paths`` mirrored left-right (training augmentation)."""
     from tqdm.auto import tqdm
 
-    from .images import iter_batches, load_images
+    from ..describe.images import iter_batches, load_images
 
     size, out = describer.opts.resolved_size(describer.method), []
     for idx in tqdm(list(iter_batches(len(paths), batch)), desc="describe flipped", unit="batch", leave=False):
@@ -217,8 +218,8 @@ def train_models(ds: Dataset, cfg: Mapping[str, Any], out: Path,
 
     Models trained with the same settings before (``out/models/key.json``) are reused.
     """
-    from .checkpoints import load_model, save_checkpoint
-    from .train import train
+    from ..train.checkpoints import load_model, save_checkpoint
+    from ..train.loop import train
 
     models_dir, key = out / "models", _train_key(cfg)
     key_file = models_dir / "key.json"
@@ -249,17 +250,18 @@ def train_models(ds: Dataset, cfg: Mapping[str, Any], out: Path,
 
 def evaluate_split(ds: Dataset, models: Mapping[str, SeqNet], cfg: Mapping[str, Any], split: str) -> Evaluation:
     """Every benchmark method on one split (centred L-frame windows; ``hvpr-*`` re-rank with S_1)."""
-    return evaluate(ds.split(split), {"methods": list(cfg["methods"]), "seq_len": cfg["seq_len"], "ks": cfg["ks"],
-                                      "top_k": cfg["top_k"], "device": cfg["device"]}, models)
+    conf = EvalConfig(methods=tuple(cfg["methods"]), seq_len=cfg["seq_len"], ks=tuple(cfg["ks"]), top_k=cfg["top_k"],
+                      device=cfg["device"])
+    return evaluate(ds.split(split), conf, models)
 
 
 def write_report(ev: Evaluation, val: Evaluation, cfg: Mapping[str, Any], seconds: Mapping[str, float],
                  out: Path) -> None:
     """``results.json`` (eval schema + benchmark config and timings), ``val_results.json``,
     ``results.md`` (Table-I style) and ``recall_at_k.png`` (Recall@K, K = 1..20, test range)."""
-    from .recall import recall_curve
-    from .report import format_markdown, plot_recall_curves
-    from .utils import write_text_atomic
+    from ..files import write_text_atomic
+    from ..recall import recall_curve
+    from ..report import format_markdown, plot_recall_curves
 
     ev.results["config"].update(benchmark=dict(cfg), timings_s=dict(seconds))
     write_json_atomic(out / "results.json", ev.results)

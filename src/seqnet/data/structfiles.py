@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import DatasetError
+from ..utils import logger
 from .convert import read_seq_bounds
-from .errors import DatasetError
 from .presets import get_preset, preset_metadata, preset_splits
 from .traverse import Dataset, Traverse
-from .utils import logger
 
 REQUIRED_FIELDS = ("whichSet", "dbImageFns", "qImageFns", "numImages", "numQueries", "posDistThr", "utmDb", "utmQ")
 

@@ -25,9 +25,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from .errors import CheckpointError, ConfigError
-from .sequence_descriptors import SeqNet
-from .utils import atomic_path, logger
+from ..errors import CheckpointError, ConfigError
+from ..files import atomic_path
+from ..sequence_descriptors import SeqNet
+from ..utils import logger
 
 CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
 ROLES = ("seqnet", "s1")
@@ -35,7 +36,7 @@ ROLES = ("seqnet", "s1")
 
 def model_role(model: SeqNet) -> str:
     """``"s1"`` for an S_1 model (``seq_len == w == 1``), else ``"seqnet"`` (S_L)."""
-    return "s1" if model.seq_len == 1 and model.w == 1 else "seqnet"
+    return model.role
 
 
 def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:

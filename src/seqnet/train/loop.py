@@ -23,17 +23,18 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from . import __version__
+from .. import __version__
+from ..config_legacy import TRAIN_DEFAULTS, merge
+from ..data.io import load_dataset
+from ..data.traverse import Dataset
+from ..errors import CheckpointError, ConfigError, DatasetError
+from ..files import write_json_atomic
+from ..sequence_descriptors import SeqNet
+from ..utils import get_device, logger
+from ..windows import WINDOW_MODES, check_seq_len, gather_windows
 from .checkpoints import capture_rng, model_role, read_checkpoint, read_resume, restore_rng, save_checkpoint
-from .config import TRAIN_DEFAULTS, merge
-from .dataset_io import load_dataset
-from .errors import CheckpointError, ConfigError, DatasetError
 from .losses import triplet_loss
 from .mining import Mined, TripletSource, check_radii, compute_cache, mine_queries, triplet_source
-from .sequence_descriptors import SeqNet
-from .traverse import Dataset
-from .utils import get_device, logger, write_json_atomic
-from .windows import WINDOW_MODES, check_seq_len, gather_windows
 
 # Keys beyond seqnet.config.TRAIN_DEFAULTS (belong there): the splits used for training / validation.
 TRAIN_CONFIG_DEFAULTS = TRAIN_DEFAULTS  # the single source of training defaults (seqnet.config)
@@ -183,13 +184,14 @@ def train_epoch(run: Run, src: TripletSource, epoch: int) -> dict[str, float]:
 
 def validate(model: SeqNet, val_ds: Dataset | None, cfg: Mapping[str, Any]) -> dict[str, float]:
     """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1)."""
-    from .evaluate import evaluate
+    from ..evaluate import EvalConfig, evaluate
 
     if val_ds is None:
         return {}
-    role = model_role(model)
-    ev = evaluate(val_ds, {"methods": [role], "seq_len": model.seq_len, "window": cfg["window"], "ks": VAL_KS,
-                           "device": cfg["device"]}, {role: model})
+    role = model.role
+    conf = EvalConfig(methods=(role,), seq_len=model.seq_len, window=cfg["window"], ks=tuple(VAL_KS),
+                      device=cfg["device"])
+    ev = evaluate(val_ds, conf, {role: model})
     model.train()
     return {k: float(v) for k, v in ev.results["methods"][role].items() if k.startswith("recall@")}
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import DatasetError
+from ..errors import DatasetError
 from .traverse import Dataset, Traverse
 
 NAME_COLUMNS = ("name", "image", "image_name", "filename", "file", "path", "key", "image_key")
@@ -236,7 +236,7 @@ def summarize_dataset(ds: Dataset) -> dict[str, Any]:
     ``queries_with_match`` counts the query images with a reference within the radius (over the
     whole dataset and within each split).
     """
-    from .recall import has_positive
+    from ..recall import has_positive
 
     def side(t: Traverse) -> dict[str, Any]:
         out: dict[str, Any] = {"images": len(t), "dim": t.dim}
@@ -271,7 +271,7 @@ def assemble_dataset(
 
     Splits default to the preset's index splits when it defines them and they fit.
     """
-    from .errors import ConfigError
+    from ..errors import ConfigError
     from .presets import get_preset, preset_metadata, preset_splits
 
     meta: dict[str, Any] = {}

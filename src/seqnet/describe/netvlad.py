@@ -21,9 +21,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .backbones import EfficientNetLite0, VGG16Encoder
-from .errors import CheckpointError, ConfigError
-from .utils import atomic_path, logger
+from ..errors import CheckpointError, ConfigError
+from ..files import atomic_path
+from ..utils import logger
+from .cnn import EfficientNetLite0, VGG16Encoder
 
 NETVLAD_LAYER = 10  # EfficientNet-Lite0 block 10: 112 channels at stride 16 (like VGG-16 conv5_3)
 
@@ -202,7 +203,7 @@ def fit_netvlad(encoder: nn.Module, batches: Iterable[np.ndarray], n_images: int
         n_images: number of images in ``batches`` (to spread ~``features_per_cluster`` × K features).
         clusters: K.
     """
-    from .backbones import to_input
+    from .cnn import to_input
 
     encoder = encoder.to(device).eval()
     gen = torch.Generator().manual_seed(seed)
@@ -226,7 +227,7 @@ def netvlad_for(checkpoint: str | None = None, use_wpca: bool = True, cache: Pat
                 fit_batches: Callable[[], Iterable[np.ndarray]] | None = None, n_fit: int = 0) -> NetVLADModel:
     """A NetVLAD model: from ``checkpoint``; else from ``cache`` when it exists; else clusters fitted by
     k-means on ``fit_batches()`` (uint8 image batches) over a shipped backbone, saved to ``cache``."""
-    from .backbones import build_backbone
+    from .cnn import build_backbone
 
     if checkpoint:
         return load_netvlad(checkpoint, use_wpca=use_wpca)

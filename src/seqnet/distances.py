@@ -1,49 +1,38 @@
-"""Matching: distance matrices, exact k-NN (torch blocks or FAISS), SeqMatch and HVPR.
+"""Distances and exact k-NN: the norm-trick distance matrix, deterministic top-k, k-NN backends.
 
 Every function works on whole arrays; memory is bounded by processing the query side in blocks
-(as faiss ``knn_ground_truth`` does). No per-(query, reference) Python loops.
-
-SeqMatch (paper eq.): ``M[a, b] = Σ_{t=0}^{L-1} ‖query[a+t] − ref[b+t]‖₂`` — one distance matrix
-(a GEMM with the norm trick ``‖q‖² + ‖r‖² − 2 q·r``) plus L shifted (diagonal) sums.
+(as faiss ``knn_ground_truth`` does). No per-(query, reference) Python loops. Retrieval functions
+return ``(scores, indices)``, best first.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
+from .config import check_choice, check_int
 from .errors import ConfigError
-from .utils import ArrayLike, get_device, to_numpy
+from .utils import ArrayLike, as_tensor, get_device, to_numpy
 
 DEFAULT_BLOCK_BYTES = 512 * 2**20
+METRICS = ("l2", "ip")
 
 
-def _tensor(x: ArrayLike, device: torch.device, name: str) -> torch.Tensor:
-    """``x`` as a float32/float64 ``[N, D]`` tensor on ``device`` (read-only arrays are copied, not warned about)."""
-    if isinstance(x, torch.Tensor):
-        t = x
-    else:
-        arr = np.asarray(x)
-        if arr.dtype.kind not in "fiub":
-            raise ConfigError(f"{name} must hold numbers, got dtype {arr.dtype}")
-        arr = np.ascontiguousarray(arr)
-        t = torch.from_numpy(arr if arr.flags.writeable else arr.copy())
-    if t.dtype not in (torch.float32, torch.float64):
-        t = t.float()
-    if t.ndim != 2:
-        raise ConfigError(f"{name} must be a [N, D] matrix, got shape {tuple(t.shape)}")
-    return t.to(device)
-
-
-def _check_pair(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+def as_pair(query: ArrayLike, ref: ArrayLike, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """``query [Nq, D]`` and ``ref [Nr, D]`` as float tensors of one dtype on ``device``; checks D."""
+    q = as_tensor(query, device, "query", ndim=2, keep_float64=True)
+    r = as_tensor(ref, device, "reference", ndim=2, keep_float64=True)
     if q.shape[1] != r.shape[1]:
         raise ConfigError(f"dimension mismatch: query D={q.shape[1]}, reference D={r.shape[1]}")
-    return r.to(q.dtype)
+    return q, r.to(q.dtype)
 
 
-def _rows_per_block(row_cost: int, block_bytes: int | None) -> int:
+def rows_per_block(row_bytes: int, block_bytes: int | None = None) -> int:
+    """How many rows of ``row_bytes`` bytes fit a block of ``block_bytes`` (default 512 MiB); at least 1."""
     budget = DEFAULT_BLOCK_BYTES if block_bytes is None else block_bytes
-    return max(1, budget // max(1, row_cost))
+    return max(1, budget // max(1, row_bytes))
 
 
 def sq_norms(x: torch.Tensor) -> torch.Tensor:
@@ -92,61 +81,33 @@ def topk_smallest(scores: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Ten
     return scores.gather(1, idx), idx
 
 
+
+
 @torch.no_grad()
-def knn(
-    query: ArrayLike,
-    ref: ArrayLike,
-    k: int,
-    backend: str = "torch",
-    metric: str = "l2",
-    device: str | None = None,
-    block_bytes: int | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Exact k nearest references of each query.
-
-    Args:
-        query: ``[Nq, D]``; ref: ``[Nr, D]``.
-        k: neighbours per query (capped at Nr).
-        backend: ``"torch"`` (blocked GEMM, GPU when present) or ``"faiss"`` (IndexFlatL2/IP).
-        metric: ``"l2"`` (ascending Euclidean distance) or ``"ip"`` (descending inner product).
-
-    Returns:
-        ``(scores [Nq, k], indices [Nq, k])`` as numpy, best first.
-    """
-    if metric not in ("l2", "ip"):
-        raise ConfigError(f"metric {metric!r} is not one of ('l2', 'ip')")
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise ConfigError(f"k must be an integer >= 1, got {k!r}")
-    if backend == "faiss":
-        return _knn_faiss(to_numpy(query), to_numpy(ref), k, metric)
-    if backend != "torch":
-        raise ConfigError(f"k-NN backend {backend!r} is not one of ('torch', 'faiss')")
+def knn_torch(query: ArrayLike, ref: ArrayLike, k: int, metric: str = "l2", device: str | None = None,
+              block_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Exact k-NN by blocked GEMM (on the GPU when present); see :func:`knn`."""
     dev = get_device(device)
-    q, r = _tensor(query, dev, "query"), _tensor(ref, dev, "reference")
-    r = _check_pair(q, r)
-    rows = _rows_per_block(r.shape[0] * q.element_size() * 3, block_bytes)
+    q, r = as_pair(query, ref, dev)
+    rows = rows_per_block(r.shape[0] * q.element_size() * 3, block_bytes)
     r_sq = sq_norms(r) if metric == "l2" else None
-    vals, idx = [], []
+    k = min(k, r.shape[0])
+    vals = torch.zeros((q.shape[0], k), dtype=q.dtype)
+    idx = torch.zeros((q.shape[0], k), dtype=torch.long)
     for s in range(0, q.shape[0], rows):
         qb = q[s : s + rows]
         scores = (qb @ r.T).neg_() if r_sq is None else finish_distances(qb @ r.T, sq_norms(qb), r_sq)
         v, i = topk_smallest(scores, k)
-        vals.append(-v if metric == "ip" else v)
-        idx.append(i)
-    if not vals:
-        k = min(k, r.shape[0])
-        return np.zeros((0, k), np.float32), np.zeros((0, k), np.int64)
-    return to_numpy(torch.cat(vals)), to_numpy(torch.cat(idx))
+        vals[s : s + rows], idx[s : s + rows] = (-v if metric == "ip" else v).cpu(), i.cpu()
+    return to_numpy(vals), to_numpy(idx)
 
 
-def _knn_faiss(q: np.ndarray, r: np.ndarray, k: int, metric: str) -> tuple[np.ndarray, np.ndarray]:
+def knn_faiss(query: ArrayLike, ref: ArrayLike, k: int, metric: str = "l2", device: str | None = None,
+              block_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Exact k-NN with a FAISS flat index (IndexFlatL2 / IndexFlatIP, CPU); see :func:`knn`."""
     import faiss
 
-    for name, a in (("query", q), ("reference", r)):
-        if a.ndim != 2:
-            raise ConfigError(f"{name} must be a [N, D] matrix, got shape {tuple(a.shape)}")
-    if q.shape[1] != r.shape[1]:
-        raise ConfigError(f"dimension mismatch: query D={q.shape[1]}, reference D={r.shape[1]}")
+    q, r = (t.numpy() for t in as_pair(query, ref, torch.device("cpu")))
     k = min(k, r.shape[0])
     if k == 0 or q.shape[0] == 0:
         return np.zeros((q.shape[0], k), np.float32), np.zeros((q.shape[0], k), np.int64)
@@ -156,3 +117,28 @@ def _knn_faiss(q: np.ndarray, r: np.ndarray, k: int, metric: str) -> tuple[np.nd
     if metric == "l2":
         dist = np.sqrt(np.maximum(dist, 0.0))
     return dist, idx.astype(np.int64)
+
+
+KNN_BACKENDS: dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]] = {"torch": knn_torch, "faiss": knn_faiss}
+
+
+def knn(query: ArrayLike, ref: ArrayLike, k: int, backend: str = "torch", metric: str = "l2",
+        device: str | None = None, block_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Exact k nearest references of each query.
+
+    Args:
+        query: ``[Nq, D]``; ref: ``[Nr, D]``.
+        k: neighbours per query (capped at Nr).
+        backend: a key of :data:`KNN_BACKENDS`: ``"torch"`` (blocked GEMM, GPU when present) or
+            ``"faiss"`` (flat index).
+        metric: ``"l2"`` (ascending Euclidean distance) or ``"ip"`` (descending inner product).
+        device: torch device (torch backend).
+        block_bytes: memory budget of one block of distances (torch backend; default 512 MiB).
+
+    Returns:
+        ``(scores [Nq, k], indices [Nq, k])`` as numpy, best first.
+    """
+    check_choice("metric", metric, METRICS)
+    k = check_int("k", k, 1)
+    fn = KNN_BACKENDS[check_choice("k-NN backend", backend, KNN_BACKENDS)]
+    return fn(query, ref, k, metric, device, block_bytes)

@@ -13,13 +13,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .checkpoints import load_model
-from .dataset_io import load_dataset, save_dataset
-from .evaluate import Evaluation, evaluate
-from .synth import make_synthetic
-from .train import train
-from .traverse import Dataset
-from .utils import logger
+from ..data.io import load_dataset, save_dataset
+from ..data.synth import make_synthetic
+from ..data.traverse import Dataset
+from ..evaluate import EvalConfig, Evaluation, evaluate
+from ..train.checkpoints import load_model
+from ..train.loop import train
+from ..utils import logger
 
 BASELINES = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch"]
 LEARNED = ["seqnet", "s1+seqmatch", "hvpr"]  # hvpr: shortlist with S_L, re-rank by SeqMatch on S_1
@@ -74,9 +74,8 @@ def run_demo(out: str | Path | None = None, places: int = DEMO_PLACES, seed: int
         logger.info("demo dataset: %d reference / %d query frames, D=%d", len(ds.reference), len(ds.query),
                     ds.query.dim)
         models, seconds = train_demo_models(ds, root, data_dir, device, epochs, seed) if train_models else ({}, {})
-        methods = DEMO_METHODS if train_models else BASELINES + ["hvpr"]
-        config: dict[str, Any] = {"methods": methods, "seq_len": DEMO_SEQ_LEN, "device": device}
-        ev = evaluate(ds.split("test"), config, models)
+        methods = DEMO_METHODS if train_models else [*BASELINES, "hvpr-delta:raw+seqmatch"]
+        ev = evaluate(ds.split("test"), EvalConfig(methods=tuple(methods), seq_len=DEMO_SEQ_LEN, device=device), models)
     ev.results["config"].update(demo_seconds=round(time.perf_counter() - t0, 2), train_seconds=seconds,
                                 demo_train={**DEMO_TRAIN, **({"epochs": epochs} if epochs else {})})
     return ev

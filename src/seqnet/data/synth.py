@@ -10,14 +10,46 @@ images are hard to match; windows of frames average the noise out, so sequence m
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
-from .config import SYNTH_DEFAULTS, merge
-from .errors import ConfigError
+from ..config import Config, check_float, check_int
+from .io import save_dataset
 from .traverse import Dataset, Traverse
 
 PLACE_SPACING_M = 2.0
 RADIUS_M = 5.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SynthConfig(Config):
+    """Settings of :func:`make_synthetic`.
+
+    Attributes:
+        places: number of places along the route (>= 100).
+        dim: descriptor dimension D (>= 8).
+        seed: random seed (the same seed gives the same dataset).
+        noise: per-frame noise level relative to the place signal (isotropic, independent per frame).
+        nuisance: strength of the slowly varying, condition-specific appearance change that lives in a
+            few directions shared by both traverses (averaging a window cannot remove it; a learned
+            projection can).
+    """
+
+    places: int = 600
+    dim: int = 64
+    seed: int = 0
+    noise: float = 1.5
+    nuisance: float = 1.0
+
+    def __post_init__(self) -> None:
+        self._set("places", check_int("places", self.places, 100))
+        self._set("dim", check_int("dim", self.dim, 8))
+        self._set("seed", check_int("seed", self.seed, 0))
+        self._set("noise", check_float("noise", self.noise, 0.0, strict=True))
+        self._set("nuisance", check_float("nuisance", self.nuisance, 0.0))
 
 
 def _latent_route(rng: np.random.Generator, places: int, dim: int, rho: float = 0.8) -> np.ndarray:
@@ -79,37 +111,21 @@ def _traverse(
     return Traverse(desc.astype(np.float32), xy_f, names, bounds, name), route_pos
 
 
-def make_synthetic(
-    places: int | None = None, dim: int | None = None, seed: int | None = None,
-    noise: float | None = None, nuisance: float | None = None,
-) -> Dataset:
+def make_synthetic(conf: SynthConfig | None = None, **overrides: Any) -> Dataset:
     """Build a synthetic dataset (UTM positions in metres, radius 5 m, train/val/test splits).
 
-    Arguments left as None take their value from :data:`seqnet.config.SYNTH_DEFAULTS`.
-
-    Args:
-        places: number of places along the route (≥ 100).
-        dim: descriptor dimension D (≥ 8).
-        seed: random seed (the same seed gives the same dataset).
-        noise: per-frame noise level relative to the place signal (isotropic, independent per frame).
-        nuisance: strength of the slowly varying, condition-specific appearance change that lives in a
-            few directions shared by both traverses (averaging a window cannot remove it; a learned
-            projection can).
+    ``overrides`` change fields of ``conf`` (default :class:`SynthConfig`), e.g. ``make_synthetic(places=200)``.
     """
-    cfg = merge(SYNTH_DEFAULTS, {"places": places, "dim": dim, "seed": seed, "noise": noise, "nuisance": nuisance})
-    places, noise, nuisance = cfg["places"], cfg["noise"], cfg["nuisance"]
-    if cfg["places"] < 100:
-        raise ConfigError(f"places must be >= 100, got {cfg['places']}")
-    if cfg["dim"] < 8:
-        raise ConfigError(f"dim must be >= 8, got {cfg['dim']}")
-    rng = np.random.default_rng(cfg["seed"])
-    z = _latent_route(rng, cfg["places"], cfg["dim"])
-    xy = _route_xy(cfg["places"])
-    eye = np.eye(cfg["dim"])
-    ref_cond = eye + 0.3 * rng.standard_normal(eye.shape) / np.sqrt(cfg["dim"])
-    qry_cond = eye * rng.uniform(0.3, 1.7, cfg["dim"]) + 0.8 * rng.standard_normal(eye.shape) / np.sqrt(cfg["dim"])
-    k = max(2, cfg["dim"] // 8)
-    basis = np.linalg.qr(rng.standard_normal((cfg["dim"], k)))[0].T * nuisance * np.sqrt(cfg["dim"] / k)
+    conf = (conf or SynthConfig()).replace(**overrides)
+    places, noise, nuisance = conf.places, conf.noise, conf.nuisance
+    rng = np.random.default_rng(conf.seed)
+    z = _latent_route(rng, conf.places, conf.dim)
+    xy = _route_xy(conf.places)
+    eye = np.eye(conf.dim)
+    ref_cond = eye + 0.3 * rng.standard_normal(eye.shape) / np.sqrt(conf.dim)
+    qry_cond = eye * rng.uniform(0.3, 1.7, conf.dim) + 0.8 * rng.standard_normal(eye.shape) / np.sqrt(conf.dim)
+    k = max(2, conf.dim // 8)
+    basis = np.linalg.qr(rng.standard_normal((conf.dim, k)))[0].T * nuisance * np.sqrt(conf.dim / k)
     ref, ref_route = _traverse(rng, z, xy, noise, ref_cond, "reference", basis)
     qry, qry_route = _traverse(rng, z, xy, noise, qry_cond, "query", basis)
     splits = {}
@@ -119,5 +135,10 @@ def make_synthetic(
         splits[split] = {"reference": (int(rng_r[0]), int(rng_r[1])), "query": (int(rng_q[0]), int(rng_q[1]))}
     return Dataset(
         reference=ref, query=qry, radius=RADIUS_M, position_unit="metres", splits=splits, name="synthetic",
-        extra={"pos_radius": RADIUS_M, "neg_radius": 4 * RADIUS_M, "source": f"seqnet synth (seed {cfg['seed']})"},
+        extra={"pos_radius": RADIUS_M, "neg_radius": 4 * RADIUS_M, "source": f"seqnet synth (seed {conf.seed})"},
     )
+
+
+def main(conf: SynthConfig, out: str | Path, overwrite: bool = False) -> Path:
+    """Write the synthetic dataset of ``conf`` to the directory ``out`` (hloc-style stage)."""
+    return save_dataset(make_synthetic(conf), out, overwrite=overwrite)

@@ -16,9 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from .errors import DatasetError
+from ..errors import DatasetError
+from ..files import current_umask, save_npy_atomic, write_json_atomic
+from ..utils import logger
 from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse
-from .utils import current_umask, logger, save_npy_atomic, write_json_atomic
 
 # ----------------------------------------------------------------------------- reading
 

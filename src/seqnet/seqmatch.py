@@ -1,15 +1,12 @@
-"""SeqMatch and HVPR.
+"""SeqMatch: summed frame distances along aligned windows, over the whole map or given pairs.
 
 SeqMatch (Milford & Wyeth 2012; SeqNet paper):
 ``M[a, b] = Σ_{t=0}^{L-1} ‖query[a+t] − ref[b+t]‖₂`` over window start indices ``a, b``; the lowest
 score wins. With ``reverse=True`` the reference is traversed the other way:
 ``Σ_t ‖query[a+t] − ref[b+L−1−t]‖₂``.
 
-Computed as one distance matrix per query block (a GEMM with the norm trick) plus L shifted
-(diagonal or anti-diagonal) sums; blocks keep memory bounded.
-
-HVPR (hierarchical VPR): shortlist the top-K references with any sequence or single descriptor,
-then re-rank the shortlist by SeqMatch on single descriptors.
+Whole-map scores are one distance matrix per query block (a GEMM with the norm trick) plus L
+shifted (diagonal or anti-diagonal) sums; blocks keep memory bounded.
 """
 
 from __future__ import annotations
@@ -18,10 +15,11 @@ from collections.abc import Iterator
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
+from .config import check_int
+from .distances import as_pair, finish_distances, rows_per_block, sq_norms, topk_smallest
 from .errors import ConfigError
-from .matching import _check_pair, _rows_per_block, _tensor, finish_distances, knn, sq_norms, topk_smallest
+from .progress import progress
 from .utils import ArrayLike, get_device, to_numpy
 from .windows import check_seq_len
 
@@ -35,6 +33,7 @@ def seqmatch(
     reverse: bool = False,
     device: str | None = None,
     block_bytes: int | None = None,
+    chunk_bytes: int | None = None,
 ) -> ArrayLike:
     """SeqMatch scores between all query and reference windows (or candidate windows only).
 
@@ -47,17 +46,17 @@ def seqmatch(
         reverse: pair ``query[a+t]`` with ``ref[b+L−1−t]``.
         device: computation device (default: CUDA when available, else CPU).
         block_bytes: memory budget per block (default 512 MiB).
+        chunk_bytes: see :func:`full_blocks` (CPU tuning knob; default whole-block passes).
 
     Returns:
         ``[Nq−L+1, Nr−L+1]`` scores (or ``[Nq−L+1, K]`` with candidates), numpy if ``query`` is
         numpy else a torch tensor on ``query``'s device. float64 inputs stay float64.
     """
     dev = get_device(device)
-    q, r = _tensor(query, dev, "query"), _tensor(ref, dev, "reference")
-    r = _check_pair(q, r)
+    q, r = as_pair(query, ref, dev)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
     if candidates is None:
-        out = _full_map(q, r, seq_len, reverse, block_bytes)
+        out = _full_map(q, r, seq_len, reverse, block_bytes, chunk_bytes)
     else:
         cand = candidates if isinstance(candidates, torch.Tensor) else torch.as_tensor(np.asarray(candidates))
         na = q.shape[0] - seq_len + 1
@@ -72,58 +71,57 @@ def seqmatch(
     return to_numpy(out)
 
 
-# Bytes of distance rows finalised (norm trick, sqrt) and summed at a time on CPU, or None for the
-# whole block at once. Cache-sized chunks (e.g. 1 MiB) read the distance block back from memory
-# only once and are fastest on an idle machine, but each chunk costs ~10 parallel regions (thread
-# barriers); on an oversubscribed machine (more busy threads than cores) those barriers dominate,
-# while whole-block passes stay within ~10% of the bare GEMM either way. Hence the default None.
-_CHUNK_BYTES: int | None = None
-
-
-def _chunk_rows(q: torch.Tensor, r: torch.Tensor, n: int) -> int:
+def _chunk_rows(q: torch.Tensor, r: torch.Tensor, n: int, chunk_bytes: int | None) -> int:
     """Rows per chunk for the element-wise passes over a block of ``n`` rows."""
-    if q.device.type != "cpu" or _CHUNK_BYTES is None:
+    if q.device.type != "cpu" or chunk_bytes is None:
         return max(1, n)
-    return max(8, _CHUNK_BYTES // max(1, r.shape[0] * q.element_size()))
+    return max(8, chunk_bytes // max(1, r.shape[0] * q.element_size()))
 
 
-def _block_rows(q: torch.Tensor, r: torch.Tensor, seq_len: int, block_bytes: int | None) -> int:
+def block_rows(q: torch.Tensor, r: torch.Tensor, block_bytes: int | None) -> int:
     """Query windows per block: the distance block and the score block fit the budget."""
-    return max(1, _rows_per_block(2 * r.shape[0] * q.element_size(), block_bytes))
+    return rows_per_block(2 * r.shape[0] * q.element_size(), block_bytes)
 
 
-def _full_map(q: torch.Tensor, r: torch.Tensor, seq_len: int, reverse: bool, block_bytes: int | None) -> torch.Tensor:
+def _full_map(q: torch.Tensor, r: torch.Tensor, seq_len: int, reverse: bool, block_bytes: int | None,
+              chunk_bytes: int | None) -> torch.Tensor:
     """The whole ``[Nq−L+1, Nr−L+1]`` SeqMatch map (one block: computed inside the GEMM's buffer)."""
     na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
-    if na <= _block_rows(q, r, seq_len, block_bytes):
-        return next(_full_blocks(q, r, seq_len, reverse, block_bytes))[1]
+    if na <= block_rows(q, r, block_bytes):
+        return next(full_blocks(q, r, seq_len, reverse, block_bytes, chunk_bytes))[1]
     out = torch.empty((na, nb), dtype=q.dtype, device=q.device)
-    for _ in _full_blocks(q, r, seq_len, reverse, block_bytes, out=out):
+    for _ in full_blocks(q, r, seq_len, reverse, block_bytes, chunk_bytes, out=out):
         pass
     return out
 
 
-def _full_blocks(
+def full_blocks(
     q: torch.Tensor,
     r: torch.Tensor,
     seq_len: int,
-    reverse: bool,
-    block_bytes: int | None,
+    reverse: bool = False,
+    block_bytes: int | None = None,
+    chunk_bytes: int | None = None,
     out: torch.Tensor | None = None,
 ) -> Iterator[tuple[int, torch.Tensor]]:
     """Yield ``(first_window, M[block, Nr−L+1])`` over blocks of query windows.
 
     Per block: one GEMM ``q[a0 : a1+L−1] @ r.T`` (the only pass over D), then, in place, the norm
     trick + sqrt (4 element-wise passes) and the L shifted sums (L − 1 passes) written straight
-    into the result: ``out[a0:a1]`` when ``out`` is given, else a new buffer. With row chunks
-    (``_CHUNK_BYTES``) each chunk is summed into a small buffer and packed row by row into the
-    front of the GEMM's own buffer (score row ``a`` only overwrites distance rows ``<= a``, which no
-    later chunk reads), so the block needs no second ``[rows, Nr]`` buffer.
+    into the result: ``out[a0:a1]`` when ``out`` is given, else a new buffer.
+
+    ``chunk_bytes`` (CPU only): finalise and sum the distance rows in cache-sized chunks (e.g.
+    1 MiB) instead of whole-block passes. Chunks read the distance block back from memory only once
+    and are fastest on an idle machine, but each costs ~10 parallel regions (thread barriers), which
+    dominate on an oversubscribed machine; whole-block passes (None, the default) stay within ~10%
+    of the bare GEMM either way. Each chunk is summed into a small buffer and packed row by row into
+    the front of the GEMM's own buffer (score row ``a`` only overwrites distance rows ``<= a``, which
+    no later chunk reads), so the block needs no second ``[rows, Nr]`` buffer.
     """
     na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
-    rows = _block_rows(q, r, seq_len, block_bytes)
+    rows = block_rows(q, r, block_bytes)
     r_sq, q_sq = sq_norms(r), sq_norms(q)
-    chunk = _chunk_rows(q, r, min(rows, na))
+    chunk = _chunk_rows(q, r, min(rows, na), chunk_bytes)
     cols = [(seq_len - 1 - t) if reverse else t for t in range(seq_len)]  # reference shift of frame t
     for a0 in range(0, na, rows):
         a1 = min(na, a0 + rows)
@@ -143,15 +141,20 @@ def _full_blocks(
                 finish_distances(dist[done : e + seq_len - 1], q_sq[a0 + done : a0 + e + seq_len - 1], r_sq)
                 done = e + seq_len - 1
             ms = dest[s:e] if dest is not None else tmp[: e - s]
-            if seq_len == 1:
-                ms.copy_(dist[s:e, :nb])
-            else:
-                torch.add(dist[s:e, cols[0] : cols[0] + nb], dist[s + 1 : e + 1, cols[1] : cols[1] + nb], out=ms)
-                for t in range(2, seq_len):
-                    ms.add_(dist[s + t : e + t, cols[t] : cols[t] + nb])
+            shifted_sum(dist, s, e, cols, nb, ms)
             if dest is None:
                 packed[s * nb : e * nb].view(e - s, nb).copy_(ms)
         yield a0, (dest if dest is not None else packed[: n * nb].view(n, nb))
+
+
+def shifted_sum(dist: torch.Tensor, s: int, e: int, cols: list[int], nb: int, out: torch.Tensor) -> torch.Tensor:
+    """``out[i - s, b] = Σ_t dist[i + t, b + cols[t]]`` for rows ``i in [s, e)``: the L shifted adds."""
+    if len(cols) == 1:
+        return out.copy_(dist[s:e, cols[0] : cols[0] + nb])
+    torch.add(dist[s:e, cols[0] : cols[0] + nb], dist[s + 1 : e + 1, cols[1] : cols[1] + nb], out=out)
+    for t in range(2, len(cols)):
+        out.add_(dist[s + t : e + t, cols[t] : cols[t] + nb])
+    return out
 
 
 def window_scores(
@@ -181,7 +184,7 @@ def window_scores(
         raise ConfigError(f"query window starts must lie in 0..{q.shape[0] - seq_len}")
     m, k = cand.shape
     out = torch.zeros((m, k), dtype=q.dtype, device=q.device)
-    rows = _rows_per_block(max(1, k) * q.shape[1] * q.element_size() * 2, block_bytes)
+    rows = rows_per_block(max(1, k) * q.shape[1] * q.element_size() * 2, block_bytes)
     missing = cand < 0
     safe = cand.clamp_min(0)
     for s in range(0, m, rows):
@@ -204,7 +207,6 @@ def seqmatch_topk(
     reverse: bool = False,
     device: str | None = None,
     block_bytes: int | None = None,
-    progress: str | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Whole-map SeqMatch, keeping the k best reference items per query item.
 
@@ -212,22 +214,19 @@ def seqmatch_topk(
     at ``r_starts[j]``. Returns ``(scores [M, k], items [M, k])`` (indices into ``r_starts``).
     """
     dev = get_device(device)
-    q, r = _tensor(query, dev, "query"), _tensor(ref, dev, "reference")
-    r = _check_pair(q, r)
+    q, r = as_pair(query, ref, dev)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise ConfigError(f"k must be an integer >= 1, got {k!r}")
+    k = check_int("k", k, 1)
     na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
-    q_starts = _starts(q_starts, na, "query")
-    r_starts = _starts(r_starts, nb, "reference")
+    q_starts = check_starts(q_starts, na, "query")
+    r_starts = check_starts(r_starts, nb, "reference")
     r_cols = torch.as_tensor(r_starts, device=dev)
     order = np.argsort(q_starts, kind="stable")
     sorted_starts = q_starts[order]
     vals = torch.zeros((len(q_starts), min(k, len(r_starts))), dtype=q.dtype, device=dev)
     idx = torch.zeros(vals.shape, dtype=torch.long, device=dev)
-    n_blocks = -(-na // _block_rows(q, r, seq_len, block_bytes))
-    blocks = _full_blocks(q, r, seq_len, reverse, block_bytes)
-    for a0, m in tqdm(blocks, total=n_blocks, desc=progress, disable=progress is None or n_blocks < 2, leave=False):
+    n_blocks = -(-na // block_rows(q, r, block_bytes))
+    for a0, m in progress(full_blocks(q, r, seq_len, reverse, block_bytes), desc="SeqMatch", total=n_blocks):
         lo, hi = np.searchsorted(sorted_starts, [a0, a0 + m.shape[0]])
         sel = order[lo:hi]
         if sel.size == 0:
@@ -239,8 +238,8 @@ def seqmatch_topk(
     return to_numpy(vals), to_numpy(idx)
 
 
-def _starts(starts: ArrayLike, n: int, side: str) -> np.ndarray:
-    """Validate window starts: a 1-D integer array with values in ``0..n-1``."""
+def check_starts(starts: ArrayLike, n: int, side: str) -> np.ndarray:
+    """Validate window starts: a 1-D integer array with values in ``0..n-1``; returns int64 numpy."""
     a = np.asarray(to_numpy(starts) if isinstance(starts, torch.Tensor) else starts)
     if a.ndim != 1 or (a.size and a.dtype.kind not in "iu"):
         raise ConfigError(f"{side} window starts must be a 1-D integer array, got shape {a.shape}, dtype {a.dtype}")
@@ -248,77 +247,3 @@ def _starts(starts: ArrayLike, n: int, side: str) -> np.ndarray:
     if a.size and (a.min() < 0 or a.max() >= n):
         raise ConfigError(f"{side} window starts must lie in 0..{n - 1}, got values in {a.min()}..{a.max()}")
     return a
-
-
-def hvpr(
-    shortlist_query: ArrayLike,
-    shortlist_ref: ArrayLike,
-    rerank_query: ArrayLike,
-    rerank_ref: ArrayLike,
-    seq_len: int,
-    q_starts: np.ndarray,
-    r_starts: np.ndarray,
-    top_k: int = 20,
-    reverse: bool = False,
-    backend: str = "torch",
-    device: str | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Hierarchical VPR: shortlist by descriptor distance, re-rank by SeqMatch.
-
-    Args:
-        shortlist_query: ``[M, D1]`` shortlisting descriptors of the query items (e.g. S_L).
-        shortlist_ref: ``[R, D1]`` shortlisting descriptors of the reference items.
-        rerank_query: ``[Nq, D2]`` single-image descriptors of all query frames (raw or S_1).
-        rerank_ref: ``[Nr, D2]`` single-image descriptors of all reference frames.
-        seq_len: SeqMatch length L_m.
-        q_starts: ``[M]`` SeqMatch window start (in ``rerank_query``) of each query item.
-        r_starts: ``[R]`` SeqMatch window start (in ``rerank_ref``) of each reference item.
-        top_k: shortlist size K (default 20).
-
-    Returns:
-        ``(items [M, K], scores [M, K])``: reference items ranked by SeqMatch score (ascending).
-    """
-    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 1:
-        raise ConfigError(f"top_k must be an integer >= 1, got {top_k!r}")
-    _, cand = knn(shortlist_query, shortlist_ref, top_k, backend=backend, device=device)
-    return rerank_seqmatch(rerank_query, rerank_ref, seq_len, q_starts, r_starts, cand, reverse, device)
-
-
-@torch.no_grad()
-def rerank_seqmatch(
-    rerank_query: ArrayLike,
-    rerank_ref: ArrayLike,
-    seq_len: int,
-    q_starts: np.ndarray,
-    r_starts: np.ndarray,
-    candidates: np.ndarray,
-    reverse: bool = False,
-    device: str | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Re-rank candidate reference items ``[M, K]`` by SeqMatch (see :func:`hvpr`).
-
-    ``candidates`` holds indices into ``r_starts``; ``-1`` marks no candidate (scored ``inf``,
-    ranked last, returned as ``-1``). Returns ``(items [M, K], scores [M, K])`` sorted by
-    ascending score (stable: ties keep the shortlist order).
-    """
-    dev = get_device(device)
-    q, r = _tensor(rerank_query, dev, "query"), _tensor(rerank_ref, dev, "reference")
-    r = _check_pair(q, r)
-    check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
-    na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
-    q_starts_np = _starts(q_starts, na, "query")
-    r_starts_t = torch.as_tensor(_starts(r_starts, nb, "reference"), device=dev)
-    cand = np.asarray(to_numpy(candidates) if isinstance(candidates, torch.Tensor) else candidates)
-    if cand.ndim != 2 or cand.shape[0] != len(q_starts_np) or (cand.size and cand.dtype.kind not in "iu"):
-        raise ConfigError(
-            f"candidates must be an integer [{len(q_starts_np)}, K] array (one row per query item), "
-            f"got shape {cand.shape}, dtype {cand.dtype}"
-        )
-    if cand.size and (cand.min() < -1 or cand.max() >= len(r_starts_t)):
-        raise ConfigError(f"candidates must be reference items in 0..{len(r_starts_t) - 1} (or -1 for none)")
-    cand_t = torch.as_tensor(cand.astype(np.int64, copy=False), device=dev)
-    q_starts_t = torch.as_tensor(q_starts_np, device=dev)
-    cand_starts = torch.where(cand_t >= 0, r_starts_t[cand_t.clamp_min(0)], -1) if len(r_starts_t) else cand_t
-    scores = window_scores(q, r, seq_len, q_starts_t, cand_starts, reverse)
-    order = torch.sort(scores, dim=1, stable=True).indices
-    return to_numpy(cand_t.gather(1, order)), to_numpy(scores.gather(1, order))

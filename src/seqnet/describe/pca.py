@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import CheckpointError, ConfigError
-from .utils import atomic_path
+from ..errors import CheckpointError, ConfigError
+from ..files import atomic_path
 
 
 @dataclasses.dataclass

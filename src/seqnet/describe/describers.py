@@ -25,11 +25,12 @@ import h5py
 import numpy as np
 from tqdm import tqdm
 
-from .errors import ConfigError, ImageError
+from ..errors import ConfigError, ImageError
+from ..files import atomic_path, save_npy_atomic, write_text_atomic
+from ..utils import get_device, logger
 from .images import ImageList, iter_batches, list_images, load_images
 from .pca import PCA, fit_pca
 from .pixels import pixels_descriptor
-from .utils import atomic_path, get_device, logger, save_npy_atomic, write_text_atomic
 
 METHODS = ("pixels", "gem", "gmp", "netvlad")
 CNN_SIZE = (640, 320)
@@ -174,7 +175,8 @@ def make_describer(method: str, paths: Sequence[str | Path] = (), sidecar: Path 
 def _raw_extractor(method: str, opts: DescribeOptions, fit_paths: list[Path], sidecar: Path | None) -> Extract:
     if method == "pixels":
         return lambda imgs: pixels_descriptor(imgs, size=None, patch=opts.patch)
-    from . import backbones, netvlad
+    from . import cnn as backbones
+    from . import netvlad as netvlad
 
     device = get_device(None if opts.device == AUTO else opts.device)
     if method == "netvlad":

@@ -22,12 +22,12 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from .errors import ConfigError, DatasetError
-from .matching import pairwise_distances
-from .sequence_descriptors import describe_windows
-from .traverse import Dataset, Traverse
-from .utils import as_tensor, logger
-from .windows import window_starts
+from ..data.traverse import Dataset, Traverse
+from ..distances import pairwise_distances
+from ..errors import ConfigError, DatasetError
+from ..sequence_descriptors import describe_windows
+from ..utils import as_tensor, logger
+from ..windows import window_starts
 
 
 @dataclasses.dataclass

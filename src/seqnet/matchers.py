@@ -1,0 +1,45 @@
+"""Sequence matchers as data: how a query window of frame descriptors is scored against the map.
+
+Each :class:`SequenceMatcher` has two operations over frame descriptors ``[N, D]`` and window
+starts (see :mod:`seqnet.windows`):
+
+* ``topk(query, ref, L, k, q_starts, r_starts, device=...)`` → ``(scores [M, k], items [M, k])``:
+  the whole map, keeping the k best reference items per query item;
+* ``score_pairs(q, r, L, q_starts [M], cand_starts [M, K])`` → ``[M, K]`` scores of given windows
+  (``-1`` = no candidate, ``inf``): the re-ranker of HVPR.
+
+Lower scores are better. Adding a matcher is one entry of :data:`SEQUENCE_MATCHERS` (method names
+such as ``raw+<matcher>`` and ``hvpr-seqnet:s1+<matcher>`` follow).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from .seqmatch import seqmatch_topk, window_scores
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceMatcher:
+    """One entry of :data:`SEQUENCE_MATCHERS`."""
+
+    name: str
+    summary: str
+    topk: Callable[..., tuple[np.ndarray, np.ndarray]]
+    score_pairs: Callable[..., torch.Tensor]
+
+
+SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
+    m.name: m
+    for m in (
+        SequenceMatcher("seqmatch", "SeqMatch: summed distances of aligned frames (same speed, same direction)",
+                        seqmatch_topk, window_scores),
+        SequenceMatcher("seqmatch-rev", "SeqMatch with the reference traversed backwards (reverse direction)",
+                        functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True)),
+    )
+}
