@@ -31,7 +31,7 @@ def test_split():
 
 @pytest.fixture(scope="module")
 def ev(test_split):
-    return evaluate(test_split, EvalConfig(**{"methods": ALL, "seq_len": 5, "device": "cpu"}))
+    return evaluate(test_split, EvalConfig(methods=tuple(ALL), seq_len=5, device="cpu"))
 
 
 def stable_order(scores):
@@ -118,9 +118,8 @@ def test_sequences_beat_single_frames(ev):
 
 
 def test_faiss_backend_and_extra_radii(test_split):
-    a = evaluate(test_split, EvalConfig(**{"methods": ["single", "delta"], "device": "cpu"}))
-    b = evaluate(test_split, EvalConfig(**{"methods": ["single", "delta"], "device": "cpu", "backend": "faiss",
-                              "extra_radii": [2.5, 50.0], "ks": [1, 3]}))
+    a = evaluate(test_split, EvalConfig(methods=('single', 'delta'), device='cpu'))
+    b = evaluate(test_split, EvalConfig(methods=('single', 'delta'), device='cpu', backend='faiss', extra_radii=(2.5, 50.0), ks=(1, 3)))
     # the same neighbours up to float32 near-ties: top-1 agrees for (almost) every query
     for name in ("single", "delta"):
         assert (a.retrieved[name][:, 0] == b.retrieved[name][:, 0]).mean() >= 0.95, name
@@ -141,9 +140,9 @@ def test_with_models(test_split):
     assert set(ev.results["config"]["models"]) == {"seqnet", "s1"}
     assert all(0 <= e["recall@5"] <= 1 for e in ev.results["methods"].values())
     with pytest.raises(ConfigError, match="expects D=7 descriptors but the dataset has D=16"):
-        evaluate(test_split, EvalConfig(**{"methods": ["seqnet"]}), {"seqnet": SeqNet(7, 8, 5, 3)})
+        evaluate(test_split, EvalConfig(methods=('seqnet',)), {"seqnet": SeqNet(7, 8, 5, 3)})
     with pytest.raises(ConfigError, match="needs an S_L model"):
-        evaluate(test_split, EvalConfig(**{"methods": ["seqnet"]}))
+        evaluate(test_split, EvalConfig(methods=('seqnet',)))
 
 
 def toy(n_q=9, n_r=9, q_bounds=None, dim=3, seed=0):
@@ -154,7 +153,7 @@ def toy(n_q=9, n_r=9, q_bounds=None, dim=3, seed=0):
 
 
 def test_seq_len_equal_to_traverse_length():
-    ev = evaluate(toy(5, 7), EvalConfig(**{"methods": ["single", "raw+seqmatch", "smoothing"], "seq_len": 5, "device": "cpu"}))
+    ev = evaluate(toy(5, 7), EvalConfig(methods=('single', 'raw+seqmatch', 'smoothing'), seq_len=5, device='cpu'))
     assert ev.q_items.tolist() == [2]  # the only frame with a full centred window
     assert ev.results["methods"]["single"]["no_full_window"] == 4
     assert ev.retrieved["raw+seqmatch"].shape == (1, 3)
@@ -162,24 +161,24 @@ def test_seq_len_equal_to_traverse_length():
 
 def test_seq_len_longer_than_traverse():
     with pytest.raises(ConfigError, match="longer than the query traverse"):
-        evaluate(toy(4, 9), EvalConfig(**{"methods": ["single"], "seq_len": 5}))
+        evaluate(toy(4, 9), EvalConfig(methods=('single',), seq_len=5))
 
 
 def test_bounds_make_every_window_invalid():
     bounds = np.array([[0, 2], [0, 2], [2, 4], [2, 4], [4, 6], [4, 6]])
     with pytest.raises(ConfigError, match="no query frame has a full window"):
-        evaluate(toy(6, 9, bounds), EvalConfig(**{"methods": ["single"], "seq_len": 3}))
+        evaluate(toy(6, 9, bounds), EvalConfig(methods=('single',), seq_len=3))
 
 
 def test_seq_len_one():
     ev = evaluate(toy(), EvalConfig(methods=("single", "raw+seqmatch", "smoothing"), seq_len=1, device="cpu"))
     np.testing.assert_array_equal(ev.retrieved["single"], ev.retrieved["raw+seqmatch"])
     with pytest.raises(ConfigError, match="need seq_len >= 2"):
-        evaluate(toy(), EvalConfig(**{"methods": ["single", "delta"], "seq_len": 1}))
+        evaluate(toy(), EvalConfig(methods=('single', 'delta'), seq_len=1))
 
 
 def test_causal_window():
-    ev = evaluate(toy(), EvalConfig(**{"methods": ["single"], "seq_len": 3, "window": "causal", "device": "cpu"}))
+    ev = evaluate(toy(), EvalConfig(methods=('single',), seq_len=3, window='causal', device='cpu'))
     assert ev.q_items.tolist() == list(range(2, 9))
 
 
@@ -205,7 +204,7 @@ def test_config_errors(cfg, pattern):
 def test_no_positive_queries_counted():
     ds = toy()
     far = Traverse(ds.query.descriptors, ds.query.positions + np.array([[0.0]] * 4 + [[100.0]] * 5))
-    ev = evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(**{"methods": ["single"], "seq_len": 1, "device": "cpu"}))
+    ev = evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(methods=('single',), seq_len=1, device='cpu'))
     entry = ev.results["methods"]["single"]
     assert entry["queries"] == 4 and entry["no_positive"] == 5
 
@@ -213,7 +212,7 @@ def test_no_positive_queries_counted():
 def test_all_queries_without_positive_gives_nan():
     ds = toy()
     far = Traverse(ds.query.descriptors, ds.query.positions + 100.0)
-    ev = evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(**{"methods": ["single"], "seq_len": 1, "device": "cpu"}))
+    ev = evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(methods=('single',), seq_len=1, device='cpu'))
     assert math.isnan(ev.results["methods"]["single"]["recall@1"])
 
 
@@ -234,7 +233,8 @@ def test_parse_method():
     for name in valid_methods():
         assert parse_method(name).name == name
     for bad, pattern in (("seqslam", "unknown method"), ("hvpr-nope", "shortlister"),
-                         ("hvpr-delta:smoothing", "re-ranker"), ("hvpr-delta:raw+nope", "re-ranker"), ("", "non-empty")):
+                         ("hvpr-delta:smoothing", "re-ranker"), ("hvpr-delta:raw+nope", "re-ranker"),
+                         ("", "non-empty")):
         with pytest.raises(ConfigError, match=pattern):
             parse_method(bad)
 
