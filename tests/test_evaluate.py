@@ -119,7 +119,8 @@ def test_sequences_beat_single_frames(ev):
 
 def test_faiss_backend_and_extra_radii(test_split):
     a = evaluate(test_split, EvalConfig(methods=('single', 'delta'), device='cpu'))
-    b = evaluate(test_split, EvalConfig(methods=('single', 'delta'), device='cpu', backend='faiss', extra_radii=(2.5, 50.0), ks=(1, 3)))
+    b = evaluate(test_split, EvalConfig(methods=('single', 'delta'), device='cpu', backend='faiss',
+                                        extra_radii=(2.5, 50.0), ks=(1, 3)))
     # the same neighbours up to float32 near-ties: top-1 agrees for (almost) every query
     for name in ("single", "delta"):
         assert (a.retrieved[name][:, 0] == b.retrieved[name][:, 0]).mean() >= 0.95, name
