@@ -140,7 +140,7 @@ def test_missing_dataset_json(ds_dir):
 
 
 @pytest.mark.parametrize("text, pattern", [("{not json", "not valid JSON"), ("[1, 2]", "JSON object"),
-                                           (b"\xff\xfe\x00garbage", "not valid JSON")])
+                                           (b"\xff\xfe\x00garbage", "not UTF-8 text")])
 def test_bad_json(ds_dir, text, pattern):
     p = ds_dir / "dataset.json"
     p.write_bytes(text if isinstance(text, bytes) else text.encode())
@@ -304,8 +304,9 @@ def test_bad_h5(ds, ds_dir):
     (q / "descriptors.h5").unlink()
     with h5py.File(q / "descriptors.h5", "w") as h:
         h["features"] = np.zeros((10, 4), np.float32)
+        h["other"] = np.zeros((10, 4), np.float32)
         h.create_group("descriptors_group")
-    expect(ds_dir, "no dataset 'descriptors'")
+    expect(ds_dir, "no dataset 'descriptors' and 2 other 2-D datasets")
 
 
 def test_traverse_constructor_errors(rng):
@@ -429,6 +430,6 @@ def test_saved_files_get_normal_permissions(ds, tmp_path):
 
 def test_names_with_line_breaks_rejected(rng, tmp_path):
     t = Traverse(rng.standard_normal((2, 3)).astype(np.float32), np.arange(2.0), names=["a.png", "b\n.png"])
-    with pytest.raises(DatasetError, match="line break"):
+    with pytest.raises(DatasetError, match="line separator"):
         save_dataset(Dataset(t, t, radius=1.0), tmp_path / "n")
     assert list(tmp_path.iterdir()) == []

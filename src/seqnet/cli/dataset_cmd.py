@@ -149,7 +149,7 @@ def run_from_utm(args: argparse.Namespace) -> int:
 
 
 def run_from_seqnet(args: argparse.Namespace) -> int:
-    from ..data.convert import read_descriptor_file, read_names
+    from ..data.readers import read_descriptor_file, read_names
     from ..data.structfiles import dataset_from_frame_lists, dataset_from_structs, read_db_struct
 
     ref = [read_descriptor_file(f)[0] for f in args.ref_desc]

@@ -15,6 +15,7 @@ Everything here is a pure function of its inputs returning arrays or :class:`Tra
 from __future__ import annotations
 
 import csv
+import io
 import re
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DatasetError
+from .readers import check_names, read_descriptor_file, read_text
 from .traverse import Dataset, Traverse
 
 NAME_COLUMNS = ("name", "image", "image_name", "filename", "file", "path", "key", "image_key")
@@ -32,73 +34,35 @@ SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
 UTM_NAME = re.compile(r"@([-+]?\d+(?:\.\d*)?)@([-+]?\d+(?:\.\d*)?)@")
 
 
-def read_names(path: str | Path) -> list[str]:
-    """Image names, one per non-blank line of a text file."""
-    p = Path(path)
-    if not p.is_file():
-        raise DatasetError(f"names file not found: {p}")
-    return [line.strip() for line in p.read_text(encoding="utf-8").splitlines() if line.strip()]
+def _basename(s: str) -> str:
+    return s.replace("\\", "/").rsplit("/", 1)[-1]
 
 
-def read_descriptor_file(path: str | Path, names_file: str | Path | None = None) -> tuple[np.ndarray, list[str] | None]:
-    """Descriptors ``[N, D]`` and their image names (from HDF5 ``names`` or ``names_file``; else None)."""
-    p = Path(path)
-    if not p.is_file():
-        raise DatasetError(f"descriptor file not found: {p}")
-    if p.suffix.lower() == ".npy":
-        try:
-            desc = np.load(p, mmap_mode="r", allow_pickle=False)
-        except (ValueError, OSError, EOFError) as e:
-            raise DatasetError(f"cannot read {p} as a .npy array ({e})") from None
-        names = None
-    elif p.suffix.lower() in (".h5", ".hdf5"):
-        desc, names = _read_h5(p)
-    else:
-        raise DatasetError(f"descriptor file {p} must be .npy, .h5 or .hdf5 (got {p.suffix or 'no extension'!r})")
-    if desc.ndim != 2:
-        raise DatasetError(f"{p}: descriptors must be [N, D], got shape {tuple(desc.shape)}")
-    if names_file is not None:
-        names = read_names(names_file)
-    if names is not None and len(names) != desc.shape[0]:
-        src = names_file or f"{p}:names"
-        raise DatasetError(f"{src}: {len(names)} names for {desc.shape[0]} descriptors in {p} (must be equal)")
-    return desc, names
-
-
-def _read_h5(p: Path) -> tuple[np.ndarray, list[str] | None]:
-    import h5py
-
-    try:
-        with h5py.File(p, "r") as h:
-            key = "descriptors" if "descriptors" in h else None
-            if key is None:
-                two_d = [k for k, v in h.items() if isinstance(v, h5py.Dataset) and v.ndim == 2 and k != "names"]
-                if len(two_d) != 1:
-                    raise DatasetError(f"{p}: no dataset 'descriptors' and {len(two_d)} other 2-D datasets "
-                                       f"(found: {list(h.keys())}); hint: name the descriptor dataset 'descriptors'")
-                key = two_d[0]
-            desc = np.asarray(h[key][()])
-            names = [n.decode() if isinstance(n, bytes) else str(n) for n in h["names"][()]] if "names" in h else None
-    except OSError as e:
-        raise DatasetError(f"cannot read {p} as HDF5 ({e})") from None
-    return desc, names
+NAME_KEYS = (lambda s: s, _basename, lambda s: _basename(s).rsplit(".", 1)[0])  # exact, file name, stem
 
 
 def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarray:
     """Index into ``available`` of each name in ``wanted``, ``[len(wanted)]`` int64.
 
     Names match exactly, else by file name (last path component), else by file name without
-    extension. Raises :class:`DatasetError` naming the first name that does not match.
+    extension. Raises :class:`DatasetError` naming the first name that does not match, or that
+    matches two descriptors (ambiguous), instead of silently taking one of them.
     """
-    for key in (lambda s: s, lambda s: s.replace("\\", "/").rsplit("/", 1)[-1],
-                lambda s: s.replace("\\", "/").rsplit("/", 1)[-1].rsplit(".", 1)[0]):
-        table: dict[str, int] = {}
+    idx: list[int] = []
+    for key in NAME_KEYS:
+        table: dict[str, list[int]] = {}
         for i, n in enumerate(available):
-            table.setdefault(key(n), i)
-        idx = [table.get(key(n), -1) for n in wanted]
-        if min(idx, default=0) >= 0:
+            table.setdefault(key(n), []).append(i)
+        hits = [table.get(key(n), []) for n in wanted]
+        if all(hits):
+            bad = next((n for n, h in zip(wanted, hits, strict=True) if len(h) > 1), None)
+            if bad is not None:
+                first, second = table[key(bad)][:2]
+                raise DatasetError(f"{what}: image name {bad!r} matches two descriptors ({available[first]!r} and "
+                                   f"{available[second]!r}); hint: give names that identify one image each")
+            idx = [h[0] for h in hits]
             return np.asarray(idx, dtype=np.int64)
-    missing = [n for n, i in zip(wanted, idx, strict=True) if i < 0]
+    missing = [n for n, h in zip(wanted, hits, strict=True) if not h]
     raise DatasetError(f"{what}: {len(missing)} of {len(wanted)} image names have no descriptor "
                        f"(first: {missing[0]!r}; descriptor names look like {available[0]!r}); "
                        "hint: names are matched exactly, then by file name, then without extension")
@@ -118,40 +82,49 @@ def utm_positions(names: list[str]) -> np.ndarray:
     return np.array([parse_utm_name(n) for n in names], dtype=np.float64).reshape(-1, 2)
 
 
+def read_csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    """The lower-cased header and the non-blank data rows ``(line number, fields)`` of a UTF-8 CSV file."""
+    p = Path(path)
+    if not p.is_file():
+        raise DatasetError(f"CSV file not found: {p}")
+    text = read_text(p)
+    try:
+        rows = [(n, r) for n, r in enumerate(csv.reader(io.StringIO(text, newline="")), start=1)]
+    except csv.Error as e:
+        raise DatasetError(f"{p}: not a valid CSV file ({e})") from None
+    rows = [(n, r) for n, r in rows if r and any(c.strip() for c in r)]
+    if len(rows) < 2:
+        raise DatasetError(f"{p}: needs a header row and at least one data row")
+    return [h.strip().lower() for h in rows[0][1]], rows[1:]
+
+
 def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np.ndarray | None]:
     """Read a positions CSV: ``(names, positions [N, P], unit, seq_bounds [N, 2] or None)``.
 
     The header names an image column (one of :data:`NAME_COLUMNS`) and either easting/northing
     columns (metres) or a frame column (frames); an optional sequence column gives, for each row,
-    the half-open range of the run of consecutive rows with the same sequence key.
+    the half-open range of the run of consecutive rows with the same sequence key. A row with too
+    few fields, a non-numeric position or a repeated image name is an error naming its line.
     """
     p = Path(path)
-    if not p.is_file():
-        raise DatasetError(f"positions CSV not found: {p}")
-    with p.open(newline="", encoding="utf-8") as f:
-        rows = [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
-    if len(rows) < 2:
-        raise DatasetError(f"{p}: needs a header row and at least one data row")
-    header = [h.strip().lower() for h in rows[0]]
+    header, rows = read_csv_rows(p)
     col = _find_columns(header, p)
-    names = [r[col["name"]].strip() for r in rows[1:]]
+    for line, r in rows:
+        if len(r) <= max(col.values()):
+            raise DatasetError(f"{p}, line {line}: {len(r)} fields, but the header has {len(header)} "
+                               f"(columns {header})")
+    names = [r[col["name"]].strip() for _, r in rows]
+    check_names(names, f"{p} (column {header[col['name']]!r}, data rows in file order)")
     pos_cols = [col["east"], col["north"]] if "east" in col else [col["frame"]]
-    try:
-        pos = np.array([[float(r[c]) for c in pos_cols] for r in rows[1:]], dtype=np.float64)
-    except (ValueError, IndexError):
-        bad = next(i for i, r in enumerate(rows[1:], start=2) if not _numeric(r, pos_cols))
-        cols = [header[c] for c in pos_cols]
-        raise DatasetError(f"{p}, line {bad}: position columns {cols} must be numbers") from None
-    bounds = runs_to_bounds([r[col["seq"]] for r in rows[1:]]) if "seq" in col else None
+    pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
+    for i, (line, r) in enumerate(rows):
+        try:
+            pos[i] = [float(r[c]) for c in pos_cols]
+        except ValueError:
+            raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be numbers, "
+                               f"got {[r[c] for c in pos_cols]}") from None
+    bounds = runs_to_bounds([r[col["seq"]] for _, r in rows]) if "seq" in col else None
     return names, pos, ("metres" if "east" in col else "frames"), bounds
-
-
-def _numeric(row: list[str], cols: list[int]) -> bool:
-    try:
-        [float(row[c]) for c in cols]
-    except (ValueError, IndexError):
-        return False
-    return True
 
 
 def _find_columns(header: list[str], p: Path) -> dict[str, int]:
@@ -188,9 +161,11 @@ def read_seq_bounds(path: str | Path, n: int | None = None) -> np.ndarray:
     if not p.is_file():
         raise DatasetError(f"sequence bounds file not found: {p}")
     try:
-        b = np.loadtxt(p, dtype=np.int64, ndmin=2)
+        b = np.loadtxt(read_text(p).splitlines(), dtype=np.int64, ndmin=2)
     except ValueError as e:
         raise DatasetError(f"{p}: expected one 'start end' row of integers per image ({e})") from None
+    if b.size == 0:
+        raise DatasetError(f"{p}: holds no sequence bounds (the file is empty)")
     if b.shape[1] != 2:
         raise DatasetError(f"{p}: expected 2 columns (start end), got {b.shape[1]}")
     if n is not None and len(b) != n:
@@ -214,7 +189,7 @@ def traverse_from_csv(csv_path: str | Path, desc_path: str | Path, names_file: s
     else:
         idx = match_names(names, desc_names, f"{csv_path} vs {desc_path}")
     d = desc if np.array_equal(idx, np.arange(desc.shape[0])) else np.asarray(desc[idx])
-    return Traverse(descriptors=_float(d), positions=pos, names=names, seq_bounds=bounds, name=name), unit
+    return Traverse(descriptors=d, positions=pos, names=names, seq_bounds=bounds, name=name), unit
 
 
 def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None = None,
@@ -223,11 +198,7 @@ def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None
     desc, names = read_descriptor_file(desc_path, names_file)
     if names is None:
         raise DatasetError(f"{desc_path}: no image names; give a names file or an HDF5 file with a 'names' dataset")
-    return Traverse(descriptors=_float(desc), positions=utm_positions(names), names=names, name=name)
-
-
-def _float(d: np.ndarray) -> np.ndarray:
-    return d if np.issubdtype(d.dtype, np.floating) else np.asarray(d, dtype=np.float32)
+    return Traverse(descriptors=desc, positions=utm_positions(names), names=names, name=name)
 
 
 def summarize_dataset(ds: Dataset) -> dict[str, Any]:

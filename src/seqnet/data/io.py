@@ -10,15 +10,15 @@ from __future__ import annotations
 import json
 import shutil
 import tempfile
-import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import DatasetError
-from ..files import current_umask, save_npy_atomic, write_json_atomic
+from ..files import current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
 from ..utils import logger
+from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
 from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse
 
 # ----------------------------------------------------------------------------- reading
@@ -36,8 +36,8 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
         raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing "
                            "(hint: `seqnet synth DIR` writes an example)")
     try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        meta = json.loads(read_text(meta_path))
+    except json.JSONDecodeError as e:
         raise DatasetError(f"{meta_path}: not valid JSON ({e})") from None
     if not isinstance(meta, dict):
         raise DatasetError(f"{meta_path}: must hold a JSON object")
@@ -90,84 +90,31 @@ def load_traverse(path: Path, name: str, mmap: bool = True) -> Traverse:
     """Load one traverse directory (descriptors, positions, optional names and seq_bounds)."""
     if not path.is_dir():
         raise DatasetError(f"{name} traverse directory not found: {path}")
-    desc, h5_names = load_descriptors(path, mmap)
+    desc, names = load_descriptors(path, mmap)
     pos = _load_positions(path)
-    names = h5_names
     if (path / "names.txt").is_file():
-        try:
-            names = (path / "names.txt").read_text(encoding="utf-8").splitlines()
-        except UnicodeDecodeError as e:
-            raise DatasetError(f"{path / 'names.txt'}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+        names = read_names(path / "names.txt")
     bounds = None
     if (path / "seq_bounds.npy").is_file():
-        bounds = _load_npy(path / "seq_bounds.npy", mmap=False)
+        bounds = read_npy(path / "seq_bounds.npy", mmap=False)
         if not np.issubdtype(bounds.dtype, np.integer):
             raise DatasetError(f"{path / 'seq_bounds.npy'}: must hold integers, got {bounds.dtype}")
     return Traverse(descriptors=desc, positions=pos, names=names, seq_bounds=bounds, name=f"{name} ({path})")
 
 
 def load_descriptors(path: Path, mmap: bool = True) -> tuple[np.ndarray, list[str] | None]:
-    """Load ``descriptors.npy`` (memory-mapped) or ``descriptors.h5`` from a traverse directory."""
+    """The descriptors ``[N, D]`` (and HDF5 names) of a traverse directory: ``descriptors.npy``
+    (memory-mapped) or ``descriptors.h5`` / ``.hdf5``."""
     for fname in DESCRIPTOR_FILES:
-        f = path / fname
-        if f.is_file():
-            if f.suffix == ".npy":
-                return _load_npy(f, mmap), None
-            return _load_h5(f)
+        if (path / fname).is_file():
+            return read_descriptor_file(path / fname, mmap=mmap)
     raise DatasetError(f"no descriptor file in {path}; expected one of {', '.join(DESCRIPTOR_FILES)}")
-
-
-def _load_npy(f: Path, mmap: bool) -> np.ndarray:
-    with open(f, "rb") as fh:
-        magic = fh.read(6)
-    if magic != b"\x93NUMPY":
-        what = "not in .npy format (no NumPy header)"
-        if not magic:
-            what = "empty"
-        elif magic.startswith(b"PK"):
-            what = "a .npz archive"
-        raise DatasetError(f"cannot read {f} as a .npy array: the file is {what}")
-    try:
-        arr = np.load(f, mmap_mode="r" if mmap else None, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
-        msg = "it holds Python objects (pickled data), not numbers" if "pickle" in str(e) else str(e)
-        raise DatasetError(f"cannot read {f} as a .npy array ({msg})") from None
-    if not isinstance(arr, np.ndarray):  # pragma: no cover - np.load only returns arrays after the magic check
-        raise DatasetError(f"cannot read {f} as a .npy array")
-    return arr
-
-
-def _load_h5(f: Path) -> tuple[np.ndarray, list[str] | None]:
-    import h5py
-
-    try:
-        with h5py.File(f, "r") as h:
-            if not isinstance(h.get("descriptors"), h5py.Dataset):
-                raise DatasetError(f"{f}: HDF5 file has no dataset 'descriptors' (found: {list(h.keys())})")
-            desc = np.asarray(h["descriptors"][()])
-            names = None
-            if isinstance(h.get("names"), h5py.Dataset):
-                names = [n.decode() if isinstance(n, bytes) else str(n) for n in np.atleast_1d(h["names"][()])]
-    except (OSError, TypeError, ValueError, UnicodeDecodeError) as e:
-        raise DatasetError(f"cannot read {f} as HDF5 ({e})") from None
-    return desc, names
 
 
 def _load_positions(path: Path) -> np.ndarray:
     for fname in POSITION_FILES:
-        f = path / fname
-        if f.is_file():
-            if f.suffix == ".npy":
-                return _load_npy(f, mmap=False)
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")  # an empty file is reported below, not warned about
-                    arr = np.loadtxt(f, delimiter="," if f.suffix == ".csv" else None, ndmin=2)
-            except (ValueError, UnicodeDecodeError) as e:
-                raise DatasetError(f"cannot parse {f} as numbers ({' '.join(str(e).split())})") from None
-            if arr.size == 0:
-                raise DatasetError(f"{f} holds no positions (the file is empty)")
-            return arr
+        if (path / fname).is_file():
+            return read_positions_file(path / fname)
     raise DatasetError(f"no positions file in {path}; expected one of {', '.join(POSITION_FILES)}")
 
 
@@ -228,9 +175,7 @@ def save_traverse(t: Traverse, path: Path) -> None:
     save_npy_atomic(path / "descriptors.npy", np.ascontiguousarray(t.descriptors, dtype=np.float32))
     save_npy_atomic(path / "positions.npy", t.positions)
     if t.names is not None:
-        bad = next((n for n in t.names if "\n" in n or "\r" in n), None)
-        if bad is not None:
-            raise DatasetError(f"{t.name}: image name {bad!r} contains a line break (names.txt: one name a line)")
-        (path / "names.txt").write_text("\n".join(t.names) + "\n", encoding="utf-8")
+        check_names(t.names, f"{t.name}: image names")
+        write_text_atomic(path / "names.txt", "\n".join(t.names) + "\n")
     if t.seq_bounds is not None:
         save_npy_atomic(path / "seq_bounds.npy", t.seq_bounds)
