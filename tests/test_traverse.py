@@ -14,7 +14,7 @@ import pytest
 import seqnet.data.io as tv
 from seqnet.data.io import load_dataset, save_dataset
 from seqnet.data.traverse import Dataset, Traverse
-from seqnet.errors import DatasetError
+from seqnet.errors import DatasetError, OutputError
 
 
 def make_dataset(rng, n_ref=12, n_qry=10, dim=4, bounds=True, **kw) -> Dataset:
@@ -358,14 +358,14 @@ def test_dataset_constructor_validation(rng):
 
 
 def test_save_refuses_non_empty_and_overwrites(ds, ds_dir, rng):
-    with pytest.raises(DatasetError, match="not empty"):
+    with pytest.raises(OutputError, match="not empty"):
         save_dataset(ds, ds_dir)
     other = make_dataset(rng, n_ref=7, n_qry=6, bounds=False, splits={})
     save_dataset(other, ds_dir, overwrite=True)
     back = load_dataset(ds_dir)
     assert len(back.reference) == 7 and back.query.seq_bounds is None
     assert not (ds_dir / "query" / "seq_bounds.npy").exists()
-    assert sorted(p.name for p in ds_dir.parent.iterdir()) == ["ds"]  # no temporary or backup left
+    assert sorted(p.name for p in ds_dir.parent.iterdir()) == ["ds"]  # no temporary, backup or lock left
 
 
 def test_save_into_empty_existing_dir(ds, tmp_path):
@@ -376,8 +376,9 @@ def test_save_into_empty_existing_dir(ds, tmp_path):
 
 def test_save_onto_file_is_an_error(ds, tmp_path):
     (tmp_path / "f").write_text("x")
-    with pytest.raises(DatasetError, match="not a directory"):
+    with pytest.raises(OutputError, match="not a directory"):
         save_dataset(ds, tmp_path / "f", overwrite=True)
+    assert (tmp_path / "f").read_text() == "x"
 
 
 def test_save_is_atomic_on_failure(ds, tmp_path, rng, monkeypatch):

@@ -1,7 +1,9 @@
 """Exceptions raised by seqnet.
 
 Every error a user can cause derives from :class:`SeqnetError`; the CLI turns it into one line
-on stderr and exit code 2. Messages name the bad value, the valid set and, where useful, a hint.
+on stderr and exit code 2 (``exit_code``; 1 for :class:`ResourceError`, a failure of the
+environment rather than of the input). Messages name the bad value, the valid set and, where
+useful, a hint.
 """
 
 from __future__ import annotations
@@ -9,6 +11,8 @@ from __future__ import annotations
 
 class SeqnetError(Exception):
     """Base class of all user-facing seqnet errors."""
+
+    exit_code = 2
 
 
 class DatasetError(SeqnetError):
@@ -25,3 +29,20 @@ class CheckpointError(SeqnetError):
 
 class ImageError(SeqnetError):
     """An image folder is empty or an image cannot be read."""
+
+
+class OutputError(SeqnetError):
+    """An output path cannot be used: it holds files this run did not create, or is of the wrong kind."""
+
+
+class ResourceError(SeqnetError):
+    """The environment stopped the work (disk full, read-only file system, no permission, locked).
+
+    The CLI reports it as one line with exit code 1 (bad input exits with 2).
+    """
+
+    exit_code = 1
+
+
+class LockedError(ResourceError):
+    """Another live process holds the lock of a run or dataset directory."""

@@ -57,14 +57,11 @@ def format_markdown(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] 
 def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title: str = "") -> Path:
     """Save Recall@K curves (K = 1..len) as a PNG, one line per method (paper Fig. 3 style)."""
     import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
     tab20 = matplotlib.colormaps["tab20"].colors
     colours = [*tab20[::2], *tab20[1::2]]  # 20 distinct colours: solid lines first, then dashed
-    fig, ax = plt.subplots(figsize=(6, 4.5))
+    fig, ax = new_figure(6, 4.5)
     for i, (name, c) in enumerate(curves.items()):
         ax.plot(np.arange(1, len(c) + 1), c, marker="o", markersize=3, label=name,
                 color=colours[i % 20], linestyle="-" if i % 20 < 10 else "--")
@@ -76,9 +73,24 @@ def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title
     ax.legend(fontsize=8, loc="lower right")
     if title:
         ax.set_title(title)
+    return save_figure(fig, path)
+
+
+def new_figure(width: float, height: float, ncols: int = 1) -> tuple[Any, Any]:
+    """A matplotlib ``Figure`` with ``ncols`` axes drawn by the Agg canvas (no pyplot, no global backend)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, ncols)
+    return fig, axes
+
+
+def save_figure(fig: Any, path: str | Path, dpi: int = 120) -> Path:
+    """Write ``fig`` as a PNG atomically."""
     fig.tight_layout()
     path = Path(path)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+        fig.savefig(tmp, format="png", dpi=dpi)
     return path

@@ -15,7 +15,7 @@ import sys
 from collections.abc import Iterator, Sequence
 from typing import NoReturn
 
-from .. import __version__
+from .._version import __version__
 from ..errors import SeqnetError
 
 COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark")

@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DatasetError
+from ..errors import DatasetError, OutputError
 from ..files import current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..ownership import check_replaceable, locked, write_manifest
 from ..utils import logger
 from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
 from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse
@@ -121,52 +122,74 @@ def _load_positions(path: Path) -> np.ndarray:
 # ----------------------------------------------------------------------------- writing
 
 
+def is_dataset_file(rel: str) -> bool:
+    """Whether ``rel`` (a path inside a dataset directory) is a file seqnet writes there."""
+    parts = rel.split("/")
+    if parts == ["dataset.json"]:
+        return True
+    files = (*DESCRIPTOR_FILES, *POSITION_FILES, "names.txt", "seq_bounds.npy")
+    return len(parts) == 2 and parts[0] in ("reference", "query") and parts[1] in files
+
+
 def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path:
     """Write ``ds`` in the directory format; never leaves a half-written dataset behind.
 
-    Everything is written into a temporary sibling directory which is then renamed onto ``path``.
-    With ``overwrite``, an existing ``path`` is first renamed aside and deleted only after the new
-    directory is in place (restored if that rename fails).
+    Everything is written into a temporary sibling directory which is then renamed onto ``path``,
+    under the directory's lock (a second writer is refused). ``overwrite`` replaces an existing
+    dataset only when every file in it was written by seqnet (listed in its manifest); the old
+    directory is renamed aside and deleted only after the new one is in place.
     """
     root = Path(path)
-    if root.exists() and not root.is_dir():
-        raise DatasetError(f"output path {root} exists and is not a directory")
-    if root.exists() and any(root.iterdir()) and not overwrite:
-        raise DatasetError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")
-    root.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".tmp"))
-    old: Path | None = None
-    try:
-        tmp.chmod(0o777 & ~current_umask())  # mkdtemp makes it 0700; a plain mkdir would not
-        for side, t in (("reference", ds.reference), ("query", ds.query)):
-            save_traverse(t, tmp / side)
-        meta = {
-            **{k: v for k, v in ds.extra.items() if k not in _META_KEYS},
-            "format": FORMAT,
-            "name": ds.name,
-            "radius": ds.radius,
-            "position_unit": ds.position_unit,
-            "splits": {k: {s: list(v[s]) for s in ("reference", "query")} for k, v in ds.splits.items()},
-        }
-        write_json_atomic(tmp / "dataset.json", meta)
-        if root.exists():
-            old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
-            old.rmdir()
-            root.rename(old)
+    with locked(root):
+        if root.exists() and (not root.is_dir() or any(root.iterdir())):
+            if not overwrite and root.is_dir():
+                raise OutputError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")
+            check_replaceable(root, "dataset", is_dataset_file)
+        root.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".tmp"))
         try:
-            tmp.rename(root)
-        except OSError:
-            if old is not None:
-                old.rename(root)
-                old = None
-            raise
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None and old.exists():
-            shutil.rmtree(old, ignore_errors=True)
+            tmp.chmod(0o777 & ~current_umask())  # mkdtemp makes it 0700; a plain mkdir would not
+            _write_dataset(ds, tmp)
+            _swap_in(tmp, root)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
     logger.info("wrote dataset %s (reference %d, query %d images)", root, len(ds.reference), len(ds.query))
     return root
+
+
+def _write_dataset(ds: Dataset, root: Path) -> None:
+    for side, t in (("reference", ds.reference), ("query", ds.query)):
+        save_traverse(t, root / side)
+    meta = {
+        **{k: v for k, v in ds.extra.items() if k not in _META_KEYS},
+        "format": FORMAT,
+        "name": ds.name,
+        "radius": ds.radius,
+        "position_unit": ds.position_unit,
+        "splits": {k: {s: list(v[s]) for s in ("reference", "query")} for k, v in ds.splits.items()},
+    }
+    write_json_atomic(root / "dataset.json", meta)
+    write_manifest(root, "dataset", [p for p in root.rglob("*") if p.is_file()])
+
+
+def _swap_in(new: Path, root: Path) -> None:
+    """Rename ``new`` onto ``root``; an existing ``root`` is moved aside first and deleted after."""
+    old: Path | None = None
+    if root.exists():
+        old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
+        old.rmdir()
+        root.rename(old)
+    try:
+        new.rename(root)
+    except OSError:
+        if old is not None:
+            old.rename(root)
+            old = None
+        raise
+    finally:
+        if old is not None and old.exists():
+            shutil.rmtree(old, ignore_errors=True)
 
 
 def save_traverse(t: Traverse, path: Path) -> None:

@@ -1,0 +1,148 @@
+"""The layout rules of docs/architecture.md, checked on the source tree.
+
+* no import cycle between seqnet modules (module-level and function-level imports alike);
+* no module imports the package root (``seqnet/__init__``) and no private name crosses modules;
+* no module over 300 lines, no function over 50 lines;
+* no process-wide side effects in library code (thread counts, matplotlib backends, tqdm bars
+  other than through seqnet.progress, ``print``).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "seqnet"
+MODULES = sorted(SRC.rglob("*.py"))
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(SRC.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def is_package(path: Path) -> bool:
+    return path.name == "__init__.py"
+
+
+def resolve(path: Path, node: ast.ImportFrom) -> str:
+    """The absolute module an ``ImportFrom`` refers to."""
+    if node.level == 0:
+        return node.module or ""
+    base = module_name(path).split(".")
+    if not is_package(path):
+        base = base[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+KNOWN = {module_name(p) for p in MODULES}
+
+
+def imports_of(path: Path) -> list[tuple[str, list[str], int]]:
+    """``(module, names, line)`` of every seqnet import in ``path`` (all nesting levels)."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            mod = resolve(path, node)
+            if not mod.startswith("seqnet"):
+                continue
+            names = [a.name for a in node.names]
+            subs = [f"{mod}.{n}" for n in names if f"{mod}.{n}" in KNOWN]
+            out.append((mod, [n for n in names if f"{mod}.{n}" not in KNOWN], node.lineno))
+            out += [(s, [], node.lineno) for s in subs]
+        elif isinstance(node, ast.Import):
+            out += [(a.name, [], node.lineno) for a in node.names if a.name.startswith("seqnet")]
+    return out
+
+
+def graph() -> dict[str, set[str]]:
+    g: dict[str, set[str]] = {}
+    for p in MODULES:
+        me = module_name(p)
+        deps = set()
+        for mod, _, _ in imports_of(p):
+            # importing seqnet.a.b also runs seqnet.a's __init__, except from inside seqnet.a itself
+            parts = mod.split(".")
+            for i in range(2, len(parts) + 1):
+                prefix = ".".join(parts[:i])
+                if prefix in KNOWN and prefix != me and not me.startswith(prefix + "."):
+                    deps.add(prefix)
+        g[me] = deps
+    return g
+
+
+def find_cycle(g: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(g.get(n, ())):
+            if state.get(m) == 1:
+                return stack[stack.index(m):] + [m]
+            if m not in state and (c := visit(m)):
+                return c
+        stack.pop()
+        state[n] = 2
+        return None
+
+    for n in sorted(g):
+        if n not in state and (c := visit(n)):
+            return c
+    return None
+
+
+def test_no_import_cycle():
+    assert find_cycle(graph()) is None, " -> ".join(find_cycle(graph()) or [])
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(SRC)))
+def test_imports_follow_the_rules(path):
+    for mod, names, line in imports_of(path):
+        where = f"{path.relative_to(SRC)}:{line}"
+        if mod == "seqnet":
+            pytest.fail(f"{where}: imports the package root (seqnet/__init__); import the module instead")
+        private = [n for n in names if n.startswith("_") and n != "__version__"]
+        assert not private, f"{where}: imports private name(s) {private} from {mod}"
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(SRC)))
+def test_sizes(path):
+    text = path.read_text()
+    assert len(text.splitlines()) <= 300, f"{path.relative_to(SRC)} has {len(text.splitlines())} lines"
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            n = node.end_lineno - node.lineno + 1
+            assert n <= 50, f"{path.relative_to(SRC)}:{node.lineno} {node.name} has {n} lines"
+
+
+FORBIDDEN_CALLS = {"set_num_threads": "thread counts are set by the CLI only", "use": "matplotlib backend",
+                   "print": "library code logs, the CLI prints"}
+
+
+@pytest.mark.parametrize("path", [p for p in MODULES if "cli" not in p.relative_to(SRC).parts],
+                         ids=lambda p: str(p.relative_to(SRC)))
+def test_no_process_wide_side_effects(path):
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Call):
+            f = node.func
+            name = f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else ""
+            owner = f.value.id if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) else ""
+            bad = name == "print" or name == "set_num_threads" or (name == "use" and owner == "matplotlib")
+            assert not bad, f"{path.relative_to(SRC)}:{node.lineno}: {name}() ({FORBIDDEN_CALLS[name]})"
+        if isinstance(node, (ast.Import, ast.ImportFrom)) and path.name != "progress.py":
+            mods = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            assert not any(m.startswith("tqdm") for m in mods), \
+                f"{path.relative_to(SRC)}:{node.lineno}: progress bars come from seqnet.progress"
+        if isinstance(node, ast.ImportFrom) and node.module == "matplotlib" and any(
+                a.name == "pyplot" for a in node.names):
+            pytest.fail(f"{path.relative_to(SRC)}:{node.lineno}: pyplot keeps global state; use report.new_figure")
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
