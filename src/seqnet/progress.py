@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import weakref
 from collections.abc import Iterable, Iterator
 from typing import Any
 
 from tqdm.auto import tqdm
 
 _MODE: contextvars.ContextVar[bool | None] = contextvars.ContextVar("seqnet_progress", default=None)
+_OPEN: weakref.WeakSet = weakref.WeakSet()  # bars made here and not closed yet (closed before an error line)
 
 
 @contextlib.contextmanager
@@ -37,5 +39,14 @@ def progress(iterable: Iterable[Any] | None = None, desc: str | None = None, tot
     disable = (not mode) if mode is not None else None
     if total is not None and total < min_total:
         disable = True
-    return tqdm(iterable, desc=desc, total=total, unit=unit, leave=False, disable=disable, dynamic_ncols=True,
-                **kwargs)
+    bar = tqdm(iterable, desc=desc, total=total, unit=unit, leave=False, disable=disable, dynamic_ncols=True,
+               **kwargs)
+    _OPEN.add(bar)
+    return bar
+
+
+def close_all() -> None:
+    """Close (and so clear from the terminal) every bar still open, e.g. before printing an error."""
+    for bar in list(_OPEN):
+        with contextlib.suppress(Exception):
+            bar.close()

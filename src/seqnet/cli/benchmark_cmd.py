@@ -29,7 +29,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     n.add_argument("--epochs", type=positive_int, help="training epochs of S_L and S_1 (default: preset)")
     n.add_argument("--pca-dims", type=int, help="PCA size before training (0: none; default: preset)")
     n.add_argument("--top-k", type=positive_int, help="HVPR shortlist size (default 20)")
-    n.add_argument("--threads", type=positive_int, help="torch CPU threads (default: torch's)")
     add_device(n)
     n.set_defaults(func=run_nordland64)
 
@@ -46,7 +45,7 @@ def nordland64_overrides(args: argparse.Namespace) -> dict:
         "train_range": list(args.train_range) if args.train_range else None,
         "val_range": list(args.val_range) if args.val_range else None,
         "test_range": list(args.test_range) if args.test_range else None,
-        "descriptor": args.descriptor, "seq_len": args.seq_len, "top_k": args.top_k, "threads": args.threads,
+        "descriptor": args.descriptor, "seq_len": args.seq_len, "top_k": args.top_k,
         "device": args.device, "pca_dims": args.pca_dims,
         "train": {**base["train"], **train} if train else None,
     }

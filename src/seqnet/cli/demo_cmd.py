@@ -7,7 +7,6 @@ import argparse
 from ..files import write_json_atomic
 from ..pipelines.demo import DEMO_PLACES, DEMO_SEQ_LEN, run_demo
 from ..report import format_table
-from ..utils import set_threads
 from .common import add_device, positive_int
 
 
@@ -24,15 +23,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--epochs", type=positive_int,
                    help="training epochs per model (default: the demo's, 15, with early stopping)")
     p.add_argument("--no-train", action="store_true", help="evaluate the baselines only (no training)")
-    p.add_argument("--threads", type=positive_int, default=1,
-                   help="CPU threads for torch (default 1: the demo's tensors are small, and on a busy machine "
-                        "more threads mostly wait for each other)")
+    # one torch thread unless --threads: the demo's tensors are small, and on a busy machine more threads
+    # mostly wait for each other
+    p.set_defaults(default_threads=1)
     add_device(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    set_threads(args.threads)
     ev = run_demo(args.out, places=args.places, seed=args.seed, device=args.device, epochs=args.epochs,
                   train_models=not args.no_train)
     m, cfg = ev.results["methods"], ev.results["config"]

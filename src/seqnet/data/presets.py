@@ -163,6 +163,5 @@ BENCHMARKS: dict[str, dict[str, Any]] = {
         "top_k": 20,
         "ks": [1, 5, 10, 20],
         "device": "auto",
-        "threads": None,
     },
 }

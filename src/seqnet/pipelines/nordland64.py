@@ -290,8 +290,6 @@ def main(conf: Mapping[str, Any] | None, data: str | Path, out: str | Path) -> E
     cfg = resolve_config(conf)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if cfg["threads"]:
-        torch.set_num_threads(int(cfg["threads"]))
     t0 = time.perf_counter()
     seconds: dict[str, float] = {}
     ds, flipped = build_dataset(data, cfg, out)

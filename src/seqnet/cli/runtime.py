@@ -1,0 +1,106 @@
+"""What every command shares at run time: log level, progress bars, thread count, warnings, errors."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import sys
+import warnings
+from collections.abc import Iterator
+
+from ..errors import SeqnetError
+from ..files import os_error
+from ..progress import close_all, progress_mode
+from ..utils import logger
+from .common import positive_int
+
+
+def add_runtime_options(p: argparse.ArgumentParser, top: bool) -> None:
+    """``-v/-q``, ``--progress/--no-progress`` and ``--threads``, before or after the command name."""
+    default = None if top else argparse.SUPPRESS  # a command's parser must not reset what came before it
+    options = [
+        (("-v", "--verbose"), {"action": "store_true", "default": False if top else default,
+                               "help": "also log debug messages (e.g. every training epoch)"}),
+        (("-q", "--quiet"), {"action": "store_true", "default": False if top else default,
+                             "help": "only log warnings and errors"}),
+        (("--progress",), {"dest": "progress", "action": "store_true", "default": default,
+                           "help": "show progress bars even when stderr is not a terminal"}),
+        (("--no-progress",), {"dest": "progress", "action": "store_false", "default": default,
+                              "help": "never show progress bars (default: only on a terminal)"}),
+        (("--threads",), {"type": positive_int, "default": default, "metavar": "N",
+                          "help": "CPU threads for torch (default: torch's)"}),
+    ]
+    for flags, kwargs in options:
+        if not any(f in p._option_string_actions for f in flags):  # a command may define its own
+            p.add_argument(*flags, **kwargs)
+
+
+class _StderrHandler(logging.StreamHandler):
+    """Log handler that writes to whatever ``sys.stderr`` is at the time (pytest's capsys swaps it)."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property  # type: ignore[override]
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # the base class assigns it; always follow sys.stderr instead
+        pass
+
+
+@contextlib.contextmanager
+def runtime(args: argparse.Namespace) -> Iterator[None]:
+    """Logging to stderr, progress mode, thread count and held-back warnings for one command."""
+    import torch
+
+    level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
+    handler = _StderrHandler()
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    old_level, old_threads = logger.level, torch.get_num_threads()
+    logger.addHandler(handler)
+    logger.setLevel(level)
+    threads = args.threads or getattr(args, "default_threads", None)
+    try:
+        if threads:
+            torch.set_num_threads(threads)
+        with progress_mode(args.progress), warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("default")
+            yield
+        for message in dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught):
+            logger.debug("warning: %s", " ".join(message.split()))
+    finally:
+        torch.set_num_threads(old_threads)
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+
+
+def one_line(text: object) -> str:
+    """``text`` on one line (runs of whitespace, line breaks included, become one space)."""
+    return " ".join(str(text).split())
+
+
+def report_error(command: str | None, e: BaseException) -> int:
+    """Print ``e`` as one line on stderr (bars cleared first); return the exit code."""
+    close_all()
+    if sys.stderr.isatty():
+        sys.stderr.write("\r\x1b[K")
+    if isinstance(e, KeyboardInterrupt):
+        print(f"seqnet {command}: interrupted", file=sys.stderr)
+        return 130
+    if isinstance(e, OSError):
+        e = os_error(e)
+    elif isinstance(e, MemoryError):
+        e = _memory_error(e)
+    prefix = f"seqnet {command}: error: " if command else ""
+    print(prefix + one_line(e), file=sys.stderr)
+    return int(getattr(e, "exit_code", 2))
+
+
+def _memory_error(e: MemoryError) -> SeqnetError:
+    from ..errors import ResourceError
+
+    detail = f" ({one_line(e)})" if str(e) else ""
+    return ResourceError(f"out of memory{detail}; hint: smaller inputs, fewer threads or a smaller --batch-size")
