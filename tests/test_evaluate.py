@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
@@ -210,11 +208,11 @@ def test_no_positive_queries_counted():
     assert entry["queries"] == 4 and entry["no_positive"] == 5
 
 
-def test_all_queries_without_positive_gives_nan():
+def test_all_queries_without_positive_is_an_error():
     ds = toy()
     far = Traverse(ds.query.descriptors, ds.query.positions + 100.0)
-    ev = evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(methods=('single',), seq_len=1, device='cpu'))
-    assert math.isnan(ev.results["methods"]["single"]["recall@1"])
+    with pytest.raises(ConfigError, match="has a reference within radius 1 frames, so Recall@K is undefined"):
+        evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(methods=("single",), seq_len=1, device="cpu"))
 
 
 # ----------------------------------------------------------------------------- methods

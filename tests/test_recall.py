@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seqnet.errors import ConfigError
-from seqnet.recall import check_radius, recall_at_k, recall_curve
+from seqnet.recall import GroundTruth, check_radius, recall_at_k, recall_curve
 
 
 def naive_recall(retrieved, q_pos, r_pos, radius, ks):
@@ -113,7 +113,7 @@ def test_recall_curve_monotone(rng):
     r_pos = rng.uniform(0, 20, (30, 2))
     q_pos = rng.uniform(0, 20, (15, 2))
     retrieved = np.array([rng.permutation(30)[:10] for _ in range(15)])
-    curve = recall_curve(retrieved, q_pos, r_pos, 2.0, k_max=12)
+    curve = recall_curve(retrieved, GroundTruth(q_pos, r_pos, 2.0), k_max=12)
     assert curve.shape == (12,) and (np.diff(curve) >= 0).all()
     assert curve[0] == recall_at_k(retrieved, q_pos, r_pos, 2.0, ks=(1,))["recall@1"]
 

@@ -24,7 +24,7 @@ from .features import Descriptors, Side
 from .hvpr import hvpr
 from .matchers import SEQUENCE_MATCHERS
 from .methods import FRAME_FEATURES, Method, default_methods, parse_method
-from .recall import check_radius, recall_at_k
+from .recall import GroundTruth, check_radius, recall
 from .sequence_descriptors import SeqNet
 from .utils import get_device, logger
 from .windows import WINDOW_MODES
@@ -97,11 +97,24 @@ class Evaluation:
     results: dict[str, Any]
     retrieved: dict[str, np.ndarray]  # method -> [M, K] indices into r_items, best first
     scores: dict[str, np.ndarray]  # method -> [M, K] scores of ``retrieved`` (lower is better)
-    q_pos: np.ndarray  # [M, P] positions of the evaluated query frames
-    r_pos: np.ndarray  # [R, P] positions of the indexed reference frames
-    radius: float
+    truth: GroundTruth  # what is correct for each query item (radius or explicit positives)
     q_items: np.ndarray  # [M] query frame of each evaluated query
     r_items: np.ndarray  # [R] reference frame of each indexed reference
+
+    @property
+    def q_pos(self) -> np.ndarray:
+        """``[M, P]`` positions of the evaluated query frames."""
+        return self.truth.q_pos
+
+    @property
+    def r_pos(self) -> np.ndarray:
+        """``[R, P]`` positions of the indexed reference frames."""
+        return self.truth.r_pos
+
+    @property
+    def radius(self) -> float:
+        """The localisation radius."""
+        return self.truth.radius
 
 
 Ranking = tuple[np.ndarray, np.ndarray, dict[str, float]]  # scores [M, K], items [M, K], timing ms
@@ -201,26 +214,39 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
         model.to(dev).eval()
     sides = [Side.of(t, conf.length, conf.match_len, conf.window) for t in (ds.query, ds.reference)]
     f = Descriptors(*sides, conf.length, conf.window, models, dev)
-    q_pos, r_pos = ds.query.positions[f.query.items], ds.reference.positions[f.reference.items]
+    truth = ground_truth(ds, f.query.items, f.reference.items, conf.radius)
     results: dict[str, Any] = {}
     retrieved, scores = {}, {}
     k_max = max(conf.ks)
     for m in methods:
         scores[m.name], retrieved[m.name], timing = RUNNERS[m.kind](m, f, conf, k_max)
         timing["total"] = sum(timing.values())
-        rec = recall_at_k(retrieved[m.name], q_pos, r_pos, conf.radius, conf.ks)
+        rec = recall(retrieved[m.name], truth, conf.ks)
         entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
         entry.update(queries=rec["queries"], no_positive=rec["no_positive"],
                      no_full_window=int(len(ds.query) - len(f.query.items)),
                      timing_ms={k: round(v, 3) for k, v in timing.items()}, method=_entry(m, conf, models))
         if conf.extra_radii:
-            entry["radii"] = {str(r): recall_at_k(retrieved[m.name], q_pos, r_pos, r, conf.ks)
+            entry["radii"] = {str(r): recall(retrieved[m.name], GroundTruth(truth.q_pos, truth.r_pos, r), conf.ks)
                               for r in conf.extra_radii}
         results[m.name] = entry
         logger.info("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
     out = {"methods": results, "config": {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                                           "models": {k: v.config() for k, v in models.items()}}}
-    return Evaluation(out, retrieved, scores, q_pos, r_pos, conf.radius, f.query.items, f.reference.items)
+    return Evaluation(out, retrieved, scores, truth, f.query.items, f.reference.items)
+
+
+def ground_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: float) -> GroundTruth:
+    """The ground truth of the evaluated items; :class:`ConfigError` when no query has a correct reference."""
+    positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
+    truth = GroundTruth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives)
+    if not truth.has_positive().any():
+        what = ("any of its explicit positives among the indexed references" if positives is not None else
+                f"a reference within radius {radius:g} {ds.position_unit}")
+        raise ConfigError(f"none of the {len(q_items)} evaluated queries of {ds.name!r} has {what}, so Recall@K is "
+                          "undefined; hint: check the radius and its unit, the split, and that both traverses "
+                          "share one coordinate frame")
+    return truth
 
 
 def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,

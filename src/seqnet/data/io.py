@@ -16,9 +16,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import DatasetError, OutputError
-from ..files import current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
 from ..ownership import check_replaceable, locked, write_manifest
 from ..utils import logger
+from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
 from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse
 
@@ -62,7 +63,27 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
         splits=_parse_splits(meta.get("splits", {}), meta_path),
         name=str(meta.get("name", root.name)),
         extra={k: v for k, v in meta.items() if k not in _META_KEYS},
+        positives=load_positives(root / POSITIVES_FILE) if (root / POSITIVES_FILE).is_file() else None,
     )
+
+
+POSITIVES_FILE = "positives.npz"
+
+
+def load_positives(f: Path) -> Positives:
+    """Explicit positives saved by :func:`save_dataset` (``indptr``, ``indices`` arrays, no pickles)."""
+    try:
+        with np.load(f, allow_pickle=False) as z:
+            indptr, indices = z["indptr"], z["indices"]
+    except (OSError, ValueError, KeyError, EOFError) as e:
+        raise DatasetError(f"cannot read {f} (explicit positives: arrays indptr and indices) ({e})") from None
+    if indptr.ndim != 1 or indices.ndim != 1 or indptr.dtype.kind not in "iu" or indices.dtype.kind not in "iu":
+        raise DatasetError(f"{f}: indptr and indices must be 1-D integer arrays")
+    if indptr.size == 0 or indptr[0] != 0 or (np.diff(indptr) < 0).any() or indptr[-1] != indices.size:
+        raise DatasetError(f"{f}: indptr must start at 0, never decrease and end at len(indices)")
+    if indices.size and indices.min() < 0:
+        raise DatasetError(f"{f}: reference indices must be >= 0")
+    return Positives(indptr.astype(np.int64), indices.astype(np.int64))
 
 
 _META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses"}
@@ -125,7 +146,7 @@ def _load_positions(path: Path) -> np.ndarray:
 def is_dataset_file(rel: str) -> bool:
     """Whether ``rel`` (a path inside a dataset directory) is a file seqnet writes there."""
     parts = rel.split("/")
-    if parts == ["dataset.json"]:
+    if parts in (["dataset.json"], [POSITIVES_FILE]):
         return True
     files = (*DESCRIPTOR_FILES, *POSITION_FILES, "names.txt", "seq_bounds.npy")
     return len(parts) == 2 and parts[0] in ("reference", "query") and parts[1] in files
@@ -170,6 +191,9 @@ def _write_dataset(ds: Dataset, root: Path) -> None:
         "splits": {k: {s: list(v[s]) for s in ("reference", "query")} for k, v in ds.splits.items()},
     }
     write_json_atomic(root / "dataset.json", meta)
+    if ds.positives is not None:
+        with atomic_path(root / POSITIVES_FILE) as tmp, open(tmp, "wb") as f:
+            np.savez(f, indptr=ds.positives.indptr, indices=ds.positives.indices)
     write_manifest(root, "dataset", [p for p in root.rglob("*") if p.is_file()])
 
 

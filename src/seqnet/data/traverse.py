@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DatasetError
+from .positives import Positives
 
 FORMAT = "seqnet-dataset/1"
 POSITION_UNITS = ("frames", "metres")
@@ -107,6 +108,8 @@ class Dataset:
 
     ``splits`` maps a split name to ``{"reference": (start, stop), "query": (start, stop)}``.
     ``extra`` holds any other metadata (positive/negative training radii, preset, source, ...).
+    ``positives`` (optional) is explicit ground truth: the matching reference frames of every query
+    frame; when given, it decides what is correct instead of the radius.
     """
 
     reference: Traverse
@@ -116,8 +119,19 @@ class Dataset:
     splits: dict[str, dict[str, tuple[int, int]]] = dataclasses.field(default_factory=dict)
     name: str = "dataset"
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
+    positives: Positives | None = None
 
     def __post_init__(self) -> None:
+        for side in ("reference", "query"):
+            if not isinstance(getattr(self, side), Traverse):
+                raise DatasetError(f"Dataset {side} must be a Traverse, got {type(getattr(self, side)).__name__}")
+        if isinstance(self.radius, (bool, str)) or not isinstance(self.radius, (int, float, np.number)):
+            raise DatasetError(f"radius must be a number, got {self.radius!r}")
+        self.radius = float(self.radius)
+        if self.positives is not None:
+            if not isinstance(self.positives, Positives):
+                raise DatasetError(f"positives must be a Positives, got {type(self.positives).__name__}")
+            self.positives.check(len(self.query), len(self.reference))
         if self.position_unit is None:
             self.position_unit = "frames" if self.reference.positions.shape[1] == 1 else "metres"
         validate_dataset(self)
@@ -130,12 +144,16 @@ class Dataset:
             valid = ", ".join(["all", *self.splits]) or "all"
             raise DatasetError(f"dataset {self.name!r} has no split {split!r}; valid: {valid}")
         rng = self.splits[split]
+        positives = None
+        if self.positives is not None:
+            positives = self.positives.select(np.arange(*rng["query"]), np.arange(*rng["reference"]))
         return dataclasses.replace(
             self,
             reference=self.reference.subset(*rng["reference"]),
             query=self.query.subset(*rng["query"]),
             splits={},
             name=f"{self.name}[{split}]",
+            positives=positives,
         )
 
 

@@ -266,7 +266,7 @@ def write_report(ev: Evaluation, val: Evaluation, cfg: Mapping[str, Any], second
     ev.results["config"].update(benchmark=dict(cfg), timings_s=dict(seconds))
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
-    curves = {m: recall_curve(r, ev.q_pos, ev.r_pos, ev.radius, 20) for m, r in ev.retrieved.items()}
+    curves = {m: recall_curve(r, ev.truth, 20) for m, r in ev.retrieved.items()}
     plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={cfg['seq_len']})")
     first = next(iter(ev.results["methods"].values()))
     (a, b), (c, d) = cfg["test_range"], cfg["val_range"]
