@@ -37,6 +37,9 @@ def _common(p: argparse.ArgumentParser, radius: bool = True) -> None:
     p.add_argument("--split", action="append", default=[], metavar="NAME=A:B[,C:D]",
                    help="named index split (both traverses, or reference,query); repeatable")
     p.add_argument("--name", help="dataset name (default: the output directory name)")
+    p.add_argument("--positives", metavar="FILE", help="explicit ground truth: per query the matching reference "
+                   "indices (.json list of lists, .csv query,reference pairs, or .npy object array); used "
+                   "instead of the radius")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
 
 
@@ -112,6 +115,12 @@ def _finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
     return 0
 
 
+def _positives(args: argparse.Namespace):  # noqa: ANN202
+    from ..data.positives import read_positives
+
+    return read_positives(args.positives) if args.positives else None
+
+
 def _extra(args: argparse.Namespace) -> dict:
     return {"pos_radius": args.pos_radius, "neg_radius": args.neg_radius}
 
@@ -126,7 +135,7 @@ def run_from_csv(args: argparse.Namespace) -> int:
     if unit_r != unit_q:
         raise ConfigError(f"reference positions are in {unit_r} but query positions in {unit_q}")
     ds = assemble_dataset(ref, qry, unit_r, args.radius, args.preset, parse_splits(args.split),
-                          args.name or Path(args.out).name, _extra(args))
+                          args.name or Path(args.out).name, _extra(args), _positives(args))
     return _finish(ds, args)
 
 
@@ -144,7 +153,7 @@ def run_from_utm(args: argparse.Namespace) -> int:
             t = dataclasses.replace(t, seq_bounds=read_seq_bounds(bounds, len(t)))
         sides.append(t)
     ds = assemble_dataset(sides[0], sides[1], "metres", args.radius, args.preset, parse_splits(args.split),
-                          args.name or Path(args.out).name, _extra(args))
+                          args.name or Path(args.out).name, _extra(args), _positives(args))
     return _finish(ds, args)
 
 

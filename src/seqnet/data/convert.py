@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DatasetError
+from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_text
 from .traverse import Dataset, Traverse
 
@@ -204,8 +205,8 @@ def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None
 def summarize_dataset(ds: Dataset) -> dict[str, Any]:
     """A JSON-ready summary of a dataset: sizes, dims, radius, true-match counts, sequence bounds.
 
-    ``queries_with_match`` counts the query images with a reference within the radius (over the
-    whole dataset and within each split).
+    ``queries_with_match`` counts the query images with a reference within the radius, or with
+    explicit positives when the dataset has them (over the whole dataset and within each split).
     """
     from ..recall import has_positive
 
@@ -217,26 +218,28 @@ def summarize_dataset(ds: Dataset) -> dict[str, Any]:
                                 "median_len": float(np.median(lengths)), "max_len": int(lengths.max())}
         return out
 
-    def matches(q: Traverse, r: Traverse) -> int:
-        return int(has_positive(q.positions, r.positions, ds.radius).sum())
+    def matches(d: Dataset) -> int:
+        if d.positives is not None:
+            return int((d.positives.counts() > 0).sum())
+        return int(has_positive(d.query.positions, d.reference.positions, d.radius).sum())
 
     summary: dict[str, Any] = {
         "name": ds.name, "radius": ds.radius, "position_unit": ds.position_unit,
+        "ground_truth": "explicit positives" if ds.positives is not None else f"radius {ds.radius:g} (inclusive)",
         "reference": side(ds.reference), "query": side(ds.query),
-        "queries_with_match": matches(ds.query, ds.reference), "splits": {},
+        "queries_with_match": matches(ds), "splits": {},
         "metadata": dict(ds.extra),
     }
     for split, rng in ds.splits.items():
-        sub = ds.split(split)
         summary["splits"][split] = {"reference": list(rng["reference"]), "query": list(rng["query"]),
-                                    "queries_with_match": matches(sub.query, sub.reference)}
+                                    "queries_with_match": matches(ds.split(split))}
     return summary
 
 
 def assemble_dataset(
     ref: Traverse, query: Traverse, unit: str, radius: float | None = None, preset: str | None = None,
     splits: dict[str, dict[str, tuple[int, int]]] | None = None, name: str = "dataset",
-    extra: dict[str, Any] | None = None,
+    extra: dict[str, Any] | None = None, positives: Positives | None = None,
 ) -> Dataset:
     """A dataset from two traverses; radius and training radii from ``radius`` / ``extra`` or ``preset``.
 
@@ -259,4 +262,4 @@ def assemble_dataset(
                           "(nordland, oxford-v1.0, oxford-pnv, brisbane, msls)")
     meta.update({k: v for k, v in (extra or {}).items() if v is not None})
     return Dataset(reference=ref, query=query, radius=float(radius), position_unit=unit, splits=splits or {},
-                   name=name, extra=meta)
+                   name=name, extra=meta, positives=positives)
