@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from seqnet.distances import knn, pairwise_distances, topk_smallest
+from seqnet.blocks import topk_smallest
+from seqnet.distances import knn, pairwise_distances
 from seqnet.errors import ConfigError
 
 
@@ -180,3 +181,27 @@ def test_knn_bad_options(rng):
         knn(q, q, 2, metric="cosine")
     with pytest.raises(ConfigError, match="must hold numbers"):
         knn(np.array([["a", "b"]]), q[:, :2], 1, device="cpu")
+
+
+@pytest.mark.parametrize("col_block", [1, 3, 8, None])
+@pytest.mark.parametrize("metric", ["l2", "ip"])
+def test_knn_streams_reference_blocks(rng, col_block, metric):
+    q, r = rng.standard_normal((17, 5)), rng.standard_normal((26, 5))
+    a = knn(q, r, 6, metric=metric, device="cpu")
+    from seqnet.distances import knn_torch
+
+    b = knn_torch(q, r, 6, metric=metric, device="cpu", col_block=col_block, block_bytes=100)
+    np.testing.assert_array_equal(a[1], b[1])
+    np.testing.assert_allclose(a[0], b[0], rtol=1e-12)
+
+
+def test_knn_memmap_float16_reference(tmp_path, rng):
+    r = rng.standard_normal((50, 4)).astype(np.float16)
+    np.save(tmp_path / "r.npy", r)
+    mm = np.load(tmp_path / "r.npy", mmap_mode="r")
+    q = rng.standard_normal((7, 4)).astype(np.float32)
+    from seqnet.distances import knn_torch
+
+    a = knn_torch(q, mm, 5, device="cpu", col_block=8)
+    b = knn(q, r.astype(np.float32), 5, device="cpu")
+    np.testing.assert_array_equal(a[1], b[1])

@@ -287,3 +287,36 @@ def test_hvpr_returns_full_ranking(rng):
     assert np.isinf(scores[:, 3:]).all() and np.isfinite(scores[:, :3]).all()
     np.testing.assert_array_equal(np.sort(items[:, :3], axis=1), np.sort(ranked[:, :3], axis=1))
     assert (np.diff(scores[:, :3], axis=1) >= 0).all()
+
+
+@pytest.mark.parametrize("col_block", [1, 2, 5, 7, None])
+@pytest.mark.parametrize("reverse", [False, True])
+def test_topk_streams_reference_blocks(rng, col_block, reverse):
+    """Reference blocks of any size, read from a memory map, give the same top-k as the whole map."""
+    q, r = rng.standard_normal((23, 6)), rng.standard_normal((31, 6))
+    L, k = 3, 4
+    q_starts, r_starts = np.arange(0, 21, 2), np.arange(0, 29)
+    full = naive_seqmatch(q, r, L, reverse)[q_starts][:, r_starts]
+    vals, items = seqmatch_topk(q, r, L, k, q_starts, r_starts, reverse=reverse, device="cpu", col_block=col_block,
+                                block_bytes=200)
+    np.testing.assert_allclose(vals, np.sort(full, axis=1)[:, :k], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(np.take_along_axis(full, items, 1), vals, rtol=1e-9, atol=1e-9)
+
+
+def test_topk_from_memmap_and_float16(tmp_path, rng):
+    q, r = rng.standard_normal((20, 8)).astype(np.float32), rng.standard_normal((40, 8)).astype(np.float32)
+    np.save(tmp_path / "r.npy", r.astype(np.float16))
+    r16 = np.load(tmp_path / "r.npy", mmap_mode="r")
+    starts_q, starts_r = np.arange(18), np.arange(38)
+    a = seqmatch_topk(q, r16, 3, 5, starts_q, starts_r, device="cpu", col_block=9)
+    b = seqmatch_topk(q, r16.astype(np.float32), 3, 5, starts_q, starts_r, device="cpu")
+    np.testing.assert_array_equal(a[1], b[1])
+    np.testing.assert_allclose(a[0], b[0], rtol=1e-5)
+    assert a[0].dtype == np.float32
+
+
+def test_topk_ties_prefer_lower_start():
+    q = np.zeros((4, 2))
+    r = np.zeros((10, 2))  # every window scores 0: ties everywhere
+    _, items = seqmatch_topk(q, r, 2, 3, np.arange(3), np.arange(9), device="cpu", col_block=2)
+    assert items.tolist() == [[0, 1, 2]] * 3

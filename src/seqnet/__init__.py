@@ -8,10 +8,11 @@ Main entry points::
 from __future__ import annotations
 
 from ._version import __version__
+from .blocks import topk_smallest
 from .data.io import load_dataset, save_dataset
 from .data.synth import make_synthetic
 from .data.traverse import Dataset, Traverse
-from .distances import knn, pairwise_distances, topk_smallest
+from .distances import knn, pairwise_distances
 from .errors import CheckpointError, ConfigError, DatasetError, ImageError, SeqnetError
 from .evaluate import EvalConfig, Evaluation, evaluate
 from .hvpr import hvpr

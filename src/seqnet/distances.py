@@ -12,6 +12,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from .blocks import check_pair_dims, col_blocks, compute_dtype, merge_topk, rows
 from .config import check_choice, check_int
 from .errors import ConfigError
 from .utils import ArrayLike, as_tensor, get_device, to_numpy
@@ -59,46 +60,35 @@ def pairwise_distances(q: torch.Tensor, r: torch.Tensor, squared: bool = False) 
     return finish_distances(q @ r.T, sq_norms(q), sq_norms(r), squared)
 
 
-def topk_smallest(scores: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The ``k`` smallest entries of each row of ``scores [B, N]``, ascending.
-
-    Ties are broken deterministically by the lower column index (also at the cut-off); NaN ranks
-    like +inf. Returns ``(values [B, k], indices [B, k])``; ``k`` is capped at N.
-    """
-    k = min(int(k), scores.shape[1])
-    if k <= 0 or scores.shape[0] == 0:
-        empty = scores.new_zeros((scores.shape[0], max(k, 0)))
-        return empty, empty.long()
-    key = scores.masked_fill(torch.isnan(scores), float("inf")) if scores.is_floating_point() else scores
-    kth = torch.topk(key, k, dim=1, largest=False, sorted=True).values[:, -1:]
-    less = key < kth
-    ties = key == kth
-    need = k - less.sum(1, keepdim=True)
-    keep = less | (ties & (ties.cumsum(1) <= need))
-    idx = keep.nonzero()[:, 1].reshape(scores.shape[0], k)  # ascending column order
-    order = torch.sort(key.gather(1, idx), dim=1, stable=True).indices
-    idx = idx.gather(1, order)
-    return scores.gather(1, idx), idx
-
-
-
-
 @torch.no_grad()
 def knn_torch(query: ArrayLike, ref: ArrayLike, k: int, metric: str = "l2", device: str | None = None,
-              block_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Exact k-NN by blocked GEMM (on the GPU when present); see :func:`knn`."""
+              block_bytes: int | None = None, col_block: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Exact k-NN by blocked GEMM over query and reference blocks (GPU when present); see :func:`knn`.
+
+    The reference may be a memory-mapped (or float16) array: only one block of it is in torch
+    memory at a time, and each query block keeps a running top-k (:mod:`seqnet.blocks`).
+    """
     dev = get_device(device)
-    q, r = as_pair(query, ref, dev)
-    rows = rows_per_block(r.shape[0] * q.element_size() * 3, block_bytes)
-    r_sq = sq_norms(r) if metric == "l2" else None
-    k = min(k, r.shape[0])
-    vals = torch.zeros((q.shape[0], k), dtype=q.dtype)
-    idx = torch.zeros((q.shape[0], k), dtype=torch.long)
-    for s in range(0, q.shape[0], rows):
-        qb = q[s : s + rows]
-        scores = (qb @ r.T).neg_() if r_sq is None else finish_distances(qb @ r.T, sq_norms(qb), r_sq)
-        v, i = topk_smallest(scores, k)
-        vals[s : s + rows], idx[s : s + rows] = (-v if metric == "ip" else v).cpu(), i.cpu()
+    nq, nr, _ = check_pair_dims(query, ref)
+    dtype = compute_dtype(query, ref)
+    k = min(k, nr)
+    blocks = col_blocks(nr, col_block)
+    width = max(b - a for a, b in blocks) if blocks else 1
+    step = rows_per_block(width * (8 if dtype == torch.float64 else 4) * 3, block_bytes)
+    vals = torch.zeros((nq, k), dtype=dtype)
+    idx = torch.zeros((nq, k), dtype=torch.long)
+    cache = rows(ref, 0, nr, dev, dtype) if len(blocks) == 1 else None  # a map that fits one block: read once
+    for s in range(0, nq, step):
+        qb = rows(query, s, min(nq, s + step), dev, dtype)
+        q_sq = sq_norms(qb) if metric == "l2" else None
+        best = None
+        for c0, c1 in blocks:
+            rb = cache if cache is not None else rows(ref, c0, c1, dev, dtype)
+            scores = (qb @ rb.T).neg_() if q_sq is None else finish_distances(qb @ rb.T, q_sq, sq_norms(rb))
+            best = merge_topk(best, scores, torch.arange(c0, c1, device=dev), k)
+        if best is not None:
+            v, i = best
+            vals[s : s + len(qb)], idx[s : s + len(qb)] = (-v if metric == "ip" else v).cpu(), i.cpu()
     return to_numpy(vals), to_numpy(idx)
 
 

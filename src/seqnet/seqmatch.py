@@ -16,8 +16,9 @@ from collections.abc import Iterator
 import numpy as np
 import torch
 
+from .blocks import check_pair_dims, col_blocks, compute_dtype, merge_topk, rows
 from .config import check_int
-from .distances import as_pair, finish_distances, rows_per_block, sq_norms, topk_smallest
+from .distances import as_pair, finish_distances, rows_per_block, sq_norms
 from .errors import ConfigError
 from .progress import progress
 from .utils import ArrayLike, get_device, to_numpy
@@ -207,34 +208,48 @@ def seqmatch_topk(
     reverse: bool = False,
     device: str | None = None,
     block_bytes: int | None = None,
+    col_block: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Whole-map SeqMatch, keeping the k best reference items per query item.
 
     Query item m is the window starting at ``q_starts[m]``; reference item j the window starting
-    at ``r_starts[j]``. Returns ``(scores [M, k], items [M, k])`` (indices into ``r_starts``).
+    at ``r_starts[j]``. Returns ``(scores [M, k], items [M, k])`` (indices into ``r_starts``),
+    ties broken by the lower reference window start. Memory stays bounded for any map size: blocks
+    of query windows × blocks of ``col_block`` reference windows read from the (possibly
+    memory-mapped or float16) arrays, with a running top-k (:mod:`seqnet.blocks`); no
+    ``N_q × N_db`` matrix is ever formed.
     """
     dev = get_device(device)
-    q, r = as_pair(query, ref, dev)
-    check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
+    nq, nr, _ = check_pair_dims(query, ref)
+    check_seq_len(seq_len, min(nq, nr), "seq_len")
     k = check_int("k", k, 1)
-    na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
-    q_starts = check_starts(q_starts, na, "query")
-    r_starts = check_starts(r_starts, nb, "reference")
-    r_cols = torch.as_tensor(r_starts, device=dev)
-    order = np.argsort(q_starts, kind="stable")
-    sorted_starts = q_starts[order]
-    vals = torch.zeros((len(q_starts), min(k, len(r_starts))), dtype=q.dtype, device=dev)
-    idx = torch.zeros(vals.shape, dtype=torch.long, device=dev)
-    n_blocks = -(-na // block_rows(q, r, block_bytes))
-    for a0, m in progress(full_blocks(q, r, seq_len, reverse, block_bytes), desc="SeqMatch", total=n_blocks):
-        lo, hi = np.searchsorted(sorted_starts, [a0, a0 + m.shape[0]])
-        sel = order[lo:hi]
-        if sel.size == 0:
+    na, nb = nq - seq_len + 1, nr - seq_len + 1
+    q_starts, r_starts = check_starts(q_starts, na, "query"), check_starts(r_starts, nb, "reference")
+    dtype = compute_dtype(query, ref)
+    q_order, r_order = np.argsort(q_starts, kind="stable"), np.argsort(r_starts, kind="stable")
+    q_sorted, r_sorted = q_starts[q_order], r_starts[r_order]
+    vals = torch.zeros((len(q_starts), min(k, len(r_starts))), dtype=dtype)
+    idx = torch.zeros(vals.shape, dtype=torch.long)
+    cols = col_blocks(nb, col_block)
+    width = max(c1 - c0 for c0, c1 in cols) + seq_len - 1
+    step = rows_per_block(2 * width * (8 if dtype == torch.float64 else 4), block_bytes)
+    ref_all = rows(ref, 0, nr, dev, dtype) if len(cols) == 1 else None  # a map that fits one block: read once
+    row_ranges = [(a, min(na, a + step)) for a in range(0, na, step)]
+    for a0, a1 in progress(row_ranges, desc="SeqMatch"):
+        lo, hi = np.searchsorted(q_sorted, [a0, a1])
+        if lo == hi:
             continue
-        local = torch.as_tensor(q_starts[sel] - a0, device=dev)
-        v, i = topk_smallest(m[local][:, r_cols], k)
-        sel_t = torch.as_tensor(sel, device=dev)
-        vals[sel_t], idx[sel_t] = v, i
+        qf = rows(query, a0, a1 + seq_len - 1, dev, dtype)
+        local_q = torch.as_tensor(q_sorted[lo:hi] - a0, device=dev)
+        best = None
+        for c0, c1 in cols:
+            rf = ref_all if ref_all is not None else rows(ref, c0, c1 + seq_len - 1, dev, dtype)
+            j0, j1 = np.searchsorted(r_sorted, [c0, c1])
+            m = next(full_blocks(qf, rf, seq_len, reverse, block_bytes=2**62))[1]  # [a1 - a0, c1 - c0]
+            scores = m[local_q][:, torch.as_tensor(r_sorted[j0:j1] - c0, device=dev)]
+            best = merge_topk(best, scores, torch.as_tensor(r_order[j0:j1], device=dev), k)
+        sel = torch.as_tensor(q_order[lo:hi])
+        vals[sel], idx[sel] = best[0].cpu(), best[1].cpu()
     return to_numpy(vals), to_numpy(idx)
 
 
