@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from seqnet.distances import knn
 from seqnet.errors import ConfigError
 from seqnet.hvpr import hvpr, rerank
-from seqnet.seqmatch import seqmatch, seqmatch_topk, window_scores
+from seqnet.seqmatch import seqmatch, seqmatch_topk
+from seqnet.window_pairs import pick_strategy, window_scores
 
 
 def naive_pair(q, r, a, b, L, reverse=False):
@@ -320,3 +321,27 @@ def test_topk_ties_prefer_lower_start():
     r = np.zeros((10, 2))  # every window scores 0: ties everywhere
     _, items = seqmatch_topk(q, r, 2, 3, np.arange(3), np.arange(9), device="cpu", col_block=2)
     assert items.tolist() == [[0, 1, 2]] * 3
+
+
+@pytest.mark.parametrize("strategy", ["gather", "rows", "auto"])
+@pytest.mark.parametrize("reverse", [False, True])
+@pytest.mark.parametrize("block_bytes", [8, None])
+def test_pair_strategies_vs_loop(rng, strategy, reverse, block_bytes):
+    """Both ways of scoring candidate pairs equal the naive per-pair sum (shuffled query order, -1 slots)."""
+    q, r = rng.standard_normal((25, 5)), rng.standard_normal((30, 5))
+    L = 4
+    q_starts = torch.as_tensor(rng.permutation(22)[:15])
+    cand = torch.as_tensor(rng.integers(-1, 27, size=(15, 6)))
+    got = window_scores(torch.from_numpy(q), torch.from_numpy(r), L, q_starts, cand, reverse, block_bytes, strategy)
+    for m in range(15):
+        for j in range(6):
+            b = int(cand[m, j])
+            want = np.inf if b < 0 else naive_pair(q, r, int(q_starts[m]), b, L, reverse)
+            assert got[m, j].item() == pytest.approx(want, rel=1e-9, abs=1e-9)
+    with pytest.raises(ConfigError, match="re-ranking strategy"):
+        window_scores(torch.from_numpy(q), torch.from_numpy(r), L, q_starts, cand, strategy="magic")
+
+
+def test_pick_strategy_by_cost():
+    assert pick_strategy(n_queries=800, n_candidates=20, seq_len=5, n_ref=800) == "rows"
+    assert pick_strategy(n_queries=1, n_candidates=20, seq_len=5, n_ref=1_000_000) == "gather"

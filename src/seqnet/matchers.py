@@ -21,7 +21,8 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from .seqmatch import seqmatch_topk, window_scores
+from .seqmatch import seqmatch_topk
+from .window_pairs import window_scores
 
 
 @dataclasses.dataclass(frozen=True)

@@ -22,6 +22,7 @@ from .distances import as_pair, finish_distances, rows_per_block, sq_norms
 from .errors import ConfigError
 from .progress import progress
 from .utils import ArrayLike, get_device, to_numpy
+from .window_pairs import window_scores
 from .windows import check_seq_len
 
 
@@ -156,45 +157,6 @@ def shifted_sum(dist: torch.Tensor, s: int, e: int, cols: list[int], nb: int, ou
     for t in range(2, len(cols)):
         out.add_(dist[s + t : e + t, cols[t] : cols[t] + nb])
     return out
-
-
-def window_scores(
-    q: torch.Tensor,
-    r: torch.Tensor,
-    seq_len: int,
-    q_starts: torch.Tensor,
-    cand: torch.Tensor,
-    reverse: bool = False,
-    block_bytes: int | None = None,
-) -> torch.Tensor:
-    """SeqMatch scores of given window pairs: query windows ``q_starts [M]`` vs ``cand [M, K]``.
-
-    Returns ``[M, K]``; candidates equal to -1 score ``inf``. Validates the index ranges.
-    """
-    nb = r.shape[0] - seq_len + 1
-    cand = cand.long()
-    q_starts = q_starts.long()
-    if cand.ndim != 2 or q_starts.ndim != 1 or cand.shape[0] != q_starts.shape[0]:
-        raise ConfigError(
-            f"window pairs need query starts [M] and candidates [M, K], got {tuple(q_starts.shape)} "
-            f"and {tuple(cand.shape)}"
-        )
-    if cand.numel() and (cand.min() < -1 or cand.max() >= nb):
-        raise ConfigError(f"candidate window starts must lie in 0..{nb - 1} (or -1 for none)")
-    if q_starts.numel() and (q_starts.min() < 0 or q_starts.max() > q.shape[0] - seq_len):
-        raise ConfigError(f"query window starts must lie in 0..{q.shape[0] - seq_len}")
-    m, k = cand.shape
-    out = torch.zeros((m, k), dtype=q.dtype, device=q.device)
-    rows = rows_per_block(max(1, k) * q.shape[1] * q.element_size() * 2, block_bytes)
-    missing = cand < 0
-    safe = cand.clamp_min(0)
-    for s in range(0, m, rows):
-        qs, cs = q_starts[s : s + rows], safe[s : s + rows]
-        for t in range(seq_len):
-            rt = seq_len - 1 - t if reverse else t
-            diff = r[cs + rt] - q[qs + t][:, None, :]
-            out[s : s + rows] += diff.norm(dim=-1)
-    return out.masked_fill_(missing, float("inf"))
 
 
 @torch.no_grad()
