@@ -1,0 +1,64 @@
+"""Confidence of a localisation and the precision–recall curve it gives.
+
+A robot must decide whether to trust its top-1 match. The *ratio confidence* of a query compares
+the score of its best reference with the best score among the retrieved references farther than
+the localisation radius from that best one (a second, different place):
+``confidence = 1 − s_best / s_other`` in [0, 1] (lower scores are better; 1 when no other place is
+among the retrieved, 0 when the other place scores as well). Thresholding it trades recall for
+precision: :func:`precision_recall` gives the curve over all thresholds (top-1 correctness, recall
+relative to the queries that have a correct reference), :func:`pr_summary` its area (average
+precision) and the recall at 100 % precision.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def ratio_confidence(scores: np.ndarray, ranked: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndarray:
+    """``[M]`` confidence of each query's top-1 from its ranked ``scores [M, K]`` / items ``ranked [M, K]``.
+
+    ``r_pos [R, P]`` are the reference item positions; items within ``radius`` of the top-1 count as
+    the same place. Non-finite scores (not scored, e.g. beyond an HVPR shortlist) are ignored.
+    """
+    scores, ranked = np.asarray(scores, dtype=np.float64), np.asarray(ranked, dtype=np.int64)
+    m = len(ranked)
+    if ranked.shape[1] == 0:
+        return np.zeros(m)
+    pos = np.asarray(r_pos, dtype=np.float64)
+    pos = pos[:, None] if pos.ndim == 1 else pos
+    top = pos[ranked[:, 0].clip(0)]  # [M, P]
+    far = np.linalg.norm(pos[ranked.clip(0)] - top[:, None, :], axis=-1) > radius  # [M, K]
+    other = np.where(far & np.isfinite(scores) & (ranked >= 0), scores, np.inf).min(axis=1)
+    best = scores[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        conf = 1.0 - best / other
+    conf = np.where(np.isinf(other), 1.0, conf)
+    conf = np.where(other <= 0, 0.0, conf)  # a perfect other place: no confidence
+    return np.clip(np.nan_to_num(conf, nan=0.0), 0.0, 1.0)
+
+
+def precision_recall(confidence: np.ndarray, correct: np.ndarray,
+                     has_positive: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(precision [T], recall [T], thresholds [T])`` of accepting the queries with confidence ≥ threshold.
+
+    ``correct [M]``: the top-1 is a correct reference; ``has_positive [M]``: the query has one (the
+    recall denominator). Queries without a correct reference count as false positives when accepted.
+    Thresholds are the distinct confidences, descending; ties are accepted together.
+    """
+    conf = np.asarray(confidence, dtype=np.float64)
+    order = np.argsort(-conf, kind="stable")
+    tp = np.cumsum(np.asarray(correct, bool)[order])
+    n = np.arange(1, len(conf) + 1)
+    last = np.r_[np.flatnonzero(np.diff(conf[order]) != 0), len(conf) - 1]  # last index of each tie group
+    total = max(int(np.asarray(has_positive, bool).sum()), 1)
+    return tp[last] / n[last], tp[last] / total, conf[order][last]
+
+
+def pr_summary(precision: np.ndarray, recall: np.ndarray) -> dict[str, float]:
+    """Area under the PR curve (average precision: Σ precision·Δrecall) and the recall at 100 % precision."""
+    if len(recall) == 0:
+        return {"auc": float("nan"), "recall@100p": float("nan")}
+    delta = np.diff(np.r_[0.0, recall])
+    perfect = recall[precision >= 1.0]
+    return {"auc": float(np.sum(precision * delta)), "recall@100p": float(perfect.max()) if perfect.size else 0.0}
