@@ -4,14 +4,15 @@ seqnet format (``RUN/last.pt``, ``RUN/best.pt``), a ``torch.save`` dict::
 
     {"format": "seqnet-checkpoint/1", "model": {"in_dims", "out_dims", "seq_len", "w"},
      "state_dict": {"conv.weight": [D_out, D, w], "conv.bias": [D_out]}, "epoch", "best_score",
-     "metrics", "config", "train_state": {optimiser, scheduler, RNG states, ...}}
+     "best_epoch", "metrics", "config" (TrainConfig.to_dict()), "dataset_path",
+     "train_state" (last.pt only): {optimiser, scheduler, generator state, negative cache, ...}}
 
 Original format (``checkpoint.pth.tar`` / ``model_best.pth.tar``): ``{"state_dict":
 {"pool.0.conv.weight", "pool.0.conv.bias"}, "epoch", "best_score", ...}``, with the run's flags
 (``seqL``, ``w``, ``outDims``, ``pooling``) in ``checkpoints/flags.json`` beside it.
 
-Checkpoints are read with ``torch.load(weights_only=True)``: they can hold tensors and plain data
-only, never code.
+Checkpoints are read with :func:`seqnet.files.load_torch_file` (``torch.load(weights_only=True)``):
+they can hold tensors and plain data only, never code.
 """
 
 from __future__ import annotations

@@ -134,9 +134,10 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     first, m = run.epoch + 1, run.model
     resumed = f"resuming {run.out_dir} after epoch {run.epoch}: " if run.epoch else ""
     val = f"validating on {val_ds.name}" if val_ds is not None else "no validation"
-    logger.info("%straining %s (w=%d, D %d->%d) on %d queries (%d without a positive or a negative left out), "
-                "%d reference windows, epochs %d..%d, device %s, %s", resumed, _name(m), m.w, m.in_dims, m.out_dims,
-                src.n_queries, src.left_out, len(src.r_idx), first, run.conf.epochs, device, val)
+    left = f" ({src.left_out} more without a positive or a negative left out)" if src.left_out else ""
+    logger.info("%straining %s (w=%d, D %d->%d) on %d queries%s, %d reference windows, epochs %d..%d, device %s, %s",
+                resumed, _name(m), m.w, m.in_dims, m.out_dims, src.n_queries, left, len(src.r_idx), first,
+                run.conf.epochs, device, val)
     t0 = time.perf_counter()
     for epoch in range(first, run.conf.epochs + 1):
         t_epoch = time.perf_counter()
@@ -148,7 +149,8 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
             else "no validation (best.pt = last.pt)")
     early = run.should_stop and run.epoch < run.conf.epochs
     stop = f"; early stop: no better val R@1 for {run.bad_epochs} epochs" if early else ""
-    logger.info("trained %s for %d epochs (to epoch %d) in %.1f s; %s%s", _name(m), run.epoch - first + 1,
+    n = run.epoch - first + 1
+    logger.info("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
                 run.epoch, time.perf_counter() - t0, best, stop)
 
 
