@@ -29,7 +29,6 @@ from ..sequence_descriptors import SeqNet
 from ..utils import logger
 
 CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
-ROLES = ("seqnet", "s1")  # SeqNet.role: "s1" when seq_len == w == 1, else "seqnet"
 
 
 def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:

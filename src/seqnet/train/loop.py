@@ -202,7 +202,7 @@ def main(conf: TrainConfig | None, dataset: str | Path | None, out: str | Path |
     (or continue the run ``resume``: a directory or its ``last.pt``; ``out`` defaults to it, the
     dataset to the one the run recorded). Returns the run directory."""
     if out is None and resume is not None:
-        out = resume if Path(resume).is_dir() or not Path(resume).suffix else Path(resume).parent
+        out = Path(resume).parent if Path(resume).is_file() else resume
     if out is None:
         raise ConfigError("no run directory: give --out RUN (or --resume RUN)")
     path = dataset if dataset is not None or resume is None else run_dataset_path(resume)
