@@ -157,3 +157,17 @@ def test_cli_rejects_negative_momentum_weight_decay_and_seed_at_parse_time(tmp_p
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("seqnet train: error: argument") and flag in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_runs_written_before_train_config_still_resume(small, tmp_path):
+    train(small, FAST.replace(epochs=1), tmp_path / "r", dataset_path="data/old")
+    path = tmp_path / "r" / "last.pt"
+    old = read_checkpoint(path)
+    old["config"] = {**old["config"], "dataset_path": old.pop("dataset_path")}  # the dict era kept it there
+    old.pop("best_epoch")
+    old["train_state"]["rng"] = {**old["train_state"]["rng"], "python": [3, [0] * 3, None], "torch": torch.zeros(1)}
+    torch.save(old, path)
+    conf = resume_config(tmp_path / "r", epochs=2)
+    assert conf.epochs == 2 and conf.seq_len == 3
+    run = train(small, conf, tmp_path / "r", resume=True)
+    assert run.epoch == 2 and run.dataset_path == "data/old"
