@@ -4,7 +4,7 @@ Both train the same model on the same data (the train split of a synthetic datas
 epoch structure (shuffled queries; mining descriptors recomputed every ``cache_refresh`` queries;
 batches of 16 queries, 10 hard negatives each among ``n_neg_sample`` sampled):
 
-* ``batched`` — :func:`seqnet.train.train_epoch`: the triplets of all queries of a cache period
+* ``batched`` — :func:`seqnet.train.loop.train_epoch`: the triplets of all queries of a cache period
   mined at once (``[S, R]`` distance matrix and masks), then per batch one forward pass (SeqNet in
   its one-GEMM form) and one triplet loss over all the batch's triplets;
 * ``loop`` — the original seqNet/NetVLAD way: the mining cache built in batches of 24 windows, then
@@ -43,8 +43,10 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from seqnet.data.synth import make_synthetic
-from seqnet.train.loop import Run, open_run, resolve_train_config, train_epoch, train_step
+from seqnet.train import Run, TrainConfig
+from seqnet.train.loop import train_epoch, train_step
 from seqnet.train.mining import mine_queries, triplet_source
+from seqnet.train.run import open_run
 
 TARGET = 10.0
 
@@ -70,8 +72,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 class LoopTrainer:
     """The original code's training step (datasets.py ``__getitem__`` + train.py loop), on a Run."""
 
-    def __init__(self, run: Run, src, cfg: dict, exhaustive: bool = False, forward: str = "conv") -> None:
-        self.run, self.src, self.cfg, self.exhaustive = run, src, cfg, exhaustive
+    def __init__(self, run: Run, src, conf: TrainConfig, exhaustive: bool = False, forward: str = "conv") -> None:
+        self.run, self.src, self.cfg, self.exhaustive = run, src, conf.to_dict(), exhaustive
+        cfg = self.cfg
         self.forward = run.model.forward_conv if forward == "conv" else run.model
         q_pos, r_pos = src.q_pos.numpy(), src.r_pos.numpy()
         tree = cKDTree(r_pos)
@@ -148,24 +151,23 @@ class LoopTrainer:
 
 def setup(args: argparse.Namespace, out_dir: Path):
     ds = make_synthetic(places=args.places, dim=args.dim, seed=args.seed)
-    cfg = resolve_train_config({"seq_len": args.seq_len, "w": args.w, "n_neg_sample": args.n_neg_sample,
-                                "device": "cpu", "seed": args.seed}, ds)
-    src = triplet_source(ds.split("train"), cfg, torch.device("cpu"))
-    torch.manual_seed(args.seed)
-    return cfg, src, open_run(cfg, src.n_queries, ds.query.dim, torch.device("cpu"), out_dir)
+    conf = TrainConfig(seq_len=args.seq_len, w=args.w, n_neg_sample=args.n_neg_sample, device="cpu",
+                       seed=args.seed).resolve(ds)
+    src = triplet_source(ds.split("train"), conf.seq_len, conf.window, conf.mining, torch.device("cpu"))
+    return conf, src, open_run(conf, src.n_queries, ds.query.dim, torch.device("cpu"), out_dir)
 
 
 def same_step_check(args: argparse.Namespace, tmp: Path) -> tuple[float, float]:
     """Loss of the first batch by both implementations, from the same model (exhaustive sampling)."""
-    cfg, src, run = setup(args, tmp / "check")
-    rows = torch.arange(min(cfg["batch_size"], src.n_queries))
-    loop = LoopTrainer(run, src, cfg, exhaustive=True)
-    run.cfg["n_neg_sample"] = len(src.r_idx)  # every negative, as the exhaustive loop
+    conf, src, run = setup(args, tmp / "check")
+    rows = torch.arange(min(conf.batch_size, src.n_queries))
+    loop = LoopTrainer(run, src, conf, exhaustive=True)
+    mining = conf.mining.replace(n_neg_sample=len(src.r_idx))  # every negative, as the exhaustive loop
     q_feat, r_feat = loop.cache(rows.numpy())
     state = {k: v.clone() for k, v in run.model.state_dict().items()}
     loop_loss = loop.step(rows.numpy(), q_feat, r_feat)
     run.model.load_state_dict(state)
-    mined = mine_queries(src, rows, torch.from_numpy(q_feat), torch.from_numpy(r_feat), run.cfg, run.generator,
+    mined = mine_queries(src, rows, torch.from_numpy(q_feat), torch.from_numpy(r_feat), mining, run.generator,
                          run.neg_cache)
     batched = train_step(run, src, rows, mined)["loss"]
     run.close()
@@ -182,8 +184,8 @@ def time_epochs(args: argparse.Namespace, tmp: Path) -> dict[str, dict[str, floa
     cpu: dict[str, list[float]] = {"batched": [], "loop": []}
     for rep in range(args.repeats):
         for name in ("batched", "loop"):
-            cfg, src, run = setup(args, tmp / f"{name}{rep}")
-            loop = LoopTrainer(run, src, cfg, forward=args.loop_forward) if name == "loop" else None
+            conf, src, run = setup(args, tmp / f"{name}{rep}")
+            loop = LoopTrainer(run, src, conf, forward=args.loop_forward) if name == "loop" else None
             t0, c0 = time.perf_counter(), time.process_time()
             loop.epoch() if loop is not None else train_epoch(run, src, 1)
             wall[name].append(time.perf_counter() - t0)

@@ -11,7 +11,7 @@ import torch
 from seqnet.cli import main as cli_main
 from seqnet.errors import CheckpointError
 from seqnet.sequence_descriptors import SeqNet
-from seqnet.train.checkpoints import find_flags, load_model, model_role, read_checkpoint, save_checkpoint
+from seqnet.train.checkpoints import find_flags, load_model, read_checkpoint, save_checkpoint
 
 
 def _reference_descriptors(weight: torch.Tensor, bias: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -44,7 +44,7 @@ def test_seqnet_format_round_trip(tmp_path):
     model = SeqNet(10, 7, 4, 2)
     path = save_checkpoint(tmp_path / "m.pt", model, epoch=3, best_score=0.5)
     loaded = load_model(path)
-    assert loaded.config() == model.config() and model_role(loaded) == "seqnet"
+    assert loaded.config() == model.config() and loaded.role == "seqnet"
     x = torch.randn(5, 4, 10)
     torch.testing.assert_close(loaded(x), model(x))
     assert read_checkpoint(path)["epoch"] == 3
@@ -52,9 +52,9 @@ def test_seqnet_format_round_trip(tmp_path):
 
 
 def test_model_role():
-    assert model_role(SeqNet(4, 4, 1, 1)) == "s1"
-    assert model_role(SeqNet(4, 4, 5, 1)) == "seqnet"
-    assert model_role(SeqNet(4, 4, 5, 3)) == "seqnet"
+    assert SeqNet(4, 4, 1, 1).role == "s1"
+    assert SeqNet(4, 4, 5, 1).role == "seqnet"
+    assert SeqNet(4, 4, 5, 3).role == "seqnet"
 
 
 @pytest.mark.parametrize("where", ["sibling", "parent"])
@@ -70,7 +70,7 @@ def test_original_checkpoint_gives_the_descriptors_of_its_weights(tmp_path, wher
 def test_original_s1_checkpoint_has_role_s1(tmp_path):
     path, weight, bias = _original_run(tmp_path, w=1, seq_len=5, pooling="s1+seqmatch")
     model = load_model(path)
-    assert model_role(model) == "s1"
+    assert model.role == "s1"
     x = torch.randn(4, 12)
     torch.testing.assert_close(model(x), _reference_descriptors(weight, bias, x[:, None]), rtol=1e-5, atol=1e-6)
 

@@ -8,14 +8,15 @@ import torch
 import torch.nn.functional as F
 
 from seqnet.errors import ConfigError, DatasetError
+from seqnet.train.config import MiningConfig, check_radii
 from seqnet.train.mining import (
-    check_radii,
     closest_positive,
     hardest_negatives,
     mine_batch,
     queries_with_pairs,
     radius_masks,
     sample_negatives,
+    split_windows,
     triplet_source,
 )
 
@@ -141,13 +142,30 @@ def test_queries_with_pairs_and_radii_checks():
 
 def test_triplet_source_windows_and_errors(synth_dataset):
     ds = synth_dataset.split("train")
-    cfg = {"seq_len": 5, "window": "centred", "pos_radius": 5.0, "neg_radius": 20.0}
-    src = triplet_source(ds, cfg, torch.device("cpu"))
+    conf = MiningConfig(pos_radius=5.0, neg_radius=20.0)
+    src = triplet_source(ds, 5, "centred", conf, torch.device("cpu"))
     assert src.q_idx.shape[1] == 5 and src.r_idx.shape[1] == 5
     assert torch.all(src.q_idx[:, 1:] - src.q_idx[:, :-1] == 1)
     centre = src.q_idx[:, 2].numpy()
     np.testing.assert_allclose(src.q_pos.numpy(), ds.query.positions[centre])
     with pytest.raises(DatasetError, match="pos_radius"):
-        triplet_source(ds, {**cfg, "pos_radius": 1e-9, "neg_radius": 1e9}, torch.device("cpu"))
-    with pytest.raises(DatasetError, match="full window"):
-        triplet_source(ds, {**cfg, "seq_len": 10_000}, torch.device("cpu"))
+        triplet_source(ds, 5, "centred", MiningConfig(pos_radius=1e-9, neg_radius=1e9), torch.device("cpu"))
+    with pytest.raises(DatasetError, match="train split: .*full window"):
+        triplet_source(ds, 10_000, "centred", conf, torch.device("cpu"))
+
+
+def test_split_windows_names_the_split_and_counts_left_out_queries(synth_dataset):
+    val = synth_dataset.split("val")
+    sw = split_windows(val, 3, "centred", MiningConfig(pos_radius=5.0, neg_radius=20.0), "val")
+    assert len(sw.q_idx) + sw.left_out <= len(val.query) and len(sw.q_idx) > 0
+    with pytest.raises(DatasetError, match="val split: no .* full window of seq_len=500"):
+        split_windows(val, 500, "centred", MiningConfig(pos_radius=5.0, neg_radius=20.0), "val")
+    with pytest.raises(DatasetError, match="none of .* val queries"):
+        split_windows(val, 3, "centred", MiningConfig(pos_radius=1e-9, neg_radius=1e9), "val")
+
+
+def test_mining_config_validates():
+    with pytest.raises(ConfigError, match="n_negatives"):
+        MiningConfig(pos_radius=1.0, neg_radius=2.0, n_negatives=0)
+    with pytest.raises(ConfigError, match="pos_radius <= neg_radius"):
+        MiningConfig(pos_radius=3.0, neg_radius=2.0)

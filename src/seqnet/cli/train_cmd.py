@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
+from pathlib import Path
 
-from ..train.loop import TRAIN_CONFIG_DEFAULTS, main
+from ..train.checkpoints import read_checkpoint
+from ..train.config import OPTIMIZERS, TrainConfig
+from ..train.loop import main
+from ..train.run import resume_config
 from ..utils import set_threads
-from .common import add_device, non_negative_int, positive_float, positive_int
+from ..windows import WINDOW_MODES
+from .common import add_device, non_negative_float, non_negative_int, positive_float, positive_int
 
-_D = TRAIN_CONFIG_DEFAULTS
+_D = TrainConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,57 +30,63 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--resume", metavar="RUN", help="continue the run in RUN exactly (RUN/last.pt); "
                    "only --epochs, --patience and --device may change")
     m = p.add_argument_group("model")
-    m.add_argument("--seq-len", type=positive_int, help=f"sequence length L (default {_D['seq_len']}; S_1: 1)")
-    m.add_argument("--w", type=positive_int, help=f"temporal filter width, 1 <= w <= L (default {_D['w']}; S_1: 1)")
+    m.add_argument("--seq-len", type=positive_int, help=f"sequence length L (default {_D.seq_len}; S_1: 1)")
+    m.add_argument("--w", type=positive_int, help=f"temporal filter width, 1 <= w <= L (default {_D.w}; S_1: 1)")
     m.add_argument("--out-dims", type=positive_int, help="output descriptor dimension (default: the input's)")
-    m.add_argument("--window", choices=["centred", "causal"], help="window position (default centred)")
+    m.add_argument("--window", choices=WINDOW_MODES, help=f"window position (default {_D.window})")
     o = p.add_argument_group("optimisation")
-    o.add_argument("--optimizer", choices=["sgd", "adam"], help="optimiser (default sgd)")
-    o.add_argument("--lr", type=positive_float, help=f"learning rate (default {_D['lr']:g})")
-    o.add_argument("--momentum", type=float, help=f"SGD momentum (default {_D['momentum']})")
-    o.add_argument("--weight-decay", type=float, help=f"weight decay (default {_D['weight_decay']:g})")
+    o.add_argument("--optimizer", choices=list(OPTIMIZERS), help=f"optimiser (default {_D.optimizer})")
+    o.add_argument("--lr", type=positive_float, help=f"learning rate (default {_D.lr:g})")
+    o.add_argument("--momentum", type=non_negative_float, help=f"SGD momentum (default {_D.momentum})")
+    o.add_argument("--weight-decay", type=non_negative_float, help=f"weight decay (default {_D.weight_decay:g})")
     o.add_argument("--lr-step", type=positive_int,
-                   help=f"multiply the lr by --lr-gamma every N epochs (default {_D['lr_step']})")
-    o.add_argument("--lr-gamma", type=positive_float, help=f"lr decay factor (default {_D['lr_gamma']})")
-    o.add_argument("--margin", type=positive_float, help=f"triplet margin on L2 distances (default {_D['margin']})")
-    o.add_argument("--batch-size", type=positive_int, help=f"queries per batch (default {_D['batch_size']})")
-    o.add_argument("--epochs", type=positive_int, help=f"number of epochs (default {_D['epochs']})")
+                   help=f"multiply the lr by --lr-gamma every N epochs (default {_D.lr_step})")
+    o.add_argument("--lr-gamma", type=positive_float, help=f"lr decay factor (default {_D.lr_gamma})")
+    o.add_argument("--margin", type=positive_float, help=f"triplet margin on L2 distances (default {_D.margin})")
+    o.add_argument("--batch-size", type=positive_int, help=f"queries per batch (default {_D.batch_size})")
+    o.add_argument("--epochs", type=positive_int, help=f"number of epochs (default {_D.epochs})")
     o.add_argument("--patience", type=positive_int, help="stop after N epochs without a better val R@1 (default: off)")
-    o.add_argument("--seed", type=int, help=f"random seed (default {_D['seed']})")
+    o.add_argument("--seed", type=non_negative_int, help=f"random seed (default {_D.seed})")
     t = p.add_argument_group("triplets")
     t.add_argument("--pos-radius", type=positive_float, help="positives lie within this distance (default: the "
                    "dataset's pos_radius, else its localisation radius)")
     t.add_argument("--neg-radius", type=positive_float, help="negatives lie beyond this distance (default: the "
                    "dataset's neg_radius, else 4 x the positive radius)")
-    t.add_argument("--n-negatives", type=positive_int, help=f"hard negatives per query (default {_D['n_negatives']})")
+    t.add_argument("--n-negatives", type=positive_int, help=f"hard negatives per query (default {_D.n_negatives})")
     t.add_argument("--n-neg-sample", type=positive_int,
-                   help=f"negatives sampled per query to mine from (default {_D['n_neg_sample']})")
+                   help=f"negatives sampled per query to mine from (default {_D.n_neg_sample})")
     t.add_argument("--cache-refresh", type=non_negative_int, help="recompute the mining descriptors every N queries "
-                   f"(default {_D['cache_refresh']}; 0: once per epoch)")
-    t.add_argument("--train-split", help="split to train on (default train; 'all': the whole dataset)")
-    t.add_argument("--val-split", help="split to validate on (default val; 'none': no validation, best.pt = last)")
+                   f"(default {_D.cache_refresh}; 0: once per epoch)")
+    t.add_argument("--train-split", help=f"split to train on (default {_D.train_split}; 'all': the whole dataset)")
+    t.add_argument("--val-split", help=f"split to validate on (default {_D.val_split}; 'none': no validation, "
+                   "best.pt = last)")
     add_device(p)
     p.add_argument("--threads", type=positive_int, help="CPU threads for torch (default: torch's)")
     p.set_defaults(func=run)
 
 
-_KEYS = ("seq_len", "w", "out_dims", "window", "optimizer", "lr", "momentum", "weight_decay", "lr_step", "lr_gamma",
-         "margin", "batch_size", "epochs", "patience", "seed", "pos_radius", "neg_radius", "n_negatives",
-         "n_neg_sample", "cache_refresh", "train_split", "val_split")
+_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig) if f.name != "device")  # one flag each
 
 
 def run(args: argparse.Namespace) -> int:
     set_threads(args.threads)
-    config = {k: getattr(args, k) for k in _KEYS if getattr(args, k) is not None}
+    changes = {k: getattr(args, k) for k in _KEYS}
     if args.device != "auto" or not args.resume:
-        config["device"] = args.device
-    result = main({"dataset": args.dataset, "out": args.out, "resume": args.resume, "config": config})
-    role = "S_1" if result.model.seq_len == 1 and result.model.w == 1 else f"S_{result.model.seq_len}"
-    best = "n/a (no validation)" if math.isnan(result.best_score) else f"{result.best_score:.4f}"
-    print(f"trained {role} (w={result.model.w}, D={result.model.in_dims}->{result.model.out_dims}) for "
-          f"{result.epoch} epochs; best val R@1 {best} at epoch {result.best_epoch}")
-    print(f"checkpoints: {result.out_dir / 'best.pt'} (best), {result.out_dir / 'last.pt'} (last)")
-    flag = "--rerank-model" if role == "S_1" else f"--seq-len {result.model.seq_len} --shortlist-model"
-    data = result.cfg.get("dataset_path", "DIR")
-    print(f"evaluate: seqnet eval --dataset {data} {flag} {result.out_dir / 'best.pt'}")
+        changes["device"] = args.device
+    conf = resume_config(args.resume, **changes) if args.resume else TrainConfig().replace(**changes)
+    run_dir = main(conf, args.dataset, args.out, args.resume)
+    _print_summary(run_dir)
     return 0
+
+
+def _print_summary(run_dir: Path) -> None:
+    last = read_checkpoint(run_dir / "last.pt")
+    model, best = last["model"], float(last["best_score"])
+    role = "S_1" if model["seq_len"] == 1 and model["w"] == 1 else f"S_{model['seq_len']}"
+    score = "n/a (no validation)" if math.isnan(best) else f"{best:.4f}"
+    best_epoch = last.get("best_epoch", last["train_state"]["best_epoch"])
+    print(f"trained {role} (w={model['w']}, D={model['in_dims']}->{model['out_dims']}) for {last['epoch']} epochs; "
+          f"best val R@1 {score} at epoch {best_epoch}")
+    print(f"checkpoints: {run_dir / 'best.pt'} (best), {run_dir / 'last.pt'} (last)")
+    flag = "--rerank-model" if role == "S_1" else f"--seq-len {model['seq_len']} --shortlist-model"
+    print(f"evaluate: seqnet eval --dataset {last.get('dataset_path') or 'DIR'} {flag} {run_dir / 'best.pt'}")

@@ -1,1 +1,13 @@
-"""seqnet.train."""
+"""Training SeqNet with a triplet loss (see docs/training.md).
+
+Modules: :mod:`~seqnet.train.config` (settings), :mod:`~seqnet.train.mining` (triplets),
+:mod:`~seqnet.train.losses`, :mod:`~seqnet.train.run` (run state and files),
+:mod:`~seqnet.train.checkpoints` (model files), :mod:`~seqnet.train.loop` (epochs, :func:`train`,
+the stage :func:`main`).
+"""
+
+from .config import TrainConfig
+from .loop import main, train
+from .run import Run
+
+__all__ = ["Run", "TrainConfig", "main", "train"]

@@ -4,39 +4,31 @@ seqnet format (``RUN/last.pt``, ``RUN/best.pt``), a ``torch.save`` dict::
 
     {"format": "seqnet-checkpoint/1", "model": {"in_dims", "out_dims", "seq_len", "w"},
      "state_dict": {"conv.weight": [D_out, D, w], "conv.bias": [D_out]}, "epoch", "best_score",
-     "metrics", "config", "train_state": {optimiser, scheduler, RNG states, ...}}
+     "best_epoch", "metrics", "config" (TrainConfig.to_dict()), "dataset_path",
+     "train_state" (last.pt only): {optimiser, scheduler, generator state, negative cache, ...}}
 
 Original format (``checkpoint.pth.tar`` / ``model_best.pth.tar``): ``{"state_dict":
 {"pool.0.conv.weight", "pool.0.conv.bias"}, "epoch", "best_score", ...}``, with the run's flags
 (``seqL``, ``w``, ``outDims``, ``pooling``) in ``checkpoints/flags.json`` beside it.
 
-Checkpoints are read with ``torch.load(weights_only=True)``: they can hold tensors and plain data
-only, never code.
+Checkpoints are read with :func:`seqnet.files.load_torch_file` (``torch.load(weights_only=True)``):
+they can hold tensors and plain data only, never code.
 """
 
 from __future__ import annotations
 
 import json
-import random
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
-from ..errors import CheckpointError, ConfigError
-from ..files import atomic_path
+from ..errors import CheckpointError
+from ..files import atomic_path, load_torch_file
 from ..sequence_descriptors import SeqNet
 from ..utils import logger
 
 CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
-ROLES = ("seqnet", "s1")
-
-
-def model_role(model: SeqNet) -> str:
-    """``"s1"`` for an S_1 model (``seq_len == w == 1``), else ``"seqnet"`` (S_L)."""
-    return model.role
 
 
 def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
@@ -49,29 +41,13 @@ def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
     return path
 
 
-def _numpy_globals() -> list[Any]:
-    """numpy objects allowed in checkpoints (the original code stored numpy scalars)."""
-    core = np._core if hasattr(np, "_core") else np.core  # type: ignore[attr-defined]
-    out: list[Any] = [np.dtype, *(type(np.dtype(t)) for t in (np.float64, np.float32, np.int64, np.int32, np.bool_))]
-    for name in ("scalar", "_reconstruct"):
-        fn = getattr(core.multiarray, name)
-        out += [fn, (fn, f"numpy.core.multiarray.{name}"), (fn, f"numpy._core.multiarray.{name}")]
-    return out + [np.ndarray]
-
-
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load a checkpoint file as a dict; :class:`CheckpointError` if missing or unreadable."""
+    """Load a checkpoint file as a dict (:func:`seqnet.files.load_torch_file`); :class:`CheckpointError`
+    if missing, unreadable or not a checkpoint."""
     path = Path(path)
-    if not path.is_file():
-        hint = " (it is a directory; pass RUN/best.pt)" if path.is_dir() else ""
-        raise CheckpointError(f"checkpoint not found: {path}{hint}")
-    try:
-        with torch.serialization.safe_globals(_numpy_globals()):
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, zipfile errors ...
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise CheckpointError(f"cannot read checkpoint {path}: corrupted or not a torch checkpoint ({first[:200]}); "
-                              "hint: re-copy the file or use RUN/last.pt / RUN/best.pt") from None
+    if path.is_dir():
+        raise CheckpointError(f"checkpoint not found: {path} (it is a directory; pass RUN/best.pt)")
+    payload = load_torch_file(path, "checkpoint")
     if not isinstance(payload, dict) or "state_dict" not in payload:
         got = f"dict with keys {list(payload)[:8]}" if isinstance(payload, dict) else type(payload).__name__
         raise CheckpointError(f"{path} is not a SeqNet checkpoint: expected a dict with a 'state_dict', got {got}")
@@ -164,45 +140,3 @@ def _from_original(payload: dict[str, Any], path: Path, seq_len: int | None) -> 
     cfg = {"in_dims": in_dims, "out_dims": out_dims, "seq_len": int(stored if stored is not None else seq_len), "w": w}
     logger.info("loaded original SeqNet checkpoint %s (epoch %s): %s", path, payload.get("epoch"), cfg)
     return _build(cfg, {"conv.weight": weight, "conv.bias": bias}, path)
-
-
-def read_resume(
-    src: Path, overrides: Mapping[str, Any] | None, overridable: tuple[str, ...]
-) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The configuration and checkpoint of a run to resume (``src``: run directory or its ``last.pt``).
-
-    ``overrides`` may only change the keys in ``overridable``; others must equal the run's.
-    """
-    payload = read_checkpoint(src / "last.pt" if src.is_dir() else src)
-    if "train_state" not in payload or "config" not in payload:
-        raise CheckpointError(f"{src} holds no training state to resume (pass a run directory or its last.pt)")
-    cfg = dict(payload["config"])
-    for key, value in (overrides or {}).items():
-        if value is None or value == cfg.get(key):
-            continue
-        if key not in overridable:
-            raise ConfigError(f"cannot change {key!r} when resuming (the run has {cfg.get(key)!r}, got {value!r}); "
-                              f"only {', '.join(overridable)} may change")
-        cfg[key] = value
-    return cfg, payload
-
-
-def capture_rng(generator: torch.Generator) -> dict[str, Any]:
-    """Every random state a training run depends on (python, numpy, torch, CUDA, its generator)."""
-    kind, keys, pos, has_gauss, gauss = np.random.get_state()
-    return {"python": random.getstate(), "generator": generator.get_state(), "torch": torch.get_rng_state(),
-            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
-            "numpy": {"kind": kind, "keys": torch.from_numpy(np.asarray(keys, dtype=np.int64)), "pos": int(pos),
-                      "has_gauss": int(has_gauss), "gauss": float(gauss)}}
-
-
-def restore_rng(state: dict[str, Any], generator: torch.Generator) -> None:
-    """Restore what :func:`capture_rng` captured."""
-    py = state["python"]
-    random.setstate((py[0], tuple(py[1]), py[2]))
-    generator.set_state(state["generator"])
-    torch.set_rng_state(state["torch"])
-    if state.get("cuda") and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(state["cuda"])
-    n = state["numpy"]
-    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["gauss"]))

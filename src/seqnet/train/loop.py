@@ -1,141 +1,49 @@
 """Training SeqNet (S_L, and S_1 with ``seq_len = w = 1``) with a triplet loss and hard negatives.
 
 Queries are windows of the query traverse of the train split, positives/negatives windows of its
-reference traverse (see :mod:`seqnet.mining`). Each epoch visits every query with a positive, in
-random order; every ``cache_refresh`` queries the descriptors used for mining are recomputed by the
-current model. After each epoch the model is validated (Recall@1/5/10/20 on the val split) and
-``RUN/last.pt`` / ``RUN/best.pt`` (best val R@1) are written atomically, with everything needed
-to resume exactly; ``RUN/config.json`` holds the resolved configuration and ``RUN/`` the
-TensorBoard logs. Defaults: :data:`TRAIN_CONFIG_DEFAULTS` (the paper's).
+reference traverse (see :mod:`seqnet.train.mining`). Each epoch visits every query with a positive
+and a negative, in random order; every ``cache_refresh`` queries the descriptors used for mining are
+recomputed by the current model. After each epoch the model is validated (Recall@1/5/10/20 on the
+val split) and the run's files are written (:mod:`seqnet.train.run`). Settings:
+:class:`~seqnet.train.config.TrainConfig` (the paper's defaults).
+
+Logging: one INFO line when training starts and one when it ends; one DEBUG line per epoch
+(``seqnet -v``); one progress bar per epoch (:func:`seqnet.progress.progress`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import random
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
-import numpy as np
 import torch
-from tqdm.auto import tqdm
 
-from .. import __version__
-from ..config_legacy import TRAIN_DEFAULTS, merge
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
-from ..errors import CheckpointError, ConfigError, DatasetError
-from ..files import write_json_atomic
+from ..errors import ConfigError, DatasetError
+from ..progress import progress
 from ..sequence_descriptors import SeqNet
 from ..utils import get_device, logger
-from ..windows import WINDOW_MODES, check_seq_len, gather_windows
-from .checkpoints import capture_rng, model_role, read_checkpoint, read_resume, restore_rng, save_checkpoint
+from ..windows import gather_windows
+from .config import TrainConfig
 from .losses import triplet_loss
-from .mining import Mined, TripletSource, check_radii, compute_cache, mine_queries, triplet_source
+from .mining import Mined, TripletSource, compute_cache, mine_queries, split_windows, triplet_source
+from .run import (
+    Run,
+    check_run_dir,
+    finish_epoch,
+    open_run,
+    read_resume,
+    remove_temp_files,
+    restored_config,
+    run_dataset_path,
+    stored_dataset_path,
+)
 
-# Keys beyond seqnet.config.TRAIN_DEFAULTS (belong there): the splits used for training / validation.
-TRAIN_CONFIG_DEFAULTS = TRAIN_DEFAULTS  # the single source of training defaults (seqnet.config)
-RESUME_OVERRIDABLE = ("epochs", "patience", "device")
-VAL_KS = [1, 5, 10, 20]
-
-
-def resolve_train_config(overrides: Mapping[str, Any] | None, ds: Dataset) -> dict[str, Any]:
-    """Merge ``overrides`` onto :data:`TRAIN_CONFIG_DEFAULTS`, fill dataset-dependent defaults
-    (out_dims; radii from ``dataset.extra`` else the localisation radius and 4×) and validate."""
-    cfg = merge(TRAIN_CONFIG_DEFAULTS, overrides)
-    cfg["seq_len"] = check_seq_len(cfg["seq_len"])
-    if not 1 <= int(cfg["w"]) <= cfg["seq_len"]:
-        raise ConfigError(f"w must be in 1..seq_len={cfg['seq_len']}, got w={cfg['w']} (S_1: --seq-len 1 --w 1)")
-    cfg["out_dims"] = int(cfg["out_dims"] or ds.query.dim)
-    cfg["optimizer"] = str(cfg["optimizer"]).lower()
-    if cfg["optimizer"] not in ("sgd", "adam"):
-        raise ConfigError(f"optimizer {cfg['optimizer']!r} is not one of ('sgd', 'adam')")
-    if cfg["window"] not in WINDOW_MODES:
-        raise ConfigError(f"window {cfg['window']!r} is not one of {WINDOW_MODES}")
-    for key in ("lr", "margin", "lr_gamma"):
-        if not float(cfg[key]) > 0:
-            raise ConfigError(f"{key} must be > 0, got {cfg[key]}")
-    for key in ("batch_size", "epochs", "n_negatives", "n_neg_sample", "lr_step", "out_dims"):
-        if int(cfg[key]) < 1:
-            raise ConfigError(f"{key} must be an integer >= 1, got {cfg[key]}")
-    if int(cfg["cache_refresh"]) < 0 or (cfg["patience"] is not None and int(cfg["patience"]) < 1):
-        raise ConfigError(f"need cache_refresh >= 0 (0: once per epoch) and patience >= 1 (or None), "
-                          f"got {cfg['cache_refresh']} and {cfg['patience']}")
-    pos = cfg["pos_radius"] or ds.extra.get("pos_radius") or ds.radius
-    neg = cfg["neg_radius"] or ds.extra.get("neg_radius") or 4 * float(pos)
-    cfg["pos_radius"], cfg["neg_radius"] = check_radii(pos, neg)
-    return cfg
-
-
-@dataclasses.dataclass
-class Run:
-    """A training run: model, optimiser, scheduler, RNG, negative cache, progress and logs."""
-
-    cfg: dict[str, Any]
-    model: SeqNet
-    optimizer: torch.optim.Optimizer
-    scheduler: Any
-    generator: torch.Generator
-    neg_cache: torch.Tensor  # [M, K] previous hard negatives per training query (-1 = none)
-    out_dir: Path
-    writer: Any = None
-    epoch: int = 0
-    best_score: float = -math.inf
-    best_epoch: int = 0
-    bad_epochs: int = 0
-    history: list[dict[str, Any]] = dataclasses.field(default_factory=list)
-
-    def train_state(self) -> dict[str, Any]:
-        return {"optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(),
-                "rng": capture_rng(self.generator), "neg_cache": self.neg_cache.clone(), "best_epoch": self.best_epoch,
-                "bad_epochs": self.bad_epochs, "history": self.history}
-
-    def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-
-
-def open_run(cfg: dict[str, Any], n_queries: int, in_dims: int, device: torch.device, out_dir: Path,
-             payload: Mapping[str, Any] | None = None) -> Run:
-    """A fresh run (model initialised from the seeded global RNG), or the one stored in ``payload``."""
-    from torch.utils.tensorboard import SummaryWriter
-
-    model = SeqNet(in_dims, cfg["out_dims"], cfg["seq_len"], cfg["w"]).to(device)
-    params = [p for p in model.parameters() if p.requires_grad]
-    if cfg["optimizer"] == "adam":
-        opt: torch.optim.Optimizer = torch.optim.Adam(params, lr=cfg["lr"], weight_decay=cfg["weight_decay"])
-    else:
-        opt = torch.optim.SGD(params, lr=cfg["lr"], momentum=cfg["momentum"], weight_decay=cfg["weight_decay"])
-    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=int(cfg["lr_step"]), gamma=cfg["lr_gamma"])
-    cache = torch.full((n_queries, int(cfg["n_negatives"])), -1, dtype=torch.long)
-    run = Run(cfg, model, opt, sched, torch.Generator().manual_seed(int(cfg["seed"])), cache, out_dir)
-    if payload is not None:
-        _restore(run, payload)
-    write_json_atomic(out_dir / "config.json", {**cfg, "model": model.config(), "role": model_role(model),
-                                                "seqnet_version": __version__})
-    run.writer = SummaryWriter(log_dir=str(out_dir), purge_step=run.epoch + 1 if payload is not None else None)
-    return run
-
-
-def _restore(run: Run, payload: Mapping[str, Any]) -> None:
-    st = payload["train_state"]
-    if tuple(st["neg_cache"].shape) != tuple(run.neg_cache.shape) or payload["model"] != run.model.config():
-        raise CheckpointError(f"the checkpoint does not fit this dataset: {tuple(st['neg_cache'].shape)[0]} training "
-                              f"queries and model {payload['model']}, now {run.neg_cache.shape[0]} and "
-                              f"{run.model.config()} (hint: resume with the dataset the run was trained on)")
-    run.model.load_state_dict(payload["state_dict"])
-    run.optimizer.load_state_dict(st["optimizer"])
-    run.scheduler.load_state_dict(st["scheduler"])
-    run.neg_cache.copy_(st["neg_cache"])
-    restore_rng(st["rng"], run.generator)
-    run.epoch, run.best_score = int(payload["epoch"]), float(payload["best_score"])
-    run.best_epoch, run.bad_epochs = int(st["best_epoch"]), int(st["bad_epochs"])
-    run.history = list(st["history"])
-    logger.info("resuming %s after epoch %d (best R@1 %.4f at epoch %d)", run.out_dir, run.epoch, run.best_score,
-                run.best_epoch)
+VAL_KS = (1, 5, 10, 20)
+STAT_KEYS = ("loss", "queries", "skipped", "triplets", "active")
 
 
 def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined) -> dict[str, float]:
@@ -149,7 +57,7 @@ def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined) -
     ref = torch.cat([mined.positive[keep], mined.negatives[keep][valid]])
     windows = torch.cat([gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])])
     emb = run.model(windows)  # [B + B + T, D']: queries, positives, negatives
-    out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.cfg["margin"])
+    out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.conf.margin)
     run.optimizer.zero_grad(set_to_none=True)
     out.loss.backward()
     run.optimizer.step()
@@ -159,18 +67,19 @@ def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined) -
 
 def train_epoch(run: Run, src: TripletSource, epoch: int) -> dict[str, float]:
     """One pass over every training query (shuffled); every ``cache_refresh`` queries the mining
-    descriptors are recomputed and those queries' triplets mined. Returns the mean batch loss and counts."""
-    n, bs = src.n_queries, int(run.cfg["batch_size"])
+    descriptors are recomputed and those queries' triplets mined. Returns the mean batch loss and
+    summed counts (queries, skipped, triplets, active). One progress bar, with loss / active."""
+    n, bs, mining = src.n_queries, run.conf.batch_size, run.conf.mining
     order = torch.randperm(n, generator=run.generator).to(src.q_idx.device)
-    chunk = int(run.cfg["cache_refresh"]) or n
-    totals = dict.fromkeys(("loss", "queries", "skipped", "triplets", "active"), 0.0)
+    chunk = mining.cache_refresh or n
+    totals = dict.fromkeys(STAT_KEYS, 0.0)
     steps = 0
     n_batches = sum(math.ceil(min(chunk, n - s) / bs) for s in range(0, n, chunk))
-    with tqdm(total=n_batches, desc=f"epoch {epoch}/{run.cfg['epochs']}", leave=False, disable=None) as bar:
+    with progress(total=n_batches, desc=f"epoch {epoch}/{run.conf.epochs}", unit="batch") as bar:
         for s in range(0, n, chunk):
             sub = order[s : s + chunk]
             q_feat, r_feat = compute_cache(run.model, src, sub)
-            mined = mine_queries(src, sub, q_feat, r_feat, run.cfg, run.generator, run.neg_cache)
+            mined = mine_queries(src, sub, q_feat, r_feat, mining, run.generator, run.neg_cache)
             for b in range(0, len(sub), bs):
                 st = train_step(run, src, sub[b : b + bs], mined[b : b + bs])
                 steps += st["triplets"] > 0
@@ -182,57 +91,21 @@ def train_epoch(run: Run, src: TripletSource, epoch: int) -> dict[str, float]:
     return totals
 
 
-def validate(model: SeqNet, val_ds: Dataset | None, cfg: Mapping[str, Any]) -> dict[str, float]:
-    """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1)."""
+def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig) -> dict[str, float]:
+    """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1);
+    ``{}`` without a val split. Leaves the model in training mode."""
     from ..evaluate import EvalConfig, evaluate
 
     if val_ds is None:
         return {}
     role = model.role
-    conf = EvalConfig(methods=(role,), seq_len=model.seq_len, window=cfg["window"], ks=tuple(VAL_KS),
-                      device=cfg["device"])
-    ev = evaluate(val_ds, conf, {role: model})
+    ev_conf = EvalConfig(methods=(role,), seq_len=model.seq_len, window=conf.window, ks=VAL_KS, device=conf.device)
+    ev = evaluate(val_ds, ev_conf, {role: model})
     model.train()
     return {k: float(v) for k, v in ev.results["methods"][role].items() if k.startswith("recall@")}
 
 
-def finish_epoch(
-    run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapping[str, float], seconds: float
-) -> bool:
-    """Step the schedule, log, write ``last.pt`` (and ``best.pt``); True when early stopping says stop."""
-    lr = run.optimizer.param_groups[0]["lr"]
-    run.scheduler.step()
-    score = metrics.get("recall@1", math.nan)
-    improved = math.isnan(score) or score > run.best_score  # no validation score: best.pt = last.pt
-    run.epoch = epoch
-    if improved:
-        run.best_score, run.best_epoch, run.bad_epochs = score, epoch, 0
-    else:
-        run.bad_epochs += 1
-    run.history.append({"epoch": epoch, "lr": lr, **stats, **metrics})
-    fields = {"epoch": epoch, "best_score": run.best_score, "metrics": dict(metrics), "config": run.cfg}
-    save_checkpoint(run.out_dir / "last.pt", run.model, **fields, train_state=run.train_state())
-    if improved:
-        save_checkpoint(run.out_dir / "best.pt", run.model, **fields)
-    for key, value in {"train/loss": stats["loss"], "train/active_triplets": stats["active"], "train/triplets":
-                       stats["triplets"], "train/skipped_queries": stats["skipped"], "train/lr": lr,
-                       **{f"val/{k}": v for k, v in metrics.items()}}.items():
-        run.writer.add_scalar(key, value, epoch)
-    run.writer.flush()
-    val = ", ".join(f"R@{k.split('@')[1]} {v:.3f}" for k, v in metrics.items()) or "-"
-    logger.info("epoch %d: loss %.4f, %d active of %d triplets, val %s%s (%.1f s)", epoch, stats["loss"],
-                stats["active"], stats["triplets"], val, " *best*" if improved and metrics else "", seconds)
-    patience = run.cfg["patience"]
-    if patience and run.bad_epochs >= int(patience):
-        logger.info("early stopping: val R@1 has not improved for %d epochs (best %.4f at epoch %d)",
-                    run.bad_epochs, run.best_score, run.best_epoch)
-        return True
-    return False
-
-
-def _split(ds: Dataset, name: str | None, what: str) -> Dataset | None:
-    if what == "val" and str(name).lower() == "none":
-        return None
+def _split(ds: Dataset, name: str, what: str) -> Dataset:
     try:
         return ds.split(name)
     except DatasetError as e:
@@ -240,16 +113,61 @@ def _split(ds: Dataset, name: str | None, what: str) -> Dataset | None:
         raise DatasetError(f"{e} (hint: --{what}-split NAME{hint})") from None
 
 
-def train(dataset: Dataset, config: Mapping[str, Any] | None, out_dir: str | Path,
-          resume: bool | str | Path = False, dataset_path: str | None = None) -> Run:
+def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[TripletSource, Dataset | None]:
+    """The training windows on ``device`` and the val split (None: no validation), both checked
+    (windows fit, some query has a positive and a negative): everything that can fail on the data
+    fails here, before a run directory is created."""
+    src = triplet_source(_split(dataset, conf.train_split, "train"), conf.seq_len, conf.window, conf.mining, device)
+    if not conf.validates:
+        return src, None
+    val_ds = _split(dataset, conf.val_split, "val")
+    split_windows(val_ds, conf.seq_len, conf.window, conf.mining, "val")
+    return src, val_ds
+
+
+def _name(model: SeqNet) -> str:
+    return "S_1" if model.role == "s1" else f"S_{model.seq_len}"
+
+
+def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device) -> None:
+    """The epochs from the run's next one to ``conf.epochs`` (or early stopping), with the two INFO lines."""
+    first, m = run.epoch + 1, run.model
+    resumed = f"resuming {run.out_dir} after epoch {run.epoch}: " if run.epoch else ""
+    val = f"validating on {val_ds.name}" if val_ds is not None else "no validation"
+    left = f" ({src.left_out} more without a positive or a negative left out)" if src.left_out else ""
+    logger.info("%straining %s (w=%d, D %d->%d) on %d queries%s, %d reference windows, epochs %d..%d, device %s, %s",
+                resumed, _name(m), m.w, m.in_dims, m.out_dims, src.n_queries, left, len(src.r_idx), first,
+                run.conf.epochs, device, val)
+    t0 = time.perf_counter()
+    for epoch in range(first, run.conf.epochs + 1):
+        t_epoch = time.perf_counter()
+        stats = train_epoch(run, src, epoch)
+        finish_epoch(run, epoch, stats, validate(run.model, val_ds, run.conf), time.perf_counter() - t_epoch)
+        if run.should_stop:
+            break
+    best = (f"best val R@1 {run.best_score:.4f} at epoch {run.best_epoch}" if val_ds is not None and run.best_epoch
+            else "no validation (best.pt = last.pt)")
+    early = run.should_stop and run.epoch < run.conf.epochs
+    stop = f"; early stop: no better val R@1 for {run.bad_epochs} epochs" if early else ""
+    n = run.epoch - first + 1
+    logger.info("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
+                run.epoch, time.perf_counter() - t0, best, stop)
+
+
+def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resume: bool | str | Path = False,
+          dataset_path: str | Path | None = None) -> Run:
     """Train a SeqNet model on ``dataset``'s train split, validating on its val split.
 
     Args:
-        dataset: the whole dataset (splits named by ``config["train_split"]`` / ``["val_split"]``).
-        config: overrides of :data:`TRAIN_CONFIG_DEFAULTS` (when resuming: only epochs, patience, device).
-        out_dir: run directory (``last.pt``, ``best.pt``, ``config.json``, TensorBoard events).
+        dataset: the whole dataset (splits named by ``conf.train_split`` / ``conf.val_split``).
+        conf: settings (None: the defaults; when resuming, the run's). Dataset-dependent defaults are
+            resolved here (:meth:`TrainConfig.resolve`). When resuming, ``conf`` must equal the run's
+            configuration (:func:`seqnet.train.run.resume_config`) except for epochs, patience and
+            device, else :class:`ConfigError`.
+        out_dir: run directory (``last.pt``, ``best.pt``, ``config.json``, TensorBoard events); a new
+            run needs it absent or empty.
         resume: continue the run in ``out_dir`` (True), or the run in this directory / checkpoint.
-        dataset_path: recorded in ``config.json`` so that ``--resume`` finds the data.
+        dataset_path: recorded in the run so that resuming finds the data (default when resuming: the run's).
 
     Returns:
         The finished :class:`Run` (model, history, best score and epoch).
@@ -257,45 +175,39 @@ def train(dataset: Dataset, config: Mapping[str, Any] | None, out_dir: str | Pat
     out_dir = Path(out_dir)
     payload = None
     if resume:
-        cfg, payload = read_resume(out_dir if resume is True else Path(resume), config, RESUME_OVERRIDABLE)
+        payload = read_resume(out_dir if resume is True else Path(resume))
+        conf = restored_config(payload, conf)
+        dataset_path = dataset_path or stored_dataset_path(payload)
     else:
-        cfg = resolve_train_config(config, dataset)
-        if out_dir.exists() and any(out_dir.iterdir()):
-            raise ConfigError(f"run directory {out_dir} is not empty (hint: another --out, or --resume {out_dir})")
-    if dataset_path is not None:
-        cfg["dataset_path"] = str(dataset_path)
-    random.seed(cfg["seed"])
-    np.random.seed(cfg["seed"])
-    torch.manual_seed(cfg["seed"])
-    device = get_device(cfg["device"])
-    src = triplet_source(_split(dataset, cfg["train_split"], "train"), cfg, device)
-    val_ds = _split(dataset, cfg["val_split"], "val")
+        if isinstance(conf, Mapping):  # TEMPORARY, until the pipelines pass a TrainConfig
+            conf = TrainConfig.from_dict(conf)
+        conf = (conf or TrainConfig()).resolve(dataset)
+        check_run_dir(out_dir)
+    device = get_device(conf.device)
+    src, val_ds = prepare(dataset, conf, device)
     out_dir.mkdir(parents=True, exist_ok=True)
-    run = open_run(cfg, src.n_queries, dataset.query.dim, device, out_dir, payload)
-    t0 = time.perf_counter()
+    remove_temp_files(out_dir)
+    run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload,
+                   str(dataset_path) if dataset_path is not None else None)
     try:
-        for epoch in range(run.epoch + 1, int(cfg["epochs"]) + 1):
-            stats = train_epoch(run, src, epoch)
-            if finish_epoch(run, epoch, stats, validate(run.model, val_ds, cfg), time.perf_counter() - t0):
-                break
+        _fit(run, src, val_ds, device)
     finally:
         run.close()
     return run
 
 
-def main(conf: Mapping[str, Any]) -> Run:
-    """hloc-style entry point: ``{"dataset": DIR, "out": RUN, "resume": RUN | None, "config": {...}}``.
-
-    When resuming without ``dataset``, the dataset path recorded in the run is used.
-    """
-    resume, out = conf.get("resume"), conf.get("out") or conf.get("resume")
+def main(conf: TrainConfig | None, dataset: str | Path | None, out: str | Path | None,
+         resume: str | Path | None = None) -> Path:
+    """hloc-style stage: train on the dataset directory ``dataset`` into the run directory ``out``
+    (or continue the run ``resume``: a directory or its ``last.pt``; ``out`` defaults to it, the
+    dataset to the one the run recorded). Returns the run directory."""
+    if out is None and resume is not None:
+        out = Path(resume).parent if Path(resume).is_file() else resume
     if out is None:
         raise ConfigError("no run directory: give --out RUN (or --resume RUN)")
-    path = conf.get("dataset")
-    if path is None and resume:
-        src = Path(resume)
-        path = read_checkpoint(src / "last.pt" if src.is_dir() else src).get("config", {}).get("dataset_path")
+    path = dataset if dataset is not None or resume is None else run_dataset_path(resume)
     if path is None:
         raise ConfigError("no dataset: give --dataset DIR")
-    return train(load_dataset(path), conf.get("config"), out, resume=resume or False,
-                 dataset_path=str(Path(path).resolve()))
+    run = train(load_dataset(path), conf, out, resume=resume or False, dataset_path=Path(path).resolve())
+    return run.out_dir
+

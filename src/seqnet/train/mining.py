@@ -15,8 +15,7 @@ Everything is one ``[B, R]`` distance matrix and masks: no loop per query or per
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -24,10 +23,11 @@ from scipy.spatial import cKDTree
 
 from ..data.traverse import Dataset, Traverse
 from ..distances import pairwise_distances
-from ..errors import ConfigError, DatasetError
+from ..errors import DatasetError
 from ..sequence_descriptors import describe_windows
-from ..utils import as_tensor, logger
+from ..utils import as_tensor
 from ..windows import window_starts
+from .config import MiningConfig
 
 
 @dataclasses.dataclass
@@ -59,17 +59,6 @@ class Mined:
     def cat(parts: list[Mined]) -> Mined:
         """Concatenate the triplets of consecutive query blocks."""
         return Mined(*(torch.cat([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(Mined)))
-
-
-def check_radii(pos_radius: float, neg_radius: float) -> tuple[float, float]:
-    """Validate the positive and negative radii (``0 < pos_radius <= neg_radius``)."""
-    p, n = float(pos_radius), float(neg_radius)
-    if not (np.isfinite(p) and p > 0 and np.isfinite(n) and n >= p):
-        raise ConfigError(
-            f"need 0 < pos_radius <= neg_radius, got pos_radius={pos_radius}, neg_radius={neg_radius} "
-            "(hint: --pos-radius / --neg-radius, in the dataset's position unit)"
-        )
-    return p, n
 
 
 def queries_with_pairs(q_pos: np.ndarray, r_pos: np.ndarray, pos_radius: float, neg_radius: float) -> np.ndarray:
@@ -171,12 +160,29 @@ def mine_batch(
 
 
 @dataclasses.dataclass
+class SplitWindows:
+    """The windows a split gives to training (frame indices and positions, on the host).
+
+    ``q_idx [M, L]`` frames of the M queries with a positive and a negative; ``r_idx [R, L]`` frames
+    of every reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` positions of the windows' frames;
+    ``left_out``: queries with a full window but without a positive or a negative.
+    """
+
+    q_idx: np.ndarray
+    r_idx: np.ndarray
+    q_pos: np.ndarray
+    r_pos: np.ndarray
+    left_out: int
+
+
+@dataclasses.dataclass
 class TripletSource:
     """Training windows on the compute device.
 
     ``q_desc [Nq, D]`` / ``r_desc [Nr, D]`` frame descriptors; ``q_idx [M, L]`` frames of the M
     training queries (those with a positive and a negative); ``r_idx [R, L]`` frames of every
-    reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` float64 positions of the windows' frames.
+    reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` float64 positions of the windows' frames;
+    ``left_out``: queries left out (no positive or no negative).
     """
 
     q_desc: torch.Tensor
@@ -185,42 +191,51 @@ class TripletSource:
     r_idx: torch.Tensor
     q_pos: torch.Tensor
     r_pos: torch.Tensor
+    left_out: int = 0
 
     @property
     def n_queries(self) -> int:
         return int(self.q_idx.shape[0])
 
 
-def _full_windows(t: Traverse, seq_len: int, mode: str) -> tuple[np.ndarray, np.ndarray]:
+def _full_windows(t: Traverse, seq_len: int, mode: str, what: str) -> tuple[np.ndarray, np.ndarray]:
     """Frames with a full window inside their sequence ``[M]`` and the windows' frames ``[M, L]``."""
     starts, valid = window_starts(len(t), seq_len, mode, t.seq_bounds)
     items = np.flatnonzero(valid)
     if items.size == 0:
-        raise DatasetError(f"train split: no {t.name} frame has a full window of seq_len={seq_len} inside its "
-                           "sequence (hint: a longer train range or a shorter --seq-len)")
+        raise DatasetError(f"{what} split: no {t.name} frame (of {len(t)}) has a full window of seq_len={seq_len} "
+                           f"inside its sequence (hint: a longer {what} range or a shorter --seq-len)")
     return items, starts[items][:, None] + np.arange(seq_len)[None, :]
 
 
-def triplet_source(ds: Dataset, cfg: Mapping[str, Any], device: torch.device) -> TripletSource:
-    """Windows, positions and descriptors of the training split ``ds`` (already split).
+def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, what: str = "train") -> SplitWindows:
+    """The query and reference windows of the split ``ds`` (already split; ``what`` names it in errors).
 
-    ``cfg`` gives ``seq_len``, ``window``, ``pos_radius`` and ``neg_radius``. Raises
-    :class:`DatasetError` when no query has both a positive and a negative.
+    Raises :class:`DatasetError` when a traverse has no full window, or when no query has both a
+    reference within ``conf.pos_radius`` and one beyond ``conf.neg_radius``.
     """
-    q_items, q_idx = _full_windows(ds.query, cfg["seq_len"], cfg["window"])
-    r_items, r_idx = _full_windows(ds.reference, cfg["seq_len"], cfg["window"])
+    q_items, q_idx = _full_windows(ds.query, seq_len, window, what)
+    r_items, r_idx = _full_windows(ds.reference, seq_len, window, what)
     q_pos, r_pos = ds.query.positions[q_items], ds.reference.positions[r_items]
-    keep = queries_with_pairs(q_pos, r_pos, cfg["pos_radius"], cfg["neg_radius"])
+    keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius)
     if not keep.any():
-        raise DatasetError(f"{ds.name}: none of {len(q_items)} training queries has a reference within pos_radius="
-                           f"{cfg['pos_radius']:g} and one beyond neg_radius={cfg['neg_radius']:g} {ds.position_unit} "
-                           "(hint: check the train ranges of reference and query, or --pos-radius / --neg-radius)")
-    logger.info("training on %d queries (%d without a positive or a negative left out), %d reference windows",
-                int(keep.sum()), int((~keep).sum()), len(r_items))
+        hint = f"check the {what} ranges of reference and query, or --pos-radius / --neg-radius"
+        raise DatasetError(f"{ds.name}: none of {len(q_items)} {'training' if what == 'train' else what} queries has "
+                           f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius="
+                           f"{conf.neg_radius:g} {ds.position_unit} (hint: {hint})")
+    return SplitWindows(q_idx[keep], r_idx, q_pos[keep], r_pos, int((~keep).sum()))
+
+
+def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device) -> TripletSource:
+    """Windows, positions and descriptors of the training split ``ds`` (already split) on ``device``.
+
+    Raises :class:`DatasetError` as :func:`split_windows`.
+    """
+    sw = split_windows(ds, seq_len, window, conf, "train")
     as_long = lambda a: torch.as_tensor(a, dtype=torch.long, device=device)  # noqa: E731
     return TripletSource(as_tensor(ds.query.descriptors, device), as_tensor(ds.reference.descriptors, device),
-                         as_long(q_idx[keep]), as_long(r_idx), torch.as_tensor(q_pos[keep], device=device),
-                         torch.as_tensor(r_pos, device=device))
+                         as_long(sw.q_idx), as_long(sw.r_idx), torch.as_tensor(sw.q_pos, device=device),
+                         torch.as_tensor(sw.r_pos, device=device), sw.left_out)
 
 
 def compute_cache(
@@ -229,10 +244,11 @@ def compute_cache(
     """Current-model descriptors of the queries ``rows`` ``[S, D']`` and of all reference windows ``[R, D']``.
 
     ``model`` maps windows ``[B, L, D]`` to descriptors ``[B, D']`` (a :class:`SeqNet` or an equivalent).
+    No progress bar: this runs every ``cache_refresh`` queries inside the epoch's bar.
     """
     dev = src.q_desc.device
-    q = describe_windows(src.q_desc, src.q_idx[rows].cpu().numpy(), model, device=dev)
-    r = describe_windows(src.r_desc, src.r_idx.cpu().numpy(), model, device=dev, progress="mining cache")
+    q = describe_windows(src.q_desc, src.q_idx[rows].cpu().numpy(), model, device=dev, progress=None)
+    r = describe_windows(src.r_desc, src.r_idx.cpu().numpy(), model, device=dev, progress=None)
     return q.to(dev), r.to(dev)
 
 
@@ -241,28 +257,28 @@ def mine_queries(
     rows: torch.Tensor,
     q_feat: torch.Tensor,
     r_feat: torch.Tensor,
-    cfg: Mapping[str, Any],
+    conf: MiningConfig,
     generator: torch.Generator,
     neg_cache: torch.Tensor,
     block_elems: int = 2**24,
 ) -> Mined:
     """Mine the triplets of the training queries ``rows [S]`` from one cache, in blocks of queries.
 
-    ``q_feat [S, D']`` / ``r_feat [R, D']`` are the cached descriptors; ``cfg`` gives ``pos_radius``,
-    ``neg_radius``, ``n_negatives``, ``n_neg_sample`` and ``margin``. ``neg_cache [M, K]`` (CPU,
-    -1 = none) holds each training query's previous hard negatives and is updated for the queries
-    that get triplets. Mining the queries of a cache period together is what mining them batch by
-    batch gives (the cache is fixed meanwhile and each query is visited once per epoch), with a few
-    large tensor operations instead of many small ones. Blocks keep ``[block, R]`` under
-    ``block_elems`` elements.
+    ``q_feat [S, D']`` / ``r_feat [R, D']`` are the cached descriptors; ``conf`` gives the radii,
+    ``n_negatives``, ``n_neg_sample`` and ``margin``. ``neg_cache [M, K]`` (CPU, -1 = none) holds
+    each training query's previous hard negatives and is updated for the queries that get
+    triplets. Mining the queries of a cache period together is what mining them batch by batch
+    gives (the cache is fixed meanwhile and each query is visited once per epoch), with a few large
+    tensor operations instead of many small ones. Blocks keep ``[block, R]`` under ``block_elems``
+    elements.
     """
     block = max(1, block_elems // max(1, r_feat.shape[0]))
     parts = []
     for s in range(0, len(rows), block):
         r = rows[s : s + block]
-        pos_mask, neg_mask = radius_masks(src.q_pos[r], src.r_pos, cfg["pos_radius"], cfg["neg_radius"])
-        m = mine_batch(q_feat[s : s + block], r_feat, pos_mask, neg_mask, int(cfg["n_negatives"]),
-                       int(cfg["n_neg_sample"]), cfg["margin"], generator, neg_cache[r.cpu()].to(q_feat.device))
+        pos_mask, neg_mask = radius_masks(src.q_pos[r], src.r_pos, conf.pos_radius, conf.neg_radius)
+        m = mine_batch(q_feat[s : s + block], r_feat, pos_mask, neg_mask, conf.n_negatives, conf.n_neg_sample,
+                       conf.margin, generator, neg_cache[r.cpu()].to(q_feat.device))
         keep = m.has_triplet
         neg_cache[r[keep].cpu()] = m.negatives[keep].cpu()
         parts.append(m)

@@ -1,0 +1,187 @@
+"""Training settings: :class:`TrainConfig` (the paper's defaults) and the :class:`MiningConfig` it hands
+to triplet mining, both small frozen dataclasses that validate themselves (:mod:`seqnet.config`).
+
+Dataset-dependent defaults (``out_dims`` = the input dimension, the radii from ``dataset.extra``
+else the localisation radius and 4×) are filled by :meth:`TrainConfig.resolve`; the resolved
+configuration is what a run stores and what resuming compares against.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable
+
+import torch
+
+from ..config import Config, check_choice, check_float, check_int
+from ..data.traverse import Dataset
+from ..errors import ConfigError
+from ..utils import get_device
+from ..windows import WINDOW_MODES
+
+Params = Iterable[torch.nn.Parameter]
+
+
+def _sgd(params: Params, conf: TrainConfig) -> torch.optim.Optimizer:
+    return torch.optim.SGD(params, lr=conf.lr, momentum=conf.momentum, weight_decay=conf.weight_decay)
+
+
+def _adam(params: Params, conf: TrainConfig) -> torch.optim.Optimizer:
+    return torch.optim.Adam(params, lr=conf.lr, weight_decay=conf.weight_decay)
+
+
+OPTIMIZERS: dict[str, Callable[[Params, TrainConfig], torch.optim.Optimizer]] = {"sgd": _sgd, "adam": _adam}
+RESUME_OVERRIDABLE = ("epochs", "patience", "device")
+
+
+def check_radii(pos_radius: float, neg_radius: float) -> tuple[float, float]:
+    """Validate the positive and negative radii (``0 < pos_radius <= neg_radius``)."""
+    p = check_float("pos_radius", pos_radius, 0.0, strict=True)
+    n = check_float("neg_radius", neg_radius, 0.0, strict=True)
+    if n < p:
+        raise ConfigError(f"need pos_radius <= neg_radius, got pos_radius={p:g}, neg_radius={n:g} "
+                          "(hint: --pos-radius / --neg-radius, in the dataset's position unit)")
+    return p, n
+
+
+@dataclasses.dataclass(frozen=True)
+class MiningConfig(Config):
+    """Settings of triplet mining (see :mod:`seqnet.train.mining`).
+
+    Attributes:
+        pos_radius: positives lie within this distance (position unit of the dataset).
+        neg_radius: negatives lie beyond it (>= pos_radius).
+        n_negatives: hard negatives kept per query K.
+        n_neg_sample: negatives sampled per query to choose them from.
+        margin: triplet margin (a negative makes a triplet only if ``d_neg < d_pos + margin``).
+        cache_refresh: queries between refreshes of the mining descriptors (0: once per epoch).
+    """
+
+    pos_radius: float
+    neg_radius: float
+    n_negatives: int = 10
+    n_neg_sample: int = 1000
+    margin: float = 0.3
+    cache_refresh: int = 1000
+
+    def __post_init__(self) -> None:
+        p, n = check_radii(self.pos_radius, self.neg_radius)
+        self._set("pos_radius", p)
+        self._set("neg_radius", n)
+        self._set("n_negatives", check_int("n_negatives", self.n_negatives, 1))
+        self._set("n_neg_sample", check_int("n_neg_sample", self.n_neg_sample, 1))
+        self._set("margin", check_float("margin", self.margin, 0.0, strict=True))
+        self._set("cache_refresh", check_int("cache_refresh", self.cache_refresh, 0))
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig(Config):
+    """Settings of :func:`seqnet.train.train` (defaults: the paper's; see ``seqnet train --help``).
+
+    Attributes:
+        seq_len, w: window length L and temporal filter width w (1 <= w <= L; S_1: both 1).
+        out_dims: output descriptor dimension (None: the input's, see :meth:`resolve`).
+        window: window position, ``"centred"`` or ``"causal"``.
+        margin: triplet margin on L2 distances of L2-normalised descriptors.
+        optimizer: a key of :data:`OPTIMIZERS`; lr, momentum (SGD only), weight_decay its settings.
+        lr_step, lr_gamma: the lr is multiplied by ``lr_gamma`` every ``lr_step`` epochs.
+        batch_size: queries per optimiser step; epochs: the last epoch.
+        patience: stop after this many epochs without a better val R@1 (None: never).
+        n_negatives, n_neg_sample, cache_refresh, pos_radius, neg_radius: see :class:`MiningConfig`
+            (radii None: the dataset's, see :meth:`resolve`).
+        seed: seeds the model initialisation and the training generator.
+        device: torch device (auto: CUDA when present).
+        train_split, val_split: dataset splits to train / validate on (``"all"``: the whole dataset;
+            val ``"none"``: no validation, best.pt = last.pt).
+    """
+
+    seq_len: int = 5
+    w: int = 3
+    out_dims: int | None = None
+    window: str = "centred"
+    margin: float = 0.3
+    optimizer: str = "sgd"
+    lr: float = 1e-4
+    momentum: float = 0.9
+    weight_decay: float = 1e-3
+    lr_step: int = 50
+    lr_gamma: float = 0.5
+    batch_size: int = 16
+    epochs: int = 200
+    patience: int | None = None
+    n_negatives: int = 10
+    n_neg_sample: int = 1000
+    cache_refresh: int = 1000
+    pos_radius: float | None = None
+    neg_radius: float | None = None
+    seed: int = 0
+    device: str = "auto"
+    train_split: str = "train"
+    val_split: str = "val"
+
+    def __post_init__(self) -> None:
+        self._set("seq_len", check_int("seq_len", self.seq_len, 1))
+        self._set("w", check_int("w", self.w, 1, self.seq_len))
+        for key in ("lr_step", "batch_size", "epochs", "n_negatives", "n_neg_sample"):
+            self._set(key, check_int(key, getattr(self, key), 1))
+        self._set("cache_refresh", check_int("cache_refresh", self.cache_refresh, 0))
+        self._set("seed", check_int("seed", self.seed, 0))
+        for key in ("out_dims", "patience"):
+            if getattr(self, key) is not None:
+                self._set(key, check_int(key, getattr(self, key), 1))
+        for key in ("lr", "margin", "lr_gamma"):
+            self._set(key, check_float(key, getattr(self, key), 0.0, strict=True))
+        for key in ("momentum", "weight_decay"):
+            self._set(key, check_float(key, getattr(self, key), 0.0))
+        self._check_radii()
+        optimizer = self.optimizer.lower() if isinstance(self.optimizer, str) else self.optimizer
+        self._set("optimizer", check_choice("optimizer", optimizer, OPTIMIZERS))
+        check_choice("window", self.window, WINDOW_MODES)
+        if not isinstance(self.device, str):
+            raise ConfigError(f"device must be a device name (auto, cpu, cuda, cuda:N), got {self.device!r}")
+        get_device(self.device)  # validates the device name
+        for key in ("train_split", "val_split"):
+            value = "none" if key == "val_split" and self.val_split is None else getattr(self, key)
+            if not isinstance(value, str) or not value:
+                raise ConfigError(f"{key} must be a split name, got {value!r}")
+            self._set(key, value)
+
+    def _check_radii(self) -> None:
+        for key in ("pos_radius", "neg_radius"):
+            if getattr(self, key) is not None:
+                self._set(key, check_float(key, getattr(self, key), 0.0, strict=True))
+        if self.pos_radius is not None and self.neg_radius is not None:
+            check_radii(self.pos_radius, self.neg_radius)
+
+    @property
+    def validates(self) -> bool:
+        """Whether a val split is used (``val_split`` is not ``"none"``)."""
+        return self.val_split.lower() != "none"
+
+    @property
+    def mining(self) -> MiningConfig:
+        """The mining settings (the radii must be resolved: :meth:`resolve`)."""
+        if self.pos_radius is None or self.neg_radius is None:
+            raise ConfigError("pos_radius / neg_radius are not resolved (hint: TrainConfig.resolve(dataset))")
+        return MiningConfig(self.pos_radius, self.neg_radius, self.n_negatives, self.n_neg_sample, self.margin,
+                            self.cache_refresh)
+
+    def resolve(self, ds: Dataset) -> TrainConfig:
+        """A copy with the dataset-dependent defaults filled: ``out_dims`` = the input dimension D;
+        ``pos_radius`` = ``ds.extra["pos_radius"]``, else the localisation radius; ``neg_radius`` =
+        ``ds.extra["neg_radius"]``, else 4 × ``pos_radius``."""
+        pos = self.pos_radius or ds.extra.get("pos_radius") or ds.radius
+        neg = self.neg_radius or ds.extra.get("neg_radius") or 4 * float(pos)
+        return self.replace(out_dims=self.out_dims or ds.query.dim, pos_radius=pos, neg_radius=neg)
+
+    def resumed(self, conf: TrainConfig | None) -> TrainConfig:
+        """This (a run's stored, resolved) configuration with the changes ``conf`` may make when
+        resuming: only :data:`RESUME_OVERRIDABLE` (epochs, patience, device) may differ."""
+        if conf is None:
+            return self
+        for f in dataclasses.fields(self):
+            mine, theirs = getattr(self, f.name), getattr(conf, f.name)
+            if f.name not in RESUME_OVERRIDABLE and theirs is not None and theirs != mine:
+                raise ConfigError(f"cannot change {f.name!r} when resuming (the run has {mine!r}, got {theirs!r}); "
+                                  f"only {', '.join(RESUME_OVERRIDABLE)} may change")
+        return dataclasses.replace(self, **{k: getattr(conf, k) for k in RESUME_OVERRIDABLE})
