@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
+from seqnet.checkpoints import find_flags, load_model, read_checkpoint, save_checkpoint
 from seqnet.cli import main as cli_main
 from seqnet.errors import CheckpointError
 from seqnet.sequence_descriptors import SeqNet
-from seqnet.train.checkpoints import find_flags, load_model, read_checkpoint, save_checkpoint
 
 
 def _reference_descriptors(weight: torch.Tensor, bias: torch.Tensor, x: torch.Tensor) -> torch.Tensor:

@@ -69,7 +69,7 @@ def test_eval_defaults_all_split_and_seq_len_one(small_dir, capsys):
 def test_logging_follows_captured_stderr(small_dir, capsys):
     # main() runs many times in one process: log lines must go to the current sys.stderr each time
     for _ in range(2):
-        assert main(["eval", "--dataset", str(small_dir), "--method", "single", "--seq-len", "2"]) == 0
+        assert main(["-v", "eval", "--dataset", str(small_dir), "--method", "single", "--seq-len", "2"]) == 0
         _, err = capsys.readouterr()
         assert "single: R@1" in err and "Logging error" not in err
 

@@ -9,10 +9,10 @@ import math
 import pytest
 import torch
 
+from seqnet.checkpoints import load_model, read_checkpoint
 from seqnet.cli import main as cli_main
 from seqnet.errors import CheckpointError, ConfigError, DatasetError
 from seqnet.train import Run, TrainConfig, train
-from seqnet.train.checkpoints import load_model, read_checkpoint
 from seqnet.train.run import resume_config
 
 FAST = TrainConfig(optimizer="adam", lr=1e-2, batch_size=16, cache_refresh=40, n_neg_sample=50, seq_len=3, w=2,

@@ -10,12 +10,12 @@ import pytest
 import torch
 
 import seqnet.train.run as run_module
+from seqnet.checkpoints import read_checkpoint
 from seqnet.cli import main as cli_main
 from seqnet.data.synth import make_synthetic
 from seqnet.errors import ConfigError, DatasetError
 from seqnet.progress import progress_mode
 from seqnet.train import TrainConfig, main, train
-from seqnet.train.checkpoints import read_checkpoint
 from seqnet.train.run import resume_config
 
 FAST = TrainConfig(optimizer="adam", lr=1e-2, cache_refresh=40, n_neg_sample=50, seq_len=3, w=2, out_dims=8,

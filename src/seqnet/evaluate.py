@@ -230,7 +230,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
             entry["radii"] = {str(r): recall(retrieved[m.name], GroundTruth(truth.q_pos, truth.r_pos, r), conf.ks)
                               for r in conf.extra_radii}
         results[m.name] = entry
-        logger.info("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
+        logger.debug("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
     out = {"methods": results, "config": {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                                           "models": {k: v.config() for k, v in models.items()}}}
     return Evaluation(out, retrieved, scores, truth, f.query.items, f.reference.items)
@@ -253,7 +253,7 @@ def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | 
                 rerank_model: str | Path | None = None, seq_len: int | None = None) -> dict[str, SeqNet]:
     """Models by role: ``paths`` by their stored role, then the S_L ``shortlist_model`` (an original
     checkpoint without flags.json takes ``seq_len``) and the S_1 ``rerank_model``."""
-    from .train.checkpoints import load_model
+    from .checkpoints import load_model
 
     models = {}
     for path in paths:

@@ -181,13 +181,12 @@ def seqmatch_topk(
     memory-mapped or float16) arrays, with a running top-k (:mod:`seqnet.blocks`); no
     ``N_q × N_db`` matrix is ever formed.
     """
-    dev = get_device(device)
+    dev, dtype = get_device(device), compute_dtype(query, ref)
     nq, nr, _ = check_pair_dims(query, ref)
     check_seq_len(seq_len, min(nq, nr), "seq_len")
     k = check_int("k", k, 1)
     na, nb = nq - seq_len + 1, nr - seq_len + 1
     q_starts, r_starts = check_starts(q_starts, na, "query"), check_starts(r_starts, nb, "reference")
-    dtype = compute_dtype(query, ref)
     q_order, r_order = np.argsort(q_starts, kind="stable"), np.argsort(r_starts, kind="stable")
     q_sorted, r_sorted = q_starts[q_order], r_starts[r_order]
     vals = torch.zeros((len(q_starts), min(k, len(r_starts))), dtype=dtype)
@@ -207,12 +206,18 @@ def seqmatch_topk(
         for c0, c1 in cols:
             rf = ref_all if ref_all is not None else rows(ref, c0, c1 + seq_len - 1, dev, dtype)
             j0, j1 = np.searchsorted(r_sorted, [c0, c1])
-            m = next(full_blocks(qf, rf, seq_len, reverse, block_bytes=2**62))[1]  # [a1 - a0, c1 - c0]
-            scores = m[local_q][:, torch.as_tensor(r_sorted[j0:j1] - c0, device=dev)]
+            scores = _block_scores(qf, rf, seq_len, reverse, local_q, torch.as_tensor(r_sorted[j0:j1] - c0, device=dev))
             best = merge_topk(best, scores, torch.as_tensor(r_order[j0:j1], device=dev), k)
         sel = torch.as_tensor(q_order[lo:hi])
         vals[sel], idx[sel] = best[0].cpu(), best[1].cpu()
     return to_numpy(vals), to_numpy(idx)
+
+
+def _block_scores(qf: torch.Tensor, rf: torch.Tensor, seq_len: int, reverse: bool, q_windows: torch.Tensor,
+                  r_windows: torch.Tensor) -> torch.Tensor:
+    """SeqMatch scores ``[len(q_windows), len(r_windows)]`` of windows (starts local to the frame blocks)."""
+    m = next(full_blocks(qf, rf, seq_len, reverse, block_bytes=2**62))[1]  # every window pair of the blocks
+    return m[q_windows][:, r_windows]
 
 
 def check_starts(starts: ArrayLike, n: int, side: str) -> np.ndarray:

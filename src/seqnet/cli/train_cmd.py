@@ -7,7 +7,7 @@ import dataclasses
 import math
 from pathlib import Path
 
-from ..train.checkpoints import read_checkpoint
+from ..checkpoints import read_checkpoint
 from ..train.config import OPTIMIZERS, TrainConfig
 from ..train.loop import main
 from ..train.run import resume_config

@@ -13,11 +13,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..checkpoints import load_model
 from ..data.io import load_dataset, save_dataset
 from ..data.synth import make_synthetic
 from ..data.traverse import Dataset
 from ..evaluate import EvalConfig, Evaluation, evaluate
-from ..train.checkpoints import load_model
 from ..train.loop import train
 from ..utils import logger
 

@@ -218,7 +218,7 @@ def train_models(ds: Dataset, cfg: Mapping[str, Any], out: Path,
 
     Models trained with the same settings before (``out/models/key.json``) are reused.
     """
-    from ..train.checkpoints import load_model, save_checkpoint
+    from ..checkpoints import load_model, save_checkpoint
     from ..train.loop import train
 
     models_dir, key = out / "models", _train_key(cfg)

@@ -2,7 +2,7 @@
 
 Modules: :mod:`~seqnet.train.config` (settings), :mod:`~seqnet.train.mining` (triplets),
 :mod:`~seqnet.train.losses`, :mod:`~seqnet.train.run` (run state and files),
-:mod:`~seqnet.train.checkpoints` (model files), :mod:`~seqnet.train.loop` (epochs, :func:`train`,
+:mod:`~seqnet.checkpoints` (model files), :mod:`~seqnet.train.loop` (epochs, :func:`train`,
 the stage :func:`main`).
 """
 

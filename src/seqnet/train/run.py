@@ -22,11 +22,11 @@ from typing import Any
 import torch
 
 from .._version import __version__
+from ..checkpoints import read_checkpoint, save_checkpoint
 from ..errors import CheckpointError, ConfigError
 from ..files import write_json_atomic
 from ..sequence_descriptors import SeqNet
 from ..utils import logger
-from .checkpoints import read_checkpoint, save_checkpoint
 from .config import OPTIMIZERS, TrainConfig
 
 TEMP_PATTERNS = (".last.pt.*.tmp", ".best.pt.*.tmp", ".config.json.*.tmp")  # left by a crash in an atomic write

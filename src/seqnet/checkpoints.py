@@ -23,10 +23,10 @@ from typing import Any
 
 import torch
 
-from ..errors import CheckpointError
-from ..files import atomic_path, load_torch_file
-from ..sequence_descriptors import SeqNet
-from ..utils import logger
+from .errors import CheckpointError
+from .files import atomic_path, load_torch_file
+from .sequence_descriptors import SeqNet
+from .utils import logger
 
 CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
 
