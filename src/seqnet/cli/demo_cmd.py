@@ -3,25 +3,30 @@
 from __future__ import annotations
 
 import argparse
+import json
+import tempfile
+from pathlib import Path
 
-from ..files import write_json_atomic
-from ..pipelines.demo import DEMO_PLACES, DEMO_SEQ_LEN, run_demo
+from ..pipelines.demo import DemoConfig, main
 from ..report import format_table
-from .common import add_device, positive_int
+from .common import add_device, int_at_least, non_negative_int, positive_int
+
+_D = DemoConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="train S_L and S_1 on synthetic data and compare every method",
                        description="Generate a synthetic route, train SeqNet S_L and S_1 on its train split (fast "
-                                   "demo settings: Adam, a few epochs), and print Recall@K of the baselines and the "
-                                   "learned methods (seqnet, s1+seqmatch, hvpr = S_L shortlist + S_1 SeqMatch) on the "
-                                   "test split.")
-    p.add_argument("--out", metavar="DIR", help="keep the dataset, training runs and results here (default: temporary)")
-    p.add_argument("--places", type=positive_int, default=DEMO_PLACES,
-                   help=f"places along the synthetic route (default {DEMO_PLACES})")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+                                   f"demo settings: Adam, lr {_D.train.lr:g}, at most {_D.train.epochs} epochs, early "
+                                   f"stop after {_D.train.patience} without a better val R@1), and print Recall@K of "
+                                   "the baselines and the learned methods (seqnet, s1+seqmatch, hvpr = S_L shortlist "
+                                   "+ S_1 SeqMatch) on the test split.")
+    p.add_argument("--out", metavar="DIR", help="keep the dataset, training runs and results.json here "
+                                                "(default: a temporary directory)")
+    p.add_argument("--places", type=int_at_least(100), help=f"places along the synthetic route (default {_D.places})")
+    p.add_argument("--seed", type=non_negative_int, help=f"random seed (default {_D.seed})")
     p.add_argument("--epochs", type=positive_int,
-                   help="training epochs per model (default: the demo's, 15, with early stopping)")
+                   help=f"at most this many training epochs per model (default {_D.train.epochs}, early stopping)")
     p.add_argument("--no-train", action="store_true", help="evaluate the baselines only (no training)")
     # one torch thread unless --threads: the demo's tensors are small, and on a busy machine more threads
     # mostly wait for each other
@@ -31,19 +36,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    ev = run_demo(args.out, places=args.places, seed=args.seed, device=args.device, epochs=args.epochs,
-                  train_models=not args.no_train)
-    m, cfg = ev.results["methods"], ev.results["config"]
+    conf = DemoConfig().replace(places=args.places, seed=args.seed, train_models=not args.no_train,
+                                device=args.device, train={"epochs": args.epochs})
+    with tempfile.TemporaryDirectory(prefix="seqnet-demo-") as tmp:
+        res = json.loads(Path(main(conf, args.out or tmp)).read_text(encoding="utf-8"))
+    m, cfg = res["methods"], res["config"]
     first = next(iter(m.values()))
-    print(f"seqnet demo: synthetic route, test split, {first['queries']} queries, radius {ev.radius:g} m, "
-          f"L={DEMO_SEQ_LEN}")
+    print(f"seqnet demo: synthetic route, test split, {first['queries']} queries, radius {cfg['radius']:g} m, "
+          f"L={conf.seq_len}")
     if cfg["train_seconds"]:
-        names = {"s1": "S_1", "seqnet": f"S_{DEMO_SEQ_LEN}"}
+        names = {"s1": "S_1", "seqnet": f"S_{conf.seq_len}"}
         times = ", ".join(f"{names[r]} {s:.1f} s" for r, s in cfg["train_seconds"].items())
-        print(f"trained on the train split with the demo's fast settings (Adam, <= {cfg['demo_train']['epochs']} "
-              f"epochs): {times}")
+        print(f"trained on the train split with the demo's fast settings (Adam, <= {conf.train.epochs} epochs): "
+              f"{times}")
     print(format_table(m, cfg["ks"]))
-    print(f"done in {cfg['demo_seconds']:.1f} s")
-    if args.out:
-        write_json_atomic(f"{args.out}/results.json", ev.results)
+    print(f"done in {cfg['demo_seconds']:.1f} s" + (f"; results in {Path(args.out) / 'results.json'}"
+                                                    if args.out else ""))
     return 0

@@ -1,81 +1,109 @@
 """The built-in demo: synthetic data → train S_L and S_1 → every method → comparison table.
 
-The demo trains with its own fast settings (:data:`DEMO_TRAIN`: Adam, a larger learning rate, a
-few epochs, early stopping on the val split) instead of the paper's (SGD lr 1e-4 for up to 200
-epochs), so that the whole demo runs in well under a minute on two CPU cores.
+The demo trains with its own fast settings (:class:`DemoConfig`: Adam, a larger learning rate, at
+most 40 epochs with early stopping after 8 without a better val R@1) instead of the paper's (SGD
+lr 1e-4 for up to 200 epochs), so that the whole demo runs in seconds on two CPU cores.
 """
 
 from __future__ import annotations
 
-import shutil
-import tempfile
+import dataclasses
 import time
 from pathlib import Path
 from typing import Any
 
 from ..checkpoints import load_model
+from ..config import Config, check_bool, check_int
 from ..data.io import load_dataset, save_dataset
-from ..data.synth import make_synthetic
+from ..data.synth import SynthConfig, make_synthetic
 from ..data.traverse import Dataset
-from ..evaluate import EvalConfig, Evaluation, evaluate
-from ..train.loop import train
+from ..evaluate import EvalConfig, evaluate
+from ..files import write_json_atomic
+from ..ownership import check_replaceable, locked, remove_owned_dir
+from ..train import TrainConfig, train
+from ..train.run import is_run_file
 from ..utils import logger
 
-BASELINES = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch"]
-LEARNED = ["seqnet", "s1+seqmatch", "hvpr"]  # hvpr: shortlist with S_L, re-rank by SeqMatch on S_1
-DEMO_METHODS = BASELINES + LEARNED
-DEMO_SEQ_LEN = 5
-DEMO_PLACES = 2000
-# Fast demo training settings (not the paper's): see the module docstring and docs/training.md.
-DEMO_TRAIN: dict[str, Any] = {"optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "epochs": 40, "patience": 8,
-                              "out_dims": 256}
-DEMO_MODELS = {"seqnet": {"seq_len": DEMO_SEQ_LEN, "w": 3}, "s1": {"seq_len": 1, "w": 1}}
+BASELINES = ("single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch")
+LEARNED = ("seqnet", "s1+seqmatch", "hvpr")  # hvpr: shortlist with S_L, re-rank by SeqMatch on S_1
+MODEL_FREE_HVPR = "hvpr-delta:raw+seqmatch"
+DEMO_TRAIN = TrainConfig(optimizer="adam", lr=1e-3, weight_decay=0.0, epochs=40, patience=8, out_dims=256)
 
 
-def train_demo_models(ds: Dataset, root: Path, data_dir: Path, device: str = "auto",
-                      epochs: int | None = None, seed: int = 0) -> tuple[dict[str, Any], dict[str, float]]:
-    """Train S_L and S_1 on ``ds`` (runs in ``root/train_<role>``); returns models by role and seconds per role."""
+@dataclasses.dataclass(frozen=True)
+class DemoConfig(Config):
+    """Settings of the demo.
+
+    Attributes:
+        places: places along the synthetic route.
+        seed: random seed (data and training).
+        seq_len: L of S_L, the evaluation windows and SeqMatch.
+        w: the S_L temporal filter width.
+        train_models: False evaluates the baselines (and the model-free HVPR) only.
+        train: the demo's fast training settings (S_1 uses them with L = w = 1).
+        device: torch device.
+    """
+
+    places: int = 2000
+    seed: int = 0
+    seq_len: int = 5
+    w: int = 3
+    train_models: bool = True
+    train: TrainConfig = DEMO_TRAIN
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        self._set("places", check_int("places", self.places, 100))
+        self._set("seed", check_int("seed", self.seed, 0))
+        self._set("seq_len", check_int("seq_len", self.seq_len, 2))
+        self._set("w", check_int("w", self.w, 1, self.seq_len))
+        self._set("train_models", check_bool("train_models", self.train_models))
+
+    @property
+    def methods(self) -> tuple[str, ...]:
+        """The methods compared."""
+        return (*BASELINES, *LEARNED) if self.train_models else (*BASELINES, MODEL_FREE_HVPR)
+
+    def model_configs(self) -> dict[str, TrainConfig]:
+        """The training settings of S_L ("seqnet") and S_1 ("s1")."""
+        base = self.train.replace(device=self.device, seed=self.seed)
+        return {"seqnet": base.replace(seq_len=self.seq_len, w=self.w), "s1": base.replace(seq_len=1, w=1)}
+
+
+def train_demo_models(ds: Dataset, conf: DemoConfig, root: Path, data_dir: Path) -> tuple[dict[str, Any], dict]:
+    """Train S_L and S_1 on ``ds`` (runs in ``root/train_<role>``); returns models by role and seconds per role.
+
+    A previous demo's run in ``root`` is replaced; a directory holding anything else is never deleted.
+    """
     models, seconds = {}, {}
-    for role, arch in DEMO_MODELS.items():
+    for role, tconf in conf.model_configs().items():
         t0 = time.perf_counter()
-        cfg = {**DEMO_TRAIN, **arch, "device": device, "seed": seed, **({"epochs": epochs} if epochs else {})}
         run_dir = root / f"train_{role}"
-        if run_dir.exists():  # a previous demo's run in --out: the demo owns it
-            shutil.rmtree(run_dir)
-        run = train(ds, cfg, run_dir, dataset_path=str(data_dir))
+        remove_owned_dir(run_dir, "training run", is_run_file)
+        run = train(ds, tconf, run_dir, dataset_path=str(data_dir))
         models[role] = load_model(run.out_dir / "best.pt")
         seconds[role] = round(time.perf_counter() - t0, 2)
-        logger.info("demo: trained %s in %.1f s (best val R@1 %.3f at epoch %d)", role, seconds[role],
+        logger.debug("demo: trained %s in %.1f s (best val R@1 %.3f at epoch %d)", role, seconds[role],
                     run.best_score, run.best_epoch)
     return models, seconds
 
 
-def run_demo(out: str | Path | None = None, places: int = DEMO_PLACES, seed: int = 0, device: str = "auto",
-             epochs: int | None = None, train_models: bool = True) -> Evaluation:
-    """Generate a synthetic dataset, save and reload it, train S_L and S_1, and evaluate every method.
-
-    Args:
-        out: directory to keep the dataset, training runs and results in (default: temporary).
-        places: number of places along the synthetic route.
-        seed: random seed (data and training).
-        device: torch device.
-        epochs: override the demo's number of training epochs.
-        train_models: False evaluates the baselines only (no training).
-
-    Returns:
-        The :class:`Evaluation` of the test split; ``results["config"]`` also holds ``demo_seconds``,
-        ``train_seconds`` (per model) and ``demo_train`` (the training settings used).
-    """
+def main(conf: DemoConfig, out: str | Path) -> Path:
+    """Generate a synthetic dataset in ``out/dataset``, train S_L and S_1, evaluate every method on the
+    test split; writes ``out/results.json`` (results, resolved config, timings) and returns its path."""
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="seqnet-demo-") as tmp:
-        root = Path(out) if out is not None else Path(tmp)
-        data_dir = save_dataset(make_synthetic(places=places, seed=seed), root / "dataset", overwrite=True)
+    root = Path(out)
+    with locked(root):
+        for role in conf.model_configs() if conf.train_models else ():  # before any work: nothing foreign is replaced
+            check_replaceable(root / f"train_{role}", "training run", is_run_file)
+        data_dir = save_dataset(make_synthetic(SynthConfig(places=conf.places, seed=conf.seed)), root / "dataset",
+                                overwrite=True)
         ds = load_dataset(data_dir)
         logger.info("demo dataset: %d reference / %d query frames, D=%d", len(ds.reference), len(ds.query),
                     ds.query.dim)
-        models, seconds = train_demo_models(ds, root, data_dir, device, epochs, seed) if train_models else ({}, {})
-        methods = DEMO_METHODS if train_models else [*BASELINES, "hvpr-delta:raw+seqmatch"]
-        ev = evaluate(ds.split("test"), EvalConfig(methods=tuple(methods), seq_len=DEMO_SEQ_LEN, device=device), models)
-    ev.results["config"].update(demo_seconds=round(time.perf_counter() - t0, 2), train_seconds=seconds,
-                                demo_train={**DEMO_TRAIN, **({"epochs": epochs} if epochs else {})})
-    return ev
+        models, seconds = train_demo_models(ds, conf, root, data_dir) if conf.train_models else ({}, {})
+        ev = evaluate(ds.split("test"), EvalConfig(methods=conf.methods, seq_len=conf.seq_len, device=conf.device),
+                      models)
+        ev.results["config"].update(demo=conf.to_dict(), demo_seconds=round(time.perf_counter() - t0, 2),
+                                    train_seconds=seconds)
+        return write_json_atomic(root / "results.json", ev.results)

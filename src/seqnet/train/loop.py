@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
 from pathlib import Path
 
 import torch
 
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
-from ..errors import ConfigError, DatasetError
+from ..errors import ConfigError, DatasetError, OutputError
+from ..ownership import locked
 from ..progress import progress
 from ..sequence_descriptors import SeqNet
 from ..utils import get_device, logger
@@ -173,27 +173,39 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
         The finished :class:`Run` (model, history, best score and epoch).
     """
     out_dir = Path(out_dir)
-    payload = None
-    if resume:
-        payload = read_resume(out_dir if resume is True else Path(resume))
-        conf = restored_config(payload, conf)
-        dataset_path = dataset_path or stored_dataset_path(payload)
-    else:
-        if isinstance(conf, Mapping):  # TEMPORARY, until the pipelines pass a TrainConfig
-            conf = TrainConfig.from_dict(conf)
-        conf = (conf or TrainConfig()).resolve(dataset)
-        check_run_dir(out_dir)
-    device = get_device(conf.device)
-    src, val_ds = prepare(dataset, conf, device)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    remove_temp_files(out_dir)
-    run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload,
-                   str(dataset_path) if dataset_path is not None else None)
-    try:
-        _fit(run, src, val_ds, device)
-    finally:
-        run.close()
+    check_resume_target(resume, out_dir)
+    with locked(out_dir):  # a second writer of this run is refused
+        payload = None
+        if resume:
+            payload = read_resume(out_dir if resume is True else Path(resume))
+            conf = restored_config(payload, conf)
+            dataset_path = dataset_path or stored_dataset_path(payload)
+        else:
+            conf = (conf or TrainConfig()).resolve(dataset)
+            check_run_dir(out_dir)
+        device = get_device(conf.device)
+        src, val_ds = prepare(dataset, conf, device)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        remove_temp_files(out_dir)
+        run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload,
+                       str(dataset_path) if dataset_path is not None else None)
+        try:
+            _fit(run, src, val_ds, device)
+        finally:
+            run.close()
     return run
+
+
+def check_resume_target(resume: bool | str | Path, out_dir: Path) -> None:
+    """``--resume A`` writes only to A: an ``out_dir`` naming another directory is an error."""
+    if not resume or resume is True:
+        return
+    src = Path(resume)
+    run_dir = src.parent if src.is_file() else src
+    if run_dir.resolve() != out_dir.resolve():
+        raise OutputError(f"--resume {resume} continues the run in {run_dir}, but --out names another directory "
+                          f"{out_dir}; a resumed run is written where it is (hint: drop --out, or copy the run "
+                          "directory first and resume the copy)")
 
 
 def main(conf: TrainConfig | None, dataset: str | Path | None, out: str | Path | None,

@@ -100,12 +100,10 @@ def run_dataset_path(src: str | Path) -> str | None:
     return stored_dataset_path(read_resume(src))
 
 
-def restored_config(payload: Mapping[str, Any], conf: TrainConfig | Mapping[str, Any] | None) -> TrainConfig:
+def restored_config(payload: Mapping[str, Any], conf: TrainConfig | None) -> TrainConfig:
     """The stored configuration of the run in ``payload`` with the changes ``conf`` makes (None: none);
     only epochs, patience and device may differ (:meth:`TrainConfig.resumed`)."""
     config, _ = _stored(payload)
-    if isinstance(conf, Mapping):  # TEMPORARY, for callers still passing dicts: changes to the stored config
-        conf = TrainConfig.from_dict({**config, **{k: v for k, v in conf.items() if v is not None}})
     device = {"device": conf.device} if conf is not None else {}  # the run's device may not exist here
     return TrainConfig.from_dict({**config, **device}).resumed(conf)
 
@@ -118,6 +116,14 @@ def check_run_dir(out_dir: Path) -> None:
         stopped = (out_dir / "config.json").is_file() and not (out_dir / "last.pt").is_file()
         why = " (a run that stopped before its first epoch ended: remove it)" if stopped else ""
         raise ConfigError(f"run directory {out_dir} is not empty{why} (hint: another --out, or --resume {out_dir})")
+
+
+RUN_FILES = ("last.pt", "best.pt", "config.json")
+
+
+def is_run_file(rel: str) -> bool:
+    """Whether ``rel`` (a path inside a run directory) is a file a training run writes there."""
+    return rel in RUN_FILES or (("/" not in rel) and rel.startswith("events.out.tfevents."))
 
 
 def remove_temp_files(out_dir: Path) -> list[Path]:
