@@ -176,10 +176,9 @@ def seqmatch_topk(
 
     Query item m is the window starting at ``q_starts[m]``; reference item j the window starting
     at ``r_starts[j]``. Returns ``(scores [M, k], items [M, k])`` (indices into ``r_starts``),
-    ties broken by the lower reference window start. Memory stays bounded for any map size: blocks
-    of query windows × blocks of ``col_block`` reference windows read from the (possibly
-    memory-mapped or float16) arrays, with a running top-k (:mod:`seqnet.blocks`); no
-    ``N_q × N_db`` matrix is ever formed.
+    ties broken by the lower reference window start. Memory stays bounded for any map size (blocks
+    of query × ``col_block`` reference windows of possibly memory-mapped or float16 arrays, running
+    top-k: :mod:`seqnet.blocks`).
     """
     dev, dtype = get_device(device), compute_dtype(query, ref)
     nq, nr, _ = check_pair_dims(query, ref)
