@@ -185,3 +185,26 @@ def test_console_script_subprocess(ds_copy):
     assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert lines[0].startswith("seqnet eval: error: cannot read") and "descriptors.npy" in lines[0]
     assert proc.stdout == ""
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".jsonl"])
+def test_eval_ks_and_per_query(small_dir, capsys, tmp_path, suffix):
+    per_query = tmp_path / f"pq{suffix}"
+    argv = ["eval", "--dataset", str(small_dir), "--method", "single,raw+seqmatch", "--seq-len", "3",
+            "--ks", "1,3", "--per-query", str(per_query), "--out", str(tmp_path / "o")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "R@3" in out and "R@5" not in out
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    entry = res["methods"]["single"]
+    assert set(entry) >= {"recall@1", "recall@3", "auc", "recall@100p"} and 0 <= entry["auc"] <= 1
+    text = per_query.read_text()
+    n = entry["queries"] + entry["no_positive"]
+    if suffix == ".jsonl":
+        rows = [json.loads(line) for line in text.splitlines()]
+        assert len(rows) == 2 * n and rows[0]["method"] == "single" and len(rows[0]["references"]) == 3  # K max
+        r1 = sum(r["correct"][0] for r in rows if r["method"] == "single" and r["has_positive"]) / entry["queries"]
+        assert r1 == pytest.approx(entry["recall@1"])
+    else:
+        lines = text.splitlines()
+        assert lines[0].startswith("method,query_frame,query_name,references") and len(lines) == 2 * n + 1

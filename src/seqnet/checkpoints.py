@@ -18,6 +18,7 @@ they can hold tensors and plain data only, never code.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -140,3 +141,18 @@ def _from_original(payload: dict[str, Any], path: Path, seq_len: int | None) -> 
     cfg = {"in_dims": in_dims, "out_dims": out_dims, "seq_len": int(stored if stored is not None else seq_len), "w": w}
     logger.info("loaded original SeqNet checkpoint %s (epoch %s): %s", path, payload.get("epoch"), cfg)
     return _build(cfg, {"conv.weight": weight, "conv.bias": bias}, path)
+
+
+def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
+                rerank_model: str | Path | None = None, seq_len: int | None = None) -> dict[str, SeqNet]:
+    """Models by role: ``paths`` by their stored role, then the S_L ``shortlist_model`` (an original
+    checkpoint without flags.json takes ``seq_len``) and the S_1 ``rerank_model``."""
+    models = {}
+    for path in paths:
+        model = load_model(path)
+        models[model.role] = model
+    if shortlist_model:
+        models["seqnet"] = load_model(shortlist_model, seq_len=seq_len)
+    if rerank_model:
+        models["s1"] = load_model(rerank_model)
+    return models

@@ -24,7 +24,8 @@ from .features import Descriptors, Side
 from .hvpr import hvpr
 from .matchers import SEQUENCE_MATCHERS
 from .methods import FRAME_FEATURES, Method, default_methods, parse_method
-from .recall import GroundTruth, check_radius, recall
+from .recall import GroundTruth, check_radius
+from .results import method_results, write_per_query
 from .sequence_descriptors import SeqNet
 from .utils import get_device, logger
 from .windows import WINDOW_MODES
@@ -100,6 +101,8 @@ class Evaluation:
     truth: GroundTruth  # what is correct for each query item (radius or explicit positives)
     q_items: np.ndarray  # [M] query frame of each evaluated query
     r_items: np.ndarray  # [R] reference frame of each indexed reference
+    confidence: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # method -> [M] in [0, 1]
+    query_names: list[str] | None = None  # [M] image names of the evaluated queries, when known
 
     @property
     def q_pos(self) -> np.ndarray:
@@ -218,22 +221,20 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     results: dict[str, Any] = {}
     retrieved, scores = {}, {}
     k_max = max(conf.ks)
+    confidence = {}
     for m in methods:
         scores[m.name], retrieved[m.name], timing = RUNNERS[m.kind](m, f, conf, k_max)
         timing["total"] = sum(timing.values())
-        rec = recall(retrieved[m.name], truth, conf.ks)
-        entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
-        entry.update(queries=rec["queries"], no_positive=rec["no_positive"],
-                     no_full_window=int(len(ds.query) - len(f.query.items)),
+        entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
+                                                   conf.extra_radii)
+        entry.update(no_full_window=int(len(ds.query) - len(f.query.items)),
                      timing_ms={k: round(v, 3) for k, v in timing.items()}, method=_entry(m, conf, models))
-        if conf.extra_radii:
-            entry["radii"] = {str(r): recall(retrieved[m.name], GroundTruth(truth.q_pos, truth.r_pos, r), conf.ks)
-                              for r in conf.extra_radii}
         results[m.name] = entry
         logger.debug("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
     out = {"methods": results, "config": {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                                           "models": {k: v.config() for k, v in models.items()}}}
-    return Evaluation(out, retrieved, scores, truth, f.query.items, f.reference.items)
+    names = [ds.query.names[i] for i in f.query.items] if ds.query.names else None
+    return Evaluation(out, retrieved, scores, truth, f.query.items, f.reference.items, confidence, names)
 
 
 def ground_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: float) -> GroundTruth:
@@ -249,27 +250,13 @@ def ground_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: 
     return truth
 
 
-def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
-                rerank_model: str | Path | None = None, seq_len: int | None = None) -> dict[str, SeqNet]:
-    """Models by role: ``paths`` by their stored role, then the S_L ``shortlist_model`` (an original
-    checkpoint without flags.json takes ``seq_len``) and the S_1 ``rerank_model``."""
-    from .checkpoints import load_model
-
-    models = {}
-    for path in paths:
-        model = load_model(path)
-        models[model.role] = model
-    if shortlist_model:
-        models["seqnet"] = load_model(shortlist_model, seq_len=seq_len)
-    if rerank_model:
-        models["s1"] = load_model(rerank_model)
-    return models
-
-
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
-         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None) -> Path:
+         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
+         per_query: str | Path | None = None) -> Path:
     """hloc-style stage: evaluate ``conf.split`` of the dataset directory ``dataset`` with the model
-    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs) and returns its path."""
+    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs) and, with
+    ``per_query``, one row per method and query (``.csv`` or ``.jsonl``); returns the results path."""
+    from .checkpoints import load_models
     from .data.io import load_dataset
     from .files import write_json_atomic
 
@@ -280,4 +267,7 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
     ev.results["config"]["dataset_path"] = str(dataset)
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
-    return write_json_atomic(Path(out) / "results.json", ev.results)
+    path = write_json_atomic(Path(out) / "results.json", ev.results)
+    if per_query is not None:
+        write_per_query(ev, per_query)
+    return path

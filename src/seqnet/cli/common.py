@@ -50,6 +50,17 @@ def non_negative_float(text: str) -> float:
     return v
 
 
+def int_list(text: str) -> tuple[int, ...]:
+    """argparse type: comma-separated integers >= 1 (e.g. ``1,5,10``)."""
+    try:
+        values = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers (e.g. 1,5,10), got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected integers >= 1, got {text!r}")
+    return values
+
+
 def index_range(text: str) -> tuple[int, int]:
     """argparse type: ``START:STOP`` (half-open index range)."""
     try:

@@ -13,7 +13,7 @@ from ..files import write_json_atomic
 from ..methods import DEFAULT_METHODS, valid_methods
 from ..report import format_table
 from ..windows import WINDOW_MODES
-from .common import add_device, parse_list, positive_float, positive_int
+from .common import add_device, int_list, parse_list, positive_float, positive_int
 
 _D = EvalConfig()
 
@@ -42,6 +42,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rerank-model", metavar="CKPT",
                    help="S_1 checkpoint used by 's1', 's1+seqmatch' and HVPR re-ranking")
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
+    p.add_argument("--ks", type=int_list, metavar="K[,K...]",
+                   help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
+    p.add_argument("--per-query", metavar="FILE", help="write one row per method and query (top-5 references, "
+                   "scores, correct or not, confidence) to FILE (.csv or .jsonl)")
     p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) here")
     p.add_argument("--json", metavar="FILE", help="also write the results JSON to FILE")
     add_device(p)
@@ -52,9 +56,11 @@ def run(args: argparse.Namespace) -> int:
     methods = parse_list(args.methods, None, "method") or None
     conf = EvalConfig().replace(methods=methods, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                                 window=args.window, radius=args.radius, extra_radii=tuple(args.extra_radius) or None,
-                                top_k=args.top_k, split=args.split, backend=args.backend, device=args.device)
+                                top_k=args.top_k, split=args.split, backend=args.backend, device=args.device,
+                                ks=args.ks)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
-        path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model)
+        path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,
+                    args.per_query)
         res = json.loads(Path(path).read_text(encoding="utf-8"))
     cfg = res["config"]
     print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']})")
