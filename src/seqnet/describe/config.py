@@ -89,7 +89,7 @@ class DescribeConfig(Config):
         DESCRIBERS[self.method].of(self)  # the method checks its own settings
 
     @property
-    def describer(self) -> Method:
+    def method_spec(self) -> Method:
         """The :data:`~seqnet.describe.methods.DESCRIBERS` entry with its settings from this config."""
         return DESCRIBERS[self.method].of(self)
 
@@ -108,12 +108,12 @@ class DescribeConfig(Config):
     @property
     def needs_fit(self) -> bool:
         """Whether images are needed to fit a PCA or the method's state."""
-        return self.dim is not None or self.describer.fits_state
+        return self.dim is not None or self.method_spec.fits_state
 
     def settings(self) -> dict[str, Any]:
         """JSON-ready settings that determine the descriptors (a resumed run must match them)."""
         out: dict[str, Any] = {"method": self.method, "size": self.resolved().size, "crop_bottom": self.crop_bottom,
-                               **dataclasses.asdict(self.describer)}
+                               **dataclasses.asdict(self.method_spec)}
         if self.dim is not None:
             out.update(dim=self.dim, whiten=self.whiten)
         if self.needs_fit:

@@ -52,14 +52,14 @@ class Describer:
         """Images as :meth:`load`, leaving unreadable ones out with ``skip_corrupted``; also their indices."""
         c = self.config
         return load_images([Path(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
-                           grey=c.describer.grey, skip_corrupted=c.skip_corrupted)
+                           grey=c.method_spec.grey, skip_corrupted=c.skip_corrupted)
 
     def load(self, paths: Sequence[str | os.PathLike[str]]) -> np.ndarray:
         """uint8 images ``[N, H, W]`` (grey methods) or ``[N, H, W, 3]`` read, cropped and resized as the
         describer reads them; an unreadable image raises :class:`ImageError` (rows match ``paths``)."""
         c = self.config
         return load_images([Path(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
-                           grey=c.describer.grey)[0]
+                           grey=c.method_spec.grey)[0]
 
     def batches(self, paths: Sequence[Path], what: str) -> Iterator[np.ndarray]:
         """Image batches of ``paths`` (for fitting), with a progress bar labelled ``what``."""
@@ -103,13 +103,14 @@ def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str]]
     """
     conf = conf.resolved()
     fit_paths = fit_paths_of(conf, [Path(p) for p in paths]) if conf.needs_fit else []
-    pca_state, vlad_state = pca_file(conf, sidecar, fit_paths), method_state_file(conf, sidecar, fit_paths)
-    reuse_pca, reuse_vlad = (f is not None and f.reusable() for f in (pca_state, vlad_state))
+    pca_state, own_state = pca_file(conf, sidecar, fit_paths), method_state_file(conf, sidecar, fit_paths)
+    reuse_pca, reuse_own = (f is not None and f.reusable() for f in (pca_state, own_state))
     loader = Describer(conf, lambda images: images)
-    ctx = FitContext(get_device(conf.device), lambda: loader.batches(fit_paths, "NetVLAD k-means features"),
-                     len(fit_paths), vlad_state.path if vlad_state else None, reuse_vlad,
-                     vlad_state.tag if vlad_state else None)
-    d = Describer(conf, conf.describer.extractor(ctx))
+    ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths),
+                     batches=lambda: loader.batches(fit_paths, f"fitting images ({conf.method})"),
+                     state=own_state.path if own_state else None, reuse=reuse_own,
+                     tag=own_state.tag if own_state else None)
+    d = Describer(conf, conf.method_spec.extractor(ctx))
     if conf.dim is not None:
         d.pca = _pca_for(d, fit_paths, pca_state, reuse_pca)
     return d

@@ -81,7 +81,7 @@ def pca_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
 def method_state_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
                       fit_paths: Sequence[Path] = ()) -> StateFile | None:
     """The file of the method's fitted state (NetVLAD clusters) beside ``output``; None when it fits none."""
-    method = conf.describer
+    method = conf.method_spec
     if output is None or not method.fits_state or method.state_suffix is None:
         return None
     path = Path(output).with_suffix("")
