@@ -139,13 +139,13 @@ def test_config_defaults_normalising_and_round_trip():
 @pytest.mark.parametrize("kwargs,match", [
     ({"method": "sift"}, "unknown descriptor method 'sift'; valid: pixels, gem, gmp, netvlad"),
     ({"backbone": "resnet"}, "unknown backbone 'resnet'; valid: efficientnet-lite0, vgg16"),
-    ({"batch_size": 0}, "batch size must be an integer >= 1"),
-    ({"crop_bottom": -1}, "crop bottom must be an integer >= 0"),
+    ({"batch_size": 0}, "batch-size must be an integer >= 1"),
+    ({"crop_bottom": -1}, "crop-bottom must be an integer >= 0"),
     ({"patch": -1}, "patch must be an integer >= 0"),
     ({"dim": 0}, "output dim must be an integer >= 1"),
     ({"gem_p": 0}, "GeM power p must be a number > 0"),
     ({"clusters": 0}, "clusters must be an integer >= 1"),
-    ({"fit_max": 0}, "fit max must be an integer >= 1"),
+    ({"fit_max": 0}, "fit-max must be an integer >= 1"),
     ({"seed": -1}, "seed must be an integer >= 0"),
     ({"size": (0, 32)}, "size must be 'auto', 'native' or WIDTHxHEIGHT with both in 1..8192"),
     ({"size": (9000, 32)}, r"in 1..8192 \(e.g. 640x320\), got \(9000, 32\)"),
@@ -158,7 +158,7 @@ def test_config_defaults_normalising_and_round_trip():
     ({"method": "netvlad", "backbone": "vgg16"}, "NetVLAD without a checkpoint needs a pretrained backbone"),
     ({"fit": 0}, r"fit \(the first N images\) must be an integer >= 1"),
     ({"fit": []}, "fit must be an int N >= 1, a folder or list file, or a non-empty list"),
-    ({"use_wpca": "no"}, "use wpca must be true or false"),
+    ({"use_wpca": "no"}, "use-wpca must be true or false"),
     ({"device": "tpu"}, "unknown device 'tpu'"),
 ])
 def test_config_validation(kwargs, match):

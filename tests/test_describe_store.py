@@ -193,3 +193,41 @@ def test_cli_netvlad_checkpoint_and_errors(folder, tmp_path, capsys):
         assert describe(folder, *args, "--out", tmp_path / "x.h5") == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and what in err[0], err
+
+
+def test_no_readable_image_leaves_no_partial(folder, tmp_path, capsys):
+    for f in folder.iterdir():
+        f.write_bytes(b"broken")
+    assert describe(folder, "--method", "pixels", "--skip-corrupted", "--out", tmp_path / "o.h5") == 2
+    assert "none of the 10 images could be read" in capsys.readouterr().err
+    assert not list(tmp_path.glob(".*partial*")) and not (tmp_path / "o.h5").exists()
+
+
+def test_partial_whose_fitted_state_is_gone_starts_again(folder, tmp_path, monkeypatch, caplog):
+    out, conf = tmp_path / "o.h5", DescribeConfig(dim=3, batch_size=5)
+    real_load = describer_mod.load_images
+    calls = []
+
+    def crash_on_second_batch(paths, **k):
+        calls.append(len(paths))
+        if len(calls) == 4:  # PCA fit (2 batches), 1 batch described, then "crash"
+            raise KeyboardInterrupt
+        return real_load(paths, **k)
+
+    monkeypatch.setattr(describer_mod, "load_images", crash_on_second_batch)
+    with pytest.raises(KeyboardInterrupt):
+        describe_folder(folder, conf, out=out)
+    monkeypatch.setattr(describer_mod, "load_images", real_load)
+    (tmp_path / "o.pca.npz").unlink()
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        describe_folder(folder, conf, out=out)
+    assert "fitted state" in caplog.text and "resuming" not in caplog.text
+    assert h5_contents(out)[0].shape == (10, 3)
+
+
+def test_cli_help_comes_from_the_tables(capsys):
+    with pytest.raises(SystemExit):
+        cli_main(["describe", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "{pixels,gem,gmp,netvlad}" in text and "{efficientnet-lite0,vgg16}" in text
+    assert "(default 8)" in text and "native for pixels; 640x320 for gem, gmp, netvlad" in text

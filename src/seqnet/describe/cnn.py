@@ -192,10 +192,12 @@ class Backbone:
         """``layer`` if valid for this backbone (digit strings become ints), else :class:`ConfigError`."""
         if isinstance(layer, str) and layer.isdigit():
             layer = int(layer)
-        if layer is None or layer in self.layers and not isinstance(layer, bool):
+        if layer is None or (isinstance(layer, (str, int)) and not isinstance(layer, bool) and layer in self.layers):
             return layer
-        valid = f"'head' or a block index 0..{EFFICIENTNET_BLOCKS - 1}" if self.layers else "none (the cut is fixed)"
-        raise ConfigError(f"unknown {self.name} layer {layer!r}; valid: {valid}")
+        names = [repr(v) for v in self.layers if isinstance(v, str)]
+        blocks = [v for v in self.layers if isinstance(v, int)]
+        valid = " or ".join(names + ([f"a block index {min(blocks)}..{max(blocks)}"] if blocks else []))
+        raise ConfigError(f"unknown {self.name} layer {layer!r}; valid: {valid or 'none (the cut is fixed)'}")
 
     def build(self, layer: Layer = None, pretrained: bool = True) -> nn.Module:
         """The encoder cut at ``layer`` (None: :attr:`pool_layer`), in eval mode."""

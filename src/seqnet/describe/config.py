@@ -74,12 +74,12 @@ class DescribeConfig(Config):
         self._set("size", check_size(self.size))
         for key, low in (("crop_bottom", 0), ("batch_size", 1), ("patch", 0), ("clusters", 1), ("fit_max", 1),
                          ("seed", 0)):
-            self._set(key, check_int(key.replace("_", " "), getattr(self, key), low))
+            self._set(key, check_int(key.replace("_", "-"), getattr(self, key), low))
         if self.dim is not None:
             self._set("dim", check_int("output dim", self.dim, 1))
         self._set("gem_p", check_float("GeM power p", self.gem_p, 0.0, strict=True))
         for key in ("use_wpca", "whiten", "skip_corrupted"):
-            self._set(key, check_bool(key.replace("_", " "), getattr(self, key)))
+            self._set(key, check_bool(key.replace("_", "-"), getattr(self, key)))
         check_choice("backbone", self.backbone, BACKBONES)
         self._set("layer", BACKBONES[self.backbone].check_layer(self.layer))
         if self.checkpoint is not None:

@@ -35,7 +35,7 @@ class FitContext:
 
     Attributes:
         device: torch device to run on.
-        batches: ``batches()`` yields the fitting images as uint8 batches ``[B, H, W, 3]``.
+        batches: ``batches()`` yields the fitting images as uint8 batches ``[B, H, W(, 3)]`` (as the method reads them).
         n_images: the number of fitting images.
         state: the file holding the method's fitted state (None: keep it in memory only).
         reuse: load ``state`` instead of fitting (it exists and was written for these settings).
@@ -52,7 +52,11 @@ class FitContext:
 
 @dataclasses.dataclass(frozen=True)
 class Method:
-    """Base class of the :data:`DESCRIBERS` entries (see the module docstring)."""
+    """Base class of the :data:`DESCRIBERS` entries (see the module docstring).
+
+    A method whose extractor is fitted on images overrides :attr:`fits_state`, and sets
+    :attr:`state_suffix` and :meth:`read_tag` so that its state can be kept beside an output.
+    """
 
     name: ClassVar[str]
     summary: ClassVar[str]

@@ -97,6 +97,7 @@ def describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
         _drop_if_unstarted(partial)
         raise
     if not len(keep):
+        partial.unlink()  # nothing worth resuming: a re-run reads every image again
         raise ImageError(f"none of the {len(images)} images could be read (first: {images.paths[0]})")
     names = [images.names[i] for i in keep]
     record = {**conf.to_dict(), "fit": fit_summary(conf.fit)}  # a list of fitting images as its hash
