@@ -28,17 +28,17 @@ import numpy as np
 import torch
 
 from seqnet.data.traverse import Dataset, Traverse
-from seqnet.describe.describers import make_describer
-from seqnet.evaluate import evaluate
+from seqnet.describe import DescribeConfig, make_describer
+from seqnet.evaluate import EvalConfig, evaluate
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SEQNET_SHARED_DATA", REPO.parent / "shared" / "data")) / "nordland64"
 TEST = (1940, 2761)
 N_FIT = 250  # training frames per season used to fit PCA / NetVLAD clusters
 
-# name -> (method, options); CNN methods run on frames upscaled to --size
+# name -> (method, options); the others run on frames upscaled to --size
 CONFIGS = {
-    "pixels": ("pixels", {}),
+    "pixels": ("pixels", {"size": "native"}),
     "gem": ("gem", {}),
     "gmp": ("gmp", {}),
     "netvlad": ("netvlad", {"clusters": 64}),  # EfficientNet-Lite0 block 10, K=64: 7168-D
@@ -62,11 +62,11 @@ def clean_frames(root: Path) -> list[str]:
 def run_config(name: str, frames: list[str], size: tuple[int, int], batch: int) -> dict:
     """R@1 (single, raw+seqmatch), dim, fitting seconds and images/s of one configuration."""
     method, opts = CONFIGS[name]
-    opts = {**opts, "progress": False, "batch_size": batch, **({} if method == "pixels" else {"size": size})}
     train = frames[: TEST[0]]
-    opts["fit"] = [DATA / s / n for n in train[:: max(1, len(train) // N_FIT)] for s in ("summer", "winter")]
+    fit = [DATA / s / n for n in train[:: max(1, len(train) // N_FIT)] for s in ("summer", "winter")]
+    conf = DescribeConfig(method=method, batch_size=batch, fit=fit, size=size).replace(**opts)
     t0 = time.perf_counter()
-    describer = make_describer(method, **opts)
+    describer = make_describer(conf)
     fit_s = time.perf_counter() - t0
     test = frames[TEST[0] : TEST[1]]
     t0, c0 = time.perf_counter(), time.process_time()
@@ -77,8 +77,9 @@ def run_config(name: str, frames: list[str], size: tuple[int, int], batch: int) 
     pos = np.array([frame_number(n) / 10 for n in test])
     ds = Dataset(Traverse(ref, pos, name="summer"), Traverse(qry, pos, name="winter"), radius=1.0,
                  position_unit="frames", name="nordland64-test")
-    res = evaluate(ds, {"methods": ["single", "raw+seqmatch"], "seq_len": 5}).results["methods"]
-    return {"method": method, "size": "native 64x32" if method == "pixels" else f"{size[0]}x{size[1]}",
+    res = evaluate(ds, EvalConfig(methods=("single", "raw+seqmatch"), seq_len=5)).results["methods"]
+    used = describer.config.size
+    return {"method": method, "size": "native 64x32" if used == "native" else f"{used[0]}x{used[1]}",
             "dim": int(ref.shape[1]), "single_r1": res["single"]["recall@1"],
             "seqmatch_r1": res["raw+seqmatch"]["recall@1"], "queries": res["single"]["queries"],
             "images_per_s": round(speed, 1), "cpu_ms_per_image": round(cpu_ms, 2), "fit_s": round(fit_s, 1)}

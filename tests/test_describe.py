@@ -1,19 +1,22 @@
-"""Tests of seqnet.describe and the `seqnet describe` command on tiny generated images."""
+"""Tests of the describe API: DescribeConfig, the DESCRIBERS table and the Describer, on tiny generated images."""
 
 from __future__ import annotations
 
-import h5py
 import numpy as np
 import pytest
-import torch
 from PIL import Image
-from test_netvlad import make_checkpoint
 
-import seqnet.describe.describers as describe_mod
-from seqnet.cli import main
-from seqnet.data.io import load_descriptors
-from seqnet.describe.describers import describe_folder, describe_images, make_describer
+from seqnet.describe import BACKBONES, DESCRIBERS, DescribeConfig, describe_folder, describe_images, make_describer
+from seqnet.describe.describer import fit_paths_of
 from seqnet.errors import ConfigError, ImageError
+
+# per method: tiny settings and the descriptor dimension they give on 64x32 RGB / native 32x16 images
+TINY = {
+    "pixels": ({}, 16 * 32),
+    "gem": ({"size": (64, 32)}, 1280),
+    "gmp": ({"size": (64, 32), "layer": 10}, 112),
+    "netvlad": ({"size": (64, 32), "clusters": 4}, 4 * 112),
+}
 
 
 @pytest.fixture
@@ -26,151 +29,162 @@ def folder(tmp_path):
     return d
 
 
-@pytest.mark.parametrize("method,opts,dim", [
-    ("pixels", {}, 16 * 32),
-    ("pixels", {"size": (16, 8), "crop_bottom": 4}, 128),
-    ("gem", {"size": (64, 32)}, 1280),
-    ("gmp", {"size": (64, 32), "layer": 10}, 112),
-    ("netvlad", {"size": (64, 32), "clusters": 4, "layer": 10}, 4 * 112),
-    ("pixels", {"dim": 5, "whiten": True}, 5),
-])
-def test_shapes_norms_determinism(folder, method, opts, dim):
+def test_tiny_settings_cover_the_table():
+    assert set(TINY) == set(DESCRIBERS)
+
+
+@pytest.mark.parametrize("method", list(DESCRIBERS))
+def test_every_describer_shape_dtype_norm_determinism(folder, method):
+    opts, dim = TINY[method]
     n = 10 if method == "pixels" else 4  # CNNs: few images keep the test fast
     paths = [folder / f"f{i}.png" for i in range(n)]
-    kw = {"progress": False, "batch_size": 4, **opts}
-    d1, names = describe_images(paths, method, **kw)
-    d2, _ = describe_images(paths, method, **kw)
+    conf = DescribeConfig(method=method, batch_size=2, device="cpu", **opts)
+    d1, names = describe_images(paths, conf)
+    d2, _ = describe_images(paths, conf)
     assert d1.shape == (n, dim) and d1.dtype == np.float32
     assert names == [f"f{i}.png" for i in range(n)]
     np.testing.assert_allclose(np.linalg.norm(d1, axis=1), 1.0, rtol=1e-4)
     np.testing.assert_allclose(d1, d2, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("opts,dim", [({"size": (16, 8), "crop_bottom": 4}, 128), ({"dim": 5, "whiten": True}, 5),
+                                      ({"size": "16x8"}, 128)])
+def test_pixels_options(folder, opts, dim):
+    desc, _ = describe_images(sorted(folder.iterdir()), DescribeConfig(**opts))
+    assert desc.shape == (10, dim)
+    np.testing.assert_allclose(np.linalg.norm(desc, axis=1), 1.0, rtol=1e-4)
+
+
+def test_describer_call_load_and_config(folder):
+    paths = sorted(folder.iterdir())[:3]
+    grey = make_describer(DescribeConfig(crop_bottom=4))
+    assert grey.config.size == "native" and grey.method == "pixels"
+    imgs = grey.load(paths)
+    assert imgs.shape == (3, 12, 32) and imgs.dtype == np.uint8
+    np.testing.assert_array_equal(grey(imgs), grey.describe(paths)[0])
+    rgb = make_describer(DescribeConfig(method="gmp", size=(64, 32), layer=10, device="cpu"))
+    assert rgb.config.size == (64, 32) and rgb.load(paths).shape == (3, 32, 64, 3)
+    assert make_describer(DescribeConfig(method="gem", device="cpu")).config.size == (640, 320)  # "auto"
+    (folder / "f0.png").write_bytes(b"broken")
+    skipping = make_describer(DescribeConfig(skip_corrupted=True))
+    with pytest.raises(ImageError, match="f0.png"):  # load keeps rows aligned with paths: never skips
+        skipping.load(paths)
+    assert skipping.load_some(paths)[1] == [0]
+
+
+def test_native_size_is_native_for_cnn_methods(folder):
+    paths = sorted(folder.iterdir())[:2]
+    d = make_describer(DescribeConfig(method="gmp", size="native", layer=10, device="cpu"))
+    assert d.config.size == "native" and d.config.settings()["size"] == "native"
+    assert d.load(paths).shape == (2, 16, 32, 3)  # not resized to 640x320
+    np.testing.assert_allclose(d.describe(paths)[0], d(d.load(paths)), atol=1e-6)
+
+
 def test_batch_size_does_not_change_result(folder):
     paths = [folder / f"f{i}.png" for i in range(3)]
-    d = make_describer("gem", size=(64, 32), batch_size=1, progress=False)
-    a, _ = d.describe(paths)
-    d.opts.batch_size = 3
-    b, _ = d.describe(paths)
+    conf = DescribeConfig(method="gem", size=(64, 32), batch_size=1, device="cpu")
+    a, _ = make_describer(conf).describe(paths)
+    b, _ = make_describer(conf.replace(batch_size=3)).describe(paths)
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
 
 
 def test_one_describer_for_two_traverses(folder):
     paths = sorted(folder.iterdir())
-    d = make_describer("pixels", paths, dim=3, progress=False)
+    d = make_describer(DescribeConfig(dim=3), paths)
     a, _ = d.describe(paths[:5])
     b, _ = d.describe(paths[5:])
     full, _ = d.describe(paths)
     np.testing.assert_allclose(np.vstack([a, b]), full, atol=1e-6)
 
 
-@pytest.mark.parametrize("suffix", [".h5", ".npy"])
-def test_output_readable_by_traverse_loader(folder, tmp_path, suffix):
-    out = tmp_path / "trav" / f"descriptors{suffix}"
-    desc, names = describe_folder(folder, "pixels", out=out, progress=False)
-    loaded, h5_names = load_descriptors(out.parent)
-    np.testing.assert_array_equal(loaded, desc)
-    got = h5_names if suffix == ".h5" else (out.parent / "names.txt").read_text().splitlines()
-    assert got == names
-    assert not list(out.parent.glob(".*partial*"))
-    with pytest.raises(ConfigError, match="already exists"):
-        describe_folder(folder, "pixels", out=out, progress=False)
-
-
-def test_resume_skips_finished_images(folder, tmp_path, monkeypatch):
-    out = tmp_path / "out.h5"
-    kw = {"dim": 4, "batch_size": 3, "progress": False}
-    expected, _ = describe_folder(folder, "pixels", **kw)
-    real_load = describe_mod.load_images
-    loaded: list[str] = []
-
-    def counting_load(paths, **k):
-        loaded.extend(p.name for p in paths)
-        if len(loaded) > 10 + 6:  # PCA fit (10 images) + 2 batches, then "crash"
-            raise KeyboardInterrupt
-        return real_load(paths, **k)
-
-    monkeypatch.setattr(describe_mod, "load_images", counting_load)
-    with pytest.raises(KeyboardInterrupt):
-        describe_folder(folder, "pixels", out=out, **kw)
-    assert not out.exists() and (tmp_path / ".out.h5.partial.h5").exists() and (tmp_path / "out.pca.npz").exists()
-    with h5py.File(tmp_path / ".out.h5.partial.h5") as h:
-        assert h["status"][()].tolist() == [1] * 6 + [0] * 4
-    monkeypatch.setattr(describe_mod, "load_images", real_load)
-    loaded.clear()
-    monkeypatch.setattr(describe_mod, "load_images", lambda paths, **k: (loaded.extend(p.name for p in paths),
-                                                                          real_load(paths, **k))[1])
-    desc, names = describe_folder(folder, "pixels", out=out, **kw)
-    assert loaded == [f"f{i}.png" for i in range(6, 10)]  # PCA reused, finished images skipped
-    np.testing.assert_allclose(desc, expected, atol=1e-6)
-    assert names == [f"f{i}.png" for i in range(10)]
-
-
-def test_resume_with_other_settings_refused(folder, tmp_path):
-    partial = tmp_path / ".out.h5.partial.h5"
-    with h5py.File(partial, "w") as h:
-        h.attrs["config"] = "{}"
-        h.create_dataset("names", data=np.array(["x"], dtype=object), dtype=h5py.string_dtype())
-        h.create_dataset("status", data=np.zeros(1, np.int8))
-    with pytest.raises(ConfigError, match="other settings"):
-        describe_folder(folder, "pixels", out=tmp_path / "out.h5", progress=False)
-    describe_folder(folder, "pixels", out=tmp_path / "out.h5", progress=False, overwrite=True)
-
-
 def test_corrupted_mixed_and_empty(folder, tmp_path):
     (folder / "f5.png").write_bytes(b"broken")
     with pytest.raises(ImageError, match="f5.png"):
-        describe_folder(folder, "pixels", progress=False)
-    desc, names = describe_folder(folder, "pixels", progress=False, skip_corrupted=True, batch_size=3)
+        describe_folder(folder, DescribeConfig())
+    desc, names = describe_folder(folder, DescribeConfig(skip_corrupted=True, batch_size=3))
     assert desc.shape[0] == 9 and "f5.png" not in names
     Image.fromarray(np.zeros((20, 32, 3), np.uint8)).save(folder / "f9.png")
     with pytest.raises(ImageError, match="f9.png has size 32x20"):
-        describe_folder(folder, "pixels", progress=False, skip_corrupted=True, batch_size=3)
+        describe_folder(folder, DescribeConfig(skip_corrupted=True, batch_size=3))
     (tmp_path / "empty").mkdir()
     with pytest.raises(ImageError, match="no images"):
-        describe_folder(tmp_path / "empty", "pixels")
-    with pytest.raises(ConfigError, match="unknown descriptor method 'sift'"):
-        describe_images(sorted(folder.iterdir()), "sift")
-    with pytest.raises(ConfigError, match="unknown describe option 'sise'"):
-        describe_images(sorted(folder.iterdir()), "pixels", sise=3)
-
-
-def test_cli_netvlad_checkpoint_and_errors(folder, tmp_path, capsys):
-    ckpt = tmp_path / "pitts_WPCA8.pth.tar"
-    make_checkpoint(ckpt)
-    out = tmp_path / "nv.h5"
-    assert main(["describe", str(folder), "--method", "netvlad", "--checkpoint", str(ckpt), "--resize", "32x32",
-                 "--out", str(out), "--no-progress"]) == 0
-    desc, names = load_descriptors_h5(out)
-    assert desc.shape == (10, 8) and names[0] == "f0.png"
-    assert main(["describe", str(folder), "--method", "gmp", "--checkpoint", str(ckpt), "--resize", "32x32",
-                 "--out", str(tmp_path / "g.npy"), "--no-progress"]) == 0
-    assert np.load(tmp_path / "g.npy").shape == (10, 16)
-    bad = tmp_path / "bad.pth.tar"
-    torch.save({"state_dict": {"pool.conv.weight": torch.zeros(2, 3, 1, 1)}}, bad)
-    (folder / "f3.png").write_bytes(b"broken")
-    capsys.readouterr()
-    for args in (["--method", "netvlad", "--checkpoint", str(bad)], ["--method", "pixels"]):
-        assert main(["describe", str(folder), *args, "--out", str(tmp_path / "x.h5"), "--no-progress"]) == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and ("bad.pth.tar" in err[0] or "f3.png" in err[0]), err
-    assert main(["describe", str(folder), "--method", "pixels", "--skip-corrupted", "--out", str(tmp_path / "x.h5"),
-                 "--no-progress"]) == 0
-
-
-def load_descriptors_h5(path):
-    with h5py.File(path) as h:
-        return h["descriptors"][()], [n.decode() for n in h["names"][()]]
+        describe_folder(tmp_path / "empty", DescribeConfig())
 
 
 def test_fit_sets(folder, tmp_path):
-    from seqnet.describe.describers import fit_paths_of, make_options
-
     paths = sorted(folder.iterdir())
-    assert fit_paths_of(make_options("pixels", fit=3), paths) == paths[:3]
-    assert len(fit_paths_of(make_options("pixels", fit_max=4), paths)) == 4
+    assert fit_paths_of(DescribeConfig(fit=3), paths) == paths[:3]
+    assert len(fit_paths_of(DescribeConfig(fit_max=4), paths)) == 4
     (tmp_path / "fit.txt").write_text("imgs/f1.png\nimgs/f2.png\n")
-    assert [p.name for p in fit_paths_of(make_options("pixels", fit=str(tmp_path / "fit.txt")), paths)] == [
-        "f1.png", "f2.png"]
+    assert [p.name for p in fit_paths_of(DescribeConfig(fit=tmp_path / "fit.txt"), paths)] == ["f1.png", "f2.png"]
+    assert DescribeConfig(fit=paths[:2]).fit == (str(paths[0]), str(paths[1]))
     with pytest.raises(ConfigError, match=r"dims=3 must be between 1 and min\(N, D\) = min\(2, 512\)"):
-        describe_images(paths, "pixels", dim=3, fit=2, progress=False)
+        describe_images(paths, DescribeConfig(dim=3, fit=2))
+
+
+# ----------------------------------------------------------------------------- DescribeConfig
+
+
+def test_config_defaults_normalising_and_round_trip():
+    conf = DescribeConfig(method="gem", size="64X32", layer="10", fit="train/")
+    assert conf.size == (64, 32) and conf.layer == 10 and conf.image_size == (64, 32)
+    assert DescribeConfig.from_dict(conf.to_dict()) == conf
+    assert DescribeConfig().size == "auto" and DescribeConfig().image_size is None
+    assert DescribeConfig(size=[32, 16]).size == (32, 16) and DescribeConfig(size="NATIVE").size == "native"
+    assert DescribeConfig(size=(8192, 1)).size == (8192, 1)
+    assert conf.replace(size=None, dim=4).size == (64, 32)  # None keeps
+    assert DescribeConfig(method="gem", checkpoint="x.pth.tar", backbone="vgg16").backbone == "vgg16"
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"method": "sift"}, "unknown descriptor method 'sift'; valid: pixels, gem, gmp, netvlad"),
+    ({"backbone": "resnet"}, "unknown backbone 'resnet'; valid: efficientnet-lite0, vgg16"),
+    ({"batch_size": 0}, "batch-size must be an integer >= 1"),
+    ({"crop_bottom": -1}, "crop-bottom must be an integer >= 0"),
+    ({"patch": -1}, "patch must be an integer >= 0"),
+    ({"dim": 0}, "output dim must be an integer >= 1"),
+    ({"gem_p": 0}, "GeM power p must be a number > 0"),
+    ({"clusters": 0}, "clusters must be an integer >= 1"),
+    ({"fit_max": 0}, "fit-max must be an integer >= 1"),
+    ({"seed": -1}, "seed must be an integer >= 0"),
+    ({"size": (0, 32)}, "size must be 'auto', 'native' or WIDTHxHEIGHT with both in 1..8192"),
+    ({"size": (9000, 32)}, r"in 1..8192 \(e.g. 640x320\), got \(9000, 32\)"),
+    ({"size": "big"}, "got 'big'"),
+    ({"size": None}, "got None"),
+    ({"size": (64, 32, 3)}, "WIDTHxHEIGHT"),
+    ({"layer": 16}, "unknown efficientnet-lite0 layer 16; valid: 'head' or a block index 0..15"),
+    ({"backbone": "vgg16", "layer": 3, "checkpoint": "c.pth"}, "unknown vgg16 layer 3; valid: none"),
+    ({"method": "gem", "backbone": "vgg16"}, "vgg16 backbone ships no weights"),
+    ({"method": "netvlad", "backbone": "vgg16"}, "NetVLAD without a checkpoint needs a pretrained backbone"),
+    ({"fit": 0}, r"fit \(the first N images\) must be an integer >= 1"),
+    ({"fit": []}, "fit must be an int N >= 1, a folder or list file, or a non-empty list"),
+    ({"use_wpca": "no"}, "use-wpca must be true or false"),
+    ({"device": "tpu"}, "unknown device 'tpu'"),
+])
+def test_config_validation(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        DescribeConfig(**kwargs)
+
+
+def test_config_unknown_key_names_valid_ones():
+    with pytest.raises(ConfigError, match="unknown DescribeConfig key 'sise'; valid: method, size"):
+        DescribeConfig.from_dict({"sise": 3})
+    with pytest.raises(ConfigError, match="unknown DescribeConfig key 'progress'"):
+        DescribeConfig().replace(progress=False)
+
+
+def test_settings_follow_the_method():
+    assert DescribeConfig().settings() == {"method": "pixels", "size": "native", "crop_bottom": 0, "patch": 8}
+    nv = DescribeConfig(method="netvlad", dim=4, fit=["a.png", "b.png"]).settings()
+    assert nv["size"] == [640, 320] and nv["clusters"] == 64 and nv["dim"] == 4 and "gem_p" not in nv
+    assert nv["fit"]["paths"] == 2  # a list of fitting images is stored as its length and hash
+    assert "checkpoint" in DescribeConfig(method="gem").settings()
+
+
+def test_backbones_table():
+    assert BACKBONES["efficientnet-lite0"].check_layer("head") == "head"
+    assert BACKBONES["efficientnet-lite0"].check_layer("3") == 3
+    enc = BACKBONES["efficientnet-lite0"].build(10)
+    assert (enc.arch, enc.out_dim, enc.stride) == ("efficientnet-lite0", 112, 16)
+    assert BACKBONES["vgg16"].build(pretrained=False).out_dim == 512
+    assert not BACKBONES["vgg16"].pretrained and BACKBONES["efficientnet-lite0"].local_layer == 10

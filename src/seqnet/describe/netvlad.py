@@ -13,7 +13,7 @@ Checkpoints written by seqnet may use the EfficientNet-Lite0 encoder; they say s
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -22,11 +22,11 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import CheckpointError, ConfigError
-from ..files import atomic_path
+from ..files import atomic_path, load_torch_file
 from ..utils import logger
-from .cnn import EfficientNetLite0, VGG16Encoder
+from .cnn import BACKBONES, to_input
 
-NETVLAD_LAYER = 10  # EfficientNet-Lite0 block 10: 112 channels at stride 16 (like VGG-16 conv5_3)
+TAG_KEY = "seqnet_tag"  # provenance string stored in checkpoints written by seqnet (see save_netvlad)
 
 
 class NetVLAD(nn.Module):
@@ -118,19 +118,21 @@ def _sub(state: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]
 
 def read_checkpoint(path: str | os.PathLike[str]) -> dict:
     """The raw checkpoint dict (``state_dict`` + metadata); :class:`CheckpointError` when unreadable."""
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"NetVLAD checkpoint not found: {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # noqa: BLE001 - torch raises many types for a bad file
-        reason = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
-        raise CheckpointError(f"cannot read NetVLAD checkpoint {path} ({reason})") from None
-    if isinstance(ckpt, dict) and "state_dict" not in ckpt and any(k.startswith("pool.") for k in ckpt):
+    ckpt = load_torch_file(path, "NetVLAD checkpoint")
+    if isinstance(ckpt, dict) and "state_dict" not in ckpt and any(str(k).startswith("pool.") for k in ckpt):
         ckpt = {"state_dict": ckpt}
     if not isinstance(ckpt, dict) or not isinstance(ckpt.get("state_dict"), dict):
         raise CheckpointError(f"{path}: expected a dict with 'state_dict' (pytorch-NetVlad / Patch-NetVLAD format)")
     return ckpt
+
+
+def checkpoint_tag(path: str | os.PathLike[str]) -> str | None:
+    """The provenance tag :func:`save_netvlad` stored in ``path``; None when absent or unreadable."""
+    try:
+        tag = read_checkpoint(path).get(TAG_KEY)
+    except CheckpointError:
+        return None
+    return tag if isinstance(tag, str) else None
 
 
 def load_netvlad(path: str | os.PathLike[str], use_wpca: bool = True) -> NetVLADModel:
@@ -174,20 +176,22 @@ def _load_encoder(ckpt: dict, enc_state: dict[str, torch.Tensor], path: Path) ->
     arch = ckpt.get("arch", "vgg16")
     if not enc_state:
         raise CheckpointError(f"{path}: checkpoint has no encoder.* weights (expected a VGG-16 conv encoder)")
-    if arch == "vgg16":
-        return VGG16Encoder.from_state_dict(enc_state, str(path))
-    if arch == "efficientnet-lite0":
-        enc = EfficientNetLite0(layer=ckpt.get("layer", NETVLAD_LAYER), pretrained=False)
-        _load(enc, enc_state, f"{path}: encoder")
-        return enc
-    raise CheckpointError(f"{path}: unknown encoder arch {arch!r}; valid: vgg16, efficientnet-lite0")
+    if arch not in BACKBONES:
+        raise CheckpointError(f"{path}: unknown encoder arch {arch!r}; valid: {', '.join(BACKBONES)}")
+    backbone = BACKBONES[arch]
+    return backbone.from_state(enc_state, ckpt.get("layer", backbone.local_layer), str(path))
 
 
-def save_netvlad(model: NetVLADModel, path: str | os.PathLike[str]) -> Path:
-    """Write ``model`` as a Patch-NetVLAD-style checkpoint (``{'state_dict': ..., 'arch': ...}``), atomically."""
+def save_netvlad(model: NetVLADModel, path: str | os.PathLike[str], tag: str | None = None) -> Path:
+    """Write ``model`` as a Patch-NetVLAD-style checkpoint (``{'state_dict': ..., 'arch': ...}``), atomically.
+
+    ``tag``: a provenance string stored with it (read back by :func:`checkpoint_tag`).
+    """
     ckpt = {"state_dict": model.state_dict(), "arch": model.arch, "num_clusters": model.pool.num_clusters}
-    if isinstance(model.encoder, EfficientNetLite0):
+    if hasattr(model.encoder, "layer"):
         ckpt["layer"] = model.encoder.layer
+    if tag is not None:
+        ckpt[TAG_KEY] = tag
     with atomic_path(path) as tmp:
         torch.save(ckpt, tmp)
     return Path(path)
@@ -198,13 +202,11 @@ def fit_netvlad(encoder: nn.Module, batches: Iterable[np.ndarray], n_images: int
     """A NetVLAD model on ``encoder`` with clusters from k-means of local features of images.
 
     Args:
-        encoder: backbone with ``out_dim``, ``mean``, ``std`` (see :mod:`seqnet.backbones`).
+        encoder: backbone with ``arch``, ``out_dim``, ``mean``, ``std`` (see :mod:`seqnet.describe.cnn`).
         batches: uint8 image batches ``[B, H, W, 3]``.
         n_images: number of images in ``batches`` (to spread ~``features_per_cluster`` × K features).
         clusters: K.
     """
-    from .cnn import to_input
-
     encoder = encoder.to(device).eval()
     gen = torch.Generator().manual_seed(seed)
     per_image = max(1, -(-features_per_cluster * clusters // max(n_images, 1)))
@@ -217,30 +219,4 @@ def fit_netvlad(encoder: nn.Module, batches: Iterable[np.ndarray], n_images: int
     pool = NetVLAD(clusters, encoder.out_dim)
     pool.init_from_clusters(kmeans(x, clusters, seed=seed), x)
     logger.info("NetVLAD: %d clusters from %d local features of %d images", clusters, len(x), n_images)
-    arch = "efficientnet-lite0" if isinstance(encoder, EfficientNetLite0) else "vgg16"
-    return NetVLADModel(encoder, pool, arch=arch).to(device).eval()
-
-
-def netvlad_for(checkpoint: str | None = None, use_wpca: bool = True, cache: Path | None = None,
-                backbone: str = "efficientnet-lite0", layer: str | int | None = None, clusters: int = 64,
-                seed: int = 0, device: torch.device | str = "cpu",
-                fit_batches: Callable[[], Iterable[np.ndarray]] | None = None, n_fit: int = 0) -> NetVLADModel:
-    """A NetVLAD model: from ``checkpoint``; else from ``cache`` when it exists; else clusters fitted by
-    k-means on ``fit_batches()`` (uint8 image batches) over a shipped backbone, saved to ``cache``."""
-    from .cnn import build_backbone
-
-    if checkpoint:
-        return load_netvlad(checkpoint, use_wpca=use_wpca)
-    if cache is not None and cache.is_file():
-        logger.info("resuming with the NetVLAD clusters of %s", cache)
-        return load_netvlad(cache)
-    if backbone != "efficientnet-lite0":
-        raise ConfigError(f"NetVLAD without a checkpoint needs a pretrained backbone; {backbone!r} has no shipped "
-                          "weights (hint: --backbone efficientnet-lite0, or pass --checkpoint)")
-    if fit_batches is None or n_fit < 1:
-        raise ConfigError("NetVLAD without a checkpoint needs images to fit its clusters on (hint: --fit-on)")
-    encoder = build_backbone(backbone, NETVLAD_LAYER if layer is None else layer)
-    model = fit_netvlad(encoder, fit_batches(), n_fit, clusters, seed, device)
-    if cache is not None:
-        save_netvlad(model, cache)
-    return model
+    return NetVLADModel(encoder, pool, arch=encoder.arch).to(device).eval()

@@ -11,6 +11,8 @@ import numpy as np
 from ..errors import CheckpointError, ConfigError
 from ..files import atomic_path
 
+TAG_KEY = "seqnet_tag"  # provenance string stored by PCA.save(tag=...)
+
 
 @dataclasses.dataclass
 class PCA:
@@ -53,13 +55,14 @@ class PCA:
             y = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-12)
         return y.astype(np.float32)
 
-    def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the PCA as ``.npz`` atomically; returns the path."""
+    def save(self, path: str | os.PathLike[str], tag: str | None = None) -> Path:
+        """Write the PCA as ``.npz`` atomically, with an optional provenance ``tag`` (see :func:`read_tag`)."""
         path = Path(path)
+        extra = {} if tag is None else {TAG_KEY: np.array(tag)}
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
                 np.savez(f, mean=self.mean, components=self.components, scales=self.scales,
-                         whiten=np.array(self.whiten), l2=np.array(self.l2))
+                         whiten=np.array(self.whiten), l2=np.array(self.l2), **extra)
         return path
 
     @classmethod
@@ -76,6 +79,15 @@ class PCA:
             raise CheckpointError(f"cannot read PCA file {path} ({e})") from None
         return cls(mean=arrays["mean"].astype(np.float32), components=arrays["components"].astype(np.float32),
                    scales=arrays["scales"].astype(np.float32), whiten=bool(arrays["whiten"]), l2=bool(arrays["l2"]))
+
+
+def read_tag(path: str | os.PathLike[str]) -> str | None:
+    """The provenance tag stored by :meth:`PCA.save` in ``path``; None when absent or not a PCA file."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return str(z[TAG_KEY][()]) if TAG_KEY in z.files else None
+    except (OSError, ValueError, EOFError):
+        return None
 
 
 def fit_pca(x: np.ndarray, dims: int, whiten: bool = False, l2: bool = True, eps: float = 1e-9) -> PCA:

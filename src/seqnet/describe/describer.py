@@ -1,0 +1,182 @@
+"""The :class:`Describer`: a fitted descriptor function of images, and describing lists of image paths."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, ImageError
+from ..progress import progress
+from ..utils import get_device, logger
+from .config import DescribeConfig
+from .images import iter_batches, list_images, load_images
+from .methods import Extract, FitContext
+from .pca import PCA, fit_pca
+from .state import StateFile, method_state_file, pca_file
+
+Sink = Callable[[np.ndarray, np.ndarray | None], None]
+
+
+@dataclasses.dataclass
+class Describer:
+    """A fitted descriptor function: ``describer(images uint8 [B, H, W(, 3)]) → [B, D] float32``.
+
+    Build one with :func:`make_describer`; use :meth:`describe` on image paths and :meth:`load` to
+    read images as it does. Reference and query traverses must be described by the same describer
+    (same fitted PCA / NetVLAD clusters).
+
+    Attributes:
+        config: the settings, ``size`` resolved ("native" or (W, H)).
+        extract: the method's raw descriptors ``[B, D0]``.
+        pca: the PCA applied after ``extract`` (``config.dim``), or None.
+    """
+
+    config: DescribeConfig
+    extract: Extract
+    pca: PCA | None = None
+
+    @property
+    def method(self) -> str:
+        """The descriptor method name."""
+        return self.config.method
+
+    def __call__(self, images: np.ndarray) -> np.ndarray:
+        raw = self.extract(images)
+        return raw if self.pca is None else self.pca.transform(raw)
+
+    def load_some(self, paths: Sequence[str | os.PathLike[str]]) -> tuple[np.ndarray, list[int]]:
+        """Images as :meth:`load`, leaving unreadable ones out with ``skip_corrupted``; also their indices."""
+        c = self.config
+        return load_images([Path(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
+                           grey=c.method_spec.grey, skip_corrupted=c.skip_corrupted)
+
+    def load(self, paths: Sequence[str | os.PathLike[str]]) -> np.ndarray:
+        """uint8 images ``[N, H, W]`` (grey methods) or ``[N, H, W, 3]`` read, cropped and resized as the
+        describer reads them; an unreadable image raises :class:`ImageError` (rows match ``paths``)."""
+        c = self.config
+        return load_images([Path(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
+                           grey=c.method_spec.grey)[0]
+
+    def batches(self, paths: Sequence[Path], what: str) -> Iterator[np.ndarray]:
+        """Image batches of ``paths`` (for fitting), with a progress bar labelled ``what``."""
+        for b in progress(list(iter_batches(len(paths), self.config.batch_size)), desc=what, unit="batch"):
+            imgs, _ = self.load_some([paths[i] for i in b])
+            if len(imgs):
+                yield imgs
+
+    def describe(self, paths: Sequence[str | os.PathLike[str]],
+                 names: Sequence[str] | None = None) -> tuple[np.ndarray, list[str]]:
+        """Descriptors ``[N, D]`` float32 of ``paths`` and their names (default: the file names);
+        images skipped with ``skip_corrupted`` are left out of both."""
+        paths = [Path(p) for p in paths]
+        if not paths:
+            raise ImageError("no images to describe (empty list of paths)")
+        names = [p.name for p in paths] if names is None else list(names)
+        rows: dict[int, np.ndarray] = {}
+
+        def sink(idx: np.ndarray, desc: np.ndarray | None) -> None:
+            if desc is not None:
+                rows.update(zip(idx.tolist(), desc, strict=True))
+
+        run_batches(paths, self, np.ones(len(paths), bool), sink)
+        if not rows:
+            raise ImageError(f"none of the {len(paths)} images could be read (first: {paths[0]})")
+        order = sorted(rows)
+        return np.stack([rows[i] for i in order]).astype(np.float32), [names[i] for i in order]
+
+
+def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str]] = (),
+                   sidecar: str | os.PathLike[str] | None = None) -> Describer:
+    """Build (and fit, when a PCA or NetVLAD clusters are asked for) a :class:`Describer`.
+
+    Args:
+        conf: the settings.
+        paths: the images to be described; the fitting images are picked from them when
+            ``conf.fit`` is None or an int.
+        sidecar: the output file the fitted state belongs to: it is loaded from / saved beside it as
+            ``<stem>.pca.npz`` and ``<stem>.netvlad.pth.tar`` (see :mod:`seqnet.describe.state`; a
+            file there that this output did not write raises :class:`ConfigError`). None: nothing saved.
+    """
+    conf = conf.resolved()
+    fit_paths = fit_paths_of(conf, [Path(p) for p in paths]) if conf.needs_fit else []
+    pca_state, own_state = pca_file(conf, sidecar, fit_paths), method_state_file(conf, sidecar, fit_paths)
+    reuse_pca, reuse_own = (f is not None and f.reusable() for f in (pca_state, own_state))
+    loader = Describer(conf, lambda images: images)
+    ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths),
+                     batches=lambda: loader.batches(fit_paths, f"fitting images ({conf.method})"),
+                     state=own_state.path if own_state else None, reuse=reuse_own,
+                     tag=own_state.tag if own_state else None)
+    d = Describer(conf, conf.method_spec.extractor(ctx))
+    if conf.dim is not None:
+        d.pca = _pca_for(d, fit_paths, pca_state, reuse_pca)
+    return d
+
+
+def _pca_for(d: Describer, fit_paths: list[Path], state: StateFile | None, reuse: bool) -> PCA:
+    """The PCA of ``d``'s raw descriptors: reused from ``state``, or fitted on ``fit_paths`` (and saved)."""
+    if state is not None and reuse:
+        logger.info("reusing the PCA of %s", state.path)
+        return PCA.load(state.path)
+    raw = [d.extract(imgs) for imgs in d.batches(fit_paths, "PCA descriptors")]
+    x = np.concatenate(raw) if raw else np.zeros((0, 1), np.float32)
+    dim = int(d.config.dim or 0)
+    logger.info("fitting PCA %d -> %d%s on %d images", x.shape[1], dim, " whitened" * d.config.whiten, len(x))
+    pca = fit_pca(x, dim, whiten=d.config.whiten)
+    if state is not None:
+        pca.save(state.path, tag=state.tag)
+    return pca
+
+
+def fit_paths_of(conf: DescribeConfig, paths: Sequence[Path]) -> list[Path]:
+    """Images to fit PCA / NetVLAD clusters on, from ``conf.fit`` (see :class:`DescribeConfig`)."""
+    fit = conf.fit
+    if fit is None:
+        if not paths:
+            raise ConfigError("no images to fit PCA / NetVLAD clusters on (hint: pass fit=... / --fit-on)")
+        idx = np.unique(np.linspace(0, len(paths) - 1, min(len(paths), conf.fit_max)).round().astype(int))
+        return [Path(paths[i]) for i in idx]
+    if isinstance(fit, int):
+        return [Path(p) for p in paths[:fit]]
+    if isinstance(fit, str):
+        return list_images(fit).paths
+    return [Path(p) for p in fit]
+
+
+def run_batches(paths: Sequence[Path], d: Describer, todo: np.ndarray, sink: Sink) -> None:
+    """Describe ``paths[todo]`` in batches; ``sink(indices [b], descriptors [b, D])`` gets each batch.
+
+    Skipped (corrupted) images reach ``sink`` with descriptors None. Raises :class:`ImageError`
+    when native-size images differ in size across batches.
+    """
+    shape = None
+    bar = progress(total=int(todo.sum()), desc=f"describe ({d.method})", unit="img")
+    for b in iter_batches(len(paths), d.config.batch_size, todo):
+        imgs, skipped = d.load_some([paths[i] for i in b])
+        keep = np.delete(b, skipped)
+        if skipped:
+            bad = ", ".join(str(paths[b[i]]) for i in skipped)
+            logger.warning("skipped %d unreadable image(s): %s", len(skipped), bad)
+            sink(b[skipped], None)
+        if len(keep):
+            if shape is not None and imgs.shape[1:] != shape:
+                raise ImageError(f"image {paths[keep[0]]} has size {imgs.shape[2]}x{imgs.shape[1]} but earlier images "
+                                 f"have {shape[1]}x{shape[0]} (hint: pass a resize size, e.g. --resize 64x32)")
+            shape = imgs.shape[1:]
+            sink(keep, d(imgs))
+        bar.update(len(b))
+    bar.close()
+
+
+def describe_images(paths: Sequence[str | os.PathLike[str]], conf: DescribeConfig,
+                    names: Sequence[str] | None = None) -> tuple[np.ndarray, list[str]]:
+    """Descriptors ``[N, D]`` float32 (rows L2-normalised) of the images ``paths`` and their names.
+
+    ``names`` default to the file names; images skipped with ``conf.skip_corrupted`` are left out
+    of both. PCA / NetVLAD clusters are fitted on ``conf.fit`` (default: up to ``fit_max`` of
+    ``paths``); to describe several traverses with one fitted state use :func:`make_describer`.
+    """
+    return make_describer(conf, paths).describe(paths, names)

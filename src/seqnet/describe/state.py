@@ -1,0 +1,97 @@
+"""Fitted state kept beside an output file (``<stem>.pca.npz``, ``<stem>.netvlad.pth.tar``) and who owns it.
+
+Every state file seqnet writes carries a *tag*: the name of the output it was fitted for, the
+settings and the list of images it was fitted with. A run reuses a state file whose tag matches, replaces one that was
+written for the same output with other settings, and refuses to touch any other file of that name
+(a user's file, or another output's state): it never deletes or overwrites what it did not write.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from ..errors import ConfigError
+from ..utils import logger
+from .config import DescribeConfig, fit_summary
+from .pca import read_tag as read_pca_tag
+
+PCA_SUFFIX = ".pca.npz"
+
+
+@dataclasses.dataclass(frozen=True)
+class StateFile:
+    """A fitted-state file beside an output, and the tag that marks it as fitted for that output."""
+
+    path: Path
+    what: str
+    tag: str
+    read_tag: Callable[[Path], str | None]
+
+    def owned(self) -> bool:
+        """Whether it exists and was written for this output (with any settings)."""
+        found = self.read_tag(self.path) if self.path.exists() else None
+        return found is not None and _output_of(found) == _output_of(self.tag)
+
+    def reusable(self) -> bool:
+        """True: it exists with this tag (reuse it). False: it is absent, or it was written for the same
+        output with other settings (fit again and replace it). :class:`ConfigError` when it exists and
+        was not written for this output."""
+        if not self.path.exists():
+            return False
+        found = self.read_tag(self.path)
+        if found == self.tag:
+            return True
+        if found is not None and _output_of(found) == _output_of(self.tag):
+            logger.info("%s was fitted with other settings; fitting the %s again", self.path, self.what)
+            return False
+        raise ConfigError(f"{self.path} exists and was not written for {_output_of(self.tag)}; refusing to "
+                          f"overwrite it with the {self.what} of this run (hint: move or rename it, or choose "
+                          "another --out)")
+
+
+def state_tag(conf: DescribeConfig, output: str | os.PathLike[str], fit_paths: Sequence[Path] = ()) -> str:
+    """The tag of state fitted for ``output`` with the settings of ``conf`` on the images ``fit_paths``."""
+    fitted_on = fit_summary(tuple(str(p) for p in fit_paths))
+    return json.dumps({"output": Path(output).name, "settings": conf.settings(), "fit_images": fitted_on},
+                      sort_keys=True)
+
+
+def _output_of(tag: str) -> str | None:
+    try:
+        found = json.loads(tag)
+    except ValueError:
+        return None
+    return found.get("output") if isinstance(found, dict) else None
+
+
+def pca_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
+             fit_paths: Sequence[Path] = ()) -> StateFile | None:
+    """The PCA file of ``conf`` beside ``output`` (None without PCA or output)."""
+    if output is None or conf.dim is None:
+        return None
+    path = Path(output).with_suffix("")
+    tag = state_tag(conf, output, fit_paths)
+    return StateFile(path.with_name(path.name + PCA_SUFFIX), "PCA", tag, read_pca_tag)
+
+
+def method_state_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
+                      fit_paths: Sequence[Path] = ()) -> StateFile | None:
+    """The file of the method's fitted state (NetVLAD clusters) beside ``output``; None when it fits none."""
+    method = conf.method_spec
+    if output is None or not method.fits_state or method.state_suffix is None:
+        return None
+    path = Path(output).with_suffix("")
+    no_pca = dataclasses.replace(conf, dim=None, whiten=False)  # the PCA does not change this state
+    tag = state_tag(no_pca, output, fit_paths)
+    return StateFile(path.with_name(path.name + method.state_suffix), f"{method.name} state", tag, method.read_tag)
+
+
+def state_files(conf: DescribeConfig, output: str | os.PathLike[str] | None,
+                fit_paths: Sequence[Path] = ()) -> list[StateFile]:
+    """The fitted-state files a run of ``conf`` writing ``output`` (fitting on ``fit_paths``) reads and writes."""
+    files = (method_state_file(conf, output, fit_paths), pca_file(conf, output, fit_paths))
+    return [f for f in files if f is not None]

@@ -1,0 +1,200 @@
+"""Describing an image folder into a file, resumably; :func:`main` is the describe stage.
+
+Output files: ``.h5``/``.hdf5`` (datasets ``descriptors`` [N, D] float32 and ``names``, attribute
+``config``: the resolved :class:`DescribeConfig`) or ``.npy`` with the names in a text file beside it
+(``names.txt`` for ``descriptors.npy``, else ``<stem>.names.txt``) — the formats
+:func:`seqnet.data.io.load_descriptors` reads. Work in progress lives in a hidden
+``.<out>.partial.h5`` with a per-image status mask (0 to do, 1 done, 2 skipped), so a re-run with the
+same settings resumes; a re-run with other settings starts again (with a warning), and a run that
+fails before describing any image removes its partial file. Fitted state is kept beside the output
+(see :mod:`seqnet.describe.state`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..errors import ConfigError, ImageError
+from ..files import atomic_path, save_npy_atomic, write_text_atomic
+from ..utils import logger
+from .config import DescribeConfig, fit_summary
+from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches
+from .images import ImageList, list_images
+from .state import StateFile, state_files
+
+OUT_SUFFIXES = (".h5", ".hdf5", ".npy")
+TODO, DONE, SKIPPED = 0, 1, 2
+
+
+def names_file_for(out: str | os.PathLike[str]) -> Path:
+    """The names text file written beside a ``.npy`` output."""
+    out = Path(out)
+    return out.with_name("names.txt") if out.name == "descriptors.npy" else out.with_name(out.stem + ".names.txt")
+
+
+def partial_file_for(out: str | os.PathLike[str]) -> Path:
+    """The hidden work-in-progress file of an output."""
+    out = Path(out)
+    return out.with_name(f".{out.name}.partial.h5")
+
+
+def main(conf: DescribeConfig, images: str | os.PathLike[str], out: str | os.PathLike[str],
+         overwrite: bool = False) -> Path:
+    """The describe stage: describe the folder or list file ``images`` into ``out`` (.h5/.hdf5/.npy).
+
+    Resumes an interrupted run with the same settings; ``overwrite`` recomputes an existing output.
+    Returns the path of the output file.
+    """
+    describe_folder(images, conf, out=out, overwrite=overwrite)
+    return Path(out)
+
+
+def describe_folder(source: str | os.PathLike[str], conf: DescribeConfig, out: str | os.PathLike[str] | None = None,
+                    overwrite: bool = False) -> tuple[np.ndarray, list[str]]:
+    """Descriptors ``[N, D]`` and names of a folder or list file of images; with ``out``, also
+    written there resumably (see the module docstring). Logs one summary line."""
+    images = list_images(source)
+    t0 = time.perf_counter()
+    if out is None:
+        desc, names = describe_images(images.paths, conf, names=images.names)
+    else:
+        desc, names = describe_to_file(images, conf, Path(out), overwrite)
+    seconds = time.perf_counter() - t0
+    logger.info("described %d images of %s in %.1f s (%.1f images/s): %d descriptors of dim %d%s%s", len(images),
+                source, seconds, len(images) / max(seconds, 1e-9), len(desc), desc.shape[1],
+                f", {len(images) - len(desc)} skipped" if len(desc) < len(images) else "",
+                f", written to {out}" if out is not None else "")
+    return desc, names
+
+
+def describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
+                     overwrite: bool = False) -> tuple[np.ndarray, list[str]]:
+    """Describe ``images`` into ``out``, resuming a partial run with the same settings."""
+    if out.suffix.lower() not in OUT_SUFFIXES:
+        raise ConfigError(f"output file {out} must end in one of {', '.join(OUT_SUFFIXES)}")
+    if out.exists() and not overwrite:
+        raise ConfigError(f"output {out} already exists (hint: --overwrite recomputes it)")
+    conf = conf.resolved()
+    partial = partial_file_for(out)
+    settings = json.dumps(conf.settings(), sort_keys=True)
+    states = state_files(conf, out, fit_paths_of(conf, images.paths) if conf.needs_fit else [])
+    if overwrite:
+        _remove_own_state(states)
+    if partial.exists() and not _resumable(partial, settings, images.names, states, overwrite):
+        partial.unlink()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    describer = make_describer(conf, images.paths, sidecar=out)
+    try:
+        with h5py.File(partial, "a") as h:
+            keep, desc = _describe_into(h, images, describer, settings)
+    except BaseException:
+        _drop_if_unstarted(partial)
+        raise
+    if not len(keep):
+        partial.unlink()  # nothing worth resuming: a re-run reads every image again
+        raise ImageError(f"none of the {len(images)} images could be read (first: {images.paths[0]})")
+    names = [images.names[i] for i in keep]
+    record = {**conf.to_dict(), "fit": fit_summary(conf.fit)}  # a list of fitting images as its hash
+    _write_output(out, desc, names, json.dumps(record, sort_keys=True))
+    partial.unlink()
+    return desc, names
+
+
+def _describe_into(h: h5py.File, images: ImageList, describer: Describer,
+                   settings: str) -> tuple[np.ndarray, np.ndarray]:
+    """Run the images still to do into the open partial file; ``(indices done [K], descriptors [K, D])``."""
+    if "status" not in h:
+        h.attrs["settings"] = settings
+        h.create_dataset("names", data=np.array(images.names, dtype=object), dtype=h5py.string_dtype())
+        h.create_dataset("status", data=np.full(len(images), TODO, np.int8))
+    status = h["status"][()]
+    if (status != TODO).any():
+        logger.info("resuming: %d of %d images already done", int((status != TODO).sum()), len(status))
+    run_batches(images.paths, describer, status == TODO, _h5_sink(h, len(images)))
+    keep = np.flatnonzero(h["status"][()] == DONE)
+    desc = h["descriptors"][()][keep] if "descriptors" in h else np.zeros((0, 0), np.float32)
+    return keep, desc
+
+
+def _remove_own_state(states: list[StateFile]) -> None:
+    """With ``overwrite``: remove the fitted state earlier runs wrote for this output (never another file)."""
+    for f in states:
+        if f.owned():
+            logger.info("--overwrite: removing %s (fitted for this output by an earlier run)", f.path)
+            f.path.unlink()
+
+
+def _resumable(partial: Path, settings: str, names: list[str], states: list[StateFile], overwrite: bool) -> bool:
+    """Whether the partial file can be resumed; logs why not."""
+    if overwrite:
+        logger.info("--overwrite: discarding the partial output %s", partial)
+        return False
+    try:
+        with h5py.File(partial, "r") as h:
+            stored = [n.decode() if isinstance(n, bytes) else n for n in h["names"][()]]
+            old, done = h.attrs.get("settings"), int((h["status"][()] != TODO).sum())
+    except (OSError, KeyError):
+        logger.warning("partial output %s is unreadable; starting again", partial)
+        return False
+    if old != settings or stored != names:
+        what = _difference(old, settings) if stored == names else "another image list"
+        logger.warning("partial output %s was made with %s; discarding its %d finished images and starting again",
+                       partial, what, done)
+        return False
+    stale = [f.path for f in states if not f.reusable()]
+    if stale:
+        logger.warning("fitted state %s is missing or from another run; starting %s again", stale[0], partial)
+    return not stale
+
+
+def _difference(old: object, new: str) -> str:
+    """``other settings (key: old -> new, ...)`` for a log line."""
+    try:
+        a, b = json.loads(str(old)), json.loads(new)
+    except ValueError:
+        return "other settings"
+    diff = [f"{k}: {a.get(k)} -> {b.get(k)}" for k in sorted({*a, *b}) if a.get(k) != b.get(k)]
+    return f"other settings ({', '.join(diff)})"
+
+
+def _drop_if_unstarted(partial: Path) -> None:
+    """Remove the partial file of a failed run that finished no image (nothing worth resuming)."""
+    try:
+        with h5py.File(partial, "r") as h:
+            started = bool((h["status"][()] != TODO).any())
+    except (OSError, KeyError):
+        started = False
+    if not started:
+        partial.unlink(missing_ok=True)
+
+
+def _h5_sink(h: h5py.File, n: int) -> Sink:
+    def sink(idx: np.ndarray, desc: np.ndarray | None) -> None:
+        if desc is not None:
+            if "descriptors" not in h:
+                h.create_dataset("descriptors", shape=(n, desc.shape[1]), dtype=np.float32,
+                                 chunks=(min(n, 256), desc.shape[1]))
+            h["descriptors"][np.sort(idx)] = desc[np.argsort(idx)]
+        h["status"][np.sort(idx)] = DONE if desc is not None else SKIPPED
+        h.flush()
+
+    return sink
+
+
+def _write_output(out: Path, desc: np.ndarray, names: list[str], config: str) -> None:
+    desc = np.ascontiguousarray(desc, dtype=np.float32)
+    if out.suffix.lower() == ".npy":
+        save_npy_atomic(out, desc)
+        write_text_atomic(names_file_for(out), "\n".join(names) + "\n")
+        return
+    with atomic_path(out) as tmp:
+        with h5py.File(tmp, "w") as h:
+            h.create_dataset("descriptors", data=desc)
+            h.create_dataset("names", data=np.array(names, dtype=object), dtype=h5py.string_dtype())
+            h.attrs["config"] = config
