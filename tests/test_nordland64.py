@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import numpy as np
@@ -13,7 +14,7 @@ from seqnet.cli import main as cli_main
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.describe.pca import fit_pca
 from seqnet.errors import ConfigError, DatasetError
-from seqnet.pipelines.nordland64 import fold_pca, list_places, resolve_config, training_dataset
+from seqnet.pipelines.nordland64 import Nordland64Config, describe_flipped, fold_pca, list_places, training_dataset
 from seqnet.sequence_descriptors import SeqNet
 
 
@@ -53,21 +54,26 @@ def test_training_dataset_symmetric(rng):
 
 
 def test_flipped_pixels_are_mirrored_descriptors():
-    from seqnet.describe.describers import make_describer
-    from seqnet.pipelines.nordland64 import _describe_flipped
+    from seqnet.describe import DescribeConfig, make_describer
 
     data = shared_data("nordland64")
     paths = [data / "summer" / f"images-{i:05d}.png" for i in (210, 220, 230)]
-    d = make_describer("pixels", paths, progress=False)
+    d = make_describer(DescribeConfig(), paths)
     plain, _ = d.describe(paths)
     perm = np.arange(plain.shape[1]).reshape(32, 64)[:, ::-1].ravel()
-    np.testing.assert_allclose(_describe_flipped(d, paths), plain[:, perm], atol=1e-6)
+    np.testing.assert_allclose(describe_flipped(d, paths), plain[:, perm], atol=1e-6)
 
 
-def test_config_rejects_unknown_keys():
-    with pytest.raises(ConfigError, match="unknown configuration key 'epochz'"):
-        resolve_config({"epochz": 3})
-    assert resolve_config(None)["test_range"] == [1940, 2761]
+def test_config_rejects_unknown_keys_and_bad_values():
+    with pytest.raises(ConfigError, match="unknown Nordland64Config key 'epochz'"):
+        Nordland64Config.from_dict({"epochz": 3})
+    assert Nordland64Config().test_range == (1940, 2761)
+    with pytest.raises(ConfigError, match="pca_dims"):
+        Nordland64Config(pca_dims=-5)
+    with pytest.raises(ConfigError, match="trained with L=5 but evaluated with L=3"):
+        Nordland64Config(seq_len=3)
+    conf = Nordland64Config.from_dict(Nordland64Config().to_dict())
+    assert conf == Nordland64Config()
 
 
 def test_list_places_and_bad_data(tmp_path):
@@ -84,7 +90,11 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
     out = tmp_path / "b"
     args = ["benchmark", "nordland64", "--data", str(data), "--out", str(out), "--train-range", "0:120",
             "--val-range", "130:170", "--test-range", "180:260", "--epochs", "1", "--threads", "2", "--pca-dims", "64"]
-    assert cli_main(args) == 0
+    with open(tmp_path / "log", "w") as log:  # the log reads well in a file: no bars, a few lines
+        with contextlib.redirect_stderr(log):
+            assert cli_main(args) == 0
+    text = (tmp_path / "log").read_text()
+    assert "\r" not in text and len(text.splitlines()) < 30, text
     res = json.loads((out / "results.json").read_text())
     methods = res["methods"]
     assert list(methods) == ["single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch",
@@ -92,6 +102,7 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
     assert all(0.0 <= m["recall@1"] <= m["recall@20"] <= 1.0 for m in methods.values())
     assert methods["single"]["queries"] == 76  # places 180..259 with a full centred L=5 window and a match
     assert res["config"]["benchmark"]["test_range"] == [180, 260] and "total" in res["config"]["timings_s"]
+    assert res["methods"]["hvpr-single"]["method"]["rerank"] == "s1+seqmatch"
     assert (out / "recall_at_k.png").stat().st_size > 1000 and "| hvpr |" in (out / "results.md").read_text()
     assert (out / "models" / "seqnet.pt").is_file() and (out / "dataset" / "dataset.json").is_file()
     # a second run reuses the cached descriptors and models

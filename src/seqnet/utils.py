@@ -68,9 +68,3 @@ def to_numpy(x: ArrayLike) -> np.ndarray:
 def l2_normalize(x: torch.Tensor, dim: int = -1, eps: float = 1e-12) -> torch.Tensor:
     """L2-normalise ``x`` along ``dim`` (zero vectors stay zero)."""
     return x / x.norm(dim=dim, keepdim=True).clamp_min(eps)
-
-
-def set_threads(n: int | None) -> None:
-    """Limit torch intra-op threads (None leaves the default)."""
-    if n:
-        torch.set_num_threads(int(n))

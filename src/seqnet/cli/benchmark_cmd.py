@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 
-from .common import add_device, index_range, positive_int
+from ..describe import DESCRIBERS, DescribeConfig
+from ..pipelines.nordland64 import Nordland64Config, main
+from ..report import format_table
+from .common import add_device, index_range, non_negative_int, positive_int
 
-DESCRIPTORS = ("pixels", "gem", "gmp", "netvlad")
+_D = Nordland64Config()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,55 +21,49 @@ def register(sub: argparse._SubParsersAction) -> None:
                         description="Describe the nordland64 frames, train S_L and S_1 on the train range (epochs "
                                     "chosen on val), evaluate every method on the test range; writes results.json, "
                                     "results.md, recall_at_k.png and config.json to --out. Defaults: "
-                                    "seqnet.presets.BENCHMARKS['nordland64'] (docs/benchmark_nordland64.md).")
+                                    "seqnet.pipelines.nordland64.Nordland64Config (docs/benchmark_nordland64.md).")
     n.add_argument("--data", required=True, metavar="PATH", help="nordland64 folder (summer/, winter/, clean list)")
     n.add_argument("--out", required=True, metavar="DIR", help="output folder (descriptor cache, models, results)")
-    n.add_argument("--train-range", type=index_range, metavar="A:B", help="train places (default 0:1650)")
-    n.add_argument("--val-range", type=index_range, metavar="A:B", help="validation places (default 1660:1930)")
-    n.add_argument("--test-range", type=index_range, metavar="A:B", help="test places (default 1940:2761)")
-    n.add_argument("--descriptor", choices=DESCRIPTORS, help="single-image descriptor (default pixels)")
-    n.add_argument("--patch", type=int, help="pixels patch-normalisation size (default: preset; 8 = SeqSLAM's)")
-    n.add_argument("--seq-len", type=positive_int, help="sequence length L of S_L, evaluation and SeqMatch (default 5)")
-    n.add_argument("--w", type=positive_int, help="S_L temporal kernel width (default 5)")
-    n.add_argument("--epochs", type=positive_int, help="training epochs of S_L and S_1 (default: preset)")
-    n.add_argument("--pca-dims", type=int, help="PCA size before training (0: none; default: preset)")
-    n.add_argument("--top-k", type=positive_int, help="HVPR shortlist size (default 20)")
+    for split in ("train", "val", "test"):
+        a, b = getattr(_D, f"{split}_range")
+        n.add_argument(f"--{split}-range", type=index_range, metavar="A:B", help=f"{split} places (default {a}:{b})")
+    n.add_argument("--descriptor", choices=list(DESCRIBERS),
+                   help=f"single-image descriptor (default {_D.describe.method}; others at their default size)")
+    n.add_argument("--patch", type=non_negative_int,
+                   help=f"pixels patch-normalisation size (default {_D.describe.patch}; 8 = SeqSLAM's)")
+    n.add_argument("--seq-len", type=positive_int,
+                   help=f"sequence length L of S_L, evaluation and SeqMatch (default {_D.seq_len})")
+    n.add_argument("--w", type=positive_int, help=f"S_L temporal kernel width (default {_D.train.w})")
+    n.add_argument("--epochs", type=positive_int, help=f"training epochs of S_L and S_1 (default {_D.train.epochs})")
+    n.add_argument("--pca-dims", type=non_negative_int,
+                   help=f"PCA size before training (0: none; default {_D.pca_dims})")
+    n.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
+    n.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
     add_device(n)
     n.set_defaults(func=run_nordland64)
 
 
-def nordland64_overrides(args: argparse.Namespace) -> dict:
-    """Benchmark config overrides from the command-line flags (None: keep the default)."""
-    from ..data.presets import BENCHMARKS
-
-    base = BENCHMARKS["nordland64"]
-    train = {k: v for k, v in (("seq_len", args.seq_len), ("w", args.w), ("epochs", args.epochs)) if v is not None}
-    if args.seq_len is not None and args.w is None:
-        train["w"] = min(base["train"]["w"], args.seq_len)
-    conf = {
-        "train_range": list(args.train_range) if args.train_range else None,
-        "val_range": list(args.val_range) if args.val_range else None,
-        "test_range": list(args.test_range) if args.test_range else None,
-        "descriptor": args.descriptor, "seq_len": args.seq_len, "top_k": args.top_k,
-        "device": args.device, "pca_dims": args.pca_dims,
-        "train": {**base["train"], **train} if train else None,
-    }
-    if args.descriptor and args.descriptor != "pixels":
-        conf["descriptor_options"] = {"size": "auto"}  # CNNs: the describer's default input size
+def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
+    """The benchmark settings from the command-line flags (unset flags keep the defaults)."""
+    train = {"seq_len": args.seq_len, "epochs": args.epochs, "seed": args.seed,
+             "w": args.w or (min(_D.train.w, args.seq_len) if args.seq_len else None)}
+    describe = None
+    if args.descriptor and args.descriptor != _D.describe.method:
+        describe = DescribeConfig(method=args.descriptor)
     elif args.patch is not None:
-        conf["descriptor_options"] = {**base["descriptor_options"], "patch": args.patch}
-    return conf
+        describe = _D.describe.replace(patch=args.patch)
+    return _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
+                      describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
+                      pca_dims=args.pca_dims, train=train,
+                      train_s1={"epochs": args.epochs, "seed": args.seed})
 
 
 def run_nordland64(args: argparse.Namespace) -> int:
-    from ..pipelines.nordland64 import main
-    from ..report import format_table
-
-    ev = main(nordland64_overrides(args), args.data, args.out)
-    cfg = ev.results["config"]
-    first = next(iter(ev.results["methods"].values()))
-    print(f"nordland64 test {cfg['benchmark']['test_range'][0]}:{cfg['benchmark']['test_range'][1]}: "
-          f"{first['queries']} queries, radius {ev.radius:g}, L={cfg['seq_len']}")
-    print(format_table(ev.results["methods"], cfg["ks"]))
-    print(f"done in {cfg['timings_s']['total']:.0f} s; results in {args.out}/results.md")
+    res = json.loads(Path(main(nordland64_config(args), args.data, args.out)).read_text(encoding="utf-8"))
+    cfg, bench = res["config"], res["config"]["benchmark"]
+    first = next(iter(res["methods"].values()))
+    print(f"nordland64 test {bench['test_range'][0]}:{bench['test_range'][1]}: {first['queries']} queries, "
+          f"radius {cfg['radius']:g}, L={cfg['seq_len']}")
+    print(format_table(res["methods"], cfg["ks"]))
+    print(f"done in {cfg['timings_s']['total']:.0f} s; results in {Path(args.out) / 'results.md'}")
     return 0

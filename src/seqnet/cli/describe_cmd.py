@@ -6,7 +6,6 @@ import argparse
 
 from ..describe import BACKBONES, DESCRIBERS, DescribeConfig, main
 from ..describe.config import MAX_SIDE
-from ..utils import set_threads
 from .common import add_device, non_negative_int, positive_float, positive_int
 
 _D = DescribeConfig()
@@ -59,7 +58,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=non_negative_int, help=f"netvlad: k-means seed (default {_D.seed})")
     p.add_argument("--skip-corrupted", action="store_true", help="leave unreadable images out instead of failing")
     p.add_argument("--overwrite", action="store_true", help="recompute an existing output (and its partial run)")
-    p.add_argument("--threads", type=positive_int, help="torch CPU threads (default: torch's)")
     add_device(p)
     p.set_defaults(func=run)
 
@@ -73,7 +71,6 @@ def _auto_sizes() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    set_threads(args.threads)
     keys = ("method", "size", "crop_bottom", "batch_size", "dim", "whiten", "fit", "fit_max", "patch", "backbone",
             "layer", "gem_p", "checkpoint", "use_wpca", "clusters", "seed", "skip_corrupted", "device")
     conf = _D.replace(**{k: getattr(args, k) for k in keys})

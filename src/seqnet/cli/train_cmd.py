@@ -11,7 +11,6 @@ from ..checkpoints import read_checkpoint
 from ..train.config import OPTIMIZERS, TrainConfig
 from ..train.loop import main
 from ..train.run import resume_config
-from ..utils import set_threads
 from ..windows import WINDOW_MODES
 from .common import add_device, non_negative_float, non_negative_int, positive_float, positive_int
 
@@ -61,7 +60,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--val-split", help=f"split to validate on (default {_D.val_split}; 'none': no validation, "
                    "best.pt = last)")
     add_device(p)
-    p.add_argument("--threads", type=positive_int, help="CPU threads for torch (default: torch's)")
     p.set_defaults(func=run)
 
 
@@ -69,7 +67,6 @@ _KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig) if f.name != "devi
 
 
 def run(args: argparse.Namespace) -> int:
-    set_threads(args.threads)
     changes = {k: getattr(args, k) for k in _KEYS}
     if args.device != "auto" or not args.resume:
         changes["device"] = args.device

@@ -133,35 +133,3 @@ def preset_splits(name: str, n_ref: int, n_query: int) -> dict[str, dict[str, tu
             )
         out[split] = {"reference": (a, b), "query": (a, b)}
     return out
-
-
-# Benchmarks: every setting of a benchmark command, as data (tuned on the val range only; see
-# docs/benchmark_nordland64.md for what was tried).
-BENCHMARKS: dict[str, dict[str, Any]] = {
-    "nordland64": {
-        "names_file": "nordland_clean_imageNames.txt",
-        "train_range": [0, 1650],
-        "val_range": [1660, 1930],
-        "test_range": [1940, 2761],
-        "radius": 1.0,  # frame steps (position = frame number / 10)
-        "pos_radius": 1.0,
-        "neg_radius": 4.0,
-        "descriptor": "pixels",
-        # 16x16 patches: learned S_L / S_1 clearly better on val than SeqSLAM's 8x8 (raw single worse)
-        "descriptor_options": {"patch": 16, "size": None, "progress": True},
-        "pca_dims": 256,  # PCA fitted on the train range (both seasons), folded into the models
-        "pca_whiten": False,
-        "symmetric": True,  # train winter->summer and summer->winter
-        "flip": True,  # add the left-right mirrored train images (a second, mirrored route)
-        "seq_len": 5,
-        # S_L: w = L = 5 (one temporal kernel over the whole window) beat the paper's w = 3 on val
-        "train": {"seq_len": 5, "w": 5, "epochs": 10, "optimizer": "adam", "lr": 1e-4, "weight_decay": 0.0,
-                  "margin": 0.3, "batch_size": 16, "n_negatives": 10, "n_neg_sample": 1000, "seed": 0},
-        "train_s1": {"seq_len": 1, "w": 1, "lr": 3e-4},
-        "methods": ["single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch",
-                    "delta+seqmatch", "hvpr", "hvpr-single", "hvpr-delta"],
-        "top_k": 20,
-        "ks": [1, 5, 10, 20],
-        "device": "auto",
-    },
-}

@@ -1,0 +1,82 @@
+"""Settings of the Nordland64 benchmark, as data (tuned on the val range only; see docs/benchmark_nordland64.md)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ...config import Config, check_bool, check_float, check_int, check_ints, check_range
+from ...describe import DescribeConfig
+from ...errors import ConfigError
+from ...evaluate import EvalConfig
+from ...methods import parse_method
+from ...train import TrainConfig
+
+# 16x16 patches: learned S_L / S_1 clearly better on val than SeqSLAM's 8x8 (raw single worse)
+DESCRIBE = DescribeConfig(method="pixels", patch=16, size="native")
+# S_L: w = L = 5 (one temporal kernel over the whole window) beat the paper's w = 3 on val
+TRAIN = TrainConfig(seq_len=5, w=5, epochs=10, optimizer="adam", lr=1e-4, weight_decay=0.0, margin=0.3,
+                    batch_size=16, n_negatives=10, n_neg_sample=1000, seed=0)
+METHODS = ("single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch", "delta+seqmatch", "hvpr",
+           "hvpr-single", "hvpr-delta")
+
+
+@dataclasses.dataclass(frozen=True)
+class Nordland64Config(Config):
+    """Every setting of ``seqnet benchmark nordland64``.
+
+    Attributes:
+        names_file: the clean frame list (frames in tunnels / stops removed).
+        train_range, val_range, test_range: half-open place ranges (places = clean frames in both seasons).
+        radius: localisation radius in frame steps (position = frame number / 10); pos_radius /
+            neg_radius: training positives / negatives.
+        describe: the single-image descriptor (fitted state, if any, fitted on the train range).
+        pca_dims: PCA of the train descriptors before training, folded into the models (0: none);
+            pca_whiten: whiten it.
+        symmetric: train winter → summer and summer → winter; flip: add the mirrored train images.
+        seq_len: L of S_L, the evaluation windows and SeqMatch.
+        train / train_s1: training of S_L and S_1 (epoch chosen on val).
+        methods, top_k, ks: what is evaluated; device: torch device.
+    """
+
+    names_file: str = "nordland_clean_imageNames.txt"
+    train_range: tuple[int, int] = (0, 1650)
+    val_range: tuple[int, int] = (1660, 1930)
+    test_range: tuple[int, int] = (1940, 2761)
+    radius: float = 1.0
+    pos_radius: float = 1.0
+    neg_radius: float = 4.0
+    describe: DescribeConfig = DESCRIBE
+    pca_dims: int = 256
+    pca_whiten: bool = False
+    symmetric: bool = True
+    flip: bool = True
+    seq_len: int = 5
+    train: TrainConfig = TRAIN
+    train_s1: TrainConfig = TRAIN.replace(seq_len=1, w=1, lr=3e-4)
+    methods: tuple[str, ...] = METHODS
+    top_k: int = 20
+    ks: tuple[int, ...] = (1, 5, 10, 20)
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        for key in ("train_range", "val_range", "test_range"):
+            self._set(key, check_range(key, getattr(self, key)))
+        for key in ("radius", "pos_radius", "neg_radius"):
+            self._set(key, check_float(key, getattr(self, key), 0.0, strict=True))
+        if self.pos_radius > self.neg_radius:
+            raise ConfigError(f"need pos_radius <= neg_radius, got {self.pos_radius} and {self.neg_radius}")
+        self._set("pca_dims", check_int("pca_dims", self.pca_dims, 0))
+        for key in ("pca_whiten", "symmetric", "flip"):
+            self._set(key, check_bool(key, getattr(self, key)))
+        self._set("seq_len", check_int("seq_len", self.seq_len, 1))
+        if self.train.seq_len != self.seq_len:
+            raise ConfigError(f"the S_L model is trained with L={self.train.seq_len} but evaluated with "
+                              f"L={self.seq_len}; give both the same sequence length")
+        self._set("methods", tuple(parse_method(m).name for m in self.methods))
+        self._set("top_k", check_int("top_k", self.top_k, 1))
+        self._set("ks", check_ints("ks", self.ks, 1))
+
+    def eval_config(self) -> EvalConfig:
+        """The evaluation settings of the val and test ranges."""
+        return EvalConfig(methods=self.methods, seq_len=self.seq_len, ks=self.ks, top_k=self.top_k,
+                          device=self.device)

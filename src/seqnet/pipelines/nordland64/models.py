@@ -1,0 +1,93 @@
+"""Nordland64 models: S_L and S_1 trained on PCA-projected train descriptors, the PCA folded back in."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ...checkpoints import load_model, save_checkpoint
+from ...data.traverse import Dataset
+from ...describe.pca import PCA, fit_pca
+from ...files import write_json_atomic
+from ...ownership import remove_owned_dir
+from ...sequence_descriptors import SeqNet
+from ...train import train
+from ...train.run import is_run_file
+from ...utils import logger
+from .config import Nordland64Config
+from .data import describe_key, training_dataset
+
+
+def fold_pca(model: SeqNet, pca: PCA) -> SeqNet:
+    """A SeqNet on raw descriptors equal to ``model(pca.transform(x, l2=False))``.
+
+    The PCA ``y = s ⊙ (C (x − μ))`` is linear, so it merges into the first convolution:
+    ``W'_k = W_k · diag(s) C`` and ``b' = b − Σ_k W'_k μ``.
+    """
+    proj = torch.from_numpy(pca.components * pca.scales[:, None]).double()  # [p, D]
+    w = model.conv.weight.detach().double()  # [D_out, p, w]
+    w_new = torch.einsum("opk,pd->odk", w, proj)  # [D_out, D, w]
+    b_new = model.conv.bias.detach().double() - torch.einsum("odk,d->o", w_new, torch.from_numpy(pca.mean).double())
+    out = SeqNet(pca.input_dim, model.out_dims, model.seq_len, model.w)
+    with torch.no_grad():
+        out.conv.weight.copy_(w_new.float())
+        out.conv.bias.copy_(b_new.float())
+    return out.eval()
+
+
+def train_key(conf: Nordland64Config) -> str:
+    """A hash of every setting the trained models depend on (models with the same key are reused)."""
+    keys = ("train_range", "val_range", "pca_dims", "pca_whiten", "symmetric", "flip", "pos_radius", "neg_radius",
+            "train", "train_s1", "names_file")
+    blob = json.dumps({"describe": describe_key(conf), **{k: conf.to_dict()[k] for k in keys}}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def fit_train_pca(ds: Dataset, conf: Nordland64Config) -> PCA | None:
+    """PCA to ``conf.pca_dims`` (capped by the data) of both seasons' train descriptors; None when 0."""
+    if not conf.pca_dims:
+        return None
+    a, b = ds.splits["train"]["query"]
+    x = np.concatenate([ds.reference.descriptors[a:b], ds.query.descriptors[a:b]])
+    dims = min(conf.pca_dims, *x.shape)
+    if dims < conf.pca_dims:
+        logger.warning("PCA: %d dims asked, %d possible with %d training images", conf.pca_dims, dims, len(x))
+    return fit_pca(x, dims, whiten=conf.pca_whiten, l2=False)
+
+
+def train_models(ds: Dataset, conf: Nordland64Config, out: Path,
+                 flipped: np.ndarray | None = None) -> tuple[dict[str, SeqNet], dict[str, float]]:
+    """Train S_L and S_1 (PCA-projected inputs, epoch chosen on val), fold the PCA in; save to ``out/models``.
+
+    Models trained with the same settings before (``out/models/key.json``) are reused; a previous
+    training run in ``out/runs`` is replaced only when it holds nothing but a run's files.
+    """
+    models_dir, key = out / "models", train_key(conf)
+    key_file = models_dir / "key.json"
+    if key_file.is_file() and json.loads(key_file.read_text()).get("key") == key:
+        logger.info("reusing the models trained with the same settings in %s", models_dir)
+        info = json.loads(key_file.read_text())
+        return {r: load_model(models_dir / f"{r}.pt") for r in ("seqnet", "s1")}, info["seconds"]
+    pca = fit_train_pca(ds, conf)
+    if pca is not None:
+        pca.save(models_dir / "pca.npz")
+    tds = training_dataset(ds, pca, conf.symmetric, flipped)
+    models, seconds = {}, {}
+    for role, tconf in (("seqnet", conf.train), ("s1", conf.train_s1)):
+        run_dir = out / "runs" / role
+        remove_owned_dir(run_dir, "training run", is_run_file)
+        t0 = time.perf_counter()
+        run = train(tds, tconf.replace(device=conf.device), run_dir)
+        seconds[role] = round(time.perf_counter() - t0, 2)
+        model = load_model(run_dir / "best.pt")
+        models[role] = fold_pca(model, pca) if pca is not None else model
+        save_checkpoint(models_dir / f"{role}.pt", models[role], epoch=run.best_epoch, best_score=run.best_score,
+                        metrics={"val_recall@1": run.best_score},
+                        config={**tconf.to_dict(), "pca_folded": pca is not None})
+    write_json_atomic(key_file, {"key": key, "seconds": seconds})
+    return models, seconds

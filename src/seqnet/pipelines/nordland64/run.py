@@ -1,0 +1,72 @@
+"""The Nordland64 stage: data → models → evaluation of the val and test ranges → report."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+from ...data.traverse import Dataset
+from ...evaluate import Evaluation, evaluate
+from ...files import write_json_atomic, write_text_atomic
+from ...ownership import locked
+from ...recall import recall_curve
+from ...report import format_markdown, plot_recall_curves
+from ...sequence_descriptors import SeqNet
+from ...utils import logger
+from .config import Nordland64Config
+from .data import build_dataset
+from .models import train_models
+
+
+def evaluate_split(ds: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Config, split: str) -> Evaluation:
+    """Every benchmark method on one split (centred L-frame windows; ``hvpr-*`` re-rank with S_1)."""
+    return evaluate(ds.split(split), conf.eval_config(), models)
+
+
+def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, seconds: Mapping[str, float],
+                 out: Path) -> None:
+    """``results.json`` (eval schema + benchmark config and timings), ``val_results.json``,
+    ``results.md`` (Table-I style) and ``recall_at_k.png`` (Recall@K, K = 1..20, test range)."""
+    ev.results["config"].update(benchmark=conf.to_dict(), timings_s=dict(seconds))
+    write_json_atomic(out / "results.json", ev.results)
+    write_json_atomic(out / "val_results.json", val.results)
+    curves = {m: recall_curve(r, ev.truth, 20) for m, r in ev.retrieved.items()}
+    plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={conf.seq_len})")
+    first = next(iter(ev.results["methods"].values()))
+    (a, b), (c, d) = conf.test_range, conf.val_range
+    lines = [
+        "# Nordland64 benchmark results", "",
+        f"Reference summer, query winter; test places {a}:{b} ({first['queries']} queries with a full "
+        f"L={conf.seq_len} window); radius {conf.radius:g} (frame steps); descriptor `{conf.describe.method}`.", "",
+        format_markdown(ev.results["methods"], ks=(1, 5, 20)),
+        f"Validation (places {c}:{d}, used to select epochs and settings), R@1: "
+        + ", ".join(f"{m} {r['recall@1']:.3f}" for m, r in val.results["methods"].items()), "",
+        "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in seconds.items()), "",
+    ]
+    write_text_atomic(out / "results.md", "\n".join(lines))
+
+
+def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:
+    """Run the benchmark (hloc style) on the nordland64 folder ``data``; writes everything to ``out``
+    (descriptor cache, models, ``results.json``, ``results.md``, ``recall_at_k.png``, ``config.json``)
+    and returns the path of ``results.json``."""
+    out = Path(out)
+    with locked(out):
+        t0 = time.perf_counter()
+        seconds: dict[str, float] = {}
+        ds, flipped = build_dataset(data, conf, out)
+        seconds["descriptors"] = round(time.perf_counter() - t0, 2)
+        logger.info("nordland64: %d places, D=%d; train %s, val %s, test %s", len(ds.query), ds.query.dim,
+                    conf.train_range, conf.val_range, conf.test_range)
+        models, train_s = train_models(ds, conf, out, flipped)
+        seconds.update({f"train_{k}": v for k, v in train_s.items()})
+        t1 = time.perf_counter()
+        val = evaluate_split(ds, models, conf, "val")
+        ev = evaluate_split(ds, models, conf, "test")
+        seconds["evaluation"] = round(time.perf_counter() - t1, 2)
+        seconds["total"] = round(time.perf_counter() - t0, 2)
+        write_report(ev, val, conf, seconds, out)
+        write_json_atomic(out / "config.json", {**conf.to_dict(), "data": str(data)})
+        logger.info("nordland64 done in %.0f s: %s", seconds["total"], out / "results.md")
+    return out / "results.json"
