@@ -8,6 +8,9 @@ starts (see :mod:`seqnet.windows`):
 * ``score_pairs(q, r, L, q_starts [M], cand_starts [M, K])`` → ``[M, K]`` scores of given windows
   (``-1`` = no candidate, ``inf``): the re-ranker of HVPR.
 
+Matchers: ``seqmatch`` / ``seqmatch-rev`` (fixed speed, :mod:`seqnet.seqmatch`), ``vseqmatch`` /
+``vseqmatch-rev`` (several velocities, :mod:`seqnet.velocity`).
+
 Lower scores are better. Adding a matcher is one entry of :data:`SEQUENCE_MATCHERS` (method names
 such as ``raw+<matcher>`` and ``hvpr-seqnet:s1+<matcher>`` follow).
 """
@@ -22,6 +25,7 @@ import numpy as np
 import torch
 
 from .seqmatch import seqmatch_topk, window_scores
+from .velocity import velocity_pairs, velocity_topk
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,5 +45,10 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
                         seqmatch_topk, window_scores),
         SequenceMatcher("seqmatch-rev", "SeqMatch with the reference traversed backwards (reverse direction)",
                         functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True)),
+        SequenceMatcher("vseqmatch", "SeqMatch over trajectories of several slopes (0.5-2 reference frames per query "
+                        "frame), the best one wins", velocity_topk, velocity_pairs),
+        SequenceMatcher("vseqmatch-rev", "velocity-robust SeqMatch with the reference traversed backwards",
+                        functools.partial(velocity_topk, reverse=True),
+                        functools.partial(velocity_pairs, reverse=True)),
     )
 }
