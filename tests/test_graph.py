@@ -13,6 +13,7 @@ from seqnet.data.synth import make_synthetic
 from seqnet.errors import ConfigError
 from seqnet.evaluate import EvalConfig, evaluate
 from seqnet.graph import (
+    OnlineGraphMatcher,
     graph_pairs,
     graph_topk,
     grh_pairs,
@@ -227,6 +228,61 @@ def test_grh_with_enough_candidates_is_graph(qr, rng):
                                   graph_pairs(*map(torch.from_numpy, (q, r)), 3, torch.from_numpy(qs), cand))
     again = grh_topk(q, r, 3, 5, qs, rs, nbits=8, candidates=2, device="cpu")
     np.testing.assert_array_equal(again[1], grh_topk(q, r, 3, 5, qs, rs, nbits=8, candidates=2, device="cpu")[1])
+
+
+# ----------------------------------------------------------------------------- online
+
+
+def test_online_equals_offline_causal_dp(rng):
+    q, r = rng.standard_normal((8, 4)), rng.standard_normal((12, 4))
+    online = OnlineGraphMatcher(r, fan_out=2, device="cpu")
+    for t in range(len(q)):
+        j, cost = online.step(q[t])
+        offline = path_costs(q[: t + 1], r, t + 1, 2, "end", device="cpu")[0]  # paths over frames 0..t, ending now
+        assert j == int(np.argmin(offline)) and cost == pytest.approx(offline.min(), rel=1e-9)
+    online.reset()
+    assert online.step(q[3])[0] == int(np.argmin(np.linalg.norm(r - q[3], axis=1)))
+
+
+def brute_online(q, r, fan_out, lam):
+    """Cheapest match-or-no-match path over all frames: ``(end frame or -1, cost)``, by enumeration."""
+    best = (math.inf, None)
+    for path in all_paths(len(r), len(q), fan_out):
+        for flags in itertools.product((False, True), repeat=len(q)):
+            nodes = enumerate(zip(path, flags, strict=True))
+            cost = sum(lam if f else float(np.linalg.norm(q[t] - r[j])) for t, (j, f) in nodes)
+            best = min(best, (cost, -1 if flags[-1] else path[-1]), key=lambda x: x[0])
+    return best[1], best[0]
+
+
+def test_online_no_match_nodes_vs_brute_force(rng):
+    r = rng.standard_normal((6, 2))
+    q = np.concatenate([r[[1, 2]], 5 + rng.standard_normal((1, 2)), r[[3]]]) + 0.3 * rng.standard_normal((4, 2))
+    online = OnlineGraphMatcher(r, fan_out=1, no_match_cost=1.5, relocalise_after=100)
+    for t in range(len(q)):
+        j, cost = online.step(q[t])
+        bj, bcost = brute_online(q[: t + 1], r, 1, 1.5)
+        assert (j, cost) == (bj, pytest.approx(bcost, rel=1e-9)), t
+
+
+def test_online_recovers_after_garbage(rng):
+    r = rng.standard_normal((80, 8)).astype(np.float32)
+    truth = np.concatenate([np.arange(0, 20), -np.ones(6, int), np.arange(50, 70)])  # a jump after the garbage
+    q = np.where(truth[:, None] >= 0, r[truth.clip(0)], 3 * rng.standard_normal((len(truth), 8)))
+    q = q + 0.05 * rng.standard_normal(q.shape)
+    online = OnlineGraphMatcher(r, fan_out=2, no_match_cost=2.0, relocalise_after=3)
+    got = np.array([online.step(x)[0] for x in q])
+    np.testing.assert_array_equal(got[:20], truth[:20])
+    assert (got[20:26] == -1).all()  # no match while the frames are garbage
+    np.testing.assert_array_equal(got[26:], truth[26:])  # relocalised at the first good frame
+    stubborn = OnlineGraphMatcher(r, fan_out=2, no_match_cost=2.0, relocalise_after=1000)  # never restarts
+    assert (np.array([stubborn.step(x)[0] for x in q])[26:32] != truth[26:32]).all()  # 50 is out of reach
+    with pytest.raises(ConfigError, match="D=8"):
+        online.step(np.zeros(3))
+    with pytest.raises(ConfigError, match="no_match_cost"):
+        OnlineGraphMatcher(r, no_match_cost=-1.0)
+    with pytest.raises(ConfigError, match="fan_out"):
+        OnlineGraphMatcher(r, fan_out=-1)
 
 
 # ----------------------------------------------------------------------------- evaluation and HVPR

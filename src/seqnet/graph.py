@@ -1,4 +1,4 @@
-"""Graph sequence matching (GISM-style) and its LSH-relocalised form (GRH-style).
+"""Graph sequence matching (GISM-style) and its LSH-relocalised form (GRH-style), offline and online.
 
 **Paths.** A query window of L frames starting at ``a`` is matched by a path of reference frames
 ``j_0 .. j_{L−1}`` with steps ``j_{t+1} − j_t ∈ {0 .. fan_out}`` (0: the camera stopped); its cost
@@ -19,6 +19,8 @@ per-bit median thresholds trained on the reference); the ``candidates`` referenc
 Hamming distance to query frame ``a`` (ties: lower frame) are its relocalisation candidates, and a
 path must *start* (step 0) within ``neighbourhood`` frames of one of them: ``F_0`` is ``+inf``
 elsewhere.
+
+**Online** (:class:`OnlineGraphMatcher`): see the class.
 """
 
 from __future__ import annotations
@@ -29,9 +31,10 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from .config import check_int
-from .distances import as_pair, rows_per_block, sq_norms, topk_smallest
-from .utils import ArrayLike, get_device, to_numpy
+from .config import check_float, check_int
+from .distances import as_pair, pairwise_distances, rows_per_block, sq_norms, topk_smallest
+from .errors import ConfigError
+from .utils import ArrayLike, as_tensor, get_device, to_numpy
 from .velocity import BlockFn, blocked_topk, check_pairs, pivot_step, score_blocks
 from .windows import check_seq_len
 
@@ -209,3 +212,60 @@ def grh_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Te
         return ((c - frames[..., None]).abs() <= radius).any(-1)
 
     return graph_pairs(q, r, seq_len, q_starts, cand, fan_out, anchor, block_bytes, start_mask)
+
+
+# ----------------------------------------------------------------------------- online
+
+
+class OnlineGraphMatcher:
+    """Frame-by-frame graph matching with "no match" nodes and relocalisation.
+
+    State: two rows over the reference frames, ``C [Nr]`` (cheapest path since the last (re)start
+    whose current query frame matches reference frame j) and ``H [Nr]`` (the same, but the current
+    frame is a *no match* at route position j, cost ``no_match_cost``; no-match nodes follow the
+    route with the same steps, like GISM's hidden nodes). A step with query descriptor ``x`` and
+    distances ``d = ‖x − r_j‖`` (one GEMV):
+    ``M = runmin_{fan_out}(min(C, H))``, ``C ← M + d``, ``H ← M + no_match_cost``; the first frame
+    after a (re)start has ``M = 0``. The step returns ``(j, cost)`` of the cheapest node: ``j`` for a
+    match node, ``-1`` for a no-match node; ``cost`` is that path's total cost since the (re)start.
+
+    Relocalisation: after ``relocalise_after`` consecutive no-match answers the path restarts: the
+    next frame starts from its own distances (the global nearest reference wins). With
+    ``no_match_cost=None`` there are no no-match nodes, and a step equals the offline graph DP
+    (:func:`path_costs`, ``anchor="end"``) over the causal window from the (re)start to this frame.
+    ``length`` counts the frames since the last (re)start (``cost / length``: cost per frame).
+    """
+
+    def __init__(self, ref: ArrayLike, fan_out: int = DEFAULT_FAN_OUT, no_match_cost: float | None = None,
+                 relocalise_after: int = 3, device: str | None = None):
+        self.ref = as_tensor(ref, get_device(device), "reference", ndim=2, keep_float64=True)
+        self.fan_out = check_int("fan_out", fan_out, 0)
+        self.no_match_cost = None if no_match_cost is None else check_float("no_match_cost", no_match_cost, 0.0)
+        self.relocalise_after = check_int("relocalise_after", relocalise_after, 1)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the path: the next frame starts afresh."""
+        self.cost: torch.Tensor | None = None  # [2, Nr]: C and H, minus ``offset``
+        self.offset, self.length, self.lost = 0.0, 0, 0
+
+    @torch.no_grad()
+    def step(self, descriptor: ArrayLike) -> tuple[int, float]:
+        """Match the next query frame ``descriptor [D]``: ``(reference frame or -1, path cost)``."""
+        x = as_tensor(descriptor, self.ref.device, "descriptor", ndim=1, keep_float64=True).to(self.ref.dtype)
+        if x.shape[0] != self.ref.shape[1]:
+            raise ConfigError(f"descriptor must have D={self.ref.shape[1]}, got {x.shape[0]}")
+        d = pairwise_distances(x[None], self.ref)[0]
+        prev = torch.zeros_like(d) if self.cost is None else runmin(self.cost.amin(0), self.fan_out)
+        lam = math.inf if self.no_match_cost is None else self.no_match_cost
+        cost = torch.stack([prev + d, prev + lam])
+        low = cost.amin()
+        self.cost, self.offset, self.length = cost - low, self.offset + float(low), self.length + 1
+        j = int(torch.argmin(cost[0]))
+        lost = bool(cost[0, j] > low)
+        total = self.offset
+        self.lost = self.lost + 1 if lost else 0
+        if self.lost >= self.relocalise_after:
+            self.reset()
+        return (-1 if lost else j), total
+
