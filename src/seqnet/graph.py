@@ -113,26 +113,28 @@ def graph_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.
     """Graph-matching scores ``[M, K]`` of query windows ``q_starts [M]`` vs reference windows ``cand [M, K]``.
 
     The same score as :func:`graph_topk`: the cheapest path through frame ``cand + p`` at step p,
-    found by the DP on the ``fan_out · (L − 1) + 1`` frames such paths can reach. -1 scores ``inf``.
+    found by the DP on the ``W = fan_out · (L − 1) + 1`` frames such paths can reach (distances by the
+    norm trick, one batched GEMM ``[K·W, D] × [D, L]`` per query window, as in the whole map). -1
+    scores ``inf``.
     ``start_mask(rows, frames [m, K, W])`` (GRH) says where paths may start.
     """
     fan_out, pivot = _check(seq_len, fan_out, anchor)
     q_starts, cand = check_pairs(q, r, seq_len, q_starts, cand)
     width = fan_out * (seq_len - 1) + 1
     out = torch.full(cand.shape, math.inf, dtype=q.dtype, device=q.device)
-    rows = rows_per_block(max(1, cand.shape[1]) * width * (2 * q.shape[1] + 4) * q.element_size(), block_bytes)
+    rows = rows_per_block(max(1, cand.shape[1]) * width * (q.shape[1] + 2 * seq_len) * q.element_size(), block_bytes)
     cols = torch.arange(width, device=q.device) - fan_out * pivot
+    q_sq, r_sq = sq_norms(q), sq_norms(r)
     for s in range(0, cand.shape[0], rows):
-        qs = q_starts[s : s + rows]
+        q_win = q_starts[s : s + rows, None] + torch.arange(seq_len, device=q.device)  # [m, L]
         frames = (cand[s : s + rows] + pivot)[..., None] + cols  # [m, K, W]: frame of each column
         inside = (frames >= 0) & (frames < r.shape[0])
-        r_win = r[frames.clamp(0, r.shape[0] - 1)]  # [m, K, W, D]
-
-        def step(t: int, qs=qs, r_win=r_win, inside=inside) -> torch.Tensor:
-            return (r_win - q[qs + t][:, None, None, :]).norm(dim=-1).masked_fill_(~inside, math.inf)
-
+        safe = frames.clamp(0, r.shape[0] - 1).flatten(1)  # [m, K·W]
+        dist = torch.bmm(r[safe], q[q_win].transpose(1, 2)).mul_(-2.0)  # [m, K·W, L]: −2 r·q
+        dist.add_(r_sq[safe][..., None]).add_(q_sq[q_win][:, None, :]).clamp_min_(0.0).sqrt_()  # norm trick
+        dist = dist.view(*frames.shape, seq_len).masked_fill_(~inside[..., None], math.inf)
         mask = None if start_mask is None else start_mask(slice(s, s + rows), frames)
-        out[s : s + rows] = path_dp(step, seq_len, fan_out, pivot, mask)[..., fan_out * pivot]
+        out[s : s + rows] = path_dp(lambda t, d=dist: d[..., t], seq_len, fan_out, pivot, mask)[..., fan_out * pivot]
     return out.masked_fill_(cand < 0, math.inf)
 
 
