@@ -240,6 +240,9 @@ def test_online_equals_offline_causal_dp(rng):
         j, cost = online.step(q[t])
         offline = path_costs(q[: t + 1], r, t + 1, 2, "end", device="cpu")[0]  # paths over frames 0..t, ending now
         assert j == int(np.argmin(offline)) and cost == pytest.approx(offline.min(), rel=1e-9)
+        if t >= 2:  # graph <= seqmatch: the fixed-speed window is one of the paths
+            fixed = np.linalg.norm(q[: t + 1] - r[j - t : j + 1], axis=1).sum() if j >= t else math.inf
+            assert cost <= fixed + 1e-9
     online.reset()
     assert online.step(q[3])[0] == int(np.argmin(np.linalg.norm(r - q[3], axis=1)))
 
@@ -271,7 +274,9 @@ def test_online_recovers_after_garbage(rng):
     q = np.where(truth[:, None] >= 0, r[truth.clip(0)], 3 * rng.standard_normal((len(truth), 8)))
     q = q + 0.05 * rng.standard_normal(q.shape)
     online = OnlineGraphMatcher(r, fan_out=2, no_match_cost=2.0, relocalise_after=3)
-    got = np.array([online.step(x)[0] for x in q])
+    got, lengths = zip(*[(online.step(x)[0], online.length) for x in q], strict=True)
+    got = np.array(got)
+    assert lengths[:23] == tuple(range(1, 24)) and lengths[23] == 1  # frames 20-22 no match: frame 23 restarts
     np.testing.assert_array_equal(got[:20], truth[:20])
     assert (got[20:26] == -1).all()  # no match while the frames are garbage
     np.testing.assert_array_equal(got[26:], truth[26:])  # relocalised at the first good frame

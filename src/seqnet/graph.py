@@ -257,6 +257,8 @@ class OnlineGraphMatcher:
         x = as_tensor(descriptor, self.ref.device, "descriptor", ndim=1, keep_float64=True).to(self.ref.dtype)
         if x.shape[0] != self.ref.shape[1]:
             raise ConfigError(f"descriptor must have D={self.ref.shape[1]}, got {x.shape[0]}")
+        if self.lost >= self.relocalise_after:  # relocalise: this frame starts a new path
+            self.reset()
         d = pairwise_distances(x[None], self.ref)[0]
         prev = torch.zeros_like(d) if self.cost is None else runmin(self.cost.amin(0), self.fan_out)
         lam = math.inf if self.no_match_cost is None else self.no_match_cost
@@ -265,9 +267,6 @@ class OnlineGraphMatcher:
         self.cost, self.offset, self.length = cost - low, self.offset + float(low), self.length + 1
         j = int(torch.argmin(cost[0]))
         lost = bool(cost[0, j] > low)
-        total = self.offset
-        self.lost = self.lost + 1 if lost else 0
-        if self.lost >= self.relocalise_after:
-            self.reset()
-        return (-1 if lost else j), total
+        self.lost = self.lost + 1 if lost else 0  # consecutive no-match answers
+        return (-1 if lost else j), self.offset
 
