@@ -8,6 +8,10 @@ starts (see :mod:`seqnet.windows`):
 * ``score_pairs(q, r, L, q_starts [M], cand_starts [M, K])`` → ``[M, K]`` scores of given windows
   (``-1`` = no candidate, ``inf``): the re-ranker of HVPR.
 
+Matchers: ``seqmatch`` / ``seqmatch-rev`` (fixed speed, :mod:`seqnet.seqmatch`), ``vseqmatch`` /
+``vseqmatch-rev`` (several velocities, :mod:`seqnet.velocity`), ``graph`` and ``grh`` (paths of
+variable speed, :mod:`seqnet.graph`); exact definitions in ``docs/matchers.md``.
+
 Lower scores are better. Adding a matcher is one entry of :data:`SEQUENCE_MATCHERS` (method names
 such as ``raw+<matcher>`` and ``hvpr-seqnet:s1+<matcher>`` follow).
 """
@@ -21,7 +25,9 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from .graph import graph_pairs, graph_topk, grh_pairs, grh_topk
 from .seqmatch import seqmatch_topk
+from .velocity import velocity_pairs, velocity_topk
 from .window_pairs import window_scores
 
 
@@ -42,5 +48,14 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
                         seqmatch_topk, window_scores),
         SequenceMatcher("seqmatch-rev", "SeqMatch with the reference traversed backwards (reverse direction)",
                         functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True)),
+        SequenceMatcher("vseqmatch", "SeqMatch over trajectories of several slopes (0.5-2 reference frames per query "
+                        "frame), the best one wins", velocity_topk, velocity_pairs),
+        SequenceMatcher("vseqmatch-rev", "velocity-robust SeqMatch with the reference traversed backwards",
+                        functools.partial(velocity_topk, reverse=True),
+                        functools.partial(velocity_pairs, reverse=True)),
+        SequenceMatcher("graph", "GISM-style graph matching: cheapest path with reference steps 0..2 per query frame "
+                        "(stops and speed changes)", graph_topk, graph_pairs),
+        SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
+                        grh_topk, grh_pairs),
     )
 }
