@@ -34,7 +34,7 @@ CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
 
 def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
     """Write ``model`` (architecture + weights) and ``fields`` to ``path`` atomically."""
-    payload = {"format": CHECKPOINT_FORMAT, "model": model.config(),
+    payload = {"format": CHECKPOINT_FORMAT, "model": model.config(), "provenance": model.provenance,
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, **fields}
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -60,20 +60,19 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
 
     Args:
         path: checkpoint file.
-        seq_len: sequence length L; needed only for an original checkpoint without ``flags.json``
-            (otherwise it overrides the stored L, which only sets the default window length).
+        seq_len: sequence length L the model was trained with, for an original checkpoint without
+            ``flags.json`` only (a stored L is never changed: evaluating with another L is checked,
+            and refused unless asked for, by :func:`seqnet.evaluate.evaluate`).
         in_dims: expected input dimension D (e.g. the dataset's); a mismatch raises CheckpointError.
+
+    The model's ``provenance`` is that of the descriptors it was trained on (None when unknown).
     """
     payload = read_checkpoint(path)
     if payload.get("format") == CHECKPOINT_FORMAT:
         model = _from_seqnet(payload, Path(path))
+        model.provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else None
     else:
         model = _from_original(payload, Path(path), seq_len)
-    if seq_len is not None and seq_len != model.seq_len:
-        if seq_len < model.w:
-            raise CheckpointError(f"seq_len={seq_len} is shorter than the model's filter w={model.w} ({path})")
-        logger.info("%s: using seq_len=%d instead of the stored %d", path, seq_len, model.seq_len)
-        model.seq_len = int(seq_len)
     if in_dims is not None and in_dims != model.in_dims:
         raise CheckpointError(f"{path} expects D={model.in_dims} input descriptors but the data has D={in_dims} "
                               "(hint: use the descriptors the model was trained on)")

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .config import Config, check_choice, check_int, check_ints
+from .config import Config, check_bool, check_choice, check_int, check_ints
 from .data.traverse import Dataset
 from .distances import KNN_BACKENDS, knn
 from .errors import ConfigError
@@ -24,6 +24,7 @@ from .features import Descriptors, Side
 from .hvpr import hvpr
 from .matchers import SEQUENCE_MATCHERS
 from .methods import FRAME_FEATURES, Method, default_methods, parse_method
+from .provenance import check_same
 from .recall import GroundTruth, check_radius
 from .results import method_results, write_per_query
 from .sequence_descriptors import SeqNet
@@ -49,6 +50,9 @@ class EvalConfig(Config):
         split: the split evaluated by :func:`main` (None: test when defined, else all).
         backend: k-NN backend (a key of :data:`seqnet.distances.KNN_BACKENDS`).
         device: torch device (auto: CUDA when present).
+        allow_mismatch: go on (with a warning) when reference and query descriptors, or a model and
+            the descriptors, were made differently, or a model is used with another L than it was
+            trained with; by default each is an error.
     """
 
     methods: tuple[str, ...] | None = None
@@ -62,8 +66,10 @@ class EvalConfig(Config):
     split: str | None = None
     backend: str = "torch"
     device: str = "auto"
+    allow_mismatch: bool = False
 
     def __post_init__(self) -> None:
+        self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
         if self.methods is not None:
             if isinstance(self.methods, str) or not self.methods:
                 raise ConfigError(f"methods must be a non-empty list of method names, got {self.methods!r}")
@@ -170,15 +176,33 @@ def check_inputs(ds: Dataset, conf: EvalConfig, methods: list[Method], models: M
         if m.min_len() > conf.length:
             raise ConfigError(f"method {m.name!r} uses Delta descriptors, which need seq_len >= {m.min_len()} "
                               f"(got {conf.length}); use a longer --seq-len or other methods")
-    for role, model in models.items():
-        if model.in_dims != ds.query.dim:
-            raise ConfigError(f"the {role} model expects D={model.in_dims} descriptors "
-                              f"but the dataset has D={ds.query.dim}")
+    check_provenance(ds, conf, models)
     for side, t in (("query", ds.query), ("reference", ds.reference)):
         longest = max(conf.length, conf.match_len)
         if longest > len(t):
             raise ConfigError(f"seq_len={longest} is longer than the {side} traverse of dataset {ds.name!r} "
                               f"({len(t)} frames); use a shorter --seq-len")
+
+
+def check_provenance(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet]) -> None:
+    """Reference and query descriptors made alike; each model used on the descriptors (D, provenance)
+    and the sequence length it was trained with (unless ``conf.allow_mismatch``)."""
+    allow = conf.allow_mismatch
+    check_same(ds.reference.provenance, ds.query.provenance, "the reference descriptors", "the query descriptors",
+               allow)
+    for role, model in models.items():
+        name = "S_1" if role == "s1" else f"S_{model.seq_len}"
+        if model.in_dims != ds.query.dim:
+            raise ConfigError(f"the {role} model ({name}) expects D={model.in_dims} descriptors "
+                              f"but the dataset has D={ds.query.dim}")
+        check_same(model.provenance, ds.reference.provenance, f"the descriptors the {name} model was trained on",
+                   f"the descriptors of dataset {ds.name!r}", allow)
+        if role == "seqnet" and model.seq_len != conf.length:
+            msg = (f"the S_L model was trained with L={model.seq_len} but is evaluated with L={conf.length}; "
+                   f"hint: --seq-len {model.seq_len}, or --allow-mismatch to evaluate it on other windows")
+            if not allow:
+                raise ConfigError(msg)
+            logger.warning("%s (going on as asked)", msg)
 
 
 def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[str, Any]:

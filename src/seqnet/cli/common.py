@@ -90,3 +90,10 @@ def parse_list(values: Sequence[str] | None, valid: Sequence[str] | None = None,
 def drop_none(d: dict[str, Any]) -> dict[str, Any]:
     """The entries of ``d`` whose value is not None."""
     return {k: v for k, v in d.items() if v is not None}
+
+
+def add_allow_mismatch(p: argparse.ArgumentParser) -> None:
+    """``--allow-mismatch``: go on when descriptors or models were made differently (experts)."""
+    p.add_argument("--allow-mismatch", action="store_true",
+                   help="go on (with a warning) when reference and query descriptors, or a model and the "
+                        "descriptors, were made with different settings, or a model is used with another L")

@@ -6,7 +6,7 @@ import argparse
 import json
 
 from ..errors import ConfigError
-from .common import positive_float
+from .common import add_allow_mismatch, positive_float
 
 PRESET_HELP = "dataset preset (nordland, oxford-v1.0, oxford-pnv, brisbane, msls): radius, training radii, splits"
 
@@ -41,6 +41,7 @@ def _common(p: argparse.ArgumentParser, radius: bool = True) -> None:
                    "indices (.json list of lists, .csv query,reference pairs, or .npy object array); used "
                    "instead of the radius")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    add_allow_mismatch(p)
 
 
 def _register_csv(dsub: argparse._SubParsersAction) -> None:
@@ -85,6 +86,7 @@ def _register_seqnet(dsub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
     p.add_argument("--preset", help=PRESET_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    add_allow_mismatch(p)
     p.set_defaults(func=run_from_seqnet)
 
 
@@ -135,7 +137,8 @@ def run_from_csv(args: argparse.Namespace) -> int:
     if unit_r != unit_q:
         raise ConfigError(f"reference positions are in {unit_r} but query positions in {unit_q}")
     ds = assemble_dataset(ref, qry, unit_r, args.radius, args.preset, parse_splits(args.split),
-                          args.name or Path(args.out).name, _extra(args), _positives(args))
+                          args.name or Path(args.out).name, _extra(args), _positives(args),
+                          args.allow_mismatch)
     return _finish(ds, args)
 
 
@@ -153,7 +156,8 @@ def run_from_utm(args: argparse.Namespace) -> int:
             t = dataclasses.replace(t, seq_bounds=read_seq_bounds(bounds, len(t)))
         sides.append(t)
     ds = assemble_dataset(sides[0], sides[1], "metres", args.radius, args.preset, parse_splits(args.split),
-                          args.name or Path(args.out).name, _extra(args), _positives(args))
+                          args.name or Path(args.out).name, _extra(args), _positives(args),
+                          args.allow_mismatch)
     return _finish(ds, args)
 
 
@@ -173,7 +177,20 @@ def run_from_seqnet(args: argparse.Namespace) -> int:
         structs = [read_db_struct(f) for f in args.db]
         ds = dataset_from_structs(structs, ref, qry, args.preset, args.ref_seq_bounds, args.query_seq_bounds,
                                   args.radius, args.name)
+    ds.reference.provenance, ds.query.provenance = _same_provenance(args.ref_desc, args.query_desc,
+                                                                    args.allow_mismatch)
     return _finish(ds, args)
+
+
+def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) -> tuple[dict | None, dict | None]:
+    """The provenance of the reference and query descriptor files, checked to be one (unless ``allow``)."""
+    from ..provenance import check_same
+    from ..provenance import read as read_provenance
+
+    records = [read_provenance(f) for f in (*ref_files, *query_files)]
+    for f, rec in zip((*ref_files, *query_files), records, strict=True):
+        check_same(records[0], rec, f"the descriptors of {ref_files[0]}", f"the descriptors of {f}", allow)
+    return records[0], records[len(ref_files)]
 
 
 def run_check(args: argparse.Namespace) -> int:

@@ -13,7 +13,7 @@ from ..files import write_json_atomic
 from ..methods import DEFAULT_METHODS, valid_methods
 from ..report import format_table
 from ..windows import WINDOW_MODES
-from .common import add_device, int_list, parse_list, positive_float, positive_int
+from .common import add_allow_mismatch, add_device, int_list, parse_list, positive_float, positive_int
 
 _D = EvalConfig()
 
@@ -48,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "scores, correct or not, confidence) to FILE (.csv or .jsonl)")
     p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) here")
     p.add_argument("--json", metavar="FILE", help="also write the results JSON to FILE")
+    add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
 
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     conf = EvalConfig().replace(methods=methods, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                                 window=args.window, radius=args.radius, extra_radii=tuple(args.extra_radius) or None,
                                 top_k=args.top_k, split=args.split, backend=args.backend, device=args.device,
-                                ks=args.ks)
+                                ks=args.ks, allow_mismatch=args.allow_mismatch or None)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
         path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,
                     args.per_query)

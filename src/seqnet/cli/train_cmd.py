@@ -12,7 +12,7 @@ from ..train.config import OPTIMIZERS, TrainConfig
 from ..train.loop import main
 from ..train.run import resume_config
 from ..windows import WINDOW_MODES
-from .common import add_device, non_negative_float, non_negative_int, positive_float, positive_int
+from .common import add_allow_mismatch, add_device, non_negative_float, non_negative_int, positive_float, positive_int
 
 _D = TrainConfig()
 
@@ -59,6 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--train-split", help=f"split to train on (default {_D.train_split}; 'all': the whole dataset)")
     t.add_argument("--val-split", help=f"split to validate on (default {_D.val_split}; 'none': no validation, "
                    "best.pt = last)")
+    add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
 
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     if args.device != "auto" or not args.resume:
         changes["device"] = args.device
     conf = resume_config(args.resume, **changes) if args.resume else TrainConfig().replace(**changes)
-    run_dir = main(conf, args.dataset, args.out, args.resume)
+    run_dir = main(conf, args.dataset, args.out, args.resume, allow_mismatch=args.allow_mismatch)
     _print_summary(run_dir)
     return 0
 

@@ -23,6 +23,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import DatasetError
+from ..provenance import check_same
+from ..provenance import read as read_provenance
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_text
 from .traverse import Dataset, Traverse
@@ -190,7 +192,8 @@ def traverse_from_csv(csv_path: str | Path, desc_path: str | Path, names_file: s
     else:
         idx = match_names(names, desc_names, f"{csv_path} vs {desc_path}")
     d = desc if np.array_equal(idx, np.arange(desc.shape[0])) else np.asarray(desc[idx])
-    return Traverse(descriptors=d, positions=pos, names=names, seq_bounds=bounds, name=name), unit
+    return Traverse(descriptors=d, positions=pos, names=names, seq_bounds=bounds, name=name,
+                    provenance=read_provenance(desc_path)), unit
 
 
 def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None = None,
@@ -199,7 +202,8 @@ def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None
     desc, names = read_descriptor_file(desc_path, names_file)
     if names is None:
         raise DatasetError(f"{desc_path}: no image names; give a names file or an HDF5 file with a 'names' dataset")
-    return Traverse(descriptors=desc, positions=utm_positions(names), names=names, name=name)
+    return Traverse(descriptors=desc, positions=utm_positions(names), names=names, name=name,
+                    provenance=read_provenance(desc_path))
 
 
 def summarize_dataset(ds: Dataset) -> dict[str, Any]:
@@ -239,12 +243,15 @@ def summarize_dataset(ds: Dataset) -> dict[str, Any]:
 def assemble_dataset(
     ref: Traverse, query: Traverse, unit: str, radius: float | None = None, preset: str | None = None,
     splits: dict[str, dict[str, tuple[int, int]]] | None = None, name: str = "dataset",
-    extra: dict[str, Any] | None = None, positives: Positives | None = None,
+    extra: dict[str, Any] | None = None, positives: Positives | None = None, allow_mismatch: bool = False,
 ) -> Dataset:
     """A dataset from two traverses; radius and training radii from ``radius`` / ``extra`` or ``preset``.
 
-    Splits default to the preset's index splits when it defines them and they fit.
+    Splits default to the preset's index splits when it defines them and they fit. Reference and
+    query descriptors made differently (provenance) are refused unless ``allow_mismatch``.
     """
+    check_same(ref.provenance, query.provenance, "the reference descriptors", "the query descriptors",
+               allow_mismatch)
     from ..errors import ConfigError
     from .presets import get_preset, preset_metadata, preset_splits
 

@@ -55,6 +55,8 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
                            '{"reference": "ref", "query": "qry"}')
     ref = load_traverse(root / trav.get("reference", "reference"), "reference", mmap)
     qry = load_traverse(root / trav.get("query", "query"), "query", mmap)
+    prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
+    ref.provenance, qry.provenance = prov.get("reference"), prov.get("query")
     return Dataset(
         reference=ref,
         query=qry,
@@ -86,7 +88,7 @@ def load_positives(f: Path) -> Positives:
     return Positives(indptr.astype(np.int64), indices.astype(np.int64))
 
 
-_META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses"}
+_META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses", "provenance"}
 
 
 def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]]:
@@ -189,6 +191,7 @@ def _write_dataset(ds: Dataset, root: Path) -> None:
         "radius": ds.radius,
         "position_unit": ds.position_unit,
         "splits": {k: {s: list(v[s]) for s in ("reference", "query")} for k, v in ds.splits.items()},
+        "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance},
     }
     write_json_atomic(root / "dataset.json", meta)
     if ds.positives is not None:

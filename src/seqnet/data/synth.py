@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..config import Config, check_float, check_int
+from ..provenance import make as make_provenance
 from .io import save_dataset
 from .traverse import Dataset, Traverse
 
@@ -128,6 +129,7 @@ def make_synthetic(conf: SynthConfig | None = None, **overrides: Any) -> Dataset
     basis = np.linalg.qr(rng.standard_normal((conf.dim, k)))[0].T * nuisance * np.sqrt(conf.dim / k)
     ref, ref_route = _traverse(rng, z, xy, noise, ref_cond, "reference", basis)
     qry, qry_route = _traverse(rng, z, xy, noise, qry_cond, "query", basis)
+    ref.provenance = qry.provenance = make_provenance("synthetic", conf.to_dict(), dim=conf.dim)
     splits = {}
     for split, (a, b) in {"train": (0.0, 0.6), "val": (0.6, 0.75), "test": (0.75, 1.0)}.items():
         rng_r = np.searchsorted(ref_route, [a * (places - 1), b * (places - 1)])

@@ -43,6 +43,7 @@ class Traverse:
         names: optional ``N`` image names.
         seq_bounds: optional ``[N, 2]`` int, half-open sequence range of each image.
         name: label used in messages.
+        provenance: how the descriptors were made (:mod:`seqnet.provenance`), or None when unknown.
     """
 
     descriptors: np.ndarray
@@ -50,6 +51,7 @@ class Traverse:
     names: list[str] | None = None
     seq_bounds: np.ndarray | None = None
     name: str = "traverse"
+    provenance: dict | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.descriptors, np.ndarray):
@@ -95,11 +97,12 @@ class Traverse:
             names=None if self.names is None else self.names[start:stop],
             seq_bounds=bounds,
             name=self.name,
+            provenance=self.provenance,
         )
 
-    def with_descriptors(self, descriptors: np.ndarray) -> Traverse:
-        """Same traverse (positions, names, bounds) with other descriptors ``[N, D']``."""
-        return dataclasses.replace(self, descriptors=descriptors)
+    def with_descriptors(self, descriptors: np.ndarray, provenance: dict | None = None) -> Traverse:
+        """Same traverse (positions, names, bounds) with other descriptors ``[N, D']`` (and their provenance)."""
+        return dataclasses.replace(self, descriptors=descriptors, provenance=provenance)
 
 
 @dataclasses.dataclass

@@ -21,7 +21,9 @@ import h5py
 import numpy as np
 
 from ..errors import ConfigError, ImageError
-from ..files import atomic_path, save_npy_atomic, write_text_atomic
+from ..files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..provenance import make as make_provenance
+from ..provenance import sidecar as provenance_sidecar
 from ..utils import logger
 from .config import DescribeConfig, fit_summary
 from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches
@@ -101,9 +103,18 @@ def describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
         raise ImageError(f"none of the {len(images)} images could be read (first: {images.paths[0]})")
     names = [images.names[i] for i in keep]
     record = {**conf.to_dict(), "fit": fit_summary(conf.fit)}  # a list of fitting images as its hash
-    _write_output(out, desc, names, json.dumps(record, sort_keys=True))
+    fitted_on = fit_paths_of(conf, images.paths) if conf.needs_fit else None
+    _write_output(out, desc, names, json.dumps(record, sort_keys=True), describe_provenance(conf, fitted_on, desc))
     partial.unlink()
     return desc, names
+
+
+def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc: np.ndarray) -> dict:
+    """The provenance record (:mod:`seqnet.provenance`) of descriptors ``desc [N, D]`` made with
+    ``conf``, whose fitted state (if any) was fitted on the images ``fitted_on``."""
+    settings = {k: v for k, v in conf.settings().items() if k not in ("fit", "fit_max")}
+    fit = [str(Path(f).resolve()) for f in fitted_on] if fitted_on is not None else None
+    return make_provenance("describe", settings, fit, int(desc.shape[1]))
 
 
 def _describe_into(h: h5py.File, images: ImageList, describer: Describer,
@@ -187,14 +198,16 @@ def _h5_sink(h: h5py.File, n: int) -> Sink:
     return sink
 
 
-def _write_output(out: Path, desc: np.ndarray, names: list[str], config: str) -> None:
+def _write_output(out: Path, desc: np.ndarray, names: list[str], config: str, prov: dict) -> None:
     desc = np.ascontiguousarray(desc, dtype=np.float32)
     if out.suffix.lower() == ".npy":
         save_npy_atomic(out, desc)
         write_text_atomic(names_file_for(out), "\n".join(names) + "\n")
+        write_json_atomic(provenance_sidecar(out), prov)
         return
     with atomic_path(out) as tmp:
         with h5py.File(tmp, "w") as h:
             h.create_dataset("descriptors", data=desc)
             h.create_dataset("names", data=np.array(names, dtype=object), dtype=h5py.string_dtype())
             h.attrs["config"] = config
+            h.attrs["provenance"] = json.dumps(prov, sort_keys=True)

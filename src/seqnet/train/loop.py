@@ -24,6 +24,7 @@ from ..data.traverse import Dataset
 from ..errors import ConfigError, DatasetError, OutputError
 from ..ownership import locked
 from ..progress import progress
+from ..provenance import check_same
 from ..sequence_descriptors import SeqNet
 from ..utils import get_device, logger
 from ..windows import gather_windows
@@ -155,7 +156,7 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
 
 
 def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resume: bool | str | Path = False,
-          dataset_path: str | Path | None = None) -> Run:
+          dataset_path: str | Path | None = None, allow_mismatch: bool = False) -> Run:
     """Train a SeqNet model on ``dataset``'s train split, validating on its val split.
 
     Args:
@@ -168,12 +169,15 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
             run needs it absent or empty.
         resume: continue the run in ``out_dir`` (True), or the run in this directory / checkpoint.
         dataset_path: recorded in the run so that resuming finds the data (default when resuming: the run's).
+        allow_mismatch: train even when reference and query descriptors were made differently (provenance).
 
     Returns:
         The finished :class:`Run` (model, history, best score and epoch).
     """
     out_dir = Path(out_dir)
     check_resume_target(resume, out_dir)
+    check_same(dataset.reference.provenance, dataset.query.provenance, "the reference descriptors",
+               "the query descriptors", allow_mismatch)
     with locked(out_dir):  # a second writer of this run is refused
         payload = None
         if resume:
@@ -189,6 +193,7 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
         remove_temp_files(out_dir)
         run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload,
                        str(dataset_path) if dataset_path is not None else None)
+        run.model.provenance = dataset.reference.provenance  # checkpoints record what the model reads
         try:
             _fit(run, src, val_ds, device)
         finally:
@@ -209,7 +214,7 @@ def check_resume_target(resume: bool | str | Path, out_dir: Path) -> None:
 
 
 def main(conf: TrainConfig | None, dataset: str | Path | None, out: str | Path | None,
-         resume: str | Path | None = None) -> Path:
+         resume: str | Path | None = None, allow_mismatch: bool = False) -> Path:
     """hloc-style stage: train on the dataset directory ``dataset`` into the run directory ``out``
     (or continue the run ``resume``: a directory or its ``last.pt``; ``out`` defaults to it, the
     dataset to the one the run recorded). Returns the run directory."""
@@ -220,6 +225,7 @@ def main(conf: TrainConfig | None, dataset: str | Path | None, out: str | Path |
     path = dataset if dataset is not None or resume is None else run_dataset_path(resume)
     if path is None:
         raise ConfigError("no dataset: give --dataset DIR")
-    run = train(load_dataset(path), conf, out, resume=resume or False, dataset_path=Path(path).resolve())
+    run = train(load_dataset(path), conf, out, resume=resume or False, dataset_path=Path(path).resolve(),
+                allow_mismatch=allow_mismatch)
     return run.out_dir
 

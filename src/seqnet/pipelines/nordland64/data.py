@@ -16,6 +16,7 @@ from ...data.traverse import Dataset, Traverse
 from ...describe import Describer, make_describer
 from ...describe.images import iter_batches
 from ...describe.pca import PCA
+from ...describe.store import describe_provenance
 from ...errors import ConfigError, DatasetError
 from ...files import save_npy_atomic
 from ...progress import progress
@@ -48,18 +49,18 @@ def describe_key(conf: Nordland64Config) -> dict[str, Any]:
                                   "flip_train": conf.flip}))
 
 
-def describe_seasons(data: Path, names: list[str], conf: Nordland64Config, offset: int = 0) -> dict[str, np.ndarray]:
+def describe_seasons(data: Path, names: list[str], conf: Nordland64Config, offset: int = 0) -> dict[str, Any]:
     """Descriptors ``[N, D]`` of the summer (reference) and winter (query) images of ``names``, and
     with ``conf.flip`` of the horizontally flipped train images (``summer_flip``, ``winter_flip``).
 
     Anything fitted (NetVLAD clusters, PCA of the describer) is fitted on the train range only
-    (``names[i]`` is place ``offset + i``).
+    (``names[i]`` is place ``offset + i``). ``"provenance"`` holds how they were made.
     """
     a, b = conf.train_range
     train_names = names[a - offset : b - offset]
     fit = [data / s / n for s in SEASONS for n in train_names]  # the train images of both seasons
     describer = make_describer(conf.describe.replace(fit=fit), fit)
-    out = {}
+    out: dict[str, Any] = {}
     for season in SEASONS:
         logger.info("describing %d %s images (%s)", len(names), season, conf.describe.method)
         desc, got = describer.describe([data / season / n for n in names], names)
@@ -68,6 +69,7 @@ def describe_seasons(data: Path, names: list[str], conf: Nordland64Config, offse
         out[season] = desc
         if conf.flip:
             out[f"{season}_flip"] = describe_flipped(describer, [data / season / n for n in train_names])
+    out["provenance"] = describe_provenance(describer.config, fit if conf.describe.needs_fit else None, out["summer"])
     return out
 
 
@@ -111,8 +113,10 @@ def build_dataset(data: str | Path, conf: Nordland64Config, out: Path) -> tuple[
             return ds, np.load(flip_file) if conf.flip else None
     t0 = time.perf_counter()
     d = describe_seasons(data, names, conf, lo)
-    ds = Dataset(reference=Traverse(d["summer"], pos, names=names, name="summer"),
-                 query=Traverse(d["winter"], pos, names=list(names), name="winter"), radius=conf.radius,
+    prov = d["provenance"]
+    ds = Dataset(reference=Traverse(d["summer"], pos, names=names, name="summer", provenance=prov),
+                 query=Traverse(d["winter"], pos, names=list(names), name="winter", provenance=prov),
+                 radius=conf.radius,
                  position_unit="frames", splits=splits, name="nordland64",
                  extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "describe": describe_key(conf),
                         "describe_seconds": round(time.perf_counter() - t0, 2), "source": str(data),

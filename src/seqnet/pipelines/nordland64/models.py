@@ -86,6 +86,7 @@ def train_models(ds: Dataset, conf: Nordland64Config, out: Path,
         seconds[role] = round(time.perf_counter() - t0, 2)
         model = load_model(run_dir / "best.pt")
         models[role] = fold_pca(model, pca) if pca is not None else model
+        models[role].provenance = ds.reference.provenance  # the folded model reads the raw descriptors
         save_checkpoint(models_dir / f"{role}.pt", models[role], epoch=run.best_epoch, best_score=run.best_score,
                         metrics={"val_recall@1": run.best_score},
                         config={**tconf.to_dict(), "pca_folded": pca is not None})
