@@ -147,7 +147,8 @@ def test_config_defaults_normalising_and_round_trip():
     ({"clusters": 0}, "clusters must be an integer >= 1"),
     ({"fit_max": 0}, "fit-max must be an integer >= 1"),
     ({"seed": -1}, "seed must be an integer >= 0"),
-    ({"size": (0, 32)}, "size must be 'auto', 'native' or WIDTHxHEIGHT with both in 1..8192"),
+    ({"size": (0, 32)}, "size must be 'auto', 'native', 'keep-aspect:W' or WIDTHxHEIGHT with both in 1..8192"),
+    ({"size": "keep-aspect:0"}, "keep-aspect:W needs a width W in 1..8192"),
     ({"size": (9000, 32)}, r"in 1..8192 \(e.g. 640x320\), got \(9000, 32\)"),
     ({"size": "big"}, "got 'big'"),
     ({"size": None}, "got None"),
@@ -188,3 +189,43 @@ def test_backbones_table():
     assert (enc.arch, enc.out_dim, enc.stride) == ("efficientnet-lite0", 112, 16)
     assert BACKBONES["vgg16"].build(pretrained=False).out_dim == 512
     assert not BACKBONES["vgg16"].pretrained and BACKBONES["efficientnet-lite0"].local_layer == 10
+
+
+def test_keep_aspect_resizes_to_the_width_keeping_the_ratio(tmp_path):
+    from PIL import Image
+
+    from seqnet.describe import DescribeConfig, make_describer
+
+    paths = []
+    for i in range(2):
+        p = tmp_path / f"w{i}.png"
+        Image.fromarray(np.full((30, 90, 3), 40 * i, np.uint8)).save(p)
+        paths.append(p)
+    conf = DescribeConfig(method="pixels", size="keep-aspect:45", patch=0)
+    d = make_describer(conf, paths)
+    assert d.load(paths).shape == (2, 15, 45) and conf.resolved().size == "keep-aspect:45"
+    assert d.describe(paths)[0].shape == (2, 15 * 45)
+
+
+def test_netvlad_checkpoint_keeps_its_image_size(tmp_path, capsys):
+    """A NetVLAD fitted by seqnet stores its image size; --checkpoint without --resize describes at it."""
+    import json
+
+    import h5py
+    from PIL import Image
+
+    from seqnet.cli import main as cli_main
+
+    rng = np.random.default_rng(0)
+    (tmp_path / "imgs").mkdir()
+    for i in range(4):
+        Image.fromarray((rng.random((40, 80, 3)) * 255).astype(np.uint8)).save(tmp_path / "imgs" / f"{i}.png")
+    base = ["-q", "describe", str(tmp_path / "imgs"), "--method", "netvlad", "--clusters", "4", "--batch-size", "2"]
+    assert cli_main([*base, "--resize", "64x32", "--out", str(tmp_path / "nv.h5")]) == 0
+    ckpt = tmp_path / "nv.netvlad.pth.tar"
+    assert cli_main([*base, "--checkpoint", str(ckpt), "--out", str(tmp_path / "again.h5")]) == 0
+    with h5py.File(tmp_path / "again.h5") as h:
+        assert json.loads(h.attrs["provenance"])["settings"]["size"] == [64, 32]
+        again = h["descriptors"][()]
+    with h5py.File(tmp_path / "nv.h5") as h:
+        np.testing.assert_allclose(again, h["descriptors"][()], atol=1e-5)

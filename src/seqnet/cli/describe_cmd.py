@@ -30,9 +30,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", required=True, choices=list(DESCRIBERS),
                    help=f"descriptor method ({_table(DESCRIBERS)})")
     p.add_argument("--out", required=True, metavar="FILE", help="output .h5/.hdf5 or .npy")
-    p.add_argument("--resize", dest="size", metavar="WxH|native|auto",
-                   help=f"resize images to WxH (each side at most {MAX_SIDE}), 'native' (keep their size) or "
-                        f"'auto' (default: {_auto_sizes()})")
+    p.add_argument("--resize", dest="size", metavar="WxH|keep-aspect:W|native|auto",
+                   help=f"resize images to WxH (each side at most {MAX_SIDE}), to width W keeping the aspect ratio "
+                        f"(keep-aspect:W), 'native' (keep their size) or 'auto' (default: {_auto_sizes()}; a "
+                        "NetVLAD --checkpoint written by seqnet: the size it was fitted at)")
     p.add_argument("--crop-bottom", type=non_negative_int, metavar="ROWS",
                    help=f"rows removed from the bottom before resizing, e.g. a car bonnet (default {_D.crop_bottom})")
     p.add_argument("--batch-size", type=positive_int, help=f"images per batch (default {_D.batch_size})")

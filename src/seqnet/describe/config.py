@@ -17,9 +17,9 @@ from ..utils import get_device
 from .cnn import BACKBONES
 from .methods import DESCRIBERS, Method
 
-AUTO, NATIVE = "auto", "native"
+AUTO, NATIVE, KEEP_ASPECT = "auto", "native", "keep-aspect:"
 MAX_SIDE = 8192  # largest accepted resize width or height
-Size = str | tuple[int, int]  # "auto", "native" or (W, H)
+Size = str | tuple[int, int]  # "auto", "native", "keep-aspect:W" or (W, H)
 Fit = int | str | tuple[str, ...] | None
 
 
@@ -29,8 +29,10 @@ class DescribeConfig(Config):
 
     Attributes:
         method: a key of :data:`~seqnet.describe.methods.DESCRIBERS` (pixels, gem, gmp, netvlad).
-        size: ``"auto"`` (the method's default: native for pixels, 640×320 for the CNN methods),
-            ``"native"`` (no resizing; all images must then have one size) or ``(W, H)`` (also ``"WxH"``).
+        size: ``"auto"`` (the method's default: native for pixels, 640×320 for the CNN methods, the
+            size a NetVLAD checkpoint written by seqnet was fitted at), ``"native"`` (no resizing; all
+            images must then have one size), ``"keep-aspect:W"`` (width W, the height that keeps each
+            image's aspect ratio) or ``(W, H)`` (also ``"WxH"``).
         crop_bottom: rows removed from the bottom of each image before resizing.
         batch_size: images per batch.
         device: torch device (auto: CUDA when present).
@@ -94,16 +96,19 @@ class DescribeConfig(Config):
         return DESCRIBERS[self.method].of(self)
 
     @property
-    def image_size(self) -> tuple[int, int] | None:
-        """``(W, H)`` images are resized to; None: native size."""
+    def image_size(self) -> tuple[int, int] | int | None:
+        """``(W, H)`` images are resized to; an int W: width W keeping the aspect ratio; None: native size."""
         if self.size == AUTO:
-            return DESCRIBERS[self.method].default_size
+            return self.method_spec.auto_size()
+        if isinstance(self.size, str) and self.size.startswith(KEEP_ASPECT):
+            return int(self.size[len(KEEP_ASPECT):])
         return None if self.size == NATIVE else self.size  # type: ignore[return-value]
 
     def resolved(self) -> DescribeConfig:
         """This config with ``size`` "auto" replaced by what it means for the method ("native" or (W, H))."""
         size = self.image_size
-        return dataclasses.replace(self, size=NATIVE if size is None else size)
+        resolved = NATIVE if size is None else f"{KEEP_ASPECT}{size}" if isinstance(size, int) else size
+        return dataclasses.replace(self, size=resolved)
 
     @property
     def needs_fit(self) -> bool:
@@ -125,6 +130,11 @@ def check_size(size: Any) -> Size:
     """``"auto"``, ``"native"``, or ``(W, H)`` with ``1 <= W, H <= MAX_SIDE`` (from a pair or ``"WxH"``)."""
     if isinstance(size, str) and size.lower() in (AUTO, NATIVE):
         return size.lower()
+    if isinstance(size, str) and size.lower().startswith(KEEP_ASPECT):
+        width = size[len(KEEP_ASPECT):]
+        if not width.isdigit() or not 1 <= int(width) <= MAX_SIDE:
+            raise ConfigError(f"size keep-aspect:W needs a width W in 1..{MAX_SIDE}, got {size!r}")
+        return f"{KEEP_ASPECT}{int(width)}"
     pair: Any = size
     if isinstance(size, str):
         pair = size.lower().split("x")
@@ -132,8 +142,8 @@ def check_size(size: Any) -> Size:
     ok = isinstance(pair, Sequence) and len(pair) == 2
     ok = ok and all(isinstance(v, numbers.Integral) and not isinstance(v, bool) and 1 <= v <= MAX_SIDE for v in pair)
     if not ok:
-        raise ConfigError(f"size must be 'auto', 'native' or WIDTHxHEIGHT with both in 1..{MAX_SIDE} "
-                          f"(e.g. 640x320), got {size!r}")
+        raise ConfigError(f"size must be 'auto', 'native', 'keep-aspect:W' or WIDTHxHEIGHT with both in "
+                          f"1..{MAX_SIDE} (e.g. 640x320), got {size!r}")
     return int(pair[0]), int(pair[1])
 
 

@@ -109,7 +109,7 @@ def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str]]
     ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths),
                      batches=lambda: loader.batches(fit_paths, f"fitting images ({conf.method})"),
                      state=own_state.path if own_state else None, reuse=reuse_own,
-                     tag=own_state.tag if own_state else None)
+                     tag=own_state.tag if own_state else None, image_size=conf.image_size)
     d = Describer(conf, conf.method_spec.extractor(ctx))
     if conf.dim is not None:
         d.pca = _pca_for(d, fit_paths, pca_state, reuse_pca)

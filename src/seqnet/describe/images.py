@@ -83,15 +83,18 @@ def read_image(path: Path, grey: bool = False) -> np.ndarray:
 
 
 def prepare_image(
-    img: np.ndarray, size: tuple[int, int] | None = None, crop_bottom: int = 0, path: Path | None = None
+    img: np.ndarray, size: tuple[int, int] | int | None = None, crop_bottom: int = 0, path: Path | None = None
 ) -> np.ndarray:
-    """Crop ``crop_bottom`` rows off the bottom (e.g. a car bonnet), then resize to ``size=(W, H)``."""
+    """Crop ``crop_bottom`` rows off the bottom (e.g. a car bonnet), then resize to ``size=(W, H)``
+    (an int W: width W and the height that keeps the aspect ratio)."""
     from PIL import Image
 
     if crop_bottom:
         if crop_bottom >= img.shape[0]:
             raise ImageError(f"crop-bottom {crop_bottom} removes all {img.shape[0]} rows of image {path}")
         img = img[: img.shape[0] - crop_bottom]
+    if isinstance(size, int):
+        size = (size, max(1, round(size * img.shape[0] / img.shape[1])))
     if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
         img = np.asarray(Image.fromarray(img).resize(tuple(int(v) for v in size), Image.BILINEAR))
     return img
@@ -99,7 +102,7 @@ def prepare_image(
 
 def load_images(
     paths: Sequence[Path],
-    size: tuple[int, int] | None = None,
+    size: tuple[int, int] | int | None = None,
     crop_bottom: int = 0,
     grey: bool = False,
     skip_corrupted: bool = False,
@@ -108,8 +111,8 @@ def load_images(
 
     Args:
         paths: image files.
-        size: ``(W, H)`` to resize to after cropping; None keeps the native size, which must then be
-            the same for all images.
+        size: ``(W, H)`` to resize to after cropping, an int W (width W keeping the aspect ratio), or
+            None (the native size); the results must all have one size.
         crop_bottom: rows removed from the bottom of each image before resizing.
         grey: decode as greyscale.
         skip_corrupted: leave unreadable images out instead of raising.
@@ -117,7 +120,10 @@ def load_images(
     Returns:
         ``(images, skipped)`` where ``skipped`` lists the indices (into ``paths``) left out.
     """
-    if size is not None and (len(size) != 2 or min(size) < 1):
+    if isinstance(size, int) and not isinstance(size, bool):
+        if size < 1:
+            raise ConfigError(f"image width must be >= 1, got {size}")
+    elif size is not None and (len(size) != 2 or min(size) < 1):
         raise ConfigError(f"image size must be (width, height) with both >= 1, got {size}")
     if crop_bottom < 0:
         raise ConfigError(f"crop-bottom must be >= 0 rows, got {crop_bottom}")
@@ -141,7 +147,7 @@ def load_images(
         first = first or Path(p)
         out.append(img)
     if not out:
-        shape = (0, *(size[::-1] if size else (0, 0))) + (() if grey else (3,))
+        shape = (0, *(size[::-1] if isinstance(size, tuple) else (0, 0))) + (() if grey else (3,))
         return np.zeros(shape, dtype=np.uint8), skipped
     return np.stack(out), skipped
 

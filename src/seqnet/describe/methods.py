@@ -22,7 +22,7 @@ from torch import nn
 from ..errors import ConfigError
 from ..utils import logger
 from .cnn import BACKBONES, cnn_extractor, gem, gmp
-from .netvlad import checkpoint_tag, fit_netvlad, load_netvlad, save_netvlad
+from .netvlad import checkpoint_image_size, checkpoint_tag, fit_netvlad, load_netvlad, save_netvlad
 from .pixels import pixels_descriptor
 
 Extract = Callable[[np.ndarray], np.ndarray]
@@ -48,6 +48,7 @@ class FitContext:
     state: Path | None = None
     reuse: bool = False
     tag: str | None = None
+    image_size: tuple[int, int] | int | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,6 +64,10 @@ class Method:
     default_size: ClassVar[tuple[int, int] | None] = None  # (W, H) for size "auto"; None: native
     grey: ClassVar[bool] = False  # decode images as greyscale [B, H, W] instead of RGB [B, H, W, 3]
     state_suffix: ClassVar[str | None] = None  # fitted state kept beside an output as <stem><suffix>
+
+    def auto_size(self) -> tuple[int, int] | None:
+        """The image size of ``size="auto"`` (default: :attr:`default_size`)."""
+        return self.default_size
 
     @classmethod
     def of(cls, conf: Any) -> Method:
@@ -167,6 +172,11 @@ class NetVLADMethod(Method):
     def fits_state(self) -> bool:
         return not self.checkpoint
 
+    def auto_size(self) -> tuple[int, int] | None:
+        """The size a seqnet-written checkpoint was fitted at (describing at another silently ruins it)."""
+        stored = checkpoint_image_size(self.checkpoint) if self.checkpoint else None
+        return stored or self.default_size
+
     def read_tag(self, path: Path) -> str | None:
         return checkpoint_tag(path)
 
@@ -183,7 +193,7 @@ class NetVLADMethod(Method):
             encoder = backbone.build(backbone.local_layer if self.layer is None else self.layer)
             model = fit_netvlad(encoder, ctx.batches(), ctx.n_images, self.clusters, self.seed, ctx.device)
             if ctx.state is not None:
-                save_netvlad(model, ctx.state, tag=ctx.tag)
+                save_netvlad(model, ctx.state, tag=ctx.tag, image_size=ctx.image_size)
         return cnn_extractor(model, lambda v: v, ctx.device)
 
 

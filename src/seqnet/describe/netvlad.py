@@ -12,6 +12,7 @@ Checkpoints written by seqnet may use the EfficientNet-Lite0 encoder; they say s
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Iterable
 from pathlib import Path
@@ -182,12 +183,30 @@ def _load_encoder(ckpt: dict, enc_state: dict[str, torch.Tensor], path: Path) ->
     return backbone.from_state(enc_state, ckpt.get("layer", backbone.local_layer), str(path))
 
 
-def save_netvlad(model: NetVLADModel, path: str | os.PathLike[str], tag: str | None = None) -> Path:
+def checkpoint_image_size(path: str | os.PathLike[str]) -> tuple[int, int] | None:
+    """The ``(W, H)`` a seqnet-written NetVLAD checkpoint was fitted at, or None (other checkpoints)."""
+    p = Path(path)
+    stat = p.stat() if p.is_file() else None
+    return _stored_size(str(p.resolve()), stat.st_mtime_ns if stat else 0, stat.st_size if stat else 0)
+
+
+@functools.lru_cache(maxsize=16)
+def _stored_size(path: str, mtime_ns: int, size_bytes: int) -> tuple[int, int] | None:  # keyed by file state
+    size = read_checkpoint(path).get("image_size")
+    ok = isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v >= 1 for v in size)
+    return (size[0], size[1]) if ok else None
+
+
+def save_netvlad(model: NetVLADModel, path: str | os.PathLike[str], tag: str | None = None,
+                 image_size: tuple[int, int] | int | None = None) -> Path:
     """Write ``model`` as a Patch-NetVLAD-style checkpoint (``{'state_dict': ..., 'arch': ...}``), atomically.
 
-    ``tag``: a provenance string stored with it (read back by :func:`checkpoint_tag`).
+    ``tag``: a provenance string stored with it (read back by :func:`checkpoint_tag`); ``image_size``:
+    the ``(W, H)`` its clusters were fitted at (read back by :func:`checkpoint_image_size`).
     """
     ckpt = {"state_dict": model.state_dict(), "arch": model.arch, "num_clusters": model.pool.num_clusters}
+    if isinstance(image_size, tuple):
+        ckpt["image_size"] = [int(v) for v in image_size]
     if hasattr(model.encoder, "layer"):
         ckpt["layer"] = model.encoder.layer
     if tag is not None:
