@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from .files import atomic_path
+from .sequence_descriptors import SEQUENCE_DESCRIPTORS
 
 
 def _fmt(v: Any) -> str:
@@ -29,14 +30,28 @@ def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int]) ->
     return header, rows
 
 
+def method_label(entry: Mapping[str, Any]) -> str:
+    """What a results entry's method resolved to, e.g. ``seqnet(L=5) top-20 -> s1+seqmatch(L_m=5)``."""
+    m = entry.get("method") or {}
+    single = m.get("shortlist") in SEQUENCE_DESCRIPTORS and SEQUENCE_DESCRIPTORS[m["shortlist"]].single_frame
+    short = (m["shortlist"] if single else f"{m['shortlist']}(L={m.get('seq_len')})") if m.get("shortlist") else ""
+    rerank = f"{m['rerank']}(L_m={m.get('rerank_seq_len')})" if m.get("rerank") else ""
+    if m.get("kind") == "hvpr":
+        return f"{short} top-{m.get('top_k')} -> {rerank}"
+    return f"k-NN {short}" if m.get("kind") == "knn" else rerank
+
+
 def format_table(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 10, 20, 100)) -> str:
-    """A fixed-width text table of results (one row per method)."""
+    """A fixed-width text table of results (one row per method, with what it resolved to)."""
     header, rows = results_rows(methods, ks)
+    header.append("what")
+    for row, entry in zip(rows, methods.values(), strict=True):
+        row.append(method_label(entry))
     widths = [max(len(x) for x in col) for col in zip(header, *rows, strict=True)]
 
     def line(cells: Sequence[str]) -> str:
         pairs = enumerate(zip(cells, widths, strict=True))
-        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in pairs)
+        return "  ".join(c.ljust(w) if i in (0, len(cells) - 1) else c.rjust(w) for i, (c, w) in pairs).rstrip()
 
     return "\n".join([line(header), line(["-" * w for w in widths]), *(line(r) for r in rows)])
 

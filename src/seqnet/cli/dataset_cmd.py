@@ -7,6 +7,7 @@ import json
 
 from ..errors import ConfigError
 from .common import add_allow_mismatch, positive_float
+from .dataset_images import register_from_images
 
 PRESET_HELP = "dataset preset (nordland, oxford-v1.0, oxford-pnv, brisbane, msls): radius, training radii, splits"
 
@@ -18,6 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _register_csv(dsub)
     _register_utm(dsub)
     _register_seqnet(dsub)
+    register_from_images(dsub, parse_splits)
     c = dsub.add_parser("check", help="validate a dataset directory and print a summary")
     c.add_argument("dir", metavar="DIR", help="seqnet dataset directory")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -213,7 +215,7 @@ def run_check(args: argparse.Namespace) -> int:
 
 def format_summary(s: dict) -> str:
     """Human-readable lines of a :func:`seqnet.convert.summarize_dataset` summary."""
-    lines = [f"dataset {s['name']}: radius {s['radius']:g} {s['position_unit']}"]
+    lines = [f"dataset {s['name']}: radius {s['radius']:g} {s['position_unit']}; ground truth: {s['ground_truth']}"]
     for side in ("reference", "query"):
         t = s[side]
         seq = t.get("sequences")

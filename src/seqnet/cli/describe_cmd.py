@@ -30,6 +30,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", required=True, choices=list(DESCRIBERS),
                    help=f"descriptor method ({_table(DESCRIBERS)})")
     p.add_argument("--out", required=True, metavar="FILE", help="output .h5/.hdf5 or .npy")
+    add_describe_options(p)
+    p.add_argument("--overwrite", action="store_true", help="recompute an existing output (and its partial run)")
+    add_device(p)
+    p.set_defaults(func=run)
+
+
+def add_describe_options(p: argparse.ArgumentParser, fit: bool = True) -> None:
+    """The :class:`~seqnet.describe.DescribeConfig` options (not --method); ``fit``: also --fit-on/--fit-max."""
     p.add_argument("--resize", dest="size", metavar="WxH|keep-aspect:W|native|auto",
                    help=f"resize images to WxH (each side at most {MAX_SIDE}), to width W keeping the aspect ratio "
                         f"(keep-aspect:W), 'native' (keep their size) or 'auto' (default: {_auto_sizes()}; a "
@@ -40,10 +48,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dim", type=positive_int,
                    help="reduce descriptors to DIM with PCA (saved as <stem>.pca.npz beside the output)")
     p.add_argument("--whiten", action="store_true", help="whiten the PCA output")
-    p.add_argument("--fit-on", dest="fit", type=fit_source, metavar="SRC|N",
-                   help="images to fit PCA / NetVLAD clusters on: a folder or list file, or N for the first N "
-                        "input images (default: up to --fit-max input images, evenly spaced)")
-    p.add_argument("--fit-max", type=positive_int, help=f"default fitting set size (default {_D.fit_max})")
+    if fit:
+        p.add_argument("--fit-on", dest="fit", type=fit_source, metavar="SRC|N",
+                       help="images to fit PCA / NetVLAD clusters on: a folder or list file, or N for the first N "
+                            "input images (default: up to --fit-max input images, evenly spaced)")
+        p.add_argument("--fit-max", type=positive_int, help=f"default fitting set size (default {_D.fit_max})")
     p.add_argument("--patch", type=non_negative_int,
                    help=f"pixels: patch-normalisation size (default {_D.patch}, 0 = off)")
     p.add_argument("--backbone", choices=list(BACKBONES), help=f"CNN backbone (default {_D.backbone}; "
@@ -58,9 +67,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--clusters", type=positive_int, help=f"netvlad: clusters K when fitted (default {_D.clusters})")
     p.add_argument("--seed", type=non_negative_int, help=f"netvlad: k-means seed (default {_D.seed})")
     p.add_argument("--skip-corrupted", action="store_true", help="leave unreadable images out instead of failing")
-    p.add_argument("--overwrite", action="store_true", help="recompute an existing output (and its partial run)")
-    add_device(p)
-    p.set_defaults(func=run)
+
+
+DESCRIBE_KEYS = ("size", "crop_bottom", "batch_size", "dim", "whiten", "fit", "fit_max", "patch", "backbone", "layer",
+                 "gem_p", "checkpoint", "use_wpca", "clusters", "seed", "skip_corrupted", "device")
+
+
+def describe_config(args: argparse.Namespace) -> DescribeConfig:
+    """The :class:`DescribeConfig` of the parsed options (unset ones keep the defaults)."""
+    return _D.replace(method=args.method, **{k: getattr(args, k, None) for k in DESCRIBE_KEYS})
 
 
 def _auto_sizes() -> str:
@@ -72,8 +87,5 @@ def _auto_sizes() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    keys = ("method", "size", "crop_bottom", "batch_size", "dim", "whiten", "fit", "fit_max", "patch", "backbone",
-            "layer", "gem_p", "checkpoint", "use_wpca", "clusters", "seed", "skip_corrupted", "device")
-    conf = _D.replace(**{k: getattr(args, k) for k in keys})
-    main(conf, args.images, args.out, overwrite=args.overwrite)  # logs what it wrote
+    main(describe_config(args), args.images, args.out, overwrite=args.overwrite)  # logs what it wrote
     return 0

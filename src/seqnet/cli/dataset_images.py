@@ -1,0 +1,69 @@
+"""``seqnet dataset from-images``: two image folders + ground truth → a dataset, described consistently."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from ..describe import DESCRIBERS
+from ..pipelines.from_images import FIT_ON, FromImagesConfig, main
+from .common import add_device, positive_float
+from .describe_cmd import add_describe_options, describe_config
+
+
+def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None:  # noqa: ANN001 - a function
+    p = dsub.add_parser(
+        "from-images", help="describe two image folders with one describer and build the dataset",
+        description="Describe the reference and query image folders (or list files) with ONE describer (same "
+                    "settings, one fit of PCA / NetVLAD clusters), so their descriptors are comparable, and build "
+                    "a dataset with the ground truth given: positions CSVs (--ref-csv/--query-csv), UTM-coded "
+                    "image names (--utm-names), frame-aligned traverses (--frame-aligned, radius in frames), or "
+                    "explicit positives (--positives FILE). See docs/own_data.md.")
+    p.add_argument("reference", metavar="REF_IMAGES", help="reference image folder or list file")
+    p.add_argument("query", metavar="QUERY_IMAGES", help="query image folder or list file")
+    p.add_argument("--method", required=True, choices=list(DESCRIBERS), help="descriptor method")
+    p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--ref-csv", metavar="FILE", help="reference positions CSV (image name + easting,northing or "
+                   "frame; optional sequence); needs --query-csv")
+    g.add_argument("--utm-names", action="store_true", help="positions from '@easting@northing@' in image names")
+    g.add_argument("--frame-aligned", action="store_true",
+                   help="query frame i shows the place of reference frame i (radius in frames)")
+    g.add_argument("--positives", metavar="FILE", help="explicit positives: per query the matching reference "
+                   "indices (.json list of lists, .csv query,reference pairs, .npy object array)")
+    p.add_argument("--query-csv", metavar="FILE", help="query positions CSV (with --ref-csv)")
+    p.add_argument("--radius", type=positive_float, required=True,
+                   help="localisation radius, inclusive (metres for CSV eastings / UTM names, else frames)")
+    p.add_argument("--fit-on", default="reference", metavar=f"{'|'.join(FIT_ON)}|SPLIT",
+                   help="images to fit PCA / NetVLAD clusters on: the reference (default), both traverses, or "
+                        "a split given with --split")
+    p.add_argument("--split", action="append", default=[], metavar="NAME=A:B[,C:D]",
+                   help="named index split (both traverses, or reference,query); repeatable")
+    p.add_argument("--name", help="dataset name (default: the output directory name)")
+    p.add_argument("--pos-radius", type=positive_float, help="training positive radius (stored as metadata)")
+    p.add_argument("--neg-radius", type=positive_float, help="training negative radius (stored as metadata)")
+    p.add_argument("--overwrite", action="store_true", help="replace DIR if seqnet wrote it")
+    add_describe_options(p, fit=False)
+    add_device(p)
+    p.set_defaults(func=lambda args: run_from_images(args, parse_splits))
+
+
+def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN001 - a function
+    truth = ("csv" if args.ref_csv else "utm" if args.utm_names else "frames" if args.frame_aligned
+             else "positives")
+    if truth == "csv" and not args.query_csv:
+        from ..errors import ConfigError
+
+        raise ConfigError("--ref-csv needs --query-csv (the query positions)")
+    conf = FromImagesConfig(describe=describe_config(args), fit_on=args.fit_on, ground_truth=truth,
+                            radius=args.radius, splits=parse_splits(args.split), name=args.name,
+                            pos_radius=args.pos_radius, neg_radius=args.neg_radius)
+    out = main(conf, args.reference, args.query, args.out,
+               positions=(args.ref_csv, args.query_csv) if truth == "csv" else None,
+               positives=args.positives, overwrite=args.overwrite)
+    meta = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
+    print(f"wrote {out}: {meta['name']}, ground truth {truth}, radius {meta['radius']:g} {meta['position_unit']}, "
+          f"descriptors {meta['provenance']['reference']['settings']['method']} "
+          f"D={meta['provenance']['reference']['dim']} (provenance {meta['provenance']['reference']['id']})")
+    print(f"next: seqnet eval --dataset {out}")
+    return 0

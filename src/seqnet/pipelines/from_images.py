@@ -1,0 +1,136 @@
+"""Your own data in one step: two image folders + any ground truth → a dataset, described consistently.
+
+``seqnet dataset from-images REF_DIR QUERY_DIR --method M --out DS`` describes both traverses with
+ONE describer (one set of settings, one fit of PCA / NetVLAD clusters: on the reference images by
+default, or on both, or on a split), so reference and query descriptors are comparable by
+construction (their provenance is recorded), then attaches the ground truth, one of
+:data:`GROUND_TRUTHS`:
+
+* ``csv``: positions CSV files (an image-name column and ``easting,northing`` in metres or ``frame``;
+  optional ``sequence``), one per traverse, matched to the images by name;
+* ``utm``: UTM coordinates in the image names (``@<easting>@<northing>@...``);
+* ``frames``: the two traverses are frame-aligned (query frame i ↔ reference frame i), positions are
+  frame indices and the radius is in frames;
+* ``positives``: explicit positives (``--positives FILE``: per query the matching reference indices);
+  positions are frame indices (used for windows and the confidence's "same place").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from ..config import Config, check_choice, check_float
+from ..data.convert import assemble_dataset, match_names, read_positions_csv, utm_positions
+from ..data.io import save_dataset
+from ..data.positives import read_positives
+from ..data.traverse import Traverse
+from ..describe import DescribeConfig, make_describer
+from ..describe.images import ImageList, list_images
+from ..describe.store import describe_provenance
+from ..errors import ConfigError, ImageError
+from ..ownership import check_replaceable, locked
+from ..utils import logger
+
+GROUND_TRUTHS = ("csv", "utm", "frames", "positives")
+FIT_ON = ("reference", "both")
+
+
+@dataclasses.dataclass(frozen=True)
+class FromImagesConfig(Config):
+    """Settings of :func:`main`.
+
+    Attributes:
+        describe: how both traverses are described.
+        fit_on: where PCA / NetVLAD clusters are fitted: ``reference``, ``both``, or a split name
+            (the images of that split of both traverses; needs ``splits``).
+        ground_truth: one of :data:`GROUND_TRUTHS`.
+        radius: localisation radius (metres for UTM / CSV eastings, frames otherwise); inclusive.
+        splits: named half-open index ranges ``{name: {"reference": (a, b), "query": (c, d)}}``.
+        name: dataset name (None: the output directory's).
+        pos_radius / neg_radius: training radii (stored as metadata).
+        allow_mismatch: accept positions CSVs in different units (never descriptors: they are made alike).
+    """
+
+    describe: DescribeConfig = DescribeConfig()
+    fit_on: str = "reference"
+    ground_truth: str = "frames"
+    radius: float = 1.0
+    splits: dict | None = None
+    name: str | None = None
+    pos_radius: float | None = None
+    neg_radius: float | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("ground truth", self.ground_truth, GROUND_TRUTHS)
+        self._set("radius", check_float("radius", self.radius, 0.0, strict=True))
+        if self.fit_on not in FIT_ON and self.fit_on not in (self.splits or {}):
+            raise ConfigError(f"fit_on {self.fit_on!r} is not one of {', '.join(FIT_ON)} or a split name "
+                              f"({', '.join(self.splits or {}) or 'no splits given'})")
+
+
+def _fit_images(conf: FromImagesConfig, ref: ImageList, qry: ImageList) -> list[Path] | None:
+    """The images the describer's state is fitted on (None: the method fits nothing)."""
+    if not conf.describe.needs_fit:
+        return None
+    if conf.fit_on == "reference":
+        return list(ref.paths)
+    if conf.fit_on == "both":
+        return [*ref.paths, *qry.paths]
+    rng = conf.splits[conf.fit_on]
+    (a, b), (c, d) = rng["reference"], rng["query"]
+    return [*ref.paths[a:b], *qry.paths[c:d]]
+
+
+def _positions(conf: FromImagesConfig, images: ImageList, csv_file: str | Path | None,
+               side: str) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """``(positions [N, P], seq_bounds or None, unit)`` of one traverse from the chosen ground truth."""
+    if conf.ground_truth == "csv":
+        if csv_file is None:
+            raise ConfigError(f"ground truth 'csv' needs a positions CSV for the {side} (--{side[:3]}-csv FILE)")
+        names, pos, unit, bounds = read_positions_csv(csv_file)
+        idx = match_names(images.names, names, f"{csv_file} vs the {side} images")
+        return pos[idx], None if bounds is None else bounds[idx], unit
+    if conf.ground_truth == "utm":
+        return utm_positions(images.names), None, "metres"
+    return np.arange(len(images), dtype=np.float64)[:, None], None, "frames"
+
+
+def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: str | Path,
+         positions: tuple[str | Path, str | Path] | None = None, positives: str | Path | None = None,
+         overwrite: bool = False) -> Path:
+    """Describe the image folders (or list files) ``reference`` and ``query`` with one describer and
+    write the dataset directory ``out`` (descriptors, positions, names, ground truth, provenance)."""
+    ref, qry = list_images(reference), list_images(query)
+    if conf.ground_truth == "positives" and positives is None:
+        raise ConfigError("ground truth 'positives' needs --positives FILE (JSON list of lists, CSV pairs or .npy)")
+    pos_r, bounds_r, unit = _positions(conf, ref, positions[0] if positions else None, "reference")
+    pos_q, bounds_q, unit_q = _positions(conf, qry, positions[1] if positions else None, "query")
+    if unit != unit_q:
+        raise ConfigError(f"reference positions are in {unit} but query positions in {unit_q}")
+    truth = read_positives(positives).check(len(qry), len(ref), str(positives)) if positives else None
+    with locked(Path(out)):
+        if Path(out).exists() and any(Path(out).iterdir()) and not overwrite:
+            raise ConfigError(f"output directory {out} exists and is not empty (use --overwrite to replace it)")
+        check_replaceable(out, "dataset")  # before any work: a user's files are never replaced
+        fit = _fit_images(conf, ref, qry)
+        describer = make_describer(conf.describe.replace(fit=fit) if fit else conf.describe, fit or ref.paths)
+        desc = {}
+        for side, images in (("reference", ref), ("query", qry)):
+            logger.info("describing %d %s images (%s)", len(images), side, conf.describe.method)
+            desc[side], got = describer.describe(images.paths, images.names)
+            if len(got) != len(images):
+                missing = sorted(set(images.names) - set(got))
+                raise ImageError(f"{len(missing)} {side} images could not be read (first: {missing[0]}); their "
+                                 "ground truth would no longer line up: fix or remove them, then run again")
+        prov = describe_provenance(describer.config, fit, desc["reference"])
+        ds = assemble_dataset(
+            Traverse(desc["reference"], pos_r, ref.names, bounds_r, "reference", prov),
+            Traverse(desc["query"], pos_q, qry.names, bounds_q, "query", prov), unit, conf.radius,
+            splits=conf.splits, name=conf.name or Path(out).name, positives=truth,
+            extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "ground_truth": conf.ground_truth,
+                   "images": {"reference": str(Path(reference).resolve()), "query": str(Path(query).resolve())},
+                   "describe": describer.config.to_dict() | {"fit": None}})
+        return save_dataset(ds, out, overwrite=overwrite)

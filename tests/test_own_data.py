@@ -1,0 +1,92 @@
+"""Your own data end to end (docs/own_data.md): two image folders + ground truth → dataset → eval.
+
+Tiny generated route: every place has its own texture; the query traverse sees it with another
+brightness and noise, at half the reference frame rate (reference frames 2i and 2i+1 show query
+frame i's place), so the ground truth is many-to-one.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from seqnet.cli import main
+from seqnet.data.io import load_dataset
+
+
+@pytest.fixture(scope="module")
+def route(tmp_path_factory):
+    root = tmp_path_factory.mktemp("own")
+    rng = np.random.default_rng(0)
+    places = rng.random((40, 16, 32, 3))
+    (root / "ref").mkdir()
+    (root / "qry").mkdir()
+    for j in range(80):  # reference: two frames per place
+        img = places[j // 2] * 0.9 + 0.1 * rng.random((16, 32, 3))
+        Image.fromarray((img * 255).astype(np.uint8)).save(root / "ref" / f"@{500000 + 5 * j}@{6000000}@r{j:03d}.png")
+    for i in range(40):
+        img = np.clip(places[i] * 0.6 + 0.2 + 0.15 * rng.random((16, 32, 3)), 0, 1)
+        Image.fromarray((img * 255).astype(np.uint8)).save(root / "qry" / f"@{500000 + 10 * i + 2}@{6000000}@q{i:03d}.png")
+    (root / "positives.json").write_text(json.dumps([[2 * i, 2 * i + 1] for i in range(40)]))
+    ref_names = sorted(p.name for p in (root / "ref").iterdir())
+    qry_names = sorted(p.name for p in (root / "qry").iterdir())
+    (root / "ref.csv").write_text("image,frame\n" + "".join(f"{n},{j / 2}\n" for j, n in enumerate(ref_names)))
+    (root / "qry.csv").write_text("image,frame\n" + "".join(f"{n},{i}\n" for i, n in enumerate(qry_names)))
+    return root
+
+
+def build(route, out, *truth, capsys=None):
+    argv = ["-q", "dataset", "from-images", str(route / "ref"), str(route / "qry"), "--method", "pixels",
+            "--patch", "0", "--out", str(out), *truth]
+    return main(argv)
+
+
+@pytest.mark.parametrize("truth, radius", [
+    (["--positives", "positives.json"], "1"),
+    (["--ref-csv", "ref.csv", "--query-csv", "qry.csv"], "0.5"),
+    (["--utm-names"], "6"),
+])
+def test_images_to_results(route, tmp_path, capsys, truth, radius):
+    truth = [str(route / t) if t.endswith((".json", ".csv")) else t for t in truth]
+    assert build(route, tmp_path / "ds", *truth, "--radius", radius) == 0
+    ds = load_dataset(tmp_path / "ds")
+    assert len(ds.reference) == 80 and len(ds.query) == 40
+    assert ds.reference.provenance["id"] == ds.query.provenance["id"]
+    if "--positives" in truth:
+        assert ds.positives.of(3).tolist() == [6, 7]
+    capsys.readouterr()
+    argv = ["eval", "--dataset", str(tmp_path / "ds"), "--method", "single,raw+seqmatch", "--seq-len", "3",
+            "--per-query", str(tmp_path / "pq.jsonl"), "--out", str(tmp_path / "out")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "single" in out and "queries evaluated" in out
+    res = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert res["methods"]["single"]["recall@1"] >= 0.5  # 40 places: chance is 1/40
+    rows = [json.loads(line) for line in (tmp_path / "pq.jsonl").read_text().splitlines()]
+    assert {r["method"] for r in rows} == {"single", "raw+seqmatch"} and rows[0]["query_name"].endswith(".png")
+
+
+def test_frame_aligned_and_errors(route, tmp_path, capsys):
+    # frame-aligned: query i <-> reference i (wrong for this route, but a valid request)
+    assert build(route, tmp_path / "fa", "--frame-aligned", "--radius", "2") == 0
+    capsys.readouterr()
+    rc = build(route, tmp_path / "x", "--ref-csv", str(route / "ref.csv"), "--radius", "1")
+    assert rc == 2 and "--ref-csv needs --query-csv" in capsys.readouterr().err
+    rc = build(route, tmp_path / "x", "--positives", str(route / "ref.csv"), "--radius", "1")
+    assert rc == 2 and not (tmp_path / "x").exists()
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    rc = build(route, tmp_path / "mine", "--frame-aligned", "--radius", "1", "--overwrite")
+    err = capsys.readouterr().err
+    assert rc == 2 and "seqnet did not write" in err and (tmp_path / "mine" / "notes.txt").read_text() == "mine"
+
+
+def test_one_fit_for_both_traverses(route, tmp_path):
+    """A PCA is fitted once (on the reference) and applied to both: their provenance is one."""
+    assert build(route, tmp_path / "pca", "--frame-aligned", "--radius", "1", "--dim", "8") == 0
+    ds = load_dataset(tmp_path / "pca")
+    assert ds.reference.dim == ds.query.dim == 8
+    assert ds.reference.provenance == ds.query.provenance and ds.reference.provenance["fit_images"]
