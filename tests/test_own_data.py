@@ -29,7 +29,8 @@ def route(tmp_path_factory):
         Image.fromarray((img * 255).astype(np.uint8)).save(root / "ref" / f"@{500000 + 5 * j}@{6000000}@r{j:03d}.png")
     for i in range(40):
         img = np.clip(places[i] * 0.6 + 0.2 + 0.15 * rng.random((16, 32, 3)), 0, 1)
-        Image.fromarray((img * 255).astype(np.uint8)).save(root / "qry" / f"@{500000 + 10 * i + 2}@{6000000}@q{i:03d}.png")
+        name = f"@{500000 + 10 * i + 2}@{6000000}@q{i:03d}.png"
+        Image.fromarray((img * 255).astype(np.uint8)).save(root / "qry" / name)
     (root / "positives.json").write_text(json.dumps([[2 * i, 2 * i + 1] for i in range(40)]))
     ref_names = sorted(p.name for p in (root / "ref").iterdir())
     qry_names = sorted(p.name for p in (root / "qry").iterdir())
