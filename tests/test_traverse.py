@@ -240,7 +240,7 @@ def test_names_not_utf8(ds_dir):
 
 
 def test_dim_mismatch(ds_dir):
-    np.save(ds_dir / "query" / "descriptors.npy", np.zeros((10, 5), np.float32))
+    np.save(ds_dir / "query" / "descriptors.npy", np.ones((10, 5), np.float32))
     expect(ds_dir, "dimension mismatch: reference D=4, query D=5")
 
 

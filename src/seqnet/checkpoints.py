@@ -52,6 +52,10 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     if not isinstance(payload, dict) or "state_dict" not in payload:
         got = f"dict with keys {list(payload)[:8]}" if isinstance(payload, dict) else type(payload).__name__
         raise CheckpointError(f"{path} is not a SeqNet checkpoint: expected a dict with a 'state_dict', got {got}")
+    state = payload["state_dict"]
+    if not isinstance(state, dict) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in state.items()):
+        raise CheckpointError(f"{path}: 'state_dict' must map parameter names to tensors, got "
+                              f"{type(state).__name__}")
     return payload
 
 
@@ -83,9 +87,13 @@ def _build(cfg: dict[str, Any], state: dict[str, torch.Tensor], path: Path) -> S
     try:
         model = SeqNet(int(cfg["in_dims"]), int(cfg["out_dims"]), int(cfg["seq_len"]), int(cfg["w"]))
         model.load_state_dict(state)
-    except (KeyError, TypeError, ValueError, RuntimeError) as e:
-        reason = str(e).splitlines()[0]
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as e:
+        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise CheckpointError(f"{path}: weights do not fit the stored architecture {cfg} ({reason})") from None
+    bad = [name for name, p in model.state_dict().items() if not bool(torch.isfinite(p).all())]
+    if bad:
+        raise CheckpointError(f"{path}: the weights {', '.join(bad)} hold NaN or inf (a diverged or corrupted "
+                              "training run); hint: use an earlier checkpoint (best.pt) or retrain")
     return model
 
 
@@ -118,20 +126,33 @@ def _original_weights(payload: dict[str, Any], path: Path) -> tuple[torch.Tensor
     return state[weights[0]], bias
 
 
+def read_flags(path: Path) -> dict[str, Any]:
+    """The original run's ``flags.json`` (empty when absent), with ``seqL``, ``w``, ``outDims`` checked to be
+    integers >= 1; :class:`CheckpointError` naming the file and key otherwise."""
+    flags_path = find_flags(path)
+    if flags_path is None:
+        return {}
+    try:
+        flags = json.loads(flags_path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise CheckpointError(f"{flags_path}: not valid JSON ({e})") from None
+    if not isinstance(flags, dict):
+        raise CheckpointError(f"{flags_path}: must hold a JSON object of the run's flags")
+    for key in ("seqL", "w", "outDims"):
+        value = flags.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise CheckpointError(f"{flags_path}: {key} must be an integer >= 1, got {value!r}")
+    return flags
+
+
 def _from_original(payload: dict[str, Any], path: Path, seq_len: int | None) -> SeqNet:
     weight, bias = _original_weights(payload, path)
     out_dims, in_dims, w = (int(x) for x in weight.shape)
-    flags_path = find_flags(path)
-    flags: dict[str, Any] = {}
-    if flags_path is not None:
-        try:
-            flags = json.loads(flags_path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise CheckpointError(f"{flags_path}: not valid JSON ({e})") from None
-        for key, actual in (("w", w), ("outDims", out_dims)):
-            if flags.get(key) is not None and int(flags[key]) != actual:
-                raise CheckpointError(f"{flags_path}: {key}={flags[key]} does not match the weights "
-                                      f"{tuple(weight.shape)} in {path}")
+    flags = read_flags(path)
+    for key, actual in (("w", w), ("outDims", out_dims)):
+        if flags.get(key) is not None and flags[key] != actual:
+            raise CheckpointError(f"{find_flags(path)}: {key}={flags[key]} does not match the weights "
+                                  f"{tuple(weight.shape)} in {path}")
     stored = 1 if str(flags.get("pooling", "")).lower() == "s1+seqmatch" else flags.get("seqL")
     if seq_len is None and stored is None:
         raise CheckpointError(f"{path}: original SeqNet checkpoint (D={in_dims} → {out_dims}, w={w}) without "

@@ -20,11 +20,11 @@ from .config import Config, check_bool, check_choice, check_int, check_ints
 from .data.traverse import Dataset
 from .distances import KNN_BACKENDS, knn
 from .errors import ConfigError
+from .eval_checks import check_inputs
 from .features import Descriptors, Side
 from .hvpr import hvpr
 from .matchers import SEQUENCE_MATCHERS
 from .methods import FRAME_FEATURES, Method, default_methods, parse_method
-from .provenance import check_same
 from .recall import GroundTruth, check_radius
 from .results import method_results, write_per_query
 from .sequence_descriptors import SeqNet
@@ -165,44 +165,19 @@ RUNNERS: dict[str, Callable[[Method, Descriptors, EvalConfig, int], Ranking]] = 
     "knn": _run_knn, "match": _run_match, "hvpr": _run_hvpr}
 
 
-def check_inputs(ds: Dataset, conf: EvalConfig, methods: list[Method], models: Mapping[str, SeqNet]) -> None:
-    """Every check that does not need descriptors: models present and fitting, lengths."""
-    for m in methods:
-        missing = m.models() - set(models)
-        if missing:
-            need = " and ".join("an S_1 model (--rerank-model CKPT)" if r == "s1" else
-                                "an S_L model (--shortlist-model CKPT)" for r in sorted(missing))
-            raise ConfigError(f"method {m.name!r} needs {need}")
-        if m.min_len() > conf.length:
-            raise ConfigError(f"method {m.name!r} uses Delta descriptors, which need seq_len >= {m.min_len()} "
-                              f"(got {conf.length}); use a longer --seq-len or other methods")
-    check_provenance(ds, conf, models)
-    for side, t in (("query", ds.query), ("reference", ds.reference)):
-        longest = max(conf.length, conf.match_len)
-        if longest > len(t):
-            raise ConfigError(f"seq_len={longest} is longer than the {side} traverse of dataset {ds.name!r} "
-                              f"({len(t)} frames); use a shorter --seq-len")
-
-
-def check_provenance(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet]) -> None:
-    """Reference and query descriptors made alike; each model used on the descriptors (D, provenance)
-    and the sequence length it was trained with (unless ``conf.allow_mismatch``)."""
-    allow = conf.allow_mismatch
-    check_same(ds.reference.provenance, ds.query.provenance, "the reference descriptors", "the query descriptors",
-               allow)
-    for role, model in models.items():
-        name = "S_1" if role == "s1" else f"S_{model.seq_len}"
-        if model.in_dims != ds.query.dim:
-            raise ConfigError(f"the {role} model ({name}) expects D={model.in_dims} descriptors "
-                              f"but the dataset has D={ds.query.dim}")
-        check_same(model.provenance, ds.reference.provenance, f"the descriptors the {name} model was trained on",
-                   f"the descriptors of dataset {ds.name!r}", allow)
-        if role == "seqnet" and model.seq_len != conf.length:
-            msg = (f"the S_L model was trained with L={model.seq_len} but is evaluated with L={conf.length}; "
-                   f"hint: --seq-len {model.seq_len}, or --allow-mismatch to evaluate it on other windows")
-            if not allow:
-                raise ConfigError(msg)
-            logger.warning("%s (going on as asked)", msg)
+def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | None) -> None:
+    """The arguments of :func:`evaluate` are what they should be (a clear error instead of an AttributeError)."""
+    if not isinstance(ds, Dataset):
+        raise ConfigError(f"evaluate() needs a seqnet Dataset, got {type(ds).__name__} (hint: load_dataset(DIR))")
+    if not isinstance(conf, EvalConfig):
+        raise ConfigError(f"evaluate() needs an EvalConfig, got {type(conf).__name__} {conf!r:.60} "
+                          "(hint: EvalConfig(methods=('single',)) or EvalConfig.from_dict({...}))")
+    if models is not None and (not isinstance(models, Mapping) or
+                               not all(isinstance(m, SeqNet) for m in models.values())):
+        raise ConfigError("models must map a role ('seqnet' for S_L, 's1' for S_1) to a SeqNet model")
+    unknown = set(models or {}) - {"seqnet", "s1"}
+    if unknown:
+        raise ConfigError(f"unknown model role(s) {sorted(unknown)}; valid: seqnet (S_L), s1 (S_1)")
 
 
 def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[str, Any]:
@@ -228,14 +203,15 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     Returns:
         :class:`Evaluation` whose ``results`` follow the ``--json`` schema.
     """
+    conf = EvalConfig() if conf is None else conf
+    check_types(ds, conf, models)
     models = dict(models or {})
-    conf = conf or EvalConfig()
     if conf.seq_len is None and "seqnet" in models:
         conf = conf.replace(seq_len=models["seqnet"].seq_len)
     conf = conf.replace(radius=ds.radius if conf.radius is None else conf.radius,
                         methods=conf.methods or default_methods(models, conf.length), seq_len=conf.length)
     methods = [parse_method(n) for n in conf.methods]
-    check_inputs(ds, conf, methods, models)
+    check_inputs(ds, methods, models, conf.length, conf.match_len, conf.allow_mismatch)
     dev = get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()

@@ -68,6 +68,9 @@ def seqmatch(
             raise ConfigError("candidates must be integer window starts (or -1 for none)")
         starts = torch.arange(na, device=dev)
         out = window_scores(q, r, seq_len, starts, cand.to(dev), reverse, block_bytes)
+    if bool(torch.isnan(out).any()):
+        raise ConfigError("SeqMatch scores hold NaN: the descriptors hold NaN or inf, or values too large for "
+                          f"{str(out.dtype).removeprefix('torch.')} (hint: L2-normalise them)")
     if isinstance(query, torch.Tensor):
         return out.to(query.device)
     return to_numpy(out)

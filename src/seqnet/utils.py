@@ -66,5 +66,11 @@ def to_numpy(x: ArrayLike) -> np.ndarray:
 
 
 def l2_normalize(x: torch.Tensor, dim: int = -1, eps: float = 1e-12) -> torch.Tensor:
-    """L2-normalise ``x`` along ``dim`` (zero vectors stay zero)."""
-    return x / x.norm(dim=dim, keepdim=True).clamp_min(eps)
+    """L2-normalise ``x`` along ``dim`` (zero vectors stay zero).
+
+    Rows are first divided by their largest magnitude, so finite values beyond ``sqrt(float max)``
+    (e.g. 1e19 in float32) do not overflow the norm into inf (which would make them zero vectors).
+    """
+    scale = x.abs().amax(dim=dim, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny if x.is_floating_point() else 1)
+    y = x / scale
+    return y / y.norm(dim=dim, keepdim=True).clamp_min(eps)

@@ -17,7 +17,7 @@ from typing import NoReturn
 
 from .._version import __version__
 from ..errors import SeqnetError
-from .runtime import add_runtime_options, report_error, runtime
+from .runtime import add_runtime_options, check_no_empty_values, report_error, runtime
 
 COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark")
 
@@ -66,6 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except _ArgumentParserError as e:
         return report_error(None, e)
     try:
+        check_no_empty_values(args)
         with runtime(args):
             return int(args.func(args) or 0)
     except (SeqnetError, OSError, MemoryError, KeyboardInterrupt) as e:

@@ -80,6 +80,8 @@ def add_device(p: argparse.ArgumentParser) -> None:
 def parse_list(values: Sequence[str] | None, valid: Sequence[str] | None = None, what: str = "value") -> list[str]:
     """Split comma-separated CLI values and check them against ``valid``."""
     out = [v.strip() for item in (values or []) for v in item.split(",") if v.strip()]
+    if values and not out:
+        raise ConfigError(f"no {what} in {values!r}; give at least one (comma-separated)")
     if valid is not None:
         for v in out:
             if v not in valid:

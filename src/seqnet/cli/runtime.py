@@ -77,6 +77,17 @@ def runtime(args: argparse.Namespace) -> Iterator[None]:
         logger.setLevel(old_level)
 
 
+def check_no_empty_values(args: argparse.Namespace) -> None:
+    """An empty argument (``--json ""``, ``synth ""``, ``--method ""``) is an error, never "the default"."""
+    for key, value in vars(args).items():
+        values = value if isinstance(value, list) else [value]
+        if any(isinstance(v, str) and not v.strip() for v in values):
+            from ..errors import ConfigError
+
+            raise ConfigError(f"{key.replace('_', '-')}: empty value {value!r}; give a non-empty value or leave the "
+                              "option out")
+
+
 def one_line(text: object) -> str:
     """``text`` on one line (runs of whitespace, line breaks included, become one space)."""
     return " ".join(str(text).split())

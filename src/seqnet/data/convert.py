@@ -117,7 +117,13 @@ def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np
             raise DatasetError(f"{p}, line {line}: {len(r)} fields, but the header has {len(header)} "
                                f"(columns {header})")
     names = [r[col["name"]].strip() for _, r in rows]
-    check_names(names, f"{p} (column {header[col['name']]!r}, data rows in file order)")
+    first_line: dict[str, int] = {}
+    for (line, _), name in zip(rows, names, strict=True):
+        if name in first_line:
+            raise DatasetError(f"{p}: image name {name!r} appears on lines {first_line[name]} and {line}; each image "
+                               "must have one position (hint: remove the duplicate row)")
+        first_line[name] = line
+    check_names(names, f"{p} (column {header[col['name']]!r})")
     pos_cols = [col["east"], col["north"]] if "east" in col else [col["frame"]]
     pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
     for i, (line, r) in enumerate(rows):

@@ -61,7 +61,11 @@ def _names(v: np.ndarray) -> list[str]:
 
 
 def _utm(v: np.ndarray, n: int, field: str, path: Path) -> np.ndarray:
-    a = np.asarray(v, dtype=np.float64)
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{path}: dbStruct.{field} must hold numbers (UTM or frame indices), got "
+                           f"{np.asarray(v).dtype}") from None
     if a.ndim != 2 or a.shape[0] not in (1, 2) or a.shape[1] != n:
         raise DatasetError(f"{path}: dbStruct.{field} must be [2, {n}] (UTM) or [1, {n}] (frames), "
                            f"got shape {a.shape}")
@@ -71,17 +75,20 @@ def _utm(v: np.ndarray, n: int, field: str, path: Path) -> np.ndarray:
 def read_db_struct(path: str | Path) -> DbStruct:
     """Parse a SeqNet ``.db`` file; :class:`DatasetError` names a missing or malformed field."""
     from scipy.io import loadmat
+    from scipy.io.matlab import MatReadError
 
     p = Path(path)
     if not p.is_file():
         raise DatasetError(f"struct file not found: {p}")
     try:
         mat = loadmat(p)
-    except (ValueError, TypeError, OSError, NotImplementedError) as e:
+    except (ValueError, TypeError, OSError, NotImplementedError, MatReadError) as e:
         raise DatasetError(f"cannot read {p} as a MATLAB v5 .mat file ({e}); "
                            "hint: pass a seqNet structFiles/*.db") from None
     if "dbStruct" not in mat:
         raise DatasetError(f"{p}: no top-level 'dbStruct' (found: {[k for k in mat if not k.startswith('__')]})")
+    if not isinstance(mat["dbStruct"], np.ndarray) or mat["dbStruct"].size == 0 or not mat["dbStruct"].dtype.names:
+        raise DatasetError(f"{p}: 'dbStruct' is empty or not a struct (hint: pass a seqNet structFiles/*.db)")
     s = mat["dbStruct"].ravel()[0]
     fields = s.dtype.names or ()
     missing = [f for f in REQUIRED_FIELDS if f not in fields]

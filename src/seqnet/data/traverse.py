@@ -169,7 +169,7 @@ def validate_traverse(t: Traverse) -> None:
         raise DatasetError(f"{t.name}: descriptors are empty (shape {tuple(d.shape)})")
     if not np.issubdtype(d.dtype, np.floating):
         raise DatasetError(f"{t.name}: descriptors must be floating point, got dtype {d.dtype}")
-    _check_finite(d, f"{t.name}: descriptors")
+    _check_finite(d, f"{t.name}: descriptors", nonzero=True)
     n = d.shape[0]
     p = t.positions
     if p.ndim != 2 or p.shape[1] not in (1, 2):
@@ -199,12 +199,20 @@ def _check_bounds(b: np.ndarray, n: int, name: str) -> None:
         )
 
 
-def _check_finite(a: np.ndarray, what: str, chunk: int = 65536) -> None:
+def _check_finite(a: np.ndarray, what: str, chunk: int = 65536, nonzero: bool = False) -> None:
+    """NaN / inf anywhere (and, with ``nonzero``, an all-zero row) is a :class:`DatasetError` naming the first row."""
     for s in range(0, a.shape[0], chunk):
         block = np.asarray(a[s : s + chunk])
         if not np.isfinite(block).all():
             row = s + int(np.flatnonzero(~np.isfinite(block).all(axis=1))[0])
             raise DatasetError(f"{what} contain NaN or inf (first at row {row})")
+        if nonzero and block.size:
+            zero = ~block.any(axis=1)
+            if zero.any():
+                row = s + int(np.flatnonzero(zero)[0])
+                raise DatasetError(f"{what}: row {row} is all zeros ({int(zero.sum())} such rows in rows {s}.."
+                                   f"{s + len(block) - 1}); a zero descriptor matches nothing (e.g. a blank image: "
+                                   "remove it)")
 
 
 def validate_dataset(ds: Dataset) -> None:

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, ImageError
+from ..data.readers import check_names
+from ..errors import ConfigError, DatasetError, ImageError
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
 
@@ -46,7 +47,7 @@ def list_images(source: str | Path) -> ImageList:
                 f"no images in folder {src} (looked for {', '.join(IMAGE_EXTENSIONS)}; "
                 "hint: pass a folder of images or a text file listing them)"
             )
-        return ImageList(paths=files, names=[p.name for p in files])
+        return ImageList(paths=files, names=_checked([p.name for p in files], src))
     if src.is_file():
         return _read_list_file(src)
     raise ImageError(f"image folder or list file not found: {src}")
@@ -63,19 +64,36 @@ def _read_list_file(src: Path) -> ImageList:
     if not names:
         raise ImageError(f"list file {src} names no images (expected one image path per line)")
     paths = [Path(n) if Path(n).is_absolute() else src.parent / n for n in names]
-    return ImageList(paths=paths, names=names)
+    return ImageList(paths=paths, names=_checked(names, src))
 
 
-def read_image(path: Path, grey: bool = False) -> np.ndarray:
-    """Decode one image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``); :class:`ImageError` if unreadable."""
+def _checked(names: list[str], src: Path) -> list[str]:
+    """Names that round-trip through a names file (no line separators) and are unique, else :class:`ImageError`."""
+    try:
+        return check_names(names, f"images of {src}")
+    except DatasetError as e:
+        raise ImageError(f"{e} (hint: rename the file)") from None
+
+
+MAX_PIXELS = 100_000_000  # larger images are refused before decoding (a "decompression bomb" or a mistake)
+
+
+def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """Decode one image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``); :class:`ImageError` if
+    unreadable or larger than ``max_pixels`` (checked from the header, before decoding)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as im:
+            if im.width * im.height > max_pixels:
+                raise ImageError(f"image {path} declares {im.width}x{im.height} pixels, more than the limit of "
+                                 f"{max_pixels:,} (hint: --skip-corrupted leaves it out)")
             im.load()
             return np.asarray(im.convert("L" if grey else "RGB"))
     except FileNotFoundError:
         raise ImageError(f"image not found: {path}") from None
+    except Image.DecompressionBombError as e:
+        raise ImageError(f"image {path} is too large to decode safely ({e})") from None
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as e:
         raise ImageError(
             f"cannot read image {path} ({type(e).__name__}: {e}; hint: --skip-corrupted leaves such images out)"

@@ -174,6 +174,11 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
     Returns:
         The finished :class:`Run` (model, history, best score and epoch).
     """
+    if not isinstance(dataset, Dataset):
+        raise ConfigError(f"train() needs a seqnet Dataset, got {type(dataset).__name__} (hint: load_dataset(DIR))")
+    if conf is not None and not isinstance(conf, TrainConfig):
+        raise ConfigError(f"train() needs a TrainConfig, got {type(conf).__name__} "
+                          "(hint: TrainConfig(epochs=...) or TrainConfig.from_dict({...}))")
     out_dir = Path(out_dir)
     check_resume_target(resume, out_dir)
     check_same(dataset.reference.provenance, dataset.query.provenance, "the reference descriptors",
