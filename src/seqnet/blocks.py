@@ -78,9 +78,9 @@ def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Ten
     """Fold a block ``scores [n, c]`` of columns ``cols [c]`` (increasing, after every column in ``best``)
     into the running ``(values [n, k'], columns [n, k'])``. NaN scores (non-finite inputs, or values too
     large for the dtype) are a :class:`ConfigError`: a ranking of NaNs is meaningless."""
-    if bool(torch.isnan(scores).any()):
-        raise ConfigError("the distances hold NaN: the descriptors hold NaN or inf, or values too large for "
-                          f"{str(scores.dtype).removeprefix('torch.')} (hint: L2-normalise them)")
+    if not bool(torch.isfinite(scores).all()):
+        raise ConfigError("the distances are not finite: the descriptors hold NaN or inf, or values too large "
+                          f"for {str(scores.dtype).removeprefix('torch.')} (hint: L2-normalise them)")
     if best is None:
         v, i = topk_smallest(scores, k)
         return v, cols[i] if cols.numel() else i

@@ -27,7 +27,12 @@ def as_pair(query: ArrayLike, ref: ArrayLike, device: torch.device) -> tuple[tor
     r = as_tensor(ref, device, "reference", ndim=2, keep_float64=True)
     if q.shape[1] != r.shape[1]:
         raise ConfigError(f"dimension mismatch: query D={q.shape[1]}, reference D={r.shape[1]}")
-    return q, r.to(q.dtype)
+    r = r.to(q.dtype)
+    for name, x in (("query", q), ("reference", r)):
+        if not bool(torch.isfinite(sq_norms(x)).all()):  # NaN / inf, or squared norms that overflow
+            raise ConfigError(f"{name} descriptors hold NaN or inf, or values too large for "
+                              f"{str(x.dtype).removeprefix('torch.')} distances (hint: L2-normalise them)")
+    return q, r
 
 
 def rows_per_block(row_bytes: int, block_bytes: int | None = None) -> int:

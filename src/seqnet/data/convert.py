@@ -66,8 +66,9 @@ def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarra
             idx = [h[0] for h in hits]
             return np.asarray(idx, dtype=np.int64)
     missing = [n for n, h in zip(wanted, hits, strict=True) if not h]
+    looks = f"descriptor names look like {available[0]!r}" if available else "there are no descriptor names"
     raise DatasetError(f"{what}: {len(missing)} of {len(wanted)} image names have no descriptor "
-                       f"(first: {missing[0]!r}; descriptor names look like {available[0]!r}); "
+                       f"(first: {missing[0]!r}; {looks}); "
                        "hint: names are matched exactly, then by file name, then without extension")
 
 

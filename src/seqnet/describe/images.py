@@ -86,8 +86,8 @@ def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> 
     try:
         with Image.open(path) as im:
             if im.width * im.height > max_pixels:
-                raise ImageError(f"image {path} declares {im.width}x{im.height} pixels, more than the limit of "
-                                 f"{max_pixels:,} (hint: --skip-corrupted leaves it out)")
+                raise ImageError(f"image {path} is too large: it declares {im.width}x{im.height} pixels, more than "
+                                 f"the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
             im.load()
             return np.asarray(im.convert("L" if grey else "RGB"))
     except FileNotFoundError:
