@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import itertools
 import logging
 import math
 import os
@@ -223,6 +224,22 @@ def _backend() -> str:
     return "cpu:gloo,cuda:nccl" if torch.cuda.is_available() and dist.is_nccl_available() else "gloo"
 
 
+_STORES: dict[tuple[str, ...], Any] = {}  # this process's rendezvous store (it outlives process groups)
+_JOINS = itertools.count()
+
+
+def _init(world: World) -> None:
+    """The default process group on torchrun's store, under a prefix of its own for every join: a
+    model trained before keeps DDP hooks that keep its group alive, whose keys a new group must not read."""
+    import torch.distributed as dist
+
+    key = tuple(os.environ[k] for k in ENV)
+    if key not in _STORES:
+        _STORES[key] = next(dist.rendezvous("env://"))[0]
+    store = dist.PrefixStore(f"seqnet/{next(_JOINS)}", _STORES[key])
+    dist.init_process_group(backend=world.backend, store=store, rank=world.rank, world_size=world.size)
+
+
 @contextlib.contextmanager
 def joined() -> Iterator[World]:
     """This process's :class:`World` inside the block: the process group is initialised here (unless
@@ -236,7 +253,7 @@ def joined() -> Iterator[World]:
 
     mine = not dist.is_initialized()
     if mine:
-        dist.init_process_group(backend=world.backend)
+        _init(world)
     elif dist.get_world_size() != world.size or dist.get_rank() != world.rank:
         raise ConfigError(f"the process group (size {dist.get_world_size()}, rank {dist.get_rank()}) does not match "
                           f"WORLD_SIZE={world.size} / RANK={world.rank}")

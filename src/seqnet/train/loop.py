@@ -164,6 +164,7 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
             _fit(run, src, val_ds, device)
         finally:
             run.close()
+            run.net = None
     return run
 
 
