@@ -59,7 +59,7 @@ class World:
         dev = get_device(name)
         if self.size == 1 or dev.type != "cuda":
             return dev
-        if dev.index is not None and name not in ("auto", "cuda"):
+        if dev.index is not None:
             raise ConfigError(f"device {name!r}: under torchrun every rank uses cuda:LOCAL_RANK (hint: --device cuda "
                               "or auto, and CUDA_VISIBLE_DEVICES to choose the GPUs)")
         if self.local_rank >= torch.cuda.device_count():
