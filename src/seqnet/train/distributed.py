@@ -181,6 +181,14 @@ def _sum_hook(_state, bucket):  # noqa: ANN001, ANN202 - DDP checks real annotat
     return dist.all_reduce(bucket.buffer(), async_op=True).get_future().then(lambda f: f.value()[0])
 
 
+def _lost_peer(e: BaseException) -> bool:
+    """Whether ``e`` is a failed collective (a rank died or a connection broke), not a bug of ours."""
+    import torch.distributed as dist
+
+    text = str(e).lower()
+    return isinstance(e, dist.DistError) or any(k in text for k in ("gloo", "nccl", "connection", "socket"))
+
+
 def _shareable(e: BaseException) -> BaseException:
     """``e`` when it pickles (to reach the other ranks), else a RuntimeError with its text."""
     try:
@@ -263,9 +271,11 @@ def joined() -> Iterator[World]:
             logger.setLevel(max(logger.getEffectiveLevel(), logging.WARNING))
         with progress_mode(False) if world.rank > 0 else contextlib.nullcontext():
             yield world
-    except dist.DistError as e:
+    except (dist.DistError, RuntimeError) as e:
+        if not _lost_peer(e):
+            raise
         raise ResourceError(f"distributed training stopped on rank {world.rank}: {' '.join(str(e).split())[:300]} "
-                            "(another rank failed or left: see its error)") from None
+                            "(another rank failed or left: see its error; continue with --resume RUN)") from None
     finally:
         logger.setLevel(level)
         if mine:

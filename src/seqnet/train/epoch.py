@@ -42,7 +42,7 @@ def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined,
         return stats
     ref = torch.cat([mined.positive[keep], mined.negatives[keep][valid]])
     windows = torch.cat([gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])])
-    emb = (run.net or run.model)(windows)  # [B + B + T, D']: queries, positives, negatives
+    emb = (run.model if run.net is None else run.net)(windows)  # [B + B + T, D']: queries, positives, negatives
     out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.conf.margin, total)
     run.optimizer.zero_grad(set_to_none=True)
     out.loss.backward()  # distributed: DDP sums the gradients of the shares
