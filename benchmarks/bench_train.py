@@ -4,7 +4,7 @@ Both train the same model on the same data (the train split of a synthetic datas
 epoch structure (shuffled queries; mining descriptors recomputed every ``cache_refresh`` queries;
 batches of 16 queries, 10 hard negatives each among ``n_neg_sample`` sampled):
 
-* ``batched`` — :func:`seqnet.train.loop.train_epoch`: the triplets of all queries of a cache period
+* ``batched`` — :func:`seqnet.train.epoch.train_epoch`: the triplets of all queries of a cache period
   mined at once (``[S, R]`` distance matrix and masks), then per batch one forward pass (SeqNet in
   its one-GEMM form) and one triplet loss over all the batch's triplets;
 * ``loop`` — the original seqNet/NetVLAD way: the mining cache built in batches of 24 windows, then
@@ -44,7 +44,7 @@ from torch import nn
 
 from seqnet.data.synth import make_synthetic
 from seqnet.train import Run, TrainConfig
-from seqnet.train.loop import train_epoch, train_step
+from seqnet.train.epoch import train_epoch, train_step
 from seqnet.train.mining import mine_queries, triplet_source
 from seqnet.train.run import open_run
 

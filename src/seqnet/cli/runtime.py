@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
 import sys
 import warnings
 from collections.abc import Iterator
@@ -94,9 +95,13 @@ def one_line(text: object) -> str:
 
 
 def report_error(command: str | None, e: BaseException) -> int:
-    """Print ``e`` as one line on stderr (bars cleared first); return the exit code."""
+    """Print ``e`` as one line on stderr (bars cleared first); return the exit code.
+
+    Under torchrun, an error another rank reports too (``e.reported_elsewhere``: rank 0's, copied to
+    every rank) is not printed again, and the other errors of ranks > 0 name their rank."""
     close_all()
-    if sys.stderr.isatty():
+    quiet = bool(getattr(e, "reported_elsewhere", False))
+    if sys.stderr.isatty() and not quiet:
         sys.stderr.write("\r\x1b[K")
     if isinstance(e, KeyboardInterrupt):
         print(f"seqnet {command}: interrupted", file=sys.stderr)
@@ -106,8 +111,15 @@ def report_error(command: str | None, e: BaseException) -> int:
     elif isinstance(e, MemoryError):
         e = _memory_error(e)
     prefix = f"seqnet {command}: error: " if command else ""
-    print(prefix + one_line(e), file=sys.stderr)
+    if not quiet:
+        print(prefix + _rank() + one_line(e), file=sys.stderr)
     return int(getattr(e, "exit_code", 2))
+
+
+def _rank() -> str:
+    """``"rank N: "`` in a process of a distributed run other than rank 0 (torchrun's variables), else ``""``."""
+    rank, size = os.environ.get("RANK", "0"), os.environ.get("WORLD_SIZE", "1")
+    return f"rank {rank}: " if size not in ("", "0", "1") and rank not in ("", "0") else ""
 
 
 def _memory_error(e: MemoryError) -> SeqnetError:

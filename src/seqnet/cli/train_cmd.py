@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..checkpoints import read_checkpoint
 from ..train.config import OPTIMIZERS, TrainConfig
+from ..train.distributed import env_world
 from ..train.loop import main
 from ..train.run import resume_config
 from ..windows import WINDOW_MODES
@@ -23,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Train SeqNet on the train split of a dataset, validating (Recall@1/5/10/20) on its val split "
                     "after every epoch. Writes RUN/last.pt, RUN/best.pt (best val R@1), RUN/config.json and "
                     "TensorBoard logs in RUN/. Defaults are the paper's (SGD lr 1e-4, momentum 0.9, wd 1e-3, "
-                    "lr x0.5 every 50 epochs, margin 0.3, batch 16, 10 hard negatives of 1000 sampled).")
+                    "lr x0.5 every 50 epochs, margin 0.3, batch 16, 10 hard negatives of 1000 sampled). "
+                    "Distributed: torchrun --nproc-per-node N -m seqnet train ... (see docs/training.md).")
     p.add_argument("--dataset", metavar="DIR", help="seqnet dataset directory (default with --resume: the run's)")
     p.add_argument("--out", metavar="RUN", help="run directory to create (default with --resume: the resumed run)")
     p.add_argument("--resume", metavar="RUN", help="continue the run in RUN exactly (RUN/last.pt); "
@@ -73,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
         changes["device"] = args.device
     conf = resume_config(args.resume, **changes) if args.resume else TrainConfig().replace(**changes)
     run_dir = main(conf, args.dataset, args.out, args.resume, allow_mismatch=args.allow_mismatch)
-    _print_summary(run_dir)
+    if env_world().is_rank0:  # under torchrun, rank 0 alone wrote the run and reports it
+        _print_summary(run_dir)
     return 0
 
 

@@ -3,17 +3,21 @@
 Queries are windows of the query traverse of the train split, positives/negatives windows of its
 reference traverse (see :mod:`seqnet.train.mining`). Each epoch visits every query with a positive
 and a negative, in random order; every ``cache_refresh`` queries the descriptors used for mining are
-recomputed by the current model. After each epoch the model is validated (Recall@1/5/10/20 on the
-val split) and the run's files are written (:mod:`seqnet.train.run`). Settings:
-:class:`~seqnet.train.config.TrainConfig` (the paper's defaults).
+recomputed by the current model (:mod:`seqnet.train.epoch`). After each epoch the model is validated
+(Recall@1/5/10/20 on the val split) and the run's files are written (:mod:`seqnet.train.run`).
+Settings: :class:`~seqnet.train.config.TrainConfig` (the paper's defaults).
 
-Logging: one INFO line when training starts and one when it ends; one DEBUG line per epoch
-(``seqnet -v``); one progress bar per epoch (:func:`seqnet.progress.progress`).
+Under torchrun the same code runs in every process (:mod:`seqnet.train.distributed`): rank 0 locks
+the run directory, reads the checkpoint to resume, validates and writes the files; the others get
+what it read and its val scores, so every rank keeps the same state.
+
+Logging: one INFO line when training starts (with the world size when distributed) and one when it
+ends; one DEBUG line per epoch (``seqnet -v``); one progress bar per epoch (:func:`seqnet.progress.progress`).
 """
 
 from __future__ import annotations
 
-import math
+import contextlib
 import time
 from pathlib import Path
 
@@ -23,84 +27,38 @@ from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..errors import ConfigError, DatasetError, OutputError
 from ..ownership import locked
-from ..progress import progress
 from ..provenance import check_same
 from ..sequence_descriptors import SeqNet
-from ..utils import get_device, logger
-from ..windows import gather_windows
+from ..utils import logger
 from .config import TrainConfig
-from .losses import triplet_loss
-from .mining import Mined, TripletSource, compute_cache, mine_queries, split_windows, triplet_source
+from .distributed import World, joined
+from .epoch import train_epoch
+from .mining import TripletSource, split_windows, triplet_source
 from .run import (
     Run,
     check_run_dir,
     finish_epoch,
+    open_files,
     open_run,
     read_resume,
-    remove_temp_files,
     restored_config,
     run_dataset_path,
     stored_dataset_path,
 )
 
 VAL_KS = (1, 5, 10, 20)
-STAT_KEYS = ("loss", "queries", "skipped", "triplets", "active")
 
 
-def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined) -> dict[str, float]:
-    """One optimiser step on all triplets of the queries ``rows [B]`` (``mined``: their triplets)."""
-    keep = mined.has_triplet
-    b = int(keep.sum())
-    stats = {"queries": float(b), "skipped": float(len(rows) - b), "triplets": 0.0, "active": 0.0, "loss": 0.0}
-    if b == 0:
-        return stats
-    valid = mined.valid[keep]
-    ref = torch.cat([mined.positive[keep], mined.negatives[keep][valid]])
-    windows = torch.cat([gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])])
-    emb = run.model(windows)  # [B + B + T, D']: queries, positives, negatives
-    out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.conf.margin)
-    run.optimizer.zero_grad(set_to_none=True)
-    out.loss.backward()
-    run.optimizer.step()
-    stats.update(triplets=float(out.triplets), active=float(out.active), loss=float(out.loss.detach()))
-    return stats
-
-
-def train_epoch(run: Run, src: TripletSource, epoch: int) -> dict[str, float]:
-    """One pass over every training query (shuffled); every ``cache_refresh`` queries the mining
-    descriptors are recomputed and those queries' triplets mined. Returns the mean batch loss and
-    summed counts (queries, skipped, triplets, active). One progress bar, with loss / active."""
-    n, bs, mining = src.n_queries, run.conf.batch_size, run.conf.mining
-    order = torch.randperm(n, generator=run.generator).to(src.q_idx.device)
-    chunk = mining.cache_refresh or n
-    totals = dict.fromkeys(STAT_KEYS, 0.0)
-    steps = 0
-    n_batches = sum(math.ceil(min(chunk, n - s) / bs) for s in range(0, n, chunk))
-    with progress(total=n_batches, desc=f"epoch {epoch}/{run.conf.epochs}", unit="batch") as bar:
-        for s in range(0, n, chunk):
-            sub = order[s : s + chunk]
-            q_feat, r_feat = compute_cache(run.model, src, sub)
-            mined = mine_queries(src, sub, q_feat, r_feat, mining, run.generator, run.neg_cache)
-            for b in range(0, len(sub), bs):
-                st = train_step(run, src, sub[b : b + bs], mined[b : b + bs])
-                steps += st["triplets"] > 0
-                totals = {k: v + st[k] for k, v in totals.items()}
-                bar.update(1)
-                if not bar.disable:
-                    bar.set_postfix(loss=f"{st['loss']:.4f}", active=int(st["active"]), refresh=False)
-    totals["loss"] /= max(steps, 1)
-    return totals
-
-
-def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig) -> dict[str, float]:
-    """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1);
-    ``{}`` without a val split. Leaves the model in training mode."""
+def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig,
+             device: torch.device | None = None) -> dict[str, float]:
+    """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1)
+    on ``device`` (default ``conf.device``); ``{}`` without a val split. Leaves the model in training mode."""
     from ..evaluate import EvalConfig, evaluate
 
     if val_ds is None:
         return {}
-    role = model.role
-    ev_conf = EvalConfig(methods=(role,), seq_len=model.seq_len, window=conf.window, ks=VAL_KS, device=conf.device)
+    role, dev = model.role, conf.device if device is None else str(device)
+    ev_conf = EvalConfig(methods=(role,), seq_len=model.seq_len, window=conf.window, ks=VAL_KS, device=dev)
     ev = evaluate(val_ds, ev_conf, {role: model})
     model.train()
     return {k: float(v) for k, v in ev.results["methods"][role].items() if k.startswith("recall@")}
@@ -132,18 +90,19 @@ def _name(model: SeqNet) -> str:
 
 def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device) -> None:
     """The epochs from the run's next one to ``conf.epochs`` (or early stopping), with the two INFO lines."""
-    first, m = run.epoch + 1, run.model
+    first, m, world = run.epoch + 1, run.model, run.world
     resumed = f"resuming {run.out_dir} after epoch {run.epoch}: " if run.epoch else ""
     val = f"validating on {val_ds.name}" if val_ds is not None else "no validation"
     left = f" ({src.left_out} more without a positive or a negative left out)" if src.left_out else ""
-    logger.info("%straining %s (w=%d, D %d->%d) on %d queries%s, %d reference windows, epochs %d..%d, device %s, %s",
+    procs = f", {world.describe()}, batches of {run.conf.batch_size} split across the ranks" if world.size > 1 else ""
+    logger.info("%straining %s (w=%d, D %d->%d) on %d queries%s, %d reference windows, epochs %d..%d, device %s%s, %s",
                 resumed, _name(m), m.w, m.in_dims, m.out_dims, src.n_queries, left, len(src.r_idx), first,
-                run.conf.epochs, device, val)
+                run.conf.epochs, device, procs, val)
     t0 = time.perf_counter()
     for epoch in range(first, run.conf.epochs + 1):
         t_epoch = time.perf_counter()
         stats = train_epoch(run, src, epoch)
-        finish_epoch(run, epoch, stats, validate(run.model, val_ds, run.conf), time.perf_counter() - t_epoch)
+        _end_epoch(run, epoch, stats, val_ds, device, t_epoch)
         if run.should_stop:
             break
     best = (f"best val R@1 {run.best_score:.4f} at epoch {run.best_epoch}" if val_ds is not None and run.best_epoch
@@ -153,6 +112,21 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     n = run.epoch - first + 1
     logger.info("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
                 run.epoch, time.perf_counter() - t0, best, stop)
+
+
+def _end_epoch(run: Run, epoch: int, stats: dict[str, float], val_ds: Dataset | None, device: torch.device,
+               t_epoch: float) -> None:
+    """Validation and the run's files on rank 0; then, with rank 0's val scores, the same bookkeeping
+    (schedule, best, patience: the early-stopping decision) on the other ranks."""
+
+    def on_rank0() -> dict[str, float]:
+        metrics = validate(run.model, val_ds, run.conf, device)
+        finish_epoch(run, epoch, stats, metrics, time.perf_counter() - t_epoch)
+        return metrics
+
+    metrics = run.world.rank0(on_rank0)
+    if not run.world.is_rank0:
+        finish_epoch(run, epoch, stats, metrics, time.perf_counter() - t_epoch)
 
 
 def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resume: bool | str | Path = False,
@@ -171,6 +145,9 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
         dataset_path: recorded in the run so that resuming finds the data (default when resuming: the run's).
         allow_mismatch: train even when reference and query descriptors were made differently (provenance).
 
+    Under torchrun (``WORLD_SIZE`` > 1) every process calls this; rank 0 alone locks and writes
+    ``out_dir`` (:mod:`seqnet.train.distributed`).
+
     Returns:
         The finished :class:`Run` (model, history, best score and epoch).
     """
@@ -183,27 +160,44 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
     check_resume_target(resume, out_dir)
     check_same(dataset.reference.provenance, dataset.query.provenance, "the reference descriptors",
                "the query descriptors", allow_mismatch)
-    with locked(out_dir):  # a second writer of this run is refused
-        payload = None
-        if resume:
-            payload = read_resume(out_dir if resume is True else Path(resume))
-            conf = restored_config(payload, conf)
-            dataset_path = dataset_path or stored_dataset_path(payload)
-        else:
-            conf = (conf or TrainConfig()).resolve(dataset)
-            check_run_dir(out_dir)
-        device = get_device(conf.device)
-        src, val_ds = prepare(dataset, conf, device)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        remove_temp_files(out_dir)
-        run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload,
-                       str(dataset_path) if dataset_path is not None else None)
-        run.model.provenance = dataset.reference.provenance  # checkpoints record what the model reads
+    with joined() as world, contextlib.ExitStack() as held:
+        conf, payload, path = world.rank0(lambda: _claim(held, dataset, conf, out_dir, resume, dataset_path))
+        run, src, val_ds, device = world.agree(lambda: _start(dataset, conf, out_dir, payload, path, world))
+        run.net = world.wrap(run.model)  # DistributedDataParallel when distributed
+        world.rank0(lambda: open_files(run))
         try:
             _fit(run, src, val_ds, device)
         finally:
             run.close()
+            run.net = None
     return run
+
+
+def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | None, out_dir: Path,
+           resume: bool | str | Path, dataset_path: str | Path | None) -> tuple[TrainConfig, dict | None, str | None]:
+    """Rank 0: lock ``out_dir`` (a second writer of this run is refused), read the checkpoint to resume
+    or check that the directory is free; the run's configuration, checkpoint and dataset path."""
+    held.enter_context(locked(out_dir))
+    payload = None
+    if resume:
+        payload = read_resume(out_dir if resume is True else Path(resume))
+        conf = restored_config(payload, conf)
+        dataset_path = dataset_path or stored_dataset_path(payload)
+    else:
+        conf = (conf or TrainConfig()).resolve(dataset)
+        check_run_dir(out_dir)
+    return conf, payload, str(dataset_path) if dataset_path is not None else None
+
+
+def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | None, dataset_path: str | None,
+           world: World) -> tuple[Run, TripletSource, Dataset | None, torch.device]:
+    """Every rank: its device, the checked training data and the run's state (no file written)."""
+    device = world.device(conf.device)
+    src, val_ds = prepare(dataset, conf, device)
+    run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload, dataset_path, files=False)
+    run.world = world
+    run.model.provenance = dataset.reference.provenance  # checkpoints record what the model reads
+    return run, src, val_ds, device
 
 
 def check_resume_target(resume: bool | str | Path, out_dir: Path) -> None:

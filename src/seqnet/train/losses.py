@@ -36,7 +36,8 @@ class TripletLoss:
 
 
 def triplet_loss(
-    query: torch.Tensor, positive: torch.Tensor, negatives: torch.Tensor, anchor: torch.Tensor, margin: float
+    query: torch.Tensor, positive: torch.Tensor, negatives: torch.Tensor, anchor: torch.Tensor, margin: float,
+    total: int | None = None,
 ) -> TripletLoss:
     """Triplet margin loss of T triplets given as (query ``anchor[t]``, its positive, negative ``t``).
 
@@ -45,6 +46,8 @@ def triplet_loss(
         negatives: ``[T, D]`` the negatives of all triplets.
         anchor: ``[T]`` long, the query (row of ``query``) of each negative.
         margin: hinge margin m > 0 on Euclidean distances.
+        total: the number of triplets the mean is over (default T; distributed training: those of the
+            whole batch, so that the losses of its shares sum to the batch's mean).
 
     Returns:
         :class:`TripletLoss` with ``per_triplet`` of shape ``[T]``; ``loss = Σ_t max(0, ‖q−p‖ − ‖q−n_t‖ + m) / T``.
@@ -57,11 +60,14 @@ def triplet_loss(
                           f"and {tuple(anchor.shape)}")
     if not margin > 0:
         raise ConfigError(f"margin must be > 0, got {margin}")
+    if total is not None and total < max(int(anchor.numel()), 1):
+        raise ConfigError(f"total must be >= the {anchor.numel()} triplets given (and >= 1), got {total}")
     d_pos = F.pairwise_distance(query, positive, eps=PAIRWISE_EPS)  # [B]
     d_neg = F.pairwise_distance(query[anchor], negatives, eps=PAIRWISE_EPS)  # [T]
     hinge = F.relu(d_pos[anchor] - d_neg + margin)
     n = int(anchor.numel())
-    return TripletLoss(hinge.sum() / max(n, 1), n, int((hinge > 0).sum()), hinge.detach())
+    return TripletLoss(hinge.sum() / (max(n, 1) if total is None else total), n, int((hinge > 0).sum()),
+                       hinge.detach())
 
 
 def batch_triplet_loss(

@@ -90,20 +90,25 @@ def closest_positive(dist: torch.Tensor, pos_mask: torch.Tensor) -> tuple[torch.
     return torch.where(torch.isfinite(d), idx, torch.full_like(idx, -1)), d
 
 
-def sample_negatives(neg_mask: torch.Tensor, n_sample: int, generator: torch.Generator) -> torch.Tensor:
+def sample_negatives(
+    neg_mask: torch.Tensor, n_sample: int, generator: torch.Generator, drawn: torch.Tensor | None = None
+) -> torch.Tensor:
     """``[B, R]`` bool: a uniform random subset of each row's negatives ``neg_mask [B, R]``, of
     ``n_sample`` negatives on average (each kept with probability ``n_sample / count``; every
     negative when a row has at most ``n_sample``). Like NetVLAD's draw of ``n_sample`` with
     replacement, the number of distinct samples varies; one random number per (query, reference)
-    and no sort, so it costs O(B·R).
-
-    The random numbers come from ``generator`` (a CPU generator, so runs are reproducible anywhere).
+    and no sort, so it costs O(B·R). The random numbers come from ``generator`` (a CPU generator, so
+    runs are reproducible anywhere). ``drawn [B']`` (bool, B true): draw the numbers of B' rows, use
+    those of the marked rows (a process mining its share of a block advances the generator as all).
     """
     b, r = neg_mask.shape
     if n_sample >= r:
         return neg_mask.clone()
     keep = (n_sample / neg_mask.sum(dim=1, keepdim=True).clamp_min(1)).clamp_max(1.0)  # [B, 1]
-    return neg_mask & (torch.rand((b, r), generator=generator).to(neg_mask.device) < keep)
+    u = torch.rand((b if drawn is None else len(drawn), r), generator=generator)
+    if drawn is not None and not bool(drawn.all()):
+        u = u[drawn.cpu()]
+    return neg_mask & (u.to(neg_mask.device) < keep)
 
 
 def hardest_negatives(
@@ -133,6 +138,7 @@ def mine_batch(
     margin: float,
     generator: torch.Generator,
     neg_cache: torch.Tensor | None = None,
+    drawn: torch.Tensor | None = None,
 ) -> Mined:
     """Mine one positive and up to ``n_neg`` hard negatives per query.
 
@@ -144,10 +150,11 @@ def mine_batch(
         margin: triplet margin (a negative is kept only if ``d_neg < d_pos + margin``).
         generator: CPU generator for the sampling.
         neg_cache: optional ``[B, C]`` previous hard negatives per query (-1 = none), added to the sample.
+        drawn: see :func:`sample_negatives` (the block these B queries are a share of).
     """
     dist = pairwise_distances(q_feat, r_feat)
     pos, d_pos = closest_positive(dist, pos_mask)
-    cand = sample_negatives(neg_mask, n_sample, generator)
+    cand = sample_negatives(neg_mask, n_sample, generator, drawn)
     if neg_cache is not None and neg_cache.numel():
         rows = torch.arange(cand.shape[0], device=cand.device)[:, None].expand_as(neg_cache)
         ok = neg_cache >= 0
@@ -239,16 +246,17 @@ def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, d
 
 
 def compute_cache(
-    model: Callable[[torch.Tensor], torch.Tensor], src: TripletSource, rows: torch.Tensor
+    model: Callable[[torch.Tensor], torch.Tensor], src: TripletSource, rows: torch.Tensor, refs: slice = slice(None)
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Current-model descriptors of the queries ``rows`` ``[S, D']`` and of all reference windows ``[R, D']``.
+    """Current-model descriptors of the queries ``rows`` ``[S, D']`` and of the reference windows
+    ``refs`` (default all) ``[R, D']``.
 
     ``model`` maps windows ``[B, L, D]`` to descriptors ``[B, D']`` (a :class:`SeqNet` or an equivalent).
     No progress bar: this runs every ``cache_refresh`` queries inside the epoch's bar.
     """
     dev = src.q_desc.device
     q = describe_windows(src.q_desc, src.q_idx[rows].cpu().numpy(), model, device=dev, progress=None)
-    r = describe_windows(src.r_desc, src.r_idx.cpu().numpy(), model, device=dev, progress=None)
+    r = describe_windows(src.r_desc, src.r_idx[refs].cpu().numpy(), model, device=dev, progress=None)
     return q.to(dev), r.to(dev)
 
 
@@ -261,6 +269,7 @@ def mine_queries(
     generator: torch.Generator,
     neg_cache: torch.Tensor,
     block_elems: int = 2**24,
+    own: torch.Tensor | None = None,
 ) -> Mined:
     """Mine the triplets of the training queries ``rows [S]`` from one cache, in blocks of queries.
 
@@ -270,15 +279,18 @@ def mine_queries(
     triplets. Mining the queries of a cache period together is what mining them batch by batch
     gives (the cache is fixed meanwhile and each query is visited once per epoch), with a few large
     tensor operations instead of many small ones. Blocks keep ``[block, R]`` under ``block_elems``
-    elements.
+    elements. ``own [S]`` (bool; distributed training: this process's share) mines only ``rows[own]``
+    (``q_feat`` their descriptors), drawing the random numbers of every row (generators stay in step).
     """
     block = max(1, block_elems // max(1, r_feat.shape[0]))
-    parts = []
+    parts, at = [], 0
     for s in range(0, len(rows), block):
-        r = rows[s : s + block]
+        o = None if own is None else own[s : s + block]
+        r = rows[s : s + block] if o is None else rows[s : s + block][o]
         pos_mask, neg_mask = radius_masks(src.q_pos[r], src.r_pos, conf.pos_radius, conf.neg_radius)
-        m = mine_batch(q_feat[s : s + block], r_feat, pos_mask, neg_mask, conf.n_negatives, conf.n_neg_sample,
-                       conf.margin, generator, neg_cache[r.cpu()].to(q_feat.device))
+        m = mine_batch(q_feat[at : at + len(r)], r_feat, pos_mask, neg_mask, conf.n_negatives, conf.n_neg_sample,
+                       conf.margin, generator, neg_cache[r.cpu()].to(q_feat.device), o)
+        at += len(r)
         keep = m.has_triplet
         neg_cache[r[keep].cpu()] = m.negatives[keep].cpu()
         parts.append(m)

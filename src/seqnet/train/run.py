@@ -28,13 +28,17 @@ from ..files import write_json_atomic
 from ..sequence_descriptors import SeqNet
 from ..utils import logger
 from .config import OPTIMIZERS, TrainConfig
+from .distributed import World
 
 TEMP_PATTERNS = (".last.pt.*.tmp", ".best.pt.*.tmp", ".config.json.*.tmp")  # left by a crash in an atomic write
 
 
 @dataclasses.dataclass
 class Run:
-    """A training run: model, optimiser, scheduler, generator, negative cache, progress and logs."""
+    """A training run: model, optimiser, scheduler, generator, negative cache, progress and logs.
+
+    ``world``: the training processes (rank 0 alone writes files); ``net``: what the training step
+    calls, the model or its DistributedDataParallel (None: the model)."""
 
     conf: TrainConfig
     model: SeqNet
@@ -50,6 +54,8 @@ class Run:
     best_epoch: int = 0
     bad_epochs: int = 0
     history: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    world: World = dataclasses.field(default_factory=World)
+    net: torch.nn.Module | None = None
 
     @property
     def should_stop(self) -> bool:
@@ -144,11 +150,9 @@ def _new_model(conf: TrainConfig, in_dims: int, device: torch.device) -> SeqNet:
 
 
 def open_run(conf: TrainConfig, n_queries: int, in_dims: int, device: torch.device, out_dir: Path,
-             payload: Mapping[str, Any] | None = None, dataset_path: str | None = None) -> Run:
-    """A fresh run, or the one stored in ``payload`` (a ``last.pt``); writes ``config.json`` and opens
-    the TensorBoard writer (events after the restored epoch are dropped)."""
-    from torch.utils.tensorboard import SummaryWriter
-
+             payload: Mapping[str, Any] | None = None, dataset_path: str | None = None, files: bool = True) -> Run:
+    """A fresh run, or the one stored in ``payload`` (a ``last.pt``); with ``files``, its files are
+    opened (:func:`open_files`)."""
     model = _new_model(conf, in_dims, device)
     opt = OPTIMIZERS[conf.optimizer]([p for p in model.parameters() if p.requires_grad], conf)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=conf.lr_step, gamma=conf.lr_gamma)
@@ -156,10 +160,22 @@ def open_run(conf: TrainConfig, n_queries: int, in_dims: int, device: torch.devi
     run = Run(conf, model, opt, sched, torch.Generator().manual_seed(conf.seed), cache, out_dir, dataset_path)
     if payload is not None:
         _restore(run, payload)
-    write_json_atomic(out_dir / "config.json", {**conf.to_dict(), "model": model.config(), "role": model.role,
-                                                "dataset_path": dataset_path, "seqnet_version": __version__})
-    run.writer = SummaryWriter(log_dir=str(out_dir), purge_step=run.epoch + 1 if payload is not None else None)
+    if files:
+        open_files(run)
     return run
+
+
+def open_files(run: Run) -> None:
+    """Create the run directory, remove temporary files a crash left there, write ``config.json`` and
+    open the TensorBoard writer (events after a restored epoch are dropped)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    run.out_dir.mkdir(parents=True, exist_ok=True)
+    remove_temp_files(run.out_dir)
+    write_json_atomic(run.out_dir / "config.json", {**run.conf.to_dict(), "model": run.model.config(),
+                                                    "role": run.model.role, "dataset_path": run.dataset_path,
+                                                    "seqnet_version": __version__})
+    run.writer = SummaryWriter(log_dir=str(run.out_dir), purge_step=run.epoch + 1 if run.epoch else None)
 
 
 def _restore(run: Run, payload: Mapping[str, Any]) -> None:
@@ -180,8 +196,8 @@ def _restore(run: Run, payload: Mapping[str, Any]) -> None:
 
 def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapping[str, float],
                  seconds: float) -> bool:
-    """Step the schedule, update best / patience, write ``best.pt`` (when improved) then ``last.pt``,
-    TensorBoard scalars and a debug line. Returns whether the epoch is the best so far."""
+    """Step the schedule, update best / patience, write ``best.pt`` (when improved) then ``last.pt`` and
+    TensorBoard scalars (rank 0 only), log a debug line. Returns whether the epoch is the best so far."""
     lr = run.optimizer.param_groups[0]["lr"]
     run.scheduler.step()
     score = metrics.get("recall@1", math.nan)
@@ -194,10 +210,11 @@ def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapp
     run.history.append({"epoch": epoch, "lr": lr, **stats, **metrics})
     fields = {"epoch": epoch, "best_score": run.best_score, "best_epoch": run.best_epoch, "metrics": dict(metrics),
               "config": run.conf.to_dict(), "dataset_path": run.dataset_path}
-    if improved:
-        save_checkpoint(run.out_dir / "best.pt", run.model, **fields)
-    save_checkpoint(run.out_dir / "last.pt", run.model, **fields, train_state=run.train_state())
-    _log_scalars(run, epoch, lr, stats, metrics)
+    if run.world.is_rank0:
+        if improved:
+            save_checkpoint(run.out_dir / "best.pt", run.model, **fields)
+        save_checkpoint(run.out_dir / "last.pt", run.model, **fields, train_state=run.train_state())
+        _log_scalars(run, epoch, lr, stats, metrics)
     val = ", ".join(f"R@{k.split('@')[1]} {v:.3f}" for k, v in metrics.items()) or "-"
     logger.debug("epoch %d/%d: loss %.4f, %d active of %d triplets, lr %.3g, val %s%s (%.1f s)", epoch,
                  run.conf.epochs, stats["loss"], stats["active"], stats["triplets"], lr, val,
