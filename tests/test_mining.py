@@ -13,12 +13,11 @@ from seqnet.train.mining import (
     closest_positive,
     hardest_negatives,
     mine_batch,
-    queries_with_pairs,
-    radius_masks,
     sample_negatives,
     split_windows,
     triplet_source,
 )
+from seqnet.train.truth import pair_masks, positive_keys, queries_with_pairs, radius_masks
 
 POS_R, NEG_R = 5.0, 20.0
 
@@ -169,3 +168,45 @@ def test_mining_config_validates():
         MiningConfig(pos_radius=1.0, neg_radius=2.0, n_negatives=0)
     with pytest.raises(ConfigError, match="pos_radius <= neg_radius"):
         MiningConfig(pos_radius=3.0, neg_radius=2.0)
+
+
+def test_explicit_positives_decide_the_masks():
+    """With explicit positives, positives are the listed pairs, negatives the far and unlisted ones."""
+    from seqnet.data.positives import Positives
+
+    q_pos = np.array([[0.0], [10.0], [20.0]])
+    r_pos = np.arange(30.0)[:, None]
+    pos = Positives.from_lists([[5], [], [20, 21]])
+    keys = positive_keys(pos, len(r_pos))
+    p_mask, n_mask = pair_masks(torch.as_tensor(q_pos), torch.as_tensor(r_pos), 1.0, 4.0, keys, torch.arange(3))
+    assert p_mask[0].nonzero().ravel().tolist() == [5] and not p_mask[1].any()
+    assert p_mask[2].nonzero().ravel().tolist() == [20, 21]
+    far = torch.cdist(torch.as_tensor(q_pos), torch.as_tensor(r_pos)) > 4.0
+    np.testing.assert_array_equal(n_mask.numpy(), (far & ~p_mask).numpy())
+    assert not n_mask[0, 5]  # a listed positive is never a negative, even far away
+    np.testing.assert_array_equal(queries_with_pairs(q_pos, r_pos, 1.0, 4.0, pos), [True, False, True])
+
+
+def test_training_uses_explicit_positives(tmp_path):
+    """A dataset whose explicit positives point elsewhere than the positions: mining follows the positives."""
+    import dataclasses
+
+    from seqnet.data.positives import Positives
+    from seqnet.data.synth import make_synthetic
+    from seqnet.train.config import TrainConfig
+
+    ds = make_synthetic(places=200, dim=8, seed=2).split("train")
+    n_q, n_r = len(ds.query), len(ds.reference)
+    shifted = Positives.from_lists([[min(n_r - 1, i + 7)] for i in range(n_q)])
+    ds = dataclasses.replace(ds, positives=shifted)
+    conf = TrainConfig(seq_len=3, w=2).resolve(ds).mining
+    sw = split_windows(ds, 3, "centred", conf)
+    assert sw.positives is not None and len(sw.positives) == len(sw.q_idx)
+    src = triplet_source(ds, 3, "centred", conf, torch.device("cpu"))
+    rows = torch.arange(src.n_queries)
+    p_mask, _ = pair_masks(src.q_pos, src.r_pos, conf.pos_radius, conf.neg_radius, src.pos_keys, rows)
+    q_frames = src.q_idx[:, 1]  # centre frames of the query windows
+    r_frames = src.r_idx[:, 1]
+    for i in range(0, src.n_queries, 17):
+        listed = r_frames[p_mask[i]].tolist()
+        assert listed == [min(n_r - 1, int(q_frames[i]) + 7)], (i, listed)

@@ -19,8 +19,8 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
+from ..data.positives import Positives
 from ..data.traverse import Dataset, Traverse
 from ..distances import pairwise_distances
 from ..errors import DatasetError
@@ -28,6 +28,7 @@ from ..sequence_descriptors import describe_windows
 from ..utils import as_tensor
 from ..windows import window_starts
 from .config import MiningConfig
+from .truth import pair_masks, positive_keys, queries_with_pairs
 
 
 @dataclasses.dataclass
@@ -59,28 +60,6 @@ class Mined:
     def cat(parts: list[Mined]) -> Mined:
         """Concatenate the triplets of consecutive query blocks."""
         return Mined(*(torch.cat([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(Mined)))
-
-
-def queries_with_pairs(q_pos: np.ndarray, r_pos: np.ndarray, pos_radius: float, neg_radius: float) -> np.ndarray:
-    """``[M]`` bool: whether query position ``q_pos [M, P]`` has at least one reference position
-    ``r_pos [R, P]`` within ``pos_radius`` and at least one farther than ``neg_radius``."""
-    tree = cKDTree(np.asarray(r_pos, dtype=np.float64))
-    q = np.asarray(q_pos, dtype=np.float64)
-    n_pos = tree.query_ball_point(q, pos_radius, return_length=True)
-    n_near = tree.query_ball_point(q, neg_radius, return_length=True)
-    return (np.asarray(n_pos) > 0) & (np.asarray(n_near) < len(r_pos))
-
-
-def radius_masks(
-    q_pos: torch.Tensor, r_pos: torch.Tensor, pos_radius: float, neg_radius: float
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Positive (``dist <= pos_radius``) and negative (``dist > neg_radius``) masks ``[B, R]``.
-
-    ``q_pos [B, P]`` and ``r_pos [R, P]`` should be float64 (UTM coordinates lose metres in float32).
-    """
-    origin = r_pos[:1]
-    dist = torch.cdist(q_pos - origin, r_pos - origin, compute_mode="donot_use_mm_for_euclid_dist")
-    return dist <= pos_radius, dist > neg_radius
 
 
 def closest_positive(dist: torch.Tensor, pos_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -180,6 +159,7 @@ class SplitWindows:
     q_pos: np.ndarray
     r_pos: np.ndarray
     left_out: int
+    positives: Positives | None = None  # explicit positives over (kept query window, reference window)
 
 
 @dataclasses.dataclass
@@ -199,6 +179,7 @@ class TripletSource:
     q_pos: torch.Tensor
     r_pos: torch.Tensor
     left_out: int = 0
+    pos_keys: torch.Tensor | None = None  # explicit positive pairs (train/truth.positive_keys), or None
 
     @property
     def n_queries(self) -> int:
@@ -224,13 +205,15 @@ def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, wh
     q_items, q_idx = _full_windows(ds.query, seq_len, window, what)
     r_items, r_idx = _full_windows(ds.reference, seq_len, window, what)
     q_pos, r_pos = ds.query.positions[q_items], ds.reference.positions[r_items]
-    keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius)
+    positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
+    keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius, positives)
     if not keep.any():
         hint = f"check the {what} ranges of reference and query, or --pos-radius / --neg-radius"
         raise DatasetError(f"{ds.name}: none of {len(q_items)} {'training' if what == 'train' else what} queries has "
                            f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius="
                            f"{conf.neg_radius:g} {ds.position_unit} (hint: {hint})")
-    return SplitWindows(q_idx[keep], r_idx, q_pos[keep], r_pos, int((~keep).sum()))
+    kept = positives.select(np.flatnonzero(keep), np.arange(len(r_items))) if positives is not None else None
+    return SplitWindows(q_idx[keep], r_idx, q_pos[keep], r_pos, int((~keep).sum()), kept)
 
 
 def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device) -> TripletSource:
@@ -242,7 +225,8 @@ def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, d
     as_long = lambda a: torch.as_tensor(a, dtype=torch.long, device=device)  # noqa: E731
     return TripletSource(as_tensor(ds.query.descriptors, device), as_tensor(ds.reference.descriptors, device),
                          as_long(sw.q_idx), as_long(sw.r_idx), torch.as_tensor(sw.q_pos, device=device),
-                         torch.as_tensor(sw.r_pos, device=device), sw.left_out)
+                         torch.as_tensor(sw.r_pos, device=device), sw.left_out,
+                         positive_keys(sw.positives, len(sw.r_idx)).to(device) if sw.positives is not None else None)
 
 
 def compute_cache(
@@ -287,7 +271,7 @@ def mine_queries(
     for s in range(0, len(rows), block):
         o = None if own is None else own[s : s + block]
         r = rows[s : s + block] if o is None else rows[s : s + block][o]
-        pos_mask, neg_mask = radius_masks(src.q_pos[r], src.r_pos, conf.pos_radius, conf.neg_radius)
+        pos_mask, neg_mask = pair_masks(src.q_pos[r], src.r_pos, conf.pos_radius, conf.neg_radius, src.pos_keys, r)
         m = mine_batch(q_feat[at : at + len(r)], r_feat, pos_mask, neg_mask, conf.n_negatives, conf.n_neg_sample,
                        conf.margin, generator, neg_cache[r.cpu()].to(q_feat.device), o)
         at += len(r)

@@ -1,0 +1,66 @@
+"""What a training query's positives and negatives are: by radius, or from the dataset's explicit positives.
+
+With positions only, a reference window is a positive within ``pos_radius`` of the query and a
+negative beyond ``neg_radius`` (NetVLAD / SeqNet). With explicit positives (:mod:`seqnet.data.positives`),
+the positives are the listed references and the negatives those beyond ``neg_radius`` that are not
+listed (so a place the list knows about is never taken for a negative).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from ..data.positives import Positives
+
+
+def queries_with_pairs(q_pos: np.ndarray, r_pos: np.ndarray, pos_radius: float, neg_radius: float,
+                       positives: Positives | None = None) -> np.ndarray:
+    """``[M]`` bool: whether query position ``q_pos [M, P]`` has at least one positive (a reference
+    position ``r_pos [R, P]`` within ``pos_radius``, or an explicit positive) and one negative."""
+    if positives is not None:
+        keys, has_neg = positive_keys(positives, len(r_pos)), np.zeros(len(q_pos), dtype=bool)
+        for s in range(0, len(q_pos), 4096):  # blocks of queries bound the [B, R] masks
+            rows = torch.arange(s, min(len(q_pos), s + 4096))
+            neg = pair_masks(torch.as_tensor(q_pos[s : s + 4096]), torch.as_tensor(r_pos), pos_radius, neg_radius,
+                             keys, rows)[1]
+            has_neg[s : s + len(rows)] = neg.any(dim=1).numpy()
+        return (positives.counts() > 0) & has_neg
+    tree = cKDTree(np.asarray(r_pos, dtype=np.float64))
+    q = np.asarray(q_pos, dtype=np.float64)
+    n_pos = tree.query_ball_point(q, pos_radius, return_length=True)
+    n_near = tree.query_ball_point(q, neg_radius, return_length=True)
+    return (np.asarray(n_pos) > 0) & (np.asarray(n_near) < len(r_pos))
+
+
+def radius_masks(
+    q_pos: torch.Tensor, r_pos: torch.Tensor, pos_radius: float, neg_radius: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Positive (``dist <= pos_radius``) and negative (``dist > neg_radius``) masks ``[B, R]``.
+
+    ``q_pos [B, P]`` and ``r_pos [R, P]`` should be float64 (UTM coordinates lose metres in float32).
+    """
+    origin = r_pos[:1]
+    dist = torch.cdist(q_pos - origin, r_pos - origin, compute_mode="donot_use_mm_for_euclid_dist")
+    return dist <= pos_radius, dist > neg_radius
+
+
+def positive_keys(positives: Positives, n_refs: int) -> torch.Tensor:
+    """The explicit positive pairs (query row q, reference column r) as sorted keys ``q * n_refs + r``."""
+    rows, cols = positives.pairs()
+    return torch.as_tensor(np.sort(rows.astype(np.int64) * n_refs + cols))
+
+
+def pair_masks(q_pos: torch.Tensor, r_pos: torch.Tensor, pos_radius: float, neg_radius: float,
+               keys: torch.Tensor | None, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Positive and negative masks ``[B, R]`` of the training queries ``rows [B]`` (positions ``q_pos [B, P]``):
+    by radius, or, with explicit positive ``keys`` (:func:`positive_keys`), the listed pairs and the
+    references beyond ``neg_radius`` that are not listed."""
+    pos, neg = radius_masks(q_pos, r_pos, pos_radius, neg_radius)
+    if keys is None:
+        return pos, neg
+    n = r_pos.shape[0]
+    wanted = rows.to(keys.device)[:, None] * n + torch.arange(n, device=keys.device)[None, :]
+    listed = torch.isin(wanted, keys).to(pos.device)
+    return listed, neg & ~listed
