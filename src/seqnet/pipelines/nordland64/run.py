@@ -11,7 +11,7 @@ from ...evaluate import Evaluation, evaluate
 from ...files import write_json_atomic, write_text_atomic
 from ...ownership import locked
 from ...recall import recall_curve
-from ...report import format_markdown, plot_recall_curves
+from ...report import format_markdown, plot_pr_curves, plot_recall_curves
 from ...sequence_descriptors import SeqNet
 from ...utils import logger
 from .config import Nordland64Config
@@ -27,12 +27,14 @@ def evaluate_split(ds: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Co
 def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, seconds: Mapping[str, float],
                  out: Path) -> None:
     """``results.json`` (eval schema + benchmark config and timings), ``val_results.json``,
-    ``results.md`` (Table-I style) and ``recall_at_k.png`` (Recall@K, K = 1..20, test range)."""
+    ``results.md`` (Table-I style, with AUC and R@100P), ``recall_at_k.png`` (Recall@K, K = 1..20,
+    test range) and ``pr_curve.png`` (precision–recall of every method, test range)."""
     ev.results["config"].update(benchmark=conf.to_dict(), timings_s=dict(seconds))
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
     curves = {m: recall_curve(r, ev.truth, 20) for m, r in ev.retrieved.items()}
     plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={conf.seq_len})")
+    plot_pr_curves(ev.results["methods"], out / "pr_curve.png", title=f"Nordland64 test (L={conf.seq_len})")
     first = next(iter(ev.results["methods"].values()))
     (a, b), (c, d) = conf.test_range, conf.val_range
     lines = [
