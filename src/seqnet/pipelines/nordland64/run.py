@@ -15,13 +15,19 @@ from ...report import format_markdown, plot_pr_curves, plot_recall_curves
 from ...sequence_descriptors import SeqNet
 from ...utils import logger
 from .config import Nordland64Config
-from .data import build_dataset
+from .data import SPLITS, build_dataset
 from .models import train_models
+from .speed import variable_speed
+
+
+def split_dataset(ds: Dataset, conf: Nordland64Config, split: str) -> Dataset:
+    """One split, its query re-sampled at ``conf.query_speed`` (seeded per split) when set."""
+    return variable_speed(ds.split(split), conf.query_speed, [conf.speed_seed, SPLITS.index(split)])
 
 
 def evaluate_split(ds: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Config, split: str) -> Evaluation:
     """Every benchmark method on one split (centred L-frame windows; ``hvpr-*`` re-rank with S_1)."""
-    return evaluate(ds.split(split), conf.eval_config(), models)
+    return evaluate(split_dataset(ds, conf, split), conf.eval_config(), models)
 
 
 def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, seconds: Mapping[str, float],
@@ -40,13 +46,23 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
     lines = [
         "# Nordland64 benchmark results", "",
         f"Reference summer, query winter; test places {a}:{b} ({first['queries']} queries with a full "
-        f"L={conf.seq_len} window); radius {conf.radius:g} (frame steps); descriptor `{conf.describe.method}`.", "",
+        f"L={conf.seq_len} window); radius {conf.radius:g} (frame steps); descriptor `{conf.describe.method}`."
+        + speed_note(conf), "",
         format_markdown(ev.results["methods"], ks=(1, 5, 20)),
         f"Validation (places {c}:{d}, used to select epochs and settings), R@1: "
         + ", ".join(f"{m} {r['recall@1']:.3f}" for m, r in val.results["methods"].items()), "",
         "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in seconds.items()), "",
     ]
     write_text_atomic(out / "results.md", "\n".join(lines))
+
+
+def speed_note(conf: Nordland64Config) -> str:
+    """The sentence of ``results.md`` on the query speed (empty at the filmed speed)."""
+    if conf.query_speed is None:
+        return ""
+    a, b = conf.query_speed
+    return (f" Query re-sampled at {a:g}–{b:g}× the reference speed (smooth seeded profile, seed "
+            f"{conf.speed_seed}; frames dropped or repeated, positions kept).")
 
 
 def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:
