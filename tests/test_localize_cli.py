@@ -51,3 +51,72 @@ def test_refusals(synth_dir, tmp_path, capsys):
     assert not (tmp_path / "a.csv").exists()
     with pytest.raises(Exception, match="anchor"):
         LocalizeConfig(anchor="middle")
+
+
+def _steps(loc_args, descriptors):
+    from seqnet.localize import Localizer
+
+    loc = Localizer(*loc_args)
+    return [loc.step(d) for d in descriptors]
+
+
+def test_stream_descriptor_file(synth_dir, synth_dataset, tmp_path, capsys):
+    from seqnet.evaluate import EvalConfig
+    from seqnet.localize import ReferenceMap
+    from seqnet.provenance import sidecar
+
+    q = np.asarray(synth_dataset.query.descriptors[:40])
+    np.save(tmp_path / "q.npy", q)
+    sidecar(tmp_path / "q.npy").write_text(json.dumps(synth_dataset.query.provenance))
+    out = tmp_path / "s.csv"
+    base = ["localize", "--map", str(synth_dir), "--method", "raw+vseqmatch", "--seq-len", "3", "--device", "cpu"]
+    assert cli_main([*base, "--query", str(tmp_path / "q.npy"), "--out", str(out)]) == 0
+    assert "40 frames, 38 with a full window" in capsys.readouterr().out
+    rows = list(csv.DictReader(out.open()))
+    want = _steps((ReferenceMap.from_dataset(synth_dataset), "raw+vseqmatch", EvalConfig(seq_len=3, ks=(20,))), q)
+    assert [int(r["estimate"]) for r in rows] == [e.ref_frame for e in want]
+    assert {r["correct"] for r in rows} == {""} and rows[3]["name"] == ""  # no ground truth, no query names
+    bad = dict(synth_dataset.query.provenance, id="other", settings={"seed": 99})
+    sidecar(tmp_path / "q.npy").write_text(json.dumps(bad))
+    assert cli_main([*base, "--query", str(tmp_path / "q.npy"), "--out", str(out)]) == 2
+    assert "made differently" in capsys.readouterr().err
+    assert cli_main([*base, "--out", str(out)]) == 2 and "--query goes with --map" in capsys.readouterr().err
+    assert cli_main(["localize", "--dataset", str(synth_dir), "--map", str(synth_dir), "--out", str(out)]) == 2
+
+
+def test_stream_images_described_on_the_fly(tmp_path, capsys):
+    from conftest import shared_data
+
+    from seqnet.data.io import save_dataset
+    from seqnet.data.traverse import Dataset, Traverse
+    from seqnet.describe import DescribeConfig, make_describer
+    from seqnet.describe.store import describe_provenance
+    from seqnet.evaluate import EvalConfig
+    from seqnet.localize import ReferenceMap
+
+    data = shared_data("nordland64")
+    names = [f"images-{i:05d}.png" for i in range(2100, 2400, 10)]
+    conf = DescribeConfig(method="pixels", patch=16, size="native")
+    describer = make_describer(conf)
+    ref, _ = describer.describe([data / "summer" / n for n in names])
+    prov = describe_provenance(conf, None, ref)
+    t = Traverse(ref, np.arange(len(names)), names=names, provenance=prov)
+    save_dataset(Dataset(t, t, 1.0), tmp_path / "map")
+    (tmp_path / "q.txt").write_text("".join(f"{data / 'winter' / n}\n" for n in names[5:25]))
+    out = tmp_path / "img.csv"
+    assert cli_main(["localize", "--map", str(tmp_path / "map"), "--query", str(tmp_path / "q.txt"), "--method",
+                     "raw+seqmatch", "--seq-len", "3", "--out", str(out), "--device", "cpu"]) == 0
+    assert "ms per image" in capsys.readouterr().out
+    rows = list(csv.DictReader(out.open()))
+    qd, _ = describer.describe([data / "winter" / n for n in names[5:25]])
+    rmap = ReferenceMap(t, 1.0)
+    want = _steps((rmap, "raw+seqmatch", EvalConfig(seq_len=3, ks=(20,), device="cpu")), qd)
+    assert [int(r["estimate"]) for r in rows] == [e.ref_frame for e in want]
+    assert rows[4]["name"].endswith(names[9]) and rows[4]["estimate_name"] in names
+    summary = json.loads(out.with_suffix(".json").read_text())["summary"]
+    assert summary["describe_ms"]["median"] > 0
+    fitted = dict(prov, settings={**prov["settings"], "dim": 8, "whiten": False})
+    save_dataset(Dataset(t.with_descriptors(ref, fitted), t, 1.0), tmp_path / "map2")
+    assert cli_main(["localize", "--map", str(tmp_path / "map2"), "--query", str(tmp_path / "q.txt"), "--method",
+                     "single", "--out", str(out), "--device", "cpu"]) == 2
+    assert "fitted state" in capsys.readouterr().err

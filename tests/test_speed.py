@@ -80,3 +80,18 @@ def test_tiny_variable_speed_benchmark(tmp_path):
     md = (out / "results.md").read_text()
     assert "0.5–2× the reference speed" in md and "| AUC | R@100P |" in md
     assert (out / "pr_curve.png").stat().st_size > 1000
+
+
+def test_tiny_longer_sequences(tmp_path):
+    from seqnet.pipelines.nordland64 import longer_sequences
+
+    data = shared_data("nordland64")
+    conf = Nordland64Config().replace(train_range=(0, 60), val_range=(70, 110), test_range=(120, 170), pca_dims=16,
+                                      train={"epochs": 1}, train_s1={"epochs": 1}, device="cpu")
+    path = longer_sequences(conf, data, tmp_path / "l", lengths=(3, 8))
+    rec = json.loads(path.read_text())
+    assert list(rec["results"]) == ["val", "test"] and list(rec["results"]["test"]) == ["3", "8"]
+    test = rec["results"]["test"]
+    assert test["8"]["hvpr"]["method"]["rerank_seq_len"] == 8 and test["8"]["s1+graph"]["queries"] == 50 - 7
+    md = (tmp_path / "l" / "longer.md").read_text()
+    assert "| method | L_m=3 | L_m=8 |" in md and "| hvpr-seqnet:s1+graph |" in md and "test 120:170, AUC" in md

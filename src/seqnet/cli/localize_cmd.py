@@ -1,4 +1,5 @@
-"""``seqnet localize``: replay a dataset's query traverse frame by frame (online, causal windows)."""
+"""``seqnet localize``: localise a query stream frame by frame (online, causal windows): a dataset's
+query traverse replayed (``--dataset``), or new descriptors or images against a map (``--map --query``)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,9 @@ import argparse
 import json
 from pathlib import Path
 
+from ..errors import ConfigError
 from ..localize_stage import TRACK_COLUMNS, LocalizeConfig, main
+from ..localize_stream import stream
 from ..methods import valid_methods
 from ..velocity import ANCHORS
 from .common import add_allow_mismatch, add_device, positive_float, positive_int
@@ -16,11 +19,16 @@ _D = LocalizeConfig()
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("localize", help="localise a query stream frame by frame (online; latency, confidence)",
-                       description="Replay the query traverse of a dataset frame by frame through the online "
+                       description="Replay the query traverse of a dataset (--dataset), or stream query "
+                       "descriptors or images against a map (--map, --query), frame by frame through the online "
                        "localiser (causal windows, one answer per frame) and write one CSV row per frame: "
                        + ", ".join(TRACK_COLUMNS) + ". Methods: " + ", ".join(valid_methods())
                        + ", or hvpr-<shortlister>:<frames>+<matcher> (not grh). See docs/online.md.")
-    p.add_argument("--dataset", required=True, help="seqnet dataset directory (see docs/dataset_format.md)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--dataset", help="seqnet dataset directory: replay its query traverse against its reference")
+    src.add_argument("--map", help="the map: for now a seqnet dataset directory, whose reference traverse is used")
+    p.add_argument("--query", metavar="DESCRIPTORS|IMAGES", help="with --map: a descriptor file (.npy, .h5) or a "
+                   "folder / list file of images, described one by one as the map was (see docs/online.md)")
     p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
     p.add_argument("--out", required=True, metavar="TRACK.csv",
                    help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
@@ -45,11 +53,20 @@ def run(args: argparse.Namespace) -> int:
     conf = _D.replace(method=args.method, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
                       device=args.device, allow_mismatch=args.allow_mismatch or None)
-    out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model)
+    if (args.map is None) != (args.query is None):
+        raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
+                          "dataset's own query traverse")
+    if args.map is not None:
+        out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model)
+    else:
+        out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model)
     s = json.loads(Path(out).with_suffix(".json").read_text(encoding="utf-8"))["summary"]
     lat = s.get("latency_ms", {})
-    print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window: R@1 {s['recall@1']:.3f} "
-          f"({s['queries']} with a reference within the radius), AUC {s['auc']:.3f}, R@100P {s['recall@100p']:.3f}")
+    print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")
+    if "recall@1" in s:
+        print(f": R@1 {s['recall@1']:.3f} ({s['queries']} with a reference within the radius), "
+              f"AUC {s['auc']:.3f}, R@100P {s['recall@100p']:.3f}", end="")
+    print("" if "describe_ms" not in s else f"; describing {s['describe_ms']['median']:.1f} ms per image (median)")
     print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
           f"p95 {lat.get('p95', 0):.2f} ms; track in {out}")
     return 0
