@@ -67,13 +67,22 @@ def test_config_and_flag(tmp_path, capsys):
     assert "expected A:B" in capsys.readouterr().err
 
 
-def test_tiny_variable_speed_benchmark(tmp_path):
+TINY = ["--train-range", "0:80", "--val-range", "90:130", "--test-range", "140:220", "--epochs", "1", "--pca-dims",
+        "32"]
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """A tiny variable-speed benchmark run (its descriptor and model caches serve the longer-sequence test)."""
     data = shared_data("nordland64")
-    out = tmp_path / "b"
-    args = ["benchmark", "nordland64", "--data", str(data), "--out", str(out), "--train-range", "0:80",
-            "--val-range", "90:130", "--test-range", "140:220", "--epochs", "1", "--pca-dims", "32",
-            "--query-speed", "0.5:2", "--device", "cpu", "-q"]
-    assert cli_main(args) == 0
+    out = tmp_path_factory.mktemp("n64") / "b"
+    assert cli_main(["benchmark", "nordland64", "--data", str(data), "--out", str(out), *TINY, "--query-speed",
+                     "0.5:2", "--device", "cpu", "-q"]) == 0
+    return data, out
+
+
+def test_tiny_variable_speed_benchmark(tiny_run):
+    _, out = tiny_run
     res = json.loads((out / "results.json").read_text())
     assert set(VARIABLE_SPEED_METHODS) <= set(res["methods"]) and res["config"]["benchmark"]["query_speed"] == [0.5, 2]
     assert res["methods"]["raw+seqmatch"]["queries"] != 76  # not the 80 places of the filmed speed
@@ -82,16 +91,18 @@ def test_tiny_variable_speed_benchmark(tmp_path):
     assert (out / "pr_curve.png").stat().st_size > 1000
 
 
-def test_tiny_longer_sequences(tmp_path):
+def test_tiny_longer_sequences(tiny_run):
     from seqnet.pipelines.nordland64 import longer_sequences
 
-    data = shared_data("nordland64")
-    conf = Nordland64Config().replace(train_range=(0, 60), val_range=(70, 110), test_range=(120, 170), pca_dims=16,
+    data, out = tiny_run
+    conf = Nordland64Config().replace(train_range=(0, 80), val_range=(90, 130), test_range=(140, 220), pca_dims=32,
                                       train={"epochs": 1}, train_s1={"epochs": 1}, device="cpu")
-    path = longer_sequences(conf, data, tmp_path / "l", lengths=(3, 8))
+    models = (out / "models" / "seqnet.pt").stat().st_mtime
+    path = longer_sequences(conf, data, out, lengths=(3, 8), methods=("hvpr", "s1+graph"))
+    assert (out / "models" / "seqnet.pt").stat().st_mtime == models  # the benchmark's models, reused
     rec = json.loads(path.read_text())
     assert list(rec["results"]) == ["val", "test"] and list(rec["results"]["test"]) == ["3", "8"]
     test = rec["results"]["test"]
-    assert test["8"]["hvpr"]["method"]["rerank_seq_len"] == 8 and test["8"]["s1+graph"]["queries"] == 50 - 7
-    md = (tmp_path / "l" / "longer.md").read_text()
-    assert "| method | L_m=3 | L_m=8 |" in md and "| hvpr-seqnet:s1+graph |" in md and "test 120:170, AUC" in md
+    assert test["8"]["hvpr"]["method"]["rerank_seq_len"] == 8 and test["8"]["s1+graph"]["queries"] == 80 - 7
+    md = (out / "longer.md").read_text()
+    assert "| method | L_m=3 | L_m=8 |" in md and "| s1+graph |" in md and "test 140:220, AUC" in md
