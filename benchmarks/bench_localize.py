@@ -44,11 +44,19 @@ def stats(ms: np.ndarray) -> dict[str, float]:
 
 
 def time_method(rmap: ReferenceMap, method: str, queries: np.ndarray, warmup: int) -> dict[str, float]:
+    """Wall-clock latency per step (``Estimate.latency_ms``) and, separately, the CPU time of the
+    calling thread per step (with one torch thread all the work is on it: what the step costs on a
+    core of its own, whatever else the machine runs)."""
     t0 = time.perf_counter()
     loc = Localizer(rmap, method, EvalConfig(seq_len=5, device="cpu"))
     setup = time.perf_counter() - t0
-    lat = np.array([loc.step(q).latency_ms for q in queries])[warmup:]
-    return {**stats(lat), "setup_s": round(setup, 1)}
+    lat, cpu = [], []
+    for q in queries:
+        c0 = time.thread_time()
+        lat.append(loc.step(q).latency_ms)
+        cpu.append((time.thread_time() - c0) * 1e3)
+    return {**stats(np.array(lat[warmup:])), "cpu_median": round(float(np.median(cpu[warmup:])), 2),
+            "setup_s": round(setup, 1)}
 
 
 def breakdown(rmap: ReferenceMap, queries: np.ndarray, steps: int) -> dict[str, float]:

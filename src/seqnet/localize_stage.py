@@ -185,5 +185,5 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
     write_track(out, track_rows(est, ds.query.names, ds.reference.names, correct), record)
-    logger.info("localize: %s", json.dumps(summary))
+    logger.debug("localize: %s", json.dumps(summary))
     return out

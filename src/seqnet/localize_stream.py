@@ -107,5 +107,5 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
               "provenance": {"map": ref_map.reference.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
     write_track(out, track_rows(est, names, ref_map.reference.names, None), record)
-    logger.info("localize: %d frames streamed", len(est))
+    logger.debug("localize: %d frames streamed", len(est))
     return out

@@ -39,8 +39,10 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
     curves = {m: recall_curve(r, ev.truth, 20) for m, r in ev.retrieved.items()}
-    plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={conf.seq_len})")
-    plot_pr_curves(ev.results["methods"], out / "pr_curve.png", title=f"Nordland64 test (L={conf.seq_len})")
+    speed = "" if conf.query_speed is None else f", query at {conf.query_speed[0]:g}–{conf.query_speed[1]:g}× speed"
+    title = f"Nordland64 test (L={conf.seq_len}{speed})"
+    plot_recall_curves(curves, out / "recall_at_k.png", title=title)
+    plot_pr_curves(ev.results["methods"], out / "pr_curve.png", title=title)
     first = next(iter(ev.results["methods"].values()))
     (a, b), (c, d) = conf.test_range, conf.val_range
     lines = [
