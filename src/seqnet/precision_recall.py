@@ -62,3 +62,12 @@ def pr_summary(precision: np.ndarray, recall: np.ndarray) -> dict[str, float]:
     delta = np.diff(np.r_[0.0, recall])
     perfect = recall[precision >= 1.0]
     return {"auc": float(np.sum(precision * delta)), "recall@100p": float(perfect.max()) if perfect.size else 0.0}
+
+
+def curve_points(precision: np.ndarray, recall: np.ndarray, max_points: int = 200) -> dict[str, list[float]]:
+    """The PR curve as at most ``max_points`` evenly spaced points of it (first and last kept), rounded to
+    4 decimals, for ``results.json`` and plots: ``{"precision": [...], "recall": [...]}``."""
+    n = len(recall)
+    keep = np.unique(np.linspace(0, n - 1, min(n, max_points)).round().astype(np.int64)) if n else np.zeros(0, int)
+    return {"precision": [round(float(p), 4) for p in np.asarray(precision)[keep]],
+            "recall": [round(float(r), 4) for r in np.asarray(recall)[keep]]}

@@ -1,4 +1,4 @@
-"""Reports: comparison tables (plain text and Markdown) and Recall@K plots."""
+"""Reports: comparison tables (plain text and Markdown), Recall@K and precision–recall plots."""
 
 from __future__ import annotations
 
@@ -19,13 +19,16 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int]) -> tuple[list[str], list[list[str]]]:
-    """Header and rows: method, R@K for each K, queries, total time (ms)."""
-    header = ["method", *(f"R@{k}" for k in ks), "queries", "time ms"]
+def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int],
+                 pr: bool = False) -> tuple[list[str], list[list[str]]]:
+    """Header and rows: method, R@K for each K, (with ``pr``: AUC and R@100P,) queries, total time (ms)."""
+    extra = [("AUC", "auc"), ("R@100P", "recall@100p")] if pr else []
+    header = ["method", *(f"R@{k}" for k in ks), *(h for h, _ in extra), "queries", "time ms"]
     rows = []
     for name, r in methods.items():
         timing = r.get("timing_ms", {})
-        rows.append([name, *(_fmt(r.get(f"recall@{k}", float("nan"))) for k in ks), str(r.get("queries", "")),
+        rows.append([name, *(_fmt(r.get(f"recall@{k}", float("nan"))) for k in ks),
+                     *(_fmt(float(r.get(key, float("nan")))) for _, key in extra), str(r.get("queries", "")),
                      f"{timing.get('total', float('nan')):.1f}"])
     return header, rows
 
@@ -57,8 +60,8 @@ def format_table(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (
 
 
 def format_markdown(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 20)) -> str:
-    """A Markdown table of results, with per-stage timings."""
-    header, rows = results_rows(methods, ks)
+    """A Markdown table of results: R@K, AUC and R@100P (precision–recall), queries, per-stage timings."""
+    header, rows = results_rows(methods, ks, pr=True)
     stages = sorted({s for r in methods.values() for s in r.get("timing_ms", {}) if s != "total"})
     header = [*header, *(f"{s} ms" for s in stages)]
     for row, r in zip(rows, methods.values(), strict=True):
@@ -86,6 +89,29 @@ def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
+    if title:
+        ax.set_title(title)
+    return save_figure(fig, path)
+
+
+def plot_pr_curves(methods: Mapping[str, Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
+    """Save the precision–recall curves of results entries (``pr_curve``: ``{"precision", "recall"}``,
+    and ``auc`` for the legend) as a PNG, one line per method; entries without a curve are left out."""
+    import matplotlib
+
+    tab20 = matplotlib.colormaps["tab20"].colors
+    colours = [*tab20[::2], *tab20[1::2]]
+    fig, ax = new_figure(6, 4.5)
+    for i, (name, r) in enumerate((n, r) for n, r in methods.items() if r.get("pr_curve")):
+        c = r["pr_curve"]
+        ax.plot(c["recall"], c["precision"], label=f"{name} (AUC {float(r.get('auc', float('nan'))):.2f})",
+                color=colours[i % 20], linestyle="-" if i % 20 < 10 else "--")
+    ax.set_xlabel("recall (top-1 correct, accepted by confidence)")
+    ax.set_ylabel("precision")
+    ax.set_xlim(0, 1.02)
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower left")
     if title:
         ax.set_title(title)
     return save_figure(fig, path)

@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import ConfigError
 from .files import write_text_atomic
-from .precision_recall import pr_summary, precision_recall, ratio_confidence
+from .precision_recall import curve_points, pr_summary, precision_recall, ratio_confidence
 from .recall import GroundTruth, recall
 
 PER_QUERY_FORMATS = (".csv", ".jsonl")
@@ -22,14 +22,16 @@ PER_QUERY_FORMATS = (".csv", ".jsonl")
 
 def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, ks: Sequence[int],
                    extra_radii: Sequence[float] = ()) -> tuple[dict[str, Any], np.ndarray]:
-    """The results entry of one method (Recall@K, queries, AUC, R@100P, extra radii) and its
-    ``[M]`` per-query confidence (see :mod:`seqnet.precision_recall`)."""
+    """The results entry of one method (Recall@K, queries, AUC, R@100P, the PR curve ``pr_curve``
+    (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (see
+    :mod:`seqnet.precision_recall`)."""
     rec = recall(ranked, truth, ks)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"])
     confidence = ratio_confidence(scores, ranked, truth.r_pos, truth.radius)
     correct = truth.hits(ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
-    entry.update(pr_summary(*precision_recall(confidence, correct, truth.has_positive())[:2]))
+    precision, rec, _ = precision_recall(confidence, correct, truth.has_positive())
+    entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec))
     if extra_radii:
         entry["radii"] = {str(r): recall(ranked, GroundTruth(truth.q_pos, truth.r_pos, r), ks) for r in extra_radii}
     return entry, confidence

@@ -39,6 +39,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"PCA size before training (0: none; default {_D.pca_dims})")
     n.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     n.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
+    n.add_argument("--query-speed", type=speed_range, metavar="A:B",
+                   help="re-sample the winter (query) traverse of the val and test ranges at A to B times the "
+                        "reference speed (e.g. 0.5:2; frames dropped or repeated, positions kept; seeded) and also "
+                        "evaluate the velocity-robust methods (default: as filmed)")
     add_device(n)
     n.set_defaults(func=run_nordland64)
 
@@ -55,7 +59,18 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
     return _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
                       describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
                       pca_dims=args.pca_dims, train=train,
-                      train_s1={"epochs": args.epochs, "seed": args.seed})
+                      train_s1={"epochs": args.epochs, "seed": args.seed}, query_speed=args.query_speed)
+
+
+def speed_range(text: str) -> tuple[float, float]:
+    """argparse type: ``A:B`` with ``0 < A <= B`` (query speed relative to the reference)."""
+    try:
+        a, b = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected A:B (e.g. 0.5:2), got {text!r}") from None
+    if not 0 < a <= b < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected 0 < A <= B, got {text!r}")
+    return a, b
 
 
 def run_nordland64(args: argparse.Namespace) -> int:

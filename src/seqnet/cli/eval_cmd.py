@@ -11,7 +11,7 @@ from ..distances import KNN_BACKENDS
 from ..evaluate import EvalConfig, main
 from ..files import write_json_atomic
 from ..methods import DEFAULT_METHODS, valid_methods
-from ..report import format_table
+from ..report import format_table, plot_pr_curves
 from ..windows import WINDOW_MODES
 from .common import add_allow_mismatch, add_device, int_list, parse_list, positive_float, positive_int
 
@@ -46,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
     p.add_argument("--per-query", metavar="FILE", help="write one row per method and query (top-5 references, "
                    "scores, correct or not, confidence) to FILE (.csv or .jsonl)")
-    p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) here")
+    p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) and "
+                   "pr_curve.png (precision-recall of every method) here")
     p.add_argument("--json", metavar="FILE", help="also write the results JSON to FILE")
     add_allow_mismatch(p)
     add_device(p)
@@ -63,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
         path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,
                     args.per_query)
         res = json.loads(Path(path).read_text(encoding="utf-8"))
+        if args.out:
+            plot_pr_curves(res["methods"], Path(args.out) / "pr_curve.png", title=f"{res['config']['dataset']}")
     cfg = res["config"]
     print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']})")
     print(format_table(res["methods"], cfg["ks"]))

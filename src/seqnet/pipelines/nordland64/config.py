@@ -10,6 +10,7 @@ from ...errors import ConfigError
 from ...evaluate import EvalConfig
 from ...methods import parse_method
 from ...train import TrainConfig
+from .speed import check_speed
 
 # 16x16 patches: learned S_L / S_1 clearly better on val than SeqSLAM's 8x8 (raw single worse)
 DESCRIBE = DescribeConfig(method="pixels", patch=16, size="native")
@@ -18,6 +19,9 @@ TRAIN = TrainConfig(seq_len=5, w=5, epochs=10, optimizer="adam", lr=1e-4, weight
                     batch_size=16, n_negatives=10, n_neg_sample=1000, seed=0)
 METHODS = ("single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch", "delta+seqmatch", "hvpr",
            "hvpr-single", "hvpr-delta")
+# evaluated as well when the query is re-sampled at variable speed (query_speed)
+VARIABLE_SPEED_METHODS = ("raw+vseqmatch", "s1+vseqmatch", "s1+graph", "hvpr-seqnet:s1+vseqmatch",
+                          "hvpr-seqnet:s1+graph")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,7 +39,11 @@ class Nordland64Config(Config):
         symmetric: train winter → summer and summer → winter; flip: add the mirrored train images.
         seq_len: L of S_L, the evaluation windows and SeqMatch.
         train / train_s1: training of S_L and S_1 (epoch chosen on val).
-        methods, top_k, ks: what is evaluated; device: torch device.
+        methods, top_k, ks: what is evaluated (with ``query_speed`` also
+            :data:`VARIABLE_SPEED_METHODS`); device: torch device.
+        query_speed: ``(A, B)``: evaluate on the winter traverse of the val and test ranges re-sampled
+            at A to B times the reference speed (:mod:`.speed`; training unchanged); None: as filmed.
+        speed_seed: seed of the speed profile (the val and test ranges get their own streams).
     """
 
     names_file: str = "nordland_clean_imageNames.txt"
@@ -57,6 +65,8 @@ class Nordland64Config(Config):
     top_k: int = 20
     ks: tuple[int, ...] = (1, 5, 10, 20)
     device: str = "auto"
+    query_speed: tuple[float, float] | None = None
+    speed_seed: int = 0
 
     def __post_init__(self) -> None:
         for key in ("train_range", "val_range", "test_range"):
@@ -75,8 +85,17 @@ class Nordland64Config(Config):
         self._set("methods", tuple(parse_method(m).name for m in self.methods))
         self._set("top_k", check_int("top_k", self.top_k, 1))
         self._set("ks", check_ints("ks", self.ks, 1))
+        if self.query_speed is not None:
+            self._set("query_speed", check_speed(self.query_speed))
+        self._set("speed_seed", check_int("speed_seed", self.speed_seed, 0))
+
+    @property
+    def eval_methods(self) -> tuple[str, ...]:
+        """The methods evaluated: ``methods``, and with ``query_speed`` the velocity-robust ones."""
+        extra = VARIABLE_SPEED_METHODS if self.query_speed is not None else ()
+        return (*self.methods, *(m for m in extra if m not in self.methods))
 
     def eval_config(self) -> EvalConfig:
         """The evaluation settings of the val and test ranges."""
-        return EvalConfig(methods=self.methods, seq_len=self.seq_len, ks=self.ks, top_k=self.top_k,
+        return EvalConfig(methods=self.eval_methods, seq_len=self.seq_len, ks=self.ks, top_k=self.top_k,
                           device=self.device)

@@ -11,40 +11,60 @@ from ...evaluate import Evaluation, evaluate
 from ...files import write_json_atomic, write_text_atomic
 from ...ownership import locked
 from ...recall import recall_curve
-from ...report import format_markdown, plot_recall_curves
+from ...report import format_markdown, plot_pr_curves, plot_recall_curves
 from ...sequence_descriptors import SeqNet
 from ...utils import logger
 from .config import Nordland64Config
-from .data import build_dataset
+from .data import SPLITS, build_dataset
 from .models import train_models
+from .speed import variable_speed
+
+
+def split_dataset(ds: Dataset, conf: Nordland64Config, split: str) -> Dataset:
+    """One split, its query re-sampled at ``conf.query_speed`` (seeded per split) when set."""
+    return variable_speed(ds.split(split), conf.query_speed, [conf.speed_seed, SPLITS.index(split)])
 
 
 def evaluate_split(ds: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Config, split: str) -> Evaluation:
     """Every benchmark method on one split (centred L-frame windows; ``hvpr-*`` re-rank with S_1)."""
-    return evaluate(ds.split(split), conf.eval_config(), models)
+    return evaluate(split_dataset(ds, conf, split), conf.eval_config(), models)
 
 
 def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, seconds: Mapping[str, float],
                  out: Path) -> None:
     """``results.json`` (eval schema + benchmark config and timings), ``val_results.json``,
-    ``results.md`` (Table-I style) and ``recall_at_k.png`` (Recall@K, K = 1..20, test range)."""
+    ``results.md`` (Table-I style, with AUC and R@100P), ``recall_at_k.png`` (Recall@K, K = 1..20,
+    test range) and ``pr_curve.png`` (precision–recall of every method, test range)."""
     ev.results["config"].update(benchmark=conf.to_dict(), timings_s=dict(seconds))
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
     curves = {m: recall_curve(r, ev.truth, 20) for m, r in ev.retrieved.items()}
-    plot_recall_curves(curves, out / "recall_at_k.png", title=f"Nordland64 test (L={conf.seq_len})")
+    speed = "" if conf.query_speed is None else f", query at {conf.query_speed[0]:g}–{conf.query_speed[1]:g}× speed"
+    title = f"Nordland64 test (L={conf.seq_len}{speed})"
+    plot_recall_curves(curves, out / "recall_at_k.png", title=title)
+    plot_pr_curves(ev.results["methods"], out / "pr_curve.png", title=title)
     first = next(iter(ev.results["methods"].values()))
     (a, b), (c, d) = conf.test_range, conf.val_range
     lines = [
         "# Nordland64 benchmark results", "",
         f"Reference summer, query winter; test places {a}:{b} ({first['queries']} queries with a full "
-        f"L={conf.seq_len} window); radius {conf.radius:g} (frame steps); descriptor `{conf.describe.method}`.", "",
+        f"L={conf.seq_len} window); radius {conf.radius:g} (frame steps); descriptor `{conf.describe.method}`."
+        + speed_note(conf), "",
         format_markdown(ev.results["methods"], ks=(1, 5, 20)),
         f"Validation (places {c}:{d}, used to select epochs and settings), R@1: "
         + ", ".join(f"{m} {r['recall@1']:.3f}" for m, r in val.results["methods"].items()), "",
         "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in seconds.items()), "",
     ]
     write_text_atomic(out / "results.md", "\n".join(lines))
+
+
+def speed_note(conf: Nordland64Config) -> str:
+    """The sentence of ``results.md`` on the query speed (empty at the filmed speed)."""
+    if conf.query_speed is None:
+        return ""
+    a, b = conf.query_speed
+    return (f" Query re-sampled at {a:g}–{b:g}× the reference speed (smooth seeded profile, seed "
+            f"{conf.speed_seed}; frames dropped or repeated, positions kept).")
 
 
 def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:

@@ -1,0 +1,124 @@
+"""Per-frame latency of the online Localizer on a synthetic map (default 14 000 frames × D = 4096).
+
+Usage::
+
+    python benchmarks/bench_localize.py [--frames 14000] [--dim 4096] [--out-dims 4096] [--w 5]
+        [--methods hvpr,s1+seqmatch,raw+seqmatch] [--steps 300] [--threads 2] [--json FILE]
+
+The map is random unit vectors; the query stream is map frames plus noise, driven along the route,
+so every step does the real work (one S_1 frame descriptor, one S_L window descriptor, GEMVs against
+the map, top-k, re-ranking). The models are untrained SeqNets of the given sizes (S_L: L = 5, kernel
+``w``; S_1: D → ``out-dims``): latency does not depend on the weights. The first ``--warmup`` steps
+are not timed. Prints mean / median / p95 per method and the load average before and after, and
+with ``--breakdown`` the time of each part of an HVPR step (S_1, S_L, shortlist GEMV, re-rank).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+import torch
+
+from seqnet.data.traverse import Traverse
+from seqnet.evaluate import EvalConfig
+from seqnet.localize import Localizer, ReferenceMap
+from seqnet.online import distance_row
+from seqnet.sequence_descriptors import SeqNet
+
+
+def synthetic_map(n: int, dim: int, seed: int = 0) -> np.ndarray:
+    """``[n, dim]`` float32 unit vectors, neighbours correlated (a route)."""
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((n, dim), dtype=np.float32)
+    x[1:] += 0.5 * x[:-1]
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def stats(ms: np.ndarray) -> dict[str, float]:
+    return {"mean": round(float(ms.mean()), 2), "median": round(float(np.median(ms)), 2),
+            "p95": round(float(np.percentile(ms, 95)), 2), "max": round(float(ms.max()), 2)}
+
+
+def time_method(rmap: ReferenceMap, method: str, queries: np.ndarray, warmup: int) -> dict[str, float]:
+    """Wall-clock latency per step (``Estimate.latency_ms``) and, separately, the CPU time of the
+    calling thread per step (with one torch thread all the work is on it: what the step costs on a
+    core of its own, whatever else the machine runs)."""
+    t0 = time.perf_counter()
+    loc = Localizer(rmap, method, EvalConfig(seq_len=5, device="cpu"))
+    setup = time.perf_counter() - t0
+    lat, cpu = [], []
+    for q in queries:
+        c0 = time.thread_time()
+        lat.append(loc.step(q).latency_ms)
+        cpu.append((time.thread_time() - c0) * 1e3)
+    return {**stats(np.array(lat[warmup:])), "cpu_median": round(float(np.median(cpu[warmup:])), 2),
+            "setup_s": round(setup, 1)}
+
+
+def breakdown(rmap: ReferenceMap, queries: np.ndarray, steps: int) -> dict[str, float]:
+    """Median ms of each part of an HVPR step, timed apart."""
+    loc = Localizer(rmap, "hvpr", EvalConfig(seq_len=5, device="cpu"))
+    for q in queries[:10]:
+        loc.step(q)
+    s1, sl = rmap.models["s1"], rmap.models["seqnet"]
+    win = torch.from_numpy(queries[:5])[None]
+    parts = {"S_1 frame descriptor": lambda: s1(win[:, :1]),
+             "S_L window descriptor": lambda: sl(win),
+             "shortlist distances (GEMV)": lambda: distance_row(loc.r_items[0], loc.r_items, loc.r_items_sq),
+             "HVPR step (all)": lambda: loc.step(queries[0])}
+    out = {}
+    with torch.no_grad():
+        for name, fn in parts.items():
+            ts = []
+            for _ in range(steps):
+                t0 = time.perf_counter()
+                fn()
+                ts.append((time.perf_counter() - t0) * 1e3)
+            out[name] = round(float(np.median(ts)), 2)
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--frames", type=int, default=14000)
+    p.add_argument("--dim", type=int, default=4096)
+    p.add_argument("--out-dims", type=int, default=4096)
+    p.add_argument("--w", type=int, default=5)
+    p.add_argument("--methods", default="hvpr,s1+seqmatch,raw+seqmatch")
+    p.add_argument("--steps", type=int, default=300)
+    p.add_argument("--warmup", type=int, default=20)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--breakdown", action="store_true")
+    p.add_argument("--json")
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    ref = synthetic_map(args.frames, args.dim)
+    torch.manual_seed(0)
+    models = {"seqnet": SeqNet(args.dim, args.out_dims, 5, args.w).eval(),
+              "s1": SeqNet(args.dim, args.out_dims, 1, 1).eval()}
+    rmap = ReferenceMap(Traverse(ref, np.arange(args.frames, dtype=np.float64)), 1.0, models)
+    rng = np.random.default_rng(1)
+    start = int(rng.integers(0, args.frames - args.steps - args.warmup))
+    queries = ref[start : start + args.steps + args.warmup] + 0.02 * rng.standard_normal(
+        (args.steps + args.warmup, args.dim), dtype=np.float32)
+    res = {"map": [args.frames, args.dim], "out_dims": args.out_dims, "w": args.w, "threads": args.threads,
+           "load_before": os.getloadavg(), "methods": {}}
+    for m in args.methods.split(","):
+        res["methods"][m] = time_method(rmap, m, queries, args.warmup)
+        print(m, res["methods"][m], flush=True)
+    if args.breakdown:
+        res["breakdown_ms"] = breakdown(rmap, queries, 50)
+        print(res["breakdown_ms"])
+    res["load_after"] = os.getloadavg()
+    print("load average before", res["load_before"], "after", res["load_after"])
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(res, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

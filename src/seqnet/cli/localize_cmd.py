@@ -1,0 +1,72 @@
+"""``seqnet localize``: localise a query stream frame by frame (online, causal windows): a dataset's
+query traverse replayed (``--dataset``), or new descriptors or images against a map (``--map --query``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ..errors import ConfigError
+from ..localize_stage import TRACK_COLUMNS, LocalizeConfig, main
+from ..localize_stream import stream
+from ..methods import valid_methods
+from ..velocity import ANCHORS
+from .common import add_allow_mismatch, add_device, positive_float, positive_int
+
+_D = LocalizeConfig()
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("localize", help="localise a query stream frame by frame (online; latency, confidence)",
+                       description="Replay the query traverse of a dataset (--dataset), or stream query "
+                       "descriptors or images against a map (--map, --query), frame by frame through the online "
+                       "localiser (causal windows, one answer per frame) and write one CSV row per frame: "
+                       + ", ".join(TRACK_COLUMNS) + ". Methods: " + ", ".join(valid_methods())
+                       + ", or hvpr-<shortlister>:<frames>+<matcher> (not grh). See docs/online.md.")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--dataset", help="seqnet dataset directory: replay its query traverse against its reference")
+    src.add_argument("--map", help="the map: for now a seqnet dataset directory, whose reference traverse is used")
+    p.add_argument("--query", metavar="DESCRIPTORS|IMAGES", help="with --map: a descriptor file (.npy, .h5) or a "
+                   "folder / list file of images, described one by one as the map was (see docs/online.md)")
+    p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
+    p.add_argument("--out", required=True, metavar="TRACK.csv",
+                   help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
+    p.add_argument("--model", action="append", default=[], metavar="CKPT",
+                   help="trained model checkpoint (S_L → 'seqnet', S_1 → 's1'); repeatable")
+    p.add_argument("--shortlist-model", metavar="CKPT", help="S_L checkpoint (seqnet, HVPR shortlists)")
+    p.add_argument("--rerank-model", metavar="CKPT", help="S_1 checkpoint (s1, s1+<matcher>, HVPR re-ranking)")
+    p.add_argument("--seq-len", type=positive_int, help="window length L (default: the S_L model's, else 5)")
+    p.add_argument("--rerank-seq-len", type=positive_int, help="length L_m of the sequence matchers (default: L)")
+    p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
+    p.add_argument("--k", type=positive_int, help=f"references ranked per frame, for the confidence (default {_D.k})")
+    p.add_argument("--anchor", choices=ANCHORS, help=f"pivot step of vseqmatch / graph (default {_D.anchor}, as "
+                   "seqnet eval; 'end' pins the newest frame)")
+    p.add_argument("--split", help="split to replay: train, val, test or all (default: test when defined, else all)")
+    p.add_argument("--radius", type=positive_float, help="localisation radius (default: the dataset's)")
+    add_allow_mismatch(p)
+    add_device(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    conf = _D.replace(method=args.method, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
+                      top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
+                      device=args.device, allow_mismatch=args.allow_mismatch or None)
+    if (args.map is None) != (args.query is None):
+        raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
+                          "dataset's own query traverse")
+    if args.map is not None:
+        out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model)
+    else:
+        out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model)
+    s = json.loads(Path(out).with_suffix(".json").read_text(encoding="utf-8"))["summary"]
+    lat = s.get("latency_ms", {})
+    print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")
+    if "recall@1" in s:
+        print(f": R@1 {s['recall@1']:.3f} ({s['queries']} with a reference within the radius), "
+              f"AUC {s['auc']:.3f}, R@100P {s['recall@100p']:.3f}", end="")
+    print("" if "describe_ms" not in s else f"; describing {s['describe_ms']['median']:.1f} ms per image (median)")
+    print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
+          f"p95 {lat.get('p95', 0):.2f} ms; track in {out}")
+    return 0
