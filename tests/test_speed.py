@@ -41,11 +41,11 @@ def test_profile_is_smooth_bounded_and_seeded():
 
 
 def test_resample_keeps_frames_positions_and_bounds():
-    desc = np.arange(60, dtype=np.float32)[:, None] * np.ones((1, 3), np.float32)
+    desc = (np.arange(60, dtype=np.float32)[:, None] + 1) * np.ones((1, 3), np.float32)  # row i holds i + 1
     bounds = np.array([[0, 20]] * 20 + [[20, 60]] * 40)
     t = Traverse(desc, np.arange(60) / 10.0, names=[f"f{i}" for i in range(60)], seq_bounds=bounds)
     r = resample_traverse(t, (0.5, 2.0), 3)
-    src = r.descriptors[:, 0].astype(int)
+    src = r.descriptors[:, 0].astype(int) - 1
     np.testing.assert_allclose(r.positions[:, 0], src / 10.0)
     assert r.names == [f"f{i}" for i in src]
     first = r.seq_bounds[0, 1]

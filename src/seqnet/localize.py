@@ -38,7 +38,8 @@ from .config import check_choice
 from .data.traverse import Dataset, Traverse
 from .distances import sq_norms
 from .errors import ConfigError
-from .evaluate import EvalConfig, check_inputs
+from .eval_checks import check_inputs
+from .evaluate import EvalConfig
 from .features import Side
 from .methods import FRAME_FEATURES, parse_method
 from .online import WINDOW_MATCHERS, Ring, distance_row
@@ -127,8 +128,8 @@ class Localizer:
         if max(self.conf.length, self.conf.match_len) > len(t):
             raise ConfigError(f"seq_len={max(self.conf.length, self.conf.match_len)} is longer than the map's "
                               f"reference traverse ({len(t)} frames); use a shorter --seq-len")
-        check_inputs(Dataset(t, t, ref_map.radius, name=getattr(ref_map, "name", "map")), self.conf, [self.method],
-                     self.models)
+        check_inputs(Dataset(t, t, ref_map.radius, name=getattr(ref_map, "name", "map")), [self.method],
+                     self.models, self.conf.length, self.conf.match_len, self.conf.allow_mismatch)
         self.device = get_device(conf.device)
         for model in self.models.values():
             model.to(self.device).eval()
