@@ -12,10 +12,11 @@ from ...files import write_json_atomic, write_text_atomic
 from ...ownership import locked
 from ...recall import recall_curve
 from ...report import format_markdown, plot_recall_curves
+from ...report_html import ReportConfig, write_html_report
 from ...sequence_descriptors import SeqNet
 from ...utils import logger
 from .config import Nordland64Config
-from .data import build_dataset
+from .data import SEASONS, build_dataset
 from .models import train_models
 
 
@@ -47,9 +48,16 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
     write_text_atomic(out / "results.md", "\n".join(lines))
 
 
+def report_config(data: str | Path, title: str) -> ReportConfig:
+    """The HTML report settings of a nordland64 run: the gallery reads the winter (query) and summer
+    (reference) images of the data folder ``data``."""
+    return ReportConfig(title=title, query_images=str(Path(data) / SEASONS[1]), ref_images=str(Path(data) / SEASONS[0]))
+
+
 def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:
     """Run the benchmark (hloc style) on the nordland64 folder ``data``; writes everything to ``out``
-    (descriptor cache, models, ``results.json``, ``results.md``, ``recall_at_k.png``, ``config.json``)
+    (descriptor cache, models, ``results.json``, ``results.md``, ``recall_at_k.png``, ``report.html``,
+    ``config.json``)
     and returns the path of ``results.json``."""
     out = Path(out)
     with locked(out):
@@ -67,6 +75,9 @@ def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:
         seconds["evaluation"] = round(time.perf_counter() - t1, 2)
         seconds["total"] = round(time.perf_counter() - t0, 2)
         write_report(ev, val, conf, seconds, out)
+        write_html_report(ev, ds.split("test"), out / "report.html",
+                          report_config(data, f"Nordland64 benchmark, test places {conf.test_range[0]}:"
+                                              f"{conf.test_range[1]}"))
         write_json_atomic(out / "config.json", {**conf.to_dict(), "data": str(data)})
         logger.info("nordland64 done in %.0f s: %s", seconds["total"], out / "results.md")
     return out / "results.json"
