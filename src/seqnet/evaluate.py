@@ -64,7 +64,7 @@ class EvalConfig(Config):
     extra_radii: tuple[float, ...] = ()
     ks: tuple[int, ...] = (1, 5, 10, 20, 100)
     top_k: int = 20
-    fuse_weight: float = 1.0
+    fuse_weight: float = 0.5
     fuse_top_k: int | None = None
     split: str | None = None
     backend: str = "torch"

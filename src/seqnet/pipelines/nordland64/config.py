@@ -18,8 +18,8 @@ TRAIN = TrainConfig(seq_len=5, w=5, epochs=10, optimizer="adam", lr=1e-4, weight
                     batch_size=16, n_negatives=10, n_neg_sample=1000, seed=0)
 METHODS = ("single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch", "delta+seqmatch", "hvpr",
            "hvpr-single", "hvpr-delta", "hvpr-fused")
-# hvpr-fused: score = SeqMatch/L_m + λ·d(S_L) over the S_L top 50 (λ and K chosen on val, 3 seeds)
-FUSE_WEIGHT, FUSE_TOP_K = 0.25, 50
+# hvpr-fused: score = SeqMatch/L_m + λ·d(S_L) over the S_L top 100 (λ, K: best mean val R@1 of 3 seeds)
+FUSE_WEIGHT, FUSE_TOP_K = 0.5, 100
 
 
 @dataclasses.dataclass(frozen=True)
