@@ -7,7 +7,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ..describe.config import check_size
 from ..pipelines.experiments import EXPERIMENTS
+from ..pipelines.experiments.descriptors import CNN_SIZE, DESCRIPTORS, describe_config
 from ..pipelines.nordland64 import Nordland64Config
 from .common import add_device, index_range, int_list, non_negative_int, parse_list, positive_float, positive_int
 
@@ -59,6 +61,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         e.add_argument("--epochs", type=positive_int, help=f"training epochs (default {_D.train.epochs})")
         e.add_argument("--pca-dims", type=non_negative_int, help=f"PCA before training (default {_D.pca_dims})")
         e.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
+        if name != "descriptors":
+            e.add_argument("--descriptor", choices=DESCRIPTORS, help="single-image descriptor (default pixels, the "
+                           "benchmark's; others are cached in CACHE/descriptors/NAME)")
+            e.add_argument("--cnn-size", help="CNN input size WxH of --descriptor netvlad/gmp/gem (default 128x64)")
         for flag, key, kind, text in OPTIONS[name]:
             e.add_argument(flag, dest=key, type=kind, action="append" if key in LISTS else None, help=text)
         add_device(e)
@@ -68,8 +74,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def experiment_config(args: argparse.Namespace) -> Any:
     """The experiment's settings from the flags (unset flags keep the defaults)."""
     train = {"epochs": args.epochs, "seed": args.seed}
+    describe = None
+    if args.experiment != "descriptors" and (args.descriptor or args.cnn_size):
+        size = check_size(args.cnn_size) if args.cnn_size else CNN_SIZE
+        describe = describe_config(args.descriptor or _D.describe.method, size)
     bench = _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
-                       pca_dims=args.pca_dims, device=args.device, train=train, train_s1=train)
+                       pca_dims=args.pca_dims, device=args.device, train=train, train_s1=train, describe=describe)
     own = {}
     for _, key, _, _ in OPTIONS[args.experiment]:
         value = getattr(args, key)

@@ -26,6 +26,7 @@ from ...report import save_figure
 from ...report_html import Section, evaluation_sections, figure_section, render_html, rows_as_text, table_html
 from ...sequence_descriptors import SeqNet
 from ..nordland64 import Nordland64Config, build_dataset, train_models
+from ..nordland64.config import DESCRIBE
 from ..nordland64.run import report_config
 
 
@@ -38,13 +39,21 @@ class Prepared:
     seconds: dict[str, float]
 
 
-def prepare(conf: Nordland64Config, data: str | Path, cache: Path, models_in: Path | None = None) -> Prepared:
-    """Describe (cached in ``cache``) and train (cached in ``models_in``, default ``cache``) as the
-    benchmark does with the settings ``conf``."""
+def descriptor_cache(conf: Nordland64Config, cache: Path) -> Path:
+    """Where the descriptors (and models) of ``conf`` are cached: ``cache`` for the benchmark's
+    descriptor settings, ``cache/descriptors/METHOD`` for any other (so that a shared cache never
+    replaces the benchmark's descriptors)."""
+    return cache if conf.describe == DESCRIBE else cache / "descriptors" / conf.describe.method
+
+
+def prepare(conf: Nordland64Config, data: str | Path, cache: Path, models_sub: str | None = None) -> Prepared:
+    """Describe and train as the benchmark does with the settings ``conf``; descriptors cached in
+    :func:`descriptor_cache`, models there too (in its sub-folder ``models_sub`` when given)."""
+    root = descriptor_cache(conf, cache)
     t0 = time.perf_counter()
-    ds, flipped = build_dataset(data, conf, cache)
+    ds, flipped = build_dataset(data, conf, root)
     seconds = {"descriptors": round(time.perf_counter() - t0, 2)}
-    models, train_s = train_models(ds, conf, models_in or cache, flipped)
+    models, train_s = train_models(ds, conf, root / models_sub if models_sub else root, flipped)
     seconds.update({f"train_{k}": v for k, v in train_s.items()})
     return Prepared(ds, models, seconds)
 

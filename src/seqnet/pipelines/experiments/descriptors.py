@@ -39,6 +39,15 @@ from .common import (
 )
 
 DESCRIPTORS = ("pixels", "netvlad", "gmp", "gem")  # "pixels": the benchmark's own descriptor settings
+CNN_SIZE = (128, 64)
+
+
+def describe_config(name: str, cnn_size: tuple[int, int] = CNN_SIZE) -> DescribeConfig:
+    """The settings of descriptor ``name`` (a key of :data:`DESCRIPTORS`): the benchmark's pixels, or a
+    CNN method on the frames resized to ``cnn_size`` (W, H)."""
+    if check_choice("descriptor", name, DESCRIPTORS) == "pixels":
+        return Nordland64Config().describe
+    return DescribeConfig(method=name, size=cnn_size, batch_size=32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,7 +57,7 @@ class DescriptorsConfig(Config):
 
     benchmark: Nordland64Config = Nordland64Config()
     descriptors: tuple[str, ...] = ("pixels", "netvlad", "gmp")
-    cnn_size: tuple[int, int] = (128, 64)
+    cnn_size: tuple[int, int] = CNN_SIZE
     extra_methods: tuple[str, ...] = ("delta-orig",)
 
     def __post_init__(self) -> None:
@@ -62,9 +71,7 @@ class DescriptorsConfig(Config):
 
     def describe(self, name: str) -> DescribeConfig:
         """The describe settings of descriptor ``name``."""
-        if name == "pixels":
-            return self.benchmark.describe
-        return DescribeConfig(method=name, size=self.cnn_size, batch_size=32)
+        return self.benchmark.describe if name == "pixels" else describe_config(name, self.cnn_size)
 
     @property
     def methods(self) -> tuple[str, ...]:
@@ -82,8 +89,7 @@ def main(conf: DescriptorsConfig, data: str | Path, out: str | Path, cache: str 
         seconds, provenance, first = {}, {}, None
         for name in conf.descriptors:
             bench = conf.benchmark.replace(describe=conf.describe(name), methods=conf.methods)
-            own = bench.describe == conf.benchmark.describe
-            p = prepare(bench, data, cache if own else cache / "descriptors" / name)
+            p = prepare(bench, data, cache)  # other descriptors: in cache/descriptors/NAME
             split_evs = evaluate_splits(p, bench.eval_config())
             evs.update({f"{split} {name}": e for split, e in split_evs.items()})
             seconds[name], provenance[name] = p.seconds, p.ds.reference.provenance

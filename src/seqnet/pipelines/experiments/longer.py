@@ -80,7 +80,8 @@ def main(conf: LongerConfig, data: str | Path, out: str | Path, cache: str | Pat
 
 def longer_figure(rows: list[list], columns: list[str], lengths: tuple[int, ...]) -> object:
     """R@1 against L_m, one line per method: test solid, val dashed."""
-    fig, ax = new_figure(6.5, 4.5)
+    fig, ax = new_figure(8.5, 4.5)
+    low = min((v for r in rows for v in r[1:] if v is not None), default=0.0)
     for row, colour in zip(rows, method_colours(len(rows)), strict=True):
         for split, style in (("test", "-"), ("val", "--")):
             ys = [row[1 + columns.index(f"{split} L_m={lm}")] for lm in lengths]
@@ -89,8 +90,8 @@ def longer_figure(rows: list[list], columns: list[str], lengths: tuple[int, ...]
     ax.set_xticks(list(lengths))
     ax.set_xlabel("L_m (frames matched by SeqMatch / graph)")
     ax.set_ylabel("Recall@1")
-    ax.set_ylim(0, 1.02)
+    ax.set_ylim(max(0.0, low - 0.05), 1.01)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=6, ncol=2, loc="lower right")
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
     ax.set_title("Longer re-ranking sequences")
     return fig

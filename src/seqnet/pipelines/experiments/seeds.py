@@ -4,7 +4,7 @@ val and test) for several training seeds, reported as mean ± standard deviation
 The seed sets the initialisation and every random draw of training of both models
 (:class:`~seqnet.train.TrainConfig.seed`); the descriptors are the same for every seed. The models
 of the benchmark's own seed are the benchmark's (``CACHE/models``); the others are cached in
-``CACHE/seeds/seedN``.
+``CACHE/seeds/seedN`` (under ``CACHE/descriptors/METHOD`` for another descriptor).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def main(conf: SeedsConfig, data: str | Path, out: str | Path, cache: str | Path
         for seed in conf.seeds:
             bench = conf.seeded(seed)
             own = bench.train == conf.benchmark.train and bench.train_s1 == conf.benchmark.train_s1
-            p = prepare(bench, data, cache, None if own else cache / "seeds" / f"seed{seed}")
+            p = prepare(bench, data, cache, None if own else f"seeds/seed{seed}")
             runs[seed], seconds[seed] = evaluate_splits(p, bench.eval_config()), p.seconds
         methods = list(conf.benchmark.methods)
         stats = {split: {m: mean_std([runs[s][split].results["methods"][m]["recall@1"] for s in conf.seeds])

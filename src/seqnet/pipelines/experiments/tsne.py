@@ -4,7 +4,7 @@ the first ``frames`` summer (reference) frames — raw single-image, smoothing, 
 
 A descriptor that follows the route draws a continuous curve; one that confuses places scatters
 them. The same property as a number: the *route-neighbour rate*, the fraction of each frame's
-``k`` nearest descriptors (itself excluded) that lie within ``span`` frames of it along the route,
+``k`` nearest descriptors (itself excluded) that lie within ``span`` places of it along the route,
 measured in descriptor space and in the embedding. Needs scikit-learn (``pip install
 scikit-learn``, or the ``experiments`` extra), imported only here.
 """
@@ -37,7 +37,7 @@ class TsneConfig(Config):
         frames: the first ``frames`` summer frames are embedded.
         descriptors: keys of :data:`DESCRIPTORS` (raw, smoothing, delta, S_1, S_L).
         perplexity, seed: t-SNE settings; pca_dims: PCA before t-SNE (0: none).
-        k, span: route-neighbour rate: of the k nearest descriptors, those within ``span`` frames.
+        k, span: route-neighbour rate: of the k nearest descriptors, those within ``span`` places.
     """
 
     benchmark: Nordland64Config = Nordland64Config()
@@ -110,7 +110,7 @@ def main(conf: TsneConfig, data: str | Path, out: str | Path, cache: str | Path 
             emb[name] = embed(x, conf)
             rows.append([name, x.shape[1], route_neighbour_rate(x, conf.k, conf.span),
                          route_neighbour_rate(emb[name], conf.k, conf.span)])
-        header = ["descriptor", "D", f"route neighbours ({conf.k}-NN within ±{conf.span} frames)", "same in t-SNE"]
+        header = ["descriptor", "D", f"route neighbours ({conf.k}-NN within ±{conf.span} places)", "same in t-SNE"]
         results = {"experiment": "tsne", "frames": n, "first_place": p.ds.extra.get("first_place", 0),
                    "route_neighbour_rate": {r[0]: {"descriptor": r[2], "tsne": r[3]} for r in rows},
                    "dims": {r[0]: r[1] for r in rows}, "timings_s": p.seconds, "provenance": ref.provenance}
@@ -134,5 +134,5 @@ def tsne_figure(emb: dict[str, np.ndarray], pos: np.ndarray) -> object:
         ax.set_title(name)
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.colorbar(sc, ax=list(axes), shrink=0.8, label="position along the route (frame / 10)")
+    fig.colorbar(sc, ax=axes[-1], fraction=0.08, label="position along the route (frame / 10)")
     return fig
