@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import shared_data
+from test_report_html import assert_self_contained
 
 from seqnet.cli import main as cli_main
 from seqnet.data.traverse import Dataset, Traverse
@@ -98,13 +99,15 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
     res = json.loads((out / "results.json").read_text())
     methods = res["methods"]
     assert list(methods) == ["single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch",
-                             "delta+seqmatch", "hvpr", "hvpr-single", "hvpr-delta"]
+                             "delta+seqmatch", "hvpr", "hvpr-single", "hvpr-delta", "hvpr-fused"]
     assert all(0.0 <= m["recall@1"] <= m["recall@20"] <= 1.0 for m in methods.values())
     assert methods["single"]["queries"] == 76  # places 180..259 with a full centred L=5 window and a match
     assert res["config"]["benchmark"]["test_range"] == [180, 260] and "total" in res["config"]["timings_s"]
     assert res["methods"]["hvpr-single"]["method"]["rerank"] == "s1+seqmatch"
     assert (out / "recall_at_k.png").stat().st_size > 1000 and "| hvpr |" in (out / "results.md").read_text()
     assert (out / "models" / "seqnet.pt").is_file() and (out / "dataset" / "dataset.json").is_file()
+    assert_self_contained(out / "report.html")  # the HTML report, one file
+    assert (out / "report.html").read_text().count('class="ex ') == 12  # the gallery, with the images
     # a second run reuses the cached descriptors and models
     assert cli_main(args) == 0
     again = json.loads((out / "results.json").read_text())["methods"]

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .config import Config, check_bool, check_choice, check_int, check_ints
+from .config import Config, check_bool, check_choice, check_float, check_int, check_ints
 from .data.traverse import Dataset
 from .distances import KNN_BACKENDS, knn
 from .errors import ConfigError
@@ -47,6 +47,7 @@ class EvalConfig(Config):
         extra_radii: further radii to report.
         ks: the K of Recall@K.
         top_k: HVPR shortlist size K.
+        fuse_weight, fuse_top_k: λ of the fused score and shortlist size K (None: top_k) of ``hvpr-fused``.
         split: the split evaluated by :func:`main` (None: test when defined, else all).
         backend: k-NN backend (a key of :data:`seqnet.distances.KNN_BACKENDS`).
         device: torch device (auto: CUDA when present).
@@ -63,6 +64,8 @@ class EvalConfig(Config):
     extra_radii: tuple[float, ...] = ()
     ks: tuple[int, ...] = (1, 5, 10, 20, 100)
     top_k: int = 20
+    fuse_weight: float = 0.5
+    fuse_top_k: int | None = None
     split: str | None = None
     backend: str = "torch"
     device: str = "auto"
@@ -83,6 +86,9 @@ class EvalConfig(Config):
         self._set("extra_radii", tuple(check_radius(r) for r in self.extra_radii))
         self._set("ks", check_ints("ks", self.ks, 1))
         self._set("top_k", check_int("top_k", self.top_k, 1))
+        self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))
+        if self.fuse_top_k is not None:
+            self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
         check_choice("k-NN backend", self.backend, KNN_BACKENDS)
         get_device(self.device)  # validates the device name
 
@@ -95,6 +101,10 @@ class EvalConfig(Config):
     def match_len(self) -> int:
         """L_m: the sequence matchers' length."""
         return self.rerank_seq_len or self.length
+
+    def shortlist_size(self, m: Method) -> int:
+        """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""
+        return (self.fuse_top_k or self.top_k) if m.fused else self.top_k
 
 
 @dataclasses.dataclass
@@ -138,7 +148,7 @@ def _run_knn(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
 
 
 def _run_match(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
-    feature = _frame_feature(m)
+    feature = FRAME_FEATURES[m.frames]
     sq, sr = f.frames(feature)
     t0 = time.perf_counter()
     scores, ranked = SEQUENCE_MATCHERS[m.matcher].topk(sq, sr, conf.match_len, k, f.query.match_starts,
@@ -148,17 +158,14 @@ def _run_match(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
 
 
 def _run_hvpr(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
-    feature = _frame_feature(m)
+    feature = FRAME_FEATURES[m.frames]
     (fq, fr), (sq, sr) = f.items(m.shortlist), f.frames(feature)
     t0 = time.perf_counter()
     scores, ranked = hvpr(fq, fr, sq, sr, conf.match_len, f.query.match_starts, f.reference.match_starts,
-                          top_k=conf.top_k, k=k, matcher=m.matcher, backend=conf.backend, device=str(f.device))
+                          top_k=conf.shortlist_size(m), k=k, matcher=m.matcher, backend=conf.backend,
+                          device=str(f.device), fuse=conf.fuse_weight if m.fused else 0.0)
     return scores, ranked, {"descriptors": f.time_ms("items", m.shortlist) + f.time_ms("frames", feature),
                             "hvpr": (time.perf_counter() - t0) * 1e3}
-
-
-def _frame_feature(m: Method) -> str:
-    return FRAME_FEATURES[m.frames]
 
 
 RUNNERS: dict[str, Callable[[Method, Descriptors, EvalConfig, int], Ranking]] = {
@@ -187,7 +194,9 @@ def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[st
     if m.rerank:
         info["rerank_seq_len"] = conf.match_len
     if m.kind == "hvpr":
-        info["top_k"] = conf.top_k
+        info["top_k"] = conf.shortlist_size(m)
+    if m.fused:
+        info["fuse_weight"] = conf.fuse_weight
     info["models"] = {r: models[r].config() for r in sorted(m.models())}
     return info
 
@@ -252,10 +261,12 @@ def ground_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: 
 
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
-         per_query: str | Path | None = None) -> Path:
+         per_query: str | Path | None = None, report: Any = None, figures: bool = False) -> Path:
     """hloc-style stage: evaluate ``conf.split`` of the dataset directory ``dataset`` with the model
-    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs) and, with
-    ``per_query``, one row per method and query (``.csv`` or ``.jsonl``); returns the results path."""
+    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs), with
+    ``per_query`` one row per method and query (``.csv`` or ``.jsonl``), with ``figures``
+    ``out/pr_curve.png``, and with ``report`` (a :class:`seqnet.report_html.ReportConfig`)
+    ``out/report.html``; returns the results path."""
     from .checkpoints import load_models
     from .data.io import load_dataset
     from .files import write_json_atomic
@@ -270,4 +281,12 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
     path = write_json_atomic(Path(out) / "results.json", ev.results)
     if per_query is not None:
         write_per_query(ev, per_query)
+    if figures:
+        from .report import plot_pr_curves
+
+        plot_pr_curves(ev.results["methods"], Path(out) / "pr_curve.png", title=ev.results["config"]["dataset"])
+    if report is not None:
+        from .report_html import write_html_report
+
+        write_html_report(ev, ds.split(split), Path(out) / "report.html", report)
     return path

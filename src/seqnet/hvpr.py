@@ -4,6 +4,11 @@ Shortlist the top-K reference items of each query item by descriptor distance (k
 sequence or single descriptor, e.g. S_L), re-rank the shortlist with a sequence matcher on frame
 descriptors (SeqMatch on S_1 in the paper), and return the full ranking: the re-ranked shortlist,
 then the rest of the k-NN list in shortlist order.
+
+*Fused* re-ranking (``fuse=λ > 0``, method ``hvpr-fused``) scores each shortlisted window by the
+matcher's mean per-frame distance plus λ times its shortlist distance,
+``score = matcher / L_m + λ · d_shortlist``, so that a candidate the sequence descriptor and the
+matcher both like wins over one only the matcher likes; ``fuse=0`` is the paper's re-ranking.
 """
 
 from __future__ import annotations
@@ -11,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .config import check_choice, check_int
+from .config import check_choice, check_float, check_int
 from .distances import as_pair, knn
 from .errors import ConfigError
 from .matchers import SEQUENCE_MATCHERS
@@ -33,6 +38,7 @@ def hvpr(
     matcher: str = "seqmatch",
     backend: str = "torch",
     device: str | None = None,
+    fuse: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hierarchical VPR: shortlist by descriptor distance, re-rank by a sequence matcher.
 
@@ -48,16 +54,20 @@ def hvpr(
         k: length of the returned ranking (default K; beyond K the k-NN order continues).
         matcher: a key of :data:`seqnet.matchers.SEQUENCE_MATCHERS`.
         backend: k-NN backend of the shortlist.
+        fuse: λ >= 0 of the fused score ``matcher / L_m + λ · d_shortlist`` (0: the matcher score alone).
 
     Returns:
         ``(scores [M, max(k, K)], items [M, max(k, K)])``: reference items, the re-ranked shortlist
-        first (ascending matcher score), then the rest of the k-NN list (score ``inf``).
+        first (ascending matcher or fused score), then the rest of the k-NN list (score ``inf``).
     """
     top_k = check_int("top_k", top_k, 1)
     k = top_k if k is None else check_int("k", k, 1)
-    _, ranked = knn(shortlist_query, shortlist_ref, max(k, top_k), backend=backend, device=device)
+    fuse = check_float("fuse", fuse, 0.0)
+    dist, ranked = knn(shortlist_query, shortlist_ref, max(k, top_k), backend=backend, device=device)
     head = min(top_k, ranked.shape[1])
-    scores, items = rerank(rerank_query, rerank_ref, seq_len, q_starts, r_starts, ranked[:, :head], matcher, device)
+    prior = fuse * dist[:, :head] if fuse > 0 else None
+    scores, items = rerank(rerank_query, rerank_ref, seq_len, q_starts, r_starts, ranked[:, :head], matcher, device,
+                           prior)
     tail = np.full((len(ranked), ranked.shape[1] - head), np.inf, dtype=scores.dtype)
     return np.concatenate([scores, tail], axis=1), np.concatenate([items, ranked[:, head:]], axis=1)
 
@@ -72,12 +82,14 @@ def rerank(
     candidates: np.ndarray,
     matcher: str = "seqmatch",
     device: str | None = None,
+    prior: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Re-rank candidate reference items ``[M, K]`` with a sequence matcher (see :func:`hvpr`).
 
     ``candidates`` holds indices into ``r_starts``; ``-1`` marks no candidate (scored ``inf``,
-    ranked last, returned as ``-1``). Returns ``(scores [M, K], items [M, K])`` sorted by ascending
-    score (stable: ties keep the shortlist order).
+    ranked last, returned as ``-1``). With ``prior [M, K]`` the score is ``matcher / L + prior``
+    (the fused score of :func:`hvpr`). Returns ``(scores [M, K], items [M, K])`` sorted by
+    ascending score (stable: ties keep the shortlist order).
     """
     score_pairs = SEQUENCE_MATCHERS[check_choice("sequence matcher", matcher, SEQUENCE_MATCHERS)].score_pairs
     dev = get_device(device)
@@ -97,5 +109,9 @@ def rerank(
     cand_t = torch.as_tensor(cand.astype(np.int64, copy=False), device=dev)
     cand_starts = torch.where(cand_t >= 0, r_starts_t[cand_t.clamp_min(0)], -1) if len(r_starts_t) else cand_t
     scores = score_pairs(q, r, seq_len, torch.as_tensor(q_starts_np, device=dev), cand_starts)
+    if prior is not None:
+        if np.shape(prior) != cand.shape:
+            raise ConfigError(f"prior must have the candidates' shape {cand.shape}, got {np.shape(prior)}")
+        scores = scores / seq_len + torch.as_tensor(np.asarray(prior), device=dev, dtype=scores.dtype)
     order = torch.sort(scores, dim=1, stable=True).indices
     return to_numpy(scores.gather(1, order)), to_numpy(cand_t.gather(1, order))

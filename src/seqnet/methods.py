@@ -9,7 +9,10 @@ A method name is one of:
   ``s1``, ``delta``, ...), e.g. ``raw+seqmatch``, ``s1+seqmatch``;
 * ``hvpr-<descriptor>[:<frames>+<matcher>]`` — HVPR: shortlist the top K by k-NN on the descriptor,
   re-rank them with the matcher (default ``s1+seqmatch``, the paper's re-ranker);
-* ``hvpr`` — the paper's HVPR: ``hvpr-seqnet:s1+seqmatch`` (S_L shortlist, SeqMatch on S_1).
+* ``hvpr`` — the paper's HVPR: ``hvpr-seqnet:s1+seqmatch`` (S_L shortlist, SeqMatch on S_1);
+* ``hvpr-fused[:<frames>+<matcher>]`` — HVPR whose re-ranking score fuses the matcher with the S_L
+  shortlist distance (``matcher / L_m + λ · d_S_L``, :func:`seqnet.hvpr.hvpr`; λ and the shortlist
+  size are :class:`seqnet.evaluate.EvalConfig` settings), re-ranker default ``s1+seqmatch``.
 
 A name means the same thing whatever models are given: a method whose model is missing is an
 error naming the model, never a silent substitute.
@@ -30,6 +33,7 @@ from .sequence_descriptors import SEQUENCE_DESCRIPTORS
 FRAME_FEATURES: dict[str, str] = {"raw": "single", **{k: k for k in SEQUENCE_DESCRIPTORS if k != "single"}}
 HVPR_RERANK = "s1+seqmatch"  # the paper's re-ranker
 HVPR_ALIAS = "hvpr"
+HVPR_FUSED = "hvpr-fused"  # S_L shortlist, fused re-ranking score
 METHOD_KINDS = ("knn", "match", "hvpr")
 
 
@@ -42,6 +46,7 @@ class Method:
     shortlist: str | None = None  # knn / hvpr: key of SEQUENCE_DESCRIPTORS
     frames: str | None = None  # match / hvpr: key of FRAME_FEATURES
     matcher: str | None = None  # match / hvpr: key of SEQUENCE_MATCHERS
+    fused: bool = False  # hvpr: re-rank by the matcher score fused with the shortlist distance
 
     @property
     def rerank(self) -> str | None:
@@ -61,8 +66,9 @@ class Method:
         return max(SEQUENCE_DESCRIPTORS[d].min_len for d in self.descriptors())
 
     def summary(self) -> dict[str, Any]:
-        """What the method is (stored in results): kind, shortlister, re-ranker."""
-        return {"kind": self.kind, "shortlist": self.shortlist, "rerank": self.rerank}
+        """What the method is (stored in results): kind, shortlister, re-ranker (and ``fused`` when it is)."""
+        return {"kind": self.kind, "shortlist": self.shortlist, "rerank": self.rerank,
+                **({"fused": True} if self.fused else {})}
 
 
 def _parse_rerank(text: str, name: str) -> tuple[str, str]:
@@ -82,6 +88,9 @@ def parse_method(name: str) -> Method:
         return Method(name, "knn", shortlist=name)
     if name == HVPR_ALIAS:
         return Method(name, "hvpr", "seqnet", *_parse_rerank(HVPR_RERANK, name))
+    if name == HVPR_FUSED or name.startswith(HVPR_FUSED + ":"):
+        rerank = name[len(HVPR_FUSED) + 1 :]
+        return Method(name, "hvpr", "seqnet", *_parse_rerank(rerank or HVPR_RERANK, name), fused=True)
     if name.startswith("hvpr-"):
         shortlist, _, rerank = name[5:].partition(":")
         if shortlist not in SEQUENCE_DESCRIPTORS:
@@ -99,7 +108,7 @@ def parse_method(name: str) -> Method:
 def valid_methods() -> list[str]:
     """The method names without the optional ``:<frames>+<matcher>`` re-ranker suffix."""
     return [*SEQUENCE_DESCRIPTORS, *(f"{f}+{m}" for m in SEQUENCE_MATCHERS for f in FRAME_FEATURES), HVPR_ALIAS,
-            *(f"hvpr-{d}" for d in SEQUENCE_DESCRIPTORS)]
+            HVPR_FUSED, *(f"hvpr-{d}" for d in SEQUENCE_DESCRIPTORS)]
 
 
 # The methods run when none are named, in pipeline order; those whose models or L are missing are left out.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -74,15 +75,26 @@ def format_markdown(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] 
 
 def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title: str = "") -> Path:
     """Save Recall@K curves (K = 1..len) as a PNG, one line per method (paper Fig. 3 style)."""
+    return save_figure(recall_figure(curves, title), path)
+
+
+def method_colours(n: int) -> list[Any]:
+    """``n`` distinct colours (tab20: the 10 dark shades first, then the light ones), cycling after 20."""
     import matplotlib
-    from matplotlib.ticker import MaxNLocator
 
     tab20 = matplotlib.colormaps["tab20"].colors
-    colours = [*tab20[::2], *tab20[1::2]]  # 20 distinct colours: solid lines first, then dashed
+    colours = [*tab20[::2], *tab20[1::2]]
+    return [colours[i % 20] for i in range(n)]
+
+
+def recall_figure(curves: Mapping[str, np.ndarray], title: str = "") -> Any:
+    """A figure of Recall@K curves (K = 1..len), one line per method (solid, then dashed after 10)."""
+    from matplotlib.ticker import MaxNLocator
+
     fig, ax = new_figure(6, 4.5)
-    for i, (name, c) in enumerate(curves.items()):
+    for i, ((name, c), colour) in enumerate(zip(curves.items(), method_colours(len(curves)), strict=True)):
         ax.plot(np.arange(1, len(c) + 1), c, marker="o", markersize=3, label=name,
-                color=colours[i % 20], linestyle="-" if i % 20 < 10 else "--")
+                color=colour, linestyle="-" if i % 20 < 10 else "--")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("K (number of top reference candidates)")
     ax.set_ylabel("Recall@K")
@@ -91,7 +103,7 @@ def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title
     ax.legend(fontsize=8, loc="lower right")
     if title:
         ax.set_title(title)
-    return save_figure(fig, path)
+    return fig
 
 
 def plot_pr_curves(methods: Mapping[str, Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
@@ -135,3 +147,11 @@ def save_figure(fig: Any, path: str | Path, dpi: int = 120) -> Path:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)
     return path
+
+
+def figure_png(fig: Any, dpi: int = 100) -> bytes:
+    """``fig`` as PNG bytes (for embedding in a report)."""
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()

@@ -8,12 +8,22 @@ import tempfile
 from pathlib import Path
 
 from ..distances import KNN_BACKENDS
+from ..errors import ConfigError
 from ..evaluate import EvalConfig, main
 from ..files import write_json_atomic
 from ..methods import DEFAULT_METHODS, valid_methods
-from ..report import format_table, plot_pr_curves
+from ..report import format_table
+from ..report_html import ReportConfig
 from ..windows import WINDOW_MODES
-from .common import add_allow_mismatch, add_device, int_list, parse_list, positive_float, positive_int
+from .common import (
+    add_allow_mismatch,
+    add_device,
+    int_list,
+    non_negative_float,
+    parse_list,
+    positive_float,
+    positive_int,
+)
 
 _D = EvalConfig()
 
@@ -36,6 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also report at this radius")
     p.add_argument("--split", help="split to evaluate: train, val, test or all (default: test when defined, else all)")
     p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
+    p.add_argument("--fuse-weight", type=non_negative_float,
+                   help=f"hvpr-fused: weight λ of the S_L distance in its score (default {_D.fuse_weight:g})")
+    p.add_argument("--fuse-top-k", type=positive_int, help="hvpr-fused: shortlist size (default: --top-k)")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="trained model checkpoint (S_L → 'seqnet', S_1 → 's1'); repeatable")
     p.add_argument("--shortlist-model", metavar="CKPT", help="S_L checkpoint used by 'seqnet' and HVPR shortlisting")
@@ -49,6 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) and "
                    "pr_curve.png (precision-recall of every method) here")
     p.add_argument("--json", metavar="FILE", help="also write the results JSON to FILE")
+    p.add_argument("--report", action="store_true", help="also write a self-contained report.html to --out "
+                   "(results, Recall@K and PR plots, distance matrix, example queries)")
+    p.add_argument("--images-query", metavar="DIR", help="--report: folder of the query images (for the gallery)")
+    p.add_argument("--images-ref", metavar="DIR", help="--report: folder of the reference images (for the gallery)")
     add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
@@ -59,13 +76,13 @@ def run(args: argparse.Namespace) -> int:
     conf = EvalConfig().replace(methods=methods, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                                 window=args.window, radius=args.radius, extra_radii=tuple(args.extra_radius) or None,
                                 top_k=args.top_k, split=args.split, backend=args.backend, device=args.device,
-                                ks=args.ks, allow_mismatch=args.allow_mismatch or None)
+                                ks=args.ks, allow_mismatch=args.allow_mismatch or None, fuse_weight=args.fuse_weight,
+                                fuse_top_k=args.fuse_top_k)
+    report = report_config(args)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
         path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,
-                    args.per_query)
+                    args.per_query, report, figures=bool(args.out))
         res = json.loads(Path(path).read_text(encoding="utf-8"))
-        if args.out:
-            plot_pr_curves(res["methods"], Path(args.out) / "pr_curve.png", title=f"{res['config']['dataset']}")
     cfg = res["config"]
     print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']})")
     print(format_table(res["methods"], cfg["ks"]))
@@ -74,4 +91,23 @@ def run(args: argparse.Namespace) -> int:
           f"{first['no_positive']} without a reference within the radius (left out)")
     if args.json:
         write_json_atomic(args.json, res)
+    if report is not None:
+        print(f"report: {Path(args.out) / 'report.html'}")
     return 0
+
+
+def report_config(args: argparse.Namespace) -> ReportConfig | None:
+    """The report settings of ``--report`` (None without it); refuses report options without it."""
+    if not args.report:
+        if args.images_query or args.images_ref:
+            raise ConfigError("--images-query / --images-ref are for the report: add --report")
+        return None
+    if not args.out:
+        raise ConfigError("--report writes report.html beside results.json: give --out DIR")
+    for flag, folder in (("--images-query", args.images_query), ("--images-ref", args.images_ref)):
+        if folder is not None and not Path(folder).is_dir():
+            raise ConfigError(f"{flag} {folder} is not a folder")
+    if bool(args.images_query) != bool(args.images_ref):
+        raise ConfigError("the gallery needs both --images-query and --images-ref (or neither)")
+    return ReportConfig(title=f"seqnet eval: {Path(args.dataset).name}", query_images=args.images_query,
+                        ref_images=args.images_ref)

@@ -18,10 +18,12 @@ DESCRIBE = DescribeConfig(method="pixels", patch=16, size="native")
 TRAIN = TrainConfig(seq_len=5, w=5, epochs=10, optimizer="adam", lr=1e-4, weight_decay=0.0, margin=0.3,
                     batch_size=16, n_negatives=10, n_neg_sample=1000, seed=0)
 METHODS = ("single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch", "delta+seqmatch", "hvpr",
-           "hvpr-single", "hvpr-delta")
+           "hvpr-single", "hvpr-delta", "hvpr-fused")
 # evaluated as well when the query is re-sampled at variable speed (query_speed)
 VARIABLE_SPEED_METHODS = ("raw+vseqmatch", "s1+vseqmatch", "s1+graph", "hvpr-seqnet:s1+vseqmatch",
                           "hvpr-seqnet:s1+graph")
+# hvpr-fused: score = SeqMatch/L_m + λ·d(S_L) over the S_L top 100 (λ, K: best mean val R@1 of 3 seeds)
+FUSE_WEIGHT, FUSE_TOP_K = 0.5, 100
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +43,8 @@ class Nordland64Config(Config):
         train / train_s1: training of S_L and S_1 (epoch chosen on val).
         methods, top_k, ks: what is evaluated (with ``query_speed`` also
             :data:`VARIABLE_SPEED_METHODS`); device: torch device.
+        fuse_weight, fuse_top_k: λ and shortlist size of ``hvpr-fused`` (chosen on val, see
+            docs/experiments.md).
         query_speed: ``(A, B)``: evaluate on the winter traverse of the val and test ranges re-sampled
             at A to B times the reference speed (:mod:`.speed`; training unchanged); None: as filmed.
         speed_seed: seed of the speed profile (the val and test ranges get their own streams).
@@ -63,6 +67,8 @@ class Nordland64Config(Config):
     train_s1: TrainConfig = TRAIN.replace(seq_len=1, w=1, lr=3e-4)
     methods: tuple[str, ...] = METHODS
     top_k: int = 20
+    fuse_weight: float = FUSE_WEIGHT
+    fuse_top_k: int = FUSE_TOP_K
     ks: tuple[int, ...] = (1, 5, 10, 20)
     device: str = "auto"
     query_speed: tuple[float, float] | None = None
@@ -84,6 +90,8 @@ class Nordland64Config(Config):
                               f"L={self.seq_len}; give both the same sequence length")
         self._set("methods", tuple(parse_method(m).name for m in self.methods))
         self._set("top_k", check_int("top_k", self.top_k, 1))
+        self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))
+        self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
         self._set("ks", check_ints("ks", self.ks, 1))
         if self.query_speed is not None:
             self._set("query_speed", check_speed(self.query_speed))
@@ -98,4 +106,4 @@ class Nordland64Config(Config):
     def eval_config(self) -> EvalConfig:
         """The evaluation settings of the val and test ranges."""
         return EvalConfig(methods=self.eval_methods, seq_len=self.seq_len, ks=self.ks, top_k=self.top_k,
-                          device=self.device)
+                          fuse_weight=self.fuse_weight, fuse_top_k=self.fuse_top_k, device=self.device)

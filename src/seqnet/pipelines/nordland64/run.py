@@ -12,10 +12,11 @@ from ...files import write_json_atomic, write_text_atomic
 from ...ownership import locked
 from ...recall import recall_curve
 from ...report import format_markdown, plot_pr_curves, plot_recall_curves
+from ...report_html import ReportConfig, write_html_report
 from ...sequence_descriptors import SeqNet
 from ...utils import logger
 from .config import Nordland64Config
-from .data import SPLITS, build_dataset
+from .data import SEASONS, SPLITS, build_dataset
 from .models import train_models
 from .speed import variable_speed
 
@@ -67,9 +68,17 @@ def speed_note(conf: Nordland64Config) -> str:
             f"{conf.speed_seed}; frames dropped or repeated, positions kept).")
 
 
+def report_config(data: str | Path, title: str) -> ReportConfig:
+    """The HTML report settings of a nordland64 run: the gallery reads the winter (query) and summer
+    (reference) images of the data folder ``data``."""
+    return ReportConfig(title=title, query_images=str(Path(data) / SEASONS[1]),
+                        ref_images=str(Path(data) / SEASONS[0]))
+
+
 def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:
     """Run the benchmark (hloc style) on the nordland64 folder ``data``; writes everything to ``out``
-    (descriptor cache, models, ``results.json``, ``results.md``, ``recall_at_k.png``, ``config.json``)
+    (descriptor cache, models, ``results.json``, ``results.md``, ``recall_at_k.png``, ``report.html``,
+    ``config.json``)
     and returns the path of ``results.json``."""
     out = Path(out)
     with locked(out):
@@ -87,6 +96,9 @@ def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:
         seconds["evaluation"] = round(time.perf_counter() - t1, 2)
         seconds["total"] = round(time.perf_counter() - t0, 2)
         write_report(ev, val, conf, seconds, out)
+        write_html_report(ev, split_dataset(ds, conf, "test"), out / "report.html",
+                          report_config(data, f"Nordland64 benchmark, test places {conf.test_range[0]}:"
+                                              f"{conf.test_range[1]}"))
         write_json_atomic(out / "config.json", {**conf.to_dict(), "data": str(data)})
         logger.info("nordland64 done in %.0f s: %s", seconds["total"], out / "results.md")
     return out / "results.json"

@@ -1,0 +1,96 @@
+"""``seqnet experiment NAME``: the paper's supplementary experiments on the nordland64 data
+(reverse, longer-sequences, descriptors, tsne, seeds; docs/experiments.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from ..describe.config import check_size
+from ..pipelines.experiments import EXPERIMENTS
+from ..pipelines.experiments.descriptors import CNN_SIZE, DESCRIPTORS, describe_config
+from ..pipelines.nordland64 import Nordland64Config
+from .common import add_device, index_range, int_list, non_negative_int, parse_list, positive_float, positive_int
+
+_D = Nordland64Config()
+
+
+def seed_list(text: str) -> tuple[int, ...]:
+    """argparse type: comma-separated integers >= 0 (e.g. ``0,1,2``)."""
+    try:
+        values = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers (e.g. 0,1,2), got {text!r}") from None
+    if min(values) < 0:
+        raise argparse.ArgumentTypeError(f"expected integers >= 0, got {text!r}")
+    return values
+
+
+# the options of one experiment: flag, config key, argparse type, help
+OPTIONS: dict[str, list[tuple[str, str, Any, str]]] = {
+    "reverse": [("--methods", "methods", str, "methods compared (comma-separated)")],
+    "longer-sequences": [("--lengths", "lengths", int_list, "re-ranking lengths L_m (default 5,10,20)"),
+                         ("--methods", "methods", str, "methods compared (comma-separated)")],
+    "descriptors": [("--descriptors", "descriptors", str, "descriptors (default pixels,netvlad,gmp; also gem)"),
+                    ("--cnn-size", "cnn_size", str, "CNN input size WxH (default 128x64)")],
+    "tsne": [("--frames", "frames", positive_int, "the first N summer frames (default 1000)"),
+             ("--perplexity", "perplexity", positive_float, "t-SNE perplexity (default 30)")],
+    "seeds": [("--seeds", "seeds", seed_list, "training seeds (default 0,1,2)")],
+}
+LISTS = ("methods", "descriptors")  # comma-separated names
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("experiment", help="run one of the paper's supplementary experiments on nordland64",
+                       description="The paper's supplementary experiments on the nordland64 data, each writing "
+                                   "results.json, results.md, its figure, report.html and config.json to --out "
+                                   "(docs/experiments.md).")
+    esub = p.add_subparsers(dest="experiment", metavar="NAME", required=True)
+    for name, exp in EXPERIMENTS.items():
+        e = esub.add_parser(name, help=exp.summary, description=f"{exp.summary}. Defaults: the nordland64 "
+                            "benchmark's (seqnet.pipelines.nordland64.Nordland64Config).")
+        e.add_argument("--data", required=True, metavar="PATH", help="nordland64 folder (summer/, winter/, clean list)")
+        e.add_argument("--out", required=True, metavar="DIR", help="output folder")
+        e.add_argument("--cache", metavar="DIR", help="descriptors and models cache (default --out; a benchmark's "
+                                                      "--out reuses its descriptors and models)")
+        for split in ("train", "val", "test"):
+            a, b = getattr(_D, f"{split}_range")
+            e.add_argument(f"--{split}-range", type=index_range, metavar="A:B",
+                           help=f"{split} places (default {a}:{b})")
+        e.add_argument("--epochs", type=positive_int, help=f"training epochs (default {_D.train.epochs})")
+        e.add_argument("--pca-dims", type=non_negative_int, help=f"PCA before training (default {_D.pca_dims})")
+        e.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
+        if name != "descriptors":
+            e.add_argument("--descriptor", choices=DESCRIPTORS, help="single-image descriptor (default pixels, the "
+                           "benchmark's; others are cached in CACHE/descriptors/NAME)")
+            e.add_argument("--cnn-size", help="CNN input size WxH of --descriptor netvlad/gmp/gem (default 128x64)")
+        for flag, key, kind, text in OPTIONS[name]:
+            e.add_argument(flag, dest=key, type=kind, action="append" if key in LISTS else None, help=text)
+        add_device(e)
+        e.set_defaults(func=run)
+
+
+def experiment_config(args: argparse.Namespace) -> Any:
+    """The experiment's settings from the flags (unset flags keep the defaults)."""
+    train = {"epochs": args.epochs, "seed": args.seed}
+    describe = None
+    if args.experiment != "descriptors" and (args.descriptor or args.cnn_size):
+        size = check_size(args.cnn_size) if args.cnn_size else CNN_SIZE
+        describe = describe_config(args.descriptor or _D.describe.method, size)
+    bench = _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
+                       pca_dims=args.pca_dims, device=args.device, train=train, train_s1=train, describe=describe)
+    own = {}
+    for _, key, _, _ in OPTIONS[args.experiment]:
+        value = getattr(args, key)
+        own[key] = (tuple(parse_list(value)) or None) if key in LISTS else value
+    return EXPERIMENTS[args.experiment].config().replace(benchmark=bench, **own)
+
+
+def run(args: argparse.Namespace) -> int:
+    conf = experiment_config(args)
+    path = EXPERIMENTS[args.experiment].run(conf, args.data, args.out, args.cache)
+    out = Path(path).parent
+    print((out / "results.md").read_text(encoding="utf-8"))
+    print(f"results in {out} (results.json, results.md, report.html)")
+    return 0

@@ -1,0 +1,139 @@
+"""What the experiments share: the benchmark's descriptors and models (cached, reused across
+experiments through a cache folder), evaluations of its splits, tables, and the files every
+experiment writes (``results.json``, ``results.md``, its figure, ``report.html``, ``config.json``).
+
+Cache layout (the same as a benchmark run's output, so ``--cache out/nordland64`` reuses a
+benchmark's descriptors and models): ``CACHE/dataset``, ``CACHE/flip_train.npy``,
+``CACHE/models``, ``CACHE/runs``; models of other settings (seeds, descriptors) live in
+sub-folders named by the experiment (:func:`prepare`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import html
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from ...data.traverse import Dataset
+from ...evaluate import EvalConfig, Evaluation, evaluate
+from ...files import write_json_atomic, write_text_atomic
+from ...ownership import locked
+from ...report import save_figure
+from ...report_html import Section, evaluation_sections, figure_section, render_html, rows_as_text, table_html
+from ...sequence_descriptors import SeqNet
+from ..nordland64 import Nordland64Config, build_dataset, train_models
+from ..nordland64.config import DESCRIBE
+from ..nordland64.run import report_config
+
+
+@dataclasses.dataclass
+class Prepared:
+    """The benchmark's dataset (every place in use, raw descriptors) and trained models."""
+
+    ds: Dataset
+    models: dict[str, SeqNet]
+    seconds: dict[str, float]
+
+
+def descriptor_cache(conf: Nordland64Config, cache: Path) -> Path:
+    """Where the descriptors (and models) of ``conf`` are cached: ``cache`` for the benchmark's
+    descriptor settings, ``cache/descriptors/METHOD`` for any other (so that a shared cache never
+    replaces the benchmark's descriptors)."""
+    return cache if conf.describe == DESCRIBE else cache / "descriptors" / conf.describe.method
+
+
+def prepare(conf: Nordland64Config, data: str | Path, cache: Path, models_sub: str | None = None) -> Prepared:
+    """Describe and train as the benchmark does with the settings ``conf``; descriptors cached in
+    :func:`descriptor_cache`, models there too (in its sub-folder ``models_sub`` when given)."""
+    root = descriptor_cache(conf, cache)
+    t0 = time.perf_counter()
+    ds, flipped = build_dataset(data, conf, root)
+    seconds = {"descriptors": round(time.perf_counter() - t0, 2)}
+    models, train_s = train_models(ds, conf, root / models_sub if models_sub else root, flipped)
+    seconds.update({f"train_{k}": v for k, v in train_s.items()})
+    return Prepared(ds, models, seconds)
+
+
+def evaluate_splits(p: Prepared, conf: EvalConfig, splits: Sequence[str] = ("val", "test"),
+                    transform: Any = None) -> dict[str, Evaluation]:
+    """``conf``'s methods on each split of ``p.ds`` (``transform(ds)`` applied to the split first, if given)."""
+    out = {}
+    for split in splits:
+        ds = p.ds.split(split)
+        out[split] = evaluate(transform(ds) if transform else ds, conf, p.models)
+    return out
+
+
+@contextlib.contextmanager
+def locked_dirs(out: Path, cache: Path) -> Iterator[None]:
+    """Lock the output folder and, when it is another one, the cache folder."""
+    with locked(out):
+        if cache.resolve() == out.resolve():
+            yield
+        else:
+            with locked(cache):
+                yield
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A Markdown table (floats with 3 decimals)."""
+    text = rows_as_text(rows)
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    return "\n".join([*lines, *("| " + " | ".join(r) + " |" for r in text)]) + "\n"
+
+
+def table_section(id_: str, title: str, tables: Mapping[str, tuple[Sequence[str], Sequence[Sequence[Any]]]],
+                  text: str = "") -> Section:
+    """A report section of titled tables, after an optional paragraph."""
+    body = f"<p>{html.escape(text)}</p>" if text else ""
+    for caption, (header, rows) in tables.items():
+        body += f"<h3>{html.escape(caption)}</h3>" + table_html(header, rows_as_text(rows))
+    return Section(id_, title, body)
+
+
+@dataclasses.dataclass
+class Outputs:
+    """What an experiment writes (see :func:`write_outputs`)."""
+
+    name: str
+    results: dict[str, Any]
+    markdown: str
+    figure: Any  # a matplotlib figure, saved as NAME.png
+    sections: list[Section]  # the experiment's own report sections (tables, figure)
+    evaluation: tuple[Evaluation, Dataset] | None = None  # an evaluation (and its split) whose report follows
+
+
+def write_outputs(o: Outputs, conf: Any, data: str | Path, out: Path, title: str) -> Path:
+    """``results.json``, ``results.md``, ``NAME.png``, ``report.html`` and ``config.json`` (the resolved
+    configuration, the data folder and the provenance of the descriptors) in ``out``; returns the
+    path of ``results.json``."""
+    write_json_atomic(out / "results.json", o.results)
+    write_text_atomic(out / "results.md", o.markdown)
+    png = save_figure(o.figure, out / f"{o.name}.png")
+    sections = [*o.sections, figure_section("figure", f"Figure ({png.name})", o.figure)]
+    if o.evaluation is not None:
+        ev, ds = o.evaluation
+        sections += evaluation_sections(ev, ds, report_config(data, title))
+    write_text_atomic(out / "report.html", render_html(title, sections))
+    write_json_atomic(out / "config.json", {"experiment": o.name, **conf.to_dict(), "data": str(data),
+                                            "figure": png.name, "provenance": o.results.get("provenance")})
+    return out / "results.json"
+
+
+def recall_table(evs: Mapping[str, Evaluation], methods: Sequence[str], k: int = 1) -> list[list[Any]]:
+    """Rows ``[method, R@k of each evaluation]`` (None where a method was not run)."""
+    return [[m, *(e.results["methods"].get(m, {}).get(f"recall@{k}") for e in evs.values())] for m in methods]
+
+
+def recall_at_1(evs: Mapping[str, Evaluation], methods: Sequence[str]) -> dict[str, dict[str, float]]:
+    """``{evaluation: {method: R@1}}``."""
+    return {k: {m: e.results["methods"][m]["recall@1"] for m in methods} for k, e in evs.items()}
+
+
+def summary(ev: Evaluation) -> dict[str, Any]:
+    """The per-method results of an evaluation without its config (for an experiment's results.json)."""
+    return {m: {k: v for k, v in r.items() if k != "method"} for m, r in ev.results["methods"].items()}
