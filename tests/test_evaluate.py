@@ -273,3 +273,19 @@ def test_rerank_seq_len_separate_from_seq_len(test_split):
     for m, a in enumerate(qs):
         row = full[a, rs]
         np.testing.assert_allclose(row[got[m]], np.sort(row)[: got.shape[1]], atol=1e-4)
+
+
+def test_causal_windows_pin_the_newest_frame_for_anchored_matchers(test_split):
+    """With causal windows the item's frame is the window's last: anchored matchers pin it ("end")."""
+    from seqnet.graph import graph_topk
+    from seqnet.velocity import velocity_topk
+
+    ev = evaluate(test_split, EvalConfig(methods=("raw+vseqmatch", "raw+graph"), seq_len=4, window="causal",
+                                         ks=(5,), device="cpu"))
+    q, r = test_split.query, test_split.reference
+    raw = [l2_normalize(torch.from_numpy(np.asarray(t.descriptors))) for t in (q, r)]
+    qs = window_starts(len(q), 4, "causal", q.seq_bounds)[0][ev.q_items]
+    rs = window_starts(len(r), 4, "causal", r.seq_bounds)[0][ev.r_items]
+    for name, fn in (("raw+vseqmatch", velocity_topk), ("raw+graph", graph_topk)):
+        _, items = fn(*raw, 4, 5, qs, rs, anchor="end", device="cpu")
+        np.testing.assert_array_equal(ev.retrieved[name], items, err_msg=name)

@@ -151,8 +151,9 @@ def _run_match(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
     feature = FRAME_FEATURES[m.frames]
     sq, sr = f.frames(feature)
     t0 = time.perf_counter()
-    scores, ranked = SEQUENCE_MATCHERS[m.matcher].topk(sq, sr, conf.match_len, k, f.query.match_starts,
-                                                       f.reference.match_starts, device=str(f.device))
+    spec = SEQUENCE_MATCHERS[m.matcher]
+    scores, ranked = spec.topk(sq, sr, conf.match_len, k, f.query.match_starts, f.reference.match_starts,
+                               device=str(f.device), **spec.options(conf.window))
     return scores, ranked, {"descriptors": f.time_ms("frames", feature),
                             "seqmatch": (time.perf_counter() - t0) * 1e3}
 
@@ -163,7 +164,7 @@ def _run_hvpr(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
     t0 = time.perf_counter()
     scores, ranked = hvpr(fq, fr, sq, sr, conf.match_len, f.query.match_starts, f.reference.match_starts,
                           top_k=conf.shortlist_size(m), k=k, matcher=m.matcher, backend=conf.backend,
-                          device=str(f.device), fuse=conf.fuse_weight if m.fused else 0.0)
+                          device=str(f.device), fuse=conf.fuse_weight if m.fused else 0.0, window=conf.window)
     return scores, ranked, {"descriptors": f.time_ms("items", m.shortlist) + f.time_ms("frames", feature),
                             "hvpr": (time.perf_counter() - t0) * 1e3}
 

@@ -39,6 +39,7 @@ def hvpr(
     backend: str = "torch",
     device: str | None = None,
     fuse: float = 0.0,
+    window: str = "centred",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hierarchical VPR: shortlist by descriptor distance, re-rank by a sequence matcher.
 
@@ -55,6 +56,7 @@ def hvpr(
         matcher: a key of :data:`seqnet.matchers.SEQUENCE_MATCHERS`.
         backend: k-NN backend of the shortlist.
         fuse: λ >= 0 of the fused score ``matcher / L_m + λ · d_shortlist`` (0: the matcher score alone).
+        window: ``"centred"`` or ``"causal"`` windows (anchored matchers pin the item's frame in them).
 
     Returns:
         ``(scores [M, max(k, K)], items [M, max(k, K)])``: reference items, the re-ranked shortlist
@@ -67,7 +69,7 @@ def hvpr(
     head = min(top_k, ranked.shape[1])
     prior = fuse * dist[:, :head] if fuse > 0 else None
     scores, items = rerank(rerank_query, rerank_ref, seq_len, q_starts, r_starts, ranked[:, :head], matcher, device,
-                           prior)
+                           prior, window)
     tail = np.full((len(ranked), ranked.shape[1] - head), np.inf, dtype=scores.dtype)
     return np.concatenate([scores, tail], axis=1), np.concatenate([items, ranked[:, head:]], axis=1)
 
@@ -83,6 +85,7 @@ def rerank(
     matcher: str = "seqmatch",
     device: str | None = None,
     prior: np.ndarray | None = None,
+    window: str = "centred",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Re-rank candidate reference items ``[M, K]`` with a sequence matcher (see :func:`hvpr`).
 
@@ -91,7 +94,7 @@ def rerank(
     (the fused score of :func:`hvpr`). Returns ``(scores [M, K], items [M, K])`` sorted by
     ascending score (stable: ties keep the shortlist order).
     """
-    score_pairs = SEQUENCE_MATCHERS[check_choice("sequence matcher", matcher, SEQUENCE_MATCHERS)].score_pairs
+    spec = SEQUENCE_MATCHERS[check_choice("sequence matcher", matcher, SEQUENCE_MATCHERS)]
     dev = get_device(device)
     q, r = as_pair(rerank_query, rerank_ref, dev)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
@@ -108,7 +111,8 @@ def rerank(
         raise ConfigError(f"candidates must be reference items in 0..{len(r_starts_t) - 1} (or -1 for none)")
     cand_t = torch.as_tensor(cand.astype(np.int64, copy=False), device=dev)
     cand_starts = torch.where(cand_t >= 0, r_starts_t[cand_t.clamp_min(0)], -1) if len(r_starts_t) else cand_t
-    scores = score_pairs(q, r, seq_len, torch.as_tensor(q_starts_np, device=dev), cand_starts)
+    scores = spec.score_pairs(q, r, seq_len, torch.as_tensor(q_starts_np, device=dev), cand_starts,
+                              **spec.options(window))
     if prior is not None:
         if np.shape(prior) != cand.shape:
             raise ConfigError(f"prior must have the candidates' shape {cand.shape}, got {np.shape(prior)}")

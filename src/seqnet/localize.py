@@ -16,11 +16,11 @@ any method of :mod:`seqnet.methods` (``single``, ``s1``, ``seqnet``, ``<frames>+
 L_m-windows fit inside their sequence (:class:`seqnet.features.Side`, ``"causal"``). A query
 frame whose L- and L_m-windows since the last :meth:`Localizer.reset` are full
 (``Estimate.full_window``) is exactly an item of ``evaluate(ds, EvalConfig(window="causal"))``,
-and its ranking, scores and confidence equal that evaluation's (up to float rounding) when the
-anchor is ``"centre"``, the one the matcher table uses. Earlier frames are answered as soon as the
-method's own windows are full (from the first frame for single-frame k-NN), else not at all
-(``ref_index = -1``). With ``anchor="end"`` the variable-speed matchers pin the newest query frame
-to the item's frame (the natural choice online; see docs/online.md).
+and its ranking, scores and confidence equal that evaluation's (up to float rounding) with the
+default anchor ``"end"``: like the evaluation of causal windows, the variable-speed matchers pin the
+newest query frame to the item's frame (see docs/online.md). Earlier frames are answered as soon
+as the method's own windows are full (from the first frame for single-frame k-NN), else not at all
+(``ref_index = -1``).
 """
 
 from __future__ import annotations
@@ -110,11 +110,12 @@ class Localizer:
         conf: lengths L (``seq_len``; default the S_L model's) and L_m (``rerank_seq_len``), the HVPR
             shortlist ``top_k``, the ranking length ``max(ks)``, ``device``, ``allow_mismatch``;
             ``window`` is always causal.
-        anchor: pivot step of the variable-speed matchers (``"centre"``: as evaluation; ``"end"``).
+        anchor: pivot step of the variable-speed matchers (``"end"``: the newest frame, as the evaluation of
+            causal windows; ``"centre"`` / ``"start"``: another step of the window).
     """
 
     def __init__(self, ref_map: MapLike, method: str = "hvpr", conf: EvalConfig | None = None,
-                 anchor: str = "centre") -> None:
+                 anchor: str = "end") -> None:
         self.models = dict(ref_map.models)
         conf = (conf or EvalConfig()).replace(window="causal", methods=(method,))
         if conf.seq_len is None and "seqnet" in self.models:

@@ -44,7 +44,7 @@ class LocalizeConfig(Config):
         method: a method name (:mod:`seqnet.methods`; not ``grh``).
         seq_len: L (None: the S_L model's, else 5); rerank_seq_len: L_m (None: L).
         top_k: HVPR shortlist size K; k: references ranked per frame (for the confidence).
-        anchor: pivot step of the variable-speed matchers (``centre``: as ``seqnet eval``; ``end``).
+        anchor: pivot step of the variable-speed matchers (``end``: as ``seqnet eval --window causal``).
         split: the split replayed (None: test when defined, else all).
         radius: localisation radius (None: the dataset's): correctness and the confidence.
         device: torch device; allow_mismatch: as ``seqnet eval --allow-mismatch``.
@@ -55,7 +55,7 @@ class LocalizeConfig(Config):
     rerank_seq_len: int | None = None
     top_k: int = 20
     k: int = 20
-    anchor: str = "centre"
+    anchor: str = "end"
     split: str | None = None
     radius: float | None = None
     device: str = "auto"

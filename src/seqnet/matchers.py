@@ -39,6 +39,15 @@ class SequenceMatcher:
     summary: str
     topk: Callable[..., tuple[np.ndarray, np.ndarray]]
     score_pairs: Callable[..., torch.Tensor]
+    anchored: bool = False  # takes ``anchor=``: the window step pinned to the item's frame
+
+    def options(self, window: str) -> dict[str, str]:
+        """Keyword options for windows of ``window`` mode: an anchored matcher pins the item's own frame,
+        the centre of a centred window and the newest (last) frame of a causal one."""
+        return {"anchor": WINDOW_ANCHORS[window]} if self.anchored else {}
+
+
+WINDOW_ANCHORS = {"centred": "centre", "causal": "end"}
 
 
 SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
@@ -49,13 +58,13 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
         SequenceMatcher("seqmatch-rev", "SeqMatch with the reference traversed backwards (reverse direction)",
                         functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True)),
         SequenceMatcher("vseqmatch", "SeqMatch over trajectories of several slopes (0.5-2 reference frames per query "
-                        "frame), the best one wins", velocity_topk, velocity_pairs),
+                        "frame), the best one wins", velocity_topk, velocity_pairs, anchored=True),
         SequenceMatcher("vseqmatch-rev", "velocity-robust SeqMatch with the reference traversed backwards",
                         functools.partial(velocity_topk, reverse=True),
-                        functools.partial(velocity_pairs, reverse=True)),
+                        functools.partial(velocity_pairs, reverse=True), anchored=True),
         SequenceMatcher("graph", "GISM-style graph matching: cheapest path with reference steps 0..2 per query frame "
-                        "(stops and speed changes)", graph_topk, graph_pairs),
+                        "(stops and speed changes)", graph_topk, graph_pairs, anchored=True),
         SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
-                        grh_topk, grh_pairs),
+                        grh_topk, grh_pairs, anchored=True),
     )
 }

@@ -40,8 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rerank-seq-len", type=positive_int, help="length L_m of the sequence matchers (default: L)")
     p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     p.add_argument("--k", type=positive_int, help=f"references ranked per frame, for the confidence (default {_D.k})")
-    p.add_argument("--anchor", choices=ANCHORS, help=f"pivot step of vseqmatch / graph (default {_D.anchor}, as "
-                   "seqnet eval; 'end' pins the newest frame)")
+    p.add_argument("--anchor", choices=ANCHORS, help=f"pivot step of vseqmatch / graph (default {_D.anchor}: the "
+                   "newest frame, as seqnet eval --window causal)")
     p.add_argument("--split", help="split to replay: train, val, test or all (default: test when defined, else all)")
     p.add_argument("--radius", type=positive_float, help="localisation radius (default: the dataset's)")
     add_allow_mismatch(p)
