@@ -19,7 +19,7 @@ from .._version import __version__
 from ..errors import SeqnetError
 from .runtime import add_runtime_options, report_error, runtime
 
-COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark")
+COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark", "index")
 
 
 class _ArgumentParserError(SeqnetError):
