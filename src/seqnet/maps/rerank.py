@@ -10,6 +10,7 @@ outside the window, so they are scored on the whole frame array.
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from ..hvpr import rerank
 from ..utils import ArrayLike
@@ -27,6 +28,8 @@ def rerank_on_map(query_frames: ArrayLike, frames: ArrayLike, seq_len: int, q_st
     :func:`seqnet.hvpr.rerank` on the whole array would.
     """
     cand = np.asarray(candidates, dtype=np.int64)
+    if isinstance(frames, torch.Tensor):  # already in torch memory (e.g. on a GPU): score on it directly
+        return rerank(query_frames, frames, seq_len, q_starts, r_starts, cand, matcher, device)
     m, k = cand.shape
     per = max(1, block_bytes // max(1, k * seq_len * frames.shape[1] * 4))
     if matcher not in WINDOW_MATCHERS or min(m, per) * k * seq_len >= len(frames):
