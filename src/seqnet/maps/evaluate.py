@@ -25,7 +25,6 @@ from ..data.traverse import Traverse
 from ..errors import ConfigError, DatasetError
 from ..evaluate import EvalConfig, Evaluation
 from ..files import write_json_atomic
-from ..matchers import SEQUENCE_MATCHERS
 from ..methods import Method, parse_method
 from ..recall import GroundTruth
 from ..results import method_results, write_per_query
@@ -109,8 +108,7 @@ def _rank(m: Method, mp: Map, qd: QueryDescriptors, conf: EvalConfig, k: int) ->
     t0, extra = time.perf_counter(), {}
     ms = {"descriptors": qd.ms["frames"] if m.kind == "match" else qd.ms["shortlist"]}
     if m.kind == "match":
-        scores, ranked = SEQUENCE_MATCHERS[m.matcher].topk(qd.frames, mp.frames, mp.config.match_len, k,
-                                                           qd.side.match_starts, mp.match_starts, device=str(mp.device))
+        scores, ranked = mp.match(qd.frames, qd.side.match_starts, k)
         return scores, ranked, {**ms, "seqmatch": (time.perf_counter() - t0) * 1e3}, extra
     scores, ranked = mp.search(qd.shortlist, max(k, conf.top_k))
     ms["shortlist"] = (time.perf_counter() - t0) * 1e3

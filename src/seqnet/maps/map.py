@@ -21,6 +21,7 @@ from ..data.traverse import Traverse
 from ..distances import knn_torch
 from ..errors import DatasetError
 from ..features import Side
+from ..matchers import SEQUENCE_MATCHERS
 from ..provenance import check_same
 from ..sequence_descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
 from ..utils import ArrayLike, get_device
@@ -28,6 +29,8 @@ from ..windows import window_frames, window_indices, window_offset
 from .config import MapConfig
 from .rerank import rerank_on_map
 from .store import MAP_FORMAT, MAP_JSON
+
+BLOCK_BYTES = 64 * 2**20  # working memory of one block of a whole-map search (the map itself stays mapped)
 
 
 class MapError(DatasetError):
@@ -63,6 +66,7 @@ class Map:
         self.positions, self.seq_bounds = np.asarray(arrays["positions"]), arrays.get("seq_bounds")
         self.names: list[str] | None = arrays.get("names")
         self.index, self.models, self.device = index, models, get_device(device)
+        self.block_bytes = BLOCK_BYTES
         for model in models.values():
             model.to(self.device).eval()
 
@@ -93,9 +97,16 @@ class Map:
         """``(distances [M, k], items [M, k])`` of the nearest items by the shortlist descriptor: through
         the index, or exactly (``exact`` or a ``flat`` map) by streaming over ``shortlist``."""
         if exact or self.index is None:
-            return knn_torch(shortlist_query, self.shortlist, k, device=str(self.device))
+            return knn_torch(shortlist_query, self.shortlist, k, device=str(self.device), block_bytes=self.block_bytes)
         q = shortlist_query.cpu().numpy() if isinstance(shortlist_query, torch.Tensor) else shortlist_query
         return ann_search(self.index, q, k)
+
+    def match(self, query_frames: ArrayLike, q_starts: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The map's matcher over the whole map (streamed over reference blocks): ``(scores [M, k], items [M, k])``
+        of the query windows ``q_starts [M]`` of ``query_frames [Nq, D2]``."""
+        topk = SEQUENCE_MATCHERS[self.config.method.matcher].topk
+        return topk(query_frames, self.frames, self.config.match_len, k, q_starts, self.match_starts,
+                    device=str(self.device), block_bytes=self.block_bytes)
 
     def match_starts_for(self, seq_len: int) -> np.ndarray:
         """``[R]`` window starts of the items for another L_m (clipped into the traverse)."""

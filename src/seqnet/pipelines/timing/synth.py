@@ -23,7 +23,7 @@ from .config import TimingConfig
 
 RHO = 0.9
 RADIUS = 2.0
-CHUNK = 65536
+CHUNK_ELEMENTS = 2**24  # values generated per chunk (memory-bounded for any N_db and D)
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
@@ -36,8 +36,9 @@ def route(n: int, dim: int, rng: np.random.Generator) -> np.ndarray:
 
     out = np.empty((n, dim), np.float32)
     state = RHO * rng.standard_normal((1, dim))  # a stationary start; the filter state carries the walk on
-    for a in range(0, n, CHUNK):
-        eps = rng.standard_normal((min(n, a + CHUNK) - a, dim))
+    chunk = max(1, CHUNK_ELEMENTS // dim)
+    for a in range(0, n, chunk):
+        eps = rng.standard_normal((min(n, a + chunk) - a, dim))
         z, state = lfilter([np.sqrt(1 - RHO**2)], [1.0, -RHO], eps, axis=0, zi=state)
         out[a : a + len(z)] = _unit(z)
     return out
@@ -46,8 +47,9 @@ def route(n: int, dim: int, rng: np.random.Generator) -> np.ndarray:
 def window_means(frames: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:
     """``[M, D]`` L2-normalised means of the windows ``frames[s : s + length]`` (the smoothing descriptor)."""
     out = np.empty((len(starts), frames.shape[1]), np.float32)
-    for a in range(0, len(starts), CHUNK):
-        s = starts[a : a + CHUNK]
+    chunk = max(1, CHUNK_ELEMENTS // frames.shape[1])
+    for a in range(0, len(starts), chunk):
+        s = starts[a : a + chunk]
         acc = np.zeros((len(s), frames.shape[1]), np.float64)
         for t in range(length):
             acc += frames[s + t]

@@ -1,0 +1,67 @@
+"""seqnet benchmark timing: a tiny sweep end to end (schema, plot, temporary maps deleted), config and CLI errors."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+
+import numpy as np
+import pytest
+
+from seqnet.cli import main as cli
+from seqnet.errors import ConfigError
+from seqnet.pipelines.timing import TimingConfig, main
+from seqnet.pipelines.timing.synth import Layout, route, window_means
+
+TINY = TimingConfig(sizes=(300,), dims=(16,), queries=3, repeats=1, warmup=1, seq_lens=(3,), top_ks=(4,),
+                    indexes=("hnsw",))
+
+
+def test_tiny_sweep_end_to_end(tmp_path, monkeypatch):
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    path = main(TINY, tmp_path / "out")
+    res = json.loads(path.read_text())
+    assert {"config", "machine", "seconds", "maps"} <= set(res) and len(res["maps"]) == 1
+    e = res["maps"][0]
+    assert (e["n_db"], e["dim"], e["queries"]) == (300, 16, 3)
+    assert e["peak_rss_bytes"] > 0 and e["build_peak_rss_bytes"] > 0 and e["map_bytes"] > 0
+    assert set(e["float16_recall@1"]) == {"float32", "float16"} and "hnsw" in e["index_build_s"]
+    methods = {r["method"] for r in e["rows"]}
+    assert methods == {"describe_s1", "describe_sl", "knn_single", "knn_shortlist", "seqmatch_all_paper",
+                       "seqmatch_all_ours", "seqmatch_topk", "hvpr_exact", "hvpr_hnsw"}
+    for r in e["rows"]:
+        assert r["per_query_ms"] > 0 and r["per_query_std_ms"] >= 0 and r["comparisons"] >= 0
+    rows = {r["method"]: r for r in e["rows"]}
+    assert rows["seqmatch_all_paper"]["comparisons"] == 300 * 3 and rows["seqmatch_all_ours"]["comparisons"] == 300
+    assert rows["seqmatch_topk"]["comparisons"] == 4 * 3 and 0 <= rows["hvpr_hnsw"]["shortlist_recall"] <= 1
+    assert (tmp_path / "out" / "timing.png").stat().st_size > 1000
+    assert "SeqMatch over all" in (tmp_path / "out" / "results.md").read_text()
+    assert not list(scratch.iterdir())  # the temporary maps are gone
+
+
+def test_synthetic_route_is_smooth_and_unit(rng):
+    frames = route(200, 32, rng)
+    np.testing.assert_allclose(np.linalg.norm(frames, axis=1), 1, rtol=1e-5)
+    near = (frames[1:] * frames[:-1]).sum(1).mean()
+    far = (frames[100:] * frames[:100]).sum(1).mean()
+    assert near > 0.8 and abs(far) < 0.2
+    lay = Layout(200, 5)
+    means = window_means(frames, lay.starts(3, lay.items), 3)
+    want = frames[lay.items[0] - 1 : lay.items[0] + 2].mean(0)
+    np.testing.assert_allclose(means[0], want / np.linalg.norm(want), rtol=1e-5)
+
+
+def test_config_and_cli_errors(tmp_path, capsys):
+    with pytest.raises(ConfigError, match="max_elements"):
+        TimingConfig(sizes=(1000,), dims=(64,), max_elements=10)
+    with pytest.raises(ConfigError, match="ANN index kind"):
+        TimingConfig(indexes=("annoy",))
+    for argv, pattern in ((["--sizes", "50"], "sizes must be an integer >= 100"),
+                          (["--dataset", str(tmp_path)], "needs the models of its map"),
+                          (["--indexes", "lsh"], "unknown ANN index kind")):
+        capsys.readouterr()
+        assert cli(["benchmark", "timing", "--out", str(tmp_path / "o"), *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and pattern in err[0], err
