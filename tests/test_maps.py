@@ -11,7 +11,7 @@ import torch
 from seqnet.checkpoints import save_checkpoint
 from seqnet.cli import main as cli
 from seqnet.data.io import load_dataset, save_dataset
-from seqnet.errors import OutputError
+from seqnet.errors import ConfigError, OutputError
 from seqnet.evaluate import EvalConfig
 from seqnet.evaluate import main as eval_main
 from seqnet.hvpr import hvpr, rerank
@@ -158,3 +158,20 @@ def test_cli_build_and_eval(synth_dir, models, tmp_path, capsys):
                    "cannot run method 'single'")
     one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--seq-len", "3"],
                    "seq_len=3 but map")
+
+
+def test_explicit_positives_apply_to_a_map_of_the_same_dataset_only(synth_dir, tmp_path):
+    from seqnet.data.positives import Positives
+
+    ds = load_dataset(synth_dir, mmap=False)
+    d = np.linalg.norm(ds.query.positions[:, None] - ds.reference.positions[None], axis=-1)
+    ds.positives = Positives.from_lists([np.flatnonzero(row <= 3.0) for row in d])  # stricter than the radius
+    save_dataset(ds, tmp_path / "pos")
+    econf = EvalConfig(methods=["hvpr-delta:raw+seqmatch"], seq_len=4)
+    exact = results(eval_main(econf, tmp_path / "pos", tmp_path / "exact"))
+    mp_path = build(FREE, tmp_path / "pos", tmp_path / "map")
+    mapped = results(evaluate_main(econf, tmp_path / "pos", mp_path, tmp_path / "mapped"))
+    assert mapped["hvpr-delta:raw+seqmatch"]["recall@1"] == exact["hvpr-delta:raw+seqmatch"]["recall@1"]
+    foreign = build(FREE, synth_dir, tmp_path / "foreign")
+    with pytest.raises(ConfigError, match="explicit positives"):
+        evaluate_main(econf, tmp_path / "pos", foreign, tmp_path / "o")

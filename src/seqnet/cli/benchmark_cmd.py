@@ -70,6 +70,7 @@ def register_timing(bsub: argparse._SubParsersAction) -> None:
     t.add_argument("--repeats", type=positive_int, help=f"batch repeats, median reported (default {_T.repeats})")
     t.add_argument("--indexes", metavar="KIND[,...]", help=f"ANN shortlisters timed besides exact search "
                    f"({', '.join(ANN_INDEXES)}; default {','.join(_T.indexes)}; 'none' for none)")
+    t.add_argument("--nlist", type=positive_int, help="IVF lists (default about 4·sqrt(N_db))")
     t.add_argument("--nprobe", type=positive_int, help=f"IVF lists visited (default {_T.ann.nprobe})")
     t.add_argument("--ef-search", type=positive_int, help=f"HNSW search breadth (default {_T.ann.ef_search})")
     t.add_argument("--dtype", choices=DTYPES, help="storage of the maps' descriptors (default float32)")
@@ -91,7 +92,7 @@ def timing_config(args: argparse.Namespace) -> TimingConfig:
     return _T.replace(sizes=args.sizes or (BIG_SIZES if args.big else None), dims=args.dims,
                       max_elements=args.max_elements, seq_lens=args.seq_lens, top_ks=args.top_ks,
                       queries=args.queries, repeats=args.repeats, indexes=indexes, device=args.device,
-                      ann={"nprobe": args.nprobe, "ef_search": args.ef_search}, dtype=args.dtype,
+                      ann={"nlist": args.nlist, "nprobe": args.nprobe, "ef_search": args.ef_search}, dtype=args.dtype,
                       float16_recall=False if args.no_float16_recall else None, noise=args.noise, seed=args.seed)
 
 
