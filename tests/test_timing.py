@@ -14,7 +14,7 @@ from seqnet.pipelines.timing import TimingConfig, main
 from seqnet.pipelines.timing.synth import Layout, route, window_means
 
 TINY = TimingConfig(sizes=(300,), dims=(16,), queries=3, repeats=1, warmup=1, seq_lens=(3,), top_ks=(4,),
-                    indexes=("hnsw",))
+                    indexes=("hnsw",), threads=1)
 
 
 def test_tiny_sweep_end_to_end(tmp_path, monkeypatch):

@@ -37,18 +37,22 @@ def sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def per_query(fn: Callable[[int], Any], n: int, warmup: int, device: torch.device) -> tuple[float, float]:
-    """``(mean, std)`` milliseconds of ``fn(i)`` over ``i < n``, after ``warmup`` untimed calls."""
+def per_query(fn: Callable[[int], Any], n: int, warmup: int, device: torch.device) -> dict[str, float]:
+    """Wall-clock milliseconds of ``fn(i)`` over ``i < n`` (mean, std), after ``warmup`` untimed calls, and
+    the process CPU milliseconds per call (all threads: robust to other processes sharing the cores)."""
     for i in range(warmup):
         fn(i % n)
     times = []
+    c0 = time.process_time()
     for i in range(n):
         sync(device)
         t0 = time.perf_counter()
         fn(i)
         sync(device)
         times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.fmean(times), statistics.pstdev(times)
+    cpu = (time.process_time() - c0) * 1e3 / n
+    return {"per_query_ms": statistics.fmean(times), "per_query_std_ms": statistics.pstdev(times),
+            "per_query_cpu_ms": cpu}
 
 
 def batch(fn: Callable[[], Any], repeats: int, device: torch.device) -> tuple[float, Any]:
@@ -79,10 +83,10 @@ def describe_rows(qs: Queries, conf: TimingConfig, dev: torch.device) -> list[di
         if role not in qs.models:
             continue
         model = qs.models[role].to(dev)
-        mean, std = per_query(lambda i, m=model, x=x: m(x(i)), len(qs), conf.warmup, dev)
+        pq = per_query(lambda i, m=model, x=x: m(x(i)), len(qs), conf.warmup, dev)
         ms, _ = batch(lambda m=model, role=role: m(raw[:, -1] if role == "s1" else raw), conf.repeats, dev)
         macs = model.out_dims * model.in_dims * model.w
-        rows.append({"method": name, "per_query_ms": mean, "per_query_std_ms": std, "batch_ms_per_query": ms / len(qs),
+        rows.append({"method": name, **pq, "batch_ms_per_query": ms / len(qs),
                      "comparisons": 0, "macs": macs})
     return rows
 
@@ -93,10 +97,10 @@ def knn_rows(mp: Map, qs: Queries, conf: TimingConfig, dev: torch.device) -> lis
     single = np.ascontiguousarray(qs.frames[qs.starts(1)])
     for name, q, ref, truth in (("knn_single", single, mp.frames, qs.frame_truth),
                                 ("knn_shortlist", qs.shortlist, mp.shortlist, qs.truth)):
-        mean, std = per_query(lambda i, q=q, ref=ref: knn_torch(q[i : i + 1], ref, k, device=str(dev)), len(qs),
-                              conf.warmup, dev)
+        pq = per_query(lambda i, q=q, ref=ref: knn_torch(q[i : i + 1], ref, k, device=str(dev)), len(qs),
+                       conf.warmup, dev)
         ms, (_, ranked) = batch(lambda q=q, ref=ref: knn_torch(q, ref, k, device=str(dev)), conf.repeats, dev)
-        rows.append({"method": name, "per_query_ms": mean, "per_query_std_ms": std, "batch_ms_per_query": ms / len(qs),
+        rows.append({"method": name, **pq, "batch_ms_per_query": ms / len(qs),
                      "comparisons": len(ref), "macs": len(ref) * ref.shape[1], "recall@1": r_at_1(ranked, truth)})
     return rows
 
@@ -110,9 +114,9 @@ def seqmatch_rows(mp: Map, qs: Queries, conf: TimingConfig, seq_len: int, dev: t
         return seqmatch_topk(qs.frames[starts[i] : starts[i] + seq_len], mp.frames, seq_len, k, np.zeros(1, np.int64),
                              r_starts, device=str(dev))
 
-    mean, std = per_query(paper, len(qs), conf.warmup, dev)
+    pq = per_query(paper, len(qs), conf.warmup, dev)
     ranked = np.concatenate([paper(i)[1] for i in range(len(qs))])
-    rows = [{"method": "seqmatch_all_paper", "per_query_ms": mean, "per_query_std_ms": std,
+    rows = [{"method": "seqmatch_all_paper", **pq,
              "comparisons": n * seq_len, "macs": n * seq_len * d, "recall@1": r_at_1(ranked, qs.truth)}]
     ref = mp.frames if isinstance(mp.frames, torch.Tensor) else torch.from_numpy(np.asarray(mp.frames,
                                                                                                np.float32))
@@ -121,10 +125,10 @@ def seqmatch_rows(mp: Map, qs: Queries, conf: TimingConfig, seq_len: int, dev: t
         online.step(qs.stream[t])
     step = iter(range(seq_len - 1, len(qs.stream)))
     sel = torch.as_tensor(r_starts, device=dev)
-    mean, std = per_query(lambda i: online.topk(online.step(qs.stream[next(step)]), k, sel),
-                          min(len(qs), len(qs.stream) - seq_len + 1 - conf.warmup), conf.warmup, dev)
+    pq = per_query(lambda i: online.topk(online.step(qs.stream[next(step)]), k, sel),
+                   min(len(qs), len(qs.stream) - seq_len + 1 - conf.warmup), conf.warmup, dev)
     ms, _ = batch(lambda: seqmatch_topk(qs.stream, mp.frames, seq_len, k, np.arange(len(qs)), r_starts,
                                         device=str(dev)), conf.repeats, dev)
-    rows.append({"method": "seqmatch_all_ours", "per_query_ms": mean, "per_query_std_ms": std,
+    rows.append({"method": "seqmatch_all_ours", **pq,
                  "batch_ms_per_query": ms / len(qs), "comparisons": n, "macs": n * d})
     return rows

@@ -60,9 +60,9 @@ def hvpr_rows(mp: Map, qs: Queries, conf: TimingConfig, seq_len: int, top_k: int
     def rerank(i: slice, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return mp.rerank(qs.frames, starts[i], cand, seq_len)
 
-    mean, std = per_query(lambda i: rerank(slice(i, i + 1), exact[i : i + 1]), q, conf.warmup, dev)
+    pq = per_query(lambda i: rerank(slice(i, i + 1), exact[i : i + 1]), q, conf.warmup, dev)
     ms, _ = batch(lambda: rerank(slice(None), exact), conf.repeats, dev)
-    rows = [{"method": "seqmatch_topk", "per_query_ms": mean, "per_query_std_ms": std, "batch_ms_per_query": ms / q,
+    rows = [{"method": "seqmatch_topk", **pq, "batch_ms_per_query": ms / q,
              "comparisons": top_k * seq_len, "macs": top_k * seq_len * mp.frames.shape[1]}]
     searches = {"exact": lambda i: mp.search(qs.shortlist[i], top_k, exact=True)[1]}
     for kind, index in indexes.items():
@@ -72,11 +72,11 @@ def hvpr_rows(mp: Map, qs: Queries, conf: TimingConfig, seq_len: int, top_k: int
             describe(qs, i, dev)
             return rerank(i, search(i))[1]
 
-        mean, std = per_query(lambda i, e2e=e2e: e2e(slice(i, i + 1)), q, conf.warmup, dev)
+        pq = per_query(lambda i, e2e=e2e: e2e(slice(i, i + 1)), q, conf.warmup, dev)
         reset_ndis()
         ms, ranked = batch(lambda e2e=e2e: e2e(slice(None)), conf.repeats, dev)
         found = ndis() / (q * (conf.repeats + 1)) if name != "exact" else n
-        row = {"method": f"hvpr_{name}", "per_query_ms": mean, "per_query_std_ms": std, "batch_ms_per_query": ms / q,
+        row = {"method": f"hvpr_{name}", **pq, "batch_ms_per_query": ms / q,
                "comparisons": round(found + top_k * seq_len, 1), "macs": round(found * mp.shortlist.shape[1] + top_k
                                                                                * seq_len * mp.frames.shape[1]),
                "recall@1": r_at_1(ranked, qs.truth),

@@ -27,14 +27,14 @@ def _row(rows: list[dict[str, Any]], method: str, seq_len: int | None = None, to
 
 def map_table(e: dict[str, Any]) -> str:
     """One Markdown table of a map's rows."""
-    head = ("| method | L_m | K | per query ms (mean ± std) | batch ms / query | comparisons / query | R@1 "
-            "| shortlist recall@K |\n|---|---|---|---|---|---|---|---|")
+    head = ("| method | L_m | K | per query ms (mean ± std) | CPU ms / query | batch ms / query | comparisons / query "
+            "| R@1 | shortlist recall@K |\n|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in e["rows"]:
         pq = f"{r['per_query_ms']:.2f} ± {r['per_query_std_ms']:.2f}"
         lines.append(f"| {r['method']} | {r.get('seq_len', '–')} | {r.get('top_k', '–')} | {pq} | "
-                     f"{_ms(r.get('batch_ms_per_query'))} | {r['comparisons']:,} | {r.get('recall@1', '–')} | "
-                     f"{r.get('shortlist_recall', '–')} |")
+                     f"{_ms(r.get('per_query_cpu_ms'))} | {_ms(r.get('batch_ms_per_query'))} | {r['comparisons']:,} | "
+                     f"{r.get('recall@1', '–')} | {r.get('shortlist_recall', '–')} |")
     return "\n".join(lines)
 
 
