@@ -18,7 +18,6 @@ import torch
 
 from ..ann import search as ann_search
 from ..data.traverse import Traverse
-from ..distances import knn_torch
 from ..errors import DatasetError
 from ..features import Side
 from ..matchers import SEQUENCE_MATCHERS
@@ -28,6 +27,7 @@ from ..utils import ArrayLike, get_device
 from ..windows import window_frames, window_indices, window_offset
 from .config import MapConfig
 from .rerank import rerank_on_map
+from .search import ExactSearch
 from .store import MAP_FORMAT, MAP_JSON
 
 BLOCK_BYTES = 64 * 2**20  # working memory of one block of a whole-map search (the map itself stays mapped)
@@ -97,9 +97,16 @@ class Map:
         """``(distances [M, k], items [M, k])`` of the nearest items by the shortlist descriptor: through
         the index, or exactly (``exact`` or a ``flat`` map) by streaming over ``shortlist``."""
         if exact or self.index is None:
-            return knn_torch(shortlist_query, self.shortlist, k, device=str(self.device), block_bytes=self.block_bytes)
+            return self.exact_search(self.shortlist)(shortlist_query, k)
         q = shortlist_query.cpu().numpy() if isinstance(shortlist_query, torch.Tensor) else shortlist_query
         return ann_search(self.index, q, k)
+
+    def exact_search(self, ref: ArrayLike) -> ExactSearch:
+        """The exact searcher of one of the map's arrays (``shortlist`` or ``frames``; its norms are kept)."""
+        cache = self.__dict__.setdefault("_searchers", {})
+        if id(ref) not in cache or cache[id(ref)].ref is not ref:
+            cache[id(ref)] = ExactSearch(ref, self.device, self.block_bytes)
+        return cache[id(ref)]
 
     def match(self, query_frames: ArrayLike, q_starts: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The map's matcher over the whole map (streamed over reference blocks): ``(scores [M, k], items [M, k])``

@@ -22,8 +22,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from ...distances import knn_torch
+from ...blocks import rows, topk_smallest
+from ...distances import finish_distances, sq_norms
 from ...maps import Map
+from ...maps.search import ExactSearch
 from ...online import OnlineSeqMatch
 from ...recall import recall
 from ...seqmatch import seqmatch_topk
@@ -74,6 +76,18 @@ def r_at_1(ranked: np.ndarray, truth: Any) -> float:
 
 
 @torch.no_grad()
+def paper_seqmatch(search: ExactSearch, window: torch.Tensor, r_starts: torch.Tensor, k: int) -> torch.Tensor:
+    """The paper's per-query SeqMatch over the whole map: the L_m distance rows of the query window
+    ``[L_m, D]`` against every reference frame (nothing reused between queries), summed along each item's
+    window; the ``k`` best items ``[k]``."""
+    q_sq = sq_norms(window)
+    dist = torch.cat([finish_distances(window @ rows(search.ref, a, b, search.device, search.dtype).T, q_sq, r_sq)
+                      for (a, b), r_sq in zip(search.blocks, search.norms(), strict=True)], dim=1)  # [L_m, N]
+    scores = sum(dist[t, r_starts + t] for t in range(len(window)))
+    return topk_smallest(scores[None], k)[1][0]
+
+
+@torch.no_grad()
 def describe_rows(qs: Queries, conf: TimingConfig, dev: torch.device) -> list[dict[str, Any]]:
     """S_1 (one frame) and S_L (one L-window) descriptor computation per query."""
     rows = []
@@ -97,9 +111,9 @@ def knn_rows(mp: Map, qs: Queries, conf: TimingConfig, dev: torch.device) -> lis
     single = np.ascontiguousarray(qs.frames[qs.starts(1)])
     for name, q, ref, truth in (("knn_single", single, mp.frames, qs.frame_truth),
                                 ("knn_shortlist", qs.shortlist, mp.shortlist, qs.truth)):
-        pq = per_query(lambda i, q=q, ref=ref: knn_torch(q[i : i + 1], ref, k, device=str(dev)), len(qs),
-                       conf.warmup, dev)
-        ms, (_, ranked) = batch(lambda q=q, ref=ref: knn_torch(q, ref, k, device=str(dev)), conf.repeats, dev)
+        search = mp.exact_search(ref)
+        pq = per_query(lambda i, q=q, s=search: s(q[i : i + 1], k), len(qs), conf.warmup, dev)
+        ms, (_, ranked) = batch(lambda q=q, s=search: s(q, k), conf.repeats, dev)
         rows.append({"method": name, **pq, "batch_ms_per_query": ms / len(qs),
                      "comparisons": len(ref), "macs": len(ref) * ref.shape[1], "recall@1": r_at_1(ranked, truth)})
     return rows
@@ -110,12 +124,13 @@ def seqmatch_rows(mp: Map, qs: Queries, conf: TimingConfig, seq_len: int, dev: t
     k, n, d = max(conf.top_ks), len(mp.frames), mp.frames.shape[1]
     starts, r_starts = qs.starts(seq_len), mp.match_starts_for(seq_len)
 
-    def paper(i: int) -> tuple[np.ndarray, np.ndarray]:
-        return seqmatch_topk(qs.frames[starts[i] : starts[i] + seq_len], mp.frames, seq_len, k, np.zeros(1, np.int64),
-                             r_starts, device=str(dev))
+    search, sel = mp.exact_search(mp.frames), torch.as_tensor(r_starts, device=dev)
+
+    def paper(i: int) -> torch.Tensor:
+        return paper_seqmatch(search, torch.from_numpy(qs.frames[starts[i] : starts[i] + seq_len]).to(dev), sel, k)
 
     pq = per_query(paper, len(qs), conf.warmup, dev)
-    ranked = np.concatenate([paper(i)[1] for i in range(len(qs))])
+    ranked = torch.stack([paper(i) for i in range(len(qs))]).cpu().numpy()
     rows = [{"method": "seqmatch_all_paper", **pq,
              "comparisons": n * seq_len, "macs": n * seq_len * d, "recall@1": r_at_1(ranked, qs.truth)}]
     ref = mp.frames if isinstance(mp.frames, torch.Tensor) else torch.from_numpy(np.asarray(mp.frames,
@@ -124,7 +139,6 @@ def seqmatch_rows(mp: Map, qs: Queries, conf: TimingConfig, seq_len: int, dev: t
     for t in range(seq_len - 1):
         online.step(qs.stream[t])
     step = iter(range(seq_len - 1, len(qs.stream)))
-    sel = torch.as_tensor(r_starts, device=dev)
     pq = per_query(lambda i: online.topk(online.step(qs.stream[next(step)]), k, sel),
                    min(len(qs), len(qs.stream) - seq_len + 1 - conf.warmup), conf.warmup, dev)
     ms, _ = batch(lambda: seqmatch_topk(qs.stream, mp.frames, seq_len, k, np.arange(len(qs)), r_starts,
