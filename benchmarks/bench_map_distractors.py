@@ -51,6 +51,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--n64", required=True, help="output folder of seqnet benchmark nordland64 (dataset/, models/)")
     p.add_argument("--sizes", default="100000,1000000", help="N_db values (reference frames in all)")
     p.add_argument("--indexes", default="hnsw,ivf-flat", help="approximate shortlisters")
+    p.add_argument("--nlist", type=int, default=1024, help="IVF lists (default 1024)")
+    p.add_argument("--nprobe", type=int, default=32, help="IVF lists visited (default 32)")
+    p.add_argument("--ef-search", type=int, default=128, help="HNSW search breadth (default 128)")
     p.add_argument("--timed", type=int, default=100, help="queries timed one at a time (default 100)")
     p.add_argument("--top-k", type=int, default=20)
     p.add_argument("--threads", type=int, default=2)
@@ -59,28 +62,35 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def distractor_raw(train: np.ndarray, n: int, rng: np.random.Generator, chunk: int = 32768):
-    """Yield ``[<=chunk, D]`` raw distractor frames: an AR(1) walk in the top-256 principal axes of ``train``."""
+def raw_model(train: np.ndarray) -> dict:
+    """Statistics of the real raw descriptors: mean, top-256 principal axes and their spread, lag-1
+    correlation along the route, residual spread."""
     mean = train.mean(0)
     u, s, vt = np.linalg.svd(train - mean, full_matrices=False)
     k = min(256, len(s))
     coords = u[:, :k] * s[:k]
-    std = coords.std(0)
     rho = float(np.clip(np.mean(np.sum(coords[1:] * coords[:-1], 0) / np.sum(coords * coords, 0)), 0.0, 0.99))
-    resid = np.sqrt(max(np.sum(s[k:] ** 2) / len(train) / train.shape[1], 1e-12))
-    y = rng.standard_normal(k) * std
+    resid = float(np.sqrt(max(np.sum(s[k:] ** 2) / len(train) / train.shape[1], 1e-12)))
+    return {"mean": mean.astype(np.float32), "axes": vt[:k].astype(np.float32), "std": coords.std(0), "rho": rho,
+            "resid": resid}
+
+
+def distractor_raw(model: dict, n: int, rng: np.random.Generator, chunk: int = 32768):
+    """Yield ``[<=chunk, D]`` raw distractor frames: an AR(1) walk along the principal axes of the real ones."""
+    from scipy.signal import lfilter
+
+    rho, std, dim = model["rho"], model["std"], model["axes"].shape[1]
+    state = rho * rng.standard_normal((1, len(std))) * std
     for a in range(0, n, chunk):
         m = min(chunk, n - a)
-        eps = rng.standard_normal((m, k)) * std * np.sqrt(1 - rho**2)
-        ys = np.empty((m, k))
-        for i in range(m):  # k-dim recursion: cheap next to the models
-            y = rho * y + eps[i]
-            ys[i] = y
-        x = mean + ys @ vt[:k] + resid * rng.standard_normal((m, train.shape[1]))
-        yield (x / np.linalg.norm(x, axis=1, keepdims=True)).astype(np.float32)
+        eps = rng.standard_normal((m, len(std))) * std * np.sqrt(1 - rho**2)
+        ys, state = lfilter([1.0], [1.0, -rho], eps, axis=0, zi=state)
+        x = model["mean"] + ys.astype(np.float32) @ model["axes"]
+        x += model["resid"] * rng.standard_normal((m, dim), dtype=np.float32)
+        yield x / np.linalg.norm(x, axis=1, keepdims=True)
 
 
-def segments(ref: Traverse, train: np.ndarray, n_db: int, seed: int):
+def segments(ref: Traverse, model: dict, n_db: int, seed: int):
     """Yield ``(raw descriptors, positions)`` of the map's sequences: distractor chunks, the real reference
     in the middle, distractor chunks (each chunk its own sequence: memory stays bounded)."""
     rng = np.random.default_rng(seed)
@@ -90,15 +100,15 @@ def segments(ref: Traverse, train: np.ndarray, n_db: int, seed: int):
         if part is None:
             yield np.asarray(ref.descriptors, np.float32), ref.positions
             continue
-        for raw in distractor_raw(train, part, rng):
+        for raw in distractor_raw(model, part, rng):
             yield raw, FAR + offset + np.arange(len(raw), dtype=np.float64)[:, None]
             offset += len(raw)
 
 
-def build_arrays(ref: Traverse, train: np.ndarray, n_db: int, conf: MapConfig, models: dict, seed: int):
+def build_arrays(ref: Traverse, model: dict, n_db: int, conf: MapConfig, models: dict, seed: int):
     """The map's arrays (see :func:`segments`), described by the models sequence by sequence."""
     sl, fr, items, starts, pos, bounds, offset = [], [], [], [], [], [], 0
-    for raw, positions in segments(ref, train, n_db, seed):
+    for raw, positions in segments(ref, model, n_db, seed):
         t = Traverse(raw, positions, provenance=ref.provenance)
         d = describe_traverse(t, conf, models, torch.device("cpu"))
         sl.append(d.shortlist.numpy())
@@ -170,7 +180,7 @@ def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
     train = np.concatenate([ds.reference.descriptors[a:b], ds.query.descriptors[a:b]])
     conf = MapConfig(seq_len=5, rerank_seq_len=5, ann=AnnConfig(kind="flat"), split="test")
     t0 = time.perf_counter()
-    arrays = build_arrays(test.reference, train, n_db, conf, models, args.seed)
+    arrays = build_arrays(test.reference, raw_model(train), n_db, conf, models, args.seed)
     describe_s = time.perf_counter() - t0
     mp = load_map(write_map(tmp / f"map-{n_db}", conf, arrays, models, ds.reference.provenance,
                             {"input_dim": ds.reference.dim, "bench": "nordland64 among distractors"}), "cpu")
@@ -180,7 +190,8 @@ def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
     indexes, build_s = {}, {}
     for kind in filter(None, args.indexes.split(",")):
         t1 = time.perf_counter()
-        indexes[kind] = build_index(np.asarray(mp.shortlist), AnnConfig(kind=kind))
+        ann = AnnConfig(kind=kind, nlist=args.nlist, nprobe=args.nprobe, ef_search=args.ef_search)
+        indexes[kind] = build_index(np.asarray(mp.shortlist), ann)
         build_s[kind] = round(time.perf_counter() - t1, 1)
     res = measure(mp, qd, truth, args, indexes)
     return {"n_db": len(mp.frames), "items": len(mp.items), "queries": len(qd.side.items), "map_bytes": mp.nbytes,
