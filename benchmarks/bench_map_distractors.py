@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from seqnet.ann import AnnConfig, build_index
+from seqnet.ann import AnnConfig, build_index, set_search_params
 from seqnet.checkpoints import load_model
 from seqnet.data.io import load_dataset
 from seqnet.data.traverse import Traverse
@@ -52,8 +52,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--sizes", default="100000,1000000", help="N_db values (reference frames in all)")
     p.add_argument("--indexes", default="hnsw,ivf-flat", help="approximate shortlisters")
     p.add_argument("--nlist", type=int, default=1024, help="IVF lists (default 1024)")
-    p.add_argument("--nprobe", type=int, default=32, help="IVF lists visited (default 32)")
-    p.add_argument("--ef-search", type=int, default=128, help="HNSW search breadth (default 128)")
+    p.add_argument("--nprobe", default="32,128", help="IVF lists visited (each is measured)")
+    p.add_argument("--ef-search", default="128,512", help="HNSW search breadths (each is measured)")
+    p.add_argument("--hnsw-m", type=int, default=32, help="HNSW neighbours per node (default 32)")
+    p.add_argument("--ef-construction", type=int, default=80, help="HNSW build breadth (default 80)")
     p.add_argument("--timed", type=int, default=100, help="queries timed one at a time (default 100)")
     p.add_argument("--top-k", type=int, default=20)
     p.add_argument("--threads", type=int, default=2)
@@ -145,10 +147,11 @@ def measure(mp, qd, truth, args, indexes: dict) -> dict:
     res["hvpr_exact"] = {"recall@1": r1(mp.rerank(qf, qs, exact)[1], truth)}
     res["hvpr_exact"]["ms"] = timed(lambda i: mp.localize(sq[pick[i] : pick[i] + 1], qf, qs[pick[i] : pick[i] + 1],
                                                           k, exact=True), len(pick))
-    for kind, index in indexes.items():
+    for name, (index, ann) in indexes.items():
+        set_search_params(index, ann)
         mp.index = index
         approx = mp.search(sq, k)[1]
-        res[f"hvpr_{kind}"] = {"recall@1": r1(mp.rerank(qf, qs, approx)[1], truth),
+        res[f"hvpr_{name}"] = {"recall@1": r1(mp.rerank(qf, qs, approx)[1], truth),
                                "shortlist_recall": round(float(np.mean([len(np.intersect1d(a, e)) / k for a, e in
                                                                         zip(approx, exact, strict=True)])), 4),
                                "ms": timed(lambda i: mp.localize(sq[pick[i] : pick[i] + 1], qf,
@@ -190,9 +193,12 @@ def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
     indexes, build_s = {}, {}
     for kind in filter(None, args.indexes.split(",")):
         t1 = time.perf_counter()
-        ann = AnnConfig(kind=kind, nlist=args.nlist, nprobe=args.nprobe, ef_search=args.ef_search)
-        indexes[kind] = build_index(np.asarray(mp.shortlist), ann)
+        ann = AnnConfig(kind=kind, nlist=args.nlist, hnsw_m=args.hnsw_m, ef_construction=args.ef_construction)
+        index = build_index(np.asarray(mp.shortlist), ann)
         build_s[kind] = round(time.perf_counter() - t1, 1)
+        key, values = ("ef_search", args.ef_search) if kind == "hnsw" else ("nprobe", args.nprobe)
+        for v in values.split(","):
+            indexes[f"{kind}@{key}={v}"] = (index, ann.replace(**{key: int(v)}))
     res = measure(mp, qd, truth, args, indexes)
     return {"n_db": len(mp.frames), "items": len(mp.items), "queries": len(qd.side.items), "map_bytes": mp.nbytes,
             "describe_s": round(describe_s, 1), "index_build_s": build_s, "loadavg": os.getloadavg(),
