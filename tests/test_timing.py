@@ -83,3 +83,14 @@ def test_paper_style_seqmatch_and_exact_search_equal_the_library(rng):
     r_starts = np.arange(0, 496, 3)
     got = paper_seqmatch(search, torch.from_numpy(q[4:9]), torch.as_tensor(r_starts), 5).numpy()
     np.testing.assert_array_equal(got, seqmatch_topk(q, ref.astype(np.float16), 5, 5, np.array([4]), r_starts)[1][0])
+
+
+def test_a_datasets_map_is_timed_with_its_queries(synth_dataset, synth_dir, tmp_path):
+    from seqnet.maps import MapConfig
+
+    conf = TINY.replace(seq_lens=(4,), seq_len=4, indexes=(), float16_recall=False)
+    mconf = MapConfig(shortlist="delta", rerank="raw+seqmatch")
+    res = json.loads(main(conf, tmp_path / "out", synth_dir, map_config=mconf).read_text())
+    e = res["maps"][0]
+    assert e["n_db"] == len(synth_dataset.split("test").reference) and res["config"]["dataset"] == str(synth_dir)
+    assert {r["method"] for r in e["rows"]} >= {"knn_shortlist", "seqmatch_all_paper", "hvpr_exact"}
