@@ -30,6 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import faiss
 import numpy as np
 import torch
 
@@ -58,7 +59,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--ef-construction", type=int, default=80, help="HNSW build breadth (default 80)")
     p.add_argument("--timed", type=int, default=100, help="queries timed one at a time (default 100)")
     p.add_argument("--top-k", type=int, default=20)
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch threads while timing (default 1: on a shared machine a 2-thread parallel region "
+                        "waits for a free core, which times the scheduler, not the method)")
+    p.add_argument("--build-threads", type=int, default=2, help="threads while describing and building indexes")
+    p.add_argument("--map", help="reuse this map (written by an earlier run with the same --n64) instead of "
+                                 "describing the distractors again; one size only")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="folder for results.json")
     return p.parse_args(argv)
@@ -183,11 +189,14 @@ def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
     train = np.concatenate([ds.reference.descriptors[a:b], ds.query.descriptors[a:b]])
     conf = MapConfig(seq_len=5, rerank_seq_len=5, ann=AnnConfig(kind="flat"), split="test")
     t0 = time.perf_counter()
-    arrays = build_arrays(test.reference, raw_model(train), n_db, conf, models, args.seed)
+    if args.map:
+        mp = load_map(args.map, "cpu")
+    else:
+        arrays = build_arrays(test.reference, raw_model(train), n_db, conf, models, args.seed)
+        mp = load_map(write_map(tmp / f"map-{n_db}", conf, arrays, models, ds.reference.provenance,
+                                {"input_dim": ds.reference.dim, "bench": "nordland64 among distractors"}), "cpu")
+        del arrays
     describe_s = time.perf_counter() - t0
-    mp = load_map(write_map(tmp / f"map-{n_db}", conf, arrays, models, ds.reference.provenance,
-                            {"input_dim": ds.reference.dim, "bench": "nordland64 among distractors"}), "cpu")
-    del arrays
     qd = mp.describe(test.query)
     truth = GroundTruth(test.query.positions[qd.side.items], mp.positions[mp.items], ds.radius)
     indexes, build_s = {}, {}
@@ -199,7 +208,11 @@ def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
         key, values = ("ef_search", args.ef_search) if kind == "hnsw" else ("nprobe", args.nprobe)
         for v in values.split(","):
             indexes[f"{kind}@{key}={v}"] = (index, ann.replace(**{key: int(v)}))
+    torch.set_num_threads(args.threads)
+    faiss.omp_set_num_threads(args.threads)
     res = measure(mp, qd, truth, args, indexes)
+    torch.set_num_threads(args.build_threads)
+    faiss.omp_set_num_threads(args.build_threads)
     return {"n_db": len(mp.frames), "items": len(mp.items), "queries": len(qd.side.items), "map_bytes": mp.nbytes,
             "describe_s": round(describe_s, 1), "index_build_s": build_s, "loadavg": os.getloadavg(),
             "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, **res}
@@ -207,7 +220,7 @@ def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(args.build_threads)
     n64 = Path(args.n64)
     ds = load_dataset(n64 / "dataset", mmap=False)
     ds.splits = {"train": {"reference": (0, 1650), "query": (0, 1650)},
