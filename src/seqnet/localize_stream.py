@@ -34,7 +34,12 @@ Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spe
 def load_map(path: str | Path, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> MapLike:
     """The map in ``path``: a dataset directory's reference traverse (``conf.split``, default all)."""
     from .data.io import load_dataset
+    from .maps.store import MAP_JSON
 
+    if (Path(path) / MAP_JSON).is_file():
+        raise ConfigError(f"{path} is an index map (seqnet index build), which holds the shortlist and re-ranking "
+                          "descriptors, not the reference traverse the localiser replays; pass the dataset "
+                          "directory the map was built from as --map")
     ds = load_dataset(path).split(conf.split or "all")
     return ReferenceMap(ds.reference, conf.radius or ds.radius, dict(models), ds.name)
 

@@ -19,7 +19,8 @@ from .._version import __version__
 from ..errors import SeqnetError
 from .runtime import add_runtime_options, check_no_empty_values, report_error, runtime
 
-COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark", "localize", "experiment")
+COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark", "index", "localize",
+            "experiment")
 
 
 class _ArgumentParserError(SeqnetError):

@@ -1,4 +1,5 @@
-"""``seqnet benchmark nordland64``: the real-data benchmark (train S_L / S_1, evaluate every method)."""
+"""``seqnet benchmark nordland64``: the real-data benchmark (train S_L / S_1, evaluate every method);
+``seqnet benchmark timing``: the compute-time table and its sweep over map sizes."""
 
 from __future__ import annotations
 
@@ -6,16 +7,22 @@ import argparse
 import json
 from pathlib import Path
 
+from ..ann import ANN_INDEXES
 from ..describe import DESCRIBERS, DescribeConfig
+from ..maps import MapConfig
+from ..maps.config import DTYPES
 from ..pipelines.nordland64 import Nordland64Config, main
+from ..pipelines.timing import BIG_SIZES, TimingConfig
+from ..pipelines.timing import main as timing_main
 from ..report import format_table
-from .common import add_device, index_range, non_negative_int, positive_int
+from ..sequence_descriptors import SEQUENCE_DESCRIPTORS
+from .common import add_device, index_range, int_list, non_negative_float, non_negative_int, parse_list, positive_int
 
-_D = Nordland64Config()
+_D, _T = Nordland64Config(), TimingConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("benchmark", help="run a benchmark on real data (nordland64)")
+    p = sub.add_parser("benchmark", help="run a benchmark: real data (nordland64) or compute time (timing)")
     bsub = p.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
     n = bsub.add_parser("nordland64", help="Nordland 64x32 frames, summer vs winter: train, select on val, test",
                         description="Describe the nordland64 frames, train S_L and S_1 on the train range (epochs "
@@ -45,6 +52,64 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "evaluate the velocity-robust methods (default: as filmed)")
     add_device(n)
     n.set_defaults(func=run_nordland64)
+    register_timing(bsub)
+
+
+def register_timing(bsub: argparse._SubParsersAction) -> None:
+    """``seqnet benchmark timing``."""
+    t = bsub.add_parser("timing", help="per-query cost of k-NN, SeqMatch (whole map, top K) and HVPR against N_db",
+                        description="Time every method on synthetic maps (written to a temporary folder, deleted "
+                                    "afterwards) or on the map of --dataset: one query at a time (mean ± std) and in "
+                                    "a batch, descriptor comparisons, peak RSS (each map in a fresh process); writes "
+                                    "results.json, results.md and timing.png to --out (docs/scale.md).")
+    t.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    t.add_argument("--sizes", type=int_list, metavar="N[,N...]", help=f"N_db of the synthetic maps (default "
+                   f"{','.join(map(str, _T.sizes))}; --big: {','.join(map(str, BIG_SIZES))})")
+    t.add_argument("--dims", type=int_list, metavar="D[,D...]", help=f"D (default {','.join(map(str, _T.dims))})")
+    t.add_argument("--big", action="store_true", help="the large sweep (up to 1M at D=256, 100k at D=4096)")
+    t.add_argument("--max-elements", type=positive_int, help=f"skip maps with N_db·D above (default {_T.max_elements})")
+    t.add_argument("--seq-lens", type=int_list, metavar="L_M[,...]", help="L_m values (default 5)")
+    t.add_argument("--top-ks", type=int_list, metavar="K[,...]", help="shortlist sizes K (default 20)")
+    t.add_argument("--queries", type=positive_int, help=f"queries per figure (default {_T.queries})")
+    t.add_argument("--repeats", type=positive_int, help=f"batch repeats, median reported (default {_T.repeats})")
+    t.add_argument("--indexes", metavar="KIND[,...]", help=f"ANN shortlisters timed besides exact search "
+                   f"({', '.join(ANN_INDEXES)}; default {','.join(_T.indexes)}; 'none' for none)")
+    t.add_argument("--nlist", type=positive_int, help="IVF lists (default about 4·sqrt(N_db))")
+    t.add_argument("--nprobe", type=positive_int, help=f"IVF lists visited (default {_T.ann.nprobe})")
+    t.add_argument("--ef-search", type=positive_int, help=f"HNSW search breadth (default {_T.ann.ef_search})")
+    t.add_argument("--dtype", choices=DTYPES, help="storage of the maps' descriptors (default float32)")
+    t.add_argument("--no-float16-recall", action="store_true", help="skip R@1 with the map rounded to float16")
+    t.add_argument("--noise", type=non_negative_float, help=f"synthetic query noise (default {_T.noise})")
+    t.add_argument("--seed", type=non_negative_int, help=f"synthetic map seed (default {_T.seed})")
+    t.add_argument("--dataset", help="time the map of this dataset's reference split instead (with --model)")
+    t.add_argument("--model", action="append", default=[], metavar="CKPT", help="models of the --dataset map")
+    t.add_argument("--shortlist", choices=list(SEQUENCE_DESCRIPTORS), help="--dataset map shortlist (default seqnet)")
+    t.add_argument("--rerank", metavar="FRAMES+MATCHER", help="--dataset map re-ranker (default s1+seqmatch)")
+    t.add_argument("--split", help="--dataset split (default: test when defined, else all)")
+    t.add_argument("--device", default="cpu", help="torch device (default cpu; cuda for a GPU)")
+    t.set_defaults(func=run_timing)
+
+
+def timing_config(args: argparse.Namespace) -> TimingConfig:
+    """The timing settings from the flags (unset flags keep the defaults)."""
+    indexes = None if args.indexes is None else tuple(parse_list([args.indexes.replace("none", "")]))
+    return _T.replace(sizes=args.sizes or (BIG_SIZES if args.big else None), dims=args.dims,
+                      max_elements=args.max_elements, seq_lens=args.seq_lens, top_ks=args.top_ks,
+                      queries=args.queries, repeats=args.repeats, indexes=indexes, device=args.device,
+                      ann={"nlist": args.nlist, "nprobe": args.nprobe, "ef_search": args.ef_search}, dtype=args.dtype,
+                      float16_recall=False if args.no_float16_recall else None, noise=args.noise, seed=args.seed)
+
+
+def run_timing(args: argparse.Namespace) -> int:
+    conf = timing_config(args)
+    mconf = MapConfig().replace(shortlist=args.shortlist, rerank=args.rerank, split=args.split)
+    path = timing_main(conf, args.out, args.dataset, args.model, mconf)
+    res = json.loads(Path(path).read_text(encoding="utf-8"))
+    for e in res["maps"]:
+        hv = {r["method"]: r["per_query_ms"] for r in e["rows"] if r["method"].startswith(("hvpr", "seqmatch_all"))}
+        print(f"N_db {e['n_db']:>8,} D {e['dim']:>5}: " + ", ".join(f"{k} {v:.2f} ms" for k, v in hv.items()))
+    print(f"done in {res['seconds']:.0f} s; results in {Path(args.out) / 'results.md'}")
+    return 0
 
 
 def nordland64_config(args: argparse.Namespace) -> Nordland64Config:

@@ -59,6 +59,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
     p.add_argument("--per-query", metavar="FILE", help="write one row per method and query (top-5 references, "
                    "scores, correct or not, confidence) to FILE (.csv or .jsonl)")
+    p.add_argument("--index", metavar="MAP", help="evaluate the queries against this prebuilt map (seqnet index "
+                   "build): its index shortlists, its frames re-rank; the reference side is not read")
     p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) and "
                    "pr_curve.png (precision-recall of every method) here")
     p.add_argument("--json", metavar="FILE", help="also write the results JSON to FILE")
@@ -80,8 +82,11 @@ def run(args: argparse.Namespace) -> int:
                                 fuse_top_k=args.fuse_top_k)
     report = report_config(args)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
-        path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,
-                    args.per_query, report, figures=bool(args.out))
+        if args.index:
+            path = _main_with_map(conf, args, args.out or tmp)
+        else:
+            path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,
+                        args.per_query, report, figures=bool(args.out))
         res = json.loads(Path(path).read_text(encoding="utf-8"))
     cfg = res["config"]
     print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']})")
@@ -89,6 +94,9 @@ def run(args: argparse.Namespace) -> int:
     first = next(iter(res["methods"].values()))
     print(f"{first['queries']} queries evaluated; {first['no_full_window']} without a full window, "
           f"{first['no_positive']} without a reference within the radius (left out)")
+    for name, r in res["methods"].items():
+        for key in (k for k in r if k.startswith("shortlist_recall@")):
+            print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
     if args.json:
         write_json_atomic(args.json, res)
     if report is not None:
@@ -111,3 +119,14 @@ def report_config(args: argparse.Namespace) -> ReportConfig | None:
         raise ConfigError("the gallery needs both --images-query and --images-ref (or neither)")
     return ReportConfig(title=f"seqnet eval: {Path(args.dataset).name}", query_images=args.images_query,
                         ref_images=args.images_ref)
+
+
+def _main_with_map(conf: EvalConfig, args: argparse.Namespace, out: str) -> Path:
+    from ..maps import evaluate_main
+
+    if args.model or args.shortlist_model or args.rerank_model or args.backend:
+        raise ConfigError("--index uses the map's models and index; drop --model/--shortlist-model/--rerank-model/"
+                          "--backend (they are fixed when the map is built)")
+    if args.report:
+        raise ConfigError("--report is not available with --index; evaluate the dataset without --index for a report")
+    return evaluate_main(conf, args.dataset, args.index, out, args.per_query)

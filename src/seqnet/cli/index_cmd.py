@@ -1,0 +1,70 @@
+"""``seqnet index build``: prepare a dataset's reference side once as a map (index + re-ranking frames)."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..ann import ANN_INDEXES, AnnConfig
+from ..maps import MapConfig, build, load_map
+from ..maps.config import DTYPES
+from ..methods import FRAME_FEATURES
+from ..sequence_descriptors import SEQUENCE_DESCRIPTORS
+from ..windows import WINDOW_MODES
+from .common import add_allow_mismatch, add_device, drop_none, non_negative_int, positive_int
+
+_D, _A = MapConfig(), AnnConfig()
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("index", help="build a map (ANN index + re-ranking frames) for seqnet eval --index")
+    isub = p.add_subparsers(dest="index_command", metavar="ACTION", required=True)
+    b = isub.add_parser("build", help="describe a dataset's reference side and save it as a map directory",
+                        description="Describe the reference side of a dataset split with the given models and save "
+                                    "a self-contained map: shortlist descriptors + ANN index, re-ranking frame "
+                                    "descriptors (memory-mapped at use), positions, names, models, config and "
+                                    "provenance (docs/scale.md). Use it with `seqnet eval --index MAP`.")
+    b.add_argument("--dataset", required=True, help="seqnet dataset directory")
+    b.add_argument("--split", help="split whose reference side is mapped (default: test when defined, else all)")
+    b.add_argument("--model", action="append", default=[], metavar="CKPT",
+                   help="model checkpoint (S_L and/or S_1, by their stored role); repeatable")
+    b.add_argument("--shortlist", choices=list(SEQUENCE_DESCRIPTORS),
+                   help=f"shortlist descriptor (default {_D.shortlist})")
+    b.add_argument("--rerank", metavar="FRAMES+MATCHER",
+                   help=f"re-ranking frames and matcher, frames one of {', '.join(FRAME_FEATURES)} "
+                        f"(default {_D.rerank})")
+    b.add_argument("--seq-len", type=positive_int, help="L (default: the S_L model's, else 5)")
+    b.add_argument("--rerank-seq-len", type=positive_int, help="L_m (default: L)")
+    b.add_argument("--window", choices=WINDOW_MODES, help=f"window position (default {_D.window})")
+    b.add_argument("--index", dest="kind", choices=list(ANN_INDEXES),
+                   help=f"index over the shortlist descriptors (default {_A.kind}: exact search)")
+    b.add_argument("--nlist", type=positive_int, help="IVF lists (default about 4·sqrt(N))")
+    b.add_argument("--nprobe", type=positive_int, help=f"IVF lists visited per query (default {_A.nprobe})")
+    b.add_argument("--hnsw-m", type=positive_int, help=f"HNSW neighbours per node (default {_A.hnsw_m})")
+    b.add_argument("--ef-search", type=positive_int, help=f"HNSW search breadth (default {_A.ef_search})")
+    b.add_argument("--ef-construction", type=positive_int, help=f"HNSW build breadth (default {_A.ef_construction})")
+    b.add_argument("--pq-m", type=positive_int, help=f"IVF-PQ sub-quantisers, dividing D (default {_A.pq_m})")
+    b.add_argument("--pq-bits", type=positive_int, help=f"IVF-PQ bits per code (default {_A.pq_bits})")
+    b.add_argument("--seed", type=non_negative_int, help=f"k-means seed (default {_A.seed})")
+    b.add_argument("--dtype", choices=DTYPES, help=f"storage of the descriptors (default {_D.dtype})")
+    b.add_argument("--out", required=True, metavar="MAP", help="map directory to write (replaced only when it "
+                   "holds nothing but a seqnet map)")
+    add_allow_mismatch(b)
+    add_device(b)
+    b.set_defaults(func=run_build)
+
+
+def map_config(args: argparse.Namespace) -> MapConfig:
+    """The map settings from the flags (unset flags keep the defaults)."""
+    ann = drop_none({k: getattr(args, k) for k in ("kind", "nlist", "nprobe", "hnsw_m", "ef_search",
+                                                   "ef_construction", "pq_m", "pq_bits", "seed")})
+    return _D.replace(shortlist=args.shortlist, rerank=args.rerank, seq_len=args.seq_len,
+                      rerank_seq_len=args.rerank_seq_len, window=args.window, ann=ann, dtype=args.dtype,
+                      split=args.split, device=args.device, allow_mismatch=args.allow_mismatch or None)
+
+
+def run_build(args: argparse.Namespace) -> int:
+    path = build(map_config(args), args.dataset, args.out, args.model)
+    mp = load_map(path, "cpu")
+    print(mp.describe_info())
+    print(f"{mp.nbytes / 2**20:.1f} MiB; evaluate with: seqnet eval --index {path} --dataset {args.dataset}")
+    return 0

@@ -1,0 +1,87 @@
+"""Building a map from a dataset's reference side and trained models (the ``seqnet index build`` stage)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from ..ann import ANN_INDEXES
+from ..checkpoints import load_models
+from ..data.io import load_dataset
+from ..data.traverse import Dataset
+from ..errors import ConfigError
+from ..features import Side
+from ..ownership import check_replaceable
+from ..provenance import check_same
+from ..sequence_descriptors import SEQUENCE_DESCRIPTORS, SeqNet
+from ..utils import get_device, logger
+from .config import MapConfig
+from .map import describe_traverse
+from .store import MapArrays, is_map_file, write_map
+
+
+def resolve(conf: MapConfig, models: Mapping[str, SeqNet]) -> MapConfig:
+    """``conf`` with L (the S_L model's when unset, else 5) and L_m (L when unset) filled in."""
+    if conf.seq_len is None and "seqnet" in models:
+        conf = conf.replace(seq_len=models["seqnet"].seq_len)
+    conf = conf.replace(seq_len=conf.length)
+    return conf.replace(rerank_seq_len=conf.match_len)
+
+
+def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> None:
+    """The models the map's descriptors need are given, read the dataset's D and descriptors, and fit L."""
+    missing = conf.roles() - set(models)
+    if missing:
+        need = " and ".join("an S_1 model (--model S1.pt)" if r == "s1" else "an S_L model (--model SL.pt)"
+                            for r in sorted(missing))
+        raise ConfigError(f"map {conf.method.name} (shortlist {conf.shortlist}, re-rank {conf.rerank}) needs {need}")
+    for role, model in models.items():
+        name = "S_1" if role == "s1" else f"S_{model.seq_len}"
+        if model.in_dims != ds.reference.dim:
+            raise ConfigError(f"the {name} model expects D={model.in_dims} descriptors but dataset {ds.name!r} has "
+                              f"D={ds.reference.dim}")
+        check_same(model.provenance, ds.reference.provenance, f"the descriptors the {name} model was trained on",
+                   f"the descriptors of dataset {ds.name!r}", conf.allow_mismatch)
+        if role == "seqnet" and model.seq_len != conf.length and not conf.allow_mismatch:
+            raise ConfigError(f"the S_L model was trained with L={model.seq_len} but the map uses L={conf.length}; "
+                              f"hint: --seq-len {model.seq_len}")
+    if max(conf.length, conf.match_len) > len(ds.reference):
+        raise ConfigError(f"L={conf.length} / L_m={conf.match_len} is longer than the reference traverse "
+                          f"({len(ds.reference)} frames)")
+
+
+def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> None:
+    """The index settings fit the shortlist descriptors (D, number of items), checked before describing."""
+    role = SEQUENCE_DESCRIPTORS[conf.shortlist].model
+    dim = models[role].out_dims if role else ds.reference.dim
+    n = len(Side.of(ds.reference, conf.length, conf.match_len, conf.window).items)
+    ANN_INDEXES[conf.ann.kind](dim, max(n, 1), conf.ann)
+
+
+def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = ()) -> Path:
+    """Describe the reference side of ``conf.split`` of the dataset directory ``dataset`` with the model
+    checkpoints ``models`` (S_L and/or S_1, by their stored role) and write the map to ``out``."""
+    t0 = time.perf_counter()
+    ds = load_dataset(dataset)
+    split = conf.split or ("test" if "test" in ds.splits else "all")
+    loaded = load_models(models, seq_len=conf.seq_len)
+    conf = resolve(conf.replace(split=split), loaded)
+    sub = ds.split(split)
+    check_models(conf, sub, loaded)
+    check_index(conf, sub, loaded)
+    check_replaceable(out, "map", is_map_file)  # before any work
+    dev = get_device(conf.device)
+    for model in loaded.values():
+        model.to(dev).eval()
+    ref = describe_traverse(sub.reference, conf, loaded, dev)
+    logger.info("described %d reference items / %d frames in %.1f s", len(ref.side.items), len(sub.reference),
+                sum(ref.ms.values()) / 1e3)
+    arrays = MapArrays(ref.shortlist, ref.frames, ref.side.items, ref.side.match_starts, sub.reference.positions,
+                       sub.reference.names, sub.reference.seq_bounds)
+    a, b = ds.splits[split]["reference"] if split != "all" else (0, len(ds.reference))
+    info = {"dataset": ds.name, "dataset_path": str(Path(dataset).resolve()), "split": split,
+            "reference_range": [int(a), int(b)], "radius": ds.radius, "position_unit": ds.position_unit,
+            "explicit_positives": ds.positives is not None, "input_dim": ds.reference.dim,
+            "describe_seconds": round(time.perf_counter() - t0, 3)}
+    return write_map(out, conf, arrays, loaded, ds.reference.provenance, info)

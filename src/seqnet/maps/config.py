@@ -1,0 +1,85 @@
+"""Settings of a map: what is stored for the shortlist, what for re-ranking, and the ANN index."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ..ann import AnnConfig
+from ..config import Config, check_bool, check_choice, check_int
+from ..errors import ConfigError
+from ..methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, parse_method
+from ..sequence_descriptors import SEQUENCE_DESCRIPTORS
+from ..utils import get_device
+from ..windows import WINDOW_MODES
+
+DTYPES = ("float32", "float16")
+DEFAULT_SEQ_LEN = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class MapConfig(Config):
+    """How a map is built (see ``seqnet index build --help`` and docs/scale.md).
+
+    Attributes:
+        shortlist: the shortlisting descriptor of every reference item (a key of
+            :data:`SEQUENCE_DESCRIPTORS`, e.g. ``seqnet`` = S_L); an ANN index is built over it.
+        rerank: ``<frames>+<matcher>``: the frame descriptors stored for re-ranking and the matcher.
+        seq_len: L of the sequence descriptors (None: the S_L model's, else 5).
+        rerank_seq_len: L_m of the matcher (None: L).
+        window: ``centred`` or ``causal`` windows (queries must use the same).
+        ann: the index over the shortlist descriptors (``flat`` = exact search over the stored descriptors).
+        dtype: storage of the descriptor arrays (``float16`` halves the map; computed in float32).
+        split: the dataset split whose reference side is mapped (None: test when defined, else all).
+        device: torch device for describing the reference.
+        allow_mismatch: go on when a model and the descriptors were made differently.
+    """
+
+    shortlist: str = "seqnet"
+    rerank: str = HVPR_RERANK
+    seq_len: int | None = None
+    rerank_seq_len: int | None = None
+    window: str = "centred"
+    ann: AnnConfig = AnnConfig()
+    dtype: str = "float32"
+    split: str | None = None
+    device: str = "auto"
+    allow_mismatch: bool = False
+
+    def __post_init__(self) -> None:
+        check_choice("shortlist descriptor", self.shortlist, SEQUENCE_DESCRIPTORS)
+        self.method  # noqa: B018 - validates the re-ranker
+        for key in ("seq_len", "rerank_seq_len"):
+            if getattr(self, key) is not None:
+                self._set(key, check_int(key, getattr(self, key), 1))
+        check_choice("window mode", self.window, WINDOW_MODES)
+        if not isinstance(self.ann, AnnConfig):
+            raise ConfigError(f"ann must be an AnnConfig, got {type(self.ann).__name__}")
+        check_choice("map dtype", self.dtype, DTYPES)
+        self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
+        get_device(self.device)
+
+    @property
+    def method(self) -> Method:
+        """The HVPR method the map serves: shortlist by ``shortlist``, re-rank by ``rerank``."""
+        name = HVPR_ALIAS if (self.shortlist, self.rerank) == ("seqnet", HVPR_RERANK) else \
+            f"hvpr-{self.shortlist}:{self.rerank}"
+        return parse_method(name)
+
+    @property
+    def frames_descriptor(self) -> str:
+        """The key of :data:`SEQUENCE_DESCRIPTORS` computed over each frame for re-ranking."""
+        return FRAME_FEATURES[self.method.frames]
+
+    @property
+    def length(self) -> int:
+        """L."""
+        return self.seq_len or DEFAULT_SEQ_LEN
+
+    @property
+    def match_len(self) -> int:
+        """L_m."""
+        return self.rerank_seq_len or self.length
+
+    def roles(self) -> set[str]:
+        """Model roles the map needs (``seqnet`` = S_L, ``s1`` = S_1)."""
+        return self.method.models()

@@ -1,0 +1,173 @@
+"""``seqnet eval --index MAP``: a dataset's query split against a prebuilt map.
+
+Only the query side of the dataset is read and described; the reference side is the map's
+(shortlist through its index, re-ranking on its memory-mapped frames). Methods: the map's HVPR
+(``hvpr`` or ``hvpr-<shortlist>:<frames>+<matcher>``), its shortlister alone (k-NN through the
+index) and its whole-map matcher (``<frames>+<matcher>``, streamed over the map). Each HVPR and
+k-NN entry reports ``shortlist_recall@K``: the fraction of the exact top-K (by the stored shortlist
+descriptors) that the index returns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..ann import shortlist_recall
+from ..data.io import POSITIVES_FILE, load_positives, load_traverse
+from ..data.positives import Positives
+from ..data.traverse import Traverse
+from ..errors import ConfigError, DatasetError
+from ..evaluate import EvalConfig, Evaluation
+from ..files import write_json_atomic
+from ..methods import Method, parse_method
+from ..recall import GroundTruth
+from ..results import method_results, write_per_query
+from ..utils import logger
+from .load import load_map
+from .map import Map, QueryDescriptors
+
+
+@dataclasses.dataclass
+class QueryData:
+    """The query side of one split of a dataset directory (the reference side is never read)."""
+
+    traverse: Traverse
+    split: str
+    radius: float
+    name: str
+    query_range: tuple[int, int]
+    root: Path
+
+
+def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
+    """Read ``dataset.json`` and the query traverse of ``split`` (None: test when defined, else all)."""
+    root = Path(dataset)
+    try:
+        meta = json.loads((root / "dataset.json").read_text(encoding="utf-8"))
+        radius = float(meta["radius"])
+    except FileNotFoundError:
+        raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing") from None
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{root / 'dataset.json'}: not a dataset description with a radius ({e})") from None
+    t = load_traverse(root / (meta.get("traverses") or {}).get("query", "query"), "query")
+    t.provenance = (meta.get("provenance") or {}).get("query")
+    splits = meta.get("splits") or {}
+    split = split or ("test" if "test" in splits else "all")
+    rng = (0, len(t))
+    if split != "all":
+        if split not in splits:
+            raise DatasetError(f"dataset {root} has no split {split!r}; valid: {', '.join(['all', *splits])}")
+        raw = splits[split]["query"] if isinstance(splits[split], dict) else splits[split]
+        rng = (int(raw[0]), int(raw[1]))
+        t = t.subset(*rng)
+    name = str(meta.get("name", root.name))
+    return QueryData(t, split, radius, name if split == "all" else f"{name}[{split}]", rng, root)
+
+
+def map_methods(mp: Map) -> dict[str, Method]:
+    """The methods a map serves, by name: its HVPR, its shortlister (k-NN) and its whole-map matcher."""
+    m = mp.config.method
+    return {x.name: x for x in (m, parse_method(m.shortlist), parse_method(m.rerank))}
+
+
+def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
+    """Explicit positives of the dataset over the map's items (only for a map built from this dataset and split)."""
+    if not (q.root / POSITIVES_FILE).is_file():
+        return None
+    src = mp.meta.get("source") or {}
+    if src.get("dataset_path") != str(q.root.resolve()) or src.get("split") != q.split:
+        raise ConfigError(f"dataset {q.root} defines explicit positives over its own reference frames, but map "
+                          f"{mp.path} was built from {src.get('dataset_path')} [{src.get('split')}]; hint: build "
+                          "the map from this dataset and split")
+    ra = int(src["reference_range"][0])
+    return load_positives(q.root / POSITIVES_FILE).select(q.query_range[0] + q_items, ra + mp.items)
+
+
+def _check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
+    c, served = mp.config, map_methods(mp)
+    for key, want, have in (("seq_len", conf.seq_len, c.length), ("rerank_seq_len", conf.rerank_seq_len, c.match_len)):
+        if want is not None and want != have:
+            raise ConfigError(f"{key}={want} but map {mp.path} was built with {have}; rebuild the map to change it")
+    if conf.window != c.window:
+        raise ConfigError(f"window {conf.window!r} but map {mp.path} uses {c.window!r} windows")
+    names = conf.methods or [c.method.name, c.method.shortlist]
+    bad = [n for n in names if n not in served]
+    if bad:
+        raise ConfigError(f"map {mp.path} cannot run method {bad[0]!r}; valid for this map: {', '.join(served)}")
+    return [served[n] for n in names]
+
+
+def _rank(m: Method, mp: Map, qd: QueryDescriptors, conf: EvalConfig, k: int) -> tuple[Any, Any, dict, dict]:
+    """``(scores, ranked, timing ms, extra entries)`` of one method on the map."""
+    t0, extra = time.perf_counter(), {}
+    ms = {"descriptors": qd.ms["frames"] if m.kind == "match" else qd.ms["shortlist"]}
+    if m.kind == "match":
+        scores, ranked = mp.match(qd.frames, qd.side.match_starts, k)
+        return scores, ranked, {**ms, "seqmatch": (time.perf_counter() - t0) * 1e3}, extra
+    scores, ranked = mp.search(qd.shortlist, max(k, conf.top_k))
+    ms["shortlist"] = (time.perf_counter() - t0) * 1e3
+    head = min(conf.top_k, ranked.shape[1])
+    if mp.index is not None:
+        exact = mp.search(qd.shortlist, head, exact=True)[1]
+        extra[f"shortlist_recall@{head}"] = round(shortlist_recall(ranked[:, :head], exact), 4)
+    else:
+        extra[f"shortlist_recall@{head}"] = 1.0  # flat: the exact search itself
+    if m.kind == "hvpr":
+        t1 = time.perf_counter()
+        s, i = mp.rerank(qd.frames, qd.side.match_starts, ranked[:, :head])
+        scores = np.concatenate([s, np.full((len(s), ranked.shape[1] - head), np.inf, s.dtype)], axis=1)
+        ranked = np.concatenate([i, ranked[:, head:]], axis=1)
+        ms["descriptors"] += qd.ms["frames"]
+        ms["rerank"] = (time.perf_counter() - t1) * 1e3
+    return scores, ranked, ms, extra
+
+
+def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evaluation:
+    """Evaluate the query side ``q`` against the map ``mp`` (methods: :func:`map_methods`)."""
+    conf = conf or EvalConfig()
+    methods = _check_conf(mp, conf)
+    mp.check_query(q.traverse.dim, q.traverse.provenance, conf.allow_mismatch)
+    radius = conf.radius or q.radius
+    qd = mp.describe(q.traverse)
+    items = qd.side.items
+    truth = GroundTruth(q.traverse.positions[items], mp.positions[mp.items], radius, _positives(mp, q, items))
+    if not truth.has_positive().any():
+        raise ConfigError(f"none of the {len(items)} queries of {q.name!r} has a reference of map {mp.path} within "
+                          f"radius {radius:g}; hint: check the radius, the split and the map's area")
+    results, retrieved, scores, confidence = {}, {}, {}, {}
+    for m in methods:
+        scores[m.name], retrieved[m.name], ms, extra = _rank(m, mp, qd, conf, max(conf.ks))
+        ms["total"] = sum(ms.values())
+        entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks, conf.extra_radii)
+        entry.update(extra, no_full_window=int(len(q.traverse) - len(items)),
+                     timing_ms={k: round(v, 3) for k, v in ms.items()},
+                     method={**m.summary(), "seq_len": mp.config.length, "rerank_seq_len": mp.config.match_len,
+                             "top_k": conf.top_k, "index": mp.config.ann.kind})
+        results[m.name] = entry
+        logger.debug("%s: R@1 %.3f", m.name, entry.get("recall@1", float("nan")))
+    cfg = {**conf.to_dict(), "methods": [m.name for m in methods], "seq_len": mp.config.length,
+           "rerank_seq_len": mp.config.match_len, "radius": radius, "split": q.split, "dataset": q.name,
+           "device": str(mp.device), "index": str(mp.path), "map": mp.meta["config"]}
+    names = [q.traverse.names[i] for i in items] if q.traverse.names else None
+    return Evaluation({"methods": results, "config": cfg}, retrieved, scores, truth, items, mp.items, confidence,
+                      names)
+
+
+def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Path,
+         per_query: str | Path | None = None) -> Path:
+    """hloc-style stage: evaluate ``conf.split`` of the dataset's queries against the map ``index``;
+    writes ``out/results.json`` (and ``per_query``); returns the results path."""
+    mp = load_map(index, conf.device)
+    ev = evaluate_map(mp, load_query(dataset, conf.split), conf)
+    ev.results["config"]["dataset_path"] = str(dataset)
+    ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "index": str(Path(index).resolve())}
+    path = write_json_atomic(Path(out) / "results.json", ev.results)
+    if per_query is not None:
+        write_per_query(ev, per_query)
+    return path

@@ -1,0 +1,83 @@
+"""Opening a map directory: every file checked against ``map.json`` before use, clear errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..ann import load_index
+from ..checkpoints import load_model
+from ..data.readers import read_names
+from ..errors import ConfigError, SeqnetError
+from .config import MapConfig
+from .map import Map, MapError, read_meta
+from .store import INDEX_FILE
+
+
+def _array(path: Path, shape: tuple[int, ...] | None, kinds: str) -> np.ndarray:
+    """A ``.npy`` memory map (copy-on-write: never written back) of the expected shape and dtype kind."""
+    if not path.is_file():
+        raise MapError(f"map file missing: {path} (hint: rebuild the map with seqnet index build)")
+    try:
+        arr = np.load(path, mmap_mode="c", allow_pickle=False)
+    except (ValueError, OSError, EOFError) as e:
+        raise MapError(f"cannot read {path} as a .npy array ({e})") from None
+    if arr.dtype.kind not in kinds or (shape is not None and arr.shape != shape):
+        raise MapError(f"{path}: expected shape {shape} of kind {kinds!r}, got {arr.shape} {arr.dtype} "
+                       "(the map is damaged; rebuild it)")
+    return arr
+
+
+def load_map(path: str | Path, device: str | None = None) -> Map:
+    """Open the map directory ``path`` (written by :func:`seqnet.maps.build` or :func:`seqnet.maps.write_map`)."""
+    path = Path(path)
+    meta = read_meta(path)
+    try:
+        r, nr, d1, d2 = (int(meta[k]) for k in ("items", "frames", "shortlist_dim", "frame_dim"))
+        conf_dict = meta["config"]
+    except (KeyError, TypeError, ValueError):
+        raise MapError(f"{path / 'map.json'}: missing or bad items/frames/shortlist_dim/frame_dim/config") from None
+    arrays: dict[str, Any] = {"shortlist": _array(path / "shortlist.npy", (r, d1), "f"),
+                              "frames": _array(path / "frames.npy", (nr, d2), "f"),
+                              "items": _array(path / "items.npy", (r,), "iu"),
+                              "match_starts": _array(path / "match_starts.npy", (r,), "iu"),
+                              "positions": _array(path / "positions.npy", None, "f")}
+    if len(arrays["positions"]) != nr:
+        raise MapError(f"{path / 'positions.npy'}: {len(arrays['positions'])} positions for {nr} frames")
+    if (path / "seq_bounds.npy").is_file():
+        arrays["seq_bounds"] = _array(path / "seq_bounds.npy", (nr, 2), "iu")
+    if (path / "names.txt").is_file():
+        arrays["names"] = read_names(path / "names.txt")
+    try:
+        conf = MapConfig.from_dict(conf_dict)
+    except ConfigError as e:
+        raise MapError(f"{path / 'map.json'}: bad config ({e})") from None
+    index = None if conf.ann.kind == "flat" else _index(path / INDEX_FILE, conf, r, d1)
+    models = _models(path, meta, conf)
+    return Map(path, meta, arrays, index, models, device)
+
+
+def _index(file: Path, conf: Any, n: int, d: int) -> Any:
+    if not file.is_file():
+        raise MapError(f"map file missing: {file} (a {conf.ann.kind} map needs its index)")
+    index = load_index(file, conf.ann)
+    if index.ntotal != n or index.d != d:
+        raise MapError(f"{file}: index of {index.ntotal} vectors of D={index.d}, the map has {n} of D={d}")
+    return index
+
+
+def _models(path: Path, meta: dict[str, Any], conf: Any) -> dict[str, Any]:
+    stored = meta.get("models") or {}
+    missing = conf.roles() - set(stored)
+    if missing:
+        raise MapError(f"{path}: the map's {conf.method.name} needs model(s) {sorted(missing)} but stores "
+                       f"{sorted(stored) or 'none'}")
+    models = {}
+    for role, rel in stored.items():
+        try:
+            models[role] = load_model(path / rel)
+        except SeqnetError as e:
+            raise MapError(f"{path}: cannot load the map's {role} model ({e})") from None
+    return models

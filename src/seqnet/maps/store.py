@@ -1,0 +1,172 @@
+"""Writing a map directory from arrays: descriptors (chunked, float32 or float16), index, models, manifest.
+
+Layout of a map directory ``MAP/`` (format ``seqnet-map/1``)::
+
+    map.json            format, resolved MapConfig, shapes, dtype, provenance, models, source
+    shortlist.npy       [R, D1]  shortlist descriptor of every reference item (float32 / float16)
+    frames.npy          [Nr, D2] re-ranking frame descriptor of every reference frame
+    items.npy           [R]      frame of each item;  match_starts.npy [R]: its L_m-window start
+    positions.npy       [Nr, P]  positions of the frames;  names.txt, seq_bounds.npy (optional)
+    index.faiss         ANN index over shortlist.npy (absent for ``flat``: exact search over the file)
+    models/<role>.pt    the models the descriptors were made with (the map is self-contained)
+    .seqnet-manifest.json
+
+It is written into a temporary sibling directory under the lock of ``MAP`` and renamed into
+place; an existing ``MAP`` is replaced only when seqnet wrote everything in it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import tempfile
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._version import __version__
+from ..ann import build_index, save_index
+from ..checkpoints import save_checkpoint
+from ..errors import ConfigError
+from ..files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..ownership import check_replaceable, locked, write_manifest
+from ..sequence_descriptors import SeqNet
+from ..utils import ArrayLike, logger, to_numpy
+from .config import MapConfig
+
+MAP_FORMAT = "seqnet-map/1"
+MAP_JSON = "map.json"
+INDEX_FILE = "index.faiss"
+ARRAY_FILES = ("shortlist", "frames", "items", "match_starts", "positions", "seq_bounds")
+CHUNK_ROWS = 65536
+
+
+def is_map_file(rel: str) -> bool:
+    """Whether ``rel`` (a path inside a map directory) is a file seqnet writes there."""
+    parts = rel.split("/")
+    if len(parts) == 2:
+        return parts[0] == "models" and parts[1].endswith(".pt")
+    return rel in (MAP_JSON, INDEX_FILE, "names.txt") or rel in {f"{a}.npy" for a in ARRAY_FILES}
+
+
+@dataclasses.dataclass
+class MapArrays:
+    """The reference side of a map (numpy arrays or memory maps; torch tensors are accepted).
+
+    Attributes:
+        shortlist: ``[R, D1]`` shortlist descriptors of the items.
+        frames: ``[Nr, D2]`` re-ranking frame descriptors.
+        items: ``[R]`` frame of each item; match_starts: ``[R]`` first frame of its L_m-window.
+        positions: ``[Nr, P]``; names: ``Nr`` image names or None; seq_bounds: ``[Nr, 2]`` or None.
+    """
+
+    shortlist: ArrayLike
+    frames: ArrayLike
+    items: np.ndarray
+    match_starts: np.ndarray
+    positions: np.ndarray
+    names: list[str] | None = None
+    seq_bounds: np.ndarray | None = None
+
+    def check(self, match_len: int) -> None:
+        """:class:`ConfigError` naming the first inconsistency."""
+        r, nr = len(self.items), len(self.frames)
+        if self.shortlist.ndim != 2 or self.frames.ndim != 2 or len(self.shortlist) != r or r == 0:
+            raise ConfigError(f"a map needs shortlist [R, D1] and frames [Nr, D2] with R = {r} items > 0, got "
+                              f"{tuple(self.shortlist.shape)} and {tuple(self.frames.shape)}")
+        starts = np.asarray(self.match_starts)
+        if starts.shape != (r,) or (r and (starts.min() < 0 or starts.max() + match_len > nr)):
+            raise ConfigError(f"match_starts must be {r} window starts in 0..{nr - match_len} (L_m={match_len})")
+        if np.asarray(self.items).min() < 0 or np.asarray(self.items).max() >= nr or len(self.positions) != nr:
+            raise ConfigError(f"items must be frames in 0..{nr - 1} and positions [{nr}, P]")
+        if self.names is not None and len(self.names) != nr:
+            raise ConfigError(f"{len(self.names)} names for {nr} frames")
+
+
+def save_array(path: Path, array: ArrayLike, dtype: str, name: str) -> Path:
+    """Write ``array`` as ``.npy`` of ``dtype`` in row chunks (memory-bounded; NaN or inf is an error)."""
+    shape = tuple(array.shape)
+    with atomic_path(path) as tmp:
+        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.dtype(dtype), shape=shape)
+        for a in range(0, shape[0], CHUNK_ROWS):
+            block = np.asarray(to_numpy(array[a : a + CHUNK_ROWS]), dtype=np.float32)
+            if not np.isfinite(block).all():
+                raise ConfigError(f"{name} descriptors hold NaN or inf (rows {a}..{a + len(block) - 1})")
+            out[a : a + len(block)] = block
+        out.flush()
+        del out
+    return path
+
+
+def write_map(out: str | Path, conf: MapConfig, arrays: MapArrays, models: Mapping[str, SeqNet] | None = None,
+              provenance: dict | None = None, info: Mapping[str, Any] | None = None) -> Path:
+    """Write a map directory (see the module docstring) from ``arrays``; returns its path.
+
+    ``conf`` must be resolved (``seq_len`` and ``rerank_seq_len`` set); ``provenance`` is that of
+    the raw reference descriptors the map was made from, ``info`` is stored under ``source``.
+    """
+    out = Path(out)
+    if conf.seq_len is None or conf.rerank_seq_len is None:
+        raise ConfigError("write_map needs a resolved MapConfig (seq_len and rerank_seq_len set)")
+    arrays.check(conf.match_len)
+    with locked(out):
+        check_replaceable(out, "map", is_map_file)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp"))
+        try:
+            tmp.chmod(0o777 & ~current_umask())
+            _write(tmp, conf, arrays, dict(models or {}), provenance, dict(info or {}))
+            _swap_in(tmp, out)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+    logger.info("wrote map %s (%d items, %d frames, index %s)", out, len(arrays.items), len(arrays.frames),
+                conf.ann.kind)
+    return out
+
+
+def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet], provenance: dict | None,
+           info: dict[str, Any]) -> None:
+    shortlist = save_array(root / "shortlist.npy", a.shortlist, conf.dtype, "shortlist")
+    save_array(root / "frames.npy", a.frames, conf.dtype, "frame")
+    for name in ("items", "match_starts"):
+        save_npy_atomic(root / f"{name}.npy", np.asarray(getattr(a, name), dtype=np.int64))
+    save_npy_atomic(root / "positions.npy", np.asarray(a.positions, dtype=np.float64).reshape(len(a.frames), -1))
+    if a.seq_bounds is not None:
+        save_npy_atomic(root / "seq_bounds.npy", np.asarray(a.seq_bounds, dtype=np.int64))
+    if a.names is not None:
+        write_text_atomic(root / "names.txt", "\n".join(a.names) + "\n")
+    t0 = time.perf_counter()
+    if conf.ann.kind != "flat":  # built over the stored (possibly float16-rounded) values
+        save_index(build_index(np.load(shortlist, mmap_mode="r").astype(np.float32), conf.ann), root / INDEX_FILE)
+    info["index_seconds"] = round(time.perf_counter() - t0, 3)
+    for role, model in models.items():
+        save_checkpoint(root / "models" / f"{role}.pt", model)
+    meta = {"format": MAP_FORMAT, "seqnet_version": __version__, "config": conf.to_dict(),
+            "items": len(a.items), "frames": len(a.frames), "shortlist_dim": int(a.shortlist.shape[1]),
+            "frame_dim": int(a.frames.shape[1]), "input_dim": info.pop("input_dim", None),
+            "provenance": provenance, "models": {r: f"models/{r}.pt" for r in models}, "source": info}
+    write_json_atomic(root / MAP_JSON, meta)
+    write_manifest(root, "map", [p for p in root.rglob("*") if p.is_file()])
+
+
+def _swap_in(new: Path, root: Path) -> None:
+    """Rename ``new`` onto ``root``; an existing ``root`` (checked replaceable) is moved aside, then deleted."""
+    old = None
+    if root.exists():
+        old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
+        old.rmdir()
+        root.rename(old)
+    try:
+        new.rename(root)
+    except OSError:
+        if old is not None:
+            old.rename(root)
+            old = None
+        raise
+    finally:
+        if old is not None and old.exists():
+            shutil.rmtree(old, ignore_errors=True)

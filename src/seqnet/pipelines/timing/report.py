@@ -1,0 +1,97 @@
+"""The timing report: per-map tables, the paper's compute-time table side by side, the log-log plot."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+from ...report import new_figure, save_figure
+
+# SeqNet paper, Table "Computation Time" (Boston, 14,000 references, D = 4096, GTX 1080 Ti), ms per query
+PAPER_MS = {"S_1": 22.1, "S_5": 24.2, "SeqMatch over all": 1449.9, "SeqMatch over the top 20": 1.8}
+PLOTTED = ("knn_single", "seqmatch_all_paper", "seqmatch_all_ours", "seqmatch_topk", "hvpr_exact", "hvpr_hnsw",
+           "hvpr_ivf-flat", "hvpr_ivf-pq")
+
+
+def _ms(x: float | None) -> str:
+    return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.2f}"
+
+
+def _row(rows: list[dict[str, Any]], method: str, seq_len: int | None = None, top_k: int | None = None) -> dict:
+    for r in rows:
+        if r["method"] == method and seq_len in (None, r.get("seq_len")) and top_k in (None, r.get("top_k")):
+            return r
+    return {}
+
+
+def map_table(e: dict[str, Any]) -> str:
+    """One Markdown table of a map's rows."""
+    head = ("| method | L_m | K | per query ms (mean ± std) | CPU ms / query | batch ms / query | comparisons / query "
+            "| R@1 | shortlist recall@K |\n|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for r in e["rows"]:
+        pq = f"{r['per_query_ms']:.2f} ± {r['per_query_std_ms']:.2f}"
+        lines.append(f"| {r['method']} | {r.get('seq_len', '–')} | {r.get('top_k', '–')} | {pq} | "
+                     f"{_ms(r.get('per_query_cpu_ms'))} | {_ms(r.get('batch_ms_per_query'))} | {r['comparisons']:,} | "
+                     f"{r.get('recall@1', '–')} | {r.get('shortlist_recall', '–')} |")
+    return "\n".join(lines)
+
+
+def paper_table(e: dict[str, Any], seq_len: int, top_k: int) -> str:
+    """The paper's compute-time rows next to ours on one map (per query, ms)."""
+    rows = e["rows"]
+
+    def total(*methods: str) -> float | None:
+        found = [_row(rows, m, seq_len if m.startswith(("seqmatch", "hvpr")) else None,
+                      top_k if m.startswith(("seqmatch_topk", "hvpr")) else None) for m in methods]
+        return sum(f["per_query_ms"] for f in found) if all(found) else None
+
+    ours = {"S_1": total("describe_s1", "knn_single"), "S_5": total("describe_sl", "knn_shortlist"),
+            "SeqMatch over all": total("seqmatch_all_paper"), "SeqMatch over the top 20": total("seqmatch_topk")}
+    lines = ["| computation | paper (GTX 1080 Ti) ms | ours, paper-style ms | ours ms |", "|---|---|---|---|"]
+    for name, paper in PAPER_MS.items():
+        mine = total("seqmatch_all_ours") if name == "SeqMatch over all" else ours[name]
+        lines.append(f"| {name} | {paper} | {_ms(ours[name])} | {_ms(mine)} |")
+    hv = ", ".join(f"{r['method']} {r['per_query_ms']:.2f}" for r in rows
+                   if r["method"].startswith("hvpr_") and r.get("seq_len") == seq_len and r.get("top_k") == top_k)
+    return "\n".join(lines) + f"\n\nHVPR end to end (S_L + S_1 + shortlist + re-rank), ms per query: {hv}\n"
+
+
+def markdown(res: dict[str, Any]) -> str:
+    """``results.md``: per-map tables, peak RSS, and the paper table for each map."""
+    c = res["config"]
+    out = ["# seqnet benchmark timing", "", f"{res['machine']['platform']}, {c['threads']} threads, device "
+           f"{c['device']}, {c['queries']} queries per figure; {res['seconds']:.0f} s in all.", ""]
+    for e in res["maps"]:
+        out += [f"## N_db = {e['n_db']:,}, D = {e['dim']} ({e['items']:,} items)", "",
+                f"Map {e['map_bytes'] / 2**20:.1f} MiB; peak RSS timing {e['peak_rss_bytes'] / 2**20:.0f} MiB, "
+                f"build {e['build_peak_rss_bytes'] / 2**20:.0f} MiB; index build s {e['index_build_s']}; load "
+                f"average {e['loadavg']}; float16 map R@1 (HVPR exact): {e['float16_recall@1']}.", "",
+                map_table(e), "", paper_table(e, c["seq_lens"][-1], c["top_ks"][-1]), ""]
+    return "\n".join(out)
+
+
+def plot(res: dict[str, Any], path: str | Path) -> Path:
+    """Log-log per-query CPU time against N_db (robust to other processes sharing the cores), one line per
+    method, one panel per D."""
+    dims = sorted({e["dim"] for e in res["maps"]})
+    fig, axes = new_figure(5.5 * len(dims), 4.2, ncols=len(dims))
+    axes = axes if len(dims) > 1 else [axes]
+    seq_len, top_k = res["config"]["seq_lens"][-1], res["config"]["top_ks"][-1]
+    for ax, dim in zip(axes, dims, strict=True):
+        maps = sorted((e for e in res["maps"] if e["dim"] == dim), key=lambda e: e["n_db"])
+        for method in PLOTTED:
+            pts = [(e["n_db"], r.get("per_query_cpu_ms", r["per_query_ms"])) for e in maps
+                   if (r := _row(e["rows"], method, seq_len if method.startswith(("seq", "hvpr")) else None,
+                                 top_k if method.startswith(("seqmatch_topk", "hvpr")) else None))]
+            if pts:
+                ax.plot(*zip(*pts, strict=True), marker="o", label=method)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("N_db (reference frames)")
+        ax.set_ylabel("process CPU ms per query (one at a time)")
+        ax.set_title(f"D = {dim}, L_m = {seq_len}, K = {top_k}")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    return save_figure(fig, path)
