@@ -18,6 +18,7 @@ import os
 import shutil
 import socket
 import sys
+import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -147,3 +148,23 @@ def remove_owned_dir(root: str | os.PathLike[str], what: str, known: Callable[[s
     check_replaceable(root, what, known)
     if root.exists():
         shutil.rmtree(root)
+
+
+def swap_dir_in(new: Path, root: Path) -> None:
+    """Rename the directory ``new`` onto ``root`` (a sibling); an existing ``root`` (already checked
+    replaceable) is moved aside first and deleted only once ``new`` is in place, else put back."""
+    old: Path | None = None
+    if root.exists():
+        old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
+        old.rmdir()
+        root.rename(old)
+    try:
+        new.rename(root)
+    except OSError:
+        if old is not None:
+            old.rename(root)
+            old = None
+        raise
+    finally:
+        if old is not None and old.exists():
+            shutil.rmtree(old, ignore_errors=True)

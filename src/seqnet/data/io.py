@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import DatasetError, OutputError
 from ..files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
-from ..ownership import check_replaceable, locked, write_manifest
+from ..ownership import check_replaceable, locked, swap_dir_in, write_manifest
 from ..utils import logger
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
@@ -173,7 +173,7 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path
         try:
             tmp.chmod(0o777 & ~current_umask())  # mkdtemp makes it 0700; a plain mkdir would not
             _write_dataset(ds, tmp)
-            _swap_in(tmp, root)
+            swap_dir_in(tmp, root)
         finally:
             if tmp.exists():
                 shutil.rmtree(tmp, ignore_errors=True)
@@ -199,24 +199,6 @@ def _write_dataset(ds: Dataset, root: Path) -> None:
             np.savez(f, indptr=ds.positives.indptr, indices=ds.positives.indices)
     write_manifest(root, "dataset", [p for p in root.rglob("*") if p.is_file()])
 
-
-def _swap_in(new: Path, root: Path) -> None:
-    """Rename ``new`` onto ``root``; an existing ``root`` is moved aside first and deleted after."""
-    old: Path | None = None
-    if root.exists():
-        old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
-        old.rmdir()
-        root.rename(old)
-    try:
-        new.rename(root)
-    except OSError:
-        if old is not None:
-            old.rename(root)
-            old = None
-        raise
-    finally:
-        if old is not None and old.exists():
-            shutil.rmtree(old, ignore_errors=True)
 
 
 def save_traverse(t: Traverse, path: Path) -> None:

@@ -32,7 +32,7 @@ from ..ann import build_index, save_index
 from ..checkpoints import save_checkpoint
 from ..errors import ConfigError
 from ..files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
-from ..ownership import check_replaceable, locked, write_manifest
+from ..ownership import check_replaceable, locked, swap_dir_in, write_manifest
 from ..sequence_descriptors import SeqNet
 from ..utils import ArrayLike, logger, to_numpy
 from .config import MapConfig
@@ -119,7 +119,7 @@ def write_map(out: str | Path, conf: MapConfig, arrays: MapArrays, models: Mappi
         try:
             tmp.chmod(0o777 & ~current_umask())
             _write(tmp, conf, arrays, dict(models or {}), provenance, dict(info or {}))
-            _swap_in(tmp, out)
+            swap_dir_in(tmp, out)
         finally:
             if tmp.exists():
                 shutil.rmtree(tmp, ignore_errors=True)
@@ -152,21 +152,3 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
     write_json_atomic(root / MAP_JSON, meta)
     write_manifest(root, "map", [p for p in root.rglob("*") if p.is_file()])
 
-
-def _swap_in(new: Path, root: Path) -> None:
-    """Rename ``new`` onto ``root``; an existing ``root`` (checked replaceable) is moved aside, then deleted."""
-    old = None
-    if root.exists():
-        old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
-        old.rmdir()
-        root.rename(old)
-    try:
-        new.rename(root)
-    except OSError:
-        if old is not None:
-            old.rename(root)
-            old = None
-        raise
-    finally:
-        if old is not None and old.exists():
-            shutil.rmtree(old, ignore_errors=True)
