@@ -65,6 +65,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--build-threads", type=int, default=2, help="threads while describing and building indexes")
     p.add_argument("--map", help="reuse this map (written by an earlier run with the same --n64) instead of "
                                  "describing the distractors again; one size only")
+    p.add_argument("--keep-map", action="store_true", help="keep each map in --out/map-N (for a later --map) "
+                   "instead of a temporary folder deleted afterwards")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="folder for results.json")
     return p.parse_args(argv)
@@ -232,7 +234,7 @@ def main(argv: list[str] | None = None) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="seqnet-distractors-"))
     try:
         for n_db in (int(x) for x in args.sizes.split(",")):
-            results.append(run_size(n_db, args, ds, models, tmp))
+            results.append(run_size(n_db, args, ds, models, out if args.keep_map else tmp))
             shutil.rmtree(tmp / f"map-{n_db}", ignore_errors=True)
             (out / "results.json").write_text(json.dumps({"args": vars(args), "results": results}, indent=2))
             print(json.dumps(results[-1], indent=1))
