@@ -176,7 +176,7 @@ def test_cli_build_and_eval(synth_dir, models, tmp_path, capsys):
     one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--report", "--out",
                             str(tmp_path / "rep")], "--report is not available with --index")
     one_line_error(capsys, ["localize", "--map", str(out), "--query", str(synth_dir / "query" / "descriptors.npy"),
-                            "--out", str(tmp_path / "t.csv")], "is an index map")
+                            "--out", str(tmp_path / "t.csv")], "--window causal")
 
 
 def test_explicit_positives_apply_to_a_map_of_the_same_dataset_only(synth_dir, tmp_path):

@@ -74,6 +74,16 @@ class ReferenceMap:
         """The reference traverse of ``ds`` (already restricted to a split) with its radius."""
         return cls(ds.reference, ds.radius, dict(models or {}), ds.name)
 
+    @property
+    def provenance(self) -> dict | None:
+        """How the reference descriptors were made."""
+        return self.reference.provenance
+
+    @property
+    def names(self) -> list[str] | None:
+        """The reference frames' image names."""
+        return self.reference.names
+
 
 @dataclasses.dataclass
 class Estimate:
@@ -125,24 +135,32 @@ class Localizer:
         if self.method.matcher is not None and self.method.matcher not in WINDOW_MATCHERS:
             raise ConfigError(f"method {method!r}: matcher {self.method.matcher!r} has no online form; "
                               f"valid online matchers: {', '.join(WINDOW_MATCHERS)}")
+        self.device = get_device(conf.device)
+        for model in self.models.values():
+            model.to(self.device).eval()
+        self.radius, self.k = ref_map.radius, max(conf.ks)
+        self._attach(ref_map)
+        self.frame = 0
+        self.reset()
+
+    def _attach(self, ref_map: MapLike) -> None:
+        """Check the map's reference traverse, find its items and describe them (once)."""
         t = ref_map.reference
         if max(self.conf.length, self.conf.match_len) > len(t):
             raise ConfigError(f"seq_len={max(self.conf.length, self.conf.match_len)} is longer than the map's "
                               f"reference traverse ({len(t)} frames); use a shorter --seq-len")
         check_inputs(Dataset(t, t, ref_map.radius, name=getattr(ref_map, "name", "map")), [self.method],
                      self.models, self.conf.length, self.conf.match_len, self.conf.allow_mismatch)
-        self.device = get_device(conf.device)
-        for model in self.models.values():
-            model.to(self.device).eval()
-        self.radius, self.k = ref_map.radius, max(conf.ks)
-        self.side = Side.of(t, conf.length, conf.match_len, "causal")
+        self.side = Side.of(t, self.conf.length, self.conf.match_len, "causal")
         if len(self.side.items) == 0:
-            raise ConfigError(f"no reference frame has a full causal window of {max(conf.length, conf.match_len)} "
-                              "frames inside its sequence; use a shorter --seq-len")
+            raise ConfigError(f"no reference frame has a full causal window of "
+                              f"{max(self.conf.length, self.conf.match_len)} frames inside its sequence; "
+                              "use a shorter --seq-len")
         self.ref_items, self.r_pos = self.side.items, t.positions[self.side.items]
-        self._prepare(t)
-        self.frame = 0
-        self.reset()
+        m = self.method
+        r_items = None if m.shortlist is None else self._describe(t, m.shortlist, items=True)
+        r_frames = None if m.frames is None else self._describe(t, FRAME_FEATURES[m.frames], items=False)
+        self._prepare(t.dim, r_items, r_frames, self.side.match_starts)
 
     @property
     def seq_len(self) -> int:
@@ -154,24 +172,26 @@ class Localizer:
         """L_m: the window of the sequence matchers."""
         return self.conf.match_len
 
-    def _prepare(self, t: Traverse) -> None:
+    def _prepare(self, dim: int, r_items: torch.Tensor | None, r_frames: torch.Tensor | None,
+                 match_starts: np.ndarray) -> None:
+        """Rings and reference arrays: ``r_items [R, D1]`` (shortlists; None when searched otherwise),
+        ``r_frames [Nr, D2]`` (matchers) and the items' L_m-window starts ``[R]``."""
         m, dev = self.method, self.device
-        self.raw = Ring(self.seq_len, t.dim, torch.float32, dev)
+        self.raw = Ring(self.seq_len, dim, torch.float32, dev)
         self.need = 1
         if m.shortlist is not None:  # k-NN and HVPR shortlists: the reference items' descriptors
             d = SEQUENCE_DESCRIPTORS[m.shortlist]
             self.short_fn, self.short_len = d.window_fn(self.models), d.length(self.seq_len)
-            self.r_items = self._describe(t, m.shortlist, items=True)
-            self.r_items_sq = sq_norms(self.r_items)
+            if r_items is not None:
+                self.r_items, self.r_items_sq = r_items, sq_norms(r_items)
             self.need = self.short_len
         if m.frames is not None:  # matchers: every reference frame's descriptor
             d = SEQUENCE_DESCRIPTORS[FRAME_FEATURES[m.frames]]
             self.frame_fn, self.frame_len = d.window_fn(self.models), d.length(self.seq_len)
-            self.r_frames = self._describe(t, d.name, items=False)
-            self.r_frames_sq = sq_norms(self.r_frames)
-            self.feats = Ring(self.match_len, self.r_frames.shape[1], torch.float32, dev)
-            self.rows = Ring(self.match_len, len(t), torch.float32, dev) if m.kind == "match" else None
-            self.r_starts = torch.as_tensor(self.side.match_starts, device=dev)
+            self.r_frames, self.r_frames_sq = r_frames, sq_norms(r_frames)
+            self.feats = Ring(self.match_len, r_frames.shape[1], torch.float32, dev)
+            self.rows = Ring(self.match_len, len(r_frames), torch.float32, dev) if m.kind == "match" else None
+            self.r_starts = torch.as_tensor(match_starts, device=dev)
             self.need = max(self.need, self.match_len)
 
     def _describe(self, t: Traverse, name: str, items: bool) -> torch.Tensor:
@@ -224,7 +244,7 @@ class Localizer:
         self.frame += 1
         return est
 
-    def _rank(self) -> tuple[torch.Tensor, torch.Tensor]:
+    def _rank(self) -> tuple[torch.Tensor, torch.Tensor] | None:
         """``(scores [k], items [k])`` of the latest frame, best first."""
         m = self.method
         if m.kind == "match":
@@ -232,9 +252,15 @@ class Localizer:
             v, i = topk_smallest(row[None], self.k)
             return v[0], i[0]
         q = self.short_fn(self._window(self.short_len))[0]
-        v, i = topk_smallest(distance_row(q, self.r_items, self.r_items_sq)[None],
-                             max(self.k, self.conf.top_k) if m.kind == "hvpr" else self.k)
-        return (v[0], i[0]) if m.kind == "knn" else self._rerank(i[0])
+        v, i = self._shortlist(q, max(self.k, self.conf.top_k) if m.kind == "hvpr" else self.k)
+        if len(i) == 0:  # an approximate index found nothing
+            return None
+        return (v, i) if m.kind == "knn" else self._rerank(i)
+
+    def _shortlist(self, q: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(distances [k], items [k])`` of the reference items nearest to ``q [D1]`` (exact)."""
+        v, i = topk_smallest(distance_row(q, self.r_items, self.r_items_sq)[None], k)
+        return v[0], i[0]
 
     def _rerank(self, shortlist: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """HVPR: the top K of the shortlist re-ranked by the matcher, then the rest (score ``inf``)."""

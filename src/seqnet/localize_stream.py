@@ -1,7 +1,8 @@
 """``seqnet localize --map MAP --query DESCRIPTORS_OR_IMAGES``: localise new data frame by frame.
 
-The map is what :func:`load_map` returns (a :class:`seqnet.localize.MapLike`): for now a seqnet
-dataset directory whose reference traverse (optionally one split) is the map. The query is either a
+The map is what :func:`load_map` returns: an index map (``seqnet index build --window causal``;
+:mod:`seqnet.localize_index`: its stored descriptors and ANN index are used), or a seqnet dataset
+directory whose reference traverse (optionally one split) is the map. The query is either a
 descriptor file (``.npy`` with its provenance sidecar, ``.h5``) or a folder / list file of images,
 described one by one as they are read, by the describer the map was described with (rebuilt from the
 map's provenance; only describers without fitted state — a PCA or NetVLAD clusters — can be rebuilt,
@@ -20,7 +21,8 @@ import numpy as np
 
 from .data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file
 from .errors import ConfigError
-from .localize import Estimate, Localizer, MapLike, ReferenceMap
+from .localize import Estimate, Localizer, ReferenceMap
+from .localize_index import IndexLocalizer, IndexMap
 from .localize_stage import LocalizeConfig, check_output, summarize, track_rows, write_track
 from .progress import progress
 from .provenance import check_same
@@ -28,37 +30,50 @@ from .provenance import read as read_provenance
 from .sequence_descriptors import SeqNet
 from .utils import logger
 
+AnyMap = ReferenceMap | IndexMap  # a dataset's reference traverse, or an index map
 Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spent describing it)
 
 
-def load_map(path: str | Path, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> MapLike:
-    """The map in ``path``: a dataset directory's reference traverse (``conf.split``, default all)."""
+def load_map(path: str | Path, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> AnyMap:
+    """The map in ``path``: an index map (``seqnet index build --window causal``), or a dataset
+    directory whose reference traverse (``conf.split``, default all) is the map."""
     from .data.io import load_dataset
+    from .maps import load_map as load_index_map
     from .maps.store import MAP_JSON
 
     if (Path(path) / MAP_JSON).is_file():
-        raise ConfigError(f"{path} is an index map (seqnet index build), which holds the shortlist and re-ranking "
-                          "descriptors, not the reference traverse the localiser replays; pass the dataset "
-                          "directory the map was built from as --map")
+        if models:
+            raise ConfigError(f"{path} is an index map: it stores the models its descriptors were made with; drop "
+                              "--model / --shortlist-model / --rerank-model")
+        if conf.split is not None:
+            raise ConfigError(f"{path} is an index map of one split already; drop --split")
+        return IndexMap.of(load_index_map(path, conf.device), conf.radius)
     ds = load_dataset(path).split(conf.split or "all")
     return ReferenceMap(ds.reference, conf.radius or ds.radius, dict(models), ds.name)
 
 
-def descriptor_frames(path: Path, ref_map: MapLike, allow: bool) -> tuple[Frames, list[str] | None, int]:
+def make_localizer(ref_map: AnyMap, conf: LocalizeConfig) -> Localizer:
+    """The localiser of ``conf.method`` over ``ref_map`` (an :class:`IndexLocalizer` for an index map)."""
+    if isinstance(ref_map, IndexMap):
+        return IndexLocalizer(ref_map, conf.method, conf.eval_config(), conf.anchor)
+    return Localizer(ref_map, conf.method, conf.eval_config(), conf.anchor)
+
+
+def descriptor_frames(path: Path, ref_map: AnyMap, allow: bool) -> tuple[Frames, list[str] | None, int]:
     """The frames of a descriptor file (checked against the map's provenance), their names and count."""
     desc, names = read_descriptor_file(path)
-    check_same(ref_map.reference.provenance, read_provenance(path), "the map's descriptors",
+    check_same(ref_map.provenance, read_provenance(path), "the map's descriptors",
                f"the query descriptors {path.name}", allow)
     return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
 
 
-def image_frames(source: Path, ref_map: MapLike, allow: bool) -> tuple[Frames, list[str], int]:
+def image_frames(source: Path, ref_map: AnyMap, allow: bool) -> tuple[Frames, list[str], int]:
     """Images of a folder or list file, each described when it is read by the map's describer."""
     from .describe import DescribeConfig, make_describer
     from .describe.images import list_images
     from .describe.store import describe_provenance
 
-    prov = ref_map.reference.provenance
+    prov = ref_map.provenance
     if not prov or prov.get("kind") != "describe":
         raise ConfigError("the map's descriptors do not record how they were described (no 'describe' provenance), "
                           "so query images cannot be described alike; describe them yourself and pass the "
@@ -93,7 +108,7 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
     out, query = check_output(out), Path(query)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     ref_map = load_map(map_dir, loaded, conf)
-    loc = Localizer(ref_map, conf.method, conf.eval_config(), conf.anchor)
+    loc = make_localizer(ref_map, conf)
     is_file = query.is_file() and query.suffix.lower() in DESCRIPTOR_SUFFIXES
     source = descriptor_frames if is_file else image_frames
     frames, names, n = source(query, ref_map, conf.allow_mismatch)
@@ -109,8 +124,8 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
                                              "radius": ref_map.radius},
               "inputs": {"map": str(Path(map_dir).resolve()), "query": str(query.resolve()),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
-              "provenance": {"map": ref_map.reference.provenance,
+              "provenance": {"map": ref_map.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    write_track(out, track_rows(est, names, ref_map.reference.names, None), record)
+    write_track(out, track_rows(est, names, ref_map.names, None), record)
     logger.debug("localize: %d frames streamed", len(est))
     return out

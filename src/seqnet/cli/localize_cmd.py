@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        + ", or hvpr-<shortlister>:<frames>+<matcher> (not grh). See docs/online.md.")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--dataset", help="seqnet dataset directory: replay its query traverse against its reference")
-    src.add_argument("--map", help="the map: for now a seqnet dataset directory, whose reference traverse is used")
+    src.add_argument("--map", help="the map: an index map (seqnet index build --window causal; its index "
+                     "shortlists) or a seqnet dataset directory, whose reference traverse is used")
     p.add_argument("--query", metavar="DESCRIPTORS|IMAGES", help="with --map: a descriptor file (.npy, .h5) or a "
                    "folder / list file of images, described one by one as the map was (see docs/online.md)")
     p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
