@@ -42,3 +42,18 @@ def synth_dir(tmp_path, synth_dataset):
     from seqnet.data.io import save_dataset
 
     return save_dataset(synth_dataset, tmp_path / "ds")
+
+
+@pytest.fixture
+def map_models(synth_dataset, tmp_path):
+    """Checkpoint paths of a random S_L (L=4, w=2) and S_1 made for ``synth_dataset``'s descriptors."""
+    from seqnet.checkpoints import save_checkpoint
+    from seqnet.sequence_descriptors import SeqNet
+
+    torch.manual_seed(0)
+    paths = []
+    for name, (seq_len, w) in {"sl": (4, 2), "s1": (1, 1)}.items():
+        model = SeqNet(16, 12, seq_len, w)
+        model.provenance = synth_dataset.reference.provenance
+        paths.append(save_checkpoint(tmp_path / f"{name}.pt", model))
+    return paths

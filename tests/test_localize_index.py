@@ -6,31 +6,16 @@ import csv
 
 import numpy as np
 import pytest
-import torch
 
 from seqnet.ann import AnnConfig
-from seqnet.checkpoints import save_checkpoint
 from seqnet.cli import main as cli
 from seqnet.errors import ConfigError
 from seqnet.evaluate import EvalConfig
 from seqnet.localize import Localizer, ReferenceMap, replay
 from seqnet.localize_index import IndexLocalizer, IndexMap
 from seqnet.maps import MapConfig, build, load_map
-from seqnet.sequence_descriptors import SeqNet
 
 CONF = EvalConfig(ks=(7,), top_k=5, device="cpu")
-
-
-@pytest.fixture
-def models(synth_dataset, tmp_path):
-    """Random S_L (L=4, w=2) and S_1 checkpoints made for the dataset's descriptors."""
-    torch.manual_seed(0)
-    paths = []
-    for name, (seq_len, w) in {"sl": (4, 2), "s1": (1, 1)}.items():
-        model = SeqNet(16, 12, seq_len, w)
-        model.provenance = synth_dataset.reference.provenance
-        paths.append(save_checkpoint(tmp_path / f"{name}.pt", model))
-    return paths
 
 
 def assert_same_track(a, b):
@@ -49,9 +34,9 @@ def assert_same_track(a, b):
      "hvpr-delta:raw+graph", False),
     (MapConfig(shortlist="delta", rerank="raw+vseqmatch", seq_len=4, window="causal"), "raw+vseqmatch", False),
 ])
-def test_flat_index_map_equals_the_dataset_localizer(synth_dataset, synth_dir, models, tmp_path, conf, method,
+def test_flat_index_map_equals_the_dataset_localizer(synth_dataset, synth_dir, map_models, tmp_path, conf, method,
                                                      with_models):
-    used = models if with_models else ()
+    used = map_models if with_models else ()
     mp = load_map(build(conf, synth_dir, tmp_path / "map", used), "cpu")
     test = synth_dataset.split("test")
     loc_map = IndexLocalizer(IndexMap.of(mp), method, CONF)
@@ -80,11 +65,11 @@ def test_an_approximate_index_shortlists_through_the_index(synth_dataset, synth_
     assert agree >= 0.95  # HNSW with ef_search 256 over ~140 items is (nearly) exact
 
 
-def test_index_maps_are_refused_when_they_do_not_fit(synth_dir, models, tmp_path):
-    centred = load_map(build(MapConfig(seq_len=4), synth_dir, tmp_path / "c", models), "cpu")
+def test_index_maps_are_refused_when_they_do_not_fit(synth_dir, map_models, tmp_path):
+    centred = load_map(build(MapConfig(seq_len=4), synth_dir, tmp_path / "c", map_models), "cpu")
     with pytest.raises(ConfigError, match="--window causal"):
         IndexLocalizer(IndexMap.of(centred), "hvpr", CONF)
-    causal = load_map(build(MapConfig(seq_len=4, window="causal"), synth_dir, tmp_path / "k", models), "cpu")
+    causal = load_map(build(MapConfig(seq_len=4, window="causal"), synth_dir, tmp_path / "k", map_models), "cpu")
     with pytest.raises(ConfigError, match="cannot run method 'single'; valid for this map: hvpr, seqnet"):
         IndexLocalizer(IndexMap.of(causal), "single", CONF)
     with pytest.raises(ConfigError, match="seq_len=5 but map"):
@@ -101,10 +86,10 @@ def one_line_error(capsys, argv, needle):
     assert needle in err and len(err.splitlines()) == 1, err
 
 
-def test_cli_streams_descriptors_against_an_index_map(synth_dir, models, tmp_path, capsys):
+def test_cli_streams_descriptors_against_an_index_map(synth_dir, map_models, tmp_path, capsys):
     mp = tmp_path / "map"
-    assert cli(["-q", "index", "build", "--dataset", str(synth_dir), "--model", str(models[0]), "--model",
-                str(models[1]), "--window", "causal", "--index", "hnsw", "--out", str(mp)]) == 0
+    assert cli(["-q", "index", "build", "--dataset", str(synth_dir), "--model", str(map_models[0]), "--model",
+                str(map_models[1]), "--window", "causal", "--index", "hnsw", "--out", str(mp)]) == 0
     query = synth_dir / "query" / "descriptors.npy"
     out = tmp_path / "track.csv"
     assert cli(["-q", "localize", "--map", str(mp), "--query", str(query), "--out", str(out)]) == 0
@@ -112,7 +97,7 @@ def test_cli_streams_descriptors_against_an_index_map(synth_dir, models, tmp_pat
     assert len(rows) == len(np.load(query)) and any(int(r["estimate"]) >= 0 for r in rows)
     capsys.readouterr()
     one_line_error(capsys, ["localize", "--map", str(mp), "--query", str(query), "--out", str(tmp_path / "b.csv"),
-                            "--model", str(models[0])], "stores the models")
+                            "--model", str(map_models[0])], "stores the models")
     one_line_error(capsys, ["localize", "--map", str(mp), "--query", str(query), "--out", str(tmp_path / "b.csv"),
                             "--split", "val"], "drop --split")
     one_line_error(capsys, ["localize", "--map", str(mp), "--query", str(query), "--out", str(tmp_path / "b.csv"),

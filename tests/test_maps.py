@@ -6,9 +6,7 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
-from seqnet.checkpoints import save_checkpoint
 from seqnet.cli import main as cli
 from seqnet.data.io import load_dataset, save_dataset
 from seqnet.errors import ConfigError, OutputError
@@ -19,21 +17,8 @@ from seqnet.maps import MapConfig, MapError, build, evaluate_main, load_map
 from seqnet.maps.rerank import rerank_on_map
 from seqnet.provenance import ProvenanceError
 from seqnet.provenance import make as make_provenance
-from seqnet.sequence_descriptors import SeqNet
 
 FREE = MapConfig(shortlist="delta", rerank="raw+seqmatch", seq_len=4)  # a model-free map
-
-
-@pytest.fixture
-def models(synth_dataset, tmp_path):
-    """Random S_L (L=4) and S_1 checkpoints made for the dataset's descriptors."""
-    torch.manual_seed(0)
-    paths = []
-    for name, (seq_len, w) in {"sl": (4, 2), "s1": (1, 1)}.items():
-        model = SeqNet(16, 12, seq_len, w)
-        model.provenance = synth_dataset.reference.provenance
-        paths.append(save_checkpoint(tmp_path / f"{name}.pt", model))
-    return paths
 
 
 def results(path):
@@ -41,9 +26,9 @@ def results(path):
 
 
 @pytest.mark.parametrize("with_models", [False, True])
-def test_flat_map_equals_the_exact_evaluation(synth_dir, models, tmp_path, with_models):
+def test_flat_map_equals_the_exact_evaluation(synth_dir, map_models, tmp_path, with_models):
     conf = MapConfig() if with_models else FREE
-    used = models if with_models else ()
+    used = map_models if with_models else ()
     mp_path = build(conf, synth_dir, tmp_path / "map", used)
     mp = load_map(mp_path)
     methods = [mp.config.method.name, mp.config.method.shortlist, mp.config.method.rerank]
@@ -149,10 +134,10 @@ def one_line_error(capsys, argv, pattern):
     assert len(err) == 1 and pattern in err[0] and "Traceback" not in err[0], err
 
 
-def test_cli_build_and_eval(synth_dir, models, tmp_path, capsys):
+def test_cli_build_and_eval(synth_dir, map_models, tmp_path, capsys):
     out = tmp_path / "map"
-    assert cli(["-q", "index", "build", "--dataset", str(synth_dir), "--model", str(models[0]), "--model",
-                str(models[1]), "--index", "ivf-flat", "--nlist", "2", "--out", str(out)]) == 0
+    assert cli(["-q", "index", "build", "--dataset", str(synth_dir), "--model", str(map_models[0]), "--model",
+                str(map_models[1]), "--index", "ivf-flat", "--nlist", "2", "--out", str(out)]) == 0
     assert "ivf-flat" in capsys.readouterr().out
     res_json = tmp_path / "r.json"
     assert cli(["-q", "eval", "--dataset", str(synth_dir), "--index", str(out), "--json", str(res_json)]) == 0
@@ -167,7 +152,7 @@ def test_cli_build_and_eval(synth_dir, models, tmp_path, capsys):
     assert not (tmp_path / "m3").exists()
     one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(tmp_path / "nope")],
                    "map directory not found")
-    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--model", str(models[0])],
+    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--model", str(map_models[0])],
                    "--index uses the map's models")
     one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--method", "single"],
                    "cannot run method 'single'")

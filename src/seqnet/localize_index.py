@@ -24,7 +24,7 @@ from .errors import ConfigError
 from .evaluate import EvalConfig
 from .localize import Localizer
 from .maps import Map
-from .maps.evaluate import map_methods
+from .maps.evaluate import check_conf
 from .sequence_descriptors import SeqNet
 
 
@@ -59,17 +59,12 @@ class IndexMap:
 
 def index_conf(mp: Map, method: str, conf: EvalConfig | None) -> EvalConfig:
     """``conf`` checked against the map (window, L, L_m, method) and set to the map's L and L_m."""
-    c, served = mp.config, map_methods(mp)
-    if c.window != "causal":
-        raise ConfigError(f"map {mp.path} was built with {c.window} windows; the online localiser needs causal "
-                          "ones (seqnet index build --window causal)")
-    if method not in served:
-        raise ConfigError(f"map {mp.path} cannot run method {method!r}; valid for this map: {', '.join(served)}")
-    conf = conf or EvalConfig()
-    for key, want, have in (("seq_len", conf.seq_len, c.length), ("rerank_seq_len", conf.rerank_seq_len, c.match_len)):
-        if want is not None and want != have:
-            raise ConfigError(f"{key}={want} but map {mp.path} was built with {have}; rebuild the map to change it")
-    return conf.replace(seq_len=c.length, rerank_seq_len=c.match_len)
+    if mp.config.window != "causal":
+        raise ConfigError(f"map {mp.path} was built with {mp.config.window} windows; the online localiser needs "
+                          "causal ones (seqnet index build --window causal)")
+    conf = (conf or EvalConfig()).replace(window="causal", methods=(method,))
+    check_conf(mp, conf)
+    return conf.replace(seq_len=mp.config.length, rerank_seq_len=mp.config.match_len)
 
 
 class IndexLocalizer(Localizer):

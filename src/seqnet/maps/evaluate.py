@@ -89,7 +89,8 @@ def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
     return load_positives(q.root / POSITIVES_FILE).select(q.query_range[0] + q_items, ra + mp.items)
 
 
-def _check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
+def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
+    """The methods of ``conf`` the map serves; refuses another L, L_m, window mode or method."""
     c, served = mp.config, map_methods(mp)
     for key, want, have in (("seq_len", conf.seq_len, c.length), ("rerank_seq_len", conf.rerank_seq_len, c.match_len)):
         if want is not None and want != have:
@@ -131,7 +132,7 @@ def _rank(m: Method, mp: Map, qd: QueryDescriptors, conf: EvalConfig, k: int) ->
 def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evaluation:
     """Evaluate the query side ``q`` against the map ``mp`` (methods: :func:`map_methods`)."""
     conf = conf or EvalConfig()
-    methods = _check_conf(mp, conf)
+    methods = check_conf(mp, conf)
     mp.check_query(q.traverse.dim, q.traverse.provenance, conf.allow_mismatch)
     radius = conf.radius or q.radius
     qd = mp.describe(q.traverse)
