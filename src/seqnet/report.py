@@ -107,17 +107,19 @@ def recall_figure(curves: Mapping[str, np.ndarray], title: str = "") -> Any:
 
 
 def plot_pr_curves(methods: Mapping[str, Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
-    """Save the precision–recall curves of results entries (``pr_curve``: ``{"precision", "recall"}``,
-    and ``auc`` for the legend) as a PNG, one line per method; entries without a curve are left out."""
-    import matplotlib
+    """Save :func:`pr_figure` of results entries as a PNG."""
+    return save_figure(pr_figure(methods, title), path)
 
-    tab20 = matplotlib.colormaps["tab20"].colors
-    colours = [*tab20[::2], *tab20[1::2]]
+
+def pr_figure(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> Any:
+    """The precision–recall curves of results entries (``pr_curve``: ``{"precision", "recall"}``, and
+    ``auc`` for the legend), one line per method; entries without a curve are left out."""
+    entries = [(n, r) for n, r in methods.items() if r.get("pr_curve")]
     fig, ax = new_figure(6, 4.5)
-    for i, (name, r) in enumerate((n, r) for n, r in methods.items() if r.get("pr_curve")):
+    for i, ((name, r), colour) in enumerate(zip(entries, method_colours(len(entries)), strict=True)):
         c = r["pr_curve"]
         ax.plot(c["recall"], c["precision"], label=f"{name} (AUC {float(r.get('auc', float('nan'))):.2f})",
-                color=colours[i % 20], linestyle="-" if i % 20 < 10 else "--")
+                color=colour, linestyle="-" if i % 20 < 10 else "--")
     ax.set_xlabel("recall (top-1 correct, accepted by confidence)")
     ax.set_ylabel("precision")
     ax.set_xlim(0, 1.02)
@@ -126,7 +128,7 @@ def plot_pr_curves(methods: Mapping[str, Mapping[str, Any]], path: str | Path, t
     ax.legend(fontsize=7, loc="lower left")
     if title:
         ax.set_title(title)
-    return save_figure(fig, path)
+    return fig
 
 
 def new_figure(width: float, height: float, ncols: int = 1) -> tuple[Any, Any]:

@@ -17,32 +17,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .data.traverse import Traverse
-from .precision_recall import precision_recall
 from .recall import GroundTruth
 from .report import method_colours, new_figure
 from .windows import window_starts
 
 MAX_TRUTH_POINTS = 20000  # ground-truth pairs drawn on the distance matrix at most
-
-
-def pr_figure(ev: Any, title: str = "") -> Any:
-    """Precision–recall curves of every method of the :class:`~seqnet.evaluate.Evaluation` ``ev``
-    (ratio confidence of the top-1, see :mod:`seqnet.precision_recall`)."""
-    fig, ax = new_figure(6, 4.5)
-    has = ev.truth.has_positive()
-    for (name, ranked), colour in zip(ev.retrieved.items(), method_colours(len(ev.retrieved)), strict=True):
-        correct = ev.truth.hits(ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
-        precision, recall, _ = precision_recall(ev.confidence[name], correct, has)
-        ax.plot(np.r_[0.0, recall], np.r_[1.0, precision], label=name, color=colour, linewidth=1.2)
-    ax.set_xlabel("recall")
-    ax.set_ylabel("precision")
-    ax.set_xlim(0, 1.0)
-    ax.set_ylim(0, 1.02)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower left")
-    if title:
-        ax.set_title(title)
-    return fig
 
 
 def truth_pairs(truth: GroundTruth, limit: int = MAX_TRUTH_POINTS) -> tuple[np.ndarray, np.ndarray]:

@@ -29,8 +29,8 @@ from .data.traverse import Dataset
 from .files import write_text_atomic
 from .methods import parse_method
 from .recall import recall_curve
-from .report import figure_png, recall_figure, results_rows
-from .report_figures import GalleryItem, gallery_png, matrix_figure, pick_examples, pr_figure, window_names
+from .report import figure_png, pr_figure, recall_figure, results_rows
+from .report_figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .sequence_descriptors import SEQUENCE_DESCRIPTORS
 
 SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery")
@@ -158,11 +158,12 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
     """The report sections of one :class:`~seqnet.evaluate.Evaluation` of the dataset ``ds`` (the
     evaluated split: its traverses give the descriptors and image names)."""
     curves = {m: recall_curve(r, ev.truth, conf.k_max) for m, r in ev.retrieved.items()}
+    pr = pr_figure(ev.results["methods"], "precision–recall (ratio confidence)")
     return [
         summary_section(ev, conf),
         results_section(ev),
         Section("recall", "Recall@K", png_tag(figure_png(recall_figure(curves, "Recall@K")), "Recall@K curves")),
-        Section("pr", "Precision–recall", png_tag(figure_png(pr_figure(ev, "precision–recall (ratio confidence)")),
+        Section("pr", "Precision–recall", png_tag(figure_png(pr),
                                                    "precision-recall curves")
                 + "<p>Confidence of a top-1: the ratio test against the best other place (seqnet.precision_recall)."
                 "</p>"),
