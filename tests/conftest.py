@@ -57,3 +57,16 @@ def map_models(synth_dataset, tmp_path):
         model.provenance = synth_dataset.reference.provenance
         paths.append(save_checkpoint(tmp_path / f"{name}.pt", model))
     return paths
+
+
+@pytest.fixture
+def folder(tmp_path):
+    """A folder of ten random 32×16 RGB PNG images ``f0.png`` … ``f9.png``."""
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    d = tmp_path / "imgs"
+    d.mkdir()
+    for i in range(10):
+        Image.fromarray(rng.integers(0, 256, size=(16, 32, 3), dtype=np.uint8)).save(d / f"f{i}.png")
+    return d

@@ -19,16 +19,6 @@ TINY = {
 }
 
 
-@pytest.fixture
-def folder(tmp_path):
-    rng = np.random.default_rng(0)
-    d = tmp_path / "imgs"
-    d.mkdir()
-    for i in range(10):
-        Image.fromarray(rng.integers(0, 256, size=(16, 32, 3), dtype=np.uint8)).save(d / f"f{i}.png")
-    return d
-
-
 def test_tiny_settings_cover_the_table():
     assert set(TINY) == set(DESCRIBERS)
 

@@ -19,16 +19,6 @@ from seqnet.describe import DescribeConfig, describe_folder, main
 from seqnet.errors import ConfigError
 
 
-@pytest.fixture
-def folder(tmp_path):
-    rng = np.random.default_rng(0)
-    d = tmp_path / "imgs"
-    d.mkdir()
-    for i in range(10):
-        Image.fromarray(rng.integers(0, 256, size=(16, 32, 3), dtype=np.uint8)).save(d / f"f{i}.png")
-    return d
-
-
 def describe(*args):
     """``seqnet describe ARGS`` (on CPU); the exit code."""
     return cli_main(["describe", *map(str, args), "--device", "cpu"])
