@@ -38,16 +38,23 @@ def check_provenance(ds: Dataset, models: Mapping[str, SeqNet], length: int, all
     and the sequence length L it was trained with (unless ``allow``)."""
     check_same(ds.reference.provenance, ds.query.provenance, "the reference descriptors", "the query descriptors",
                allow)
+    check_models(models, ds.query.dim, ds.reference.provenance, f"dataset {ds.name!r}", length, allow)
+
+
+def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None, where: str, length: int,
+                 allow: bool = False, use: str = "is evaluated with") -> None:
+    """Each model reads ``dim``-D descriptors made as ``provenance`` (those of ``where``, e.g. ``dataset
+    'x'``) and, for S_L, windows of its own L = ``length``; with ``allow`` the last two only warn."""
     for role, model in models.items():
         name = "S_1" if role == "s1" else f"S_{model.seq_len}"
-        if model.in_dims != ds.query.dim:
+        if model.in_dims != dim:
             raise ConfigError(f"the {role} model ({name}) expects D={model.in_dims} descriptors "
-                              f"but the dataset has D={ds.query.dim}")
-        check_same(model.provenance, ds.reference.provenance, f"the descriptors the {name} model was trained on",
-                   f"the descriptors of dataset {ds.name!r}", allow)
+                              f"but the dataset has D={dim}")
+        check_same(model.provenance, provenance, f"the descriptors the {name} model was trained on",
+                   f"the descriptors of {where}", allow)
         if role == "seqnet" and model.seq_len != length:
-            msg = (f"the S_L model was trained with L={model.seq_len} but is evaluated with L={length}; "
-                   f"hint: --seq-len {model.seq_len}, or --allow-mismatch to evaluate it on other windows")
+            msg = (f"the S_L model was trained with L={model.seq_len} but {use} L={length}; "
+                   f"hint: --seq-len {model.seq_len}, or --allow-mismatch to use it on other windows")
             if not allow:
                 raise ConfigError(msg)
             logger.warning("%s (going on as asked)", msg)

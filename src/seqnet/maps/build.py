@@ -11,9 +11,9 @@ from ..checkpoints import load_models
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..errors import ConfigError
+from ..eval_checks import check_models as check_model_inputs
 from ..features import Side
 from ..ownership import check_replaceable
-from ..provenance import check_same
 from ..sequence_descriptors import SEQUENCE_DESCRIPTORS, SeqNet
 from ..utils import get_device, logger
 from .config import MapConfig
@@ -36,16 +36,8 @@ def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> 
         need = " and ".join("an S_1 model (--model S1.pt)" if r == "s1" else "an S_L model (--model SL.pt)"
                             for r in sorted(missing))
         raise ConfigError(f"map {conf.method.name} (shortlist {conf.shortlist}, re-rank {conf.rerank}) needs {need}")
-    for role, model in models.items():
-        name = "S_1" if role == "s1" else f"S_{model.seq_len}"
-        if model.in_dims != ds.reference.dim:
-            raise ConfigError(f"the {name} model expects D={model.in_dims} descriptors but dataset {ds.name!r} has "
-                              f"D={ds.reference.dim}")
-        check_same(model.provenance, ds.reference.provenance, f"the descriptors the {name} model was trained on",
-                   f"the descriptors of dataset {ds.name!r}", conf.allow_mismatch)
-        if role == "seqnet" and model.seq_len != conf.length and not conf.allow_mismatch:
-            raise ConfigError(f"the S_L model was trained with L={model.seq_len} but the map uses L={conf.length}; "
-                              f"hint: --seq-len {model.seq_len}")
+    check_model_inputs(models, ds.reference.dim, ds.reference.provenance, f"dataset {ds.name!r}", conf.length,
+                 conf.allow_mismatch, use="the map uses")
     if max(conf.length, conf.match_len) > len(ds.reference):
         raise ConfigError(f"L={conf.length} / L_m={conf.match_len} is longer than the reference traverse "
                           f"({len(ds.reference)} frames)")
