@@ -29,7 +29,7 @@ import torch
 
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.describe import DescribeConfig, make_describer
-from seqnet.evaluate import EvalConfig, evaluate
+from seqnet.eval.evaluate import EvalConfig, evaluate
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SEQNET_SHARED_DATA", REPO.parent / "shared" / "data")) / "nordland64"

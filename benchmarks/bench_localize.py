@@ -24,10 +24,10 @@ import numpy as np
 import torch
 
 from seqnet.data.traverse import Traverse
-from seqnet.evaluate import EvalConfig
-from seqnet.localize import Localizer, ReferenceMap
-from seqnet.online import distance_row
-from seqnet.sequence_descriptors import SeqNet
+from seqnet.eval.evaluate import EvalConfig
+from seqnet.localize.localizer import Localizer, ReferenceMap
+from seqnet.matching.online import distance_row
+from seqnet.sequence.descriptors import SeqNet
 
 
 def synthetic_map(n: int, dim: int, seed: int = 0) -> np.ndarray:

@@ -34,15 +34,15 @@ import faiss
 import numpy as np
 import torch
 
-from seqnet.ann import AnnConfig, build_index, set_search_params
-from seqnet.checkpoints import load_model
 from seqnet.data.io import load_dataset
 from seqnet.data.traverse import Traverse
+from seqnet.eval.metrics.recall import GroundTruth, recall
 from seqnet.maps import MapArrays, MapConfig, load_map, write_map
 from seqnet.maps.map import describe_traverse
-from seqnet.online import OnlineSeqMatch
-from seqnet.recall import GroundTruth, recall
-from seqnet.seqmatch import seqmatch_topk
+from seqnet.matching.online import OnlineSeqMatch
+from seqnet.matching.seqmatch import seqmatch_topk
+from seqnet.search.ann import AnnConfig, build_index, set_search_params
+from seqnet.sequence.checkpoints import load_model
 
 FAR = 1e7  # distractor positions start here: never within the radius of a real place
 

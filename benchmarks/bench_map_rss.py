@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from seqnet.core.provenance import make as make_provenance
 from seqnet.data.io import save_dataset
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.pipelines.timing.synth import route
-from seqnet.provenance import make as make_provenance
 
 BUDGET = 512 * 2**20
 

@@ -4,7 +4,7 @@ Three timings on the same float32, L2-normalised random descriptors (``query [Nq
 ``ref [Nr, D]``):
 
 * ``gemm``: one bare ``query @ ref.T`` (the floor: SeqMatch needs at least this GEMM);
-* ``seqmatch``: :func:`seqnet.seqmatch` over the whole map, ``[Nq−L+1, Nr−L+1]`` scores;
+* ``seqmatch``: :func:`seqnet.matching.seqmatch` over the whole map, ``[Nq−L+1, Nr−L+1]`` scores;
 * ``cdist loop``: the original seqNet way (``aggregateMatchScores``), one ``torch.cdist`` per
   (query window, reference window) pair followed by the sum of the diagonal. Running it on all
   pairs would take many minutes, so it is timed on a random sample of pairs (in slices between the
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from seqnet.seqmatch import seqmatch
+from seqnet.matching.seqmatch import seqmatch
 
 GEMM_TARGET = 1.15
 LOOP_TARGET = 1000.0

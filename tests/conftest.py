@@ -47,8 +47,8 @@ def synth_dir(tmp_path, synth_dataset):
 @pytest.fixture
 def map_models(synth_dataset, tmp_path):
     """Checkpoint paths of a random S_L (L=4, w=2) and S_1 made for ``synth_dataset``'s descriptors."""
-    from seqnet.checkpoints import save_checkpoint
-    from seqnet.sequence_descriptors import SeqNet
+    from seqnet.sequence.checkpoints import save_checkpoint
+    from seqnet.sequence.descriptors import SeqNet
 
     torch.manual_seed(0)
     paths = []

@@ -4,7 +4,7 @@
 * no module imports the package root (``seqnet/__init__``) and no private name crosses modules;
 * no module over 300 lines, no function over 50 lines;
 * no process-wide side effects in library code (thread counts, matplotlib backends, tqdm bars
-  other than through seqnet.progress, ``print``).
+  other than through seqnet.core.progress, ``print``).
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ def test_no_process_wide_side_effects(path):
         if isinstance(node, (ast.Import, ast.ImportFrom)) and path.name != "progress.py":
             mods = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
             assert not any(m.startswith("tqdm") for m in mods), \
-                f"{path.relative_to(SRC)}:{node.lineno}: progress bars come from seqnet.progress"
+                f"{path.relative_to(SRC)}:{node.lineno}: progress bars come from seqnet.core.progress"
         if isinstance(node, ast.ImportFrom) and node.module == "matplotlib" and any(
                 a.name == "pyplot" for a in node.names):
             pytest.fail(f"{path.relative_to(SRC)}:{node.lineno}: pyplot keeps global state; use report.new_figure")

@@ -8,18 +8,18 @@ Main entry points::
 from __future__ import annotations
 
 from ._version import __version__
-from .blocks import topk_smallest
+from .core.errors import CheckpointError, ConfigError, DatasetError, ImageError, SeqnetError
 from .data.io import load_dataset, save_dataset
 from .data.synth import make_synthetic
 from .data.traverse import Dataset, Traverse
-from .distances import knn, pairwise_distances
-from .errors import CheckpointError, ConfigError, DatasetError, ImageError, SeqnetError
-from .evaluate import EvalConfig, Evaluation, evaluate
-from .hvpr import hvpr
-from .recall import recall_at_k
-from .seqmatch import seqmatch
-from .sequence_descriptors import SeqNet, delta, smoothing
-from .windows import window_indices, window_starts
+from .eval.evaluate import EvalConfig, Evaluation, evaluate
+from .eval.metrics.recall import recall_at_k
+from .matching.hvpr import hvpr
+from .matching.seqmatch import seqmatch
+from .search.blocks import topk_smallest
+from .search.knn import knn, pairwise_distances
+from .sequence.descriptors import SeqNet, delta, smoothing
+from .sequence.windows import window_indices, window_starts
 
 __all__ = [
     "__version__", "CheckpointError", "ConfigError", "DatasetError", "Dataset", "EvalConfig", "Evaluation",

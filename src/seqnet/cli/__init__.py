@@ -1,7 +1,7 @@
 """Command-line interface: ``seqnet <command> ...``.
 
 Each command lives in its own module of this package and only parses arguments and calls one
-stage. This module is the one error boundary: every :class:`seqnet.errors.SeqnetError` and every
+stage. This module is the one error boundary: every :class:`seqnet.core.errors.SeqnetError` and every
 OS failure becomes one line on stderr (progress bars cleared first, third-party warnings held
 back) with exit code 2 for bad input and 1 for a failing environment (disk full, read-only file
 system, permission, a lock held by another process), never a traceback.
@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from .._version import __version__
-from ..errors import SeqnetError
+from ..core.errors import SeqnetError
 from .runtime import add_runtime_options, check_no_empty_values, report_error, runtime
 
 COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark", "index", "localize",

@@ -7,15 +7,15 @@ import argparse
 import json
 from pathlib import Path
 
-from ..ann import ANN_INDEXES
 from ..describe import DESCRIBERS, DescribeConfig
 from ..maps import MapConfig
 from ..maps.config import DTYPES
 from ..pipelines.nordland64 import Nordland64Config, main
 from ..pipelines.timing import BIG_SIZES, TimingConfig
 from ..pipelines.timing import main as timing_main
-from ..report import format_table
-from ..sequence_descriptors import SEQUENCE_DESCRIPTORS
+from ..report.tables import format_table
+from ..search.ann import ANN_INDEXES
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .common import add_device, index_range, int_list, non_negative_float, non_negative_int, parse_list, positive_int
 
 _D, _T = Nordland64Config(), TimingConfig()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .common import add_allow_mismatch, positive_float
 from .dataset_images import register_from_images
 
@@ -186,8 +186,8 @@ def run_from_seqnet(args: argparse.Namespace) -> int:
 
 def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) -> tuple[dict | None, dict | None]:
     """The provenance of the reference and query descriptor files, checked to be one (unless ``allow``)."""
-    from ..provenance import check_same
-    from ..provenance import read as read_provenance
+    from ..core.provenance import check_same
+    from ..core.provenance import read as read_provenance
 
     records = [read_provenance(f) for f in (*ref_files, *query_files)]
     for f, rec in zip((*ref_files, *query_files), records, strict=True):
@@ -196,9 +196,9 @@ def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) 
 
 
 def run_check(args: argparse.Namespace) -> int:
+    from ..core.errors import DatasetError
     from ..data.convert import summarize_dataset
     from ..data.io import load_dataset
-    from ..errors import DatasetError
 
     ds = load_dataset(args.dir)
     s = summarize_dataset(ds)

@@ -52,7 +52,7 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
     truth = ("csv" if args.ref_csv else "utm" if args.utm_names else "frames" if args.frame_aligned
              else "positives")
     if truth == "csv" and not args.query_csv:
-        from ..errors import ConfigError
+        from ..core.errors import ConfigError
 
         raise ConfigError("--ref-csv needs --query-csv (the query positions)")
     conf = FromImagesConfig(describe=describe_config(args), fit_on=args.fit_on, ground_truth=truth,

@@ -8,7 +8,7 @@ import tempfile
 from pathlib import Path
 
 from ..pipelines.demo import DemoConfig, main
-from ..report import format_table
+from ..report.tables import format_table
 from .common import add_device, int_at_least, non_negative_int, positive_int
 
 _D = DemoConfig()

@@ -7,14 +7,14 @@ import json
 import tempfile
 from pathlib import Path
 
-from ..distances import KNN_BACKENDS
-from ..errors import ConfigError
-from ..evaluate import EvalConfig, main
-from ..files import write_json_atomic
-from ..methods import DEFAULT_METHODS, valid_methods
-from ..report import format_table
-from ..report_html import ReportConfig
-from ..windows import WINDOW_MODES
+from ..core.errors import ConfigError
+from ..core.files import write_json_atomic
+from ..eval.evaluate import EvalConfig, main
+from ..eval.methods import DEFAULT_METHODS, valid_methods
+from ..report.html import ReportConfig
+from ..report.tables import format_table
+from ..search.knn import KNN_BACKENDS
+from ..sequence.windows import WINDOW_MODES
 from .common import (
     add_allow_mismatch,
     add_device,

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from ..ann import ANN_INDEXES, AnnConfig
+from ..eval.methods import FRAME_FEATURES
 from ..maps import MapConfig, build, load_map
 from ..maps.config import DTYPES
-from ..methods import FRAME_FEATURES
-from ..sequence_descriptors import SEQUENCE_DESCRIPTORS
-from ..windows import WINDOW_MODES
+from ..search.ann import ANN_INDEXES, AnnConfig
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from ..sequence.windows import WINDOW_MODES
 from .common import add_allow_mismatch, add_device, drop_none, non_negative_int, positive_int
 
 _D, _A = MapConfig(), AnnConfig()

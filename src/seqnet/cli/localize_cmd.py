@@ -7,11 +7,11 @@ import argparse
 import json
 from pathlib import Path
 
-from ..errors import ConfigError
-from ..localize_stage import TRACK_COLUMNS, LocalizeConfig, main
-from ..localize_stream import stream
-from ..methods import valid_methods
-from ..velocity import ANCHORS
+from ..core.errors import ConfigError
+from ..eval.methods import valid_methods
+from ..localize.stream import stream
+from ..localize.track import TRACK_COLUMNS, LocalizeConfig, main
+from ..matching.velocity import ANCHORS
 from .common import add_allow_mismatch, add_device, positive_float, positive_int
 
 _D = LocalizeConfig()

@@ -10,10 +10,10 @@ import sys
 import warnings
 from collections.abc import Iterator
 
-from ..errors import SeqnetError
-from ..files import os_error
-from ..progress import close_all, progress_mode
-from ..utils import logger
+from ..core.errors import SeqnetError
+from ..core.files import os_error
+from ..core.progress import close_all, progress_mode
+from ..core.utils import logger
 from .common import positive_int
 
 
@@ -83,7 +83,7 @@ def check_no_empty_values(args: argparse.Namespace) -> None:
     for key, value in vars(args).items():
         values = value if isinstance(value, list) else [value]
         if any(isinstance(v, str) and not v.strip() for v in values):
-            from ..errors import ConfigError
+            from ..core.errors import ConfigError
 
             raise ConfigError(f"{key.replace('_', '-')}: empty value {value!r}; give a non-empty value or leave the "
                               "option out")
@@ -123,7 +123,7 @@ def _rank() -> str:
 
 
 def _memory_error(e: MemoryError) -> SeqnetError:
-    from ..errors import ResourceError
+    from ..core.errors import ResourceError
 
     detail = f" ({one_line(e)})" if str(e) else ""
     return ResourceError(f"out of memory{detail}; hint: smaller inputs, fewer threads or a smaller --batch-size")

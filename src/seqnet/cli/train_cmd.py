@@ -7,12 +7,12 @@ import dataclasses
 import math
 from pathlib import Path
 
-from ..checkpoints import read_checkpoint
+from ..sequence.checkpoints import read_checkpoint
+from ..sequence.windows import WINDOW_MODES
 from ..train.config import OPTIMIZERS, TrainConfig
 from ..train.distributed import env_world
 from ..train.loop import main
 from ..train.run import resume_config
-from ..windows import WINDOW_MODES
 from .common import add_allow_mismatch, add_device, non_negative_float, non_negative_int, positive_float, positive_int
 
 _D = TrainConfig()

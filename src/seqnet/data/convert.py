@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DatasetError
-from ..provenance import check_same
-from ..provenance import read as read_provenance
+from ..core.errors import DatasetError
+from ..core.provenance import check_same
+from ..core.provenance import read as read_provenance
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_text
 from .traverse import Dataset, Traverse
@@ -219,7 +219,7 @@ def summarize_dataset(ds: Dataset) -> dict[str, Any]:
     ``queries_with_match`` counts the query images with a reference within the radius, or with
     explicit positives when the dataset has them (over the whole dataset and within each split).
     """
-    from ..recall import has_positive
+    from ..eval.metrics.recall import has_positive
 
     def side(t: Traverse) -> dict[str, Any]:
         out: dict[str, Any] = {"images": len(t), "dim": t.dim}
@@ -259,7 +259,7 @@ def assemble_dataset(
     """
     check_same(ref.provenance, query.provenance, "the reference descriptors", "the query descriptors",
                allow_mismatch)
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
     from .presets import get_preset, preset_metadata, preset_splits
 
     meta: dict[str, Any] = {}

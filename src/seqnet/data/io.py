@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DatasetError, OutputError
-from ..files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
-from ..ownership import check_replaceable, locked, swap_dir_in, write_manifest
-from ..utils import logger
+from ..core.errors import DatasetError, OutputError
+from ..core.files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.ownership import check_replaceable, locked, swap_dir_in, write_manifest
+from ..core.utils import logger
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
 from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse

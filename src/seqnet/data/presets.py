@@ -16,7 +16,7 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 PRESETS: dict[str, dict[str, Any]] = {
     "nordland": {

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DatasetError
+from ..core.errors import DatasetError
 
 DESCRIPTOR_SUFFIXES = (".npy", ".h5", ".hdf5")
 # the characters str.splitlines() breaks lines at

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DatasetError
-from ..utils import logger
+from ..core.errors import DatasetError
+from ..core.utils import logger
 from .convert import read_seq_bounds
 from .presets import get_preset, preset_metadata, preset_splits
 from .traverse import Dataset, Traverse

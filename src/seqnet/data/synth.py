@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from ..config import Config, check_float, check_int
-from ..provenance import make as make_provenance
+from ..core.config import Config, check_float, check_int
+from ..core.provenance import make as make_provenance
 from .io import save_dataset
 from .traverse import Dataset, Traverse
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DatasetError
+from ..core.errors import DatasetError
 from .positives import Positives
 
 FORMAT = "seqnet-dataset/1"
@@ -43,7 +43,7 @@ class Traverse:
         names: optional ``N`` image names.
         seq_bounds: optional ``[N, 2]`` int, half-open sequence range of each image.
         name: label used in messages.
-        provenance: how the descriptors were made (:mod:`seqnet.provenance`), or None when unknown.
+        provenance: how the descriptors were made (:mod:`seqnet.core.provenance`), or None when unknown.
     """
 
     descriptors: np.ndarray

@@ -11,9 +11,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..config import Config, check_bool, check_choice, check_float, check_int
-from ..errors import ConfigError
-from ..utils import get_device
+from ..core.config import Config, check_bool, check_choice, check_float, check_int
+from ..core.errors import ConfigError
+from ..core.utils import get_device
 from .cnn import BACKBONES
 from .methods import DESCRIBERS, Method
 

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, ImageError
-from ..progress import progress
-from ..utils import get_device, logger
+from ..core.errors import ConfigError, ImageError
+from ..core.progress import progress
+from ..core.utils import get_device, logger
 from .config import DescribeConfig
 from .images import iter_batches, list_images, load_images
 from .methods import Extract, FitContext

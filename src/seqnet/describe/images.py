@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import ConfigError, DatasetError, ImageError
 from ..data.readers import check_names
-from ..errors import ConfigError, DatasetError, ImageError
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
 

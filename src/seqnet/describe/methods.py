@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import ConfigError
-from ..utils import logger
+from ..core.errors import ConfigError
+from ..core.utils import logger
 from .cnn import BACKBONES, cnn_extractor, gem, gmp
 from .netvlad import checkpoint_image_size, checkpoint_tag, fit_netvlad, load_netvlad, save_netvlad
 from .pixels import pixels_descriptor

@@ -22,9 +22,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..errors import CheckpointError, ConfigError
-from ..files import atomic_path, load_torch_file
-from ..utils import logger
+from ..core.errors import CheckpointError, ConfigError
+from ..core.files import atomic_path, load_torch_file
+from ..core.utils import logger
 from .cnn import BACKBONES, to_input
 
 TAG_KEY = "seqnet_tag"  # provenance string stored in checkpoints written by seqnet (see save_netvlad)

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CheckpointError, ConfigError
-from ..files import atomic_path
+from ..core.errors import CheckpointError, ConfigError
+from ..core.files import atomic_path
 
 TAG_KEY = "seqnet_tag"  # provenance string stored by PCA.save(tag=...)
 

@@ -14,8 +14,8 @@ import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from ..errors import ConfigError
-from ..utils import logger
+from ..core.errors import ConfigError
+from ..core.utils import logger
 from .config import DescribeConfig, fit_summary
 from .pca import read_tag as read_pca_tag
 

@@ -20,11 +20,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..errors import ConfigError, ImageError
-from ..files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
-from ..provenance import make as make_provenance
-from ..provenance import sidecar as provenance_sidecar
-from ..utils import logger
+from ..core.errors import ConfigError, ImageError
+from ..core.files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.provenance import make as make_provenance
+from ..core.provenance import sidecar as provenance_sidecar
+from ..core.utils import logger
 from .config import DescribeConfig, fit_summary
 from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches
 from .images import ImageList, list_images
@@ -110,7 +110,7 @@ def describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
 
 
 def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc: np.ndarray) -> dict:
-    """The provenance record (:mod:`seqnet.provenance`) of descriptors ``desc [N, D]`` made with
+    """The provenance record (:mod:`seqnet.core.provenance`) of descriptors ``desc [N, D]`` made with
     ``conf``, whose fitted state (if any) was fitted on the images ``fitted_on``."""
     settings = {k: v for k, v in conf.settings().items() if k not in ("fit", "fit_max")}
     fit = [str(Path(f).resolve()) for f in fitted_on] if fitted_on is not None else None

@@ -6,16 +6,16 @@ import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from ..ann import ANN_INDEXES
-from ..checkpoints import load_models
+from ..core.errors import ConfigError
+from ..core.ownership import check_replaceable
+from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
-from ..errors import ConfigError
-from ..eval_checks import check_models as check_model_inputs
-from ..features import Side
-from ..ownership import check_replaceable
-from ..sequence_descriptors import SEQUENCE_DESCRIPTORS, SeqNet
-from ..utils import get_device, logger
+from ..eval.checks import check_models as check_model_inputs
+from ..eval.features import Side
+from ..search.ann import ANN_INDEXES
+from ..sequence.checkpoints import load_models
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
 from .config import MapConfig
 from .map import describe_traverse
 from .store import MapArrays, is_map_file, write_map

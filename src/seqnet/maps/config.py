@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 
-from ..ann import AnnConfig
-from ..config import Config, check_bool, check_choice, check_int
-from ..errors import ConfigError
-from ..methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, parse_method
-from ..sequence_descriptors import SEQUENCE_DESCRIPTORS
-from ..utils import get_device
-from ..windows import WINDOW_MODES
+from ..core.config import Config, check_bool, check_choice, check_int
+from ..core.errors import ConfigError
+from ..core.utils import get_device
+from ..eval.methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, parse_method
+from ..search.ann import AnnConfig
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from ..sequence.windows import WINDOW_MODES
 
 DTYPES = ("float32", "float16")
 DEFAULT_SEQ_LEN = 5

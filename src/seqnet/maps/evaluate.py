@@ -18,17 +18,17 @@ from typing import Any
 
 import numpy as np
 
-from ..ann import shortlist_recall
+from ..core.errors import ConfigError, DatasetError
+from ..core.files import write_json_atomic
+from ..core.utils import logger
 from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse
-from ..errors import ConfigError, DatasetError
-from ..evaluate import EvalConfig, Evaluation
-from ..files import write_json_atomic
-from ..methods import Method, parse_method
-from ..recall import GroundTruth
-from ..results import method_results, write_per_query
-from ..utils import logger
+from ..eval.evaluate import EvalConfig, Evaluation
+from ..eval.methods import Method, parse_method
+from ..eval.metrics.recall import GroundTruth
+from ..eval.results import method_results, write_per_query
+from ..search.ann import shortlist_recall
 from .load import load_map
 from .map import Map, QueryDescriptors
 

@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from ..ann import load_index
-from ..checkpoints import load_model
+from ..core.errors import ConfigError, SeqnetError
 from ..data.readers import read_names
-from ..errors import ConfigError, SeqnetError
+from ..search.ann import load_index
+from ..sequence.checkpoints import load_model
 from .config import MapConfig
 from .map import Map, MapError, read_meta
 from .store import INDEX_FILE

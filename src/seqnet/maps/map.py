@@ -16,15 +16,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..ann import search as ann_search
+from ..core.errors import DatasetError
+from ..core.provenance import check_same
+from ..core.utils import ArrayLike, get_device
 from ..data.traverse import Traverse
-from ..errors import DatasetError
-from ..features import Side
-from ..matchers import SEQUENCE_MATCHERS
-from ..provenance import check_same
-from ..sequence_descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
-from ..utils import ArrayLike, get_device
-from ..windows import window_frames, window_indices, window_offset
+from ..eval.features import Side
+from ..matching.registry import SEQUENCE_MATCHERS
+from ..search.ann import search as ann_search
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
+from ..sequence.windows import window_frames, window_indices, window_offset
 from .config import MapConfig
 from .rerank import rerank_on_map
 from .search import ExactSearch
@@ -132,7 +132,7 @@ class Map:
 
     def localize(self, shortlist_query: ArrayLike, query_frames: ArrayLike, q_starts: np.ndarray, top_k: int = 20,
                  k: int | None = None, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """HVPR on the map (:func:`seqnet.hvpr.hvpr`): shortlist ``top_k`` items, re-rank them, then the
+        """HVPR on the map (:func:`seqnet.matching.hvpr.hvpr`): shortlist ``top_k`` items, re-rank them, then the
         rest of the shortlist order up to ``k``. ``(scores [M, max(k, K)], items [M, max(k, K)])``."""
         _, ranked = self.search(shortlist_query, max(k or top_k, top_k), exact)
         head = min(top_k, ranked.shape[1])

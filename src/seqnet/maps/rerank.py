@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..hvpr import rerank
-from ..utils import ArrayLike
+from ..core.utils import ArrayLike
+from ..matching.hvpr import rerank
 
 WINDOW_MATCHERS = ("seqmatch", "seqmatch-rev")  # pairs that read only the candidate window's own frames
 BLOCK_BYTES = 256 * 2**20  # frames gathered per block of queries
@@ -23,10 +23,10 @@ def rerank_on_map(query_frames: ArrayLike, frames: ArrayLike, seq_len: int, q_st
                   r_starts: np.ndarray, candidates: np.ndarray, matcher: str = "seqmatch",
                   device: str | None = None, block_bytes: int = BLOCK_BYTES,
                   window: str = "centred") -> tuple[np.ndarray, np.ndarray]:
-    """:func:`seqnet.hvpr.rerank` of ``candidates [M, K]`` (items, ``-1`` = none) against ``frames [Nr, D]``.
+    """:func:`seqnet.matching.hvpr.rerank` of ``candidates [M, K]`` (items, ``-1`` = none) against ``frames [Nr, D]``.
 
     Returns ``(scores [M, K], items [M, K])``, ascending, ties in shortlist order, as
-    :func:`seqnet.hvpr.rerank` on the whole array would. ``window`` (the map's window mode) sets the
+    :func:`seqnet.matching.hvpr.rerank` on the whole array would. ``window`` (the map's window mode) sets the
     anchor of the variable-speed matchers.
     """
     cand = np.asarray(candidates, dtype=np.int64)

@@ -1,9 +1,9 @@
 """Exact search over a memory-mapped map with the reference norms computed once.
 
-:func:`seqnet.distances.knn_torch` recomputes the squared norms of every reference block on every
+:func:`seqnet.search.knn.knn_torch` recomputes the squared norms of every reference block on every
 call, a second pass over the map per query; a map is queried many times, so its norms are
-computed once (the same values, :func:`seqnet.distances.sq_norms`) and each query block then costs
-one GEMM per reference block plus a running top-k (:mod:`seqnet.blocks`).
+computed once (the same values, :func:`seqnet.search.knn.sq_norms`) and each query block then costs
+one GEMM per reference block plus a running top-k (:mod:`seqnet.search.blocks`).
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..blocks import check_pair_dims, col_blocks, compute_dtype, merge_topk, rows
-from ..distances import finish_distances, rows_per_block, sq_norms
-from ..utils import ArrayLike, to_numpy
+from ..core.utils import ArrayLike, to_numpy
+from ..search.blocks import check_pair_dims, col_blocks, compute_dtype, merge_topk, rows
+from ..search.knn import finish_distances, rows_per_block, sq_norms
 
 
 class ExactSearch:

@@ -28,13 +28,13 @@ from typing import Any
 import numpy as np
 
 from .._version import __version__
-from ..ann import build_index, save_index
-from ..checkpoints import save_checkpoint
-from ..errors import ConfigError
-from ..files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
-from ..ownership import check_replaceable, locked, swap_dir_in, write_manifest
-from ..sequence_descriptors import SeqNet
-from ..utils import ArrayLike, logger, to_numpy
+from ..core.errors import ConfigError
+from ..core.files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.ownership import check_replaceable, locked, swap_dir_in, write_manifest
+from ..core.utils import ArrayLike, logger, to_numpy
+from ..search.ann import build_index, save_index
+from ..sequence.checkpoints import save_checkpoint
+from ..sequence.descriptors import SeqNet
 from .config import MapConfig
 
 MAP_FORMAT = "seqnet-map/1"

@@ -12,17 +12,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..checkpoints import load_model
-from ..config import Config, check_bool, check_int
+from ..core.config import Config, check_bool, check_int
+from ..core.files import write_json_atomic
+from ..core.ownership import check_replaceable, locked, remove_owned_dir
+from ..core.utils import logger
 from ..data.io import load_dataset, save_dataset
 from ..data.synth import SynthConfig, make_synthetic
 from ..data.traverse import Dataset
-from ..evaluate import EvalConfig, evaluate
-from ..files import write_json_atomic
-from ..ownership import check_replaceable, locked, remove_owned_dir
+from ..eval.evaluate import EvalConfig, evaluate
+from ..sequence.checkpoints import load_model
 from ..train import TrainConfig, train
 from ..train.run import is_run_file
-from ..utils import logger
 
 BASELINES = ("single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch")
 LEARNED = ("seqnet", "s1+seqmatch", "hvpr")  # hvpr: shortlist with S_L, re-rank by SeqMatch on S_1

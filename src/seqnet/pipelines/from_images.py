@@ -22,7 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import Config, check_choice, check_float
+from ..core.config import Config, check_choice, check_float
+from ..core.errors import ConfigError, ImageError
+from ..core.ownership import check_replaceable, locked
+from ..core.utils import logger
 from ..data.convert import assemble_dataset, match_names, read_positions_csv, utm_positions
 from ..data.io import save_dataset
 from ..data.positives import read_positives
@@ -30,9 +33,6 @@ from ..data.traverse import Traverse
 from ..describe import DescribeConfig, make_describer
 from ..describe.images import ImageList, list_images
 from ..describe.store import describe_provenance
-from ..errors import ConfigError, ImageError
-from ..ownership import check_replaceable, locked
-from ..utils import logger
 
 GROUND_TRUTHS = ("csv", "utm", "frames", "positives")
 FIT_ON = ("reference", "both")

@@ -1,5 +1,5 @@
 """Training settings: :class:`TrainConfig` (the paper's defaults) and the :class:`MiningConfig` it hands
-to triplet mining, both small frozen dataclasses that validate themselves (:mod:`seqnet.config`).
+to triplet mining, both small frozen dataclasses that validate themselves (:mod:`seqnet.core.config`).
 
 Dataset-dependent defaults (``out_dims`` = the input dimension, the radii from ``dataset.extra``
 else the localisation radius and 4×) are filled by :meth:`TrainConfig.resolve`; the resolved
@@ -13,11 +13,11 @@ from collections.abc import Callable, Iterable
 
 import torch
 
-from ..config import Config, check_choice, check_float, check_int
+from ..core.config import Config, check_choice, check_float, check_int
+from ..core.errors import ConfigError
+from ..core.utils import get_device
 from ..data.traverse import Dataset
-from ..errors import ConfigError
-from ..utils import get_device
-from ..windows import WINDOW_MODES
+from ..sequence.windows import WINDOW_MODES
 
 Params = Iterable[torch.nn.Parameter]
 

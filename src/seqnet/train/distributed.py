@@ -28,9 +28,9 @@ from typing import Any, TypeVar
 import torch
 from torch import nn
 
-from ..errors import ConfigError, ResourceError
-from ..progress import progress_mode
-from ..utils import get_device, logger
+from ..core.errors import ConfigError, ResourceError
+from ..core.progress import progress_mode
+from ..core.utils import get_device, logger
 
 T = TypeVar("T")
 ENV = ("WORLD_SIZE", "RANK", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT")

@@ -17,8 +17,8 @@ import math
 
 import torch
 
-from ..progress import progress
-from ..windows import gather_windows
+from ..core.progress import progress
+from ..sequence.windows import gather_windows
 from .losses import triplet_loss
 from .mining import Mined, TripletSource, compute_cache, mine_queries
 from .run import Run

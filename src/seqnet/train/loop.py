@@ -12,7 +12,7 @@ the run directory, reads the checkpoint to resume, validates and writes the file
 what it read and its val scores, so every rank keeps the same state.
 
 Logging: one INFO line when training starts (with the world size when distributed) and one when it
-ends; one DEBUG line per epoch (``seqnet -v``); one progress bar per epoch (:func:`seqnet.progress.progress`).
+ends; one DEBUG line per epoch (``seqnet -v``); one progress bar per epoch (:func:`seqnet.core.progress.progress`).
 """
 
 from __future__ import annotations
@@ -23,13 +23,13 @@ from pathlib import Path
 
 import torch
 
+from ..core.errors import ConfigError, DatasetError, OutputError
+from ..core.ownership import locked
+from ..core.provenance import check_same
+from ..core.utils import logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
-from ..errors import ConfigError, DatasetError, OutputError
-from ..ownership import locked
-from ..provenance import check_same
-from ..sequence_descriptors import SeqNet
-from ..utils import logger
+from ..sequence.descriptors import SeqNet
 from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
@@ -53,7 +53,7 @@ def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig,
              device: torch.device | None = None) -> dict[str, float]:
     """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1)
     on ``device`` (default ``conf.device``); ``{}`` without a val split. Leaves the model in training mode."""
-    from ..evaluate import EvalConfig, evaluate
+    from ..eval.evaluate import EvalConfig, evaluate
 
     if val_ds is None:
         return {}

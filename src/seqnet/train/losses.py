@@ -13,7 +13,7 @@ import dataclasses
 import torch
 import torch.nn.functional as F
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 PAIRWISE_EPS = 1e-6  # as torch.nn.TripletMarginLoss / F.pairwise_distance
 

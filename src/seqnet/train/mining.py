@@ -20,13 +20,13 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from ..core.errors import DatasetError
+from ..core.utils import as_tensor
 from ..data.positives import Positives
 from ..data.traverse import Dataset, Traverse
-from ..distances import pairwise_distances
-from ..errors import DatasetError
-from ..sequence_descriptors import describe_windows
-from ..utils import as_tensor
-from ..windows import window_starts
+from ..search.knn import pairwise_distances
+from ..sequence.descriptors import describe_windows
+from ..sequence.windows import window_starts
 from .config import MiningConfig
 from .truth import pair_masks, positive_keys, queries_with_pairs
 

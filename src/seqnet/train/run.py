@@ -22,11 +22,11 @@ from typing import Any
 import torch
 
 from .._version import __version__
-from ..checkpoints import read_checkpoint, save_checkpoint
-from ..errors import CheckpointError, ConfigError
-from ..files import write_json_atomic
-from ..sequence_descriptors import SeqNet
-from ..utils import logger
+from ..core.errors import CheckpointError, ConfigError
+from ..core.files import write_json_atomic
+from ..core.utils import logger
+from ..sequence.checkpoints import read_checkpoint, save_checkpoint
+from ..sequence.descriptors import SeqNet
 from .config import OPTIMIZERS, TrainConfig
 from .distributed import World
 

@@ -18,7 +18,7 @@ import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
-from ...config import Config
+from ...core.config import Config
 from . import descriptors, longer, reverse, seeds, tsne
 
 

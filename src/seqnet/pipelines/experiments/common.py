@@ -18,13 +18,13 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ...core.files import write_json_atomic, write_text_atomic
+from ...core.ownership import locked
 from ...data.traverse import Dataset
-from ...evaluate import EvalConfig, Evaluation, evaluate
-from ...files import write_json_atomic, write_text_atomic
-from ...ownership import locked
-from ...report import save_figure
-from ...report_html import Section, evaluation_sections, figure_section, render_html, rows_as_text, table_html
-from ...sequence_descriptors import SeqNet
+from ...eval.evaluate import EvalConfig, Evaluation, evaluate
+from ...report.html import Section, evaluation_sections, figure_section, render_html, rows_as_text, table_html
+from ...report.tables import save_figure
+from ...sequence.descriptors import SeqNet
 from ..nordland64 import Nordland64Config, build_dataset, train_models
 from ..nordland64.config import DESCRIBE
 from ..nordland64.run import report_config

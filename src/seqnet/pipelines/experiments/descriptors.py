@@ -15,14 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ...config import Config, check_choice
+from ...core.config import Config, check_choice
+from ...core.errors import ConfigError
 from ...describe import DescribeConfig
 from ...describe.config import check_size
-from ...errors import ConfigError
-from ...evaluate import Evaluation
-from ...methods import parse_method
-from ...report import method_colours, new_figure
-from ...report_html import write_html_report
+from ...eval.evaluate import Evaluation
+from ...eval.methods import parse_method
+from ...report.html import write_html_report
+from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from ..nordland64.run import report_config
 from .common import (

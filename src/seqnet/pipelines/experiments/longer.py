@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ...config import Config, check_ints
-from ...evaluate import Evaluation
-from ...methods import parse_method
-from ...report import method_colours, new_figure
+from ...core.config import Config, check_ints
+from ...eval.evaluate import Evaluation
+from ...eval.methods import parse_method
+from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from .common import (
     Outputs,

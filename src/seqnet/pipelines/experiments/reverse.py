@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ...config import Config
+from ...core.config import Config
 from ...data.traverse import Dataset, Traverse
-from ...methods import parse_method
-from ...report import method_colours, new_figure
+from ...eval.methods import parse_method
+from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from .common import (
     Outputs,

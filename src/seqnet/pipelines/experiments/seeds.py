@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ...config import Config, check_ints
-from ...evaluate import Evaluation
-from ...report import method_colours, new_figure
+from ...core.config import Config, check_ints
+from ...eval.evaluate import Evaluation
+from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from .common import (
     Outputs,

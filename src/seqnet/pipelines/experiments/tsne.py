@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from ...config import Config, check_choice, check_float, check_int
-from ...distances import knn
-from ...errors import ResourceError
-from ...sequence_descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
-from ...windows import window_indices
+from ...core.config import Config, check_choice, check_float, check_int
+from ...core.errors import ResourceError
+from ...search.knn import knn
+from ...sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
+from ...sequence.windows import window_indices
 from ..nordland64 import Nordland64Config
 from .common import Outputs, locked_dirs, markdown_table, prepare, table_section, write_outputs
 
@@ -125,7 +125,7 @@ def main(conf: TsneConfig, data: str | Path, out: str | Path, cache: str | Path 
 
 def tsne_figure(emb: dict[str, np.ndarray], pos: np.ndarray) -> object:
     """One t-SNE scatter per descriptor, coloured by position along the route."""
-    from ...report import new_figure
+    from ...report.tables import new_figure
 
     fig, axes = new_figure(3.2 * len(emb), 3.6, ncols=len(emb))
     axes = np.atleast_1d(axes)

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from ...config import Config, check_bool, check_float, check_int, check_ints, check_range
+from ...core.config import Config, check_bool, check_float, check_int, check_ints, check_range
+from ...core.errors import ConfigError
 from ...describe import DescribeConfig
-from ...errors import ConfigError
-from ...evaluate import EvalConfig
-from ...methods import parse_method
+from ...eval.evaluate import EvalConfig
+from ...eval.methods import parse_method
 from ...train import TrainConfig
 from .speed import check_speed
 

@@ -10,6 +10,10 @@ from typing import Any
 
 import numpy as np
 
+from ...core.errors import ConfigError, DatasetError
+from ...core.files import save_npy_atomic
+from ...core.progress import progress
+from ...core.utils import logger
 from ...data.io import load_dataset, save_dataset
 from ...data.readers import read_names
 from ...data.traverse import Dataset, Traverse
@@ -17,10 +21,6 @@ from ...describe import Describer, make_describer
 from ...describe.images import iter_batches
 from ...describe.pca import PCA
 from ...describe.store import describe_provenance
-from ...errors import ConfigError, DatasetError
-from ...files import save_npy_atomic
-from ...progress import progress
-from ...utils import logger
 from .config import Nordland64Config
 
 SEASONS = ("summer", "winter")

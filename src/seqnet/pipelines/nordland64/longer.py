@@ -1,7 +1,7 @@
 """Longer sequences on Nordland64 (the SeqNet paper's L_m = 5 / 10 / 20 table).
 
 HVPR keeps its S_5 shortlist (L = 5) and re-ranks with SeqMatch on S_1 over L_m frames; it is
-compared with the graph matcher (GISM-style, :mod:`seqnet.graph`) over the whole map and as the
+compared with the graph matcher (GISM-style, :mod:`seqnet.matching.graph`) over the whole map and as the
 HVPR re-ranker, and with S_1 + SeqMatch, all at the same L_m, on the val and test ranges (the query
 re-sampled when ``conf.query_speed`` is set). Items are the frames whose centred L_m window fits the
 range, so a longer L_m evaluates a few fewer queries (reported).
@@ -14,11 +14,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ...config import check_ints
-from ...evaluate import evaluate
-from ...files import write_json_atomic, write_text_atomic
-from ...ownership import locked
-from ...utils import logger
+from ...core.config import check_ints
+from ...core.files import write_json_atomic, write_text_atomic
+from ...core.ownership import locked
+from ...core.utils import logger
+from ...eval.evaluate import evaluate
 from .config import Nordland64Config
 from .data import build_dataset
 from .models import train_models

@@ -10,15 +10,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...checkpoints import load_model, save_checkpoint
+from ...core.files import write_json_atomic
+from ...core.ownership import remove_owned_dir
+from ...core.utils import logger
 from ...data.traverse import Dataset
 from ...describe.pca import PCA, fit_pca
-from ...files import write_json_atomic
-from ...ownership import remove_owned_dir
-from ...sequence_descriptors import SeqNet
+from ...sequence.checkpoints import load_model, save_checkpoint
+from ...sequence.descriptors import SeqNet
 from ...train import train
 from ...train.run import is_run_file
-from ...utils import logger
 from .config import Nordland64Config
 from .data import describe_key, training_dataset
 

@@ -6,15 +6,15 @@ import time
 from collections.abc import Mapping
 from pathlib import Path
 
+from ...core.files import write_json_atomic, write_text_atomic
+from ...core.ownership import locked
+from ...core.utils import logger
 from ...data.traverse import Dataset
-from ...evaluate import Evaluation, evaluate
-from ...files import write_json_atomic, write_text_atomic
-from ...ownership import locked
-from ...recall import recall_curve
-from ...report import format_markdown, plot_pr_curves, plot_recall_curves
-from ...report_html import ReportConfig, write_html_report
-from ...sequence_descriptors import SeqNet
-from ...utils import logger
+from ...eval.evaluate import Evaluation, evaluate
+from ...eval.metrics.recall import recall_curve
+from ...report.html import ReportConfig, write_html_report
+from ...report.tables import format_markdown, plot_pr_curves, plot_recall_curves
+from ...sequence.descriptors import SeqNet
 from .config import Nordland64Config
 from .data import SEASONS, SPLITS, build_dataset
 from .models import train_models

@@ -18,9 +18,9 @@ import dataclasses
 
 import numpy as np
 
-from ...config import check_float
+from ...core.config import check_float
+from ...core.errors import ConfigError
 from ...data.traverse import Dataset, Traverse
-from ...errors import ConfigError
 
 SPEED_PERIOD = 40  # query frames between two knots of the speed profile
 

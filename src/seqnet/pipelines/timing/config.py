@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from ...ann import ANN_INDEXES, AnnConfig
-from ...config import Config, check_bool, check_choice, check_float, check_int, check_ints
-from ...errors import ConfigError
+from ...core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
+from ...core.errors import ConfigError
+from ...core.utils import get_device
 from ...maps.config import DTYPES
-from ...utils import get_device
+from ...search.ann import ANN_INDEXES, AnnConfig
 
 BIG_SIZES = (1000, 14000, 100000, 1000000)  # --big: up to 1M at D = 256, 100k at D = 4096 (max_elements)
 

@@ -22,13 +22,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from ...blocks import rows, topk_smallest
-from ...distances import finish_distances, sq_norms
+from ...eval.metrics.recall import recall
 from ...maps import Map
 from ...maps.search import ExactSearch
-from ...online import OnlineSeqMatch
-from ...recall import recall
-from ...seqmatch import seqmatch_topk
+from ...matching.online import OnlineSeqMatch
+from ...matching.seqmatch import seqmatch_topk
+from ...search.blocks import rows, topk_smallest
+from ...search.knn import finish_distances, sq_norms
 from .config import TimingConfig
 from .queries import Queries
 

@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from ...ann import build_index, shortlist_recall
-from ...ann import search as ann_search
 from ...maps import Map
+from ...search.ann import build_index, shortlist_recall
+from ...search.ann import search as ann_search
 from .config import TimingConfig
 from .measure import batch, per_query, r_at_1
 from .queries import Queries

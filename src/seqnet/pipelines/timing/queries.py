@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ...eval.metrics.recall import GroundTruth
 from ...maps import Map, load_query
-from ...recall import GroundTruth
-from ...sequence_descriptors import SeqNet
-from ...windows import window_frames, window_offset
+from ...sequence.descriptors import SeqNet
+from ...sequence.windows import window_frames, window_offset
 from .config import TimingConfig
 from .synth import RADIUS, random_models
 

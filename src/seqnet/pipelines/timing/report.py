@@ -6,7 +6,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ...report import new_figure, save_figure
+from ...report.tables import new_figure, save_figure
 
 # SeqNet paper, Table "Computation Time" (Boston, 14,000 references, D = 4096, GTX 1080 Ti), ms per query
 PAPER_MS = {"S_1": 22.1, "S_5": 24.2, "SeqMatch over all": 1449.9, "SeqMatch over the top 20": 1.8}

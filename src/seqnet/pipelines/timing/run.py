@@ -21,11 +21,11 @@ from typing import Any
 
 import torch
 
-from ...errors import ConfigError, ResourceError
-from ...files import write_json_atomic, write_text_atomic
+from ...core.errors import ConfigError, ResourceError
+from ...core.files import write_json_atomic, write_text_atomic
+from ...core.ownership import check_replaceable, locked, write_manifest
+from ...core.utils import logger
 from ...maps import MapConfig
-from ...ownership import check_replaceable, locked, write_manifest
-from ...utils import logger
 from .config import TimingConfig
 from .report import markdown, plot
 

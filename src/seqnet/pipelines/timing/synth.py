@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...files import save_npy_atomic
+from ...core.files import save_npy_atomic
+from ...core.provenance import make as make_provenance
 from ...maps import MapArrays, MapConfig, write_map
-from ...provenance import make as make_provenance
-from ...sequence_descriptors import SeqNet
+from ...sequence.descriptors import SeqNet
 from .config import TimingConfig
 
 RHO = 0.9

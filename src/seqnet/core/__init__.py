@@ -1,0 +1,1 @@
+"""Infrastructure every stage shares: errors, configs, atomic files, ownership and locks, progress, provenance."""

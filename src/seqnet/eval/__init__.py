@@ -1,0 +1,1 @@
+"""Evaluation: method names, descriptors of an evaluation, checks, the evaluation loop, results, metrics."""

@@ -1,0 +1,60 @@
+"""The checks of an evaluation that need no descriptors: models, lengths and provenance, before any work."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from ..core.errors import ConfigError
+from ..core.provenance import check_same
+from ..core.utils import logger
+from ..data.traverse import Dataset
+from ..sequence.descriptors import SeqNet
+from .methods import Method
+
+
+def check_inputs(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet], length: int, match_len: int,
+                 allow_mismatch: bool = False) -> None:
+    """Every check that does not need descriptors: models present and fitting (D, provenance, L), lengths
+    (L of the sequence descriptors, L_m of the matchers)."""
+    for m in methods:
+        missing = m.models() - set(models)
+        if missing:
+            need = " and ".join("an S_1 model (--rerank-model CKPT)" if r == "s1" else
+                                "an S_L model (--shortlist-model CKPT)" for r in sorted(missing))
+            raise ConfigError(f"method {m.name!r} needs {need}")
+        if m.min_len() > length:
+            raise ConfigError(f"method {m.name!r} uses Delta descriptors, which need seq_len >= {m.min_len()} "
+                              f"(got {length}); use a longer --seq-len or other methods")
+    check_provenance(ds, models, length, allow_mismatch)
+    for side, t in (("query", ds.query), ("reference", ds.reference)):
+        longest = max(length, match_len)
+        if longest > len(t):
+            raise ConfigError(f"seq_len={longest} is longer than the {side} traverse of dataset {ds.name!r} "
+                              f"({len(t)} frames); use a shorter --seq-len")
+
+
+def check_provenance(ds: Dataset, models: Mapping[str, SeqNet], length: int, allow: bool = False) -> None:
+    """Reference and query descriptors made alike; each model used on the descriptors (D, provenance)
+    and the sequence length L it was trained with (unless ``allow``)."""
+    check_same(ds.reference.provenance, ds.query.provenance, "the reference descriptors", "the query descriptors",
+               allow)
+    check_models(models, ds.query.dim, ds.reference.provenance, f"dataset {ds.name!r}", length, allow)
+
+
+def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None, where: str, length: int,
+                 allow: bool = False, use: str = "is evaluated with") -> None:
+    """Each model reads ``dim``-D descriptors made as ``provenance`` (those of ``where``, e.g. ``dataset
+    'x'``) and, for S_L, windows of its own L = ``length``; with ``allow`` the last two only warn."""
+    for role, model in models.items():
+        name = "S_1" if role == "s1" else f"S_{model.seq_len}"
+        if model.in_dims != dim:
+            raise ConfigError(f"the {role} model ({name}) expects D={model.in_dims} descriptors "
+                              f"but the dataset has D={dim}")
+        check_same(model.provenance, provenance, f"the descriptors the {name} model was trained on",
+                   f"the descriptors of {where}", allow)
+        if role == "seqnet" and model.seq_len != length:
+            msg = (f"the S_L model was trained with L={model.seq_len} but {use} L={length}; "
+                   f"hint: --seq-len {model.seq_len}, or --allow-mismatch to use it on other windows")
+            if not allow:
+                raise ConfigError(msg)
+            logger.warning("%s (going on as asked)", msg)

@@ -1,0 +1,293 @@
+"""Evaluation: run methods on a dataset and report Recall@K with per-stage timing.
+
+Queries are the frames whose windows (L frames for sequence descriptors, L_m for the sequence
+matchers) fit inside their sequence; the same query and reference items are used for every method
+so numbers are comparable. The number of queries left out (no full window, or no reference within
+the radius) is reported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
+from ..core.errors import ConfigError
+from ..core.utils import get_device, logger
+from ..data.traverse import Dataset
+from ..matching.hvpr import hvpr
+from ..matching.registry import SEQUENCE_MATCHERS
+from ..search.knn import KNN_BACKENDS, knn
+from ..sequence.descriptors import SeqNet
+from ..sequence.windows import WINDOW_MODES
+from .checks import check_inputs
+from .features import Descriptors, Side
+from .methods import FRAME_FEATURES, Method, default_methods, parse_method
+from .metrics.recall import GroundTruth, check_radius
+from .results import method_results, write_per_query
+
+DEFAULT_SEQ_LEN = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalConfig(Config):
+    """Settings of :func:`evaluate` (see ``seqnet eval --help``).
+
+    Attributes:
+        methods: method names (:mod:`seqnet.eval.methods`); None: every default method the models allow.
+        seq_len: window length L of the sequence descriptors (None: the S_L model's, else 5).
+        rerank_seq_len: length L_m of the sequence matchers (None: L).
+        window: ``"centred"`` (the paper's) or ``"causal"`` (online).
+        radius: localisation radius (None: the dataset's); a retrieved reference is correct within it (≤).
+        extra_radii: further radii to report.
+        ks: the K of Recall@K.
+        top_k: HVPR shortlist size K.
+        fuse_weight, fuse_top_k: λ of the fused score and shortlist size K (None: top_k) of ``hvpr-fused``.
+        split: the split evaluated by :func:`main` (None: test when defined, else all).
+        backend: k-NN backend (a key of :data:`seqnet.search.knn.KNN_BACKENDS`).
+        device: torch device (auto: CUDA when present).
+        allow_mismatch: go on (with a warning) when reference and query descriptors, or a model and
+            the descriptors, were made differently, or a model is used with another L than it was
+            trained with; by default each is an error.
+    """
+
+    methods: tuple[str, ...] | None = None
+    seq_len: int | None = None
+    rerank_seq_len: int | None = None
+    window: str = "centred"
+    radius: float | None = None
+    extra_radii: tuple[float, ...] = ()
+    ks: tuple[int, ...] = (1, 5, 10, 20, 100)
+    top_k: int = 20
+    fuse_weight: float = 0.5
+    fuse_top_k: int | None = None
+    split: str | None = None
+    backend: str = "torch"
+    device: str = "auto"
+    allow_mismatch: bool = False
+
+    def __post_init__(self) -> None:
+        self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
+        if self.methods is not None:
+            if isinstance(self.methods, str) or not self.methods:
+                raise ConfigError(f"methods must be a non-empty list of method names, got {self.methods!r}")
+            self._set("methods", tuple(parse_method(m).name for m in self.methods))
+        for key in ("seq_len", "rerank_seq_len"):
+            if getattr(self, key) is not None:
+                self._set(key, check_int(key, getattr(self, key), 1))
+        check_choice("window mode", self.window, WINDOW_MODES)
+        if self.radius is not None:
+            self._set("radius", check_radius(self.radius))
+        self._set("extra_radii", tuple(check_radius(r) for r in self.extra_radii))
+        self._set("ks", check_ints("ks", self.ks, 1))
+        self._set("top_k", check_int("top_k", self.top_k, 1))
+        self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))
+        if self.fuse_top_k is not None:
+            self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
+        check_choice("k-NN backend", self.backend, KNN_BACKENDS)
+        get_device(self.device)  # validates the device name
+
+    @property
+    def length(self) -> int:
+        """L (the default when unset)."""
+        return self.seq_len or DEFAULT_SEQ_LEN
+
+    @property
+    def match_len(self) -> int:
+        """L_m: the sequence matchers' length."""
+        return self.rerank_seq_len or self.length
+
+    def shortlist_size(self, m: Method) -> int:
+        """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""
+        return (self.fuse_top_k or self.top_k) if m.fused else self.top_k
+
+
+@dataclasses.dataclass
+class Evaluation:
+    """Results of :func:`evaluate`: JSON-ready ``results`` plus rankings for plots."""
+
+    results: dict[str, Any]
+    retrieved: dict[str, np.ndarray]  # method -> [M, K] indices into r_items, best first
+    scores: dict[str, np.ndarray]  # method -> [M, K] scores of ``retrieved`` (lower is better)
+    truth: GroundTruth  # what is correct for each query item (radius or explicit positives)
+    q_items: np.ndarray  # [M] query frame of each evaluated query
+    r_items: np.ndarray  # [R] reference frame of each indexed reference
+    confidence: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # method -> [M] in [0, 1]
+    query_names: list[str] | None = None  # [M] image names of the evaluated queries, when known
+
+    @property
+    def q_pos(self) -> np.ndarray:
+        """``[M, P]`` positions of the evaluated query frames."""
+        return self.truth.q_pos
+
+    @property
+    def r_pos(self) -> np.ndarray:
+        """``[R, P]`` positions of the indexed reference frames."""
+        return self.truth.r_pos
+
+    @property
+    def radius(self) -> float:
+        """The localisation radius."""
+        return self.truth.radius
+
+
+Ranking = tuple[np.ndarray, np.ndarray, dict[str, float]]  # scores [M, K], items [M, K], timing ms
+
+
+def _run_knn(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
+    fq, fr = f.items(m.shortlist)
+    t0 = time.perf_counter()
+    scores, ranked = knn(fq, fr, k, backend=conf.backend, device=str(f.device))
+    return scores, ranked, {"descriptors": f.time_ms("items", m.shortlist),
+                            "retrieval": (time.perf_counter() - t0) * 1e3}
+
+
+def _run_match(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
+    feature = FRAME_FEATURES[m.frames]
+    sq, sr = f.frames(feature)
+    t0 = time.perf_counter()
+    spec = SEQUENCE_MATCHERS[m.matcher]
+    scores, ranked = spec.topk(sq, sr, conf.match_len, k, f.query.match_starts, f.reference.match_starts,
+                               device=str(f.device), **spec.options(conf.window))
+    return scores, ranked, {"descriptors": f.time_ms("frames", feature),
+                            "seqmatch": (time.perf_counter() - t0) * 1e3}
+
+
+def _run_hvpr(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
+    feature = FRAME_FEATURES[m.frames]
+    (fq, fr), (sq, sr) = f.items(m.shortlist), f.frames(feature)
+    t0 = time.perf_counter()
+    scores, ranked = hvpr(fq, fr, sq, sr, conf.match_len, f.query.match_starts, f.reference.match_starts,
+                          top_k=conf.shortlist_size(m), k=k, matcher=m.matcher, backend=conf.backend,
+                          device=str(f.device), fuse=conf.fuse_weight if m.fused else 0.0, window=conf.window)
+    return scores, ranked, {"descriptors": f.time_ms("items", m.shortlist) + f.time_ms("frames", feature),
+                            "hvpr": (time.perf_counter() - t0) * 1e3}
+
+
+RUNNERS: dict[str, Callable[[Method, Descriptors, EvalConfig, int], Ranking]] = {
+    "knn": _run_knn, "match": _run_match, "hvpr": _run_hvpr}
+
+
+def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | None) -> None:
+    """The arguments of :func:`evaluate` are what they should be (a clear error instead of an AttributeError)."""
+    if not isinstance(ds, Dataset):
+        raise ConfigError(f"evaluate() needs a seqnet Dataset, got {type(ds).__name__} (hint: load_dataset(DIR))")
+    if not isinstance(conf, EvalConfig):
+        raise ConfigError(f"evaluate() needs an EvalConfig, got {type(conf).__name__} {conf!r:.60} "
+                          "(hint: EvalConfig(methods=('single',)) or EvalConfig.from_dict({...}))")
+    if models is not None and (not isinstance(models, Mapping) or
+                               not all(isinstance(m, SeqNet) for m in models.values())):
+        raise ConfigError("models must map a role ('seqnet' for S_L, 's1' for S_1) to a SeqNet model")
+    unknown = set(models or {}) - {"seqnet", "s1"}
+    if unknown:
+        raise ConfigError(f"unknown model role(s) {sorted(unknown)}; valid: seqnet (S_L), s1 (S_1)")
+
+
+def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[str, Any]:
+    """What a method resolved to: kind, shortlister, re-ranker, lengths, K, models."""
+    info = m.summary()
+    info["seq_len"] = conf.length
+    if m.rerank:
+        info["rerank_seq_len"] = conf.match_len
+    if m.kind == "hvpr":
+        info["top_k"] = conf.shortlist_size(m)
+    if m.fused:
+        info["fuse_weight"] = conf.fuse_weight
+    info["models"] = {r: models[r].config() for r in sorted(m.models())}
+    return info
+
+
+def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqNet] | None = None) -> Evaluation:
+    """Evaluate methods on ``ds`` (already restricted to the split to evaluate).
+
+    Args:
+        ds: dataset (reference + query traverses, radius).
+        conf: settings (default :class:`EvalConfig`).
+        models: trained models by role: ``{"seqnet": S_L, "s1": S_1}`` (optional).
+
+    Returns:
+        :class:`Evaluation` whose ``results`` follow the ``--json`` schema.
+    """
+    conf = EvalConfig() if conf is None else conf
+    check_types(ds, conf, models)
+    models = dict(models or {})
+    if conf.seq_len is None and "seqnet" in models:
+        conf = conf.replace(seq_len=models["seqnet"].seq_len)
+    conf = conf.replace(radius=ds.radius if conf.radius is None else conf.radius,
+                        methods=conf.methods or default_methods(models, conf.length), seq_len=conf.length)
+    methods = [parse_method(n) for n in conf.methods]
+    check_inputs(ds, methods, models, conf.length, conf.match_len, conf.allow_mismatch)
+    dev = get_device(conf.device)
+    for model in models.values():
+        model.to(dev).eval()
+    sides = [Side.of(t, conf.length, conf.match_len, conf.window) for t in (ds.query, ds.reference)]
+    f = Descriptors(*sides, conf.length, conf.window, models, dev)
+    truth = ground_truth(ds, f.query.items, f.reference.items, conf.radius)
+    results: dict[str, Any] = {}
+    retrieved, scores = {}, {}
+    k_max = max(conf.ks)
+    confidence = {}
+    for m in methods:
+        scores[m.name], retrieved[m.name], timing = RUNNERS[m.kind](m, f, conf, k_max)
+        timing["total"] = sum(timing.values())
+        entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
+                                                   conf.extra_radii)
+        entry.update(no_full_window=int(len(ds.query) - len(f.query.items)),
+                     timing_ms={k: round(v, 3) for k, v in timing.items()}, method=_entry(m, conf, models))
+        results[m.name] = entry
+        logger.debug("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
+    out = {"methods": results, "config": {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
+                                          "models": {k: v.config() for k, v in models.items()}}}
+    names = [ds.query.names[i] for i in f.query.items] if ds.query.names else None
+    return Evaluation(out, retrieved, scores, truth, f.query.items, f.reference.items, confidence, names)
+
+
+def ground_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: float) -> GroundTruth:
+    """The ground truth of the evaluated items; :class:`ConfigError` when no query has a correct reference."""
+    positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
+    truth = GroundTruth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives)
+    if not truth.has_positive().any():
+        what = ("any of its explicit positives among the indexed references" if positives is not None else
+                f"a reference within radius {radius:g} {ds.position_unit}")
+        raise ConfigError(f"none of the {len(q_items)} evaluated queries of {ds.name!r} has {what}, so Recall@K is "
+                          "undefined; hint: check the radius and its unit, the split, and that both traverses "
+                          "share one coordinate frame")
+    return truth
+
+
+def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
+         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
+         per_query: str | Path | None = None, report: Any = None, figures: bool = False) -> Path:
+    """hloc-style stage: evaluate ``conf.split`` of the dataset directory ``dataset`` with the model
+    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs), with
+    ``per_query`` one row per method and query (``.csv`` or ``.jsonl``), with ``figures``
+    ``out/pr_curve.png``, and with ``report`` (a :class:`seqnet.report.html.ReportConfig`)
+    ``out/report.html``; returns the results path."""
+    from ..core.files import write_json_atomic
+    from ..data.io import load_dataset
+    from ..sequence.checkpoints import load_models
+
+    ds = load_dataset(dataset)
+    split = conf.split or ("test" if "test" in ds.splits else "all")
+    loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    ev = evaluate(ds.split(split), conf.replace(split=split), loaded)
+    ev.results["config"]["dataset_path"] = str(dataset)
+    ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
+                            "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
+    path = write_json_atomic(Path(out) / "results.json", ev.results)
+    if per_query is not None:
+        write_per_query(ev, per_query)
+    if figures:
+        from ..report.tables import plot_pr_curves
+
+        plot_pr_curves(ev.results["methods"], Path(out) / "pr_curve.png", title=ev.results["config"]["dataset"])
+    if report is not None:
+        from ..report.html import write_html_report
+
+        write_html_report(ev, ds.split(split), Path(out) / "report.html", report)
+    return path

@@ -1,0 +1,1 @@
+"""Recall@K and precision-recall."""

@@ -1,0 +1,160 @@
+"""Recall@K: the fraction of queries with a correct reference among the top K retrieved.
+
+A retrieved reference is correct when it lies within the localisation radius of the query
+(Euclidean distance between positions, inclusive: ``distance <= radius``; metres for UTM, frames
+for Nordland), or, when the dataset gives explicit positives, when it is one of the query's
+positives (:class:`GroundTruth`). Queries without any correct reference are excluded from the
+denominator and counted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ...core.errors import ConfigError
+from ...data.positives import Positives
+
+DEFAULT_KS = (1, 5, 10, 20, 100)
+
+
+def check_radius(radius: float) -> float:
+    """Validate a localisation radius (a finite number > 0)."""
+    try:
+        r = float(radius)
+    except (TypeError, ValueError):
+        raise ConfigError(f"radius must be a number, got {radius!r}") from None
+    if not np.isfinite(r) or r <= 0:
+        raise ConfigError(f"radius must be a finite number > 0, got {radius!r}")
+    return r
+
+
+def has_positive(q_pos: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndarray:
+    """``[M]`` bool: whether any reference position ``r_pos [R, P]`` lies within ``radius``."""
+    if len(r_pos) == 0 or len(q_pos) == 0:
+        return np.zeros(len(q_pos), dtype=bool)
+    _, nearest = cKDTree(r_pos).query(q_pos, k=1)
+    # the same distance formula as :func:`hits`, so "has a positive" and "is a hit" agree exactly
+    return np.linalg.norm(r_pos[nearest] - q_pos, axis=-1) <= radius
+
+
+def hits(retrieved: np.ndarray, q_pos: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndarray:
+    """``[M, K]`` bool: whether ``retrieved[m, k]`` (a row of ``r_pos``; -1 = none) is a true match."""
+    valid = retrieved >= 0
+    d = np.linalg.norm(r_pos[np.where(valid, retrieved, 0)] - q_pos[:, None, :], axis=-1)
+    return (d <= radius) & valid
+
+
+@dataclasses.dataclass
+class GroundTruth:
+    """What is correct for each of M query items among R reference items.
+
+    Attributes:
+        q_pos: ``[M, P]`` query positions; r_pos: ``[R, P]`` reference positions.
+        radius: localisation radius (same unit as positions); a reference within it is correct.
+        positives: explicit positives over the items (query m ↔ reference items), used instead of
+            the radius when given.
+    """
+
+    q_pos: np.ndarray
+    r_pos: np.ndarray
+    radius: float
+    positives: Positives | None = None
+
+    def __post_init__(self) -> None:
+        self.radius = check_radius(self.radius)
+        self.q_pos, self.r_pos = _positions(self.q_pos, "query"), _positions(self.r_pos, "reference")
+        if self.q_pos.shape[1] != self.r_pos.shape[1]:
+            raise ConfigError(f"query positions are {self.q_pos.shape[1]}-D but reference positions "
+                              f"{self.r_pos.shape[1]}-D")
+        if self.positives is not None:
+            self.positives.check(len(self.q_pos), len(self.r_pos), "positives over the evaluated items")
+
+    def has_positive(self) -> np.ndarray:
+        """``[M]`` bool: whether the query has any correct reference."""
+        if self.positives is not None:
+            return self.positives.counts() > 0
+        return has_positive(self.q_pos, self.r_pos, self.radius)
+
+    def hits(self, retrieved: np.ndarray) -> np.ndarray:
+        """``[M, K]`` bool: whether ``retrieved[m, k]`` (a reference item, -1 = none) is correct."""
+        if self.positives is not None:
+            return self.positives.hits(retrieved)
+        return hits(retrieved, self.q_pos, self.r_pos, self.radius)
+
+    def check_retrieved(self, retrieved: np.ndarray) -> np.ndarray:
+        """``retrieved`` as an int64 ``[M, K]`` array of valid reference items (or -1)."""
+        retrieved = np.asarray(retrieved)
+        if retrieved.ndim == 1:
+            retrieved = retrieved[:, None]
+        if retrieved.ndim != 2 or retrieved.shape[0] != len(self.q_pos):
+            raise ConfigError(f"retrieved must be [{len(self.q_pos)}, K] (one row per query), got shape "
+                              f"{retrieved.shape}")
+        retrieved = retrieved.astype(np.int64, copy=False)
+        if retrieved.size and (retrieved.min() < -1 or retrieved.max() >= len(self.r_pos)):
+            raise ConfigError(f"retrieved indices must lie in 0..{len(self.r_pos) - 1} (or -1 for none)")
+        return retrieved
+
+
+def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAULT_KS) -> dict[str, float | int]:
+    """Recall@K for each K in ``ks`` of the ranked reference items ``retrieved [M, K_max]`` (best first).
+
+    Returns ``{"recall@K": value, ..., "queries": n_evaluated, "no_positive": n_excluded}``; recall is
+    ``nan`` when no query has a correct reference. K larger than the list length uses the whole list.
+    """
+    ks = list(ks)
+    if not ks or any(int(k) < 1 for k in ks):
+        raise ConfigError(f"every K must be >= 1 (and at least one K given), got {ks}")
+    retrieved = truth.check_retrieved(retrieved)
+    pos = truth.has_positive()
+    n = int(pos.sum())
+    cum = None
+    if n and retrieved.shape[1]:
+        cum = np.logical_or.accumulate(truth.hits(retrieved), axis=1)
+    out: dict[str, float | int] = {}
+    for k in ks:
+        if n == 0:
+            out[f"recall@{k}"] = float("nan")
+        elif cum is None:  # nothing retrieved: no query is localised
+            out[f"recall@{k}"] = 0.0
+        else:
+            out[f"recall@{k}"] = float(cum[pos, min(int(k), cum.shape[1]) - 1].mean())
+    out["queries"] = n
+    out["no_positive"] = int(len(pos) - n)
+    return out
+
+
+def recall_at_k(
+    retrieved: np.ndarray,
+    q_pos: np.ndarray,
+    r_pos: np.ndarray,
+    radius: float,
+    ks: Sequence[int] = DEFAULT_KS,
+) -> dict[str, float | int]:
+    """Recall@K with the radius ground truth (see :func:`recall`).
+
+    Args:
+        retrieved: ``[M, K_max]`` ranked indices into ``r_pos`` (best first).
+        q_pos: ``[M, P]`` query positions; r_pos: ``[R, P]`` reference positions.
+        radius: localisation radius (same unit as positions; inclusive).
+        ks: the K values.
+    """
+    return recall(retrieved, GroundTruth(q_pos, r_pos, radius), ks)
+
+
+def _positions(p: np.ndarray, side: str) -> np.ndarray:
+    p = np.asarray(p, dtype=np.float64)
+    if p.ndim == 1:
+        p = p[:, None]
+    if p.ndim != 2:
+        raise ConfigError(f"{side} positions must be [N, P], got shape {p.shape}")
+    return p
+
+
+def recall_curve(retrieved: np.ndarray, truth: GroundTruth, k_max: int = 20) -> np.ndarray:
+    """Recall@K for K = 1..k_max as a ``[k_max]`` array (for plots)."""
+    res = recall(retrieved, truth, ks=range(1, k_max + 1))
+    return np.array([res[f"recall@{k}"] for k in range(1, k_max + 1)])

@@ -1,0 +1,1 @@
+"""Online localisation: the localiser, its stage and the track it writes."""

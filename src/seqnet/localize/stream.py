@@ -1,0 +1,131 @@
+"""``seqnet localize --map MAP --query DESCRIPTORS_OR_IMAGES``: localise new data frame by frame.
+
+The map is what :func:`load_map` returns: an index map (``seqnet index build --window causal``;
+:mod:`seqnet.localize.index`: its stored descriptors and ANN index are used), or a seqnet dataset
+directory whose reference traverse (optionally one split) is the map. The query is either a
+descriptor file (``.npy`` with its provenance sidecar, ``.h5``) or a folder / list file of images,
+described one by one as they are read, by the describer the map was described with (rebuilt from the
+map's provenance; only describers without fitted state — a PCA or NetVLAD clusters — can be rebuilt,
+otherwise describe the images with ``seqnet describe`` using the map's fitted state and pass the
+file). Either way the query's provenance must match the map's (:func:`seqnet.core.provenance.check_same`).
+Without ground truth the ``correct`` column is empty.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..core.progress import progress
+from ..core.provenance import check_same
+from ..core.provenance import read as read_provenance
+from ..core.utils import logger
+from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file
+from ..sequence.descriptors import SeqNet
+from .index import IndexLocalizer, IndexMap
+from .localizer import Estimate, Localizer, ReferenceMap
+from .track import LocalizeConfig, check_output, summarize, track_rows, write_track
+
+AnyMap = ReferenceMap | IndexMap  # a dataset's reference traverse, or an index map
+Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spent describing it)
+
+
+def load_map(path: str | Path, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> AnyMap:
+    """The map in ``path``: an index map (``seqnet index build --window causal``), or a dataset
+    directory whose reference traverse (``conf.split``, default all) is the map."""
+    from ..data.io import load_dataset
+    from ..maps import load_map as load_index_map
+    from ..maps.store import MAP_JSON
+
+    if (Path(path) / MAP_JSON).is_file():
+        if models:
+            raise ConfigError(f"{path} is an index map: it stores the models its descriptors were made with; drop "
+                              "--model / --shortlist-model / --rerank-model")
+        if conf.split is not None:
+            raise ConfigError(f"{path} is an index map of one split already; drop --split")
+        return IndexMap.of(load_index_map(path, conf.device), conf.radius)
+    ds = load_dataset(path).split(conf.split or "all")
+    return ReferenceMap(ds.reference, conf.radius or ds.radius, dict(models), ds.name)
+
+
+def make_localizer(ref_map: AnyMap, conf: LocalizeConfig) -> Localizer:
+    """The localiser of ``conf.method`` over ``ref_map`` (an :class:`IndexLocalizer` for an index map)."""
+    if isinstance(ref_map, IndexMap):
+        return IndexLocalizer(ref_map, conf.method, conf.eval_config(), conf.anchor)
+    return Localizer(ref_map, conf.method, conf.eval_config(), conf.anchor)
+
+
+def descriptor_frames(path: Path, ref_map: AnyMap, allow: bool) -> tuple[Frames, list[str] | None, int]:
+    """The frames of a descriptor file (checked against the map's provenance), their names and count."""
+    desc, names = read_descriptor_file(path)
+    check_same(ref_map.provenance, read_provenance(path), "the map's descriptors",
+               f"the query descriptors {path.name}", allow)
+    return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
+
+
+def image_frames(source: Path, ref_map: AnyMap, allow: bool) -> tuple[Frames, list[str], int]:
+    """Images of a folder or list file, each described when it is read by the map's describer."""
+    from ..describe import DescribeConfig, make_describer
+    from ..describe.images import list_images
+    from ..describe.store import describe_provenance
+
+    prov = ref_map.provenance
+    if not prov or prov.get("kind") != "describe":
+        raise ConfigError("the map's descriptors do not record how they were described (no 'describe' provenance), "
+                          "so query images cannot be described alike; describe them yourself and pass the "
+                          "descriptor file as --query")
+    conf = DescribeConfig.from_dict({k: v for k, v in prov["settings"].items() if k not in ("dim", "whiten")})
+    if conf.needs_fit or "dim" in prov["settings"]:
+        raise ConfigError(f"the map was described with fitted state ({conf.method}, PCA or clusters), which "
+                          "localize cannot rebuild; describe the query images with `seqnet describe` using the "
+                          "map's fitted state and pass the descriptor file as --query")
+    describer = make_describer(conf)
+    images = list_images(source)
+    first = describer(describer.load(images.paths[:1]))
+    check_same(prov, describe_provenance(conf, None, first), "the map's descriptors",
+               f"the query images of {source} as described here", allow)
+
+    def frames() -> Frames:
+        for p in images.paths:
+            t0 = time.perf_counter()
+            d = describer(describer.load([p]))[0]
+            yield d, (time.perf_counter() - t0) * 1e3
+
+    return frames(), images.names, len(images)
+
+
+def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: str | Path,
+           models: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
+           rerank_model: str | Path | None = None) -> Path:
+    """hloc-style stage: localise every frame of ``query`` against the map in ``map_dir`` with the model
+    checkpoints given; writes ``out`` (track.csv) and its ``.json`` summary; returns ``out``."""
+    from ..sequence.checkpoints import load_models
+
+    out, query = check_output(out), Path(query)
+    loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    ref_map = load_map(map_dir, loaded, conf)
+    loc = make_localizer(ref_map, conf)
+    is_file = query.is_file() and query.suffix.lower() in DESCRIPTOR_SUFFIXES
+    source = descriptor_frames if is_file else image_frames
+    frames, names, n = source(query, ref_map, conf.allow_mismatch)
+    est: list[Estimate] = []
+    describe_ms = []
+    for d, ms in progress(frames, desc=f"localize ({conf.method})", total=n, unit="frame"):
+        est.append(loc.step(d))
+        describe_ms.append(ms)
+    summary = summarize(est, None, None)
+    if not is_file:
+        summary["describe_ms"] = {"mean": float(np.mean(describe_ms)), "median": float(np.median(describe_ms))}
+    record = {"summary": summary, "config": {**conf.to_dict(), "seq_len": loc.seq_len, "rerank_seq_len": loc.match_len,
+                                             "radius": ref_map.radius},
+              "inputs": {"map": str(Path(map_dir).resolve()), "query": str(query.resolve()),
+                         "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
+              "provenance": {"map": ref_map.provenance,
+                             "models": {r: m.provenance for r, m in loaded.items()}}}
+    write_track(out, track_rows(est, names, ref_map.names, None), record)
+    logger.debug("localize: %d frames streamed", len(est))
+    return out

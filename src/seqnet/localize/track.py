@@ -1,0 +1,189 @@
+"""The ``seqnet localize`` stage: replay a dataset's query traverse frame by frame through a :class:`Localizer`.
+
+Writes ``track.csv`` (one row per query frame, :data:`TRACK_COLUMNS`) and beside it ``track.json``
+(the resolved config, the inputs and their provenance, and a summary: R@1, AUC and R@100P over the
+frames with a full causal window — the numbers ``seqnet eval --window causal`` gives — and the
+per-frame latency).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.config import Config, check_bool, check_choice, check_int
+from ..core.errors import ConfigError, OutputError
+from ..core.files import write_json_atomic, write_text_atomic
+from ..core.progress import progress
+from ..core.utils import get_device, logger
+from ..data.traverse import Dataset
+from ..eval.evaluate import EvalConfig
+from ..eval.methods import parse_method
+from ..eval.metrics.precision_recall import pr_summary, precision_recall
+from ..eval.metrics.recall import GroundTruth, check_radius
+from ..matching.velocity import ANCHORS
+from .localizer import Estimate, Localizer, ReferenceMap, replay
+
+TRACK_COLUMNS = ("frame", "name", "estimate", "estimate_name", "score", "confidence", "latency_ms", "correct",
+                 "full_window")
+TRACK_KIND = "seqnet-localize/1"
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalizeConfig(Config):
+    """Settings of ``seqnet localize``.
+
+    Attributes:
+        method: a method name (:mod:`seqnet.eval.methods`; not ``grh``).
+        seq_len: L (None: the S_L model's, else 5); rerank_seq_len: L_m (None: L).
+        top_k: HVPR shortlist size K; k: references ranked per frame (for the confidence).
+        anchor: pivot step of the variable-speed matchers (``end``: as ``seqnet eval --window causal``).
+        split: the split replayed (None: test when defined, else all).
+        radius: localisation radius (None: the dataset's): correctness and the confidence.
+        device: torch device; allow_mismatch: as ``seqnet eval --allow-mismatch``.
+    """
+
+    method: str = "hvpr"
+    seq_len: int | None = None
+    rerank_seq_len: int | None = None
+    top_k: int = 20
+    k: int = 20
+    anchor: str = "end"
+    split: str | None = None
+    radius: float | None = None
+    device: str = "auto"
+    allow_mismatch: bool = False
+
+    def __post_init__(self) -> None:
+        self._set("method", parse_method(self.method).name)
+        for key in ("seq_len", "rerank_seq_len"):
+            if getattr(self, key) is not None:
+                self._set(key, check_int(key, getattr(self, key), 1))
+        self._set("top_k", check_int("top_k", self.top_k, 1))
+        self._set("k", check_int("k", self.k, 1))
+        check_choice("anchor", self.anchor, ANCHORS)
+        if self.radius is not None:
+            self._set("radius", check_radius(self.radius))
+        self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
+        get_device(self.device)
+
+    def eval_config(self) -> EvalConfig:
+        """The :class:`EvalConfig` the localiser runs with (causal windows)."""
+        return EvalConfig(seq_len=self.seq_len, rerank_seq_len=self.rerank_seq_len, window="causal", ks=(self.k,),
+                          top_k=self.top_k, device=self.device, allow_mismatch=self.allow_mismatch)
+
+
+def sidecar_of(out: Path) -> Path:
+    """``track.json`` beside ``track.csv``."""
+    return out.with_suffix(".json")
+
+
+def check_output(out: str | Path) -> Path:
+    """``out`` must end in .csv; its ``.json`` sidecar may only replace one this stage wrote."""
+    out = Path(out)
+    if out.suffix.lower() != ".csv":
+        raise ConfigError(f"--out {out} must be a .csv file (one row per query frame)")
+    side = sidecar_of(out)
+    if side.exists():
+        try:
+            ours = json.loads(side.read_text(encoding="utf-8")).get("kind") == TRACK_KIND
+        except (OSError, ValueError, AttributeError):
+            ours = False
+        if not ours:
+            raise OutputError(f"{side} exists and was not written by seqnet localize; the summary of {out.name} "
+                              "goes there: move it away or choose another --out")
+    return out
+
+
+def localize_stream(loc: Localizer, ds: Dataset) -> list[Estimate]:
+    """Every frame of the query traverse through ``loc`` (a progress bar), resetting at sequence starts."""
+    return list(progress(replay(loc, ds.query), desc=f"localize ({loc.method.name})", total=len(ds.query),
+                         unit="frame"))
+
+
+def ground_truth(ds: Dataset, ref_items: np.ndarray, radius: float, best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(correct [Nq], has_positive [Nq])`` of the top-1 reference items ``best`` (-1: none) of every query frame."""
+    positives = ds.positives.select(np.arange(len(ds.query)), ref_items) if ds.positives is not None else None
+    truth = GroundTruth(ds.query.positions, ds.reference.positions[ref_items], radius, positives)
+    return truth.hits(best[:, None])[:, 0], truth.has_positive()
+
+
+def summarize(est: Sequence[Estimate], correct: np.ndarray | None, has: np.ndarray | None) -> dict[str, Any]:
+    """Frames, answers, R@1 / AUC / R@100P over the full-window frames, and latency statistics (ms)."""
+    full = np.array([e.full_window for e in est], bool)
+    lat = np.array([e.latency_ms for e in est])
+    out: dict[str, Any] = {"frames": len(est), "answered": int(sum(e.ref_index >= 0 for e in est)),
+                           "full_window": int(full.sum())}
+    if correct is not None and has is not None:
+        pos = full & has
+        conf = np.array([e.confidence for e in est])
+        out.update(queries=int(pos.sum()), no_positive=int((full & ~has).sum()),
+                   **{"recall@1": float(correct[pos].mean()) if pos.any() else float("nan")},
+                   **pr_summary(*precision_recall(conf[full], correct[full], has[full])[:2]))
+    if len(lat):
+        out["latency_ms"] = {"mean": float(lat.mean()), "median": float(np.median(lat)),
+                             "p95": float(np.percentile(lat, 95)), "max": float(lat.max())}
+    return out
+
+
+def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list[str] | None,
+               correct: np.ndarray | None) -> list[dict[str, Any]]:
+    """One row per query frame (:data:`TRACK_COLUMNS`); ``correct`` is empty without ground truth or answer."""
+    rows = []
+    for i, e in enumerate(est):
+        answered = e.ref_index >= 0
+        rows.append({
+            "frame": e.frame, "name": q_names[i] if q_names else "", "estimate": e.ref_frame,
+            "estimate_name": r_names[e.ref_frame] if r_names and answered else "",
+            "score": f"{e.score:.6g}" if answered else "", "confidence": f"{e.confidence:.6f}",
+            "latency_ms": f"{e.latency_ms:.3f}",
+            "correct": int(correct[i]) if correct is not None and answered else "", "full_window": int(e.full_window)})
+    return rows
+
+
+def write_track(out: Path, rows: list[dict[str, Any]], record: dict[str, Any]) -> Path:
+    """``out`` (CSV) and its JSON sidecar ``record`` (with ``kind``), both written atomically."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(TRACK_COLUMNS), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text_atomic(out, buf.getvalue())
+    write_json_atomic(sidecar_of(out), {"kind": TRACK_KIND, **record})
+    return out
+
+
+def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
+         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None) -> Path:
+    """hloc-style stage: replay the query traverse of split ``conf.split`` of the dataset directory
+    ``dataset`` against its reference traverse; writes ``out`` (track.csv) and its ``.json``
+    summary; returns ``out``."""
+    from ..data.io import load_dataset
+    from ..sequence.checkpoints import load_models
+
+    out = check_output(out)
+    full = load_dataset(dataset)
+    split = conf.split or ("test" if "test" in full.splits else "all")
+    ds = full.split(split)
+    loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    radius = conf.radius or ds.radius
+    loc = Localizer(ReferenceMap(ds.reference, radius, loaded, ds.name), conf.method, conf.eval_config(), conf.anchor)
+    est = localize_stream(loc, ds)
+    best = np.array([e.ref_index for e in est], dtype=np.int64)
+    correct, has = ground_truth(ds, loc.ref_items, radius, best)
+    summary = summarize(est, correct, has)
+    record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
+                                             "rerank_seq_len": loc.match_len, "radius": radius},
+              "inputs": {"dataset": str(Path(dataset).resolve()),
+                         "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
+              "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
+                             "models": {r: m.provenance for r, m in loaded.items()}}}
+    write_track(out, track_rows(est, ds.query.names, ds.reference.names, correct), record)
+    logger.debug("localize: %s", json.dumps(summary))
+    return out

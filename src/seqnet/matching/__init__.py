@@ -1,0 +1,1 @@
+"""Sequence matchers (one registry), SeqMatch, velocity-robust and graph matching, HVPR."""

@@ -1,0 +1,186 @@
+"""Incremental sequence matching for a query stream (a robot localising frame by frame).
+
+For each new query frame one distance row against the map is computed (one GEMV, ``N_db·D``) and
+kept in a ring buffer (:class:`Ring`) of the last ``L_m`` rows; the score row of the window of the
+last ``L_m`` frames is then a cheap function of those rows (:data:`WINDOW_MATCHERS`): ``L_m``
+shifted adds for SeqMatch (:class:`OnlineSeqMatch`), one per trajectory for velocity-robust
+SeqMatch, the path DP for graph matching. Each equals the batch definition
+(:mod:`seqnet.matching.seqmatch`, :mod:`seqnet.matching.velocity`, :mod:`seqnet.matching.graph`) on the
+window of the last ``L_m`` frames (a causal window).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from ..core.errors import ConfigError
+from ..core.utils import ArrayLike, as_tensor, get_device
+from ..search.blocks import topk_smallest
+from ..search.knn import finish_distances, sq_norms
+from ..sequence.windows import check_seq_len
+from .graph import DEFAULT_FAN_OUT, graph_pairs, path_dp
+from .pairs import window_scores
+from .seqmatch import shifted_sum
+from .velocity import DEFAULT_VELOCITIES, pivot_step, trajectories, velocity_block, velocity_pairs
+
+
+class Ring:
+    """The last ``n`` rows ``[W]`` pushed, readable as one contiguous ``[min(count, n), W]`` view, oldest first.
+
+    Each row is written twice (at ``i`` and ``i + n`` of a ``[2n, W]`` buffer), so the window is a
+    slice: no copy, no reordering.
+    """
+
+    def __init__(self, n: int, width: int, dtype: torch.dtype, device: torch.device) -> None:
+        self.n = check_seq_len(n, None, "ring length")
+        self.buf = torch.zeros((2 * self.n, width), dtype=dtype, device=device)
+        self.count = 0  # rows pushed since the last reset
+
+    def reset(self) -> None:
+        """Forget every row."""
+        self.count = 0
+
+    def push(self, row: torch.Tensor) -> None:
+        """Append ``row [W]`` (the oldest row drops out once ``n`` are held)."""
+        i = self.count % self.n
+        self.buf[i] = row
+        self.buf[i + self.n] = row
+        self.count += 1
+
+    def window(self) -> torch.Tensor:
+        """``[min(count, n), W]``: the rows held, oldest first (a view)."""
+        if self.count < self.n:
+            return self.buf[: self.count]
+        i = self.count % self.n
+        return self.buf[i : i + self.n]
+
+
+def distance_row(q: torch.Tensor, ref: torch.Tensor, r_sq: torch.Tensor) -> torch.Tensor:
+    """Euclidean distances ``[Nr]`` of one frame ``q [D]`` to the map ``ref [Nr, D]`` (norm trick, one GEMV)."""
+    return finish_distances(torch.mv(ref, q)[None, :], sq_norms(q[None, :]), r_sq)[0]
+
+
+def seqmatch_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
+    """SeqMatch scores ``[Nr − L + 1]`` of the window whose ``L`` distance rows are ``dist [L, Nr]``
+    (``anchor`` is ignored: a fixed-speed window has one alignment)."""
+    seq_len = dist.shape[0]
+    nb = dist.shape[1] - seq_len + 1
+    cols = [(seq_len - 1 - t) if reverse else t for t in range(seq_len)]
+    return shifted_sum(dist, 0, 1, cols, nb, dist.new_empty((1, nb)))[0]
+
+
+def vseqmatch_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
+    """Velocity-robust SeqMatch scores ``[Nr − L + 1]`` of one window
+    (:func:`seqnet.matching.velocity.velocity_block`)."""
+    seq_len = dist.shape[0]
+    trajs = _trajectories(seq_len, anchor, reverse)
+    return velocity_block(dist, 0, 1, trajs, dist.shape[1] - seq_len + 1)[0]
+
+
+@functools.lru_cache(maxsize=32)
+def _trajectories(seq_len: int, anchor: str, reverse: bool) -> list[tuple[int, ...]]:
+    return trajectories(DEFAULT_VELOCITIES, seq_len, anchor, reverse)
+
+
+def graph_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
+    """Graph-matching scores ``[Nr − L + 1]`` of one window: the cheapest path through frame ``b + p``
+    (:func:`seqnet.matching.graph.path_dp`, ``fan_out`` 2)."""
+    if reverse:
+        raise ConfigError("graph matching has no reverse form")
+    seq_len = dist.shape[0]
+    p = pivot_step(anchor, seq_len)
+    costs = path_dp(lambda t: dist[t : t + 1], seq_len, DEFAULT_FAN_OUT, p)[0]
+    return costs[p : p + dist.shape[1] - seq_len + 1]
+
+
+def seqmatch_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Tensor, cand: torch.Tensor,
+                   reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
+    """:func:`seqnet.matching.pairs.window_scores` with the ``anchor`` argument of the other matchers (ignored)."""
+    return window_scores(q, r, seq_len, q_starts, cand, reverse)
+
+
+@dataclasses.dataclass(frozen=True)
+class WindowMatcher:
+    """A sequence matcher for one window at a time, with the pivot ``anchor`` as a parameter.
+
+    ``score(dist [L, Nr], anchor=...)`` → ``[Nr − L + 1]``: the latest window against every reference
+    window start, from its L distance rows; ``pairs(q, r, L, q_starts [M], cand [M, K], anchor=...)``
+    → ``[M, K]``: given window pairs (the HVPR re-ranker). With ``anchor="centre"`` both equal the
+    entry of :data:`seqnet.matching.registry.SEQUENCE_MATCHERS` of the same name.
+    """
+
+    name: str
+    score: Callable[..., torch.Tensor]
+    pairs: Callable[..., torch.Tensor]
+
+
+WINDOW_MATCHERS: dict[str, WindowMatcher] = {
+    m.name: m
+    for m in (
+        WindowMatcher("seqmatch", seqmatch_window, seqmatch_pairs),
+        WindowMatcher("seqmatch-rev", functools.partial(seqmatch_window, reverse=True),
+                      functools.partial(seqmatch_pairs, reverse=True)),
+        WindowMatcher("vseqmatch", vseqmatch_window, velocity_pairs),
+        WindowMatcher("vseqmatch-rev", functools.partial(vseqmatch_window, reverse=True),
+                      functools.partial(velocity_pairs, reverse=True)),
+        WindowMatcher("graph", graph_window, graph_pairs),
+    )
+}
+
+
+class OnlineSeqMatch:
+    """Whole-map SeqMatch over a stream of query frames.
+
+    Args:
+        ref: ``[Nr, D]`` reference frame descriptors (the map; held in memory on ``device``).
+        seq_len: L_m, the number of most recent query frames matched.
+        reverse: match the reference traversed backwards (``r[b + L_m − 1 − t]``).
+        device: torch device (default: CUDA when present).
+    """
+
+    def __init__(self, ref: ArrayLike, seq_len: int, reverse: bool = False, device: str | None = None) -> None:
+        self.device = get_device(device)
+        self.ref = as_tensor(ref, self.device, "reference", ndim=2, keep_float64=True)
+        self.seq_len = check_seq_len(seq_len, len(self.ref), "seq_len")
+        self.reverse = bool(reverse)
+        self.r_sq = sq_norms(self.ref)
+        self.rows = Ring(self.seq_len, len(self.ref), self.ref.dtype, self.device)
+
+    @property
+    def count(self) -> int:
+        """Frames seen since the last reset."""
+        return self.rows.count
+
+    @property
+    def n_windows(self) -> int:
+        """Number of reference windows (``Nr − L_m + 1``): the length of a score row."""
+        return len(self.ref) - self.seq_len + 1
+
+    def reset(self) -> None:
+        """Forget the frames seen (e.g. at a sequence bound)."""
+        self.rows.reset()
+
+    @torch.no_grad()
+    def step(self, descriptor: ArrayLike) -> torch.Tensor | None:
+        """Add a query frame ``[D]``; return the scores ``[Nr − L_m + 1]`` of its window (the last L_m
+        frames) against every reference window start, or None until L_m frames have been seen."""
+        q = as_tensor(descriptor, self.device, "query frame", keep_float64=True).to(self.ref.dtype).reshape(-1)
+        if q.shape[0] != self.ref.shape[1]:
+            raise ConfigError(f"dimension mismatch: query frame D={q.shape[0]}, map D={self.ref.shape[1]}")
+        if not bool(torch.isfinite(q).all()):
+            raise ConfigError(f"query frame {self.count} holds NaN or inf")
+        self.rows.push(distance_row(q, self.ref, self.r_sq))
+        if self.rows.count < self.seq_len:
+            return None
+        return seqmatch_window(self.rows.window(), self.reverse)
+
+    def topk(self, scores: torch.Tensor, k: int, starts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` best ``(scores [k], items [k])`` of a score row (among the window ``starts`` when given)."""
+        sub = scores if starts is None else scores[torch.as_tensor(starts, device=scores.device)]
+        v, i = topk_smallest(sub[None, :], k)
+        return v[0].cpu().numpy(), i[0].cpu().numpy()

@@ -1,0 +1,70 @@
+"""Sequence matchers as data: how a query window of frame descriptors is scored against the map.
+
+Each :class:`SequenceMatcher` has two operations over frame descriptors ``[N, D]`` and window
+starts (see :mod:`seqnet.sequence.windows`):
+
+* ``topk(query, ref, L, k, q_starts, r_starts, device=...)`` → ``(scores [M, k], items [M, k])``:
+  the whole map, keeping the k best reference items per query item;
+* ``score_pairs(q, r, L, q_starts [M], cand_starts [M, K])`` → ``[M, K]`` scores of given windows
+  (``-1`` = no candidate, ``inf``): the re-ranker of HVPR.
+
+Matchers: ``seqmatch`` / ``seqmatch-rev`` (fixed speed, :mod:`seqnet.matching.seqmatch`), ``vseqmatch`` /
+``vseqmatch-rev`` (several velocities, :mod:`seqnet.matching.velocity`), ``graph`` and ``grh`` (paths of
+variable speed, :mod:`seqnet.matching.graph`); exact definitions in ``docs/matchers.md``.
+
+Lower scores are better. Adding a matcher is one entry of :data:`SEQUENCE_MATCHERS` (method names
+such as ``raw+<matcher>`` and ``hvpr-seqnet:s1+<matcher>`` follow).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from .graph import graph_pairs, graph_topk, grh_pairs, grh_topk
+from .pairs import window_scores
+from .seqmatch import seqmatch_topk
+from .velocity import velocity_pairs, velocity_topk
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceMatcher:
+    """One entry of :data:`SEQUENCE_MATCHERS`."""
+
+    name: str
+    summary: str
+    topk: Callable[..., tuple[np.ndarray, np.ndarray]]
+    score_pairs: Callable[..., torch.Tensor]
+    anchored: bool = False  # takes ``anchor=``: the window step pinned to the item's frame
+
+    def options(self, window: str) -> dict[str, str]:
+        """Keyword options for windows of ``window`` mode: an anchored matcher pins the item's own frame,
+        the centre of a centred window and the newest (last) frame of a causal one."""
+        return {"anchor": WINDOW_ANCHORS[window]} if self.anchored else {}
+
+
+WINDOW_ANCHORS = {"centred": "centre", "causal": "end"}
+
+
+SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
+    m.name: m
+    for m in (
+        SequenceMatcher("seqmatch", "SeqMatch: summed distances of aligned frames (same speed, same direction)",
+                        seqmatch_topk, window_scores),
+        SequenceMatcher("seqmatch-rev", "SeqMatch with the reference traversed backwards (reverse direction)",
+                        functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True)),
+        SequenceMatcher("vseqmatch", "SeqMatch over trajectories of several slopes (0.5-2 reference frames per query "
+                        "frame), the best one wins", velocity_topk, velocity_pairs, anchored=True),
+        SequenceMatcher("vseqmatch-rev", "velocity-robust SeqMatch with the reference traversed backwards",
+                        functools.partial(velocity_topk, reverse=True),
+                        functools.partial(velocity_pairs, reverse=True), anchored=True),
+        SequenceMatcher("graph", "GISM-style graph matching: cheapest path with reference steps 0..2 per query frame "
+                        "(stops and speed changes)", graph_topk, graph_pairs, anchored=True),
+        SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
+                        grh_topk, grh_pairs, anchored=True),
+    )
+}

@@ -1,0 +1,1 @@
+"""Outputs people look at: Markdown tables, PNG figures, the self-contained HTML report."""

@@ -1,0 +1,126 @@
+"""Figures of the HTML report (:mod:`seqnet.report.html`): precision–recall curves, the distance
+matrix with the ground truth and each method's top-1, and example queries beside their top-1.
+
+Each returns a matplotlib figure (drawn by :func:`seqnet.report.tables.new_figure`, no pyplot) or PNG
+bytes; nothing here writes files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..data.traverse import Traverse
+from ..eval.metrics.recall import GroundTruth
+from ..sequence.windows import window_starts
+from .tables import method_colours, new_figure
+
+MAX_TRUTH_POINTS = 20000  # ground-truth pairs drawn on the distance matrix at most
+
+
+def truth_pairs(truth: GroundTruth, limit: int = MAX_TRUTH_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """``(query items, reference items)`` of correct pairs (explicit positives, or within the radius),
+    evenly subsampled to at most ``limit``."""
+    if truth.positives is not None:
+        q, r = truth.positives.pairs()
+    else:
+        lists = cKDTree(truth.r_pos).query_ball_point(truth.q_pos, r=truth.radius)
+        q = np.repeat(np.arange(len(lists)), [len(x) for x in lists])
+        r = np.fromiter((j for x in lists for j in x), dtype=np.int64, count=len(q))
+    keep = np.unique(np.linspace(0, len(q) - 1, min(limit, len(q))).astype(np.int64)) if len(q) else q
+    return np.asarray(q)[keep], np.asarray(r)[keep]
+
+
+def item_distances(query: np.ndarray, ref: np.ndarray, side: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """L2 distances ``[m, r]`` of at most ``side`` evenly spaced rows of ``query [M, D]`` and ``ref [R, D]``,
+    and the row / column indices used."""
+    qi = np.unique(np.linspace(0, len(query) - 1, min(side, len(query))).astype(np.int64))
+    ri = np.unique(np.linspace(0, len(ref) - 1, min(side, len(ref))).astype(np.int64))
+    a, b = np.asarray(query[qi], np.float64), np.asarray(ref[ri], np.float64)
+    sq = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2 * a @ b.T
+    return np.sqrt(np.maximum(sq, 0.0)), qi, ri
+
+
+def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300,
+                  methods: Sequence[str] | None = None) -> Any:
+    """The single-image descriptor distance matrix of the evaluated items (downsampled to ``side``),
+    the ground truth (cyan) and each method's top-1 (coloured dots) over it."""
+    d, qi, ri = item_distances(query.descriptors[ev.q_items], reference.descriptors[ev.r_items], side)
+    m, r = len(ev.q_items), len(ev.r_items)
+    fig, ax = new_figure(7, 6.5)
+    ax.imshow(d, cmap="gray", aspect="auto", interpolation="nearest", extent=(-0.5, r - 0.5, m - 0.5, -0.5))
+    tq, tr = truth_pairs(ev.truth)
+    ax.scatter(tr, tq, s=6, c="cyan", alpha=0.35, marker="s", linewidths=0, label="ground truth")
+    names = list(methods or ev.retrieved)
+    for name, colour in zip(names, method_colours(len(names)), strict=True):
+        top = ev.retrieved[name][:, 0]
+        ok = top >= 0
+        ax.scatter(top[ok], np.flatnonzero(ok), s=3, color=colour, linewidths=0, label=f"{name} top-1")
+    ax.set_xlim(-0.5, r - 0.5)
+    ax.set_ylim(m - 0.5, -0.5)
+    ax.set_xlabel(f"reference item ({r}; matrix shown at {len(ri)} columns)")
+    ax.set_ylabel(f"query item ({m}; {len(qi)} rows)")
+    ax.legend(fontsize=6, loc="upper right", markerscale=4, framealpha=0.8)
+    ax.set_title("single-image descriptor distances (dark = close)")
+    return fig
+
+
+@dataclasses.dataclass
+class GalleryItem:
+    """One example query: its window frames, the top-1 reference window frames, correct or not."""
+
+    query: int  # row of the evaluation (query item index)
+    query_frames: list[str]
+    ref_frames: list[str]
+    correct: bool
+    confidence: float
+
+
+def window_names(t: Traverse, frame: int, length: int, mode: str) -> list[str]:
+    """Image names of the ``length``-frame window of ``frame`` in ``t`` (clamped inside its sequence)."""
+    starts, _ = window_starts(len(t), length, mode, t.seq_bounds)
+    first = int(np.clip(starts[frame], 0, max(len(t) - length, 0)))
+    return [t.names[i] for i in range(first, min(first + length, len(t)))] if t.names else []
+
+
+def pick_examples(correct: np.ndarray, has_positive: np.ndarray, n: int) -> list[int]:
+    """Up to ``n`` query rows: failures first (two thirds of ``n`` at most, evenly spread along the
+    queries), then correct ones (likewise), each group in query order."""
+    wrong, right = np.flatnonzero(has_positive & ~correct), np.flatnonzero(has_positive & correct)
+    n_wrong = min(len(wrong), max(n - min(len(right), n // 3), 0))
+    n_right = min(len(right), n - n_wrong)
+
+    def spread(rows: np.ndarray, k: int) -> list[int]:
+        return [int(rows[i]) for i in np.unique(np.linspace(0, len(rows) - 1, k).astype(int))] if k else []
+
+    return spread(wrong, n_wrong) + spread(right, n_right)
+
+
+def gallery_png(item: GalleryItem, query_root: Path, ref_root: Path, gap: int = 2) -> bytes | None:
+    """A PNG of the query window frames (top row) above the top-1 reference window frames; None when
+    an image cannot be read."""
+    from PIL import Image
+
+    rows = []
+    for root, names in ((query_root, item.query_frames), (ref_root, item.ref_frames)):
+        try:
+            rows.append([np.asarray(Image.open(root / n).convert("RGB")) for n in names])
+        except OSError:
+            return None
+    h = max(im.shape[0] for row in rows for im in row)
+    w = max(sum(im.shape[1] + gap for im in row) for row in rows)
+    canvas = np.full((2 * h + gap, w, 3), 255, np.uint8)
+    for r, row in enumerate(rows):
+        x = 0
+        for im in row:
+            canvas[r * (h + gap) : r * (h + gap) + im.shape[0], x : x + im.shape[1]] = im
+            x += im.shape[1] + gap
+    buf = io.BytesIO()
+    Image.fromarray(canvas).save(buf, format="PNG")
+    return buf.getvalue()

@@ -1,0 +1,201 @@
+"""A self-contained HTML report of an evaluation: one file, inline CSS, every figure a PNG embedded
+as a base64 ``data:`` URI, no script and no external URL, so it opens offline, in a mail or an
+archive, exactly as written.
+
+Sections (their ``id``): ``summary`` (what was evaluated and the resolved configuration),
+``results`` (Recall@K, precision–recall AUC, R@100P, queries, time per method), ``recall``
+(Recall@K curves), ``pr`` (precision–recall curves), ``matrix`` (the single-image descriptor
+distance matrix of the evaluated items, downsampled, with the ground truth and each method's top-1
+over it), ``gallery`` (example queries — the query window frames above the top-1 reference window
+frames, marked correct or wrong, failures first — when the dataset has image names and the image
+folders are given). Experiments add their own sections before these (:func:`write_html_report`).
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._version import __version__
+from ..core.config import Config, check_int
+from ..core.files import write_text_atomic
+from ..data.traverse import Dataset
+from ..eval.methods import parse_method
+from ..eval.metrics.recall import recall_curve
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
+from .tables import figure_png, pr_figure, recall_figure, results_rows
+
+SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery")
+CSS = """body{font-family:sans-serif;margin:2em auto;max-width:1100px;color:#222}
+table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:2px 8px;text-align:right}
+td:first-child,th:first-child{text-align:left}nav a{margin-right:1em}pre{background:#f4f4f4;padding:.5em;
+overflow-x:auto;font-size:80%}.ex{display:inline-block;margin:4px;padding:4px;border:3px solid}
+.ok{border-color:#2a2}.bad{border-color:#c22}.ex img{image-rendering:pixelated;width:100%}
+.ex p{margin:2px;font-size:80%}img{max-width:100%}"""
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportConfig(Config):
+    """Settings of the HTML report.
+
+    Attributes:
+        title: the page title.
+        k_max: Recall@K curves for K = 1..k_max.
+        matrix_side: the distance matrix is drawn at most this many rows and columns.
+        gallery_method: the method of the gallery (None: the one with the best R@1).
+        gallery_size: example queries shown (failures first).
+        query_images, ref_images: folders of the query / reference images (named as in the
+            dataset); without both, no gallery.
+    """
+
+    title: str = "seqnet evaluation"
+    k_max: int = 20
+    matrix_side: int = 300
+    gallery_method: str | None = None
+    gallery_size: int = 12
+    query_images: str | None = None
+    ref_images: str | None = None
+
+    def __post_init__(self) -> None:
+        for key in ("k_max", "matrix_side", "gallery_size"):
+            self._set(key, check_int(key, getattr(self, key), 1))
+        if self.gallery_method is not None:
+            self._set("gallery_method", parse_method(self.gallery_method).name)
+        for key in ("query_images", "ref_images"):
+            if getattr(self, key) is not None:
+                self._set(key, str(getattr(self, key)))
+
+
+@dataclasses.dataclass
+class Section:
+    """One section of the report: an ``id`` (anchor), a title and its HTML body."""
+
+    id: str
+    title: str
+    body: str
+
+
+def png_tag(png: bytes, alt: str) -> str:
+    """An ``<img>`` whose source is the PNG itself (a base64 data URI)."""
+    data = base64.b64encode(png).decode("ascii")
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def table_html(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """An HTML table (cells escaped)."""
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def summary_section(ev: Any, conf: ReportConfig) -> Section:
+    """What was evaluated, on what, and the resolved configuration."""
+    cfg = ev.results["config"]
+    first = next(iter(ev.results["methods"].values()))
+    facts = [("dataset", cfg.get("dataset", "")), ("queries evaluated", first.get("queries", "")),
+             ("reference items", len(ev.r_items)), ("radius", cfg.get("radius", "")), ("L", cfg.get("seq_len", "")),
+             ("L_m", cfg.get("rerank_seq_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
+             ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
+    config = html.escape(json.dumps(cfg, indent=1, default=str))
+    return Section("summary", "Summary", table_html(["", ""], facts)
+                   + f"<details><summary>resolved configuration</summary><pre>{config}</pre></details>")
+
+
+def results_section(ev: Any) -> Section:
+    """The results table: Recall@K, AUC, R@100P, queries, time."""
+    ks = ev.results["config"].get("ks", [1, 5, 10, 20])
+    header, rows = results_rows(ev.results["methods"], ks)
+    for row, r in zip(rows, ev.results["methods"].values(), strict=True):
+        row.extend(f"{r[k]:.3f}" if isinstance(r.get(k), float) else "" for k in ("auc", "recall@100p"))
+    return Section("results", "Results", table_html([*header, "PR AUC", "R@100P"], rows))
+
+
+def gallery_section(ev: Any, ds: Dataset, conf: ReportConfig) -> Section:
+    """Example queries beside their top-1 reference window, failures first (or why there are none)."""
+    if not (conf.query_images and conf.ref_images and ds.query.names and ds.reference.names):
+        why = "the dataset has no image names" if not (ds.query.names and ds.reference.names) else \
+            "no image folders were given (seqnet eval --report --images-query DIR --images-ref DIR)"
+        return Section("gallery", "Example queries", f"<p>No gallery: {html.escape(why)}.</p>")
+    methods = ev.results["methods"]
+    name = conf.gallery_method or max(methods, key=lambda m: methods[m].get("recall@1", -1.0))
+    entry, ranked = methods[name]["method"], ev.retrieved[name]
+    m = parse_method(name)
+    single = m.kind == "knn" and SEQUENCE_DESCRIPTORS[m.shortlist].single_frame
+    length, mode = 1 if single else entry.get("rerank_seq_len") or entry["seq_len"], ev.results["config"]["window"]
+    correct = ev.truth.hits(ranked[:, :1])[:, 0]
+    cells = []
+    for row in pick_examples(correct, ev.truth.has_positive(), conf.gallery_size):
+        top = int(ranked[row, 0])
+        item = GalleryItem(row, window_names(ds.query, int(ev.q_items[row]), length, mode),
+                           window_names(ds.reference, int(ev.r_items[top]), length, mode) if top >= 0 else [],
+                           bool(correct[row]), float(ev.confidence[name][row]))
+        png = gallery_png(item, Path(conf.query_images), Path(conf.ref_images)) if item.ref_frames else None
+        cells.append(gallery_cell(item, png))
+    head = (f"<p>Method <b>{html.escape(name)}</b>: each example shows the query window (top row) above the "
+            f"top-1 reference window (bottom row), {length} frame(s); green: correct, red: wrong.</p>")
+    return Section("gallery", "Example queries", head + "".join(cells))
+
+
+def gallery_cell(item: GalleryItem, png: bytes | None) -> str:
+    """One example of the gallery."""
+    status = "correct" if item.correct else "wrong"
+    text = (f"<p>{status}: query {html.escape(item.query_frames[len(item.query_frames) // 2])} → "
+            f"{html.escape(item.ref_frames[len(item.ref_frames) // 2]) if item.ref_frames else 'none'}"
+            f" (confidence {item.confidence:.2f})</p>")
+    image = png_tag(png, f"query {item.query}") if png is not None else "<p>(images not readable)</p>"
+    return f'<div class="ex {"ok" if item.correct else "bad"}" style="width:300px">{image}{text}</div>'
+
+
+def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
+    """The report sections of one :class:`~seqnet.eval.evaluate.Evaluation` of the dataset ``ds`` (the
+    evaluated split: its traverses give the descriptors and image names)."""
+    curves = {m: recall_curve(r, ev.truth, conf.k_max) for m, r in ev.retrieved.items()}
+    pr = pr_figure(ev.results["methods"], "precision–recall (ratio confidence)")
+    return [
+        summary_section(ev, conf),
+        results_section(ev),
+        Section("recall", "Recall@K", png_tag(figure_png(recall_figure(curves, "Recall@K")), "Recall@K curves")),
+        Section("pr", "Precision–recall", png_tag(figure_png(pr),
+                                                   "precision-recall curves")
+                + "<p>Confidence of a top-1: the ratio test against the best other place "
+                "(seqnet.eval.metrics.precision_recall).</p>"),
+        Section("matrix", "Distance matrix", png_tag(figure_png(matrix_figure(ev, ds.query, ds.reference,
+                                                                              conf.matrix_side)), "distance matrix")),
+        gallery_section(ev, ds, conf),
+    ]
+
+
+def render_html(title: str, sections: Sequence[Section]) -> str:
+    """The whole page: title, a navigation bar and the sections."""
+    nav = "".join(f'<a href="#{html.escape(s.id)}">{html.escape(s.title)}</a>' for s in sections)
+    body = "".join(f'<section id="{html.escape(s.id)}"><h2>{html.escape(s.title)}</h2>{s.body}</section>'
+                   for s in sections)
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+            f"<style>{CSS}</style></head><body><h1>{html.escape(title)}</h1><nav>{nav}</nav>{body}</body></html>\n")
+
+
+def write_html_report(ev: Any, ds: Dataset, path: str | Path, conf: ReportConfig | None = None,
+                      extra: Sequence[Section] = ()) -> Path:
+    """Write the report of the evaluation ``ev`` of ``ds`` (the evaluated split) to ``path``, with the
+    sections ``extra`` first (e.g. an experiment's own tables and figures); returns ``path``."""
+    conf = conf or ReportConfig()
+    return write_text_atomic(Path(path), render_html(conf.title, [*extra, *evaluation_sections(ev, ds, conf)]))
+
+
+def figure_section(id_: str, title: str, fig: Any, text: str = "") -> Section:
+    """A section holding one matplotlib figure (embedded) and an optional paragraph of text."""
+    return Section(id_, title, png_tag(figure_png(fig), title) + (f"<p>{html.escape(text)}</p>" if text else ""))
+
+
+def rows_as_text(rows: Sequence[Sequence[Any]]) -> list[list[str]]:
+    """Table cells as text (floats with 3 decimals, None as a dash)."""
+    return [["–" if c is None else f"{c:.3f}" if isinstance(c, (float, np.floating)) else str(c) for c in r]
+            for r in rows]

@@ -1,0 +1,159 @@
+"""Reports: comparison tables (plain text and Markdown), Recall@K and precision–recall plots."""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.files import atomic_path
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return "  n/a" if math.isnan(v) else f"{v:.3f}"
+    return str(v)
+
+
+def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int],
+                 pr: bool = False) -> tuple[list[str], list[list[str]]]:
+    """Header and rows: method, R@K for each K, (with ``pr``: AUC and R@100P,) queries, total time (ms)."""
+    extra = [("AUC", "auc"), ("R@100P", "recall@100p")] if pr else []
+    header = ["method", *(f"R@{k}" for k in ks), *(h for h, _ in extra), "queries", "time ms"]
+    rows = []
+    for name, r in methods.items():
+        timing = r.get("timing_ms", {})
+        rows.append([name, *(_fmt(r.get(f"recall@{k}", float("nan"))) for k in ks),
+                     *(_fmt(float(r.get(key, float("nan")))) for _, key in extra), str(r.get("queries", "")),
+                     f"{timing.get('total', float('nan')):.1f}"])
+    return header, rows
+
+
+def method_label(entry: Mapping[str, Any]) -> str:
+    """What a results entry's method resolved to, e.g. ``seqnet(L=5) top-20 -> s1+seqmatch(L_m=5)``."""
+    m = entry.get("method") or {}
+    single = m.get("shortlist") in SEQUENCE_DESCRIPTORS and SEQUENCE_DESCRIPTORS[m["shortlist"]].single_frame
+    short = (m["shortlist"] if single else f"{m['shortlist']}(L={m.get('seq_len')})") if m.get("shortlist") else ""
+    rerank = f"{m['rerank']}(L_m={m.get('rerank_seq_len')})" if m.get("rerank") else ""
+    if m.get("kind") == "hvpr":
+        return f"{short} top-{m.get('top_k')} -> {rerank}"
+    return f"k-NN {short}" if m.get("kind") == "knn" else rerank
+
+
+def format_table(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 10, 20, 100)) -> str:
+    """A fixed-width text table of results (one row per method, with what it resolved to)."""
+    header, rows = results_rows(methods, ks)
+    header.append("what")
+    for row, entry in zip(rows, methods.values(), strict=True):
+        row.append(method_label(entry))
+    widths = [max(len(x) for x in col) for col in zip(header, *rows, strict=True)]
+
+    def line(cells: Sequence[str]) -> str:
+        pairs = enumerate(zip(cells, widths, strict=True))
+        return "  ".join(c.ljust(w) if i in (0, len(cells) - 1) else c.rjust(w) for i, (c, w) in pairs).rstrip()
+
+    return "\n".join([line(header), line(["-" * w for w in widths]), *(line(r) for r in rows)])
+
+
+def format_markdown(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 20)) -> str:
+    """A Markdown table of results: R@K, AUC and R@100P (precision–recall), queries, per-stage timings."""
+    header, rows = results_rows(methods, ks, pr=True)
+    stages = sorted({s for r in methods.values() for s in r.get("timing_ms", {}) if s != "total"})
+    header = [*header, *(f"{s} ms" for s in stages)]
+    for row, r in zip(rows, methods.values(), strict=True):
+        timing = r.get("timing_ms", {})
+        row.extend(f"{timing[s]:.1f}" if s in timing else "–" for s in stages)
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(out) + "\n"
+
+
+def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title: str = "") -> Path:
+    """Save Recall@K curves (K = 1..len) as a PNG, one line per method (paper Fig. 3 style)."""
+    return save_figure(recall_figure(curves, title), path)
+
+
+def method_colours(n: int) -> list[Any]:
+    """``n`` distinct colours (tab20: the 10 dark shades first, then the light ones), cycling after 20."""
+    import matplotlib
+
+    tab20 = matplotlib.colormaps["tab20"].colors
+    colours = [*tab20[::2], *tab20[1::2]]
+    return [colours[i % 20] for i in range(n)]
+
+
+def recall_figure(curves: Mapping[str, np.ndarray], title: str = "") -> Any:
+    """A figure of Recall@K curves (K = 1..len), one line per method (solid, then dashed after 10)."""
+    from matplotlib.ticker import MaxNLocator
+
+    fig, ax = new_figure(6, 4.5)
+    for i, ((name, c), colour) in enumerate(zip(curves.items(), method_colours(len(curves)), strict=True)):
+        ax.plot(np.arange(1, len(c) + 1), c, marker="o", markersize=3, label=name,
+                color=colour, linestyle="-" if i % 20 < 10 else "--")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("K (number of top reference candidates)")
+    ax.set_ylabel("Recall@K")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    if title:
+        ax.set_title(title)
+    return fig
+
+
+def plot_pr_curves(methods: Mapping[str, Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
+    """Save :func:`pr_figure` of results entries as a PNG."""
+    return save_figure(pr_figure(methods, title), path)
+
+
+def pr_figure(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> Any:
+    """The precision–recall curves of results entries (``pr_curve``: ``{"precision", "recall"}``, and
+    ``auc`` for the legend), one line per method; entries without a curve are left out."""
+    entries = [(n, r) for n, r in methods.items() if r.get("pr_curve")]
+    fig, ax = new_figure(6, 4.5)
+    for i, ((name, r), colour) in enumerate(zip(entries, method_colours(len(entries)), strict=True)):
+        c = r["pr_curve"]
+        ax.plot(c["recall"], c["precision"], label=f"{name} (AUC {float(r.get('auc', float('nan'))):.2f})",
+                color=colour, linestyle="-" if i % 20 < 10 else "--")
+    ax.set_xlabel("recall (top-1 correct, accepted by confidence)")
+    ax.set_ylabel("precision")
+    ax.set_xlim(0, 1.02)
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower left")
+    if title:
+        ax.set_title(title)
+    return fig
+
+
+def new_figure(width: float, height: float, ncols: int = 1) -> tuple[Any, Any]:
+    """A matplotlib ``Figure`` with ``ncols`` axes drawn by the Agg canvas (no pyplot, no global backend)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, ncols)
+    return fig, axes
+
+
+def save_figure(fig: Any, path: str | Path, dpi: int = 120) -> Path:
+    """Write ``fig`` as a PNG atomically."""
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi)
+    return path
+
+
+def figure_png(fig: Any, dpi: int = 100) -> bytes:
+    """``fig`` as PNG bytes (for embedding in a report)."""
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()

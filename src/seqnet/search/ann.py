@@ -1,0 +1,160 @@
+"""Approximate nearest-neighbour shortlists with FAISS: a table of index types and their settings.
+
+The HVPR shortlist only has to contain the true place among its K candidates, so an approximate
+index (IVF, HNSW, product quantisation) can replace the exhaustive search on large maps. Each
+:data:`ANN_INDEXES` entry builds a FAISS index over ``[N, D]`` float32 descriptors (L2) and sets
+its search-time parameters; :func:`shortlist_recall` measures how many of the exact top-K it keeps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.config import Config, check_choice, check_int
+from ..core.errors import CheckpointError, ConfigError
+
+
+@dataclasses.dataclass(frozen=True)
+class AnnConfig(Config):
+    """Settings of an approximate index (those of other kinds are ignored).
+
+    Attributes:
+        kind: a key of :data:`ANN_INDEXES` (``flat`` is exact).
+        nlist: IVF: number of inverted lists (None: about ``4·√N``).
+        nprobe: IVF: lists visited per query.
+        hnsw_m: HNSW: neighbours per node; ef_search / ef_construction: HNSW search / build breadth.
+        pq_m: IVF-PQ: sub-quantisers (must divide D); pq_bits: bits per sub-quantiser code.
+        seed: k-means seed.
+    """
+
+    kind: str = "flat"
+    nlist: int | None = None
+    nprobe: int = 16
+    hnsw_m: int = 32
+    ef_search: int = 128
+    ef_construction: int = 80
+    pq_m: int = 16
+    pq_bits: int = 8
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_choice("ANN index kind", self.kind, ANN_INDEXES)
+        if self.nlist is not None:
+            self._set("nlist", check_int("nlist", self.nlist, 1))
+        for key in ("nprobe", "hnsw_m", "ef_search", "ef_construction", "pq_m"):
+            self._set(key, check_int(key, getattr(self, key), 1))
+        self._set("pq_bits", check_int("pq_bits", self.pq_bits, 1, 16))
+        self._set("seed", check_int("seed", self.seed, 0))
+
+    def lists(self, n: int) -> int:
+        """IVF lists for ``n`` vectors (at most n / 39, FAISS's minimum training points per list)."""
+        return max(1, min(self.nlist or int(4 * np.sqrt(n)), n // 39 or 1))
+
+
+def _flat(d: int, n: int, conf: AnnConfig) -> Any:
+    import faiss
+
+    return faiss.IndexFlatL2(d)
+
+
+def _ivf_flat(d: int, n: int, conf: AnnConfig) -> Any:
+    import faiss
+
+    return faiss.IndexIVFFlat(faiss.IndexFlatL2(d), d, conf.lists(n))
+
+
+def _hnsw(d: int, n: int, conf: AnnConfig) -> Any:
+    import faiss
+
+    index = faiss.IndexHNSWFlat(d, conf.hnsw_m)
+    index.hnsw.efConstruction = conf.ef_construction
+    return index
+
+
+def _ivf_pq(d: int, n: int, conf: AnnConfig) -> Any:
+    import faiss
+
+    if d % conf.pq_m:
+        raise ConfigError(f"IVF-PQ needs pq_m dividing D={d}, got pq_m={conf.pq_m} "
+                          f"(hint: --pq-m {max(m for m in range(1, min(d, 64) + 1) if d % m == 0)})")
+    if n < 2**conf.pq_bits:
+        raise ConfigError(f"IVF-PQ with {conf.pq_bits}-bit codes needs at least {2**conf.pq_bits} vectors, got {n}")
+    return faiss.IndexIVFPQ(faiss.IndexFlatL2(d), d, conf.lists(n), conf.pq_m, conf.pq_bits)
+
+
+ANN_INDEXES: dict[str, Callable[[int, int, AnnConfig], Any]] = {
+    "flat": _flat, "ivf-flat": _ivf_flat, "hnsw": _hnsw, "ivf-pq": _ivf_pq}
+
+
+def build_index(ref: np.ndarray, conf: AnnConfig | None = None) -> Any:
+    """A FAISS index of kind ``conf.kind`` over ``ref [N, D]`` (trained on it when the kind needs training)."""
+    import faiss
+
+    conf = conf or AnnConfig()
+    x = np.ascontiguousarray(ref, dtype=np.float32)
+    if x.ndim != 2 or len(x) == 0:
+        raise ConfigError(f"an index needs a non-empty [N, D] array, got shape {x.shape}")
+    index = ANN_INDEXES[conf.kind](x.shape[1], len(x), conf)
+    if not index.is_trained:
+        ivf = faiss.try_extract_index_ivf(index)
+        if ivf is not None:
+            ivf.cp.seed = conf.seed  # deterministic k-means of the coarse quantiser
+        index.train(x)
+    index.add(x)
+    set_search_params(index, conf)
+    return index
+
+
+def set_search_params(index: Any, conf: AnnConfig) -> None:
+    """Apply the search-time settings (``nprobe``, ``efSearch``) of ``conf`` to ``index``."""
+    import faiss
+
+    ivf = faiss.try_extract_index_ivf(index)
+    if ivf is not None:
+        ivf.nprobe = min(conf.nprobe, ivf.nlist)
+    if hasattr(index, "hnsw"):
+        index.hnsw.efSearch = conf.ef_search
+
+
+def search(index: Any, query: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(distances [M, k], ids [M, k])``, ascending Euclidean distance; ``-1`` ids where fewer than k are found."""
+    k = check_int("k", k, 1)
+    dist, ids = index.search(np.ascontiguousarray(query, dtype=np.float32), min(k, index.ntotal))
+    return np.sqrt(np.maximum(dist, 0.0)), ids.astype(np.int64)
+
+
+def save_index(index: Any, path: str | Path) -> Path:
+    """Write ``index`` with ``faiss.write_index`` (atomically)."""
+    import faiss
+
+    from ..core.files import atomic_path
+
+    with atomic_path(path) as tmp:
+        faiss.write_index(index, str(tmp))
+    return Path(path)
+
+
+def load_index(path: str | Path, conf: AnnConfig | None = None) -> Any:
+    """Read an index written by :func:`save_index` (search settings from ``conf`` when given)."""
+    import faiss
+
+    try:
+        index = faiss.read_index(str(path))
+    except RuntimeError as e:
+        raise CheckpointError(f"cannot read FAISS index {path} ({str(e).splitlines()[0][:200]})") from None
+    if conf is not None:
+        set_search_params(index, conf)
+    return index
+
+
+def shortlist_recall(approx: np.ndarray, exact: np.ndarray) -> float:
+    """Mean fraction of each row of the exact top-K ``exact [M, K]`` found in ``approx [M, K']``."""
+    if exact.size == 0:
+        return float("nan")
+    hits = [len(np.intersect1d(a[a >= 0], e)) / len(e) for a, e in zip(approx, exact, strict=True)]
+    return float(np.mean(hits))

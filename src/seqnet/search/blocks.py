@@ -1,0 +1,96 @@
+"""Memory-bounded search: blocks over both the query and the reference side, and a running top-K.
+
+Whole-map searches (k-NN, SeqMatch) never hold an ``N_q × N_db`` score matrix, nor the whole map
+in torch memory: the query is cut into row blocks, the reference into column blocks read straight
+from the (possibly memory-mapped, possibly float16) array, and each row block keeps only its k best
+columns so far (faiss ``knn_ground_truth`` style). Blocks visit columns in increasing order and
+ties keep the lower column, so the result equals a top-k over the whole row.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..core.errors import ConfigError
+from ..core.utils import ArrayLike, as_tensor
+
+DEFAULT_COL_BLOCK = 65536  # reference rows per block (the whole map when it is smaller)
+
+
+def matrix_shape(x: ArrayLike, name: str) -> tuple[int, int]:
+    """``(N, D)`` of a 2-D numeric array or tensor, checked without reading it."""
+    if not isinstance(x, (np.ndarray, torch.Tensor)):
+        x = np.asarray(x)
+    kind = "f" if isinstance(x, torch.Tensor) and x.is_floating_point() else getattr(x.dtype, "kind", "")
+    if x.ndim != 2:
+        raise ConfigError(f"{name} must be a [N, D] matrix, got shape {tuple(x.shape)}")
+    if isinstance(x, np.ndarray) and kind not in "fiub":
+        raise ConfigError(f"{name} must hold numbers, got dtype {x.dtype}")
+    return int(x.shape[0]), int(x.shape[1])
+
+
+def compute_dtype(*xs: ArrayLike) -> torch.dtype:
+    """float64 when any input is float64 (exact tests), else float32 (float16 maps are computed in float32)."""
+    return torch.float64 if any(str(x.dtype).endswith("float64") for x in xs) else torch.float32
+
+
+def rows(x: ArrayLike, a: int, b: int, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """Rows ``a:b`` of ``x`` as a ``dtype`` tensor on ``device`` (only those rows are read from a memory map)."""
+    return as_tensor(x[a:b], device, keep_float64=True).to(dtype)
+
+
+def check_pair_dims(query: ArrayLike, ref: ArrayLike) -> tuple[int, int, int]:
+    """``(Nq, Nr, D)``; :class:`ConfigError` when the descriptor dimensions differ."""
+    nq, dq = matrix_shape(query, "query")
+    nr, dr = matrix_shape(ref, "reference")
+    if dq != dr:
+        raise ConfigError(f"dimension mismatch: query D={dq}, reference D={dr}")
+    return nq, nr, dq
+
+
+def topk_smallest(scores: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``k`` smallest entries of each row of ``scores [B, N]``, ascending.
+
+    Ties are broken deterministically by the lower column index (also at the cut-off); NaN ranks
+    like +inf. Returns ``(values [B, k], indices [B, k])``; ``k`` is capped at N.
+    """
+    k = min(int(k), scores.shape[1])
+    if k <= 0 or scores.shape[0] == 0:
+        empty = scores.new_zeros((scores.shape[0], max(k, 0)))
+        return empty, empty.long()
+    key = scores.masked_fill(torch.isnan(scores), float("inf")) if scores.is_floating_point() else scores
+    kth = torch.topk(key, k, dim=1, largest=False, sorted=True).values[:, -1:]
+    less = key < kth
+    ties = key == kth
+    need = k - less.sum(1, keepdim=True)
+    keep = less | (ties & (ties.cumsum(1) <= need))
+    idx = keep.nonzero()[:, 1].reshape(scores.shape[0], k)  # ascending column order
+    order = torch.sort(key.gather(1, idx), dim=1, stable=True).indices
+    idx = idx.gather(1, order)
+    return scores.gather(1, idx), idx
+
+
+
+
+def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Tensor, cols: torch.Tensor,
+               k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Fold a block ``scores [n, c]`` of columns ``cols [c]`` (increasing, after every column in ``best``)
+    into the running ``(values [n, k'], columns [n, k'])``. NaN scores (non-finite inputs, or values too
+    large for the dtype) are a :class:`ConfigError`: a ranking of NaNs is meaningless."""
+    if not bool(torch.isfinite(scores).all()):
+        raise ConfigError("the distances are not finite: the descriptors hold NaN or inf, or values too large "
+                          f"for {str(scores.dtype).removeprefix('torch.')} (hint: L2-normalise them)")
+    if best is None:
+        v, i = topk_smallest(scores, k)
+        return v, cols[i] if cols.numel() else i
+    vals, idx = best
+    v, i = topk_smallest(torch.cat([vals, scores], dim=1), k)
+    all_cols = torch.cat([idx, cols.expand(len(idx), -1)], dim=1)
+    return v, all_cols.gather(1, i)
+
+
+def col_blocks(n: int, col_block: int | None) -> list[tuple[int, int]]:
+    """``[(c0, c1), ...]`` covering ``range(n)`` in blocks of ``col_block`` (default :data:`DEFAULT_COL_BLOCK`)."""
+    size = max(1, col_block or DEFAULT_COL_BLOCK)
+    return [(c, min(n, c + size)) for c in range(0, n, size)]

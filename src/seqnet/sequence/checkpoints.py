@@ -1,0 +1,178 @@
+"""Model checkpoints: seqnet's own format and the original SeqNet code's ``*.pth.tar`` files.
+
+seqnet format (``RUN/last.pt``, ``RUN/best.pt``), a ``torch.save`` dict::
+
+    {"format": "seqnet-checkpoint/1", "model": {"in_dims", "out_dims", "seq_len", "w"},
+     "state_dict": {"conv.weight": [D_out, D, w], "conv.bias": [D_out]}, "epoch", "best_score",
+     "best_epoch", "metrics", "config" (TrainConfig.to_dict()), "dataset_path",
+     "train_state" (last.pt only): {optimiser, scheduler, generator state, negative cache, ...}}
+
+Original format (``checkpoint.pth.tar`` / ``model_best.pth.tar``): ``{"state_dict":
+{"pool.0.conv.weight", "pool.0.conv.bias"}, "epoch", "best_score", ...}``, with the run's flags
+(``seqL``, ``w``, ``outDims``, ``pooling``) in ``checkpoints/flags.json`` beside it.
+
+Checkpoints are read with :func:`seqnet.core.files.load_torch_file` (``torch.load(weights_only=True)``):
+they can hold tensors and plain data only, never code.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ..core.errors import CheckpointError
+from ..core.files import atomic_path, load_torch_file
+from ..core.utils import logger
+from .descriptors import SeqNet
+
+CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
+
+
+def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
+    """Write ``model`` (architecture + weights) and ``fields`` to ``path`` atomically."""
+    payload = {"format": CHECKPOINT_FORMAT, "model": model.config(), "provenance": model.provenance,
+               "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, **fields}
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return path
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Load a checkpoint file as a dict (:func:`seqnet.core.files.load_torch_file`); :class:`CheckpointError`
+    if missing, unreadable or not a checkpoint."""
+    path = Path(path)
+    if path.is_dir():
+        raise CheckpointError(f"checkpoint not found: {path} (it is a directory; pass RUN/best.pt)")
+    payload = load_torch_file(path, "checkpoint")
+    if not isinstance(payload, dict) or "state_dict" not in payload:
+        got = f"dict with keys {list(payload)[:8]}" if isinstance(payload, dict) else type(payload).__name__
+        raise CheckpointError(f"{path} is not a SeqNet checkpoint: expected a dict with a 'state_dict', got {got}")
+    state = payload["state_dict"]
+    if not isinstance(state, dict) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in state.items()):
+        raise CheckpointError(f"{path}: 'state_dict' must map parameter names to tensors, got "
+                              f"{type(state).__name__}")
+    return payload
+
+
+def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None = None) -> SeqNet:
+    """The SeqNet model stored in a checkpoint (seqnet or original format), on CPU, in eval mode.
+
+    Args:
+        path: checkpoint file.
+        seq_len: sequence length L the model was trained with, for an original checkpoint without
+            ``flags.json`` only (a stored L is never changed: evaluating with another L is checked,
+            and refused unless asked for, by :func:`seqnet.eval.evaluate.evaluate`).
+        in_dims: expected input dimension D (e.g. the dataset's); a mismatch raises CheckpointError.
+
+    The model's ``provenance`` is that of the descriptors it was trained on (None when unknown).
+    """
+    payload = read_checkpoint(path)
+    if payload.get("format") == CHECKPOINT_FORMAT:
+        model = _from_seqnet(payload, Path(path))
+        model.provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else None
+    else:
+        model = _from_original(payload, Path(path), seq_len)
+    if in_dims is not None and in_dims != model.in_dims:
+        raise CheckpointError(f"{path} expects D={model.in_dims} input descriptors but the data has D={in_dims} "
+                              "(hint: use the descriptors the model was trained on)")
+    return model.eval()
+
+
+def _build(cfg: dict[str, Any], state: dict[str, torch.Tensor], path: Path) -> SeqNet:
+    try:
+        model = SeqNet(int(cfg["in_dims"]), int(cfg["out_dims"]), int(cfg["seq_len"]), int(cfg["w"]))
+        model.load_state_dict(state)
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as e:
+        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise CheckpointError(f"{path}: weights do not fit the stored architecture {cfg} ({reason})") from None
+    bad = [name for name, p in model.state_dict().items() if not bool(torch.isfinite(p).all())]
+    if bad:
+        raise CheckpointError(f"{path}: the weights {', '.join(bad)} hold NaN or inf (a diverged or corrupted "
+                              "training run); hint: use an earlier checkpoint (best.pt) or retrain")
+    return model
+
+
+def _from_seqnet(payload: dict[str, Any], path: Path) -> SeqNet:
+    cfg = payload.get("model")
+    if not isinstance(cfg, dict):
+        raise CheckpointError(f"{path}: no 'model' architecture entry (in_dims, out_dims, seq_len, w)")
+    return _build(cfg, payload["state_dict"], path)
+
+
+def find_flags(path: Path) -> Path | None:
+    """``flags.json`` of an original-code run: beside the checkpoint, or in ``checkpoints/`` of its
+    directory or of its parent directory."""
+    here = path.resolve().parent
+    for cand in (here / "flags.json", here / "checkpoints" / "flags.json", here.parent / "checkpoints" / "flags.json"):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def _original_weights(payload: dict[str, Any], path: Path) -> tuple[torch.Tensor, torch.Tensor]:
+    state = {k.removeprefix("module."): v for k, v in payload["state_dict"].items()}
+    weights = [k for k in state if k.endswith("conv.weight")]
+    if len(weights) != 1 or not torch.is_tensor(state[weights[0]]) or state[weights[0]].ndim != 3:
+        raise CheckpointError(f"{path}: expected one Conv1d weight 'pool.0.conv.weight' [D_out, D, w] in state_dict, "
+                              f"found keys {sorted(state)[:8]}")
+    bias = state.get(weights[0][: -len("weight")] + "bias")
+    if bias is None:
+        raise CheckpointError(f"{path}: state_dict has {weights[0]} but no matching conv bias")
+    return state[weights[0]], bias
+
+
+def read_flags(path: Path) -> dict[str, Any]:
+    """The original run's ``flags.json`` (empty when absent), with ``seqL``, ``w``, ``outDims`` checked to be
+    integers >= 1; :class:`CheckpointError` naming the file and key otherwise."""
+    flags_path = find_flags(path)
+    if flags_path is None:
+        return {}
+    try:
+        flags = json.loads(flags_path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise CheckpointError(f"{flags_path}: not valid JSON ({e})") from None
+    if not isinstance(flags, dict):
+        raise CheckpointError(f"{flags_path}: must hold a JSON object of the run's flags")
+    for key in ("seqL", "w", "outDims"):
+        value = flags.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise CheckpointError(f"{flags_path}: {key} must be an integer >= 1, got {value!r}")
+    return flags
+
+
+def _from_original(payload: dict[str, Any], path: Path, seq_len: int | None) -> SeqNet:
+    weight, bias = _original_weights(payload, path)
+    out_dims, in_dims, w = (int(x) for x in weight.shape)
+    flags = read_flags(path)
+    for key, actual in (("w", w), ("outDims", out_dims)):
+        if flags.get(key) is not None and flags[key] != actual:
+            raise CheckpointError(f"{find_flags(path)}: {key}={flags[key]} does not match the weights "
+                                  f"{tuple(weight.shape)} in {path}")
+    stored = 1 if str(flags.get("pooling", "")).lower() == "s1+seqmatch" else flags.get("seqL")
+    if seq_len is None and stored is None:
+        raise CheckpointError(f"{path}: original SeqNet checkpoint (D={in_dims} → {out_dims}, w={w}) without "
+                              "flags.json giving seqL; pass the sequence length (seqnet eval --seq-len L, or "
+                              "load_model(path, seq_len=L))")
+    cfg = {"in_dims": in_dims, "out_dims": out_dims, "seq_len": int(stored if stored is not None else seq_len), "w": w}
+    logger.info("loaded original SeqNet checkpoint %s (epoch %s): %s", path, payload.get("epoch"), cfg)
+    return _build(cfg, {"conv.weight": weight, "conv.bias": bias}, path)
+
+
+def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
+                rerank_model: str | Path | None = None, seq_len: int | None = None) -> dict[str, SeqNet]:
+    """Models by role: ``paths`` by their stored role, then the S_L ``shortlist_model`` (an original
+    checkpoint without flags.json takes ``seq_len``) and the S_1 ``rerank_model``."""
+    models = {}
+    for path in paths:
+        model = load_model(path)
+        models[model.role] = model
+    if shortlist_model:
+        models["seqnet"] = load_model(shortlist_model, seq_len=seq_len)
+    if rerank_model:
+        models["s1"] = load_model(rerank_model)
+    return models

@@ -1,0 +1,219 @@
+"""Sequence descriptors: smoothing, Delta descriptors and the SeqNet temporal-convolution model.
+
+Each turns a window of L single-image descriptors ``[M, L, D]`` into one L2-normalised descriptor
+``[M, D']``:
+
+* :func:`smoothing` — mean of the (L2-normalised) frames of the window;
+* :func:`delta` — Delta descriptor (Garg et al. 2020): mean of the second half of the window minus
+  mean of the first half (halves of ``L // 2`` L2-normalised frames; the middle frame of an odd
+  window is unused);
+* :func:`delta_orig` — the Delta of the original SeqNet code: raw frames weighted ``±1 / (L/2)``,
+  the first ``L // 2`` negative (for odd L the middle frame counts in the second half:
+  ``(−0.4, −0.4, +0.4, +0.4, +0.4)`` for L = 5);
+* :class:`SeqNet` — SeqNet S_L (Garg & Milford 2021): Conv1d over time (D → D_out, kernel w, bias,
+  no padding, stride 1), mean over the ``L - w + 1`` outputs, L2 norm. ``S_1`` is ``L = w = 1``.
+
+:data:`SEQUENCE_DESCRIPTORS` names them (plus ``single`` and ``s1``, the descriptors of a window's
+own frame); evaluation methods, shortlisters and frame features are built from this table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable, Mapping
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..core.errors import ConfigError
+from ..core.progress import progress as progress_bar
+from ..core.utils import as_tensor, l2_normalize
+from .windows import gather_windows
+
+
+def smoothing(windows: torch.Tensor) -> torch.Tensor:
+    """Window average: ``[M, L, D]`` → L2-normalised ``[M, D]``."""
+    return l2_normalize(l2_normalize(windows).mean(dim=1))
+
+
+def delta(windows: torch.Tensor) -> torch.Tensor:
+    """Delta descriptor: ``[M, L, D]`` (L ≥ 2) → L2-normalised ``[M, D]``."""
+    seq_len = windows.shape[1]
+    if seq_len < 2:
+        raise ConfigError(f"Delta descriptors need seq_len >= 2, got {seq_len}")
+    h = seq_len // 2
+    w = l2_normalize(windows)
+    return l2_normalize(w[:, seq_len - h :].mean(dim=1) - w[:, :h].mean(dim=1))
+
+
+def delta_orig(windows: torch.Tensor) -> torch.Tensor:
+    """The original SeqNet code's Delta: ``[M, L, D]`` (L ≥ 2) → L2-normalised ``Σ_t w_t x_t`` with
+    ``w = ±1 / (L/2)``, the first ``L // 2`` frames negative, on raw (not normalised) frames."""
+    seq_len = windows.shape[1]
+    if seq_len < 2:
+        raise ConfigError(f"Delta descriptors need seq_len >= 2, got {seq_len}")
+    weight = torch.full((seq_len,), 2.0 / seq_len, dtype=windows.dtype, device=windows.device)
+    weight[: seq_len // 2] *= -1
+    return l2_normalize(torch.einsum("mld,l->md", windows, weight))
+
+
+def first_frame(windows: torch.Tensor) -> torch.Tensor:
+    """The (L2-normalised) descriptor of the window's first frame: ``[M, L, D]`` → ``[M, D]``."""
+    return l2_normalize(windows[:, 0])
+
+
+@functools.lru_cache(maxsize=16)
+def _tap_average(seq_len: int, w: int) -> torch.Tensor:
+    """``[w, L]``: entry ``[k, l]`` is ``1/T`` when frame ``l`` meets filter tap ``k`` at one of the
+    ``T = L − w + 1`` positions of the convolution, else 0."""
+    tap = torch.arange(seq_len)[None, :] - torch.arange(w)[:, None]
+    t = seq_len - w + 1
+    return ((tap >= 0) & (tap < t)).float() / t
+
+
+class SeqNet(nn.Module):
+    """SeqNet S_L: ``[B, L, D]`` (or ``[B, D]`` for S_1) → L2-normalised ``[B, D_out]``."""
+
+    def __init__(self, in_dims: int, out_dims: int, seq_len: int, w: int) -> None:
+        super().__init__()
+        if not 1 <= w <= seq_len:
+            raise ConfigError(f"SeqNet needs 1 <= w <= seq_len, got w={w}, seq_len={seq_len}")
+        if in_dims < 1 or out_dims < 1:
+            raise ConfigError(f"SeqNet dims must be >= 1, got in_dims={in_dims}, out_dims={out_dims}")
+        self.in_dims, self.out_dims, self.seq_len, self.w = in_dims, out_dims, seq_len, w
+        self.conv = nn.Conv1d(in_dims, out_dims, kernel_size=w, bias=True)
+        self.provenance: dict | None = None  # how the descriptors it was trained on were made
+
+    def _check(self, x: torch.Tensor) -> torch.Tensor:
+        if x.ndim == 2:
+            x = x[:, None, :]
+        if x.shape[-1] != self.in_dims:
+            raise ConfigError(f"SeqNet expects D={self.in_dims} inputs, got D={x.shape[-1]}")
+        if x.shape[1] < self.w:
+            raise ConfigError(f"SeqNet with w={self.w} needs windows of >= {self.w} frames, got {x.shape[1]}")
+        return x
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``[B, L, D]`` → ``[B, D_out]``, computed as one GEMM (same value as :meth:`forward_conv`).
+
+        The network is linear up to its L2 norm: the mean over the ``T = L − w + 1`` outputs of the
+        convolution is ``b + Σ_k W_k · mean_{t<T} x[t + k]``. So the windows are averaged per filter
+        tap first (``[B, w, D]``) and multiplied once by the ``[D_out, D·w]`` weight, T times fewer
+        multiplications than the convolution.
+        """
+        x = self._check(x)
+        avg = _tap_average(x.shape[1], self.w).to(x.device, x.dtype)
+        shifted = (avg @ x).transpose(1, 2).reshape(len(x), self.in_dims * self.w)  # [B, D·w], D-major like the weight
+        return F.normalize(F.linear(shifted, self.conv.weight.reshape(self.out_dims, -1), self.conv.bias), dim=-1)
+
+    def forward_conv(self, x: torch.Tensor) -> torch.Tensor:
+        """The literal SeqNet forward: Conv1d over time, mean over time, L2 norm (``[B, L, D]`` → ``[B, D_out]``)."""
+        y = self.conv(self._check(x).permute(0, 2, 1))  # [B, D_out, L - w + 1]
+        return F.normalize(y.mean(dim=-1), dim=-1)
+
+    @property
+    def role(self) -> str:
+        """``"s1"`` for an S_1 model (``seq_len == w == 1``), else ``"seqnet"`` (S_L)."""
+        return "s1" if self.seq_len == 1 and self.w == 1 else "seqnet"
+
+    def config(self) -> dict[str, int]:
+        """Architecture hyper-parameters (stored in checkpoints)."""
+        return {"in_dims": self.in_dims, "out_dims": self.out_dims, "seq_len": self.seq_len, "w": self.w}
+
+
+def describe_windows(
+    desc: np.ndarray | torch.Tensor,
+    idx: np.ndarray,
+    fn: Callable[[torch.Tensor], torch.Tensor],
+    batch_size: int = 4096,
+    device: torch.device | str | None = None,
+    progress: str | None = None,
+) -> torch.Tensor:
+    """Apply a window function to every window.
+
+    Args:
+        desc: ``[N, D]`` single-image descriptors.
+        idx: ``[M, L]`` frame indices of the windows (see :func:`seqnet.sequence.windows.window_indices`).
+        fn: ``[B, L, D]`` → ``[B, D']`` (``smoothing``, ``delta`` or a :class:`SeqNet`).
+        batch_size: windows per batch (bounds memory).
+        device: where to compute (default: where ``desc`` is).
+        progress: tqdm label, or None for no bar.
+
+    Returns:
+        ``[M, D']`` float32 tensor on CPU.
+    """
+    d = as_tensor(desc)
+    idx = np.asarray(idx)
+    if idx.ndim != 2:
+        raise ConfigError(f"window indices must be [M, L], got shape {idx.shape}")
+    out = []
+    starts = range(0, len(idx), batch_size)
+    for s in progress_bar(starts, desc=progress, min_total=2 if progress else 2**62):
+        block = np.asarray(idx[s : s + batch_size])
+        rows = np.unique(block)
+        sub = d[torch.from_numpy(rows)].to(device) if device is not None else d[torch.from_numpy(rows)]
+        local = np.searchsorted(rows, block)
+        with torch.no_grad():
+            out.append(fn(gather_windows(sub, local)).float().cpu())
+    if not out:  # no windows: still run fn (on an empty batch) for its output width and checks
+        empty = d.new_zeros((0, idx.shape[1], d.shape[1]))
+        with torch.no_grad():
+            return fn(empty.to(device) if device is not None else empty).float().cpu()
+    return torch.cat(out)
+
+
+MODEL_ROLES = ("seqnet", "s1")
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceDescriptor:
+    """One entry of :data:`SEQUENCE_DESCRIPTORS`: how a window of frames becomes one descriptor.
+
+    Attributes:
+        name: the table key (also the evaluation method that retrieves with it by k-NN).
+        summary: one line for ``--help`` and the docs.
+        fn: window function ``[M, L, D]`` → ``[M, D']``; None for a model's (see ``model``).
+        model: role of the trained model it needs (``"seqnet"``: S_L, ``"s1"``: S_1), or None.
+        single_frame: describes only the window's own frame (windows of length 1).
+        min_len: the shortest window it accepts.
+    """
+
+    name: str
+    summary: str
+    fn: Callable[[torch.Tensor], torch.Tensor] | None = None
+    model: str | None = None
+    single_frame: bool = False
+    min_len: int = 1
+
+    def window_fn(self, models: Mapping[str, SeqNet]) -> Callable[[torch.Tensor], torch.Tensor]:
+        """The window function, with the model taken from ``models`` by role."""
+        if self.model is None:
+            assert self.fn is not None
+            return self.fn
+        if self.model not in models:
+            raise ConfigError(f"{self.name!r} needs a trained {'S_1' if self.model == 's1' else 'S_L'} model "
+                              f"({'--rerank-model' if self.model == 's1' else '--shortlist-model'} CKPT)")
+        return models[self.model]
+
+    def length(self, seq_len: int) -> int:
+        """Window length used for a sequence length L (1 for single-frame descriptors)."""
+        return 1 if self.single_frame else seq_len
+
+
+SEQUENCE_DESCRIPTORS: dict[str, SequenceDescriptor] = {
+    d.name: d
+    for d in (
+        SequenceDescriptor("single", "the frame's own single-image descriptor", first_frame, single_frame=True),
+        SequenceDescriptor("s1", "SeqNet S_1: a learned linear map of the frame's descriptor", model="s1",
+                           single_frame=True),
+        SequenceDescriptor("smoothing", "mean of the window's L2-normalised descriptors", smoothing),
+        SequenceDescriptor("delta", "Delta: mean of the window's second half minus its first half", delta,
+                           min_len=2),
+        SequenceDescriptor("delta-orig", "Delta as in the original SeqNet code (±2/L weights, raw frames)",
+                           delta_orig, min_len=2),
+        SequenceDescriptor("seqnet", "SeqNet S_L: temporal convolution over the window, mean, L2", model="seqnet"),
+    )
+}

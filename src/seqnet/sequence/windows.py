@@ -1,0 +1,92 @@
+"""Sequence windows over a traverse.
+
+A window of length L for frame i is a run of L consecutive frames:
+
+* ``centred`` (the paper's evaluation): frames ``i - L//2 ... i - L//2 + L - 1``;
+* ``causal`` (online use): frames ``i - L + 1 ... i``.
+
+A window never crosses a sequence bound (``seq_bounds[i] = [start, end)``, or the whole traverse
+when there are none). Frames whose window does not fit are *invalid*: they are left out of
+evaluation, and the number left out is reported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..core.errors import ConfigError
+
+WINDOW_MODES = ("centred", "causal")
+
+
+def check_seq_len(seq_len: int, n: int | None = None, what: str = "seq_len") -> int:
+    """Validate a sequence length (an int ≥ 1, and ≤ n when n is given)."""
+    if isinstance(seq_len, bool) or not isinstance(seq_len, (int, np.integer)) or seq_len < 1:
+        raise ConfigError(f"{what} must be an integer >= 1, got {seq_len!r}")
+    if n is not None and seq_len > n:
+        raise ConfigError(f"{what}={seq_len} is longer than the traverse ({n} frames)")
+    return int(seq_len)
+
+
+def window_offset(seq_len: int, mode: str = "centred") -> int:
+    """Offset of the window start from its frame: ``start = i - offset``."""
+    if mode not in WINDOW_MODES:
+        raise ConfigError(f"window mode {mode!r} is not one of {WINDOW_MODES}")
+    return seq_len // 2 if mode == "centred" else seq_len - 1
+
+
+def _bounds(n: int, seq_bounds: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    if seq_bounds is None:
+        return np.zeros(n, dtype=np.int64), np.full(n, n, dtype=np.int64)
+    b = np.asarray(seq_bounds, dtype=np.int64)
+    if b.shape != (n, 2):
+        raise ConfigError(f"seq_bounds must be [{n}, 2] (one [start, end) row per frame), got shape {b.shape}")
+    return b[:, 0], b[:, 1]
+
+
+def window_starts(
+    n: int, seq_len: int, mode: str = "centred", seq_bounds: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Window start of every frame and whether the full window fits.
+
+    Args:
+        n: number of frames N.
+        seq_len: window length L (≥ 1).
+        mode: ``"centred"`` or ``"causal"``.
+        seq_bounds: optional ``[N, 2]`` half-open sequence range per frame.
+
+    Returns:
+        ``(starts [N] int64, valid [N] bool)``; ``starts`` may be out of range where not valid.
+    """
+    check_seq_len(seq_len)
+    if n < 0:
+        raise ConfigError(f"number of frames must be >= 0, got {n}")
+    starts = np.arange(n, dtype=np.int64) - window_offset(seq_len, mode)
+    lo, hi = _bounds(n, seq_bounds)
+    valid = (starts >= lo) & (starts + seq_len <= hi)
+    return starts, valid
+
+
+def window_indices(
+    n: int, seq_len: int, mode: str = "centred", seq_bounds: np.ndarray | None = None
+) -> np.ndarray:
+    """Frame indices ``[N, L]`` of every frame's window, clamped into its sequence.
+
+    Where the full window does not fit, out-of-sequence positions repeat the nearest frame of the
+    sequence (replicate padding), so every frame gets a window of length L.
+    """
+    starts, _ = window_starts(n, seq_len, mode, seq_bounds)
+    lo, hi = _bounds(n, seq_bounds)
+    return np.clip(window_frames(starts, seq_len), lo[:, None], hi[:, None] - 1)
+
+
+def window_frames(starts: np.ndarray, seq_len: int) -> np.ndarray:
+    """Frame indices ``[M, L]`` of the windows that start at ``starts [M]``: ``starts[m] + t``."""
+    return np.asarray(starts, dtype=np.int64)[:, None] + np.arange(seq_len, dtype=np.int64)[None, :]
+
+
+def gather_windows(desc: torch.Tensor, idx: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """Stack windows: ``desc [N, D]``, ``idx [M, L]`` → ``[M, L, D]``."""
+    idx_t = torch.as_tensor(idx, dtype=torch.long, device=desc.device)
+    return desc[idx_t.reshape(-1)].reshape(*idx_t.shape, desc.shape[-1])

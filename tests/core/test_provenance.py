@@ -1,0 +1,93 @@
+"""Provenance: descriptors and models made differently are refused with one line naming both settings."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from seqnet.cli import main as cli_main
+from seqnet.core.errors import ConfigError
+from seqnet.core.provenance import ProvenanceError, check_same, differences, make, read, sidecar
+from seqnet.data.synth import make_synthetic
+from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.sequence.checkpoints import load_model, save_checkpoint
+from seqnet.sequence.descriptors import SeqNet
+
+
+def test_make_and_differences():
+    a = make("describe", {"method": "gem", "size": [160, 120]}, ["x.png", "y.png"], 64)
+    b = make("describe", {"method": "gem", "size": [640, 320]}, ["y.png", "x.png"], 64)
+    assert a["id"] != b["id"] and a["fit_images"] == b["fit_images"]  # fit images: order-independent
+    assert differences(a, b) == ["size: [160, 120] vs [640, 320]"]
+    with pytest.raises(ProvenanceError, match=r"size: \[160, 120\] vs \[640, 320\]; hint: describe both"):
+        check_same(a, b, "the reference descriptors", "the query descriptors")
+    check_same(a, b, "x", "y", allow=True)  # a warning only
+    check_same(a, None, "x", "y")  # unknown provenance: accepted
+    c = make("describe", {"method": "gem", "size": [160, 120]}, ["z.png"], 64)
+    assert differences(a, c) == ["fitted state (PCA / NetVLAD clusters): fitted on different images"]
+
+
+@pytest.fixture
+def two_folders(tmp_path):
+    rng = np.random.default_rng(0)
+    for side in ("ref", "qry"):
+        (tmp_path / side).mkdir()
+        for i in range(6):
+            img = (rng.random((24, 48, 3)) * 255).astype(np.uint8)
+            Image.fromarray(img).save(tmp_path / side / f"f{i:02d}.png")
+    csv = "name,frame\n" + "".join(f"f{i:02d}.png,{i}\n" for i in range(6))
+    (tmp_path / "pos.csv").write_text(csv)
+    return tmp_path
+
+
+def describe(root, side, out, *extra):
+    assert cli_main(["-q", "describe", str(root / side), "--method", "pixels", "--out", str(out), *extra]) == 0
+
+
+def test_from_csv_refuses_descriptors_described_differently(two_folders, capsys):
+    root = two_folders
+    describe(root, "ref", root / "ref.h5", "--resize", "32x16")
+    describe(root, "qry", root / "qry.npy", "--resize", "48x24")
+    assert read(root / "ref.h5")["settings"]["size"] == [32, 16] and sidecar(root / "qry.npy").is_file()
+    argv = ["dataset", "from-csv", "--ref-csv", str(root / "pos.csv"), "--ref-desc", str(root / "ref.h5"),
+            "--query-csv", str(root / "pos.csv"), "--query-desc", str(root / "qry.npy"), "--radius", "1",
+            "--out", str(root / "ds")]
+    capsys.readouterr()
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "size: [32, 16] vs [48, 24]" in err[0] and not (root / "ds").exists()
+    describe(root, "qry", root / "qry2.h5", "--resize", "32x16")
+    argv[argv.index(str(root / "qry.npy"))] = str(root / "qry2.h5")
+    assert cli_main(argv) == 0
+    meta = json.loads((root / "ds" / "dataset.json").read_text())
+    assert meta["provenance"]["reference"]["id"] == meta["provenance"]["query"]["id"]
+
+
+def test_model_on_foreign_descriptors_and_other_seq_len(tmp_path):
+    ds = make_synthetic(places=150, dim=8, seed=0)
+    other = make_synthetic(places=150, dim=8, seed=1)  # same D, another synthetic condition: other provenance
+    model = SeqNet(8, 8, 5, 3)
+    model.provenance = other.reference.provenance
+    save_checkpoint(tmp_path / "m.pt", model)
+    loaded = load_model(tmp_path / "m.pt")
+    assert loaded.provenance == other.reference.provenance
+    conf = EvalConfig(methods=("seqnet",), device="cpu")
+    with pytest.raises(ProvenanceError, match="the descriptors the S_5 model was trained on and the descriptors of"):
+        evaluate(ds.split("test"), conf, {"seqnet": loaded})
+    evaluate(ds.split("test"), conf.replace(allow_mismatch=True), {"seqnet": loaded})
+    loaded.provenance = ds.reference.provenance
+    evaluate(ds.split("test"), conf, {"seqnet": loaded})
+    with pytest.raises(ConfigError, match="trained with L=5 but is evaluated with L=3"):
+        evaluate(ds.split("test"), conf.replace(seq_len=3), {"seqnet": loaded})
+    evaluate(ds.split("test"), conf.replace(seq_len=3, allow_mismatch=True), {"seqnet": loaded})
+
+
+def test_training_records_the_provenance(tmp_path):
+    from seqnet.train import TrainConfig, train
+
+    ds = make_synthetic(places=200, dim=8, seed=0)
+    train(ds, TrainConfig(epochs=1, seq_len=3, w=2, device="cpu"), tmp_path / "run")
+    assert load_model(tmp_path / "run" / "best.pt").provenance == ds.reference.provenance

@@ -1,0 +1,154 @@
+"""CSV / UTM-name converters, name matching and `seqnet dataset check`."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from seqnet.cli import main
+from seqnet.core.errors import DatasetError
+from seqnet.data.convert import (
+    match_names,
+    parse_utm_name,
+    read_positions_csv,
+    runs_to_bounds,
+    summarize_dataset,
+    traverse_from_csv,
+)
+from seqnet.data.io import load_dataset
+
+
+def _write_csv(path, rows, header="name,easting,northing"):
+    path.write_text(header + "\n" + "\n".join(",".join(str(c) for c in r) for r in rows) + "\n")
+    return path
+
+
+@pytest.fixture
+def route(tmp_path, rng):
+    """Reference and query along a straight 200 m route (2 m spacing), query offset by 0.5 m."""
+    n = 100
+    east = np.arange(n) * 2.0
+    base = rng.standard_normal((n, 8)).astype(np.float32)
+    ref_names = [f"r{i:03d}.jpg" for i in range(n)]
+    q_names = [f"q{i:03d}.jpg" for i in range(n)]
+    _write_csv(tmp_path / "ref.csv", [(nm, 500000 + e, 4e6) for nm, e in zip(ref_names, east, strict=True)])
+    # query CSV in a different order than its descriptors: rows are matched by name
+    order = rng.permutation(n)
+    _write_csv(tmp_path / "q.csv", [(q_names[i], 500000.5 + east[i], 4e6, f"s{i // 50}") for i in order],
+               header="image,utm_east,utm_north,sequence")
+    np.save(tmp_path / "ref.npy", base)
+    (tmp_path / "ref.txt").write_text("\n".join(ref_names))
+    with h5py.File(tmp_path / "q.h5", "w") as h:
+        h["descriptors"] = base + 0.1
+        h["names"] = np.array([f"some/dir/{nm}" for nm in q_names], dtype="S")
+    return tmp_path
+
+
+def test_csv_cli_end_to_end(route):
+    out = route / "ds"
+    rc = main(["dataset", "from-csv", "--ref-csv", str(route / "ref.csv"), "--ref-desc", str(route / "ref.npy"),
+               "--ref-names", str(route / "ref.txt"), "--query-csv", str(route / "q.csv"),
+               "--query-desc", str(route / "q.h5"), "--radius", "5", "--split", "test=50:100",
+               "--pos-radius", "3", "--neg-radius", "12", "--out", str(out)])
+    assert rc == 0
+    ds = load_dataset(out)
+    assert ds.radius == 5 and ds.position_unit == "metres" and ds.extra == {"pos_radius": 3, "neg_radius": 12}
+    assert ds.splits["test"] == {"reference": (50, 100), "query": (50, 100)}
+    # query rows follow the CSV; descriptors were matched to them by file name
+    names = ds.query.names
+    i = names.index("q007.jpg")
+    assert ds.query.positions[i, 0] == pytest.approx(500014.5)
+    np.testing.assert_allclose(ds.query.descriptors[i], ds.reference.descriptors[7] + 0.1, rtol=1e-6)
+    assert summarize_dataset(ds)["queries_with_match"] == 100
+
+
+def test_csv_sequence_column_gives_bounds(route):
+    _, _, unit, bounds = read_positions_csv(route / "q.csv")
+    assert unit == "metres" and bounds.shape == (100, 2)
+    assert runs_to_bounds(["a", "a", "b", "a"]).tolist() == [[0, 2], [0, 2], [2, 3], [3, 4]]
+
+
+def test_frame_csv(tmp_path):
+    _write_csv(tmp_path / "f.csv", [("a.png", 3), ("b.png", 4)], header="filename,frame")
+    names, pos, unit, bounds = read_positions_csv(tmp_path / "f.csv")
+    assert names == ["a.png", "b.png"] and pos.tolist() == [[3.0], [4.0]] and unit == "frames" and bounds is None
+
+
+@pytest.mark.parametrize("header,match", [("name,lat,lon", "easting and northing"), ("x,y", "image-name column"),
+                                          ("name,easting", "easting and northing")])
+def test_csv_header_errors(tmp_path, header, match):
+    _write_csv(tmp_path / "bad.csv", [("a", 1, 2)], header=header)
+    with pytest.raises(DatasetError, match=match):
+        read_positions_csv(tmp_path / "bad.csv")
+
+
+def test_csv_non_numeric_names_line(tmp_path):
+    _write_csv(tmp_path / "bad.csv", [("a", 1, 2), ("b", "oops", 2)])
+    with pytest.raises(DatasetError, match="line 3"):
+        read_positions_csv(tmp_path / "bad.csv")
+
+
+def test_unmatched_names_are_named():
+    with pytest.raises(DatasetError, match="1 of 2 image names have no descriptor.*'zzz.jpg'"):
+        match_names(["a.jpg", "zzz.jpg"], ["x/a.jpg", "x/b.jpg"], "test")
+    assert match_names(["dir/b.png", "a"], ["a.jpg", "b.png"], "t").tolist() == [1, 0]
+
+
+def test_csv_count_mismatch_without_names(tmp_path, rng):
+    _write_csv(tmp_path / "r.csv", [("a", 1, 2)])
+    np.save(tmp_path / "r.npy", rng.random((3, 4), dtype=np.float32))
+    with pytest.raises(DatasetError, match="1 rows but .*3 descriptors"):
+        traverse_from_csv(tmp_path / "r.csv", tmp_path / "r.npy")
+
+
+def test_parse_utm_name():
+    assert parse_utm_name("003/@0543256.96@4477929.94@17@T@040.44@-079.99@000@@@@@@pitch1_yaw1@.jpg") == (
+        543256.96, 4477929.94)
+    with pytest.raises(DatasetError, match="no UTM coordinates"):
+        parse_utm_name("image_0001.jpg")
+
+
+def test_utm_names_cli(tmp_path, rng):
+    names_r = [f"@{500000 + 3 * i:.2f}@{4000000:.2f}@17@T@x.jpg" for i in range(30)]
+    names_q = [f"@{500001 + 3 * i:.2f}@{4000000:.2f}@17@T@y.jpg" for i in range(30)]
+    for side, names in (("r", names_r), ("q", names_q)):
+        np.save(tmp_path / f"{side}.npy", rng.random((30, 4), dtype=np.float32))
+        (tmp_path / f"{side}.txt").write_text("\n".join(names))
+    out = tmp_path / "utm"
+    rc = main(["dataset", "from-utm-names", "--ref-desc", str(tmp_path / "r.npy"),
+               "--ref-names", str(tmp_path / "r.txt"),
+               "--query-desc", str(tmp_path / "q.npy"), "--query-names", str(tmp_path / "q.txt"),
+               "--preset", "msls", "--out", str(out)])
+    assert rc == 0
+    ds = load_dataset(out)
+    assert ds.radius == 20 and ds.extra["preset"] == "msls"
+    assert ds.query.positions[2].tolist() == [500007.0, 4000000.0]
+
+
+def test_missing_radius_is_an_error(tmp_path, rng, capsys):
+    np.save(tmp_path / "r.npy", rng.random((3, 4), dtype=np.float32))
+    (tmp_path / "r.txt").write_text("@1@2@a\n@3@4@b\n@5@6@c\n")
+    r, names = str(tmp_path / "r.npy"), str(tmp_path / "r.txt")
+    rc = main(["dataset", "from-utm-names", "--ref-desc", r, "--ref-names", names,
+               "--query-desc", r, "--query-names", names, "--out", str(tmp_path / "o")])
+    assert rc == 2 and "no localisation radius" in capsys.readouterr().err
+
+
+def test_check_summary_and_errors(synth_dir, tmp_path, capsys):
+    assert main(["dataset", "check", str(synth_dir)]) == 0
+    out = capsys.readouterr().out
+    assert "reference:" in out and "queries with a true match" in out and "split test" in out
+    assert main(["dataset", "check", str(tmp_path / "nothing")]) == 2
+    assert "not found" in capsys.readouterr().err
+
+
+def test_check_fails_when_no_query_matches(tmp_path, rng, capsys):
+    from seqnet.data.io import save_dataset
+    from seqnet.data.traverse import Dataset, Traverse
+
+    d = rng.random((10, 4), dtype=np.float32)
+    ds = Dataset(Traverse(d, np.arange(10)), Traverse(d, np.arange(10) + 1000.0), radius=1.0)
+    save_dataset(ds, tmp_path / "far")
+    assert main(["dataset", "check", str(tmp_path / "far")]) == 2
+    assert "no query has a reference within radius 1" in capsys.readouterr().err

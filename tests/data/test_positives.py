@@ -1,0 +1,151 @@
+"""Explicit positives: CSR structure vs naive loops, readers (JSON, CSV, pickled object .npy), dataset
+round trip and splits, and evaluation that uses them instead of the radius."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from seqnet.core.errors import DatasetError
+from seqnet.data.io import load_dataset, save_dataset
+from seqnet.data.positives import Positives, read_positives
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.eval.evaluate import EvalConfig, evaluate
+
+lists_st = st.lists(st.lists(st.integers(-1, 12), max_size=5), min_size=1, max_size=8)
+
+
+@given(lists_st)
+@settings(max_examples=60, deadline=None)
+def test_from_lists_select_hits_vs_loops(lists):
+    p = Positives.from_lists(lists)
+    want = [sorted({x for x in row if x >= 0}) for row in lists]
+    assert [p.of(i).tolist() for i in range(len(p))] == want
+    rng = np.random.default_rng(len(lists))
+    q_idx = rng.permutation(len(lists))[: max(1, len(lists) // 2)]
+    r_idx = rng.permutation(13)[:7]
+    sub = p.select(q_idx, r_idx)
+    for m, q in enumerate(q_idx):
+        expect = sorted(int(np.flatnonzero(r_idx == r)[0]) for r in want[q] if r in r_idx)
+        assert sub.of(m).tolist() == expect
+    retrieved = rng.integers(-1, 13, size=(len(lists), 4))
+    got = p.hits(retrieved)
+    for m in range(len(lists)):
+        for k in range(4):
+            assert got[m, k] == (retrieved[m, k] >= 0 and retrieved[m, k] in want[m])
+    mask = p.mask(13)
+    assert mask.sum() == sum(len(w) for w in want)
+
+
+def test_check_errors():
+    p = Positives.from_lists([[0, 5], []])
+    with pytest.raises(DatasetError, match="2 rows of positives for 3 query images"):
+        p.check(3, 10)
+    with pytest.raises(DatasetError, match="query 0 lists reference 5, but the reference traverse has 4 images"):
+        p.check(2, 4)
+    with pytest.raises(DatasetError, match="must be integers"):
+        Positives.from_lists([[0.5]])
+    with pytest.raises(DatasetError, match="negative"):
+        Positives.from_lists([[-3]])
+
+
+def test_read_json_csv_npy(tmp_path):
+    (tmp_path / "p.json").write_text(json.dumps([[0, 1], [1, 2, 3], [], [-1], 4]))
+    p = read_positives(tmp_path / "p.json")
+    assert [p.of(i).tolist() for i in range(5)] == [[0, 1], [1, 2, 3], [], [], [4]]
+    (tmp_path / "p.csv").write_text("query,reference\n0,1\n0,0\n2,5\n")
+    p = read_positives(tmp_path / "p.csv")
+    assert [p.of(i).tolist() for i in range(3)] == [[0, 1], [], [5]]
+    obj = np.empty(3, dtype=object)
+    obj[:] = [np.array([0, 1]), np.array([], dtype=np.int64), np.array([7])]
+    np.save(tmp_path / "p.npy", obj, allow_pickle=True)
+    p = read_positives(tmp_path / "p.npy")
+    assert [p.of(i).tolist() for i in range(3)] == [[0, 1], [], [7]]
+    np.save(tmp_path / "dense.npy", np.array([[0, 1], [2, -1]]))
+    assert read_positives(tmp_path / "dense.npy").of(1).tolist() == [2]
+
+
+class Evil:
+    def __reduce__(self):
+        return (print, ("pwned",))
+
+
+def test_pickled_code_is_refused(tmp_path, capsys):
+    obj = np.empty(1, dtype=object)
+    obj[0] = Evil()
+    np.save(tmp_path / "evil.npy", obj, allow_pickle=True)
+    with pytest.raises(DatasetError, match="refusing to load builtins.print"):
+        read_positives(tmp_path / "evil.npy")
+    assert "pwned" not in capsys.readouterr().out
+    (tmp_path / "raw.npy").write_bytes(b"\x93NUMPY\x01\x00v\x00{'descr': '|O', 'fortran_order': False, 'shape': (1,), }"
+                                       .ljust(128, b" ")[:127] + b"\n" + pickle.dumps(Evil()))
+    with pytest.raises(DatasetError):
+        read_positives(tmp_path / "raw.npy")
+
+
+@pytest.mark.parametrize("name, content, pattern", [
+    ("p.json", "{bad", "not valid JSON"),
+    ("p.json", '{"a": 1}', "expected a JSON list"),
+    ("p.json", '[["x"]]', "must be integers"),
+    ("p.csv", "0,1\n0,x\n", "line 2: expected 'query,reference'"),
+    ("p.csv", "query,reference\n", "no query,reference pairs"),
+    ("p.csv", "-1,2\n", "negative"),
+    ("p.txt", b"\xff\xfe", "not UTF-8"),
+    ("p.pkl", "x", "must be .json, .csv or .npy"),
+    ("p.npy", "not numpy", "cannot read"),
+])
+def test_reader_errors(tmp_path, name, content, pattern):
+    f = tmp_path / name
+    f.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(DatasetError, match=pattern):
+        read_positives(f)
+
+
+def frame_dataset(n=30, positives=None, seed=0):
+    rng = np.random.default_rng(seed)
+    base = rng.standard_normal((n, 8)).astype(np.float32)
+    ref = Traverse(base, np.arange(n, dtype=float))
+    qry = Traverse((base + 0.3 * rng.standard_normal((n, 8))).astype(np.float32), np.arange(n, dtype=float))
+    return Dataset(ref, qry, radius=1.0, splits={"test": {"reference": (5, 25), "query": (10, 20)}},
+                   positives=positives)
+
+
+def test_dataset_round_trip_and_split(tmp_path):
+    pos = Positives.from_lists([[i, i + 1] if i % 3 else [] for i in range(29)] + [[29]])
+    root = save_dataset(frame_dataset(positives=pos), tmp_path / "ds")
+    back = load_dataset(root)
+    np.testing.assert_array_equal(back.positives.indptr, pos.indptr)
+    np.testing.assert_array_equal(back.positives.indices, pos.indices)
+    sub = back.split("test")
+    for m, q in enumerate(range(10, 20)):
+        assert sub.positives.of(m).tolist() == [r - 5 for r in pos.of(q) if 5 <= r < 25]
+    with pytest.raises(DatasetError, match="rows of positives"):
+        frame_dataset(positives=Positives.from_lists([[0]]))
+
+
+def test_evaluate_with_positives_equal_to_radius_gives_same_recall():
+    n = 30
+    radius_pos = Positives.from_lists([[j for j in range(n) if abs(i - j) <= 1] for i in range(n)])
+    conf = EvalConfig(methods=("single", "raw+seqmatch", "hvpr-delta:raw+seqmatch"), seq_len=3, device="cpu")
+    a = evaluate(frame_dataset(), conf)
+    b = evaluate(frame_dataset(positives=radius_pos), conf)
+    for name in conf.methods:
+        ra, rb = ({k: v for k, v in ev.results["methods"][name].items() if k != "timing_ms"} for ev in (a, b))
+        assert ra == rb
+
+
+def test_evaluate_uses_positives_not_the_radius():
+    n = 30
+    shifted = Positives.from_lists([[(i + 10) % n] for i in range(n)])  # wrong on purpose: far from the radius
+    conf = EvalConfig(methods=("single",), seq_len=1, ks=(1, 30), device="cpu")
+    ev = evaluate(frame_dataset(positives=shifted), conf)
+    hits = ev.truth.hits(ev.retrieved["single"])
+    assert ev.results["methods"]["single"]["recall@30"] == 1.0
+    np.testing.assert_array_equal(hits.any(axis=1), np.ones(n, bool))
+    for m in range(n):
+        assert (ev.retrieved["single"][m][hits[m]] == (m + 10) % n).all()

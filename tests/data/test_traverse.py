@@ -1,0 +1,436 @@
+"""Data model and dataset directory format: round trips, validation errors, splits, atomic saves."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+import seqnet.data.io as tv
+from seqnet.core.errors import DatasetError, OutputError
+from seqnet.data.io import load_dataset, save_dataset
+from seqnet.data.traverse import Dataset, Traverse
+
+
+def make_dataset(rng, n_ref=12, n_qry=10, dim=4, bounds=True, **kw) -> Dataset:
+    def trav(n, name):
+        b = None
+        if bounds:
+            b = np.zeros((n, 2), np.int64)
+            b[: n // 2], b[n // 2 :] = (0, n // 2), (n // 2, n)
+        return Traverse(rng.standard_normal((n, dim)).astype(np.float32), rng.uniform(0, 100, (n, 2)),
+                        names=[f"{name}{i}.png" for i in range(n)], seq_bounds=b, name=name)
+
+    kw.setdefault("splits", {"test": {"reference": (2, 12), "query": (0, 8)},
+                             "train": {"reference": (0, 6), "query": (0, 5)}})
+    return Dataset(trav(n_ref, "reference"), trav(n_qry, "query"), radius=5.0, name="toy",
+                   extra={"pos_radius": 5.0, "source": "test"}, **kw)
+
+
+@pytest.fixture
+def ds(rng):
+    return make_dataset(rng)
+
+
+@pytest.fixture
+def ds_dir(tmp_path, ds):
+    return save_dataset(ds, tmp_path / "ds")
+
+
+def assert_traverse_equal(a: Traverse, b: Traverse):
+    np.testing.assert_array_equal(np.asarray(a.descriptors), np.asarray(b.descriptors))
+    np.testing.assert_array_equal(a.positions, b.positions)
+    assert a.names == b.names
+    if a.seq_bounds is None:
+        assert b.seq_bounds is None
+    else:
+        np.testing.assert_array_equal(a.seq_bounds, b.seq_bounds)
+
+
+# ----------------------------------------------------------------------------- round trips
+
+
+def test_round_trip_npy(ds, ds_dir):
+    back = load_dataset(ds_dir)
+    assert_traverse_equal(ds.reference, back.reference)
+    assert_traverse_equal(ds.query, back.query)
+    assert back.radius == 5.0 and back.name == "toy" and back.position_unit == "metres"
+    assert back.splits == ds.splits
+    assert back.extra == {"pos_radius": 5.0, "source": "test"}
+    assert isinstance(back.reference.descriptors, np.memmap)  # memory-mapped by default
+    assert not isinstance(load_dataset(ds_dir, mmap=False).reference.descriptors, np.memmap)
+    meta = json.loads((ds_dir / "dataset.json").read_text())
+    assert meta["format"] == "seqnet-dataset/1"
+
+
+def test_round_trip_h5_descriptors_and_csv_positions(ds, ds_dir):
+    q = ds_dir / "query"
+    (q / "descriptors.npy").unlink()
+    (q / "positions.npy").unlink()
+    (q / "names.txt").unlink()
+    with h5py.File(q / "descriptors.h5", "w") as h:
+        h["descriptors"] = np.asarray(ds.query.descriptors)
+        h["names"] = np.array([n.encode() for n in ds.query.names])
+    np.savetxt(q / "positions.csv", ds.query.positions, delimiter=",", fmt="%.17g")
+    back = load_dataset(ds_dir)
+    assert_traverse_equal(ds.query, back.query)
+
+
+def test_positions_txt_and_frame_positions(rng, tmp_path):
+    t = Traverse(rng.standard_normal((6, 3)).astype(np.float32), np.arange(6.0))
+    d = Dataset(t, t, radius=2.0)
+    assert d.reference.positions.shape == (6, 1)
+    root = save_dataset(d, tmp_path / "f")
+    (root / "query" / "positions.npy").unlink()
+    (root / "query" / "positions.txt").write_text("\n".join(str(i) for i in range(6)) + "\n")
+    back = load_dataset(root)
+    assert back.position_unit == "frames"
+    np.testing.assert_array_equal(back.query.positions, np.arange(6.0)[:, None])
+
+
+def test_traverses_key(ds, ds_dir):
+    os.rename(ds_dir / "query", ds_dir / "night")
+    meta = json.loads((ds_dir / "dataset.json").read_text())
+    meta["traverses"] = {"query": "night"}
+    (ds_dir / "dataset.json").write_text(json.dumps(meta))
+    assert_traverse_equal(ds.query, load_dataset(ds_dir).query)
+
+
+def test_plain_list_split(ds, ds_dir):
+    meta = json.loads((ds_dir / "dataset.json").read_text())
+    meta["splits"] = {"val": [1, 9]}
+    (ds_dir / "dataset.json").write_text(json.dumps(meta))
+    assert load_dataset(ds_dir).splits == {"val": {"reference": (1, 9), "query": (1, 9)}}
+
+
+# ----------------------------------------------------------------------------- validation errors
+
+
+def set_meta(root: Path, **changes):
+    meta = json.loads((root / "dataset.json").read_text())
+    for k, v in changes.items():
+        if v is ...:
+            meta.pop(k)
+        else:
+            meta[k] = v
+    (root / "dataset.json").write_text(json.dumps(meta))
+
+
+def expect(root, pattern):
+    with pytest.raises(DatasetError, match=pattern) as e:
+        load_dataset(root)
+    assert "\n" not in str(e.value)
+    return str(e.value)
+
+
+def test_missing_directory(tmp_path):
+    expect(tmp_path / "nope", "not found")
+    (tmp_path / "file").write_text("x")
+    expect(tmp_path / "file", "not a directory")
+
+
+def test_missing_dataset_json(ds_dir):
+    (ds_dir / "dataset.json").unlink()
+    expect(ds_dir, "dataset.json is missing")
+
+
+@pytest.mark.parametrize("text, pattern", [("{not json", "not valid JSON"), ("[1, 2]", "JSON object"),
+                                           (b"\xff\xfe\x00garbage", "not UTF-8 text")])
+def test_bad_json(ds_dir, text, pattern):
+    p = ds_dir / "dataset.json"
+    p.write_bytes(text if isinstance(text, bytes) else text.encode())
+    expect(ds_dir, pattern)
+
+
+@pytest.mark.parametrize("radius, pattern", [(..., "missing key 'radius'"), ("far", "radius must be a number"),
+                                             (None, "radius must be a number"), (0, "radius must be a positive"),
+                                             (-3, "radius must be a positive")])
+def test_bad_radius(ds_dir, radius, pattern):
+    set_meta(ds_dir, radius=radius)
+    expect(ds_dir, pattern)
+
+
+def test_bad_position_unit(ds_dir):
+    set_meta(ds_dir, position_unit="furlongs")
+    expect(ds_dir, "position_unit")
+
+
+def test_bad_traverses_key(ds_dir):
+    set_meta(ds_dir, traverses=["reference", "query"])
+    expect(ds_dir, "'traverses' must be an object")
+
+
+def test_nan_and_inf_descriptors(ds_dir):
+    d = np.load(ds_dir / "query" / "descriptors.npy")
+    d[7, 1] = np.nan
+    np.save(ds_dir / "query" / "descriptors.npy", d)
+    msg = expect(ds_dir, "NaN or inf")
+    assert "row 7" in msg and "query" in msg
+    d[7, 1] = 0
+    d[3, 0] = np.inf
+    np.save(ds_dir / "query" / "descriptors.npy", d)
+    assert "row 3" in expect(ds_dir, "NaN or inf")
+
+
+def test_inf_positions(ds_dir):
+    p = np.load(ds_dir / "reference" / "positions.npy")
+    p[2, 0] = np.inf
+    np.save(ds_dir / "reference" / "positions.npy", p)
+    expect(ds_dir, "positions contain NaN or inf")
+
+
+@pytest.mark.parametrize("content, pattern", [
+    (b"garbage bytes, not an array", "no NumPy header"),
+    (b"", "empty"),
+    (b"PK\x03\x04zipzip", "npz archive"),
+    (b"\x93NUMPY\x01\x00garbage", "cannot read"),
+])
+def test_garbage_npy(ds_dir, content, pattern):
+    (ds_dir / "query" / "descriptors.npy").write_bytes(content)
+    expect(ds_dir, pattern)
+
+
+def test_truncated_npy(ds_dir):
+    f = ds_dir / "query" / "descriptors.npy"
+    f.write_bytes(f.read_bytes()[:-20])
+    expect(ds_dir, "cannot read")
+    with pytest.raises(DatasetError, match="cannot read"):
+        load_dataset(ds_dir, mmap=False)
+
+
+def test_pickled_npy(ds_dir):
+    with open(ds_dir / "query" / "descriptors.npy", "wb") as f:
+        np.save(f, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    expect(ds_dir, "Python objects")
+
+
+def test_npz_file_saved_as_npy(ds_dir):
+    with open(ds_dir / "query" / "descriptors.npy", "wb") as f:
+        np.savez(f, x=np.zeros((3, 3)))
+    expect(ds_dir, "npz archive")
+
+
+@pytest.mark.parametrize("arr, pattern", [(np.zeros(10, np.float32), r"\[N, D\]"),
+                                          (np.zeros((0, 4), np.float32), "empty"),
+                                          (np.zeros((10, 4), np.int32), "floating point"),
+                                          (np.zeros((10, 2, 2), np.float32), r"\[N, D\]")])
+def test_bad_descriptor_arrays(ds_dir, arr, pattern):
+    np.save(ds_dir / "query" / "descriptors.npy", arr)
+    expect(ds_dir, pattern)
+
+
+def test_count_mismatch(ds_dir):
+    np.save(ds_dir / "query" / "positions.npy", np.zeros((9, 2)))
+    assert "9 positions for 10 descriptors" in expect(ds_dir, "must be equal")
+
+
+def test_names_count_mismatch(ds_dir):
+    (ds_dir / "query" / "names.txt").write_text("a\nb\n")
+    expect(ds_dir, "2 image names for 10")
+
+
+def test_names_not_utf8(ds_dir):
+    (ds_dir / "query" / "names.txt").write_bytes(b"\xff\xfe\xfa\n" * 10)
+    expect(ds_dir, "not UTF-8")
+
+
+def test_dim_mismatch(ds_dir):
+    np.save(ds_dir / "query" / "descriptors.npy", np.ones((10, 5), np.float32))
+    expect(ds_dir, "dimension mismatch: reference D=4, query D=5")
+
+
+def test_position_kind_mismatch(ds_dir):
+    np.save(ds_dir / "query" / "positions.npy", np.zeros((10, 1)))
+    expect(ds_dir, "differ in kind")
+
+
+@pytest.mark.parametrize("pos, pattern", [(np.zeros((10, 3)), r"\[N, 1\]"), (np.array(["a"] * 10), "must be numbers")])
+def test_bad_positions(ds_dir, pos, pattern):
+    np.save(ds_dir / "query" / "positions.npy", pos)
+    expect(ds_dir, pattern)
+
+
+@pytest.mark.parametrize("text, pattern", [("", "empty"), ("1,2\nx,y\n", "cannot parse"), ("1,2\n3\n", "cannot parse")])
+def test_bad_positions_csv(ds_dir, text, pattern, recwarn):
+    (ds_dir / "query" / "positions.npy").unlink()
+    (ds_dir / "query" / "positions.csv").write_text(text)
+    expect(ds_dir, pattern)
+    assert not [w for w in recwarn if "loadtxt" in str(w.message)]  # no stray warning on stderr
+
+
+def test_missing_files(ds_dir):
+    (ds_dir / "query" / "positions.npy").unlink()
+    expect(ds_dir, "no positions file")
+    (ds_dir / "reference" / "descriptors.npy").unlink()
+    expect(ds_dir, "no descriptor file")
+    os.rename(ds_dir / "reference", ds_dir / "ref")
+    expect(ds_dir, "reference traverse directory not found")
+
+
+@pytest.mark.parametrize("bounds, pattern", [
+    (np.zeros((10, 3), np.int64), r"must be \[10, 2\]"),
+    (np.tile([[0, 5]], (10, 1)), r"seq_bounds\[5\] = \[0, 5\] does not contain image 5"),
+    (np.tile([[0, 11]], (10, 1)), "does not contain"),
+    (np.tile([[0.0, 10.0]], (10, 1)), "integers"),
+])
+def test_bad_seq_bounds(ds_dir, bounds, pattern):
+    np.save(ds_dir / "query" / "seq_bounds.npy", bounds)
+    expect(ds_dir, pattern)
+
+
+@pytest.mark.parametrize("splits, pattern", [
+    ({"test": [0, 11]}, "outside 0:10"),
+    ({"test": [5, 5]}, "or empty"),
+    ({"test": {"reference": [0, 5]}}, "split 'test' must be"),
+    ({"test": "all"}, "split 'test' must be"),
+    ({"test": [1]}, "split 'test' must be"),
+    ([0, 5], "'splits' must be an object"),
+])
+def test_bad_splits(ds_dir, splits, pattern):
+    set_meta(ds_dir, splits=splits)
+    expect(ds_dir, pattern)
+
+
+def test_bad_h5(ds, ds_dir):
+    q = ds_dir / "query"
+    (q / "descriptors.npy").unlink()
+    (q / "descriptors.h5").write_bytes(b"not hdf5 at all")
+    expect(ds_dir, "cannot read .* as HDF5")
+    (q / "descriptors.h5").unlink()
+    with h5py.File(q / "descriptors.h5", "w") as h:
+        h["features"] = np.zeros((10, 4), np.float32)
+        h["other"] = np.zeros((10, 4), np.float32)
+        h.create_group("descriptors_group")
+    expect(ds_dir, "no dataset 'descriptors' and 2 other 2-D datasets")
+
+
+def test_traverse_constructor_errors(rng):
+    with pytest.raises(DatasetError, match="must be numbers"):
+        Traverse(np.zeros((3, 2), np.float32), np.array([["a", "b"]] * 3))
+    t = Traverse([[1.0, 2.0]], [[0.0]])  # array-likes are converted
+    assert t.descriptors.shape == (1, 2) and len(t) == 1 and t.dim == 2
+    with pytest.raises(DatasetError, match="integers"):
+        Traverse(np.zeros((2, 2), np.float32), np.zeros(2), seq_bounds=np.array([[0.5, 2.0]] * 2))
+
+
+# ----------------------------------------------------------------------------- subset and split
+
+
+def test_subset_clips_bounds(ds):
+    sub = ds.reference.subset(3, 9)
+    assert len(sub) == 6
+    np.testing.assert_array_equal(sub.descriptors, ds.reference.descriptors[3:9])
+    # original sequences [0, 6) and [6, 12) clipped to [3, 9) and shifted
+    np.testing.assert_array_equal(sub.seq_bounds, [[0, 3]] * 3 + [[3, 6]] * 3)
+    assert sub.names == ds.reference.names[3:9]
+
+
+@pytest.mark.parametrize("rng_", [(-1, 3), (3, 3), (5, 2), (0, 13)])
+def test_subset_bad_range(ds, rng_):
+    with pytest.raises(DatasetError, match="half-open"):
+        ds.reference.subset(*rng_)
+
+
+def test_dataset_split(ds):
+    test = ds.split("test")
+    assert len(test.reference) == 10 and len(test.query) == 8 and test.splits == {} and test.name == "toy[test]"
+    assert ds.split("all") is ds and ds.split(None) is ds
+    with pytest.raises(DatasetError, match="no split 'val'; valid: all, test, train"):
+        ds.split("val")
+
+
+def test_dataset_constructor_validation(rng):
+    with pytest.raises(DatasetError, match="outside"):
+        make_dataset(rng, splits={"test": {"reference": (0, 5), "query": (0, 50)}})
+    with pytest.raises(DatasetError, match="no query range"):
+        make_dataset(rng, splits={"test": {"reference": (0, 5)}})
+    good = make_dataset(rng)
+    with pytest.raises(DatasetError, match="radius"):
+        Dataset(good.reference, good.query, radius=float("nan"))
+
+
+# ----------------------------------------------------------------------------- saving
+
+
+def test_save_refuses_non_empty_and_overwrites(ds, ds_dir, rng):
+    with pytest.raises(OutputError, match="not empty"):
+        save_dataset(ds, ds_dir)
+    other = make_dataset(rng, n_ref=7, n_qry=6, bounds=False, splits={})
+    save_dataset(other, ds_dir, overwrite=True)
+    back = load_dataset(ds_dir)
+    assert len(back.reference) == 7 and back.query.seq_bounds is None
+    assert not (ds_dir / "query" / "seq_bounds.npy").exists()
+    assert sorted(p.name for p in ds_dir.parent.iterdir()) == ["ds"]  # no temporary, backup or lock left
+
+
+def test_save_into_empty_existing_dir(ds, tmp_path):
+    (tmp_path / "empty").mkdir()
+    save_dataset(ds, tmp_path / "empty")
+    assert load_dataset(tmp_path / "empty").name == "toy"
+
+
+def test_save_onto_file_is_an_error(ds, tmp_path):
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(OutputError, match="not a directory"):
+        save_dataset(ds, tmp_path / "f", overwrite=True)
+    assert (tmp_path / "f").read_text() == "x"
+
+
+def test_save_is_atomic_on_failure(ds, tmp_path, rng, monkeypatch):
+    root = save_dataset(ds, tmp_path / "ds")
+    before = {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+    calls = []
+
+    def failing(t, path):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError("disk full")
+        return original(t, path)
+
+    original = tv.save_traverse
+    monkeypatch.setattr(tv, "save_traverse", failing)
+    with pytest.raises(OSError, match="disk full"):
+        save_dataset(make_dataset(rng, n_ref=5, n_qry=5, splits={}), root, overwrite=True)
+    after = {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+    assert after == before  # the old dataset is untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]  # and no temporary directory is left
+    with pytest.raises(OSError, match="disk full"):
+        calls.clear()
+        save_dataset(ds, tmp_path / "new")
+    assert not (tmp_path / "new").exists()
+
+
+def test_save_writes_float32_and_keeps_extra(rng, tmp_path):
+    t = Traverse(rng.standard_normal((4, 3)), np.arange(4.0))  # float64 descriptors
+    d = Dataset(t, t, radius=1.0, extra={"preset": "x", "radius": 99})  # core keys are not overridden by extra
+    root = save_dataset(d, tmp_path / "d")
+    assert np.load(root / "query" / "descriptors.npy").dtype == np.float32
+    assert json.loads((root / "dataset.json").read_text())["radius"] == 1.0
+    assert load_dataset(root).extra == {"preset": "x"}
+
+
+def test_pickle_free_loading(ds_dir):
+    # names and positions never go through pickle; sanity check of the test helper itself
+    assert pickle.loads(pickle.dumps(1)) == 1
+    assert load_dataset(ds_dir).query.names[0] == "query0.png"
+
+
+def test_saved_files_get_normal_permissions(ds, tmp_path):
+    root = save_dataset(ds, tmp_path / "perm")
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert (root.stat().st_mode & 0o777) == 0o777 & ~mask  # not mkdtemp's 0700
+    for f in (root / "dataset.json", root / "query" / "descriptors.npy", root / "query" / "positions.npy"):
+        assert (f.stat().st_mode & 0o777) == 0o666 & ~mask, f  # not mkstemp's 0600
+
+
+def test_names_with_line_breaks_rejected(rng, tmp_path):
+    t = Traverse(rng.standard_normal((2, 3)).astype(np.float32), np.arange(2.0), names=["a.png", "b\n.png"])
+    with pytest.raises(DatasetError, match="line separator"):
+        save_dataset(Dataset(t, t, radius=1.0), tmp_path / "n")
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,291 @@
+"""evaluate(): every method against a direct computation, queries left out, and config errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from seqnet.core.errors import ConfigError
+from seqnet.core.utils import l2_normalize
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.eval.methods import default_methods, parse_method, valid_methods
+from seqnet.eval.metrics.recall import recall_at_k
+from seqnet.matching.seqmatch import seqmatch
+from seqnet.search.knn import knn
+from seqnet.sequence.descriptors import SeqNet, delta, smoothing
+from seqnet.sequence.windows import window_indices, window_starts
+
+ALL = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch", "hvpr-delta:raw+seqmatch"]
+
+
+@pytest.fixture(scope="module")
+def test_split():
+    from seqnet.data.synth import make_synthetic
+
+    return make_synthetic(places=200, dim=16, seed=1).split("test")
+
+
+@pytest.fixture(scope="module")
+def ev(test_split):
+    return evaluate(test_split, EvalConfig(methods=tuple(ALL), seq_len=5, device="cpu"))
+
+
+def stable_order(scores):
+    return sorted(range(len(scores)), key=lambda j: (scores[j], j))
+
+
+def test_results_schema(ev, test_split):
+    res = ev.results
+    assert list(res["methods"]) == ALL
+    n_invalid = int((~window_starts(len(test_split.query), 5, "centred", test_split.query.seq_bounds)[1]).sum())
+    for name, entry in res["methods"].items():
+        recalls = [entry[f"recall@{k}"] for k in (1, 5, 10, 20, 100)]
+        assert all(0.0 <= r <= 1.0 for r in recalls) and recalls == sorted(recalls), name
+        assert entry["queries"] + entry["no_positive"] == len(ev.q_items)
+        assert entry["no_full_window"] == n_invalid == len(test_split.query) - len(ev.q_items)
+        assert entry["timing_ms"]["total"] >= 0
+        assert ev.retrieved[name].shape[0] == len(ev.q_items)
+    assert res["config"]["seq_len"] == 5 and res["config"]["device"] == "cpu"
+    assert res["config"]["dataset"] == test_split.name
+    assert ev.retrieved["single"].shape[1] == min(100, len(ev.r_items))
+
+
+def test_single_and_sequence_descriptors_match_direct_knn(ev, test_split):
+    q, r = test_split.query, test_split.reference
+    fq, fr = (l2_normalize(torch.from_numpy(np.asarray(t.descriptors))) for t in (q, r))
+    _, ranked = knn(fq[ev.q_items], fr[ev.r_items], 100, device="cpu")
+    np.testing.assert_array_equal(ev.retrieved["single"], ranked)
+    for name, fn in (("smoothing", smoothing), ("delta", delta)):
+        qs = window_starts(len(q), 5)[0][ev.q_items]
+        rs = window_starts(len(r), 5)[0][ev.r_items]
+        wq = torch.from_numpy(np.asarray(q.descriptors))[torch.from_numpy(qs[:, None] + np.arange(5))]
+        wr = torch.from_numpy(np.asarray(r.descriptors))[torch.from_numpy(rs[:, None] + np.arange(5))]
+        _, ranked = knn(fn(wq), fn(wr), 100, device="cpu")
+        np.testing.assert_array_equal(ev.retrieved[name], ranked, err_msg=name)
+
+
+def test_seqmatch_methods_match_direct_map(ev, test_split):
+    q, r = test_split.query, test_split.reference
+    qs, rs = window_starts(len(q), 5)[0][ev.q_items], window_starts(len(r), 5)[0][ev.r_items]
+    raw_q = l2_normalize(torch.from_numpy(np.asarray(q.descriptors)))
+    raw_r = l2_normalize(torch.from_numpy(np.asarray(r.descriptors)))
+    full = seqmatch(raw_q.double(), raw_r.double(), 5, device="cpu").numpy()
+    got = ev.retrieved["raw+seqmatch"]
+    for m, a in enumerate(qs):
+        row = full[a, rs]
+        # same ranking up to float32-vs-float64 near-ties: compare the scores of the retrieved items
+        np.testing.assert_allclose(row[got[m]], np.sort(row)[: got.shape[1]], atol=1e-4)
+    # delta+seqmatch: SeqMatch over per-frame Delta descriptors (replicate-padded windows)
+    dq, dr = (delta(torch.from_numpy(np.asarray(t.descriptors))[torch.from_numpy(window_indices(len(t), 5, "centred",
+                                                                                              t.seq_bounds))])
+              for t in (q, r))
+    full = seqmatch(dq.double(), dr.double(), 5, device="cpu").numpy()
+    got = ev.retrieved["delta+seqmatch"]
+    for m, a in enumerate(qs):
+        row = full[a, rs]
+        np.testing.assert_allclose(row[got[m]], np.sort(row)[: got.shape[1]], atol=1e-4)
+
+
+def test_hvpr_is_delta_shortlist_reranked_by_raw_seqmatch(ev, test_split):
+    shortlist = ev.retrieved["delta"]
+    hv = ev.retrieved["hvpr-delta:raw+seqmatch"]
+    q, r = test_split.query, test_split.reference
+    qs, rs = window_starts(len(q), 5)[0][ev.q_items], window_starts(len(r), 5)[0][ev.r_items]
+    raw_q = l2_normalize(torch.from_numpy(np.asarray(q.descriptors))).double().numpy()
+    raw_r = l2_normalize(torch.from_numpy(np.asarray(r.descriptors))).double().numpy()
+    # the first top_k=20 entries are the shortlist re-ranked; the rest keep the shortlist order
+    np.testing.assert_array_equal(np.sort(hv[:, :20], axis=1), np.sort(shortlist[:, :20], axis=1))
+    np.testing.assert_array_equal(hv[:, 20:], shortlist[:, 20:])
+    for m in range(len(qs)):
+        s = [sum(np.linalg.norm(raw_q[qs[m] + t] - raw_r[rs[j] + t]) for t in range(5)) for j in hv[m, :20]]
+        assert all(a <= b + 1e-4 for a, b in zip(s, s[1:], strict=False)), m
+
+
+def test_recall_matches_recall_at_k(ev):
+    for name, entry in ev.results["methods"].items():
+        rec = recall_at_k(ev.retrieved[name], ev.q_pos, ev.r_pos, ev.radius)
+        for k in (1, 5, 10, 20, 100):
+            assert entry[f"recall@{k}"] == rec[f"recall@{k}"]
+
+
+def test_sequences_beat_single_frames(ev):
+    m = ev.results["methods"]
+    assert m["raw+seqmatch"]["recall@1"] >= m["single"]["recall@1"]
+
+
+def test_faiss_backend_and_extra_radii(test_split):
+    a = evaluate(test_split, EvalConfig(methods=('single', 'delta'), device='cpu'))
+    b = evaluate(test_split, EvalConfig(methods=('single', 'delta'), device='cpu', backend='faiss',
+                                        extra_radii=(2.5, 50.0), ks=(1, 3)))
+    # the same neighbours up to float32 near-ties: top-1 agrees for (almost) every query
+    for name in ("single", "delta"):
+        assert (a.retrieved[name][:, 0] == b.retrieved[name][:, 0]).mean() >= 0.95, name
+    radii = b.results["methods"]["single"]["radii"]
+    assert set(radii) == {"2.5", "50.0"}
+    n = b.results["methods"]["single"]["queries"]
+    assert radii["2.5"]["queries"] <= n <= radii["50.0"]["queries"] == len(b.q_items)  # more positives as it grows
+    assert set(b.results["methods"]["single"]) >= {"recall@1", "recall@3"}
+
+
+def test_with_models(test_split):
+    torch.manual_seed(0)
+    models = {"seqnet": SeqNet(16, 8, 5, 3), "s1": SeqNet(16, 8, 1, 1)}
+    ev = evaluate(test_split, EvalConfig(methods=("seqnet", "s1", "s1+seqmatch", "hvpr"), device="cpu"), models)
+    assert ev.results["methods"]["hvpr"]["method"] == {
+        "kind": "hvpr", "shortlist": "seqnet", "rerank": "s1+seqmatch", "seq_len": 5, "rerank_seq_len": 5, "top_k": 20,
+        "models": {"s1": models["s1"].config(), "seqnet": models["seqnet"].config()}}
+    assert set(ev.results["config"]["models"]) == {"seqnet", "s1"}
+    assert all(0 <= e["recall@5"] <= 1 for e in ev.results["methods"].values())
+    with pytest.raises(ConfigError, match="expects D=7 descriptors but the dataset has D=16"):
+        evaluate(test_split, EvalConfig(methods=('seqnet',)), {"seqnet": SeqNet(7, 8, 5, 3)})
+    with pytest.raises(ConfigError, match="needs an S_L model"):
+        evaluate(test_split, EvalConfig(methods=('seqnet',)))
+
+
+def toy(n_q=9, n_r=9, q_bounds=None, dim=3, seed=0):
+    rng = np.random.default_rng(seed)
+    ref = Traverse(rng.standard_normal((n_r, dim)).astype(np.float32), np.arange(n_r, dtype=float))
+    qry = Traverse(rng.standard_normal((n_q, dim)).astype(np.float32), np.arange(n_q, dtype=float), seq_bounds=q_bounds)
+    return Dataset(ref, qry, radius=1.0)
+
+
+def test_seq_len_equal_to_traverse_length():
+    ev = evaluate(toy(5, 7), EvalConfig(methods=('single', 'raw+seqmatch', 'smoothing'), seq_len=5, device='cpu'))
+    assert ev.q_items.tolist() == [2]  # the only frame with a full centred window
+    assert ev.results["methods"]["single"]["no_full_window"] == 4
+    assert ev.retrieved["raw+seqmatch"].shape == (1, 3)
+
+
+def test_seq_len_longer_than_traverse():
+    with pytest.raises(ConfigError, match="longer than the query traverse"):
+        evaluate(toy(4, 9), EvalConfig(methods=('single',), seq_len=5))
+
+
+def test_bounds_make_every_window_invalid():
+    bounds = np.array([[0, 2], [0, 2], [2, 4], [2, 4], [4, 6], [4, 6]])
+    with pytest.raises(ConfigError, match="no query frame has a full window"):
+        evaluate(toy(6, 9, bounds), EvalConfig(methods=('single',), seq_len=3))
+
+
+def test_seq_len_one():
+    ev = evaluate(toy(), EvalConfig(methods=("single", "raw+seqmatch", "smoothing"), seq_len=1, device="cpu"))
+    np.testing.assert_array_equal(ev.retrieved["single"], ev.retrieved["raw+seqmatch"])
+    with pytest.raises(ConfigError, match="need seq_len >= 2"):
+        evaluate(toy(), EvalConfig(methods=('single', 'delta'), seq_len=1))
+
+
+def test_causal_window():
+    ev = evaluate(toy(), EvalConfig(methods=('single',), seq_len=3, window='causal', device='cpu'))
+    assert ev.q_items.tolist() == list(range(2, 9))
+
+
+@pytest.mark.parametrize("cfg, pattern", [
+    ({"bogus": 1}, "unknown EvalConfig key"),
+    ({"methods": []}, "non-empty list"),
+    ({"methods": ["nope"]}, "unknown method"),
+    ({"seq_len": 0}, "seq_len"),
+    ({"radius": -1.0}, "radius"),
+    ({"extra_radii": [0]}, "radius"),
+    ({"ks": [0, 5]}, "ks must be"),
+    ({"ks": []}, "ks must be"),
+    ({"top_k": 0}, "top_k"),
+    ({"window": "middle"}, "window mode"),
+    ({"backend": "annoy"}, "backend"),
+    ({"device": "tpu9"}, "device"),
+])
+def test_config_errors(cfg, pattern):
+    with pytest.raises(ConfigError, match=pattern):
+        EvalConfig.from_dict(cfg)
+
+
+def test_no_positive_queries_counted():
+    ds = toy()
+    far = Traverse(ds.query.descriptors, ds.query.positions + np.array([[0.0]] * 4 + [[100.0]] * 5))
+    ev = evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(methods=('single',), seq_len=1, device='cpu'))
+    entry = ev.results["methods"]["single"]
+    assert entry["queries"] == 4 and entry["no_positive"] == 5
+
+
+def test_all_queries_without_positive_is_an_error():
+    ds = toy()
+    far = Traverse(ds.query.descriptors, ds.query.positions + 100.0)
+    with pytest.raises(ConfigError, match="has a reference within radius 1 frames, so Recall@K is undefined"):
+        evaluate(Dataset(ds.reference, far, radius=1.0), EvalConfig(methods=("single",), seq_len=1, device="cpu"))
+
+
+# ----------------------------------------------------------------------------- methods
+
+
+def test_parse_method():
+    assert parse_method("single").kind == "knn"
+    m = parse_method("delta+seqmatch")
+    assert (m.kind, m.frames, m.matcher, m.rerank) == ("match", "delta", "seqmatch", "delta+seqmatch")
+    m = parse_method("hvpr")  # always the paper's HVPR, whatever models are given
+    assert (m.kind, m.shortlist, m.rerank) == ("hvpr", "seqnet", "s1+seqmatch") and m.models() == {"seqnet", "s1"}
+    m = parse_method("hvpr-smoothing:delta+seqmatch-rev")
+    assert (m.shortlist, m.frames, m.matcher) == ("smoothing", "delta", "seqmatch-rev") and m.models() == set()
+    assert parse_method("hvpr-delta").rerank == "s1+seqmatch" and parse_method("hvpr-delta").models() == {"s1"}
+    assert parse_method("delta-orig+seqmatch").min_len() == 2
+    assert len(valid_methods()) == len(set(valid_methods()))
+    for name in valid_methods():
+        assert parse_method(name).name == name
+    for bad, pattern in (("seqslam", "unknown method"), ("hvpr-nope", "shortlister"),
+                         ("hvpr-delta:smoothing", "re-ranker"), ("hvpr-delta:raw+nope", "re-ranker"),
+                         ("", "non-empty")):
+        with pytest.raises(ConfigError, match=pattern):
+            parse_method(bad)
+
+
+def test_default_methods():
+    assert default_methods(set(), 5) == ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch",
+                                         "hvpr-delta:raw+seqmatch"]
+    both = default_methods({"seqnet", "s1"}, 5)
+    assert "hvpr" in both and "hvpr-delta:raw+seqmatch" not in both and "s1+seqmatch" in both
+    assert default_methods(set(), 1) == ["single", "smoothing", "raw+seqmatch"]
+
+
+def test_missing_model_is_an_error_not_a_substitute(test_split):
+    with pytest.raises(ConfigError, match="needs an S_1 model"):
+        evaluate(test_split, EvalConfig(methods=("hvpr-delta",), device="cpu"))
+    with pytest.raises(ConfigError, match="needs an S_L model"):
+        evaluate(test_split, EvalConfig(methods=("hvpr",), device="cpu"), {"s1": SeqNet(16, 8, 1, 1)})
+
+
+def test_rerank_seq_len_separate_from_seq_len(test_split):
+    """L_m for the matchers, L for the descriptors; items need both windows to fit."""
+    ev = evaluate(test_split, EvalConfig(methods=("delta", "raw+seqmatch", "hvpr-delta:raw+seqmatch"), seq_len=3,
+                                         rerank_seq_len=7, device="cpu"))
+    q = test_split.query
+    ok3 = window_starts(len(q), 3, "centred", q.seq_bounds)[1]
+    ok7 = window_starts(len(q), 7, "centred", q.seq_bounds)[1]
+    np.testing.assert_array_equal(ev.q_items, np.flatnonzero(ok3 & ok7))
+    entry = ev.results["methods"]["hvpr-delta:raw+seqmatch"]["method"]
+    assert entry["seq_len"] == 3 and entry["rerank_seq_len"] == 7
+    r = test_split.reference
+    qs = window_starts(len(q), 7)[0][ev.q_items]
+    rs = window_starts(len(r), 7)[0][ev.r_items]
+    raw_q = l2_normalize(torch.from_numpy(np.asarray(q.descriptors))).double()
+    raw_r = l2_normalize(torch.from_numpy(np.asarray(r.descriptors))).double()
+    full = seqmatch(raw_q, raw_r, 7, device="cpu").numpy()
+    got = ev.retrieved["raw+seqmatch"]
+    for m, a in enumerate(qs):
+        row = full[a, rs]
+        np.testing.assert_allclose(row[got[m]], np.sort(row)[: got.shape[1]], atol=1e-4)
+
+
+def test_causal_windows_pin_the_newest_frame_for_anchored_matchers(test_split):
+    """With causal windows the item's frame is the window's last: anchored matchers pin it ("end")."""
+    from seqnet.matching.graph import graph_topk
+    from seqnet.matching.velocity import velocity_topk
+
+    ev = evaluate(test_split, EvalConfig(methods=("raw+vseqmatch", "raw+graph"), seq_len=4, window="causal",
+                                         ks=(5,), device="cpu"))
+    q, r = test_split.query, test_split.reference
+    raw = [l2_normalize(torch.from_numpy(np.asarray(t.descriptors))) for t in (q, r)]
+    qs = window_starts(len(q), 4, "causal", q.seq_bounds)[0][ev.q_items]
+    rs = window_starts(len(r), 4, "causal", r.seq_bounds)[0][ev.r_items]
+    for name, fn in (("raw+vseqmatch", velocity_topk), ("raw+graph", graph_topk)):
+        _, items = fn(*raw, 4, 5, qs, rs, anchor="end", device="cpu")
+        np.testing.assert_array_equal(ev.retrieved[name], items, err_msg=name)

@@ -1,0 +1,57 @@
+"""Confidence and precision-recall against naive definitions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from seqnet.eval.metrics.precision_recall import pr_summary, precision_recall, ratio_confidence
+
+
+def test_ratio_confidence_vs_loop(rng):
+    m, k, r = 30, 6, 40
+    r_pos = np.sort(rng.uniform(0, 100, r))[:, None]
+    ranked = np.stack([rng.permutation(r)[:k] for _ in range(m)])
+    scores = np.sort(rng.uniform(0.1, 2.0, (m, k)), axis=1)
+    scores[0, 3:] = np.inf  # not scored: ignored
+    got = ratio_confidence(scores, ranked, r_pos, radius=5.0)
+    for i in range(m):
+        top = r_pos[ranked[i, 0], 0]
+        others = [scores[i, j] for j in range(k)
+                  if abs(r_pos[ranked[i, j], 0] - top) > 5.0 and np.isfinite(scores[i, j])]
+        want = 1.0 if not others else max(0.0, 1.0 - scores[i, 0] / min(others))
+        assert got[i] == pytest.approx(want)
+
+
+def test_confidence_edge_cases():
+    r_pos = np.array([[0.0], [1.0], [50.0]])
+    assert ratio_confidence(np.array([[1.0, 2.0]]), np.array([[0, 1]]), r_pos, 5.0)[0] == 1.0  # same place only
+    assert ratio_confidence(np.array([[1.0, 1.0]]), np.array([[0, 2]]), r_pos, 5.0)[0] == 0.0  # tie with another
+    assert ratio_confidence(np.array([[0.0, 0.0]]), np.array([[0, 2]]), r_pos, 5.0)[0] == 0.0
+    assert ratio_confidence(np.zeros((2, 0)), np.zeros((2, 0), int), r_pos, 5.0).tolist() == [0.0, 0.0]
+
+
+@given(st.lists(st.tuples(st.floats(0, 1), st.booleans(), st.booleans()), min_size=1, max_size=30))
+@settings(max_examples=80, deadline=None)
+def test_precision_recall_vs_loop(rows):
+    conf = np.array([r[0] for r in rows])
+    has = np.array([r[2] or r[1] for r in rows])
+    correct = np.array([r[1] for r in rows])
+    p, rec, thr = precision_recall(conf, correct, has)
+    assert (np.diff(thr) < 0).all() and (np.diff(rec) >= 0).all()
+    for pi, ri, t in zip(p, rec, thr, strict=True):
+        accepted = conf >= t
+        tp = int((accepted & correct).sum())
+        assert pi == pytest.approx(tp / accepted.sum())
+        assert ri == pytest.approx(tp / max(has.sum(), 1))
+
+
+def test_pr_summary():
+    p, r, _ = precision_recall(np.array([0.9, 0.8, 0.7, 0.1]), np.array([1, 1, 0, 1], bool), np.ones(4, bool))
+    s = pr_summary(p, r)
+    assert s["recall@100p"] == pytest.approx(0.5)
+    assert s["auc"] == pytest.approx(1.0 * 0.25 + 1.0 * 0.25 + (2 / 3) * 0 + 0.75 * 0.25)
+    perfect = pr_summary(*precision_recall(np.arange(5.0), np.ones(5, bool), np.ones(5, bool))[:2])
+    assert perfect == {"auc": 1.0, "recall@100p": 1.0}

@@ -1,0 +1,129 @@
+"""Recall@K against a naive loop, exclusion of queries without a positive, and edge cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from seqnet.core.errors import ConfigError
+from seqnet.eval.metrics.recall import GroundTruth, check_radius, recall_at_k, recall_curve
+
+
+def naive_recall(retrieved, q_pos, r_pos, radius, ks):
+    out, n_pos, found = {}, 0, {k: 0 for k in ks}
+    for m in range(len(q_pos)):
+        if not any(np.linalg.norm(r_pos[j] - q_pos[m]) <= radius for j in range(len(r_pos))):
+            continue
+        n_pos += 1
+        for k in ks:
+            top = [j for j in retrieved[m][:k] if j >= 0]
+            if any(np.linalg.norm(r_pos[j] - q_pos[m]) <= radius for j in top):
+                found[k] += 1
+    for k in ks:
+        out[f"recall@{k}"] = found[k] / n_pos if n_pos else float("nan")
+    out["queries"] = n_pos
+    out["no_positive"] = len(q_pos) - n_pos
+    return out
+
+
+def assert_same(a, b):
+    assert a.keys() == b.keys()
+    for key in a:
+        if isinstance(b[key], float) and math.isnan(b[key]):
+            assert math.isnan(a[key]), key
+        else:
+            assert a[key] == pytest.approx(b[key]), key
+
+
+@pytest.mark.parametrize("dims", [1, 2])
+def test_recall_vs_loop(rng, dims):
+    r_pos = rng.uniform(0, 50, (40, dims))
+    q_pos = rng.uniform(-10, 60, (30, dims))  # some queries have no reference within the radius
+    retrieved = np.array([rng.permutation(40)[:25] for _ in range(30)])
+    retrieved[3, 5] = -1
+    ks = (1, 5, 10, 20, 100)
+    res = recall_at_k(retrieved, q_pos, r_pos, 3.0, ks)
+    assert_same(res, naive_recall(retrieved, q_pos, r_pos, 3.0, ks))
+    assert res["no_positive"] > 0 and res["queries"] + res["no_positive"] == 30
+
+
+def test_recall_hand_example():
+    r_pos = np.array([[0.0], [10.0], [20.0], [30.0]])
+    q_pos = np.array([[0.5], [19.0], [100.0]])  # the last query has no positive
+    retrieved = np.array([[1, 0, 2], [0, 1, 3], [0, 1, 2]])
+    res = recall_at_k(retrieved, q_pos, r_pos, 1.0, ks=(1, 2, 3))
+    assert res == {"recall@1": 0.0, "recall@2": 0.5, "recall@3": 0.5, "queries": 2, "no_positive": 1}
+
+
+def test_radius_boundary_is_inclusive():
+    r_pos = np.array([[0.0, 0.0]])
+    q_pos = np.array([[3.0, 4.0]])  # exactly 5 away
+    assert recall_at_k(np.array([[0]]), q_pos, r_pos, 5.0, ks=(1,))["recall@1"] == 1.0
+    res = recall_at_k(np.array([[0]]), q_pos, r_pos, 4.999, ks=(1,))
+    assert res["queries"] == 0 and math.isnan(res["recall@1"])
+
+
+def test_k_larger_than_list_uses_whole_list():
+    r_pos = np.arange(5.0)[:, None]
+    res = recall_at_k(np.array([[4, 0]]), np.array([[0.0]]), r_pos, 0.5, ks=(1, 2, 100))
+    assert res["recall@1"] == 0.0 and res["recall@2"] == 1.0 and res["recall@100"] == 1.0
+
+
+def test_empty_inputs():
+    res = recall_at_k(np.zeros((0, 5), np.int64), np.zeros((0, 2)), np.zeros((3, 2)), 1.0)
+    assert res["queries"] == 0 and res["no_positive"] == 0 and math.isnan(res["recall@1"])
+    res = recall_at_k(np.zeros((2, 0), np.int64), np.zeros((2, 2)), np.zeros((3, 2)), 1.0, ks=(1,))
+    assert res == {"recall@1": 0.0, "queries": 2, "no_positive": 0}  # nothing retrieved: nothing found
+    res = recall_at_k(np.full((2, 1), -1), np.zeros((2, 2)), np.zeros((0, 2)), 1.0, ks=(1,))
+    assert res["queries"] == 0 and res["no_positive"] == 2
+
+
+def test_one_dimensional_inputs():
+    res = recall_at_k(np.array([1, 0]), np.array([0.0, 5.0]), np.array([0.0, 5.0]), 1.0, ks=(1,))
+    assert res["recall@1"] == 0.0 and res["queries"] == 2
+
+
+@pytest.mark.parametrize("bad", [0, -1, float("nan"), float("inf"), "far", None])
+def test_bad_radius(bad):
+    with pytest.raises(ConfigError, match="radius"):
+        recall_at_k(np.zeros((1, 1), int), np.zeros((1, 2)), np.zeros((1, 2)), bad)
+    with pytest.raises(ConfigError, match="radius"):
+        check_radius(bad)
+
+
+def test_bad_arguments():
+    q, r = np.zeros((2, 2)), np.zeros((3, 2))
+    with pytest.raises(ConfigError, match="K must be"):
+        recall_at_k(np.zeros((2, 1), int), q, r, 1.0, ks=(0, 1))
+    with pytest.raises(ConfigError, match="K must be"):
+        recall_at_k(np.zeros((2, 1), int), q, r, 1.0, ks=())
+    with pytest.raises(ConfigError, match="one row per query"):
+        recall_at_k(np.zeros((3, 1), int), q, r, 1.0)
+    with pytest.raises(ConfigError, match="retrieved indices"):
+        recall_at_k(np.full((2, 1), 3), q, r, 1.0)
+    with pytest.raises(ConfigError, match="-D"):
+        recall_at_k(np.zeros((2, 1), int), q, np.zeros((3, 1)), 1.0)
+
+
+def test_recall_curve_monotone(rng):
+    r_pos = rng.uniform(0, 20, (30, 2))
+    q_pos = rng.uniform(0, 20, (15, 2))
+    retrieved = np.array([rng.permutation(30)[:10] for _ in range(15)])
+    curve = recall_curve(retrieved, GroundTruth(q_pos, r_pos, 2.0), k_max=12)
+    assert curve.shape == (12,) and (np.diff(curve) >= 0).all()
+    assert curve[0] == recall_at_k(retrieved, q_pos, r_pos, 2.0, ks=(1,))["recall@1"]
+
+
+@settings(max_examples=40, deadline=None)
+@given(m=st.integers(0, 8), n=st.integers(1, 10), k=st.integers(1, 6), seed=st.integers(0, 2**16))
+def test_recall_property(m, n, k, seed):
+    rng = np.random.default_rng(seed)
+    r_pos = rng.integers(0, 10, (n, 1)).astype(float)  # integer positions: many exact boundary cases
+    q_pos = rng.integers(0, 12, (m, 1)).astype(float)
+    retrieved = rng.integers(-1, n, (m, k))
+    ks = (1, 2, 5)
+    assert_same(recall_at_k(retrieved, q_pos, r_pos, 1.0, ks), naive_recall(retrieved, q_pos, r_pos, 1.0, ks))

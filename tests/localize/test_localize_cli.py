@@ -1,0 +1,122 @@
+"""``seqnet localize``: the per-frame track of a dataset's query traverse and its summary."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from seqnet.cli import main as cli_main
+from seqnet.localize.track import TRACK_COLUMNS, LocalizeConfig
+
+
+def test_track_equals_causal_eval(synth_dir, tmp_path, capsys):
+    out = tmp_path / "t" / "track.csv"
+    assert cli_main(["localize", "--dataset", str(synth_dir), "--method", "raw+seqmatch", "--seq-len", "3",
+                     "--out", str(out), "--device", "cpu"]) == 0
+    printed = capsys.readouterr().out
+    assert "R@1" in printed and "latency per frame" in printed
+    rows = list(csv.DictReader(out.open()))
+    assert tuple(rows[0]) == TRACK_COLUMNS
+    record = json.loads(out.with_suffix(".json").read_text())
+    assert record["kind"] == "seqnet-localize/1" and record["config"]["split"] == "test"
+    assert len(rows) == record["summary"]["frames"] and rows[0]["estimate"] == "-1" and rows[0]["correct"] == ""
+    assert {r["correct"] for r in rows[2:]} <= {"0", "1"} and rows[5]["estimate_name"]
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "raw+seqmatch", "--seq-len", "3",
+                     "--window", "causal", "--json", str(tmp_path / "ev.json"), "--ks", "1,20", "--device", "cpu"]) == 0
+    ev = json.loads((tmp_path / "ev.json").read_text())["methods"]["raw+seqmatch"]
+    s = record["summary"]
+    assert s["full_window"] == ev["queries"] + ev["no_positive"]
+    for key in ("recall@1", "auc", "recall@100p"):
+        assert s[key] == pytest.approx(ev[key], abs=1e-9)
+    full = [r for r in rows if r["full_window"] == "1"]
+    assert np.mean([r["correct"] == "1" for r in full]) == pytest.approx(s["recall@1"] * s["queries"] / len(full))
+    assert s["latency_ms"]["median"] > 0
+
+
+def test_refusals(synth_dir, tmp_path, capsys):
+    base = ["localize", "--dataset", str(synth_dir), "--device", "cpu"]
+    assert cli_main([*base, "--method", "single", "--out", str(tmp_path / "t.txt")]) == 2
+    assert "must be a .csv" in capsys.readouterr().err
+    (tmp_path / "mine.json").write_text('{"notes": "mine"}')
+    assert cli_main([*base, "--method", "single", "--out", str(tmp_path / "mine.csv")]) == 2
+    assert "not written by seqnet localize" in capsys.readouterr().err
+    assert json.loads((tmp_path / "mine.json").read_text()) == {"notes": "mine"}
+    assert cli_main([*base, "--method", "hvpr", "--out", str(tmp_path / "a.csv")]) == 2
+    assert "needs an S_1 model" in capsys.readouterr().err
+    assert cli_main([*base, "--method", "raw+grh", "--out", str(tmp_path / "a.csv")]) == 2
+    assert "no online form" in capsys.readouterr().err
+    assert not (tmp_path / "a.csv").exists()
+    with pytest.raises(Exception, match="anchor"):
+        LocalizeConfig(anchor="middle")
+
+
+def _steps(loc_args, descriptors):
+    from seqnet.localize.localizer import Localizer
+
+    loc = Localizer(*loc_args)
+    return [loc.step(d) for d in descriptors]
+
+
+def test_stream_descriptor_file(synth_dir, synth_dataset, tmp_path, capsys):
+    from seqnet.core.provenance import sidecar
+    from seqnet.eval.evaluate import EvalConfig
+    from seqnet.localize.localizer import ReferenceMap
+
+    q = np.asarray(synth_dataset.query.descriptors[:40])
+    np.save(tmp_path / "q.npy", q)
+    sidecar(tmp_path / "q.npy").write_text(json.dumps(synth_dataset.query.provenance))
+    out = tmp_path / "s.csv"
+    base = ["localize", "--map", str(synth_dir), "--method", "raw+vseqmatch", "--seq-len", "3", "--device", "cpu"]
+    assert cli_main([*base, "--query", str(tmp_path / "q.npy"), "--out", str(out)]) == 0
+    assert "40 frames, 38 with a full window" in capsys.readouterr().out
+    rows = list(csv.DictReader(out.open()))
+    want = _steps((ReferenceMap.from_dataset(synth_dataset), "raw+vseqmatch", EvalConfig(seq_len=3, ks=(20,))), q)
+    assert [int(r["estimate"]) for r in rows] == [e.ref_frame for e in want]
+    assert {r["correct"] for r in rows} == {""} and rows[3]["name"] == ""  # no ground truth, no query names
+    bad = dict(synth_dataset.query.provenance, id="other", settings={"seed": 99})
+    sidecar(tmp_path / "q.npy").write_text(json.dumps(bad))
+    assert cli_main([*base, "--query", str(tmp_path / "q.npy"), "--out", str(out)]) == 2
+    assert "made differently" in capsys.readouterr().err
+    assert cli_main([*base, "--out", str(out)]) == 2 and "--query goes with --map" in capsys.readouterr().err
+    assert cli_main(["localize", "--dataset", str(synth_dir), "--map", str(synth_dir), "--out", str(out)]) == 2
+
+
+def test_stream_images_described_on_the_fly(tmp_path, capsys):
+    from conftest import shared_data
+
+    from seqnet.data.io import save_dataset
+    from seqnet.data.traverse import Dataset, Traverse
+    from seqnet.describe import DescribeConfig, make_describer
+    from seqnet.describe.store import describe_provenance
+    from seqnet.eval.evaluate import EvalConfig
+    from seqnet.localize.localizer import ReferenceMap
+
+    data = shared_data("nordland64")
+    names = [f"images-{i:05d}.png" for i in range(2100, 2400, 10)]
+    conf = DescribeConfig(method="pixels", patch=16, size="native")
+    describer = make_describer(conf)
+    ref, _ = describer.describe([data / "summer" / n for n in names])
+    prov = describe_provenance(conf, None, ref)
+    t = Traverse(ref, np.arange(len(names)), names=names, provenance=prov)
+    save_dataset(Dataset(t, t, 1.0), tmp_path / "map")
+    (tmp_path / "q.txt").write_text("".join(f"{data / 'winter' / n}\n" for n in names[5:25]))
+    out = tmp_path / "img.csv"
+    assert cli_main(["localize", "--map", str(tmp_path / "map"), "--query", str(tmp_path / "q.txt"), "--method",
+                     "raw+seqmatch", "--seq-len", "3", "--out", str(out), "--device", "cpu"]) == 0
+    assert "ms per image" in capsys.readouterr().out
+    rows = list(csv.DictReader(out.open()))
+    qd, _ = describer.describe([data / "winter" / n for n in names[5:25]])
+    rmap = ReferenceMap(t, 1.0)
+    want = _steps((rmap, "raw+seqmatch", EvalConfig(seq_len=3, ks=(20,), device="cpu")), qd)
+    assert [int(r["estimate"]) for r in rows] == [e.ref_frame for e in want]
+    assert rows[4]["name"].endswith(names[9]) and rows[4]["estimate_name"] in names
+    summary = json.loads(out.with_suffix(".json").read_text())["summary"]
+    assert summary["describe_ms"]["median"] > 0
+    fitted = dict(prov, settings={**prov["settings"], "dim": 8, "whiten": False})
+    save_dataset(Dataset(t.with_descriptors(ref, fitted), t, 1.0), tmp_path / "map2")
+    assert cli_main(["localize", "--map", str(tmp_path / "map2"), "--query", str(tmp_path / "q.txt"), "--method",
+                     "single", "--out", str(out), "--device", "cpu"]) == 2
+    assert "fitted state" in capsys.readouterr().err

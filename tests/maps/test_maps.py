@@ -1,0 +1,181 @@
+"""Maps: build → load → eval --index equals the exact evaluation (flat index); refusals; ownership; CLI errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from seqnet.cli import main as cli
+from seqnet.core.errors import ConfigError, OutputError
+from seqnet.core.provenance import ProvenanceError
+from seqnet.core.provenance import make as make_provenance
+from seqnet.data.io import load_dataset, save_dataset
+from seqnet.eval.evaluate import EvalConfig
+from seqnet.eval.evaluate import main as eval_main
+from seqnet.maps import MapConfig, MapError, build, evaluate_main, load_map
+from seqnet.maps.rerank import rerank_on_map
+from seqnet.matching.hvpr import hvpr, rerank
+
+FREE = MapConfig(shortlist="delta", rerank="raw+seqmatch", seq_len=4)  # a model-free map
+
+
+def results(path):
+    return json.loads(path.read_text())["methods"]
+
+
+@pytest.mark.parametrize("with_models", [False, True])
+def test_flat_map_equals_the_exact_evaluation(synth_dir, map_models, tmp_path, with_models):
+    conf = MapConfig() if with_models else FREE
+    used = map_models if with_models else ()
+    mp_path = build(conf, synth_dir, tmp_path / "map", used)
+    mp = load_map(mp_path)
+    methods = [mp.config.method.name, mp.config.method.shortlist, mp.config.method.rerank]
+    econf = EvalConfig(methods=methods, seq_len=4, ks=(1, 5, 10))
+    exact = results(eval_main(econf, synth_dir, tmp_path / "exact", used))
+    mapped = results(evaluate_main(econf, synth_dir, mp_path, tmp_path / "mapped"))
+    for name in methods:
+        for key in ("recall@1", "recall@5", "recall@10", "queries", "no_positive"):
+            assert mapped[name][key] == pytest.approx(exact[name][key]), (name, key)
+    assert mapped[methods[0]]["shortlist_recall@20"] == 1.0
+    assert mp.nbytes > 0 and set(mp.models) == ({"seqnet", "s1"} if with_models else set())
+
+
+@pytest.mark.parametrize("window", ["centred", "causal"])
+def test_anchored_matchers_on_a_map_follow_its_window_mode(synth_dir, tmp_path, window):
+    """A graph-re-ranked map pins the item's own frame, as the evaluation: centre or newest frame."""
+    conf = MapConfig(shortlist="delta", rerank="raw+graph", seq_len=4, window=window)
+    mp_path = build(conf, synth_dir, tmp_path / "map")
+    mp = load_map(mp_path)
+    methods = [mp.config.method.name, "raw+graph"]
+    econf = EvalConfig(methods=methods, seq_len=4, ks=(1, 5), window=window)
+    exact = results(eval_main(econf, synth_dir, tmp_path / "exact"))
+    mapped = results(evaluate_main(econf, synth_dir, mp_path, tmp_path / "mapped"))
+    for name in methods:
+        assert mapped[name]["recall@1"] == pytest.approx(exact[name]["recall@1"]), name
+        assert mapped[name]["recall@5"] == pytest.approx(exact[name]["recall@5"]), name
+
+
+def test_map_api_matches_hvpr(synth_dataset, synth_dir, tmp_path):
+    mp = load_map(build(FREE, synth_dir, tmp_path / "map"))
+    qd = mp.describe(synth_dataset.split("test").query)
+    got = mp.localize(qd.shortlist, qd.frames, qd.side.match_starts, top_k=10, k=30)
+    want = hvpr(qd.shortlist, np.asarray(mp.shortlist), qd.frames, np.asarray(mp.frames), 4, qd.side.match_starts,
+                mp.match_starts, top_k=10, k=30)
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_allclose(got[0], want[0], rtol=1e-5)
+    assert mp.positions[mp.items].shape == (len(mp.items), 2) and len(mp.names) == len(mp.frames)
+
+
+def test_compact_rerank_equals_the_whole_map(rng):
+    frames = rng.standard_normal((300, 8)).astype(np.float32)
+    query = rng.standard_normal((40, 8)).astype(np.float32)
+    r_starts = np.arange(296)
+    q_starts = rng.integers(0, 36, 12)
+    cand = rng.integers(-1, 296, (12, 7))
+    cand[0] = -1  # a query without any candidate
+    want = rerank(query, frames, 5, q_starts, r_starts, cand)
+    got = rerank_on_map(query, frames, 5, q_starts, r_starts, cand, block_bytes=7 * 5 * 8 * 4 * 3)  # 3 per block
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_allclose(got[0], want[0], rtol=1e-5)
+    assert (got[1][0] == -1).all() and np.isinf(got[0][0]).all()
+
+
+def test_hnsw_float16_map_reports_its_shortlist_recall(synth_dir, tmp_path):
+    conf = FREE.replace(ann={"kind": "hnsw"}, dtype="float16", split="all")
+    mp = load_map(build(conf, synth_dir, tmp_path / "map"))
+    assert mp.frames.dtype == np.float16 and mp.index is not None
+    res = results(evaluate_main(EvalConfig(split="all"), synth_dir, mp.path, tmp_path / "out"))
+    assert set(res) == {"hvpr-delta:raw+seqmatch", "delta"}
+    assert 0.8 <= res["delta"]["shortlist_recall@20"] <= 1.0
+
+
+def test_queries_of_another_provenance_or_dimension_are_refused(synth_dataset, synth_dir, tmp_path):
+    mp_path = build(FREE, synth_dir, tmp_path / "map")
+    other = load_dataset(synth_dir, mmap=False)
+    other.query.provenance = make_provenance("synthetic", {"seed": 99}, dim=16)
+    save_dataset(other, tmp_path / "other")
+    with pytest.raises(ProvenanceError, match="made differently"):
+        evaluate_main(EvalConfig(), tmp_path / "other", mp_path, tmp_path / "o1")
+    wide = load_dataset(synth_dir, mmap=False)
+    for t in (wide.reference, wide.query):
+        t.descriptors = np.concatenate([t.descriptors, t.descriptors], axis=1)
+        t.provenance = None
+    save_dataset(wide, tmp_path / "wide")
+    with pytest.raises(MapError, match="D=32"):
+        evaluate_main(EvalConfig(), tmp_path / "wide", mp_path, tmp_path / "o2")
+
+
+def test_a_directory_with_a_users_file_is_not_replaced(synth_dir, tmp_path):
+    out = tmp_path / "map"
+    build(FREE, synth_dir, out)
+    build(FREE.replace(seq_len=3), synth_dir, out)  # seqnet's own map: replaced
+    assert load_map(out).config.seq_len == 3
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match="notes.txt"):
+        build(FREE, synth_dir, out)
+    assert (out / "notes.txt").read_text() == "mine" and load_map(out).config.seq_len == 3
+
+
+def test_a_damaged_map_is_refused(synth_dir, tmp_path):
+    out = build(FREE, synth_dir, tmp_path / "map")
+    (out / "frames.npy").unlink()
+    with pytest.raises(MapError, match="frames.npy"):
+        load_map(out)
+    with pytest.raises(MapError, match="not a seqnet map"):
+        load_map(synth_dir)
+
+
+def one_line_error(capsys, argv, pattern):
+    capsys.readouterr()
+    assert cli(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and pattern in err[0] and "Traceback" not in err[0], err
+
+
+def test_cli_build_and_eval(synth_dir, map_models, tmp_path, capsys):
+    out = tmp_path / "map"
+    assert cli(["-q", "index", "build", "--dataset", str(synth_dir), "--model", str(map_models[0]), "--model",
+                str(map_models[1]), "--index", "ivf-flat", "--nlist", "2", "--out", str(out)]) == 0
+    assert "ivf-flat" in capsys.readouterr().out
+    res_json = tmp_path / "r.json"
+    assert cli(["-q", "eval", "--dataset", str(synth_dir), "--index", str(out), "--json", str(res_json)]) == 0
+    text = capsys.readouterr().out
+    assert "hvpr" in text and "shortlist_recall@20" in text
+    assert json.loads(res_json.read_text())["config"]["index"] == str(out)
+    one_line_error(capsys, ["index", "build", "--dataset", str(synth_dir), "--out", str(tmp_path / "m2")],
+                   "needs an S_1 model")
+    one_line_error(capsys, ["index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank",
+                            "raw+seqmatch", "--index", "ivf-pq", "--pq-m", "5", "--out", str(tmp_path / "m3")],
+                   "pq_m dividing D=16")
+    assert not (tmp_path / "m3").exists()
+    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(tmp_path / "nope")],
+                   "map directory not found")
+    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--model", str(map_models[0])],
+                   "--index uses the map's models")
+    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--method", "single"],
+                   "cannot run method 'single'")
+    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--seq-len", "3"],
+                   "seq_len=3 but map")
+    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--report", "--out",
+                            str(tmp_path / "rep")], "--report is not available with --index")
+    one_line_error(capsys, ["localize", "--map", str(out), "--query", str(synth_dir / "query" / "descriptors.npy"),
+                            "--out", str(tmp_path / "t.csv")], "--window causal")
+
+
+def test_explicit_positives_apply_to_a_map_of_the_same_dataset_only(synth_dir, tmp_path):
+    from seqnet.data.positives import Positives
+
+    ds = load_dataset(synth_dir, mmap=False)
+    d = np.linalg.norm(ds.query.positions[:, None] - ds.reference.positions[None], axis=-1)
+    ds.positives = Positives.from_lists([np.flatnonzero(row <= 3.0) for row in d])  # stricter than the radius
+    save_dataset(ds, tmp_path / "pos")
+    econf = EvalConfig(methods=["hvpr-delta:raw+seqmatch"], seq_len=4)
+    exact = results(eval_main(econf, tmp_path / "pos", tmp_path / "exact"))
+    mp_path = build(FREE, tmp_path / "pos", tmp_path / "map")
+    mapped = results(evaluate_main(econf, tmp_path / "pos", mp_path, tmp_path / "mapped"))
+    assert mapped["hvpr-delta:raw+seqmatch"]["recall@1"] == exact["hvpr-delta:raw+seqmatch"]["recall@1"]
+    foreign = build(FREE, synth_dir, tmp_path / "foreign")
+    with pytest.raises(ConfigError, match="explicit positives"):
+        evaluate_main(econf, tmp_path / "pos", foreign, tmp_path / "o")

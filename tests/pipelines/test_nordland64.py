@@ -1,0 +1,122 @@
+"""The Nordland64 benchmark: PCA folding, place listing and a tiny end-to-end run on the shared data."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+
+import numpy as np
+import pytest
+import torch
+from conftest import shared_data
+from report.test_report_html import assert_self_contained
+
+from seqnet.cli import main as cli_main
+from seqnet.core.errors import ConfigError, DatasetError
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.describe.pca import fit_pca
+from seqnet.pipelines.nordland64 import Nordland64Config, describe_flipped, fold_pca, list_places, training_dataset
+from seqnet.sequence.descriptors import SeqNet
+
+
+def test_fold_pca_is_exact(rng):
+    x = rng.standard_normal((40, 7, 32)).astype(np.float32)
+    pca = fit_pca(x.reshape(-1, 32), 12, whiten=True, l2=False)
+    torch.manual_seed(0)
+    model = SeqNet(12, 6, seq_len=7, w=3)
+    projected = torch.from_numpy(pca.transform(x.reshape(-1, 32), l2=False).reshape(40, 7, 12))
+    folded = fold_pca(model, pca)
+    assert folded.in_dims == 32 and folded.config()["w"] == 3
+    with torch.no_grad():
+        torch.testing.assert_close(folded(torch.from_numpy(x)), model(projected), atol=1e-5, rtol=1e-4)
+
+
+def test_training_dataset_symmetric(rng):
+    d_r, d_q = rng.random((50, 4), dtype=np.float32), rng.random((50, 4), dtype=np.float32)
+    pos = np.arange(50) / 1.0
+    ds = Dataset(Traverse(d_r, pos), Traverse(d_q, pos), radius=1.0, position_unit="frames",
+                 splits={"train": {"reference": (0, 30), "query": (0, 30)},
+                         "val": {"reference": (35, 45), "query": (35, 45)}},
+                 extra={"pos_radius": 1.0, "neg_radius": 4.0})
+    t = training_dataset(ds, None, symmetric=True)
+    assert t.splits["train"]["query"] == (0, 60) and t.splits["val"]["query"] == (60, 70)
+    np.testing.assert_array_equal(t.query.descriptors[30:60], d_r[:30])  # summer queries -> winter refs
+    np.testing.assert_array_equal(t.reference.descriptors[30:60], d_q[:30])
+    np.testing.assert_array_equal(t.query.descriptors[60:], d_q[35:45])  # val stays winter -> summer
+    assert t.reference.positions[30, 0] > 100 and t.query.seq_bounds[59].tolist() == [30, 60]
+    assert training_dataset(ds, None, symmetric=False).splits["train"]["query"] == (0, 30)
+    flipped = rng.random((2, 30, 4), dtype=np.float32)
+    t = training_dataset(ds, None, symmetric=True, flipped=flipped)
+    assert t.splits["train"]["query"] == (0, 120) and t.splits["val"]["query"] == (120, 130)
+    np.testing.assert_array_equal(t.reference.descriptors[30:60], flipped[0])  # mirrored summer -> winter
+    np.testing.assert_array_equal(t.query.descriptors[90:120], flipped[0])  # and winter -> summer
+    gaps = np.diff(t.query.positions[:120, 0])
+    assert np.all(np.abs(gaps[[29, 59, 89]]) > 100)  # sequences never within a radius of each other
+
+
+def test_flipped_pixels_are_mirrored_descriptors():
+    from seqnet.describe import DescribeConfig, make_describer
+
+    data = shared_data("nordland64")
+    paths = [data / "summer" / f"images-{i:05d}.png" for i in (210, 220, 230)]
+    d = make_describer(DescribeConfig(), paths)
+    plain, _ = d.describe(paths)
+    perm = np.arange(plain.shape[1]).reshape(32, 64)[:, ::-1].ravel()
+    np.testing.assert_allclose(describe_flipped(d, paths), plain[:, perm], atol=1e-6)
+
+
+def test_config_rejects_unknown_keys_and_bad_values():
+    with pytest.raises(ConfigError, match="unknown Nordland64Config key 'epochz'"):
+        Nordland64Config.from_dict({"epochz": 3})
+    assert Nordland64Config().test_range == (1940, 2761)
+    with pytest.raises(ConfigError, match="pca_dims"):
+        Nordland64Config(pca_dims=-5)
+    with pytest.raises(ConfigError, match="trained with L=5 but evaluated with L=3"):
+        Nordland64Config(seq_len=3)
+    conf = Nordland64Config.from_dict(Nordland64Config().to_dict())
+    assert conf == Nordland64Config()
+
+
+def test_list_places_and_bad_data(tmp_path):
+    data = shared_data("nordland64")
+    names, pos = list_places(data)
+    assert len(names) == 2761 and names[0] == "images-00210.png" and pos[0] == 21.0
+    assert np.all(np.diff(pos) > 0)
+    with pytest.raises(DatasetError, match="summer is missing"):
+        list_places(tmp_path)
+
+
+def test_tiny_benchmark_end_to_end(tmp_path, capsys):
+    data = shared_data("nordland64")
+    out = tmp_path / "b"
+    args = ["benchmark", "nordland64", "--data", str(data), "--out", str(out), "--train-range", "0:120",
+            "--val-range", "130:170", "--test-range", "180:260", "--epochs", "1", "--threads", "2", "--pca-dims", "64"]
+    with open(tmp_path / "log", "w") as log:  # the log reads well in a file: no bars, a few lines
+        with contextlib.redirect_stderr(log):
+            assert cli_main(args) == 0
+    text = (tmp_path / "log").read_text()
+    assert "\r" not in text and len(text.splitlines()) < 30, text
+    res = json.loads((out / "results.json").read_text())
+    methods = res["methods"]
+    assert list(methods) == ["single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch",
+                             "delta+seqmatch", "hvpr", "hvpr-single", "hvpr-delta", "hvpr-fused"]
+    assert all(0.0 <= m["recall@1"] <= m["recall@20"] <= 1.0 for m in methods.values())
+    assert methods["single"]["queries"] == 76  # places 180..259 with a full centred L=5 window and a match
+    assert res["config"]["benchmark"]["test_range"] == [180, 260] and "total" in res["config"]["timings_s"]
+    assert res["methods"]["hvpr-single"]["method"]["rerank"] == "s1+seqmatch"
+    assert (out / "recall_at_k.png").stat().st_size > 1000 and "| hvpr |" in (out / "results.md").read_text()
+    assert (out / "models" / "seqnet.pt").is_file() and (out / "dataset" / "dataset.json").is_file()
+    assert_self_contained(out / "report.html")  # the HTML report, one file
+    assert (out / "report.html").read_text().count('class="ex ') == 12  # the gallery, with the images
+    # a second run reuses the cached descriptors and models
+    assert cli_main(args) == 0
+    again = json.loads((out / "results.json").read_text())["methods"]
+    assert {m: r["recall@5"] for m, r in again.items()} == {m: r["recall@5"] for m, r in methods.items()}
+    assert "nordland64 test 180:260" in capsys.readouterr().out
+
+
+def test_bad_range_is_reported(tmp_path, capsys):
+    data = shared_data("nordland64")
+    rc = cli_main(["benchmark", "nordland64", "--data", str(data), "--out", str(tmp_path / "b"),
+                   "--test-range", "2000:9000"])
+    assert rc == 2 and "--test-range 2000:9000 is outside 0:2761" in capsys.readouterr().err

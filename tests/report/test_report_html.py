@@ -1,0 +1,118 @@
+"""The HTML report is one self-contained file: every image a data: URI, no external URL, no script,
+every section present (eval --report on synthetic data; the gallery on the shared nordland64 data)."""
+
+from __future__ import annotations
+
+import base64
+import json
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import shared_data
+
+from seqnet.cli import main as cli_main
+from seqnet.data.io import save_dataset
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.report.html import SECTIONS, ReportConfig, write_html_report
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+class _Collect(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.tags: list[tuple[str, dict[str, str | None]]] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append((tag, dict(attrs)))
+
+
+def assert_self_contained(path: Path, sections=SECTIONS) -> list[tuple[str, dict]]:
+    """Parse the report: no external reference of any kind, images embedded as valid PNGs, each section."""
+    text = path.read_text(encoding="utf-8")
+    assert "http://" not in text and "https://" not in text
+    p = _Collect()
+    p.feed(text)
+    tags = p.tags
+    names = {t for t, _ in tags}
+    assert not names & {"script", "link", "iframe", "object", "embed", "base", "video", "audio", "source"}
+    for tag, attrs in tags:
+        for key in ("src", "srcset", "data", "poster", "action", "background"):
+            value = attrs.get(key)
+            if value is not None:
+                assert key == "src" and value.startswith("data:image/png;base64,"), (tag, key, value[:60])
+                assert base64.b64decode(value.split(",", 1)[1]).startswith(PNG)
+        if "href" in attrs:
+            assert attrs["href"].startswith("#"), attrs["href"]  # in-page anchors only
+        assert "url(" not in (attrs.get("style") or "")
+    assert text.count('src="') == sum(1 for t, a in tags if "src" in a)  # every src=" is an attribute we checked
+    ids = [a.get("id") for t, a in tags if t == "section"]
+    for s in sections:
+        assert s in ids, (s, ids)
+    assert "url(" not in text.split("<style>")[1].split("</style>")[0]
+    return tags
+
+
+def test_eval_report_is_self_contained(tmp_path, synth_dir, capsys):
+    out = tmp_path / "ev"
+    rc = cli_main(["eval", "--dataset", str(synth_dir), "--method", "single,raw+seqmatch,hvpr-delta:raw+seqmatch",
+                   "--out", str(out), "--report"])
+    assert rc == 0 and "report:" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["pr_curve.png", "report.html", "results.json"]
+    tags = assert_self_contained(out / "report.html")
+    assert sum(t == "img" for t, _ in tags) == 3  # Recall@K, PR, distance matrix; no gallery without images
+    text = (out / "report.html").read_text()
+    assert "No gallery" in text and "hvpr-delta:raw+seqmatch" in text and "PR AUC" in text
+
+
+def test_eval_report_option_errors(tmp_path, synth_dir, capsys):
+    base = ["eval", "--dataset", str(synth_dir), "--method", "single"]
+    assert cli_main([*base, "--report"]) == 2 and "give --out DIR" in capsys.readouterr().err
+    assert cli_main([*base, "--out", str(tmp_path / "a"), "--images-ref", str(tmp_path)]) == 2
+    assert "add --report" in capsys.readouterr().err
+    assert cli_main([*base, "--out", str(tmp_path / "b"), "--report", "--images-ref", str(tmp_path)]) == 2
+    assert "both --images-query and --images-ref" in capsys.readouterr().err
+    assert cli_main([*base, "--out", str(tmp_path / "c"), "--report", "--images-ref", str(tmp_path / "nope"),
+                     "--images-query", str(tmp_path)]) == 2
+    assert "is not a folder" in capsys.readouterr().err
+
+
+def test_report_gallery_with_images(tmp_path):
+    data = shared_data("nordland64")
+    names = [f"images-{i:05d}.png" for i in range(210, 210 + 10 * 60, 10)]
+    rng = np.random.default_rng(0)
+    pos = np.arange(len(names), dtype=float)
+    base = rng.standard_normal((len(names), 8)).astype(np.float32)
+    ds = Dataset(Traverse(base, pos, names=names), Traverse(base + 0.8 * rng.standard_normal(base.shape).astype(
+        np.float32), pos, names=names), radius=1.0)
+    ev = evaluate(ds, EvalConfig(methods=("single", "raw+seqmatch"), seq_len=3, device="cpu"))
+    conf = ReportConfig(title="t", gallery_size=5, query_images=str(data / "winter"), ref_images=str(data / "summer"))
+    path = write_html_report(ev, ds, tmp_path / "r.html", conf)
+    tags = assert_self_contained(path)
+    text = path.read_text()
+    examples = [a.get("class") for t, a in tags if t == "div" and "ex" in (a.get("class") or "")]
+    assert 1 <= len(examples) <= 5 and sum(t == "img" for t, _ in tags) == 3 + len(examples)
+    if "ex bad" in examples:  # failures first
+        assert examples[0] == "ex bad"
+    assert "Method <b>raw+seqmatch</b>" in text  # the best R@1 by default
+
+
+def test_report_sections_in_saved_dataset_eval(tmp_path, synth_dataset):
+    """``seqnet.eval.evaluate.main`` with a ReportConfig writes the report beside results.json."""
+    from seqnet.eval.evaluate import main
+
+    d = save_dataset(synth_dataset, tmp_path / "ds")
+    path = main(EvalConfig(methods=("single", "smoothing")), d, tmp_path / "o", report=ReportConfig(title="x"))
+    assert json.loads(Path(path).read_text())["methods"]["single"]["queries"] > 0
+    assert_self_contained(tmp_path / "o" / "report.html")
+
+
+@pytest.mark.parametrize("bad", [{"k_max": 0}, {"gallery_method": "nope"}, {"matrix_side": -1}])
+def test_report_config_validates(bad):
+    from seqnet.core.errors import ConfigError
+
+    with pytest.raises(ConfigError):
+        ReportConfig(**bad)

@@ -1,0 +1,138 @@
+"""Checkpoints: seqnet format round trip, the original SeqNet format, and clear errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from seqnet.cli import main as cli_main
+from seqnet.core.errors import CheckpointError
+from seqnet.sequence.checkpoints import find_flags, load_model, read_checkpoint, save_checkpoint
+from seqnet.sequence.descriptors import SeqNet
+
+
+def _reference_descriptors(weight: torch.Tensor, bias: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """SeqNet by hand: [B, L, D] windows, conv weight [D_out, D, w] → mean over time → L2 norm."""
+    w = weight.shape[2]
+    steps = [sum(x[:, t + k] @ weight[:, :, k].T for k in range(w)) + bias for t in range(x.shape[1] - w + 1)]
+    y = torch.stack(steps, 1).mean(1)
+    return y / y.norm(dim=1, keepdim=True)
+
+
+def _original_run(tmp_path, d=12, d_out=6, w=3, seq_len=5, pooling="seqnet", flags=True, where="sibling"):
+    """A run of the original code: checkpoints/{checkpoint.pth.tar, model_best.pth.tar, flags.json}."""
+    g = torch.Generator().manual_seed(0)
+    weight, bias = torch.randn(d_out, d, w, generator=g), torch.randn(d_out, generator=g)
+    ckpt_dir = tmp_path / "runs" / "Jan01_l5_0" / "checkpoints"
+    ckpt_dir.mkdir(parents=True)
+    state = {"epoch": 7, "state_dict": {"pool.0.conv.weight": weight, "pool.0.conv.bias": bias},
+             "recalls": {1: np.float64(0.5), 5: np.float64(0.8)}, "best_score": np.float64(0.8),
+             "optimizer": {"state": {}, "param_groups": [{"lr": 1e-4, "params": [0, 1]}]}, "parallel": False}
+    path = ckpt_dir / "model_best.pth.tar" if where == "sibling" else ckpt_dir.parent / "model_best.pth.tar"
+    torch.save(state, path)
+    if flags:
+        (ckpt_dir / "flags.json").write_text(json.dumps({"seqL": seq_len, "w": w, "outDims": d_out, "pooling": pooling,
+                                                         "lr": 1e-4, "margin": 0.1}))
+    return path, weight, bias
+
+
+def test_seqnet_format_round_trip(tmp_path):
+    torch.manual_seed(0)
+    model = SeqNet(10, 7, 4, 2)
+    path = save_checkpoint(tmp_path / "m.pt", model, epoch=3, best_score=0.5)
+    loaded = load_model(path)
+    assert loaded.config() == model.config() and loaded.role == "seqnet"
+    x = torch.randn(5, 4, 10)
+    torch.testing.assert_close(loaded(x), model(x))
+    assert read_checkpoint(path)["epoch"] == 3
+    assert not list(tmp_path.glob(".*tmp"))  # atomic write left nothing behind
+
+
+def test_model_role():
+    assert SeqNet(4, 4, 1, 1).role == "s1"
+    assert SeqNet(4, 4, 5, 1).role == "seqnet"
+    assert SeqNet(4, 4, 5, 3).role == "seqnet"
+
+
+@pytest.mark.parametrize("where", ["sibling", "parent"])
+def test_original_checkpoint_gives_the_descriptors_of_its_weights(tmp_path, where):
+    path, weight, bias = _original_run(tmp_path, where=where)
+    assert find_flags(path) is not None
+    model = load_model(path)
+    assert model.config() == {"in_dims": 12, "out_dims": 6, "seq_len": 5, "w": 3}
+    x = torch.randn(9, 5, 12)
+    torch.testing.assert_close(model(x), _reference_descriptors(weight, bias, x), rtol=1e-5, atol=1e-6)
+
+
+def test_original_s1_checkpoint_has_role_s1(tmp_path):
+    path, weight, bias = _original_run(tmp_path, w=1, seq_len=5, pooling="s1+seqmatch")
+    model = load_model(path)
+    assert model.role == "s1"
+    x = torch.randn(4, 12)
+    torch.testing.assert_close(model(x), _reference_descriptors(weight, bias, x[:, None]), rtol=1e-5, atol=1e-6)
+
+
+def test_original_without_flags_needs_seq_len(tmp_path):
+    path, _, _ = _original_run(tmp_path, flags=False)
+    with pytest.raises(CheckpointError, match="seq-len"):
+        load_model(path)
+    model = load_model(path, seq_len=7)
+    assert model.config() == {"in_dims": 12, "out_dims": 6, "seq_len": 7, "w": 3}  # w, dims from the weights
+
+
+def test_flags_that_contradict_the_weights_are_an_error(tmp_path):
+    path, _, _ = _original_run(tmp_path)
+    flags = path.parent / "flags.json"
+    flags.write_text(json.dumps({"seqL": 5, "w": 5, "outDims": 6}))
+    with pytest.raises(CheckpointError, match="w=5"):
+        load_model(path)
+
+
+def test_dimension_mismatch_is_an_error(tmp_path):
+    path = save_checkpoint(tmp_path / "m.pt", SeqNet(10, 7, 4, 2))
+    with pytest.raises(CheckpointError, match="D=10.*D=16"):
+        load_model(path, in_dims=16)
+
+
+@pytest.mark.parametrize("content", [b"", b"not a checkpoint at all", "truncate"])
+def test_corrupted_files_raise_checkpoint_error(tmp_path, content):
+    path = tmp_path / "bad.pt"
+    if content == "truncate":
+        save_checkpoint(path, SeqNet(10, 7, 4, 2))
+        path.write_bytes(path.read_bytes()[:200])
+    else:
+        path.write_bytes(content)
+    with pytest.raises(CheckpointError, match="cannot read checkpoint"):
+        load_model(path)
+
+
+def test_wrong_payloads_raise_checkpoint_error(tmp_path):
+    torch.save([1, 2, 3], tmp_path / "list.pt")
+    with pytest.raises(CheckpointError, match="state_dict"):
+        load_model(tmp_path / "list.pt")
+    torch.save({"state_dict": {"fc.weight": torch.zeros(3, 3)}}, tmp_path / "other.pt")
+    with pytest.raises(CheckpointError, match="conv.weight"):
+        load_model(tmp_path / "other.pt")
+    with pytest.raises(CheckpointError, match="not found"):
+        load_model(tmp_path / "missing.pt")
+
+
+def test_cli_eval_with_corrupted_checkpoint_exits_2(tmp_path, synth_dir, capsys):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"\x00garbage")
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--model", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot read checkpoint" in err[0]
+
+
+def test_cli_eval_with_original_checkpoint(tmp_path, synth_dir, capsys):
+    path, _, _ = _original_run(tmp_path, d=16, d_out=8, w=3, seq_len=5)
+    argv = ["eval", "--dataset", str(synth_dir), "--model", str(path), "--method", "seqnet,hvpr-seqnet:raw+seqmatch"]
+    assert cli_main(argv) == 0
+    out = capsys.readouterr().out
+    assert "seqnet" in out and "hvpr" in out
+    wrong, _, _ = _original_run(tmp_path / "w", d=20)
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--model", str(wrong), "--method", "seqnet"]) == 2
