@@ -10,7 +10,8 @@ from seqnet.core.errors import ConfigError
 from seqnet.data.synth import make_synthetic
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.eval.evaluate import EvalConfig, evaluate
-from seqnet.localize.localizer import Localizer, ReferenceMap, replay
+from seqnet.localize.localizer import replay
+from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.matching.velocity import velocity_topk
 from seqnet.sequence.descriptors import SeqNet
 
@@ -25,6 +26,11 @@ def small():
     return ds, models
 
 
+def loc_of(ds, models, method, **kw):
+    """The localiser of ``method`` over the reference traverse of ``ds`` (CPU)."""
+    return dataset_localizer(ds, models, LocalizeConfig(method=method, device="cpu", **kw))
+
+
 METHODS = ["single", "s1", "seqnet", "delta", "raw+seqmatch", "s1+seqmatch", "raw+seqmatch-rev", "raw+vseqmatch",
            "s1+graph", "delta+seqmatch", "hvpr", "hvpr-single:raw+vseqmatch", "hvpr-delta:s1+graph"]
 CASES = [(m, None) for m in METHODS] + [(m, 6) for m in ("seqnet", "s1+seqmatch", "raw+vseqmatch", "s1+graph", "hvpr")]
@@ -35,7 +41,7 @@ def test_stream_equals_causal_evaluation(small, method, match_len):
     ds, models = small
     conf = EvalConfig(window="causal", rerank_seq_len=match_len, ks=(1, 7), top_k=5, device="cpu")
     ev = evaluate(ds, conf.replace(methods=(method,)), models)
-    loc = Localizer(ReferenceMap.from_dataset(ds, models), method, conf)
+    loc = loc_of(ds, models, method, rerank_seq_len=match_len, k=7, top_k=5)
     assert loc.ref_items.tolist() == ev.r_items.tolist()
     est = list(replay(loc, ds.query))
     assert [e.frame for e in est] == list(range(len(ds.query)))
@@ -54,11 +60,11 @@ def test_early_frames_and_resets(small):
     t = ds.query.subset(0, 30)
     bounds = np.array([[0, 12]] * 12 + [[12, 30]] * 18)
     t = Traverse(t.descriptors, t.positions, seq_bounds=bounds, provenance=t.provenance)
-    loc = Localizer(ReferenceMap.from_dataset(ds, models), "single", EvalConfig(seq_len=4, rerank_seq_len=5))
+    loc = loc_of(ds, models, "single", seq_len=4, rerank_seq_len=5)
     est = list(replay(loc, t))
     assert est[0].ref_index >= 0 and not est[0].full_window  # single frames answer at once
     assert [e.full_window for e in est[10:18]] == [True, True, False, False, False, False, True, True]
-    loc = Localizer(ReferenceMap.from_dataset(ds, models), "raw+seqmatch", EvalConfig(seq_len=4, rerank_seq_len=5))
+    loc = loc_of(ds, models, "raw+seqmatch", seq_len=4, rerank_seq_len=5)
     est = list(replay(loc, t))
     assert [e.ref_index >= 0 for e in est[:6]] == [False] * 4 + [True] * 2
     assert est[12].ref_index == -1 and np.isnan(est[12].score) and est[12].confidence == 0.0
@@ -67,28 +73,27 @@ def test_early_frames_and_resets(small):
 def test_anchor_end_equals_matcher_with_end_anchor(small):
     ds, _ = small
     q, r = ds.query.descriptors, ds.reference.descriptors
-    loc = Localizer(ReferenceMap.from_dataset(ds), "raw+vseqmatch", EvalConfig(seq_len=5, ks=(3,)), anchor="end")
+    loc = loc_of(ds, {}, "raw+vseqmatch", seq_len=5, k=3, anchor="end")
     est = list(replay(loc, ds.query))
     frames = np.array([e.frame for e in est if e.full_window])
     normed = [x / np.linalg.norm(x, axis=1, keepdims=True) for x in (q, r)]
-    _, items = velocity_topk(*normed, 5, 3, frames - 4, loc.side.match_starts, anchor="end", device="cpu")
+    _, items = velocity_topk(*normed, 5, 3, frames - 4, loc.ref.match_starts, anchor="end", device="cpu")
     np.testing.assert_array_equal(np.stack([e.ranked for e in est if e.full_window]), items)
 
 
 def test_errors(small):
     ds, models = small
-    rmap = ReferenceMap.from_dataset(ds, models)
     with pytest.raises(ConfigError, match="no online form"):
-        Localizer(rmap, "raw+grh")
+        loc_of(ds, models, "raw+grh")
     with pytest.raises(ConfigError, match="needs an S_1 model"):
-        Localizer(ReferenceMap.from_dataset(ds), "hvpr")
+        loc_of(ds, {}, "hvpr")
     with pytest.raises(ConfigError, match="anchor"):
-        Localizer(rmap, "raw+seqmatch", anchor="middle")
-    loc = Localizer(rmap, "s1+seqmatch", EvalConfig(device="cpu"))
+        loc_of(ds, models, "raw+seqmatch", anchor="middle")
+    loc = loc_of(ds, models, "s1+seqmatch")
     with pytest.raises(ConfigError, match="dimension mismatch"):
         loc.step(np.zeros(5))
     with pytest.raises(ConfigError, match="NaN"):
         loc.step(np.full(12, np.nan))
     tiny = Dataset(Traverse(np.ones((3, 12), np.float32), np.zeros((3, 2))), ds.query, 1.0)
     with pytest.raises(ConfigError, match="longer than the map.s reference traverse"):
-        Localizer(ReferenceMap.from_dataset(tiny), "raw+seqmatch", EvalConfig(seq_len=5))
+        loc_of(tiny, {}, "raw+seqmatch", seq_len=5)

@@ -53,18 +53,15 @@ def test_refusals(synth_dir, tmp_path, capsys):
         LocalizeConfig(anchor="middle")
 
 
-def _steps(loc_args, descriptors):
-    from seqnet.localize.localizer import Localizer
+def _steps(ds, method, descriptors, **conf):
+    from seqnet.localize.track import LocalizeConfig, dataset_localizer
 
-    loc = Localizer(*loc_args)
+    loc = dataset_localizer(ds, {}, LocalizeConfig(method=method, device="cpu", **conf))
     return [loc.step(d) for d in descriptors]
 
 
 def test_stream_descriptor_file(synth_dir, synth_dataset, tmp_path, capsys):
     from seqnet.core.provenance import sidecar
-    from seqnet.eval.evaluate import EvalConfig
-    from seqnet.localize.localizer import ReferenceMap
-
     q = np.asarray(synth_dataset.query.descriptors[:40])
     np.save(tmp_path / "q.npy", q)
     sidecar(tmp_path / "q.npy").write_text(json.dumps(synth_dataset.query.provenance))
@@ -73,7 +70,7 @@ def test_stream_descriptor_file(synth_dir, synth_dataset, tmp_path, capsys):
     assert cli_main([*base, "--query", str(tmp_path / "q.npy"), "--out", str(out)]) == 0
     assert "40 frames, 38 with a full window" in capsys.readouterr().out
     rows = list(csv.DictReader(out.open()))
-    want = _steps((ReferenceMap.from_dataset(synth_dataset), "raw+vseqmatch", EvalConfig(seq_len=3, ks=(20,))), q)
+    want = _steps(synth_dataset, "raw+vseqmatch", q, seq_len=3, k=20)
     assert [int(r["estimate"]) for r in rows] == [e.ref_frame for e in want]
     assert {r["correct"] for r in rows} == {""} and rows[3]["name"] == ""  # no ground truth, no query names
     bad = dict(synth_dataset.query.provenance, id="other", settings={"seed": 99})
@@ -91,9 +88,6 @@ def test_stream_images_described_on_the_fly(tmp_path, capsys):
     from seqnet.data.traverse import Dataset, Traverse
     from seqnet.describe import DescribeConfig, make_describer
     from seqnet.describe.store import describe_provenance
-    from seqnet.eval.evaluate import EvalConfig
-    from seqnet.localize.localizer import ReferenceMap
-
     data = shared_data("nordland64")
     names = [f"images-{i:05d}.png" for i in range(2100, 2400, 10)]
     conf = DescribeConfig(method="pixels", patch=16, size="native")
@@ -109,8 +103,7 @@ def test_stream_images_described_on_the_fly(tmp_path, capsys):
     assert "ms per image" in capsys.readouterr().out
     rows = list(csv.DictReader(out.open()))
     qd, _ = describer.describe([data / "winter" / n for n in names[5:25]])
-    rmap = ReferenceMap(t, 1.0)
-    want = _steps((rmap, "raw+seqmatch", EvalConfig(seq_len=3, ks=(20,), device="cpu")), qd)
+    want = _steps(Dataset(t, t, 1.0), "raw+seqmatch", qd, seq_len=3, k=20)
     assert [int(r["estimate"]) for r in rows] == [e.ref_frame for e in want]
     assert rows[4]["name"].endswith(names[9]) and rows[4]["estimate_name"] in names
     summary = json.loads(out.with_suffix(".json").read_text())["summary"]

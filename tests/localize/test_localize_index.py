@@ -9,13 +9,18 @@ import pytest
 
 from seqnet.cli import main as cli
 from seqnet.core.errors import ConfigError
-from seqnet.eval.evaluate import EvalConfig
-from seqnet.localize.index import IndexLocalizer, IndexMap
-from seqnet.localize.localizer import Localizer, ReferenceMap, replay
+from seqnet.localize.localizer import replay
+from seqnet.localize.stream import index_reference
+from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.maps import MapConfig, build, load_map
 from seqnet.search.ann import AnnConfig
 
-CONF = EvalConfig(ks=(7,), top_k=5, device="cpu")
+CONF = LocalizeConfig(k=7, top_k=5, device="cpu")
+
+
+def index_localizer(mp, method, conf=CONF, exact=False):
+    conf = conf.replace(method=method)
+    return conf.localizer(*index_reference(mp, conf), exact=exact)
 
 
 def assert_same_track(a, b):
@@ -39,9 +44,9 @@ def test_flat_index_map_equals_the_dataset_localizer(synth_dataset, synth_dir, m
     used = map_models if with_models else ()
     mp = load_map(build(conf, synth_dir, tmp_path / "map", used), "cpu")
     test = synth_dataset.split("test")
-    loc_map = IndexLocalizer(IndexMap.of(mp), method, CONF)
-    loc_ds = Localizer(ReferenceMap.from_dataset(test, mp.models), method,
-                       CONF.replace(seq_len=conf.seq_len, rerank_seq_len=conf.rerank_seq_len))
+    loc_map = index_localizer(mp, method)
+    loc_ds = dataset_localizer(test, mp.models, CONF.replace(method=method, seq_len=conf.seq_len,
+                                                              rerank_seq_len=conf.rerank_seq_len))
     assert loc_map.ref_items.tolist() == loc_ds.ref_items.tolist()
     a, b = list(replay(loc_map, test.query)), list(replay(loc_ds, test.query))
     assert any(e.ref_index >= 0 for e in a)
@@ -53,12 +58,12 @@ def test_an_approximate_index_shortlists_through_the_index(synth_dataset, synth_
                      ann=AnnConfig(kind="hnsw", ef_search=256))
     mp = load_map(build(conf, synth_dir, tmp_path / "map"), "cpu")
     test = synth_dataset.split("test")
-    approx = IndexLocalizer(IndexMap.of(mp), mp.config.method.name, CONF)
-    exact = IndexLocalizer(IndexMap.of(mp), mp.config.method.name, CONF, exact=True)
+    approx = index_localizer(mp, mp.config.method.name)
+    exact = index_localizer(mp, mp.config.method.name, exact=True)
     assert not approx.exact and exact.exact
     calls = []
     search = mp.search
-    mp.search = lambda q, k, exact=False: calls.append(k) or search(q, k, exact)
+    mp.search = lambda d, q, k, exact=False: (None if exact else calls.append(k)) or search(d, q, k, exact)
     a, b = list(replay(approx, test.query)), list(replay(exact, test.query))
     assert calls and all(k == 7 for k in calls)  # max(k, top_k) items through the index, per answered frame
     agree = np.mean([x.ref_index == y.ref_index for x, y in zip(a, b, strict=True)])
@@ -68,16 +73,16 @@ def test_an_approximate_index_shortlists_through_the_index(synth_dataset, synth_
 def test_index_maps_are_refused_when_they_do_not_fit(synth_dir, map_models, tmp_path):
     centred = load_map(build(MapConfig(seq_len=4), synth_dir, tmp_path / "c", map_models), "cpu")
     with pytest.raises(ConfigError, match="--window causal"):
-        IndexLocalizer(IndexMap.of(centred), "hvpr", CONF)
+        index_localizer(centred, "hvpr")
     causal = load_map(build(MapConfig(seq_len=4, window="causal"), synth_dir, tmp_path / "k", map_models), "cpu")
     with pytest.raises(ConfigError, match="cannot run method 'single'; valid for this map: hvpr, seqnet"):
-        IndexLocalizer(IndexMap.of(causal), "single", CONF)
+        index_localizer(causal, "single")
     with pytest.raises(ConfigError, match="seq_len=5 but map"):
-        IndexLocalizer(IndexMap.of(causal), "hvpr", CONF.replace(seq_len=5))
+        index_localizer(causal, "hvpr", CONF.replace(seq_len=5))
     causal.meta["source"].pop("radius")
     with pytest.raises(ConfigError, match="no localisation radius"):
-        IndexMap.of(causal)
-    assert IndexMap.of(causal, 3.0).radius == 3.0
+        index_reference(causal, CONF.replace(method="hvpr"))
+    assert index_reference(causal, CONF.replace(method="hvpr", radius=3.0))[1] == 3.0
 
 
 def one_line_error(capsys, argv, needle):

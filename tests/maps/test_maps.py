@@ -15,8 +15,8 @@ from seqnet.data.io import load_dataset, save_dataset
 from seqnet.eval.evaluate import EvalConfig
 from seqnet.eval.evaluate import main as eval_main
 from seqnet.maps import MapConfig, MapError, build, evaluate_main, load_map
-from seqnet.maps.rerank import rerank_on_map
-from seqnet.matching.hvpr import hvpr, rerank
+from seqnet.maps.rerank import pair_scores_on_map
+from seqnet.matching.hvpr import hvpr, pair_scores
 
 FREE = MapConfig(shortlist="delta", rerank="raw+seqmatch", seq_len=4)  # a model-free map
 
@@ -60,8 +60,9 @@ def test_anchored_matchers_on_a_map_follow_its_window_mode(synth_dir, tmp_path, 
 def test_map_api_matches_hvpr(synth_dataset, synth_dir, tmp_path):
     mp = load_map(build(FREE, synth_dir, tmp_path / "map"))
     qd = mp.describe(synth_dataset.split("test").query)
-    got = mp.localize(qd.shortlist, qd.frames, qd.side.match_starts, top_k=10, k=30)
-    want = hvpr(qd.shortlist, np.asarray(mp.shortlist), qd.frames, np.asarray(mp.frames), 4, qd.side.match_starts,
+    q_short, q_frames = qd.items(mp.config.shortlist), qd.frames(mp.config.frames_descriptor)
+    got = mp.localize(q_short, q_frames, qd.side.match_starts, top_k=10, k=30)
+    want = hvpr(q_short, np.asarray(mp.shortlist), q_frames, np.asarray(mp.frames), 4, qd.side.match_starts,
                 mp.match_starts, top_k=10, k=30)
     np.testing.assert_array_equal(got[1], want[1])
     np.testing.assert_allclose(got[0], want[0], rtol=1e-5)
@@ -75,11 +76,10 @@ def test_compact_rerank_equals_the_whole_map(rng):
     q_starts = rng.integers(0, 36, 12)
     cand = rng.integers(-1, 296, (12, 7))
     cand[0] = -1  # a query without any candidate
-    want = rerank(query, frames, 5, q_starts, r_starts, cand)
-    got = rerank_on_map(query, frames, 5, q_starts, r_starts, cand, block_bytes=7 * 5 * 8 * 4 * 3)  # 3 per block
-    np.testing.assert_array_equal(got[1], want[1])
-    np.testing.assert_allclose(got[0], want[0], rtol=1e-5)
-    assert (got[1][0] == -1).all() and np.isinf(got[0][0]).all()
+    want = pair_scores(query, frames, 5, q_starts, r_starts, cand).numpy()
+    got = pair_scores_on_map(query, frames, 5, q_starts, r_starts, cand, block_bytes=7 * 5 * 8 * 4 * 3).numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-5)  # 3 queries per block, in candidate order
+    assert np.isinf(got[0]).all() and np.isinf(got[cand == -1]).all()
 
 
 def test_hnsw_float16_map_reports_its_shortlist_recall(synth_dir, tmp_path):

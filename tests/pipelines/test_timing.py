@@ -70,16 +70,15 @@ def test_config_and_cli_errors(tmp_path, capsys):
 def test_paper_style_seqmatch_and_exact_search_equal_the_library(rng):
     import torch
 
-    from seqnet.maps.search import ExactSearch
     from seqnet.matching.seqmatch import seqmatch_topk
     from seqnet.pipelines.timing.measure import paper_seqmatch
-    from seqnet.search.knn import knn_torch
+    from seqnet.search.knn import ExactIndex, knn_torch
 
     ref = rng.standard_normal((500, 8)).astype(np.float32)
     q = rng.standard_normal((30, 8)).astype(np.float32)
-    search = ExactSearch(ref.astype(np.float16), torch.device("cpu"), 2**20, col_block=64)
+    search = ExactIndex(ref.astype(np.float16), "cpu", 2**20, col_block=64)
     want = knn_torch(q, ref.astype(np.float16), 7, col_block=64)
-    np.testing.assert_array_equal(search(q, 7)[1], want[1])
+    np.testing.assert_array_equal(search.search(q, 7)[1], want[1])
     r_starts = np.arange(0, 496, 3)
     got = paper_seqmatch(search, torch.from_numpy(q[4:9]), torch.as_tensor(r_starts), 5).numpy()
     np.testing.assert_array_equal(got, seqmatch_topk(q, ref.astype(np.float16), 5, 5, np.array([4]), r_starts)[1][0])

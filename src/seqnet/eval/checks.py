@@ -16,6 +16,20 @@ def check_inputs(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet
                  allow_mismatch: bool = False) -> None:
     """Every check that does not need descriptors: models present and fitting (D, provenance, L), lengths
     (L of the sequence descriptors, L_m of the matchers)."""
+    check_methods(methods, models, length)
+    check_provenance(ds, models, length, allow_mismatch)
+    for side, t in (("query", ds.query), ("reference", ds.reference)):
+        check_fits(max(length, match_len), len(t), f"the {side} traverse of dataset {ds.name!r}")
+
+
+def check_fits(longest: int, n: int, what: str) -> None:
+    """The windows (``longest`` = max(L, L_m) frames) fit a traverse of ``n`` frames."""
+    if longest > n:
+        raise ConfigError(f"seq_len={longest} is longer than {what} ({n} frames); use a shorter --seq-len")
+
+
+def check_methods(methods: list[Method], models: Mapping[str, SeqNet], length: int) -> None:
+    """Each method's models are given and its descriptors accept the sequence length L."""
     for m in methods:
         missing = m.models() - set(models)
         if missing:
@@ -25,12 +39,6 @@ def check_inputs(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet
         if m.min_len() > length:
             raise ConfigError(f"method {m.name!r} uses Delta descriptors, which need seq_len >= {m.min_len()} "
                               f"(got {length}); use a longer --seq-len or other methods")
-    check_provenance(ds, models, length, allow_mismatch)
-    for side, t in (("query", ds.query), ("reference", ds.reference)):
-        longest = max(length, match_len)
-        if longest > len(t):
-            raise ConfigError(f"seq_len={longest} is longer than the {side} traverse of dataset {ds.name!r} "
-                              f"({len(t)} frames); use a shorter --seq-len")
 
 
 def check_provenance(ds: Dataset, models: Mapping[str, SeqNet], length: int, allow: bool = False) -> None:

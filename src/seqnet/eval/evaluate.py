@@ -9,7 +9,6 @@ the radius) is reported.
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -20,18 +19,17 @@ from ..core.config import Config, check_bool, check_choice, check_float, check_i
 from ..core.errors import ConfigError
 from ..core.utils import get_device, logger
 from ..data.traverse import Dataset
-from ..matching.hvpr import hvpr
-from ..matching.registry import SEQUENCE_MATCHERS
-from ..search.knn import KNN_BACKENDS, knn
+from ..reference.base import Reference
+from ..reference.traverse import TraverseReference
+from ..search.knn import KNN_BACKENDS
+from ..sequence.described import Described
 from ..sequence.descriptors import SeqNet
-from ..sequence.windows import WINDOW_MODES
+from ..sequence.windows import DEFAULT_SEQ_LEN, WINDOW_MODES, Windows
 from .checks import check_inputs
-from .features import Descriptors, Side
-from .methods import FRAME_FEATURES, Method, default_methods, parse_method
-from .metrics.recall import GroundTruth, check_radius
+from .methods import Method, default_methods, parse_method
+from .metrics.recall import GroundTruth, check_radius, ground_truth
+from .rank import rank
 from .results import method_results, write_per_query
-
-DEFAULT_SEQ_LEN = 5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,6 +100,19 @@ class EvalConfig(Config):
         """L_m: the sequence matchers' length."""
         return self.rerank_seq_len or self.length
 
+    def resolve(self, models: Mapping[str, SeqNet], radius: float) -> EvalConfig:
+        """L (the S_L model's when unset), the radius (the dataset's when unset) and the methods (the defaults
+        the models allow when unset), resolved once."""
+        conf = self
+        if conf.seq_len is None and "seqnet" in models:
+            conf = conf.replace(seq_len=models["seqnet"].seq_len)
+        return conf.replace(radius=radius if conf.radius is None else conf.radius,
+                            methods=conf.methods or default_methods(models, conf.length), seq_len=conf.length)
+
+    def windows(self) -> Windows:
+        """The :class:`~seqnet.sequence.windows.Windows` of this evaluation (L, L_m, mode)."""
+        return Windows(self.length, self.match_len, self.window)
+
     def shortlist_size(self, m: Method) -> int:
         """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""
         return (self.fuse_top_k or self.top_k) if m.fused else self.top_k
@@ -134,43 +145,6 @@ class Evaluation:
     def radius(self) -> float:
         """The localisation radius."""
         return self.truth.radius
-
-
-Ranking = tuple[np.ndarray, np.ndarray, dict[str, float]]  # scores [M, K], items [M, K], timing ms
-
-
-def _run_knn(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
-    fq, fr = f.items(m.shortlist)
-    t0 = time.perf_counter()
-    scores, ranked = knn(fq, fr, k, backend=conf.backend, device=str(f.device))
-    return scores, ranked, {"descriptors": f.time_ms("items", m.shortlist),
-                            "retrieval": (time.perf_counter() - t0) * 1e3}
-
-
-def _run_match(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
-    feature = FRAME_FEATURES[m.frames]
-    sq, sr = f.frames(feature)
-    t0 = time.perf_counter()
-    spec = SEQUENCE_MATCHERS[m.matcher]
-    scores, ranked = spec.topk(sq, sr, conf.match_len, k, f.query.match_starts, f.reference.match_starts,
-                               device=str(f.device), **spec.options(conf.window))
-    return scores, ranked, {"descriptors": f.time_ms("frames", feature),
-                            "seqmatch": (time.perf_counter() - t0) * 1e3}
-
-
-def _run_hvpr(m: Method, f: Descriptors, conf: EvalConfig, k: int) -> Ranking:
-    feature = FRAME_FEATURES[m.frames]
-    (fq, fr), (sq, sr) = f.items(m.shortlist), f.frames(feature)
-    t0 = time.perf_counter()
-    scores, ranked = hvpr(fq, fr, sq, sr, conf.match_len, f.query.match_starts, f.reference.match_starts,
-                          top_k=conf.shortlist_size(m), k=k, matcher=m.matcher, backend=conf.backend,
-                          device=str(f.device), fuse=conf.fuse_weight if m.fused else 0.0, window=conf.window)
-    return scores, ranked, {"descriptors": f.time_ms("items", m.shortlist) + f.time_ms("frames", feature),
-                            "hvpr": (time.perf_counter() - t0) * 1e3}
-
-
-RUNNERS: dict[str, Callable[[Method, Descriptors, EvalConfig, int], Ranking]] = {
-    "knn": _run_knn, "match": _run_match, "hvpr": _run_hvpr}
 
 
 def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | None) -> None:
@@ -216,48 +190,45 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     conf = EvalConfig() if conf is None else conf
     check_types(ds, conf, models)
     models = dict(models or {})
-    if conf.seq_len is None and "seqnet" in models:
-        conf = conf.replace(seq_len=models["seqnet"].seq_len)
-    conf = conf.replace(radius=ds.radius if conf.radius is None else conf.radius,
-                        methods=conf.methods or default_methods(models, conf.length), seq_len=conf.length)
+    conf = conf.resolve(models, ds.radius)
     methods = [parse_method(n) for n in conf.methods]
     check_inputs(ds, methods, models, conf.length, conf.match_len, conf.allow_mismatch)
     dev = get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
-    sides = [Side.of(t, conf.length, conf.match_len, conf.window) for t in (ds.query, ds.reference)]
-    f = Descriptors(*sides, conf.length, conf.window, models, dev)
-    truth = ground_truth(ds, f.query.items, f.reference.items, conf.radius)
+    windows = conf.windows()
+    query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
+    ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
+    positives = ds.positives.select(query.side.items, ref.items) if ds.positives is not None else None
+    truth = ground_truth(ds.query.positions[query.side.items], ds.reference.positions[ref.items], conf.radius,
+                         positives, ds.name, ds.position_unit)
+    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models))
+    out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
+                             "models": {k: v.config() for k, v in models.items()}}
+    out.query_names = [ds.query.names[i] for i in query.side.items] if ds.query.names else None
+    return out
+
+
+def run(methods: Sequence[Method], query: Described, ref: Reference, truth: GroundTruth, conf: EvalConfig,
+        n_frames: int, info: Callable[[Method], dict[str, Any]],
+        extra: Callable[[Method, np.ndarray], dict[str, Any]] | None = None) -> Evaluation:
+    """The one evaluation loop: rank every method against ``ref`` (:func:`seqnet.eval.rank.rank`), score
+    it (Recall@K, PR, AUC) and time it; ``info(m)`` describes the method, ``extra(m, items)`` adds entries
+    (a map's shortlist recall). ``n_frames``: query frames, for the count left out (no full window)."""
     results: dict[str, Any] = {}
-    retrieved, scores = {}, {}
-    k_max = max(conf.ks)
-    confidence = {}
+    retrieved, scores, confidence = {}, {}, {}
     for m in methods:
-        scores[m.name], retrieved[m.name], timing = RUNNERS[m.kind](m, f, conf, k_max)
+        ref.check_method(m)
+        scores[m.name], retrieved[m.name], timing = rank(m, query, ref, max(conf.ks), conf.shortlist_size(m),
+                                                         conf.fuse_weight if m.fused else 0.0)
         timing["total"] = sum(timing.values())
         entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
                                                    conf.extra_radii)
-        entry.update(no_full_window=int(len(ds.query) - len(f.query.items)),
-                     timing_ms={k: round(v, 3) for k, v in timing.items()}, method=_entry(m, conf, models))
+        entry.update(extra(m, retrieved[m.name]) if extra else {}, no_full_window=int(n_frames - len(truth.q_pos)),
+                     timing_ms={k: round(v, 3) for k, v in timing.items()}, method=info(m))
         results[m.name] = entry
         logger.debug("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
-    out = {"methods": results, "config": {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
-                                          "models": {k: v.config() for k, v in models.items()}}}
-    names = [ds.query.names[i] for i in f.query.items] if ds.query.names else None
-    return Evaluation(out, retrieved, scores, truth, f.query.items, f.reference.items, confidence, names)
-
-
-def ground_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: float) -> GroundTruth:
-    """The ground truth of the evaluated items; :class:`ConfigError` when no query has a correct reference."""
-    positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
-    truth = GroundTruth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives)
-    if not truth.has_positive().any():
-        what = ("any of its explicit positives among the indexed references" if positives is not None else
-                f"a reference within radius {radius:g} {ds.position_unit}")
-        raise ConfigError(f"none of the {len(q_items)} evaluated queries of {ds.name!r} has {what}, so Recall@K is "
-                          "undefined; hint: check the radius and its unit, the split, and that both traverses "
-                          "share one coordinate frame")
-    return truth
+    return Evaluation({"methods": results}, retrieved, scores, truth, query.side.items, ref.items, confidence)
 
 
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),

@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,43 +24,58 @@ from ..core.errors import ConfigError
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.provenance import read as read_provenance
-from ..core.utils import logger
+from ..core.utils import get_device, logger
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file
+from ..eval.evaluate import EvalConfig
+from ..reference.base import Reference
+
+if TYPE_CHECKING:
+    from ..maps.map import Map
 from ..sequence.descriptors import SeqNet
-from .index import IndexLocalizer, IndexMap
-from .localizer import Estimate, Localizer, ReferenceMap
+from .localizer import Estimate, traverse_reference
 from .track import LocalizeConfig, check_output, summarize, track_rows, write_track
 
-AnyMap = ReferenceMap | IndexMap  # a dataset's reference traverse, or an index map
 Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spent describing it)
 
 
-def load_map(path: str | Path, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> AnyMap:
-    """The map in ``path``: an index map (``seqnet index build --window causal``), or a dataset
-    directory whose reference traverse (``conf.split``, default all) is the map."""
+def load_map(path: str | Path, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> tuple[Reference, float]:
+    """The map in ``path`` as a reference, with its radius: an index map (``seqnet index build --window
+    causal``; its L, L_m and models), or a dataset directory whose reference traverse (``conf.split``,
+    default all) is the map."""
     from ..data.io import load_dataset
     from ..maps import load_map as load_index_map
     from ..maps.store import MAP_JSON
 
-    if (Path(path) / MAP_JSON).is_file():
-        if models:
-            raise ConfigError(f"{path} is an index map: it stores the models its descriptors were made with; drop "
-                              "--model / --shortlist-model / --rerank-model")
-        if conf.split is not None:
-            raise ConfigError(f"{path} is an index map of one split already; drop --split")
-        return IndexMap.of(load_index_map(path, conf.device), conf.radius)
-    ds = load_dataset(path).split(conf.split or "all")
-    return ReferenceMap(ds.reference, conf.radius or ds.radius, dict(models), ds.name)
+    if not (Path(path) / MAP_JSON).is_file():
+        ds = load_dataset(path).split(conf.split or "all")
+        ref = traverse_reference(ds.reference, models, conf.method, conf.windows(models), get_device(conf.device),
+                                 conf.allow_mismatch, ds.name)
+        return ref, conf.radius or ds.radius
+    if models:
+        raise ConfigError(f"{path} is an index map: it stores the models its descriptors were made with; drop "
+                          "--model / --shortlist-model / --rerank-model")
+    if conf.split is not None:
+        raise ConfigError(f"{path} is an index map of one split already; drop --split")
+    return index_reference(load_index_map(path, conf.device, conf.anchor), conf)
 
 
-def make_localizer(ref_map: AnyMap, conf: LocalizeConfig) -> Localizer:
-    """The localiser of ``conf.method`` over ``ref_map`` (an :class:`IndexLocalizer` for an index map)."""
-    if isinstance(ref_map, IndexMap):
-        return IndexLocalizer(ref_map, conf.method, conf.eval_config(), conf.anchor)
-    return Localizer(ref_map, conf.method, conf.eval_config(), conf.anchor)
+def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
+    """An index map checked for the localiser (causal windows, ``conf``'s method, L and L_m), with its radius
+    (``conf.radius``, else the radius of the dataset it was built from)."""
+    from ..maps.evaluate import check_conf
+
+    if mp.config.window != "causal":
+        raise ConfigError(f"map {mp.path} was built with {mp.config.window} windows; the online localiser needs "
+                          "causal ones (seqnet index build --window causal)")
+    check_conf(mp, EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, rerank_seq_len=conf.rerank_seq_len,
+                              window="causal"))
+    radius = conf.radius or (mp.meta.get("source") or {}).get("radius")
+    if radius is None:
+        raise ConfigError(f"map {mp.path} records no localisation radius; give one (--radius)")
+    return mp, float(radius)
 
 
-def descriptor_frames(path: Path, ref_map: AnyMap, allow: bool) -> tuple[Frames, list[str] | None, int]:
+def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Frames, list[str] | None, int]:
     """The frames of a descriptor file (checked against the map's provenance), their names and count."""
     desc, names = read_descriptor_file(path)
     check_same(ref_map.provenance, read_provenance(path), "the map's descriptors",
@@ -67,7 +83,7 @@ def descriptor_frames(path: Path, ref_map: AnyMap, allow: bool) -> tuple[Frames,
     return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
 
 
-def image_frames(source: Path, ref_map: AnyMap, allow: bool) -> tuple[Frames, list[str], int]:
+def image_frames(source: Path, ref_map: Reference, allow: bool) -> tuple[Frames, list[str], int]:
     """Images of a folder or list file, each described when it is read by the map's describer."""
     from ..describe import DescribeConfig, make_describer
     from ..describe.images import list_images
@@ -107,8 +123,8 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
 
     out, query = check_output(out), Path(query)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
-    ref_map = load_map(map_dir, loaded, conf)
-    loc = make_localizer(ref_map, conf)
+    ref_map, radius = load_map(map_dir, loaded, conf)
+    loc = conf.localizer(ref_map, radius)
     is_file = query.is_file() and query.suffix.lower() in DESCRIPTOR_SUFFIXES
     source = descriptor_frames if is_file else image_frames
     frames, names, n = source(query, ref_map, conf.allow_mismatch)
@@ -121,7 +137,7 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
     if not is_file:
         summary["describe_ms"] = {"mean": float(np.mean(describe_ms)), "median": float(np.median(describe_ms))}
     record = {"summary": summary, "config": {**conf.to_dict(), "seq_len": loc.seq_len, "rerank_seq_len": loc.match_len,
-                                             "radius": ref_map.radius},
+                                             "radius": radius},
               "inputs": {"map": str(Path(map_dir).resolve()), "query": str(query.resolve()),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,

@@ -12,24 +12,25 @@ import csv
 import dataclasses
 import io
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.config import Config, check_bool, check_choice, check_int
+from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.errors import ConfigError, OutputError
 from ..core.files import write_json_atomic, write_text_atomic
 from ..core.progress import progress
 from ..core.utils import get_device, logger
 from ..data.traverse import Dataset
-from ..eval.evaluate import EvalConfig
-from ..eval.methods import parse_method
 from ..eval.metrics.precision_recall import pr_summary, precision_recall
-from ..eval.metrics.recall import GroundTruth, check_radius
+from ..eval.metrics.recall import check_radius, ground_truth
 from ..matching.velocity import ANCHORS
-from .localizer import Estimate, Localizer, ReferenceMap, replay
+from ..reference.base import Reference
+from ..sequence.descriptors import SeqNet
+from ..sequence.windows import Windows
+from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
 
 TRACK_COLUMNS = ("frame", "name", "estimate", "estimate_name", "score", "confidence", "latency_ms", "correct",
                  "full_window")
@@ -58,11 +59,16 @@ class LocalizeConfig(Config):
     anchor: str = "end"
     split: str | None = None
     radius: float | None = None
+    fuse_weight: float = 0.5
+    fuse_top_k: int | None = None
     device: str = "auto"
     allow_mismatch: bool = False
 
     def __post_init__(self) -> None:
-        self._set("method", parse_method(self.method).name)
+        self._set("method", online_method(self.method).name)
+        self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))
+        if self.fuse_top_k is not None:
+            self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
         for key in ("seq_len", "rerank_seq_len"):
             if getattr(self, key) is not None:
                 self._set(key, check_int(key, getattr(self, key), 1))
@@ -74,10 +80,21 @@ class LocalizeConfig(Config):
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
         get_device(self.device)
 
-    def eval_config(self) -> EvalConfig:
-        """The :class:`EvalConfig` the localiser runs with (causal windows)."""
-        return EvalConfig(seq_len=self.seq_len, rerank_seq_len=self.rerank_seq_len, window="causal", ks=(self.k,),
-                          top_k=self.top_k, device=self.device, allow_mismatch=self.allow_mismatch)
+    def windows(self, models: Mapping[str, SeqNet]) -> Windows:
+        """The causal windows, resolved once: L (given, else the S_L model's, else 5), L_m (else L), the anchor."""
+        return Windows.resolve(self.seq_len, self.rerank_seq_len, "causal",
+                               getattr(models.get("seqnet"), "seq_len", None), self.anchor)
+
+    def localizer(self, reference: Reference, radius: float, exact: bool = False) -> Localizer:
+        """The :class:`Localizer` of these settings over ``reference``."""
+        return Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact)
+
+
+def dataset_localizer(ds: Dataset, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> Localizer:
+    """The localiser of ``conf`` over the reference traverse of ``ds`` (radius: ``conf.radius`` or the dataset's)."""
+    ref = traverse_reference(ds.reference, models, conf.method, conf.windows(models), get_device(conf.device),
+                             conf.allow_mismatch, ds.name)
+    return conf.localizer(ref, conf.radius or ds.radius)
 
 
 def sidecar_of(out: Path) -> Path:
@@ -108,10 +125,10 @@ def localize_stream(loc: Localizer, ds: Dataset) -> list[Estimate]:
                          unit="frame"))
 
 
-def ground_truth(ds: Dataset, ref_items: np.ndarray, radius: float, best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def track_truth(ds: Dataset, ref_items: np.ndarray, radius: float, best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(correct [Nq], has_positive [Nq])`` of the top-1 reference items ``best`` (-1: none) of every query frame."""
     positives = ds.positives.select(np.arange(len(ds.query)), ref_items) if ds.positives is not None else None
-    truth = GroundTruth(ds.query.positions, ds.reference.positions[ref_items], radius, positives)
+    truth = ground_truth(ds.query.positions, ds.reference.positions[ref_items], radius, positives, require=False)
     return truth.hits(best[:, None])[:, 0], truth.has_positive()
 
 
@@ -173,10 +190,10 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
     ds = full.split(split)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     radius = conf.radius or ds.radius
-    loc = Localizer(ReferenceMap(ds.reference, radius, loaded, ds.name), conf.method, conf.eval_config(), conf.anchor)
+    loc = dataset_localizer(ds, loaded, conf)
     est = localize_stream(loc, ds)
     best = np.array([e.ref_index for e in est], dtype=np.int64)
-    correct, has = ground_truth(ds, loc.ref_items, radius, best)
+    correct, has = track_truth(ds, loc.ref_items, radius, best)
     summary = summarize(est, correct, has)
     record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
                                              "rerank_seq_len": loc.match_len, "radius": radius},

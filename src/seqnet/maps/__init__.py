@@ -13,8 +13,8 @@ from .config import MapConfig
 from .evaluate import evaluate_map, load_query
 from .evaluate import main as evaluate_main
 from .load import load_map
-from .map import Map, MapError, QueryDescriptors
+from .map import Map, MapError
 from .store import MapArrays, is_map_file, write_map
 
-__all__ = ["Map", "MapArrays", "MapConfig", "MapError", "QueryDescriptors", "build", "evaluate_main", "evaluate_map",
+__all__ = ["Map", "MapArrays", "MapConfig", "MapError", "build", "evaluate_main", "evaluate_map",
            "is_map_file", "load_map", "load_query", "write_map"]

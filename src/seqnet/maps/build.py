@@ -12,21 +12,19 @@ from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..eval.checks import check_models as check_model_inputs
-from ..eval.features import Side
+from ..reference.traverse import TraverseReference
 from ..search.ann import ANN_INDEXES
 from ..sequence.checkpoints import load_models
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
+from ..sequence.windows import Windows
 from .config import MapConfig
-from .map import describe_traverse
 from .store import MapArrays, is_map_file, write_map
 
 
 def resolve(conf: MapConfig, models: Mapping[str, SeqNet]) -> MapConfig:
-    """``conf`` with L (the S_L model's when unset, else 5) and L_m (L when unset) filled in."""
-    if conf.seq_len is None and "seqnet" in models:
-        conf = conf.replace(seq_len=models["seqnet"].seq_len)
-    conf = conf.replace(seq_len=conf.length)
-    return conf.replace(rerank_seq_len=conf.match_len)
+    """``conf`` with L and L_m resolved once (:meth:`seqnet.sequence.windows.Windows.resolve`)."""
+    w = Windows.resolve(conf.seq_len, conf.rerank_seq_len, conf.window, getattr(models.get("seqnet"), "seq_len", None))
+    return conf.replace(seq_len=w.length, rerank_seq_len=w.match_len)
 
 
 def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> None:
@@ -47,7 +45,7 @@ def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> N
     """The index settings fit the shortlist descriptors (D, number of items), checked before describing."""
     role = SEQUENCE_DESCRIPTORS[conf.shortlist].model
     dim = models[role].out_dims if role else ds.reference.dim
-    n = len(Side.of(ds.reference, conf.length, conf.match_len, conf.window).items)
+    n = len(conf.windows.side(len(ds.reference), ds.reference.seq_bounds).items)
     ANN_INDEXES[conf.ann.kind](dim, max(n, 1), conf.ann)
 
 
@@ -66,11 +64,12 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
     dev = get_device(conf.device)
     for model in loaded.values():
         model.to(dev).eval()
-    ref = describe_traverse(sub.reference, conf, loaded, dev)
-    logger.info("described %d reference items / %d frames in %.1f s", len(ref.side.items), len(sub.reference),
-                sum(ref.ms.values()) / 1e3)
-    arrays = MapArrays(ref.shortlist, ref.frames, ref.side.items, ref.side.match_starts, sub.reference.positions,
-                       sub.reference.names, sub.reference.seq_bounds)
+    ref = TraverseReference(sub.reference, conf.windows, loaded, dev, name=ds.name)  # the map: a prepared reference
+    shortlist, frames = ref.described.items(conf.shortlist), ref.described.frames(conf.frames_descriptor)
+    logger.info("described %d reference items / %d frames in %.1f s", len(ref.items), len(sub.reference),
+                sum(ref.described.ms.values()) / 1e3)
+    arrays = MapArrays(shortlist, frames, ref.items, ref.match_starts, sub.reference.positions, sub.reference.names,
+                       sub.reference.seq_bounds)
     a, b = ds.splits[split]["reference"] if split != "all" else (0, len(ds.reference))
     info = {"dataset": ds.name, "dataset_path": str(Path(dataset).resolve()), "split": split,
             "reference_range": [int(a), int(b)], "radius": ds.radius, "position_unit": ds.position_unit,

@@ -10,10 +10,9 @@ from ..core.utils import get_device
 from ..eval.methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, parse_method
 from ..search.ann import AnnConfig
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
-from ..sequence.windows import WINDOW_MODES
+from ..sequence.windows import DEFAULT_SEQ_LEN, WINDOW_MODES, Windows
 
 DTYPES = ("float32", "float16")
-DEFAULT_SEQ_LEN = 5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +78,11 @@ class MapConfig(Config):
     def match_len(self) -> int:
         """L_m."""
         return self.rerank_seq_len or self.length
+
+    @property
+    def windows(self) -> Windows:
+        """The map's :class:`~seqnet.sequence.windows.Windows` (L, L_m, mode)."""
+        return Windows(self.length, self.match_len, self.window)
 
     def roles(self) -> set[str]:
         """Model roles the map needs (``seqnet`` = S_L, ``s1`` = S_1)."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -20,17 +20,16 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.files import write_json_atomic
-from ..core.utils import logger
 from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse
-from ..eval.evaluate import EvalConfig, Evaluation
+from ..eval.evaluate import EvalConfig, Evaluation, run
 from ..eval.methods import Method, parse_method
-from ..eval.metrics.recall import GroundTruth
-from ..eval.results import method_results, write_per_query
+from ..eval.metrics.recall import ground_truth
+from ..eval.results import write_per_query
 from ..search.ann import shortlist_recall
 from .load import load_map
-from .map import Map, QueryDescriptors
+from .map import Map
 
 
 @dataclasses.dataclass
@@ -104,60 +103,47 @@ def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
     return [served[n] for n in names]
 
 
-def _rank(m: Method, mp: Map, qd: QueryDescriptors, conf: EvalConfig, k: int) -> tuple[Any, Any, dict, dict]:
-    """``(scores, ranked, timing ms, extra entries)`` of one method on the map."""
-    t0, extra = time.perf_counter(), {}
-    ms = {"descriptors": qd.ms["frames"] if m.kind == "match" else qd.ms["shortlist"]}
-    if m.kind == "match":
-        scores, ranked = mp.match(qd.frames, qd.side.match_starts, k)
-        return scores, ranked, {**ms, "seqmatch": (time.perf_counter() - t0) * 1e3}, extra
-    scores, ranked = mp.search(qd.shortlist, max(k, conf.top_k))
-    ms["shortlist"] = (time.perf_counter() - t0) * 1e3
-    head = min(conf.top_k, ranked.shape[1])
-    if mp.index is not None:
-        exact = mp.search(qd.shortlist, head, exact=True)[1]
-        extra[f"shortlist_recall@{head}"] = round(shortlist_recall(ranked[:, :head], exact), 4)
-    else:
-        extra[f"shortlist_recall@{head}"] = 1.0  # flat: the exact search itself
-    if m.kind == "hvpr":
-        t1 = time.perf_counter()
-        s, i = mp.rerank(qd.frames, qd.side.match_starts, ranked[:, :head])
-        scores = np.concatenate([s, np.full((len(s), ranked.shape[1] - head), np.inf, s.dtype)], axis=1)
-        ranked = np.concatenate([i, ranked[:, head:]], axis=1)
-        ms["descriptors"] += qd.ms["frames"]
-        ms["rerank"] = (time.perf_counter() - t1) * 1e3
-    return scores, ranked, ms, extra
+def _shortlist_recall(mp: Map, q_short: np.ndarray, top_k: int) -> Callable[[Method, np.ndarray], dict[str, Any]]:
+    """``shortlist_recall@K`` of the k-NN and HVPR entries: the fraction of the exact top-K that the index returns."""
+    exact = mp.search(mp.config.shortlist, q_short, top_k, exact=True)[1] if mp.index is not None else None
+
+    def extra(m: Method, retrieved: np.ndarray) -> dict[str, Any]:
+        if m.kind == "match":
+            return {}
+        head = min(top_k, retrieved.shape[1])
+        if exact is None:
+            return {f"shortlist_recall@{head}": 1.0}  # flat: the exact search itself
+        # the head of a ranking is the shortlist's head (HVPR only re-orders it)
+        return {f"shortlist_recall@{head}": round(shortlist_recall(retrieved[:, :head], exact[:, :head]), 4)}
+
+    return extra
 
 
 def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evaluation:
-    """Evaluate the query side ``q`` against the map ``mp`` (methods: :func:`map_methods`)."""
+    """Evaluate the query side ``q`` against the map ``mp`` (methods: :func:`map_methods`): the
+    evaluation loop of :func:`seqnet.eval.evaluate.run` with the map as the reference."""
     conf = conf or EvalConfig()
     methods = check_conf(mp, conf)
     mp.check_query(q.traverse.dim, q.traverse.provenance, conf.allow_mismatch)
     radius = conf.radius or q.radius
-    qd = mp.describe(q.traverse)
-    items = qd.side.items
-    truth = GroundTruth(q.traverse.positions[items], mp.positions[mp.items], radius, _positives(mp, q, items))
-    if not truth.has_positive().any():
-        raise ConfigError(f"none of the {len(items)} queries of {q.name!r} has a reference of map {mp.path} within "
-                          f"radius {radius:g}; hint: check the radius, the split and the map's area")
-    results, retrieved, scores, confidence = {}, {}, {}, {}
-    for m in methods:
-        scores[m.name], retrieved[m.name], ms, extra = _rank(m, mp, qd, conf, max(conf.ks))
-        ms["total"] = sum(ms.values())
-        entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks, conf.extra_radii)
-        entry.update(extra, no_full_window=int(len(q.traverse) - len(items)),
-                     timing_ms={k: round(v, 3) for k, v in ms.items()},
-                     method={**m.summary(), "seq_len": mp.config.length, "rerank_seq_len": mp.config.match_len,
-                             "top_k": conf.top_k, "index": mp.config.ann.kind})
-        results[m.name] = entry
-        logger.debug("%s: R@1 %.3f", m.name, entry.get("recall@1", float("nan")))
-    cfg = {**conf.to_dict(), "methods": [m.name for m in methods], "seq_len": mp.config.length,
-           "rerank_seq_len": mp.config.match_len, "radius": radius, "split": q.split, "dataset": q.name,
-           "device": str(mp.device), "index": str(mp.path), "map": mp.meta["config"]}
-    names = [q.traverse.names[i] for i in items] if q.traverse.names else None
-    return Evaluation({"methods": results, "config": cfg}, retrieved, scores, truth, items, mp.items, confidence,
-                      names)
+    query = mp.describe(q.traverse)
+    items = query.side.items
+    truth = ground_truth(q.traverse.positions[items], mp.positions[mp.items], radius, _positives(mp, q, items),
+                         f"{q.name} against map {mp.path}")
+    c = mp.config
+    conf = conf.replace(seq_len=c.length, rerank_seq_len=c.match_len, radius=radius)
+
+    def info(m: Method) -> dict[str, Any]:
+        return {**m.summary(), "seq_len": c.length, "rerank_seq_len": c.match_len, "top_k": conf.top_k,
+                "index": c.ann.kind}
+
+    extra = _shortlist_recall(mp, query.items(c.shortlist), conf.top_k)
+    ev = run(methods, query, mp, truth, conf, len(q.traverse), info, extra)
+    ev.results["config"] = {**conf.to_dict(), "methods": [m.name for m in methods], "split": q.split,
+                            "dataset": q.name, "device": str(mp.device), "index": str(mp.path),
+                            "map": mp.meta["config"]}
+    ev.query_names = [q.traverse.names[i] for i in items] if q.traverse.names else None
+    return ev
 
 
 def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Path,

@@ -30,8 +30,9 @@ def _array(path: Path, shape: tuple[int, ...] | None, kinds: str) -> np.ndarray:
     return arr
 
 
-def load_map(path: str | Path, device: str | None = None) -> Map:
-    """Open the map directory ``path`` (written by :func:`seqnet.maps.build` or :func:`seqnet.maps.write_map`)."""
+def load_map(path: str | Path, device: str | None = None, anchor: str = "") -> Map:
+    """Open the map directory ``path`` (written by :func:`seqnet.maps.build` or :func:`seqnet.maps.write_map`);
+    ``anchor``: the pinned window step of its anchored matchers (default: its window mode's)."""
     path = Path(path)
     meta = read_meta(path)
     try:
@@ -56,7 +57,7 @@ def load_map(path: str | Path, device: str | None = None) -> Map:
         raise MapError(f"{path / 'map.json'}: bad config ({e})") from None
     index = None if conf.ann.kind == "flat" else _index(path / INDEX_FILE, conf, r, d1)
     models = _models(path, meta, conf)
-    return Map(path, meta, arrays, index, models, device)
+    return Map(path, meta, arrays, index, models, device, anchor)
 
 
 def _index(file: Path, conf: Any, n: int, d: int) -> Any:

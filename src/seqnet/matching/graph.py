@@ -37,7 +37,7 @@ from ..core.utils import ArrayLike, as_tensor, get_device, to_numpy
 from ..search.blocks import topk_smallest
 from ..search.knn import as_pair, pairwise_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
-from .velocity import BlockFn, blocked_topk, check_pairs, pivot_step, score_blocks
+from .velocity import BlockFn, check_pairs, matcher_topk, pivot_step, score_blocks
 
 DEFAULT_FAN_OUT = 2
 
@@ -92,7 +92,7 @@ def graph_topk(query: ArrayLike, ref: ArrayLike, seq_len: int, k: int, q_starts:
                block_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Whole-map graph matching: ``(scores [M, k], items [M, k])`` per query window ``q_starts [M]``."""
     fan_out, pivot = _check(seq_len, fan_out, anchor)
-    return blocked_topk(lambda q, r: _graph_block(seq_len, fan_out, pivot), query, ref, seq_len, k, q_starts,
+    return matcher_topk(lambda q, r: _graph_block(seq_len, fan_out, pivot), query, ref, seq_len, k, q_starts,
                         r_starts, 5, device, block_bytes, "graph matching")
 
 
@@ -198,7 +198,7 @@ def grh_topk(query: ArrayLike, ref: ArrayLike, seq_len: int, k: int, q_starts: n
                                 device=q.device)
         return _graph_block(seq_len, fan_out, pivot, cands, radius)
 
-    return blocked_topk(prepare, query, ref, seq_len, k, q_starts, r_starts, 8, device, block_bytes, "GRH")
+    return matcher_topk(prepare, query, ref, seq_len, k, q_starts, r_starts, 8, device, block_bytes, "GRH")
 
 
 def grh_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Tensor, cand: torch.Tensor,

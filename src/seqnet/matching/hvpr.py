@@ -13,6 +13,8 @@ matcher both like wins over one only the matcher likes; ``fuse=0`` is the paper'
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -20,9 +22,46 @@ from ..core.config import check_choice, check_float, check_int
 from ..core.errors import ConfigError
 from ..core.utils import ArrayLike, get_device, to_numpy
 from ..search.knn import as_pair, knn
-from ..sequence.windows import check_seq_len
+from ..sequence.windows import MODE_ANCHORS, check_seq_len
 from .registry import SEQUENCE_MATCHERS
 from .seqmatch import check_starts
+
+Search = Callable[[int], tuple[np.ndarray, np.ndarray]]  # n -> (distances [M, n], items [M, n]) of the shortlist
+PairScores = Callable[[np.ndarray], torch.Tensor]  # candidates [M, K] -> matcher scores [M, K] (candidate order)
+
+
+def hvpr_search(search: Search, pair_scores: PairScores, seq_len: int, top_k: int = 20, k: int | None = None,
+                fuse: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """HVPR, the one assembly: shortlist the top ``top_k`` by ``search``, score them with ``pair_scores``
+    (the matcher on the candidates' windows), order them, then the rest of the shortlist.
+
+    Evaluation, maps and the localiser all call this through :func:`seqnet.eval.rank.rank`; the
+    array API :func:`hvpr` calls it with exact k-NN. With ``fuse = λ > 0`` the score is
+    ``matcher / L_m + λ · d_shortlist``. Returns ``(scores [M, max(k, K)], items [M, max(k, K)])``:
+    the re-ranked head (ascending, ties in shortlist order), then the k-NN tail (score ``inf``).
+    """
+    top_k = check_int("top_k", top_k, 1)
+    k = top_k if k is None else check_int("k", k, 1)
+    fuse = check_float("fuse", fuse, 0.0)
+    dist, ranked = search(max(k, top_k))
+    head = min(top_k, ranked.shape[1])
+    scores, items = order(pair_scores(ranked[:, :head]), ranked[:, :head], seq_len,
+                          fuse * dist[:, :head] if fuse > 0 else None)
+    tail = np.full((len(ranked), ranked.shape[1] - head), np.inf, dtype=scores.dtype)
+    return np.concatenate([scores, tail], axis=1), np.concatenate([items, ranked[:, head:]], axis=1)
+
+
+def order(scores: torch.Tensor, candidates: np.ndarray, seq_len: int,
+          prior: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Sort candidates ``[M, K]`` by their matcher ``scores [M, K]`` (stable: ties keep the shortlist
+    order); with ``prior [M, K]`` by ``scores / L_m + prior`` (the fused score)."""
+    if prior is not None:
+        if np.shape(prior) != candidates.shape:
+            raise ConfigError(f"prior must have the candidates' shape {candidates.shape}, got {np.shape(prior)}")
+        scores = scores / seq_len + torch.as_tensor(np.asarray(prior), device=scores.device, dtype=scores.dtype)
+    cand_t = torch.as_tensor(candidates, device=scores.device)
+    idx = torch.sort(scores, dim=1, stable=True).indices
+    return to_numpy(scores.gather(1, idx)), to_numpy(cand_t.gather(1, idx))
 
 
 def hvpr(
@@ -41,7 +80,7 @@ def hvpr(
     fuse: float = 0.0,
     window: str = "centred",
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Hierarchical VPR: shortlist by descriptor distance, re-rank by a sequence matcher.
+    """Hierarchical VPR on arrays: shortlist by exact k-NN, re-rank by a sequence matcher (:func:`hvpr_search`).
 
     Args:
         shortlist_query: ``[M, D1]`` shortlisting descriptors of the query items (e.g. S_L).
@@ -62,38 +101,18 @@ def hvpr(
         ``(scores [M, max(k, K)], items [M, max(k, K)])``: reference items, the re-ranked shortlist
         first (ascending matcher or fused score), then the rest of the k-NN list (score ``inf``).
     """
-    top_k = check_int("top_k", top_k, 1)
-    k = top_k if k is None else check_int("k", k, 1)
-    fuse = check_float("fuse", fuse, 0.0)
-    dist, ranked = knn(shortlist_query, shortlist_ref, max(k, top_k), backend=backend, device=device)
-    head = min(top_k, ranked.shape[1])
-    prior = fuse * dist[:, :head] if fuse > 0 else None
-    scores, items = rerank(rerank_query, rerank_ref, seq_len, q_starts, r_starts, ranked[:, :head], matcher, device,
-                           prior, window)
-    tail = np.full((len(ranked), ranked.shape[1] - head), np.inf, dtype=scores.dtype)
-    return np.concatenate([scores, tail], axis=1), np.concatenate([items, ranked[:, head:]], axis=1)
+    anchor = MODE_ANCHORS[check_choice("window mode", window, MODE_ANCHORS)]
+    return hvpr_search(lambda n: knn(shortlist_query, shortlist_ref, n, backend=backend, device=device),
+                       lambda c: pair_scores(rerank_query, rerank_ref, seq_len, q_starts, r_starts, c, matcher,
+                                             device, anchor), seq_len, top_k, k, fuse)
 
 
 @torch.no_grad()
-def rerank(
-    rerank_query: ArrayLike,
-    rerank_ref: ArrayLike,
-    seq_len: int,
-    q_starts: np.ndarray,
-    r_starts: np.ndarray,
-    candidates: np.ndarray,
-    matcher: str = "seqmatch",
-    device: str | None = None,
-    prior: np.ndarray | None = None,
-    window: str = "centred",
-) -> tuple[np.ndarray, np.ndarray]:
-    """Re-rank candidate reference items ``[M, K]`` with a sequence matcher (see :func:`hvpr`).
-
-    ``candidates`` holds indices into ``r_starts``; ``-1`` marks no candidate (scored ``inf``,
-    ranked last, returned as ``-1``). With ``prior [M, K]`` the score is ``matcher / L + prior``
-    (the fused score of :func:`hvpr`). Returns ``(scores [M, K], items [M, K])`` sorted by
-    ascending score (stable: ties keep the shortlist order).
-    """
+def pair_scores(rerank_query: ArrayLike, rerank_ref: ArrayLike, seq_len: int, q_starts: np.ndarray,
+                r_starts: np.ndarray, candidates: np.ndarray, matcher: str = "seqmatch", device: str | None = None,
+                anchor: str = "centre") -> torch.Tensor:
+    """The matcher's scores ``[M, K]`` of candidate reference items ``candidates [M, K]`` (indices into
+    ``r_starts``; ``-1`` = none, scored ``inf``) for the query windows ``q_starts [M]``, in candidate order."""
     spec = SEQUENCE_MATCHERS[check_choice("sequence matcher", matcher, SEQUENCE_MATCHERS)]
     dev = get_device(device)
     q, r = as_pair(rerank_query, rerank_ref, dev)
@@ -111,11 +130,16 @@ def rerank(
         raise ConfigError(f"candidates must be reference items in 0..{len(r_starts_t) - 1} (or -1 for none)")
     cand_t = torch.as_tensor(cand.astype(np.int64, copy=False), device=dev)
     cand_starts = torch.where(cand_t >= 0, r_starts_t[cand_t.clamp_min(0)], -1) if len(r_starts_t) else cand_t
-    scores = spec.score_pairs(q, r, seq_len, torch.as_tensor(q_starts_np, device=dev), cand_starts,
-                              **spec.options(window))
-    if prior is not None:
-        if np.shape(prior) != cand.shape:
-            raise ConfigError(f"prior must have the candidates' shape {cand.shape}, got {np.shape(prior)}")
-        scores = scores / seq_len + torch.as_tensor(np.asarray(prior), device=dev, dtype=scores.dtype)
-    order = torch.sort(scores, dim=1, stable=True).indices
-    return to_numpy(scores.gather(1, order)), to_numpy(cand_t.gather(1, order))
+    return spec.score_pairs(q, r, seq_len, torch.as_tensor(q_starts_np, device=dev), cand_starts,
+                            **spec.options(anchor))
+
+
+def rerank(rerank_query: ArrayLike, rerank_ref: ArrayLike, seq_len: int, q_starts: np.ndarray, r_starts: np.ndarray,
+           candidates: np.ndarray, matcher: str = "seqmatch", device: str | None = None,
+           prior: np.ndarray | None = None, window: str = "centred") -> tuple[np.ndarray, np.ndarray]:
+    """Re-rank candidate reference items ``[M, K]`` with a sequence matcher: :func:`pair_scores`, then
+    :func:`order` (``prior``: the fused score). Returns ``(scores [M, K], items [M, K])``, ascending."""
+    anchor = MODE_ANCHORS[check_choice("window mode", window, MODE_ANCHORS)]
+    cand = np.asarray(to_numpy(candidates) if isinstance(candidates, torch.Tensor) else candidates)
+    scores = pair_scores(rerank_query, rerank_ref, seq_len, q_starts, r_starts, cand, matcher, device, anchor)
+    return order(scores, cand.astype(np.int64, copy=False), seq_len, prior)

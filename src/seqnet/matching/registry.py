@@ -6,7 +6,9 @@ starts (see :mod:`seqnet.sequence.windows`):
 * ``topk(query, ref, L, k, q_starts, r_starts, device=...)`` → ``(scores [M, k], items [M, k])``:
   the whole map, keeping the k best reference items per query item;
 * ``score_pairs(q, r, L, q_starts [M], cand_starts [M, K])`` → ``[M, K]`` scores of given windows
-  (``-1`` = no candidate, ``inf``): the re-ranker of HVPR.
+  (``-1`` = no candidate, ``inf``): the re-ranker of HVPR;
+* ``anchored``: takes the window step pinned to the item's frame; ``online``: may run on a causal
+  window alone (the localiser); a matcher without one is refused there, never run as another.
 
 Matchers: ``seqmatch`` / ``seqmatch-rev`` (fixed speed, :mod:`seqnet.matching.seqmatch`), ``vseqmatch`` /
 ``vseqmatch-rev`` (several velocities, :mod:`seqnet.matching.velocity`), ``graph`` and ``grh`` (paths of
@@ -40,14 +42,13 @@ class SequenceMatcher:
     topk: Callable[..., tuple[np.ndarray, np.ndarray]]
     score_pairs: Callable[..., torch.Tensor]
     anchored: bool = False  # takes ``anchor=``: the window step pinned to the item's frame
+    online: bool = True  # has an online form: a causal window scored alone, as the localiser does
 
-    def options(self, window: str) -> dict[str, str]:
-        """Keyword options for windows of ``window`` mode: an anchored matcher pins the item's own frame,
-        the centre of a centred window and the newest (last) frame of a causal one."""
-        return {"anchor": WINDOW_ANCHORS[window]} if self.anchored else {}
-
-
-WINDOW_ANCHORS = {"centred": "centre", "causal": "end"}
+    def options(self, anchor: str) -> dict[str, str]:
+        """Keyword options of the matcher's functions: an anchored matcher pins step ``anchor`` of each
+        window to the item's frame (:attr:`seqnet.sequence.windows.Windows.anchor`: the centre of a
+        centred window, the newest frame of a causal one); the others take none."""
+        return {"anchor": anchor} if self.anchored else {}
 
 
 SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
@@ -65,6 +66,6 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
         SequenceMatcher("graph", "GISM-style graph matching: cheapest path with reference steps 0..2 per query frame "
                         "(stops and speed changes)", graph_topk, graph_pairs, anchored=True),
         SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
-                        grh_topk, grh_pairs, anchored=True),
+                        grh_topk, grh_pairs, anchored=True, online=False),
     )
 }

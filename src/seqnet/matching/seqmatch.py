@@ -20,7 +20,7 @@ from ..core.config import check_int
 from ..core.errors import ConfigError
 from ..core.progress import progress
 from ..core.utils import ArrayLike, get_device, to_numpy
-from ..search.blocks import check_pair_dims, col_blocks, compute_dtype, merge_topk, rows
+from ..search.blocks import blocked_topk, check_pair_dims, col_blocks, compute_dtype, rows
 from ..search.knn import as_pair, finish_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
 from .pairs import window_scores
@@ -191,28 +191,26 @@ def seqmatch_topk(
     q_starts, r_starts = check_starts(q_starts, na, "query"), check_starts(r_starts, nb, "reference")
     q_order, r_order = np.argsort(q_starts, kind="stable"), np.argsort(r_starts, kind="stable")
     q_sorted, r_sorted = q_starts[q_order], r_starts[r_order]
-    vals = torch.zeros((len(q_starts), min(k, len(r_starts))), dtype=dtype)
-    idx = torch.zeros(vals.shape, dtype=torch.long)
     cols = col_blocks(nb, col_block)
     width = max(c1 - c0 for c0, c1 in cols) + seq_len - 1
     step = rows_per_block(2 * width * (8 if dtype == torch.float64 else 4), block_bytes)
     ref_all = rows(ref, 0, nr, dev, dtype) if len(cols) == 1 else None  # a map that fits one block: read once
-    row_ranges = [(a, min(na, a + step)) for a in range(0, na, step)]
-    for a0, a1 in progress(row_ranges, desc="SeqMatch"):
-        lo, hi = np.searchsorted(q_sorted, [a0, a1])
-        if lo == hi:
-            continue
-        qf = rows(query, a0, a1 + seq_len - 1, dev, dtype)
-        local_q = torch.as_tensor(q_sorted[lo:hi] - a0, device=dev)
-        best = None
-        for c0, c1 in cols:
-            rf = ref_all if ref_all is not None else rows(ref, c0, c1 + seq_len - 1, dev, dtype)
-            j0, j1 = np.searchsorted(r_sorted, [c0, c1])
-            scores = _block_scores(qf, rf, seq_len, reverse, local_q, torch.as_tensor(r_sorted[j0:j1] - c0, device=dev))
-            best = merge_topk(best, scores, torch.as_tensor(r_order[j0:j1], device=dev), k)
-        sel = torch.as_tensor(q_order[lo:hi])
-        vals[sel], idx[sel] = best[0].cpu(), best[1].cpu()
-    return to_numpy(vals), to_numpy(idx)
+
+    def row_blocks():  # query windows a0..a1 that hold items, in start order
+        for a0 in progress(range(0, na, step), desc="SeqMatch"):
+            lo, hi = np.searchsorted(q_sorted, [a0, min(na, a0 + step)])
+            if lo < hi:
+                qf = rows(query, a0, min(na, a0 + step) + seq_len - 1, dev, dtype)
+                yield torch.as_tensor(q_order[lo:hi]), (qf, torch.as_tensor(q_sorted[lo:hi] - a0, device=dev))
+
+    def score(ctx: tuple[torch.Tensor, torch.Tensor], cb: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+        (qf, local_q), (c0, c1) = ctx, cb
+        rf = ref_all if ref_all is not None else rows(ref, c0, c1 + seq_len - 1, dev, dtype)
+        j0, j1 = np.searchsorted(r_sorted, [c0, c1])
+        local_r = torch.as_tensor(r_sorted[j0:j1] - c0, device=dev)
+        return _block_scores(qf, rf, seq_len, reverse, local_q, local_r), torch.as_tensor(r_order[j0:j1], device=dev)
+
+    return blocked_topk(row_blocks(), cols, score, len(q_starts), min(k, len(r_starts)), dtype)
 
 
 def _block_scores(qf: torch.Tensor, rf: torch.Tensor, seq_len: int, reverse: bool, q_windows: torch.Tensor,

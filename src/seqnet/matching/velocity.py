@@ -35,7 +35,7 @@ from ..core.config import check_choice, check_float, check_int
 from ..core.errors import ConfigError
 from ..core.progress import progress
 from ..core.utils import ArrayLike, get_device, to_numpy
-from ..search.blocks import topk_smallest
+from ..search.blocks import blocked_topk
 from ..search.knn import as_pair, finish_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
 from .seqmatch import check_starts, shifted_sum
@@ -114,7 +114,7 @@ def score_blocks(block_fn: BlockFn, q: torch.Tensor, r: torch.Tensor, seq_len: i
 
 
 @torch.no_grad()
-def blocked_topk(prepare: Callable[[torch.Tensor, torch.Tensor], BlockFn], query: ArrayLike, ref: ArrayLike,
+def matcher_topk(prepare: Callable[[torch.Tensor, torch.Tensor], BlockFn], query: ArrayLike, ref: ArrayLike,
                  seq_len: int, k: int, q_starts: np.ndarray, r_starts: np.ndarray, row_factor: int,
                  device: str | None = None, block_bytes: int | None = None,
                  desc: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -134,14 +134,15 @@ def blocked_topk(prepare: Callable[[torch.Tensor, torch.Tensor], BlockFn], query
     block_fn = prepare(q, r)
     order = np.argsort(q_starts, kind="stable")
     sorted_starts = q_starts[order]
-    vals = torch.zeros((len(q_starts), min(k, len(r_cols))), dtype=q.dtype, device=dev)
-    idx = torch.zeros(vals.shape, dtype=torch.long, device=dev)
-    for a0, m in score_blocks(block_fn, q, r, seq_len, row_factor, block_bytes, sorted_starts, desc):
-        lo, hi = np.searchsorted(sorted_starts, [a0, a0 + m.shape[0]])
-        sel = torch.as_tensor(order[lo:hi], device=dev)
-        local = torch.as_tensor(sorted_starts[lo:hi] - a0, device=dev)
-        vals[sel], idx[sel] = topk_smallest(m[local][:, r_cols], k)
-    return to_numpy(vals), to_numpy(idx)
+
+    def row_blocks():
+        for a0, m in score_blocks(block_fn, q, r, seq_len, row_factor, block_bytes, sorted_starts, desc):
+            lo, hi = np.searchsorted(sorted_starts, [a0, a0 + m.shape[0]])
+            yield torch.as_tensor(order[lo:hi]), m[torch.as_tensor(sorted_starts[lo:hi] - a0, device=dev)]
+
+    all_items = torch.arange(len(r_cols), device=dev)
+    return blocked_topk(row_blocks(), [r_cols], lambda m, cols: (m[:, cols], all_items), len(q_starts),
+                        min(k, len(r_cols)), q.dtype, finite=False)
 
 
 def velocity_block(dist: torch.Tensor, a0: int, n: int, trajs: list[tuple[int, ...]], nb: int) -> torch.Tensor:
@@ -174,7 +175,7 @@ def velocity_topk(query: ArrayLike, ref: ArrayLike, seq_len: int, k: int, q_star
     ``r_starts [R]``. Returns ``(scores [M, k], items [M, k])`` (indices into ``r_starts``).
     """
     check_seq_len(seq_len)
-    return blocked_topk(_prepare(velocities, reverse, anchor, seq_len), query, ref, seq_len, k, q_starts,
+    return matcher_topk(_prepare(velocities, reverse, anchor, seq_len), query, ref, seq_len, k, q_starts,
                         r_starts, 3, device, block_bytes, "velocity SeqMatch")
 
 

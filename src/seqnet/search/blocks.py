@@ -9,6 +9,9 @@ ties keep the lower column, so the result equals a top-k over the whole row.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
 import numpy as np
 import torch
 
@@ -76,11 +79,7 @@ def topk_smallest(scores: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Ten
 def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Tensor, cols: torch.Tensor,
                k: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Fold a block ``scores [n, c]`` of columns ``cols [c]`` (increasing, after every column in ``best``)
-    into the running ``(values [n, k'], columns [n, k'])``. NaN scores (non-finite inputs, or values too
-    large for the dtype) are a :class:`ConfigError`: a ranking of NaNs is meaningless."""
-    if not bool(torch.isfinite(scores).all()):
-        raise ConfigError("the distances are not finite: the descriptors hold NaN or inf, or values too large "
-                          f"for {str(scores.dtype).removeprefix('torch.')} (hint: L2-normalise them)")
+    into the running ``(values [n, k'], columns [n, k'])`` (faiss ``ResultHeap`` style; no host sync)."""
     if best is None:
         v, i = topk_smallest(scores, k)
         return v, cols[i] if cols.numel() else i
@@ -88,6 +87,39 @@ def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Ten
     v, i = topk_smallest(torch.cat([vals, scores], dim=1), k)
     all_cols = torch.cat([idx, cols.expand(len(idx), -1)], dim=1)
     return v, all_cols.gather(1, i)
+
+
+RowBlock = tuple[Any, Any]  # (rows of the output this block fills: a slice or an index array, the block's context)
+ScoreFn = Callable[[Any, Any], tuple[torch.Tensor, torch.Tensor]]  # (context, column block) -> (scores, columns)
+
+
+@torch.no_grad()
+def blocked_topk(row_blocks: Iterable[RowBlock], col_blocks: Sequence[Any], score: ScoreFn, n_rows: int, k: int,
+                 dtype: torch.dtype, finite: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The one blocked-search driver: query row blocks × reference column blocks, top-k merged on the fly.
+
+    ``score(context, col_block)`` returns ``(scores [n, c], columns [c])`` of one block; columns are
+    visited in increasing order, so ties keep the lower column (the result equals a top-k over the
+    whole row). With ``finite``, a NaN or inf score is a :class:`ConfigError`, checked once at the
+    end (no host sync per block). Returns ``(values [n_rows, k], columns [n_rows, k])`` as numpy.
+    """
+    vals = torch.zeros((n_rows, k), dtype=dtype)
+    idx = torch.zeros((n_rows, k), dtype=torch.long)
+    bad = None
+    for sel, ctx in row_blocks:
+        best = None
+        for cb in col_blocks:
+            scores, cols = score(ctx, cb)
+            if finite:
+                flag = ~torch.isfinite(scores).all()
+                bad = flag if bad is None else bad | flag
+            best = merge_topk(best, scores, cols, k)
+        if best is not None:
+            vals[sel], idx[sel] = best[0].cpu(), best[1].cpu()
+    if bad is not None and bool(bad):
+        raise ConfigError("the distances are not finite: the descriptors hold NaN or inf, or values too large "
+                          f"for {str(dtype).removeprefix('torch.')} (hint: L2-normalise them)")
+    return vals.numpy(), idx.numpy()
 
 
 def col_blocks(n: int, col_block: int | None) -> list[tuple[int, int]]:

@@ -14,8 +14,8 @@ import torch
 
 from ..core.config import check_choice, check_int
 from ..core.errors import ConfigError
-from ..core.utils import ArrayLike, as_tensor, get_device, to_numpy
-from .blocks import check_pair_dims, col_blocks, compute_dtype, merge_topk, rows
+from ..core.utils import ArrayLike, as_tensor, get_device
+from .blocks import blocked_topk, col_blocks, compute_dtype, matrix_shape, rows
 
 DEFAULT_BLOCK_BYTES = 512 * 2**20
 METRICS = ("l2", "ip")
@@ -65,36 +65,70 @@ def pairwise_distances(q: torch.Tensor, r: torch.Tensor, squared: bool = False) 
     return finish_distances(q @ r.T, sq_norms(q), sq_norms(r), squared)
 
 
-@torch.no_grad()
+class ExactIndex:
+    """Exact k-NN over ``ref [N, D]`` (numpy, memory map, float16 or a tensor), streamed in column blocks.
+
+    The one exact search of seqnet: :func:`knn` (torch backend), a dataset's reference and a map's
+    stored descriptors all use it. The reference's squared norms are computed once per index and
+    dtype, so an index queried many times (a map, the localiser) pays one GEMM per block per query.
+    ``keep`` holds a reference that fits one column block in torch memory (else it is read block by
+    block at every search, as a memory map should be).
+    """
+
+    def __init__(self, ref: ArrayLike, device: str | torch.device | None = None, block_bytes: int | None = None,
+                 col_block: int | None = None, keep: bool = True) -> None:
+        self.ref, self.device, self.block_bytes = ref, get_device(device), block_bytes
+        self.n, self.dim = matrix_shape(ref, "reference")
+        self.blocks = col_blocks(self.n, col_block)
+        self.keep = keep and len(self.blocks) == 1
+        self._rows: dict[torch.dtype, torch.Tensor] = {}
+        self._norms: dict[torch.dtype, list[torch.Tensor]] = {}
+
+    def block(self, c0: int, c1: int, dtype: torch.dtype) -> torch.Tensor:
+        """Reference rows ``c0:c1`` as ``dtype`` on the device (the kept copy when there is one)."""
+        if not self.keep:
+            return rows(self.ref, c0, c1, self.device, dtype)
+        if dtype not in self._rows:
+            self._rows[dtype] = rows(self.ref, 0, self.n, self.device, dtype)
+        return self._rows[dtype]
+
+    def norms(self, dtype: torch.dtype) -> list[torch.Tensor]:
+        """Squared norms of each reference block (computed on first use)."""
+        if dtype not in self._norms:
+            self._norms[dtype] = [sq_norms(self.block(a, b, dtype)) for a, b in self.blocks]
+        return self._norms[dtype]
+
+    @torch.no_grad()
+    def search(self, query: ArrayLike, k: int, metric: str = "l2") -> tuple[np.ndarray, np.ndarray]:
+        """``(scores [M, k], indices [M, k])``, best first, ties by the lower index (see :func:`knn`)."""
+        nq, dq = matrix_shape(query, "query")
+        if dq != self.dim:
+            raise ConfigError(f"dimension mismatch: query D={dq}, reference D={self.dim}")
+        dtype, k = compute_dtype(query, self.ref), min(k, self.n)
+        width = max((b - a for a, b in self.blocks), default=1)
+        step = rows_per_block(width * (8 if dtype == torch.float64 else 4) * 3, self.block_bytes)
+        norms = self.norms(dtype) if metric == "l2" else None
+        row_blocks = ((slice(s, min(nq, s + step)), rows(query, s, min(nq, s + step), self.device, dtype))
+                      for s in range(0, nq, step))
+
+        def score(qb: torch.Tensor, j: int) -> tuple[torch.Tensor, torch.Tensor]:
+            c0, c1 = self.blocks[j]
+            d = qb @ self.block(c0, c1, dtype).T
+            d = d.neg_() if norms is None else finish_distances(d, sq_norms(qb), norms[j])
+            return d, torch.arange(c0, c1, device=self.device)
+
+        vals, idx = blocked_topk(row_blocks, range(len(self.blocks)), score, nq, k, dtype)
+        return (-vals if metric == "ip" else vals), idx
+
+
 def knn_torch(query: ArrayLike, ref: ArrayLike, k: int, metric: str = "l2", device: str | None = None,
               block_bytes: int | None = None, col_block: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Exact k-NN by blocked GEMM over query and reference blocks (GPU when present); see :func:`knn`.
 
     The reference may be a memory-mapped (or float16) array: only one block of it is in torch
-    memory at a time, and each query block keeps a running top-k (:mod:`seqnet.search.blocks`).
+    memory at a time, and each query block keeps a running top-k (:func:`seqnet.search.blocks.blocked_topk`).
     """
-    dev = get_device(device)
-    nq, nr, _ = check_pair_dims(query, ref)
-    dtype = compute_dtype(query, ref)
-    k = min(k, nr)
-    blocks = col_blocks(nr, col_block)
-    width = max(b - a for a, b in blocks) if blocks else 1
-    step = rows_per_block(width * (8 if dtype == torch.float64 else 4) * 3, block_bytes)
-    vals = torch.zeros((nq, k), dtype=dtype)
-    idx = torch.zeros((nq, k), dtype=torch.long)
-    cache = rows(ref, 0, nr, dev, dtype) if len(blocks) == 1 else None  # a map that fits one block: read once
-    for s in range(0, nq, step):
-        qb = rows(query, s, min(nq, s + step), dev, dtype)
-        q_sq = sq_norms(qb) if metric == "l2" else None
-        best = None
-        for c0, c1 in blocks:
-            rb = cache if cache is not None else rows(ref, c0, c1, dev, dtype)
-            scores = (qb @ rb.T).neg_() if q_sq is None else finish_distances(qb @ rb.T, q_sq, sq_norms(rb))
-            best = merge_topk(best, scores, torch.arange(c0, c1, device=dev), k)
-        if best is not None:
-            v, i = best
-            vals[s : s + len(qb)], idx[s : s + len(qb)] = (-v if metric == "ip" else v).cpu(), i.cpu()
-    return to_numpy(vals), to_numpy(idx)
+    return ExactIndex(ref, device, block_bytes, col_block).search(query, k, metric)
 
 
 def knn_faiss(query: ArrayLike, ref: ArrayLike, k: int, metric: str = "l2", device: str | None = None,

@@ -12,6 +12,8 @@ evaluation, and the number left out is reported.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import torch
 
@@ -90,3 +92,66 @@ def gather_windows(desc: torch.Tensor, idx: np.ndarray | torch.Tensor) -> torch.
     """Stack windows: ``desc [N, D]``, ``idx [M, L]`` → ``[M, L, D]``."""
     idx_t = torch.as_tensor(idx, dtype=torch.long, device=desc.device)
     return desc[idx_t.reshape(-1)].reshape(*idx_t.shape, desc.shape[-1])
+
+
+DEFAULT_SEQ_LEN = 5  # L when neither the settings nor an S_L model give one
+MODE_ANCHORS = {"centred": "centre", "causal": "end"}  # the window step pinned to the item's own frame
+
+
+@dataclasses.dataclass(frozen=True)
+class Windows:
+    """The windows of one evaluation, map or localiser, resolved once.
+
+    Attributes:
+        length: L, the window of the sequence descriptors.
+        match_len: L_m, the window of the sequence matchers.
+        mode: ``"centred"`` (the paper's) or ``"causal"`` (online).
+        anchor: the step of an L_m-window pinned to the item's frame by the anchored (variable-speed)
+            matchers: ``"centre"`` for centred windows, ``"end"`` (the newest frame) for causal ones.
+    """
+
+    length: int
+    match_len: int
+    mode: str = "centred"
+    anchor: str = ""
+
+    def __post_init__(self) -> None:
+        check_seq_len(self.length, None, "seq_len")
+        check_seq_len(self.match_len, None, "rerank_seq_len")
+        window_offset(1, self.mode)  # validates the mode
+        if not self.anchor:
+            object.__setattr__(self, "anchor", MODE_ANCHORS[self.mode])
+
+    @classmethod
+    def resolve(cls, seq_len: int | None, rerank_seq_len: int | None, mode: str = "centred",
+                model_len: int | None = None, anchor: str = "") -> Windows:
+        """L (given, else the S_L model's ``model_len``, else :data:`DEFAULT_SEQ_LEN`) and L_m (given, else L)."""
+        length = seq_len or model_len or DEFAULT_SEQ_LEN
+        return cls(length, rerank_seq_len or length, mode, anchor)
+
+    @property
+    def longest(self) -> int:
+        """max(L, L_m): the frames an item's windows span."""
+        return max(self.length, self.match_len)
+
+    def side(self, t_len: int, seq_bounds: np.ndarray | None) -> Side:
+        """The items of a traverse of ``t_len`` frames: frames whose L- and L_m-windows fit inside their sequence."""
+        starts, ok = window_starts(t_len, self.length, self.mode, seq_bounds)
+        m_starts, m_ok = window_starts(t_len, self.match_len, self.mode, seq_bounds)
+        items = np.flatnonzero(ok & m_ok)
+        return Side(items, starts[items], m_starts[items])
+
+
+@dataclasses.dataclass(frozen=True)
+class Side:
+    """The items of one traverse under :class:`Windows`.
+
+    Attributes:
+        items: ``[M]`` frame index of each item (the frame whose windows fit).
+        starts: ``[M]`` first frame of each item's L-frame descriptor window.
+        match_starts: ``[M]`` first frame of each item's L_m-frame matching window.
+    """
+
+    items: np.ndarray
+    starts: np.ndarray
+    match_starts: np.ndarray

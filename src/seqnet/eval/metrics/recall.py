@@ -158,3 +158,17 @@ def recall_curve(retrieved: np.ndarray, truth: GroundTruth, k_max: int = 20) -> 
     """Recall@K for K = 1..k_max as a ``[k_max]`` array (for plots)."""
     res = recall(retrieved, truth, ks=range(1, k_max + 1))
     return np.array([res[f"recall@{k}"] for k in range(1, k_max + 1)])
+
+
+def ground_truth(q_pos: np.ndarray, r_pos: np.ndarray, radius: float, positives: Positives | None = None,
+                 name: str = "the dataset", unit: str = "m", require: bool = True) -> GroundTruth:
+    """The one ground truth of evaluated items (evaluation, maps, the localiser); with ``require`` a
+    :class:`ConfigError` when no query has a correct reference (Recall@K would be undefined)."""
+    truth = GroundTruth(q_pos, r_pos, radius, positives)
+    if require and not truth.has_positive().any():
+        what = ("any of its explicit positives among the indexed references" if positives is not None else
+                f"a reference within radius {radius:g} {unit}")
+        raise ConfigError(f"none of the {len(q_pos)} evaluated queries of {name!r} has {what}, so Recall@K is "
+                          "undefined; hint: check the radius and its unit, the split, and that both traverses "
+                          "share one coordinate frame")
+    return truth

@@ -24,11 +24,10 @@ import torch
 
 from ...eval.metrics.recall import recall
 from ...maps import Map
-from ...maps.search import ExactSearch
 from ...matching.online import OnlineSeqMatch
 from ...matching.seqmatch import seqmatch_topk
-from ...search.blocks import rows, topk_smallest
-from ...search.knn import finish_distances, sq_norms
+from ...search.blocks import compute_dtype, rows, topk_smallest
+from ...search.knn import ExactIndex, finish_distances, sq_norms
 from .config import TimingConfig
 from .queries import Queries
 
@@ -76,13 +75,13 @@ def r_at_1(ranked: np.ndarray, truth: Any) -> float:
 
 
 @torch.no_grad()
-def paper_seqmatch(search: ExactSearch, window: torch.Tensor, r_starts: torch.Tensor, k: int) -> torch.Tensor:
+def paper_seqmatch(search: ExactIndex, window: torch.Tensor, r_starts: torch.Tensor, k: int) -> torch.Tensor:
     """The paper's per-query SeqMatch over the whole map: the L_m distance rows of the query window
     ``[L_m, D]`` against every reference frame (nothing reused between queries), summed along each item's
     window; the ``k`` best items ``[k]``."""
-    q_sq = sq_norms(window)
-    dist = torch.cat([finish_distances(window @ rows(search.ref, a, b, search.device, search.dtype).T, q_sq, r_sq)
-                      for (a, b), r_sq in zip(search.blocks, search.norms(), strict=True)], dim=1)  # [L_m, N]
+    q_sq, dtype = sq_norms(window), compute_dtype(search.ref)
+    dist = torch.cat([finish_distances(window @ rows(search.ref, a, b, search.device, dtype).T, q_sq, r_sq)
+                      for (a, b), r_sq in zip(search.blocks, search.norms(dtype), strict=True)], dim=1)  # [L_m, N]
     scores = sum(dist[t, r_starts + t] for t in range(len(window)))
     return topk_smallest(scores[None], k)[1][0]
 
@@ -112,8 +111,8 @@ def knn_rows(mp: Map, qs: Queries, conf: TimingConfig, dev: torch.device) -> lis
     for name, q, ref, truth in (("knn_single", single, mp.frames, qs.frame_truth),
                                 ("knn_shortlist", qs.shortlist, mp.shortlist, qs.truth)):
         search = mp.exact_search(ref)
-        pq = per_query(lambda i, q=q, s=search: s(q[i : i + 1], k), len(qs), conf.warmup, dev)
-        ms, (_, ranked) = batch(lambda q=q, s=search: s(q, k), conf.repeats, dev)
+        pq = per_query(lambda i, q=q, s=search: s.search(q[i : i + 1], k), len(qs), conf.warmup, dev)
+        ms, (_, ranked) = batch(lambda q=q, s=search: s.search(q, k), conf.repeats, dev)
         rows.append({"method": name, **pq, "batch_ms_per_query": ms / len(qs),
                      "comparisons": len(ref), "macs": len(ref) * ref.shape[1], "recall@1": r_at_1(ranked, truth)})
     return rows

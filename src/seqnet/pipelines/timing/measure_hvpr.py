@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from ...maps import Map
+from ...matching.hvpr import order
 from ...search.ann import build_index, shortlist_recall
 from ...search.ann import search as ann_search
 from .config import TimingConfig
@@ -55,16 +56,16 @@ def hvpr_rows(mp: Map, qs: Queries, conf: TimingConfig, seq_len: int, top_k: int
               dev: torch.device) -> list[dict[str, Any]]:
     """Re-ranking the exact top K alone, and HVPR end to end with the exact shortlist and with each index."""
     starts, q, n = qs.starts(seq_len), len(qs), len(mp.shortlist)
-    exact = mp.search(qs.shortlist, top_k, exact=True)[1]
+    exact = mp.search(mp.config.shortlist, qs.shortlist, top_k, exact=True)[1]
 
     def rerank(i: slice, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return mp.rerank(qs.frames, starts[i], cand, seq_len)
+        return order(mp.pair_scores(qs.frames, starts[i], cand, seq_len), cand, seq_len)
 
     pq = per_query(lambda i: rerank(slice(i, i + 1), exact[i : i + 1]), q, conf.warmup, dev)
     ms, _ = batch(lambda: rerank(slice(None), exact), conf.repeats, dev)
     rows = [{"method": "seqmatch_topk", **pq, "batch_ms_per_query": ms / q,
              "comparisons": top_k * seq_len, "macs": top_k * seq_len * mp.frames.shape[1]}]
-    searches = {"exact": lambda i: mp.search(qs.shortlist[i], top_k, exact=True)[1]}
+    searches = {"exact": lambda i: mp.search(mp.config.shortlist, qs.shortlist[i], top_k, exact=True)[1]}
     for kind, index in indexes.items():
         searches[kind] = lambda i, index=index: ann_search(index, qs.shortlist[i], top_k)[1]
     for name, search in searches.items():
@@ -90,9 +91,10 @@ def float16_recall(mp: Map, qs: Queries, seq_len: int, top_k: int) -> dict[str, 
     out = {}
     for dtype in ("float32", "float16"):
         sl = np.asarray(mp.shortlist).astype(dtype, copy=False)
-        cand = _with(mp, sl).search(qs.shortlist, top_k, exact=True)[1]
+        cand = _with(mp, sl).search(mp.config.shortlist, qs.shortlist, top_k, exact=True)[1]
         frames = np.asarray(mp.frames).astype(dtype, copy=False)
-        ranked = _with(mp, sl, frames).rerank(qs.frames, qs.starts(seq_len), cand, seq_len)[1]
+        scores = _with(mp, sl, frames).pair_scores(qs.frames, qs.starts(seq_len), cand, seq_len)
+        ranked = order(scores, cand, seq_len)[1]
         out[dtype] = r_at_1(ranked, qs.truth)
     return out
 

@@ -73,7 +73,8 @@ def dataset_queries(conf: TimingConfig, mp: Map, dataset: str | Path) -> Queries
                                                                                        mp.config.length)]))
     pos, radius = q.traverse.positions[items], q.radius
     models = {r: mp.models[r] for r in ("seqnet", "s1") if r in mp.models}
-    stream = qd.frames[: conf.queries + conf.window + conf.warmup].numpy()
-    return Queries(qd.shortlist[pick].numpy(), qd.frames.numpy(), items, raw.float(), stream,
+    frames = qd.frames(mp.config.frames_descriptor)
+    stream = frames[: conf.queries + conf.window + conf.warmup].numpy()
+    return Queries(qd.items(mp.config.shortlist)[pick].numpy(), frames.numpy(), items, raw.float(), stream,
                    GroundTruth(pos, mp.positions[mp.items], radius), GroundTruth(pos, mp.positions, radius), models,
                    mp.config.window)

@@ -1,0 +1,14 @@
+"""The reference side of every pipeline: one :class:`Reference` protocol, two implementations.
+
+* :class:`~seqnet.reference.traverse.TraverseReference`: a dataset's reference traverse, described on
+  the fly (in memory or memory-mapped), searched exactly;
+* :class:`seqnet.maps.Map`: a prepared map on disk, searched through its ANN index.
+
+Evaluation (:func:`seqnet.eval.evaluate.run`), HVPR (:func:`seqnet.eval.rank.rank`) and the
+localiser (:class:`seqnet.localize.Localizer`) are written once against it.
+"""
+
+from .base import Reference
+from .traverse import TraverseReference
+
+__all__ = ["Reference", "TraverseReference"]

@@ -1,0 +1,58 @@
+"""What evaluation, HVPR and the localiser need of a reference side (:class:`Reference`)."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from ..eval.methods import Method
+from ..sequence.windows import Windows
+
+
+class Reference(Protocol):
+    """A reference side: its items, frames, positions and names, and search / re-rank / match over them.
+
+    Descriptor names are keys of :data:`seqnet.sequence.descriptors.SEQUENCE_DESCRIPTORS` (a map
+    serves only the ones it stores: :meth:`check_method` says so first).
+
+    Attributes:
+        windows: L, L_m, window mode and anchor of the items (queries must use the same).
+        items: ``[R]`` the reference frame of each item; match_starts: ``[R]`` its L_m-window start.
+        positions: ``[Nr, P]`` of every reference frame; names: ``Nr`` image names or None.
+        provenance: how the raw reference descriptors were made; input_dim: their D.
+        device: where the computations run; name: for messages; models: its models by role (S_L, S_1).
+    """
+
+    windows: Windows
+    items: np.ndarray
+    match_starts: np.ndarray
+    positions: np.ndarray
+    names: list[str] | None
+    provenance: dict | None
+    input_dim: int
+    device: torch.device
+    name: str
+    models: dict
+
+
+    def check_method(self, m: Method) -> None:
+        """Refuse a method this reference cannot run (a :class:`seqnet.core.errors.ConfigError`)."""
+
+    def prepare(self, m: Method) -> float:
+        """Describe (once) what ``m`` needs of the reference; the milliseconds spent."""
+
+    def search(self, descriptor: str, query: torch.Tensor | np.ndarray, k: int,
+               exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """``(distances [M, k], items [M, k])`` of the items nearest to ``query [M, D1]`` by ``descriptor``
+        (exactly, or through an ANN index unless ``exact``; ``-1``: fewer found)."""
+
+    def rerank(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
+               candidates: np.ndarray) -> torch.Tensor:
+        """``[M, K]`` scores of ``matcher`` on ``frames`` descriptors for the candidate items ``[M, K]``
+        (``-1``: none, ``inf``) of the query windows ``q_starts [M]`` of ``query_frames [Nq, D2]``."""
+
+    def match(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
+              k: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(scores [M, k], items [M, k])``: ``matcher`` over the whole reference for the query windows."""

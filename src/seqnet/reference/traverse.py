@@ -1,0 +1,69 @@
+"""A dataset's reference traverse as a :class:`~seqnet.reference.base.Reference`: described on the fly."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import torch
+
+from ..data.traverse import Traverse
+from ..eval.methods import FRAME_FEATURES, Method
+from ..matching.hvpr import pair_scores
+from ..matching.registry import SEQUENCE_MATCHERS
+from ..search.knn import ExactIndex, knn
+from ..sequence.described import Described
+from ..sequence.descriptors import SeqNet
+from ..sequence.windows import Windows
+
+
+class TraverseReference:
+    """The reference traverse ``traverse`` under ``windows`` (see :class:`~seqnet.reference.base.Reference`).
+
+    Descriptors are computed on first use (:class:`seqnet.sequence.described.Described`) and kept;
+    shortlists are exact k-NN (``backend``: a key of :data:`seqnet.search.knn.KNN_BACKENDS`; the
+    torch index keeps the reference norms between searches).
+    """
+
+    def __init__(self, traverse: Traverse, windows: Windows, models: Mapping[str, SeqNet], device: torch.device,
+                 backend: str = "torch", name: str = "reference") -> None:
+        self.traverse, self.windows, self.models, self.device = traverse, windows, dict(models), device
+        self.backend, self.name = backend, name
+        self.described = Described(traverse.descriptors, traverse.seq_bounds, windows, self.models, device,
+                                   "reference")
+        self.items, self.match_starts = self.described.side.items, self.described.side.match_starts
+        self.positions, self.names = traverse.positions, traverse.names
+        self.provenance, self.input_dim = traverse.provenance, traverse.dim
+        self._index: dict[str, ExactIndex] = {}
+
+    def check_method(self, m: Method) -> None:
+        """Every method runs on a traverse (its models were checked when it was loaded)."""
+
+    def prepare(self, m: Method) -> float:
+        """Describe what ``m`` needs (its shortlist items, its frame descriptors); milliseconds."""
+        ms = self.described.time_ms("items", m.shortlist) if m.shortlist else 0.0
+        return ms + (self.described.time_ms("frames", FRAME_FEATURES[m.frames]) if m.frames else 0.0)
+
+    def search(self, descriptor: str, query: torch.Tensor | np.ndarray, k: int,
+               exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Exact k-NN over the items' ``descriptor`` (``exact`` changes nothing: the search is exact)."""
+        ref = self.described.items(descriptor)
+        if self.backend != "torch":
+            return knn(query, ref, k, backend=self.backend, device=str(self.device))
+        if descriptor not in self._index:
+            self._index[descriptor] = ExactIndex(ref, self.device)
+        return self._index[descriptor].search(query, k)
+
+    def rerank(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
+               candidates: np.ndarray) -> torch.Tensor:
+        """The matcher's scores of the candidates (:func:`seqnet.matching.hvpr.pair_scores`)."""
+        return pair_scores(query_frames, self.described.frames(frames), self.windows.match_len, q_starts,
+                           self.match_starts, candidates, matcher, str(self.device), self.windows.anchor)
+
+    def match(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
+              k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The matcher over the whole traverse (its ``topk`` form)."""
+        spec = SEQUENCE_MATCHERS[matcher]
+        return spec.topk(query_frames, self.described.frames(frames), self.windows.match_len, k, q_starts,
+                         self.match_starts, device=str(self.device), **spec.options(self.windows.anchor))
+

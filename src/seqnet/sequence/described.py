@@ -1,0 +1,107 @@
+"""Describing a traverse: the sequence descriptors of its items and of its frames, computed once and timed.
+
+The one implementation of "describe a traverse": the evaluation's query side, a dataset's
+reference side (:class:`seqnet.reference.TraverseReference`), a map being built and a map's
+queries all use :class:`Described`; the online localiser describes its newest frame with the same
+two functions, :func:`describe_frames` and :func:`describe_items`, on its ring of recent frames.
+
+* ``items(name)``: the descriptor ``name`` (a key of :data:`SEQUENCE_DESCRIPTORS`) of every item's
+  L-window, ``[M, D']`` (a single-frame descriptor: the item's own frame);
+* ``frames(name)``: the descriptor over every frame's window (clamped at sequence bounds),
+  ``[N, D']``, for the sequence matchers.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+
+import numpy as np
+import torch
+
+from ..core.errors import ConfigError
+from .descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
+from .windows import Windows, window_frames, window_indices
+
+
+def describe_frames(raw: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | None, name: str, windows: Windows,
+                    models: Mapping[str, SeqNet], device: torch.device, which: np.ndarray | None = None,
+                    progress: str | None = None) -> torch.Tensor:
+    """``[N', D']``: descriptor ``name`` over the window of every frame of ``raw [N, D]`` (or of the frames
+    ``which``), windows of ``windows.mode`` clamped into their sequence."""
+    d = SEQUENCE_DESCRIPTORS[name]
+    idx = window_indices(len(raw), d.length(windows.length), windows.mode, seq_bounds)
+    idx = idx if which is None else idx[which]
+    return describe_windows(raw, idx, d.window_fn(models), device=device, progress=progress)
+
+
+def describe_items(raw: np.ndarray | torch.Tensor, starts: np.ndarray, name: str, windows: Windows,
+                   models: Mapping[str, SeqNet], device: torch.device, progress: str | None = None) -> torch.Tensor:
+    """``[M, D']``: descriptor ``name`` (not single-frame) of the L-windows starting at ``starts [M]``."""
+    d = SEQUENCE_DESCRIPTORS[name]
+    return describe_windows(raw, window_frames(starts, windows.length), d.window_fn(models), device=device,
+                            progress=progress)
+
+
+class Described:
+    """One traverse's items under ``windows`` and its descriptors, each computed once and timed (ms).
+
+    Args:
+        descriptors: ``[N, D]`` single-image descriptors (numpy, memory map or tensor).
+        seq_bounds: ``[N, 2]`` sequence range of every frame, or None.
+        windows: L, L_m and the window mode; models: trained models by role; device: where to compute.
+        what: ``"query"`` or ``"reference"`` (for errors).
+    """
+
+    def __init__(self, descriptors: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | None, windows: Windows,
+                 models: Mapping[str, SeqNet], device: torch.device, what: str = "query") -> None:
+        self.raw, self.seq_bounds, self.windows = descriptors, seq_bounds, windows
+        self.models, self.device = models, device
+        self.side = windows.side(len(descriptors), seq_bounds)
+        if len(self.side.items) == 0:
+            raise ConfigError(f"no {what} frame has a full window of seq_len={windows.length} (L_m="
+                              f"{windows.match_len}) inside its sequence; use a shorter --seq-len")
+        self._cache: dict[tuple[str, str], torch.Tensor] = {}
+        self.ms: dict[tuple[str, str], float] = {}
+
+    @property
+    def items_index(self) -> np.ndarray:
+        """``[M]`` frame of each item."""
+        return self.side.items
+
+    @property
+    def match_starts(self) -> np.ndarray:
+        """``[M]`` first frame of each item's L_m-window."""
+        return self.side.match_starts
+
+    def items(self, name: str) -> torch.Tensor:
+        """``[M, D']`` item descriptors ``name``."""
+        return self._get("items", name)
+
+    def frames(self, name: str) -> torch.Tensor:
+        """``[N, D']`` frame descriptors ``name``."""
+        return self._get("frames", name)
+
+    def time_ms(self, kind: str, name: str) -> float:
+        """Milliseconds spent on ``kind`` (``"items"`` / ``"frames"``) descriptors ``name``, dependencies included."""
+        self._get(kind, name)
+        return self.ms[(kind, name)]
+
+    def _get(self, kind: str, name: str) -> torch.Tensor:
+        key = (kind, name)
+        if key not in self._cache:
+            # items of a single-frame descriptor index its frame descriptors: their time counts too
+            dep = ("frames", name) if kind == "items" and SEQUENCE_DESCRIPTORS[name].single_frame else None
+            if dep is not None:
+                self._get(*dep)
+            t0 = time.perf_counter()
+            if dep is not None:
+                self._cache[key] = self._cache[dep][self.side.items]
+            elif kind == "frames":
+                self._cache[key] = describe_frames(self.raw, self.seq_bounds, name, self.windows, self.models,
+                                                   self.device, progress=name)
+            else:
+                self._cache[key] = describe_items(self.raw, self.side.starts, name, self.windows, self.models,
+                                                  self.device, progress=name)
+            self.ms[key] = (time.perf_counter() - t0) * 1e3 + (self.ms[dep] if dep else 0.0)
+        return self._cache[key]
