@@ -23,10 +23,8 @@ import time
 import numpy as np
 import torch
 
-from seqnet.data.traverse import Traverse
-from seqnet.eval.evaluate import EvalConfig
-from seqnet.localize.localizer import Localizer, ReferenceMap
-from seqnet.matching.online import distance_row
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.sequence.descriptors import SeqNet
 
 
@@ -43,12 +41,17 @@ def stats(ms: np.ndarray) -> dict[str, float]:
             "p95": round(float(np.percentile(ms, 95)), 2), "max": round(float(ms.max()), 2)}
 
 
-def time_method(rmap: ReferenceMap, method: str, queries: np.ndarray, warmup: int) -> dict[str, float]:
+def localizer(ds: Dataset, models: dict, method: str):
+    """The localiser of ``method`` over the map ``ds.reference`` (L = 5, CPU)."""
+    return dataset_localizer(ds, models, LocalizeConfig(method=method, seq_len=5, device="cpu"))
+
+
+def time_method(ds: Dataset, models: dict, method: str, queries: np.ndarray, warmup: int) -> dict[str, float]:
     """Wall-clock latency per step (``Estimate.latency_ms``) and, separately, the CPU time of the
     calling thread per step (with one torch thread all the work is on it: what the step costs on a
     core of its own, whatever else the machine runs)."""
     t0 = time.perf_counter()
-    loc = Localizer(rmap, method, EvalConfig(seq_len=5, device="cpu"))
+    loc = localizer(ds, models, method)
     setup = time.perf_counter() - t0
     lat, cpu = [], []
     for q in queries:
@@ -59,16 +62,17 @@ def time_method(rmap: ReferenceMap, method: str, queries: np.ndarray, warmup: in
             "setup_s": round(setup, 1)}
 
 
-def breakdown(rmap: ReferenceMap, queries: np.ndarray, steps: int) -> dict[str, float]:
+def breakdown(ds: Dataset, models: dict, queries: np.ndarray, steps: int) -> dict[str, float]:
     """Median ms of each part of an HVPR step, timed apart."""
-    loc = Localizer(rmap, "hvpr", EvalConfig(seq_len=5, device="cpu"))
+    loc = localizer(ds, models, "hvpr")
     for q in queries[:10]:
         loc.step(q)
-    s1, sl = rmap.models["s1"], rmap.models["seqnet"]
+    s1, sl = models["s1"], models["seqnet"]
+    q_sl = sl(torch.from_numpy(queries[:5])[None])
     win = torch.from_numpy(queries[:5])[None]
     parts = {"S_1 frame descriptor": lambda: s1(win[:, :1]),
              "S_L window descriptor": lambda: sl(win),
-             "shortlist distances (GEMV)": lambda: distance_row(loc.r_items[0], loc.r_items, loc.r_items_sq),
+             "shortlist search (exact index)": lambda: loc.ref.search("seqnet", q_sl, 20),
              "HVPR step (all)": lambda: loc.step(queries[0])}
     out = {}
     with torch.no_grad():
@@ -100,7 +104,8 @@ def main() -> None:
     torch.manual_seed(0)
     models = {"seqnet": SeqNet(args.dim, args.out_dims, 5, args.w).eval(),
               "s1": SeqNet(args.dim, args.out_dims, 1, 1).eval()}
-    rmap = ReferenceMap(Traverse(ref, np.arange(args.frames, dtype=np.float64)), 1.0, models)
+    t = Traverse(ref, np.arange(args.frames, dtype=np.float64))
+    ds = Dataset(t, t, 1.0)
     rng = np.random.default_rng(1)
     start = int(rng.integers(0, args.frames - args.steps - args.warmup))
     queries = ref[start : start + args.steps + args.warmup] + 0.02 * rng.standard_normal(
@@ -108,10 +113,10 @@ def main() -> None:
     res = {"map": [args.frames, args.dim], "out_dims": args.out_dims, "w": args.w, "threads": args.threads,
            "load_before": os.getloadavg(), "methods": {}}
     for m in args.methods.split(","):
-        res["methods"][m] = time_method(rmap, m, queries, args.warmup)
+        res["methods"][m] = time_method(ds, models, m, queries, args.warmup)
         print(m, res["methods"][m], flush=True)
     if args.breakdown:
-        res["breakdown_ms"] = breakdown(rmap, queries, 50)
+        res["breakdown_ms"] = breakdown(ds, models, queries, 50)
         print(res["breakdown_ms"])
     res["load_after"] = os.getloadavg()
     print("load average before", res["load_before"], "after", res["load_after"])

@@ -38,11 +38,12 @@ from seqnet.data.io import load_dataset
 from seqnet.data.traverse import Traverse
 from seqnet.eval.metrics.recall import GroundTruth, recall
 from seqnet.maps import MapArrays, MapConfig, load_map, write_map
-from seqnet.maps.map import describe_traverse
+from seqnet.matching.hvpr import order
 from seqnet.matching.online import OnlineSeqMatch
 from seqnet.matching.seqmatch import seqmatch_topk
 from seqnet.search.ann import AnnConfig, build_index, set_search_params
 from seqnet.sequence.checkpoints import load_model
+from seqnet.sequence.described import Described
 
 FAR = 1e7  # distractor positions start here: never within the radius of a real place
 
@@ -120,9 +121,9 @@ def build_arrays(ref: Traverse, model: dict, n_db: int, conf: MapConfig, models:
     sl, fr, items, starts, pos, bounds, offset = [], [], [], [], [], [], 0
     for raw, positions in segments(ref, model, n_db, seed):
         t = Traverse(raw, positions, provenance=ref.provenance)
-        d = describe_traverse(t, conf, models, torch.device("cpu"))
-        sl.append(d.shortlist.numpy())
-        fr.append(d.frames.numpy())
+        d = Described(t.descriptors, t.seq_bounds, conf.windows, models, torch.device("cpu"), "reference")
+        sl.append(d.items(conf.shortlist).numpy())
+        fr.append(d.frames(conf.frames_descriptor).numpy())
         items.append(d.side.items + offset)
         starts.append(d.side.match_starts + offset)
         pos.append(t.positions)
@@ -149,17 +150,18 @@ def r1(ranked: np.ndarray, truth: GroundTruth) -> float:
 
 def measure(mp, qd, truth, args, indexes: dict) -> dict:
     k, lm, res = args.top_k, mp.config.match_len, {}
-    sq, qf, qs = qd.shortlist.numpy(), qd.frames.numpy(), qd.side.match_starts
+    sq, qf = qd.items(mp.config.shortlist).numpy(), qd.frames(mp.config.frames_descriptor).numpy()
+    qs = qd.side.match_starts
     pick = np.linspace(0, len(sq) - 1, min(args.timed, len(sq))).round().astype(int)
-    exact = mp.search(sq, k, exact=True)[1]
-    res["hvpr_exact"] = {"recall@1": r1(mp.rerank(qf, qs, exact)[1], truth)}
+    exact = mp.search(mp.config.shortlist, sq, k, exact=True)[1]
+    res["hvpr_exact"] = {"recall@1": r1(order(mp.pair_scores(qf, qs, exact), exact, lm)[1], truth)}
     res["hvpr_exact"]["ms"] = timed(lambda i: mp.localize(sq[pick[i] : pick[i] + 1], qf, qs[pick[i] : pick[i] + 1],
                                                           k, exact=True), len(pick))
     for name, (index, ann) in indexes.items():
         set_search_params(index, ann)
         mp.index = index
-        approx = mp.search(sq, k)[1]
-        res[f"hvpr_{name}"] = {"recall@1": r1(mp.rerank(qf, qs, approx)[1], truth),
+        approx = mp.search(mp.config.shortlist, sq, k)[1]
+        res[f"hvpr_{name}"] = {"recall@1": r1(order(mp.pair_scores(qf, qs, approx), approx, lm)[1], truth),
                                "shortlist_recall": round(float(np.mean([len(np.intersect1d(a, e)) / k for a, e in
                                                                         zip(approx, exact, strict=True)])), 4),
                                "ms": timed(lambda i: mp.localize(sq[pick[i] : pick[i] + 1], qf,
@@ -179,7 +181,8 @@ def measure(mp, qd, truth, args, indexes: dict) -> dict:
     f16 = {}
     for name, arr in (("shortlist", mp.shortlist), ("frames", mp.frames)):
         setattr(mp, name, np.asarray(arr).astype(np.float16))
-    f16["hvpr_exact"] = r1(mp.rerank(qf, qs, mp.search(sq, k, exact=True)[1])[1], truth)
+    cand = mp.search(mp.config.shortlist, sq, k, exact=True)[1]
+    f16["hvpr_exact"] = r1(order(mp.pair_scores(qf, qs, cand), cand, lm)[1], truth)
     f16["seqmatch_all"] = r1(seqmatch_topk(qf, mp.frames, lm, 1, qs, mp.match_starts)[1], truth)
     res["float16_recall@1"] = f16
     return res

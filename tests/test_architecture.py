@@ -146,3 +146,19 @@ def test_no_process_wide_side_effects(path):
 def test_cycle_finder_finds_a_cycle():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+TESTS = Path(__file__).resolve().parent
+
+
+def test_the_top_level_holds_packages_and_at_most_four_modules():
+    modules = sorted(p.name for p in SRC.glob("*.py"))
+    assert len(modules) <= 4, modules
+
+
+def test_tests_mirror_the_packages():
+    packages = {p.name for p in SRC.iterdir() if (p / "__init__.py").is_file()}
+    dirs = {p.name for p in TESTS.iterdir() if p.is_dir() and not p.name.startswith((".", "_"))}
+    assert dirs <= packages, f"test folders without a package: {sorted(dirs - packages)}"
+    assert packages <= dirs, f"packages without a test folder: {sorted(packages - dirs)}"
+    assert not list(TESTS.glob("test_*.py"))[1:], "tests live in the folder of their package"

@@ -24,7 +24,7 @@ from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse
 from ..eval.evaluate import EvalConfig, Evaluation, run
-from ..eval.methods import Method, parse_method
+from ..eval.methods import HVPR_FUSED, HVPR_RERANK, Method, parse_method
 from ..eval.metrics.recall import ground_truth
 from ..eval.results import write_per_query
 from ..search.ann import shortlist_recall
@@ -72,7 +72,10 @@ def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
 def map_methods(mp: Map) -> dict[str, Method]:
     """The methods a map serves, by name: its HVPR, its shortlister (k-NN) and its whole-map matcher."""
     m = mp.config.method
-    return {x.name: x for x in (m, parse_method(m.shortlist), parse_method(m.rerank))}
+    served = [m, parse_method(m.shortlist), parse_method(m.rerank)]
+    if m.shortlist == "seqnet":  # the fused score of hvpr-fused needs only the stored S_L distances
+        served.append(parse_method(HVPR_FUSED if m.rerank == HVPR_RERANK else f"{HVPR_FUSED}:{m.rerank}"))
+    return {x.name: x for x in served}
 
 
 def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
@@ -97,10 +100,11 @@ def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
     if conf.window != c.window:
         raise ConfigError(f"window {conf.window!r} but map {mp.path} uses {c.window!r} windows")
     names = conf.methods or [c.method.name, c.method.shortlist]
-    bad = [n for n in names if n not in served]
+    same = {dataclasses.replace(x, name="") for x in served.values()}  # a method is what it runs, not how it is named
+    bad = [n for n in names if dataclasses.replace(parse_method(n), name="") not in same]
     if bad:
         raise ConfigError(f"map {mp.path} cannot run method {bad[0]!r}; valid for this map: {', '.join(served)}")
-    return [served[n] for n in names]
+    return [parse_method(n) for n in names]
 
 
 def _shortlist_recall(mp: Map, q_short: np.ndarray, top_k: int) -> Callable[[Method, np.ndarray], dict[str, Any]]:

@@ -110,12 +110,18 @@ def hvpr(
 @torch.no_grad()
 def pair_scores(rerank_query: ArrayLike, rerank_ref: ArrayLike, seq_len: int, q_starts: np.ndarray,
                 r_starts: np.ndarray, candidates: np.ndarray, matcher: str = "seqmatch", device: str | None = None,
-                anchor: str = "centre") -> torch.Tensor:
+                anchor: str = "centre", checked_ref: bool = False) -> torch.Tensor:
     """The matcher's scores ``[M, K]`` of candidate reference items ``candidates [M, K]`` (indices into
-    ``r_starts``; ``-1`` = none, scored ``inf``) for the query windows ``q_starts [M]``, in candidate order."""
+    ``r_starts``; ``-1`` = none, scored ``inf``) for the query windows ``q_starts [M]``, in candidate order.
+    ``checked_ref``: the reference frames were checked finite when they were made (a Reference's own
+    descriptors), so they are not scanned again on every call."""
     spec = SEQUENCE_MATCHERS[check_choice("sequence matcher", matcher, SEQUENCE_MATCHERS)]
     dev = get_device(device)
-    q, r = as_pair(rerank_query, rerank_ref, dev)
+    if checked_ref and isinstance(rerank_ref, torch.Tensor):
+        q = as_pair(rerank_query, rerank_ref[:1], dev)[0]
+        r = rerank_ref.to(device=dev, dtype=q.dtype)
+    else:
+        q, r = as_pair(rerank_query, rerank_ref, dev)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
     na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
     q_starts_np = check_starts(q_starts, na, "query")

@@ -1,19 +1,14 @@
 """Incremental sequence matching for a query stream (a robot localising frame by frame).
 
-For each new query frame one distance row against the map is computed (one GEMV, ``N_db·D``) and
-kept in a ring buffer (:class:`Ring`) of the last ``L_m`` rows; the score row of the window of the
-last ``L_m`` frames is then a cheap function of those rows (:data:`WINDOW_MATCHERS`): ``L_m``
-shifted adds for SeqMatch (:class:`OnlineSeqMatch`), one per trajectory for velocity-robust
-SeqMatch, the path DP for graph matching. Each equals the batch definition
-(:mod:`seqnet.matching.seqmatch`, :mod:`seqnet.matching.velocity`, :mod:`seqnet.matching.graph`) on the
-window of the last ``L_m`` frames (a causal window).
+:class:`Ring`: the last ``n`` rows of a stream as one contiguous view (the localiser's recent frames
+and frame descriptors). :class:`OnlineSeqMatch`: whole-map SeqMatch for a stream, one distance row per
+new frame (one GEMV, ``N_db·D``) kept in a ring of the last ``L_m`` rows, the window's score row
+then ``L_m`` shifted adds; it equals :func:`seqnet.matching.seqmatch.seqmatch` on the window of the
+last ``L_m`` frames (the timing benchmark's incremental row). The localiser itself ranks through
+:func:`seqnet.eval.rank.rank`, as the evaluation does.
 """
 
 from __future__ import annotations
-
-import dataclasses
-import functools
-from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -23,10 +18,7 @@ from ..core.utils import ArrayLike, as_tensor, get_device
 from ..search.blocks import topk_smallest
 from ..search.knn import finish_distances, sq_norms
 from ..sequence.windows import check_seq_len
-from .graph import DEFAULT_FAN_OUT, graph_pairs, path_dp
-from .pairs import window_scores
 from .seqmatch import shifted_sum
-from .velocity import DEFAULT_VELOCITIES, pivot_step, trajectories, velocity_block, velocity_pairs
 
 
 class Ring:
@@ -72,65 +64,6 @@ def seqmatch_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "ce
     nb = dist.shape[1] - seq_len + 1
     cols = [(seq_len - 1 - t) if reverse else t for t in range(seq_len)]
     return shifted_sum(dist, 0, 1, cols, nb, dist.new_empty((1, nb)))[0]
-
-
-def vseqmatch_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
-    """Velocity-robust SeqMatch scores ``[Nr − L + 1]`` of one window
-    (:func:`seqnet.matching.velocity.velocity_block`)."""
-    seq_len = dist.shape[0]
-    trajs = _trajectories(seq_len, anchor, reverse)
-    return velocity_block(dist, 0, 1, trajs, dist.shape[1] - seq_len + 1)[0]
-
-
-@functools.lru_cache(maxsize=32)
-def _trajectories(seq_len: int, anchor: str, reverse: bool) -> list[tuple[int, ...]]:
-    return trajectories(DEFAULT_VELOCITIES, seq_len, anchor, reverse)
-
-
-def graph_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
-    """Graph-matching scores ``[Nr − L + 1]`` of one window: the cheapest path through frame ``b + p``
-    (:func:`seqnet.matching.graph.path_dp`, ``fan_out`` 2)."""
-    if reverse:
-        raise ConfigError("graph matching has no reverse form")
-    seq_len = dist.shape[0]
-    p = pivot_step(anchor, seq_len)
-    costs = path_dp(lambda t: dist[t : t + 1], seq_len, DEFAULT_FAN_OUT, p)[0]
-    return costs[p : p + dist.shape[1] - seq_len + 1]
-
-
-def seqmatch_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Tensor, cand: torch.Tensor,
-                   reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
-    """:func:`seqnet.matching.pairs.window_scores` with the ``anchor`` argument of the other matchers (ignored)."""
-    return window_scores(q, r, seq_len, q_starts, cand, reverse)
-
-
-@dataclasses.dataclass(frozen=True)
-class WindowMatcher:
-    """A sequence matcher for one window at a time, with the pivot ``anchor`` as a parameter.
-
-    ``score(dist [L, Nr], anchor=...)`` → ``[Nr − L + 1]``: the latest window against every reference
-    window start, from its L distance rows; ``pairs(q, r, L, q_starts [M], cand [M, K], anchor=...)``
-    → ``[M, K]``: given window pairs (the HVPR re-ranker). With ``anchor="centre"`` both equal the
-    entry of :data:`seqnet.matching.registry.SEQUENCE_MATCHERS` of the same name.
-    """
-
-    name: str
-    score: Callable[..., torch.Tensor]
-    pairs: Callable[..., torch.Tensor]
-
-
-WINDOW_MATCHERS: dict[str, WindowMatcher] = {
-    m.name: m
-    for m in (
-        WindowMatcher("seqmatch", seqmatch_window, seqmatch_pairs),
-        WindowMatcher("seqmatch-rev", functools.partial(seqmatch_window, reverse=True),
-                      functools.partial(seqmatch_pairs, reverse=True)),
-        WindowMatcher("vseqmatch", vseqmatch_window, velocity_pairs),
-        WindowMatcher("vseqmatch-rev", functools.partial(vseqmatch_window, reverse=True),
-                      functools.partial(velocity_pairs, reverse=True)),
-        WindowMatcher("graph", graph_window, graph_pairs),
-    )
-}
 
 
 class OnlineSeqMatch:

@@ -58,7 +58,8 @@ class TraverseReference:
                candidates: np.ndarray) -> torch.Tensor:
         """The matcher's scores of the candidates (:func:`seqnet.matching.hvpr.pair_scores`)."""
         return pair_scores(query_frames, self.described.frames(frames), self.windows.match_len, q_starts,
-                           self.match_starts, candidates, matcher, str(self.device), self.windows.anchor)
+                           self.match_starts, candidates, matcher, str(self.device), self.windows.anchor,
+                           checked_ref=True)
 
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
               k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -151,7 +151,7 @@ def describe_windows(
         raise ConfigError(f"window indices must be [M, L], got shape {idx.shape}")
     out = []
     starts = range(0, len(idx), batch_size)
-    for s in progress_bar(starts, desc=progress, min_total=2 if progress else 2**62):
+    for s in progress_bar(starts, desc=progress) if progress and len(starts) > 1 else starts:
         block = np.asarray(idx[s : s + batch_size])
         rows = np.unique(block)
         sub = d[torch.from_numpy(rows)].to(device) if device is not None else d[torch.from_numpy(rows)]
