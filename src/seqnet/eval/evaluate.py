@@ -24,7 +24,7 @@ from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
 from ..sequence.described import Described
 from ..sequence.descriptors import SeqNet
-from ..sequence.windows import DEFAULT_SEQ_LEN, WINDOW_MODES, Windows
+from ..sequence.windows import WINDOW_MODES, WindowSettings
 from .checks import check_inputs
 from .methods import Method, default_methods, parse_method
 from .metrics.recall import GroundTruth, check_radius, ground_truth
@@ -33,7 +33,7 @@ from .results import method_results, write_per_query
 
 
 @dataclasses.dataclass(frozen=True)
-class EvalConfig(Config):
+class EvalConfig(WindowSettings, Config):
     """Settings of :func:`evaluate` (see ``seqnet eval --help``).
 
     Attributes:
@@ -90,16 +90,6 @@ class EvalConfig(Config):
         check_choice("k-NN backend", self.backend, KNN_BACKENDS)
         get_device(self.device)  # validates the device name
 
-    @property
-    def length(self) -> int:
-        """L (the default when unset)."""
-        return self.seq_len or DEFAULT_SEQ_LEN
-
-    @property
-    def match_len(self) -> int:
-        """L_m: the sequence matchers' length."""
-        return self.rerank_seq_len or self.length
-
     def resolve(self, models: Mapping[str, SeqNet], radius: float) -> EvalConfig:
         """L (the S_L model's when unset), the radius (the dataset's when unset) and the methods (the defaults
         the models allow when unset), resolved once."""
@@ -108,10 +98,6 @@ class EvalConfig(Config):
             conf = conf.replace(seq_len=models["seqnet"].seq_len)
         return conf.replace(radius=radius if conf.radius is None else conf.radius,
                             methods=conf.methods or default_methods(models, conf.length), seq_len=conf.length)
-
-    def windows(self) -> Windows:
-        """The :class:`~seqnet.sequence.windows.Windows` of this evaluation (L, L_m, mode)."""
-        return Windows(self.length, self.match_len, self.window)
 
     def shortlist_size(self, m: Method) -> int:
         """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""
@@ -196,7 +182,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     dev = get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
-    windows = conf.windows()
+    windows = conf.windows
     query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
     ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
     positives = ds.positives.select(query.side.items, ref.items) if ds.positives is not None else None

@@ -10,13 +10,13 @@ from ..core.utils import get_device
 from ..eval.methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, parse_method
 from ..search.ann import AnnConfig
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
-from ..sequence.windows import DEFAULT_SEQ_LEN, WINDOW_MODES, Windows
+from ..sequence.windows import WINDOW_MODES, WindowSettings
 
 DTYPES = ("float32", "float16")
 
 
 @dataclasses.dataclass(frozen=True)
-class MapConfig(Config):
+class MapConfig(WindowSettings, Config):
     """How a map is built (see ``seqnet index build --help`` and docs/scale.md).
 
     Attributes:
@@ -68,21 +68,6 @@ class MapConfig(Config):
     def frames_descriptor(self) -> str:
         """The key of :data:`SEQUENCE_DESCRIPTORS` computed over each frame for re-ranking."""
         return FRAME_FEATURES[self.method.frames]
-
-    @property
-    def length(self) -> int:
-        """L."""
-        return self.seq_len or DEFAULT_SEQ_LEN
-
-    @property
-    def match_len(self) -> int:
-        """L_m."""
-        return self.rerank_seq_len or self.length
-
-    @property
-    def windows(self) -> Windows:
-        """The map's :class:`~seqnet.sequence.windows.Windows` (L, L_m, mode)."""
-        return Windows(self.length, self.match_len, self.window)
 
     def roles(self) -> set[str]:
         """Model roles the map needs (``seqnet`` = S_L, ``s1`` = S_1)."""

@@ -155,3 +155,27 @@ class Side:
     items: np.ndarray
     starts: np.ndarray
     match_starts: np.ndarray
+
+
+class WindowSettings:
+    """Mixin of the configs that carry ``seq_len``, ``rerank_seq_len`` and ``window`` fields: L, L_m
+    and their :class:`Windows`, defaulted one way everywhere."""
+
+    seq_len: int | None
+    rerank_seq_len: int | None
+    window: str
+
+    @property
+    def length(self) -> int:
+        """L (:data:`DEFAULT_SEQ_LEN` when unset)."""
+        return self.seq_len or DEFAULT_SEQ_LEN
+
+    @property
+    def match_len(self) -> int:
+        """L_m: the sequence matchers' length (L when unset)."""
+        return self.rerank_seq_len or self.length
+
+    @property
+    def windows(self) -> Windows:
+        """The :class:`Windows` of these settings (L, L_m, mode)."""
+        return Windows(self.length, self.match_len, self.window)
