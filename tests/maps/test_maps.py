@@ -179,3 +179,20 @@ def test_explicit_positives_apply_to_a_map_of_the_same_dataset_only(synth_dir, t
     foreign = build(FREE, synth_dir, tmp_path / "foreign")
     with pytest.raises(ConfigError, match="explicit positives"):
         evaluate_main(econf, tmp_path / "pos", foreign, tmp_path / "o")
+
+
+def test_a_map_with_a_faiss_factory_string(synth_dir, tmp_path, capsys):
+    from seqnet.cli import main as cli_main
+
+    out = tmp_path / "map"
+    assert cli_main(["index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank", "raw+seqmatch",
+                     "--index", "IVF2,Flat", "--split", "all", "--out", str(out), "--device", "cpu"]) == 0
+    mp = load_map(out)
+    assert mp.index is not None and mp.config.ann.kind == "IVF2,Flat" and mp.index.nlist == 2
+    res = results(evaluate_main(EvalConfig(split="all"), synth_dir, mp.path, tmp_path / "out"))
+    assert res["delta"]["method"]["index"] == "IVF2,Flat" and res["delta"]["recall@1"] > 0
+    capsys.readouterr()
+    assert cli_main(["index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank",
+                     "raw+seqmatch", "--index", "IVF2,Nope", "--out", str(tmp_path / "bad")]) == 2
+    assert "FAISS cannot make index 'IVF2,Nope'" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()  # refused before any work

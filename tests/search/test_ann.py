@@ -49,7 +49,7 @@ def test_deterministic_ivf(data):
     np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("kw, pattern", [({"kind": "annoy"}, "ANN index kind"), ({"nprobe": 0}, "nprobe"),
+@pytest.mark.parametrize("kw, pattern", [({"kind": "an noy"}, "ANN index kind"), ({"nprobe": 0}, "nprobe"),
                                          ({"pq_bits": 20}, "pq_bits"), ({"nlist": 0}, "nlist")])
 def test_config_errors(kw, pattern):
     with pytest.raises(ConfigError, match=pattern):
@@ -65,3 +65,33 @@ def test_build_errors(data, tmp_path):
     (tmp_path / "bad.faiss").write_text("garbage")
     with pytest.raises(CheckpointError, match="cannot read FAISS index"):
         load_index(tmp_path / "bad.faiss")
+
+
+@pytest.mark.parametrize("spec", ["IVF16,Flat", "HNSW16", "HNSW16,SQ8", "OPQ4,IVF16,PQ4x4", "PCA8,IVF8,Flat"])
+def test_any_faiss_factory_string_builds_and_searches(spec):
+    from seqnet.search.ann import AnnConfig, build_index, shortlist_recall
+    from seqnet.search.ann import search as ann_search
+    from seqnet.search.knn import knn
+
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((2000, 16)).astype(np.float32)
+    q = x[:50] + 0.01 * rng.standard_normal((50, 16)).astype(np.float32)
+    index = build_index(x, AnnConfig(kind=spec, nprobe=16, ef_search=64))
+    assert index.ntotal == 2000
+    found = ann_search(index, q, 10)[1]
+    assert shortlist_recall(found, knn(q, x, 10)[1]) > 0.2  # an approximate but working index
+    assert (found[:, 0] == np.arange(50)).mean() > 0.5  # each query's own vector is mostly found first
+
+
+def test_bad_factory_strings_are_clear_errors():
+    from seqnet.core.errors import ConfigError
+    from seqnet.search.ann import AnnConfig, build_index, make_index
+
+    with pytest.raises(ConfigError, match="neither an alias"):
+        AnnConfig(kind="hnsw 32")
+    with pytest.raises(ConfigError, match="FAISS cannot make index 'IVFX,Flat'.*valid: an alias"):
+        make_index(16, 1000, AnnConfig(kind="IVFX,Flat"))
+    with pytest.raises(ConfigError, match="cannot train"):
+        build_index(np.zeros((20, 16), np.float32), AnnConfig(kind="IVF64,PQ4"))
+    assert AnnConfig(kind="hnsw").factory(16, 100) == "HNSW32" and AnnConfig().factory(8, 10) == "Flat"
+    assert AnnConfig(kind="ivf-pq", pq_m=4, pq_bits=4).factory(16, 4000) == "IVF102,PQ4x4"

@@ -35,8 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--seq-len", type=positive_int, help="L (default: the S_L model's, else 5)")
     b.add_argument("--rerank-seq-len", type=positive_int, help="L_m (default: L)")
     b.add_argument("--window", choices=WINDOW_MODES, help=f"window position (default {_D.window})")
-    b.add_argument("--index", dest="kind", choices=list(ANN_INDEXES),
-                   help=f"index over the shortlist descriptors (default {_A.kind}: exact search)")
+    b.add_argument("--index", dest="kind", metavar="KIND",
+                   help=f"index over the shortlist descriptors: {', '.join(ANN_INDEXES)} (default {_A.kind}: exact "
+                   "search), or any FAISS index_factory string, e.g. 'OPQ16,IVF1024,PQ16' or 'HNSW32,SQ8'")
     b.add_argument("--nlist", type=positive_int, help="IVF lists (default about 4·sqrt(N))")
     b.add_argument("--nprobe", type=positive_int, help=f"IVF lists visited per query (default {_A.nprobe})")
     b.add_argument("--hnsw-m", type=positive_int, help=f"HNSW neighbours per node (default {_A.hnsw_m})")

@@ -39,6 +39,7 @@ from ..matching.online import Ring
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
+from ..search.blocks import topk_smallest
 from ..sequence.described import describe_frames, describe_items
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
 from ..sequence.windows import Windows
@@ -142,6 +143,8 @@ class Localizer:
         self.need = max(self.short_len, w.match_len if m.frames else 1)
         self.raw = Ring(w.length, reference.input_dim, torch.float32, self.device)
         self.feats: Ring | None = None
+        self.rows: Ring | None = None
+        self._starts = torch.as_tensor(reference.match_starts, device=self.device)
         self.frame = 0
         self.reset()
 
@@ -158,8 +161,9 @@ class Localizer:
     def reset(self) -> None:
         """Forget the recent frames (call at a sequence bound, or after a kidnap)."""
         self.raw.reset()
-        if self.feats is not None:
-            self.feats.reset()
+        for ring in (self.feats, self.rows):
+            if ring is not None:
+                ring.reset()
 
     @torch.no_grad()
     def step(self, descriptor: ArrayLike) -> Estimate:
@@ -175,9 +179,7 @@ class Localizer:
         if self.frames_name is not None:
             feat = describe_frames(recent, None, self.frames_name, self.windows, self.models, self.device,
                                    which=np.array([len(recent) - 1]))[0].to(self.device)
-            if self.feats is None:
-                self.feats = Ring(self.match_len, feat.shape[0], torch.float32, self.device)
-            self.feats.push(feat)
+            self._push_frame(feat)
         seen = self.raw.count
         ranking = self._rank(recent) if seen >= self.need else None
         est = self._estimate(ranking, seen >= self.windows.longest)
@@ -185,9 +187,32 @@ class Localizer:
         self.frame += 1
         return est
 
+    def _push_frame(self, feat: torch.Tensor) -> None:
+        """The newest frame descriptor ``[D2]`` into the ring of the last L_m; for a whole-map matcher its
+        distance row to the map into the ring of the last L_m rows (the matcher's online form reads them)."""
+        if self.feats is None:
+            self.feats = Ring(self.match_len, feat.shape[0], torch.float32, self.device)
+        self.feats.push(feat)
+        if self.method.kind == "match":
+            row = self.ref.frame_distances(self.frames_name, feat)
+            if self.rows is None:
+                self.rows = Ring(self.match_len, row.shape[0], row.dtype, self.device)
+            self.rows.push(row)
+
+    def _match(self) -> tuple[np.ndarray, np.ndarray]:
+        """A whole-map matcher on the newest window: its online form (:data:`SEQUENCE_MATCHERS` ``window``)
+        on the last L_m distance rows, at the reference items, the k best."""
+        spec = SEQUENCE_MATCHERS[self.method.matcher]
+        opts = {"anchor": self.windows.anchor} if spec.anchored else {}
+        row = spec.window(self.rows.window(), **opts)[self._starts]
+        v, i = topk_smallest(row[None], self.k)
+        return v[0].cpu().numpy(), i[0].cpu().numpy()
+
     def _rank(self, recent: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """``(scores [k'], items [k'])`` of the newest frame, best first (:func:`seqnet.eval.rank.rank`)."""
         m, item = self.method, None
+        if m.kind == "match":
+            return self._match()
         if m.shortlist is not None:
             if SEQUENCE_DESCRIPTORS[m.shortlist].single_frame:
                 item = describe_frames(recent, None, m.shortlist, self.windows, self.models, self.device,

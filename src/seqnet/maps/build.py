@@ -13,7 +13,7 @@ from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..eval.checks import check_models as check_model_inputs
 from ..reference.traverse import TraverseReference
-from ..search.ann import ANN_INDEXES
+from ..search.ann import make_index
 from ..sequence.checkpoints import load_models
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
 from ..sequence.windows import Windows
@@ -46,7 +46,7 @@ def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> N
     role = SEQUENCE_DESCRIPTORS[conf.shortlist].model
     dim = models[role].out_dims if role else ds.reference.dim
     n = len(conf.windows.side(len(ds.reference), ds.reference.seq_bounds).items)
-    ANN_INDEXES[conf.ann.kind](dim, max(n, 1), conf.ann)
+    make_index(dim, max(n, 1), conf.ann)  # an alias's sizes, or a factory string FAISS accepts
 
 
 def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = ()) -> Path:

@@ -126,6 +126,12 @@ class Map:
         return spec.topk(query_frames, self.frames, self.config.match_len, k, q_starts, self.match_starts,
                          device=str(self.device), block_bytes=self.block_bytes, **spec.options(self.windows.anchor))
 
+    def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
+        """``[Nr]`` distances of one query frame descriptor ``[D2]`` to every stored frame (streamed in blocks)."""
+        if frames != self.config.frames_descriptor:
+            raise ConfigError(f"map {self.path} stores {self.config.frames_descriptor!r} frames, not {frames!r}")
+        return self.exact_search(self.frames).distances(frame[None])[0]
+
     def rerank(self, frames: str, matcher: str, query_frames: ArrayLike, q_starts: np.ndarray,
                candidates: np.ndarray) -> torch.Tensor:
         """The matcher's scores ``[M, K]`` of ``candidates [M, K]`` (items, -1 = none), in candidate order."""

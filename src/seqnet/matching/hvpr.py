@@ -110,18 +110,13 @@ def hvpr(
 @torch.no_grad()
 def pair_scores(rerank_query: ArrayLike, rerank_ref: ArrayLike, seq_len: int, q_starts: np.ndarray,
                 r_starts: np.ndarray, candidates: np.ndarray, matcher: str = "seqmatch", device: str | None = None,
-                anchor: str = "centre", checked_ref: bool = False) -> torch.Tensor:
+                anchor: str = "centre") -> torch.Tensor:
     """The matcher's scores ``[M, K]`` of candidate reference items ``candidates [M, K]`` (indices into
     ``r_starts``; ``-1`` = none, scored ``inf``) for the query windows ``q_starts [M]``, in candidate order.
-    ``checked_ref``: the reference frames were checked finite when they were made (a Reference's own
-    descriptors), so they are not scanned again on every call."""
-    spec = SEQUENCE_MATCHERS[check_choice("sequence matcher", matcher, SEQUENCE_MATCHERS)]
+    Checks every argument, then :func:`candidate_scores`."""
+    check_choice("sequence matcher", matcher, SEQUENCE_MATCHERS)
     dev = get_device(device)
-    if checked_ref and isinstance(rerank_ref, torch.Tensor):
-        q = as_pair(rerank_query, rerank_ref[:1], dev)[0]
-        r = rerank_ref.to(device=dev, dtype=q.dtype)
-    else:
-        q, r = as_pair(rerank_query, rerank_ref, dev)
+    q, r = as_pair(rerank_query, rerank_ref, dev)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
     na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
     q_starts_np = check_starts(q_starts, na, "query")
@@ -134,10 +129,19 @@ def pair_scores(rerank_query: ArrayLike, rerank_ref: ArrayLike, seq_len: int, q_
         )
     if cand.size and (cand.min() < -1 or cand.max() >= len(r_starts_t)):
         raise ConfigError(f"candidates must be reference items in 0..{len(r_starts_t) - 1} (or -1 for none)")
-    cand_t = torch.as_tensor(cand.astype(np.int64, copy=False), device=dev)
-    cand_starts = torch.where(cand_t >= 0, r_starts_t[cand_t.clamp_min(0)], -1) if len(r_starts_t) else cand_t
-    return spec.score_pairs(q, r, seq_len, torch.as_tensor(q_starts_np, device=dev), cand_starts,
-                            **spec.options(anchor))
+    return candidate_scores(q, r, seq_len, torch.as_tensor(q_starts_np, device=dev), r_starts_t, cand, matcher,
+                            anchor)
+
+
+def candidate_scores(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Tensor, r_starts: torch.Tensor,
+                     candidates: np.ndarray | torch.Tensor, matcher: str, anchor: str) -> torch.Tensor:
+    """The kernel of :func:`pair_scores` on checked inputs (a Reference's own descriptors and window
+    starts, candidates from its search): ``q [Nq, D]``, ``r [Nr, D]`` of one dtype and device,
+    ``q_starts [M]``, ``r_starts [R]``, ``candidates [M, K]`` items (``-1``: none) → ``[M, K]``."""
+    spec = SEQUENCE_MATCHERS[matcher]
+    cand_t = torch.as_tensor(candidates, device=q.device).long()
+    cand_starts = torch.where(cand_t >= 0, r_starts[cand_t.clamp_min(0)], -1) if len(r_starts) else cand_t
+    return spec.score_pairs(q, r, seq_len, q_starts, cand_starts, **spec.options(anchor))
 
 
 def rerank(rerank_query: ArrayLike, rerank_ref: ArrayLike, seq_len: int, q_starts: np.ndarray, r_starts: np.ndarray,

@@ -4,11 +4,14 @@
 and frame descriptors). :class:`OnlineSeqMatch`: whole-map SeqMatch for a stream, one distance row per
 new frame (one GEMV, ``N_db·D``) kept in a ring of the last ``L_m`` rows, the window's score row
 then ``L_m`` shifted adds; it equals :func:`seqnet.matching.seqmatch.seqmatch` on the window of the
-last ``L_m`` frames (the timing benchmark's incremental row). The localiser itself ranks through
-:func:`seqnet.eval.rank.rank`, as the evaluation does.
+last ``L_m`` frames. The window forms (``seqmatch_window``, ``vseqmatch_window``, ``graph_window``:
+the L_m distance rows of a causal window → its scores against every reference window start) are
+the *online form* column of :data:`seqnet.matching.registry.SEQUENCE_MATCHERS`.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import torch
@@ -18,7 +21,9 @@ from ..core.utils import ArrayLike, as_tensor, get_device
 from ..search.blocks import topk_smallest
 from ..search.knn import finish_distances, sq_norms
 from ..sequence.windows import check_seq_len
+from .graph import DEFAULT_FAN_OUT, path_dp
 from .seqmatch import shifted_sum
+from .velocity import DEFAULT_VELOCITIES, pivot_step, trajectories, velocity_block
 
 
 class Ring:
@@ -64,6 +69,30 @@ def seqmatch_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "ce
     nb = dist.shape[1] - seq_len + 1
     cols = [(seq_len - 1 - t) if reverse else t for t in range(seq_len)]
     return shifted_sum(dist, 0, 1, cols, nb, dist.new_empty((1, nb)))[0]
+
+
+def vseqmatch_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
+    """Velocity-robust SeqMatch scores ``[Nr − L + 1]`` of one window
+    (:func:`seqnet.matching.velocity.velocity_block`)."""
+    seq_len = dist.shape[0]
+    trajs = _trajectories(seq_len, anchor, reverse)
+    return velocity_block(dist, 0, 1, trajs, dist.shape[1] - seq_len + 1)[0]
+
+
+@functools.lru_cache(maxsize=32)
+def _trajectories(seq_len: int, anchor: str, reverse: bool) -> list[tuple[int, ...]]:
+    return trajectories(DEFAULT_VELOCITIES, seq_len, anchor, reverse)
+
+
+def graph_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
+    """Graph-matching scores ``[Nr − L + 1]`` of one window: the cheapest path through frame ``b + p``
+    (:func:`seqnet.matching.graph.path_dp`, ``fan_out`` 2)."""
+    if reverse:
+        raise ConfigError("graph matching has no reverse form")
+    seq_len = dist.shape[0]
+    p = pivot_step(anchor, seq_len)
+    costs = path_dp(lambda t: dist[t : t + 1], seq_len, DEFAULT_FAN_OUT, p)[0]
+    return costs[p : p + dist.shape[1] - seq_len + 1]
 
 
 class OnlineSeqMatch:

@@ -7,8 +7,11 @@ starts (see :mod:`seqnet.sequence.windows`):
   the whole map, keeping the k best reference items per query item;
 * ``score_pairs(q, r, L, q_starts [M], cand_starts [M, K])`` → ``[M, K]`` scores of given windows
   (``-1`` = no candidate, ``inf``): the re-ranker of HVPR;
-* ``anchored``: takes the window step pinned to the item's frame; ``online``: may run on a causal
-  window alone (the localiser); a matcher without one is refused there, never run as another.
+* ``window(dist [L, Nr], anchor=...)`` → ``[Nr − L + 1]``: the *online form*, the scores of one
+  causal window from its L distance rows (one new row per frame: the localiser); a matcher without
+  one (``online`` false) is refused there, never run as another. Equal to ``topk`` on that window
+  (``tests/localize/test_parity.py``);
+* ``anchored``: takes the window step pinned to the item's frame.
 
 Matchers: ``seqmatch`` / ``seqmatch-rev`` (fixed speed, :mod:`seqnet.matching.seqmatch`), ``vseqmatch`` /
 ``vseqmatch-rev`` (several velocities, :mod:`seqnet.matching.velocity`), ``graph`` and ``grh`` (paths of
@@ -28,6 +31,7 @@ import numpy as np
 import torch
 
 from .graph import graph_pairs, graph_topk, grh_pairs, grh_topk
+from .online import graph_window, seqmatch_window, vseqmatch_window
 from .pairs import window_scores
 from .seqmatch import seqmatch_topk
 from .velocity import velocity_pairs, velocity_topk
@@ -42,7 +46,12 @@ class SequenceMatcher:
     topk: Callable[..., tuple[np.ndarray, np.ndarray]]
     score_pairs: Callable[..., torch.Tensor]
     anchored: bool = False  # takes ``anchor=``: the window step pinned to the item's frame
-    online: bool = True  # has an online form: a causal window scored alone, as the localiser does
+    window: Callable[..., torch.Tensor] | None = None  # the online form: dist [L, Nr] of one window -> [Nr - L + 1]
+
+    @property
+    def online(self) -> bool:
+        """Has an online form (the localiser refuses a matcher without one)."""
+        return self.window is not None
 
     def options(self, anchor: str) -> dict[str, str]:
         """Keyword options of the matcher's functions: an anchored matcher pins step ``anchor`` of each
@@ -55,17 +64,20 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
     m.name: m
     for m in (
         SequenceMatcher("seqmatch", "SeqMatch: summed distances of aligned frames (same speed, same direction)",
-                        seqmatch_topk, window_scores),
+                        seqmatch_topk, window_scores, window=seqmatch_window),
         SequenceMatcher("seqmatch-rev", "SeqMatch with the reference traversed backwards (reverse direction)",
-                        functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True)),
+                        functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True),
+                        window=functools.partial(seqmatch_window, reverse=True)),
         SequenceMatcher("vseqmatch", "SeqMatch over trajectories of several slopes (0.5-2 reference frames per query "
-                        "frame), the best one wins", velocity_topk, velocity_pairs, anchored=True),
+                        "frame), the best one wins", velocity_topk, velocity_pairs, anchored=True,
+                        window=vseqmatch_window),
         SequenceMatcher("vseqmatch-rev", "velocity-robust SeqMatch with the reference traversed backwards",
                         functools.partial(velocity_topk, reverse=True),
-                        functools.partial(velocity_pairs, reverse=True), anchored=True),
+                        functools.partial(velocity_pairs, reverse=True), anchored=True,
+                        window=functools.partial(vseqmatch_window, reverse=True)),
         SequenceMatcher("graph", "GISM-style graph matching: cheapest path with reference steps 0..2 per query frame "
-                        "(stops and speed changes)", graph_topk, graph_pairs, anchored=True),
+                        "(stops and speed changes)", graph_topk, graph_pairs, anchored=True, window=graph_window),
         SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
-                        grh_topk, grh_pairs, anchored=True, online=False),
+                        grh_topk, grh_pairs, anchored=True),
     )
 }

@@ -53,6 +53,10 @@ class Reference(Protocol):
         """``[M, K]`` scores of ``matcher`` on ``frames`` descriptors for the candidate items ``[M, K]``
         (``-1``: none, ``inf``) of the query windows ``q_starts [M]`` of ``query_frames [Nq, D2]``."""
 
+    def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
+        """``[Nr]`` distances of one query frame descriptor ``frame [D2]`` to every reference frame's
+        ``frames`` descriptor (the online form of the whole-map matchers reads these rows)."""
+
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
               k: int) -> tuple[np.ndarray, np.ndarray]:
         """``(scores [M, k], items [M, k])``: ``matcher`` over the whole reference for the query windows."""

@@ -9,7 +9,7 @@ import torch
 
 from ..data.traverse import Traverse
 from ..eval.methods import FRAME_FEATURES, Method
-from ..matching.hvpr import pair_scores
+from ..matching.hvpr import candidate_scores
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..search.knn import ExactIndex, knn
 from ..sequence.described import Described
@@ -34,7 +34,8 @@ class TraverseReference:
         self.items, self.match_starts = self.described.side.items, self.described.side.match_starts
         self.positions, self.names = traverse.positions, traverse.names
         self.provenance, self.input_dim = traverse.provenance, traverse.dim
-        self._index: dict[str, ExactIndex] = {}
+        self._index: dict[tuple[str, str], ExactIndex] = {}
+        self._starts: torch.Tensor | None = None
 
     def check_method(self, m: Method) -> None:
         """Every method runs on a traverse (its models were checked when it was loaded)."""
@@ -50,16 +51,27 @@ class TraverseReference:
         ref = self.described.items(descriptor)
         if self.backend != "torch":
             return knn(query, ref, k, backend=self.backend, device=str(self.device))
-        if descriptor not in self._index:
-            self._index[descriptor] = ExactIndex(ref, self.device)
-        return self._index[descriptor].search(query, k)
+        return self._exact(("items", descriptor), ref).search(query, k)
+
+    def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
+        """``[Nr]`` distances of one query frame descriptor ``[D2]`` to every reference frame's ``frames``."""
+        return self._exact(("frames", frames), self.described.frames(frames)).distances(frame[None])[0]
+
+    def _exact(self, key: tuple[str, str], ref: torch.Tensor) -> ExactIndex:
+        if key not in self._index:
+            self._index[key] = ExactIndex(ref, self.device)
+        return self._index[key]
 
     def rerank(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
                candidates: np.ndarray) -> torch.Tensor:
-        """The matcher's scores of the candidates (:func:`seqnet.matching.hvpr.pair_scores`)."""
-        return pair_scores(query_frames, self.described.frames(frames), self.windows.match_len, q_starts,
-                           self.match_starts, candidates, matcher, str(self.device), self.windows.anchor,
-                           checked_ref=True)
+        """The matcher's scores of the candidates (:func:`seqnet.matching.hvpr.candidate_scores`: the query
+        frames and the reference's own descriptors were checked where they were made)."""
+        r = self.described.frames(frames).to(self.device)
+        q = torch.as_tensor(query_frames).to(device=self.device, dtype=r.dtype)
+        if self._starts is None:
+            self._starts = torch.as_tensor(self.match_starts, device=self.device)
+        return candidate_scores(q, r, self.windows.match_len, torch.as_tensor(q_starts, device=self.device),
+                                self._starts, candidates, matcher, self.windows.anchor)
 
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
               k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,22 +1,28 @@
-"""Approximate nearest-neighbour shortlists with FAISS: a table of index types and their settings.
+"""Approximate nearest-neighbour shortlists with FAISS, built from ``faiss.index_factory`` strings.
 
 The HVPR shortlist only has to contain the true place among its K candidates, so an approximate
-index (IVF, HNSW, product quantisation) can replace the exhaustive search on large maps. Each
-:data:`ANN_INDEXES` entry builds a FAISS index over ``[N, D]`` float32 descriptors (L2) and sets
-its search-time parameters; :func:`shortlist_recall` measures how many of the exact top-K it keeps.
+index (IVF, HNSW, product quantisation, ...) can replace the exhaustive search on large maps. An
+index is named either by an alias of :data:`ANN_INDEXES` (``flat``, ``ivf-flat``, ``hnsw``,
+``ivf-pq``: factory strings sized from :class:`AnnConfig` and the number of vectors) or by any
+FAISS factory string (``OPQ16,IVF1024,PQ16``, ``HNSW32,SQ8``, ``IVF256,Flat``; see the FAISS wiki
+"The index factory"). Every index is L2 over ``[N, D]`` float32 descriptors;
+:func:`shortlist_recall` measures how many of the exact top-K it keeps.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.config import Config, check_choice, check_int
+from ..core.config import Config, check_int
 from ..core.errors import CheckpointError, ConfigError
+
+FACTORY = re.compile(r"^[A-Za-z][A-Za-z0-9_,.=x]*$")  # the characters of a faiss factory string
 
 
 @dataclasses.dataclass(frozen=True)
@@ -24,11 +30,11 @@ class AnnConfig(Config):
     """Settings of an approximate index (those of other kinds are ignored).
 
     Attributes:
-        kind: a key of :data:`ANN_INDEXES` (``flat`` is exact).
-        nlist: IVF: number of inverted lists (None: about ``4·√N``).
+        kind: an alias of :data:`ANN_INDEXES` (``flat`` is exact) or a FAISS factory string.
+        nlist: IVF aliases: number of inverted lists (None: about ``4·√N``).
         nprobe: IVF: lists visited per query.
-        hnsw_m: HNSW: neighbours per node; ef_search / ef_construction: HNSW search / build breadth.
-        pq_m: IVF-PQ: sub-quantisers (must divide D); pq_bits: bits per sub-quantiser code.
+        hnsw_m: ``hnsw``: neighbours per node; ef_search / ef_construction: HNSW search / build breadth.
+        pq_m: ``ivf-pq``: sub-quantisers (must divide D); pq_bits: bits per sub-quantiser code.
         seed: k-means seed.
     """
 
@@ -43,7 +49,9 @@ class AnnConfig(Config):
     seed: int = 0
 
     def __post_init__(self) -> None:
-        check_choice("ANN index kind", self.kind, ANN_INDEXES)
+        if not isinstance(self.kind, str) or not (self.kind in ANN_INDEXES or FACTORY.match(self.kind)):
+            raise ConfigError(f"ANN index kind {self.kind!r} is neither an alias ({', '.join(ANN_INDEXES)}) nor a "
+                              "FAISS factory string such as 'IVF1024,PQ16' or 'HNSW32,SQ8'")
         if self.nlist is not None:
             self._set("nlist", check_int("nlist", self.nlist, 1))
         for key in ("nprobe", "hnsw_m", "ef_search", "ef_construction", "pq_m"):
@@ -55,56 +63,74 @@ class AnnConfig(Config):
         """IVF lists for ``n`` vectors (at most n / 39, FAISS's minimum training points per list)."""
         return max(1, min(self.nlist or int(4 * np.sqrt(n)), n // 39 or 1))
 
-
-def _flat(d: int, n: int, conf: AnnConfig) -> Any:
-    import faiss
-
-    return faiss.IndexFlatL2(d)
+    def factory(self, d: int, n: int) -> str:
+        """The FAISS factory string of this index for ``n`` vectors of dimension ``d``."""
+        return ANN_INDEXES[self.kind](d, n, self) if self.kind in ANN_INDEXES else self.kind
 
 
-def _ivf_flat(d: int, n: int, conf: AnnConfig) -> Any:
-    import faiss
-
-    return faiss.IndexIVFFlat(faiss.IndexFlatL2(d), d, conf.lists(n))
-
-
-def _hnsw(d: int, n: int, conf: AnnConfig) -> Any:
-    import faiss
-
-    index = faiss.IndexHNSWFlat(d, conf.hnsw_m)
-    index.hnsw.efConstruction = conf.ef_construction
-    return index
-
-
-def _ivf_pq(d: int, n: int, conf: AnnConfig) -> Any:
-    import faiss
-
+def _ivf_pq(d: int, n: int, conf: AnnConfig) -> str:
     if d % conf.pq_m:
         raise ConfigError(f"IVF-PQ needs pq_m dividing D={d}, got pq_m={conf.pq_m} "
                           f"(hint: --pq-m {max(m for m in range(1, min(d, 64) + 1) if d % m == 0)})")
     if n < 2**conf.pq_bits:
         raise ConfigError(f"IVF-PQ with {conf.pq_bits}-bit codes needs at least {2**conf.pq_bits} vectors, got {n}")
-    return faiss.IndexIVFPQ(faiss.IndexFlatL2(d), d, conf.lists(n), conf.pq_m, conf.pq_bits)
+    return f"IVF{conf.lists(n)},PQ{conf.pq_m}x{conf.pq_bits}"
 
 
-ANN_INDEXES: dict[str, Callable[[int, int, AnnConfig], Any]] = {
-    "flat": _flat, "ivf-flat": _ivf_flat, "hnsw": _hnsw, "ivf-pq": _ivf_pq}
+# alias -> factory string of (D, N, settings)
+ANN_INDEXES: dict[str, Callable[[int, int, AnnConfig], str]] = {
+    "flat": lambda d, n, conf: "Flat",
+    "ivf-flat": lambda d, n, conf: f"IVF{conf.lists(n)},Flat",
+    "hnsw": lambda d, n, conf: f"HNSW{conf.hnsw_m}",
+    "ivf-pq": _ivf_pq,
+}
+
+
+def make_index(d: int, n: int, conf: AnnConfig) -> Any:
+    """The (untrained, empty) FAISS index of ``conf`` for ``n`` vectors of dimension ``d``; a bad factory
+    string is a :class:`ConfigError` naming it (checked before any work)."""
+    import faiss
+
+    spec = conf.factory(d, n)
+    try:
+        index = faiss.index_factory(d, spec, faiss.METRIC_L2)
+    except RuntimeError as e:
+        raise ConfigError(f"FAISS cannot make index {spec!r} for D={d} ({str(e).strip().splitlines()[-1][:160]}); "
+                          f"valid: an alias ({', '.join(ANN_INDEXES)}) or a factory string such as 'IVF1024,PQ16'"
+                          ) from e
+    hnsw = _hnsw_of(index)
+    if hnsw is not None:
+        hnsw.efConstruction = conf.ef_construction
+    return index
+
+
+def _hnsw_of(index: Any) -> Any:
+    """The HNSW graph inside ``index`` (through pre-transforms), or None."""
+    import faiss
+
+    while isinstance(index, faiss.IndexPreTransform):
+        index = faiss.downcast_index(index.index)
+    return getattr(index, "hnsw", None)
 
 
 def build_index(ref: np.ndarray, conf: AnnConfig | None = None) -> Any:
-    """A FAISS index of kind ``conf.kind`` over ``ref [N, D]`` (trained on it when the kind needs training)."""
+    """The FAISS index of ``conf`` over ``ref [N, D]`` (trained on it when the index needs training)."""
     import faiss
 
     conf = conf or AnnConfig()
     x = np.ascontiguousarray(ref, dtype=np.float32)
     if x.ndim != 2 or len(x) == 0:
         raise ConfigError(f"an index needs a non-empty [N, D] array, got shape {x.shape}")
-    index = ANN_INDEXES[conf.kind](x.shape[1], len(x), conf)
+    index = make_index(x.shape[1], len(x), conf)
     if not index.is_trained:
         ivf = faiss.try_extract_index_ivf(index)
         if ivf is not None:
             ivf.cp.seed = conf.seed  # deterministic k-means of the coarse quantiser
-        index.train(x)
+        try:
+            index.train(x)
+        except RuntimeError as e:
+            raise ConfigError(f"FAISS cannot train index {conf.factory(*x.shape[::-1])!r} on {len(x)} vectors "
+                              f"({str(e).strip().splitlines()[-1][:160]}); hint: fewer lists or codes") from e
     index.add(x)
     set_search_params(index, conf)
     return index
@@ -117,8 +143,9 @@ def set_search_params(index: Any, conf: AnnConfig) -> None:
     ivf = faiss.try_extract_index_ivf(index)
     if ivf is not None:
         ivf.nprobe = min(conf.nprobe, ivf.nlist)
-    if hasattr(index, "hnsw"):
-        index.hnsw.efSearch = conf.ef_search
+    hnsw = _hnsw_of(index)
+    if hnsw is not None:
+        hnsw.efSearch = conf.ef_search
 
 
 def search(index: Any, query: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

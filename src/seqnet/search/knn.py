@@ -99,6 +99,19 @@ class ExactIndex:
         return self._norms[dtype]
 
     @torch.no_grad()
+    def distances(self, query: ArrayLike) -> torch.Tensor:
+        """``[M, N]`` Euclidean distances of ``query [M, D]`` (a few rows: a frame of a stream) to the reference."""
+        dtype = compute_dtype(query, self.ref)
+        q = rows(query, 0, len(query), self.device, dtype)
+        q_sq = sq_norms(q)
+        def dot(r: torch.Tensor) -> torch.Tensor:  # one row: a GEMV on the row-major reference
+            return torch.mv(r, q[0])[None] if len(q) == 1 else q @ r.T
+
+        parts = [finish_distances(dot(self.block(c0, c1, dtype)), q_sq, n)
+                 for (c0, c1), n in zip(self.blocks, self.norms(dtype), strict=True)]
+        return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
+
+    @torch.no_grad()
     def search(self, query: ArrayLike, k: int, metric: str = "l2") -> tuple[np.ndarray, np.ndarray]:
         """``(scores [M, k], indices [M, k])``, best first, ties by the lower index (see :func:`knn`)."""
         nq, dq = matrix_shape(query, "query")

@@ -153,9 +153,13 @@ def describe_windows(
     starts = range(0, len(idx), batch_size)
     for s in progress_bar(starts, desc=progress) if progress and len(starts) > 1 else starts:
         block = np.asarray(idx[s : s + batch_size])
-        rows = np.unique(block)
-        sub = d[torch.from_numpy(rows)].to(device) if device is not None else d[torch.from_numpy(rows)]
-        local = np.searchsorted(rows, block)
+        if isinstance(desc, torch.Tensor):  # in memory already: gather the windows directly
+            rows, local = None, block
+            sub = d.to(device) if device is not None else d
+        else:  # read each row once (a memory map), then gather from the rows read
+            rows = np.unique(block)
+            sub = d[torch.from_numpy(rows)].to(device) if device is not None else d[torch.from_numpy(rows)]
+            local = np.searchsorted(rows, block)
         with torch.no_grad():
             out.append(fn(gather_windows(sub, local)).float().cpu())
     if not out:  # no windows: still run fn (on an empty batch) for its output width and checks

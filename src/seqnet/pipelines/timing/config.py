@@ -63,6 +63,7 @@ class TimingConfig(Config):
         self._set("top_ks", check_ints("top_ks", self.top_ks, 1))
         for key, low in (("queries", 1), ("repeats", 1), ("warmup", 0), ("seed", 0)):
             self._set(key, check_int(key, getattr(self, key), low))
+        # aliases only: --indexes is a comma-separated list (a factory string has commas of its own)
         self._set("indexes", tuple(check_choice("ANN index kind", k, ANN_INDEXES) for k in self.indexes))
         if not isinstance(self.ann, AnnConfig):
             raise ConfigError(f"ann must be an AnnConfig, got {type(self.ann).__name__}")
