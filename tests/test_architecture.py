@@ -162,3 +162,12 @@ def test_tests_mirror_the_packages():
     assert dirs <= packages, f"test folders without a package: {sorted(dirs - packages)}"
     assert packages <= dirs, f"packages without a test folder: {sorted(packages - dirs)}"
     assert not list(TESTS.glob("test_*.py"))[1:], "tests live in the folder of their package"
+
+
+@pytest.mark.parametrize("path", [p for p in MODULES if "cli" not in p.relative_to(SRC).parts],
+                         ids=lambda p: str(p.relative_to(SRC)))
+def test_library_code_chains_causes(path):
+    """``raise … from None`` only where the CLI turns an error into its one line (cli/); elsewhere ``from e``."""
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Raise) and isinstance(node.cause, ast.Constant) and node.cause.value is None:
+            pytest.fail(f"{path.relative_to(SRC)}:{node.lineno}: raise ... from None drops the cause for API callers")

@@ -137,8 +137,8 @@ def check_range(name: str, value: Any) -> tuple[int, int]:
     """A half-open index range ``(start, stop)`` with ``0 <= start < stop``."""
     try:
         a, b = (check_int(name, v, 0) for v in value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name} must be a [start, stop] pair of integers, got {value!r}") from None
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"{name} must be a [start, stop] pair of integers, got {value!r}") from err
     if a >= b:
         raise ConfigError(f"{name} must satisfy start < stop, got {a}:{b}")
     return a, b

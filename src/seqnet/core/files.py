@@ -43,7 +43,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.replace(tmp_path, path)
     except OSError as e:
         if e.filename in (str(tmp_path), tmp_path) or e.filename is None:  # name the user's file, not ours
-            raise type(e)(e.errno, e.strerror or str(e), str(path)) from None
+            raise type(e)(e.errno, e.strerror or str(e), str(path)) from e
         raise
     finally:
         if tmp_path.exists():
@@ -70,7 +70,7 @@ def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> Path:
         text = json.dumps(obj, indent=2, sort_keys=False, default=_json_default, allow_nan=False)
     except ValueError as e:
         raise ConfigError(f"refusing to write {path}: the results hold NaN or inf, which is not valid JSON ({e}); "
-                          "this is a bug or an input without any valid query") from None
+                          "this is a bug or an input without any valid query") from e
     return write_text_atomic(path, text + "\n")
 
 
@@ -117,7 +117,7 @@ def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint") -> A
             return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, zipfile errors ...
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise CheckpointError(f"cannot read {what} {path}: corrupted or not a torch file ({first[:200]})") from None
+        raise CheckpointError(f"cannot read {what} {path}: corrupted or not a torch file ({first[:200]})") from e
 
 
 # errno values that mean the environment failed (exit 1), not the input (exit 2)

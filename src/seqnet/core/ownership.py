@@ -66,11 +66,11 @@ def _acquire(lock: Path, path: Path, fcntl) -> int:  # noqa: ANN001 - the fcntl 
         fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        except BlockingIOError as err:
             holder = os.read(fd, 512).decode("utf-8", "replace").strip() or "unknown process"
             os.close(fd)
             raise LockedError(f"{path} is in use by another seqnet process ({holder}); wait for it to finish or "
-                              f"choose another output (lock: {lock})") from None
+                              f"choose another output (lock: {lock})") from err
         try:
             same = os.fstat(fd).st_ino == os.stat(lock).st_ino
         except FileNotFoundError:

@@ -95,7 +95,7 @@ def read_csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str
     try:
         rows = [(n, r) for n, r in enumerate(csv.reader(io.StringIO(text, newline="")), start=1)]
     except csv.Error as e:
-        raise DatasetError(f"{p}: not a valid CSV file ({e})") from None
+        raise DatasetError(f"{p}: not a valid CSV file ({e})") from e
     rows = [(n, r) for n, r in rows if r and any(c.strip() for c in r)]
     if len(rows) < 2:
         raise DatasetError(f"{p}: needs a header row and at least one data row")
@@ -130,9 +130,9 @@ def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np
     for i, (line, r) in enumerate(rows):
         try:
             pos[i] = [float(r[c]) for c in pos_cols]
-        except ValueError:
+        except ValueError as err:
             raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be numbers, "
-                               f"got {[r[c] for c in pos_cols]}") from None
+                               f"got {[r[c] for c in pos_cols]}") from err
     bounds = runs_to_bounds([r[col["seq"]] for _, r in rows]) if "seq" in col else None
     return names, pos, ("metres" if "east" in col else "frames"), bounds
 
@@ -173,7 +173,7 @@ def read_seq_bounds(path: str | Path, n: int | None = None) -> np.ndarray:
     try:
         b = np.loadtxt(read_text(p).splitlines(), dtype=np.int64, ndmin=2)
     except ValueError as e:
-        raise DatasetError(f"{p}: expected one 'start end' row of integers per image ({e})") from None
+        raise DatasetError(f"{p}: expected one 'start end' row of integers per image ({e})") from e
     if b.size == 0:
         raise DatasetError(f"{p}: holds no sequence bounds (the file is empty)")
     if b.shape[1] != 2:

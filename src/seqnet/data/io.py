@@ -40,15 +40,15 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
     try:
         meta = json.loads(read_text(meta_path))
     except json.JSONDecodeError as e:
-        raise DatasetError(f"{meta_path}: not valid JSON ({e})") from None
+        raise DatasetError(f"{meta_path}: not valid JSON ({e})") from e
     if not isinstance(meta, dict):
         raise DatasetError(f"{meta_path}: must hold a JSON object")
     if "radius" not in meta:
         raise DatasetError(f"{meta_path}: missing key 'radius' (localisation radius, metres or frames)")
     try:
         radius = float(meta["radius"])
-    except (TypeError, ValueError):
-        raise DatasetError(f"{meta_path}: radius must be a number, got {meta['radius']!r}") from None
+    except (TypeError, ValueError) as err:
+        raise DatasetError(f"{meta_path}: radius must be a number, got {meta['radius']!r}") from err
     trav = meta.get("traverses", {"reference": "reference", "query": "query"})
     if not isinstance(trav, dict) or not all(isinstance(v, str) for v in trav.values()):
         raise DatasetError(f"{meta_path}: 'traverses' must be an object like "
@@ -78,7 +78,7 @@ def load_positives(f: Path) -> Positives:
         with np.load(f, allow_pickle=False) as z:
             indptr, indices = z["indptr"], z["indices"]
     except (OSError, ValueError, KeyError, EOFError) as e:
-        raise DatasetError(f"cannot read {f} (explicit positives: arrays indptr and indices) ({e})") from None
+        raise DatasetError(f"cannot read {f} (explicit positives: arrays indptr and indices) ({e})") from e
     if indptr.ndim != 1 or indices.ndim != 1 or indptr.dtype.kind not in "iu" or indices.dtype.kind not in "iu":
         raise DatasetError(f"{f}: indptr and indices must be 1-D integer arrays")
     if indptr.size == 0 or indptr[0] != 0 or (np.diff(indptr) < 0).any() or indptr[-1] != indices.size:
@@ -102,11 +102,11 @@ def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]
             else:
                 a, b = int(rng[0]), int(rng[1])
                 out[name] = {"reference": (a, b), "query": (a, b)}
-        except (KeyError, TypeError, ValueError, IndexError):
+        except (KeyError, TypeError, ValueError, IndexError) as err:
             raise DatasetError(
                 f"{where}: split {name!r} must be [start, stop] or "
                 "{\"reference\": [start, stop], \"query\": [start, stop]}"
-            ) from None
+            ) from err
     return out
 
 

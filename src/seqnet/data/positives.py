@@ -125,7 +125,7 @@ def _read_json(p: Path) -> Positives:
     try:
         data = json.loads(read_text(p))
     except json.JSONDecodeError as e:
-        raise DatasetError(f"{p}: not valid JSON ({e})") from None
+        raise DatasetError(f"{p}: not valid JSON ({e})") from e
     if not isinstance(data, list) or not all(isinstance(r, (list, int)) for r in data):
         raise DatasetError(f"{p}: expected a JSON list with one list of reference indices per query, "
                            "e.g. [[0, 1], [2], []]")
@@ -140,8 +140,8 @@ def _read_csv(p: Path) -> Positives:
             continue  # blank line or header
         try:
             q, r = (int(f) for f in fields)
-        except ValueError:
-            raise DatasetError(f"{p}, line {n}: expected 'query,reference' (two integers), got {line!r}") from None
+        except ValueError as err:
+            raise DatasetError(f"{p}, line {n}: expected 'query,reference' (two integers), got {line!r}") from err
         if q < 0:
             raise DatasetError(f"{p}, line {n}: query index {q} is negative")
         pairs.append((q, r))
@@ -176,7 +176,7 @@ def _read_object_npy(p: Path) -> Positives:
                 raise ValueError(f".npy format version {version} is not supported here")
             shape, _, dtype = header[version](f, max_header_size=2**20)
         except ValueError as e:
-            raise DatasetError(f"cannot read {p} as a .npy file ({e})") from None
+            raise DatasetError(f"cannot read {p} as a .npy file ({e})") from e
         if dtype.kind != "O":
             f.seek(0)
             arr = np.load(f, allow_pickle=False)
@@ -184,7 +184,7 @@ def _read_object_npy(p: Path) -> Positives:
             try:
                 arr = _NumpyOnlyUnpickler(io.BytesIO(f.read())).load()
             except (pickle.UnpicklingError, EOFError, TypeError, ValueError) as e:
-                raise DatasetError(f"cannot read {p}: not a pickled NumPy object array ({e})") from None
+                raise DatasetError(f"cannot read {p}: not a pickled NumPy object array ({e})") from e
     if dtype.kind == "O":
         arr = np.asarray(arr, dtype=object).reshape(shape)
     elif arr.ndim == 2:

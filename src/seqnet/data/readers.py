@@ -74,7 +74,7 @@ def read_npy(f: Path, mmap: bool = True) -> np.ndarray:
         arr = np.load(f, mmap_mode="r" if mmap else None, allow_pickle=False)
     except (ValueError, OSError, EOFError) as e:
         msg = "it holds Python objects (pickled data), not numbers" if "pickle" in str(e) else str(e)
-        raise DatasetError(f"cannot read {f} as a .npy array ({msg})") from None
+        raise DatasetError(f"cannot read {f} as a .npy array ({msg})") from e
     if not isinstance(arr, np.ndarray):  # pragma: no cover - np.load only returns arrays after the magic check
         raise DatasetError(f"cannot read {f} as a .npy array")
     return arr
@@ -88,7 +88,7 @@ def _read_h5(p: Path) -> tuple[np.ndarray, list[str] | None]:
             desc = np.asarray(h[_h5_descriptor_key(h, p)][()])
             names = _h5_names(h, p) if "names" in h else None
     except (OSError, TypeError, ValueError, KeyError) as e:
-        raise DatasetError(f"cannot read {p} as HDF5 ({' '.join(str(e).split())})") from None
+        raise DatasetError(f"cannot read {p} as HDF5 ({' '.join(str(e).split())})") from e
     return desc, names
 
 
@@ -116,7 +116,7 @@ def _h5_names(h, p: Path) -> list[str]:  # noqa: ANN001 - h5py.File
     try:
         names = [n.decode("utf-8") if isinstance(n, bytes) else str(n) for n in node[()]]
     except UnicodeDecodeError as e:
-        raise DatasetError(f"{p}: 'names' are not UTF-8 text ({e.reason})") from None
+        raise DatasetError(f"{p}: 'names' are not UTF-8 text ({e.reason})") from e
     check_names(names, f"{p}:names")
     return names
 
@@ -148,7 +148,7 @@ def read_text(p: Path) -> str:
     try:
         return p.read_bytes().decode("utf-8")
     except UnicodeDecodeError as e:
-        raise DatasetError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+        raise DatasetError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from e
 
 
 def read_positions_file(f: Path) -> np.ndarray:
@@ -161,7 +161,7 @@ def read_positions_file(f: Path) -> np.ndarray:
             warnings.simplefilter("ignore")  # an empty file is reported below, not warned about
             arr = np.loadtxt(text.splitlines(), delimiter="," if f.suffix == ".csv" else None, ndmin=2)
     except ValueError as e:
-        raise DatasetError(f"cannot parse {f} as numbers ({' '.join(str(e).split())})") from None
+        raise DatasetError(f"cannot parse {f} as numbers ({' '.join(str(e).split())})") from e
     if arr.size == 0:
         raise DatasetError(f"{f} holds no positions (the file is empty)")
     return arr

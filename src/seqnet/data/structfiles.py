@@ -51,8 +51,8 @@ class DbStruct:
 def _scalar(s: np.void, field: str, path: Path) -> float:
     try:
         return float(np.asarray(s[field]).ravel()[0])
-    except (IndexError, TypeError, ValueError):
-        raise DatasetError(f"{path}: dbStruct.{field} is not a number ({s[field]!r})") from None
+    except (IndexError, TypeError, ValueError) as err:
+        raise DatasetError(f"{path}: dbStruct.{field} is not a number ({s[field]!r})") from err
 
 
 def _names(v: np.ndarray) -> list[str]:
@@ -63,9 +63,9 @@ def _names(v: np.ndarray) -> list[str]:
 def _utm(v: np.ndarray, n: int, field: str, path: Path) -> np.ndarray:
     try:
         a = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError) as err:
         raise DatasetError(f"{path}: dbStruct.{field} must hold numbers (UTM or frame indices), got "
-                           f"{np.asarray(v).dtype}") from None
+                           f"{np.asarray(v).dtype}") from err
     if a.ndim != 2 or a.shape[0] not in (1, 2) or a.shape[1] != n:
         raise DatasetError(f"{path}: dbStruct.{field} must be [2, {n}] (UTM) or [1, {n}] (frames), "
                            f"got shape {a.shape}")
@@ -84,7 +84,7 @@ def read_db_struct(path: str | Path) -> DbStruct:
         mat = loadmat(p)
     except (ValueError, TypeError, OSError, NotImplementedError, MatReadError) as e:
         raise DatasetError(f"cannot read {p} as a MATLAB v5 .mat file ({e}); "
-                           "hint: pass a seqNet structFiles/*.db") from None
+                           "hint: pass a seqNet structFiles/*.db") from e
     if "dbStruct" not in mat:
         raise DatasetError(f"{p}: no top-level 'dbStruct' (found: {[k for k in mat if not k.startswith('__')]})")
     if not isinstance(mat["dbStruct"], np.ndarray) or mat["dbStruct"].size == 0 or not mat["dbStruct"].dtype.names:

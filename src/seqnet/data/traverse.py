@@ -58,11 +58,11 @@ class Traverse:
             try:
                 self.descriptors = np.asarray(self.descriptors)
             except (TypeError, ValueError) as e:
-                raise DatasetError(f"{self.name}: descriptors are not an [N, D] array ({e})") from None
+                raise DatasetError(f"{self.name}: descriptors are not an [N, D] array ({e})") from e
         try:
             self.positions = np.asarray(self.positions, dtype=np.float64)
         except (TypeError, ValueError) as e:
-            raise DatasetError(f"{self.name}: positions must be numbers ({e})") from None
+            raise DatasetError(f"{self.name}: positions must be numbers ({e})") from e
         if self.positions.ndim == 1:
             self.positions = self.positions[:, None]
         if self.seq_bounds is not None:

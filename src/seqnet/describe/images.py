@@ -58,8 +58,8 @@ def _read_list_file(src: Path) -> ImageList:
         return ImageList(paths=[src], names=[src.name])
     try:
         lines = src.read_text(encoding="utf-8").splitlines()
-    except UnicodeDecodeError:
-        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths") from None
+    except UnicodeDecodeError as err:
+        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths") from err
     names = [s.strip() for s in lines if s.strip() and not s.strip().startswith("#")]
     if not names:
         raise ImageError(f"list file {src} names no images (expected one image path per line)")
@@ -72,7 +72,7 @@ def _checked(names: list[str], src: Path) -> list[str]:
     try:
         return check_names(names, f"images of {src}")
     except DatasetError as e:
-        raise ImageError(f"{e} (hint: rename the file)") from None
+        raise ImageError(f"{e} (hint: rename the file)") from e
 
 
 MAX_PIXELS = 100_000_000  # larger images are refused before decoding (a "decompression bomb" or a mistake)
@@ -90,14 +90,14 @@ def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> 
                                  f"the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
             im.load()
             return np.asarray(im.convert("L" if grey else "RGB"))
-    except FileNotFoundError:
-        raise ImageError(f"image not found: {path}") from None
+    except FileNotFoundError as err:
+        raise ImageError(f"image not found: {path}") from err
     except Image.DecompressionBombError as e:
-        raise ImageError(f"image {path} is too large to decode safely ({e})") from None
+        raise ImageError(f"image {path} is too large to decode safely ({e})") from e
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as e:
         raise ImageError(
             f"cannot read image {path} ({type(e).__name__}: {e}; hint: --skip-corrupted leaves such images out)"
-        ) from None
+        ) from e
 
 
 def prepare_image(

@@ -170,7 +170,7 @@ def _load(module: nn.Module, state: dict[str, torch.Tensor], where: str) -> None
     try:
         module.load_state_dict(state, strict=True)
     except RuntimeError as e:
-        raise CheckpointError(f"{where} weights do not fit ({str(e).splitlines()[0]})") from None
+        raise CheckpointError(f"{where} weights do not fit ({str(e).splitlines()[0]})") from e
 
 
 def _load_encoder(ckpt: dict, enc_state: dict[str, torch.Tensor], path: Path) -> nn.Module:

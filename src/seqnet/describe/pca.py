@@ -76,7 +76,7 @@ class PCA:
                     raise CheckpointError(f"{path}: not a seqnet PCA file (missing {', '.join(missing)})")
                 arrays = {k: z[k] for k in keys}
         except (OSError, ValueError, EOFError) as e:
-            raise CheckpointError(f"cannot read PCA file {path} ({e})") from None
+            raise CheckpointError(f"cannot read PCA file {path} ({e})") from e
         return cls(mean=arrays["mean"].astype(np.float32), components=arrays["components"].astype(np.float32),
                    scales=arrays["scales"].astype(np.float32), whiten=bool(arrays["whiten"]), l2=bool(arrays["l2"]))
 

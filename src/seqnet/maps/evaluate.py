@@ -50,10 +50,10 @@ def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
     try:
         meta = json.loads((root / "dataset.json").read_text(encoding="utf-8"))
         radius = float(meta["radius"])
-    except FileNotFoundError:
-        raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing") from None
+    except FileNotFoundError as err:
+        raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing") from err
     except (ValueError, KeyError, TypeError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{root / 'dataset.json'}: not a dataset description with a radius ({e})") from None
+        raise DatasetError(f"{root / 'dataset.json'}: not a dataset description with a radius ({e})") from e
     t = load_traverse(root / (meta.get("traverses") or {}).get("query", "query"), "query")
     t.provenance = (meta.get("provenance") or {}).get("query")
     splits = meta.get("splits") or {}

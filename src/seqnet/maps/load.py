@@ -23,7 +23,7 @@ def _array(path: Path, shape: tuple[int, ...] | None, kinds: str) -> np.ndarray:
     try:
         arr = np.load(path, mmap_mode="c", allow_pickle=False)
     except (ValueError, OSError, EOFError) as e:
-        raise MapError(f"cannot read {path} as a .npy array ({e})") from None
+        raise MapError(f"cannot read {path} as a .npy array ({e})") from e
     if arr.dtype.kind not in kinds or (shape is not None and arr.shape != shape):
         raise MapError(f"{path}: expected shape {shape} of kind {kinds!r}, got {arr.shape} {arr.dtype} "
                        "(the map is damaged; rebuild it)")
@@ -38,8 +38,8 @@ def load_map(path: str | Path, device: str | None = None, anchor: str = "") -> M
     try:
         r, nr, d1, d2 = (int(meta[k]) for k in ("items", "frames", "shortlist_dim", "frame_dim"))
         conf_dict = meta["config"]
-    except (KeyError, TypeError, ValueError):
-        raise MapError(f"{path / 'map.json'}: missing or bad items/frames/shortlist_dim/frame_dim/config") from None
+    except (KeyError, TypeError, ValueError) as err:
+        raise MapError(f"{path / 'map.json'}: missing or bad items/frames/shortlist_dim/frame_dim/config") from err
     arrays: dict[str, Any] = {"shortlist": _array(path / "shortlist.npy", (r, d1), "f"),
                               "frames": _array(path / "frames.npy", (nr, d2), "f"),
                               "items": _array(path / "items.npy", (r,), "iu"),
@@ -54,7 +54,7 @@ def load_map(path: str | Path, device: str | None = None, anchor: str = "") -> M
     try:
         conf = MapConfig.from_dict(conf_dict)
     except ConfigError as e:
-        raise MapError(f"{path / 'map.json'}: bad config ({e})") from None
+        raise MapError(f"{path / 'map.json'}: bad config ({e})") from e
     index = None if conf.ann.kind == "flat" else _index(path / INDEX_FILE, conf, r, d1)
     models = _models(path, meta, conf)
     return Map(path, meta, arrays, index, models, device, anchor)
@@ -80,5 +80,5 @@ def _models(path: Path, meta: dict[str, Any], conf: Any) -> dict[str, Any]:
         try:
             models[role] = load_model(path / rel)
         except SeqnetError as e:
-            raise MapError(f"{path}: cannot load the map's {role} model ({e})") from None
+            raise MapError(f"{path}: cannot load the map's {role} model ({e})") from e
     return models

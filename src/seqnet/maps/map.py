@@ -181,10 +181,10 @@ def read_meta(path: Path) -> dict[str, Any]:
         raise MapError(f"map directory not found: {path}" + (" (it is a file)" if path.exists() else ""))
     try:
         meta = json.loads((path / MAP_JSON).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise MapError(f"{path} is not a seqnet map: {MAP_JSON} is missing (hint: seqnet index build)") from None
+    except FileNotFoundError as err:
+        raise MapError(f"{path} is not a seqnet map: {MAP_JSON} is missing (hint: seqnet index build)") from err
     except (ValueError, UnicodeDecodeError) as e:
-        raise MapError(f"{path / MAP_JSON}: not valid JSON ({e})") from None
+        raise MapError(f"{path / MAP_JSON}: not valid JSON ({e})") from e
     if not isinstance(meta, dict) or meta.get("format") != MAP_FORMAT:
         got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
         raise MapError(f"{path / MAP_JSON}: format {got!r} is not {MAP_FORMAT!r}")

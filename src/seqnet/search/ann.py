@@ -173,7 +173,7 @@ def load_index(path: str | Path, conf: AnnConfig | None = None) -> Any:
     try:
         index = faiss.read_index(str(path))
     except RuntimeError as e:
-        raise CheckpointError(f"cannot read FAISS index {path} ({str(e).splitlines()[0][:200]})") from None
+        raise CheckpointError(f"cannot read FAISS index {path} ({str(e).splitlines()[0][:200]})") from e
     if conf is not None:
         set_search_params(index, conf)
     return index

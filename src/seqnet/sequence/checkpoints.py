@@ -89,7 +89,7 @@ def _build(cfg: dict[str, Any], state: dict[str, torch.Tensor], path: Path) -> S
         model.load_state_dict(state)
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as e:
         reason = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise CheckpointError(f"{path}: weights do not fit the stored architecture {cfg} ({reason})") from None
+        raise CheckpointError(f"{path}: weights do not fit the stored architecture {cfg} ({reason})") from e
     bad = [name for name, p in model.state_dict().items() if not bool(torch.isfinite(p).all())]
     if bad:
         raise CheckpointError(f"{path}: the weights {', '.join(bad)} hold NaN or inf (a diverged or corrupted "
@@ -135,7 +135,7 @@ def read_flags(path: Path) -> dict[str, Any]:
     try:
         flags = json.loads(flags_path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"{flags_path}: not valid JSON ({e})") from None
+        raise CheckpointError(f"{flags_path}: not valid JSON ({e})") from e
     if not isinstance(flags, dict):
         raise CheckpointError(f"{flags_path}: must hold a JSON object of the run's flags")
     for key in ("seqL", "w", "outDims"):

@@ -204,9 +204,9 @@ def _env_int(key: str, default: int | None = None) -> int:
         return default
     try:
         return int(raw)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
+    except (TypeError, ValueError) as err:
         raise ConfigError(f"environment variable {key}={raw!r} must be an integer (hint: start distributed "
-                          "training with torchrun, see docs/training.md)") from None
+                          "training with torchrun, see docs/training.md)") from err
 
 
 def env_world() -> World:
@@ -275,7 +275,7 @@ def joined() -> Iterator[World]:
         if not _lost_peer(e):
             raise
         raise ResourceError(f"distributed training stopped on rank {world.rank}: {' '.join(str(e).split())[:300]} "
-                            "(another rank failed or left: see its error; continue with --resume RUN)") from None
+                            "(another rank failed or left: see its error; continue with --resume RUN)") from e
     finally:
         logger.setLevel(level)
         if mine:

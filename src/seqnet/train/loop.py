@@ -69,7 +69,7 @@ def _split(ds: Dataset, name: str, what: str) -> Dataset:
         return ds.split(name)
     except DatasetError as e:
         hint = " or none to skip validation" if what == "val" else " (all: the whole dataset)"
-        raise DatasetError(f"{e} (hint: --{what}-split NAME{hint})") from None
+        raise DatasetError(f"{e} (hint: --{what}-split NAME{hint})") from e
 
 
 def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[TripletSource, Dataset | None]:

@@ -25,8 +25,8 @@ def check_radius(radius: float) -> float:
     """Validate a localisation radius (a finite number > 0)."""
     try:
         r = float(radius)
-    except (TypeError, ValueError):
-        raise ConfigError(f"radius must be a number, got {radius!r}") from None
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"radius must be a number, got {radius!r}") from err
     if not np.isfinite(r) or r <= 0:
         raise ConfigError(f"radius must be a finite number > 0, got {radius!r}")
     return r

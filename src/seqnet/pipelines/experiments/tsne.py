@@ -61,9 +61,9 @@ def sklearn_manifold() -> Any:
     """``sklearn.manifold`` (ResourceError with the install hint when scikit-learn is missing)."""
     try:
         import sklearn.manifold
-    except ImportError:
+    except ImportError as err:
         raise ResourceError("the tsne experiment needs scikit-learn: pip install scikit-learn "
-                            "(or pip install 'seqnet[experiments]')") from None
+                            "(or pip install 'seqnet[experiments]')") from err
     return sklearn.manifold
 
 
