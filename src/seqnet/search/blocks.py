@@ -103,8 +103,7 @@ def blocked_topk(row_blocks: Iterable[RowBlock], col_blocks: Sequence[Any], scor
     whole row). With ``finite``, a NaN or inf score is a :class:`ConfigError`, checked once at the
     end (no host sync per block). Returns ``(values [n_rows, k], columns [n_rows, k])`` as numpy.
     """
-    vals = torch.zeros((n_rows, k), dtype=dtype)
-    idx = torch.zeros((n_rows, k), dtype=torch.long)
+    done: list[tuple[Any, torch.Tensor, torch.Tensor]] = []
     bad = None
     for sel, ctx in row_blocks:
         best = None
@@ -115,10 +114,15 @@ def blocked_topk(row_blocks: Iterable[RowBlock], col_blocks: Sequence[Any], scor
                 bad = flag if bad is None else bad | flag
             best = merge_topk(best, scores, cols, k)
         if best is not None:
-            vals[sel], idx[sel] = best[0].cpu(), best[1].cpu()
+            done.append((sel, best[0].cpu(), best[1].cpu()))
     if bad is not None and bool(bad):
         raise ConfigError("the distances are not finite: the descriptors hold NaN or inf, or values too large "
                           f"for {str(dtype).removeprefix('torch.')} (hint: L2-normalise them)")
+    if len(done) == 1 and done[0][0] == slice(0, n_rows):  # one block of every row, in order
+        return done[0][1].numpy(), done[0][2].numpy()
+    vals, idx = torch.zeros((n_rows, k), dtype=dtype), torch.zeros((n_rows, k), dtype=torch.long)
+    for sel, v, i in done:
+        vals[sel], idx[sel] = v, i
     return vals.numpy(), idx.numpy()
 
 

@@ -65,6 +65,11 @@ def pairwise_distances(q: torch.Tensor, r: torch.Tensor, squared: bool = False) 
     return finish_distances(q @ r.T, sq_norms(q), sq_norms(r), squared)
 
 
+def inner(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """``q @ r.T`` ``[M, N]``; one query row (a frame of a stream) as a GEMV on the row-major reference."""
+    return torch.mv(r, q[0])[None] if len(q) == 1 else q @ r.T
+
+
 class ExactIndex:
     """Exact k-NN over ``ref [N, D]`` (numpy, memory map, float16 or a tensor), streamed in column blocks.
 
@@ -104,10 +109,7 @@ class ExactIndex:
         dtype = compute_dtype(query, self.ref)
         q = rows(query, 0, len(query), self.device, dtype)
         q_sq = sq_norms(q)
-        def dot(r: torch.Tensor) -> torch.Tensor:  # one row: a GEMV on the row-major reference
-            return torch.mv(r, q[0])[None] if len(q) == 1 else q @ r.T
-
-        parts = [finish_distances(dot(self.block(c0, c1, dtype)), q_sq, n)
+        parts = [finish_distances(inner(q, self.block(c0, c1, dtype)), q_sq, n)
                  for (c0, c1), n in zip(self.blocks, self.norms(dtype), strict=True)]
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
 
@@ -126,7 +128,7 @@ class ExactIndex:
 
         def score(qb: torch.Tensor, j: int) -> tuple[torch.Tensor, torch.Tensor]:
             c0, c1 = self.blocks[j]
-            d = qb @ self.block(c0, c1, dtype).T
+            d = inner(qb, self.block(c0, c1, dtype))
             d = d.neg_() if norms is None else finish_distances(d, sq_norms(qb), norms[j])
             return d, torch.arange(c0, c1, device=self.device)
 

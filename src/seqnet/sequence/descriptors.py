@@ -166,7 +166,7 @@ def describe_windows(
         empty = d.new_zeros((0, idx.shape[1], d.shape[1]))
         with torch.no_grad():
             return fn(empty.to(device) if device is not None else empty).float().cpu()
-    return torch.cat(out)
+    return out[0] if len(out) == 1 else torch.cat(out)
 
 
 MODEL_ROLES = ("seqnet", "s1")
