@@ -289,3 +289,16 @@ def test_causal_windows_pin_the_newest_frame_for_anchored_matchers(test_split):
     for name, fn in (("raw+vseqmatch", velocity_topk), ("raw+graph", graph_topk)):
         _, items = fn(*raw, 4, 5, qs, rs, anchor="end", device="cpu")
         np.testing.assert_array_equal(ev.retrieved[name], items, err_msg=name)
+
+
+def test_the_stage_returns_what_it_wrote(synth_dir, tmp_path):
+    """``main`` returns the results it wrote (the CLI prints them without reading results.json back)."""
+    import json
+
+    from seqnet.core.files import Written
+    from seqnet.eval.evaluate import EvalConfig, main
+
+    got = main(EvalConfig(methods=("single", "raw+seqmatch")), synth_dir, tmp_path / "out")
+    assert isinstance(got, Written) and got.path == tmp_path / "out" / "results.json" and got == got.path
+    assert json.loads(got.read_text()) == json.loads(json.dumps(got.data))
+    assert set(got.data["methods"]) == {"single", "raw+seqmatch"}

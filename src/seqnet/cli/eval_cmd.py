@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 from pathlib import Path
 
 from ..core.errors import ConfigError
-from ..core.files import write_json_atomic
+from ..core.files import Written, write_json_atomic
 from ..eval.evaluate import EvalConfig, main
 from ..eval.methods import DEFAULT_METHODS, valid_methods
 from ..report.html import ReportConfig
@@ -87,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,
                         args.per_query, report, figures=bool(args.out))
-        res = json.loads(Path(path).read_text(encoding="utf-8"))
+        res = path.data  # what the stage wrote to results.json
     cfg = res["config"]
     print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']})")
     print(format_table(res["methods"], cfg["ks"]))
@@ -121,7 +120,7 @@ def report_config(args: argparse.Namespace) -> ReportConfig | None:
                         ref_images=args.images_ref)
 
 
-def _main_with_map(conf: EvalConfig, args: argparse.Namespace, out: str) -> Path:
+def _main_with_map(conf: EvalConfig, args: argparse.Namespace, out: str) -> Written:
     from ..maps import evaluate_main
 
     if args.model or args.shortlist_model or args.rerank_model or args.backend:

@@ -4,8 +4,6 @@ query traverse replayed (``--dataset``), or new descriptors or images against a 
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..eval.methods import valid_methods
@@ -61,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model)
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model)
-    s = json.loads(Path(out).with_suffix(".json").read_text(encoding="utf-8"))["summary"]
+    s = out.data["summary"]  # what the stage wrote beside the track
     lat = s.get("latency_ms", {})
     print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")
     if "recall@1" in s:

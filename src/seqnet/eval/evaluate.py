@@ -17,6 +17,7 @@ import numpy as np
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
 from ..core.errors import ConfigError
+from ..core.files import Written, write_json_atomic
 from ..core.utils import get_device, logger
 from ..data.traverse import Dataset
 from ..reference.base import Reference
@@ -219,13 +220,12 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
 
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
-         per_query: str | Path | None = None, report: Any = None, figures: bool = False) -> Path:
+         per_query: str | Path | None = None, report: Any = None, figures: bool = False) -> Written:
     """hloc-style stage: evaluate ``conf.split`` of the dataset directory ``dataset`` with the model
     checkpoints given; writes ``out/results.json`` (results, resolved config, inputs), with
     ``per_query`` one row per method and query (``.csv`` or ``.jsonl``), with ``figures``
     ``out/pr_curve.png``, and with ``report`` (a :class:`seqnet.report.html.ReportConfig`)
     ``out/report.html``; returns the results path."""
-    from ..core.files import write_json_atomic
     from ..data.io import load_dataset
     from ..sequence.checkpoints import load_models
 
@@ -236,7 +236,7 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
     ev.results["config"]["dataset_path"] = str(dataset)
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
-    path = write_json_atomic(Path(out) / "results.json", ev.results)
+    path = write_json_atomic(Path(out) / "results.json", ev.results)  # the results, also returned
     if per_query is not None:
         write_per_query(ev, per_query)
     if figures:
@@ -247,4 +247,4 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
         from ..report.html import write_html_report
 
         write_html_report(ev, ds.split(split), Path(out) / "report.html", report)
-    return path
+    return Written(path, ev.results)

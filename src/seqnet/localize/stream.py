@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.files import Written
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.provenance import read as read_provenance
@@ -116,7 +117,7 @@ def image_frames(source: Path, ref_map: Reference, allow: bool) -> tuple[Frames,
 
 def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: str | Path,
            models: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
-           rerank_model: str | Path | None = None) -> Path:
+           rerank_model: str | Path | None = None) -> Written:
     """hloc-style stage: localise every frame of ``query`` against the map in ``map_dir`` with the model
     checkpoints given; writes ``out`` (track.csv) and its ``.json`` summary; returns ``out``."""
     from ..sequence.checkpoints import load_models
@@ -144,4 +145,4 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
                              "models": {r: m.provenance for r, m in loaded.items()}}}
     write_track(out, track_rows(est, names, ref_map.names, None), record)
     logger.debug("localize: %d frames streamed", len(est))
-    return out
+    return Written(out, record)

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.errors import ConfigError, OutputError
-from ..core.files import write_json_atomic, write_text_atomic
+from ..core.files import Written, write_json_atomic, write_text_atomic
 from ..core.progress import progress
 from ..core.utils import get_device, logger
 from ..data.traverse import Dataset
@@ -177,7 +177,7 @@ def write_track(out: Path, rows: list[dict[str, Any]], record: dict[str, Any]) -
 
 
 def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
-         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None) -> Path:
+         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None) -> Written:
     """hloc-style stage: replay the query traverse of split ``conf.split`` of the dataset directory
     ``dataset`` against its reference traverse; writes ``out`` (track.csv) and its ``.json``
     summary; returns ``out``."""
@@ -203,4 +203,4 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
                              "models": {r: m.provenance for r, m in loaded.items()}}}
     write_track(out, track_rows(est, ds.query.names, ds.reference.names, correct), record)
     logger.debug("localize: %s", json.dumps(summary))
-    return out
+    return Written(out, record)

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
-from ..core.files import write_json_atomic
+from ..core.files import Written, write_json_atomic
 from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse
@@ -151,7 +151,7 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
 
 
 def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Path,
-         per_query: str | Path | None = None) -> Path:
+         per_query: str | Path | None = None) -> Written:
     """hloc-style stage: evaluate ``conf.split`` of the dataset's queries against the map ``index``;
     writes ``out/results.json`` (and ``per_query``); returns the results path."""
     mp = load_map(index, conf.device)
@@ -161,4 +161,4 @@ def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Pa
     path = write_json_atomic(Path(out) / "results.json", ev.results)
     if per_query is not None:
         write_per_query(ev, per_query)
-    return path
+    return Written(path, ev.results)
