@@ -434,3 +434,15 @@ def test_names_with_line_breaks_rejected(rng, tmp_path):
     with pytest.raises(DatasetError, match="line separator"):
         save_dataset(Dataset(t, t, radius=1.0), tmp_path / "n")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_subset_is_not_scanned_again(monkeypatch):
+    """Traverse.subset of a checked traverse does not re-scan its descriptors (only the constructor checks)."""
+    import seqnet.data.traverse as tr
+
+    t = tr.Traverse(np.ones((10, 3), np.float32), np.arange(10.0), seq_bounds=np.array([[0, 4]] * 4 + [[4, 10]] * 6))
+    calls = []
+    monkeypatch.setattr(tr, "validate_traverse", lambda x: calls.append(x))
+    part = t.subset(2, 8)
+    assert calls == [] and len(part) == 6 and part.seq_bounds.tolist()[0] == [0, 2]
+    assert part.descriptors.base is not None  # a view, not a copy

@@ -91,14 +91,12 @@ class Traverse:
         bounds = None
         if self.seq_bounds is not None:
             bounds = np.clip(self.seq_bounds[start:stop], start, stop) - start
-        return Traverse(
-            descriptors=self.descriptors[start:stop],
-            positions=self.positions[start:stop],
-            names=None if self.names is None else self.names[start:stop],
-            seq_bounds=bounds,
-            name=self.name,
-            provenance=self.provenance,
-        )
+        # a part of a checked traverse is checked: no second scan of its descriptors for NaN
+        part = object.__new__(Traverse)
+        part.descriptors, part.positions = self.descriptors[start:stop], self.positions[start:stop]
+        part.names = None if self.names is None else self.names[start:stop]
+        part.seq_bounds, part.name, part.provenance = bounds, self.name, self.provenance
+        return part
 
     def with_descriptors(self, descriptors: np.ndarray, provenance: dict | None = None) -> Traverse:
         """Same traverse (positions, names, bounds) with other descriptors ``[N, D']`` (and their provenance)."""

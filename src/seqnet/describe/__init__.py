@@ -14,7 +14,7 @@ fitted-state files in :mod:`.state`) → resumable file output and the stage :fu
 from .cnn import BACKBONES
 from .config import DescribeConfig
 from .describer import Describer, describe_images, fit_paths_of, make_describer
-from .methods import DESCRIBERS
+from .registry import DESCRIBERS
 from .store import OUT_SUFFIXES, describe_folder, describe_to_file, main, names_file_for
 
 __all__ = [

@@ -15,7 +15,7 @@ from ..core.config import Config, check_bool, check_choice, check_float, check_i
 from ..core.errors import ConfigError
 from ..core.utils import get_device
 from .cnn import BACKBONES
-from .methods import DESCRIBERS, Method
+from .registry import DESCRIBERS, Method
 
 AUTO, NATIVE, KEEP_ASPECT = "auto", "native", "keep-aspect:"
 MAX_SIDE = 8192  # largest accepted resize width or height
@@ -28,7 +28,7 @@ class DescribeConfig(Config):
     """Settings of the describe stage (see docs/describe.md).
 
     Attributes:
-        method: a key of :data:`~seqnet.describe.methods.DESCRIBERS` (pixels, gem, gmp, netvlad).
+        method: a key of :data:`~seqnet.describe.registry.DESCRIBERS` (pixels, gem, gmp, netvlad).
         size: ``"auto"`` (the method's default: native for pixels, 640×320 for the CNN methods, the
             size a NetVLAD checkpoint written by seqnet was fitted at), ``"native"`` (no resizing; all
             images must then have one size), ``"keep-aspect:W"`` (width W, the height that keeps each
@@ -92,7 +92,7 @@ class DescribeConfig(Config):
 
     @property
     def method_spec(self) -> Method:
-        """The :data:`~seqnet.describe.methods.DESCRIBERS` entry with its settings from this config."""
+        """The :data:`~seqnet.describe.registry.DESCRIBERS` entry with its settings from this config."""
         return DESCRIBERS[self.method].of(self)
 
     @property

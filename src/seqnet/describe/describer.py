@@ -14,8 +14,8 @@ from ..core.progress import progress
 from ..core.utils import get_device, logger
 from .config import DescribeConfig
 from .images import iter_batches, list_images, load_images
-from .methods import Extract, FitContext
 from .pca import PCA, fit_pca
+from .registry import Extract, FitContext
 from .state import StateFile, method_state_file, pca_file
 
 Sink = Callable[[np.ndarray, np.ndarray | None], None]

@@ -25,7 +25,7 @@ from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
 from ..sequence.described import Described
 from ..sequence.descriptors import SeqNet
-from ..sequence.windows import WINDOW_MODES, WindowSettings
+from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
 from .checks import check_inputs
 from .methods import Method, default_methods, parse_method
 from .metrics.recall import GroundTruth, check_radius, ground_truth
@@ -94,11 +94,9 @@ class EvalConfig(WindowSettings, Config):
     def resolve(self, models: Mapping[str, SeqNet], radius: float) -> EvalConfig:
         """L (the S_L model's when unset), the radius (the dataset's when unset) and the methods (the defaults
         the models allow when unset), resolved once."""
-        conf = self
-        if conf.seq_len is None and "seqnet" in models:
-            conf = conf.replace(seq_len=models["seqnet"].seq_len)
-        return conf.replace(radius=radius if conf.radius is None else conf.radius,
-                            methods=conf.methods or default_methods(models, conf.length), seq_len=conf.length)
+        length = Windows.resolve(self.seq_len, None, self.window, getattr(models.get("seqnet"), "seq_len", None)).length
+        return self.replace(radius=radius if self.radius is None else self.radius, seq_len=length,
+                            methods=self.methods or default_methods(models, length))
 
     def shortlist_size(self, m: Method) -> int:
         """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""

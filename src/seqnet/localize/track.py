@@ -119,7 +119,7 @@ def check_output(out: str | Path) -> Path:
     return out
 
 
-def localize_stream(loc: Localizer, ds: Dataset) -> list[Estimate]:
+def replay_query(loc: Localizer, ds: Dataset) -> list[Estimate]:
     """Every frame of the query traverse through ``loc`` (a progress bar), resetting at sequence starts."""
     return list(progress(replay(loc, ds.query), desc=f"localize ({loc.method.name})", total=len(ds.query),
                          unit="frame"))
@@ -191,7 +191,7 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     radius = conf.radius or ds.radius
     loc = dataset_localizer(ds, loaded, conf)
-    est = localize_stream(loc, ds)
+    est = replay_query(loc, ds)
     best = np.array([e.ref_index for e in est], dtype=np.int64)
     correct, has = track_truth(ds, loc.ref_items, radius, best)
     summary = summarize(est, correct, has)
