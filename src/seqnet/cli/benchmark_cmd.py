@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from ..describe import DESCRIBERS, DescribeConfig
@@ -104,7 +103,7 @@ def run_timing(args: argparse.Namespace) -> int:
     conf = timing_config(args)
     mconf = MapConfig().replace(shortlist=args.shortlist, rerank=args.rerank, split=args.split)
     path = timing_main(conf, args.out, args.dataset, args.model, mconf)
-    res = json.loads(Path(path).read_text(encoding="utf-8"))
+    res = path.data  # what the stage wrote to results.json
     for e in res["maps"]:
         hv = {r["method"]: r["per_query_ms"] for r in e["rows"] if r["method"].startswith(("hvpr", "seqmatch_all"))}
         print(f"N_db {e['n_db']:>8,} D {e['dim']:>5}: " + ", ".join(f"{k} {v:.2f} ms" for k, v in hv.items()))
@@ -139,7 +138,7 @@ def speed_range(text: str) -> tuple[float, float]:
 
 
 def run_nordland64(args: argparse.Namespace) -> int:
-    res = json.loads(Path(main(nordland64_config(args), args.data, args.out)).read_text(encoding="utf-8"))
+    res = main(nordland64_config(args), args.data, args.out).data
     cfg, bench = res["config"], res["config"]["benchmark"]
     first = next(iter(res["methods"].values()))
     print(f"nordland64 test {bench['test_range'][0]}:{bench['test_range'][1]}: {first['queries']} queries, "

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 from pathlib import Path
 
@@ -39,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     conf = DemoConfig().replace(places=args.places, seed=args.seed, train_models=not args.no_train,
                                 device=args.device, train={"epochs": args.epochs})
     with tempfile.TemporaryDirectory(prefix="seqnet-demo-") as tmp:
-        res = json.loads(Path(main(conf, args.out or tmp)).read_text(encoding="utf-8"))
+        res = main(conf, args.out or tmp).data
     m, cfg = res["methods"], res["config"]
     first = next(iter(m.values()))
     print(f"seqnet demo: synthetic route, test split, {first['queries']} queries, radius {cfg['radius']:g} m, "

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.config import Config, check_bool, check_int
-from ..core.files import write_json_atomic
+from ..core.files import Written, write_json_atomic
 from ..core.ownership import check_replaceable, locked, remove_owned_dir
 from ..core.utils import logger
 from ..data.io import load_dataset, save_dataset
@@ -88,7 +88,7 @@ def train_demo_models(ds: Dataset, conf: DemoConfig, root: Path, data_dir: Path)
     return models, seconds
 
 
-def main(conf: DemoConfig, out: str | Path) -> Path:
+def main(conf: DemoConfig, out: str | Path) -> Written:
     """Generate a synthetic dataset in ``out/dataset``, train S_L and S_1, evaluate every method on the
     test split; writes ``out/results.json`` (results, resolved config, timings) and returns its path."""
     t0 = time.perf_counter()
@@ -106,4 +106,4 @@ def main(conf: DemoConfig, out: str | Path) -> Path:
                       models)
         ev.results["config"].update(demo=conf.to_dict(), demo_seconds=round(time.perf_counter() - t0, 2),
                                     train_seconds=seconds)
-        return write_json_atomic(root / "results.json", ev.results)
+        return Written(write_json_atomic(root / "results.json", ev.results), ev.results)

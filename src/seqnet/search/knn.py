@@ -7,7 +7,7 @@ return ``(scores, indices)``, best first.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import torch
@@ -18,6 +18,8 @@ from ..core.utils import ArrayLike, as_tensor, get_device
 from .blocks import blocked_topk, col_blocks, compute_dtype, matrix_shape, rows
 
 DEFAULT_BLOCK_BYTES = 512 * 2**20
+NOT_FINITE = ("the distances are not finite: the {what} descriptors hold NaN or inf, or values too large for {dtype} "
+              "(hint: L2-normalise them)")
 METRICS = ("l2", "ip")
 
 
@@ -88,6 +90,7 @@ class ExactIndex:
         self.keep = keep and len(self.blocks) == 1
         self._rows: dict[torch.dtype, torch.Tensor] = {}
         self._norms: dict[torch.dtype, list[torch.Tensor]] = {}
+        self._cols: dict[int, torch.Tensor] = {}
 
     def block(self, c0: int, c1: int, dtype: torch.dtype) -> torch.Tensor:
         """Reference rows ``c0:c1`` as ``dtype`` on the device (the kept copy when there is one)."""
@@ -97,10 +100,19 @@ class ExactIndex:
             self._rows[dtype] = rows(self.ref, 0, self.n, self.device, dtype)
         return self._rows[dtype]
 
+    def columns(self, j: int) -> torch.Tensor:
+        """The reference indices ``[c]`` of column block ``j`` (made once)."""
+        if j not in self._cols:
+            self._cols[j] = torch.arange(*self.blocks[j], device=self.device)
+        return self._cols[j]
+
     def norms(self, dtype: torch.dtype) -> list[torch.Tensor]:
-        """Squared norms of each reference block (computed on first use)."""
+        """Squared norms of each reference block (computed and checked finite on first use)."""
         if dtype not in self._norms:
-            self._norms[dtype] = [sq_norms(self.block(a, b, dtype)) for a, b in self.blocks]
+            norms = [sq_norms(self.block(a, b, dtype)) for a, b in self.blocks]
+            if norms and not bool(torch.isfinite(torch.cat(norms) * 4).all()):
+                raise ConfigError(NOT_FINITE.format(what="reference", dtype=str(dtype).removeprefix("torch.")))
+            self._norms[dtype] = norms
         return self._norms[dtype]
 
     @torch.no_grad()
@@ -122,17 +134,24 @@ class ExactIndex:
         dtype, k = compute_dtype(query, self.ref), min(k, self.n)
         width = max((b - a for a, b in self.blocks), default=1)
         step = rows_per_block(width * (8 if dtype == torch.float64 else 4) * 3, self.block_bytes)
-        norms = self.norms(dtype) if metric == "l2" else None
-        row_blocks = ((slice(s, min(nq, s + step)), rows(query, s, min(nq, s + step), self.device, dtype))
-                      for s in range(0, nq, step))
+        norms, ok = self.norms(dtype), []  # the reference's norms are checked once, the query's here
 
-        def score(qb: torch.Tensor, j: int) -> tuple[torch.Tensor, torch.Tensor]:
-            c0, c1 = self.blocks[j]
+        def row_blocks() -> Iterator[tuple[slice, tuple[torch.Tensor, torch.Tensor]]]:
+            for s in range(0, nq, step):
+                qb = rows(query, s, min(nq, s + step), self.device, dtype)
+                q_sq = sq_norms(qb)
+                flag = torch.isfinite(q_sq * 4).all()  # finite norms: every distance is finite
+                ok[:] = [flag if not ok else ok[0] & flag]
+                yield slice(s, min(nq, s + step)), (qb, q_sq)
+
+        def score(ctx: tuple[torch.Tensor, torch.Tensor], j: int) -> tuple[torch.Tensor, torch.Tensor]:
+            (qb, q_sq), (c0, c1) = ctx, self.blocks[j]
             d = inner(qb, self.block(c0, c1, dtype))
-            d = d.neg_() if norms is None else finish_distances(d, sq_norms(qb), norms[j])
-            return d, torch.arange(c0, c1, device=self.device)
+            return (d.neg_() if metric == "ip" else finish_distances(d, q_sq, norms[j])), self.columns(j)
 
-        vals, idx = blocked_topk(row_blocks, range(len(self.blocks)), score, nq, k, dtype)
+        vals, idx = blocked_topk(row_blocks(), range(len(self.blocks)), score, nq, k, dtype, finite=False)
+        if ok and not bool(ok[0]):
+            raise ConfigError(NOT_FINITE.format(what="query", dtype=str(dtype).removeprefix("torch.")))
         return (-vals if metric == "ip" else vals), idx
 
 

@@ -13,6 +13,7 @@ evaluation, and the number left out is reported.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import torch
@@ -78,9 +79,19 @@ def window_indices(
     Where the full window does not fit, out-of-sequence positions repeat the nearest frame of the
     sequence (replicate padding), so every frame gets a window of length L.
     """
+    if seq_bounds is None and n <= 64:  # a short run of one sequence (the localiser's recent frames): kept
+        return _one_sequence(n, seq_len, mode)
     starts, _ = window_starts(n, seq_len, mode, seq_bounds)
     lo, hi = _bounds(n, seq_bounds)
     return np.clip(window_frames(starts, seq_len), lo[:, None], hi[:, None] - 1)
+
+
+@functools.lru_cache(maxsize=256)
+def _one_sequence(n: int, seq_len: int, mode: str) -> np.ndarray:
+    starts, _ = window_starts(n, seq_len, mode, None)
+    out = np.clip(window_frames(starts, seq_len), 0, n - 1)
+    out.flags.writeable = False  # shared between callers
+    return out
 
 
 def window_frames(starts: np.ndarray, seq_len: int) -> np.ndarray:

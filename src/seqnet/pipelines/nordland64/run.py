@@ -6,7 +6,7 @@ import time
 from collections.abc import Mapping
 from pathlib import Path
 
-from ...core.files import write_json_atomic, write_text_atomic
+from ...core.files import Written, write_json_atomic, write_text_atomic
 from ...core.ownership import locked
 from ...core.utils import logger
 from ...data.traverse import Dataset
@@ -75,7 +75,7 @@ def report_config(data: str | Path, title: str) -> ReportConfig:
                         ref_images=str(Path(data) / SEASONS[0]))
 
 
-def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:
+def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Written:
     """Run the benchmark (hloc style) on the nordland64 folder ``data``; writes everything to ``out``
     (descriptor cache, models, ``results.json``, ``results.md``, ``recall_at_k.png``, ``report.html``,
     ``config.json``)
@@ -101,4 +101,4 @@ def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Path:
                                               f"{conf.test_range[1]}"))
         write_json_atomic(out / "config.json", {**conf.to_dict(), "data": str(data)})
         logger.info("nordland64 done in %.0f s: %s", seconds["total"], out / "results.md")
-    return out / "results.json"
+    return Written(out / "results.json", ev.results)

@@ -22,7 +22,7 @@ from typing import Any
 import torch
 
 from ...core.errors import ConfigError, ResourceError
-from ...core.files import write_json_atomic, write_text_atomic
+from ...core.files import Written, write_json_atomic, write_text_atomic
 from ...core.ownership import check_replaceable, locked, write_manifest
 from ...core.utils import logger
 from ...maps import MapConfig
@@ -57,7 +57,7 @@ def run_worker(job: dict[str, Any], tmp: Path, threads: int) -> dict[str, Any]:
 
 
 def main(conf: TimingConfig, out: str | Path, dataset: str | Path | None = None, models: Sequence[str | Path] = (),
-         map_config: MapConfig | None = None) -> Path:
+         map_config: MapConfig | None = None) -> Written:
     """Run the sweep of ``conf`` (or time the map of ``dataset`` built with ``models``); returns ``results.json``."""
     if dataset is not None and not models and (map_config or MapConfig()).roles():
         raise ConfigError("--dataset needs the models of its map (--model S_L.pt --model S_1.pt), or a model-free "
@@ -84,7 +84,7 @@ def main(conf: TimingConfig, out: str | Path, dataset: str | Path | None = None,
                "machine": {"platform": platform.platform(), "processor": platform.processor(),
                            "cpu_count": os.cpu_count(), "torch": torch.__version__},
                "seconds": round(time.perf_counter() - t0, 1), "maps": entries}
-        path = write_json_atomic(out / "results.json", res)
+        path = Written(write_json_atomic(out / "results.json", res), res)
         write_text_atomic(out / "results.md", markdown(res))
         plot(res, out / "timing.png")
         write_manifest(out, "timing", [out / f for f in OUT_FILES])
