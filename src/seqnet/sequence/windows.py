@@ -80,7 +80,7 @@ def window_indices(
     sequence (replicate padding), so every frame gets a window of length L.
     """
     if seq_bounds is None and n <= 64:  # a short run of one sequence (the localiser's recent frames): kept
-        return _one_sequence(n, seq_len, mode)
+        return _one_sequence(n, seq_len, mode).copy()
     starts, _ = window_starts(n, seq_len, mode, seq_bounds)
     lo, hi = _bounds(n, seq_bounds)
     return np.clip(window_frames(starts, seq_len), lo[:, None], hi[:, None] - 1)
