@@ -227,8 +227,9 @@ class Localizer:
 
     def _estimate(self, ranking: tuple[np.ndarray, np.ndarray] | None, full: bool) -> Estimate:
         if ranking is not None:
-            keep = ranking[1] >= 0  # an approximate index may find fewer than asked
-            scores, ranked = np.asarray(ranking[0])[keep], np.asarray(ranking[1])[keep].astype(np.int64)
+            scores, ranked = np.asarray(ranking[0]), np.asarray(ranking[1]).astype(np.int64, copy=False)
+            if (ranked < 0).any():  # an approximate index may find fewer than asked
+                scores, ranked = scores[ranked >= 0], ranked[ranked >= 0]
         if ranking is None or len(ranked) == 0:
             empty = np.zeros(0)
             return Estimate(self.frame, -1, -1, float("nan"), 0.0, 0.0, full, empty.astype(np.int64), empty)

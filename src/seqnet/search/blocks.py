@@ -18,6 +18,7 @@ import torch
 from ..core.errors import ConfigError
 from ..core.utils import ArrayLike, as_tensor
 
+SORT_MAX = 2048  # up to this many scores a stable sort is quicker than topk + tie handling (the same result)
 DEFAULT_COL_BLOCK = 65536  # reference rows per block (the whole map when it is smaller)
 
 
@@ -63,6 +64,9 @@ def topk_smallest(scores: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Ten
         empty = scores.new_zeros((scores.shape[0], max(k, 0)))
         return empty, empty.long()
     key = scores.masked_fill(torch.isnan(scores), float("inf")) if scores.is_floating_point() else scores
+    if scores.shape[0] * scores.shape[1] <= SORT_MAX:  # a short row (a frame of a stream): one stable sort
+        idx = torch.sort(key, dim=1, stable=True).indices[:, :k]
+        return scores.gather(1, idx), idx
     kth = torch.topk(key, k, dim=1, largest=False, sorted=True).values[:, -1:]
     less = key < kth
     ties = key == kth
@@ -76,14 +80,16 @@ def topk_smallest(scores: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Ten
 
 
 
-def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Tensor, cols: torch.Tensor,
+def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Tensor, cols: torch.Tensor | None,
                k: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Fold a block ``scores [n, c]`` of columns ``cols [c]`` (increasing, after every column in ``best``)
-    into the running ``(values [n, k'], columns [n, k'])`` (faiss ``ResultHeap`` style; no host sync)."""
+    """Fold a block ``scores [n, c]`` of columns ``cols [c]`` (increasing, after every column in ``best``;
+    None: columns ``0 .. c-1``) into the running ``(values [n, k'], columns [n, k'])`` (faiss
+    ``ResultHeap`` style; no host sync)."""
     if best is None:
         v, i = topk_smallest(scores, k)
-        return v, cols[i] if cols.numel() else i
+        return v, cols[i] if cols is not None and cols.numel() else i
     vals, idx = best
+    cols = torch.arange(scores.shape[1], device=scores.device) if cols is None else cols
     v, i = topk_smallest(torch.cat([vals, scores], dim=1), k)
     all_cols = torch.cat([idx, cols.expand(len(idx), -1)], dim=1)
     return v, all_cols.gather(1, i)

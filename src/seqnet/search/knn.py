@@ -100,8 +100,11 @@ class ExactIndex:
             self._rows[dtype] = rows(self.ref, 0, self.n, self.device, dtype)
         return self._rows[dtype]
 
-    def columns(self, j: int) -> torch.Tensor:
-        """The reference indices ``[c]`` of column block ``j`` (made once)."""
+    def columns(self, j: int) -> torch.Tensor | None:
+        """The reference indices ``[c]`` of column block ``j`` (made once; None for a block starting at 0:
+        its columns are its own indices)."""
+        if self.blocks[j][0] == 0:
+            return None
         if j not in self._cols:
             self._cols[j] = torch.arange(*self.blocks[j], device=self.device)
         return self._cols[j]

@@ -27,15 +27,15 @@ def ratio_confidence(scores: np.ndarray, ranked: np.ndarray, r_pos: np.ndarray, 
         return np.zeros(m)
     pos = np.asarray(r_pos, dtype=np.float64)
     pos = pos[:, None] if pos.ndim == 1 else pos
-    top = pos[ranked[:, 0].clip(0)]  # [M, P]
-    far = np.linalg.norm(pos[ranked.clip(0)] - top[:, None, :], axis=-1) > radius  # [M, K]
+    cand = pos[ranked.clip(0)]  # [M, K, P]
+    far = np.sqrt(np.square(cand - cand[:, :1]).sum(axis=-1)) > radius  # [M, K]: another place than the top-1
     other = np.where(far & np.isfinite(scores) & (ranked >= 0), scores, np.inf).min(axis=1)
-    best = scores[:, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        conf = 1.0 - best / other
-    conf = np.where(np.isinf(other), 1.0, conf)
-    conf = np.where(other <= 0, 0.0, conf)  # a perfect other place: no confidence
-    return np.clip(np.nan_to_num(conf, nan=0.0), 0.0, 1.0)
+    conf = np.ones(m)  # no other place among the retrieved: full confidence
+    some = np.isfinite(other)
+    conf[some] = 1.0 - scores[some, 0] / np.where(other[some] > 0, other[some], 1.0)
+    conf[some & (other <= 0)] = 0.0  # a perfect other place: no confidence
+    conf[np.isnan(conf)] = 0.0
+    return np.clip(conf, 0.0, 1.0)
 
 
 def precision_recall(confidence: np.ndarray, correct: np.ndarray,
