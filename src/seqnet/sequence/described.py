@@ -30,7 +30,10 @@ def describe_frames(raw: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | Non
     """``[N', D']``: descriptor ``name`` over the window of every frame of ``raw [N, D]`` (or of the frames
     ``which``), windows of ``windows.mode`` clamped into their sequence."""
     d = SEQUENCE_DESCRIPTORS[name]
-    idx = window_indices(len(raw), d.length(windows.length), windows.mode, seq_bounds)
+    length = d.length(windows.length)
+    if length == 1 and which is not None and len(which) == 1 and isinstance(raw, torch.Tensor):
+        return _one_window(raw, np.asarray(which), d.window_fn(models), device)  # a frame's own descriptor
+    idx = window_indices(len(raw), length, windows.mode, seq_bounds)
     idx = idx if which is None else idx[which]
     if len(idx) == 1 and isinstance(raw, torch.Tensor):  # one window in memory (the newest frame's)
         return _one_window(raw, idx[0], d.window_fn(models), device)
