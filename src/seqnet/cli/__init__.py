@@ -10,14 +10,16 @@ system, permission, a lock held by another process), never a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
 from .._version import __version__
 from ..core.errors import SeqnetError
-from .runtime import add_runtime_options, check_no_empty_values, report_error, runtime
+from .runtime import add_runtime_options, check_no_empty_values, is_allocation_error, one_line, report_error, runtime
 
 COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark", "index", "localize",
             "experiment")
@@ -72,8 +74,33 @@ def main(argv: Sequence[str] | None = None) -> int:
             return int(args.func(args) or 0)
     except (SeqnetError, OSError, MemoryError, KeyboardInterrupt) as e:
         return report_error(args.command, e)
+    except RuntimeError as e:  # torch's allocators report running out of memory as a RuntimeError
+        if not is_allocation_error(e):
+            raise
+        return report_error(args.command, MemoryError(one_line(e)))
 
 
 def entry_point() -> None:
-    """Console-script entry point."""
-    sys.exit(main())
+    """Console-script entry point: a file size limit fails the write (EFBIG, exit 1) instead of killing the
+    process (SIGXFSZ); a reader that went away (``seqnet … | head``) is exit 1, with nothing printed after."""
+    import signal
+
+    if hasattr(signal, "SIGXFSZ"):
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    try:
+        code = main()
+        sys.stdout.flush()
+    except BrokenPipeError:
+        code = 1
+    if code == 1 or not _stdout_alive():
+        with contextlib.suppress(OSError):  # no "Exception ignored" on a closed pipe at exit
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    sys.exit(code)
+
+
+def _stdout_alive() -> bool:
+    try:
+        sys.stdout.flush()
+        return True
+    except (BrokenPipeError, ValueError):
+        return False

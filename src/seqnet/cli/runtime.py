@@ -122,6 +122,12 @@ def _rank() -> str:
     return f"rank {rank}: " if size not in ("", "0", "1") and rank not in ("", "0") else ""
 
 
+def is_allocation_error(e: RuntimeError) -> bool:
+    """Whether a RuntimeError is an allocator running out of memory (torch's CPU or CUDA allocator)."""
+    text = str(e).lower()
+    return "can't allocate memory" in text or "out of memory" in text or "failed to allocate" in text
+
+
 def _memory_error(e: MemoryError) -> SeqnetError:
     from ..core.errors import ResourceError
 

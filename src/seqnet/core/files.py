@@ -122,12 +122,15 @@ def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint") -> A
 
 # errno values that mean the environment failed (exit 1), not the input (exit 2)
 ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EIO,
-                                errno.EMFILE, errno.ENFILE, errno.ENOMEM, errno.EBUSY, errno.ETXTBSY})
+                                errno.EMFILE, errno.ENFILE, errno.ENOMEM, errno.EBUSY, errno.ETXTBSY, errno.EPIPE,
+                                errno.EFBIG})
 _REASONS = {errno.ENOSPC: "no space left on device", errno.EROFS: "read-only file system",
             errno.EDQUOT: "disk quota exceeded", errno.EACCES: "permission denied",
             errno.EPERM: "operation not permitted", errno.EEXIST: "a file is in the way",
             errno.ENOTDIR: "a path component is a file, not a directory",
-            errno.EISDIR: "is a directory", errno.ENOENT: "no such file or directory"}
+            errno.EISDIR: "is a directory", errno.ENOENT: "no such file or directory",
+            errno.EPIPE: "broken pipe (the reader of the output went away)",
+            errno.EFBIG: "file too large (a file size limit, e.g. ulimit -f, or the file system's)"}
 
 
 def os_error(e: OSError) -> SeqnetError:
