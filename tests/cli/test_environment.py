@@ -55,8 +55,8 @@ def test_an_allocation_beyond_the_address_space_limit_is_exit_1(tmp_path):
 
     out = tmp_path / "run"
     p = subprocess.run([*SEQNET, "train", "--dataset", str(tmp_path / "wide"), "--seq-len", "5", "--w", "5",
-                        "--out-dims", "250000", "--epochs", "1", "--out", str(out)], preexec_fn=limit, capture_output=True, text=True,
-                       timeout=300)
+                        "--out-dims", "250000", "--epochs", "1", "--out", str(out)], preexec_fn=limit,
+                       capture_output=True, text=True, timeout=300)
     _one_line_exit_1(p, "out of memory")
     assert not out.exists()
 

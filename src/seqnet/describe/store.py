@@ -22,6 +22,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, ImageError
 from ..core.files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.ownership import locked
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
@@ -77,9 +78,16 @@ def describe_folder(source: str | os.PathLike[str], conf: DescribeConfig, out: s
 
 def describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
                      overwrite: bool = False) -> tuple[np.ndarray, list[str]]:
-    """Describe ``images`` into ``out``, resuming a partial run with the same settings."""
+    """Describe ``images`` into ``out``, resuming a partial run with the same settings; the output is
+    locked while it is written (a second describe into it is refused, exit 1, never mixed)."""
     if out.suffix.lower() not in OUT_SUFFIXES:
         raise ConfigError(f"output file {out} must end in one of {', '.join(OUT_SUFFIXES)}")
+    with locked(out):
+        return _describe_to_file(images, conf, out, overwrite)
+
+
+def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
+                      overwrite: bool) -> tuple[np.ndarray, list[str]]:
     if out.exists() and not overwrite:
         raise ConfigError(f"output {out} already exists (hint: --overwrite recomputes it)")
     conf = conf.resolved()

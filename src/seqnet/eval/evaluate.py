@@ -18,6 +18,7 @@ import numpy as np
 from ..core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
 from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
+from ..core.ownership import locked
 from ..core.utils import get_device, logger
 from ..data.traverse import Dataset
 from ..reference.base import Reference
@@ -224,6 +225,13 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
     ``per_query`` one row per method and query (``.csv`` or ``.jsonl``), with ``figures``
     ``out/pr_curve.png``, and with ``report`` (a :class:`seqnet.report.html.ReportConfig`)
     ``out/report.html``; returns the results path."""
+    with locked(out):  # a second evaluation into the same folder is refused (exit 1), never mixed
+        return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, per_query, report, figures)
+
+
+def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
+          shortlist_model: str | Path | None, rerank_model: str | Path | None, per_query: str | Path | None,
+          report: Any, figures: bool) -> Written:
     from ..data.io import load_dataset
     from ..sequence.checkpoints import load_models
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.files import Written
+from ..core.ownership import locked
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.provenance import read as read_provenance
@@ -119,10 +120,16 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
            models: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
            rerank_model: str | Path | None = None) -> Written:
     """hloc-style stage: localise every frame of ``query`` against the map in ``map_dir`` with the model
-    checkpoints given; writes ``out`` (track.csv) and its ``.json`` summary; returns ``out``."""
+    checkpoints given; writes ``out`` (track.csv) and its ``.json`` summary; returns ``out``. The track is
+    locked for the whole run (a second writer: exit 1)."""
+    with locked(check_output(out)):
+        return _stream(conf, map_dir, Path(query), Path(out), models, shortlist_model, rerank_model)
+
+
+def _stream(conf: LocalizeConfig, map_dir: str | Path, query: Path, out: Path, models: Sequence[str | Path],
+            shortlist_model: str | Path | None, rerank_model: str | Path | None) -> Written:
     from ..sequence.checkpoints import load_models
 
-    out, query = check_output(out), Path(query)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     ref_map, radius = load_map(map_dir, loaded, conf)
     loc = conf.localizer(ref_map, radius)
@@ -143,6 +150,6 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    write_track(out, track_rows(est, names, ref_map.names, None), record)
+    write_track(check_output(out), track_rows(est, names, ref_map.names, None), record)
     logger.debug("localize: %d frames streamed", len(est))
     return Written(out, record)

@@ -21,6 +21,7 @@ import numpy as np
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.errors import ConfigError, OutputError
 from ..core.files import Written, write_json_atomic, write_text_atomic
+from ..core.ownership import locked
 from ..core.progress import progress
 from ..core.utils import get_device, logger
 from ..data.traverse import Dataset
@@ -103,20 +104,34 @@ def sidecar_of(out: Path) -> Path:
 
 
 def check_output(out: str | Path) -> Path:
-    """``out`` must end in .csv; its ``.json`` sidecar may only replace one this stage wrote."""
+    """``out`` must end in .csv; it and its ``.json`` sidecar may only replace what this stage wrote."""
     out = Path(out)
     if out.suffix.lower() != ".csv":
         raise ConfigError(f"--out {out} must be a .csv file (one row per query frame)")
     side = sidecar_of(out)
-    if side.exists():
-        try:
-            ours = json.loads(side.read_text(encoding="utf-8")).get("kind") == TRACK_KIND
-        except (OSError, ValueError, AttributeError):
-            ours = False
-        if not ours:
-            raise OutputError(f"{side} exists and was not written by seqnet localize; the summary of {out.name} "
-                              "goes there: move it away or choose another --out")
+    if side.exists() and not _our_summary(side):
+        raise OutputError(f"{side} exists and was not written by seqnet localize; the summary of {out.name} "
+                          "goes there: move it away or choose another --out")
+    if out.exists() and not (side.exists() or _our_header(out)):
+        raise OutputError(f"{out} exists and was not written by seqnet localize; move it away or choose another "
+                          "--out")
     return out
+
+
+def _our_summary(side: Path) -> bool:
+    try:
+        return json.loads(side.read_text(encoding="utf-8")).get("kind") == TRACK_KIND
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _our_header(out: Path) -> bool:
+    """A track whose summary was never written (a run killed between the two files) starts with our header."""
+    try:
+        with out.open(encoding="utf-8") as f:
+            return f.readline().rstrip("\n") == ",".join(TRACK_COLUMNS)
+    except (OSError, UnicodeDecodeError):
+        return False
 
 
 def replay_query(loc: Localizer, ds: Dataset) -> list[Estimate]:
@@ -180,11 +195,16 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None) -> Written:
     """hloc-style stage: replay the query traverse of split ``conf.split`` of the dataset directory
     ``dataset`` against its reference traverse; writes ``out`` (track.csv) and its ``.json``
-    summary; returns ``out``."""
+    summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1)."""
+    with locked(check_output(out)):
+        return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model)
+
+
+def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
+          shortlist_model: str | Path | None, rerank_model: str | Path | None) -> Written:
     from ..data.io import load_dataset
     from ..sequence.checkpoints import load_models
 
-    out = check_output(out)
     full = load_dataset(dataset)
     split = conf.split or ("test" if "test" in full.splits else "all")
     ds = full.split(split)
@@ -201,6 +221,6 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    write_track(out, track_rows(est, ds.query.names, ds.reference.names, correct), record)
+    write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct), record)
     logger.debug("localize: %s", json.dumps(summary))
     return Written(out, record)

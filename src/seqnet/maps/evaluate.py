@@ -20,6 +20,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.files import Written, write_json_atomic
+from ..core.ownership import locked
 from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse
@@ -158,7 +159,8 @@ def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Pa
     ev = evaluate_map(mp, load_query(dataset, conf.split), conf)
     ev.results["config"]["dataset_path"] = str(dataset)
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "index": str(Path(index).resolve())}
-    path = write_json_atomic(Path(out) / "results.json", ev.results)
-    if per_query is not None:
-        write_per_query(ev, per_query)
+    with locked(out):  # a second evaluation into the same folder is refused (exit 1), never mixed
+        path = write_json_atomic(Path(out) / "results.json", ev.results)
+        if per_query is not None:
+            write_per_query(ev, per_query)
     return Written(path, ev.results)
