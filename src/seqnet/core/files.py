@@ -145,6 +145,22 @@ def os_error(e: OSError) -> SeqnetError:
     return cls(f"{path}{reason}{other}")
 
 
+def special_file(path: str | os.PathLike[str]) -> str | None:
+    """``"FIFO"``, ``"socket"``, ``"character device"`` or ``"block device"`` when ``path`` is one (checked
+    with ``stat``, never opened), else None (a regular file, a directory, or nothing there)."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    for test, kind in ((stat.S_ISFIFO, "FIFO"), (stat.S_ISSOCK, "socket"), (stat.S_ISCHR, "character device"),
+                       (stat.S_ISBLK, "block device")):
+        if test(mode):
+            return kind
+    return None
+
+
 class Written(os.PathLike):
     """What a stage returns: the main file it wrote (``path``; the object is path-like) and what it wrote
     there (``data``), so a caller — the CLI — prints the result without reading the file back."""

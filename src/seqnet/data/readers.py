@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
+from ..core.files import special_file
 
 DESCRIPTOR_SUFFIXES = (".npy", ".h5", ".hdf5")
 # the characters str.splitlines() breaks lines at
@@ -31,7 +32,9 @@ def read_descriptor_file(path: str | Path, names_file: str | Path | None = None,
     """Descriptors ``[N, D]`` (native float32) and their image names (HDF5 ``names`` or ``names_file``; else None)."""
     p = Path(path)
     if not p.is_file():
-        raise DatasetError(f"descriptor file not found: {p}" + (" (it is a directory)" if p.is_dir() else ""))
+        kind = "directory" if p.is_dir() else special_file(p)
+        what = f" (it is a {kind}, not a regular file)" if kind else ""
+        raise DatasetError(f"descriptor file not found: {p}{what}")
     suffix = p.suffix.lower()
     if suffix not in DESCRIPTOR_SUFFIXES:
         raise DatasetError(f"descriptor file {p} must be .npy, .h5 or .hdf5 (got {p.suffix or 'no extension'!r})")

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
+from ..core.files import special_file
 from ..data.readers import check_names
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
@@ -83,6 +84,9 @@ def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> 
     unreadable or larger than ``max_pixels`` (checked from the header, before decoding)."""
     from PIL import Image, UnidentifiedImageError
 
+    kind = special_file(path)
+    if kind:  # opening a FIFO would wait for a writer; a device could be endless
+        raise ImageError(f"image {path} is a {kind}, not a regular file; it is not opened (hint: list image files)")
     try:
         with Image.open(path) as im:
             if im.width * im.height > max_pixels:

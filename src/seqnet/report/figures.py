@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..core.errors import SeqnetError
 from ..data.traverse import Traverse
 from ..eval.metrics.recall import GroundTruth
 from ..sequence.windows import window_starts
@@ -107,11 +108,13 @@ def gallery_png(item: GalleryItem, query_root: Path, ref_root: Path, gap: int = 
     an image cannot be read."""
     from PIL import Image
 
+    from ..describe.images import read_image
+
     rows = []
     for root, names in ((query_root, item.query_frames), (ref_root, item.ref_frames)):
-        try:
-            rows.append([np.asarray(Image.open(root / n).convert("RGB")) for n in names])
-        except OSError:
+        try:  # the describers' reader: size limit before decoding, FIFOs and devices never opened
+            rows.append([read_image(root / n) for n in names])
+        except SeqnetError:
             return None
     h = max(im.shape[0] for row in rows for im in row)
     w = max(sum(im.shape[1] + gap for im in row) for row in rows)
