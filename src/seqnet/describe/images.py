@@ -11,6 +11,7 @@ import dataclasses
 import re
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -93,7 +94,7 @@ def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> 
                 raise ImageError(f"image {path} is too large: it declares {im.width}x{im.height} pixels, more than "
                                  f"the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
             im.load()
-            return np.asarray(im.convert("L" if grey else "RGB"))
+            return to_uint8(im, path, grey)
     except FileNotFoundError as err:
         raise ImageError(f"image not found: {path}") from err
     except Image.DecompressionBombError as e:
@@ -102,6 +103,33 @@ def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> 
         raise ImageError(
             f"cannot read image {path} ({type(e).__name__}: {e}; hint: --skip-corrupted leaves such images out)"
         ) from e
+
+
+HIGH_DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I")  # 16-bit (and 32-bit integer) greyscale
+
+
+def to_uint8(im: Any, path: Path, grey: bool) -> np.ndarray:
+    """A decoded PIL image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``), scaled from its own range:
+    16-bit greyscale by 255/65535, float images in [0, 1] by 255 (in [0, 255] as they are); palette,
+    CMYK, alpha (dropped) and other 8-bit modes through PIL's conversion. A range that cannot be
+    mapped without guessing is an :class:`ImageError`."""
+    if im.mode not in HIGH_DEPTH_MODES and im.mode != "F":
+        return np.asarray(im.convert("L" if grey else "RGB"))
+    a = np.asarray(im, dtype=np.float64)
+    lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
+    if not np.isfinite([lo, hi]).all():
+        raise ImageError(f"image {path} ({im.mode}) holds NaN or inf pixels")
+    if im.mode == "F" and lo >= 0 and hi <= 1:
+        a = a * 255.0
+    elif im.mode == "F" and not (lo >= 0 and hi <= 255):
+        raise ImageError(f"float image {path} has values in [{lo:g}, {hi:g}]; seqnet reads float images in [0, 1] or "
+                         "[0, 255] (hint: rescale it, or save it as 8- or 16-bit)")
+    elif im.mode != "F":
+        if lo < 0 or hi > 65535:
+            raise ImageError(f"image {path} ({im.mode}) has values in [{lo:g}, {hi:g}], outside 16 bits")
+        a = a / 257.0  # 0..65535 -> 0..255
+    g = np.clip(np.round(a), 0, 255).astype(np.uint8)
+    return g if grey else np.repeat(g[..., None], 3, axis=-1)
 
 
 def prepare_image(
