@@ -196,3 +196,34 @@ def test_a_map_with_a_faiss_factory_string(synth_dir, tmp_path, capsys):
                      "raw+seqmatch", "--index", "IVF2,Nope", "--out", str(tmp_path / "bad")]) == 2
     assert "FAISS cannot make index 'IVF2,Nope'" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()  # refused before any work
+
+
+def test_an_edited_map_is_refused(synth_dir, map_models, tmp_path):
+    """A map is written whole: an array, the index or a model changed afterwards is refused on open."""
+    import shutil
+
+    from seqnet.maps.map import MapError
+
+    built = build(MapConfig(seq_len=4), synth_dir, tmp_path / "map", map_models)
+    meta = json.loads((built / "map.json").read_text())
+    assert {"items.npy", "shortlist.npy", "frames.npy", "models/seqnet.pt"} <= set(meta["checksums"])
+    for name, edit in (("items.npy", lambda p: np.save(p, np.where(np.arange(len(np.load(p))) == 0, -1,
+                                                                   np.load(p)))),
+                       ("models/seqnet.pt", lambda p: shutil.copy(map_models[0], p)),
+                       ("positions.npy", lambda p: np.save(p, np.full_like(np.load(p), np.nan)))):
+        copy = tmp_path / f"edited-{name.replace('/', '-')}"
+        shutil.copytree(built, copy)
+        edit(copy / name)
+        with pytest.raises(MapError, match="changed since the map was built"):
+            load_map(copy)
+    legacy = tmp_path / "legacy"  # a map without checksums (0.2) is still checked for what it holds
+    shutil.copytree(built, legacy)
+    meta.pop("checksums")
+    (legacy / "map.json").write_text(json.dumps(meta))
+    np.save(legacy / "positions.npy", np.full_like(np.load(legacy / "positions.npy"), np.nan))
+    with pytest.raises(MapError, match="NaN"):
+        load_map(legacy)
+    np.save(legacy / "positions.npy", np.load(built / "positions.npy"))
+    (legacy / "names.txt").write_text("a\nb\n")
+    with pytest.raises(MapError, match="2 names for"):
+        load_map(legacy)

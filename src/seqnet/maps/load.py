@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, SeqnetError
+from ..core.files import file_digest
 from ..data.readers import read_names
 from ..search.ann import load_index
 from ..sequence.checkpoints import load_model
@@ -35,6 +36,7 @@ def load_map(path: str | Path, device: str | None = None, anchor: str = "") -> M
     ``anchor``: the pinned window step of its anchored matchers (default: its window mode's)."""
     path = Path(path)
     meta = read_meta(path)
+    check_files(path, meta)
     try:
         r, nr, d1, d2 = (int(meta[k]) for k in ("items", "frames", "shortlist_dim", "frame_dim"))
         conf_dict = meta["config"]
@@ -45,12 +47,14 @@ def load_map(path: str | Path, device: str | None = None, anchor: str = "") -> M
                               "items": _array(path / "items.npy", (r,), "iu"),
                               "match_starts": _array(path / "match_starts.npy", (r,), "iu"),
                               "positions": _array(path / "positions.npy", None, "f")}
-    if len(arrays["positions"]) != nr:
-        raise MapError(f"{path / 'positions.npy'}: {len(arrays['positions'])} positions for {nr} frames")
+    check_arrays(path, arrays, nr)
     if (path / "seq_bounds.npy").is_file():
         arrays["seq_bounds"] = _array(path / "seq_bounds.npy", (nr, 2), "iu")
     if (path / "names.txt").is_file():
         arrays["names"] = read_names(path / "names.txt")
+        if len(arrays["names"]) != nr:
+            raise MapError(f"{path / 'names.txt'}: {len(arrays['names'])} names for {nr} frames (the map is damaged; "
+                           "rebuild it)")
     try:
         conf = MapConfig.from_dict(conf_dict)
     except ConfigError as e:
@@ -58,6 +62,32 @@ def load_map(path: str | Path, device: str | None = None, anchor: str = "") -> M
     index = None if conf.ann.kind == "flat" else _index(path / INDEX_FILE, conf, r, d1)
     models = _models(path, meta, conf)
     return Map(path, meta, arrays, index, models, device, anchor)
+
+
+def check_files(path: Path, meta: dict[str, Any], full: bool = False) -> None:
+    """Every file the map was written with has its size and sampled hash (``full``: its whole hash) of then;
+    a map without checksums (seqnet 0.2) is opened as it is."""
+    for rel, want in (meta.get("checksums") or {}).items():
+        f = path / rel
+        if not f.is_file():
+            raise MapError(f"map file missing: {f} (hint: rebuild the map with seqnet index build)")
+        got = file_digest(f, full)
+        if got["size"] != want.get("size") or (not full and got["sample"] != want.get("sample")):
+            raise MapError(f"{f} changed since the map was built ({got['size']} bytes, {want.get('size')} then, or "
+                           "other contents); a map is written whole: rebuild it with seqnet index build")
+
+
+def check_arrays(path: Path, arrays: dict[str, Any], nr: int) -> None:
+    """Positions finite and one per frame; items and window starts inside the frames."""
+    pos = arrays["positions"]
+    if len(pos) != nr or not np.isfinite(pos).all():
+        raise MapError(f"{path / 'positions.npy'}: {len(pos)} positions for {nr} frames, or NaN / inf among them "
+                       "(the map is damaged; rebuild it)")
+    for name in ("items", "match_starts"):
+        a = np.asarray(arrays[name])
+        if a.size and (a.min() < 0 or a.max() >= nr):
+            raise MapError(f"{path / (name + '.npy')}: values in {a.min()}..{a.max()}, outside the map's {nr} "
+                           "frames (the map is damaged; rebuild it)")
 
 
 def _index(file: Path, conf: Any, n: int, d: int) -> Any:

@@ -29,7 +29,7 @@ import numpy as np
 
 from .._version import __version__
 from ..core.errors import ConfigError
-from ..core.files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.files import atomic_path, current_umask, file_digest, save_npy_atomic, write_json_atomic, write_text_atomic
 from ..core.ownership import check_replaceable, locked, swap_dir_in, write_manifest
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import build_index, save_index
@@ -145,7 +145,8 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
     info["index_seconds"] = round(time.perf_counter() - t0, 3)
     for role, model in models.items():
         save_checkpoint(root / "models" / f"{role}.pt", model)
-    meta = {"format": MAP_FORMAT, "seqnet_version": __version__, "config": conf.to_dict(),
+    checksums = {p.relative_to(root).as_posix(): file_digest(p) for p in sorted(root.rglob("*")) if p.is_file()}
+    meta = {"format": MAP_FORMAT, "seqnet_version": __version__, "config": conf.to_dict(), "checksums": checksums,
             "items": len(a.items), "frames": len(a.frames), "shortlist_dim": int(a.shortlist.shape[1]),
             "frame_dim": int(a.frames.shape[1]), "input_dim": info.pop("input_dim", None),
             "provenance": provenance, "models": {r: f"models/{r}.pt" for r in models}, "source": info}
