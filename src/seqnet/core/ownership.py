@@ -13,19 +13,21 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import errno
 import json
 import os
 import shutil
 import socket
 import sys
-import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 from .._version import __version__
 from .errors import LockedError, OutputError
 from .utils import logger
 
+T = TypeVar("T")
 MANIFEST = ".seqnet-manifest.json"
 _HELD: dict[Path, int] = {}  # locks this process holds (re-entrant: a stage may call another on the same dir)
 
@@ -151,20 +153,87 @@ def remove_owned_dir(root: str | os.PathLike[str], what: str, known: Callable[[s
 
 
 def swap_dir_in(new: Path, root: Path) -> None:
-    """Rename the directory ``new`` onto ``root`` (a sibling); an existing ``root`` (already checked
-    replaceable) is moved aside first and deleted only once ``new`` is in place, else put back."""
-    old: Path | None = None
-    if root.exists():
-        old = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".old"))
-        old.rmdir()
-        root.rename(old)
+    """Put the directory ``new`` in place of ``root`` (a sibling) so that ``root`` is never missing: an
+    existing ``root`` (already checked replaceable) is exchanged with ``new`` in one atomic
+    ``renameat2(RENAME_EXCHANGE)`` and then deleted; where the file system cannot exchange, it is moved
+    aside, ``new`` renamed in, and an interruption in between is repaired by the next writer
+    (:func:`recover_dir`)."""
+    if not root.exists():
+        new.rename(root)
+        return
+    if exchange(new, root):
+        shutil.rmtree(new, ignore_errors=True)  # ``new`` now holds the old directory
+        return
+    old = root.parent / f".{root.name}.old"
+    if old.exists():
+        shutil.rmtree(old, ignore_errors=True)
+    root.rename(old)
     try:
         new.rename(root)
     except OSError:
-        if old is not None:
-            old.rename(root)
-            old = None
+        old.rename(root)
         raise
-    finally:
-        if old is not None and old.exists():
-            shutil.rmtree(old, ignore_errors=True)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def recover_dir(root: Path) -> None:
+    """Repair what a killed writer of ``root`` left (call under its lock, so no writer is alive): an
+    interrupted :func:`swap_dir_in` (the old directory moved aside, the new one not in place) is undone,
+    a leftover old directory and the temporary directories of dead runs (``.<name>.*.tmp``) removed."""
+    old = root.parent / f".{root.name}.old"
+    if old.is_dir() and not root.exists():
+        logger.info("restoring %s from an interrupted replacement (%s)", root, old.name)
+        old.rename(root)
+    elif old.is_dir():
+        shutil.rmtree(old, ignore_errors=True)
+    for tmp in root.parent.glob(f".{root.name}.*.tmp"):
+        if tmp.is_dir():
+            logger.debug("removing %s, left by a run that ended", tmp)
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def read_consistent(root: Path, read: Callable[[], T], error: type[Exception]) -> T:
+    """``read()`` of the directory ``root`` as one version: a writer that replaced ``root`` meanwhile
+    (its inode changed) makes the read start again on the new version (a reader never mixes two)."""
+    for _ in range(3):
+        try:
+            before = os.stat(root).st_ino
+        except FileNotFoundError:
+            return read()  # nothing there: the reader's own error names it
+        try:
+            out = read()
+        except (OSError, error):
+            if _inode(root) != before:
+                continue
+            raise
+        if _inode(root) == before:
+            return out
+    raise error(f"{root} was replaced three times while it was read; try again once its writer is done")
+
+
+def _inode(path: Path) -> int | None:
+    try:
+        return os.stat(path).st_ino
+    except FileNotFoundError:
+        return None
+
+
+def exchange(a: Path, b: Path) -> bool:
+    """Atomically exchange two paths (Linux ``renameat2(RENAME_EXCHANGE)``); False where unsupported."""
+    import ctypes
+    import ctypes.util
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EPERM, errno.EXDEV):
+        return False
+    raise OSError(err, os.strerror(err), str(b))

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core.errors import DatasetError, OutputError
 from ..core.files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
-from ..core.ownership import check_replaceable, locked, swap_dir_in, write_manifest
+from ..core.ownership import check_replaceable, locked, read_consistent, recover_dir, swap_dir_in, write_manifest
 from ..core.utils import logger
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
@@ -27,8 +27,12 @@ from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Travers
 
 
 def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
-    """Load and validate a dataset directory; raise :class:`DatasetError` saying what is wrong."""
-    root = Path(path)
+    """Load and validate a dataset directory; raise :class:`DatasetError` saying what is wrong. A dataset
+    replaced while it is read is read again (one version, never a mix)."""
+    return read_consistent(Path(path), lambda: _load_dataset(Path(path), mmap), DatasetError)
+
+
+def _load_dataset(root: Path, mmap: bool) -> Dataset:
     if not root.exists():
         raise DatasetError(f"dataset directory not found: {root}")
     if not root.is_dir():
@@ -164,6 +168,7 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path
     """
     root = Path(path)
     with locked(root):
+        recover_dir(root)
         if root.exists() and (not root.is_dir() or any(root.iterdir())):
             if not overwrite and root.is_dir():
                 raise OutputError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, SeqnetError
 from ..core.files import file_digest
+from ..core.ownership import read_consistent
 from ..data.readers import read_names
 from ..search.ann import load_index
 from ..sequence.checkpoints import load_model
@@ -33,8 +34,12 @@ def _array(path: Path, shape: tuple[int, ...] | None, kinds: str) -> np.ndarray:
 
 def load_map(path: str | Path, device: str | None = None, anchor: str = "") -> Map:
     """Open the map directory ``path`` (written by :func:`seqnet.maps.build` or :func:`seqnet.maps.write_map`);
-    ``anchor``: the pinned window step of its anchored matchers (default: its window mode's)."""
-    path = Path(path)
+    ``anchor``: the pinned window step of its anchored matchers (default: its window mode's). A map
+    replaced while it is opened is opened again (one version, never a mix)."""
+    return read_consistent(Path(path), lambda: _load_map(Path(path), device, anchor), MapError)
+
+
+def _load_map(path: Path, device: str | None, anchor: str) -> Map:
     meta = read_meta(path)
     check_files(path, meta)
     try:

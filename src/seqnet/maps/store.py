@@ -30,7 +30,7 @@ import numpy as np
 from .._version import __version__
 from ..core.errors import ConfigError
 from ..core.files import atomic_path, current_umask, file_digest, save_npy_atomic, write_json_atomic, write_text_atomic
-from ..core.ownership import check_replaceable, locked, swap_dir_in, write_manifest
+from ..core.ownership import check_replaceable, locked, recover_dir, swap_dir_in, write_manifest
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import build_index, save_index
 from ..sequence.checkpoints import save_checkpoint
@@ -113,6 +113,7 @@ def write_map(out: str | Path, conf: MapConfig, arrays: MapArrays, models: Mappi
         raise ConfigError("write_map needs a resolved MapConfig (seq_len and rerank_seq_len set)")
     arrays.check(conf.match_len)
     with locked(out):
+        recover_dir(out)
         check_replaceable(out, "map", is_map_file)
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp"))
