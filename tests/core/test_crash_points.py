@@ -16,6 +16,9 @@ from seqnet.data.synth import make_synthetic
 
 def _crash_at(k: int, when: str, target, *args) -> None:
     """In a forked child: run ``target(*args)``, dying at the ``k``-th rename (``before`` or ``after`` it)."""
+    import torch
+
+    torch.set_num_threads(1)  # no OpenMP thread pool inherited across the fork (it would hang)
     count = [0]
 
     def wrap(fn):
@@ -107,3 +110,96 @@ def test_a_reader_during_a_replacement_sees_one_version(tmp_path, monkeypatch):
     assert got.name == "new" and len(calls) > 2
     assert (got.reference.descriptors == new.reference.descriptors).all()
     assert (got.query.descriptors == new.query.descriptors).all()
+
+
+def _each_crash_point(target, *args, check) -> int:
+    """Kill ``target(*args)`` before and after each of its renames in turn; ``check()`` after every kill."""
+    tried = 0
+    for when in ("before", "after"):
+        for k in range(1, 60):
+            code = _run(k, when, target, *args)
+            check()
+            tried += 1
+            if code == 0:
+                break
+    return tried
+
+
+def test_describe_output_never_sits_beside_another_runs_sidecars(folder, tmp_path):
+    import json
+
+    import numpy as np
+
+    from seqnet.cli import main
+    from seqnet.core.provenance import sidecar
+    from seqnet.describe.store import names_file_for
+
+    dims = {}
+    for size in ("32x16", "16x8"):  # the descriptor size each run's settings give
+        p = tmp_path / f"p{size}.npy"
+        assert main(["-q", "describe", str(folder), "--method", "pixels", "--resize", size, "--out", str(p)]) == 0
+        dims[json.dumps(json.loads(sidecar(p).read_text())["settings"], sort_keys=True)] = np.load(p).shape[1]
+    assert len(set(dims.values())) == 2
+    out = tmp_path / "d.npy"
+    argv = ["-q", "describe", str(folder), "--out", str(out), "--overwrite"]
+    assert main([*argv, "--method", "pixels", "--resize", "32x16"]) == 0
+
+    def check():
+        if out.exists():  # the descriptors present always carry their own run's names and provenance
+            d = np.load(out)
+            assert dims[json.dumps(json.loads(sidecar(out).read_text())["settings"], sort_keys=True)] == d.shape[1]
+            assert len(names_file_for(out).read_text().split()) == len(d)
+        assert main([*argv, "--method", "pixels", "--resize", "32x16"]) == 0  # the next run repairs it
+
+    assert _each_crash_point(main, [*argv, "--method", "pixels", "--resize", "16x8"], check=check) > 4
+
+
+def test_localize_summary_is_always_its_tracks(synth_dir, tmp_path):
+    import csv
+    import json
+
+    from seqnet.cli import main
+
+    out = tmp_path / "t.csv"
+    base = ["-q", "localize", "--dataset", str(synth_dir), "--out", str(out)]
+    assert main([*base, "--method", "single"]) == 0
+
+    def check():
+        side = out.with_suffix(".json")
+        if side.exists():
+            rows = list(csv.DictReader(out.open()))
+            summary = json.loads(side.read_text())
+            assert summary["config"]["method"] in ("single", "raw+seqmatch")
+            answered = sum(r["estimate"] not in ("", "-1") for r in rows)
+            assert summary["summary"]["answered"] == answered
+        assert main([*base, "--method", "single"]) == 0
+
+    assert _each_crash_point(main, [*base, "--method", "raw+seqmatch"], check=check) >= 4
+
+
+def test_eval_outputs_never_mix_two_evaluations(synth_dir, tmp_path):
+    import hashlib
+    import json
+
+    from seqnet.cli import main
+
+    out = tmp_path / "ev"
+    base = ["-q", "eval", "--dataset", str(synth_dir), "--out", str(out)]
+
+    def figure() -> str:
+        return hashlib.sha256((out / "pr_curve.png").read_bytes()).hexdigest()
+
+    figures = {}
+    for method in ("raw+seqmatch", "single"):  # each evaluation's own figure
+        assert main([*base, "--method", method]) == 0
+        figures[method] = figure()
+    assert figures["single"] != figures["raw+seqmatch"]
+
+    def check():
+        res = out / "results.json"
+        if res.exists():  # the figure beside it is its own evaluation's
+            (method,) = json.loads(res.read_text())["methods"]
+            assert figure() == figures[method]
+        assert main([*base, "--method", "single"]) == 0
+
+    assert _each_crash_point(main, [*base, "--method", "raw+seqmatch"], check=check) >= 4

@@ -207,11 +207,14 @@ def _h5_sink(h: h5py.File, n: int) -> Sink:
 
 
 def _write_output(out: Path, desc: np.ndarray, names: list[str], config: str, prov: dict) -> None:
+    """The output appears in one rename, the descriptors' own, after its sidecars: an older output it
+    replaces is removed first, so descriptors never sit beside another run's names or provenance."""
     desc = np.ascontiguousarray(desc, dtype=np.float32)
     if out.suffix.lower() == ".npy":
-        save_npy_atomic(out, desc)
+        out.unlink(missing_ok=True)  # only reached with --overwrite (else an existing output is refused)
         write_text_atomic(names_file_for(out), "\n".join(names) + "\n")
         write_json_atomic(provenance_sidecar(out), prov)
+        save_npy_atomic(out, desc)
         return
     with atomic_path(out) as tmp:
         with h5py.File(tmp, "w") as h:

@@ -33,6 +33,8 @@ from .metrics.recall import GroundTruth, check_radius, ground_truth
 from .rank import rank
 from .results import method_results, write_per_query
 
+EVAL_FIGURES = ("pr_curve.png", "report.html")  # written beside results.json by ``main``
+
 
 @dataclasses.dataclass(frozen=True)
 class EvalConfig(WindowSettings, Config):
@@ -242,15 +244,16 @@ def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str
     ev.results["config"]["dataset_path"] = str(dataset)
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
-    path = write_json_atomic(Path(out) / "results.json", ev.results)  # the results, also returned
+    for name in ("results.json", *EVAL_FIGURES):  # an earlier evaluation's outputs never mix with these
+        (out / name).unlink(missing_ok=True)
     if per_query is not None:
         write_per_query(ev, per_query)
     if figures:
         from ..report.tables import plot_pr_curves
 
-        plot_pr_curves(ev.results["methods"], Path(out) / "pr_curve.png", title=ev.results["config"]["dataset"])
+        plot_pr_curves(ev.results["methods"], out / "pr_curve.png", title=ev.results["config"]["dataset"])
     if report is not None:
         from ..report.html import write_html_report
 
-        write_html_report(ev, ds.split(split), Path(out) / "report.html", report)
-    return Written(path, ev.results)
+        write_html_report(ev, ds.split(split), out / "report.html", report)
+    return Written(write_json_atomic(out / "results.json", ev.results), ev.results)  # last: it completes the set

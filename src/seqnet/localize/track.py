@@ -181,11 +181,13 @@ def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list
 
 
 def write_track(out: Path, rows: list[dict[str, Any]], record: dict[str, Any]) -> Path:
-    """``out`` (CSV) and its JSON sidecar ``record`` (with ``kind``), both written atomically."""
+    """``out`` (CSV) and its JSON sidecar ``record`` (with ``kind``), each written atomically; an older summary
+    is removed before the new track lands, so a summary present is always the track's own."""
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(TRACK_COLUMNS), lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
+    sidecar_of(out).unlink(missing_ok=True)  # checked ours by check_output
     write_text_atomic(out, buf.getvalue())
     write_json_atomic(sidecar_of(out), {"kind": TRACK_KIND, **record})
     return out
