@@ -167,6 +167,32 @@ def file_digest(path: str | os.PathLike[str], full: bool = False) -> dict[str, A
     return {"size": size, "sample": h.hexdigest()}
 
 
+SPACE_MARGIN = 16 * 2**20
+
+
+def check_space(folder: Path, needed: int, what: str) -> None:
+    """Refuse to start writing ``needed`` bytes into ``folder`` (one line, exit 1) when the file system
+    has less free: a library that hits a full disk mid-write may not fail cleanly (HDF5, memory maps)."""
+    import shutil
+
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if free < needed + SPACE_MARGIN:
+        raise ResourceError(f"{folder}: {what} need about {(needed + SPACE_MARGIN) / 2**20:.0f} MiB, only "
+                            f"{free / 2**20:.0f} MiB free; hint: free some space or write the output elsewhere")
+
+
+def in_place_of(e: OSError, tmp: Path, final: Path) -> OSError:
+    """``e`` naming the user's output ``final`` (and the file in it) instead of the temporary directory
+    ``tmp`` it was being written in."""
+    if e.filename:
+        with contextlib.suppress(ValueError):
+            e.filename = str(final / Path(e.filename).relative_to(tmp))
+    return e
+
+
 def special_file(path: str | os.PathLike[str]) -> str | None:
     """``"FIFO"``, ``"socket"``, ``"character device"`` or ``"block device"`` when ``path`` is one (checked
     with ``stat``, never opened), else None (a regular file, a directory, or nothing there)."""

@@ -81,10 +81,16 @@ def _acquire(lock: Path, path: Path, fcntl) -> int:  # noqa: ANN001 - the fcntl 
             stale = os.read(fd, 512).decode("utf-8", "replace").strip()
             if stale:
                 logger.debug("taking over the lock of %s from a process that ended (%s)", path, stale)
-            os.ftruncate(fd, 0)
-            os.lseek(fd, 0, os.SEEK_SET)
             info = f"PID {os.getpid()} on {socket.gethostname()} since {_now()}: {' '.join(sys.argv[:3])}"
-            os.write(fd, info.encode())
+            try:
+                os.ftruncate(fd, 0)
+                os.lseek(fd, 0, os.SEEK_SET)
+                os.write(fd, info.encode())
+            except OSError:  # e.g. a full disk: leave no lock file behind
+                os.close(fd)
+                with contextlib.suppress(OSError):
+                    lock.unlink()
+                raise
             return fd
         os.close(fd)
     raise LockedError(f"cannot lock {path}: its lock file {lock} keeps changing")  # pragma: no cover

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError, OutputError
-from ..core.files import atomic_path, current_umask, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.files import atomic_path, current_umask, in_place_of, save_npy_atomic, write_json_atomic, write_text_atomic
 from ..core.ownership import check_replaceable, locked, read_consistent, recover_dir, swap_dir_in, write_manifest
 from ..core.utils import logger
 from .positives import Positives
@@ -177,7 +177,10 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path
         tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".tmp"))
         try:
             tmp.chmod(0o777 & ~current_umask())  # mkdtemp makes it 0700; a plain mkdir would not
-            _write_dataset(ds, tmp)
+            try:
+                _write_dataset(ds, tmp)
+            except OSError as e:
+                raise in_place_of(e, tmp, root) from e
             swap_dir_in(tmp, root)
         finally:
             if tmp.exists():

@@ -21,7 +21,7 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError, ImageError
-from ..core.files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.files import atomic_path, check_space, save_npy_atomic, write_json_atomic, write_text_atomic
 from ..core.ownership import locked
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
@@ -197,6 +197,7 @@ def _h5_sink(h: h5py.File, n: int) -> Sink:
     def sink(idx: np.ndarray, desc: np.ndarray | None) -> None:
         if desc is not None:
             if "descriptors" not in h:
+                check_space(Path(h.filename).parent, 2 * n * desc.shape[1] * 4, f"{n} descriptors of D={desc.shape[1]}")
                 h.create_dataset("descriptors", shape=(n, desc.shape[1]), dtype=np.float32,
                                  chunks=(min(n, 256), desc.shape[1]))
             h["descriptors"][np.sort(idx)] = desc[np.argsort(idx)]

@@ -29,7 +29,15 @@ import numpy as np
 
 from .._version import __version__
 from ..core.errors import ConfigError
-from ..core.files import atomic_path, current_umask, file_digest, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.files import (
+    atomic_path,
+    current_umask,
+    file_digest,
+    in_place_of,
+    save_npy_atomic,
+    write_json_atomic,
+    write_text_atomic,
+)
 from ..core.ownership import check_replaceable, locked, recover_dir, swap_dir_in, write_manifest
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import build_index, save_index
@@ -88,16 +96,15 @@ class MapArrays:
 
 def save_array(path: Path, array: ArrayLike, dtype: str, name: str) -> Path:
     """Write ``array`` as ``.npy`` of ``dtype`` in row chunks (memory-bounded; NaN or inf is an error)."""
-    shape = tuple(array.shape)
-    with atomic_path(path) as tmp:
-        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.dtype(dtype), shape=shape)
+    shape, dt = tuple(array.shape), np.dtype(dtype)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:  # write() calls: a full disk is ENOSPC, not SIGBUS
+        np.lib.format.write_array_header_1_0(f, {"descr": np.lib.format.dtype_to_descr(dt), "fortran_order": False,
+                                                 "shape": shape})
         for a in range(0, shape[0], CHUNK_ROWS):
             block = np.asarray(to_numpy(array[a : a + CHUNK_ROWS]), dtype=np.float32)
             if not np.isfinite(block).all():
                 raise ConfigError(f"{name} descriptors hold NaN or inf (rows {a}..{a + len(block) - 1})")
-            out[a : a + len(block)] = block
-        out.flush()
-        del out
+            f.write(np.ascontiguousarray(block, dtype=dt).tobytes())
     return path
 
 
@@ -119,7 +126,10 @@ def write_map(out: str | Path, conf: MapConfig, arrays: MapArrays, models: Mappi
         tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp"))
         try:
             tmp.chmod(0o777 & ~current_umask())
-            _write(tmp, conf, arrays, dict(models or {}), provenance, dict(info or {}))
+            try:
+                _write(tmp, conf, arrays, dict(models or {}), provenance, dict(info or {}))
+            except OSError as e:
+                raise in_place_of(e, tmp, out) from e
             swap_dir_in(tmp, out)
         finally:
             if tmp.exists():

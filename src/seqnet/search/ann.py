@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..core.config import Config, check_int
-from ..core.errors import CheckpointError, ConfigError
+from ..core.errors import CheckpointError, ConfigError, ResourceError
 
 FACTORY = re.compile(r"^[A-Za-z][A-Za-z0-9_,.=x]*$")  # the characters of a faiss factory string
 
@@ -162,7 +162,11 @@ def save_index(index: Any, path: str | Path) -> Path:
     from ..core.files import atomic_path
 
     with atomic_path(path) as tmp:
-        faiss.write_index(index, str(tmp))
+        try:
+            faiss.write_index(index, str(tmp))
+        except RuntimeError as e:  # faiss reports a failed write (e.g. a full disk) this way
+            raise ResourceError(f"cannot write FAISS index {path} ({str(e).strip().splitlines()[-1][:160]}); "
+                                "hint: check the free space") from e
     return Path(path)
 
 

@@ -1,0 +1,59 @@
+"""A full disk (a 3 MiB tmpfs) is one line and exit 1 for the writers, never a traceback, a segfault or a
+SIGBUS, and leaves neither temporary files nor lock files behind. Needs root to mount a tmpfs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+SEQNET = [sys.executable, "-m", "seqnet"]
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.strip() or 'not root'}); the full-disk cases need one")
+    yield mnt
+    subprocess.run(["umount", str(mnt)], check=False)
+
+
+def _one_line_exit_1(p, needle):
+    assert p.returncode == 1, (p.returncode, p.stderr[-1500:])
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and "Traceback" not in p.stderr, p.stderr[-1500:]
+
+
+def _clean(mnt):
+    left = sorted(p.name for p in mnt.iterdir())
+    assert not [n for n in left if n.endswith((".tmp", ".lock", ".old", ".h5"))], left
+
+
+def test_describe_is_refused_before_it_fills_the_disk(tiny_disk, tmp_path):
+    images = tmp_path / "imgs"
+    images.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(200):  # 200 × 64×32 greyscale pixels: 3.3 MB of descriptors, twice
+        Image.fromarray(rng.integers(0, 256, (32, 64, 3), dtype=np.uint8)).save(images / f"{i:03d}.png")
+    p = subprocess.run([*SEQNET, "-q", "describe", str(images), "--method", "pixels",
+                        "--out", str(tiny_disk / "d.npy")], capture_output=True, text=True, timeout=300)
+    _one_line_exit_1(p, "MiB free")
+    _clean(tiny_disk)
+
+
+def test_index_build_on_a_full_disk(tiny_disk, tmp_path):
+    from seqnet.cli import main
+
+    assert main(["-q", "synth", str(tmp_path / "ds"), "--places", "2000", "--dim", "256"]) == 0
+    p = subprocess.run([*SEQNET, "-q", "index", "build", "--dataset", str(tmp_path / "ds"), "--shortlist", "delta",
+                        "--rerank", "raw+seqmatch", "--split", "all", "--out", str(tiny_disk / "map")],
+                       capture_output=True, text=True, timeout=300)
+    _one_line_exit_1(p, "no space left on device")
+    assert str(tiny_disk / "map") in p.stderr and ".tmp" not in p.stderr  # the user's path, not a temporary one
+    _clean(tiny_disk)
