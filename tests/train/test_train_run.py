@@ -92,7 +92,9 @@ def test_resume_removes_its_leftover_temp_files(small, tmp_path):
     assert all(p.exists() for p in others)
 
 
-def test_a_run_stopped_in_its_first_epoch_says_so(small, tmp_path, monkeypatch):
+def test_a_run_stopped_in_its_first_epoch_is_started_again_in_place(small, tmp_path, monkeypatch):
+    """Killed before its first last.pt, a run has nothing to resume: the same command starts it again
+    (its own config.json and events are replaced); a directory with anything else is still refused."""
     import seqnet.train.loop as loop_module
 
     def boom(*args, **kwargs):
@@ -101,9 +103,16 @@ def test_a_run_stopped_in_its_first_epoch_says_so(small, tmp_path, monkeypatch):
     monkeypatch.setattr(loop_module, "train_epoch", boom)
     with pytest.raises(KeyboardInterrupt):
         train(small, FAST, tmp_path / "r")
+    assert (tmp_path / "r" / "config.json").is_file() and not (tmp_path / "r" / "last.pt").exists()
     monkeypatch.undo()
-    with pytest.raises(ConfigError, match="stopped before its first epoch ended"):
-        train(small, FAST, tmp_path / "r")
+    train(small, FAST, tmp_path / "r")
+    assert (tmp_path / "r" / "last.pt").is_file()
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "config.json").write_text("{}")
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    with pytest.raises(ConfigError, match="is not empty"):
+        train(small, FAST, tmp_path / "other")
+    assert (tmp_path / "other" / "notes.txt").read_text() == "mine"
 
 
 def test_main_returns_the_run_directory_and_finds_the_dataset_when_resuming(small, tmp_path):
@@ -171,3 +180,22 @@ def test_runs_written_before_train_config_still_resume(small, tmp_path):
     assert conf.epochs == 2 and conf.seq_len == 3
     run = train(small, conf, tmp_path / "r", resume=True)
     assert run.epoch == 2 and run.dataset_path == "data/old"
+
+
+def test_a_last_pt_without_its_training_state_is_a_clear_error(small, tmp_path, capsys):
+    """A last.pt whose negative cache (or other training state) is missing is refused with one line."""
+    import torch
+
+    from seqnet.cli import main as cli_main
+
+    train(small, FAST, tmp_path / "r")
+    payload = torch.load(tmp_path / "r" / "last.pt", weights_only=False)
+    del payload["train_state"]["neg_cache"]
+    torch.save(payload, tmp_path / "r" / "last.pt")
+    from seqnet.data.io import save_dataset
+
+    data = save_dataset(small, tmp_path / "ds")
+    capsys.readouterr()
+    assert cli_main(["train", "--dataset", str(data), "--resume", str(tmp_path / "r"), "--epochs", "3"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lacks what resuming needs (neg_cache)" in err[0], err

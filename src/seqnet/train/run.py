@@ -115,13 +115,20 @@ def restored_config(payload: Mapping[str, Any], conf: TrainConfig | None) -> Tra
 
 
 def check_run_dir(out_dir: Path) -> None:
-    """A new run needs an absent or empty directory."""
+    """A new run needs an absent or empty directory, or one a run left before its first epoch ended (only
+    its ``config.json``, TensorBoard events and temporary files: nothing to resume), which it starts again."""
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError(f"run directory {out_dir} is a file (hint: another --out)")
-    if out_dir.exists() and any(out_dir.iterdir()):
-        stopped = (out_dir / "config.json").is_file() and not (out_dir / "last.pt").is_file()
-        why = " (a run that stopped before its first epoch ended: remove it)" if stopped else ""
-        raise ConfigError(f"run directory {out_dir} is not empty{why} (hint: another --out, or --resume {out_dir})")
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        return
+    files = [p for p in out_dir.iterdir()]
+    ours = all(p.is_file() and (is_run_file(p.name) or any(p.match(g) for g in TEMP_PATTERNS)) for p in files)
+    if ours and not (out_dir / "last.pt").exists() and not (out_dir / "best.pt").exists():
+        logger.info("%s holds a run that stopped before its first epoch ended; starting it again", out_dir)
+        for p in files:
+            p.unlink()
+        return
+    raise ConfigError(f"run directory {out_dir} is not empty (hint: another --out, or --resume {out_dir})")
 
 
 RUN_FILES = ("last.pt", "best.pt", "config.json")
@@ -178,8 +185,17 @@ def open_files(run: Run) -> None:
     run.writer = SummaryWriter(log_dir=str(run.out_dir), purge_step=run.epoch + 1 if run.epoch else None)
 
 
+TRAIN_STATE = ("optimizer", "scheduler", "neg_cache", "rng", "best_epoch", "bad_epochs", "history")
+
+
 def _restore(run: Run, payload: Mapping[str, Any]) -> None:
-    st = payload["train_state"]
+    st = payload.get("train_state")
+    missing = [k for k in TRAIN_STATE if not isinstance(st, Mapping) or k not in st]
+    missing += [k for k in ("state_dict", "model", "epoch", "best_score") if k not in payload]
+    if missing or not isinstance(st.get("neg_cache"), torch.Tensor) or not isinstance(st.get("rng"), Mapping):
+        what = ", ".join(missing) or "a negative cache tensor and random state"
+        raise CheckpointError(f"{run.out_dir / 'last.pt'} lacks what resuming needs ({what}); it was not written "
+                              "by a seqnet training run of this version (hint: start a new run)")
     if tuple(st["neg_cache"].shape) != tuple(run.neg_cache.shape) or payload["model"] != run.model.config():
         raise CheckpointError(f"the checkpoint does not fit this dataset: {tuple(st['neg_cache'].shape)[0]} training "
                               f"queries and model {payload['model']}, now {run.neg_cache.shape[0]} and "
