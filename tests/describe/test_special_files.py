@@ -67,3 +67,36 @@ def test_a_fifo_descriptor_file_is_refused(tmp_path):
         return True
 
     assert _within(10, read)
+
+
+def test_a_folder_entry_that_is_no_image_file_is_refused_not_skipped(folder):
+    """Skipping it would shift every later frame (frame-aligned ground truth): it is refused, named."""
+    from seqnet.describe.images import list_images
+
+    os.symlink(folder / "missing.png", folder / "f05a.png")  # a broken link among the images
+    with pytest.raises(ImageError, match="f05a.png is a broken link, not an image file"):
+        list_images(folder)
+    os.unlink(folder / "f05a.png")
+    os.mkfifo(folder / "f05b.png")
+    with pytest.raises(ImageError, match="f05b.png is a FIFO"):
+        list_images(folder)  # stat only: a FIFO is never opened
+    os.unlink(folder / "f05b.png")
+    (folder / "notes.txt").write_text("not an image: ignored")
+    assert len(list_images(folder)) == 10
+
+
+def test_names_a_names_file_cannot_keep_are_refused_when_made(tmp_path):
+    from seqnet.data.readers import check_names
+
+    with pytest.raises(DatasetError, match="starts or ends with whitespace"):
+        check_names(["a.png", " a.png"], "images")
+    from seqnet.describe.images import list_images
+
+    d = tmp_path / "imgs"
+    d.mkdir()
+    from PIL import Image
+
+    for n in ("a.png", " a.png"):
+        Image.new("RGB", (4, 4)).save(d / n)
+    with pytest.raises(ImageError, match="whitespace"):
+        list_images(d)

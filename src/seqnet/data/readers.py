@@ -129,6 +129,9 @@ def check_names(names: list[str], where: str) -> list[str]:
     for i, n in enumerate(names):
         if not LINE_SEPARATORS.isdisjoint(n):
             raise DatasetError(f"{where}: name {i} {n!r} contains a line separator; names are one per line")
+        if n != n.strip() or not n:
+            raise DatasetError(f"{where}: name {i} {n!r} is empty or starts or ends with whitespace, which a names "
+                               "file does not keep (names are stripped when read)")
     seen: dict[str, int] = {}
     for i, n in enumerate(names):
         if n in seen:

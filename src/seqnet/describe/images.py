@@ -42,7 +42,12 @@ def list_images(source: str | Path) -> ImageList:
     """The images of a folder or a list file, in order; raise :class:`ImageError` when there are none."""
     src = Path(source)
     if src.is_dir():
-        files = [p for p in src.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS]
+        files = [p for p in src.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
+        odd = next((p for p in files if not p.is_file()), None)
+        if odd is not None:  # left out, it would shift every frame after it (frame-aligned ground truth)
+            kind = special_file(odd) or ("broken link" if odd.is_symlink() else "directory")
+            raise ImageError(f"{odd} is a {kind}, not an image file; remove or rename it (images are paired by "
+                             "their order in the folder)")
         files.sort(key=lambda p: natural_key(p.name))
         if not files:
             raise ImageError(
