@@ -214,7 +214,7 @@ def test_an_edited_map_is_refused(synth_dir, map_models, tmp_path):
         copy = tmp_path / f"edited-{name.replace('/', '-')}"
         shutil.copytree(built, copy)
         edit(copy / name)
-        with pytest.raises(MapError, match="changed since the map was built"):
+        with pytest.raises(MapError, match="changed since the map was written"):
             load_map(copy)
     legacy = tmp_path / "legacy"  # a map without checksums (0.2) is still checked for what it holds
     shutil.copytree(built, legacy)

@@ -167,6 +167,20 @@ def file_digest(path: str | os.PathLike[str], full: bool = False) -> dict[str, A
     return {"size": size, "sample": h.hexdigest()}
 
 
+def verify_digests(root: Path, digests: dict[str, Any], error: type[SeqnetError], what: str, hint: str,
+                   full: bool = False) -> None:
+    """Every file of ``digests`` (as :func:`file_digest` recorded them when ``root`` was written) is there
+    with the same size and sampled hash (``full``: the same bytes); ``error`` naming the first that is not."""
+    for rel, want in (digests or {}).items():
+        f = root / rel
+        if not f.is_file():
+            raise error(f"{f} is missing from the {what} (hint: {hint})")
+        got = file_digest(f, full)
+        if got["size"] != want.get("size") or (not full and got["sample"] != want.get("sample")):
+            raise error(f"{f} changed since the {what} was written ({got['size']} bytes, {want.get('size')} then, "
+                        f"or other contents); hint: {hint}")
+
+
 SPACE_MARGIN = 16 * 2**20
 
 

@@ -16,7 +16,14 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError, OutputError
-from ..core.files import atomic_path, current_umask, in_place_of, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.files import (
+    atomic_path,
+    current_umask,
+    in_place_of,
+    save_npy_atomic,
+    write_json_atomic,
+    write_text_atomic,
+)
 from ..core.ownership import check_replaceable, locked, read_consistent, recover_dir, swap_dir_in, write_manifest
 from ..core.utils import logger
 from .positives import Positives
@@ -92,7 +99,7 @@ def load_positives(f: Path) -> Positives:
     return Positives(indptr.astype(np.int64), indices.astype(np.int64))
 
 
-_META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses", "provenance"}
+_META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses", "provenance", "checksums"}
 
 
 def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]]:
@@ -192,6 +199,9 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path
 def _write_dataset(ds: Dataset, root: Path) -> None:
     for side, t in (("reference", ds.reference), ("query", ds.query)):
         save_traverse(t, root / side)
+    if ds.positives is not None:
+        with atomic_path(root / POSITIVES_FILE) as tmp, open(tmp, "wb") as f:
+            np.savez(f, indptr=ds.positives.indptr, indices=ds.positives.indices)
     meta = {
         **{k: v for k, v in ds.extra.items() if k not in _META_KEYS},
         "format": FORMAT,
@@ -202,9 +212,6 @@ def _write_dataset(ds: Dataset, root: Path) -> None:
         "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance},
     }
     write_json_atomic(root / "dataset.json", meta)
-    if ds.positives is not None:
-        with atomic_path(root / POSITIVES_FILE) as tmp, open(tmp, "wb") as f:
-            np.savez(f, indptr=ds.positives.indptr, indices=ds.positives.indices)
     write_manifest(root, "dataset", [p for p in root.rglob("*") if p.is_file()])
 
 

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, SeqnetError
-from ..core.files import file_digest
+from ..core.files import verify_digests
 from ..core.ownership import read_consistent
 from ..data.readers import read_names
 from ..search.ann import load_index
@@ -72,14 +72,8 @@ def _load_map(path: Path, device: str | None, anchor: str) -> Map:
 def check_files(path: Path, meta: dict[str, Any], full: bool = False) -> None:
     """Every file the map was written with has its size and sampled hash (``full``: its whole hash) of then;
     a map without checksums (seqnet 0.2) is opened as it is."""
-    for rel, want in (meta.get("checksums") or {}).items():
-        f = path / rel
-        if not f.is_file():
-            raise MapError(f"map file missing: {f} (hint: rebuild the map with seqnet index build)")
-        got = file_digest(f, full)
-        if got["size"] != want.get("size") or (not full and got["sample"] != want.get("sample")):
-            raise MapError(f"{f} changed since the map was built ({got['size']} bytes, {want.get('size')} then, or "
-                           "other contents); a map is written whole: rebuild it with seqnet index build")
+    verify_digests(path, meta.get("checksums") or {}, MapError, "map", "a map is written whole: rebuild it with "
+                   "seqnet index build", full)
 
 
 def check_arrays(path: Path, arrays: dict[str, Any], nr: int) -> None:
