@@ -116,3 +116,21 @@ def test_report_config_validates(bad):
 
     with pytest.raises(ConfigError):
         ReportConfig(**bad)
+
+
+def test_gallery_leaves_out_images_it_must_not_decode(tmp_path):
+    """A decompression bomb or a FIFO among the gallery's frames leaves that example out (no traceback,
+    no hang): the gallery reads through the describers' reader."""
+    import os
+
+    from PIL import Image
+
+    from seqnet.report.figures import GalleryItem, gallery_png
+
+    Image.new("RGB", (8, 4)).save(tmp_path / "ok.png")
+    Image.new("1", (12000, 12000)).save(tmp_path / "bomb.png")  # 144 M pixels declared in a tiny file
+    os.mkfifo(tmp_path / "fifo.png")
+    good = GalleryItem(0, ["ok.png"], ["ok.png"], True, 0.5)
+    assert gallery_png(good, tmp_path, tmp_path).startswith(b"\x89PNG")
+    for bad in ("bomb.png", "fifo.png"):
+        assert gallery_png(GalleryItem(0, ["ok.png"], [bad], True, 0.5), tmp_path, tmp_path) is None
