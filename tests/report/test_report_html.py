@@ -118,6 +118,7 @@ def test_report_config_validates(bad):
         ReportConfig(**bad)
 
 
+@pytest.mark.filterwarnings("ignore::PIL.Image.DecompressionBombWarning")
 def test_gallery_leaves_out_images_it_must_not_decode(tmp_path):
     """A decompression bomb or a FIFO among the gallery's frames leaves that example out (no traceback,
     no hang): the gallery reads through the describers' reader."""
