@@ -203,3 +203,21 @@ def test_eval_outputs_never_mix_two_evaluations(synth_dir, tmp_path):
         assert main([*base, "--method", "single"]) == 0
 
     assert _each_crash_point(main, [*base, "--method", "raw+seqmatch"], check=check) >= 4
+
+
+def test_the_next_writer_removes_what_killed_writers_left(synth_dir, folder, tmp_path):
+    """Temporary files of atomic writes that a killed run left beside its outputs are removed by the next
+    run of the same output (it holds the lock, so no live writer owns them); other files are kept."""
+    from seqnet.cli import main
+
+    track, ev, desc = tmp_path / "t.csv", tmp_path / "ev", tmp_path / "d.npy"
+    ev.mkdir()
+    dead = [tmp_path / ".t.csv.abc123.tmp", tmp_path / ".t.json.abc123.tmp", ev / ".results.json.x1.tmp",
+            ev / ".pr_curve.png.x2.tmp", tmp_path / ".d.npy.zz.tmp", tmp_path / ".d.names.txt.zz.tmp"]
+    keep = [tmp_path / ".other.csv.abc.tmp", ev / "mine.txt"]
+    for p in dead + keep:
+        p.write_text("left behind")
+    assert main(["-q", "localize", "--dataset", str(synth_dir), "--method", "single", "--out", str(track)]) == 0
+    assert main(["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--out", str(ev)]) == 0
+    assert main(["-q", "describe", str(folder), "--method", "pixels", "--out", str(desc)]) == 0
+    assert not [p for p in dead if p.exists()] and all(p.exists() for p in keep)

@@ -182,6 +182,16 @@ def swap_dir_in(new: Path, root: Path) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
+def remove_dead_temps(outputs: Iterable[Path]) -> None:
+    """Remove the temporary files (``.<name>.*.tmp``, :func:`seqnet.core.files.atomic_path`) that killed
+    writers of ``outputs`` left beside them. Call under the outputs' lock: no live writer owns them."""
+    for out in outputs:
+        for tmp in out.parent.glob(f".{out.name}.*.tmp"):
+            if tmp.is_file():
+                logger.debug("removing %s, left by a run that ended", tmp)
+                tmp.unlink(missing_ok=True)
+
+
 def recover_dir(root: Path) -> None:
     """Repair what a killed writer of ``root`` left (call under its lock, so no writer is alive): an
     interrupted :func:`swap_dir_in` (the old directory moved aside, the new one not in place) is undone,

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, ImageError
 from ..core.files import atomic_path, check_space, save_npy_atomic, write_json_atomic, write_text_atomic
-from ..core.ownership import locked
+from ..core.ownership import locked, remove_dead_temps
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
@@ -83,6 +83,7 @@ def describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
     if out.suffix.lower() not in OUT_SUFFIXES:
         raise ConfigError(f"output file {out} must end in one of {', '.join(OUT_SUFFIXES)}")
     with locked(out):
+        remove_dead_temps([out, names_file_for(out), provenance_sidecar(out)])
         return _describe_to_file(images, conf, out, overwrite)
 
 

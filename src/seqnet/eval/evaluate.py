@@ -18,7 +18,7 @@ import numpy as np
 from ..core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
 from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
-from ..core.ownership import locked
+from ..core.ownership import locked, remove_dead_temps
 from ..core.utils import get_device, logger
 from ..data.traverse import Dataset
 from ..reference.base import Reference
@@ -228,6 +228,7 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
     ``out/pr_curve.png``, and with ``report`` (a :class:`seqnet.report.html.ReportConfig`)
     ``out/report.html``; returns the results path."""
     with locked(out):  # a second evaluation into the same folder is refused (exit 1), never mixed
+        remove_dead_temps(Path(out) / n for n in ("results.json", *EVAL_FIGURES))
         return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, per_query, report, figures)
 
 

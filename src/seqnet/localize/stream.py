@@ -22,7 +22,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.files import Written
-from ..core.ownership import locked
+from ..core.ownership import locked, remove_dead_temps
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.provenance import read as read_provenance
@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from ..maps.map import Map
 from ..sequence.descriptors import SeqNet
 from .localizer import Estimate, traverse_reference
-from .track import LocalizeConfig, check_output, summarize, track_rows, write_track
+from .track import LocalizeConfig, check_output, sidecar_of, summarize, track_rows, write_track
 
 Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spent describing it)
 
@@ -123,6 +123,7 @@ def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: st
     checkpoints given; writes ``out`` (track.csv) and its ``.json`` summary; returns ``out``. The track is
     locked for the whole run (a second writer: exit 1)."""
     with locked(check_output(out)):
+        remove_dead_temps([Path(out), sidecar_of(Path(out))])
         return _stream(conf, map_dir, Path(query), Path(out), models, shortlist_model, rerank_model)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.errors import ConfigError, OutputError
 from ..core.files import Written, write_json_atomic, write_text_atomic
-from ..core.ownership import locked
+from ..core.ownership import locked, remove_dead_temps
 from ..core.progress import progress
 from ..core.utils import get_device, logger
 from ..data.traverse import Dataset
@@ -199,6 +199,7 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
     ``dataset`` against its reference traverse; writes ``out`` (track.csv) and its ``.json``
     summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1)."""
     with locked(check_output(out)):
+        remove_dead_temps([Path(out), sidecar_of(Path(out))])
         return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model)
 
 
