@@ -57,3 +57,14 @@ def test_index_build_on_a_full_disk(tiny_disk, tmp_path):
     _one_line_exit_1(p, "no space left on device")
     assert str(tiny_disk / "map") in p.stderr and ".tmp" not in p.stderr  # the user's path, not a temporary one
     _clean(tiny_disk)
+
+
+def test_train_on_a_full_disk(tiny_disk, tmp_path):
+    from seqnet.cli import main
+
+    assert main(["-q", "synth", str(tmp_path / "ds"), "--places", "300", "--dim", "1024"]) == 0
+    p = subprocess.run([*SEQNET, "-q", "train", "--dataset", str(tmp_path / "ds"), "--seq-len", "5", "--w", "3",
+                        "--epochs", "1", "--out", str(tiny_disk / "run")], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1 and "Traceback" not in p.stderr, p.stderr[-1500:]
+    assert len(p.stderr.strip().splitlines()) == 1 and "hint: check the free space" in p.stderr
+    _clean(tiny_disk / "run")

@@ -24,7 +24,7 @@ from typing import Any
 
 import torch
 
-from ..core.errors import CheckpointError
+from ..core.errors import CheckpointError, ResourceError
 from ..core.files import atomic_path, load_torch_file
 from ..core.utils import logger
 from .descriptors import SeqNet
@@ -38,7 +38,11 @@ def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, **fields}
     path = Path(path)
     with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+        try:
+            torch.save(payload, tmp)
+        except RuntimeError as e:  # torch's zip writer reports a failed write (a full disk, a size limit) so
+            raise ResourceError(f"cannot write {path} ({' '.join(str(e).split())[:160]}); hint: check the free "
+                                "space") from e
     return path
 
 
