@@ -227,3 +227,24 @@ def test_an_edited_map_is_refused(synth_dir, map_models, tmp_path):
     (legacy / "names.txt").write_text("a\nb\n")
     with pytest.raises(MapError, match="2 names for"):
         load_map(legacy)
+
+
+def test_index_check_finds_a_change_the_sampled_hash_misses(synth_dir, tmp_path, capsys):
+    """`seqnet index check` opens the map as eval does; --full hashes every byte, so a change between the
+    sampled blocks of a large file is found too."""
+    from seqnet.cli import main as cli_main
+
+    built = build(FREE.replace(split="all"), synth_dir, tmp_path / "map")
+    assert cli_main(["index", "check", str(built), "--full"]) == 0
+    assert "files checked (every byte hashed)" in capsys.readouterr().out
+    frames = np.load(built / "frames.npy", mmap_mode="r+")
+    size = (built / "frames.npy").stat().st_size
+    row = (size // 2 + 3000 - 128) // (frames.shape[1] * 4)  # inside no sampled block
+    frames[row, 0] += 1.0
+    frames.flush()
+    del frames
+    if size > 2 * 65536 + 16 * 4096:  # the sampled hash cannot see it
+        assert cli_main(["index", "check", str(built)]) == 0
+    capsys.readouterr()
+    assert cli_main(["index", "check", str(built), "--full"]) == 2
+    assert "frames.npy changed since the map was written" in capsys.readouterr().err

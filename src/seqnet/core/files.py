@@ -151,32 +151,38 @@ SAMPLE_BLOCKS = 16
 
 def file_digest(path: str | os.PathLike[str], full: bool = False) -> dict[str, Any]:
     """``{"size", "sample"}`` of a file: its size and a BLAKE2b hash of its first and last 64 KiB and of
-    16 evenly spaced 4 KiB blocks (cheap on a file of any size); ``full``: of every byte."""
+    16 evenly spaced 4 KiB blocks (cheap on a file of any size); with ``full`` also ``"full"``, the hash of
+    every byte."""
     import hashlib
 
-    h, size = hashlib.blake2b(digest_size=16), os.path.getsize(path)
+    size, sample = os.path.getsize(path), hashlib.blake2b(digest_size=16)
     with open(path, "rb") as f:
-        if full or size <= 2 * 65536 + SAMPLE_BLOCK * SAMPLE_BLOCKS:
+        offsets = [0, max(0, size - 65536), *(int(size * (i + 0.5) / SAMPLE_BLOCKS) for i in range(SAMPLE_BLOCKS))]
+        for off, n in zip(offsets, [65536, 65536, *[SAMPLE_BLOCK] * SAMPLE_BLOCKS], strict=True):
+            f.seek(off)
+            sample.update(f.read(n))
+        out = {"size": size, "sample": sample.hexdigest()}
+        if full:
+            whole = hashlib.blake2b(digest_size=16)
+            f.seek(0)
             for chunk in iter(lambda: f.read(1 << 20), b""):
-                h.update(chunk)
-        else:
-            offsets = [0, size - 65536, *(int(size * (i + 0.5) / SAMPLE_BLOCKS) for i in range(SAMPLE_BLOCKS))]
-            for off, n in zip(offsets, [65536, 65536, *[SAMPLE_BLOCK] * SAMPLE_BLOCKS], strict=True):
-                f.seek(off)
-                h.update(f.read(n))
-    return {"size": size, "sample": h.hexdigest()}
+                whole.update(chunk)
+            out["full"] = whole.hexdigest()
+    return out
 
 
 def verify_digests(root: Path, digests: dict[str, Any], error: type[SeqnetError], what: str, hint: str,
                    full: bool = False) -> None:
     """Every file of ``digests`` (as :func:`file_digest` recorded them when ``root`` was written) is there
-    with the same size and sampled hash (``full``: the same bytes); ``error`` naming the first that is not."""
+    with the same size and sampled hash (``full``: and the same bytes); ``error`` naming the first that is not."""
     for rel, want in (digests or {}).items():
         f = root / rel
         if not f.is_file():
             raise error(f"{f} is missing from the {what} (hint: {hint})")
-        got = file_digest(f, full)
-        if got["size"] != want.get("size") or (not full and got["sample"] != want.get("sample")):
+        deep = full and "full" in want
+        got = file_digest(f, deep)
+        if got["size"] != want.get("size") or got["sample"] != want.get("sample") or (deep and got["full"] !=
+                                                                                       want["full"]):
             raise error(f"{f} changed since the {what} was written ({got['size']} bytes, {want.get('size')} then, "
                         f"or other contents); hint: {hint}")
 

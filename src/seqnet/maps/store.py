@@ -156,7 +156,8 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
     info["index_seconds"] = round(time.perf_counter() - t0, 3)
     for role, model in models.items():
         save_checkpoint(root / "models" / f"{role}.pt", model)
-    checksums = {p.relative_to(root).as_posix(): file_digest(p) for p in sorted(root.rglob("*")) if p.is_file()}
+    checksums = {p.relative_to(root).as_posix(): file_digest(p, full=True) for p in sorted(root.rglob("*"))
+                 if p.is_file()}  # sampled hashes checked on every open, full ones by seqnet index check --full
     meta = {"format": MAP_FORMAT, "seqnet_version": __version__, "config": conf.to_dict(), "checksums": checksums,
             "items": len(a.items), "frames": len(a.frames), "shortlist_dim": int(a.shortlist.shape[1]),
             "frame_dim": int(a.frames.shape[1]), "input_dim": info.pop("input_dim", None),
