@@ -66,3 +66,26 @@ def test_allocator_errors_are_told_from_other_runtime_errors():
                                             "allocate memory: you tried to allocate 7372800000 bytes"))
     assert is_allocation_error(RuntimeError("CUDA out of memory. Tried to allocate 2.00 GiB"))
     assert not is_allocation_error(RuntimeError("shape mismatch"))
+
+
+def test_describe_under_a_file_size_limit_is_refused_before_hdf5_can_fail(tmp_path):
+    """HDF5 does not fail cleanly past a file size limit (tracebacks, then a segfault): describe refuses
+    up front, one line, exit 1, and leaves nothing behind."""
+    import numpy as np
+    from PIL import Image
+
+    images = tmp_path / "imgs"
+    images.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(10):
+        Image.fromarray(rng.integers(0, 256, (32, 64, 3), dtype=np.uint8)).save(images / f"{i}.png")
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (16384, 16384))
+
+    out = tmp_path / "out"
+    out.mkdir()
+    p = subprocess.run([*SEQNET, "-q", "describe", str(images), "--method", "pixels", "--out", str(out / "d.npy")],
+                       preexec_fn=limit, capture_output=True, text=True, timeout=300)
+    _one_line_exit_1(p, "file size limit")
+    assert list(out.iterdir()) == []

@@ -190,11 +190,18 @@ def verify_digests(root: Path, digests: dict[str, Any], error: type[SeqnetError]
 SPACE_MARGIN = 16 * 2**20
 
 
-def check_space(folder: Path, needed: int, what: str) -> None:
+def check_space(folder: Path, needed: int, what: str, largest: int | None = None) -> None:
     """Refuse to start writing ``needed`` bytes into ``folder`` (one line, exit 1) when the file system
-    has less free: a library that hits a full disk mid-write may not fail cleanly (HDF5, memory maps)."""
+    has less free, or one file of ``largest`` bytes (default: half) when the process's file size limit
+    (``ulimit -f``) is lower: a library that hits either mid-write may not fail cleanly (HDF5, memory maps)."""
+    import resource
     import shutil
 
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    largest = needed // 2 if largest is None else largest
+    if limit != resource.RLIM_INFINITY and largest > limit:
+        raise ResourceError(f"{folder}: {what} make a file of about {largest / 2**20:.0f} MiB, over this process's "
+                            f"file size limit of {limit / 2**20:.0f} MiB (ulimit -f); hint: raise the limit")
     try:
         free = shutil.disk_usage(folder).free
     except OSError:
