@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from ..core.errors import ConfigError
 from .common import add_allow_mismatch, positive_float
@@ -197,10 +198,16 @@ def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) 
 
 def run_check(args: argparse.Namespace) -> int:
     from ..core.errors import DatasetError
+    from ..core.files import changed_files
     from ..data.convert import summarize_dataset
     from ..data.io import load_dataset
 
     ds = load_dataset(args.dir)
+    changed = changed_files(Path(args.dir), _checksums(Path(args.dir)), full=True)
+    if changed:
+        raise DatasetError(f"{args.dir}: {', '.join(changed)} changed since seqnet wrote the dataset (every byte "
+                           "hashed); hint: write it again, or drop 'checksums' from dataset.json if you changed "
+                           "its files on purpose")
     s = summarize_dataset(ds)
     if args.json:
         print(json.dumps(s, indent=2, default=str))
@@ -211,6 +218,14 @@ def run_check(args: argparse.Namespace) -> int:
                            "(hint: check the radius, the position unit and that both traverses share one "
                            "coordinate frame)")
     return 0
+
+
+def _checksums(root: Path) -> dict:
+    try:
+        meta = json.loads((root / "dataset.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return meta.get("checksums") or {} if isinstance(meta, dict) else {}
 
 
 def format_summary(s: dict) -> str:

@@ -171,6 +171,19 @@ def file_digest(path: str | os.PathLike[str], full: bool = False) -> dict[str, A
     return out
 
 
+def changed_files(root: Path, digests: dict[str, Any], full: bool = False) -> list[str]:
+    """The files of ``digests`` that are missing or differ from what :func:`file_digest` recorded."""
+    changed = []
+    for rel, want in (digests or {}).items():
+        f = root / rel
+        deep = full and "full" in want
+        got = file_digest(f, deep) if f.is_file() else {}
+        if got.get("size") != want.get("size") or got.get("sample") != want.get("sample") or (
+                deep and got["full"] != want["full"]):
+            changed.append(rel)
+    return changed
+
+
 def verify_digests(root: Path, digests: dict[str, Any], error: type[SeqnetError], what: str, hint: str,
                    full: bool = False) -> None:
     """Every file of ``digests`` (as :func:`file_digest` recorded them when ``root`` was written) is there

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import shutil
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,9 @@ import numpy as np
 from ..core.errors import DatasetError, OutputError
 from ..core.files import (
     atomic_path,
+    changed_files,
     current_umask,
+    file_digest,
     in_place_of,
     save_npy_atomic,
     write_json_atomic,
@@ -36,7 +39,22 @@ from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Travers
 def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
     """Load and validate a dataset directory; raise :class:`DatasetError` saying what is wrong. A dataset
     replaced while it is read is read again (one version, never a mix)."""
-    return read_consistent(Path(path), lambda: _load_dataset(Path(path), mmap), DatasetError)
+    ds = read_consistent(Path(path), lambda: _load_dataset(Path(path), mmap), DatasetError)
+    _warn_if_changed(Path(path))
+    return ds
+
+
+def _warn_if_changed(root: Path) -> None:
+    """Warn when files of a seqnet-written dataset changed since (the directory format may be edited by hand;
+    the contents were checked all the same); ``seqnet dataset check`` refuses such a dataset."""
+    try:
+        digests = json.loads(read_text(root / "dataset.json")).get("checksums") or {}
+    except (ValueError, AttributeError, DatasetError):
+        return
+    changed = changed_files(root, digests)
+    if changed:
+        warnings.warn(f"{root}: {', '.join(changed[:3])}{' ...' if len(changed) > 3 else ''} changed since seqnet "
+                      f"wrote the dataset (seqnet dataset check {root} refuses it)", stacklevel=3)
 
 
 def _load_dataset(root: Path, mmap: bool) -> Dataset:
@@ -204,6 +222,8 @@ def _write_dataset(ds: Dataset, root: Path) -> None:
             np.savez(f, indptr=ds.positives.indptr, indices=ds.positives.indices)
     meta = {
         **{k: v for k, v in ds.extra.items() if k not in _META_KEYS},
+        "checksums": {p.relative_to(root).as_posix(): file_digest(p, full=True) for p in sorted(root.rglob("*"))
+                      if p.is_file()},
         "format": FORMAT,
         "name": ds.name,
         "radius": ds.radius,
