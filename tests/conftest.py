@@ -70,3 +70,13 @@ def folder(tmp_path):
     for i in range(10):
         Image.fromarray(rng.integers(0, 256, size=(16, 32, 3), dtype=np.uint8)).save(d / f"f{i}.png")
     return d
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``cuda`` are skipped, with the reason, where torch sees no CUDA device."""
+    if torch.cuda.is_available():
+        return
+    skip = pytest.mark.skip(reason="needs a CUDA device (none here); benchmarks/gpu_check.sh runs these on a GPU")
+    for item in items:
+        if "cuda" in item.keywords:
+            item.add_marker(skip)

@@ -171,3 +171,17 @@ def test_library_code_chains_causes(path):
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Raise) and isinstance(node.cause, ast.Constant) and node.cause.value is None:
             pytest.fail(f"{path.relative_to(SRC)}:{node.lineno}: raise ... from None drops the cause for API callers")
+
+
+def test_the_gpu_check_skips_cleanly_without_a_gpu():
+    """benchmarks/gpu_check.sh exists and, where torch sees no CUDA device, says so and exits 0."""
+    import subprocess
+
+    import torch
+
+    script = SRC.parents[1] / "benchmarks" / "gpu_check.sh"
+    assert script.is_file()
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is present: run the check itself")
+    p = subprocess.run(["bash", str(script)], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and "no CUDA device" in p.stdout, (p.stdout, p.stderr)
