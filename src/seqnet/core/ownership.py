@@ -19,6 +19,7 @@ import os
 import shutil
 import socket
 import sys
+import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import TypeVar
@@ -156,6 +157,27 @@ def remove_owned_dir(root: str | os.PathLike[str], what: str, known: Callable[[s
     check_replaceable(root, what, known)
     if root.exists():
         shutil.rmtree(root)
+
+
+def write_dir(root: Path, write: Callable[[Path], None]) -> Path:
+    """The one way a directory output is written: ``write(tmp)`` fills a temporary sibling, which is then
+    swapped in whole (:func:`swap_dir_in`); an OS error names the user's ``root``, not the temporary
+    folder. Call under ``root``'s lock, after :func:`recover_dir` and the replaceability checks."""
+    from .files import current_umask, in_place_of
+
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".tmp"))
+    try:
+        tmp.chmod(0o777 & ~current_umask())  # mkdtemp makes it 0700; a plain mkdir would not
+        try:
+            write(tmp)
+        except OSError as e:
+            raise in_place_of(e, tmp, root) from e
+        swap_dir_in(tmp, root)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return root
 
 
 def swap_dir_in(new: Path, root: Path) -> None:

@@ -8,8 +8,6 @@ crash never leaves a half-written dataset.
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
@@ -20,14 +18,12 @@ from ..core.errors import DatasetError, OutputError
 from ..core.files import (
     atomic_path,
     changed_files,
-    current_umask,
     file_digest,
-    in_place_of,
     save_npy_atomic,
     write_json_atomic,
     write_text_atomic,
 )
-from ..core.ownership import check_replaceable, locked, read_consistent, recover_dir, swap_dir_in, write_manifest
+from ..core.ownership import check_replaceable, locked, read_consistent, recover_dir, write_dir, write_manifest
 from ..core.utils import logger
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
@@ -198,18 +194,7 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path
             if not overwrite and root.is_dir():
                 raise OutputError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")
             check_replaceable(root, "dataset", is_dataset_file)
-        root.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".tmp"))
-        try:
-            tmp.chmod(0o777 & ~current_umask())  # mkdtemp makes it 0700; a plain mkdir would not
-            try:
-                _write_dataset(ds, tmp)
-            except OSError as e:
-                raise in_place_of(e, tmp, root) from e
-            swap_dir_in(tmp, root)
-        finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
+        write_dir(root, lambda tmp: _write_dataset(ds, tmp))
     logger.info("wrote dataset %s (reference %d, query %d images)", root, len(ds.reference), len(ds.query))
     return root
 

@@ -18,8 +18,6 @@ place; an existing ``MAP`` is replaced only when seqnet wrote everything in it.
 from __future__ import annotations
 
 import dataclasses
-import shutil
-import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -31,14 +29,12 @@ from .._version import __version__
 from ..core.errors import ConfigError
 from ..core.files import (
     atomic_path,
-    current_umask,
     file_digest,
-    in_place_of,
     save_npy_atomic,
     write_json_atomic,
     write_text_atomic,
 )
-from ..core.ownership import check_replaceable, locked, recover_dir, swap_dir_in, write_manifest
+from ..core.ownership import check_replaceable, locked, recover_dir, write_dir, write_manifest
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import build_index, save_index
 from ..sequence.checkpoints import save_checkpoint
@@ -122,18 +118,7 @@ def write_map(out: str | Path, conf: MapConfig, arrays: MapArrays, models: Mappi
     with locked(out):
         recover_dir(out)
         check_replaceable(out, "map", is_map_file)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp"))
-        try:
-            tmp.chmod(0o777 & ~current_umask())
-            try:
-                _write(tmp, conf, arrays, dict(models or {}), provenance, dict(info or {}))
-            except OSError as e:
-                raise in_place_of(e, tmp, out) from e
-            swap_dir_in(tmp, out)
-        finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
+        write_dir(out, lambda tmp: _write(tmp, conf, arrays, dict(models or {}), provenance, dict(info or {})))
     logger.info("wrote map %s (%d items, %d frames, index %s)", out, len(arrays.items), len(arrays.frames),
                 conf.ann.kind)
     return out
