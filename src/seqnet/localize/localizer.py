@@ -203,8 +203,7 @@ class Localizer:
         """A whole-map matcher on the newest window: its online form (:data:`SEQUENCE_MATCHERS` ``window``)
         on the last L_m distance rows, at the reference items, the k best."""
         spec = SEQUENCE_MATCHERS[self.method.matcher]
-        opts = {"anchor": self.windows.anchor} if spec.anchored else {}
-        row = spec.window(self.rows.window(), **opts)[self._starts]
+        row = spec.window(self.rows.window(), **spec.options(self.windows.anchor))[self._starts]
         v, i = topk_smallest(row[None], self.k)
         return v[0].cpu().numpy(), i[0].cpu().numpy()
 

@@ -19,7 +19,7 @@ import torch
 from ..core.errors import ConfigError
 from ..core.utils import ArrayLike, as_tensor, get_device
 from ..search.blocks import topk_smallest
-from ..search.knn import finish_distances, sq_norms
+from ..search.knn import ExactIndex
 from ..sequence.windows import check_seq_len
 from .graph import DEFAULT_FAN_OUT, path_dp
 from .seqmatch import shifted_sum
@@ -55,11 +55,6 @@ class Ring:
             return self.buf[: self.count]
         i = self.count % self.n
         return self.buf[i : i + self.n]
-
-
-def distance_row(q: torch.Tensor, ref: torch.Tensor, r_sq: torch.Tensor) -> torch.Tensor:
-    """Euclidean distances ``[Nr]`` of one frame ``q [D]`` to the map ``ref [Nr, D]`` (norm trick, one GEMV)."""
-    return finish_distances(torch.mv(ref, q)[None, :], sq_norms(q[None, :]), r_sq)[0]
 
 
 def seqmatch_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centre") -> torch.Tensor:
@@ -110,7 +105,7 @@ class OnlineSeqMatch:
         self.ref = as_tensor(ref, self.device, "reference", ndim=2, keep_float64=True)
         self.seq_len = check_seq_len(seq_len, len(self.ref), "seq_len")
         self.reverse = bool(reverse)
-        self.r_sq = sq_norms(self.ref)
+        self.index = ExactIndex(self.ref, self.device)  # its norms are computed once; one GEMV per frame
         self.rows = Ring(self.seq_len, len(self.ref), self.ref.dtype, self.device)
 
     @property
@@ -136,7 +131,7 @@ class OnlineSeqMatch:
             raise ConfigError(f"dimension mismatch: query frame D={q.shape[0]}, map D={self.ref.shape[1]}")
         if not bool(torch.isfinite(q).all()):
             raise ConfigError(f"query frame {self.count} holds NaN or inf")
-        self.rows.push(distance_row(q, self.ref, self.r_sq))
+        self.rows.push(self.index.distances(q[None])[0])
         if self.rows.count < self.seq_len:
             return None
         return seqmatch_window(self.rows.window(), self.reverse)
