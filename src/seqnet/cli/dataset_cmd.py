@@ -200,10 +200,10 @@ def run_check(args: argparse.Namespace) -> int:
     from ..core.errors import DatasetError
     from ..core.files import changed_files
     from ..data.convert import summarize_dataset
-    from ..data.io import load_dataset
+    from ..data.io import load_dataset, recorded_digests
 
     ds = load_dataset(args.dir)
-    changed = changed_files(Path(args.dir), _checksums(Path(args.dir)), full=True)
+    changed = changed_files(Path(args.dir), recorded_digests(args.dir), full=True)
     if changed:
         raise DatasetError(f"{args.dir}: {', '.join(changed)} changed since seqnet wrote the dataset (every byte "
                            "hashed); hint: write it again, or drop 'checksums' from dataset.json if you changed "
@@ -218,14 +218,6 @@ def run_check(args: argparse.Namespace) -> int:
                            "(hint: check the radius, the position unit and that both traverses share one "
                            "coordinate frame)")
     return 0
-
-
-def _checksums(root: Path) -> dict:
-    try:
-        meta = json.loads((root / "dataset.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    return meta.get("checksums") or {} if isinstance(meta, dict) else {}
 
 
 def format_summary(s: dict) -> str:

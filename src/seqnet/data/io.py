@@ -35,25 +35,25 @@ from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Travers
 def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
     """Load and validate a dataset directory; raise :class:`DatasetError` saying what is wrong. A dataset
     replaced while it is read is read again (one version, never a mix)."""
-    ds = read_consistent(Path(path), lambda: _load_dataset(Path(path), mmap), DatasetError)
-    _warn_if_changed(Path(path))
+    ds, digests = read_consistent(Path(path), lambda: _load_dataset(Path(path), mmap), DatasetError)
+    changed = changed_files(Path(path), digests)
+    if changed:  # the directory format may be edited by hand; the contents were checked all the same
+        warnings.warn(f"{path}: {', '.join(changed[:3])}{' ...' if len(changed) > 3 else ''} changed since seqnet "
+                      f"wrote the dataset (seqnet dataset check {path} refuses it)", stacklevel=2)
     return ds
 
 
-def _warn_if_changed(root: Path) -> None:
-    """Warn when files of a seqnet-written dataset changed since (the directory format may be edited by hand;
-    the contents were checked all the same); ``seqnet dataset check`` refuses such a dataset."""
+def recorded_digests(path: str | Path) -> dict[str, Any]:
+    """The file hashes seqnet recorded in ``dataset.json`` when it wrote the dataset (empty when none)."""
     try:
-        digests = json.loads(read_text(root / "dataset.json")).get("checksums") or {}
-    except (ValueError, AttributeError, DatasetError):
-        return
-    changed = changed_files(root, digests)
-    if changed:
-        warnings.warn(f"{root}: {', '.join(changed[:3])}{' ...' if len(changed) > 3 else ''} changed since seqnet "
-                      f"wrote the dataset (seqnet dataset check {root} refuses it)", stacklevel=3)
+        meta = json.loads(read_text(Path(path) / "dataset.json"))
+    except (ValueError, DatasetError):
+        return {}
+    return (meta.get("checksums") or {}) if isinstance(meta, dict) else {}
 
 
-def _load_dataset(root: Path, mmap: bool) -> Dataset:
+def _load_dataset(root: Path, mmap: bool) -> tuple[Dataset, dict[str, Any]]:
+    """The dataset of ``root`` and the file hashes recorded with it (``{}`` for a hand-made one)."""
     if not root.exists():
         raise DatasetError(f"dataset directory not found: {root}")
     if not root.is_dir():
@@ -82,7 +82,7 @@ def _load_dataset(root: Path, mmap: bool) -> Dataset:
     qry = load_traverse(root / trav.get("query", "query"), "query", mmap)
     prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
     ref.provenance, qry.provenance = prov.get("reference"), prov.get("query")
-    return Dataset(
+    ds = Dataset(
         reference=ref,
         query=qry,
         radius=radius,
@@ -92,6 +92,7 @@ def _load_dataset(root: Path, mmap: bool) -> Dataset:
         extra={k: v for k, v in meta.items() if k not in _META_KEYS},
         positives=load_positives(root / POSITIVES_FILE) if (root / POSITIVES_FILE).is_file() else None,
     )
+    return ds, (meta.get("checksums") or {})
 
 
 POSITIVES_FILE = "positives.npz"
