@@ -49,3 +49,15 @@ def test_the_newest_frame_alone_equals_the_batch(rng):
 def test_no_item_is_a_clear_error():
     with pytest.raises(ConfigError, match="no query frame has a full window of seq_len=5"):
         Described(np.zeros((3, 2), np.float32), None, Windows(5, 5), {}, torch.device("cpu"))
+
+
+def test_one_window_in_memory_equals_the_gather_for_any_indices(rng):
+    """describe_windows' one-window path (a view of a run, else a gather) equals the batched path."""
+    from seqnet.sequence.descriptors import describe_windows
+
+    x = torch.from_numpy(rng.standard_normal((9, 6)).astype(np.float32))
+    for frames in ([2, 3, 4, 5], [0, 0, 1, 2], [0, 5, 2, 3], [7, 6, 5, 4]):
+        idx = np.array([frames])
+        one = describe_windows(x, idx, smoothing)
+        two = describe_windows(x, np.vstack([idx, idx]), smoothing)[:1]  # two windows: the batched path
+        np.testing.assert_allclose(one.numpy(), two.numpy(), rtol=1e-6)

@@ -103,7 +103,7 @@ class EvalConfig(WindowSettings, Config):
 
     def shortlist_size(self, m: Method) -> int:
         """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""
-        return (self.fuse_top_k or self.top_k) if m.fused else self.top_k
+        return m.shortlist_size(self.top_k, self.fuse_top_k)
 
 
 @dataclasses.dataclass
@@ -208,7 +208,7 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
     for m in methods:
         ref.check_method(m)
         scores[m.name], retrieved[m.name], timing = rank(m, query, ref, max(conf.ks), conf.shortlist_size(m),
-                                                         conf.fuse_weight if m.fused else 0.0)
+                                                         m.fuse_weight(conf.fuse_weight))
         timing["total"] = sum(timing.values())
         entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
                                                    conf.extra_radii)

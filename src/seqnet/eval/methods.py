@@ -65,6 +65,14 @@ class Method:
         """The shortest sequence length L its descriptors accept."""
         return max(SEQUENCE_DESCRIPTORS[d].min_len for d in self.descriptors())
 
+    def shortlist_size(self, top_k: int, fuse_top_k: int | None) -> int:
+        """The HVPR shortlist size K: ``fuse_top_k`` (default ``top_k``) for ``hvpr-fused``, else ``top_k``."""
+        return (fuse_top_k or top_k) if self.fused else top_k
+
+    def fuse_weight(self, weight: float) -> float:
+        """λ of the fused score: ``weight`` for ``hvpr-fused``, 0 (the matcher alone) otherwise."""
+        return weight if self.fused else 0.0
+
     def summary(self) -> dict[str, Any]:
         """What the method is (stored in results): kind, shortlister, re-ranker (and ``fused`` when it is)."""
         return {"kind": self.kind, "shortlist": self.shortlist, "rerank": self.rerank,

@@ -133,8 +133,8 @@ class Localizer:
         reference.check_method(self.method)
         self.models = dict(reference.models if models is None else models)
         self.device, self.radius, self.k = reference.device, float(radius), int(k)
-        self.top_k = (fuse_top_k or top_k) if self.method.fused else top_k
-        self.fuse, self.exact = (fuse_weight if self.method.fused else 0.0), bool(exact)
+        self.top_k, self.fuse = self.method.shortlist_size(top_k, fuse_top_k), self.method.fuse_weight(fuse_weight)
+        self.exact = bool(exact)
         self.ref_items, self.r_pos = reference.items, reference.positions[reference.items]
         reference.prepare(self.method)  # describe the map once, before the first frame
         m, w = self.method, self.windows

@@ -14,7 +14,7 @@ two functions, :func:`describe_frames` and :func:`describe_items`, on its ring o
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -31,30 +31,18 @@ def describe_frames(raw: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | Non
     ``which``), windows of ``windows.mode`` clamped into their sequence."""
     d = SEQUENCE_DESCRIPTORS[name]
     length = d.length(windows.length)
-    if length == 1 and which is not None and len(which) == 1 and isinstance(raw, torch.Tensor):
-        return _one_window(raw, np.asarray(which), d.window_fn(models), device)  # a frame's own descriptor
-    idx = window_indices(len(raw), length, windows.mode, seq_bounds)
-    idx = idx if which is None else idx[which]
-    if len(idx) == 1 and isinstance(raw, torch.Tensor):  # one window in memory (the newest frame's)
-        return _one_window(raw, idx[0], d.window_fn(models), device)
+    if length == 1 and which is not None:  # a frame's own descriptor: its window is the frame itself
+        idx = np.asarray(which, dtype=np.int64)[:, None]
+    else:
+        idx = window_indices(len(raw), length, windows.mode, seq_bounds)
+        idx = idx if which is None else idx[which]
     return describe_windows(raw, idx, d.window_fn(models), device=device, progress=progress)
-
-
-@torch.no_grad()
-def _one_window(raw: torch.Tensor, frames: np.ndarray, fn: Callable[[torch.Tensor], torch.Tensor],
-                device: torch.device) -> torch.Tensor:
-    """``[1, D']``: ``fn`` of the window of ``raw`` at the frame indices ``frames [L]`` (a view when they are a run)."""
-    a, b = int(frames[0]), int(frames[-1])
-    window = raw[a : b + 1] if b - a == len(frames) - 1 else raw[torch.from_numpy(np.ascontiguousarray(frames))]
-    return fn(window[None].to(device)).float().cpu()
 
 
 def describe_items(raw: np.ndarray | torch.Tensor, starts: np.ndarray, name: str, windows: Windows,
                    models: Mapping[str, SeqNet], device: torch.device, progress: str | None = None) -> torch.Tensor:
     """``[M, D']``: descriptor ``name`` (not single-frame) of the L-windows starting at ``starts [M]``."""
     d = SEQUENCE_DESCRIPTORS[name]
-    if len(starts) == 1 and isinstance(raw, torch.Tensor):  # one window of frames in memory: a view, no gather
-        return _one_window(raw, window_frames(starts, windows.length)[0], d.window_fn(models), device)
     return describe_windows(raw, window_frames(starts, windows.length), d.window_fn(models), device=device,
                             progress=progress)
 

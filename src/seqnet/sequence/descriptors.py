@@ -149,6 +149,8 @@ def describe_windows(
     idx = np.asarray(idx)
     if idx.ndim != 2:
         raise ConfigError(f"window indices must be [M, L], got shape {idx.shape}")
+    if len(idx) == 1 and isinstance(desc, torch.Tensor):  # one window in memory (a stream's newest frame)
+        return _one_window(d, idx[0], fn, device)
     out = []
     starts = range(0, len(idx), batch_size)
     for s in progress_bar(starts, desc=progress) if progress and len(starts) > 1 else starts:
@@ -167,6 +169,15 @@ def describe_windows(
         with torch.no_grad():
             return fn(empty.to(device) if device is not None else empty).float().cpu()
     return out[0] if len(out) == 1 else torch.cat(out)
+
+
+@torch.no_grad()
+def _one_window(desc: torch.Tensor, frames: np.ndarray, fn: Callable[[torch.Tensor], torch.Tensor],
+                device: torch.device | str | None) -> torch.Tensor:
+    """``[1, D']``: ``fn`` of the window at the frame indices ``frames [L]`` (a view when they are a run)."""
+    run = bool((np.diff(frames) == 1).all())  # consecutive frames: a view of them, no gather
+    window = desc[int(frames[0]) : int(frames[-1]) + 1] if run else desc[torch.from_numpy(np.ascontiguousarray(frames))]
+    return fn(window[None].to(device) if device is not None else window[None]).float().cpu()
 
 
 MODEL_ROLES = ("seqnet", "s1")
