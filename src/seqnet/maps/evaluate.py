@@ -25,7 +25,7 @@ from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse
 from ..eval.evaluate import EvalConfig, Evaluation, run
-from ..eval.methods import HVPR_FUSED, HVPR_RERANK, Method, parse_method
+from ..eval.methods import Method, parse_method
 from ..eval.metrics.recall import ground_truth
 from ..eval.results import write_per_query
 from ..search.ann import shortlist_recall
@@ -70,15 +70,6 @@ def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
     return QueryData(t, split, radius, name if split == "all" else f"{name}[{split}]", rng, root)
 
 
-def map_methods(mp: Map) -> dict[str, Method]:
-    """The methods a map serves, by name: its HVPR, its shortlister (k-NN) and its whole-map matcher."""
-    m = mp.config.method
-    served = [m, parse_method(m.shortlist), parse_method(m.rerank)]
-    if m.shortlist == "seqnet":  # the fused score of hvpr-fused needs only the stored S_L distances
-        served.append(parse_method(HVPR_FUSED if m.rerank == HVPR_RERANK else f"{HVPR_FUSED}:{m.rerank}"))
-    return {x.name: x for x in served}
-
-
 def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
     """Explicit positives of the dataset over the map's items (only for a map built from this dataset and split)."""
     if not (q.root / POSITIVES_FILE).is_file():
@@ -94,18 +85,16 @@ def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
 
 def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
     """The methods of ``conf`` the map serves; refuses another L, L_m, window mode or method."""
-    c, served = mp.config, map_methods(mp)
+    c = mp.config
     for key, want, have in (("seq_len", conf.seq_len, c.length), ("rerank_seq_len", conf.rerank_seq_len, c.match_len)):
         if want is not None and want != have:
             raise ConfigError(f"{key}={want} but map {mp.path} was built with {have}; rebuild the map to change it")
     if conf.window != c.window:
         raise ConfigError(f"window {conf.window!r} but map {mp.path} uses {c.window!r} windows")
-    names = conf.methods or [c.method.name, c.method.shortlist]
-    same = {dataclasses.replace(x, name="") for x in served.values()}  # a method is what it runs, not how it is named
-    bad = [n for n in names if dataclasses.replace(parse_method(n), name="") not in same]
-    if bad:
-        raise ConfigError(f"map {mp.path} cannot run method {bad[0]!r}; valid for this map: {', '.join(served)}")
-    return [parse_method(n) for n in names]
+    methods = [parse_method(n) for n in conf.methods or [c.method.name, c.method.shortlist]]
+    for m in methods:
+        mp.check_method(m)
+    return methods
 
 
 def _shortlist_recall(mp: Map, q_short: np.ndarray, top_k: int) -> Callable[[Method, np.ndarray], dict[str, Any]]:
@@ -125,7 +114,7 @@ def _shortlist_recall(mp: Map, q_short: np.ndarray, top_k: int) -> Callable[[Met
 
 
 def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evaluation:
-    """Evaluate the query side ``q`` against the map ``mp`` (methods: :func:`map_methods`): the
+    """Evaluate the query side ``q`` against the map ``mp`` (methods: :meth:`Map.served`): the
     evaluation loop of :func:`seqnet.eval.evaluate.run` with the map as the reference."""
     conf = conf or EvalConfig()
     methods = check_conf(mp, conf)

@@ -9,6 +9,7 @@ matcher over the whole map.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,7 @@ from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import check_same
 from ..core.utils import ArrayLike, get_device
 from ..data.traverse import Traverse
-from ..eval.methods import Method
+from ..eval.methods import HVPR_FUSED, HVPR_RERANK, Method, parse_method
 from ..matching.hvpr import hvpr_search
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..search.ann import search as ann_search
@@ -88,13 +89,20 @@ class Map:
         check_same(self.provenance, provenance, f"the reference descriptors of map {self.path}",
                    "the query descriptors", allow)
 
+    def served(self) -> dict[str, Method]:
+        """The methods the map serves, by name: its HVPR, its shortlister (k-NN), its whole-map matcher and,
+        on an S_L map, ``hvpr-fused`` (the fused score needs only the stored S_L distances)."""
+        m = self.config.method
+        served = [m, parse_method(m.shortlist), parse_method(m.rerank)]
+        if m.shortlist == "seqnet":
+            served.append(parse_method(HVPR_FUSED if m.rerank == HVPR_RERANK else f"{HVPR_FUSED}:{m.rerank}"))
+        return {x.name: x for x in served}
+
     def check_method(self, m: Method) -> None:
-        """Refuse a method whose descriptors or matcher the map does not store."""
-        c = self.config
-        if (m.shortlist and m.shortlist != c.shortlist) or (m.frames and (m.frames, m.matcher) !=
-                                                             (c.method.frames, c.method.matcher)):
-            raise ConfigError(f"map {self.path} cannot run method {m.name!r}: it stores shortlist {c.shortlist!r} "
-                              f"and re-ranker {c.rerank!r}")
+        """Refuse a method the map does not serve (a method is what it runs, not how it is named)."""
+        served = self.served()
+        if dataclasses.replace(m, name="") not in {dataclasses.replace(x, name="") for x in served.values()}:
+            raise ConfigError(f"map {self.path} cannot run method {m.name!r}; valid for this map: {', '.join(served)}")
 
     def prepare(self, m: Method) -> float:
         """Nothing to describe: the map stores its descriptors."""
