@@ -137,14 +137,13 @@ class ExactIndex:
         dtype, k = compute_dtype(query, self.ref), min(k, self.n)
         width = max((b - a for a, b in self.blocks), default=1)
         step = rows_per_block(width * (8 if dtype == torch.float64 else 4) * 3, self.block_bytes)
-        norms, ok = self.norms(dtype), []  # the reference's norms are checked once, the query's here
+        norms, finite = self.norms(dtype), []  # the reference's norms are checked once, the query's here
 
         def row_blocks() -> Iterator[tuple[slice, tuple[torch.Tensor, torch.Tensor]]]:
             for s in range(0, nq, step):
                 qb = rows(query, s, min(nq, s + step), self.device, dtype)
                 q_sq = sq_norms(qb)
-                flag = torch.isfinite(q_sq * 4).all()  # finite norms: every distance is finite
-                ok[:] = [flag if not ok else ok[0] & flag]
+                finite.append(torch.isfinite(q_sq * 4).all())  # finite norms: every distance is finite
                 yield slice(s, min(nq, s + step)), (qb, q_sq)
 
         def score(ctx: tuple[torch.Tensor, torch.Tensor], j: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -153,7 +152,7 @@ class ExactIndex:
             return (d.neg_() if metric == "ip" else finish_distances(d, q_sq, norms[j])), self.columns(j)
 
         vals, idx = blocked_topk(row_blocks(), range(len(self.blocks)), score, nq, k, dtype, finite=False)
-        if ok and not bool(ok[0]):
+        if finite and not bool(torch.stack(finite).all()):  # one host sync per search
             raise ConfigError(NOT_FINITE.format(what="query", dtype=str(dtype).removeprefix("torch.")))
         return (-vals if metric == "ip" else vals), idx
 
