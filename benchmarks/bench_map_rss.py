@@ -1,11 +1,14 @@
-"""Peak memory of ``seqnet eval --index`` on a large map: is it bounded by the map's bytes + 512 MB?
+"""Peak memory of each user command on a large map: is every one bounded by the map's bytes + 512 MiB?
 
 Writes a synthetic dataset (a smooth route of N_db reference frames of D dimensions, and a query
-traverse that revisits a stretch of it with noise) to a temporary folder, builds a map of it with
-``seqnet index build`` (exact ``flat`` shortlist over memory-mapped descriptors), then runs
-``seqnet eval --index`` in a child process and reads the child's peak resident set size
-(``ru_maxrss`` from ``os.wait4``). The map's files count in full (their pages are resident once
-read); the reference descriptors of the dataset are never read by the evaluation.
+traverse that revisits a stretch of it with noise) to a temporary folder, then runs the commands a
+user types, each in a child process whose peak resident set size is read from ``os.wait4``
+(``ru_maxrss``: anonymous memory *and* the resident pages of memory-mapped files):
+
+* ``eval --dataset`` with single-image k-NN, whole-map SeqMatch and a sequence shortlist
+  (the "map" is the dataset's reference descriptor file);
+* ``index build`` (smoothing shortlist, raw frames + SeqMatch, exact ``flat`` index), then
+  ``eval --index`` and ``localize --map`` on that map (the "map" is the map folder).
 
 Usage::
 
@@ -26,11 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from seqnet.core.provenance import make as make_provenance
-from seqnet.data.io import save_dataset
-from seqnet.data.traverse import Dataset, Traverse
-from seqnet.pipelines.timing.synth import route
-
 BUDGET = 512 * 2**20
 
 
@@ -38,16 +36,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--n-db", type=int, default=100000)
     p.add_argument("--dim", type=int, default=4096)
-    p.add_argument("--queries", type=int, default=2000, help="query frames (a stretch of the route revisited)")
+    p.add_argument("--queries", type=int, default=1000, help="query frames (a stretch of the route revisited)")
+    p.add_argument("--localize-frames", type=int, default=200, help="query frames streamed by localize --map")
     p.add_argument("--noise", type=float, default=1.0)
     p.add_argument("--dtype", default="float32", choices=("float32", "float16"))
-    p.add_argument("--methods", default="", help="eval --method (default: the map's HVPR and its shortlister)")
+    p.add_argument("--commands", default=",".join(COMMANDS), help=f"which of {', '.join(COMMANDS)}")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", required=True)
+    p.add_argument("--make-dataset", help=argparse.SUPPRESS)  # internal: write the dataset into this folder
     return p.parse_args(argv)
 
 
 def make_dataset(args: argparse.Namespace, root: Path) -> Path:
+    """Write the synthetic dataset to ``root/ds`` (run in a child process: see :func:`main`)."""
+    from seqnet.core.provenance import make as make_provenance
+    from seqnet.data.io import save_dataset
+    from seqnet.data.traverse import Dataset, Traverse
+    from seqnet.pipelines.timing.synth import route
+
     rng = np.random.default_rng(0)
     frames = route(args.n_db, args.dim, rng)
     s0 = int(rng.integers(0, args.n_db - args.queries))
@@ -67,44 +73,75 @@ def run_measured(cmd: list[str], env: dict[str, str]) -> tuple[int, float, int, 
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
         _, status, usage = os.wait4(proc.pid, 0)
-        proc.returncode = os.waitstatus_to_exitcode(status)
         log.seek(0)
         out = log.read().decode(errors="replace")
-    return proc.returncode, time.perf_counter() - t0, usage.ru_maxrss * 1024, out
+    return os.waitstatus_to_exitcode(status), time.perf_counter() - t0, usage.ru_maxrss * 1024, out
+
+
+def tree_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else path.stat().st_size
+
+
+def eval_dataset(method: str):
+    def argv(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
+        return ["eval", "--dataset", str(tmp / "ds"), "--split", "all", "--method", method, "--seq-len", "5",
+                "--json", str(tmp / f"eval-{method}.json")], tmp / "ds" / "reference" / "descriptors.npy"
+    return argv
+
+
+def index_build(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
+    return ["index", "build", "--dataset", str(tmp / "ds"), "--split", "all", "--shortlist", "smoothing",
+            "--rerank", "raw+seqmatch", "--index", "flat", "--window", "causal", "--dtype", args.dtype,
+            "--out", str(tmp / "map")], tmp / "ds" / "reference" / "descriptors.npy"
+
+
+def eval_index(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
+    return ["eval", "--dataset", str(tmp / "ds"), "--split", "all", "--index", str(tmp / "map"), "--window",
+            "causal", "--json", str(tmp / "eval-index.json")], tmp / "map"
+
+
+def localize_map(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
+    q = np.load(tmp / "ds" / "query" / "descriptors.npy", mmap_mode="r")[: args.localize_frames]
+    np.save(tmp / "stream.npy", np.ascontiguousarray(q))
+    return ["localize", "--map", str(tmp / "map"), "--query", str(tmp / "stream.npy"), "--method",
+            "hvpr-smoothing:raw+seqmatch", "--out", str(tmp / "track.csv")], tmp / "map"
+
+
+COMMANDS = {"eval-single": eval_dataset("single"), "eval-seqmatch": eval_dataset("raw+seqmatch"),
+            "eval-smoothing": eval_dataset("smoothing"), "index-build": index_build, "eval-index": eval_index,
+            "localize-map": localize_map}
 
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
+    if args.make_dataset:
+        make_dataset(args, Path(args.make_dataset))
+        return
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="seqnet-rss-"))
     env = {**os.environ, "OMP_NUM_THREADS": str(args.threads)}
     seqnet = [sys.executable, "-c", "import sys; from seqnet.cli import main; sys.exit(main())", "--threads",
               str(args.threads)]
+    rows = []
     try:
-        t0 = time.perf_counter()
-        ds = make_dataset(args, tmp)
-        made_s = time.perf_counter() - t0
-        build = [*seqnet, "index", "build", "--dataset", str(ds), "--split", "all", "--shortlist", "smoothing",
-                 "--rerank", "raw+seqmatch", "--index", "flat", "--dtype", args.dtype, "--out", str(tmp / "map")]
-        rc_b, build_s, build_rss, log_b = run_measured(build, env)
-        if rc_b:
-            raise SystemExit(f"index build failed: {log_b[-2000:]}")
-        map_bytes = sum(p.stat().st_size for p in (tmp / "map").rglob("*") if p.is_file())
-        ev = [*seqnet, "eval", "--dataset", str(ds), "--split", "all", "--index", str(tmp / "map"), "--json",
-              str(out / "eval.json")] + (["--method", args.methods] if args.methods else [])
-        load_before = os.getloadavg()
-        rc_e, eval_s, eval_rss, log_e = run_measured(ev, env)
-        res = {"n_db": args.n_db, "dim": args.dim, "dtype": args.dtype, "queries": args.queries,
-               "dataset_seconds": round(made_s, 1), "build_seconds": round(build_s, 1),
-               "build_peak_rss_bytes": build_rss, "map_bytes": map_bytes, "eval_rc": rc_e,
-               "eval_seconds": round(eval_s, 1), "eval_peak_rss_bytes": eval_rss,
-               "eval_rss_minus_map_mib": round((eval_rss - map_bytes) / 2**20, 1),
-               "within_map_plus_512mb": eval_rss <= map_bytes + BUDGET,
-               "loadavg": [load_before, os.getloadavg()], "eval_output": log_e[-3000:]}
+        subprocess.run([sys.executable, __file__, *(argv if argv is not None else sys.argv[1:]), "--make-dataset",
+                        str(tmp)], check=True)  # in a child: this process stays small for the children it forks
+        for name in args.commands.split(","):
+            cmd, counted = COMMANDS[name](tmp, args)
+            load = os.getloadavg()[0]
+            rc, secs, rss, log = run_measured([*seqnet, *cmd], env)
+            nbytes = tree_bytes(counted)
+            rows.append({"command": name, "argv": " ".join(["seqnet", *cmd]), "rc": rc, "seconds": round(secs, 1),
+                         "peak_rss_bytes": rss, "map_bytes": nbytes, "budget_bytes": nbytes + BUDGET,
+                         "within": rc == 0 and rss <= nbytes + BUDGET, "load_before": round(load, 2),
+                         "load_after": round(os.getloadavg()[0], 2), "tail": log[-1500:]})
+            print(f"{name}: rc {rc}, {secs:.1f} s, peak {rss / 2**20:.0f} MiB, map {nbytes / 2**20:.0f} MiB, "
+                  f"over map {(rss - nbytes) / 2**20:+.0f} MiB, load {load:.2f}", flush=True)
+            if rc:
+                print(log[-2000:])
+        res = {"n_db": args.n_db, "dim": args.dim, "dtype": args.dtype, "queries": args.queries, "rows": rows}
         (out / "results.json").write_text(json.dumps(res, indent=2))
-        print(json.dumps({k: v for k, v in res.items() if k != "eval_output"}, indent=1))
-        print(log_e[-1500:])
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

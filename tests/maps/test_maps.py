@@ -15,8 +15,8 @@ from seqnet.data.io import load_dataset, save_dataset
 from seqnet.eval.evaluate import EvalConfig
 from seqnet.eval.evaluate import main as eval_main
 from seqnet.maps import MapConfig, MapError, build, evaluate_main, load_map
-from seqnet.maps.rerank import pair_scores_on_map
 from seqnet.matching.hvpr import hvpr, pair_scores
+from seqnet.matching.on_disk import pair_scores_on_map
 
 FREE = MapConfig(shortlist="delta", rerank="raw+seqmatch", seq_len=4)  # a model-free map
 

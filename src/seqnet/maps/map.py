@@ -23,6 +23,7 @@ from ..core.utils import ArrayLike, get_device
 from ..data.traverse import Traverse
 from ..eval.methods import HVPR_FUSED, HVPR_RERANK, Method, parse_method
 from ..matching.hvpr import hvpr_search
+from ..matching.on_disk import pair_scores_on_map
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..search.ann import search as ann_search
 from ..search.knn import ExactIndex
@@ -30,7 +31,6 @@ from ..sequence.described import Described
 from ..sequence.descriptors import SeqNet
 from ..sequence.windows import Windows, window_offset
 from .config import MapConfig
-from .rerank import pair_scores_on_map
 from .store import MAP_FORMAT, MAP_JSON
 
 BLOCK_BYTES = 64 * 2**20  # working memory of one block of a whole-map search (the map itself stays mapped)

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from .._version import __version__
 from ..core.errors import ConfigError
@@ -34,6 +35,7 @@ from ..core.files import (
     write_json_atomic,
     write_text_atomic,
 )
+from ..core.memmaps import read_rows
 from ..core.ownership import check_replaceable, locked, recover_dir, write_dir, write_manifest
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import build_index, save_index
@@ -45,7 +47,7 @@ MAP_FORMAT = "seqnet-map/1"
 MAP_JSON = "map.json"
 INDEX_FILE = "index.faiss"
 ARRAY_FILES = ("shortlist", "frames", "items", "match_starts", "positions", "seq_bounds")
-CHUNK_ROWS = 65536
+CHUNK_BYTES = 32 << 20  # rows written per chunk
 
 
 def is_map_file(rel: str) -> bool:
@@ -96,11 +98,13 @@ def save_array(path: Path, array: ArrayLike, dtype: str, name: str) -> Path:
     with atomic_path(path) as tmp, open(tmp, "wb") as f:  # write() calls: a full disk is ENOSPC, not SIGBUS
         np.lib.format.write_array_header_1_0(f, {"descr": np.lib.format.dtype_to_descr(dt), "fortran_order": False,
                                                  "shape": shape})
-        for a in range(0, shape[0], CHUNK_ROWS):
-            block = np.asarray(to_numpy(array[a : a + CHUNK_ROWS]), dtype=np.float32)
+        step = max(1, CHUNK_BYTES // max(1, 4 * int(np.prod(shape[1:]))))
+        for a in range(0, shape[0], step):
+            part = array[a : a + step] if isinstance(array, torch.Tensor) else read_rows(array, a, a + step)
+            block = np.asarray(to_numpy(part), dtype=np.float32)
             if not np.isfinite(block).all():
                 raise ConfigError(f"{name} descriptors hold NaN or inf (rows {a}..{a + len(block) - 1})")
-            f.write(np.ascontiguousarray(block, dtype=dt).tobytes())
+            f.write(np.ascontiguousarray(block, dtype=dt).data)
     return path
 
 
@@ -137,7 +141,7 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
         write_text_atomic(root / "names.txt", "\n".join(a.names) + "\n")
     t0 = time.perf_counter()
     if conf.ann.kind != "flat":  # built over the stored (possibly float16-rounded) values
-        save_index(build_index(np.load(shortlist, mmap_mode="r").astype(np.float32), conf.ann), root / INDEX_FILE)
+        save_index(build_index(np.load(shortlist, mmap_mode="r"), conf.ann), root / INDEX_FILE)
     info["index_seconds"] = round(time.perf_counter() - t0, 3)
     for role, model in models.items():
         save_checkpoint(root / "models" / f"{role}.pt", model)

@@ -191,7 +191,7 @@ def seqmatch_topk(
     q_starts, r_starts = check_starts(q_starts, na, "query"), check_starts(r_starts, nb, "reference")
     q_order, r_order = np.argsort(q_starts, kind="stable"), np.argsort(r_starts, kind="stable")
     q_sorted, r_sorted = q_starts[q_order], r_starts[r_order]
-    cols = col_blocks(nb, col_block)
+    cols = col_blocks(nb, col_block, check_pair_dims(query, ref)[2] * (8 if dtype == torch.float64 else 4))
     width = max(c1 - c0 for c0, c1 in cols) + seq_len - 1
     step = rows_per_block(2 * width * (8 if dtype == torch.float64 else 4), block_bytes)
     ref_all = rows(ref, 0, nr, dev, dtype) if len(cols) == 1 else None  # a map that fits one block: read once

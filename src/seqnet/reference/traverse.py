@@ -10,6 +10,7 @@ import torch
 from ..data.traverse import Traverse
 from ..eval.methods import FRAME_FEATURES, Method
 from ..matching.hvpr import candidate_scores
+from ..matching.on_disk import pair_scores_on_map
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..search.knn import ExactIndex, knn
 from ..sequence.described import Described
@@ -20,8 +21,9 @@ from ..sequence.windows import Windows
 class TraverseReference:
     """The reference traverse ``traverse`` under ``windows`` (see :class:`~seqnet.reference.base.Reference`).
 
-    Descriptors are computed on first use (:class:`seqnet.sequence.described.Described`) and kept;
-    shortlists are exact k-NN (``backend``: a key of :data:`seqnet.search.knn.KNN_BACKENDS`; the
+    Descriptors are computed on first use (:class:`seqnet.sequence.described.Described`) and kept
+    (in temporary memory maps when large: memory stays bounded on references of any size); shortlists
+    are exact k-NN (``backend``: a key of :data:`seqnet.search.knn.KNN_BACKENDS`; the
     torch index keeps the reference norms between searches).
     """
 
@@ -30,7 +32,7 @@ class TraverseReference:
         self.traverse, self.windows, self.models, self.device = traverse, windows, dict(models), device
         self.backend, self.name = backend, name
         self.described = Described(traverse.descriptors, traverse.seq_bounds, windows, self.models, device,
-                                   "reference")
+                                   "reference", spill=True)
         self.items, self.match_starts = self.described.side.items, self.described.side.match_starts
         self.positions, self.names = traverse.positions, traverse.names
         self.provenance, self.input_dim = traverse.provenance, traverse.dim
@@ -66,7 +68,11 @@ class TraverseReference:
                candidates: np.ndarray) -> torch.Tensor:
         """The matcher's scores of the candidates (:func:`seqnet.matching.hvpr.candidate_scores`: the query
         frames and the reference's own descriptors were checked where they were made)."""
-        r = self.described.frames(frames).to(self.device)
+        r = self.described.frames(frames)
+        if not isinstance(r, torch.Tensor):  # spilled: read only the candidates' windows
+            return pair_scores_on_map(query_frames, r, self.windows.match_len, q_starts, self.match_starts,
+                                      candidates, matcher, str(self.device), anchor=self.windows.anchor)
+        r = r.to(self.device)
         q = torch.as_tensor(query_frames).to(device=self.device, dtype=r.dtype)
         if self._starts is None:
             self._starts = torch.as_tensor(self.match_starts, device=self.device)

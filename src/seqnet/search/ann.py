@@ -21,7 +21,10 @@ import numpy as np
 
 from ..core.config import Config, check_int
 from ..core.errors import CheckpointError, ConfigError, ResourceError
+from ..core.memmaps import read_rows, take_rows
 
+TRAIN_PER_LIST = 256  # training vectors per IVF list (FAISS's own k-means cap); 256 lists' worth otherwise
+ADD_BYTES = 32 << 20  # vectors added to an index per block
 FACTORY = re.compile(r"^[A-Za-z][A-Za-z0-9_,.=x]*$")  # the characters of a faiss factory string
 
 
@@ -114,26 +117,38 @@ def _hnsw_of(index: Any) -> Any:
 
 
 def build_index(ref: np.ndarray, conf: AnnConfig | None = None) -> Any:
-    """The FAISS index of ``conf`` over ``ref [N, D]`` (trained on it when the index needs training)."""
-    import faiss
+    """The FAISS index of ``conf`` over ``ref [N, D]`` (any float array or memory map), trained when the
+    index needs training (on at most :data:`TRAIN_PER_LIST` vectors per list, evenly spaced) and filled
+    in blocks, so no float32 copy of ``ref`` is made beside the index."""
 
     conf = conf or AnnConfig()
-    x = np.ascontiguousarray(ref, dtype=np.float32)
-    if x.ndim != 2 or len(x) == 0:
-        raise ConfigError(f"an index needs a non-empty [N, D] array, got shape {x.shape}")
-    index = make_index(x.shape[1], len(x), conf)
+    if ref.ndim != 2 or len(ref) == 0:
+        raise ConfigError(f"an index needs a non-empty [N, D] array, got shape {ref.shape}")
+    index = make_index(ref.shape[1], len(ref), conf)
     if not index.is_trained:
-        ivf = faiss.try_extract_index_ivf(index)
-        if ivf is not None:
-            ivf.cp.seed = conf.seed  # deterministic k-means of the coarse quantiser
-        try:
-            index.train(x)
-        except RuntimeError as e:
-            raise ConfigError(f"FAISS cannot train index {conf.factory(*x.shape[::-1])!r} on {len(x)} vectors "
-                              f"({str(e).strip().splitlines()[-1][:160]}); hint: fewer lists or codes") from e
-    index.add(x)
+        _train(index, ref, conf)
+    step = max(1, ADD_BYTES // (4 * ref.shape[1]))
+    for a in range(0, len(ref), step):
+        index.add(np.ascontiguousarray(read_rows(ref, a, a + step), dtype=np.float32))
     set_search_params(index, conf)
     return index
+
+
+def _train(index: Any, ref: np.ndarray, conf: AnnConfig) -> None:
+    """Train ``index`` on evenly spaced rows of ``ref`` (all of them when few)."""
+    import faiss
+
+    ivf = faiss.try_extract_index_ivf(index)
+    cap = TRAIN_PER_LIST * (ivf.nlist if ivf is not None else 256)
+    if ivf is not None:
+        ivf.cp.seed = conf.seed  # deterministic k-means of the coarse quantiser
+    rows = np.linspace(0, len(ref) - 1, cap).astype(np.int64) if len(ref) > cap else np.arange(len(ref))
+    x = np.ascontiguousarray(take_rows(ref, rows), dtype=np.float32)
+    try:
+        index.train(x)
+    except RuntimeError as e:
+        raise ConfigError(f"FAISS cannot train index {conf.factory(x.shape[1], len(ref))!r} on {len(x)} vectors "
+                          f"({str(e).strip().splitlines()[-1][:160]}); hint: fewer lists or codes") from e
 
 
 def set_search_params(index: Any, conf: AnnConfig) -> None:

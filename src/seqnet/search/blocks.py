@@ -16,10 +16,11 @@ import numpy as np
 import torch
 
 from ..core.errors import ConfigError
+from ..core.memmaps import read_rows
 from ..core.utils import ArrayLike, as_tensor
 
 SORT_MAX = 2048  # up to this many scores a stable sort is quicker than topk + tie handling (the same result)
-DEFAULT_COL_BLOCK = 65536  # reference rows per block (the whole map when it is smaller)
+COL_BLOCK_BYTES = 32 << 20  # reference bytes per column block (between 1,024 and 65,536 rows)
 
 
 def matrix_shape(x: ArrayLike, name: str) -> tuple[int, int]:
@@ -40,8 +41,10 @@ def compute_dtype(*xs: ArrayLike) -> torch.dtype:
 
 
 def rows(x: ArrayLike, a: int, b: int, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
-    """Rows ``a:b`` of ``x`` as a ``dtype`` tensor on ``device`` (only those rows are read from a memory map)."""
-    return as_tensor(x[a:b], device, keep_float64=True).to(dtype)
+    """Rows ``a:b`` of ``x`` as a ``dtype`` tensor on ``device`` (only those rows are read from a memory map;
+    a streamed map's pages are released after: :func:`seqnet.core.memmaps.read_rows`)."""
+    block = x[a:b] if isinstance(x, torch.Tensor) else read_rows(x, a, b)
+    return as_tensor(block, device, keep_float64=True).to(dtype)
 
 
 def check_pair_dims(query: ArrayLike, ref: ArrayLike) -> tuple[int, int, int]:
@@ -132,7 +135,8 @@ def blocked_topk(row_blocks: Iterable[RowBlock], col_blocks: Sequence[Any], scor
     return vals.numpy(), idx.numpy()
 
 
-def col_blocks(n: int, col_block: int | None) -> list[tuple[int, int]]:
-    """``[(c0, c1), ...]`` covering ``range(n)`` in blocks of ``col_block`` (default :data:`DEFAULT_COL_BLOCK`)."""
-    size = max(1, col_block or DEFAULT_COL_BLOCK)
+def col_blocks(n: int, col_block: int | None, row_bytes: int = 4096) -> list[tuple[int, int]]:
+    """``[(c0, c1), ...]`` covering ``range(n)`` in blocks of ``col_block`` rows (default: rows of ``row_bytes``
+    bytes filling :data:`COL_BLOCK_BYTES`, between 1,024 and 65,536)."""
+    size = max(1, col_block or min(65536, max(1024, COL_BLOCK_BYTES // max(1, row_bytes))))
     return [(c, min(n, c + size)) for c in range(0, n, size)]

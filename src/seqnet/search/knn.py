@@ -14,10 +14,11 @@ import torch
 
 from ..core.config import check_choice, check_int
 from ..core.errors import ConfigError
+from ..core.memmaps import RESIDENT_BYTES, streamed
 from ..core.utils import ArrayLike, as_tensor, get_device
 from .blocks import blocked_topk, col_blocks, compute_dtype, matrix_shape, rows
 
-DEFAULT_BLOCK_BYTES = 512 * 2**20
+DEFAULT_BLOCK_BYTES = 64 << 20
 NOT_FINITE = ("the distances are not finite: the {what} descriptors hold NaN or inf, or values too large for {dtype} "
               "(hint: L2-normalise them)")
 METRICS = ("l2", "ip")
@@ -38,7 +39,7 @@ def as_pair(query: ArrayLike, ref: ArrayLike, device: torch.device) -> tuple[tor
 
 
 def rows_per_block(row_bytes: int, block_bytes: int | None = None) -> int:
-    """How many rows of ``row_bytes`` bytes fit a block of ``block_bytes`` (default 512 MiB); at least 1."""
+    """How many rows of ``row_bytes`` bytes fit a block of ``block_bytes`` (default 64 MiB); at least 1."""
     budget = DEFAULT_BLOCK_BYTES if block_bytes is None else block_bytes
     return max(1, budget // max(1, row_bytes))
 
@@ -78,16 +79,18 @@ class ExactIndex:
     The one exact search of seqnet: :func:`knn` (torch backend), a dataset's reference and a map's
     stored descriptors all use it. The reference's squared norms are computed once per index and
     dtype, so an index queried many times (a map, the localiser) pays one GEMM per block per query.
-    ``keep`` holds a reference that fits one column block in torch memory (else it is read block by
-    block at every search, as a memory map should be).
+    ``keep`` holds a reference of at most :data:`seqnet.core.memmaps.RESIDENT_BYTES` in torch memory
+    (a view of a float32 CPU array, else one copy); a larger or spilled one is read block by block
+    at every search, its pages released after each (:func:`seqnet.core.memmaps.read_rows`).
     """
 
     def __init__(self, ref: ArrayLike, device: str | torch.device | None = None, block_bytes: int | None = None,
                  col_block: int | None = None, keep: bool = True) -> None:
         self.ref, self.device, self.block_bytes = ref, get_device(device), block_bytes
         self.n, self.dim = matrix_shape(ref, "reference")
-        self.blocks = col_blocks(self.n, col_block)
-        self.keep = keep and len(self.blocks) == 1
+        itemsize = 8 if str(ref.dtype).endswith("float64") else 4
+        self.blocks = col_blocks(self.n, col_block, self.dim * itemsize)
+        self.keep = keep and not streamed(ref) and self.n * self.dim * itemsize <= RESIDENT_BYTES
         self._rows: dict[torch.dtype, torch.Tensor] = {}
         self._norms: dict[torch.dtype, list[torch.Tensor]] = {}
         self._cols: dict[int, torch.Tensor] = {}
@@ -98,7 +101,7 @@ class ExactIndex:
             return rows(self.ref, c0, c1, self.device, dtype)
         if dtype not in self._rows:
             self._rows[dtype] = rows(self.ref, 0, self.n, self.device, dtype)
-        return self._rows[dtype]
+        return self._rows[dtype][c0:c1]
 
     def columns(self, j: int) -> torch.Tensor | None:
         """The reference indices ``[c]`` of column block ``j`` (made once; None for a block starting at 0:
@@ -136,7 +139,7 @@ class ExactIndex:
             raise ConfigError(f"dimension mismatch: query D={dq}, reference D={self.dim}")
         dtype, k = compute_dtype(query, self.ref), min(k, self.n)
         width = max((b - a for a, b in self.blocks), default=1)
-        step = rows_per_block(width * (8 if dtype == torch.float64 else 4) * 3, self.block_bytes)
+        step = rows_per_block((width * 3 + self.dim) * (8 if dtype == torch.float64 else 4), self.block_bytes)
         norms, finite = self.norms(dtype), []  # the reference's norms are checked once, the query's here
 
         def row_blocks() -> Iterator[tuple[slice, tuple[torch.Tensor, torch.Tensor]]]:

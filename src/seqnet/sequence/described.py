@@ -20,15 +20,17 @@ import numpy as np
 import torch
 
 from ..core.errors import ConfigError
+from ..core.memmaps import take_rows
 from .descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
 from .windows import Windows, window_frames, window_indices
 
 
 def describe_frames(raw: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | None, name: str, windows: Windows,
                     models: Mapping[str, SeqNet], device: torch.device, which: np.ndarray | None = None,
-                    progress: str | None = None) -> torch.Tensor:
+                    progress: str | None = None, spill: bool = False) -> torch.Tensor | np.ndarray:
     """``[N', D']``: descriptor ``name`` over the window of every frame of ``raw [N, D]`` (or of the frames
-    ``which``), windows of ``windows.mode`` clamped into their sequence."""
+    ``which``), windows of ``windows.mode`` clamped into their sequence (``spill``: a large result is a
+    temporary memory map, :func:`seqnet.sequence.descriptors.describe_windows`)."""
     d = SEQUENCE_DESCRIPTORS[name]
     length = d.length(windows.length)
     if length == 1 and which is not None:  # a frame's own descriptor: its window is the frame itself
@@ -36,15 +38,16 @@ def describe_frames(raw: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | Non
     else:
         idx = window_indices(len(raw), length, windows.mode, seq_bounds)
         idx = idx if which is None else idx[which]
-    return describe_windows(raw, idx, d.window_fn(models), device=device, progress=progress)
+    return describe_windows(raw, idx, d.window_fn(models), device=device, progress=progress, spill=spill)
 
 
 def describe_items(raw: np.ndarray | torch.Tensor, starts: np.ndarray, name: str, windows: Windows,
-                   models: Mapping[str, SeqNet], device: torch.device, progress: str | None = None) -> torch.Tensor:
+                   models: Mapping[str, SeqNet], device: torch.device, progress: str | None = None,
+                   spill: bool = False) -> torch.Tensor | np.ndarray:
     """``[M, D']``: descriptor ``name`` (not single-frame) of the L-windows starting at ``starts [M]``."""
     d = SEQUENCE_DESCRIPTORS[name]
     return describe_windows(raw, window_frames(starts, windows.length), d.window_fn(models), device=device,
-                            progress=progress)
+                            progress=progress, spill=spill)
 
 
 class Described:
@@ -55,12 +58,14 @@ class Described:
         seq_bounds: ``[N, 2]`` sequence range of every frame, or None.
         windows: L, L_m and the window mode; models: trained models by role; device: where to compute.
         what: ``"query"`` or ``"reference"`` (for errors).
+        spill: descriptors over :data:`seqnet.core.memmaps.SPILL_BYTES` are kept in temporary memory maps
+            (:class:`seqnet.core.memmaps.Spilled`, read in blocks) instead of torch memory: a reference side.
     """
 
     def __init__(self, descriptors: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | None, windows: Windows,
-                 models: Mapping[str, SeqNet], device: torch.device, what: str = "query") -> None:
+                 models: Mapping[str, SeqNet], device: torch.device, what: str = "query", spill: bool = False) -> None:
         self.raw, self.seq_bounds, self.windows = descriptors, seq_bounds, windows
-        self.models, self.device = models, device
+        self.models, self.device, self.spill = models, device, spill
         self.side = windows.side(len(descriptors), seq_bounds)
         if len(self.side.items) == 0:
             raise ConfigError(f"no {what} frame has a full window of seq_len={windows.length} (L_m="
@@ -78,12 +83,12 @@ class Described:
         """``[M]`` first frame of each item's L_m-window."""
         return self.side.match_starts
 
-    def items(self, name: str) -> torch.Tensor:
-        """``[M, D']`` item descriptors ``name``."""
+    def items(self, name: str) -> torch.Tensor | np.ndarray:
+        """``[M, D']`` item descriptors ``name`` (a tensor, or a :class:`~seqnet.core.memmaps.Spilled` map)."""
         return self._get("items", name)
 
-    def frames(self, name: str) -> torch.Tensor:
-        """``[N, D']`` frame descriptors ``name``."""
+    def frames(self, name: str) -> torch.Tensor | np.ndarray:
+        """``[N, D']`` frame descriptors ``name`` (a tensor, or a :class:`~seqnet.core.memmaps.Spilled` map)."""
         return self._get("frames", name)
 
     def time_ms(self, kind: str, name: str) -> float:
@@ -91,7 +96,7 @@ class Described:
         self._get(kind, name)
         return self.ms[(kind, name)]
 
-    def _get(self, kind: str, name: str) -> torch.Tensor:
+    def _get(self, kind: str, name: str) -> torch.Tensor | np.ndarray:
         key = (kind, name)
         if key not in self._cache:
             # items of a single-frame descriptor index its frame descriptors: their time counts too
@@ -100,12 +105,14 @@ class Described:
                 self._get(*dep)
             t0 = time.perf_counter()
             if dep is not None:
-                self._cache[key] = self._cache[dep][self.side.items]
+                frames = self._cache[dep]
+                self._cache[key] = (frames[self.side.items] if isinstance(frames, torch.Tensor)
+                                    else take_rows(frames, self.side.items, spill=True))
             elif kind == "frames":
                 self._cache[key] = describe_frames(self.raw, self.seq_bounds, name, self.windows, self.models,
-                                                   self.device, progress=name)
+                                                   self.device, progress=name, spill=self.spill)
             else:
                 self._cache[key] = describe_items(self.raw, self.side.starts, name, self.windows, self.models,
-                                                  self.device, progress=name)
+                                                  self.device, progress=name, spill=self.spill)
             self.ms[key] = (time.perf_counter() - t0) * 1e3 + (self.ms[dep] if dep else 0.0)
         return self._cache[key]

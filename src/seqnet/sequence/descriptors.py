@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..core.errors import ConfigError
+from ..core.memmaps import SpillWriter, spill_size, take_rows
 from ..core.progress import progress as progress_bar
 from ..core.utils import as_tensor, l2_normalize
 from .windows import gather_windows
@@ -124,6 +125,9 @@ class SeqNet(nn.Module):
         return {"in_dims": self.in_dims, "out_dims": self.out_dims, "seq_len": self.seq_len, "w": self.w}
 
 
+WINDOW_BYTES = 32 << 20  # gathered windows per batch ([B, L, D] float32)
+
+
 def describe_windows(
     desc: np.ndarray | torch.Tensor,
     idx: np.ndarray,
@@ -131,44 +135,70 @@ def describe_windows(
     batch_size: int = 4096,
     device: torch.device | str | None = None,
     progress: str | None = None,
-) -> torch.Tensor:
-    """Apply a window function to every window.
+    spill: bool = False,
+) -> torch.Tensor | np.ndarray:
+    """Apply a window function to every window, in batches of bounded memory.
 
     Args:
-        desc: ``[N, D]`` single-image descriptors.
+        desc: ``[N, D]`` single-image descriptors (a memory map is read batch by batch, never whole).
         idx: ``[M, L]`` frame indices of the windows (see :func:`seqnet.sequence.windows.window_indices`).
         fn: ``[B, L, D]`` → ``[B, D']`` (``smoothing``, ``delta`` or a :class:`SeqNet`).
-        batch_size: windows per batch (bounds memory).
+        batch_size: at most this many windows per batch (fewer when ``[B, L, D]`` passes 64 MiB).
         device: where to compute (default: where ``desc`` is).
         progress: tqdm label, or None for no bar.
+        spill: an output over :data:`seqnet.core.memmaps.SPILL_BYTES` goes to a temporary file.
 
     Returns:
-        ``[M, D']`` float32 tensor on CPU.
+        ``[M, D']`` float32: a CPU tensor, or a read-only :class:`seqnet.core.memmaps.Spilled` map.
     """
-    d = as_tensor(desc)
     idx = np.asarray(idx)
     if idx.ndim != 2:
         raise ConfigError(f"window indices must be [M, L], got shape {idx.shape}")
     if len(idx) == 1 and isinstance(desc, torch.Tensor):  # one window in memory (a stream's newest frame)
-        return _one_window(d, idx[0], fn, device)
-    out = []
-    starts = range(0, len(idx), batch_size)
+        return _one_window(as_tensor(desc), idx[0], fn, device)
+    per = max(16, WINDOW_BYTES // max(1, idx.shape[1] * desc.shape[1] * 4))
+    starts = range(0, len(idx), max(1, min(batch_size, per)))
+    out: _Output | None = None
     for s in progress_bar(starts, desc=progress) if progress and len(starts) > 1 else starts:
-        block = np.asarray(idx[s : s + batch_size])
-        if isinstance(desc, torch.Tensor):  # in memory already: gather the windows directly
-            rows, local = None, block
-            sub = d.to(device) if device is not None else d
-        else:  # read each row once (a memory map), then gather from the rows read
-            rows = np.unique(block)
-            sub = d[torch.from_numpy(rows)].to(device) if device is not None else d[torch.from_numpy(rows)]
-            local = np.searchsorted(rows, block)
+        block = np.asarray(idx[s : s + starts.step])
         with torch.no_grad():
-            out.append(fn(gather_windows(sub, local)).float().cpu())
-    if not out:  # no windows: still run fn (on an empty batch) for its output width and checks
-        empty = d.new_zeros((0, idx.shape[1], d.shape[1]))
+            y = fn(gather_windows(*_window_rows(desc, block, device))).float().cpu()
+        out = out or _Output(len(idx), y.shape[1], spill)
+        out.put(s, y)
+    if out is None:  # no windows: still run fn (on an empty batch) for its output width and checks
+        empty = as_tensor(desc[:0]).new_zeros((0, idx.shape[1], desc.shape[1]))
         with torch.no_grad():
             return fn(empty.to(device) if device is not None else empty).float().cpu()
-    return out[0] if len(out) == 1 else torch.cat(out)
+    return out.finish()
+
+
+def _window_rows(desc: np.ndarray | torch.Tensor, block: np.ndarray,
+                 device: torch.device | str | None) -> tuple[torch.Tensor, np.ndarray]:
+    """``(rows, local)``: the frames the windows ``block [B, L]`` read, each once, and the windows' indices
+    into them (a tensor in memory is used whole)."""
+    if isinstance(desc, torch.Tensor):
+        d = as_tensor(desc)
+        return (d.to(device) if device is not None else d), block
+    rows = np.unique(block)
+    sub = as_tensor(take_rows(desc, rows))
+    return (sub.to(device) if device is not None else sub), np.searchsorted(rows, block)
+
+
+class _Output:
+    """``[M, D']`` filled batch by batch: a preallocated tensor, or a spill file when large."""
+
+    def __init__(self, m: int, dim: int, spill: bool) -> None:
+        self.writer = SpillWriter((m, dim), np.float32) if spill and spill_size((m, dim)) else None
+        self.tensor = None if self.writer else torch.empty((m, dim), dtype=torch.float32)
+
+    def put(self, s: int, y: torch.Tensor) -> None:
+        if self.writer is not None:
+            self.writer.write(y.numpy())
+        else:
+            self.tensor[s : s + len(y)] = y
+
+    def finish(self) -> torch.Tensor | np.ndarray:
+        return self.writer.finish() if self.writer is not None else self.tensor
 
 
 @torch.no_grad()

@@ -1,4 +1,4 @@
-"""Scoring a shortlist on a memory-mapped map without reading the whole map.
+"""Scoring a shortlist on memory-mapped frames (a map, a spilled reference) without reading them all.
 
 For matchers whose window pairs only read the candidate's own L_m frames (fixed-speed SeqMatch,
 either direction), only those frames are read from the (memory-mapped, possibly float16) frame
@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..core.memmaps import take_rows
 from ..core.utils import ArrayLike
-from ..matching.hvpr import pair_scores
+from .hvpr import pair_scores
 
 OWN_WINDOW_MATCHERS = ("seqmatch", "seqmatch-rev")  # pairs that read only the candidate window's own frames
 BLOCK_BYTES = 256 * 2**20  # frames gathered per block of queries
@@ -48,7 +49,7 @@ def _compact(query_frames: ArrayLike, frames: ArrayLike, seq_len: int, q_starts:
     rows = (np.asarray(r_starts)[uniq][:, None] + np.arange(seq_len)).ravel()
     order = np.argsort(rows, kind="stable")  # read the memory map in increasing row order
     local = np.empty((len(rows), frames.shape[1]), np.float32)
-    local[order] = np.asarray(frames[rows[order]], dtype=np.float32)
+    local[order] = take_rows(frames, rows[order])
     local_cand = np.full(cand.shape, -1, np.int64)
     local_cand[valid] = inv
     return pair_scores(query_frames, local, seq_len, q_starts, np.arange(len(uniq)) * seq_len, local_cand, matcher,
