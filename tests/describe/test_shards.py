@@ -123,8 +123,8 @@ def test_torchrun_rank_picks_the_shard(monkeypatch, big_folder, tmp_path):
     monkeypatch.setenv("RANK", "1")
     assert env_shard() == Shard(1, 3) and resolve_shard(None) == Shard(1, 3)
     assert resolve_shard("2/3") == Shard(2, 3)  # --shard wins
-    assert describe(big_folder, "--method", "pixels", "--batch-size", "4", "--out", tmp_path / "r1.h5") == 0
-    assert h5(tmp_path / "r1.h5")[3]["shard"]["index"] == 1
+    assert describe(big_folder, "--method", "pixels", "--batch-size", "4", "--out", tmp_path / "r.h5") == 0
+    assert h5(tmp_path / "r.shard-1-of-3.h5")[3]["shard"]["index"] == 1 and not (tmp_path / "r.h5").exists()
     monkeypatch.setenv("RANK", "x")
     with pytest.raises(ConfigError, match="RANK='x'"):
         env_shard()

@@ -8,7 +8,7 @@ from ..core.errors import ConfigError
 from ..describe import BACKBONES, DESCRIBERS, DescribeConfig, main
 from ..describe.config import MAX_SIDE
 from ..describe.merge import merge_shards
-from ..describe.shards import resolve_shard
+from ..describe.shards import resolve_shard, shard_output
 from .common import add_device, non_negative_int, positive_float, positive_int
 
 _D = DescribeConfig()
@@ -39,8 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=list(DESCRIBERS), help=f"descriptor method, required ({_table(DESCRIBERS)})")
     p.add_argument("--out", required=True, metavar="FILE", help="output .h5/.hdf5 or .npy")
     p.add_argument("--shard", metavar="k/N", help="describe only the k-th of N contiguous slices of the images, "
-                   "k = 0..N-1 (default under torchrun with WORLD_SIZE > 1: RANK/WORLD_SIZE); merge the N outputs "
-                   "with `seqnet describe merge`")
+                   "k = 0..N-1 (default under torchrun with WORLD_SIZE > 1: RANK/WORLD_SIZE, written to "
+                   "<stem>.shard-k-of-N<suffix> beside --out); merge the N outputs with `seqnet describe merge`")
     add_describe_options(p)
     p.add_argument("--overwrite", action="store_true", help="recompute an existing output (and its partial run)")
     add_device(p)
@@ -112,5 +112,6 @@ def run(args: argparse.Namespace) -> int:
     if args.method is None:
         raise ConfigError(f"--method is required (one of {', '.join(DESCRIBERS)})")
     shard = resolve_shard(args.shard)
-    main(describe_config(args), args.images, args.out, overwrite=args.overwrite, shard=shard)  # logs what it wrote
+    out = shard_output(args.out, shard) if shard is not None and args.shard is None else args.out  # torchrun rank
+    main(describe_config(args), args.images, out, overwrite=args.overwrite, shard=shard)  # logs what it wrote
     return 0

@@ -5,7 +5,8 @@ boundaries fall on multiples of the batch size, so every shard describes exactly
 unsharded run would (CNN results can depend on what else is in the batch): merged shards are
 byte-identical to one run. Fitted state (PCA, NetVLAD clusters) is fitted on the same images as an
 unsharded run would pick, from the *whole* list, so every shard records the same provenance. Under
-``torchrun`` (``WORLD_SIZE`` > 1) without ``--shard``, the shard is ``RANK/WORLD_SIZE``.
+``torchrun`` (``WORLD_SIZE`` > 1) without ``--shard``, the shard is ``RANK/WORLD_SIZE`` and rank k writes
+``<stem>.shard-k-of-N<suffix>`` beside ``--out`` (:func:`shard_output`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import dataclasses
 import hashlib
 import os
 import re
+from pathlib import Path
 from typing import Any
 
 from ..core.errors import ConfigError
@@ -80,6 +82,13 @@ def env_shard() -> Shard | None:
     if values["WORLD_SIZE"] <= 1:
         return None
     return Shard(values["RANK"], values["WORLD_SIZE"])
+
+
+def shard_output(out: str | os.PathLike[str], shard: Shard) -> Path:
+    """Where a torchrun rank writes its shard of ``out`` (every rank gets the same ``--out``):
+    ``s.h5`` → ``s.shard-1-of-4.h5``."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.shard-{shard.index}-of-{shard.count}{out.suffix}")
 
 
 def resolve_shard(shard: Shard | str | None) -> Shard | None:
