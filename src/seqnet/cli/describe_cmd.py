@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 
+from ..core.errors import ConfigError
 from ..describe import BACKBONES, DESCRIBERS, DescribeConfig, main
 from ..describe.config import MAX_SIDE
+from ..describe.merge import merge_shards
+from ..describe.shards import resolve_shard, shard_output
 from .common import add_device, non_negative_int, positive_float, positive_int
 
 _D = DescribeConfig()
@@ -23,13 +26,21 @@ def _table(entries: dict) -> str:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "describe", help="compute single-image descriptors (" + ", ".join(DESCRIBERS) + ") of an image folder",
+        usage="%(prog)s IMAGES --method M --out FILE [--shard k/N] [options]\n"
+              "       %(prog)s merge SHARD [SHARD ...] --out FILE [--overwrite]",
         description="Describe the images of a folder (sorted by name) or a list file (one path per line, relative "
                     "to the list file) into an HDF5 file (datasets 'descriptors', 'names') or a .npy with names "
-                    "beside it. Interrupted runs resume when re-run with the same options.")
-    p.add_argument("images", metavar="IMAGES", help="image folder or list file")
-    p.add_argument("--method", required=True, choices=list(DESCRIBERS),
-                   help=f"descriptor method ({_table(DESCRIBERS)})")
+                    "beside it. Interrupted runs resume when re-run with the same options. Past one machine: "
+                    "--shard k/N describes the k-th (0-based) of N contiguous slices of the images (under torchrun, "
+                    "RANK/WORLD_SIZE), and `seqnet describe merge SHARD... --out FILE` joins the N shard outputs "
+                    "into the file one unsharded run writes (docs/describe.md).")
+    p.add_argument("images", metavar="IMAGES", help="image folder or list file (or 'merge', followed by the shards)")
+    p.add_argument("shards", nargs="*", metavar="SHARD", help="merge: the shard outputs to merge, in any order")
+    p.add_argument("--method", choices=list(DESCRIBERS), help=f"descriptor method, required ({_table(DESCRIBERS)})")
     p.add_argument("--out", required=True, metavar="FILE", help="output .h5/.hdf5 or .npy")
+    p.add_argument("--shard", metavar="k/N", help="describe only the k-th of N contiguous slices of the images, "
+                   "k = 0..N-1 (default under torchrun with WORLD_SIZE > 1: RANK/WORLD_SIZE, written to "
+                   "<stem>.shard-k-of-N<suffix> beside --out); merge the N outputs with `seqnet describe merge`")
     add_describe_options(p)
     p.add_argument("--overwrite", action="store_true", help="recompute an existing output (and its partial run)")
     add_device(p)
@@ -87,5 +98,20 @@ def _auto_sizes() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    main(describe_config(args), args.images, args.out, overwrite=args.overwrite)  # logs what it wrote
+    if args.images == "merge" and (args.shards or args.method is None):
+        if args.method is not None or args.shard is not None:
+            flag = "--method" if args.method is not None else "--shard"
+            raise ConfigError(f"seqnet describe merge takes the shard files and --out (and --overwrite), not {flag}: "
+                              "the shards record their settings")
+        merge_shards(args.shards, args.out, overwrite=args.overwrite)  # logs what it wrote
+        return 0
+    if args.shards:
+        raise ConfigError(f"seqnet describe takes one IMAGES folder or list file, got {1 + len(args.shards)} "
+                          f"({args.images!r}, {args.shards[0]!r}, ...); hint: to merge shard outputs, "
+                          "seqnet describe merge SHARD... --out FILE")
+    if args.method is None:
+        raise ConfigError(f"--method is required (one of {', '.join(DESCRIBERS)})")
+    shard = resolve_shard(args.shard)
+    out = shard_output(args.out, shard) if shard is not None and args.shard is None else args.out  # torchrun rank
+    main(describe_config(args), args.images, out, overwrite=args.overwrite, shard=shard)  # logs what it wrote
     return 0

@@ -46,6 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--pq-m", type=positive_int, help=f"IVF-PQ sub-quantisers, dividing D (default {_A.pq_m})")
     b.add_argument("--pq-bits", type=positive_int, help=f"IVF-PQ bits per code (default {_A.pq_bits})")
     b.add_argument("--seed", type=non_negative_int, help=f"k-means seed (default {_A.seed})")
+    b.add_argument("--shards", type=positive_int, help="IVF indexes only: train one coarse quantizer, build the "
+                   "inverted lists of N contiguous shards of the items in parallel and merge them on disk "
+                   "(index.ivfdata, opened memory-mapped); same results as one index (default 1)")
     b.add_argument("--dtype", choices=DTYPES, help=f"storage of the descriptors (default {_D.dtype})")
     b.add_argument("--out", required=True, metavar="MAP", help="map directory to write (replaced only when it "
                    "holds nothing but a seqnet map)")
@@ -81,7 +84,8 @@ def map_config(args: argparse.Namespace) -> MapConfig:
                                                    "ef_construction", "pq_m", "pq_bits", "seed")})
     return _D.replace(shortlist=args.shortlist, rerank=args.rerank, seq_len=args.seq_len,
                       rerank_seq_len=args.rerank_seq_len, window=args.window, ann=ann, dtype=args.dtype,
-                      split=args.split, device=args.device, allow_mismatch=args.allow_mismatch or None)
+                      split=args.split, device=args.device, allow_mismatch=args.allow_mismatch or None,
+                      shards=args.shards)
 
 
 def run_build(args: argparse.Namespace) -> int:

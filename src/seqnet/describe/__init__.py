@@ -14,10 +14,14 @@ fitted-state files in :mod:`.state`) → resumable file output and the stage :fu
 from .cnn import BACKBONES
 from .config import DescribeConfig
 from .describer import Describer, describe_images, fit_paths_of, make_describer
+from .merge import merge_shards
+from .output import OUT_SUFFIXES, names_file_for
 from .registry import DESCRIBERS
-from .store import OUT_SUFFIXES, describe_folder, describe_to_file, main, names_file_for
+from .shards import Shard, parse_shard
+from .store import describe_folder, describe_to_file, main
 
 __all__ = [
     "BACKBONES", "DESCRIBERS", "OUT_SUFFIXES", "DescribeConfig", "Describer", "describe_folder", "describe_images",
-    "describe_to_file", "fit_paths_of", "main", "make_describer", "names_file_for",
+    "Shard", "describe_to_file", "fit_paths_of", "main", "make_describer", "merge_shards", "names_file_for",
+    "parse_shard",
 ]

@@ -21,7 +21,7 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError, ImageError
-from ..core.files import atomic_path, check_space, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..core.files import check_space
 from ..core.ownership import locked, remove_dead_temps
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
@@ -29,16 +29,13 @@ from ..core.utils import logger
 from .config import DescribeConfig, fit_summary
 from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches
 from .images import ImageList, list_images
+from .output import OUT_SUFFIXES, names_file_for, write_output
+from .shards import SHARD_KEY, Shard
 from .state import StateFile, state_files
 
-OUT_SUFFIXES = (".h5", ".hdf5", ".npy")
+__all__ = ["OUT_SUFFIXES", "describe_folder", "describe_to_file", "main", "names_file_for"]
+
 TODO, DONE, SKIPPED = 0, 1, 2
-
-
-def names_file_for(out: str | os.PathLike[str]) -> Path:
-    """The names text file written beside a ``.npy`` output."""
-    out = Path(out)
-    return out.with_name("names.txt") if out.name == "descriptors.npy" else out.with_name(out.stem + ".names.txt")
 
 
 def partial_file_for(out: str | os.PathLike[str]) -> Path:
@@ -48,72 +45,82 @@ def partial_file_for(out: str | os.PathLike[str]) -> Path:
 
 
 def main(conf: DescribeConfig, images: str | os.PathLike[str], out: str | os.PathLike[str],
-         overwrite: bool = False) -> Path:
+         overwrite: bool = False, shard: Shard | None = None) -> Path:
     """The describe stage: describe the folder or list file ``images`` into ``out`` (.h5/.hdf5/.npy).
 
     Resumes an interrupted run with the same settings; ``overwrite`` recomputes an existing output.
-    Returns the path of the output file.
+    ``shard``: describe only that slice of the images (:mod:`seqnet.describe.shards`; merge the
+    outputs with :func:`seqnet.describe.merge.merge_shards`). Returns the path of the output file.
     """
-    describe_folder(images, conf, out=out, overwrite=overwrite)
+    describe_folder(images, conf, out=out, overwrite=overwrite, shard=shard)
     return Path(out)
 
 
 def describe_folder(source: str | os.PathLike[str], conf: DescribeConfig, out: str | os.PathLike[str] | None = None,
-                    overwrite: bool = False) -> tuple[np.ndarray, list[str]]:
-    """Descriptors ``[N, D]`` and names of a folder or list file of images; with ``out``, also
-    written there resumably (see the module docstring). Logs one summary line."""
+                    overwrite: bool = False, shard: Shard | None = None) -> tuple[np.ndarray, list[str]]:
+    """Descriptors ``[N, D]`` and names of a folder or list file of images (``shard``: of its slice
+    only); with ``out``, also written there resumably (see the module docstring). Logs one summary line."""
     images = list_images(source)
     t0 = time.perf_counter()
     if out is None:
+        if shard is not None:
+            raise ConfigError(f"shard {shard.index}/{shard.count} needs an output file (out=...) to be merged later")
         desc, names = describe_images(images.paths, conf, names=images.names)
     else:
-        desc, names = describe_to_file(images, conf, Path(out), overwrite)
+        desc, names = describe_to_file(images, conf, Path(out), overwrite, shard)
     seconds = time.perf_counter() - t0
-    logger.info("described %d images of %s in %.1f s (%.1f images/s): %d descriptors of dim %d%s%s", len(images),
-                source, seconds, len(images) / max(seconds, 1e-9), len(desc), desc.shape[1],
-                f", {len(images) - len(desc)} skipped" if len(desc) < len(images) else "",
+    a, b = (0, len(images)) if shard is None else shard.frames(len(images), conf.batch_size)
+    logger.info("described %d images of %s%s in %.1f s (%.1f images/s): %d descriptors of dim %d%s%s", b - a,
+                source, f" (shard {shard.index}/{shard.count}: images {a}..{b - 1})" if shard else "", seconds,
+                (b - a) / max(seconds, 1e-9), len(desc), desc.shape[1],
+                f", {b - a - len(desc)} skipped" if len(desc) < b - a else "",
                 f", written to {out}" if out is not None else "")
     return desc, names
 
 
-def describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
-                     overwrite: bool = False) -> tuple[np.ndarray, list[str]]:
-    """Describe ``images`` into ``out``, resuming a partial run with the same settings; the output is
-    locked while it is written (a second describe into it is refused, exit 1, never mixed)."""
+def describe_to_file(images: ImageList, conf: DescribeConfig, out: Path, overwrite: bool = False,
+                     shard: Shard | None = None) -> tuple[np.ndarray, list[str]]:
+    """Describe ``images`` (``shard``: its slice of them) into ``out``, resuming a partial run with the same
+    settings; the output is locked while it is written (a second describe into it is refused, exit 1, never
+    mixed). A shard output records its shard in its provenance (``shard``), which is otherwise the whole run's."""
     if out.suffix.lower() not in OUT_SUFFIXES:
         raise ConfigError(f"output file {out} must end in one of {', '.join(OUT_SUFFIXES)}")
     with locked(out):
         remove_dead_temps([out, names_file_for(out), provenance_sidecar(out)])
-        return _describe_to_file(images, conf, out, overwrite)
+        return _describe_to_file(images, conf, out, overwrite, shard)
 
 
-def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path,
-                      overwrite: bool) -> tuple[np.ndarray, list[str]]:
+def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path, overwrite: bool,
+                      shard: Shard | None) -> tuple[np.ndarray, list[str]]:
     if out.exists() and not overwrite:
         raise ConfigError(f"output {out} already exists (hint: --overwrite recomputes it)")
     conf = conf.resolved()
     partial = partial_file_for(out)
-    settings = json.dumps(conf.settings(), sort_keys=True)
+    part = shard.record(len(images), conf.batch_size, images.names) if shard is not None else None
+    todo = images if part is None else ImageList(images.paths[slice(*part["frames"])],
+                                                 images.names[slice(*part["frames"])])
+    settings = json.dumps({**conf.settings(), **({SHARD_KEY: part} if part else {})}, sort_keys=True)
     states = state_files(conf, out, fit_paths_of(conf, images.paths) if conf.needs_fit else [])
     if overwrite:
         _remove_own_state(states)
-    if partial.exists() and not _resumable(partial, settings, images.names, states, overwrite):
+    if partial.exists() and not _resumable(partial, settings, todo.names, states, overwrite):
         partial.unlink()
     out.parent.mkdir(parents=True, exist_ok=True)
-    describer = make_describer(conf, images.paths, sidecar=out)
+    describer = make_describer(conf, images.paths, sidecar=out)  # fitted on the whole list's images, as unsharded
     try:
         with h5py.File(partial, "a") as h:
-            keep, desc = _describe_into(h, images, describer, settings)
+            keep, desc = _describe_into(h, todo, describer, settings)
     except BaseException:
         _drop_if_unstarted(partial)
         raise
     if not len(keep):
         partial.unlink()  # nothing worth resuming: a re-run reads every image again
-        raise ImageError(f"none of the {len(images)} images could be read (first: {images.paths[0]})")
-    names = [images.names[i] for i in keep]
+        raise ImageError(f"none of the {len(todo)} images could be read (first: {todo.paths[0]})")
+    names = [todo.names[i] for i in keep]
     record = {**conf.to_dict(), "fit": fit_summary(conf.fit)}  # a list of fitting images as its hash
     fitted_on = fit_paths_of(conf, images.paths) if conf.needs_fit else None
-    _write_output(out, desc, names, json.dumps(record, sort_keys=True), describe_provenance(conf, fitted_on, desc))
+    prov = {**describe_provenance(conf, fitted_on, desc), **({SHARD_KEY: part} if part else {})}
+    write_output(out, desc.shape, [desc], names, json.dumps(record, sort_keys=True), prov)
     partial.unlink()
     return desc, names
 
@@ -206,21 +213,3 @@ def _h5_sink(h: h5py.File, n: int) -> Sink:
         h.flush()
 
     return sink
-
-
-def _write_output(out: Path, desc: np.ndarray, names: list[str], config: str, prov: dict) -> None:
-    """The output appears in one rename, the descriptors' own, after its sidecars: an older output it
-    replaces is removed first, so descriptors never sit beside another run's names or provenance."""
-    desc = np.ascontiguousarray(desc, dtype=np.float32)
-    if out.suffix.lower() == ".npy":
-        out.unlink(missing_ok=True)  # only reached with --overwrite (else an existing output is refused)
-        write_text_atomic(names_file_for(out), "\n".join(names) + "\n")
-        write_json_atomic(provenance_sidecar(out), prov)
-        save_npy_atomic(out, desc)
-        return
-    with atomic_path(out) as tmp:
-        with h5py.File(tmp, "w") as h:
-            h.create_dataset("descriptors", data=desc)
-            h.create_dataset("names", data=np.array(names, dtype=object), dtype=h5py.string_dtype())
-            h.attrs["config"] = config
-            h.attrs["provenance"] = json.dumps(prov, sort_keys=True)

@@ -18,6 +18,7 @@ from ..sequence.checkpoints import load_models
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
 from ..sequence.windows import Windows
 from .config import MapConfig
+from .shards import check_ivf, split_rows
 from .store import MapArrays, is_map_file, write_map
 
 
@@ -46,7 +47,10 @@ def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> N
     role = SEQUENCE_DESCRIPTORS[conf.shortlist].model
     dim = models[role].out_dims if role else ds.reference.dim
     n = len(conf.windows.side(len(ds.reference), ds.reference.seq_bounds).items)
-    make_index(dim, max(n, 1), conf.ann)  # an alias's sizes, or a factory string FAISS accepts
+    index = make_index(dim, max(n, 1), conf.ann)  # an alias's sizes, or a factory string FAISS accepts
+    if conf.shards > 1:  # IVF only, at most one shard per item
+        check_ivf(index, conf.ann.factory(dim, max(n, 1)))
+        split_rows(n, conf.shards)
 
 
 def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = ()) -> Path:

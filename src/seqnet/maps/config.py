@@ -31,6 +31,8 @@ class MapConfig(WindowSettings, Config):
         split: the dataset split whose reference side is mapped (None: test when defined, else all).
         device: torch device for describing the reference.
         allow_mismatch: go on when a model and the descriptors were made differently.
+        shards: build an IVF index in this many shards, merged on disk (``index.ivfdata``, opened
+            memory-mapped; :mod:`seqnet.maps.shards`); 1: one index in memory.
     """
 
     shortlist: str = "seqnet"
@@ -43,6 +45,7 @@ class MapConfig(WindowSettings, Config):
     split: str | None = None
     device: str = "auto"
     allow_mismatch: bool = False
+    shards: int = 1
 
     def __post_init__(self) -> None:
         check_choice("shortlist descriptor", self.shortlist, SEQUENCE_DESCRIPTORS)
@@ -55,6 +58,7 @@ class MapConfig(WindowSettings, Config):
             raise ConfigError(f"ann must be an AnnConfig, got {type(self.ann).__name__}")
         check_choice("map dtype", self.dtype, DTYPES)
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
+        self._set("shards", check_int("shards", self.shards, 1))
         get_device(self.device)
 
     @property

@@ -15,6 +15,7 @@ from ..search.ann import load_index
 from ..sequence.checkpoints import load_model
 from .config import MapConfig
 from .map import Map, MapError, read_meta
+from .shards import open_merged
 from .store import INDEX_FILE
 
 
@@ -92,7 +93,7 @@ def check_arrays(path: Path, arrays: dict[str, Any], nr: int) -> None:
 def _index(file: Path, conf: Any, n: int, d: int) -> Any:
     if not file.is_file():
         raise MapError(f"map file missing: {file} (a {conf.ann.kind} map needs its index)")
-    index = load_index(file, conf.ann)
+    index = open_merged(file, conf.ann) if conf.shards > 1 else load_index(file, conf.ann)  # lists memory-mapped
     if index.ntotal != n or index.d != d:
         raise MapError(f"{file}: index of {index.ntotal} vectors of D={index.d}, the map has {n} of D={d}")
     return index

@@ -42,6 +42,7 @@ from ..search.ann import build_index, save_index
 from ..sequence.checkpoints import save_checkpoint
 from ..sequence.descriptors import SeqNet
 from .config import MapConfig
+from .shards import build_sharded_index, split_rows
 
 MAP_FORMAT = "seqnet-map/1"
 MAP_JSON = "map.json"
@@ -55,7 +56,7 @@ def is_map_file(rel: str) -> bool:
     parts = rel.split("/")
     if len(parts) == 2:
         return parts[0] == "models" and parts[1].endswith(".pt")
-    return rel in (MAP_JSON, INDEX_FILE, "names.txt") or rel in {f"{a}.npy" for a in ARRAY_FILES}
+    return rel in (MAP_JSON, INDEX_FILE, "index.ivfdata", "names.txt") or rel in {f"{a}.npy" for a in ARRAY_FILES}
 
 
 @dataclasses.dataclass
@@ -140,7 +141,10 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
     if a.names is not None:
         write_text_atomic(root / "names.txt", "\n".join(a.names) + "\n")
     t0 = time.perf_counter()
-    if conf.ann.kind != "flat":  # built over the stored (possibly float16-rounded) values
+    if conf.ann.kind != "flat" and conf.shards > 1:  # IVF lists built in shards, merged on disk (index.ivfdata)
+        x = np.load(shortlist, mmap_mode="r")
+        build_sharded_index([x[a:b] for a, b in split_rows(len(x), conf.shards)], conf.ann, root / INDEX_FILE)
+    elif conf.ann.kind != "flat":  # built over the stored (possibly float16-rounded) values
         save_index(build_index(np.load(shortlist, mmap_mode="r"), conf.ann), root / INDEX_FILE)
     info["index_seconds"] = round(time.perf_counter() - t0, 3)
     for role, model in models.items():

@@ -22,8 +22,9 @@ import numpy as np
 from ..core.config import Config, check_int
 from ..core.errors import CheckpointError, ConfigError, ResourceError
 from ..core.memmaps import read_rows, take_rows
+from ..core.utils import to_numpy
 
-TRAIN_PER_LIST = 256  # training vectors per IVF list (FAISS's own k-means cap); 256 lists' worth otherwise
+TRAIN_PER_LIST = 256  # training vectors per IVF list (FAISS's own k-means cap)
 ADD_BYTES = 32 << 20  # vectors added to an index per block
 FACTORY = re.compile(r"^[A-Za-z][A-Za-z0-9_,.=x]*$")  # the characters of a faiss factory string
 
@@ -118,15 +119,14 @@ def _hnsw_of(index: Any) -> Any:
 
 def build_index(ref: np.ndarray, conf: AnnConfig | None = None) -> Any:
     """The FAISS index of ``conf`` over ``ref [N, D]`` (any float array or memory map), trained when the
-    index needs training (on at most :data:`TRAIN_PER_LIST` vectors per list, evenly spaced) and filled
-    in blocks, so no float32 copy of ``ref`` is made beside the index."""
-
+    index needs training (on :func:`sample_rows`, :func:`train_size` of them) and filled in blocks, so no
+    float32 copy of ``ref`` is made beside the index."""
     conf = conf or AnnConfig()
     if ref.ndim != 2 or len(ref) == 0:
         raise ConfigError(f"an index needs a non-empty [N, D] array, got shape {ref.shape}")
     index = make_index(ref.shape[1], len(ref), conf)
     if not index.is_trained:
-        _train(index, ref, conf)
+        train_index(index, sample_rows(ref, train_size(index, len(ref))), conf, len(ref))
     step = max(1, ADD_BYTES // (4 * ref.shape[1]))
     for a in range(0, len(ref), step):
         index.add(np.ascontiguousarray(read_rows(ref, a, a + step), dtype=np.float32))
@@ -134,20 +134,34 @@ def build_index(ref: np.ndarray, conf: AnnConfig | None = None) -> Any:
     return index
 
 
-def _train(index: Any, ref: np.ndarray, conf: AnnConfig) -> None:
-    """Train ``index`` on evenly spaced rows of ``ref`` (all of them when few)."""
+def train_size(index: Any, n: int) -> int:
+    """How many of ``n`` vectors ``index`` is trained on: all of them up to ``max(256 · nlist, 65536)``
+    (FAISS's k-means uses at most 256 points per list; PQ codebooks want 65,536)."""
     import faiss
 
     ivf = faiss.try_extract_index_ivf(index)
-    cap = TRAIN_PER_LIST * (ivf.nlist if ivf is not None else 256)
+    return min(n, max(TRAIN_PER_LIST * (ivf.nlist if ivf is not None else 0), 65536))
+
+
+def sample_rows(x: np.ndarray, n_max: int) -> np.ndarray:
+    """Up to ``n_max`` evenly spaced rows of ``x [N, D]`` as float32 ``[n, D]`` (all of them when N <= n_max)."""
+    n = len(x)
+    idx = np.arange(n) if n <= n_max else np.unique(np.linspace(0, n - 1, n_max).round().astype(np.int64))
+    rows = take_rows(x, idx) if isinstance(x, np.ndarray) else to_numpy(x[idx])  # memory maps: pages released
+    return np.ascontiguousarray(rows, dtype=np.float32)
+
+
+def train_index(index: Any, sample: np.ndarray, conf: AnnConfig, n: int) -> None:
+    """Train ``index`` (sized for ``n`` vectors) on ``sample [S, D]``; a deterministic k-means for IVF."""
+    import faiss
+
+    ivf = faiss.try_extract_index_ivf(index)
     if ivf is not None:
         ivf.cp.seed = conf.seed  # deterministic k-means of the coarse quantiser
-    rows = np.linspace(0, len(ref) - 1, cap).astype(np.int64) if len(ref) > cap else np.arange(len(ref))
-    x = np.ascontiguousarray(take_rows(ref, rows), dtype=np.float32)
     try:
-        index.train(x)
+        index.train(sample)
     except RuntimeError as e:
-        raise ConfigError(f"FAISS cannot train index {conf.factory(x.shape[1], len(ref))!r} on {len(x)} vectors "
+        raise ConfigError(f"FAISS cannot train index {conf.factory(sample.shape[1], n)!r} on {len(sample)} vectors "
                           f"({str(e).strip().splitlines()[-1][:160]}); hint: fewer lists or codes") from e
 
 
