@@ -20,11 +20,24 @@ import tempfile
 
 import numpy as np
 
-from .errors import ResourceError
+from .errors import ConfigError, ResourceError
 
 RESIDENT_BYTES = 256 << 20  # memory maps up to this size may stay resident; larger ones are streamed
 SPILL_BYTES = 256 << 20  # derived arrays above this go to a spill file instead of memory
+TAKE_BYTES = 64 << 20  # rows gathered per run by take_rows
 PAGE = mmap.PAGESIZE
+
+
+def limit(name: str) -> int:
+    """:data:`RESIDENT_BYTES` or :data:`SPILL_BYTES`, or its override in MiB from the environment
+    (``SEQNET_RESIDENT_MB``, ``SEQNET_SPILL_MB``: a smaller machine, or a test)."""
+    env = os.environ.get(f"SEQNET_{name}_MB")
+    if env is None:
+        return RESIDENT_BYTES if name == "RESIDENT" else SPILL_BYTES
+    try:
+        return max(0, int(float(env) * 2**20))
+    except ValueError as e:
+        raise ConfigError(f"SEQNET_{name}_MB must be a number of MiB, got {env!r}") from e
 
 
 class Spilled(np.memmap):
@@ -37,10 +50,10 @@ def mapping(x: object) -> mmap.mmap | None:
 
 
 def streamed(x: object) -> bool:
-    """``x`` is a spill, or a view of a memory map over more than :data:`RESIDENT_BYTES`: release its pages
-    after reading a block."""
+    """``x`` is a spill, or a view of a memory map over more than :func:`limit` ``("RESIDENT")`` bytes: release
+    its pages after reading a block."""
     mm = mapping(x)
-    return mm is not None and (isinstance(x, Spilled) or len(mm) > RESIDENT_BYTES)
+    return mm is not None and (isinstance(x, Spilled) or len(mm) > limit("RESIDENT"))
 
 
 def release(view: np.ndarray) -> None:
@@ -74,7 +87,7 @@ def take_rows(x: np.ndarray, idx: np.ndarray, spill: bool = False) -> np.ndarray
     idx = np.asarray(idx, dtype=np.int64)
     if not streamed(x) or len(idx) == 0:
         return np.asarray(x[idx])
-    step = max(1, (64 << 20) // max(1, x[0].nbytes))
+    step = max(1, TAKE_BYTES // max(1, x[0].nbytes))
     increasing = bool((np.diff(idx) >= 0).all())
     if spill and increasing and spill_size((len(idx), *x.shape[1:]), x.dtype.itemsize):
         writer = SpillWriter((len(idx), x.shape[1]), x.dtype)
@@ -146,5 +159,5 @@ class SpillWriter:
 
 
 def spill_size(shape: tuple[int, ...], itemsize: int = 4) -> bool:
-    """An array of ``shape`` and ``itemsize`` is large enough to spill (more than :data:`SPILL_BYTES`)."""
-    return int(np.prod(shape)) * itemsize > SPILL_BYTES
+    """An array of ``shape`` and ``itemsize`` is large enough to spill (more than :func:`limit` ``("SPILL")``)."""
+    return int(np.prod(shape)) * itemsize > limit("SPILL")

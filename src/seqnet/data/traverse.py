@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError
+from ..core.memmaps import read_rows
 from .positives import Positives
 
 FORMAT = "seqnet-dataset/1"
@@ -197,10 +198,12 @@ def _check_bounds(b: np.ndarray, n: int, name: str) -> None:
         )
 
 
-def _check_finite(a: np.ndarray, what: str, chunk: int = 65536, nonzero: bool = False) -> None:
-    """NaN / inf anywhere (and, with ``nonzero``, an all-zero row) is a :class:`DatasetError` naming the first row."""
+def _check_finite(a: np.ndarray, what: str, chunk_bytes: int = 16 << 20, nonzero: bool = False) -> None:
+    """NaN / inf anywhere (and, with ``nonzero``, an all-zero row) is a :class:`DatasetError` naming the first row.
+    Read in blocks of ``chunk_bytes`` (a large memory map's pages are released after each: bounded memory)."""
+    chunk = max(1, chunk_bytes // max(1, a[:1].nbytes))
     for s in range(0, a.shape[0], chunk):
-        block = np.asarray(a[s : s + chunk])
+        block = np.asarray(read_rows(a, s, s + chunk))
         if not np.isfinite(block).all():
             row = s + int(np.flatnonzero(~np.isfinite(block).all(axis=1))[0])
             raise DatasetError(f"{what} contain NaN or inf (first at row {row})")

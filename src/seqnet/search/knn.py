@@ -14,7 +14,7 @@ import torch
 
 from ..core.config import check_choice, check_int
 from ..core.errors import ConfigError
-from ..core.memmaps import RESIDENT_BYTES, streamed
+from ..core.memmaps import limit, streamed
 from ..core.utils import ArrayLike, as_tensor, get_device
 from .blocks import blocked_topk, col_blocks, compute_dtype, matrix_shape, rows
 
@@ -79,7 +79,7 @@ class ExactIndex:
     The one exact search of seqnet: :func:`knn` (torch backend), a dataset's reference and a map's
     stored descriptors all use it. The reference's squared norms are computed once per index and
     dtype, so an index queried many times (a map, the localiser) pays one GEMM per block per query.
-    ``keep`` holds a reference of at most :data:`seqnet.core.memmaps.RESIDENT_BYTES` in torch memory
+    ``keep`` holds a reference of at most :data:`seqnet.core.memmaps.RESIDENT_BYTES` (256 MiB) in torch memory
     (a view of a float32 CPU array, else one copy); a larger or spilled one is read block by block
     at every search, its pages released after each (:func:`seqnet.core.memmaps.read_rows`).
     """
@@ -90,7 +90,7 @@ class ExactIndex:
         self.n, self.dim = matrix_shape(ref, "reference")
         itemsize = 8 if str(ref.dtype).endswith("float64") else 4
         self.blocks = col_blocks(self.n, col_block, self.dim * itemsize)
-        self.keep = keep and not streamed(ref) and self.n * self.dim * itemsize <= RESIDENT_BYTES
+        self.keep = keep and not streamed(ref) and self.n * self.dim * itemsize <= limit("RESIDENT")
         self._rows: dict[torch.dtype, torch.Tensor] = {}
         self._norms: dict[torch.dtype, list[torch.Tensor]] = {}
         self._cols: dict[int, torch.Tensor] = {}
