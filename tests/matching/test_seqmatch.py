@@ -345,3 +345,46 @@ def test_pair_strategies_vs_loop(rng, strategy, reverse, block_bytes):
 def test_pick_strategy_by_cost():
     assert pick_strategy(n_queries=800, n_candidates=20, seq_len=5, n_ref=800) == "rows"
     assert pick_strategy(n_queries=1, n_candidates=20, seq_len=5, n_ref=1_000_000) == "gather"
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_scores_from_a_distance_matrix_equal_the_loop(qr, rng, reverse):
+    from seqnet.matching.pairs import scores_from_distances
+
+    q, r = qr
+    L = 3
+    dist = torch.cdist(torch.as_tensor(q, dtype=torch.float64), torch.as_tensor(r, dtype=torch.float64))
+    q_starts = torch.as_tensor(rng.integers(0, len(q) - L + 1, 7))
+    cand = torch.as_tensor(rng.integers(-1, len(r) - L + 1, (7, 4)))
+    got = scores_from_distances(dist, L, q_starts, cand, reverse).numpy()
+    for i, a in enumerate(q_starts.tolist()):
+        for j, b in enumerate(cand[i].tolist()):
+            want = np.inf if b < 0 else naive_pair(q, r, a, b, L, reverse)
+            assert got[i, j] == pytest.approx(want, rel=1e-9), (i, j)
+    with pytest.raises(ConfigError, match="inside the"):
+        scores_from_distances(dist, L, q_starts, torch.full((7, 4), len(r) - 1), reverse)
+
+
+def test_hvpr_reading_one_shared_matrix_equals_hvpr_apart(synth_dir, tmp_path, monkeypatch):
+    """hvpr-single:raw+seqmatch reads its shortlist and its re-ranking from one frame-distance matrix when
+    the re-ranking would compute distance rows anyway; the rankings are those of the two apart."""
+    import json
+
+    from seqnet.eval.evaluate import EvalConfig
+    from seqnet.eval.evaluate import main as eval_main
+    from seqnet.reference import traverse
+
+    methods = ["hvpr-single:raw+seqmatch", "hvpr-single:raw+seqmatch-rev", "hvpr-smoothing:raw+seqmatch"]
+    conf = EvalConfig(methods=methods, seq_len=4, ks=(1, 5, 20), top_k=150)
+    shared = eval_main(conf, synth_dir, tmp_path / "shared.json", per_query=tmp_path / "shared.jsonl")
+    calls = []
+    monkeypatch.setattr(traverse.TraverseReference, "shared_distances", lambda self, f, q: calls.append(f))
+    apart = eval_main(conf, synth_dir, tmp_path / "apart.json", per_query=tmp_path / "apart.jsonl")
+    assert calls == ["single", "single"]  # asked for the two seqmatch entries (not the smoothing shortlist)
+    a, b = json.loads(shared.path.read_text())["methods"], json.loads(apart.path.read_text())["methods"]
+    assert {m: v["recall@5"] for m, v in a.items()} == {m: v["recall@5"] for m, v in b.items()}
+    for x, y in zip((tmp_path / "shared.jsonl").read_text().splitlines(),
+                    (tmp_path / "apart.jsonl").read_text().splitlines(), strict=True):
+        rx, ry = json.loads(x), json.loads(y)
+        assert rx["references"] == ry["references"]
+        np.testing.assert_allclose(rx["scores"], ry["scores"], rtol=1e-5)

@@ -133,3 +133,9 @@ def default_methods(models: Collection[str], seq_len: int) -> list[str]:
     parsed = [parse_method(n) for n in DEFAULT_METHODS]
     ok = [m.name for m in parsed if m.models() <= set(models) and m.min_len() <= seq_len]
     return [n for n in ok if not (n == "hvpr-delta:raw+seqmatch" and HVPR_ALIAS in ok)]
+
+
+def needs(m: Method) -> list[tuple[str, str]]:
+    """The descriptors ``m`` reads of each side: ``("items", shortlist)`` and / or ``("frames", frames)``."""
+    return ([("items", m.shortlist)] if m.shortlist else []) + ([("frames", FRAME_FEATURES[m.frames])] if m.frames
+                                                                 else [])

@@ -13,24 +13,31 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from ..matching.hvpr import hvpr_search
+from ..matching.hvpr import PairScores, Search, hvpr_search
+from ..matching.pairs import pick_strategy, scores_from_distances
 from ..reference.base import Reference
-from .methods import FRAME_FEATURES, Method
+from ..search.blocks import topk_smallest
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from .methods import FRAME_FEATURES, Method, needs
+
+REUSABLE = {"seqmatch": False, "seqmatch-rev": True}  # matchers scored from a frame-distance matrix: reverse?
 
 Ranking = tuple[np.ndarray, np.ndarray, dict[str, float]]  # scores [M, k], items [M, k], timing ms
 
 
 class Query(Protocol):
     """The query side: item descriptors ``items(name) [M, D1]``, frame descriptors ``frames(name) [Nq, D2]``,
-    each item's L_m-window start ``match_starts [M]`` in them, and the time spent on each (ms)."""
+    each item's L_m-window start ``match_starts [M]`` and frame ``items_index [M]`` in them, and the time
+    spent on a set of them, each counted once (ms)."""
 
     match_starts: np.ndarray
+    items_index: np.ndarray
 
     def items(self, name: str) -> torch.Tensor: ...
 
     def frames(self, name: str) -> torch.Tensor: ...
 
-    def time_ms(self, kind: str, name: str) -> float: ...
+    def cost_ms(self, keys: list[tuple[str, str]]) -> float: ...
 
 
 def rank(m: Method, query: Query, ref: Reference, k: int, top_k: int = 20, fuse: float = 0.0,
@@ -38,14 +45,12 @@ def rank(m: Method, query: Query, ref: Reference, k: int, top_k: int = 20, fuse:
     """``(scores [M, k'], items [M, k'], timing ms)`` of method ``m``: the k best reference items of every
     query item, best first (HVPR: ``k' = max(k, top_k)``; ``fuse``: λ of ``hvpr-fused``; ``exact``:
     shortlist without the reference's ANN index)."""
-    ms = ref.prepare(m)
+    ms = ref.prepare(m) + query.cost_ms(needs(m))  # each descriptor's time once
     frames = FRAME_FEATURES[m.frames] if m.frames else None
     if m.shortlist:
         q_items = query.items(m.shortlist)
-        ms += query.time_ms("items", m.shortlist)
     if frames:
         q_frames = query.frames(frames)
-        ms += query.time_ms("frames", frames)
     t0 = time.perf_counter()
     if m.kind == "knn":
         scores, items = ref.search(m.shortlist, q_items, k, exact)
@@ -54,8 +59,36 @@ def rank(m: Method, query: Query, ref: Reference, k: int, top_k: int = 20, fuse:
         scores, items = ref.match(frames, m.matcher, q_frames, query.match_starts, k)
         stage = "seqmatch"
     else:
-        scores, items = hvpr_search(lambda n: ref.search(m.shortlist, q_items, n, exact),
-                                    lambda c: ref.rerank(frames, m.matcher, q_frames, query.match_starts, c),
-                                    ref.windows.match_len, top_k, k, fuse)
+        search, pairs = _hvpr_parts(m, query, ref, q_items, q_frames, exact, top_k)
+        scores, items = hvpr_search(search, pairs, ref.windows.match_len, top_k, k, fuse)
         stage = "hvpr"
     return scores, items, {"descriptors": ms, stage: (time.perf_counter() - t0) * 1e3}
+
+
+def _hvpr_parts(m: Method, query: Query, ref: Reference, q_items: torch.Tensor, q_frames: torch.Tensor,
+                exact: bool, top_k: int) -> tuple[Search, PairScores]:
+    """HVPR's shortlist search and re-ranker. When the shortlist is the frames' own descriptor and the
+    re-ranking would compute whole distance rows anyway (:func:`seqnet.matching.pairs.pick_strategy`),
+    both read one matrix of frame distances, computed once (``ref.shared_distances``)."""
+    frames, n_ref = FRAME_FEATURES[m.frames], len(ref.positions)
+    shared = (m.shortlist == frames and m.matcher in REUSABLE and SEQUENCE_DESCRIPTORS[frames].single_frame
+              and pick_strategy(len(query.match_starts), top_k, ref.windows.match_len, n_ref) == "rows")
+    dist = ref.shared_distances(frames, q_frames) if shared else None
+    if dist is None:
+        return (lambda n: ref.search(m.shortlist, q_items, n, exact),
+                lambda c: ref.rerank(frames, m.matcher, q_frames, query.match_starts, c))
+    short = dist[torch.as_tensor(query.items_index, device=dist.device)][:, torch.as_tensor(ref.items,
+                                                                                         device=dist.device)]
+    q_starts = torch.as_tensor(query.match_starts, device=dist.device)
+    r_starts = torch.as_tensor(ref.match_starts, device=dist.device)
+
+    def search(n: int) -> tuple[np.ndarray, np.ndarray]:
+        vals, idx = topk_smallest(short, n)
+        return vals.cpu().numpy(), idx.cpu().numpy()
+
+    def pairs(cand: np.ndarray) -> torch.Tensor:
+        c = torch.as_tensor(cand, device=dist.device)
+        starts = torch.where(c >= 0, r_starts[c.clamp_min(0)], -1)
+        return scores_from_distances(dist, ref.windows.match_len, q_starts, starts, REUSABLE[m.matcher])
+
+    return search, pairs

@@ -99,6 +99,7 @@ class _Newest:
     def __init__(self, item: torch.Tensor | None, frames: torch.Tensor | None, match_len: int) -> None:
         self._item, self._frames = item, frames
         self.match_starts = np.array([0 if frames is None else len(frames) - match_len], dtype=np.int64)
+        self.items_index = np.array([0 if frames is None else len(frames) - 1], dtype=np.int64)  # the newest frame
 
     def items(self, name: str) -> torch.Tensor:
         return self._item[None]
@@ -106,7 +107,7 @@ class _Newest:
     def frames(self, name: str) -> torch.Tensor:
         return self._frames
 
-    def time_ms(self, kind: str, name: str) -> float:
+    def cost_ms(self, keys: list[tuple[str, str]]) -> float:
         return 0.0
 
 

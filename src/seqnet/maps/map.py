@@ -140,6 +140,10 @@ class Map:
             raise ConfigError(f"map {self.path} stores {self.config.frames_descriptor!r} frames, not {frames!r}")
         return self.exact_search(self.frames).distances(frame[None])[0]
 
+    def shared_distances(self, frames: str, query_frames: ArrayLike) -> None:
+        """None: a map's shortlist comes from its index (nothing to share with the re-ranking)."""
+        return None
+
     def rerank(self, frames: str, matcher: str, query_frames: ArrayLike, q_starts: np.ndarray,
                candidates: np.ndarray) -> torch.Tensor:
         """The matcher's scores ``[M, K]`` of ``candidates [M, K]`` (items, -1 = none), in candidate order."""

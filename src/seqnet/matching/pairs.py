@@ -102,8 +102,25 @@ def _by_rows(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Ten
         sel = sel[q_starts[sel] < a0 + step]  # queries whose frames fit this block of rows
         frames = q[a0 : int(q_starts[sel[-1]]) + seq_len]
         dist = finish_distances(frames @ r.T, sq_norms(frames), r_sq)  # [n + L - 1, Nr]
-        rows_idx = (q_starts[sel] - a0)[:, None, None] + shifts  # [b, 1, L]
-        cols_idx = cand[sel][:, :, None] + ref_shift  # [b, K, L]
-        out[sel] = dist[rows_idx, cols_idx].sum(-1)
+        out[sel] = gather_sums(dist, q_starts[sel] - a0, cand[sel], shifts, ref_shift)
         s += len(sel)
     return out
+
+
+def gather_sums(dist: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, shifts: torch.Tensor,
+                ref_shift: torch.Tensor) -> torch.Tensor:
+    """``[b, K]``: ``Σ_t dist[rows[i] + shifts[t], cols[i, j] + ref_shift[t]]`` (window starts ``rows [b]``,
+    ``cols [b, K]`` into a frame-distance matrix ``dist``)."""
+    return dist[rows[:, None, None] + shifts, cols[:, :, None] + ref_shift].sum(-1)
+
+
+def scores_from_distances(dist: torch.Tensor, seq_len: int, q_starts: torch.Tensor, cand: torch.Tensor,
+                          reverse: bool = False) -> torch.Tensor:
+    """SeqMatch scores ``[M, K]`` of the windows ``q_starts [M]`` × ``cand [M, K]`` (starts, ``-1``: none, inf)
+    read from a precomputed frame-distance matrix ``dist [Nq, Nr]`` (e.g. computed once for an HVPR shortlist)."""
+    q_starts, cand = q_starts.long(), cand.long()
+    if cand.numel() and (int(cand.max()) > dist.shape[1] - seq_len or int(q_starts.max()) > dist.shape[0] - seq_len):
+        raise ConfigError(f"window starts must leave {seq_len} frames inside the {tuple(dist.shape)} distance matrix")
+    shifts = torch.arange(seq_len, device=dist.device)
+    out = gather_sums(dist, q_starts, cand.clamp_min(0), shifts, shifts.flip(0) if reverse else shifts)
+    return out.masked_fill_(cand < 0, float("inf"))

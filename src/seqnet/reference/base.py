@@ -57,6 +57,10 @@ class Reference(Protocol):
         """``[Nr]`` distances of one query frame descriptor ``frame [D2]`` to every reference frame's
         ``frames`` descriptor (the online form of the whole-map matchers reads these rows)."""
 
+    def shared_distances(self, frames: str, query_frames: torch.Tensor | np.ndarray) -> torch.Tensor | None:
+        """``[Nq, Nr]`` distances of every query frame to every reference frame by ``frames``, when they are
+        cheap to hold (HVPR then reads its shortlist and its re-ranking from them), else None."""
+
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,
               k: int) -> tuple[np.ndarray, np.ndarray]:
         """``(scores [M, k], items [M, k])``: ``matcher`` over the whole reference for the query windows."""

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from ..data.traverse import Traverse
-from ..eval.methods import FRAME_FEATURES, Method
+from ..eval.methods import Method, needs
 from ..matching.hvpr import candidate_scores
 from ..matching.on_disk import pair_scores_on_map
 from ..matching.registry import SEQUENCE_MATCHERS
@@ -16,6 +16,8 @@ from ..search.knn import ExactIndex, knn
 from ..sequence.described import Described
 from ..sequence.descriptors import SeqNet
 from ..sequence.windows import Windows
+
+SHARED_BYTES = 128 << 20  # the largest query × reference frame-distance matrix HVPR keeps to reuse
 
 
 class TraverseReference:
@@ -44,8 +46,7 @@ class TraverseReference:
 
     def prepare(self, m: Method) -> float:
         """Describe what ``m`` needs (its shortlist items, its frame descriptors); milliseconds."""
-        ms = self.described.time_ms("items", m.shortlist) if m.shortlist else 0.0
-        return ms + (self.described.time_ms("frames", FRAME_FEATURES[m.frames]) if m.frames else 0.0)
+        return self.described.cost_ms(needs(m))
 
     def search(self, descriptor: str, query: torch.Tensor | np.ndarray, k: int,
                exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -58,6 +59,14 @@ class TraverseReference:
     def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
         """``[Nr]`` distances of one query frame descriptor ``[D2]`` to every reference frame's ``frames``."""
         return self._exact(("frames", frames), self.described.frames(frames)).distances(frame[None])[0]
+
+    def shared_distances(self, frames: str, query_frames: torch.Tensor | np.ndarray) -> torch.Tensor | None:
+        """``[Nq, Nr]`` frame distances by ``frames`` when they fit :data:`SHARED_BYTES` (a reference in torch
+        memory), else None."""
+        r = self.described.frames(frames)
+        if not isinstance(r, torch.Tensor) or len(query_frames) * len(r) * 4 > SHARED_BYTES:
+            return None
+        return self._exact(("frames", frames), r).distances(query_frames)
 
     def _exact(self, key: tuple[str, str], ref: torch.Tensor) -> ExactIndex:
         if key not in self._index:

@@ -93,8 +93,20 @@ class Described:
 
     def time_ms(self, kind: str, name: str) -> float:
         """Milliseconds spent on ``kind`` (``"items"`` / ``"frames"``) descriptors ``name``, dependencies included."""
-        self._get(kind, name)
-        return self.ms[(kind, name)]
+        return self.cost_ms([(kind, name)])
+
+    def cost_ms(self, keys: list[tuple[str, str]]) -> float:
+        """Milliseconds spent on the descriptors ``keys`` (``(kind, name)`` pairs), each computation counted once
+        (the items of a single-frame descriptor index its frames: those count once for both)."""
+        done = set()
+        for kind, name in keys:
+            self._get(kind, name)
+            done |= {(kind, name), *self._deps(kind, name)}
+        return sum(self.ms[k] for k in done)
+
+    @staticmethod
+    def _deps(kind: str, name: str) -> list[tuple[str, str]]:
+        return [("frames", name)] if kind == "items" and SEQUENCE_DESCRIPTORS[name].single_frame else []
 
     def _get(self, kind: str, name: str) -> torch.Tensor | np.ndarray:
         key = (kind, name)
@@ -114,5 +126,5 @@ class Described:
             else:
                 self._cache[key] = describe_items(self.raw, self.side.starts, name, self.windows, self.models,
                                                   self.device, progress=name, spill=self.spill)
-            self.ms[key] = (time.perf_counter() - t0) * 1e3 + (self.ms[dep] if dep else 0.0)
+            self.ms[key] = (time.perf_counter() - t0) * 1e3
         return self._cache[key]
