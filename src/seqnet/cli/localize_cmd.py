@@ -10,6 +10,7 @@ from ..eval.methods import valid_methods
 from ..localize.stream import stream
 from ..localize.track import TRACK_COLUMNS, LocalizeConfig, main
 from ..matching.velocity import ANCHORS
+from ..search.blocks import PRECISIONS
 from .common import add_allow_mismatch, add_device, positive_float, positive_int
 
 _D = LocalizeConfig()
@@ -43,6 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "newest frame, as seqnet eval --window causal)")
     p.add_argument("--split", help="split to replay: train, val, test or all (default: test when defined, else all)")
     p.add_argument("--radius", type=positive_float, help="localisation radius (default: the dataset's)")
+    p.add_argument("--precision", choices=tuple(PRECISIONS), help="models and per-frame searches in float32 (default) "
+                   "or half precision: float16 / bfloat16 read half the bytes (docs/online.md)")
     add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
@@ -51,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     conf = _D.replace(method=args.method, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
-                      device=args.device, allow_mismatch=args.allow_mismatch or None)
+                      device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
     if (args.map is None) != (args.query is None):
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")

@@ -29,6 +29,7 @@ from ..eval.metrics.precision_recall import pr_summary, precision_recall
 from ..eval.metrics.recall import check_radius, ground_truth
 from ..matching.velocity import ANCHORS
 from ..reference.base import Reference
+from ..search.blocks import PRECISIONS
 from ..sequence.descriptors import SeqNet
 from ..sequence.windows import Windows
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
@@ -50,6 +51,9 @@ class LocalizeConfig(Config):
         split: the split replayed (None: test when defined, else all).
         radius: localisation radius (None: the dataset's): correctness and the confidence.
         device: torch device; allow_mismatch: as ``seqnet eval --allow-mismatch``.
+        precision: ``float32``, or ``float16`` / ``bfloat16``: the models and the exact searches of every frame
+            read and multiply in half precision (half the bytes of a memory-bound step; the map is described in
+            float32 first, distances are accumulated in float32).
     """
 
     method: str = "hvpr"
@@ -64,6 +68,7 @@ class LocalizeConfig(Config):
     fuse_top_k: int | None = None
     device: str = "auto"
     allow_mismatch: bool = False
+    precision: str = "float32"
 
     def __post_init__(self) -> None:
         self._set("method", online_method(self.method).name)
@@ -79,6 +84,7 @@ class LocalizeConfig(Config):
         if self.radius is not None:
             self._set("radius", check_radius(self.radius))
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
+        check_choice("precision", self.precision, PRECISIONS)
         get_device(self.device)
 
     def windows(self, models: Mapping[str, SeqNet]) -> Windows:
@@ -87,8 +93,13 @@ class LocalizeConfig(Config):
                                getattr(models.get("seqnet"), "seq_len", None), self.anchor)
 
     def localizer(self, reference: Reference, radius: float, exact: bool = False) -> Localizer:
-        """The :class:`Localizer` of these settings over ``reference``."""
-        return Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact)
+        """The :class:`Localizer` of these settings over ``reference`` (described before ``precision`` applies)."""
+        loc = Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact)
+        if self.precision != "float32":
+            reference.precision = PRECISIONS[self.precision]
+            for model in loc.models.values():
+                model.to(PRECISIONS[self.precision])
+        return loc
 
 
 def dataset_localizer(ds: Dataset, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> Localizer:

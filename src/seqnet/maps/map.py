@@ -63,6 +63,7 @@ class Map:
         self.block_bytes = BLOCK_BYTES
         self.name = str(path.name)
         self._exact: dict[int, ExactIndex] = {}
+        self.precision: torch.dtype | None = None  # half: exact searches read and multiply in it (the localiser)
         for model in models.values():
             model.to(self.device).eval()
 
@@ -122,7 +123,8 @@ class Map:
     def exact_search(self, ref: ArrayLike) -> ExactIndex:
         """The exact index of one of the map's arrays (``shortlist`` or ``frames``; its norms are kept)."""
         if id(ref) not in self._exact or self._exact[id(ref)].ref is not ref:
-            self._exact[id(ref)] = ExactIndex(ref, self.device, self.block_bytes, keep=isinstance(ref, torch.Tensor))
+            self._exact[id(ref)] = ExactIndex(ref, self.device, self.block_bytes, keep=isinstance(ref, torch.Tensor),
+                                              precision=self.precision)
         return self._exact[id(ref)]
 
     def match(self, frames: str, matcher: str, query_frames: ArrayLike, q_starts: np.ndarray,

@@ -23,6 +23,7 @@ class Reference(Protocol):
         positions: ``[Nr, P]`` of every reference frame; names: ``Nr`` image names or None.
         provenance: how the raw reference descriptors were made; input_dim: their D.
         device: where the computations run; name: for messages; models: its models by role (S_L, S_1).
+        precision: None, or the half dtype its exact searches read and multiply in (the localiser's ``precision``).
     """
 
     windows: Windows
@@ -35,6 +36,7 @@ class Reference(Protocol):
     device: torch.device
     name: str
     models: dict
+    precision: torch.dtype | None
 
 
     def check_method(self, m: Method) -> None:

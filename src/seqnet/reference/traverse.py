@@ -39,6 +39,7 @@ class TraverseReference:
         self.positions, self.names = traverse.positions, traverse.names
         self.provenance, self.input_dim = traverse.provenance, traverse.dim
         self._index: dict[tuple[str, str], ExactIndex] = {}
+        self.precision: torch.dtype | None = None  # half: exact searches read and multiply in it (the localiser)
         self._starts: torch.Tensor | None = None
 
     def check_method(self, m: Method) -> None:
@@ -70,7 +71,7 @@ class TraverseReference:
 
     def _exact(self, key: tuple[str, str], ref: torch.Tensor) -> ExactIndex:
         if key not in self._index:
-            self._index[key] = ExactIndex(ref, self.device)
+            self._index[key] = ExactIndex(ref, self.device, precision=self.precision)
         return self._index[key]
 
     def rerank(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,

@@ -35,6 +35,10 @@ def matrix_shape(x: ArrayLike, name: str) -> tuple[int, int]:
     return int(x.shape[0]), int(x.shape[1])
 
 
+PRECISIONS: dict[str, torch.dtype] = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16}
+HALF = (torch.float16, torch.bfloat16)  # read and multiplied in half precision, accumulated and finished in float32
+
+
 def compute_dtype(*xs: ArrayLike) -> torch.dtype:
     """float64 when any input is float64 (exact tests), else float32 (float16 maps are computed in float32)."""
     return torch.float64 if any(str(x.dtype).endswith("float64") for x in xs) else torch.float32
@@ -44,6 +48,8 @@ def rows(x: ArrayLike, a: int, b: int, device: torch.device, dtype: torch.dtype)
     """Rows ``a:b`` of ``x`` as a ``dtype`` tensor on ``device`` (only those rows are read from a memory map;
     a streamed map's pages are released after: :func:`seqnet.core.memmaps.read_rows`)."""
     block = x[a:b] if isinstance(x, torch.Tensor) else read_rows(x, a, b)
+    if dtype == torch.float16 and isinstance(block, np.ndarray) and block.dtype == np.float16 and block.flags.writeable:
+        return torch.from_numpy(np.ascontiguousarray(block)).to(device)  # a float16 map read as it is stored
     return as_tensor(block, device, keep_float64=True).to(dtype)
 
 

@@ -16,7 +16,7 @@ from ..core.config import check_choice, check_int
 from ..core.errors import ConfigError
 from ..core.memmaps import limit, streamed
 from ..core.utils import ArrayLike, as_tensor, get_device
-from .blocks import blocked_topk, col_blocks, compute_dtype, matrix_shape, rows
+from .blocks import HALF, blocked_topk, col_blocks, compute_dtype, matrix_shape, rows
 
 DEFAULT_BLOCK_BYTES = 64 << 20
 NOT_FINITE = ("the distances are not finite: the {what} descriptors hold NaN or inf, or values too large for {dtype} "
@@ -68,6 +68,11 @@ def pairwise_distances(q: torch.Tensor, r: torch.Tensor, squared: bool = False) 
     return finish_distances(q @ r.T, sq_norms(q), sq_norms(r), squared)
 
 
+def acc(dtype: torch.dtype) -> torch.dtype:
+    """The dtype distances are accumulated and finished in: float32 for half-precision inputs."""
+    return torch.float32 if dtype in HALF else dtype
+
+
 def inner(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     """``q @ r.T`` ``[M, N]``; one query row (a frame of a stream) as a GEMV on the row-major reference."""
     return torch.mv(r, q[0])[None] if len(q) == 1 else q @ r.T
@@ -79,14 +84,16 @@ class ExactIndex:
     The one exact search of seqnet: :func:`knn` (torch backend), a dataset's reference and a map's
     stored descriptors all use it. The reference's squared norms are computed once per index and
     dtype, so an index queried many times (a map, the localiser) pays one GEMM per block per query.
+    ``precision`` (float16 / bfloat16) reads the reference and multiplies in half precision (half the
+    bytes of a memory-bound search), accumulating and finishing the distances in float32.
     ``keep`` holds a reference of at most :data:`seqnet.core.memmaps.RESIDENT_BYTES` (256 MiB) in torch memory
     (a view of a float32 CPU array, else one copy); a larger or spilled one is read block by block
     at every search, its pages released after each (:func:`seqnet.core.memmaps.read_rows`).
     """
 
     def __init__(self, ref: ArrayLike, device: str | torch.device | None = None, block_bytes: int | None = None,
-                 col_block: int | None = None, keep: bool = True) -> None:
-        self.ref, self.device, self.block_bytes = ref, get_device(device), block_bytes
+                 col_block: int | None = None, keep: bool = True, precision: torch.dtype | None = None) -> None:
+        self.ref, self.device, self.block_bytes, self.precision = ref, get_device(device), block_bytes, precision
         self.n, self.dim = matrix_shape(ref, "reference")
         itemsize = 8 if str(ref.dtype).endswith("float64") else 4
         self.blocks = col_blocks(self.n, col_block, self.dim * itemsize)
@@ -112,10 +119,14 @@ class ExactIndex:
             self._cols[j] = torch.arange(*self.blocks[j], device=self.device)
         return self._cols[j]
 
+    def dtype(self, query: ArrayLike) -> torch.dtype:
+        """The dtype the reference is read and multiplied in (``precision``, else float32 / float64)."""
+        return self.precision or compute_dtype(query, self.ref)
+
     def norms(self, dtype: torch.dtype) -> list[torch.Tensor]:
-        """Squared norms of each reference block (computed and checked finite on first use)."""
+        """Squared norms of each reference block (computed and checked finite on first use; float32 for half)."""
         if dtype not in self._norms:
-            norms = [sq_norms(self.block(a, b, dtype)) for a, b in self.blocks]
+            norms = [sq_norms(self.block(a, b, dtype).to(acc(dtype))) for a, b in self.blocks]
             if norms and not bool(torch.isfinite(torch.cat(norms) * 4).all()):
                 raise ConfigError(NOT_FINITE.format(what="reference", dtype=str(dtype).removeprefix("torch.")))
             self._norms[dtype] = norms
@@ -124,10 +135,10 @@ class ExactIndex:
     @torch.no_grad()
     def distances(self, query: ArrayLike) -> torch.Tensor:
         """``[M, N]`` Euclidean distances of ``query [M, D]`` (a few rows: a frame of a stream) to the reference."""
-        dtype = compute_dtype(query, self.ref)
+        dtype = self.dtype(query)
         q = rows(query, 0, len(query), self.device, dtype)
-        q_sq = sq_norms(q)
-        parts = [finish_distances(inner(q, self.block(c0, c1, dtype)), q_sq, n)
+        q_sq = sq_norms(q.to(acc(dtype)))
+        parts = [finish_distances(inner(q, self.block(c0, c1, dtype)).to(acc(dtype)), q_sq, n)
                  for (c0, c1), n in zip(self.blocks, self.norms(dtype), strict=True)]
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
 
@@ -137,7 +148,7 @@ class ExactIndex:
         nq, dq = matrix_shape(query, "query")
         if dq != self.dim:
             raise ConfigError(f"dimension mismatch: query D={dq}, reference D={self.dim}")
-        dtype, k = compute_dtype(query, self.ref), min(k, self.n)
+        dtype, k = self.dtype(query), min(k, self.n)
         width = max((b - a for a, b in self.blocks), default=1)
         step = rows_per_block((width * 3 + self.dim) * (8 if dtype == torch.float64 else 4), self.block_bytes)
         norms, finite = self.norms(dtype), []  # the reference's norms are checked once, the query's here
@@ -145,16 +156,16 @@ class ExactIndex:
         def row_blocks() -> Iterator[tuple[slice, tuple[torch.Tensor, torch.Tensor]]]:
             for s in range(0, nq, step):
                 qb = rows(query, s, min(nq, s + step), self.device, dtype)
-                q_sq = sq_norms(qb)
+                q_sq = sq_norms(qb.to(acc(dtype)))
                 finite.append(torch.isfinite(q_sq * 4).all())  # finite norms: every distance is finite
                 yield slice(s, min(nq, s + step)), (qb, q_sq)
 
         def score(ctx: tuple[torch.Tensor, torch.Tensor], j: int) -> tuple[torch.Tensor, torch.Tensor]:
             (qb, q_sq), (c0, c1) = ctx, self.blocks[j]
-            d = inner(qb, self.block(c0, c1, dtype))
+            d = inner(qb, self.block(c0, c1, dtype)).to(acc(dtype))
             return (d.neg_() if metric == "ip" else finish_distances(d, q_sq, norms[j])), self.columns(j)
 
-        vals, idx = blocked_topk(row_blocks(), range(len(self.blocks)), score, nq, k, dtype, finite=False)
+        vals, idx = blocked_topk(row_blocks(), range(len(self.blocks)), score, nq, k, acc(dtype), finite=False)
         if finite and not bool(torch.stack(finite).all()):  # one host sync per search
             raise ConfigError(NOT_FINITE.format(what="query", dtype=str(dtype).removeprefix("torch.")))
         return (-vals if metric == "ip" else vals), idx

@@ -105,10 +105,12 @@ class SeqNet(nn.Module):
         tap first (``[B, w, D]``) and multiplied once by the ``[D_out, D·w]`` weight, T times fewer
         multiplications than the convolution.
         """
-        x = self._check(x)
+        weight = self.conv.weight
+        x = self._check(x).to(weight.dtype)  # a half-precision model (to(torch.bfloat16)) reads half the bytes
         avg = _tap_average(x.shape[1], self.w).to(x.device, x.dtype)
         shifted = (avg @ x).transpose(1, 2).reshape(len(x), self.in_dims * self.w)  # [B, D·w], D-major like the weight
-        return F.normalize(F.linear(shifted, self.conv.weight.reshape(self.out_dims, -1), self.conv.bias), dim=-1)
+        y = F.linear(shifted, weight.reshape(self.out_dims, -1), self.conv.bias)
+        return F.normalize(y.to(torch.promote_types(y.dtype, torch.float32)), dim=-1)  # normalised in >= float32
 
     def forward_conv(self, x: torch.Tensor) -> torch.Tensor:
         """The literal SeqNet forward: Conv1d over time, mean over time, L2 norm (``[B, L, D]`` → ``[B, D_out]``)."""
