@@ -64,6 +64,7 @@ class Map:
         self.name = str(path.name)
         self._exact: dict[int, ExactIndex] = {}
         self.precision: torch.dtype | None = None  # half: exact searches read and multiply in it (the localiser)
+        self.resident = False  # exact searches keep what they search in memory (the localiser)
         for model in models.values():
             model.to(self.device).eval()
 
@@ -124,7 +125,7 @@ class Map:
         """The exact index of one of the map's arrays (``shortlist`` or ``frames``; its norms are kept)."""
         if id(ref) not in self._exact or self._exact[id(ref)].ref is not ref:
             self._exact[id(ref)] = ExactIndex(ref, self.device, self.block_bytes, keep=isinstance(ref, torch.Tensor),
-                                              precision=self.precision)
+                                              precision=self.precision, resident=self.resident)
         return self._exact[id(ref)]
 
     def match(self, frames: str, matcher: str, query_frames: ArrayLike, q_starts: np.ndarray,

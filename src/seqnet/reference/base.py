@@ -24,6 +24,8 @@ class Reference(Protocol):
         provenance: how the raw reference descriptors were made; input_dim: their D.
         device: where the computations run; name: for messages; models: its models by role (S_L, S_1).
         precision: None, or the half dtype its exact searches read and multiply in (the localiser's ``precision``).
+        resident: its exact searches keep what they search in memory, whatever its size (set by the localiser:
+            the same map every frame), instead of streaming a large one in blocks.
     """
 
     windows: Windows
@@ -37,6 +39,7 @@ class Reference(Protocol):
     name: str
     models: dict
     precision: torch.dtype | None
+    resident: bool
 
 
     def check_method(self, m: Method) -> None:

@@ -40,6 +40,7 @@ class TraverseReference:
         self.provenance, self.input_dim = traverse.provenance, traverse.dim
         self._index: dict[tuple[str, str], ExactIndex] = {}
         self.precision: torch.dtype | None = None  # half: exact searches read and multiply in it (the localiser)
+        self.resident = False  # exact searches keep what they search in memory (the localiser)
         self._starts: torch.Tensor | None = None
 
     def check_method(self, m: Method) -> None:
@@ -71,7 +72,8 @@ class TraverseReference:
 
     def _exact(self, key: tuple[str, str], ref: torch.Tensor) -> ExactIndex:
         if key not in self._index:
-            self._index[key] = ExactIndex(ref, self.device, precision=self.precision)
+            self._index[key] = ExactIndex(ref, self.device, precision=self.precision,
+                                          resident=self.resident)
         return self._index[key]
 
     def rerank(self, frames: str, matcher: str, query_frames: torch.Tensor | np.ndarray, q_starts: np.ndarray,

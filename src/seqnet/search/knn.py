@@ -88,16 +88,18 @@ class ExactIndex:
     bytes of a memory-bound search), accumulating and finishing the distances in float32.
     ``keep`` holds a reference of at most :data:`seqnet.core.memmaps.RESIDENT_BYTES` (256 MiB) in torch memory
     (a view of a float32 CPU array, else one copy); a larger or spilled one is read block by block
-    at every search, its pages released after each (:func:`seqnet.core.memmaps.read_rows`).
+    at every search, its pages released after each (:func:`seqnet.core.memmaps.read_rows`), unless
+    ``resident`` (an online localiser searching the same map every frame keeps it whatever its size).
     """
 
     def __init__(self, ref: ArrayLike, device: str | torch.device | None = None, block_bytes: int | None = None,
-                 col_block: int | None = None, keep: bool = True, precision: torch.dtype | None = None) -> None:
+                 col_block: int | None = None, keep: bool = True, precision: torch.dtype | None = None,
+                 resident: bool = False) -> None:
         self.ref, self.device, self.block_bytes, self.precision = ref, get_device(device), block_bytes, precision
         self.n, self.dim = matrix_shape(ref, "reference")
         itemsize = 8 if str(ref.dtype).endswith("float64") else 4
         self.blocks = col_blocks(self.n, col_block, self.dim * itemsize)
-        self.keep = keep and not streamed(ref) and self.n * self.dim * itemsize <= limit("RESIDENT")
+        self.keep = resident or (keep and not streamed(ref) and self.n * self.dim * itemsize <= limit("RESIDENT"))
         self._rows: dict[torch.dtype, torch.Tensor] = {}
         self._norms: dict[torch.dtype, list[torch.Tensor]] = {}
         self._cols: dict[int, torch.Tensor] = {}
