@@ -52,3 +52,63 @@ def test_localize_on_the_gpu_equals_causal_evaluation_on_the_gpu(world):
     loc = dataset_localizer(ds, models, LocalizeConfig(method="hvpr", k=5, top_k=5, device="cuda"))
     full = [e for e in replay(loc, ds.query) if e.full_window]
     np.testing.assert_array_equal(np.stack([e.ranked for e in full])[:, 0], ev.retrieved["hvpr"][:, 0])
+
+
+def test_training_on_the_gpu_follows_the_cpu(tmp_path):
+    """One epoch on cuda and on cpu from the same seed: the same triplets, weights within float rounding."""
+    from seqnet.sequence.checkpoints import read_checkpoint
+    from seqnet.train import TrainConfig, train
+
+    ds = make_synthetic(places=200, dim=8, seed=2)
+    conf = TrainConfig(optimizer="adam", lr=1e-2, n_neg_sample=50, cache_refresh=40, seq_len=3, w=2, out_dims=8,
+                       epochs=1)
+    train(ds, conf.replace(device="cpu"), tmp_path / "cpu")
+    train(ds, conf.replace(device="cuda"), tmp_path / "gpu")
+    a, b = (read_checkpoint(tmp_path / d / "last.pt") for d in ("cpu", "gpu"))
+    assert max(float((a["state_dict"][k] - b["state_dict"][k]).abs().max()) for k in a["state_dict"]) < 1e-3
+    assert a["train_state"]["history"][0]["loss"] == pytest.approx(b["train_state"]["history"][0]["loss"], rel=1e-3)
+
+
+def test_nccl_process_group_on_one_gpu():
+    """NCCL initialises and reduces on this GPU (a world of one: seqnet's collectives need two GPUs to run)."""
+    import os
+
+    import torch.distributed as dist
+
+    if not dist.is_nccl_available():
+        pytest.skip("this torch build has no NCCL")
+    os.environ.setdefault("MASTER_ADDR", "127.0.0.1")
+    os.environ.setdefault("MASTER_PORT", "29533")
+    dist.init_process_group("nccl", rank=0, world_size=1)
+    try:
+        x = torch.ones(4, device="cuda")
+        dist.all_reduce(x)
+        assert x.tolist() == [1.0] * 4
+    finally:
+        dist.destroy_process_group()
+
+
+def test_a_map_on_the_gpu_equals_the_cpu(tmp_path):
+    from seqnet.data.io import save_dataset
+    from seqnet.maps import MapConfig, build, load_map
+
+    ds_dir = save_dataset(make_synthetic(places=150, dim=16, seed=4), tmp_path / "ds")
+    conf = MapConfig(shortlist="delta", rerank="raw+seqmatch", seq_len=4, window="causal")
+    cpu = load_map(build(conf.replace(device="cpu"), ds_dir, tmp_path / "cpu"), "cpu")
+    gpu = load_map(build(conf.replace(device="cuda"), ds_dir, tmp_path / "gpu"), "cuda")
+    np.testing.assert_allclose(np.asarray(cpu.shortlist), np.asarray(gpu.shortlist), atol=1e-5)
+    q = np.asarray(cpu.shortlist[:20])
+    np.testing.assert_array_equal(cpu.search("delta", q, 5, exact=True)[1], gpu.search("delta", q, 5, exact=True)[1])
+
+
+@pytest.mark.parametrize("precision", ["float16", "bfloat16"])
+def test_half_precision_localize_on_the_gpu(world, precision):
+    ds, models = world
+    full = list(replay(dataset_localizer(ds, models, LocalizeConfig(k=5, top_k=5, device="cuda")), ds.query))
+    half_models = {r: SeqNet(**m.config()).cuda().eval() for r, m in models.items()}
+    for r, m in half_models.items():
+        m.load_state_dict(models[r].state_dict())
+        m.provenance = models[r].provenance
+    loc = dataset_localizer(ds, half_models, LocalizeConfig(k=5, top_k=5, device="cuda", precision=precision))
+    half = list(replay(loc, ds.query))
+    assert np.mean([a.ref_index == b.ref_index for a, b in zip(full, half, strict=True)]) >= 0.9
