@@ -9,7 +9,7 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..eval.evaluate import EvalConfig, main
-from ..eval.methods import DEFAULT_METHODS, valid_methods
+from ..eval.methods import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     p.add_argument("--fuse-weight", type=non_negative_float,
                    help=f"hvpr-fused: weight λ of the S_L distance in its score (default {_D.fuse_weight:g})")
-    p.add_argument("--fuse-top-k", type=positive_int, help="hvpr-fused: shortlist size (default: --top-k)")
+    p.add_argument("--fuse-top-k", type=positive_int, help=f"hvpr-fused: shortlist size (default {FUSED_TOP_K})")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="trained model checkpoint (S_L → 'seqnet', S_1 → 's1'); repeatable")
     p.add_argument("--shortlist-model", metavar="CKPT", help="S_L checkpoint used by 'seqnet' and HVPR shortlisting")

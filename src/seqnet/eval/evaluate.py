@@ -49,7 +49,7 @@ class EvalConfig(WindowSettings, Config):
         extra_radii: further radii to report.
         ks: the K of Recall@K.
         top_k: HVPR shortlist size K.
-        fuse_weight, fuse_top_k: λ of the fused score and shortlist size K (None: top_k) of ``hvpr-fused``.
+        fuse_weight, fuse_top_k: λ of the fused score and shortlist size K (None: 100, FUSED_TOP_K) of ``hvpr-fused``.
         split: the split evaluated by :func:`main` (None: test when defined, else all).
         backend: k-NN backend (a key of :data:`seqnet.search.knn.KNN_BACKENDS`).
         device: torch device (auto: CUDA when present).

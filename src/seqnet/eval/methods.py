@@ -30,6 +30,7 @@ from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 
 # frame descriptors a matcher can run on: "raw" is each frame's own descriptor; every other sequence
 # descriptor is computed over each frame's window (clamped at sequence bounds)
+FUSED_TOP_K = 100  # hvpr-fused's shortlist: the S_L top 100 (docs/experiments.md), whatever --top-k says
 FRAME_FEATURES: dict[str, str] = {"raw": "single", **{k: k for k in SEQUENCE_DESCRIPTORS if k != "single"}}
 HVPR_RERANK = "s1+seqmatch"  # the paper's re-ranker
 HVPR_ALIAS = "hvpr"
@@ -66,8 +67,9 @@ class Method:
         return max(SEQUENCE_DESCRIPTORS[d].min_len for d in self.descriptors())
 
     def shortlist_size(self, top_k: int, fuse_top_k: int | None) -> int:
-        """The HVPR shortlist size K: ``fuse_top_k`` (default ``top_k``) for ``hvpr-fused``, else ``top_k``."""
-        return (fuse_top_k or top_k) if self.fused else top_k
+        """The HVPR shortlist size K: ``fuse_top_k`` (default :data:`FUSED_TOP_K`) for ``hvpr-fused``, else
+        ``top_k``."""
+        return (fuse_top_k or FUSED_TOP_K) if self.fused else top_k
 
     def fuse_weight(self, weight: float) -> float:
         """λ of the fused score: ``weight`` for ``hvpr-fused``, 0 (the matcher alone) otherwise."""

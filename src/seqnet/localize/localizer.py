@@ -119,7 +119,7 @@ class Localizer:
         method: a method name (:mod:`seqnet.eval.methods`) with an online form (not ``grh``).
         radius: localisation radius (for the confidence).
         top_k: HVPR shortlist size K; k: references ranked per frame.
-        fuse_weight: λ of ``hvpr-fused``; fuse_top_k: its shortlist size (None: ``top_k``).
+        fuse_weight: λ of ``hvpr-fused``; fuse_top_k: its shortlist size (None: 100).
         exact: shortlist by exact search instead of the reference's ANN index.
         models: the models of the query side (default: the reference's).
     """

@@ -22,15 +22,16 @@ def _fmt(v: Any) -> str:
 
 def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int],
                  pr: bool = False) -> tuple[list[str], list[list[str]]]:
-    """Header and rows: method, R@K for each K, (with ``pr``: AUC and R@100P,) queries, total time (ms)."""
+    """Header and rows: method, R@K for each K, (with ``pr``: AUC and R@100P,) queries, the method's total time
+    over all queries and per query (ms: descriptors of both sides included)."""
     extra = [("AUC", "auc"), ("R@100P", "recall@100p")] if pr else []
-    header = ["method", *(f"R@{k}" for k in ks), *(h for h, _ in extra), "queries", "time ms"]
+    header = ["method", *(f"R@{k}" for k in ks), *(h for h, _ in extra), "queries", "total ms", "ms/query"]
     rows = []
     for name, r in methods.items():
-        timing = r.get("timing_ms", {})
+        total, n = r.get("timing_ms", {}).get("total", float("nan")), r.get("queries") or 0
         rows.append([name, *(_fmt(r.get(f"recall@{k}", float("nan"))) for k in ks),
                      *(_fmt(float(r.get(key, float("nan")))) for _, key in extra), str(r.get("queries", "")),
-                     f"{timing.get('total', float('nan')):.1f}"])
+                     f"{total:.1f}", f"{total / n:.2f}" if n else "-"])
     return header, rows
 
 
@@ -40,6 +41,8 @@ def method_label(entry: Mapping[str, Any]) -> str:
     single = m.get("shortlist") in SEQUENCE_DESCRIPTORS and SEQUENCE_DESCRIPTORS[m["shortlist"]].single_frame
     short = (m["shortlist"] if single else f"{m['shortlist']}(L={m.get('seq_len')})") if m.get("shortlist") else ""
     rerank = f"{m['rerank']}(L_m={m.get('rerank_seq_len')})" if m.get("rerank") else ""
+    if m.get("kind") == "hvpr" and m.get("fuse_weight"):  # hvpr-fused: its score says what ran
+        return f"{short} top-{m.get('top_k')} -> {rerank}/L_m + {m['fuse_weight']:g}·d({m['shortlist']})"
     if m.get("kind") == "hvpr":
         return f"{short} top-{m.get('top_k')} -> {rerank}"
     return f"k-NN {short}" if m.get("kind") == "knn" else rerank
