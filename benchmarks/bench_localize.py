@@ -24,6 +24,8 @@ import argparse
 import copy
 import json
 import os
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -101,7 +103,8 @@ def time_method(ds: Dataset, models: dict, method: str, queries: np.ndarray, war
         c0 = time.thread_time()
         lat.append(loc.step(q).latency_ms)
         cpu.append((time.thread_time() - c0) * 1e3)
-    return {**stats(np.array(lat[warmup:])), "cpu_median": round(float(np.median(cpu[warmup:])), 2),
+    return {**stats(np.array(lat[warmup:])), "p99": round(float(np.percentile(lat[warmup:], 99)), 2),
+            "cpu_median": round(float(np.median(cpu[warmup:])), 2),
             "setup_s": round(setup, 1)}
 
 
@@ -141,9 +144,19 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--breakdown", action="store_true")
     p.add_argument("--precision", default="float32", help="comma-separated: float32, bfloat16, float16")
+    p.add_argument("--busy", type=int, default=0, help="processes spinning a core each while timing (a busy robot)")
     p.add_argument("--json")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
+    try:
+        run(args)
+    finally:
+        for proc in spinners:
+            proc.kill()
+
+
+def run(args: argparse.Namespace) -> None:
     ref = synthetic_map(args.frames, args.dim)
     torch.manual_seed(0)
     models = {"seqnet": SeqNet(args.dim, args.out_dims, 5, args.w).eval(),
@@ -155,6 +168,7 @@ def main() -> None:
     queries = ref[start : start + args.steps + args.warmup] + 0.02 * rng.standard_normal(
         (args.steps + args.warmup, args.dim), dtype=np.float32)
     res = {"map": [args.frames, args.dim], "out_dims": args.out_dims, "w": args.w, "threads": args.threads,
+           "busy": args.busy,
            "load_before": os.getloadavg(), "bandwidth": bandwidth(), "methods": {}}
     print("bandwidth", res["bandwidth"], flush=True)
     for precision in args.precision.split(","):

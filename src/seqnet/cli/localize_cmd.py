@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "or half precision: float16 / bfloat16 read half the bytes (docs/online.md)")
     add_allow_mismatch(p)
     add_device(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, default_threads=1)  # a frame is little work: one thread (docs/online.md)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,5 +70,5 @@ def run(args: argparse.Namespace) -> int:
               f"AUC {s['auc']:.3f}, R@100P {s['recall@100p']:.3f}", end="")
     print("" if "describe_ms" not in s else f"; describing {s['describe_ms']['median']:.1f} ms per image (median)")
     print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
-          f"p95 {lat.get('p95', 0):.2f} ms; track in {out}")
+          f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms; track in {out}")
     return 0

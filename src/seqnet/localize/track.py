@@ -173,7 +173,8 @@ def summarize(est: Sequence[Estimate], correct: np.ndarray | None, has: np.ndarr
                    **pr_summary(*precision_recall(conf[full], correct[full], has[full])[:2]))
     if len(lat):
         out["latency_ms"] = {"mean": float(lat.mean()), "median": float(np.median(lat)),
-                             "p95": float(np.percentile(lat, 95)), "max": float(lat.max())}
+                             "p95": float(np.percentile(lat, 95)), "p99": float(np.percentile(lat, 99)),
+                             "max": float(lat.max())}
     return out
 
 
