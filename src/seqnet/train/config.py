@@ -185,3 +185,15 @@ class TrainConfig(Config):
                 raise ConfigError(f"cannot change {f.name!r} when resuming (the run has {mine!r}, got {theirs!r}); "
                                   f"only {', '.join(RESUME_OVERRIDABLE)} may change")
         return dataclasses.replace(self, **{k: getattr(conf, k) for k in RESUME_OVERRIDABLE})
+
+
+def train_bytes(conf: TrainConfig, in_dims: int, n_items: int) -> int:
+    """Estimated peak bytes of training ``conf`` on ``in_dims``-D descriptors with ``n_items`` windows (both
+    sides): the weights with their gradients and optimiser state, the mining cache of descriptors, and
+    one batch of windows (its activations, kept for the backward pass)."""
+    out = int(conf.out_dims or in_dims)
+    weights = in_dims * out * conf.w + out
+    copies = 4 if conf.optimizer == "adam" else 3  # weights, gradients, Adam's two moments / SGD's momentum
+    cache = 2 * n_items * out  # every window's descriptor while mining, and its copy
+    batch = 3 * conf.batch_size * (2 + conf.n_negatives) * conf.seq_len * max(in_dims, out) * conf.w
+    return 4 * (copies * weights + cache + batch)

@@ -24,13 +24,14 @@ from pathlib import Path
 import torch
 
 from ..core.errors import ConfigError, DatasetError, OutputError
+from ..core.memory import check_fits, gib
 from ..core.ownership import locked
 from ..core.provenance import check_same
 from ..core.utils import logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..sequence.descriptors import SeqNet
-from .config import TrainConfig
+from .config import TrainConfig, train_bytes
 from .distributed import World, joined
 from .epoch import train_epoch
 from .mining import TripletSource, split_windows, triplet_source
@@ -186,7 +187,18 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
     else:
         conf = (conf or TrainConfig()).resolve(dataset)
         check_run_dir(out_dir)
+    _check_memory(conf, dataset)
     return conf, payload, str(dataset_path) if dataset_path is not None else None
+
+
+def _check_memory(conf: TrainConfig, dataset: Dataset) -> None:
+    """Refuse, before any work, a training run whose estimate exceeds the available memory."""
+    d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
+    check_fits(train_bytes(conf, d, len(dataset.reference) + len(dataset.query)),
+               f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
+               f"{gib(4 * d * out * conf.w)})",
+               "a smaller --out-dims (e.g. 512), fewer dimensions when describing (--dim, PCA), a smaller --w "
+               "or --batch-size")
 
 
 def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | None, dataset_path: str | None,

@@ -1,0 +1,67 @@
+"""Memory estimates checked before the work: refuse what cannot fit, with the estimate and the way out.
+
+:func:`available_bytes` is what this process may still allocate: the kernel's ``MemAvailable``, lowered
+by a cgroup limit (``memory.max`` − ``memory.current``) and by ``ulimit -v`` when set. :func:`check_fits`
+refuses an estimate over it with a :class:`ResourceError` (one line, exit 1) naming the estimate, what
+is available and the hints.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+from pathlib import Path
+
+from .errors import ResourceError
+
+CGROUP = Path("/sys/fs/cgroup")
+
+
+def _meminfo_available() -> int | None:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _cgroup_available() -> int | None:
+    try:
+        limit = (CGROUP / "memory.max").read_text().strip()
+        if limit == "max":
+            return None
+        return int(limit) - int((CGROUP / "memory.current").read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def available_bytes() -> int | None:
+    """Bytes this process may still allocate (None: unknown, e.g. not Linux)."""
+    found = [b for b in (_meminfo_available(), _cgroup_available()) if b is not None]
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft != resource.RLIM_INFINITY:
+        found.append(soft - _address_space())
+    env = os.environ.get("SEQNET_MEMORY_MB")  # an explicit budget (a shared machine, a test)
+    if env:
+        found.append(int(float(env) * 2**20))
+    return max(0, min(found)) if found else None
+
+
+def _address_space() -> int:
+    try:
+        return int(Path("/proc/self/statm").read_text().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError):
+        return 0
+
+
+def gib(n: float) -> str:
+    return f"{n / 2**30:.1f} GiB"
+
+
+def check_fits(needed: int, what: str, hints: str) -> None:
+    """Refuse ``needed`` bytes for ``what`` when more than :func:`available_bytes` (nothing when unknown)."""
+    free = available_bytes()
+    if free is not None and needed > free:
+        raise ResourceError(f"{what} needs about {gib(needed)} of memory, {gib(free)} available; hint: {hints}")
