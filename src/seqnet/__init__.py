@@ -7,28 +7,56 @@ Main entry points::
 
 from __future__ import annotations
 
-from ._version import __version__
-from .core.errors import CheckpointError, ConfigError, DatasetError, ImageError, SeqnetError
-from .data.io import load_dataset, save_dataset
-from .data.synth import make_synthetic
-from .data.traverse import Dataset, Traverse
-from .eval.evaluate import EvalConfig, Evaluation, evaluate
-from .eval.metrics.recall import recall_at_k
-from .localize.localizer import Estimate, Localizer
-from .localize.track import LocalizeConfig, dataset_localizer
-from .matching.hvpr import hvpr
-from .matching.seqmatch import seqmatch
-from .reference import Reference, TraverseReference
-from .search.blocks import topk_smallest
-from .search.knn import knn, pairwise_distances
-from .sequence.descriptors import SeqNet, delta, smoothing
-from .sequence.windows import Windows, window_indices, window_starts
+import importlib
+from typing import Any
 
-__all__ = [
-    "__version__", "CheckpointError", "ConfigError", "DatasetError", "Dataset", "Estimate", "EvalConfig", "Evaluation",
-    "ImageError", "LocalizeConfig", "Localizer", "Reference", "SeqNet", "TraverseReference", "Windows",
-    "dataset_localizer",
-    "SeqnetError", "Traverse", "delta", "evaluate", "hvpr", "knn", "load_dataset", "make_synthetic",
-    "pairwise_distances", "recall_at_k", "save_dataset", "seqmatch", "smoothing", "topk_smallest",
-    "window_indices", "window_starts",
-]
+from ._version import __version__
+
+_API: dict[str, str] = {  # public name -> the module that defines it, imported on first use (fast CLI start)
+    "CheckpointError": ".core.errors",
+    "ConfigError": ".core.errors",
+    "DatasetError": ".core.errors",
+    "ImageError": ".core.errors",
+    "SeqnetError": ".core.errors",
+    "load_dataset": ".data.io",
+    "save_dataset": ".data.io",
+    "make_synthetic": ".data.synth",
+    "Dataset": ".data.traverse",
+    "Traverse": ".data.traverse",
+    "EvalConfig": ".eval.evaluate",
+    "Evaluation": ".eval.evaluate",
+    "evaluate": ".eval.evaluate",
+    "recall_at_k": ".eval.metrics.recall",
+    "Estimate": ".localize.localizer",
+    "Localizer": ".localize.localizer",
+    "LocalizeConfig": ".localize.track",
+    "dataset_localizer": ".localize.track",
+    "hvpr": ".matching.hvpr",
+    "seqmatch": ".matching.seqmatch",
+    "Reference": ".reference",
+    "TraverseReference": ".reference",
+    "topk_smallest": ".search.blocks",
+    "knn": ".search.knn",
+    "pairwise_distances": ".search.knn",
+    "SeqNet": ".sequence.descriptors",
+    "delta": ".sequence.descriptors",
+    "smoothing": ".sequence.descriptors",
+    "Windows": ".sequence.windows",
+    "window_indices": ".sequence.windows",
+    "window_starts": ".sequence.windows",
+}
+
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str) -> Any:
+    """``seqnet.X`` (and ``from seqnet import X``): import X's module when X is first asked for."""
+    if name in _API:
+        value = getattr(importlib.import_module(_API[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'seqnet' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_API))

@@ -19,10 +19,29 @@ from typing import NoReturn
 
 from .._version import __version__
 from ..core.errors import SeqnetError
-from .runtime import add_runtime_options, check_no_empty_values, is_allocation_error, one_line, report_error, runtime
 
-COMMANDS = ("demo", "synth", "eval", "train", "dataset", "describe", "benchmark", "index", "localize",
-            "experiment")
+COMMANDS: dict[str, str] = {  # name -> one-line help; each name's module is <name>_cmd, imported when it runs
+    "demo": 'train S_L and S_1 on synthetic data and compare every method',
+    "synth": 'write a synthetic dataset (route traversed twice, hard appearance change)',
+    "eval": 'evaluate place-recognition methods (Recall@K) on a dataset',
+    "train": 'train a SeqNet model (S_L, or S_1 with --seq-len 1 --w 1) with triplet loss',
+    "dataset": 'build and check datasets (CSV, UTM image names, seqNet .db files)',
+    "describe": 'compute single-image descriptors of an image folder (methods: seqnet describe --help)',
+    "benchmark": 'run a benchmark: real data (nordland64) or compute time (timing)',
+    "index": 'build a map (ANN index + re-ranking frames) for seqnet eval --index',
+    "localize": 'localise a query stream frame by frame (online; latency, confidence)',
+    "experiment": "run one of the paper's supplementary experiments on nordland64",
+}
+
+
+from .runtime import (  # noqa: E402 - the command modules import COMMANDS from here
+    add_runtime_options,
+    check_no_empty_values,
+    is_allocation_error,
+    one_line,
+    report_error,
+    runtime,
+)
 
 
 class _ArgumentParserError(SeqnetError):
@@ -41,17 +60,34 @@ class _Parser(argparse.ArgumentParser):
         raise _ArgumentParserError(f"{self.prog}: error: {message} (see `{self.prog} --help`)")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with one sub-parser per command module (runtime options on every one)."""
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The top-level parser with one sub-parser per command (runtime options on every one). Only the command
+    named in ``argv`` is built in full (its module imported: torch and the rest load only for a command
+    that runs); the others are one-line entries, enough for ``seqnet --help``. Without ``argv``: all in full."""
     parser = _Parser(prog="seqnet", description="Sequence-based visual place recognition (SeqNet, SeqMatch, HVPR).")
     parser.add_argument("--version", action="version", version=f"seqnet {__version__}")
     add_runtime_options(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        importlib.import_module(f"{__name__}.{name}_cmd").register(sub)
+    wanted = set(COMMANDS) if argv is None else {_command_of(argv)}
+    for name, summary in COMMANDS.items():
+        if name in wanted:
+            importlib.import_module(f"{__name__}.{name}_cmd").register(sub)
+        else:
+            sub.add_parser(name, help=summary)
     for leaf in _leaves(parser):
         add_runtime_options(leaf, top=False)
     return parser
+
+
+def _command_of(argv: Sequence[str]) -> str | None:
+    """The command named in ``argv`` (the first word that is not a runtime option or its value)."""
+    it = iter(argv)
+    for token in it:
+        if token == "--threads":
+            next(it, None)
+        elif not token.startswith("-"):
+            return token
+    return None
 
 
 def _leaves(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
@@ -65,7 +101,8 @@ def _leaves(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code (0 ok, 2 bad input, 1 environment failure, 130 interrupted)."""
     try:
-        args = build_parser().parse_args(argv)
+        argv = sys.argv[1:] if argv is None else list(argv)
+        args = build_parser(argv).parse_args(argv)
     except _ArgumentParserError as e:
         return report_error(None, e)
     try:

@@ -15,13 +15,14 @@ from ..pipelines.timing import main as timing_main
 from ..report.tables import format_table
 from ..search.ann import ANN_INDEXES
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from . import COMMANDS
 from .common import add_device, index_range, int_list, non_negative_float, non_negative_int, parse_list, positive_int
 
 _D, _T = Nordland64Config(), TimingConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("benchmark", help="run a benchmark: real data (nordland64) or compute time (timing)")
+    p = sub.add_parser("benchmark", help=COMMANDS["benchmark"])
     bsub = p.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
     n = bsub.add_parser("nordland64", help="Nordland 64x32 frames, summer vs winter: train, select on val, test",
                         description="Describe the nordland64 frames, train S_L and S_1 on the train range (epochs "

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from ..core.errors import ConfigError
+from . import COMMANDS
 from .common import add_allow_mismatch, positive_float
 from .dataset_images import register_from_images
 
@@ -14,7 +15,7 @@ PRESET_HELP = "dataset preset (nordland, oxford-v1.0, oxford-pnv, brisbane, msls
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("dataset", help="build and check datasets (CSV, UTM image names, seqNet .db files)",
+    p = sub.add_parser("dataset", help=COMMANDS["dataset"],
                        description="Build datasets in the seqnet directory format and check them (docs/datasets.md).")
     dsub = p.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND", required=True)
     _register_csv(dsub)

@@ -8,13 +8,14 @@ from pathlib import Path
 
 from ..pipelines.demo import DemoConfig, main
 from ..report.tables import format_table
+from . import COMMANDS
 from .common import add_device, int_at_least, non_negative_int, positive_int
 
 _D = DemoConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="train S_L and S_1 on synthetic data and compare every method",
+    p = sub.add_parser("demo", help=COMMANDS["demo"],
                        description="Generate a synthetic route, train SeqNet S_L and S_1 on its train split (fast "
                                    f"demo settings: Adam, lr {_D.train.lr:g}, at most {_D.train.epochs} epochs, early "
                                    f"stop after {_D.train.patience} without a better val R@1), and print Recall@K of "

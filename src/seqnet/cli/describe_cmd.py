@@ -9,6 +9,7 @@ from ..describe import BACKBONES, DESCRIBERS, DescribeConfig, main
 from ..describe.config import MAX_SIDE
 from ..describe.merge import merge_shards
 from ..describe.shards import resolve_shard, shard_output
+from . import COMMANDS
 from .common import add_device, non_negative_int, positive_float, positive_int
 
 _D = DescribeConfig()
@@ -25,7 +26,7 @@ def _table(entries: dict) -> str:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "describe", help="compute single-image descriptors (" + ", ".join(DESCRIBERS) + ") of an image folder",
+        "describe", help=COMMANDS["describe"],
         usage="%(prog)s IMAGES --method M --out FILE [--shard k/N] [options]\n"
               "       %(prog)s merge SHARD [SHARD ...] --out FILE [--overwrite]",
         description="Describe the images of a folder (sorted by name) or a list file (one path per line, relative "

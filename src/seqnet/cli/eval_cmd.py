@@ -14,6 +14,7 @@ from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
 from ..sequence.windows import WINDOW_MODES
+from . import COMMANDS
 from .common import (
     add_allow_mismatch,
     add_device,
@@ -28,7 +29,7 @@ _D = EvalConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("eval", help="evaluate place-recognition methods (Recall@K) on a dataset",
+    p = sub.add_parser("eval", help=COMMANDS["eval"],
                        description="Evaluate methods on a seqnet dataset directory. Methods: "
                        + ", ".join(valid_methods()) + ", or hvpr-<shortlister>:<frames>+<matcher> "
                        "(see docs/architecture.md).")

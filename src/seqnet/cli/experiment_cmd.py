@@ -11,6 +11,7 @@ from ..describe.config import check_size
 from ..pipelines.experiments import EXPERIMENTS
 from ..pipelines.experiments.descriptors import CNN_SIZE, DESCRIPTORS, describe_config
 from ..pipelines.nordland64 import Nordland64Config
+from . import COMMANDS
 from .common import add_device, index_range, int_list, non_negative_int, parse_list, positive_float, positive_int
 
 _D = Nordland64Config()
@@ -42,7 +43,7 @@ LISTS = ("methods", "descriptors")  # comma-separated names
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("experiment", help="run one of the paper's supplementary experiments on nordland64",
+    p = sub.add_parser("experiment", help=COMMANDS["experiment"],
                        description="The paper's supplementary experiments on the nordland64 data, each writing "
                                    "results.json, results.md, its figure, report.html and config.json to --out "
                                    "(docs/experiments.md).")

@@ -10,13 +10,14 @@ from ..maps.config import DTYPES
 from ..search.ann import ANN_INDEXES, AnnConfig
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import WINDOW_MODES
+from . import COMMANDS
 from .common import add_allow_mismatch, add_device, drop_none, non_negative_int, positive_int
 
 _D, _A = MapConfig(), AnnConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("index", help="build a map (ANN index + re-ranking frames) for seqnet eval --index")
+    p = sub.add_parser("index", help=COMMANDS["index"])
     isub = p.add_subparsers(dest="index_command", metavar="ACTION", required=True)
     b = isub.add_parser("build", help="describe a dataset's reference side and save it as a map directory",
                         description="Describe the reference side of a dataset split with the given models and save "

@@ -11,13 +11,14 @@ from ..localize.stream import stream
 from ..localize.track import TRACK_COLUMNS, LocalizeConfig, main
 from ..matching.velocity import ANCHORS
 from ..search.blocks import PRECISIONS
+from . import COMMANDS
 from .common import add_allow_mismatch, add_device, positive_float, positive_int
 
 _D = LocalizeConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("localize", help="localise a query stream frame by frame (online; latency, confidence)",
+    p = sub.add_parser("localize", help=COMMANDS["localize"],
                        description="Replay the query traverse of a dataset (--dataset), or stream query "
                        "descriptors or images against a map (--map, --query), frame by frame through the online "
                        "localiser (causal windows, one answer per frame) and write one CSV row per frame: "

@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 
 from ..data.synth import SynthConfig, main
+from . import COMMANDS
 from .common import int_at_least, non_negative_float, non_negative_int, positive_float
 
 _D = SynthConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("synth", help="write a synthetic dataset (route traversed twice, hard appearance change)")
+    p = sub.add_parser("synth", help=COMMANDS["synth"])
     p.add_argument("out", metavar="DIR", help="output dataset directory")
     p.add_argument("--places", type=int_at_least(100), help=f"places along the route (default {_D.places})")
     p.add_argument("--dim", type=int_at_least(8), help=f"descriptor dimension (default {_D.dim})")

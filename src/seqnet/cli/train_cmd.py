@@ -13,6 +13,7 @@ from ..train.config import OPTIMIZERS, TrainConfig
 from ..train.distributed import env_world
 from ..train.loop import main
 from ..train.run import resume_config
+from . import COMMANDS
 from .common import add_allow_mismatch, add_device, non_negative_float, non_negative_int, positive_float, positive_int
 
 _D = TrainConfig()
@@ -20,7 +21,7 @@ _D = TrainConfig()
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "train", help="train a SeqNet model (S_L, or S_1 with --seq-len 1 --w 1) with triplet loss",
+        "train", help=COMMANDS["train"],
         description="Train SeqNet on the train split of a dataset, validating (Recall@1/5/10/20) on its val split "
                     "after every epoch. Writes RUN/last.pt, RUN/best.pt (best val R@1), RUN/config.json and "
                     "TensorBoard logs in RUN/. Defaults are the paper's (SGD lr 1e-4, momentum 0.9, wd 1e-3, "
