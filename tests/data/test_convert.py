@@ -54,7 +54,7 @@ def test_csv_cli_end_to_end(route):
     assert rc == 0
     ds = load_dataset(out)
     assert ds.radius == 5 and ds.position_unit == "metres" and ds.extra == {"pos_radius": 3, "neg_radius": 12}
-    assert ds.splits["test"] == {"reference": (50, 100), "query": (50, 100)}
+    assert ds.splits["test"] == {"reference": (0, 100), "query": (50, 100)}  # queries; the map stays whole
     # query rows follow the CSV; descriptors were matched to them by file name
     names = ds.query.names
     i = names.index("q007.jpg")

@@ -316,3 +316,21 @@ def test_hvpr_fused_shortlists_the_documented_top_100_and_says_so():
     assert method_label(entry) == "seqnet(L=5) top-100 -> s1+seqmatch(L_m=5)/L_m + 0.5·d(seqnet)"
     entry["method"].pop("fuse_weight")
     assert method_label(entry) == "seqnet(L=5) top-100 -> s1+seqmatch(L_m=5)"
+
+
+def test_evaluating_training_queries_is_flagged(synth_dir, tmp_path, capsys):
+    import json
+
+    from seqnet.cli import main as cli
+
+    assert cli(["-q", "train", "--dataset", str(synth_dir), "--epochs", "1", "--seq-len", "3", "--w", "2",
+                "--out", str(tmp_path / "run")]) == 0
+    model = str(tmp_path / "run" / "best.pt")
+    assert cli(["eval", "--dataset", str(synth_dir), "--model", model, "--split", "all", "--method", "seqnet",
+                "--seq-len", "3", "--out", str(tmp_path / "all")]) == 0
+    leaks = json.loads((tmp_path / "all" / "results.json").read_text())["leakage"]
+    assert len(leaks) == 1 and "are training queries of the S_L model" in leaks[0] and "'train'" in leaks[0]
+    assert "are training queries" in capsys.readouterr().err
+    assert cli(["eval", "--dataset", str(synth_dir), "--model", model, "--split", "test", "--method", "seqnet",
+                "--seq-len", "3", "--out", str(tmp_path / "test")]) == 0
+    assert "leakage" not in json.loads((tmp_path / "test" / "results.json").read_text())

@@ -39,7 +39,8 @@ def _common(p: argparse.ArgumentParser, radius: bool = True) -> None:
     p.add_argument("--pos-radius", type=positive_float, help="training positive radius (stored as metadata)")
     p.add_argument("--neg-radius", type=positive_float, help="training negative radius (stored as metadata)")
     p.add_argument("--split", action="append", default=[], metavar="NAME=A:B[,C:D]",
-                   help="named index split (both traverses, or reference,query); repeatable")
+                   help="named split: NAME=A:B selects queries A:B against the whole reference; NAME=A:B,C:D "
+                   "gives the reference range A:B and the queries C:D; repeatable")
     p.add_argument("--name", help="dataset name (default: the output directory name)")
     p.add_argument("--positives", metavar="FILE", help="explicit ground truth: per query the matching reference "
                    "indices (.json list of lists, .csv query,reference pairs, or .npy object array); used "
@@ -95,7 +96,8 @@ def _register_seqnet(dsub: argparse._SubParsersAction) -> None:
 
 
 def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | None:
-    """``NAME=A:B`` or ``NAME=A:B,C:D`` items → splits (None when there are none)."""
+    """``NAME=A:B`` (queries A:B, the whole reference) or ``NAME=A:B,C:D`` (reference A:B, queries C:D) items →
+    splits (None when there are none)."""
     out: dict[str, dict[str, tuple[int, int]]] = {}
     for item in items:
         try:
@@ -105,7 +107,7 @@ def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | No
                 raise ValueError
         except ValueError:
             raise ConfigError(f"--split {item!r}: expected NAME=A:B or NAME=A:B,C:D (reference, query)") from None
-        out[name] = {"reference": parts[0], "query": parts[-1]}  # type: ignore[dict-item]
+        out[name] = {"reference": parts[0], "query": parts[1]} if len(parts) == 2 else {"query": parts[0]}
     return out or None
 
 

@@ -38,7 +38,8 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
                    help="images to fit PCA / NetVLAD clusters on: the reference (default), both traverses, or "
                         "a split given with --split")
     p.add_argument("--split", action="append", default=[], metavar="NAME=A:B[,C:D]",
-                   help="named index split (both traverses, or reference,query); repeatable")
+                   help="named split: NAME=A:B selects queries A:B against the whole reference; NAME=A:B,C:D "
+                   "gives the reference range A:B and the queries C:D; repeatable")
     p.add_argument("--name", help="dataset name (default: the output directory name)")
     p.add_argument("--pos-radius", type=positive_float, help="training positive radius (stored as metadata)")
     p.add_argument("--neg-radius", type=positive_float, help="training negative radius (stored as metadata)")

@@ -123,8 +123,9 @@ def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]
     out: dict[str, dict[str, tuple[int, int]]] = {}
     for name, rng in raw.items():
         try:
-            if isinstance(rng, dict):
-                out[name] = {k: (int(rng[k][0]), int(rng[k][1])) for k in ("reference", "query")}
+            if isinstance(rng, dict):  # {"query": [a, b]} alone: the whole reference (filled in by Dataset)
+                out[name] = {k: (int(rng[k][0]), int(rng[k][1])) for k in ("reference", "query")
+                             if k in rng or k == "query"}
             else:
                 a, b = int(rng[0]), int(rng[1])
                 out[name] = {"reference": (a, b), "query": (a, b)}

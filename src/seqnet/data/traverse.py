@@ -108,7 +108,8 @@ class Traverse:
 class Dataset:
     """A reference traverse, a query traverse and a localisation radius.
 
-    ``splits`` maps a split name to ``{"reference": (start, stop), "query": (start, stop)}``.
+    ``splits`` maps a split name to ``{"reference": (start, stop), "query": (start, stop)}``; a split given
+    as ``{"query": (start, stop)}`` alone selects queries against the whole reference (the map stays whole).
     ``extra`` holds any other metadata (positive/negative training radii, preset, source, ...).
     ``positives`` (optional) is explicit ground truth: the matching reference frames of every query
     frame; when given, it decides what is correct instead of the radius.
@@ -136,6 +137,9 @@ class Dataset:
             self.positives.check(len(self.query), len(self.reference))
         if self.position_unit is None:
             self.position_unit = "frames" if self.reference.positions.shape[1] == 1 else "metres"
+        self.splits = {name: {"reference": tuple(rng.get("reference", (0, len(self.reference)))),
+                              **{k: tuple(v) for k, v in rng.items() if k != "reference"}}
+                       for name, rng in self.splits.items()}
         validate_dataset(self)
 
     def split(self, split: str | None) -> Dataset:

@@ -232,6 +232,30 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
         return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, per_query, report, figures)
 
 
+def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
+    """One line per model trained on queries of ``dataset`` that the evaluated ``split`` contains too."""
+    a, b = ds.splits[split]["query"] if split in ds.splits else (0, len(ds.query))
+    out = []
+    for role, m in sorted(models.items()):
+        t = getattr(m, "trained_on", None)
+        if not t or t.get("split") not in ds.splits or not _same_path(t["dataset"], dataset):
+            continue
+        ta, tb = ds.splits[t["split"]]["query"]
+        both = max(0, min(b, tb) - max(a, ta))
+        if both:
+            out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are training queries of the "
+                       f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} ({t['split']!r}, {ta}:{tb}): "
+                       "its results on them are not a test (hint: --split test)")
+    return out
+
+
+def _same_path(a: str | Path | None, b: str | Path) -> bool:
+    try:
+        return a is not None and Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return False
+
+
 def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
           shortlist_model: str | Path | None, rerank_model: str | Path | None, per_query: str | Path | None,
           report: Any, figures: bool) -> Written:
@@ -243,6 +267,11 @@ def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     ev = evaluate(ds.split(split), conf.replace(split=split), loaded)
     ev.results["config"]["dataset_path"] = str(dataset)
+    leaks = leakage(loaded, dataset, ds, split)
+    if leaks:
+        ev.results["leakage"] = leaks
+        for line in leaks:
+            logger.warning("%s", line)
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
     for name in ("results.json", *EVAL_FIGURES):  # an earlier evaluation's outputs never mix with these

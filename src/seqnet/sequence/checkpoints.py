@@ -73,12 +73,16 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
             and refused unless asked for, by :func:`seqnet.eval.evaluate.evaluate`).
         in_dims: expected input dimension D (e.g. the dataset's); a mismatch raises CheckpointError.
 
-    The model's ``provenance`` is that of the descriptors it was trained on (None when unknown).
+    The model's ``provenance`` is that of the descriptors it was trained on (None when unknown), its
+    ``trained_on`` the dataset directory and split of its training queries (None when unknown).
     """
     payload = read_checkpoint(path)
     if payload.get("format") == CHECKPOINT_FORMAT:
         model = _from_seqnet(payload, Path(path))
         model.provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else None
+        config = payload.get("config") if isinstance(payload.get("config"), dict) else {}
+        model.trained_on = {"dataset": payload.get("dataset_path"), "split": config.get("train_split"),
+                            "checkpoint": str(path)} if payload.get("dataset_path") else None
     else:
         model = _from_original(payload, Path(path), seq_len)
     if in_dims is not None and in_dims != model.in_dims:

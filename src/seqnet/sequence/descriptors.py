@@ -87,6 +87,7 @@ class SeqNet(nn.Module):
         self.in_dims, self.out_dims, self.seq_len, self.w = in_dims, out_dims, seq_len, w
         self.conv = nn.Conv1d(in_dims, out_dims, kernel_size=w, bias=True)
         self.provenance: dict | None = None  # how the descriptors it was trained on were made
+        self.trained_on: dict | None = None  # {"dataset": dir, "split": name, "checkpoint": path} of its training
 
     def _check(self, x: torch.Tensor) -> torch.Tensor:
         if x.ndim == 2:
