@@ -334,3 +334,12 @@ def test_evaluating_training_queries_is_flagged(synth_dir, tmp_path, capsys):
     assert cli(["eval", "--dataset", str(synth_dir), "--model", model, "--split", "test", "--method", "seqnet",
                 "--seq-len", "3", "--out", str(tmp_path / "test")]) == 0
     assert "leakage" not in json.loads((tmp_path / "test" / "results.json").read_text())
+
+
+def test_a_missing_s1_suggests_the_model_free_variant():
+    from seqnet.eval.checks import check_methods
+
+    with pytest.raises(ConfigError, match=r"needs an S_1 model .*; or the model-free 'hvpr-single:raw\+seqmatch'"):
+        check_methods([parse_method("hvpr-single")], {}, 5)
+    with pytest.raises(ConfigError, match=r"needs an S_1 model .* and an S_L model \(--shortlist-model CKPT\)$"):
+        check_methods([parse_method("hvpr")], {}, 5)

@@ -8,7 +8,7 @@ from ..core.errors import ConfigError
 from ..core.provenance import check_same
 from ..core.utils import logger
 from ..data.traverse import Dataset
-from ..sequence.descriptors import SeqNet
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
 from .methods import Method
 
 
@@ -35,10 +35,21 @@ def check_methods(methods: list[Method], models: Mapping[str, SeqNet], length: i
         if missing:
             need = " and ".join("an S_1 model (--rerank-model CKPT)" if r == "s1" else
                                 "an S_L model (--shortlist-model CKPT)" for r in sorted(missing))
-            raise ConfigError(f"method {m.name!r} needs {need}")
+            free = _model_free(m)
+            hint = f"; or the model-free {free!r}" if free else ""
+            raise ConfigError(f"method {m.name!r} needs {need}{hint}")
         if m.min_len() > length:
             raise ConfigError(f"method {m.name!r} uses Delta descriptors, which need seq_len >= {m.min_len()} "
                               f"(got {length}); use a longer --seq-len or other methods")
+
+
+def _model_free(m: Method) -> str | None:
+    """The model-free variant of an HVPR method whose re-ranking needs S_1 (``hvpr-single`` → its frames raw)."""
+    if m.kind != "hvpr" or m.shortlist is None or m.frames != "s1":
+        return None
+    if SEQUENCE_DESCRIPTORS[m.shortlist].model is not None:
+        return None
+    return f"hvpr-{m.shortlist}:raw+{m.matcher}"
 
 
 def check_provenance(ds: Dataset, models: Mapping[str, SeqNet], length: int, allow: bool = False) -> None:
