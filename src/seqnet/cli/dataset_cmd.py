@@ -238,8 +238,11 @@ def format_summary(s: dict) -> str:
     for name, sp in s["splits"].items():
         lines.append(f"  split {name}: reference {sp['reference'][0]}:{sp['reference'][1]}, query "
                      f"{sp['query'][0]}:{sp['query'][1]}, {sp['queries_with_match']} queries with a match")
-    if s["metadata"]:
-        lines.append("  metadata: " + json.dumps(s["metadata"], default=str))
+    if s["metadata"]:  # one line per key; a nested value (provenance, source) shortened to its first 100 characters
+        lines.append("  metadata:")
+        for key, value in s["metadata"].items():
+            text = value if isinstance(value, str) else json.dumps(value, default=str)
+            lines.append(f"    {key}: {text if len(text) <= 100 else text[:97] + '...'}")
     return "\n".join(lines)
 
 
