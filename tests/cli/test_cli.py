@@ -208,3 +208,12 @@ def test_eval_ks_and_per_query(small_dir, capsys, tmp_path, suffix):
     else:
         lines = text.splitlines()
         assert lines[0].startswith("method,query_frame,query_name,references") and len(lines) == 2 * n + 1
+
+
+def test_dataset_check_prints_metadata_one_key_a_line(synth_dir, capsys):
+    from seqnet.cli import main
+
+    assert main(["dataset", "check", str(synth_dir)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    meta = out[out.index("  metadata:") + 1 :]
+    assert meta and all(line.startswith("    ") and len(line) <= 120 for line in meta), meta

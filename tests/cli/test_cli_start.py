@@ -43,11 +43,3 @@ def test_every_command_is_listed_and_builds():
     assert list(sub.choices) == list(COMMANDS)
     assert all(sub.choices[n].description or sub.choices[n]._actions for n in COMMANDS)
 
-
-def test_dataset_check_prints_metadata_one_key_a_line(synth_dir, capsys):
-    from seqnet.cli import main
-
-    assert main(["dataset", "check", str(synth_dir)]) == 0
-    out = capsys.readouterr().out.splitlines()
-    meta = out[out.index("  metadata:") + 1 :]
-    assert meta and all(line.startswith("    ") and len(line) <= 120 for line in meta), meta
