@@ -59,17 +59,21 @@ def map_models(synth_dataset, tmp_path):
     return paths
 
 
+def image_folder(d, n: int = 10, seed: int = 0, stem: str = "f"):
+    """A folder ``d`` of ``n`` random 32×16 RGB PNG images ``<stem>0.png`` … (made here)."""
+    from PIL import Image
+
+    rng = np.random.default_rng(seed)
+    d.mkdir()
+    for i in range(n):
+        Image.fromarray(rng.integers(0, 256, size=(16, 32, 3), dtype=np.uint8)).save(d / f"{stem}{i}.png")
+    return d
+
+
 @pytest.fixture
 def folder(tmp_path):
     """A folder of ten random 32×16 RGB PNG images ``f0.png`` … ``f9.png``."""
-    from PIL import Image
-
-    rng = np.random.default_rng(0)
-    d = tmp_path / "imgs"
-    d.mkdir()
-    for i in range(10):
-        Image.fromarray(rng.integers(0, 256, size=(16, 32, 3), dtype=np.uint8)).save(d / f"f{i}.png")
-    return d
+    return image_folder(tmp_path / "imgs")
 
 
 def pytest_collection_modifyitems(config, items):

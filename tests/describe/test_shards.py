@@ -6,8 +6,8 @@ from __future__ import annotations
 import json
 
 import h5py
-import numpy as np
 import pytest
+from conftest import image_folder
 
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import ConfigError
@@ -28,14 +28,7 @@ def h5(path):
 @pytest.fixture
 def big_folder(tmp_path):
     """23 random 32×16 PNG images (batches of 4 leave a short last one)."""
-    from PIL import Image
-
-    rng = np.random.default_rng(1)
-    d = tmp_path / "many"
-    d.mkdir()
-    for i in range(23):
-        Image.fromarray(rng.integers(0, 256, size=(16, 32, 3), dtype=np.uint8)).save(d / f"img{i}.png")
-    return d
+    return image_folder(tmp_path / "many", 23, seed=1, stem="img")
 
 
 @pytest.mark.parametrize("opts", [["--method", "pixels"], ["--method", "pixels", "--dim", "6"]])
