@@ -9,8 +9,10 @@ same models, so a distractor has consistent S_L and S_1 descriptors. Queries are
 frames of the test range. Distractor positions are far from every real one (never correct).
 
 Compared per query (one at a time) and for R@1 over all test queries: HVPR with each approximate
-shortlist, exact HVPR (exhaustive S_L search), exact whole-map SeqMatch on S_1 (paper-style per
-query, and ours online: one distance row per frame); and R@1 with the map rounded to float16.
+shortlist and exact HVPR (exhaustive S_L search), each at every shortlist size K re-ranked by
+SeqMatch (``--top-k 20,100,200``; one row per index setting and K, with its speed-up over this
+run's whole-map SeqMatch), exact whole-map SeqMatch on S_1 (paper-style per query, and ours online:
+one distance row per frame); and R@1 with the map rounded to float16.
 
 Usage::
 
@@ -59,7 +61,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--hnsw-m", type=int, default=32, help="HNSW neighbours per node (default 32)")
     p.add_argument("--ef-construction", type=int, default=80, help="HNSW build breadth (default 80)")
     p.add_argument("--timed", type=int, default=100, help="queries timed one at a time (default 100)")
-    p.add_argument("--top-k", type=int, default=20)
+    p.add_argument("--top-k", default="20", help="shortlist sizes K re-ranked by SeqMatch (each is measured, "
+                                                 "exact and with every index; default 20)")
     p.add_argument("--threads", type=int, default=1,
                    help="torch threads while timing (default 1: on a shared machine a 2-thread parallel region "
                         "waits for a free core, which times the scheduler, not the method)")
@@ -148,44 +151,73 @@ def r1(ranked: np.ndarray, truth: GroundTruth) -> float:
     return round(float(recall(ranked, truth, (1,))["recall@1"]), 4)
 
 
-def measure(mp, qd, truth, args, indexes: dict) -> dict:
-    k, lm, res = args.top_k, mp.config.match_len, {}
-    sq, qf = qd.items(mp.config.shortlist).numpy(), qd.frames(mp.config.frames_descriptor).numpy()
-    qs = qd.side.match_starts
-    pick = np.linspace(0, len(sq) - 1, min(args.timed, len(sq))).round().astype(int)
-    exact = mp.search(mp.config.shortlist, sq, k, exact=True)[1]
-    res["hvpr_exact"] = {"recall@1": r1(order(mp.pair_scores(qf, qs, exact), exact, lm)[1], truth)}
-    res["hvpr_exact"]["ms"] = timed(lambda i: mp.localize(sq[pick[i] : pick[i] + 1], qf, qs[pick[i] : pick[i] + 1],
-                                                          k, exact=True), len(pick))
-    for name, (index, ann) in indexes.items():
-        set_search_params(index, ann)
-        mp.index = index
-        approx = mp.search(mp.config.shortlist, sq, k)[1]
-        res[f"hvpr_{name}"] = {"recall@1": r1(order(mp.pair_scores(qf, qs, approx), approx, lm)[1], truth),
-                               "shortlist_recall": round(float(np.mean([len(np.intersect1d(a, e)) / k for a, e in
-                                                                        zip(approx, exact, strict=True)])), 4),
-                               "ms": timed(lambda i: mp.localize(sq[pick[i] : pick[i] + 1], qf,
-                                                                 qs[pick[i] : pick[i] + 1], k), len(pick))}
+def overlap(approx: np.ndarray, exact: np.ndarray) -> float:
+    """Mean fraction of the exact top-K that the approximate top-K keeps."""
+    return round(float(np.mean([len(np.intersect1d(a, e)) / e.shape[0] for a, e in zip(approx, exact, strict=True)])),
+                 4)
+
+
+def hvpr_rows(mp, q: tuple, truth, ks: list[int], pick: np.ndarray, name: str, params: dict,
+              exact_top: np.ndarray) -> list[dict]:
+    """One row per K: HVPR's R@1 over all queries, shortlist recall and ms per query (one at a time) with
+    the map's current index (``name == "exact"``: the exhaustive S_L search)."""
+    sq, qf, qs = q
+    exact, rows = name == "exact", []
+    for k in ks:
+        cand = exact_top[:, :k] if exact else mp.search(mp.config.shortlist, sq, k)[1]
+        row = {"index": name, **params, "top_k": k,
+               "recall@1": r1(order(mp.pair_scores(qf, qs, cand), cand, mp.config.match_len)[1], truth)}
+        if not exact:
+            row["shortlist_recall"] = overlap(cand, exact_top[:, :k])
+        row["ms"] = timed(lambda i, k=k: mp.localize(sq[pick[i] : pick[i] + 1], qf, qs[pick[i] : pick[i] + 1], k,
+                                                     exact=exact), len(pick))
+        rows.append(row)
+    return rows
+
+
+def whole_map(mp, qf, qs, truth, k: int, pick: np.ndarray) -> dict:
+    """Exact whole-map SeqMatch on S_1: R@1, batch ms per query, paper-style and ours online (ms per query)."""
+    lm = mp.config.match_len
     t0 = time.perf_counter()
     whole = seqmatch_topk(qf, mp.frames, lm, 1, qs, mp.match_starts)[1]
-    res["seqmatch_all"] = {"recall@1": r1(whole, truth), "batch_ms_per_query": (time.perf_counter() - t0) * 1e3
-                           / len(qs)}
-    res["seqmatch_all"]["paper_ms"] = timed(lambda i: seqmatch_topk(
+    res = {"recall@1": r1(whole, truth), "batch_ms_per_query": (time.perf_counter() - t0) * 1e3 / len(qs)}
+    res["paper_ms"] = timed(lambda i: seqmatch_topk(
         qf[qs[pick[i]] : qs[pick[i]] + lm], mp.frames, lm, k, np.zeros(1, np.int64), mp.match_starts), len(pick))
     online = OnlineSeqMatch(torch.from_numpy(np.asarray(mp.frames, np.float32)), lm)
     for t in range(lm - 1):
         online.step(qf[t])
     sel, frame = torch.as_tensor(mp.match_starts), iter(range(lm - 1, len(qf)))
-    res["seqmatch_all"]["online_ms"] = timed(lambda i: online.topk(online.step(qf[next(frame)]), k, sel),
-                                             min(len(pick), len(qf) - lm - 3))
-    f16 = {}
+    res["online_ms"] = timed(lambda i: online.topk(online.step(qf[next(frame)]), k, sel),
+                             min(len(pick), len(qf) - lm - 3))
+    return res
+
+
+def float16_recall(mp, sq, qf, qs, truth, k: int) -> dict:
+    """R@1 of exact HVPR (top ``k``) and whole-map SeqMatch with the map rounded to float16 (changes ``mp``)."""
+    lm = mp.config.match_len
     for name, arr in (("shortlist", mp.shortlist), ("frames", mp.frames)):
         setattr(mp, name, np.asarray(arr).astype(np.float16))
     cand = mp.search(mp.config.shortlist, sq, k, exact=True)[1]
-    f16["hvpr_exact"] = r1(order(mp.pair_scores(qf, qs, cand), cand, lm)[1], truth)
-    f16["seqmatch_all"] = r1(seqmatch_topk(qf, mp.frames, lm, 1, qs, mp.match_starts)[1], truth)
-    res["float16_recall@1"] = f16
-    return res
+    return {"hvpr_exact": r1(order(mp.pair_scores(qf, qs, cand), cand, lm)[1], truth),
+            "seqmatch_all": r1(seqmatch_topk(qf, mp.frames, lm, 1, qs, mp.match_starts)[1], truth)}
+
+
+def measure(mp, qd, truth, args, indexes: dict) -> dict:
+    ks = sorted(int(k) for k in args.top_k.split(","))
+    q = sq, qf, qs = (qd.items(mp.config.shortlist).numpy(), qd.frames(mp.config.frames_descriptor).numpy(),
+                      qd.side.match_starts)
+    pick = np.linspace(0, len(sq) - 1, min(args.timed, len(sq))).round().astype(int)
+    exact_top = mp.search(mp.config.shortlist, sq, ks[-1], exact=True)[1]
+    rows = hvpr_rows(mp, q, truth, ks, pick, "exact", {}, exact_top)
+    for name, (index, ann, params) in indexes.items():
+        set_search_params(index, ann)
+        mp.index = index
+        rows += hvpr_rows(mp, q, truth, ks, pick, name, params, exact_top)
+    whole = whole_map(mp, qf, qs, truth, ks[0], pick)
+    for row in rows:
+        row["speedup_paper"] = round(whole["paper_ms"][0] / row["ms"][0], 1)
+        row["speedup_online"] = round(whole["online_ms"][0] / row["ms"][0], 1)
+    return {"hvpr": rows, "seqmatch_all": whole, "float16_recall@1": float16_recall(mp, sq, qf, qs, truth, ks[0])}
 
 
 def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
@@ -212,7 +244,7 @@ def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
         build_s[kind] = round(time.perf_counter() - t1, 1)
         key, values = ("ef_search", args.ef_search) if kind == "hnsw" else ("nprobe", args.nprobe)
         for v in values.split(","):
-            indexes[f"{kind}@{key}={v}"] = (index, ann.replace(**{key: int(v)}))
+            indexes[f"{kind}@{key}={v}"] = (index, ann.replace(**{key: int(v)}), {key: int(v)})
     torch.set_num_threads(args.threads)
     faiss.omp_set_num_threads(args.threads)
     res = measure(mp, qd, truth, args, indexes)
