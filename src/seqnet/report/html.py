@@ -101,7 +101,8 @@ def summary_section(ev: Any, conf: ReportConfig) -> Section:
     cfg = ev.results["config"]
     first = next(iter(ev.results["methods"].values()))
     facts = [("dataset", cfg.get("dataset", "")), ("queries evaluated", first.get("queries", "")),
-             ("reference items", len(ev.r_items)), ("radius", cfg.get("radius", "")), ("L", cfg.get("seq_len", "")),
+             ("reference items (frames with a full window)", len(ev.r_items)), ("radius", cfg.get("radius", "")),
+             ("L", cfg.get("seq_len", "")),
              ("L_m", cfg.get("rerank_seq_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
              ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
     config = html.escape(json.dumps(cfg, indent=1, default=str))
