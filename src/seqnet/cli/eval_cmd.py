@@ -59,6 +59,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
     p.add_argument("--per-query", metavar="FILE", help="write one row per method and query (top-5 references, "
                    "scores, correct or not, confidence) to FILE (.csv or .jsonl)")
+    p.add_argument("--distances", metavar="FILE.npy", help="evaluate on this [N_query, N_reference] frame-distance "
+                   "matrix of the dataset (from VPR-Bench, VPR_Tutorial, any tool) instead of descriptors: single, "
+                   "raw+seqmatch(-rev), hvpr-single:raw+seqmatch(-rev)")
+    p.add_argument("--similarity", action="store_true", help="--distances holds similarities (higher is closer)")
     p.add_argument("--index", metavar="MAP", help="evaluate the queries against this prebuilt map (seqnet index "
                    "build): its index shortlists, its frames re-rank; the reference side is not read")
     p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) and "
@@ -82,7 +86,13 @@ def run(args: argparse.Namespace) -> int:
                                 fuse_top_k=args.fuse_top_k)
     report = report_config(args)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
-        if args.index:
+        if args.similarity and not args.distances:
+            raise ConfigError("--similarity goes with --distances FILE.npy")
+        if args.distances:
+            from ..eval.matrix import main as matrix_main
+
+            path = matrix_main(conf, args.dataset, args.distances, args.out or tmp, args.similarity)
+        elif args.index:
             path = _main_with_map(conf, args, args.out or tmp)
         else:
             path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,

@@ -1,0 +1,94 @@
+"""Evaluation on a precomputed ``[Nq, Nr]`` distance or similarity matrix (``seqnet eval --distances FILE``).
+
+VPR-Bench, VPR_Tutorial and many tools hand over a matrix instead of descriptors. The matrix covers
+the dataset's whole query and reference traverses (row i: query frame i, column j: reference frame
+j); a split evaluates its sub-matrix. A similarity matrix (``--similarity``, higher is closer) is
+negated: SeqMatch then sums similarities, and the lowest score wins as for distances. The methods
+and the one evaluation loop are those of :func:`seqnet.eval.evaluate.run`, on a
+:class:`seqnet.reference.matrix.MatrixReference`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..core.errors import ConfigError, DatasetError
+from ..core.files import Written, file_digest, write_json_atomic
+from ..core.ownership import locked, remove_dead_temps
+from ..data.traverse import Dataset
+from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
+from .evaluate import EvalConfig, Evaluation, run
+from .methods import parse_method
+from .metrics.recall import ground_truth
+
+DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
+
+
+def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False) -> np.ndarray:
+    """The ``[Nq, Nr]`` matrix of ``path`` (``.npy``) for the whole dataset ``ds``, as distances (float64)."""
+    try:
+        m = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"--distances {path}: not a readable .npy matrix ({e})") from e
+    want = (len(ds.query), len(ds.reference))
+    if m.ndim != 2 or m.shape != want:
+        raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {want[0]} query and "
+                          f"{want[1]} reference frames (one row per query frame, one column per reference frame)")
+    out = np.asarray(m, dtype=np.float64)
+    if not np.isfinite(out).all():
+        r, c = np.argwhere(~np.isfinite(out))[0]
+        raise DatasetError(f"--distances {path}: entry [{r}, {c}] is {out[r, c]} (every entry must be finite)")
+    return -out if similarity else out
+
+
+def split_matrix(dist: np.ndarray, ds: Dataset, split: str) -> np.ndarray:
+    """The rows and columns of ``split`` (the whole matrix for ``all``)."""
+    if split in (None, "all"):
+        return dist
+    rng = ds.splits[split]
+    return dist[slice(*rng["query"])][:, slice(*rng["reference"])]
+
+
+def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = None) -> Evaluation:
+    """Evaluate ``conf.methods`` (default :data:`DEFAULT_MATRIX_METHODS`) of ``ds`` (the split already taken)
+    on ``dist [Nq, Nr]`` distances between its query and reference frames."""
+    conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
+    d = torch.as_tensor(np.ascontiguousarray(dist))
+    query = MatrixQuery(len(ds.query), ds.query.seq_bounds, conf.windows)
+    ref = MatrixReference(d, ds.reference, conf.windows, ds.name)
+    if d.shape[0] != len(ds.query):
+        raise ConfigError(f"the distance matrix has {d.shape[0]} rows for {len(ds.query)} query frames")
+    methods = [parse_method(n) for n in conf.methods]
+    positives = ds.positives.select(query.side.items, ref.items) if ds.positives is not None else None
+    truth = ground_truth(ds.query.positions[query.side.items], ds.reference.positions[ref.items], conf.radius,
+                         positives, ds.name, ds.position_unit)
+    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: {**m.summary(), "on": "distance matrix",
+                                                                           "seq_len": conf.length,
+                                                                           "rerank_seq_len": conf.match_len,
+                                                                           "top_k": conf.shortlist_size(m)})
+    out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": "cpu", "models": {},
+                             "matrix_methods": list(MATRIX_METHODS)}
+    out.query_names = [ds.query.names[i] for i in query.side.items] if ds.query.names else None
+    return out
+
+
+def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str | Path,
+         similarity: bool = False) -> Written:
+    """Stage: evaluate ``conf.split`` of the dataset directory ``dataset`` on the matrix file ``distances``
+    (``similarity``: higher is closer); writes ``out/results.json`` (results, config, inputs)."""
+    from ..data.io import load_dataset
+
+    with locked(out):
+        remove_dead_temps([Path(out) / "results.json"])
+        ds = load_dataset(dataset)
+        split = conf.split or ("test" if "test" in ds.splits else "all")
+        dist = split_matrix(read_matrix(distances, ds, similarity), ds, split)
+        defaults = conf.methods == EvalConfig().methods
+        ev = evaluate_matrix(ds.split(split), dist, conf.replace(
+            split=split, methods=DEFAULT_MATRIX_METHODS if defaults else conf.methods))
+        ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
+                                "similarity": bool(similarity), "distances_digest": file_digest(distances)}
+        return Written(write_json_atomic(Path(out) / "results.json", ev.results), ev.results)

@@ -1,0 +1,102 @@
+"""A reference side given as a precomputed ``[Nq, Nr]`` frame-distance matrix (VPR-Bench, VPR_Tutorial, any tool).
+
+Evaluation runs its one loop (:func:`seqnet.eval.evaluate.run`) on a :class:`MatrixReference` and a
+:class:`MatrixQuery`: the frame "descriptors" are the frames' indices into the matrix, k-NN reads a
+row, SeqMatch sums its diagonals (:func:`seqnet.matching.pairs.scores_from_distances`) and HVPR
+shortlists and re-ranks from the same matrix (``shared_distances``). The methods are the ones that
+read single-frame distances: ``single`` (k-NN), ``raw+seqmatch``, ``raw+seqmatch-rev`` and
+``hvpr-single:raw+seqmatch(-rev)``; anything that needs descriptors (sequence descriptors, models,
+the variable-speed and graph matchers) is refused.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..core.errors import ConfigError
+from ..data.traverse import Traverse
+from ..eval.methods import Method
+from ..matching.pairs import scores_from_distances
+from ..search.blocks import topk_smallest
+from ..sequence.windows import Windows
+
+MATRIX_MATCHERS = {"seqmatch": False, "seqmatch-rev": True}  # matcher -> reference traversed backwards
+MATRIX_METHODS = ("single", "raw+seqmatch", "raw+seqmatch-rev", "hvpr-single:raw+seqmatch",
+                  "hvpr-single:raw+seqmatch-rev")
+
+
+def frame_indices(n: int) -> torch.Tensor:
+    """``[n, 1]``: frames as their own row / column of the matrix (the "descriptors" of a matrix side)."""
+    return torch.arange(n, dtype=torch.float64)[:, None]
+
+
+class MatrixQuery:
+    """The query side of a distance matrix: its items under ``windows`` (see :class:`seqnet.eval.rank.Query`)."""
+
+    def __init__(self, n: int, seq_bounds: np.ndarray | None, windows: Windows) -> None:
+        self.side = windows.side(n, seq_bounds)
+        if len(self.side.items) == 0:
+            raise ConfigError(f"no query frame has a full window of seq_len={windows.length}; use a shorter --seq-len")
+        self.match_starts, self.items_index, self.n = self.side.match_starts, self.side.items, n
+
+    def items(self, name: str) -> torch.Tensor:
+        return frame_indices(self.n)[self.side.items]
+
+    def frames(self, name: str) -> torch.Tensor:
+        return frame_indices(self.n)
+
+    def cost_ms(self, keys: list[tuple[str, str]]) -> float:
+        return 0.0
+
+
+class MatrixReference:
+    """The reference traverse ``traverse`` seen through ``dist [Nq, Nr]`` (lower is closer; see the module)."""
+
+    def __init__(self, dist: torch.Tensor, traverse: Traverse, windows: Windows, name: str = "reference") -> None:
+        if dist.ndim != 2 or dist.shape[1] != len(traverse):
+            raise ConfigError(f"the distance matrix must be [N_query, {len(traverse)}], got {tuple(dist.shape)}")
+        self.dist, self.windows, self.name = dist, windows, name
+        side = windows.side(len(traverse), traverse.seq_bounds)
+        self.items, self.match_starts = side.items, side.match_starts
+        self.positions, self.names, self.provenance = traverse.positions, traverse.names, None
+        self.input_dim, self.device, self.models = 0, torch.device("cpu"), {}
+        self.precision, self.resident = None, True
+
+    def check_method(self, m: Method) -> None:
+        """Only methods that read single-frame distances run on a matrix."""
+        ok = (m.shortlist in (None, "single") and m.frames in (None, "raw") and not m.fused
+              and (m.matcher is None or m.matcher in MATRIX_MATCHERS) and m.models() == set())
+        if not ok:
+            raise ConfigError(f"method {m.name!r} needs descriptors; on a distance matrix: {', '.join(MATRIX_METHODS)}")
+
+    def prepare(self, m: Method) -> float:
+        return 0.0
+
+    def search(self, descriptor: str, query: torch.Tensor, k: int,
+               exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The k nearest items of the query frames ``query [M, 1]`` (their rows)."""
+        rows = self.dist[torch.as_tensor(query)[:, 0].long()][:, torch.as_tensor(self.items)]
+        vals, idx = topk_smallest(rows, k)
+        return vals.numpy(), idx.numpy()
+
+    def shared_distances(self, frames: str, query_frames: torch.Tensor) -> torch.Tensor:
+        return self.dist
+
+    def rerank(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
+               candidates: np.ndarray) -> torch.Tensor:
+        """SeqMatch of the candidate items ``[M, K]`` (``-1``: none) read from the matrix."""
+        c = torch.as_tensor(candidates).long()
+        starts = torch.where(c >= 0, torch.as_tensor(self.match_starts)[c.clamp_min(0)], -1)
+        return scores_from_distances(self.dist, self.windows.match_len, torch.as_tensor(q_starts), starts,
+                                     MATRIX_MATCHERS[matcher])
+
+    def match(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
+              k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Whole-map SeqMatch over the matrix: every item of every query window, the k best kept."""
+        every = np.tile(np.arange(len(self.items)), (len(q_starts), 1))
+        vals, idx = topk_smallest(self.rerank(frames, matcher, query_frames, q_starts, every), k)
+        return vals.numpy(), idx.numpy()
+
+    def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
+        raise ConfigError("a distance matrix is evaluated offline (seqnet eval --distances), not streamed")

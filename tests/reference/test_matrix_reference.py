@@ -1,0 +1,67 @@
+"""Evaluation on a precomputed distance / similarity matrix equals evaluation on the descriptors it came from."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from seqnet.cli import main as cli
+from seqnet.core.errors import ConfigError
+from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.eval.matrix import evaluate_matrix
+from seqnet.reference.matrix import MATRIX_METHODS
+
+METHODS = ("single", "raw+seqmatch", "raw+seqmatch-rev", "hvpr-single:raw+seqmatch", "hvpr-single:raw+seqmatch-rev")
+
+
+def unit(x):
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def distances(ds):
+    q, r = (torch.as_tensor(unit(t.descriptors), dtype=torch.float64) for t in (ds.query, ds.reference))
+    return torch.cdist(q, r).numpy()
+
+
+@pytest.mark.parametrize("window", ["centred", "causal"])
+def test_a_distance_matrix_ranks_as_the_descriptors_do(synth_dataset, window):
+    ds = synth_dataset.split("test")
+    conf = EvalConfig(methods=METHODS, seq_len=4, ks=(1, 5, 20), window=window, top_k=10)
+    a, b = evaluate_matrix(ds, distances(ds), conf), evaluate(ds, conf)
+    for m in METHODS:
+        np.testing.assert_array_equal(a.retrieved[m][:, :10], b.retrieved[m][:, :10], err_msg=m)
+        np.testing.assert_allclose(a.scores[m][:, :10], b.scores[m][:, :10], rtol=1e-5, err_msg=m)
+        assert a.results["methods"][m]["recall@1"] == b.results["methods"][m]["recall@1"]
+
+
+def test_methods_that_need_descriptors_are_refused(synth_dataset):
+    ds = synth_dataset.split("test")
+    for name in ("smoothing", "raw+vseqmatch", "raw+graph", "hvpr-delta:raw+seqmatch"):
+        with pytest.raises(ConfigError, match="needs descriptors; on a distance matrix: single, raw"):
+            evaluate_matrix(ds, distances(ds), EvalConfig(methods=(name,), seq_len=4))
+    assert "hvpr-single:raw+seqmatch" in MATRIX_METHODS
+
+
+def test_cli_distances_and_similarities(synth_dataset, synth_dir, tmp_path, capsys):
+    d = distances(synth_dataset)
+    np.save(tmp_path / "d.npy", d)
+    np.save(tmp_path / "s.npy", 1 - d**2 / 2)  # cosine similarity of unit vectors
+    outs = {}
+    for name, extra in (("d", []), ("s", ["--similarity"])):
+        assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--distances", str(tmp_path / f"{name}.npy"),
+                    *extra, "--out", str(tmp_path / name)]) == 0
+        outs[name] = json.loads((tmp_path / name / "results.json").read_text())
+    assert list(outs["d"]["methods"]) == ["single", "raw+seqmatch", "hvpr-single:raw+seqmatch"]
+    assert outs["d"]["methods"]["single"]["recall@1"] == outs["s"]["methods"]["single"]["recall@1"]
+    assert outs["s"]["inputs"]["similarity"] is True
+    np.save(tmp_path / "bad.npy", d[:, :-1])
+    assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "bad.npy")]) == 2
+    assert "one row per query frame, one column per reference frame" in capsys.readouterr().err
+    d[3, 4] = np.nan
+    np.save(tmp_path / "nan.npy", d)
+    assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "nan.npy")]) == 2
+    assert "entry [3, 4] is nan" in capsys.readouterr().err
+    assert cli(["eval", "--dataset", str(synth_dir), "--similarity"]) == 2
