@@ -464,3 +464,15 @@ def test_datasets_carry_checksums_checked_on_open_and_by_check(ds, tmp_path, cap
     capsys.readouterr()
     assert cli_main(["dataset", "check", str(root)]) == 2
     assert "query/descriptors.npy changed since seqnet wrote the dataset" in capsys.readouterr().err
+
+
+def test_a_range_in_place_of_a_split_name_needs_no_new_dataset(synth_dataset):
+    ds = synth_dataset
+    q = ds.split("10:30")
+    assert (len(q.reference), len(q.query)) == (len(ds.reference), 20) and q.name.endswith("[10:30]")
+    r = ds.split("0:50,10:30")
+    assert (len(r.reference), len(r.query)) == (50, 20)
+    np.testing.assert_array_equal(r.query.descriptors, ds.query.descriptors[10:30])
+    for bad, msg in (("10:5000", "outside"), ("x", "or a range A:B"), ("5:2", "outside")):
+        with pytest.raises(DatasetError, match=msg):
+            ds.split(bad)

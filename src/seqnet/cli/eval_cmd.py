@@ -44,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--radius", type=positive_float, help="localisation radius (default: the dataset's)")
     p.add_argument("--extra-radius", type=positive_float, action="append", default=[],
                    help="also report at this radius")
-    p.add_argument("--split", help="split to evaluate: train, val, test or all (default: test when defined, else all)")
+    p.add_argument("--split", help="split to evaluate: train, val, test, all, or a range A:B (queries, the whole "
+                   "reference) / A:B,C:D (reference, queries) (default: test when defined, else all)")
     p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     p.add_argument("--fuse-weight", type=non_negative_float,
                    help=f"hvpr-fused: weight λ of the S_L distance in its score (default {_D.fuse_weight:g})")

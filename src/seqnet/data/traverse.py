@@ -142,14 +142,23 @@ class Dataset:
                        for name, rng in self.splits.items()}
         validate_dataset(self)
 
+    def ranges(self, split: str) -> dict[str, tuple[int, int]] | None:
+        """``{"reference": (a, b), "query": (c, d)}`` of a named split or of a range spec, else None."""
+        return self.splits.get(split) or _range_split(split, len(self.reference))
+
     def split(self, split: str | None) -> Dataset:
-        """The dataset restricted to a named split (None or "all": the whole dataset)."""
+        """The dataset restricted to a named split (None or "all": the whole dataset), or to a range given
+        in place of a name: ``"A:B"`` (queries A:B against the whole reference) or ``"A:B,C:D"`` (reference
+        A:B, queries C:D), so re-splitting needs no new dataset and no describing again."""
         if split in (None, "all"):
             return self
-        if split not in self.splits:
+        rng = self.ranges(split)
+        if rng is None:
             valid = ", ".join(["all", *self.splits]) or "all"
-            raise DatasetError(f"dataset {self.name!r} has no split {split!r}; valid: {valid}")
-        rng = self.splits[split]
+            raise DatasetError(f"dataset {self.name!r} has no split {split!r}; valid: {valid}, or a range A:B "
+                               "(queries) / A:B,C:D (reference, queries)")
+        if split not in self.splits:
+            check_split(split, rng, self)
         positives = None
         if self.positives is not None:
             positives = self.positives.select(np.arange(*rng["query"]), np.arange(*rng["reference"]))
@@ -161,6 +170,18 @@ class Dataset:
             name=f"{self.name}[{split}]",
             positives=positives,
         )
+
+
+def _range_split(spec: str, n_ref: int) -> dict[str, tuple[int, int]] | None:
+    """``"A:B"`` → queries A:B, the whole reference; ``"A:B,C:D"`` → reference A:B, queries C:D; else None."""
+    try:
+        parts = [tuple(int(x) for x in r.split(":")) for r in spec.split(",")]
+    except ValueError:
+        return None
+    if len(parts) not in (1, 2) or any(len(r) != 2 for r in parts):
+        return None
+    return {"reference": parts[0], "query": parts[1]} if len(parts) == 2 else {"reference": (0, n_ref),
+                                                                              "query": parts[0]}
 
 
 def validate_traverse(t: Traverse) -> None:
@@ -233,9 +254,14 @@ def validate_dataset(ds: Dataset) -> None:
     if ds.position_unit not in POSITION_UNITS:
         raise DatasetError(f"position_unit {ds.position_unit!r} is not one of {POSITION_UNITS}")
     for split, rng in ds.splits.items():
-        for side, t in (("reference", ds.reference), ("query", ds.query)):
-            if side not in rng:
-                raise DatasetError(f"split {split!r} has no {side} range")
-            a, b = rng[side]
-            if not (0 <= a < b <= len(t)):
-                raise DatasetError(f"split {split!r}: {side} range {a}:{b} is outside 0:{len(t)} or empty")
+        check_split(split, rng, ds)
+
+
+def check_split(split: str, rng: dict[str, tuple[int, int]], ds: Dataset) -> None:
+    """Both ranges of ``split`` are non-empty and inside their traverses (:class:`DatasetError` otherwise)."""
+    for side, t in (("reference", ds.reference), ("query", ds.query)):
+        if side not in rng:
+            raise DatasetError(f"split {split!r} has no {side} range")
+        a, b = rng[side]
+        if not (0 <= a < b <= len(t)):
+            raise DatasetError(f"split {split!r}: {side} range {a}:{b} is outside 0:{len(t)} or empty")

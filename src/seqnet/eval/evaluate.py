@@ -234,13 +234,16 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
 
 def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
     """One line per model trained on queries of ``dataset`` that the evaluated ``split`` contains too."""
-    a, b = ds.splits[split]["query"] if split in ds.splits else (0, len(ds.query))
+    a, b = ds.ranges(split)["query"] if split != "all" else (0, len(ds.query))
     out = []
     for role, m in sorted(models.items()):
         t = getattr(m, "trained_on", None)
-        if not t or t.get("split") not in ds.splits or not _same_path(t["dataset"], dataset):
+        if not t or not t.get("split") or not _same_path(t["dataset"], dataset):
             continue
-        ta, tb = ds.splits[t["split"]]["query"]
+        trained = {"query": (0, len(ds.query))} if t["split"] == "all" else ds.ranges(t["split"])
+        if trained is None:
+            continue
+        ta, tb = trained["query"]
         both = max(0, min(b, tb) - max(a, ta))
         if both:
             out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are training queries of the "
