@@ -57,7 +57,7 @@ def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300
     fig, ax = new_figure(7, 6.5)
     ax.imshow(d, cmap="gray", aspect="auto", interpolation="nearest", extent=(-0.5, r - 0.5, m - 0.5, -0.5))
     tq, tr = truth_pairs(ev.truth)
-    ax.scatter(tr, tq, s=6, c="cyan", alpha=0.35, marker="s", linewidths=0, label="ground truth")
+    ax.scatter(tr, tq, s=10, c="cyan", alpha=0.8, marker="s", linewidths=0, label="ground truth")
     names = list(methods or ev.retrieved)
     for name, colour in zip(names, method_colours(len(names)), strict=True):
         top = ev.retrieved[name][:, 0]
@@ -67,7 +67,7 @@ def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300
     ax.set_ylim(m - 0.5, -0.5)
     ax.set_xlabel(f"reference item ({r}; matrix shown at {len(ri)} columns)")
     ax.set_ylabel(f"query item ({m}; {len(qi)} rows)")
-    ax.legend(fontsize=6, loc="upper right", markerscale=4, framealpha=0.8)
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, markerscale=4)  # beside
     ax.set_title("single-image descriptor distances (dark = close)")
     return fig
 

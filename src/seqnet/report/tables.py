@@ -103,7 +103,7 @@ def recall_figure(curves: Mapping[str, np.ndarray], title: str = "") -> Any:
     ax.set_ylabel("Recall@K")
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)  # beside the curves
     if title:
         ax.set_title(title)
     return fig
@@ -128,7 +128,7 @@ def pr_figure(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> Any:
     ax.set_xlim(0, 1.02)
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower left")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)  # beside, never over a curve
     if title:
         ax.set_title(title)
     return fig
@@ -150,7 +150,7 @@ def save_figure(fig: Any, path: str | Path, dpi: int = 120) -> Path:
     fig.tight_layout()
     path = Path(path)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
+        fig.savefig(tmp, format="png", dpi=dpi, bbox_inches="tight")
     return path
 
 
@@ -158,5 +158,5 @@ def figure_png(fig: Any, dpi: int = 100) -> bytes:
     """``fig`` as PNG bytes (for embedding in a report)."""
     fig.tight_layout()
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return buf.getvalue()
