@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seqnet.core.errors import DatasetError
+from seqnet.core.errors import ConfigError, DatasetError
 from seqnet.data.io import load_dataset, save_dataset
 from seqnet.data.positives import Positives, read_positives
 from seqnet.data.traverse import Dataset, Traverse
@@ -149,3 +149,18 @@ def test_evaluate_uses_positives_not_the_radius():
     np.testing.assert_array_equal(hits.any(axis=1), np.ones(n, bool))
     for m in range(n):
         assert (ev.retrieved["single"][m][hits[m]] == (m + 10) % n).all()
+
+
+def test_positives_without_a_radius_imply_one():
+    from seqnet.data.convert import assemble_dataset, positives_radius
+    from seqnet.data.traverse import Traverse
+
+    pos = np.arange(20, dtype=np.float64)[:, None] * 2.0  # a frame every 2 m
+    rows = [[max(0, i - 2), i, min(19, i + 2)] for i in range(20)]  # positives span 4 frames = 8 m
+    p = Positives.from_lists(rows)
+    assert positives_radius(p, pos) == 4.0
+    assert positives_radius(Positives.from_lists([[i] for i in range(20)]), pos) == 2.0  # one positive: one step
+    t = Traverse(np.eye(20, 8, dtype=np.float32) + 0.1, pos)
+    assert assemble_dataset(t, t, "metres", positives=p).radius == 4.0
+    with pytest.raises(ConfigError, match="no localisation radius"):
+        assemble_dataset(t, t, "metres")

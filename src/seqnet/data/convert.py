@@ -25,6 +25,7 @@ import numpy as np
 from ..core.errors import DatasetError
 from ..core.provenance import check_same
 from ..core.provenance import read as read_provenance
+from ..core.utils import logger
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_text
 from .traverse import Dataset, Traverse
@@ -247,6 +248,17 @@ def summarize_dataset(ds: Dataset) -> dict[str, Any]:
     return summary
 
 
+def positives_radius(positives: Positives, ref_positions: np.ndarray) -> float:
+    """A radius implied by explicit positives: half the median distance spanned by one query's positives
+    (at least the median step between consecutive reference frames, so a query with one positive counts)."""
+    pos = np.asarray(ref_positions, dtype=np.float64)
+    step = float(np.median(np.linalg.norm(np.diff(pos, axis=0), axis=1))) if len(pos) > 1 else 1.0
+    spans = [np.linalg.norm(pos[idx].max(0) - pos[idx].min(0)) / 2
+             for idx in (positives.indices[a:b] for a, b in zip(positives.indptr[:-1], positives.indptr[1:],
+                                                                  strict=True)) if len(idx)]
+    return max(float(np.median(spans)) if spans else 0.0, step, 1e-9)
+
+
 def assemble_dataset(
     ref: Traverse, query: Traverse, unit: str, radius: float | None = None, preset: str | None = None,
     splits: dict[str, dict[str, tuple[int, int]]] | None = None, name: str = "dataset",
@@ -271,6 +283,10 @@ def assemble_dataset(
         radius = p["radius"] if radius is None else radius
         if splits is None and p.get("splits"):
             splits = preset_splits(preset, len(ref), len(query))
+    if radius is None and positives is not None:  # the radius only says "the same place" for the confidence
+        radius = positives_radius(positives, ref.positions)
+        logger.info("explicit positives and no --radius: radius %g (half the median span of a query's positives)",
+                    radius)
     if radius is None:
         raise ConfigError("no localisation radius: give --radius R (metres or frames) or --preset "
                           "(nordland, oxford-v1.0, oxford-pnv, brisbane, msls)")
