@@ -343,3 +343,25 @@ def test_a_missing_s1_suggests_the_model_free_variant():
         check_methods([parse_method("hvpr-single")], {}, 5)
     with pytest.raises(ConfigError, match=r"needs an S_1 model .* and an S_L model \(--shortlist-model CKPT\)$"):
         check_methods([parse_method("hvpr")], {}, 5)
+
+
+def test_a_dataset_built_with_allow_mismatch_remembers_it(synth_dataset, tmp_path):
+    from seqnet.core.provenance import ProvenanceError
+    from seqnet.core.provenance import make as make_provenance
+    from seqnet.data.convert import assemble_dataset
+    from seqnet.data.io import load_dataset, save_dataset
+
+    a = make_provenance("describe", {"method": "netvlad", "size": [640, 320]}, dim=16)
+    b = make_provenance("describe", {"method": "netvlad", "size": [160, 120]}, dim=16)
+    ref = synth_dataset.reference.with_descriptors(synth_dataset.reference.descriptors, a)
+    qry = synth_dataset.query.with_descriptors(synth_dataset.query.descriptors, b)
+    with pytest.raises(ProvenanceError, match=r"size: \[640, 320\] vs \[160, 120\]"):
+        assemble_dataset(ref, qry, "metres", radius=5.0)
+    ds = assemble_dataset(ref, qry, "metres", radius=5.0, allow_mismatch=True)
+    assert ds.extra["allow_mismatch"] is True
+    loaded = load_dataset(save_dataset(ds, tmp_path / "ds"))
+    ev = evaluate(loaded, EvalConfig(methods=("single",), seq_len=4))  # no flag needed any more
+    assert ev.results["methods"]["single"]["queries"] > 0
+    same = assemble_dataset(ref, synth_dataset.query.with_descriptors(synth_dataset.query.descriptors, a), "metres",
+                            radius=5.0)
+    assert "allow_mismatch" not in same.extra

@@ -33,12 +33,18 @@ def _digest(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def fit_digest(fit_images: Iterable[str]) -> str:
+    """The hash of the images fitted state was computed on, as a provenance record stores it (order-independent)."""
+    return _digest(sorted(str(p) for p in fit_images))
+
+
 def make(kind: str, settings: Mapping[str, Any], fit_images: Iterable[str] | None = None,
-         dim: int | None = None) -> dict[str, Any]:
+         dim: int | None = None, fit: str | None = None) -> dict[str, Any]:
     """A provenance record (see the module docstring); ``fit_images`` are the names or paths of the
-    images fitted state was computed on (hashed, order-independent), ``dim`` the descriptor size D."""
+    images fitted state was computed on (hashed: :func:`fit_digest`), or ``fit`` that hash itself (state
+    fitted by another run and reused), ``dim`` the descriptor size D."""
     settings = json.loads(json.dumps(dict(settings), default=str))
-    fit = _digest(sorted(str(p) for p in fit_images)) if fit_images is not None else None
+    fit = fit_digest(fit_images) if fit_images is not None else fit
     record = {"kind": kind, "settings": settings, "fit_images": fit, "dim": dim}
     return {**record, "id": _digest(record)}
 

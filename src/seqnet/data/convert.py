@@ -271,6 +271,7 @@ def assemble_dataset(
     """
     check_same(ref.provenance, query.provenance, "the reference descriptors", "the query descriptors",
                allow_mismatch)
+    mismatched = bool(ref.provenance and query.provenance and ref.provenance.get("id") != query.provenance.get("id"))
     from ..core.errors import ConfigError
     from .presets import get_preset, preset_metadata, preset_splits
 
@@ -291,5 +292,7 @@ def assemble_dataset(
         raise ConfigError("no localisation radius: give --radius R (metres or frames) or --preset "
                           "(nordland, oxford-v1.0, oxford-pnv, brisbane, msls)")
     meta.update({k: v for k, v in (extra or {}).items() if v is not None})
+    if mismatched:  # accepted with --allow-mismatch: remembered, so later commands need not repeat it
+        meta["allow_mismatch"] = True
     return Dataset(reference=ref, query=query, radius=float(radius), position_unit=unit, splits=splits or {},
                    name=name, extra=meta, positives=positives)

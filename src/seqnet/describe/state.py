@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ..core.errors import ConfigError
+from ..core.provenance import fit_digest
 from ..core.utils import logger
 from .config import DescribeConfig, fit_summary
 from .pca import read_tag as read_pca_tag
@@ -56,8 +57,27 @@ class StateFile:
 def state_tag(conf: DescribeConfig, output: str | os.PathLike[str], fit_paths: Sequence[Path] = ()) -> str:
     """The tag of state fitted for ``output`` with the settings of ``conf`` on the images ``fit_paths``."""
     fitted_on = fit_summary(tuple(str(p) for p in fit_paths))
-    return json.dumps({"output": Path(output).name, "settings": conf.settings(), "fit_images": fitted_on},
-                      sort_keys=True)
+    provenance_fit = fit_digest(str(Path(p).resolve()) for p in fit_paths)  # what a reuser's provenance records
+    return json.dumps({"output": Path(output).name, "settings": conf.settings(), "fit_images": fitted_on,
+                       "provenance_fit": provenance_fit}, sort_keys=True)
+
+
+def reused_fit(conf: DescribeConfig) -> str | None:
+    """The provenance fit hash of the state fitted by seqnet that ``conf --checkpoint`` reuses, when its
+    run had this run's settings (a NetVLAD fitted on the reference, reused for the query): the
+    descriptors are then those that run would make. None otherwise (another tool's checkpoint)."""
+    path = getattr(conf.method_spec, "checkpoint", None)
+    tag = conf.method_spec.read_tag(Path(path)) if path else None
+    try:
+        found = json.loads(tag) if tag else None
+    except ValueError:
+        return None
+    if not isinstance(found, dict) or not found.get("provenance_fit"):
+        return None
+    ignore = ("fit", "fit_max", "checkpoint", "dim", "whiten")
+    ours = {k: v for k, v in conf.settings().items() if k not in ignore}
+    theirs = {k: v for k, v in (found.get("settings") or {}).items() if k not in ignore}
+    return found["provenance_fit"] if ours == theirs else None
 
 
 def _output_of(tag: str) -> str | None:

@@ -31,7 +31,7 @@ from .describer import Describer, Sink, describe_images, fit_paths_of, make_desc
 from .images import ImageList, list_images
 from .output import OUT_SUFFIXES, names_file_for, write_output
 from .shards import SHARD_KEY, Shard
-from .state import StateFile, state_files
+from .state import StateFile, reused_fit, state_files
 
 __all__ = ["OUT_SUFFIXES", "describe_folder", "describe_to_file", "main", "names_file_for"]
 
@@ -130,7 +130,10 @@ def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc
     ``conf``, whose fitted state (if any) was fitted on the images ``fitted_on``."""
     settings = {k: v for k, v in conf.settings().items() if k not in ("fit", "fit_max")}
     fit = [str(Path(f).resolve()) for f in fitted_on] if fitted_on is not None else None
-    return make_provenance("describe", settings, fit, int(desc.shape[1]))
+    reused = reused_fit(conf) if fit is None else None
+    if reused is not None:  # seqnet's own fitted state, reused as documented: the fitting run's provenance
+        settings["checkpoint"] = None
+    return make_provenance("describe", settings, fit, int(desc.shape[1]), fit=reused)
 
 
 def _describe_into(h: h5py.File, images: ImageList, describer: Describer,

@@ -56,8 +56,14 @@ def check_provenance(ds: Dataset, models: Mapping[str, SeqNet], length: int, all
     """Reference and query descriptors made alike; each model used on the descriptors (D, provenance)
     and the sequence length L it was trained with (unless ``allow``)."""
     check_same(ds.reference.provenance, ds.query.provenance, "the reference descriptors", "the query descriptors",
-               allow)
+               allow or accepted_mismatch(ds))
     check_models(models, ds.query.dim, ds.reference.provenance, f"dataset {ds.name!r}", length, allow)
+
+
+def accepted_mismatch(ds: Dataset) -> bool:
+    """The dataset was built with ``--allow-mismatch`` over reference and query descriptors made differently
+    (recorded in dataset.json): later commands on it need not repeat the flag."""
+    return bool(ds.extra.get("allow_mismatch"))
 
 
 def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None, where: str, length: int,

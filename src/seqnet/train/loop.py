@@ -30,6 +30,7 @@ from ..core.provenance import check_same
 from ..core.utils import logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
+from ..eval.checks import accepted_mismatch
 from ..sequence.descriptors import SeqNet
 from .config import TrainConfig, train_bytes
 from .distributed import World, joined
@@ -160,7 +161,7 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
     out_dir = Path(out_dir)
     check_resume_target(resume, out_dir)
     check_same(dataset.reference.provenance, dataset.query.provenance, "the reference descriptors",
-               "the query descriptors", allow_mismatch)
+               "the query descriptors", allow_mismatch or accepted_mismatch(dataset))
     with joined() as world, contextlib.ExitStack() as held:
         conf, payload, path = world.rank0(lambda: _claim(held, dataset, conf, out_dir, resume, dataset_path))
         run, src, val_ds, device = world.agree(lambda: _start(dataset, conf, out_dir, payload, path, world))
