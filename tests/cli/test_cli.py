@@ -217,3 +217,15 @@ def test_dataset_check_prints_metadata_one_key_a_line(synth_dir, capsys):
     out = capsys.readouterr().out.splitlines()
     meta = out[out.index("  metadata:") + 1 :]
     assert meta and all(line.startswith("    ") and len(line) <= 120 for line in meta), meta
+
+
+def test_from_images_needs_a_radius_unless_positives_imply_one(folder, tmp_path, capsys):
+    from seqnet.cli import main
+
+    (tmp_path / "pos.csv").write_text("query,reference\n" + "".join(f"{i},{i}\n" for i in range(10)))
+    base = ["dataset", "from-images", str(folder), str(folder), "--method", "pixels", "--patch", "8"]
+    assert main([*base, "--frame-aligned", "--out", str(tmp_path / "a")]) == 2
+    assert "--radius is required with frames ground truth" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists()
+    assert main([*base, "--positives", str(tmp_path / "pos.csv"), "--out", str(tmp_path / "b")]) == 0
+    assert "ground truth positives, radius 1 frames" in capsys.readouterr().out

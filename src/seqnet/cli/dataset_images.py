@@ -32,8 +32,9 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
     g.add_argument("--positives", metavar="FILE", help="explicit positives: per query the matching reference "
                    "indices (.json list of lists, .csv query,reference pairs, .npy object array)")
     p.add_argument("--query-csv", metavar="FILE", help="query positions CSV (with --ref-csv)")
-    p.add_argument("--radius", type=positive_float, required=True,
-                   help="localisation radius, inclusive (metres for CSV eastings / UTM names, else frames)")
+    p.add_argument("--radius", type=positive_float,
+                   help="localisation radius, inclusive (metres for CSV eastings / UTM names, else frames); "
+                   "required except with --positives, whose spread implies one")
     p.add_argument("--fit-on", default="reference", metavar=f"{'|'.join(FIT_ON)}|SPLIT",
                    help="images to fit PCA / NetVLAD clusters on: the reference (default), both traverses, or "
                         "a split given with --split")
@@ -52,10 +53,13 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
 def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN001 - a function
     truth = ("csv" if args.ref_csv else "utm" if args.utm_names else "frames" if args.frame_aligned
              else "positives")
-    if truth == "csv" and not args.query_csv:
-        from ..core.errors import ConfigError
+    from ..core.errors import ConfigError
 
+    if truth == "csv" and not args.query_csv:
         raise ConfigError("--ref-csv needs --query-csv (the query positions)")
+    if args.radius is None and truth != "positives":
+        raise ConfigError(f"--radius is required with {truth} ground truth (metres or frames; only --positives "
+                          "implies one)")
     conf = FromImagesConfig(describe=describe_config(args), fit_on=args.fit_on, ground_truth=truth,
                             radius=args.radius, splits=parse_splits(args.split), name=args.name,
                             pos_radius=args.pos_radius, neg_radius=args.neg_radius)

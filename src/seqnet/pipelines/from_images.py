@@ -47,7 +47,8 @@ class FromImagesConfig(Config):
         fit_on: where PCA / NetVLAD clusters are fitted: ``reference``, ``both``, or a split name
             (the images of that split of both traverses; needs ``splits``).
         ground_truth: one of :data:`GROUND_TRUTHS`.
-        radius: localisation radius (metres for UTM / CSV eastings, frames otherwise); inclusive.
+        radius: localisation radius (metres for UTM / CSV eastings, frames otherwise); inclusive. None with
+            explicit positives: implied by them (:func:`seqnet.data.convert.positives_radius`).
         splits: named half-open index ranges ``{name: {"reference": (a, b), "query": (c, d)}}``.
         name: dataset name (None: the output directory's).
         pos_radius / neg_radius: training radii (stored as metadata).
@@ -57,7 +58,7 @@ class FromImagesConfig(Config):
     describe: DescribeConfig = DescribeConfig()
     fit_on: str = "reference"
     ground_truth: str = "frames"
-    radius: float = 1.0
+    radius: float | None = 1.0
     splits: dict | None = None
     name: str | None = None
     pos_radius: float | None = None
@@ -65,7 +66,8 @@ class FromImagesConfig(Config):
 
     def __post_init__(self) -> None:
         check_choice("ground truth", self.ground_truth, GROUND_TRUTHS)
-        self._set("radius", check_float("radius", self.radius, 0.0, strict=True))
+        if self.radius is not None:
+            self._set("radius", check_float("radius", self.radius, 0.0, strict=True))
         if self.fit_on not in FIT_ON and self.fit_on not in (self.splits or {}):
             raise ConfigError(f"fit_on {self.fit_on!r} is not one of {', '.join(FIT_ON)} or a split name "
                               f"({', '.join(self.splits or {}) or 'no splits given'})")
