@@ -55,3 +55,22 @@ def test_pr_summary():
     assert s["auc"] == pytest.approx(1.0 * 0.25 + 1.0 * 0.25 + (2 / 3) * 0 + 0.75 * 0.25)
     perfect = pr_summary(*precision_recall(np.arange(5.0), np.ones(5, bool), np.ones(5, bool))[:2])
     assert perfect == {"auc": 1.0, "recall@100p": 1.0}
+
+
+def test_the_threshold_for_a_precision_is_the_lowest_that_reaches_it(rng):
+    from seqnet.eval.metrics.precision_recall import thresholds_for
+
+    for _ in range(20):
+        conf = rng.random(60).round(2)
+        correct = rng.random(60) < 0.7
+        has = correct | (rng.random(60) < 0.5)
+        p, r, t = precision_recall(conf, correct, has)
+        got = thresholds_for(p, r, t, (0.8, 0.95, 1.0))
+        for target, entry in got.items():
+            ok = [x for x in np.unique(conf) if correct[conf >= x].mean() >= float(target)]  # naive: every cut
+            if not ok:
+                assert entry is None
+                continue
+            low = min(ok)
+            assert entry["confidence"] == pytest.approx(low)
+            assert entry["recall"] == pytest.approx(correct[conf >= low].sum() / has.sum(), abs=1e-4)

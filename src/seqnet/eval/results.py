@@ -14,7 +14,13 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.files import write_text_atomic
-from .metrics.precision_recall import curve_points, pr_summary, precision_recall, ratio_confidence
+from .metrics.precision_recall import (
+    curve_points,
+    pr_summary,
+    precision_recall,
+    ratio_confidence,
+    thresholds_for,
+)
 from .metrics.recall import GroundTruth, recall
 
 PER_QUERY_FORMATS = (".csv", ".jsonl")
@@ -30,8 +36,9 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"])
     confidence = ratio_confidence(scores, ranked, truth.r_pos, truth.radius)
     correct = truth.hits(ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
-    precision, rec, _ = precision_recall(confidence, correct, truth.has_positive())
-    entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec))
+    precision, rec, thresholds = precision_recall(confidence, correct, truth.has_positive())
+    entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
+                 confidence_for_precision=thresholds_for(precision, rec, thresholds))
     if extra_radii:
         entry["radii"] = {str(r): recall(ranked, GroundTruth(truth.q_pos, truth.r_pos, r), ks) for r in extra_radii}
     return entry, confidence

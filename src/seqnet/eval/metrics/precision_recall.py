@@ -7,7 +7,8 @@ the localisation radius from that best one (a second, different place):
 among the retrieved, 0 when the other place scores as well). Thresholding it trades recall for
 precision: :func:`precision_recall` gives the curve over all thresholds (top-1 correctness, recall
 relative to the queries that have a correct reference), :func:`pr_summary` its area (average
-precision) and the recall at 100 % precision.
+precision) and the recall at 100 % precision, and :func:`thresholds_for` the threshold that reaches a
+given precision (what a threshold means: calibrate it on a val split).
 """
 
 from __future__ import annotations
@@ -71,3 +72,20 @@ def curve_points(precision: np.ndarray, recall: np.ndarray, max_points: int = 20
     keep = np.unique(np.linspace(0, n - 1, min(n, max_points)).round().astype(np.int64)) if n else np.zeros(0, int)
     return {"precision": [round(float(p), 4) for p in np.asarray(precision)[keep]],
             "recall": [round(float(r), 4) for r in np.asarray(recall)[keep]]}
+
+
+PRECISION_TARGETS = (0.9, 0.95, 0.99)
+
+
+def thresholds_for(precision: np.ndarray, recall: np.ndarray, thresholds: np.ndarray,
+                   targets: tuple[float, ...] = PRECISION_TARGETS) -> dict[str, dict[str, float] | None]:
+    """What a confidence threshold means on this evaluation: for each target precision P, the lowest
+    threshold accepting only queries at precision >= P and the recall it keeps (None: no threshold reaches
+    P). Measured on a val split, it is the threshold to use online (``seqnet eval --split val``)."""
+    out: dict[str, dict[str, float] | None] = {}
+    for target in targets:
+        ok = np.flatnonzero(np.asarray(precision) >= target)
+        i = int(ok.max()) if ok.size else None  # the lowest threshold (the curve runs high to low) still at P
+        out[f"{target:g}"] = None if i is None else {"confidence": round(float(thresholds[i]), 6),
+                                                      "recall": round(float(recall[i]), 4)}
+    return out
