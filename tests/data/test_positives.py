@@ -164,3 +164,42 @@ def test_positives_without_a_radius_imply_one():
     assert assemble_dataset(t, t, "metres", positives=p).radius == 4.0
     with pytest.raises(ConfigError, match="no localisation radius"):
         assemble_dataset(t, t, "metres")
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.int64, np.float32, bool])
+def test_a_dense_ground_truth_matrix_is_read_as_the_matrix(tmp_path, dtype):
+    gt = np.zeros((4, 6), dtype=dtype)
+    gt[0, 0] = gt[1, 1] = gt[1, 2] = gt[3, 5] = 1
+    np.save(tmp_path / "gt.npy", gt)
+    pos = read_positives(tmp_path / "gt.npy")
+    assert [pos.indices[a:b].tolist() for a, b in zip(pos.indptr[:-1], pos.indptr[1:], strict=True)] == \
+        [[0], [1, 2], [], [5]]
+    pos.check(4, 6)
+    with pytest.raises(DatasetError, match="a ground-truth matrix of 6 columns for 7 reference images"):
+        pos.check(4, 7)
+
+
+def test_padded_index_rows_and_refusals(tmp_path):
+    np.save(tmp_path / "idx.npy", np.array([[3, 4, -1], [2, -1, -1]]))
+    pos = read_positives(tmp_path / "idx.npy")
+    assert pos.indices.tolist() == [3, 4, 2] and pos.n_refs is None
+    np.save(tmp_path / "bad.npy", np.array([[0.5, 2.0]]))
+    with pytest.raises(DatasetError, match="neither a 0/1 ground-truth matrix nor integer reference indices"):
+        read_positives(tmp_path / "bad.npy")
+
+
+def test_vpr_bench_ground_truth_new(tmp_path):
+    """VPR-Bench's layout: an object array of [query index, [reference indices]] rows (np.save, allow_pickle)."""
+    rows = np.empty((3, 2), dtype=object)
+    rows[0] = [1, [2, 3]]
+    rows[1] = [0, [0]]
+    rows[2] = [2, 4]  # a single reference as a scalar
+    np.save(tmp_path / "ground_truth_new.npy", rows, allow_pickle=True)
+    pos = read_positives(tmp_path / "ground_truth_new.npy")
+    assert len(pos) == 3
+    assert [pos.indices[a:b].tolist() for a, b in zip(pos.indptr[:-1], pos.indptr[1:], strict=True)] == \
+        [[0], [2, 3], [4]]
+    rows[2, 0] = 1  # query 1 twice, query 2 missing
+    np.save(tmp_path / "dup.npy", rows, allow_pickle=True)
+    with pytest.raises(DatasetError, match="every query 0..2 once"):
+        read_positives(tmp_path / "dup.npy")

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
+from ..core.utils import logger
 from .readers import read_text
 
 
@@ -32,6 +33,7 @@ class Positives:
 
     indptr: np.ndarray  # [Nq + 1] int64
     indices: np.ndarray  # [nnz] int64
+    n_refs: int | None = None  # the columns of the dense matrix it was read from (checked against the traverse)
 
     @classmethod
     def from_lists(cls, lists: Sequence[Sequence[int]], where: str = "positives") -> Positives:
@@ -64,6 +66,9 @@ class Positives:
         """Raise :class:`DatasetError` unless there is one row per query and every index is a reference."""
         if len(self) != n_queries:
             raise DatasetError(f"{where}: {len(self)} rows of positives for {n_queries} query images (one per query)")
+        if self.n_refs is not None and self.n_refs != n_refs:
+            raise DatasetError(f"{where}: a ground-truth matrix of {self.n_refs} columns for {n_refs} reference "
+                               "images (one column per reference)")
         if self.indices.size and self.indices.max() >= n_refs:
             q = int(np.searchsorted(self.indptr, int(np.argmax(self.indices >= n_refs)), side="right") - 1)
             raise DatasetError(f"{where}: query {q} lists reference {int(self.indices.max())}, but the reference "
@@ -187,6 +192,39 @@ def _read_object_npy(p: Path) -> Positives:
                 raise DatasetError(f"cannot read {p}: not a pickled NumPy object array ({e})") from e
     if dtype.kind == "O":
         arr = np.asarray(arr, dtype=object).reshape(shape)
+        if arr.ndim == 2 and arr.shape[1] == 2 and all(_is_index(q) for q in arr[:, 0]):
+            return _vpr_bench(arr, p)
     elif arr.ndim == 2:
-        return Positives.from_lists(list(arr), str(p))
+        return _numeric_matrix(arr, p)
     return Positives.from_lists([np.asarray(r).ravel() for r in np.asarray(arr, dtype=object).ravel()], str(p))
+
+
+def _is_index(x: object) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+
+
+def _vpr_bench(arr: np.ndarray, p: Path) -> Positives:
+    """VPR-Bench's ``ground_truth_new.npy``: one ``[query index, [reference indices]]`` row per query."""
+    order = np.array([int(q) for q in arr[:, 0]])
+    if sorted(order.tolist()) != list(range(len(order))):
+        missing = sorted(set(range(len(order))) - set(order.tolist()))
+        raise DatasetError(f"{p}: VPR-Bench ground truth must list every query 0..{len(order) - 1} once "
+                           f"(first missing or repeated near query {missing[0] if missing else int(order[0])})")
+    lists: list = [None] * len(order)
+    for q, refs in zip(order, arr[:, 1], strict=True):
+        lists[q] = np.atleast_1d(np.asarray(refs)).ravel()
+    return Positives.from_lists(lists, str(p))
+
+
+def _numeric_matrix(arr: np.ndarray, p: Path) -> Positives:
+    """A 2-D numeric array: a dense ``[Nq, Nr]`` ground-truth matrix when bool or 0/1 (any dtype), else one
+    row of reference indices per query padded with -1; anything else is refused."""
+    if arr.dtype == bool or (arr.size and np.isin(arr, (0, 1)).all()):
+        rows, cols = np.nonzero(arr)
+        logger.info("%s: read as a dense [%d, %d] ground-truth matrix (0/1 entries)", p, *arr.shape)
+        found = Positives.from_pairs(rows.astype(np.int64), cols.astype(np.int64), arr.shape[0])
+        return dataclasses.replace(found, n_refs=int(arr.shape[1]))
+    if arr.dtype.kind in "iu" or (arr.dtype.kind == "f" and np.isfinite(arr).all() and (arr == arr.round()).all()):
+        return Positives.from_lists(list(arr), str(p))
+    raise DatasetError(f"{p}: a [{arr.shape[0]}, {arr.shape[1]}] {arr.dtype} array is neither a 0/1 ground-truth "
+                       "matrix nor integer reference indices per query (padded with -1)")
