@@ -203,3 +203,16 @@ def test_vpr_bench_ground_truth_new(tmp_path):
     np.save(tmp_path / "dup.npy", rows, allow_pickle=True)
     with pytest.raises(DatasetError, match="every query 0..2 once"):
         read_positives(tmp_path / "dup.npy")
+
+
+def test_vpr_tutorial_gt_npz(tmp_path):
+    """VPR_Tutorial's GT.npz: GThard [N_db, N_q] (bool), GTsoft beside it."""
+    hard = np.zeros((5, 3), bool)
+    hard[0, 0] = hard[1, 0] = hard[4, 2] = True
+    np.savez(tmp_path / "GT.npz", GThard=hard, GTsoft=hard | np.roll(hard, 1, axis=0))
+    pos = read_positives(tmp_path / "GT.npz").check(3, 5)
+    assert [pos.indices[a:b].tolist() for a, b in zip(pos.indptr[:-1], pos.indptr[1:], strict=True)] == \
+        [[0, 1], [], [4]]
+    np.savez(tmp_path / "other.npz", gt=hard)
+    with pytest.raises(DatasetError, match="needs VPR_Tutorial's 'GThard'"):
+        read_positives(tmp_path / "other.npz")

@@ -119,10 +119,11 @@ def read_positives(path: str | Path) -> Positives:
     p = Path(path)
     if not p.is_file():
         raise DatasetError(f"positives file not found: {p}")
-    readers = {".json": _read_json, ".csv": _read_csv, ".txt": _read_csv, ".npy": _read_object_npy}
+    readers = {".json": _read_json, ".csv": _read_csv, ".txt": _read_csv, ".npy": _read_object_npy,
+               ".npz": _read_tutorial_npz}
     reader = readers.get(p.suffix.lower())
     if reader is None:
-        raise DatasetError(f"positives file {p} must be .json, .csv or .npy (got {p.suffix or 'no extension'!r})")
+        raise DatasetError(f"positives file {p} must be .json, .csv, .npy or .npz (got {p.suffix or 'no extension'!r})")
     return reader(p)
 
 
@@ -197,6 +198,22 @@ def _read_object_npy(p: Path) -> Positives:
     elif arr.ndim == 2:
         return _numeric_matrix(arr, p)
     return Positives.from_lists([np.asarray(r).ravel() for r in np.asarray(arr, dtype=object).ravel()], str(p))
+
+
+def _read_tutorial_npz(p: Path) -> Positives:
+    """VPR_Tutorial's ``GT.npz``: ``GThard`` ``[N_db, N_q]`` bool (and ``GTsoft``, not read: the hard positives
+    decide what is correct)."""
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            if "GThard" not in z.files:
+                raise DatasetError(f"{p}: an .npz of positives needs VPR_Tutorial's 'GThard' [N_db, N_q] array, "
+                                   f"found {sorted(z.files)}")
+            hard = np.asarray(z["GThard"])
+    except (OSError, ValueError) as e:
+        raise DatasetError(f"cannot read {p} as an .npz file ({e})") from e
+    if hard.ndim != 2:
+        raise DatasetError(f"{p}: GThard must be a [N_db, N_q] matrix, got shape {hard.shape}")
+    return _numeric_matrix(hard.T, p)  # one row per query
 
 
 def _is_index(x: object) -> bool:
