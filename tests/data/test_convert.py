@@ -152,3 +152,25 @@ def test_check_fails_when_no_query_matches(tmp_path, rng, capsys):
     save_dataset(ds, tmp_path / "far")
     assert main(["dataset", "check", str(tmp_path / "far")]) == 2
     assert "no query has a reference within radius 1" in capsys.readouterr().err
+
+
+def test_hloc_global_features_are_read_with_their_names(tmp_path):
+    """hloc's extract_features layout: one group per image name (nested by '/'), dataset global_descriptor."""
+    import h5py
+
+    from seqnet.data.readers import read_descriptor_file
+
+    rng = np.random.default_rng(0)
+    names = ["db/img003.jpg", "db/img001.jpg", "db/sub/img002.jpg"]
+    vecs = {n: rng.standard_normal(6).astype(np.float16) for n in names}  # hloc stores float16 by default
+    with h5py.File(tmp_path / "global-feats-netvlad.h5", "w") as h:
+        for n in names:
+            h.create_group(n).create_dataset("global_descriptor", data=vecs[n])
+    desc, got = read_descriptor_file(tmp_path / "global-feats-netvlad.h5")
+    assert got == sorted(names) and desc.dtype == np.float32
+    np.testing.assert_array_equal(desc, np.stack([vecs[n] for n in sorted(names)]).astype(np.float32))
+    with h5py.File(tmp_path / "ragged.h5", "w") as h:
+        h.create_group("a.jpg").create_dataset("global_descriptor", data=np.zeros(4, np.float32))
+        h.create_group("b.jpg").create_dataset("global_descriptor", data=np.zeros(5, np.float32))
+    with pytest.raises(DatasetError, match="different lengths"):
+        read_descriptor_file(tmp_path / "ragged.h5")

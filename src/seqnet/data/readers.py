@@ -14,6 +14,7 @@ rules are the same everywhere:
 
 from __future__ import annotations
 
+import logging
 import warnings
 from pathlib import Path
 
@@ -88,11 +89,39 @@ def _read_h5(p: Path) -> tuple[np.ndarray, list[str] | None]:
 
     try:
         with h5py.File(p, "r") as h:
+            if "descriptors" not in h and _hloc_names(h):
+                return _read_hloc(h, p)
             desc = np.asarray(h[_h5_descriptor_key(h, p)][()])
             names = _h5_names(h, p) if "names" in h else None
     except (OSError, TypeError, ValueError, KeyError) as e:
         raise DatasetError(f"cannot read {p} as HDF5 ({' '.join(str(e).split())})") from e
     return desc, names
+
+
+logger = logging.getLogger("seqnet")
+HLOC_KEY = "global_descriptor"  # hloc's global features: one group per image name holding this dataset
+
+
+def _hloc_names(h) -> list[str]:  # noqa: ANN001 - h5py.File
+    """The image names of an hloc global-feature file (groups, nested by the '/' in a name, holding
+    ``global_descriptor``), sorted as hloc's image lists are; [] for another layout."""
+    import h5py
+
+    found: list[str] = []
+    h.visititems(lambda name, node: found.append(name) if isinstance(node, h5py.Group) and HLOC_KEY in node
+                 else None)
+    return sorted(found)
+
+
+def _read_hloc(h, p: Path) -> tuple[np.ndarray, list[str]]:  # noqa: ANN001 - h5py.File
+    """hloc's ``global-feats-*.h5``: ``[N, D]`` descriptors in sorted image-name order, and the names."""
+    names = _hloc_names(h)
+    rows = [np.asarray(h[n][HLOC_KEY][()]).ravel() for n in names]
+    dims = {len(r) for r in rows}
+    if len(dims) != 1:
+        raise DatasetError(f"{p}: hloc global descriptors of {len(dims)} different lengths ({sorted(dims)[:4]})")
+    logger.info("%s: hloc global features, %d images (sorted by name), D=%d", p, len(rows), dims.pop())
+    return np.stack(rows), names
 
 
 def _h5_descriptor_key(h, p: Path) -> str:  # noqa: ANN001 - h5py.File
