@@ -96,7 +96,7 @@ def test_pickled_code_is_refused(tmp_path, capsys):
     ("p.csv", "query,reference\n", "no query,reference pairs"),
     ("p.csv", "-1,2\n", "negative"),
     ("p.txt", b"\xff\xfe", "not UTF-8"),
-    ("p.pkl", "x", "must be .json, .csv or .npy"),
+    ("p.pkl", "x", "must be .json, .csv, .npy or .npz"),
     ("p.npy", "not numpy", "cannot read"),
 ])
 def test_reader_errors(tmp_path, name, content, pattern):
