@@ -16,6 +16,7 @@ TINY = {
     "gem": ({"size": (64, 32)}, 1280),
     "gmp": ({"size": (64, 32), "layer": 10}, 112),
     "netvlad": ({"size": (64, 32), "clusters": 4}, 4 * 112),
+    "plugin": ({"describer": "describe.plugin_describer:make"}, 12),  # tests/describe/plugin_describer.py
 }
 
 
@@ -219,3 +220,38 @@ def test_netvlad_checkpoint_keeps_its_image_size(tmp_path, capsys):
         again = h["descriptors"][()]
     with h5py.File(tmp_path / "nv.h5") as h:
         np.testing.assert_allclose(again, h["descriptors"][()], atol=1e-5)
+
+
+def test_a_plugin_describer_runs_and_is_recorded(folder, tmp_path):
+    import json
+
+    import h5py
+
+    from seqnet.cli import main as cli_main
+    from seqnet.core.errors import ConfigError
+
+    spec = "describe.plugin_describer:make"
+    assert cli_main(["-q", "describe", str(folder), "--method", "plugin", "--describer", spec, "--device", "cpu",
+                     "--out", str(tmp_path / "p.h5")]) == 0
+    with h5py.File(tmp_path / "p.h5") as h:
+        prov = json.loads(h.attrs["provenance"])
+        assert h["descriptors"].shape == (10, 12)
+    assert prov["settings"]["describer"] == spec and prov["settings"]["size"] == [32, 16]
+    assert prov["settings"]["describer_provenance"] == {"weights": "none", "version": 1}
+    assert cli_main(["-q", "dataset", "from-images", str(folder), str(folder), "--method", "plugin", "--describer",
+                     spec, "--frame-aligned", "--radius", "1", "--out", str(tmp_path / "ds")]) == 0
+    assert json.loads((tmp_path / "ds" / "dataset.json").read_text())["provenance"]["reference"]["dim"] == 12
+    assert cli_main(["-q", "describe", str(folder), "--method", "pixels", "--out", str(tmp_path / "x.h5")]) == 0
+    from seqnet.core.provenance import ProvenanceError, check_same
+    from seqnet.core.provenance import read as read_provenance
+
+    with pytest.raises(ProvenanceError, match="were made differently: describer: .*method: \"plugin\" vs \"pixels\""):
+        check_same(read_provenance(tmp_path / "p.h5"), read_provenance(tmp_path / "x.h5"), "ref", "query")
+    for bad, msg in (("describe.plugin_describer:nope", "cannot import it"), ("nocolon", "expected 'package"),
+                     ("describe.plugin_describer:not_a_module", "not a torch.nn.Module")):
+        with pytest.raises(ConfigError, match=msg):
+            DescribeConfig(method="plugin", describer=bad).settings()
+    with pytest.raises(ConfigError, match="needs --describer"):
+        DescribeConfig(method="plugin")
+    with pytest.raises(ConfigError, match="--describer goes with --method plugin"):
+        DescribeConfig(method="pixels", describer=spec)

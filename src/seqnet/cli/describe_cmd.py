@@ -75,14 +75,16 @@ def add_describe_options(p: argparse.ArgumentParser, fit: bool = True) -> None:
     p.add_argument("--checkpoint", metavar="CKPT",
                    help="NetVLAD checkpoint (pytorch-NetVlad / Patch-NetVLAD format, e.g. pitts_WPCA4096.pth.tar); "
                         "gem/gmp then pool its encoder")
+    p.add_argument("--describer", metavar="PKG.MODULE:FACTORY", help="--method plugin: your own describer, a "
+                   "factory returning a torch module [B, 3, H, W] in [0, 1] -> [B, D] (docs/describe.md)")
     p.add_argument("--no-wpca", dest="use_wpca", action="store_false", help="netvlad: ignore the checkpoint's WPCA")
     p.add_argument("--clusters", type=positive_int, help=f"netvlad: clusters K when fitted (default {_D.clusters})")
     p.add_argument("--seed", type=non_negative_int, help=f"netvlad: k-means seed (default {_D.seed})")
     p.add_argument("--skip-corrupted", action="store_true", help="leave unreadable images out instead of failing")
 
 
-DESCRIBE_KEYS = ("size", "crop_bottom", "batch_size", "dim", "whiten", "fit", "fit_max", "patch", "backbone", "layer",
-                 "gem_p", "checkpoint", "use_wpca", "clusters", "seed", "skip_corrupted", "device")
+DESCRIBE_KEYS = ("describer", "size", "crop_bottom", "batch_size", "dim", "whiten", "fit", "fit_max", "patch",
+                 "backbone", "layer", "gem_p", "checkpoint", "use_wpca", "clusters", "seed", "skip_corrupted", "device")
 
 
 def describe_config(args: argparse.Namespace) -> DescribeConfig:
@@ -91,11 +93,15 @@ def describe_config(args: argparse.Namespace) -> DescribeConfig:
 
 
 def _auto_sizes() -> str:
-    """``native for pixels; 640x320 for gem, gmp, netvlad`` from the methods' default sizes."""
+    """``native for pixels; 640x320 for gem, gmp, netvlad; ...`` from the methods' default sizes."""
     by_size: dict[str, list[str]] = {}
     for name, m in DESCRIBERS.items():
+        if m.takes_describer:
+            continue
         by_size.setdefault("x".join(map(str, m.default_size)) if m.default_size else "native", []).append(name)
-    return "; ".join(f"{size} for {', '.join(names)}" for size, names in by_size.items())
+    plugins = [n for n, m in DESCRIBERS.items() if m.takes_describer]
+    return "; ".join([f"{size} for {', '.join(names)}" for size, names in by_size.items()]
+                     + [f"the module's image_size (else native) for {', '.join(plugins)}"] * bool(plugins))
 
 
 def run(args: argparse.Namespace) -> int:

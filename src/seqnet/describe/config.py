@@ -41,6 +41,7 @@ class DescribeConfig(Config):
         layer: backbone feature layer (None: the backbone's default for the method).
         gem_p: gem: pooling power p.
         checkpoint: NetVLAD checkpoint (netvlad; gem/gmp pool its encoder).
+        describer: ``package.module:factory`` of your own torch module (method ``plugin``).
         use_wpca: netvlad: apply the checkpoint's WPCA layer.
         clusters: netvlad: clusters K when fitted.
         dim: PCA output dimension (None: no PCA).
@@ -62,6 +63,7 @@ class DescribeConfig(Config):
     layer: str | int | None = None
     gem_p: float = 3.0
     checkpoint: str | None = None
+    describer: str | None = None
     use_wpca: bool = True
     clusters: int = 64
     dim: int | None = None
@@ -86,6 +88,9 @@ class DescribeConfig(Config):
         self._set("layer", BACKBONES[self.backbone].check_layer(self.layer))
         if self.checkpoint is not None:
             self._set("checkpoint", os.fspath(self.checkpoint))
+        if self.describer is not None and not DESCRIBERS[self.method].takes_describer:
+            takes = [n for n, m in DESCRIBERS.items() if m.takes_describer]
+            raise ConfigError(f"--describer goes with --method {' / '.join(takes)}, not {self.method!r}")
         self._set("fit", check_fit(self.fit))
         get_device(self.device)  # validates the device name
         DESCRIBERS[self.method].of(self)  # the method checks its own settings
@@ -117,8 +122,9 @@ class DescribeConfig(Config):
 
     def settings(self) -> dict[str, Any]:
         """JSON-ready settings that determine the descriptors (a resumed run must match them)."""
+        spec = self.method_spec
         out: dict[str, Any] = {"method": self.method, "size": self.resolved().size, "crop_bottom": self.crop_bottom,
-                               **dataclasses.asdict(self.method_spec)}
+                               **dataclasses.asdict(spec), **spec.extra_settings()}
         if self.dim is not None:
             out.update(dim=self.dim, whiten=self.whiten)
         if self.needs_fit:

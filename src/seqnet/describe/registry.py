@@ -64,6 +64,7 @@ class Method:
     default_size: ClassVar[tuple[int, int] | None] = None  # (W, H) for size "auto"; None: native
     grey: ClassVar[bool] = False  # decode images as greyscale [B, H, W] instead of RGB [B, H, W, 3]
     state_suffix: ClassVar[str | None] = None  # fitted state kept beside an output as <stem><suffix>
+    takes_describer: ClassVar[bool] = False  # its extractor is the user's --describer module
 
     def auto_size(self) -> tuple[int, int] | None:
         """The image size of ``size="auto"`` (default: :attr:`default_size`)."""
@@ -82,6 +83,10 @@ class Method:
     def read_tag(self, path: Path) -> str | None:
         """The provenance tag of a fitted-state file (None: not written by seqnet)."""
         return None
+
+    def extra_settings(self) -> dict[str, Any]:
+        """Settings beyond the fields that determine the descriptors (a plug-in's own provenance)."""
+        return {}
 
     def extractor(self, ctx: FitContext) -> Extract:
         """The raw descriptor function ``uint8 [B, H, W(, 3)] → [B, D] float32``."""
@@ -197,4 +202,62 @@ class NetVLADMethod(Method):
         return cnn_extractor(model, lambda v: v, ctx.device)
 
 
-DESCRIBERS: dict[str, type[Method]] = {m.name: m for m in (PixelsMethod, GeMMethod, GMPMethod, NetVLADMethod)}
+@functools.lru_cache(maxsize=8)
+def load_plugin(spec: str) -> nn.Module:
+    """The module ``factory()`` of ``spec`` = ``"package.module:factory"`` returns (see :class:`PluginMethod`)."""
+    import importlib
+
+    module_name, _, attr = spec.partition(":")
+    if not module_name or not attr:
+        raise ConfigError(f"--describer {spec!r}: expected 'package.module:factory'")
+    try:
+        factory = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as e:
+        raise ConfigError(f"--describer {spec!r}: cannot import it ({e}); hint: the package must be importable "
+                          "(installed, or on PYTHONPATH)") from e
+    net = factory()
+    if not isinstance(net, nn.Module):
+        raise ConfigError(f"--describer {spec!r}: factory() returned {type(net).__name__}, not a torch.nn.Module")
+    return net
+
+
+@dataclasses.dataclass(frozen=True)
+class PluginMethod(Method):
+    """Your own describer: ``--describer package.module:factory``. ``factory()`` returns a ``torch.nn.Module``
+    mapping RGB images ``[B, 3, H, W]`` float in [0, 1] to descriptors ``[B, D]``; its own normalisation is
+    its business. An attribute ``image_size = (W, H)`` on the module is its ``--resize auto`` size (default
+    native), and ``provenance`` (a JSON-able value, e.g. a checkpoint hash) is recorded beside the spec."""
+
+    name = "plugin"
+    summary = "your own torch module (--describer package.module:factory)"
+    takes_describer = True
+    describer: str | None
+
+    def __post_init__(self) -> None:
+        if not self.describer:
+            raise ConfigError("--method plugin needs --describer package.module:factory")
+
+    @property
+    def net(self) -> nn.Module:
+        return load_plugin(str(self.describer))  # built once per spec
+
+    def extra_settings(self) -> dict[str, Any]:
+        return {"describer_provenance": getattr(self.net, "provenance", None)}
+
+    def auto_size(self) -> tuple[int, int] | None:
+        size = getattr(self.net, "image_size", None)
+        return tuple(size) if size is not None else None  # type: ignore[return-value]
+
+    def extractor(self, ctx: FitContext) -> Extract:
+        net = self.net.to(ctx.device).eval()
+
+        @torch.inference_mode()
+        def extract(images: np.ndarray) -> np.ndarray:
+            x = torch.from_numpy(np.ascontiguousarray(images)).to(ctx.device).permute(0, 3, 1, 2).float() / 255.0
+            return net(x).float().cpu().numpy()
+
+        return extract
+
+
+DESCRIBERS: dict[str, type[Method]] = {m.name: m for m in (PixelsMethod, GeMMethod, GMPMethod, NetVLADMethod,
+                                                             PluginMethod)}
