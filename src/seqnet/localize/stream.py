@@ -96,7 +96,8 @@ def image_frames(source: Path, ref_map: Reference, allow: bool) -> tuple[Frames,
         raise ConfigError("the map's descriptors do not record how they were described (no 'describe' provenance), "
                           "so query images cannot be described alike; describe them yourself and pass the "
                           "descriptor file as --query")
-    conf = DescribeConfig.from_dict({k: v for k, v in prov["settings"].items() if k not in ("dim", "whiten")})
+    derived = ("dim", "whiten", "describer_provenance")  # not options: the PCA's, a plug-in module's own
+    conf = DescribeConfig.from_dict({k: v for k, v in prov["settings"].items() if k not in derived})
     if conf.needs_fit or "dim" in prov["settings"]:
         raise ConfigError(f"the map was described with fitted state ({conf.method}, PCA or clusters), which "
                           "localize cannot rebuild; describe the query images with `seqnet describe` using the "
