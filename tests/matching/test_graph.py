@@ -321,3 +321,16 @@ def test_evaluate_with_new_matchers():
         if name == "raw+graph":  # the best items, up to float32 near-ties
             np.testing.assert_allclose(scores, np.sort(full[qs][:, rs], axis=1)[:, :n], atol=1e-4)
         assert (np.diff(scores, axis=1) >= -1e-4).all()
+
+
+def test_grh_on_wide_descriptors_says_once_what_it_costs(rng, caplog):
+    from seqnet.matching.graph import WIDE_LSH, lsh_candidates
+
+    r = rng.standard_normal((30, WIDE_LSH + 1)).astype(np.float32)
+    with caplog.at_level("WARNING", logger="seqnet"):
+        lsh_candidates(r[:2], r, 16, 3)
+        lsh_candidates(r[:2], r, 16, 3)
+    assert [m for m in caplog.messages if "dominate the cost" in m] == [caplog.messages[0]]
+    caplog.clear()
+    lsh_candidates(r[:2, :64], r[:, :64], 16, 3)
+    assert not caplog.messages

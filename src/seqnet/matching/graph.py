@@ -25,6 +25,7 @@ elsewhere.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -33,7 +34,7 @@ import torch
 
 from ..core.config import check_float, check_int
 from ..core.errors import ConfigError
-from ..core.utils import ArrayLike, as_tensor, get_device, to_numpy
+from ..core.utils import ArrayLike, as_tensor, get_device, logger, to_numpy
 from ..search.blocks import topk_smallest
 from ..search.knn import as_pair, pairwise_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
@@ -142,6 +143,16 @@ def graph_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.
 # ----------------------------------------------------------------------------- GRH
 
 
+WIDE_LSH = 4096  # above this D the LSH rotation costs seconds: grh says so
+
+
+@functools.cache
+def _warn_wide(dim: int) -> None:
+    """Say once per D that grh's LSH codes of wide descriptors dominate its cost."""
+    logger.warning("grh: LSH codes of D=%d descriptors (a random rotation of D x D) dominate the cost; "
+                   "s1+grh or a PCA'd descriptor is much faster (docs/matchers.md)", dim)
+
+
 @torch.no_grad()
 def lsh_candidates(query: ArrayLike, ref: ArrayLike, nbits: int = 256, candidates: int = 20,
                    device: str | None = None, block_bytes: int | None = None) -> np.ndarray:
@@ -156,6 +167,8 @@ def lsh_candidates(query: ArrayLike, ref: ArrayLike, nbits: int = 256, candidate
     nbits, candidates = check_int("nbits", nbits, 1), check_int("candidates", candidates, 1)
     dev = get_device(device)
     q, r = (t.cpu().float().numpy() for t in as_pair(query, ref, torch.device("cpu")))
+    if r.shape[1] > WIDE_LSH:
+        _warn_wide(int(r.shape[1]))
     index = faiss.IndexLSH(r.shape[1], nbits, True, True)
     index.train(np.ascontiguousarray(r))
     bq, br = (torch.as_tensor(np.unpackbits(index.sa_encode(np.ascontiguousarray(x)), axis=1, bitorder="little")
