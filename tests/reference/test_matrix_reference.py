@@ -14,7 +14,8 @@ from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.eval.matrix import evaluate_matrix
 from seqnet.reference.matrix import MATRIX_METHODS
 
-METHODS = ("single", "raw+seqmatch", "raw+seqmatch-rev", "hvpr-single:raw+seqmatch", "hvpr-single:raw+seqmatch-rev")
+METHODS = ("single", "raw+seqmatch", "raw+seqmatch-rev", "raw+vseqmatch", "raw+vseqmatch-rev", "raw+graph",
+           "hvpr-single:raw+seqmatch", "hvpr-single:raw+seqmatch-rev")
 
 
 def unit(x):
@@ -39,7 +40,7 @@ def test_a_distance_matrix_ranks_as_the_descriptors_do(synth_dataset, window):
 
 def test_methods_that_need_descriptors_are_refused(synth_dataset):
     ds = synth_dataset.split("test")
-    for name in ("smoothing", "raw+vseqmatch", "raw+graph", "hvpr-delta:raw+seqmatch"):
+    for name in ("smoothing", "raw+grh", "hvpr-delta:raw+seqmatch", "hvpr-single:raw+graph", "s1+seqmatch"):
         with pytest.raises(ConfigError, match="needs descriptors; on a distance matrix: single, raw"):
             evaluate_matrix(ds, distances(ds), EvalConfig(methods=(name,), seq_len=4))
     assert "hvpr-single:raw+seqmatch" in MATRIX_METHODS

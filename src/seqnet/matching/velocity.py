@@ -93,24 +93,50 @@ def check_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.
     return q_starts.to(q.device), cand.to(q.device)
 
 
+class FrameDistances:
+    """A precomputed ``[Nq, Nr]`` frame-distance matrix standing in for the query descriptors of
+    :func:`matcher_topk` (then ``ref`` is unused): its rows are the distance blocks, no GEMM (distance
+    matrices from other tools: :class:`seqnet.reference.matrix.MatrixReference`)."""
+
+    def __init__(self, dist: torch.Tensor) -> None:
+        self.dist = dist
+        self.shape, self.dtype, self.device = tuple(dist.shape), dist.dtype, dist.device
+
+    def element_size(self) -> int:
+        return self.dist.element_size()
+
+    def rows(self, a: int, b: int) -> torch.Tensor:
+        return self.dist[a:b].clone()  # the block functions may work in place
+
+    def reference(self) -> torch.Tensor:
+        """A stand-in of the reference side with its number of frames (the block functions need only that)."""
+        return self.dist.new_empty((self.shape[1], 0))
+
+
 def score_blocks(block_fn: BlockFn, q: torch.Tensor, r: torch.Tensor, seq_len: int, row_factor: int,
                  block_bytes: int | None = None, starts: np.ndarray | None = None,
                  desc: str | None = None) -> Iterator[tuple[int, torch.Tensor]]:
     """Yield ``(a0, block_fn(dist, a0, n))`` over blocks of n query windows starting at ``a0``.
 
     ``dist [n + L − 1, Nr]`` are the Euclidean distances of query frames ``a0 .. a0 + n + L − 2`` to
-    every reference frame (one GEMM). A block is about ``row_factor`` ``[n, Nr]`` buffers within
-    ``block_bytes``. With sorted ``starts``, blocks that hold none of them are skipped.
+    every reference frame (one GEMM; rows of the matrix when ``q`` is :class:`FrameDistances`). A block
+    is about ``row_factor`` ``[n, Nr]`` buffers within ``block_bytes``. With sorted ``starts``, blocks
+    that hold none of them are skipped.
     """
     na = q.shape[0] - seq_len + 1
-    rows = rows_per_block(row_factor * r.shape[0] * q.element_size(), block_bytes)
-    q_sq, r_sq = sq_norms(q), sq_norms(r)
+    rows = rows_per_block(row_factor * r.shape[0] * max(4, q.element_size()), block_bytes)
+    if isinstance(q, FrameDistances):  # given distances: rows of the matrix
+        dist_rows = q.rows
+    else:
+        q_sq, r_sq = sq_norms(q), sq_norms(r)
+
+        def dist_rows(a0: int, e: int) -> torch.Tensor:
+            return finish_distances(torch.mm(q[a0:e], r.T), q_sq[a0:e], r_sq)
     for a0 in progress(range(0, na, rows), desc=desc):
         n = min(rows, na - a0)
         if starts is not None and np.searchsorted(starts, a0) == np.searchsorted(starts, a0 + n):
             continue
-        e = a0 + n + seq_len - 1
-        yield a0, block_fn(finish_distances(torch.mm(q[a0:e], r.T), q_sq[a0:e], r_sq), a0, n)
+        yield a0, block_fn(dist_rows(a0, a0 + n + seq_len - 1), a0, n)
 
 
 @torch.no_grad()
@@ -126,7 +152,7 @@ def matcher_topk(prepare: Callable[[torch.Tensor, torch.Tensor], BlockFn], query
     items [M, k])`` as numpy.
     """
     dev = get_device(device)
-    q, r = as_pair(query, ref, dev)
+    q, r = (query, query.reference()) if isinstance(query, FrameDistances) else as_pair(query, ref, dev)
     check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
     k = check_int("k", k, 1)
     q_starts = check_starts(q_starts, q.shape[0] - seq_len + 1, "query")

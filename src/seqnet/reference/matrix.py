@@ -3,10 +3,10 @@
 Evaluation runs its one loop (:func:`seqnet.eval.evaluate.run`) on a :class:`MatrixReference` and a
 :class:`MatrixQuery`: the frame "descriptors" are the frames' indices into the matrix, k-NN reads a
 row, SeqMatch sums its diagonals (:func:`seqnet.matching.pairs.scores_from_distances`) and HVPR
-shortlists and re-ranks from the same matrix (``shared_distances``). The methods are the ones that
-read single-frame distances: ``single`` (k-NN), ``raw+seqmatch``, ``raw+seqmatch-rev`` and
-``hvpr-single:raw+seqmatch(-rev)``; anything that needs descriptors (sequence descriptors, models,
-the variable-speed and graph matchers) is refused.
+shortlists and re-ranks from the same matrix (``shared_distances``); the variable-speed and graph
+matchers run their block functions on its rows (:class:`seqnet.matching.velocity.FrameDistances`).
+The methods are the ones that read single-frame distances (:data:`MATRIX_METHODS`); anything that
+needs descriptors (sequence descriptors, models, GRH's LSH codes) is refused.
 """
 
 from __future__ import annotations
@@ -18,11 +18,14 @@ from ..core.errors import ConfigError
 from ..data.traverse import Traverse
 from ..eval.methods import Method
 from ..matching.pairs import scores_from_distances
+from ..matching.registry import SEQUENCE_MATCHERS
+from ..matching.velocity import FrameDistances
 from ..search.blocks import topk_smallest
 from ..sequence.windows import Windows
 
-MATRIX_MATCHERS = {"seqmatch": False, "seqmatch-rev": True}  # matcher -> reference traversed backwards
-MATRIX_METHODS = ("single", "raw+seqmatch", "raw+seqmatch-rev", "hvpr-single:raw+seqmatch",
+MATRIX_MATCHERS = {"seqmatch": False, "seqmatch-rev": True}  # re-rankers: matcher -> reference traversed backwards
+WHOLE_MAP_MATCHERS = ("seqmatch", "seqmatch-rev", "vseqmatch", "vseqmatch-rev", "graph")  # over the whole matrix
+MATRIX_METHODS = ("single", *(f"raw+{m}" for m in WHOLE_MAP_MATCHERS), "hvpr-single:raw+seqmatch",
                   "hvpr-single:raw+seqmatch-rev")
 
 
@@ -65,8 +68,9 @@ class MatrixReference:
 
     def check_method(self, m: Method) -> None:
         """Only methods that read single-frame distances run on a matrix."""
+        matchers = WHOLE_MAP_MATCHERS if m.kind == "match" else MATRIX_MATCHERS
         ok = (m.shortlist in (None, "single") and m.frames in (None, "raw") and not m.fused
-              and (m.matcher is None or m.matcher in MATRIX_MATCHERS) and m.models() == set())
+              and (m.matcher is None or m.matcher in matchers) and m.models() == set())
         if not ok:
             raise ConfigError(f"method {m.name!r} needs descriptors; on a distance matrix: {', '.join(MATRIX_METHODS)}")
 
@@ -93,7 +97,12 @@ class MatrixReference:
 
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
               k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Whole-map SeqMatch over the matrix: every item of every query window, the k best kept."""
+        """Whole-map matching over the matrix (SeqMatch: every item of every query window; the variable-speed
+        and graph matchers: their block functions on the matrix's rows), the k best kept."""
+        if matcher not in MATRIX_MATCHERS:
+            spec = SEQUENCE_MATCHERS[matcher]
+            return spec.topk(FrameDistances(self.dist), None, self.windows.match_len, k, q_starts, self.match_starts,
+                             device="cpu", **spec.options(self.windows.anchor))
         every = np.tile(np.arange(len(self.items)), (len(q_starts), 1))
         vals, idx = topk_smallest(self.rerank(frames, matcher, query_frames, q_starts, every), k)
         return vals.numpy(), idx.numpy()
