@@ -174,3 +174,30 @@ def test_hloc_global_features_are_read_with_their_names(tmp_path):
         h.create_group("b.jpg").create_dataset("global_descriptor", data=np.zeros(5, np.float32))
     with pytest.raises(DatasetError, match="different lengths"):
         read_descriptor_file(tmp_path / "ragged.h5")
+
+
+def test_vpr_methods_evaluation_descriptors_get_their_names_from_the_folders(tmp_path, capsys):
+    """VPR-methods-evaluation saves database_descriptors.npy / queries_descriptors.npy without names; their
+    rows follow sorted(glob(folder/**/*.jpg, recursive=True)), with UTM coordinates in the names."""
+    rng = np.random.default_rng(0)
+    for side, n in (("database", 6), ("queries", 4)):
+        for i in range(n):
+            sub = tmp_path / "ds" / side / ("b" if i % 2 else "a")
+            sub.mkdir(parents=True, exist_ok=True)
+            (sub / f"@{500000 + 10 * i:.2f}@{4400000.0:.2f}@17@T@{i:03d}@.jpg").write_bytes(b"")
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    np.save(logs / "database_descriptors.npy", rng.standard_normal((6, 8)).astype(np.float32))
+    np.save(logs / "queries_descriptors.npy", rng.standard_normal((4, 8)).astype(np.float32))
+    assert main(["-q", "dataset", "from-utm-names", "--ref-desc", str(logs / "database_descriptors.npy"),
+                 "--ref-names", str(tmp_path / "ds" / "database"), "--query-desc",
+                 str(logs / "queries_descriptors.npy"), "--query-names", str(tmp_path / "ds" / "queries"),
+                 "--radius", "25", "--out", str(tmp_path / "out")]) == 0
+    ds = load_dataset(tmp_path / "out")
+    assert ds.reference.names[0].startswith("a/@500000.00@") and ds.reference.names[3].startswith("b/@500010.00@")
+    np.testing.assert_allclose(ds.reference.positions[:, 0], [500000, 500020, 500040, 500010, 500030, 500050])
+    q_folder = str(tmp_path / "ds" / "queries")
+    assert main(["-q", "dataset", "from-utm-names", "--ref-desc", str(logs / "database_descriptors.npy"),
+                 "--ref-names", q_folder, "--query-desc", str(logs / "queries_descriptors.npy"),
+                 "--query-names", q_folder, "--radius", "25", "--out", str(tmp_path / "x")]) == 2
+    assert "4 names for 6 descriptors" in capsys.readouterr().err

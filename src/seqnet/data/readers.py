@@ -170,12 +170,28 @@ def check_names(names: list[str], where: str) -> list[str]:
 
 
 def read_names(path: str | Path) -> list[str]:
-    """Image names, one per non-blank ``\\n``-separated line of a UTF-8 text file (surrounding spaces removed)."""
+    """Image names, one per non-blank ``\\n``-separated line of a UTF-8 text file (surrounding spaces removed);
+    for a folder, its images in VPR-methods-evaluation's order (:func:`folder_names`)."""
     p = Path(path)
+    if p.is_dir():
+        return folder_names(p)
     if not p.is_file():
         raise DatasetError(f"names file not found: {p}")
     names = [line.strip() for line in read_text(p).split("\n") if line.strip()]
     return check_names(names, str(p))
+
+
+def folder_names(folder: Path) -> list[str]:
+    """The ``.jpg`` images under ``folder`` (relative paths) in the order VPR-methods-evaluation and the
+    Visual Geo-localization Benchmark describe them: ``sorted(glob(folder/**/*.jpg, recursive=True))``,
+    so their saved ``database_descriptors.npy`` / ``queries_descriptors.npy`` rows get their names."""
+    import glob
+    import os
+
+    paths = sorted(glob.glob(os.path.join(str(folder), "**", "*.jpg"), recursive=True))
+    if not paths:
+        raise DatasetError(f"{folder}: no .jpg images under it (names are read as sorted(glob('**/*.jpg')))")
+    return check_names([os.path.relpath(q, folder) for q in paths], str(folder))
 
 
 def read_text(p: Path) -> str:
