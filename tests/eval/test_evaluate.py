@@ -365,3 +365,21 @@ def test_a_dataset_built_with_allow_mismatch_remembers_it(synth_dataset, tmp_pat
     same = assemble_dataset(ref, synth_dataset.query.with_descriptors(synth_dataset.query.descriptors, a), "metres",
                             radius=5.0)
     assert "allow_mismatch" not in same.extra
+
+
+def test_msls_predictions_file(synth_dir, tmp_path, capsys):
+    """MSLS's predictions format: 'query_key ref_key1 ... ref_key20' per line, keys = basenames without extension."""
+    from seqnet.cli import main as cli
+    from seqnet.data.io import load_dataset
+
+    out = tmp_path / "pred.txt"
+    assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "raw+seqmatch", "--per-query",
+                str(out)]) == 0
+    lines = [ln.split() for ln in out.read_text().splitlines()]
+    ds = load_dataset(synth_dir).split("test")
+    ref_keys = {n.rsplit(".", 1)[0] for n in ds.reference.names}
+    assert all(len(ln) == 21 and set(ln[1:]) <= ref_keys for ln in lines)
+    assert lines[0][0] + ".png" in ds.query.names
+    assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "single,raw+seqmatch",
+                "--per-query", str(tmp_path / "two.txt")]) == 2
+    assert "holds one method, got 2" in capsys.readouterr().err

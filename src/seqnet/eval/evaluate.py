@@ -118,6 +118,7 @@ class Evaluation:
     r_items: np.ndarray  # [R] reference frame of each indexed reference
     confidence: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # method -> [M] in [0, 1]
     query_names: list[str] | None = None  # [M] image names of the evaluated queries, when known
+    reference_names: list[str] | None = None  # [R] image names of the reference items, when known
 
     @property
     def q_pos(self) -> np.ndarray:
@@ -194,6 +195,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                              "models": {k: v.config() for k, v in models.items()}}
     out.query_names = [ds.query.names[i] for i in query.side.items] if ds.query.names else None
+    out.reference_names = [ds.reference.names[i] for i in ref.items] if ds.reference.names else None
     return out
 
 

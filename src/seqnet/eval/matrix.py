@@ -72,6 +72,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": "cpu", "models": {},
                              "matrix_methods": list(MATRIX_METHODS)}
     out.query_names = [ds.query.names[i] for i in query.side.items] if ds.query.names else None
+    out.reference_names = [ds.reference.names[i] for i in ref.items] if ds.reference.names else None
     return out
 
 

@@ -23,7 +23,8 @@ from .metrics.precision_recall import (
 )
 from .metrics.recall import GroundTruth, recall
 
-PER_QUERY_FORMATS = (".csv", ".jsonl")
+PER_QUERY_FORMATS = (".csv", ".jsonl", ".txt")  # .txt: MSLS's predictions format (one method)
+MSLS_TOP = 20  # predictions per query in an MSLS file (its evaluation reads up to 20)
 
 
 def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, ks: Sequence[int],
@@ -63,15 +64,33 @@ def per_query_rows(ev: Any, top: int = 5) -> list[dict[str, Any]]:
     return rows
 
 
+def msls_predictions(ev: Any) -> str:
+    """MSLS's predictions file (mapillary_sls ``evaluate.py``): one line per query, its key then the keys of
+    its top-20 references, best first; a key is an image name's basename without its extension. One
+    method only (the file cannot say which), and the names must be known."""
+    if len(ev.retrieved) != 1:
+        raise ConfigError(f"an MSLS predictions file holds one method, got {len(ev.retrieved)} "
+                          f"({', '.join(ev.retrieved)}); hint: --method M")
+    if ev.query_names is None or ev.reference_names is None:
+        raise ConfigError("an MSLS predictions file needs image names for the query and reference images")
+    key = [Path(n).stem for n in ev.reference_names]
+    ranked = next(iter(ev.retrieved.values()))[:, :MSLS_TOP]
+    return "".join(" ".join([Path(q).stem, *(key[j] for j in row if j >= 0)]) + "\n"
+                   for q, row in zip(ev.query_names, ranked, strict=True))
+
+
 def _num(x: float) -> float | None:
     return round(float(x), 6) if np.isfinite(x) else None
 
 
 def write_per_query(ev: Any, path: str | Path, top: int = 5) -> Path:
-    """Write :func:`per_query_rows` to ``path``: ``.csv`` (lists joined by ``;``) or ``.jsonl``."""
+    """Write :func:`per_query_rows` to ``path``: ``.csv`` (lists joined by ``;``) or ``.jsonl``; or ``.txt``,
+    MSLS's predictions format (:func:`msls_predictions`)."""
     path = Path(path)
     if path.suffix.lower() not in PER_QUERY_FORMATS:
         raise ConfigError(f"per-query file {path} must end in {' or '.join(PER_QUERY_FORMATS)}")
+    if path.suffix.lower() == ".txt":
+        return write_text_atomic(path, msls_predictions(ev))
     rows = per_query_rows(ev, top)
     if path.suffix.lower() == ".jsonl":
         return write_text_atomic(path, "".join(json.dumps(r, allow_nan=False) + "\n" for r in rows))
