@@ -14,13 +14,10 @@ import numpy as np
 import torch
 
 from ..matching.hvpr import PairScores, Search, hvpr_search
-from ..matching.pairs import pick_strategy, scores_from_distances
+from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items, pick_strategy
 from ..reference.base import Reference
-from ..search.blocks import topk_smallest
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .methods import FRAME_FEATURES, Method, needs
-
-REUSABLE = {"seqmatch": False, "seqmatch-rev": True}  # matchers scored from a frame-distance matrix: reverse?
 
 Ranking = tuple[np.ndarray, np.ndarray, dict[str, float]]  # scores [M, k], items [M, k], timing ms
 
@@ -71,24 +68,19 @@ def _hvpr_parts(m: Method, query: Query, ref: Reference, q_items: torch.Tensor, 
     re-ranking would compute whole distance rows anyway (:func:`seqnet.matching.pairs.pick_strategy`),
     both read one matrix of frame distances, computed once (``ref.shared_distances``)."""
     frames, n_ref = FRAME_FEATURES[m.frames], len(ref.positions)
-    shared = (m.shortlist == frames and m.matcher in REUSABLE and SEQUENCE_DESCRIPTORS[frames].single_frame
+    shared = (m.shortlist == frames and m.matcher in DIAGONAL_MATCHERS and SEQUENCE_DESCRIPTORS[frames].single_frame
               and pick_strategy(len(query.match_starts), top_k, ref.windows.match_len, n_ref) == "rows")
     dist = ref.shared_distances(frames, q_frames) if shared else None
     if dist is None:
         return (lambda n: ref.search(m.shortlist, q_items, n, exact),
                 lambda c: ref.rerank(frames, m.matcher, q_frames, query.match_starts, c))
-    short = dist[torch.as_tensor(query.items_index, device=dist.device)][:, torch.as_tensor(ref.items,
-                                                                                         device=dist.device)]
     q_starts = torch.as_tensor(query.match_starts, device=dist.device)
     r_starts = torch.as_tensor(ref.match_starts, device=dist.device)
 
     def search(n: int) -> tuple[np.ndarray, np.ndarray]:
-        vals, idx = topk_smallest(short, n)
-        return vals.cpu().numpy(), idx.cpu().numpy()
+        return nearest_items(dist, query.items_index, ref.items, n)
 
     def pairs(cand: np.ndarray) -> torch.Tensor:
-        c = torch.as_tensor(cand, device=dist.device)
-        starts = torch.where(c >= 0, r_starts[c.clamp_min(0)], -1)
-        return scores_from_distances(dist, ref.windows.match_len, q_starts, starts, REUSABLE[m.matcher])
+        return item_scores_from_distances(dist, ref.windows.match_len, q_starts, r_starts, cand, m.matcher)
 
     return search, pairs

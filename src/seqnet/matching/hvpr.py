@@ -23,6 +23,7 @@ from ..core.errors import ConfigError
 from ..core.utils import ArrayLike, get_device, to_numpy
 from ..search.knn import as_pair, knn
 from ..sequence.windows import MODE_ANCHORS, check_seq_len
+from .pairs import item_starts
 from .registry import SEQUENCE_MATCHERS
 from .seqmatch import check_starts
 
@@ -139,9 +140,7 @@ def candidate_scores(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: t
     starts, candidates from its search): ``q [Nq, D]``, ``r [Nr, D]`` of one dtype and device,
     ``q_starts [M]``, ``r_starts [R]``, ``candidates [M, K]`` items (``-1``: none) → ``[M, K]``."""
     spec = SEQUENCE_MATCHERS[matcher]
-    cand_t = torch.as_tensor(candidates, device=q.device).long()
-    cand_starts = torch.where(cand_t >= 0, r_starts[cand_t.clamp_min(0)], -1) if len(r_starts) else cand_t
-    return spec.score_pairs(q, r, seq_len, q_starts, cand_starts, **spec.options(anchor))
+    return spec.score_pairs(q, r, seq_len, q_starts, item_starts(candidates, r_starts), **spec.options(anchor))
 
 
 def rerank(rerank_query: ArrayLike, rerank_ref: ArrayLike, seq_len: int, q_starts: np.ndarray, r_starts: np.ndarray,

@@ -14,12 +14,17 @@ Two ways to compute ``Σ_t ‖q[a+t] − r[b+t]‖`` for K candidate windows b o
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from ..core.errors import ConfigError
+from ..search.blocks import topk_smallest
 from ..search.knn import finish_distances, rows_per_block, sq_norms
 
 STRATEGIES = ("auto", "gather", "rows")
+# the fixed-speed matchers: a window pair reads only the candidate window's own frames, summed along a
+# (reverse: anti-) diagonal of the frame-distance matrix; matcher -> reverse
+DIAGONAL_MATCHERS: dict[str, bool] = {"seqmatch": False, "seqmatch-rev": True}
 GEMM_ADVANTAGE = 16  # a GEMM multiply-add is about this many times cheaper than a gathered difference
 
 
@@ -112,6 +117,30 @@ def gather_sums(dist: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, shif
     """``[b, K]``: ``Σ_t dist[rows[i] + shifts[t], cols[i, j] + ref_shift[t]]`` (window starts ``rows [b]``,
     ``cols [b, K]`` into a frame-distance matrix ``dist``)."""
     return dist[rows[:, None, None] + shifts, cols[:, :, None] + ref_shift].sum(-1)
+
+
+def item_starts(candidates: np.ndarray | torch.Tensor, r_starts: torch.Tensor) -> torch.Tensor:
+    """``[M, K]`` window starts of candidate items ``[M, K]`` (``-1``: none stays ``-1``) whose starts are
+    ``r_starts [R]``."""
+    cand = torch.as_tensor(candidates, device=r_starts.device).long()
+    return torch.where(cand >= 0, r_starts[cand.clamp_min(0)], -1) if len(r_starts) else cand
+
+
+def item_scores_from_distances(dist: torch.Tensor, seq_len: int, q_starts: torch.Tensor, r_starts: torch.Tensor,
+                               candidates: np.ndarray | torch.Tensor, matcher: str) -> torch.Tensor:
+    """:func:`scores_from_distances` of candidate *items* ``[M, K]`` (``-1``: none) with window starts
+    ``r_starts [R]``, for one of :data:`DIAGONAL_MATCHERS`."""
+    return scores_from_distances(dist, seq_len, q_starts, item_starts(candidates, r_starts),
+                                 DIAGONAL_MATCHERS[matcher])
+
+
+def nearest_items(dist: torch.Tensor, q_rows: np.ndarray | torch.Tensor, r_items: np.ndarray,
+                  k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(distances [M, k], items [M, k])``: the k items (frames ``r_items [R]``) nearest to the query frames
+    ``q_rows [M]``, read from the frame-distance matrix ``dist``."""
+    rows = torch.as_tensor(q_rows, device=dist.device).long()
+    vals, idx = topk_smallest(dist[rows][:, torch.as_tensor(r_items, device=dist.device)], k)
+    return vals.cpu().numpy(), idx.cpu().numpy()
 
 
 def scores_from_distances(dist: torch.Tensor, seq_len: int, q_starts: torch.Tensor, cand: torch.Tensor,

@@ -17,13 +17,12 @@ import torch
 from ..core.errors import ConfigError
 from ..data.traverse import Traverse
 from ..eval.methods import Method
-from ..matching.pairs import scores_from_distances
+from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..matching.velocity import FrameDistances
 from ..search.blocks import topk_smallest
 from ..sequence.windows import Windows
 
-MATRIX_MATCHERS = {"seqmatch": False, "seqmatch-rev": True}  # re-rankers: matcher -> reference traversed backwards
 WHOLE_MAP_MATCHERS = ("seqmatch", "seqmatch-rev", "vseqmatch", "vseqmatch-rev", "graph")  # over the whole matrix
 MATRIX_METHODS = ("single", *(f"raw+{m}" for m in WHOLE_MAP_MATCHERS), "hvpr-single:raw+seqmatch",
                   "hvpr-single:raw+seqmatch-rev")
@@ -68,7 +67,7 @@ class MatrixReference:
 
     def check_method(self, m: Method) -> None:
         """Only methods that read single-frame distances run on a matrix."""
-        matchers = WHOLE_MAP_MATCHERS if m.kind == "match" else MATRIX_MATCHERS
+        matchers = WHOLE_MAP_MATCHERS if m.kind == "match" else DIAGONAL_MATCHERS
         ok = (m.shortlist in (None, "single") and m.frames in (None, "raw") and not m.fused
               and (m.matcher is None or m.matcher in matchers) and m.models() == set())
         if not ok:
@@ -80,9 +79,7 @@ class MatrixReference:
     def search(self, descriptor: str, query: torch.Tensor, k: int,
                exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The k nearest items of the query frames ``query [M, 1]`` (their rows)."""
-        rows = self.dist[torch.as_tensor(query)[:, 0].long()][:, torch.as_tensor(self.items)]
-        vals, idx = topk_smallest(rows, k)
-        return vals.numpy(), idx.numpy()
+        return nearest_items(self.dist, torch.as_tensor(query)[:, 0], self.items, k)
 
     def shared_distances(self, frames: str, query_frames: torch.Tensor) -> torch.Tensor:
         return self.dist
@@ -90,16 +87,14 @@ class MatrixReference:
     def rerank(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
                candidates: np.ndarray) -> torch.Tensor:
         """SeqMatch of the candidate items ``[M, K]`` (``-1``: none) read from the matrix."""
-        c = torch.as_tensor(candidates).long()
-        starts = torch.where(c >= 0, torch.as_tensor(self.match_starts)[c.clamp_min(0)], -1)
-        return scores_from_distances(self.dist, self.windows.match_len, torch.as_tensor(q_starts), starts,
-                                     MATRIX_MATCHERS[matcher])
+        return item_scores_from_distances(self.dist, self.windows.match_len, torch.as_tensor(q_starts),
+                                          torch.as_tensor(self.match_starts), candidates, matcher)
 
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
               k: int) -> tuple[np.ndarray, np.ndarray]:
         """Whole-map matching over the matrix (SeqMatch: every item of every query window; the variable-speed
         and graph matchers: their block functions on the matrix's rows), the k best kept."""
-        if matcher not in MATRIX_MATCHERS:
+        if matcher not in DIAGONAL_MATCHERS:
             spec = SEQUENCE_MATCHERS[matcher]
             return spec.topk(FrameDistances(self.dist), None, self.windows.match_len, k, q_starts, self.match_starts,
                              device="cpu", **spec.options(self.windows.anchor))
