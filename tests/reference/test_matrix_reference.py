@@ -66,3 +66,16 @@ def test_cli_distances_and_similarities(synth_dataset, synth_dir, tmp_path, caps
     assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "nan.npy")]) == 2
     assert "entry [3, 4] is nan" in capsys.readouterr().err
     assert cli(["eval", "--dataset", str(synth_dir), "--similarity"]) == 2
+
+
+def test_a_range_split_evaluates_its_sub_matrix(synth_dataset, synth_dir, tmp_path, capsys):
+    np.save(tmp_path / "d.npy", distances(synth_dataset))
+    assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--distances", str(tmp_path / "d.npy"),
+                "--split", "20:80", "--method", "single", "--out", str(tmp_path / "r")]) == 0
+    sub = synth_dataset.split("20:80")
+    want = evaluate_matrix(sub, distances(sub), EvalConfig(methods=("single",), seq_len=4))
+    got = json.loads((tmp_path / "r" / "results.json").read_text())["methods"]["single"]
+    assert got["queries"] == want.results["methods"]["single"]["queries"]
+    assert got["recall@1"] == want.results["methods"]["single"]["recall@1"]
+    assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "d.npy"), "--split", "nosuch"]) == 2
+    assert "has no split 'nosuch'" in capsys.readouterr().err

@@ -99,16 +99,15 @@ def _register_seqnet(dsub: argparse._SubParsersAction) -> None:
 def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | None:
     """``NAME=A:B`` (queries A:B, the whole reference) or ``NAME=A:B,C:D`` (reference A:B, queries C:D) items →
     splits (None when there are none)."""
+    from ..data.traverse import parse_range_spec
+
     out: dict[str, dict[str, tuple[int, int]]] = {}
     for item in items:
-        try:
-            name, spec = item.split("=", 1)
-            parts = [tuple(int(x) for x in r.split(":")) for r in spec.split(",")]
-            if len(parts) not in (1, 2) or any(len(r) != 2 for r in parts):
-                raise ValueError
-        except ValueError:
-            raise ConfigError(f"--split {item!r}: expected NAME=A:B or NAME=A:B,C:D (reference, query)") from None
-        out[name] = {"reference": parts[0], "query": parts[1]} if len(parts) == 2 else {"query": parts[0]}
+        name, _, spec = item.partition("=")
+        rng = parse_range_spec(spec) if name and spec else None
+        if rng is None:
+            raise ConfigError(f"--split {item!r}: expected NAME=A:B or NAME=A:B,C:D (reference, query)")
+        out[name] = rng
     return out or None
 
 

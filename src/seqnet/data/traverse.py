@@ -19,6 +19,7 @@ Directory format (read and written by :mod:`seqnet.dataset_io`; see docs/dataset
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -137,14 +138,21 @@ class Dataset:
             self.positives.check(len(self.query), len(self.reference))
         if self.position_unit is None:
             self.position_unit = "frames" if self.reference.positions.shape[1] == 1 else "metres"
-        self.splits = {name: {"reference": tuple(rng.get("reference", (0, len(self.reference)))),
-                              **{k: tuple(v) for k, v in rng.items() if k != "reference"}}
-                       for name, rng in self.splits.items()}
+        self.splits = {name: self._whole_reference(rng) for name, rng in self.splits.items()}
         validate_dataset(self)
 
-    def ranges(self, split: str) -> dict[str, tuple[int, int]] | None:
-        """``{"reference": (a, b), "query": (c, d)}`` of a named split or of a range spec, else None."""
-        return self.splits.get(split) or _range_split(split, len(self.reference))
+    def _whole_reference(self, rng: dict[str, tuple[int, int]]) -> dict[str, tuple[int, int]]:
+        """``rng`` with the whole reference when it gives only a query range (a split selects queries)."""
+        return {"reference": tuple(rng.get("reference", (0, len(self.reference)))),
+                **{k: tuple(v) for k, v in rng.items() if k != "reference"}}
+
+    def ranges(self, split: str | None) -> dict[str, tuple[int, int]] | None:
+        """``{"reference": (a, b), "query": (c, d)}`` of a named split, of a range spec (:func:`parse_range_spec`)
+        or of ``all`` / None (the whole traverses); None for anything else."""
+        if split in (None, "all"):
+            return {"reference": (0, len(self.reference)), "query": (0, len(self.query))}
+        rng = self.splits.get(split) or parse_range_spec(split)
+        return None if rng is None else self._whole_reference(rng)
 
     def split(self, split: str | None) -> Dataset:
         """The dataset restricted to a named split (None or "all": the whole dataset), or to a range given
@@ -172,16 +180,21 @@ class Dataset:
         )
 
 
-def _range_split(spec: str, n_ref: int) -> dict[str, tuple[int, int]] | None:
-    """``"A:B"`` → queries A:B, the whole reference; ``"A:B,C:D"`` → reference A:B, queries C:D; else None."""
+def parse_range_spec(spec: str) -> dict[str, tuple[int, int]] | None:
+    """``"A:B"`` → ``{"query": (A, B)}`` (queries against the whole reference); ``"A:B,C:D"`` → reference A:B,
+    queries C:D; None when ``spec`` is neither."""
     try:
         parts = [tuple(int(x) for x in r.split(":")) for r in spec.split(",")]
     except ValueError:
         return None
     if len(parts) not in (1, 2) or any(len(r) != 2 for r in parts):
         return None
-    return {"reference": parts[0], "query": parts[1]} if len(parts) == 2 else {"reference": (0, n_ref),
-                                                                              "query": parts[0]}
+    return {"reference": parts[0], "query": parts[1]} if len(parts) == 2 else {"query": parts[0]}
+
+
+def default_split(split: str | None, splits: Mapping[str, Any]) -> str:
+    """``split``, else ``test`` when the dataset defines one, else ``all``."""
+    return split or ("test" if "test" in splits else "all")
 
 
 def validate_traverse(t: Traverse) -> None:

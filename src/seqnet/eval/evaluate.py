@@ -20,7 +20,7 @@ from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..core.ownership import locked, remove_dead_temps
 from ..core.utils import get_device, logger
-from ..data.traverse import Dataset
+from ..data.traverse import Dataset, default_split
 from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
@@ -236,13 +236,13 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
 
 def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
     """One line per model trained on queries of ``dataset`` that the evaluated ``split`` contains too."""
-    a, b = ds.ranges(split)["query"] if split != "all" else (0, len(ds.query))
+    a, b = ds.ranges(split)["query"]
     out = []
     for role, m in sorted(models.items()):
         t = getattr(m, "trained_on", None)
         if not t or not t.get("split") or not _same_path(t["dataset"], dataset):
             continue
-        trained = {"query": (0, len(ds.query))} if t["split"] == "all" else ds.ranges(t["split"])
+        trained = ds.ranges(t["split"])
         if trained is None:
             continue
         ta, tb = trained["query"]
@@ -268,7 +268,7 @@ def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str
     from ..sequence.checkpoints import load_models
 
     ds = load_dataset(dataset)
-    split = conf.split or ("test" if "test" in ds.splits else "all")
+    split = default_split(conf.split, ds.splits)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     ev = evaluate(ds.split(split), conf.replace(split=split), loaded)
     ev.results["config"]["dataset_path"] = str(dataset)

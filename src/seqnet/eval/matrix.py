@@ -18,7 +18,7 @@ import torch
 from ..core.errors import ConfigError, DatasetError
 from ..core.files import Written, file_digest, write_json_atomic
 from ..core.ownership import locked, remove_dead_temps
-from ..data.traverse import Dataset
+from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
 from .evaluate import EvalConfig, Evaluation, run
 from .methods import parse_method
@@ -45,10 +45,8 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False) -> np.n
 
 
 def split_matrix(dist: np.ndarray, ds: Dataset, split: str) -> np.ndarray:
-    """The rows and columns of ``split`` (the whole matrix for ``all``)."""
-    if split in (None, "all"):
-        return dist
-    rng = ds.splits[split]
+    """The rows and columns of ``split`` (a name, a range spec, or ``all``: :meth:`Dataset.ranges`)."""
+    rng = ds.ranges(split)
     return dist[slice(*rng["query"])][:, slice(*rng["reference"])]
 
 
@@ -85,10 +83,11 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
     with locked(out):
         remove_dead_temps([Path(out) / "results.json"])
         ds = load_dataset(dataset)
-        split = conf.split or ("test" if "test" in ds.splits else "all")
+        split = default_split(conf.split, ds.splits)
+        sub = ds.split(split)  # a bad split is refused here, before the matrix is read
         dist = split_matrix(read_matrix(distances, ds, similarity), ds, split)
         defaults = conf.methods == EvalConfig().methods
-        ev = evaluate_matrix(ds.split(split), dist, conf.replace(
+        ev = evaluate_matrix(sub, dist, conf.replace(
             split=split, methods=DEFAULT_MATRIX_METHODS if defaults else conf.methods))
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
                                 "similarity": bool(similarity), "distances_digest": file_digest(distances)}

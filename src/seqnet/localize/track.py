@@ -24,7 +24,7 @@ from ..core.files import Written, write_json_atomic, write_text_atomic
 from ..core.ownership import locked, remove_dead_temps
 from ..core.progress import progress
 from ..core.utils import get_device, logger
-from ..data.traverse import Dataset
+from ..data.traverse import Dataset, default_split
 from ..eval.metrics.precision_recall import pr_summary, precision_recall
 from ..eval.metrics.recall import check_radius, ground_truth
 from ..matching.velocity import ANCHORS
@@ -222,7 +222,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     from ..sequence.checkpoints import load_models
 
     full = load_dataset(dataset)
-    split = conf.split or ("test" if "test" in full.splits else "all")
+    split = default_split(conf.split, full.splits)
     ds = full.split(split)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     radius = conf.radius or ds.radius

@@ -10,7 +10,7 @@ from ..core.errors import ConfigError
 from ..core.ownership import check_replaceable
 from ..core.utils import get_device, logger
 from ..data.io import load_dataset
-from ..data.traverse import Dataset
+from ..data.traverse import Dataset, default_split
 from ..eval.checks import check_models as check_model_inputs
 from ..reference.traverse import TraverseReference
 from ..search.ann import make_index
@@ -58,7 +58,7 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
     checkpoints ``models`` (S_L and/or S_1, by their stored role) and write the map to ``out``."""
     t0 = time.perf_counter()
     ds = load_dataset(dataset)
-    split = conf.split or ("test" if "test" in ds.splits else "all")
+    split = default_split(conf.split, ds.splits)
     loaded = load_models(models, seq_len=conf.seq_len)
     conf = resolve(conf.replace(split=split), loaded)
     sub = ds.split(split)

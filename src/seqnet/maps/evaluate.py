@@ -23,7 +23,7 @@ from ..core.files import Written, write_json_atomic
 from ..core.ownership import locked
 from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
-from ..data.traverse import Traverse
+from ..data.traverse import Traverse, default_split
 from ..eval.evaluate import EvalConfig, Evaluation, run
 from ..eval.methods import Method, parse_method
 from ..eval.metrics.recall import ground_truth
@@ -58,7 +58,7 @@ def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
     t = load_traverse(root / (meta.get("traverses") or {}).get("query", "query"), "query")
     t.provenance = (meta.get("provenance") or {}).get("query")
     splits = meta.get("splits") or {}
-    split = split or ("test" if "test" in splits else "all")
+    split = default_split(split, splits)
     rng = (0, len(t))
     if split != "all":
         if split not in splits:
