@@ -20,7 +20,7 @@ from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..core.ownership import locked, remove_dead_temps
 from ..core.utils import get_device, logger
-from ..data.traverse import Dataset, default_split
+from ..data.traverse import Dataset, Traverse, default_split
 from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
@@ -188,15 +188,25 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     windows = conf.windows
     query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
     ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
-    positives = ds.positives.select(query.side.items, ref.items) if ds.positives is not None else None
-    truth = ground_truth(ds.query.positions[query.side.items], ds.reference.positions[ref.items], conf.radius,
-                         positives, ds.name, ds.position_unit)
+    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models))
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                              "models": {k: v.config() for k, v in models.items()}}
-    out.query_names = [ds.query.names[i] for i in query.side.items] if ds.query.names else None
-    out.reference_names = [ds.reference.names[i] for i in ref.items] if ds.reference.names else None
+    out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
+
+
+def dataset_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: float) -> GroundTruth:
+    """What is correct for the query items ``q_items`` among the reference items ``r_items`` of ``ds``: its
+    explicit positives, else the radius."""
+    positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
+    return ground_truth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives, ds.name,
+                        ds.position_unit)
+
+
+def item_names(t: Traverse, items: np.ndarray) -> list[str] | None:
+    """The image names of the frames ``items`` of ``t`` (None when it has none)."""
+    return [t.names[i] for i in items] if t.names else None
 
 
 def run(methods: Sequence[Method], query: Described, ref: Reference, truth: GroundTruth, conf: EvalConfig,

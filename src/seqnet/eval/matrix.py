@@ -20,9 +20,8 @@ from ..core.files import Written, file_digest, write_json_atomic
 from ..core.ownership import locked, remove_dead_temps
 from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
-from .evaluate import EvalConfig, Evaluation, run
+from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
 from .methods import parse_method
-from .metrics.recall import ground_truth
 
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
 
@@ -60,17 +59,14 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
     if d.shape[0] != len(ds.query):
         raise ConfigError(f"the distance matrix has {d.shape[0]} rows for {len(ds.query)} query frames")
     methods = [parse_method(n) for n in conf.methods]
-    positives = ds.positives.select(query.side.items, ref.items) if ds.positives is not None else None
-    truth = ground_truth(ds.query.positions[query.side.items], ds.reference.positions[ref.items], conf.radius,
-                         positives, ds.name, ds.position_unit)
+    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: {**m.summary(), "on": "distance matrix",
                                                                            "seq_len": conf.length,
                                                                            "rerank_seq_len": conf.match_len,
                                                                            "top_k": conf.shortlist_size(m)})
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": "cpu", "models": {},
                              "matrix_methods": list(MATRIX_METHODS)}
-    out.query_names = [ds.query.names[i] for i in query.side.items] if ds.query.names else None
-    out.reference_names = [ds.reference.names[i] for i in ref.items] if ds.reference.names else None
+    out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
 
 
