@@ -41,7 +41,7 @@ def limit(name: str) -> int:
 
 
 class Spilled(np.memmap):
-    """A read-only ``[N, D]`` memory map over an unlinked temporary file (see :func:`spill`): always streamed."""
+    """A read-only ``[N, D]`` memory map over an unlinked temporary file (see :class:`SpillWriter`): always streamed."""
 
 
 def mapping(x: object) -> mmap.mmap | None:
