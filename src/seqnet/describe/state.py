@@ -57,15 +57,20 @@ class StateFile:
 def state_tag(conf: DescribeConfig, output: str | os.PathLike[str], fit_paths: Sequence[Path] = ()) -> str:
     """The tag of state fitted for ``output`` with the settings of ``conf`` on the images ``fit_paths``."""
     fitted_on = fit_summary(tuple(str(p) for p in fit_paths))
-    provenance_fit = fit_digest(str(Path(p).resolve()) for p in fit_paths)  # what a reuser's provenance records
     return json.dumps({"output": Path(output).name, "settings": conf.settings(), "fit_images": fitted_on,
-                       "provenance_fit": provenance_fit}, sort_keys=True)
+                       "provenance_fit": provenance_fit(fit_paths)}, sort_keys=True)  # what a reuser records
 
 
-def reused_fit(conf: DescribeConfig) -> str | None:
+def provenance_fit(paths: Sequence[str | os.PathLike[str]]) -> str:
+    """The hash of the images fitted state was computed on, as the descriptors' provenance records it."""
+    return fit_digest(str(Path(p).resolve()) for p in paths)
+
+
+def reused_fit(conf: DescribeConfig, settings: dict | None = None) -> str | None:
     """The provenance fit hash of the state fitted by seqnet that ``conf --checkpoint`` reuses, when its
     run had this run's settings (a NetVLAD fitted on the reference, reused for the query): the
-    descriptors are then those that run would make. None otherwise (another tool's checkpoint)."""
+    descriptors are then those that run would make. None otherwise (another tool's checkpoint).
+    ``settings``: ``conf.settings()`` when the caller has them already."""
     path = getattr(conf.method_spec, "checkpoint", None)
     tag = conf.method_spec.read_tag(Path(path)) if path else None
     try:
@@ -75,7 +80,7 @@ def reused_fit(conf: DescribeConfig) -> str | None:
     if not isinstance(found, dict) or not found.get("provenance_fit"):
         return None
     ignore = ("fit", "fit_max", "checkpoint", "dim", "whiten")
-    ours = {k: v for k, v in conf.settings().items() if k not in ignore}
+    ours = {k: v for k, v in (settings or conf.settings()).items() if k not in ignore}
     theirs = {k: v for k, v in (found.get("settings") or {}).items() if k not in ignore}
     return found["provenance_fit"] if ours == theirs else None
 

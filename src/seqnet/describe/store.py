@@ -31,7 +31,7 @@ from .describer import Describer, Sink, describe_images, fit_paths_of, make_desc
 from .images import ImageList, list_images
 from .output import OUT_SUFFIXES, names_file_for, write_output
 from .shards import SHARD_KEY, Shard
-from .state import StateFile, reused_fit, state_files
+from .state import StateFile, provenance_fit, reused_fit, state_files
 
 __all__ = ["OUT_SUFFIXES", "describe_folder", "describe_to_file", "main", "names_file_for"]
 
@@ -129,11 +129,10 @@ def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc
     """The provenance record (:mod:`seqnet.core.provenance`) of descriptors ``desc [N, D]`` made with
     ``conf``, whose fitted state (if any) was fitted on the images ``fitted_on``."""
     settings = {k: v for k, v in conf.settings().items() if k not in ("fit", "fit_max")}
-    fit = [str(Path(f).resolve()) for f in fitted_on] if fitted_on is not None else None
-    reused = reused_fit(conf) if fit is None else None
-    if reused is not None:  # seqnet's own fitted state, reused as documented: the fitting run's provenance
-        settings["checkpoint"] = None
-    return make_provenance("describe", settings, fit, int(desc.shape[1]), fit=reused)
+    fit = provenance_fit(fitted_on) if fitted_on is not None else reused_fit(conf, settings)
+    if fitted_on is None and fit is not None:  # seqnet's own fitted state, reused as documented: the fitting
+        settings["checkpoint"] = None  # run's provenance
+    return make_provenance("describe", settings, dim=int(desc.shape[1]), fit=fit)
 
 
 def _describe_into(h: h5py.File, images: ImageList, describer: Describer,
