@@ -129,10 +129,15 @@ def _efficientnet_lite0(pretrained: bool) -> nn.Module:
     return net
 
 
+def to_unit(images: np.ndarray, device: torch.device | str) -> torch.Tensor:
+    """uint8 ``[B, H, W, 3]`` images → float ``[B, 3, H, W]`` in [0, 1] on ``device``."""
+    x = torch.from_numpy(np.ascontiguousarray(images)).to(device)
+    return x.permute(0, 3, 1, 2).float().div_(255.0)
+
+
 def to_input(images: np.ndarray, mean: Sequence[float], std: Sequence[float], device: torch.device) -> torch.Tensor:
     """uint8 ``[B, H, W, 3]`` images → normalised float ``[B, 3, H, W]`` on ``device``."""
-    x = torch.from_numpy(np.ascontiguousarray(images)).to(device)
-    x = x.permute(0, 3, 1, 2).float().div_(255.0)
+    x = to_unit(images, device)
     m = torch.tensor(mean, device=device).view(1, 3, 1, 1)
     s = torch.tensor(std, device=device).view(1, 3, 1, 1)
     return (x - m) / s

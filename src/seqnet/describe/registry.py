@@ -21,7 +21,7 @@ from torch import nn
 
 from ..core.errors import ConfigError
 from ..core.utils import logger
-from .cnn import BACKBONES, cnn_extractor, gem, gmp
+from .cnn import BACKBONES, cnn_extractor, gem, gmp, to_unit
 from .netvlad import checkpoint_image_size, checkpoint_tag, fit_netvlad, load_netvlad, save_netvlad
 from .pixels import pixels_descriptor
 
@@ -253,8 +253,7 @@ class PluginMethod(Method):
 
         @torch.inference_mode()
         def extract(images: np.ndarray) -> np.ndarray:
-            x = torch.from_numpy(np.ascontiguousarray(images)).to(ctx.device).permute(0, 3, 1, 2).float() / 255.0
-            return net(x).float().cpu().numpy()
+            return net(to_unit(images, ctx.device)).float().cpu().numpy()
 
         return extract
 
