@@ -124,7 +124,7 @@ def score_blocks(block_fn: BlockFn, q: torch.Tensor, r: torch.Tensor, seq_len: i
     that hold none of them are skipped.
     """
     na = q.shape[0] - seq_len + 1
-    rows = rows_per_block(row_factor * r.shape[0] * max(4, q.element_size()), block_bytes)
+    rows = rows_per_block(row_factor * r.shape[0] * q.element_size(), block_bytes)
     if isinstance(q, FrameDistances):  # given distances: rows of the matrix
         dist_rows = q.rows
     else:
