@@ -1,8 +1,10 @@
-"""The checks of an evaluation that need no descriptors: models, lengths and provenance, before any work."""
+"""The checks of an evaluation that need no descriptors: models, lengths and provenance before any work, and
+the flag on models evaluated on their own training queries (:func:`leakage`)."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..core.provenance import check_same
@@ -83,3 +85,30 @@ def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None
             if not allow:
                 raise ConfigError(msg)
             logger.warning("%s (going on as asked)", msg)
+
+
+def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
+    """One line per model trained on queries of ``dataset`` that the evaluated ``split`` contains too."""
+    a, b = ds.ranges(split)["query"]
+    out = []
+    for role, m in sorted(models.items()):
+        t = getattr(m, "trained_on", None)
+        if not t or not t.get("split") or not _same_path(t["dataset"], dataset):
+            continue
+        trained = ds.ranges(t["split"])
+        if trained is None:
+            continue
+        ta, tb = trained["query"]
+        both = max(0, min(b, tb) - max(a, ta))
+        if both:
+            out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are training queries of the "
+                       f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} ({t['split']!r}, {ta}:{tb}): "
+                       "its results on them are not a test (hint: --split test)")
+    return out
+
+
+def _same_path(a: str | Path | None, b: str | Path) -> bool:
+    try:
+        return a is not None and Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return False

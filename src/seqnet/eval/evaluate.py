@@ -27,7 +27,7 @@ from ..search.knn import KNN_BACKENDS
 from ..sequence.described import Described
 from ..sequence.descriptors import SeqNet
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
-from .checks import check_inputs
+from .checks import check_inputs, leakage
 from .methods import Method, default_methods, parse_method
 from .metrics.recall import GroundTruth, check_radius, ground_truth
 from .rank import rank
@@ -242,33 +242,6 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequenc
     with locked(out):  # a second evaluation into the same folder is refused (exit 1), never mixed
         remove_dead_temps(Path(out) / n for n in ("results.json", *EVAL_FIGURES))
         return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, per_query, report, figures)
-
-
-def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
-    """One line per model trained on queries of ``dataset`` that the evaluated ``split`` contains too."""
-    a, b = ds.ranges(split)["query"]
-    out = []
-    for role, m in sorted(models.items()):
-        t = getattr(m, "trained_on", None)
-        if not t or not t.get("split") or not _same_path(t["dataset"], dataset):
-            continue
-        trained = ds.ranges(t["split"])
-        if trained is None:
-            continue
-        ta, tb = trained["query"]
-        both = max(0, min(b, tb) - max(a, ta))
-        if both:
-            out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are training queries of the "
-                       f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} ({t['split']!r}, {ta}:{tb}): "
-                       "its results on them are not a test (hint: --split test)")
-    return out
-
-
-def _same_path(a: str | Path | None, b: str | Path) -> bool:
-    try:
-        return a is not None and Path(a).resolve() == Path(b).resolve()
-    except OSError:
-        return False
 
 
 def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
