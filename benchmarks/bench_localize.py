@@ -33,7 +33,7 @@ import torch
 
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.localize.track import LocalizeConfig, dataset_localizer
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 
 
 def synthetic_map(n: int, dim: int, seed: int = 0) -> np.ndarray:

@@ -48,7 +48,7 @@ def synth_dir(tmp_path, synth_dataset):
 def map_models(synth_dataset, tmp_path):
     """Checkpoint paths of a random S_L (L=4, w=2) and S_1 made for ``synth_dataset``'s descriptors."""
     from seqnet.sequence.checkpoints import save_checkpoint
-    from seqnet.sequence.descriptors import SeqNet
+    from seqnet.sequence.model import SeqNet
 
     torch.manual_seed(0)
     paths = []

@@ -38,7 +38,7 @@ _API: dict[str, str] = {  # public name -> the module that defines it, imported 
     "topk_smallest": ".search.blocks",
     "knn": ".search.knn",
     "pairwise_distances": ".search.knn",
-    "SeqNet": ".sequence.descriptors",
+    "SeqNet": ".sequence.model",
     "delta": ".sequence.descriptors",
     "smoothing": ".sequence.descriptors",
     "Windows": ".sequence.windows",

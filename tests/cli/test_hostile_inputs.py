@@ -353,7 +353,7 @@ def _with(ds, fn):
 
 def test_nan_weights_are_refused(base, tmp_path, capsys):
     from seqnet.sequence.checkpoints import save_checkpoint
-    from seqnet.sequence.descriptors import SeqNet
+    from seqnet.sequence.model import SeqNet
 
     model = SeqNet(8, 8, 5, 3)
     with torch.no_grad():

@@ -14,7 +14,7 @@ from seqnet.core.provenance import ProvenanceError, check_same, differences, mak
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.sequence.checkpoints import load_model, save_checkpoint
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 
 
 def test_make_and_differences():

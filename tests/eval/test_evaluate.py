@@ -14,7 +14,8 @@ from seqnet.eval.methods import default_methods, parse_method, valid_methods
 from seqnet.eval.metrics.recall import recall_at_k
 from seqnet.matching.seqmatch import seqmatch
 from seqnet.search.knn import knn
-from seqnet.sequence.descriptors import SeqNet, delta, smoothing
+from seqnet.sequence.descriptors import delta, smoothing
+from seqnet.sequence.model import SeqNet
 from seqnet.sequence.windows import window_indices, window_starts
 
 ALL = ["single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch", "hvpr-delta:raw+seqmatch"]

@@ -12,7 +12,7 @@ from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.localize.localizer import replay
 from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.search.knn import knn
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 
 pytestmark = pytest.mark.cuda
 METHODS = ("single", "seqnet", "raw+seqmatch", "s1+vseqmatch", "raw+graph", "hvpr", "hvpr-fused")

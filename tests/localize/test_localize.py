@@ -13,7 +13,7 @@ from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.localize.localizer import replay
 from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.matching.velocity import velocity_topk
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 
 
 @pytest.fixture(scope="module")

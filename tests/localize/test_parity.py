@@ -23,7 +23,8 @@ from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.maps import MapConfig, build, evaluate_map, load_map, load_query
 from seqnet.matching.registry import SEQUENCE_MATCHERS
 from seqnet.sequence.checkpoints import save_checkpoint
-from seqnet.sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
+from seqnet.sequence.descriptors import SEQUENCE_DESCRIPTORS
+from seqnet.sequence.model import SeqNet
 
 ONLINE = [m for m, spec in SEQUENCE_MATCHERS.items() if spec.online]
 RERANKERS = [f"{f}+{m}" for f in FRAME_FEATURES for m in ONLINE]

@@ -13,7 +13,7 @@ from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.maps import MapConfig, build, load_map
 from seqnet.search.knn import ExactIndex
 from seqnet.sequence.checkpoints import load_model
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 
 CONF = LocalizeConfig(k=7, top_k=5, device="cpu", seq_len=4)
 

@@ -13,7 +13,7 @@ from seqnet.core.errors import ConfigError
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.eval.methods import parse_method, valid_methods
 from seqnet.matching.hvpr import hvpr, rerank
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 
 
 def naive_fused(sq, sr, q, r, L, q_starts, r_starts, top_k, lam, reverse=False):

@@ -16,7 +16,7 @@ from seqnet.core.errors import ConfigError, DatasetError
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.describe.pca import fit_pca
 from seqnet.pipelines.nordland64 import Nordland64Config, describe_flipped, fold_pca, list_places, training_dataset
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 
 
 def test_fold_pca_is_exact(rng):

@@ -11,7 +11,7 @@ import torch
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import CheckpointError
 from seqnet.sequence.checkpoints import find_flags, load_model, read_checkpoint, save_checkpoint
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 
 
 def _reference_descriptors(weight: torch.Tensor, bias: torch.Tensor, x: torch.Tensor) -> torch.Tensor:

@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seqnet.core.errors import ConfigError
-from seqnet.sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet, delta, delta_orig, describe_windows, smoothing
+from seqnet.sequence.descriptors import SEQUENCE_DESCRIPTORS, delta, delta_orig, describe_windows, smoothing
+from seqnet.sequence.model import SeqNet
 from seqnet.sequence.windows import window_indices
 
 

@@ -27,7 +27,7 @@ from seqnet.core.errors import ConfigError
 from seqnet.data.io import load_dataset, save_dataset
 from seqnet.data.synth import make_synthetic
 from seqnet.sequence.checkpoints import read_checkpoint
-from seqnet.sequence.descriptors import SeqNet
+from seqnet.sequence.model import SeqNet
 from seqnet.train import TrainConfig, train
 from seqnet.train.distributed import World, env_world
 from seqnet.train.losses import triplet_loss

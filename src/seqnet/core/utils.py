@@ -3,15 +3,24 @@
 from __future__ import annotations
 
 import logging
+from typing import Union
 
 import numpy as np
-import torch
 
 from .errors import ConfigError
+from .lazy import lazy_module
+
+torch = lazy_module("torch")
 
 logger = logging.getLogger("seqnet")
 
-ArrayLike = np.ndarray | torch.Tensor
+ArrayLike = Union[np.ndarray, "torch.Tensor"]  # noqa: UP007 - a forward reference: torch loads on first use
+
+
+def check_device(device: str | torch.device | None) -> None:
+    """Validate a device name (:class:`ConfigError` if unknown or absent); the CPU names need no torch import."""
+    if device not in (None, "auto", "cpu"):
+        get_device(device)
 
 
 def get_device(device: str | torch.device | None = None) -> torch.device:

@@ -13,7 +13,7 @@ from typing import Any
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.errors import ConfigError
-from ..core.utils import get_device
+from ..core.utils import check_device
 from .cnn import BACKBONES
 from .registry import DESCRIBERS, Method
 
@@ -92,7 +92,7 @@ class DescribeConfig(Config):
             takes = [n for n, m in DESCRIBERS.items() if m.takes_describer]
             raise ConfigError(f"--describer goes with --method {' / '.join(takes)}, not {self.method!r}")
         self._set("fit", check_fit(self.fit))
-        get_device(self.device)  # validates the device name
+        check_device(self.device)  # validates the device name
         DESCRIBERS[self.method].of(self)  # the method checks its own settings
 
     @property

@@ -5,13 +5,18 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
 from ..core.provenance import check_same
 from ..core.utils import logger
 from ..data.traverse import Dataset
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .methods import Method
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
+
 
 
 def check_inputs(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet], length: int, match_len: int,

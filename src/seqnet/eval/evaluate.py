@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,19 +19,22 @@ from ..core.config import Config, check_bool, check_choice, check_float, check_i
 from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..core.ownership import locked, remove_dead_temps
-from ..core.utils import get_device, logger
+from ..core.utils import check_device, get_device, logger
 from ..data.traverse import Dataset, Traverse, default_split
 from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
 from ..sequence.described import Described
-from ..sequence.descriptors import SeqNet
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
 from .checks import check_inputs, leakage
 from .methods import Method, default_methods, parse_method
 from .metrics.recall import GroundTruth, check_radius, ground_truth
 from .rank import rank
 from .results import method_results, write_per_query
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
+
 
 EVAL_FIGURES = ("pr_curve.png", "report.html")  # written beside results.json by ``main``
 
@@ -92,7 +95,7 @@ class EvalConfig(WindowSettings, Config):
         if self.fuse_top_k is not None:
             self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
         check_choice("k-NN backend", self.backend, KNN_BACKENDS)
-        get_device(self.device)  # validates the device name
+        check_device(self.device)  # validates the device name
 
     def resolve(self, models: Mapping[str, SeqNet], radius: float) -> EvalConfig:
         """L (the S_L model's when unset), the radius (the dataset's when unset) and the methods (the defaults
@@ -138,6 +141,8 @@ class Evaluation:
 
 def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | None) -> None:
     """The arguments of :func:`evaluate` are what they should be (a clear error instead of an AttributeError)."""
+    from ..sequence.model import SeqNet  # the model class loads torch: only when models are checked
+
     if not isinstance(ds, Dataset):
         raise ConfigError(f"evaluate() needs a seqnet Dataset, got {type(ds).__name__} (hint: load_dataset(DIR))")
     if not isinstance(conf, EvalConfig):

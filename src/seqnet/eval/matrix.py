@@ -13,15 +13,17 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.files import Written, file_digest, write_json_atomic
+from ..core.lazy import lazy_module
 from ..core.ownership import locked, remove_dead_temps
 from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
 from .methods import parse_method
+
+torch = lazy_module("torch")
 
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
 

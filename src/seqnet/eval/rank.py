@@ -11,13 +11,15 @@ import time
 from typing import Protocol
 
 import numpy as np
-import torch
 
+from ..core.lazy import lazy_module
 from ..matching.hvpr import PairScores, Search, hvpr_search
 from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items, pick_strategy
 from ..reference.base import Reference
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .methods import FRAME_FEATURES, Method, needs
+
+torch = lazy_module("torch")
 
 Ranking = tuple[np.ndarray, np.ndarray, dict[str, float]]  # scores [M, k], items [M, k], timing ms
 

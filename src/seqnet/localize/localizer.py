@@ -24,11 +24,12 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, as_tensor
 from ..data.traverse import Traverse
 from ..eval.checks import check_fits, check_methods, check_models
@@ -41,8 +42,13 @@ from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
 from ..search.blocks import topk_smallest
 from ..sequence.described import describe_frames, describe_items
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import Windows
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
 
 
 @dataclasses.dataclass
@@ -166,7 +172,7 @@ class Localizer:
             if ring is not None:
                 ring.reset()
 
-    @torch.no_grad()
+    @no_grad
     def step(self, descriptor: ArrayLike) -> Estimate:
         """Localise the next query frame ``descriptor [D]``."""
         t0 = time.perf_counter()

@@ -33,9 +33,13 @@ from ..reference.base import Reference
 
 if TYPE_CHECKING:
     from ..maps.map import Map
-from ..sequence.descriptors import SeqNet
+
 from .localizer import Estimate, traverse_reference
 from .track import LocalizeConfig, check_output, sidecar_of, summarize, track_rows, write_track
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
+
 
 Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spent describing it)
 

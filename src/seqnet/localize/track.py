@@ -14,7 +14,7 @@ import io
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,16 +23,19 @@ from ..core.errors import ConfigError, OutputError
 from ..core.files import Written, write_json_atomic, write_text_atomic
 from ..core.ownership import locked, remove_dead_temps
 from ..core.progress import progress
-from ..core.utils import get_device, logger
+from ..core.utils import check_device, get_device, logger
 from ..data.traverse import Dataset, default_split
 from ..eval.metrics.precision_recall import pr_summary, precision_recall
 from ..eval.metrics.recall import check_radius, ground_truth
 from ..matching.velocity import ANCHORS
 from ..reference.base import Reference
-from ..search.blocks import PRECISIONS
-from ..sequence.descriptors import SeqNet
+from ..search.blocks import PRECISIONS, precision_dtype
 from ..sequence.windows import Windows
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
+
 
 TRACK_COLUMNS = ("frame", "name", "estimate", "estimate_name", "score", "confidence", "latency_ms", "correct",
                  "full_window")
@@ -85,7 +88,7 @@ class LocalizeConfig(Config):
             self._set("radius", check_radius(self.radius))
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
         check_choice("precision", self.precision, PRECISIONS)
-        get_device(self.device)
+        check_device(self.device)
 
     def windows(self, models: Mapping[str, SeqNet]) -> Windows:
         """The causal windows, resolved once: L (given, else the S_L model's, else 5), L_m (else L), the anchor."""
@@ -97,9 +100,9 @@ class LocalizeConfig(Config):
         loc = Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact)
         reference.resident = True  # searched every frame: kept in memory (the map's bytes), never streamed
         if self.precision != "float32":
-            reference.precision = PRECISIONS[self.precision]
+            reference.precision = precision_dtype(self.precision)
             for model in loc.models.values():
-                model.to(PRECISIONS[self.precision])
+                model.to(precision_dtype(self.precision))
         return loc
 
 

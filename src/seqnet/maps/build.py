@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
 from ..core.ownership import check_replaceable
@@ -15,11 +16,15 @@ from ..eval.checks import check_models as check_model_inputs
 from ..reference.traverse import TraverseReference
 from ..search.ann import make_index
 from ..sequence.checkpoints import load_models
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import Windows
 from .config import MapConfig
 from .shards import check_ivf, split_rows
 from .store import MapArrays, is_map_file, write_map
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
+
 
 
 def resolve(conf: MapConfig, models: Mapping[str, SeqNet]) -> MapConfig:

@@ -6,7 +6,7 @@ import dataclasses
 
 from ..core.config import Config, check_bool, check_choice, check_int
 from ..core.errors import ConfigError
-from ..core.utils import get_device
+from ..core.utils import check_device
 from ..eval.methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, parse_method
 from ..search.ann import AnnConfig
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
@@ -59,7 +59,7 @@ class MapConfig(WindowSettings, Config):
         check_choice("map dtype", self.dtype, DTYPES)
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
         self._set("shards", check_int("shards", self.shards, 1))
-        get_device(self.device)
+        check_device(self.device)
 
     @property
     def method(self) -> Method:

@@ -12,12 +12,12 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError, DatasetError
+from ..core.lazy import lazy_module
 from ..core.provenance import check_same
 from ..core.utils import ArrayLike, get_device
 from ..data.traverse import Traverse
@@ -28,10 +28,14 @@ from ..matching.registry import SEQUENCE_MATCHERS
 from ..search.ann import search as ann_search
 from ..search.knn import ExactIndex
 from ..sequence.described import Described
-from ..sequence.descriptors import SeqNet
 from ..sequence.windows import Windows, window_offset
 from .config import MapConfig
 from .store import MAP_FORMAT, MAP_JSON
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
 
 BLOCK_BYTES = 64 * 2**20  # working memory of one block of a whole-map search (the map itself stays mapped)
 

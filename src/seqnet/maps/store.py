@@ -21,10 +21,9 @@ import dataclasses
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from .._version import __version__
 from ..core.errors import ConfigError
@@ -35,14 +34,19 @@ from ..core.files import (
     write_json_atomic,
     write_text_atomic,
 )
+from ..core.lazy import lazy_module
 from ..core.memmaps import read_rows
 from ..core.ownership import check_replaceable, locked, recover_dir, write_dir, write_manifest
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import build_index, save_index
 from ..sequence.checkpoints import save_checkpoint
-from ..sequence.descriptors import SeqNet
 from .config import MapConfig
 from .shards import build_sharded_index, split_rows
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
 
 MAP_FORMAT = "seqnet-map/1"
 MAP_JSON = "map.json"

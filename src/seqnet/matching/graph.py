@@ -30,15 +30,17 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-import torch
 
 from ..core.config import check_float, check_int
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, as_tensor, get_device, logger, to_numpy
 from ..search.blocks import topk_smallest
 from ..search.knn import as_pair, pairwise_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
 from .velocity import BlockFn, check_pairs, matcher_topk, pivot_step, score_blocks
+
+torch = lazy_module("torch")
 
 DEFAULT_FAN_OUT = 2
 
@@ -108,7 +110,7 @@ def path_costs(query: ArrayLike, ref: ArrayLike, seq_len: int, fan_out: int = DE
     return np.concatenate([to_numpy(m) for _, m in score_blocks(block_fn, q, r, seq_len, 5, block_bytes)])
 
 
-@torch.no_grad()
+@no_grad
 def graph_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Tensor, cand: torch.Tensor,
                 fan_out: int = DEFAULT_FAN_OUT, anchor: str = "centre", block_bytes: int | None = None,
                 start_mask: Callable[[slice, torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
@@ -153,7 +155,7 @@ def _warn_wide(dim: int) -> None:
                    "s1+grh or a PCA'd descriptor is much faster (docs/matchers.md)", dim)
 
 
-@torch.no_grad()
+@no_grad
 def lsh_candidates(query: ArrayLike, ref: ArrayLike, nbits: int = 256, candidates: int = 20,
                    device: str | None = None, block_bytes: int | None = None) -> np.ndarray:
     """``[Nq, min(candidates, Nr)]`` reference frames nearest to each query frame in LSH Hamming distance.
@@ -265,7 +267,7 @@ class OnlineGraphMatcher:
         self.cost: torch.Tensor | None = None  # [2, Nr]: C and H, minus ``offset``
         self.offset, self.length, self.lost = 0.0, 0, 0
 
-    @torch.no_grad()
+    @no_grad
     def step(self, descriptor: ArrayLike) -> tuple[int, float]:
         """Match the next query frame ``descriptor [D]``: ``(reference frame or -1, path cost)``."""
         x = as_tensor(descriptor, self.ref.device, "descriptor", ndim=1, keep_float64=True).to(self.ref.dtype)

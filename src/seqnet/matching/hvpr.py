@@ -16,10 +16,10 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-import torch
 
 from ..core.config import check_choice, check_float, check_int
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, get_device, to_numpy
 from ..search.knn import as_pair, knn
 from ..sequence.windows import MODE_ANCHORS, check_seq_len
@@ -27,8 +27,10 @@ from .pairs import item_starts
 from .registry import SEQUENCE_MATCHERS
 from .seqmatch import check_starts
 
+torch = lazy_module("torch")
+
 Search = Callable[[int], tuple[np.ndarray, np.ndarray]]  # n -> (distances [M, n], items [M, n]) of the shortlist
-PairScores = Callable[[np.ndarray], torch.Tensor]  # candidates [M, K] -> matcher scores [M, K] (candidate order)
+PairScores = Callable[[np.ndarray], "torch.Tensor"]  # candidates [M, K] -> matcher scores [M, K] (candidate order)
 
 
 def hvpr_search(search: Search, pair_scores: PairScores, seq_len: int, top_k: int = 20, k: int | None = None,
@@ -108,7 +110,7 @@ def hvpr(
                                              device, anchor), seq_len, top_k, k, fuse)
 
 
-@torch.no_grad()
+@no_grad
 def pair_scores(rerank_query: ArrayLike, rerank_ref: ArrayLike, seq_len: int, q_starts: np.ndarray,
                 r_starts: np.ndarray, candidates: np.ndarray, matcher: str = "seqmatch", device: str | None = None,
                 anchor: str = "centre") -> torch.Tensor:

@@ -10,12 +10,14 @@ outside the window, so they are scored on the whole frame array.
 from __future__ import annotations
 
 import numpy as np
-import torch
 
+from ..core.lazy import lazy_module
 from ..core.memmaps import take_rows
 from ..core.utils import ArrayLike
 from .hvpr import pair_scores
 from .pairs import DIAGONAL_MATCHERS
+
+torch = lazy_module("torch")
 
 BLOCK_BYTES = 256 * 2**20  # frames gathered per block of queries
 

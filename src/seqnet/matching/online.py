@@ -14,9 +14,9 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, as_tensor, get_device
 from ..search.blocks import topk_smallest
 from ..search.knn import ExactIndex
@@ -24,6 +24,8 @@ from ..sequence.windows import check_seq_len
 from .graph import DEFAULT_FAN_OUT, path_dp
 from .seqmatch import shifted_sum
 from .velocity import DEFAULT_VELOCITIES, pivot_step, trajectories, velocity_block
+
+torch = lazy_module("torch")
 
 
 class Ring:
@@ -122,7 +124,7 @@ class OnlineSeqMatch:
         """Forget the frames seen (e.g. at a sequence bound)."""
         self.rows.reset()
 
-    @torch.no_grad()
+    @no_grad
     def step(self, descriptor: ArrayLike) -> torch.Tensor | None:
         """Add a query frame ``[D]``; return the scores ``[Nr − L_m + 1]`` of its window (the last L_m
         frames) against every reference window start, or None until L_m frames have been seen."""

@@ -15,11 +15,13 @@ Two ways to compute ``Σ_t ‖q[a+t] − r[b+t]‖`` for K candidate windows b o
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module
 from ..search.blocks import topk_smallest
 from ..search.knn import finish_distances, rows_per_block, sq_norms
+
+torch = lazy_module("torch")
 
 STRATEGIES = ("auto", "gather", "rows")
 # the fixed-speed matchers: a window pair reads only the candidate window's own frames, summed along a

@@ -28,13 +28,15 @@ import functools
 from collections.abc import Callable
 
 import numpy as np
-import torch
 
+from ..core.lazy import lazy_module
 from .graph import graph_pairs, graph_topk, grh_pairs, grh_topk
 from .online import graph_window, seqmatch_window, vseqmatch_window
 from .pairs import window_scores
 from .seqmatch import seqmatch_topk
 from .velocity import velocity_pairs, velocity_topk
+
+torch = lazy_module("torch")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -14,10 +14,10 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import numpy as np
-import torch
 
 from ..core.config import check_int
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
 from ..core.utils import ArrayLike, get_device, to_numpy
 from ..search.blocks import blocked_topk, check_pair_dims, col_blocks, compute_dtype, rows
@@ -25,8 +25,10 @@ from ..search.knn import as_pair, finish_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
 from .pairs import window_scores
 
+torch = lazy_module("torch")
 
-@torch.no_grad()
+
+@no_grad
 def seqmatch(
     query: ArrayLike,
     ref: ArrayLike,
@@ -162,7 +164,7 @@ def shifted_sum(dist: torch.Tensor, s: int, e: int, cols: list[int], nb: int, ou
     return out
 
 
-@torch.no_grad()
+@no_grad
 def seqmatch_topk(
     query: ArrayLike,
     ref: ArrayLike,

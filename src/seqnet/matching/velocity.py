@@ -29,10 +29,10 @@ import math
 from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
-import torch
 
 from ..core.config import check_choice, check_float, check_int
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
 from ..core.utils import ArrayLike, get_device, to_numpy
 from ..search.blocks import blocked_topk
@@ -40,9 +40,11 @@ from ..search.knn import as_pair, finish_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
 from .seqmatch import check_starts, shifted_sum
 
+torch = lazy_module("torch")
+
 DEFAULT_VELOCITIES = (0.5, 0.75, 1.0, 1.5, 2.0)
 ANCHORS = ("start", "centre", "end")
-BlockFn = Callable[[torch.Tensor, int, int], torch.Tensor]  # (dist [n+L-1, Nr], first window, n) -> [n, W]
+BlockFn = Callable[["torch.Tensor", int, int], "torch.Tensor"]  # (dist [n+L-1, Nr], first window, n) -> [n, W]
 
 
 def check_velocities(velocities: Sequence[float]) -> tuple[float, ...]:
@@ -139,7 +141,7 @@ def score_blocks(block_fn: BlockFn, q: torch.Tensor, r: torch.Tensor, seq_len: i
         yield a0, block_fn(dist_rows(a0, a0 + n + seq_len - 1), a0, n)
 
 
-@torch.no_grad()
+@no_grad
 def matcher_topk(prepare: Callable[[torch.Tensor, torch.Tensor], BlockFn], query: ArrayLike, ref: ArrayLike,
                  seq_len: int, k: int, q_starts: np.ndarray, r_starts: np.ndarray, row_factor: int,
                  device: str | None = None, block_bytes: int | None = None,
@@ -216,7 +218,7 @@ def velocity_map(query: ArrayLike, ref: ArrayLike, seq_len: int, velocities: Seq
     return np.concatenate([to_numpy(m) for _, m in score_blocks(block_fn, q, r, seq_len, 3, block_bytes)])
 
 
-@torch.no_grad()
+@no_grad
 def velocity_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Tensor, cand: torch.Tensor,
                    velocities: Sequence[float] = DEFAULT_VELOCITIES, reverse: bool = False,
                    anchor: str = "centre", block_bytes: int | None = None) -> torch.Tensor:

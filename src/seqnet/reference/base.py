@@ -5,10 +5,12 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
-import torch
 
+from ..core.lazy import lazy_module
 from ..eval.methods import Method
 from ..sequence.windows import Windows
+
+torch = lazy_module("torch")
 
 
 class Reference(Protocol):

@@ -12,9 +12,9 @@ needs descriptors (sequence descriptors, models, GRH's LSH codes) is refused.
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module
 from ..data.traverse import Traverse
 from ..eval.methods import Method
 from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items
@@ -22,6 +22,8 @@ from ..matching.registry import SEQUENCE_MATCHERS
 from ..matching.velocity import FrameDistances
 from ..search.blocks import topk_smallest
 from ..sequence.windows import Windows
+
+torch = lazy_module("torch")
 
 WHOLE_MAP_MATCHERS = ("seqmatch", "seqmatch-rev", "vseqmatch", "vseqmatch-rev", "graph")  # over the whole matrix
 MATRIX_METHODS = ("single", *(f"raw+{m}" for m in WHOLE_MAP_MATCHERS), "hvpr-single:raw+seqmatch",

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
+from ..core.lazy import lazy_module
 from ..data.traverse import Traverse
 from ..eval.methods import Method, needs
 from ..matching.hvpr import candidate_scores
@@ -14,8 +15,12 @@ from ..matching.on_disk import pair_scores_on_map
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..search.knn import ExactIndex, knn
 from ..sequence.described import Described
-from ..sequence.descriptors import SeqNet
 from ..sequence.windows import Windows
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
 
 SHARED_BYTES = 128 << 20  # the largest query × reference frame-distance matrix HVPR keeps to reuse
 

@@ -13,11 +13,13 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import read_rows
 from ..core.utils import ArrayLike, as_tensor
+
+torch = lazy_module("torch")
 
 SORT_MAX = 2048  # up to this many scores a stable sort is quicker than topk + tie handling (the same result)
 COL_BLOCK_BYTES = 32 << 20  # reference bytes per column block (between 1,024 and 65,536 rows)
@@ -35,8 +37,20 @@ def matrix_shape(x: ArrayLike, name: str) -> tuple[int, int]:
     return int(x.shape[0]), int(x.shape[1])
 
 
-PRECISIONS: dict[str, torch.dtype] = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16}
-HALF = (torch.float16, torch.bfloat16)  # read and multiplied in half precision, accumulated and finished in float32
+PRECISIONS = ("float32", "float16", "bfloat16")  # names of torch dtypes: precision_dtype(name)
+HALF = ("float16", "bfloat16")  # read and multiplied in half precision, accumulated and finished in float32
+
+
+def precision_dtype(name: str) -> torch.dtype:
+    """The torch dtype of a :data:`PRECISIONS` name."""
+    if name not in PRECISIONS:
+        raise ConfigError(f"precision {name!r} is not one of {', '.join(PRECISIONS)}")
+    return getattr(torch, name)
+
+
+def is_half(dtype: torch.dtype) -> bool:
+    """Whether ``dtype`` is one of the :data:`HALF` precisions."""
+    return str(dtype).removeprefix("torch.") in HALF
 
 
 def compute_dtype(*xs: ArrayLike) -> torch.dtype:
@@ -105,10 +119,10 @@ def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Ten
 
 
 RowBlock = tuple[Any, Any]  # (rows of the output this block fills: a slice or an index array, the block's context)
-ScoreFn = Callable[[Any, Any], tuple[torch.Tensor, torch.Tensor]]  # (context, column block) -> (scores, columns)
+ScoreFn = Callable[[Any, Any], tuple["torch.Tensor", "torch.Tensor"]]  # (context, column block) -> (scores, columns)
 
 
-@torch.no_grad()
+@no_grad
 def blocked_topk(row_blocks: Iterable[RowBlock], col_blocks: Sequence[Any], score: ScoreFn, n_rows: int, k: int,
                  dtype: torch.dtype, finite: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The one blocked-search driver: query row blocks × reference column blocks, top-k merged on the fly.

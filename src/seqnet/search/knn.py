@@ -10,13 +10,15 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 
 import numpy as np
-import torch
 
 from ..core.config import check_choice, check_int
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import limit, streamed
 from ..core.utils import ArrayLike, as_tensor, get_device
-from .blocks import HALF, blocked_topk, col_blocks, compute_dtype, matrix_shape, rows
+from .blocks import blocked_topk, col_blocks, compute_dtype, is_half, matrix_shape, rows
+
+torch = lazy_module("torch")
 
 DEFAULT_BLOCK_BYTES = 64 << 20
 NOT_FINITE = ("the distances are not finite: the {what} descriptors hold NaN or inf, or values too large for {dtype} "
@@ -70,7 +72,7 @@ def pairwise_distances(q: torch.Tensor, r: torch.Tensor, squared: bool = False) 
 
 def acc(dtype: torch.dtype) -> torch.dtype:
     """The dtype distances are accumulated and finished in: float32 for half-precision inputs."""
-    return torch.float32 if dtype in HALF else dtype
+    return torch.float32 if is_half(dtype) else dtype
 
 
 def inner(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
@@ -134,7 +136,7 @@ class ExactIndex:
             self._norms[dtype] = norms
         return self._norms[dtype]
 
-    @torch.no_grad()
+    @no_grad
     def distances(self, query: ArrayLike) -> torch.Tensor:
         """``[M, N]`` Euclidean distances of ``query [M, D]`` (a few rows: a frame of a stream) to the reference."""
         dtype = self.dtype(query)
@@ -144,7 +146,7 @@ class ExactIndex:
                  for (c0, c1), n in zip(self.blocks, self.norms(dtype), strict=True)]
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
 
-    @torch.no_grad()
+    @no_grad
     def search(self, query: ArrayLike, k: int, metric: str = "l2") -> tuple[np.ndarray, np.ndarray]:
         """``(scores [M, k], indices [M, k])``, best first, ties by the lower index (see :func:`knn`)."""
         nq, dq = matrix_shape(query, "query")

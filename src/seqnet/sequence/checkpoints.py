@@ -20,14 +20,17 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
-
-import torch
+from typing import TYPE_CHECKING, Any
 
 from ..core.errors import CheckpointError, ResourceError
 from ..core.files import atomic_path, load_torch_file
+from ..core.lazy import lazy_module
 from ..core.utils import logger
-from .descriptors import SeqNet
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from .model import SeqNet
 
 CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
 
@@ -92,6 +95,8 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
 
 
 def _build(cfg: dict[str, Any], state: dict[str, torch.Tensor], path: Path) -> SeqNet:
+    from .model import SeqNet  # the model class loads torch
+
     try:
         model = SeqNet(int(cfg["in_dims"]), int(cfg["out_dims"]), int(cfg["seq_len"]), int(cfg["w"]))
         model.load_state_dict(state)

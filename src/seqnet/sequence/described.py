@@ -15,14 +15,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module
 from ..core.memmaps import take_rows
-from .descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
+from .descriptors import SEQUENCE_DESCRIPTORS, describe_windows
 from .windows import Windows, window_frames, window_indices
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from .model import SeqNet
 
 
 def describe_frames(raw: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | None, name: str, windows: Windows,

@@ -16,9 +16,11 @@ import dataclasses
 import functools
 
 import numpy as np
-import torch
 
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module
+
+torch = lazy_module("torch")
 
 WINDOW_MODES = ("centred", "causal")
 

@@ -11,15 +11,16 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterable
 
-import torch
-
 from ..core.config import Config, check_choice, check_float, check_int
 from ..core.errors import ConfigError
-from ..core.utils import get_device
+from ..core.lazy import lazy_module
+from ..core.utils import check_device
 from ..data.traverse import Dataset
 from ..sequence.windows import WINDOW_MODES
 
-Params = Iterable[torch.nn.Parameter]
+torch = lazy_module("torch")
+
+Params = Iterable["torch.nn.Parameter"]
 
 
 def _sgd(params: Params, conf: TrainConfig) -> torch.optim.Optimizer:
@@ -139,7 +140,7 @@ class TrainConfig(Config):
         check_choice("window", self.window, WINDOW_MODES)
         if not isinstance(self.device, str):
             raise ConfigError(f"device must be a device name (auto, cpu, cuda, cuda:N), got {self.device!r}")
-        get_device(self.device)  # validates the device name
+        check_device(self.device)  # validates the device name
         for key in ("train_split", "val_split"):
             value = "none" if key == "val_split" and self.val_split is None else getattr(self, key)
             if not isinstance(value, str) or not value:

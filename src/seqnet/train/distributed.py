@@ -25,12 +25,13 @@ import pickle
 from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
-import torch
-from torch import nn
-
 from ..core.errors import ConfigError, ResourceError
+from ..core.lazy import lazy_module
 from ..core.progress import progress_mode
 from ..core.utils import get_device, logger
+
+torch = lazy_module("torch")
+nn = lazy_module("torch.nn")
 
 T = TypeVar("T")
 ENV = ("WORLD_SIZE", "RANK", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT")

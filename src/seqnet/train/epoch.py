@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import math
 
-import torch
-
+from ..core.lazy import lazy_module
 from ..core.progress import progress
 from ..sequence.windows import gather_windows
 from .losses import triplet_loss
 from .mining import Mined, TripletSource, compute_cache, mine_queries
 from .run import Run
+
+torch = lazy_module("torch")
 
 STAT_KEYS = ("loss", "queries", "skipped", "triplets", "active")
 

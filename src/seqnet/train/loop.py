@@ -20,10 +20,10 @@ from __future__ import annotations
 import contextlib
 import time
 from pathlib import Path
-
-import torch
+from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError, DatasetError, OutputError
+from ..core.lazy import lazy_module
 from ..core.memory import check_fits, gib
 from ..core.ownership import locked
 from ..core.provenance import check_same
@@ -31,7 +31,6 @@ from ..core.utils import logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..eval.checks import accepted_mismatch
-from ..sequence.descriptors import SeqNet
 from .config import TrainConfig, train_bytes
 from .distributed import World, joined
 from .epoch import train_epoch
@@ -47,6 +46,11 @@ from .run import (
     run_dataset_path,
     stored_dataset_path,
 )
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
 
 VAL_KS = (1, 5, 10, 20)
 

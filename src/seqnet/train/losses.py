@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import dataclasses
 
-import torch
-import torch.nn.functional as F
-
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module
+
+torch = lazy_module("torch")
+F = lazy_module("torch.nn.functional")
 
 PAIRWISE_EPS = 1e-6  # as torch.nn.TripletMarginLoss / F.pairwise_distance
 

@@ -18,9 +18,9 @@ import dataclasses
 from collections.abc import Callable
 
 import numpy as np
-import torch
 
 from ..core.errors import DatasetError
+from ..core.lazy import lazy_module
 from ..core.utils import as_tensor
 from ..data.positives import Positives
 from ..data.traverse import Dataset, Traverse
@@ -29,6 +29,8 @@ from ..sequence.descriptors import describe_windows
 from ..sequence.windows import window_starts
 from .config import MiningConfig
 from .truth import pair_masks, positive_keys, queries_with_pairs
+
+torch = lazy_module("torch")
 
 
 @dataclasses.dataclass

@@ -17,18 +17,21 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
-
-import torch
+from typing import TYPE_CHECKING, Any
 
 from .._version import __version__
 from ..core.errors import CheckpointError, ConfigError
 from ..core.files import write_json_atomic
+from ..core.lazy import lazy_module
 from ..core.utils import logger
 from ..sequence.checkpoints import read_checkpoint, save_checkpoint
-from ..sequence.descriptors import SeqNet
 from .config import OPTIMIZERS, TrainConfig
 from .distributed import World
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
 
 TEMP_PATTERNS = (".last.pt.*.tmp", ".best.pt.*.tmp", ".config.json.*.tmp")  # left by a crash in an atomic write
 
@@ -152,6 +155,8 @@ def _new_model(conf: TrainConfig, in_dims: int, device: torch.device) -> SeqNet:
     """The model initialised from ``conf.seed`` without touching the process's random state."""
     with torch.random.fork_rng(devices=[]):
         torch.random.default_generator.manual_seed(conf.seed)
+        from ..sequence.model import SeqNet  # the model class loads torch
+
         model = SeqNet(in_dims, int(conf.out_dims or in_dims), conf.seq_len, conf.w)
     return model.to(device)
 

@@ -9,10 +9,12 @@ listed (so a place the list knows about is never taken for a negative).
 from __future__ import annotations
 
 import numpy as np
-import torch
 from scipy.spatial import cKDTree
 
+from ..core.lazy import lazy_module
 from ..data.positives import Positives
+
+torch = lazy_module("torch")
 
 
 def queries_with_pairs(q_pos: np.ndarray, r_pos: np.ndarray, pos_radius: float, neg_radius: float,

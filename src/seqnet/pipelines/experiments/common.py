@@ -16,7 +16,7 @@ import html
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ...core.files import write_json_atomic, write_text_atomic
 from ...core.ownership import locked
@@ -24,10 +24,13 @@ from ...data.traverse import Dataset
 from ...eval.evaluate import EvalConfig, Evaluation, evaluate
 from ...report.html import Section, evaluation_sections, figure_section, render_html, rows_as_text, table_html
 from ...report.tables import save_figure
-from ...sequence.descriptors import SeqNet
 from ..nordland64 import Nordland64Config, build_dataset, train_models
 from ..nordland64.config import DESCRIBE
 from ..nordland64.run import report_config
+
+if TYPE_CHECKING:
+    from ...sequence.model import SeqNet
+
 
 
 @dataclasses.dataclass

@@ -13,17 +13,21 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ...core.config import Config, check_choice, check_float, check_int
 from ...core.errors import ResourceError
 from ...search.knn import knn
-from ...sequence.descriptors import SEQUENCE_DESCRIPTORS, SeqNet, describe_windows
+from ...sequence.descriptors import SEQUENCE_DESCRIPTORS, describe_windows
 from ...sequence.windows import window_indices
 from ..nordland64 import Nordland64Config
 from .common import Outputs, locked_dirs, markdown_table, prepare, table_section, write_outputs
+
+if TYPE_CHECKING:
+    from ...sequence.model import SeqNet
+
 
 DESCRIPTORS = {"raw": "single", "smoothing": "smoothing", "delta": "delta", "S_1": "s1", "S_L": "seqnet"}
 

@@ -16,7 +16,7 @@ from ...core.utils import logger
 from ...data.traverse import Dataset
 from ...describe.pca import PCA, fit_pca
 from ...sequence.checkpoints import load_model, save_checkpoint
-from ...sequence.descriptors import SeqNet
+from ...sequence.model import SeqNet
 from ...train import train
 from ...train.run import is_run_file
 from .config import Nordland64Config

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ...core.files import Written, write_json_atomic, write_text_atomic
 from ...core.ownership import locked
@@ -14,11 +15,14 @@ from ...eval.evaluate import Evaluation, evaluate
 from ...eval.metrics.recall import recall_curve
 from ...report.html import ReportConfig, write_html_report
 from ...report.tables import format_markdown, plot_pr_curves, plot_recall_curves
-from ...sequence.descriptors import SeqNet
 from .config import Nordland64Config
 from .data import SEASONS, SPLITS, build_dataset
 from .models import train_models
 from .speed import variable_speed
+
+if TYPE_CHECKING:
+    from ...sequence.model import SeqNet
+
 
 
 def split_dataset(ds: Dataset, conf: Nordland64Config, split: str) -> Dataset:

@@ -6,7 +6,7 @@ import dataclasses
 
 from ...core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
 from ...core.errors import ConfigError
-from ...core.utils import get_device
+from ...core.utils import check_device
 from ...maps.config import DTYPES
 from ...search.ann import ANN_INDEXES, AnnConfig
 
@@ -67,7 +67,7 @@ class TimingConfig(Config):
         self._set("indexes", tuple(check_choice("ANN index kind", k, ANN_INDEXES) for k in self.indexes))
         if not isinstance(self.ann, AnnConfig):
             raise ConfigError(f"ann must be an AnnConfig, got {type(self.ann).__name__}")
-        get_device(self.device)
+        check_device(self.device)
         check_choice("map dtype", self.dtype, DTYPES)
         self._set("float16_recall", check_bool("float16_recall", self.float16_recall))
         self._set("noise", check_float("noise", self.noise, 0.0))

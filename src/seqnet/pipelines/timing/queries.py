@@ -4,16 +4,20 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from ...eval.metrics.recall import GroundTruth
 from ...maps import Map, load_query
-from ...sequence.descriptors import SeqNet
 from ...sequence.windows import window_frames, window_offset
 from .config import TimingConfig
 from .synth import RADIUS, random_models
+
+if TYPE_CHECKING:
+    from ...sequence.model import SeqNet
+
 
 
 @dataclasses.dataclass

@@ -18,7 +18,7 @@ import torch
 from ...core.files import save_npy_atomic
 from ...core.provenance import make as make_provenance
 from ...maps import MapArrays, MapConfig, write_map
-from ...sequence.descriptors import SeqNet
+from ...sequence.model import SeqNet
 from .config import TimingConfig
 
 RHO = 0.9

@@ -1,0 +1,78 @@
+"""The SeqNet model (Garg & Milford, RA-L 2021): S_L, and S_1 as ``L = w = 1``.
+
+Conv1d over time (D → D_out, kernel w, bias, no padding, stride 1), mean over the ``L - w + 1``
+outputs, L2 norm; computed as one GEMM (:meth:`SeqNet.forward`) equal to the literal convolution
+(:meth:`SeqNet.forward_conv`). The window functions that use it are in :mod:`.descriptors`.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..core.errors import ConfigError
+
+
+@functools.lru_cache(maxsize=16)
+def _tap_average(seq_len: int, w: int) -> torch.Tensor:
+    """``[w, L]``: entry ``[k, l]`` is ``1/T`` when frame ``l`` meets filter tap ``k`` at one of the
+    ``T = L − w + 1`` positions of the convolution, else 0."""
+    tap = torch.arange(seq_len)[None, :] - torch.arange(w)[:, None]
+    t = seq_len - w + 1
+    return ((tap >= 0) & (tap < t)).float() / t
+
+
+class SeqNet(nn.Module):
+    """SeqNet S_L: ``[B, L, D]`` (or ``[B, D]`` for S_1) → L2-normalised ``[B, D_out]``."""
+
+    def __init__(self, in_dims: int, out_dims: int, seq_len: int, w: int) -> None:
+        super().__init__()
+        if not 1 <= w <= seq_len:
+            raise ConfigError(f"SeqNet needs 1 <= w <= seq_len, got w={w}, seq_len={seq_len}")
+        if in_dims < 1 or out_dims < 1:
+            raise ConfigError(f"SeqNet dims must be >= 1, got in_dims={in_dims}, out_dims={out_dims}")
+        self.in_dims, self.out_dims, self.seq_len, self.w = in_dims, out_dims, seq_len, w
+        self.conv = nn.Conv1d(in_dims, out_dims, kernel_size=w, bias=True)
+        self.provenance: dict | None = None  # how the descriptors it was trained on were made
+        self.trained_on: dict | None = None  # {"dataset": dir, "split": name, "checkpoint": path} of its training
+
+    def _check(self, x: torch.Tensor) -> torch.Tensor:
+        if x.ndim == 2:
+            x = x[:, None, :]
+        if x.shape[-1] != self.in_dims:
+            raise ConfigError(f"SeqNet expects D={self.in_dims} inputs, got D={x.shape[-1]}")
+        if x.shape[1] < self.w:
+            raise ConfigError(f"SeqNet with w={self.w} needs windows of >= {self.w} frames, got {x.shape[1]}")
+        return x
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``[B, L, D]`` → ``[B, D_out]``, computed as one GEMM (same value as :meth:`forward_conv`).
+
+        The network is linear up to its L2 norm: the mean over the ``T = L − w + 1`` outputs of the
+        convolution is ``b + Σ_k W_k · mean_{t<T} x[t + k]``. So the windows are averaged per filter
+        tap first (``[B, w, D]``) and multiplied once by the ``[D_out, D·w]`` weight, T times fewer
+        multiplications than the convolution.
+        """
+        weight = self.conv.weight
+        x = self._check(x).to(weight.dtype)  # a half-precision model (to(torch.bfloat16)) reads half the bytes
+        avg = _tap_average(x.shape[1], self.w).to(x.device, x.dtype)
+        shifted = (avg @ x).transpose(1, 2).reshape(len(x), self.in_dims * self.w)  # [B, D·w], D-major like the weight
+        y = F.linear(shifted, weight.reshape(self.out_dims, -1), self.conv.bias)
+        return F.normalize(y.to(torch.promote_types(y.dtype, torch.float32)), dim=-1)  # normalised in >= float32
+
+    def forward_conv(self, x: torch.Tensor) -> torch.Tensor:
+        """The literal SeqNet forward: Conv1d over time, mean over time, L2 norm (``[B, L, D]`` → ``[B, D_out]``)."""
+        y = self.conv(self._check(x).permute(0, 2, 1))  # [B, D_out, L - w + 1]
+        return F.normalize(y.mean(dim=-1), dim=-1)
+
+    @property
+    def role(self) -> str:
+        """``"s1"`` for an S_1 model (``seq_len == w == 1``), else ``"seqnet"`` (S_L)."""
+        return "s1" if self.seq_len == 1 and self.w == 1 else "seqnet"
+
+    def config(self) -> dict[str, int]:
+        """Architecture hyper-parameters (stored in checkpoints)."""
+        return {"in_dims": self.in_dims, "out_dims": self.out_dims, "seq_len": self.seq_len, "w": self.w}
