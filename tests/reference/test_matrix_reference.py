@@ -79,3 +79,37 @@ def test_a_range_split_evaluates_its_sub_matrix(synth_dataset, synth_dir, tmp_pa
     assert got["recall@1"] == want.results["methods"]["single"]["recall@1"]
     assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "d.npy"), "--split", "nosuch"]) == 2
     assert "has no split 'nosuch'" in capsys.readouterr().err
+
+
+ONLINE = ("single", "raw+seqmatch", "raw+vseqmatch", "raw+graph", "hvpr-single:raw+seqmatch")
+
+
+@pytest.mark.parametrize("method", ONLINE)
+def test_localize_streams_a_matrix_as_causal_eval_ranks_it(synth_dataset, synth_dir, tmp_path, method):
+    """``seqnet localize --distances`` (rows streamed one per frame) answers as ``seqnet eval --distances
+    --window causal`` on the same matrix, and as ``seqnet localize`` on the descriptors it came from."""
+    import csv
+
+    np.save(tmp_path / "d.npy", distances(synth_dataset))
+    common = ["--dataset", str(synth_dir), "--seq-len", "4", "--method", method, "--top-k", "10"]
+    assert cli(["localize", *common, "--distances", str(tmp_path / "d.npy"), "--out", str(tmp_path / "m.csv")]) == 0
+    assert cli(["localize", *common, "--out", str(tmp_path / "t.csv")]) == 0
+    ev = evaluate_matrix(synth_dataset.split("test"), distances(synth_dataset.split("test")),
+                         EvalConfig(methods=(method,), seq_len=4, window="causal", top_k=10))
+    rows = {n: list(csv.DictReader(open(tmp_path / f"{n}.csv"))) for n in ("m", "t")}
+    full = [r for r in rows["m"] if r["full_window"] == "1"]
+    assert [int(r["estimate"]) for r in full] == ev.r_items[ev.retrieved[method][:, 0]].tolist()
+    assert [r["estimate"] for r in rows["m"]] == [r["estimate"] for r in rows["t"]]
+    summary = json.loads((tmp_path / "m.json").read_text())
+    assert summary["inputs"]["similarity"] is False and summary["inputs"]["distances_digest"]
+
+
+def test_localize_on_a_matrix_refuses_models_and_descriptor_methods(synth_dir, synth_dataset, tmp_path, capsys):
+    np.save(tmp_path / "d.npy", distances(synth_dataset))
+    base = ["localize", "--dataset", str(synth_dir), "--distances", str(tmp_path / "d.npy"), "--out",
+            str(tmp_path / "m.csv")]
+    assert cli([*base, "--method", "smoothing"]) == 2
+    assert "needs descriptors; on a distance matrix" in capsys.readouterr().err
+    assert cli([*base, "--model", str(tmp_path / "x.pt")]) == 2
+    assert "no model applies" in capsys.readouterr().err
+    assert cli(["localize", "--dataset", str(synth_dir), "--similarity", "--out", str(tmp_path / "m.csv")]) == 2

@@ -30,6 +30,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                      "shortlists) or a seqnet dataset directory, whose reference traverse is used")
     p.add_argument("--query", metavar="DESCRIPTORS|IMAGES", help="with --map: a descriptor file (.npy, .h5) or a "
                    "folder / list file of images, described one by one as the map was (see docs/online.md)")
+    p.add_argument("--distances", metavar="FILE.npy", help="with --dataset: a precomputed [N_query, N_reference] "
+                   "frame-distance matrix of the whole dataset (any tool's), streamed row by row; methods: the "
+                   "model-free ones of seqnet eval --distances (docs/own_data.md)")
+    p.add_argument("--similarity", action="store_true", help="the --distances matrix holds similarities (higher is "
+                   "closer)")
     p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
     p.add_argument("--out", required=True, metavar="TRACK.csv",
                    help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
@@ -59,10 +64,15 @@ def run(args: argparse.Namespace) -> int:
     if (args.map is None) != (args.query is None):
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")
+    if args.distances is None and args.similarity:
+        raise ConfigError("--similarity describes the --distances matrix; give --distances FILE.npy")
+    if args.map is not None and args.distances is not None:
+        raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:
         out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model)
     else:
-        out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model)
+        out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
+                   args.distances, args.similarity)
     s = out.data["summary"]  # what the stage wrote beside the track
     lat = s.get("latency_ms", {})
     print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")

@@ -142,6 +142,7 @@ class Localizer:
         self.device, self.radius, self.k = reference.device, float(radius), int(k)
         self.top_k, self.fuse = self.method.shortlist_size(top_k, fuse_top_k), self.method.fuse_weight(fuse_weight)
         self.exact = bool(exact)
+        self.as_given = bool(getattr(reference, "frame_indices", False))  # frames are matrix rows: nothing to describe
         self.ref_items, self.r_pos = reference.items, reference.positions[reference.items]
         reference.prepare(self.method)  # describe the map once, before the first frame
         m, w = self.method, self.windows
@@ -184,15 +185,20 @@ class Localizer:
         self.raw.push(x)
         recent = self.raw.window()  # the raw frames since the reset (the last L), oldest first
         if self.frames_name is not None:
-            feat = describe_frames(recent, None, self.frames_name, self.windows, self.models, self.device,
-                                   which=np.array([len(recent) - 1]))[0].to(self.device)
-            self._push_frame(feat)
+            self._push_frame(self._newest_frame(recent, self.frames_name))
         seen = self.raw.count
         ranking = self._rank(recent) if seen >= self.need else None
         est = self._estimate(ranking, seen >= self.windows.longest)
         est.latency_ms = (time.perf_counter() - t0) * 1e3
         self.frame += 1
         return est
+
+    def _newest_frame(self, recent: torch.Tensor, name: str) -> torch.Tensor:
+        """The newest frame's ``name`` descriptor ``[D2]`` (as given when the frames are matrix rows)."""
+        if self.as_given:
+            return recent[-1]
+        return describe_frames(recent, None, name, self.windows, self.models, self.device,
+                               which=np.array([len(recent) - 1]))[0].to(self.device)
 
     def _push_frame(self, feat: torch.Tensor) -> None:
         """The newest frame descriptor ``[D2]`` into the ring of the last L_m; for a whole-map matcher its
@@ -221,8 +227,7 @@ class Localizer:
             return self._match()
         if m.shortlist is not None:
             if SEQUENCE_DESCRIPTORS[m.shortlist].single_frame:
-                item = describe_frames(recent, None, m.shortlist, self.windows, self.models, self.device,
-                                       which=np.array([len(recent) - 1]))[0]
+                item = self._newest_frame(recent, m.shortlist)
             else:
                 item = describe_items(recent, np.array([len(recent) - self.seq_len]), m.shortlist, self.windows,
                                       self.models, self.device)[0]
@@ -245,10 +250,12 @@ class Localizer:
                         scores)
 
 
-def replay(loc: Localizer, traverse: Traverse) -> Iterator[Estimate]:
-    """Step ``loc`` through every frame of ``traverse`` in order, resetting at each sequence start."""
+def replay(loc: Localizer, traverse: Traverse, frames: ArrayLike | None = None) -> Iterator[Estimate]:
+    """Step ``loc`` through every frame of ``traverse`` in order (its descriptors, or ``frames [N, D]`` in
+    their place: a matrix's row numbers), resetting at each sequence start."""
     starts = None if traverse.seq_bounds is None else traverse.seq_bounds[:, 0]
+    frames = traverse.descriptors if frames is None else frames
     for i in range(len(traverse)):
         if starts is not None and starts[i] == i and i > 0:
             loc.reset()
-        yield loc.step(traverse.descriptors[i])
+        yield loc.step(frames[i])

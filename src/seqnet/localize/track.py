@@ -20,7 +20,8 @@ import numpy as np
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.errors import ConfigError, OutputError
-from ..core.files import Written, write_json_atomic, write_text_atomic
+from ..core.files import Written, file_digest, write_json_atomic, write_text_atomic
+from ..core.lazy import lazy_module
 from ..core.ownership import locked, remove_dead_temps
 from ..core.progress import progress
 from ..core.utils import check_device, get_device, logger
@@ -32,6 +33,8 @@ from ..reference.base import Reference
 from ..search.blocks import PRECISIONS, precision_dtype
 from ..sequence.windows import Windows
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
+
+torch = lazy_module("torch")
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -149,9 +152,10 @@ def _our_header(out: Path) -> bool:
         return False
 
 
-def replay_query(loc: Localizer, ds: Dataset) -> list[Estimate]:
-    """Every frame of the query traverse through ``loc`` (a progress bar), resetting at sequence starts."""
-    return list(progress(replay(loc, ds.query), desc=f"localize ({loc.method.name})", total=len(ds.query),
+def replay_query(loc: Localizer, ds: Dataset, frames: np.ndarray | None = None) -> list[Estimate]:
+    """Every frame of the query traverse (or ``frames [Nq, D]`` in its place) through ``loc`` (a progress
+    bar), resetting at sequence starts."""
+    return list(progress(replay(loc, ds.query, frames), desc=f"localize ({loc.method.name})", total=len(ds.query),
                          unit="frame"))
 
 
@@ -209,37 +213,70 @@ def write_track(out: Path, rows: list[dict[str, Any]], record: dict[str, Any]) -
     return out
 
 
+def matrix_localizer(ds: Dataset, dist: np.ndarray, conf: LocalizeConfig) -> tuple[Localizer, np.ndarray]:
+    """The localiser of ``conf`` over the distance matrix ``dist [Nq, Nr]`` of ``ds`` (the split taken), and
+    the query frames as their row numbers ``[Nq, 1]``: replaying them streams the matrix row by row."""
+    from ..reference.matrix import MatrixReference, frame_indices
+
+    ref = MatrixReference(torch.as_tensor(np.ascontiguousarray(dist)), ds.reference, conf.windows({}), ds.name)
+    return conf.localizer(ref, conf.radius or ds.radius), frame_indices(len(ds.query)).numpy()
+
+
 def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
-         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None) -> Written:
+         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
+         distances: str | Path | None = None, similarity: bool = False) -> Written:
     """hloc-style stage: replay the query traverse of split ``conf.split`` of the dataset directory
-    ``dataset`` against its reference traverse; writes ``out`` (track.csv) and its ``.json``
-    summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1)."""
+    ``dataset`` against its reference traverse (or, with ``distances``, the rows of that ``[Nq, Nr]``
+    matrix file of the whole dataset; ``similarity``: higher is closer); writes ``out`` (track.csv) and
+    its ``.json`` summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1)."""
+    if distances is not None and (models or shortlist_model or rerank_model):
+        raise ConfigError("--distances gives the frame distances: no model applies (methods on a matrix read "
+                          "single-frame distances only)")
     with locked(check_output(out)):
         remove_dead_temps([Path(out), sidecar_of(Path(out))])
-        return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model)
+        return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, distances, similarity)
+
+
+def _localizer(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loaded: Mapping[str, SeqNet],
+               distances: str | Path | None, similarity: bool) -> tuple[Localizer, np.ndarray | None]:
+    """The localiser of the split ``ds`` and the frames it replays in place of the query descriptors (None:
+    those): over the reference traverse, or over the rows of the matrix."""
+    if distances is None:
+        return dataset_localizer(ds, loaded, conf), None
+    from ..eval.matrix import read_matrix, split_matrix
+
+    return matrix_localizer(ds, split_matrix(read_matrix(distances, full, similarity), full, split), conf)
 
 
 def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
-          shortlist_model: str | Path | None, rerank_model: str | Path | None) -> Written:
+          shortlist_model: str | Path | None, rerank_model: str | Path | None, distances: str | Path | None,
+          similarity: bool) -> Written:
     from ..data.io import load_dataset
     from ..sequence.checkpoints import load_models
 
     full = load_dataset(dataset)
     split = default_split(conf.split, full.splits)
-    ds = full.split(split)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    ds = full.split(split)
+    loc, frames = _localizer(conf, ds, full, split, loaded, distances, similarity)
     radius = conf.radius or ds.radius
-    loc = dataset_localizer(ds, loaded, conf)
-    est = replay_query(loc, ds)
+    est = replay_query(loc, ds, frames)
     best = np.array([e.ref_index for e in est], dtype=np.int64)
     correct, has = track_truth(ds, loc.ref_items, radius, best)
     summary = summarize(est, correct, has)
     record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
                                              "rerank_seq_len": loc.match_len, "radius": radius},
-              "inputs": {"dataset": str(Path(dataset).resolve()),
+              "inputs": {"dataset": str(Path(dataset).resolve()), **_matrix_inputs(distances, similarity),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
     write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct), record)
     logger.debug("localize: %s", json.dumps(summary))
     return Written(out, record)
+
+
+def _matrix_inputs(distances: str | Path | None, similarity: bool) -> dict[str, Any]:
+    if distances is None:
+        return {}
+    return {"distances": str(Path(distances).resolve()), "similarity": bool(similarity),
+            "distances_digest": file_digest(distances)}

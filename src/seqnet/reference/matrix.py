@@ -7,6 +7,10 @@ shortlists and re-ranks from the same matrix (``shared_distances``); the variabl
 matchers run their block functions on its rows (:class:`seqnet.matching.velocity.FrameDistances`).
 The methods are the ones that read single-frame distances (:data:`MATRIX_METHODS`); anything that
 needs descriptors (sequence descriptors, models, GRH's LSH codes) is refused.
+
+Query frames are given as their row numbers (``[M, 1]``): the whole query offline, the frames of the
+newest window online (``seqnet localize --distances``, :attr:`MatrixReference.frame_indices`), so window
+starts relative to the frames given are turned into rows here, and online equals offline causal.
 """
 
 from __future__ import annotations
@@ -64,7 +68,8 @@ class MatrixReference:
         side = windows.side(len(traverse), traverse.seq_bounds)
         self.items, self.match_starts = side.items, side.match_starts
         self.positions, self.names, self.provenance = traverse.positions, traverse.names, None
-        self.input_dim, self.device, self.models = 0, torch.device("cpu"), {}
+        self.input_dim, self.device, self.models = 1, torch.device("cpu"), {}
+        self.frame_indices = True  # a query frame is its row number: the localiser streams rows, describes nothing
         self.precision, self.resident = None, True
 
     def check_method(self, m: Method) -> None:
@@ -84,12 +89,16 @@ class MatrixReference:
         return nearest_items(self.dist, torch.as_tensor(query)[:, 0], self.items, k)
 
     def shared_distances(self, frames: str, query_frames: torch.Tensor) -> torch.Tensor:
-        return self.dist
+        """The rows of the query frames given (the matrix itself when they are all its rows, in order)."""
+        rows = _rows(query_frames)
+        if len(rows) == self.dist.shape[0] and bool((rows == torch.arange(len(rows))).all()):
+            return self.dist
+        return self.dist[rows]
 
     def rerank(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
                candidates: np.ndarray) -> torch.Tensor:
         """SeqMatch of the candidate items ``[M, K]`` (``-1``: none) read from the matrix."""
-        return item_scores_from_distances(self.dist, self.windows.match_len, torch.as_tensor(q_starts),
+        return item_scores_from_distances(self.dist, self.windows.match_len, _rows(query_frames)[q_starts],
                                           torch.as_tensor(self.match_starts), candidates, matcher)
 
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
@@ -98,11 +107,18 @@ class MatrixReference:
         and graph matchers: their block functions on the matrix's rows), the k best kept."""
         if matcher not in DIAGONAL_MATCHERS:
             spec = SEQUENCE_MATCHERS[matcher]
-            return spec.topk(FrameDistances(self.dist), None, self.windows.match_len, k, q_starts, self.match_starts,
+            rows = _rows(query_frames)[q_starts].numpy()
+            return spec.topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts,
                              device="cpu", **spec.options(self.windows.anchor))
         every = np.tile(np.arange(len(self.items)), (len(q_starts), 1))
         vals, idx = topk_smallest(self.rerank(frames, matcher, query_frames, q_starts, every), k)
         return vals.numpy(), idx.numpy()
 
     def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
-        raise ConfigError("a distance matrix is evaluated offline (seqnet eval --distances), not streamed")
+        """``[Nr]``: the matrix row of one query frame (``frame [1]``: its row number)."""
+        return self.dist[int(frame[0])]
+
+
+def _rows(query_frames: torch.Tensor | np.ndarray) -> torch.Tensor:
+    """The matrix rows (int64 ``[M]``) of query frames given as row numbers ``[M, 1]``."""
+    return torch.as_tensor(query_frames)[:, 0].long()
