@@ -36,3 +36,42 @@ def test_training_that_cannot_fit_is_refused_before_anything_is_written(synth_da
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "needs about" in err[0] and "--out-dims" in err[0], err
     assert not (tmp_path / "run").exists()
+
+
+def _one_line_refusal(capsys, *hints):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs about" in err[0] and all(h in err[0] for h in hints), err
+
+
+def test_eval_index_build_and_localize_that_cannot_fit_are_refused_before_the_work(synth_dataset, tmp_path,
+                                                                                 monkeypatch, capsys):
+    data = str(save_dataset(synth_dataset, tmp_path / "ds"))
+    monkeypatch.setenv("SEQNET_MEMORY_MB", "0.01")
+    assert cli(["eval", "--dataset", data, "--out", str(tmp_path / "ev")]) == 1
+    _one_line_refusal(capsys, "evaluating", "--split")
+    assert not (tmp_path / "ev" / "results.json").exists()
+    assert cli(["index", "build", "--dataset", data, "--out", str(tmp_path / "map"), "--window", "causal",
+                "--shortlist", "single", "--rerank", "raw+seqmatch"]) == 1
+    _one_line_refusal(capsys, "index of", "ivf-pq")
+    assert not (tmp_path / "map").exists()
+    assert cli(["localize", "--dataset", data, "--method", "single", "--out", str(tmp_path / "t.csv")]) == 1
+    _one_line_refusal(capsys, "localising against", "--dtype float16")
+    assert not (tmp_path / "t.csv").exists()
+    monkeypatch.delenv("SEQNET_MEMORY_MB")
+    assert cli(["eval", "--dataset", data, "--out", str(tmp_path / "ev")]) == 0
+
+
+def test_the_estimates_follow_the_shapes():
+    import faiss
+
+    from seqnet.search.ann import index_bytes
+
+    n, d = 100_000, 256
+    flat, hnsw = faiss.index_factory(d, "Flat"), faiss.index_factory(d, "HNSW32,Flat")
+    ivfpq = faiss.index_factory(d, "IVF1024,PQ32")
+    assert index_bytes(flat, n) == 4 * d * n
+    assert 4 * d * n + 64 * 4 * n < index_bytes(hnsw, n) < 4 * d * n + 80 * 4 * n  # 2M level-0 links
+    assert index_bytes(ivfpq, n) == (32 + 8) * n + 4 * d * n  # codes + ids, and the training sample (all n)
+    assert memory.described_bytes(10, 1000, [4, 8], 1 << 30) == 4 * 10 * 12 + 4 * 1000 * 12
+    assert memory.described_bytes(10, 10**6, [1000], 256 << 20) == 4 * 10 * 1000 + (256 << 20)  # spilled past
+    assert memory.workspace_bytes(10, 10) < memory.workspace_bytes(10**4, 10**5) == memory.WORKSPACE_BYTES

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import os
 import resource
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 from .errors import ResourceError
 
@@ -65,3 +67,23 @@ def check_fits(needed: int, what: str, hints: str) -> None:
     free = available_bytes()
     if free is not None and needed > free:
         raise ResourceError(f"{what} needs about {gib(needed)} of memory, {gib(free)} available; hint: {hints}")
+
+
+WORKSPACE_BYTES = 4 * (64 << 20)  # a few query x reference blocks in flight (search.knn.DEFAULT_BLOCK_BYTES each)
+
+
+def workspace_bytes(n_query: int, n_ref: int) -> int:
+    """The search blocks in flight: :data:`WORKSPACE_BYTES`, or less when all scores are smaller (tiny data)."""
+    return min(WORKSPACE_BYTES, 16 * n_query * n_ref + (16 << 20))
+
+
+def model_bytes(models: Iterable[Any]) -> int:
+    """Bytes of the parameters of torch modules ``models``."""
+    return sum(p.numel() * p.element_size() for m in models for p in m.parameters())
+
+
+def described_bytes(n_query: int, n_ref: int, dims: Iterable[int], resident_cap: int) -> int:
+    """Bytes of the descriptors one evaluation holds: each of ``dims`` (one per sequence descriptor the methods
+    compute) in float32 for every query item, and for the reference up to ``resident_cap`` each (larger ones go
+    to a spill file: :mod:`seqnet.core.memmaps`)."""
+    return sum(4 * n_query * d + min(4 * n_ref * d, resident_cap) for d in dims)

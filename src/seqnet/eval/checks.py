@@ -3,9 +3,9 @@ the flag on models evaluated on their own training queries (:func:`leakage`)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError
 from ..core.provenance import check_same
@@ -27,6 +27,25 @@ def check_inputs(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet
     check_provenance(ds, models, length, allow_mismatch)
     for side, t in (("query", ds.query), ("reference", ds.reference)):
         check_fits(max(length, match_len), len(t), f"the {side} traverse of dataset {ds.name!r}")
+    check_memory(ds, methods, models)
+
+
+def check_memory(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet]) -> None:
+    """Refuse, before describing, an evaluation whose estimate exceeds the available memory (one line, exit 1):
+    the models, every sequence descriptor of the query side, the reference's up to the spill size each, and
+    the search blocks (:func:`seqnet.core.memory.described_bytes`)."""
+    from ..core.memmaps import limit
+    from ..core.memory import check_fits as fits_memory
+    from ..core.memory import described_bytes, gib, model_bytes, workspace_bytes
+
+    names = dict.fromkeys(d for m in methods for d in m.descriptors())
+    dims = descriptor_dims(names, models, ds.query.dim)
+    need = model_bytes(models.values()) + described_bytes(len(ds.query), len(ds.reference), dims, limit("SPILL"))
+    fits_memory(need + workspace_bytes(len(ds.query), len(ds.reference)),
+               f"evaluating {len(methods)} method(s) on {len(ds.query)} query frames (descriptors "
+               f"{', '.join(names)}: {gib(described_bytes(len(ds.query), 0, dims, 0))} on the query side)",
+               "evaluate a smaller --split or fewer methods, or describe with fewer dimensions (--dim, PCA) "
+               "or a smaller S_L / S_1 (--out-dims)")
 
 
 def check_fits(longest: int, n: int, what: str) -> None:
@@ -117,3 +136,26 @@ def _same_path(a: str | Path | None, b: str | Path) -> bool:
         return a is not None and Path(a).resolve() == Path(b).resolve()
     except OSError:
         return False
+
+
+def descriptor_dims(names: Iterable[str], models: Mapping[str, SeqNet], dim: int) -> list[int]:
+    """D' of each sequence descriptor ``names`` on ``dim``-D frames (a model's output size, else ``dim``)."""
+    return [models[r].out_dims if (r := SEQUENCE_DESCRIPTORS[d].model) and r in models else dim for d in names]
+
+
+def check_resident(reference: Any, method: Method, models: Mapping[str, SeqNet]) -> None:
+    """Refuse, before describing, a localiser whose reference (kept resident: searched every frame) cannot
+    fit: a map's files, or every descriptor of the method over a reference traverse, with the models."""
+    from ..core.memory import check_fits as fits_memory
+    from ..core.memory import described_bytes, gib, model_bytes, workspace_bytes
+
+    held = getattr(reference, "nbytes", None)  # a map: its memory-mapped files
+    if held is None and getattr(reference, "frame_indices", False):
+        return  # a distance matrix, already read
+    if held is None:
+        held = described_bytes(0, len(reference.positions), descriptor_dims(method.descriptors(), models,
+                                                                            reference.input_dim), 1 << 62)
+    fits_memory(held + model_bytes(models.values()) + workspace_bytes(1, len(reference.positions)),
+               f"localising against {reference.name!r} (kept in memory: {gib(held)})",
+               "a map with a compressed index and float16 frames (seqnet index build --index ivf-pq --dtype "
+               "float16), or fewer dimensions (--dim, PCA, --out-dims)")

@@ -32,7 +32,7 @@ from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, as_tensor
 from ..data.traverse import Traverse
-from ..eval.checks import check_fits, check_methods, check_models
+from ..eval.checks import check_fits, check_methods, check_models, check_resident
 from ..eval.methods import FRAME_FEATURES, Method, parse_method
 from ..eval.metrics.precision_recall import ratio_confidence
 from ..eval.rank import rank
@@ -139,6 +139,7 @@ class Localizer:
         self.ref, self.method, self.windows = reference, online_method(method), reference.windows
         reference.check_method(self.method)
         self.models = dict(reference.models if models is None else models)
+        check_resident(reference, self.method, self.models)
         self.device, self.radius, self.k = reference.device, float(radius), int(k)
         self.top_k, self.fuse = self.method.shortlist_size(top_k, fuse_top_k), self.method.fuse_weight(fuse_weight)
         self.exact = bool(exact)

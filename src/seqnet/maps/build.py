@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
+from ..core.memory import check_fits, model_bytes, workspace_bytes
 from ..core.ownership import check_replaceable
 from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset, default_split
 from ..eval.checks import check_models as check_model_inputs
 from ..reference.traverse import TraverseReference
-from ..search.ann import make_index
+from ..search.ann import index_bytes, make_index
 from ..sequence.checkpoints import load_models
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import Windows
@@ -56,6 +58,13 @@ def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> N
     if conf.shards > 1:  # IVF only, at most one shard per item
         check_ivf(index, conf.ann.factory(dim, max(n, 1)))
         split_rows(n, conf.shards)
+    held = index_bytes(index, n)
+    if conf.shards > 1:  # the shards in flight at once (one thread each), then merged on disk
+        held = index_bytes(index, -(-n // conf.shards)) * min(conf.shards, os.cpu_count() or 1)
+    check_fits(held + model_bytes(models.values()) + workspace_bytes(n, n),
+               f"building the {conf.ann.factory(dim, max(n, 1))!r} index of {n} items (D={dim})",
+               "a compressed index (--index ivf-pq, or a factory string such as 'IVF4096,PQ32'), or fewer "
+               "dimensions (--dim, PCA, --out-dims)")
 
 
 def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = ()) -> Path:

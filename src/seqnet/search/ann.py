@@ -134,6 +134,32 @@ def build_index(ref: np.ndarray, conf: AnnConfig | None = None) -> Any:
     return index
 
 
+def index_bytes(index: Any, n: int) -> int:
+    """Estimated bytes of ``index`` (empty, from :func:`make_index`) once it holds ``n`` vectors, with its
+    training sample: FAISS's code size per vector (through pre-transforms), 8 bytes of id per vector in
+    an inverted list, and an HNSW graph's level-0 links (4 bytes each, 10 % for the upper levels)."""
+    import faiss
+
+    inner = index
+    while isinstance(inner, faiss.IndexPreTransform):
+        inner = faiss.downcast_index(inner.index)
+    per = _code_bytes(inner)
+    sample = 0 if index.is_trained else 4 * index.d * train_size(index, n)
+    return int(n * per + sample)
+
+
+def _code_bytes(index: Any) -> float:
+    """Bytes per vector of a (downcast) FAISS index without pre-transform."""
+    import faiss
+
+    index = faiss.downcast_index(index)
+    hnsw = getattr(index, "hnsw", None)
+    if hnsw is not None:
+        return _code_bytes(index.storage) + 4 * 1.1 * hnsw.nb_neighbors(0) + 8
+    extra = 8 if getattr(index, "invlists", None) is not None else 0
+    return float(getattr(index, "code_size", 4 * index.d) + extra)
+
+
 def train_size(index: Any, n: int) -> int:
     """How many of ``n`` vectors ``index`` is trained on: all of them up to ``max(256 · nlist, 65536)``
     (FAISS's k-means uses at most 256 points per list; PQ codebooks want 65,536)."""
