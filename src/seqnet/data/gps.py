@@ -49,10 +49,10 @@ def latlon_to_utm(lat: np.ndarray, lon: np.ndarray, where: str) -> tuple[np.ndar
     import utm
 
     lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
-    bad = np.flatnonzero(~((np.abs(lat) <= 84) & (np.abs(lon) <= 180)))
+    bad = np.flatnonzero(~((lat >= -80) & (lat <= 84) & (np.abs(lon) <= 180)))
     if bad.size:
         i = int(bad[0])
-        raise DatasetError(f"{where}: sample {i}: latitude {lat[i]!r}, longitude {lon[i]!r} out of range "
+        raise DatasetError(f"{where}: sample {i}: latitude {float(lat[i])}, longitude {float(lon[i])} out of range "
                            "(UTM covers latitudes -80..84 and longitudes -180..180, degrees)")
     _, _, number, letter = utm.from_latlon(lat[:1], lon[:1])
     e, n, _, _ = utm.from_latlon(lat, lon, force_zone_number=number, force_zone_letter=letter)
