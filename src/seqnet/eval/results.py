@@ -34,8 +34,10 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     rec = recall(ranked, truth, ks)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"])
-    confidence = ratio_confidence(scores, ranked, truth.r_pos, truth.radius)
-    correct = truth.hits(ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
+    pr_ranked, pr_scores = truth.without_soft(ranked, scores)  # soft positives: neither TP nor FP in PR
+    confidence = ratio_confidence(pr_scores, pr_ranked, truth.r_pos, truth.radius)
+    confidence[pr_ranked[:, 0] < 0 if ranked.shape[1] else slice(0)] = 0.0  # every retrieved was a soft match
+    correct = truth.hits(pr_ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
     precision, rec, thresholds = precision_recall(confidence, correct, truth.has_positive())
     entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
                  confidence_for_precision=thresholds_for(precision, rec, thresholds))
