@@ -73,7 +73,8 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
                positions=(args.ref_csv, args.query_csv) if truth == "csv" else None,
                positives=args.positives, overwrite=args.overwrite)
     meta = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
-    print(f"wrote {out}: {meta['name']}, ground truth {truth}, radius {meta['radius']:g} {meta['position_unit']}, "
+    label = args.positions_format if truth == "csv" and args.positions_format != "csv" else truth
+    print(f"wrote {out}: {meta['name']}, ground truth {label}, radius {meta['radius']:g} {meta['position_unit']}, "
           f"descriptors {meta['provenance']['reference']['settings']['method']} "
           f"D={meta['provenance']['reference']['dim']} (provenance {meta['provenance']['reference']['id']})")
     print(f"next: seqnet eval --dataset {out}")
