@@ -155,7 +155,7 @@ LATE = [
     (["eval", "--dataset", "{ds}", "--model", "{base}/garbage.pt"], "cannot read checkpoint"),
     (["eval", "--dataset", "{ds}", "--model", "{base}/nowhere.pt"], "not found"),
     (["eval", "--dataset", "{ds}", "--model", "{base}"], "directory"),
-    (["eval", "--dataset", "{ds}", "--per-query", "{out}/pq.xml"], "must end in .csv or .jsonl or .txt"),
+    (["eval", "--dataset", "{ds}", "--per-query", "{out}/pq.xml"], "must end in .csv, .jsonl or .txt"),
     (["synth", ""], "empty value"),
     (["train", "--dataset", "{ds}", "--out", "{out}/r", "--w", "9"], "w must be"),
     (["train", "--dataset", "{ds}", "--out", "{out}/r", "--train-split", "nope"], "no split 'nope'"),

@@ -213,6 +213,37 @@ def test_vpr_tutorial_gt_npz(tmp_path):
     pos = read_positives(tmp_path / "GT.npz").check(3, 5)
     assert [pos.indices[a:b].tolist() for a, b in zip(pos.indptr[:-1], pos.indptr[1:], strict=True)] == \
         [[0, 1], [], [4]]
+    # GTsoft: the soft positives, stored as GThard | GTsoft (VPR_Tutorial's soft set includes the hard one)
+    assert [pos.soft.of(q).tolist() for q in range(3)] == [[0, 1, 2], [], [0, 4]]
+    sel = pos.select(np.array([0, 2]), np.array([1, 2, 4]))  # a split keeps the soft positives, renumbered
+    assert [sel.of(q).tolist() for q in range(2)] == [[0], [2]]
+    assert [sel.soft.of(q).tolist() for q in range(2)] == [[0, 1], [2]]
     np.savez(tmp_path / "other.npz", gt=hard)
     with pytest.raises(DatasetError, match="needs VPR_Tutorial's 'GThard'"):
         read_positives(tmp_path / "other.npz")
+    np.savez(tmp_path / "bad.npz", GThard=hard, GTsoft=hard[:4])
+    with pytest.raises(DatasetError, match=r"GTsoft has shape \(4, 3\) but GThard \(5, 3\)"):
+        read_positives(tmp_path / "bad.npz")
+    np.savez(tmp_path / "wide.npz", GThard=hard, GTsoft=np.eye(6, 3, dtype=bool))
+    with pytest.raises(DatasetError, match=r"GTsoft has shape"):
+        read_positives(tmp_path / "wide.npz")
+    bad_soft = Positives(pos.indptr, pos.indices, soft=Positives.from_lists([[0, 9], [], [4]]))
+    with pytest.raises(DatasetError, match=r"\(soft positives\): query 0 lists reference 9, but the reference"):
+        bad_soft.check(3, 5)
+
+
+def test_soft_positives_are_saved_with_the_dataset(tmp_path, synth_dataset):
+    """GT.npz through `dataset from-utm-names --positives`: hard and soft positives round-trip in the dataset."""
+    import dataclasses
+
+    from seqnet.data.io import load_dataset, save_dataset
+
+    n_q, n_r = len(synth_dataset.query), len(synth_dataset.reference)
+    hard = np.zeros((n_r, n_q), bool)
+    hard[np.arange(n_q) % n_r, np.arange(n_q)] = True
+    soft = np.roll(hard, 1, axis=0)
+    np.savez(tmp_path / "GT.npz", GThard=hard, GTsoft=soft)
+    pos = read_positives(tmp_path / "GT.npz")
+    ds = load_dataset(save_dataset(dataclasses.replace(synth_dataset, positives=pos), tmp_path / "ds"))
+    assert ds.positives.of(3).tolist() == [3] and ds.positives.soft.of(3).tolist() == [3, 4]
+    assert ds.split("test").positives.soft is not None

@@ -384,3 +384,36 @@ def test_msls_predictions_file(synth_dir, tmp_path, capsys):
     assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "single,raw+seqmatch",
                 "--per-query", str(tmp_path / "two.txt")]) == 2
     assert "holds one method, got 2" in capsys.readouterr().err
+
+
+def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
+    """VPR-methods-evaluation's saved predictions (visualizations.save_preds): preds/NNN.txt per query with
+    'Query path:', the query, 'Predictions paths:', the top predictions, 'Positives paths:', the positives."""
+    import re
+
+    from seqnet.cli import main as cli
+    from seqnet.data.io import load_dataset
+
+    out = tmp_path / "logs" / "preds"
+    argv = ["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "single", "--per-query", str(out)]
+    assert cli(argv) == 0
+    ds = load_dataset(synth_dir).split("test")
+    files = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    assert files[0] == "000.txt" and all(re.fullmatch(r"\d{3}\.txt", f) for f in files)
+    text = (out / "000.txt").read_text()
+    head, preds, positives = text.split("\n\n")[:3]
+    assert head.split("\n")[0] == "Query path:" and head.split("\n")[1] in ds.query.names
+    assert preds.split("\n")[0] == "Predictions paths:" and len(preds.split("\n")[1:]) == 5
+    assert set(preds.split("\n")[1:]) <= set(ds.reference.names)
+    pos = positives.strip("\n").split("\n")
+    assert pos[0] == "Positives paths:" and pos[1:] and set(pos[1:]) <= set(ds.reference.names)
+    assert text.endswith("\n")
+    q = ds.query.names.index(head.split("\n")[1])  # the positives: the evaluated references within the radius
+    near = [n for n, p in zip(ds.reference.names, ds.reference.positions, strict=True)
+            if np.linalg.norm(p - ds.query.positions[q]) <= ds.radius]
+    assert set(pos[1:]) <= set(near) and len(near) - len(pos[1:]) <= 3  # L=4: up to 3 frames have no window
+    assert cli(argv) == 0  # seqnet's own folder is replaced
+    (out / "notes.md").write_text("mine")
+    capsys.readouterr()
+    assert cli(argv) == 2
+    assert "holds 1 file(s) seqnet did not write (first: notes.md)" in capsys.readouterr().err

@@ -74,3 +74,30 @@ def test_the_threshold_for_a_precision_is_the_lowest_that_reaches_it(rng):
             low = min(ok)
             assert entry["confidence"] == pytest.approx(low)
             assert entry["recall"] == pytest.approx(correct[conf >= low].sum() / has.sum(), abs=1e-4)
+
+
+def test_soft_matches_are_neither_true_nor_false_positives_in_pr():
+    """VPR_Tutorial's createPR sets S[GTsoft & ~GThard] to the minimum: a soft-only match is skipped, the next
+    retrieved reference is the top-1 of the PR curve; Recall@K counts the hard positives only."""
+    from seqnet.data.positives import Positives
+    from seqnet.eval.metrics.recall import GroundTruth
+    from seqnet.eval.results import method_results
+
+    hard = Positives.from_lists([[2], [7], [4]])
+    soft = Positives.from_lists([[1, 2], [7], [3, 4]])
+    truth = GroundTruth(np.zeros((3, 1)), np.arange(10.0)[:, None], 0.5, Positives(hard.indptr, hard.indices,
+                                                                                      soft=soft))
+    ranked = np.array([[1, 2, 5], [7, 0, 1], [3, 9, 4]])  # query 0: soft then hard; query 2: soft then wrong
+    scores = np.array([[0.1, 0.2, 0.9], [0.1, 0.8, 0.9], [0.1, 0.3, 0.5]])
+    kept, s = truth.without_soft(ranked, scores)
+    assert kept.tolist() == [[2, 5, -1], [7, 0, 1], [9, 4, -1]]
+    assert s[0].tolist() == [0.2, 0.9, np.inf]
+    entry, conf = method_results(scores, ranked, truth, ks=(1, 3))
+    assert entry["recall@1"] == pytest.approx(1 / 3) and entry["recall@3"] == 1.0  # hard positives only
+    # PR: query 0's top-1 is 2 (correct), query 1's 7 (correct), query 2's 9 (wrong): 2 of 3 accepted are right
+    curve = entry["pr_curve"]
+    assert curve["precision"][-1] == pytest.approx(2 / 3, abs=1e-4) and curve["recall"][-1] == pytest.approx(
+        2 / 3, abs=1e-4)
+    plain, _ = method_results(scores, ranked, GroundTruth(np.zeros((3, 1)), np.arange(10.0)[:, None], 0.5, hard),
+                              ks=(1,))
+    assert plain["pr_curve"]["precision"][-1] == pytest.approx(1 / 3, abs=1e-4)  # without soft: 1 is a FP

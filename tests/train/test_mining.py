@@ -187,6 +187,25 @@ def test_explicit_positives_decide_the_masks():
     np.testing.assert_array_equal(queries_with_pairs(q_pos, r_pos, 1.0, 4.0, pos), [True, False, True])
 
 
+def test_soft_positives_are_never_negatives():
+    """VPR_Tutorial's GTsoft: a soft positive is neither a positive nor a negative in mining."""
+    from seqnet.data.positives import Positives
+    from seqnet.train.truth import nonnegative_keys
+
+    q_pos, r_pos = np.array([[0.0], [10.0]]), np.arange(30.0)[:, None]
+    hard = Positives.from_lists([[5], [12]])
+    pos = Positives(hard.indptr, hard.indices, soft=Positives.from_lists([[5, 6, 25], [12]]))
+    n = len(r_pos)
+    p_mask, n_mask = pair_masks(torch.as_tensor(q_pos), torch.as_tensor(r_pos), 1.0, 4.0, positive_keys(pos, n),
+                                torch.arange(2), nonnegative_keys(pos, n))
+    assert p_mask[0].nonzero().ravel().tolist() == [5]  # the soft ones are not positives
+    assert not n_mask[0, 25] and not n_mask[0, 6] and n_mask[0, 24] and n_mask[0, 26]  # nor negatives
+    _, without = pair_masks(torch.as_tensor(q_pos), torch.as_tensor(r_pos), 1.0, 4.0, positive_keys(pos, n),
+                            torch.arange(2))
+    assert without[0, 25]  # without the soft set, 25 m away is a negative
+    assert nonnegative_keys(hard, n) is None
+
+
 def test_training_uses_explicit_positives(tmp_path):
     """A dataset whose explicit positives point elsewhere than the positions: mining follows the positives."""
     import dataclasses

@@ -9,6 +9,7 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from . import COMMANDS
 from .common import add_allow_mismatch, positive_float
+from .dataset_foreign import add_positions_format, register_from_msls
 from .dataset_images import register_from_images
 
 PRESET_HELP = "dataset preset (nordland, oxford-v1.0, oxford-pnv, brisbane, msls): radius, training radii, splits"
@@ -22,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _register_utm(dsub)
     _register_seqnet(dsub)
     register_from_images(dsub, parse_splits)
+    register_from_msls(dsub, finish)
     c = dsub.add_parser("check", help="validate a dataset directory and print a summary")
     c.add_argument("dir", metavar="DIR", help="seqnet dataset directory")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -58,6 +60,7 @@ def _register_csv(dsub: argparse._SubParsersAction) -> None:
         p.add_argument(f"--{side}-csv", required=True, help=f"{side} positions CSV")
         p.add_argument(f"--{side}-desc", required=True, help=f"{side} descriptors (.npy, .h5, .hdf5)")
         p.add_argument(f"--{side}-names", help=f"names of the {side} descriptors (one per line, for .npy)")
+    add_positions_format(p)
     _common(p)
     p.set_defaults(func=run_from_csv)
 
@@ -111,7 +114,7 @@ def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | No
     return out or None
 
 
-def _finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
+def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
     from ..data.convert import summarize_dataset
     from ..data.io import save_dataset
 
@@ -137,15 +140,25 @@ def run_from_csv(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..data.convert import assemble_dataset, traverse_from_csv
+    from ..data.gps import DEFAULT_MAX_GAP, check_zones, traverse_from_log
 
-    ref, unit_r = traverse_from_csv(args.ref_csv, args.ref_desc, args.ref_names, "reference")
-    qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
+    if args.positions_format != "csv":
+        gap = args.max_time_gap or DEFAULT_MAX_GAP
+        ref, zone_r = traverse_from_log(args.positions_format, args.ref_csv, args.ref_desc, args.ref_names,
+                                        "reference", gap)
+        qry, zone_q = traverse_from_log(args.positions_format, args.query_csv, args.query_desc, args.query_names,
+                                        "query", gap)
+        check_zones(zone_r, zone_q)
+        unit_r = unit_q = "metres"
+    else:
+        ref, unit_r = traverse_from_csv(args.ref_csv, args.ref_desc, args.ref_names, "reference")
+        qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
     if unit_r != unit_q:
         raise ConfigError(f"reference positions are in {unit_r} but query positions in {unit_q}")
     ds = assemble_dataset(ref, qry, unit_r, args.radius, args.preset, parse_splits(args.split),
                           args.name or Path(args.out).name, _extra(args), _positives(args),
                           args.allow_mismatch)
-    return _finish(ds, args)
+    return finish(ds, args)
 
 
 def run_from_utm(args: argparse.Namespace) -> int:
@@ -164,7 +177,7 @@ def run_from_utm(args: argparse.Namespace) -> int:
     ds = assemble_dataset(sides[0], sides[1], "metres", args.radius, args.preset, parse_splits(args.split),
                           args.name or Path(args.out).name, _extra(args), _positives(args),
                           args.allow_mismatch)
-    return _finish(ds, args)
+    return finish(ds, args)
 
 
 def run_from_seqnet(args: argparse.Namespace) -> int:
@@ -185,7 +198,7 @@ def run_from_seqnet(args: argparse.Namespace) -> int:
                                   args.radius, args.name)
     ds.reference.provenance, ds.query.provenance = _same_provenance(args.ref_desc, args.query_desc,
                                                                     args.allow_mismatch)
-    return _finish(ds, args)
+    return finish(ds, args)
 
 
 def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) -> tuple[dict | None, dict | None]:

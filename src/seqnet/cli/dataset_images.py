@@ -8,6 +8,7 @@ import json
 from ..describe import DESCRIBERS
 from ..pipelines.from_images import FIT_ON, FromImagesConfig, main
 from .common import add_device, positive_float
+from .dataset_foreign import add_positions_format
 from .describe_cmd import add_describe_options, describe_config
 
 
@@ -32,6 +33,7 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
     g.add_argument("--positives", metavar="FILE", help="explicit positives: per query the matching reference "
                    "indices (.json list of lists, .csv query,reference pairs, .npy object array)")
     p.add_argument("--query-csv", metavar="FILE", help="query positions CSV (with --ref-csv)")
+    add_positions_format(p)
     p.add_argument("--radius", type=positive_float,
                    help="localisation radius, inclusive (metres for CSV eastings / UTM names, else frames); "
                    "required except with --positives, whose spread implies one")
@@ -55,6 +57,8 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
              else "positives")
     from ..core.errors import ConfigError
 
+    if args.positions_format != "csv" and truth != "csv":
+        raise ConfigError(f"--positions-format {args.positions_format} reads --ref-csv / --query-csv (the logs)")
     if truth == "csv" and not args.query_csv:
         raise ConfigError("--ref-csv needs --query-csv (the query positions)")
     if args.radius is None and truth != "positives":
@@ -62,12 +66,15 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
                           "implies one)")
     conf = FromImagesConfig(describe=describe_config(args), fit_on=args.fit_on, ground_truth=truth,
                             radius=args.radius, splits=parse_splits(args.split), name=args.name,
-                            pos_radius=args.pos_radius, neg_radius=args.neg_radius)
+                            pos_radius=args.pos_radius, neg_radius=args.neg_radius,
+                            positions_format=args.positions_format,
+                            **({"max_time_gap": args.max_time_gap} if args.max_time_gap else {}))
     out = main(conf, args.reference, args.query, args.out,
                positions=(args.ref_csv, args.query_csv) if truth == "csv" else None,
                positives=args.positives, overwrite=args.overwrite)
     meta = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
-    print(f"wrote {out}: {meta['name']}, ground truth {truth}, radius {meta['radius']:g} {meta['position_unit']}, "
+    label = args.positions_format if truth == "csv" and args.positions_format != "csv" else truth
+    print(f"wrote {out}: {meta['name']}, ground truth {label}, radius {meta['radius']:g} {meta['position_unit']}, "
           f"descriptors {meta['provenance']['reference']['settings']['method']} "
           f"D={meta['provenance']['reference']['dim']} (provenance {meta['provenance']['reference']['id']})")
     print(f"next: seqnet eval --dataset {out}")

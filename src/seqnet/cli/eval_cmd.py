@@ -58,9 +58,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
     p.add_argument("--ks", type=int_list, metavar="K[,K...]",
                    help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
-    p.add_argument("--per-query", metavar="FILE", help="write one row per method and query (top-5 references, "
-                   "scores, correct or not, confidence) to FILE (.csv or .jsonl); .txt: MSLS's predictions format "
-                   "(one method: query key, then its top-20 reference keys)")
+    p.add_argument("--per-query", metavar="FILE", help="per-query results: FILE.csv / .jsonl (per method and query: "
+                   "top-5 references, scores, correct or not, confidence); .txt: MSLS's predictions (one method, "
+                   "query key and its top-20 reference keys); no extension: a VPR-methods-evaluation preds folder")
     p.add_argument("--distances", metavar="FILE.npy", help="evaluate on this [N_query, N_reference] frame-distance "
                    "matrix of the dataset (from VPR-Bench, VPR_Tutorial, any tool) instead of descriptors: single, "
                    "raw+seqmatch(-rev), hvpr-single:raw+seqmatch(-rev)")

@@ -99,18 +99,29 @@ POSITIVES_FILE = "positives.npz"
 
 
 def load_positives(f: Path) -> Positives:
-    """Explicit positives saved by :func:`save_dataset` (``indptr``, ``indices`` arrays, no pickles)."""
+    """Explicit positives saved by :func:`save_dataset` (``indptr``, ``indices`` arrays, and ``soft_indptr``,
+    ``soft_indices`` when there are soft positives; no pickles)."""
     try:
         with np.load(f, allow_pickle=False) as z:
-            indptr, indices = z["indptr"], z["indices"]
+            arrays = {k: z[k] for k in ("indptr", "indices", "soft_indptr", "soft_indices") if k in z.files}
+            hard = _csr(arrays["indptr"], arrays["indices"], f, "")
     except (OSError, ValueError, KeyError, EOFError) as e:
         raise DatasetError(f"cannot read {f} (explicit positives: arrays indptr and indices) ({e})") from e
+    if "soft_indptr" not in arrays:
+        return hard
+    soft = _csr(arrays["soft_indptr"], arrays.get("soft_indices", np.zeros(0, np.int64)), f, "soft_")
+    if len(soft) != len(hard):
+        raise DatasetError(f"{f}: {len(soft)} rows of soft positives for {len(hard)} rows of positives")
+    return Positives(hard.indptr, hard.indices, soft=soft)
+
+
+def _csr(indptr: np.ndarray, indices: np.ndarray, f: Path, prefix: str) -> Positives:
     if indptr.ndim != 1 or indices.ndim != 1 or indptr.dtype.kind not in "iu" or indices.dtype.kind not in "iu":
-        raise DatasetError(f"{f}: indptr and indices must be 1-D integer arrays")
+        raise DatasetError(f"{f}: {prefix}indptr and {prefix}indices must be 1-D integer arrays")
     if indptr.size == 0 or indptr[0] != 0 or (np.diff(indptr) < 0).any() or indptr[-1] != indices.size:
-        raise DatasetError(f"{f}: indptr must start at 0, never decrease and end at len(indices)")
+        raise DatasetError(f"{f}: {prefix}indptr must start at 0, never decrease and end at len({prefix}indices)")
     if indices.size and indices.min() < 0:
-        raise DatasetError(f"{f}: reference indices must be >= 0")
+        raise DatasetError(f"{f}: {prefix}indices (reference indices) must be >= 0")
     return Positives(indptr.astype(np.int64), indices.astype(np.int64))
 
 
@@ -206,7 +217,9 @@ def _write_dataset(ds: Dataset, root: Path) -> None:
         save_traverse(t, root / side)
     if ds.positives is not None:
         with atomic_path(root / POSITIVES_FILE) as tmp, open(tmp, "wb") as f:
-            np.savez(f, indptr=ds.positives.indptr, indices=ds.positives.indices)
+            soft = ds.positives.soft
+            extra = {} if soft is None else {"soft_indptr": soft.indptr, "soft_indices": soft.indices}
+            np.savez(f, indptr=ds.positives.indptr, indices=ds.positives.indices, **extra)
     meta = {
         **{k: v for k, v in ds.extra.items() if k not in _META_KEYS},
         "checksums": {p.relative_to(root).as_posix(): file_digest(p, full=True) for p in sorted(root.rglob("*"))

@@ -34,6 +34,9 @@ class Positives:
     indptr: np.ndarray  # [Nq + 1] int64
     indices: np.ndarray  # [nnz] int64
     n_refs: int | None = None  # the columns of the dense matrix it was read from (checked against the traverse)
+    # soft positives (VPR_Tutorial's GTsoft, a superset of these): never negatives in training, neither a true
+    # nor a false positive in PR; Recall@K counts only the hard ones
+    soft: Positives | None = None
 
     @classmethod
     def from_lists(cls, lists: Sequence[Sequence[int]], where: str = "positives") -> Positives:
@@ -73,6 +76,8 @@ class Positives:
             q = int(np.searchsorted(self.indptr, int(np.argmax(self.indices >= n_refs)), side="right") - 1)
             raise DatasetError(f"{where}: query {q} lists reference {int(self.indices.max())}, but the reference "
                                f"traverse has {n_refs} images (indices 0..{n_refs - 1})")
+        if self.soft is not None:
+            self.soft.check(n_queries, n_refs, f"{where} (soft positives)")
         return self
 
     @classmethod
@@ -97,7 +102,8 @@ class Positives:
         flat = np.repeat(self.indptr[q_idx] - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
         rows, cols = np.repeat(np.arange(len(q_idx)), counts), lookup[self.indices[flat]]
         keep = cols >= 0
-        return Positives.from_pairs(rows[keep], cols[keep], len(q_idx))
+        soft = self.soft.select(q_idx, r_idx) if self.soft is not None else None
+        return dataclasses.replace(Positives.from_pairs(rows[keep], cols[keep], len(q_idx)), soft=soft)
 
     def mask(self, n_refs: int) -> np.ndarray:
         """Dense ``[Nq, n_refs]`` bool matrix (for small blocks of queries)."""
@@ -201,19 +207,29 @@ def _read_object_npy(p: Path) -> Positives:
 
 
 def _read_tutorial_npz(p: Path) -> Positives:
-    """VPR_Tutorial's ``GT.npz``: ``GThard`` ``[N_db, N_q]`` bool (and ``GTsoft``, not read: the hard positives
-    decide what is correct)."""
+    """VPR_Tutorial's ``GT.npz``: ``GThard`` ``[N_db, N_q]`` bool, the positives, and the optional ``GTsoft``
+    (same shape), the soft positives (:attr:`Positives.soft`, stored as ``GThard | GTsoft``)."""
     try:
         with np.load(p, allow_pickle=False) as z:
             if "GThard" not in z.files:
                 raise DatasetError(f"{p}: an .npz of positives needs VPR_Tutorial's 'GThard' [N_db, N_q] array, "
                                    f"found {sorted(z.files)}")
             hard = np.asarray(z["GThard"])
+            soft = np.asarray(z["GTsoft"]) if "GTsoft" in z.files else None
     except (OSError, ValueError) as e:
         raise DatasetError(f"cannot read {p} as an .npz file ({e})") from e
     if hard.ndim != 2:
         raise DatasetError(f"{p}: GThard must be a [N_db, N_q] matrix, got shape {hard.shape}")
-    return _numeric_matrix(hard.T, p)  # one row per query
+    out = _numeric_matrix(hard.T, p)  # one row per query
+    if soft is None:
+        return out
+    if soft.shape != hard.shape:
+        raise DatasetError(f"{p}: GTsoft has shape {soft.shape} but GThard {hard.shape} (both [N_db, N_q])")
+    soft_pos = _numeric_matrix(soft.T, p)
+    if soft_pos.n_refs is None:
+        raise DatasetError(f"{p}: GTsoft must be a 0/1 [N_db, N_q] matrix like GThard")
+    both = _numeric_matrix(soft.T.astype(bool) | hard.T.astype(bool), p)
+    return dataclasses.replace(out, soft=both)
 
 
 def _is_index(x: object) -> bool:

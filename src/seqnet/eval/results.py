@@ -23,7 +23,6 @@ from .metrics.precision_recall import (
 )
 from .metrics.recall import GroundTruth, recall
 
-PER_QUERY_FORMATS = (".csv", ".jsonl", ".txt")  # .txt: MSLS's predictions format (one method)
 MSLS_TOP = 20  # predictions per query in an MSLS file (its evaluation reads up to 20)
 
 
@@ -35,8 +34,10 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     rec = recall(ranked, truth, ks)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"])
-    confidence = ratio_confidence(scores, ranked, truth.r_pos, truth.radius)
-    correct = truth.hits(ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
+    pr_ranked, pr_scores = truth.without_soft(ranked, scores)  # soft positives: neither TP nor FP in PR
+    confidence = ratio_confidence(pr_scores, pr_ranked, truth.r_pos, truth.radius)
+    confidence[pr_ranked[:, 0] < 0 if ranked.shape[1] else slice(0)] = 0.0  # every retrieved was a soft match
+    correct = truth.hits(pr_ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
     precision, rec, thresholds = precision_recall(confidence, correct, truth.has_positive())
     entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
                  confidence_for_precision=thresholds_for(precision, rec, thresholds))
@@ -83,17 +84,52 @@ def _num(x: float) -> float | None:
     return round(float(x), 6) if np.isfinite(x) else None
 
 
-def write_per_query(ev: Any, path: str | Path, top: int = 5) -> Path:
-    """Write :func:`per_query_rows` to ``path``: ``.csv`` (lists joined by ``;``) or ``.jsonl``; or ``.txt``,
-    MSLS's predictions format (:func:`msls_predictions`)."""
-    path = Path(path)
-    if path.suffix.lower() not in PER_QUERY_FORMATS:
-        raise ConfigError(f"per-query file {path} must end in {' or '.join(PER_QUERY_FORMATS)}")
-    if path.suffix.lower() == ".txt":
-        return write_text_atomic(path, msls_predictions(ev))
-    rows = per_query_rows(ev, top)
-    if path.suffix.lower() == ".jsonl":
-        return write_text_atomic(path, "".join(json.dumps(r, allow_nan=False) + "\n" for r in rows))
+def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
+    """VPR-methods-evaluation's saved predictions (``visualizations.save_preds``): per query a file
+    ``<query index:03d>.txt`` holding ``Query path:``, the query, ``Predictions paths:``, its top-``top``
+    references (best first) and ``Positives paths:``, every correct reference (image names as the dataset
+    stores them). One method only, and the names must be known."""
+    if len(ev.retrieved) != 1:
+        raise ConfigError(f"a VPR-methods-evaluation predictions folder holds one method, got {len(ev.retrieved)} "
+                          f"({', '.join(ev.retrieved)}); hint: --method M")
+    if ev.query_names is None or ev.reference_names is None:
+        raise ConfigError("a predictions folder needs image names for the query and reference images")
+    ranked = next(iter(ev.retrieved.values()))[:, :top]
+    refs = ev.reference_names
+    out = {}
+    for m, (q, row) in enumerate(zip(ev.query_names, ranked, strict=True)):
+        parts = ["Query path:", q + "\n", "Predictions paths:", "\n".join(refs[j] for j in row if j >= 0) + "\n",
+                 "Positives paths:", "\n".join(refs[j] for j in _positives_of(ev.truth, m)) + "\n"]
+        out[f"{m:03d}.txt"] = "\n".join(parts)
+    return out
+
+
+def _positives_of(truth: GroundTruth, m: int) -> np.ndarray:
+    """The correct reference items of query item ``m``, sorted."""
+    if truth.positives is not None:
+        return truth.positives.of(m)
+    d = np.linalg.norm(truth.r_pos - truth.q_pos[m], axis=1)
+    return np.flatnonzero(d <= truth.radius)
+
+
+def _write_folder(path: Path, files: dict[str, str]) -> Path:
+    """A folder of per-query files, swapped in whole; an existing one is replaced only if seqnet wrote it."""
+    import re
+
+    from ..core.ownership import check_replaceable, locked, recover_dir, write_dir, write_manifest
+
+    def fill(tmp: Path) -> None:
+        for name, text in files.items():
+            write_text_atomic(tmp / name, text)
+        write_manifest(tmp, "predictions", [tmp / n for n in files])
+
+    with locked(path):
+        recover_dir(path)
+        check_replaceable(path, "predictions folder", lambda rel: re.fullmatch(r"\d{3,}\.txt", rel) is not None)
+        return write_dir(path, fill)
+
+
+def _rows_csv(rows: list[dict[str, Any]]) -> str:
     buf = io.StringIO()
     fields = ["method", "query_frame", "query_name", "references", "scores", "correct", "has_positive", "confidence"]
     writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
@@ -101,4 +137,27 @@ def write_per_query(ev: Any, path: str | Path, top: int = 5) -> Path:
     for r in rows:
         writer.writerow({k: ";".join("" if x is None else str(x) for x in v) if isinstance(v, list) else v
                          for k, v in r.items()})
-    return write_text_atomic(path, buf.getvalue())
+    return buf.getvalue()
+
+
+PER_QUERY_WRITERS = {  # by the file's extension ("": a folder)
+    ".csv": lambda ev, path, top: write_text_atomic(path, _rows_csv(per_query_rows(ev, top))),
+    ".jsonl": lambda ev, path, top: write_text_atomic(path, "".join(json.dumps(r, allow_nan=False) + "\n"
+                                                                    for r in per_query_rows(ev, top))),
+    ".txt": lambda ev, path, top: write_text_atomic(path, msls_predictions(ev)),
+    "": lambda ev, path, top: _write_folder(path, vpr_methods_predictions(ev, top)),
+}
+PER_QUERY_FORMATS = tuple(PER_QUERY_WRITERS)
+
+
+def write_per_query(ev: Any, path: str | Path, top: int = 5) -> Path:
+    """Write the per-query results to ``path``, in the format its extension names (:data:`PER_QUERY_WRITERS`):
+    :func:`per_query_rows` as ``.csv`` (lists joined by ``;``) or ``.jsonl``; ``.txt``, MSLS's predictions
+    format (:func:`msls_predictions`); no extension, a VPR-methods-evaluation predictions folder
+    (:func:`vpr_methods_predictions`)."""
+    path = Path(path)
+    writer = PER_QUERY_WRITERS.get(path.suffix.lower())
+    if writer is None:
+        raise ConfigError(f"per-query file {path} must end in .csv, .jsonl or .txt (MSLS), or have no extension "
+                          "(a VPR-methods-evaluation predictions folder)")
+    return writer(ev, path, top)

@@ -7,7 +7,9 @@ construction (their provenance is recorded), then attaches the ground truth, one
 :data:`GROUND_TRUTHS`:
 
 * ``csv``: positions CSV files (an image-name column and ``easting,northing`` in metres or ``frame``;
-  optional ``sequence``), one per traverse, matched to the images by name;
+  optional ``sequence``), one per traverse, matched to the images by name; or, with
+  ``positions_format`` ``robotcar-ins`` / ``kitti-oxts``, a drive's position log, the images matched
+  to it by timestamp (:mod:`seqnet.data.gps`);
 * ``utm``: UTM coordinates in the image names (``@<easting>@<northing>@...``);
 * ``frames``: the two traverses are frame-aligned (query frame i ↔ reference frame i), positions are
   frame indices and the radius is in frames;
@@ -27,6 +29,7 @@ from ..core.errors import ConfigError, ImageError
 from ..core.ownership import check_replaceable, locked
 from ..core.utils import logger
 from ..data.convert import assemble_dataset, match_names, read_positions_csv, utm_positions
+from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
 from ..data.io import save_dataset
 from ..data.positives import read_positives
 from ..data.traverse import Traverse
@@ -52,7 +55,8 @@ class FromImagesConfig(Config):
         splits: named half-open index ranges ``{name: {"reference": (a, b), "query": (c, d)}}``.
         name: dataset name (None: the output directory's).
         pos_radius / neg_radius: training radii (stored as metadata).
-        allow_mismatch: accept positions CSVs in different units (never descriptors: they are made alike).
+        positions_format: how the ``csv`` ground truth's files are read (:data:`seqnet.data.gps.POSITIONS_FORMATS`).
+        max_time_gap: seconds; an image farther than this from every sample of a position log is refused.
     """
 
     describe: DescribeConfig = DescribeConfig()
@@ -63,9 +67,13 @@ class FromImagesConfig(Config):
     name: str | None = None
     pos_radius: float | None = None
     neg_radius: float | None = None
+    positions_format: str = "csv"
+    max_time_gap: float = DEFAULT_MAX_GAP
 
     def __post_init__(self) -> None:
         check_choice("ground truth", self.ground_truth, GROUND_TRUTHS)
+        check_choice("positions format", self.positions_format, POSITIONS_FORMATS)
+        self._set("max_time_gap", check_float("max_time_gap", self.max_time_gap, 0.0, strict=True))
         if self.radius is not None:
             self._set("radius", check_float("radius", self.radius, 0.0, strict=True))
         if self.fit_on not in FIT_ON and self.fit_on not in (self.splits or {}):
@@ -87,17 +95,22 @@ def _fit_images(conf: FromImagesConfig, ref: ImageList, qry: ImageList) -> list[
 
 
 def _positions(conf: FromImagesConfig, images: ImageList, csv_file: str | Path | None,
-               side: str) -> tuple[np.ndarray, np.ndarray | None, str]:
-    """``(positions [N, P], seq_bounds or None, unit)`` of one traverse from the chosen ground truth."""
+               side: str) -> tuple[np.ndarray, np.ndarray | None, str, str | None]:
+    """``(positions [N, P], seq_bounds or None, unit, UTM zone or None)`` of one traverse from the chosen
+    ground truth."""
     if conf.ground_truth == "csv":
         if csv_file is None:
             raise ConfigError(f"ground truth 'csv' needs a positions CSV for the {side} (--{side[:3]}-csv FILE)")
+        if conf.positions_format != "csv":
+            xy, zone = log_positions(conf.positions_format, csv_file, images.names, list(images.paths),
+                                     conf.max_time_gap)
+            return xy, None, "metres", zone
         names, pos, unit, bounds = read_positions_csv(csv_file)
         idx = match_names(images.names, names, f"{csv_file} vs the {side} images")
-        return pos[idx], None if bounds is None else bounds[idx], unit
+        return pos[idx], None if bounds is None else bounds[idx], unit, None
     if conf.ground_truth == "utm":
-        return utm_positions(images.names), None, "metres"
-    return np.arange(len(images), dtype=np.float64)[:, None], None, "frames"
+        return utm_positions(images.names), None, "metres", None
+    return np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None
 
 
 def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: str | Path,
@@ -108,8 +121,10 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
     ref, qry = list_images(reference), list_images(query)
     if conf.ground_truth == "positives" and positives is None:
         raise ConfigError("ground truth 'positives' needs --positives FILE (JSON list of lists, CSV pairs or .npy)")
-    pos_r, bounds_r, unit = _positions(conf, ref, positions[0] if positions else None, "reference")
-    pos_q, bounds_q, unit_q = _positions(conf, qry, positions[1] if positions else None, "query")
+    pos_r, bounds_r, unit, zone_r = _positions(conf, ref, positions[0] if positions else None, "reference")
+    pos_q, bounds_q, unit_q, zone_q = _positions(conf, qry, positions[1] if positions else None, "query")
+    if zone_r and zone_q:
+        check_zones(zone_r, zone_q)
     if unit != unit_q:
         raise ConfigError(f"reference positions are in {unit} but query positions in {unit_q}")
     truth = read_positives(positives).check(len(qry), len(ref), str(positives)) if positives else None

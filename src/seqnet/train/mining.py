@@ -28,7 +28,7 @@ from ..search.knn import pairwise_distances
 from ..sequence.descriptors import describe_windows
 from ..sequence.windows import window_starts
 from .config import MiningConfig
-from .truth import pair_masks, positive_keys, queries_with_pairs
+from .truth import nonnegative_keys, pair_masks, positive_keys, queries_with_pairs
 
 torch = lazy_module("torch")
 
@@ -182,6 +182,7 @@ class TripletSource:
     r_pos: torch.Tensor
     left_out: int = 0
     pos_keys: torch.Tensor | None = None  # explicit positive pairs (train/truth.positive_keys), or None
+    soft_keys: torch.Tensor | None = None  # soft positive pairs, never negatives (train/truth.nonnegative_keys)
 
     @property
     def n_queries(self) -> int:
@@ -225,10 +226,13 @@ def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, d
     """
     sw = split_windows(ds, seq_len, window, conf, "train")
     as_long = lambda a: torch.as_tensor(a, dtype=torch.long, device=device)  # noqa: E731
+    keys = soft = None
+    if sw.positives is not None:
+        keys, soft = positive_keys(sw.positives, len(sw.r_idx)), nonnegative_keys(sw.positives, len(sw.r_idx))
     return TripletSource(as_tensor(ds.query.descriptors, device), as_tensor(ds.reference.descriptors, device),
                          as_long(sw.q_idx), as_long(sw.r_idx), torch.as_tensor(sw.q_pos, device=device),
                          torch.as_tensor(sw.r_pos, device=device), sw.left_out,
-                         positive_keys(sw.positives, len(sw.r_idx)).to(device) if sw.positives is not None else None)
+                         None if keys is None else keys.to(device), None if soft is None else soft.to(device))
 
 
 def compute_cache(
@@ -273,7 +277,8 @@ def mine_queries(
     for s in range(0, len(rows), block):
         o = None if own is None else own[s : s + block]
         r = rows[s : s + block] if o is None else rows[s : s + block][o]
-        pos_mask, neg_mask = pair_masks(src.q_pos[r], src.r_pos, conf.pos_radius, conf.neg_radius, src.pos_keys, r)
+        pos_mask, neg_mask = pair_masks(src.q_pos[r], src.r_pos, conf.pos_radius, conf.neg_radius, src.pos_keys, r,
+                                        src.soft_keys)
         m = mine_batch(q_feat[at : at + len(r)], r_feat, pos_mask, neg_mask, conf.n_negatives, conf.n_neg_sample,
                        conf.margin, generator, neg_cache[r.cpu()].to(q_feat.device), o)
         at += len(r)

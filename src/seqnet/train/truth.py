@@ -3,7 +3,8 @@
 With positions only, a reference window is a positive within ``pos_radius`` of the query and a
 negative beyond ``neg_radius`` (NetVLAD / SeqNet). With explicit positives (:mod:`seqnet.data.positives`),
 the positives are the listed references and the negatives those beyond ``neg_radius`` that are not
-listed (so a place the list knows about is never taken for a negative).
+listed, nor soft positives (VPR_Tutorial's GTsoft), so a place the lists know about is never taken
+for a negative.
 """
 
 from __future__ import annotations
@@ -23,10 +24,11 @@ def queries_with_pairs(q_pos: np.ndarray, r_pos: np.ndarray, pos_radius: float, 
     position ``r_pos [R, P]`` within ``pos_radius``, or an explicit positive) and one negative."""
     if positives is not None:
         keys, has_neg = positive_keys(positives, len(r_pos)), np.zeros(len(q_pos), dtype=bool)
+        soft = nonnegative_keys(positives, len(r_pos))
         for s in range(0, len(q_pos), 4096):  # blocks of queries bound the [B, R] masks
             rows = torch.arange(s, min(len(q_pos), s + 4096))
             neg = pair_masks(torch.as_tensor(q_pos[s : s + 4096]), torch.as_tensor(r_pos), pos_radius, neg_radius,
-                             keys, rows)[1]
+                             keys, rows, soft)[1]
             has_neg[s : s + len(rows)] = neg.any(dim=1).numpy()
         return (positives.counts() > 0) & has_neg
     tree = cKDTree(np.asarray(r_pos, dtype=np.float64))
@@ -54,15 +56,23 @@ def positive_keys(positives: Positives, n_refs: int) -> torch.Tensor:
     return torch.as_tensor(np.sort(rows.astype(np.int64) * n_refs + cols))
 
 
+def nonnegative_keys(positives: Positives, n_refs: int) -> torch.Tensor | None:
+    """The pairs that are never negatives besides the positives: the soft positives' keys (None without)."""
+    return positive_keys(positives.soft, n_refs) if positives.soft is not None else None
+
+
 def pair_masks(q_pos: torch.Tensor, r_pos: torch.Tensor, pos_radius: float, neg_radius: float,
-               keys: torch.Tensor | None, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+               keys: torch.Tensor | None, rows: torch.Tensor,
+               soft_keys: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Positive and negative masks ``[B, R]`` of the training queries ``rows [B]`` (positions ``q_pos [B, P]``):
     by radius, or, with explicit positive ``keys`` (:func:`positive_keys`), the listed pairs and the
-    references beyond ``neg_radius`` that are not listed."""
+    references beyond ``neg_radius`` that are neither listed nor soft positives (``soft_keys``)."""
     pos, neg = radius_masks(q_pos, r_pos, pos_radius, neg_radius)
     if keys is None:
         return pos, neg
     n = r_pos.shape[0]
     wanted = rows.to(keys.device)[:, None] * n + torch.arange(n, device=keys.device)[None, :]
     listed = torch.isin(wanted, keys).to(pos.device)
+    if soft_keys is not None:
+        neg = neg & ~torch.isin(wanted, soft_keys.to(keys.device)).to(pos.device)
     return listed, neg & ~listed

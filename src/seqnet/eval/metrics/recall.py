@@ -85,6 +85,21 @@ class GroundTruth:
             return self.positives.hits(retrieved)
         return hits(retrieved, self.q_pos, self.r_pos, self.radius)
 
+    def without_soft(self, retrieved: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(retrieved, scores)`` ``[M, K]`` without the soft-only positives (soft, not hard: VPR_Tutorial's
+        ``GTsoft & ~GThard``), the rest moved up in order and padded with -1 / inf: as VPR_Tutorial's
+        ``createPR`` sets their similarity to the minimum, so a soft match is neither a true nor a false
+        positive. Unchanged without soft positives."""
+        soft = self.positives.soft if self.positives is not None else None
+        if soft is None or retrieved.shape[1] == 0:
+            return retrieved, scores
+        drop = soft.hits(retrieved) & ~self.positives.hits(retrieved)  # [M, K]
+        order = np.argsort(drop, axis=1, kind="stable")  # kept first, in rank order
+        kept = np.take_along_axis(retrieved, order, axis=1)
+        moved = np.take_along_axis(drop, order, axis=1)
+        s = np.take_along_axis(np.asarray(scores, dtype=np.float64), order, axis=1)
+        return np.where(moved, -1, kept), np.where(moved, np.inf, s)
+
     def check_retrieved(self, retrieved: np.ndarray) -> np.ndarray:
         """``retrieved`` as an int64 ``[M, K]`` array of valid reference items (or -1)."""
         retrieved = np.asarray(retrieved)

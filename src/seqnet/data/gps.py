@@ -1,0 +1,242 @@
+"""Positions from a drive's GPS / INS log, images matched to it by timestamp.
+
+One table, :data:`POSITION_SOURCES`, of the logs seqnet reads (``--positions-format``):
+
+* ``robotcar-ins``: Oxford RobotCar ``gps/ins.csv`` (robotcar-dataset-sdk: ``timestamp, ins_status,
+  latitude, longitude, altitude, northing, easting, down, utm_zone, velocity_north, ...``; ``gps.csv``
+  too), timestamps in microseconds; its ``easting, northing`` (UTM metres) are used, else
+  ``latitude, longitude`` through ``utm``. An image's time is its file name (``<timestamp>.png``).
+* ``kitti-oxts``: a KITTI raw drive's ``oxts/`` folder: ``data/0000000000.txt`` (one line of 30
+  numbers: lat, lon, alt, roll, pitch, yaw, ...) and ``timestamps.txt`` (one
+  ``YYYY-MM-DD HH:MM:SS.fffffffff`` line per file); lat / lon become UTM metres with ``utm``. An
+  image's time is its line in ``image_0x/timestamps.txt`` (the image ``image_0x/data/<frame>.png``).
+
+Every image takes the position of the nearest log sample; an image farther than the tolerance
+(``max_gap`` seconds) from every sample is refused by name, never given a far position.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import DatasetError
+from ..core.provenance import read as read_provenance
+from ..core.utils import logger
+from .convert import read_csv_rows
+from .readers import read_descriptor_file, read_text
+from .traverse import Traverse
+
+DEFAULT_MAX_GAP = 0.1  # seconds: RobotCar's INS logs at 50 Hz, KITTI's oxts at 10 Hz (synced) or 100 Hz
+
+
+@dataclasses.dataclass(frozen=True)
+class Samples:
+    """A position log: ``times [S]`` (seconds, sorted), ``xy [S, 2]`` (easting, northing, metres), UTM zone."""
+
+    times: np.ndarray
+    xy: np.ndarray
+    zone: str
+
+
+def latlon_to_utm(lat: np.ndarray, lon: np.ndarray, where: str) -> tuple[np.ndarray, str]:
+    """``[N, 2]`` UTM easting/northing of WGS84 ``lat, lon`` (degrees), all in the zone of the first point;
+    and that zone (e.g. ``"32U"``). Out-of-range coordinates are refused with their index."""
+    import utm
+
+    lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+    bad = np.flatnonzero(~((lat >= -80) & (lat <= 84) & (np.abs(lon) <= 180)))
+    if bad.size:
+        i = int(bad[0])
+        raise DatasetError(f"{where}: sample {i}: latitude {float(lat[i])}, longitude {float(lon[i])} out of range "
+                           "(UTM covers latitudes -80..84 and longitudes -180..180, degrees)")
+    _, _, number, letter = utm.from_latlon(lat[:1], lon[:1])
+    e, n, _, _ = utm.from_latlon(lat, lon, force_zone_number=number, force_zone_letter=letter)
+    return np.stack([e, n], axis=1), f"{number}{letter}"
+
+
+def _times_of(fields: list[str], what: str) -> float:
+    try:
+        return float(int(fields[0])) / 1e6
+    except ValueError as err:
+        raise DatasetError(f"{what}: timestamp {fields[0]!r} is not an integer (microseconds)") from err
+
+
+def read_robotcar_ins(path: str | Path) -> Samples:
+    """RobotCar ``ins.csv`` / ``gps.csv``: times (s), easting/northing (metres) and the UTM zone."""
+    p = Path(path)
+    header, rows = read_csv_rows(p)
+    has_en = "easting" in header and "northing" in header
+    wanted = ["timestamp", *(("easting", "northing") if has_en else ("latitude", "longitude"))]
+    missing = [c for c in wanted if c not in header]
+    if missing:
+        raise DatasetError(f"{p}: no column {', '.join(missing)} (header {header}); RobotCar's ins.csv has "
+                           "timestamp, ins_status, latitude, longitude, altitude, northing, easting, ...")
+    col = [header.index(c) for c in wanted]
+    vals = np.empty((len(rows), 3), dtype=np.float64)
+    for i, (line, r) in enumerate(rows):
+        if len(r) < len(header):
+            raise DatasetError(f"{p}, line {line}: {len(r)} fields, but the header has {len(header)}")
+        vals[i, 0] = _times_of([r[col[0]]], f"{p}, line {line}")
+        try:
+            vals[i, 1:] = [float(r[c]) for c in col[1:]]
+        except ValueError as err:
+            raise DatasetError(f"{p}, line {line}: {'/'.join(wanted[1:])} must be numbers, got "
+                               f"{[r[c] for c in col[1:]]}") from err
+    zones = sorted({r[header.index("utm_zone")].strip() for _, r in rows}) if "utm_zone" in header else []
+    if len(zones) > 1:
+        raise DatasetError(f"{p}: samples in {len(zones)} UTM zones ({', '.join(zones)}); one drive, one zone")
+    if has_en:
+        xy, zone = vals[:, 1:], zones[0] if zones else "?"
+    else:
+        xy, zone = latlon_to_utm(vals[:, 1], vals[:, 2], str(p))
+    return _sorted(vals[:, 0], xy, zone)
+
+
+def _sorted(times: np.ndarray, xy: np.ndarray, zone: str) -> Samples:
+    order = np.argsort(times, kind="stable")
+    return Samples(times=times[order], xy=np.asarray(xy, dtype=np.float64)[order], zone=zone)
+
+
+def parse_kitti_time(text: str, where: str) -> float:
+    """Seconds since the epoch (UTC) of a KITTI timestamp ``2011-09-26 13:02:25.594360375``."""
+    stamp, _, frac = text.strip().partition(".")
+    try:
+        t = datetime.datetime.strptime(stamp, "%Y-%m-%d %H:%M:%S").replace(tzinfo=datetime.timezone.utc)
+        return t.timestamp() + (float(f"0.{frac}") if frac else 0.0)
+    except ValueError as err:
+        raise DatasetError(f"{where}: {text.strip()!r} is not a KITTI timestamp (YYYY-MM-DD HH:MM:SS.fffffffff)"
+                           ) from err
+
+
+def read_kitti_times(path: Path) -> np.ndarray:
+    """``[F]`` seconds of every line of a KITTI ``timestamps.txt`` (line i: frame i)."""
+    if not path.is_file():
+        raise DatasetError(f"KITTI timestamps file not found: {path}")
+    lines = [ln for ln in read_text(path).split("\n") if ln.strip()]
+    return np.array([parse_kitti_time(ln, f"{path}, line {i + 1}") for i, ln in enumerate(lines)])
+
+
+def _frame(path: Path, n: int, what: str) -> int:
+    if not path.stem.isdigit() or int(path.stem) >= n:
+        raise DatasetError(f"{what}: {path.name} is not a frame number within the {n} lines of timestamps.txt "
+                           "(KITTI names frames 0000000000, 0000000001, ...)")
+    return int(path.stem)
+
+
+def read_kitti_oxts(path: str | Path) -> Samples:
+    """A KITTI ``oxts/`` folder (or the drive folder holding it): times, UTM easting/northing, zone."""
+    p = Path(path)
+    p = p / "oxts" if (p / "oxts").is_dir() else p
+    files = sorted((p / "data").glob("*.txt")) if (p / "data").is_dir() else []
+    if not files:
+        raise DatasetError(f"{p}: no data/*.txt files (a KITTI oxts folder holds data/0000000000.txt ... and "
+                           "timestamps.txt)")
+    times = read_kitti_times(p / "timestamps.txt")
+    if len(times) != len(files):
+        raise DatasetError(f"{p}: {len(times)} lines in timestamps.txt for {len(files)} data/*.txt files "
+                           "(one timestamp per oxts file)")
+    ll = np.empty((len(files), 2), dtype=np.float64)
+    for i, f in enumerate(files):
+        vals = read_text(f).split()
+        if len(vals) != 30:
+            raise DatasetError(f"{f}: {len(vals)} values, a KITTI oxts file has 30 (lat lon alt roll pitch yaw ...)")
+        try:
+            ll[i] = float(vals[0]), float(vals[1])
+        except ValueError as err:
+            raise DatasetError(f"{f}: lat/lon {vals[:2]} are not numbers") from err
+    frames = np.array([_frame(f, len(times), str(p)) for f in files])
+    xy, zone = latlon_to_utm(ll[:, 0], ll[:, 1], str(p))
+    return _sorted(times[frames], xy, zone)
+
+
+def robotcar_image_times(paths: list[Path]) -> np.ndarray:
+    """``[N]`` seconds from RobotCar image names (``<timestamp in microseconds>.png``)."""
+    return np.array([_times_of([p.stem], f"image {p.name}") for p in paths])
+
+
+def kitti_image_times(paths: list[Path]) -> np.ndarray:
+    """``[N]`` seconds of KITTI images ``image_0x/data/<frame>.png`` from ``image_0x/timestamps.txt``."""
+    cache: dict[Path, np.ndarray] = {}
+    out = np.empty(len(paths), dtype=np.float64)
+    for i, p in enumerate(paths):
+        stamps = p.parent.parent / "timestamps.txt"
+        if stamps not in cache:
+            cache[stamps] = read_kitti_times(stamps)
+        out[i] = cache[stamps][_frame(p, len(cache[stamps]), f"image {p}")]
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class PositionSource:
+    """A kind of position log: how to read it, how to time an image, and the folder image names start from."""
+
+    read: Callable[[Path], Samples]
+    image_times: Callable[[list[Path]], np.ndarray]
+    image_root: Callable[[Path], Path]  # the folder descriptor names are relative to (without image paths)
+    help: str
+
+
+POSITION_SOURCES: dict[str, PositionSource] = {
+    "robotcar-ins": PositionSource(read_robotcar_ins, robotcar_image_times, lambda p: p.parent,
+                                   "Oxford RobotCar gps/ins.csv (or gps.csv); images named <timestamp us>.png"),
+    "kitti-oxts": PositionSource(read_kitti_oxts, kitti_image_times,
+                                 lambda p: p if (p / "oxts").is_dir() else p.parent,
+                                 "a KITTI drive's oxts/ folder; image times from image_0x/timestamps.txt "
+                                 "(descriptor names relative to the drive folder: image_02/data/0000000000.png)"),
+}
+POSITIONS_FORMATS = ("csv", *POSITION_SOURCES)  # csv: the positions CSV (seqnet.data.convert)
+
+
+def nearest_samples(image_times: np.ndarray, log: Samples, names: list[str], max_gap: float,
+                    where: str) -> np.ndarray:
+    """``[N]`` index of the log sample nearest in time to each image; an image more than ``max_gap`` seconds
+    from every sample is refused by name."""
+    t = log.times
+    right = np.clip(np.searchsorted(t, image_times), 0, len(t) - 1)
+    left = np.clip(right - 1, 0, len(t) - 1)
+    idx = np.where(np.abs(t[left] - image_times) <= np.abs(t[right] - image_times), left, right)
+    gap = np.abs(t[idx] - image_times)
+    bad = np.flatnonzero(gap > max_gap)
+    if bad.size:
+        i = int(bad[0])
+        raise DatasetError(f"{where}: image {names[i]!r} is {gap[i]:.3f} s from the nearest position sample "
+                           f"(tolerance {max_gap:g} s; the log spans {t[0]:.3f}..{t[-1]:.3f} s; {bad.size} such "
+                           "images); hint: trim the images to the log, or raise --max-time-gap")
+    return idx
+
+
+def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Path] | None = None,
+                  max_gap: float = DEFAULT_MAX_GAP) -> tuple[np.ndarray, str]:
+    """``([N, 2] easting/northing, UTM zone)`` of the images ``names`` (files ``paths``, else the names under
+    the log's image root) from the position log ``source`` of kind ``fmt`` (:data:`POSITION_SOURCES`)."""
+    src = POSITION_SOURCES[fmt]
+    log = src.read(Path(source))
+    paths = paths if paths is not None else [src.image_root(Path(source)) / n for n in names]
+    idx = nearest_samples(src.image_times(paths), log, names, max_gap, f"{source} ({fmt})")
+    logger.info("%s: %d images placed from %d %s samples (UTM zone %s)", source, len(names), len(log.times), fmt,
+                log.zone)
+    return log.xy[idx], log.zone
+
+
+def check_zones(ref_zone: str, query_zone: str) -> None:
+    """Both traverses' positions are in one UTM zone (else their metres do not compare)."""
+    if ref_zone != query_zone and "?" not in (ref_zone, query_zone):
+        raise DatasetError(f"reference positions are in UTM zone {ref_zone}, query positions in {query_zone}; "
+                           "positions in two zones are not comparable")
+
+
+def traverse_from_log(fmt: str, source: str | Path, desc_path: str | Path, names_file: str | Path | None,
+                      name: str, max_gap: float = DEFAULT_MAX_GAP) -> tuple[Traverse, str]:
+    """A traverse from a descriptor file (with image names) placed by a position log; also the UTM zone."""
+    desc, names = read_descriptor_file(desc_path, names_file)
+    if names is None:
+        raise DatasetError(f"{desc_path}: no image names to time the images by; give --*-names FILE or an HDF5 "
+                           "file with 'names'")
+    xy, zone = log_positions(fmt, source, names, None, max_gap)
+    return Traverse(descriptors=desc, positions=xy, names=names, name=name,
+                    provenance=read_provenance(desc_path)), zone
