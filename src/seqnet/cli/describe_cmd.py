@@ -69,8 +69,9 @@ def add_describe_options(p: argparse.ArgumentParser, fit: bool = True) -> None:
                    help=f"pixels: patch-normalisation size (default {_D.patch}, 0 = off)")
     p.add_argument("--backbone", choices=list(BACKBONES), help=f"CNN backbone (default {_D.backbone}; "
                    f"{_table(BACKBONES)})")
-    p.add_argument("--layer", help="efficientnet-lite0 feature layer: 'head' or block index 0..15 "
-                                   "(default: head for gem/gmp, 10 for netvlad)")
+    p.add_argument("--layer", help="EfficientNet-Lite feature layer: 'head' or a block index (lite0: 0..15, "
+                                   "lite1/lite2: 0..20; default: head for gem/gmp, the last stride-16 block for "
+                                   "netvlad: 10 on lite0, 14 on lite1/lite2)")
     p.add_argument("--gem-p", type=positive_float, help=f"gem: pooling power p (default {_D.gem_p:g})")
     p.add_argument("--checkpoint", metavar="CKPT",
                    help="NetVLAD checkpoint (pytorch-NetVlad / Patch-NetVLAD format, e.g. pitts_WPCA4096.pth.tar); "
