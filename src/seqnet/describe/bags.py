@@ -3,9 +3,9 @@
 Each frame is a :class:`BagFrame` (an :class:`~seqnet.describe.images.ImageItem`), named by its bag timestamp
 (ns); it opens as a PIL image and is decoded from there as an image file is
 (:func:`~seqnet.describe.images.decode`), so a bag and a folder of the same images give the same descriptors.
-Message types (:data:`IMAGE_TYPES`): ``sensor_msgs/Image`` with an encoding of :data:`ENCODINGS` (rgb8, bgr8, mono8; others are refused by name)
-and ``sensor_msgs/CompressedImage`` (JPEG or PNG, decoded with PIL). One reader stays open per bag; frames
-read in order cost one pass over the bag.
+Message types (:data:`IMAGE_TYPES`): ``sensor_msgs/Image`` with an encoding of
+:data:`ENCODINGS` (rgb8, bgr8, mono8; others are refused by name) and ``sensor_msgs/CompressedImage`` (JPEG or
+PNG, decoded with PIL). One reader stays open per bag; frames read in order cost one pass over the bag.
 """
 
 from __future__ import annotations
