@@ -12,7 +12,7 @@ from ..localize.track import TRACK_COLUMNS, LocalizeConfig, main
 from ..matching.velocity import ANCHORS
 from ..search.blocks import PRECISIONS
 from . import COMMANDS
-from .common import add_allow_mismatch, add_device, positive_float, positive_int
+from .common import add_allow_mismatch, add_device, add_topic, positive_float, positive_int
 
 _D = LocalizeConfig()
 
@@ -28,8 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--dataset", help="seqnet dataset directory: replay its query traverse against its reference")
     src.add_argument("--map", help="the map: an index map (seqnet index build --window causal; its index "
                      "shortlists) or a seqnet dataset directory, whose reference traverse is used")
-    p.add_argument("--query", metavar="DESCRIPTORS|IMAGES", help="with --map: a descriptor file (.npy, .h5) or a "
-                   "folder / list file of images, described one by one as the map was (see docs/online.md)")
+    p.add_argument("--query", metavar="DESCRIPTORS|IMAGES|BAG", help="with --map: a descriptor file (.npy, .h5), a "
+                   "folder / list file of images, or a ROS bag (with --topic), described one by one as the map was "
+                   "(see docs/online.md)")
+    add_topic(p, "--query")
     p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
     p.add_argument("--out", required=True, metavar="TRACK.csv",
                    help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
@@ -56,11 +58,14 @@ def run(args: argparse.Namespace) -> int:
     conf = _D.replace(method=args.method, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
                       device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
+    if args.topic is not None and args.query is None:
+        raise ConfigError("--topic names the image topic of a ROS bag given as --query (with --map)")
     if (args.map is None) != (args.query is None):
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")
     if args.map is not None:
-        out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model)
+        out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model,
+                     args.topic)
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model)
     s = out.data["summary"]  # what the stage wrote beside the track
