@@ -94,6 +94,7 @@ def image_frames(source: Path, ref_map: Reference, allow: bool,
     from ..describe.images import list_images
     from ..describe.store import describe_provenance
 
+    images = list_images(source, topic)  # a wrong source or topic first: it is the user's to fix
     prov = ref_map.provenance
     if not prov or prov.get("kind") != "describe":
         raise ConfigError("the map's descriptors do not record how they were described (no 'describe' provenance), "
@@ -106,7 +107,6 @@ def image_frames(source: Path, ref_map: Reference, allow: bool,
                           "localize cannot rebuild; describe the query images with `seqnet describe` using the "
                           "map's fitted state and pass the descriptor file as --query")
     describer = make_describer(conf)
-    images = list_images(source, topic)
     first = describer(describer.load(images.paths[:1]))
     check_same(prov, describe_provenance(conf, None, first), "the map's descriptors",
                f"the query images of {source} as described here", allow)
