@@ -84,3 +84,86 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "cuda" in item.keywords:
             item.add_marker(skip)
+
+
+BAG_KINDS = ("ros1", "ros2", "mcap")  # a ROS 1 .bag, a ROS 2 sqlite3 bag directory, a ROS 2 MCAP bag directory
+
+
+def write_bag(path, images, kind: str = "ros1", topic: str = "/camera/image_raw", encoding: str = "rgb8",
+              fixes=None, fix_topic: str = "/gps/fix", odometry=None, start: int = 10**18, period: int = 10**8,
+              position_offset: int = 0):
+    """A tiny bag written with rosbags' own writers (serialised with its ROS1_NOETIC / ROS2_HUMBLE typestores).
+
+    ``images``: uint8 ``[H, W, 3]`` arrays (``[H, W]`` for mono8), one message each at ``start + i * period`` ns on
+    ``topic`` as sensor_msgs/Image in ``encoding`` (bgr8: channels reversed), or as CompressedImage when
+    ``encoding`` is ``"png"`` / ``"jpeg"``. ``fixes``: ``(lat, lon, status)`` per NavSatFix message on
+    ``fix_topic``; ``odometry``: ``(x, y)`` per nav_msgs/Odometry message on ``/odom`` — both at ``start +
+    position_offset + j * period``. Skips the test when rosbags is not installed."""
+    import io
+
+    pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'seqnet[ros]')")
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Writer2
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
+    T = ts.types
+    ser = ts.serialize_ros1 if kind == "ros1" else ts.serialize_cdr
+
+    def header(i: int, frame: str):
+        stamp = T["builtin_interfaces/msg/Time"](sec=i, nanosec=0)
+        extra = {"seq": i} if kind == "ros1" else {}
+        return T["std_msgs/msg/Header"](**extra, stamp=stamp, frame_id=frame)
+
+    def image_msg(i: int, img: np.ndarray):
+        if encoding in ("png", "jpeg"):
+            from PIL import Image
+
+            buf = io.BytesIO()
+            Image.fromarray(img).save(buf, format=encoding.upper())
+            return T["sensor_msgs/msg/CompressedImage"](header=header(i, "cam"), format=encoding,
+                                                        data=np.frombuffer(buf.getvalue(), np.uint8))
+        px = img[..., ::-1] if encoding == "bgr8" else img
+        px = np.ascontiguousarray(px)
+        step = px.shape[1] * (px.shape[2] if px.ndim == 3 else 1) * px.itemsize
+        return T["sensor_msgs/msg/Image"](header=header(i, "cam"), height=px.shape[0], width=px.shape[1],
+                                          encoding=encoding, is_bigendian=0, step=step,
+                                          data=px.reshape(-1).view(np.uint8))
+
+    def fix_msg(j: int, lat: float, lon: float, status: int):
+        st = T["sensor_msgs/msg/NavSatStatus"](status=status, service=1)
+        return T["sensor_msgs/msg/NavSatFix"](header=header(j, "gps"), status=st, latitude=lat, longitude=lon,
+                                              altitude=0.0, position_covariance=np.zeros(9),
+                                              position_covariance_type=0)
+
+    def odom_msg(j: int, x: float, y: float):
+        g = "geometry_msgs/msg/"
+        pose = T[g + "Pose"](position=T[g + "Point"](x=x, y=y, z=0.0),
+                             orientation=T[g + "Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+        twist = T[g + "Twist"](linear=T[g + "Vector3"](x=0.0, y=0.0, z=0.0),
+                               angular=T[g + "Vector3"](x=0.0, y=0.0, z=0.0))
+        return T["nav_msgs/msg/Odometry"](header=header(j, "odom"), child_frame_id="base",
+                                          pose=T[g + "PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+                                          twist=T[g + "TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
+
+    streams = [(topic, [(start + i * period, image_msg(i, im)) for i, im in enumerate(images)])]
+    if fixes is not None:
+        streams.append((fix_topic, [(start + position_offset + j * period, fix_msg(j, *f)) for j, f in
+                                    enumerate(fixes)]))
+    if odometry is not None:
+        streams.append(("/odom", [(start + position_offset + j * period, odom_msg(j, *o)) for j, o in
+                                  enumerate(odometry)]))
+    writer = (Writer1(path) if kind == "ros1" else
+              Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3))
+    with writer as w:
+        for name, msgs in streams:
+            conn = w.add_connection(name, msgs[0][1].__msgtype__, typestore=ts)
+            for stamp, msg in msgs:
+                w.write(conn, stamp, ser(msg, msg.__msgtype__))
+    return path
+
+
+def bag_path(tmp_path, kind: str, name: str = "run"):
+    """Where :func:`write_bag` writes a bag of ``kind``: ``run.bag`` (ROS 1) or the directory ``run`` (ROS 2)."""
+    return tmp_path / (f"{name}.bag" if kind == "ros1" else name)

@@ -129,7 +129,8 @@ def test_config_defaults_normalising_and_round_trip():
 
 @pytest.mark.parametrize("kwargs,match", [
     ({"method": "sift"}, "unknown descriptor method 'sift'; valid: pixels, gem, gmp, netvlad"),
-    ({"backbone": "resnet"}, "unknown backbone 'resnet'; valid: efficientnet-lite0, vgg16"),
+    ({"backbone": "resnet"}, "unknown backbone 'resnet'; valid: efficientnet-lite0, efficientnet-lite1, "
+                             "efficientnet-lite2, vgg16"),
     ({"batch_size": 0}, "batch-size must be an integer >= 1"),
     ({"crop_bottom": -1}, "crop-bottom must be an integer >= 0"),
     ({"patch": -1}, "patch must be an integer >= 0"),

@@ -219,5 +219,6 @@ def test_cli_help_comes_from_the_tables(capsys):
     with pytest.raises(SystemExit):
         cli_main(["describe", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert "{pixels,gem,gmp,netvlad,plugin}" in text and "{efficientnet-lite0,vgg16}" in text
+    assert "{pixels,gem,gmp,netvlad,plugin}" in text
+    assert "{efficientnet-lite0,efficientnet-lite1,efficientnet-lite2,vgg16}" in text
     assert "(default 8)" in text and "native for pixels; 640x320 for gem, gmp, netvlad" in text

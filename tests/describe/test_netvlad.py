@@ -138,10 +138,10 @@ class NotAllowed:  # pickled objects other than tensors and plain data must not 
 
 
 def test_tags_arch_table_and_safe_loading(tmp_path):
-    from seqnet.describe.cnn import EfficientNetLite0
+    from seqnet.describe.cnn import EfficientNetLite
     from seqnet.describe.netvlad import NetVLADModel, checkpoint_tag
 
-    model = NetVLADModel(EfficientNetLite0(10, pretrained=False), NetVLAD(4, 112), arch="efficientnet-lite0")
+    model = NetVLADModel(EfficientNetLite(10, pretrained=False), NetVLAD(4, 112), arch="efficientnet-lite0")
     path = save_netvlad(model, tmp_path / "e.pth.tar", tag='{"output": "x.h5"}')
     again = load_netvlad(path)
     assert again.arch == "efficientnet-lite0" and again.encoder.layer == 10 and again.out_dim == 4 * 112
@@ -151,7 +151,8 @@ def test_tags_arch_table_and_safe_loading(tmp_path):
     assert checkpoint_tag(tmp_path / "p.pth.tar") is None and checkpoint_tag(tmp_path / "junk.pth.tar") is None
     state = make_checkpoint(tmp_path / "r.pth.tar")
     torch.save({"state_dict": state, "arch": "resnet"}, tmp_path / "r.pth.tar")
-    with pytest.raises(CheckpointError, match="unknown encoder arch 'resnet'; valid: efficientnet-lite0, vgg16"):
+    with pytest.raises(CheckpointError, match="unknown encoder arch .resnet.; valid: efficientnet-lite0, "
+                                              "efficientnet-lite1, efficientnet-lite2, vgg16"):
         load_netvlad(tmp_path / "r.pth.tar")
     torch.save({"state_dict": state, "extra": NotAllowed()}, tmp_path / "code.pth.tar")
     with pytest.raises(CheckpointError, match="cannot read NetVLAD checkpoint .*code.pth.tar"):

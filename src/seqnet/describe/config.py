@@ -15,12 +15,13 @@ from ..core.config import Config, check_bool, check_choice, check_float, check_i
 from ..core.errors import ConfigError
 from ..core.utils import check_device
 from .cnn import BACKBONES
+from .images import ImageItem
 from .registry import DESCRIBERS, Method
 
 AUTO, NATIVE, KEEP_ASPECT = "auto", "native", "keep-aspect:"
 MAX_SIDE = 8192  # largest accepted resize width or height
 Size = str | tuple[int, int]  # "auto", "native", "keep-aspect:W" or (W, H)
-Fit = int | str | tuple[str, ...] | None
+Fit = int | str | tuple[Any, ...] | None  # a tuple of image paths (str) or ImageItems
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,15 +155,16 @@ def check_size(size: Any) -> Size:
 
 
 def check_fit(fit: Any) -> Fit:
-    """The fitting set: None, an int N >= 1, a folder / list file (str), or a tuple of image paths."""
+    """The fitting set: None, an int N >= 1, a folder / list file (str), or a tuple of image paths (or bag frames:
+    :class:`~seqnet.describe.images.ImageItem`)."""
     if fit is None or isinstance(fit, str):
         return fit
     if isinstance(fit, os.PathLike):
         return os.fspath(fit)
     if isinstance(fit, int) and not isinstance(fit, bool):
         return check_int("fit (the first N images)", fit, 1)
-    if isinstance(fit, Sequence) and fit and all(isinstance(p, (str, os.PathLike)) for p in fit):
-        return tuple(os.fspath(p) for p in fit)
+    if isinstance(fit, Sequence) and fit and all(isinstance(p, (str, os.PathLike, ImageItem)) for p in fit):
+        return tuple(p if isinstance(p, ImageItem) else os.fspath(p) for p in fit)
     raise ConfigError(f"fit must be an int N >= 1, a folder or list file, or a non-empty list of image paths, "
                       f"got {fit!r}")
 
@@ -171,5 +173,6 @@ def fit_summary(fit: Fit) -> Any:
     """``fit`` for the stored settings: a list of paths becomes its length and a hash."""
     if not isinstance(fit, tuple):
         return fit
-    digest = hashlib.sha1("\n".join(str(Path(p)) for p in fit).encode()).hexdigest()[:16]
+    text = "\n".join(str(p if isinstance(p, ImageItem) else Path(p)) for p in fit)
+    digest = hashlib.sha1(text.encode()).hexdigest()[:16]
     return {"paths": len(fit), "sha1": digest}

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
 
 import numpy as np
 
@@ -13,7 +12,7 @@ from ..core.errors import ConfigError, ImageError
 from ..core.progress import progress
 from ..core.utils import get_device, logger
 from .config import DescribeConfig
-from .images import iter_batches, list_images, load_images
+from .images import ImageItem, ImageRef, as_image, iter_batches, list_images, load_images
 from .pca import PCA, fit_pca
 from .registry import Extract, FitContext
 from .state import StateFile, method_state_file, pca_file
@@ -48,31 +47,32 @@ class Describer:
         raw = self.extract(images)
         return raw if self.pca is None else self.pca.transform(raw)
 
-    def load_some(self, paths: Sequence[str | os.PathLike[str]]) -> tuple[np.ndarray, list[int]]:
+    def load_some(self, paths: Sequence[str | os.PathLike[str] | ImageItem]) -> tuple[np.ndarray, list[int]]:
         """Images as :meth:`load`, leaving unreadable ones out with ``skip_corrupted``; also their indices."""
         c = self.config
-        return load_images([Path(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
+        return load_images([as_image(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
                            grey=c.method_spec.grey, skip_corrupted=c.skip_corrupted)
 
-    def load(self, paths: Sequence[str | os.PathLike[str]]) -> np.ndarray:
+    def load(self, paths: Sequence[str | os.PathLike[str] | ImageItem]) -> np.ndarray:
         """uint8 images ``[N, H, W]`` (grey methods) or ``[N, H, W, 3]`` read, cropped and resized as the
-        describer reads them; an unreadable image raises :class:`ImageError` (rows match ``paths``)."""
+        describer reads them (files, or :class:`~seqnet.describe.images.ImageItem` s such as bag frames); an
+        unreadable image raises :class:`ImageError` (rows match ``paths``)."""
         c = self.config
-        return load_images([Path(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
+        return load_images([as_image(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
                            grey=c.method_spec.grey)[0]
 
-    def batches(self, paths: Sequence[Path], what: str) -> Iterator[np.ndarray]:
+    def batches(self, paths: Sequence[ImageRef], what: str) -> Iterator[np.ndarray]:
         """Image batches of ``paths`` (for fitting), with a progress bar labelled ``what``."""
         for b in progress(list(iter_batches(len(paths), self.config.batch_size)), desc=what, unit="batch"):
             imgs, _ = self.load_some([paths[i] for i in b])
             if len(imgs):
                 yield imgs
 
-    def describe(self, paths: Sequence[str | os.PathLike[str]],
+    def describe(self, paths: Sequence[str | os.PathLike[str] | ImageItem],
                  names: Sequence[str] | None = None) -> tuple[np.ndarray, list[str]]:
         """Descriptors ``[N, D]`` float32 of ``paths`` and their names (default: the file names);
         images skipped with ``skip_corrupted`` are left out of both."""
-        paths = [Path(p) for p in paths]
+        paths = [as_image(p) for p in paths]
         if not paths:
             raise ImageError("no images to describe (empty list of paths)")
         names = [p.name for p in paths] if names is None else list(names)
@@ -89,7 +89,7 @@ class Describer:
         return np.stack([rows[i] for i in order]).astype(np.float32), [names[i] for i in order]
 
 
-def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str]] = (),
+def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str] | ImageItem] = (),
                    sidecar: str | os.PathLike[str] | None = None) -> Describer:
     """Build (and fit, when a PCA or NetVLAD clusters are asked for) a :class:`Describer`.
 
@@ -102,7 +102,7 @@ def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str]]
             file there that this output did not write raises :class:`ConfigError`). None: nothing saved.
     """
     conf = conf.resolved()
-    fit_paths = fit_paths_of(conf, [Path(p) for p in paths]) if conf.needs_fit else []
+    fit_paths = fit_paths_of(conf, [as_image(p) for p in paths]) if conf.needs_fit else []
     pca_state, own_state = pca_file(conf, sidecar, fit_paths), method_state_file(conf, sidecar, fit_paths)
     reuse_pca, reuse_own = (f is not None and f.reusable() for f in (pca_state, own_state))
     loader = Describer(conf, lambda images: images)
@@ -116,7 +116,7 @@ def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str]]
     return d
 
 
-def _pca_for(d: Describer, fit_paths: list[Path], state: StateFile | None, reuse: bool) -> PCA:
+def _pca_for(d: Describer, fit_paths: list[ImageRef], state: StateFile | None, reuse: bool) -> PCA:
     """The PCA of ``d``'s raw descriptors: reused from ``state``, or fitted on ``fit_paths`` (and saved)."""
     if state is not None and reuse:
         logger.info("reusing the PCA of %s", state.path)
@@ -131,22 +131,22 @@ def _pca_for(d: Describer, fit_paths: list[Path], state: StateFile | None, reuse
     return pca
 
 
-def fit_paths_of(conf: DescribeConfig, paths: Sequence[Path]) -> list[Path]:
+def fit_paths_of(conf: DescribeConfig, paths: Sequence[ImageRef]) -> list[ImageRef]:
     """Images to fit PCA / NetVLAD clusters on, from ``conf.fit`` (see :class:`DescribeConfig`)."""
     fit = conf.fit
     if fit is None:
         if not paths:
             raise ConfigError("no images to fit PCA / NetVLAD clusters on (hint: pass fit=... / --fit-on)")
         idx = np.unique(np.linspace(0, len(paths) - 1, min(len(paths), conf.fit_max)).round().astype(int))
-        return [Path(paths[i]) for i in idx]
+        return [as_image(paths[i]) for i in idx]
     if isinstance(fit, int):
-        return [Path(p) for p in paths[:fit]]
+        return [as_image(p) for p in paths[:fit]]
     if isinstance(fit, str):
         return list_images(fit).paths
-    return [Path(p) for p in fit]
+    return [as_image(p) for p in fit]
 
 
-def run_batches(paths: Sequence[Path], d: Describer, todo: np.ndarray, sink: Sink) -> None:
+def run_batches(paths: Sequence[ImageRef], d: Describer, todo: np.ndarray, sink: Sink) -> None:
     """Describe ``paths[todo]`` in batches; ``sink(indices [b], descriptors [b, D])`` gets each batch.
 
     Skipped (corrupted) images reach ``sink`` with descriptors None. Raises :class:`ImageError`
@@ -171,7 +171,7 @@ def run_batches(paths: Sequence[Path], d: Describer, todo: np.ndarray, sink: Sin
     bar.close()
 
 
-def describe_images(paths: Sequence[str | os.PathLike[str]], conf: DescribeConfig,
+def describe_images(paths: Sequence[str | os.PathLike[str] | ImageItem], conf: DescribeConfig,
                     names: Sequence[str] | None = None) -> tuple[np.ndarray, list[str]]:
     """Descriptors ``[N, D]`` float32 (rows L2-normalised) of the images ``paths`` and their names.
 

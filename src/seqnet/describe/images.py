@@ -1,17 +1,20 @@
-"""Listing and loading images of a folder or of a list file.
+"""Listing and loading images of a folder, of a list file, or of a ROS bag's image topic.
 
 A *source* is either a folder (its images with a known extension, in natural sort order, so
-``img-2.png`` comes before ``img-10.png``) or a text file with one image path per line (relative
-paths are relative to the list file's folder; blank lines and ``#`` comments are ignored).
+``img-2.png`` comes before ``img-10.png``), a text file with one image path per line (relative
+paths are relative to the list file's folder; blank lines and ``#`` comments are ignored), or a ROS bag
+with an image topic (:mod:`seqnet.describe.bags`: its frames in timestamp order). An image of a source is a
+``Path`` or an :class:`ImageItem` (a frame that decodes itself); every reader goes through :func:`read_any`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -22,11 +25,44 @@ from ..data.readers import check_names
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
 
 
+@runtime_checkable
+class ImageItem(Protocol):
+    """An image that is not a file of its own (a frame of a bag): it has a ``name``, ``open()`` returns it as a
+    PIL image (decoded from there as an image file is: :func:`decode`), and ``key()`` identifies it in provenance
+    hashes."""
+
+    @property
+    def name(self) -> str: ...
+
+    def open(self) -> Any: ...
+
+    def key(self) -> str: ...
+
+
+ImageRef = Path | ImageItem  # one image of a source
+
+
+def as_image(item: str | os.PathLike[str] | ImageItem) -> ImageRef:
+    """An :class:`ImageItem` as it is, anything else as a ``Path``."""
+    return item if isinstance(item, ImageItem) else Path(item)
+
+
+def image_key(item: str | os.PathLike[str] | ImageItem) -> str:
+    """What identifies an image in a provenance hash: its resolved path, or an item's ``key()``."""
+    return item.key() if isinstance(item, ImageItem) else str(Path(item).resolve())
+
+
+def read_any(item: ImageRef, grey: bool = False) -> np.ndarray:
+    """Decode an image file (:func:`read_image`) or an :class:`ImageItem` as uint8 ``[H, W, 3]`` (``[H, W]``)."""
+    return decode(item.open, item, grey) if isinstance(item, ImageItem) else read_image(Path(item), grey=grey)
+
+
 @dataclasses.dataclass
 class ImageList:
-    """Image files and the names they are reported under (path relative to the folder/list file)."""
+    """Images of a source and the names they are reported under (path relative to the folder/list file; a bag
+    frame's timestamp)."""
 
-    paths: list[Path]
+    paths: list[ImageRef]
     names: list[str]
 
     def __len__(self) -> int:
@@ -38,9 +74,19 @@ def natural_key(text: str) -> list:
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", text)]
 
 
-def list_images(source: str | Path) -> ImageList:
-    """The images of a folder or a list file, in order; raise :class:`ImageError` when there are none."""
+def list_images(source: str | Path, topic: str | None = None) -> ImageList:
+    """The images of a folder, a list file or the image ``topic`` of a ROS bag, in order; raise
+    :class:`ImageError` when there are none."""
+    from ..data.bags import BAG_SUFFIXES, is_bag
+
     src = Path(source)
+    if is_bag(src) or (topic is not None and src.suffix.lower() in BAG_SUFFIXES):
+        from .bags import bag_images
+
+        return ImageList(*bag_images(src, topic))
+    if topic is not None:
+        raise ConfigError(f"--topic {topic} goes with a ROS bag (a .bag file or a ROS 2 bag directory), but {src} "
+                          "is not one")
     if src.is_dir():
         files = [p for p in src.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
         odd = next((p for p in files if not p.is_file()), None)
@@ -88,32 +134,43 @@ MAX_PIXELS = 100_000_000  # larger images are refused before decoding (a "decomp
 def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> np.ndarray:
     """Decode one image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``); :class:`ImageError` if
     unreadable or larger than ``max_pixels`` (checked from the header, before decoding)."""
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
     kind = special_file(path)
     if kind:  # opening a FIFO would wait for a writer; a device could be endless
         raise ImageError(f"image {path} is a {kind}, not a regular file; it is not opened (hint: list image files)")
     try:
-        with Image.open(path) as im:
-            if im.width * im.height > max_pixels:
-                raise ImageError(f"image {path} is too large: it declares {im.width}x{im.height} pixels, more than "
-                                 f"the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
-            im.load()
-            return to_uint8(im, path, grey)
+        return decode(lambda: Image.open(path), path, grey, max_pixels)
     except FileNotFoundError as err:
         raise ImageError(f"image not found: {path}") from err
+
+
+def decode(opener: Callable[[], Any], where: ImageRef, grey: bool = False, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """The PIL image ``opener()`` returns (opened lazily: its header first), checked against ``max_pixels``,
+    loaded and converted by :func:`to_uint8`; decoding errors are :class:`ImageError` s naming ``where``."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with opener() as im:
+            if im.width * im.height > max_pixels:
+                raise ImageError(f"image {where} is too large: it declares {im.width}x{im.height} pixels, more than "
+                                 f"the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
+            im.load()
+            return to_uint8(im, where, grey)
+    except FileNotFoundError:
+        raise
     except Image.DecompressionBombError as e:
-        raise ImageError(f"image {path} is too large to decode safely ({e})") from e
+        raise ImageError(f"image {where} is too large to decode safely ({e})") from e
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as e:
         raise ImageError(
-            f"cannot read image {path} ({type(e).__name__}: {e}; hint: --skip-corrupted leaves such images out)"
+            f"cannot read image {where} ({type(e).__name__}: {e}; hint: --skip-corrupted leaves such images out)"
         ) from e
 
 
 HIGH_DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I")  # 16-bit (and 32-bit integer) greyscale
 
 
-def to_uint8(im: Any, path: Path, grey: bool) -> np.ndarray:
+def to_uint8(im: Any, path: ImageRef, grey: bool) -> np.ndarray:
     """A decoded PIL image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``), scaled from its own range:
     16-bit greyscale by 255/65535, float images in [0, 1] by 255 (in [0, 255] as they are); palette,
     CMYK, alpha (dropped) and other 8-bit modes through PIL's conversion. A range that cannot be
@@ -138,7 +195,7 @@ def to_uint8(im: Any, path: Path, grey: bool) -> np.ndarray:
 
 
 def prepare_image(
-    img: np.ndarray, size: tuple[int, int] | int | None = None, crop_bottom: int = 0, path: Path | None = None
+    img: np.ndarray, size: tuple[int, int] | int | None = None, crop_bottom: int = 0, path: ImageRef | None = None
 ) -> np.ndarray:
     """Crop ``crop_bottom`` rows off the bottom (e.g. a car bonnet), then resize to ``size=(W, H)``
     (an int W: width W and the height that keeps the aspect ratio)."""
@@ -156,7 +213,7 @@ def prepare_image(
 
 
 def load_images(
-    paths: Sequence[Path],
+    paths: Sequence[ImageRef],
     size: tuple[int, int] | int | None = None,
     crop_bottom: int = 0,
     grey: bool = False,
@@ -165,7 +222,7 @@ def load_images(
     """Load images into one uint8 array ``[N, H, W, 3]`` (``[N, H, W]`` when ``grey``).
 
     Args:
-        paths: image files.
+        paths: image files or :class:`ImageItem` s.
         size: ``(W, H)`` to resize to after cropping, an int W (width W keeping the aspect ratio), or
             None (the native size); the results must all have one size.
         crop_bottom: rows removed from the bottom of each image before resizing.
@@ -184,22 +241,22 @@ def load_images(
         raise ConfigError(f"crop-bottom must be >= 0 rows, got {crop_bottom}")
     out: list[np.ndarray] = []
     skipped: list[int] = []
-    first: Path | None = None
+    first: ImageRef | None = None
     for i, p in enumerate(paths):
         try:
-            img = read_image(Path(p), grey=grey)
+            img = read_any(as_image(p), grey=grey)
         except ImageError:
             if not skip_corrupted:
                 raise
             skipped.append(i)
             continue
-        img = prepare_image(img, size, crop_bottom, Path(p))
+        img = prepare_image(img, size, crop_bottom, p)
         if out and img.shape != out[0].shape:
             raise ImageError(
                 f"image {p} has size {img.shape[1]}x{img.shape[0]} but {first} has "
                 f"{out[0].shape[1]}x{out[0].shape[0]} (hint: pass a resize size to bring all images to one size)"
             )
-        first = first or Path(p)
+        first = first or p
         out.append(img)
     if not out:
         shape = (0, *(size[::-1] if isinstance(size, tuple) else (0, 0))) + (() if grey else (3,))

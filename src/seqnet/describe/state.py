@@ -18,6 +18,7 @@ from ..core.errors import ConfigError
 from ..core.provenance import fit_digest
 from ..core.utils import logger
 from .config import DescribeConfig, fit_summary
+from .images import ImageItem, image_key
 from .pca import read_tag as read_pca_tag
 
 PCA_SUFFIX = ".pca.npz"
@@ -54,16 +55,16 @@ class StateFile:
                           "another --out)")
 
 
-def state_tag(conf: DescribeConfig, output: str | os.PathLike[str], fit_paths: Sequence[Path] = ()) -> str:
+def state_tag(conf: DescribeConfig, output: str | os.PathLike[str], fit_paths: Sequence[Path | ImageItem] = ()) -> str:
     """The tag of state fitted for ``output`` with the settings of ``conf`` on the images ``fit_paths``."""
     fitted_on = fit_summary(tuple(str(p) for p in fit_paths))
     return json.dumps({"output": Path(output).name, "settings": conf.settings(), "fit_images": fitted_on,
                        "provenance_fit": provenance_fit(fit_paths)}, sort_keys=True)  # what a reuser records
 
 
-def provenance_fit(paths: Sequence[str | os.PathLike[str]]) -> str:
+def provenance_fit(paths: Sequence[str | os.PathLike[str] | ImageItem]) -> str:
     """The hash of the images fitted state was computed on, as the descriptors' provenance records it."""
-    return fit_digest(str(Path(p).resolve()) for p in paths)
+    return fit_digest(image_key(p) for p in paths)
 
 
 def reused_fit(conf: DescribeConfig, settings: dict | None = None) -> str | None:
@@ -94,7 +95,7 @@ def _output_of(tag: str) -> str | None:
 
 
 def pca_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
-             fit_paths: Sequence[Path] = ()) -> StateFile | None:
+             fit_paths: Sequence[Path | ImageItem] = ()) -> StateFile | None:
     """The PCA file of ``conf`` beside ``output`` (None without PCA or output)."""
     if output is None or conf.dim is None:
         return None
@@ -104,7 +105,7 @@ def pca_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
 
 
 def method_state_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
-                      fit_paths: Sequence[Path] = ()) -> StateFile | None:
+                      fit_paths: Sequence[Path | ImageItem] = ()) -> StateFile | None:
     """The file of the method's fitted state (NetVLAD clusters) beside ``output``; None when it fits none."""
     method = conf.method_spec
     if output is None or not method.fits_state or method.state_suffix is None:
@@ -116,7 +117,7 @@ def method_state_file(conf: DescribeConfig, output: str | os.PathLike[str] | Non
 
 
 def state_files(conf: DescribeConfig, output: str | os.PathLike[str] | None,
-                fit_paths: Sequence[Path] = ()) -> list[StateFile]:
+                fit_paths: Sequence[Path | ImageItem] = ()) -> list[StateFile]:
     """The fitted-state files a run of ``conf`` writing ``output`` (fitting on ``fit_paths``) reads and writes."""
     files = (method_state_file(conf, output, fit_paths), pca_file(conf, output, fit_paths))
     return [f for f in files if f is not None]

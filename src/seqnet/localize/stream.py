@@ -3,11 +3,12 @@
 The map is what :func:`load_map` returns: an index map (``seqnet index build --window causal``;
 :mod:`seqnet.localize.index`: its stored descriptors and ANN index are used), or a seqnet dataset
 directory whose reference traverse (optionally one split) is the map. The query is either a
-descriptor file (``.npy`` with its provenance sidecar, ``.h5``) or a folder / list file of images,
-described one by one as they are read, by the describer the map was described with (rebuilt from the
-map's provenance; only describers without fitted state — a PCA or NetVLAD clusters — can be rebuilt,
-otherwise describe the images with ``seqnet describe`` using the map's fitted state and pass the
-file). Either way the query's provenance must match the map's (:func:`seqnet.core.provenance.check_same`).
+descriptor file (``.npy`` with its provenance sidecar, ``.h5``), a folder / list file of images, or a ROS
+bag's image topic (frames in timestamp order, named by their timestamp), described one by one as they are
+read, by the describer the map was described with (rebuilt from the map's provenance; only describers without
+fitted state — a PCA or NetVLAD clusters — can be rebuilt, otherwise describe the images with ``seqnet
+describe`` using the map's fitted state and pass the file). Either way the query's provenance must match the
+map's (:func:`seqnet.core.provenance.check_same`).
 Without ground truth the ``correct`` column is empty.
 """
 
@@ -89,12 +90,15 @@ def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Fram
     return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
 
 
-def image_frames(source: Path, ref_map: Reference, allow: bool) -> tuple[Frames, list[str], int]:
-    """Images of a folder or list file, each described when it is read by the map's describer."""
+def image_frames(source: Path, ref_map: Reference, allow: bool,
+                 topic: str | None = None) -> tuple[Frames, list[str], int]:
+    """Images of a folder, a list file or a bag's image ``topic``, each described when it is read by the map's
+    describer."""
     from ..describe import DescribeConfig, make_describer
     from ..describe.images import list_images
     from ..describe.store import describe_provenance
 
+    images = list_images(source, topic)  # a wrong source or topic first: it is the user's to fix
     prov = ref_map.provenance
     if not prov or prov.get("kind") != "describe":
         raise ConfigError("the map's descriptors do not record how they were described (no 'describe' provenance), "
@@ -107,7 +111,6 @@ def image_frames(source: Path, ref_map: Reference, allow: bool) -> tuple[Frames,
                           "localize cannot rebuild; describe the query images with `seqnet describe` using the "
                           "map's fitted state and pass the descriptor file as --query")
     describer = make_describer(conf)
-    images = list_images(source)
     first = describer(describer.load(images.paths[:1]))
     check_same(prov, describe_provenance(conf, None, first), "the map's descriptors",
                f"the query images of {source} as described here", allow)
@@ -123,25 +126,27 @@ def image_frames(source: Path, ref_map: Reference, allow: bool) -> tuple[Frames,
 
 def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: str | Path,
            models: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
-           rerank_model: str | Path | None = None) -> Written:
-    """hloc-style stage: localise every frame of ``query`` against the map in ``map_dir`` with the model
-    checkpoints given; writes ``out`` (track.csv) and its ``.json`` summary; returns ``out``. The track is
-    locked for the whole run (a second writer: exit 1)."""
+           rerank_model: str | Path | None = None, topic: str | None = None) -> Written:
+    """hloc-style stage: localise every frame of ``query`` (``topic``: the image topic of the ROS bag ``query``)
+    against the map in ``map_dir`` with the model checkpoints given; writes ``out`` (track.csv) and its ``.json``
+    summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1)."""
     with locked(check_output(out)):
         remove_dead_temps([Path(out), sidecar_of(Path(out))])
-        return _stream(conf, map_dir, Path(query), Path(out), models, shortlist_model, rerank_model)
+        return _stream(conf, map_dir, Path(query), Path(out), models, shortlist_model, rerank_model, topic)
 
 
 def _stream(conf: LocalizeConfig, map_dir: str | Path, query: Path, out: Path, models: Sequence[str | Path],
-            shortlist_model: str | Path | None, rerank_model: str | Path | None) -> Written:
+            shortlist_model: str | Path | None, rerank_model: str | Path | None, topic: str | None) -> Written:
     from ..sequence.checkpoints import load_models
 
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     ref_map, radius = load_map(map_dir, loaded, conf)
     loc = conf.localizer(ref_map, radius)
     is_file = query.is_file() and query.suffix.lower() in DESCRIPTOR_SUFFIXES
-    source = descriptor_frames if is_file else image_frames
-    frames, names, n = source(query, ref_map, conf.allow_mismatch)
+    if is_file and topic is not None:
+        raise ConfigError(f"--topic {topic} goes with a ROS bag as --query, but {query} is a descriptor file")
+    frames, names, n = (descriptor_frames(query, ref_map, conf.allow_mismatch) if is_file
+                        else image_frames(query, ref_map, conf.allow_mismatch, topic))
     est: list[Estimate] = []
     describe_ms = []
     for d, ms in progress(frames, desc=f"localize ({conf.method})", total=n, unit="frame"):
@@ -153,6 +158,7 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, query: Path, out: Path, m
     record = {"summary": summary, "config": {**conf.to_dict(), "seq_len": loc.seq_len, "rerank_seq_len": loc.match_len,
                                              "radius": radius},
               "inputs": {"map": str(Path(map_dir).resolve()), "query": str(query.resolve()),
+                         **({"topic": topic} if topic else {}),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}

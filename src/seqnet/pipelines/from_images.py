@@ -14,12 +14,16 @@ construction (their provenance is recorded), then attaches the ground truth, one
 * ``frames``: the two traverses are frame-aligned (query frame i ↔ reference frame i), positions are
   frame indices and the radius is in frames;
 * ``positives``: explicit positives (``--positives FILE``: per query the matching reference indices);
-  positions are frame indices (used for windows and the confidence's "same place").
+  positions are frame indices (used for windows and the confidence's "same place");
+* ``bag``: both traverses are ROS bags (``--topic`` their image topic) and the positions come from a topic of
+  each (``--positions-topic``: NavSatFix to UTM metres, or odometry x, y), matched to each image by the nearest
+  timestamp within ``positions_tolerance`` seconds (:mod:`seqnet.data.bags`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +32,9 @@ from ..core.config import Config, check_choice, check_float
 from ..core.errors import ConfigError, ImageError
 from ..core.ownership import check_replaceable, locked
 from ..core.utils import logger
+from ..data.bags import DEFAULT_TOLERANCE, is_bag, match_positions, read_positions
 from ..data.convert import assemble_dataset, match_names, read_positions_csv, utm_positions
-from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
+from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, log_positions
 from ..data.io import save_dataset
 from ..data.positives import read_positives
 from ..data.traverse import Traverse
@@ -37,7 +42,6 @@ from ..describe import DescribeConfig, make_describer
 from ..describe.images import ImageList, list_images
 from ..describe.store import describe_provenance
 
-GROUND_TRUTHS = ("csv", "utm", "frames", "positives")
 FIT_ON = ("reference", "both")
 
 
@@ -57,6 +61,7 @@ class FromImagesConfig(Config):
         pos_radius / neg_radius: training radii (stored as metadata).
         positions_format: how the ``csv`` ground truth's files are read (:data:`seqnet.data.gps.POSITIONS_FORMATS`).
         max_time_gap: seconds; an image farther than this from every sample of a position log is refused.
+        positions_tolerance: ``bag``: the largest gap (seconds) between an image and its position message.
     """
 
     describe: DescribeConfig = DescribeConfig()
@@ -69,11 +74,13 @@ class FromImagesConfig(Config):
     neg_radius: float | None = None
     positions_format: str = "csv"
     max_time_gap: float = DEFAULT_MAX_GAP
+    positions_tolerance: float = DEFAULT_TOLERANCE
 
     def __post_init__(self) -> None:
         check_choice("ground truth", self.ground_truth, GROUND_TRUTHS)
         check_choice("positions format", self.positions_format, POSITIONS_FORMATS)
         self._set("max_time_gap", check_float("max_time_gap", self.max_time_gap, 0.0, strict=True))
+        self._set("positions_tolerance", check_float("positions tolerance", self.positions_tolerance, 0.0))
         if self.radius is not None:
             self._set("radius", check_float("radius", self.radius, 0.0, strict=True))
         if self.fit_on not in FIT_ON and self.fit_on not in (self.splits or {}):
@@ -94,39 +101,66 @@ def _fit_images(conf: FromImagesConfig, ref: ImageList, qry: ImageList) -> list[
     return [*ref.paths[a:b], *qry.paths[c:d]]
 
 
-def _positions(conf: FromImagesConfig, images: ImageList, csv_file: str | Path | None,
-               side: str) -> tuple[np.ndarray, np.ndarray | None, str, str | None]:
-    """``(positions [N, P], seq_bounds or None, unit, UTM zone or None)`` of one traverse from the chosen
-    ground truth."""
-    if conf.ground_truth == "csv":
-        if csv_file is None:
-            raise ConfigError(f"ground truth 'csv' needs a positions CSV for the {side} (--{side[:3]}-csv FILE)")
-        if conf.positions_format != "csv":
-            xy, zone = log_positions(conf.positions_format, csv_file, images.names, list(images.paths),
-                                     conf.max_time_gap)
-            return xy, None, "metres", zone
-        names, pos, unit, bounds = read_positions_csv(csv_file)
-        idx = match_names(images.names, names, f"{csv_file} vs the {side} images")
-        return pos[idx], None if bounds is None else bounds[idx], unit, None
-    if conf.ground_truth == "utm":
-        return utm_positions(images.names), None, "metres", None
-    return np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None
+Positions = tuple[np.ndarray, "np.ndarray | None", str, "str | None"]  # [N, P], sequence bounds, unit, frame
+
+
+def _csv_positions(conf: FromImagesConfig, images: ImageList, source: str | Path, given: str | Path | None,
+                   side: str) -> Positions:
+    if given is None:
+        raise ConfigError(f"ground truth 'csv' needs a positions CSV for the {side} (--{side[:3]}-csv FILE)")
+    if conf.positions_format != "csv":  # a drive's position log (RobotCar ins.csv, KITTI oxts)
+        xy, zone = log_positions(conf.positions_format, given, images.names, list(images.paths), conf.max_time_gap)
+        return xy, None, "metres", f"UTM zone {zone}"
+    names, pos, unit, bounds = read_positions_csv(given)
+    idx = match_names(images.names, names, f"{given} vs the {side} images")
+    return pos[idx], None if bounds is None else bounds[idx], unit, None
+
+
+def _bag_positions(conf: FromImagesConfig, images: ImageList, source: str | Path, given: str | Path | None,
+                   side: str) -> Positions:
+    if given is None:
+        raise ConfigError("ground truth 'bag' needs the positions topic (--positions-topic TOPIC)")
+    if not is_bag(source):
+        raise ConfigError(f"ground truth 'bag' reads the {side} positions from its bag, but {source} is not a ROS bag "
+                          "(a .bag file or a ROS 2 bag directory)")
+    found = read_positions(source, str(given))
+    stamps = np.array([frame.stamp for frame in images.paths], np.int64)  # bag frames (ImageList of a bag)
+    return match_positions(stamps, found, conf.positions_tolerance, f"the {side} bag {source}"), None, "metres", \
+        found.frame
+
+
+POSITION_SOURCES: dict[str, Callable[..., Positions]] = {
+    "csv": _csv_positions,
+    "utm": lambda conf, images, *_: (utm_positions(images.names), None, "metres", None),
+    "frames": lambda conf, images, *_: (np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None),
+    "positives": lambda conf, images, *_: (np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None),
+    "bag": _bag_positions,
+}
+GROUND_TRUTHS = tuple(POSITION_SOURCES)
+
+
+def _both_positions(conf: FromImagesConfig, images: tuple[ImageList, ImageList], sources: tuple[str | Path, ...],
+                    given: tuple[str | Path | None, str | Path | None]) -> tuple[Positions, Positions]:
+    """The positions of the reference and the query, in one unit and frame (else :class:`ConfigError`)."""
+    ref, qry = (POSITION_SOURCES[conf.ground_truth](conf, im, src, g, side)
+                for im, src, g, side in zip(images, sources, given, ("reference", "query"), strict=True))
+    if ref[2] != qry[2] or ref[3] != qry[3]:
+        raise ConfigError(f"reference positions are in {ref[3] or ref[2]} but query positions in {qry[3] or qry[2]}"
+                          " (hint: two traverses compare only in one frame)")
+    return ref, qry
 
 
 def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: str | Path,
          positions: tuple[str | Path, str | Path] | None = None, positives: str | Path | None = None,
-         overwrite: bool = False) -> Path:
-    """Describe the image folders (or list files) ``reference`` and ``query`` with one describer and
-    write the dataset directory ``out`` (descriptors, positions, names, ground truth, provenance)."""
-    ref, qry = list_images(reference), list_images(query)
+         overwrite: bool = False, topic: str | None = None, positions_topic: str | None = None) -> Path:
+    """Describe the image folders (or list files, or ROS bags: their image ``topic``) ``reference`` and ``query``
+    with one describer and write the dataset directory ``out`` (descriptors, positions, names, ground truth,
+    provenance). ``positions``: the two positions CSVs (``csv``); ``positions_topic``: the bags' topic (``bag``)."""
+    ref, qry = list_images(reference, topic), list_images(query, topic)
     if conf.ground_truth == "positives" and positives is None:
         raise ConfigError("ground truth 'positives' needs --positives FILE (JSON list of lists, CSV pairs or .npy)")
-    pos_r, bounds_r, unit, zone_r = _positions(conf, ref, positions[0] if positions else None, "reference")
-    pos_q, bounds_q, unit_q, zone_q = _positions(conf, qry, positions[1] if positions else None, "query")
-    if zone_r and zone_q:
-        check_zones(zone_r, zone_q)
-    if unit != unit_q:
-        raise ConfigError(f"reference positions are in {unit} but query positions in {unit_q}")
+    given = positions or ((positions_topic, positions_topic) if conf.ground_truth == "bag" else (None, None))
+    (pos_r, bounds_r, unit, _), (pos_q, bounds_q, _, _) = _both_positions(conf, (ref, qry), (reference, query), given)
     truth = read_positives(positives).check(len(qry), len(ref), str(positives)) if positives else None
     with locked(Path(out)):
         if Path(out).exists() and any(Path(out).iterdir()) and not overwrite:
@@ -149,5 +183,6 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
             splits=conf.splits, name=conf.name or Path(out).name, positives=truth,
             extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "ground_truth": conf.ground_truth,
                    "images": {"reference": str(Path(reference).resolve()), "query": str(Path(query).resolve())},
-                   "describe": describer.config.to_dict() | {"fit": None}})
+                   "describe": describer.config.to_dict() | {"fit": None},
+                   **({"topics": {"images": topic, "positions": positions_topic}} if topic else {})})
         return save_dataset(ds, out, overwrite=overwrite)

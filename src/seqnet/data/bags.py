@@ -1,0 +1,184 @@
+"""ROS bags through ``rosbags`` (the optional extra ``seqnet[ros]``): opening, topics, and positions.
+
+A *bag* is a ROS 1 ``.bag`` file or a ROS 2 bag directory (``metadata.yaml`` beside its ``.db3`` (sqlite3) or
+``.mcap`` files; the ``.db3`` / ``.mcap`` file itself names its directory) — what ``rosbags``' ``AnyReader``
+reads, without a ROS install. Every message is placed by its bag timestamp (ns, the time it was recorded),
+which orders the frames and matches positions to images.
+
+Positions come from a topic of one of :data:`POSITION_TYPES`: ``sensor_msgs/NavSatFix`` (latitude / longitude
+to UTM metres with ``utm``, in the zone of the first fix; messages without a fix are left out) or
+``nav_msgs/Odometry`` / ``geometry_msgs/PoseStamped`` (``position.x, y`` in metres, in their own frame). Each
+image gets the position of the nearest position message in time (:func:`match_positions`), within a tolerance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError, DatasetError
+from ..core.utils import logger
+
+BAG_SUFFIXES = (".bag", ".db3", ".mcap")
+ROS_HINT = "hint: pip install 'seqnet[ros]' (the pure-Python package rosbags)"
+DEFAULT_TOLERANCE = 0.5  # seconds between an image and the nearest position message
+
+
+def is_bag(path: str | Path) -> bool:
+    """Whether ``path`` is a bag: a ``.bag`` / ``.db3`` / ``.mcap`` file or a directory with ``metadata.yaml``."""
+    p = Path(path)
+    return (p.is_file() and p.suffix.lower() in BAG_SUFFIXES) or (p.is_dir() and (p / "metadata.yaml").is_file())
+
+
+def bag_root(path: str | Path) -> Path:
+    """What ``AnyReader`` opens: the ``.bag`` file, or the ROS 2 bag directory (of a ``.db3`` / ``.mcap`` file)."""
+    p = Path(path)
+    if p.suffix.lower() == ".bag" or p.is_dir():
+        return p
+    if (p.parent / "metadata.yaml").is_file():
+        return p.parent
+    raise DatasetError(f"{p} is a ROS 2 storage file without the metadata.yaml of its bag directory beside it; "
+                       "rosbags reads ROS 2 bags as directories (hint: pass the bag directory, or recreate its "
+                       f"metadata with `ros2 bag reindex {p.parent}`)")
+
+
+def open_bag(path: str | Path) -> Any:
+    """An open ``rosbags.highlevel.AnyReader`` of the bag ``path`` (close it with ``.close()``).
+
+    Bags without embedded message definitions (ROS 2 before Iron) are read with the ROS 2 Humble types."""
+    try:
+        from rosbags.highlevel import AnyReader, AnyReaderError
+        from rosbags.rosbag1 import ReaderError as Reader1Error
+        from rosbags.rosbag2 import ReaderError as Reader2Error
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError as err:
+        raise ConfigError(f"reading ROS bags needs the package rosbags ({ROS_HINT})") from err
+    root = bag_root(path)
+    if not root.exists():
+        raise DatasetError(f"bag not found: {root}")
+    try:
+        reader = AnyReader([root], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except (AnyReaderError, Reader1Error, Reader2Error, OSError, ValueError, KeyError) as e:
+        raise DatasetError(f"cannot read the bag {root} ({type(e).__name__}: {e}; rosbags reads ROS 1 .bag files "
+                           "and ROS 2 bag directories, sqlite3 or MCAP)") from e
+    return reader
+
+
+def topic_list(reader: Any) -> str:
+    """``/a (sensor_msgs/msg/Image, 12 messages), ...``: the topics of an open bag, for error messages."""
+    return ", ".join(f"{name} ({info.msgtype}, {info.msgcount} messages)" for name, info in reader.topics.items())
+
+
+def connections(reader: Any, topic: str, types: Mapping[str, Any], what: str, path: str | Path) -> list:
+    """The connections of ``topic`` in an open bag, which must carry one of the message ``types``; else
+    :class:`DatasetError` naming the bag's topics (a missing topic) or the type found and the valid ones."""
+    info = reader.topics.get(topic)
+    if info is None:
+        raise DatasetError(f"the bag {path} has no topic {topic!r}; its topics: {topic_list(reader) or 'none'}")
+    if info.msgtype not in types:
+        raise DatasetError(f"topic {topic} of the bag {path} carries {info.msgtype}, not {what} "
+                           f"({', '.join(types)})")
+    if not info.msgcount:
+        raise DatasetError(f"topic {topic} of the bag {path} has no messages")
+    return list(info.connections)
+
+
+def messages(reader: Any, conns: list, start: int | None = None) -> Iterator[tuple[int, Any, str]]:
+    """``(timestamp ns, raw bytes, message type)`` of the connections ``conns``, in timestamp order (from ``start``)."""
+    for conn, stamp, raw in reader.messages(conns, start=start):
+        yield int(stamp), raw, conn.msgtype
+
+
+def deserialize(reader: Any, raw: bytes, msgtype: str, where: str) -> Any:
+    """One message of an open bag, decoded; :class:`DatasetError` when its bytes do not decode."""
+    try:
+        return reader.deserialize(raw, msgtype)
+    except Exception as e:  # rosbags raises its own errors and struct / index errors on truncated data
+        raise DatasetError(f"cannot decode the {msgtype} message {where} ({type(e).__name__}: {e})") from e
+
+
+# ----------------------------------------------------------------------------- positions
+
+
+@dataclasses.dataclass(frozen=True)
+class Positions:
+    """Positions read from a bag topic: ``stamps [M]`` (ns, increasing), ``xy [M, 2]`` metres, and the frame they
+    are in (``UTM zone 32V`` or ``odometry frame 'odom'``): two traverses compare only in one frame."""
+
+    stamps: np.ndarray
+    xy: np.ndarray
+    frame: str
+
+
+def _navsat(msgs: list[Any]) -> tuple[np.ndarray, np.ndarray, str]:
+    """``(kept [M] bool, xy [K, 2] UTM metres, frame)`` of NavSatFix messages: those with a fix and finite lat/lon."""
+    from .gps import latlon_to_utm
+
+    lat = np.array([m.latitude for m in msgs], np.float64)
+    lon = np.array([m.longitude for m in msgs], np.float64)
+    kept = np.array([m.status.status >= 0 for m in msgs]) & np.isfinite(lat) & np.isfinite(lon)
+    if not kept.any():
+        return kept, np.zeros((0, 2)), "UTM"
+    xy, zone = latlon_to_utm(lat[kept], lon[kept], "NavSatFix")  # utm: a dependency of seqnet
+    return kept, xy, f"UTM zone {zone}"
+
+
+def _pose_xy(pose_of: Callable[[Any], Any]) -> Callable[[list[Any]], tuple[np.ndarray, np.ndarray, str]]:
+    def read(msgs: list[Any]) -> tuple[np.ndarray, np.ndarray, str]:
+        xy = np.array([[pose_of(m).position.x, pose_of(m).position.y] for m in msgs], np.float64).reshape(-1, 2)
+        kept = np.isfinite(xy).all(axis=1)
+        frame = msgs[0].header.frame_id if msgs else ""
+        return kept, xy[kept], f"odometry frame {frame!r}"
+
+    return read
+
+
+POSITION_TYPES: dict[str, Callable[[list[Any]], tuple[np.ndarray, np.ndarray, str]]] = {
+    "sensor_msgs/msg/NavSatFix": _navsat,
+    "nav_msgs/msg/Odometry": _pose_xy(lambda m: m.pose.pose),
+    "geometry_msgs/msg/PoseStamped": _pose_xy(lambda m: m.pose),
+}
+
+
+def read_positions(path: str | Path, topic: str) -> Positions:
+    """The positions of ``topic`` in the bag ``path`` (one of :data:`POSITION_TYPES`), in timestamp order."""
+    reader = open_bag(path)
+    try:
+        conns = connections(reader, topic, POSITION_TYPES, "a position message", path)
+        stamps, msgs = [], []
+        for stamp, raw, msgtype in messages(reader, conns):
+            stamps.append(stamp)
+            msgs.append(deserialize(reader, raw, msgtype, f"at {stamp} on {topic} of {path}"))
+    finally:
+        reader.close()
+    kept, xy, frame = POSITION_TYPES[conns[0].msgtype](msgs)
+    if not kept.all():
+        logger.warning("%s of %s: %d of %d position messages have no fix or a non-finite position; left out",
+                       topic, path, int((~kept).sum()), len(kept))
+    if not kept.any():
+        raise DatasetError(f"topic {topic} of the bag {path} has no usable position (no fix in any of its "
+                           f"{len(kept)} messages)")
+    return Positions(np.asarray(stamps, np.int64)[kept], xy, frame)
+
+
+def match_positions(stamps: np.ndarray, positions: Positions, tolerance: float, what: str) -> np.ndarray:
+    """``[N, 2]``: for each image timestamp ``stamps [N]`` (ns) the position of the nearest position message.
+
+    Raises :class:`DatasetError` naming the first image farther than ``tolerance`` seconds from every position
+    message (a position that far off would be a wrong ground truth, not an approximate one)."""
+    from .gps import nearest_in_time
+
+    nearest, gap_ns = nearest_in_time(positions.stamps, np.asarray(stamps, np.int64))
+    gap = gap_ns / 1e9
+    far = np.flatnonzero(gap > tolerance)
+    if far.size:
+        i = int(far[0])
+        raise DatasetError(f"{far.size} of {len(stamps)} images of {what} have no position message within "
+                           f"{tolerance:g} s (first: image {i}, timestamp {int(stamps[i])}, {gap[i]:.3f} s from the "
+                           "nearest); hint: a larger --positions-tolerance, or check the positions topic")
+    return positions.xy[nearest]

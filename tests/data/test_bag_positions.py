@@ -1,0 +1,60 @@
+"""Positions from a bag topic (seqnet.data.bags): NavSatFix to UTM metres, odometry x, y, nearest-time matching."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import BAG_KINDS, bag_path, write_bag
+
+from seqnet.core.errors import DatasetError
+from seqnet.data.bags import Positions, is_bag, match_positions, read_positions
+
+pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'seqnet[ros]')")
+utm = pytest.importorskip("utm", reason="utm is not installed (pip install 'seqnet[ros]')")
+START, PERIOD = 10**18, 10**8
+IMAGE = [np.zeros((4, 4, 3), np.uint8)]
+
+
+@pytest.mark.parametrize("kind", BAG_KINDS)
+def test_navsatfix_positions_are_utm_metres(tmp_path, kind):
+    fixes = [(63.43 + 1e-4 * j, 10.39, 0) for j in range(5)]
+    fixes[2] = (63.5, 10.4, -1)  # STATUS_NO_FIX: left out
+    bag = write_bag(bag_path(tmp_path, kind), IMAGE, kind, fixes=fixes, start=START, period=PERIOD)
+    assert is_bag(bag)
+    pos = read_positions(bag, "/gps/fix")
+    assert pos.frame == "UTM zone 32V" and pos.stamps.tolist() == [START + j * PERIOD for j in (0, 1, 3, 4)]
+    for row, j in zip(pos.xy, (0, 1, 3, 4), strict=True):
+        east, north, _, _ = utm.from_latlon(*fixes[j][:2])
+        np.testing.assert_allclose(row, [east, north], atol=1e-6)
+    assert 10 < np.linalg.norm(pos.xy[1] - pos.xy[0]) < 12  # 1e-4 degrees of latitude: about 11 m
+
+
+def test_odometry_positions_are_its_x_y(tmp_path):
+    bag = write_bag(tmp_path / "run.bag", IMAGE, odometry=[(1.5, -2.0), (3.0, 4.0)])
+    pos = read_positions(bag, "/odom")
+    assert pos.frame == "odometry frame 'odom'" and pos.xy.tolist() == [[1.5, -2.0], [3.0, 4.0]]
+
+
+def test_positions_errors(tmp_path):
+    bag = write_bag(tmp_path / "run.bag", IMAGE, fixes=[(0.0, 0.0, -1)] * 2)
+    with pytest.raises(DatasetError, match="no usable position \\(no fix in any of its 2 messages\\)"):
+        read_positions(bag, "/gps/fix")
+    with pytest.raises(DatasetError, match="carries sensor_msgs/msg/Image, not a position message "
+                                           "\\(sensor_msgs/msg/NavSatFix, nav_msgs/msg/Odometry"):
+        read_positions(bag, "/camera/image_raw")
+    with pytest.raises(DatasetError, match="has no topic '/fix'; its topics: /camera/image_raw"):
+        read_positions(bag, "/fix")
+    with pytest.raises(DatasetError, match="bag not found"):
+        read_positions(tmp_path / "none.bag", "/fix")
+    (tmp_path / "junk.bag").write_bytes(b"not a bag")
+    with pytest.raises(DatasetError, match="cannot read the bag .*junk.bag"):
+        read_positions(tmp_path / "junk.bag", "/fix")
+
+
+def test_match_positions_nearest_in_time_within_the_tolerance():
+    pos = Positions(np.array([0, 10, 20]) * 10**8, np.array([[0.0, 0], [1, 0], [2, 0]]), "UTM zone 32V")
+    stamps = np.array([0, 4, 6, 16, 25]) * 10**8  # seconds 0, 0.4, 0.6, 1.6, 2.5
+    np.testing.assert_array_equal(match_positions(stamps, pos, 0.5, "q")[:, 0], [0, 0, 1, 2, 2])
+    with pytest.raises(DatasetError, match="4 of 5 images of q have no position message within 0.3 s \\(first: "
+                                           "image 1, timestamp 400000000, 0.400 s from the nearest\\)"):
+        match_positions(stamps, pos, 0.3, "q")
