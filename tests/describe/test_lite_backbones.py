@@ -15,7 +15,8 @@ import pytest
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import ConfigError
 from seqnet.describe import BACKBONES, DescribeConfig, describe_images
-from seqnet.describe.cnn import LITE_VARIANTS, EfficientNetLite
+from seqnet.describe.cnn import LITE_VARIANTS
+from seqnet.describe.encoders import EfficientNetLite
 from seqnet.describe.images import list_images
 
 # per backbone: (the weights module, head D, D of its last stride-16 block = NetVLAD's default local layer)

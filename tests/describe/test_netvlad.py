@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from seqnet.core.errors import CheckpointError, ConfigError
-from seqnet.describe.cnn import VGG16Encoder
+from seqnet.describe.encoders import VGG16Encoder
 from seqnet.describe.netvlad import NetVLAD, kmeans, load_netvlad, save_netvlad
 
 TINY = (4, 8, 8, 16, 16)  # VGG-16 layout with narrow channels
@@ -138,7 +138,7 @@ class NotAllowed:  # pickled objects other than tensors and plain data must not 
 
 
 def test_tags_arch_table_and_safe_loading(tmp_path):
-    from seqnet.describe.cnn import EfficientNetLite
+    from seqnet.describe.encoders import EfficientNetLite
     from seqnet.describe.netvlad import NetVLADModel, checkpoint_tag
 
     model = NetVLADModel(EfficientNetLite(10, pretrained=False), NetVLAD(4, 112), arch="efficientnet-lite0")

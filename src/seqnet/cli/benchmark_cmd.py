@@ -11,7 +11,6 @@ from ..maps import MapConfig
 from ..maps.config import DTYPES
 from ..pipelines.nordland64 import Nordland64Config, main
 from ..pipelines.timing import BIG_SIZES, TimingConfig
-from ..pipelines.timing import main as timing_main
 from ..report.tables import format_table
 from ..search.ann import ANN_INDEXES
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
@@ -103,6 +102,8 @@ def timing_config(args: argparse.Namespace) -> TimingConfig:
 def run_timing(args: argparse.Namespace) -> int:
     conf = timing_config(args)
     mconf = MapConfig().replace(shortlist=args.shortlist, rerank=args.rerank, split=args.split)
+    from ..pipelines.timing.run import main as timing_main
+
     path = timing_main(conf, args.out, args.dataset, args.model, mconf)
     res = path.data  # what the stage wrote to results.json
     for e in res["maps"]:

@@ -16,16 +16,25 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-import torch
-from torch import nn
 
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module
 from ..core.utils import logger
 from .cnn import BACKBONES, cnn_extractor, gem, gmp, to_unit
-from .netvlad import checkpoint_image_size, checkpoint_tag, fit_netvlad, load_netvlad, save_netvlad
 from .pixels import pixels_descriptor
 
+torch = lazy_module("torch")
+nn = lazy_module("torch.nn")
+
 Extract = Callable[[np.ndarray], np.ndarray]
+
+
+def _netvlad():  # noqa: ANN202 - the module (its torch modules load when NetVLAD runs)
+    from . import netvlad
+
+    return netvlad
+
+
 CNN_SIZE = (640, 320)  # (W, H) the CNN methods resize to by default
 
 
@@ -127,7 +136,7 @@ class PooledMethod(Method):
     def encoder(self) -> nn.Module:
         """The checkpoint's encoder, else the backbone cut at ``layer``."""
         if self.checkpoint:
-            return load_netvlad(self.checkpoint, use_wpca=False).encoder
+            return _netvlad().load_netvlad(self.checkpoint, use_wpca=False).encoder
         return BACKBONES[self.backbone].build(self.layer)
 
     def extractor(self, ctx: FitContext) -> Extract:
@@ -179,26 +188,27 @@ class NetVLADMethod(Method):
 
     def auto_size(self) -> tuple[int, int] | None:
         """The size a seqnet-written checkpoint was fitted at (describing at another silently ruins it)."""
-        stored = checkpoint_image_size(self.checkpoint) if self.checkpoint else None
+        stored = _netvlad().checkpoint_image_size(self.checkpoint) if self.checkpoint else None
         return stored or self.default_size
 
     def read_tag(self, path: Path) -> str | None:
-        return checkpoint_tag(path)
+        return _netvlad().checkpoint_tag(path)
 
     def extractor(self, ctx: FitContext) -> Extract:
         if self.checkpoint:
-            model = load_netvlad(self.checkpoint, use_wpca=self.use_wpca)
+            model = _netvlad().load_netvlad(self.checkpoint, use_wpca=self.use_wpca)
         elif ctx.reuse and ctx.state is not None:
             logger.info("reusing the NetVLAD clusters of %s", ctx.state)
-            model = load_netvlad(ctx.state)
+            model = _netvlad().load_netvlad(ctx.state)
         else:
             if ctx.n_images < 1:
                 raise ConfigError("NetVLAD without a checkpoint needs images to fit its clusters on (hint: --fit-on)")
             backbone = BACKBONES[self.backbone]
             encoder = backbone.build(backbone.local_layer if self.layer is None else self.layer)
-            model = fit_netvlad(encoder, ctx.batches(), ctx.n_images, self.clusters, self.seed, ctx.device)
+            model = _netvlad().fit_netvlad(encoder, ctx.batches(), ctx.n_images, self.clusters, self.seed,
+                                           ctx.device)
             if ctx.state is not None:
-                save_netvlad(model, ctx.state, tag=ctx.tag, image_size=ctx.image_size)
+                _netvlad().save_netvlad(model, ctx.state, tag=ctx.tag, image_size=ctx.image_size)
         return cnn_extractor(model, lambda v: v, ctx.device)
 
 

@@ -6,21 +6,26 @@ import hashlib
 import json
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ...core.files import write_json_atomic
+from ...core.lazy import lazy_module
 from ...core.ownership import remove_owned_dir
 from ...core.utils import logger
 from ...data.traverse import Dataset
 from ...describe.pca import PCA, fit_pca
 from ...sequence.checkpoints import load_model, save_checkpoint
-from ...sequence.model import SeqNet
 from ...train import train
 from ...train.run import is_run_file
 from .config import Nordland64Config
 from .data import describe_key, training_dataset
+
+torch = lazy_module("torch")
+
+if TYPE_CHECKING:
+    from ...sequence.model import SeqNet
 
 
 def fold_pca(model: SeqNet, pca: PCA) -> SeqNet:
@@ -33,6 +38,8 @@ def fold_pca(model: SeqNet, pca: PCA) -> SeqNet:
     w = model.conv.weight.detach().double()  # [D_out, p, w]
     w_new = torch.einsum("opk,pd->odk", w, proj)  # [D_out, D, w]
     b_new = model.conv.bias.detach().double() - torch.einsum("odk,d->o", w_new, torch.from_numpy(pca.mean).double())
+    from ...sequence.model import SeqNet  # the model class loads torch
+
     out = SeqNet(pca.input_dim, model.out_dims, model.seq_len, model.w)
     with torch.no_grad():
         out.conv.weight.copy_(w_new.float())

@@ -6,7 +6,16 @@ Modules: :mod:`.config` (:class:`TimingConfig`), :mod:`.synth` (synthetic maps w
 :mod:`.report` (``results.md``, ``timing.png``). See docs/scale.md.
 """
 
+from typing import Any
+
 from .config import BIG_SIZES, TimingConfig
-from .run import main
 
 __all__ = ["BIG_SIZES", "TimingConfig", "main"]
+
+
+def __getattr__(name: str) -> Any:  # PEP 562: the stage (torch) loads when it runs, not with its config
+    if name == "main":
+        from .run import main
+
+        return main
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
