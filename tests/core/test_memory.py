@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from seqnet.cli import main as cli
@@ -75,3 +76,20 @@ def test_the_estimates_follow_the_shapes():
     assert memory.described_bytes(10, 1000, [4, 8], 1 << 30) == 4 * 10 * 12 + 4 * 1000 * 12
     assert memory.described_bytes(10, 10**6, [1000], 256 << 20) == 4 * 10 * 1000 + (256 << 20)  # spilled past
     assert memory.workspace_bytes(10, 10) < memory.workspace_bytes(10**4, 10**5) == memory.WORKSPACE_BYTES
+
+
+@pytest.mark.parametrize(("budget_mb", "what", "hint"), [(0.05, "describing batches of 8 images of", "--batch-size"),
+                                                         (3, "descriptors of D=", "--dim N")])
+def test_describing_that_cannot_fit_is_refused_after_at_most_one_batch(tmp_path, monkeypatch, capsys, budget_mb,
+                                                                       what, hint):
+    """A batch's working memory is checked before its forward pass; the descriptors to hold, once their D is
+    known (after the first batch: 64x64 greyscale pixels are D=4096; 300 of them 4.7 MB)."""
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    for i in range(300):
+        Image.fromarray(rng.integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(tmp_path / f"{i:03d}.png")
+    monkeypatch.setenv("SEQNET_MEMORY_MB", str(budget_mb))
+    assert cli(["describe", str(tmp_path), "--method", "pixels", "--out", str(tmp_path / "d.npy")]) == 1
+    _one_line_refusal(capsys, what, hint)
+    assert not (tmp_path / "d.npy").exists()

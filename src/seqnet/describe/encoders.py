@@ -16,7 +16,12 @@ from torch import nn
 
 from ..core.errors import CheckpointError, ConfigError
 from ..core.files import load_torch_file
-from .cnn import IMAGENET_MEAN, IMAGENET_STD, LITE_VARIANTS, VGG16_CONVS, VGG16_WIDTHS
+from .lite import LITE_VARIANTS
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+VGG16_WIDTHS = (64, 128, 256, 512, 512)
+VGG16_CONVS = (2, 2, 3, 3, 3)
 
 _VGG_CONV_IDX = [0, 2, 5, 7, 10, 12, 14, 17, 19, 21, 24, 26, 28]
 

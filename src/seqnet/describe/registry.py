@@ -29,12 +29,6 @@ nn = lazy_module("torch.nn")
 Extract = Callable[[np.ndarray], np.ndarray]
 
 
-def _netvlad():  # noqa: ANN202 - the module (its torch modules load when NetVLAD runs)
-    from . import netvlad
-
-    return netvlad
-
-
 CNN_SIZE = (640, 320)  # (W, H) the CNN methods resize to by default
 
 
@@ -97,6 +91,12 @@ class Method:
         """Settings beyond the fields that determine the descriptors (a plug-in's own provenance)."""
         return {}
 
+    def bytes_per_pixel(self) -> int:
+        """Peak working bytes per input pixel of each image in a batch (decoding and the extractor's
+        activations; a CNN's from :data:`BACKBONES`, an unknown plug-in's assumed those of EfficientNet-Lite)."""
+        backbone = getattr(self, "backbone", None)
+        return BACKBONES[backbone].bytes_per_pixel if backbone else 300 if self.takes_describer else 64
+
     def extractor(self, ctx: FitContext) -> Extract:
         """The raw descriptor function ``uint8 [B, H, W(, 3)] → [B, D] float32``."""
         raise NotImplementedError
@@ -135,8 +135,10 @@ class PooledMethod(Method):
 
     def encoder(self) -> nn.Module:
         """The checkpoint's encoder, else the backbone cut at ``layer``."""
+        from .netvlad import load_netvlad  # torch modules: loaded when NetVLAD runs
+
         if self.checkpoint:
-            return _netvlad().load_netvlad(self.checkpoint, use_wpca=False).encoder
+            return load_netvlad(self.checkpoint, use_wpca=False).encoder
         return BACKBONES[self.backbone].build(self.layer)
 
     def extractor(self, ctx: FitContext) -> Extract:
@@ -188,27 +190,33 @@ class NetVLADMethod(Method):
 
     def auto_size(self) -> tuple[int, int] | None:
         """The size a seqnet-written checkpoint was fitted at (describing at another silently ruins it)."""
-        stored = _netvlad().checkpoint_image_size(self.checkpoint) if self.checkpoint else None
+        from .netvlad import checkpoint_image_size  # torch modules: loaded when NetVLAD runs
+
+        stored = checkpoint_image_size(self.checkpoint) if self.checkpoint else None
         return stored or self.default_size
 
     def read_tag(self, path: Path) -> str | None:
-        return _netvlad().checkpoint_tag(path)
+        from .netvlad import checkpoint_tag  # torch modules: loaded when NetVLAD runs
+
+        return checkpoint_tag(path)
 
     def extractor(self, ctx: FitContext) -> Extract:
+        from .netvlad import fit_netvlad, load_netvlad, save_netvlad  # torch modules: loaded when NetVLAD runs
+
         if self.checkpoint:
-            model = _netvlad().load_netvlad(self.checkpoint, use_wpca=self.use_wpca)
+            model = load_netvlad(self.checkpoint, use_wpca=self.use_wpca)
         elif ctx.reuse and ctx.state is not None:
             logger.info("reusing the NetVLAD clusters of %s", ctx.state)
-            model = _netvlad().load_netvlad(ctx.state)
+            model = load_netvlad(ctx.state)
         else:
             if ctx.n_images < 1:
                 raise ConfigError("NetVLAD without a checkpoint needs images to fit its clusters on (hint: --fit-on)")
             backbone = BACKBONES[self.backbone]
             encoder = backbone.build(backbone.local_layer if self.layer is None else self.layer)
-            model = _netvlad().fit_netvlad(encoder, ctx.batches(), ctx.n_images, self.clusters, self.seed,
+            model = fit_netvlad(encoder, ctx.batches(), ctx.n_images, self.clusters, self.seed,
                                            ctx.device)
             if ctx.state is not None:
-                _netvlad().save_netvlad(model, ctx.state, tag=ctx.tag, image_size=ctx.image_size)
+                save_netvlad(model, ctx.state, tag=ctx.tag, image_size=ctx.image_size)
         return cnn_extractor(model, lambda v: v, ctx.device)
 
 
