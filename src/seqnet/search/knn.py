@@ -13,6 +13,7 @@ import numpy as np
 
 from ..core.config import check_choice, check_int
 from ..core.errors import ConfigError
+from ..core.gemv import matvec
 from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import limit, streamed
 from ..core.utils import ArrayLike, as_tensor, get_device
@@ -77,7 +78,7 @@ def acc(dtype: torch.dtype) -> torch.dtype:
 
 def inner(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     """``q @ r.T`` ``[M, N]``; one query row (a frame of a stream) as a GEMV on the row-major reference."""
-    return torch.mv(r, q[0])[None] if len(q) == 1 else q @ r.T
+    return matvec(r, q[0])[None] if len(q) == 1 else q @ r.T
 
 
 class ExactIndex:

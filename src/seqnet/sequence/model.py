@@ -14,6 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..core.errors import ConfigError
+from ..core.gemv import matvec
 
 
 @functools.lru_cache(maxsize=16)
@@ -60,7 +61,11 @@ class SeqNet(nn.Module):
         x = self._check(x).to(weight.dtype)  # a half-precision model (to(torch.bfloat16)) reads half the bytes
         avg = _tap_average(x.shape[1], self.w).to(x.device, x.dtype)
         shifted = (avg @ x).transpose(1, 2).reshape(len(x), self.in_dims * self.w)  # [B, D·w], D-major like the weight
-        y = F.linear(shifted, weight.reshape(self.out_dims, -1), self.conv.bias)
+        flat = weight.reshape(self.out_dims, -1)
+        if len(shifted) == 1:  # one window (a frame of a stream): a GEMV on the fastest kernel
+            y = (matvec(flat, shifted[0]) + self.conv.bias)[None]
+        else:
+            y = F.linear(shifted, flat, self.conv.bias)
         return F.normalize(y.to(torch.promote_types(y.dtype, torch.float32)), dim=-1)  # normalised in >= float32
 
     def forward_conv(self, x: torch.Tensor) -> torch.Tensor:
