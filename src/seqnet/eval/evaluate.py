@@ -26,7 +26,7 @@ from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
 from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
-from .checks import check_inputs, leakage
+from .checks import check_inputs, leakage, model_lengths
 from .methods import Method, default_methods, parse_method
 from .metrics.recall import GroundTruth, check_radius, ground_truth
 from .rank import rank
@@ -57,8 +57,8 @@ class EvalConfig(WindowSettings, Config):
         backend: k-NN backend (a key of :data:`seqnet.search.knn.KNN_BACKENDS`).
         device: torch device (auto: CUDA when present).
         allow_mismatch: go on (with a warning) when reference and query descriptors, or a model and
-            the descriptors, were made differently, or a model is used with another L than it was
-            trained with; by default each is an error.
+            the descriptors, were made differently; by default each is an error. (An S_L model at another
+            L >= w than it was trained with needs no flag: one info line, ``model_seq_len`` in the results.)
     """
 
     methods: tuple[str, ...] | None = None
@@ -196,7 +196,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models))
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
-                             "models": {k: v.config() for k, v in models.items()}}
+                             "models": {k: v.config() for k, v in models.items()}, "model_seq_len": model_lengths(models)}
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
 
