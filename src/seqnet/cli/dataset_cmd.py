@@ -11,7 +11,8 @@ from . import COMMANDS
 from .common import add_allow_mismatch, positive_float
 from .dataset_images import register_from_images
 
-PRESET_HELP = "dataset preset (nordland, oxford-v1.0, oxford-pnv, brisbane, msls): radius, training radii, splits"
+PRESET_HELP = ("dataset preset (nordland, alias nordland-sw / nordland-sf; oxford-v1.0, oxford-pnv, brisbane, msls): "
+               "radius, training radii, splits")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -247,13 +248,11 @@ def format_summary(s: dict) -> str:
 
 
 def run_presets(args: argparse.Namespace) -> int:
-    from ..data.presets import PRESETS
+    from ..data.presets import PRESETS, preset_summary
 
     if args.json:
         print(json.dumps(PRESETS, indent=2))
         return 0
-    for name, p in PRESETS.items():
-        splits = ", ".join(f"{k} {a}:{b}" for k, (a, b) in (p.get("splits") or {}).items()) or "from struct files"
-        print(f"{name}: radius {p['radius']:g} {p['position_unit']}, pos/neg {p['pos_radius']:g}/{p['neg_radius']:g}, "
-              f"L={p['seq_len']} w={p['w']}, splits: {splits}\n    {p['description']}")
+    for name in PRESETS:
+        print(preset_summary(name))
     return 0

@@ -196,7 +196,8 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models))
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
-                             "models": {k: v.config() for k, v in models.items()}, "model_seq_len": model_lengths(models)}
+                             "models": {k: v.config() for k, v in models.items()},
+                             "model_seq_len": model_lengths(models)}
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
 
