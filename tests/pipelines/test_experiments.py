@@ -64,7 +64,7 @@ def test_descriptors(tmp_path, cache):
     out = tmp_path / "desc"
     res = run("descriptors", out, cache, "--descriptors", "pixels,gmp", "--cnn-size", "64x32")
     assert set(res["recall@1"]) == {"val pixels", "test pixels", "val gmp", "test gmp"}
-    assert "delta-orig" in res["recall@1"]["test gmp"] and "hvpr-fused" in res["recall@1"]["test pixels"]
+    assert "delta-paper" in res["recall@1"]["test gmp"] and "hvpr-fused" in res["recall@1"]["test pixels"]
     assert res["descriptors"]["gmp"]["size"] == [64, 32]
     assert res["provenance"]["gmp"] != res["provenance"]["pixels"]
     assert (cache / "descriptors" / "gmp" / "models" / "seqnet.pt").is_file()  # its own models

@@ -53,12 +53,13 @@ def describe_config(name: str, cnn_size: tuple[int, int] = CNN_SIZE) -> Describe
 @dataclasses.dataclass(frozen=True)
 class DescriptorsConfig(Config):
     """Settings of the descriptors experiment: the benchmark's, the descriptors compared, the CNN input
-    size (W, H) and extra methods (``delta-orig``: the original code's Delta) added to the benchmark's."""
+    size (W, H) and extra methods (``delta-paper``: the paper's Delta, the original code's weighting) added
+    to the benchmark's."""
 
     benchmark: Nordland64Config = Nordland64Config()
     descriptors: tuple[str, ...] = ("pixels", "netvlad", "gmp")
     cnn_size: tuple[int, int] = CNN_SIZE
-    extra_methods: tuple[str, ...] = ("delta-orig",)
+    extra_methods: tuple[str, ...] = ("delta-paper",)
 
     def __post_init__(self) -> None:
         self._set("descriptors", tuple(dict.fromkeys(check_choice("descriptor", d, DESCRIPTORS)
