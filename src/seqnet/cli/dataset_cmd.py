@@ -10,6 +10,7 @@ from ..core.errors import ConfigError
 from . import COMMANDS
 from .common import add_allow_mismatch, positive_float
 from .dataset_images import register_from_images
+from .dataset_resample import register_resample
 
 PRESET_HELP = ("dataset preset (nordland, alias nordland-sw / nordland-sf; oxford-v1.0, oxford-pnv, brisbane, msls): "
                "radius, training radii, splits")
@@ -23,6 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _register_utm(dsub)
     _register_seqnet(dsub)
     register_from_images(dsub, parse_splits)
+    register_resample(dsub)
     c = dsub.add_parser("check", help="validate a dataset directory and print a summary")
     c.add_argument("dir", metavar="DIR", help="seqnet dataset directory")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")

@@ -24,6 +24,7 @@ from .common import (
     positive_float,
     positive_int,
 )
+from .dataset_resample import add_resample_options
 
 _D = EvalConfig()
 
@@ -46,6 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also report at this radius")
     p.add_argument("--split", help="split to evaluate: train, val, test, all, or a range A:B (queries, the whole "
                    "reference) / A:B,C:D (reference, queries) (default: test when defined, else all)")
+    add_resample_options(p)
     p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     p.add_argument("--fuse-weight", type=non_negative_float,
                    help=f"hvpr-fused: weight λ of the S_L distance in its score (default {_D.fuse_weight:g})")
@@ -85,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
                                 window=args.window, radius=args.radius, extra_radii=tuple(args.extra_radius) or None,
                                 top_k=args.top_k, split=args.split, backend=args.backend, device=args.device,
                                 ks=args.ks, allow_mismatch=args.allow_mismatch or None, fuse_weight=args.fuse_weight,
-                                fuse_top_k=args.fuse_top_k)
+                                fuse_top_k=args.fuse_top_k, resample_every=args.resample_every,
+                                resample_side=args.resample_side)
     report = report_config(args)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
         if args.similarity and not args.distances:
@@ -101,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
                         args.per_query, report, figures=bool(args.out))
         res = path.data  # what the stage wrote to results.json
     cfg = res["config"]
-    print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']})")
+    every = f", every {cfg['resample_every']}-th {cfg['resample_side']} frame" if cfg.get("resample_every") else ""
+    print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']}){every}")
     print(format_table(res["methods"], cfg["ks"]))
     first = next(iter(res["methods"].values()))
     print(f"{first['queries']} queries evaluated; {first['no_full_window']} without a full window, "

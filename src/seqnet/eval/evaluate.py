@@ -20,6 +20,7 @@ from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..core.ownership import locked, remove_dead_temps
 from ..core.utils import check_device, get_device, logger
+from ..data.resample import RESAMPLE_SIDES, resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
 from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
@@ -54,6 +55,8 @@ class EvalConfig(WindowSettings, Config):
         top_k: HVPR shortlist size K.
         fuse_weight, fuse_top_k: λ of the fused score and shortlist size K (None: 100, FUSED_TOP_K) of ``hvpr-fused``.
         split: the split evaluated by :func:`main` (None: test when defined, else all).
+        resample_every, resample_side: keep every N-th frame (recorded order) of the query, reference or both
+            sides of the evaluated split (:func:`seqnet.data.resample.resample_dataset`; None: all frames).
         backend: k-NN backend (a key of :data:`seqnet.search.knn.KNN_BACKENDS`).
         device: torch device (auto: CUDA when present).
         allow_mismatch: go on (with a warning) when reference and query descriptors, or a model and
@@ -72,6 +75,8 @@ class EvalConfig(WindowSettings, Config):
     fuse_weight: float = 0.5
     fuse_top_k: int | None = None
     split: str | None = None
+    resample_every: int | None = None
+    resample_side: str = "query"
     backend: str = "torch"
     device: str = "auto"
     allow_mismatch: bool = False
@@ -82,9 +87,10 @@ class EvalConfig(WindowSettings, Config):
             if isinstance(self.methods, str) or not self.methods:
                 raise ConfigError(f"methods must be a non-empty list of method names, got {self.methods!r}")
             self._set("methods", tuple(parse_method(m).name for m in self.methods))
-        for key in ("seq_len", "rerank_seq_len"):
+        for key in ("seq_len", "rerank_seq_len", "resample_every"):
             if getattr(self, key) is not None:
                 self._set(key, check_int(key, getattr(self, key), 1))
+        check_choice("resample side", self.resample_side, RESAMPLE_SIDES)
         check_choice("window mode", self.window, WINDOW_MODES)
         if self.radius is not None:
             self._set("radius", check_radius(self.radius))
@@ -183,6 +189,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     """
     conf = EvalConfig() if conf is None else conf
     check_types(ds, conf, models)
+    ds = resample_dataset(ds, conf.resample_every, conf.resample_side)
     models = dict(models or {})
     conf = conf.resolve(models, ds.radius)
     methods = [parse_method(n) for n in conf.methods]
@@ -279,5 +286,6 @@ def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str
     if report is not None:
         from ..report.html import write_html_report
 
-        write_html_report(ev, ds.split(split), out / "report.html", report)
+        write_html_report(ev, resample_dataset(ds.split(split), conf.resample_every, conf.resample_side),
+                          out / "report.html", report)
     return Written(write_json_atomic(out / "results.json", ev.results), ev.results)  # last: it completes the set
