@@ -101,6 +101,10 @@ def test_cli_dataset_resample_and_eval_flag(tmp_path, capsys):
     assert len(ft.query) == len(range(0, len(ds.query), 4)) and len(ft.reference) == len(range(0, len(ds.reference), 4))
     assert ft.name.endswith("-every4") and main(["dataset", "check", str(tmp_path / "ft")]) == 0
     assert main(["eval", "--dataset", str(tmp_path / "ds"), "--methods", "single", "--seq-len", "1",
-                 "--resample-every", "4", "--device", "cpu", "--out", str(tmp_path / "ev")]) == 0
+                 "--resample-every", "4", "--recall-denominator", "all", "--device", "cpu",
+                 "--out", str(tmp_path / "ev")]) == 0
     res = json.loads((tmp_path / "ev" / "results.json").read_text())
     assert res["config"]["resample_every"] == 4 and res["config"]["resample_side"] == "query"
+    assert res["config"]["recall_denominator"] == "all"  # --recall-denominator: eval's flag, shown in the table
+    out = capsys.readouterr().out
+    assert "every 4-th query frame" in out and "method (R@K ÷ all)" in out

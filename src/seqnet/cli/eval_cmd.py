@@ -10,6 +10,7 @@ from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..eval.evaluate import EvalConfig, main
 from ..eval.methods import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
+from ..eval.metrics.recall import RECALL_DENOMINATORS
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
@@ -60,6 +61,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
     p.add_argument("--ks", type=int_list, metavar="K[,K...]",
                    help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
+    p.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
+                   help="Recall@K over: " + "; ".join(f"{k}: {v}" for k, v in RECALL_DENOMINATORS.items())
+                   + f" (default {_D.recall_denominator}, the original code's)")
     p.add_argument("--per-query", metavar="FILE", help="write one row per method and query (top-5 references, "
                    "scores, correct or not, confidence) to FILE (.csv or .jsonl); .txt: MSLS's predictions format "
                    "(one method: query key, then its top-20 reference keys)")
@@ -88,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
                                 top_k=args.top_k, split=args.split, backend=args.backend, device=args.device,
                                 ks=args.ks, allow_mismatch=args.allow_mismatch or None, fuse_weight=args.fuse_weight,
                                 fuse_top_k=args.fuse_top_k, resample_every=args.resample_every,
-                                resample_side=args.resample_side)
+                                resample_side=args.resample_side, recall_denominator=args.recall_denominator)
     report = report_config(args)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
         if args.similarity and not args.distances:
@@ -109,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(res["methods"], cfg["ks"]))
     first = next(iter(res["methods"].values()))
     print(f"{first['queries']} queries evaluated; {first['no_full_window']} without a full window, "
-          f"{first['no_positive']} without a reference within the radius (left out)")
+          f"{first['no_positive']} without a reference within the radius "
+          f"({'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'})")
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")

@@ -29,7 +29,7 @@ from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
 from .checks import check_inputs, leakage, model_lengths
 from .methods import Method, default_methods, parse_method
-from .metrics.recall import GroundTruth, check_radius, ground_truth
+from .metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
 from .rank import rank
 from .results import method_results, write_per_query
 
@@ -51,7 +51,8 @@ class EvalConfig(WindowSettings, Config):
         window: ``"centred"`` (the paper's) or ``"causal"`` (online).
         radius: localisation radius (None: the dataset's); a retrieved reference is correct within it (≤).
         extra_radii: further radii to report.
-        ks: the K of Recall@K.
+        ks: the K of Recall@K; recall_denominator: ``positives`` (queries with a correct reference, the
+            original code's) or ``all`` (every evaluated query): :data:`.metrics.recall.RECALL_DENOMINATORS`.
         top_k: HVPR shortlist size K.
         fuse_weight, fuse_top_k: λ of the fused score and shortlist size K (None: 100, FUSED_TOP_K) of ``hvpr-fused``.
         split: the split evaluated by :func:`main` (None: test when defined, else all).
@@ -71,6 +72,7 @@ class EvalConfig(WindowSettings, Config):
     radius: float | None = None
     extra_radii: tuple[float, ...] = ()
     ks: tuple[int, ...] = (1, 5, 10, 20, 100)
+    recall_denominator: str = "positives"
     top_k: int = 20
     fuse_weight: float = 0.5
     fuse_top_k: int | None = None
@@ -91,6 +93,7 @@ class EvalConfig(WindowSettings, Config):
             if getattr(self, key) is not None:
                 self._set(key, check_int(key, getattr(self, key), 1))
         check_choice("resample side", self.resample_side, RESAMPLE_SIDES)
+        check_choice("recall denominator", self.recall_denominator, RECALL_DENOMINATORS)
         check_choice("window mode", self.window, WINDOW_MODES)
         if self.radius is not None:
             self._set("radius", check_radius(self.radius))
@@ -236,7 +239,7 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
                                                          m.fuse_weight(conf.fuse_weight))
         timing["total"] = sum(timing.values())
         entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
-                                                   conf.extra_radii)
+                                                   conf.extra_radii, conf.recall_denominator)
         entry.update(extra(m, retrieved[m.name]) if extra else {}, no_full_window=int(n_frames - len(truth.q_pos)),
                      timing_ms={k: round(v, 3) for k, v in timing.items()}, method=info(m))
         results[m.name] = entry

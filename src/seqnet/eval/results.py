@@ -28,20 +28,22 @@ MSLS_TOP = 20  # predictions per query in an MSLS file (its evaluation reads up 
 
 
 def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, ks: Sequence[int],
-                   extra_radii: Sequence[float] = ()) -> tuple[dict[str, Any], np.ndarray]:
-    """The results entry of one method (Recall@K, queries, AUC, R@100P, the PR curve ``pr_curve``
-    (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (see
+                   extra_radii: Sequence[float] = (), denominator: str = "positives") -> tuple[dict[str, Any],
+                                                                                           np.ndarray]:
+    """The results entry of one method (Recall@K over the ``denominator`` queries, queries, AUC, R@100P, the
+    PR curve ``pr_curve`` (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (see
     :mod:`seqnet.eval.metrics.precision_recall`)."""
-    rec = recall(ranked, truth, ks)
+    rec = recall(ranked, truth, ks, denominator)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
-    entry.update(queries=rec["queries"], no_positive=rec["no_positive"])
+    entry.update(queries=rec["queries"], no_positive=rec["no_positive"], recall_denominator=denominator)
     confidence = ratio_confidence(scores, ranked, truth.r_pos, truth.radius)
     correct = truth.hits(ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
     precision, rec, thresholds = precision_recall(confidence, correct, truth.has_positive())
     entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
                  confidence_for_precision=thresholds_for(precision, rec, thresholds))
     if extra_radii:
-        entry["radii"] = {str(r): recall(ranked, GroundTruth(truth.q_pos, truth.r_pos, r), ks) for r in extra_radii}
+        entry["radii"] = {str(r): recall(ranked, GroundTruth(truth.q_pos, truth.r_pos, r), ks, denominator)
+                          for r in extra_radii}
     return entry, confidence
 
 
