@@ -1,5 +1,6 @@
-"""``seqnet experiment descriptors`` (the paper's Table V): the whole pipeline — describe, PCA, train
-S_L and S_1, evaluate every method — on different single-image descriptors of the same frames.
+"""``seqnet experiment descriptors`` (the paper's supplementary table "Different Single Image Descriptor",
+S3): the whole pipeline — describe, PCA, train S_L and S_1, evaluate every method — on different
+single-image descriptors of the same frames.
 
 ``pixels`` is the benchmark's descriptor (its descriptors and models are the benchmark's);
 ``netvlad`` (clusters fitted by k-means on the train images' EfficientNet-Lite0 block-10
