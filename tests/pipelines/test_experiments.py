@@ -83,7 +83,7 @@ def test_tsne(tmp_path, cache, monkeypatch):
     res = run("tsne", tmp_path / "tsne", cache, "--frames", "50", "--perplexity", "10")
     # the paper's: the first images of the Summer *test* set (places 180:260 here), never train frames (0:120)
     assert res["split"] == "test" and res["first_place"] + res["frame_range"][0] == 180 and res["frames"] == 50
-    ds = load_dataset(next(cache.rglob("dataset.json")).parent)
+    ds = load_dataset(cache / "dataset")  # the benchmark descriptors' dataset (descriptor_cache)
     a, b = res["frame_range"]
     assert (a, b) == (ds.splits["test"]["reference"][0], ds.splits["test"]["reference"][0] + 50)
     assert len(seen) == 5 and all(np.array_equal(x, ds.reference.descriptors[a:b]) for x in seen)

@@ -59,11 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rerank-model", metavar="CKPT",
                    help="S_1 checkpoint used by 's1', 's1+seqmatch' and HVPR re-ranking")
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
-    p.add_argument("--ks", type=int_list, metavar="K[,K...]",
-                   help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
-    p.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
-                   help="Recall@K over: " + "; ".join(f"{k}: {v}" for k, v in RECALL_DENOMINATORS.items())
-                   + f" (default {_D.recall_denominator}, the original code's)")
+    add_recall_options(p)
     p.add_argument("--per-query", metavar="FILE", help="write one row per method and query (top-5 references, "
                    "scores, correct or not, confidence) to FILE (.csv or .jsonl); .txt: MSLS's predictions format "
                    "(one method: query key, then its top-20 reference keys)")
@@ -83,6 +79,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
+
+
+def add_recall_options(p: argparse.ArgumentParser) -> None:
+    """``--ks`` and ``--recall-denominator``: which Recall@K, over which queries."""
+    p.add_argument("--ks", type=int_list, metavar="K[,K...]",
+                   help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
+    p.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
+                   help="Recall@K over: " + "; ".join(f"{k}: {v}" for k, v in RECALL_DENOMINATORS.items())
+                   + f" (default {_D.recall_denominator}, the original code's)")
 
 
 def run(args: argparse.Namespace) -> int:
