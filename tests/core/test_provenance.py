@@ -80,9 +80,11 @@ def test_model_on_foreign_descriptors_and_other_seq_len(tmp_path):
     evaluate(ds.split("test"), conf.replace(allow_mismatch=True), {"seqnet": loaded})
     loaded.provenance = ds.reference.provenance
     evaluate(ds.split("test"), conf, {"seqnet": loaded})
-    with pytest.raises(ConfigError, match="trained with L=5 but is evaluated with L=3"):
-        evaluate(ds.split("test"), conf.replace(seq_len=3), {"seqnet": loaded})
-    evaluate(ds.split("test"), conf.replace(seq_len=3, allow_mismatch=True), {"seqnet": loaded})
+    ev = evaluate(ds.split("test"), conf.replace(seq_len=3), {"seqnet": loaded})  # any L >= w: no flag needed
+    assert ev.results["config"]["seq_len"] == 3 and ev.results["config"]["model_seq_len"] == {"seqnet": 5}
+    for allow in (False, True):  # L < w cannot run: refused even with --allow-mismatch
+        with pytest.raises(ConfigError, match="L=2, shorter than its convolution width w=3"):
+            evaluate(ds.split("test"), conf.replace(seq_len=2, allow_mismatch=allow), {"seqnet": loaded})
 
 
 def test_training_records_the_provenance(tmp_path):

@@ -228,7 +228,7 @@ def test_parse_method():
     m = parse_method("hvpr-smoothing:delta+seqmatch-rev")
     assert (m.shortlist, m.frames, m.matcher) == ("smoothing", "delta", "seqmatch-rev") and m.models() == set()
     assert parse_method("hvpr-delta").rerank == "s1+seqmatch" and parse_method("hvpr-delta").models() == {"s1"}
-    assert parse_method("delta-orig+seqmatch").min_len() == 2
+    assert parse_method("delta-paper+seqmatch").min_len() == 2
     assert len(valid_methods()) == len(set(valid_methods()))
     for name in valid_methods():
         assert parse_method(name).name == name
@@ -417,3 +417,28 @@ def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
     capsys.readouterr()
     assert cli(argv) == 2
     assert "holds 1 file(s) seqnet did not write (first: notes.md)" in capsys.readouterr().err
+
+
+def test_delta_orig_is_read_as_the_papers_delta_on_every_path(test_split):
+    """``delta-paper`` is the paper's Delta (the original code's weighting); its earlier name ``delta-orig`` is
+    read as it in every name position, and results always say ``delta-paper``."""
+    from seqnet.eval.methods import canonical_name
+    from seqnet.maps import MapConfig
+    from seqnet.sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS, delta, delta_paper
+
+    assert SEQUENCE_DESCRIPTORS["delta-paper"].fn is delta_paper and SEQUENCE_DESCRIPTORS["delta"].fn is delta
+    assert "delta-orig" not in SEQUENCE_DESCRIPTORS and DESCRIPTOR_ALIASES == {"delta-orig": "delta-paper"}
+    for old, new in [("delta-orig", "delta-paper"), ("delta-orig+seqmatch", "delta-paper+seqmatch"),
+                     ("hvpr-delta-orig", "hvpr-delta-paper"),
+                     ("hvpr-delta-orig:delta-orig+seqmatch-rev", "hvpr-delta-paper:delta-paper+seqmatch-rev"),
+                     ("hvpr-fused:delta-orig+seqmatch", "hvpr-fused:delta-paper+seqmatch"), ("delta", "delta"),
+                     ("hvpr", "hvpr")]:
+        assert canonical_name(old) == new and parse_method(old) == parse_method(new)
+    ev = evaluate(test_split, EvalConfig(methods=("delta-orig", "delta", "hvpr-delta-orig:raw+seqmatch"), seq_len=5,
+                                         device="cpu"))
+    assert list(ev.results["methods"]) == ["delta-paper", "delta", "hvpr-delta-paper:raw+seqmatch"]
+    assert ev.results["config"]["methods"] == ["delta-paper", "delta", "hvpr-delta-paper:raw+seqmatch"]
+    assert ev.results["methods"]["delta-paper"]["recall@1"] != ev.results["methods"]["delta"]["recall@1"]
+    conf = MapConfig.from_dict({"shortlist": "delta-orig", "rerank": "delta-orig+seqmatch"})  # a saved map.json
+    assert (conf.shortlist, conf.rerank, conf.method.name) == ("delta-paper", "delta-paper+seqmatch",
+                                                               "hvpr-delta-paper:delta-paper+seqmatch")

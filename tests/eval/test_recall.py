@@ -127,3 +127,42 @@ def test_recall_property(m, n, k, seed):
     retrieved = rng.integers(-1, n, (m, k))
     ks = (1, 2, 5)
     assert_same(recall_at_k(retrieved, q_pos, r_pos, 1.0, ks), naive_recall(retrieved, q_pos, r_pos, 1.0, ks))
+
+
+def test_recall_denominator_positives_or_all_vs_loop(rng):
+    """``positives`` (the original code's): queries without a correct reference left out; ``all`` (as
+    VPR-methods-evaluation): they count as failures. Checked against a loop on random data."""
+    from seqnet.eval.metrics.recall import recall
+
+    q, r = rng.uniform(0, 30, (60, 2)), rng.uniform(0, 30, (50, 2))
+    retrieved = np.argsort(rng.random((60, 50)), axis=1)[:, :10]
+    truth = GroundTruth(q, r, 2.5)
+    has = [bool((np.linalg.norm(r - q[i], axis=1) <= 2.5).any()) for i in range(60)]
+    assert 0 < sum(has) < 60  # some queries have no reference within the radius
+    pos, every = recall(retrieved, truth, (1, 5), "positives"), recall(retrieved, truth, (1, 5), "all")
+    for k in (1, 5):
+        found = [any(np.linalg.norm(r[j] - q[i]) <= 2.5 for j in retrieved[i, :k]) for i in range(60)]
+        assert pos[f"recall@{k}"] == pytest.approx(sum(found) / sum(has))
+        assert every[f"recall@{k}"] == pytest.approx(sum(found) / 60)
+    assert pos["queries"] == every["queries"] == sum(has) and every["no_positive"] == 60 - sum(has)
+    assert recall(retrieved, truth, (1,))["recall@1"] == pos["recall@1"]  # positives is the default
+    with pytest.raises(ConfigError, match="recall denominator 'some' is not one of positives, all"):
+        recall(retrieved, truth, (1,), "some")
+
+
+def test_recall_denominator_in_results_and_table_header():
+    from seqnet.data.synth import make_synthetic
+    from seqnet.eval.evaluate import EvalConfig, evaluate
+    from seqnet.report.tables import format_markdown, format_table
+
+    ds = make_synthetic(places=150, dim=8, seed=0).split("test")
+    conf = EvalConfig(methods=("single",), seq_len=1, device="cpu", ks=(1, 5), radius=0.3)
+    a, b = evaluate(ds, conf), evaluate(ds, conf.replace(recall_denominator="all"))
+    ra, rb = a.results["methods"]["single"], b.results["methods"]["single"]
+    assert b.results["config"]["recall_denominator"] == "all" and rb["recall_denominator"] == "all"
+    assert a.results["config"]["recall_denominator"] == "positives" and ra["recall_denominator"] == "positives"
+    n = ra["queries"] + ra["no_positive"]
+    assert ra["no_positive"] > 0 and rb["recall@1"] == pytest.approx(ra["recall@1"] * ra["queries"] / n)
+    assert format_table(b.results["methods"], (1,)).splitlines()[0].startswith("method (R@K ÷ all)")
+    assert format_markdown(a.results["methods"], (1,)).startswith("| method (R@K ÷ positives) |")
+    assert format_table({"old": {"recall@1": 0.5, "queries": 3}}, (1,)).startswith("method (R@K ÷ positives)")

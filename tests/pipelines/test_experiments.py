@@ -64,7 +64,7 @@ def test_descriptors(tmp_path, cache):
     out = tmp_path / "desc"
     res = run("descriptors", out, cache, "--descriptors", "pixels,gmp", "--cnn-size", "64x32")
     assert set(res["recall@1"]) == {"val pixels", "test pixels", "val gmp", "test gmp"}
-    assert "delta-orig" in res["recall@1"]["test gmp"] and "hvpr-fused" in res["recall@1"]["test pixels"]
+    assert "delta-paper" in res["recall@1"]["test gmp"] and "hvpr-fused" in res["recall@1"]["test pixels"]
     assert res["descriptors"]["gmp"]["size"] == [64, 32]
     assert res["provenance"]["gmp"] != res["provenance"]["pixels"]
     assert (cache / "descriptors" / "gmp" / "models" / "seqnet.pt").is_file()  # its own models
@@ -72,11 +72,23 @@ def test_descriptors(tmp_path, cache):
         assert_self_contained(out / d / "report.html")
 
 
-def test_tsne(tmp_path, cache):
+def test_tsne(tmp_path, cache, monkeypatch):
     pytest.importorskip("sklearn")
-    res = run("tsne", tmp_path / "tsne", cache, "--frames", "80", "--perplexity", "10")
+    from seqnet.data.io import load_dataset
+    from seqnet.pipelines.experiments import tsne
+
+    seen = []  # the frames each descriptor is computed on
+    real = tsne.frame_descriptors
+    monkeypatch.setattr(tsne, "frame_descriptors", lambda desc, *a: seen.append(np.array(desc)) or real(desc, *a))
+    res = run("tsne", tmp_path / "tsne", cache, "--frames", "50", "--perplexity", "10")
+    # the paper's: the first images of the Summer *test* set (places 180:260 here), never train frames (0:120)
+    assert res["split"] == "test" and res["first_place"] + res["frame_range"][0] == 180 and res["frames"] == 50
+    ds = load_dataset(cache / "dataset")  # the benchmark descriptors' dataset (descriptor_cache)
+    a, b = res["frame_range"]
+    assert (a, b) == (ds.splits["test"]["reference"][0], ds.splits["test"]["reference"][0] + 50)
+    assert len(seen) == 5 and all(np.array_equal(x, ds.reference.descriptors[a:b]) for x in seen)
     rates = res["route_neighbour_rate"]
-    assert list(rates) == ["raw", "smoothing", "delta", "S_1", "S_L"] and res["frames"] == 80
+    assert list(rates) == ["raw", "smoothing", "delta", "S_1", "S_L"]
     assert all(0.0 <= v["descriptor"] <= 1.0 and 0.0 <= v["tsne"] <= 1.0 for v in rates.values())
     assert rates["smoothing"]["descriptor"] > rates["raw"]["descriptor"]  # windows overlap along the route
 

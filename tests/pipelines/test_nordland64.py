@@ -71,8 +71,9 @@ def test_config_rejects_unknown_keys_and_bad_values():
     assert Nordland64Config().test_range == (1940, 2761)
     with pytest.raises(ConfigError, match="pca_dims"):
         Nordland64Config(pca_dims=-5)
-    with pytest.raises(ConfigError, match="trained with L=5 but evaluated with L=3"):
+    with pytest.raises(ConfigError, match="w=5.*evaluated with L=3, shorter than its convolution width"):
         Nordland64Config(seq_len=3)
+    assert Nordland64Config(train=Nordland64Config().train.replace(seq_len=10), seq_len=5).seq_len == 5
     conf = Nordland64Config.from_dict(Nordland64Config().to_dict())
     assert conf == Nordland64Config()
 

@@ -26,7 +26,7 @@ def test_markdown_has_pr_columns_and_text_table_does_not():
     methods = {"a": {"recall@1": 0.5, "auc": 0.61, "recall@100p": 0.2, "queries": 10, "timing_ms": {"total": 1.0}},
                "b": {"recall@1": 0.4, "queries": 10}}
     md = format_markdown(methods, ks=(1,))
-    assert md.splitlines()[0] == "| method | R@1 | AUC | R@100P | queries | total ms | ms/query |"
+    assert md.splitlines()[0] == "| method (R@K ÷ positives) | R@1 | AUC | R@100P | queries | total ms | ms/query |"
     assert "| a | 0.500 | 0.610 | 0.200 | 10 |" in md and "| b | 0.400 |   n/a |   n/a |" in md
     assert "AUC" not in format_table(methods, ks=(1,))
 

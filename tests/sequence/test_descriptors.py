@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seqnet.core.errors import ConfigError
-from seqnet.sequence.descriptors import SEQUENCE_DESCRIPTORS, delta, delta_orig, describe_windows, smoothing
+from seqnet.sequence.descriptors import SEQUENCE_DESCRIPTORS, delta, delta_paper, describe_windows, smoothing
 from seqnet.sequence.model import SeqNet
 from seqnet.sequence.windows import window_indices
 
@@ -77,10 +77,10 @@ def test_sequence_descriptor_table():
 
 
 @pytest.mark.parametrize("L", [2, 3, 4, 5, 6])
-def test_delta_orig_vs_loop(rng, L):
+def test_delta_paper_vs_loop(rng, L):
     """The original code's Delta: weights +-1/(L/2), first L//2 negative, raw frames, then L2."""
     w = rng.standard_normal((4, L, 6))
-    out = delta_orig(torch.from_numpy(w)).numpy()
+    out = delta_paper(torch.from_numpy(w)).numpy()
     for m in range(4):
         acc = np.zeros(6)
         for t in range(L):
@@ -89,10 +89,10 @@ def test_delta_orig_vs_loop(rng, L):
     if L == 5:  # the weights quoted in the docs: (-0.4, -0.4, +0.4, +0.4, +0.4)
         one = np.zeros((1, 5, 5))
         one[0, np.arange(5), np.arange(5)] = 1.0
-        got = delta_orig(torch.from_numpy(one)).numpy()[0]
+        got = delta_paper(torch.from_numpy(one)).numpy()[0]
         np.testing.assert_allclose(got, unit(np.array([-0.4, -0.4, 0.4, 0.4, 0.4])), rtol=1e-9)
     with pytest.raises(ConfigError, match="seq_len >= 2"):
-        delta_orig(torch.zeros(2, 1, 3))
+        delta_paper(torch.zeros(2, 1, 3))
 
 
 # ----------------------------------------------------------------------------- SeqNet

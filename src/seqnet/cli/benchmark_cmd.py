@@ -13,7 +13,7 @@ from ..pipelines.nordland64 import Nordland64Config, main
 from ..pipelines.timing import BIG_SIZES, TimingConfig
 from ..report.tables import format_table
 from ..search.ann import ANN_INDEXES
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from ..sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS
 from . import COMMANDS
 from .common import add_device, index_range, int_list, non_negative_float, non_negative_int, parse_list, positive_int
 
@@ -82,7 +82,8 @@ def register_timing(bsub: argparse._SubParsersAction) -> None:
     t.add_argument("--seed", type=non_negative_int, help=f"synthetic map seed (default {_T.seed})")
     t.add_argument("--dataset", help="time the map of this dataset's reference split instead (with --model)")
     t.add_argument("--model", action="append", default=[], metavar="CKPT", help="models of the --dataset map")
-    t.add_argument("--shortlist", choices=list(SEQUENCE_DESCRIPTORS), help="--dataset map shortlist (default seqnet)")
+    t.add_argument("--shortlist", choices=[*SEQUENCE_DESCRIPTORS, *DESCRIPTOR_ALIASES],
+                   help="--dataset map shortlist (default seqnet)")
     t.add_argument("--rerank", metavar="FRAMES+MATCHER", help="--dataset map re-ranker (default s1+seqmatch)")
     t.add_argument("--split", help="--dataset split (default: test when defined, else all)")
     t.add_argument("--device", default="cpu", help="torch device (default cpu; cuda for a GPU)")

@@ -98,7 +98,7 @@ def add_allow_mismatch(p: argparse.ArgumentParser) -> None:
     """``--allow-mismatch``: go on when descriptors or models were made differently (experts)."""
     p.add_argument("--allow-mismatch", action="store_true",
                    help="go on (with a warning) when reference and query descriptors, or a model and the "
-                        "descriptors, were made with different settings, or a model is used with another L")
+                        "descriptors, were made with different settings")
 
 
 def add_topic(p: argparse.ArgumentParser, what: str = "IMAGES") -> None:

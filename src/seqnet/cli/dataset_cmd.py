@@ -11,8 +11,10 @@ from . import COMMANDS
 from .common import add_allow_mismatch, positive_float
 from .dataset_foreign import add_positions_format, register_from_msls
 from .dataset_images import register_from_images
+from .dataset_resample import register_resample
 
-PRESET_HELP = "dataset preset (nordland, oxford-v1.0, oxford-pnv, brisbane, msls): radius, training radii, splits"
+PRESET_HELP = ("dataset preset (nordland, alias nordland-sw / nordland-sf; oxford-v1.0, oxford-pnv, brisbane, msls): "
+               "radius, training radii, splits")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _register_seqnet(dsub)
     register_from_images(dsub, parse_splits)
     register_from_msls(dsub, finish)
+    register_resample(dsub)
     c = dsub.add_parser("check", help="validate a dataset directory and print a summary")
     c.add_argument("dir", metavar="DIR", help="seqnet dataset directory")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -260,13 +263,11 @@ def format_summary(s: dict) -> str:
 
 
 def run_presets(args: argparse.Namespace) -> int:
-    from ..data.presets import PRESETS
+    from ..data.presets import PRESETS, preset_summary
 
     if args.json:
         print(json.dumps(PRESETS, indent=2))
         return 0
-    for name, p in PRESETS.items():
-        splits = ", ".join(f"{k} {a}:{b}" for k, (a, b) in (p.get("splits") or {}).items()) or "from struct files"
-        print(f"{name}: radius {p['radius']:g} {p['position_unit']}, pos/neg {p['pos_radius']:g}/{p['neg_radius']:g}, "
-              f"L={p['seq_len']} w={p['w']}, splits: {splits}\n    {p['description']}")
+    for name in PRESETS:
+        print(preset_summary(name))
     return 0

@@ -10,6 +10,7 @@ from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..eval.evaluate import EvalConfig, main
 from ..eval.methods import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
+from ..eval.metrics.recall import RECALL_DENOMINATORS
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
@@ -24,6 +25,7 @@ from .common import (
     positive_float,
     positive_int,
 )
+from .dataset_resample import add_resample_options
 
 _D = EvalConfig()
 
@@ -46,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also report at this radius")
     p.add_argument("--split", help="split to evaluate: train, val, test, all, or a range A:B (queries, the whole "
                    "reference) / A:B,C:D (reference, queries) (default: test when defined, else all)")
+    add_resample_options(p)
     p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     p.add_argument("--fuse-weight", type=non_negative_float,
                    help=f"hvpr-fused: weight λ of the S_L distance in its score (default {_D.fuse_weight:g})")
@@ -56,8 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rerank-model", metavar="CKPT",
                    help="S_1 checkpoint used by 's1', 's1+seqmatch' and HVPR re-ranking")
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
-    p.add_argument("--ks", type=int_list, metavar="K[,K...]",
-                   help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
+    add_recall_options(p)
     p.add_argument("--per-query", metavar="FILE", help="per-query results: FILE.csv / .jsonl (per method and query: "
                    "top-5 references, scores, correct or not, confidence); .txt: MSLS's predictions (one method, "
                    "query key and its top-20 reference keys); no extension: a VPR-methods-evaluation preds folder")
@@ -79,13 +81,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def add_recall_options(p: argparse.ArgumentParser) -> None:
+    """``--ks`` and ``--recall-denominator``: which Recall@K, over which queries."""
+    p.add_argument("--ks", type=int_list, metavar="K[,K...]",
+                   help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
+    p.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
+                   help="Recall@K over: " + "; ".join(f"{k}: {v}" for k, v in RECALL_DENOMINATORS.items())
+                   + f" (default {_D.recall_denominator}, the original code's)")
+
+
 def run(args: argparse.Namespace) -> int:
     methods = parse_list(args.methods, None, "method") or None
     conf = EvalConfig().replace(methods=methods, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                                 window=args.window, radius=args.radius, extra_radii=tuple(args.extra_radius) or None,
                                 top_k=args.top_k, split=args.split, backend=args.backend, device=args.device,
                                 ks=args.ks, allow_mismatch=args.allow_mismatch or None, fuse_weight=args.fuse_weight,
-                                fuse_top_k=args.fuse_top_k)
+                                fuse_top_k=args.fuse_top_k, resample_every=args.resample_every,
+                                resample_side=args.resample_side, recall_denominator=args.recall_denominator)
     report = report_config(args)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
         if args.similarity and not args.distances:
@@ -101,11 +113,13 @@ def run(args: argparse.Namespace) -> int:
                         args.per_query, report, figures=bool(args.out))
         res = path.data  # what the stage wrote to results.json
     cfg = res["config"]
-    print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']})")
+    every = f", every {cfg['resample_every']}-th {cfg['resample_side']} frame" if cfg.get("resample_every") else ""
+    print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']}){every}")
     print(format_table(res["methods"], cfg["ks"]))
     first = next(iter(res["methods"].values()))
     print(f"{first['queries']} queries evaluated; {first['no_full_window']} without a full window, "
-          f"{first['no_positive']} without a reference within the radius (left out)")
+          f"{first['no_positive']} without a reference within the radius "
+          f"({'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'})")
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")

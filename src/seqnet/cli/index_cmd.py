@@ -8,7 +8,7 @@ from ..eval.methods import FRAME_FEATURES
 from ..maps import MapConfig, build, load_map
 from ..maps.config import DTYPES
 from ..search.ann import ANN_INDEXES, AnnConfig
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from ..sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS
 from ..sequence.windows import WINDOW_MODES
 from . import COMMANDS
 from .common import add_allow_mismatch, add_device, drop_none, non_negative_int, positive_int
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--split", help="split whose reference side is mapped (default: test when defined, else all)")
     b.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="model checkpoint (S_L and/or S_1, by their stored role); repeatable")
-    b.add_argument("--shortlist", choices=list(SEQUENCE_DESCRIPTORS),
+    b.add_argument("--shortlist", choices=[*SEQUENCE_DESCRIPTORS, *DESCRIPTOR_ALIASES],
                    help=f"shortlist descriptor (default {_D.shortlist})")
     b.add_argument("--rerank", metavar="FRAMES+MATCHER",
                    help=f"re-ranking frames and matcher, frames one of {', '.join(FRAME_FEATURES)} "

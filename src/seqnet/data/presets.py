@@ -2,7 +2,11 @@
 
 A preset fixes, for one benchmark, the localisation radius and its unit, the positive / negative
 training radii, the split index ranges (when the benchmark defines them by index), the traverses
-used for training and testing, and the sequence defaults (window length L and SeqNet kernel w).
+(and MSLS cities) of each split as the paper uses them, the paper's split sizes (reference / query,
+its supplementary Table S1 "Data Splits"), and the sequence defaults of training (window length
+L_d and SeqNet kernel w; the paper tests every dataset at L = 5). The traverses, cities and sizes
+are what ``seqnet dataset presets`` shows a user choosing which descriptors to convert
+(:func:`preset_summary`); the converters read the radii, splits and sequence defaults.
 Values follow the SeqNet paper (Garg & Milford, RA-L 2021) and its code (oravus/seqNet): the
 struct files are named ``<set>_d-<negative radius>_d2-<positive radius>.db`` for training and
 ``..._d-<radius>_...`` for testing.
@@ -28,7 +32,9 @@ PRESETS: dict[str, dict[str, Any]] = {
         # indices into the clean frame list (27592 frames), as in seqNet's get_datasets.py
         "splits": {"train": [0, 15000], "test": [15100, 18100], "val": [18200, 21200]},
         "train_traverses": ["summer", "winter"],
+        "val_traverses": ["summer", "winter"],
         "test_traverses": ["spring", "fall"],
+        "paper_sizes": {"train": [15000, 15000], "val": [3000, 3000], "test": [3000, 3000]},
         "seq_len": 10,
         "w": 5,
     },
@@ -41,6 +47,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "splits": None,  # from the struct files / splitInds.npz (geographic split)
         "train_traverses": ["2015-03-17-11-08-44", "2014-12-16-18-44-24"],
         "test_traverses": ["2015-03-17-11-08-44", "2014-12-16-18-44-24"],
+        "paper_sizes": {"train": [2981, 2931], "test": [1574, 1576]},  # no val: the paper uses Brisbane's
         "seq_len": 5,
         "w": 3,
     },
@@ -57,14 +64,17 @@ PRESETS: dict[str, dict[str, Any]] = {
         "w": 3,
     },
     "brisbane": {
-        "description": "Brisbane City Loop, day (ref) vs night (query); test only",
+        "description": "Brisbane City Loop, day (ref) vs night (query); train / val / test from the struct files "
+                       "(its val split is the paper's val set for Oxford too)",
         "radius": 20.0,
         "position_unit": "metres",
         "pos_radius": 5.0,
         "neg_radius": 20.0,
-        "splits": None,
-        "train_traverses": None,
+        "splits": None,  # geographic, from one struct file per split (the paper's sizes below)
+        "train_traverses": ["day", "night"],
+        "val_traverses": ["day", "night"],
         "test_traverses": ["day", "night"],
+        "paper_sizes": {"train": [12625, 13932], "val": [500, 488], "test": [2858, 2770]},
         "seq_len": 5,
         "w": 3,
     },
@@ -79,14 +89,20 @@ PRESETS: dict[str, dict[str, Any]] = {
         "val_cities": ["austin"],
         "test_cities": ["amman", "boston", "sf", "copenhagen"],
         "train_traverses": ["database", "query"],
+        "val_traverses": ["database", "query"],
         "test_traverses": ["database", "query"],
+        "paper_sizes": {"train": [4973, 4474], "val": [4927, 1732], "test": [33000, 18000]},
         "seq_bounds": True,  # sequence bounds files (<city>_<traverse>_seqBounds.txt) are required
         "seq_len": 5,
         "w": 3,
     },
 }
 
-ALIASES = {"oxford": "oxford-v1.0", "nordland-sw": "nordland", "nordland-fs": "nordland", "bcl": "brisbane"}
+# the original code's names (nordland-sw: summer/winter, nordland-sf: spring/fall, one preset: the same splits)
+ALIASES = {"oxford": "oxford-v1.0", "nordland-sw": "nordland", "nordland-sf": "nordland", "nordland-fs": "nordland",
+           "bcl": "brisbane"}
+
+SPLIT_ORDER = ("train", "val", "test")
 
 METADATA_KEYS = ("pos_radius", "neg_radius", "seq_len", "w")
 
@@ -133,3 +149,23 @@ def preset_splits(name: str, n_ref: int, n_query: int) -> dict[str, dict[str, tu
             )
         out[split] = {"reference": (a, b), "query": (a, b)}
     return out
+
+
+def preset_summary(name: str) -> str:
+    """Two or more lines on preset ``name`` for ``seqnet dataset presets``: radii, L / w, index splits, then
+    per split the traverses (reference / query), cities and the paper's sizes (reference / query)."""
+    p = get_preset(name)
+    splits = ", ".join(f"{k} {a}:{b}" for k, (a, b) in (p.get("splits") or {}).items()) or "from struct files"
+    lines = [f"{p['name']}: radius {p['radius']:g} {p['position_unit']}, pos/neg {p['pos_radius']:g}/"
+             f"{p['neg_radius']:g}, L={p['seq_len']} w={p['w']}, splits: {splits}", f"    {p['description']}"]
+    for split in SPLIT_ORDER:
+        parts = []
+        if p.get(f"{split}_traverses"):
+            parts.append(" / ".join(p[f"{split}_traverses"]))
+        if p.get(f"{split}_cities"):
+            parts.append("cities " + ", ".join(p[f"{split}_cities"]))
+        if split in (p.get("paper_sizes") or {}):
+            parts.append("paper {} / {}".format(*p["paper_sizes"][split]))
+        if parts:
+            lines.append(f"    {split}: {'; '.join(parts)}")
+    return "\n".join(lines)

@@ -95,7 +95,10 @@ def accepted_mismatch(ds: Dataset) -> bool:
 def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None, where: str, length: int,
                  allow: bool = False, use: str = "is evaluated with") -> None:
     """Each model reads ``dim``-D descriptors made as ``provenance`` (those of ``where``, e.g. ``dataset
-    'x'``) and, for S_L, windows of its own L = ``length``; with ``allow`` the last two only warn."""
+    'x'``; with ``allow`` a provenance mismatch only warns) and, for S_L, windows of L = ``length`` >= its
+    width w: its temporal pooling (the mean over the ``L - w + 1`` outputs of the convolution) makes S_L
+    valid at any L >= w, so another L than the trained one is one info line (:func:`model_lengths` records
+    it), and L < w is refused."""
     for role, model in models.items():
         name = "S_1" if role == "s1" else f"S_{model.seq_len}"
         if model.in_dims != dim:
@@ -104,11 +107,25 @@ def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None
         check_same(model.provenance, provenance, f"the descriptors the {name} model was trained on",
                    f"the descriptors of {where}", allow)
         if role == "seqnet" and model.seq_len != length:
-            msg = (f"the S_L model was trained with L={model.seq_len} but {use} L={length}; "
-                   f"hint: --seq-len {model.seq_len}, or --allow-mismatch to use it on other windows")
-            if not allow:
-                raise ConfigError(msg)
-            logger.warning("%s (going on as asked)", msg)
+            check_window_len(model, length, use)
+
+
+def check_window_len(model: SeqNet, length: int, use: str = "is evaluated with") -> None:
+    """An S_L model trained at L_d = ``model.seq_len`` with width w applied at ``length``: refused when
+    ``length < w``, else one info line."""
+    if length < model.w:
+        raise ConfigError(f"the S_L model (trained with L={model.seq_len}, w={model.w}) {use} L={length}, "
+                          f"shorter than its convolution width w={model.w}; hint: --seq-len L with "
+                          f"L >= {model.w} (e.g. --seq-len {model.seq_len}, the trained length)")
+    logger.info("the S_L model was trained with L=%d (w=%d) and %s L=%d: valid, its temporal pooling averages "
+                "the L - w + 1 = %d outputs of the convolution", model.seq_len, model.w, use, length,
+                length - model.w + 1)
+
+
+def model_lengths(models: Mapping[str, SeqNet]) -> dict[str, int]:
+    """The sequence length each model was trained with, by role (``model_seq_len`` of the results, beside
+    the ``seq_len`` they are applied at)."""
+    return {role: int(m.seq_len) for role, m in sorted(models.items())}
 
 
 def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:

@@ -20,15 +20,16 @@ from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..core.ownership import locked, remove_dead_temps
 from ..core.utils import check_device, get_device, logger
+from ..data.resample import RESAMPLE_SIDES, resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
 from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
 from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
-from .checks import check_inputs, leakage
+from .checks import check_inputs, leakage, model_lengths
 from .methods import Method, default_methods, parse_method
-from .metrics.recall import GroundTruth, check_radius, ground_truth
+from .metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
 from .rank import rank
 from .results import method_results, write_per_query
 
@@ -50,15 +51,18 @@ class EvalConfig(WindowSettings, Config):
         window: ``"centred"`` (the paper's) or ``"causal"`` (online).
         radius: localisation radius (None: the dataset's); a retrieved reference is correct within it (≤).
         extra_radii: further radii to report.
-        ks: the K of Recall@K.
+        ks: the K of Recall@K; recall_denominator: ``positives`` (queries with a correct reference, the
+            original code's) or ``all`` (every evaluated query): :data:`.metrics.recall.RECALL_DENOMINATORS`.
         top_k: HVPR shortlist size K.
         fuse_weight, fuse_top_k: λ of the fused score and shortlist size K (None: 100, FUSED_TOP_K) of ``hvpr-fused``.
         split: the split evaluated by :func:`main` (None: test when defined, else all).
+        resample_every, resample_side: keep every N-th frame (recorded order) of the query, reference or both
+            sides of the evaluated split (:func:`seqnet.data.resample.resample_dataset`; None: all frames).
         backend: k-NN backend (a key of :data:`seqnet.search.knn.KNN_BACKENDS`).
         device: torch device (auto: CUDA when present).
         allow_mismatch: go on (with a warning) when reference and query descriptors, or a model and
-            the descriptors, were made differently, or a model is used with another L than it was
-            trained with; by default each is an error.
+            the descriptors, were made differently; by default each is an error. (An S_L model at another
+            L >= w than it was trained with needs no flag: one info line, ``model_seq_len`` in the results.)
     """
 
     methods: tuple[str, ...] | None = None
@@ -68,10 +72,13 @@ class EvalConfig(WindowSettings, Config):
     radius: float | None = None
     extra_radii: tuple[float, ...] = ()
     ks: tuple[int, ...] = (1, 5, 10, 20, 100)
+    recall_denominator: str = "positives"
     top_k: int = 20
     fuse_weight: float = 0.5
     fuse_top_k: int | None = None
     split: str | None = None
+    resample_every: int | None = None
+    resample_side: str = "query"
     backend: str = "torch"
     device: str = "auto"
     allow_mismatch: bool = False
@@ -82,9 +89,11 @@ class EvalConfig(WindowSettings, Config):
             if isinstance(self.methods, str) or not self.methods:
                 raise ConfigError(f"methods must be a non-empty list of method names, got {self.methods!r}")
             self._set("methods", tuple(parse_method(m).name for m in self.methods))
-        for key in ("seq_len", "rerank_seq_len"):
+        for key in ("seq_len", "rerank_seq_len", "resample_every"):
             if getattr(self, key) is not None:
                 self._set(key, check_int(key, getattr(self, key), 1))
+        check_choice("resample side", self.resample_side, RESAMPLE_SIDES)
+        check_choice("recall denominator", self.recall_denominator, RECALL_DENOMINATORS)
         check_choice("window mode", self.window, WINDOW_MODES)
         if self.radius is not None:
             self._set("radius", check_radius(self.radius))
@@ -183,6 +192,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     """
     conf = EvalConfig() if conf is None else conf
     check_types(ds, conf, models)
+    ds = resample_dataset(ds, conf.resample_every, conf.resample_side)
     models = dict(models or {})
     conf = conf.resolve(models, ds.radius)
     methods = [parse_method(n) for n in conf.methods]
@@ -196,7 +206,8 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models))
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
-                             "models": {k: v.config() for k, v in models.items()}}
+                             "models": {k: v.config() for k, v in models.items()},
+                             "model_seq_len": model_lengths(models)}
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
 
@@ -228,7 +239,7 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
                                                          m.fuse_weight(conf.fuse_weight))
         timing["total"] = sum(timing.values())
         entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
-                                                   conf.extra_radii)
+                                                   conf.extra_radii, conf.recall_denominator)
         entry.update(extra(m, retrieved[m.name]) if extra else {}, no_full_window=int(n_frames - len(truth.q_pos)),
                      timing_ms={k: round(v, 3) for k, v in timing.items()}, method=info(m))
         results[m.name] = entry
@@ -278,5 +289,6 @@ def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str
     if report is not None:
         from ..report.html import write_html_report
 
-        write_html_report(ev, ds.split(split), out / "report.html", report)
+        write_html_report(ev, resample_dataset(ds.split(split), conf.resample_every, conf.resample_side),
+                          out / "report.html", report)
     return Written(write_json_atomic(out / "results.json", ev.results), ev.results)  # last: it completes the set

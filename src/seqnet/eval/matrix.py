@@ -18,6 +18,7 @@ from ..core.errors import ConfigError, DatasetError
 from ..core.files import Written, file_digest, write_json_atomic
 from ..core.lazy import lazy_module
 from ..core.ownership import locked, remove_dead_temps
+from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
@@ -55,11 +56,16 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
     """Evaluate ``conf.methods`` (default :data:`DEFAULT_MATRIX_METHODS`) of ``ds`` (the split already taken)
     on ``dist [Nq, Nr]`` distances between its query and reference frames."""
     conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
+    if dist.ndim != 2 or dist.shape != (len(ds.query), len(ds.reference)):
+        raise ConfigError(f"the distance matrix is {list(dist.shape)} for {len(ds.query)} query and "
+                          f"{len(ds.reference)} reference frames (one row per query, one column per reference)")
+    if conf.resample_every is not None:  # the kept frames' rows and columns
+        keep = kept_indices(ds, conf.resample_every, conf.resample_side)
+        dist, ds = dist[keep["query"]][:, keep["reference"]], resample_dataset(ds, conf.resample_every,
+                                                                                conf.resample_side)
     d = torch.as_tensor(np.ascontiguousarray(dist))
     query = MatrixQuery(len(ds.query), ds.query.seq_bounds, conf.windows)
     ref = MatrixReference(d, ds.reference, conf.windows, ds.name)
-    if d.shape[0] != len(ds.query):
-        raise ConfigError(f"the distance matrix has {d.shape[0]} rows for {len(ds.query)} query frames")
     methods = [parse_method(n) for n in conf.methods]
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: {**m.summary(), "on": "distance matrix",

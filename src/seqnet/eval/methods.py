@@ -3,7 +3,8 @@
 A method name is one of:
 
 * ``<descriptor>`` — k-NN retrieval with a key of :data:`SEQUENCE_DESCRIPTORS` (``single``, ``s1``,
-  ``smoothing``, ``delta``, ``delta-orig``, ``seqnet``);
+  ``smoothing``, ``delta``, ``delta-paper``, ``seqnet``; ``delta-orig``, the earlier name of
+  ``delta-paper``, is read as it wherever it appears in a name, and the parsed name says ``delta-paper``);
 * ``<frames>+<matcher>`` — a sequence matcher (:data:`SEQUENCE_MATCHERS`: ``seqmatch``,
   ``seqmatch-rev``, ...) over the whole map on frame descriptors (:data:`FRAME_FEATURES`: ``raw``,
   ``s1``, ``delta``, ...), e.g. ``raw+seqmatch``, ``s1+seqmatch``;
@@ -26,7 +27,7 @@ from typing import Any
 
 from ..core.errors import ConfigError
 from ..matching.registry import SEQUENCE_MATCHERS
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, descriptor_name
 
 # frame descriptors a matcher can run on: "raw" is each frame's own descriptor; every other sequence
 # descriptor is computed over each frame's window (clamped at sequence bounds)
@@ -94,6 +95,7 @@ def parse_method(name: str) -> Method:
     if not isinstance(name, str) or not name:
         raise ConfigError(f"a method name must be a non-empty string, got {name!r}; "
                           f"valid: {', '.join(valid_methods())}")
+    name = canonical_name(name)
     if name in SEQUENCE_DESCRIPTORS:
         return Method(name, "knn", shortlist=name)
     if name == HVPR_ALIAS:
@@ -113,6 +115,18 @@ def parse_method(name: str) -> Method:
             return Method(name, "match", frames=frames, matcher=matcher)
     raise ConfigError(f"unknown method {name!r}; valid: {', '.join(valid_methods())}, or "
                       "hvpr-<shortlister>:<frames>+<matcher>")
+
+
+def canonical_name(name: str) -> str:
+    """``name`` with every descriptor alias (:data:`seqnet.sequence.descriptors.DESCRIPTOR_ALIASES`) replaced by
+    its descriptor: ``hvpr-delta-orig:delta-orig+seqmatch`` → ``hvpr-delta-paper:delta-paper+seqmatch``."""
+    def part(text: str) -> str:  # <descriptor>, <frames>+<matcher> or hvpr-<descriptor>
+        prefix = "hvpr-" if text.startswith("hvpr-") else ""
+        frames, plus, matcher = text[len(prefix):].rpartition("+")
+        return prefix + (descriptor_name(frames) + plus + matcher if plus else descriptor_name(matcher))
+
+    head, sep, tail = name.partition(":")
+    return part(head) + sep + (part(tail) if sep else "")
 
 
 def valid_methods() -> list[str]:

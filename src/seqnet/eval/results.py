@@ -27,13 +27,14 @@ MSLS_TOP = 20  # predictions per query in an MSLS file (its evaluation reads up 
 
 
 def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, ks: Sequence[int],
-                   extra_radii: Sequence[float] = ()) -> tuple[dict[str, Any], np.ndarray]:
-    """The results entry of one method (Recall@K, queries, AUC, R@100P, the PR curve ``pr_curve``
-    (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (see
+                   extra_radii: Sequence[float] = (), denominator: str = "positives") -> tuple[dict[str, Any],
+                                                                                           np.ndarray]:
+    """The results entry of one method (Recall@K over the ``denominator`` queries, queries, AUC, R@100P, the
+    PR curve ``pr_curve`` (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (see
     :mod:`seqnet.eval.metrics.precision_recall`)."""
-    rec = recall(ranked, truth, ks)
+    rec = recall(ranked, truth, ks, denominator)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
-    entry.update(queries=rec["queries"], no_positive=rec["no_positive"])
+    entry.update(queries=rec["queries"], no_positive=rec["no_positive"], recall_denominator=denominator)
     pr_ranked, pr_scores = truth.without_soft(ranked, scores)  # soft positives: neither TP nor FP in PR
     confidence = ratio_confidence(pr_scores, pr_ranked, truth.r_pos, truth.radius)
     confidence[pr_ranked[:, 0] < 0 if ranked.shape[1] else slice(0)] = 0.0  # every retrieved was a soft match
@@ -42,7 +43,8 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
                  confidence_for_precision=thresholds_for(precision, rec, thresholds))
     if extra_radii:
-        entry["radii"] = {str(r): recall(ranked, GroundTruth(truth.q_pos, truth.r_pos, r), ks) for r in extra_radii}
+        entry["radii"] = {str(r): recall(ranked, GroundTruth(truth.q_pos, truth.r_pos, r), ks, denominator)
+                          for r in extra_radii}
     return entry, confidence
 
 

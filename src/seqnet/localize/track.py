@@ -252,6 +252,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
           shortlist_model: str | Path | None, rerank_model: str | Path | None, distances: str | Path | None,
           similarity: bool) -> Written:
     from ..data.io import load_dataset
+    from ..eval.checks import model_lengths
     from ..sequence.checkpoints import load_models
 
     full = load_dataset(dataset)
@@ -265,7 +266,8 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     correct, has = track_truth(ds, loc.ref_items, radius, best)
     summary = summarize(est, correct, has)
     record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
-                                             "rerank_seq_len": loc.match_len, "radius": radius},
+                                             "rerank_seq_len": loc.match_len, "radius": radius,
+                                             "model_seq_len": model_lengths(loaded)},
               "inputs": {"dataset": str(Path(dataset).resolve()), **_matrix_inputs(distances, similarity),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,

@@ -15,6 +15,7 @@ from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset, default_split
 from ..eval.checks import check_models as check_model_inputs
+from ..eval.checks import model_lengths
 from ..reference.traverse import TraverseReference
 from ..search.ann import index_bytes, make_index
 from ..sequence.checkpoints import load_models
@@ -92,5 +93,6 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
     info = {"dataset": ds.name, "dataset_path": str(Path(dataset).resolve()), "split": split,
             "reference_range": [int(a), int(b)], "radius": ds.radius, "position_unit": ds.position_unit,
             "explicit_positives": ds.positives is not None, "input_dim": ds.reference.dim,
+            "model_seq_len": model_lengths(loaded),
             "describe_seconds": round(time.perf_counter() - t0, 3)}
     return write_map(out, conf, arrays, loaded, ds.reference.provenance, info)

@@ -7,9 +7,9 @@ import dataclasses
 from ..core.config import Config, check_bool, check_choice, check_int
 from ..core.errors import ConfigError
 from ..core.utils import check_device
-from ..eval.methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, parse_method
+from ..eval.methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, canonical_name, parse_method
 from ..search.ann import AnnConfig
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, descriptor_name
 from ..sequence.windows import WINDOW_MODES, WindowSettings
 
 DTYPES = ("float32", "float16")
@@ -48,7 +48,10 @@ class MapConfig(WindowSettings, Config):
     shards: int = 1
 
     def __post_init__(self) -> None:
+        self._set("shortlist", descriptor_name(self.shortlist) if isinstance(self.shortlist, str) else self.shortlist)
         check_choice("shortlist descriptor", self.shortlist, SEQUENCE_DESCRIPTORS)
+        if isinstance(self.rerank, str):
+            self._set("rerank", canonical_name(self.rerank))
         self.method  # noqa: B018 - validates the re-ranker
         for key in ("seq_len", "rerank_seq_len"):
             if getattr(self, key) is not None:

@@ -91,6 +91,9 @@ def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
             raise ConfigError(f"{key}={want} but map {mp.path} was built with {have}; rebuild the map to change it")
     if conf.window != c.window:
         raise ConfigError(f"window {conf.window!r} but map {mp.path} uses {c.window!r} windows")
+    if conf.resample_every is not None:
+        raise ConfigError(f"map {mp.path} holds its reference as built; re-sample the dataset first (seqnet dataset "
+                          "resample --every N) and evaluate it, or build a map from the re-sampled dataset")
     methods = [parse_method(n) for n in conf.methods or [c.method.name, c.method.shortlist]]
     for m in methods:
         mp.check_method(m)

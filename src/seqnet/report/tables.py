@@ -25,7 +25,8 @@ def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int],
     """Header and rows: method, R@K for each K, (with ``pr``: AUC and R@100P,) queries, the method's total time
     over all queries and per query (ms: descriptors of both sides included)."""
     extra = [("AUC", "auc"), ("R@100P", "recall@100p")] if pr else []
-    header = ["method", *(f"R@{k}" for k in ks), *(h for h, _ in extra), "queries", "total ms", "ms/query"]
+    header = [f"method (R@K ÷ {denominator_label(methods)})", *(f"R@{k}" for k in ks), *(h for h, _ in extra),
+              "queries", "total ms", "ms/query"]
     rows = []
     for name, r in methods.items():
         total, n = r.get("timing_ms", {}).get("total", float("nan")), r.get("queries") or 0
@@ -33,6 +34,12 @@ def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int],
                      *(_fmt(float(r.get(key, float("nan")))) for _, key in extra), str(r.get("queries", "")),
                      f"{total:.1f}", f"{total / n:.2f}" if n else "-"])
     return header, rows
+
+
+def denominator_label(methods: Mapping[str, Mapping[str, Any]]) -> str:
+    """The Recall@K denominator of results entries: ``positives`` (queries with a correct reference; also
+    entries written before it was recorded) or ``all`` (every evaluated query)."""
+    return "/".join(dict.fromkeys(r.get("recall_denominator", "positives") for r in methods.values())) or "positives"
 
 
 def method_label(entry: Mapping[str, Any]) -> str:

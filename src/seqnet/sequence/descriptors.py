@@ -4,12 +4,13 @@ Each turns a window of L single-image descriptors ``[M, L, D]`` into one L2-norm
 ``[M, D']``:
 
 * :func:`smoothing` — mean of the (L2-normalised) frames of the window;
-* :func:`delta` — Delta descriptor (Garg et al. 2020): mean of the second half of the window minus
-  mean of the first half (halves of ``L // 2`` L2-normalised frames; the middle frame of an odd
-  window is unused);
-* :func:`delta_orig` — the Delta of the original SeqNet code: raw frames weighted ``±1 / (L/2)``,
-  the first ``L // 2`` negative (for odd L the middle frame counts in the second half:
-  ``(−0.4, −0.4, +0.4, +0.4, +0.4)`` for L = 5);
+* :func:`delta` — seqnet's symmetric Delta descriptor (Garg et al. 2020): mean of the second half of
+  the window minus mean of the first half (halves of ``L // 2`` L2-normalised frames; the middle
+  frame of an odd window is unused);
+* :func:`delta_paper` — ``delta-paper``, the Delta of the SeqNet paper's tables: the original SeqNet
+  code's weighting, raw frames weighted ``±1 / (L/2)``, the first ``L // 2`` negative (for odd L the
+  middle frame counts in the second half: ``(−0.4, −0.4, +0.4, +0.4, +0.4)`` for L = 5). Its earlier
+  name ``delta-orig`` is read as ``delta-paper`` (:data:`DESCRIPTOR_ALIASES`);
 * :class:`seqnet.sequence.model.SeqNet` — SeqNet S_L (Garg & Milford 2021): Conv1d over time (D → D_out,
   kernel w, bias, no padding, stride 1), mean over the ``L - w + 1`` outputs, L2 norm. ``S_1`` is ``L = w = 1``.
 
@@ -53,9 +54,10 @@ def delta(windows: torch.Tensor) -> torch.Tensor:
     return l2_normalize(w[:, seq_len - h :].mean(dim=1) - w[:, :h].mean(dim=1))
 
 
-def delta_orig(windows: torch.Tensor) -> torch.Tensor:
-    """The original SeqNet code's Delta: ``[M, L, D]`` (L ≥ 2) → L2-normalised ``Σ_t w_t x_t`` with
-    ``w = ±1 / (L/2)``, the first ``L // 2`` frames negative, on raw (not normalised) frames."""
+def delta_paper(windows: torch.Tensor) -> torch.Tensor:
+    """The paper's Delta baseline (the original SeqNet code's): ``[M, L, D]`` (L ≥ 2) → L2-normalised
+    ``Σ_t w_t x_t`` with ``w = ±1 / (L/2)``, the first ``L // 2`` frames negative, on raw (not normalised)
+    frames."""
     seq_len = windows.shape[1]
     if seq_len < 2:
         raise ConfigError(f"Delta descriptors need seq_len >= 2, got {seq_len}")
@@ -199,10 +201,18 @@ SEQUENCE_DESCRIPTORS: dict[str, SequenceDescriptor] = {
         SequenceDescriptor("s1", "SeqNet S_1: a learned linear map of the frame's descriptor", model="s1",
                            single_frame=True),
         SequenceDescriptor("smoothing", "mean of the window's L2-normalised descriptors", smoothing),
-        SequenceDescriptor("delta", "Delta: mean of the window's second half minus its first half", delta,
-                           min_len=2),
-        SequenceDescriptor("delta-orig", "Delta as in the original SeqNet code (±2/L weights, raw frames)",
-                           delta_orig, min_len=2),
+        SequenceDescriptor("delta", "Delta, symmetric: mean of the window's second half minus its first half "
+                           "(middle frame of an odd window unused)", delta, min_len=2),
+        SequenceDescriptor("delta-paper", "Delta of the paper's tables: the original SeqNet code's ±2/L weights "
+                           "on raw frames", delta_paper, min_len=2),
         SequenceDescriptor("seqnet", "SeqNet S_L: temporal convolution over the window, mean, L2", model="seqnet"),
     )
 }
+
+# earlier names, read as their descriptor wherever a name is parsed (methods, maps, CLI choices); outputs carry the key
+DESCRIPTOR_ALIASES: dict[str, str] = {"delta-orig": "delta-paper"}
+
+
+def descriptor_name(name: str) -> str:
+    """The key of :data:`SEQUENCE_DESCRIPTORS` that ``name`` means (itself, or an alias's descriptor)."""
+    return DESCRIPTOR_ALIASES.get(name, name)

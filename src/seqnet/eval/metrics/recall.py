@@ -3,8 +3,10 @@
 A retrieved reference is correct when it lies within the localisation radius of the query
 (Euclidean distance between positions, inclusive: ``distance <= radius``; metres for UTM, frames
 for Nordland), or, when the dataset gives explicit positives, when it is one of the query's
-positives (:class:`GroundTruth`). Queries without any correct reference are excluded from the
-denominator and counted.
+positives (:class:`GroundTruth`). The denominator (:data:`RECALL_DENOMINATORS`): ``positives``
+(default, as the original SeqNet code): queries without any correct reference are excluded and
+counted (``no_positive``); ``all`` (as VPR-methods-evaluation and most current papers): every
+evaluated query counts, those without a correct reference as failures.
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ from ...core.errors import ConfigError
 from ...data.positives import Positives
 
 DEFAULT_KS = (1, 5, 10, 20, 100)
+RECALL_DENOMINATORS = {"positives": "queries with a correct reference (the others left out, counted)",
+                       "all": "every evaluated query (those without a correct reference are failures)"}
 
 
 def check_radius(radius: float) -> float:
@@ -114,15 +118,19 @@ class GroundTruth:
         return retrieved
 
 
-def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAULT_KS) -> dict[str, float | int]:
-    """Recall@K for each K in ``ks`` of the ranked reference items ``retrieved [M, K_max]`` (best first).
+def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAULT_KS,
+           denominator: str = "positives") -> dict[str, float | int]:
+    """Recall@K for each K in ``ks`` of the ranked reference items ``retrieved [M, K_max]`` (best first),
+    over the queries with a correct reference (``denominator="positives"``) or over all M (``"all"``).
 
-    Returns ``{"recall@K": value, ..., "queries": n_evaluated, "no_positive": n_excluded}``; recall is
-    ``nan`` when no query has a correct reference. K larger than the list length uses the whole list.
+    Returns ``{"recall@K": value, ..., "queries": n_with_a_correct_reference, "no_positive": the others}``;
+    recall is ``nan`` when no query has a correct reference. K larger than the list length uses the whole list.
     """
     ks = list(ks)
     if not ks or any(int(k) < 1 for k in ks):
         raise ConfigError(f"every K must be >= 1 (and at least one K given), got {ks}")
+    if denominator not in RECALL_DENOMINATORS:
+        raise ConfigError(f"recall denominator {denominator!r} is not one of {', '.join(RECALL_DENOMINATORS)}")
     retrieved = truth.check_retrieved(retrieved)
     pos = truth.has_positive()
     n = int(pos.sum())
@@ -136,7 +144,8 @@ def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAUL
         elif cum is None:  # nothing retrieved: no query is localised
             out[f"recall@{k}"] = 0.0
         else:
-            out[f"recall@{k}"] = float(cum[pos, min(int(k), cum.shape[1]) - 1].mean())
+            found = cum[pos, min(int(k), cum.shape[1]) - 1]
+            out[f"recall@{k}"] = float(found.mean() if denominator == "positives" else found.sum() / len(pos))
     out["queries"] = n
     out["no_positive"] = int(len(pos) - n)
     return out

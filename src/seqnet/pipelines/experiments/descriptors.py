@@ -1,5 +1,6 @@
-"""``seqnet experiment descriptors`` (the paper's Table V): the whole pipeline — describe, PCA, train
-S_L and S_1, evaluate every method — on different single-image descriptors of the same frames.
+"""``seqnet experiment descriptors`` (the paper's supplementary table "Different Single Image Descriptor",
+S3): the whole pipeline — describe, PCA, train S_L and S_1, evaluate every method — on different
+single-image descriptors of the same frames.
 
 ``pixels`` is the benchmark's descriptor (its descriptors and models are the benchmark's);
 ``netvlad`` (clusters fitted by k-means on the train images' EfficientNet-Lite0 block-10
@@ -53,12 +54,13 @@ def describe_config(name: str, cnn_size: tuple[int, int] = CNN_SIZE) -> Describe
 @dataclasses.dataclass(frozen=True)
 class DescriptorsConfig(Config):
     """Settings of the descriptors experiment: the benchmark's, the descriptors compared, the CNN input
-    size (W, H) and extra methods (``delta-orig``: the original code's Delta) added to the benchmark's."""
+    size (W, H) and extra methods (``delta-paper``: the paper's Delta, the original code's weighting) added
+    to the benchmark's."""
 
     benchmark: Nordland64Config = Nordland64Config()
     descriptors: tuple[str, ...] = ("pixels", "netvlad", "gmp")
     cnn_size: tuple[int, int] = CNN_SIZE
-    extra_methods: tuple[str, ...] = ("delta-orig",)
+    extra_methods: tuple[str, ...] = ("delta-paper",)
 
     def __post_init__(self) -> None:
         self._set("descriptors", tuple(dict.fromkeys(check_choice("descriptor", d, DESCRIPTORS)

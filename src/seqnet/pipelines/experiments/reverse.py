@@ -1,5 +1,5 @@
-"""``seqnet experiment reverse`` (the paper's Table IV): the reference traversed in the opposite
-direction to the query.
+"""``seqnet experiment reverse`` (the paper's Table III, "Reverse Traverse"): the reference traversed in
+the opposite direction to the query.
 
 The reference of each split is put in reverse order (positions and image names follow, so the
 ground truth is unchanged), the query is not. SeqMatch assumes both go the same way; its reverse

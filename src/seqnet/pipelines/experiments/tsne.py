@@ -1,6 +1,8 @@
 """``seqnet experiment tsne`` (the paper's t-SNE figure): 2-D t-SNE embeddings of the descriptors of
-the first ``frames`` summer (reference) frames — raw single-image, smoothing, Delta, S_1 and S_L
-(S_5) — coloured by position along the route.
+the first ``frames`` summer (reference) frames of the **test** split — as the paper, "the first 1000
+images of the Nordland Summer test set": never the frames the models were trained on — raw
+single-image, smoothing, Delta (the paper's, ``delta-paper``), S_1 and S_L (S_5), coloured by
+position along the route. Window descriptors are clamped at the test split's ends.
 
 A descriptor that follows the route draws a continuous curve; one that confuses places scatters
 them. The same property as a number: the *route-neighbour rate*, the fraction of each frame's
@@ -29,7 +31,8 @@ if TYPE_CHECKING:
     from ...sequence.model import SeqNet
 
 
-DESCRIPTORS = {"raw": "single", "smoothing": "smoothing", "delta": "delta", "S_1": "s1", "S_L": "seqnet"}
+DESCRIPTORS = {"raw": "single", "smoothing": "smoothing", "delta": "delta-paper", "S_1": "s1", "S_L": "seqnet"}
+SPLIT = "test"  # the paper's: the first images of the Summer test set
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,7 +41,7 @@ class TsneConfig(Config):
 
     Attributes:
         benchmark: the benchmark's settings (descriptors, models; L of the window descriptors).
-        frames: the first ``frames`` summer frames are embedded.
+        frames: the first ``frames`` summer frames of the test split are embedded (all of it when shorter).
         descriptors: keys of :data:`DESCRIPTORS` (raw, smoothing, delta, S_1, S_L).
         perplexity, seed: t-SNE settings; pca_dims: PCA before t-SNE (0: none).
         k, span: route-neighbour rate: of the k nearest descriptors, those within ``span`` places.
@@ -106,7 +109,7 @@ def main(conf: TsneConfig, data: str | Path, out: str | Path, cache: str | Path 
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
         p = prepare(conf.benchmark, data, cache)
-        ref = p.ds.reference
+        ref, first = p.ds.split(SPLIT).reference, p.ds.ranges(SPLIT)["reference"][0]
         n = min(conf.frames, len(ref))
         emb, rows = {}, []
         for name in conf.descriptors:
@@ -115,16 +118,19 @@ def main(conf: TsneConfig, data: str | Path, out: str | Path, cache: str | Path 
             rows.append([name, x.shape[1], route_neighbour_rate(x, conf.k, conf.span),
                          route_neighbour_rate(emb[name], conf.k, conf.span)])
         header = ["descriptor", "D", f"route neighbours ({conf.k}-NN within ±{conf.span} places)", "same in t-SNE"]
-        results = {"experiment": "tsne", "frames": n, "first_place": p.ds.extra.get("first_place", 0),
+        results = {"experiment": "tsne", "frames": n, "split": SPLIT, "frame_range": [int(first), int(first + n)],
+                   "first_place": p.ds.extra.get("first_place", 0),
                    "route_neighbour_rate": {r[0]: {"descriptor": r[2], "tsne": r[3]} for r in rows},
                    "dims": {r[0]: r[1] for r in rows}, "timings_s": p.seconds, "provenance": ref.provenance}
-        md = (f"# t-SNE of the first {n} summer frames\n\nL = {conf.benchmark.seq_len} for the window descriptors; "
+        md = (f"# t-SNE of the first {n} summer frames of the test split (frames {first}:{first + n})\n\n"
+              f"L = {conf.benchmark.seq_len} for the window descriptors; "
               f"perplexity {conf.perplexity:g}, PCA {conf.pca_dims} first, seed {conf.seed}.\n\n"
               + markdown_table(header, rows))
         o = Outputs("tsne", results, md, tsne_figure(emb, ref.positions[:n, 0]),
                     [table_section("experiment", "t-SNE", {"Route-neighbour rate": (header, rows)},
-                                   f"The first {n} summer frames, coloured by position along the route.")])
-        return write_outputs(o, conf, data, out, f"Experiment: t-SNE of the first {n} summer frames")
+                                   f"The first {n} summer frames of the test split, coloured by position along "
+                                   "the route.")])
+        return write_outputs(o, conf, data, out, f"Experiment: t-SNE of the first {n} summer test frames")
 
 
 def tsne_figure(emb: dict[str, np.ndarray], pos: np.ndarray) -> object:

@@ -39,8 +39,8 @@ class Nordland64Config(Config):
         pca_dims: PCA of the train descriptors before training, folded into the models (0: none);
             pca_whiten: whiten it.
         symmetric: train winter → summer and summer → winter; flip: add the mirrored train images.
-        seq_len: L of S_L, the evaluation windows and SeqMatch.
-        train / train_s1: training of S_L and S_1 (epoch chosen on val).
+        seq_len: L of the evaluation windows (S_L and SeqMatch), any L >= ``train.w``.
+        train / train_s1: training of S_L (at ``train.seq_len``) and S_1 (epoch chosen on val).
         methods, top_k, ks: what is evaluated (with ``query_speed`` also
             :data:`VARIABLE_SPEED_METHODS`); device: torch device.
         fuse_weight, fuse_top_k: λ and shortlist size of ``hvpr-fused`` (chosen on val, see
@@ -85,9 +85,9 @@ class Nordland64Config(Config):
         for key in ("pca_whiten", "symmetric", "flip"):
             self._set(key, check_bool(key, getattr(self, key)))
         self._set("seq_len", check_int("seq_len", self.seq_len, 1))
-        if self.train.seq_len != self.seq_len:
-            raise ConfigError(f"the S_L model is trained with L={self.train.seq_len} but evaluated with "
-                              f"L={self.seq_len}; give both the same sequence length")
+        if self.seq_len < self.train.w:  # S_L is valid at any L >= w (the paper trains Nordland at 10, tests at 5)
+            raise ConfigError(f"the S_L model (w={self.train.w}) is evaluated with L={self.seq_len}, shorter than "
+                              f"its convolution width; give seq_len >= {self.train.w}")
         self._set("methods", tuple(parse_method(m).name for m in self.methods))
         self._set("top_k", check_int("top_k", self.top_k, 1))
         self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))

@@ -1,0 +1,95 @@
+"""S_L at another test length than it was trained with (eval.checks.check_models, shared by eval, localize and
+index build): any L >= w runs, is recorded (``model_seq_len``) with one info line; L < w is refused."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from seqnet.core.errors import ConfigError
+from seqnet.data.io import save_dataset
+from seqnet.data.synth import make_synthetic
+from seqnet.eval.checks import check_models, model_lengths
+from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.localize.track import LocalizeConfig, dataset_localizer
+from seqnet.sequence.checkpoints import save_checkpoint
+from seqnet.sequence.model import SeqNet
+
+
+@pytest.fixture()
+def s10():
+    """S_L trained (here: initialised) at the paper's Nordland L_d = 10, w = 5."""
+    torch.manual_seed(0)
+    return SeqNet(8, 8, 10, 5)
+
+
+def _info_lines(caplog) -> list[str]:
+    return [r.getMessage() for r in caplog.records if "trained with L=10" in r.getMessage()]
+
+
+def test_sl_trained_at_10_is_evaluated_at_5_and_recorded(s10, caplog):
+    ds = make_synthetic(places=150, dim=8, seed=0).split("test")
+    s10.provenance = ds.reference.provenance
+    with caplog.at_level("INFO", logger="seqnet"):
+        ev = evaluate(ds, EvalConfig(methods=("seqnet",), seq_len=5, device="cpu"), {"seqnet": s10})
+    lines = _info_lines(caplog)
+    assert len(lines) == 1 and "L=5" in lines[0] and "w=5" in lines[0] and "1 outputs" in lines[0]
+    cfg = ev.results["config"]
+    assert cfg["seq_len"] == 5 and cfg["model_seq_len"] == {"seqnet": 10}
+    assert cfg["models"]["seqnet"]["seq_len"] == 10
+    # the descriptor really is S_L applied to 5-frame windows: the literal convolution on the query's windows
+    start = ev.q_items[20] - 2  # its centred window of 5
+    x = torch.as_tensor(ds.query.descriptors[start:start + 5][None], dtype=torch.float32)
+    assert ev.results["methods"]["seqnet"]["queries"] > 0
+    np.testing.assert_allclose(s10(x).detach().numpy(), s10.forward_conv(x).detach().numpy(), atol=1e-5)
+
+
+def test_same_length_logs_nothing_and_shorter_than_w_is_refused(s10, caplog):
+    ds = make_synthetic(places=150, dim=8, seed=0).split("test")
+    s10.provenance = ds.reference.provenance
+    with caplog.at_level("INFO", logger="seqnet"):
+        evaluate(ds, EvalConfig(methods=("seqnet",), device="cpu"), {"seqnet": s10})  # L = the model's 10
+    assert _info_lines(caplog) == []
+    for allow in (False, True):
+        with pytest.raises(ConfigError, match=r"L=4, shorter than its convolution width w=5; hint: --seq-len L "
+                                              r"with L >= 5"):
+            evaluate(ds, EvalConfig(methods=("seqnet",), seq_len=4, device="cpu", allow_mismatch=allow),
+                     {"seqnet": s10})
+
+
+def test_check_models_is_the_one_check_localize_uses(s10):
+    ds = make_synthetic(places=150, dim=8, seed=0)
+    s10.provenance = ds.reference.provenance
+    check_models({"seqnet": s10}, 8, ds.reference.provenance, "x", 7)
+    with pytest.raises(ConfigError, match="the map uses L=3"):
+        check_models({"seqnet": s10}, 8, ds.reference.provenance, "x", 3, use="the map uses")
+    loc = dataset_localizer(ds, {"seqnet": s10}, LocalizeConfig(method="seqnet", seq_len=5, device="cpu"))
+    assert loc.seq_len == 5
+    with pytest.raises(ConfigError, match="shorter than its convolution width"):
+        dataset_localizer(ds, {"seqnet": s10}, LocalizeConfig(method="seqnet", seq_len=4, device="cpu"))
+    assert model_lengths({"seqnet": s10, "s1": SeqNet(8, 8, 1, 1)}) == {"s1": 1, "seqnet": 10}
+
+
+def test_cli_eval_and_index_build_record_the_trained_length(s10, tmp_path, capsys):
+    from seqnet.cli import main as cli_main
+
+    ds = make_synthetic(places=150, dim=8, seed=0)
+    s10.provenance = ds.reference.provenance
+    save_dataset(ds, tmp_path / "ds")
+    save_checkpoint(tmp_path / "s10.pt", s10)
+    assert cli_main(["eval", "--dataset", str(tmp_path / "ds"), "--model", str(tmp_path / "s10.pt"),
+                     "--seq-len", "5", "--methods", "seqnet", "--device", "cpu", "--out", str(tmp_path / "ev")]) == 0
+    res = json.loads((tmp_path / "ev" / "results.json").read_text())
+    assert res["config"]["seq_len"] == 5 and res["config"]["model_seq_len"] == {"seqnet": 10}
+    assert cli_main(["index", "build", "--dataset", str(tmp_path / "ds"), "--model", str(tmp_path / "s10.pt"),
+                     "--seq-len", "5", "--rerank", "raw+seqmatch", "--device", "cpu",
+                     "--out", str(tmp_path / "map")]) == 0
+    assert json.loads((tmp_path / "map" / "map.json").read_text())["source"]["model_seq_len"] == {"seqnet": 10}
+    capsys.readouterr()
+    assert cli_main(["eval", "--dataset", str(tmp_path / "ds"), "--model", str(tmp_path / "s10.pt"),
+                     "--seq-len", "3", "--methods", "seqnet", "--device", "cpu", "--out", str(tmp_path / "ev3")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "shorter than its convolution width w=5" in err[0]
