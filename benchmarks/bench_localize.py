@@ -31,6 +31,7 @@ import time
 import numpy as np
 import torch
 
+from seqnet.core.gemv import kernel_name
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.sequence.model import SeqNet
@@ -148,6 +149,9 @@ def main() -> None:
     p.add_argument("--json")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=args.threads, user_api="blas")  # NumPy's OpenBLAS (seqnet.core.gemv) too, as the CLI
     spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
     try:
         run(args)
@@ -168,6 +172,7 @@ def run(args: argparse.Namespace) -> None:
     queries = ref[start : start + args.steps + args.warmup] + 0.02 * rng.standard_normal(
         (args.steps + args.warmup, args.dim), dtype=np.float32)
     res = {"map": [args.frames, args.dim], "out_dims": args.out_dims, "w": args.w, "threads": args.threads,
+           "gemv": kernel_name(),
            "busy": args.busy,
            "load_before": os.getloadavg(), "bandwidth": bandwidth(), "methods": {}}
     print("bandwidth", res["bandwidth"], flush=True)

@@ -53,6 +53,15 @@ class _StderrHandler(logging.StreamHandler):
         pass
 
 
+def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
+    """NumPy's BLAS (OpenBLAS: the per-frame GEMVs of :mod:`seqnet.core.gemv`) on ``threads`` threads too."""
+    if not threads:
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=threads, user_api="blas")
+
+
 @contextlib.contextmanager
 def runtime(args: argparse.Namespace) -> Iterator[None]:
     """Logging to stderr, progress mode, thread count and held-back warnings for one command."""
@@ -68,7 +77,7 @@ def runtime(args: argparse.Namespace) -> Iterator[None]:
     try:
         if threads:
             torch.set_num_threads(threads)
-        with progress_mode(args.progress), warnings.catch_warnings(record=True) as caught:
+        with _blas_threads(threads), progress_mode(args.progress), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("default")
             yield
         for message in dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught):
