@@ -17,7 +17,7 @@ from ..core.gemv import matvec
 from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import limit, streamed
 from ..core.utils import ArrayLike, as_tensor, get_device
-from .blocks import blocked_topk, col_blocks, compute_dtype, is_half, matrix_shape, rows
+from .blocks import blocked_topk, col_blocks, compute_dtype, is_half, matrix_shape, rows, topk_smallest
 
 torch = lazy_module("torch")
 
@@ -154,6 +154,8 @@ class ExactIndex:
         if dq != self.dim:
             raise ConfigError(f"dimension mismatch: query D={dq}, reference D={self.dim}")
         dtype, k = self.dtype(query), min(k, self.n)
+        if self.keep and len(self.blocks) > 1 and nq * self.n * 16 <= (self.block_bytes or DEFAULT_BLOCK_BYTES):
+            return self._search_rows(query, k, metric, dtype)  # a few rows against a kept reference: one GEMV
         width = max((b - a for a, b in self.blocks), default=1)
         step = rows_per_block((width * 3 + self.dim) * (8 if dtype == torch.float64 else 4), self.block_bytes)
         norms, finite = self.norms(dtype), []  # the reference's norms are checked once, the query's here
@@ -174,6 +176,19 @@ class ExactIndex:
         if finite and not bool(torch.stack(finite).all()):  # one host sync per search
             raise ConfigError(NOT_FINITE.format(what="query", dtype=str(dtype).removeprefix("torch.")))
         return (-vals if metric == "ip" else vals), idx
+
+
+    def _search_rows(self, query: ArrayLike, k: int, metric: str, dtype: torch.dtype) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`search` of a few query rows (a frame of a stream) whose scores against the whole kept
+        reference fit one block: one product over the reference, one top-k (the same ranking as the blocks)."""
+        q = rows(query, 0, len(query), self.device, dtype)
+        q_sq = sq_norms(q.to(acc(dtype)))
+        if not bool(torch.isfinite(q_sq * 4).all()):
+            raise ConfigError(NOT_FINITE.format(what="query", dtype=str(dtype).removeprefix("torch.")))
+        d = inner(q, self.block(0, self.n, dtype)).to(acc(dtype))
+        d = d.neg_() if metric == "ip" else finish_distances(d, q_sq, torch.cat(self.norms(dtype)))
+        vals, idx = topk_smallest(d, k)
+        return (-vals if metric == "ip" else vals).cpu().numpy(), idx.cpu().numpy()
 
 
 def knn_torch(query: ArrayLike, ref: ArrayLike, k: int, metric: str = "l2", device: str | None = None,
