@@ -7,7 +7,9 @@ NumPy's OpenBLAS ``sgemv`` reads a row-major ``[14000, 4096]`` map at 1.04x the 
 a ``[4096, 4096]`` S_1 weight at 1.17x, where torch's (MKL) reaches 1.47x and 1.49x; on the
 ``[4096, 20480]`` S_L weight the two are close (1.28x vs 1.18x). So float32 CPU products of one vector
 use :data:`GEMV_KERNELS` ``["blas"]``; everything else (other dtypes, CUDA, autograd, batches) stays
-``torch.mv``. ``SEQNET_GEMV=torch`` selects torch's kernel (a machine where it is the faster one).
+``torch.mv``, as do matrices under :data:`BLAS_MIN_BYTES` (there the call's overhead, not the
+memory, is the cost: Nordland64's HVPR step, 1.33 ms median with torch against 1.52 with OpenBLAS).
+``SEQNET_GEMV=torch`` selects torch's kernel (a machine where it is the faster one).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ def _blas_mv(m: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return torch.from_numpy(np.matmul(m.numpy(), v.numpy()))
 
 
+BLAS_MIN_BYTES = 4 << 20  # smaller matrices: torch.mv (no NumPy round trip)
 GEMV_KERNELS: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {"torch": _torch_mv,
                                                                                   "blas": _blas_mv}
 
@@ -41,9 +44,9 @@ def kernel_name() -> str:
 
 
 def matvec(m: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """``m [R, C] @ v [C]`` → ``[R]``: float32 CPU tensors (contiguous, no gradient) on :func:`kernel_name`'s
-    kernel, anything else on ``torch.mv``."""
+    """``m [R, C] @ v [C]`` → ``[R]``: float32 CPU tensors of at least :data:`BLAS_MIN_BYTES` (contiguous, no
+    gradient) on :func:`kernel_name`'s kernel, anything else on ``torch.mv``."""
     plain = (m.device.type == "cpu" and m.dtype == torch.float32 and v.dtype == torch.float32
-             and m.is_contiguous() and v.is_contiguous() and not (torch.is_grad_enabled()
-                                                                  and (m.requires_grad or v.requires_grad)))
+             and m.numel() * 4 >= BLAS_MIN_BYTES and m.is_contiguous() and v.is_contiguous()
+             and not (torch.is_grad_enabled() and (m.requires_grad or v.requires_grad)))
     return GEMV_KERNELS[kernel_name()](m, v) if plain else torch.mv(m, v)
