@@ -86,6 +86,14 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
+def drive(n: int, seed: int, noise: int = 0) -> list[np.ndarray]:
+    """``n`` places, each a random 32x16 image; ``noise`` perturbs them (another traverse of the same places)."""
+    rng = np.random.default_rng(0)
+    places = [rng.integers(0, 256, size=(16, 32, 3)) for _ in range(n)]
+    other = np.random.default_rng(seed)
+    return [np.clip(p + other.integers(-noise, noise + 1, size=p.shape), 0, 255).astype(np.uint8) for p in places]
+
+
 BAG_KINDS = ("ros1", "ros2", "mcap")  # a ROS 1 .bag, a ROS 2 sqlite3 bag directory, a ROS 2 MCAP bag directory
 
 

@@ -7,20 +7,13 @@ import json
 
 import numpy as np
 import pytest
-from conftest import BAG_KINDS, bag_path, write_bag
+from conftest import BAG_KINDS, bag_path, drive, write_bag
 from PIL import Image
 
 from seqnet.cli import main as cli_main
 
 pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'seqnet[ros]')")
 TOPIC, START, PERIOD = "/camera/image_raw", 10**18, 10**8
-
-
-def drive(n: int, seed: int, noise: int = 0) -> list[np.ndarray]:
-    rng = np.random.default_rng(0)
-    places = [rng.integers(0, 256, size=(16, 32, 3)) for _ in range(n)]
-    other = np.random.default_rng(seed)
-    return [np.clip(p + other.integers(-noise, noise + 1, size=p.shape), 0, 255).astype(np.uint8) for p in places]
 
 
 @pytest.mark.parametrize("kind", BAG_KINDS)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import bag_path, write_bag
+from conftest import bag_path, drive, write_bag
 
 from seqnet.cli import main as cli_main
 from seqnet.data.io import load_dataset
@@ -12,14 +12,6 @@ from seqnet.data.io import load_dataset
 pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'seqnet[ros]')")
 pytest.importorskip("utm", reason="utm is not installed (pip install 'seqnet[ros]')")
 TOPIC, START, PERIOD = "/camera/image_raw", 10**18, 10**8
-
-
-def drive(n: int, seed: int, noise: int = 0) -> list[np.ndarray]:
-    """``n`` places, each a random 32x16 image; ``noise`` perturbs them (another traverse of the same places)."""
-    rng = np.random.default_rng(0)
-    places = [rng.integers(0, 256, size=(16, 32, 3)) for _ in range(n)]
-    other = np.random.default_rng(seed)
-    return [np.clip(p + other.integers(-noise, noise + 1, size=p.shape), 0, 255).astype(np.uint8) for p in places]
 
 
 def fixes(n: int) -> list[tuple[float, float, int]]:

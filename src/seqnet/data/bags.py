@@ -171,14 +171,11 @@ def match_positions(stamps: np.ndarray, positions: Positions, tolerance: float, 
 
     Raises :class:`DatasetError` naming the first image farther than ``tolerance`` seconds from every position
     message (a position that far off would be a wrong ground truth, not an approximate one)."""
-    from .gps import nearest_in_time
+    from .gps import nearest_within
 
-    nearest, gap_ns = nearest_in_time(positions.stamps, np.asarray(stamps, np.int64))
-    gap = gap_ns / 1e9
-    far = np.flatnonzero(gap > tolerance)
-    if far.size:
-        i = int(far[0])
-        raise DatasetError(f"{far.size} of {len(stamps)} images of {what} have no position message within "
-                           f"{tolerance:g} s (first: image {i}, timestamp {int(stamps[i])}, {gap[i]:.3f} s from the "
-                           "nearest); hint: a larger --positions-tolerance, or check the positions topic")
+    stamps = np.asarray(stamps, np.int64)
+    nearest = nearest_within(positions.stamps, stamps, tolerance, lambda i, gap, count: (
+        f"{count} of {len(stamps)} images of {what} have no position message within {tolerance:g} s (first: image "
+        f"{i}, timestamp {int(stamps[i])}, {gap:.3f} s from the nearest); hint: a larger --positions-tolerance, "
+        "or check the positions topic"), scale=1e9)
     return positions.xy[nearest]

@@ -202,19 +202,27 @@ def nearest_in_time(times: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, n
     return idx, np.abs(times[idx] - query)
 
 
+def nearest_within(times: np.ndarray, query: np.ndarray, tolerance: float, refusal: Callable[[int, float, int], str],
+                   scale: float = 1.0) -> np.ndarray:
+    """:func:`nearest_in_time` indices; a query farther than ``tolerance`` (in the times' unit ÷ ``scale``) is a
+    :class:`DatasetError` of ``refusal(first index, its gap, how many)``."""
+    idx, gap = nearest_in_time(times, query)
+    gap = gap / scale
+    bad = np.flatnonzero(gap > tolerance)
+    if bad.size:
+        raise DatasetError(refusal(int(bad[0]), float(gap[bad[0]]), int(bad.size)))
+    return idx
+
+
 def nearest_samples(image_times: np.ndarray, log: Samples, names: list[str], max_gap: float,
                     where: str) -> np.ndarray:
     """``[N]`` index of the log sample nearest in time to each image; an image more than ``max_gap`` seconds
     from every sample is refused by name."""
     t = log.times
-    idx, gap = nearest_in_time(t, image_times)
-    bad = np.flatnonzero(gap > max_gap)
-    if bad.size:
-        i = int(bad[0])
-        raise DatasetError(f"{where}: image {names[i]!r} is {gap[i]:.3f} s from the nearest position sample "
-                           f"(tolerance {max_gap:g} s; the log spans {t[0]:.3f}..{t[-1]:.3f} s; {bad.size} such "
-                           "images); hint: trim the images to the log, or raise --max-time-gap")
-    return idx
+    return nearest_within(t, image_times, max_gap, lambda i, gap, count: (
+        f"{where}: image {names[i]!r} is {gap:.3f} s from the nearest position sample (tolerance {max_gap:g} s; "
+        f"the log spans {t[0]:.3f}..{t[-1]:.3f} s; {count} such images); hint: trim the images to the log, or "
+        "raise --max-time-gap"))
 
 
 def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Path] | None = None,
