@@ -47,12 +47,19 @@ def paper_table(e: dict[str, Any], seq_len: int, top_k: int) -> str:
                       top_k if m.startswith(("seqmatch_topk", "hvpr")) else None) for m in methods]
         return sum(f["per_query_ms"] for f in found) if all(found) else None
 
+    # measured as the paper did: S_1 / S_5 descriptor extraction only, SeqMatch per query with no reuse
+    paper_way = {"S_1": total("describe_s1"), "S_5": total("describe_sl"),
+                 "SeqMatch over all": total("seqmatch_all_paper"), "SeqMatch over the top 20": total("seqmatch_topk")}
+    # what a query costs here end to end: the descriptor and its k-NN, whole-map SeqMatch reusing its rows
     ours = {"S_1": total("describe_s1", "knn_single"), "S_5": total("describe_sl", "knn_shortlist"),
-            "SeqMatch over all": total("seqmatch_all_paper"), "SeqMatch over the top 20": total("seqmatch_topk")}
-    lines = ["| computation | paper (GTX 1080 Ti) ms | ours, paper-style ms | ours ms |", "|---|---|---|---|"]
+            "SeqMatch over all": total("seqmatch_all_ours"), "SeqMatch over the top 20": total("seqmatch_topk")}
+    lines = ["| computation | paper (GTX 1080 Ti) ms | ours, measured the paper's way ms | ours, end to end ms |",
+             "|---|---|---|---|"]
     for name, paper in PAPER_MS.items():
-        mine = total("seqmatch_all_ours") if name == "SeqMatch over all" else ours[name]
-        lines.append(f"| {name} | {paper} | {_ms(ours[name])} | {_ms(mine)} |")
+        lines.append(f"| {name} | {paper} | {_ms(paper_way[name])} | {_ms(ours[name])} |")
+    lines.append("\nThe paper's way: S_1 / S_5 are descriptor extraction only and SeqMatch scores L_m distance rows "
+                 "per query with nothing reused; end to end: S_1 / S_5 include their k-NN over the map, and "
+                 "SeqMatch over all reuses each frame's distance row (OnlineSeqMatch).")
     hv = ", ".join(f"{r['method']} {r['per_query_ms']:.2f}" for r in rows
                    if r["method"].startswith("hvpr_") and r.get("seq_len") == seq_len and r.get("top_k") == top_k)
     return "\n".join(lines) + f"\n\nHVPR end to end (S_L + S_1 + shortlist + re-rank), ms per query: {hv}\n"
