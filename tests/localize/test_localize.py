@@ -85,6 +85,8 @@ def test_errors(small):
     ds, models = small
     with pytest.raises(ConfigError, match="no online form"):
         loc_of(ds, models, "raw+grh")
+    with pytest.raises(ConfigError, match="no online form"):
+        loc_of(ds, models, "raw+grh-dh")
     with pytest.raises(ConfigError, match="needs an S_1 model"):
         loc_of(ds, {}, "hvpr")
     with pytest.raises(ConfigError, match="anchor"):

@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "descriptors or images against a map (--map, --query), frame by frame through the online "
                        "localiser (causal windows, one answer per frame) and write one CSV row per frame: "
                        + ", ".join(TRACK_COLUMNS) + ". Methods: " + ", ".join(valid_methods())
-                       + ", or hvpr-<shortlister>:<frames>+<matcher> (not grh). See docs/online.md.")
+                       + ", or hvpr-<shortlister>:<frames>+<matcher> (not grh, grh-dh). See docs/online.md.")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--dataset", help="seqnet dataset directory: replay its query traverse against its reference")
     src.add_argument("--map", help="the map: an index map (seqnet index build --window causal; its index "

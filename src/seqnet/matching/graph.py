@@ -18,7 +18,7 @@ transition is a running minimum over ``fan_out`` shifted columns plus one add.
 per-bit median thresholds trained on the reference); the ``candidates`` reference frames nearest in
 Hamming distance to query frame ``a`` (ties: lower frame) are its relocalisation candidates, and a
 path must *start* (step 0) within ``neighbourhood`` frames of one of them: ``F_0`` is ``+inf``
-elsewhere.
+elsewhere. ``codes="dh"`` (``grh-dh``) takes learned codes instead (:mod:`seqnet.matching.hashing`).
 
 **Online** (:class:`OnlineGraphMatcher`): see the class.
 """
@@ -31,13 +31,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..core.config import check_float, check_int
+from ..core.config import check_choice, check_float, check_int
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, as_tensor, get_device, logger, to_numpy
-from ..search.blocks import topk_smallest
 from ..search.knn import as_pair, pairwise_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
+from .hashing import dh_candidates, hamming_topk
 from .velocity import BlockFn, check_pairs, matcher_topk, pivot_step, score_blocks
 
 torch = lazy_module("torch")
@@ -175,12 +175,11 @@ def lsh_candidates(query: ArrayLike, ref: ArrayLike, nbits: int = 256, candidate
     index.train(np.ascontiguousarray(r))
     bq, br = (torch.as_tensor(np.unpackbits(index.sa_encode(np.ascontiguousarray(x)), axis=1, bitorder="little")
                               [:, :nbits], dtype=torch.float32, device=dev) for x in (q, r))
-    out = np.zeros((len(q), min(candidates, len(r))), dtype=np.int64)
-    rows = rows_per_block(4 * len(r) * 2, block_bytes)
-    for s in range(0, len(q), rows):
-        ham = sq_norms(bq[s : s + rows])[:, None] + sq_norms(br)[None, :] - 2 * bq[s : s + rows] @ br.T
-        out[s : s + rows] = to_numpy(topk_smallest(ham, candidates)[1])
-    return out
+    return hamming_topk(bq, br, candidates, block_bytes)
+
+
+# where GRH's relocalisation candidates come from: codes of frames, nearest in Hamming distance
+GRH_CODES: dict[str, Callable[..., np.ndarray]] = {"lsh": lsh_candidates, "dh": dh_candidates}
 
 
 def near_mask(cands: torch.Tensor, n_ref: int, radius: int) -> torch.Tensor:
@@ -193,7 +192,8 @@ def near_mask(cands: torch.Tensor, n_ref: int, radius: int) -> torch.Tensor:
     return edges.cumsum(1, dtype=torch.int32)[:, :n_ref] > 0
 
 
-def _grh_args(nbits: int, candidates: int, neighbourhood: int) -> int:
+def _grh_args(nbits: int, candidates: int, neighbourhood: int, codes: str) -> int:
+    check_choice("GRH codes", codes, GRH_CODES)
     check_int("nbits", nbits, 1)
     check_int("candidates", candidates, 1)
     return check_int("neighbourhood", neighbourhood, 0)
@@ -201,15 +201,16 @@ def _grh_args(nbits: int, candidates: int, neighbourhood: int) -> int:
 
 def grh_topk(query: ArrayLike, ref: ArrayLike, seq_len: int, k: int, q_starts: np.ndarray, r_starts: np.ndarray,
              fan_out: int = DEFAULT_FAN_OUT, nbits: int = 256, candidates: int = 20, neighbourhood: int = 10,
-             anchor: str = "centre", device: str | None = None,
-             block_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Graph matching whose paths start within ``neighbourhood`` frames of an LSH candidate of the
-    query window's first frame (see the module docstring); items without such a path score ``inf``."""
+             anchor: str = "centre", device: str | None = None, block_bytes: int | None = None,
+             codes: str = "lsh") -> tuple[np.ndarray, np.ndarray]:
+    """Graph matching whose paths start within ``neighbourhood`` frames of a candidate of the query
+    window's first frame (``codes``: a key of :data:`GRH_CODES`; see the module docstring); items
+    without such a path score ``inf``."""
     fan_out, pivot = _check(seq_len, fan_out, anchor)
-    radius = _grh_args(nbits, candidates, neighbourhood)
+    radius = _grh_args(nbits, candidates, neighbourhood, codes)
 
     def prepare(q: torch.Tensor, r: torch.Tensor) -> BlockFn:
-        cands = torch.as_tensor(lsh_candidates(q[: q.shape[0] - seq_len + 1], r, nbits, candidates, q.device),
+        cands = torch.as_tensor(GRH_CODES[codes](q[: q.shape[0] - seq_len + 1], r, nbits, candidates, q.device),
                                 device=q.device)
         return _graph_block(seq_len, fan_out, pivot, cands, radius)
 
@@ -218,15 +219,15 @@ def grh_topk(query: ArrayLike, ref: ArrayLike, seq_len: int, k: int, q_starts: n
 
 def grh_pairs(q: torch.Tensor, r: torch.Tensor, seq_len: int, q_starts: torch.Tensor, cand: torch.Tensor,
               fan_out: int = DEFAULT_FAN_OUT, nbits: int = 256, candidates: int = 20, neighbourhood: int = 10,
-              anchor: str = "centre", block_bytes: int | None = None) -> torch.Tensor:
-    """GRH scores ``[M, K]`` of given window pairs: :func:`graph_pairs` with the LSH start restriction."""
-    radius = _grh_args(nbits, candidates, neighbourhood)
+              anchor: str = "centre", block_bytes: int | None = None, codes: str = "lsh") -> torch.Tensor:
+    """GRH scores ``[M, K]`` of given window pairs: :func:`graph_pairs` with the start restriction of ``codes``."""
+    radius = _grh_args(nbits, candidates, neighbourhood, codes)
     q_starts, _ = check_pairs(q, r, seq_len, q_starts, cand)
     firsts, inverse = torch.unique(q_starts, return_inverse=True)
-    lsh = torch.as_tensor(lsh_candidates(q[firsts], r, nbits, candidates, q.device), device=q.device)
+    firsts_cands = torch.as_tensor(GRH_CODES[codes](q[firsts], r, nbits, candidates, q.device), device=q.device)
 
     def start_mask(rows: slice, frames: torch.Tensor) -> torch.Tensor:
-        c = lsh[inverse[rows]][:, None, None, :]  # [m, 1, 1, c]
+        c = firsts_cands[inverse[rows]][:, None, None, :]  # [m, 1, 1, c]
         return ((c - frames[..., None]).abs() <= radius).any(-1)
 
     return graph_pairs(q, r, seq_len, q_starts, cand, fan_out, anchor, block_bytes, start_mask)

@@ -14,8 +14,9 @@ starts (see :mod:`seqnet.sequence.windows`):
 * ``anchored``: takes the window step pinned to the item's frame.
 
 Matchers: ``seqmatch`` / ``seqmatch-rev`` (fixed speed, :mod:`seqnet.matching.seqmatch`), ``vseqmatch`` /
-``vseqmatch-rev`` (several velocities, :mod:`seqnet.matching.velocity`), ``graph`` and ``grh`` (paths of
-variable speed, :mod:`seqnet.matching.graph`); exact definitions in ``docs/matchers.md``.
+``vseqmatch-rev`` (several velocities, :mod:`seqnet.matching.velocity`), ``graph``, ``grh`` and ``grh-dh``
+(paths of variable speed, :mod:`seqnet.matching.graph`; learned codes: :mod:`seqnet.matching.hashing`);
+exact definitions in ``docs/matchers.md``.
 
 Lower scores are better. Adding a matcher is one entry of :data:`SEQUENCE_MATCHERS` (method names
 such as ``raw+<matcher>`` and ``hvpr-seqnet:s1+<matcher>`` follow).
@@ -81,5 +82,9 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
                         "(stops and speed changes)", graph_topk, graph_pairs, anchored=True, window=graph_window),
         SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
                         grh_topk, grh_pairs, anchored=True),
+        SequenceMatcher("grh-dh", "GRH-style graph matching: paths start near Hamming candidates of learned binary "
+                        "codes (a hashing network trained on the reference frames)",
+                        functools.partial(grh_topk, codes="dh"), functools.partial(grh_pairs, codes="dh"),
+                        anchored=True),
     )
 }
