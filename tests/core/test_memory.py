@@ -93,3 +93,26 @@ def test_describing_that_cannot_fit_is_refused_after_at_most_one_batch(tmp_path,
     assert cli(["describe", str(tmp_path), "--method", "pixels", "--out", str(tmp_path / "d.npy")]) == 1
     _one_line_refusal(capsys, what, hint)
     assert not (tmp_path / "d.npy").exists()
+
+
+def test_a_cgroups_page_cache_counts_as_available(tmp_path, monkeypatch):
+    """``memory.current`` includes page cache the kernel gives back: its inactive part is available."""
+    (tmp_path / "memory.max").write_text(str(8 << 30))
+    (tmp_path / "memory.current").write_text(str(int(7.8 * 2**30)))
+    (tmp_path / "memory.stat").write_text(f"anon 1000\nfile {6 << 30}\ninactive_file {5 << 30}\n")
+    monkeypatch.setattr(memory, "CGROUP", tmp_path)
+    assert memory._cgroup_available() == (8 << 30) - int(7.8 * 2**30) + (5 << 30)
+    (tmp_path / "memory.stat").unlink()
+    assert memory._cgroup_available() == (8 << 30) - int(7.8 * 2**30)
+    (tmp_path / "memory.max").write_text("max")
+    assert memory._cgroup_available() is None
+
+
+def test_a_sharded_build_counts_one_training_sample():
+    import faiss
+
+    from seqnet.search.ann import index_bytes
+
+    index = faiss.index_factory(64, "IVF256,PQ8")
+    whole, codes = index_bytes(index, 100_000), index_bytes(index, 100_000, sample=False)
+    assert codes == 100_000 * (8 + 8) and whole - codes == 4 * 64 * 65_536  # the sample: max(256 · 256, 65,536)

@@ -166,3 +166,21 @@ def test_recall_denominator_in_results_and_table_header():
     assert format_table(b.results["methods"], (1,)).splitlines()[0].startswith("method (R@K ÷ all)")
     assert format_markdown(a.results["methods"], (1,)).startswith("| method (R@K ÷ positives) |")
     assert format_table({"old": {"recall@1": 0.5, "queries": 3}}, (1,)).startswith("method (R@K ÷ positives)")
+
+
+def test_recall_over_all_queries_without_any_positive_is_zero():
+    """Under ``all`` every query counts: no positive anywhere is recall 0, not NaN (``positives``: NaN)."""
+    from seqnet.eval.metrics.recall import recall
+
+    truth = GroundTruth(np.array([[0.0, 0], [1, 0]]), np.array([[100.0, 0], [200, 0]]), 1.0)
+    assert recall(np.array([[0], [1]]), truth, ks=(1,), denominator="all")["recall@1"] == 0.0
+    assert np.isnan(recall(np.array([[0], [1]]), truth, ks=(1,))["recall@1"])
+
+
+def test_the_names_that_lived_in_descriptors_still_import():
+    from seqnet.sequence import descriptors
+    from seqnet.sequence.model import SeqNet
+
+    assert descriptors.SeqNet is SeqNet and descriptors.delta_orig is descriptors.delta_paper
+    with pytest.raises(AttributeError):
+        descriptors.nosuch  # noqa: B018

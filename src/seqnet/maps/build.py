@@ -61,7 +61,9 @@ def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> N
         split_rows(n, conf.shards)
     held = index_bytes(index, n)
     if conf.shards > 1:  # the shards in flight at once (one thread each), then merged on disk
-        held = index_bytes(index, -(-n // conf.shards)) * min(conf.shards, os.cpu_count() or 1)
+        in_flight = min(conf.shards, os.cpu_count() or 1)  # one training sample, then each shard's codes
+        held = index_bytes(index, n) - index_bytes(index, n, sample=False) + in_flight * index_bytes(
+            index, -(-n // conf.shards), sample=False)
     check_fits(held + model_bytes(models.values()) + workspace_bytes(n, n),
                f"building the {conf.ann.factory(dim, max(n, 1))!r} index of {n} items (D={dim})",
                "a compressed index (--index ivf-pq, or a factory string such as 'IVF4096,PQ32'), or fewer "

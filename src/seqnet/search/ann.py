@@ -134,18 +134,19 @@ def build_index(ref: np.ndarray, conf: AnnConfig | None = None) -> Any:
     return index
 
 
-def index_bytes(index: Any, n: int) -> int:
+def index_bytes(index: Any, n: int, sample: bool = True) -> int:
     """Estimated bytes of ``index`` (empty, from :func:`make_index`) once it holds ``n`` vectors, with its
     training sample: FAISS's code size per vector (through pre-transforms), 8 bytes of id per vector in
-    an inverted list, and an HNSW graph's level-0 links (4 bytes each, 10 % for the upper levels)."""
+    an inverted list, and an HNSW graph's level-0 links (4 bytes each, 10 % for the upper levels); without
+    ``sample``, the codes only (a shard of an index trained once)."""
     import faiss
 
     inner = index
     while isinstance(inner, faiss.IndexPreTransform):
         inner = faiss.downcast_index(inner.index)
     per = _code_bytes(inner)
-    sample = 0 if index.is_trained else 4 * index.d * train_size(index, n)
-    return int(n * per + sample)
+    held = 0 if index.is_trained or not sample else 4 * index.d * train_size(index, n)
+    return int(n * per + held)
 
 
 def _code_bytes(index: Any) -> float:

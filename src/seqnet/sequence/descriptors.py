@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -216,3 +216,13 @@ DESCRIPTOR_ALIASES: dict[str, str] = {"delta-orig": "delta-paper"}
 def descriptor_name(name: str) -> str:
     """The key of :data:`SEQUENCE_DESCRIPTORS` that ``name`` means (itself, or an alias's descriptor)."""
     return DESCRIPTOR_ALIASES.get(name, name)
+
+
+def __getattr__(name: str) -> Any:  # PEP 562: names that lived here before (outside scripts keep working)
+    if name == "SeqNet":
+        from .model import SeqNet  # the model class: torch loads here
+
+        return SeqNet
+    if name == "delta_orig":
+        return delta_paper
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -139,8 +139,8 @@ def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAUL
         cum = np.logical_or.accumulate(truth.hits(retrieved), axis=1)
     out: dict[str, float | int] = {}
     for k in ks:
-        if n == 0:
-            out[f"recall@{k}"] = float("nan")
+        if n == 0:  # no positive: nothing to recall ("all": every query is a failure)
+            out[f"recall@{k}"] = 0.0 if denominator == "all" and len(pos) else float("nan")
         elif cum is None:  # nothing retrieved: no query is localised
             out[f"recall@{k}"] = 0.0
         else:
