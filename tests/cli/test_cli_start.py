@@ -30,7 +30,9 @@ LIGHT_COMMANDS = ("eval", "train", "localize", "index", "synth", "describe", "da
 @pytest.mark.parametrize(("argv", "code"), [(["--help"], 0), (["--version"], 0), (["nosuch"], 2), ([], 2),
                                             *[([c, "--help"], 0) for c in LIGHT_COMMANDS],
                                             *[([c, "--no-such-option"], 2) for c in LIGHT_COMMANDS],
-                                            (["localize", "--precision", "float8"], 2)])
+                                            (["localize", "--precision", "float8"], 2),
+                                            (["eval", "--dataset", "NOSUCH_DIR", "--method", "nosuch"], 2),
+                                            (["localize", "--dataset", "D", "--method", "x", "--out", "t.csv"], 2)])
 def test_the_top_level_imports_no_torch(argv, code):
     p = subprocess.run([sys.executable, "-c", PROBE.format(argv=argv)], capture_output=True, text=True, timeout=60)
     assert p.stdout.split() == [str(code), "False"], (p.stdout, p.stderr[-2000:])
@@ -74,3 +76,18 @@ def test_a_lazy_module_loads_on_first_read_and_then_is_the_module():
     assert torch.is_grad_enabled() and not grad_on() and grad_on.__name__ == "grad_on"
     with pytest.raises(TypeError, match="generator"):
         no_grad(lambda: (yield))
+
+
+def test_a_commands_threads_reach_torch_loaded_during_the_command():
+    """Without torch loaded, the runtime sets its threads through OMP_NUM_THREADS (read when torch loads), then
+    restores the variable."""
+    code = ("import argparse, os, sys\n"
+            "from seqnet.cli.runtime import runtime\n"
+            "args = argparse.Namespace(verbose=False, quiet=True, threads=1, progress=None)\n"
+            "with runtime(args):\n"
+            "    import torch\n"
+            "    inside = torch.get_num_threads()\n"
+            "print(inside, os.environ.get('OMP_NUM_THREADS'))\n")
+    env = {k: v for k, v in __import__("os").environ.items() if k != "OMP_NUM_THREADS"}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, env=env)
+    assert p.stdout.split() == ["1", "None"], (p.stdout, p.stderr[-2000:])

@@ -8,7 +8,7 @@ import logging
 import os
 import sys
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 from ..core.errors import SeqnetError
 from ..core.files import os_error
@@ -64,28 +64,49 @@ def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
 
 @contextlib.contextmanager
 def runtime(args: argparse.Namespace) -> Iterator[None]:
-    """Logging to stderr, progress mode, thread count and held-back warnings for one command."""
-    import torch
-
+    """Logging to stderr, progress mode, thread count and held-back warnings for one command. torch is not
+    imported here: when it is not loaded yet, its thread count is set through ``OMP_NUM_THREADS`` (read when
+    it loads), so a value a stage refuses (``--method nosuch``) is refused before torch is imported."""
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     handler = _StderrHandler()
     handler.setFormatter(logging.Formatter("%(message)s"))
-    old_level, old_threads = logger.level, torch.get_num_threads()
+    old_level = logger.level
     logger.addHandler(handler)
     logger.setLevel(level)
     threads = args.threads or getattr(args, "default_threads", None)
+    restore = _set_threads(threads)
     try:
-        if threads:
-            torch.set_num_threads(threads)
         with _blas_threads(threads), progress_mode(args.progress), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("default")
             yield
         for message in dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught):
             logger.debug("warning: %s", " ".join(message.split()))
     finally:
-        torch.set_num_threads(old_threads)
+        restore()
         logger.removeHandler(handler)
         logger.setLevel(old_level)
+
+
+def _set_threads(threads: int | None) -> Callable[[], None]:
+    """torch's intra-op threads for one command (``torch.set_num_threads`` when torch is loaded, else
+    ``OMP_NUM_THREADS`` before it loads); returns what restores the previous setting."""
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        old = torch.get_num_threads()
+        if threads:
+            torch.set_num_threads(threads)
+        return lambda: torch.set_num_threads(old)
+    old_env = os.environ.get("OMP_NUM_THREADS")
+    if threads:
+        os.environ["OMP_NUM_THREADS"] = str(threads)
+
+    def restore() -> None:
+        if old_env is None:
+            os.environ.pop("OMP_NUM_THREADS", None)
+        else:
+            os.environ["OMP_NUM_THREADS"] = old_env
+
+    return restore
 
 
 def check_no_empty_values(args: argparse.Namespace) -> None:
