@@ -129,22 +129,36 @@ class ExactIndex:
         return self.precision or compute_dtype(query, self.ref)
 
     def norms(self, dtype: torch.dtype) -> list[torch.Tensor]:
-        """Squared norms of each reference block (computed and checked finite on first use; float32 for half)."""
+        """Squared norms of each reference block (computed and checked finite on first use; float32 for half):
+        views of one ``[N]`` tensor (:meth:`all_norms`)."""
         if dtype not in self._norms:
             norms = [sq_norms(self.block(a, b, dtype).to(acc(dtype))) for a, b in self.blocks]
-            if norms and not bool(torch.isfinite(torch.cat(norms) * 4).all()):
+            whole = torch.cat(norms) if norms else torch.zeros(0, device=self.device, dtype=acc(dtype))
+            if not bool(torch.isfinite(whole * 4).all()):
                 raise ConfigError(NOT_FINITE.format(what="reference", dtype=str(dtype).removeprefix("torch.")))
-            self._norms[dtype] = norms
-        return self._norms[dtype]
+            self._norms[dtype] = [whole[a:b] for a, b in self.blocks] + [whole]
+        return self._norms[dtype][:-1]
+
+    def all_norms(self, dtype: torch.dtype) -> torch.Tensor:
+        """``[N]``: the squared norms of every reference row (the blocks of :meth:`norms`, made once)."""
+        self.norms(dtype)
+        return self._norms[dtype][-1]
 
     @no_grad
-    def distances(self, query: ArrayLike) -> torch.Tensor:
-        """``[M, N]`` Euclidean distances of ``query [M, D]`` (a few rows: a frame of a stream) to the reference."""
+    def distances(self, query: ArrayLike, metric: str = "l2", finite: bool = False) -> torch.Tensor:
+        """``[M, N]`` Euclidean distances (``metric="ip"``: negated inner products) of ``query [M, D]`` (a few
+        rows: a frame of a stream) to the reference: one product when the reference is kept in memory, else one
+        per column block. ``finite``: non-finite query rows are refused (as :meth:`search` does)."""
         dtype = self.dtype(query)
         q = rows(query, 0, len(query), self.device, dtype)
         q_sq = sq_norms(q.to(acc(dtype)))
-        parts = [finish_distances(inner(q, self.block(c0, c1, dtype)).to(acc(dtype)), q_sq, n)
-                 for (c0, c1), n in zip(self.blocks, self.norms(dtype), strict=True)]
+        if finite and not bool(torch.isfinite(q_sq * 4).all()):
+            raise ConfigError(NOT_FINITE.format(what="query", dtype=str(dtype).removeprefix("torch.")))
+        blocks = [(0, self.n)] if self.keep else self.blocks
+        norms = [self.all_norms(dtype)] if self.keep else self.norms(dtype)
+        parts = [inner(q, self.block(c0, c1, dtype)).to(acc(dtype)) for c0, c1 in blocks]
+        parts = [d.neg_() if metric == "ip" else finish_distances(d, q_sq, n)
+                 for d, n in zip(parts, norms, strict=True)]
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
 
     @no_grad
@@ -180,14 +194,8 @@ class ExactIndex:
 
     def _search_rows(self, query: ArrayLike, k: int, metric: str, dtype: torch.dtype) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`search` of a few query rows (a frame of a stream) whose scores against the whole kept
-        reference fit one block: one product over the reference, one top-k (the same ranking as the blocks)."""
-        q = rows(query, 0, len(query), self.device, dtype)
-        q_sq = sq_norms(q.to(acc(dtype)))
-        if not bool(torch.isfinite(q_sq * 4).all()):
-            raise ConfigError(NOT_FINITE.format(what="query", dtype=str(dtype).removeprefix("torch.")))
-        d = inner(q, self.block(0, self.n, dtype)).to(acc(dtype))
-        d = d.neg_() if metric == "ip" else finish_distances(d, q_sq, torch.cat(self.norms(dtype)))
-        vals, idx = topk_smallest(d, k)
+        reference fit one block: :meth:`distances` (one product), one top-k (the same ranking as the blocks)."""
+        vals, idx = topk_smallest(self.distances(query, metric, finite=True), k)
         return (-vals if metric == "ip" else vals).cpu().numpy(), idx.cpu().numpy()
 
 
