@@ -166,9 +166,9 @@ def check_resident(reference: Any, method: Method, models: Mapping[str, SeqNet])
     from ..core.memory import check_fits as fits_memory
     from ..core.memory import described_bytes, gib, model_bytes, workspace_bytes
 
-    held = getattr(reference, "nbytes", None)  # a map: its memory-mapped files
-    if held is None and getattr(reference, "frame_indices", False):
+    if reference.frame_indices:
         return  # a distance matrix, already read
+    held = getattr(reference, "nbytes", None)  # a map: its memory-mapped files
     if held is None:
         held = described_bytes(0, len(reference.positions), descriptor_dims(method.descriptors(), models,
                                                                             reference.input_dim), 1 << 62)

@@ -139,11 +139,12 @@ class Localizer:
         self.ref, self.method, self.windows = reference, online_method(method), reference.windows
         reference.check_method(self.method)
         self.models = dict(reference.models if models is None else models)
+        reference.resident = True  # searched every frame: kept in memory (the map's bytes), never streamed
         check_resident(reference, self.method, self.models)
         self.device, self.radius, self.k = reference.device, float(radius), int(k)
         self.top_k, self.fuse = self.method.shortlist_size(top_k, fuse_top_k), self.method.fuse_weight(fuse_weight)
         self.exact = bool(exact)
-        self.as_given = bool(getattr(reference, "frame_indices", False))  # frames are matrix rows: nothing to describe
+        self.as_given = reference.frame_indices  # frames are matrix rows: nothing to describe
         self.ref_items, self.r_pos = reference.items, reference.positions[reference.items]
         reference.prepare(self.method)  # describe the map once, before the first frame
         m, w = self.method, self.windows

@@ -101,7 +101,6 @@ class LocalizeConfig(Config):
     def localizer(self, reference: Reference, radius: float, exact: bool = False) -> Localizer:
         """The :class:`Localizer` of these settings over ``reference`` (described before ``precision`` applies)."""
         loc = Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact)
-        reference.resident = True  # searched every frame: kept in memory (the map's bytes), never streamed
         if self.precision != "float32":
             reference.precision = precision_dtype(self.precision)
             for model in loc.models.values():

@@ -69,6 +69,7 @@ class Map:
         self._exact: dict[int, ExactIndex] = {}
         self.precision: torch.dtype | None = None  # half: exact searches read and multiply in it (the localiser)
         self.resident = False  # exact searches keep what they search in memory (the localiser)
+        self.frame_indices = False  # query frames are descriptors
         for model in models.values():
             model.to(self.device).eval()
 

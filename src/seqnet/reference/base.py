@@ -28,6 +28,8 @@ class Reference(Protocol):
         precision: None, or the half dtype its exact searches read and multiply in (the localiser's ``precision``).
         resident: its exact searches keep what they search in memory, whatever its size (set by the localiser:
             the same map every frame), instead of streaming a large one in blocks.
+        frame_indices: its query frames are given as their row numbers into a distance matrix (nothing to
+            describe: :class:`seqnet.reference.matrix.MatrixReference`), not as descriptors.
     """
 
     windows: Windows
@@ -42,6 +44,7 @@ class Reference(Protocol):
     models: dict
     precision: torch.dtype | None
     resident: bool
+    frame_indices: bool
 
 
     def check_method(self, m: Method) -> None:

@@ -46,6 +46,7 @@ class TraverseReference:
         self._index: dict[tuple[str, str], ExactIndex] = {}
         self.precision: torch.dtype | None = None  # half: exact searches read and multiply in it (the localiser)
         self.resident = False  # exact searches keep what they search in memory (the localiser)
+        self.frame_indices = False  # query frames are descriptors
         self._starts: torch.Tensor | None = None
 
     def check_method(self, m: Method) -> None:
