@@ -15,11 +15,10 @@ from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset, default_split
 from ..eval.checks import check_models as check_model_inputs
-from ..eval.checks import model_lengths
+from ..eval.checks import descriptor_dims, model_lengths
 from ..reference.traverse import TraverseReference
-from ..search.ann import index_bytes, make_index
+from ..search.ann import index_bytes, make_index, train_sample_bytes
 from ..sequence.checkpoints import load_models
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import Windows
 from .config import MapConfig
 from .shards import check_ivf, split_rows
@@ -52,20 +51,18 @@ def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> 
 
 def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> None:
     """The index settings fit the shortlist descriptors (D, number of items), checked before describing."""
-    role = SEQUENCE_DESCRIPTORS[conf.shortlist].model
-    dim = models[role].out_dims if role else ds.reference.dim
+    dim = descriptor_dims([conf.shortlist], models, ds.reference.dim)[0]
     n = len(conf.windows.side(len(ds.reference), ds.reference.seq_bounds).items)
     index = make_index(dim, max(n, 1), conf.ann)  # an alias's sizes, or a factory string FAISS accepts
-    if conf.shards > 1:  # IVF only, at most one shard per item
-        check_ivf(index, conf.ann.factory(dim, max(n, 1)))
-        split_rows(n, conf.shards)
+    factory = conf.ann.factory(dim, max(n, 1))
     held = index_bytes(index, n)
-    if conf.shards > 1:  # the shards in flight at once (one thread each), then merged on disk
-        in_flight = min(conf.shards, os.cpu_count() or 1)  # one training sample, then each shard's codes
-        held = index_bytes(index, n) - index_bytes(index, n, sample=False) + in_flight * index_bytes(
-            index, -(-n // conf.shards), sample=False)
+    if conf.shards > 1:  # IVF only, at most one shard per item; one training sample, then the shards in flight
+        check_ivf(index, factory)
+        split_rows(n, conf.shards)
+        in_flight = min(conf.shards, os.cpu_count() or 1)  # one thread each, then merged on disk
+        held = train_sample_bytes(index, n) + in_flight * index_bytes(index, -(-n // conf.shards), sample=False)
     check_fits(held + model_bytes(models.values()) + workspace_bytes(n, n),
-               f"building the {conf.ann.factory(dim, max(n, 1))!r} index of {n} items (D={dim})",
+               f"building the {factory!r} index of {n} items (D={dim})",
                "a compressed index (--index ivf-pq, or a factory string such as 'IVF4096,PQ32'), or fewer "
                "dimensions (--dim, PCA, --out-dims)")
 

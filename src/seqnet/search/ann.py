@@ -108,13 +108,18 @@ def make_index(d: int, n: int, conf: AnnConfig) -> Any:
     return index
 
 
-def _hnsw_of(index: Any) -> Any:
-    """The HNSW graph inside ``index`` (through pre-transforms), or None."""
+def _inner(index: Any) -> Any:
+    """``index`` without its pre-transforms (OPQ, PCA, ...)."""
     import faiss
 
     while isinstance(index, faiss.IndexPreTransform):
         index = faiss.downcast_index(index.index)
-    return getattr(index, "hnsw", None)
+    return index
+
+
+def _hnsw_of(index: Any) -> Any:
+    """The HNSW graph inside ``index`` (through pre-transforms), or None."""
+    return getattr(_inner(index), "hnsw", None)
 
 
 def build_index(ref: np.ndarray, conf: AnnConfig | None = None) -> Any:
@@ -139,14 +144,12 @@ def index_bytes(index: Any, n: int, sample: bool = True) -> int:
     training sample: FAISS's code size per vector (through pre-transforms), 8 bytes of id per vector in
     an inverted list, and an HNSW graph's level-0 links (4 bytes each, 10 % for the upper levels); without
     ``sample``, the codes only (a shard of an index trained once)."""
-    import faiss
+    return int(n * _code_bytes(_inner(index)) + (train_sample_bytes(index, n) if sample else 0))
 
-    inner = index
-    while isinstance(inner, faiss.IndexPreTransform):
-        inner = faiss.downcast_index(inner.index)
-    per = _code_bytes(inner)
-    held = 0 if index.is_trained or not sample else 4 * index.d * train_size(index, n)
-    return int(n * per + held)
+
+def train_sample_bytes(index: Any, n: int) -> int:
+    """Bytes of the float32 sample an untrained ``index`` for ``n`` vectors is trained on (0 when trained)."""
+    return 0 if index.is_trained else 4 * index.d * train_size(index, n)
 
 
 def _code_bytes(index: Any) -> float:
