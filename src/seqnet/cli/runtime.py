@@ -13,9 +13,8 @@ from collections.abc import Callable, Iterator
 from ..core.errors import SeqnetError
 from ..core.files import os_error
 from ..core.progress import close_all, progress_mode
+from ..core.utils import logger
 from .common import positive_int
-
-logger = logging.getLogger("seqnet")  # seqnet.core.utils.logger, without importing torch
 
 
 def add_runtime_options(p: argparse.ArgumentParser, top: bool) -> None:

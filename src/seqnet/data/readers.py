@@ -14,7 +14,6 @@ rules are the same everywhere:
 
 from __future__ import annotations
 
-import logging
 import warnings
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from ..core.files import special_file
+from ..core.utils import logger
 
 DESCRIPTOR_SUFFIXES = (".npy", ".h5", ".hdf5")
 # the characters str.splitlines() breaks lines at
@@ -98,7 +98,6 @@ def _read_h5(p: Path) -> tuple[np.ndarray, list[str] | None]:
     return desc, names
 
 
-logger = logging.getLogger("seqnet")
 HLOC_KEY = "global_descriptor"  # hloc's global features: one group per image name holding this dataset
 
 

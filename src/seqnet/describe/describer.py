@@ -168,7 +168,7 @@ def run_batches(paths: Sequence[ImageRef], d: Describer, todo: np.ndarray, sink:
                                  f"have {shape[1]}x{shape[0]} (hint: pass a resize size, e.g. --resize 64x32)")
             first = shape is None
             if first:
-                check_batch_memory(d, imgs.shape, n)
+                check_batch_memory(d, imgs.shape)
             shape = imgs.shape[1:]
             out = d(imgs)
             if first:
@@ -189,7 +189,7 @@ def describe_images(paths: Sequence[str | os.PathLike[str] | ImageItem], conf: D
     return make_describer(conf, paths).describe(paths, names)
 
 
-def check_batch_memory(d: Describer, shape: tuple[int, ...], n: int) -> None:
+def check_batch_memory(d: Describer, shape: tuple[int, ...]) -> None:
     """Refuse, before the first forward pass, a batch of images ``shape [B, H, W(, 3)]`` whose working memory
     (:meth:`seqnet.describe.registry.Method.bytes_per_pixel`) cannot fit: one line, exit 1."""
     from ..core.memory import check_fits

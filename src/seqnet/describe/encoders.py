@@ -61,9 +61,6 @@ class VGG16Encoder(nn.Sequential):
         return enc
 
 
-_VGG_CONV_IDX = [0, 2, 5, 7, 10, 12, 14, 17, 19, 21, 24, 26, 28]
-
-
 class EfficientNetLite(nn.Module):
     """An EfficientNet-Lite feature map ``[B, 3, H, W]`` → ``[B, C, H/s, W/s]`` (``arch``: a :data:`LITE_VARIANTS` key).
 

@@ -129,11 +129,15 @@ def _bag_positions(conf: FromImagesConfig, images: ImageList, source: str | Path
         found.frame
 
 
+def _frame_positions(conf: FromImagesConfig, images: ImageList, *_: object) -> Positions:
+    return np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None
+
+
 POSITION_SOURCES: dict[str, Callable[..., Positions]] = {
     "csv": _csv_positions,
     "utm": lambda conf, images, *_: (utm_positions(images.names), None, "metres", None),
-    "frames": lambda conf, images, *_: (np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None),
-    "positives": lambda conf, images, *_: (np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None),
+    "frames": _frame_positions,
+    "positives": _frame_positions,  # explicit positives: frames as positions (windows, confidence)
     "bag": _bag_positions,
 }
 GROUND_TRUTHS = tuple(POSITION_SOURCES)
