@@ -130,10 +130,9 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict:
 def checkpoint_tag(path: str | os.PathLike[str]) -> str | None:
     """The provenance tag :func:`save_netvlad` stored in ``path``; None when absent or unreadable."""
     try:
-        tag = read_checkpoint(path).get(TAG_KEY)
+        return _stored(path)[1]
     except CheckpointError:
         return None
-    return tag if isinstance(tag, str) else None
 
 
 def load_netvlad(path: str | os.PathLike[str], use_wpca: bool = True) -> NetVLADModel:
@@ -185,16 +184,22 @@ def _load_encoder(ckpt: dict, enc_state: dict[str, torch.Tensor], path: Path) ->
 
 def checkpoint_image_size(path: str | os.PathLike[str]) -> tuple[int, int] | None:
     """The ``(W, H)`` a seqnet-written NetVLAD checkpoint was fitted at, or None (other checkpoints)."""
+    return _stored(path)[0]
+
+
+def _stored(path: str | os.PathLike[str]) -> tuple[tuple[int, int] | None, str | None]:
+    """``(image size, provenance tag)`` seqnet stored in a checkpoint, read once per file state."""
     p = Path(path)
     stat = p.stat() if p.is_file() else None
-    return _stored_size(str(p.resolve()), stat.st_mtime_ns if stat else 0, stat.st_size if stat else 0)
+    return _stored_metadata(str(p.resolve()), stat.st_mtime_ns if stat else 0, stat.st_size if stat else 0)
 
 
 @functools.lru_cache(maxsize=16)
-def _stored_size(path: str, mtime_ns: int, size_bytes: int) -> tuple[int, int] | None:  # keyed by file state
-    size = read_checkpoint(path).get("image_size")
+def _stored_metadata(path: str, mtime_ns: int, size_bytes: int) -> tuple[tuple[int, int] | None, str | None]:
+    ckpt = read_checkpoint(path)  # keyed by the file's state: a rewritten file is read again
+    size, tag = ckpt.get("image_size"), ckpt.get(TAG_KEY)
     ok = isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v >= 1 for v in size)
-    return (size[0], size[1]) if ok else None
+    return ((size[0], size[1]) if ok else None), (tag if isinstance(tag, str) else None)
 
 
 def save_netvlad(model: NetVLADModel, path: str | os.PathLike[str], tag: str | None = None,
