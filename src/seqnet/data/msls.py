@@ -164,11 +164,17 @@ def read_msls_side(folder: str | Path) -> MslsSide:
     return MslsSide(keys=keys, positions=_positions(f, keys), seq_bounds=bounds)
 
 
-def msls_traverse(folder: Path, desc_path: str | Path, names: str | Path | None, label: str) -> Traverse:
-    """One side of one city: its images' descriptors (matched by key), positions, names and sequence bounds."""
+def msls_traverse(folder: Path, desc_path: str | Path, names: str | Path | None, label: str,
+                  read: dict | None = None) -> Traverse:
+    """One side of one city: its images' descriptors (matched by key), positions, names and sequence bounds.
+    ``read``: descriptor files already read, by ``(file, names file)`` (one file shared by every city is read
+    once)."""
     side = read_msls_side(folder)
     images = folder / "images"
-    desc, desc_names = read_descriptor_file(desc_path, names)
+    read = {} if read is None else read
+    if (desc_path, names) not in read:
+        read[desc_path, names] = (*read_descriptor_file(desc_path, names), read_provenance(desc_path))
+    desc, desc_names, provenance = read[desc_path, names]
     if desc_names is None:
         if not images.is_dir():
             raise DatasetError(f"{desc_path}: no image names and no {images} folder to take them from; hint: give "
@@ -181,7 +187,7 @@ def msls_traverse(folder: Path, desc_path: str | Path, names: str | Path | None,
     city = folder.parent.name
     return Traverse(descriptors=np.asarray(desc[idx]), positions=side.positions,
                     names=[f"{city}/{folder.name}/images/{k}.jpg" for k in side.keys], seq_bounds=side.seq_bounds,
-                    name=label, provenance=read_provenance(desc_path))
+                    name=label, provenance=provenance)
 
 
 def _concat(parts: list[Traverse], label: str) -> Traverse:
@@ -218,10 +224,11 @@ def dataset_from_msls(root: str | Path, cities: list[str], ref_desc: list[str], 
     names = {s: _per_city(f, len(folders), "names files") for s, f in (("reference", ref_names),
                                                                        ("query", query_names))}
     sides: dict[str, list[Traverse]] = {"reference": [], "query": []}
+    read: dict = {}
     for i, city in enumerate(folders):
         base = find_city(root, city)
         for side, sub in SIDES.items():
-            sides[side].append(msls_traverse(base / sub, descs[side][i], names[side][i], f"{side} ({city})"))
+            sides[side].append(msls_traverse(base / sub, descs[side][i], names[side][i], f"{side} ({city})", read))
     for parts in sides.values():
         for t in parts[1:]:
             check_same(parts[0].provenance, t.provenance, parts[0].name, t.name, allow_mismatch)
