@@ -107,3 +107,20 @@ def add_topic(p: argparse.ArgumentParser, what: str = "IMAGES") -> None:
                    "its .db3 / .mcap file): its image topic (sensor_msgs/Image rgb8, bgr8, mono8, or "
                    "CompressedImage jpeg/png), read in timestamp order, frames named by their timestamp in ns; "
                    "needs seqnet[ros]")
+
+
+def add_distances(p: argparse.ArgumentParser, use: str) -> None:
+    """``--distances FILE.npy`` and ``--similarity``: a precomputed ``[N_query, N_reference]`` matrix of the
+    dataset's frames (VPR-Bench, VPR_Tutorial, any tool) in place of descriptors; ``use``: what the command
+    does with it (docs/own_data.md)."""
+    p.add_argument("--distances", metavar="FILE.npy", help="a precomputed [N_query, N_reference] frame-distance "
+                   f"matrix of the dataset (from VPR-Bench, VPR_Tutorial, any tool) instead of descriptors, {use}; "
+                   "methods: single, raw+seqmatch(-rev), raw+vseqmatch(-rev), raw+graph, "
+                   "hvpr-single:raw+seqmatch(-rev)")
+    p.add_argument("--similarity", action="store_true", help="--distances holds similarities (higher is closer)")
+
+
+def check_distances(args: argparse.Namespace) -> None:
+    """``--similarity`` describes the ``--distances`` matrix: refused without one."""
+    if args.similarity and not args.distances:
+        raise ConfigError("--similarity describes the --distances matrix; give --distances FILE.npy")

@@ -19,6 +19,8 @@ from . import COMMANDS
 from .common import (
     add_allow_mismatch,
     add_device,
+    add_distances,
+    check_distances,
     int_list,
     non_negative_float,
     parse_list,
@@ -63,10 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--per-query", metavar="FILE", help="per-query results: FILE.csv / .jsonl (per method and query: "
                    "top-5 references, scores, correct or not, confidence); .txt: MSLS's predictions (one method, "
                    "query key and its top-20 reference keys); no extension: a VPR-methods-evaluation preds folder")
-    p.add_argument("--distances", metavar="FILE.npy", help="evaluate on this [N_query, N_reference] frame-distance "
-                   "matrix of the dataset (from VPR-Bench, VPR_Tutorial, any tool) instead of descriptors: single, "
-                   "raw+seqmatch(-rev), hvpr-single:raw+seqmatch(-rev)")
-    p.add_argument("--similarity", action="store_true", help="--distances holds similarities (higher is closer)")
+    add_distances(p, "evaluated")
     p.add_argument("--index", metavar="MAP", help="evaluate the queries against this prebuilt map (seqnet index "
                    "build): its index shortlists, its frames re-rank; the reference side is not read")
     p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) and "
@@ -100,8 +99,7 @@ def run(args: argparse.Namespace) -> int:
                                 resample_side=args.resample_side, recall_denominator=args.recall_denominator)
     report = report_config(args)
     with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
-        if args.similarity and not args.distances:
-            raise ConfigError("--similarity goes with --distances FILE.npy")
+        check_distances(args)
         if args.distances:
             from ..eval.matrix import main as matrix_main
 

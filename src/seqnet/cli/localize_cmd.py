@@ -12,7 +12,15 @@ from ..localize.track import TRACK_COLUMNS, LocalizeConfig, main
 from ..matching.velocity import ANCHORS
 from ..search.blocks import PRECISIONS
 from . import COMMANDS
-from .common import add_allow_mismatch, add_device, add_topic, positive_float, positive_int
+from .common import (
+    add_allow_mismatch,
+    add_device,
+    add_distances,
+    add_topic,
+    check_distances,
+    positive_float,
+    positive_int,
+)
 
 _D = LocalizeConfig()
 
@@ -32,11 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "folder / list file of images, or a ROS bag (with --topic), described one by one as the map was "
                    "(see docs/online.md)")
     add_topic(p, "--query")
-    p.add_argument("--distances", metavar="FILE.npy", help="with --dataset: a precomputed [N_query, N_reference] "
-                   "frame-distance matrix of the whole dataset (any tool's), streamed row by row; methods: the "
-                   "model-free ones of seqnet eval --distances (docs/own_data.md)")
-    p.add_argument("--similarity", action="store_true", help="the --distances matrix holds similarities (higher is "
-                   "closer)")
+    add_distances(p, "with --dataset: streamed row by row")
     p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
     p.add_argument("--out", required=True, metavar="TRACK.csv",
                    help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
@@ -68,8 +72,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.map is None) != (args.query is None):
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")
-    if args.distances is None and args.similarity:
-        raise ConfigError("--similarity describes the --distances matrix; give --distances FILE.npy")
+    check_distances(args)
     if args.map is not None and args.distances is not None:
         raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:
