@@ -131,6 +131,7 @@ class Evaluation:
     confidence: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # method -> [M] in [0, 1]
     query_names: list[str] | None = None  # [M] image names of the evaluated queries, when known
     reference_names: list[str] | None = None  # [R] image names of the reference items, when known
+    dataset: Dataset | None = None  # what was evaluated (the split, re-sampled as asked), for the report
 
     @property
     def q_pos(self) -> np.ndarray:
@@ -209,6 +210,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
                              "models": {k: v.config() for k, v in models.items()},
                              "model_seq_len": model_lengths(models)}
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
+    out.dataset = ds
     return out
 
 
@@ -289,6 +291,5 @@ def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str
     if report is not None:
         from ..report.html import write_html_report
 
-        write_html_report(ev, resample_dataset(ds.split(split), conf.resample_every, conf.resample_side),
-                          out / "report.html", report)
+        write_html_report(ev, ev.dataset, out / "report.html", report)
     return Written(write_json_atomic(out / "results.json", ev.results), ev.results)  # last: it completes the set
