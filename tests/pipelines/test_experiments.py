@@ -39,14 +39,19 @@ def run(name, out, cache, *extra):
 
 
 def test_reverse(tmp_path, cache, capsys):
-    res = run("reverse", tmp_path / "rev", cache)
+    res = run("table-3", tmp_path / "rev", cache)  # the paper's table name runs the same experiment
     r1 = res["recall@1"]
     assert set(r1) == {"val forward", "val reversed", "test forward", "test reversed"}
     # forward SeqMatch on the reference and reverse SeqMatch on the reversed reference are the same sums
     assert r1["test reversed"]["raw+seqmatch-rev"] == pytest.approx(r1["test forward"]["raw+seqmatch"])
     assert r1["test reversed"]["s1+seqmatch-rev"] == pytest.approx(r1["test forward"]["s1+seqmatch"])
     assert r1["test reversed"]["raw+seqmatch-rev"] > r1["test reversed"]["raw+seqmatch"]
-    assert "| hvpr-seqnet:s1+seqmatch-rev |" in (tmp_path / "rev" / "results.md").read_text()
+    md = (tmp_path / "rev" / "results.md").read_text()
+    assert "| hvpr-seqnet:s1+seqmatch-rev |" in md and "**Table III — Reverse Traverse" in md
+    raw = next(line for line in md.splitlines() if line.startswith("| Raw + SeqMatch |"))
+    rev = res["details"]["test reversed"]
+    assert raw.split(" | ")[2] == "/".join(f"{rev['raw+seqmatch'][f'recall@{k}']:.3f}" for k in (1, 5, 20))
+    assert raw.split(" | ")[3] == "/".join(f"{rev['raw+seqmatch-rev'][f'recall@{k}']:.3f}" for k in (1, 5, 20))
     assert_self_contained(tmp_path / "rev" / "report.html", ("experiment", "figure", "results", "matrix", "gallery"))
     assert "R@1 test reversed" in capsys.readouterr().out
 
@@ -58,6 +63,10 @@ def test_longer_sequences(tmp_path, cache):
     assert q["test L_m=3"] == q["test L_m=5"] > q["test L_m=9"]  # L = 5 windows limit the first two alike
     assert all(0 <= v <= 1 for col in res["recall@1"].values() for v in col.values())
     assert res["details"]["test L_m=9"]["hvpr"]["queries"] == q["test L_m=9"]
+    gism = paper_row((tmp_path / "long" / "results.md").read_text(), "GISM")
+    graph = res["details"]["test L_m=9"]["s1+graph"]
+    assert gism[1] == "`s1+graph`" and gism[4] == "/".join(f"{graph[f'recall@{k}']:.3f}" for k in (1, 5, 20))
+    assert gism[5:] == ["0.65/-/-", "0.68/-/-", "0.73/-/-"]
 
 
 def test_descriptors(tmp_path, cache):
@@ -70,6 +79,8 @@ def test_descriptors(tmp_path, cache):
     assert (cache / "descriptors" / "gmp" / "models" / "seqnet.pt").is_file()  # its own models
     for d in ("pixels", "gmp"):
         assert_self_contained(out / d / "report.html")
+    header = next(line for line in (out / "results.md").read_text().splitlines() if line.startswith("| paper's row"))
+    assert header == "| paper's row | seqnet | ours: pixels | ours: gmp | paper: NetVLAD | paper: GMP |"
 
 
 def test_tsne(tmp_path, cache, monkeypatch):
@@ -103,6 +114,66 @@ def test_seeds(tmp_path, cache):
     assert (cache / "seeds" / "seed1" / "models" / "s1.pt").is_file() and not (cache / "seeds" / "seed0").exists()
 
 
+def paper_row(md: str, label: str) -> list[str]:
+    """The cells of the paper-layout row ``label`` of ``results.md``."""
+    return next(line for line in md.splitlines() if line.startswith(f"| {label} |")).strip("| ").split(" | ")
+
+
+def test_comparison(tmp_path, cache):
+    res = run("table-1", tmp_path / "t1", cache)
+    assert res["paper_table"] == "I" and res["recall_denominator"] == "positives"
+    test = res["details"]["test"]
+    assert {"single", "delta-paper", "s1+graph", "s1+grh-dh", "s1+grh", "hvpr-delta-paper", "hvpr",
+            "hvpr-fused"} <= set(test)
+    md = (tmp_path / "t1" / "results.md").read_text()
+    hvpr = paper_row(md, "HVPR (S_5 to S_1)")
+    assert hvpr[1] == "`hvpr`" and hvpr[3] == "/".join(f"{test['hvpr'][f'recall@{k}']:.3f}" for k in (1, 5, 20))
+    assert hvpr[4:] == ["0.72/0.82/0.88", "0.29/0.40/0.55"]  # the paper's, as printed
+    assert paper_row(md, "AP-GeM")[1:4] == ["–", "–", "–"]  # not a descriptor here
+    assert paper_row(md, "seqnet: hvpr-fused")[4:] == ["-", "-"]
+    every = run("comparison", tmp_path / "all", cache, "--recall-denominator", "all")
+    assert every["recall_denominator"] == "all"
+    assert "denominator (ours): all" in (tmp_path / "all" / "results.md").read_text()
+    for m, r in every["details"]["test"].items():  # the same ranking over more queries: never higher
+        assert r["recall@1"] <= test[m]["recall@1"] + 1e-12
+
+
+def test_splits(tmp_path, cache):
+    res = run("table-s1", tmp_path / "s1", cache)
+    assert res["sizes"] == {"train": {"reference": 120, "query": 120, "places": [0, 120]},
+                            "val": {"reference": 40, "query": 40, "places": [130, 170]},
+                            "test": {"reference": 80, "query": 80, "places": [180, 260]}}
+    md = (tmp_path / "s1" / "results.md").read_text()
+    assert paper_row(md, "Test") == ["Test", "`test`", "80 / 80", "1574 / 1576", "2858 / 2770", "3000 / 3000",
+                                      "33000 / 18000"]
+
+
+def test_compute_time(tmp_path, monkeypatch):
+    from seqnet.pipelines.experiments import compute_time
+    from seqnet.pipelines.timing import TimingConfig
+
+    asked = []
+    real = compute_time.timing_main
+
+    def tiny(conf, out):  # the paper's map size is asked for; a tiny one is timed
+        asked.append(conf)
+        return real(TimingConfig(sizes=(300,), dims=(16,), queries=conf.queries, repeats=1, warmup=1, indexes=(),
+                                 float16_recall=False, threads=1), out)
+
+    monkeypatch.setattr(compute_time, "timing_main", tiny)
+    out = tmp_path / "t2"
+    assert cli_main(["experiment", "table-2", "--out", str(out), "--queries", "3"]) == 0
+    assert asked[0].sizes == (14000,) and asked[0].dims == (4096,) and asked[0].queries == 3
+    res = json.loads((out / "results.json").read_text())
+    assert res["paper_table"] == "II" and set(res["ms"]) == {"paper's way", "end to end"}
+    timing = json.loads((out / "timing" / "results.json").read_text())["maps"][0]["rows"]
+    s1 = next(r for r in timing if r["method"] == "describe_s1")
+    assert res["ms"]["paper's way"]["S_1"][0] == pytest.approx(s1["per_query_ms"])
+    md = (out / "results.md").read_text()
+    assert "| paper (GTX 1080 Ti) | 22.1 ± 13.0 | 24.2 ± 11.9 | 1449.9 ± 120.5 | 1.8 ± 0.2 |" in md
+    assert (out / "compute_time.png").stat().st_size > 1000 and (out / "report.html").is_file()
+
+
 def test_reverse_reference_is_an_involution():
     rng = np.random.default_rng(0)
     d = rng.standard_normal((10, 3)).astype(np.float32)
@@ -121,7 +192,10 @@ def test_reverse_reference_is_an_involution():
 
 
 def test_experiment_table_and_bad_options(tmp_path, capsys):
-    assert list(EXPERIMENTS) == ["reverse", "longer-sequences", "descriptors", "tsne", "seeds"]
+    assert list(EXPERIMENTS) == ["comparison", "compute-time", "reverse", "splits", "longer-sequences",
+                                 "descriptors", "tsne", "seeds"]
+    assert [e.alias for e in EXPERIMENTS.values()] == ["table-1", "table-2", "table-3", "table-s1", "table-s2",
+                                                      "table-s3", None, None]
     with pytest.raises(ConfigError, match="descriptor"):
         EXPERIMENTS["descriptors"].config(descriptors=("sift",))
     rc = cli_main(["experiment", "descriptors", "--data", str(tmp_path), "--out", str(tmp_path / "o"),

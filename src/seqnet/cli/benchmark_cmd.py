@@ -92,7 +92,9 @@ def register_timing(bsub: argparse._SubParsersAction) -> None:
 
 def timing_config(args: argparse.Namespace) -> TimingConfig:
     """The timing settings from the flags (unset flags keep the defaults)."""
-    indexes = None if args.indexes is None else tuple(parse_list([args.indexes.replace("none", "")]))
+    indexes = None
+    if args.indexes is not None:
+        indexes = () if args.indexes.strip() == "none" else tuple(parse_list([args.indexes]))
     return _T.replace(sizes=args.sizes or (BIG_SIZES if args.big else None), dims=args.dims,
                       max_elements=args.max_elements, seq_lens=args.seq_lens, top_ks=args.top_ks,
                       queries=args.queries, repeats=args.repeats, indexes=indexes, device=args.device,

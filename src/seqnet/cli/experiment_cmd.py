@@ -1,5 +1,5 @@
-"""``seqnet experiment NAME``: the paper's supplementary experiments on the nordland64 data
-(reverse, longer-sequences, descriptors, tsne, seeds; docs/experiments.md)."""
+"""``seqnet experiment NAME``: the paper's tables and figures on the nordland64 data, each also named by its
+table (``table-1`` … ``table-s3``; docs/experiments.md)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from ..describe.config import check_size
-from ..pipelines.experiments import EXPERIMENTS
+from ..eval.evaluate import RECALL_DENOMINATORS
+from ..pipelines.experiments import EXPERIMENTS, Experiment
 from ..pipelines.experiments.descriptors import CNN_SIZE, DESCRIPTORS, describe_config
 from ..pipelines.nordland64 import Nordland64Config
 from . import COMMANDS
@@ -30,6 +31,9 @@ def seed_list(text: str) -> tuple[int, ...]:
 
 # the options of one experiment: flag, config key, argparse type, help
 OPTIONS: dict[str, list[tuple[str, str, Any, str]]] = {
+    "comparison": [("--extra-methods", "extra_methods", str, "seqnet's rows after the paper's (default hvpr-fused)")],
+    "compute-time": [("--queries", "queries", positive_int, "queries timed one at a time (default 30)")],
+    "splits": [],
     "reverse": [("--methods", "methods", str, "methods compared (comma-separated)")],
     "longer-sequences": [("--lengths", "lengths", int_list, "re-ranking lengths L_m (default 5,10,20)"),
                          ("--methods", "methods", str, "methods compared (comma-separated)")],
@@ -39,58 +43,76 @@ OPTIONS: dict[str, list[tuple[str, str, Any, str]]] = {
              ("--perplexity", "perplexity", positive_float, "t-SNE perplexity (default 30)")],
     "seeds": [("--seeds", "seeds", seed_list, "training seeds (default 0,1,2)")],
 }
-LISTS = ("methods", "descriptors")  # comma-separated names
+LISTS = ("methods", "descriptors", "extra_methods")  # comma-separated names
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help=COMMANDS["experiment"],
-                       description="The paper's supplementary experiments on the nordland64 data, each writing "
-                                   "results.json, results.md, its figure, report.html and config.json to --out "
+                       description="The paper's tables and figures on the nordland64 data, each also named by its "
+                                   "table (table-1 ... table-s3), each writing results.json, results.md (the paper's "
+                                   "table beside ours), its figure, report.html and config.json to --out "
                                    "(docs/experiments.md).")
     esub = p.add_subparsers(dest="experiment", metavar="NAME", required=True)
     for name, exp in EXPERIMENTS.items():
-        e = esub.add_parser(name, help=exp.summary, description=f"{exp.summary}. Defaults: the nordland64 "
-                            "benchmark's (seqnet.pipelines.nordland64.Nordland64Config).")
-        e.add_argument("--data", required=True, metavar="PATH", help="nordland64 folder (summer/, winter/, clean list)")
+        e = esub.add_parser(name, aliases=[exp.alias] if exp.alias else [],
+                            help=exp.summary,
+                            description=f"{exp.summary}. Defaults: the nordland64 benchmark's "
+                                        "(seqnet.pipelines.nordland64.Nordland64Config).")
         e.add_argument("--out", required=True, metavar="DIR", help="output folder")
-        e.add_argument("--cache", metavar="DIR", help="descriptors and models cache (default --out; a benchmark's "
-                                                      "--out reuses its descriptors and models)")
-        for split in ("train", "val", "test"):
-            a, b = getattr(_D, f"{split}_range")
-            e.add_argument(f"--{split}-range", type=index_range, metavar="A:B",
-                           help=f"{split} places (default {a}:{b})")
-        e.add_argument("--epochs", type=positive_int, help=f"training epochs (default {_D.train.epochs})")
-        e.add_argument("--pca-dims", type=non_negative_int, help=f"PCA before training (default {_D.pca_dims})")
-        e.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
-        if name != "descriptors":
-            e.add_argument("--descriptor", choices=DESCRIPTORS, help="single-image descriptor (default pixels, the "
-                           "benchmark's; others are cached in CACHE/descriptors/NAME)")
-            e.add_argument("--cnn-size", help="CNN input size WxH of --descriptor netvlad/gmp/gem (default 128x64)")
+        if exp.data:
+            _data_options(e, name)
         for flag, key, kind, text in OPTIONS[name]:
             e.add_argument(flag, dest=key, type=kind, action="append" if key in LISTS else None, help=text)
         add_device(e)
-        e.set_defaults(func=run)
+        e.set_defaults(func=run, experiment_name=name)
+
+
+def _data_options(e: argparse.ArgumentParser, name: str) -> None:
+    """The options of an experiment on the nordland64 data: data, cache, ranges, training, descriptor."""
+    e.add_argument("--data", required=True, metavar="PATH", help="nordland64 folder (summer/, winter/, clean list)")
+    e.add_argument("--cache", metavar="DIR", help="descriptors and models cache (default --out; a benchmark's "
+                                                  "--out reuses its descriptors and models)")
+    for split in ("train", "val", "test"):
+        a, b = getattr(_D, f"{split}_range")
+        e.add_argument(f"--{split}-range", type=index_range, metavar="A:B", help=f"{split} places (default {a}:{b})")
+    e.add_argument("--epochs", type=positive_int, help=f"training epochs (default {_D.train.epochs})")
+    e.add_argument("--pca-dims", type=non_negative_int, help=f"PCA before training (default {_D.pca_dims})")
+    e.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
+    e.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
+                   help="Recall@K over queries with a correct reference (positives, default, the original "
+                        "code's) or over all queries (all, VPR-methods-evaluation's)")
+    if name != "descriptors":
+        e.add_argument("--descriptor", choices=DESCRIPTORS, help="single-image descriptor (default pixels, the "
+                       "benchmark's; others are cached in CACHE/descriptors/NAME)")
+        e.add_argument("--cnn-size", help="CNN input size WxH of --descriptor netvlad/gmp/gem (default 128x64)")
 
 
 def experiment_config(args: argparse.Namespace) -> Any:
     """The experiment's settings from the flags (unset flags keep the defaults)."""
+    name = args.experiment_name
+    exp: Experiment = EXPERIMENTS[name]
+    own = {}
+    for _, key, _, _ in OPTIONS[name]:
+        value = getattr(args, key)
+        own[key] = (tuple(parse_list(value)) or None) if key in LISTS else value
+    if not exp.data:  # compute-time: the timing sweep's settings
+        timing = exp.config().timing.replace(device="cpu" if args.device == "auto" else args.device, **own)
+        return exp.config().replace(timing=timing)
     train = {"epochs": args.epochs, "seed": args.seed}
     describe = None
-    if args.experiment != "descriptors" and (args.descriptor or args.cnn_size):
+    if name != "descriptors" and (args.descriptor or args.cnn_size):
         size = check_size(args.cnn_size) if args.cnn_size else CNN_SIZE
         describe = describe_config(args.descriptor or _D.describe.method, size)
     bench = _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
-                       pca_dims=args.pca_dims, device=args.device, train=train, train_s1=train, describe=describe)
-    own = {}
-    for _, key, _, _ in OPTIONS[args.experiment]:
-        value = getattr(args, key)
-        own[key] = (tuple(parse_list(value)) or None) if key in LISTS else value
-    return EXPERIMENTS[args.experiment].config().replace(benchmark=bench, **own)
+                       pca_dims=args.pca_dims, device=args.device, train=train, train_s1=train, describe=describe,
+                       recall_denominator=args.recall_denominator)
+    return exp.config().replace(benchmark=bench, **own)
 
 
 def run(args: argparse.Namespace) -> int:
     conf = experiment_config(args)
-    path = EXPERIMENTS[args.experiment].run(conf, args.data, args.out, args.cache)
+    exp = EXPERIMENTS[args.experiment_name]
+    path = exp.run(conf, args.data, args.out, args.cache) if exp.data else exp.run(conf, None, args.out)
     out = Path(path).parent
     print((out / "results.md").read_text(encoding="utf-8"))
     print(f"results in {out} (results.json, results.md, report.html)")

@@ -1,19 +1,21 @@
-"""The paper's supplementary experiments on the Nordland64 benchmark, one module each, as stages
-``main(conf, data, out, cache=None) -> Path`` (``results.json``):
+"""The SeqNet paper's tables and figures on the Nordland64 benchmark, one module each, as stages
+``main(conf, data, out, cache=None) -> Path`` (``results.json``); each named also by its paper table
+(``table-1`` …, :data:`EXPERIMENTS` ``paper``):
 
-* ``reverse`` (:mod:`.reverse`): the reference in reverse order, vanilla vs reverse SeqMatch (the
-  paper's Table III, "Reverse Traverse");
-* ``longer-sequences`` (:mod:`.longer`): HVPR with S_L and L_m = 5, 10, 20 (supplementary "Longer
-  Sequences", S2);
-* ``descriptors`` (:mod:`.descriptors`): the whole pipeline on pixels, NetVLAD, GMP (supplementary
-  "Different Single Image Descriptor", S3);
+* ``comparison`` (:mod:`.comparison`, Table I): every method of the paper's comparison, R@1/5/20, and
+  the Recall@K curves (Fig. 3);
+* ``compute-time`` (:mod:`.compute_time`, Table II): per-query time on a map of the paper's size;
+* ``reverse`` (:mod:`.reverse`, Table III): the reference in reverse order, vanilla vs reverse SeqMatch;
+* ``splits`` (:mod:`.splits`, Table S1): the reference / query sizes of each split;
+* ``longer-sequences`` (:mod:`.longer`, Table S2): HVPR with S_L and L_m = 5, 10, 20;
+* ``descriptors`` (:mod:`.descriptors`, Table S3): the whole pipeline on pixels, NetVLAD, GMP;
 * ``tsne`` (:mod:`.tsne`): t-SNE of raw, smoothing, Delta, S_1, S_L descriptors of the test split
   (the supplementary t-SNE figure);
 * ``seeds`` (:mod:`.seeds`): the benchmark over several training seeds, mean ± std.
 
-Each writes ``results.json``, ``results.md``, its figure, ``report.html`` and ``config.json``;
-descriptors and models are cached as the benchmark caches them (:mod:`.common`). See
-docs/experiments.md.
+Each writes ``results.json``, ``results.md`` (with the paper's table beside ours,
+:mod:`seqnet.report.paper`), its figure, ``report.html`` and ``config.json``; descriptors and models are
+cached as the benchmark caches them (:mod:`.common`). See docs/experiments.md.
 """
 
 from __future__ import annotations
@@ -23,27 +25,51 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ...core.config import Config
-from . import descriptors, longer, reverse, seeds, tsne
+from . import comparison, compute_time, descriptors, longer, reverse, seeds, splits, tsne
 
 
 @dataclasses.dataclass(frozen=True)
 class Experiment:
-    """One entry of :data:`EXPERIMENTS`: its configuration class, stage and one-line summary."""
+    """One entry of :data:`EXPERIMENTS`: its configuration class, stage, one-line summary, the paper table
+    it reproduces (``I``, ``II``, ``III``, ``S1``–``S3``; None: not a table) and whether it reads the
+    nordland64 data (``compute-time`` times a synthetic map of the paper's size)."""
 
     config: type[Config]
     run: Callable[..., Path]
     summary: str
+    paper: str | None = None
+    data: bool = True
+
+    @property
+    def alias(self) -> str | None:
+        """The name of its paper table as a command (``table-1``, ``table-s2``, …)."""
+        if self.paper is None:
+            return None
+        roman = {"I": "1", "II": "2", "III": "3"}
+        return f"table-{roman.get(self.paper, self.paper.lower())}"
 
 
 EXPERIMENTS: dict[str, Experiment] = {
+    "comparison": Experiment(comparison.ComparisonConfig, comparison.main,
+                             "every method of the paper's comparison, R@1/5/20 and Recall@K curves (paper Table I)",
+                             "I"),
+    "compute-time": Experiment(compute_time.ComputeTimeConfig, compute_time.main,
+                               "per-query time at the paper's map size, 14k x 4096 (paper Table II)", "II",
+                               data=False),
     "reverse": Experiment(reverse.ReverseConfig, reverse.main,
-                          "reference in reverse order: vanilla vs reverse SeqMatch, S_L as trained (paper Table III)"),
+                          "reference in reverse order: vanilla vs reverse SeqMatch, S_L as trained (paper Table III)",
+                          "III"),
+    "splits": Experiment(splits.SplitsConfig, splits.main, "reference / query sizes of each split (paper Table S1)",
+                         "S1"),
     "longer-sequences": Experiment(longer.LongerConfig, longer.main,
-                                   "HVPR with S_L and longer re-ranking sequences L_m (5, 10, 20)"),
+                                   "HVPR with S_L and longer re-ranking sequences L_m (5, 10, 20; paper Table S2)",
+                                   "S2"),
     "descriptors": Experiment(descriptors.DescriptorsConfig, descriptors.main,
-                              "the whole pipeline on pixels, NetVLAD and GMP descriptors (paper table S3)"),
-    "tsne": Experiment(tsne.TsneConfig, tsne.main, "t-SNE of raw, smoothing, Delta, S_1 and S_L descriptors"),
+                              "the whole pipeline on pixels, NetVLAD and GMP descriptors (paper Table S3)", "S3"),
+    "tsne": Experiment(tsne.TsneConfig, tsne.main, "t-SNE of raw, smoothing, Delta, S_1 and S_L descriptors "
+                       "(the paper's t-SNE figure)"),
     "seeds": Experiment(seeds.SeedsConfig, seeds.main, "the benchmark over several training seeds, mean ± std"),
 }
+ALIASES: dict[str, str] = {e.alias: name for name, e in EXPERIMENTS.items() if e.alias}
 
-__all__ = ["EXPERIMENTS", "Experiment"]
+__all__ = ["ALIASES", "EXPERIMENTS", "Experiment"]

@@ -23,6 +23,7 @@ from ...describe.config import check_size
 from ...eval.evaluate import Evaluation
 from ...eval.methods import parse_method
 from ...report.html import write_html_report
+from ...report.paper import TABLE_S3, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from ..nordland64.run import report_config
@@ -106,7 +107,10 @@ def main(conf: DescriptorsConfig, data: str | Path, out: str | Path, cache: str 
                    "details": {k: summary(e) for k, e in evs.items()}, "timings_s": seconds, "provenance": provenance}
         md = (f"# Descriptors ({', '.join(conf.descriptors)}; CNN input {conf.cnn_size[0]}×{conf.cnn_size[1]})\n\n"
               "Recall@1; the whole pipeline (PCA, S_L and S_1 trained) per descriptor.\n\n"
-              + markdown_table(header, rows))
+              + markdown_table(header, rows) + "\nThe paper's table (test split):\n\n"
+              + side_by_side(TABLE_S3, conf.descriptors,
+                             recall_lookup([evs[f"test {d}"].results["methods"] for d in conf.descriptors]),
+                             conf.benchmark.recall_denominator))
         o = Outputs("descriptors", results, md, descriptors_figure(rows, list(evs), conf.descriptors),
                     [table_section("experiment", "Descriptors", {"Recall@1": (header, rows)}, "Per-descriptor "
                                    "reports: " + ", ".join(f"{d}/report.html" for d in conf.descriptors))],

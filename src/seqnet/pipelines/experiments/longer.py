@@ -17,6 +17,7 @@ import numpy as np
 from ...core.config import Config, check_ints
 from ...eval.evaluate import Evaluation
 from ...eval.methods import parse_method
+from ...report.paper import TABLE_S2, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from .common import (
@@ -69,7 +70,10 @@ def main(conf: LongerConfig, data: str | Path, out: str | Path, cache: str | Pat
                    "provenance": p.ds.reference.provenance}
         md = (f"# Longer sequences (S_L with L={conf.benchmark.seq_len}, re-ranking length L_m)\n\nRecall@1; "
               "queries per column: " + ", ".join(f"{k} {v}" for k, v in queries.items()) + ".\n\n"
-              + markdown_table(header, rows))
+              + markdown_table(header, rows) + "\nThe paper's table (test split):\n\n"
+              + side_by_side(TABLE_S2, tuple(f"L_m={lm}" for lm in conf.lengths),
+                             recall_lookup([evs[f"test L_m={lm}"].results["methods"] for lm in conf.lengths]),
+                             conf.benchmark.recall_denominator))
         last = conf.lengths[-1]
         o = Outputs("longer_sequences", results, md, longer_figure(rows, list(evs), conf.lengths),
                     [table_section("experiment", "Longer sequences", {"Recall@1": (header, rows)},

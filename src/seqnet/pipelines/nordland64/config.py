@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 
-from ...core.config import Config, check_bool, check_float, check_int, check_ints, check_range
+from ...core.config import Config, check_bool, check_choice, check_float, check_int, check_ints, check_range
 from ...core.errors import ConfigError
 from ...describe import DescribeConfig
-from ...eval.evaluate import EvalConfig
+from ...eval.evaluate import RECALL_DENOMINATORS, EvalConfig
 from ...eval.methods import parse_method
 from ...train import TrainConfig
 from .speed import check_speed
@@ -48,6 +48,7 @@ class Nordland64Config(Config):
         query_speed: ``(A, B)``: evaluate on the winter traverse of the val and test ranges re-sampled
             at A to B times the reference speed (:mod:`.speed`; training unchanged); None: as filmed.
         speed_seed: seed of the speed profile (the val and test ranges get their own streams).
+        recall_denominator: ``positives`` (queries with a correct reference) or ``all`` queries.
     """
 
     names_file: str = "nordland_clean_imageNames.txt"
@@ -73,6 +74,7 @@ class Nordland64Config(Config):
     device: str = "auto"
     query_speed: tuple[float, float] | None = None
     speed_seed: int = 0
+    recall_denominator: str = "positives"
 
     def __post_init__(self) -> None:
         for key in ("train_range", "val_range", "test_range"):
@@ -96,6 +98,8 @@ class Nordland64Config(Config):
         if self.query_speed is not None:
             self._set("query_speed", check_speed(self.query_speed))
         self._set("speed_seed", check_int("speed_seed", self.speed_seed, 0))
+        self._set("recall_denominator", check_choice("recall_denominator", self.recall_denominator,
+                                                     RECALL_DENOMINATORS))
 
     @property
     def eval_methods(self) -> tuple[str, ...]:
@@ -106,4 +110,5 @@ class Nordland64Config(Config):
     def eval_config(self) -> EvalConfig:
         """The evaluation settings of the val and test ranges."""
         return EvalConfig(methods=self.eval_methods, seq_len=self.seq_len, ks=self.ks, top_k=self.top_k,
-                          fuse_weight=self.fuse_weight, fuse_top_k=self.fuse_top_k, device=self.device)
+                          fuse_weight=self.fuse_weight, fuse_top_k=self.fuse_top_k, device=self.device,
+                          recall_denominator=self.recall_denominator)

@@ -1,0 +1,92 @@
+"""``seqnet experiment comparison`` (the paper's Table I, "Performance Comparison", and its Recall@K
+curves, Fig. 3): every method of the paper's table — single-image, sequential descriptors, sequence
+score aggregation, hierarchical — on the benchmark's val and test splits, R@1/5/20 beside the paper's
+Oxford-FD and Brisbane columns, and a Recall@K plot of the test split.
+
+The paper's three single-image rows (AP-GeM, DenseVLAD, NetVLAD) are one row here: the benchmark's
+raw descriptor (``single``; NetVLAD is the paper's input descriptor, as the raw descriptor is ours).
+Delta is the paper's (``delta-paper``), GISM / GRH are the ``graph`` / ``grh`` / ``grh-dh`` matchers
+(docs/matchers.md says how they differ from the published algorithms). ``extra_methods`` (default
+``hvpr-fused``) are seqnet's own rows, printed after the paper's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from ...core.config import Config
+from ...eval.evaluate import Evaluation
+from ...eval.methods import parse_method
+from ...report.paper import TABLE_I, PaperRow, PaperTable, methods_of, recall_lookup, side_by_side
+from ...report.tables import method_colours, new_figure
+from ..nordland64 import Nordland64Config
+from .common import Outputs, evaluate_splits, locked_dirs, prepare, summary, table_section, write_outputs
+
+
+@dataclasses.dataclass(frozen=True)
+class ComparisonConfig(Config):
+    """Settings of the comparison: the benchmark's (data, models, L) and seqnet's rows added to the paper's."""
+
+    benchmark: Nordland64Config = Nordland64Config()
+    extra_methods: tuple[str, ...] = ("hvpr-fused",)
+
+    def __post_init__(self) -> None:
+        self._set("extra_methods", tuple(parse_method(m).name for m in self.extra_methods))
+
+    def table(self) -> PaperTable:
+        """Table I with a row per extra method (no paper value)."""
+        extra = tuple(PaperRow(f"seqnet: {m}", ("-",) * len(TABLE_I.columns), m) for m in self.extra_methods
+                      if m not in methods_of(TABLE_I))
+        return dataclasses.replace(TABLE_I, rows=(*TABLE_I.rows, *extra))
+
+
+def main(conf: ComparisonConfig, data: str | Path, out: str | Path, cache: str | Path | None = None) -> Path:
+    """Run the comparison; writes ``results.json``, ``results.md``, ``comparison.png`` (Recall@K of the test
+    split), ``report.html`` (the test evaluation) and ``config.json`` to ``out``."""
+    out = Path(out)
+    cache = Path(cache) if cache else out
+    table = conf.table()
+    methods = methods_of(table)
+    with locked_dirs(out, cache):
+        p = prepare(conf.benchmark, data, cache)
+        evs = evaluate_splits(p, conf.benchmark.eval_config().replace(methods=methods))
+        values = [evs[s].results["methods"] for s in ("val", "test")]
+        denominator = conf.benchmark.recall_denominator
+        md = ("# Performance comparison (paper: Table I), Nordland64\n\n"
+              f"L = {conf.benchmark.seq_len}, radius {conf.benchmark.radius:g} frame, shortlist K = "
+              f"{conf.benchmark.top_k}; queries: val {_queries(evs['val'])}, test {_queries(evs['test'])}.\n\n"
+              + side_by_side(table, ("Nordland64 val", "Nordland64 test"), recall_lookup(values), denominator))
+        results = {"experiment": "comparison", "paper_table": table.key, "methods": list(methods),
+                   "recall_denominator": denominator, "details": {s: summary(e) for s, e in evs.items()},
+                   "timings_s": p.seconds, "provenance": p.ds.reference.provenance}
+        header = ["method", *(f"R@{k} test" for k in conf.benchmark.ks)]
+        rows = [[m, *(values[1][m][f"recall@{k}"] for k in conf.benchmark.ks)] for m in methods]
+        o = Outputs("comparison", results, md, recall_figure(evs["test"], methods, conf.benchmark.ks),
+                    [table_section("experiment", "Performance comparison (Table I)", {"Recall@K, test": (header, rows)},
+                                   "The paper's Table I methods on the Nordland64 test split.")],
+                    (evs["test"], p.ds.split("test")))
+        return write_outputs(o, conf, data, out, "Experiment: performance comparison (paper Table I), test")
+
+
+def _queries(ev: Evaluation) -> int:
+    return next(iter(ev.results["methods"].values()))["queries"]
+
+
+def recall_figure(ev: Evaluation, methods: tuple[str, ...], ks: tuple[int, ...]) -> object:
+    """Recall@K against K, one line per method (the paper's Fig. 3 for one dataset)."""
+    fig, ax = new_figure(8.5, 4.8)
+    res = ev.results["methods"]
+    for m, colour in zip(methods, method_colours(len(methods)), strict=True):
+        style = "-" if parse_method(m).kind == "hvpr" else "--" if parse_method(m).kind == "match" else ":"
+        ax.plot(ks, [res[m][f"recall@{k}"] for k in ks], style, marker="o", ms=3, color=colour, label=m)
+    ax.set_xscale("log")
+    ax.set_xticks(list(ks), [str(k) for k in ks])
+    ax.set_xlabel("K")
+    ax.set_ylabel("Recall@K (test)")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    ax.set_title("Recall@K, Nordland64 test (solid: hierarchical, dashed: score aggregation, dotted: descriptors)")
+    return fig
+
