@@ -174,6 +174,22 @@ def test_compute_time(tmp_path, monkeypatch):
     assert (out / "compute_time.png").stat().st_size > 1000 and (out / "report.html").is_file()
 
 
+def test_tables(tmp_path, cache, capsys):
+    data, out = shared_data("nordland64"), tmp_path / "tables"
+    rc = cli_main(["experiment", "tables", "--data", str(data), "--out", str(out), "--cache", str(cache), *TINY,
+                   "--tables", "S1,III"])
+    assert rc == 0
+    res = json.loads((out / "results.json").read_text())
+    assert list(res["tables"]) == ["S1", "III"] and res["tables"]["III"]["folder"] == "table-3"
+    md = (out / "results.md").read_text()
+    assert md.index("## S1: `seqnet experiment table-s1`") < md.index("## III: `seqnet experiment table-3`")
+    assert "**Table S1 — Data Splits" in md and "**Table III — Reverse Traverse" in md
+    assert (out / "table-3" / "results.md").read_text().split("\n", 1)[1] in md.replace("\n## ", "\n# ")
+    assert "results in" in capsys.readouterr().out
+    rc = cli_main(["experiment", "tables", "--data", str(data), "--out", str(out), "--tables", "IV"])
+    assert rc == 2 and "unknown paper table 'IV'" in capsys.readouterr().err
+
+
 def test_reverse_reference_is_an_involution():
     rng = np.random.default_rng(0)
     d = rng.standard_normal((10, 3)).astype(np.float32)
@@ -193,9 +209,9 @@ def test_reverse_reference_is_an_involution():
 
 def test_experiment_table_and_bad_options(tmp_path, capsys):
     assert list(EXPERIMENTS) == ["comparison", "compute-time", "reverse", "splits", "longer-sequences",
-                                 "descriptors", "tsne", "seeds"]
+                                 "descriptors", "tsne", "seeds", "tables"]
     assert [e.alias for e in EXPERIMENTS.values()] == ["table-1", "table-2", "table-3", "table-s1", "table-s2",
-                                                      "table-s3", None, None]
+                                                      "table-s3", None, None, None]
     with pytest.raises(ConfigError, match="descriptor"):
         EXPERIMENTS["descriptors"].config(descriptors=("sift",))
     rc = cli_main(["experiment", "descriptors", "--data", str(tmp_path), "--out", str(tmp_path / "o"),

@@ -34,6 +34,7 @@ OPTIONS: dict[str, list[tuple[str, str, Any, str]]] = {
     "comparison": [("--extra-methods", "extra_methods", str, "seqnet's rows after the paper's (default hvpr-fused)")],
     "compute-time": [("--queries", "queries", positive_int, "queries timed one at a time (default 30)")],
     "splits": [],
+    "tables": [("--tables", "tables", str, "paper tables and figures (default I,II,III,S1,S2,S3,tsne)")],
     "reverse": [("--methods", "methods", str, "methods compared (comma-separated)")],
     "longer-sequences": [("--lengths", "lengths", int_list, "re-ranking lengths L_m (default 5,10,20)"),
                          ("--methods", "methods", str, "methods compared (comma-separated)")],
@@ -43,7 +44,7 @@ OPTIONS: dict[str, list[tuple[str, str, Any, str]]] = {
              ("--perplexity", "perplexity", positive_float, "t-SNE perplexity (default 30)")],
     "seeds": [("--seeds", "seeds", seed_list, "training seeds (default 0,1,2)")],
 }
-LISTS = ("methods", "descriptors", "extra_methods")  # comma-separated names
+LISTS = ("methods", "descriptors", "extra_methods", "tables")  # comma-separated names
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -115,5 +116,6 @@ def run(args: argparse.Namespace) -> int:
     path = exp.run(conf, args.data, args.out, args.cache) if exp.data else exp.run(conf, None, args.out)
     out = Path(path).parent
     print((out / "results.md").read_text(encoding="utf-8"))
-    print(f"results in {out} (results.json, results.md, report.html)")
+    files = [f for f in ("results.json", "results.md", "report.html") if (out / f).is_file()]
+    print(f"results in {out} ({', '.join(files)})")
     return 0

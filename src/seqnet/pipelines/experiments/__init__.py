@@ -11,7 +11,8 @@
 * ``descriptors`` (:mod:`.descriptors`, Table S3): the whole pipeline on pixels, NetVLAD, GMP;
 * ``tsne`` (:mod:`.tsne`): t-SNE of raw, smoothing, Delta, S_1, S_L descriptors of the test split
   (the supplementary t-SNE figure);
-* ``seeds`` (:mod:`.seeds`): the benchmark over several training seeds, mean ± std.
+* ``seeds`` (:mod:`.seeds`): the benchmark over several training seeds, mean ± std;
+* ``tables`` (:mod:`.tables`): all of the paper's tables and the t-SNE figure in one run.
 
 Each writes ``results.json``, ``results.md`` (with the paper's table beside ours,
 :mod:`seqnet.report.paper`), its figure, ``report.html`` and ``config.json``; descriptors and models are
@@ -25,7 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ...core.config import Config
-from . import comparison, compute_time, descriptors, longer, reverse, seeds, splits, tsne
+from . import comparison, compute_time, descriptors, longer, reverse, seeds, splits, tables, tsne
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,6 +70,8 @@ EXPERIMENTS: dict[str, Experiment] = {
     "tsne": Experiment(tsne.TsneConfig, tsne.main, "t-SNE of raw, smoothing, Delta, S_1 and S_L descriptors "
                        "(the paper's t-SNE figure)"),
     "seeds": Experiment(seeds.SeedsConfig, seeds.main, "the benchmark over several training seeds, mean ± std"),
+    "tables": Experiment(tables.TablesConfig, tables.main, "every table of the paper and its t-SNE figure in one run "
+                         "(OUT/table-1 ..., one results.md)"),
 }
 ALIASES: dict[str, str] = {e.alias: name for name, e in EXPERIMENTS.items() if e.alias}
 
