@@ -38,6 +38,22 @@ def test_a_distance_matrix_ranks_as_the_descriptors_do(synth_dataset, window):
         assert a.results["methods"][m]["recall@1"] == b.results["methods"][m]["recall@1"]
 
 
+def test_whole_map_seqmatch_on_a_matrix_is_blocked(synth_dataset, monkeypatch):
+    """Whole-map SeqMatch reads blocks of matrix rows (memory bounded), never the [M, R, L] gather of every
+    window pair that the re-ranking of a shortlist uses; the rankings are those of the descriptors."""
+    import seqnet.matching.pairs as pairs
+
+    def refuse(*a, **k):
+        raise AssertionError("whole-map SeqMatch gathered every window pair")
+
+    monkeypatch.setattr(pairs, "scores_from_distances", refuse)
+    ds = synth_dataset.split("test")
+    conf = EvalConfig(methods=("raw+seqmatch", "raw+seqmatch-rev"), seq_len=4, ks=(1, 5))
+    a, b = evaluate_matrix(ds, distances(ds), conf), evaluate(ds, conf)
+    for m in conf.methods:
+        np.testing.assert_array_equal(a.retrieved[m], b.retrieved[m], err_msg=m)
+
+
 def test_methods_that_need_descriptors_are_refused(synth_dataset):
     ds = synth_dataset.split("test")
     for name in ("smoothing", "raw+grh", "hvpr-delta:raw+seqmatch", "hvpr-single:raw+graph", "s1+seqmatch"):

@@ -23,8 +23,7 @@ from ..data.traverse import Traverse
 from ..eval.methods import Method
 from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items
 from ..matching.registry import SEQUENCE_MATCHERS
-from ..matching.velocity import FrameDistances
-from ..search.blocks import topk_smallest
+from ..matching.velocity import FrameDistances, velocity_topk
 from ..sequence.windows import Windows
 
 torch = lazy_module("torch")
@@ -103,16 +102,17 @@ class MatrixReference:
 
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
               k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Whole-map matching over the matrix (SeqMatch: every item of every query window; the variable-speed
-        and graph matchers: their block functions on the matrix's rows), the k best kept."""
+        """Whole-map matching over the matrix: every matcher's block function on blocks of the matrix's rows
+        (memory bounded: no ``[M, R, L]`` gather), the k best kept."""
         if matcher not in DIAGONAL_MATCHERS:
             spec = SEQUENCE_MATCHERS[matcher]
             rows = _rows(query_frames)[q_starts].numpy()
             return spec.topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts,
                              device="cpu", **spec.options(self.windows.anchor))
-        every = np.tile(np.arange(len(self.items)), (len(q_starts), 1))
-        vals, idx = topk_smallest(self.rerank(frames, matcher, query_frames, q_starts, every), k)
-        return vals.numpy(), idx.numpy()
+        # SeqMatch is the one trajectory of slope 1 (reverse: -1): blocks of matrix rows, running top-k
+        rows = _rows(query_frames)[q_starts].numpy()
+        return velocity_topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts,
+                             velocities=(1.0,), reverse=DIAGONAL_MATCHERS[matcher], device="cpu")
 
     def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
         """``[Nr]``: the matrix row of one query frame (``frame [1]``: its row number)."""
