@@ -129,3 +129,17 @@ def test_localize_on_a_matrix_refuses_models_and_descriptor_methods(synth_dir, s
     assert cli([*base, "--model", str(tmp_path / "x.pt")]) == 2
     assert "no model applies" in capsys.readouterr().err
     assert cli(["localize", "--dataset", str(synth_dir), "--similarity", "--out", str(tmp_path / "m.csv")]) == 2
+
+
+def test_the_finite_check_streams_blocks_of_rows_and_names_the_entry(tmp_path):
+    from seqnet.core.errors import DatasetError
+    from seqnet.eval.matrix import check_finite_rows
+
+    m = np.zeros((50, 7))
+    m[37, 5] = np.inf
+    np.save(tmp_path / "m.npy", m)
+    mm = np.load(tmp_path / "m.npy", mmap_mode="r")
+    for block in (8, 7 * 8 * 3, 1 << 20):  # one row per block, 3 rows, all of it
+        with pytest.raises(DatasetError, match=r"entry \[37, 5\] is inf"):
+            check_finite_rows(mm, "m.npy", block_bytes=block)
+    check_finite_rows(np.load(tmp_path / "m.npy")[:37], "m.npy", block_bytes=8)

@@ -29,8 +29,11 @@ torch = lazy_module("torch")
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
 
 
-def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False) -> np.ndarray:
-    """The ``[Nq, Nr]`` matrix of ``path`` (``.npy``) for the whole dataset ``ds``, as distances (float64)."""
+def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: str | None = "all") -> np.ndarray:
+    """The ``[Nq, Nr]`` matrix of ``path`` (``.npy``, one row per query and one column per reference frame of
+    the whole dataset ``ds``), restricted to the rows and columns of ``split`` (a name, a range spec, or
+    ``all``: :meth:`Dataset.ranges`) and as distances (float64). The file is memory-mapped: only the split's
+    block is read and converted."""
     try:
         m = np.load(path, mmap_mode="r", allow_pickle=False)
     except (OSError, ValueError) as e:
@@ -39,17 +42,21 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False) -> np.n
     if m.ndim != 2 or m.shape != want:
         raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {want[0]} query and "
                           f"{want[1]} reference frames (one row per query frame, one column per reference frame)")
-    out = np.asarray(m, dtype=np.float64)
-    if not np.isfinite(out).all():
-        r, c = np.argwhere(~np.isfinite(out))[0]
-        raise DatasetError(f"--distances {path}: entry [{r}, {c}] is {out[r, c]} (every entry must be finite)")
-    return -out if similarity else out
-
-
-def split_matrix(dist: np.ndarray, ds: Dataset, split: str) -> np.ndarray:
-    """The rows and columns of ``split`` (a name, a range spec, or ``all``: :meth:`Dataset.ranges`)."""
+    check_finite_rows(m, path)
     rng = ds.ranges(split)
-    return dist[slice(*rng["query"])][:, slice(*rng["reference"])]
+    out = np.array(m[slice(*rng["query"]), slice(*rng["reference"])], dtype=np.float64)  # the split's block only
+    return np.negative(out, out=out) if similarity else out
+
+
+def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = 64 << 20) -> None:
+    """Every entry of the (memory-mapped) matrix ``m`` is finite, checked in blocks of rows (bounded memory)."""
+    step = max(1, block_bytes // max(1, m.shape[1] * m.itemsize))
+    for a in range(0, m.shape[0], step):
+        bad = ~np.isfinite(m[a : a + step])
+        if bad.any():
+            r, c = np.argwhere(bad)[0]
+            raise DatasetError(f"--distances {path}: entry [{r + a}, {c}] is {m[r + a, c]} (every entry must be "
+                               "finite)")
 
 
 def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = None) -> Evaluation:
@@ -89,7 +96,7 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         ds = load_dataset(dataset)
         split = default_split(conf.split, ds.splits)
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
-        dist = split_matrix(read_matrix(distances, ds, similarity), ds, split)
+        dist = read_matrix(distances, ds, similarity, split)
         defaults = conf.methods == EvalConfig().methods
         ev = evaluate_matrix(sub, dist, conf.replace(
             split=split, methods=DEFAULT_MATRIX_METHODS if defaults else conf.methods))

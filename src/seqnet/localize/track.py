@@ -242,9 +242,9 @@ def _localizer(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loa
     those): over the reference traverse, or over the rows of the matrix."""
     if distances is None:
         return dataset_localizer(ds, loaded, conf), None
-    from ..eval.matrix import read_matrix, split_matrix
+    from ..eval.matrix import read_matrix
 
-    return matrix_localizer(ds, split_matrix(read_matrix(distances, full, similarity), full, split), conf)
+    return matrix_localizer(ds, read_matrix(distances, full, similarity, split), conf)
 
 
 def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
