@@ -184,3 +184,17 @@ def test_the_names_that_lived_in_descriptors_still_import():
     assert descriptors.SeqNet is SeqNet and descriptors.delta_orig is descriptors.delta_paper
     with pytest.raises(AttributeError):
         descriptors.nosuch  # noqa: B018
+
+
+def test_ground_truth_pairs_and_of_equal_a_naive_loop():
+    from seqnet.data.positives import Positives
+
+    rng = np.random.default_rng(3)
+    q, r = rng.uniform(0, 10, (30, 2)), rng.uniform(0, 10, (40, 2))
+    t = GroundTruth(q, r, 1.5)
+    naive = [(i, j) for i in range(30) for j in range(40) if np.linalg.norm(q[i] - r[j]) <= 1.5]
+    assert list(zip(*(a.tolist() for a in t.pairs()), strict=True)) == naive
+    for i in range(30):
+        assert t.of(i).tolist() == [j for a, j in naive if a == i]
+    explicit = GroundTruth(q[:3], r[:4], 1.0, positives=Positives.from_lists([[2, 0], [], [3]]))
+    assert [x.tolist() for x in explicit.pairs()] == [[0, 0, 2], [0, 2, 3]] and explicit.of(1).tolist() == []

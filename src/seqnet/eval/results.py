@@ -101,17 +101,9 @@ def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
     out = {}
     for m, (q, row) in enumerate(zip(ev.query_names, ranked, strict=True)):
         parts = ["Query path:", q + "\n", "Predictions paths:", "\n".join(refs[j] for j in row if j >= 0) + "\n",
-                 "Positives paths:", "\n".join(refs[j] for j in _positives_of(ev.truth, m)) + "\n"]
+                 "Positives paths:", "\n".join(refs[j] for j in ev.truth.of(m)) + "\n"]
         out[f"{m:03d}.txt"] = "\n".join(parts)
     return out
-
-
-def _positives_of(truth: GroundTruth, m: int) -> np.ndarray:
-    """The correct reference items of query item ``m``, sorted."""
-    if truth.positives is not None:
-        return truth.positives.of(m)
-    d = np.linalg.norm(truth.r_pos - truth.q_pos[m], axis=1)
-    return np.flatnonzero(d <= truth.radius)
 
 
 def _write_folder(path: Path, files: dict[str, str]) -> Path:

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..core.errors import SeqnetError
 from ..data.traverse import Traverse
@@ -28,12 +27,7 @@ MAX_TRUTH_POINTS = 20000  # ground-truth pairs drawn on the distance matrix at m
 def truth_pairs(truth: GroundTruth, limit: int = MAX_TRUTH_POINTS) -> tuple[np.ndarray, np.ndarray]:
     """``(query items, reference items)`` of correct pairs (explicit positives, or within the radius),
     evenly subsampled to at most ``limit``."""
-    if truth.positives is not None:
-        q, r = truth.positives.pairs()
-    else:
-        lists = cKDTree(truth.r_pos).query_ball_point(truth.q_pos, r=truth.radius)
-        q = np.repeat(np.arange(len(lists)), [len(x) for x in lists])
-        r = np.fromiter((j for x in lists for j in x), dtype=np.int64, count=len(q))
+    q, r = truth.pairs()
     keep = np.unique(np.linspace(0, len(q) - 1, min(limit, len(q))).astype(np.int64)) if len(q) else q
     return np.asarray(q)[keep], np.asarray(r)[keep]
 

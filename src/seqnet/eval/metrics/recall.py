@@ -83,6 +83,21 @@ class GroundTruth:
             return self.positives.counts() > 0
         return has_positive(self.q_pos, self.r_pos, self.radius)
 
+    def of(self, m: int) -> np.ndarray:
+        """The correct reference items of query item ``m``, sorted."""
+        if self.positives is not None:
+            return self.positives.of(m)
+        return np.flatnonzero(np.linalg.norm(self.r_pos - self.q_pos[m], axis=1) <= self.radius)
+
+    def pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(query items, reference items)`` of every correct pair (explicit positives, or within the radius:
+        a KD-tree), by query item."""
+        if self.positives is not None:
+            return self.positives.pairs()
+        lists = cKDTree(self.r_pos).query_ball_point(self.q_pos, r=self.radius)
+        q = np.repeat(np.arange(len(lists)), [len(x) for x in lists])
+        return q, np.fromiter((j for x in lists for j in sorted(x)), dtype=np.int64, count=len(q))
+
     def hits(self, retrieved: np.ndarray) -> np.ndarray:
         """``[M, K]`` bool: whether ``retrieved[m, k]`` (a reference item, -1 = none) is correct."""
         if self.positives is not None:
