@@ -91,3 +91,23 @@ def test_one_fit_for_both_traverses(route, tmp_path):
     ds = load_dataset(tmp_path / "pca")
     assert ds.reference.dim == ds.query.dim == 8
     assert ds.reference.provenance == ds.query.provenance and ds.reference.provenance["fit_images"]
+
+
+@pytest.mark.parametrize(("zones", "error"), [(("32V", "32V"), None), (("32V", "?"), None),
+                                              (("32V", "33V"), "UTM zone 32V, query positions in 33V"),
+                                              (("32V", None), "are in 32V but query positions in metres"),
+                                              ((None, None), None)])
+def test_both_sides_positions_are_in_one_frame(monkeypatch, zones, error):
+    """Metres compare only in one UTM zone: the zones of the two sides are checked as every other reader checks
+    them (``data.gps.check_zones``: an unknown zone is let through), a zone on one side only is refused."""
+    from seqnet.core.errors import SeqnetError
+    from seqnet.pipelines import from_images
+
+    sides = iter(zones)
+    monkeypatch.setitem(from_images.POSITION_SOURCES, "csv", lambda *a: (np.zeros((2, 2)), None, "metres", next(sides)))
+    conf = from_images.FromImagesConfig(ground_truth="csv")
+    if error is None:
+        from_images._both_positions(conf, (None, None), ("r", "q"), (None, None))
+    else:
+        with pytest.raises(SeqnetError, match=error):
+            from_images._both_positions(conf, (None, None), ("r", "q"), (None, None))

@@ -34,7 +34,7 @@ from ..core.ownership import check_replaceable, locked
 from ..core.utils import logger
 from ..data.bags import DEFAULT_TOLERANCE, is_bag, match_positions, read_positions
 from ..data.convert import assemble_dataset, match_names, read_positions_csv, utm_positions
-from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, log_positions
+from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
 from ..data.io import save_dataset
 from ..data.positives import read_positives
 from ..data.traverse import Traverse
@@ -148,9 +148,11 @@ def _both_positions(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
     """The positions of the reference and the query, in one unit and frame (else :class:`ConfigError`)."""
     ref, qry = (POSITION_SOURCES[conf.ground_truth](conf, im, src, g, side)
                 for im, src, g, side in zip(images, sources, given, ("reference", "query"), strict=True))
-    if ref[2] != qry[2] or ref[3] != qry[3]:
+    if ref[2] != qry[2] or (ref[3] is None) != (qry[3] is None):
         raise ConfigError(f"reference positions are in {ref[3] or ref[2]} but query positions in {qry[3] or qry[2]}"
                           " (hint: two traverses compare only in one frame)")
+    if ref[3] is not None:
+        check_zones(ref[3], qry[3])  # one UTM zone (an unknown zone, '?', is let through)
     return ref, qry
 
 
