@@ -14,7 +14,7 @@ image gets the position of the nearest position message in time (:func:`match_po
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Container, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -69,9 +69,11 @@ def open_bag(path: str | Path) -> Any:
     return reader
 
 
-def topic_list(reader: Any) -> str:
-    """``/a (sensor_msgs/msg/Image, 12 messages), ...``: the topics of an open bag, for error messages."""
-    return ", ".join(f"{name} ({info.msgtype}, {info.msgcount} messages)" for name, info in reader.topics.items())
+def topic_list(reader: Any, types: Container[str] | None = None) -> str:
+    """``/a (sensor_msgs/msg/Image, 12 messages), ...``: the topics of an open bag (those carrying one of
+    ``types``, when given), for error messages."""
+    return ", ".join(f"{name} ({info.msgtype}, {info.msgcount} messages)" for name, info in reader.topics.items()
+                     if types is None or info.msgtype in types)
 
 
 def connections(reader: Any, topic: str, types: Mapping[str, Any], what: str, path: str | Path) -> list:

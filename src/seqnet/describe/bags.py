@@ -148,9 +148,7 @@ def image_topics(path: str | Path) -> str:
     """The image topics of a bag, for a hint: ``/cam (sensor_msgs/msg/Image, 30 messages), ...`` or ``none``."""
     reader = bags.open_bag(path)
     try:
-        found = [f"{n} ({i.msgtype}, {i.msgcount} messages)" for n, i in reader.topics.items()
-                 if i.msgtype in IMAGE_TYPES]
-        return ", ".join(found) or f"none (its topics: {bags.topic_list(reader) or 'none'})"
+        return bags.topic_list(reader, IMAGE_TYPES) or f"none (its topics: {bags.topic_list(reader) or 'none'})"
     finally:
         reader.close()
 
