@@ -225,8 +225,7 @@ def _read_tutorial_npz(p: Path) -> Positives:
         return out
     if soft.shape != hard.shape:
         raise DatasetError(f"{p}: GTsoft has shape {soft.shape} but GThard {hard.shape} (both [N_db, N_q])")
-    soft_pos = _numeric_matrix(soft.T, p)
-    if soft_pos.n_refs is None:
+    if not (soft.dtype == bool or np.isin(soft, (0, 1)).all()):
         raise DatasetError(f"{p}: GTsoft must be a 0/1 [N_db, N_q] matrix like GThard")
     both = _numeric_matrix(soft.T.astype(bool) | hard.T.astype(bool), p)
     return dataclasses.replace(out, soft=both)

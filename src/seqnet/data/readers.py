@@ -89,8 +89,8 @@ def _read_h5(p: Path) -> tuple[np.ndarray, list[str] | None]:
 
     try:
         with h5py.File(p, "r") as h:
-            if "descriptors" not in h and _hloc_names(h):
-                return _read_hloc(h, p)
+            if "descriptors" not in h and (hloc := _hloc_names(h)):
+                return _read_hloc(h, p, hloc)
             desc = np.asarray(h[_h5_descriptor_key(h, p)][()])
             names = _h5_names(h, p) if "names" in h else None
     except (OSError, TypeError, ValueError, KeyError) as e:
@@ -112,9 +112,9 @@ def _hloc_names(h) -> list[str]:  # noqa: ANN001 - h5py.File
     return sorted(found)
 
 
-def _read_hloc(h, p: Path) -> tuple[np.ndarray, list[str]]:  # noqa: ANN001 - h5py.File
-    """hloc's ``global-feats-*.h5``: ``[N, D]`` descriptors in sorted image-name order, and the names."""
-    names = _hloc_names(h)
+def _read_hloc(h, p: Path, names: list[str]) -> tuple[np.ndarray, list[str]]:  # noqa: ANN001 - h5py.File
+    """hloc's ``global-feats-*.h5``: ``[N, D]`` descriptors of its groups ``names`` (:func:`_hloc_names`, sorted
+    image-name order), and the names."""
     rows = [np.asarray(h[n][HLOC_KEY][()]).ravel() for n in names]
     dims = {len(r) for r in rows}
     if len(dims) != 1:
