@@ -25,7 +25,7 @@ import dataclasses
 
 import numpy as np
 
-from ..core.config import check_float, check_int
+from ..core.config import Config, check_float, check_int
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, get_device, to_numpy
@@ -36,7 +36,7 @@ torch = lazy_module("torch")
 
 
 @dataclasses.dataclass(frozen=True)
-class HashSettings:
+class HashSettings(Config):
     """How :func:`train_hash` trains (see the module docstring); the defaults are ``grh-dh``'s."""
 
     steps: int = 100
@@ -50,9 +50,9 @@ class HashSettings:
 
     def __post_init__(self) -> None:
         for key in ("steps", "batch", "pos_frames", "neg_frames", "seed"):
-            check_int(key, getattr(self, key), 1 if key in ("steps", "batch", "pos_frames") else 0)
+            self._set(key, check_int(key, getattr(self, key), 1 if key in ("steps", "batch", "pos_frames") else 0))
         for key in ("lr", "margin", "quant"):
-            check_float(key, getattr(self, key), 0.0)
+            self._set(key, check_float(key, getattr(self, key), 0.0))
 
 
 class HashNet:
