@@ -182,9 +182,10 @@ def test_tables(tmp_path, cache, capsys):
     res = json.loads((out / "results.json").read_text())
     assert list(res["tables"]) == ["S1", "III"] and res["tables"]["III"]["folder"] == "table-3"
     md = (out / "results.md").read_text()
-    assert md.index("## S1: `seqnet experiment table-s1`") < md.index("## III: `seqnet experiment table-3`")
+    assert md.index("## S1: Data splits (paper: Table S1), Nordland64 (`seqnet experiment table-s1`, table-s1/)") < \
+        md.index("## III: Reverse traverse")
     assert "**Table S1 — Data Splits" in md and "**Table III — Reverse Traverse" in md
-    assert (out / "table-3" / "results.md").read_text().split("\n", 1)[1] in md.replace("\n## ", "\n# ")
+    assert (out / "table-3" / "results.md").read_text().split("\n", 1)[1].lstrip("\n") in md.replace("\n## ", "\n# ")
     assert "results in" in capsys.readouterr().out
     rc = cli_main(["experiment", "tables", "--data", str(data), "--out", str(out), "--tables", "IV"])
     assert rc == 2 and "unknown paper table 'IV'" in capsys.readouterr().err

@@ -67,7 +67,9 @@ def main(conf: TablesConfig, data: str | Path, out: str | Path, cache: str | Pat
         name, sub = _run_one(key, conf, data, out, cache)
         index[key] = {"experiment": name, "folder": sub.name, "seconds": round(time.perf_counter() - t0, 1)}
         body = (sub / "results.md").read_text(encoding="utf-8").replace("\n# ", "\n## ")
-        parts.append(f"\n## {key}: `seqnet experiment {sub.name}` ({sub.name}/)\n\n" + body.split("\n", 1)[1])
+        title, rest = body.split("\n", 1)  # its own title becomes the section's
+        parts.append(f"\n## {key}: {title.lstrip('# ')} (`seqnet experiment {sub.name}`, {sub.name}/)\n\n"
+                     + rest.lstrip("\n"))
     write_text_atomic(out / "results.md", "".join(parts))
     results: dict[str, Any] = {"experiment": "tables", "tables": index}
     write_json_atomic(out / "config.json", {"experiment": "tables", **conf.to_dict(), "data": str(data),
