@@ -105,6 +105,8 @@ class LocalizeConfig(Config):
             reference.precision = precision_dtype(self.precision)
             for model in loc.models.values():
                 model.to(precision_dtype(self.precision))
+        for model in loc.models.values():  # one window per frame: S_L as w products of contiguous blocks
+            model.pack_taps()
         return loc
 
 
