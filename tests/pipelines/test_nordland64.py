@@ -136,5 +136,7 @@ def test_learning_flags_reach_the_training_settings():
     assert (c.train_s1.loss, c.train_s1.margin, c.train_s1.match_len) == ("seqmatch", 1.5, 6)
     assert c.train.speed_augment == (0.5, 2.0) and c.train_s1.speed_augment is None and c.train.seq_len == 6
     assert conf("--speed-augment", "1:1").train.speed_augment is None  # 1:1 turns it off
+    old = conf("--fuse-weight", "0.5", "--fuse-top-k", "100").eval_config()
+    assert (old.fuse_weight, old.fuse_top_k, conf().fuse_weight, conf().fuse_top_k) == (0.5, 100, 0.25, 200)
     assert conf().train == Nordland64Config().train and conf().train_s1 == Nordland64Config().train_s1
     assert train_key(c) != train_key(Nordland64Config())  # other settings, other cached models

@@ -56,6 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"PCA size before training (0: none; default {_D.pca_dims})")
     n.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     n.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
+    n.add_argument("--fuse-weight", type=non_negative_float,
+                   help=f"λ of hvpr-fused's score matcher/L_m + λ·d(S_L) (default {_D.fuse_weight:g})")
+    n.add_argument("--fuse-top-k", type=positive_int, help=f"hvpr-fused's shortlist size (default {_D.fuse_top_k})")
     n.add_argument("--s1-loss", choices=list(LOSSES), help=f"loss of S_1 (default {_D.train_s1.loss}; seqmatch: "
                    "SeqMatchNet-style, on SeqMatch scores of L-frame windows)")
     n.add_argument("--s1-margin", type=positive_float, help=f"margin of S_1's loss (default {_D.train_s1.margin:g})")
@@ -148,7 +151,8 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
     conf = _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
                       describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
                       pca_dims=args.pca_dims, train=train,
-                      train_s1=s1, query_speed=args.query_speed)
+                      train_s1=s1, query_speed=args.query_speed, fuse_weight=args.fuse_weight,
+                      fuse_top_k=args.fuse_top_k)
     if conf.train.speed_augment == (1.0, 1.0):  # 1:1 is no augmentation
         conf = conf.replace(train=dataclasses.replace(conf.train, speed_augment=None))
     return conf
