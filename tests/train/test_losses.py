@@ -183,3 +183,9 @@ def test_seqmatch_loss_gradcheck_float64():
                                                                 n_wins))
     assert loss_of(*inputs).item() > 0  # some hinges are active: the check covers the loss, not a zero
     assert torch.autograd.gradcheck(loss_of, inputs, eps=1e-6, atol=1e-6)
+
+
+def test_framewise_describe_of_an_empty_share():
+    """A rank with no query of a distributed batch describes zero windows: [0, L, D'], not an error."""
+    out = LOSSES["seqmatch"].describe(SeqNet(5, 4, 1, 1), torch.zeros(0, 3, 5))
+    assert out.shape == (0, 3, 4)

@@ -139,7 +139,8 @@ def describe_windows_whole(model: Model, windows: torch.Tensor) -> torch.Tensor:
 def describe_windows_framewise(model: Model, windows: torch.Tensor) -> torch.Tensor:
     """The seqmatch loss's descriptors: S_1 of every frame, ``[B, L, D]`` → ``[B, L, D']``."""
     b, n, d = windows.shape
-    return model(windows.reshape(b * n, 1, d)).reshape(b, n, -1)
+    y = model(windows.reshape(b * n, 1, d))
+    return y.reshape(b, n, y.shape[-1])  # (an empty share of a distributed batch stays [0, L, D'])
 
 
 def cross_distance(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
