@@ -45,8 +45,9 @@ from torch import nn
 from seqnet.data.synth import make_synthetic
 from seqnet.train import Run, TrainConfig
 from seqnet.train.epoch import train_epoch, train_step
-from seqnet.train.mining import mine_queries, triplet_source
+from seqnet.train.mining import mine_queries
 from seqnet.train.run import open_run
+from seqnet.train.source import triplet_source
 
 TARGET = 10.0
 

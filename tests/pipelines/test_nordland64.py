@@ -16,6 +16,7 @@ from seqnet.core.errors import ConfigError, DatasetError
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.describe.pca import fit_pca
 from seqnet.pipelines.nordland64 import Nordland64Config, describe_flipped, fold_pca, list_places, training_dataset
+from seqnet.pipelines.nordland64.models import train_key
 from seqnet.sequence.model import SeqNet
 
 
@@ -121,3 +122,21 @@ def test_bad_range_is_reported(tmp_path, capsys):
     rc = cli_main(["benchmark", "nordland64", "--data", str(data), "--out", str(tmp_path / "b"),
                    "--test-range", "2000:9000"])
     assert rc == 2 and "--test-range 2000:9000 is outside 0:2761" in capsys.readouterr().err
+
+
+def test_learning_flags_reach_the_training_settings():
+    from seqnet.cli import build_parser
+    from seqnet.cli.benchmark_cmd import nordland64_config
+
+    def conf(*flags):
+        argv = ["benchmark", "nordland64", "--data", "D", "--out", "O", *flags]
+        return nordland64_config(build_parser(argv).parse_args(argv))
+
+    c = conf("--s1-loss", "seqmatch", "--s1-margin", "1.5", "--speed-augment", "0.5:2", "--seq-len", "6", "--w", "3")
+    assert (c.train_s1.loss, c.train_s1.margin, c.train_s1.match_len) == ("seqmatch", 1.5, 6)
+    assert c.train.speed_augment == (0.5, 2.0) and c.train_s1.speed_augment is None and c.train.seq_len == 6
+    assert conf("--speed-augment", "1:1").train.speed_augment is None  # 1:1 turns it off
+    old = conf("--fuse-weight", "0.5", "--fuse-top-k", "100").eval_config()
+    assert (old.fuse_weight, old.fuse_top_k, conf().fuse_weight, conf().fuse_top_k) == (0.5, 100, 0.25, 200)
+    assert conf().train == Nordland64Config().train and conf().train_s1 == Nordland64Config().train_s1
+    assert train_key(c) != train_key(Nordland64Config())  # other settings, other cached models

@@ -9,7 +9,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seqnet.core.errors import ConfigError
-from seqnet.sequence.windows import check_seq_len, gather_windows, window_indices, window_offset, window_starts
+from seqnet.sequence.windows import (
+    check_seq_len,
+    check_speed_range,
+    gather_windows,
+    speed_windows,
+    window_indices,
+    window_offset,
+    window_starts,
+)
 
 
 def bounds_from_cuts(n: int, cuts) -> np.ndarray:
@@ -138,3 +146,50 @@ def test_window_properties(n, L, mode, cuts):
     # the number of valid windows per sequence is max(0, length - L + 1)
     seqs = {tuple(b) for b in np.stack([lo, hi], 1).tolist()}
     assert valid.sum() == sum(max(0, e - s - L + 1) for s, e in seqs)
+
+
+def naive_speed_window(i, L, mode, v, lo, hi):
+    """The specification, literally: offsets round(t·v) (half up) from the start i − round(a·v); the usual
+    window when that leaves the sequence [lo, hi)."""
+    a = L // 2 if mode == "centred" else L - 1
+
+    def half_up(x):
+        return int(np.floor(x + 0.5))
+
+    frames = [i - half_up(a * v) + half_up(t * v) for t in range(L)]
+    if min(frames) < lo or max(frames) >= hi:
+        frames = [i - a + t for t in range(L)]
+    return frames
+
+
+@pytest.mark.parametrize("mode", ["centred", "causal"])
+@pytest.mark.parametrize("L", [1, 2, 5, 6])
+def test_speed_windows_against_the_specification(mode, L, rng):
+    n = 60
+    bounds = bounds_from_cuts(n, [25])
+    _, valid = window_starts(n, L, mode, bounds)
+    items = np.flatnonzero(valid)
+    speeds = np.exp(rng.uniform(np.log(0.5), np.log(2.0), len(items)))
+    speeds[:4] = [0.5, 1.0, 1.5, 2.0]  # exact halves: round half up
+    got = speed_windows(items, L, mode, speeds, bounds[items])
+    expected = [naive_speed_window(i, L, mode, v, *bounds[i]) for i, v in zip(items, speeds, strict=True)]
+    np.testing.assert_array_equal(got, np.array(expected).reshape(len(items), L))
+    usual = window_indices(n, L, mode, bounds)[items]
+    np.testing.assert_array_equal(speed_windows(items, L, mode, np.ones(len(items)), bounds[items]), usual)
+    anchor = window_offset(L, mode)
+    np.testing.assert_array_equal(got[:, anchor], items)  # the window's own frame stays in its place
+    if L > 2:
+        assert (got != usual).any()  # the speeds change windows (the test can fail)
+        assert (np.diff(got, axis=1) == 0).any() and (np.diff(got, axis=1) >= 2).any()  # slower and faster
+
+
+def test_speed_windows_example():
+    # centred L = 5 at frame 10: v = 2 -> 6, 8, 10, 12, 14; v = 0.5 -> round half up of 0, .5, 1, 1.5, 2
+    got = speed_windows(np.array([10, 10, 2]), 5, "centred", np.array([2.0, 0.5, 2.0]), np.array([[0, 30]] * 3))
+    np.testing.assert_array_equal(got, [[6, 8, 10, 12, 14], [9, 10, 10, 11, 11], [0, 1, 2, 3, 4]])
+
+
+@pytest.mark.parametrize("bad", [(0, 1), (2, 1), "0.5:2", (1,), (1, float("nan"))])
+def test_bad_speed_range(bad):
+    with pytest.raises(ConfigError, match="speed"):
+        check_speed_range("speed", bad)

@@ -31,7 +31,8 @@ from seqnet.sequence.model import SeqNet
 from seqnet.train import TrainConfig, train
 from seqnet.train.distributed import World, env_world
 from seqnet.train.losses import triplet_loss
-from seqnet.train.mining import compute_cache, mine_queries, triplet_source
+from seqnet.train.mining import compute_cache, mine_queries
+from seqnet.train.source import triplet_source
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 ATOL = 1e-5

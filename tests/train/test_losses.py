@@ -8,7 +8,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from seqnet.core.errors import ConfigError
-from seqnet.train.losses import batch_triplet_loss, triplet_loss
+from seqnet.matching.seqmatch import seqmatch
+from seqnet.sequence.model import SeqNet
+from seqnet.train.losses import LOSSES, PAIRWISE_EPS, batch_triplet_loss, triplet_loss
 
 
 def _loop_loss(q, p, n, valid, margin):
@@ -96,3 +98,94 @@ def test_bad_inputs_raise_config_error(bad):
         args["margin"] = 0.0
     with pytest.raises(ConfigError):
         batch_triplet_loss(**args)
+
+
+# --- the seqmatch loss (SeqMatchNet-style): margin loss on SeqMatch scores of S_1 windows ---
+
+
+def _naive_seqmatch_loss(model, q_win, p_win, n_wins, margin):
+    """A literal loop: S_1 of every frame, SeqMatch score Σ_t ‖S1(q_t) − S1(r_t)‖, hinge per negative, mean."""
+    def s1(x):
+        y = model.conv.weight[:, :, 0] @ x + model.conv.bias
+        return y / torch.sqrt((y * y).sum())
+
+    def score(a, b):
+        total = 0.0
+        for t in range(a.shape[0]):
+            diff = s1(a[t]) - s1(b[t]) + PAIRWISE_EPS
+            total = total + torch.sqrt((diff * diff).sum())
+        return total
+
+    hinges = []
+    for i in range(q_win.shape[0]):
+        for n in n_wins[i]:
+            hinges.append(torch.clamp(score(q_win[i], p_win[i]) - score(q_win[i], n) + margin, min=0.0))
+    return sum(hinges) / len(hinges)
+
+
+def _windows(seed=0, b=3, k=2, length=4, d=5, dtype=torch.float32):
+    g = torch.Generator().manual_seed(seed)
+    return (torch.randn(b, length, d, generator=g, dtype=dtype), torch.randn(b, length, d, generator=g, dtype=dtype),
+            torch.randn(b, k, length, d, generator=g, dtype=dtype))
+
+
+def _seqmatch_loss(model, q_win, p_win, n_wins, margin):
+    loss = LOSSES["seqmatch"]
+    b, k = n_wins.shape[:2]
+    emb = loss.describe(model, torch.cat([q_win, p_win, n_wins.reshape(b * k, *n_wins.shape[2:])]))
+    anchor = torch.arange(b).repeat_interleave(k)
+    return triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], anchor, margin, distance=loss.pair)
+
+
+@pytest.mark.parametrize("margin", [0.5, 3.0])
+def test_seqmatch_loss_equals_a_naive_loop(margin):
+    torch.manual_seed(0)
+    model = SeqNet(5, 4, 1, 1).double()
+    q_win, p_win, n_wins = _windows(dtype=torch.float64)
+    out = _seqmatch_loss(model, q_win, p_win, n_wins, margin)
+    ref = _naive_seqmatch_loss(model, q_win, p_win, n_wins, margin)
+    torch.testing.assert_close(out.loss, ref, rtol=1e-7, atol=1e-7)
+    assert 0 < out.loss.item() and out.triplets == 6
+    grads = torch.autograd.grad(out.loss, list(model.parameters()))
+    ref_grads = torch.autograd.grad(ref, list(model.parameters()))
+    for a, b in zip(grads, ref_grads, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-9)
+    # the score is SeqMatch's (matching.seqmatch on the S_1 outputs of the two windows)
+    with torch.no_grad():
+        qd, pd = model(q_win[0][:, None]), model(p_win[0][:, None])
+    expected = float(seqmatch(qd.numpy(), pd.numpy(), q_win.shape[1])[0, 0])
+    assert LOSSES["seqmatch"].pair(qd[None], pd[None]).item() == pytest.approx(expected, abs=1e-4)
+
+
+def test_seqmatch_mining_scores_equal_pairwise_scores():
+    g = torch.Generator().manual_seed(1)
+    q, r = torch.randn(4, 3, 6, generator=g), torch.randn(7, 3, 6, generator=g)
+    cross = LOSSES["seqmatch"].cross(q, r)
+    naive = torch.tensor([[sum(float((q[i, t] - r[j, t]).norm()) for t in range(3)) for j in range(7)]
+                          for i in range(4)])
+    torch.testing.assert_close(cross, naive, rtol=1e-4, atol=1e-4)
+
+
+def test_seqmatch_loss_gradcheck_float64():
+    """The gradient of the whole loss (S_1 of every frame, L2 norm, SeqMatch scores, hinges) with respect to
+    S_1's weights and the input windows, checked against finite differences in float64."""
+    q_win, p_win, n_wins = _windows(seed=2, b=2, k=2, length=3, d=4, dtype=torch.float64)
+    model = SeqNet(4, 3, 1, 1).double()
+    b, k = n_wins.shape[:2]
+
+    def loss_of(weight, bias, q, p, n):
+        def s1(x):
+            return torch.func.functional_call(model, {"conv.weight": weight, "conv.bias": bias}, (x,))
+
+        return _seqmatch_loss(s1, q, p, n, 2.0).loss
+
+    inputs = tuple(t.detach().clone().requires_grad_() for t in (model.conv.weight, model.conv.bias, q_win, p_win,
+                                                                n_wins))
+    assert loss_of(*inputs).item() > 0  # some hinges are active: the check covers the loss, not a zero
+    assert torch.autograd.gradcheck(loss_of, inputs, eps=1e-6, atol=1e-6)
+
+
+def test_framewise_describe_of_an_empty_share():
+    """A rank with no query of a distributed batch describes zero windows: [0, L, D'], not an error."""
+    out = LOSSES["seqmatch"].describe(SeqNet(5, 4, 1, 1), torch.zeros(0, 3, 5))
+    assert out.shape == (0, 3, 4)

@@ -14,9 +14,8 @@ from seqnet.train.mining import (
     hardest_negatives,
     mine_batch,
     sample_negatives,
-    split_windows,
-    triplet_source,
 )
+from seqnet.train.source import split_windows, triplet_source
 from seqnet.train.truth import pair_masks, positive_keys, queries_with_pairs, radius_masks
 
 POS_R, NEG_R = 5.0, 20.0

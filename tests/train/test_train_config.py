@@ -14,7 +14,8 @@ from seqnet.train.config import OPTIMIZERS, MiningConfig, TrainConfig
 PAPER = {"seq_len": 5, "w": 3, "out_dims": None, "window": "centred", "margin": 0.3, "optimizer": "sgd", "lr": 1e-4,
          "momentum": 0.9, "weight_decay": 1e-3, "lr_step": 50, "lr_gamma": 0.5, "batch_size": 16, "epochs": 200,
          "patience": None, "n_negatives": 10, "n_neg_sample": 1000, "cache_refresh": 1000, "pos_radius": None,
-         "neg_radius": None, "seed": 0, "device": "auto", "train_split": "train", "val_split": "val"}
+         "neg_radius": None, "seed": 0, "device": "auto", "train_split": "train", "val_split": "val", "loss": "triplet",
+         "match_len": 5, "speed_augment": None}
 
 
 def test_defaults_are_the_papers():
@@ -41,7 +42,8 @@ BAD = [("lr", 0), ("lr", -1e-3), ("margin", 0.0), ("lr_gamma", 0), ("momentum", 
        ("cache_refresh", -1), ("patience", 0), ("out_dims", 0), ("seq_len", 0), ("w", 0), ("w", 6),
        ("optimizer", "rmsprop"), ("window", "middle"), ("pos_radius", 0.0), ("neg_radius", -1.0),
        ("device", "tpu"), ("batch_size", 1.5), ("batch_size", True), ("lr", "fast"), ("lr", float("nan")),
-       ("train_split", ""), ("epochs", "10")]
+       ("train_split", ""), ("epochs", "10"), ("loss", "contrastive"), ("match_len", 0), ("speed_augment", [2, 1]),
+       ("speed_augment", [0, 1]), ("speed_augment", "fast"), ("speed_augment", [1, float("inf")])]
 
 
 @pytest.mark.parametrize(("key", "value"), BAD, ids=[f"{k}={v!r}" for k, v in BAD])
@@ -99,3 +101,16 @@ def test_optimizers_table():
     assert sgd.defaults["momentum"] == 0.9 and sgd.defaults["weight_decay"] == 1e-3 and sgd.defaults["lr"] == 1e-4
     adam = OPTIMIZERS["adam"](params, TrainConfig(optimizer="adam", lr=1e-3, weight_decay=0.0))
     assert isinstance(adam, torch.optim.Adam) and adam.defaults["lr"] == 1e-3
+
+
+def test_loss_table_settings():
+    conf = TrainConfig(seq_len=1, w=1, loss="seqmatch", match_len=4, speed_augment=[0.5, 2])
+    assert conf.window_len == 4 and conf.speed_augment == (0.5, 2.0)
+    assert TrainConfig.from_dict(json.loads(json.dumps(conf.to_dict()))) == conf
+    assert TrainConfig(seq_len=5, w=3, match_len=4).window_len == 5  # the triplet loss: S_L's own window
+    with pytest.raises(ConfigError, match=r"the seqmatch loss trains S_1 \(seq_len = w = 1\), got seq_len=5, w=3 "
+                                          r"\(hint: --seq-len 1 --w 1 --loss seqmatch") as info:
+        TrainConfig(loss="seqmatch")
+    assert "\n" not in str(info.value)
+    with pytest.raises(ConfigError, match="unknown loss 'seqmatchnet'; valid: triplet, seqmatch"):
+        TrainConfig(seq_len=1, w=1, loss="seqmatchnet")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from ..describe import DESCRIBERS, DescribeConfig
@@ -14,8 +15,18 @@ from ..pipelines.timing import BIG_SIZES, TimingConfig
 from ..report.tables import format_table
 from ..search.ann import ANN_INDEXES
 from ..sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS
+from ..train.losses import LOSSES
 from . import COMMANDS
-from .common import add_device, index_range, int_list, non_negative_float, non_negative_int, parse_list, positive_int
+from .common import (
+    add_device,
+    index_range,
+    int_list,
+    non_negative_float,
+    non_negative_int,
+    parse_list,
+    positive_float,
+    positive_int,
+)
 
 _D, _T = Nordland64Config(), TimingConfig()
 
@@ -45,6 +56,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"PCA size before training (0: none; default {_D.pca_dims})")
     n.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     n.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
+    n.add_argument("--fuse-weight", type=non_negative_float,
+                   help=f"λ of hvpr-fused's score matcher/L_m + λ·d(S_L) (default {_D.fuse_weight:g})")
+    n.add_argument("--fuse-top-k", type=positive_int, help=f"hvpr-fused's shortlist size (default {_D.fuse_top_k})")
+    n.add_argument("--s1-loss", choices=list(LOSSES), help=f"loss of S_1 (default {_D.train_s1.loss}; seqmatch: "
+                   "SeqMatchNet-style, on SeqMatch scores of L-frame windows)")
+    n.add_argument("--s1-margin", type=positive_float, help=f"margin of S_1's loss (default {_D.train_s1.margin:g})")
+    n.add_argument("--speed-augment", type=speed_range, metavar="VMIN:VMAX", help="train S_L on query windows "
+                   "re-sampled at random speeds in VMIN:VMAX (default "
+                   + (":".join(f"{v:g}" for v in _D.train.speed_augment) if _D.train.speed_augment else "off")
+                   + "; 1:1 turns it off)")
     n.add_argument("--query-speed", type=speed_range, metavar="A:B",
                    help="re-sample the winter (query) traverse of the val and test ranges at A to B times the "
                         "reference speed (e.g. 0.5:2; frames dropped or repeated, positions kept; seeded) and also "
@@ -120,15 +141,23 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
     """The benchmark settings from the command-line flags (unset flags keep the defaults)."""
     train = {"seq_len": args.seq_len, "epochs": args.epochs, "seed": args.seed,
              "w": args.w or (min(_D.train.w, args.seq_len) if args.seq_len else None)}
+    if args.speed_augment is not None:
+        train["speed_augment"] = args.speed_augment
+    s1 = {"epochs": args.epochs, "seed": args.seed, "loss": args.s1_loss, "margin": args.s1_margin,
+          "match_len": args.seq_len}
     describe = None
     if args.descriptor and args.descriptor != _D.describe.method:
         describe = DescribeConfig(method=args.descriptor)
     elif args.patch is not None:
         describe = _D.describe.replace(patch=args.patch)
-    return _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
+    conf = _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
                       describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
                       pca_dims=args.pca_dims, train=train,
-                      train_s1={"epochs": args.epochs, "seed": args.seed}, query_speed=args.query_speed)
+                      train_s1=s1, query_speed=args.query_speed, fuse_weight=args.fuse_weight,
+                      fuse_top_k=args.fuse_top_k)
+    if conf.train.speed_augment == (1.0, 1.0):  # 1:1 is no augmentation
+        conf = conf.replace(train=dataclasses.replace(conf.train, speed_augment=None))
+    return conf
 
 
 def speed_range(text: str) -> tuple[float, float]:

@@ -7,16 +7,20 @@ import dataclasses
 import math
 from pathlib import Path
 
+from ..core.errors import ConfigError
 from ..sequence.checkpoints import read_checkpoint
-from ..sequence.windows import WINDOW_MODES
+from ..sequence.windows import WINDOW_MODES, check_speed_range
 from ..train.config import OPTIMIZERS, TrainConfig
 from ..train.distributed import env_world
+from ..train.joint import is_joint, main_joint, s1_config
 from ..train.loop import main
+from ..train.losses import LOSSES
 from ..train.run import resume_config
 from . import COMMANDS
 from .common import add_allow_mismatch, add_device, non_negative_float, non_negative_int, positive_float, positive_int
 
 _D = TrainConfig()
+JOINT_S1_LOSS = "triplet"  # the S_1 loss of --joint
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -62,22 +66,73 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--train-split", help=f"split to train on (default {_D.train_split}; 'all': the whole dataset)")
     t.add_argument("--val-split", help=f"split to validate on (default {_D.val_split}; 'none': no validation, "
                    "best.pt = last)")
+    add_learning(p)
     add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
 
 
+def add_learning(p: argparse.ArgumentParser) -> None:
+    """The loss, speed augmentation and joint-training flags."""
+    t = p.add_argument_group("loss and augmentation")
+    t.add_argument("--loss", choices=list(LOSSES), help="loss: " + "; ".join(f"{k}: {v.help}" for k, v in
+                   LOSSES.items()) + f" (default {_D.loss})")
+    t.add_argument("--match-len", type=positive_int, help=f"L_m, the SeqMatch window of --loss seqmatch (default "
+                   f"{_D.match_len})")
+    t.add_argument("--speed-augment", type=speed_pair, metavar="VMIN:VMAX", help="re-sample every training query "
+                   "window at a random speed in VMIN:VMAX each epoch (frame offsets round(t*v); e.g. 0.5:2; "
+                   "default: off)")
+    j = p.add_argument_group("joint training (S_L and S_1 for HVPR in one run folder: RUN/seqnet, RUN/s1)")
+    j.add_argument("--joint", action="store_true", help="train S_L with the settings given and S_1 beside it "
+                   "(seq_len = w = 1, --s1-loss, --s1-lr, --s1-margin)")
+    j.add_argument("--s1-loss", choices=list(LOSSES), default=JOINT_S1_LOSS,
+                   help=f"loss of the S_1 model of --joint (default {JOINT_S1_LOSS})")
+    j.add_argument("--s1-lr", type=positive_float, help="learning rate of the S_1 model of --joint (default --lr)")
+    j.add_argument("--s1-margin", type=positive_float, help="margin of the S_1 model of --joint (default --margin)")
+
+
+
 _KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig) if f.name != "device")  # one flag each
+
+
+def speed_pair(text: str) -> tuple[float, float]:
+    """argparse type: ``VMIN:VMAX`` with ``0 < VMIN <= VMAX``."""
+    try:
+        return check_speed_range("--speed-augment", [float(x) for x in text.split(":")])
+    except (ValueError, ConfigError) as e:
+        raise argparse.ArgumentTypeError(f"expected VMIN:VMAX with 0 < VMIN <= VMAX (e.g. 0.5:2), got {text!r}") from e
 
 
 def run(args: argparse.Namespace) -> int:
     changes = {k: getattr(args, k) for k in _KEYS}
     if args.device != "auto" or not args.resume:
         changes["device"] = args.device
+    if args.joint or (args.resume and is_joint(args.resume)):
+        return _run_joint(args, changes)
     conf = resume_config(args.resume, **changes) if args.resume else TrainConfig().replace(**changes)
     run_dir = main(conf, args.dataset, args.out, args.resume, allow_mismatch=args.allow_mismatch)
     if env_world().is_rank0:  # under torchrun, rank 0 alone wrote the run and reports it
         _print_summary(run_dir)
+    return 0
+
+
+def _run_joint(args: argparse.Namespace, changes: dict) -> int:
+    """``--joint``: S_L and S_1 into RUN/seqnet and RUN/s1 (or resume such a run)."""
+    if args.resume:
+        dirs = main_joint(None, None, args.dataset, args.out, args.resume, args.allow_mismatch,
+                          {k: changes.get(k) for k in ("epochs", "patience", "device")})
+    else:
+        if args.loss not in (None, "triplet"):
+            raise ConfigError(f"--loss {args.loss} with --joint: the S_L model trains with the triplet loss "
+                              "(hint: --s1-loss for the S_1 model)")
+        conf = TrainConfig().replace(**changes)
+        s1 = s1_config(conf, args.s1_loss, args.s1_lr, args.s1_margin)
+        dirs = main_joint(conf, s1, args.dataset, args.out, None, args.allow_mismatch)
+    if env_world().is_rank0:
+        for run_dir in dirs.values():
+            _print_summary(run_dir)
+        print(f"HVPR: seqnet eval --dataset DIR --method hvpr --shortlist-model {dirs['seqnet'] / 'best.pt'} "
+              f"--rerank-model {dirs['s1'] / 'best.pt'}")
     return 0
 
 

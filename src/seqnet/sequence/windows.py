@@ -17,6 +17,7 @@ import functools
 
 import numpy as np
 
+from ..core.config import check_float
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 
@@ -99,6 +100,34 @@ def _one_sequence(n: int, seq_len: int, mode: str) -> np.ndarray:
 def window_frames(starts: np.ndarray, seq_len: int) -> np.ndarray:
     """Frame indices ``[M, L]`` of the windows that start at ``starts [M]``: ``starts[m] + t``."""
     return np.asarray(starts, dtype=np.int64)[:, None] + np.arange(seq_len, dtype=np.int64)[None, :]
+
+
+def check_speed_range(name: str, speed: object) -> tuple[float, float]:
+    """``(v_min, v_max)`` with ``0 < v_min <= v_max`` (finite); lists are read as pairs."""
+    if isinstance(speed, (str, bytes)) or not hasattr(speed, "__len__") or len(speed) != 2:
+        raise ConfigError(f"{name} must be two numbers VMIN:VMAX with 0 < VMIN <= VMAX (e.g. 0.5:2), got {speed!r}")
+    lo, hi = (check_float(name, v, 0.0, strict=True) for v in speed)
+    if lo > hi:
+        raise ConfigError(f"{name} VMIN:VMAX needs VMIN <= VMAX, got {lo:g}:{hi:g} (hint: e.g. 0.5:2)")
+    return lo, hi
+
+
+def speed_windows(items: np.ndarray, seq_len: int, mode: str, speeds: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Frames ``[M, L]`` of the windows of frames ``items [M]`` re-sampled at ``speeds [M]`` (frames per step).
+
+    With ``a = window_offset(L, mode)``: ``start = i − round(a·v)`` and frame ``t`` of the window is
+    ``start + round(t·v)`` (round half up), so step ``a`` is frame ``i`` itself and ``v = 1`` gives the
+    usual window. A re-sampled window that would leave its sequence (``bounds [M, 2]``, half-open) is
+    the usual one.
+    """
+    items, v = np.asarray(items, dtype=np.int64), np.asarray(speeds, dtype=np.float64)
+    a, t = window_offset(seq_len, mode), np.arange(seq_len, dtype=np.float64)
+    frames = (items - np.floor(a * v + 0.5).astype(np.int64))[:, None] + np.floor(t[None, :] * v[:, None] + 0.5)
+    frames = frames.astype(np.int64)
+    b = np.asarray(bounds, dtype=np.int64)
+    fits = (frames.min(axis=1) >= b[:, 0]) & (frames.max(axis=1) < b[:, 1])
+    usual = window_frames(items - a, seq_len)
+    return np.where(fits[:, None], frames, usual)
 
 
 def gather_windows(desc: torch.Tensor, idx: np.ndarray | torch.Tensor) -> torch.Tensor:

@@ -16,7 +16,8 @@ from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..core.utils import check_device
 from ..data.traverse import Dataset
-from ..sequence.windows import WINDOW_MODES
+from ..sequence.windows import WINDOW_MODES, check_speed_range
+from .losses import LOSSES
 
 torch = lazy_module("torch")
 
@@ -90,6 +91,11 @@ class TrainConfig(Config):
         patience: stop after this many epochs without a better val R@1 (None: never).
         n_negatives, n_neg_sample, cache_refresh, pos_radius, neg_radius: see :class:`MiningConfig`
             (radii None: the dataset's, see :meth:`resolve`).
+        loss: a key of :data:`~seqnet.train.losses.LOSSES`: ``triplet`` (the paper's) or ``seqmatch``
+            (SeqMatchNet-style, S_1 only: the margin loss on SeqMatch scores of ``match_len``-frame windows).
+        match_len: L_m, the window of the ``seqmatch`` loss (and of its validation, ``s1+seqmatch``).
+        speed_augment: ``(v_min, v_max)``: every epoch each training query window is re-sampled at a
+            speed drawn log-uniformly in that range (:func:`seqnet.sequence.windows.speed_windows`); None: off.
         seed: seeds the model initialisation and the training generator.
         device: torch device (auto: CUDA when present).
         train_split, val_split: dataset splits to train / validate on (``"all"``: the whole dataset;
@@ -119,6 +125,9 @@ class TrainConfig(Config):
     device: str = "auto"
     train_split: str = "train"
     val_split: str = "val"
+    loss: str = "triplet"
+    match_len: int = 5
+    speed_augment: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         self._set("seq_len", check_int("seq_len", self.seq_len, 1))
@@ -138,6 +147,7 @@ class TrainConfig(Config):
         optimizer = self.optimizer.lower() if isinstance(self.optimizer, str) else self.optimizer
         self._set("optimizer", check_choice("optimizer", optimizer, OPTIMIZERS))
         check_choice("window", self.window, WINDOW_MODES)
+        self._check_loss()
         if not isinstance(self.device, str):
             raise ConfigError(f"device must be a device name (auto, cpu, cuda, cuda:N), got {self.device!r}")
         check_device(self.device)  # validates the device name
@@ -146,6 +156,21 @@ class TrainConfig(Config):
             if not isinstance(value, str) or not value:
                 raise ConfigError(f"{key} must be a split name, got {value!r}")
             self._set(key, value)
+
+    def _check_loss(self) -> None:
+        self._set("loss", check_choice("loss", self.loss, LOSSES))
+        self._set("match_len", check_int("match_len", self.match_len, 1))
+        if self.loss == "seqmatch" and (self.seq_len, self.w) != (1, 1):
+            raise ConfigError(f"the seqmatch loss trains S_1 (seq_len = w = 1), got seq_len={self.seq_len}, "
+                              f"w={self.w} (hint: --seq-len 1 --w 1 --loss seqmatch --match-len L_m, or "
+                              "--loss triplet for S_L)")
+        if self.speed_augment is not None:
+            self._set("speed_augment", check_speed_range("speed_augment", self.speed_augment))
+
+    @property
+    def window_len(self) -> int:
+        """The frames of a training window: ``match_len`` for the ``seqmatch`` loss, else ``seq_len``."""
+        return self.match_len if LOSSES[self.loss].framewise else self.seq_len
 
     def _check_radii(self) -> None:
         for key in ("pos_radius", "neg_radius"):
@@ -196,5 +221,5 @@ def train_bytes(conf: TrainConfig, in_dims: int, n_items: int) -> int:
     weights = in_dims * out * conf.w + out
     copies = 4 if conf.optimizer == "adam" else 3  # weights, gradients, Adam's two moments / SGD's momentum
     cache = 2 * n_items * out  # every window's descriptor while mining, and its copy
-    batch = 3 * conf.batch_size * (2 + conf.n_negatives) * conf.seq_len * max(in_dims, out) * conf.w
+    batch = 3 * conf.batch_size * (2 + conf.n_negatives) * conf.window_len * max(in_dims, out) * conf.w
     return 4 * (copies * weights + cache + batch)

@@ -18,9 +18,10 @@ import math
 from ..core.lazy import lazy_module
 from ..core.progress import progress
 from ..sequence.windows import gather_windows
-from .losses import triplet_loss
-from .mining import Mined, TripletSource, compute_cache, mine_queries
+from .losses import LOSSES, triplet_loss
+from .mining import Mined, compute_cache, mine_queries
 from .run import Run
+from .source import TripletSource, speed_source
 
 torch = lazy_module("torch")
 
@@ -43,8 +44,10 @@ def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined,
         return stats
     ref = torch.cat([mined.positive[keep], mined.negatives[keep][valid]])
     windows = torch.cat([gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])])
-    emb = (run.model if run.net is None else run.net)(windows)  # [B + B + T, D']: queries, positives, negatives
-    out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.conf.margin, total)
+    loss = LOSSES[run.conf.loss]
+    emb = loss.describe(run.model if run.net is None else run.net, windows)  # [B + B + T, ...]: q, p, n
+    out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.conf.margin, total,
+                       loss.pair)
     run.optimizer.zero_grad(set_to_none=True)
     out.loss.backward()  # distributed: DDP sums the gradients of the shares
     run.optimizer.step()
@@ -59,9 +62,11 @@ def mine_share(run: Run, src: TripletSource, rows: torch.Tensor, own: torch.Tens
     describes its :meth:`~seqnet.train.distributed.World.part` of the reference windows (all-gathered)."""
     world, mine = run.world, rows[own]
     refs = world.part(len(src.r_idx))
-    q_feat, r_part = compute_cache(run.model, src, mine, refs)
+    loss = LOSSES[run.conf.loss]
+    q_feat, r_part = compute_cache(run.model, src, mine, refs, loss.framewise)
     r_feat = world.gather_rows(r_part, len(src.r_idx))
-    mined = mine_queries(src, rows, q_feat, r_feat, run.conf.mining, run.generator, run.neg_cache, own=own)
+    mined = mine_queries(src, rows, q_feat, r_feat, run.conf.mining, run.generator, run.neg_cache, own=own,
+                         distance=loss.cross)
     counts = mined.valid.sum(dim=1, keepdim=True).cpu()
     merged = world.merge_rows(own.cpu(), torch.cat([counts, run.neg_cache[mine.cpu()]], dim=1))
     run.neg_cache[rows.cpu()] = merged[:, 1:]
@@ -76,7 +81,8 @@ def train_epoch(run: Run, src: TripletSource, epoch: int) -> dict[str, float]:
     Distributed: every process draws the same order; each batch of ``batch_size`` queries is split
     across the processes (:meth:`~seqnet.train.distributed.World.shares`), each mining and computing
     the loss of its share; the statistics are summed over the processes."""
-    n, bs, world = src.n_queries, run.conf.batch_size, run.world
+    n, bs, world, conf = src.n_queries, run.conf.batch_size, run.world, run.conf
+    src = speed_source(src, conf.window_len, conf.window, conf.speed_augment, run.generator)
     order = torch.randperm(n, generator=run.generator).to(src.q_idx.device)
     chunk = run.conf.mining.cache_refresh or n
     totals = dict.fromkeys(STAT_KEYS, 0.0)

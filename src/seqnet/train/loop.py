@@ -34,7 +34,7 @@ from ..eval.checks import accepted_mismatch
 from .config import TrainConfig, train_bytes
 from .distributed import World, joined
 from .epoch import train_epoch
-from .mining import TripletSource, split_windows, triplet_source
+from .losses import LOSSES
 from .run import (
     Run,
     check_run_dir,
@@ -46,6 +46,7 @@ from .run import (
     run_dataset_path,
     stored_dataset_path,
 )
+from .source import TripletSource, split_windows, triplet_source
 
 torch = lazy_module("torch")
 
@@ -57,17 +58,20 @@ VAL_KS = (1, 5, 10, 20)
 
 def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig,
              device: torch.device | None = None) -> dict[str, float]:
-    """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1)
-    on ``device`` (default ``conf.device``); ``{}`` without a val split. Leaves the model in training mode."""
+    """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1; the
+    loss's ``val_method`` over its windows, e.g. ``s1+seqmatch`` for the seqmatch loss) on ``device``
+    (default ``conf.device``); ``{}`` without a val split. Leaves the model in training mode."""
     from ..eval.evaluate import EvalConfig, evaluate
 
     if val_ds is None:
         return {}
     role, dev = model.role, conf.device if device is None else str(device)
-    ev_conf = EvalConfig(methods=(role,), seq_len=model.seq_len, window=conf.window, ks=VAL_KS, device=dev)
+    method = LOSSES[conf.loss].val_method or role
+    seq_len = conf.window_len if LOSSES[conf.loss].val_method else model.seq_len
+    ev_conf = EvalConfig(methods=(method,), seq_len=seq_len, window=conf.window, ks=VAL_KS, device=dev)
     ev = evaluate(val_ds, ev_conf, {role: model})
     model.train()
-    return {k: float(v) for k, v in ev.results["methods"][role].items() if k.startswith("recall@")}
+    return {k: float(v) for k, v in ev.results["methods"][method].items() if k.startswith("recall@")}
 
 
 def _split(ds: Dataset, name: str, what: str) -> Dataset:
@@ -82,11 +86,12 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
     """The training windows on ``device`` and the val split (None: no validation), both checked
     (windows fit, some query has a positive and a negative): everything that can fail on the data
     fails here, before a run directory is created."""
-    src = triplet_source(_split(dataset, conf.train_split, "train"), conf.seq_len, conf.window, conf.mining, device)
+    src = triplet_source(_split(dataset, conf.train_split, "train"), conf.window_len, conf.window, conf.mining,
+                         device)
     if not conf.validates:
         return src, None
     val_ds = _split(dataset, conf.val_split, "val")
-    split_windows(val_ds, conf.seq_len, conf.window, conf.mining, "val")
+    split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val")
     return src, val_ds
 
 

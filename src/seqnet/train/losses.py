@@ -1,17 +1,25 @@
-"""Triplet margin loss over a whole batch of (query, positive, negatives) at once.
+"""Triplet margin loss over a whole batch of (query, positive, negatives) at once, and the table of losses.
 
 SeqNet (like NetVLAD) trains with ``max(0, d(q, p) - d(q, n) + margin)`` on Euclidean distances of
 L2-normalised descriptors, averaged over the triplets of a batch. The original code looped over
 the triplets in Python; here all ``B × K`` triplets are one broadcast expression, and queries with
 fewer than K mined negatives are handled by a validity mask (or by listing the T valid triplets).
+
+:data:`LOSSES` names what ``d`` is (``seqnet train --loss``): ``triplet`` — the distance of the two
+windows' descriptors (the paper's); ``seqmatch`` — SeqMatchNet-style (Garg, Vankadari & Milford,
+CoRL 2021), the SeqMatch score of two L_m-frame windows of S_1 descriptors,
+``s(q, r) = Σ_t ‖S_1(q_t) − S_1(r_t)‖`` (S_1 outputs L2-normalised), so that S_1 is trained for what
+SeqMatch does with it; the positive and the hard negatives are mined by that score too.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
+from ..search.knn import pairwise_distances
 
 torch = lazy_module("torch")
 F = lazy_module("torch.nn.functional")
@@ -36,35 +44,48 @@ class TripletLoss:
     per_triplet: torch.Tensor
 
 
+def pair_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Euclidean distance of matching rows: ``[T, D]`` × ``[T, D]`` → ``[T]``."""
+    return F.pairwise_distance(a, b, eps=PAIRWISE_EPS)
+
+
+def seqmatch_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """SeqMatch score of matching windows: ``[T, L, D]`` × ``[T, L, D]`` → ``[T]``, ``Σ_t ‖a_t − b_t‖``."""
+    return F.pairwise_distance(a, b, eps=PAIRWISE_EPS).sum(dim=-1)
+
+
 def triplet_loss(
     query: torch.Tensor, positive: torch.Tensor, negatives: torch.Tensor, anchor: torch.Tensor, margin: float,
-    total: int | None = None,
+    total: int | None = None, distance: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] = pair_distance,
 ) -> TripletLoss:
     """Triplet margin loss of T triplets given as (query ``anchor[t]``, its positive, negative ``t``).
 
     Args:
-        query: ``[B, D]`` query descriptors; positive: ``[B, D]`` one positive per query.
-        negatives: ``[T, D]`` the negatives of all triplets.
+        query: ``[B, D]`` query descriptors; positive: ``[B, D]`` one positive per query (or ``[B, L, D]``:
+            windows of frame descriptors, with ``distance`` :func:`seqmatch_distance`).
+        negatives: ``[T, D]`` (or ``[T, L, D]``) the negatives of all triplets.
         anchor: ``[T]`` long, the query (row of ``query``) of each negative.
         margin: hinge margin m > 0 on Euclidean distances.
         total: the number of triplets the mean is over (default T; distributed training: those of the
             whole batch, so that the losses of its shares sum to the batch's mean).
+        distance: ``d(a, b)`` of matching rows (default Euclidean; :func:`seqmatch_distance` for windows).
 
     Returns:
-        :class:`TripletLoss` with ``per_triplet`` of shape ``[T]``; ``loss = Σ_t max(0, ‖q−p‖ − ‖q−n_t‖ + m) / T``.
+        :class:`TripletLoss` with ``per_triplet`` of shape ``[T]``; ``loss = Σ_t max(0, d(q, p) − d(q, n_t) + m) / T``.
     """
-    if query.ndim != 2 or positive.shape != query.shape:
-        raise ConfigError(f"query and positive must both be [B, D], got {tuple(query.shape)} and "
+    if query.ndim < 2 or positive.shape != query.shape:
+        raise ConfigError(f"query and positive must both be [B, D] (or [B, L, D]), got {tuple(query.shape)} and "
                           f"{tuple(positive.shape)}")
-    if negatives.ndim != 2 or negatives.shape[1] != query.shape[1] or anchor.shape != negatives.shape[:1]:
-        raise ConfigError(f"negatives must be [T, D={query.shape[1]}] with anchor [T], got {tuple(negatives.shape)} "
+    if negatives.shape[1:] != query.shape[1:] or anchor.shape != negatives.shape[:1]:
+        dims = ", ".join(map(str, query.shape[1:]))
+        raise ConfigError(f"negatives must be [T, {dims}] with anchor [T], got {tuple(negatives.shape)} "
                           f"and {tuple(anchor.shape)}")
     if not margin > 0:
         raise ConfigError(f"margin must be > 0, got {margin}")
     if total is not None and total < max(int(anchor.numel()), 1):
         raise ConfigError(f"total must be >= the {anchor.numel()} triplets given (and >= 1), got {total}")
-    d_pos = F.pairwise_distance(query, positive, eps=PAIRWISE_EPS)  # [B]
-    d_neg = F.pairwise_distance(query[anchor], negatives, eps=PAIRWISE_EPS)  # [T]
+    d_pos = distance(query, positive)  # [B]
+    d_neg = distance(query[anchor], negatives)  # [T]
     hinge = F.relu(d_pos[anchor] - d_neg + margin)
     n = int(anchor.numel())
     return TripletLoss(hinge.sum() / (max(n, 1) if total is None else total), n, int((hinge > 0).sum()),
@@ -105,3 +126,62 @@ def batch_triplet_loss(
     per[valid] = out.per_triplet
     out.per_triplet = per
     return out
+
+
+Model = Callable[["torch.Tensor"], "torch.Tensor"]
+
+
+def describe_windows_whole(model: Model, windows: torch.Tensor) -> torch.Tensor:
+    """The triplet loss's descriptors: one per window, ``[B, L, D]`` → ``[B, D']``."""
+    return model(windows)
+
+
+def describe_windows_framewise(model: Model, windows: torch.Tensor) -> torch.Tensor:
+    """The seqmatch loss's descriptors: S_1 of every frame, ``[B, L, D]`` → ``[B, L, D']``."""
+    b, n, d = windows.shape
+    y = model(windows.reshape(b * n, 1, d))
+    return y.reshape(b, n, y.shape[-1])  # (an empty share of a distributed batch stays [0, L, D'])
+
+
+def cross_distance(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """Distances of every pair: ``[S, D]`` × ``[R, D]`` → ``[S, R]``."""
+    return pairwise_distances(q, r)
+
+
+def cross_seqmatch(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """SeqMatch scores of every pair of windows: ``[S, L, D]`` × ``[R, L, D]`` → ``[S, R]``."""
+    out = pairwise_distances(q[:, 0], r[:, 0])
+    for t in range(1, q.shape[1]):
+        out += pairwise_distances(q[:, t], r[:, t])
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class WindowLoss:
+    """One entry of :data:`LOSSES`: how training windows are described and scored.
+
+    Attributes:
+        describe: ``(model, windows [B, L, D])`` → what is scored (``[B, D']`` or ``[B, L, D']``).
+        pair: score of matching rows of two described batches → ``[T]`` (the loss's ``d``).
+        cross: scores of every pair of two described batches → ``[S, R]`` (mining).
+        framewise: whether ``describe`` keeps one descriptor per frame (the mining cache describes frames).
+        help: one line for ``seqnet train --help``.
+        val_method: the method the val split ranks with (at the training window's length; "": the
+            model's own role, ``seqnet`` or ``s1``).
+    """
+
+    describe: Callable[[Model, torch.Tensor], torch.Tensor]
+    pair: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+    cross: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+    framewise: bool
+    help: str
+    val_method: str = ""
+
+
+LOSSES: dict[str, WindowLoss] = {
+    "triplet": WindowLoss(describe_windows_whole, pair_distance, cross_distance, False,
+                          "margin loss on the L2 distance of the windows' descriptors (the paper's; S_L or S_1)"),
+    "seqmatch": WindowLoss(describe_windows_framewise, seqmatch_distance, cross_seqmatch, True,
+                           "SeqMatchNet-style: margin loss on the SeqMatch score of --match-len-frame windows of "
+                           "S_1 descriptors (S_1 only)", "s1+seqmatch"),
+}

@@ -19,16 +19,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..core.errors import DatasetError
 from ..core.lazy import lazy_module
-from ..core.utils import as_tensor
-from ..data.positives import Positives
-from ..data.traverse import Dataset, Traverse
 from ..search.knn import pairwise_distances
 from ..sequence.descriptors import describe_windows
-from ..sequence.windows import window_starts
 from .config import MiningConfig
-from .truth import nonnegative_keys, pair_masks, positive_keys, queries_with_pairs
+from .source import TripletSource
+from .truth import pair_masks
 
 torch = lazy_module("torch")
 
@@ -120,20 +116,22 @@ def mine_batch(
     generator: torch.Generator,
     neg_cache: torch.Tensor | None = None,
     drawn: torch.Tensor | None = None,
+    distance: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] = pairwise_distances,
 ) -> Mined:
     """Mine one positive and up to ``n_neg`` hard negatives per query.
 
     Args:
-        q_feat: ``[B, D']`` cached descriptors of the batch queries.
-        r_feat: ``[R, D']`` cached descriptors of all training reference windows.
+        q_feat: ``[B, D']`` cached descriptors of the batch queries (``[B, L, D']`` for a framewise loss).
+        r_feat: ``[R, D']`` cached descriptors of all training reference windows (``[R, L, D']``).
         pos_mask, neg_mask: ``[B, R]`` from :func:`radius_masks`.
         n_neg: negatives per query K; n_sample: random negatives drawn per query.
         margin: triplet margin (a negative is kept only if ``d_neg < d_pos + margin``).
         generator: CPU generator for the sampling.
         neg_cache: optional ``[B, C]`` previous hard negatives per query (-1 = none), added to the sample.
         drawn: see :func:`sample_negatives` (the block these B queries are a share of).
+        distance: ``[B, ...]`` × ``[R, ...]`` → ``[B, R]`` scores (the loss's ``cross``; default Euclidean).
     """
-    dist = pairwise_distances(q_feat, r_feat)
+    dist = distance(q_feat, r_feat)
     pos, d_pos = closest_positive(dist, pos_mask)
     cand = sample_negatives(neg_mask, n_sample, generator, drawn)
     if neg_cache is not None and neg_cache.numel():
@@ -147,107 +145,27 @@ def mine_batch(
     return Mined(pos, d_pos, neg, valid, d_neg)
 
 
-@dataclasses.dataclass
-class SplitWindows:
-    """The windows a split gives to training (frame indices and positions, on the host).
-
-    ``q_idx [M, L]`` frames of the M queries with a positive and a negative; ``r_idx [R, L]`` frames
-    of every reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` positions of the windows' frames;
-    ``left_out``: queries with a full window but without a positive or a negative.
-    """
-
-    q_idx: np.ndarray
-    r_idx: np.ndarray
-    q_pos: np.ndarray
-    r_pos: np.ndarray
-    left_out: int
-    positives: Positives | None = None  # explicit positives over (kept query window, reference window)
-
-
-@dataclasses.dataclass
-class TripletSource:
-    """Training windows on the compute device.
-
-    ``q_desc [Nq, D]`` / ``r_desc [Nr, D]`` frame descriptors; ``q_idx [M, L]`` frames of the M
-    training queries (those with a positive and a negative); ``r_idx [R, L]`` frames of every
-    reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` float64 positions of the windows' frames;
-    ``left_out``: queries left out (no positive or no negative).
-    """
-
-    q_desc: torch.Tensor
-    r_desc: torch.Tensor
-    q_idx: torch.Tensor
-    r_idx: torch.Tensor
-    q_pos: torch.Tensor
-    r_pos: torch.Tensor
-    left_out: int = 0
-    pos_keys: torch.Tensor | None = None  # explicit positive pairs (train/truth.positive_keys), or None
-    soft_keys: torch.Tensor | None = None  # soft positive pairs, never negatives (train/truth.nonnegative_keys)
-
-    @property
-    def n_queries(self) -> int:
-        return int(self.q_idx.shape[0])
-
-
-def _full_windows(t: Traverse, seq_len: int, mode: str, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """Frames with a full window inside their sequence ``[M]`` and the windows' frames ``[M, L]``."""
-    starts, valid = window_starts(len(t), seq_len, mode, t.seq_bounds)
-    items = np.flatnonzero(valid)
-    if items.size == 0:
-        raise DatasetError(f"{what} split: no {t.name} frame (of {len(t)}) has a full window of seq_len={seq_len} "
-                           f"inside its sequence (hint: a longer {what} range or a shorter --seq-len)")
-    return items, starts[items][:, None] + np.arange(seq_len)[None, :]
-
-
-def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, what: str = "train") -> SplitWindows:
-    """The query and reference windows of the split ``ds`` (already split; ``what`` names it in errors).
-
-    Raises :class:`DatasetError` when a traverse has no full window, or when no query has both a
-    reference within ``conf.pos_radius`` and one beyond ``conf.neg_radius``.
-    """
-    q_items, q_idx = _full_windows(ds.query, seq_len, window, what)
-    r_items, r_idx = _full_windows(ds.reference, seq_len, window, what)
-    q_pos, r_pos = ds.query.positions[q_items], ds.reference.positions[r_items]
-    positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
-    keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius, positives)
-    if not keep.any():
-        hint = f"check the {what} ranges of reference and query, or --pos-radius / --neg-radius"
-        raise DatasetError(f"{ds.name}: none of {len(q_items)} {'training' if what == 'train' else what} queries has "
-                           f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius="
-                           f"{conf.neg_radius:g} {ds.position_unit} (hint: {hint})")
-    kept = positives.select(np.flatnonzero(keep), np.arange(len(r_items))) if positives is not None else None
-    return SplitWindows(q_idx[keep], r_idx, q_pos[keep], r_pos, int((~keep).sum()), kept)
-
-
-def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device) -> TripletSource:
-    """Windows, positions and descriptors of the training split ``ds`` (already split) on ``device``.
-
-    Raises :class:`DatasetError` as :func:`split_windows`.
-    """
-    sw = split_windows(ds, seq_len, window, conf, "train")
-    as_long = lambda a: torch.as_tensor(a, dtype=torch.long, device=device)  # noqa: E731
-    keys = soft = None
-    if sw.positives is not None:
-        keys, soft = positive_keys(sw.positives, len(sw.r_idx)), nonnegative_keys(sw.positives, len(sw.r_idx))
-    return TripletSource(as_tensor(ds.query.descriptors, device), as_tensor(ds.reference.descriptors, device),
-                         as_long(sw.q_idx), as_long(sw.r_idx), torch.as_tensor(sw.q_pos, device=device),
-                         torch.as_tensor(sw.r_pos, device=device), sw.left_out,
-                         None if keys is None else keys.to(device), None if soft is None else soft.to(device))
-
-
 def compute_cache(
-    model: Callable[[torch.Tensor], torch.Tensor], src: TripletSource, rows: torch.Tensor, refs: slice = slice(None)
+    model: Callable[[torch.Tensor], torch.Tensor], src: TripletSource, rows: torch.Tensor, refs: slice = slice(None),
+    framewise: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Current-model descriptors of the queries ``rows`` ``[S, D']`` and of the reference windows
-    ``refs`` (default all) ``[R, D']``.
+    ``refs`` (default all) ``[R, D']``; ``framewise`` (the seqmatch loss): of every frame of those
+    windows, ``[S, L, D']`` and ``[R, L, D']`` (each frame described once).
 
     ``model`` maps windows ``[B, L, D]`` to descriptors ``[B, D']`` (a :class:`SeqNet` or an equivalent).
     No progress bar: this runs every ``cache_refresh`` queries inside the epoch's bar.
     """
     dev = src.q_desc.device
-    q = describe_windows(src.q_desc, src.q_idx[rows].cpu().numpy(), model, device=dev, progress=None)
-    r = describe_windows(src.r_desc, src.r_idx[refs].cpu().numpy(), model, device=dev, progress=None)
-    return q.to(dev), r.to(dev)
+
+    def describe(desc: torch.Tensor, idx: np.ndarray) -> torch.Tensor:
+        if not framewise:
+            return describe_windows(desc, idx, model, device=dev, progress=None).to(dev)
+        frames, inverse = np.unique(idx, return_inverse=True)
+        feats = describe_windows(desc, frames[:, None], model, device=dev, progress=None).to(dev)
+        return feats[torch.as_tensor(inverse.reshape(idx.shape), device=dev)]
+
+    return describe(src.q_desc, src.q_idx[rows].cpu().numpy()), describe(src.r_desc, src.r_idx[refs].cpu().numpy())
 
 
 def mine_queries(
@@ -260,6 +178,7 @@ def mine_queries(
     neg_cache: torch.Tensor,
     block_elems: int = 2**24,
     own: torch.Tensor | None = None,
+    distance: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] = pairwise_distances,
 ) -> Mined:
     """Mine the triplets of the training queries ``rows [S]`` from one cache, in blocks of queries.
 
@@ -271,6 +190,7 @@ def mine_queries(
     tensor operations instead of many small ones. Blocks keep ``[block, R]`` under ``block_elems``
     elements. ``own [S]`` (bool; distributed training: this process's share) mines only ``rows[own]``
     (``q_feat`` their descriptors), drawing the random numbers of every row (generators stay in step).
+    ``distance``: the loss's scores of (query, reference) windows (:class:`~seqnet.train.losses.WindowLoss`).
     """
     block = max(1, block_elems // max(1, r_feat.shape[0]))
     parts, at = [], 0
@@ -280,7 +200,7 @@ def mine_queries(
         pos_mask, neg_mask = pair_masks(src.q_pos[r], src.r_pos, conf.pos_radius, conf.neg_radius, src.pos_keys, r,
                                         src.soft_keys)
         m = mine_batch(q_feat[at : at + len(r)], r_feat, pos_mask, neg_mask, conf.n_negatives, conf.n_neg_sample,
-                       conf.margin, generator, neg_cache[r.cpu()].to(q_feat.device), o)
+                       conf.margin, generator, neg_cache[r.cpu()].to(q_feat.device), o, distance)
         at += len(r)
         keep = m.has_triplet
         neg_cache[r[keep].cpu()] = m.negatives[keep].cpu()

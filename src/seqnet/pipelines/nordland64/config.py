@@ -21,9 +21,11 @@ METHODS = ("single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+s
            "hvpr-single", "hvpr-delta", "hvpr-fused")
 # evaluated as well when the query is re-sampled at variable speed (query_speed)
 VARIABLE_SPEED_METHODS = ("raw+vseqmatch", "s1+vseqmatch", "s1+graph", "hvpr-seqnet:s1+vseqmatch",
-                          "hvpr-seqnet:s1+graph")
-# hvpr-fused: score = SeqMatch/L_m + λ·d(S_L) over the S_L top 100 (λ, K: best mean val R@1 of 3 seeds)
-FUSE_WEIGHT, FUSE_TOP_K = 0.5, 100
+                          "hvpr-seqnet:s1+graph", "hvpr-fused:s1+vseqmatch", "hvpr-fused:s1+graph")
+# hvpr-fused[:matcher]: score = matcher/L_m + λ·d(S_L) over the S_L top K. λ = 0.5, K = 100 were the best mean
+# val R@1 of 3 seeds at the filmed speed (docs/experiments.md); λ = 0.25, K = 200 the best mean over the filmed
+# speed and 0.5-2x (docs/benchmark_nordland64.md): the only setting whose HVPR family leads on val in both
+FUSE_WEIGHT, FUSE_TOP_K = 0.25, 200
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,142 @@
+"""The windows a training split gives: every query with a positive and a negative, every reference
+window, their positions (and explicit positives), on the compute device (:class:`TripletSource`),
+and, with speed augmentation, the query windows re-sampled at random speeds (:func:`speed_source`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..core.errors import DatasetError
+from ..core.lazy import lazy_module
+from ..core.utils import as_tensor
+from ..data.positives import Positives
+from ..data.traverse import Dataset, Traverse
+from ..sequence.windows import speed_windows, window_starts
+from .config import MiningConfig
+from .truth import nonnegative_keys, positive_keys, queries_with_pairs
+
+torch = lazy_module("torch")
+
+
+@dataclasses.dataclass
+class SplitWindows:
+    """The windows a split gives to training (frame indices and positions, on the host).
+
+    ``q_idx [M, L]`` frames of the M queries with a positive and a negative; ``r_idx [R, L]`` frames
+    of every reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` positions of the windows' frames;
+    ``left_out``: queries with a full window but without a positive or a negative.
+    """
+
+    q_idx: np.ndarray
+    r_idx: np.ndarray
+    q_pos: np.ndarray
+    r_pos: np.ndarray
+    left_out: int
+    positives: Positives | None = None  # explicit positives over (kept query window, reference window)
+    q_items: np.ndarray | None = None  # [M] frame of each kept query (its window's anchor)
+    q_bounds: np.ndarray | None = None  # [M, 2] the half-open sequence of each kept query
+
+
+@dataclasses.dataclass
+class TripletSource:
+    """Training windows on the compute device.
+
+    ``q_desc [Nq, D]`` / ``r_desc [Nr, D]`` frame descriptors; ``q_idx [M, L]`` frames of the M
+    training queries (those with a positive and a negative); ``r_idx [R, L]`` frames of every
+    reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` float64 positions of the windows' frames;
+    ``left_out``: queries left out (no positive or no negative).
+    """
+
+    q_desc: torch.Tensor
+    r_desc: torch.Tensor
+    q_idx: torch.Tensor
+    r_idx: torch.Tensor
+    q_pos: torch.Tensor
+    r_pos: torch.Tensor
+    left_out: int = 0
+    pos_keys: torch.Tensor | None = None  # explicit positive pairs (train/truth.positive_keys), or None
+    soft_keys: torch.Tensor | None = None  # soft positive pairs, never negatives (train/truth.nonnegative_keys)
+    q_items: np.ndarray | None = None  # [M] frame of each training query (host; speed augmentation)
+    q_bounds: np.ndarray | None = None  # [M, 2] its half-open sequence (host)
+
+    @property
+    def n_queries(self) -> int:
+        return int(self.q_idx.shape[0])
+
+
+def sequence_bounds(t: Traverse, items: np.ndarray) -> np.ndarray:
+    """``[M, 2]`` the half-open sequence of each frame ``items [M]`` of ``t`` (the traverse without bounds)."""
+    if t.seq_bounds is None:
+        return np.tile(np.array([[0, len(t)]], dtype=np.int64), (len(items), 1))
+    return np.asarray(t.seq_bounds, dtype=np.int64)[items]
+
+
+def _full_windows(t: Traverse, seq_len: int, mode: str, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Frames with a full window inside their sequence ``[M]`` and the windows' frames ``[M, L]``."""
+    starts, valid = window_starts(len(t), seq_len, mode, t.seq_bounds)
+    items = np.flatnonzero(valid)
+    if items.size == 0:
+        raise DatasetError(f"{what} split: no {t.name} frame (of {len(t)}) has a full window of seq_len={seq_len} "
+                           f"inside its sequence (hint: a longer {what} range or a shorter --seq-len)")
+    return items, starts[items][:, None] + np.arange(seq_len)[None, :]
+
+
+def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, what: str = "train") -> SplitWindows:
+    """The query and reference windows of the split ``ds`` (already split; ``what`` names it in errors).
+
+    Raises :class:`DatasetError` when a traverse has no full window, or when no query has both a
+    reference within ``conf.pos_radius`` and one beyond ``conf.neg_radius``.
+    """
+    q_items, q_idx = _full_windows(ds.query, seq_len, window, what)
+    r_items, r_idx = _full_windows(ds.reference, seq_len, window, what)
+    q_pos, r_pos = ds.query.positions[q_items], ds.reference.positions[r_items]
+    positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
+    keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius, positives)
+    if not keep.any():
+        hint = f"check the {what} ranges of reference and query, or --pos-radius / --neg-radius"
+        raise DatasetError(f"{ds.name}: none of {len(q_items)} {'training' if what == 'train' else what} queries has "
+                           f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius="
+                           f"{conf.neg_radius:g} {ds.position_unit} (hint: {hint})")
+    kept = positives.select(np.flatnonzero(keep), np.arange(len(r_items))) if positives is not None else None
+    return SplitWindows(q_idx[keep], r_idx, q_pos[keep], r_pos, int((~keep).sum()), kept, q_items[keep],
+                        sequence_bounds(ds.query, q_items[keep]))
+
+
+def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device) -> TripletSource:
+    """Windows, positions and descriptors of the training split ``ds`` (already split) on ``device``.
+
+    Raises :class:`DatasetError` as :func:`split_windows`.
+    """
+    sw = split_windows(ds, seq_len, window, conf, "train")
+    as_long = lambda a: torch.as_tensor(a, dtype=torch.long, device=device)  # noqa: E731
+    keys = soft = None
+    if sw.positives is not None:
+        keys, soft = positive_keys(sw.positives, len(sw.r_idx)), nonnegative_keys(sw.positives, len(sw.r_idx))
+    return TripletSource(as_tensor(ds.query.descriptors, device), as_tensor(ds.reference.descriptors, device),
+                         as_long(sw.q_idx), as_long(sw.r_idx), torch.as_tensor(sw.q_pos, device=device),
+                         torch.as_tensor(sw.r_pos, device=device), sw.left_out,
+                         None if keys is None else keys.to(device), None if soft is None else soft.to(device),
+                         sw.q_items, sw.q_bounds)
+
+
+def draw_speeds(n: int, speed: tuple[float, float], generator: torch.Generator) -> np.ndarray:
+    """``[n]`` speeds drawn log-uniformly in ``speed = (v_min, v_max)`` (so 0.5:2 is as often half as double
+    speed) from ``generator`` (the run's CPU generator: resuming repeats the draws)."""
+    lo, hi = np.log(speed[0]), np.log(speed[1])
+    u = torch.rand(n, generator=generator, dtype=torch.float64).numpy()
+    return np.exp(lo + u * (hi - lo))
+
+
+def speed_source(src: TripletSource, seq_len: int, mode: str, speed: tuple[float, float] | None,
+                 generator: torch.Generator) -> TripletSource:
+    """``src`` with every query window re-sampled at its own random speed (one epoch's draw;
+    :func:`~seqnet.sequence.windows.speed_windows`); the positions, hence positives and negatives, stay
+    the query frames'. ``speed`` None: ``src`` itself (and the generator is not advanced)."""
+    if speed is None or src.q_items is None or src.q_bounds is None:
+        return src
+    v = draw_speeds(src.n_queries, speed, generator)
+    idx = speed_windows(src.q_items, seq_len, mode, v, src.q_bounds)
+    return dataclasses.replace(src, q_idx=torch.as_tensor(idx, dtype=torch.long, device=src.q_idx.device))
