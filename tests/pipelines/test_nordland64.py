@@ -140,3 +140,6 @@ def test_learning_flags_reach_the_training_settings():
     assert (old.fuse_weight, old.fuse_top_k, conf().fuse_weight, conf().fuse_top_k) == (0.5, 100, 0.25, 200)
     assert conf().train == Nordland64Config().train and conf().train_s1 == Nordland64Config().train_s1
     assert train_key(c) != train_key(Nordland64Config())  # other settings, other cached models
+    assert conf().eval_config().recall_denominator == "positives"
+    every = conf("--recall-denominator", "all")
+    assert every.eval_config().recall_denominator == "all" and train_key(every) == train_key(conf())

@@ -8,6 +8,7 @@ import dataclasses
 from pathlib import Path
 
 from ..describe import DESCRIBERS, DescribeConfig
+from ..eval.evaluate import RECALL_DENOMINATORS
 from ..maps import MapConfig
 from ..maps.config import DTYPES
 from ..pipelines.nordland64 import Nordland64Config, main
@@ -70,6 +71,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="re-sample the winter (query) traverse of the val and test ranges at A to B times the "
                         "reference speed (e.g. 0.5:2; frames dropped or repeated, positions kept; seeded) and also "
                         "evaluate the velocity-robust methods (default: as filmed)")
+    n.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
+                   help="Recall@K over queries with a correct reference (positives, default, the original code's) "
+                        "or over all queries (all, VPR-methods-evaluation's); shown in every table header")
     add_device(n)
     n.set_defaults(func=run_nordland64)
     register_timing(bsub)
@@ -154,7 +158,7 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
                       describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
                       pca_dims=args.pca_dims, train=train,
                       train_s1=s1, query_speed=args.query_speed, fuse_weight=args.fuse_weight,
-                      fuse_top_k=args.fuse_top_k)
+                      fuse_top_k=args.fuse_top_k, recall_denominator=args.recall_denominator)
     if conf.train.speed_augment == (1.0, 1.0):  # 1:1 is no augmentation
         conf = conf.replace(train=dataclasses.replace(conf.train, speed_augment=None))
     return conf
