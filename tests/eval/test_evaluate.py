@@ -305,13 +305,17 @@ def test_the_stage_returns_what_it_wrote(synth_dir, tmp_path):
     assert set(got.data["methods"]) == {"single", "raw+seqmatch"}
 
 
-def test_hvpr_fused_shortlists_the_documented_top_100_and_says_so():
-    from seqnet.eval.methods import FUSED_TOP_K, parse_method
+def test_hvpr_fused_shortlists_the_documented_top_200_and_says_so():
+    from seqnet.eval.methods import FUSE_WEIGHT, FUSED_TOP_K, parse_method
+    from seqnet.pipelines.nordland64 import Nordland64Config
     from seqnet.report.tables import method_label
 
     fused, plain = parse_method("hvpr-fused"), parse_method("hvpr")
     conf = EvalConfig(top_k=20)
-    assert conf.shortlist_size(fused) == FUSED_TOP_K == 100 and conf.shortlist_size(plain) == 20
+    assert conf.shortlist_size(fused) == FUSED_TOP_K == 200 and conf.shortlist_size(plain) == 20
+    assert conf.fuse_weight == FUSE_WEIGHT == 0.25  # the same λ and K on every path: eval, localize, the benchmark
+    bench = Nordland64Config().eval_config()
+    assert (bench.fuse_weight, bench.shortlist_size(fused)) == (FUSE_WEIGHT, FUSED_TOP_K)
     assert conf.replace(fuse_top_k=50).shortlist_size(fused) == 50
     entry = {"method": {**fused.summary(), "seq_len": 5, "rerank_seq_len": 5, "top_k": 100, "fuse_weight": 0.5}}
     assert method_label(entry) == "seqnet(L=5) top-100 -> s1+seqmatch(L_m=5)/L_m + 0.5·d(seqnet)"

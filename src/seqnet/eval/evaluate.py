@@ -28,7 +28,7 @@ from ..search.knn import KNN_BACKENDS
 from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
 from .checks import check_inputs, leakage, model_lengths
-from .methods import Method, default_methods, parse_method
+from .methods import FUSE_WEIGHT, Method, default_methods, parse_method
 from .metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
 from .rank import rank
 from .results import method_results, write_per_query
@@ -54,7 +54,8 @@ class EvalConfig(WindowSettings, Config):
         ks: the K of Recall@K; recall_denominator: ``positives`` (queries with a correct reference, the
             original code's) or ``all`` (every evaluated query): :data:`.metrics.recall.RECALL_DENOMINATORS`.
         top_k: HVPR shortlist size K.
-        fuse_weight, fuse_top_k: λ of the fused score and shortlist size K (None: 100, FUSED_TOP_K) of ``hvpr-fused``.
+        fuse_weight, fuse_top_k: λ of the fused score and shortlist size K of ``hvpr-fused``
+            (defaults :data:`.methods.FUSE_WEIGHT`, :data:`.methods.FUSED_TOP_K`).
         split: the split evaluated by :func:`main` (None: test when defined, else all).
         resample_every, resample_side: keep every N-th frame (recorded order) of the query, reference or both
             sides of the evaluated split (:func:`seqnet.data.resample.resample_dataset`; None: all frames).
@@ -74,7 +75,7 @@ class EvalConfig(WindowSettings, Config):
     ks: tuple[int, ...] = (1, 5, 10, 20, 100)
     recall_denominator: str = "positives"
     top_k: int = 20
-    fuse_weight: float = 0.5
+    fuse_weight: float = FUSE_WEIGHT
     fuse_top_k: int | None = None
     split: str | None = None
     resample_every: int | None = None

@@ -31,7 +31,9 @@ from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, descriptor_name
 
 # frame descriptors a matcher can run on: "raw" is each frame's own descriptor; every other sequence
 # descriptor is computed over each frame's window (clamped at sequence bounds)
-FUSED_TOP_K = 100  # hvpr-fused's shortlist: the S_L top 100 (docs/experiments.md), whatever --top-k says
+# hvpr-fused's score matcher/L_m + λ·d(S_L) over the S_L top K, whatever --top-k says: λ = 0.25, K = 200 were the
+# best mean val R@1 of 3 seeds over the filmed speed and 0.5-2x on Nordland64 (docs/benchmark_nordland64.md)
+FUSE_WEIGHT, FUSED_TOP_K = 0.25, 200
 FRAME_FEATURES: dict[str, str] = {"raw": "single", **{k: k for k in SEQUENCE_DESCRIPTORS if k != "single"}}
 HVPR_RERANK = "s1+seqmatch"  # the paper's re-ranker
 HVPR_ALIAS = "hvpr"

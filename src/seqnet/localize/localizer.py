@@ -33,7 +33,7 @@ from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, as_tensor
 from ..data.traverse import Traverse
 from ..eval.checks import check_fits, check_methods, check_models, check_resident
-from ..eval.methods import FRAME_FEATURES, Method, parse_method
+from ..eval.methods import FRAME_FEATURES, FUSE_WEIGHT, Method, parse_method
 from ..eval.metrics.precision_recall import ratio_confidence
 from ..eval.rank import rank
 from ..matching.online import Ring
@@ -125,13 +125,14 @@ class Localizer:
         method: a method name (:mod:`seqnet.eval.methods`) with an online form (not ``grh``).
         radius: localisation radius (for the confidence).
         top_k: HVPR shortlist size K; k: references ranked per frame.
-        fuse_weight: λ of ``hvpr-fused``; fuse_top_k: its shortlist size (None: 100).
+        fuse_weight: λ of ``hvpr-fused``; fuse_top_k: its shortlist size (None:
+            :data:`~seqnet.eval.methods.FUSED_TOP_K`).
         exact: shortlist by exact search instead of the reference's ANN index.
         models: the models of the query side (default: the reference's).
     """
 
     def __init__(self, reference: Reference, method: str = "hvpr", radius: float = 1.0, top_k: int = 20, k: int = 20,
-                 fuse_weight: float = 0.5, fuse_top_k: int | None = None, exact: bool = False,
+                 fuse_weight: float = FUSE_WEIGHT, fuse_top_k: int | None = None, exact: bool = False,
                  models: Mapping[str, SeqNet] | None = None) -> None:
         if reference.windows.mode != "causal":
             raise ConfigError(f"the map {reference.name} uses {reference.windows.mode} windows; the online "

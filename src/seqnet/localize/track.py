@@ -26,6 +26,7 @@ from ..core.ownership import locked, remove_dead_temps
 from ..core.progress import progress
 from ..core.utils import check_device, get_device, logger
 from ..data.traverse import Dataset, default_split
+from ..eval.methods import FUSE_WEIGHT
 from ..eval.metrics.precision_recall import pr_summary, precision_recall
 from ..eval.metrics.recall import check_radius, ground_truth
 from ..matching.velocity import ANCHORS
@@ -70,7 +71,7 @@ class LocalizeConfig(Config):
     anchor: str = "end"
     split: str | None = None
     radius: float | None = None
-    fuse_weight: float = 0.5
+    fuse_weight: float = FUSE_WEIGHT
     fuse_top_k: int | None = None
     device: str = "auto"
     allow_mismatch: bool = False

@@ -8,7 +8,8 @@ from ...core.config import Config, check_bool, check_choice, check_float, check_
 from ...core.errors import ConfigError
 from ...describe import DescribeConfig
 from ...eval.evaluate import RECALL_DENOMINATORS, EvalConfig
-from ...eval.methods import parse_method
+from ...eval.methods import FUSE_WEIGHT as METHOD_FUSE_WEIGHT
+from ...eval.methods import FUSED_TOP_K, parse_method
 from ...train import TrainConfig
 from .speed import check_speed
 
@@ -22,10 +23,8 @@ METHODS = ("single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+s
 # evaluated as well when the query is re-sampled at variable speed (query_speed)
 VARIABLE_SPEED_METHODS = ("raw+vseqmatch", "s1+vseqmatch", "s1+graph", "hvpr-seqnet:s1+vseqmatch",
                           "hvpr-seqnet:s1+graph", "hvpr-fused:s1+vseqmatch", "hvpr-fused:s1+graph")
-# hvpr-fused[:matcher]: score = matcher/L_m + λ·d(S_L) over the S_L top K. λ = 0.5, K = 100 were the best mean
-# val R@1 of 3 seeds at the filmed speed (docs/experiments.md); λ = 0.25, K = 200 the best mean over the filmed
-# speed and 0.5-2x (docs/benchmark_nordland64.md): the only setting whose HVPR family leads on val in both
-FUSE_WEIGHT, FUSE_TOP_K = 0.25, 200
+# hvpr-fused[:matcher]: the library's λ and K (seqnet.eval.methods; chosen on this benchmark's val, both speeds)
+FUSE_WEIGHT, FUSE_TOP_K = METHOD_FUSE_WEIGHT, FUSED_TOP_K
 
 
 @dataclasses.dataclass(frozen=True)
