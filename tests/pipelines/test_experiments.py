@@ -131,6 +131,9 @@ def test_comparison(tmp_path, cache):
     assert hvpr[4:] == ["0.72/0.82/0.88", "0.29/0.40/0.55"]  # the paper's, as printed
     assert paper_row(md, "AP-GeM")[1:4] == ["–", "–", "–"]  # not a descriptor here
     assert paper_row(md, "seqnet: hvpr-fused")[4:] == ["-", "-"]
+    command = md[md.index("    seqnet eval --dataset DIR"):].split()  # the same rows on a user's dataset
+    methods = command[command.index("--method") + 1].split(",")
+    assert methods == list(res["methods"]) and "hvpr-delta-paper" in methods
     every = run("comparison", tmp_path / "all", cache, "--recall-denominator", "all")
     assert every["recall_denominator"] == "all"
     assert "denominator (ours): all" in (tmp_path / "all" / "results.md").read_text()

@@ -56,7 +56,8 @@ def main(conf: ComparisonConfig, data: str | Path, out: str | Path, cache: str |
         md = ("# Performance comparison (paper: Table I), Nordland64\n\n"
               f"L = {conf.benchmark.seq_len}, radius {conf.benchmark.radius:g} frame, shortlist K = "
               f"{conf.benchmark.top_k}; queries: val {_queries(evs['val'])}, test {_queries(evs['test'])}.\n\n"
-              + side_by_side(table, ("Nordland64 val", "Nordland64 test"), recall_lookup(values), denominator))
+              + side_by_side(table, ("Nordland64 val", "Nordland64 test"), recall_lookup(values), denominator)
+              + own_data_command(methods, conf.benchmark.seq_len))
         results = {"experiment": "comparison", "paper_table": table.key, "methods": list(methods),
                    "recall_denominator": denominator, "details": {s: summary(e) for s, e in evs.items()},
                    "timings_s": p.seconds, "provenance": p.ds.reference.provenance}
@@ -67,6 +68,13 @@ def main(conf: ComparisonConfig, data: str | Path, out: str | Path, cache: str |
                                    "The paper's Table I methods on the Nordland64 test split.")],
                     (evs["test"], p.ds.split("test")))
         return write_outputs(o, conf, data, out, "Experiment: performance comparison (paper Table I), test")
+
+
+def own_data_command(methods: tuple[str, ...], seq_len: int) -> str:
+    """The command that gives the "ours" column of these rows on any seqnet dataset."""
+    return ("\nThe same rows on your own dataset (any `seqnet dataset` directory and its S_L / S_1 models):\n\n"
+            f"    seqnet eval --dataset DIR --model S_L.pt --model S_1.pt --seq-len {seq_len} --ks 1,5,20 \\\n"
+            f"        --method {','.join(methods)}\n")
 
 
 def _queries(ev: Evaluation) -> int:
