@@ -223,3 +223,35 @@ def test_experiment_table_and_bad_options(tmp_path, capsys):
     assert rc == 2 and "unknown descriptor 'sift'" in capsys.readouterr().err
     rc = cli_main(["experiment", "nope", "--data", str(tmp_path), "--out", str(tmp_path / "o")])
     assert rc == 2 and "invalid choice" in capsys.readouterr().err
+
+
+def test_the_evaluation_tables_run_on_a_users_dataset(synth_dir, synth_dataset, map_models, tmp_path, capsys):
+    """Tables I, III and S2 on any seqnet dataset with its models (--dataset, --model): its val and test splits;
+    rows whose models are missing show –; exactly one of --data / --dataset."""
+    from seqnet.eval.evaluate import EvalConfig, evaluate
+    from seqnet.sequence.checkpoints import load_models
+
+    sl, s1 = (str(p) for p in map_models)
+    out = tmp_path / "t1"
+    assert cli_main(["experiment", "table-1", "--dataset", str(synth_dir), "--model", sl, "--model", s1,
+                     "--out", str(out), "--threads", "1"]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert set(res["details"]) == {"val", "test"}
+    ref = evaluate(synth_dataset.split("test"), EvalConfig(methods=("hvpr", "s1+seqmatch"), seq_len=5, ks=(1, 5, 20)),
+                   load_models(map_models))
+    for m in ("hvpr", "s1+seqmatch"):  # what `seqnet eval` gives on the same split
+        assert res["details"]["test"][m]["recall@1"] == ref.results["methods"][m]["recall@1"]
+    md = (out / "results.md").read_text()
+    assert "| ours: synthetic val | ours: synthetic test |" in md.replace(f"{synth_dataset.name} ", "synthetic ")
+    only_sl = tmp_path / "sl-only"
+    assert cli_main(["experiment", "table-1", "--dataset", str(synth_dir), "--model", sl, "--out", str(only_sl)]) == 0
+    md = (only_sl / "results.md").read_text()
+    assert paper_row(md, "SeqNet (S_1)")[2:4] == ["–", "–"] and paper_row(md, "SeqNet (S_5)")[2] != "–"
+    for name in ("table-3", "table-s2"):
+        assert cli_main(["experiment", name, "--dataset", str(synth_dir), "--model", sl, "--model", s1,
+                         "--out", str(tmp_path / name)] + (["--lengths", "3,5"] if name == "table-s2" else [])) == 0
+        assert (tmp_path / name / "report.html").is_file()
+    capsys.readouterr()
+    for extra in ([], ["--data", str(tmp_path), "--dataset", str(synth_dir)]):
+        assert cli_main(["experiment", "table-1", "--out", str(tmp_path / "x"), *extra]) == 2
+        assert "give the nordland64 folder (--data) or a seqnet dataset" in capsys.readouterr().err

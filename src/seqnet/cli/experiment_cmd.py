@@ -61,16 +61,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                                         "(seqnet.pipelines.nordland64.Nordland64Config).")
         e.add_argument("--out", required=True, metavar="DIR", help="output folder")
         if exp.data:
-            _data_options(e, name)
+            _data_options(e, name, exp.own_data)
         for flag, key, kind, text in OPTIONS[name]:
             e.add_argument(flag, dest=key, type=kind, action="append" if key in LISTS else None, help=text)
         add_device(e)
         e.set_defaults(func=run, experiment_name=name)
 
 
-def _data_options(e: argparse.ArgumentParser, name: str) -> None:
-    """The options of an experiment on the nordland64 data: data, cache, ranges, training, descriptor."""
-    e.add_argument("--data", required=True, metavar="PATH", help="nordland64 folder (summer/, winter/, clean list)")
+def _data_options(e: argparse.ArgumentParser, name: str, own_data: bool) -> None:
+    """The options of an experiment on the nordland64 data: data (or a user's dataset), cache, ranges, training,
+    descriptor."""
+    e.add_argument("--data", required=not own_data, metavar="PATH",
+                   help="nordland64 folder (summer/, winter/, clean list)" + (" (or --dataset)" if own_data else ""))
+    if own_data:
+        e.add_argument("--dataset", metavar="DIR", help="instead of --data: a seqnet dataset directory (its val and "
+                       "test splits when it defines them, else all of it), evaluated with the --model checkpoints")
+        e.add_argument("--model", action="append", default=[], metavar="CKPT",
+                       help="with --dataset: an S_L or S_1 checkpoint (repeat; rows whose models are missing show –)")
     e.add_argument("--cache", metavar="DIR", help="descriptors and models cache (default --out; a benchmark's "
                                                   "--out reuses its descriptors and models)")
     for split in ("train", "val", "test"):
@@ -113,7 +120,12 @@ def experiment_config(args: argparse.Namespace) -> Any:
 def run(args: argparse.Namespace) -> int:
     conf = experiment_config(args)
     exp = EXPERIMENTS[args.experiment_name]
-    path = exp.run(conf, args.data, args.out, args.cache) if exp.data else exp.run(conf, None, args.out)
+    if exp.own_data:
+        path = exp.run(conf, args.data, args.out, args.cache, dataset=args.dataset, models=args.model)
+    elif exp.data:
+        path = exp.run(conf, args.data, args.out, args.cache)
+    else:
+        path = exp.run(conf, None, args.out)
     out = Path(path).parent
     print((out / "results.md").read_text(encoding="utf-8"))
     files = [f for f in ("results.json", "results.md", "report.html") if (out / f).is_file()]

@@ -32,14 +32,16 @@ from . import comparison, compute_time, descriptors, longer, reverse, seeds, spl
 @dataclasses.dataclass(frozen=True)
 class Experiment:
     """One entry of :data:`EXPERIMENTS`: its configuration class, stage, one-line summary, the paper table
-    it reproduces (``I``, ``II``, ``III``, ``S1``–``S3``; None: not a table) and whether it reads the
-    nordland64 data (``compute-time`` times a synthetic map of the paper's size)."""
+    it reproduces (``I``, ``II``, ``III``, ``S1``–``S3``; None: not a table), whether it reads the
+    nordland64 data (``compute-time`` times a synthetic map of the paper's size) and whether it runs on a user's
+    seqnet dataset with its models instead (the evaluation-only tables: I, III, S2)."""
 
     config: type[Config]
     run: Callable[..., Path]
     summary: str
     paper: str | None = None
     data: bool = True
+    own_data: bool = False  # also runs on a user's seqnet dataset and models (``dataset=``, ``models=``)
 
     @property
     def alias(self) -> str | None:
@@ -53,18 +55,18 @@ class Experiment:
 EXPERIMENTS: dict[str, Experiment] = {
     "comparison": Experiment(comparison.ComparisonConfig, comparison.main,
                              "every method of the paper's comparison, R@1/5/20 and Recall@K curves (paper Table I)",
-                             "I"),
+                             "I", own_data=True),
     "compute-time": Experiment(compute_time.ComputeTimeConfig, compute_time.main,
                                "per-query time at the paper's map size, 14k x 4096 (paper Table II)", "II",
                                data=False),
     "reverse": Experiment(reverse.ReverseConfig, reverse.main,
                           "reference in reverse order: vanilla vs reverse SeqMatch, S_L as trained (paper Table III)",
-                          "III"),
+                          "III", own_data=True),
     "splits": Experiment(splits.SplitsConfig, splits.main, "reference / query sizes of each split (paper Table S1)",
                          "S1"),
     "longer-sequences": Experiment(longer.LongerConfig, longer.main,
                                    "HVPR with S_L and longer re-ranking sequences L_m (5, 10, 20; paper Table S2)",
-                                   "S2"),
+                                   "S2", own_data=True),
     "descriptors": Experiment(descriptors.DescriptorsConfig, descriptors.main,
                               "the whole pipeline on pixels, NetVLAD and GMP descriptors (paper Table S3)", "S3"),
     "tsne": Experiment(tsne.TsneConfig, tsne.main, "t-SNE of raw, smoothing, Delta, S_1 and S_L descriptors "

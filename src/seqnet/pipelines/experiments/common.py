@@ -18,11 +18,21 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ...core.errors import ConfigError
 from ...core.files import write_json_atomic, write_text_atomic
 from ...core.ownership import locked
 from ...data.traverse import Dataset
 from ...eval.evaluate import EvalConfig, Evaluation, evaluate
-from ...report.html import Section, evaluation_sections, figure_section, render_html, rows_as_text, table_html
+from ...eval.methods import parse_method
+from ...report.html import (
+    ReportConfig,
+    Section,
+    evaluation_sections,
+    figure_section,
+    render_html,
+    rows_as_text,
+    table_html,
+)
 from ...report.tables import save_figure
 from ..nordland64 import Nordland64Config, build_dataset, train_models
 from ..nordland64.config import DESCRIBE
@@ -35,11 +45,43 @@ if TYPE_CHECKING:
 
 @dataclasses.dataclass
 class Prepared:
-    """The benchmark's dataset (every place in use, raw descriptors) and trained models."""
+    """The dataset (every place in use, raw descriptors), its trained models, and the splits evaluated:
+    the benchmark's (val, test), or those a user's dataset defines (:func:`prepare_dataset`)."""
 
     ds: Dataset
     models: dict[str, SeqNet]
     seconds: dict[str, float]
+    splits: tuple[str, ...] = ("val", "test")
+    name: str = "Nordland64"
+
+    @property
+    def main(self) -> str:
+        """The split the report and the side-by-side tables show (the last: test when there is one)."""
+        return self.splits[-1]
+
+    def runnable(self, methods: Sequence[str]) -> tuple[str, ...]:
+        """The ``methods`` whose models are here (a user's dataset may come with S_1 only, or none)."""
+        return tuple(m for m in methods if parse_method(m).models() <= set(self.models))
+
+
+def prepare_dataset(dataset: str | Path, models: Sequence[str | Path], seq_len: int) -> Prepared:
+    """A user's seqnet dataset directory and its models (``--dataset DIR --model CKPT``) in place of the
+    benchmark's: the splits evaluated are its ``val`` and ``test`` when it defines them, else ``all``."""
+    from ...data.io import load_dataset
+    from ...sequence.checkpoints import load_models
+
+    ds = load_dataset(dataset)
+    splits = tuple(s for s in ("val", "test") if s in ds.splits) or ("all",)
+    return Prepared(ds, load_models(models, seq_len=seq_len), {}, splits, ds.name or Path(dataset).name)
+
+
+def source(conf: Nordland64Config, data: str | Path | None, cache: Path, dataset: str | Path | None,
+           models: Sequence[str | Path]) -> Prepared:
+    """The benchmark's data and models (``data``: the nordland64 folder) or a user's (``dataset``, ``models``)."""
+    if (data is None) == (dataset is None):
+        raise ConfigError("give the nordland64 folder (--data) or a seqnet dataset with its models (--dataset, "
+                          "--model), one of the two")
+    return prepare(conf, data, cache) if dataset is None else prepare_dataset(dataset, models, conf.seq_len)
 
 
 def descriptor_cache(conf: Nordland64Config, cache: Path) -> Path:
@@ -61,11 +103,10 @@ def prepare(conf: Nordland64Config, data: str | Path, cache: Path, models_sub: s
     return Prepared(ds, models, seconds)
 
 
-def evaluate_splits(p: Prepared, conf: EvalConfig, splits: Sequence[str] = ("val", "test"),
-                    transform: Any = None) -> dict[str, Evaluation]:
-    """``conf``'s methods on each split of ``p.ds`` (``transform(ds)`` applied to the split first, if given)."""
+def evaluate_splits(p: Prepared, conf: EvalConfig, transform: Any = None) -> dict[str, Evaluation]:
+    """``conf``'s methods on each split of ``p`` (``transform(ds)`` applied to the split first, if given)."""
     out = {}
-    for split in splits:
+    for split in p.splits:
         ds = p.ds.split(split)
         out[split] = evaluate(transform(ds) if transform else ds, conf, p.models)
     return out
@@ -120,7 +161,8 @@ def write_outputs(o: Outputs, conf: Any, data: str | Path, out: Path, title: str
     sections = [*o.sections, figure_section("figure", f"Figure ({png.name})", o.figure)]
     if o.evaluation is not None:
         ev, ds = o.evaluation
-        sections += evaluation_sections(ev, ds, report_config(data, title))
+        images = (Path(data) / "summer").is_dir()  # the nordland64 folder: the gallery shows its frames
+        sections += evaluation_sections(ev, ds, report_config(data, title) if images else ReportConfig(title=title))
     write_text_atomic(out / "report.html", render_html(title, sections))
     write_json_atomic(out / "config.json", {"experiment": o.name, **conf.to_dict(), "data": str(data),
                                             "figure": png.name, "provenance": o.results.get("provenance")})

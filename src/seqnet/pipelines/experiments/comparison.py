@@ -13,6 +13,7 @@ Delta is the paper's (``delta-paper``), GISM / GRH are the ``graph`` / ``grh`` /
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 from ...core.config import Config
@@ -21,7 +22,7 @@ from ...eval.methods import parse_method
 from ...report.paper import TABLE_I, PaperRow, PaperTable, methods_of, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
-from .common import Outputs, evaluate_splits, locked_dirs, prepare, summary, table_section, write_outputs
+from .common import Outputs, evaluate_splits, locked_dirs, source, summary, table_section, write_outputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,33 +42,37 @@ class ComparisonConfig(Config):
         return dataclasses.replace(TABLE_I, rows=(*TABLE_I.rows, *extra))
 
 
-def main(conf: ComparisonConfig, data: str | Path, out: str | Path, cache: str | Path | None = None) -> Path:
-    """Run the comparison; writes ``results.json``, ``results.md``, ``comparison.png`` (Recall@K of the test
-    split), ``report.html`` (the test evaluation) and ``config.json`` to ``out``."""
+def main(conf: ComparisonConfig, data: str | Path | None, out: str | Path, cache: str | Path | None = None,
+         dataset: str | Path | None = None, models: Sequence[str | Path] = ()) -> Path:
+    """Run the comparison on the nordland64 folder ``data`` (or a seqnet ``dataset`` with its ``models``); writes
+    ``results.json``, ``results.md``, ``comparison.png`` (Recall@K of the test split), ``report.html`` (the test
+    evaluation) and ``config.json`` to ``out``."""
     out = Path(out)
     cache = Path(cache) if cache else out
     table = conf.table()
-    methods = methods_of(table)
     with locked_dirs(out, cache):
-        p = prepare(conf.benchmark, data, cache)
+        p = source(conf.benchmark, data, cache, dataset, models)
+        methods = p.runnable(methods_of(table))  # rows without their models show "–"
         evs = evaluate_splits(p, conf.benchmark.eval_config().replace(methods=methods))
-        values = [evs[s].results["methods"] for s in ("val", "test")]
+        values = [evs[s].results["methods"] for s in p.splits]
         denominator = conf.benchmark.recall_denominator
-        md = ("# Performance comparison (paper: Table I), Nordland64\n\n"
-              f"L = {conf.benchmark.seq_len}, radius {conf.benchmark.radius:g} frame, shortlist K = "
-              f"{conf.benchmark.top_k}; queries: val {_queries(evs['val'])}, test {_queries(evs['test'])}.\n\n"
-              + side_by_side(table, ("Nordland64 val", "Nordland64 test"), recall_lookup(values), denominator)
+        md = (f"# Performance comparison (paper: Table I), {p.name}\n\n"
+              f"L = {conf.benchmark.seq_len}, radius {p.ds.radius:g}, shortlist K = {conf.benchmark.top_k}; "
+              "queries: " + ", ".join(f"{s} {_queries(evs[s])}" for s in p.splits) + ".\n\n"
+              + side_by_side(table, tuple(f"{p.name} {s}" for s in p.splits), recall_lookup(values), denominator)
               + own_data_command(methods, conf.benchmark.seq_len))
         results = {"experiment": "comparison", "paper_table": table.key, "methods": list(methods),
                    "recall_denominator": denominator, "details": {s: summary(e) for s, e in evs.items()},
                    "timings_s": p.seconds, "provenance": p.ds.reference.provenance}
-        header = ["method", *(f"R@{k} test" for k in conf.benchmark.ks)]
-        rows = [[m, *(values[1][m][f"recall@{k}"] for k in conf.benchmark.ks)] for m in methods]
-        o = Outputs("comparison", results, md, recall_figure(evs["test"], methods, conf.benchmark.ks),
-                    [table_section("experiment", "Performance comparison (Table I)", {"Recall@K, test": (header, rows)},
-                                   "The paper's Table I methods on the Nordland64 test split.")],
-                    (evs["test"], p.ds.split("test")))
-        return write_outputs(o, conf, data, out, "Experiment: performance comparison (paper Table I), test")
+        header = ["method", *(f"R@{k} {p.main}" for k in conf.benchmark.ks)]
+        rows = [[m, *(values[-1][m][f"recall@{k}"] for k in conf.benchmark.ks)] for m in methods]
+        o = Outputs("comparison", results, md, recall_figure(evs[p.main], methods, conf.benchmark.ks, p.name),
+                    [table_section("experiment", "Performance comparison (Table I)",
+                                   {f"Recall@K, {p.main}": (header, rows)},
+                                   f"The paper's Table I methods on the {p.name} {p.main} split.")],
+                    (evs[p.main], p.ds.split(p.main)))
+        return write_outputs(o, conf, dataset or data, out,
+                             f"Experiment: performance comparison (paper Table I), {p.main}")
 
 
 def own_data_command(methods: tuple[str, ...], seq_len: int) -> str:
@@ -81,7 +86,7 @@ def _queries(ev: Evaluation) -> int:
     return next(iter(ev.results["methods"].values()))["queries"]
 
 
-def recall_figure(ev: Evaluation, methods: tuple[str, ...], ks: tuple[int, ...]) -> object:
+def recall_figure(ev: Evaluation, methods: tuple[str, ...], ks: tuple[int, ...], name: str = "Nordland64") -> object:
     """Recall@K against K, one line per method (the paper's Fig. 3 for one dataset)."""
     fig, ax = new_figure(8.5, 4.8)
     res = ev.results["methods"]
@@ -95,6 +100,6 @@ def recall_figure(ev: Evaluation, methods: tuple[str, ...], ks: tuple[int, ...])
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
-    ax.set_title("Recall@K, Nordland64 test (solid: hierarchical, dashed: score aggregation, dotted: descriptors)")
+    ax.set_title(f"Recall@K, {name} (solid: hierarchical, dashed: score aggregation, dotted: descriptors)")
     return fig
 

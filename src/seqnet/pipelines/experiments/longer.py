@@ -10,6 +10,7 @@ the split, so the longest L_m evaluates a few fewer queries (counted in the resu
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -25,9 +26,9 @@ from .common import (
     evaluate_splits,
     locked_dirs,
     markdown_table,
-    prepare,
     recall_at_1,
     recall_table,
+    source,
     summary,
     table_section,
     write_outputs,
@@ -49,37 +50,40 @@ class LongerConfig(Config):
         self._set("methods", tuple(parse_method(m).name for m in self.methods))
 
 
-def main(conf: LongerConfig, data: str | Path, out: str | Path, cache: str | Path | None = None) -> Path:
-    """Run the experiment; writes ``results.json``, ``results.md``, ``longer_sequences.png``,
-    ``report.html`` (the longest L_m on test) and ``config.json`` to ``out``."""
+def main(conf: LongerConfig, data: str | Path | None, out: str | Path, cache: str | Path | None = None,
+         dataset: str | Path | None = None, models: Sequence[str | Path] = ()) -> Path:
+    """Run the experiment on the nordland64 folder ``data`` (or a seqnet ``dataset`` with its ``models``); writes
+    ``results.json``, ``results.md``, ``longer_sequences.png``, ``report.html`` (the longest L_m on test) and
+    ``config.json`` to ``out``."""
     out = Path(out)
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
-        p = prepare(conf.benchmark, data, cache)
+        p = source(conf.benchmark, data, cache, dataset, models)
+        methods = p.runnable(conf.methods)
         evs: dict[str, Evaluation] = {}
         for lm in conf.lengths:
-            ec = conf.benchmark.eval_config().replace(methods=conf.methods, rerank_seq_len=lm)
+            ec = conf.benchmark.eval_config().replace(methods=methods, rerank_seq_len=lm)
             for split, ev in evaluate_splits(p, ec).items():
                 evs[f"{split} L_m={lm}"] = ev
         header = ["method", *(f"R@1 {k}" for k in evs)]
-        rows = recall_table(evs, conf.methods)
+        rows = recall_table(evs, methods)
         queries = {k: next(iter(e.results["methods"].values()))["queries"] for k, e in evs.items()}
-        results = {"experiment": "longer-sequences", "lengths": list(conf.lengths), "methods": list(conf.methods),
-                   "recall@1": recall_at_1(evs, conf.methods),
+        results = {"experiment": "longer-sequences", "lengths": list(conf.lengths), "methods": list(methods),
+                   "recall@1": recall_at_1(evs, methods),
                    "queries": queries, "details": {k: summary(e) for k, e in evs.items()}, "timings_s": p.seconds,
                    "provenance": p.ds.reference.provenance}
-        md = (f"# Longer sequences (S_L with L={conf.benchmark.seq_len}, re-ranking length L_m)\n\nRecall@1; "
+        md = (f"# Longer sequences (S_L with L={conf.benchmark.seq_len}, re-ranking length L_m), {p.name}\n\nRecall@1; "
               "queries per column: " + ", ".join(f"{k} {v}" for k, v in queries.items()) + ".\n\n"
-              + markdown_table(header, rows) + "\nThe paper's table (test split):\n\n"
+              + markdown_table(header, rows) + f"\nThe paper's table ({p.main} split):\n\n"
               + side_by_side(TABLE_S2, tuple(f"L_m={lm}" for lm in conf.lengths),
-                             recall_lookup([evs[f"test L_m={lm}"].results["methods"] for lm in conf.lengths]),
+                             recall_lookup([evs[f"{p.main} L_m={lm}"].results["methods"] for lm in conf.lengths]),
                              conf.benchmark.recall_denominator))
         last = conf.lengths[-1]
         o = Outputs("longer_sequences", results, md, longer_figure(rows, list(evs), conf.lengths),
                     [table_section("experiment", "Longer sequences", {"Recall@1": (header, rows)},
                                    f"S_L (L={conf.benchmark.seq_len}) shortlist; sequence matchers over L_m frames.")],
-                    (evs[f"test L_m={last}"], p.ds.split("test")))
-        return write_outputs(o, conf, data, out, f"Experiment: longer sequences (test, L_m={last})")
+                    (evs[f"{p.main} L_m={last}"], p.ds.split(p.main)))
+        return write_outputs(o, conf, dataset or data, out, f"Experiment: longer sequences ({p.main}, L_m={last})")
 
 
 def longer_figure(rows: list[list], columns: list[str], lengths: tuple[int, ...]) -> object:
@@ -87,7 +91,9 @@ def longer_figure(rows: list[list], columns: list[str], lengths: tuple[int, ...]
     fig, ax = new_figure(8.5, 4.5)
     low = min((v for r in rows for v in r[1:] if v is not None), default=0.0)
     for row, colour in zip(rows, method_colours(len(rows)), strict=True):
-        for split, style in (("test", "-"), ("val", "--")):
+        for split, style in (("test", "-"), ("val", "--"), ("all", "-")):
+            if f"{split} L_m={lengths[0]}" not in columns:  # a user's dataset: its own splits
+                continue
             ys = [row[1 + columns.index(f"{split} L_m={lm}")] for lm in lengths]
             ax.plot(lengths, [np.nan if y is None else y for y in ys], style, marker="o", color=colour,
                     label=f"{row[0]} ({split})")

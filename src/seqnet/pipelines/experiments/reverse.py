@@ -11,6 +11,7 @@ frame order it never saw. Every method is evaluated on the normal and the revers
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,9 +27,9 @@ from .common import (
     evaluate_splits,
     locked_dirs,
     markdown_table,
-    prepare,
     recall_at_1,
     recall_table,
+    source,
     summary,
     table_section,
     write_outputs,
@@ -62,34 +63,36 @@ def reverse_reference(ds: Dataset) -> Dataset:
     return dataclasses.replace(ds, reference=ref, positives=positives, name=f"{ds.name} reference reversed")
 
 
-def main(conf: ReverseConfig, data: str | Path, out: str | Path, cache: str | Path | None = None) -> Path:
-    """Run the experiment; writes ``results.json``, ``results.md``, ``reverse.png``, ``report.html``
-    and ``config.json`` to ``out`` (descriptors and models cached in ``cache``, default ``out``)."""
+def main(conf: ReverseConfig, data: str | Path | None, out: str | Path, cache: str | Path | None = None,
+         dataset: str | Path | None = None, models: Sequence[str | Path] = ()) -> Path:
+    """Run the experiment on the nordland64 folder ``data`` (or a seqnet ``dataset`` with its ``models``); writes
+    ``results.json``, ``results.md``, ``reverse.png``, ``report.html`` and ``config.json`` to ``out``
+    (descriptors and models cached in ``cache``, default ``out``)."""
     out = Path(out)
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
-        p = prepare(conf.benchmark, data, cache)
-        ec = conf.benchmark.eval_config().replace(methods=conf.methods)
-        fwd = evaluate_splits(p, ec)
-        rev = evaluate_splits(p, ec, transform=reverse_reference)
-        evs = {"val forward": fwd["val"], "val reversed": rev["val"], "test forward": fwd["test"],
-               "test reversed": rev["test"]}
+        p = source(conf.benchmark, data, cache, dataset, models)
+        methods = p.runnable(conf.methods)
+        ec = conf.benchmark.eval_config().replace(methods=methods)
+        fwd, rev = evaluate_splits(p, ec), evaluate_splits(p, ec, transform=reverse_reference)
+        evs = {f"{s} {d}": e[s] for s in p.splits for d, e in (("forward", fwd), ("reversed", rev))}
         header = ["method", *(f"R@1 {k}" for k in evs)]
-        rows = recall_table(evs, conf.methods)
-        results = {"experiment": "reverse", "methods": list(conf.methods), "recall@1": recall_at_1(evs, conf.methods),
+        rows = recall_table(evs, methods)
+        results = {"experiment": "reverse", "methods": list(methods), "recall@1": recall_at_1(evs, methods),
                    "details": {k: summary(e) for k, e in evs.items()}, "timings_s": p.seconds,
                    "provenance": p.ds.reference.provenance}
-        rev_test = rev["test"].results["methods"]
-        md = ("# Reverse traverse (reference in reverse order)\n\n" + "Recall@1; S_L as trained on forward "
-              "sequences; radius 1 frame.\n\n" + markdown_table(header, rows) + "\nThe paper's table (both columns "
-              "on the reversed reference, test split):\n\n"
-              + side_by_side(TABLE_III, ("vanilla", "reverse"), recall_lookup([rev_test, rev_test]),
+        rev_main = rev[p.main].results["methods"]
+        md = (f"# Reverse traverse (reference in reverse order), {p.name}\n\nRecall@1; S_L as trained on forward "
+              f"sequences; radius {p.ds.radius:g}.\n\n" + markdown_table(header, rows) + "\nThe paper's table "
+              f"(both columns on the reversed reference, {p.main} split):\n\n"
+              + side_by_side(TABLE_III, ("vanilla", "reverse"), recall_lookup([rev_main, rev_main]),
                              conf.benchmark.recall_denominator))
         o = Outputs("reverse", results, md, reverse_figure(rows, list(evs)),
                     [table_section("experiment", "Reverse traverse", {"Recall@1": (header, rows)},
                                    "The reference is traversed in reverse order; S_L is used as trained.")],
-                    (rev["test"], reverse_reference(p.ds.split("test"))))
-        return write_outputs(o, conf, data, out, "Experiment: reverse traverse (test, reference reversed)")
+                    (rev[p.main], reverse_reference(p.ds.split(p.main))))
+        return write_outputs(o, conf, dataset or data, out,
+                             f"Experiment: reverse traverse ({p.main}, reference reversed)")
 
 
 def reverse_figure(rows: list[list], columns: list[str]) -> object:
