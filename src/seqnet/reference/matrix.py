@@ -104,13 +104,12 @@ class MatrixReference:
               k: int) -> tuple[np.ndarray, np.ndarray]:
         """Whole-map matching over the matrix: every matcher's block function on blocks of the matrix's rows
         (memory bounded: no ``[M, R, L]`` gather), the k best kept."""
+        rows = _rows(query_frames)[q_starts].numpy()
         if matcher not in DIAGONAL_MATCHERS:
             spec = SEQUENCE_MATCHERS[matcher]
-            rows = _rows(query_frames)[q_starts].numpy()
             return spec.topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts,
                              device="cpu", **spec.options(self.windows.anchor))
         # SeqMatch is the one trajectory of slope 1 (reverse: -1): blocks of matrix rows, running top-k
-        rows = _rows(query_frames)[q_starts].numpy()
         return velocity_topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts,
                              velocities=(1.0,), reverse=DIAGONAL_MATCHERS[matcher], device="cpu")
 
