@@ -42,7 +42,6 @@ if TYPE_CHECKING:
     from ...sequence.model import SeqNet
 
 
-
 @dataclasses.dataclass
 class Prepared:
     """The dataset (every place in use, raw descriptors), its trained models, and the splits evaluated:
@@ -172,6 +171,11 @@ def write_outputs(o: Outputs, conf: Any, data: str | Path, out: Path, title: str
 def recall_table(evs: Mapping[str, Evaluation], methods: Sequence[str], k: int = 1) -> list[list[Any]]:
     """Rows ``[method, R@k of each evaluation]`` (None where a method was not run)."""
     return [[m, *(e.results["methods"].get(m, {}).get(f"recall@{k}") for e in evs.values())] for m in methods]
+
+
+def queries_of(ev: Evaluation) -> int:
+    """The number of queries an evaluation ranked (those with a full window; the same for every method)."""
+    return next(iter(ev.results["methods"].values()))["queries"]
 
 
 def recall_at_1(evs: Mapping[str, Evaluation], methods: Sequence[str]) -> dict[str, dict[str, float]]:

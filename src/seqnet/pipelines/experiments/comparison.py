@@ -22,7 +22,7 @@ from ...eval.methods import parse_method
 from ...report.paper import TABLE_I, PaperRow, PaperTable, methods_of, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
-from .common import Outputs, evaluate_splits, locked_dirs, source, summary, table_section, write_outputs
+from .common import Outputs, evaluate_splits, locked_dirs, queries_of, source, summary, table_section, write_outputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,7 +58,7 @@ def main(conf: ComparisonConfig, data: str | Path | None, out: str | Path, cache
         denominator = conf.benchmark.recall_denominator
         md = (f"# Performance comparison (paper: Table I), {p.name}\n\n"
               f"L = {conf.benchmark.seq_len}, radius {p.ds.radius:g}, shortlist K = {conf.benchmark.top_k}; "
-              "queries: " + ", ".join(f"{s} {_queries(evs[s])}" for s in p.splits) + ".\n\n"
+              "queries: " + ", ".join(f"{s} {queries_of(evs[s])}" for s in p.splits) + ".\n\n"
               + side_by_side(table, tuple(f"{p.name} {s}" for s in p.splits), recall_lookup(values), denominator)
               + own_data_command(methods, conf.benchmark.seq_len))
         results = {"experiment": "comparison", "paper_table": table.key, "methods": list(methods),
@@ -80,10 +80,6 @@ def own_data_command(methods: tuple[str, ...], seq_len: int) -> str:
     return ("\nThe same rows on your own dataset (any `seqnet dataset` directory and its S_L / S_1 models):\n\n"
             f"    seqnet eval --dataset DIR --model S_L.pt --model S_1.pt --seq-len {seq_len} --ks 1,5,20 \\\n"
             f"        --method {','.join(methods)}\n")
-
-
-def _queries(ev: Evaluation) -> int:
-    return next(iter(ev.results["methods"].values()))["queries"]
 
 
 def recall_figure(ev: Evaluation, methods: tuple[str, ...], ks: tuple[int, ...], name: str = "Nordland64") -> object:

@@ -26,6 +26,7 @@ from .common import (
     evaluate_splits,
     locked_dirs,
     markdown_table,
+    queries_of,
     recall_at_1,
     recall_table,
     source,
@@ -67,7 +68,7 @@ def main(conf: LongerConfig, data: str | Path | None, out: str | Path, cache: st
                 evs[f"{split} L_m={lm}"] = ev
         header = ["method", *(f"R@1 {k}" for k in evs)]
         rows = recall_table(evs, methods)
-        queries = {k: next(iter(e.results["methods"].values()))["queries"] for k, e in evs.items()}
+        queries = {k: queries_of(e) for k, e in evs.items()}
         results = {"experiment": "longer-sequences", "lengths": list(conf.lengths), "methods": list(methods),
                    "recall@1": recall_at_1(evs, methods),
                    "queries": queries, "details": {k: summary(e) for k, e in evs.items()}, "timings_s": p.seconds,
