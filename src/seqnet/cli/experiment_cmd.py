@@ -119,13 +119,9 @@ def experiment_config(args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     conf = experiment_config(args)
-    exp = EXPERIMENTS[args.experiment_name]
-    if exp.own_data:
-        path = exp.run(conf, args.data, args.out, args.cache, dataset=args.dataset, models=args.model)
-    elif exp.data:
-        path = exp.run(conf, args.data, args.out, args.cache)
-    else:
-        path = exp.run(conf, None, args.out)
+    inputs = vars(args)  # only the options the experiment has (data, cache, dataset, model)
+    path = EXPERIMENTS[args.experiment_name].start(conf, args.out, inputs.get("data"), inputs.get("cache"),
+                                                    inputs.get("dataset"), inputs.get("model", ()))
     out = Path(path).parent
     print((out / "results.md").read_text(encoding="utf-8"))
     files = [f for f in ("results.json", "results.md", "report.html") if (out / f).is_file()]

@@ -22,7 +22,7 @@ cached as the benchmark caches them (:mod:`.common`). See docs/experiments.md.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ...core.config import Config
@@ -50,6 +50,16 @@ class Experiment:
             return None
         roman = {"I": "1", "II": "2", "III": "3"}
         return f"table-{roman.get(self.paper, self.paper.lower())}"
+
+    def start(self, conf: Config, out: str | Path, data: str | Path | None = None, cache: str | Path | None = None,
+              dataset: str | Path | None = None, models: Sequence[str | Path] = ()) -> Path:
+        """Run the stage with the inputs it reads: none (``compute-time``), the nordland64 ``data`` and
+        ``cache``, or also a user's ``dataset`` and ``models`` (:attr:`own_data`)."""
+        if not self.data:
+            return self.run(conf, None, out)
+        if self.own_data:
+            return self.run(conf, data, out, cache, dataset=dataset, models=models)
+        return self.run(conf, data, out, cache)
 
 
 EXPERIMENTS: dict[str, Experiment] = {

@@ -49,10 +49,7 @@ def _run_one(key: str, conf: TablesConfig, data: str | Path, out: Path, cache: P
     exp = EXPERIMENTS[name]
     sub = out / (exp.alias or name)
     logger.info("paper tables: %s (%s) into %s", key, name, sub)
-    if exp.data:
-        exp.run(exp.config().replace(benchmark=conf.benchmark), data, sub, cache)
-    else:
-        exp.run(exp.config(), None, sub)
+    exp.start(exp.config().replace(benchmark=conf.benchmark) if exp.data else exp.config(), sub, data, cache)
     return name, sub
 
 
