@@ -27,6 +27,7 @@ from .common import (
     parse_list,
     positive_float,
     positive_int,
+    speed_range,
 )
 
 _D, _T = Nordland64Config(), TimingConfig()
@@ -162,17 +163,6 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
     if conf.train.speed_augment == (1.0, 1.0):  # 1:1 is no augmentation
         conf = conf.replace(train=dataclasses.replace(conf.train, speed_augment=None))
     return conf
-
-
-def speed_range(text: str) -> tuple[float, float]:
-    """argparse type: ``A:B`` with ``0 < A <= B`` (query speed relative to the reference)."""
-    try:
-        a, b = (float(x) for x in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected A:B (e.g. 0.5:2), got {text!r}") from None
-    if not 0 < a <= b < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected 0 < A <= B, got {text!r}")
-    return a, b
 
 
 def run_nordland64(args: argparse.Namespace) -> int:

@@ -72,6 +72,16 @@ def index_range(text: str) -> tuple[int, int]:
     return a, b
 
 
+def speed_range(text: str) -> tuple[float, float]:
+    """argparse type: ``A:B`` with ``0 < A <= B`` (a speed range: ``--query-speed``, ``--speed-augment``)."""
+    from ..sequence.windows import check_speed_range
+
+    try:
+        return check_speed_range("speed", [float(x) for x in text.split(":")])
+    except (ValueError, ConfigError) as e:
+        raise argparse.ArgumentTypeError(f"expected A:B with 0 < A <= B (e.g. 0.5:2), got {text!r}") from e
+
+
 def add_device(p: argparse.ArgumentParser) -> None:
     """``--device`` (auto: CUDA when present)."""
     p.add_argument("--device", default="auto", help="torch device: auto (GPU when present), cpu, cuda, cuda:1 ...")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..sequence.checkpoints import read_checkpoint
-from ..sequence.windows import WINDOW_MODES, check_speed_range
+from ..sequence.windows import WINDOW_MODES
 from ..train.config import OPTIMIZERS, TrainConfig
 from ..train.distributed import env_world
 from ..train.joint import is_joint, main_joint, s1_config
@@ -17,7 +17,15 @@ from ..train.loop import main
 from ..train.losses import LOSSES
 from ..train.run import resume_config
 from . import COMMANDS
-from .common import add_allow_mismatch, add_device, non_negative_float, non_negative_int, positive_float, positive_int
+from .common import (
+    add_allow_mismatch,
+    add_device,
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    speed_range,
+)
 
 _D = TrainConfig()
 JOINT_S1_LOSS = "triplet"  # the S_1 loss of --joint
@@ -79,7 +87,7 @@ def add_learning(p: argparse.ArgumentParser) -> None:
                    LOSSES.items()) + f" (default {_D.loss})")
     t.add_argument("--match-len", type=positive_int, help=f"L_m, the SeqMatch window of --loss seqmatch (default "
                    f"{_D.match_len})")
-    t.add_argument("--speed-augment", type=speed_pair, metavar="VMIN:VMAX", help="re-sample every training query "
+    t.add_argument("--speed-augment", type=speed_range, metavar="VMIN:VMAX", help="re-sample every training query "
                    "window at a random speed in VMIN:VMAX each epoch (frame offsets round(t*v); e.g. 0.5:2; "
                    "default: off)")
     j = p.add_argument_group("joint training (S_L and S_1 for HVPR in one run folder: RUN/seqnet, RUN/s1)")
@@ -93,14 +101,6 @@ def add_learning(p: argparse.ArgumentParser) -> None:
 
 
 _KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig) if f.name != "device")  # one flag each
-
-
-def speed_pair(text: str) -> tuple[float, float]:
-    """argparse type: ``VMIN:VMAX`` with ``0 < VMIN <= VMAX``."""
-    try:
-        return check_speed_range("--speed-augment", [float(x) for x in text.split(":")])
-    except (ValueError, ConfigError) as e:
-        raise argparse.ArgumentTypeError(f"expected VMIN:VMAX with 0 < VMIN <= VMAX (e.g. 0.5:2), got {text!r}") from e
 
 
 def run(args: argparse.Namespace) -> int:

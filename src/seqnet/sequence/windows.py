@@ -103,12 +103,13 @@ def window_frames(starts: np.ndarray, seq_len: int) -> np.ndarray:
 
 
 def check_speed_range(name: str, speed: object) -> tuple[float, float]:
-    """``(v_min, v_max)`` with ``0 < v_min <= v_max`` (finite); lists are read as pairs."""
+    """``(A, B)`` with ``0 < A <= B`` (finite) of a speed range (training re-sampling, a query's speeds);
+    lists are read as pairs."""
     if isinstance(speed, (str, bytes)) or not hasattr(speed, "__len__") or len(speed) != 2:
-        raise ConfigError(f"{name} must be two numbers VMIN:VMAX with 0 < VMIN <= VMAX (e.g. 0.5:2), got {speed!r}")
+        raise ConfigError(f"{name} must be two numbers A:B with 0 < A <= B (e.g. 0.5:2), got {speed!r}")
     lo, hi = (check_float(name, v, 0.0, strict=True) for v in speed)
     if lo > hi:
-        raise ConfigError(f"{name} VMIN:VMAX needs VMIN <= VMAX, got {lo:g}:{hi:g} (hint: e.g. 0.5:2)")
+        raise ConfigError(f"{name} A:B needs A <= B, got {lo:g}:{hi:g} (hint: e.g. 0.5:2)")
     return lo, hi
 
 

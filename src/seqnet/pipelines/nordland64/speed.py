@@ -18,21 +18,16 @@ import dataclasses
 
 import numpy as np
 
-from ...core.config import check_float
 from ...core.errors import ConfigError
 from ...data.traverse import Dataset, Traverse
+from ...sequence.windows import check_speed_range
 
 SPEED_PERIOD = 40  # query frames between two knots of the speed profile
 
 
 def check_speed(speed: tuple[float, float] | list[float]) -> tuple[float, float]:
-    """``(A, B)`` with ``0 < A <= B`` (finite)."""
-    if isinstance(speed, (str, bytes)) or not hasattr(speed, "__len__") or len(speed) != 2:
-        raise ConfigError(f"query_speed must be two numbers A:B with 0 < A <= B (e.g. 0.5:2), got {speed!r}")
-    lo, hi = (check_float("query speed", v, 0.0, strict=True) for v in speed)
-    if lo > hi:
-        raise ConfigError(f"query_speed A:B needs A <= B, got {lo:g}:{hi:g}")
-    return lo, hi
+    """``(A, B)`` with ``0 < A <= B`` (finite): :func:`seqnet.sequence.windows.check_speed_range`."""
+    return check_speed_range("query_speed", speed)
 
 
 def speed_profile(n: int, speed: tuple[float, float], rng: np.random.Generator,
