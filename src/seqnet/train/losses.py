@@ -143,11 +143,6 @@ def describe_windows_framewise(model: Model, windows: torch.Tensor) -> torch.Ten
     return y.reshape(b, n, y.shape[-1])  # (an empty share of a distributed batch stays [0, L, D'])
 
 
-def cross_distance(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
-    """Distances of every pair: ``[S, D]`` × ``[R, D]`` → ``[S, R]``."""
-    return pairwise_distances(q, r)
-
-
 def cross_seqmatch(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     """SeqMatch scores of every pair of windows: ``[S, L, D]`` × ``[R, L, D]`` → ``[S, R]``."""
     out = pairwise_distances(q[:, 0], r[:, 0])
@@ -179,7 +174,7 @@ class WindowLoss:
 
 
 LOSSES: dict[str, WindowLoss] = {
-    "triplet": WindowLoss(describe_windows_whole, pair_distance, cross_distance, False,
+    "triplet": WindowLoss(describe_windows_whole, pair_distance, pairwise_distances, False,
                           "margin loss on the L2 distance of the windows' descriptors (the paper's; S_L or S_1)"),
     "seqmatch": WindowLoss(describe_windows_framewise, seqmatch_distance, cross_seqmatch, True,
                            "SeqMatchNet-style: margin loss on the SeqMatch score of --match-len-frame windows of "
