@@ -8,8 +8,7 @@ from ...core.config import Config, check_bool, check_choice, check_float, check_
 from ...core.errors import ConfigError
 from ...describe import DescribeConfig
 from ...eval.evaluate import RECALL_DENOMINATORS, EvalConfig
-from ...eval.methods import FUSE_WEIGHT as METHOD_FUSE_WEIGHT
-from ...eval.methods import FUSED_TOP_K, parse_method
+from ...eval.methods import FUSE_WEIGHT, FUSED_TOP_K, parse_method
 from ...train import TrainConfig
 from .speed import check_speed
 
@@ -23,8 +22,6 @@ METHODS = ("single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+s
 # evaluated as well when the query is re-sampled at variable speed (query_speed)
 VARIABLE_SPEED_METHODS = ("raw+vseqmatch", "s1+vseqmatch", "s1+graph", "hvpr-seqnet:s1+vseqmatch",
                           "hvpr-seqnet:s1+graph", "hvpr-fused:s1+vseqmatch", "hvpr-fused:s1+graph")
-# hvpr-fused[:matcher]: the library's λ and K (seqnet.eval.methods; chosen on this benchmark's val, both speeds)
-FUSE_WEIGHT, FUSE_TOP_K = METHOD_FUSE_WEIGHT, FUSED_TOP_K
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,8 +66,8 @@ class Nordland64Config(Config):
     train_s1: TrainConfig = TRAIN.replace(seq_len=1, w=1, lr=3e-4)
     methods: tuple[str, ...] = METHODS
     top_k: int = 20
-    fuse_weight: float = FUSE_WEIGHT
-    fuse_top_k: int = FUSE_TOP_K
+    fuse_weight: float = FUSE_WEIGHT  # the library's λ and K (chosen on this benchmark's val, both speeds)
+    fuse_top_k: int = FUSED_TOP_K
     ks: tuple[int, ...] = (1, 5, 10, 20)
     device: str = "auto"
     query_speed: tuple[float, float] | None = None
