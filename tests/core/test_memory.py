@@ -28,6 +28,9 @@ def test_the_training_estimate_grows_with_the_model():
     assert wide > 4 * 4 * 19200 * 19200 * 5  # the weights, their gradients and Adam's two moments
     assert train_bytes(conf.replace(out_dims=512), 19200, 222) < wide / 10
     assert train_bytes(conf.replace(optimizer="sgd"), 19200, 222) < wide
+    s1 = TrainConfig(seq_len=1, w=1, out_dims=64, match_len=5)  # the seqmatch loss caches L_m descriptors a window
+    extra = train_bytes(s1.replace(loss="seqmatch"), 16, 1000) - train_bytes(s1, 16, 1000)
+    assert extra >= 4 * 2 * 1000 * 64 * (5 - 1)
 
 
 def test_training_that_cannot_fit_is_refused_before_anything_is_written(synth_dataset, tmp_path, monkeypatch, capsys):

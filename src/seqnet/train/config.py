@@ -220,6 +220,7 @@ def train_bytes(conf: TrainConfig, in_dims: int, n_items: int) -> int:
     out = int(conf.out_dims or in_dims)
     weights = in_dims * out * conf.w + out
     copies = 4 if conf.optimizer == "adam" else 3  # weights, gradients, Adam's two moments / SGD's momentum
-    cache = 2 * n_items * out  # every window's descriptor while mining, and its copy
+    per_window = conf.window_len if LOSSES[conf.loss].framewise else 1  # seqmatch caches a descriptor per frame
+    cache = 2 * n_items * per_window * out  # every window's descriptor(s) while mining, and a copy
     batch = 3 * conf.batch_size * (2 + conf.n_negatives) * conf.window_len * max(in_dims, out) * conf.w
     return 4 * (copies * weights + cache + batch)
