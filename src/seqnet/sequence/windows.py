@@ -42,7 +42,8 @@ def window_offset(seq_len: int, mode: str = "centred") -> int:
     return seq_len // 2 if mode == "centred" else seq_len - 1
 
 
-def _bounds(n: int, seq_bounds: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def frame_bounds(n: int, seq_bounds: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(starts [n], ends [n])``: the half-open sequence of each of ``n`` frames (all of them without bounds)."""
     if seq_bounds is None:
         return np.zeros(n, dtype=np.int64), np.full(n, n, dtype=np.int64)
     b = np.asarray(seq_bounds, dtype=np.int64)
@@ -69,7 +70,7 @@ def window_starts(
     if n < 0:
         raise ConfigError(f"number of frames must be >= 0, got {n}")
     starts = np.arange(n, dtype=np.int64) - window_offset(seq_len, mode)
-    lo, hi = _bounds(n, seq_bounds)
+    lo, hi = frame_bounds(n, seq_bounds)
     valid = (starts >= lo) & (starts + seq_len <= hi)
     return starts, valid
 
@@ -85,7 +86,7 @@ def window_indices(
     if seq_bounds is None and n <= 64:  # a short run of one sequence (the localiser's recent frames): kept
         return _one_sequence(n, seq_len, mode).copy()
     starts, _ = window_starts(n, seq_len, mode, seq_bounds)
-    lo, hi = _bounds(n, seq_bounds)
+    lo, hi = frame_bounds(n, seq_bounds)
     return np.clip(window_frames(starts, seq_len), lo[:, None], hi[:, None] - 1)
 
 

@@ -14,7 +14,7 @@ from ..core.lazy import lazy_module
 from ..core.utils import as_tensor
 from ..data.positives import Positives
 from ..data.traverse import Dataset, Traverse
-from ..sequence.windows import speed_windows, window_starts
+from ..sequence.windows import frame_bounds, speed_windows, window_starts
 from .config import MiningConfig
 from .truth import nonnegative_keys, positive_keys, queries_with_pairs
 
@@ -69,9 +69,7 @@ class TripletSource:
 
 def sequence_bounds(t: Traverse, items: np.ndarray) -> np.ndarray:
     """``[M, 2]`` the half-open sequence of each frame ``items [M]`` of ``t`` (the traverse without bounds)."""
-    if t.seq_bounds is None:
-        return np.tile(np.array([[0, len(t)]], dtype=np.int64), (len(items), 1))
-    return np.asarray(t.seq_bounds, dtype=np.int64)[items]
+    return np.stack(frame_bounds(len(t), t.seq_bounds), axis=1)[items]
 
 
 def _full_windows(t: Traverse, seq_len: int, mode: str, what: str) -> tuple[np.ndarray, np.ndarray]:
