@@ -31,7 +31,7 @@ import time
 import numpy as np
 import torch
 
-from seqnet.core.gemv import kernel_name
+from seqnet.core import gemv
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.sequence.model import SeqNet
@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> None:
     queries = ref[start : start + args.steps + args.warmup] + 0.02 * rng.standard_normal(
         (args.steps + args.warmup, args.dim), dtype=np.float32)
     res = {"map": [args.frames, args.dim], "out_dims": args.out_dims, "w": args.w, "threads": args.threads,
-           "gemv": kernel_name(),
+           "gemv_forced": os.environ.get("SEQNET_GEMV"),
            "busy": args.busy,
            "load_before": os.getloadavg(), "bandwidth": bandwidth(), "methods": {}}
     print("bandwidth", res["bandwidth"], flush=True)
@@ -190,6 +190,8 @@ def run(args: argparse.Namespace) -> None:
                                                                    res["bandwidth"])} for k, v in ms.items()}
             print(precision, res[f"breakdown {precision}"], flush=True)
     res["load_after"] = os.getloadavg()
+    res["gemv"] = gemv.chosen()
+    print("gemv kernels (tuned)", res["gemv"])
     print("load average before", res["load_before"], "after", res["load_after"])
     if args.json:
         with open(args.json, "w") as f:
