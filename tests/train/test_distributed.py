@@ -227,3 +227,33 @@ def test_two_processes_resume_as_one_would(two_ranks):
     assert torch.equal(straight["train_state"]["neg_cache"], resumed["train_state"]["neg_cache"])
     assert "resuming" in logs[0] and logs[0].count("world size 2 (gloo)") == 2
     assert len(list((tmp / "ddp").glob("events.out.tfevents*"))) == 2  # one per launch of rank 0
+
+
+SEQMATCH_WORKER = """
+import sys
+from seqnet.cli import main
+
+data, out, *args = sys.argv[1:]
+sys.exit(main(["train", "--dataset", data, "--out", out, "--epochs", "1", *args]))
+"""
+SEQMATCH_ARGS = ["--device", "cpu", "--optimizer", "adam", "--lr", "1e-2", "--n-neg-sample", "50",
+                 "--cache-refresh", "40", "--seq-len", "1", "--w", "1", "--out-dims", "8", "--loss", "seqmatch",
+                 "--match-len", "3"]
+
+
+def test_two_processes_train_the_seqmatch_loss_as_one(tmp_path):
+    """The SeqMatchNet-style loss (framewise mining cache, gathered between ranks) under torchrun = one process."""
+    import torch.distributed as dist
+
+    if not (dist.is_available() and dist.is_gloo_available()):
+        pytest.skip("torch.distributed with gloo is not available in this torch build")
+    data = save_dataset(make_synthetic(places=200, dim=8), tmp_path / "ds")
+    (tmp_path / "worker.py").write_text(SEQMATCH_WORKER)
+    logs = _torchrun(tmp_path / "worker.py", [str(data), str(tmp_path / "ddp"), *SEQMATCH_ARGS], tmp_path / "logs")
+    conf = CONF.replace(seq_len=1, w=1, loss="seqmatch", match_len=3)
+    train(load_dataset(data), conf, tmp_path / "single")
+    assert _max_diff(tmp_path / "single" / "last.pt", tmp_path / "ddp" / "last.pt") <= ATOL
+    one, two = read_checkpoint(tmp_path / "single" / "last.pt"), read_checkpoint(tmp_path / "ddp" / "last.pt")
+    assert one["config"]["loss"] == two["config"]["loss"] == "seqmatch"
+    assert torch.equal(one["train_state"]["neg_cache"], two["train_state"]["neg_cache"])
+    assert "world size 2 (gloo)" in logs[0] and logs[1].strip() == ""
