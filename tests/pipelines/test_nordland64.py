@@ -143,3 +143,22 @@ def test_learning_flags_reach_the_training_settings():
     assert conf().eval_config().recall_denominator == "positives"
     every = conf("--recall-denominator", "all")
     assert every.eval_config().recall_denominator == "all" and train_key(every) == train_key(conf())
+
+
+def test_cnn_size_sets_a_cnn_descriptors_input_and_is_refused_for_pixels(tmp_path, capsys):
+    from seqnet.cli import build_parser
+    from seqnet.cli.benchmark_cmd import nordland64_config
+
+    def conf(*flags):
+        argv = ["benchmark", "nordland64", "--data", "D", "--out", "O", *flags]
+        return nordland64_config(build_parser(argv).parse_args(argv))
+
+    nv = conf("--descriptor", "netvlad", "--cnn-size", "128x64")
+    assert (nv.describe.method, nv.describe.size) == ("netvlad", (128, 64))
+    assert conf("--descriptor", "netvlad").describe.size == "auto"  # the describer's own
+    assert train_key(nv) != train_key(conf("--descriptor", "netvlad"))  # other descriptors, other models
+    rc = cli_main(["benchmark", "nordland64", "--data", "D", "--out", str(tmp_path / "o"), "--cnn-size", "128x64"])
+    assert rc == 2 and "hint: add --descriptor netvlad" in capsys.readouterr().err
+    rc = cli_main(["benchmark", "nordland64", "--data", "D", "--out", str(tmp_path / "o"), "--descriptor", "gmp",
+                   "--cnn-size", "12x"])
+    assert rc == 2 and "got '12x'" in capsys.readouterr().err

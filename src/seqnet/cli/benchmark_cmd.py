@@ -7,7 +7,9 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from ..core.errors import ConfigError
 from ..describe import DESCRIBERS, DescribeConfig
+from ..describe.config import check_size
 from ..eval.evaluate import RECALL_DENOMINATORS
 from ..maps import MapConfig
 from ..maps.config import DTYPES
@@ -48,6 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         n.add_argument(f"--{split}-range", type=index_range, metavar="A:B", help=f"{split} places (default {a}:{b})")
     n.add_argument("--descriptor", choices=list(DESCRIBERS),
                    help=f"single-image descriptor (default {_D.describe.method}; others at their default size)")
+    n.add_argument("--cnn-size", metavar="WxH", help="input size of a CNN --descriptor (netvlad, gmp, gem), e.g. "
+                   "128x64 as the experiments use (default: the describer's own)")
     n.add_argument("--patch", type=non_negative_int,
                    help=f"pixels patch-normalisation size (default {_D.describe.patch}; 8 = SeqSLAM's)")
     n.add_argument("--seq-len", type=positive_int,
@@ -151,8 +155,14 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
     s1 = {"epochs": args.epochs, "seed": args.seed, "loss": args.s1_loss, "margin": args.s1_margin,
           "match_len": args.seq_len}
     describe = None
-    if args.descriptor and args.descriptor != _D.describe.method:
-        describe = DescribeConfig(method=args.descriptor)
+    cnn = args.descriptor and args.descriptor != _D.describe.method
+    if args.cnn_size and not cnn:
+        cnns = ", ".join(d for d in DESCRIBERS if d != _D.describe.method)
+        raise ConfigError(f"--cnn-size is the input size of a CNN --descriptor ({cnns}), "
+                          f"not of {args.descriptor or _D.describe.method}; hint: add --descriptor netvlad")
+    if cnn:
+        describe = DescribeConfig(method=args.descriptor, **({"size": check_size(args.cnn_size)} if args.cnn_size
+                                                            else {}))
     elif args.patch is not None:
         describe = _D.describe.replace(patch=args.patch)
     conf = _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
