@@ -108,3 +108,20 @@ def test_cli_dataset_resample_and_eval_flag(tmp_path, capsys):
     assert res["config"]["recall_denominator"] == "all"  # --recall-denominator: eval's flag, shown in the table
     out = capsys.readouterr().out
     assert "every 4-th query frame" in out and "method (R@K ÷ all)" in out
+
+
+def test_repeated_frames_keep_their_sequences_bounds_and_out_of_order_is_refused():
+    """A variable-speed re-sampling (frames repeated, non-decreasing) through the one re-indexer."""
+    from seqnet.data.resample import resample_traverse
+    from seqnet.data.traverse import Traverse
+
+    bounds = np.array([[0, 3]] * 3 + [[3, 6]] * 3)
+    t = Traverse(np.arange(12, dtype=np.float32).reshape(6, 2), np.arange(6.0), names=list("abcdef"), seq_bounds=bounds)
+    keep = np.array([0, 0, 2, 3, 3, 3, 5])
+    r = resample_traverse(t, keep)
+    naive = [[min(j for j in range(len(keep)) if keep[j] >= bounds[k][0]),
+              min([j for j in range(len(keep)) if keep[j] >= bounds[k][1]] or [len(keep)])] for k in keep]
+    assert r.seq_bounds.tolist() == naive == [[0, 3]] * 3 + [[3, 7]] * 4
+    assert r.names == list("aacdddf") and r.descriptors[:, 0].tolist() == (2 * keep).tolist()
+    with pytest.raises(ConfigError, match="recorded order"):
+        resample_traverse(t, np.array([2, 1]))

@@ -31,7 +31,12 @@ def kept_frames(n: int, every: int) -> np.ndarray:
 
 
 def resample_traverse(t: Traverse, keep: np.ndarray) -> Traverse:
-    """The frames ``keep [M]`` (increasing) of ``t``, in order; sequence bounds re-indexed to the kept frames."""
+    """The frames ``keep [M]`` of ``t``, in order: every N-th (increasing), or a variable-speed re-sampling
+    (non-decreasing: a frame may repeat); each kept frame's sequence bounds become the kept frames of its
+    sequence (``searchsorted`` on non-decreasing ``keep``)."""
+    keep = np.asarray(keep, dtype=np.int64)
+    if len(keep) > 1 and (np.diff(keep) < 0).any():
+        raise ConfigError("resample: the kept frames must be in recorded order (non-decreasing)")
     bounds = None
     if t.seq_bounds is not None:
         b = t.seq_bounds[keep]  # [M, 2] half-open ranges in the old frame numbers

@@ -19,6 +19,7 @@ import dataclasses
 import numpy as np
 
 from ...core.errors import ConfigError
+from ...data import resample
 from ...data.traverse import Dataset, Traverse
 from ...sequence.windows import check_speed_range
 
@@ -52,21 +53,12 @@ def resample_indices(n_frames: int, speed: tuple[float, float], rng: np.random.G
 
 
 def resample_traverse(t: Traverse, speed: tuple[float, float], seed: int | list[int]) -> Traverse:
-    """``t`` re-sampled at ``speed`` (sequence by sequence when it has sequence bounds)."""
+    """``t`` re-sampled at ``speed`` (sequence by sequence when it has sequence bounds): the frames of
+    :func:`resample_indices` through :func:`seqnet.data.resample.resample_traverse`."""
     rng = np.random.default_rng(seed)
-    if t.seq_bounds is None:
-        parts = [(0, len(t))]
-    else:
-        parts = sorted({(int(a), int(b)) for a, b in t.seq_bounds})
-    pieces = [a + resample_indices(b - a, speed, rng) for a, b in parts]
-    idx = np.concatenate(pieces)
-    bounds = None
-    if t.seq_bounds is not None:
-        ends = np.cumsum([len(p) for p in pieces])
-        bounds = np.concatenate([np.tile([[e - len(p), e]], (len(p), 1)) for p, e in zip(pieces, ends, strict=True)])
-    return Traverse(np.asarray(t.descriptors)[idx], t.positions[idx],
-                    names=None if t.names is None else [t.names[i] for i in idx], seq_bounds=bounds,
-                    name=f"{t.name} (speed {speed[0]:g}:{speed[1]:g})", provenance=t.provenance)
+    parts = [(0, len(t))] if t.seq_bounds is None else sorted({(int(a), int(b)) for a, b in t.seq_bounds})
+    idx = np.concatenate([a + resample_indices(b - a, speed, rng) for a, b in parts])
+    return dataclasses.replace(resample.resample_traverse(t, idx), name=f"{t.name} (speed {speed[0]:g}:{speed[1]:g})")
 
 
 def variable_speed(ds: Dataset, speed: tuple[float, float] | None, seed: int | list[int]) -> Dataset:
