@@ -125,3 +125,40 @@ def test_cli_loss_speed_and_joint(synth_dir, tmp_path, capsys):
         assert cli_main(["train", *common, "--out", str(tmp_path / f"bad{i}"), *case]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "error" in err[0], err
+
+
+S1_VSEQMATCH = S1_SEQMATCH.replace(loss="vseqmatch")
+
+
+def test_vseqmatch_reference_windows_are_widened_inside_their_sequences():
+    from seqnet.data.traverse import Traverse
+    from seqnet.train.source import widen_windows
+
+    bounds = np.array([[0, 10]] * 10 + [[10, 14]] * 4)
+    t = Traverse(np.ones((14, 2), np.float32), np.arange(14.0), seq_bounds=bounds)
+    items = np.arange(1, 13)
+    idx = items[:, None] - 1 + np.arange(3)[None, :]  # centred 3-frame windows
+    kept, wide = widen_windows(t, items, idx, 1)
+    naive = [(i, list(range(i - 2, i + 3))) for i in items
+             if i - 2 >= bounds[i][0] and i + 2 < bounds[i][1]]
+    assert kept.tolist() == [i for i, _ in naive] and wide.tolist() == [w for _, w in naive]
+    assert widen_windows(t, items, idx, 0)[1] is idx
+
+
+def test_vseqmatch_loss_trains_s1_on_widened_references_and_validates_with_s1_vseqmatch(synth_dataset, tmp_path):
+    conf = S1_VSEQMATCH.resolve(synth_dataset)
+    assert (conf.window_len, conf.ref_pad) == (3, 1)
+    src = triplet_source(synth_dataset.split("train"), conf.window_len, conf.window, conf.mining,
+                         torch.device("cpu"), conf.ref_pad)
+    assert src.q_idx.shape[1] == 3 and src.r_idx.shape[1] == 5
+    run = train(synth_dataset, S1_VSEQMATCH.replace(epochs=2), tmp_path / "r")
+    assert all(h["triplets"] > 0 for h in run.history) and run.history[-1]["loss"] < run.history[0]["loss"]
+    from seqnet.eval.evaluate import EvalConfig, evaluate
+
+    model = load_model(tmp_path / "r" / "best.pt")
+    assert read_checkpoint(tmp_path / "r" / "best.pt")["config"]["loss"] == "vseqmatch"
+    ev = evaluate(synth_dataset.split("val"), EvalConfig(methods=("s1+vseqmatch",), seq_len=3, device="cpu"),
+                  {"s1": model})
+    assert ev.results["methods"]["s1+vseqmatch"]["recall@1"] == pytest.approx(run.best_score)
+    with pytest.raises(ConfigError, match="the vseqmatch loss trains S_1"):
+        TrainConfig(loss="vseqmatch", seq_len=5, w=5)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
@@ -10,7 +11,7 @@ from torch import nn
 from seqnet.core.errors import ConfigError
 from seqnet.matching.seqmatch import seqmatch
 from seqnet.sequence.model import SeqNet
-from seqnet.train.losses import LOSSES, PAIRWISE_EPS, batch_triplet_loss, triplet_loss
+from seqnet.train.losses import LOSSES, PAIRWISE_EPS, batch_triplet_loss, describe_pair, triplet_loss, velocity_pad
 
 
 def _loop_loss(q, p, n, valid, margin):
@@ -189,3 +190,110 @@ def test_framewise_describe_of_an_empty_share():
     """A rank with no query of a distributed batch describes zero windows: [0, L, D'], not an error."""
     out = LOSSES["seqmatch"].describe(SeqNet(5, 4, 1, 1), torch.zeros(0, 3, 5))
     assert out.shape == (0, 3, 4)
+
+
+# --- the velocity-robust loss (vseqmatch): reference windows widened, min over the matcher's trajectories -------------
+
+def _naive_vscore(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """``min_v Σ_t ‖q_t − r_{pad + p + R(v (t − p))}‖`` written out, q ``[L, D]``, r ``[L + 2·pad, D]``."""
+    from seqnet.matching.velocity import DEFAULT_VELOCITIES, round_half_away
+
+    n, pad = q.shape[0], (r.shape[0] - q.shape[0]) // 2
+    p = n // 2
+    scores = [sum(F.pairwise_distance(q[t][None], r[pad + p + round_half_away(v * (t - p))][None], eps=1e-6)[0]
+                  for t in range(n)) for v in DEFAULT_VELOCITIES]
+    return torch.stack(scores).min()
+
+
+def _vwindows(seed=0, b=3, k=2, length=5, d=4, dtype=torch.float64):
+    pad = velocity_pad(length)
+    g = torch.Generator().manual_seed(seed)
+    return (torch.randn(b, length, d, generator=g, dtype=dtype),
+            torch.randn(b, length + 2 * pad, d, generator=g, dtype=dtype),
+            torch.randn(b, k, length + 2 * pad, d, generator=g, dtype=dtype))
+
+
+def _vseqmatch_loss(model, q_win, p_win, n_wins, margin):
+    loss = LOSSES["vseqmatch"]
+    b, k = n_wins.shape[:2]
+    q, r = describe_pair(loss, model, q_win, torch.cat([p_win, n_wins.reshape(b * k, *n_wins.shape[2:])]))
+    return triplet_loss(q, r[:b], r[b:], torch.arange(b).repeat_interleave(k), margin, distance=loss.pair)
+
+
+def test_velocity_pad_covers_every_trajectory():
+    from seqnet.matching.velocity import DEFAULT_VELOCITIES, trajectories
+
+    assert [velocity_pad(n) for n in (1, 2, 3, 5, 10)] == [0, 1, 1, 2, 5]  # slope 2 about the centre
+    for n in (1, 2, 3, 4, 5, 10):
+        offs = np.array(trajectories(DEFAULT_VELOCITIES, n, "centre")) + velocity_pad(n)
+        assert offs.min() >= 0 and offs.max() < n + 2 * velocity_pad(n)
+
+
+@pytest.mark.parametrize("margin", [0.5, 3.0])
+def test_vseqmatch_loss_equals_a_naive_loop(margin):
+    torch.manual_seed(0)
+    model = SeqNet(4, 3, 1, 1).double()
+    q_win, p_win, n_wins = _vwindows()
+    out = _vseqmatch_loss(model, q_win, p_win, n_wins, margin)
+
+    def s1(x):
+        return model(x[:, None])
+
+    hinges = [torch.clamp(_naive_vscore(s1(q_win[i]), s1(p_win[i])) - _naive_vscore(s1(q_win[i]), s1(n)) + margin,
+                          min=0.0) for i in range(3) for n in n_wins[i]]
+    ref = sum(hinges) / len(hinges)
+    torch.testing.assert_close(out.loss, ref, rtol=1e-7, atol=1e-7)
+    assert out.loss.item() > 0 and out.triplets == 6
+    for a, b in zip(torch.autograd.grad(out.loss, list(model.parameters())),
+                    torch.autograd.grad(ref, list(model.parameters())), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-9)
+
+
+def test_vseqmatch_mining_scores_equal_pairs_and_the_matcher():
+    from seqnet.matching.velocity import velocity_pairs
+
+    g = torch.Generator().manual_seed(3)
+    q = torch.randn(4, 5, 6, generator=g, dtype=torch.float64)
+    r = torch.randn(7, 9, 6, generator=g, dtype=torch.float64)
+    cross = LOSSES["vseqmatch"].cross(q, r)
+    naive = torch.stack([torch.stack([_naive_vscore(q[i], r[j]) for j in range(7)]) for i in range(4)])
+    torch.testing.assert_close(cross, naive, rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(LOSSES["vseqmatch"].pair(q, r[:4]), naive.diagonal(), rtol=1e-6, atol=1e-6)
+    # the matcher's score: query frames 0..4 against a reference traverse holding r[j]'s 9 frames (item start 2)
+    m = velocity_pairs(q[1], r[5], 5, torch.tensor([0]), torch.tensor([[2]]))
+    assert m.item() == pytest.approx(naive[1, 5].item(), abs=1e-4)
+    with pytest.raises(ConfigError, match="must have 9 frames"):
+        LOSSES["vseqmatch"].cross(q, r[:, :7])
+
+
+def test_vseqmatch_loss_gradcheck_float64():
+    q_win, p_win, n_wins = _vwindows(seed=2, b=2, k=2, length=3, d=4)
+    model = SeqNet(4, 3, 1, 1).double()
+
+    def loss_of(weight, bias, q, p, n):
+        def s1(x):
+            return torch.func.functional_call(model, {"conv.weight": weight, "conv.bias": bias}, (x,))
+
+        return _vseqmatch_loss(s1, q, p, n, 2.0).loss
+
+    inputs = tuple(t.detach().clone().requires_grad_() for t in (model.conv.weight, model.conv.bias, q_win, p_win,
+                                                                n_wins))
+    assert loss_of(*inputs).item() > 0
+    assert torch.autograd.gradcheck(loss_of, inputs, eps=1e-6, atol=1e-6)
+
+
+def test_describe_pair_is_one_forward_and_refuses_wider_windows_for_whole_window_losses():
+    calls = []
+    model = SeqNet(5, 4, 1, 1)
+
+    def counted(x):
+        calls.append(x.shape)
+        return model(x)
+
+    q_win, r_win = torch.randn(2, 3, 5), torch.randn(4, 5, 5)
+    q, r = describe_pair(LOSSES["vseqmatch"], counted, q_win, r_win)
+    assert q.shape == (2, 3, 4) and r.shape == (4, 5, 4) and calls == [(26, 1, 5)]
+    torch.testing.assert_close(r[1], model(r_win[1][:, None]))  # frame by frame: S_1 of each frame
+    torch.testing.assert_close(q[0], model(q_win[0][:, None]))
+    with pytest.raises(ConfigError, match="framewise"):
+        describe_pair(LOSSES["triplet"], model, torch.randn(2, 3, 5), torch.randn(4, 5, 5))

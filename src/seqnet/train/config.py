@@ -91,9 +91,11 @@ class TrainConfig(Config):
         patience: stop after this many epochs without a better val R@1 (None: never).
         n_negatives, n_neg_sample, cache_refresh, pos_radius, neg_radius: see :class:`MiningConfig`
             (radii None: the dataset's, see :meth:`resolve`).
-        loss: a key of :data:`~seqnet.train.losses.LOSSES`: ``triplet`` (the paper's) or ``seqmatch``
-            (SeqMatchNet-style, S_1 only: the margin loss on SeqMatch scores of ``match_len``-frame windows).
-        match_len: L_m, the window of the ``seqmatch`` loss (and of its validation, ``s1+seqmatch``).
+        loss: a key of :data:`~seqnet.train.losses.LOSSES`: ``triplet`` (the paper's), ``seqmatch``
+            (SeqMatchNet-style, S_1 only: the margin loss on SeqMatch scores of ``match_len``-frame windows)
+            or ``vseqmatch`` (the same on velocity-robust SeqMatch scores).
+        match_len: L_m, the window of the framewise losses (and of their validation, ``s1+seqmatch`` /
+            ``s1+vseqmatch``).
         speed_augment: ``(v_min, v_max)``: every epoch each training query window is re-sampled at a
             speed drawn log-uniformly in that range (:func:`seqnet.sequence.windows.speed_windows`); None: off.
         seed: seeds the model initialisation and the training generator.
@@ -160,17 +162,23 @@ class TrainConfig(Config):
     def _check_loss(self) -> None:
         self._set("loss", check_choice("loss", self.loss, LOSSES))
         self._set("match_len", check_int("match_len", self.match_len, 1))
-        if self.loss == "seqmatch" and (self.seq_len, self.w) != (1, 1):
-            raise ConfigError(f"the seqmatch loss trains S_1 (seq_len = w = 1), got seq_len={self.seq_len}, "
-                              f"w={self.w} (hint: --seq-len 1 --w 1 --loss seqmatch --match-len L_m, or "
+        if LOSSES[self.loss].framewise and (self.seq_len, self.w) != (1, 1):
+            raise ConfigError(f"the {self.loss} loss trains S_1 (seq_len = w = 1), got seq_len={self.seq_len}, "
+                              f"w={self.w} (hint: --seq-len 1 --w 1 --loss {self.loss} --match-len L_m, or "
                               "--loss triplet for S_L)")
         if self.speed_augment is not None:
             self._set("speed_augment", check_speed_range("speed_augment", self.speed_augment))
 
     @property
     def window_len(self) -> int:
-        """The frames of a training window: ``match_len`` for the ``seqmatch`` loss, else ``seq_len``."""
+        """The frames of a training query window: ``match_len`` for the framewise (SeqMatch) losses, else
+        ``seq_len``."""
         return self.match_len if LOSSES[self.loss].framewise else self.seq_len
+
+    @property
+    def ref_pad(self) -> int:
+        """Frames a reference window is widened by on either side (the ``vseqmatch`` loss's trajectories)."""
+        return LOSSES[self.loss].ref_pad(self.window_len)
 
     def _check_radii(self) -> None:
         for key in ("pos_radius", "neg_radius"):
@@ -220,7 +228,8 @@ def train_bytes(conf: TrainConfig, in_dims: int, n_items: int) -> int:
     out = int(conf.out_dims or in_dims)
     weights = in_dims * out * conf.w + out
     copies = 4 if conf.optimizer == "adam" else 3  # weights, gradients, Adam's two moments / SGD's momentum
-    per_window = conf.window_len if LOSSES[conf.loss].framewise else 1  # seqmatch caches a descriptor per frame
+    # a framewise loss caches a descriptor per frame of each window (the reference's widened by ref_pad)
+    per_window = conf.window_len + conf.ref_pad if LOSSES[conf.loss].framewise else 1
     cache = 2 * n_items * per_window * out  # every window's descriptor(s) while mining, and a copy
     batch = 3 * conf.batch_size * (2 + conf.n_negatives) * conf.window_len * max(in_dims, out) * conf.w
     return 4 * (copies * weights + cache + batch)

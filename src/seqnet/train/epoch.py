@@ -18,7 +18,7 @@ import math
 from ..core.lazy import lazy_module
 from ..core.progress import progress
 from ..sequence.windows import gather_windows
-from .losses import LOSSES, triplet_loss
+from .losses import LOSSES, describe_pair, triplet_loss
 from .mining import Mined, compute_cache, mine_queries
 from .run import Run
 from .source import TripletSource, speed_source
@@ -43,11 +43,10 @@ def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined,
     if (t if total is None else total) == 0:
         return stats
     ref = torch.cat([mined.positive[keep], mined.negatives[keep][valid]])
-    windows = torch.cat([gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])])
     loss = LOSSES[run.conf.loss]
-    emb = loss.describe(run.model if run.net is None else run.net, windows)  # [B + B + T, ...]: q, p, n
-    out = triplet_loss(emb[:b], emb[b : 2 * b], emb[2 * b :], valid.nonzero()[:, 0], run.conf.margin, total,
-                       loss.pair)
+    q_win, r_win = gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])
+    q_emb, r_emb = describe_pair(loss, run.model if run.net is None else run.net, q_win, r_win)  # r: p then n
+    out = triplet_loss(q_emb, r_emb[:b], r_emb[b:], valid.nonzero()[:, 0], run.conf.margin, total, loss.pair)
     run.optimizer.zero_grad(set_to_none=True)
     out.loss.backward()  # distributed: DDP sums the gradients of the shares
     run.optimizer.step()

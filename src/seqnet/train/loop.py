@@ -87,11 +87,11 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
     (windows fit, some query has a positive and a negative): everything that can fail on the data
     fails here, before a run directory is created."""
     src = triplet_source(_split(dataset, conf.train_split, "train"), conf.window_len, conf.window, conf.mining,
-                         device)
+                         device, conf.ref_pad)
     if not conf.validates:
         return src, None
     val_ds = _split(dataset, conf.val_split, "val")
-    split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val")
+    split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad)
     return src, val_ds
 
 

@@ -9,16 +9,23 @@ fewer than K mined negatives are handled by a validity mask (or by listing the T
 windows' descriptors (the paper's); ``seqmatch`` — SeqMatchNet-style (Garg, Vankadari & Milford,
 CoRL 2021), the SeqMatch score of two L_m-frame windows of S_1 descriptors,
 ``s(q, r) = Σ_t ‖S_1(q_t) − S_1(r_t)‖`` (S_1 outputs L2-normalised), so that S_1 is trained for what
-SeqMatch does with it; the positive and the hard negatives are mined by that score too.
+SeqMatch does with it; the positive and the hard negatives are mined by that score too;
+``vseqmatch`` — the same with the velocity-robust score of :mod:`seqnet.matching.velocity` (the minimum over
+its trajectories, differentiable almost everywhere: the gradient flows through the best trajectory), for
+which each reference window is widened by the frames the steepest trajectory reaches (:func:`velocity_pad`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
+
+import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
+from ..matching.velocity import DEFAULT_VELOCITIES, trajectories
 from ..search.knn import pairwise_distances
 
 torch = lazy_module("torch")
@@ -54,6 +61,45 @@ def seqmatch_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return F.pairwise_distance(a, b, eps=PAIRWISE_EPS).sum(dim=-1)
 
 
+@functools.cache
+def velocity_pad(window_len: int) -> int:
+    """Frames the velocity-robust trajectories (:data:`~seqnet.matching.velocity.DEFAULT_VELOCITIES`, centre
+    anchor) reach beyond an L-frame reference window, on either side: ``[L + 2·pad]`` windows hold them all."""
+    offs = np.array(trajectories(DEFAULT_VELOCITIES, window_len, "centre"))
+    return int(max(0, -offs.min(), offs.max() - (window_len - 1)))
+
+
+def _offsets(window_len: int, ref_len: int) -> list[tuple[int, ...]]:
+    """Each trajectory's frames in an ``ref_len``-frame reference window centred like the ``window_len`` one."""
+    pad = (ref_len - window_len) // 2
+    if ref_len != window_len + 2 * velocity_pad(window_len):
+        raise ConfigError(f"vseqmatch: reference windows of {window_len}-frame queries must have "
+                          f"{window_len + 2 * velocity_pad(window_len)} frames, got {ref_len}")
+    return [tuple(o + pad for o in offs) for offs in trajectories(DEFAULT_VELOCITIES, window_len, "centre")]
+
+
+def vseqmatch_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Velocity-robust SeqMatch score of matching windows: ``a [T, L, D]`` × ``b [T, L + 2·pad, D]`` → ``[T]``,
+    ``min_v Σ_t ‖a_t − b_{traj_v(t)}‖`` (as :func:`seqnet.matching.velocity.velocity_pairs` on the frames)."""
+    scores = [F.pairwise_distance(a, b[:, list(offs)], eps=PAIRWISE_EPS).sum(dim=-1)
+              for offs in _offsets(a.shape[1], b.shape[1])]
+    return torch.stack(scores).amin(dim=0)
+
+
+def cross_vseqmatch(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """Velocity-robust scores of every pair: ``[S, L, D]`` × ``[R, L + 2·pad, D]`` → ``[S, R]``; each distinct
+    (step, reference frame) distance computed once."""
+    dist: dict[tuple[int, int], torch.Tensor] = {}
+    best = None
+    for offs in _offsets(q.shape[1], r.shape[1]):
+        for t, o in enumerate(offs):
+            if (t, o) not in dist:
+                dist[t, o] = pairwise_distances(q[:, t], r[:, o])
+        score = sum(dist[t, o] for t, o in enumerate(offs))
+        best = score if best is None else torch.minimum(best, score)
+    return best
+
+
 def triplet_loss(
     query: torch.Tensor, positive: torch.Tensor, negatives: torch.Tensor, anchor: torch.Tensor, margin: float,
     total: int | None = None, distance: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] = pair_distance,
@@ -73,11 +119,13 @@ def triplet_loss(
     Returns:
         :class:`TripletLoss` with ``per_triplet`` of shape ``[T]``; ``loss = Σ_t max(0, d(q, p) − d(q, n_t) + m) / T``.
     """
-    if query.ndim < 2 or positive.shape != query.shape:
+    same = (positive.ndim == query.ndim and positive.shape[0] == query.shape[0]
+            and positive.shape[-1] == query.shape[-1])  # windows: the reference's may be longer (vseqmatch)
+    if query.ndim < 2 or not same:
         raise ConfigError(f"query and positive must both be [B, D] (or [B, L, D]), got {tuple(query.shape)} and "
                           f"{tuple(positive.shape)}")
-    if negatives.shape[1:] != query.shape[1:] or anchor.shape != negatives.shape[:1]:
-        dims = ", ".join(map(str, query.shape[1:]))
+    if negatives.shape[1:] != positive.shape[1:] or anchor.shape != negatives.shape[:1]:
+        dims = ", ".join(map(str, positive.shape[1:]))
         raise ConfigError(f"negatives must be [T, {dims}] with anchor [T], got {tuple(negatives.shape)} "
                           f"and {tuple(anchor.shape)}")
     if not margin > 0:
@@ -143,6 +191,20 @@ def describe_windows_framewise(model: Model, windows: torch.Tensor) -> torch.Ten
     return y.reshape(b, n, y.shape[-1])  # (an empty share of a distributed batch stays [0, L, D'])
 
 
+def describe_pair(loss: WindowLoss, model: Model, q_windows: torch.Tensor,
+                  r_windows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``loss.describe`` of query windows ``[B, L, D]`` and reference windows ``[N, L', D]`` in one forward pass
+    (one DDP forward per step); ``L' > L`` (a framewise loss's widened reference): every frame as a window."""
+    if q_windows.shape[1] == r_windows.shape[1]:
+        emb = loss.describe(model, torch.cat([q_windows, r_windows]))
+        return emb[: len(q_windows)], emb[len(q_windows) :]
+    if not loss.framewise:
+        raise ConfigError(f"windows of {q_windows.shape[1]} and {r_windows.shape[1]} frames need a framewise loss")
+    (b, lq, d), (n, lr, _) = q_windows.shape, r_windows.shape
+    y = model(torch.cat([q_windows.reshape(b * lq, 1, d), r_windows.reshape(n * lr, 1, d)]))
+    return y[: b * lq].reshape(b, lq, -1), y[b * lq :].reshape(n, lr, -1)
+
+
 def cross_seqmatch(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     """SeqMatch scores of every pair of windows: ``[S, L, D]`` × ``[R, L, D]`` → ``[S, R]``."""
     out = pairwise_distances(q[:, 0], r[:, 0])
@@ -163,6 +225,8 @@ class WindowLoss:
         help: one line for ``seqnet train --help``.
         val_method: the method the val split ranks with (at the training window's length; "": the
             model's own role, ``seqnet`` or ``s1``).
+        ref_pad: frames each reference window is widened by on either side, from the window length
+            (the velocity-robust loss's trajectories reach beyond it; 0 for the others).
     """
 
     describe: Callable[[Model, torch.Tensor], torch.Tensor]
@@ -171,6 +235,7 @@ class WindowLoss:
     framewise: bool
     help: str
     val_method: str = ""
+    ref_pad: Callable[[int], int] = lambda window_len: 0
 
 
 LOSSES: dict[str, WindowLoss] = {
@@ -179,4 +244,7 @@ LOSSES: dict[str, WindowLoss] = {
     "seqmatch": WindowLoss(describe_windows_framewise, seqmatch_distance, cross_seqmatch, True,
                            "SeqMatchNet-style: margin loss on the SeqMatch score of --match-len-frame windows of "
                            "S_1 descriptors (S_1 only)", "s1+seqmatch"),
+    "vseqmatch": WindowLoss(describe_windows_framewise, vseqmatch_distance, cross_vseqmatch, True,
+                            "as seqmatch, on the velocity-robust SeqMatch score (min over the trajectories of "
+                            "slopes 0.5-2; S_1 only)", "s1+vseqmatch", velocity_pad),
 }

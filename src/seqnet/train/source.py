@@ -82,14 +82,30 @@ def _full_windows(t: Traverse, seq_len: int, mode: str, what: str) -> tuple[np.n
     return items, starts[items][:, None] + np.arange(seq_len)[None, :]
 
 
-def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, what: str = "train") -> SplitWindows:
-    """The query and reference windows of the split ``ds`` (already split; ``what`` names it in errors).
+def widen_windows(t: Traverse, items: np.ndarray, idx: np.ndarray, pad: int) -> tuple[np.ndarray, np.ndarray]:
+    """Windows ``idx [M, L]`` widened by ``pad`` frames on either side (``[M', L + 2·pad]``), keeping only those
+    inside their frame's sequence (the velocity-robust loss's reference windows); ``(items [M'], idx)``."""
+    if pad == 0:
+        return items, idx
+    wide = idx[:, :1] - pad + np.arange(idx.shape[1] + 2 * pad)[None, :]
+    lo, hi = frame_bounds(len(t), t.seq_bounds)
+    inside = (wide[:, 0] >= lo[items]) & (wide[:, -1] < hi[items])
+    return items[inside], wide[inside]
+
+
+def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, what: str = "train",
+                  ref_pad: int = 0) -> SplitWindows:
+    """The query and reference windows of the split ``ds`` (already split; ``what`` names it in errors);
+    ``ref_pad``: reference windows widened by that many frames on either side (:func:`widen_windows`).
 
     Raises :class:`DatasetError` when a traverse has no full window, or when no query has both a
     reference within ``conf.pos_radius`` and one beyond ``conf.neg_radius``.
     """
     q_items, q_idx = _full_windows(ds.query, seq_len, window, what)
-    r_items, r_idx = _full_windows(ds.reference, seq_len, window, what)
+    r_items, r_idx = widen_windows(ds.reference, *_full_windows(ds.reference, seq_len, window, what), ref_pad)
+    if r_items.size == 0:
+        raise DatasetError(f"{what} split: no {ds.reference.name} window of {seq_len} + 2·{ref_pad} frames fits inside "
+                           f"its sequence (hint: a longer {what} range or a shorter --match-len)")
     q_pos, r_pos = ds.query.positions[q_items], ds.reference.positions[r_items]
     positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
     keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius, positives)
@@ -103,12 +119,13 @@ def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, wh
                         sequence_bounds(ds.query, q_items[keep]))
 
 
-def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device) -> TripletSource:
+def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device,
+                   ref_pad: int = 0) -> TripletSource:
     """Windows, positions and descriptors of the training split ``ds`` (already split) on ``device``.
 
     Raises :class:`DatasetError` as :func:`split_windows`.
     """
-    sw = split_windows(ds, seq_len, window, conf, "train")
+    sw = split_windows(ds, seq_len, window, conf, "train", ref_pad)
     as_long = lambda a: torch.as_tensor(a, dtype=torch.long, device=device)  # noqa: E731
     keys = soft = None
     if sw.positives is not None:
