@@ -9,8 +9,7 @@ import torch
 from seqnet.core.memmaps import Spilled
 from seqnet.data.io import load_dataset
 from seqnet.sequence.checkpoints import read_checkpoint
-from seqnet.train import TrainConfig, train
-from seqnet.train import mining
+from seqnet.train import TrainConfig, mining, train
 from seqnet.train.mining import compute_cache
 from seqnet.train.source import triplet_source
 

@@ -258,9 +258,9 @@ def mine_queries(
 ) -> Mined:
     """Mine the triplets of the training queries ``rows [S]`` from one cache, in blocks of queries.
 
-    ``q_feat [S, D']`` / ``r_feat [R, D']`` (or a :class:`ReferenceCache`) are the cached descriptors; ``conf`` gives the radii,
-    ``n_negatives``, ``n_neg_sample`` and ``margin``. ``neg_cache [M, K]`` (CPU, -1 = none) holds
-    each training query's previous hard negatives and is updated for the queries that get
+    ``q_feat [S, D']`` / ``r_feat [R, D']`` (or a :class:`ReferenceCache`) are the cached descriptors;
+    ``conf`` gives the radii, ``n_negatives``, ``n_neg_sample`` and ``margin``. ``neg_cache [M, K]``
+    (CPU, -1 = none) holds each training query's previous hard negatives and is updated for the queries that get
     triplets. Mining the queries of a cache period together is what mining them batch by batch
     gives (the cache is fixed meanwhile and each query is visited once per epoch), with a few large
     tensor operations instead of many small ones. Blocks keep ``[block, R]`` under ``block_elems``
