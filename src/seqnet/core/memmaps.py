@@ -145,15 +145,17 @@ class SpillWriter:
                                 "hint: set SEQNET_SPILL_DIR to a folder with room") from e
         self.rows += len(block)
 
-    def finish(self) -> Spilled:
-        """The rows written, as a read-only streamed memory map (the file goes when the map does)."""
-        if self.rows != self.shape[0]:
+    def finish(self, short: bool = False) -> Spilled:
+        """The rows written, as a read-only streamed memory map (the file goes when the map does);
+        ``short``: fewer rows than ``shape`` may have been written (the map holds those)."""
+        if self.rows != self.shape[0] and not short:
             raise ValueError(f"spill holds {self.rows} of {self.shape[0]} rows")
+        shape = (self.rows, self.shape[1])
         self.file.flush()
         if self.rows == 0:
             self.file.close()
-            return np.zeros(self.shape, self.dtype).view(Spilled)
-        out = Spilled(self.file, dtype=self.dtype, mode="r", shape=self.shape)
+            return np.zeros(shape, self.dtype).view(Spilled)
+        out = Spilled(self.file, dtype=self.dtype, mode="r", shape=shape)
         self.file.close()  # the mapping keeps the (unlinked) file alive
         return out
 

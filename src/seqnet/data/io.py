@@ -239,7 +239,10 @@ def _write_dataset(ds: Dataset, root: Path) -> None:
 def save_traverse(t: Traverse, path: Path) -> None:
     """Write one traverse directory (descriptors.npy, positions.npy, names.txt, seq_bounds.npy)."""
     path.mkdir(parents=True, exist_ok=True)
-    save_npy_atomic(path / "descriptors.npy", np.ascontiguousarray(t.descriptors, dtype=np.float32))
+    desc = t.descriptors
+    if desc.dtype != np.float32 or not desc.flags.c_contiguous:
+        desc = np.ascontiguousarray(desc, dtype=np.float32)
+    save_npy_atomic(path / "descriptors.npy", desc)  # a memory map as it is: written in blocks
     save_npy_atomic(path / "positions.npy", t.positions)
     if t.names is not None:
         check_names(t.names, f"{t.name}: image names")
