@@ -143,7 +143,8 @@ def localize_map(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
 def train(tmp: Path, args: argparse.Namespace) -> tuple[list[str], list[Path]]:
     return ["train", "--dataset", str(tmp / "ds"), "--out", str(tmp / "run"), "--seq-len", str(args.train_seq_len),
             "--w", str(args.train_w), "--epochs", "1", "--train-split", "all", "--val-split", "none",
-            "--cache-refresh", "0", "--device", "cpu"], [tmp / "ds" / s / "descriptors.npy" for s in ("reference", "query")]
+            "--cache-refresh", "0", "--device", "cpu"], \
+        [tmp / "ds" / s / "descriptors.npy" for s in ("reference", "query")]
 
 
 def describe(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
