@@ -133,14 +133,13 @@ def test_limits_from_the_environment(monkeypatch):
 
 
 def test_a_streamed_array_is_saved_in_blocks_as_numpy_saves_it(mapped, tmp_path, monkeypatch):
-    from seqnet.core.files import save_npy_atomic
-
     x, mm = mapped
     monkeypatch.setattr(memmaps, "TAKE_BYTES", 7 * 24 * 4)  # blocks of 7 rows
     writer = SpillWriter(x.shape, np.float32)
     writer.write(x)
     for arr, name in ((mm, "mapped"), (writer.finish(), "spilled")):
-        save_npy_atomic(tmp_path / f"{name}.npy", arr)
+        with open(tmp_path / f"{name}.npy", "wb") as f:
+            memmaps.write_npy(f, arr)
         np.save(tmp_path / "ref.npy", x)
         assert (tmp_path / f"{name}.npy").read_bytes() == (tmp_path / "ref.npy").read_bytes(), name
 

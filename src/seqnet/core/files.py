@@ -75,19 +75,10 @@ def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> Path:
 
 
 def save_npy_atomic(path: str | os.PathLike[str], array: np.ndarray) -> Path:
-    """Save ``array`` as ``.npy`` atomically; a streamed memory map (:func:`seqnet.core.memmaps.streamed`,
-    e.g. a spill) ``[N, ...]`` is written in blocks of rows, its pages released after each (the same file)."""
-    from .memmaps import TAKE_BYTES, read_rows, streamed
-
+    """Save ``array`` as ``.npy`` atomically."""
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
-            if not (streamed(array) and array.ndim >= 1 and array.flags.c_contiguous):
-                np.save(f, array)
-                return Path(path)
-            np.lib.format.write_array_header_1_0(f, np.lib.format.header_data_from_array_1_0(array))
-            step = max(1, TAKE_BYTES // max(1, array[:1].nbytes))
-            for a in range(0, len(array), step):
-                f.write(np.ascontiguousarray(read_rows(array, a, a + step)).data)
+            np.save(f, array)
     return Path(path)
 
 
