@@ -8,17 +8,26 @@ user types, each in a child process whose peak resident set size is read from ``
 * ``eval --dataset`` with single-image k-NN, whole-map SeqMatch and a sequence shortlist
   (the "map" is the dataset's reference descriptor file);
 * ``index build`` (smoothing shortlist, raw frames + SeqMatch, exact ``flat`` index), then
-  ``eval --index`` and ``localize --map`` on that map (the "map" is the map folder).
+  ``eval --index`` and ``localize --map`` on that map (the "map" is the map folder);
+* ``train`` for one epoch on the whole dataset without validation (S_1 by default: the mining cache
+  of every reference window is the same ``[N_db, D]`` as S_L's, the model a third of its weights;
+  ``--train-seq-len 5 --train-w 3`` trains S_L); the "map" is the reference and query descriptor files;
+* ``describe`` of a folder of ``--images`` greyscale PNGs of ``sqrt(D) x sqrt(D)`` pixels with the
+  ``pixels`` describer (D = H·W), and ``dataset from-images`` of that folder and a query folder of
+  ``--query-images`` (frame-aligned); the "map" is the descriptors the command writes.
 
 Usage::
 
     python benchmarks/bench_map_rss.py --n-db 100000 --dim 4096 --out OUT/rss
+    python benchmarks/bench_map_rss.py --n-db 100000 --dim 4096 --images 100000 \
+        --commands train,describe,from-images --out OUT/rss-more
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -41,10 +50,32 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--noise", type=float, default=1.0)
     p.add_argument("--dtype", default="float32", choices=("float32", "float16"))
     p.add_argument("--commands", default=",".join(COMMANDS), help=f"which of {', '.join(COMMANDS)}")
+    p.add_argument("--images", type=int, default=2000, help="images described by describe / from-images")
+    p.add_argument("--query-images", type=int, default=200, help="query images of from-images")
+    p.add_argument("--train-seq-len", type=int, default=1, help="train: --seq-len (1: S_1)")
+    p.add_argument("--train-w", type=int, default=1, help="train: --w")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", required=True)
     p.add_argument("--make-dataset", help=argparse.SUPPRESS)  # internal: write the dataset into this folder
     return p.parse_args(argv)
+
+
+def make_images(args: argparse.Namespace, root: Path) -> None:
+    """Write ``args.images`` greyscale PNGs of ``sqrt(D) x sqrt(D)`` pixels to ``root/img-ref`` and
+    ``args.query_images`` noisy copies of the first ones to ``root/img-qry``."""
+    from PIL import Image
+
+    side = math.isqrt(args.dim)
+    if side * side != args.dim:
+        raise SystemExit(f"describe / from-images need a square --dim (the pixels of an image), got {args.dim}")
+    rng = np.random.default_rng(1)
+    for name, n in (("img-ref", args.images), ("img-qry", args.query_images)):
+        (root / name).mkdir()
+        for i in range(n):
+            img = np.random.default_rng(i).integers(0, 256, (side, side), dtype=np.uint8)
+            if name == "img-qry":
+                img = np.clip(img + rng.normal(0, 20, img.shape), 0, 255).astype(np.uint8)
+            Image.fromarray(img, "L").save(root / name / f"{i:07d}.png")
 
 
 def make_dataset(args: argparse.Namespace, root: Path) -> Path:
@@ -78,7 +109,9 @@ def run_measured(cmd: list[str], env: dict[str, str]) -> tuple[int, float, int, 
     return os.waitstatus_to_exitcode(status), time.perf_counter() - t0, usage.ru_maxrss * 1024, out
 
 
-def tree_bytes(path: Path) -> int:
+def tree_bytes(path: Path | list[Path]) -> int:
+    if isinstance(path, list):
+        return sum(tree_bytes(p) for p in path)
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else path.stat().st_size
 
 
@@ -107,15 +140,37 @@ def localize_map(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
             "hvpr-smoothing:raw+seqmatch", "--out", str(tmp / "track.csv")], tmp / "map"
 
 
+def train(tmp: Path, args: argparse.Namespace) -> tuple[list[str], list[Path]]:
+    return ["train", "--dataset", str(tmp / "ds"), "--out", str(tmp / "run"), "--seq-len", str(args.train_seq_len),
+            "--w", str(args.train_w), "--epochs", "1", "--train-split", "all", "--val-split", "none",
+            "--cache-refresh", "0", "--device", "cpu"], \
+        [tmp / "ds" / s / "descriptors.npy" for s in ("reference", "query")]
+
+
+def describe(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
+    return ["describe", str(tmp / "img-ref"), "--method", "pixels", "--out", str(tmp / "desc.npy"), "--device",
+            "cpu"], tmp / "desc.npy"
+
+
+def from_images(tmp: Path, args: argparse.Namespace) -> tuple[list[str], list[Path]]:
+    out = tmp / "ds-img"
+    return ["dataset", "from-images", str(tmp / "img-ref"), str(tmp / "img-qry"), "--method", "pixels", "--out",
+            str(out), "--frame-aligned", "--radius", "2", "--device", "cpu"], \
+        [out / s / "descriptors.npy" for s in ("reference", "query")]
+
+
 COMMANDS = {"eval-single": eval_dataset("single"), "eval-seqmatch": eval_dataset("raw+seqmatch"),
             "eval-smoothing": eval_dataset("smoothing"), "index-build": index_build, "eval-index": eval_index,
-            "localize-map": localize_map}
+            "localize-map": localize_map, "train": train, "describe": describe, "from-images": from_images}
+IMAGE_COMMANDS = ("describe", "from-images")
 
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     if args.make_dataset:
         make_dataset(args, Path(args.make_dataset))
+        if any(c in IMAGE_COMMANDS for c in args.commands.split(",")):
+            make_images(args, Path(args.make_dataset))
         return
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -140,7 +195,8 @@ def main(argv: list[str] | None = None) -> None:
                   f"over map {(rss - nbytes) / 2**20:+.0f} MiB, load {load:.2f}", flush=True)
             if rc:
                 print(log[-2000:])
-        res = {"n_db": args.n_db, "dim": args.dim, "dtype": args.dtype, "queries": args.queries, "rows": rows}
+        res = {"n_db": args.n_db, "dim": args.dim, "dtype": args.dtype, "queries": args.queries,
+               "images": args.images, "query_images": args.query_images, "threads": args.threads, "rows": rows}
         (out / "results.json").write_text(json.dumps(res, indent=2))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

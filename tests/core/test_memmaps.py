@@ -130,3 +130,25 @@ def test_limits_from_the_environment(monkeypatch):
     monkeypatch.setenv("SEQNET_RESIDENT_MB", "lots")
     with pytest.raises(ConfigError, match="SEQNET_RESIDENT_MB must be a number of MiB, got 'lots'"):
         memmaps.limit("RESIDENT")
+
+
+def test_a_streamed_array_is_saved_in_blocks_as_numpy_saves_it(mapped, tmp_path, monkeypatch):
+    x, mm = mapped
+    monkeypatch.setattr(memmaps, "TAKE_BYTES", 7 * 24 * 4)  # blocks of 7 rows
+    writer = SpillWriter(x.shape, np.float32)
+    writer.write(x)
+    for arr, name in ((mm, "mapped"), (writer.finish(), "spilled")):
+        with open(tmp_path / f"{name}.npy", "wb") as f:
+            memmaps.write_npy(f, arr)
+        np.save(tmp_path / "ref.npy", x)
+        assert (tmp_path / f"{name}.npy").read_bytes() == (tmp_path / "ref.npy").read_bytes(), name
+
+
+def test_a_spill_may_finish_short_when_asked(rng):
+    x = rng.standard_normal((5, 3)).astype(np.float32)
+    writer = SpillWriter((8, 3), np.float32)
+    writer.write(x)
+    with pytest.raises(ValueError, match="spill holds 5 of 8 rows"):
+        writer.finish()
+    out = writer.finish(short=True)
+    assert isinstance(out, Spilled) and out.shape == (5, 3) and np.array_equal(out, x)

@@ -24,13 +24,23 @@ def test_available_memory_is_the_lowest_known_limit(monkeypatch):
 
 def test_the_training_estimate_grows_with_the_model():
     conf = TrainConfig(seq_len=5, w=5, optimizer="adam")
-    wide = train_bytes(conf, 19200, 222)
+    wide = train_bytes(conf, 19200, 111, 111)
     assert wide > 4 * 4 * 19200 * 19200 * 5  # the weights, their gradients and Adam's two moments
-    assert train_bytes(conf.replace(out_dims=512), 19200, 222) < wide / 10
-    assert train_bytes(conf.replace(optimizer="sgd"), 19200, 222) < wide
-    s1 = TrainConfig(seq_len=1, w=1, out_dims=64, match_len=5)  # the seqmatch loss caches L_m descriptors a window
-    extra = train_bytes(s1.replace(loss="seqmatch"), 16, 1000) - train_bytes(s1, 16, 1000)
-    assert extra >= 4 * 2 * 1000 * 64 * (5 - 1)
+    assert train_bytes(conf.replace(out_dims=512), 19200, 111, 111) < wide / 10
+    assert train_bytes(conf.replace(optimizer="sgd"), 19200, 111, 111) < wide
+    s1 = TrainConfig(seq_len=1, w=1, out_dims=64, match_len=5)  # the seqmatch loss caches L_m descriptors a query
+    extra = train_bytes(s1.replace(loss="seqmatch"), 16, 1000, 1000) - train_bytes(s1, 16, 1000, 1000)
+    assert extra >= 4 * 1000 * 64 * (5 - 1)
+
+
+def test_the_training_estimate_counts_a_spilled_mining_cache_as_not_held(monkeypatch):
+    conf = TrainConfig(seq_len=1, w=1, out_dims=4096)
+    held = train_bytes(conf, 4096, 100000, 1000)
+    assert held > 4 * 100000 * 4096  # every reference window's descriptor
+    spilled = train_bytes(conf, 4096, 100000, 1000, spill=True)
+    assert spilled < held - 4 * 100000 * 4096 + 1  # the cache is in a file
+    monkeypatch.setenv("SEQNET_SPILL_MB", "4096")  # a cache under the spill threshold stays held
+    assert train_bytes(conf, 4096, 100000, 1000, spill=True) == held
 
 
 def test_training_that_cannot_fit_is_refused_before_anything_is_written(synth_dataset, tmp_path, monkeypatch, capsys):

@@ -256,3 +256,18 @@ def test_a_plugin_describer_runs_and_is_recorded(folder, tmp_path):
         DescribeConfig(method="plugin")
     with pytest.raises(ConfigError, match="--describer goes with --method plugin"):
         DescribeConfig(method="pixels", describer=spec)
+
+
+def test_spilled_descriptors_equal_the_held_ones(folder, monkeypatch):
+    from seqnet.core.memmaps import Spilled
+
+    (folder / "f5.png").write_bytes(b"broken")
+    d = make_describer(DescribeConfig(skip_corrupted=True, batch_size=3))
+    paths = sorted(folder.iterdir())
+    held, names = d.describe(paths, spill=True)  # small: held
+    assert not isinstance(held, Spilled) and len(names) == 9 and "f5.png" not in names
+    monkeypatch.setenv("SEQNET_SPILL_MB", "0")
+    spilled, names_s = d.describe(paths, spill=True)
+    assert isinstance(spilled, Spilled) and names_s == names
+    np.testing.assert_array_equal(np.asarray(spilled), held)
+    assert not isinstance(d.describe(paths)[0], Spilled)  # only when asked

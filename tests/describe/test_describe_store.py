@@ -222,3 +222,19 @@ def test_cli_help_comes_from_the_tables(capsys):
     assert "{pixels,gem,gmp,netvlad,plugin}" in text
     assert "{efficientnet-lite0,efficientnet-lite1,efficientnet-lite2,vgg16}" in text
     assert "(default 8)" in text and "native for pixels; 640x320 for gem, gmp, netvlad" in text
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".npy"])
+def test_output_copied_in_blocks_equals_one_written_at_once(folder, tmp_path, suffix, monkeypatch):
+    import seqnet.describe.store as store
+
+    (folder / "f4.png").write_bytes(b"broken")  # skipped: the rows kept are not one run
+    conf = DescribeConfig(skip_corrupted=True, batch_size=3)
+    whole, names = describe_folder(folder, conf, out=tmp_path / f"a{suffix}")
+    monkeypatch.setattr(store, "BLOCK_BYTES", 2 * 32 * 16 * 4)  # two rows a block (32x16 pixels)
+    blocks, names_b = describe_folder(folder, conf, out=tmp_path / f"b{suffix}")
+    assert names == names_b and len(names) == 9 and "f4.png" not in names
+    np.testing.assert_array_equal(np.asarray(whole), np.asarray(blocks))
+    if suffix == ".npy":
+        assert isinstance(blocks, np.memmap)  # the output read back mapped, not held
+        assert (tmp_path / "a.npy").read_bytes() == (tmp_path / "b.npy").read_bytes()

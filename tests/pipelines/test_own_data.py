@@ -111,3 +111,14 @@ def test_both_sides_positions_are_in_one_frame(monkeypatch, zones, error):
     else:
         with pytest.raises(SeqnetError, match=error):
             from_images._both_positions(conf, (None, None), ("r", "q"), (None, None))
+
+
+def test_a_dataset_described_into_spill_files_equals_one_described_in_memory(route, tmp_path, monkeypatch):
+    assert build(route, tmp_path / "held", "--frame-aligned", "--radius", "2") == 0
+    monkeypatch.setenv("SEQNET_SPILL_MB", "0")  # both traverses' descriptors go to spill files, written in blocks
+    monkeypatch.setenv("SEQNET_RESIDENT_MB", "0")
+    assert build(route, tmp_path / "spilled", "--frame-aligned", "--radius", "2") == 0
+    for side in ("reference", "query"):
+        a, b = (tmp_path / d / side / "descriptors.npy" for d in ("held", "spilled"))
+        assert a.read_bytes() == b.read_bytes(), side
+    assert load_dataset(tmp_path / "spilled").reference.descriptors.shape == (80, 16 * 32)

@@ -50,7 +50,8 @@ def test_seqmatch_mining_cache_is_framewise(synth_dataset):
 
     model = SeqNet(16, 8, 1, 1)
     rows = torch.arange(5)
-    q, r = compute_cache(model, src, rows, framewise=True)
+    q, cache = compute_cache(model, src, rows, framewise=True)
+    r = cache.whole(torch.device("cpu"))
     assert q.shape == (5, 3, 8) and r.shape == (len(src.r_idx), 3, 8)
     with torch.no_grad():
         expected = model(src.q_desc[src.q_idx[rows].reshape(-1)]).reshape(5, 3, 8)

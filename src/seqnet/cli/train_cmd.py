@@ -85,8 +85,8 @@ def add_learning(p: argparse.ArgumentParser) -> None:
     t = p.add_argument_group("loss and augmentation")
     t.add_argument("--loss", choices=list(LOSSES), help="loss: " + "; ".join(f"{k}: {v.help}" for k, v in
                    LOSSES.items()) + f" (default {_D.loss})")
-    t.add_argument("--match-len", type=positive_int, help=f"L_m, the SeqMatch window of --loss seqmatch / vseqmatch (default "
-                   f"{_D.match_len})")
+    t.add_argument("--match-len", type=positive_int, help="L_m, the SeqMatch window of --loss seqmatch / vseqmatch "
+                   f"(default {_D.match_len})")
     t.add_argument("--speed-augment", type=speed_range, metavar="VMIN:VMAX", help="re-sample every training query "
                    "window at a random speed in VMIN:VMAX each epoch (frame offsets round(t*v); e.g. 0.5:2; "
                    "default: off)")

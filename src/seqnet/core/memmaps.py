@@ -17,6 +17,7 @@ from __future__ import annotations
 import mmap
 import os
 import tempfile
+from typing import BinaryIO
 
 import numpy as np
 
@@ -102,6 +103,18 @@ def take_rows(x: np.ndarray, idx: np.ndarray, spill: bool = False) -> np.ndarray
     return out
 
 
+def write_npy(f: BinaryIO, x: np.ndarray) -> None:
+    """Write ``x`` to the open binary file ``f`` in ``.npy`` format (the bytes ``np.save`` writes); a streamed
+    C-contiguous ``x [N, ...]`` (e.g. a spill) in blocks of rows, its pages released after each."""
+    if not (streamed(x) and x.ndim >= 1 and x.flags.c_contiguous):
+        np.save(f, x)
+        return
+    np.lib.format.write_array_header_1_0(f, np.lib.format.header_data_from_array_1_0(x))
+    step = max(1, TAKE_BYTES // max(1, x[:1].nbytes))
+    for a in range(0, len(x), step):
+        f.write(read_rows(x, a, a + step).data)
+
+
 def _run(x: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """Rows ``idx`` (non-decreasing) of the streamed ``x``: the span they cover is read, then released."""
     lo, hi = int(idx[0]), int(idx[-1]) + 1
@@ -145,15 +158,17 @@ class SpillWriter:
                                 "hint: set SEQNET_SPILL_DIR to a folder with room") from e
         self.rows += len(block)
 
-    def finish(self) -> Spilled:
-        """The rows written, as a read-only streamed memory map (the file goes when the map does)."""
-        if self.rows != self.shape[0]:
+    def finish(self, short: bool = False) -> Spilled:
+        """The rows written, as a read-only streamed memory map (the file goes when the map does);
+        ``short``: fewer rows than ``shape`` may have been written (the map holds those)."""
+        if self.rows != self.shape[0] and not short:
             raise ValueError(f"spill holds {self.rows} of {self.shape[0]} rows")
+        shape = (self.rows, self.shape[1])
         self.file.flush()
         if self.rows == 0:
             self.file.close()
-            return np.zeros(self.shape, self.dtype).view(Spilled)
-        out = Spilled(self.file, dtype=self.dtype, mode="r", shape=self.shape)
+            return np.zeros(shape, self.dtype).view(Spilled)
+        out = Spilled(self.file, dtype=self.dtype, mode="r", shape=shape)
         self.file.close()  # the mapping keeps the (unlinked) file alive
         return out
 

@@ -9,6 +9,7 @@ from collections.abc import Callable, Iterator, Sequence
 import numpy as np
 
 from ..core.errors import ConfigError, ImageError
+from ..core.memmaps import SpillWriter, spill_size
 from ..core.progress import progress
 from ..core.utils import get_device, logger
 from .config import DescribeConfig
@@ -68,25 +69,49 @@ class Describer:
             if len(imgs):
                 yield imgs
 
-    def describe(self, paths: Sequence[str | os.PathLike[str] | ImageItem],
-                 names: Sequence[str] | None = None) -> tuple[np.ndarray, list[str]]:
+    def describe(self, paths: Sequence[str | os.PathLike[str] | ImageItem], names: Sequence[str] | None = None,
+                 spill: bool = False) -> tuple[np.ndarray, list[str]]:
         """Descriptors ``[N, D]`` float32 of ``paths`` and their names (default: the file names);
-        images skipped with ``skip_corrupted`` are left out of both."""
+        images skipped with ``skip_corrupted`` are left out of both. ``spill``: descriptors over
+        ``SEQNET_SPILL_MB`` go to a temporary file, returned as a read-only
+        :class:`~seqnet.core.memmaps.Spilled` map."""
         paths = [as_image(p) for p in paths]
         if not paths:
             raise ImageError("no images to describe (empty list of paths)")
         names = [p.name for p in paths] if names is None else list(names)
-        rows: dict[int, np.ndarray] = {}
-
-        def sink(idx: np.ndarray, desc: np.ndarray | None) -> None:
-            if desc is not None:
-                rows.update(zip(idx.tolist(), desc, strict=True))
-
-        run_batches(paths, self, np.ones(len(paths), bool), sink)
-        if not rows:
+        rows = _Rows(len(paths), spill)
+        run_batches(paths, self, np.ones(len(paths), bool), rows.sink)
+        if not rows.kept:
             raise ImageError(f"none of the {len(paths)} images could be read (first: {paths[0]})")
-        order = sorted(rows)
-        return np.stack([rows[i] for i in order]).astype(np.float32), [names[i] for i in order]
+        return rows.finish(), [names[i] for i in rows.kept]
+
+
+class _Rows:
+    """``[K, D]`` float32 descriptors of the K images described of N, filled batch by batch in image order
+    (:func:`run_batches` visits the images in order): an array, or a spill file when ``spill`` and large."""
+
+    def __init__(self, n: int, spill: bool) -> None:
+        self.n, self.spill, self.kept = n, spill, []
+        self.buf: np.ndarray | None = None
+        self.writer: SpillWriter | None = None
+
+    def sink(self, idx: np.ndarray, desc: np.ndarray | None) -> None:
+        if desc is None:
+            return
+        if self.buf is None and self.writer is None:
+            shape = (self.n, int(desc.shape[1]))
+            if self.spill and spill_size(shape):
+                self.writer = SpillWriter(shape, np.float32)
+            else:
+                self.buf = np.empty(shape, np.float32)
+        if self.writer is not None:
+            self.writer.write(desc)
+        else:
+            self.buf[len(self.kept) : len(self.kept) + len(idx)] = desc
+        self.kept.extend(idx.tolist())
+
+    def finish(self) -> np.ndarray:
+        return self.writer.finish(short=True) if self.writer is not None else self.buf[: len(self.kept)]
 
 
 def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str] | ImageItem] = (),

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import h5py
@@ -26,6 +27,7 @@ from ..core.ownership import locked, remove_dead_temps
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
+from ..data.readers import read_descriptor_file
 from .config import DescribeConfig, fit_summary
 from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches
 from .images import ImageList, list_images
@@ -36,6 +38,7 @@ from .state import StateFile, provenance_fit, reused_fit, state_files
 __all__ = ["OUT_SUFFIXES", "describe_folder", "describe_to_file", "main", "names_file_for"]
 
 TODO, DONE, SKIPPED = 0, 1, 2
+BLOCK_BYTES = 32 << 20  # descriptors copied per block from the partial file into the output
 
 
 def partial_file_for(out: str | os.PathLike[str]) -> Path:
@@ -112,7 +115,7 @@ def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path, overwr
     describer = make_describer(conf, images.paths, sidecar=out)  # fitted on the whole list's images, as unsharded
     try:
         with h5py.File(partial, "a") as h:
-            keep, desc = _describe_into(h, todo, describer, settings)
+            keep = _describe_into(h, todo, describer, settings)
     except BaseException:
         _drop_if_unstarted(partial)
         raise
@@ -122,15 +125,18 @@ def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path, overwr
     names = [todo.names[i] for i in keep]
     record = {**conf.to_dict(), "fit": fit_summary(conf.fit)}  # a list of fitting images as its hash
     fitted_on = fit_paths_of(conf, images.paths) if conf.needs_fit else None
-    prov = {**describe_provenance(conf, fitted_on, desc), **({SHARD_KEY: part} if part else {})}
-    write_output(out, desc.shape, [desc], names, json.dumps(record, sort_keys=True), prov)
+    with h5py.File(partial, "r") as h:
+        ds = h["descriptors"]
+        prov = {**describe_provenance(conf, fitted_on, ds), **({SHARD_KEY: part} if part else {})}
+        write_output(out, (len(keep), ds.shape[1]), kept_blocks(ds, keep), names, json.dumps(record, sort_keys=True),
+                     prov)
     partial.unlink()
-    return desc, names
+    return read_descriptor_file(out)[0], names  # a .npy output memory-mapped
 
 
-def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc: np.ndarray) -> dict:
-    """The provenance record (:mod:`seqnet.core.provenance`) of descriptors ``desc [N, D]`` made with
-    ``conf``, whose fitted state (if any) was fitted on the images ``fitted_on``."""
+def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc: np.ndarray | h5py.Dataset) -> dict:
+    """The provenance record (:mod:`seqnet.core.provenance`) of descriptors ``desc [N, D]`` (only their
+    dimension is read) made with ``conf``, whose fitted state (if any) was fitted on the images ``fitted_on``."""
     settings = {k: v for k, v in conf.settings().items() if k not in ("fit", "fit_max")}
     fit = provenance_fit(fitted_on) if fitted_on is not None else reused_fit(conf, settings)
     if fitted_on is None and fit is not None:  # seqnet's own fitted state, reused as documented: the fitting
@@ -138,9 +144,9 @@ def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc
     return make_provenance("describe", settings, dim=int(desc.shape[1]), fit=fit)
 
 
-def _describe_into(h: h5py.File, images: ImageList, describer: Describer,
-                   settings: str) -> tuple[np.ndarray, np.ndarray]:
-    """Run the images still to do into the open partial file; ``(indices done [K], descriptors [K, D])``."""
+def _describe_into(h: h5py.File, images: ImageList, describer: Describer, settings: str) -> np.ndarray:
+    """Run the images still to do into the open partial file; the indices of the images done ``[K]``
+    (their descriptors are the rows ``keep`` of ``h["descriptors"]``, left in the file)."""
     if "status" not in h:
         h.attrs["settings"] = settings
         h.create_dataset("names", data=np.array(images.names, dtype=object), dtype=h5py.string_dtype())
@@ -149,9 +155,17 @@ def _describe_into(h: h5py.File, images: ImageList, describer: Describer,
     if (status != TODO).any():
         logger.info("resuming: %d of %d images already done", int((status != TODO).sum()), len(status))
     run_batches(images.paths, describer, status == TODO, _h5_sink(h, len(images)))
-    keep = np.flatnonzero(h["status"][()] == DONE)
-    desc = h["descriptors"][()][keep] if "descriptors" in h else np.zeros((0, 0), np.float32)
-    return keep, desc
+    return np.flatnonzero(h["status"][()] == DONE)
+
+
+def kept_blocks(ds: h5py.Dataset, keep: np.ndarray) -> Iterator[np.ndarray]:
+    """The rows ``keep`` (increasing) of ``ds [N, D]``, read in consecutive blocks of at most
+    :data:`BLOCK_BYTES` (``[<= rows, D]``): the whole array is never held."""
+    step = max(1, BLOCK_BYTES // max(1, ds.shape[1] * ds.dtype.itemsize))
+    for a in range(0, len(keep), step):
+        idx = keep[a : a + step]
+        lo, hi = int(idx[0]), int(idx[-1]) + 1
+        yield ds[lo:hi] if hi - lo == len(idx) else ds[idx]  # a run of rows is one slice
 
 
 def _remove_own_state(states: list[StateFile]) -> None:

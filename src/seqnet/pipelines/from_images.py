@@ -177,7 +177,7 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
         desc = {}
         for side, images in (("reference", ref), ("query", qry)):
             logger.info("describing %d %s images (%s)", len(images), side, conf.describe.method)
-            desc[side], got = describer.describe(images.paths, images.names)
+            desc[side], got = describer.describe(images.paths, images.names, spill=True)  # large: a spill file
             if len(got) != len(images):
                 missing = sorted(set(images.names) - set(got))
                 raise ImageError(f"{len(missing)} {side} images could not be read (first: {missing[0]}); their "

@@ -221,15 +221,28 @@ class TrainConfig(Config):
         return dataclasses.replace(self, **{k: getattr(conf, k) for k in RESUME_OVERRIDABLE})
 
 
-def train_bytes(conf: TrainConfig, in_dims: int, n_items: int) -> int:
-    """Estimated peak bytes of training ``conf`` on ``in_dims``-D descriptors with ``n_items`` windows (both
-    sides): the weights with their gradients and optimiser state, the mining cache of descriptors, and
-    one batch of windows (its activations, kept for the backward pass)."""
+def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill: bool = False) -> int:
+    """Estimated peak bytes of training ``conf`` on ``in_dims``-D descriptors with ``n_ref`` reference and
+    ``n_query`` query frames (one process): the weights with their gradients and optimiser state, the
+    mining cache, its blocks in flight, and one batch of windows (its activations, kept for the backward pass).
+
+    The mining cache holds one descriptor per reference window (per frame for the seqmatch loss: about as
+    many), unless ``spill`` (training on the CPU) sends one over ``SEQNET_SPILL_MB`` to a temporary file
+    (:func:`seqnet.train.mining.compute_cache`); and one per window of the ``cache_refresh`` queries mined
+    together (``window_len`` per window for the seqmatch loss). The frame descriptors themselves are the
+    dataset's (a large memory map on the CPU is read in blocks, not copied)."""
+    from ..core.memmaps import limit
+    from ..search.blocks import COL_BLOCK_BYTES
+
     out = int(conf.out_dims or in_dims)
     weights = in_dims * out * conf.w + out
     copies = 4 if conf.optimizer == "adam" else 3  # weights, gradients, Adam's two moments / SGD's momentum
-    # a framewise loss caches a descriptor per frame of each window (the reference's widened by ref_pad)
-    per_window = conf.window_len + conf.ref_pad if LOSSES[conf.loss].framewise else 1
-    cache = 2 * n_items * per_window * out  # every window's descriptor(s) while mining, and a copy
+    per_window = conf.window_len if LOSSES[conf.loss].framewise else 1
+    ref_cache = 4 * n_ref * out
+    if spill and ref_cache > limit("SPILL"):
+        ref_cache = 0  # in a spill file, read back one column block at a time
+    mined = min(conf.cache_refresh or n_query, n_query)
+    query_cache = 4 * mined * per_window * out
+    blocks = min(COL_BLOCK_BYTES, 4 * n_ref * per_window * out) + 4 * 4 * min(2**24, mined * n_ref)  # [B, R] x 4
     batch = 3 * conf.batch_size * (2 + conf.n_negatives) * conf.window_len * max(in_dims, out) * conf.w
-    return 4 * (copies * weights + cache + batch)
+    return 4 * (copies * weights + batch) + ref_cache + query_cache + blocks

@@ -17,11 +17,10 @@ import math
 
 from ..core.lazy import lazy_module
 from ..core.progress import progress
-from ..sequence.windows import gather_windows
 from .losses import LOSSES, describe_pair, triplet_loss
 from .mining import Mined, compute_cache, mine_queries
 from .run import Run
-from .source import TripletSource, speed_source
+from .source import TripletSource, source_windows, speed_source
 
 torch = lazy_module("torch")
 
@@ -44,7 +43,7 @@ def train_step(run: Run, src: TripletSource, rows: torch.Tensor, mined: Mined,
         return stats
     ref = torch.cat([mined.positive[keep], mined.negatives[keep][valid]])
     loss = LOSSES[run.conf.loss]
-    q_win, r_win = gather_windows(src.q_desc, src.q_idx[rows[keep]]), gather_windows(src.r_desc, src.r_idx[ref])
+    q_win, r_win = source_windows(src.q_desc, src.q_idx[rows[keep]]), source_windows(src.r_desc, src.r_idx[ref])
     q_emb, r_emb = describe_pair(loss, run.model if run.net is None else run.net, q_win, r_win)  # r: p then n
     out = triplet_loss(q_emb, r_emb[:b], r_emb[b:], valid.nonzero()[:, 0], run.conf.margin, total, loss.pair)
     run.optimizer.zero_grad(set_to_none=True)
@@ -62,8 +61,8 @@ def mine_share(run: Run, src: TripletSource, rows: torch.Tensor, own: torch.Tens
     world, mine = run.world, rows[own]
     refs = world.part(len(src.r_idx))
     loss = LOSSES[run.conf.loss]
-    q_feat, r_part = compute_cache(run.model, src, mine, refs, loss.framewise)
-    r_feat = world.gather_rows(r_part, len(src.r_idx))
+    q_feat, r_part = compute_cache(run.model, src, mine, refs, loss.framewise, spill=world.size == 1)
+    r_feat = r_part if world.size == 1 else world.gather_rows(r_part.whole(src.device), len(src.r_idx))
     mined = mine_queries(src, rows, q_feat, r_feat, run.conf.mining, run.generator, run.neg_cache, own=own,
                          distance=loss.cross)
     counts = mined.valid.sum(dim=1, keepdim=True).cpu()

@@ -27,7 +27,7 @@ from ..core.lazy import lazy_module
 from ..core.memory import check_fits, gib
 from ..core.ownership import locked
 from ..core.provenance import check_same
-from ..core.utils import logger
+from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..eval.checks import accepted_mismatch
@@ -204,7 +204,8 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
 def _check_memory(conf: TrainConfig, dataset: Dataset) -> None:
     """Refuse, before any work, a training run whose estimate exceeds the available memory."""
     d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
-    check_fits(train_bytes(conf, d, len(dataset.reference) + len(dataset.query)),
+    spill = get_device(conf.device).type == "cpu"  # the mining cache spills when large (one process)
+    check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill),
                f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
                f"{gib(4 * d * out * conf.w)})",
                "a smaller --out-dims (e.g. 512), fewer dimensions when describing (--dim, PCA), a smaller --w "

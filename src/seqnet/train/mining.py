@@ -9,7 +9,10 @@ For each training query (a window of the query traverse):
   cache); the ``n_neg`` closest of them in descriptor space are kept, and only those that violate
   the margin (``d_neg < d_pos + margin``) make triplets. A query without any is skipped.
 
-Everything is one ``[B, R]`` distance matrix and masks: no loop per query or per negative.
+Everything is one ``[B, R]`` distance matrix and masks: no loop per query or per negative. The
+reference side of the mining cache (:class:`ReferenceCache`) is spilled to a temporary file when it
+is large and computed on the CPU (:mod:`seqnet.core.memmaps`), and the distances are computed over
+it in column blocks of :data:`~seqnet.search.blocks.COL_BLOCK_BYTES`, held or spilled alike.
 """
 
 from __future__ import annotations
@@ -20,6 +23,10 @@ from collections.abc import Callable
 import numpy as np
 
 from ..core.lazy import lazy_module
+from ..core.memmaps import take_rows
+from ..core.utils import as_tensor
+from ..search.blocks import COL_BLOCK_BYTES
+from ..search.blocks import rows as read_block
 from ..search.knn import pairwise_distances
 from ..sequence.descriptors import describe_windows
 from .config import MiningConfig
@@ -58,6 +65,70 @@ class Mined:
     def cat(parts: list[Mined]) -> Mined:
         """Concatenate the triplets of consecutive query blocks."""
         return Mined(*(torch.cat([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(Mined)))
+
+
+@dataclasses.dataclass
+class ReferenceCache:
+    """The current model's mining descriptors of R reference windows.
+
+    Attributes:
+        feats: ``[F, D']`` descriptors: a tensor, or a read-only :class:`~seqnet.core.memmaps.Spilled` map.
+        frames: framewise (the seqmatch loss): ``[R, L]`` the row of ``feats`` of each window's frame
+            (each frame described once); None: row ``r`` of ``feats`` is window ``r`` (F = R).
+    """
+
+    feats: torch.Tensor | np.ndarray
+    frames: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.feats) if self.frames is None else len(self.frames)
+
+    def block(self, a: int, b: int, device: torch.device) -> torch.Tensor:
+        """Windows ``a:b``: ``[b - a, D']``, framewise ``[b - a, L, D']``, on ``device``."""
+        if self.frames is None:
+            held = isinstance(self.feats, torch.Tensor)
+            return self.feats[a:b].to(device) if held else read_block(self.feats, a, b, device, torch.float32)
+        idx = self.frames[a:b]
+        if isinstance(self.feats, torch.Tensor):
+            sub = self.feats[torch.as_tensor(idx.reshape(-1), device=self.feats.device)].to(device)
+        else:
+            sub = as_tensor(take_rows(self.feats, idx.reshape(-1)), device)
+        return sub.reshape(*idx.shape, sub.shape[-1])
+
+    def whole(self, device: torch.device) -> torch.Tensor:
+        """Every window's descriptors, ``[R, D']`` or ``[R, L, D']`` (held in memory)."""
+        return self.block(0, len(self), device)
+
+    def step(self) -> int:
+        """Windows per column block of the distances: :data:`COL_BLOCK_BYTES` of float32 descriptors."""
+        per = self.feats.shape[-1] * (1 if self.frames is None else self.frames.shape[1]) * 4
+        return max(1, COL_BLOCK_BYTES // per)
+
+
+def as_cache(r_feat: torch.Tensor | ReferenceCache) -> ReferenceCache:
+    """``r_feat``, or a tensor of the windows' descriptors ``[R, D']`` / ``[R, L, D']`` as a cache."""
+    if isinstance(r_feat, ReferenceCache):
+        return r_feat
+    if r_feat.ndim == 3:
+        r, n, d = r_feat.shape
+        return ReferenceCache(r_feat.reshape(r * n, d), np.arange(r * n).reshape(r, n))
+    return ReferenceCache(r_feat)
+
+
+def cache_distances(distance: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], q_feat: torch.Tensor,
+                    cache: ReferenceCache) -> torch.Tensor:
+    """``[B, R]``: ``distance`` of the queries ``q_feat [B, ...]`` to every window of ``cache``, one column
+    block (:meth:`ReferenceCache.step` windows) at a time, whether the cache is held or spilled."""
+    n, step = len(cache), cache.step()
+    if step >= n:
+        return distance(q_feat, cache.whole(q_feat.device))
+    out = None
+    for a in range(0, n, step):
+        d = distance(q_feat, cache.block(a, min(n, a + step), q_feat.device))
+        if out is None:
+            out = d.new_empty((len(q_feat), n))
+        out[:, a : a + d.shape[1]] = d
+    return out
 
 
 def closest_positive(dist: torch.Tensor, pos_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -107,7 +178,7 @@ def hardest_negatives(
 
 def mine_batch(
     q_feat: torch.Tensor,
-    r_feat: torch.Tensor,
+    r_feat: torch.Tensor | ReferenceCache,
     pos_mask: torch.Tensor,
     neg_mask: torch.Tensor,
     n_neg: int,
@@ -122,7 +193,8 @@ def mine_batch(
 
     Args:
         q_feat: ``[B, D']`` cached descriptors of the batch queries (``[B, L, D']`` for a framewise loss).
-        r_feat: ``[R, D']`` cached descriptors of all training reference windows (``[R, L, D']``).
+        r_feat: ``[R, D']`` cached descriptors of all training reference windows (``[R, L, D']``), or their
+            :class:`ReferenceCache` (read in column blocks).
         pos_mask, neg_mask: ``[B, R]`` from :func:`radius_masks`.
         n_neg: negatives per query K; n_sample: random negatives drawn per query.
         margin: triplet margin (a negative is kept only if ``d_neg < d_pos + margin``).
@@ -131,7 +203,7 @@ def mine_batch(
         drawn: see :func:`sample_negatives` (the block these B queries are a share of).
         distance: ``[B, ...]`` × ``[R, ...]`` → ``[B, R]`` scores (the loss's ``cross``; default Euclidean).
     """
-    dist = distance(q_feat, r_feat)
+    dist = cache_distances(distance, q_feat, as_cache(r_feat))
     pos, d_pos = closest_positive(dist, pos_mask)
     cand = sample_negatives(neg_mask, n_sample, generator, drawn)
     if neg_cache is not None and neg_cache.numel():
@@ -147,32 +219,36 @@ def mine_batch(
 
 def compute_cache(
     model: Callable[[torch.Tensor], torch.Tensor], src: TripletSource, rows: torch.Tensor, refs: slice = slice(None),
-    framewise: bool = False,
-) -> tuple[torch.Tensor, torch.Tensor]:
+    framewise: bool = False, spill: bool = False,
+) -> tuple[torch.Tensor, ReferenceCache]:
     """Current-model descriptors of the queries ``rows`` ``[S, D']`` and of the reference windows
-    ``refs`` (default all) ``[R, D']``; ``framewise`` (the seqmatch loss): of every frame of those
-    windows, ``[S, L, D']`` and ``[R, L, D']`` (each frame described once).
+    ``refs`` (default all), a :class:`ReferenceCache` of ``[R, D']``; ``framewise`` (the seqmatch loss):
+    of every frame of those windows, ``[S, L, D']`` and a cache of each distinct frame's descriptor.
 
+    ``spill``: on the CPU, a reference cache over :data:`~seqnet.core.memmaps.SPILL_BYTES` is written to a
+    temporary file (the same numbers, read back in blocks) instead of memory.
     ``model`` maps windows ``[B, L, D]`` to descriptors ``[B, D']`` (a :class:`SeqNet` or an equivalent).
     No progress bar: this runs every ``cache_refresh`` queries inside the epoch's bar.
     """
-    dev = src.q_desc.device
+    dev = src.device
 
-    def describe(desc: torch.Tensor, idx: np.ndarray) -> torch.Tensor:
+    def describe(desc: torch.Tensor | np.ndarray, idx: np.ndarray, spill: bool) -> ReferenceCache:
         if not framewise:
-            return describe_windows(desc, idx, model, device=dev, progress=None).to(dev)
+            out = describe_windows(desc, idx, model, device=dev, progress=None, spill=spill)
+            return ReferenceCache(out.to(dev) if isinstance(out, torch.Tensor) else out)
         frames, inverse = np.unique(idx, return_inverse=True)
-        feats = describe_windows(desc, frames[:, None], model, device=dev, progress=None).to(dev)
-        return feats[torch.as_tensor(inverse.reshape(idx.shape), device=dev)]
+        feats = describe_windows(desc, frames[:, None], model, device=dev, progress=None, spill=spill)
+        return ReferenceCache(feats.to(dev) if isinstance(feats, torch.Tensor) else feats, inverse.reshape(idx.shape))
 
-    return describe(src.q_desc, src.q_idx[rows].cpu().numpy()), describe(src.r_desc, src.r_idx[refs].cpu().numpy())
+    q_feat = describe(src.q_desc, src.q_idx[rows].cpu().numpy(), False).whole(dev)  # [S, ...]
+    return q_feat, describe(src.r_desc, src.r_idx[refs].cpu().numpy(), spill and dev.type == "cpu")
 
 
 def mine_queries(
     src: TripletSource,
     rows: torch.Tensor,
     q_feat: torch.Tensor,
-    r_feat: torch.Tensor,
+    r_feat: torch.Tensor | ReferenceCache,
     conf: MiningConfig,
     generator: torch.Generator,
     neg_cache: torch.Tensor,
@@ -182,9 +258,9 @@ def mine_queries(
 ) -> Mined:
     """Mine the triplets of the training queries ``rows [S]`` from one cache, in blocks of queries.
 
-    ``q_feat [S, D']`` / ``r_feat [R, D']`` are the cached descriptors; ``conf`` gives the radii,
-    ``n_negatives``, ``n_neg_sample`` and ``margin``. ``neg_cache [M, K]`` (CPU, -1 = none) holds
-    each training query's previous hard negatives and is updated for the queries that get
+    ``q_feat [S, D']`` / ``r_feat [R, D']`` (or a :class:`ReferenceCache`) are the cached descriptors;
+    ``conf`` gives the radii, ``n_negatives``, ``n_neg_sample`` and ``margin``. ``neg_cache [M, K]``
+    (CPU, -1 = none) holds each training query's previous hard negatives and is updated for the queries that get
     triplets. Mining the queries of a cache period together is what mining them batch by batch
     gives (the cache is fixed meanwhile and each query is visited once per epoch), with a few large
     tensor operations instead of many small ones. Blocks keep ``[block, R]`` under ``block_elems``
@@ -192,7 +268,8 @@ def mine_queries(
     (``q_feat`` their descriptors), drawing the random numbers of every row (generators stay in step).
     ``distance``: the loss's scores of (query, reference) windows (:class:`~seqnet.train.losses.WindowLoss`).
     """
-    block = max(1, block_elems // max(1, r_feat.shape[0]))
+    r_feat = as_cache(r_feat)
+    block = max(1, block_elems // max(1, len(r_feat)))
     parts, at = [], 0
     for s in range(0, len(rows), block):
         o = None if own is None else own[s : s + block]

@@ -11,10 +11,11 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from ..core.lazy import lazy_module
+from ..core.memmaps import streamed, take_rows
 from ..core.utils import as_tensor
 from ..data.positives import Positives
 from ..data.traverse import Dataset, Traverse
-from ..sequence.windows import frame_bounds, speed_windows, window_starts
+from ..sequence.windows import frame_bounds, gather_windows, speed_windows, window_starts
 from .config import MiningConfig
 from .truth import nonnegative_keys, positive_keys, queries_with_pairs
 
@@ -44,14 +45,15 @@ class SplitWindows:
 class TripletSource:
     """Training windows on the compute device.
 
-    ``q_desc [Nq, D]`` / ``r_desc [Nr, D]`` frame descriptors; ``q_idx [M, L]`` frames of the M
+    ``q_desc [Nq, D]`` / ``r_desc [Nr, D]`` frame descriptors (a streamed memory map on the CPU stays one:
+    :func:`on_device`); ``q_idx [M, L]`` frames of the M
     training queries (those with a positive and a negative); ``r_idx [R, L]`` frames of every
     reference window; ``q_pos [M, P]`` / ``r_pos [R, P]`` float64 positions of the windows' frames;
     ``left_out``: queries left out (no positive or no negative).
     """
 
-    q_desc: torch.Tensor
-    r_desc: torch.Tensor
+    q_desc: torch.Tensor | np.ndarray
+    r_desc: torch.Tensor | np.ndarray
     q_idx: torch.Tensor
     r_idx: torch.Tensor
     q_pos: torch.Tensor
@@ -65,6 +67,29 @@ class TripletSource:
     @property
     def n_queries(self) -> int:
         return int(self.q_idx.shape[0])
+
+    @property
+    def device(self) -> torch.device:
+        """The compute device (where the windows' indices are)."""
+        return self.q_idx.device
+
+
+def on_device(desc: np.ndarray, device: torch.device) -> torch.Tensor | np.ndarray:
+    """Frame descriptors ``desc [N, D]`` for training on ``device``: a float32 tensor there, except that a
+    streamed memory map (:func:`seqnet.core.memmaps.streamed`) trained on the CPU stays the map (read in
+    blocks, never copied whole)."""
+    if device.type == "cpu" and streamed(desc):
+        return desc
+    return as_tensor(desc, device)
+
+
+def source_windows(desc: torch.Tensor | np.ndarray, idx: torch.Tensor) -> torch.Tensor:
+    """``[M, L, D]`` float32 windows of ``desc [N, D]`` (a tensor, or a map from :func:`on_device`) at the
+    frames ``idx [M, L]``, on ``idx``'s device."""
+    if isinstance(desc, torch.Tensor):
+        return gather_windows(desc, idx)
+    flat = take_rows(desc, idx.reshape(-1).cpu().numpy())
+    return as_tensor(flat, idx.device).reshape(*idx.shape, desc.shape[1])
 
 
 def sequence_bounds(t: Traverse, items: np.ndarray) -> np.ndarray:
@@ -130,7 +155,7 @@ def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, d
     keys = soft = None
     if sw.positives is not None:
         keys, soft = positive_keys(sw.positives, len(sw.r_idx)), nonnegative_keys(sw.positives, len(sw.r_idx))
-    return TripletSource(as_tensor(ds.query.descriptors, device), as_tensor(ds.reference.descriptors, device),
+    return TripletSource(on_device(ds.query.descriptors, device), on_device(ds.reference.descriptors, device),
                          as_long(sw.q_idx), as_long(sw.r_idx), torch.as_tensor(sw.q_pos, device=device),
                          torch.as_tensor(sw.r_pos, device=device), sw.left_out,
                          None if keys is None else keys.to(device), None if soft is None else soft.to(device),
