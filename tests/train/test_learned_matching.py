@@ -146,20 +146,21 @@ def test_vseqmatch_reference_windows_are_widened_inside_their_sequences():
     assert widen_windows(t, items, idx, 0)[1] is idx
 
 
-def test_vseqmatch_loss_trains_s1_on_widened_references_and_validates_with_s1_vseqmatch(synth_dataset, tmp_path):
-    conf = S1_VSEQMATCH.resolve(synth_dataset)
+@pytest.mark.parametrize(("loss", "method"), [("vseqmatch", "s1+vseqmatch"), ("graph", "s1+graph")])
+def test_matcher_losses_train_s1_on_widened_references_and_validate_with_their_matcher(synth_dataset, tmp_path,
+                                                                                       loss, method):
+    conf = S1_VSEQMATCH.replace(loss=loss).resolve(synth_dataset)
     assert (conf.window_len, conf.ref_pad) == (3, 1)
     src = triplet_source(synth_dataset.split("train"), conf.window_len, conf.window, conf.mining,
                          torch.device("cpu"), conf.ref_pad)
     assert src.q_idx.shape[1] == 3 and src.r_idx.shape[1] == 5
-    run = train(synth_dataset, S1_VSEQMATCH.replace(epochs=2), tmp_path / "r")
+    run = train(synth_dataset, conf.replace(epochs=2), tmp_path / "r")
     assert all(h["triplets"] > 0 for h in run.history) and run.history[-1]["loss"] < run.history[0]["loss"]
     from seqnet.eval.evaluate import EvalConfig, evaluate
 
     model = load_model(tmp_path / "r" / "best.pt")
-    assert read_checkpoint(tmp_path / "r" / "best.pt")["config"]["loss"] == "vseqmatch"
-    ev = evaluate(synth_dataset.split("val"), EvalConfig(methods=("s1+vseqmatch",), seq_len=3, device="cpu"),
-                  {"s1": model})
-    assert ev.results["methods"]["s1+vseqmatch"]["recall@1"] == pytest.approx(run.best_score)
-    with pytest.raises(ConfigError, match="the vseqmatch loss trains S_1"):
-        TrainConfig(loss="vseqmatch", seq_len=5, w=5)
+    assert read_checkpoint(tmp_path / "r" / "best.pt")["config"]["loss"] == loss
+    ev = evaluate(synth_dataset.split("val"), EvalConfig(methods=(method,), seq_len=3, device="cpu"), {"s1": model})
+    assert ev.results["methods"][method]["recall@1"] == pytest.approx(run.best_score)
+    with pytest.raises(ConfigError, match=f"the {loss} loss trains S_1"):
+        TrainConfig(loss=loss, seq_len=5, w=5)

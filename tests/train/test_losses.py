@@ -11,7 +11,15 @@ from torch import nn
 from seqnet.core.errors import ConfigError
 from seqnet.matching.seqmatch import seqmatch
 from seqnet.sequence.model import SeqNet
-from seqnet.train.losses import LOSSES, PAIRWISE_EPS, batch_triplet_loss, describe_pair, triplet_loss, velocity_pad
+from seqnet.train.losses import (
+    LOSSES,
+    PAIRWISE_EPS,
+    batch_triplet_loss,
+    describe_pair,
+    graph_pad,
+    triplet_loss,
+    velocity_pad,
+)
 
 
 def _loop_loss(q, p, n, valid, margin):
@@ -297,3 +305,94 @@ def test_describe_pair_is_one_forward_and_refuses_wider_windows_for_whole_window
     torch.testing.assert_close(q[0], model(q_win[0][:, None]))
     with pytest.raises(ConfigError, match="framewise"):
         describe_pair(LOSSES["triplet"], model, torch.randn(2, 3, 5), torch.randn(4, 5, 5))
+
+
+# --- the graph loss: the GISM-style path cost, its dynamic program under autograd --------------------------------
+
+def _naive_graph_score(q: torch.Tensor, r: torch.Tensor, fan_out: int = 2) -> torch.Tensor:
+    """Every path with steps 0..fan_out through the centre frame of ``r`` at step L // 2, its cost summed."""
+    import itertools
+
+    n, pad = q.shape[0], (r.shape[0] - q.shape[0]) // 2
+    p, costs = n // 2, []
+    for steps in itertools.product(range(fan_out + 1), repeat=n - 1):
+        j = [0]
+        for s in steps:
+            j.append(j[-1] + s)
+        j = [x - j[p] + pad + p for x in j]  # through the centre frame at the pivot step
+        if min(j) >= 0 and max(j) < r.shape[0]:
+            costs.append(sum(F.pairwise_distance(q[t][None], r[j[t]][None], eps=1e-6)[0] for t in range(n)))
+    return torch.stack(costs).min()
+
+
+def _gwindows(seed=0, b=3, k=2, length=5, d=4):
+    pad = graph_pad(length)
+    g = torch.Generator().manual_seed(seed)
+    return (torch.randn(b, length, d, generator=g, dtype=torch.float64),
+            torch.randn(b, length + 2 * pad, d, generator=g, dtype=torch.float64),
+            torch.randn(b, k, length + 2 * pad, d, generator=g, dtype=torch.float64))
+
+
+def _graph_loss(model, q_win, p_win, n_wins, margin):
+    loss = LOSSES["graph"]
+    b, k = n_wins.shape[:2]
+    q, r = describe_pair(loss, model, q_win, torch.cat([p_win, n_wins.reshape(b * k, *n_wins.shape[2:])]))
+    return triplet_loss(q, r[:b], r[b:], torch.arange(b).repeat_interleave(k), margin, distance=loss.pair)
+
+
+@pytest.mark.parametrize("length", [2, 4, 5])
+def test_graph_scores_equal_every_path_and_the_matcher(length):
+    from seqnet.matching.graph import graph_pairs
+
+    q, r, _ = _gwindows(seed=length, b=4, length=length, d=6)
+    r = torch.cat([r, r.flip(0)])  # 8 reference windows
+    naive = torch.stack([torch.stack([_naive_graph_score(q[i], r[j]) for j in range(8)]) for i in range(4)])
+    torch.testing.assert_close(LOSSES["graph"].cross(q, r), naive, rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(LOSSES["graph"].pair(q, r[:4]), naive.diagonal(), rtol=1e-6, atol=1e-6)
+    pad = graph_pad(length)  # the matcher on a reference traverse of the wide window's frames, item start pad
+    m = graph_pairs(q[2], r[5], length, torch.tensor([0]), torch.tensor([[pad]]))
+    assert m.item() == pytest.approx(naive[2, 5].item(), abs=1e-5)
+    with pytest.raises(ConfigError, match="must have"):
+        LOSSES["graph"].cross(q, r[:, 1:])
+
+
+def test_graph_loss_equals_a_naive_loop_and_gradcheck_float64():
+    torch.manual_seed(0)
+    model = SeqNet(4, 3, 1, 1).double()
+    q_win, p_win, n_wins = _gwindows()
+    out = _graph_loss(model, q_win, p_win, n_wins, 3.0)
+
+    def s1(x):
+        return model(x[:, None])
+
+    hinges = [torch.clamp(_naive_graph_score(s1(q_win[i]), s1(p_win[i])) - _naive_graph_score(s1(q_win[i]), s1(n))
+                          + 3.0, min=0.0) for i in range(3) for n in n_wins[i]]
+    ref = sum(hinges) / len(hinges)
+    torch.testing.assert_close(out.loss, ref, rtol=1e-7, atol=1e-7)
+    assert out.loss.item() > 0
+    for a, b in zip(torch.autograd.grad(out.loss, list(model.parameters())),
+                    torch.autograd.grad(ref, list(model.parameters())), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-9)
+    q_win, p_win, n_wins = _gwindows(seed=2, b=2, k=2, length=3)
+
+    def loss_of(weight, bias, q, p, n):
+        def f(x):
+            return torch.func.functional_call(model, {"conv.weight": weight, "conv.bias": bias}, (x,))
+
+        return _graph_loss(f, q, p, n, 2.0).loss
+
+    inputs = tuple(t.detach().clone().requires_grad_() for t in (model.conv.weight, model.conv.bias, q_win, p_win,
+                                                                n_wins))
+    assert loss_of(*inputs).item() > 0
+    assert torch.autograd.gradcheck(loss_of, inputs, eps=1e-6, atol=1e-6)
+
+
+def test_runmin_under_autograd_equals_the_in_place_one():
+    from seqnet.matching.graph import runmin
+
+    x = torch.randn(3, 7, dtype=torch.float64)
+    for backward in (False, True):
+        for fan_out in (0, 1, 2, 9):
+            y = x.clone().requires_grad_()
+            out = runmin(y, fan_out, backward)
+            assert out.requires_grad and torch.equal(out.detach(), runmin(x, fan_out, backward))

@@ -23,8 +23,8 @@ def _run(synth_dir, conf, out):
     return read_checkpoint(out / "last.pt")
 
 
-@pytest.mark.parametrize("conf", [FAST, S1_SEQMATCH, S1_SEQMATCH.replace(loss="vseqmatch")],
-                         ids=["triplet", "seqmatch", "vseqmatch"])
+@pytest.mark.parametrize("conf", [FAST, S1_SEQMATCH, S1_SEQMATCH.replace(loss="vseqmatch"),
+                                  S1_SEQMATCH.replace(loss="graph")], ids=["triplet", "seqmatch", "vseqmatch", "graph"])
 def test_spilled_mining_cache_and_streamed_reference_train_the_same_weights(synth_dir, tmp_path, monkeypatch, conf):
     monkeypatch.setattr(mining, "COL_BLOCK_BYTES", 7 * 8 * 4)  # distances in column blocks of 7 (framewise: 2) windows
     held = _run(synth_dir, conf, tmp_path / "held")

@@ -12,7 +12,11 @@ CoRL 2021), the SeqMatch score of two L_m-frame windows of S_1 descriptors,
 SeqMatch does with it; the positive and the hard negatives are mined by that score too;
 ``vseqmatch`` — the same with the velocity-robust score of :mod:`seqnet.matching.velocity` (the minimum over
 its trajectories, differentiable almost everywhere: the gradient flows through the best trajectory), for
-which each reference window is widened by the frames the steepest trajectory reaches (:func:`velocity_pad`).
+which each reference window is widened by the frames the steepest trajectory reaches (:func:`velocity_pad`);
+``graph`` — the graph matcher's path cost (:mod:`seqnet.matching.graph`, GISM-style: the cheapest path with steps
+0..fan_out through the window's centre, its dynamic program run with autograd; a minimum of sums, so
+differentiable almost everywhere, the gradient along the cheapest path), on reference windows widened to
+the frames such paths reach (:func:`graph_pad`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
+from ..matching.graph import DEFAULT_FAN_OUT, path_dp
 from ..matching.velocity import DEFAULT_VELOCITIES, trajectories
 from ..search.knn import pairwise_distances
 
@@ -98,6 +103,39 @@ def cross_vseqmatch(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
         score = sum(dist[t, o] for t, o in enumerate(offs))
         best = score if best is None else torch.minimum(best, score)
     return best
+
+
+@functools.cache
+def graph_pad(window_len: int) -> int:
+    """Frames the graph matcher's paths (steps 0..:data:`~seqnet.matching.graph.DEFAULT_FAN_OUT` through the
+    centre frame) reach beyond an L-frame reference window, on either side."""
+    p = window_len // 2
+    return max(p, window_len - 1 - p) * max(0, DEFAULT_FAN_OUT - 1)
+
+
+def _graph_cost(step: Callable[[int], torch.Tensor], window_len: int, ref_len: int) -> torch.Tensor:
+    """The cheapest path's cost through the wide window's centre frame at the pivot step (``step(t)``: the
+    distances ``[..., ref_len]`` of query step t to the wide window's frames)."""
+    pad = graph_pad(window_len)
+    if ref_len != window_len + 2 * pad:
+        raise ConfigError(f"graph: reference windows of {window_len}-frame queries must have "
+                          f"{window_len + 2 * pad} frames, got {ref_len}")
+    pivot = window_len // 2
+    return path_dp(step, window_len, DEFAULT_FAN_OUT, pivot)[..., pad + pivot]
+
+
+def graph_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Graph-matching path cost of matching windows: ``a [T, L, D]`` × ``b [T, L + 2·pad, D]`` → ``[T]``
+    (as :func:`seqnet.matching.graph.graph_pairs` on the frames)."""
+    return _graph_cost(lambda t: F.pairwise_distance(a[:, t, None], b, eps=PAIRWISE_EPS), a.shape[1], b.shape[1])
+
+
+def cross_graph(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """Path costs of every pair: ``[S, L, D]`` × ``[R, L + 2·pad, D]`` → ``[S, R]`` (each step's ``[S, R, L']``
+    distances from one matrix product over the windows' frames)."""
+    flat = r.reshape(-1, r.shape[-1])
+    return _graph_cost(lambda t: pairwise_distances(q[:, t], flat).view(len(q), *r.shape[:2]), q.shape[1],
+                       r.shape[1])
 
 
 def triplet_loss(
@@ -247,4 +285,7 @@ LOSSES: dict[str, WindowLoss] = {
     "vseqmatch": WindowLoss(describe_windows_framewise, vseqmatch_distance, cross_vseqmatch, True,
                             "as seqmatch, on the velocity-robust SeqMatch score (min over the trajectories of "
                             "slopes 0.5-2; S_1 only)", "s1+vseqmatch", velocity_pad),
+    "graph": WindowLoss(describe_windows_framewise, graph_distance, cross_graph, True,
+                        "as seqmatch, on the graph matcher's path cost (cheapest path with steps 0-2 through the "
+                        "window's centre, GISM-style; S_1 only)", "s1+graph", graph_pad),
 }
