@@ -385,14 +385,3 @@ def test_graph_loss_equals_a_naive_loop_and_gradcheck_float64():
                                                                 n_wins))
     assert loss_of(*inputs).item() > 0
     assert torch.autograd.gradcheck(loss_of, inputs, eps=1e-6, atol=1e-6)
-
-
-def test_runmin_under_autograd_equals_the_in_place_one():
-    from seqnet.matching.graph import runmin
-
-    x = torch.randn(3, 7, dtype=torch.float64)
-    for backward in (False, True):
-        for fan_out in (0, 1, 2, 9):
-            y = x.clone().requires_grad_()
-            out = runmin(y, fan_out, backward)
-            assert out.requires_grad and torch.equal(out.detach(), runmin(x, fan_out, backward))

@@ -21,7 +21,8 @@ from ..core.utils import ArrayLike, as_tensor, get_device
 from ..search.blocks import topk_smallest
 from ..search.knn import ExactIndex
 from ..sequence.windows import check_seq_len
-from .graph import DEFAULT_FAN_OUT, path_dp
+from .graph import DEFAULT_FAN_OUT
+from .paths import path_dp
 from .seqmatch import shifted_sum
 from .velocity import DEFAULT_VELOCITIES, pivot_step, trajectories, velocity_block
 

@@ -13,10 +13,10 @@ SeqMatch does with it; the positive and the hard negatives are mined by that sco
 ``vseqmatch`` — the same with the velocity-robust score of :mod:`seqnet.matching.velocity` (the minimum over
 its trajectories, differentiable almost everywhere: the gradient flows through the best trajectory), for
 which each reference window is widened by the frames the steepest trajectory reaches (:func:`velocity_pad`);
-``graph`` — the graph matcher's path cost (:mod:`seqnet.matching.graph`, GISM-style: the cheapest path with steps
-0..fan_out through the window's centre, its dynamic program run with autograd; a minimum of sums, so
-differentiable almost everywhere, the gradient along the cheapest path), on reference windows widened to
-the frames such paths reach (:func:`graph_pad`).
+``graph`` — the graph matcher's path cost (:mod:`seqnet.matching.graph`, GISM-style: the cheapest path
+with steps 0..fan_out through the window's centre, the :mod:`~seqnet.matching.paths` dynamic program run
+with autograd; a minimum of sums, so differentiable almost everywhere, the gradient along the cheapest
+path), on reference windows widened to the frames such paths reach (:func:`graph_pad`).
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
-from ..matching.graph import DEFAULT_FAN_OUT, path_dp
+from ..matching.graph import DEFAULT_FAN_OUT
+from ..matching.paths import path_dp
 from ..matching.velocity import DEFAULT_VELOCITIES, trajectories
 from ..search.knn import pairwise_distances
 
