@@ -93,9 +93,9 @@ class TrainConfig(Config):
             (radii None: the dataset's, see :meth:`resolve`).
         loss: a key of :data:`~seqnet.train.losses.LOSSES`: ``triplet`` (the paper's), ``seqmatch``
             (SeqMatchNet-style, S_1 only: the margin loss on SeqMatch scores of ``match_len``-frame windows)
-            or ``vseqmatch`` (the same on velocity-robust SeqMatch scores).
-        match_len: L_m, the window of the framewise losses (and of their validation, ``s1+seqmatch`` /
-            ``s1+vseqmatch``).
+            ``vseqmatch`` / ``graph`` (the same on velocity-robust SeqMatch scores / graph path costs).
+        match_len: L_m, the window of the framewise losses (and of their validation, ``s1+seqmatch``,
+            ``s1+vseqmatch``, ``s1+graph``).
         speed_augment: ``(v_min, v_max)``: every epoch each training query window is re-sampled at a
             speed drawn log-uniformly in that range (:func:`seqnet.sequence.windows.speed_windows`); None: off.
         seed: seeds the model initialisation and the training generator.
@@ -177,7 +177,7 @@ class TrainConfig(Config):
 
     @property
     def ref_pad(self) -> int:
-        """Frames a reference window is widened by on either side (the ``vseqmatch`` loss's trajectories)."""
+        """Frames a reference window is widened by on either side (the ``vseqmatch`` / ``graph`` losses' paths)."""
         return LOSSES[self.loss].ref_pad(self.window_len)
 
     def _check_radii(self) -> None:
@@ -226,10 +226,10 @@ def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill
     ``n_query`` query frames (one process): the weights with their gradients and optimiser state, the
     mining cache, its blocks in flight, and one batch of windows (its activations, kept for the backward pass).
 
-    The mining cache holds one descriptor per reference window (per frame for the seqmatch loss: about as
-    many), unless ``spill`` (training on the CPU) sends one over ``SEQNET_SPILL_MB`` to a temporary file
+    The mining cache holds one descriptor per reference window (per frame for the framewise losses: about
+    as many), unless ``spill`` (training on the CPU) sends one over ``SEQNET_SPILL_MB`` to a temporary file
     (:func:`seqnet.train.mining.compute_cache`); and one per window of the ``cache_refresh`` queries mined
-    together (``window_len`` per window for the seqmatch loss). The frame descriptors themselves are the
+    together (``window_len`` per window for the framewise losses). The frame descriptors themselves are the
     dataset's (a large memory map on the CPU is read in blocks, not copied)."""
     from ..core.memmaps import limit
     from ..search.blocks import COL_BLOCK_BYTES
