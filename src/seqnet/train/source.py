@@ -15,7 +15,7 @@ from ..core.memmaps import streamed, take_rows
 from ..core.utils import as_tensor
 from ..data.positives import Positives
 from ..data.traverse import Dataset, Traverse
-from ..sequence.windows import frame_bounds, gather_windows, speed_windows, window_starts
+from ..sequence.windows import frame_bounds, gather_windows, speed_windows, window_frames, window_starts
 from .config import MiningConfig
 from .truth import nonnegative_keys, positive_keys, queries_with_pairs
 
@@ -104,7 +104,7 @@ def _full_windows(t: Traverse, seq_len: int, mode: str, what: str) -> tuple[np.n
     if items.size == 0:
         raise DatasetError(f"{what} split: no {t.name} frame (of {len(t)}) has a full window of seq_len={seq_len} "
                            f"inside its sequence (hint: a longer {what} range or a shorter --seq-len)")
-    return items, starts[items][:, None] + np.arange(seq_len)[None, :]
+    return items, window_frames(starts[items], seq_len)
 
 
 def widen_windows(t: Traverse, items: np.ndarray, idx: np.ndarray, pad: int) -> tuple[np.ndarray, np.ndarray]:
@@ -112,7 +112,7 @@ def widen_windows(t: Traverse, items: np.ndarray, idx: np.ndarray, pad: int) -> 
     inside their frame's sequence (the velocity-robust loss's reference windows); ``(items [M'], idx)``."""
     if pad == 0:
         return items, idx
-    wide = idx[:, :1] - pad + np.arange(idx.shape[1] + 2 * pad)[None, :]
+    wide = window_frames(idx[:, 0] - pad, idx.shape[1] + 2 * pad)
     lo, hi = frame_bounds(len(t), t.seq_bounds)
     inside = (wide[:, 0] >= lo[items]) & (wide[:, -1] < hi[items])
     return items[inside], wide[inside]
