@@ -12,7 +12,7 @@ from ..sequence.checkpoints import read_checkpoint
 from ..sequence.windows import WINDOW_MODES
 from ..train.config import OPTIMIZERS, TrainConfig
 from ..train.distributed import env_world
-from ..train.joint import is_joint, main_joint, s1_config
+from ..train.joint import S1_LOSS, is_joint, main_joint, s1_config
 from ..train.loop import main
 from ..train.losses import LOSSES
 from ..train.run import resume_config
@@ -28,7 +28,6 @@ from .common import (
 )
 
 _D = TrainConfig()
-JOINT_S1_LOSS = "triplet"  # the S_1 loss of --joint
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -93,11 +92,10 @@ def add_learning(p: argparse.ArgumentParser) -> None:
     j = p.add_argument_group("joint training (S_L and S_1 for HVPR in one run folder: RUN/seqnet, RUN/s1)")
     j.add_argument("--joint", action="store_true", help="train S_L with the settings given and S_1 beside it "
                    "(seq_len = w = 1, --s1-loss, --s1-lr, --s1-margin)")
-    j.add_argument("--s1-loss", choices=list(LOSSES), default=JOINT_S1_LOSS,
-                   help=f"loss of the S_1 model of --joint (default {JOINT_S1_LOSS})")
+    j.add_argument("--s1-loss", choices=list(LOSSES), default=S1_LOSS,
+                   help=f"loss of the S_1 model of --joint (default {S1_LOSS})")
     j.add_argument("--s1-lr", type=positive_float, help="learning rate of the S_1 model of --joint (default --lr)")
     j.add_argument("--s1-margin", type=positive_float, help="margin of the S_1 model of --joint (default --margin)")
-
 
 
 _KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig) if f.name != "device")  # one flag each
@@ -122,7 +120,7 @@ def _run_joint(args: argparse.Namespace, changes: dict) -> int:
         dirs = main_joint(None, None, args.dataset, args.out, args.resume, args.allow_mismatch,
                           {k: changes.get(k) for k in ("epochs", "patience", "device")})
     else:
-        if args.loss not in (None, "triplet"):
+        if args.loss is not None and LOSSES[args.loss].framewise:  # S_1-only losses
             raise ConfigError(f"--loss {args.loss} with --joint: the S_L model trains with the triplet loss "
                               "(hint: --s1-loss for the S_1 model)")
         conf = TrainConfig().replace(**changes)

@@ -20,9 +20,10 @@ from .config import TrainConfig
 
 JOINT_FILE = "joint.json"
 JOINT_ROLES = ("seqnet", "s1")
+S1_LOSS = "triplet"  # the S_1 loss of a joint run unless given
 
 
-def s1_config(conf: TrainConfig, loss: str = "triplet", lr: float | None = None,
+def s1_config(conf: TrainConfig, loss: str = S1_LOSS, lr: float | None = None,
               margin: float | None = None) -> TrainConfig:
     """The S_1 settings of a joint run whose S_L settings are ``conf`` (lr, margin None: ``conf``'s)."""
     return dataclasses.replace(conf.replace(seq_len=1, w=1, loss=loss, lr=lr, margin=margin), speed_augment=None)

@@ -67,8 +67,7 @@ def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig,
         return {}
     role, dev = model.role, conf.device if device is None else str(device)
     method = LOSSES[conf.loss].val_method or role
-    seq_len = conf.window_len if LOSSES[conf.loss].val_method else model.seq_len
-    ev_conf = EvalConfig(methods=(method,), seq_len=seq_len, window=conf.window, ks=VAL_KS, device=dev)
+    ev_conf = EvalConfig(methods=(method,), seq_len=conf.window_len, window=conf.window, ks=VAL_KS, device=dev)
     ev = evaluate(val_ds, ev_conf, {role: model})
     model.train()
     return {k: float(v) for k, v in ev.results["methods"][method].items() if k.startswith("recall@")}
