@@ -17,6 +17,7 @@ import numpy as np
 from ..core.errors import ConfigError, DatasetError
 from ..core.files import Written, file_digest, write_json_atomic
 from ..core.lazy import lazy_module
+from ..core.memmaps import read_rows
 from ..core.ownership import locked, remove_dead_temps
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
@@ -52,7 +53,7 @@ def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = 64 << 
     """Every entry of the (memory-mapped) matrix ``m`` is finite, checked in blocks of rows (bounded memory)."""
     step = max(1, block_bytes // max(1, m.shape[1] * m.itemsize))
     for a in range(0, m.shape[0], step):
-        bad = ~np.isfinite(m[a : a + step])
+        bad = ~np.isfinite(read_rows(m, a, a + step))  # a large map's pages released after each block
         if bad.any():
             r, c = np.argwhere(bad)[0]
             raise DatasetError(f"--distances {path}: entry [{r + a}, {c}] is {m[r + a, c]} (every entry must be "
