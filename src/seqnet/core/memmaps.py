@@ -176,3 +176,28 @@ class SpillWriter:
 def spill_size(shape: tuple[int, ...], itemsize: int = 4) -> bool:
     """An array of ``shape`` and ``itemsize`` is large enough to spill (more than :func:`limit` ``("SPILL")``)."""
     return int(np.prod(shape)) * itemsize > limit("SPILL")
+
+
+class RowsOut:
+    """``[N, D]`` rows filled in order, block by block: an array, or a spill file (:class:`SpillWriter`) when
+    ``spill`` and the whole would be over :func:`limit` ``("SPILL")``."""
+
+    def __init__(self, shape: tuple[int, int], dtype: np.dtype | str, spill: bool) -> None:
+        dtype = np.dtype(dtype)
+        self.writer = SpillWriter(shape, dtype) if spill and spill_size(shape, dtype.itemsize) else None
+        self.buf = None if self.writer else np.empty(shape, dtype)
+        self.rows = 0
+
+    def put(self, block: np.ndarray) -> None:
+        """Append ``block [n, D]``."""
+        if self.writer is not None:
+            self.writer.write(block)
+        else:
+            self.buf[self.rows : self.rows + len(block)] = block
+        self.rows += len(block)
+
+    def finish(self, short: bool = False) -> np.ndarray:
+        """The array (held) or a read-only :class:`Spilled` map; ``short``: only the rows put (fewer than N)."""
+        if self.writer is not None:
+            return self.writer.finish(short=short)
+        return self.buf[: self.rows] if short else self.buf

@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator, Sequence
 import numpy as np
 
 from ..core.errors import ConfigError, ImageError
-from ..core.memmaps import SpillWriter, spill_size
+from ..core.memmaps import RowsOut
 from ..core.progress import progress
 from ..core.utils import get_device, logger
 from .config import DescribeConfig
@@ -88,30 +88,23 @@ class Describer:
 
 class _Rows:
     """``[K, D]`` float32 descriptors of the K images described of N, filled batch by batch in image order
-    (:func:`run_batches` visits the images in order): an array, or a spill file when ``spill`` and large."""
+    (:func:`run_batches` visits the images in order): an array, or a spill file when ``spill`` and large
+    (:class:`~seqnet.core.memmaps.RowsOut`)."""
 
     def __init__(self, n: int, spill: bool) -> None:
         self.n, self.spill, self.kept = n, spill, []
-        self.buf: np.ndarray | None = None
-        self.writer: SpillWriter | None = None
+        self.out: RowsOut | None = None
 
     def sink(self, idx: np.ndarray, desc: np.ndarray | None) -> None:
         if desc is None:
             return
-        if self.buf is None and self.writer is None:
-            shape = (self.n, int(desc.shape[1]))
-            if self.spill and spill_size(shape):
-                self.writer = SpillWriter(shape, np.float32)
-            else:
-                self.buf = np.empty(shape, np.float32)
-        if self.writer is not None:
-            self.writer.write(desc)
-        else:
-            self.buf[len(self.kept) : len(self.kept) + len(idx)] = desc
+        if self.out is None:
+            self.out = RowsOut((self.n, int(desc.shape[1])), np.float32, self.spill)
+        self.out.put(desc)
         self.kept.extend(idx.tolist())
 
     def finish(self) -> np.ndarray:
-        return self.writer.finish(short=True) if self.writer is not None else self.buf[: len(self.kept)]
+        return self.out.finish(short=True)
 
 
 def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str] | ImageItem] = (),

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
-from ..core.memmaps import SpillWriter, spill_size, take_rows
+from ..core.memmaps import RowsOut, take_rows
 from ..core.progress import progress as progress_bar
 from ..core.utils import as_tensor, l2_normalize
 from .windows import gather_windows
@@ -110,7 +110,7 @@ def describe_windows(
         with torch.no_grad():
             y = fn(gather_windows(*_window_rows(desc, block, device))).float().cpu()
         out = out or _Output(len(idx), y.shape[1], spill)
-        out.put(s, y)
+        out.put(y)
     if out is None:  # no windows: still run fn (on an empty batch) for its output width and checks
         empty = as_tensor(desc[:0]).new_zeros((0, idx.shape[1], desc.shape[1]))
         with torch.no_grad():
@@ -131,20 +131,18 @@ def _window_rows(desc: np.ndarray | torch.Tensor, block: np.ndarray,
 
 
 class _Output:
-    """``[M, D']`` filled batch by batch: a preallocated tensor, or a spill file when large."""
+    """``[M, D']`` filled batch by batch (:class:`~seqnet.core.memmaps.RowsOut`): a CPU tensor, or a spill file
+    when large."""
 
     def __init__(self, m: int, dim: int, spill: bool) -> None:
-        self.writer = SpillWriter((m, dim), np.float32) if spill and spill_size((m, dim)) else None
-        self.tensor = None if self.writer else torch.empty((m, dim), dtype=torch.float32)
+        self.rows = RowsOut((m, dim), np.float32, spill)
 
-    def put(self, s: int, y: torch.Tensor) -> None:
-        if self.writer is not None:
-            self.writer.write(y.numpy())
-        else:
-            self.tensor[s : s + len(y)] = y
+    def put(self, y: torch.Tensor) -> None:
+        self.rows.put(y.numpy())
 
     def finish(self) -> torch.Tensor | np.ndarray:
-        return self.writer.finish() if self.writer is not None else self.tensor
+        out = self.rows.finish()
+        return out if self.rows.writer is not None else torch.from_numpy(out)
 
 
 @no_grad
