@@ -12,13 +12,13 @@ is read.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ...core.config import Config
+from ...core.files import Written
 from ...core.ownership import locked
 from ...report.paper import TABLE_II
 from ...report.tables import method_colours, new_figure
@@ -30,11 +30,11 @@ PAPER_SIZE = TimingConfig(sizes=(14000,), dims=(4096,), seq_lens=(5,), top_ks=(2
                           float16_recall=False)
 
 
-def timing_main(conf: TimingConfig, out: Path) -> Path:
-    """``seqnet benchmark timing``'s stage (imported when run: it needs torch)."""
+def timing_main(conf: TimingConfig, out: Path) -> Written:
+    """``seqnet benchmark timing``'s stage (imported when run: it needs torch): ``out/results.json`` and its data."""
     from ..timing.run import main as run
 
-    return Path(run(conf, out))
+    return run(conf, out)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +49,7 @@ def main(conf: ComputeTimeConfig, data: str | Path | None, out: str | Path, cach
     ``compute_time.png``, ``report.html`` and ``config.json`` to ``out`` (``data``, ``cache``: unused)."""
     out = Path(out)
     with locked(out):
-        res = json.loads(timing_main(conf.timing, out / "timing").read_text(encoding="utf-8"))
+        res = timing_main(conf.timing, out / "timing").data  # what the stage wrote to timing/results.json
         c = res["config"]
         seq_len, top_k = c["seq_lens"][-1], c["top_ks"][-1]
         e = next(m for m in res["maps"] if m["dim"] == max(c["dims"]) and m["n_db"] == max(c["sizes"]))
