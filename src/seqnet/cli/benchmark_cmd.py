@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 from ..core.errors import ConfigError
@@ -148,10 +147,10 @@ def run_timing(args: argparse.Namespace) -> int:
 
 def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
     """The benchmark settings from the command-line flags (unset flags keep the defaults)."""
+    no_augment = args.speed_augment == (1.0, 1.0)  # 1:1 is no augmentation, the default's (None: replace keeps it)
     train = {"seq_len": args.seq_len, "epochs": args.epochs, "seed": args.seed,
-             "w": args.w or (min(_D.train.w, args.seq_len) if args.seq_len else None)}
-    if args.speed_augment is not None:
-        train["speed_augment"] = args.speed_augment
+             "w": args.w or (min(_D.train.w, args.seq_len) if args.seq_len else None),
+             "speed_augment": None if no_augment else args.speed_augment}
     s1 = {"epochs": args.epochs, "seed": args.seed, "loss": args.s1_loss, "margin": args.s1_margin,
           "match_len": args.seq_len}
     describe = None
@@ -165,14 +164,11 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
                                                             else {}))
     elif args.patch is not None:
         describe = _D.describe.replace(patch=args.patch)
-    conf = _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
+    return _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
                       describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
                       pca_dims=args.pca_dims, train=train,
                       train_s1=s1, query_speed=args.query_speed, fuse_weight=args.fuse_weight,
                       fuse_top_k=args.fuse_top_k, recall_denominator=args.recall_denominator)
-    if conf.train.speed_augment == (1.0, 1.0):  # 1:1 is no augmentation
-        conf = conf.replace(train=dataclasses.replace(conf.train, speed_augment=None))
-    return conf
 
 
 def run_nordland64(args: argparse.Namespace) -> int:
