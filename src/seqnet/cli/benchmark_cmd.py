@@ -9,7 +9,6 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from ..describe import DESCRIBERS, DescribeConfig
 from ..describe.config import check_size
-from ..eval.evaluate import RECALL_DENOMINATORS
 from ..maps import MapConfig
 from ..maps.config import DTYPES
 from ..pipelines.nordland64 import Nordland64Config, main
@@ -21,6 +20,7 @@ from ..train.losses import LOSSES
 from . import COMMANDS
 from .common import (
     add_device,
+    add_recall_denominator,
     index_range,
     int_list,
     non_negative_float,
@@ -75,9 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="re-sample the winter (query) traverse of the val and test ranges at A to B times the "
                         "reference speed (e.g. 0.5:2; frames dropped or repeated, positions kept; seeded) and also "
                         "evaluate the velocity-robust methods (default: as filmed)")
-    n.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
-                   help="Recall@K over queries with a correct reference (positives, default, the original code's) "
-                        "or over all queries (all, VPR-methods-evaluation's); shown in every table header")
+    add_recall_denominator(n, _D.recall_denominator)
     add_device(n)
     n.set_defaults(func=run_nordland64)
     register_timing(bsub)

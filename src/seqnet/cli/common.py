@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..core.errors import ConfigError
+from ..eval.metrics.recall import RECALL_DENOMINATORS
 
 
 def int_at_least(minimum: int):
@@ -80,6 +81,14 @@ def speed_range(text: str) -> tuple[float, float]:
         return check_speed_range("speed", [float(x) for x in text.split(":")])
     except (ValueError, ConfigError) as e:
         raise argparse.ArgumentTypeError(f"expected A:B with 0 < A <= B (e.g. 0.5:2), got {text!r}") from e
+
+
+def add_recall_denominator(p: argparse.ArgumentParser, default: str) -> None:
+    """``--recall-denominator``: which queries Recall@K is over (:data:`RECALL_DENOMINATORS`; ``default``: the
+    command's configuration's)."""
+    p.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
+                   help="Recall@K over: " + "; ".join(f"{k}: {v}" for k, v in RECALL_DENOMINATORS.items())
+                   + f" (default {default}, the original code's)")
 
 
 def add_device(p: argparse.ArgumentParser) -> None:

@@ -10,7 +10,6 @@ from ..core.errors import ConfigError
 from ..core.files import Written, write_json_atomic
 from ..eval.evaluate import EvalConfig, main
 from ..eval.methods import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
-from ..eval.metrics.recall import RECALL_DENOMINATORS
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
@@ -20,6 +19,7 @@ from .common import (
     add_allow_mismatch,
     add_device,
     add_distances,
+    add_recall_denominator,
     check_distances,
     int_list,
     non_negative_float,
@@ -84,9 +84,7 @@ def add_recall_options(p: argparse.ArgumentParser) -> None:
     """``--ks`` and ``--recall-denominator``: which Recall@K, over which queries."""
     p.add_argument("--ks", type=int_list, metavar="K[,K...]",
                    help=f"the K of Recall@K (default {','.join(map(str, _D.ks))})")
-    p.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
-                   help="Recall@K over: " + "; ".join(f"{k}: {v}" for k, v in RECALL_DENOMINATORS.items())
-                   + f" (default {_D.recall_denominator}, the original code's)")
+    add_recall_denominator(p, _D.recall_denominator)
 
 
 def run(args: argparse.Namespace) -> int:

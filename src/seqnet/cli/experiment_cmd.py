@@ -8,12 +8,20 @@ from pathlib import Path
 from typing import Any
 
 from ..describe.config import check_size
-from ..eval.evaluate import RECALL_DENOMINATORS
 from ..pipelines.experiments import EXPERIMENTS, Experiment
 from ..pipelines.experiments.descriptors import CNN_SIZE, DESCRIPTORS, describe_config
 from ..pipelines.nordland64 import Nordland64Config
 from . import COMMANDS
-from .common import add_device, index_range, int_list, non_negative_int, parse_list, positive_float, positive_int
+from .common import (
+    add_device,
+    add_recall_denominator,
+    index_range,
+    int_list,
+    non_negative_int,
+    parse_list,
+    positive_float,
+    positive_int,
+)
 
 _D = Nordland64Config()
 
@@ -86,9 +94,7 @@ def _data_options(e: argparse.ArgumentParser, name: str, own_data: bool) -> None
     e.add_argument("--epochs", type=positive_int, help=f"training epochs (default {_D.train.epochs})")
     e.add_argument("--pca-dims", type=non_negative_int, help=f"PCA before training (default {_D.pca_dims})")
     e.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
-    e.add_argument("--recall-denominator", choices=list(RECALL_DENOMINATORS),
-                   help="Recall@K over queries with a correct reference (positives, default, the original "
-                        "code's) or over all queries (all, VPR-methods-evaluation's)")
+    add_recall_denominator(e, _D.recall_denominator)
     if name != "descriptors":
         e.add_argument("--descriptor", choices=DESCRIPTORS, help="single-image descriptor (default pixels, the "
                        "benchmark's; others are cached in CACHE/descriptors/NAME)")
