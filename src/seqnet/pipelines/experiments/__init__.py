@@ -85,6 +85,5 @@ EXPERIMENTS: dict[str, Experiment] = {
     "tables": Experiment(tables.TablesConfig, tables.main, "every table of the paper and its t-SNE figure in one run "
                          "(OUT/table-1 ..., one results.md)"),
 }
-ALIASES: dict[str, str] = {e.alias: name for name, e in EXPERIMENTS.items() if e.alias}
 
-__all__ = ["ALIASES", "EXPERIMENTS", "Experiment"]
+__all__ = ["EXPERIMENTS", "Experiment"]
