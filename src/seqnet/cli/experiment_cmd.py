@@ -110,8 +110,7 @@ def experiment_config(args: argparse.Namespace) -> Any:
         value = getattr(args, key)
         own[key] = (tuple(parse_list(value)) or None) if key in LISTS else value
     if not exp.data:  # compute-time: the timing sweep's settings
-        timing = exp.config().timing.replace(device="cpu" if args.device == "auto" else args.device, **own)
-        return exp.config().replace(timing=timing)
+        return exp.config().replace(timing={"device": "cpu" if args.device == "auto" else args.device, **own})
     train = {"epochs": args.epochs, "seed": args.seed}
     describe = None
     if name != "descriptors" and (args.descriptor or args.cnn_size):
