@@ -36,6 +36,7 @@ from ...report.html import (
 from ...report.tables import save_figure
 from ..nordland64 import Nordland64Config, build_dataset, train_models
 from ..nordland64.config import DESCRIBE
+from ..nordland64.data import SEASONS
 from ..nordland64.run import report_config
 
 if TYPE_CHECKING:
@@ -160,7 +161,7 @@ def write_outputs(o: Outputs, conf: Any, data: str | Path, out: Path, title: str
     sections = [*o.sections, figure_section("figure", f"Figure ({png.name})", o.figure)]
     if o.evaluation is not None:
         ev, ds = o.evaluation
-        images = (Path(data) / "summer").is_dir()  # the nordland64 folder: the gallery shows its frames
+        images = (Path(data) / SEASONS[0]).is_dir()  # the nordland64 folder: the gallery shows its frames
         sections += evaluation_sections(ev, ds, report_config(data, title) if images else ReportConfig(title=title))
     write_text_atomic(out / "report.html", render_html(title, sections))
     write_json_atomic(out / "config.json", {"experiment": o.name, **conf.to_dict(), "data": str(data),
