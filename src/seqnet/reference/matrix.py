@@ -2,9 +2,10 @@
 
 Evaluation runs its one loop (:func:`seqnet.eval.evaluate.run`) on a :class:`MatrixReference` and a
 :class:`MatrixQuery`: the frame "descriptors" are the frames' indices into the matrix, k-NN reads a
-row, SeqMatch sums its diagonals (:func:`seqnet.matching.pairs.scores_from_distances`) and HVPR
-shortlists and re-ranks from the same matrix (``shared_distances``); the variable-speed and graph
-matchers run their block functions on its rows (:class:`seqnet.matching.velocity.FrameDistances`).
+row, SeqMatch re-ranks candidates from its diagonals (:func:`seqnet.matching.pairs.item_scores_from_distances`)
+and HVPR shortlists and re-ranks from the same matrix (``shared_distances``); whole-map matching runs each
+matcher's block function on blocks of its rows (:class:`seqnet.matching.velocity.FrameDistances`; SeqMatch
+as the slope-1 trajectory).
 The methods are the ones that read single-frame distances (:data:`MATRIX_METHODS`); anything that
 needs descriptors (sequence descriptors, models, GRH's LSH codes) is refused.
 
@@ -105,13 +106,12 @@ class MatrixReference:
         """Whole-map matching over the matrix: every matcher's block function on blocks of the matrix's rows
         (memory bounded: no ``[M, R, L]`` gather), the k best kept."""
         rows = _rows(query_frames)[q_starts].numpy()
-        if matcher not in DIAGONAL_MATCHERS:
-            spec = SEQUENCE_MATCHERS[matcher]
-            return spec.topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts,
-                             device="cpu", **spec.options(self.windows.anchor))
-        # SeqMatch is the one trajectory of slope 1 (reverse: -1): blocks of matrix rows, running top-k
-        return velocity_topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts,
-                             velocities=(1.0,), reverse=DIAGONAL_MATCHERS[matcher], device="cpu")
+        if matcher in DIAGONAL_MATCHERS:  # SeqMatch is the one trajectory of slope 1 (reverse: -1)
+            topk, opts = velocity_topk, {"velocities": (1.0,), "reverse": DIAGONAL_MATCHERS[matcher]}
+        else:
+            topk, opts = SEQUENCE_MATCHERS[matcher].topk, SEQUENCE_MATCHERS[matcher].options(self.windows.anchor)
+        return topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts, device="cpu",
+                    **opts)
 
     def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
         """``[Nr]``: the matrix row of one query frame (``frame [1]``: its row number)."""
