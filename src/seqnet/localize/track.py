@@ -102,12 +102,13 @@ class LocalizeConfig(Config):
     def localizer(self, reference: Reference, radius: float, exact: bool = False) -> Localizer:
         """The :class:`Localizer` of these settings over ``reference`` (described before ``precision`` applies)."""
         loc = Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact)
-        if self.precision != "float32":
-            reference.precision = precision_dtype(self.precision)
-            for model in loc.models.values():
-                model.to(precision_dtype(self.precision))
-        for model in loc.models.values():  # one window per frame: S_L as w products of contiguous blocks
-            model.pack_taps()
+        half = precision_dtype(self.precision) if self.precision != "float32" else None
+        if half is not None:
+            reference.precision = half
+        for model in loc.models.values():
+            if half is not None:
+                model.to(half)
+            model.pack_taps()  # one window per frame: S_L as w products of contiguous blocks
         return loc
 
 

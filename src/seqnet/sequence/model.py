@@ -81,7 +81,7 @@ class SeqNet(nn.Module):
         values, same checkpoints) for windows described one at a time: a window is then ``w`` products with
         contiguous ``[D_out, D]`` blocks, which CPU GEMV kernels read nearer memory speed than the one wide
         ``[D_out, D·w]`` product (torch reads a wide float16 matrix at about half its float32 rate per byte).
-        The localiser packs its models; returns ``self``."""
+        ``LocalizeConfig.localizer`` packs the localiser's models; returns ``self``."""
         if self.w > 1 and not self.packed:
             taps = self.conv.weight.detach().permute(2, 0, 1).contiguous()
             self.conv.weight = nn.Parameter(taps.permute(1, 2, 0), requires_grad=self.conv.weight.requires_grad)
