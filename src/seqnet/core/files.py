@@ -20,7 +20,6 @@ from typing import Any
 import numpy as np
 
 from .errors import CheckpointError, ConfigError, OutputError, ResourceError, SeqnetError
-from .memmaps import write_npy
 
 
 @contextlib.contextmanager
@@ -76,11 +75,10 @@ def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> Path:
 
 
 def save_npy_atomic(path: str | os.PathLike[str], array: np.ndarray) -> Path:
-    """Save ``array`` as ``.npy`` atomically (the bytes ``np.save`` writes; a streamed memory map, e.g. a
-    spill, written in blocks: :func:`seqnet.core.memmaps.write_npy`)."""
+    """Save ``array`` as ``.npy`` atomically."""
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
-            write_npy(f, array)
+            np.save(f, array)
     return Path(path)
 
 

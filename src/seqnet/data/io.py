@@ -23,6 +23,7 @@ from ..core.files import (
     write_json_atomic,
     write_text_atomic,
 )
+from ..core.memmaps import write_npy
 from ..core.ownership import check_replaceable, locked, read_consistent, recover_dir, write_dir, write_manifest
 from ..core.utils import logger
 from .positives import Positives
@@ -242,7 +243,8 @@ def save_traverse(t: Traverse, path: Path) -> None:
     desc = t.descriptors
     if desc.dtype != np.float32 or not desc.flags.c_contiguous:
         desc = np.ascontiguousarray(desc, dtype=np.float32)
-    save_npy_atomic(path / "descriptors.npy", desc)  # a streamed memory map (a spill) in blocks
+    with atomic_path(path / "descriptors.npy") as tmp, open(tmp, "wb") as f:
+        write_npy(f, desc)  # a streamed memory map (a spill) in blocks
     save_npy_atomic(path / "positions.npy", t.positions)
     if t.names is not None:
         check_names(t.names, f"{t.name}: image names")
