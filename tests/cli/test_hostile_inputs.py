@@ -289,7 +289,7 @@ def test_os_write_failures_exit_1(base, tmp_path, capsys, monkeypatch, err, reas
 
 
 def _hold_lock(path, ready, release):
-    from seqnet.core.ownership import locked
+    from seqnet.security.locks import locked
 
     with locked(path):
         ready.set()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from seqnet.cli import main
-from seqnet.core.ownership import locked
+from seqnet.security.locks import locked
 
 
 def _hold(path, ready, release):

@@ -9,7 +9,7 @@ import os
 
 import pytest
 
-import seqnet.core.ownership as ownership
+import seqnet.security.dirs as dirs
 from seqnet.data.io import load_dataset, save_dataset
 from seqnet.data.synth import make_synthetic
 
@@ -33,7 +33,7 @@ def _crash_at(k: int, when: str, target, *args) -> None:
         return inner
 
     os.rename, os.replace = wrap(os.rename), wrap(os.replace)
-    ownership.exchange = wrap(ownership.exchange)
+    dirs.exchange = wrap(dirs.exchange)
     target(*args)
     os._exit(0)
 
@@ -74,7 +74,7 @@ def test_dataset_replacement_is_never_missing_or_mixed(tmp_path, when):
 def test_an_interrupted_two_step_replacement_is_repaired(tmp_path, monkeypatch):
     """Where the file system cannot exchange directories, the old one is moved aside first; killed
     there, the next writer (or reader after it) finds it restored."""
-    monkeypatch.setattr(ownership, "exchange", lambda a, b: False)
+    monkeypatch.setattr(dirs, "exchange", lambda a, b: False)
     old, new = make_synthetic(places=100, dim=8, seed=1), make_synthetic(places=100, dim=8, seed=2)
     old.name, new.name = "old", "new"
     root = tmp_path / "ds"
@@ -206,15 +206,19 @@ def test_eval_outputs_never_mix_two_evaluations(synth_dir, tmp_path):
 
 
 def test_the_next_writer_removes_what_killed_writers_left(synth_dir, folder, tmp_path):
-    """Temporary files of atomic writes that a killed run left beside its outputs are removed by the next
-    run of the same output (it holds the lock, so no live writer owns them); other files are kept."""
+    """Temporary files of atomic writes that a killed run left beside its outputs (named with seqnet's mark) are
+    removed by the next run of the same output (it holds the lock, so no live writer owns them); other files,
+    a user's own files named like them without the mark included, are kept."""
     from seqnet.cli import main
 
     track, ev, desc = tmp_path / "t.csv", tmp_path / "ev", tmp_path / "d.npy"
     ev.mkdir()
-    dead = [tmp_path / ".t.csv.abc123.tmp", tmp_path / ".t.json.abc123.tmp", ev / ".results.json.x1.tmp",
-            ev / ".pr_curve.png.x2.tmp", tmp_path / ".d.npy.zz.tmp", tmp_path / ".d.names.txt.zz.tmp"]
-    keep = [tmp_path / ".other.csv.abc.tmp", ev / "mine.txt"]
+    dead = [tmp_path / ".t.csv.seqnet-abc123.tmp", tmp_path / ".t.json.seqnet-abc123.tmp",
+            ev / ".results.json.seqnet-x1.tmp", ev / ".pr_curve.png.seqnet-x2.tmp", tmp_path / ".d.npy.seqnet-zz.tmp",
+            tmp_path / ".d.names.txt.seqnet-zz.tmp"]
+    # a user's own files: another output's temporary file, and names like seqnet's without its mark
+    keep = [tmp_path / ".other.csv.seqnet-abc.tmp", ev / "mine.txt", tmp_path / ".t.csv.abc123.tmp",
+            ev / ".results.json.x1.tmp"]
     for p in dead + keep:
         p.write_text("left behind")
     assert main(["-q", "localize", "--dataset", str(synth_dir), "--method", "single", "--out", str(track)]) == 0

@@ -9,9 +9,9 @@ import pytest
 
 from seqnet.cli import main
 from seqnet.core.errors import DatasetError, ImageError
-from seqnet.core.files import special_file
 from seqnet.data.readers import read_descriptor_file
 from seqnet.describe.images import read_image
+from seqnet.security.inputs import special_file
 
 
 @pytest.fixture

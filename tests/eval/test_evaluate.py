@@ -296,7 +296,7 @@ def test_the_stage_returns_what_it_wrote(synth_dir, tmp_path):
     """``main`` returns the results it wrote (the CLI prints them without reading results.json back)."""
     import json
 
-    from seqnet.core.files import Written
+    from seqnet.core.stage import Written
     from seqnet.eval.evaluate import EvalConfig, main
 
     got = main(EvalConfig(methods=("single", "raw+seqmatch")), synth_dir, tmp_path / "out")

@@ -217,9 +217,9 @@ def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) 
 
 def run_check(args: argparse.Namespace) -> int:
     from ..core.errors import DatasetError
-    from ..core.files import changed_files
     from ..data.convert import summarize_dataset
     from ..data.io import load_dataset, recorded_digests
+    from ..security.digests import changed_files
 
     ds = load_dataset(args.dir)
     changed = changed_files(Path(args.dir), recorded_digests(args.dir), full=True)

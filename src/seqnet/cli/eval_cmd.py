@@ -7,12 +7,13 @@ import tempfile
 from pathlib import Path
 
 from ..core.errors import ConfigError
-from ..core.files import Written, write_json_atomic
+from ..core.stage import Written
 from ..eval.evaluate import EvalConfig, main
 from ..eval.methods import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
+from ..security.files import write_json_atomic
 from ..sequence.windows import WINDOW_MODES
 from . import COMMANDS
 from .common import (

@@ -11,9 +11,9 @@ import warnings
 from collections.abc import Callable, Iterator
 
 from ..core.errors import SeqnetError
-from ..core.files import os_error
 from ..core.progress import close_all, progress_mode
 from ..core.utils import logger
+from ..security.files import os_error
 from .common import positive_int
 
 

@@ -132,7 +132,7 @@ class SpillWriter:
     """
 
     def __init__(self, shape: tuple[int, int], dtype: np.dtype | str, what: str = "descriptors") -> None:
-        from .files import check_space
+        from .memory import check_space
 
         self.shape, self.dtype = (int(shape[0]), int(shape[1])), np.dtype(dtype)
         folder = os.environ.get("SEQNET_SPILL_DIR") or tempfile.gettempdir()

@@ -101,3 +101,26 @@ def described_bytes(n_query: int, n_ref: int, dims: Iterable[int], resident_cap:
     compute) in float32 for every query item, and for the reference up to ``resident_cap`` each (larger ones go
     to a spill file: :mod:`seqnet.core.memmaps`)."""
     return sum(4 * n_query * d + min(4 * n_ref * d, resident_cap) for d in dims)
+
+
+SPACE_MARGIN = 16 * 2**20
+
+
+def check_space(folder: Path, needed: int, what: str, largest: int | None = None) -> None:
+    """Refuse to start writing ``needed`` bytes into ``folder`` (one line, exit 1) when the file system
+    has less free, or one file of ``largest`` bytes (default: half) when the process's file size limit
+    (``ulimit -f``) is lower: a library that hits either mid-write may not fail cleanly (HDF5, memory maps)."""
+    import shutil
+
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    largest = needed // 2 if largest is None else largest
+    if limit != resource.RLIM_INFINITY and largest > limit:
+        raise ResourceError(f"{folder}: {what} make a file of about {largest / 2**20:.0f} MiB, over this process's "
+                            f"file size limit of {limit / 2**20:.0f} MiB (ulimit -f); hint: raise the limit")
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if free < needed + SPACE_MARGIN:
+        raise ResourceError(f"{folder}: {what} need about {(needed + SPACE_MARGIN) / 2**20:.0f} MiB, only "
+                            f"{free / 2**20:.0f} MiB free; hint: free some space or write the output elsewhere")

@@ -15,17 +15,13 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError, OutputError
-from ..core.files import (
-    atomic_path,
-    changed_files,
-    file_digest,
-    save_npy_atomic,
-    write_json_atomic,
-    write_text_atomic,
-)
 from ..core.memmaps import write_npy
-from ..core.ownership import check_replaceable, locked, read_consistent, recover_dir, write_dir, write_manifest
 from ..core.utils import logger
+from ..security.digests import changed_files, file_digest
+from ..security.dirs import read_consistent, recover_dir, write_dir
+from ..security.files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..security.locks import locked
+from ..security.ownership import check_replaceable, write_manifest
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
 from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
-from ..core.files import special_file
 from ..core.utils import logger
+from ..security.inputs import special_file
 
 DESCRIPTOR_SUFFIXES = (".npy", ".h5", ".hdf5")
 # the characters str.splitlines() breaks lines at

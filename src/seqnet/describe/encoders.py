@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from ..core.errors import CheckpointError, ConfigError
-from ..core.files import load_torch_file
+from ..security.torchfile import load_torch_file
 from .lite import LITE_VARIANTS
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)

@@ -19,8 +19,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
-from ..core.files import special_file
 from ..data.readers import check_names
+from ..security.inputs import special_file
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
 

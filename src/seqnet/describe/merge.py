@@ -21,12 +21,13 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
-from ..core.ownership import locked, remove_dead_temps
 from ..core.provenance import ProvenanceError, differences
 from ..core.provenance import read as read_provenance
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
 from ..data.readers import read_names, read_npy
+from ..security.dirs import remove_dead_temps
+from ..security.locks import locked
 from .output import OUT_SUFFIXES, names_file_for, write_output
 from .shards import SHARD_KEY
 

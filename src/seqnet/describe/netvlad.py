@@ -23,8 +23,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..core.errors import CheckpointError, ConfigError
-from ..core.files import atomic_path, load_torch_file
 from ..core.utils import logger
+from ..security.files import atomic_path
+from ..security.torchfile import load_torch_file
 from .cnn import BACKBONES, to_input
 
 TAG_KEY = "seqnet_tag"  # provenance string stored in checkpoints written by seqnet (see save_netvlad)

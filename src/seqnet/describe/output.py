@@ -16,8 +16,8 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.files import atomic_path, write_json_atomic, write_text_atomic
 from ..core.provenance import sidecar as provenance_sidecar
+from ..security.files import atomic_path, write_json_atomic, write_text_atomic
 
 OUT_SUFFIXES = (".h5", ".hdf5", ".npy")
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import CheckpointError, ConfigError
-from ..core.files import atomic_path
+from ..security.files import atomic_path
 
 TAG_KEY = "seqnet_tag"  # provenance string stored by PCA.save(tag=...)
 

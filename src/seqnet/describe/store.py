@@ -22,12 +22,13 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError, ImageError
-from ..core.files import check_space
-from ..core.ownership import locked, remove_dead_temps
+from ..core.memory import check_space
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
 from ..data.readers import read_descriptor_file
+from ..security.dirs import remove_dead_temps
+from ..security.locks import locked
 from .config import DescribeConfig, fit_summary
 from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches
 from .images import ImageList, list_images

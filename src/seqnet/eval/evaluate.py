@@ -17,14 +17,16 @@ import numpy as np
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
 from ..core.errors import ConfigError
-from ..core.files import Written, write_json_atomic
-from ..core.ownership import locked, remove_dead_temps
+from ..core.stage import Written
 from ..core.utils import check_device, get_device, logger
 from ..data.resample import RESAMPLE_SIDES, resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
 from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
+from ..security.dirs import remove_dead_temps
+from ..security.files import write_json_atomic
+from ..security.locks import locked
 from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
 from .checks import check_inputs, leakage, model_lengths

@@ -15,13 +15,16 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
-from ..core.files import Written, file_digest, write_json_atomic
 from ..core.lazy import lazy_module
 from ..core.memmaps import read_rows
-from ..core.ownership import locked, remove_dead_temps
+from ..core.stage import Written
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
+from ..security.digests import file_digest
+from ..security.dirs import remove_dead_temps
+from ..security.files import write_json_atomic
+from ..security.locks import locked
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
 from .methods import parse_method
 

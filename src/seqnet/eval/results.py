@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.files import write_text_atomic
+from ..security.files import write_text_atomic
 from .metrics.precision_recall import (
     curve_points,
     pr_summary,
@@ -110,7 +110,9 @@ def _write_folder(path: Path, files: dict[str, str]) -> Path:
     """A folder of per-query files, swapped in whole; an existing one is replaced only if seqnet wrote it."""
     import re
 
-    from ..core.ownership import check_replaceable, locked, recover_dir, write_dir, write_manifest
+    from ..security.dirs import recover_dir, write_dir
+    from ..security.locks import locked
+    from ..security.ownership import check_replaceable, write_manifest
 
     def fill(tmp: Path) -> None:
         for name, text in files.items():

@@ -22,15 +22,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.files import Written
-from ..core.ownership import locked, remove_dead_temps
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.provenance import read as read_provenance
+from ..core.stage import Written
 from ..core.utils import get_device, logger
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file
 from ..eval.evaluate import EvalConfig
 from ..reference.base import Reference
+from ..security.dirs import remove_dead_temps
+from ..security.locks import locked
 
 if TYPE_CHECKING:
     from ..maps.map import Map

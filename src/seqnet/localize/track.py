@@ -20,10 +20,9 @@ import numpy as np
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.errors import ConfigError, OutputError
-from ..core.files import Written, file_digest, write_json_atomic, write_text_atomic
 from ..core.lazy import lazy_module
-from ..core.ownership import locked, remove_dead_temps
 from ..core.progress import progress
+from ..core.stage import Written
 from ..core.utils import check_device, get_device, logger
 from ..data.traverse import Dataset, default_split
 from ..eval.methods import FUSE_WEIGHT
@@ -32,6 +31,10 @@ from ..eval.metrics.recall import check_radius, ground_truth
 from ..matching.velocity import ANCHORS
 from ..reference.base import Reference
 from ..search.blocks import PRECISIONS, precision_dtype
+from ..security.digests import file_digest
+from ..security.dirs import remove_dead_temps
+from ..security.files import write_json_atomic, write_text_atomic
+from ..security.locks import locked
 from ..sequence.windows import Windows
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
 

@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
 from ..core.memory import check_fits, model_bytes, workspace_bytes
-from ..core.ownership import check_replaceable
 from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset, default_split
@@ -18,6 +17,7 @@ from ..eval.checks import check_models as check_model_inputs
 from ..eval.checks import descriptor_dims, model_lengths
 from ..reference.traverse import TraverseReference
 from ..search.ann import index_bytes, make_index, train_sample_bytes
+from ..security.ownership import check_replaceable
 from ..sequence.checkpoints import load_models
 from ..sequence.windows import Windows
 from .config import MapConfig

@@ -19,8 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
-from ..core.files import Written, write_json_atomic
-from ..core.ownership import locked
+from ..core.stage import Written
 from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse, default_split
@@ -29,6 +28,8 @@ from ..eval.methods import Method, parse_method
 from ..eval.metrics.recall import ground_truth
 from ..eval.results import write_per_query
 from ..search.ann import shortlist_recall
+from ..security.files import write_json_atomic
+from ..security.locks import locked
 from .load import load_map
 from .map import Map
 

@@ -8,10 +8,10 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, SeqnetError
-from ..core.files import verify_digests
-from ..core.ownership import read_consistent
 from ..data.readers import read_names
 from ..search.ann import load_index
+from ..security.digests import verify_digests
+from ..security.dirs import read_consistent
 from ..sequence.checkpoints import load_model
 from .config import MapConfig
 from .map import Map, MapError, read_meta

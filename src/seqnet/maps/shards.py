@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.files import check_space
 from ..core.memmaps import read_rows
+from ..core.memory import check_space
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import (
     ADD_BYTES,

@@ -27,18 +27,15 @@ import numpy as np
 
 from .._version import __version__
 from ..core.errors import ConfigError
-from ..core.files import (
-    atomic_path,
-    file_digest,
-    save_npy_atomic,
-    write_json_atomic,
-    write_text_atomic,
-)
 from ..core.lazy import lazy_module
 from ..core.memmaps import read_rows
-from ..core.ownership import check_replaceable, locked, recover_dir, write_dir, write_manifest
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import build_index, save_index
+from ..security.digests import file_digest
+from ..security.dirs import recover_dir, write_dir
+from ..security.files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..security.locks import locked
+from ..security.ownership import check_replaceable, write_manifest
 from ..sequence.checkpoints import save_checkpoint
 from .config import MapConfig
 from .shards import build_sharded_index, split_rows

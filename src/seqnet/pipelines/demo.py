@@ -13,13 +13,15 @@ from pathlib import Path
 from typing import Any
 
 from ..core.config import Config, check_bool, check_int
-from ..core.files import Written, write_json_atomic
-from ..core.ownership import check_replaceable, locked, remove_owned_dir
+from ..core.stage import Written
 from ..core.utils import logger
 from ..data.io import load_dataset, save_dataset
 from ..data.synth import SynthConfig, make_synthetic
 from ..data.traverse import Dataset
 from ..eval.evaluate import EvalConfig, evaluate
+from ..security.files import write_json_atomic
+from ..security.locks import locked
+from ..security.ownership import check_replaceable, remove_owned_dir
 from ..sequence.checkpoints import load_model
 from ..train import TrainConfig, train
 from ..train.run import is_run_file

@@ -30,7 +30,6 @@ import numpy as np
 
 from ..core.config import Config, check_choice, check_float
 from ..core.errors import ConfigError, ImageError
-from ..core.ownership import check_replaceable, locked
 from ..core.utils import logger
 from ..data.bags import DEFAULT_TOLERANCE, is_bag, match_positions, read_positions
 from ..data.convert import assemble_dataset, match_names, read_positions_csv, utm_positions
@@ -41,6 +40,8 @@ from ..data.traverse import Traverse
 from ..describe import DescribeConfig, make_describer
 from ..describe.images import ImageList, list_images
 from ..describe.store import describe_provenance
+from ..security.locks import locked
+from ..security.ownership import check_replaceable
 
 FIT_ON = ("reference", "both")
 

@@ -25,10 +25,10 @@ import numpy as np
 
 from .._version import __version__
 from ..core.config import Config, check_int
-from ..core.files import write_text_atomic
 from ..data.traverse import Dataset
 from ..eval.methods import parse_method
 from ..eval.metrics.recall import recall_curve
+from ..security.files import write_text_atomic
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .tables import figure_png, pr_figure, recall_figure, results_rows

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.files import atomic_path
+from ..security.files import atomic_path
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 
 

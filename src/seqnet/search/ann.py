@@ -218,7 +218,7 @@ def save_index(index: Any, path: str | Path) -> Path:
     """Write ``index`` with ``faiss.write_index`` (atomically)."""
     import faiss
 
-    from ..core.files import atomic_path
+    from ..security.files import atomic_path
 
     with atomic_path(path) as tmp:
         try:

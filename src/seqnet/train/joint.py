@@ -14,8 +14,8 @@ import json
 from pathlib import Path
 
 from ..core.errors import ConfigError
-from ..core.files import write_json_atomic
-from ..core.ownership import locked
+from ..security.files import write_json_atomic
+from ..security.locks import locked
 from .config import TrainConfig
 
 JOINT_FILE = "joint.json"

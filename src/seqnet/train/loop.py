@@ -25,12 +25,12 @@ from typing import TYPE_CHECKING
 from ..core.errors import ConfigError, DatasetError, OutputError
 from ..core.lazy import lazy_module
 from ..core.memory import check_fits, gib
-from ..core.ownership import locked
 from ..core.provenance import check_same
 from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..eval.checks import accepted_mismatch
+from ..security.locks import locked
 from .config import TrainConfig, train_bytes
 from .distributed import World, joined
 from .epoch import train_epoch

@@ -21,9 +21,9 @@ from typing import TYPE_CHECKING, Any
 
 from .._version import __version__
 from ..core.errors import CheckpointError, ConfigError
-from ..core.files import write_json_atomic
 from ..core.lazy import lazy_module
 from ..core.utils import logger
+from ..security.files import write_json_atomic
 from ..sequence.checkpoints import read_checkpoint, save_checkpoint
 from .config import OPTIMIZERS, TrainConfig
 from .distributed import World

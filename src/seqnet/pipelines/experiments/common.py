@@ -19,8 +19,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ...core.errors import ConfigError
-from ...core.files import write_json_atomic, write_text_atomic
-from ...core.ownership import locked
 from ...data.traverse import Dataset
 from ...eval.evaluate import EvalConfig, Evaluation, evaluate
 from ...eval.methods import parse_method
@@ -34,6 +32,8 @@ from ...report.html import (
     table_html,
 )
 from ...report.tables import save_figure
+from ...security.files import write_json_atomic, write_text_atomic
+from ...security.locks import locked
 from ..nordland64 import Nordland64Config, build_dataset, train_models
 from ..nordland64.config import DESCRIBE
 from ..nordland64.data import SEASONS

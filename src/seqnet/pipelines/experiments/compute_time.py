@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from ...core.config import Config
-from ...core.files import Written
-from ...core.ownership import locked
+from ...core.stage import Written
 from ...report.paper import TABLE_II
 from ...report.tables import method_colours, new_figure
+from ...security.locks import locked
 from ..timing import TimingConfig
 from ..timing.report import paper_table, table_ii
 from .common import Outputs, table_section, write_outputs

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from ...core.config import Config, check_choice
-from ...core.files import write_json_atomic, write_text_atomic
 from ...core.utils import logger
+from ...security.files import write_json_atomic, write_text_atomic
 from ..nordland64 import Nordland64Config
 
 FIGURES = ("tsne",)  # the paper's figures reproduced besides its tables

@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 
 from ...core.errors import ConfigError, DatasetError
-from ...core.files import save_npy_atomic
 from ...core.progress import progress
 from ...core.utils import logger
 from ...data.io import load_dataset, save_dataset
@@ -21,6 +20,7 @@ from ...describe import Describer, make_describer
 from ...describe.images import iter_batches
 from ...describe.pca import PCA
 from ...describe.store import describe_provenance
+from ...security.files import save_npy_atomic
 from .config import Nordland64Config
 
 SEASONS = ("summer", "winter")

@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import Any
 
 from ...core.config import check_ints
-from ...core.files import write_json_atomic, write_text_atomic
-from ...core.ownership import locked
 from ...core.utils import logger
 from ...eval.evaluate import evaluate
+from ...security.files import write_json_atomic, write_text_atomic
+from ...security.locks import locked
 from .config import Nordland64Config
 from .data import build_dataset
 from .models import train_models

@@ -10,12 +10,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ...core.files import write_json_atomic
 from ...core.lazy import lazy_module
-from ...core.ownership import remove_owned_dir
 from ...core.utils import logger
 from ...data.traverse import Dataset
 from ...describe.pca import PCA, fit_pca
+from ...security.files import write_json_atomic
+from ...security.ownership import remove_owned_dir
 from ...sequence.checkpoints import load_model, save_checkpoint
 from ...train import train
 from ...train.run import is_run_file

@@ -7,14 +7,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ...core.files import Written, write_json_atomic, write_text_atomic
-from ...core.ownership import locked
+from ...core.stage import Written
 from ...core.utils import logger
 from ...data.traverse import Dataset
 from ...eval.evaluate import Evaluation, evaluate
 from ...eval.metrics.recall import recall_curve
 from ...report.html import ReportConfig, write_html_report
 from ...report.tables import format_markdown, plot_pr_curves, plot_recall_curves
+from ...security.files import write_json_atomic, write_text_atomic
+from ...security.locks import locked
 from .config import Nordland64Config
 from .data import SEASONS, SPLITS, build_dataset
 from .models import train_models

@@ -22,10 +22,12 @@ from typing import Any
 import torch
 
 from ...core.errors import ConfigError, ResourceError
-from ...core.files import Written, write_json_atomic, write_text_atomic
-from ...core.ownership import check_replaceable, locked, write_manifest
+from ...core.stage import Written
 from ...core.utils import logger
 from ...maps import MapConfig
+from ...security.files import write_json_atomic, write_text_atomic
+from ...security.locks import locked
+from ...security.ownership import check_replaceable, write_manifest
 from .config import TimingConfig
 from .report import markdown, plot
 

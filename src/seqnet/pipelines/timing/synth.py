@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...core.files import save_npy_atomic
 from ...core.provenance import make as make_provenance
 from ...maps import MapArrays, MapConfig, write_map
+from ...security.files import save_npy_atomic
 from ...sequence.model import SeqNet
 from .config import TimingConfig
 

@@ -18,9 +18,9 @@ from typing import Any
 import torch
 
 from ...core.errors import SeqnetError
-from ...core.files import write_json_atomic
 from ...core.utils import get_device
 from ...maps import Map, MapConfig, build, load_map
+from ...security.files import write_json_atomic
 from .config import TimingConfig
 from .measure import describe_rows, knn_rows, seqmatch_rows
 from .measure_hvpr import build_indexes, float16_recall, hvpr_rows

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from seqnet.core.errors import LockedError, OutputError, ResourceError
-from seqnet.core.files import atomic_path, os_error, write_json_atomic, write_text_atomic
-from seqnet.core.ownership import MANIFEST, check_replaceable, foreign_files, lock_file, locked, remove_owned_dir
 from seqnet.data.io import load_dataset, save_dataset
+from seqnet.security.files import atomic_path, os_error, write_json_atomic, write_text_atomic
+from seqnet.security.locks import lock_file, locked
+from seqnet.security.ownership import MANIFEST, check_replaceable, foreign_files, remove_owned_dir
 
 
 def _hold(path, ready, release):
@@ -100,7 +101,7 @@ def test_remove_owned_dir(tmp_path):
     (d / "a.pt").write_text("x")
     with pytest.raises(OutputError):
         remove_owned_dir(d, "run")
-    from seqnet.core.ownership import write_manifest
+    from seqnet.security.ownership import write_manifest
 
     write_manifest(d, "run", [d / "a.pt"])
     remove_owned_dir(d, "run")

@@ -1,0 +1,35 @@
+"""Numbers read from a file, checked before use: every count, size and setting has a range.
+
+A number from ``map.json``, ``dataset.json``, a checkpoint's settings or a ground-truth file decides
+allocations and loop lengths; :func:`number` refuses anything outside its range (and booleans, strings,
+NaN) with one line naming the file's field, before the number is used.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ..core.errors import DatasetError
+from .inputs import ErrorType
+
+INDEX_MAX = 2**62  # an index or count read from a file (int64 arithmetic on it cannot overflow)
+DIM_MAX = 1 << 20  # a descriptor dimension
+SEQ_MAX = 1 << 16  # a sequence or window length
+
+
+def number(value: Any, what: str, lo: float, hi: float, error: ErrorType = DatasetError,
+           integer: bool = True) -> int | float:
+    """``value`` as an int (``integer``) or float in ``[lo, hi]``; ``error`` naming ``what`` otherwise."""
+    kind = "an integer" if integer else "a number"
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and isinstance(value, float)
+                                                                          and not value.is_integer()):
+        raise error(f"{what} must be {kind} in {lo}..{hi}, got {_short(value)}")
+    if not math.isfinite(value) or not lo <= value <= hi:
+        raise error(f"{what} must be {kind} in {lo}..{hi}, got {_short(value)}")
+    return int(value) if integer else float(value)
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
