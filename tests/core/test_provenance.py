@@ -10,7 +10,8 @@ from PIL import Image
 
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import ConfigError
-from seqnet.core.provenance import ProvenanceError, check_same, differences, make, read, sidecar
+from seqnet.core.provenance import ProvenanceError, check_same, differences, make, sidecar
+from seqnet.data.readers import read_provenance
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.sequence.checkpoints import load_model, save_checkpoint
@@ -51,7 +52,7 @@ def test_from_csv_refuses_descriptors_described_differently(two_folders, capsys)
     root = two_folders
     describe(root, "ref", root / "ref.h5", "--resize", "32x16")
     describe(root, "qry", root / "qry.npy", "--resize", "48x24")
-    assert read(root / "ref.h5")["settings"]["size"] == [32, 16] and sidecar(root / "qry.npy").is_file()
+    assert read_provenance(root / "ref.h5")["settings"]["size"] == [32, 16] and sidecar(root / "qry.npy").is_file()
     argv = ["dataset", "from-csv", "--ref-csv", str(root / "pos.csv"), "--ref-desc", str(root / "ref.h5"),
             "--query-csv", str(root / "pos.csv"), "--query-desc", str(root / "qry.npy"), "--radius", "1",
             "--out", str(root / "ds")]

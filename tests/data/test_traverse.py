@@ -306,7 +306,7 @@ def test_bad_h5(ds, ds_dir):
         h["features"] = np.zeros((10, 4), np.float32)
         h["other"] = np.zeros((10, 4), np.float32)
         h.create_group("descriptors_group")
-    expect(ds_dir, "no dataset 'descriptors' and 2 other 2-D datasets")
+    expect(ds_dir, "no dataset 'descriptors' and 2 other 2-D float datasets")
 
 
 def test_traverse_constructor_errors(rng):

@@ -244,7 +244,7 @@ def test_a_plugin_describer_runs_and_is_recorded(folder, tmp_path):
     assert json.loads((tmp_path / "ds" / "dataset.json").read_text())["provenance"]["reference"]["dim"] == 12
     assert cli_main(["-q", "describe", str(folder), "--method", "pixels", "--out", str(tmp_path / "x.h5")]) == 0
     from seqnet.core.provenance import ProvenanceError, check_same
-    from seqnet.core.provenance import read as read_provenance
+    from seqnet.data.readers import read_provenance
 
     with pytest.raises(ProvenanceError, match="were made differently: describer: .*method: \"plugin\" vs \"pixels\""):
         check_same(read_provenance(tmp_path / "p.h5"), read_provenance(tmp_path / "x.h5"), "ref", "query")

@@ -81,8 +81,8 @@ def test_resume_skips_finished_images(folder, tmp_path, monkeypatch):
     monkeypatch.setattr(describer_mod, "load_images", counting_load)
     with pytest.raises(KeyboardInterrupt):
         describe_folder(folder, conf, out=out)
-    assert not out.exists() and (tmp_path / ".out.h5.partial.h5").exists() and (tmp_path / "out.pca.npz").exists()
-    with h5py.File(tmp_path / ".out.h5.partial.h5") as h:
+    assert not out.exists() and (tmp_path / ".out.h5.seqnet-partial.h5").exists() and (tmp_path / "out.pca.npz").exists()
+    with h5py.File(tmp_path / ".out.h5.seqnet-partial.h5") as h:
         assert h["status"][()].tolist() == [1] * 6 + [0] * 4
     loaded.clear()
     monkeypatch.setattr(describer_mod, "load_images", lambda paths, **k: (loaded.extend(p.name for p in paths),
@@ -98,7 +98,7 @@ def test_partial_with_other_settings_starts_again(folder, tmp_path, caplog):
     Image.fromarray(np.zeros((20, 32, 3), np.uint8)).save(folder / "f9.png")  # discovered after 9 images
     out = tmp_path / "out.h5"
     assert describe(folder, "--method", "pixels", "--batch-size", "3", "--out", out) == 2
-    partial = tmp_path / ".out.h5.partial.h5"
+    partial = tmp_path / ".out.h5.seqnet-partial.h5"
     with h5py.File(partial) as h:
         assert h["status"][()].tolist() == [1] * 9 + [0]  # progress is kept for a resume
     with caplog.at_level(logging.WARNING, logger="seqnet"):

@@ -207,7 +207,7 @@ def run_from_seqnet(args: argparse.Namespace) -> int:
 def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) -> tuple[dict | None, dict | None]:
     """The provenance of the reference and query descriptor files, checked to be one (unless ``allow``)."""
     from ..core.provenance import check_same
-    from ..core.provenance import read as read_provenance
+    from ..data.readers import read_provenance
 
     records = [read_provenance(f) for f in (*ref_files, *query_files)]
     for f, rec in zip((*ref_files, *query_files), records, strict=True):

@@ -85,25 +85,3 @@ def sidecar(path: str | Path) -> Path:
     """The provenance file written beside a ``.npy`` descriptor file: ``<stem>.provenance.json``."""
     p = Path(path)
     return p.with_name(p.stem + PROVENANCE_SUFFIX)
-
-
-def read(path: str | Path) -> dict[str, Any] | None:
-    """The provenance of a descriptor file (HDF5 attribute ``provenance``, or the ``.npy`` sidecar), or None."""
-    p = Path(path)
-    text = None
-    if p.suffix.lower() in (".h5", ".hdf5"):
-        import h5py
-
-        try:
-            with h5py.File(p, "r") as h:
-                text = h.attrs.get("provenance")
-        except OSError:
-            return None
-    elif sidecar(p).is_file():
-        text = sidecar(p).read_text(encoding="utf-8")
-    try:
-        record = json.loads(text) if text else None
-    except ValueError:
-        logger.warning("ignoring the unreadable provenance of %s", p)
-        return None
-    return record if isinstance(record, dict) and "id" in record else None

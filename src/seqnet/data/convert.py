@@ -24,10 +24,9 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from ..core.provenance import check_same
-from ..core.provenance import read as read_provenance
 from ..core.utils import logger
 from .positives import Positives
-from .readers import check_names, read_descriptor_file, read_text
+from .readers import check_names, read_descriptor_file, read_provenance, read_text
 from .traverse import Dataset, Traverse
 
 NAME_COLUMNS = ("name", "image", "image_name", "filename", "file", "path", "key", "image_key")

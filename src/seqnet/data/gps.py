@@ -25,10 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
-from ..core.provenance import read as read_provenance
 from ..core.utils import logger
 from .convert import read_csv_rows
-from .readers import read_descriptor_file, read_text
+from .readers import read_descriptor_file, read_provenance, read_text
 from .traverse import Traverse
 
 DEFAULT_MAX_GAP = 0.1  # seconds: RobotCar's INS logs at 50 Hz, KITTI's oxts at 10 Hz (synced) or 100 Hz

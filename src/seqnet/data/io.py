@@ -17,6 +17,7 @@ import numpy as np
 from ..core.errors import DatasetError, OutputError
 from ..core.memmaps import write_npy
 from ..core.utils import logger
+from ..security.arrays import read_npz
 from ..security.digests import changed_files, file_digest
 from ..security.dirs import read_consistent, recover_dir, write_dir
 from ..security.files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
@@ -98,12 +99,10 @@ POSITIVES_FILE = "positives.npz"
 def load_positives(f: Path) -> Positives:
     """Explicit positives saved by :func:`save_dataset` (``indptr``, ``indices`` arrays, and ``soft_indptr``,
     ``soft_indices`` when there are soft positives; no pickles)."""
-    try:
-        with np.load(f, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in ("indptr", "indices", "soft_indptr", "soft_indices") if k in z.files}
-            hard = _csr(arrays["indptr"], arrays["indices"], f, "")
-    except (OSError, ValueError, KeyError, EOFError) as e:
-        raise DatasetError(f"cannot read {f} (explicit positives: arrays indptr and indices) ({e})") from e
+    arrays = read_npz(f, "explicit positives", keys=("indptr", "indices", "soft_indptr", "soft_indices"))
+    if "indptr" not in arrays or "indices" not in arrays:
+        raise DatasetError(f"cannot read {f} (explicit positives: arrays indptr and indices; found {sorted(arrays)})")
+    hard = _csr(arrays["indptr"], arrays["indices"], f, "")
     if "soft_indptr" not in arrays:
         return hard
     soft = _csr(arrays["soft_indptr"], arrays.get("soft_indices", np.zeros(0, np.int64)), f, "soft_")

@@ -27,10 +27,9 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import check_same
-from ..core.provenance import read as read_provenance
 from .convert import assemble_dataset, match_names, read_csv_rows, runs_to_bounds
 from .presets import get_preset
-from .readers import folder_names, read_descriptor_file
+from .readers import folder_names, read_descriptor_file, read_provenance
 from .traverse import Dataset, Traverse
 
 SIDES = {"reference": "database", "query": "query"}  # seqnet side → MSLS folder

@@ -16,12 +16,17 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..core.errors import DatasetError
+from ..core.provenance import sidecar
 from ..core.utils import logger
+from ..security.arrays import read_npy as read_array
+from ..security.hdf5 import Hdf5Contents, read_hdf5
 from ..security.inputs import special_file
+from ..security.jsonfile import parse_json, read_json
 
 DESCRIPTOR_SUFFIXES = (".npy", ".h5", ".hdf5")
 # the characters str.splitlines() breaks lines at
@@ -64,58 +69,35 @@ def as_float32(desc: np.ndarray, where: Path | str) -> np.ndarray:
 
 
 def read_npy(f: Path, mmap: bool = True) -> np.ndarray:
-    """A ``.npy`` array (memory-mapped when ``mmap``); never unpickles."""
-    with open(f, "rb") as fh:
-        magic = fh.read(6)
-    if magic != b"\x93NUMPY":
-        what = "not in .npy format (no NumPy header)"
-        if not magic:
-            what = "empty"
-        elif magic.startswith(b"PK"):
-            what = "a .npz archive"
-        raise DatasetError(f"cannot read {f} as a .npy array: the file is {what}")
-    try:
-        arr = np.load(f, mmap_mode="r" if mmap else None, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
-        msg = "it holds Python objects (pickled data), not numbers" if "pickle" in str(e) else str(e)
-        raise DatasetError(f"cannot read {f} as a .npy array ({msg})") from e
-    if not isinstance(arr, np.ndarray):  # pragma: no cover - np.load only returns arrays after the magic check
-        raise DatasetError(f"cannot read {f} as a .npy array")
-    return arr
+    """A ``.npy`` array of numbers (memory-mapped when ``mmap``), its header checked against the file's bytes
+    first; never unpickles (:func:`seqnet.security.arrays.read_npy`)."""
+    return read_array(f, mmap, "array")
 
 
 def _read_h5(p: Path) -> tuple[np.ndarray, list[str] | None]:
-    import h5py
-
-    try:
-        with h5py.File(p, "r") as h:
-            if "descriptors" not in h and (hloc := _hloc_names(h)):
-                return _read_hloc(h, p, hloc)
-            desc = np.asarray(h[_h5_descriptor_key(h, p)][()])
-            names = _h5_names(h, p) if "names" in h else None
-    except (OSError, TypeError, ValueError, KeyError) as e:
-        raise DatasetError(f"cannot read {p} as HDF5 ({' '.join(str(e).split())})") from e
+    """Descriptors and names of an HDF5 file, read in the sandbox (:func:`seqnet.security.hdf5.read_hdf5`)."""
+    h = read_hdf5(p, "descriptor file")
+    if "descriptors" not in h.names() and (hloc := _hloc_names(h)):
+        return _read_hloc(h, p, hloc)
+    desc = h.arrays[_h5_descriptor_key(h, p)]
+    names = _h5_names(h, p) if "names" in h.names() else None
     return desc, names
 
 
 HLOC_KEY = "global_descriptor"  # hloc's global features: one group per image name holding this dataset
 
 
-def _hloc_names(h) -> list[str]:  # noqa: ANN001 - h5py.File
+def _hloc_names(h: Hdf5Contents) -> list[str]:
     """The image names of an hloc global-feature file (groups, nested by the '/' in a name, holding
     ``global_descriptor``), sorted as hloc's image lists are; [] for another layout."""
-    import h5py
-
-    found: list[str] = []
-    h.visititems(lambda name, node: found.append(name) if isinstance(node, h5py.Group) and HLOC_KEY in node
-                 else None)
-    return sorted(found)
+    suffix = "/" + HLOC_KEY
+    return sorted(n[: -len(suffix)] for n in h.arrays if n.endswith(suffix))
 
 
-def _read_hloc(h, p: Path, names: list[str]) -> tuple[np.ndarray, list[str]]:  # noqa: ANN001 - h5py.File
+def _read_hloc(h: Hdf5Contents, p: Path, names: list[str]) -> tuple[np.ndarray, list[str]]:
     """hloc's ``global-feats-*.h5``: ``[N, D]`` descriptors of its groups ``names`` (:func:`_hloc_names`, sorted
     image-name order), and the names."""
-    rows = [np.asarray(h[n][HLOC_KEY][()]).ravel() for n in names]
+    rows = [h.arrays[f"{n}/{HLOC_KEY}"].ravel() for n in names]
     dims = {len(r) for r in rows}
     if len(dims) != 1:
         raise DatasetError(f"{p}: hloc global descriptors of {len(dims)} different lengths ({sorted(dims)[:4]})")
@@ -123,31 +105,27 @@ def _read_hloc(h, p: Path, names: list[str]) -> tuple[np.ndarray, list[str]]:  #
     return np.stack(rows), names
 
 
-def _h5_descriptor_key(h, p: Path) -> str:  # noqa: ANN001 - h5py.File
-    import h5py
-
-    if "descriptors" in h:
-        if not isinstance(h["descriptors"], h5py.Dataset):
-            raise DatasetError(f"{p}: 'descriptors' is an HDF5 group, not a dataset")
+def _h5_descriptor_key(h: Hdf5Contents, p: Path) -> str:
+    if "descriptors" in h.names():
+        if "descriptors" not in h.arrays:
+            raise DatasetError(f"{p}: 'descriptors' is not a dataset of numbers")
         return "descriptors"
-    two_d = [k for k, v in h.items() if isinstance(v, h5py.Dataset) and v.ndim == 2 and k != "names"]
+    if "descriptors" in h.groups:
+        raise DatasetError(f"{p}: 'descriptors' is an HDF5 group, not a dataset")
+    two_d = [k for k, v in h.arrays.items() if v.ndim == 2 and v.dtype.kind == "f" and "/" not in k]
     if len(two_d) != 1:
-        raise DatasetError(f"{p}: no dataset 'descriptors' and {len(two_d)} other 2-D datasets "
-                           f"(found: {list(h.keys())}); hint: name the descriptor dataset 'descriptors'")
+        raise DatasetError(f"{p}: no dataset 'descriptors' and {len(two_d)} other 2-D float datasets "
+                           f"(found: {h.names()[:10]}); hint: name the descriptor dataset 'descriptors'")
+    logger.warning("%s: no dataset 'descriptors'; reading its only 2-D float dataset %r as the descriptors", p,
+                   two_d[0])
     return two_d[0]
 
 
-def _h5_names(h, p: Path) -> list[str]:  # noqa: ANN001 - h5py.File
-    import h5py
-
-    node = h["names"]
-    if not isinstance(node, h5py.Dataset) or node.ndim != 1 or node.dtype.kind not in "OSU":
-        raise DatasetError(f"{p}: 'names' must be a 1-D dataset of strings (got {type(node).__name__} "
-                           f"{getattr(node, 'shape', '')} {getattr(node, 'dtype', '')})")
-    try:
-        names = [n.decode("utf-8") if isinstance(n, bytes) else str(n) for n in node[()]]
-    except UnicodeDecodeError as e:
-        raise DatasetError(f"{p}: 'names' are not UTF-8 text ({e.reason})") from e
+def _h5_names(h: Hdf5Contents, p: Path) -> list[str]:
+    if "names" not in h.strings:
+        what = f"{h.arrays['names'].shape} {h.arrays['names'].dtype}" if "names" in h.arrays else "no strings"
+        raise DatasetError(f"{p}: 'names' must be a 1-D dataset of strings (got {what})")
+    names = h.strings["names"]
     check_names(names, f"{p}:names")
     return names
 
@@ -215,3 +193,28 @@ def read_positions_file(f: Path) -> np.ndarray:
     if arr.size == 0:
         raise DatasetError(f"{f} holds no positions (the file is empty)")
     return arr
+
+
+def read_provenance(path: str | Path) -> dict[str, Any] | None:
+    """The provenance record of a descriptor file (HDF5 attribute ``provenance``, or the ``.npy`` sidecar
+    :func:`seqnet.core.provenance.sidecar`), or None when it has none; an unreadable one is ignored with a warning."""
+    p = Path(path)
+    if p.suffix.lower() in (".h5", ".hdf5"):
+        try:
+            text = read_hdf5(p, "descriptor file", attrs_only=True).attrs.get("provenance")
+        except DatasetError:
+            return None
+        try:
+            record = parse_json(text, f"{p}:provenance") if isinstance(text, str) and text else None
+        except DatasetError:
+            record = None
+            logger.warning("ignoring the unreadable provenance of %s", p)
+    elif sidecar(p).is_file():
+        try:
+            record = read_json(sidecar(p), "provenance file")
+        except DatasetError as e:
+            logger.warning("ignoring the unreadable provenance of %s (%s)", p, e)
+            return None
+    else:
+        return None
+    return record if isinstance(record, dict) and "id" in record else None

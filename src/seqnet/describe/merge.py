@@ -22,11 +22,11 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import ProvenanceError, differences
-from ..core.provenance import read as read_provenance
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
-from ..data.readers import read_names, read_npy
+from ..data.readers import read_names, read_npy, read_provenance
 from ..security.dirs import remove_dead_temps
+from ..security.hdf5 import check_hdf5
 from ..security.locks import locked
 from .output import OUT_SUFFIXES, names_file_for, write_output
 from .shards import SHARD_KEY
@@ -73,10 +73,11 @@ def read_shard(path: str | os.PathLike[str]) -> ShardFile:
         if p.suffix.lower() == ".npy":
             shape, config, names = read_npy(p, mmap=True).shape, None, read_names(names_file_for(p))
         else:
+            check_hdf5(p, "shard")  # libhdf5 meets a stranger's file in the sandbox first
             with h5py.File(p, "r") as h:
                 shape, config = h["descriptors"].shape, str(h.attrs["config"])
                 names = [n.decode() if isinstance(n, bytes) else str(n) for n in h["names"][()]]
-    except (OSError, KeyError, ValueError) as e:
+    except (OSError, KeyError, ValueError, TypeError) as e:
         raise DatasetError(f"cannot read shard {p} ({' '.join(str(e).split())})") from e
     if len(shape) != 2 or len(names) != shape[0]:
         raise DatasetError(f"shard {p}: {len(names)} names for descriptors of shape {tuple(shape)}")

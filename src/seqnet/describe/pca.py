@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import CheckpointError, ConfigError
+from ..security.arrays import read_npz
 from ..security.files import atomic_path
 
 TAG_KEY = "seqnet_tag"  # provenance string stored by PCA.save(tag=...)
@@ -69,14 +70,14 @@ class PCA:
     def load(cls, path: str | os.PathLike[str]) -> PCA:
         """Read a PCA written by :meth:`save`; raise :class:`CheckpointError` when it is not one."""
         keys = ("mean", "components", "scales", "whiten", "l2")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                missing = [k for k in keys if k not in z.files]
-                if missing:
-                    raise CheckpointError(f"{path}: not a seqnet PCA file (missing {', '.join(missing)})")
-                arrays = {k: z[k] for k in keys}
-        except (OSError, ValueError, EOFError) as e:
-            raise CheckpointError(f"cannot read PCA file {path} ({e})") from e
+        arrays = read_npz(path, "PCA file", CheckpointError, keys=keys)
+        missing = [k for k in keys if k not in arrays]
+        if missing:
+            raise CheckpointError(f"{path}: not a seqnet PCA file (missing {', '.join(missing)})")
+        if arrays["mean"].ndim != 1 or arrays["components"].ndim != 2 or \
+                arrays["components"].shape[1] != arrays["mean"].shape[0]:
+            raise CheckpointError(f"{path}: a PCA file needs mean [D] and components [D', D], got "
+                                  f"{arrays['mean'].shape} and {arrays['components'].shape}")
         return cls(mean=arrays["mean"].astype(np.float32), components=arrays["components"].astype(np.float32),
                    scales=arrays["scales"].astype(np.float32), whiten=bool(arrays["whiten"]), l2=bool(arrays["l2"]))
 
@@ -84,10 +85,10 @@ class PCA:
 def read_tag(path: str | os.PathLike[str]) -> str | None:
     """The provenance tag stored by :meth:`PCA.save` in ``path``; None when absent or not a PCA file."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return str(z[TAG_KEY][()]) if TAG_KEY in z.files else None
-    except (OSError, ValueError, EOFError):
+        arrays = read_npz(path, "PCA file", CheckpointError, kinds="U", keys=[TAG_KEY])
+    except CheckpointError:
         return None
+    return str(arrays[TAG_KEY][()]) if TAG_KEY in arrays else None
 
 
 def fit_pca(x: np.ndarray, dims: int, whiten: bool = False, l2: bool = True, eps: float = 1e-9) -> PCA:

@@ -21,13 +21,15 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..core.errors import ConfigError, ImageError
+from ..core.errors import ConfigError, DatasetError, ImageError, OutputError
 from ..core.memory import check_space
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
 from ..data.readers import read_descriptor_file
 from ..security.dirs import remove_dead_temps
+from ..security.files import temp_prefix
+from ..security.hdf5 import check_hdf5
 from ..security.locks import locked
 from .config import DescribeConfig, fit_summary
 from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches
@@ -43,9 +45,9 @@ BLOCK_BYTES = 32 << 20  # descriptors copied per block from the partial file int
 
 
 def partial_file_for(out: str | os.PathLike[str]) -> Path:
-    """The hidden work-in-progress file of an output."""
+    """The hidden work-in-progress file of an output (its name carries seqnet's mark)."""
     out = Path(out)
-    return out.with_name(f".{out.name}.partial.h5")
+    return out.with_name(f"{temp_prefix(out.name)}partial.h5")
 
 
 def main(conf: DescribeConfig, images: str | os.PathLike[str], out: str | os.PathLike[str],
@@ -110,6 +112,9 @@ def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path, overwr
     states = state_files(conf, out, fit_paths_of(conf, images.paths) if conf.needs_fit else [])
     if overwrite:
         _remove_own_state(states)
+    if partial.is_symlink() or (partial.exists() and not partial.is_file()):
+        raise OutputError(f"{partial} (the partial output of {out}) is a link or not a file; seqnet neither follows "
+                          "nor deletes it: remove it")
     if partial.exists() and not _resumable(partial, settings, todo.names, states, overwrite):
         partial.unlink()
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -183,11 +188,12 @@ def _resumable(partial: Path, settings: str, names: list[str], states: list[Stat
         logger.info("--overwrite: discarding the partial output %s", partial)
         return False
     try:
+        check_hdf5(partial, "partial output")  # read through in the sandbox before this process opens it
         with h5py.File(partial, "r") as h:
             stored = [n.decode() if isinstance(n, bytes) else n for n in h["names"][()]]
             old, done = h.attrs.get("settings"), int((h["status"][()] != TODO).sum())
-    except (OSError, KeyError):
-        logger.warning("partial output %s is unreadable; starting again", partial)
+    except (OSError, KeyError, TypeError, ValueError, DatasetError) as e:
+        logger.warning("partial output %s is unreadable (%s); starting again", partial, e)
         return False
     if old != settings or stored != names:
         what = _difference(old, settings) if stored == names else "another image list"
@@ -215,7 +221,7 @@ def _drop_if_unstarted(partial: Path) -> None:
     try:
         with h5py.File(partial, "r") as h:
             started = bool((h["status"][()] != TODO).any())
-    except (OSError, KeyError):
+    except (OSError, KeyError, TypeError, ValueError):
         started = False
     if not started:
         partial.unlink(missing_ok=True)

@@ -21,6 +21,7 @@ from ..core.stage import Written
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
+from ..security.arrays import read_npy
 from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
 from ..security.files import write_json_atomic
@@ -38,10 +39,7 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
     the whole dataset ``ds``), restricted to the rows and columns of ``split`` (a name, a range spec, or
     ``all``: :meth:`Dataset.ranges`) and as distances (float64). The file is memory-mapped: only the split's
     block is read and converted."""
-    try:
-        m = np.load(path, mmap_mode="r", allow_pickle=False)
-    except (OSError, ValueError) as e:
-        raise ConfigError(f"--distances {path}: not a readable .npy matrix ({e})") from e
+    m = read_npy(path, True, "--distances", ConfigError)
     want = (len(ds.query), len(ds.reference))
     if m.ndim != 2 or m.shape != want:
         raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {want[0]} query and "

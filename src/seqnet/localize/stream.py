@@ -24,10 +24,9 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.progress import progress
 from ..core.provenance import check_same
-from ..core.provenance import read as read_provenance
 from ..core.stage import Written
 from ..core.utils import get_device, logger
-from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file
+from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
 from ..eval.evaluate import EvalConfig
 from ..reference.base import Reference
 from ..security.dirs import remove_dead_temps

@@ -10,6 +10,7 @@ import numpy as np
 from ..core.errors import ConfigError, SeqnetError
 from ..data.readers import read_names
 from ..search.ann import load_index
+from ..security.arrays import read_npy
 from ..security.digests import verify_digests
 from ..security.dirs import read_consistent
 from ..sequence.checkpoints import load_model
@@ -23,10 +24,7 @@ def _array(path: Path, shape: tuple[int, ...] | None, kinds: str) -> np.ndarray:
     """A ``.npy`` memory map (copy-on-write: never written back) of the expected shape and dtype kind."""
     if not path.is_file():
         raise MapError(f"map file missing: {path} (hint: rebuild the map with seqnet index build)")
-    try:
-        arr = np.load(path, mmap_mode="c", allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
-        raise MapError(f"cannot read {path} as a .npy array ({e})") from e
+    arr = read_npy(path, "c", "map file", MapError)
     if arr.dtype.kind not in kinds or (shape is not None and arr.shape != shape):
         raise MapError(f"{path}: expected shape {shape} of kind {kinds!r}, got {arr.shape} {arr.dtype} "
                        "(the map is damaged; rebuild it)")

@@ -31,6 +31,7 @@ from ..core.lazy import lazy_module
 from ..core.memmaps import read_rows
 from ..core.utils import ArrayLike, logger, to_numpy
 from ..search.ann import build_index, save_index
+from ..security.arrays import read_npy
 from ..security.digests import file_digest
 from ..security.dirs import recover_dir, write_dir
 from ..security.files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
@@ -143,10 +144,10 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
         write_text_atomic(root / "names.txt", "\n".join(a.names) + "\n")
     t0 = time.perf_counter()
     if conf.ann.kind != "flat" and conf.shards > 1:  # IVF lists built in shards, merged on disk (index.ivfdata)
-        x = np.load(shortlist, mmap_mode="r")
+        x = read_npy(shortlist, True, "map file", ConfigError)
         build_sharded_index([x[a:b] for a, b in split_rows(len(x), conf.shards)], conf.ann, root / INDEX_FILE)
     elif conf.ann.kind != "flat":  # built over the stored (possibly float16-rounded) values
-        save_index(build_index(np.load(shortlist, mmap_mode="r"), conf.ann), root / INDEX_FILE)
+        save_index(build_index(read_npy(shortlist, True, "map file", ConfigError), conf.ann), root / INDEX_FILE)
     info["index_seconds"] = round(time.perf_counter() - t0, 3)
     for role, model in models.items():
         save_checkpoint(root / "models" / f"{role}.pt", model)

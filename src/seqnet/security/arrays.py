@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 import zipfile
+from collections.abc import Iterable
 from pathlib import Path
 from typing import BinaryIO
 
@@ -52,7 +53,7 @@ def check_dtype(dtype: np.dtype, where: str, error: ErrorType = DatasetError, ki
     if dtype.hasobject:
         raise error(f"cannot read {where} as a .npy array (it holds Python objects (pickled data), not numbers)")
     if dtype.fields is not None or dtype.subdtype is not None or dtype.kind not in kinds:
-        raise error(f"cannot read {where}: dtype {dtype} is not plain numbers of a kind in {kinds!r}")
+        raise error(f"cannot read {where}: its values must be numbers (kinds {kinds!r}), got dtype {dtype}")
 
 
 def nbytes_of(shape: tuple[int, ...], dtype: np.dtype) -> int:
@@ -84,17 +85,19 @@ def read_npy(path: str | os.PathLike[str], mmap: bool | str = True, what: str = 
 
 
 def read_npz(path: str | os.PathLike[str], what: str = "archive", error: ErrorType = DatasetError,
-             kinds: str = NUMERIC_KINDS) -> dict[str, np.ndarray]:
-    """Every array of an ``.npz`` file by name (``np.savez`` / ``savez_compressed``), each member checked as
-    the module docstring says before it is allocated."""
+             kinds: str = NUMERIC_KINDS, keys: Iterable[str] | None = None) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` file by name (``np.savez`` / ``savez_compressed``; ``keys``: only those, the
+    others left unread), each member checked as the module docstring says before it is allocated."""
+    wanted = None if keys is None else set(keys)
     out: dict[str, np.ndarray] = {}
     with open_input(path, what, error) as f:
         size = os.fstat(f.fileno()).st_size
         try:
             with zipfile.ZipFile(f) as z:
                 for info in z.infolist():
-                    if info.filename.endswith(".npy") and not info.is_dir():
-                        out[info.filename[:-4]] = _member(z, info, f"{path}:{info.filename}", size, error, kinds)
+                    name = info.filename[:-4]
+                    if info.filename.endswith(".npy") and not info.is_dir() and (wanted is None or name in wanted):
+                        out[name] = _member(z, info, f"{path}:{info.filename}", size, error, kinds)
         except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, EOFError, OSError, ValueError) as e:
             raise error(f"cannot read {path} as an .npz archive ({' '.join(str(e).split())[:200]})") from e
     return out

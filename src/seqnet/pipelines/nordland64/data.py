@@ -20,6 +20,7 @@ from ...describe import Describer, make_describer
 from ...describe.images import iter_batches
 from ...describe.pca import PCA
 from ...describe.store import describe_provenance
+from ...security.arrays import read_npy
 from ...security.files import save_npy_atomic
 from .config import Nordland64Config
 
@@ -110,7 +111,7 @@ def build_dataset(data: str | Path, conf: Nordland64Config, out: Path) -> tuple[
         if ds.extra.get("describe") == describe_key(conf) and ds.reference.names == names and flip_ok:
             logger.info("using cached descriptors in %s", cache)
             ds.splits = splits
-            return ds, np.load(flip_file) if conf.flip else None
+            return ds, read_npy(flip_file, False) if conf.flip else None
     t0 = time.perf_counter()
     d = describe_seasons(data, names, conf, lo)
     prov = d["provenance"]

@@ -11,6 +11,7 @@ import torch
 
 from ...eval.metrics.recall import GroundTruth
 from ...maps import Map, load_query
+from ...security.arrays import read_npy
 from ...sequence.windows import window_frames, window_offset
 from .config import TimingConfig
 from .synth import RADIUS, random_models
@@ -54,7 +55,7 @@ class Queries:
 
 def synthetic_queries(conf: TimingConfig, mp: Map, folder: Path) -> Queries:
     """The queries :func:`.synth.write_queries` saved for the map ``mp``."""
-    arr = {n: np.load(folder / f"{n}.npy") for n in ("windows", "shortlist", "centres", "stream")}
+    arr = {n: read_npy(folder / f"{n}.npy", False) for n in ("windows", "shortlist", "centres", "stream")}
     q, w, dim = arr["windows"].shape
     frames = arr["windows"].reshape(q * w, dim)
     centres = np.arange(q) * w + w // 2
