@@ -44,7 +44,7 @@ def read_descriptor_file(path: str | Path, names_file: str | Path | None = None,
     suffix = p.suffix.lower()
     if suffix not in DESCRIPTOR_SUFFIXES:
         raise DatasetError(f"descriptor file {p} must be .npy, .h5 or .hdf5 (got {p.suffix or 'no extension'!r})")
-    desc, names = (read_npy(p, mmap), None) if suffix == ".npy" else _read_h5(p)
+    desc, names = (read_array(p, mmap, "descriptor file", kinds="f"), None) if suffix == ".npy" else _read_h5(p)
     desc = as_float32(desc, p)
     if names_file is not None:
         names = read_names(names_file)

@@ -53,7 +53,8 @@ def check_dtype(dtype: np.dtype, where: str, error: ErrorType = DatasetError, ki
     if dtype.hasobject:
         raise error(f"cannot read {where} as a .npy array (it holds Python objects (pickled data), not numbers)")
     if dtype.fields is not None or dtype.subdtype is not None or dtype.kind not in kinds:
-        raise error(f"cannot read {where}: its values must be numbers (kinds {kinds!r}), got dtype {dtype}")
+        want = "floating point numbers" if kinds == "f" else f"numbers (kinds {kinds!r})"
+        raise error(f"cannot read {where}: its values must be {want}, got dtype {dtype} (hint: save them as float32)")
 
 
 def nbytes_of(shape: tuple[int, ...], dtype: np.dtype) -> int:

@@ -1,37 +1,154 @@
-"""The one safe loader of torch files (checkpoints, fitted state): tensors and plain data, never code."""
+"""The one loader of torch files (checkpoints, fitted state): tensors and plain data, never code.
+
+``torch.load(weights_only=True)`` already refuses code; three more things are needed for a stranger's file:
+
+* **the archive first**: only torch's zip format (``torch.save`` since torch 1.6) is read, every member
+  stored uncompressed and within the file's bytes, so no declared size allocates more than the file
+  holds (the legacy format allocates each storage at its declared size before reading it: refused,
+  with the way to re-save it);
+* **no numpy state from the file**: the original SeqNet code stored numpy scalars, which pickle as
+  ``numpy.dtype`` + ``dtype.__setstate__`` (a crafted state crashes the interpreter). Here those names
+  resolve to seqnet's own constructors (:func:`_dtype`, :func:`_scalar`, :func:`_reconstruct`) that take
+  plain numeric types only and build the value from its bytes;
+* every failure is one :class:`~seqnet.core.errors.CheckpointError` naming the file.
+"""
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
-from typing import Any
+import re
+import zipfile
+from typing import IO, Any
 
 import numpy as np
 
 from ..core.errors import CheckpointError
+from .inputs import open_input
+
+_CODE = re.compile(r"^(?:[biuf][1248]|b1|\?)$")
 
 
-def _numpy_globals() -> list[Any]:
-    """numpy objects allowed in torch files (the original SeqNet code stored numpy scalars)."""
-    core = np._core if hasattr(np, "_core") else np.core  # type: ignore[attr-defined]
-    out: list[Any] = [np.dtype, *(type(np.dtype(t)) for t in (np.float64, np.float32, np.int64, np.int32, np.bool_))]
-    for name in ("scalar", "_reconstruct"):
-        fn = getattr(core.multiarray, name)
-        out += [fn, (fn, f"numpy.core.multiarray.{name}"), (fn, f"numpy._core.multiarray.{name}")]
-    return out + [np.ndarray]
+class _Dtype:
+    """A numeric numpy dtype named in a pickle (``numpy.dtype(code, align, copy)``), built by seqnet."""
+
+    def __init__(self, code: object) -> None:
+        if not isinstance(code, str) or not _CODE.match(code):
+            raise CheckpointError(f"refusing numpy dtype {code!r} in a torch file: plain numbers only")
+        self.dtype = np.dtype(code)
+
+    def __setstate__(self, state: object) -> None:
+        if not isinstance(state, tuple) or len(state) < 5 or state[1] not in ("<", ">", "|", "=") or \
+                any(x is not None for x in state[2:5]):
+            raise CheckpointError("refusing a numpy dtype state with fields or sub-arrays in a torch file")
+        if state[1] in "<>":
+            self.dtype = self.dtype.newbyteorder(state[1])
+
+
+class _Array:
+    """A numpy array named in a pickle (``_reconstruct`` then its state), built from its bytes by seqnet."""
+
+    array: np.ndarray | None = None
+
+    def __setstate__(self, state: object) -> None:
+        if not isinstance(state, tuple) or len(state) != 5 or not isinstance(state[2], _Dtype):
+            raise CheckpointError("refusing a numpy array state in a torch file that is not plain numbers")
+        _, shape, dt, fortran, raw = state
+        raw = raw.encode("latin-1") if isinstance(raw, str) else raw
+        if not isinstance(shape, tuple) or not all(isinstance(s, int) and s >= 0 for s in shape) or \
+                not isinstance(raw, bytes) or len(raw) != int(np.prod(shape, dtype=object)) * dt.dtype.itemsize:
+            raise CheckpointError("refusing a numpy array in a torch file whose bytes do not match its shape")
+        self.array = np.frombuffer(raw, dt.dtype).reshape(shape, order="F" if fortran else "C").copy()
+
+
+class _NdarrayType:
+    """``numpy.ndarray`` as the argument of ``_reconstruct`` (nothing else)."""
+
+
+def _dtype(code: object, align: object = False, copy: object = True) -> _Dtype:
+    return _Dtype(code)
+
+
+def _scalar(dt: object, data: object = None) -> Any:
+    data = data.encode("latin-1") if isinstance(data, str) else data
+    if not isinstance(dt, _Dtype) or not isinstance(data, bytes) or len(data) != dt.dtype.itemsize:
+        raise CheckpointError("refusing a numpy scalar in a torch file that is not plain numbers")
+    return np.frombuffer(data, dt.dtype)[0]
+
+
+def _reconstruct(cls: object, shape: object = (0,), code: object = b"b") -> _Array:
+    if cls is not _NdarrayType:
+        raise CheckpointError("refusing numpy _reconstruct of anything but an ndarray in a torch file")
+    return _Array()
+
+
+def _safe_globals() -> list[Any]:
+    """What a torch file may name beyond torch's own tensors and containers: seqnet's constructors."""
+    out: list[Any] = [(_Dtype, "seqnet.security.torchfile._Dtype"), (_Array, "seqnet.security.torchfile._Array"),
+                      (_NdarrayType, "numpy.ndarray"), (_dtype, "numpy.dtype")]
+    for core in ("numpy.core.multiarray", "numpy._core.multiarray"):
+        out += [(_scalar, f"{core}.scalar"), (_reconstruct, f"{core}._reconstruct")]
+    return out
+
+
+def check_archive(f: IO[bytes], where: str, what: str) -> None:
+    """A torch zip archive whose members are all stored and within the file (see the module docstring)."""
+    size = os.fstat(f.fileno()).st_size
+    if f.read(4) != b"PK\x03\x04":
+        raise CheckpointError(f"cannot read {what} {where}: not a torch file in the zip format of torch >= 1.6 "
+                              "(the legacy format is not read: load and re-save it with torch.save in a trusted "
+                              "environment)")
+    f.seek(0)
+    try:
+        with zipfile.ZipFile(f) as z:
+            infos = z.infolist()
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, ValueError, EOFError) as e:
+        raise CheckpointError(f"cannot read {what} {where}: a damaged archive ({' '.join(str(e).split())[:160]})") \
+            from e
+    for info in infos:
+        if info.compress_type != zipfile.ZIP_STORED or info.file_size != info.compress_size or \
+                info.file_size > size:
+            raise CheckpointError(f"cannot read {what} {where}: member {info.filename!r} declares {info.file_size} "
+                                  "bytes it does not store as torch does (a damaged or crafted file)")
 
 
 def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint") -> Any:
-    """Read a ``torch.save`` file safely (``weights_only``); :class:`CheckpointError` if missing or unreadable."""
+    """A ``torch.save`` file read safely (module docstring); :class:`CheckpointError` if missing or unreadable."""
     import torch
 
-    path = Path(path)
-    if not path.is_file():
-        hint = " (it is a directory)" if path.is_dir() else ""
-        raise CheckpointError(f"{what} not found: {path}{hint}")
-    try:
-        with torch.serialization.safe_globals(_numpy_globals()):
-            return torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, zipfile errors ...
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise CheckpointError(f"cannot read {what} {path}: corrupted or not a torch file ({first[:200]})") from e
+    with open_input(path, what, CheckpointError) as f:
+        check_archive(f, str(path), what)
+        f.seek(0)
+        try:
+            with torch.serialization.safe_globals(_safe_globals()):
+                value = torch.load(f, map_location="cpu", weights_only=True)
+        except CheckpointError:
+            raise
+        except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, zipfile errors ...
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise CheckpointError(f"cannot read {what} {path}: corrupted or not a torch file ({first[:200]})") from e
+    return _resolved(value)
+
+
+def _resolved(value: Any) -> Any:
+    """``value`` with every numpy array built from the file (:class:`_Array`) in its place (dicts, lists, tuples;
+    iteratively: no recursion limit to reach)."""
+    if isinstance(value, _Array):
+        return value.array
+    root = [value]
+    todo: list[Any] = [root]
+    seen: set[int] = set()
+    while todo:
+        node = todo.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        keys = node.keys() if isinstance(node, dict) else range(len(node)) if isinstance(node, list) else ()
+        for k in list(keys):
+            item = node[k]
+            if isinstance(item, _Array):
+                node[k] = item.array
+            elif isinstance(item, tuple) and any(isinstance(x, _Array) for x in item):
+                node[k] = tuple(x.array if isinstance(x, _Array) else x for x in item)
+            elif isinstance(item, (dict, list)):
+                todo.append(item)
+    return root[0]

@@ -17,7 +17,6 @@ they can hold tensors and plain data only, never code.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -26,6 +25,8 @@ from ..core.errors import CheckpointError, ResourceError
 from ..core.lazy import lazy_module
 from ..core.utils import logger
 from ..security.files import atomic_path
+from ..security.jsonfile import read_json
+from ..security.limits import DIM_MAX, SEQ_MAX, number
 from ..security.torchfile import load_torch_file
 
 torch = lazy_module("torch")
@@ -81,7 +82,11 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
     ``trained_on`` the dataset directory and split of its training queries (None when unknown).
     """
     payload = read_checkpoint(path)
-    if payload.get("format") == CHECKPOINT_FORMAT:
+    fmt = payload.get("format")
+    if isinstance(fmt, str) and fmt.startswith("seqnet-checkpoint/") and fmt != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path} is a checkpoint of format {fmt[:40]!r}, written by a newer seqnet; this seqnet "
+                              f"reads {CHECKPOINT_FORMAT!r} (hint: upgrade seqnet: pip install -U seqnet)")
+    if fmt == CHECKPOINT_FORMAT:
         model = _from_seqnet(payload, Path(path))
         model.provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else None
         config = payload.get("config") if isinstance(payload.get("config"), dict) else {}
@@ -95,11 +100,33 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
     return model.eval()
 
 
+def check_architecture(cfg: Any, state: dict[str, torch.Tensor], path: Path) -> tuple[int, int, int, int]:
+    """``(in_dims, out_dims, seq_len, w)`` of a checkpoint's architecture entry, each in its range and equal to
+    the shapes of the stored weights (``conv.weight [out, in, w]``, ``conv.bias [out]``): checked before the
+    model is built, so a declared size never allocates beyond the file's own weights."""
+    if not isinstance(cfg, dict):
+        raise CheckpointError(f"{path}: no 'model' architecture entry (in_dims, out_dims, seq_len, w)")
+    try:
+        dims = tuple(int(number(cfg.get(k), f"{path}: model {k}", 1, hi, CheckpointError)) for k, hi in (
+            ("in_dims", DIM_MAX), ("out_dims", DIM_MAX), ("seq_len", SEQ_MAX), ("w", SEQ_MAX)))
+    except CheckpointError as e:
+        raise CheckpointError(f"{e} (the stored architecture is {str(cfg)[:120]})") from e
+    in_dims, out_dims, seq_len, w = dims
+    weight, bias = state.get("conv.weight"), state.get("conv.bias")
+    if weight is None or bias is None or tuple(weight.shape) != (out_dims, in_dims, w) or \
+            tuple(bias.shape) != (out_dims,) or w > seq_len:
+        got = {k: tuple(v.shape) for k, v in list(state.items())[:4]}
+        raise CheckpointError(f"{path}: weights do not fit the stored architecture {cfg} (weights {got}; "
+                              "conv.weight [out_dims, in_dims, w] and conv.bias [out_dims] expected, w <= seq_len)")
+    return in_dims, out_dims, seq_len, w
+
+
 def _build(cfg: dict[str, Any], state: dict[str, torch.Tensor], path: Path) -> SeqNet:
     from .model import SeqNet  # the model class loads torch
 
+    in_dims, out_dims, seq_len, w = check_architecture(cfg, state, path)
     try:
-        model = SeqNet(int(cfg["in_dims"]), int(cfg["out_dims"]), int(cfg["seq_len"]), int(cfg["w"]))
+        model = SeqNet(in_dims, out_dims, seq_len, w)
         model.load_state_dict(state)
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as e:
         reason = str(e).splitlines()[0] if str(e) else type(e).__name__
@@ -112,17 +139,14 @@ def _build(cfg: dict[str, Any], state: dict[str, torch.Tensor], path: Path) -> S
 
 
 def _from_seqnet(payload: dict[str, Any], path: Path) -> SeqNet:
-    cfg = payload.get("model")
-    if not isinstance(cfg, dict):
-        raise CheckpointError(f"{path}: no 'model' architecture entry (in_dims, out_dims, seq_len, w)")
-    return _build(cfg, payload["state_dict"], path)
+    return _build(payload.get("model"), payload["state_dict"], path)
 
 
 def find_flags(path: Path) -> Path | None:
-    """``flags.json`` of an original-code run: beside the checkpoint, or in ``checkpoints/`` of its
-    directory or of its parent directory."""
+    """``flags.json`` of an original-code run: beside the checkpoint, or in ``checkpoints/`` of its folder
+    (never further up: a file is read from the checkpoint's own folder only)."""
     here = path.resolve().parent
-    for cand in (here / "flags.json", here / "checkpoints" / "flags.json", here.parent / "checkpoints" / "flags.json"):
+    for cand in (here / "flags.json", here / "checkpoints" / "flags.json"):
         if cand.is_file():
             return cand
     return None
@@ -146,10 +170,7 @@ def read_flags(path: Path) -> dict[str, Any]:
     flags_path = find_flags(path)
     if flags_path is None:
         return {}
-    try:
-        flags = json.loads(flags_path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"{flags_path}: not valid JSON ({e})") from e
+    flags = read_json(flags_path, "flags file", CheckpointError, limit=1 << 20)
     if not isinstance(flags, dict):
         raise CheckpointError(f"{flags_path}: must hold a JSON object of the run's flags")
     for key in ("seqL", "w", "outDims"):
