@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.errors import CheckpointError, ResourceError
+from ..core.errors import CheckpointError
 from ..core.lazy import lazy_module
 from ..core.utils import logger
 from ..security.files import atomic_path
@@ -42,12 +42,8 @@ def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
     payload = {"format": CHECKPOINT_FORMAT, "model": model.config(), "provenance": model.provenance,
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, **fields}
     path = Path(path)
-    with atomic_path(path) as tmp:
-        try:
-            torch.save(payload, tmp)
-        except RuntimeError as e:  # torch's zip writer reports a failed write (a full disk, a size limit) so
-            raise ResourceError(f"cannot write {path} ({' '.join(str(e).split())[:160]}); hint: check the free "
-                                "space") from e
+    with atomic_path(path) as tmp:  # a write cut short (torch's "inline_container" error) is "disk full", exit 1
+        torch.save(payload, tmp)
     return path
 
 
