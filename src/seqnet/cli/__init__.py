@@ -37,8 +37,7 @@ COMMANDS: dict[str, str] = {  # name -> one-line help; each name's module is <na
 from .runtime import (  # noqa: E402 - the command modules import COMMANDS from here
     add_runtime_options,
     check_no_empty_values,
-    is_allocation_error,
-    one_line,
+    classify,
     report_error,
     runtime,
 )
@@ -109,12 +108,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_no_empty_values(args)
         with runtime(args):
             return int(args.func(args) or 0)
-    except (SeqnetError, OSError, MemoryError, KeyboardInterrupt) as e:
+    except (SeqnetError, MemoryError, KeyboardInterrupt) as e:
         return report_error(args.command, e)
-    except RuntimeError as e:  # torch's allocators report running out of memory as a RuntimeError
-        if not is_allocation_error(e):
-            raise
-        return report_error(args.command, MemoryError(one_line(e)))
+    except Exception as e:  # noqa: BLE001 - the one error boundary: an OS, library or internal failure, one line
+        return report_error(args.command, classify(e), trace=e if args.verbose else None)
 
 
 def entry_point() -> None:

@@ -14,6 +14,7 @@ from ..core.errors import SeqnetError
 from ..core.progress import close_all, progress_mode
 from ..core.utils import logger
 from ..security.files import os_error
+from ..security.text import shown
 from .common import positive_int
 
 
@@ -52,6 +53,13 @@ class _StderrHandler(logging.StreamHandler):
         pass
 
 
+class _Escaped(logging.Formatter):
+    """Log lines with control characters escaped (a file name cannot move the cursor or fake a line)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return "\n".join(shown(line) for line in super().format(record).split("\n"))
+
+
 def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
     """NumPy's BLAS (OpenBLAS: the per-frame GEMVs of :mod:`seqnet.core.gemv`) on ``threads`` threads too."""
     if not threads:
@@ -68,7 +76,7 @@ def runtime(args: argparse.Namespace) -> Iterator[None]:
     it loads), so a value a stage refuses (``--method nosuch``) is refused before torch is imported."""
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     handler = _StderrHandler()
-    handler.setFormatter(logging.Formatter("%(message)s"))
+    handler.setFormatter(_Escaped("%(message)s"))
     old_level = logger.level
     logger.addHandler(handler)
     logger.setLevel(level)
@@ -124,12 +132,17 @@ def one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
-def report_error(command: str | None, e: BaseException) -> int:
-    """Print ``e`` as one line on stderr (bars cleared first); return the exit code.
+def report_error(command: str | None, e: BaseException, trace: BaseException | None = None) -> int:
+    """Print ``e`` as one line on stderr (bars cleared first; control characters from file names escaped);
+    return the exit code. ``trace``: an unexpected exception whose traceback is printed first (``-v``).
 
     Under torchrun, an error another rank reports too (``e.reported_elsewhere``: rank 0's, copied to
     every rank) is not printed again, and the other errors of ranks > 0 name their rank."""
     close_all()
+    if trace is not None:
+        import traceback
+
+        traceback.print_exception(trace, file=sys.stderr)
     quiet = bool(getattr(e, "reported_elsewhere", False))
     if sys.stderr.isatty() and not quiet:
         sys.stderr.write("\r\x1b[K")
@@ -142,7 +155,7 @@ def report_error(command: str | None, e: BaseException) -> int:
         e = _memory_error(e)
     prefix = f"seqnet {command}: error: " if command else ""
     if not quiet:
-        print(prefix + _rank() + one_line(e), file=sys.stderr)
+        print(prefix + _rank() + shown(one_line(e)), file=sys.stderr)
     return int(getattr(e, "exit_code", 2))
 
 
@@ -152,10 +165,33 @@ def _rank() -> str:
     return f"rank {rank}: " if size not in ("", "0", "1") and rank not in ("", "0") else ""
 
 
-def is_allocation_error(e: RuntimeError) -> bool:
-    """Whether a RuntimeError is an allocator running out of memory (torch's CPU or CUDA allocator)."""
+_MEMORY = ("can't allocate memory", "cannot allocate memory", "out of memory", "failed to allocate", "bad_alloc",
+           "failed to map segment")
+
+
+def is_allocation_error(e: BaseException) -> bool:
+    """Whether an exception is an allocator running out of memory (torch's CPU or CUDA allocator, a C++
+    ``std::bad_alloc``, a shared library that cannot be mapped under ``ulimit -v``)."""
     text = str(e).lower()
-    return "can't allocate memory" in text or "out of memory" in text or "failed to allocate" in text
+    return any(m in text for m in _MEMORY)
+
+
+def classify(e: Exception) -> BaseException:
+    """What the CLI reports for an exception that is not a :class:`SeqnetError`: running out of memory (exit 1),
+    a write cut short by a full disk (exit 1), an OS error (:func:`seqnet.security.files.os_error`), or an
+    internal error (a bug: one line, exit 2; ``-v`` shows the traceback)."""
+    from ..core.errors import ResourceError
+    from ..security.files import os_error, short_write
+
+    if isinstance(e, (RuntimeError, OSError, ImportError)) and is_allocation_error(e):
+        return MemoryError(one_line(e))
+    if short_write(e):
+        return ResourceError("disk full while writing an output (or a file size limit, ulimit -f); hint: check the "
+                             "free space, or write the output elsewhere")
+    if isinstance(e, OSError):
+        return os_error(e)
+    return SeqnetError(f"internal error ({type(e).__name__}: {one_line(e)[:300]}); this is a bug in seqnet, please "
+                       "report it (-v prints the traceback)")
 
 
 def _memory_error(e: MemoryError) -> SeqnetError:

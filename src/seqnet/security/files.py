@@ -47,8 +47,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.replace(tmp_path, path)
     except (OSError, RuntimeError) as e:
         if short_write(e):
-            raise ResourceError(f"{path}: disk full (or a file size limit, ulimit -f) while writing it; hint: free "
-                                f"some space or write the output elsewhere ({' '.join(str(e).split())[:120]})") from e
+            raise ResourceError(f"{path}: disk full while writing it (or a file size limit, ulimit -f); hint: check "
+                                "the free space, or write the output elsewhere") from e
         if isinstance(e, OSError) and (e.filename in (str(tmp_path), tmp_path) or e.filename is None):
             raise type(e)(e.errno, e.strerror or str(e), str(path)) from e  # name the user's file, not ours
         raise
@@ -134,7 +134,7 @@ _REASONS = {errno.ENOSPC: "no space left on device", errno.EROFS: "read-only fil
 def os_error(e: OSError) -> SeqnetError:
     """One user-facing error for an OS failure: the path and the reason; :class:`ResourceError`
     (exit 1) for a failing environment (disk full, read-only, permission), else :class:`OutputError`."""
-    reason = _REASONS.get(e.errno or -1) or (e.strerror or type(e).__name__).lower()
+    reason = _REASONS.get(e.errno or -1) or (e.strerror or " ".join(str(e).split())[:200] or type(e).__name__)
     if e.errno == errno.EISDIR and e.strerror and e.strerror != "Is a directory":
         reason = e.strerror
     path = f"{e.filename}: " if e.filename else ""
