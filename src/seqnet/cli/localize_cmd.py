@@ -42,6 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_topic(p, "--query")
     add_distances(p, "with --dataset: streamed row by row")
     p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
+    p.add_argument("--describer", metavar="PKG.MODULE:FACTORY", help="with --map and query images: the plug-in "
+                   "describer the map was made with, named here because seqnet imports no code a file names")
     p.add_argument("--out", required=True, metavar="TRACK.csv",
                    help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
@@ -67,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
     conf = _D.replace(method=args.method, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
                       device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
+    if args.describer is not None and args.query is None:
+        raise ConfigError("--describer goes with --map and query images (the plug-in the map was described with)")
     if args.topic is not None and args.query is None:
         raise ConfigError("--topic names the image topic of a ROS bag given as --query (with --map)")
     if (args.map is None) != (args.query is None):
@@ -77,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:
         out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model,
-                     args.topic)
+                     args.topic, args.describer)
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
                    args.distances, args.similarity)

@@ -7,7 +7,6 @@ crash never leaves a half-written dataset.
 
 from __future__ import annotations
 
-import json
 import warnings
 from pathlib import Path
 from typing import Any
@@ -21,10 +20,13 @@ from ..security.arrays import read_npz
 from ..security.digests import changed_files, file_digest
 from ..security.dirs import read_consistent, recover_dir, write_dir
 from ..security.files import atomic_path, save_npy_atomic, write_json_atomic, write_text_atomic
+from ..security.inputs import check_name, inside
+from ..security.jsonfile import read_json, read_json_object
+from ..security.limits import INDEX_MAX, number
 from ..security.locks import locked
 from ..security.ownership import check_replaceable, write_manifest
 from .positives import Positives
-from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file, read_text
+from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file
 from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse
 
 # ----------------------------------------------------------------------------- reading
@@ -44,8 +46,8 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
 def recorded_digests(path: str | Path) -> dict[str, Any]:
     """The file hashes seqnet recorded in ``dataset.json`` when it wrote the dataset (empty when none)."""
     try:
-        meta = json.loads(read_text(Path(path) / "dataset.json"))
-    except (ValueError, DatasetError):
+        meta = read_json(Path(path) / "dataset.json", "dataset.json")
+    except DatasetError:
         return {}
     return (meta.get("checksums") or {}) if isinstance(meta, dict) else {}
 
@@ -60,33 +62,28 @@ def _load_dataset(root: Path, mmap: bool) -> tuple[Dataset, dict[str, Any]]:
     if not meta_path.is_file():
         raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing "
                            "(hint: `seqnet synth DIR` writes an example)")
-    try:
-        meta = json.loads(read_text(meta_path))
-    except json.JSONDecodeError as e:
-        raise DatasetError(f"{meta_path}: not valid JSON ({e})") from e
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{meta_path}: must hold a JSON object")
+    meta = read_json_object(meta_path, "dataset.json")
     if "radius" not in meta:
         raise DatasetError(f"{meta_path}: missing key 'radius' (localisation radius, metres or frames)")
-    try:
-        radius = float(meta["radius"])
-    except (TypeError, ValueError) as err:
-        raise DatasetError(f"{meta_path}: radius must be a number, got {meta['radius']!r}") from err
+    radius = number(meta["radius"], f"{meta_path}: radius", -1e300, 1e300, integer=False)  # > 0: checked by Dataset
     trav = meta.get("traverses", {"reference": "reference", "query": "query"})
     if not isinstance(trav, dict) or not all(isinstance(v, str) for v in trav.values()):
         raise DatasetError(f"{meta_path}: 'traverses' must be an object like "
                            '{"reference": "ref", "query": "qry"}')
-    ref = load_traverse(root / trav.get("reference", "reference"), "reference", mmap)
-    qry = load_traverse(root / trav.get("query", "query"), "query", mmap)
+    sides = {side: inside(root, trav.get(side, side), f"{meta_path}: traverse {side!r}") for side in
+             ("reference", "query")}
+    ref = load_traverse(sides["reference"], "reference", mmap)
+    qry = load_traverse(sides["query"], "query", mmap)
     prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
-    ref.provenance, qry.provenance = prov.get("reference"), prov.get("query")
+    ref.provenance, qry.provenance = (p if isinstance(p, dict) else None for p in (prov.get("reference"),
+                                                                                   prov.get("query")))
     ds = Dataset(
         reference=ref,
         query=qry,
         radius=radius,
         position_unit=meta.get("position_unit"),
         splits=_parse_splits(meta.get("splits", {}), meta_path),
-        name=str(meta.get("name", root.name)),
+        name=check_name(str(meta.get("name", root.name)), f"{meta_path}: name"),
         extra={k: v for k, v in meta.items() if k not in _META_KEYS},
         positives=load_positives(root / POSITIVES_FILE) if (root / POSITIVES_FILE).is_file() else None,
     )
@@ -131,17 +128,24 @@ def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]
     for name, rng in raw.items():
         try:
             if isinstance(rng, dict):  # {"query": [a, b]} alone: the whole reference (filled in by Dataset)
-                out[name] = {k: (int(rng[k][0]), int(rng[k][1])) for k in ("reference", "query")
+                out[name] = {k: _range(rng[k], f"{where}: split {name!r} {k}") for k in ("reference", "query")
                              if k in rng or k == "query"}
             else:
-                a, b = int(rng[0]), int(rng[1])
+                a, b = _range(rng, f"{where}: split {name!r}")
                 out[name] = {"reference": (a, b), "query": (a, b)}
-        except (KeyError, TypeError, ValueError, IndexError) as err:
+        except (KeyError, TypeError, IndexError) as err:
             raise DatasetError(
                 f"{where}: split {name!r} must be [start, stop] or "
                 "{\"reference\": [start, stop], \"query\": [start, stop]}"
             ) from err
     return out
+
+
+def _range(rng: Any, what: str) -> tuple[int, int]:
+    """``[start, stop]`` read from a file: two integers in ``0..INDEX_MAX``."""
+    if not isinstance(rng, (list, tuple)) or len(rng) != 2:
+        raise TypeError(what)
+    return (int(number(rng[0], what, 0, INDEX_MAX)), int(number(rng[1], what, 0, INDEX_MAX)))
 
 
 def load_traverse(path: Path, name: str, mmap: bool = True) -> Traverse:

@@ -90,10 +90,11 @@ def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Fram
     return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
 
 
-def image_frames(source: Path, ref_map: Reference, allow: bool,
-                 topic: str | None = None) -> tuple[Frames, list[str], int]:
+def image_frames(source: Path, ref_map: Reference, allow: bool, topic: str | None = None,
+                 describer: str | None = None) -> tuple[Frames, list[str], int]:
     """Images of a folder, a list file or a bag's image ``topic``, each described when it is read by the map's
-    describer."""
+    describer. A plug-in describer the map's files name is imported only when the user names the same one
+    (``describer``, ``--describer``): seqnet runs no code a file names."""
     from ..describe import DescribeConfig, make_describer
     from ..describe.images import list_images
     from ..describe.store import describe_provenance
@@ -105,7 +106,9 @@ def image_frames(source: Path, ref_map: Reference, allow: bool,
                           "so query images cannot be described alike; describe them yourself and pass the "
                           "descriptor file as --query")
     derived = ("dim", "whiten", "describer_provenance")  # not options: the PCA's, a plug-in module's own
-    conf = DescribeConfig.from_dict({k: v for k, v in prov["settings"].items() if k not in derived})
+    settings = prov.get("settings") if isinstance(prov.get("settings"), dict) else {}
+    check_named_code(settings, describer)
+    conf = DescribeConfig.from_dict({k: v for k, v in settings.items() if k not in derived})
     if conf.needs_fit or "dim" in prov["settings"]:
         raise ConfigError(f"the map was described with fitted state ({conf.method}, PCA or clusters), which "
                           "localize cannot rebuild; describe the query images with `seqnet describe` using the "
@@ -124,19 +127,36 @@ def image_frames(source: Path, ref_map: Reference, allow: bool,
     return frames(), images.names, len(images)
 
 
+def check_named_code(settings: Mapping[str, object], describer: str | None) -> None:
+    """Refuse to rebuild a describer that would run code or read a file named in the map's files: a plug-in
+    module (unless the user names the same one with ``--describer``) or a NetVLAD checkpoint."""
+    named = settings.get("describer")
+    if named and named != describer:
+        raise ConfigError(f"the map's descriptors were made by the plug-in describer {str(named)[:80]!r}, named in the "
+                          "map's files; seqnet imports no code a file names: pass --describer "
+                          f"{str(named)[:80]} if you trust that module")
+    if settings.get("checkpoint"):
+        raise ConfigError("the map was described with a checkpoint named in its files, which localize does not open; "
+                          "describe the query images with `seqnet describe` and that checkpoint, and pass the "
+                          "descriptor file as --query")
+
+
 def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: str | Path,
            models: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
-           rerank_model: str | Path | None = None, topic: str | None = None) -> Written:
+           rerank_model: str | Path | None = None, topic: str | None = None, describer: str | None = None) -> Written:
     """hloc-style stage: localise every frame of ``query`` (``topic``: the image topic of the ROS bag ``query``)
     against the map in ``map_dir`` with the model checkpoints given; writes ``out`` (track.csv) and its ``.json``
-    summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1)."""
+    summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1). ``describer``:
+    the plug-in describer the user trusts (:func:`check_named_code`)."""
     with locked(check_output(out)):
         remove_dead_temps([Path(out), sidecar_of(Path(out))])
-        return _stream(conf, map_dir, Path(query), Path(out), models, shortlist_model, rerank_model, topic)
+        return _stream(conf, map_dir, Path(query), Path(out), models, shortlist_model, rerank_model, topic,
+                       describer)
 
 
 def _stream(conf: LocalizeConfig, map_dir: str | Path, query: Path, out: Path, models: Sequence[str | Path],
-            shortlist_model: str | Path | None, rerank_model: str | Path | None, topic: str | None) -> Written:
+            shortlist_model: str | Path | None, rerank_model: str | Path | None, topic: str | None,
+            describer: str | None = None) -> Written:
     from ..sequence.checkpoints import load_models
 
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
@@ -146,7 +166,7 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, query: Path, out: Path, m
     if is_file and topic is not None:
         raise ConfigError(f"--topic {topic} goes with a ROS bag as --query, but {query} is a descriptor file")
     frames, names, n = (descriptor_frames(query, ref_map, conf.allow_mismatch) if is_file
-                        else image_frames(query, ref_map, conf.allow_mismatch, topic))
+                        else image_frames(query, ref_map, conf.allow_mismatch, topic, describer))
     est: list[Estimate] = []
     describe_ms = []
     for d, ms in progress(frames, desc=f"localize ({conf.method})", total=n, unit="frame"):

@@ -9,6 +9,7 @@ from ..core.errors import ConfigError
 from ..core.utils import check_device
 from ..eval.methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, canonical_name, parse_method
 from ..search.ann import AnnConfig
+from ..security.limits import SEQ_MAX
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, descriptor_name
 from ..sequence.windows import WINDOW_MODES, WindowSettings
 
@@ -55,13 +56,13 @@ class MapConfig(WindowSettings, Config):
         self.method  # noqa: B018 - validates the re-ranker
         for key in ("seq_len", "rerank_seq_len"):
             if getattr(self, key) is not None:
-                self._set(key, check_int(key, getattr(self, key), 1))
+                self._set(key, check_int(key, getattr(self, key), 1, SEQ_MAX))
         check_choice("window mode", self.window, WINDOW_MODES)
         if not isinstance(self.ann, AnnConfig):
             raise ConfigError(f"ann must be an AnnConfig, got {type(self.ann).__name__}")
         check_choice("map dtype", self.dtype, DTYPES)
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
-        self._set("shards", check_int("shards", self.shards, 1))
+        self._set("shards", check_int("shards", self.shards, 1, 1 << 16))
         check_device(self.device)
 
     @property

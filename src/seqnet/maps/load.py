@@ -9,14 +9,16 @@ import numpy as np
 
 from ..core.errors import ConfigError, SeqnetError
 from ..data.readers import read_names
-from ..search.ann import load_index
+from ..search.ann import set_search_params
 from ..security.arrays import read_npy
 from ..security.digests import verify_digests
 from ..security.dirs import read_consistent
+from ..security.faissfile import read_faiss
+from ..security.inputs import inside
+from ..security.limits import DIM_MAX, INDEX_MAX, number
 from ..sequence.checkpoints import load_model
 from .config import MapConfig
 from .map import Map, MapError, read_meta
-from .shards import open_merged
 from .store import INDEX_FILE
 
 
@@ -41,11 +43,12 @@ def load_map(path: str | Path, device: str | None = None, anchor: str = "") -> M
 def _load_map(path: Path, device: str | None, anchor: str) -> Map:
     meta = read_meta(path)
     check_files(path, meta)
-    try:
-        r, nr, d1, d2 = (int(meta[k]) for k in ("items", "frames", "shortlist_dim", "frame_dim"))
-        conf_dict = meta["config"]
-    except (KeyError, TypeError, ValueError) as err:
-        raise MapError(f"{path / 'map.json'}: missing or bad items/frames/shortlist_dim/frame_dim/config") from err
+    r, nr = (int(number(meta.get(k), f"{path / 'map.json'}: {k}", 1, INDEX_MAX, MapError)) for k in ("items", "frames"))
+    d1, d2 = (int(number(meta.get(k), f"{path / 'map.json'}: {k}", 1, DIM_MAX, MapError))
+              for k in ("shortlist_dim", "frame_dim"))
+    conf_dict = meta.get("config")
+    if not isinstance(conf_dict, dict):
+        raise MapError(f"{path / 'map.json'}: missing or bad config")
     arrays: dict[str, Any] = {"shortlist": _array(path / "shortlist.npy", (r, d1), "f"),
                               "frames": _array(path / "frames.npy", (nr, d2), "f"),
                               "items": _array(path / "items.npy", (r,), "iu"),
@@ -61,7 +64,7 @@ def _load_map(path: Path, device: str | None, anchor: str) -> Map:
                            "rebuild it)")
     try:
         conf = MapConfig.from_dict(conf_dict)
-    except ConfigError as e:
+    except (ConfigError, TypeError, ValueError) as e:
         raise MapError(f"{path / 'map.json'}: bad config ({e})") from e
     index = None if conf.ann.kind == "flat" else _index(path / INDEX_FILE, conf, r, d1)
     models = _models(path, meta, conf)
@@ -91,14 +94,15 @@ def check_arrays(path: Path, arrays: dict[str, Any], nr: int) -> None:
 def _index(file: Path, conf: Any, n: int, d: int) -> Any:
     if not file.is_file():
         raise MapError(f"map file missing: {file} (a {conf.ann.kind} map needs its index)")
-    index = open_merged(file, conf.ann) if conf.shards > 1 else load_index(file, conf.ann)  # lists memory-mapped
-    if index.ntotal != n or index.d != d:
-        raise MapError(f"{file}: index of {index.ntotal} vectors of D={index.d}, the map has {n} of D={d}")
+    index = read_faiss(file, n, d, "map index", MapError)  # probed in the sandbox; on-disk lists mapped read-only
+    set_search_params(index, conf.ann)
     return index
 
 
 def _models(path: Path, meta: dict[str, Any], conf: Any) -> dict[str, Any]:
     stored = meta.get("models") or {}
+    if not isinstance(stored, dict):
+        raise MapError(f"{path / 'map.json'}: 'models' must map a role to a file in the map")
     missing = conf.roles() - set(stored)
     if missing:
         raise MapError(f"{path}: the map's {conf.method.name} needs model(s) {sorted(missing)} but stores "
@@ -106,7 +110,7 @@ def _models(path: Path, meta: dict[str, Any], conf: Any) -> dict[str, Any]:
     models = {}
     for role, rel in stored.items():
         try:
-            models[role] = load_model(path / rel)
+            models[role] = load_model(inside(path, rel, f"{path / 'map.json'}: model {role!r}", MapError))
         except SeqnetError as e:
             raise MapError(f"{path}: cannot load the map's {role} model ({e})") from e
     return models

@@ -10,7 +10,6 @@ matcher over the whole map.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,6 +26,7 @@ from ..matching.on_disk import pair_scores_on_map
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..search.ann import search as ann_search
 from ..search.knn import ExactIndex
+from ..security.jsonfile import read_json
 from ..sequence.described import Described
 from ..sequence.windows import Windows, window_offset
 from .config import MapConfig
@@ -199,12 +199,9 @@ def read_meta(path: Path) -> dict[str, Any]:
     """``map.json`` of a map directory (:class:`MapError` when it is not one)."""
     if not path.is_dir():
         raise MapError(f"map directory not found: {path}" + (" (it is a file)" if path.exists() else ""))
-    try:
-        meta = json.loads((path / MAP_JSON).read_text(encoding="utf-8"))
-    except FileNotFoundError as err:
-        raise MapError(f"{path} is not a seqnet map: {MAP_JSON} is missing (hint: seqnet index build)") from err
-    except (ValueError, UnicodeDecodeError) as e:
-        raise MapError(f"{path / MAP_JSON}: not valid JSON ({e})") from e
+    if not (path / MAP_JSON).exists():
+        raise MapError(f"{path} is not a seqnet map: {MAP_JSON} is missing (hint: seqnet index build)")
+    meta = read_json(path / MAP_JSON, MAP_JSON, MapError)
     if not isinstance(meta, dict) or meta.get("format") != MAP_FORMAT:
         got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
         raise MapError(f"{path / MAP_JSON}: format {got!r} is not {MAP_FORMAT!r}")

@@ -26,6 +26,9 @@ from ..core.utils import to_numpy
 
 TRAIN_PER_LIST = 256  # training vectors per IVF list (FAISS's own k-means cap)
 ADD_BYTES = 32 << 20  # vectors added to an index per block
+# upper bounds of the settings (a map.json is read from anywhere: ef_search 10**12 must not allocate or hang)
+LIMITS = {"nlist": 1 << 24, "nprobe": 1 << 24, "hnsw_m": 1 << 10, "ef_search": 1 << 16, "ef_construction": 1 << 16,
+          "pq_m": 1 << 12}
 FACTORY = re.compile(r"^[A-Za-z][A-Za-z0-9_,.=x]*$")  # the characters of a faiss factory string
 
 
@@ -57,9 +60,9 @@ class AnnConfig(Config):
             raise ConfigError(f"ANN index kind {self.kind!r} is neither an alias ({', '.join(ANN_INDEXES)}) nor a "
                               "FAISS factory string such as 'IVF1024,PQ16' or 'HNSW32,SQ8'")
         if self.nlist is not None:
-            self._set("nlist", check_int("nlist", self.nlist, 1))
+            self._set("nlist", check_int("nlist", self.nlist, 1, LIMITS["nlist"]))
         for key in ("nprobe", "hnsw_m", "ef_search", "ef_construction", "pq_m"):
-            self._set(key, check_int(key, getattr(self, key), 1))
+            self._set(key, check_int(key, getattr(self, key), 1, LIMITS[key]))
         self._set("pq_bits", check_int("pq_bits", self.pq_bits, 1, 16))
         self._set("seed", check_int("seed", self.seed, 0))
 

@@ -12,6 +12,7 @@ import sys
 from typing import IO, Any
 
 from ..core.errors import SeqnetError
+from .sandbox import answer
 
 
 def _hdf5(request: dict[str, Any], out: IO[bytes]) -> None:
@@ -27,11 +28,6 @@ def _faiss(request: dict[str, Any], out: IO[bytes]) -> None:
 
 
 READERS = {"hdf5": _hdf5, "faiss": _faiss}
-
-
-def answer(out: IO[bytes], result: dict[str, Any]) -> None:
-    """Write the JSON answer line (the bytes it announces follow it)."""
-    out.write(json.dumps(result).encode() + b"\n")
 
 
 def main() -> None:

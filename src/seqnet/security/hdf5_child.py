@@ -20,8 +20,8 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from .arrays import MAX_RATIO
-from .child import answer
 from .inputs import open_input
+from .sandbox import answer
 
 SLAB = 32 << 20
 MAX_ATTR = 16 << 20

@@ -134,10 +134,6 @@ def _death(code: int, err: IO[bytes], timer: threading.Timer, timeout: float) ->
     return f"the reader failed ({tail[-300:] or f'exit {code}'})"
 
 
-def read_exact(stream: IO[bytes], n: int, what: str, error: ErrorType) -> bytes:
-    """``n`` bytes of the child's stream (``error`` when it ends early)."""
-    data = stream.read(n)
-    if len(data) != n:
-        raise error(f"cannot read {what}: its reader stopped early")
-    return data
-
+def answer(out: IO[bytes], result: dict[str, Any]) -> None:
+    """The child's side: write its JSON answer line (the bytes it announces follow it)."""
+    out.write(json.dumps(result).encode() + b"\n")
