@@ -79,7 +79,7 @@ def test_pickled_code_is_refused(tmp_path, capsys):
     obj = np.empty(1, dtype=object)
     obj[0] = Evil()
     np.save(tmp_path / "evil.npy", obj, allow_pickle=True)
-    with pytest.raises(DatasetError, match="refusing to load builtins.print"):
+    with pytest.raises(DatasetError, match="refusing builtins.print"):
         read_positives(tmp_path / "evil.npy")
     assert "pwned" not in capsys.readouterr().out
     (tmp_path / "raw.npy").write_bytes(b"\x93NUMPY\x01\x00v\x00{'descr': '|O', 'fortran_order': False, 'shape': (1,), }"
@@ -96,7 +96,8 @@ def test_pickled_code_is_refused(tmp_path, capsys):
     ("p.csv", "query,reference\n", "no query,reference pairs"),
     ("p.csv", "-1,2\n", "negative"),
     ("p.txt", b"\xff\xfe", "not UTF-8"),
-    ("p.pkl", "x", "must be .json, .csv, .npy or .npz"),
+    ("p.pkl", "x", "as a pickle"),
+    ("p.gt", "x", "must be .json, .csv, .npy, .pkl or .npz"),
     ("p.npy", "not numpy", "cannot read"),
 ])
 def test_reader_errors(tmp_path, name, content, pattern):

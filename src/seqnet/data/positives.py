@@ -14,9 +14,6 @@ hostile file cannot run code.
 from __future__ import annotations
 
 import dataclasses
-import io
-import json
-import pickle
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -24,6 +21,11 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from ..core.utils import logger
+from ..security.arrays import is_npy, read_header, read_npy, read_npz
+from ..security.inputs import open_input
+from ..security.jsonfile import parse_json
+from ..security.limits import INDEX_MAX
+from ..security.unpickle import load_npy_objects
 from .readers import read_text
 
 
@@ -41,15 +43,7 @@ class Positives:
     @classmethod
     def from_lists(cls, lists: Sequence[Sequence[int]], where: str = "positives") -> Positives:
         """From one list of reference indices per query (``-1`` entries mean no match and are dropped)."""
-        rows = []
-        for i, row in enumerate(lists):
-            a = np.asarray(row).ravel()
-            if a.size and (a.dtype.kind not in "iu" and not (a.dtype.kind == "f" and np.all(a == np.round(a)))):
-                raise DatasetError(f"{where}: query {i}: reference indices must be integers, got {row!r}")
-            a = a.astype(np.int64)
-            if a.size and a.min() < -1:
-                raise DatasetError(f"{where}: query {i}: reference index {int(a.min())} is negative (-1 = no match)")
-            rows.append(np.unique(a[a >= 0]))
+        rows = [_indices(row, f"{where}: query {i}") for i, row in enumerate(lists)]
         indptr = np.concatenate([[0], np.cumsum([len(r) for r in rows])]).astype(np.int64)
         indices = np.concatenate(rows).astype(np.int64) if rows else np.zeros(0, np.int64)
         return cls(indptr, indices)
@@ -120,24 +114,40 @@ class Positives:
         return np.isin(wanted, rows * width + cols) & (retrieved >= 0)
 
 
+def _indices(row: object, where: str) -> np.ndarray:
+    """The sorted unique reference indices of one query's list (``-1`` = no match, dropped); a value that is no
+    index (a fraction, a text, beyond ``INDEX_MAX``, below -1) is a :class:`DatasetError` naming it."""
+    try:
+        a = np.asarray(row).ravel()
+    except (TypeError, ValueError, OverflowError) as e:
+        raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}") from e
+    if a.size and (a.dtype.kind not in "iu" and not (a.dtype.kind == "f" and np.all(a == np.round(a)))):
+        raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}")
+    if a.size and a.dtype.kind in "uf" and np.abs(a).max() > INDEX_MAX:
+        raise DatasetError(f"{where}: reference index {a.flat[int(np.argmax(np.abs(a)))]:.0f} is too large to be the "
+                           "index of a reference image")
+    a = a.astype(np.int64)
+    if a.size and a.min() < -1:
+        raise DatasetError(f"{where}: reference index {int(a.min())} is negative (-1 = no match)")
+    return np.unique(a[a >= 0])
+
+
 def read_positives(path: str | Path) -> Positives:
     """Explicit positives from ``.json`` (list of lists), ``.csv`` (query,reference pairs) or ``.npy``."""
     p = Path(path)
     if not p.is_file():
         raise DatasetError(f"positives file not found: {p}")
     readers = {".json": _read_json, ".csv": _read_csv, ".txt": _read_csv, ".npy": _read_object_npy,
-               ".npz": _read_tutorial_npz}
+               ".pkl": _read_object_npy, ".pickle": _read_object_npy, ".npz": _read_tutorial_npz}
     reader = readers.get(p.suffix.lower())
     if reader is None:
-        raise DatasetError(f"positives file {p} must be .json, .csv, .npy or .npz (got {p.suffix or 'no extension'!r})")
+        raise DatasetError(f"positives file {p} must be .json, .csv, .npy, .pkl or .npz (got "
+                           f"{p.suffix or 'no extension'!r})")
     return reader(p)
 
 
 def _read_json(p: Path) -> Positives:
-    try:
-        data = json.loads(read_text(p))
-    except json.JSONDecodeError as e:
-        raise DatasetError(f"{p}: not valid JSON ({e})") from e
+    data = parse_json(read_text(p), str(p))
     if not isinstance(data, list) or not all(isinstance(r, (list, int)) for r in data):
         raise DatasetError(f"{p}: expected a JSON list with one list of reference indices per query, "
                            "e.g. [[0, 1], [2], []]")
@@ -166,58 +176,64 @@ def _read_csv(p: Path) -> Positives:
     return Positives.from_lists(lists, str(p))
 
 
-class _NumpyOnlyUnpickler(pickle.Unpickler):
-    """Rebuilds NumPy arrays and scalars; any other global (code) is refused."""
-
-    ALLOWED = {("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
-               ("numpy", "ndarray"), ("numpy", "dtype"), ("numpy.core.multiarray", "scalar"),
-               ("numpy._core.multiarray", "scalar")}
-
-    def find_class(self, module: str, name: str):  # noqa: ANN201 - pickle's signature
-        if (module, name) not in self.ALLOWED:
-            raise DatasetError(f"refusing to load {module}.{name} from a pickle: only NumPy arrays are read")
-        return super().find_class(module, name)
-
-
 def _read_object_npy(p: Path) -> Positives:
-    with open(p, "rb") as f:
-        try:
-            version = np.lib.format.read_magic(f)
-            header = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
-            if version not in header:
-                raise ValueError(f".npy format version {version} is not supported here")
-            shape, _, dtype = header[version](f, max_header_size=2**20)
-        except ValueError as e:
-            raise DatasetError(f"cannot read {p} as a .npy file ({e})") from e
-        if dtype.kind != "O":
-            f.seek(0)
-            arr = np.load(f, allow_pickle=False)
-        else:
-            try:
-                arr = _NumpyOnlyUnpickler(io.BytesIO(f.read())).load()
-            except (pickle.UnpicklingError, EOFError, TypeError, ValueError) as e:
-                raise DatasetError(f"cannot read {p}: not a pickled NumPy object array ({e})") from e
-    if dtype.kind == "O":
-        arr = np.asarray(arr, dtype=object).reshape(shape)
-        if arr.ndim == 2 and arr.shape[1] == 2 and all(_is_index(q) for q in arr[:, 0]):
-            return _vpr_bench(arr, p)
-    elif arr.ndim == 2:
+    """A ``.npy`` of numbers (a 0/1 matrix or index rows), of objects (VPR-Bench's ``ground_truth_new.npy``), or a
+    plain pickle under any name (``.pkl``, ``.pickle``, or a ``.npy`` made with ``pickle.dump``), read without an
+    unpickler (:mod:`seqnet.security.unpickle`: nothing is imported, nothing can crash)."""
+    if is_npy(p):
+        with open_input(p, "positives file") as f:
+            _, _, dtype = read_header(f, str(p))
+        if not dtype.hasobject:
+            arr = read_npy(p, False, "positives file")
+            if arr.ndim == 2:
+                return _numeric_matrix(arr, p)
+            return Positives.from_lists([np.asarray(r).ravel() for r in np.asarray(arr, dtype=object).ravel()],
+                                        str(p))
+    value = load_npy_objects(p, str(p))
+    arr = _object_array(value, p)
+    if arr.ndim == 2 and arr.shape[1] == 2 and all(_is_index(q) for q in arr[:, 0]):
+        return _vpr_bench(arr, p)
+    if arr.ndim == 2 and arr.dtype != object:
         return _numeric_matrix(arr, p)
-    return Positives.from_lists([np.asarray(r).ravel() for r in np.asarray(arr, dtype=object).ravel()], str(p))
+    return Positives.from_lists([_row(r, p) for r in arr.ravel()], str(p))
+
+
+def _object_array(value: object, p: Path) -> np.ndarray:
+    """What a pickle held, as an array of one entry per query (a list of rows, or an array)."""
+    if isinstance(value, np.ndarray):
+        return value
+    if isinstance(value, (list, tuple)):
+        rows = [list(r) if isinstance(r, (range, tuple)) else r for r in value]
+        arr = np.empty(len(rows), dtype=object)
+        for i, r in enumerate(rows):
+            arr[i] = r
+        if all(isinstance(r, list) and len(r) == 2 and _is_index(r[0]) for r in rows) and rows:
+            pairs = np.empty((len(rows), 2), dtype=object)
+            for i, r in enumerate(rows):
+                pairs[i, 0], pairs[i, 1] = r[0], r[1]
+            return pairs
+        return arr
+    raise DatasetError(f"{p}: a pickle of ground truth must hold a list (one entry per query) or an array, got "
+                       f"{type(value).__name__}")
+
+
+def _row(r: object, p: Path) -> np.ndarray:
+    """One query's reference indices (a list, a range, an array, a single index)."""
+    if isinstance(r, range):
+        r = list(r)
+    try:
+        return np.asarray(r if not isinstance(r, (set, frozenset)) else sorted(r)).ravel()
+    except (TypeError, ValueError, OverflowError) as e:
+        raise DatasetError(f"{p}: a query's positives must be reference indices, got {str(r)[:60]}") from e
 
 
 def _read_tutorial_npz(p: Path) -> Positives:
     """VPR_Tutorial's ``GT.npz``: ``GThard`` ``[N_db, N_q]`` bool, the positives, and the optional ``GTsoft``
     (same shape), the soft positives (:attr:`Positives.soft`, stored as ``GThard | GTsoft``)."""
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            if "GThard" not in z.files:
-                raise DatasetError(f"{p}: an .npz of positives needs VPR_Tutorial's 'GThard' [N_db, N_q] array, "
-                                   f"found {sorted(z.files)}")
-            hard = np.asarray(z["GThard"])
-            soft = np.asarray(z["GTsoft"]) if "GTsoft" in z.files else None
-    except (OSError, ValueError) as e:
-        raise DatasetError(f"cannot read {p} as an .npz file ({e})") from e
+    z = read_npz(p, "ground-truth archive", keys=("GThard", "GTsoft"))
+    if "GThard" not in z:
+        raise DatasetError(f"{p}: an .npz of positives needs VPR_Tutorial's 'GThard' [N_db, N_q] array")
+    hard, soft = z["GThard"], z.get("GTsoft")
     if hard.ndim != 2:
         raise DatasetError(f"{p}: GThard must be a [N_db, N_q] matrix, got shape {hard.shape}")
     out = _numeric_matrix(hard.T, p)  # one row per query
