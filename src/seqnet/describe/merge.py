@@ -24,11 +24,11 @@ from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import ProvenanceError, differences
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
-from ..data.readers import read_names, read_npy, read_provenance
+from ..data.readers import bound_names, read_names, read_npy, read_provenance
 from ..security.dirs import remove_dead_temps
 from ..security.hdf5 import check_hdf5
 from ..security.locks import locked
-from .output import OUT_SUFFIXES, names_file_for, write_output
+from .output import OUT_SUFFIXES, check_sidecars, names_file_for, write_output
 from .shards import SHARD_KEY
 
 BLOCK_ROWS = 65536
@@ -71,7 +71,8 @@ def read_shard(path: str | os.PathLike[str]) -> ShardFile:
     shard = prov.pop(SHARD_KEY)
     try:
         if p.suffix.lower() == ".npy":
-            shape, config, names = read_npy(p, mmap=True).shape, None, read_names(names_file_for(p))
+            names = bound_names(p) or read_names(names_file_for(p))
+            shape, config = read_npy(p, mmap=True).shape, None
         else:
             check_hdf5(p, "shard")  # libhdf5 meets a stranger's file in the sandbox first
             with h5py.File(p, "r") as h:
@@ -141,6 +142,7 @@ def merge_shards(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike
         remove_dead_temps([out, names_file_for(out), provenance_sidecar(out)])
         if out.exists() and not overwrite:
             raise ConfigError(f"output {out} already exists (hint: --overwrite replaces it)")
+        check_sidecars(out, overwrite)
         shards = check_shards([read_shard(p) for p in paths])
         config = shards[0].config
         if config is None and out.suffix.lower() != ".npy":

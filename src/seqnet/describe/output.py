@@ -2,7 +2,13 @@
 
 The one writer of describe outputs: :mod:`seqnet.describe.store` hands it the whole array as one
 block, :mod:`seqnet.describe.merge` streams shards through it block by block (nothing is held in
-memory). The output appears in one rename, the descriptors' own, after its sidecars.
+memory). The output appears in one rename, the descriptors' own. A ``.npy``'s provenance sidecar records
+the size and sampled hash of the descriptors it belongs to and their names (``BOUND_KEY``); it is written
+before the descriptors are renamed into place, holding the record of the output it replaces as well, so
+whichever descriptors a kill leaves, seqnet pairs them with their own provenance and names
+(:func:`seqnet.data.readers.read_provenance`, :func:`seqnet.data.readers.bound_names`); the names text file
+for other tools follows the descriptors. Sidecars that seqnet did not write are never replaced
+(:func:`check_sidecars`).
 """
 
 from __future__ import annotations
@@ -15,9 +21,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, DatasetError, OutputError
+from ..core.provenance import BOUND_KEY, MAX_SIDECAR, REPLACES_KEY
 from ..core.provenance import sidecar as provenance_sidecar
+from ..security.digests import file_digest
 from ..security.files import atomic_path, write_json_atomic, write_text_atomic
+from ..security.jsonfile import read_json
 
 OUT_SUFFIXES = (".h5", ".hdf5", ".npy")
 
@@ -26,6 +35,25 @@ def names_file_for(out: str | os.PathLike[str]) -> Path:
     """The names text file written beside a ``.npy`` output."""
     out = Path(out)
     return out.with_name("names.txt") if out.name == "descriptors.npy" else out.with_name(out.stem + ".names.txt")
+
+
+def check_sidecars(out: Path, overwrite: bool = False) -> None:
+    """Refuse (:class:`OutputError`) to write the ``.npy`` output ``out`` when a names or provenance file is
+    beside it that seqnet did not write with it (a provenance file bound to ``out``'s names file marks both
+    as seqnet's), unless ``overwrite``."""
+    if out.suffix.lower() != ".npy" or overwrite:
+        return
+    names, prov = names_file_for(out), provenance_sidecar(out)
+    try:
+        record = read_json(prov, "provenance file", limit=MAX_SIDECAR) if prov.is_file() else None
+    except DatasetError:
+        record = None
+    bound = record.get(BOUND_KEY) if isinstance(record, dict) else None
+    ours = isinstance(bound, dict)  # a provenance file seqnet bound to its descriptors and names
+    for f in (names, prov):
+        if (f.exists() or f.is_symlink()) and not (ours and f.is_file() and not f.is_symlink()):
+            raise OutputError(f"{f} exists and was not written by seqnet with {out.name}; refusing to replace it "
+                              "(move it away, or pass --overwrite)")
 
 
 def write_output(out: Path, shape: tuple[int, int], blocks: Iterable[np.ndarray], names: list[str], config: str,
@@ -39,12 +67,7 @@ def write_output(out: Path, shape: tuple[int, int], blocks: Iterable[np.ndarray]
     if len(names) != shape[0]:
         raise ConfigError(f"{out}: {len(names)} names for {shape[0]} descriptors")
     if out.suffix.lower() == ".npy":
-        out.unlink(missing_ok=True)  # only reached with --overwrite (else an existing output is refused)
-        write_text_atomic(names_file_for(out), "\n".join(names) + "\n")
-        write_json_atomic(provenance_sidecar(out), prov)
-        with atomic_path(out) as tmp, open(tmp, "wb") as f:
-            np.lib.format.write_array_header_1_0(f, {"descr": "<f4", "fortran_order": False, "shape": tuple(shape)})
-            _copy(blocks, shape, lambda a, block: f.write(block.tobytes()))
+        _write_npy(out, shape, blocks, names, prov)
         return
     with atomic_path(out) as tmp, h5py.File(tmp, "w") as h:
         ds = h.create_dataset("descriptors", shape=tuple(shape), dtype=np.float32)
@@ -52,6 +75,34 @@ def write_output(out: Path, shape: tuple[int, int], blocks: Iterable[np.ndarray]
         h.create_dataset("names", data=np.array(names, dtype=object), dtype=h5py.string_dtype())
         h.attrs["config"] = config
         h.attrs["provenance"] = json.dumps(prov, sort_keys=True)
+
+
+def _write_npy(out: Path, shape: tuple[int, int], blocks: Iterable[np.ndarray], names: list[str], prov: dict) -> None:
+    """The ``.npy`` output and its sidecars, in the order of the module docstring."""
+    previous = replaced_record(out)
+    with atomic_path(out) as tmp:  # the descriptors renamed last: the old output stays whole until then
+        with open(tmp, "wb") as f:
+            np.lib.format.write_array_header_1_0(f, {"descr": "<f4", "fortran_order": False, "shape": tuple(shape)})
+            _copy(blocks, shape, lambda a, block: f.write(block.tobytes()))
+        record = {**prov, BOUND_KEY: {"descriptors": file_digest(tmp), "names": names}}
+        write_json_atomic(provenance_sidecar(out), {**record, REPLACES_KEY: previous} if previous else record)
+    write_text_atomic(names_file_for(out), "\n".join(names) + "\n")
+    if previous:
+        write_json_atomic(provenance_sidecar(out), record)
+
+
+def replaced_record(out: Path) -> dict | None:
+    """The sidecar record of the ``.npy`` output now at ``out`` (None when there is none or it is not bound to it)."""
+    if not out.is_file() or not provenance_sidecar(out).is_file():
+        return None
+    try:
+        record = read_json(provenance_sidecar(out), "provenance file", limit=MAX_SIDECAR)
+    except DatasetError:
+        return None
+    bound = record.get(BOUND_KEY) if isinstance(record, dict) else None
+    if not isinstance(bound, dict) or bound.get("descriptors") != file_digest(out):
+        return None
+    return {k: v for k, v in record.items() if k != REPLACES_KEY}
 
 
 def _copy(blocks: Iterable[np.ndarray], shape: tuple[int, int], put) -> None:  # noqa: ANN001 - (row, block) -> None

@@ -34,7 +34,7 @@ from ..security.locks import locked
 from .config import DescribeConfig, fit_summary
 from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches
 from .images import ImageList, list_images
-from .output import OUT_SUFFIXES, names_file_for, write_output
+from .output import OUT_SUFFIXES, check_sidecars, names_file_for, write_output
 from .shards import SHARD_KEY, Shard
 from .state import StateFile, provenance_fit, reused_fit, state_files
 
@@ -103,6 +103,7 @@ def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path, overwr
                       shard: Shard | None) -> tuple[np.ndarray, list[str]]:
     if out.exists() and not overwrite:
         raise ConfigError(f"output {out} already exists (hint: --overwrite recomputes it)")
+    check_sidecars(out, overwrite)
     conf = conf.resolved()
     partial = partial_file_for(out)
     part = shard.record(len(images), conf.batch_size, images.names) if shard is not None else None

@@ -111,12 +111,15 @@ def check_archive(f: IO[bytes], where: str, what: str) -> None:
                                   "bytes it does not store as torch does (a damaged or crafted file)")
 
 
-def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint") -> Any:
-    """A ``torch.save`` file read safely (module docstring); :class:`CheckpointError` if missing or unreadable."""
+def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint", installed: bool = False) -> Any:
+    """A ``torch.save`` file read safely (module docstring); :class:`CheckpointError` if missing or unreadable.
+    ``installed``: a file shipped inside an installed package (trusted like its code: pretrained weights), which
+    may be in torch's legacy format."""
     import torch
 
     with open_input(path, what, CheckpointError) as f:
-        check_archive(f, str(path), what)
+        if not installed:
+            check_archive(f, str(path), what)
         f.seek(0)
         try:
             with torch.serialization.safe_globals(_safe_globals()):

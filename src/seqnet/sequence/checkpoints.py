@@ -11,7 +11,7 @@ Original format (``checkpoint.pth.tar`` / ``model_best.pth.tar``): ``{"state_dic
 {"pool.0.conv.weight", "pool.0.conv.bias"}, "epoch", "best_score", ...}``, with the run's flags
 (``seqL``, ``w``, ``outDims``, ``pooling``) in ``checkpoints/flags.json`` beside it.
 
-Checkpoints are read with :func:`seqnet.security.files.load_torch_file` (``torch.load(weights_only=True)``):
+Checkpoints are read with :func:`seqnet.security.torchfile.load_torch_file` (``torch.load(weights_only=True)``):
 they can hold tensors and plain data only, never code.
 """
 
@@ -48,7 +48,7 @@ def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load a checkpoint file as a dict (:func:`seqnet.security.files.load_torch_file`); :class:`CheckpointError`
+    """Load a checkpoint file as a dict (:func:`seqnet.security.torchfile.load_torch_file`); :class:`CheckpointError`
     if missing, unreadable or not a checkpoint."""
     path = Path(path)
     if path.is_dir():
