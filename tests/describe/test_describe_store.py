@@ -81,7 +81,8 @@ def test_resume_skips_finished_images(folder, tmp_path, monkeypatch):
     monkeypatch.setattr(describer_mod, "load_images", counting_load)
     with pytest.raises(KeyboardInterrupt):
         describe_folder(folder, conf, out=out)
-    assert not out.exists() and (tmp_path / ".out.h5.seqnet-partial.h5").exists() and (tmp_path / "out.pca.npz").exists()
+    partial = tmp_path / ".out.h5.seqnet-partial.h5"
+    assert not out.exists() and partial.exists() and (tmp_path / "out.pca.npz").exists()
     with h5py.File(tmp_path / ".out.h5.seqnet-partial.h5") as h:
         assert h["status"][()].tolist() == [1] * 6 + [0] * 4
     loaded.clear()
