@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from seqnet.cli import main as cli_main
-from seqnet.localize.track import TRACK_COLUMNS, LocalizeConfig
+from seqnet.localize.track import LocalizeConfig
+from seqnet.localize.trackfile import TRACK_COLUMNS
 
 
 def test_track_equals_causal_eval(synth_dir, tmp_path, capsys):

@@ -8,7 +8,8 @@ import argparse
 from ..core.errors import ConfigError
 from ..eval.methods import valid_methods
 from ..localize.stream import stream
-from ..localize.track import TRACK_COLUMNS, LocalizeConfig, main
+from ..localize.track import LocalizeConfig, main
+from ..localize.trackfile import TRACK_COLUMNS
 from ..matching.velocity import ANCHORS
 from ..search.blocks import PRECISIONS
 from . import COMMANDS

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import logging
 import os
 import sys
 import warnings
 from collections.abc import Callable, Iterator
+from typing import Any
 
 from ..core.errors import SeqnetError
 from ..core.progress import close_all, progress_mode
@@ -53,6 +55,27 @@ class _StderrHandler(logging.StreamHandler):
         pass
 
 
+class _EscapedStdout(io.TextIOBase):
+    """``sys.stdout`` while a command runs: what it prints (tables, names read from files) with control
+    characters escaped, line breaks and tabs kept."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+
+    def write(self, text: str) -> int:
+        self.inner.write("\n".join("\t".join(shown(c) for c in line.split("\t")) for line in text.split("\n")))
+        return len(text)
+
+    def flush(self) -> None:
+        self.inner.flush()
+
+    def isatty(self) -> bool:
+        return self.inner.isatty()
+
+    def fileno(self) -> int:
+        return self.inner.fileno()
+
+
 class _Escaped(logging.Formatter):
     """Log lines with control characters escaped (a file name cannot move the cursor or fake a line)."""
 
@@ -82,6 +105,7 @@ def runtime(args: argparse.Namespace) -> Iterator[None]:
     logger.setLevel(level)
     threads = args.threads or getattr(args, "default_threads", None)
     restore = _set_threads(threads)
+    stdout, sys.stdout = sys.stdout, _EscapedStdout(sys.stdout)
     try:
         with _blas_threads(threads), progress_mode(args.progress), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("default")
@@ -89,6 +113,7 @@ def runtime(args: argparse.Namespace) -> Iterator[None]:
         for message in dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught):
             logger.debug("warning: %s", " ".join(message.split()))
     finally:
+        sys.stdout = stdout
         restore()
         logger.removeHandler(handler)
         logger.setLevel(old_level)

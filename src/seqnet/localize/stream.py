@@ -36,7 +36,8 @@ if TYPE_CHECKING:
     from ..maps.map import Map
 
 from .localizer import Estimate, traverse_reference
-from .track import LocalizeConfig, check_output, sidecar_of, summarize, track_rows, write_track
+from .track import LocalizeConfig, summarize
+from .trackfile import check_output, sidecar_of, track_rows, write_track
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet

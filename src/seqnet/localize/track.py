@@ -8,9 +8,7 @@ per-frame latency).
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -19,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
-from ..core.errors import ConfigError, OutputError
+from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..core.progress import progress
 from ..core.stage import Written
@@ -33,10 +31,10 @@ from ..reference.base import Reference
 from ..search.blocks import PRECISIONS, precision_dtype
 from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
-from ..security.files import write_json_atomic, write_text_atomic
 from ..security.locks import locked
 from ..sequence.windows import Windows
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
+from .trackfile import check_output, sidecar_of, track_rows, write_track
 
 torch = lazy_module("torch")
 
@@ -44,9 +42,7 @@ if TYPE_CHECKING:
     from ..sequence.model import SeqNet
 
 
-TRACK_COLUMNS = ("frame", "name", "estimate", "estimate_name", "score", "confidence", "latency_ms", "correct",
-                 "full_window")
-TRACK_KIND = "seqnet-localize/1"
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,42 +118,6 @@ def dataset_localizer(ds: Dataset, models: Mapping[str, SeqNet], conf: LocalizeC
     return conf.localizer(ref, conf.radius or ds.radius)
 
 
-def sidecar_of(out: Path) -> Path:
-    """``track.json`` beside ``track.csv``."""
-    return out.with_suffix(".json")
-
-
-def check_output(out: str | Path) -> Path:
-    """``out`` must end in .csv; it and its ``.json`` sidecar may only replace what this stage wrote."""
-    out = Path(out)
-    if out.suffix.lower() != ".csv":
-        raise ConfigError(f"--out {out} must be a .csv file (one row per query frame)")
-    side = sidecar_of(out)
-    if side.exists() and not _our_summary(side):
-        raise OutputError(f"{side} exists and was not written by seqnet localize; the summary of {out.name} "
-                          "goes there: move it away or choose another --out")
-    if out.exists() and not (side.exists() or _our_header(out)):
-        raise OutputError(f"{out} exists and was not written by seqnet localize; move it away or choose another "
-                          "--out")
-    return out
-
-
-def _our_summary(side: Path) -> bool:
-    try:
-        return json.loads(side.read_text(encoding="utf-8")).get("kind") == TRACK_KIND
-    except (OSError, ValueError, AttributeError):
-        return False
-
-
-def _our_header(out: Path) -> bool:
-    """A track whose summary was never written (a run killed between the two files) starts with our header."""
-    try:
-        with out.open(encoding="utf-8") as f:
-            return f.readline().rstrip("\n") == ",".join(TRACK_COLUMNS)
-    except (OSError, UnicodeDecodeError):
-        return False
-
-
 def replay_query(loc: Localizer, ds: Dataset, frames: np.ndarray | None = None) -> list[Estimate]:
     """Every frame of the query traverse (or ``frames [Nq, D]`` in its place) through ``loc`` (a progress
     bar), resetting at sequence starts."""
@@ -188,34 +148,6 @@ def summarize(est: Sequence[Estimate], correct: np.ndarray | None, has: np.ndarr
         out["latency_ms"] = {"mean": float(lat.mean()), "median": float(np.median(lat)),
                              "p95": float(np.percentile(lat, 95)), "p99": float(np.percentile(lat, 99)),
                              "max": float(lat.max())}
-    return out
-
-
-def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list[str] | None,
-               correct: np.ndarray | None) -> list[dict[str, Any]]:
-    """One row per query frame (:data:`TRACK_COLUMNS`); ``correct`` is empty without ground truth or answer."""
-    rows = []
-    for i, e in enumerate(est):
-        answered = e.ref_index >= 0
-        rows.append({
-            "frame": e.frame, "name": q_names[i] if q_names else "", "estimate": e.ref_frame,
-            "estimate_name": r_names[e.ref_frame] if r_names and answered else "",
-            "score": f"{e.score:.6g}" if answered else "", "confidence": f"{e.confidence:.6f}",
-            "latency_ms": f"{e.latency_ms:.3f}",
-            "correct": int(correct[i]) if correct is not None and answered else "", "full_window": int(e.full_window)})
-    return rows
-
-
-def write_track(out: Path, rows: list[dict[str, Any]], record: dict[str, Any]) -> Path:
-    """``out`` (CSV) and its JSON sidecar ``record`` (with ``kind``), each written atomically; an older summary
-    is removed before the new track lands, so a summary present is always the track's own."""
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(TRACK_COLUMNS), lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    sidecar_of(out).unlink(missing_ok=True)  # checked ours by check_output
-    write_text_atomic(out, buf.getvalue())
-    write_json_atomic(sidecar_of(out), {"kind": TRACK_KIND, **record})
     return out
 
 

@@ -5,7 +5,8 @@ declares and can crash the interpreter on malformed input. Their readers run her
 Python (:func:`run_child`) that:
 
 * imports seqnet from where this process did, never from the current directory (a ``seqnet/``
-  folder there is not imported), with ``-E -s`` (no ``PYTHON*`` variables, no user site);
+  folder there is not imported), isolated (``-I``: no ``PYTHON*`` variables, no user site, neither the
+  current nor the script's directory on the path);
 * limits its own address space (``RLIMIT_AS``) and CPU time first thing, writes no files
   (``RLIMIT_FSIZE`` 0), makes no core dump, runs in ``/`` with one BLAS thread, and loads no HDF5
   filter plugin (``HDF5_PLUGIN_PRELOAD=::``);
@@ -56,11 +57,11 @@ def import_paths() -> list[str]:
 
 
 def python_command(code: str, memory: int | None = None, cpu_seconds: int | None = None) -> list[str]:
-    """``[python, -E, -s, -c, ...]`` running ``code`` with seqnet importable as in this process and the current
+    """``[python, -I, -c, ...]`` running ``code`` with seqnet importable as in this process and the current
     directory off the import path; with ``memory`` (and ``cpu_seconds``) the child limits itself first and
     can write no file."""
     limits = [memory or 0, cpu_seconds or 0, import_paths()]
-    return [sys.executable, "-E", "-s", "-c", _BOOT + code, json.dumps(limits)]
+    return [sys.executable, "-I", "-c", _BOOT + code, json.dumps(limits)]
 
 
 def child_env() -> dict[str, str]:

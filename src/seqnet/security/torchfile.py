@@ -129,14 +129,24 @@ def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint", inst
         except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, zipfile errors ...
             first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             raise CheckpointError(f"cannot read {what} {path}: corrupted or not a torch file ({first[:200]})") from e
-    return _resolved(value)
+    return _resolved(value, str(path))
 
 
-def _resolved(value: Any) -> Any:
+def _check_tensor(t: Any, where: str) -> None:
+    """A tensor may not declare more elements than its storage holds (zero or overlapping strides would make a
+    1 KB file expand to gigabytes when the tensor is copied)."""
+    if t.numel() * t.element_size() > t.untyped_storage().nbytes():
+        raise CheckpointError(f"{where}: a tensor of shape {tuple(t.shape)} declares more elements than the file "
+                              f"stores for it ({t.untyped_storage().nbytes()} bytes); a damaged or crafted file")
+
+
+def _resolved(value: Any, where: str) -> Any:
     """``value`` with every numpy array built from the file (:class:`_Array`) in its place (dicts, lists, tuples;
     iteratively: no recursion limit to reach)."""
     if isinstance(value, _Array):
         return value.array
+    if hasattr(value, "untyped_storage"):
+        _check_tensor(value, where)
     root = [value]
     todo: list[Any] = [root]
     seen: set[int] = set()
@@ -148,10 +158,14 @@ def _resolved(value: Any) -> Any:
         keys = node.keys() if isinstance(node, dict) else range(len(node)) if isinstance(node, list) else ()
         for k in list(keys):
             item = node[k]
+            if type(item).__module__.startswith("torch") and hasattr(item, "untyped_storage"):
+                _check_tensor(item, where)
             if isinstance(item, _Array):
                 node[k] = item.array
             elif isinstance(item, tuple) and any(isinstance(x, _Array) for x in item):
                 node[k] = tuple(x.array if isinstance(x, _Array) else x for x in item)
             elif isinstance(item, (dict, list)):
                 todo.append(item)
+            elif isinstance(item, tuple):
+                todo.append(list(item))  # tensors inside a tuple are checked too
     return root[0]
