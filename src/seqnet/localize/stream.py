@@ -30,6 +30,7 @@ from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_prove
 from ..eval.evaluate import EvalConfig
 from ..reference.base import Reference
 from ..security.dirs import remove_dead_temps
+from ..security.inputs import special_file
 from ..security.locks import locked
 
 if TYPE_CHECKING:
@@ -160,6 +161,9 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, query: Path, out: Path, m
             describer: str | None = None) -> Written:
     from ..sequence.checkpoints import load_models
 
+    if special_file(query):  # --query <(...): a pipe is read once, and frames are read as they come
+        raise ConfigError(f"--query {query} is a {special_file(query)}, not a file or folder; save the descriptors or "
+                          "images to a file (or folder) first")
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     ref_map, radius = load_map(map_dir, loaded, conf)
     loc = conf.localizer(ref_map, radius)

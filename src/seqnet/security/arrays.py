@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 import zipfile
+import zlib
 from collections.abc import Iterable
 from pathlib import Path
 from typing import BinaryIO
@@ -41,7 +42,7 @@ def read_header(f: BinaryIO, where: str, error: ErrorType = DatasetError) -> tup
         raise error(f"cannot read {where}: .npy format version {version} is not read here (1.0 and 2.0 are)")
     try:
         shape, fortran, dtype = readers[version](f, max_header_size=MAX_HEADER)
-    except (ValueError, SyntaxError, TypeError, OverflowError, MemoryError, RecursionError) as e:
+    except Exception as e:  # noqa: BLE001 - numpy's header parser raises ValueError, SyntaxError, TokenError ...
         raise error(f"cannot read {where}: its .npy header is malformed ({' '.join(str(e).split())[:200]})") from e
     if not isinstance(shape, tuple) or not all(isinstance(s, int) and s >= 0 for s in shape):
         raise error(f"cannot read {where}: its .npy header declares the shape {shape!r}")
@@ -99,7 +100,8 @@ def read_npz(path: str | os.PathLike[str], what: str = "archive", error: ErrorTy
                     name = info.filename[:-4]
                     if info.filename.endswith(".npy") and not info.is_dir() and (wanted is None or name in wanted):
                         out[name] = _member(z, info, f"{path}:{info.filename}", size, error, kinds)
-        except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, EOFError, OSError, ValueError) as e:
+        except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, EOFError, OSError, ValueError,
+                zlib.error) as e:
             raise error(f"cannot read {path} as an .npz archive ({' '.join(str(e).split())[:200]})") from e
     return out
 

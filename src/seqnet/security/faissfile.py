@@ -30,6 +30,10 @@ def read_faiss(path: str | os.PathLike[str], ntotal: int, dim: int, what: str = 
     path = Path(path)
     with open_input(path, what, error) as f:
         size = os.fstat(f.fileno()).st_size
+    lists = path.with_suffix(".ivfdata")
+    if lists.exists() or lists.is_symlink():  # a FIFO there would hang FAISS: refused before it looks
+        with open_input(lists, "inverted lists", error, follow=False):
+            pass
     with run_child("faiss", {"path": str(path.absolute())}, f"{what} {path}", 4 * size, 60 + size / 5e6,
                    error) as (info, _):
         pass
