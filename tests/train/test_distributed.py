@@ -13,6 +13,7 @@ the sum: 7.5e-4 after this epoch, and other negatives mined).
 
 from __future__ import annotations
 
+import json
 import os
 import runpy
 import subprocess
@@ -212,8 +213,9 @@ def test_two_processes_match_one_with_the_same_global_batch(two_ranks):
     assert h1["loss"] == pytest.approx(h2["loss"], rel=1e-6)
     # rank 0 alone wrote the run (one TensorBoard file, no lock left) and logged; its start line names the world
     files = sorted(p.name for p in (tmp / "epoch1").iterdir())
-    assert len(files) == 4 and files[:2] == ["best.pt", "config.json"] and files[3] == "last.pt", files
-    assert files[2].startswith("events.out.tfevents") and not list(tmp.glob(".*.lock"))
+    assert len(files) == 5 and files[:3] == [".seqnet-manifest.json", "best.pt", "config.json"], files
+    assert files[4] == "last.pt" and files[3].startswith("events.out.tfevents") and not list(tmp.glob(".*.lock"))
+    assert files[3] in json.loads((tmp / "epoch1" / ".seqnet-manifest.json").read_text())["files"]
     assert "world size 2 (gloo)" in logs[0] and "trained S_3 (w=2, D=8->8) for 1 epochs" in logs[0]
     assert logs[1].strip() == "", logs[1]
 

@@ -82,9 +82,12 @@ def test_a_crash_writing_best_leaves_last_of_the_previous_epoch(small, tmp_path,
 
 
 def test_resume_removes_its_leftover_temp_files(small, tmp_path):
+    """Only temporary files carrying seqnet's mark (``.<name>.seqnet-XXXX.tmp``) are a killed write's: a user's
+    ``.last.pt.k2j3.tmp`` (no mark) stays."""
     train(small, FAST.replace(epochs=1), tmp_path / "r")
-    leftovers = [tmp_path / "r" / n for n in (".last.pt.k2j3.tmp", ".best.pt.x9.tmp", ".config.json.a1.tmp")]
-    others = [tmp_path / "r" / n for n in ("notes.txt", ".other.pt.x.tmp")]
+    leftovers = [tmp_path / "r" / n for n in (".last.pt.seqnet-k2j3.tmp", ".best.pt.seqnet-x9.tmp",
+                                              ".config.json.seqnet-a1.tmp", "..seqnet-manifest.json.seqnet-b2.tmp")]
+    others = [tmp_path / "r" / n for n in ("notes.txt", ".other.pt.x.tmp", ".last.pt.k2j3.tmp", ".best.pt.x9.tmp")]
     for p in leftovers + others:
         p.write_bytes(b"half a checkpoint")
     train(small, resume_config(tmp_path / "r", epochs=2), tmp_path / "r", resume=True)

@@ -10,7 +10,7 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from ..sequence.checkpoints import read_checkpoint
 from ..sequence.windows import WINDOW_MODES
-from ..train.config import OPTIMIZERS, TrainConfig
+from ..train.config import OPTIMIZERS, RESUME_OVERRIDABLE, TrainConfig
 from ..train.distributed import env_world
 from ..train.joint import S1_LOSS, is_joint, main_joint, s1_config
 from ..train.loop import main
@@ -117,8 +117,13 @@ def run(args: argparse.Namespace) -> int:
 def _run_joint(args: argparse.Namespace, changes: dict) -> int:
     """``--joint``: S_L and S_1 into RUN/seqnet and RUN/s1 (or resume such a run)."""
     if args.resume:
+        given = [k for k, v in changes.items() if v is not None and k not in RESUME_OVERRIDABLE]
+        given += [k for k in ("s1_lr", "s1_margin") if getattr(args, k) is not None]
+        if given:
+            raise ConfigError(f"cannot change {given[0]!r} when resuming the joint run {args.resume}: it continues "
+                              f"with its stored settings; only {', '.join(RESUME_OVERRIDABLE)} may change")
         dirs = main_joint(None, None, args.dataset, args.out, args.resume, args.allow_mismatch,
-                          {k: changes.get(k) for k in ("epochs", "patience", "device")})
+                          {k: changes.get(k) for k in RESUME_OVERRIDABLE})
     else:
         if args.loss is not None and LOSSES[args.loss].framewise:  # S_1-only losses
             raise ConfigError(f"--loss {args.loss} with --joint: the S_L model trains with the triplet loss "

@@ -9,13 +9,16 @@ configuration is what a run stores and what resuming compares against.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 from ..core.config import Config, check_choice, check_float, check_int
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..core.utils import check_device
 from ..data.traverse import Dataset
+from ..security.inputs import ErrorType
+from ..security.limits import DIM_MAX, INDEX_MAX, SEQ_MAX, number
 from ..sequence.windows import WINDOW_MODES, check_speed_range
 from .losses import LOSSES
 
@@ -219,6 +222,35 @@ class TrainConfig(Config):
                 raise ConfigError(f"cannot change {f.name!r} when resuming (the run has {mine!r}, got {theirs!r}); "
                                   f"only {', '.join(RESUME_OVERRIDABLE)} may change")
         return dataclasses.replace(self, **{k: getattr(conf, k) for k in RESUME_OVERRIDABLE})
+
+
+_STORED_MAX = {"seq_len": SEQ_MAX, "w": SEQ_MAX, "match_len": SEQ_MAX, "out_dims": DIM_MAX, "seed": 2**63 - 1}
+PATH_MAX = 4096
+
+
+def stored_config(values: Any, where: str, error: ErrorType = ConfigError) -> dict[str, Any]:
+    """A configuration read from a file (a run's ``config.json``, ``joint.json``, a checkpoint's ``"config"``)
+    checked before use: a mapping of :class:`TrainConfig` keys (and ``dataset_path``, a path) whose integers
+    are in range and that :class:`TrainConfig` accepts (with the CPU for the device, which may be absent
+    here); ``error`` naming ``where`` otherwise. Returns a copy of the mapping."""
+    if not isinstance(values, Mapping):
+        raise error(f"{where}: the stored configuration is not a mapping of settings, got {type(values).__name__}")
+    out = dict(values)
+    path = out.get("dataset_path")
+    if path is not None and (not isinstance(path, str) or not path or len(path) > PATH_MAX or "\x00" in path):
+        raise error(f"{where}: dataset_path must be a path, got {str(path)[:60]!r}")
+    ints = {f.name for f in dataclasses.fields(TrainConfig) if str(f.type).startswith("int")}
+    for key in sorted(ints & set(out)):
+        if out[key] is not None:
+            number(out[key], f"{where}: {key}", 0, _STORED_MAX.get(key, INDEX_MAX), error)
+    device = out.get("device", "auto")
+    if not isinstance(device, str) or len(device) > 64:
+        raise error(f"{where}: device must be a device name, got {str(device)[:60]!r}")
+    try:
+        TrainConfig.from_dict({**{k: v for k, v in out.items() if k != "dataset_path"}, "device": "cpu"})
+    except (ConfigError, TypeError, ValueError, OverflowError) as e:
+        raise error(f"{where}: {' '.join(str(e).split())[:300]}") from e
+    return out
 
 
 def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill: bool = False) -> int:

@@ -37,7 +37,6 @@ from .epoch import train_epoch
 from .losses import LOSSES
 from .run import (
     Run,
-    check_run_dir,
     finish_epoch,
     open_files,
     open_run,
@@ -46,6 +45,7 @@ from .run import (
     run_dataset_path,
     stored_dataset_path,
 )
+from .rundir import RESTART, check_new, discard
 from .source import TripletSource, split_windows, triplet_source
 
 torch = lazy_module("torch")
@@ -175,10 +175,12 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
         run, src, val_ds, device = world.agree(lambda: _start(dataset, conf, out_dir, payload, path, world))
         run.net = world.wrap(run.model)  # DistributedDataParallel when distributed
         world.rank0(lambda: open_files(run))
+        done = False
         try:
             _fit(run, src, val_ds, device)
+            done = True
         finally:
-            run.close()
+            run.close(failed=not done)
             run.net = None
     return run
 
@@ -193,9 +195,12 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
         payload = read_resume(out_dir if resume is True else Path(resume))
         conf = restored_config(payload, conf)
         dataset_path = dataset_path or stored_dataset_path(payload)
+        if RESTART in payload:  # no last.pt: nothing to resume, the run starts again with its configuration
+            discard(out_dir, payload[RESTART], "starting it again from epoch 1 with its stored configuration")
+            payload = None
     else:
         conf = (conf or TrainConfig()).resolve(dataset)
-        check_run_dir(out_dir)
+        check_new(out_dir)
     _check_memory(conf, dataset)
     return conf, payload, str(dataset_path) if dataset_path is not None else None
 
@@ -216,7 +221,8 @@ def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | N
     """Every rank: its device, the checked training data and the run's state (no file written)."""
     device = world.device(conf.device)
     src, val_ds = prepare(dataset, conf, device)
-    run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload, dataset_path, files=False)
+    run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload, dataset_path, files=False,
+                   n_refs=len(src.r_idx))
     run.world = world
     run.model.provenance = dataset.reference.provenance  # checkpoints record what the model reads
     return run, src, val_ds, device
@@ -246,7 +252,13 @@ def main(conf: TrainConfig | None, dataset: str | Path | None, out: str | Path |
     path = dataset if dataset is not None or resume is None else run_dataset_path(resume)
     if path is None:
         raise ConfigError("no dataset: give --dataset DIR")
-    run = train(load_dataset(path), conf, out, resume=resume or False, dataset_path=Path(path).resolve(),
+    try:
+        data = load_dataset(path)
+    except DatasetError as e:
+        if dataset is not None:
+            raise
+        raise DatasetError(f"{e} (the dataset the run in {resume} recorded; hint: --dataset DIR if it moved)") from e
+    run = train(data, conf, out, resume=resume or False, dataset_path=Path(path).resolve(),
                 allow_mismatch=allow_mismatch)
     return run.out_dir
 

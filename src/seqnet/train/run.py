@@ -5,36 +5,43 @@ written after every epoch.
 path and seqnet version. ``RUN/last.pt``: model and everything needed to resume exactly
 (optimiser, scheduler, training generator, negative cache, best score and epoch, patience counter,
 history). ``RUN/best.pt``: the model of the best val R@1. TensorBoard events in ``RUN/``.
+``RUN/.seqnet-manifest.json``: what the run wrote (:mod:`seqnet.train.rundir`: what a new run or
+``--resume`` may start again).
 
 After an epoch, ``best.pt`` (when the epoch is the best) is written **before** ``last.pt``, each
 atomically: whatever the crash point, the best epoch ``last.pt`` records has its ``best.pt``
-(after a crash between the two, resuming repeats that epoch exactly and rewrites both).
+(after a crash between the two, resuming repeats that epoch exactly and rewrites both; in epoch 1,
+with no ``last.pt`` yet, the run starts again). A write cut short by a full disk is one line
+(:class:`ResourceError`, exit 1) saying what the directory holds and how to continue.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import errno
+import logging
 import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .._version import __version__
-from ..core.errors import CheckpointError, ConfigError
+from ..core.errors import CheckpointError, ResourceError
 from ..core.lazy import lazy_module
 from ..core.utils import logger
+from ..security.dirs import remove_dead_temps
 from ..security.files import write_json_atomic
-from ..sequence.checkpoints import read_checkpoint, save_checkpoint
-from .config import OPTIMIZERS, TrainConfig
+from ..security.ownership import MANIFEST
+from ..sequence.checkpoints import CHECKPOINT_FORMAT, check_architecture, read_checkpoint, save_checkpoint
+from .config import OPTIMIZERS, RESUME_OVERRIDABLE, TrainConfig, stored_config
 from .distributed import World
+from .rundir import EVENTS_MARK, RUN_NAMES, check_links, claim, explain_config, restart_payload
+from .state import restore
 
 torch = lazy_module("torch")
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
-
-TEMP_PATTERNS = (".last.pt.*.tmp", ".best.pt.*.tmp", ".config.json.*.tmp")  # left by a crash in an atomic write
-
 
 @dataclasses.dataclass
 class Run:
@@ -71,17 +78,43 @@ class Run:
                 "rng": {"generator": self.generator.get_state()}, "neg_cache": self.neg_cache.clone(),
                 "best_epoch": self.best_epoch, "bad_epochs": self.bad_epochs, "history": self.history}
 
-    def close(self) -> None:
+    def close(self, failed: bool = False) -> None:
+        """Close the TensorBoard writer; one that cannot write its last events (a full disk) is a warning (a
+        debug line when the run ``failed``: its error is the one line): the checkpoints are what the run keeps."""
         if self.writer is not None:
-            self.writer.close()
+            try:
+                self.writer.close()
+            except OSError as e:
+                logger.log(logging.DEBUG if failed else logging.WARNING, "could not finish writing the TensorBoard "
+                           "events in %s (%s)", self.out_dir, e.strerror or e)
 
 
 def read_resume(src: str | Path) -> dict[str, Any]:
-    """The checkpoint to resume (``src``: a run directory or its ``last.pt``), checked to hold a run."""
+    """The checkpoint to resume (``src``: a run directory or its ``last.pt``), checked to hold a run: its
+    format, architecture against its weights, configuration and dataset path. A run directory without
+    ``last.pt`` whose files are all seqnet's gives what starts it again
+    (:func:`seqnet.train.rundir.restart_payload`)."""
     src = Path(src)
-    payload = read_checkpoint(src / "last.pt" if src.is_dir() else src)
+    if src.is_dir():
+        check_links(src)
+        if not (src / "last.pt").exists():
+            return restart_payload(src)
+    path = src / "last.pt" if src.is_dir() else src
+    if path.is_symlink():
+        raise CheckpointError(f"{path} is a symbolic link; seqnet resumes a run from its own last.pt, not through "
+                              "a link (hint: remove the link, or --resume the run directory it belongs to)")
+    payload = read_checkpoint(path)
+    fmt = payload.get("format")
+    if fmt != CHECKPOINT_FORMAT:
+        newer = isinstance(fmt, str) and fmt.startswith("seqnet-checkpoint/")
+        raise CheckpointError(f"{path} is a checkpoint of format {str(fmt)[:40]!r}" + (
+            f", written by a newer seqnet; this seqnet reads {CHECKPOINT_FORMAT!r} (hint: upgrade seqnet)" if newer
+            else ", not a seqnet training run's last.pt (hint: pass a run directory or its last.pt)"))
     if "train_state" not in payload or not isinstance(payload.get("config"), Mapping):
         raise CheckpointError(f"{src} holds no training state to resume (pass a run directory or its last.pt)")
+    check_architecture(payload.get("model"), payload["state_dict"], path)
+    payload["config"] = stored_config(payload["config"], str(path), CheckpointError)
+    stored_config({"dataset_path": payload.get("dataset_path")}, str(path), CheckpointError)
     return payload
 
 
@@ -117,38 +150,13 @@ def restored_config(payload: Mapping[str, Any], conf: TrainConfig | None) -> Tra
     return TrainConfig.from_dict({**config, **device}).resumed(conf)
 
 
-def check_run_dir(out_dir: Path) -> None:
-    """A new run needs an absent or empty directory, or one a run left before its first epoch ended (only
-    its ``config.json``, TensorBoard events and temporary files: nothing to resume), which it starts again."""
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ConfigError(f"run directory {out_dir} is a file (hint: another --out)")
-    if not out_dir.exists() or not any(out_dir.iterdir()):
-        return
-    files = [p for p in out_dir.iterdir()]
-    ours = all(p.is_file() and (is_run_file(p.name) or any(p.match(g) for g in TEMP_PATTERNS)) for p in files)
-    if ours and not (out_dir / "last.pt").exists() and not (out_dir / "best.pt").exists():
-        logger.info("%s holds a run that stopped before its first epoch ended; starting it again", out_dir)
-        for p in files:
-            p.unlink()
-        return
-    raise ConfigError(f"run directory {out_dir} is not empty (hint: another --out, or --resume {out_dir})")
-
-
-RUN_FILES = ("last.pt", "best.pt", "config.json")
+RUN_FILES = RUN_NAMES
 
 
 def is_run_file(rel: str) -> bool:
-    """Whether ``rel`` (a path inside a run directory) is a file a training run writes there."""
-    return rel in RUN_FILES or (("/" not in rel) and rel.startswith("events.out.tfevents."))
-
-
-def remove_temp_files(out_dir: Path) -> list[Path]:
-    """Delete the temporary files a crash during an atomic write left in ``out_dir``; returns them."""
-    found = sorted(p for pattern in TEMP_PATTERNS for p in out_dir.glob(pattern) if p.is_file())
-    for p in found:
-        p.unlink()
-        logger.debug("removed %s, left by an interrupted write", p)
-    return found
+    """Whether ``rel`` (a path inside a run directory) is a file a training run writes there (by its name: for
+    directories without a manifest, :func:`seqnet.security.ownership.foreign_files`)."""
+    return rel in RUN_FILES or rel == MANIFEST or (("/" not in rel) and rel.startswith("events.out.tfevents."))
 
 
 def _new_model(conf: TrainConfig, in_dims: int, device: torch.device) -> SeqNet:
@@ -162,57 +170,42 @@ def _new_model(conf: TrainConfig, in_dims: int, device: torch.device) -> SeqNet:
 
 
 def open_run(conf: TrainConfig, n_queries: int, in_dims: int, device: torch.device, out_dir: Path,
-             payload: Mapping[str, Any] | None = None, dataset_path: str | None = None, files: bool = True) -> Run:
-    """A fresh run, or the one stored in ``payload`` (a ``last.pt``); with ``files``, its files are
-    opened (:func:`open_files`)."""
+             payload: Mapping[str, Any] | None = None, dataset_path: str | None = None, files: bool = True,
+             n_refs: int | None = None) -> Run:
+    """A fresh run, or the one stored in ``payload`` (a ``last.pt``, checked against the run:
+    :func:`seqnet.train.state.restore`; ``n_refs``: the training reference windows); with ``files``, its
+    files are opened (:func:`open_files`)."""
     model = _new_model(conf, in_dims, device)
     opt = OPTIMIZERS[conf.optimizer]([p for p in model.parameters() if p.requires_grad], conf)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=conf.lr_step, gamma=conf.lr_gamma)
     cache = torch.full((n_queries, conf.n_negatives), -1, dtype=torch.long)
     run = Run(conf, model, opt, sched, torch.Generator().manual_seed(conf.seed), cache, out_dir, dataset_path)
     if payload is not None:
-        _restore(run, payload)
+        restore(run, payload, n_refs)
     if files:
         open_files(run)
     return run
 
 
 def open_files(run: Run) -> None:
-    """Create the run directory, remove temporary files a crash left there, write ``config.json`` and
-    open the TensorBoard writer (events after a restored epoch are dropped)."""
+    """Create the run directory, record it in its manifest (:func:`seqnet.train.rundir.claim`), remove the
+    temporary files a killed run left there, write ``config.json`` (when resuming, saying where the old one
+    disagreed with ``last.pt``) and open the TensorBoard writer (events after a restored epoch are dropped)."""
     from torch.utils.tensorboard import SummaryWriter
 
-    run.out_dir.mkdir(parents=True, exist_ok=True)
-    remove_temp_files(run.out_dir)
-    write_json_atomic(run.out_dir / "config.json", {**run.conf.to_dict(), "model": run.model.config(),
-                                                    "role": run.model.role, "dataset_path": run.dataset_path,
-                                                    "seqnet_version": __version__})
-    run.writer = SummaryWriter(log_dir=str(run.out_dir), purge_step=run.epoch + 1 if run.epoch else None)
-
-
-TRAIN_STATE = ("optimizer", "scheduler", "neg_cache", "rng", "best_epoch", "bad_epochs", "history")
-
-
-def _restore(run: Run, payload: Mapping[str, Any]) -> None:
-    st = payload.get("train_state")
-    missing = [k for k in TRAIN_STATE if not isinstance(st, Mapping) or k not in st]
-    missing += [k for k in ("state_dict", "model", "epoch", "best_score") if k not in payload]
-    if missing or not isinstance(st.get("neg_cache"), torch.Tensor) or not isinstance(st.get("rng"), Mapping):
-        what = ", ".join(missing) or "a negative cache tensor and random state"
-        raise CheckpointError(f"{run.out_dir / 'last.pt'} lacks what resuming needs ({what}); it was not written "
-                              "by a seqnet training run of this version (hint: start a new run)")
-    if tuple(st["neg_cache"].shape) != tuple(run.neg_cache.shape) or payload["model"] != run.model.config():
-        raise CheckpointError(f"the checkpoint does not fit this dataset: {tuple(st['neg_cache'].shape)[0]} training "
-                              f"queries and model {payload['model']}, now {run.neg_cache.shape[0]} and "
-                              f"{run.model.config()} (hint: resume with the dataset the run was trained on)")
-    run.model.load_state_dict(payload["state_dict"])
-    run.optimizer.load_state_dict(st["optimizer"])
-    run.scheduler.load_state_dict(st["scheduler"])
-    run.neg_cache.copy_(st["neg_cache"])
-    run.generator.set_state(st["rng"]["generator"])
-    run.epoch, run.best_score = int(payload["epoch"]), float(payload["best_score"])
-    run.best_epoch, run.bad_epochs = int(st["best_epoch"]), int(st["bad_epochs"])
-    run.history = list(st["history"])
+    out = run.out_dir
+    out.mkdir(parents=True, exist_ok=True)
+    check_links(out)
+    claim(out, adopt=bool(run.epoch))
+    remove_dead_temps([out / n for n in (*RUN_NAMES, MANIFEST)])
+    config = {**run.conf.to_dict(), "model": run.model.config(), "role": run.model.role,
+              "dataset_path": run.dataset_path, "seqnet_version": __version__}
+    if run.epoch:
+        explain_config(out / "config.json", config, (*RESUME_OVERRIDABLE, "dataset_path"))
+    write_json_atomic(out / "config.json", config)
+    run.writer = SummaryWriter(log_dir=str(out), purge_step=run.epoch + 1 if run.epoch else None,
+                               filename_suffix=EVENTS_MARK)
+    claim(out)  # the events file just opened
 
 
 def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapping[str, float],
@@ -233,14 +226,43 @@ def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapp
               "config": run.conf.to_dict(), "dataset_path": run.dataset_path}
     if run.world.is_rank0:
         if improved:
-            save_checkpoint(run.out_dir / "best.pt", run.model, **fields)
-        save_checkpoint(run.out_dir / "last.pt", run.model, **fields, train_state=run.train_state())
-        _log_scalars(run, epoch, lr, stats, metrics)
+            _save(run, "best.pt", fields)
+        _save(run, "last.pt", {**fields, "train_state": run.train_state()})
+        try:
+            _log_scalars(run, epoch, lr, stats, metrics)
+        except OSError as e:
+            if e.errno not in _FULL:
+                raise
+            raise ResourceError(f"disk full (or a file size limit, ulimit -f) writing the TensorBoard events in "
+                                f"{run.out_dir} in epoch {epoch}; {run.out_dir} holds the run as of epoch {epoch} "
+                                f"(last.pt) (hint: check the free space, then seqnet train --resume {run.out_dir})") \
+                from e
     val = ", ".join(f"R@{k.split('@')[1]} {v:.3f}" for k, v in metrics.items()) or "-"
     logger.debug("epoch %d/%d: loss %.4f, %d active of %d triplets, lr %.3g, val %s%s (%.1f s)", epoch,
                  run.conf.epochs, stats["loss"], stats["active"], stats["triplets"], lr, val,
                  " *best*" if improved and metrics else "", seconds)
     return improved
+
+
+_FULL = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
+
+
+def _save(run: Run, name: str, fields: dict[str, Any]) -> None:
+    """``RUN/name`` written atomically; a write cut short (full disk, file size limit) is one line saying what
+    the run directory still holds and the command that continues."""
+    path = run.out_dir / name
+    try:
+        save_checkpoint(path, run.model, **fields)
+    except (ResourceError, OSError) as e:
+        if not isinstance(e, ResourceError) and getattr(e, "errno", None) not in _FULL:
+            raise
+        saved = fields["epoch"] - 1  # last.pt on disk: the epoch before (written, or the run would have stopped)
+        kept = (f"{run.out_dir} still holds the run as of epoch {saved} (last.pt)" if saved else
+                f"no epoch of the run in {run.out_dir} is saved yet")
+        again = f"seqnet train --resume {run.out_dir}" if saved else \
+            f"run the same command again, or seqnet train --resume {run.out_dir}: either starts the run from epoch 1"
+        raise ResourceError(f"disk full (or a file size limit, ulimit -f) writing {path} in epoch {fields['epoch']}; "
+                            f"{kept} (hint: check the free space, then {again})") from e
 
 
 def _log_scalars(run: Run, epoch: int, lr: float, stats: Mapping[str, float], metrics: Mapping[str, float]) -> None:
