@@ -134,6 +134,8 @@ def _h5_names(h: Hdf5Contents, p: Path) -> list[str]:
 def check_names(names: list[str], where: str) -> list[str]:
     """Refuse names that cannot round-trip through a names file (line separators) or are duplicated."""
     for i, n in enumerate(names):
+        if "\x00" in n:
+            raise DatasetError(f"{where}: name {i} {n!r} contains a NUL character, which no file name holds")
         if not LINE_SEPARATORS.isdisjoint(n):
             raise DatasetError(f"{where}: name {i} {n!r} contains a line separator; names are one per line")
         if n != n.strip() or not n:

@@ -124,8 +124,8 @@ def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint", inst
         try:
             with torch.serialization.safe_globals(_safe_globals()):
                 value = torch.load(f, map_location="cpu", weights_only=True)
-        except CheckpointError:
-            raise
+        except CheckpointError as e:
+            raise CheckpointError(f"cannot read {what} {path}: {e}") from e
         except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, zipfile errors ...
             first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             raise CheckpointError(f"cannot read {what} {path}: corrupted or not a torch file ({first[:200]})") from e
