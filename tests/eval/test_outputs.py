@@ -172,6 +172,7 @@ def test_per_query_inside_out_joins_the_set(synth_dir, tmp_path, capsys):
     assert main([*argv, "--per-query", str(out / "preds")]) == 0  # a predictions folder in the set
     assert "preds/000.txt" in json.loads((out / ".seqnet-manifest.json").read_text())["files"]
     _one_line(capsys, [*argv, "--per-query", str(out / "sub" / "pq.csv")], 2, "not directly in it")
+    _one_line(capsys, [*argv, "--json", str(out)], 2, "is the --out folder itself")
     _one_line(capsys, [*argv, "--per-query", str(out / "pr_curve.png")], 2, "must end in")
     _one_line(capsys, [*argv, "--json", str(out / "pr_curve.png")], 2, "writes itself")
     (out / "mine.csv").write_text("the user's own")

@@ -81,7 +81,9 @@ class EvalOutputs:
                 raise ConfigError(f"{flag} {path} is a file the evaluation writes itself in {self.out}; choose "
                                   "another name")
             return real.name
-        if real == root or root in real.parents:
+        if real == root:
+            raise ConfigError(f"{flag} {path} is the --out folder itself; name a file in it or outside it")
+        if root in real.parents:
             raise ConfigError(f"{flag} {path} lies inside --out {self.out} but not directly in it; name a file in "
                               f"{self.out} itself (it is then written with the results) or outside it")
         return None
