@@ -68,3 +68,22 @@ def test_train_on_a_full_disk(tiny_disk, tmp_path):
     assert p.returncode == 1 and "Traceback" not in p.stderr, p.stderr[-1500:]
     assert len(p.stderr.strip().splitlines()) == 1 and "hint: check the free space" in p.stderr
     _clean(tiny_disk / "run")
+
+
+def test_eval_on_a_full_disk_names_the_users_path_and_keeps_the_old_set(tiny_disk, synth_dir):
+    """The set is written in a temporary sibling of --out DIR: a full disk there fails with DIR/<file> named (never
+    the temporary folder), exit 1, the earlier set whole and nothing left behind."""
+    import os
+
+    out = tiny_disk / "ev"
+    base = [*SEQNET, "-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--out", str(out)]
+    assert subprocess.run(base, capture_output=True, text=True, timeout=300).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    st = os.statvfs(tiny_disk)
+    with open(tiny_disk / "filler", "wb") as f:  # leave room for results.json, not for the report
+        f.write(b"\0" * max(st.f_bavail * st.f_frsize - (48 << 10), 0))
+    p = subprocess.run([*base, "--report"], capture_output=True, text=True, timeout=300)
+    _one_line_exit_1(p, f"{out}/")
+    assert ".seqnet-" not in p.stderr and ("no space left" in p.stderr or "disk full" in p.stderr), p.stderr
+    assert {q.name: q.read_bytes() for q in out.iterdir()} == before
+    _clean(tiny_disk)

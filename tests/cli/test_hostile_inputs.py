@@ -285,7 +285,8 @@ def test_os_write_failures_exit_1(base, tmp_path, capsys, monkeypatch, err, reas
     line = run(capsys, ["eval", "--dataset", str(base / "ds"), "--method", "single", "--out", str(tmp_path / "o")],
                1, reason)
     assert str(tmp_path / "o" / "results.json") in line  # the user's path, not the temporary file
-    assert not [p for p in (tmp_path / "o").iterdir() if p.name.endswith(".tmp")]
+    assert not (tmp_path / "o").exists()  # the set appears whole or not at all
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]  # nor its temporary folder
 
 
 def _hold_lock(path, ready, release):

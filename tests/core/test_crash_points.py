@@ -183,32 +183,96 @@ def test_localize_summary_is_always_its_tracks(synth_dir, tmp_path):
     assert _each_crash_point(main, [*base, "--method", "raw+seqmatch"], check=check) >= 4
 
 
-def test_eval_outputs_never_mix_two_evaluations(synth_dir, tmp_path):
+def _user_files(out):
+    """A user's own files in the output folder: a file and a subfolder (kept, same inode, by every eval)."""
+    (out / "sub").mkdir(parents=True, exist_ok=True)
+    (out / "mine.txt").write_text("my notes")
+    (out / "sub" / "notes.md").write_text("my sub notes")
+    return {p: (p.read_text(), p.stat().st_ino) for p in (out / "mine.txt", out / "sub" / "notes.md")}
+
+
+def _eval_set(out, figures, kinds) -> str:
+    """The evaluation whose set ``out`` holds, checked whole: results.json, its own pr_curve.png (``figures``:
+    method -> hash), report.html (present exactly when that run made one), per-query rows of its method, and a
+    manifest listing exactly these; ``kinds``: method -> whether its run made a report."""
+    import hashlib
+    import json
+
+    (method,) = json.loads((out / "results.json").read_text())["methods"]
+    assert hashlib.sha256((out / "pr_curve.png").read_bytes()).hexdigest() == figures[method], method
+    want = {"results.json", "pr_curve.png", "pq.csv"} | ({"report.html"} if kinds[method] else set())
+    if kinds[method]:
+        text = (out / "report.html").read_text()
+        assert all((f"<td>{m}</td>" in text) == (m == method) for m in kinds), method
+    assert set(json.loads((out / ".seqnet-manifest.json").read_text())["files"]) == want, method
+    rows = (out / "pq.csv").read_text().splitlines()[1:]
+    assert rows and {r.split(",")[0] for r in rows} == {method}
+    return method
+
+
+def _eval_kill_test(out, old, new, kinds):
+    """``old`` then ``new`` (argv; ``kinds``: each one's method -> whether it makes a report): ``new`` killed at
+    every rename leaves ``out`` holding ``old``'s set whole or ``new``'s whole, and the user's files as they
+    were; the next run repairs what the dead one left."""
     import hashlib
     import json
 
     from seqnet.cli import main
 
-    out = tmp_path / "ev"
-    base = ["-q", "eval", "--dataset", str(synth_dir), "--out", str(out)]
-
-    def figure() -> str:
-        return hashlib.sha256((out / "pr_curve.png").read_bytes()).hexdigest()
-
+    user = _user_files(out)
     figures = {}
-    for method in ("raw+seqmatch", "single"):  # each evaluation's own figure
-        assert main([*base, "--method", method]) == 0
-        figures[method] = figure()
-    assert figures["single"] != figures["raw+seqmatch"]
+    for argv in (new, old):  # each evaluation's own figure; ``old`` last: the set every kill starts from
+        assert main(argv) == 0
+        (method,) = json.loads((out / "results.json").read_text())["methods"]
+        figures[method] = hashlib.sha256((out / "pr_curve.png").read_bytes()).hexdigest()
+    assert len(set(figures.values())) == 2
+    seen = set()
 
     def check():
-        res = out / "results.json"
-        if res.exists():  # the figure beside it is its own evaluation's
-            (method,) = json.loads(res.read_text())["methods"]
-            assert figure() == figures[method]
-        assert main([*base, "--method", "single"]) == 0
+        seen.add(_eval_set(out, figures, kinds))
+        assert {p: (p.read_text(), p.stat().st_ino) for p in user} == user  # untouched, never copied
+        assert main(old) == 0  # the next run repairs what the dead one left
+        assert _leftovers(out) == []
 
-    assert _each_crash_point(main, [*base, "--method", "raw+seqmatch"], check=check) >= 4
+    assert _each_crash_point(main, new, check=check) >= 6
+    assert len(seen) == 2  # some kills left the old set, the others the new one
+
+
+@pytest.mark.parametrize("new_report", [True, False])
+def test_eval_outputs_never_mix_two_evaluations(synth_dir, tmp_path, new_report):
+    """``eval --out DIR`` with a report and a per-query file in DIR: a kill at any step leaves the old set or the
+    new one (without a report, the old run's report.html leaves with its set), never a mix; the user's files stay."""
+    out = tmp_path / "ev"
+    base = ["-q", "eval", "--dataset", str(synth_dir), "--out", str(out), "--per-query", str(out / "pq.csv")]
+    old = [*base, "--method", "single", "--report"]
+    new = [*base, "--method", "raw+seqmatch", *(["--report"] if new_report else [])]
+    _eval_kill_test(out, old, new, {"single": True, "raw+seqmatch": new_report})
+
+
+def test_eval_on_a_matrix_never_mixes_with_an_earlier_set(synth_dir, synth_dataset, tmp_path):
+    """``eval --distances`` replaces the whole set (its own pr_curve.png, report.html and per-query file) at once."""
+    import numpy as np
+
+    q, r = synth_dataset.query.descriptors, synth_dataset.reference.descriptors
+    np.save(tmp_path / "d.npy", np.sqrt(((q[:, None, :] - r[None]) ** 2).sum(-1)))
+    out = tmp_path / "ev"
+    base = ["-q", "eval", "--dataset", str(synth_dir), "--out", str(out), "--per-query", str(out / "pq.csv")]
+    old = [*base, "--method", "single", "--report"]
+    new = [*base, "--distances", str(tmp_path / "d.npy"), "--method", "raw+seqmatch", "--report"]
+    _eval_kill_test(out, old, new, {"single": True, "raw+seqmatch": True})
+
+
+def test_eval_against_a_map_never_mixes_with_an_earlier_set(synth_dir, tmp_path):
+    """``eval --index MAP`` (no report) replaces an earlier evaluation's set, its report.html included, at once."""
+    from seqnet.cli import main
+
+    assert main(["-q", "index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank",
+                 "raw+seqmatch", "--seq-len", "4", "--out", str(tmp_path / "map")]) == 0
+    out = tmp_path / "ev"
+    base = ["-q", "eval", "--dataset", str(synth_dir), "--out", str(out), "--per-query", str(out / "pq.csv")]
+    old = [*base, "--method", "single", "--report"]
+    new = [*base, "--index", str(tmp_path / "map"), "--method", "delta"]
+    _eval_kill_test(out, old, new, {"single": True, "delta": False})
 
 
 def test_the_next_writer_removes_what_killed_writers_left(synth_dir, folder, tmp_path):

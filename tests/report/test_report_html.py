@@ -61,7 +61,8 @@ def test_eval_report_is_self_contained(tmp_path, synth_dir, capsys):
     rc = cli_main(["eval", "--dataset", str(synth_dir), "--method", "single,raw+seqmatch,hvpr-delta:raw+seqmatch",
                    "--out", str(out), "--report"])
     assert rc == 0 and "report:" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["pr_curve.png", "report.html", "results.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".seqnet-manifest.json", "pr_curve.png", "report.html",
+                                                     "results.json"]  # the manifest: what seqnet wrote there
     tags = assert_self_contained(out / "report.html")
     assert sum(t == "img" for t, _ in tags) == 3  # Recall@K, PR, distance matrix; no gallery without images
     text = (out / "report.html").read_text()
@@ -135,3 +136,62 @@ def test_gallery_leaves_out_images_it_must_not_decode(tmp_path):
     assert gallery_png(good, tmp_path, tmp_path).startswith(b"\x89PNG")
     for bad in ("bomb.png", "fifo.png"):
         assert gallery_png(GalleryItem(0, ["ok.png"], [bad], True, 0.5), tmp_path, tmp_path) is None
+
+
+def _png(path, value):
+    from PIL import Image
+
+    Image.fromarray(np.full((4, 8, 3), value, np.uint8)).save(path)
+
+
+def test_gallery_never_reads_outside_its_image_folders(tmp_path, monkeypatch):
+    """A name from names.txt (untrusted) that is absolute, holds '..' or leads through a link out of the images'
+    folder is never opened: the example is left out with a note."""
+    import seqnet.report.figures as figures
+    from seqnet.report.figures import GalleryItem, gallery_png
+
+    imgs, secret = tmp_path / "imgs", tmp_path / "secret.png"
+    imgs.mkdir()
+    _png(imgs / "ok.png", 10)
+    _png(secret, 200)
+    (imgs / "link.png").symlink_to(secret)
+    (imgs / "up").symlink_to(tmp_path)
+    opened = []
+    real = figures.open_input
+    monkeypatch.setattr(figures, "open_input", lambda p, *a, **k: opened.append(str(p)) or real(p, *a, **k))
+    assert gallery_png(GalleryItem(0, ["ok.png"], ["ok.png"], True, 0.5), imgs, imgs).startswith(PNG)
+    for bad in (str(secret), "../secret.png", "link.png", "up/secret.png", "sub/../../secret.png"):
+        notes = []
+        assert gallery_png(GalleryItem(0, ["ok.png"], [bad], True, 0.5), imgs, imgs, notes=notes) is None, bad
+        assert len(notes) == 1 and "leads outside" in notes[0], notes
+    assert not [p for p in opened if "secret" in p or "link" in p or "up/" in p], opened
+
+    monkeypatch.setattr(figures, "inside", lambda root, rel, *a: root / rel)  # a link swapped in after the check
+    notes = []
+    assert gallery_png(GalleryItem(0, ["ok.png"], ["link.png"], True, 0.5), imgs, imgs, notes=notes) is None
+    assert "leads outside" in notes[0]
+
+
+def test_eval_report_gallery_with_hostile_names(tmp_path, capsys):
+    """``eval --report`` with image folders: reference names leading out of their folder are left out of the
+    gallery with a note (never read), the report is still written whole."""
+    from seqnet.data.synth import make_synthetic
+
+    ds = make_synthetic(places=120, dim=16, seed=2)
+    (tmp_path / "q").mkdir()
+    (tmp_path / "r").mkdir()
+    _png(tmp_path / "secret.png", 200)
+    names = list(ds.reference.names)
+    for i, n in enumerate(names):
+        names[i] = f"../secret{i}.png" if i % 2 else n
+        _png(tmp_path / "r" / n, 30)
+    ds.reference.names = names
+    for n in ds.query.names:
+        _png(tmp_path / "q" / n, 60)
+    save_dataset(ds, tmp_path / "ds")
+    out = tmp_path / "ev"
+    assert cli_main(["eval", "--dataset", str(tmp_path / "ds"), "--method", "single", "--out", str(out), "--report",
+                     "--images-query", str(tmp_path / "q"), "--images-ref", str(tmp_path / "r")]) == 0
+    text = (out / "report.html").read_text()
+    assert "pictures left out: gallery image name" in text and "leads outside" in text
+    assert_self_contained(out / "report.html")

@@ -3,17 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import tempfile
 from pathlib import Path
 
 from ..core.errors import ConfigError
-from ..core.stage import Written
 from ..eval.evaluate import EvalConfig, main
 from ..eval.methods import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
-from ..security.files import write_json_atomic
+from ..security.text import shown
 from ..sequence.windows import WINDOW_MODES
 from . import COMMANDS
 from .common import (
@@ -65,13 +63,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_recall_options(p)
     p.add_argument("--per-query", metavar="FILE", help="per-query results: FILE.csv / .jsonl (per method and query: "
                    "top-5 references, scores, correct or not, confidence); .txt: MSLS's predictions (one method, "
-                   "query key and its top-20 reference keys); no extension: a VPR-methods-evaluation preds folder")
+                   "query key and its top-20 reference keys); no extension: a VPR-methods-evaluation preds folder. "
+                   "Named in --out DIR, it is written with the results, as one set")
     add_distances(p, "evaluated")
     p.add_argument("--index", metavar="MAP", help="evaluate the queries against this prebuilt map (seqnet index "
                    "build): its index shortlists, its frames re-rank; the reference side is not read")
     p.add_argument("--out", metavar="DIR", help="write results.json (results, resolved config, inputs) and "
-                   "pr_curve.png (precision-recall of every method) here")
+                   "pr_curve.png (precision-recall of every method) here, as one set (a killed run leaves the old "
+                   "set or the new one; your other files in DIR are kept)")
     p.add_argument("--json", metavar="FILE", help="also write the results JSON to FILE")
+    p.add_argument("--overwrite", action="store_true", help="replace outputs (in --out DIR, --per-query, --json) "
+                   "that seqnet did not write; by default they are refused before any work")
     p.add_argument("--report", action="store_true", help="also write a self-contained report.html to --out "
                    "(results, Recall@K and PR plots, distance matrix, example queries)")
     p.add_argument("--images-query", metavar="DIR", help="--report: folder of the query images (for the gallery)")
@@ -96,22 +98,32 @@ def run(args: argparse.Namespace) -> int:
                                 ks=args.ks, allow_mismatch=args.allow_mismatch or None, fuse_weight=args.fuse_weight,
                                 fuse_top_k=args.fuse_top_k, resample_every=args.resample_every,
                                 resample_side=args.resample_side, recall_denominator=args.recall_denominator)
+    check_distances(args)
+    check_route(args)
     report = report_config(args)
-    with tempfile.TemporaryDirectory(prefix="seqnet-eval-") as tmp:
-        check_distances(args)
-        if args.distances:
-            from ..eval.matrix import main as matrix_main
+    outs = {"per_query": args.per_query, "figures": bool(args.out), "overwrite": args.overwrite, "json": args.json}
+    if args.distances:
+        from ..eval.matrix import main as matrix_main
 
-            path = matrix_main(conf, args.dataset, args.distances, args.out or tmp, args.similarity)
-        elif args.index:
-            path = _main_with_map(conf, args, args.out or tmp)
-        else:
-            path = main(conf, args.dataset, args.out or tmp, args.model, args.shortlist_model, args.rerank_model,
-                        args.per_query, report, figures=bool(args.out))
-        res = path.data  # what the stage wrote to results.json
+        res = matrix_main(conf, args.dataset, args.distances, args.out, args.similarity, report=report, **outs).data
+    elif args.index:
+        from ..maps import evaluate_main
+
+        res = evaluate_main(conf, args.dataset, args.index, args.out, **outs).data
+    else:
+        res = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
+                   report=report, **outs).data
+    print_results(res)
+    if report is not None:
+        print(f"report: {shown(Path(args.out) / 'report.html')}")
+    return 0
+
+
+def print_results(res: dict) -> None:
+    """The results table, what was evaluated and how many queries (names from the data shown escaped)."""
     cfg = res["config"]
     every = f", every {cfg['resample_every']}-th {cfg['resample_side']} frame" if cfg.get("resample_every") else ""
-    print(f"dataset {cfg['dataset']}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']}){every}")
+    print(f"dataset {shown(cfg['dataset'])}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']}){every}")
     print(format_table(res["methods"], cfg["ks"]))
     first = next(iter(res["methods"].values()))
     print(f"{first['queries']} queries evaluated; {first['no_full_window']} without a full window, "
@@ -120,11 +132,20 @@ def run(args: argparse.Namespace) -> int:
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
-    if args.json:
-        write_json_atomic(args.json, res)
-    if report is not None:
-        print(f"report: {Path(args.out) / 'report.html'}")
-    return 0
+
+
+def check_route(args: argparse.Namespace) -> None:
+    """Options the route (--distances, --index, the dataset's descriptors) cannot apply are refused before work."""
+    fixed = [f for f, v in (("--model", args.model), ("--shortlist-model", args.shortlist_model),
+                            ("--rerank-model", args.rerank_model), ("--backend", args.backend)) if v]
+    if args.distances and (fixed or args.index):
+        raise ConfigError(f"--distances evaluates the given matrix; drop {'/'.join(fixed or ['--index'])} "
+                          "(they apply to descriptors or a map)")
+    if args.index and fixed:
+        raise ConfigError("--index uses the map's models and index; drop --model/--shortlist-model/--rerank-model/"
+                          "--backend (they are fixed when the map is built)")
+    if args.index and args.report:
+        raise ConfigError("--report is not available with --index; evaluate the dataset without --index for a report")
 
 
 def report_config(args: argparse.Namespace) -> ReportConfig | None:
@@ -142,14 +163,3 @@ def report_config(args: argparse.Namespace) -> ReportConfig | None:
         raise ConfigError("the gallery needs both --images-query and --images-ref (or neither)")
     return ReportConfig(title=f"seqnet eval: {Path(args.dataset).name}", query_images=args.images_query,
                         ref_images=args.images_ref)
-
-
-def _main_with_map(conf: EvalConfig, args: argparse.Namespace, out: str) -> Written:
-    from ..maps import evaluate_main
-
-    if args.model or args.shortlist_model or args.rerank_model or args.backend:
-        raise ConfigError("--index uses the map's models and index; drop --model/--shortlist-model/--rerank-model/"
-                          "--backend (they are fixed when the map is built)")
-    if args.report:
-        raise ConfigError("--report is not available with --index; evaluate the dataset without --index for a report")
-    return evaluate_main(conf, args.dataset, args.index, out, args.per_query)

@@ -24,22 +24,18 @@ from ..data.traverse import Dataset, Traverse, default_split
 from ..reference.base import Reference
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
-from ..security.dirs import remove_dead_temps
-from ..security.files import write_json_atomic
-from ..security.locks import locked
+from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
 from .checks import check_inputs, leakage, model_lengths
 from .methods import FUSE_WEIGHT, Method, default_methods, parse_method
 from .metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
+from .outputs import EvalOutputs
 from .rank import rank
-from .results import method_results, write_per_query
+from .results import method_results
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
-
-
-EVAL_FIGURES = ("pr_curve.png", "report.html")  # written beside results.json by ``main``
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,6 +131,7 @@ class Evaluation:
     query_names: list[str] | None = None  # [M] image names of the evaluated queries, when known
     reference_names: list[str] | None = None  # [R] image names of the reference items, when known
     dataset: Dataset | None = None  # what was evaluated (the split, re-sampled as asked), for the report
+    matrix: np.ndarray | None = None  # [Nq, Nr] given distances of ``dataset``'s frames (eval --distances)
 
     @property
     def q_pos(self) -> np.ndarray:
@@ -252,22 +249,23 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
     return Evaluation({"methods": results}, retrieved, scores, truth, query.side.items, ref.items, confidence)
 
 
-def main(conf: EvalConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
+def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
-         per_query: str | Path | None = None, report: Any = None, figures: bool = False) -> Written:
+         per_query: str | Path | None = None, report: Any = None, figures: bool = False, overwrite: bool = False,
+         json: str | Path | None = None) -> Written:
     """hloc-style stage: evaluate ``conf.split`` of the dataset directory ``dataset`` with the model
-    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs), with
-    ``per_query`` one row per method and query (``.csv`` or ``.jsonl``), with ``figures``
-    ``out/pr_curve.png``, and with ``report`` (a :class:`seqnet.report.html.ReportConfig`)
-    ``out/report.html``; returns the results path."""
-    with locked(out):  # a second evaluation into the same folder is refused (exit 1), never mixed
-        remove_dead_temps(Path(out) / n for n in ("results.json", *EVAL_FIGURES))
-        return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, per_query, report, figures)
+    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs), with ``figures``
+    ``out/pr_curve.png``, with ``report`` (a :class:`seqnet.report.html.ReportConfig`) ``out/report.html``,
+    with ``per_query`` one row per method and query (``.csv`` or ``.jsonl``, ...), with ``json`` a copy of
+    the results: :class:`seqnet.eval.outputs.EvalOutputs` (``out`` None: no folder); returns the results
+    path and the results."""
+    outputs = EvalOutputs(out, per_query, json, figures, report, overwrite)
+    with outputs.session(conf.methods):  # a second evaluation into the same folder is refused (exit 1)
+        return outputs.write(_evaluate_dir(conf, dataset, models, shortlist_model, rerank_model))
 
 
-def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
-          shortlist_model: str | Path | None, rerank_model: str | Path | None, per_query: str | Path | None,
-          report: Any, figures: bool) -> Written:
+def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | Path],
+                  shortlist_model: str | Path | None, rerank_model: str | Path | None) -> Evaluation:
     from ..data.io import load_dataset
     from ..sequence.checkpoints import load_models
 
@@ -280,19 +278,7 @@ def _main(conf: EvalConfig, dataset: str | Path, out: Path, models: Sequence[str
     if leaks:
         ev.results["leakage"] = leaks
         for line in leaks:
-            logger.warning("%s", line)
+            logger.warning("%s", shown(line))  # it names checkpoints' records: text from files
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
-    for name in ("results.json", *EVAL_FIGURES):  # an earlier evaluation's outputs never mix with these
-        (out / name).unlink(missing_ok=True)
-    if per_query is not None:
-        write_per_query(ev, per_query)
-    if figures:
-        from ..report.tables import plot_pr_curves
-
-        plot_pr_curves(ev.results["methods"], out / "pr_curve.png", title=ev.results["config"]["dataset"])
-    if report is not None:
-        from ..report.html import write_html_report
-
-        write_html_report(ev, ev.dataset, out / "report.html", report)
-    return Written(write_json_atomic(out / "results.json", ev.results), ev.results)  # last: it completes the set
+    return ev

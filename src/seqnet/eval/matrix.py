@@ -11,6 +11,7 @@ and the one evaluation loop are those of :func:`seqnet.eval.evaluate.run`, on a
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,11 +24,9 @@ from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
 from ..security.arrays import read_npy
 from ..security.digests import file_digest
-from ..security.dirs import remove_dead_temps
-from ..security.files import write_json_atomic
-from ..security.locks import locked
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
 from .methods import parse_method
+from .outputs import EvalOutputs
 
 torch = lazy_module("torch")
 
@@ -84,24 +83,27 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": "cpu", "models": {},
                              "matrix_methods": list(MATRIX_METHODS)}
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
+    out.dataset, out.matrix = ds, dist  # for the report: the evaluated frames and their given distances
     return out
 
 
-def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str | Path,
-         similarity: bool = False) -> Written:
+def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str | Path | None,
+         similarity: bool = False, per_query: str | Path | None = None, report: Any = None, figures: bool = False,
+         overwrite: bool = False, json: str | Path | None = None) -> Written:
     """Stage: evaluate ``conf.split`` of the dataset directory ``dataset`` on the matrix file ``distances``
-    (``similarity``: higher is closer); writes ``out/results.json`` (results, config, inputs)."""
+    (``similarity``: higher is closer); writes ``out/results.json`` (results, config, inputs) and what
+    ``per_query``, ``report``, ``figures`` and ``json`` ask, as :func:`seqnet.eval.evaluate.main` does."""
     from ..data.io import load_dataset
 
-    with locked(out):
-        remove_dead_temps([Path(out) / "results.json"])
+    defaults = conf.methods == EvalConfig().methods
+    conf = conf.replace(methods=DEFAULT_MATRIX_METHODS if defaults else conf.methods)
+    outputs = EvalOutputs(out, per_query, json, figures, report, overwrite)
+    with outputs.session(conf.methods):
         ds = load_dataset(dataset)
         split = default_split(conf.split, ds.splits)
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
         dist = read_matrix(distances, ds, similarity, split)
-        defaults = conf.methods == EvalConfig().methods
-        ev = evaluate_matrix(sub, dist, conf.replace(
-            split=split, methods=DEFAULT_MATRIX_METHODS if defaults else conf.methods))
+        ev = evaluate_matrix(sub, dist, conf.replace(split=split))
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
                                 "similarity": bool(similarity), "distances_digest": file_digest(distances)}
-        return Written(write_json_atomic(Path(out) / "results.json", ev.results), ev.results)
+        return outputs.write(ev)

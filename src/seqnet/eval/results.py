@@ -3,17 +3,21 @@ per-query rows (ranked references, scores, correct or not) for a CSV or JSONL fi
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, OutputError
 from ..security.files import write_text_atomic
+from ..security.inputs import open_input
+from ..security.text import csv_cell
 from .metrics.precision_recall import (
     curve_points,
     pr_summary,
@@ -108,8 +112,6 @@ def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
 
 def _write_folder(path: Path, files: dict[str, str]) -> Path:
     """A folder of per-query files, swapped in whole; an existing one is replaced only if seqnet wrote it."""
-    import re
-
     from ..security.dirs import recover_dir, write_dir
     from ..security.locks import locked
     from ..security.ownership import check_replaceable, write_manifest
@@ -121,39 +123,101 @@ def _write_folder(path: Path, files: dict[str, str]) -> Path:
 
     with locked(path):
         recover_dir(path)
-        check_replaceable(path, "predictions folder", lambda rel: re.fullmatch(r"\d{3,}\.txt", rel) is not None)
+        check_replaceable(path, "predictions folder", _predictions_file)
         return write_dir(path, fill)
+
+
+def _predictions_file(rel: str) -> bool:
+    return re.fullmatch(r"\d{3,}\.txt", rel) is not None
+
+
+CSV_FIELDS = ("method", "query_frame", "query_name", "references", "scores", "correct", "has_positive", "confidence")
+NAME_FIELDS = ("method", "query_name")  # text from the data: never a formula in a spreadsheet (csv_cell)
 
 
 def _rows_csv(rows: list[dict[str, Any]]) -> str:
     buf = io.StringIO()
-    fields = ["method", "query_frame", "query_name", "references", "scores", "correct", "has_positive", "confidence"]
-    writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
+    writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS, lineterminator="\n")
     writer.writeheader()
     for r in rows:
-        writer.writerow({k: ";".join("" if x is None else str(x) for x in v) if isinstance(v, list) else v
+        writer.writerow({k: csv_cell(v) if k in NAME_FIELDS else
+                         ";".join("" if x is None else str(x) for x in v) if isinstance(v, list) else v
                          for k, v in r.items()})
     return buf.getvalue()
 
 
-PER_QUERY_WRITERS = {  # by the file's extension ("": a folder)
-    ".csv": lambda ev, path, top: write_text_atomic(path, _rows_csv(per_query_rows(ev, top))),
-    ".jsonl": lambda ev, path, top: write_text_atomic(path, "".join(json.dumps(r, allow_nan=False) + "\n"
-                                                                    for r in per_query_rows(ev, top))),
-    ".txt": lambda ev, path, top: write_text_atomic(path, msls_predictions(ev)),
-    "": lambda ev, path, top: _write_folder(path, vpr_methods_predictions(ev, top)),
+def _rows_jsonl(rows: list[dict[str, Any]]) -> str:
+    return "".join(json.dumps(r, allow_nan=False) + "\n" for r in rows)
+
+
+PER_QUERY_TEXTS = {  # by the file's extension ("": a folder of files)
+    ".csv": lambda ev, top: _rows_csv(per_query_rows(ev, top)),
+    ".jsonl": lambda ev, top: _rows_jsonl(per_query_rows(ev, top)),
+    ".txt": lambda ev, top: msls_predictions(ev),
+    "": vpr_methods_predictions,
 }
-PER_QUERY_FORMATS = tuple(PER_QUERY_WRITERS)
+PER_QUERY_FORMATS = tuple(PER_QUERY_TEXTS)
+
+
+def per_query_format(path: str | Path) -> str:
+    """The per-query format ``path`` names by its extension (a key of :data:`PER_QUERY_TEXTS`); refused when none."""
+    fmt = Path(path).suffix.lower()
+    if fmt not in PER_QUERY_TEXTS:
+        raise ConfigError(f"per-query file {path} must end in .csv, .jsonl or .txt (MSLS), or have no extension "
+                          "(a VPR-methods-evaluation predictions folder)")
+    return fmt
+
+
+def per_query_text(ev: Any, path: str | Path, top: int = 5) -> str | dict[str, str]:
+    """The per-query results for ``path``, in the format its extension names: the text of a file, or the files
+    (name: text) of a folder."""
+    return PER_QUERY_TEXTS[per_query_format(path)](ev, top)
 
 
 def write_per_query(ev: Any, path: str | Path, top: int = 5) -> Path:
-    """Write the per-query results to ``path``, in the format its extension names (:data:`PER_QUERY_WRITERS`):
-    :func:`per_query_rows` as ``.csv`` (lists joined by ``;``) or ``.jsonl``; ``.txt``, MSLS's predictions
-    format (:func:`msls_predictions`); no extension, a VPR-methods-evaluation predictions folder
-    (:func:`vpr_methods_predictions`)."""
+    """Write the per-query results to ``path``, in the format its extension names (:data:`PER_QUERY_TEXTS`):
+    :func:`per_query_rows` as ``.csv`` (lists joined by ``;``, names made safe for spreadsheets) or ``.jsonl``;
+    ``.txt``, MSLS's predictions format (:func:`msls_predictions`); no extension, a VPR-methods-evaluation
+    predictions folder (:func:`vpr_methods_predictions`). An existing output is replaced only when seqnet wrote
+    it (:func:`check_per_query`; call it before the work)."""
     path = Path(path)
-    writer = PER_QUERY_WRITERS.get(path.suffix.lower())
-    if writer is None:
-        raise ConfigError(f"per-query file {path} must end in .csv, .jsonl or .txt (MSLS), or have no extension "
-                          "(a VPR-methods-evaluation predictions folder)")
-    return writer(ev, path, top)
+    out = per_query_text(ev, path, top)
+    return _write_folder(path, out) if isinstance(out, dict) else write_text_atomic(path, out)
+
+
+def check_per_query(path: str | Path, overwrite: bool = False) -> None:
+    """Refuse (:class:`OutputError`) to replace an existing per-query output that seqnet did not write, unless
+    ``overwrite``: a ``.csv`` is seqnet's when its first line is seqnet's header, a ``.jsonl`` when its first
+    line is a row of seqnet's, a folder when its manifest (or its file names) say so; an MSLS ``.txt`` has no
+    header to recognise it by, so an existing one is replaced only with ``overwrite``."""
+    from ..security.ownership import check_replaceable
+
+    path = Path(path)
+    fmt = per_query_format(path)
+    if overwrite or not (path.exists() or path.is_symlink()):
+        return
+    if fmt == "":
+        if path.is_symlink():
+            raise OutputError(f"{path} is a symbolic link; seqnet does not replace links (choose another --per-query)")
+        return check_replaceable(path, "predictions folder", _predictions_file)
+    if not _our_rows(path, fmt):
+        why = "an MSLS predictions file has no header by which seqnet could tell its own; " if fmt == ".txt" else ""
+        raise OutputError(f"{path} exists and was not written by seqnet eval ({why}move it away, choose another "
+                          "--per-query, or pass --overwrite)")
+
+
+def _our_rows(path: Path, fmt: str) -> bool:
+    """Whether the file ``path`` starts as seqnet's per-query ``.csv`` or ``.jsonl`` (a link or a special file
+    never does)."""
+    try:
+        with open_input(path, "per-query file", OutputError, follow=False) as f:
+            line = f.readline(1 << 16).decode("utf-8").rstrip("\n")
+    except (OSError, OutputError, UnicodeDecodeError):
+        return False
+    if fmt == ".csv":
+        return line == ",".join(CSV_FIELDS)
+    if fmt == ".jsonl":
+        with contextlib.suppress(ValueError):
+            row = json.loads(line)
+            return isinstance(row, dict) and tuple(row) == CSV_FIELDS
+    return False

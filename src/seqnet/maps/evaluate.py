@@ -26,10 +26,8 @@ from ..data.traverse import Traverse, default_split
 from ..eval.evaluate import EvalConfig, Evaluation, run
 from ..eval.methods import Method, parse_method
 from ..eval.metrics.recall import ground_truth
-from ..eval.results import write_per_query
+from ..eval.outputs import EvalOutputs
 from ..search.ann import shortlist_recall
-from ..security.files import write_json_atomic
-from ..security.locks import locked
 from .load import load_map
 from .map import Map
 
@@ -145,16 +143,17 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     return ev
 
 
-def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Path,
-         per_query: str | Path | None = None) -> Written:
+def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Path | None,
+         per_query: str | Path | None = None, figures: bool = False, overwrite: bool = False,
+         json: str | Path | None = None) -> Written:
     """hloc-style stage: evaluate ``conf.split`` of the dataset's queries against the map ``index``;
-    writes ``out/results.json`` (and ``per_query``); returns the results path."""
-    mp = load_map(index, conf.device)
-    ev = evaluate_map(mp, load_query(dataset, conf.split), conf)
-    ev.results["config"]["dataset_path"] = str(dataset)
-    ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "index": str(Path(index).resolve())}
-    with locked(out):  # a second evaluation into the same folder is refused (exit 1), never mixed
-        path = write_json_atomic(Path(out) / "results.json", ev.results)
-        if per_query is not None:
-            write_per_query(ev, per_query)
-    return Written(path, ev.results)
+    writes ``out/results.json`` and what ``per_query``, ``figures`` (``out/pr_curve.png``) and ``json`` ask,
+    as one set (:class:`seqnet.eval.outputs.EvalOutputs`); returns the results path and the results."""
+    outputs = EvalOutputs(out, per_query, json, figures, None, overwrite)
+    with outputs.session(conf.methods):  # a second evaluation into the same folder is refused (exit 1)
+        mp = load_map(index, conf.device)
+        outputs.check_methods([m.name for m in check_conf(mp, conf)])
+        ev = evaluate_map(mp, load_query(dataset, conf.split), conf)
+        ev.results["config"]["dataset_path"] = str(dataset)
+        ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "index": str(Path(index).resolve())}
+        return outputs.write(ev)

@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.errors import SeqnetError
+from ..core.errors import ImageError, SeqnetError
 from ..data.traverse import Traverse
 from ..eval.metrics.recall import GroundTruth
+from ..security.inputs import inside, open_input
 from ..sequence.windows import window_starts
 from .tables import method_colours, new_figure
 
@@ -35,18 +37,28 @@ def truth_pairs(truth: GroundTruth, limit: int = MAX_TRUTH_POINTS) -> tuple[np.n
 def item_distances(query: np.ndarray, ref: np.ndarray, side: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """L2 distances ``[m, r]`` of at most ``side`` evenly spaced rows of ``query [M, D]`` and ``ref [R, D]``,
     and the row / column indices used."""
-    qi = np.unique(np.linspace(0, len(query) - 1, min(side, len(query))).astype(np.int64))
-    ri = np.unique(np.linspace(0, len(ref) - 1, min(side, len(ref))).astype(np.int64))
+    qi, ri = spread(len(query), side), spread(len(ref), side)
     a, b = np.asarray(query[qi], np.float64), np.asarray(ref[ri], np.float64)
     sq = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2 * a @ b.T
     return np.sqrt(np.maximum(sq, 0.0)), qi, ri
 
 
+def spread(n: int, side: int) -> np.ndarray:
+    """At most ``side`` evenly spaced indices of ``n``."""
+    return np.unique(np.linspace(0, n - 1, min(side, n)).astype(np.int64))
+
+
 def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300,
                   methods: Sequence[str] | None = None) -> Any:
-    """The single-image descriptor distance matrix of the evaluated items (downsampled to ``side``),
-    the ground truth (cyan) and each method's top-1 (coloured dots) over it."""
-    d, qi, ri = item_distances(query.descriptors[ev.q_items], reference.descriptors[ev.r_items], side)
+    """The single-image descriptor distance matrix of the evaluated items (downsampled to ``side``; the given
+    matrix ``ev.matrix`` when the evaluation ran on one), the ground truth (cyan) and each method's top-1
+    (coloured dots) over it."""
+    given = getattr(ev, "matrix", None)
+    if given is not None:
+        qi, ri = spread(len(ev.q_items), side), spread(len(ev.r_items), side)
+        d = np.asarray(given[np.ix_(ev.q_items[qi], ev.r_items[ri])], np.float64)
+    else:
+        d, qi, ri = item_distances(query.descriptors[ev.q_items], reference.descriptors[ev.r_items], side)
     m, r = len(ev.q_items), len(ev.r_items)
     fig, ax = new_figure(7, 6.5)
     ax.imshow(d, cmap="gray", aspect="auto", interpolation="nearest", extent=(-0.5, r - 0.5, m - 0.5, -0.5))
@@ -62,7 +74,8 @@ def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300
     ax.set_xlabel(f"reference item ({r}; matrix shown at {len(ri)} columns)")
     ax.set_ylabel(f"query item ({m}; {len(qi)} rows)")
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, markerscale=4)  # beside
-    ax.set_title("single-image descriptor distances (dark = close)")
+    ax.set_title("the given distances (dark = close)" if given is not None else
+                 "single-image descriptor distances (dark = close)")
     return fig
 
 
@@ -97,18 +110,20 @@ def pick_examples(correct: np.ndarray, has_positive: np.ndarray, n: int) -> list
     return spread(wrong, n_wrong) + spread(right, n_right)
 
 
-def gallery_png(item: GalleryItem, query_root: Path, ref_root: Path, gap: int = 2) -> bytes | None:
+def gallery_png(item: GalleryItem, query_root: Path, ref_root: Path, gap: int = 2,
+                notes: list[str] | None = None) -> bytes | None:
     """A PNG of the query window frames (top row) above the top-1 reference window frames; None when
-    an image cannot be read."""
+    an image cannot be read or its name may not be read (:func:`gallery_image`), the reason added to
+    ``notes``."""
     from PIL import Image
-
-    from ..describe.images import read_image
 
     rows = []
     for root, names in ((query_root, item.query_frames), (ref_root, item.ref_frames)):
-        try:  # the describers' reader: size limit before decoding, FIFOs and devices never opened
-            rows.append([read_image(root / n) for n in names])
-        except SeqnetError:
+        try:
+            rows.append([gallery_image(root, n) for n in names])
+        except SeqnetError as e:
+            if notes is not None:
+                notes.append(str(e))
             return None
     h = max(im.shape[0] for row in rows for im in row)
     w = max(sum(im.shape[1] + gap for im in row) for row in rows)
@@ -121,3 +136,22 @@ def gallery_png(item: GalleryItem, query_root: Path, ref_root: Path, gap: int = 
     buf = io.BytesIO()
     Image.fromarray(canvas).save(buf, format="PNG")
     return buf.getvalue()
+
+
+def gallery_image(root: Path, name: str) -> np.ndarray:
+    """The image ``name`` (read from the dataset: untrusted) in the folder ``root``, decoded by the describers'
+    reader (size limit before decoding): a name that is absolute, holds ``..`` or leads through a symbolic
+    link out of ``root`` is refused (:func:`seqnet.security.inputs.inside`), and so is a file whose opened
+    path is not in ``root`` (a link swapped in meanwhile); a FIFO or device is never opened for reading."""
+    from PIL import Image
+
+    from ..describe.images import decode
+
+    path = inside(root, name, "gallery image name", ImageError)
+    with open_input(path, "image", ImageError) as f:
+        opened = f"/proc/self/fd/{f.fileno()}"
+        if os.path.islink(opened):  # Linux: where the descriptor really leads
+            real, real_root = os.path.realpath(opened), os.path.realpath(root)
+            if os.path.commonpath([real, real_root]) != real_root:
+                raise ImageError(f"gallery image name {name!r} leads outside {root} (to {real})")
+        return decode(lambda: Image.open(f), path)

@@ -138,20 +138,24 @@ def gallery_section(ev: Any, ds: Dataset, conf: ReportConfig) -> Section:
         item = GalleryItem(row, window_names(ds.query, int(ev.q_items[row]), length, mode),
                            window_names(ds.reference, int(ev.r_items[top]), length, mode) if top >= 0 else [],
                            bool(correct[row]), float(ev.confidence[name][row]))
-        png = gallery_png(item, Path(conf.query_images), Path(conf.ref_images)) if item.ref_frames else None
-        cells.append(gallery_cell(item, png))
+        notes: list[str] = []
+        png = gallery_png(item, Path(conf.query_images), Path(conf.ref_images), notes=notes) \
+            if item.ref_frames else None
+        cells.append(gallery_cell(item, png, notes[0] if notes else ""))
     head = (f"<p>Method <b>{html.escape(name)}</b>: each example shows the query window (top row) above the "
             f"top-1 reference window (bottom row), {length} frame(s); green: correct, red: wrong.</p>")
     return Section("gallery", "Example queries", head + "".join(cells))
 
 
-def gallery_cell(item: GalleryItem, png: bytes | None) -> str:
-    """One example of the gallery."""
+def gallery_cell(item: GalleryItem, png: bytes | None, note: str = "") -> str:
+    """One example of the gallery (``note``: why its pictures are left out)."""
     status = "correct" if item.correct else "wrong"
     text = (f"<p>{status}: query {html.escape(item.query_frames[len(item.query_frames) // 2])} → "
             f"{html.escape(item.ref_frames[len(item.ref_frames) // 2]) if item.ref_frames else 'none'}"
             f" (confidence {item.confidence:.2f})</p>")
-    image = png_tag(png, f"query {item.query}") if png is not None else "<p>(images not readable)</p>"
+    why = f": {note[:300]}" if note else ""
+    image = png_tag(png, f"query {item.query}") if png is not None else \
+        f"<p>(pictures left out{html.escape(why)})</p>"
     return f'<div class="ex {"ok" if item.correct else "bad"}" style="width:300px">{image}{text}</div>'
 
 
@@ -169,9 +173,17 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
                 + "<p>Confidence of a top-1: the ratio test against the best other place "
                 "(seqnet.eval.metrics.precision_recall).</p>"),
         Section("matrix", "Distance matrix", png_tag(figure_png(matrix_figure(ev, ds.query, ds.reference,
-                                                                              conf.matrix_side)), "distance matrix")),
+                                                                              conf.matrix_side)), "distance matrix")
+                + f"<p>{matrix_note(ev)}</p>"),
         gallery_section(ev, ds, conf),
     ]
+
+
+def matrix_note(ev: Any) -> str:
+    """What the distance matrix section shows: the given distances (``eval --distances``) or the descriptors'."""
+    if getattr(ev, "matrix", None) is not None:
+        return "The given distances between the evaluated query and reference frames (seqnet eval --distances)."
+    return "Single-image descriptor distances between the evaluated query and reference frames."
 
 
 def render_html(title: str, sections: Sequence[Section]) -> str:

@@ -112,7 +112,7 @@ def recall_figure(curves: Mapping[str, np.ndarray], title: str = "") -> Any:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)  # beside the curves
     if title:
-        ax.set_title(title)
+        ax.set_title(title, parse_math=False)  # a dataset's name is text, never mathtext (``$\\foo$`` fails)
     return fig
 
 
@@ -137,7 +137,7 @@ def pr_figure(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> Any:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)  # beside, never over a curve
     if title:
-        ax.set_title(title)
+        ax.set_title(title, parse_math=False)  # a dataset's name is text, never mathtext (``$\\foo$`` fails)
     return fig
 
 

