@@ -25,14 +25,13 @@ from ..core.errors import OutputError
 from ..core.utils import logger
 from .dirs import recover_dir, swap_dir_in
 from .files import TEMP_MARK, TEMP_SUFFIX, current_umask, temp_prefix
-from .ownership import MANIFEST, read_manifest, write_manifest
+from .ownership import MANIFEST, owned, write_manifest
 
 MAX_CARRIED = 100_000  # entries of a folder carried into its new version (more: write the results elsewhere)
 
 
 def _ours(root: Path) -> set[str]:
-    manifest = read_manifest(root)
-    return {f for f in manifest["files"] if isinstance(f, str)} if manifest else set()
+    return owned(root)
 
 
 def _under(rel: str, name: str) -> bool:
@@ -132,7 +131,7 @@ def _restore_newcomers(old: Path, root: Path, known: set[str]) -> None:
     if not old.is_dir():
         return
     for entry in sorted(os.listdir(old)):
-        if entry in known:
+        if entry in known or (TEMP_MARK in entry and entry.endswith(TEMP_SUFFIX)):  # a dead run's temporary file
             continue
         with contextlib.suppress(OSError):
             if not (root / entry).exists():

@@ -14,7 +14,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from .._version import __version__
-from ..core.errors import OutputError
+from ..core.errors import OutputError, SeqnetError
+from .digests import file_digest
 from .files import write_json_atomic
 from .jsonfile import read_json
 
@@ -26,12 +27,41 @@ def now() -> str:
     return datetime.datetime.now().isoformat(timespec="seconds")
 
 
-def write_manifest(root: str | os.PathLike[str], kind: str, files: Iterable[str | os.PathLike[str]]) -> Path:
-    """Record in ``root/.seqnet-manifest.json`` that this seqnet ``kind`` of run wrote ``files`` (under ``root``)."""
+def write_manifest(root: str | os.PathLike[str], kind: str, files: Iterable[str | os.PathLike[str]],
+                   digests: bool = True) -> Path:
+    """Record in ``root/.seqnet-manifest.json`` that this seqnet ``kind`` of run wrote ``files`` (under ``root``),
+    with their sizes and sampled hashes (``digests``; off for files a run keeps rewriting, a training run's):
+    a file a user later saved under one of those names is then not taken for seqnet's (:func:`owned`)."""
     root = Path(root)
     rel = sorted({str(Path(f).absolute().relative_to(root.absolute())) for f in files})
-    return write_json_atomic(root / MANIFEST, {"kind": kind, "seqnet_version": __version__, "written": now(),
-                                               "files": rel})
+    record = {"kind": kind, "seqnet_version": __version__, "written": now(), "files": rel}
+    if digests:
+        record["digests"] = {r: file_digest(root / r) for r in rel if (root / r).is_file()}
+    return write_json_atomic(root / MANIFEST, record)
+
+
+def owned(root: Path, manifest: dict | None = None) -> set[str]:
+    """The files of ``root`` its manifest says seqnet wrote and that are still as it wrote them (same size and
+    sampled hash, where the manifest recorded them)."""
+    manifest = read_manifest(root) if manifest is None else manifest
+    if not manifest:
+        return set()
+    digests = manifest.get("digests") if isinstance(manifest.get("digests"), dict) else {}
+    out = set()
+    for rel in manifest["files"]:
+        if not isinstance(rel, str):
+            continue
+        want, f = digests.get(rel), root / rel
+        if want is None or (f.is_file() and not f.is_symlink() and _same(f, want)):
+            out.add(rel)
+    return out
+
+
+def _same(f: Path, want: object) -> bool:
+    try:
+        return file_digest(f) == want
+    except (OSError, SeqnetError):
+        return False
 
 
 def read_manifest(root: Path) -> dict | None:
@@ -47,7 +77,7 @@ def foreign_files(root: Path, known: Callable[[str], bool] | None = None) -> lis
     """Files under ``root`` (relative paths) that seqnet did not write: not in its manifest, and
     (for a directory without a manifest) not accepted by ``known``."""
     manifest = read_manifest(root)
-    listed = {f for f in manifest["files"] if isinstance(f, str)} if manifest else set()
+    listed = owned(root, manifest)
     out = []
     for p in sorted(root.rglob("*")):
         if p.is_dir() and not p.is_symlink():

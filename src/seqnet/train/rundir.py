@@ -124,7 +124,7 @@ def claim(out_dir: Path, adopt: bool = False) -> None:
         if is_events(n) or (adopt and listed is None and n.startswith(EVENTS_PREFIX) and "/" not in n):
             if (out_dir / n).is_file() and not (out_dir / n).is_symlink():
                 names.add(n)
-    write_manifest(out_dir, RUN_KIND, [out_dir / n for n in sorted(names)])
+    write_manifest(out_dir, RUN_KIND, [out_dir / n for n in sorted(names)], digests=False)  # rewritten every epoch
 
 
 def restart_payload(out_dir: Path) -> dict[str, Any]:
