@@ -187,9 +187,16 @@ def test_the_real_training_fills_the_cache_and_is_reused(tmp_path):
     (out / "runs" / "seqnet" / ".last.pt.seqnet-dead1.tmp").write_bytes(b"left by a killed run")  # debris
     again, seconds_again = train_models(ds, TINY, out, flipped)
     assert seconds_again == seconds and set(again) == {"seqnet", "s1"}
-    other, _ = train_models(ds, TINY.replace(train={"seed": 3}), out, flipped)  # retrained, debris removed
+    seed3 = TINY.replace(train={"seed": 3})
+    other, _ = train_models(ds, seed3, out, flipped)  # retrained, debris removed
     assert not list((out / "runs" / "seqnet").glob(".*.tmp")) and read_checkpoint(out / "models" /
                                                                                   "seqnet.pt")["config"]["seed"] == 3
+    (out / "runs" / "s1" / "thesis.tex").write_text("precious")  # a file of the user's in the cache's run folder
+    for overwrite in (False, True):
+        with pytest.raises(OutputError, match="thesis.tex"):
+            train_models(ds, TINY.replace(train={"seed": 4}), out, flipped, overwrite=overwrite)
+    assert (out / "runs" / "s1" / "thesis.tex").read_text() == "precious"
+    assert nc.unit(out, "models", train_key(seed3), nc.unit_files(out, "descriptors"))  # refused before any work
 
 
 def test_a_changed_cached_file_is_rebuilt_not_reused(tmp_path):

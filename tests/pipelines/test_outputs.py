@@ -72,21 +72,22 @@ def test_an_error_inside_the_temporary_folder_names_the_users_path(tmp_path, cap
 
 def test_a_demo_without_out_leaves_nothing_and_removes_what_killed_ones_left(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    dead, live = tmp_path / "seqnet-demo-123-dead", tmp_path / "seqnet-demo-456-live"
-    for d in (dead, live):
+    dead, live = tmp_path / "seqnet-demo-run-123-dead", tmp_path / "seqnet-demo-run-456-live"
+    old = tmp_path / "seqnet-demo-abcd1234"  # an older seqnet's (no lock: maybe running): never touched
+    for d in (dead, live, old):
         (d / "demo" / "dataset").mkdir(parents=True)
-    (tmp_path / ".seqnet-demo-123-dead.lock").write_text("PID 123 on host since then: seqnet demo")  # its holder died
-    (tmp_path / ".seqnet-demo-789-gone.lock").write_text("PID 789 on host since then: seqnet demo")  # no folder left
-    holder = os.open(tmp_path / ".seqnet-demo-456-live.lock", os.O_RDWR | os.O_CREAT)
+    (tmp_path / f".{dead.name}.lock").write_text("PID 123 on host since then: seqnet demo")  # its holder died
+    (tmp_path / ".seqnet-demo-run-789-gone.lock").write_text("PID 789 on host since then: seqnet demo")  # no folder
+    holder = os.open(tmp_path / f".{live.name}.lock", os.O_RDWR | os.O_CREAT)
     fcntl.flock(holder, fcntl.LOCK_EX)  # a demo still running
-    mine = tmp_path / "seqnet-demo-notes.txt"  # a file, not a demo's folder
+    mine = tmp_path / "seqnet-demo-run-notes.txt"  # a file, not a demo's folder
     mine.write_text("mine")
     try:
         assert cli_main(["demo", "--places", "200", "--no-train", "--device", "cpu"]) == 0
     finally:
         os.close(holder)
     assert "done in" in capsys.readouterr().out
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".seqnet-demo-456-live.lock", live.name, mine.name]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([f".{live.name}.lock", live.name, old.name, mine.name])
 
 
 def test_outputs_are_checked_before_any_work_and_other_files_kept(tmp_path):

@@ -14,7 +14,9 @@ from . import COMMANDS
 from .common import add_device, int_at_least, non_negative_int, positive_int
 
 _D = DemoConfig()
-TEMP_PREFIX = "seqnet-demo-"  # without --out: <tmp>/seqnet-demo-…, removed after (or by the next demo)
+# without --out: <tmp>/seqnet-demo-run-…, held under its lock, removed after (or by the next demo); the "run-"
+# keeps clear of older seqnets' unlocked seqnet-demo-XXXXXXXX folders, which may belong to a live run
+TEMP_PREFIX = "seqnet-demo-run-"
 
 
 def register(sub: argparse._SubParsersAction) -> None:

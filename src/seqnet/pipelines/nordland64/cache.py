@@ -26,7 +26,9 @@ from ...security.digests import changed_files, file_digest
 from ...security.dirs import remove_dead_temps
 from ...security.files import write_json_atomic
 from ...security.jsonfile import read_json
+from ...security.ownership import check_replaceable
 from ...security.text import shown
+from ...train.run import RUN_FILES, is_run_file
 
 RECORD = ".seqnet-cache.json"
 FORMAT = "seqnet nordland64 cache 1"
@@ -52,20 +54,25 @@ def read_record(root: Path) -> dict[str, Any] | None:
 
 def check_owned(root: str | os.PathLike[str], entries: Iterable[str], overwrite: bool = False) -> None:
     """Refuse (:class:`OutputError`, with a hint) to replace an entry of ``entries`` that is in ``root`` but
-    was not made by this cache (its record does not claim it), unless ``overwrite``."""
-    root = Path(root)
-    record = read_record(root)
-    if overwrite or not root.is_dir():
+    was not made by this cache (its record does not claim it), unless ``overwrite``; and a training run
+    folder holding a file a run does not write (never deleted, even with ``overwrite``). Dead temporary files
+    in those run folders are removed (call under ``root``'s lock)."""
+    root, entries = Path(root), list(entries)
+    if not root.is_dir():
         return
-    if record is None:
+    record = read_record(root)
+    if record is None and not overwrite:
         raise OutputError(f"{shown(root / RECORD)} is not a seqnet cache record; refusing to use {shown(root)} as "
                           "a cache (move it away, choose another output or --cache folder, or pass --overwrite)")
     for entry in entries:
         path = root / entry
-        if (path.exists() or path.is_symlink()) and entry not in record["owned"]:
+        if (path.exists() or path.is_symlink()) and not overwrite and entry not in (record or {})["owned"]:
             raise OutputError(f"{shown(path)} was not made by this cache (a dataset or run of your own, or the cache "
                               "of an older seqnet); refusing to replace it (move it away, choose another output or "
                               "--cache folder, or pass --overwrite)")
+        if entry.startswith("runs/") and path.is_dir() and not path.is_symlink():
+            remove_dead_temps([path / f for f in RUN_FILES])
+            check_replaceable(path, "training run", is_run_file)
 
 
 def unit(root: Path, name: str, key: str, inputs: Any = None) -> dict[str, Any] | None:
