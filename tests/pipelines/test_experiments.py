@@ -255,3 +255,97 @@ def test_the_evaluation_tables_run_on_a_users_dataset(synth_dir, synth_dataset, 
     for extra in ([], ["--data", str(tmp_path), "--dataset", str(synth_dir)]):
         assert cli_main(["experiment", "table-1", "--out", str(tmp_path / "x"), *extra]) == 2
         assert "give the nordland64 folder (--data) or a seqnet dataset" in capsys.readouterr().err
+
+
+def test_a_killed_experiment_leaves_its_outputs_of_one_run(tmp_path, cache):
+    """D8: results.json, results.md, the figure, report.html and config.json always come from one run, whatever
+    the kill point (new results.* used to sit beside an old figure); a user's file in the folder is kept."""
+    import hashlib
+    import shutil
+
+    from pipelines.test_cache import each_crash_point
+
+    from seqnet.pipelines.experiments.splits import SplitsConfig
+
+    data, out = shared_data("nordland64"), tmp_path / "out"
+    exp = EXPERIMENTS["splits"]
+    ranges = {"a": (180, 260), "b": (180, 250)}
+    confs = {k: SplitsConfig().replace(benchmark=_tiny_benchmark().replace(test_range=r)) for k, r in ranges.items()}
+    caches = {"a": cache, "b": tmp_path / "cache-b"}
+
+    def digests():
+        return [hashlib.sha256((out / f).read_bytes()).hexdigest() for f in ("splits.png", "results.md")]
+
+    made = {}
+    for k in ("b", "a"):
+        exp.run(confs[k], data, out, caches[k])
+        made[k] = digests()
+    assert made["a"] != made["b"]
+    (out / "notes.txt").write_text("mine")
+    saved = tmp_path / "saved"
+    shutil.copytree(out, saved)
+
+    def restore():
+        shutil.rmtree(out)
+        shutil.copytree(saved, out)
+
+    def check():
+        test = json.loads((out / "results.json").read_text())["sizes"]["test"]["places"]
+        assert digests() == made["a" if test[1] == 260 else "b"]
+        assert json.loads((out / "config.json").read_text())["benchmark"]["test_range"] == test
+        assert (out / "notes.txt").read_text() == "mine"
+
+    assert each_crash_point(restore, exp.run, confs["b"], data, out, caches["b"], check=check,
+                            modes=("after",)) >= 3
+
+
+def _tiny_benchmark():
+    from seqnet.cli import build_parser
+    from seqnet.cli.experiment_cmd import experiment_config
+
+    argv = ["experiment", "splits", "--data", "D", "--out", "O", *TINY]
+    return experiment_config(build_parser(argv).parse_args(argv)).benchmark
+
+
+def test_an_experiment_replaces_only_its_own_outputs(tmp_path, cache, capsys):
+    """D6/D8: a user's file in place of an output is refused before any work, even with --overwrite; another
+    experiment's outputs only with --overwrite; the user's other files are kept."""
+    data, out = shared_data("nordland64"), tmp_path / "o"
+    out.mkdir()
+    (out / "results.md").write_text("my own notes")
+    (out / "other.txt").write_text("mine")
+    argv = ["experiment", "table-s1", "--data", str(data), "--out", str(out), "--cache", str(cache), *TINY]
+    for extra in ([], ["--overwrite"]):
+        assert cli_main([*argv, *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "results.md was not written by seqnet" in err[0], err
+    assert (out / "results.md").read_text() == "my own notes" and not (out / "results.json").exists()
+    (out / "results.md").unlink()
+    assert cli_main(["-q", *argv]) == 0
+    assert cli_main(["-q", *argv]) == 0  # its own outputs: replaced
+    capsys.readouterr()
+    other = ["experiment", "table-s2", *argv[2:], "--lengths", "5"]
+    assert cli_main(other) == 2  # another experiment's results.json
+    err = capsys.readouterr().err
+    assert "written by `seqnet experiment splits`, not by `seqnet experiment longer-sequences`" in err
+    assert cli_main(["-q", *other, "--overwrite"]) == 0
+    assert json.loads((out / "results.json").read_text())["experiment"] == "longer-sequences"
+    assert (out / "other.txt").read_text() == "mine" and (out / "splits.png").is_file()  # not its output
+
+
+def test_tables_holds_its_folders_lock(tmp_path, cache, capsys):
+    import fcntl
+    import os
+
+    from seqnet.security.locks import lock_file
+
+    data, out = shared_data("nordland64"), tmp_path / "tables"
+    holder = os.open(lock_file(out.absolute()), os.O_RDWR | os.O_CREAT)
+    fcntl.flock(holder, fcntl.LOCK_EX)  # another seqnet process writing OUT
+    try:
+        rc = cli_main(["experiment", "tables", "--data", str(data), "--out", str(out), "--cache", str(cache), *TINY,
+                       "--tables", "S1"])
+    finally:
+        os.close(holder)
+    assert rc != 0 and "is in use by another seqnet process" in capsys.readouterr().err
+    assert not out.exists()

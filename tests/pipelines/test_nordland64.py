@@ -17,6 +17,7 @@ from seqnet.data.traverse import Dataset, Traverse
 from seqnet.describe.pca import fit_pca
 from seqnet.pipelines.nordland64 import Nordland64Config, describe_flipped, fold_pca, list_places, training_dataset
 from seqnet.pipelines.nordland64.models import train_key
+from seqnet.security.text import shown
 from seqnet.sequence.model import SeqNet
 
 
@@ -162,3 +163,42 @@ def test_cnn_size_sets_a_cnn_descriptors_input_and_is_refused_for_pixels(tmp_pat
     rc = cli_main(["benchmark", "nordland64", "--data", "D", "--out", str(tmp_path / "o"), "--descriptor", "gmp",
                    "--cnn-size", "12x"])
     assert rc == 2 and "got '12x'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad", ["cover.png", "\x1b[Kcover\x07.png"])
+def test_an_image_name_without_a_frame_number_is_one_line(tmp_path, capsys, bad):
+    """The frame number is the last run of digits of a name; a name without one is a one-line error naming it
+    (escaped: a hostile name cannot drive the terminal) and the pattern, exit 2 (it was a traceback)."""
+    data = tmp_path / "n64"
+    for season in ("summer", "winter"):
+        (data / season).mkdir(parents=True)
+        for name in ("images-00010.png", bad):
+            (data / season / name).write_bytes(b"")
+    (data / "nordland_clean_imageNames.txt").write_text(f"images-00010.png\n{bad}\n")
+    rc = cli_main(["benchmark", "nordland64", "--data", str(data), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "\x1b" not in err, err
+    assert "has no frame number (expected names like images-00210.png" in err
+    assert f"'{shown(bad)}'" in err and "nordland_clean_imageNames.txt" in err
+    assert not (tmp_path / "o" / "dataset").exists()
+
+
+def test_the_benchmark_replaces_only_what_it_wrote(tmp_path, capsys, synth_dataset):
+    """D6/D8: a user's seqnet dataset where the cache goes, or a file of theirs in place of an output, is refused
+    before any work (the dataset: unless --overwrite; the file: even then)."""
+    from seqnet.data.io import save_dataset
+
+    data, out = shared_data("nordland64"), tmp_path / "b"
+    mine = save_dataset(synth_dataset, out / "dataset")
+    argv = ["benchmark", "nordland64", "--data", str(data), "--out", str(out), "--train-range", "0:120",
+            "--val-range", "130:170", "--test-range", "180:260"]
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err
+    assert "dataset was not made by this cache" in err and "--overwrite" in err
+    assert json.loads((mine / "dataset.json").read_text())["name"] == synth_dataset.name
+    (out / "report.html").write_text("<p>my own report</p>")
+    for extra in ([], ["--overwrite"]):
+        assert cli_main([*argv, *extra]) == 2
+        assert "report.html was not written by seqnet" in capsys.readouterr().err
+    assert (out / "report.html").read_text() == "<p>my own report</p>"
+    assert json.loads((mine / "dataset.json").read_text())["name"] == synth_dataset.name

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import tempfile
 
 import numpy as np
@@ -17,12 +18,31 @@ TINY = TimingConfig(sizes=(300,), dims=(16,), queries=3, repeats=1, warmup=1, se
                     indexes=("hnsw",), threads=1)
 
 
-def test_tiny_sweep_end_to_end(tmp_path, monkeypatch):
-    scratch = tmp_path / "scratch"
-    scratch.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
-    path = main(TINY, tmp_path / "out")
-    res = json.loads(path.read_text())
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    """The tiny sweep, run once from a folder holding a hostile ``seqnet/`` package and ``json.py`` (the
+    measuring processes must import neither), into an output folder holding a killed run's leftovers and a
+    user's file; the system's temporary folder is watched (the maps go beside the output folder)."""
+    root = tmp_path_factory.mktemp("sweep")
+    evil, scratch, out = root / "cwd", root / "scratch", root / "out"
+    for d in (evil / "seqnet", scratch, out):
+        d.mkdir(parents=True)
+    for name in ("seqnet/__init__.py", "json.py"):
+        (evil / name).write_text(f"open({str(root / 'IMPORTED')!r}, 'a').write({name!r} + '\\n')\n")
+    dead = [out / ".results.md.seqnet-abc123.tmp", root / ".out.seqnet-dead1.tmp" / "map-300x16" / "frames.npy"]
+    for p in dead:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text("left by a killed run")
+    (out / "notes.txt").write_text("mine")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(tempfile, "tempdir", str(scratch))
+        mp.chdir(evil)
+        path = main(TINY, out)
+    return {"root": root, "out": out, "scratch": scratch, "res": json.loads(path.read_text()), "dead": dead}
+
+
+def test_tiny_sweep_end_to_end(sweep):
+    res, out = sweep["res"], sweep["out"]
     assert {"config", "machine", "seconds", "maps"} <= set(res) and len(res["maps"]) == 1
     e = res["maps"][0]
     assert (e["n_db"], e["dim"], e["queries"]) == (300, 16, 3)
@@ -36,10 +56,92 @@ def test_tiny_sweep_end_to_end(tmp_path, monkeypatch):
     rows = {r["method"]: r for r in e["rows"]}
     assert rows["seqmatch_all_paper"]["comparisons"] == 300 * 3 and rows["seqmatch_all_ours"]["comparisons"] == 300
     assert rows["seqmatch_topk"]["comparisons"] == 4 * 3 and 0 <= rows["hvpr_hnsw"]["shortlist_recall"] <= 1
-    assert (tmp_path / "out" / "timing.png").stat().st_size > 1000
-    md = (tmp_path / "out" / "results.md").read_text()
+    assert (out / "timing.png").stat().st_size > 1000
+    md = (out / "results.md").read_text()
     assert "| | S_1 | S_5 | SeqMatch: All | SeqMatch: Top 20 |" in md and "| ours, paper's way |" in md
-    assert not list(scratch.iterdir())  # the temporary maps are gone
+
+
+def test_the_workers_never_import_from_the_current_folder(sweep):
+    """`benchmark timing` started from a folder holding a `seqnet/` package (or a `json.py`): the measuring
+    processes import seqnet from where the parent did (python_command), never that code."""
+    assert not (sweep["root"] / "IMPORTED").exists()
+
+
+def test_the_maps_and_a_killed_runs_leftovers_are_gone(sweep):
+    """D11: a dead `.results.md.seqnet-*.tmp` in the output folder no longer makes it refused; the working
+    folder of a killed run (maps of GBs with --big) is removed by the next run; nothing is left in the system's
+    temporary folder or beside the output; the user's file is kept."""
+    assert not [p for p in sweep["dead"] if p.exists()] and not (sweep["root"] / ".out.seqnet-dead1.tmp").exists()
+    assert not list(sweep["scratch"].iterdir())
+    assert sorted(p.name for p in sweep["root"].iterdir()) == ["cwd", "out", "scratch"]
+    assert (sweep["out"] / "notes.txt").read_text() == "mine"
+
+
+def entries(sweep, sizes):
+    """Measured entries for maps of ``sizes`` (the sweep's, relabelled): what ``measure`` would return."""
+    return [{**sweep["res"]["maps"][0], "n_db": n} for n in sizes]
+
+
+def test_a_killed_run_leaves_its_three_outputs_of_one_run(sweep, tmp_path, monkeypatch):
+    """D8: results.json, results.md and timing.png always come from one run, at any kill point (a new
+    results.json beside an old timing.png used to be left)."""
+    import hashlib
+
+    from pipelines.test_cache import each_crash_point
+
+    from seqnet.pipelines.timing import run
+
+    out = tmp_path / "t"
+    def digests():
+        return [hashlib.sha256((out / f).read_bytes()).hexdigest() for f in ("timing.png", "results.md")]
+
+    figures = {}
+    for sizes in ((300,), (300, 600)):
+        monkeypatch.setattr(run, "measure", lambda *a, sizes=sizes: entries(sweep, sizes))
+        main(TINY, out)
+        figures[len(sizes)] = digests()
+    assert figures[1][0] != figures[2][0] and figures[1][1] != figures[2][1]
+    saved = tmp_path / "saved"
+    shutil.copytree(out, saved)
+
+    def restore():
+        shutil.rmtree(out)
+        shutil.copytree(saved, out)
+
+    def check():
+        n = len(json.loads((out / "results.json").read_text())["maps"])
+        assert digests() == figures[n]
+
+    monkeypatch.setattr(run, "measure", lambda *a: entries(sweep, (300,)))
+    assert each_crash_point(restore, main, TINY, out, check=check, modes=("after",)) >= 3
+
+
+def test_only_a_timing_runs_outputs_are_replaced(sweep, tmp_path, monkeypatch, capsys):
+    from seqnet.pipelines.timing import run
+    from seqnet.security.ownership import write_manifest
+
+    monkeypatch.setattr(run, "measure", lambda *a: entries(sweep, (300,)))
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / "results.md").write_text("my own notes")
+    for extra in ([], ["--overwrite"]):
+        assert cli(["benchmark", "timing", "--out", str(out), *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "results.md was not written by seqnet" in err[0], err
+    assert (out / "results.md").read_text() == "my own notes"
+    # what an older seqnet's timing wrote (its manifest, kind "timing") is its own: replaced
+    for f in run.OUT_FILES:
+        (out / f).write_text("an older run's")
+    write_manifest(out, "timing", [out / f for f in run.OUT_FILES])
+    assert cli(["-q", "benchmark", "timing", "--out", str(out)]) == 0
+    assert json.loads((out / "results.json").read_text())["maps"][0]["n_db"] == 300
+    # another command's results in that folder: refused unless --overwrite
+    monkeypatch.setattr(run, "measure", lambda *a: entries(sweep, (300,)))
+    assert run.main(TINY, out, kind="experiment compute-time", overwrite=True)
+    capsys.readouterr()
+    assert cli(["benchmark", "timing", "--out", str(out)]) == 2
+    assert "written by `seqnet experiment compute-time`" in capsys.readouterr().err
+    assert cli(["-q", "benchmark", "timing", "--out", str(out), "--overwrite"]) == 0
 
 
 def test_synthetic_route_is_smooth_and_unit(rng):

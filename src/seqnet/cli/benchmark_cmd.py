@@ -15,6 +15,7 @@ from ..pipelines.nordland64 import Nordland64Config, main
 from ..pipelines.timing import BIG_SIZES, TimingConfig
 from ..report.tables import format_table
 from ..search.ann import ANN_INDEXES
+from ..security.text import shown
 from ..sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS
 from ..train.losses import LOSSES
 from . import COMMANDS
@@ -44,6 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "seqnet.pipelines.nordland64.Nordland64Config (docs/benchmark_nordland64.md).")
     n.add_argument("--data", required=True, metavar="PATH", help="nordland64 folder (summer/, winter/, clean list)")
     n.add_argument("--out", required=True, metavar="DIR", help="output folder (descriptor cache, models, results)")
+    add_overwrite(n, "results, descriptors and models")
     for split in ("train", "val", "test"):
         a, b = getattr(_D, f"{split}_range")
         n.add_argument(f"--{split}-range", type=index_range, metavar="A:B", help=f"{split} places (default {a}:{b})")
@@ -84,11 +86,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def register_timing(bsub: argparse._SubParsersAction) -> None:
     """``seqnet benchmark timing``."""
     t = bsub.add_parser("timing", help="per-query cost of k-NN, SeqMatch (whole map, top K) and HVPR against N_db",
-                        description="Time every method on synthetic maps (written to a temporary folder, deleted "
-                                    "afterwards) or on the map of --dataset: one query at a time (mean ± std) and in "
-                                    "a batch, descriptor comparisons, peak RSS (each map in a fresh process); writes "
-                                    "results.json, results.md and timing.png to --out (docs/scale.md).")
+                        description="Time every method on synthetic maps (written to a temporary folder "
+                                    "beside --out, deleted afterwards) or on the map of --dataset: one query at a "
+                                    "time (mean ± std) and in a batch, descriptor comparisons, peak RSS (each map in "
+                                    "a fresh process); writes results.json, results.md and timing.png to --out "
+                                    "(docs/scale.md).")
     t.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    add_overwrite(t, "results.json, results.md and timing.png")
     t.add_argument("--sizes", type=int_list, metavar="N[,N...]", help=f"N_db of the synthetic maps (default "
                    f"{','.join(map(str, _T.sizes))}; --big: {','.join(map(str, BIG_SIZES))})")
     t.add_argument("--dims", type=int_list, metavar="D[,D...]", help=f"D (default {','.join(map(str, _T.dims))})")
@@ -117,6 +121,12 @@ def register_timing(bsub: argparse._SubParsersAction) -> None:
     t.set_defaults(func=run_timing)
 
 
+def add_overwrite(p: argparse.ArgumentParser, what: str) -> None:
+    """``--overwrite``: replace outputs in --out that this command did not write."""
+    p.add_argument("--overwrite", action="store_true",
+                   help=f"replace the {what} in --out even when this command did not write them (default: refuse)")
+
+
 def timing_config(args: argparse.Namespace) -> TimingConfig:
     """The timing settings from the flags (unset flags keep the defaults)."""
     indexes = None
@@ -134,12 +144,12 @@ def run_timing(args: argparse.Namespace) -> int:
     mconf = MapConfig().replace(shortlist=args.shortlist, rerank=args.rerank, split=args.split)
     from ..pipelines.timing.run import main as timing_main
 
-    path = timing_main(conf, args.out, args.dataset, args.model, mconf)
+    path = timing_main(conf, args.out, args.dataset, args.model, mconf, overwrite=args.overwrite)
     res = path.data  # what the stage wrote to results.json
     for e in res["maps"]:
         hv = {r["method"]: r["per_query_ms"] for r in e["rows"] if r["method"].startswith(("hvpr", "seqmatch_all"))}
         print(f"N_db {e['n_db']:>8,} D {e['dim']:>5}: " + ", ".join(f"{k} {v:.2f} ms" for k, v in hv.items()))
-    print(f"done in {res['seconds']:.0f} s; results in {Path(args.out) / 'results.md'}")
+    print(f"done in {res['seconds']:.0f} s; results in {shown(Path(args.out) / 'results.md')}")
     return 0
 
 
@@ -170,11 +180,11 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
 
 
 def run_nordland64(args: argparse.Namespace) -> int:
-    res = main(nordland64_config(args), args.data, args.out).data
+    res = main(nordland64_config(args), args.data, args.out, overwrite=args.overwrite).data
     cfg, bench = res["config"], res["config"]["benchmark"]
     first = next(iter(res["methods"].values()))
     print(f"nordland64 test {bench['test_range'][0]}:{bench['test_range'][1]}: {first['queries']} queries, "
           f"radius {cfg['radius']:g}, L={cfg['seq_len']}")
     print(format_table(res["methods"], cfg["ks"]))
-    print(f"done in {cfg['timings_s']['total']:.0f} s; results in {Path(args.out) / 'results.md'}")
+    print(f"done in {cfg['timings_s']['total']:.0f} s; results in {shown(Path(args.out) / 'results.md')}")
     return 0

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import argparse
-import tempfile
+import contextlib
 from pathlib import Path
 
 from ..pipelines.demo import DemoConfig, main
+from ..pipelines.outputs import private_temp
 from ..report.tables import format_table
+from ..security.text import shown
 from . import COMMANDS
 from .common import add_device, int_at_least, non_negative_int, positive_int
 
 _D = DemoConfig()
+# without --out: <tmp>/seqnet-demo-run-…, held under its lock, removed after (or by the next demo); the "run-"
+# keeps clear of older seqnets' unlocked seqnet-demo-XXXXXXXX folders, which may belong to a live run
+TEMP_PREFIX = "seqnet-demo-run-"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "+ S_1 SeqMatch) on the test split.")
     p.add_argument("--out", metavar="DIR", help="keep the dataset, training runs and results.json here "
                                                 "(default: a temporary directory)")
+    p.add_argument("--overwrite", action="store_true", help="replace dataset/, train_seqnet/, train_s1/ and "
+                   "results.json in --out even when an earlier demo did not write them (default: refuse)")
     p.add_argument("--places", type=int_at_least(100), help=f"places along the synthetic route (default {_D.places})")
     p.add_argument("--seed", type=non_negative_int, help=f"random seed (default {_D.seed})")
     p.add_argument("--epochs", type=positive_int,
@@ -38,8 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     conf = DemoConfig().replace(places=args.places, seed=args.seed, train_models=not args.no_train,
                                 device=args.device, train={"epochs": args.epochs})
-    with tempfile.TemporaryDirectory(prefix="seqnet-demo-") as tmp:
-        res = main(conf, args.out or tmp).data
+    with contextlib.nullcontext(Path(args.out)) if args.out else private_temp(TEMP_PREFIX) as where:
+        res = main(conf, where if args.out else where / "demo", overwrite=args.overwrite).data
     m, cfg = res["methods"], res["config"]
     first = next(iter(m.values()))
     print(f"seqnet demo: synthetic route, test split, {first['queries']} queries, radius {cfg['radius']:g} m, "
@@ -50,6 +57,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"trained on the train split with the demo's fast settings (Adam, <= {conf.train.epochs} epochs): "
               f"{times}")
     print(format_table(m, cfg["ks"]))
-    print(f"done in {cfg['demo_seconds']:.1f} s" + (f"; results in {Path(args.out) / 'results.json'}"
+    print(f"done in {cfg['demo_seconds']:.1f} s" + (f"; results in {shown(Path(args.out) / 'results.json')}"
                                                     if args.out else ""))
     return 0

@@ -11,6 +11,8 @@ from ..describe.config import check_size
 from ..pipelines.experiments import EXPERIMENTS, Experiment
 from ..pipelines.experiments.descriptors import CNN_SIZE, DESCRIPTORS, describe_config
 from ..pipelines.nordland64 import Nordland64Config
+from ..security.inputs import read_text
+from ..security.text import shown
 from . import COMMANDS
 from .common import (
     add_device,
@@ -68,6 +70,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                             description=f"{exp.summary}. Defaults: the nordland64 benchmark's "
                                         "(seqnet.pipelines.nordland64.Nordland64Config).")
         e.add_argument("--out", required=True, metavar="DIR", help="output folder")
+        e.add_argument("--overwrite", action="store_true", help="replace outputs in --out (and cache entries) that "
+                       "this experiment did not write (default: refuse)")
         if exp.data:
             _data_options(e, name, exp.own_data)
         for flag, key, kind, text in OPTIONS[name]:
@@ -126,9 +130,10 @@ def run(args: argparse.Namespace) -> int:
     conf = experiment_config(args)
     inputs = vars(args)  # only the options the experiment has (data, cache, dataset, model)
     path = EXPERIMENTS[args.experiment_name].start(conf, args.out, inputs.get("data"), inputs.get("cache"),
-                                                    inputs.get("dataset"), inputs.get("model", ()))
+                                                    inputs.get("dataset"), inputs.get("model", ()), args.overwrite)
     out = Path(path).parent
-    print((out / "results.md").read_text(encoding="utf-8"))
+    md = read_text(out / "results.md", 64 << 20, "results.md")  # names from a user's dataset: shown escaped
+    print("\n".join(shown(line) for line in md.splitlines()))
     files = [f for f in ("results.json", "results.md", "report.html") if (out / f).is_file()]
-    print(f"results in {out} ({', '.join(files)})")
+    print(f"results in {shown(out)} ({', '.join(files)})")
     return 0

@@ -21,14 +21,14 @@ from ..data.traverse import Dataset
 from ..eval.evaluate import EvalConfig, evaluate
 from ..security.files import write_json_atomic
 from ..security.locks import locked
-from ..security.ownership import check_replaceable, remove_owned_dir
 from ..sequence.checkpoints import load_model
 from ..train import TrainConfig, train
-from ..train.run import is_run_file
+from .outputs import check_outputs_of, write_outputs
 
 BASELINES = ("single", "smoothing", "delta", "raw+seqmatch", "delta+seqmatch")
 LEARNED = ("seqnet", "s1+seqmatch", "hvpr")  # hvpr: shortlist with S_L, re-rank by SeqMatch on S_1
 MODEL_FREE_HVPR = "hvpr-delta:raw+seqmatch"
+KIND = "demo"  # the command, as the output folder's record names it
 DEMO_TRAIN = TrainConfig(optimizer="adam", lr=1e-3, weight_decay=0.0, epochs=40, patience=8, out_dims=256)
 
 
@@ -73,39 +73,52 @@ class DemoConfig(Config):
 
 
 def train_demo_models(ds: Dataset, conf: DemoConfig, root: Path, data_dir: Path) -> tuple[dict[str, Any], dict]:
-    """Train S_L and S_1 on ``ds`` (runs in ``root/train_<role>``); returns models by role and seconds per role.
-
-    A previous demo's run in ``root`` is replaced; a directory holding anything else is never deleted.
-    """
+    """Train S_L and S_1 on ``ds`` (runs in ``root/train_<role>``, new folders; ``data_dir``: where the dataset
+    will be, recorded in the runs); returns models by role and seconds per role."""
     models, seconds = {}, {}
     for role, tconf in conf.model_configs().items():
         t0 = time.perf_counter()
-        run_dir = root / f"train_{role}"
-        remove_owned_dir(run_dir, "training run", is_run_file)
-        run = train(ds, tconf, run_dir, dataset_path=str(data_dir))
+        run = train(ds, tconf, root / f"train_{role}", dataset_path=str(data_dir))
         models[role] = load_model(run.out_dir / "best.pt")
         seconds[role] = round(time.perf_counter() - t0, 2)
         logger.debug("demo: trained %s in %.1f s (best val R@1 %.3f at epoch %d)", role, seconds[role],
-                    run.best_score, run.best_epoch)
+                     run.best_score, run.best_epoch)
     return models, seconds
 
 
-def main(conf: DemoConfig, out: str | Path) -> Written:
-    """Generate a synthetic dataset in ``out/dataset``, train S_L and S_1, evaluate every method on the
-    test split; writes ``out/results.json`` (results, resolved config, timings) and returns its path."""
+def demo_outputs(conf: DemoConfig) -> tuple[str, ...]:
+    """What the demo writes into its output folder."""
+    return ("dataset", *(f"train_{r}" for r in (conf.model_configs() if conf.train_models else ())), "results.json")
+
+
+def main(conf: DemoConfig, out: str | Path, overwrite: bool = False) -> Written:
+    """Generate a synthetic dataset in ``out/dataset``, train S_L and S_1 (``out/train_seqnet``,
+    ``out/train_s1``), evaluate every method on the test split; writes ``out/results.json`` (results,
+    resolved config, timings) and returns its path.
+
+    These outputs replace only what an earlier demo wrote there (anything else, a dataset or training run
+    of your own included, is refused before any work, unless ``overwrite``), and appear together: they are
+    made in a temporary folder beside ``out`` and swapped in with the other files of ``out`` kept."""
     t0 = time.perf_counter()
     root = Path(out)
+    results: dict[str, Any] = {}
     with locked(root):
-        for role in conf.model_configs() if conf.train_models else ():  # before any work: nothing foreign is replaced
-            check_replaceable(root / f"train_{role}", "training run", is_run_file)
-        data_dir = save_dataset(make_synthetic(SynthConfig(places=conf.places, seed=conf.seed)), root / "dataset",
-                                overwrite=True)
-        ds = load_dataset(data_dir)
-        logger.info("demo dataset: %d reference / %d query frames, D=%d", len(ds.reference), len(ds.query),
-                    ds.query.dim)
-        models, seconds = train_demo_models(ds, conf, root, data_dir) if conf.train_models else ({}, {})
-        ev = evaluate(ds.split("test"), EvalConfig(methods=conf.methods, seq_len=conf.seq_len, device=conf.device),
-                      models)
-        ev.results["config"].update(demo=conf.to_dict(), demo_seconds=round(time.perf_counter() - t0, 2),
-                                    train_seconds=seconds)
-        return Written(write_json_atomic(root / "results.json", ev.results), ev.results)
+        check_outputs_of(root, demo_outputs(conf), KIND, "demo's outputs", overwrite)
+        write_outputs(root, KIND, "demo's outputs", lambda tmp: results.update(run_demo(conf, tmp, root, t0)),
+                      overwrite)
+    return Written(root / "results.json", results)
+
+
+def run_demo(conf: DemoConfig, tmp: Path, root: Path, t0: float) -> dict[str, Any]:
+    """The demo's outputs written into ``tmp`` (to become ``root``); its results."""
+    data_dir = save_dataset(make_synthetic(SynthConfig(places=conf.places, seed=conf.seed)), tmp / "dataset")
+    ds = load_dataset(data_dir)
+    logger.info("demo dataset: %d reference / %d query frames, D=%d", len(ds.reference), len(ds.query),
+                ds.query.dim)
+    models, seconds = train_demo_models(ds, conf, tmp, root / "dataset") if conf.train_models else ({}, {})
+    ev = evaluate(ds.split("test"), EvalConfig(methods=conf.methods, seq_len=conf.seq_len, device=conf.device),
+                  models)
+    ev.results["config"].update(demo=conf.to_dict(), demo_seconds=round(time.perf_counter() - t0, 2),
+                                train_seconds=seconds)
+    write_json_atomic(tmp / "results.json", ev.results)
+    return ev.results

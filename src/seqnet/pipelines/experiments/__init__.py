@@ -15,8 +15,9 @@
 * ``tables`` (:mod:`.tables`): all of the paper's tables and the t-SNE figure in one run.
 
 Each writes ``results.json``, ``results.md`` (with the paper's table beside ours,
-:mod:`seqnet.report.paper`), its figure, ``report.html`` and ``config.json``; descriptors and models are
-cached as the benchmark caches them (:mod:`.common`). See docs/experiments.md.
+:mod:`seqnet.report.paper`), its figure, ``report.html`` and ``config.json``, together, replacing only its
+own earlier outputs (:mod:`seqnet.pipelines.outputs`); descriptors and models are cached as the benchmark
+caches them (:mod:`.common`). See docs/experiments.md.
 """
 
 from __future__ import annotations
@@ -52,14 +53,15 @@ class Experiment:
         return f"table-{roman.get(self.paper, self.paper.lower())}"
 
     def start(self, conf: Config, out: str | Path, data: str | Path | None = None, cache: str | Path | None = None,
-              dataset: str | Path | None = None, models: Sequence[str | Path] = ()) -> Path:
+              dataset: str | Path | None = None, models: Sequence[str | Path] = (), overwrite: bool = False) -> Path:
         """Run the stage with the inputs it reads: none (``compute-time``), the nordland64 ``data`` and
-        ``cache``, or also a user's ``dataset`` and ``models`` (:attr:`own_data`)."""
+        ``cache``, or also a user's ``dataset`` and ``models`` (:attr:`own_data`); ``overwrite``: replace
+        outputs (and cache entries) in ``out`` that this experiment did not write."""
         if not self.data:
-            return self.run(conf, None, out)
+            return self.run(conf, None, out, overwrite=overwrite)
         if self.own_data:
-            return self.run(conf, data, out, cache, dataset=dataset, models=models)
-        return self.run(conf, data, out, cache)
+            return self.run(conf, data, out, cache, dataset=dataset, models=models, overwrite=overwrite)
+        return self.run(conf, data, out, cache, overwrite=overwrite)
 
 
 EXPERIMENTS: dict[str, Experiment] = {

@@ -4,8 +4,10 @@ experiment writes (``results.json``, ``results.md``, its figure, ``report.html``
 
 Cache layout (the same as a benchmark run's output, so ``--cache out/nordland64`` reuses a
 benchmark's descriptors and models): ``CACHE/dataset``, ``CACHE/flip_train.npy``,
-``CACHE/models``, ``CACHE/runs``; models of other settings (seeds, descriptors) live in
-sub-folders named by the experiment (:func:`prepare`).
+``CACHE/models``, ``CACHE/runs`` and the cache's record ``CACHE/.seqnet-cache.json``
+(:mod:`seqnet.pipelines.nordland64.cache`: what is reused, only whole); models of other settings
+(seeds, descriptors) live in sub-folders named by the experiment (:func:`prepare`). An experiment's
+outputs replace only its own earlier ones and appear together (:mod:`seqnet.pipelines.outputs`).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import contextlib
 import dataclasses
 import html
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -35,9 +37,12 @@ from ...report.tables import save_figure
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked
 from ..nordland64 import Nordland64Config, build_dataset, train_models
+from ..nordland64 import cache as nordland_cache
 from ..nordland64.config import DESCRIBE
 from ..nordland64.data import SEASONS
 from ..nordland64.run import report_config
+from ..outputs import check_outputs_of
+from ..outputs import write_outputs as write_folder
 
 if TYPE_CHECKING:
     from ...sequence.model import SeqNet
@@ -76,12 +81,18 @@ def prepare_dataset(dataset: str | Path, models: Sequence[str | Path], seq_len: 
 
 
 def source(conf: Nordland64Config, data: str | Path | None, cache: Path, dataset: str | Path | None,
-           models: Sequence[str | Path]) -> Prepared:
+           models: Sequence[str | Path], overwrite: bool = False) -> Prepared:
     """The benchmark's data and models (``data``: the nordland64 folder) or a user's (``dataset``, ``models``)."""
+    check_source(data, dataset)
+    return prepare(conf, data, cache, overwrite=overwrite) if dataset is None else \
+        prepare_dataset(dataset, models, conf.seq_len)
+
+
+def check_source(data: str | Path | None, dataset: str | Path | None) -> None:
+    """Exactly one of the nordland64 folder and a user's dataset."""
     if (data is None) == (dataset is None):
         raise ConfigError("give the nordland64 folder (--data) or a seqnet dataset with its models (--dataset, "
                           "--model), one of the two")
-    return prepare(conf, data, cache) if dataset is None else prepare_dataset(dataset, models, conf.seq_len)
 
 
 def descriptor_cache(conf: Nordland64Config, cache: Path) -> Path:
@@ -91,14 +102,26 @@ def descriptor_cache(conf: Nordland64Config, cache: Path) -> Path:
     return cache if conf.describe == DESCRIBE else cache / "descriptors" / conf.describe.method
 
 
-def prepare(conf: Nordland64Config, data: str | Path, cache: Path, models_sub: str | None = None) -> Prepared:
+def check_cache(conf: Nordland64Config, cache: Path, models_sub: str | None = None, overwrite: bool = False) -> None:
+    """Before any work: the entries of the cache that :func:`prepare` may replace were made by the cache
+    (:func:`seqnet.pipelines.nordland64.cache.check_owned`)."""
+    root = descriptor_cache(conf, cache)
+    nordland_cache.check_owned(root, nordland_cache.DESCRIPTORS, overwrite)
+    nordland_cache.check_owned(root / models_sub if models_sub else root, nordland_cache.MODELS, overwrite)
+
+
+def prepare(conf: Nordland64Config, data: str | Path, cache: Path, models_sub: str | None = None,
+            overwrite: bool = False) -> Prepared:
     """Describe and train as the benchmark does with the settings ``conf``; descriptors cached in
-    :func:`descriptor_cache`, models there too (in its sub-folder ``models_sub`` when given)."""
+    :func:`descriptor_cache`, models there too (in its sub-folder ``models_sub`` when given), each reused
+    only whole (:mod:`seqnet.pipelines.nordland64.cache`)."""
+    check_cache(conf, cache, models_sub, overwrite)
     root = descriptor_cache(conf, cache)
     t0 = time.perf_counter()
-    ds, flipped = build_dataset(data, conf, root)
+    ds, flipped = build_dataset(data, conf, root, overwrite)
     seconds = {"descriptors": round(time.perf_counter() - t0, 2)}
-    models, train_s = train_models(ds, conf, root / models_sub if models_sub else root, flipped)
+    models, train_s = train_models(ds, conf, root / models_sub if models_sub else root, flipped,
+                                   nordland_cache.unit_files(root, "descriptors"), overwrite)
     seconds.update({f"train_{k}": v for k, v in train_s.items()})
     return Prepared(ds, models, seconds)
 
@@ -151,7 +174,37 @@ class Outputs:
     evaluation: tuple[Evaluation, Dataset] | None = None  # an evaluation (and its split) whose report follows
 
 
-def write_outputs(o: Outputs, conf: Any, data: str | Path, out: Path, title: str) -> Path:
+def output_names(name: str, *extra: str) -> tuple[str, ...]:
+    """What experiment ``name`` (its figure's name) writes into its output folder."""
+    return ("results.json", "results.md", f"{name}.png", "report.html", "config.json", *extra)
+
+
+def kind_of(name: str) -> str:
+    """The command of experiment ``name`` (its figure's name), as the output folder's record names it."""
+    return f"experiment {name.replace('_', '-')}"
+
+
+def check_experiment(out: Path, name: str, overwrite: bool = False, extra: Sequence[str] = ()) -> None:
+    """Before any work: what experiment ``name`` writes into ``out`` replaces only its own earlier outputs
+    (:func:`seqnet.pipelines.outputs.check_outputs_of`)."""
+    check_outputs_of(out, output_names(name, *extra), kind_of(name), "experiment's outputs", overwrite)
+
+
+def write_outputs(o: Outputs, conf: Any, data: str | Path, out: Path, title: str, overwrite: bool = False,
+                  more: Callable[[Path], Any] | None = None) -> Path:
+    """:func:`write_files` (and ``more(folder)``, other outputs) into ``out`` as one new version
+    (:func:`seqnet.pipelines.outputs.write_outputs`); returns the path of ``results.json``."""
+
+    def write(tmp: Path) -> None:
+        write_files(o, conf, data, tmp, title)
+        if more is not None:
+            more(tmp)
+
+    write_folder(out, kind_of(o.name), "experiment's outputs", write, overwrite)
+    return out / "results.json"
+
+
+def write_files(o: Outputs, conf: Any, data: str | Path, out: Path, title: str) -> Path:
     """``results.json``, ``results.md``, ``NAME.png``, ``report.html`` and ``config.json`` (the resolved
     configuration, the data folder and the provenance of the descriptors) in ``out``; returns the
     path of ``results.json``."""

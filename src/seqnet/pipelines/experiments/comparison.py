@@ -22,7 +22,17 @@ from ...eval.methods import parse_method
 from ...report.paper import TABLE_I, PaperRow, PaperTable, methods_of, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
-from .common import Outputs, evaluate_splits, locked_dirs, queries_of, source, summary, table_section, write_outputs
+from .common import (
+    Outputs,
+    check_experiment,
+    evaluate_splits,
+    locked_dirs,
+    queries_of,
+    source,
+    summary,
+    table_section,
+    write_outputs,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,7 +53,7 @@ class ComparisonConfig(Config):
 
 
 def main(conf: ComparisonConfig, data: str | Path | None, out: str | Path, cache: str | Path | None = None,
-         dataset: str | Path | None = None, models: Sequence[str | Path] = ()) -> Path:
+         dataset: str | Path | None = None, models: Sequence[str | Path] = (), overwrite: bool = False) -> Path:
     """Run the comparison on the nordland64 folder ``data`` (or a seqnet ``dataset`` with its ``models``); writes
     ``results.json``, ``results.md``, ``comparison.png`` (Recall@K of the test split), ``report.html`` (the test
     evaluation) and ``config.json`` to ``out``."""
@@ -51,7 +61,8 @@ def main(conf: ComparisonConfig, data: str | Path | None, out: str | Path, cache
     cache = Path(cache) if cache else out
     table = conf.table()
     with locked_dirs(out, cache):
-        p = source(conf.benchmark, data, cache, dataset, models)
+        check_experiment(out, "comparison", overwrite)
+        p = source(conf.benchmark, data, cache, dataset, models, overwrite)
         methods = p.runnable(methods_of(table))  # rows without their models show "–"
         evs = evaluate_splits(p, conf.benchmark.eval_config().replace(methods=methods))
         values = [evs[s].results["methods"] for s in p.splits]
@@ -72,7 +83,7 @@ def main(conf: ComparisonConfig, data: str | Path | None, out: str | Path, cache
                                    f"The paper's Table I methods on the {p.name} {p.main} split.")],
                     (evs[p.main], p.ds.split(p.main)))
         return write_outputs(o, conf, dataset or data, out,
-                             f"Experiment: performance comparison (paper Table I), {p.main}")
+                             f"Experiment: performance comparison (paper Table I), {p.main}", overwrite)
 
 
 def own_data_command(methods: tuple[str, ...], seq_len: int) -> str:

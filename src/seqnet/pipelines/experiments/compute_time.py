@@ -4,7 +4,8 @@ size (14,000 references, D = 4096, L_m = 5), measured the paper's way and end to
 paper's GTX 1080 Ti figures.
 
 The timing itself is ``seqnet benchmark timing`` (:mod:`seqnet.pipelines.timing`: a synthetic map in a
-temporary folder, every measurement in a fresh process); its full output goes to ``OUT/timing``. The
+temporary folder, every measurement in a fresh process); its full output goes to ``OUT/timing``, which
+appears together with the table. The
 models are untrained SeqNets of the paper's size: time does not depend on the weights. No data folder
 is read.
 """
@@ -22,9 +23,10 @@ from ...core.stage import Written
 from ...report.paper import TABLE_II
 from ...report.tables import method_colours, new_figure
 from ...security.locks import locked
+from ..outputs import write_outputs as write_folder
 from ..timing import TimingConfig
 from ..timing.report import paper_table, table_ii
-from .common import Outputs, table_section, write_outputs
+from .common import Outputs, check_experiment, kind_of, table_section, write_files
 
 PAPER_SIZE = TimingConfig(sizes=(14000,), dims=(4096,), seq_lens=(5,), top_ks=(20,), indexes=(), queries=30,
                           float16_recall=False)
@@ -44,29 +46,41 @@ class ComputeTimeConfig(Config):
     timing: TimingConfig = PAPER_SIZE
 
 
-def main(conf: ComputeTimeConfig, data: str | Path | None, out: str | Path, cache: str | Path | None = None) -> Path:
+def main(conf: ComputeTimeConfig, data: str | Path | None, out: str | Path, cache: str | Path | None = None,
+         overwrite: bool = False) -> Path:
     """Time it; writes ``timing/`` (the timing stage's output), ``results.json``, ``results.md``,
-    ``compute_time.png``, ``report.html`` and ``config.json`` to ``out`` (``data``, ``cache``: unused)."""
+    ``compute_time.png``, ``report.html`` and ``config.json`` to ``out``, together (the timing runs in the
+    new version's folder) (``data``, ``cache``: unused)."""
     out = Path(out)
     with locked(out):
-        res = timing_main(conf.timing, out / "timing").data  # what the stage wrote to timing/results.json
-        c = res["config"]
-        seq_len, top_k = c["seq_lens"][-1], c["top_ks"][-1]
-        e = next(m for m in res["maps"] if m["dim"] == max(c["dims"]) and m["n_db"] == max(c["sizes"]))
-        ours = table_ii(e, seq_len, top_k)
-        md = (f"# Computation time (paper: Table II)\n\n{res['machine']['platform']}, {c['threads']} threads, device "
-              f"{c['device']}, {c['queries']} queries one at a time; load average {e['loadavg']}.\n\n"
-              + paper_table(e, seq_len, top_k))
-        results = {"experiment": "compute-time", "paper_table": TABLE_II.key, "n_db": e["n_db"], "dim": e["dim"],
-                   "seq_len": seq_len, "top_k": top_k, "ms": ours, "timing": "timing/results.json",
-                   "provenance": None}
-        header = ["", *TABLE_II.columns]
-        rows = [["paper", *TABLE_II.rows[0].values],
-                *([f"ours, {k}", *("–" if v is None else f"{v[0]:.2f}" for v in r.values())] for k, r in ours.items())]
-        o = Outputs("compute_time", results, md, time_figure(ours),
-                    [table_section("experiment", "Computation time (Table II)", {"ms per query": (header, rows)},
-                                   f"N_db = {e['n_db']:,}, D = {e['dim']}; the full timing is in timing/results.md.")])
-        return write_outputs(o, conf, data or "", out, "Experiment: computation time (paper Table II)")
+        check_experiment(out, "compute_time", overwrite, ("timing",))
+
+        def write(tmp: Path) -> None:
+            res = timing_main(conf.timing, tmp / "timing").data  # what the stage wrote to timing/results.json
+            write_files(outputs(res), conf, data or "", tmp, "Experiment: computation time (paper Table II)")
+
+        write_folder(out, kind_of("compute_time"), "experiment's outputs", write, overwrite)
+    return out / "results.json"
+
+
+def outputs(res: dict[str, Any]) -> Outputs:
+    """The experiment's outputs from the timing stage's results."""
+    c = res["config"]
+    seq_len, top_k = c["seq_lens"][-1], c["top_ks"][-1]
+    e = next(m for m in res["maps"] if m["dim"] == max(c["dims"]) and m["n_db"] == max(c["sizes"]))
+    ours = table_ii(e, seq_len, top_k)
+    md = (f"# Computation time (paper: Table II)\n\n{res['machine']['platform']}, {c['threads']} threads, device "
+          f"{c['device']}, {c['queries']} queries one at a time; load average {e['loadavg']}.\n\n"
+          + paper_table(e, seq_len, top_k))
+    results = {"experiment": "compute-time", "paper_table": TABLE_II.key, "n_db": e["n_db"], "dim": e["dim"],
+               "seq_len": seq_len, "top_k": top_k, "ms": ours, "timing": "timing/results.json",
+               "provenance": None}
+    header = ["", *TABLE_II.columns]
+    rows = [["paper", *TABLE_II.rows[0].values],
+            *([f"ours, {k}", *("–" if v is None else f"{v[0]:.2f}" for v in r.values())] for k, r in ours.items())]
+    return Outputs("compute_time", results, md, time_figure(ours),
+                   [table_section("experiment", "Computation time (Table II)", {"ms per query": (header, rows)},
+                                  f"N_db = {e['n_db']:,}, D = {e['dim']}; the full timing is in timing/results.md.")])
 
 
 def paper_ms() -> list[float]:

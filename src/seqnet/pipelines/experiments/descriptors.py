@@ -18,6 +18,7 @@ import numpy as np
 
 from ...core.config import Config, check_choice
 from ...core.errors import ConfigError
+from ...data.traverse import Dataset
 from ...describe import DescribeConfig
 from ...describe.config import check_size
 from ...eval.evaluate import Evaluation
@@ -29,6 +30,8 @@ from ..nordland64 import Nordland64Config
 from ..nordland64.run import report_config
 from .common import (
     Outputs,
+    check_cache,
+    check_experiment,
     evaluate_splits,
     locked_dirs,
     markdown_table,
@@ -82,24 +85,27 @@ class DescriptorsConfig(Config):
         return tuple(dict.fromkeys((*self.benchmark.methods, *self.extra_methods)))
 
 
-def main(conf: DescriptorsConfig, data: str | Path, out: str | Path, cache: str | Path | None = None) -> Path:
+def main(conf: DescriptorsConfig, data: str | Path, out: str | Path, cache: str | Path | None = None,
+         overwrite: bool = False) -> Path:
     """Run the experiment; writes ``results.json``, ``results.md``, ``descriptors.png``, ``report.html``
     (the first descriptor's test evaluation), ``NAME/report.html`` per descriptor and ``config.json``."""
     out = Path(out)
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
+        check_experiment(out, "descriptors", overwrite, conf.descriptors)
+        benches = {name: conf.benchmark.replace(describe=conf.describe(name), methods=conf.methods)
+                   for name in conf.descriptors}
+        for bench in benches.values():  # before any work
+            check_cache(bench, cache, overwrite=overwrite)
         evs: dict[str, Evaluation] = {}
-        seconds, provenance, first = {}, {}, None
-        for name in conf.descriptors:
-            bench = conf.benchmark.replace(describe=conf.describe(name), methods=conf.methods)
-            p = prepare(bench, data, cache)  # other descriptors: in cache/descriptors/NAME
+        seconds, provenance, reports = {}, {}, {}
+        for name, bench in benches.items():
+            p = prepare(bench, data, cache, overwrite=overwrite)  # other descriptors: in cache/descriptors/NAME
             split_evs = evaluate_splits(p, bench.eval_config())
             evs.update({f"{split} {name}": e for split, e in split_evs.items()})
             seconds[name], provenance[name] = p.seconds, p.ds.reference.provenance
-            title = f"Nordland64 with {name} descriptors, test"
-            write_html_report(split_evs["test"], p.ds.split("test"), out / name / "report.html",
-                              report_config(data, title))
-            first = first or (split_evs["test"], p.ds.split("test"))
+            reports[name] = (split_evs["test"], p.ds.split("test"))
+        first = reports[conf.descriptors[0]]
         header = ["method", *(f"R@1 {k}" for k in evs)]
         rows = recall_table(evs, conf.methods)
         results = {"experiment": "descriptors", "recall@1": recall_at_1(evs, conf.methods),
@@ -115,7 +121,15 @@ def main(conf: DescriptorsConfig, data: str | Path, out: str | Path, cache: str 
                     [table_section("experiment", "Descriptors", {"Recall@1": (header, rows)}, "Per-descriptor "
                                    "reports: " + ", ".join(f"{d}/report.html" for d in conf.descriptors))],
                     first)
-        return write_outputs(o, conf, data, out, "Experiment: single-image descriptors")
+        return write_outputs(o, conf, data, out, "Experiment: single-image descriptors", overwrite,
+                             lambda tmp: write_reports(reports, data, tmp))
+
+
+def write_reports(reports: dict[str, tuple[Evaluation, Dataset]], data: str | Path, out: Path) -> None:
+    """``NAME/report.html``: the test evaluation of each descriptor."""
+    for name, (ev, ds) in reports.items():
+        write_html_report(ev, ds, out / name / "report.html",
+                          report_config(data, f"Nordland64 with {name} descriptors, test"))
 
 
 def descriptors_figure(rows: list[list], columns: list[str], names: tuple[str, ...]) -> object:

@@ -23,6 +23,7 @@ from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from .common import (
     Outputs,
+    check_experiment,
     evaluate_splits,
     locked_dirs,
     markdown_table,
@@ -52,14 +53,15 @@ class LongerConfig(Config):
 
 
 def main(conf: LongerConfig, data: str | Path | None, out: str | Path, cache: str | Path | None = None,
-         dataset: str | Path | None = None, models: Sequence[str | Path] = ()) -> Path:
+         dataset: str | Path | None = None, models: Sequence[str | Path] = (), overwrite: bool = False) -> Path:
     """Run the experiment on the nordland64 folder ``data`` (or a seqnet ``dataset`` with its ``models``); writes
     ``results.json``, ``results.md``, ``longer_sequences.png``, ``report.html`` (the longest L_m on test) and
     ``config.json`` to ``out``."""
     out = Path(out)
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
-        p = source(conf.benchmark, data, cache, dataset, models)
+        check_experiment(out, "longer_sequences", overwrite)
+        p = source(conf.benchmark, data, cache, dataset, models, overwrite)
         methods = p.runnable(conf.methods)
         evs: dict[str, Evaluation] = {}
         for lm in conf.lengths:
@@ -84,7 +86,8 @@ def main(conf: LongerConfig, data: str | Path | None, out: str | Path, cache: st
                     [table_section("experiment", "Longer sequences", {"Recall@1": (header, rows)},
                                    f"S_L (L={conf.benchmark.seq_len}) shortlist; sequence matchers over L_m frames.")],
                     (evs[f"{p.main} L_m={last}"], p.ds.split(p.main)))
-        return write_outputs(o, conf, dataset or data, out, f"Experiment: longer sequences ({p.main}, L_m={last})")
+        return write_outputs(o, conf, dataset or data, out, f"Experiment: longer sequences ({p.main}, L_m={last})",
+                             overwrite)
 
 
 def longer_figure(rows: list[list], columns: list[str], lengths: tuple[int, ...]) -> object:

@@ -24,6 +24,7 @@ from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from .common import (
     Outputs,
+    check_experiment,
     evaluate_splits,
     locked_dirs,
     markdown_table,
@@ -64,14 +65,15 @@ def reverse_reference(ds: Dataset) -> Dataset:
 
 
 def main(conf: ReverseConfig, data: str | Path | None, out: str | Path, cache: str | Path | None = None,
-         dataset: str | Path | None = None, models: Sequence[str | Path] = ()) -> Path:
+         dataset: str | Path | None = None, models: Sequence[str | Path] = (), overwrite: bool = False) -> Path:
     """Run the experiment on the nordland64 folder ``data`` (or a seqnet ``dataset`` with its ``models``); writes
     ``results.json``, ``results.md``, ``reverse.png``, ``report.html`` and ``config.json`` to ``out``
     (descriptors and models cached in ``cache``, default ``out``)."""
     out = Path(out)
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
-        p = source(conf.benchmark, data, cache, dataset, models)
+        check_experiment(out, "reverse", overwrite)
+        p = source(conf.benchmark, data, cache, dataset, models, overwrite)
         methods = p.runnable(conf.methods)
         ec = conf.benchmark.eval_config().replace(methods=methods)
         fwd, rev = evaluate_splits(p, ec), evaluate_splits(p, ec, transform=reverse_reference)
@@ -92,7 +94,7 @@ def main(conf: ReverseConfig, data: str | Path | None, out: str | Path, cache: s
                                    "The reference is traversed in reverse order; S_L is used as trained.")],
                     (rev[p.main], reverse_reference(p.ds.split(p.main))))
         return write_outputs(o, conf, dataset or data, out,
-                             f"Experiment: reverse traverse ({p.main}, reference reversed)")
+                             f"Experiment: reverse traverse ({p.main}, reference reversed)", overwrite)
 
 
 def reverse_figure(rows: list[list], columns: list[str]) -> object:

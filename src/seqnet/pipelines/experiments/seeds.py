@@ -20,6 +20,8 @@ from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from .common import (
     Outputs,
+    check_cache,
+    check_experiment,
     evaluate_splits,
     locked_dirs,
     markdown_table,
@@ -44,6 +46,12 @@ class SeedsConfig(Config):
         """The benchmark settings with both models trained with ``seed``."""
         return self.benchmark.replace(train={"seed": seed}, train_s1={"seed": seed})
 
+    def models_sub(self, seed: int) -> str | None:
+        """Where the models of ``seed`` are cached: the benchmark's own (None) or ``seeds/seedN``."""
+        bench = self.seeded(seed)
+        own = bench.train == self.benchmark.train and bench.train_s1 == self.benchmark.train_s1
+        return None if own else f"seeds/seed{seed}"
+
 
 def mean_std(values: list[float]) -> tuple[float, float]:
     """Mean and sample standard deviation (0 for one value)."""
@@ -51,18 +59,21 @@ def mean_std(values: list[float]) -> tuple[float, float]:
     return float(a.mean()), float(a.std(ddof=1)) if len(a) > 1 else 0.0
 
 
-def main(conf: SeedsConfig, data: str | Path, out: str | Path, cache: str | Path | None = None) -> Path:
+def main(conf: SeedsConfig, data: str | Path, out: str | Path, cache: str | Path | None = None,
+         overwrite: bool = False) -> Path:
     """Run the experiment; writes ``results.json``, ``results.md``, ``seeds.png``, ``report.html`` (the
     first seed's test evaluation) and ``config.json`` to ``out``."""
     out = Path(out)
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
+        check_experiment(out, "seeds", overwrite)
+        for seed in conf.seeds:  # before any work
+            check_cache(conf.seeded(seed), cache, conf.models_sub(seed), overwrite)
         runs: dict[int, dict[str, Evaluation]] = {}
         seconds = {}
         for seed in conf.seeds:
             bench = conf.seeded(seed)
-            own = bench.train == conf.benchmark.train and bench.train_s1 == conf.benchmark.train_s1
-            p = prepare(bench, data, cache, None if own else f"seeds/seed{seed}")
+            p = prepare(bench, data, cache, conf.models_sub(seed), overwrite)
             runs[seed], seconds[seed] = evaluate_splits(p, bench.eval_config()), p.seconds
         methods = list(conf.benchmark.methods)
         stats = {split: {m: mean_std([runs[s][split].results["methods"][m]["recall@1"] for s in conf.seeds])
@@ -83,7 +94,7 @@ def main(conf: SeedsConfig, data: str | Path, out: str | Path, cache: str | Path
                     [table_section("experiment", "Seeds", {"Recall@1 over seeds": (header, rows)},
                                    f"{len(conf.seeds)} training seeds; the report below is seed {first}'s test.")],
                     (runs[first]["test"], p.ds.split("test")))
-        return write_outputs(o, conf, data, out, f"Experiment: {len(conf.seeds)} seeds")
+        return write_outputs(o, conf, data, out, f"Experiment: {len(conf.seeds)} seeds", overwrite)
 
 
 def seeds_figure(rows: list[list], n_seeds: int) -> object:

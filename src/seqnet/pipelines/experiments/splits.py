@@ -16,8 +16,9 @@ from ...data.traverse import Dataset
 from ...report.paper import TABLE_S1, PaperRow, side_by_side
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config, build_dataset
+from ..nordland64.cache import DESCRIPTORS, check_owned
 from ..nordland64.data import SPLITS
-from .common import Outputs, descriptor_cache, locked_dirs, table_section, write_outputs
+from .common import Outputs, check_experiment, descriptor_cache, locked_dirs, table_section, write_outputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,12 +40,16 @@ def split_sizes(ds: Dataset) -> dict[str, dict[str, object]]:
     return out
 
 
-def main(conf: SplitsConfig, data: str | Path, out: str | Path, cache: str | Path | None = None) -> Path:
+def main(conf: SplitsConfig, data: str | Path, out: str | Path, cache: str | Path | None = None,
+         overwrite: bool = False) -> Path:
     """Write ``results.json``, ``results.md``, ``splits.png``, ``report.html`` and ``config.json`` to ``out``."""
     out = Path(out)
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
-        ds, _ = build_dataset(data, conf.benchmark, descriptor_cache(conf.benchmark, cache))
+        check_experiment(out, "splits", overwrite)
+        root = descriptor_cache(conf.benchmark, cache)
+        check_owned(root, DESCRIPTORS, overwrite)
+        ds, _ = build_dataset(data, conf.benchmark, root, overwrite)
         sizes = split_sizes(ds)
 
         def cell(row: PaperRow, _: int) -> str:
@@ -61,7 +66,7 @@ def main(conf: SplitsConfig, data: str | Path, out: str | Path, cache: str | Pat
         rows = [[s, v["reference"], v["query"], "{}:{}".format(*v["places"])] for s, v in sizes.items()]
         o = Outputs("splits", results, md, splits_figure(sizes),
                     [table_section("experiment", "Data splits (Table S1)", {"Sizes": (header, rows)})])
-        return write_outputs(o, conf, data, out, "Experiment: data splits (paper Table S1)")
+        return write_outputs(o, conf, data, out, "Experiment: data splits (paper Table S1)", overwrite)
 
 
 def splits_figure(sizes: dict[str, dict[str, object]]) -> object:

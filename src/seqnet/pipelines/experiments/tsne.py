@@ -25,7 +25,7 @@ from ...search.knn import knn
 from ...sequence.descriptors import SEQUENCE_DESCRIPTORS, describe_windows
 from ...sequence.windows import window_indices
 from ..nordland64 import Nordland64Config
-from .common import Outputs, locked_dirs, markdown_table, prepare, table_section, write_outputs
+from .common import Outputs, check_experiment, locked_dirs, markdown_table, prepare, table_section, write_outputs
 
 if TYPE_CHECKING:
     from ...sequence.model import SeqNet
@@ -101,14 +101,16 @@ def embed(x: np.ndarray, conf: TsneConfig) -> np.ndarray:
     return tsne.fit_transform(x)
 
 
-def main(conf: TsneConfig, data: str | Path, out: str | Path, cache: str | Path | None = None) -> Path:
+def main(conf: TsneConfig, data: str | Path, out: str | Path, cache: str | Path | None = None,
+         overwrite: bool = False) -> Path:
     """Run the experiment; writes ``results.json``, ``results.md``, ``tsne.png``, ``report.html`` and
     ``config.json`` to ``out``."""
     sklearn_manifold()  # before any work
     out = Path(out)
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
-        p = prepare(conf.benchmark, data, cache)
+        check_experiment(out, "tsne", overwrite)
+        p = prepare(conf.benchmark, data, cache, overwrite=overwrite)
         ref, first = p.ds.split(SPLIT).reference, p.ds.ranges(SPLIT)["reference"][0]
         n = min(conf.frames, len(ref))
         emb, rows = {}, []
@@ -130,7 +132,7 @@ def main(conf: TsneConfig, data: str | Path, out: str | Path, cache: str | Path 
                     [table_section("experiment", "t-SNE", {"Route-neighbour rate": (header, rows)},
                                    f"The first {n} summer frames of the test split, coloured by position along "
                                    "the route.")])
-        return write_outputs(o, conf, data, out, f"Experiment: t-SNE of the first {n} summer test frames")
+        return write_outputs(o, conf, data, out, f"Experiment: t-SNE of the first {n} summer test frames", overwrite)
 
 
 def tsne_figure(emb: dict[str, np.ndarray], pos: np.ndarray) -> object:

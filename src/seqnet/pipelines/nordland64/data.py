@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 import time
@@ -22,10 +23,13 @@ from ...describe.pca import PCA
 from ...describe.store import describe_provenance
 from ...security.arrays import read_npy
 from ...security.files import save_npy_atomic
+from ...security.locks import locked
+from ...security.text import shown
+from . import cache
 from .config import Nordland64Config
 
 SEASONS = ("summer", "winter")
-FRAME_NUMBER = re.compile(r"(\d+)")
+FRAME_NUMBER = re.compile(r"([0-9]+)")  # ASCII digits only (int() takes others)
 SPLITS = ("train", "val", "test")
 
 
@@ -34,14 +38,25 @@ def list_places(data: str | Path, names_file: str = "nordland_clean_imageNames.t
     root = Path(data)
     for sub in (*SEASONS, names_file):
         if not (root / sub).exists():
-            raise DatasetError(f"{root} is not the nordland64 data: {sub} is missing "
+            raise DatasetError(f"{shown(root)} is not the nordland64 data: {sub} is missing "
                                f"(expected {', '.join(SEASONS)}/ and {names_file}; see docs/benchmark_nordland64.md)")
     clean = set(read_names(root / names_file))
     present = {p.name for p in (root / SEASONS[0]).iterdir()} & {p.name for p in (root / SEASONS[1]).iterdir()}
-    names = sorted(clean & present, key=lambda n: int(FRAME_NUMBER.findall(n)[-1]))
+    frames = {n: frame_number(n, root / names_file) for n in clean & present}
+    names = sorted(frames, key=lambda n: (frames[n], n))
     if not names:
-        raise DatasetError(f"{root}: no image of {names_file} is present in both {SEASONS[0]}/ and {SEASONS[1]}/")
-    return names, np.array([int(FRAME_NUMBER.findall(n)[-1]) / 10.0 for n in names])
+        raise DatasetError(f"{shown(root)}: no image of {names_file} is present in both {SEASONS[0]}/ and "
+                           f"{SEASONS[1]}/")
+    return names, np.array([frames[n] / 10.0 for n in names])
+
+
+def frame_number(name: str, where: Path) -> int:
+    """The frame number of a nordland64 image name: its last run of digits (``images-00210.png`` -> 210)."""
+    digits = FRAME_NUMBER.findall(name)
+    if not digits or len(digits[-1]) > 12:
+        raise DatasetError(f"{shown(where)}: the image name '{shown(name)}' has no frame number (expected names "
+                           "like images-00210.png, whose last run of digits, at most 12, is the frame number)")
+    return int(digits[-1])
 
 
 def describe_key(conf: Nordland64Config) -> dict[str, Any]:
@@ -95,23 +110,36 @@ def split_ranges(conf: Nordland64Config, n: int) -> tuple[int, dict[str, dict[st
     return lo, {k: {"reference": (a - lo, b - lo), "query": (a - lo, b - lo)} for k, (a, b) in ranges.items()}
 
 
-def build_dataset(data: str | Path, conf: Nordland64Config, out: Path) -> tuple[Dataset, np.ndarray | None]:
+def build_dataset(data: str | Path, conf: Nordland64Config, out: Path,
+                  overwrite: bool = False) -> tuple[Dataset, np.ndarray | None]:
     """The nordland64 dataset (raw descriptors, places in use, splits), cached in ``out/dataset``, and
     the flipped train descriptors ``[2, n_train, D]`` (summer, winter; cached in ``out/flip_train.npy``;
-    None without ``conf.flip``)."""
-    data = Path(data)
+    None without ``conf.flip``). The two are one cache unit (:mod:`.cache`): reused only together, as
+    written by one run with these settings; ``overwrite`` replaces a dataset this cache did not make."""
+    data, out = Path(data), Path(out)
     names, pos = list_places(data, conf.names_file)
     lo, splits = split_ranges(conf, len(names))
     hi = lo + max(r["query"][1] for r in splits.values())
     names, pos = names[lo:hi], pos[lo:hi]
-    cache, flip_file = out / "dataset", out / "flip_train.npy"
-    if (cache / "dataset.json").is_file():
-        ds = load_dataset(cache, mmap=False)
-        flip_ok = not conf.flip or flip_file.is_file()
-        if ds.extra.get("describe") == describe_key(conf) and ds.reference.names == names and flip_ok:
-            logger.info("using cached descriptors in %s", cache)
+    key, flip_file = descriptors_key(conf, data, names), out / "flip_train.npy"
+    with locked(out):
+        if cache.unit(out, "descriptors", key) is not None:
+            logger.info("using cached descriptors in %s", shown(out / "dataset"))
+            ds = load_dataset(out / "dataset", mmap=False)
             ds.splits = splits
             return ds, read_npy(flip_file, False) if conf.flip else None
+        cache.open_unit(out, "descriptors", cache.DESCRIPTORS, overwrite)  # its key removed first
+        ds, flipped = make_dataset(data, conf, names, pos, lo, splits)
+        save_dataset(ds, out / "dataset", overwrite=True)
+        if flipped is not None:
+            save_npy_atomic(flip_file, flipped)
+        cache.seal(out, "descriptors", key, cache.files_under(out, "dataset") + ["flip_train.npy"] * conf.flip)
+    return ds, flipped
+
+
+def make_dataset(data: Path, conf: Nordland64Config, names: list[str], pos: np.ndarray, lo: int,
+                 splits: dict[str, Any]) -> tuple[Dataset, np.ndarray | None]:
+    """Describe the places ``names`` (place ``lo`` first): the dataset and the flipped train descriptors."""
     t0 = time.perf_counter()
     d = describe_seasons(data, names, conf, lo)
     prov = d["provenance"]
@@ -122,11 +150,13 @@ def build_dataset(data: str | Path, conf: Nordland64Config, out: Path) -> tuple[
                  extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "describe": describe_key(conf),
                         "describe_seconds": round(time.perf_counter() - t0, 2), "source": str(data),
                         "first_place": lo})
-    save_dataset(ds, cache, overwrite=True)
-    flipped = np.stack([d["summer_flip"], d["winter_flip"]]) if conf.flip else None
-    if flipped is not None:
-        save_npy_atomic(flip_file, flipped)
-    return ds, flipped
+    return ds, np.stack([d["summer_flip"], d["winter_flip"]]) if conf.flip else None
+
+
+def descriptors_key(conf: Nordland64Config, data: Path, names: list[str]) -> str:
+    """The key of the cached descriptors: their settings, the data folder and the places in use."""
+    blob = json.dumps({"describe": describe_key(conf), "source": str(data.resolve()), "names": names})
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
 def training_dataset(ds: Dataset, pca: PCA | None, symmetric: bool, flipped: np.ndarray | None = None) -> Dataset:

@@ -6,7 +6,7 @@ import hashlib
 import json
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -14,15 +14,19 @@ from ...core.lazy import lazy_module
 from ...core.utils import logger
 from ...data.traverse import Dataset
 from ...describe.pca import PCA, fit_pca
-from ...security.files import write_json_atomic
+from ...security.dirs import remove_dead_temps
+from ...security.locks import locked
 from ...security.ownership import remove_owned_dir
+from ...security.text import shown
 from ...sequence.checkpoints import load_model, save_checkpoint
-from ...train import train
-from ...train.run import is_run_file
+from ...train import TrainConfig, train
+from ...train.run import RUN_FILES, is_run_file
+from . import cache
 from .config import Nordland64Config
 from .data import describe_key, training_dataset
 
 torch = lazy_module("torch")
+ROLES = ("seqnet", "s1")
 
 if TYPE_CHECKING:
     from ...sequence.model import SeqNet
@@ -67,35 +71,55 @@ def fit_train_pca(ds: Dataset, conf: Nordland64Config) -> PCA | None:
     return fit_pca(x, dims, whiten=conf.pca_whiten, l2=False)
 
 
-def train_models(ds: Dataset, conf: Nordland64Config, out: Path,
-                 flipped: np.ndarray | None = None) -> tuple[dict[str, SeqNet], dict[str, float]]:
+def train_models(ds: Dataset, conf: Nordland64Config, out: Path, flipped: np.ndarray | None = None,
+                 inputs: Any = None, overwrite: bool = False) -> tuple[dict[str, SeqNet], dict[str, float]]:
     """Train S_L and S_1 (PCA-projected inputs, epoch chosen on val), fold the PCA in; save to ``out/models``.
 
-    Models trained with the same settings before (``out/models/key.json``) are reused; a previous
-    training run in ``out/runs`` is replaced only when it holds nothing but a run's files.
+    The models are a cache unit (:mod:`.cache`): reused only when all of them were written by one run
+    with the same settings (:func:`train_key`) from the same descriptors (``inputs``: the digests of the
+    descriptors unit, by default the one in ``out``); a previous training run in ``out/runs`` is replaced
+    only when this cache made it and it holds nothing but a run's files (``overwrite``: also when the cache
+    did not make it).
     """
+    out = Path(out)
     models_dir, key = out / "models", train_key(conf)
-    key_file = models_dir / "key.json"
-    if key_file.is_file() and json.loads(key_file.read_text()).get("key") == key:
-        logger.info("reusing the models trained with the same settings in %s", models_dir)
-        info = json.loads(key_file.read_text())
-        return {r: load_model(models_dir / f"{r}.pt") for r in ("seqnet", "s1")}, info["seconds"]
-    pca = fit_train_pca(ds, conf)
-    if pca is not None:
-        pca.save(models_dir / "pca.npz")
-    tds = training_dataset(ds, pca, conf.symmetric, flipped)
-    models, seconds = {}, {}
-    for role, tconf in (("seqnet", conf.train), ("s1", conf.train_s1)):
-        run_dir = out / "runs" / role
+    with locked(out):
+        if inputs is None:
+            inputs = cache.unit_files(out, "descriptors")
+        found = cache.unit(out, "models", key, inputs)
+        if found is not None and isinstance(found.get("seconds"), dict):
+            logger.info("reusing the models trained with the same settings in %s", shown(models_dir))
+            return {r: load_model(models_dir / f"{r}.pt") for r in ROLES}, found["seconds"]
+        cache.open_unit(out, "models", cache.MODELS, overwrite)  # its key removed first
+        remove_dead_temps([models_dir / f for f in ("pca.npz", *(f"{r}.pt" for r in ROLES))])
+        pca = fit_train_pca(ds, conf)
+        if pca is not None:
+            pca.save(models_dir / "pca.npz")
+        elif (models_dir / "pca.npz").is_file():
+            (models_dir / "pca.npz").unlink()  # another run's: these models read the raw descriptors
+        tds = training_dataset(ds, pca, conf.symmetric, flipped)
+        models, seconds = {}, {}
+        for role, tconf in zip(ROLES, (conf.train, conf.train_s1), strict=True):
+            models[role], seconds[role] = train_one(tds, tconf.replace(device=conf.device), out, role, pca, ds)
+        files = [f"models/{f}" for f in ("pca.npz", *(f"{r}.pt" for r in ROLES)) if (models_dir / f).is_file()]
+        cache.seal(out, "models", key, files, seconds=seconds, inputs=inputs)
+    return models, seconds
+
+
+def train_one(tds: Dataset, tconf: TrainConfig, out: Path, role: str, pca: PCA | None,
+              ds: Dataset) -> tuple[SeqNet, float]:
+    """Train one model in ``out/runs/ROLE`` (a previous run there replaced), fold the PCA in, save it to
+    ``out/models/ROLE.pt``; the model and its training seconds."""
+    run_dir = out / "runs" / role
+    with locked(run_dir):
+        remove_dead_temps([run_dir / f for f in RUN_FILES])
         remove_owned_dir(run_dir, "training run", is_run_file)
         t0 = time.perf_counter()
-        run = train(tds, tconf.replace(device=conf.device), run_dir)
-        seconds[role] = round(time.perf_counter() - t0, 2)
-        model = load_model(run_dir / "best.pt")
-        models[role] = fold_pca(model, pca) if pca is not None else model
-        models[role].provenance = ds.reference.provenance  # the folded model reads the raw descriptors
-        save_checkpoint(models_dir / f"{role}.pt", models[role], epoch=run.best_epoch, best_score=run.best_score,
-                        metrics={"val_recall@1": run.best_score},
-                        config={**tconf.to_dict(), "pca_folded": pca is not None})
-    write_json_atomic(key_file, {"key": key, "seconds": seconds})
-    return models, seconds
+        run = train(tds, tconf, run_dir)
+    seconds = round(time.perf_counter() - t0, 2)
+    model = load_model(run_dir / "best.pt")
+    model = fold_pca(model, pca) if pca is not None else model
+    model.provenance = ds.reference.provenance  # the folded model reads the raw descriptors
+    save_checkpoint(out / "models" / f"{role}.pt", model, epoch=run.best_epoch, best_score=run.best_score,
+                    metrics={"val_recall@1": run.best_score}, config={**tconf.to_dict(), "pca_folded": pca is not None})
+    return model, seconds

@@ -16,6 +16,9 @@ from ...report.html import ReportConfig, write_html_report
 from ...report.tables import format_markdown, plot_pr_curves, plot_recall_curves
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked
+from ...security.text import shown
+from ..outputs import check_outputs_of, write_outputs
+from . import cache
 from .config import Nordland64Config
 from .data import SEASONS, SPLITS, build_dataset
 from .models import train_models
@@ -24,6 +27,9 @@ from .speed import variable_speed
 if TYPE_CHECKING:
     from ...sequence.model import SeqNet
 
+KIND = "benchmark nordland64"  # the command, as the output folder's record names it
+OUTPUTS = ("results.json", "val_results.json", "results.md", "recall_at_k.png", "pr_curve.png", "report.html",
+           "config.json")
 
 
 def split_dataset(ds: Dataset, conf: Nordland64Config, split: str) -> Dataset:
@@ -80,30 +86,38 @@ def report_config(data: str | Path, title: str) -> ReportConfig:
                         ref_images=str(Path(data) / SEASONS[0]))
 
 
-def main(conf: Nordland64Config, data: str | Path, out: str | Path) -> Written:
+def main(conf: Nordland64Config, data: str | Path, out: str | Path, overwrite: bool = False) -> Written:
     """Run the benchmark (hloc style) on the nordland64 folder ``data``; writes everything to ``out``
-    (descriptor cache, models, ``results.json``, ``results.md``, ``recall_at_k.png``, ``report.html``,
-    ``config.json``)
-    and returns the path of ``results.json``."""
+    (descriptor and model cache, :data:`OUTPUTS`) and returns the path of ``results.json``.
+
+    The outputs replace only what an earlier run of the benchmark wrote there (refused before any work
+    otherwise, unless ``overwrite``) and appear together (:mod:`seqnet.pipelines.outputs`); the cache is
+    reused only whole (:mod:`.cache`)."""
     out = Path(out)
     with locked(out):
+        check_outputs_of(out, OUTPUTS, KIND, "nordland64 results", overwrite)
+        cache.check_owned(out, (*cache.DESCRIPTORS, *cache.MODELS), overwrite)
         t0 = time.perf_counter()
         seconds: dict[str, float] = {}
-        ds, flipped = build_dataset(data, conf, out)
+        ds, flipped = build_dataset(data, conf, out, overwrite)
         seconds["descriptors"] = round(time.perf_counter() - t0, 2)
         logger.info("nordland64: %d places, D=%d; train %s, val %s, test %s", len(ds.query), ds.query.dim,
                     conf.train_range, conf.val_range, conf.test_range)
-        models, train_s = train_models(ds, conf, out, flipped)
+        models, train_s = train_models(ds, conf, out, flipped, overwrite=overwrite)
         seconds.update({f"train_{k}": v for k, v in train_s.items()})
         t1 = time.perf_counter()
         val = evaluate_split(ds, models, conf, "val")
         ev = evaluate_split(ds, models, conf, "test")
         seconds["evaluation"] = round(time.perf_counter() - t1, 2)
         seconds["total"] = round(time.perf_counter() - t0, 2)
-        write_report(ev, val, conf, seconds, out)
-        write_html_report(ev, split_dataset(ds, conf, "test"), out / "report.html",
-                          report_config(data, f"Nordland64 benchmark, test places {conf.test_range[0]}:"
-                                              f"{conf.test_range[1]}"))
-        write_json_atomic(out / "config.json", {**conf.to_dict(), "data": str(data)})
-        logger.info("nordland64 done in %.0f s: %s", seconds["total"], out / "results.md")
+
+        def write(tmp: Path) -> None:
+            write_report(ev, val, conf, seconds, tmp)
+            write_html_report(ev, split_dataset(ds, conf, "test"), tmp / "report.html",
+                              report_config(data, f"Nordland64 benchmark, test places {conf.test_range[0]}:"
+                                                  f"{conf.test_range[1]}"))
+            write_json_atomic(tmp / "config.json", {**conf.to_dict(), "data": str(data)})
+
+        write_outputs(out, KIND, "nordland64 results", write, overwrite)
+        logger.info("nordland64 done in %.0f s: %s", seconds["total"], shown(out / "results.md"))
     return Written(out / "results.json", ev.results)

@@ -1,4 +1,6 @@
-"""One measuring process of the timing benchmark: ``python -m seqnet.pipelines.timing.worker JOB.json``.
+"""One measuring process of the timing benchmark, started by :func:`seqnet.pipelines.timing.run.run_worker`
+(:func:`seqnet.security.sandbox.python_command`: seqnet imported from where the parent imported it, never from
+the current directory) with the path of its job file.
 
 Each map is built in one fresh process and timed in another, so that the peak resident memory
 (``ru_maxrss``) of each is its own and does not accumulate over the sweep. The job file names the
