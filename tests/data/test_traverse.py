@@ -306,7 +306,11 @@ def test_bad_h5(ds, ds_dir):
         h["features"] = np.zeros((10, 4), np.float32)
         h["other"] = np.zeros((10, 4), np.float32)
         h.create_group("descriptors_group")
-    expect(ds_dir, "no dataset 'descriptors' and 2 other 2-D float datasets")
+    expect(ds_dir, "no dataset 'descriptors' .found: features, other")
+    (q / "descriptors.h5").unlink()
+    with h5py.File(q / "descriptors.h5", "w") as h:  # one float dataset of another name is not taken either
+        h["positions"] = np.zeros((10, 2), np.float32)
+    expect(ds_dir, "no dataset 'descriptors' .found: positions.; seqnet does not guess")
 
 
 def test_traverse_constructor_errors(rng):

@@ -3,7 +3,7 @@
 Inputs, per traverse (reference and query):
 
 * a descriptor file ``[N, D]``: ``.npy`` (image names from a names file, one per line) or HDF5
-  (``.h5`` / ``.hdf5``: dataset ``descriptors`` — or the only 2-D dataset — and optional ``names``);
+  (``.h5`` / ``.hdf5``: dataset ``descriptors`` and optional ``names``);
 * positions, either from a CSV file (a header row naming an image column and ``easting, northing``
   in metres, or ``frame``; rows are matched to the descriptors by image name, and an optional
   ``sequence`` column gives sequence bounds), or from the image names themselves when they carry

@@ -4,9 +4,9 @@ One reader per kind of file, used by the dataset directory format and by every c
 rules are the same everywhere:
 
 * descriptors ``[N, D]``: ``.npy`` (memory-mapped when already native float32) or HDF5 (dataset
-  ``descriptors``, or the only 2-D numeric dataset, and optional ``names``); any floating dtype or
-  byte order becomes native float32; anything else (strings, objects, integers, pickles) is a
-  :class:`DatasetError` naming the file;
+  ``descriptors``, never a guessed other one, or hloc's global features; optional ``names``; read in the
+  sandbox: :mod:`seqnet.security.hdf5`); any floating dtype or byte order becomes native float32;
+  anything else (strings, objects, integers, pickles) is a :class:`DatasetError` naming the file;
 * names: UTF-8 text, one name per line (``\\n``-separated); a name may not contain any other line
   separator (``str.splitlines`` semantics, e.g. U+2028), so what is written reads back the same;
 * positions: ``.npy``, or CSV / whitespace-separated text of numbers.
@@ -113,13 +113,8 @@ def _h5_descriptor_key(h: Hdf5Contents, p: Path) -> str:
         return "descriptors"
     if "descriptors" in h.groups:
         raise DatasetError(f"{p}: 'descriptors' is an HDF5 group, not a dataset")
-    two_d = [k for k, v in h.arrays.items() if v.ndim == 2 and v.dtype.kind == "f" and "/" not in k]
-    if len(two_d) != 1:
-        raise DatasetError(f"{p}: no dataset 'descriptors' and {len(two_d)} other 2-D float datasets "
-                           f"(found: {h.names()[:10]}); hint: name the descriptor dataset 'descriptors'")
-    logger.warning("%s: no dataset 'descriptors'; reading its only 2-D float dataset %r as the descriptors", p,
-                   two_d[0])
-    return two_d[0]
+    raise DatasetError(f"{p}: no dataset 'descriptors' (found: {', '.join(h.names()[:10]) or 'none'}); seqnet does not "
+                       "guess which dataset holds the descriptors; hint: name it 'descriptors' ([N, D] floats)")
 
 
 def _h5_names(h: Hdf5Contents, p: Path) -> list[str]:
