@@ -227,11 +227,33 @@ def _read_foreign(p: Path) -> object:
     return {".db": read_db_struct, ".txt": read_seq_bounds, ".csv": read_robotcar_ins}[p.suffix](p)
 
 
+def _seed_bags(d: Path) -> list[Path]:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from conftest import write_bag  # the tests' writer of tiny bags (rosbags' own writers)
+
+    images = [np.full((8, 8, 3), 40 * i, np.uint8) for i in range(4)]
+    fixes = [(63.43 + 1e-4 * j, 10.39, 0) for j in range(4)]
+    write_bag(d / "run.bag", images, "ros1", fixes=fixes)
+    write_bag(d / "ros2", images, "ros2", fixes=fixes)
+    write_bag(d / "mcap", images, "mcap", fixes=fixes)
+    return [d / "run.bag", *sorted((d / "ros2").iterdir()), *sorted((d / "mcap").iterdir())]
+
+
+def _read_bags(p: Path) -> object:
+    from seqnet.data.bags import read_positions
+    from seqnet.describe.bags import bag_images
+    from seqnet.describe.images import decode
+
+    bag = p if p.suffix == ".bag" else p.parent
+    frames, names = bag_images(bag, "/camera/image_raw")
+    return read_positions(bag, "/gps/fix"), [decode(f.open, f) for f in frames], names
+
+
 READERS: dict[str, tuple[Callable[[Path], list[Path]], Callable[[Path], object]]] = {
     "arrays": (_seed_arrays, _read_arrays), "hdf5": (_seed_hdf5, _read_hdf5), "dataset": (_seed_dataset, _read_dataset),
     "torch": (_seed_torch, _read_torch), "faiss": (_seed_faiss, _read_faiss),
     "positives": (_seed_positives, _read_positives), "text": (_seed_text, _read_text), "map": (_seed_map, _read_map),
-    "foreign": (_seed_foreign, _read_foreign),
+    "foreign": (_seed_foreign, _read_foreign), "bags": (_seed_bags, _read_bags),
 }
 
 
