@@ -56,9 +56,9 @@ def make(kind: str, settings: Mapping[str, Any], fit_images: Iterable[str] | Non
 def differences(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[str]:
     """``key: value_a vs value_b`` for every setting (and the fit and D) that differs."""
     out = [f"kind: {a.get('kind')} vs {b.get('kind')}"] if a.get("kind") != b.get("kind") else []
-    sa, sb = a.get("settings") or {}, b.get("settings") or {}
-    out += [f"{k}: {json.dumps(sa.get(k))} vs {json.dumps(sb.get(k))}" for k in sorted(set(sa) | set(sb))
-            if sa.get(k) != sb.get(k)]
+    sa, sb = (s if isinstance(s, Mapping) else {} for s in (a.get("settings"), b.get("settings")))
+    out += [f"{k}: {json.dumps(sa.get(k), default=str)} vs {json.dumps(sb.get(k), default=str)}"
+            for k in sorted(set(sa) | set(sb), key=str) if sa.get(k) != sb.get(k)]
     if a.get("fit_images") != b.get("fit_images"):
         out.append("fitted state (PCA / NetVLAD clusters): fitted on different images")
     if a.get("dim") != b.get("dim"):

@@ -31,6 +31,7 @@ from ..eval.evaluate import EvalConfig
 from ..reference.base import Reference
 from ..security.dirs import remove_dead_temps
 from ..security.inputs import special_file
+from ..security.limits import number
 from ..security.locks import locked
 
 if TYPE_CHECKING:
@@ -78,10 +79,11 @@ def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
                           "causal ones (seqnet index build --window causal)")
     check_conf(mp, EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, rerank_seq_len=conf.rerank_seq_len,
                               window="causal"))
-    radius = conf.radius or (mp.meta.get("source") or {}).get("radius")
+    source = mp.meta.get("source") if isinstance(mp.meta.get("source"), dict) else {}
+    radius = conf.radius or source.get("radius")
     if radius is None:
         raise ConfigError(f"map {mp.path} records no localisation radius; give one (--radius)")
-    return mp, float(radius)
+    return mp, float(number(radius, f"map {mp.path}: radius", 1e-300, 1e300, ConfigError, integer=False))
 
 
 def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Frames, list[str] | None, int]:

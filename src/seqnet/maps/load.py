@@ -24,7 +24,7 @@ from .store import INDEX_FILE
 
 def _array(path: Path, shape: tuple[int, ...] | None, kinds: str) -> np.ndarray:
     """A ``.npy`` memory map (copy-on-write: never written back) of the expected shape and dtype kind."""
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():  # a FIFO or device there is named by read_npy
         raise MapError(f"map file missing: {path} (hint: rebuild the map with seqnet index build)")
     arr = read_npy(path, "c", "map file", MapError)
     if arr.dtype.kind not in kinds or (shape is not None and arr.shape != shape):
@@ -81,8 +81,8 @@ def check_files(path: Path, meta: dict[str, Any], full: bool = False) -> None:
 def check_arrays(path: Path, arrays: dict[str, Any], nr: int) -> None:
     """Positions finite and one per frame; items and window starts inside the frames."""
     pos = arrays["positions"]
-    if len(pos) != nr or not np.isfinite(pos).all():
-        raise MapError(f"{path / 'positions.npy'}: {len(pos)} positions for {nr} frames, or NaN / inf among them "
+    if pos.ndim != 2 or len(pos) != nr or not np.isfinite(pos).all():
+        raise MapError(f"{path / 'positions.npy'}: {pos.shape} positions for {nr} frames, or NaN / inf among them "
                        "(the map is damaged; rebuild it)")
     for name in ("items", "match_starts"):
         a = np.asarray(arrays[name])
@@ -92,7 +92,7 @@ def check_arrays(path: Path, arrays: dict[str, Any], nr: int) -> None:
 
 
 def _index(file: Path, conf: Any, n: int, d: int) -> Any:
-    if not file.is_file():
+    if not file.exists() and not file.is_symlink():
         raise MapError(f"map file missing: {file} (a {conf.ann.kind} map needs its index)")
     index = read_faiss(file, n, d, "map index", MapError)  # probed in the sandbox; on-disk lists mapped read-only
     set_search_params(index, conf.ann)

@@ -25,7 +25,11 @@ def number(value: Any, what: str, lo: float, hi: float, error: ErrorType = Datas
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and isinstance(value, float)
                                                                           and not value.is_integer()):
         raise error(f"{what} must be {kind} in {lo}..{hi}, got {_short(value)}")
-    if not math.isfinite(value) or not lo <= value <= hi:
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:  # an int beyond any float
+        finite = False
+    if not finite or not lo <= value <= hi:
         raise error(f"{what} must be {kind} in {lo}..{hi}, got {_short(value)}")
     return int(value) if integer else float(value)
 
