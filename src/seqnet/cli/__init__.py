@@ -106,6 +106,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return report_error(None, e)
     try:
         check_no_empty_values(args)
+        if isinstance(getattr(args, "device", None), str):  # a device that is not there: refused before any work
+            from ..core.utils import check_device
+
+            check_device(args.device)
         with runtime(args):
             return int(args.func(args) or 0)
     except (SeqnetError, MemoryError, KeyboardInterrupt) as e:
