@@ -101,3 +101,32 @@ def test_soft_matches_are_neither_true_nor_false_positives_in_pr():
     plain, _ = method_results(scores, ranked, GroundTruth(np.zeros((3, 1)), np.arange(10.0)[:, None], 0.5, hard),
                               ks=(1,))
     assert plain["pr_curve"]["precision"][-1] == pytest.approx(1 / 3, abs=1e-4)  # without soft: 1 is a FP
+
+
+@pytest.mark.parametrize("transform", ["distance", "negated", "similarity-as-negated", "scaled", "shifted-negative"])
+def test_confidence_is_defined_for_any_sign_and_scale(transform):
+    """Queries whose top-1 is right have a large margin to the next place, the wrong ones none: whatever the
+    sign and scale of the scores, accepting by confidence reaches 100 % precision up to the recall of R@1, and
+    the area under the curve equals it (the curve is 1 until then)."""
+    rng = np.random.default_rng(0)
+    m, k = 200, 5
+    right = rng.random(m) < 0.51
+    best = np.where(right, 0.1, 0.8) + 0.01 * rng.random(m)
+    other = np.where(right, 0.9, 0.81) + 0.01 * rng.random(m)
+    d = np.column_stack([best, other, other + 0.05, other + 0.06, other + 0.07])  # ascending: lower is better
+    scores = {"distance": d, "negated": d - 2.0, "similarity-as-negated": -(1.0 - d), "scaled": 1e6 * d,
+              "shifted-negative": d - 0.5}[transform]
+    ranked = np.tile(np.arange(k) * 10, (m, 1))  # every retrieved item another place (positions 10 apart)
+    conf = ratio_confidence(scores, ranked, np.arange(100.0)[:, None], radius=1.0)
+    precision, recall, _ = precision_recall(conf, right, np.ones(m, bool))
+    summary = pr_summary(precision, recall)
+    assert summary["recall@100p"] == pytest.approx(right.mean())
+    assert summary["auc"] == pytest.approx(right.mean())
+    assert (conf >= 0).all() and (conf <= 1).all()
+
+
+def test_confidence_of_distances_is_the_ratio_test():
+    scores = np.array([[0.2, 0.8], [0.5, 0.5], [0.0, 0.0], [0.3, 0.6]])
+    ranked = np.array([[0, 5], [0, 5], [0, 5], [0, 5]])
+    conf = ratio_confidence(scores, ranked, np.arange(10.0)[:, None], radius=1.0)
+    np.testing.assert_allclose(conf, [1 - 0.2 / 0.8, 0.0, 0.0, 1 - 0.3 / 0.6])

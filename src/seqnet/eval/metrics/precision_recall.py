@@ -2,9 +2,14 @@
 
 A robot must decide whether to trust its top-1 match. The *ratio confidence* of a query compares
 the score of its best reference with the best score among the retrieved references farther than
-the localisation radius from that best one (a second, different place):
-``confidence = 1 − s_best / s_other`` in [0, 1] (lower scores are better; 1 when no other place is
-among the retrieved, 0 when the other place scores as well). Thresholding it trades recall for
+the localisation radius from that best one (a second, different place): lower scores are better, and
+
+    confidence = (s_other − s_best) / max(|s_best|, |s_other|, s_other − s_best)   in [0, 1]
+
+which is the classic ratio test ``1 − s_best / s_other`` for distances (scores ≥ 0) and stays defined for
+scores of any sign and scale (a negated similarity matrix, ``--similarity``): scaling the scores does not
+change it, and it grows with the margin between the two places. It is 1 when no other place is among the
+retrieved, 0 when the other place scores as well. Thresholding it trades recall for
 precision: :func:`precision_recall` gives the curve over all thresholds (top-1 correctness, recall
 relative to the queries that have a correct reference), :func:`pr_summary` its area (average
 precision) and the recall at 100 % precision, and :func:`thresholds_for` the threshold that reaches a
@@ -32,9 +37,11 @@ def ratio_confidence(scores: np.ndarray, ranked: np.ndarray, r_pos: np.ndarray, 
     far = np.sqrt(np.square(cand - cand[:, :1]).sum(axis=-1)) > radius  # [M, K]: another place than the top-1
     other = np.where(far & np.isfinite(scores) & (ranked >= 0), scores, np.inf).min(axis=1)
     conf = np.ones(m)  # no other place among the retrieved: full confidence
-    some = np.isfinite(other)
-    conf[some] = 1.0 - scores[some, 0] / np.where(other[some] > 0, other[some], 1.0)
-    conf[some & (other <= 0)] = 0.0  # a perfect other place: no confidence
+    some = np.isfinite(other) & np.isfinite(scores[:, 0])
+    best, second = scores[some, 0], other[some]
+    den = np.maximum(np.maximum(np.abs(best), np.abs(second)), second - best)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        conf[some] = np.where(den > 0, (second - best) / np.where(den > 0, den, 1.0), 0.0)
     conf[np.isnan(conf)] = 0.0
     return np.clip(conf, 0.0, 1.0)
 
