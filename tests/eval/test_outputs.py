@@ -277,3 +277,35 @@ def test_a_failure_inside_the_new_set_names_the_users_path(synth_dir, tmp_path, 
     assert str(out / "report.html") in line and ".seqnet-" not in line and ".tmp" not in line
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+@pytest.mark.parametrize("given, flag, warned", [("distance", [], None), ("similarity", [], "other sense"),
+                                                 ("similarity", ["--similarity"], None),
+                                                 ("distance", ["--similarity"], "other sense"),
+                                                 ("transposed", [], "transposed")])
+def test_a_matrix_read_as_the_user_did_not_mean_is_named(tmp_path, capsys, given, flag, warned):
+    """The matrix's readings are compared on the ground truth; a clearly better one is named with its R@1 and
+    the flag that gives it (a similarity matrix without --similarity, a transposed square matrix)."""
+    import json
+
+    from seqnet.cli import main
+    from seqnet.data.io import save_dataset
+    from seqnet.data.traverse import Dataset, Traverse
+
+    rng = np.random.default_rng(3)
+    r = rng.standard_normal((100, 16)).astype(np.float32)  # square: the transposed reading exists
+    q = (r[rng.permutation(100)] + 0.3 * rng.standard_normal((100, 16))).astype(np.float32)
+    frames = np.arange(100.0)[:, None]
+    qpos = frames[np.linalg.norm(q[:, None] - r[None], axis=-1).argmin(1)]  # each query at its true place
+    ds = save_dataset(Dataset(Traverse(r, frames), Traverse(q, qpos), radius=0.5), tmp_path / "ds")
+    dist = np.linalg.norm(q[:, None] - r[None], axis=-1)
+    m = {"distance": dist, "similarity": -dist, "transposed": dist.T}[given]
+    np.save(tmp_path / "m.npy", m)
+    assert main(["eval", "--dataset", str(ds), "--distances", str(tmp_path / "m.npy"), "--method", "single",
+                 "--split", "all", "--json", str(tmp_path / "r.json"), *flag]) == 0
+    err = capsys.readouterr().err
+    check = json.loads((tmp_path / "r.json").read_text())["matrix_check"]
+    if warned is None:
+        assert "reads much better" not in err and check["best_reading"] == "as given"
+    else:
+        assert f"reads much better {warned}" in err and check["best_reading"] == warned

@@ -19,6 +19,7 @@ from ..core.errors import ConfigError, DatasetError
 from ..core.lazy import lazy_module
 from ..core.memmaps import read_rows
 from ..core.stage import Written
+from ..core.utils import logger
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
@@ -60,7 +61,39 @@ def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = 64 << 
                                "finite)")
 
 
-def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = None) -> Evaluation:
+CHECK_ROWS = 2000  # queries sampled to compare the matrix's readings (a cheap argmin each)
+
+
+def orientation_check(ds: Dataset, dist: np.ndarray, similarity: bool) -> dict[str, Any]:
+    """Single-frame R@1 of the matrix read as given and read the other ways a user may have meant (the other
+    sense: similarity vs distance; transposed, for a square matrix), on up to :data:`CHECK_ROWS` queries with
+    a true match; a warning names the reading that is clearly better (R@1 at least twice, and 0.1 above)."""
+    q = np.arange(len(ds.query))
+    truth = dataset_truth(ds, q, np.arange(len(ds.reference)), ds.radius)
+    keep = np.flatnonzero(truth.has_positive())
+    keep = keep[np.linspace(0, len(keep) - 1, min(len(keep), CHECK_ROWS)).round().astype(np.int64)] if len(keep) \
+        else keep
+    readings = {"as given": dist[keep], "other sense": -dist[keep]}
+    if dist.shape[0] == dist.shape[1]:
+        readings.update({"transposed": dist[:, keep].T, "transposed, other sense": -dist[:, keep].T})
+    sense = "similarities" if similarity else "distances"
+    sampled = dataset_truth(ds, keep, np.arange(len(ds.reference)), ds.radius) if len(keep) else None
+    r1 = {k: float(sampled.hits(np.argmin(v, axis=1)[:, None])[:, 0].mean()) if sampled else float("nan")
+          for k, v in readings.items()}
+    best = max(r1, key=lambda k: r1[k])
+    if best != "as given" and r1[best] >= 2 * r1["as given"] and r1[best] >= r1["as given"] + 0.1:
+        flag = "drop --similarity" if similarity else "pass --similarity"
+        hint = {"other sense": flag, "transposed": "save the matrix transposed, one row per query",
+                "transposed, other sense": f"save the matrix transposed, one row per query, and {flag}"}[best]
+        logger.warning("the matrix reads much better %s: single-frame R@1 %.3f read as given (%s, one row per "
+                       "query), %.3f %s; the user probably meant that (hint: %s)", best, r1["as given"], sense,
+                       r1[best], best, hint)
+    return {"single_r@1": {k: round(v, 4) for k, v in r1.items()}, "queries_checked": int(len(keep)),
+            "best_reading": best}
+
+
+def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = None,
+                    similarity: bool = False) -> Evaluation:
     """Evaluate ``conf.methods`` (default :data:`DEFAULT_MATRIX_METHODS`) of ``ds`` (the split already taken)
     on ``dist [Nq, Nr]`` distances between its query and reference frames."""
     conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
@@ -84,6 +117,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
                              "matrix_methods": list(MATRIX_METHODS)}
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     out.dataset, out.matrix = ds, dist  # for the report: the evaluated frames and their given distances
+    out.results["matrix_check"] = orientation_check(ds, dist, similarity)
     return out
 
 
@@ -103,7 +137,7 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         split = default_split(conf.split, ds.splits)
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
         dist = read_matrix(distances, ds, similarity, split)
-        ev = evaluate_matrix(sub, dist, conf.replace(split=split))
+        ev = evaluate_matrix(sub, dist, conf.replace(split=split), similarity)
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
                                 "similarity": bool(similarity), "distances_digest": file_digest(distances)}
         return outputs.write(ev)
