@@ -144,7 +144,7 @@ def test_recall_denominator_positives_or_all_vs_loop(rng):
         found = [any(np.linalg.norm(r[j] - q[i]) <= 2.5 for j in retrieved[i, :k]) for i in range(60)]
         assert pos[f"recall@{k}"] == pytest.approx(sum(found) / sum(has))
         assert every[f"recall@{k}"] == pytest.approx(sum(found) / 60)
-    assert pos["queries"] == every["queries"] == sum(has) and every["no_positive"] == 60 - sum(has)
+    assert pos["queries"] == sum(has) and every["queries"] == 60 and every["no_positive"] == 60 - sum(has)
     assert recall(retrieved, truth, (1,))["recall@1"] == pos["recall@1"]  # positives is the default
     with pytest.raises(ConfigError, match="recall denominator 'some' is not one of positives, all"):
         recall(retrieved, truth, (1,), "some")

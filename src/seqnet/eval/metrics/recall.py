@@ -138,8 +138,9 @@ def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAUL
     """Recall@K for each K in ``ks`` of the ranked reference items ``retrieved [M, K_max]`` (best first),
     over the queries with a correct reference (``denominator="positives"``) or over all M (``"all"``).
 
-    Returns ``{"recall@K": value, ..., "queries": n_with_a_correct_reference, "no_positive": the others}``;
-    recall is ``nan`` when no query has a correct reference. K larger than the list length uses the whole list.
+    Returns ``{"recall@K": value, ..., "queries": the denominator (the queries with a correct reference, or all M),
+    "no_positive": the queries without one}``; recall is ``nan`` when no query has a correct reference. K larger
+    than the list length uses the whole list.
     """
     ks = list(ks)
     if not ks or any(int(k) < 1 for k in ks):
@@ -161,7 +162,7 @@ def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAUL
         else:
             found = cum[pos, min(int(k), cum.shape[1]) - 1]
             out[f"recall@{k}"] = float(found.mean() if denominator == "positives" else found.sum() / len(pos))
-    out["queries"] = n
+    out["queries"] = n if denominator == "positives" else int(len(pos))  # the denominator the user asked for
     out["no_positive"] = int(len(pos) - n)
     return out
 
