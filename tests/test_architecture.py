@@ -185,3 +185,9 @@ def test_the_gpu_check_skips_cleanly_without_a_gpu():
         pytest.skip("a CUDA device is present: run the check itself")
     p = subprocess.run(["bash", str(script)], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0 and "no CUDA device" in p.stdout, (p.stdout, p.stderr)
+
+
+def test_test_modules_have_distinct_names():
+    """pytest imports test modules by their file name (no packages): two of one name break collection."""
+    names = [p.name for p in TESTS.rglob("test_*.py")]
+    assert len(names) == len(set(names)), sorted({n for n in names if names.count(n) > 1})
