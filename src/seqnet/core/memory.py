@@ -104,6 +104,7 @@ def described_bytes(n_query: int, n_ref: int, dims: Iterable[int], resident_cap:
 
 
 SPACE_MARGIN = 16 * 2**20
+HDF5_OVERHEAD = 128 << 10  # an HDF5 file's metadata beyond its data, with room (check_space before h5py writes)
 
 
 def check_space(folder: Path, needed: int, what: str, largest: int | None = None) -> None:
@@ -115,12 +116,17 @@ def check_space(folder: Path, needed: int, what: str, largest: int | None = None
     limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
     largest = needed // 2 if largest is None else largest
     if limit != resource.RLIM_INFINITY and largest > limit:
-        raise ResourceError(f"{folder}: {what} make a file of about {largest / 2**20:.0f} MiB, over this process's "
-                            f"file size limit of {limit / 2**20:.0f} MiB (ulimit -f); hint: raise the limit")
+        raise ResourceError(f"{folder}: {what} make a file of about {_size(largest)}, over this process's file "
+                            f"size limit of {_size(limit)} (ulimit -f); hint: raise the limit")
     try:
         free = shutil.disk_usage(folder).free
     except OSError:
         return
     if free < needed + SPACE_MARGIN:
-        raise ResourceError(f"{folder}: {what} need about {(needed + SPACE_MARGIN) / 2**20:.0f} MiB, only "
-                            f"{free / 2**20:.0f} MiB free; hint: free some space or write the output elsewhere")
+        raise ResourceError(f"{folder}: {what} need about {_size(needed + SPACE_MARGIN)}, only {_size(free)} free; "
+                            "hint: free some space or write the output elsewhere")
+
+
+def _size(n: float) -> str:
+    """A byte count in KiB under 1 MiB, else MiB."""
+    return f"{n / 2**10:.0f} KiB" if n < 2**20 else f"{n / 2**20:.0f} MiB"

@@ -22,6 +22,7 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, OutputError
+from ..core.memory import HDF5_OVERHEAD, check_space
 from ..core.provenance import BOUND_KEY, MAX_SIDECAR, REPLACES_KEY
 from ..core.provenance import sidecar as provenance_sidecar
 from ..security.digests import file_digest
@@ -69,7 +70,9 @@ def write_output(out: Path, shape: tuple[int, int], blocks: Iterable[np.ndarray]
     if out.suffix.lower() == ".npy":
         _write_npy(out, shape, blocks, names, prov)
         return
-    with atomic_path(out) as tmp, h5py.File(tmp, "w") as h:
+    size = HDF5_OVERHEAD + shape[0] * (shape[1] * 4 + 64) + sum(len(n.encode()) for n in names)
+    check_space(out.parent, size, f"{shape[0]} descriptors of D={shape[1]} in HDF5", largest=size)  # libhdf5 may
+    with atomic_path(out) as tmp, h5py.File(tmp, "w") as h:  # not fail cleanly on a full disk: never let it meet one
         ds = h.create_dataset("descriptors", shape=tuple(shape), dtype=np.float32)
         _copy(blocks, shape, lambda a, block: ds.__setitem__(slice(a, a + len(block)), block))
         h.create_dataset("names", data=np.array(names, dtype=object), dtype=h5py.string_dtype())

@@ -22,7 +22,7 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError, OutputError
-from ..core.memory import check_space
+from ..core.memory import HDF5_OVERHEAD, check_space
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
 from ..core.utils import logger
@@ -119,6 +119,10 @@ def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path, overwr
     if partial.exists() and not _resumable(partial, settings, todo.names, states, overwrite):
         partial.unlink()
     out.parent.mkdir(parents=True, exist_ok=True)
+    if not partial.exists():  # libhdf5 must never meet a full disk or a file size limit: it may not fail cleanly
+        names_bytes = sum(len(n.encode()) + 24 for n in todo.names)
+        check_space(out.parent, HDF5_OVERHEAD + names_bytes, "the partial output's names and status",
+                    largest=HDF5_OVERHEAD + names_bytes)
     describer = make_describer(conf, images.paths, sidecar=out)  # fitted on the whole list's images, as unsharded
     try:
         with h5py.File(partial, "a") as h:
@@ -232,7 +236,8 @@ def _h5_sink(h: h5py.File, n: int) -> Sink:
     def sink(idx: np.ndarray, desc: np.ndarray | None) -> None:
         if desc is not None:
             if "descriptors" not in h:
-                check_space(Path(h.filename).parent, 2 * n * desc.shape[1] * 4, f"{n} descriptors of D={desc.shape[1]}")
+                size = HDF5_OVERHEAD + n * (desc.shape[1] * 4 + 64)  # the partial file, then the output beside it
+                check_space(Path(h.filename).parent, 2 * size, f"{n} descriptors of D={desc.shape[1]}", largest=size)
                 h.create_dataset("descriptors", shape=(n, desc.shape[1]), dtype=np.float32,
                                  chunks=(min(n, 256), desc.shape[1]))
             h["descriptors"][np.sort(idx)] = desc[np.argsort(idx)]
