@@ -23,6 +23,7 @@ from ..data.readers import check_names
 from ..security.inputs import special_file
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
+MAX_SIDE = 8192  # largest accepted resize width or height (and image size stored in a checkpoint)
 
 
 @runtime_checkable
