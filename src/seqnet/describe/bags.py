@@ -20,6 +20,8 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..data import bags
+from .decode import COMPRESSED_FORMATS as COMPRESSED_PIL
+from .decode import open_image
 
 ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True), "mono8": (1, False)}  # channels, reversed (BGR)
 COMPRESSED_FORMATS = ("jpeg", "jpg", "png")
@@ -45,14 +47,12 @@ def _raw_image(msg: Any, where: str) -> Any:
 
 
 def _compressed_image(msg: Any, where: str) -> Any:
-    """A ``sensor_msgs/CompressedImage`` (JPEG / PNG) opened by PIL (decoded when loaded)."""
-    from PIL import Image
-
+    """A ``sensor_msgs/CompressedImage`` (JPEG / PNG) opened by PIL with those decoders only (decoded when loaded)."""
     fmt = str(msg.format).lower()
     if fmt and not any(f in fmt for f in COMPRESSED_FORMATS):
         raise ImageError(f"{where}: compressed image format {msg.format!r} is not supported; supported: "
                          f"{', '.join(COMPRESSED_FORMATS)} (compressedDepth and other formats are not images)")
-    return Image.open(io.BytesIO(bytes(np.asarray(msg.data, np.uint8))))
+    return open_image(io.BytesIO(bytes(np.asarray(msg.data, np.uint8))), COMPRESSED_PIL)
 
 
 IMAGE_TYPES: dict[str, Callable[[Any, str], Any]] = {
