@@ -20,6 +20,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..data import bags
+from ..security.text import shown
 from .decode import COMPRESSED_FORMATS as COMPRESSED_PIL
 from .decode import open_image
 
@@ -102,7 +103,12 @@ class BagImages:
             msg = bags.deserialize(self.reader, raw, msgtype, where)
         except DatasetError as e:
             raise ImageError(f"{e} (hint: --skip-corrupted leaves such images out)") from e
-        return IMAGE_TYPES[msgtype](msg, where)
+        try:  # the message definitions may come from the bag itself: a field may be missing or of another type
+            return IMAGE_TYPES[msgtype](msg, where)
+        except (AttributeError, TypeError, ValueError, OverflowError) as e:
+            raise ImageError(f"{where}: the {msgtype} message is not as ROS defines it ({type(e).__name__}: "
+                             f"{shown(' '.join(str(e).split()))[:160]}; hint: --skip-corrupted leaves such images "
+                             "out)") from e
 
     def close(self) -> None:
         """Close the bag's reader (reads after it fail)."""
