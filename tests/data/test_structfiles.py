@@ -146,6 +146,8 @@ def test_small_struct_file_reads(tmp_path):
                                                                     r"string, got a struct"),
     ({"dbImageFns": np.array(["a\n.png", "b"], dtype=object)}, r"dbStruct.dbImageFns\[0\] 'a\\n.png' contains a "
                                                                 r"NUL or a line break"),
+    ({"qImageFns": np.zeros((0,), dtype=object), "numQueries": 0.0, "utmQ": np.zeros((1, 0))},
+     r"dbStruct.numQueries = 0: a struct file of no images"),
 ])
 def test_hostile_struct_fields_are_one_line(tmp_path, fields, match):
     """Inf / NaN counts (OverflowError / ValueError before), an empty whichSet (IndexError before), fields of

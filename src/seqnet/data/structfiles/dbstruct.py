@@ -114,6 +114,8 @@ def read_db_struct(path: str | Path) -> DbStruct:
     for field, names in (("numImages", db_names), ("numQueries", q_names)):
         if (count := _scalar(s, field, p, INDEX_MAX, integer=True)) != len(names):
             raise DatasetError(f"{p}: dbStruct.{field} = {count} but {len(names)} image names")
+        if not names:
+            raise DatasetError(f"{p}: dbStruct.{field} = 0: a struct file of no images describes no place")
     thr = _scalar(s, "posDistThr", p)
     return DbStruct(
         path=p,
