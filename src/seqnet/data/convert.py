@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import DatasetError
+from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import check_same
 from ..core.utils import logger
 from .positives import Positives
@@ -173,12 +173,13 @@ def read_seq_bounds(path: str | Path, n: int | None = None) -> np.ndarray:
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"sequence bounds file not found: {p}")
+    rows = [ln for ln in read_text(p, "sequence bounds file").splitlines() if ln.split("#")[0].strip()]
+    if not rows:  # (loadtxt would warn, then return nothing)
+        raise DatasetError(f"{p}: holds no sequence bounds (the file is empty)")
     try:
-        b = np.loadtxt(read_text(p, "sequence bounds file").splitlines(), dtype=np.int64, ndmin=2)
+        b = np.loadtxt(rows, dtype=np.int64, ndmin=2)
     except (ValueError, OverflowError) as e:
         raise DatasetError(f"{p}: expected one 'start end' row of integers per image ({str(e)[:160]})") from e
-    if b.size == 0:
-        raise DatasetError(f"{p}: holds no sequence bounds (the file is empty)")
     if b.shape[1] != 2:
         raise DatasetError(f"{p}: expected 2 columns (start end), got {b.shape[1]}")
     if n is not None and len(b) != n:
@@ -274,7 +275,6 @@ def assemble_dataset(
     check_same(ref.provenance, query.provenance, "the reference descriptors", "the query descriptors",
                allow_mismatch)
     mismatched = bool(ref.provenance and query.provenance and ref.provenance.get("id") != query.provenance.get("id"))
-    from ..core.errors import ConfigError
     from .presets import get_preset, preset_metadata, preset_splits
 
     meta: dict[str, Any] = {}
