@@ -175,3 +175,26 @@ def write_bag(path, images, kind: str = "ros1", topic: str = "/camera/image_raw"
 def bag_path(tmp_path, kind: str, name: str = "run"):
     """Where :func:`write_bag` writes a bag of ``kind``: ``run.bag`` (ROS 1) or the directory ``run`` (ROS 2)."""
     return tmp_path / (f"{name}.bag" if kind == "ros1" else name)
+
+
+def mutated(data: bytes, max_flips: int = 8):
+    """A hypothesis strategy of ``data`` damaged as a hostile or broken file would be: cut short, a few bytes
+    replaced, or a few bytes inserted."""
+    from hypothesis import strategies as st
+
+    n = len(data)
+
+    def flip(edits: list[tuple[int, int]]) -> bytes:
+        out = bytearray(data)
+        for pos, value in edits:
+            out[pos] = value
+        return bytes(out)
+
+    def insert(at: int, chunk: bytes) -> bytes:
+        return data[:at] + chunk + data[at:]
+
+    return st.one_of(
+        st.integers(0, max(n - 1, 0)).map(lambda k: data[:k]),
+        st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, 255)), min_size=1, max_size=max_flips).map(flip),
+        st.builds(insert, st.integers(0, n), st.binary(min_size=1, max_size=24)),
+    )

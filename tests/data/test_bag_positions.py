@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import BAG_KINDS, bag_path, write_bag
+from conftest import BAG_KINDS, bag_path, mutated, write_bag
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from seqnet.core.errors import DatasetError
 from seqnet.data.bags import Positions, is_bag, match_positions, read_positions
@@ -58,3 +60,33 @@ def test_match_positions_nearest_in_time_within_the_tolerance():
     with pytest.raises(DatasetError, match="4 of 5 images of q have no position message within 0.3 s \\(first: "
                                            "image 1, timestamp 400000000, 0.400 s from the nearest\\)"):
         match_positions(stamps, pos, 0.3, "q")
+
+
+def _bag_bytes() -> dict[str, bytes]:
+    import tempfile
+    from pathlib import Path
+
+    fixes = [(63.43 + 1e-4 * j, 10.39, 0) for j in range(4)]
+    with tempfile.TemporaryDirectory() as d:
+        out = {".bag": write_bag(Path(d) / "a.bag", IMAGE, fixes=fixes).read_bytes()}
+        for kind, suffix in (("mcap", ".mcap"), ("ros2", ".db3")):
+            out[suffix] = (write_bag(Path(d) / kind, IMAGE, kind, fixes=fixes) / f"{kind}{suffix}").read_bytes()
+    return out
+
+
+BAGS = _bag_bytes()
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_fuzzed_bags_give_positions_or_one_error(tmp_path_factory, data):
+    """A damaged ROS 1 bag, MCAP or sqlite3 file: while it opens and while its messages are read (a chunk or a
+    message definition damaged past the index) only positions or one DatasetError come out."""
+    suffix = data.draw(st.sampled_from(sorted(BAGS)))
+    f = tmp_path_factory.mktemp("bag") / f"x{suffix}"
+    f.write_bytes(data.draw(mutated(BAGS[suffix], max_flips=6)))
+    try:
+        pos = read_positions(f, "/gps/fix")
+    except DatasetError:
+        return
+    assert len(pos.stamps) == len(pos.xy) and np.isfinite(pos.xy).all()

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import os
+
 import h5py
 import numpy as np
 import pytest
+from conftest import mutated
+from hypothesis import HealthCheck, given, settings
 
 from seqnet.cli import main
 from seqnet.core.errors import DatasetError
@@ -12,6 +16,7 @@ from seqnet.data.convert import (
     match_names,
     parse_utm_name,
     read_positions_csv,
+    read_seq_bounds,
     runs_to_bounds,
     summarize_dataset,
     traverse_from_csv,
@@ -201,3 +206,75 @@ def test_vpr_methods_evaluation_descriptors_get_their_names_from_the_folders(tmp
                  "--ref-names", q_folder, "--query-desc", str(logs / "queries_descriptors.npy"),
                  "--query-names", q_folder, "--radius", "25", "--out", str(tmp_path / "x")]) == 2
     assert "4 names for 6 descriptors" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("cell, match", [
+    ("1e400", r"line 2: position columns \['easting', 'northing'\] must be finite numbers within ±1e\+12, got "
+              r"\['1e400', '5'\]"),
+    ("9" * 5000, r"line 2: position columns .* must be finite numbers"),
+    ("nan", r"got \['nan', '5'\]"),
+    ("-inf", r"got \['-inf', '5'\]"),
+])
+def test_positions_csv_refuses_numbers_out_of_range(tmp_path, cell, match):
+    with pytest.raises(DatasetError, match=match):
+        read_positions_csv(_write_csv(tmp_path / "p.csv", [["a.png", cell, 5]]))
+
+
+def test_positions_csv_hostile_text(tmp_path):
+    """Non-UTF-8, a NUL in a name, a line longer than the csv module allows, a FIFO: one line each; a name with
+    an escape sequence is kept but shown escaped."""
+    f = tmp_path / "p.csv"
+    f.write_bytes(b"name,easting,northing\n\xff.png,1,5\n")
+    with pytest.raises(DatasetError, match=r"not UTF-8 text \(invalid start byte at byte 22\)"):
+        read_positions_csv(f)
+    with pytest.raises(DatasetError, match=r"name 0 'a\\x00.png' contains a NUL character"):
+        read_positions_csv(_write_csv(f, [["a\x00.png", 1, 5]]))
+    with pytest.raises(DatasetError, match=r"not a valid CSV file \(field larger than field limit"):
+        read_positions_csv(_write_csv(f, [["a" * 1_000_000, 1, 5]]))
+    names, _, _, _ = read_positions_csv(_write_csv(f, [["a\x1b[2J.png", 1, 5]]))
+    assert names == ["a\x1b[2J.png"]
+    with pytest.raises(DatasetError, match=r"image name 'b\\x1b\[2J.png' matches two"):
+        match_names(["b\x1b[2J.png"], ["x/b\x1b[2J.png", "y/b\x1b[2J.png"], "w")
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
+    for read in (read_positions_csv, read_seq_bounds):
+        with pytest.raises(DatasetError, match=r"fifo.csv is a FIFO \(named pipe\), not a regular file"):
+            read(fifo)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("0 " + "9" * 400, r"expected one 'start end' row of integers per image \(could not convert"),
+    ("0 9223372036854775808", r"could not convert string '9223372036854775808' to int64"),
+    ("0 nan", r"could not convert string 'nan'"),
+    ("0 1 2\n0 1", r"the number of columns changed"),
+])
+def test_seq_bounds_refuses_what_is_not_int64(tmp_path, text, match):
+    (tmp_path / "b.txt").write_text(text + "\n")
+    with pytest.raises(DatasetError, match=match):
+        read_seq_bounds(tmp_path / "b.txt")
+
+
+CSV_VALID = b"name,easting,northing,sequence\na.png,1.5,2.5,s1\nb.png,3,4,s1\nc.png,5,6,s2\n"
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(data=mutated(CSV_VALID))
+def test_fuzzed_positions_csv_gives_rows_or_one_error(tmp_path, data):
+    (tmp_path / "p.csv").write_bytes(data)
+    try:
+        names, pos, _, bounds = read_positions_csv(tmp_path / "p.csv")
+    except DatasetError:
+        return
+    assert len(names) == len(pos) and (np.abs(pos) <= 1e12).all()
+    assert all("\x00" not in n for n in names)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@given(data=mutated(b"0 2\n0 2\n2 3\n"))
+def test_fuzzed_seq_bounds_give_bounds_or_one_error(tmp_path, data):
+    (tmp_path / "b.txt").write_bytes(data)
+    try:
+        b = read_seq_bounds(tmp_path / "b.txt")
+    except DatasetError:
+        return
+    assert b.dtype == np.int64 and b.shape[1] == 2

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import utm
+from conftest import mutated
+from hypothesis import HealthCheck, given, settings
 from PIL import Image
 
 from seqnet.cli import main
 from seqnet.cli.dataset_foreign import POSITIONS_FORMATS as CLI_FORMATS
-from seqnet.core.errors import DatasetError
+from seqnet.core.errors import DatasetError, SeqnetError
 from seqnet.data.gps import (
     POSITIONS_FORMATS,
     kitti_image_times,
@@ -161,3 +165,90 @@ def test_from_images_with_robotcar_ins(tmp_path, capsys):
 
 def test_the_cli_offers_the_formats_of_the_table():
     assert CLI_FORMATS == POSITIONS_FORMATS
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda t: t.replace(str(T0 + 40000), "9" * 400, 1), r"line 4: timestamp '9{57}'\.\.\. is not an integer"),
+    (lambda t: t.replace(str(T0 + 40000), "²", 1), r"line 4: timestamp '²' is not an integer"),
+    (lambda t: t.replace(",620003.000,", ",nan,"), r"line 5: easting/northing must be numbers \(finite\), got "
+                                                  r"'nan', '5735000.0'"),
+    (lambda t: t.replace(",620003.000,", ",1e999,"), r"line 5: easting/northing must be numbers \(finite\), "
+                                                    r"got .1e999."),
+    (lambda t: t.replace(",30U,", ",30U\x1b]0;owned\x07,", 1), r"line 2: utm_zone '30U\\x1b\]0;owned\\x07' is not a "
+                                                            r"UTM zone"),
+])
+def test_hostile_ins_values_are_refused_by_line(tmp_path, edit, match):
+    """400-digit timestamps (an OverflowError before), digits that int() refuses, NaN / inf positions and a UTM
+    zone holding terminal escapes: one line each, the value shown escaped."""
+    f = write_ins(tmp_path / "ins.csv")
+    f.write_text(edit(f.read_text()))
+    with pytest.raises(DatasetError, match=match):
+        read_robotcar_ins(f)
+
+
+def test_hostile_image_names_for_robotcar(tmp_path):
+    write_ins(tmp_path / "ins.csv")
+    for name in ("9" * 400 + ".png", "²³.png", "-5.png"):
+        with pytest.raises(DatasetError, match=r"is not an integer \(microseconds"):
+            log_positions("robotcar-ins", tmp_path / "ins.csv", [name])
+
+
+def test_kitti_hostile_files_and_names(tmp_path):
+    """A data file named ²: an error, not int()'s ValueError; a FIFO among the oxts files: refused, not waited
+    on; an image name leading out of the drive folder: its timestamps.txt is never read."""
+    drive = write_kitti_drive(tmp_path / "d")
+    (drive / "oxts" / "data" / "².txt").write_text((drive / "oxts" / "data" / "0000000000.txt").read_text())
+    (drive / "oxts" / "data" / "0000000005.txt").unlink()
+    with pytest.raises(DatasetError, match=r": ²\.txt is not a frame number"):
+        read_kitti_oxts(drive)
+    (drive / "oxts" / "data" / "².txt").unlink()
+    os.mkfifo(drive / "oxts" / "data" / "0000000005.txt")
+    with pytest.raises(DatasetError, match=r"0000000005\.txt is a FIFO \(named pipe\), not a regular file"):
+        read_kitti_oxts(drive)
+    outside = write_kitti_drive(tmp_path / "elsewhere")
+    assert kitti_image_times([outside / "image_02" / "data" / "0000000001.png"])[0] > 0  # a file the user names
+    inner = write_kitti_drive(tmp_path / "drive")
+    for name in ("../elsewhere/image_02/data/0000000001.png", "0000000001.png"):
+        with pytest.raises(DatasetError, match=r"KITTI timestamps: '\.\./.*timestamps\.txt' leads outside"):
+            log_positions("kitti-oxts", inner / "oxts", ["image_02/data/0000000000.png", name])
+
+
+def test_kitti_timestamps_fifo_is_refused(tmp_path):
+    drive = write_kitti_drive(tmp_path / "d")
+    (drive / "image_02" / "timestamps.txt").unlink()
+    os.mkfifo(drive / "image_02" / "timestamps.txt")
+    with pytest.raises(DatasetError, match=r"is a FIFO"):
+        log_positions("kitti-oxts", drive / "oxts", ["image_02/data/0000000000.png"])
+
+
+INS_VALID = (INS + "\n" + "\n".join(f"{T0 + i * 20000},G,51.76,-1.26,110.5,5735000.0,{620000 + i}.0,-1,30U,0,0,0,0,0,0"
+                                    for i in range(4)) + "\n").encode()
+OXTS_VALID = (" ".join(["49.011", "8.4229", *["0.5"] * 28]) + "\n").encode()
+STAMPS_VALID = b"2011-09-26 13:02:25.594360375\n2011-09-26 13:02:25.694360375\n"
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@given(data=mutated(INS_VALID))
+def test_fuzzed_ins_gives_samples_or_one_error(tmp_path, data):
+    f = tmp_path / "ins.csv"
+    f.write_bytes(data)
+    try:
+        log = read_robotcar_ins(f)
+    except SeqnetError:
+        return
+    assert np.isfinite(log.xy).all() and np.isfinite(log.times).all()
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck))
+@given(oxts=mutated(OXTS_VALID), stamps=mutated(STAMPS_VALID))
+def test_fuzzed_kitti_drive_gives_samples_or_one_error(tmp_path, oxts, stamps):
+    d = tmp_path / "oxts"
+    (d / "data").mkdir(parents=True, exist_ok=True)
+    (d / "data" / "0000000000.txt").write_bytes(oxts)
+    (d / "data" / "0000000001.txt").write_bytes(OXTS_VALID)
+    (d / "timestamps.txt").write_bytes(stamps)
+    try:
+        log = read_kitti_oxts(d)
+    except SeqnetError:
+        return
+    assert np.isfinite(log.xy).all() and np.isfinite(log.times).all()

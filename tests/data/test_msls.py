@@ -5,6 +5,9 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
+from conftest import mutated
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from seqnet.cli import main
 from seqnet.core.errors import ConfigError, DatasetError
@@ -145,3 +148,46 @@ def test_test_city_and_unknown_city_are_refused(tmp_path, capsys):
         dataset_from_msls(tmp_path, ["a", "b", "c"], ["x.npy", "y.npy"], ["y.npy"])
     with pytest.raises(ConfigError, match="'cph' is given twice"):
         expand_cities(["copenhagen", "cph"])
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda t: t.replace("dbwXk_1,sA,1", "dbwXk_1,sA,1" + "0" * 30), r"line 3: frame_number must be int numbers "
+                                                                      r"\(in 0\.\.\d+\), got \['10{30}'\]"),
+    (lambda t: t.replace("dbwXk_1,sA,1", "dbwXk_1,sA,1e30"), r"line 3: frame_number must be int numbers"),
+    (lambda t: t.replace("dbwXk_1,sA,1", "dbwXk_1,sA,-9223372036854775808"), r"line 3: frame_number must be int"),
+    (lambda t: t.replace("dbwXk_1", "dbwXk_1\x1b[2J"), r"line 3: key 'dbwXk_1\\x1b\[2J' is not an image key"),
+    (lambda t: t.replace("dbwXk_1", "../../etc/x"), r"line 3: key '\.\./\.\./etc/x' is not an image key"),
+    (lambda t: t.replace("dbwXk_1", "db\x00"), r"line 3: key 'db\\x00' is not an image key"),
+])
+def test_hostile_seq_info_is_refused_with_the_line(tmp_path, edit, match):
+    """A frame number beyond int64 (an OverflowError before) or one whose difference wraps around, and keys that
+    would be written into image names raw (escapes, '/', NUL): one line naming the line."""
+    base, _, _ = city(tmp_path, "melbourne")
+    f = base / "database" / "seq_info.csv"
+    f.write_text(edit(f.read_text()))
+    with pytest.raises(DatasetError, match=match):
+        read_msls_side(base / "database")
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "1e300"])
+def test_positions_out_of_range_are_refused(tmp_path, value):
+    base, _, _ = city(tmp_path, "melbourne")
+    f = base / "database" / "postprocessed.csv"
+    f.write_text(f.read_text().replace("320002.00", value))
+    with pytest.raises(DatasetError, match=rf"line 3: easting/northing must be float numbers \(finite, within "
+                                           rf"±1e\+12\), got \['{value}', '5813000.00'\]"):
+        read_msls_side(base / "database")
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_fuzzed_msls_side_gives_a_side_or_one_error(tmp_path_factory, data):
+    base, _, _ = city(tmp_path_factory.mktemp("msls"), "melbourne")
+    name = data.draw(st.sampled_from(["seq_info.csv", "postprocessed.csv"]))
+    f = base / "database" / name
+    f.write_bytes(data.draw(mutated(f.read_bytes())))
+    try:
+        side = read_msls_side(base / "database")
+    except DatasetError:
+        return
+    assert np.isfinite(side.positions).all() and len(side.keys) == len(side.seq_bounds)

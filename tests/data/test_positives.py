@@ -8,6 +8,7 @@ import pickle
 
 import numpy as np
 import pytest
+from conftest import mutated
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -248,3 +249,39 @@ def test_soft_positives_are_saved_with_the_dataset(tmp_path, synth_dataset):
     ds = load_dataset(save_dataset(dataclasses.replace(synth_dataset, positives=pos), tmp_path / "ds"))
     assert ds.positives.of(3).tolist() == [3] and ds.positives.soft.of(3).tolist() == [3, 4]
     assert ds.split("test").positives.soft is not None
+
+
+@pytest.mark.parametrize("text, match", [
+    ("50000000,1\n", r"query index 50000000 is beyond what 1 pairs can describe \(at most 1000016 queries"),
+    ("1000000000000,1\n", r"query index 1000000000000 is beyond what 1 pairs"),
+    ("1,1\n0,4611686018427387905\n", r"line 2: reference index 4611686018427387905 is too large"),
+    ("0," + "9" * 30 + "\n", r"line 1: expected 'query,reference' \(two integers\)"),
+    ("0,1\n²,1\n", r"line 2: expected 'query,reference' \(two integers\), got '²,1'"),
+    ("0,-2\n", r"reference index -2 is negative"),
+])
+def test_csv_query_indices_are_bounded_by_the_file(tmp_path, text, match):
+    """One line ``50000000,1`` built 5e7 empty lists (and 10**12 never finished): the number of queries a CSV may
+    imply is bounded by its number of pairs, and every index is checked before anything is allocated."""
+    (tmp_path / "p.csv").write_text(text)
+    with pytest.raises(DatasetError, match=match):
+        read_positives(tmp_path / "p.csv")
+
+
+def test_csv_pairs_build_the_csr_at_once(tmp_path):
+    (tmp_path / "p.csv").write_text("3,7\n0,2\n3,7\n0,1\n5,-1\n")
+    p = read_positives(tmp_path / "p.csv")
+    assert p.indptr.tolist() == [0, 2, 2, 2, 3, 3, 3] and p.indices.tolist() == [1, 2, 7]
+    big = Positives.from_pairs(np.array([0, 1]), np.array([2**62, 3]), 2)  # no product of indices overflows
+    assert big.indices.tolist() == [2**62, 3]
+
+
+@settings(max_examples=200, deadline=None)
+@given(data=mutated(b"query,reference\n0,1\n0,2\n2,5\n3,-1\n"))
+def test_fuzzed_csv_gives_positives_or_one_error(tmp_path_factory, data):
+    f = tmp_path_factory.mktemp("p") / "p.csv"
+    f.write_bytes(data)
+    try:
+        p = read_positives(f)
+    except DatasetError:
+        return
+    assert len(p) <= 16 * 8 + 10**6 and (p.indices >= 0).all()

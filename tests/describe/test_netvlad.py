@@ -6,6 +6,9 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from conftest import mutated
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from seqnet.core.errors import CheckpointError, ConfigError
 from seqnet.describe.encoders import VGG16Encoder
@@ -157,3 +160,113 @@ def test_tags_arch_table_and_safe_loading(tmp_path):
     torch.save({"state_dict": state, "extra": NotAllowed()}, tmp_path / "code.pth.tar")
     with pytest.raises(CheckpointError, match="cannot read NetVLAD checkpoint .*code.pth.tar"):
         load_netvlad(tmp_path / "code.pth.tar")
+
+
+def _set(key, value):
+    return lambda state, top: state.__setitem__(key, value)
+
+
+def _top(key, value):
+    return lambda state, top: top.__setitem__(key, value)
+
+
+def _widen(state, top):  # two 1-D "conv weights" would make VGG-16 build a 10**6 x 10**6 conv (36 TB)
+    state["encoder.12.weight"] = torch.zeros(1_000_000)
+    state["encoder.14.weight"] = torch.zeros(1_000_000)
+
+
+def _wide_conv(state, top):  # 4-D but not what the widths call for
+    state["encoder.12.weight"] = torch.zeros(100_000, 1, 1, 1)
+
+
+@pytest.mark.parametrize("edit, match", [
+    (_set("pool.centroids", torch.zeros(64)), r"pool.centroids has shape \(64,\), expected \[K, C\]"),
+    (_set("pool.centroids", [1.0, 2.0]), r"'state_dict' must map parameter names to tensors; 'pool.centroids' maps "
+                                         r"to list"),
+    (_set("pool.centroids", torch.zeros(0, 16)), r"pool.centroids' K \(clusters\) must be an integer in 1\.\.1048576"),
+    (_set("pool.conv.weight", torch.zeros(3, 16, 1, 1)), r"pool.conv.weight has shape \(3, 16, 1, 1\), expected "
+                                                        r"\[4, 16, 1, 1\] \(NetVLAD of 4 clusters x 16-D\)"),
+    (_set("pool.extra", torch.zeros(1)), r"pool.extra is not a weight of NetVLAD"),
+    (_set(5, torch.zeros(1)), r"'5' maps to Tensor"),
+    (_top("arch", ["vgg16"]), r"unknown encoder arch \"\['vgg16'\]\""),
+    (_top("arch", {"x": 1}), r"unknown encoder arch"),
+    (_widen, r"encoder.14.weight has shape \(1000000,\), expected a conv weight \[out, in, 3, 3\]"),
+    (_wide_conv, r"encoder.12.weight has shape \(100000, 1, 1, 1\), expected \[8, 8, 3, 3\] \(VGG-16 of widths"),
+    (_set("WPCA.0.weight", torch.zeros(64)), r"WPCA.0.weight has shape \(64,\), expected \[P, 64, 1, 1\]"),
+    (_set("WPCA.0.bias", torch.zeros(9)), r"WPCA.0.bias has shape \(9,\), expected \[8\]"),
+])
+def test_hostile_checkpoint_is_one_checkpoint_error(tmp_path, edit, match):
+    """1-D or non-tensor centroids (ValueError / AttributeError before), an arch that is a list (TypeError),
+    and shapes that would build layers larger than the file (a 36 TB VGG conv): every shape is checked in
+    range and against the stored tensors before any layer is built."""
+    state, top = make_checkpoint(tmp_path / "h.pth.tar"), {}
+    edit(state, top)
+    torch.save({"state_dict": state, **top}, tmp_path / "h.pth.tar")
+    with pytest.raises(CheckpointError, match=match):
+        load_netvlad(tmp_path / "h.pth.tar")
+
+
+@pytest.mark.parametrize("layer", [[1], True, "99", 3.5, "head; rm -rf"])
+def test_lite_layer_from_a_checkpoint_is_validated(tmp_path, layer):
+    from seqnet.describe.encoders import EfficientNetLite
+    from seqnet.describe.netvlad import NetVLADModel
+
+    model = NetVLADModel(EfficientNetLite(10, pretrained=False), NetVLAD(4, 112), arch="efficientnet-lite0")
+    path = save_netvlad(model, tmp_path / "e.pth.tar")
+    ckpt = torch.load(path, weights_only=True)
+    ckpt["layer"] = layer
+    torch.save(ckpt, path)
+    with pytest.raises(CheckpointError, match=r"the checkpoint's layer: unknown efficientnet-lite0 layer"):
+        load_netvlad(path)
+    ckpt["layer"] = 9  # a valid block, but the weights are block 10's
+    torch.save(ckpt, path)
+    with pytest.raises(CheckpointError, match=r"encoder.blocks.10.* is not a weight of efficientnet-lite0 cut at 9"):
+        load_netvlad(path)
+
+
+def test_stored_image_size_is_bounded(tmp_path):
+    from seqnet.describe.netvlad import checkpoint_image_size
+
+    state = make_checkpoint(tmp_path / "s.pth.tar")
+    for size, expect in (([640, 480], (640, 480)), ([10**9, 10**9], None), ([True, 2], None), ("640x480", None)):
+        torch.save({"state_dict": state, "image_size": size}, tmp_path / "s.pth.tar")
+        assert checkpoint_image_size(tmp_path / "s.pth.tar") == expect
+
+
+@pytest.mark.parametrize("tag", ['{"provenance_fit": "abc", "settings": ["method", "netvlad"]}',
+                                 '{"provenance_fit": ["abc"], "settings": {}}', '[1, 2]', '"x"', "{" * 100_000])
+def test_a_reused_state_tag_of_the_wrong_shape_is_not_reused(tmp_path, tag):
+    """The tag of a reused NetVLAD state is read from its file: ``settings`` a list was an AttributeError."""
+    from seqnet.describe import DescribeConfig
+    from seqnet.describe.encoders import EfficientNetLite
+    from seqnet.describe.netvlad import NetVLADModel
+    from seqnet.describe.state import reused_fit
+
+    model = NetVLADModel(EfficientNetLite(10, pretrained=False), NetVLAD(4, 112), arch="efficientnet-lite0")
+    path = save_netvlad(model, tmp_path / "e.pth.tar", tag=tag)
+    conf = DescribeConfig(method="netvlad", checkpoint=str(path)).resolved()
+    assert reused_fit(conf) is None
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_fuzzed_checkpoint_loads_or_is_one_error(tmp_path_factory, data):
+    f = tmp_path_factory.mktemp("ck") / "f.pth.tar"
+    f.write_bytes(data.draw(mutated(FUZZ_CHECKPOINT, max_flips=4)))
+    try:
+        model = load_netvlad(f)
+    except CheckpointError:
+        return
+    assert model.out_dim in (8, 64)
+
+
+def _fuzz_checkpoint() -> bytes:
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        make_checkpoint(Path(d) / "c.pth.tar")
+        return (Path(d) / "c.pth.tar").read_bytes()
+
+
+FUZZ_CHECKPOINT = _fuzz_checkpoint()

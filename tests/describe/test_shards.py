@@ -8,9 +8,11 @@ import json
 import h5py
 import pytest
 from conftest import image_folder
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from seqnet.cli import main as cli_main
-from seqnet.core.errors import ConfigError
+from seqnet.core.errors import ConfigError, DatasetError
 from seqnet.core.provenance import ProvenanceError, sidecar
 from seqnet.describe import DescribeConfig, Shard, main, merge_shards, parse_shard
 from seqnet.describe.shards import env_shard, resolve_shard
@@ -130,3 +132,65 @@ def test_shard_ranges_tile_the_list_on_batch_boundaries():
         ranges = [Shard(k, count).frames(n, batch) for k in range(count)]
         assert ranges[0][0] == 0 and ranges[-1][1] == n
         assert all(a[1] == b[0] and a[1] % batch == 0 for a, b in zip(ranges, ranges[1:], strict=False))
+
+
+@pytest.fixture
+def npy_shards(big_folder, tmp_path):
+    """Shards 0/2 and 1/2 of ``big_folder`` as ``.npy`` outputs (their records in JSON sidecars)."""
+    out = [tmp_path / f"n{k}.npy" for k in range(2)]
+    for k, o in enumerate(out):
+        main(DescribeConfig(batch_size=4), big_folder, o, shard=Shard(k, 2))
+    return out
+
+
+def edit_record(path, **fields):
+    """Change fields of the shard record in ``path``'s provenance sidecar (as a hostile file would)."""
+    record = json.loads(sidecar(path).read_text())
+    record["shard"].update(fields)
+    sidecar(path).write_text(json.dumps(record))
+
+
+@pytest.mark.parametrize("fields, msg", [
+    ({"count": 10**12}, r"shard\(s\) 2/1000000000000, 3/1000000000000, .*, \.\.\. missing"),
+    ({"count": "x"}, r"'shard' record's count must be an integer in 1\.\.\d+, got 'x'"),
+    ({"index": [0]}, r"'shard' record's index must be an integer in 0\.\.1, got \[0\]"),
+    ({"frames": [1, 2, 3]}, r"'shard' record's frames must be \[first, end\], got \[1, 2, 3\]"),
+    ({"frames": [8, 4]}, r"frames\[1\] must be an integer in 9\.\.23, got 4"),
+    ({"images": 2.5}, r"images must be an integer in 1\.\.\d+, got 2\.5"),
+    ({"batch_size": None}, r"batch_size must be an integer"),
+    ({"list_sha1": {"a": 1}}, r"list_sha1 must be a hexadecimal hash"),
+])
+def test_merge_checks_every_field_of_a_shard_record(npy_shards, tmp_path, capsys, fields, msg):
+    """The shard record is read from a file: a count of 10**12 must not loop over range(count), and a field of
+    the wrong type is one line naming it, never a raw TypeError."""
+    edit_record(npy_shards[0], **fields)
+    if "count" in fields:  # both shards agree on the count, so it is the count that is checked
+        edit_record(npy_shards[1], **fields)
+    with pytest.raises((ConfigError, DatasetError), match=msg):
+        merge_shards(npy_shards, tmp_path / "m.npy")
+    assert describe("merge", *npy_shards, "--out", tmp_path / "m.npy") == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "internal error" not in err
+
+
+JSON_VALUES = st.recursive(st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=8),
+                           lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=4), inner,
+                                                                                        max_size=3), max_leaves=8)
+RECORD = {"index": 0, "count": 2, "frames": [0, 12], "images": 23, "batch_size": 4, "list_sha1": "0123abcd"}
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.data())
+def test_fuzzed_shard_records_are_checked_or_refused(data):
+    from pathlib import Path
+
+    from seqnet.describe.merge import shard_record
+
+    record = dict(RECORD)
+    for key in data.draw(st.lists(st.sampled_from([*RECORD, "extra"]), min_size=1, max_size=3)):
+        record[key] = data.draw(JSON_VALUES)
+    try:
+        out = shard_record(record, Path("s.npy"))
+    except DatasetError:
+        return
+    assert 0 <= out["index"] < out["count"] and 0 <= out["frames"][0] < out["frames"][1] <= out["images"]

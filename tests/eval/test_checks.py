@@ -8,6 +8,8 @@ import json
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from seqnet.core.errors import ConfigError
 from seqnet.data.io import save_dataset
@@ -93,3 +95,48 @@ def test_cli_eval_and_index_build_record_the_trained_length(s10, tmp_path, capsy
                      "--seq-len", "3", "--methods", "seqnet", "--device", "cpu", "--out", str(tmp_path / "ev3")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "shorter than its convolution width w=5" in err[0]
+
+
+@pytest.mark.parametrize("dataset_path, config", [
+    ("ds\x00/x", {"train_split": "train"}),
+    ("DATASET", {"train_split": ["train"]}),
+    ("DATASET", {"train_split": {"query": [0, 5]}}),
+    (["DATASET"], {"train_split": "train"}),
+    ("DATASET", {"train_split": "x" * 10_000}),
+    ("DATASET", {"train_split": 3}),
+])
+def test_an_unusable_training_record_is_ignored(tmp_path, caplog, dataset_path, config):
+    """``dataset_path`` and ``train_split`` come from a checkpoint file: a NUL byte (ValueError from resolve) or a
+    list split (TypeError in a dict lookup) crashed the leakage check; such a record is now ignored, said at
+    debug level."""
+    from seqnet.eval.checks import leakage
+    from seqnet.sequence.checkpoints import load_model
+
+    ds = make_synthetic(places=150, dim=8, seed=0)
+    ds_dir = save_dataset(ds, tmp_path / "ds")
+    model = SeqNet(8, 8, 3, 2)
+    model.provenance = ds.reference.provenance
+    path = save_checkpoint(tmp_path / "m.pt", model, config=config,
+                           dataset_path=str(ds_dir) if dataset_path == "DATASET" else dataset_path)
+    loaded = load_model(path)
+    with caplog.at_level("DEBUG", logger="seqnet"):
+        assert leakage({"seqnet": loaded}, ds_dir, ds, "all") == []
+    assert any("ignoring the training record" in r.getMessage() for r in caplog.records)
+    good = save_checkpoint(tmp_path / "g.pt", model, config={"train_split": "train"}, dataset_path=str(ds_dir))
+    assert len(leakage({"seqnet": load_model(good)}, ds_dir, ds, "all")) == 1
+
+
+@settings(max_examples=150, deadline=None)
+@given(record=st.dictionaries(st.sampled_from(["dataset", "split", "checkpoint"]),
+                              st.none() | st.integers() | st.text(max_size=12) | st.lists(st.text(max_size=3)),
+                              max_size=3))
+def test_fuzzed_training_records_never_crash_the_check(record):
+    from types import SimpleNamespace
+
+    from seqnet.eval.checks import leakage
+
+    ds = FUZZ_DS
+    assert isinstance(leakage({"seqnet": SimpleNamespace(trained_on=record)}, "/nonexistent", ds, "all"), list)
+
+
+FUZZ_DS = make_synthetic(places=100, dim=8, seed=0)

@@ -1,9 +1,12 @@
 """ROS bags through ``rosbags`` (the optional extra ``seqnet[ros]``): opening, topics, and positions.
 
 A *bag* is a ROS 1 ``.bag`` file or a ROS 2 bag directory (``metadata.yaml`` beside its ``.db3`` (sqlite3) or
-``.mcap`` files; the ``.db3`` / ``.mcap`` file itself names its directory) — what ``rosbags``' ``AnyReader``
-reads, without a ROS install. Every message is placed by its bag timestamp (ns, the time it was recorded),
-which orders the frames and matches positions to images.
+``.mcap`` files; the ``.db3`` / ``.mcap`` file itself names its directory, and one without ``metadata.yaml``
+beside it is read alone) — what ``rosbags``' ``AnyReader`` reads, without a ROS install. Its files are
+checked before ``rosbags`` opens them (:mod:`seqnet.data.bagfiles`: no FIFO, ``metadata.yaml`` bounded and
+typed, no bag compressed file by file), and whatever ``rosbags`` raises on a damaged bag, when it opens or
+while messages are read, is one :class:`DatasetError` naming the bag. Every message is placed by its bag
+timestamp (ns, the time it was recorded), which orders the frames and matches positions to images.
 
 Positions come from a topic of one of :data:`POSITION_TYPES`: ``sensor_msgs/NavSatFix`` (latitude / longitude
 to UTM metres with ``utm``, in the zone of the first fix; messages without a fix are left out) or
@@ -22,6 +25,8 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.utils import logger
+from ..security.text import shown
+from .bagfiles import check_bag
 
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 ROS_HINT = "hint: pip install 'seqnet[ros]' (the pure-Python package rosbags)"
@@ -34,56 +39,54 @@ def is_bag(path: str | Path) -> bool:
     return (p.is_file() and p.suffix.lower() in BAG_SUFFIXES) or (p.is_dir() and (p / "metadata.yaml").is_file())
 
 
-def bag_root(path: str | Path) -> Path:
-    """What ``AnyReader`` opens: the ``.bag`` file, or the ROS 2 bag directory (of a ``.db3`` / ``.mcap`` file)."""
-    p = Path(path)
-    if p.suffix.lower() == ".bag" or p.is_dir():
-        return p
-    if (p.parent / "metadata.yaml").is_file():
-        return p.parent
-    raise DatasetError(f"{p} is a ROS 2 storage file without the metadata.yaml of its bag directory beside it; "
-                       "rosbags reads ROS 2 bags as directories (hint: pass the bag directory, or recreate its "
-                       f"metadata with `ros2 bag reindex {p.parent}`)")
-
-
 def open_bag(path: str | Path) -> Any:
     """An open ``rosbags.highlevel.AnyReader`` of the bag ``path`` (close it with ``.close()``).
 
     Bags without embedded message definitions (ROS 2 before Iron) are read with the ROS 2 Humble types."""
     try:
-        from rosbags.highlevel import AnyReader, AnyReaderError
-        from rosbags.rosbag1 import ReaderError as Reader1Error
-        from rosbags.rosbag2 import ReaderError as Reader2Error
+        from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
     except ImportError as err:
         raise ConfigError(f"reading ROS bags needs the package rosbags ({ROS_HINT})") from err
-    root = bag_root(path)
-    if not root.exists():
-        raise DatasetError(f"bag not found: {root}")
+    root = check_bag(path)
     try:
         reader = AnyReader([root], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
-    except (AnyReaderError, Reader1Error, Reader2Error, OSError, ValueError, KeyError) as e:
-        raise DatasetError(f"cannot read the bag {root} ({type(e).__name__}: {e}; rosbags reads ROS 1 .bag files "
-                           "and ROS 2 bag directories, sqlite3 or MCAP)") from e
+    except Exception as e:  # noqa: BLE001 - rosbags and sqlite / MCAP / lz4 / bz2 under it raise many kinds
+        raise DatasetError(f"cannot read the bag {root} ({_why(e)}; rosbags reads ROS 1 .bag files and ROS 2 bag "
+                           "directories or storage files, sqlite3 or MCAP)") from e
     return reader
+
+
+def _why(e: BaseException) -> str:
+    return f"{type(e).__name__}: {shown(' '.join(str(e).split()))[:200]}"
 
 
 def topic_list(reader: Any, types: Container[str] | None = None) -> str:
     """``/a (sensor_msgs/msg/Image, 12 messages), ...``: the topics of an open bag (those carrying one of
     ``types``, when given), for error messages."""
-    return ", ".join(f"{name} ({info.msgtype}, {info.msgcount} messages)" for name, info in reader.topics.items()
-                     if types is None or info.msgtype in types)
+    return ", ".join(f"{shown(name)[:120]} ({shown(info.msgtype)[:80]}, {info.msgcount} messages)"
+                     for name, info in topics(reader).items() if types is None or info.msgtype in types)
+
+
+def topics(reader: Any) -> dict[str, Any]:
+    """The topics of an open bag (``AnyReader.topics``); a damaged index (a topic without a name) is a
+    :class:`DatasetError`."""
+    try:
+        return dict(reader.topics)
+    except Exception as e:  # noqa: BLE001 - rosbags sorts and sums what the bag's index holds
+        raise DatasetError(f"cannot read the topics of the bag {getattr(reader, 'paths', ['?'])[0]} ({_why(e)}; "
+                           "is it damaged?)") from e
 
 
 def connections(reader: Any, topic: str, types: Mapping[str, Any], what: str, path: str | Path) -> list:
     """The connections of ``topic`` in an open bag, which must carry one of the message ``types``; else
     :class:`DatasetError` naming the bag's topics (a missing topic) or the type found and the valid ones."""
-    info = reader.topics.get(topic)
+    info = topics(reader).get(topic)
     if info is None:
         raise DatasetError(f"the bag {path} has no topic {topic!r}; its topics: {topic_list(reader) or 'none'}")
     if info.msgtype not in types:
-        raise DatasetError(f"topic {topic} of the bag {path} carries {info.msgtype}, not {what} "
+        raise DatasetError(f"topic {shown(topic)} of the bag {path} carries {shown(info.msgtype)[:80]}, not {what} "
                            f"({', '.join(types)})")
     if not info.msgcount:
         raise DatasetError(f"topic {topic} of the bag {path} has no messages")
@@ -91,9 +94,15 @@ def connections(reader: Any, topic: str, types: Mapping[str, Any], what: str, pa
 
 
 def messages(reader: Any, conns: list, start: int | None = None) -> Iterator[tuple[int, Any, str]]:
-    """``(timestamp ns, raw bytes, message type)`` of the connections ``conns``, in timestamp order (from ``start``)."""
-    for conn, stamp, raw in reader.messages(conns, start=start):
-        yield int(stamp), raw, conn.msgtype
+    """``(timestamp ns, raw bytes, message type)`` of the connections ``conns``, in timestamp order (from ``start``);
+    a bag damaged past its index (a chunk, a row, a record) is a :class:`DatasetError` where it is met."""
+    try:
+        for conn, stamp, raw in reader.messages(conns, start=start):
+            yield int(stamp), raw, conn.msgtype
+    except Exception as e:  # noqa: BLE001 - rosbags' errors and those of the libraries under it have no common base
+        where = getattr(reader, "paths", ["the bag"])[0]
+        raise DatasetError(f"cannot read the messages of the bag {where} ({_why(e)}; is it damaged or "
+                           "truncated?)") from e
 
 
 def deserialize(reader: Any, raw: bytes, msgtype: str, where: str) -> Any:
@@ -158,7 +167,14 @@ def read_positions(path: str | Path, topic: str) -> Positions:
             msgs.append(deserialize(reader, raw, msgtype, f"at {stamp} on {topic} of {path}"))
     finally:
         reader.close()
-    kept, xy, frame = POSITION_TYPES[conns[0].msgtype](msgs)
+    if not msgs:
+        raise DatasetError(f"topic {shown(topic)} of the bag {path} has no message that could be read (its index "
+                           "lists some: is the bag damaged?)")
+    try:  # the message definitions may come from the bag itself: a field may be missing or of another type
+        kept, xy, frame = POSITION_TYPES[conns[0].msgtype](msgs)
+    except (AttributeError, TypeError, ValueError, OverflowError) as e:
+        raise DatasetError(f"the {conns[0].msgtype} messages of {shown(topic)} in the bag {path} are not as ROS "
+                           f"defines them ({_why(e)})") from e
     if not kept.all():
         logger.warning("%s of %s: %d of %d position messages have no fix or a non-finite position; left out",
                        topic, path, int((~kept).sum()), len(kept))

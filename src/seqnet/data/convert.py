@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import DatasetError
+from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import check_same
 from ..core.utils import logger
 from .positives import Positives
@@ -34,6 +34,7 @@ EAST_COLUMNS = ("easting", "east", "utm_east", "utm_easting", "x")
 NORTH_COLUMNS = ("northing", "north", "utm_north", "utm_northing", "y")
 FRAME_COLUMNS = ("frame", "frame_number", "frame_id", "frame_index")
 SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
+POSITION_MAX = 1e12  # |easting|, |northing| (metres) or a frame number read from a file
 UTM_NAME = re.compile(r"@([-+]?\d+(?:\.\d*)?)@([-+]?\d+(?:\.\d*)?)@")
 
 
@@ -89,13 +90,13 @@ def utm_positions(names: list[str]) -> np.ndarray:
 def read_csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
     """The lower-cased header and the non-blank data rows ``(line number, fields)`` of a UTF-8 CSV file."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise DatasetError(f"CSV file not found: {p}")
-    text = read_text(p)
+    text = read_text(p, "CSV file")  # a FIFO or device is refused, never read
     try:
         rows = [(n, r) for n, r in enumerate(csv.reader(io.StringIO(text, newline="")), start=1)]
     except csv.Error as e:
-        raise DatasetError(f"{p}: not a valid CSV file ({e})") from e
+        raise DatasetError(f"{p}: not a valid CSV file ({' '.join(str(e).split())[:200]})") from e
     rows = [(n, r) for n, r in rows if r and any(c.strip() for c in r)]
     if len(rows) < 2:
         raise DatasetError(f"{p}: needs a header row and at least one data row")
@@ -130,9 +131,11 @@ def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np
     for i, (line, r) in enumerate(rows):
         try:
             pos[i] = [float(r[c]) for c in pos_cols]
-        except ValueError as err:
-            raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be numbers, "
-                               f"got {[r[c] for c in pos_cols]}") from err
+        except ValueError:
+            pos[i] = np.nan
+        if not (np.abs(pos[i]) <= POSITION_MAX).all():  # NaN too
+            raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
+                               f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}")
     bounds = runs_to_bounds([r[col["seq"]] for _, r in rows]) if "seq" in col else None
     return names, pos, ("metres" if "east" in col else "frames"), bounds
 
@@ -168,14 +171,15 @@ def runs_to_bounds(keys: list[str]) -> np.ndarray:
 def read_seq_bounds(path: str | Path, n: int | None = None) -> np.ndarray:
     """Sequence bounds file (one ``start end`` row per image, half-open) as ``[N, 2]`` int64."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise DatasetError(f"sequence bounds file not found: {p}")
-    try:
-        b = np.loadtxt(read_text(p).splitlines(), dtype=np.int64, ndmin=2)
-    except ValueError as e:
-        raise DatasetError(f"{p}: expected one 'start end' row of integers per image ({e})") from e
-    if b.size == 0:
+    rows = [ln for ln in read_text(p, "sequence bounds file").splitlines() if ln.split("#")[0].strip()]
+    if not rows:  # (loadtxt would warn, then return nothing)
         raise DatasetError(f"{p}: holds no sequence bounds (the file is empty)")
+    try:
+        b = np.loadtxt(rows, dtype=np.int64, ndmin=2)
+    except (ValueError, OverflowError) as e:
+        raise DatasetError(f"{p}: expected one 'start end' row of integers per image ({str(e)[:160]})") from e
     if b.shape[1] != 2:
         raise DatasetError(f"{p}: expected 2 columns (start end), got {b.shape[1]}")
     if n is not None and len(b) != n:
@@ -271,7 +275,6 @@ def assemble_dataset(
     check_same(ref.provenance, query.provenance, "the reference descriptors", "the query descriptors",
                allow_mismatch)
     mismatched = bool(ref.provenance and query.provenance and ref.provenance.get("id") != query.provenance.get("id"))
-    from ..core.errors import ConfigError
     from .presets import get_preset, preset_metadata, preset_splits
 
     meta: dict[str, Any] = {}
@@ -284,7 +287,7 @@ def assemble_dataset(
         if splits is None and p.get("splits"):
             splits = preset_splits(preset, len(ref), len(query))
     if radius is None and positives is not None:  # the radius only says "the same place" for the confidence
-        radius = positives_radius(positives, ref.positions)
+        radius = positives_radius(positives.check(len(query), len(ref)), ref.positions)
         logger.info("explicit positives and no --radius: radius %g (half the median span of a query's positives)",
                     radius)
     if radius is None:

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -26,11 +28,16 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from ..core.utils import logger
+from ..security.inputs import inside
+from ..security.limits import INDEX_MAX
+from ..security.text import shown
 from .convert import read_csv_rows
 from .readers import read_descriptor_file, read_provenance, read_text
 from .traverse import Traverse
 
 DEFAULT_MAX_GAP = 0.1  # seconds: RobotCar's INS logs at 50 Hz, KITTI's oxts at 10 Hz (synced) or 100 Hz
+DIGITS = re.compile(r"[0-9]{1,18}")  # a timestamp or frame number: ASCII digits, within int64 ("²".isdigit())
+UTM_ZONE = re.compile(r"[0-9]{1,2}[C-HJ-NP-Xc-hj-np-x]?")  # "30U": zone number and latitude band
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,10 +66,30 @@ def latlon_to_utm(lat: np.ndarray, lon: np.ndarray, where: str) -> tuple[np.ndar
 
 
 def _times_of(fields: list[str], what: str) -> float:
-    try:
-        return float(int(fields[0])) / 1e6
-    except ValueError as err:
-        raise DatasetError(f"{what}: timestamp {fields[0]!r} is not an integer (microseconds)") from err
+    text = fields[0].strip()
+    if not DIGITS.fullmatch(text) or int(text) > INDEX_MAX:
+        raise DatasetError(f"{what}: timestamp {_short(text)} is not an integer (microseconds, at most 18 digits)")
+    return int(text) / 1e6
+
+
+def _short(text: str) -> str:
+    """``repr(text)``, cut to 60 characters (a name or value read from a file, shown in a message)."""
+    return repr(text) if len(text) <= 60 else repr(text[:57]) + "..."
+
+
+def _zone(header: list[str], rows: list[tuple[int, list[str]]], p: Path) -> str:
+    """The one UTM zone of a RobotCar log's ``utm_zone`` column (``"?"`` without one)."""
+    if "utm_zone" not in header:
+        return "?"
+    col, zones = header.index("utm_zone"), {}
+    for line, r in rows:
+        z = r[col].strip()
+        if z not in zones and not UTM_ZONE.fullmatch(z):
+            raise DatasetError(f"{p}, line {line}: utm_zone {_short(z)} is not a UTM zone (e.g. 30U)")
+        zones.setdefault(z, line)
+    if len(zones) > 1:
+        raise DatasetError(f"{p}: samples in {len(zones)} UTM zones ({', '.join(sorted(zones))}); one drive, one zone")
+    return next(iter(zones), "?")
 
 
 def read_robotcar_ins(path: str | Path) -> Samples:
@@ -83,14 +110,14 @@ def read_robotcar_ins(path: str | Path) -> Samples:
         vals[i, 0] = _times_of([r[col[0]]], f"{p}, line {line}")
         try:
             vals[i, 1:] = [float(r[c]) for c in col[1:]]
-        except ValueError as err:
-            raise DatasetError(f"{p}, line {line}: {'/'.join(wanted[1:])} must be numbers, got "
-                               f"{[r[c] for c in col[1:]]}") from err
-    zones = sorted({r[header.index("utm_zone")].strip() for _, r in rows}) if "utm_zone" in header else []
-    if len(zones) > 1:
-        raise DatasetError(f"{p}: samples in {len(zones)} UTM zones ({', '.join(zones)}); one drive, one zone")
+        except ValueError:
+            vals[i, 1] = np.nan
+        if not np.isfinite(vals[i, 1:]).all():
+            raise DatasetError(f"{p}, line {line}: {'/'.join(wanted[1:])} must be numbers (finite), got "
+                               f"{', '.join(_short(r[c]) for c in col[1:])}")
+    zone = _zone(header, rows, p)
     if has_en:
-        xy, zone = vals[:, 1:], zones[0] if zones else "?"
+        xy = vals[:, 1:]
     else:
         xy, zone = latlon_to_utm(vals[:, 1], vals[:, 2], str(p))
     return _sorted(vals[:, 0], xy, zone)
@@ -105,25 +132,27 @@ def parse_kitti_time(text: str, where: str) -> float:
     """Seconds since the epoch (UTC) of a KITTI timestamp ``2011-09-26 13:02:25.594360375``."""
     stamp, _, frac = text.strip().partition(".")
     try:
+        if frac and not DIGITS.fullmatch(frac):
+            raise ValueError(frac)
         t = datetime.datetime.strptime(stamp, "%Y-%m-%d %H:%M:%S").replace(tzinfo=datetime.timezone.utc)
         return t.timestamp() + (float(f"0.{frac}") if frac else 0.0)
-    except ValueError as err:
-        raise DatasetError(f"{where}: {text.strip()!r} is not a KITTI timestamp (YYYY-MM-DD HH:MM:SS.fffffffff)"
-                           ) from err
+    except (ValueError, OverflowError) as err:
+        raise DatasetError(f"{where}: {_short(text.strip())} is not a KITTI timestamp (YYYY-MM-DD "
+                           "HH:MM:SS.fffffffff)") from err
 
 
 def read_kitti_times(path: Path) -> np.ndarray:
     """``[F]`` seconds of every line of a KITTI ``timestamps.txt`` (line i: frame i)."""
-    if not path.is_file():
+    if not path.exists():
         raise DatasetError(f"KITTI timestamps file not found: {path}")
-    lines = [ln for ln in read_text(path).split("\n") if ln.strip()]
+    lines = [ln for ln in read_text(path, "KITTI timestamps file").split("\n") if ln.strip()]
     return np.array([parse_kitti_time(ln, f"{path}, line {i + 1}") for i, ln in enumerate(lines)])
 
 
 def _frame(path: Path, n: int, what: str) -> int:
-    if not path.stem.isdigit() or int(path.stem) >= n:
-        raise DatasetError(f"{what}: {path.name} is not a frame number within the {n} lines of timestamps.txt "
-                           "(KITTI names frames 0000000000, 0000000001, ...)")
+    if not DIGITS.fullmatch(path.stem) or int(path.stem) >= n:
+        raise DatasetError(f"{what}: {shown(path.name)[:80]} is not a frame number within the {n} lines of "
+                           "timestamps.txt (KITTI names frames 0000000000, 0000000001, ...)")
     return int(path.stem)
 
 
@@ -140,30 +169,35 @@ def read_kitti_oxts(path: str | Path) -> Samples:
         raise DatasetError(f"{p}: {len(times)} lines in timestamps.txt for {len(files)} data/*.txt files "
                            "(one timestamp per oxts file)")
     ll = np.empty((len(files), 2), dtype=np.float64)
+    frames = np.array([_frame(f, len(times), str(p)) for f in files], dtype=np.int64)
+    if len(np.unique(frames)) != len(frames):
+        raise DatasetError(f"{p}: two data/*.txt files name one frame (KITTI names frames 0000000000, ...)")
     for i, f in enumerate(files):
-        vals = read_text(f).split()
+        vals = read_text(f, "KITTI oxts file").split()
         if len(vals) != 30:
             raise DatasetError(f"{f}: {len(vals)} values, a KITTI oxts file has 30 (lat lon alt roll pitch yaw ...)")
         try:
             ll[i] = float(vals[0]), float(vals[1])
         except ValueError as err:
-            raise DatasetError(f"{f}: lat/lon {vals[:2]} are not numbers") from err
-    frames = np.array([_frame(f, len(times), str(p)) for f in files])
+            raise DatasetError(f"{f}: lat/lon {[_short(v) for v in vals[:2]]} are not numbers") from err
     xy, zone = latlon_to_utm(ll[:, 0], ll[:, 1], str(p))
     return _sorted(times[frames], xy, zone)
 
 
-def robotcar_image_times(paths: list[Path]) -> np.ndarray:
-    """``[N]`` seconds from RobotCar image names (``<timestamp in microseconds>.png``)."""
-    return np.array([_times_of([p.stem], f"image {p.name}") for p in paths])
+def robotcar_image_times(paths: list[Path], root: Path | None = None) -> np.ndarray:
+    """``[N]`` seconds from RobotCar image names (``<timestamp in microseconds>.png``; no file is read)."""
+    return np.array([_times_of([p.stem], f"image {shown(p.name)[:80]}") for p in paths], dtype=np.float64)
 
 
-def kitti_image_times(paths: list[Path]) -> np.ndarray:
-    """``[N]`` seconds of KITTI images ``image_0x/data/<frame>.png`` from ``image_0x/timestamps.txt``."""
+def kitti_image_times(paths: list[Path], root: Path | None = None) -> np.ndarray:
+    """``[N]`` seconds of KITTI images ``image_0x/data/<frame>.png`` from ``image_0x/timestamps.txt``; with
+    ``root`` (image names read from a file, relative to it), that file must be inside ``root``."""
     cache: dict[Path, np.ndarray] = {}
     out = np.empty(len(paths), dtype=np.float64)
     for i, p in enumerate(paths):
         stamps = p.parent.parent / "timestamps.txt"
+        if root is not None and stamps not in cache:
+            stamps = inside(root, os.path.relpath(stamps, root), f"image {_short(str(p))}: its KITTI timestamps")
         if stamps not in cache:
             cache[stamps] = read_kitti_times(stamps)
         out[i] = cache[stamps][_frame(p, len(cache[stamps]), f"image {p}")]
@@ -175,7 +209,7 @@ class PositionSource:
     """A kind of position log: how to read it, how to time an image, and the folder image names start from."""
 
     read: Callable[[Path], Samples]
-    image_times: Callable[[list[Path]], np.ndarray]
+    image_times: Callable[[list[Path], Path | None], np.ndarray]  # (image files, root of names read from a file)
     image_root: Callable[[Path], Path]  # the folder descriptor names are relative to (without image paths)
     help: str
 
@@ -230,8 +264,11 @@ def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Pa
     the log's image root) from the position log ``source`` of kind ``fmt`` (:data:`POSITION_SOURCES`)."""
     src = POSITION_SOURCES[fmt]
     log = src.read(Path(source))
-    paths = paths if paths is not None else [src.image_root(Path(source)) / n for n in names]
-    idx = nearest_samples(src.image_times(paths), log, names, max_gap, f"{source} ({fmt})")
+    root = None
+    if paths is None:  # names read from a file: what is read for them stays in the log's image root
+        root = src.image_root(Path(source))
+        paths = [root / n for n in names]
+    idx = nearest_samples(src.image_times(paths, root), log, names, max_gap, f"{source} ({fmt})")
     logger.info("%s: %d images placed from %d %s samples (UTM zone %s)", source, len(names), len(log.times), fmt,
                 log.zone)
     return log.xy[idx], log.zone

@@ -27,7 +27,9 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import check_same
-from .convert import assemble_dataset, match_names, read_csv_rows, runs_to_bounds
+from ..security.limits import INDEX_MAX
+from ..security.text import shown
+from .convert import POSITION_MAX, assemble_dataset, match_names, read_csv_rows, runs_to_bounds
 from .presets import get_preset
 from .readers import folder_names, read_descriptor_file, read_provenance
 from .traverse import Dataset, Traverse
@@ -74,7 +76,8 @@ def find_city(root: str | Path, city: str) -> Path:
             return r / sub / city
     found = sorted(p.name for sub in SUBDIRS if (r / sub).is_dir() for p in (r / sub).iterdir() if p.is_dir())
     raise DatasetError(f"MSLS city {city!r} not found under {r} (looked in {', '.join(SUBDIRS)}; found: "
-                       f"{', '.join(found[:12]) or 'no city folders'}); hint: ROOT is the folder holding train_val/")
+                       f"{', '.join(shown(f) for f in found[:12]) or 'no city folders'}); hint: ROOT is the folder "
+                       "holding train_val/")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,6 +107,9 @@ def _keyed(path: Path, rows: list[tuple[int, list[str]]], col: int) -> dict[str,
     seen: dict[str, int] = {}
     for i, (line, r) in enumerate(rows):
         key = r[col].strip()
+        if not key or not key.isprintable() or any(c in key for c in "/\\") or key in (".", ".."):
+            raise DatasetError(f"{path}, line {line}: key {key[:80]!r} is not an image key (MSLS names images "
+                               "images/<key>.jpg: a printable name without '/')")
         if key in seen:
             raise DatasetError(f"{path}: key {key!r} on lines {rows[seen[key]][0]} and {line} (keys are unique)")
         seen[key] = i
@@ -111,14 +117,21 @@ def _keyed(path: Path, rows: list[tuple[int, list[str]]], col: int) -> dict[str,
 
 
 def _numbers(path: Path, rows: list, idx: list[int], cols: list[int], names: list[str], kind: type) -> np.ndarray:
+    """The columns ``cols`` of the rows ``idx`` as ``kind`` (float: finite, within ±:data:`POSITION_MAX`; int:
+    a frame number in 0..:data:`INDEX_MAX`); :class:`DatasetError` naming the line otherwise."""
     out = np.empty((len(idx), len(cols)), dtype=np.float64 if kind is float else np.int64)
+    lo, hi = (-POSITION_MAX, POSITION_MAX) if kind is float else (0, INDEX_MAX)
     for o, i in enumerate(idx):
         line, r = rows[i]
         try:
-            out[o] = [kind(r[c]) for c in cols]
-        except ValueError as err:
-            raise DatasetError(f"{path}, line {line}: {'/'.join(names)} must be {kind.__name__} numbers, got "
-                               f"{[r[c] for c in cols]}") from err
+            vals = [kind(r[c]) for c in cols]
+        except ValueError:
+            vals = [None]
+        if not all(v is not None and lo <= v <= hi for v in vals):  # NaN fails too
+            span = f"finite, within ±{hi:g}" if kind is float else f"in {lo}..{hi}"
+            raise DatasetError(f"{path}, line {line}: {'/'.join(names)} must be {kind.__name__} numbers ({span}), "
+                               f"got {[r[c][:40] for c in cols]}")
+        out[o] = vals
     return out
 
 

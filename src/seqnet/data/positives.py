@@ -14,6 +14,7 @@ hostile file cannot run code.
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -27,6 +28,8 @@ from ..security.jsonfile import parse_json
 from ..security.limits import INDEX_MAX
 from ..security.unpickle import load_npy_objects
 from .readers import read_text
+
+INTEGER = re.compile(r"-?[0-9]{1,19}")  # an index of a text file: ASCII digits ("²".isdigit() is True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,12 +79,15 @@ class Positives:
 
     @classmethod
     def from_pairs(cls, rows: np.ndarray, cols: np.ndarray, n_queries: int) -> Positives:
-        """From ``(query, reference)`` pairs ``rows [P]``, ``cols [P]`` (duplicates dropped)."""
-        key = np.unique(rows.astype(np.int64) * (int(cols.max(initial=0)) + 1) + cols)
-        width = int(cols.max(initial=0)) + 1
-        r, c = key // width, key % width
-        return cls(np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n_queries))]).astype(np.int64),
-                   c.astype(np.int64))
+        """From ``(query, reference)`` pairs ``rows [P]``, ``cols [P]`` (non-negative, ``rows < n_queries``;
+        duplicates dropped). Sorted pair by pair: no product of indices, so none can overflow."""
+        rows, cols = np.asarray(rows, dtype=np.int64).ravel(), np.asarray(cols, dtype=np.int64).ravel()
+        order = np.lexsort((cols, rows))
+        r, c = rows[order], cols[order]
+        new = np.ones(len(r), dtype=bool)
+        new[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
+        r, c = r[new], c[new]
+        return cls(np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n_queries))]).astype(np.int64), c)
 
     def pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """``(query [nnz], reference [nnz])`` of every positive pair."""
@@ -155,25 +161,38 @@ def _read_json(p: Path) -> Positives:
 
 
 def _read_csv(p: Path) -> Positives:
-    pairs = []
-    for n, line in enumerate(read_text(p).splitlines(), start=1):
+    """``query,reference`` pairs (``;`` also separates; a first line that is no pair is a header; reference -1:
+    the query has no match), gathered into CSR at once (:meth:`Positives.from_pairs`). The number of queries
+    is bounded by the file: a query index beyond :func:`query_bound` of its pairs is refused."""
+    queries, refs = [], []
+    for n, line in enumerate(read_text(p, "positives file").splitlines(), start=1):
         fields = [f.strip() for f in line.replace(";", ",").split(",")]
-        if not line.strip() or (n == 1 and not fields[0].lstrip("-").isdigit()):
+        if not line.strip() or (n == 1 and not INTEGER.fullmatch(fields[0])):
             continue  # blank line or header
-        try:
-            q, r = (int(f) for f in fields)
-        except ValueError as err:
-            raise DatasetError(f"{p}, line {n}: expected 'query,reference' (two integers), got {line!r}") from err
-        if q < 0:
-            raise DatasetError(f"{p}, line {n}: query index {q} is negative")
-        pairs.append((q, r))
-    if not pairs:
+        if len(fields) != 2 or not all(INTEGER.fullmatch(f) for f in fields):
+            raise DatasetError(f"{p}, line {n}: expected 'query,reference' (two integers), got {line[:80]!r}")
+        q, r = int(fields[0]), int(fields[1])
+        for value, what, low in ((q, "query", 0), (r, "reference", -1)):
+            if not low <= value <= INDEX_MAX:
+                raise DatasetError(f"{p}, line {n}: {what} index {value} is {'negative' if value < 0 else 'too large'} "
+                                   f"(indices are 0..{INDEX_MAX}; reference -1 = no match)")
+        queries.append(q)
+        refs.append(r)
+    if not queries:
         raise DatasetError(f"{p}: no query,reference pairs")
-    nq = max(q for q, _ in pairs) + 1
-    lists: list[list[int]] = [[] for _ in range(nq)]
-    for q, r in pairs:
-        lists[q].append(r)
-    return Positives.from_lists(lists, str(p))
+    rows, cols = np.array(queries, dtype=np.int64), np.array(refs, dtype=np.int64)
+    nq, bound = int(rows.max()) + 1, query_bound(len(rows))
+    if nq > bound:
+        raise DatasetError(f"{p}: query index {nq - 1} is beyond what {len(rows)} pairs can describe (at most "
+                           f"{bound} queries: queries without a pair are implied, not listed); hint: check the "
+                           "file's columns (query,reference)")
+    keep = cols >= 0
+    return Positives.from_pairs(rows[keep], cols[keep], nq)
+
+
+def query_bound(pairs: int) -> int:
+    """The most queries a ground-truth file of ``pairs`` pairs may imply (its largest query index + 1)."""
+    return pairs * 16 + 10**6
 
 
 def _read_object_npy(p: Path) -> Positives:

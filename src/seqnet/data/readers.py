@@ -26,12 +26,14 @@ from ..core.utils import logger
 from ..security.arrays import read_npy as read_array
 from ..security.digests import file_digest
 from ..security.hdf5 import Hdf5Contents, read_hdf5
+from ..security.inputs import read_text as read_input_text
 from ..security.inputs import special_file
 from ..security.jsonfile import parse_json, read_json
 
 DESCRIPTOR_SUFFIXES = (".npy", ".h5", ".hdf5")
 # the characters str.splitlines() breaks lines at
 LINE_SEPARATORS = frozenset("\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029")
+MAX_TEXT = 1 << 30  # a text file read whole (names, CSV, timestamps)
 
 
 def read_descriptor_file(path: str | Path, names_file: str | Path | None = None,
@@ -150,9 +152,7 @@ def read_names(path: str | Path) -> list[str]:
     p = Path(path)
     if p.is_dir():
         return folder_names(p)
-    if not p.is_file():
-        raise DatasetError(f"names file not found: {p}")
-    names = [line.strip() for line in read_text(p).split("\n") if line.strip()]
+    names = [line.strip() for line in read_text(p, "names file").split("\n") if line.strip()]
     return check_names(names, str(p))
 
 
@@ -169,12 +169,10 @@ def folder_names(folder: Path) -> list[str]:
     return check_names([os.path.relpath(q, folder) for q in paths], str(folder))
 
 
-def read_text(p: Path) -> str:
-    """A UTF-8 text file; :class:`DatasetError` naming the byte where it is not UTF-8."""
-    try:
-        return p.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise DatasetError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from e
+def read_text(p: Path, what: str = "file") -> str:
+    """A UTF-8 text file, opened without blocking (:func:`seqnet.security.inputs.read_text`: a FIFO or device
+    is refused, never read); :class:`DatasetError` naming the byte where it is not UTF-8."""
+    return read_input_text(p, MAX_TEXT, what)
 
 
 def read_positions_file(f: Path) -> np.ndarray:

@@ -20,6 +20,9 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..data import bags
+from ..security.text import shown
+from .decode import COMPRESSED_FORMATS as COMPRESSED_PIL
+from .decode import open_image
 
 ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True), "mono8": (1, False)}  # channels, reversed (BGR)
 COMPRESSED_FORMATS = ("jpeg", "jpg", "png")
@@ -45,14 +48,12 @@ def _raw_image(msg: Any, where: str) -> Any:
 
 
 def _compressed_image(msg: Any, where: str) -> Any:
-    """A ``sensor_msgs/CompressedImage`` (JPEG / PNG) opened by PIL (decoded when loaded)."""
-    from PIL import Image
-
+    """A ``sensor_msgs/CompressedImage`` (JPEG / PNG) opened by PIL with those decoders only (decoded when loaded)."""
     fmt = str(msg.format).lower()
     if fmt and not any(f in fmt for f in COMPRESSED_FORMATS):
         raise ImageError(f"{where}: compressed image format {msg.format!r} is not supported; supported: "
                          f"{', '.join(COMPRESSED_FORMATS)} (compressedDepth and other formats are not images)")
-    return Image.open(io.BytesIO(bytes(np.asarray(msg.data, np.uint8))))
+    return open_image(io.BytesIO(bytes(np.asarray(msg.data, np.uint8))), COMPRESSED_PIL)
 
 
 IMAGE_TYPES: dict[str, Callable[[Any, str], Any]] = {
@@ -102,7 +103,12 @@ class BagImages:
             msg = bags.deserialize(self.reader, raw, msgtype, where)
         except DatasetError as e:
             raise ImageError(f"{e} (hint: --skip-corrupted leaves such images out)") from e
-        return IMAGE_TYPES[msgtype](msg, where)
+        try:  # the message definitions may come from the bag itself: a field may be missing or of another type
+            return IMAGE_TYPES[msgtype](msg, where)
+        except (AttributeError, TypeError, ValueError, OverflowError) as e:
+            raise ImageError(f"{where}: the {msgtype} message is not as ROS defines it ({type(e).__name__}: "
+                             f"{shown(' '.join(str(e).split()))[:160]}; hint: --skip-corrupted leaves such images "
+                             "out)") from e
 
     def close(self) -> None:
         """Close the bag's reader (reads after it fail)."""

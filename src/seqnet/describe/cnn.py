@@ -119,8 +119,15 @@ class Backbone:
 def _efficientnet_from_state(arch: str) -> Callable[[dict[str, torch.Tensor], Layer, str], nn.Module]:
     def from_state(state: dict[str, torch.Tensor], layer: Layer, where: str) -> nn.Module:
         from .encoders import EfficientNetLite
+        from .weights import check_shapes
 
-        enc = EfficientNetLite("head" if layer is None else layer, pretrained=False, arch=arch)
+        try:  # ``layer`` comes from a checkpoint file: a valid block index or "head" only
+            enc = EfficientNetLite("head" if layer is None else BACKBONES[arch].check_layer(layer), pretrained=False,
+                                   arch=arch)
+        except ConfigError as e:
+            raise CheckpointError(f"{where}: the checkpoint's layer: {e}") from e
+        check_shapes(state, {k: tuple(v.shape) for k, v in enc.state_dict().items()}, f"{where}: encoder.",
+                     f"{arch} cut at {enc.layer!r}")
         try:
             enc.load_state_dict(state, strict=True)
         except RuntimeError as e:

@@ -15,11 +15,10 @@ from ..core.config import Config, check_bool, check_choice, check_float, check_i
 from ..core.errors import ConfigError
 from ..core.utils import check_device
 from .cnn import BACKBONES
-from .images import ImageItem
+from .images import MAX_SIDE, ImageItem
 from .registry import DESCRIBERS, Method
 
 AUTO, NATIVE, KEEP_ASPECT = "auto", "native", "keep-aspect:"
-MAX_SIDE = 8192  # largest accepted resize width or height
 Size = str | tuple[int, int]  # "auto", "native", "keep-aspect:W" or (W, H)
 Fit = int | str | tuple[Any, ...] | None  # a tuple of image paths (str) or ImageItems
 

@@ -13,6 +13,7 @@ from ..core.memmaps import RowsOut
 from ..core.progress import progress
 from ..core.utils import get_device, logger
 from .config import DescribeConfig
+from .decode import size_mismatch
 from .images import ImageItem, ImageRef, as_image, iter_batches, list_images, load_images
 from .pca import PCA, fit_pca
 from .registry import Extract, FitContext
@@ -170,7 +171,7 @@ def run_batches(paths: Sequence[ImageRef], d: Describer, todo: np.ndarray, sink:
     Skipped (corrupted) images reach ``sink`` with descriptors None. Raises :class:`ImageError`
     when native-size images differ in size across batches.
     """
-    shape = None
+    shape, first = None, None
     n = int(todo.sum())
     bar = progress(total=n, desc=f"describe ({d.method})", unit="img")
     for b in iter_batches(len(paths), d.config.batch_size, todo):
@@ -182,14 +183,13 @@ def run_batches(paths: Sequence[ImageRef], d: Describer, todo: np.ndarray, sink:
             sink(b[skipped], None)
         if len(keep):
             if shape is not None and imgs.shape[1:] != shape:
-                raise ImageError(f"image {paths[keep[0]]} has size {imgs.shape[2]}x{imgs.shape[1]} but earlier images "
-                                 f"have {shape[1]}x{shape[0]} (hint: pass a resize size, e.g. --resize 64x32)")
-            first = shape is None
-            if first:
+                raise size_mismatch(paths[keep[0]], imgs.shape[1:], first, shape)
+            starts = shape is None
+            if starts:
                 check_batch_memory(d, imgs.shape)
-            shape = imgs.shape[1:]
+                shape, first = imgs.shape[1:], paths[keep[0]]
             out = d(imgs)
-            if first:
+            if starts:
                 check_output_memory(n, out.shape[1], d.method)
             sink(keep, out)
         bar.update(len(b))

@@ -15,8 +15,10 @@ import torch
 from torch import nn
 
 from ..core.errors import CheckpointError, ConfigError
+from ..security.limits import DIM_MAX, number
 from ..security.torchfile import load_torch_file
 from .lite import LITE_VARIANTS
+from .weights import check_shapes
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -52,13 +54,32 @@ class VGG16Encoder(nn.Sequential):
                 f"{where}: not a VGG-16 conv encoder (missing encoder.{missing[0]}; expected conv layers at "
                 f"encoder.{{{','.join(map(str, _VGG_CONV_IDX))}}}.weight/bias as in pytorch-NetVlad)"
             )
-        widths = [int(state[f"{_VGG_CONV_IDX[i]}.weight"].shape[0]) for i in (1, 3, 6, 9, 12)]
-        enc = cls(widths)
+        ends = [f"{_VGG_CONV_IDX[i]}.weight" for i in (1, 3, 6, 9, 12)]
+        flat = next((k for k in ends if state[k].ndim != 4), None)
+        if flat is not None:
+            raise CheckpointError(f"{where}: encoder.{flat} has shape {tuple(state[flat].shape)}, expected a conv "
+                                  "weight [out, in, 3, 3]")
+        widths = [number(int(state[k].shape[0]), f"{where}: encoder.{k}'s width", 1, DIM_MAX, CheckpointError)
+                  for k in ends]
+        check_shapes(state, vgg16_shapes(widths), f"{where}: encoder.", f"VGG-16 of widths {widths}")
+        enc = cls(widths)  # every layer now holds what the checkpoint stores, no more
         try:
             enc.load_state_dict(state, strict=True)
         except RuntimeError as e:
             raise CheckpointError(f"{where}: VGG-16 encoder weights do not fit ({str(e).splitlines()[0]})") from e
         return enc
+
+
+def vgg16_shapes(widths: Sequence[int]) -> dict[str, tuple[int, ...]]:
+    """The state-dict shapes of a :class:`VGG16Encoder` of ``widths``."""
+    out: dict[str, tuple[int, ...]] = {}
+    cin, convs = 3, iter(_VGG_CONV_IDX)
+    for w, n in zip(widths, VGG16_CONVS, strict=True):
+        for _ in range(n):
+            i = next(convs)
+            out[f"{i}.weight"], out[f"{i}.bias"] = (w, cin, 3, 3), (w,)
+            cin = w
+    return out
 
 
 class EfficientNetLite(nn.Module):
@@ -76,7 +97,7 @@ class EfficientNetLite(nn.Module):
         self.arch = arch
         net = _efficientnet_lite(arch, pretrained)
         n = len(net._blocks)
-        if layer != "head" and not (isinstance(layer, int) and 0 <= layer < n):
+        if layer != "head" and not (isinstance(layer, int) and not isinstance(layer, bool) and 0 <= layer < n):
             raise ConfigError(f"{arch} layer must be 'head' or a block index 0..{n - 1}, got {layer!r}")
         self.layer = layer
         self.stem = nn.Sequential(net._conv_stem, net._bn0, nn.ReLU6())

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -20,9 +20,13 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..data.readers import check_names
-from ..security.inputs import special_file
+from ..security.inputs import read_text, special_file
+from ..security.text import shown
+from .decode import decode, read_image, size_mismatch
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
+MAX_LIST = 1 << 30  # bytes of an image list file
+MAX_SIDE = 8192  # largest accepted resize width or height (and image size stored in a checkpoint)
 
 
 @runtime_checkable
@@ -71,7 +75,7 @@ class ImageList:
 
 def natural_key(text: str) -> list:
     """Sort key that orders embedded numbers numerically (``a2`` < ``a10``)."""
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", text)]
+    return [int(t) if t.isdecimal() else t.lower() for t in re.split(r"(\d+)", text)]  # "²".isdigit(), not int
 
 
 def list_images(source: str | Path, topic: str | None = None) -> ImageList:
@@ -92,7 +96,7 @@ def list_images(source: str | Path, topic: str | None = None) -> ImageList:
         odd = next((p for p in files if not p.is_file()), None)
         if odd is not None:  # left out, it would shift every frame after it (frame-aligned ground truth)
             kind = special_file(odd) or ("broken link" if odd.is_symlink() else "directory")
-            raise ImageError(f"{odd} is a {kind}, not an image file; remove or rename it (images are paired by "
+            raise ImageError(f"{shown(odd)} is a {kind}, not an image file; remove or rename it (images are paired by "
                              "their order in the folder)")
         files.sort(key=lambda p: natural_key(p.name))
         if not files:
@@ -101,7 +105,7 @@ def list_images(source: str | Path, topic: str | None = None) -> ImageList:
                 "hint: pass a folder of images or a text file listing them)"
             )
         return ImageList(paths=files, names=_checked([p.name for p in files], src))
-    if src.is_file():
+    if src.exists():
         return _read_list_file(src)
     raise ImageError(f"image folder or list file not found: {src}")
 
@@ -110,9 +114,11 @@ def _read_list_file(src: Path) -> ImageList:
     if src.suffix.lower() in IMAGE_EXTENSIONS:
         return ImageList(paths=[src], names=[src.name])
     try:
-        lines = src.read_text(encoding="utf-8").splitlines()
-    except UnicodeDecodeError as err:
-        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths") from err
+        lines = read_text(src, MAX_LIST, "image list file", ImageError).splitlines()
+    except ImageError as err:
+        if "not UTF-8" not in str(err):
+            raise
+        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths ({err})") from err
     names = [s.strip() for s in lines if s.strip() and not s.strip().startswith("#")]
     if not names:
         raise ImageError(f"list file {src} names no images (expected one image path per line)")
@@ -126,72 +132,6 @@ def _checked(names: list[str], src: Path) -> list[str]:
         return check_names(names, f"images of {src}")
     except DatasetError as e:
         raise ImageError(f"{e} (hint: rename the file)") from e
-
-
-MAX_PIXELS = 100_000_000  # larger images are refused before decoding (a "decompression bomb" or a mistake)
-
-
-def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> np.ndarray:
-    """Decode one image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``); :class:`ImageError` if
-    unreadable or larger than ``max_pixels`` (checked from the header, before decoding)."""
-    from PIL import Image
-
-    kind = special_file(path)
-    if kind:  # opening a FIFO would wait for a writer; a device could be endless
-        raise ImageError(f"image {path} is a {kind}, not a regular file; it is not opened (hint: list image files)")
-    try:
-        return decode(lambda: Image.open(path), path, grey, max_pixels)
-    except FileNotFoundError as err:
-        raise ImageError(f"image not found: {path}") from err
-
-
-def decode(opener: Callable[[], Any], where: ImageRef, grey: bool = False, max_pixels: int = MAX_PIXELS) -> np.ndarray:
-    """The PIL image ``opener()`` returns (opened lazily: its header first), checked against ``max_pixels``,
-    loaded and converted by :func:`to_uint8`; decoding errors are :class:`ImageError` s naming ``where``."""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with opener() as im:
-            if im.width * im.height > max_pixels:
-                raise ImageError(f"image {where} is too large: it declares {im.width}x{im.height} pixels, more than "
-                                 f"the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
-            im.load()
-            return to_uint8(im, where, grey)
-    except FileNotFoundError:
-        raise
-    except Image.DecompressionBombError as e:
-        raise ImageError(f"image {where} is too large to decode safely ({e})") from e
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as e:
-        raise ImageError(
-            f"cannot read image {where} ({type(e).__name__}: {e}; hint: --skip-corrupted leaves such images out)"
-        ) from e
-
-
-HIGH_DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I")  # 16-bit (and 32-bit integer) greyscale
-
-
-def to_uint8(im: Any, path: ImageRef, grey: bool) -> np.ndarray:
-    """A decoded PIL image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``), scaled from its own range:
-    16-bit greyscale by 255/65535, float images in [0, 1] by 255 (in [0, 255] as they are); palette,
-    CMYK, alpha (dropped) and other 8-bit modes through PIL's conversion. A range that cannot be
-    mapped without guessing is an :class:`ImageError`."""
-    if im.mode not in HIGH_DEPTH_MODES and im.mode != "F":
-        return np.asarray(im.convert("L" if grey else "RGB"))
-    a = np.asarray(im, dtype=np.float64)
-    lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
-    if not np.isfinite([lo, hi]).all():
-        raise ImageError(f"image {path} ({im.mode}) holds NaN or inf pixels")
-    if im.mode == "F" and lo >= 0 and hi <= 1:
-        a = a * 255.0
-    elif im.mode == "F" and not (lo >= 0 and hi <= 255):
-        raise ImageError(f"float image {path} has values in [{lo:g}, {hi:g}]; seqnet reads float images in [0, 1] or "
-                         "[0, 255] (hint: rescale it, or save it as 8- or 16-bit)")
-    elif im.mode != "F":
-        if lo < 0 or hi > 65535:
-            raise ImageError(f"image {path} ({im.mode}) has values in [{lo:g}, {hi:g}], outside 16 bits")
-        a = a / 257.0  # 0..65535 -> 0..255
-    g = np.clip(np.round(a), 0, 255).astype(np.uint8)
-    return g if grey else np.repeat(g[..., None], 3, axis=-1)
 
 
 def prepare_image(
@@ -252,10 +192,7 @@ def load_images(
             continue
         img = prepare_image(img, size, crop_bottom, p)
         if out and img.shape != out[0].shape:
-            raise ImageError(
-                f"image {p} has size {img.shape[1]}x{img.shape[0]} but {first} has "
-                f"{out[0].shape[1]}x{out[0].shape[0]} (hint: pass a resize size to bring all images to one size)"
-            )
+            raise size_mismatch(p, img.shape, first, out[0].shape)
         first = first or p
         out.append(img)
     if not out:

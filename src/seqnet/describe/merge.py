@@ -13,6 +13,7 @@ import dataclasses
 import itertools
 import json
 import os
+import re
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from ..core.utils import logger
 from ..data.readers import bound_names, read_names, read_npy, read_provenance
 from ..security.dirs import remove_dead_temps
 from ..security.hdf5 import check_hdf5
+from ..security.limits import INDEX_MAX, number
 from ..security.locks import locked
 from .output import OUT_SUFFIXES, check_sidecars, names_file_for, write_output
 from .shards import SHARD_KEY
@@ -68,7 +70,7 @@ def read_shard(path: str | os.PathLike[str]) -> ShardFile:
     if not prov or not isinstance(prov.get(SHARD_KEY), dict):
         raise ConfigError(f"{p} is not a shard output (its provenance has no {SHARD_KEY!r} record); hint: merge the "
                           "outputs of seqnet describe --shard k/N")
-    shard = prov.pop(SHARD_KEY)
+    shard = shard_record(prov.pop(SHARD_KEY), p)
     try:
         if p.suffix.lower() == ".npy":
             names = bound_names(p) or read_names(names_file_for(p))
@@ -83,6 +85,24 @@ def read_shard(path: str | os.PathLike[str]) -> ShardFile:
     if len(shape) != 2 or len(names) != shape[0]:
         raise DatasetError(f"shard {p}: {len(names)} names for descriptors of shape {tuple(shape)}")
     return ShardFile(p, prov, shard, config, names, (int(shape[0]), int(shape[1])))
+
+
+def shard_record(value: dict[str, Any], p: Path) -> dict[str, Any]:
+    """The shard record of ``p``'s provenance (read from the file), every field of its type and in its range;
+    :class:`DatasetError` naming the field otherwise."""
+    where = f"shard {p}: the {SHARD_KEY!r} record's"
+    count = number(value.get("count"), f"{where} count", 1, INDEX_MAX)
+    images = number(value.get("images"), f"{where} images", 1, INDEX_MAX)
+    frames = value.get("frames")
+    if not isinstance(frames, list) or len(frames) != 2:
+        raise DatasetError(f"{where} frames must be [first, end], got {str(frames)[:60]}")
+    first = number(frames[0], f"{where} frames[0]", 0, images - 1)
+    sha = value.get("list_sha1")
+    if not isinstance(sha, str) or not re.fullmatch(r"[0-9a-f]{1,64}", sha):
+        raise DatasetError(f"{where} list_sha1 must be a hexadecimal hash, got {str(sha)[:60]!r}")
+    return {"index": number(value.get("index"), f"{where} index", 0, count - 1), "count": count,
+            "frames": [first, number(frames[1], f"{where} frames[1]", first + 1, images)], "images": images,
+            "batch_size": number(value.get("batch_size"), f"{where} batch_size", 1, INDEX_MAX), "list_sha1": sha}
 
 
 def check_shards(shards: Sequence[ShardFile]) -> list[ShardFile]:
@@ -102,16 +122,17 @@ def check_shards(shards: Sequence[ShardFile]) -> list[ShardFile]:
         if s.config != first.config:
             raise ConfigError(f"shards {s.path} and {first.path} differ in format or recorded config; hint: describe "
                               "every shard into the same format")
-    count, by_index = int(first.shard["count"]), {}
+    count, by_index = first.shard["count"], {}
     for s in shards:
-        k = s.shard.get("index")
+        k = s.shard["index"]
         if k in by_index:
             raise ConfigError(f"shard {k}/{count} is given twice: {by_index[k].path} and {s.path}")
         by_index[k] = s
-    missing = [k for k in range(count) if k not in by_index]
-    if missing or len(by_index) != count:
-        raise ConfigError(f"shard(s) {', '.join(f'{k}/{count}' for k in missing) or '?'} missing: got indices "
-                          f"{sorted(by_index, key=str)}, need every k in 0..{count - 1} exactly once")
+    if len(by_index) != count:  # indices are below count, so one of the first len + 1 is missing
+        missing = [k for k in range(min(count, len(by_index) + 4)) if k not in by_index]
+        more = ", ..." if len(missing) + len(by_index) < count else ""
+        raise ConfigError(f"shard(s) {', '.join(f'{k}/{count}' for k in missing)}{more} missing: got indices "
+                          f"{sorted(by_index)[:20]}, need every k in 0..{count - 1} exactly once")
     return _contiguous([by_index[k] for k in range(count)])
 
 
@@ -119,8 +140,8 @@ def _contiguous(ordered: list[ShardFile]) -> list[ShardFile]:
     """``ordered`` after checking that their frame ranges tile ``0..images``."""
     end = 0
     for s in ordered:
-        a, b = s.shard.get("frames", [None, None])
-        if a != end or b is None or b <= a:
+        a, b = s.shard["frames"]
+        if a != end:
             raise ConfigError(f"shard {s.path} covers images {a}..{b} but the previous shards end at {end}: the "
                               "ranges are not contiguous")
         end = b

@@ -7,7 +7,10 @@ Checkpoint layout (a dict with ``state_dict``, as ``pitts_WPCA4096.pth.tar``)::
     pool.centroids   [K, C]              cluster centres
     WPCA.0.weight [P, K*C, 1, 1], WPCA.0.bias [P]   optional PCA-whitening 1x1 conv
 
-Checkpoints written by seqnet may use the EfficientNet-Lite0 encoder; they say so under ``arch``.
+Checkpoints written by seqnet may use the EfficientNet-Lite0 encoder; they say so under ``arch``. A checkpoint
+is a stranger's file: ``arch`` and ``layer`` must be valid names and every layer's shape is checked in range
+and against the tensors stored before the layer is built (:mod:`.weights`); anything else is one
+:class:`CheckpointError` naming the file and the field.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ from ..core.utils import logger
 from ..security.files import atomic_path
 from ..security.torchfile import load_torch_file
 from .cnn import BACKBONES, to_input
+from .images import MAX_SIDE
+from .weights import checked_state, pool_shape, wpca_shape
 
 TAG_KEY = "seqnet_tag"  # provenance string stored in checkpoints written by seqnet (see save_netvlad)
 
@@ -125,6 +130,7 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict:
         ckpt = {"state_dict": ckpt}
     if not isinstance(ckpt, dict) or not isinstance(ckpt.get("state_dict"), dict):
         raise CheckpointError(f"{path}: expected a dict with 'state_dict' (pytorch-NetVlad / Patch-NetVLAD format)")
+    checked_state(ckpt["state_dict"], path)
     return ckpt
 
 
@@ -148,22 +154,34 @@ def load_netvlad(path: str | os.PathLike[str], use_wpca: bool = True) -> NetVLAD
             f"{path}: not a NetVLAD checkpoint: needs pool.conv.weight and pool.centroids "
             f"(found top-level keys: {', '.join(found) or 'none'}; expected encoder.*, pool.*, optional WPCA.0.*)"
         )
-    k, c = pool_state["centroids"].shape
-    pool = NetVLAD(k, c, bias="conv.bias" in pool_state)
+    k, c = pool_shape(pool_state, path)
+    arch, layer = encoder_choice(ckpt, path)
+    wpca_state = _sub(state, "WPCA.0.") if use_wpca else {}
+    p = wpca_shape(wpca_state, k * c, path) if wpca_state else None
+    pool = NetVLAD(k, c, bias="conv.bias" in pool_state)  # every shape checked: the layers hold what is stored
     _load(pool, pool_state, f"{path}: pool")
-    encoder = _load_encoder(ckpt, _sub(state, "encoder."), path)
+    encoder = _load_encoder(arch, layer, _sub(state, "encoder."), path)
     if encoder.out_dim != c:
         raise CheckpointError(f"{path}: encoder gives {encoder.out_dim}-D features but pool.centroids are {c}-D")
     wpca = None
-    if use_wpca and "WPCA.0.weight" in state:
-        w = state["WPCA.0.weight"]
-        if w.ndim != 4 or w.shape[1] != k * c:
-            raise CheckpointError(f"{path}: WPCA.0.weight has shape {tuple(w.shape)}, expected [P, {k * c}, 1, 1]")
-        wpca = nn.Conv2d(k * c, w.shape[0], kernel_size=1, bias="WPCA.0.bias" in state)
-        _load(wpca, _sub(state, "WPCA.0."), f"{path}: WPCA")
-    logger.info("loaded NetVLAD %s: %s encoder, %d clusters x %d-D%s", path, ckpt.get("arch", "vgg16"), k, c,
-                f", WPCA to {wpca.out_channels}-D" if wpca is not None else "")
-    return NetVLADModel(encoder, pool, wpca, arch=ckpt.get("arch", "vgg16")).eval()
+    if p is not None:
+        wpca = nn.Conv2d(k * c, p, kernel_size=1, bias="bias" in wpca_state)
+        _load(wpca, wpca_state, f"{path}: WPCA")
+    logger.info("loaded NetVLAD %s: %s encoder, %d clusters x %d-D%s", path, arch, k, c,
+                f", WPCA to {p}-D" if p is not None else "")
+    return NetVLADModel(encoder, pool, wpca, arch=arch).eval()
+
+
+def encoder_choice(ckpt: dict, path: str | os.PathLike[str]) -> tuple[str, str | int | None]:
+    """``(arch, layer)`` a checkpoint names (defaults: vgg16, the backbone's local layer), both valid names."""
+    arch = ckpt.get("arch", "vgg16")
+    if not isinstance(arch, str) or arch not in BACKBONES:
+        raise CheckpointError(f"{path}: unknown encoder arch {str(arch)[:60]!r}; valid: {', '.join(BACKBONES)}")
+    backbone = BACKBONES[arch]
+    try:
+        return arch, backbone.check_layer(ckpt.get("layer", backbone.local_layer))
+    except ConfigError as e:
+        raise CheckpointError(f"{path}: the checkpoint's layer: {e}") from e
 
 
 def _load(module: nn.Module, state: dict[str, torch.Tensor], where: str) -> None:
@@ -173,14 +191,11 @@ def _load(module: nn.Module, state: dict[str, torch.Tensor], where: str) -> None
         raise CheckpointError(f"{where} weights do not fit ({str(e).splitlines()[0]})") from e
 
 
-def _load_encoder(ckpt: dict, enc_state: dict[str, torch.Tensor], path: Path) -> nn.Module:
-    arch = ckpt.get("arch", "vgg16")
+def _load_encoder(arch: str, layer: str | int | None, enc_state: dict[str, torch.Tensor],
+                  path: str | os.PathLike[str]) -> nn.Module:
     if not enc_state:
         raise CheckpointError(f"{path}: checkpoint has no encoder.* weights (expected a VGG-16 conv encoder)")
-    if arch not in BACKBONES:
-        raise CheckpointError(f"{path}: unknown encoder arch {arch!r}; valid: {', '.join(BACKBONES)}")
-    backbone = BACKBONES[arch]
-    return backbone.from_state(enc_state, ckpt.get("layer", backbone.local_layer), str(path))
+    return BACKBONES[arch].from_state(enc_state, layer, str(path))
 
 
 def checkpoint_image_size(path: str | os.PathLike[str]) -> tuple[int, int] | None:
@@ -199,7 +214,8 @@ def _stored(path: str | os.PathLike[str]) -> tuple[tuple[int, int] | None, str |
 def _stored_metadata(path: str, mtime_ns: int, size_bytes: int) -> tuple[tuple[int, int] | None, str | None]:
     ckpt = read_checkpoint(path)  # keyed by the file's state: a rewritten file is read again
     size, tag = ckpt.get("image_size"), ckpt.get(TAG_KEY)
-    ok = isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v >= 1 for v in size)
+    ok = isinstance(size, list) and len(size) == 2 and all(
+        isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_SIDE for v in size)
     return ((size[0], size[1]) if ok else None), (tag if isinstance(tag, str) else None)
 
 

@@ -76,22 +76,25 @@ def reused_fit(conf: DescribeConfig, settings: dict | None = None) -> str | None
     tag = conf.method_spec.read_tag(Path(path)) if path else None
     try:
         found = json.loads(tag) if tag else None
-    except ValueError:
+    except (ValueError, RecursionError):
         return None
-    if not isinstance(found, dict) or not found.get("provenance_fit"):
+    # the tag is read from a file: its fit hash must be text and its settings a mapping, else it is not reused
+    if not isinstance(found, dict) or not isinstance(found.get("provenance_fit"), str) or not found["provenance_fit"] \
+            or not isinstance(found.get("settings"), dict):
         return None
     ignore = ("fit", "fit_max", "checkpoint", "dim", "whiten")
     ours = {k: v for k, v in (settings or conf.settings()).items() if k not in ignore}
-    theirs = {k: v for k, v in (found.get("settings") or {}).items() if k not in ignore}
+    theirs = {k: v for k, v in found["settings"].items() if k not in ignore}
     return found["provenance_fit"] if ours == theirs else None
 
 
 def _output_of(tag: str) -> str | None:
     try:
         found = json.loads(tag)
-    except ValueError:
+    except (ValueError, RecursionError):
         return None
-    return found.get("output") if isinstance(found, dict) else None
+    output = found.get("output") if isinstance(found, dict) else None
+    return output if isinstance(output, str) else None
 
 
 def pca_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,

@@ -133,8 +133,8 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
     a, b = ds.ranges(split)["query"]
     out = []
     for role, m in sorted(models.items()):
-        t = getattr(m, "trained_on", None)
-        if not t or not t.get("split") or not _same_path(t["dataset"], dataset):
+        t = training_record(m)
+        if t is None or not _same_path(t["dataset"], dataset):
             continue
         trained = ds.ranges(t["split"])
         if trained is None:
@@ -148,10 +148,27 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
     return out
 
 
+MAX_RECORD_TEXT = 4096
+
+
+def training_record(model: Any) -> dict[str, str] | None:
+    """A model's ``trained_on`` (``dataset``, ``split``, ``checkpoint``, read from its checkpoint file) when
+    every field is usable text; None otherwise (an unusable record is ignored, with a debug line)."""
+    t = getattr(model, "trained_on", None)
+    if not isinstance(t, Mapping) or not t.get("dataset"):
+        return None
+    fields = {k: t.get(k) for k in ("dataset", "split", "checkpoint")}
+    if all(isinstance(v, str) and v and len(v) <= MAX_RECORD_TEXT and "\x00" not in v for v in fields.values()):
+        return fields
+    logger.debug("ignoring the training record of %.200r: its dataset, split and checkpoint are not all text "
+                 "(%.200r)", fields.get("checkpoint"), fields)
+    return None
+
+
 def _same_path(a: str | Path | None, b: str | Path) -> bool:
     try:
         return a is not None and Path(a).resolve() == Path(b).resolve()
-    except OSError:
+    except (OSError, ValueError, RuntimeError):
         return False
 
 

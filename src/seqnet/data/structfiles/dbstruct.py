@@ -18,11 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import DatasetError
-from ..core.utils import logger
-from .convert import read_seq_bounds
-from .presets import get_preset, preset_metadata, preset_splits
-from .traverse import Dataset, Traverse
+from ...core.errors import DatasetError
+from ...core.utils import logger
+from ...security.limits import INDEX_MAX, number
+from ...security.text import shown
+from ..convert import POSITION_MAX, read_seq_bounds
+from ..presets import get_preset, preset_metadata, preset_splits
+from ..readers import LINE_SEPARATORS
+from ..traverse import Dataset, Traverse
+from .sandboxed import read_struct
 
 REQUIRED_FIELDS = ("whichSet", "dbImageFns", "qImageFns", "numImages", "numQueries", "posDistThr", "utmDb", "utmQ")
 
@@ -48,16 +52,32 @@ class DbStruct:
         return self.utm_db.shape[1] == 1
 
 
-def _scalar(s: np.void, field: str, path: Path) -> float:
-    try:
-        return float(np.asarray(s[field]).ravel()[0])
-    except (IndexError, TypeError, ValueError) as err:
-        raise DatasetError(f"{path}: dbStruct.{field} is not a number ({s[field]!r})") from err
+def _scalar(s: dict[str, np.ndarray], field: str, path: Path, hi: float = POSITION_MAX,
+            integer: bool = False) -> float:
+    """A number field of the struct, in ``0..hi`` (a threshold: above 0)."""
+    a = np.asarray(s[field])
+    if a.size != 1 or a.dtype.kind not in "biuf":
+        raise DatasetError(f"{path}: dbStruct.{field} must be one number, got {a.dtype} of shape {a.shape}")
+    return number(a.ravel()[0].item(), f"{path}: dbStruct.{field}", 0 if integer else 1e-9, hi, integer=integer)
 
 
-def _names(v: np.ndarray) -> list[str]:
+def _text(v: object, where: str) -> str:
+    """A MATLAB string (a char array, or a cell holding one) as str; else :class:`DatasetError`."""
+    a = np.asarray(v)
+    while a.dtype == object and a.size == 1:
+        a = np.asarray(a.ravel()[0])
+    if a.dtype.kind != "U" or a.size != 1 or not str(a.ravel()[0]):
+        got = "a struct or another MATLAB type" if a.dtype.names else f"{a.dtype} of shape {a.shape}"
+        raise DatasetError(f"{where} must be a non-empty string, got {got}")
+    text = str(a.ravel()[0])
+    if "\x00" in text or not LINE_SEPARATORS.isdisjoint(text):
+        raise DatasetError(f"{where} {text[:80]!r} contains a NUL or a line break")
+    return text
+
+
+def _names(v: np.ndarray, field: str, path: Path) -> list[str]:
     flat = np.asarray(v, dtype=object).ravel()
-    return [str(np.asarray(x).ravel()[0]) if np.asarray(x).size else "" for x in flat]
+    return [_text(x, f"{path}: dbStruct.{field}[{i}]") for i, x in enumerate(flat)]
 
 
 def _utm(v: np.ndarray, n: int, field: str, path: Path) -> np.ndarray:
@@ -69,40 +89,38 @@ def _utm(v: np.ndarray, n: int, field: str, path: Path) -> np.ndarray:
     if a.ndim != 2 or a.shape[0] not in (1, 2) or a.shape[1] != n:
         raise DatasetError(f"{path}: dbStruct.{field} must be [2, {n}] (UTM) or [1, {n}] (frames), "
                            f"got shape {a.shape}")
+    if not (np.abs(a) <= POSITION_MAX).all():
+        raise DatasetError(f"{path}: dbStruct.{field} holds NaN, inf or values beyond ±{POSITION_MAX:g}")
     return a.T.copy()
 
 
 def read_db_struct(path: str | Path) -> DbStruct:
-    """Parse a SeqNet ``.db`` file; :class:`DatasetError` names a missing or malformed field."""
-    from scipy.io import loadmat
-    from scipy.io.matlab import MatReadError
-
+    """Parse a SeqNet ``.db`` file (checked, then read in a child: :mod:`.sandboxed`);
+    :class:`DatasetError` names a missing or malformed field."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise DatasetError(f"struct file not found: {p}")
-    try:
-        mat = loadmat(p)
-    except (ValueError, TypeError, OSError, NotImplementedError, MatReadError) as e:
-        raise DatasetError(f"cannot read {p} as a MATLAB v5 .mat file ({e}); "
-                           "hint: pass a seqNet structFiles/*.db") from e
-    if "dbStruct" not in mat:
-        raise DatasetError(f"{p}: no top-level 'dbStruct' (found: {[k for k in mat if not k.startswith('__')]})")
-    if not isinstance(mat["dbStruct"], np.ndarray) or mat["dbStruct"].size == 0 or not mat["dbStruct"].dtype.names:
+    variables, s = read_struct(p, "dbStruct")
+    if "dbStruct" not in variables:
+        raise DatasetError(f"{p}: no top-level 'dbStruct' (found: {', '.join(shown(v) for v in variables[:20])})")
+    if s is None:
         raise DatasetError(f"{p}: 'dbStruct' is empty or not a struct (hint: pass a seqNet structFiles/*.db)")
-    s = mat["dbStruct"].ravel()[0]
-    fields = s.dtype.names or ()
+    fields = tuple(s)
     missing = [f for f in REQUIRED_FIELDS if f not in fields]
     if missing:
-        raise DatasetError(f"{p}: dbStruct lacks field(s) {', '.join(missing)} (has: {', '.join(fields)})")
-    db_names, q_names = _names(s["dbImageFns"]), _names(s["qImageFns"])
+        raise DatasetError(f"{p}: dbStruct lacks field(s) {', '.join(missing)} (has: "
+                           f"{', '.join(shown(f) for f in fields[:40])})")
+    db_names, q_names = _names(s["dbImageFns"], "dbImageFns", p), _names(s["qImageFns"], "qImageFns", p)
     for field, names in (("numImages", db_names), ("numQueries", q_names)):
-        if int(_scalar(s, field, p)) != len(names):
-            raise DatasetError(f"{p}: dbStruct.{field} = {int(_scalar(s, field, p))} but {len(names)} image names")
+        if (count := _scalar(s, field, p, INDEX_MAX, integer=True)) != len(names):
+            raise DatasetError(f"{p}: dbStruct.{field} = {count} but {len(names)} image names")
+        if not names:
+            raise DatasetError(f"{p}: dbStruct.{field} = 0: a struct file of no images describes no place")
     thr = _scalar(s, "posDistThr", p)
     return DbStruct(
         path=p,
-        which_set=str(np.asarray(s["whichSet"]).ravel()[0]),
-        dataset=str(np.asarray(s["dataset"]).ravel()[0]) if "dataset" in fields else p.stem,
+        which_set=_text(s["whichSet"], f"{p}: dbStruct.whichSet"),
+        dataset=_text(s["dataset"], f"{p}: dbStruct.dataset") if "dataset" in fields else p.stem,
         db_names=db_names,
         q_names=q_names,
         utm_db=_utm(s["utmDb"], len(db_names), "utmDb", p),

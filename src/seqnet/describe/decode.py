@@ -1,0 +1,109 @@
+"""Decoding one image (a file, or a frame that opens itself) into uint8 pixels, as an untrusted input.
+
+* Only the raster formats seqnet reads are tried (:data:`FORMATS`): PIL otherwise lets every decoder it
+  has parse the bytes, whatever the file's name (an EPS file would start Ghostscript).
+* A file is opened without blocking (:func:`seqnet.security.inputs.open_input`): a FIFO or device is refused.
+* An image declaring more than ``max_pixels`` is refused from its header; PIL's own decompression-bomb
+  check stays on, its warning an error too.
+* Whatever a decoder raises on damaged bytes is one :class:`ImageError` naming the image (shown escaped).
+"""
+
+from __future__ import annotations
+
+import struct
+import warnings
+import zlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ImageError
+from ..security.inputs import open_input, special_file
+from ..security.text import shown
+
+FORMATS = ("PNG", "JPEG", "BMP", "TIFF", "WEBP", "PPM", "GIF")  # PPM: also PGM and PBM; JPEG: also MPO
+COMPRESSED_FORMATS = ("JPEG", "PNG")  # of a ROS CompressedImage
+MAX_PIXELS = 100_000_000  # larger images are refused before decoding (a "decompression bomb" or a mistake)
+HIGH_DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I")  # 16-bit (and 32-bit integer) greyscale
+# what PIL's decoders raise on damaged bytes besides OSError (seen by fuzzing PNG, JPEG, BMP, TIFF, GIF)
+DECODE_ERRORS = (OSError, ValueError, SyntaxError, EOFError, struct.error, IndexError, KeyError, TypeError,
+                 ZeroDivisionError, OverflowError, AttributeError, RecursionError, MemoryError, zlib.error)
+
+
+def open_image(source: Any, formats: tuple[str, ...] = FORMATS) -> Any:
+    """``PIL.Image.open`` of a path or file object, trying only ``formats``."""
+    from PIL import Image
+
+    return Image.open(source, formats=list(formats))
+
+
+def read_image(path: Path, grey: bool = False, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """Decode one image file as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``); :class:`ImageError` if it is
+    missing, not a regular file, unreadable or larger than ``max_pixels`` (checked from the header)."""
+    kind = special_file(path)
+    if kind:  # opening a FIFO would wait for a writer; a device could be endless
+        raise ImageError(f"image {shown(path)} is a {kind}, not a regular file; it is not opened (hint: list image "
+                         "files)")
+    with open_input(path, "image", ImageError) as f:  # non-blocking: what turned special since is refused too
+        return decode(lambda: open_image(f), path, grey, max_pixels)
+
+
+def decode(opener: Callable[[], Any], where: Any, grey: bool = False, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """The PIL image ``opener()`` returns (opened lazily: its header first), checked against ``max_pixels``,
+    loaded and converted by :func:`to_uint8`; decoding errors are :class:`ImageError` s naming ``where``."""
+    from PIL import Image, UnidentifiedImageError
+
+    name = shown(where)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with opener() as im:
+                if im.width * im.height > max_pixels:
+                    raise ImageError(f"image {name} is too large: it declares {im.width}x{im.height} pixels, more "
+                                     f"than the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
+                im.load()
+                return to_uint8(im, name, grey)
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as e:
+        raise ImageError(f"image {name} is too large to decode safely ({' '.join(str(e).split())[:200]}; hint: "
+                         "--skip-corrupted leaves it out)") from e
+    except UnidentifiedImageError as e:
+        raise ImageError(f"cannot read image {name}: not an image of a format seqnet reads ({', '.join(FORMATS)}; "
+                         "hint: --skip-corrupted leaves such images out)") from e
+    except DECODE_ERRORS as e:
+        raise ImageError(f"cannot read image {name} ({type(e).__name__}: {' '.join(str(e).split())[:200]}; hint: "
+                         "--skip-corrupted leaves such images out)") from e
+
+
+def to_uint8(im: Any, path: Any, grey: bool) -> np.ndarray:
+    """A decoded PIL image as uint8 ``[H, W, 3]`` (``[H, W]`` when ``grey``), scaled from its own range:
+    16-bit greyscale by 255/65535, float images in [0, 1] by 255 (in [0, 255] as they are); palette,
+    CMYK, alpha (dropped) and other 8-bit modes through PIL's conversion. A range that cannot be
+    mapped without guessing is an :class:`ImageError`."""
+    if im.mode not in HIGH_DEPTH_MODES and im.mode != "F":
+        return np.asarray(im.convert("L" if grey else "RGB"))
+    a = np.asarray(im, dtype=np.float64)
+    lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
+    if not np.isfinite([lo, hi]).all():
+        raise ImageError(f"image {path} ({im.mode}) holds NaN or inf pixels")
+    if im.mode == "F" and lo >= 0 and hi <= 1:
+        a = a * 255.0
+    elif im.mode == "F" and not (lo >= 0 and hi <= 255):
+        raise ImageError(f"float image {path} has values in [{lo:g}, {hi:g}]; seqnet reads float images in [0, 1] or "
+                         "[0, 255] (hint: rescale it, or save it as 8- or 16-bit)")
+    elif im.mode != "F":
+        if lo < 0 or hi > 65535:
+            raise ImageError(f"image {path} ({im.mode}) has values in [{lo:g}, {hi:g}], outside 16 bits")
+        a = a / 257.0  # 0..65535 -> 0..255
+    g = np.clip(np.round(a), 0, 255).astype(np.uint8)
+    return g if grey else np.repeat(g[..., None], 3, axis=-1)
+
+
+def size_mismatch(path: Any, shape: tuple[int, ...], first: Any, first_shape: tuple[int, ...]) -> ImageError:
+    """The error of an image whose (prepared) size differs from the images before it: it and one of those named,
+    both sizes, and the resize that brings every image to one size."""
+    (h, w), (h0, w0) = shape[:2], first_shape[:2]
+    return ImageError(f"image {shown(path)} has size {w}x{h} but the images before it (e.g. {shown(first)}) have "
+                      f"{w0}x{h0}; images described at their native size must all have one size (hint: --resize "
+                      f"{w0}x{h0}, or size=({w0}, {h0}), brings every image to one size)")

@@ -1,0 +1,115 @@
+"""Decoding one image as an untrusted input: only seqnet's raster formats, PIL's bomb check an error, and a
+damaged file of any format one ImageError naming it (shown escaped)."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from conftest import mutated
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from PIL import Image
+
+from seqnet.cli import main
+from seqnet.core.errors import ImageError
+from seqnet.describe import DescribeConfig, describe_images
+from seqnet.describe.decode import FORMATS, read_image
+from seqnet.describe.images import list_images
+
+EPS = b"%!PS-Adobe-3.0 EPSF-3.0\n%%BoundingBox: 0 0 16 16\n0 0 moveto 16 16 lineto stroke\nshowpage\n"
+
+
+def test_only_seqnet_raster_formats_are_tried(tmp_path):
+    """An EPS file named .png: PIL alone identifies it as EPS (and would run Ghostscript to load it); seqnet
+    tries only its raster formats and refuses it."""
+    f = tmp_path / "x.png"
+    f.write_bytes(EPS)
+    with Image.open(f) as im:
+        assert im.format == "EPS"
+    with pytest.raises(ImageError, match=r"cannot read image .*x.png: not an image of a format seqnet reads \(PNG, "):
+        read_image(f)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_every_format_of_the_table_reads(tmp_path, fmt):
+    rng = np.random.default_rng(0)
+    f = tmp_path / f"x.{fmt.lower()}"
+    Image.fromarray(rng.integers(0, 256, (8, 12, 3), dtype=np.uint8)).save(f, fmt)
+    assert read_image(f).shape == (8, 12, 3)
+
+
+def test_pil_bomb_check_stays_on_and_is_one_error(tmp_path, monkeypatch):
+    f = tmp_path / "x.png"
+    Image.fromarray(np.zeros((16, 16, 3), np.uint8)).save(f)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 200)  # 256 pixels: PIL's warning, as an error
+    with pytest.raises(ImageError, match=r"x.png is too large to decode safely \(Image size \(256 pixels\) exceeds"):
+        read_image(f)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100)  # more than twice: PIL's error
+    with pytest.raises(ImageError, match=r"too large to decode safely"):
+        read_image(f)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 10**6)
+    with pytest.raises(ImageError, match=r"declares 16x16 pixels, more than the limit of 100"):
+        read_image(f, max_pixels=100)
+
+
+def test_names_are_shown_escaped(tmp_path):
+    f = tmp_path / "a\x1b]0;owned\x07.png"
+    f.write_bytes(b"\x89PNG\r\n\x1a\n broken")
+    with pytest.raises(ImageError) as e:
+        read_image(f)
+    assert "\x1b" not in str(e.value) and "a\\x1b]0;owned\\x07.png" in str(e.value)
+    assert list_images(tmp_path).names == ["a\x1b]0;owned\x07.png"]  # kept, only shown escaped
+
+
+def test_describing_no_images_is_a_clear_error():
+    for conf in (DescribeConfig(), DescribeConfig(method="gem"), DescribeConfig(dim=4)):
+        with pytest.raises((ImageError, ValueError), match=r"no images to (describe|fit)"):
+            describe_images([], conf)
+
+
+@pytest.mark.parametrize("batch", ["4", "32"])
+def test_one_frame_of_another_size_is_named_with_both_sizes(tmp_path, capsys, batch):
+    """A 128x64 frame among 64x32 ones at --resize native: the message names that frame, both sizes and the
+    --resize that fixes it, whether it is in the first batch or a later one."""
+    rng = np.random.default_rng(0)
+    (tmp_path / "imgs").mkdir()
+    for i in range(10):
+        shape = (64, 128, 3) if i == 5 else (32, 64, 3)
+        Image.fromarray(rng.integers(0, 256, shape, dtype=np.uint8)).save(tmp_path / "imgs" / f"f{i}.png")
+    assert main(["describe", str(tmp_path / "imgs"), "--method", "pixels", "--resize", "native", "--batch-size",
+                 batch, "--out", str(tmp_path / "d.h5")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "f5.png has size 128x64 but the images before it" in err and "have 64x32" in err
+    assert "hint: --resize 64x32" in err
+
+
+def _sources() -> list[bytes]:
+    rng = np.random.default_rng(0)
+    img = Image.fromarray(rng.integers(0, 256, (12, 16, 3), dtype=np.uint8))
+    out = []
+    for fmt in FORMATS:
+        b = io.BytesIO()
+        img.save(b, fmt)
+        out.append(b.getvalue())
+    b = io.BytesIO()
+    Image.fromarray((rng.random((8, 8)) * 65535).astype(np.uint16)).save(b, "PNG")
+    return [*out, b.getvalue()]
+
+
+SOURCES = _sources()
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")  # PIL's own, on damaged TIFF tags
+@settings(max_examples=250, deadline=None, suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_fuzzed_images_decode_or_are_one_error(tmp_path_factory, data):
+    f = tmp_path_factory.mktemp("img") / "x.img"
+    f.write_bytes(data.draw(mutated(data.draw(st.sampled_from(SOURCES)), max_flips=6)))
+    try:
+        out = read_image(f)
+    except ImageError:
+        return
+    assert out.dtype == np.uint8 and out.ndim == 3 and out.shape[2] == 3
