@@ -86,6 +86,18 @@ def test_read_npz_equals_np_load(tmp_path):
             assert set(got) == set(z.files) and all(np.array_equal(got[k], z[k]) for k in z.files)
 
 
+def test_an_npz_member_flagged_encrypted_is_one_error(tmp_path):
+    """Found by an hour of fuzzing: the zip 'encrypted' bit made zipfile raise RuntimeError."""
+    np.savez(tmp_path / "x.npz", a=np.arange(3))
+    data = bytearray((tmp_path / "x.npz").read_bytes())
+    for sig in (b"PK\x03\x04", b"PK\x01\x02"):  # the flag word in the local and the central header
+        at = data.find(sig)
+        data[at + (6 if sig == b"PK\x03\x04" else 8)] |= 1
+    (tmp_path / "x.npz").write_bytes(bytes(data))
+    with pytest.raises(DatasetError, match="encrypted"):
+        read_npz(tmp_path / "x.npz")
+
+
 def test_a_truncated_npy_is_refused_before_allocating(tmp_path):
     np.save(tmp_path / "a.npy", np.ones((100, 100)))
     data = (tmp_path / "a.npy").read_bytes()

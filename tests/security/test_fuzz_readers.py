@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "fuzz_readers.py"
-CASES = {"arrays": 60, "dataset": 40, "torch": 40, "positives": 40, "text": 40, "map": 30, "foreign": 30,
+CASES = {"arrays": 60, "dataset": 40, "torch": 40, "positives": 40, "text": 40, "map": 30, "foreign": 30, "bags": 20,
          "hdf5": 12, "faiss": 12}  # the last two start a sandboxed child per case
 
 

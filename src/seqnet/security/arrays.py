@@ -110,6 +110,8 @@ def _member(z: zipfile.ZipFile, info: zipfile.ZipInfo, where: str, size: int, er
             kinds: str) -> np.ndarray:
     """One member of an ``.npz``: its header checked, then its data read into an array of the declared size."""
     bound = min(info.file_size, max(info.compress_size, 0) * MAX_RATIO + MAX_HEADER, size * MAX_RATIO + MAX_HEADER)
+    if info.flag_bits & 0x1:
+        raise error(f"cannot read {where}: the archive member is encrypted (numpy never writes one)")
     with z.open(info) as m:
         shape, fortran, dtype = read_header(m, where, error)
         check_dtype(dtype, where, error, kinds)
