@@ -133,6 +133,10 @@ def test_missing_json_and_bad_json(ds_copy, capsys):
     (["--top-k", "0"], "--top-k"),
     (["--method", "hvpr-nope"], "shortlister"),
     (["--shortlist", "seqnet"], "unrecognized arguments"),
+    (["--method", "single,raw+seqmatch", "--top-k", "5"], "--top-k is the HVPR shortlist size"),  # options of
+    (["--method", "hvpr-delta:raw+seqmatch", "--fuse-weight", "0.5"], "--fuse-weight is hvpr-fused"),  # another
+    (["--method", "hvpr-delta:raw+seqmatch", "--fuse-top-k", "50"], "--fuse-top-k is hvpr-fused"),  # method
+    (["--method", "single,delta", "--rerank-seq-len", "3"], "none of the methods given"),
 ])
 def test_bad_options(small_dir, capsys, tmp_path, argv, pattern):
     out_json = tmp_path / "r.json"
