@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -198,3 +200,65 @@ def mutated(data: bytes, max_flips: int = 8):
         st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, 255)), min_size=1, max_size=max_flips).map(flip),
         st.builds(insert, st.integers(0, n), st.binary(min_size=1, max_size=24)),
     )
+
+
+# ---------------------------------------------------------------- crash points (kill -9 at each rename)
+
+
+def _crash_at(k: int, when: str, target, *args) -> None:
+    """In a forked child: run ``target(*args)``, dying (as ``kill -9``) at its ``k``-th rename, before or after."""
+    import torch
+
+    import seqnet.security.dirs as dirs
+
+    torch.set_num_threads(1)  # no OpenMP pool inherited across the fork
+    count = [0]
+
+    def wrap(fn):
+        def inner(*a, **kw):
+            count[0] += 1
+            if count[0] == k and when == "before":
+                os._exit(9)
+            out = fn(*a, **kw)
+            if count[0] == k and when == "after":
+                os._exit(9)
+            return out
+        return inner
+
+    os.rename, os.replace = wrap(os.rename), wrap(os.replace)
+    dirs.exchange = wrap(dirs.exchange)
+    target(*args)
+    os._exit(0)
+
+
+def run_killed(k: int, when: str, target, *args) -> int:
+    """The exit code of ``target(*args)`` killed at its ``k``-th rename (0: it made fewer renames)."""
+    proc = multiprocessing.get_context("fork").Process(target=_crash_at, args=(k, when, target, *args))
+    proc.start()
+    proc.join(120)
+    return proc.exitcode
+
+
+def each_crash_point(restore, target, *args, check, modes=("before", "after")) -> int:
+    """``restore()``, then kill ``target(*args)`` before (with its temporary file written) and after each of its
+    renames in turn; ``check()`` after every kill. Returns the number of kills."""
+    tried = 0
+    for when in modes:
+        for k in range(1, 80):
+            restore()
+            code = run_killed(k, when, target, *args)
+            check()
+            tried += 1
+            if code == 0:
+                break
+        else:
+            pytest.fail("more renames than expected")
+    return tried
+
+
+def restorer(saved, out):
+    """A function putting back ``out`` as the copy ``saved`` holds."""
+    def restore():
+        shutil.rmtree(out, ignore_errors=True)
+        shutil.copytree(saved, out, symlinks=True)
+    return restore

@@ -4,45 +4,12 @@ and the next writer repairs what the dead one left (no ``.old`` / ``.tmp`` stays
 
 from __future__ import annotations
 
-import multiprocessing
-import os
-
 import pytest
+from conftest import run_killed
 
 import seqnet.security.dirs as dirs
 from seqnet.data.io import load_dataset, save_dataset
 from seqnet.data.synth import make_synthetic
-
-
-def _crash_at(k: int, when: str, target, *args) -> None:
-    """In a forked child: run ``target(*args)``, dying at the ``k``-th rename (``before`` or ``after`` it)."""
-    import torch
-
-    torch.set_num_threads(1)  # no OpenMP thread pool inherited across the fork (it would hang)
-    count = [0]
-
-    def wrap(fn):
-        def inner(*a, **kw):
-            count[0] += 1
-            if count[0] == k and when == "before":
-                os._exit(9)
-            out = fn(*a, **kw)
-            if count[0] == k and when == "after":
-                os._exit(9)
-            return out
-        return inner
-
-    os.rename, os.replace = wrap(os.rename), wrap(os.replace)
-    dirs.exchange = wrap(dirs.exchange)
-    target(*args)
-    os._exit(0)
-
-
-def _run(k, when, target, *args) -> int:
-    proc = multiprocessing.get_context("fork").Process(target=_crash_at, args=(k, when, target, *args))
-    proc.start()
-    proc.join(60)
-    return proc.exitcode
 
 
 def _leftovers(root):
@@ -57,7 +24,7 @@ def test_dataset_replacement_is_never_missing_or_mixed(tmp_path, when):
     root = tmp_path / "ds"
     for k in range(1, 40):
         save_dataset(old, root, overwrite=True)
-        code = _run(k, when, save_dataset, new, root, True)
+        code = run_killed(k, when, save_dataset, new, root, True)
         got = load_dataset(root)  # always there, always one whole version
         assert got.name in ("old", "new"), k
         want = new if got.name == "new" else old
@@ -80,7 +47,7 @@ def test_an_interrupted_two_step_replacement_is_repaired(tmp_path, monkeypatch):
     root = tmp_path / "ds"
     save_dataset(old, root)
     for k in range(1, 40):
-        code = _run(k, "after", save_dataset, new, root, True)
+        code = run_killed(k, "after", save_dataset, new, root, True)
         save_dataset(old, root, overwrite=True)
         assert load_dataset(root).name == "old" and _leftovers(root) == []
         if code == 0:
@@ -117,7 +84,7 @@ def _each_crash_point(target, *args, check) -> int:
     tried = 0
     for when in ("before", "after"):
         for k in range(1, 60):
-            code = _run(k, when, target, *args)
+            code = run_killed(k, when, target, *args)
             check()
             tried += 1
             if code == 0:

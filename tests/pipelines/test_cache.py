@@ -6,15 +6,11 @@ cache did not make (a user's own dataset or run) are never replaced."""
 from __future__ import annotations
 
 import json
-import multiprocessing
-import os
-import shutil
 
 import numpy as np
 import pytest
-from conftest import shared_data
+from conftest import each_crash_point, restorer, shared_data
 
-import seqnet.security.dirs as dirs
 from seqnet.core.errors import OutputError
 from seqnet.pipelines.nordland64 import Nordland64Config, build_dataset, train_models
 from seqnet.pipelines.nordland64 import cache as nc
@@ -46,62 +42,6 @@ def quick_train(tds, tconf, run_dir, *args, **kw):
     for name in ("best.pt", "last.pt"):
         save_checkpoint(run_dir / name, model, epoch=1, best_score=0.5)
     return types.SimpleNamespace(out_dir=run_dir, best_epoch=1, best_score=0.5)
-
-
-def _crash_at(k: int, when: str, target, *args) -> None:
-    """In a forked child: run ``target(*args)``, dying (as ``kill -9``) at its ``k``-th rename, before or after."""
-    import torch
-
-    torch.set_num_threads(1)  # no OpenMP pool inherited across the fork
-    count = [0]
-
-    def wrap(fn):
-        def inner(*a, **kw):
-            count[0] += 1
-            if count[0] == k and when == "before":
-                os._exit(9)
-            out = fn(*a, **kw)
-            if count[0] == k and when == "after":
-                os._exit(9)
-            return out
-        return inner
-
-    os.rename, os.replace = wrap(os.rename), wrap(os.replace)
-    dirs.exchange = wrap(dirs.exchange)
-    target(*args)
-    os._exit(0)
-
-
-def run_killed(k: int, when: str, target, *args) -> int:
-    """The exit code of ``target(*args)`` killed at its ``k``-th rename (0: it made fewer renames)."""
-    proc = multiprocessing.get_context("fork").Process(target=_crash_at, args=(k, when, target, *args))
-    proc.start()
-    proc.join(120)
-    return proc.exitcode
-
-
-def each_crash_point(restore, target, *args, check, modes=("before", "after")) -> int:
-    """``restore()``, then kill ``target(*args)`` before (with its temporary file written) and after each of its
-    renames in turn; ``check()`` after every kill. Returns the number of kills."""
-    tried = 0
-    for when in modes:
-        for k in range(1, 80):
-            restore()
-            code = run_killed(k, when, target, *args)
-            check()
-            tried += 1
-            if code == 0:
-                break
-        else:
-            pytest.fail("more renames than expected")
-    return tried
-
-
-def restorer(saved, out):
-    def restore():
-        shutil.rmtree(out, ignore_errors=True)
-        shutil.copytree(saved, out, symlinks=True)
-    return restore
 
 
 def test_a_killed_descriptor_build_never_leaves_a_mixed_cache(tmp_path):

@@ -263,7 +263,7 @@ def test_a_killed_experiment_leaves_its_outputs_of_one_run(tmp_path, cache):
     import hashlib
     import shutil
 
-    from pipelines.test_cache import each_crash_point
+    from conftest import each_crash_point, restorer
 
     from seqnet.pipelines.experiments.splits import SplitsConfig
 
@@ -285,9 +285,7 @@ def test_a_killed_experiment_leaves_its_outputs_of_one_run(tmp_path, cache):
     saved = tmp_path / "saved"
     shutil.copytree(out, saved)
 
-    def restore():
-        shutil.rmtree(out)
-        shutil.copytree(saved, out)
+    restore = restorer(saved, out)
 
     def check():
         test = json.loads((out / "results.json").read_text())["sizes"]["test"]["places"]

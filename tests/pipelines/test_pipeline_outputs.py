@@ -8,11 +8,10 @@ import errno
 import fcntl
 import json
 import os
-import shutil
 import tempfile
 
 import pytest
-from pipelines.test_cache import each_crash_point
+from conftest import each_crash_point, restorer
 
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import OutputError
@@ -36,9 +35,7 @@ def test_a_killed_demo_leaves_one_whole_version(tmp_path):
     old, new = (DemoConfig(places=n, train_models=False, device="cpu") for n in (100, 150))
     demo(old, saved)
 
-    def restore():
-        shutil.rmtree(out, ignore_errors=True)
-        shutil.copytree(saved, out)
+    restore = restorer(saved, out)
 
     def check():
         places = json.loads((out / "results.json").read_text())["config"]["demo"]["places"]

@@ -87,7 +87,7 @@ def test_a_killed_run_leaves_its_three_outputs_of_one_run(sweep, tmp_path, monke
     results.json beside an old timing.png used to be left)."""
     import hashlib
 
-    from pipelines.test_cache import each_crash_point
+    from conftest import each_crash_point, restorer
 
     from seqnet.pipelines.timing import run
 
@@ -104,9 +104,7 @@ def test_a_killed_run_leaves_its_three_outputs_of_one_run(sweep, tmp_path, monke
     saved = tmp_path / "saved"
     shutil.copytree(out, saved)
 
-    def restore():
-        shutil.rmtree(out)
-        shutil.copytree(saved, out)
+    restore = restorer(saved, out)
 
     def check():
         n = len(json.loads((out / "results.json").read_text())["maps"])
