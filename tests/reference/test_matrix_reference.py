@@ -143,3 +143,29 @@ def test_the_finite_check_streams_blocks_of_rows_and_names_the_entry(tmp_path):
         with pytest.raises(DatasetError, match=r"entry \[37, 5\] is inf"):
             check_finite_rows(mm, "m.npy", block_bytes=block)
     check_finite_rows(np.load(tmp_path / "m.npy")[:37], "m.npy", block_bytes=8)
+
+
+def test_a_vpr_bench_precomputed_file_is_read_as_its_score_matrix(synth_dataset, synth_dir, tmp_path, capsys):
+    """VPR-Bench's ``precomputed_data_corrected.npy`` (evaluate_vpr_techniques.py: an object array of query
+    indices, best references, best scores, the [Nq, Nr] score matrix, encode and match times) is read by the
+    data-only unpickler and evaluated as the matrix it holds; without --similarity it is refused."""
+    s = 1 - distances(synth_dataset) ** 2 / 2
+    pre = np.empty(6, dtype=object)
+    pre[:] = [np.arange(len(s)), s.argmax(1), s.max(1), s, 0.01, 0.02]
+    np.save(tmp_path / "pre.npy", pre, allow_pickle=True)
+    np.save(tmp_path / "s.npy", s)
+    got = {}
+    for name in ("pre", "s"):
+        assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--distances", str(tmp_path / f"{name}.npy"),
+                    "--similarity", "--json", str(tmp_path / f"{name}.json")]) == 0
+        got[name] = json.loads((tmp_path / f"{name}.json").read_text())["methods"]
+    figures = {m: {k: v for k, v in r.items() if k.startswith(("recall@", "auc", "queries"))} for m, r in got["s"].items()}
+    assert figures and all({k: got["pre"][m][k] for k in f} == f for m, f in figures.items())
+    capsys.readouterr()
+    assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "pre.npy")]) == 2
+    assert "add --similarity" in capsys.readouterr().err
+    other = np.empty(2, dtype=object)
+    other[:] = [1, "x"]
+    np.save(tmp_path / "other.npy", other, allow_pickle=True)
+    assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "other.npy"), "--similarity"]) == 2
+    assert "not a matrix of numbers" in capsys.readouterr().err

@@ -39,7 +39,8 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
     the whole dataset ``ds``), restricted to the rows and columns of ``split`` (a name, a range spec, or
     ``all``: :meth:`Dataset.ranges`) and as distances (float64). The file is memory-mapped: only the split's
     block is read and converted."""
-    m = read_npy(path, True, "--distances", ConfigError)
+    m = _vpr_bench_scores(path, similarity) if _holds_objects(path) else read_npy(path, True, "--distances",
+                                                                                   ConfigError)
     want = (len(ds.query), len(ds.reference))
     if m.ndim != 2 or m.shape != want:
         raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {want[0]} query and "
@@ -48,6 +49,35 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
     rng = ds.ranges(split)
     out = np.array(m[slice(*rng["query"]), slice(*rng["reference"])], dtype=np.float64)  # the split's block only
     return np.negative(out, out=out) if similarity else out
+
+
+def _holds_objects(path: str | Path) -> bool:
+    """Whether the ``.npy`` file ``path`` declares Python objects (a pickle) rather than numbers."""
+    from ..security.arrays import read_header
+    from ..security.inputs import open_input
+
+    with open_input(path, "--distances", ConfigError) as f:
+        try:
+            return read_header(f, str(path), ConfigError)[2] == np.dtype(object)
+        except ConfigError:
+            return False  # read_npy says what is wrong
+
+
+def _vpr_bench_scores(path: str | Path, similarity: bool) -> np.ndarray:
+    """The score matrix ``[Nq, Nr]`` (element 3, higher is better) of VPR-Bench's ``precomputed_data_corrected.npy``
+    (an object array: query indices, best references, best scores, scores, encode and match times), read with
+    seqnet's data-only unpickler; any other pickled ``.npy`` is refused."""
+    from ..security.unpickle import load_npy_objects
+
+    x = load_npy_objects(path, "--distances", ConfigError)
+    m = x[3] if isinstance(x, np.ndarray) and x.shape == (6,) and isinstance(x[3], np.ndarray) else None
+    if m is None or m.ndim != 2 or m.dtype.kind not in "fiu":
+        raise ConfigError(f"--distances {path}: holds Python objects, not a matrix of numbers (VPR-Bench's "
+                          "precomputed_data_corrected.npy is read; this is not one)")
+    if not similarity:
+        raise ConfigError(f"--distances {path}: a VPR-Bench precomputed file holds similarities (higher is better): "
+                          "add --similarity")
+    return m
 
 
 def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = 64 << 20) -> None:
