@@ -159,7 +159,8 @@ def test_a_vpr_bench_precomputed_file_is_read_as_its_score_matrix(synth_dataset,
         assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--distances", str(tmp_path / f"{name}.npy"),
                     "--similarity", "--json", str(tmp_path / f"{name}.json")]) == 0
         got[name] = json.loads((tmp_path / f"{name}.json").read_text())["methods"]
-    figures = {m: {k: v for k, v in r.items() if k.startswith(("recall@", "auc", "queries"))} for m, r in got["s"].items()}
+    keep = ("recall@", "auc", "queries")
+    figures = {m: {k: v for k, v in r.items() if k.startswith(keep)} for m, r in got["s"].items()}
     assert figures and all({k: got["pre"][m][k] for k in f} == f for m, f in figures.items())
     capsys.readouterr()
     assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "pre.npy")]) == 2
