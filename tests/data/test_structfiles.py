@@ -169,7 +169,7 @@ def test_a_decompression_bomb_is_refused_before_it_is_inflated(tmp_path, monkeyp
     quarter of the memory there is (here made small, so that a 20 MB variable in a 20 KB file is refused)."""
     from scipy.io import savemat
 
-    from seqnet.data.structfiles import matfile
+    from seqnet.security import matfile
 
     f = struct_file(tmp_path / "s.db", compress=True)
     savemat(tmp_path / "bomb.db", {"dbStruct": {}, "junk": np.zeros((1, 20_000_000), np.uint8)}, do_compression=True)
@@ -222,10 +222,10 @@ def test_declared_sizes_are_checked_against_the_bytes(tmp_path):
 def test_a_crash_of_scipy_ends_the_child_not_this_process(tmp_path, monkeypatch):
     import sys
 
-    from seqnet.data.structfiles import sandboxed
+    from seqnet.security import matlab
 
     crash = [sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)"]
-    monkeypatch.setattr(sandboxed, "python_command", lambda *a: crash)
+    monkeypatch.setattr(matlab, "python_command", lambda *a: crash)
     with pytest.raises(DatasetError, match=r"the reader crashed on it \(signal 11\)"):
         read_db_struct(struct_file(tmp_path / "s.db"))
 
@@ -244,7 +244,7 @@ def test_special_struct_files_are_refused(tmp_path):
 @given(data=st.data())
 def test_fuzzed_mat_bytes_are_checked_or_refused(data):
     """The walk over a damaged file's elements: the bytes for scipy, or one DatasetError (fast: no child)."""
-    from seqnet.data.structfiles.matfile import MatChecker
+    from seqnet.security.matfile import MatChecker
 
     raw = data.draw(st.sampled_from(FUZZ_SOURCES))
     try:

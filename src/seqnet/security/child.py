@@ -2,7 +2,7 @@
 
 The request is one JSON line on stdin, ``{"op": NAME, ...}``; the answer is one JSON line on stdout
 (the reader's result, or ``{"error": message}`` when it refused the input) followed by the bytes the
-result announces. Readers: :data:`READERS` (HDF5 files, FAISS indexes, MATLAB files).
+result announces. Readers: :data:`READERS` (HDF5 files, FAISS indexes; MAT files have their own child, :mod:`.matlab`).
 """
 
 from __future__ import annotations
@@ -27,17 +27,7 @@ def _faiss(request: dict[str, Any], out: IO[bytes]) -> None:
     probe(request, out)
 
 
-def _matlab(request: dict[str, Any], out: IO[bytes]) -> None:
-    import scipy.io
-
-    from .inputs import open_input
-
-    with open_input(str(request["path"]), "MAT file") as f:
-        scipy.io.loadmat(f, squeeze_me=True, struct_as_record=False)
-    answer(out, {"ok": True})
-
-
-READERS = {"hdf5": _hdf5, "faiss": _faiss, "matlab": _matlab}
+READERS = {"hdf5": _hdf5, "faiss": _faiss}
 
 
 def main() -> None:

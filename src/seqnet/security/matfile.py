@@ -8,7 +8,7 @@ in blocks with the total bounded by :data:`~seqnet.security.arrays.MAX_RATIO` ti
 the memory there is), and every element walked: its type known, its bytes inside its parent, nesting
 bounded, an array's class one of numbers, text, cells and structs, and its declared element count within
 its bytes. Only the checked, uncompressed bytes reach ``loadmat``, and it reads them in a sandboxed child
-(:mod:`.sandboxed`), so what it still does wrong ends that child, not this process.
+(:mod:`.matlab`), so what it still does wrong ends that child, not this process.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ import os
 import struct
 import zlib
 
-from ...core.errors import DatasetError
-from ...core.memory import available_bytes
-from ...security.arrays import MAX_RATIO
-from ...security.inputs import open_input
+from ..core.errors import DatasetError
+from ..core.memory import available_bytes
+from .arrays import MAX_RATIO
+from .inputs import open_input
 
 MAX_FILE = 1 << 30  # a struct file read whole
 MAX_DEPTH = 32  # nested cells / structs

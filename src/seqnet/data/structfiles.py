@@ -18,15 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.errors import DatasetError
-from ...core.utils import logger
-from ...security.limits import INDEX_MAX, number
-from ...security.text import shown
-from ..convert import POSITION_MAX, read_seq_bounds
-from ..presets import get_preset, preset_metadata, preset_splits
-from ..readers import LINE_SEPARATORS
-from ..traverse import Dataset, Traverse
-from .sandboxed import read_struct
+from ..core.errors import DatasetError
+from ..core.utils import logger
+from ..security.limits import INDEX_MAX, number
+from ..security.matlab import read_struct
+from ..security.text import shown
+from .convert import POSITION_MAX, read_seq_bounds
+from .presets import get_preset, preset_metadata, preset_splits
+from .readers import LINE_SEPARATORS
+from .traverse import Dataset, Traverse
 
 REQUIRED_FIELDS = ("whichSet", "dbImageFns", "qImageFns", "numImages", "numQueries", "posDistThr", "utmDb", "utmQ")
 
