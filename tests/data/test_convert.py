@@ -114,6 +114,23 @@ def test_parse_utm_name():
         parse_utm_name("image_0001.jpg")
 
 
+@pytest.mark.parametrize("name, expected", [
+    ("img@5@x@10@20@.jpg", None),  # VME: float(split('@')[2]) fails; a later pair is not searched for
+    ("@1.5@2@17@T@.jpg", (1.5, 2.0)),
+    ("@1e3@-2@.png", (1000.0, -2.0)),  # Python's float, as VME's
+    ("@1@2", (1.0, 2.0)),
+    ("folder@7@8@/@3@4@.jpg", (3.0, 4.0)),  # the file name only: an '@' in a folder changes nothing
+    ("@nan@2@.jpg", None),
+    ("@1@2.jpg", None),
+])
+def test_utm_coordinates_are_the_first_two_at_fields_of_the_file_name_as_vme_reads_them(name, expected):
+    if expected is None:
+        with pytest.raises(DatasetError, match=name.rsplit("/", 1)[-1][:4]):
+            parse_utm_name(name)
+    else:
+        assert parse_utm_name(name) == expected
+
+
 def test_utm_names_cli(tmp_path, rng):
     names_r = [f"@{500000 + 3 * i:.2f}@{4000000:.2f}@17@T@x.jpg" for i in range(30)]
     names_q = [f"@{500001 + 3 * i:.2f}@{4000000:.2f}@17@T@y.jpg" for i in range(30)]

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import csv
 import io
-import re
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +34,6 @@ NORTH_COLUMNS = ("northing", "north", "utm_north", "utm_northing", "y")
 FRAME_COLUMNS = ("frame", "frame_number", "frame_id", "frame_index")
 SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
 POSITION_MAX = 1e12  # |easting|, |northing| (metres) or a frame number read from a file
-UTM_NAME = re.compile(r"@([-+]?\d+(?:\.\d*)?)@([-+]?\d+(?:\.\d*)?)@")
 
 
 def _basename(s: str) -> str:
@@ -74,12 +72,19 @@ def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarra
 
 
 def parse_utm_name(name: str) -> tuple[float, float]:
-    """``(easting, northing)`` from a name like ``@0543256.96@4477929.94@17@T@...jpg``."""
-    m = UTM_NAME.search(name.replace("\\", "/").rsplit("/", 1)[-1])
-    if m is None:
+    """``(easting, northing)`` from a name like ``@0543256.96@4477929.94@17@T@...jpg``: the first two
+    ``@``-separated fields of its file name, as VPR-methods-evaluation reads them (``split("@")[1]``, ``[2]``,
+    there on the whole path; here on the file name, so an ``@`` in a folder name changes nothing)."""
+    fields = name.replace("\\", "/").rsplit("/", 1)[-1].split("@")
+    try:
+        easting, northing = float(fields[1]), float(fields[2])
+    except (IndexError, ValueError):
         raise DatasetError(f"image name {name!r} carries no UTM coordinates; expected '@<easting>@<northing>@...' "
-                           "(e.g. '@0543256.96@4477929.94@17@T@...jpg')")
-    return float(m.group(1)), float(m.group(2))
+                           "(e.g. '@0543256.96@4477929.94@17@T@...jpg')") from None
+    if not abs(easting) <= POSITION_MAX >= abs(northing):  # NaN fails too
+        raise DatasetError(f"image name {name!r}: UTM coordinates {fields[1]!r}, {fields[2]!r} are not finite "
+                           f"numbers of at most {POSITION_MAX:g} metres")
+    return easting, northing
 
 
 def utm_positions(names: list[str]) -> np.ndarray:
