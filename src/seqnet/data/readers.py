@@ -70,6 +70,21 @@ def _folder_hint(names_file: Path) -> str:
             f"made from a list of the images, put it at {lst} (VPR-methods-evaluation's list file)")
 
 
+def warn_unless_unit_rows(desc: np.ndarray, where: str | Path, block: int = 1 << 16) -> None:
+    """A warning when some descriptor rows are not L2-normalised: seqnet normalises every row before comparing,
+    a tool ranking the rows as saved by L2 distance (VPR-methods-evaluation's faiss IndexFlatL2) then ranks
+    otherwise, so its figures differ."""
+    for a in range(0, desc.shape[0], block):
+        norms = np.sqrt(np.einsum("ij,ij->i", desc[a:a + block], desc[a:a + block], dtype=np.float64))
+        bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+        if bad.size:
+            logger.warning("%s: row %d has L2 norm %.4g, not 1; seqnet L2-normalises rows before comparing, so its "
+                           "R@K differ from a tool's that ranks the rows as saved by L2 distance (VPR-methods-"
+                           "evaluation); hint: for that tool's figures give its distances with eval --distances",
+                           where, a + int(bad[0]), norms[bad[0]])
+            return
+
+
 def as_float32(desc: np.ndarray, where: Path | str) -> np.ndarray:
     """``desc`` as a native-byte-order float32 ``[N, D]`` array (memory maps of float32 are kept)."""
     if desc.ndim != 2:
