@@ -200,7 +200,7 @@ def test_hloc_global_features_are_read_with_their_names(tmp_path):
 
 def test_vpr_methods_evaluation_descriptors_get_their_names_from_the_folders(tmp_path, capsys):
     """VPR-methods-evaluation saves database_descriptors.npy / queries_descriptors.npy without names; their
-    rows follow sorted(glob(folder/**/*.jpg, recursive=True)), with UTM coordinates in the names."""
+    rows follow sorted(glob(folder/**/*, recursive=True)) (images), with UTM coordinates in the names."""
     rng = np.random.default_rng(0)
     for side, n in (("database", 6), ("queries", 4)):
         for i in range(n):
