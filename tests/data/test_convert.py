@@ -114,6 +114,23 @@ def test_parse_utm_name():
         parse_utm_name("image_0001.jpg")
 
 
+@pytest.mark.parametrize("name, expected", [
+    ("img@5@x@10@20@.jpg", None),  # VME: float(split('@')[2]) fails; a later pair is not searched for
+    ("@1.5@2@17@T@.jpg", (1.5, 2.0)),
+    ("@1e3@-2@.png", (1000.0, -2.0)),  # Python's float, as VME's
+    ("@1@2", (1.0, 2.0)),
+    ("folder@7@8@/@3@4@.jpg", (3.0, 4.0)),  # the file name only: an '@' in a folder changes nothing
+    ("@nan@2@.jpg", None),
+    ("@1@2.jpg", None),
+])
+def test_utm_coordinates_are_the_first_two_at_fields_of_the_file_name_as_vme_reads_them(name, expected):
+    if expected is None:
+        with pytest.raises(DatasetError, match=name.rsplit("/", 1)[-1][:4]):
+            parse_utm_name(name)
+    else:
+        assert parse_utm_name(name) == expected
+
+
 def test_utm_names_cli(tmp_path, rng):
     names_r = [f"@{500000 + 3 * i:.2f}@{4000000:.2f}@17@T@x.jpg" for i in range(30)]
     names_q = [f"@{500001 + 3 * i:.2f}@{4000000:.2f}@17@T@y.jpg" for i in range(30)]
@@ -183,7 +200,7 @@ def test_hloc_global_features_are_read_with_their_names(tmp_path):
 
 def test_vpr_methods_evaluation_descriptors_get_their_names_from_the_folders(tmp_path, capsys):
     """VPR-methods-evaluation saves database_descriptors.npy / queries_descriptors.npy without names; their
-    rows follow sorted(glob(folder/**/*.jpg, recursive=True)), with UTM coordinates in the names."""
+    rows follow sorted(glob(folder/**/*, recursive=True)) (images), with UTM coordinates in the names."""
     rng = np.random.default_rng(0)
     for side, n in (("database", 6), ("queries", 4)):
         for i in range(n):
@@ -278,3 +295,21 @@ def test_fuzzed_seq_bounds_give_bounds_or_one_error(tmp_path, data):
     except DatasetError:
         return
     assert b.dtype == np.int64 and b.shape[1] == 2
+
+
+def test_descriptor_rows_not_unit_length_are_warned_about_on_the_vme_route(tmp_path, caplog):
+    """seqnet L2-normalises rows; VPR-methods-evaluation ranks the rows as saved (faiss IndexFlatL2): with rows
+    not of unit length the two rank differently, which is said, not left to be found in the figures."""
+    import logging
+
+    from seqnet.data.convert import traverse_from_utm_names
+
+    (tmp_path / "n.txt").write_text("@1@2@a.jpg\n@3@4@b.jpg\n")
+    unit = np.array([[0.6, 0.8], [1.0, 0.0]], np.float32)
+    np.save(tmp_path / "unit.npy", unit)
+    np.save(tmp_path / "raw.npy", unit * np.array([[1.0], [3.0]], np.float32))
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        traverse_from_utm_names(tmp_path / "unit.npy", tmp_path / "n.txt")
+        assert not caplog.text
+        traverse_from_utm_names(tmp_path / "raw.npy", tmp_path / "n.txt")
+    assert "raw.npy: row 1 has L2 norm 3, not 1; seqnet L2-normalises rows" in caplog.text

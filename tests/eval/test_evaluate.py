@@ -403,8 +403,12 @@ def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
     assert cli(argv) == 0
     ds = load_dataset(synth_dir).split("test")
     files = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
-    assert files[0] == "000.txt" and all(re.fullmatch(r"\d{3}\.txt", f) for f in files)
-    text = (out / "000.txt").read_text()
+    assert all(re.fullmatch(r"\d{3}\.txt", f) for f in files)
+    # numbered by the query's index in the query list, as VME: L=4 leaves out frames 0, 1 and the last one
+    assert files[0] == "002.txt" and files[-1] == f"{len(ds.query) - 2:03d}.txt" and len(files) == len(ds.query) - 3
+    for f in files:
+        assert (out / f).read_text().split("\n")[1] == ds.query.names[int(f[:3])]
+    text = (out / "002.txt").read_text()
     head, preds, positives = text.split("\n\n")[:3]
     assert head.split("\n")[0] == "Query path:" and head.split("\n")[1] in ds.query.names
     assert preds.split("\n")[0] == "Predictions paths:" and len(preds.split("\n")[1:]) == 5

@@ -74,8 +74,9 @@ def _register_utm(dsub: argparse._SubParsersAction) -> None:
                                     "(Pittsburgh, Tokyo 24/7, MSLS-style).")
     for side in ("ref", "query"):
         p.add_argument(f"--{side}-desc", required=True, help=f"{side} descriptors (.npy, .h5, .hdf5)")
-        p.add_argument(f"--{side}-names", help=f"{side} image names, one per line, or an image folder: its .jpg "
-                       "images in VPR-methods-evaluation's order, sorted(glob('**/*.jpg')) (default: HDF5 'names')")
+        p.add_argument(f"--{side}-names", help=f"{side} image names, one per line, or an image folder in "
+                       "VPR-methods-evaluation's order: the lines of DIR_images_paths.txt beside it, else its "
+                       ".jpg/.jpeg/.png files, sorted(glob('**/*')) (default: HDF5 'names')")
         p.add_argument(f"--{side}-seq-bounds", help=f"{side} sequence bounds file ('start end' per image)")
     _common(p)
     p.set_defaults(func=run_from_utm)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import csv
 import io
-import re
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +25,7 @@ from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import check_same
 from ..core.utils import logger
 from .positives import Positives
-from .readers import check_names, read_descriptor_file, read_provenance, read_text
+from .readers import check_names, read_descriptor_file, read_provenance, read_text, warn_unless_unit_rows
 from .traverse import Dataset, Traverse
 
 NAME_COLUMNS = ("name", "image", "image_name", "filename", "file", "path", "key", "image_key")
@@ -35,7 +34,6 @@ NORTH_COLUMNS = ("northing", "north", "utm_north", "utm_northing", "y")
 FRAME_COLUMNS = ("frame", "frame_number", "frame_id", "frame_index")
 SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
 POSITION_MAX = 1e12  # |easting|, |northing| (metres) or a frame number read from a file
-UTM_NAME = re.compile(r"@([-+]?\d+(?:\.\d*)?)@([-+]?\d+(?:\.\d*)?)@")
 
 
 def _basename(s: str) -> str:
@@ -74,12 +72,17 @@ def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarra
 
 
 def parse_utm_name(name: str) -> tuple[float, float]:
-    """``(easting, northing)`` from a name like ``@0543256.96@4477929.94@17@T@...jpg``."""
-    m = UTM_NAME.search(name.replace("\\", "/").rsplit("/", 1)[-1])
-    if m is None:
+    """``(easting, northing)`` from a name like ``@0543256.96@4477929.94@17@T@...jpg``: VPR-methods-evaluation's
+    ``split("@")[1]``, ``[2]`` (there of the whole path, here of the file name: an ``@`` in a folder is no field)."""
+    fields = name.replace("\\", "/").rsplit("/", 1)[-1].split("@")
+    try:
+        easting, northing = float(fields[1]), float(fields[2])
+    except (IndexError, ValueError):
         raise DatasetError(f"image name {name!r} carries no UTM coordinates; expected '@<easting>@<northing>@...' "
-                           "(e.g. '@0543256.96@4477929.94@17@T@...jpg')")
-    return float(m.group(1)), float(m.group(2))
+                           "(e.g. '@0543256.96@4477929.94@17@T@...jpg')") from None
+    if not abs(easting) <= POSITION_MAX >= abs(northing):  # NaN fails too
+        raise DatasetError(f"image name {name!r}: UTM {fields[1]!r}, {fields[2]!r} not finite within ±{POSITION_MAX:g}")
+    return easting, northing
 
 
 def utm_positions(names: list[str]) -> np.ndarray:
@@ -213,6 +216,7 @@ def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None
     desc, names = read_descriptor_file(desc_path, names_file)
     if names is None:
         raise DatasetError(f"{desc_path}: no image names; give a names file or an HDF5 file with a 'names' dataset")
+    warn_unless_unit_rows(desc, desc_path)
     return Traverse(descriptors=desc, positions=utm_positions(names), names=names, name=name,
                     provenance=read_provenance(desc_path))
 

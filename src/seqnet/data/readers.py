@@ -29,6 +29,7 @@ from ..security.hdf5 import Hdf5Contents, read_hdf5
 from ..security.inputs import read_text as read_input_text
 from ..security.inputs import special_file
 from ..security.jsonfile import parse_json, read_json
+from .imagefolders import folder_names, list_file
 
 DESCRIPTOR_SUFFIXES = (".npy", ".h5", ".hdf5")
 # the characters str.splitlines() breaks lines at
@@ -53,8 +54,35 @@ def read_descriptor_file(path: str | Path, names_file: str | Path | None = None,
         names = read_names(names_file)
     if names is not None and len(names) != desc.shape[0]:
         src = names_file or f"{p}:names"
-        raise DatasetError(f"{src}: {len(names)} names for {desc.shape[0]} descriptors in {p} (must be equal)")
+        raise DatasetError(f"{src}: {len(names)} names for {desc.shape[0]} descriptors in {p} (must be equal)"
+                           f"{_folder_hint(Path(names_file)) if names_file else ''}")
     return desc, names
+
+
+def _folder_hint(names_file: Path) -> str:
+    """For names taken from a folder: where they came from, and VPR-methods-evaluation's list file."""
+    if not names_file.is_dir():
+        return ""
+    lst = list_file(names_file)
+    if lst.exists():
+        return f"; the names are the lines of {lst}, which must list the descriptors' images in row order"
+    return (f"; the names are the folder's .jpg/.jpeg/.png files in sorted order; hint: if the descriptors were "
+            f"made from a list of the images, put it at {lst} (VPR-methods-evaluation's list file)")
+
+
+def warn_unless_unit_rows(desc: np.ndarray, where: str | Path, block: int = 1 << 16) -> None:
+    """A warning when some descriptor rows are not L2-normalised: seqnet normalises every row before comparing,
+    a tool ranking the rows as saved by L2 distance (VPR-methods-evaluation's faiss IndexFlatL2) then ranks
+    otherwise, so its figures differ."""
+    for a in range(0, desc.shape[0], block):
+        norms = np.sqrt(np.einsum("ij,ij->i", desc[a:a + block], desc[a:a + block], dtype=np.float64))
+        bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+        if bad.size:
+            logger.warning("%s: row %d has L2 norm %.4g, not 1; seqnet L2-normalises rows before comparing, so its "
+                           "R@K differ from a tool's that ranks the rows as saved by L2 distance (VPR-methods-"
+                           "evaluation); hint: for that tool's figures give its distances with eval --distances",
+                           where, a + int(bad[0]), norms[bad[0]])
+            return
 
 
 def as_float32(desc: np.ndarray, where: Path | str) -> np.ndarray:
@@ -148,25 +176,12 @@ def check_names(names: list[str], where: str) -> list[str]:
 
 def read_names(path: str | Path) -> list[str]:
     """Image names, one per non-blank ``\\n``-separated line of a UTF-8 text file (surrounding spaces removed);
-    for a folder, its images in VPR-methods-evaluation's order (:func:`folder_names`)."""
+    for a folder, its images in VPR-methods-evaluation's order (:func:`seqnet.data.imagefolders.folder_names`)."""
     p = Path(path)
     if p.is_dir():
         return folder_names(p)
     names = [line.strip() for line in read_text(p, "names file").split("\n") if line.strip()]
     return check_names(names, str(p))
-
-
-def folder_names(folder: Path) -> list[str]:
-    """The ``.jpg`` images under ``folder`` (relative paths) in the order VPR-methods-evaluation and the
-    Visual Geo-localization Benchmark describe them: ``sorted(glob(folder/**/*.jpg, recursive=True))``,
-    so their saved ``database_descriptors.npy`` / ``queries_descriptors.npy`` rows get their names."""
-    import glob
-    import os
-
-    paths = sorted(glob.glob(os.path.join(str(folder), "**", "*.jpg"), recursive=True))
-    if not paths:
-        raise DatasetError(f"{folder}: no .jpg images under it (names are read as sorted(glob('**/*.jpg')))")
-    return check_names([os.path.relpath(q, folder) for q in paths], str(folder))
 
 
 def read_text(p: Path, what: str = "file") -> str:

@@ -92,9 +92,10 @@ def _num(x: float) -> float | None:
 
 def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
     """VPR-methods-evaluation's saved predictions (``visualizations.save_preds``): per query a file
-    ``<query index:03d>.txt`` holding ``Query path:``, the query, ``Predictions paths:``, its top-``top``
-    references (best first) and ``Positives paths:``, every correct reference (image names as the dataset
-    stores them). One method only, and the names must be known."""
+    ``<query frame:03d>.txt`` (the query's index in the query traverse, as VPR-methods-evaluation numbers it by
+    its query list: a query left out of the evaluation keeps its number) holding ``Query path:``, the query,
+    ``Predictions paths:``, its top-``top`` references (best first) and ``Positives paths:``, every correct
+    reference (image names as the dataset stores them). One method only, and the names must be known."""
     if len(ev.retrieved) != 1:
         raise ConfigError(f"a VPR-methods-evaluation predictions folder holds one method, got {len(ev.retrieved)} "
                           f"({', '.join(ev.retrieved)}); hint: --method M")
@@ -106,7 +107,7 @@ def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
     for m, (q, row) in enumerate(zip(ev.query_names, ranked, strict=True)):
         parts = ["Query path:", q + "\n", "Predictions paths:", "\n".join(refs[j] for j in row if j >= 0) + "\n",
                  "Positives paths:", "\n".join(refs[j] for j in ev.truth.of(m)) + "\n"]
-        out[f"{m:03d}.txt"] = "\n".join(parts)
+        out[f"{int(ev.q_items[m]):03d}.txt"] = "\n".join(parts)  # its query frame: a query left out keeps its number
     return out
 
 
