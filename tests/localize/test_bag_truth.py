@@ -11,6 +11,7 @@ import pytest
 from conftest import bag_path, drive, write_bag
 
 from seqnet.cli import main as cli_main
+from seqnet.core.errors import ConfigError
 from seqnet.data.io import load_dataset
 from seqnet.localize.truth import MapFrame, check_frame, same_frame
 
@@ -137,3 +138,5 @@ def test_frames_compare_by_utm_zone_and_hemisphere_or_by_name():
     assert not same_frame("odometry frame 'odom'", "odometry frame 'map'")
     assert MapFrame.of({"position_unit": "metres", "positions_frame": 5}) == MapFrame("metres", None)
     check_frame(MapFrame.of({"position_unit": "metres", "positions_frame": "UTM zone 32U"}), "UTM zone 32V", "m", "/f")
+    with pytest.raises(ConfigError, match="does not record the frame of its positions"):
+        check_frame(MapFrame("metres", "UTM zone ?"), "UTM zone 32V", "m", "/f")  # a log without its zone

@@ -75,7 +75,7 @@ def check_frame(mf: MapFrame, frame: str, map_path: str | Path, topic: str) -> N
         raise ConfigError(f"the map {map_path} has positions in {mf.unit or 'an unknown unit'}, not metres, so the "
                           f"{where} cannot be compared with them (a map built from frame-aligned traverses or "
                           "explicit positives has no metric positions)")
-    if mf.frame is None:
+    if mf.frame is None or (mf.frame.startswith("UTM") and _utm(mf.frame) is None):  # "UTM zone ?": a log's
         raise ConfigError(f"the map {map_path} does not record the frame of its positions (UTM zone or odometry "
                           f"frame), so the {where} cannot be checked to be in it; hint: build its dataset with "
                           "`seqnet dataset from-images --positions-topic` (or --positions-format), which records it")
