@@ -83,6 +83,23 @@ def test_bag_positions_are_the_ground_truth_of_every_frame(tmp_path, kind, truth
     assert f"R@1 {s['recall@1']:.3f}" in capsys.readouterr().out
 
 
+def test_an_index_map_carries_the_frame_of_its_dataset(tmp_path):
+    ds = make_map(tmp_path, "ros2", "fixes")
+    mp = tmp_path / "index"
+    assert cli_main(["-q", "index", "build", "--dataset", str(ds), "--shortlist", "delta", "--rerank", "raw+seqmatch",
+                     "--seq-len", "3", "--window", "causal", "--split", "all", "--device", "cpu",
+                     "--out", str(mp)]) == 0
+    assert json.loads((mp / "map.json").read_text())["source"]["positions_frame"] == "UTM zone 32V"
+    places = [j + 5 + (4 if j % 4 == 0 else 0) for j in range(20)]
+    bag = write_bag(bag_path(tmp_path, "ros2", "query"), drive(30, 2, noise=40)[5:25], "ros2", start=START,
+                    period=PERIOD, **positions("fixes", places))
+    assert localize(tmp_path, mp, bag, "--positions-topic", "/gps/fix") == 0
+    rows = list(csv.DictReader((tmp_path / "t.csv").open()))
+    xy = np.array([utm.from_latlon(LAT + STEP * p, LON)[:2] for p in places])
+    want = naive_truth(rows, [START + j * PERIOD for j in range(20)], xy, load_dataset(ds).reference.positions, 15)
+    assert [r["correct"] for r in rows] == want and {"0", "1"} <= set(want)
+
+
 def test_refusals_before_any_work(tmp_path, capsys):
     """Refused on the query's side before the map is read (a map that is not there is never reached)."""
     bag = write_bag(tmp_path / "q.bag", drive(20, 2), start=START, period=PERIOD, **positions("fixes", range(10)))
