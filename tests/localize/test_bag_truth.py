@@ -104,6 +104,7 @@ def test_refusals_before_any_work(tmp_path, capsys):
     """Refused on the query's side before the map is read (a map that is not there is never reached)."""
     bag = write_bag(tmp_path / "q.bag", drive(20, 2), start=START, period=PERIOD, **positions("fixes", range(10)))
     (tmp_path / "images").mkdir()
+    np.save(tmp_path / "q.npy", np.zeros((3, 4), np.float32))
     no_map = str(tmp_path / "no-map")
     out = ["--out", str(tmp_path / "t.csv")]
     query = ["--map", no_map, "--query", str(bag), "--topic", TOPIC]
@@ -112,6 +113,8 @@ def test_refusals_before_any_work(tmp_path, capsys):
              ([*query, *out, "--positions-tolerance", "1"], "--positions-tolerance goes with --positions-topic"),
              (["--map", no_map, "--query", str(tmp_path / "images"), *out, "--positions-topic", "/gps/fix"],
               "--positions-topic /gps/fix goes with a ROS bag"),
+             (["--map", no_map, "--query", str(tmp_path / "q.npy"), *out, "--positions-topic", "/gps/fix"],
+              "--positions-topic /gps/fix goes with a ROS bag as --query, but"),
              ([*query, *out, "--positions-topic", "/none"], "has no topic '/none'; its topics: /camera/image_raw "
               "(sensor_msgs/msg/Image, 20 messages), /gps/fix (sensor_msgs/msg/NavSatFix, 10 messages)"),
              ([*query, *out, "--positions-topic", TOPIC], "carries sensor_msgs/msg/Image, not a position message "
