@@ -101,14 +101,15 @@ BAG_KINDS = ("ros1", "ros2", "mcap")  # a ROS 1 .bag, a ROS 2 sqlite3 bag direct
 
 def write_bag(path, images, kind: str = "ros1", topic: str = "/camera/image_raw", encoding: str = "rgb8",
               fixes=None, fix_topic: str = "/gps/fix", odometry=None, start: int = 10**18, period: int = 10**8,
-              position_offset: int = 0):
+              position_offset: int = 0, poses=None, pose_frame: str = "odom"):
     """A tiny bag written with rosbags' own writers (serialised with its ROS1_NOETIC / ROS2_HUMBLE typestores).
 
     ``images``: uint8 ``[H, W, 3]`` arrays (``[H, W]`` for mono8), one message each at ``start + i * period`` ns on
     ``topic`` as sensor_msgs/Image in ``encoding`` (bgr8: channels reversed), or as CompressedImage when
     ``encoding`` is ``"png"`` / ``"jpeg"``. ``fixes``: ``(lat, lon, status)`` per NavSatFix message on
-    ``fix_topic``; ``odometry``: ``(x, y)`` per nav_msgs/Odometry message on ``/odom`` — both at ``start +
-    position_offset + j * period``. Skips the test when rosbags is not installed."""
+    ``fix_topic``; ``odometry``: ``(x, y)`` per nav_msgs/Odometry message on ``/odom``; ``poses``: ``(x, y)`` per
+    geometry_msgs/PoseStamped message (frame ``pose_frame``) on ``/pose`` — all at ``start + position_offset + j *
+    period``. Skips the test when rosbags is not installed."""
     import io
 
     pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'seqnet[ros]')")
@@ -147,10 +148,14 @@ def write_bag(path, images, kind: str = "ros1", topic: str = "/camera/image_raw"
                                               altitude=0.0, position_covariance=np.zeros(9),
                                               position_covariance_type=0)
 
-    def odom_msg(j: int, x: float, y: float):
-        g = "geometry_msgs/msg/"
-        pose = T[g + "Pose"](position=T[g + "Point"](x=x, y=y, z=0.0),
+    g = "geometry_msgs/msg/"
+
+    def pose_of(x: float, y: float):
+        return T[g + "Pose"](position=T[g + "Point"](x=x, y=y, z=0.0),
                              orientation=T[g + "Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+
+    def odom_msg(j: int, x: float, y: float):
+        pose = pose_of(x, y)
         twist = T[g + "Twist"](linear=T[g + "Vector3"](x=0.0, y=0.0, z=0.0),
                                angular=T[g + "Vector3"](x=0.0, y=0.0, z=0.0))
         return T["nav_msgs/msg/Odometry"](header=header(j, "odom"), child_frame_id="base",
@@ -164,6 +169,10 @@ def write_bag(path, images, kind: str = "ros1", topic: str = "/camera/image_raw"
     if odometry is not None:
         streams.append(("/odom", [(start + position_offset + j * period, odom_msg(j, *o)) for j, o in
                                   enumerate(odometry)]))
+    if poses is not None:
+        streams.append(("/pose", [(start + position_offset + j * period,
+                                   T[g + "PoseStamped"](header=header(j, pose_frame), pose=pose_of(*xy)))
+                                  for j, xy in enumerate(poses)]))
     writer = (Writer1(path) if kind == "ros1" else
               Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3))
     with writer as w:

@@ -37,6 +37,15 @@ def test_odometry_positions_are_its_x_y(tmp_path):
     assert pos.frame == "odometry frame 'odom'" and pos.xy.tolist() == [[1.5, -2.0], [3.0, 4.0]]
 
 
+@pytest.mark.parametrize("kind", BAG_KINDS)
+def test_posestamped_positions_are_its_x_y(tmp_path, kind):
+    bag = write_bag(bag_path(tmp_path, kind), IMAGE, kind, poses=[(1.5, -2.0), (np.nan, 0.0), (3.0, 4.0)],
+                    pose_frame="map", start=START, period=PERIOD)
+    pos = read_positions(bag, "/pose")
+    assert pos.frame == "odometry frame 'map'" and pos.xy.tolist() == [[1.5, -2.0], [3.0, 4.0]]  # NaN: left out
+    assert pos.stamps.tolist() == [START, START + 2 * PERIOD]
+
+
 def test_positions_errors(tmp_path):
     bag = write_bag(tmp_path / "run.bag", IMAGE, fixes=[(0.0, 0.0, -1)] * 2)
     with pytest.raises(DatasetError, match="no usable position \\(no fix in any of its 2 messages\\)"):

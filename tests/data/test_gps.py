@@ -140,6 +140,7 @@ def test_from_csv_with_kitti_logs(tmp_path):
     ds = load_dataset(out)
     d = np.linalg.norm(ds.query.positions - ds.reference.positions, axis=1)
     assert ds.position_unit == "metres" and np.allclose(d, 2.22, atol=0.05)
+    assert ds.extra["positions_frame"] == "UTM zone 32U"  # for localize --positions-topic
 
 
 def test_from_images_with_robotcar_ins(tmp_path, capsys):
@@ -158,6 +159,7 @@ def test_from_images_with_robotcar_ins(tmp_path, capsys):
     ds = load_dataset(out)
     assert ds.reference.positions[:, 0].tolist() == [620000.0 + i for i in range(0, 40, 4)]
     assert ds.query.positions[:, 0].tolist() == [620000.5 + i for i in range(0, 40, 4)]
+    assert ds.extra["positions_frame"].startswith("UTM zone ")
     Image.fromarray(np.zeros((16, 32, 3), np.uint8)).save(tmp_path / "qry" / f"{T0 + 10**9 + 5 * 10**6}.png")
     assert main([*argv[:-1], str(tmp_path / "ds2")]) == 2
     assert f"image '{T0 + 10**9 + 5 * 10**6}.png' is 4.020 s from the nearest" in capsys.readouterr().err

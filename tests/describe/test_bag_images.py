@@ -169,3 +169,26 @@ def test_fuzzed_bags_give_frames_or_one_error(tmp_path_factory, data):
             assert read_any(frame).dtype == np.uint8
         except SeqnetError:
             pass
+
+
+@pytest.mark.parametrize("kind", BAG_KINDS)
+def test_images_and_their_positions_topic_are_read_in_one_pass(tmp_path, kind, monkeypatch):
+    from seqnet.data import bags
+    from seqnet.data.bags import read_positions
+
+    bag = write_bag(bag_path(tmp_path, kind), random_images(4), kind, odometry=[(j, -j) for j in range(6)],
+                    poses=[(2 * j, 1) for j in range(3)], start=START, period=PERIOD, position_offset=PERIOD // 3)
+    expected = {t: read_positions(bag, t) for t in ("/odom", "/pose")}
+    opened = []
+    real = bags.open_bag
+    monkeypatch.setattr(bags, "open_bag", lambda path: opened.append(path) or real(path))
+    for t, want in expected.items():
+        images = list_images(bag, TOPIC, t)
+        assert len(opened) == 1 and images.names == [str(START + i * PERIOD) for i in range(4)]
+        got = images.positions
+        assert got.frame == want.frame and got.stamps.tolist() == want.stamps.tolist()
+        assert got.xy.tolist() == want.xy.tolist()
+        opened.clear()
+    assert list_images(bag, TOPIC).positions is None
+    with pytest.raises(ConfigError, match="--positions-topic /odom goes with a ROS bag"):
+        list_images(tmp_path / "none", None, "/odom")

@@ -146,6 +146,7 @@ def run_from_csv(args: argparse.Namespace) -> int:
     from ..data.convert import assemble_dataset, traverse_from_csv
     from ..data.gps import DEFAULT_MAX_GAP, check_zones, traverse_from_log
 
+    extra = _extra(args)
     if args.positions_format != "csv":
         gap = args.max_time_gap or DEFAULT_MAX_GAP
         ref, zone_r = traverse_from_log(args.positions_format, args.ref_csv, args.ref_desc, args.ref_names,
@@ -154,14 +155,14 @@ def run_from_csv(args: argparse.Namespace) -> int:
                                         "query", gap)
         check_zones(zone_r, zone_q)
         unit_r = unit_q = "metres"
+        extra["positions_frame"] = f"UTM zone {zone_r}"  # localize --positions-topic checks its positions against it
     else:
         ref, unit_r = traverse_from_csv(args.ref_csv, args.ref_desc, args.ref_names, "reference")
         qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
     if unit_r != unit_q:
         raise ConfigError(f"reference positions are in {unit_r} but query positions in {unit_q}")
     ds = assemble_dataset(ref, qry, unit_r, args.radius, args.preset, parse_splits(args.split),
-                          args.name or Path(args.out).name, _extra(args), _positives(args),
-                          args.allow_mismatch)
+                          args.name or Path(args.out).name, extra, _positives(args), args.allow_mismatch)
     return finish(ds, args)
 
 

@@ -4,10 +4,12 @@ query traverse replayed (``--dataset``), or new descriptors or images against a 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ..core.errors import ConfigError
+from ..data.bags import DEFAULT_TOLERANCE
 from ..eval.methods import valid_methods
-from ..localize.stream import stream
+from ..localize.stream import Query, stream
 from ..localize.track import LocalizeConfig, main
 from ..localize.trackfile import TRACK_COLUMNS
 from ..matching.velocity import ANCHORS
@@ -41,6 +43,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "folder / list file of images, or a ROS bag (with --topic), described one by one as the map was "
                    "(see docs/online.md)")
     add_topic(p, "--query")
+    p.add_argument("--positions-topic", metavar="TOPIC", help="with a ROS bag as --query: the ground truth, each frame "
+                   "at the position of this topic's message nearest in time (sensor_msgs/NavSatFix: UTM metres; "
+                   "nav_msgs/Odometry, geometry_msgs/PoseStamped: x, y), in the frame the map records; the track gets "
+                   "its 'correct' column and the summary R@1, AUC, R@100P")
+    p.add_argument("--positions-tolerance", type=positive_float, metavar="SECONDS", help="with --positions-topic: the "
+                   f"largest gap between a frame and its position message (default {DEFAULT_TOLERANCE:g} s)")
     add_distances(p, "with --dataset: streamed row by row")
     p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
     p.add_argument("--describer", metavar="PKG.MODULE:FACTORY", help="with --map and query images: the plug-in "
@@ -74,6 +82,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--describer goes with --map and query images (the plug-in the map was described with)")
     if args.topic is not None and args.query is None:
         raise ConfigError("--topic names the image topic of a ROS bag given as --query (with --map)")
+    if args.positions_topic is not None and args.query is None:
+        raise ConfigError("--positions-topic gives the ground truth of a ROS bag given as --query (with --map); "
+                          "--dataset replays a query traverse with its own positions")
+    if args.positions_tolerance is not None and args.positions_topic is None:
+        raise ConfigError("--positions-tolerance goes with --positions-topic")
     if (args.map is None) != (args.query is None):
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")
@@ -81,8 +94,10 @@ def run(args: argparse.Namespace) -> int:
     if args.map is not None and args.distances is not None:
         raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:
-        out = stream(conf, args.map, args.query, args.out, args.model, args.shortlist_model, args.rerank_model,
-                     args.topic, args.describer)
+        query = Query(Path(args.query), args.topic, args.positions_topic,
+                      args.positions_tolerance or DEFAULT_TOLERANCE)
+        out = stream(conf, args.map, query, args.out, args.model, args.shortlist_model, args.rerank_model,
+                     describer=args.describer)
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
                    args.distances, args.similarity)

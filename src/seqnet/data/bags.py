@@ -160,20 +160,30 @@ def read_positions(path: str | Path, topic: str) -> Positions:
     """The positions of ``topic`` in the bag ``path`` (one of :data:`POSITION_TYPES`), in timestamp order."""
     reader = open_bag(path)
     try:
-        conns = connections(reader, topic, POSITION_TYPES, "a position message", path)
-        stamps, msgs = [], []
-        for stamp, raw, msgtype in messages(reader, conns):
-            stamps.append(stamp)
-            msgs.append(deserialize(reader, raw, msgtype, f"at {stamp} on {topic} of {path}"))
+        conns = position_connections(reader, topic, path)
+        return decode_positions(reader, list(messages(reader, conns)), topic, path)
     finally:
         reader.close()
+
+
+def position_connections(reader: Any, topic: str, path: str | Path) -> list:
+    """The connections of the position ``topic`` of an open bag (:func:`connections` of :data:`POSITION_TYPES`)."""
+    return connections(reader, topic, POSITION_TYPES, "a position message", path)
+
+
+def decode_positions(reader: Any, read: list[tuple[int, bytes, str]], topic: str, path: str | Path) -> Positions:
+    """The positions of the messages ``read`` (``(timestamp ns, raw, message type)`` of :func:`messages`, in order)
+    of the position ``topic`` of an open bag: decoded, without a fix or a finite position left out."""
+    stamps = [stamp for stamp, _, _ in read]
+    msgs = [deserialize(reader, raw, msgtype, f"at {stamp} on {topic} of {path}") for stamp, raw, msgtype in read]
     if not msgs:
         raise DatasetError(f"topic {shown(topic)} of the bag {path} has no message that could be read (its index "
                            "lists some: is the bag damaged?)")
+    msgtype = read[0][2]
     try:  # the message definitions may come from the bag itself: a field may be missing or of another type
-        kept, xy, frame = POSITION_TYPES[conns[0].msgtype](msgs)
+        kept, xy, frame = POSITION_TYPES[msgtype](msgs)
     except (AttributeError, TypeError, ValueError, OverflowError) as e:
-        raise DatasetError(f"the {conns[0].msgtype} messages of {shown(topic)} in the bag {path} are not as ROS "
+        raise DatasetError(f"the {msgtype} messages of {shown(topic)} in the bag {path} are not as ROS "
                            f"defines them ({_why(e)})") from e
     if not kept.all():
         logger.warning("%s of %s: %d of %d position messages have no fix or a non-finite position; left out",

@@ -63,17 +63,27 @@ IMAGE_TYPES: dict[str, Callable[[Any, str], Any]] = {
 
 
 class BagImages:
-    """The image messages of ``topic`` in the bag ``path``: :attr:`stamps` ``[N]`` (ns, in order), read by index.
+    """The image messages of ``topic`` in the bag ``path``: :attr:`stamps` ``[N]`` (ns, in order), read by index;
+    with a ``positions_topic``, its :attr:`positions` (:class:`~seqnet.data.bags.Positions`, read in the same pass).
 
     The reader opened here stays open for :meth:`read` (closed when the object goes away). A read of the frame
     after the last one read continues the pass; any other restarts it at that frame's timestamp."""
 
-    def __init__(self, path: str | Path, topic: str) -> None:
+    def __init__(self, path: str | Path, topic: str, positions_topic: str | None = None) -> None:
         self.path, self.topic = Path(path), topic
         self.reader = bags.open_bag(path)
         self._finalizer = weakref.finalize(self, self.reader.close)
         self.conns = bags.connections(self.reader, topic, IMAGE_TYPES, "an image message", path)
-        self.stamps = np.array([s for s, _, _ in bags.messages(self.reader, self.conns)], np.int64)
+        pos = [] if positions_topic is None else bags.position_connections(self.reader, positions_topic, path)
+        stamps, read = [], []  # one pass: the image timestamps, and the position messages (small) whole
+        for stamp, raw, msgtype in bags.messages(self.reader, self.conns + pos):
+            if msgtype in IMAGE_TYPES:  # a topic's messages are of its one type (rosbags: else no type)
+                stamps.append(stamp)
+            else:
+                read.append((stamp, raw, msgtype))
+        self.stamps = np.array(stamps, np.int64)
+        self.positions = (None if positions_topic is None else
+                          bags.decode_positions(self.reader, read, positions_topic, path))
         self._pass: Iterator[tuple[int, Any, str]] | None = None
         self._next = -1  # index of the frame the pass yields next
 
@@ -159,17 +169,18 @@ def image_topics(path: str | Path) -> str:
         reader.close()
 
 
-def bag_images(path: str | Path, topic: str | None) -> tuple[list[BagFrame], list[str]]:
-    """``(frames, names)`` of the image topic ``topic`` of the bag ``path``, in timestamp order, named by their
-    timestamp (ns)."""
+def bag_images(path: str | Path, topic: str | None,
+               positions_topic: str | None = None) -> tuple[list[BagFrame], list[str], bags.Positions | None]:
+    """``(frames, names, positions)`` of the image topic ``topic`` of the bag ``path``, in timestamp order, named by
+    their timestamp (ns); ``positions``: those of ``positions_topic`` (None without one), read in the same pass."""
     if not topic:
         raise ConfigError(f"{path} is a ROS bag: name its image topic with --topic (its image topics: "
                           f"{image_topics(path)})")
-    source = BagImages(path, topic)
+    source = BagImages(path, topic, positions_topic)
     frames = [BagFrame(source, i) for i in range(len(source))]
     names = [f.name for f in frames]
     if len(set(names)) != len(names):
         dup = names[int(np.flatnonzero(np.diff(source.stamps) == 0)[0])]
         raise ImageError(f"two images of {topic} in {path} share the timestamp {dup}; frames are named and matched "
                          "by timestamp, so they cannot be told apart")
-    return frames, names
+    return frames, names, source.positions

@@ -14,7 +14,7 @@ import os
 import re
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from ..data.readers import check_names
 from ..security.inputs import read_text, special_file
 from ..security.text import shown
 from .decode import decode, read_image, size_mismatch
+
+if TYPE_CHECKING:
+    from ..data.bags import Positions
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
 MAX_LIST = 1 << 30  # bytes of an image list file
@@ -68,6 +71,7 @@ class ImageList:
 
     paths: list[ImageRef]
     names: list[str]
+    positions: Positions | None = None  # a bag's positions topic, when one was named
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -78,19 +82,20 @@ def natural_key(text: str) -> list:
     return [int(t) if t.isdecimal() else t.lower() for t in re.split(r"(\d+)", text)]  # "²".isdigit(), not int
 
 
-def list_images(source: str | Path, topic: str | None = None) -> ImageList:
-    """The images of a folder, a list file or the image ``topic`` of a ROS bag, in order; raise
-    :class:`ImageError` when there are none."""
+def list_images(source: str | Path, topic: str | None = None, positions_topic: str | None = None) -> ImageList:
+    """The images of a folder, a list file or the image ``topic`` of a ROS bag, in order (and the positions of the
+    bag's ``positions_topic``, read in the same pass); raise :class:`ImageError` when there are none."""
     from ..data.bags import BAG_SUFFIXES, is_bag
 
     src = Path(source)
     if is_bag(src) or (topic is not None and src.suffix.lower() in BAG_SUFFIXES):
         from .bags import bag_images
 
-        return ImageList(*bag_images(src, topic))
-    if topic is not None:
-        raise ConfigError(f"--topic {topic} goes with a ROS bag (a .bag file or a ROS 2 bag directory), but {src} "
-                          "is not one")
+        return ImageList(*bag_images(src, topic, positions_topic))
+    for flag, value in (("--topic", topic), ("--positions-topic", positions_topic)):
+        if value is not None:
+            raise ConfigError(f"{flag} {value} goes with a ROS bag (a .bag file or a ROS 2 bag directory), but {src} "
+                              "is not one")
     if src.is_dir():
         files = [p for p in src.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
         odd = next((p for p in files if not p.is_file()), None)

@@ -14,10 +14,11 @@ Without ground truth the ``correct`` column is empty.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,7 +27,9 @@ from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.stage import Written
 from ..core.utils import get_device, logger
+from ..data.bags import DEFAULT_TOLERANCE
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
+from ..describe.images import ImageList
 from ..eval.evaluate import EvalConfig
 from ..reference.base import Reference
 from ..security.dirs import remove_dead_temps
@@ -38,8 +41,9 @@ if TYPE_CHECKING:
     from ..maps.map import Map
 
 from .localizer import Estimate, traverse_reference
-from .track import LocalizeConfig, summarize
+from .track import LocalizeConfig, frame_truth, summarize
 from .trackfile import check_output, sidecar_of, track_rows, write_track
+from .truth import MapFrame, check_frame, query_positions
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -48,10 +52,11 @@ if TYPE_CHECKING:
 Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spent describing it)
 
 
-def load_map(path: str | Path, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> tuple[Reference, float]:
-    """The map in ``path`` as a reference, with its radius: an index map (``seqnet index build --window
-    causal``; its L, L_m and models), or a dataset directory whose reference traverse (``conf.split``,
-    default all) is the map."""
+def load_map(path: str | Path, models: Mapping[str, SeqNet],
+             conf: LocalizeConfig) -> tuple[Reference, float, MapFrame]:
+    """The map in ``path`` as a reference, with its radius and the frame of its positions: an index map (``seqnet
+    index build --window causal``; its L, L_m and models), or a dataset directory whose reference traverse
+    (``conf.split``, default all) is the map."""
     from ..data.io import load_dataset
     from ..maps import load_map as load_index_map
     from ..maps.store import MAP_JSON
@@ -60,13 +65,15 @@ def load_map(path: str | Path, models: Mapping[str, SeqNet], conf: LocalizeConfi
         ds = load_dataset(path).split(conf.split or "all")
         ref = traverse_reference(ds.reference, models, conf.method, conf.windows(models), get_device(conf.device),
                                  conf.allow_mismatch, ds.name)
-        return ref, conf.radius or ds.radius
+        return ref, conf.radius or ds.radius, MapFrame(ds.position_unit, MapFrame.of(ds.extra).frame)
     if models:
         raise ConfigError(f"{path} is an index map: it stores the models its descriptors were made with; drop "
                           "--model / --shortlist-model / --rerank-model")
     if conf.split is not None:
         raise ConfigError(f"{path} is an index map of one split already; drop --split")
-    return index_reference(load_index_map(path, conf.device, conf.anchor), conf)
+    mp = load_index_map(path, conf.device, conf.anchor)
+    source = mp.meta.get("source") if isinstance(mp.meta.get("source"), dict) else {}
+    return (*index_reference(mp, conf), MapFrame.of(source))
 
 
 def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
@@ -94,16 +101,14 @@ def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Fram
     return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
 
 
-def image_frames(source: Path, ref_map: Reference, allow: bool, topic: str | None = None,
+def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: bool,
                  describer: str | None = None) -> tuple[Frames, list[str], int]:
-    """Images of a folder, a list file or a bag's image ``topic``, each described when it is read by the map's
-    describer. A plug-in describer the map's files name is imported only when the user names the same one
-    (``describer``, ``--describer``): seqnet runs no code a file names."""
+    """The ``images`` of ``source`` (a folder, a list file or a bag's image topic: :func:`list_images`), each
+    described when it is read by the map's describer. A plug-in describer the map's files name is imported only
+    when the user names the same one (``describer``, ``--describer``): seqnet runs no code a file names."""
     from ..describe import DescribeConfig, make_describer
-    from ..describe.images import list_images
     from ..describe.store import describe_provenance
 
-    images = list_images(source, topic)  # a wrong source or topic first: it is the user's to fix
     prov = ref_map.provenance
     if not prov or prov.get("kind") != "describe":
         raise ConfigError("the map's descriptors do not record how they were described (no 'describe' provenance), "
@@ -145,50 +150,87 @@ def check_named_code(settings: Mapping[str, object], describer: str | None) -> N
                           "descriptor file as --query")
 
 
-def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path, out: str | Path,
+@dataclasses.dataclass(frozen=True)
+class Query:
+    """What ``seqnet localize --map`` streams: ``path`` (a descriptor file, images, or a ROS bag's image ``topic``)
+    and, for a bag, the ``positions_topic`` giving each frame's ground truth within ``tolerance`` seconds."""
+
+    path: Path
+    topic: str | None = None
+    positions_topic: str | None = None
+    tolerance: float = DEFAULT_TOLERANCE
+
+
+def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path | Query, out: str | Path,
            models: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
            rerank_model: str | Path | None = None, topic: str | None = None, describer: str | None = None) -> Written:
-    """hloc-style stage: localise every frame of ``query`` (``topic``: the image topic of the ROS bag ``query``)
-    against the map in ``map_dir`` with the model checkpoints given; writes ``out`` (track.csv) and its ``.json``
-    summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1). ``describer``:
-    the plug-in describer the user trusts (:func:`check_named_code`)."""
+    """hloc-style stage: localise every frame of ``query`` (``topic``: the image topic of the ROS bag ``query``; a
+    :class:`Query` names its positions topic too) against the map in ``map_dir`` with the model checkpoints given;
+    writes ``out`` (track.csv) and its ``.json`` summary (with ground truth: R@1, AUC, R@100P); returns ``out``. The
+    track is locked for the whole run (a second writer: exit 1). ``describer``: the plug-in describer the user
+    trusts (:func:`check_named_code`)."""
+    q = query if isinstance(query, Query) else Query(Path(query), topic)
     with locked(check_output(out)):
         remove_dead_temps([Path(out), sidecar_of(Path(out))])
-        return _stream(conf, map_dir, Path(query), Path(out), models, shortlist_model, rerank_model, topic,
-                       describer)
+        return _stream(conf, map_dir, q, Path(out), models, shortlist_model, rerank_model, describer)
 
 
-def _stream(conf: LocalizeConfig, map_dir: str | Path, query: Path, out: Path, models: Sequence[str | Path],
-            shortlist_model: str | Path | None, rerank_model: str | Path | None, topic: str | None,
-            describer: str | None = None) -> Written:
+def query_images(q: Query) -> tuple[bool, ImageList | None, np.ndarray | None]:
+    """``(is a descriptor file, its images, their positions [N, 2])`` of the query, every refusal of the query's
+    inputs (a pipe, a topic, a positions topic and its tolerance) before any work."""
+    from ..describe.images import list_images
+
+    if special_file(q.path):  # --query <(...): a pipe is read once, and frames are read as they come
+        raise ConfigError(f"--query {q.path} is a {special_file(q.path)}, not a file or folder; save the descriptors "
+                          "or images to a file (or folder) first")
+    is_file = q.path.is_file() and q.path.suffix.lower() in DESCRIPTOR_SUFFIXES
+    for flag, value in (("--topic", q.topic), ("--positions-topic", q.positions_topic)):
+        if is_file and value is not None:
+            raise ConfigError(f"{flag} {value} goes with a ROS bag as --query, but {q.path} is a descriptor file")
+    if is_file:
+        return True, None, None
+    images = list_images(q.path, q.topic, q.positions_topic)  # a wrong source or topic first: the user's to fix
+    positions = None if q.positions_topic is None else query_positions(images, q.tolerance, q.path)
+    return False, images, positions
+
+
+def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, models: Sequence[str | Path],
+            shortlist_model: str | Path | None, rerank_model: str | Path | None, describer: str | None) -> Written:
     from ..sequence.checkpoints import load_models
 
-    if special_file(query):  # --query <(...): a pipe is read once, and frames are read as they come
-        raise ConfigError(f"--query {query} is a {special_file(query)}, not a file or folder; save the descriptors or "
-                          "images to a file (or folder) first")
+    is_file, images, q_pos = query_images(q)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
-    ref_map, radius = load_map(map_dir, loaded, conf)
+    ref_map, radius, frame = load_map(map_dir, loaded, conf)
+    if q_pos is not None:
+        check_frame(frame, images.positions.frame, map_dir, q.positions_topic)
     loc = conf.localizer(ref_map, radius)
-    is_file = query.is_file() and query.suffix.lower() in DESCRIPTOR_SUFFIXES
-    if is_file and topic is not None:
-        raise ConfigError(f"--topic {topic} goes with a ROS bag as --query, but {query} is a descriptor file")
-    frames, names, n = (descriptor_frames(query, ref_map, conf.allow_mismatch) if is_file
-                        else image_frames(query, ref_map, conf.allow_mismatch, topic, describer))
+    frames, names, n = (descriptor_frames(q.path, ref_map, conf.allow_mismatch) if is_file
+                        else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer))
     est: list[Estimate] = []
     describe_ms = []
     for d, ms in progress(frames, desc=f"localize ({conf.method})", total=n, unit="frame"):
         est.append(loc.step(d))
         describe_ms.append(ms)
-    summary = summarize(est, None, None)
+    best = np.array([e.ref_index for e in est], dtype=np.int64)
+    correct, has = (None, None) if q_pos is None else frame_truth(q_pos, loc.r_pos, radius, best)
+    summary = summarize(est, correct, has)
     if not is_file:
         summary["describe_ms"] = {"mean": float(np.mean(describe_ms)), "median": float(np.median(describe_ms))}
     record = {"summary": summary, "config": {**conf.to_dict(), "seq_len": loc.seq_len, "rerank_seq_len": loc.match_len,
                                              "radius": radius},
-              "inputs": {"map": str(Path(map_dir).resolve()), "query": str(query.resolve()),
-                         **({"topic": topic} if topic else {}),
+              "inputs": {"map": str(Path(map_dir).resolve()), **_query_inputs(q, images),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    write_track(check_output(out), track_rows(est, names, ref_map.names, None), record)
+    write_track(check_output(out), track_rows(est, names, ref_map.names, correct), record)
     logger.debug("localize: %d frames streamed", len(est))
     return Written(out, record)
+
+
+def _query_inputs(q: Query, images: ImageList | None) -> dict[str, Any]:
+    """The query's entries of the summary's ``inputs``: its path, topic, positions topic and frame."""
+    out: dict[str, Any] = {"query": str(q.path.resolve()), **({"topic": q.topic} if q.topic else {})}
+    if q.positions_topic is not None and images is not None and images.positions is not None:
+        out.update(positions_topic=q.positions_topic, positions_tolerance=q.tolerance,
+                   positions_frame=images.positions.frame)
+    return out

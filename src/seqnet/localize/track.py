@@ -39,9 +39,8 @@ from .trackfile import check_output, sidecar_of, track_rows, write_track
 torch = lazy_module("torch")
 
 if TYPE_CHECKING:
+    from ..data.positives import Positives
     from ..sequence.model import SeqNet
-
-
 
 
 
@@ -128,7 +127,14 @@ def replay_query(loc: Localizer, ds: Dataset, frames: np.ndarray | None = None) 
 def track_truth(ds: Dataset, ref_items: np.ndarray, radius: float, best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(correct [Nq], has_positive [Nq])`` of the top-1 reference items ``best`` (-1: none) of every query frame."""
     positives = ds.positives.select(np.arange(len(ds.query)), ref_items) if ds.positives is not None else None
-    truth = ground_truth(ds.query.positions, ds.reference.positions[ref_items], radius, positives, require=False)
+    return frame_truth(ds.query.positions, ds.reference.positions[ref_items], radius, best, positives)
+
+
+def frame_truth(q_pos: np.ndarray, r_pos: np.ndarray, radius: float, best: np.ndarray,
+                positives: Positives | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(correct [Nq], has_positive [Nq])`` of the top-1 reference items ``best`` (-1: none; indices into the
+    reference items at ``r_pos [Nr, P]``) of the query frames at ``q_pos [Nq, P]``, within ``radius``."""
+    truth = ground_truth(q_pos, r_pos, radius, positives, require=False)
     return truth.hits(best[:, None])[:, 0], truth.has_positive()
 
 

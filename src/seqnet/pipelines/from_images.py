@@ -31,7 +31,7 @@ import numpy as np
 from ..core.config import Config, check_choice, check_float
 from ..core.errors import ConfigError, ImageError
 from ..core.utils import logger
-from ..data.bags import DEFAULT_TOLERANCE, is_bag, match_positions, read_positions
+from ..data.bags import DEFAULT_TOLERANCE, is_bag, match_positions
 from ..data.convert import assemble_dataset, match_names, read_positions_csv, utm_positions
 from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
 from ..data.io import save_dataset
@@ -124,7 +124,9 @@ def _bag_positions(conf: FromImagesConfig, images: ImageList, source: str | Path
     if not is_bag(source):
         raise ConfigError(f"ground truth 'bag' reads the {side} positions from its bag, but {source} is not a ROS bag "
                           "(a .bag file or a ROS 2 bag directory)")
-    found = read_positions(source, str(given))
+    found = images.positions  # read with the images, in one pass (list_images of the positions topic)
+    if found is None:
+        raise ConfigError(f"the {side} images of {source} were listed without their positions topic")
     stamps = np.array([frame.stamp for frame in images.paths], np.int64)  # bag frames (ImageList of a bag)
     return match_positions(stamps, found, conf.positions_tolerance, f"the {side} bag {source}"), None, "metres", \
         found.frame
@@ -163,11 +165,13 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
     """Describe the image folders (or list files, or ROS bags: their image ``topic``) ``reference`` and ``query``
     with one describer and write the dataset directory ``out`` (descriptors, positions, names, ground truth,
     provenance). ``positions``: the two positions CSVs (``csv``); ``positions_topic``: the bags' topic (``bag``)."""
-    ref, qry = list_images(reference, topic), list_images(query, topic)
+    bag_topic = positions_topic if conf.ground_truth == "bag" else None
+    ref, qry = (list_images(src, topic, bag_topic if is_bag(src) else None) for src in (reference, query))
     if conf.ground_truth == "positives" and positives is None:
         raise ConfigError("ground truth 'positives' needs --positives FILE (JSON list of lists, CSV pairs or .npy)")
     given = positions or ((positions_topic, positions_topic) if conf.ground_truth == "bag" else (None, None))
-    (pos_r, bounds_r, unit, _), (pos_q, bounds_q, _, _) = _both_positions(conf, (ref, qry), (reference, query), given)
+    (pos_r, bounds_r, unit, frame), (pos_q, bounds_q, _, _) = _both_positions(conf, (ref, qry), (reference, query),
+                                                                             given)
     truth = read_positives(positives).check(len(qry), len(ref), str(positives)) if positives else None
     with locked(Path(out)):
         if Path(out).exists() and any(Path(out).iterdir()) and not overwrite:
@@ -190,6 +194,6 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
             splits=conf.splits, name=conf.name or Path(out).name, positives=truth,
             extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "ground_truth": conf.ground_truth,
                    "images": {"reference": str(Path(reference).resolve()), "query": str(Path(query).resolve())},
-                   "describe": describer.config.to_dict() | {"fit": None},
+                   "describe": describer.config.to_dict() | {"fit": None}, "positions_frame": frame,
                    **({"topics": {"images": topic, "positions": positions_topic}} if topic else {})})
         return save_dataset(ds, out, overwrite=overwrite)

@@ -1,0 +1,84 @@
+"""Ground truth of a query streamed from a ROS bag: the positions of one of its topics, checked to be in the
+frame of the map's positions.
+
+``seqnet localize --map MAP --query RUN.bag --topic T --positions-topic P``: each frame of ``T`` takes the
+position of the message of ``P`` nearest in time (:func:`seqnet.data.bags.match_positions`, within a tolerance;
+``sensor_msgs/NavSatFix`` as UTM metres, ``nav_msgs/Odometry`` / ``geometry_msgs/PoseStamped`` as their x, y).
+Those positions are compared with the map's only when both are in one frame (:func:`check_frame`): the map's
+positions must be metres in a frame it records (``positions_frame``, written by ``seqnet dataset from-images``
+for bags and position logs, and carried into index maps), the same UTM zone (number and hemisphere) or the same
+odometry frame. A map that records no frame is refused: a ground truth in another frame would be a wrong number.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..data.bags import match_positions
+from ..describe.images import ImageList
+from ..security.text import shown
+
+UTM_FRAME = re.compile(r"UTM zone ([0-9]{1,2})([C-HJ-NP-X])")
+
+
+@dataclasses.dataclass(frozen=True)
+class MapFrame:
+    """Where a map's positions are: their ``unit`` (``metres`` / ``frames``) and ``frame`` (``UTM zone 32V``,
+    ``odometry frame 'odom'``; None: not recorded)."""
+
+    unit: str | None
+    frame: str | None
+
+    @classmethod
+    def of(cls, meta: Mapping[str, Any]) -> MapFrame:
+        """The frame recorded in a dataset's metadata or an index map's ``source`` (text, else unknown)."""
+        unit, frame = meta.get("position_unit"), meta.get("positions_frame")
+        return cls(unit if isinstance(unit, str) else None, frame if isinstance(frame, str) else None)
+
+
+def query_positions(images: ImageList, tolerance: float, source: str | Path) -> np.ndarray:
+    """``[N, 2]``: the position of each bag frame of ``images`` (listed with their positions topic), the message
+    nearest in time within ``tolerance`` seconds (else :class:`~seqnet.core.errors.DatasetError`, with a count)."""
+    if images.positions is None:
+        raise ConfigError(f"the images of {source} were listed without a positions topic")
+    stamps = np.array([frame.stamp for frame in images.paths], np.int64)  # bag frames: their timestamps
+    return match_positions(stamps, images.positions, tolerance, f"the query bag {source}")
+
+
+def _utm(frame: str) -> tuple[int, bool] | None:
+    """``(zone number, northern hemisphere)`` of ``UTM zone 32V``; None for another frame or an unknown zone."""
+    m = UTM_FRAME.fullmatch(frame)
+    return None if m is None else (int(m.group(1)), m.group(2) >= "N")
+
+
+def same_frame(a: str, b: str) -> bool:
+    """Whether positions in frames ``a`` and ``b`` compare: one UTM zone and hemisphere (the band letter does not
+    change the metres), or one named frame; an unknown UTM zone compares with none."""
+    if a.startswith("UTM") or b.startswith("UTM"):
+        za, zb = _utm(a), _utm(b)
+        return za is not None and za == zb
+    return a == b
+
+
+def check_frame(mf: MapFrame, frame: str, map_path: str | Path, topic: str) -> None:
+    """Refuse (:class:`ConfigError`) positions in ``frame`` (of the query's ``topic``) that do not compare with the
+    map's (:class:`MapFrame`): not metres, a frame the map does not record, or another frame."""
+    where = f"positions of {shown(topic)[:120]} ({frame})"
+    if mf.unit != "metres":
+        raise ConfigError(f"the map {map_path} has positions in {mf.unit or 'an unknown unit'}, not metres, so the "
+                          f"{where} cannot be compared with them (a map built from frame-aligned traverses or "
+                          "explicit positives has no metric positions)")
+    if mf.frame is None or (mf.frame.startswith("UTM") and _utm(mf.frame) is None):  # "UTM zone ?": a log's
+        raise ConfigError(f"the map {map_path} does not record the frame of its positions (UTM zone or odometry "
+                          f"frame), so the {where} cannot be checked to be in it; hint: build its dataset with "
+                          "`seqnet dataset from-images --positions-topic` (or --positions-format), which records it")
+    if not same_frame(mf.frame, frame):
+        raise ConfigError(f"the map {map_path} has positions in {shown(mf.frame)[:80]}, the {where}: positions in "
+                          "two frames are not comparable")
