@@ -170,3 +170,31 @@ def test_a_vpr_bench_precomputed_file_is_read_as_its_score_matrix(synth_dataset,
     np.save(tmp_path / "other.npy", other, allow_pickle=True)
     assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "other.npy"), "--similarity"]) == 2
     assert "not a matrix of numbers" in capsys.readouterr().err
+
+
+def test_a_transposed_matrix_is_read_as_such_by_eval_and_localize(synth_dataset, synth_dir, tmp_path, capsys):
+    """--transposed: the file is [N_reference, N_query] (VPR_Tutorial's S); eval and localize answer as on the
+    matrix the right way round, and a file of the wrong shape names the layout it expected."""
+    d = distances(synth_dataset)
+    np.save(tmp_path / "d.npy", d)
+    np.save(tmp_path / "t.npy", np.ascontiguousarray(d.T))
+    common = ["--dataset", str(synth_dir), "--seq-len", "4", "--method", "single"]
+    got = {}
+    for name, extra in (("d", []), ("t", ["--transposed"])):
+        assert cli(["eval", *common, "--distances", str(tmp_path / f"{name}.npy"), *extra,
+                    "--json", str(tmp_path / f"e{name}.json")]) == 0
+        got[name] = json.loads((tmp_path / f"e{name}.json").read_text())
+        assert cli(["localize", *common, "--distances", str(tmp_path / f"{name}.npy"), *extra,
+                    "--out", str(tmp_path / f"{name}.csv")]) == 0
+    assert got["d"]["methods"]["single"]["recall@1"] == got["t"]["methods"]["single"]["recall@1"]
+    assert got["t"]["inputs"]["transposed"] is True
+    import csv
+
+    rows = {n: [{k: v for k, v in r.items() if "ms" not in k and "latency" not in k}
+                for r in csv.DictReader(open(tmp_path / f"{n}.csv"))] for n in "dt"}
+    assert rows["d"] == rows["t"] and len(rows["d"]) > 10
+    capsys.readouterr()
+    if d.shape[0] != d.shape[1]:
+        assert cli(["eval", *common, "--distances", str(tmp_path / "d.npy"), "--transposed"]) == 2
+        assert "one row per reference frame" in capsys.readouterr().err
+    assert cli(["eval", *common, "--transposed"]) == 2

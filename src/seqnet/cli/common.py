@@ -137,9 +137,12 @@ def add_distances(p: argparse.ArgumentParser, use: str) -> None:
                    "methods: single, raw+seqmatch(-rev), raw+vseqmatch(-rev), raw+graph, "
                    "hvpr-single:raw+seqmatch(-rev)")
     p.add_argument("--similarity", action="store_true", help="--distances holds similarities (higher is closer)")
+    p.add_argument("--transposed", action="store_true", help="--distances is [N_reference, N_query], one row per "
+                   "reference frame (VPR_Tutorial's S)")
 
 
 def check_distances(args: argparse.Namespace) -> None:
-    """``--similarity`` describes the ``--distances`` matrix: refused without one."""
-    if args.similarity and not args.distances:
-        raise ConfigError("--similarity describes the --distances matrix; give --distances FILE.npy")
+    """``--similarity`` and ``--transposed`` describe the ``--distances`` matrix: refused without one."""
+    for flag in ("similarity", "transposed"):
+        if getattr(args, flag) and not args.distances:
+            raise ConfigError(f"--{flag} describes the --distances matrix; give --distances FILE.npy")

@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     if args.distances:
         from ..eval.matrix import main as matrix_main
 
-        res = matrix_main(conf, args.dataset, args.distances, args.out, args.similarity, report=report, **outs).data
+        res = matrix_main(conf, args.dataset, args.distances, args.out, args.similarity, report=report,
+                          transposed=args.transposed, **outs).data
     elif args.index:
         from ..maps import evaluate_main
 

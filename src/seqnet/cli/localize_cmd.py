@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
                      describer=args.describer)
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
-                   args.distances, args.similarity)
+                   args.distances, args.similarity, args.transposed)
     s = out.data["summary"]  # what the stage wrote beside the track
     lat = s.get("latency_ms", {})
     print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")

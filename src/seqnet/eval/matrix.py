@@ -34,20 +34,24 @@ torch = lazy_module("torch")
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
 
 
-def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: str | None = "all") -> np.ndarray:
+def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: str | None = "all",
+                transposed: bool = False) -> np.ndarray:
     """The ``[Nq, Nr]`` matrix of ``path`` (``.npy``, one row per query and one column per reference frame of
-    the whole dataset ``ds``), restricted to the rows and columns of ``split`` (a name, a range spec, or
-    ``all``: :meth:`Dataset.ranges`) and as distances (float64). The file is memory-mapped: only the split's
-    block is read and converted."""
+    the whole dataset ``ds``; ``transposed``: one row per reference, ``[Nr, Nq]``, as VPR_Tutorial's ``S``),
+    restricted to the rows and columns of ``split`` (a name, a range spec, or ``all``: :meth:`Dataset.ranges`)
+    and as distances (float64). The file is memory-mapped: only the split's block is read and converted."""
     m = _vpr_bench_scores(path, similarity) if _holds_objects(path) else read_npy(path, True, "--distances",
                                                                                    ConfigError)
-    want = (len(ds.query), len(ds.reference))
+    want = (len(ds.reference), len(ds.query)) if transposed else (len(ds.query), len(ds.reference))
     if m.ndim != 2 or m.shape != want:
-        raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {want[0]} query and "
-                          f"{want[1]} reference frames (one row per query frame, one column per reference frame)")
+        rows, cols = ("reference", "query") if transposed else ("query", "reference")
+        raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {len(ds.query)} query "
+                          f"and {len(ds.reference)} reference frames (one row per {rows} frame, one column per "
+                          f"{cols} frame{', as --transposed says' if transposed else ''})")
     check_finite_rows(m, path)
     rng = ds.ranges(split)
-    out = np.array(m[slice(*rng["query"]), slice(*rng["reference"])], dtype=np.float64)  # the split's block only
+    q, r = slice(*rng["query"]), slice(*rng["reference"])
+    out = np.array(m[r, q].T if transposed else m[q, r], dtype=np.float64)  # the split's block only
     return np.negative(out, out=out) if similarity else out
 
 
@@ -94,10 +98,11 @@ def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = 64 << 
 CHECK_ROWS = 2000  # queries sampled to compare the matrix's readings (a cheap argmin each)
 
 
-def orientation_check(ds: Dataset, dist: np.ndarray, similarity: bool) -> dict[str, Any]:
+def orientation_check(ds: Dataset, dist: np.ndarray, similarity: bool, transposed: bool = False) -> dict[str, Any]:
     """Single-frame R@1 of the matrix read as given and read the other ways a user may have meant (the other
     sense: similarity vs distance; transposed, for a square matrix), on up to :data:`CHECK_ROWS` queries with
-    a true match; a warning names the reading that is clearly better (R@1 at least twice, and 0.1 above)."""
+    a true match; a warning names a better reading (:func:`_warn_reading`; ``transposed``: the file was read
+    transposed, as --transposed says)."""
     q = np.arange(len(ds.query))
     truth = dataset_truth(ds, q, np.arange(len(ds.reference)), ds.radius)
     keep = np.flatnonzero(truth.has_positive())
@@ -106,26 +111,40 @@ def orientation_check(ds: Dataset, dist: np.ndarray, similarity: bool) -> dict[s
     readings = {"as given": dist[keep], "other sense": -dist[keep]}
     if dist.shape[0] == dist.shape[1]:
         readings.update({"transposed": dist[:, keep].T, "transposed, other sense": -dist[:, keep].T})
-    sense = "similarities" if similarity else "distances"
     sampled = dataset_truth(ds, keep, np.arange(len(ds.reference)), ds.radius) if len(keep) else None
     r1 = {k: float(sampled.hits(np.argmin(v, axis=1)[:, None])[:, 0].mean()) if sampled else float("nan")
           for k, v in readings.items()}
     best = max(r1, key=lambda k: r1[k])
-    if best != "as given" and r1[best] >= 2 * r1["as given"] and r1[best] >= r1["as given"] + 0.1:
-        flag = "drop --similarity" if similarity else "pass --similarity"
-        hint = {"other sense": flag, "transposed": "save the matrix transposed, one row per query",
-                "transposed, other sense": f"save the matrix transposed, one row per query, and {flag}"}[best]
-        logger.warning("the matrix reads much better %s: single-frame R@1 %.3f read as given (%s, one row per "
-                       "query), %.3f %s; the user probably meant that (hint: %s)", best, r1["as given"], sense,
-                       r1[best], best, hint)
+    if best != "as given":
+        _warn_reading(best, r1, similarity, transposed)
     return {"single_r@1": {k: round(v, 4) for k, v in r1.items()}, "queries_checked": int(len(keep)),
             "best_reading": best}
 
 
+SQUARE_MARGIN = 0.01  # a square matrix reading better transposed by this much R@1 is named, however little
+
+
+def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed: bool) -> None:
+    """A warning naming a reading of the matrix that beats the one used: clearly (R@1 at least twice, and 0.1
+    above), or, for a square matrix whose shape cannot tell rows from columns, by :data:`SQUARE_MARGIN`."""
+    given, sense = r1["as given"], "similarities" if similarity else "distances"
+    flag = "drop --similarity" if similarity else "pass --similarity"
+    turn = "drop --transposed" if transposed else "pass --transposed (one row per reference, as VPR_Tutorial's S)"
+    hint = {"other sense": flag, "transposed": turn, "transposed, other sense": f"{turn}, and {flag}"}[best]
+    if r1[best] >= 2 * given and r1[best] >= given + 0.1:
+        logger.warning("the matrix reads much better %s: single-frame R@1 %.3f read as given (%s, one row per "
+                       "query), %.3f %s; the user probably meant that (hint: %s)", best, given, sense, r1[best],
+                       best, hint)
+    elif best.startswith("transposed") and r1[best] >= given + SQUARE_MARGIN:
+        logger.warning("a square matrix: rows read as queries (single-frame R@1 %.3f), but it reads better %s "
+                       "(%.3f); if its rows and columns are the other way round, %s", given, best, r1[best], hint)
+
+
 def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = None,
-                    similarity: bool = False) -> Evaluation:
+                    similarity: bool = False, transposed: bool = False) -> Evaluation:
     """Evaluate ``conf.methods`` (default :data:`DEFAULT_MATRIX_METHODS`) of ``ds`` (the split already taken)
-    on ``dist [Nq, Nr]`` distances between its query and reference frames."""
+    on ``dist [Nq, Nr]`` distances between its query and reference frames (``similarity``, ``transposed``: how the
+    file was read, for the orientation check's hints)."""
     conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
     if dist.ndim != 2 or dist.shape != (len(ds.query), len(ds.reference)):
         raise ConfigError(f"the distance matrix is {list(dist.shape)} for {len(ds.query)} query and "
@@ -147,15 +166,16 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
                              "matrix_methods": list(MATRIX_METHODS)}
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     out.dataset, out.matrix = ds, dist  # for the report: the evaluated frames and their given distances
-    out.results["matrix_check"] = orientation_check(ds, dist, similarity)
+    out.results["matrix_check"] = orientation_check(ds, dist, similarity, transposed)
     return out
 
 
 def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str | Path | None,
          similarity: bool = False, per_query: str | Path | None = None, report: Any = None, figures: bool = False,
-         overwrite: bool = False, json: str | Path | None = None) -> Written:
+         overwrite: bool = False, json: str | Path | None = None, transposed: bool = False) -> Written:
     """Stage: evaluate ``conf.split`` of the dataset directory ``dataset`` on the matrix file ``distances``
-    (``similarity``: higher is closer); writes ``out/results.json`` (results, config, inputs) and what
+    (``similarity``: higher is closer; ``transposed``: one row per reference); writes ``out/results.json``
+    (results, config, inputs) and what
     ``per_query``, ``report``, ``figures`` and ``json`` ask, as :func:`seqnet.eval.evaluate.main` does."""
     from ..data.io import load_dataset
 
@@ -166,8 +186,9 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         ds = load_dataset(dataset)
         split = default_split(conf.split, ds.splits)
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
-        dist = read_matrix(distances, ds, similarity, split)
-        ev = evaluate_matrix(sub, dist, conf.replace(split=split), similarity)
+        dist = read_matrix(distances, ds, similarity, split, transposed)
+        ev = evaluate_matrix(sub, dist, conf.replace(split=split), similarity, transposed)
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
-                                "similarity": bool(similarity), "distances_digest": file_digest(distances)}
+                                "similarity": bool(similarity), "transposed": bool(transposed),
+                                "distances_digest": file_digest(distances)}
         return outputs.write(ev)

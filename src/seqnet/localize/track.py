@@ -168,33 +168,35 @@ def matrix_localizer(ds: Dataset, dist: np.ndarray, conf: LocalizeConfig) -> tup
 
 def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
-         distances: str | Path | None = None, similarity: bool = False) -> Written:
+         distances: str | Path | None = None, similarity: bool = False, transposed: bool = False) -> Written:
     """hloc-style stage: replay the query traverse of split ``conf.split`` of the dataset directory
-    ``dataset`` against its reference traverse (or, with ``distances``, the rows of that ``[Nq, Nr]``
-    matrix file of the whole dataset; ``similarity``: higher is closer); writes ``out`` (track.csv) and
+    ``dataset`` against its reference traverse (or, with ``distances``, the rows of that ``[Nq, Nr]`` matrix file
+    of the whole dataset, ``[Nr, Nq]`` when ``transposed``; ``similarity``: higher is closer); writes ``out``
+    (track.csv) and
     its ``.json`` summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1)."""
     if distances is not None and (models or shortlist_model or rerank_model):
         raise ConfigError("--distances gives the frame distances: no model applies (methods on a matrix read "
                           "single-frame distances only)")
     with locked(check_output(out)):
         remove_dead_temps([Path(out), sidecar_of(Path(out))])
-        return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, distances, similarity)
+        return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, distances,
+                     (similarity, transposed))
 
 
 def _localizer(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loaded: Mapping[str, SeqNet],
-               distances: str | Path | None, similarity: bool) -> tuple[Localizer, np.ndarray | None]:
+               distances: str | Path | None, reading: tuple[bool, bool]) -> tuple[Localizer, np.ndarray | None]:
     """The localiser of the split ``ds`` and the frames it replays in place of the query descriptors (None:
     those): over the reference traverse, or over the rows of the matrix."""
     if distances is None:
         return dataset_localizer(ds, loaded, conf), None
     from ..eval.matrix import read_matrix
 
-    return matrix_localizer(ds, read_matrix(distances, full, similarity, split), conf)
+    return matrix_localizer(ds, read_matrix(distances, full, reading[0], split, reading[1]), conf)
 
 
 def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
           shortlist_model: str | Path | None, rerank_model: str | Path | None, distances: str | Path | None,
-          similarity: bool) -> Written:
+          reading: tuple[bool, bool]) -> Written:
     from ..data.io import load_dataset
     from ..eval.checks import model_lengths
     from ..sequence.checkpoints import load_models
@@ -203,7 +205,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     split = default_split(conf.split, full.splits)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     ds = full.split(split)
-    loc, frames = _localizer(conf, ds, full, split, loaded, distances, similarity)
+    loc, frames = _localizer(conf, ds, full, split, loaded, distances, reading)
     radius = conf.radius or ds.radius
     est = replay_query(loc, ds, frames)
     best = np.array([e.ref_index for e in est], dtype=np.int64)
@@ -212,7 +214,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
                                              "rerank_seq_len": loc.match_len, "radius": radius,
                                              "model_seq_len": model_lengths(loaded)},
-              "inputs": {"dataset": str(Path(dataset).resolve()), **_matrix_inputs(distances, similarity),
+              "inputs": {"dataset": str(Path(dataset).resolve()), **_matrix_inputs(distances, reading),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
@@ -221,8 +223,9 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     return Written(out, record)
 
 
-def _matrix_inputs(distances: str | Path | None, similarity: bool) -> dict[str, Any]:
+def _matrix_inputs(distances: str | Path | None, reading: tuple[bool, bool]) -> dict[str, Any]:
+    """The matrix file, its reading (``(similarity, transposed)``) and digest, for the summary's inputs."""
     if distances is None:
         return {}
-    return {"distances": str(Path(distances).resolve()), "similarity": bool(similarity),
-            "distances_digest": file_digest(distances)}
+    return {"distances": str(Path(distances).resolve()), "similarity": bool(reading[0]),
+            "transposed": bool(reading[1]), "distances_digest": file_digest(distances)}
