@@ -4,6 +4,7 @@ CSV cells and terminal text."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -127,6 +128,20 @@ def test_the_sandbox_is_killed_after_its_time(tmp_path):
     with pytest.raises(DatasetError, match="took longer than"):
         with run_child("hdf5", {"path": str(tmp_path / "a.h5"), "limit": 1 << 20}, "test file", 1 << 20, 0.01):
             pass
+
+
+def test_a_file_that_makes_libhdf5_spin_ends_in_one_error(monkeypatch):
+    """Found by ten minutes of fuzzing the HDF5 reader (case 347, seed 11): libhdf5 loops on this 6 KiB file;
+    the child is killed at its time bound (30 s + 1 s per 5 MB; 4 s here) and the read is one DatasetError."""
+    import time
+
+    import seqnet.security.hdf5 as hdf5
+
+    monkeypatch.setattr(hdf5, "time_bound", lambda size: 4.0)
+    start = time.monotonic()
+    with pytest.raises(DatasetError, match="took longer than 4 s"):
+        read_hdf5(Path(__file__).parent / "files" / "libhdf5_spins.h5")
+    assert time.monotonic() - start < 30
 
 
 def test_csv_cells_and_terminal_text():

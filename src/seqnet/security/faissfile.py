@@ -18,7 +18,7 @@ from typing import Any
 from ..core.errors import DatasetError
 from .faiss_child import quiet_stdout
 from .inputs import ErrorType, open_input
-from .sandbox import run_child
+from .sandbox import run_child, time_bound
 
 
 def read_faiss(path: str | os.PathLike[str], ntotal: int, dim: int, what: str = "FAISS index",
@@ -34,7 +34,7 @@ def read_faiss(path: str | os.PathLike[str], ntotal: int, dim: int, what: str = 
     if lists.exists() or lists.is_symlink():  # a FIFO there would hang FAISS: refused before it looks
         with open_input(lists, "inverted lists", error, follow=False):
             pass
-    with run_child("faiss", {"path": str(path.absolute())}, f"{what} {path}", 4 * size, 60 + size / 5e6,
+    with run_child("faiss", {"path": str(path.absolute())}, f"{what} {path}", 4 * size, time_bound(size),
                    error) as (info, _):
         pass
     if info.get("ntotal") != ntotal or info.get("d") != dim:

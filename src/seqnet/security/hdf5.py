@@ -23,7 +23,7 @@ from ..core.errors import DatasetError
 from ..core.memory import available_bytes
 from .arrays import MAX_RATIO
 from .inputs import ErrorType, open_input
-from .sandbox import run_child
+from .sandbox import run_child, time_bound
 
 SLAB_MEMORY = 96 << 20
 
@@ -56,7 +56,7 @@ def read_hdf5(path: str | os.PathLike[str], what: str = "HDF5 file", error: Erro
     size = _size(path, what, error)
     limit = max(1 << 20, min(available_bytes() or 1 << 34, size * MAX_RATIO + (1 << 20)))
     request = {"path": str(Path(path).absolute()), "mode": "attrs" if attrs_only else "data", "limit": limit}
-    with run_child("hdf5", request, f"{what} {path}", SLAB_MEMORY + 4 * size, _timeout(size), error) as (ans, s):
+    with run_child("hdf5", request, f"{what} {path}", SLAB_MEMORY + 4 * size, time_bound(size), error) as (ans, s):
         if attrs_only:
             return Hdf5Contents({}, {}, _mapping(ans.get("attrs")), [], [])
         arrays = _receive(ans.get("arrays"), s, limit, f"{what} {path}", error)
@@ -70,12 +70,10 @@ def check_hdf5(path: str | os.PathLike[str], what: str = "HDF5 file", error: Err
     refuses, crashes or overruns on it, so that this process may then open it itself."""
     size = _size(path, what, error)
     request = {"path": str(Path(path).absolute()), "mode": "check", "limit": size * MAX_RATIO + (1 << 20)}
-    with run_child("hdf5", request, f"{what} {path}", SLAB_MEMORY + 4 * size, _timeout(size), error):
+    with run_child("hdf5", request, f"{what} {path}", SLAB_MEMORY + 4 * size, time_bound(size), error):
         pass
 
 
-def _timeout(size: int) -> float:
-    return 120.0 + size / 5e6
 
 
 def _mapping(value: Any) -> dict[str, Any]:

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from .matfile import checked_mat
-from .sandbox import BASE_MEMORY, child_env, python_command
+from .sandbox import BASE_MEMORY, child_env, python_command, time_bound
 
 MAX_ANSWER = 1 << 31
 
@@ -31,7 +31,7 @@ def read_struct(path: str | os.PathLike[str], variable: str) -> tuple[list[str],
     a malformed file, or a child that dies or overruns its time, is one :class:`DatasetError` naming it."""
     data = checked_mat(path)
     code = f"from {__name__} import serve\nserve({variable!r})\n"
-    timeout = 60 + len(data) / 5e6
+    timeout = time_bound(len(data))
     try:
         done = subprocess.run(python_command(code, BASE_MEMORY + 8 * len(data), int(timeout) + 1), input=data,
                               capture_output=True, timeout=timeout, env=child_env(), cwd="/", check=False,

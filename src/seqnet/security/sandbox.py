@@ -36,6 +36,13 @@ from .inputs import ErrorType
 
 BASE_MEMORY = 768 << 20  # the child's interpreter, numpy and the library itself
 MAX_HEADER = 1 << 30
+BASE_SECONDS, BYTES_PER_SECOND = 30.0, 5e6  # a child's time: start-up under load, then its file at a slow 5 MB/s
+
+
+def time_bound(size: int) -> float:
+    """Seconds a sandboxed reader may take on a file of ``size`` bytes before it is killed (a damaged file can
+    make a library loop: the fuzzer found libhdf5 spinning on a 6 KiB file)."""
+    return BASE_SECONDS + size / BYTES_PER_SECOND
 _BOOT = """import sys, json
 mem, cpu, paths = json.loads(sys.argv[1])
 if mem:  # a reader of untrusted bytes: bounded memory and time, no file written, no core dump
