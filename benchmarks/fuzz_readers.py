@@ -242,11 +242,11 @@ def _seed_bags(d: Path) -> list[Path]:
 def _read_bags(p: Path) -> object:
     from seqnet.data.bags import read_positions
     from seqnet.describe.bags import bag_images
-    from seqnet.describe.images import decode
+    from seqnet.security.pictures import decode
 
     bag = p if p.suffix == ".bag" else p.parent
-    frames, names = bag_images(bag, "/camera/image_raw")
-    return read_positions(bag, "/gps/fix"), [decode(f.open, f) for f in frames], names
+    frames, names, positions = bag_images(bag, "/camera/image_raw", "/gps/fix")  # one pass, as localize reads
+    return read_positions(bag, "/gps/fix"), positions, [decode(f.open, f) for f in frames], names
 
 
 READERS: dict[str, tuple[Callable[[Path], list[Path]], Callable[[Path], object]]] = {

@@ -14,13 +14,13 @@ from seqnet.cli import main
 from seqnet.core.errors import DatasetError
 from seqnet.data.convert import (
     match_names,
-    parse_utm_name,
     read_positions_csv,
     read_seq_bounds,
     runs_to_bounds,
     summarize_dataset,
     traverse_from_csv,
 )
+from seqnet.data.imagefolders import parse_utm_name
 from seqnet.data.io import load_dataset
 
 

@@ -3,7 +3,7 @@
 A *bag* is a ROS 1 ``.bag`` file or a ROS 2 bag directory (``metadata.yaml`` beside its ``.db3`` (sqlite3) or
 ``.mcap`` files; the ``.db3`` / ``.mcap`` file itself names its directory, and one without ``metadata.yaml``
 beside it is read alone) — what ``rosbags``' ``AnyReader`` reads, without a ROS install. Its files are
-checked before ``rosbags`` opens them (:mod:`seqnet.data.bagfiles`: no FIFO, ``metadata.yaml`` bounded and
+checked before ``rosbags`` opens them (:mod:`seqnet.security.bagfiles`: no FIFO, ``metadata.yaml`` bounded and
 typed, no bag compressed file by file), and whatever ``rosbags`` raises on a damaged bag, when it opens or
 while messages are read, is one :class:`DatasetError` naming the bag. Every message is placed by its bag
 timestamp (ns, the time it was recorded), which orders the frames and matches positions to images.
@@ -25,8 +25,8 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.utils import logger
+from ..security.bagfiles import check_bag
 from ..security.text import shown
-from .bagfiles import check_bag
 
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 ROS_HINT = "hint: pip install 'seqnet[ros]' (the pure-Python package rosbags)"

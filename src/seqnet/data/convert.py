@@ -24,6 +24,8 @@ import numpy as np
 from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import check_same
 from ..core.utils import logger
+from ..security.limits import POSITION_MAX
+from .imagefolders import utm_positions
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_provenance, read_text, warn_unless_unit_rows
 from .traverse import Dataset, Traverse
@@ -33,7 +35,6 @@ EAST_COLUMNS = ("easting", "east", "utm_east", "utm_easting", "x")
 NORTH_COLUMNS = ("northing", "north", "utm_north", "utm_northing", "y")
 FRAME_COLUMNS = ("frame", "frame_number", "frame_id", "frame_index")
 SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
-POSITION_MAX = 1e12  # |easting|, |northing| (metres) or a frame number read from a file
 
 
 def _basename(s: str) -> str:
@@ -69,25 +70,6 @@ def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarra
     raise DatasetError(f"{what}: {len(missing)} of {len(wanted)} image names have no descriptor "
                        f"(first: {missing[0]!r}; {looks}); "
                        "hint: names are matched exactly, then by file name, then without extension")
-
-
-def parse_utm_name(name: str) -> tuple[float, float]:
-    """``(easting, northing)`` from a name like ``@0543256.96@4477929.94@17@T@...jpg``: VPR-methods-evaluation's
-    ``split("@")[1]``, ``[2]`` (there of the whole path, here of the file name: an ``@`` in a folder is no field)."""
-    fields = name.replace("\\", "/").rsplit("/", 1)[-1].split("@")
-    try:
-        easting, northing = float(fields[1]), float(fields[2])
-    except (IndexError, ValueError):
-        raise DatasetError(f"image name {name!r} carries no UTM coordinates; expected '@<easting>@<northing>@...' "
-                           "(e.g. '@0543256.96@4477929.94@17@T@...jpg')") from None
-    if not abs(easting) <= POSITION_MAX >= abs(northing):  # NaN fails too
-        raise DatasetError(f"image name {name!r}: UTM {fields[1]!r}, {fields[2]!r} not finite within ±{POSITION_MAX:g}")
-    return easting, northing
-
-
-def utm_positions(names: list[str]) -> np.ndarray:
-    """``[N, 2]`` easting/northing parsed from UTM-coded image names."""
-    return np.array([parse_utm_name(n) for n in names], dtype=np.float64).reshape(-1, 2)
 
 
 def read_csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:

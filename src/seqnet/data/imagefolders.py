@@ -12,6 +12,7 @@ VPR-methods-evaluation (gmberton/VPR-methods-evaluation ``test_dataset.read_imag
 
 seqnet follows both rules; a list line must name a file inside the folder (no absolute path, ``..``, NUL or
 link leading out), which is refused naming its line, never skipped (a skipped line shifts every later row).
+Positions come from VPR-methods-evaluation's UTM-coded names (:func:`parse_utm_name`).
 """
 
 from __future__ import annotations
@@ -20,10 +21,13 @@ import glob
 import os
 from pathlib import Path
 
+import numpy as np
+
 from ..core.errors import DatasetError
 from ..core.utils import logger
 from ..security.inputs import inside
 from ..security.inputs import read_text as read_input_text
+from ..security.limits import POSITION_MAX
 
 LIST_SUFFIX = "_images_paths.txt"
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
@@ -38,8 +42,6 @@ def list_file(folder: Path) -> Path:
 def folder_names(folder: str | Path) -> list[str]:
     """The images of ``folder`` (paths relative to it) in VPR-methods-evaluation's order: its list file when
     there is one, else its ``.jpg`` / ``.jpeg`` / ``.png`` files by sorted recursive glob."""
-    from .readers import check_names
-
     folder = Path(folder)
     if not folder.is_dir():
         raise DatasetError(f"image folder not found: {folder}")
@@ -53,7 +55,7 @@ def folder_names(folder: str | Path) -> list[str]:
         how = (f"by sorted(glob('**/*')) of its .jpg/.jpeg/.png files (no list file {lst.name} beside it, "
                "VPR-methods-evaluation's rule)")
     logger.info("%s: %d image names %s", folder, len(names), how)
-    return check_names(names, str(lst if lst.exists() else folder))
+    return names  # checked by the caller (seqnet.data.readers.read_names)
 
 
 def _check_inner_list(folder: Path) -> None:
@@ -92,3 +94,22 @@ def _globbed_names(folder: Path) -> list[str]:
         raise DatasetError(f"{folder}: no .jpg/.jpeg/.png images under it (names are read as VPR-methods-evaluation "
                            f"does: sorted(glob('**/*')), or the list file {list_file(folder)})")
     return names
+
+
+def parse_utm_name(name: str) -> tuple[float, float]:
+    """``(easting, northing)`` from a name like ``@0543256.96@4477929.94@17@T@...jpg``: VPR-methods-evaluation's
+    ``split("@")[1]``, ``[2]`` (there of the whole path, here of the file name: an ``@`` in a folder is no field)."""
+    fields = name.replace("\\", "/").rsplit("/", 1)[-1].split("@")
+    try:
+        easting, northing = float(fields[1]), float(fields[2])
+    except (IndexError, ValueError) as err:
+        raise DatasetError(f"image name {name!r} carries no UTM coordinates; expected '@<easting>@<northing>@...' "
+                           "(e.g. '@0543256.96@4477929.94@17@T@...jpg')") from err
+    if not abs(easting) <= POSITION_MAX >= abs(northing):  # NaN fails too
+        raise DatasetError(f"image name {name!r}: UTM {fields[1]!r}, {fields[2]!r} not finite within ±{POSITION_MAX:g}")
+    return easting, northing
+
+
+def utm_positions(names: list[str]) -> np.ndarray:
+    """``[N, 2]`` easting/northing parsed from UTM-coded image names."""
+    return np.array([parse_utm_name(n) for n in names], dtype=np.float64).reshape(-1, 2)

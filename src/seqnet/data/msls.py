@@ -31,7 +31,7 @@ from ..security.limits import INDEX_MAX
 from ..security.text import shown
 from .convert import POSITION_MAX, assemble_dataset, match_names, read_csv_rows, runs_to_bounds
 from .presets import get_preset
-from .readers import folder_names, read_descriptor_file, read_provenance
+from .readers import read_descriptor_file, read_names, read_provenance
 from .traverse import Dataset, Traverse
 
 SIDES = {"reference": "database", "query": "query"}  # seqnet side → MSLS folder
@@ -191,7 +191,7 @@ def msls_traverse(folder: Path, desc_path: str | Path, names: str | Path | None,
         if not images.is_dir():
             raise DatasetError(f"{desc_path}: no image names and no {images} folder to take them from; hint: give "
                                "--*-names FILE or an HDF5 file with 'names'")
-        desc_names = folder_names(images)
+        desc_names = read_names(images)
         if len(desc_names) != desc.shape[0]:
             raise DatasetError(f"{desc_path}: {desc.shape[0]} descriptors but {len(desc_names)} images in {images} "
                                "(names are taken from the folder in sorted order); hint: give --*-names")

@@ -179,7 +179,7 @@ def read_names(path: str | Path) -> list[str]:
     for a folder, its images in VPR-methods-evaluation's order (:func:`seqnet.data.imagefolders.folder_names`)."""
     p = Path(path)
     if p.is_dir():
-        return folder_names(p)
+        return check_names(folder_names(p), str(p))
     names = [line.strip() for line in read_text(p, "names file").split("\n") if line.strip()]
     return check_names(names, str(p))
 

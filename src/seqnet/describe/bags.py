@@ -2,7 +2,7 @@
 
 Each frame is a :class:`BagFrame` (an :class:`~seqnet.describe.images.ImageItem`), named by its bag timestamp
 (ns); it opens as a PIL image and is decoded from there as an image file is
-(:func:`~seqnet.describe.images.decode`), so a bag and a folder of the same images give the same descriptors.
+(:func:`~seqnet.security.pictures.decode`), so a bag and a folder of the same images give the same descriptors.
 Message types (:data:`IMAGE_TYPES`): ``sensor_msgs/Image`` with an encoding of
 :data:`ENCODINGS` (rgb8, bgr8, mono8; others are refused by name) and ``sensor_msgs/CompressedImage`` (JPEG or
 PNG, decoded with PIL). One reader stays open per bag; frames read in order cost one pass over the bag.
@@ -20,9 +20,9 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..data import bags
+from ..security.pictures import COMPRESSED_FORMATS as COMPRESSED_PIL
+from ..security.pictures import open_image
 from ..security.text import shown
-from .decode import COMPRESSED_FORMATS as COMPRESSED_PIL
-from .decode import open_image
 
 ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True), "mono8": (1, False)}  # channels, reversed (BGR)
 COMPRESSED_FORMATS = ("jpeg", "jpg", "png")
@@ -143,7 +143,7 @@ class BagFrame:
         return int(self.bag.stamps[self.index])
 
     def open(self) -> Any:
-        """The frame as a PIL image (decoded by :func:`~seqnet.describe.images.decode`, as a file would be)."""
+        """The frame as a PIL image (decoded by :func:`~seqnet.security.pictures.decode`, as a file would be)."""
         return self.bag.open(self.index)
 
     def key(self) -> str:

@@ -12,8 +12,8 @@ from ..core.errors import ConfigError, ImageError
 from ..core.memmaps import RowsOut
 from ..core.progress import progress
 from ..core.utils import get_device, logger
+from ..security.pictures import size_mismatch
 from .config import DescribeConfig
-from .decode import size_mismatch
 from .images import ImageItem, ImageRef, as_image, iter_batches, list_images, load_images
 from .pca import PCA, fit_pca
 from .registry import Extract, FitContext

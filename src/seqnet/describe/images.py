@@ -21,8 +21,8 @@ import numpy as np
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..data.readers import check_names
 from ..security.inputs import read_text, special_file
+from ..security.pictures import decode, read_image, size_mismatch
 from ..security.text import shown
-from .decode import decode, read_image, size_mismatch
 
 if TYPE_CHECKING:
     from ..data.bags import Positions

@@ -32,8 +32,9 @@ from ..core.config import Config, check_choice, check_float
 from ..core.errors import ConfigError, ImageError
 from ..core.utils import logger
 from ..data.bags import DEFAULT_TOLERANCE, is_bag, match_positions
-from ..data.convert import assemble_dataset, match_names, read_positions_csv, utm_positions
+from ..data.convert import assemble_dataset, match_names, read_positions_csv
 from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
+from ..data.imagefolders import utm_positions
 from ..data.io import save_dataset
 from ..data.positives import read_positives
 from ..data.traverse import Traverse

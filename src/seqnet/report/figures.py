@@ -145,7 +145,7 @@ def gallery_image(root: Path, name: str) -> np.ndarray:
     path is not in ``root`` (a link swapped in meanwhile); a FIFO or device is never opened for reading."""
     from PIL import Image
 
-    from ..describe.images import decode
+    from ..security.pictures import decode
 
     path = inside(root, name, "gallery image name", ImageError)
     with open_input(path, "image", ImageError) as f:

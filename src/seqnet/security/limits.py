@@ -16,6 +16,7 @@ from .inputs import ErrorType
 INDEX_MAX = 2**62  # an index or count read from a file (int64 arithmetic on it cannot overflow)
 DIM_MAX = 1 << 20  # a descriptor dimension
 SEQ_MAX = 1 << 16  # a sequence or window length
+POSITION_MAX = 1e12  # |easting|, |northing| (metres) or a frame number read from a file
 
 
 def number(value: Any, what: str, lo: float, hi: float, error: ErrorType = DatasetError,

@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ImageError
-from ..security.inputs import open_input, special_file
-from ..security.text import shown
+from .inputs import open_input, special_file
+from .text import shown
 
 FORMATS = ("PNG", "JPEG", "BMP", "TIFF", "WEBP", "PPM", "GIF")  # PPM: also PGM and PBM; JPEG: also MPO
 COMPRESSED_FORMATS = ("JPEG", "PNG")  # of a ROS CompressedImage

@@ -15,8 +15,8 @@ from PIL import Image
 from seqnet.cli import main
 from seqnet.core.errors import ImageError
 from seqnet.describe import DescribeConfig, describe_images
-from seqnet.describe.decode import FORMATS, read_image
 from seqnet.describe.images import list_images
+from seqnet.security.pictures import FORMATS, read_image
 
 EPS = b"%!PS-Adobe-3.0 EPSF-3.0\n%%BoundingBox: 0 0 16 16\n0 0 moveto 16 16 lineto stroke\nshowpage\n"
 

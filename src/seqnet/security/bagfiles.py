@@ -24,8 +24,8 @@ from pathlib import Path, PurePath
 from typing import Any
 
 from ..core.errors import DatasetError
-from ..security.inputs import inside, kind_of, read_text
-from ..security.limits import number
+from .inputs import inside, kind_of, read_text
+from .limits import number
 
 MAX_METADATA = 16 << 20
 MAX_FILES = 4096
