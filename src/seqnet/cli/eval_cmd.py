@@ -125,10 +125,15 @@ def print_results(res: dict) -> None:
     every = f", every {cfg['resample_every']}-th {cfg['resample_side']} frame" if cfg.get("resample_every") else ""
     print(f"dataset {shown(cfg['dataset'])}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']}){every}")
     print(format_table(res["methods"], cfg["ks"]))
-    first = next(iter(res["methods"].values()))
-    print(f"{first['queries']} queries evaluated; {first['no_full_window']} without a full window, "
-          f"{first['no_positive']} without a reference within the radius "
-          f"({'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'})")
+    fate = 'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'
+    counts: dict[tuple, list[str]] = {}  # methods evaluated on the same queries share a line
+    for name, r in res["methods"].items():
+        counts.setdefault((r["queries"], r["no_full_window"], r["no_positive"], r.get("no_full_window_reason")),
+                          []).append(name)
+    for (queries, no_window, no_positive, why), names in counts.items():
+        who = "" if len(counts) == 1 else f"{', '.join(names)}: "
+        print(f"{who}{queries} queries evaluated; {no_window} without a full window"
+              f"{f' ({why})' if why else ''}, {no_positive} without a reference within the radius ({fate})")
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
