@@ -113,10 +113,14 @@ def no_window_reason(windows: Windows) -> str:
     lens = f"L={windows.length}" + (f", L_m={windows.match_len}" if windows.match_len != windows.length else "")
     if windows.mode == "centred":
         head, tail = window_offset(n, "centred"), n - 1 - window_offset(n, "centred")
-        ends = f"{head} frames of each sequence end" if head == tail else \
-            f"{head} frames of a sequence's start or {tail} of its end"
+        ends = f"{_frames(head)} of each sequence end" if head == tail else \
+            f"{_frames(head)} of a sequence's start or {tail} of its end"
         return f"windows of {n} centred frames ({lens}) do not fit within {ends}"
-    return f"causal windows of {n} frames ({lens}) do not fit in the first {n - 1} frames of each sequence"
+    return f"causal windows of {n} frames ({lens}) do not fit in the first {_frames(n - 1)} of each sequence"
+
+
+def _frames(n: int) -> str:
+    return f"{n} frame" + ("" if n == 1 else "s")
 
 
 def merge(parts: Sequence[Evaluation], order: Sequence[str]) -> Evaluation:
