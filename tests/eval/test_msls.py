@@ -105,3 +105,7 @@ def test_windows_msls_cannot_read_are_refused(city):
     ev = evaluate(city, EvalConfig(methods=("raw+seqmatch",), seq_len=3, window="causal", device="cpu"))
     with pytest.raises(ConfigError, match="centred windows of an odd length"):
         msls_predictions(ev)
+    ev = evaluate(city, EvalConfig(methods=("single", "delta"), seq_len=3, common_queries=True, device="cpu"))
+    one = dict(ev.__dict__, retrieved={"single": ev.retrieved["single"]})
+    with pytest.raises(ConfigError, match="needs a row for every query image"):
+        msls_predictions(type(ev)(**one))

@@ -85,6 +85,10 @@ def msls_predictions(ev: Any) -> str:
     name, ranked = next(iter(ev.retrieved.items()))
     view = ev.view(name)
     task, length = msls_task(name, view)
+    if task == "im2im" and len(view.q_items) != len(q_names):
+        raise ConfigError(f"an MSLS im2im file needs a row for every query image, but {name} was evaluated on "
+                          f"{len(view.q_items)} of {len(q_names)} (the frames with a full window: --common-queries or "
+                          "a map); hint: evaluate the dataset without --common-queries")
     q_keys, r_keys = window_keys(q_names, view.q_items, length), window_keys(r_names, view.r_items, length)
     _unique(q_keys, "query")
     _unique(r_keys, "reference")
