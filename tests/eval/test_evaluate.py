@@ -499,8 +499,9 @@ def test_mixed_run_gives_single_frame_methods_every_frame(test_split):
         assert view.q_items.tolist() == list(range(n_q)) and view.r_items.tolist() == list(range(n_r))
         assert ev.results["methods"][name]["no_full_window"] == 0
     assert len(ev.q_items) < n_q and ev.view("raw+seqmatch").q_items is ev.q_items
-    common = evaluate(test_split, EvalConfig(methods=("raw+seqmatch", "single"), seq_len=5, common_queries=True,
+    common = evaluate(test_split, EvalConfig(methods=("single", "raw+seqmatch"), seq_len=5, common_queries=True,
                                              device="cpu"))
+    assert list(common.results["methods"]) == ["single", "raw+seqmatch"]  # the order asked, one group
     assert common.view("single").q_items.tolist() == common.q_items.tolist() == ev.q_items.tolist()
 
 

@@ -100,11 +100,10 @@ def single_windows(windows: Windows) -> Windows:
 def method_windows(methods: Sequence[Method], windows: Windows, common: bool = False) -> dict[Windows, list[Method]]:
     """The methods grouped by the windows they are evaluated on, sequence methods' group first: ``windows``,
     or one frame for a single-frame method (``common``: every method on ``windows``, one query set)."""
-    groups: dict[Windows, list[Method]] = {}
-    for m in sorted(methods, key=lambda m: m.single_frame):  # stable: the sequence group first
-        w = single_windows(windows) if m.single_frame and not common else windows
-        groups.setdefault(w, []).append(m)
-    return groups
+    groups: dict[Windows, list[Method]] = {windows: []}  # the sequence group first; methods in the order given
+    for m in methods:
+        groups.setdefault(single_windows(windows) if m.single_frame and not common else windows, []).append(m)
+    return {w: ms for w, ms in groups.items() if ms}
 
 
 def no_window_reason(windows: Windows) -> str:
