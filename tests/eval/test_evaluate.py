@@ -44,19 +44,25 @@ def test_results_schema(ev, test_split):
     for name, entry in res["methods"].items():
         recalls = [entry[f"recall@{k}"] for k in (1, 5, 10, 20, 100)]
         assert all(0.0 <= r <= 1.0 for r in recalls) and recalls == sorted(recalls), name
-        assert entry["queries"] + entry["no_positive"] == len(ev.q_items)
-        assert entry["no_full_window"] == n_invalid == len(test_split.query) - len(ev.q_items)
+        view = ev.view(name)  # single: every frame; the sequence methods: the frames with a full window
+        assert entry["queries"] + entry["no_positive"] == len(view.q_items)
+        assert entry["no_full_window"] == (0 if name == "single" else n_invalid) == len(test_split.query) - len(
+            view.q_items)
+        assert ("no_full_window_reason" in entry) == (name != "single")
         assert entry["timing_ms"]["total"] >= 0
-        assert ev.retrieved[name].shape[0] == len(ev.q_items)
+        assert ev.retrieved[name].shape[0] == len(view.q_items)
     assert res["config"]["seq_len"] == 5 and res["config"]["device"] == "cpu"
     assert res["config"]["dataset"] == test_split.name
-    assert ev.retrieved["single"].shape[1] == min(100, len(ev.r_items))
+    assert ev.retrieved["single"].shape[1] == min(100, len(ev.view("single").r_items))
+    assert len(ev.view("single").r_items) == len(test_split.reference) > len(ev.r_items)
 
 
 def test_single_and_sequence_descriptors_match_direct_knn(ev, test_split):
     q, r = test_split.query, test_split.reference
     fq, fr = (l2_normalize(torch.from_numpy(np.asarray(t.descriptors))) for t in (q, r))
-    _, ranked = knn(fq[ev.q_items], fr[ev.r_items], 100, device="cpu")
+    single = ev.view("single")  # every frame, queried and indexed
+    assert single.q_items.tolist() == list(range(len(q))) and single.r_items.tolist() == list(range(len(r)))
+    _, ranked = knn(fq[single.q_items], fr[single.r_items], 100, device="cpu")
     np.testing.assert_array_equal(ev.retrieved["single"], ranked)
     for name, fn in (("smoothing", smoothing), ("delta", delta)):
         qs = window_starts(len(q), 5)[0][ev.q_items]
@@ -106,7 +112,8 @@ def test_hvpr_is_delta_shortlist_reranked_by_raw_seqmatch(ev, test_split):
 
 def test_recall_matches_recall_at_k(ev):
     for name, entry in ev.results["methods"].items():
-        rec = recall_at_k(ev.retrieved[name], ev.q_pos, ev.r_pos, ev.radius)
+        truth = ev.view(name).truth
+        rec = recall_at_k(ev.retrieved[name], truth.q_pos, truth.r_pos, ev.radius)
         for k in (1, 5, 10, 20, 100):
             assert entry[f"recall@{k}"] == rec[f"recall@{k}"]
 
@@ -126,7 +133,8 @@ def test_faiss_backend_and_extra_radii(test_split):
     radii = b.results["methods"]["single"]["radii"]
     assert set(radii) == {"2.5", "50.0"}
     n = b.results["methods"]["single"]["queries"]
-    assert radii["2.5"]["queries"] <= n <= radii["50.0"]["queries"] == len(b.q_items)  # more positives as it grows
+    # more positives as it grows
+    assert radii["2.5"]["queries"] <= n <= radii["50.0"]["queries"] == len(b.view("single").q_items)
     assert set(b.results["methods"]["single"]) >= {"recall@1", "recall@3"}
 
 
@@ -155,7 +163,11 @@ def toy(n_q=9, n_r=9, q_bounds=None, dim=3, seed=0):
 def test_seq_len_equal_to_traverse_length():
     ev = evaluate(toy(5, 7), EvalConfig(methods=('single', 'raw+seqmatch', 'smoothing'), seq_len=5, device='cpu'))
     assert ev.q_items.tolist() == [2]  # the only frame with a full centred window
-    assert ev.results["methods"]["single"]["no_full_window"] == 4
+    assert ev.view("single").q_items.tolist() == list(range(5))  # a single frame needs no window
+    assert ev.results["methods"]["single"]["no_full_window"] == 0
+    assert ev.results["methods"]["smoothing"]["no_full_window"] == 4
+    assert ev.results["methods"]["smoothing"]["no_full_window_reason"] == (
+        "windows of 5 centred frames (L=5) do not fit within 2 frames of each sequence end")
     assert ev.retrieved["raw+seqmatch"].shape == (1, 3)
 
 
@@ -167,7 +179,9 @@ def test_seq_len_longer_than_traverse():
 def test_bounds_make_every_window_invalid():
     bounds = np.array([[0, 2], [0, 2], [2, 4], [2, 4], [4, 6], [4, 6]])
     with pytest.raises(ConfigError, match="no query frame has a full window"):
-        evaluate(toy(6, 9, bounds), EvalConfig(methods=('single',), seq_len=3))
+        evaluate(toy(6, 9, bounds), EvalConfig(methods=('smoothing',), seq_len=3))
+    ev = evaluate(toy(6, 9, bounds), EvalConfig(methods=('single',), seq_len=3, device='cpu'))
+    assert ev.results["methods"]["single"]["queries"] == 6  # a single frame needs no window
 
 
 def test_seq_len_one():
@@ -178,8 +192,11 @@ def test_seq_len_one():
 
 
 def test_causal_window():
-    ev = evaluate(toy(), EvalConfig(methods=('single',), seq_len=3, window='causal', device='cpu'))
+    ev = evaluate(toy(), EvalConfig(methods=('single', 'smoothing'), seq_len=3, window='causal', device='cpu'))
     assert ev.q_items.tolist() == list(range(2, 9))
+    assert ev.view("single").q_items.tolist() == list(range(9))
+    assert ev.results["methods"]["smoothing"]["no_full_window_reason"] == (
+        "causal windows of 3 frames (L=3) do not fit in the first 2 frames of each sequence")
 
 
 @pytest.mark.parametrize("cfg, pattern", [
@@ -378,16 +395,21 @@ def test_msls_predictions_file(synth_dir, tmp_path, capsys):
     from seqnet.data.io import load_dataset
 
     out = tmp_path / "pred.txt"
-    assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "raw+seqmatch", "--per-query",
+    assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "single", "--per-query",
                 str(out)]) == 0
-    lines = [ln.split() for ln in out.read_text().splitlines()]
+    text = out.read_text()
+    assert text.startswith("# seqnet single: mapillary_sls evaluate.py --task im2im\n")
+    lines = [ln.split() for ln in text.splitlines()[1:]]
     ds = load_dataset(synth_dir).split("test")
     ref_keys = {n.rsplit(".", 1)[0] for n in ds.reference.names}
     assert all(len(ln) == 21 and set(ln[1:]) <= ref_keys for ln in lines)
-    assert lines[0][0] + ".png" in ds.query.names
+    assert [ln[0] + ".png" for ln in lines] == ds.query.names  # every query image: single needs no window
     assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "single,raw+seqmatch",
                 "--per-query", str(tmp_path / "two.txt")]) == 2
     assert "holds one method, got 2" in capsys.readouterr().err
+    assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "raw+seqmatch",
+                "--per-query", str(tmp_path / "even.txt")]) == 2  # MSLS's windows are centred, of odd length
+    assert "needs centred windows of an odd length" in capsys.readouterr().err
 
 
 def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
@@ -450,3 +472,61 @@ def test_delta_orig_is_read_as_the_papers_delta_on_every_path(test_split):
     conf = MapConfig.from_dict({"shortlist": "delta-orig", "rerank": "delta-orig+seqmatch"})  # a saved map.json
     assert (conf.shortlist, conf.rerank, conf.method.name) == ("delta-paper", "delta-paper+seqmatch",
                                                                "hvpr-delta-paper:delta-paper+seqmatch")
+
+
+# ----------------------------------------------------------------------------- single-frame methods: every frame
+
+
+def test_single_frame_methods_ignore_seq_len():
+    """A single frame needs no window: --seq-len 1 and 5 query and index the same frames, with the same results."""
+    bounds = np.repeat(np.array([[0, 6], [6, 12]]), 6, axis=0)
+    ds = toy(12, 12, bounds)
+    one = evaluate(ds, EvalConfig(methods=("single",), seq_len=1, device="cpu"))
+    five = evaluate(ds, EvalConfig(methods=("single", "smoothing"), seq_len=5, device="cpu"))
+    np.testing.assert_array_equal(one.retrieved["single"], five.retrieved["single"])
+    assert one.view("single").q_items.tolist() == five.view("single").q_items.tolist() == list(range(12))
+    a, b = one.results["methods"]["single"], five.results["methods"]["single"]
+    same = [k for k in a if k not in ("timing_ms", "method")]  # method: the L asked
+    assert {k: a[k] for k in same} == {k: b[k] for k in same}
+    assert five.q_items.tolist() == [2, 3, 8, 9]  # smoothing: the centred 5-windows inside each 6-frame sequence
+    assert five.results["methods"]["smoothing"]["no_full_window"] == 8
+
+
+def test_mixed_run_gives_single_frame_methods_every_frame(test_split):
+    torch.manual_seed(0)
+    models = {"s1": SeqNet(16, 8, 1, 1)}
+    ev = evaluate(test_split, EvalConfig(methods=("raw+seqmatch", "single", "s1"), seq_len=5, device="cpu"), models)
+    assert list(ev.results["methods"]) == ["raw+seqmatch", "single", "s1"]  # the order asked
+    n_q, n_r = len(test_split.query), len(test_split.reference)
+    for name in ("single", "s1"):
+        view = ev.view(name)
+        assert view.q_items.tolist() == list(range(n_q)) and view.r_items.tolist() == list(range(n_r))
+        assert ev.results["methods"][name]["no_full_window"] == 0
+    assert len(ev.q_items) < n_q and ev.view("raw+seqmatch").q_items is ev.q_items
+    common = evaluate(test_split, EvalConfig(methods=("single", "raw+seqmatch"), seq_len=5, common_queries=True,
+                                             device="cpu"))
+    assert list(common.results["methods"]) == ["single", "raw+seqmatch"]  # the order asked, one group
+    assert common.view("single").q_items.tolist() == common.q_items.tolist() == ev.q_items.tolist()
+
+
+def test_single_recall_against_a_naive_loop():
+    """Recall@K of single on every frame, against a loop over queries and references."""
+    rng = np.random.default_rng(3)
+    bounds = np.repeat(np.array([[0, 4], [4, 9]]), [4, 5], axis=0)
+    pos = np.arange(9, dtype=float)
+    ref = Traverse(rng.standard_normal((9, 4)).astype(np.float32), pos + 0.3, seq_bounds=bounds)
+    qry = Traverse(rng.standard_normal((9, 4)).astype(np.float32), pos, seq_bounds=bounds)
+    ev = evaluate(Dataset(ref, qry, radius=1.0), EvalConfig(methods=("single", "delta"), seq_len=3, ks=(1, 2, 5),
+                                                           device="cpu"))
+    nq, nr = (np.asarray(t.descriptors, np.float64) for t in (qry, ref))
+    nq, nr = nq / np.linalg.norm(nq, axis=1, keepdims=True), nr / np.linalg.norm(nr, axis=1, keepdims=True)
+    for k in (1, 2, 5):
+        hits, counted = 0, 0
+        for i in range(9):
+            if not any(abs(pos[i] - (pos[j] + 0.3)) <= 1.0 for j in range(9)):
+                continue
+            counted += 1
+            order = sorted(range(9), key=lambda j: (np.linalg.norm(nq[i] - nr[j]), j))
+            hits += any(abs(pos[i] - (pos[j] + 0.3)) <= 1.0 for j in order[:k])
+        assert ev.results["methods"]["single"][f"recall@{k}"] == pytest.approx(hits / counted)
+    assert ev.results["methods"]["single"]["queries"] == 9

@@ -120,7 +120,12 @@ def test_distances_write_the_per_query_file_and_the_report(synth_dir, synth_data
     assert f"report: {out / 'report.html'}" in capsys.readouterr().out
     rows = [json.loads(line) for line in (tmp_path / "pq.jsonl").read_text().splitlines()]
     res = json.loads((out / "results.json").read_text())["methods"]
-    assert len(rows) == 2 * (res["single"]["queries"] + res["single"]["no_positive"])
+    for name in ("single", "raw+seqmatch"):  # each method's rows are its own queries (single: every frame)
+        mine = [r for r in rows if r["method"] == name]
+        assert len(mine) == res[name]["queries"] + res[name]["no_positive"] == len(synth_dataset.split("test").query) \
+            - res[name]["no_full_window"]
+        assert sum(r["has_positive"] for r in mine) == res[name]["queries"]
+    assert res["single"]["no_full_window"] == 0 < res["raw+seqmatch"]["no_full_window"]
     text = (out / "report.html").read_text()
     assert "The given distances" in text and "<td>raw+seqmatch</td>" in text
 

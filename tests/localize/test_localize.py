@@ -39,7 +39,9 @@ CASES = [(m, None) for m in METHODS] + [(m, 6) for m in ("seqnet", "s1+seqmatch"
 @pytest.mark.parametrize(("method", "match_len"), CASES)
 def test_stream_equals_causal_evaluation(small, method, match_len):
     ds, models = small
-    conf = EvalConfig(window="causal", rerank_seq_len=match_len, ks=(1, 7), top_k=5, device="cpu")
+    # the localiser indexes the L-window reference items for every method: offline, one query set (common_queries)
+    conf = EvalConfig(window="causal", rerank_seq_len=match_len, ks=(1, 7), top_k=5, device="cpu",
+                      common_queries=True)
     ev = evaluate(ds, conf.replace(methods=(method,)), models)
     loc = loc_of(ds, models, method, rerank_seq_len=match_len, k=7, top_k=5)
     assert loc.ref_items.tolist() == ev.r_items.tolist()

@@ -47,7 +47,9 @@ def world(tmp_path_factory):
 
 
 def _causal_eval(ds, models, methods):
-    conf = EvalConfig(methods=tuple(methods), window="causal", ks=(K,), top_k=TOP_K, device="cpu")
+    # the localiser and maps index the L-window items for every method: offline, one query set (common_queries)
+    conf = EvalConfig(methods=tuple(methods), window="causal", ks=(K,), top_k=TOP_K, device="cpu",
+                      common_queries=True)
     return evaluate(ds, conf, models)
 
 

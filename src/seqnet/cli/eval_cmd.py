@@ -62,8 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
     add_recall_options(p)
     p.add_argument("--per-query", metavar="FILE", help="per-query results: FILE.csv / .jsonl (per method and query: "
-                   "top-5 references, scores, correct or not, confidence); .txt: MSLS's predictions (one method, "
-                   "query key and its top-20 reference keys); no extension: a VPR-methods-evaluation preds folder. "
+                   "top-5 references, scores, correct or not, confidence); .txt: MSLS's predictions (one method; a "
+                   "row per query key, then its top-20 reference keys: im2im image keys for single / s1, seq2seq "
+                   "window keys for sequence methods; the log names evaluate.py's --task); no extension: a "
+                   "VPR-methods-evaluation preds folder. "
                    "Named in --out DIR, it is written with the results, as one set")
     add_distances(p, "evaluated")
     p.add_argument("--index", metavar="MAP", help="evaluate the queries against this prebuilt map (seqnet index "
@@ -78,6 +80,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(results, Recall@K and PR plots, distance matrix, example queries)")
     p.add_argument("--images-query", metavar="DIR", help="--report: folder of the query images (for the gallery)")
     p.add_argument("--images-ref", metavar="DIR", help="--report: folder of the reference images (for the gallery)")
+    p.add_argument("--common-queries", action="store_true", help="evaluate every method on the sequence methods' "
+                   "queries and references (one query set, as the paper's tables); by default single-frame methods "
+                   "(single, s1) query and index every frame")
     add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
@@ -97,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
                                 top_k=args.top_k, split=args.split, backend=args.backend, device=args.device,
                                 ks=args.ks, allow_mismatch=args.allow_mismatch or None, fuse_weight=args.fuse_weight,
                                 fuse_top_k=args.fuse_top_k, resample_every=args.resample_every,
-                                resample_side=args.resample_side, recall_denominator=args.recall_denominator)
+                                resample_side=args.resample_side, recall_denominator=args.recall_denominator,
+                                common_queries=args.common_queries)
     check_distances(args)
     check_route(args)
     check_method_options(args, methods)
@@ -127,10 +133,15 @@ def print_results(res: dict) -> None:
     every = f", every {cfg['resample_every']}-th {cfg['resample_side']} frame" if cfg.get("resample_every") else ""
     print(f"dataset {shown(cfg['dataset'])}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']}){every}")
     print(format_table(res["methods"], cfg["ks"]))
-    first = next(iter(res["methods"].values()))
-    print(f"{first['queries']} queries evaluated; {first['no_full_window']} without a full window, "
-          f"{first['no_positive']} without a reference within the radius "
-          f"({'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'})")
+    fate = 'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'
+    counts: dict[tuple, list[str]] = {}  # methods evaluated on the same queries share a line
+    for name, r in res["methods"].items():
+        counts.setdefault((r["queries"], r["no_full_window"], r["no_positive"], r.get("no_full_window_reason")),
+                          []).append(name)
+    for (queries, no_window, no_positive, why), names in counts.items():
+        who = "" if len(counts) == 1 else f"{', '.join(names)}: "
+        print(f"{who}{queries} queries evaluated; {no_window} without a full window"
+              f"{f' ({why})' if why else ''}, {no_positive} without a reference within the radius ({fate})")
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")

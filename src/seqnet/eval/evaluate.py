@@ -1,9 +1,11 @@
 """Evaluation: run methods on a dataset and report Recall@K with per-stage timing.
 
-Queries are the frames whose windows (L frames for sequence descriptors, L_m for the sequence
-matchers) fit inside their sequence; the same query and reference items are used for every method
-so numbers are comparable. The number of queries left out (no full window, or no reference within
-the radius) is reported.
+A sequence method's queries are the frames whose windows (L frames for sequence descriptors, L_m for
+the sequence matchers) fit inside their sequence, and its references the reference frames whose
+windows fit; a single-frame method (``single``, ``s1``) needs no window: it queries and indexes every
+frame (``common_queries``: every method on the sequence methods' items, one query set). Each
+method's entry reports its queries and the number left out (no full window, and why; no reference
+within the radius). See :mod:`seqnet.eval.evaluation`.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
 from .checks import check_inputs, leakage, model_lengths
+from .evaluation import Evaluation, merge, method_windows, no_window_reason
 from .methods import FUSE_WEIGHT, Method, default_methods, parse_method
 from .metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
 from .outputs import EvalOutputs
@@ -62,6 +65,9 @@ class EvalConfig(WindowSettings, Config):
         allow_mismatch: go on (with a warning) when reference and query descriptors, or a model and
             the descriptors, were made differently; by default each is an error. (An S_L model at another
             L >= w than it was trained with needs no flag: one info line, ``model_seq_len`` in the results.)
+        common_queries: evaluate every method on the sequence methods' query and reference items (the
+            paper's tables: one query set); by default a single-frame method (``single``, ``s1``) queries and
+            indexes every frame (:mod:`seqnet.eval.evaluation`).
     """
 
     methods: tuple[str, ...] | None = None
@@ -81,9 +87,11 @@ class EvalConfig(WindowSettings, Config):
     backend: str = "torch"
     device: str = "auto"
     allow_mismatch: bool = False
+    common_queries: bool = False
 
     def __post_init__(self) -> None:
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
+        self._set("common_queries", check_bool("common_queries", self.common_queries))
         if self.methods is not None:
             if isinstance(self.methods, str) or not self.methods:
                 raise ConfigError(f"methods must be a non-empty list of method names, got {self.methods!r}")
@@ -115,38 +123,6 @@ class EvalConfig(WindowSettings, Config):
     def shortlist_size(self, m: Method) -> int:
         """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""
         return m.shortlist_size(self.top_k, self.fuse_top_k)
-
-
-@dataclasses.dataclass
-class Evaluation:
-    """Results of :func:`evaluate`: JSON-ready ``results`` plus rankings for plots."""
-
-    results: dict[str, Any]
-    retrieved: dict[str, np.ndarray]  # method -> [M, K] indices into r_items, best first
-    scores: dict[str, np.ndarray]  # method -> [M, K] scores of ``retrieved`` (lower is better)
-    truth: GroundTruth  # what is correct for each query item (radius or explicit positives)
-    q_items: np.ndarray  # [M] query frame of each evaluated query
-    r_items: np.ndarray  # [R] reference frame of each indexed reference
-    confidence: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # method -> [M] in [0, 1]
-    query_names: list[str] | None = None  # [M] image names of the evaluated queries, when known
-    reference_names: list[str] | None = None  # [R] image names of the reference items, when known
-    dataset: Dataset | None = None  # what was evaluated (the split, re-sampled as asked), for the report
-    matrix: np.ndarray | None = None  # [Nq, Nr] given distances of ``dataset``'s frames (eval --distances)
-
-    @property
-    def q_pos(self) -> np.ndarray:
-        """``[M, P]`` positions of the evaluated query frames."""
-        return self.truth.q_pos
-
-    @property
-    def r_pos(self) -> np.ndarray:
-        """``[R, P]`` positions of the indexed reference frames."""
-        return self.truth.r_pos
-
-    @property
-    def radius(self) -> float:
-        """The localisation radius."""
-        return self.truth.radius
 
 
 def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | None) -> None:
@@ -201,16 +177,24 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     dev = get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
-    windows = conf.windows
-    query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
-    ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
-    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
-    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models))
+    parts = [_evaluate_group(ds, ms, w, conf, models, dev) for w, ms in
+             method_windows(methods, conf.windows, conf.common_queries).items()]
+    out = merge(parts, conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                              "models": {k: v.config() for k, v in models.items()},
                              "model_seq_len": model_lengths(models)}
+    out.dataset, out.frame_names = ds, (ds.query.names, ds.reference.names)
+    return out
+
+
+def _evaluate_group(ds: Dataset, methods: list[Method], windows: Windows, conf: EvalConfig,
+                    models: Mapping[str, SeqNet], dev: Any) -> Evaluation:
+    """The methods that share ``windows``, on those windows' query and reference items."""
+    query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
+    ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
+    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
+    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models), windows=windows)
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
-    out.dataset = ds
     return out
 
 
@@ -229,10 +213,15 @@ def item_names(t: Traverse, items: np.ndarray) -> list[str] | None:
 
 def run(methods: Sequence[Method], query: Described, ref: Reference, truth: GroundTruth, conf: EvalConfig,
         n_frames: int, info: Callable[[Method], dict[str, Any]],
-        extra: Callable[[Method, np.ndarray], dict[str, Any]] | None = None) -> Evaluation:
+        extra: Callable[[Method, np.ndarray], dict[str, Any]] | None = None,
+        windows: Windows | None = None) -> Evaluation:
     """The one evaluation loop: rank every method against ``ref`` (:func:`seqnet.eval.rank.rank`), score
     it (Recall@K, PR, AUC) and time it; ``info(m)`` describes the method, ``extra(m, items)`` adds entries
-    (a map's shortlist recall). ``n_frames``: query frames, for the count left out (no full window)."""
+    (a map's shortlist recall). ``n_frames``: query frames, for the count left out (no full window) under
+    ``windows`` (default ``conf.windows``), and why."""
+    windows = windows or conf.windows
+    left_out = int(n_frames - len(truth.q_pos))
+    why = {"no_full_window_reason": no_window_reason(windows)} if left_out else {}
     results: dict[str, Any] = {}
     retrieved, scores, confidence = {}, {}, {}
     for m in methods:
@@ -242,11 +231,12 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
         timing["total"] = sum(timing.values())
         entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
                                                    conf.extra_radii, conf.recall_denominator)
-        entry.update(extra(m, retrieved[m.name]) if extra else {}, no_full_window=int(n_frames - len(truth.q_pos)),
+        entry.update(extra(m, retrieved[m.name]) if extra else {}, no_full_window=left_out, **why,
                      timing_ms={k: round(v, 3) for k, v in timing.items()}, method=info(m))
         results[m.name] = entry
         logger.debug("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
-    return Evaluation({"methods": results}, retrieved, scores, truth, query.side.items, ref.items, confidence)
+    return Evaluation({"methods": results}, retrieved, scores, truth, query.items_index, ref.items, confidence,
+                      windows=windows)
 
 
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),

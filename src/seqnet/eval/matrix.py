@@ -25,8 +25,10 @@ from ..data.traverse import Dataset, default_split
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
 from ..security.arrays import read_npy
 from ..security.digests import file_digest
+from ..sequence.windows import Windows
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
-from .methods import parse_method
+from .evaluation import merge, method_windows
+from .methods import Method, parse_method
 from .outputs import EvalOutputs
 
 torch = lazy_module("torch")
@@ -154,19 +156,27 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
         dist, ds = dist[keep["query"]][:, keep["reference"]], resample_dataset(ds, conf.resample_every,
                                                                                 conf.resample_side)
     d = torch.as_tensor(np.ascontiguousarray(dist))
-    query = MatrixQuery(len(ds.query), ds.query.seq_bounds, conf.windows)
-    ref = MatrixReference(d, ds.reference, conf.windows, ds.name)
     methods = [parse_method(n) for n in conf.methods]
-    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
-    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: {**m.summary(), "on": "distance matrix",
-                                                                           "seq_len": conf.length,
-                                                                           "rerank_seq_len": conf.match_len,
-                                                                           "top_k": conf.shortlist_size(m)})
+    out = merge([_matrix_group(ds, d, ms, w, conf) for w, ms in
+                 method_windows(methods, conf.windows, conf.common_queries).items()], conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": "cpu", "models": {},
                              "matrix_methods": list(MATRIX_METHODS)}
-    out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
+    out.frame_names = (ds.query.names, ds.reference.names)
     out.dataset, out.matrix = ds, dist  # for the report: the evaluated frames and their given distances
     out.results["matrix_check"] = orientation_check(ds, dist, similarity, transposed)
+    return out
+
+
+def _matrix_group(ds: Dataset, d: torch.Tensor, methods: list[Method], windows: Windows, conf: EvalConfig
+                  ) -> Evaluation:
+    """The methods that share ``windows``, on those windows' items of the matrix ``d [Nq, Nr]``."""
+    query = MatrixQuery(len(ds.query), ds.query.seq_bounds, windows)
+    ref = MatrixReference(d, ds.reference, windows, ds.name)
+    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
+    out = run(methods, query, ref, truth, conf, len(ds.query),
+              lambda m: {**m.summary(), "on": "distance matrix", "seq_len": conf.length,
+                         "rerank_seq_len": conf.match_len, "top_k": conf.shortlist_size(m)}, windows=windows)
+    out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
 
 

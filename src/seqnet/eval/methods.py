@@ -57,6 +57,12 @@ class Method:
         """``<frames>+<matcher>``, or None for k-NN methods."""
         return f"{self.frames}+{self.matcher}" if self.frames else None
 
+    @property
+    def single_frame(self) -> bool:
+        """Whether the method compares one frame with one frame (k-NN on a single-frame descriptor: ``single``,
+        ``s1``): it needs no window, so it queries and indexes every frame whatever L is."""
+        return self.kind == "knn" and SEQUENCE_DESCRIPTORS[self.shortlist].single_frame
+
     def descriptors(self) -> list[str]:
         """The sequence descriptors this method computes (shortlist, then frame descriptor)."""
         return [d for d in (self.shortlist, self.frames and FRAME_FEATURES[self.frames]) if d]

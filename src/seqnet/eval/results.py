@@ -26,8 +26,7 @@ from .metrics.precision_recall import (
     thresholds_for,
 )
 from .metrics.recall import GroundTruth, recall
-
-MSLS_TOP = 20  # predictions per query in an MSLS file (its evaluation reads up to 20)
+from .msls import msls_predictions
 
 
 def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, ks: Sequence[int],
@@ -55,35 +54,20 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
 def per_query_rows(ev: Any, top: int = 5) -> list[dict[str, Any]]:
     """One row per (method, query): query frame and name, top-``top`` reference frames and scores,
     whether each is correct, whether the query has a correct reference, and the confidence."""
-    q_names = ev.query_names
-    r_frames = ev.r_items
     rows = []
     for name, ranked in ev.retrieved.items():
+        view = ev.view(name)  # a single-frame method's items are every frame
         head = ranked[:, :top]
-        hits = ev.truth.hits(head)
-        has = ev.truth.has_positive()
-        for m, q in enumerate(ev.q_items):
-            refs = [int(r_frames[j]) if j >= 0 else -1 for j in head[m]]
-            rows.append({"method": name, "query_frame": int(q), "query_name": q_names[m] if q_names else "",
+        hits = view.truth.hits(head)
+        has = view.truth.has_positive()
+        for m, q in enumerate(view.q_items):
+            refs = [int(view.r_items[j]) if j >= 0 else -1 for j in head[m]]
+            rows.append({"method": name, "query_frame": int(q),
+                         "query_name": view.query_names[m] if view.query_names else "",
                          "references": refs, "scores": [_num(s) for s in ev.scores[name][m, :top]],
                          "correct": [bool(h) for h in hits[m]], "has_positive": bool(has[m]),
                          "confidence": round(float(ev.confidence[name][m]), 6)})
     return rows
-
-
-def msls_predictions(ev: Any) -> str:
-    """MSLS's predictions file (mapillary_sls ``evaluate.py``): one line per query, its key then the keys of
-    its top-20 references, best first; a key is an image name's basename without its extension. One
-    method only (the file cannot say which), and the names must be known."""
-    if len(ev.retrieved) != 1:
-        raise ConfigError(f"an MSLS predictions file holds one method, got {len(ev.retrieved)} "
-                          f"({', '.join(ev.retrieved)}); hint: --method M")
-    if ev.query_names is None or ev.reference_names is None:
-        raise ConfigError("an MSLS predictions file needs image names for the query and reference images")
-    key = [Path(n).stem for n in ev.reference_names]
-    ranked = next(iter(ev.retrieved.values()))[:, :MSLS_TOP]
-    return "".join(" ".join([Path(q).stem, *(key[j] for j in row if j >= 0)]) + "\n"
-                   for q, row in zip(ev.query_names, ranked, strict=True))
 
 
 def _num(x: float) -> float | None:
@@ -99,15 +83,16 @@ def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
     if len(ev.retrieved) != 1:
         raise ConfigError(f"a VPR-methods-evaluation predictions folder holds one method, got {len(ev.retrieved)} "
                           f"({', '.join(ev.retrieved)}); hint: --method M")
-    if ev.query_names is None or ev.reference_names is None:
+    name, ranked = next(iter(ev.retrieved.items()))
+    view = ev.view(name)
+    if view.query_names is None or view.reference_names is None:
         raise ConfigError("a predictions folder needs image names for the query and reference images")
-    ranked = next(iter(ev.retrieved.values()))[:, :top]
-    refs = ev.reference_names
+    refs = view.reference_names
     out = {}
-    for m, (q, row) in enumerate(zip(ev.query_names, ranked, strict=True)):
+    for m, (q, row) in enumerate(zip(view.query_names, ranked[:, :top], strict=True)):
         parts = ["Query path:", q + "\n", "Predictions paths:", "\n".join(refs[j] for j in row if j >= 0) + "\n",
-                 "Positives paths:", "\n".join(refs[j] for j in ev.truth.of(m)) + "\n"]
-        out[f"{int(ev.q_items[m]):03d}.txt"] = "\n".join(parts)  # its query frame: a query left out keeps its number
+                 "Positives paths:", "\n".join(refs[j] for j in view.truth.of(m)) + "\n"]
+        out[f"{int(view.q_items[m]):03d}.txt"] = "\n".join(parts)  # its query frame: a query left out keeps its number
     return out
 
 

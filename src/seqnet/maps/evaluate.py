@@ -140,6 +140,7 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
                             "map": mp.meta["config"]}
     ev.query_names = [q.traverse.names[i] for i in items] if q.traverse.names else None
     ev.reference_names = [mp.names[i] for i in mp.items] if mp.names else None
+    ev.frame_names = (q.traverse.names, mp.names)
     return ev
 
 

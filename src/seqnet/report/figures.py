@@ -48,6 +48,19 @@ def spread(n: int, side: int) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, min(side, n)).astype(np.int64))
 
 
+def top_one(ev: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows [n], cols [n])``: the evaluation's query and reference items (``ev.q_items``, ``ev.r_items``)
+    of method ``name``'s top-1 matches that are among them (a single-frame method also ranks the frames
+    without a full window: those are left out of the figure)."""
+    view, top = ev.view(name), ev.retrieved[name][:, 0]
+    ok = top >= 0
+    q_frames, r_frames = view.q_items[ok], view.r_items[top[ok]]
+    rows, cols = np.searchsorted(ev.q_items, q_frames), np.searchsorted(ev.r_items, r_frames)
+    rows, cols = np.minimum(rows, len(ev.q_items) - 1), np.minimum(cols, len(ev.r_items) - 1)
+    shown = (ev.q_items[rows] == q_frames) & (ev.r_items[cols] == r_frames)
+    return rows[shown], cols[shown]
+
+
 def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300,
                   methods: Sequence[str] | None = None) -> Any:
     """The single-image descriptor distance matrix of the evaluated items (downsampled to ``side``; the given
@@ -66,9 +79,8 @@ def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300
     ax.scatter(tr, tq, s=10, c="cyan", alpha=0.8, marker="s", linewidths=0, label="ground truth")
     names = list(methods or ev.retrieved)
     for name, colour in zip(names, method_colours(len(names)), strict=True):
-        top = ev.retrieved[name][:, 0]
-        ok = top >= 0
-        ax.scatter(top[ok], np.flatnonzero(ok), s=3, color=colour, linewidths=0, label=f"{name} top-1")
+        rows, cols = top_one(ev, name)
+        ax.scatter(cols, rows, s=3, color=colour, linewidths=0, label=f"{name} top-1")
     ax.set_xlim(-0.5, r - 0.5)
     ax.set_ylim(m - 0.5, -0.5)
     ax.set_xlabel(f"reference item ({r}; matrix shown at {len(ri)} columns)")

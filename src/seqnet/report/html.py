@@ -29,7 +29,6 @@ from ..data.traverse import Dataset
 from ..eval.methods import parse_method
 from ..eval.metrics.recall import recall_curve
 from ..security.files import write_text_atomic
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
@@ -129,14 +128,15 @@ def gallery_section(ev: Any, ds: Dataset, conf: ReportConfig) -> Section:
     name = conf.gallery_method or max(methods, key=lambda m: methods[m].get("recall@1", -1.0))
     entry, ranked = methods[name]["method"], ev.retrieved[name]
     m = parse_method(name)
-    single = m.kind == "knn" and SEQUENCE_DESCRIPTORS[m.shortlist].single_frame
+    single = m.single_frame
     length, mode = 1 if single else entry.get("rerank_seq_len") or entry["seq_len"], ev.results["config"]["window"]
-    correct = ev.truth.hits(ranked[:, :1])[:, 0]
+    view = ev.view(name)  # the method's own items (a single-frame method: every frame)
+    correct = view.truth.hits(ranked[:, :1])[:, 0]
     cells = []
-    for row in pick_examples(correct, ev.truth.has_positive(), conf.gallery_size):
+    for row in pick_examples(correct, view.truth.has_positive(), conf.gallery_size):
         top = int(ranked[row, 0])
-        item = GalleryItem(row, window_names(ds.query, int(ev.q_items[row]), length, mode),
-                           window_names(ds.reference, int(ev.r_items[top]), length, mode) if top >= 0 else [],
+        item = GalleryItem(row, window_names(ds.query, int(view.q_items[row]), length, mode),
+                           window_names(ds.reference, int(view.r_items[top]), length, mode) if top >= 0 else [],
                            bool(correct[row]), float(ev.confidence[name][row]))
         notes: list[str] = []
         png = gallery_png(item, Path(conf.query_images), Path(conf.ref_images), notes=notes) \
@@ -162,7 +162,7 @@ def gallery_cell(item: GalleryItem, png: bytes | None, note: str = "") -> str:
 def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
     """The report sections of one :class:`~seqnet.eval.evaluate.Evaluation` of the dataset ``ds`` (the
     evaluated split: its traverses give the descriptors and image names)."""
-    curves = {m: recall_curve(r, ev.truth, conf.k_max) for m, r in ev.retrieved.items()}
+    curves = {m: recall_curve(r, ev.view(m).truth, conf.k_max) for m, r in ev.retrieved.items()}
     pr = pr_figure(ev.results["methods"], "precision–recall (ratio confidence)")
     return [
         summary_section(ev, conf),

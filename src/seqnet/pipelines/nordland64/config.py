@@ -109,4 +109,5 @@ class Nordland64Config(Config):
         """The evaluation settings of the val and test ranges."""
         return EvalConfig(methods=self.eval_methods, seq_len=self.seq_len, ks=self.ks, top_k=self.top_k,
                           fuse_weight=self.fuse_weight, fuse_top_k=self.fuse_top_k, device=self.device,
-                          recall_denominator=self.recall_denominator)
+                          recall_denominator=self.recall_denominator,
+                          common_queries=True)  # the paper's Table I: every method on one query set

@@ -50,7 +50,7 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
     ev.results["config"].update(benchmark=conf.to_dict(), timings_s=dict(seconds))
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
-    curves = {m: recall_curve(r, ev.truth, 20) for m, r in ev.retrieved.items()}
+    curves = {m: recall_curve(r, ev.view(m).truth, 20) for m, r in ev.retrieved.items()}
     speed = "" if conf.query_speed is None else f", query at {conf.query_speed[0]:g}–{conf.query_speed[1]:g}× speed"
     title = f"Nordland64 test (L={conf.seq_len}{speed})"
     plot_recall_curves(curves, out / "recall_at_k.png", title=title)
