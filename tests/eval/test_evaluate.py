@@ -421,12 +421,12 @@ def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
     from seqnet.data.io import load_dataset
 
     out = tmp_path / "logs" / "preds"
-    argv = ["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "single", "--per-query", str(out)]
+    argv = ["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "raw+seqmatch", "--per-query", str(out)]
     assert cli(argv) == 0
     ds = load_dataset(synth_dir).split("test")
     files = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     assert all(re.fullmatch(r"\d{3}\.txt", f) for f in files)
-    # numbered by the query's index in the query list, as VME: L=4 leaves out frames 0, 1 and the last one
+    # numbered by the query's index in the query list, as VME: windows of L=4 leave out frames 0, 1 and the last
     assert files[0] == "002.txt" and files[-1] == f"{len(ds.query) - 2:03d}.txt" and len(files) == len(ds.query) - 3
     for f in files:
         assert (out / f).read_text().split("\n")[1] == ds.query.names[int(f[:3])]
@@ -438,6 +438,10 @@ def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
     pos = positives.strip("\n").split("\n")
     assert pos[0] == "Positives paths:" and pos[1:] and set(pos[1:]) <= set(ds.reference.names)
     assert text.endswith("\n")
+    argv[argv.index("raw+seqmatch")] = "single"  # a single-frame method: every query frame, 000 to the last
+    assert cli([*argv, "--overwrite"]) == 0
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == \
+        [f"{i:03d}.txt" for i in range(len(ds.query))]
     q = ds.query.names.index(head.split("\n")[1])  # the positives: the evaluated references within the radius
     near = [n for n, p in zip(ds.reference.names, ds.reference.positions, strict=True)
             if np.linalg.norm(p - ds.query.positions[q]) <= ds.radius]

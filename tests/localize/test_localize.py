@@ -39,22 +39,24 @@ CASES = [(m, None) for m in METHODS] + [(m, 6) for m in ("seqnet", "s1+seqmatch"
 @pytest.mark.parametrize(("method", "match_len"), CASES)
 def test_stream_equals_causal_evaluation(small, method, match_len):
     ds, models = small
-    # the localiser indexes the L-window reference items for every method: offline, one query set (common_queries)
-    conf = EvalConfig(window="causal", rerank_seq_len=match_len, ks=(1, 7), top_k=5, device="cpu",
-                      common_queries=True)
+    # the localiser queries and indexes what eval scores for each method: every frame for a single-frame method
+    conf = EvalConfig(window="causal", rerank_seq_len=match_len, ks=(1, 7), top_k=5, device="cpu")
     ev = evaluate(ds, conf.replace(methods=(method,)), models)
+    view = ev.view(method)
     loc = loc_of(ds, models, method, rerank_seq_len=match_len, k=7, top_k=5)
-    assert loc.ref_items.tolist() == ev.r_items.tolist()
+    assert loc.ref_items.tolist() == view.r_items.tolist()
     est = list(replay(loc, ds.query))
     assert [e.frame for e in est] == list(range(len(ds.query)))
     full = [e for e in est if e.full_window]
-    assert [e.frame for e in full] == ev.q_items.tolist()  # the comparable frames: full causal windows
+    assert [e.frame for e in full] == view.q_items.tolist()  # the comparable frames: full causal windows
+    if method in ("single", "s1"):
+        assert len(full) == len(ds.query) and len(view.r_items) == len(ds.reference)
     ranked = np.stack([e.ranked for e in full])
     scores = np.stack([e.scores for e in full])
     np.testing.assert_array_equal(ranked, ev.retrieved[method])
     np.testing.assert_allclose(scores, ev.scores[method], rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose([e.confidence for e in full], ev.confidence[method], atol=1e-4)
-    assert all(e.ref_frame == ev.r_items[e.ref_index] and e.latency_ms > 0 for e in full)
+    assert all(e.ref_frame == view.r_items[e.ref_index] and e.latency_ms > 0 for e in full)
 
 
 def test_early_frames_and_resets(small):
@@ -64,11 +66,11 @@ def test_early_frames_and_resets(small):
     t = Traverse(t.descriptors, t.positions, seq_bounds=bounds, provenance=t.provenance)
     loc = loc_of(ds, models, "single", seq_len=4, rerank_seq_len=5)
     est = list(replay(loc, t))
-    assert est[0].ref_index >= 0 and not est[0].full_window  # single frames answer at once
-    assert [e.full_window for e in est[10:18]] == [True, True, False, False, False, False, True, True]
+    assert all(e.ref_index >= 0 and e.full_window for e in est)  # a single frame is a whole window: every frame
     loc = loc_of(ds, models, "raw+seqmatch", seq_len=4, rerank_seq_len=5)
     est = list(replay(loc, t))
     assert [e.ref_index >= 0 for e in est[:6]] == [False] * 4 + [True] * 2
+    assert [e.full_window for e in est[10:18]] == [True, True, False, False, False, False, True, True]
     assert est[12].ref_index == -1 and np.isnan(est[12].score) and est[12].confidence == 0.0
 
 

@@ -114,7 +114,7 @@ def test_localize_streams_a_matrix_as_causal_eval_ranks_it(synth_dataset, synth_
                          EvalConfig(methods=(method,), seq_len=4, window="causal", top_k=10))
     rows = {n: list(csv.DictReader(open(tmp_path / f"{n}.csv"))) for n in ("m", "t")}
     full = [r for r in rows["m"] if r["full_window"] == "1"]
-    assert [int(r["estimate"]) for r in full] == ev.r_items[ev.retrieved[method][:, 0]].tolist()
+    assert [int(r["estimate"]) for r in full] == ev.view(method).r_items[ev.retrieved[method][:, 0]].tolist()
     assert [r["estimate"] for r in rows["m"]] == [r["estimate"] for r in rows["t"]]
     summary = json.loads((tmp_path / "m.json").read_text())
     assert summary["inputs"]["similarity"] is False and summary["inputs"]["distances_digest"]

@@ -61,6 +61,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="S_1 checkpoint used by 's1', 's1+seqmatch' and HVPR re-ranking")
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
     add_recall_options(p)
+    add_output_options(p)
+    p.add_argument("--common-queries", action="store_true", help="evaluate every method on the sequence methods' "
+                   "queries and references (one query set, as the paper's tables); by default single-frame methods "
+                   "(single, s1) query and index every frame")
+    add_allow_mismatch(p)
+    add_device(p)
+    p.set_defaults(func=run)
+
+
+def add_output_options(p: argparse.ArgumentParser) -> None:
+    """What eval reads besides descriptors (``--distances``, ``--index``) and what it writes (``--per-query``,
+    ``--out``, ``--json``, ``--report``)."""
     p.add_argument("--per-query", metavar="FILE", help="per-query results: FILE.csv / .jsonl (per method and query: "
                    "top-5 references, scores, correct or not, confidence); .txt: MSLS's predictions (one method; a "
                    "row per query key, then its top-20 reference keys: im2im image keys for single / s1, seq2seq "
@@ -80,12 +92,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(results, Recall@K and PR plots, distance matrix, example queries)")
     p.add_argument("--images-query", metavar="DIR", help="--report: folder of the query images (for the gallery)")
     p.add_argument("--images-ref", metavar="DIR", help="--report: folder of the reference images (for the gallery)")
-    p.add_argument("--common-queries", action="store_true", help="evaluate every method on the sequence methods' "
-                   "queries and references (one query set, as the paper's tables); by default single-frame methods "
-                   "(single, s1) query and index every frame")
-    add_allow_mismatch(p)
-    add_device(p)
-    p.set_defaults(func=run)
 
 
 def add_recall_options(p: argparse.ArgumentParser) -> None:

@@ -26,7 +26,7 @@ from .metrics.precision_recall import (
     thresholds_for,
 )
 from .metrics.recall import GroundTruth, recall
-from .msls import msls_predictions
+from .msls_predictions import msls_predictions
 
 
 def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, ks: Sequence[int],

@@ -91,6 +91,8 @@ def traverse_reference(t: Traverse, models: Mapping[str, SeqNet], method: str, w
                        device: torch.device, allow_mismatch: bool = False, name: str = "map") -> TraverseReference:
     """A reference traverse as the localiser's map (causal ``windows``), its models and lengths checked."""
     m = online_method(method)
+    if m.single_frame:  # windows of one frame: a model the method does not use (S_L) is not checked against them
+        models = {role: model for role, model in models.items() if role in m.models()}
     check_methods([m], models, windows.length)
     check_models(models, t.dim, t.provenance, f"the map {name!r}", windows.length, allow_mismatch)
     check_fits(windows.longest, len(t), "the map's reference traverse")

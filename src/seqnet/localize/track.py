@@ -93,7 +93,11 @@ class LocalizeConfig(Config):
         check_device(self.device)
 
     def windows(self, models: Mapping[str, SeqNet]) -> Windows:
-        """The causal windows, resolved once: L (given, else the S_L model's, else 5), L_m (else L), the anchor."""
+        """The causal windows, resolved once: L (given, else the S_L model's, else 5), L_m (else L), the anchor; a
+        single-frame method (``single``, ``s1``) needs none: windows of one frame, so every frame is localised
+        and indexed, as ``seqnet eval`` scores it."""
+        if online_method(self.method).single_frame:
+            return Windows.resolve(1, 1, "causal", None, self.anchor)
         return Windows.resolve(self.seq_len, self.rerank_seq_len, "causal",
                                getattr(models.get("seqnet"), "seq_len", None), self.anchor)
 

@@ -1,6 +1,6 @@
-"""MSLS predictions files (seqnet.eval.msls) against the rules mapillary_sls's evaluate.py enforces: a row for every
-query key it scores (image keys for im2im; comma-joined keys of L consecutive frames of one sequence, centred, for
-seq2seq), equal widths (np.loadtxt), no prediction twice in a row, no query twice."""
+"""MSLS predictions files (seqnet.eval.msls_predictions) against the rules mapillary_sls's evaluate.py enforces: a row
+for every query key it scores (image keys for im2im; comma-joined keys of L consecutive frames of one sequence, centred,
+for seq2seq), equal widths (np.loadtxt), no prediction twice in a row, no query twice."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from seqnet.core.errors import ConfigError
 from seqnet.data.msls import dataset_from_msls
 from seqnet.eval.evaluate import EvalConfig, evaluate
-from seqnet.eval.msls import _rows, msls_predictions
+from seqnet.eval.msls_predictions import _rows, msls_predictions
 
 SEQS = {  # side -> (sequence key, frame number) of each row, in seq_info order
     "query": [("A", i) for i in range(7)] + [("B", f) for f in (0, 1, 2, 4, 5, 6)] + [("C", i) for i in range(2)],
