@@ -24,13 +24,15 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parents[1] / "src"
 
 
-def commands(data: Path, work: Path, tag: str) -> dict[str, tuple[list[str], Path]]:
-    """The measured commands (argv after ``python -m seqnet``) and the JSON file each writes its figures to."""
+def commands(data: Path, work: Path, tag: str, common: list[str]) -> dict[str, tuple[list[str], Path]]:
+    """The measured commands (argv after ``python -m seqnet``) and the JSON file each writes its figures to
+    (``common``: ``--common-queries`` for a tree whose single-frame methods would otherwise score every frame,
+    so both trees do the same work)."""
     ds, models = data / "dataset", [data / "models" / "seqnet.pt", data / "models" / "s1.pt"]
     m = [a for p in models for a in ("--model", str(p))]
     ev, loc = work / f"eval-{tag}.json", work / f"track-{tag}.csv"
-    return {"eval": (["--threads", "2", "-q", "eval", "--dataset", str(ds), "--split", "test", *m, "--json",
-                      str(ev)], ev),
+    return {"eval": (["--threads", "2", "-q", "eval", "--dataset", str(ds), "--split", "test", *m, *common,
+                      "--json", str(ev)], ev),
             "localize": (["--threads", "1", "-q", "localize", "--dataset", str(ds), "--split", "test", *m,
                           "--method", "hvpr", "--out", str(loc)], loc.with_suffix(".json"))}
 
@@ -40,6 +42,13 @@ def run(src: Path, argv: list[str]) -> float:
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "seqnet", *argv], env=env, check=True, capture_output=True)
     return time.perf_counter() - t0
+
+
+def common_queries(src: Path) -> list[str]:
+    """``["--common-queries"]`` when the tree ``src`` has the flag (one query set for every method), else []."""
+    help_text = subprocess.run([sys.executable, "-m", "seqnet", "eval", "--help"], env={**os.environ,
+                               "PYTHONPATH": str(src)}, check=True, capture_output=True, text=True).stdout
+    return ["--common-queries"] if "--common-queries" in help_text else []
 
 
 def figures(path: Path) -> dict:
@@ -58,13 +67,14 @@ def main() -> int:
     ap.add_argument("--reps", type=int, default=5)
     args = ap.parse_args()
     trees = {"before": Path(args.before).resolve(), "after": HERE}
+    common = {tag: common_queries(src) for tag, src in trees.items()}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         times: dict[tuple[str, str], list[float]] = {}
         outs = {}
         for _ in range(args.reps):
             for tag, src in trees.items():  # interleaved: A B A B
-                for name, (argv, out) in commands(Path(args.data), work, tag).items():
+                for name, (argv, out) in commands(Path(args.data), work, tag, common[tag]).items():
                     times.setdefault((name, tag), []).append(run(src, argv))
                     outs[(name, tag)] = figures(out)
         load = os.getloadavg()
