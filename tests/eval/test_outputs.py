@@ -135,13 +135,17 @@ def test_a_per_query_file_seqnet_did_not_write_is_refused(synth_dir, tmp_path, c
     pq = tmp_path / f"pq{suffix}"
     if suffix:
         pq.write_text("method,query_frame\nthe user's own\n")
-    else:
+    else:  # VME's own preds/ folder: NNN.txt files, as seqnet writes them, but no seqnet manifest
         pq.mkdir()
-        (pq / "000.txt").write_text("ours by its name")
-        (pq / "notes.md").write_text("the user's own")
+        (pq / "000.txt").write_text("Query path:\nq.jpg\n")
+        (pq / "999.txt").write_text("the user's own")
     argv = ["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--per-query", str(pq)]
     _one_line(capsys, argv, 2, "not written by seqnet" if suffix else "file(s) seqnet did not write")
-    assert (pq / "notes.md" if not suffix else pq).read_text().endswith("the user's own\n" if suffix else "own")
+    if suffix:
+        assert pq.read_text().endswith("the user's own\n")
+    else:
+        assert (pq / "999.txt").read_text() == "the user's own"
+        assert (pq / "000.txt").read_text() == "Query path:\nq.jpg\n"
 
 
 @pytest.mark.parametrize("suffix", [".csv", ".jsonl", ".txt"])
@@ -150,10 +154,7 @@ def test_seqnets_own_per_query_file_is_replaced_and_overwrite_replaces_any(synth
     argv = ["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--per-query", str(pq)]
     assert main(argv) == 0
     first = pq.read_text()
-    if suffix == ".txt":  # MSLS predictions have no header to recognise: replaced only with --overwrite
-        _one_line(capsys, argv, 2, "has no header")
-    else:
-        assert main(argv) == 0
+    assert main(argv) == 0  # an MSLS file by its first line, '# seqnet ...' (a comment to evaluate.py)
     pq.write_text("the user's own")
     _one_line(capsys, argv, 2, "not written by seqnet")
     assert main([*argv, "--overwrite"]) == 0 and pq.read_text() == first

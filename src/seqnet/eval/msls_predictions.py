@@ -28,6 +28,7 @@ from .evaluation import ItemView
 from .methods import parse_method
 
 MSLS_TOP = 20  # predictions per query in an MSLS file (its evaluation reads up to 20)
+MSLS_MARK = "# seqnet "  # the first line of an MSLS file seqnet writes (a comment np.loadtxt skips): its mark
 
 
 def msls_task(method: str, view: ItemView) -> tuple[str, int]:
@@ -96,5 +97,5 @@ def msls_predictions(ev: Any) -> str:
     logger.info("MSLS predictions of %s: %d query %s; score them with mapillary_sls evaluate.py %s",
                 name, len(q_keys), "images" if task == "im2im" else f"windows of {length} frames", options)
     rows = _rows(ranked, len(r_keys), name)
-    head = f"# seqnet {name}: mapillary_sls evaluate.py {options}\n"
+    head = f"{MSLS_MARK}{name}: mapillary_sls evaluate.py {options}\n"
     return head + "".join(" ".join([q, *(r_keys[j] for j in row)]) + "\n" for q, row in zip(q_keys, rows, strict=True))

@@ -7,7 +7,6 @@ import contextlib
 import csv
 import io
 import json
-import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -26,7 +25,7 @@ from .metrics.precision_recall import (
     thresholds_for,
 )
 from .metrics.recall import GroundTruth, recall
-from .msls_predictions import msls_predictions
+from .msls_predictions import MSLS_MARK, msls_predictions
 
 
 def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, ks: Sequence[int],
@@ -109,12 +108,8 @@ def _write_folder(path: Path, files: dict[str, str]) -> Path:
 
     with locked(path):
         recover_dir(path)
-        check_replaceable(path, "predictions folder", _predictions_file)
+        check_replaceable(path, "predictions folder")  # seqnet's manifest, not file names: VME's own preds/ look alike
         return write_dir(path, fill)
-
-
-def _predictions_file(rel: str) -> bool:
-    return re.fullmatch(r"\d{3,}\.txt", rel) is not None
 
 
 CSV_FIELDS = ("method", "query_frame", "query_name", "references", "scores", "correct", "has_positive", "confidence")
@@ -174,8 +169,8 @@ def write_per_query(ev: Any, path: str | Path, top: int = 5) -> Path:
 def check_per_query(path: str | Path, overwrite: bool = False) -> None:
     """Refuse (:class:`OutputError`) to replace an existing per-query output that seqnet did not write, unless
     ``overwrite``: a ``.csv`` is seqnet's when its first line is seqnet's header, a ``.jsonl`` when its first
-    line is a row of seqnet's, a folder when its manifest (or its file names) say so; an MSLS ``.txt`` has no
-    header to recognise it by, so an existing one is replaced only with ``overwrite``."""
+    line is a row of seqnet's, an MSLS ``.txt`` when its first line is seqnet's ``# seqnet`` comment, a folder
+    when its manifest says so (a folder of ``NNN.txt`` files without one may be VME's own ``preds/``)."""
     from ..security.ownership import check_replaceable
 
     path = Path(path)
@@ -185,10 +180,9 @@ def check_per_query(path: str | Path, overwrite: bool = False) -> None:
     if fmt == "":
         if path.is_symlink():
             raise OutputError(f"{path} is a symbolic link; seqnet does not replace links (choose another --per-query)")
-        return check_replaceable(path, "predictions folder", _predictions_file)
+        return check_replaceable(path, "predictions folder")
     if not _our_rows(path, fmt):
-        why = "an MSLS predictions file has no header by which seqnet could tell its own; " if fmt == ".txt" else ""
-        raise OutputError(f"{path} exists and was not written by seqnet eval ({why}move it away, choose another "
+        raise OutputError(f"{path} exists and was not written by seqnet eval (move it away, choose another "
                           "--per-query, or pass --overwrite)")
 
 
@@ -202,6 +196,8 @@ def _our_rows(path: Path, fmt: str) -> bool:
         return False
     if fmt == ".csv":
         return line == ",".join(CSV_FIELDS)
+    if fmt == ".txt":
+        return line.startswith(MSLS_MARK)
     if fmt == ".jsonl":
         with contextlib.suppress(ValueError):
             row = json.loads(line)
