@@ -197,4 +197,10 @@ def test_a_transposed_matrix_is_read_as_such_by_eval_and_localize(synth_dataset,
     if d.shape[0] != d.shape[1]:
         assert cli(["eval", *common, "--distances", str(tmp_path / "d.npy"), "--transposed"]) == 2
         assert "one row per reference frame" in capsys.readouterr().err
+        assert cli(["localize", *common, "--distances", str(tmp_path / "t.npy"), "--out", str(tmp_path / "x.csv")]) == 2
+        assert "it is the other way round: pass --transposed" in capsys.readouterr().err
     assert cli(["eval", *common, "--transposed"]) == 2
+    capsys.readouterr()
+    assert cli(["localize", *common, "--distances", str(tmp_path / "d.npy"), "--similarity",  # the other sense
+                "--out", str(tmp_path / "s.csv")]) == 0
+    assert "reads much better other sense" in (err := capsys.readouterr().err) and "drop --similarity" in err

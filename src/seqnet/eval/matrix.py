@@ -47,9 +47,11 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
     want = (len(ds.reference), len(ds.query)) if transposed else (len(ds.query), len(ds.reference))
     if m.ndim != 2 or m.shape != want:
         rows, cols = ("reference", "query") if transposed else ("query", "reference")
+        turned = m.ndim == 2 and m.shape == want[::-1]
+        hint = f"; it is the other way round: {'drop' if transposed else 'pass'} --transposed" if turned else ""
         raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {len(ds.query)} query "
                           f"and {len(ds.reference)} reference frames (one row per {rows} frame, one column per "
-                          f"{cols} frame{', as --transposed says' if transposed else ''})")
+                          f"{cols} frame{', as --transposed says' if transposed else ''}){hint}")
     check_finite_rows(m, path)
     rng = ds.ranges(split)
     q, r = slice(*rng["query"]), slice(*rng["reference"])
@@ -110,25 +112,51 @@ def orientation_check(ds: Dataset, dist: np.ndarray, similarity: bool, transpose
     keep = np.flatnonzero(truth.has_positive())
     keep = keep[np.linspace(0, len(keep) - 1, min(len(keep), CHECK_ROWS)).round().astype(np.int64)] if len(keep) \
         else keep
-    readings = {"as given": dist[keep], "other sense": -dist[keep]}
-    if dist.shape[0] == dist.shape[1]:
-        readings.update({"transposed": dist[:, keep].T, "transposed, other sense": -dist[:, keep].T})
     sampled = dataset_truth(ds, keep, np.arange(len(ds.reference)), ds.radius) if len(keep) else None
-    r1 = {k: float(sampled.hits(np.argmin(v, axis=1)[:, None])[:, 0].mean()) if sampled else float("nan")
-          for k, v in readings.items()}
+    hits = {k: sampled.hits(top[:, None])[:, 0] if sampled else np.zeros(0, bool)
+            for k, top in _top1(dist, keep).items()}
+    r1 = {k: float(h.mean()) if len(h) else float("nan") for k, h in hits.items()}
     best = max(r1, key=lambda k: r1[k])
     if best != "as given":
-        _warn_reading(best, r1, similarity, transposed)
+        _warn_reading(best, r1, similarity, transposed, sign_z(hits[best], hits["as given"]))
     return {"single_r@1": {k: round(v, 4) for k, v in r1.items()}, "queries_checked": int(len(keep)),
             "best_reading": best}
 
 
-SQUARE_MARGIN = 0.01  # a square matrix reading better transposed by this much R@1 is named, however little
+SQUARE_Z = 2.5  # a square matrix reading better transposed on this many standard errors is named (sign test)
 
 
-def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed: bool) -> None:
+def _top1(dist: np.ndarray, keep: np.ndarray, block_bytes: int = 64 << 20) -> dict[str, np.ndarray]:
+    """Each reading's best reference ``[len(keep)]`` for the queries ``keep`` of ``dist [Nq, Nr]``: as given
+    (argmin of the row), the other sense (argmax), and for a square matrix transposed (of the column) and
+    transposed in the other sense; in blocks of rows or columns of at most ``block_bytes``."""
+    out: dict[str, list[np.ndarray]] = {"as given": [], "other sense": []}
+    step = max(1, block_bytes // max(1, dist.shape[1] * 8))
+    for a in range(0, len(keep), step):
+        rows = np.asarray(dist[keep[a:a + step]], dtype=np.float64)
+        out["as given"].append(rows.argmin(1))
+        out["other sense"].append(rows.argmax(1))
+    if dist.shape[0] == dist.shape[1]:
+        out |= {"transposed": [], "transposed, other sense": []}
+        step = max(1, block_bytes // max(1, dist.shape[0] * 8))
+        for a in range(0, len(keep), step):
+            cols = np.asarray(dist[:, keep[a:a + step]], dtype=np.float64)
+            out["transposed"].append(cols.argmin(0))
+            out["transposed, other sense"].append(cols.argmax(0))
+    return {k: np.concatenate(v) if v else np.zeros(0, np.int64) for k, v in out.items()}
+
+
+def sign_z(better: np.ndarray, given: np.ndarray) -> float:
+    """The sign test's z of two readings' per-query hits ``[M]`` bool: ``(b - c) / sqrt(b + c)`` over the queries
+    where exactly one is right (b: ``better`` only, c: ``given`` only); 0 when none differ."""
+    b, c = int((better & ~given).sum()), int((given & ~better).sum())
+    return (b - c) / np.sqrt(b + c) if b + c else 0.0
+
+
+def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed: bool, z: float = 0.0) -> None:
     """A warning naming a reading of the matrix that beats the one used: clearly (R@1 at least twice, and 0.1
-    above), or, for a square matrix whose shape cannot tell rows from columns, by :data:`SQUARE_MARGIN`."""
+    above), or, for a square matrix whose shape cannot tell rows from columns, beyond chance (the sign test's
+    ``z`` at least :data:`SQUARE_Z`: two aligned traverses read about as well either way)."""
     given, sense = r1["as given"], "similarities" if similarity else "distances"
     flag = "drop --similarity" if similarity else "pass --similarity"
     turn = "drop --transposed" if transposed else "pass --transposed (one row per reference, as VPR_Tutorial's S)"
@@ -137,7 +165,7 @@ def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed:
         logger.warning("the matrix reads much better %s: single-frame R@1 %.3f read as given (%s, one row per "
                        "query), %.3f %s; the user probably meant that (hint: %s)", best, given, sense, r1[best],
                        best, hint)
-    elif best.startswith("transposed") and r1[best] >= given + SQUARE_MARGIN:
+    elif best.startswith("transposed") and z >= SQUARE_Z:
         logger.warning("a square matrix: rows read as queries (single-frame R@1 %.3f), but it reads better %s "
                        "(%.3f); if its rows and columns are the other way round, %s", given, best, r1[best], hint)
 

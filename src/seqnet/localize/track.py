@@ -193,9 +193,11 @@ def _localizer(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loa
     those): over the reference traverse, or over the rows of the matrix."""
     if distances is None:
         return dataset_localizer(ds, loaded, conf), None
-    from ..eval.matrix import read_matrix
+    from ..eval.matrix import orientation_check, read_matrix
 
-    return matrix_localizer(ds, read_matrix(distances, full, reading[0], split, reading[1]), conf)
+    dist = read_matrix(distances, full, reading[0], split, reading[1])
+    orientation_check(ds, dist, *reading)  # a reading the user probably meant is named (a warning), as eval does
+    return matrix_localizer(ds, dist, conf)
 
 
 def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
