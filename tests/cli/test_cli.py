@@ -237,3 +237,13 @@ def test_from_images_needs_a_radius_unless_positives_imply_one(folder, tmp_path,
     assert not (tmp_path / "a").exists()
     assert main([*base, "--positives", str(tmp_path / "pos.csv"), "--out", str(tmp_path / "b")]) == 0
     assert "ground truth positives, radius 1 frames" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, pattern", [
+    (["--method", "single", "--top-k", "5"], "--top-k is the HVPR shortlist size"),
+    (["--method", "single", "--rerank-seq-len", "3"], "--rerank-seq-len is the length L_m"),
+])
+def test_localize_refuses_options_of_other_methods(small_dir, capsys, tmp_path, argv, pattern):
+    out = tmp_path / "t.csv"
+    run_error(capsys, ["localize", "--dataset", str(small_dir), "--out", str(out), *argv], pattern)
+    assert not out.exists()

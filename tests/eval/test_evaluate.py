@@ -534,3 +534,14 @@ def test_single_recall_against_a_naive_loop():
             hits += any(abs(pos[i] - (pos[j] + 0.3)) <= 1.0 for j in order[:k])
         assert ev.results["methods"]["single"][f"recall@{k}"] == pytest.approx(hits / counted)
     assert ev.results["methods"]["single"]["queries"] == 9
+
+
+def test_single_frame_methods_need_no_window_to_fit_the_traverse():
+    """A traverse shorter than L: single still scores every frame (it needs no window); a sequence method is
+    refused, naming --seq-len."""
+    r = np.eye(3, 4, dtype=np.float32)[:2]
+    ds = Dataset(Traverse(r, np.arange(2.0)[:, None]), Traverse(r + 0.01, np.arange(2.0)[:, None]), radius=0.5)
+    ev = evaluate(ds, EvalConfig(methods=("single",), seq_len=5))
+    assert ev.results["methods"]["single"]["queries"] == 2 and ev.results["methods"]["single"]["recall@1"] == 1.0
+    with pytest.raises(ConfigError, match="seq_len=5 is longer than the query traverse"):
+        evaluate(ds, EvalConfig(methods=("single", "raw+seqmatch"), seq_len=5))

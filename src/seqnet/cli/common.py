@@ -146,3 +146,24 @@ def check_distances(args: argparse.Namespace) -> None:
     for flag in ("similarity", "transposed"):
         if getattr(args, flag) and not args.distances:
             raise ConfigError(f"--{flag} describes the --distances matrix; give --distances FILE.npy")
+
+
+def check_method_options(args: argparse.Namespace, methods: list[str] | None) -> None:
+    """Options of one method given to methods that cannot use them are refused before work (``methods``: those
+    named with --method; None: the defaults, which include every kind the models allow)."""
+    if not methods or args.distances:
+        return
+    from ..eval.methods import parse_method
+
+    parsed = [parse_method(n) for n in methods]
+    uses = {"--top-k": any(m.kind == "hvpr" and not m.fused for m in parsed),
+            "--fuse-weight": any(m.fused for m in parsed), "--fuse-top-k": any(m.fused for m in parsed),
+            "--rerank-seq-len": any(m.matcher for m in parsed)}
+    why = {"--top-k": "the HVPR shortlist size (hvpr-fused takes --fuse-top-k)",
+           "--fuse-weight": "hvpr-fused's weight", "--fuse-top-k": "hvpr-fused's shortlist size",
+           "--rerank-seq-len": "the length L_m of a sequence matcher (+seqmatch, +graph, hvpr ...)"}
+    given = {flag: getattr(args, flag[2:].replace("-", "_"), None) for flag in uses}
+    for flag, value in given.items():
+        if value is not None and not uses[flag]:
+            raise ConfigError(f"{flag} is {why[flag]}; none of the methods given ({', '.join(methods)}) uses it: "
+                              f"drop {flag} or add a method that does")

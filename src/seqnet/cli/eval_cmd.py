@@ -20,6 +20,7 @@ from .common import (
     add_distances,
     add_recall_denominator,
     check_distances,
+    check_method_options,
     int_list,
     non_negative_float,
     parse_list,
@@ -165,28 +166,6 @@ def check_route(args: argparse.Namespace) -> None:
                           "--backend (they are fixed when the map is built)")
     if args.index and args.report:
         raise ConfigError("--report is not available with --index; evaluate the dataset without --index for a report")
-
-
-def check_method_options(args: argparse.Namespace, methods: list[str] | None) -> None:
-    """Options of one method given to methods that cannot use them are refused before work (``methods``: those
-    named with --method; None: the defaults, which include every kind the models allow)."""
-    if not methods or args.distances:
-        return
-    from ..eval.methods import parse_method
-
-    parsed = [parse_method(n) for n in methods]
-    uses = {"--top-k": any(m.kind == "hvpr" and not m.fused for m in parsed),
-            "--fuse-weight": any(m.fused for m in parsed), "--fuse-top-k": any(m.fused for m in parsed),
-            "--rerank-seq-len": any(m.matcher for m in parsed)}
-    why = {"--top-k": "the HVPR shortlist size (hvpr-fused takes --fuse-top-k)",
-           "--fuse-weight": "hvpr-fused's weight", "--fuse-top-k": "hvpr-fused's shortlist size",
-           "--rerank-seq-len": "the length L_m of a sequence matcher (+seqmatch, +graph, hvpr ...)"}
-    given = {"--top-k": args.top_k, "--fuse-weight": args.fuse_weight, "--fuse-top-k": args.fuse_top_k,
-             "--rerank-seq-len": args.rerank_seq_len}
-    for flag, value in given.items():
-        if value is not None and not uses[flag]:
-            raise ConfigError(f"{flag} is {why[flag]}; none of the methods given ({', '.join(methods)}) uses it: "
-                              f"drop {flag} or add a method that does")
 
 
 def report_config(args: argparse.Namespace) -> ReportConfig | None:

@@ -21,6 +21,7 @@ from .common import (
     add_distances,
     add_topic,
     check_distances,
+    check_method_options,
     positive_float,
     positive_int,
 )
@@ -91,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")
     check_distances(args)
+    check_method_options(args, [args.method])
     if args.map is not None and args.distances is not None:
         raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:

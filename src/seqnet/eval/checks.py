@@ -20,13 +20,15 @@ if TYPE_CHECKING:
 
 
 def check_inputs(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet], length: int, match_len: int,
-                 allow_mismatch: bool = False) -> None:
+                 allow_mismatch: bool = False, longest: int | None = None) -> None:
     """Every check that does not need descriptors: models present and fitting (D, provenance, L), lengths
-    (L of the sequence descriptors, L_m of the matchers)."""
+    (L of the sequence descriptors, L_m of the matchers; ``longest``: the longest window the methods use, by
+    default max(L, L_m): 1 when every method is single-frame)."""
     check_methods(methods, models, length)
     check_provenance(ds, models, length, allow_mismatch)
     for side, t in (("query", ds.query), ("reference", ds.reference)):
-        check_fits(max(length, match_len), len(t), f"the {side} traverse of dataset {ds.name!r}")
+        check_fits(max(length, match_len) if longest is None else longest, len(t),
+                   f"the {side} traverse of dataset {ds.name!r}")
     check_memory(ds, methods, models)
 
 

@@ -173,12 +173,13 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     models = dict(models or {})
     conf = conf.resolve(models, ds.radius)
     methods = [parse_method(n) for n in conf.methods]
-    check_inputs(ds, methods, models, conf.length, conf.match_len, conf.allow_mismatch)
+    groups = method_windows(methods, conf.windows, conf.common_queries)
+    check_inputs(ds, methods, models, conf.length, conf.match_len, conf.allow_mismatch,
+                 max(w.longest for w in groups))
     dev = get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
-    parts = [_evaluate_group(ds, ms, w, conf, models, dev) for w, ms in
-             method_windows(methods, conf.windows, conf.common_queries).items()]
+    parts = [_evaluate_group(ds, ms, w, conf, models, dev) for w, ms in groups.items()]
     out = merge(parts, conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                              "models": {k: v.config() for k, v in models.items()},
