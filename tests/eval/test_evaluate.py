@@ -173,7 +173,9 @@ def test_seq_len_equal_to_traverse_length():
 
 def test_seq_len_longer_than_traverse():
     with pytest.raises(ConfigError, match="longer than the query traverse"):
-        evaluate(toy(4, 9), EvalConfig(methods=('single',), seq_len=5))
+        evaluate(toy(4, 9), EvalConfig(methods=('smoothing',), seq_len=5))
+    ev = evaluate(toy(4, 9), EvalConfig(methods=('single',), seq_len=5, device='cpu'))
+    assert ev.results["methods"]["single"]["queries"] == 4  # a single frame needs no window
 
 
 def test_bounds_make_every_window_invalid():
