@@ -29,7 +29,6 @@ from ..core.stage import Written
 from ..core.utils import get_device, logger
 from ..data.bags import DEFAULT_TOLERANCE
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
-from ..describe.images import ImageList
 from ..eval.evaluate import EvalConfig
 from ..reference.base import Reference
 from ..security.dirs import remove_dead_temps
@@ -38,6 +37,7 @@ from ..security.limits import number
 from ..security.locks import locked
 
 if TYPE_CHECKING:
+    from ..describe.images import ImageList  # describers (and h5py) load only when a query is described
     from ..maps.map import Map
 
 from .localizer import Estimate, traverse_reference

@@ -16,14 +16,16 @@ import dataclasses
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ConfigError
 from ..data.bags import match_positions
-from ..describe.images import ImageList
 from ..security.text import shown
+
+if TYPE_CHECKING:
+    from ..describe.images import ImageList
 
 UTM_FRAME = re.compile(r"UTM zone ([0-9]{1,2})([C-HJ-NP-X])")
 
