@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 import torch
 
+from seqnet.core.errors import DatasetError
+
 torch.set_num_threads(2)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -186,6 +188,16 @@ def write_bag(path, images, kind: str = "ros1", topic: str = "/camera/image_raw"
 def bag_path(tmp_path, kind: str, name: str = "run"):
     """Where :func:`write_bag` writes a bag of ``kind``: ``run.bag`` (ROS 1) or the directory ``run`` (ROS 2)."""
     return tmp_path / (f"{name}.bag" if kind == "ros1" else name)
+
+
+def read_mutated(read, path: Path, data: bytes, refused: type[Exception] = DatasetError):
+    """``read(path)`` after writing the fuzzed ``data`` there: its value, or None when ``read`` refused the bytes
+    with ``refused``; anything else propagates, failing the fuzz case."""
+    path.write_bytes(data)
+    try:
+        return read(path)
+    except refused:
+        return None
 
 
 def mutated(data: bytes, max_flips: int = 8):
