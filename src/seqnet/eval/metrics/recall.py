@@ -15,7 +15,6 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ...core.errors import ConfigError
 from ...data.positives import Positives
@@ -40,6 +39,8 @@ def has_positive(q_pos: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndar
     """``[M]`` bool: whether any reference position ``r_pos [R, P]`` lies within ``radius``."""
     if len(r_pos) == 0 or len(q_pos) == 0:
         return np.zeros(len(q_pos), dtype=bool)
+    from scipy.spatial import cKDTree  # scipy loads on first use: `seqnet --help` imports this module
+
     _, nearest = cKDTree(r_pos).query(q_pos, k=1)
     # the same distance formula as :func:`hits`, so "has a positive" and "is a hit" agree exactly
     return np.linalg.norm(r_pos[nearest] - q_pos, axis=-1) <= radius
@@ -94,6 +95,8 @@ class GroundTruth:
         a KD-tree), by query item."""
         if self.positives is not None:
             return self.positives.pairs()
+        from scipy.spatial import cKDTree
+
         lists = cKDTree(self.r_pos).query_ball_point(self.q_pos, r=self.radius)
         q = np.repeat(np.arange(len(lists)), [len(x) for x in lists])
         return q, np.fromiter((j for x in lists for j in sorted(x)), dtype=np.int64, count=len(q))
