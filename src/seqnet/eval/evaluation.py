@@ -93,8 +93,8 @@ class Evaluation:
 
 
 def single_windows(windows: Windows) -> Windows:
-    """The windows of a single-frame method: one frame (L = L_m = 1), same mode."""
-    return Windows(1, 1, windows.mode)
+    """The windows of a single-frame method: one frame (L = L_m = 1), same mode and anchor."""
+    return Windows(1, 1, windows.mode, windows.anchor)
 
 
 def method_windows(methods: Sequence[Method], windows: Windows, common: bool = False) -> dict[Windows, list[Method]]:

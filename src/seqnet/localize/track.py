@@ -23,6 +23,7 @@ from ..core.progress import progress
 from ..core.stage import Written
 from ..core.utils import check_device, get_device, logger
 from ..data.traverse import Dataset, default_split
+from ..eval.evaluation import single_windows
 from ..eval.methods import FUSE_WEIGHT
 from ..eval.metrics.precision_recall import pr_summary, precision_recall
 from ..eval.metrics.recall import check_radius, ground_truth
@@ -96,10 +97,9 @@ class LocalizeConfig(Config):
         """The causal windows, resolved once: L (given, else the S_L model's, else 5), L_m (else L), the anchor; a
         single-frame method (``single``, ``s1``) needs none: windows of one frame, so every frame is localised
         and indexed, as ``seqnet eval`` scores it."""
-        if online_method(self.method).single_frame:
-            return Windows.resolve(1, 1, "causal", None, self.anchor)
-        return Windows.resolve(self.seq_len, self.rerank_seq_len, "causal",
-                               getattr(models.get("seqnet"), "seq_len", None), self.anchor)
+        windows = Windows.resolve(self.seq_len, self.rerank_seq_len, "causal",
+                                  getattr(models.get("seqnet"), "seq_len", None), self.anchor)
+        return single_windows(windows) if online_method(self.method).single_frame else windows
 
     def localizer(self, reference: Reference, radius: float, exact: bool = False) -> Localizer:
         """The :class:`Localizer` of these settings over ``reference`` (described before ``precision`` applies)."""
