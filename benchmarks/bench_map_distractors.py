@@ -38,11 +38,11 @@ import torch
 
 from seqnet.data.io import load_dataset
 from seqnet.data.traverse import Traverse
-from seqnet.eval.metrics.recall import GroundTruth, recall
 from seqnet.maps import MapArrays, MapConfig, load_map, write_map
 from seqnet.matching.hvpr import order
 from seqnet.matching.online import OnlineSeqMatch
 from seqnet.matching.seqmatch import seqmatch_topk
+from seqnet.metrics.recall import GroundTruth, recall
 from seqnet.search.ann import AnnConfig, build_index, set_search_params
 from seqnet.sequence.checkpoints import load_model
 from seqnet.sequence.described import Described

@@ -1,5 +1,7 @@
 """The layout rules of docs/architecture.md, checked on the source tree.
 
+* the layer order declared at the top of docs/architecture.md: a package imports only packages of lower
+  layers (module-level, function-level and TYPE_CHECKING imports alike);
 * no import cycle between seqnet modules (module-level and function-level imports alike);
 * no module imports the package root (``seqnet/__init__``) and no private name crosses modules;
 * no module over 300 lines, no function over 50 lines;
@@ -18,8 +20,8 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "seqnet"
 MODULES = sorted(SRC.rglob("*.py"))
 
 
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(SRC.parent).with_suffix("").parts)
+def module_name(path: Path, root: Path = SRC.parent) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
@@ -27,11 +29,11 @@ def is_package(path: Path) -> bool:
     return path.name == "__init__.py"
 
 
-def resolve(path: Path, node: ast.ImportFrom) -> str:
+def resolve(path: Path, node: ast.ImportFrom, root: Path = SRC.parent) -> str:
     """The absolute module an ``ImportFrom`` refers to."""
     if node.level == 0:
         return node.module or ""
-    base = module_name(path).split(".")
+    base = module_name(path, root).split(".")
     if not is_package(path):
         base = base[:-1]
     base = base[: len(base) - (node.level - 1)]
@@ -41,12 +43,12 @@ def resolve(path: Path, node: ast.ImportFrom) -> str:
 KNOWN = {module_name(p) for p in MODULES}
 
 
-def imports_of(path: Path) -> list[tuple[str, list[str], int]]:
+def imports_of(path: Path, root: Path = SRC.parent) -> list[tuple[str, list[str], int]]:
     """``(module, names, line)`` of every seqnet import in ``path`` (all nesting levels)."""
     out = []
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom):
-            mod = resolve(path, node)
+            mod = resolve(path, node, root)
             if not mod.startswith("seqnet"):
                 continue
             names = [a.name for a in node.names]
@@ -63,7 +65,9 @@ def graph() -> dict[str, set[str]]:
     for p in MODULES:
         me = module_name(p)
         deps = set()
-        for mod, _, _ in imports_of(p):
+        for mod, names, _ in imports_of(p):
+            if names and mod != me and me.startswith(mod + "."):
+                deps.add(mod)  # `from . import NAME`: a name of the own package's __init__ (which may import me)
             # importing seqnet.a.b also runs seqnet.a's __init__, except from inside seqnet.a itself
             parts = mod.split(".")
             for i in range(2, len(parts) + 1):
@@ -141,6 +145,55 @@ def test_no_process_wide_side_effects(path):
         if isinstance(node, ast.ImportFrom) and node.module == "matplotlib" and any(
                 a.name == "pyplot" for a in node.names):
             pytest.fail(f"{path.relative_to(SRC)}:{node.lineno}: pyplot keeps global state; use report.new_figure")
+
+
+DOCS = SRC.parents[1] / "docs" / "architecture.md"
+
+
+def declared_layers() -> dict[str, int]:
+    """``{package: layer}`` from the ```layers block of docs/architecture.md (words before the description,
+    which is separated by three spaces or more)."""
+    text = DOCS.read_text()
+    block = text.split("```layers\n", 1)[1].split("```", 1)[0]
+    layers: dict[str, int] = {}
+    for line in block.splitlines():
+        level, rest = line.split(maxsplit=1)
+        for name in rest.split("   ", 1)[0].split():
+            assert name not in layers, f"{name} is declared in two layers"
+            layers[name] = int(level)
+    return layers
+
+
+def package_of(module: str) -> str:
+    """The top-level package (or module) of ``seqnet.a.b`` (``a``); the root is ``seqnet``."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "seqnet"
+
+
+def test_every_package_has_one_declared_layer():
+    layers = declared_layers()
+    present = {package_of(m) for m in KNOWN}
+    missing = sorted(present - set(layers))
+    assert not missing, f"packages missing from docs/architecture.md's layers: {missing}"
+    assert set(layers) <= present, f"layers name packages that do not exist: {sorted(set(layers) - present)}"
+
+
+def test_no_import_goes_up_or_sideways():
+    layers = declared_layers()
+    wrong = sorted(f"{a} (layer {layers[package_of(a)]}) imports {b} (layer {layers[package_of(b)]})"
+                   for a, deps in graph().items() for b in deps
+                   if package_of(a) != package_of(b) and layers[package_of(b)] >= layers[package_of(a)])
+    assert not wrong, "imports against the layer order of docs/architecture.md:\n" + "\n".join(wrong)
+
+
+def test_the_layer_check_sees_a_lazy_import_going_up(tmp_path):
+    """The import scan reads function-level and TYPE_CHECKING imports, not only the module's top."""
+    src = tmp_path / "seqnet" / "data"
+    src.mkdir(parents=True)
+    (src / "x.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ..eval import a\n"
+                              "def f():\n    from ..cli.common import b\n")
+    found = {m for m, _, _ in imports_of(src / "x.py", root=tmp_path)}
+    assert {"seqnet.eval", "seqnet.cli.common"} <= found
 
 
 def test_cycle_finder_finds_a_cycle():

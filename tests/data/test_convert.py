@@ -17,11 +17,11 @@ from seqnet.data.convert import (
     read_positions_csv,
     read_seq_bounds,
     runs_to_bounds,
-    summarize_dataset,
     traverse_from_csv,
 )
 from seqnet.data.imagefolders import parse_utm_name
 from seqnet.data.io import load_dataset
+from seqnet.metrics.summary import summarize_dataset
 
 
 def _write_csv(path, rows, header="name,easting,northing"):

@@ -15,7 +15,7 @@ from seqnet.data.resample import resample_dataset
 from seqnet.data.synth import make_synthetic
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.eval.evaluate import EvalConfig, evaluate
-from seqnet.eval.metrics.recall import ground_truth
+from seqnet.metrics.recall import ground_truth
 
 
 def _dataset(n: int = 40, positives: bool = False) -> Dataset:

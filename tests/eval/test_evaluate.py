@@ -10,9 +10,9 @@ from seqnet.core.errors import ConfigError
 from seqnet.core.utils import l2_normalize
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.eval.evaluate import EvalConfig, evaluate
-from seqnet.eval.methods import default_methods, parse_method, valid_methods
-from seqnet.eval.metrics.recall import recall_at_k
 from seqnet.matching.seqmatch import seqmatch
+from seqnet.methods.grammar import default_methods, parse_method, valid_methods
+from seqnet.metrics.recall import recall_at_k
 from seqnet.search.knn import knn
 from seqnet.sequence.descriptors import delta, smoothing
 from seqnet.sequence.model import SeqNet
@@ -325,7 +325,7 @@ def test_the_stage_returns_what_it_wrote(synth_dir, tmp_path):
 
 
 def test_hvpr_fused_shortlists_the_documented_top_200_and_says_so():
-    from seqnet.eval.methods import FUSE_WEIGHT, FUSED_TOP_K, parse_method
+    from seqnet.methods.grammar import FUSE_WEIGHT, FUSED_TOP_K, parse_method
     from seqnet.pipelines.nordland64 import Nordland64Config
     from seqnet.report.tables import method_label
 
@@ -361,7 +361,7 @@ def test_evaluating_training_queries_is_flagged(synth_dir, tmp_path, capsys):
 
 
 def test_a_missing_s1_suggests_the_model_free_variant():
-    from seqnet.eval.checks import check_methods
+    from seqnet.methods.checks import check_methods
 
     with pytest.raises(ConfigError, match=r"needs an S_1 model .*; or the model-free 'hvpr-single:raw\+seqmatch'"):
         check_methods([parse_method("hvpr-single")], {}, 5)
@@ -458,8 +458,8 @@ def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
 def test_delta_orig_is_read_as_the_papers_delta_on_every_path(test_split):
     """``delta-paper`` is the paper's Delta (the original code's weighting); its earlier name ``delta-orig`` is
     read as it in every name position, and results always say ``delta-paper``."""
-    from seqnet.eval.methods import canonical_name
     from seqnet.maps import MapConfig
+    from seqnet.methods.grammar import canonical_name
     from seqnet.sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS, delta, delta_paper
 
     assert SEQUENCE_DESCRIPTORS["delta-paper"].fn is delta_paper and SEQUENCE_DESCRIPTORS["delta"].fn is delta

@@ -16,12 +16,12 @@ from seqnet.core.errors import ConfigError
 from seqnet.data.io import save_dataset
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
-from seqnet.eval.methods import FRAME_FEATURES, HVPR_FUSED
 from seqnet.localize.localizer import replay
 from seqnet.localize.stream import index_reference
 from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.maps import MapConfig, build, evaluate_map, load_map, load_query
 from seqnet.matching.registry import SEQUENCE_MATCHERS
+from seqnet.methods.grammar import FRAME_FEATURES, HVPR_FUSED
 from seqnet.sequence.checkpoints import save_checkpoint
 from seqnet.sequence.descriptors import SEQUENCE_DESCRIPTORS
 from seqnet.sequence.model import SeqNet

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from seqnet.core.errors import ConfigError
 from seqnet.eval.evaluate import EvalConfig, evaluate
-from seqnet.eval.methods import parse_method, valid_methods
 from seqnet.matching.hvpr import hvpr, rerank
+from seqnet.methods.grammar import parse_method, valid_methods
 from seqnet.sequence.model import SeqNet
 
 

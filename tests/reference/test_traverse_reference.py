@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from seqnet.data.synth import make_synthetic
-from seqnet.eval.methods import parse_method
 from seqnet.matching.hvpr import pair_scores
 from seqnet.matching.seqmatch import seqmatch_topk
+from seqnet.methods.grammar import parse_method
 from seqnet.reference import TraverseReference
 from seqnet.search.knn import knn
 from seqnet.sequence.windows import Windows

@@ -9,7 +9,7 @@ import re
 import pytest
 from conftest import SHARED_DATA
 
-from seqnet.eval.methods import parse_method
+from seqnet.methods.grammar import parse_method
 from seqnet.report.paper import TABLES, PaperRow, methods_of, recall_cell, recall_lookup, side_by_side
 
 PAPER = SHARED_DATA.parent / "paper" / "seqnet_paper_results.md"

@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from seqnet.cli import main as cli_main
-from seqnet.eval.metrics.precision_recall import curve_points, precision_recall
+from seqnet.metrics.precision_recall import curve_points, precision_recall
 from seqnet.report.tables import format_markdown, format_table, plot_pr_curves
 
 

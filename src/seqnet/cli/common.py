@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..core.errors import ConfigError
-from ..eval.metrics.recall import RECALL_DENOMINATORS
+from ..metrics.recall import RECALL_DENOMINATORS
 
 
 def int_at_least(minimum: int):
@@ -153,7 +153,7 @@ def check_method_options(args: argparse.Namespace, methods: list[str] | None) ->
     named with --method; None: the defaults, which include every kind the models allow)."""
     if not methods or args.distances:
         return
-    from ..eval.methods import parse_method
+    from ..methods.grammar import parse_method
 
     parsed = [parse_method(n) for n in methods]
     uses = {"--top-k": any(m.kind == "hvpr" and not m.fused for m in parsed),

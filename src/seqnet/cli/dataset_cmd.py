@@ -119,8 +119,8 @@ def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | No
 
 
 def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
-    from ..data.convert import summarize_dataset
     from ..data.io import save_dataset
+    from ..metrics.summary import summarize_dataset
 
     save_dataset(ds, args.out, overwrite=args.overwrite)
     s = summarize_dataset(ds)
@@ -219,8 +219,8 @@ def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) 
 
 def run_check(args: argparse.Namespace) -> int:
     from ..core.errors import DatasetError
-    from ..data.convert import summarize_dataset
     from ..data.io import load_dataset, recorded_digests
+    from ..metrics.summary import summarize_dataset
     from ..security.digests import changed_files
 
     ds = load_dataset(args.dir)
@@ -242,7 +242,7 @@ def run_check(args: argparse.Namespace) -> int:
 
 
 def format_summary(s: dict) -> str:
-    """Human-readable lines of a :func:`seqnet.convert.summarize_dataset` summary."""
+    """Human-readable lines of a :func:`seqnet.metrics.summary.summarize_dataset` summary."""
     lines = [f"dataset {s['name']}: radius {s['radius']:g} {s['position_unit']}; ground truth: {s['ground_truth']}"]
     for side in ("reference", "query"):
         t = s[side]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..eval.evaluate import EvalConfig, main
-from ..eval.methods import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
+from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from ..eval.methods import FRAME_FEATURES
 from ..maps import MapConfig, build, load_map
 from ..maps.config import DTYPES
+from ..methods.grammar import FRAME_FEATURES
 from ..search.ann import ANN_INDEXES, AnnConfig
 from ..sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS
 from ..sequence.windows import WINDOW_MODES

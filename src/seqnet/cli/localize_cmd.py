@@ -8,11 +8,11 @@ from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..data.bags import DEFAULT_TOLERANCE
-from ..eval.methods import valid_methods
 from ..localize.stream import Query, stream
 from ..localize.track import LocalizeConfig, main
 from ..localize.trackfile import TRACK_COLUMNS
 from ..matching.velocity import ANCHORS
+from ..methods.grammar import valid_methods
 from ..search.blocks import PRECISIONS
 from . import COMMANDS
 from .common import (

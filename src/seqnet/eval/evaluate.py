@@ -23,18 +23,18 @@ from ..core.stage import Written
 from ..core.utils import check_device, get_device, logger
 from ..data.resample import RESAMPLE_SIDES, resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
-from ..reference.base import Reference
+from ..methods.checks import check_inputs, leakage, model_lengths
+from ..methods.grammar import FUSE_WEIGHT, Method, default_methods, parse_method
+from ..methods.protocol import Reference
+from ..methods.rank import rank
+from ..metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
 from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
-from .checks import check_inputs, leakage, model_lengths
 from .evaluation import Evaluation, merge, method_windows, no_window_reason
-from .methods import FUSE_WEIGHT, Method, default_methods, parse_method
-from .metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
 from .outputs import EvalOutputs
-from .rank import rank
 from .results import method_results
 
 if TYPE_CHECKING:
@@ -46,7 +46,7 @@ class EvalConfig(WindowSettings, Config):
     """Settings of :func:`evaluate` (see ``seqnet eval --help``).
 
     Attributes:
-        methods: method names (:mod:`seqnet.eval.methods`); None: every default method the models allow.
+        methods: method names (:mod:`seqnet.methods.grammar`); None: every default method the models allow.
         seq_len: window length L of the sequence descriptors (None: the S_L model's, else 5).
         rerank_seq_len: length L_m of the sequence matchers (None: L).
         window: ``"centred"`` (the paper's) or ``"causal"`` (online).
@@ -216,7 +216,7 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
         n_frames: int, info: Callable[[Method], dict[str, Any]],
         extra: Callable[[Method, np.ndarray], dict[str, Any]] | None = None,
         windows: Windows | None = None) -> Evaluation:
-    """The one evaluation loop: rank every method against ``ref`` (:func:`seqnet.eval.rank.rank`), score
+    """The one evaluation loop: rank every method against ``ref`` (:func:`seqnet.methods.rank.rank`), score
     it (Recall@K, PR, AUC) and time it; ``info(m)`` describes the method, ``extra(m, items)`` adds entries
     (a map's shortlist recall). ``n_frames``: query frames, for the count left out (no full window) under
     ``windows`` (default ``conf.windows``), and why."""

@@ -1,6 +1,6 @@
 """What an evaluation returns (:class:`Evaluation`), and which items each method is evaluated on.
 
-A single-frame method (:attr:`seqnet.eval.methods.Method.single_frame`: ``single``, ``s1``) compares one
+A single-frame method (:attr:`seqnet.methods.grammar.Method.single_frame`: ``single``, ``s1``) compares one
 frame with one frame: it needs no window, so it queries and indexes every frame whatever L is. A
 sequence method queries and indexes the frames whose L- and L_m-windows fit inside their sequence.
 Methods are grouped by the :class:`~seqnet.sequence.windows.Windows` they need
@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..methods.grammar import Method
+from ..metrics.recall import GroundTruth
 from ..sequence.windows import Windows, window_offset
-from .methods import Method
-from .metrics.recall import GroundTruth
 
 if TYPE_CHECKING:
     from ..data.traverse import Dataset

@@ -22,13 +22,13 @@ from ..core.stage import Written
 from ..core.utils import logger
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
+from ..methods.grammar import Method, parse_method
 from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
 from ..security.arrays import read_npy
 from ..security.digests import file_digest
 from ..sequence.windows import Windows
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
 from .evaluation import merge, method_windows
-from .methods import Method, parse_method
 from .outputs import EvalOutputs
 
 torch = lazy_module("torch")

@@ -23,9 +23,9 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.utils import logger
+from ..methods.grammar import parse_method
 from ..sequence.windows import window_offset
 from .evaluation import ItemView
-from .methods import parse_method
 
 MSLS_TOP = 20  # predictions per query in an MSLS file (its evaluation reads up to 20)
 MSLS_MARK = "# seqnet "  # the first line of an MSLS file seqnet writes (a comment np.loadtxt skips): its mark

@@ -14,17 +14,17 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, OutputError
-from ..security.files import write_text_atomic
-from ..security.inputs import open_input
-from ..security.text import csv_cell
-from .metrics.precision_recall import (
+from ..metrics.precision_recall import (
     curve_points,
     pr_summary,
     precision_recall,
     ratio_confidence,
     thresholds_for,
 )
-from .metrics.recall import GroundTruth, recall
+from ..metrics.recall import GroundTruth, recall
+from ..security.files import write_text_atomic
+from ..security.inputs import open_input
+from ..security.text import csv_cell
 from .msls_predictions import MSLS_MARK, msls_predictions
 
 
@@ -33,7 +33,7 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
                                                                                            np.ndarray]:
     """The results entry of one method (Recall@K over the ``denominator`` queries, queries, AUC, R@100P, the
     PR curve ``pr_curve`` (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (see
-    :mod:`seqnet.eval.metrics.precision_recall`)."""
+    :mod:`seqnet.metrics.precision_recall`)."""
     rec = recall(ranked, truth, ks, denominator)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"], recall_denominator=denominator)

@@ -1,8 +1,8 @@
 """Online localisation: one answer per query frame from causal windows, with a latency and a confidence.
 
 :class:`Localizer` answers ``.step(descriptor [D]) -> Estimate`` for a stream of query frames with
-any method of :mod:`seqnet.eval.methods` whose matcher has an online form, against any
-:class:`~seqnet.reference.base.Reference` — a dataset's reference traverse
+any method of :mod:`seqnet.methods.grammar` whose matcher has an online form, against any
+:class:`~seqnet.methods.protocol.Reference` — a dataset's reference traverse
 (:func:`traverse_reference`) or an index map (:class:`seqnet.maps.Map`, ``--window causal``).
 
 **The batch pipeline on the newest causal window, by construction.** The raw frames since the
@@ -11,7 +11,7 @@ last :meth:`Localizer.reset` are held in a ring of the last L; each new frame's 
 :func:`seqnet.sequence.described.describe_frames` — the function the evaluation describes whole
 traverses with — into a ring of the last L_m; the newest item's shortlist descriptor by
 :func:`~seqnet.sequence.described.describe_items`. The query is then ranked by
-:func:`seqnet.eval.rank.rank`, the function ``seqnet eval`` ranks with, as a one-item query: k-NN,
+:func:`seqnet.methods.rank.rank`, the function ``seqnet eval`` ranks with, as a one-item query: k-NN,
 whole-map matching and HVPR (fused or not) are the same code online and offline. A frame whose L-
 and L_m-windows since the last reset are full (``Estimate.full_window``) is exactly an item of
 ``seqnet eval --window causal``, with the same ranking. Earlier frames are answered as soon as the
@@ -32,13 +32,13 @@ from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.utils import ArrayLike, as_tensor
 from ..data.traverse import Traverse
-from ..eval.checks import check_fits, check_methods, check_models, check_resident
-from ..eval.methods import FRAME_FEATURES, FUSE_WEIGHT, Method, parse_method
-from ..eval.metrics.precision_recall import ratio_confidence
-from ..eval.rank import rank
 from ..matching.online import Ring
 from ..matching.registry import SEQUENCE_MATCHERS
-from ..reference.base import Reference
+from ..methods.checks import check_fits, check_methods, check_models, check_resident
+from ..methods.grammar import FRAME_FEATURES, FUSE_WEIGHT, Method, parse_method
+from ..methods.protocol import Reference
+from ..methods.rank import rank
+from ..metrics.precision_recall import ratio_confidence
 from ..reference.traverse import TraverseReference
 from ..search.blocks import topk_smallest
 from ..sequence.described import describe_frames, describe_items
@@ -60,7 +60,7 @@ class Estimate:
         ref_index: the best reference item (index into :attr:`Localizer.ref_items`), -1 = no answer.
         ref_frame: its frame in the map's reference traverse, -1 = no answer.
         score: its score (lower is better; nan without an answer).
-        confidence: ratio confidence in [0, 1] (:func:`seqnet.eval.metrics.precision_recall.ratio_confidence`).
+        confidence: ratio confidence in [0, 1] (:func:`seqnet.metrics.precision_recall.ratio_confidence`).
         latency_ms: time spent in :meth:`Localizer.step`.
         full_window: the L- and L_m-windows since the last reset are full (an evaluation item).
         ranked, scores: ``[k]`` reference items best first and their scores (``inf``: not scored).
@@ -102,7 +102,7 @@ def traverse_reference(t: Traverse, models: Mapping[str, SeqNet], method: str, w
 
 
 class _Newest:
-    """The newest causal window as a one-item query of :func:`seqnet.eval.rank.rank`."""
+    """The newest causal window as a one-item query of :func:`seqnet.methods.rank.rank`."""
 
     def __init__(self, item: torch.Tensor | None, frames: torch.Tensor | None, match_len: int) -> None:
         self._item, self._frames = item, frames
@@ -124,11 +124,11 @@ class Localizer:
 
     Args:
         reference: the map (causal windows: L, L_m and the anchor of the variable-speed matchers).
-        method: a method name (:mod:`seqnet.eval.methods`) with an online form (not ``grh``).
+        method: a method name (:mod:`seqnet.methods.grammar`) with an online form (not ``grh``).
         radius: localisation radius (for the confidence).
         top_k: HVPR shortlist size K; k: references ranked per frame.
         fuse_weight: λ of ``hvpr-fused``; fuse_top_k: its shortlist size (None:
-            :data:`~seqnet.eval.methods.FUSED_TOP_K`).
+            :data:`~seqnet.methods.grammar.FUSED_TOP_K`).
         exact: shortlist by exact search instead of the reference's ANN index.
         models: the models of the query side (default: the reference's).
     """
@@ -226,7 +226,7 @@ class Localizer:
         return v[0].cpu().numpy(), i[0].cpu().numpy()
 
     def _rank(self, recent: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-        """``(scores [k'], items [k'])`` of the newest frame, best first (:func:`seqnet.eval.rank.rank`)."""
+        """``(scores [k'], items [k'])`` of the newest frame, best first (:func:`seqnet.methods.rank.rank`)."""
         m, item = self.method, None
         if m.kind == "match":
             return self._match()

@@ -30,7 +30,7 @@ from ..core.utils import get_device, logger
 from ..data.bags import DEFAULT_TOLERANCE
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
 from ..eval.evaluate import EvalConfig
-from ..reference.base import Reference
+from ..methods.protocol import Reference
 from ..security.dirs import remove_dead_temps
 from ..security.inputs import special_file
 from ..security.limits import number

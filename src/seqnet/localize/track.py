@@ -24,11 +24,11 @@ from ..core.stage import Written
 from ..core.utils import check_device, get_device, logger
 from ..data.traverse import Dataset, default_split
 from ..eval.evaluation import single_windows
-from ..eval.methods import FUSE_WEIGHT
-from ..eval.metrics.precision_recall import pr_summary, precision_recall
-from ..eval.metrics.recall import check_radius, ground_truth
 from ..matching.velocity import ANCHORS
-from ..reference.base import Reference
+from ..methods.grammar import FUSE_WEIGHT
+from ..methods.protocol import Reference
+from ..metrics.precision_recall import pr_summary, precision_recall
+from ..metrics.recall import check_radius, ground_truth
 from ..search.blocks import PRECISIONS, precision_dtype
 from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
@@ -50,7 +50,7 @@ class LocalizeConfig(Config):
     """Settings of ``seqnet localize``.
 
     Attributes:
-        method: a method name (:mod:`seqnet.eval.methods`; not ``grh``).
+        method: a method name (:mod:`seqnet.methods.grammar`; not ``grh``).
         seq_len: L (None: the S_L model's, else 5); rerank_seq_len: L_m (None: L).
         top_k: HVPR shortlist size K; k: references ranked per frame (for the confidence).
         anchor: pivot step of the variable-speed matchers (``end``: as ``seqnet eval --window causal``).
@@ -204,7 +204,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
           shortlist_model: str | Path | None, rerank_model: str | Path | None, distances: str | Path | None,
           reading: tuple[bool, bool]) -> Written:
     from ..data.io import load_dataset
-    from ..eval.checks import model_lengths
+    from ..methods.checks import model_lengths
     from ..sequence.checkpoints import load_models
 
     full = load_dataset(dataset)

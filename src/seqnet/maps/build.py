@@ -13,8 +13,8 @@ from ..core.memory import check_fits, model_bytes, workspace_bytes
 from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset, default_split
-from ..eval.checks import check_models as check_model_inputs
-from ..eval.checks import descriptor_dims, model_lengths
+from ..methods.checks import check_models as check_model_inputs
+from ..methods.checks import descriptor_dims, model_lengths
 from ..reference.traverse import TraverseReference
 from ..search.ann import index_bytes, make_index, train_sample_bytes
 from ..security.ownership import check_replaceable

@@ -7,7 +7,7 @@ import dataclasses
 from ..core.config import Config, check_bool, check_choice, check_int
 from ..core.errors import ConfigError
 from ..core.utils import check_device
-from ..eval.methods import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, canonical_name, parse_method
+from ..methods.grammar import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, canonical_name, parse_method
 from ..search.ann import AnnConfig
 from ..security.limits import SEQ_MAX
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS, descriptor_name

@@ -24,9 +24,9 @@ from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse, default_split
 from ..eval.evaluate import EvalConfig, Evaluation, run
-from ..eval.methods import Method, parse_method
-from ..eval.metrics.recall import ground_truth
 from ..eval.outputs import EvalOutputs
+from ..methods.grammar import Method, parse_method
+from ..metrics.recall import ground_truth
 from ..search.ann import shortlist_recall
 from .load import load_map
 from .map import Map

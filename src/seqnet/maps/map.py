@@ -1,4 +1,4 @@
-"""A map loaded for localisation: a :class:`~seqnet.reference.base.Reference` on disk.
+"""A map loaded for localisation: a :class:`~seqnet.methods.protocol.Reference` on disk.
 
 The descriptor arrays stay memory-mapped (copy-on-write: torch reads them without a copy, and
 nothing is ever written back to the files); exact search and whole-map matching stream over
@@ -20,10 +20,10 @@ from ..core.lazy import lazy_module
 from ..core.provenance import check_same
 from ..core.utils import ArrayLike, get_device
 from ..data.traverse import Traverse
-from ..eval.methods import HVPR_FUSED, HVPR_RERANK, Method, parse_method
 from ..matching.hvpr import hvpr_search
 from ..matching.on_disk import pair_scores_on_map
 from ..matching.registry import SEQUENCE_MATCHERS
+from ..methods.grammar import HVPR_FUSED, HVPR_RERANK, Method, parse_method
 from ..search.ann import search as ann_search
 from ..search.knn import ExactIndex
 from ..security.jsonfile import read_json

@@ -38,7 +38,7 @@ def hvpr_search(search: Search, pair_scores: PairScores, seq_len: int, top_k: in
     """HVPR, the one assembly: shortlist the top ``top_k`` by ``search``, score them with ``pair_scores``
     (the matcher on the candidates' windows), order them, then the rest of the shortlist.
 
-    Evaluation, maps and the localiser all call this through :func:`seqnet.eval.rank.rank`; the
+    Evaluation, maps and the localiser all call this through :func:`seqnet.methods.rank.rank`; the
     array API :func:`hvpr` calls it with exact k-NN. With ``fuse = λ > 0`` the score is
     ``matcher / L_m + λ · d_shortlist``. Returns ``(scores [M, max(k, K)], items [M, max(k, K)])``:
     the re-ranked head (ascending, ties in shortlist order), then the k-NN tail (score ``inf``).

@@ -4,11 +4,11 @@
   the fly (in memory or memory-mapped), searched exactly;
 * :class:`seqnet.maps.Map`: a prepared map on disk, searched through its ANN index.
 
-Evaluation (:func:`seqnet.eval.evaluate.run`), HVPR (:func:`seqnet.eval.rank.rank`) and the
+Evaluation (:func:`seqnet.eval.evaluate.run`), HVPR (:func:`seqnet.methods.rank.rank`) and the
 localiser (:class:`seqnet.localize.Localizer`) are written once against it.
 """
 
-from .base import Reference
+from ..methods.protocol import Reference
 from .traverse import TraverseReference
 
 __all__ = ["Reference", "TraverseReference"]

@@ -21,10 +21,10 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..data.traverse import Traverse
-from ..eval.methods import Method
 from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..matching.velocity import FrameDistances, velocity_topk
+from ..methods.grammar import Method
 from ..sequence.windows import Windows
 
 torch = lazy_module("torch")
@@ -40,7 +40,7 @@ def frame_indices(n: int) -> torch.Tensor:
 
 
 class MatrixQuery:
-    """The query side of a distance matrix: its items under ``windows`` (see :class:`seqnet.eval.rank.Query`)."""
+    """The query side of a distance matrix: its items under ``windows`` (see :class:`seqnet.methods.rank.Query`)."""
 
     def __init__(self, n: int, seq_bounds: np.ndarray | None, windows: Windows) -> None:
         self.side = windows.side(n, seq_bounds)

@@ -1,4 +1,4 @@
-"""A dataset's reference traverse as a :class:`~seqnet.reference.base.Reference`: described on the fly."""
+"""A dataset's reference traverse as a :class:`~seqnet.methods.protocol.Reference`: described on the fly."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import numpy as np
 
 from ..core.lazy import lazy_module
 from ..data.traverse import Traverse
-from ..eval.methods import Method, needs
 from ..matching.hvpr import candidate_scores
 from ..matching.on_disk import pair_scores_on_map
 from ..matching.registry import SEQUENCE_MATCHERS
+from ..methods.grammar import Method, needs
 from ..search.knn import ExactIndex, knn
 from ..sequence.described import Described
 from ..sequence.windows import Windows
@@ -26,7 +26,7 @@ SHARED_BYTES = 128 << 20  # the largest query × reference frame-distance matrix
 
 
 class TraverseReference:
-    """The reference traverse ``traverse`` under ``windows`` (see :class:`~seqnet.reference.base.Reference`).
+    """The reference traverse ``traverse`` under ``windows`` (see :class:`~seqnet.methods.protocol.Reference`).
 
     Descriptors are computed on first use (:class:`seqnet.sequence.described.Described`) and kept
     (in temporary memory maps when large: memory stays bounded on references of any size); shortlists

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.errors import ImageError, SeqnetError
 from ..data.traverse import Traverse
-from ..eval.metrics.recall import GroundTruth
+from ..metrics.recall import GroundTruth
 from ..security.inputs import inside, open_input
 from ..sequence.windows import window_starts
 from .tables import method_colours, new_figure

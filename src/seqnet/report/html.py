@@ -26,8 +26,8 @@ import numpy as np
 from .._version import __version__
 from ..core.config import Config, check_int
 from ..data.traverse import Dataset
-from ..eval.methods import parse_method
-from ..eval.metrics.recall import recall_curve
+from ..methods.grammar import parse_method
+from ..metrics.recall import recall_curve
 from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .tables import figure_png, pr_figure, recall_figure, results_rows
@@ -171,7 +171,7 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
         Section("pr", "Precision–recall", png_tag(figure_png(pr),
                                                    "precision-recall curves")
                 + "<p>Confidence of a top-1: the ratio test against the best other place "
-                "(seqnet.eval.metrics.precision_recall).</p>"),
+                "(seqnet.metrics.precision_recall).</p>"),
         Section("matrix", "Distance matrix", png_tag(figure_png(matrix_figure(ev, ds.query, ds.reference,
                                                                               conf.matrix_side)), "distance matrix")
                 + f"<p>{matrix_note(ev)}</p>"),

@@ -29,7 +29,7 @@ from ..core.provenance import check_same
 from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
-from ..eval.checks import accepted_mismatch
+from ..methods.checks import accepted_mismatch
 from ..security.locks import locked
 from .config import TrainConfig, train_bytes
 from .distributed import World, joined

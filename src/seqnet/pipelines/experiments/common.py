@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 from ...core.errors import ConfigError
 from ...data.traverse import Dataset
 from ...eval.evaluate import EvalConfig, Evaluation, evaluate
-from ...eval.methods import parse_method
+from ...methods.grammar import parse_method
 from ...report.html import (
     ReportConfig,
     Section,

@@ -22,7 +22,7 @@ from ...data.traverse import Dataset
 from ...describe import DescribeConfig
 from ...describe.config import check_size
 from ...eval.evaluate import Evaluation
-from ...eval.methods import parse_method
+from ...methods.grammar import parse_method
 from ...report.html import write_html_report
 from ...report.paper import TABLE_S3, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure

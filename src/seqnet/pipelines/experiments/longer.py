@@ -17,7 +17,7 @@ import numpy as np
 
 from ...core.config import Config, check_ints
 from ...eval.evaluate import Evaluation
-from ...eval.methods import parse_method
+from ...methods.grammar import parse_method
 from ...report.paper import TABLE_S2, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config

@@ -18,7 +18,7 @@ import numpy as np
 
 from ...core.config import Config
 from ...data.traverse import Dataset, Traverse
-from ...eval.methods import parse_method
+from ...methods.grammar import parse_method
 from ...report.paper import TABLE_III, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config

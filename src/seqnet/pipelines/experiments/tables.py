@@ -22,6 +22,7 @@ from ...security.text import shown
 from ..nordland64 import Nordland64Config
 from ..outputs import check_outputs_of, write_outputs
 from .common import check_experiment
+from .registry import PAPER_EXPERIMENTS
 
 FIGURES = ("tsne",)  # the paper's figures reproduced besides its tables
 KIND = "experiment tables"  # the command, as the output folder's record names it
@@ -43,17 +44,13 @@ class TablesConfig(Config):
 
 def _by_table() -> dict[str, str]:
     """``{paper table: experiment name}``."""
-    from . import EXPERIMENTS
-
-    return {e.paper: name for name, e in EXPERIMENTS.items() if e.paper}
+    return {e.paper: name for name, e in PAPER_EXPERIMENTS.items() if e.paper}
 
 
 def _planned(key: str, conf: TablesConfig) -> tuple[str, Any, Config, str]:
     """The experiment of table ``key`` (or figure): its name, entry, settings and sub-folder."""
-    from . import EXPERIMENTS
-
     name = _by_table().get(key, key)
-    exp = EXPERIMENTS[name]
+    exp = PAPER_EXPERIMENTS[name]
     return name, exp, exp.config().replace(benchmark=conf.benchmark) if exp.data else exp.config(), exp.alias or name
 
 

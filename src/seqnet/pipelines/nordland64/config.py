@@ -8,7 +8,7 @@ from ...core.config import Config, check_bool, check_choice, check_float, check_
 from ...core.errors import ConfigError
 from ...describe import DescribeConfig
 from ...eval.evaluate import RECALL_DENOMINATORS, EvalConfig
-from ...eval.methods import FUSE_WEIGHT, FUSED_TOP_K, parse_method
+from ...methods.grammar import FUSE_WEIGHT, FUSED_TOP_K, parse_method
 from ...train import TrainConfig
 from .speed import check_speed
 

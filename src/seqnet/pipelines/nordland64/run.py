@@ -11,7 +11,7 @@ from ...core.stage import Written
 from ...core.utils import logger
 from ...data.traverse import Dataset
 from ...eval.evaluate import Evaluation, evaluate
-from ...eval.metrics.recall import recall_curve
+from ...metrics.recall import recall_curve
 from ...report.html import ReportConfig, write_html_report
 from ...report.tables import format_markdown, plot_pr_curves, plot_recall_curves
 from ...security.files import write_json_atomic, write_text_atomic

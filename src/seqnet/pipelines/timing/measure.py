@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from ...eval.metrics.recall import recall
 from ...maps import Map
 from ...matching.online import OnlineSeqMatch
 from ...matching.seqmatch import seqmatch_topk
+from ...metrics.recall import recall
 from ...search.blocks import compute_dtype, rows, topk_smallest
 from ...search.knn import ExactIndex, finish_distances, sq_norms
 from .config import TimingConfig

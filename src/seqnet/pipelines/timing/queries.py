@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from ...eval.metrics.recall import GroundTruth
 from ...maps import Map, load_query
+from ...metrics.recall import GroundTruth
 from ...security.arrays import read_npy
 from ...sequence.windows import window_frames, window_offset
 from .config import TimingConfig

@@ -16,8 +16,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ...core.errors import ConfigError
-from ...data.positives import Positives
+from ..core.errors import ConfigError
+from ..data.positives import Positives
 
 DEFAULT_KS = (1, 5, 10, 20, 100)
 RECALL_DENOMINATORS = {"positives": "queries with a correct reference (the others left out, counted)",

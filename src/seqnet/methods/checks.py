@@ -12,7 +12,7 @@ from ..core.provenance import check_same
 from ..core.utils import logger
 from ..data.traverse import Dataset
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
-from .methods import Method
+from .grammar import Method
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet

@@ -7,8 +7,8 @@ from typing import Protocol
 import numpy as np
 
 from ..core.lazy import lazy_module
-from ..eval.methods import Method
 from ..sequence.windows import Windows
+from .grammar import Method
 
 torch = lazy_module("torch")
 

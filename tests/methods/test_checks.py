@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from seqnet.core.errors import ConfigError
 from seqnet.data.io import save_dataset
 from seqnet.data.synth import make_synthetic
-from seqnet.eval.checks import check_models, model_lengths
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.localize.track import LocalizeConfig, dataset_localizer
+from seqnet.methods.checks import check_models, model_lengths
 from seqnet.sequence.checkpoints import save_checkpoint
 from seqnet.sequence.model import SeqNet
 
@@ -109,7 +109,7 @@ def test_an_unusable_training_record_is_ignored(tmp_path, caplog, dataset_path, 
     """``dataset_path`` and ``train_split`` come from a checkpoint file: a NUL byte (ValueError from resolve) or a
     list split (TypeError in a dict lookup) crashed the leakage check; such a record is now ignored, said at
     debug level."""
-    from seqnet.eval.checks import leakage
+    from seqnet.methods.checks import leakage
     from seqnet.sequence.checkpoints import load_model
 
     ds = make_synthetic(places=150, dim=8, seed=0)
@@ -133,7 +133,7 @@ def test_an_unusable_training_record_is_ignored(tmp_path, caplog, dataset_path, 
 def test_fuzzed_training_records_never_crash_the_check(record):
     from types import SimpleNamespace
 
-    from seqnet.eval.checks import leakage
+    from seqnet.methods.checks import leakage
 
     ds = FUZZ_DS
     assert isinstance(leakage({"seqnet": SimpleNamespace(trained_on=record)}, "/nonexistent", ds, "all"), list)

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seqnet.eval.metrics.precision_recall import pr_summary, precision_recall, ratio_confidence
+from seqnet.metrics.precision_recall import pr_summary, precision_recall, ratio_confidence
 
 
 def test_ratio_confidence_vs_loop(rng):
@@ -58,7 +58,7 @@ def test_pr_summary():
 
 
 def test_the_threshold_for_a_precision_is_the_lowest_that_reaches_it(rng):
-    from seqnet.eval.metrics.precision_recall import thresholds_for
+    from seqnet.metrics.precision_recall import thresholds_for
 
     for _ in range(20):
         conf = rng.random(60).round(2)
@@ -80,8 +80,8 @@ def test_soft_matches_are_neither_true_nor_false_positives_in_pr():
     """VPR_Tutorial's createPR sets S[GTsoft & ~GThard] to the minimum: a soft-only match is skipped, the next
     retrieved reference is the top-1 of the PR curve; Recall@K counts the hard positives only."""
     from seqnet.data.positives import Positives
-    from seqnet.eval.metrics.recall import GroundTruth
     from seqnet.eval.results import method_results
+    from seqnet.metrics.recall import GroundTruth
 
     hard = Positives.from_lists([[2], [7], [4]])
     soft = Positives.from_lists([[1, 2], [7], [3, 4]])

@@ -1,4 +1,4 @@
-"""Ranking the query items with one method against a :class:`~seqnet.reference.base.Reference`, written once.
+"""Ranking the query items with one method against a :class:`~seqnet.methods.protocol.Reference`, written once.
 
 k-NN (``<descriptor>``), whole-map matching (``<frames>+<matcher>``) and HVPR (``hvpr-…``, fused
 or not) on any reference — a dataset's traverse or a map — for the whole query traverse (the
@@ -15,9 +15,9 @@ import numpy as np
 from ..core.lazy import lazy_module
 from ..matching.hvpr import PairScores, Search, hvpr_search
 from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items, pick_strategy
-from ..reference.base import Reference
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
-from .methods import FRAME_FEATURES, Method, needs
+from .grammar import FRAME_FEATURES, Method, needs
+from .protocol import Reference
 
 torch = lazy_module("torch")
 

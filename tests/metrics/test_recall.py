@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seqnet.core.errors import ConfigError
-from seqnet.eval.metrics.recall import GroundTruth, check_radius, recall_at_k, recall_curve
+from seqnet.metrics.recall import GroundTruth, check_radius, recall_at_k, recall_curve
 
 
 def naive_recall(retrieved, q_pos, r_pos, radius, ks):
@@ -132,7 +132,7 @@ def test_recall_property(m, n, k, seed):
 def test_recall_denominator_positives_or_all_vs_loop(rng):
     """``positives`` (the original code's): queries without a correct reference left out; ``all`` (as
     VPR-methods-evaluation): they count as failures. Checked against a loop on random data."""
-    from seqnet.eval.metrics.recall import recall
+    from seqnet.metrics.recall import recall
 
     q, r = rng.uniform(0, 30, (60, 2)), rng.uniform(0, 30, (50, 2))
     retrieved = np.argsort(rng.random((60, 50)), axis=1)[:, :10]
@@ -170,7 +170,7 @@ def test_recall_denominator_in_results_and_table_header():
 
 def test_recall_over_all_queries_without_any_positive_is_zero():
     """Under ``all`` every query counts: no positive anywhere is recall 0, not NaN (``positives``: NaN)."""
-    from seqnet.eval.metrics.recall import recall
+    from seqnet.metrics.recall import recall
 
     truth = GroundTruth(np.array([[0.0, 0], [1, 0]]), np.array([[100.0, 0], [200, 0]]), 1.0)
     assert recall(np.array([[0], [1]]), truth, ks=(1,), denominator="all")["recall@1"] == 0.0
