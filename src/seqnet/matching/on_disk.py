@@ -15,7 +15,7 @@ from ..core.lazy import lazy_module
 from ..core.memmaps import take_rows
 from ..core.utils import ArrayLike
 from .hvpr import pair_scores
-from .pairs import DIAGONAL_MATCHERS
+from .registry import SEQUENCE_MATCHERS
 
 torch = lazy_module("torch")
 
@@ -33,7 +33,7 @@ def pair_scores_on_map(query_frames: ArrayLike, frames: ArrayLike, seq_len: int,
         return pair_scores(query_frames, frames, seq_len, q_starts, r_starts, cand, matcher, device, anchor)
     m, k = cand.shape
     per = max(1, block_bytes // max(1, k * seq_len * frames.shape[1] * 4))
-    if matcher not in DIAGONAL_MATCHERS or min(m, per) * k * seq_len >= len(frames):
+    if not SEQUENCE_MATCHERS[matcher].diagonal or min(m, per) * k * seq_len >= len(frames):
         return pair_scores(query_frames, np.asarray(frames, dtype=np.float32), seq_len, q_starts, r_starts, cand,
                            matcher, device, anchor)
     blocks = [_compact(query_frames, frames, seq_len, q_starts[s : s + per], r_starts, cand[s : s + per], matcher,

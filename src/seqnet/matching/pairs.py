@@ -26,7 +26,6 @@ torch = lazy_module("torch")
 STRATEGIES = ("auto", "gather", "rows")
 # the fixed-speed matchers: a window pair reads only the candidate window's own frames, summed along a
 # (reverse: anti-) diagonal of the frame-distance matrix; matcher -> reverse
-DIAGONAL_MATCHERS: dict[str, bool] = {"seqmatch": False, "seqmatch-rev": True}
 GEMM_ADVANTAGE = 16  # a GEMM multiply-add is about this many times cheaper than a gathered difference
 
 
@@ -129,11 +128,10 @@ def item_starts(candidates: np.ndarray | torch.Tensor, r_starts: torch.Tensor) -
 
 
 def item_scores_from_distances(dist: torch.Tensor, seq_len: int, q_starts: torch.Tensor, r_starts: torch.Tensor,
-                               candidates: np.ndarray | torch.Tensor, matcher: str) -> torch.Tensor:
+                               candidates: np.ndarray | torch.Tensor, reverse: bool) -> torch.Tensor:
     """:func:`scores_from_distances` of candidate *items* ``[M, K]`` (``-1``: none) with window starts
-    ``r_starts [R]``, for one of :data:`DIAGONAL_MATCHERS`."""
-    return scores_from_distances(dist, seq_len, q_starts, item_starts(candidates, r_starts),
-                                 DIAGONAL_MATCHERS[matcher])
+    ``r_starts [R]``, for a diagonal matcher (``SequenceMatcher.diagonal``; ``reverse``: its direction)."""
+    return scores_from_distances(dist, seq_len, q_starts, item_starts(candidates, r_starts), reverse)
 
 
 def nearest_items(dist: torch.Tensor, q_rows: np.ndarray | torch.Tensor, r_items: np.ndarray,

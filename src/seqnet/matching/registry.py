@@ -19,7 +19,10 @@ Matchers: ``seqmatch`` / ``seqmatch-rev`` (fixed speed, :mod:`seqnet.matching.se
 exact definitions in ``docs/matchers.md``.
 
 Lower scores are better. Adding a matcher is one entry of :data:`SEQUENCE_MATCHERS` (method names
-such as ``raw+<matcher>`` and ``hvpr-seqnet:s1+<matcher>`` follow).
+such as ``raw+<matcher>`` and ``hvpr-seqnet:s1+<matcher>`` follow); every fact the evaluation, the
+localiser, whole-map matching on a matrix and the HVPR shortcuts read about a matcher is a field of its
+entry (``diagonal``, ``reverse``, ``on_matrix``, ``online``, ``anchored``), never a second table.
+docs/extending.md shows one added in a test.
 """
 
 from __future__ import annotations
@@ -50,6 +53,9 @@ class SequenceMatcher:
     score_pairs: Callable[..., torch.Tensor]
     anchored: bool = False  # takes ``anchor=``: the window step pinned to the item's frame
     window: Callable[..., torch.Tensor] | None = None  # the online form: dist [L, Nr] of one window -> [Nr - L + 1]
+    diagonal: bool = False  # one trajectory of slope 1 (or -1): scores are sums along a frame-distance diagonal
+    reverse: bool = False  # the reference traversed backwards
+    on_matrix: bool = True  # runs on a given frame-distance matrix alone (eval / localize --distances)
 
     @property
     def online(self) -> bool:
@@ -67,24 +73,24 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
     m.name: m
     for m in (
         SequenceMatcher("seqmatch", "SeqMatch: summed distances of aligned frames (same speed, same direction)",
-                        seqmatch_topk, window_scores, window=seqmatch_window),
+                        seqmatch_topk, window_scores, window=seqmatch_window, diagonal=True),
         SequenceMatcher("seqmatch-rev", "SeqMatch with the reference traversed backwards (reverse direction)",
                         functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True),
-                        window=functools.partial(seqmatch_window, reverse=True)),
+                        window=functools.partial(seqmatch_window, reverse=True), diagonal=True, reverse=True),
         SequenceMatcher("vseqmatch", "SeqMatch over trajectories of several slopes (0.5-2 reference frames per query "
                         "frame), the best one wins", velocity_topk, velocity_pairs, anchored=True,
                         window=vseqmatch_window),
         SequenceMatcher("vseqmatch-rev", "velocity-robust SeqMatch with the reference traversed backwards",
                         functools.partial(velocity_topk, reverse=True),
                         functools.partial(velocity_pairs, reverse=True), anchored=True,
-                        window=functools.partial(vseqmatch_window, reverse=True)),
+                        window=functools.partial(vseqmatch_window, reverse=True), reverse=True),
         SequenceMatcher("graph", "GISM-style graph matching: cheapest path with reference steps 0..2 per query frame "
                         "(stops and speed changes)", graph_topk, graph_pairs, anchored=True, window=graph_window),
         SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
-                        grh_topk, grh_pairs, anchored=True),
+                        grh_topk, grh_pairs, anchored=True, on_matrix=False),
         SequenceMatcher("grh-dh", "GRH-style graph matching: paths start near Hamming candidates of learned binary "
                         "codes (a hashing network trained on the reference frames)",
                         functools.partial(grh_topk, codes="dh"), functools.partial(grh_pairs, codes="dh"),
-                        anchored=True),
+                        anchored=True, on_matrix=False),
     )
 }

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..core.lazy import lazy_module
 from ..matching.hvpr import PairScores, Search, hvpr_search
-from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items, pick_strategy
+from ..matching.pairs import item_scores_from_distances, nearest_items, pick_strategy
+from ..matching.registry import SEQUENCE_MATCHERS
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .grammar import FRAME_FEATURES, Method, needs
 from .protocol import Reference
@@ -70,7 +71,8 @@ def _hvpr_parts(m: Method, query: Query, ref: Reference, q_items: torch.Tensor, 
     re-ranking would compute whole distance rows anyway (:func:`seqnet.matching.pairs.pick_strategy`),
     both read one matrix of frame distances, computed once (``ref.shared_distances``)."""
     frames, n_ref = FRAME_FEATURES[m.frames], len(ref.positions)
-    shared = (m.shortlist == frames and m.matcher in DIAGONAL_MATCHERS and SEQUENCE_DESCRIPTORS[frames].single_frame
+    shared = (m.shortlist == frames and SEQUENCE_MATCHERS[m.matcher].diagonal
+              and SEQUENCE_DESCRIPTORS[frames].single_frame
               and pick_strategy(len(query.match_starts), top_k, ref.windows.match_len, n_ref) == "rows")
     dist = ref.shared_distances(frames, q_frames) if shared else None
     if dist is None:
@@ -83,6 +85,7 @@ def _hvpr_parts(m: Method, query: Query, ref: Reference, q_items: torch.Tensor, 
         return nearest_items(dist, query.items_index, ref.items, n)
 
     def pairs(cand: np.ndarray) -> torch.Tensor:
-        return item_scores_from_distances(dist, ref.windows.match_len, q_starts, r_starts, cand, m.matcher)
+        return item_scores_from_distances(dist, ref.windows.match_len, q_starts, r_starts, cand,
+                                          SEQUENCE_MATCHERS[m.matcher].reverse)
 
     return search, pairs

@@ -21,7 +21,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..data.traverse import Traverse
-from ..matching.pairs import DIAGONAL_MATCHERS, item_scores_from_distances, nearest_items
+from ..matching.pairs import item_scores_from_distances, nearest_items
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..matching.velocity import FrameDistances, velocity_topk
 from ..methods.grammar import Method
@@ -29,7 +29,8 @@ from ..sequence.windows import Windows
 
 torch = lazy_module("torch")
 
-WHOLE_MAP_MATCHERS = ("seqmatch", "seqmatch-rev", "vseqmatch", "vseqmatch-rev", "graph")  # over the whole matrix
+WHOLE_MAP_MATCHERS = tuple(n for n, m in SEQUENCE_MATCHERS.items() if m.on_matrix)  # over the whole matrix
+DIAGONAL_MATCHERS = tuple(n for n, m in SEQUENCE_MATCHERS.items() if m.diagonal)  # HVPR re-ranking from the rows
 MATRIX_METHODS = ("single", *(f"raw+{m}" for m in WHOLE_MAP_MATCHERS), "hvpr-single:raw+seqmatch",
                   "hvpr-single:raw+seqmatch-rev")
 
@@ -99,15 +100,16 @@ class MatrixReference:
                candidates: np.ndarray) -> torch.Tensor:
         """SeqMatch of the candidate items ``[M, K]`` (``-1``: none) read from the matrix."""
         return item_scores_from_distances(self.dist, self.windows.match_len, _rows(query_frames)[q_starts],
-                                          torch.as_tensor(self.match_starts), candidates, matcher)
+                                          torch.as_tensor(self.match_starts), candidates,
+                                          SEQUENCE_MATCHERS[matcher].reverse)
 
     def match(self, frames: str, matcher: str, query_frames: torch.Tensor, q_starts: np.ndarray,
               k: int) -> tuple[np.ndarray, np.ndarray]:
         """Whole-map matching over the matrix: every matcher's block function on blocks of the matrix's rows
         (memory bounded: no ``[M, R, L]`` gather), the k best kept."""
         rows = _rows(query_frames)[q_starts].numpy()
-        if matcher in DIAGONAL_MATCHERS:  # SeqMatch is the one trajectory of slope 1 (reverse: -1)
-            topk, opts = velocity_topk, {"velocities": (1.0,), "reverse": DIAGONAL_MATCHERS[matcher]}
+        if SEQUENCE_MATCHERS[matcher].diagonal:  # SeqMatch is the one trajectory of slope 1 (reverse: -1)
+            topk, opts = velocity_topk, {"velocities": (1.0,), "reverse": SEQUENCE_MATCHERS[matcher].reverse}
         else:
             topk, opts = SEQUENCE_MATCHERS[matcher].topk, SEQUENCE_MATCHERS[matcher].options(self.windows.anchor)
         return topk(FrameDistances(self.dist), None, self.windows.match_len, k, rows, self.match_starts, device="cpu",
