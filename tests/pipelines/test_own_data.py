@@ -104,7 +104,8 @@ def test_both_sides_positions_are_in_one_frame(monkeypatch, zones, error):
     from seqnet.pipelines import from_images
 
     sides = iter(zones)
-    monkeypatch.setitem(from_images.POSITION_SOURCES, "csv", lambda *a: (np.zeros((2, 2)), None, "metres", next(sides)))
+    monkeypatch.setitem(from_images.GROUND_TRUTH_SOURCES, "csv",
+                        lambda *a: (np.zeros((2, 2)), None, "metres", next(sides)))
     conf = from_images.FromImagesConfig(ground_truth="csv")
     if error is None:
         from_images._both_positions(conf, (None, None), ("r", "q"), (None, None))

@@ -1,6 +1,6 @@
 """Positions from a drive's GPS / INS log, images matched to it by timestamp.
 
-One table, :data:`POSITION_SOURCES`, of the logs seqnet reads (``--positions-format``):
+One table, :data:`POSITION_LOGS`, of the logs seqnet reads (``--positions-format``):
 
 * ``robotcar-ins``: Oxford RobotCar ``gps/ins.csv`` (robotcar-dataset-sdk: ``timestamp, ins_status,
   latitude, longitude, altitude, northing, easting, down, utm_zone, velocity_north, ...``; ``gps.csv``
@@ -205,7 +205,7 @@ def kitti_image_times(paths: list[Path], root: Path | None = None) -> np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
-class PositionSource:
+class PositionLog:
     """A kind of position log: how to read it, how to time an image, and the folder image names start from."""
 
     read: Callable[[Path], Samples]
@@ -214,15 +214,15 @@ class PositionSource:
     help: str
 
 
-POSITION_SOURCES: dict[str, PositionSource] = {
-    "robotcar-ins": PositionSource(read_robotcar_ins, robotcar_image_times, lambda p: p.parent,
+POSITION_LOGS: dict[str, PositionLog] = {
+    "robotcar-ins": PositionLog(read_robotcar_ins, robotcar_image_times, lambda p: p.parent,
                                    "Oxford RobotCar gps/ins.csv (or gps.csv); images named <timestamp us>.png"),
-    "kitti-oxts": PositionSource(read_kitti_oxts, kitti_image_times,
+    "kitti-oxts": PositionLog(read_kitti_oxts, kitti_image_times,
                                  lambda p: p if (p / "oxts").is_dir() else p.parent,
                                  "a KITTI drive's oxts/ folder; image times from image_0x/timestamps.txt "
                                  "(descriptor names relative to the drive folder: image_02/data/0000000000.png)"),
 }
-POSITIONS_FORMATS = ("csv", *POSITION_SOURCES)  # csv: the positions CSV (seqnet.data.convert)
+POSITIONS_FORMATS = ("csv", *POSITION_LOGS)  # csv: the positions CSV (seqnet.data.convert)
 
 
 def nearest_in_time(times: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -261,8 +261,8 @@ def nearest_samples(image_times: np.ndarray, log: Samples, names: list[str], max
 def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Path] | None = None,
                   max_gap: float = DEFAULT_MAX_GAP) -> tuple[np.ndarray, str]:
     """``([N, 2] easting/northing, UTM zone)`` of the images ``names`` (files ``paths``, else the names under
-    the log's image root) from the position log ``source`` of kind ``fmt`` (:data:`POSITION_SOURCES`)."""
-    src = POSITION_SOURCES[fmt]
+    the log's image root) from the position log ``source`` of kind ``fmt`` (:data:`POSITION_LOGS`)."""
+    src = POSITION_LOGS[fmt]
     log = src.read(Path(source))
     root = None
     if paths is None:  # names read from a file: what is read for them stays in the log's image root

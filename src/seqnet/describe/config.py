@@ -16,7 +16,7 @@ from ..core.errors import ConfigError
 from ..core.utils import check_device
 from .cnn import BACKBONES
 from .images import MAX_SIDE, ImageItem
-from .registry import DESCRIBERS, Method
+from .registry import DESCRIBERS, DescribeMethod
 
 AUTO, NATIVE, KEEP_ASPECT = "auto", "native", "keep-aspect:"
 Size = str | tuple[int, int]  # "auto", "native", "keep-aspect:W" or (W, H)
@@ -96,7 +96,7 @@ class DescribeConfig(Config):
         DESCRIBERS[self.method].of(self)  # the method checks its own settings
 
     @property
-    def method_spec(self) -> Method:
+    def method_spec(self) -> DescribeMethod:
         """The :data:`~seqnet.describe.registry.DESCRIBERS` entry with its settings from this config."""
         return DESCRIBERS[self.method].of(self)
 

@@ -209,7 +209,7 @@ def describe_images(paths: Sequence[str | os.PathLike[str] | ImageItem], conf: D
 
 def check_batch_memory(d: Describer, shape: tuple[int, ...]) -> None:
     """Refuse, before the first forward pass, a batch of images ``shape [B, H, W(, 3)]`` whose working memory
-    (:meth:`seqnet.describe.registry.Method.bytes_per_pixel`) cannot fit: one line, exit 1."""
+    (:meth:`seqnet.describe.registry.DescribeMethod.bytes_per_pixel`) cannot fit: one line, exit 1."""
     from ..core.memory import check_fits
 
     per = d.config.method_spec.bytes_per_pixel()

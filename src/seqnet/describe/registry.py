@@ -1,9 +1,9 @@
 """The :data:`DESCRIBERS` table: one small class per descriptor method.
 
 A method class is a frozen dataclass whose fields are the :class:`~seqnet.describe.config.DescribeConfig`
-keys that determine its raw descriptors (filled by :meth:`Method.of`); its class attributes are its
+keys that determine its raw descriptors (filled by :meth:`DescribeMethod.of`); its class attributes are its
 defaults (input size, grey or RGB input, the suffix of the fitted state it keeps beside an output)
-and :meth:`Method.extractor` builds its function ``uint8 images [B, H, W(, 3)] → [B, D] float32``.
+and :meth:`DescribeMethod.extractor` builds its function ``uint8 images [B, H, W(, 3)] → [B, D] float32``.
 Adding a method = one class here + one entry in :data:`DESCRIBERS`.
 """
 
@@ -55,7 +55,7 @@ class FitContext:
 
 
 @dataclasses.dataclass(frozen=True)
-class Method:
+class DescribeMethod:
     """Base class of the :data:`DESCRIBERS` entries (see the module docstring).
 
     A method whose extractor is fitted on images overrides :attr:`fits_state`, and sets
@@ -74,7 +74,7 @@ class Method:
         return self.default_size
 
     @classmethod
-    def of(cls, conf: Any) -> Method:
+    def of(cls, conf: Any) -> DescribeMethod:
         """The method's settings taken from a configuration object (its fields are attribute names)."""
         return cls(**{f.name: getattr(conf, f.name) for f in dataclasses.fields(cls)})
 
@@ -103,7 +103,7 @@ class Method:
 
 
 @dataclasses.dataclass(frozen=True)
-class PixelsMethod(Method):
+class PixelsMethod(DescribeMethod):
     """SeqSLAM pixels: greyscale, patch-normalised (``patch``×``patch``), flattened, L2."""
 
     name = "pixels"
@@ -116,7 +116,7 @@ class PixelsMethod(Method):
 
 
 @dataclasses.dataclass(frozen=True)
-class PooledMethod(Method):
+class PooledMethod(DescribeMethod):
     """Base of the global poolings of a CNN map (a shipped backbone, or a NetVLAD checkpoint's encoder)."""
 
     default_size = CNN_SIZE
@@ -165,7 +165,7 @@ class GMPMethod(PooledMethod):
 
 
 @dataclasses.dataclass(frozen=True)
-class NetVLADMethod(Method):
+class NetVLADMethod(DescribeMethod):
     """NetVLAD from a checkpoint, or with clusters fitted by k-means over a shipped backbone."""
 
     name = "netvlad"
@@ -240,7 +240,7 @@ def load_plugin(spec: str) -> nn.Module:
 
 
 @dataclasses.dataclass(frozen=True)
-class PluginMethod(Method):
+class PluginMethod(DescribeMethod):
     """Your own describer: ``--describer package.module:factory``. ``factory()`` returns a ``torch.nn.Module``
     mapping RGB images ``[B, 3, H, W]`` float in [0, 1] to descriptors ``[B, D]``; its own normalisation is
     its business. An attribute ``image_size = (W, H)`` on the module is its ``--resize auto`` size (default
@@ -276,5 +276,5 @@ class PluginMethod(Method):
         return extract
 
 
-DESCRIBERS: dict[str, type[Method]] = {m.name: m for m in (PixelsMethod, GeMMethod, GMPMethod, NetVLADMethod,
+DESCRIBERS: dict[str, type[DescribeMethod]] = {m.name: m for m in (PixelsMethod, GeMMethod, GMPMethod, NetVLADMethod,
                                                              PluginMethod)}

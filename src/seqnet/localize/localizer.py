@@ -34,7 +34,7 @@ from ..core.utils import ArrayLike, as_tensor
 from ..data.traverse import Traverse
 from ..matching.online import Ring
 from ..matching.registry import SEQUENCE_MATCHERS
-from ..methods.checks import check_fits, check_methods, check_models, check_resident
+from ..methods.checks import check_methods, check_models, check_resident, check_windows_fit
 from ..methods.grammar import FRAME_FEATURES, FUSE_WEIGHT, Method, parse_method
 from ..methods.protocol import Reference
 from ..methods.rank import rank
@@ -95,7 +95,7 @@ def traverse_reference(t: Traverse, models: Mapping[str, SeqNet], method: str, w
         models = {role: model for role, model in models.items() if role in m.models()}
     check_methods([m], models, windows.length)
     check_models(models, t.dim, t.provenance, f"the map {name!r}", windows.length, allow_mismatch)
-    check_fits(windows.longest, len(t), "the map's reference traverse")
+    check_windows_fit(windows.longest, len(t), "the map's reference traverse")
     for model in models.values():
         model.to(device).eval()
     return TraverseReference(t, windows, models, device, name=name)

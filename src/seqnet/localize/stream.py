@@ -1,6 +1,6 @@
 """``seqnet localize --map MAP --query DESCRIPTORS_OR_IMAGES``: localise new data frame by frame.
 
-The map is what :func:`load_map` returns: an index map (``seqnet index build --window causal``;
+The map is what :func:`load_reference` returns: an index map (``seqnet index build --window causal``;
 :mod:`seqnet.localize.index`: its stored descriptors and ANN index are used), or a seqnet dataset
 directory whose reference traverse (optionally one split) is the map. The query is either a
 descriptor file (``.npy`` with its provenance sidecar, ``.h5``), a folder / list file of images, or a ROS
@@ -52,7 +52,7 @@ if TYPE_CHECKING:
 Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spent describing it)
 
 
-def load_map(path: str | Path, models: Mapping[str, SeqNet],
+def load_reference(path: str | Path, models: Mapping[str, SeqNet],
              conf: LocalizeConfig) -> tuple[Reference, float, MapFrame]:
     """The map in ``path`` as a reference, with its radius and the frame of its positions: an index map (``seqnet
     index build --window causal``; its L, L_m and models), or a dataset directory whose reference traverse
@@ -200,7 +200,7 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
 
     is_file, images, q_pos = query_images(q)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
-    ref_map, radius, frame = load_map(map_dir, loaded, conf)
+    ref_map, radius, frame = load_reference(map_dir, loaded, conf)
     if q_pos is not None:
         check_frame(frame, images.positions.frame, map_dir, q.positions_topic)
     loc = conf.localizer(ref_map, radius)

@@ -27,7 +27,7 @@ def check_inputs(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet
     check_methods(methods, models, length)
     check_provenance(ds, models, length, allow_mismatch)
     for side, t in (("query", ds.query), ("reference", ds.reference)):
-        check_fits(max(length, match_len) if longest is None else longest, len(t),
+        check_windows_fit(max(length, match_len) if longest is None else longest, len(t),
                    f"the {side} traverse of dataset {ds.name!r}")
     check_memory(ds, methods, models)
 
@@ -37,20 +37,19 @@ def check_memory(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet
     the models, every sequence descriptor of the query side, the reference's up to the spill size each, and
     the search blocks (:func:`seqnet.core.memory.described_bytes`)."""
     from ..core.memmaps import limit
-    from ..core.memory import check_fits as fits_memory
-    from ..core.memory import described_bytes, gib, model_bytes, workspace_bytes
+    from ..core.memory import check_fits, described_bytes, gib, model_bytes, workspace_bytes
 
     names = dict.fromkeys(d for m in methods for d in m.descriptors())
     dims = descriptor_dims(names, models, ds.query.dim)
     need = model_bytes(models.values()) + described_bytes(len(ds.query), len(ds.reference), dims, limit("SPILL"))
-    fits_memory(need + workspace_bytes(len(ds.query), len(ds.reference)),
+    check_fits(need + workspace_bytes(len(ds.query), len(ds.reference)),
                f"evaluating {len(methods)} method(s) on {len(ds.query)} query frames (descriptors "
                f"{', '.join(names)}: {gib(described_bytes(len(ds.query), 0, dims, 0))} on the query side)",
                "evaluate a smaller --split or fewer methods, or describe with fewer dimensions (--dim, PCA) "
                "or a smaller S_L / S_1 (--out-dims)")
 
 
-def check_fits(longest: int, n: int, what: str) -> None:
+def check_windows_fit(longest: int, n: int, what: str) -> None:
     """The windows (``longest`` = max(L, L_m) frames) fit a traverse of ``n`` frames."""
     if longest > n:
         raise ConfigError(f"seq_len={longest} is longer than {what} ({n} frames); use a shorter --seq-len")
@@ -182,8 +181,7 @@ def descriptor_dims(names: Iterable[str], models: Mapping[str, SeqNet], dim: int
 def check_resident(reference: Any, method: Method, models: Mapping[str, SeqNet]) -> None:
     """Refuse, before describing, a localiser whose reference (kept resident: searched every frame) cannot
     fit: a map's files, or every descriptor of the method over a reference traverse, with the models."""
-    from ..core.memory import check_fits as fits_memory
-    from ..core.memory import described_bytes, gib, model_bytes, workspace_bytes
+    from ..core.memory import check_fits, described_bytes, gib, model_bytes, workspace_bytes
 
     if reference.frame_indices:
         return  # a distance matrix, already read
@@ -191,7 +189,7 @@ def check_resident(reference: Any, method: Method, models: Mapping[str, SeqNet])
     if held is None:
         held = described_bytes(0, len(reference.positions), descriptor_dims(method.descriptors(), models,
                                                                             reference.input_dim), 1 << 62)
-    fits_memory(held + model_bytes(models.values()) + workspace_bytes(1, len(reference.positions)),
+    check_fits(held + model_bytes(models.values()) + workspace_bytes(1, len(reference.positions)),
                f"localising against {reference.name!r} (kept in memory: {gib(held)})",
                "a map with a compressed index and float16 frames (seqnet index build --index ivf-pq --dtype "
                "float16), or fewer dimensions (--dim, PCA, --out-dims)")

@@ -137,20 +137,20 @@ def _frame_positions(conf: FromImagesConfig, images: ImageList, *_: object) -> P
     return np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None
 
 
-POSITION_SOURCES: dict[str, Callable[..., Positions]] = {
+GROUND_TRUTH_SOURCES: dict[str, Callable[..., Positions]] = {
     "csv": _csv_positions,
     "utm": lambda conf, images, *_: (utm_positions(images.names), None, "metres", None),
     "frames": _frame_positions,
     "positives": _frame_positions,  # explicit positives: frames as positions (windows, confidence)
     "bag": _bag_positions,
 }
-GROUND_TRUTHS = tuple(POSITION_SOURCES)
+GROUND_TRUTHS = tuple(GROUND_TRUTH_SOURCES)
 
 
 def _both_positions(conf: FromImagesConfig, images: tuple[ImageList, ImageList], sources: tuple[str | Path, ...],
                     given: tuple[str | Path | None, str | Path | None]) -> tuple[Positions, Positions]:
     """The positions of the reference and the query, in one unit and frame (else :class:`ConfigError`)."""
-    ref, qry = (POSITION_SOURCES[conf.ground_truth](conf, im, src, g, side)
+    ref, qry = (GROUND_TRUTH_SOURCES[conf.ground_truth](conf, im, src, g, side)
                 for im, src, g, side in zip(images, sources, given, ("reference", "query"), strict=True))
     if ref[2] != qry[2] or (ref[3] is None) != (qry[3] is None):
         raise ConfigError(f"reference positions are in {ref[3] or ref[2]} but query positions in {qry[3] or qry[2]}"
