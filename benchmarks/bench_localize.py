@@ -33,7 +33,8 @@ import torch
 
 from seqnet.core import gemv
 from seqnet.data.traverse import Dataset, Traverse
-from seqnet.localize.track import LocalizeConfig, dataset_localizer
+from seqnet.localize.config import LocalizeConfig
+from seqnet.localize.replay import dataset_localizer
 from seqnet.sequence.model import SeqNet
 
 

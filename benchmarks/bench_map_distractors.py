@@ -224,7 +224,7 @@ def run_size(n_db: int, args, ds, models, tmp: Path) -> dict:
     test = ds.split("test")
     a, b = ds.splits["train"]["reference"]
     train = np.concatenate([ds.reference.descriptors[a:b], ds.query.descriptors[a:b]])
-    conf = MapConfig(seq_len=5, rerank_seq_len=5, ann=AnnConfig(kind="flat"), split="test")
+    conf = MapConfig(seq_len=5, match_len=5, ann=AnnConfig(kind="flat"), split="test")
     t0 = time.perf_counter()
     if args.map:
         mp = load_map(args.map, "cpu")

@@ -196,6 +196,15 @@ def test_the_layer_check_sees_a_lazy_import_going_up(tmp_path):
     assert {"seqnet.eval", "seqnet.cli.common"} <= found
 
 
+def test_no_suffixed_siblings():
+    """A module that outgrows itself becomes a package, never ``a.py`` beside ``a_more.py``."""
+    packages = [p.parent for p in MODULES if p.name == "__init__.py"]
+    for pkg in packages:
+        stems = {p.stem for p in pkg.glob("*.py")} | {p.name for p in pkg.iterdir() if (p / "__init__.py").is_file()}
+        pairs = sorted(f"{a} / {b}" for a in stems for b in stems if b.startswith(a + "_"))
+        assert not pairs, f"{pkg.relative_to(SRC)}: suffixed siblings {pairs}"
+
+
 def test_cycle_finder_finds_a_cycle():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None

@@ -100,7 +100,7 @@ def test_describe_output_never_sits_beside_another_runs_sidecars(folder, tmp_pat
     from seqnet.cli import main
     from seqnet.core.provenance import sidecar
     from seqnet.data.readers import bound_names, read_provenance
-    from seqnet.describe.store import names_file_for
+    from seqnet.describe.stage import names_file_for
 
     dims = {}
     for size in ("32x16", "16x8"):  # the descriptor size each run's settings give

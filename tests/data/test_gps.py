@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from PIL import Image
 
 from seqnet.cli import main
-from seqnet.cli.dataset_foreign import POSITIONS_FORMATS as CLI_FORMATS
+from seqnet.cli.dataset_cmd.foreign import POSITIONS_FORMATS as CLI_FORMATS
 from seqnet.core.errors import DatasetError, SeqnetError
 from seqnet.data.gps import (
     POSITIONS_FORMATS,

@@ -227,7 +227,7 @@ def test_cli_help_comes_from_the_tables(capsys):
 
 @pytest.mark.parametrize("suffix", [".h5", ".npy"])
 def test_output_copied_in_blocks_equals_one_written_at_once(folder, tmp_path, suffix, monkeypatch):
-    import seqnet.describe.store as store
+    import seqnet.describe.stage as store
 
     (folder / "f4.png").write_bytes(b"broken")  # skipped: the rows kept are not one run
     conf = DescribeConfig(skip_corrupted=True, batch_size=3)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from seqnet.core.errors import ConfigError
-from seqnet.core.utils import l2_normalize
+from seqnet.core.tensors import l2_normalize
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.matching.seqmatch import seqmatch
@@ -143,7 +143,7 @@ def test_with_models(test_split):
     models = {"seqnet": SeqNet(16, 8, 5, 3), "s1": SeqNet(16, 8, 1, 1)}
     ev = evaluate(test_split, EvalConfig(methods=("seqnet", "s1", "s1+seqmatch", "hvpr"), device="cpu"), models)
     assert ev.results["methods"]["hvpr"]["method"] == {
-        "kind": "hvpr", "shortlist": "seqnet", "rerank": "s1+seqmatch", "seq_len": 5, "rerank_seq_len": 5, "top_k": 20,
+        "kind": "hvpr", "shortlist": "seqnet", "rerank": "s1+seqmatch", "seq_len": 5, "match_len": 5, "top_k": 20,
         "models": {"s1": models["s1"].config(), "seqnet": models["seqnet"].config()}}
     assert set(ev.results["config"]["models"]) == {"seqnet", "s1"}
     assert all(0 <= e["recall@5"] <= 1 for e in ev.results["methods"].values())
@@ -276,13 +276,13 @@ def test_missing_model_is_an_error_not_a_substitute(test_split):
 def test_rerank_seq_len_separate_from_seq_len(test_split):
     """L_m for the matchers, L for the descriptors; items need both windows to fit."""
     ev = evaluate(test_split, EvalConfig(methods=("delta", "raw+seqmatch", "hvpr-delta:raw+seqmatch"), seq_len=3,
-                                         rerank_seq_len=7, device="cpu"))
+                                         match_len=7, device="cpu"))
     q = test_split.query
     ok3 = window_starts(len(q), 3, "centred", q.seq_bounds)[1]
     ok7 = window_starts(len(q), 7, "centred", q.seq_bounds)[1]
     np.testing.assert_array_equal(ev.q_items, np.flatnonzero(ok3 & ok7))
     entry = ev.results["methods"]["hvpr-delta:raw+seqmatch"]["method"]
-    assert entry["seq_len"] == 3 and entry["rerank_seq_len"] == 7
+    assert entry["seq_len"] == 3 and entry["match_len"] == 7
     r = test_split.reference
     qs = window_starts(len(q), 7)[0][ev.q_items]
     rs = window_starts(len(r), 7)[0][ev.r_items]
@@ -336,7 +336,7 @@ def test_hvpr_fused_shortlists_the_documented_top_200_and_says_so():
     bench = Nordland64Config().eval_config()
     assert (bench.fuse_weight, bench.shortlist_size(fused)) == (FUSE_WEIGHT, FUSED_TOP_K)
     assert conf.replace(fuse_top_k=50).shortlist_size(fused) == 50
-    entry = {"method": {**fused.summary(), "seq_len": 5, "rerank_seq_len": 5, "top_k": 100, "fuse_weight": 0.5}}
+    entry = {"method": {**fused.summary(), "seq_len": 5, "match_len": 5, "top_k": 100, "fuse_weight": 0.5}}
     assert method_label(entry) == "seqnet(L=5) top-100 -> s1+seqmatch(L_m=5)/L_m + 0.5·d(seqnet)"
     entry["method"].pop("fuse_weight")
     assert method_label(entry) == "seqnet(L=5) top-100 -> s1+seqmatch(L_m=5)"

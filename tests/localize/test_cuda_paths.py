@@ -9,8 +9,9 @@ import torch
 
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.localize.config import LocalizeConfig
 from seqnet.localize.localizer import replay
-from seqnet.localize.track import LocalizeConfig, dataset_localizer
+from seqnet.localize.replay import dataset_localizer
 from seqnet.search.knn import knn
 from seqnet.sequence.model import SeqNet
 

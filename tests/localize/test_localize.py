@@ -10,8 +10,9 @@ from seqnet.core.errors import ConfigError
 from seqnet.data.synth import make_synthetic
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.localize.config import LocalizeConfig
 from seqnet.localize.localizer import replay
-from seqnet.localize.track import LocalizeConfig, dataset_localizer
+from seqnet.localize.replay import dataset_localizer
 from seqnet.matching.velocity import velocity_topk
 from seqnet.sequence.model import SeqNet
 
@@ -40,10 +41,10 @@ CASES = [(m, None) for m in METHODS] + [(m, 6) for m in ("seqnet", "s1+seqmatch"
 def test_stream_equals_causal_evaluation(small, method, match_len):
     ds, models = small
     # the localiser queries and indexes what eval scores for each method: every frame for a single-frame method
-    conf = EvalConfig(window="causal", rerank_seq_len=match_len, ks=(1, 7), top_k=5, device="cpu")
+    conf = EvalConfig(window="causal", match_len=match_len, ks=(1, 7), top_k=5, device="cpu")
     ev = evaluate(ds, conf.replace(methods=(method,)), models)
     view = ev.view(method)
-    loc = loc_of(ds, models, method, rerank_seq_len=match_len, k=7, top_k=5)
+    loc = loc_of(ds, models, method, match_len=match_len, k=7, top_k=5)
     assert loc.ref_items.tolist() == view.r_items.tolist()
     est = list(replay(loc, ds.query))
     assert [e.frame for e in est] == list(range(len(ds.query)))
@@ -64,10 +65,10 @@ def test_early_frames_and_resets(small):
     t = ds.query.subset(0, 30)
     bounds = np.array([[0, 12]] * 12 + [[12, 30]] * 18)
     t = Traverse(t.descriptors, t.positions, seq_bounds=bounds, provenance=t.provenance)
-    loc = loc_of(ds, models, "single", seq_len=4, rerank_seq_len=5)
+    loc = loc_of(ds, models, "single", seq_len=4, match_len=5)
     est = list(replay(loc, t))
     assert all(e.ref_index >= 0 and e.full_window for e in est)  # a single frame is a whole window: every frame
-    loc = loc_of(ds, models, "raw+seqmatch", seq_len=4, rerank_seq_len=5)
+    loc = loc_of(ds, models, "raw+seqmatch", seq_len=4, match_len=5)
     est = list(replay(loc, t))
     assert [e.ref_index >= 0 for e in est[:6]] == [False] * 4 + [True] * 2
     assert [e.full_window for e in est[10:18]] == [True, True, False, False, False, False, True, True]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from seqnet.cli import main as cli_main
-from seqnet.localize.track import LocalizeConfig
+from seqnet.localize.config import LocalizeConfig
 from seqnet.localize.trackfile import TRACK_COLUMNS
 
 
@@ -55,7 +55,8 @@ def test_refusals(synth_dir, tmp_path, capsys):
 
 
 def _steps(ds, method, descriptors, **conf):
-    from seqnet.localize.track import LocalizeConfig, dataset_localizer
+    from seqnet.localize.config import LocalizeConfig
+    from seqnet.localize.replay import dataset_localizer
 
     loc = dataset_localizer(ds, {}, LocalizeConfig(method=method, device="cpu", **conf))
     return [loc.step(d) for d in descriptors]
@@ -88,7 +89,7 @@ def test_stream_images_described_on_the_fly(tmp_path, capsys):
     from seqnet.data.io import save_dataset
     from seqnet.data.traverse import Dataset, Traverse
     from seqnet.describe import DescribeConfig, make_describer
-    from seqnet.describe.store import describe_provenance
+    from seqnet.describe.stage import describe_provenance
     data = shared_data("nordland64")
     names = [f"images-{i:05d}.png" for i in range(2100, 2400, 10)]
     conf = DescribeConfig(method="pixels", patch=16, size="native")

@@ -9,9 +9,10 @@ import pytest
 
 from seqnet.cli import main as cli
 from seqnet.core.errors import ConfigError
+from seqnet.localize.config import LocalizeConfig
 from seqnet.localize.localizer import replay
+from seqnet.localize.replay import dataset_localizer
 from seqnet.localize.stream import index_reference
-from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.maps import MapConfig, build, load_map
 from seqnet.search.ann import AnnConfig
 
@@ -35,7 +36,7 @@ def assert_same_track(a, b):
     (MapConfig(seq_len=4, window="causal"), "hvpr", True),
     (MapConfig(seq_len=4, window="causal"), "seqnet", True),
     (MapConfig(seq_len=4, window="causal"), "s1+seqmatch", True),
-    (MapConfig(shortlist="delta", rerank="raw+graph", seq_len=4, rerank_seq_len=5, window="causal"),
+    (MapConfig(shortlist="delta", rerank="raw+graph", seq_len=4, match_len=5, window="causal"),
      "hvpr-delta:raw+graph", False),
     (MapConfig(shortlist="delta", rerank="raw+vseqmatch", seq_len=4, window="causal"), "raw+vseqmatch", False),
 ])
@@ -46,7 +47,7 @@ def test_flat_index_map_equals_the_dataset_localizer(synth_dataset, synth_dir, m
     test = synth_dataset.split("test")
     loc_map = index_localizer(mp, method)
     loc_ds = dataset_localizer(test, mp.models, CONF.replace(method=method, seq_len=conf.seq_len,
-                                                              rerank_seq_len=conf.rerank_seq_len))
+                                                              match_len=conf.match_len))
     assert loc_map.ref_items.tolist() == loc_ds.ref_items.tolist()
     a, b = list(replay(loc_map, test.query)), list(replay(loc_ds, test.query))
     assert any(e.ref_index >= 0 for e in a)

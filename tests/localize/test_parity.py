@@ -16,9 +16,10 @@ from seqnet.core.errors import ConfigError
 from seqnet.data.io import save_dataset
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.localize.config import LocalizeConfig
 from seqnet.localize.localizer import replay
+from seqnet.localize.replay import dataset_localizer
 from seqnet.localize.stream import index_reference
-from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.maps import MapConfig, build, evaluate_map, load_map, load_query
 from seqnet.matching.registry import SEQUENCE_MATCHERS
 from seqnet.methods.grammar import FRAME_FEATURES, HVPR_FUSED

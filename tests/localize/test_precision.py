@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from seqnet.core.errors import ConfigError
+from seqnet.localize.config import LocalizeConfig
 from seqnet.localize.localizer import replay
+from seqnet.localize.replay import dataset_localizer
 from seqnet.localize.stream import index_reference
-from seqnet.localize.track import LocalizeConfig, dataset_localizer
 from seqnet.maps import MapConfig, build, load_map
 from seqnet.search.knn import ExactIndex
 from seqnet.sequence.checkpoints import load_model

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from seqnet.core.errors import ConfigError
-from seqnet.core.utils import l2_normalize
+from seqnet.core.tensors import l2_normalize
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.matching.graph import (

@@ -15,7 +15,8 @@ from seqnet.core.errors import ConfigError
 from seqnet.data.io import save_dataset
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
-from seqnet.localize.track import LocalizeConfig, dataset_localizer
+from seqnet.localize.config import LocalizeConfig
+from seqnet.localize.replay import dataset_localizer
 from seqnet.methods.checks import check_models, model_lengths
 from seqnet.sequence.checkpoints import save_checkpoint
 from seqnet.sequence.model import SeqNet

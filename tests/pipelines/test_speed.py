@@ -104,6 +104,6 @@ def test_tiny_longer_sequences(tiny_run):
     rec = json.loads(path.read_text())
     assert list(rec["results"]) == ["val", "test"] and list(rec["results"]["test"]) == ["3", "8"]
     test = rec["results"]["test"]
-    assert test["8"]["hvpr"]["method"]["rerank_seq_len"] == 8 and test["8"]["s1+graph"]["queries"] == 80 - 7
+    assert test["8"]["hvpr"]["method"]["match_len"] == 8 and test["8"]["s1+graph"]["queries"] == 80 - 7
     md = (out / "longer.md").read_text()
     assert "| method | L_m=3 | L_m=8 |" in md and "| s1+graph |" in md and "test 140:220, AUC" in md

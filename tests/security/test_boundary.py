@@ -15,7 +15,7 @@ from hypothesis.extra.numpy import array_shapes, arrays
 
 from seqnet.core.errors import DatasetError
 from seqnet.security.arrays import read_npy, read_npz
-from seqnet.security.hdf5 import read_hdf5
+from seqnet.security.hdf5file import read_hdf5
 from seqnet.security.inputs import inside, nofollow_fd, open_input, read_bytes
 from seqnet.security.sandbox import run_child
 from seqnet.security.text import csv_cell, shown
@@ -135,7 +135,7 @@ def test_a_file_that_makes_libhdf5_spin_ends_in_one_error(monkeypatch):
     the child is killed at its time bound (30 s + 1 s per 5 MB; 4 s here) and the read is one DatasetError."""
     import time
 
-    import seqnet.security.hdf5 as hdf5
+    import seqnet.security.hdf5file as hdf5
 
     monkeypatch.setattr(hdf5, "time_bound", lambda size: 4.0)
     start = time.monotonic()

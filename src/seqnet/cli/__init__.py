@@ -107,7 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         check_no_empty_values(args)
         if isinstance(getattr(args, "device", None), str):  # a device that is not there: refused before any work
-            from ..core.utils import check_device
+            from ..core.devices import check_device
 
             check_device(args.device)
         with runtime(args):

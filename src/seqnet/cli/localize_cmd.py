@@ -8,12 +8,13 @@ from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..data.bags import DEFAULT_TOLERANCE
+from ..localize.config import LocalizeConfig
+from ..localize.replay import main
 from ..localize.stream import Query, stream
-from ..localize.track import LocalizeConfig, main
 from ..localize.trackfile import TRACK_COLUMNS
 from ..matching.velocity import ANCHORS
 from ..methods.grammar import valid_methods
-from ..search.blocks import PRECISIONS
+from ..search.precision import PRECISIONS
 from . import COMMANDS
 from .common import (
     add_allow_mismatch,
@@ -76,7 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    conf = _D.replace(method=args.method, seq_len=args.seq_len, rerank_seq_len=args.rerank_seq_len,
+    conf = _D.replace(method=args.method, seq_len=args.seq_len, match_len=args.match_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
                       device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
     if args.describer is not None and args.query is None:

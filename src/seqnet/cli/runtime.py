@@ -13,8 +13,8 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from ..core.errors import SeqnetError
+from ..core.log import logger
 from ..core.progress import close_all, progress_mode
-from ..core.utils import logger
 from ..security.files import os_error
 from ..security.text import shown
 from .common import positive_int

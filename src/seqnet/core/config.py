@@ -25,10 +25,16 @@ C = TypeVar("C", bound="Config")
 class Config:
     """Mixin for frozen dataclass configurations (see the module docstring)."""
 
+    RENAMED_KEYS: typing.ClassVar[Mapping[str, str]] = {}  # {earlier key: its name now}, read by from_dict
+
     @classmethod
     def from_dict(cls: type[C], values: Mapping[str, Any] | None = None) -> C:
-        """Build from a mapping (e.g. a ``config.json``); nested configs may be given as mappings."""
+        """Build from a mapping (e.g. a ``config.json``); nested configs may be given as mappings. A key under
+        its earlier name (:attr:`RENAMED_KEYS`: files written by earlier versions) is read as its name now."""
         values = dict(values or {})
+        for old, new in cls.RENAMED_KEYS.items():
+            if old in values and new not in values:
+                values[new] = values.pop(old)
         _reject_unknown(cls, values)
         nested = _nested_types(cls)
         for key, sub in nested.items():

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
-from .utils import logger
+from .log import logger
 
 PROVENANCE_SUFFIX = ".provenance.json"
 # in a .npy's sidecar: the descriptors it belongs to (size and sampled hash) and their names; the record of the

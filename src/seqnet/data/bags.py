@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.bagfiles import check_bag
 from ..security.text import shown
 

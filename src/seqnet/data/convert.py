@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
+from ..core.log import logger
 from ..core.provenance import check_same
-from ..core.utils import logger
 from ..security.limits import POSITION_MAX
 from .imagefolders import utm_positions
 from .positives import Positives

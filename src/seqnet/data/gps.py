@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.inputs import inside
 from ..security.limits import INDEX_MAX
 from ..security.text import shown

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.inputs import inside
 from ..security.inputs import read_text as read_input_text
 from ..security.limits import POSITION_MAX

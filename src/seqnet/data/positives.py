@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.arrays import is_npy, read_header, read_npy, read_npz
 from ..security.inputs import open_input
 from ..security.jsonfile import parse_json

@@ -5,7 +5,7 @@ rules are the same everywhere:
 
 * descriptors ``[N, D]``: ``.npy`` (memory-mapped when already native float32) or HDF5 (dataset
   ``descriptors``, never a guessed other one, or hloc's global features; optional ``names``; read in the
-  sandbox: :mod:`seqnet.security.hdf5`); any floating dtype or byte order becomes native float32;
+  sandbox: :mod:`seqnet.security.hdf5file`); any floating dtype or byte order becomes native float32;
   anything else (strings, objects, integers, pickles) is a :class:`DatasetError` naming the file;
 * names: UTF-8 text, one name per line (``\\n``-separated); a name may not contain any other line
   separator (``str.splitlines`` semantics, e.g. U+2028), so what is written reads back the same;
@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError
+from ..core.log import logger
 from ..core.provenance import BOUND_KEY, MAX_SIDECAR, REPLACES_KEY, sidecar
-from ..core.utils import logger
 from ..security.arrays import read_npy as read_array
 from ..security.digests import file_digest
-from ..security.hdf5 import Hdf5Contents, read_hdf5
+from ..security.hdf5file import Hdf5Contents, read_hdf5
 from ..security.inputs import read_text as read_input_text
 from ..security.inputs import special_file
 from ..security.jsonfile import parse_json, read_json
@@ -106,7 +106,7 @@ def read_npy(f: Path, mmap: bool = True) -> np.ndarray:
 
 
 def _read_h5(p: Path) -> tuple[np.ndarray, list[str] | None]:
-    """Descriptors and names of an HDF5 file, read in the sandbox (:func:`seqnet.security.hdf5.read_hdf5`)."""
+    """Descriptors and names of an HDF5 file, read in the sandbox (:func:`seqnet.security.hdf5file.read_hdf5`)."""
     h = read_hdf5(p, "descriptor file")
     if "descriptors" not in h.names() and (hloc := _hloc_names(h)):
         return _read_hloc(h, p, hloc)

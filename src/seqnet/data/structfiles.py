@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DatasetError
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.limits import INDEX_MAX, number
 from ..security.matlab import read_struct
 from ..security.text import shown

@@ -18,7 +18,7 @@ from .merge import merge_shards
 from .output import OUT_SUFFIXES, names_file_for
 from .registry import DESCRIBERS
 from .shards import Shard, parse_shard
-from .store import describe_folder, describe_to_file, main
+from .stage import describe_folder, describe_to_file, main
 
 __all__ = [
     "BACKBONES", "DESCRIBERS", "OUT_SUFFIXES", "DescribeConfig", "Describer", "describe_folder", "describe_images",

@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
+from ..core.devices import check_device
 from ..core.errors import ConfigError
-from ..core.utils import check_device
 from .cnn import BACKBONES
 from .images import MAX_SIDE, ImageItem
 from .registry import DESCRIBERS, DescribeMethod

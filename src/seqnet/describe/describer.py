@@ -8,10 +8,11 @@ from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 
+from ..core.devices import get_device
 from ..core.errors import ConfigError, ImageError
+from ..core.log import logger
 from ..core.memmaps import RowsOut
 from ..core.progress import progress
-from ..core.utils import get_device, logger
 from ..security.pictures import size_mismatch
 from .config import DescribeConfig
 from .images import ImageItem, ImageRef, as_image, iter_batches, list_images, load_images

@@ -22,12 +22,12 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
+from ..core.log import logger
 from ..core.provenance import ProvenanceError, differences
 from ..core.provenance import sidecar as provenance_sidecar
-from ..core.utils import logger
 from ..data.readers import bound_names, read_names, read_npy, read_provenance
 from ..security.dirs import remove_dead_temps
-from ..security.hdf5 import check_hdf5
+from ..security.hdf5file import check_hdf5
 from ..security.limits import INDEX_MAX, number
 from ..security.locks import locked
 from .output import OUT_SUFFIXES, check_sidecars, names_file_for, write_output

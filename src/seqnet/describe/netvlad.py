@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..core.errors import CheckpointError, ConfigError
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.files import atomic_path
 from ..security.torchfile import load_torch_file
 from .cnn import BACKBONES, to_input

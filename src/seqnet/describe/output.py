@@ -1,6 +1,6 @@
 """Writing a describe output file (``.h5``/``.hdf5`` or ``.npy`` + names + provenance) from blocks of rows.
 
-The one writer of describe outputs: :mod:`seqnet.describe.store` hands it the whole array as one
+The one writer of describe outputs: :mod:`seqnet.describe.stage` hands it the whole array as one
 block, :mod:`seqnet.describe.merge` streams shards through it block by block (nothing is held in
 memory). The output appears in one rename, the descriptors' own. A ``.npy``'s provenance sidecar records
 the size and sampled hash of the descriptors it belongs to and their names (``BOUND_KEY``); it is written

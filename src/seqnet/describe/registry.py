@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
-from ..core.utils import logger
+from ..core.log import logger
 from .cnn import BACKBONES, cnn_extractor, gem, gmp, to_unit
 from .pixels import pixels_descriptor
 

@@ -15,8 +15,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..core.provenance import fit_digest
-from ..core.utils import logger
 from .config import DescribeConfig, fit_summary
 from .images import ImageItem, image_key
 from .pca import read_tag as read_pca_tag

@@ -18,9 +18,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
+from ..core.devices import check_device, get_device
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..core.stage import Written
-from ..core.utils import check_device, get_device, logger
 from ..data.resample import RESAMPLE_SIDES, resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
 from ..methods.checks import check_inputs, leakage, model_lengths
@@ -48,7 +49,7 @@ class EvalConfig(WindowSettings, Config):
     Attributes:
         methods: method names (:mod:`seqnet.methods.grammar`); None: every default method the models allow.
         seq_len: window length L of the sequence descriptors (None: the S_L model's, else 5).
-        rerank_seq_len: length L_m of the sequence matchers (None: L).
+        match_len: length L_m of the sequence matchers (None: L).
         window: ``"centred"`` (the paper's) or ``"causal"`` (online).
         radius: localisation radius (None: the dataset's); a retrieved reference is correct within it (≤).
         extra_radii: further radii to report.
@@ -72,7 +73,7 @@ class EvalConfig(WindowSettings, Config):
 
     methods: tuple[str, ...] | None = None
     seq_len: int | None = None
-    rerank_seq_len: int | None = None
+    match_len: int | None = None
     window: str = "centred"
     radius: float | None = None
     extra_radii: tuple[float, ...] = ()
@@ -96,7 +97,7 @@ class EvalConfig(WindowSettings, Config):
             if isinstance(self.methods, str) or not self.methods:
                 raise ConfigError(f"methods must be a non-empty list of method names, got {self.methods!r}")
             self._set("methods", tuple(parse_method(m).name for m in self.methods))
-        for key in ("seq_len", "rerank_seq_len", "resample_every"):
+        for key in ("seq_len", "match_len", "resample_every"):
             if getattr(self, key) is not None:
                 self._set(key, check_int(key, getattr(self, key), 1))
         check_choice("resample side", self.resample_side, RESAMPLE_SIDES)
@@ -116,9 +117,10 @@ class EvalConfig(WindowSettings, Config):
     def resolve(self, models: Mapping[str, SeqNet], radius: float) -> EvalConfig:
         """L (the S_L model's when unset), the radius (the dataset's when unset) and the methods (the defaults
         the models allow when unset), resolved once."""
-        length = Windows.resolve(self.seq_len, None, self.window, getattr(models.get("seqnet"), "seq_len", None)).length
-        return self.replace(radius=radius if self.radius is None else self.radius, seq_len=length,
-                            methods=self.methods or default_methods(models, length))
+        model_len = getattr(models.get("seqnet"), "seq_len", None)
+        seq_len = Windows.resolve(self.seq_len, None, self.window, model_len).seq_len
+        return self.replace(radius=radius if self.radius is None else self.radius, seq_len=seq_len,
+                            methods=self.methods or default_methods(models, seq_len))
 
     def shortlist_size(self, m: Method) -> int:
         """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""
@@ -145,9 +147,9 @@ def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | No
 def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[str, Any]:
     """What a method resolved to: kind, shortlister, re-ranker, lengths, K, models."""
     info = m.summary()
-    info["seq_len"] = conf.length
+    info["seq_len"] = conf.windows.seq_len
     if m.rerank:
-        info["rerank_seq_len"] = conf.match_len
+        info["match_len"] = conf.windows.match_len
     if m.kind == "hvpr":
         info["top_k"] = conf.shortlist_size(m)
     if m.fused:
@@ -174,7 +176,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     conf = conf.resolve(models, ds.radius)
     methods = [parse_method(n) for n in conf.methods]
     groups = method_windows(methods, conf.windows, conf.common_queries)
-    check_inputs(ds, methods, models, conf.length, conf.match_len, conf.allow_mismatch,
+    check_inputs(ds, methods, models, conf.windows.seq_len, conf.windows.match_len, conf.allow_mismatch,
                  max(w.longest for w in groups))
     dev = get_device(conf.device)
     for model in models.values():

@@ -109,7 +109,7 @@ def method_windows(methods: Sequence[Method], windows: Windows, common: bool = F
 def no_window_reason(windows: Windows) -> str:
     """Why frames have no query or reference item under ``windows`` (their windows do not fit their sequence)."""
     n = windows.longest
-    lens = f"L={windows.length}" + (f", L_m={windows.match_len}" if windows.match_len != windows.length else "")
+    lens = f"L={windows.seq_len}" + (f", L_m={windows.match_len}" if windows.match_len != windows.seq_len else "")
     if windows.mode == "centred":
         head, tail = window_offset(n, "centred"), n - 1 - window_offset(n, "centred")
         ends = f"{_frames(head)} of each sequence end" if head == tail else \

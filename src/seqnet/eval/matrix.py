@@ -17,9 +17,9 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.lazy import lazy_module
+from ..core.log import logger
 from ..core.memmaps import read_rows
 from ..core.stage import Written
-from ..core.utils import logger
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
 from ..methods.grammar import Method, parse_method
@@ -202,8 +202,8 @@ def _matrix_group(ds: Dataset, d: torch.Tensor, methods: list[Method], windows: 
     ref = MatrixReference(d, ds.reference, windows, ds.name)
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query),
-              lambda m: {**m.summary(), "on": "distance matrix", "seq_len": conf.length,
-                         "rerank_seq_len": conf.match_len, "top_k": conf.shortlist_size(m)}, windows=windows)
+              lambda m: {**m.summary(), "on": "distance matrix", "seq_len": conf.windows.seq_len,
+                         "match_len": conf.windows.match_len, "top_k": conf.shortlist_size(m)}, windows=windows)
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
 

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.utils import logger
+from ..core.log import logger
 from ..methods.grammar import parse_method
 from ..sequence.windows import window_offset
 from .evaluation import ItemView

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
-from ..core.utils import ArrayLike, as_tensor
+from ..core.tensors import ArrayLike, as_tensor
 from ..data.traverse import Traverse
 from ..matching.online import Ring
 from ..matching.registry import SEQUENCE_MATCHERS
@@ -93,8 +93,8 @@ def traverse_reference(t: Traverse, models: Mapping[str, SeqNet], method: str, w
     m = online_method(method)
     if m.single_frame:  # windows of one frame: a model the method does not use (S_L) is not checked against them
         models = {role: model for role, model in models.items() if role in m.models()}
-    check_methods([m], models, windows.length)
-    check_models(models, t.dim, t.provenance, f"the map {name!r}", windows.length, allow_mismatch)
+    check_methods([m], models, windows.seq_len)
+    check_models(models, t.dim, t.provenance, f"the map {name!r}", windows.seq_len, allow_mismatch)
     check_windows_fit(windows.longest, len(t), "the map's reference traverse")
     for model in models.values():
         model.to(device).eval()
@@ -151,10 +151,10 @@ class Localizer:
         self.ref_items, self.r_pos = reference.items, reference.positions[reference.items]
         reference.prepare(self.method)  # describe the map once, before the first frame
         m, w = self.method, self.windows
-        self.short_len = SEQUENCE_DESCRIPTORS[m.shortlist].length(w.length) if m.shortlist else 1
+        self.short_len = SEQUENCE_DESCRIPTORS[m.shortlist].length(w.seq_len) if m.shortlist else 1
         self.frames_name = FRAME_FEATURES[m.frames] if m.frames else None
         self.need = max(self.short_len, w.match_len if m.frames else 1)
-        self.raw = Ring(w.length, reference.input_dim, torch.float32, self.device)
+        self.raw = Ring(w.seq_len, reference.input_dim, torch.float32, self.device)
         self.feats: Ring | None = None
         self.rows: Ring | None = None
         self._starts = torch.as_tensor(reference.match_starts, device=self.device)
@@ -164,7 +164,7 @@ class Localizer:
     @property
     def seq_len(self) -> int:
         """L: the window of the sequence descriptors."""
-        return self.windows.length
+        return self.windows.seq_len
 
     @property
     def match_len(self) -> int:

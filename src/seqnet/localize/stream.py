@@ -22,11 +22,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..core.devices import get_device
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.stage import Written
-from ..core.utils import get_device, logger
 from ..data.bags import DEFAULT_TOLERANCE
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
 from ..eval.evaluate import EvalConfig
@@ -40,8 +41,9 @@ if TYPE_CHECKING:
     from ..describe.images import ImageList  # describers (and h5py) load only when a query is described
     from ..maps.map import Map
 
+from .config import LocalizeConfig
 from .localizer import Estimate, traverse_reference
-from .track import LocalizeConfig, frame_truth, summarize
+from .replay import frame_truth, summarize
 from .trackfile import check_output, sidecar_of, track_rows, write_track
 from .truth import MapFrame, check_frame, query_positions
 
@@ -84,7 +86,7 @@ def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
     if mp.config.window != "causal":
         raise ConfigError(f"map {mp.path} was built with {mp.config.window} windows; the online localiser needs "
                           "causal ones (seqnet index build --window causal)")
-    check_conf(mp, EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, rerank_seq_len=conf.rerank_seq_len,
+    check_conf(mp, EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, match_len=conf.match_len,
                               window="causal"))
     source = mp.meta.get("source") if isinstance(mp.meta.get("source"), dict) else {}
     radius = conf.radius or source.get("radius")
@@ -107,7 +109,7 @@ def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: boo
     described when it is read by the map's describer. A plug-in describer the map's files name is imported only
     when the user names the same one (``describer``, ``--describer``): seqnet runs no code a file names."""
     from ..describe import DescribeConfig, make_describer
-    from ..describe.store import describe_provenance
+    from ..describe.stage import describe_provenance
 
     prov = ref_map.provenance
     if not prov or prov.get("kind") != "describe":
@@ -216,7 +218,7 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     summary = summarize(est, correct, has)
     if not is_file:
         summary["describe_ms"] = {"mean": float(np.mean(describe_ms)), "median": float(np.median(describe_ms))}
-    record = {"summary": summary, "config": {**conf.to_dict(), "seq_len": loc.seq_len, "rerank_seq_len": loc.match_len,
+    record = {"summary": summary, "config": {**conf.to_dict(), "seq_len": loc.seq_len, "match_len": loc.match_len,
                                              "radius": radius},
               "inputs": {"map": str(Path(map_dir).resolve()), **_query_inputs(q, images),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},

@@ -8,9 +8,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.devices import get_device
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..core.memory import check_fits, model_bytes, workspace_bytes
-from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset, default_split
 from ..methods.checks import check_models as check_model_inputs
@@ -31,8 +32,8 @@ if TYPE_CHECKING:
 
 def resolve(conf: MapConfig, models: Mapping[str, SeqNet]) -> MapConfig:
     """``conf`` with L and L_m resolved once (:meth:`seqnet.sequence.windows.Windows.resolve`)."""
-    w = Windows.resolve(conf.seq_len, conf.rerank_seq_len, conf.window, getattr(models.get("seqnet"), "seq_len", None))
-    return conf.replace(seq_len=w.length, rerank_seq_len=w.match_len)
+    w = Windows.resolve(conf.seq_len, conf.match_len, conf.window, getattr(models.get("seqnet"), "seq_len", None))
+    return conf.replace(seq_len=w.seq_len, match_len=w.match_len)
 
 
 def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> None:
@@ -42,10 +43,11 @@ def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> 
         need = " and ".join("an S_1 model (--model S1.pt)" if r == "s1" else "an S_L model (--model SL.pt)"
                             for r in sorted(missing))
         raise ConfigError(f"map {conf.method.name} (shortlist {conf.shortlist}, re-rank {conf.rerank}) needs {need}")
-    check_model_inputs(models, ds.reference.dim, ds.reference.provenance, f"dataset {ds.name!r}", conf.length,
+    check_model_inputs(models, ds.reference.dim, ds.reference.provenance, f"dataset {ds.name!r}", conf.windows.seq_len,
                  conf.allow_mismatch, use="the map uses")
-    if max(conf.length, conf.match_len) > len(ds.reference):
-        raise ConfigError(f"L={conf.length} / L_m={conf.match_len} is longer than the reference traverse "
+    w = conf.windows
+    if w.longest > len(ds.reference):
+        raise ConfigError(f"L={w.seq_len} / L_m={w.match_len} is longer than the reference traverse "
                           f"({len(ds.reference)} frames)")
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 
 from ..core.config import Config, check_bool, check_choice, check_int
+from ..core.devices import check_device
 from ..core.errors import ConfigError
-from ..core.utils import check_device
 from ..methods.grammar import FRAME_FEATURES, HVPR_ALIAS, HVPR_RERANK, Method, canonical_name, parse_method
 from ..search.ann import AnnConfig
 from ..security.limits import SEQ_MAX
@@ -25,7 +25,7 @@ class MapConfig(WindowSettings, Config):
             :data:`SEQUENCE_DESCRIPTORS`, e.g. ``seqnet`` = S_L); an ANN index is built over it.
         rerank: ``<frames>+<matcher>``: the frame descriptors stored for re-ranking and the matcher.
         seq_len: L of the sequence descriptors (None: the S_L model's, else 5).
-        rerank_seq_len: L_m of the matcher (None: L).
+        match_len: L_m of the matcher (None: L).
         window: ``centred`` or ``causal`` windows (queries must use the same).
         ann: the index over the shortlist descriptors (``flat`` = exact search over the stored descriptors).
         dtype: storage of the descriptor arrays (``float16`` halves the map; computed in float32).
@@ -39,7 +39,7 @@ class MapConfig(WindowSettings, Config):
     shortlist: str = "seqnet"
     rerank: str = HVPR_RERANK
     seq_len: int | None = None
-    rerank_seq_len: int | None = None
+    match_len: int | None = None
     window: str = "centred"
     ann: AnnConfig = AnnConfig()
     dtype: str = "float32"
@@ -54,7 +54,7 @@ class MapConfig(WindowSettings, Config):
         if isinstance(self.rerank, str):
             self._set("rerank", canonical_name(self.rerank))
         self.method  # noqa: B018 - validates the re-ranker
-        for key in ("seq_len", "rerank_seq_len"):
+        for key in ("seq_len", "match_len"):
             if getattr(self, key) is not None:
                 self._set(key, check_int(key, getattr(self, key), 1, SEQ_MAX))
         check_choice("window mode", self.window, WINDOW_MODES)

@@ -84,8 +84,8 @@ def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
 
 def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
     """The methods of ``conf`` the map serves; refuses another L, L_m, window mode or method."""
-    c = mp.config
-    for key, want, have in (("seq_len", conf.seq_len, c.length), ("rerank_seq_len", conf.rerank_seq_len, c.match_len)):
+    c, w = mp.config, mp.config.windows
+    for key, want, have in (("seq_len", conf.seq_len, w.seq_len), ("match_len", conf.match_len, w.match_len)):
         if want is not None and want != have:
             raise ConfigError(f"{key}={want} but map {mp.path} was built with {have}; rebuild the map to change it")
     if conf.window != c.window:
@@ -127,10 +127,10 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     truth = ground_truth(q.traverse.positions[items], mp.positions[mp.items], radius, _positives(mp, q, items),
                          f"{q.name} against map {mp.path}")
     c = mp.config
-    conf = conf.replace(seq_len=c.length, rerank_seq_len=c.match_len, radius=radius)
+    conf = conf.replace(seq_len=c.windows.seq_len, match_len=c.windows.match_len, radius=radius)
 
     def info(m: Method) -> dict[str, Any]:
-        return {**m.summary(), "seq_len": c.length, "rerank_seq_len": c.match_len, "top_k": conf.top_k,
+        return {**m.summary(), "seq_len": c.windows.seq_len, "match_len": c.windows.match_len, "top_k": conf.top_k,
                 "index": c.ann.kind}
 
     extra = _shortlist_recall(mp, query.items(c.shortlist), conf.top_k)

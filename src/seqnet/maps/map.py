@@ -15,10 +15,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..core.devices import get_device
 from ..core.errors import ConfigError, DatasetError
 from ..core.lazy import lazy_module
 from ..core.provenance import check_same
-from ..core.utils import ArrayLike, get_device
+from ..core.tensors import ArrayLike
 from ..data.traverse import Traverse
 from ..matching.hvpr import hvpr_search
 from ..matching.on_disk import pair_scores_on_map
@@ -58,7 +59,7 @@ class Map:
     def __init__(self, path: Path, meta: dict[str, Any], arrays: dict[str, Any], index: Any,
                  models: dict[str, SeqNet], device: str | None = None, anchor: str = "") -> None:
         self.path, self.meta, self.config = path, meta, MapConfig.from_dict(meta["config"])
-        self.windows = Windows(self.config.length, self.config.match_len, self.config.window, anchor)
+        self.windows = Windows(self.config.windows.seq_len, self.config.windows.match_len, self.config.window, anchor)
         self.shortlist, self.frames = arrays["shortlist"], arrays["frames"]
         self.items, self.match_starts = np.asarray(arrays["items"]), np.asarray(arrays["match_starts"])
         self.positions, self.seq_bounds = np.asarray(arrays["positions"]), arrays.get("seq_bounds")
@@ -139,7 +140,7 @@ class Map:
         of the query windows ``q_starts [M]`` of ``query_frames [Nq, D2]``."""
         self._check_frames(frames, matcher)
         spec = SEQUENCE_MATCHERS[matcher]
-        return spec.topk(query_frames, self.frames, self.config.match_len, k, q_starts, self.match_starts,
+        return spec.topk(query_frames, self.frames, self.config.windows.match_len, k, q_starts, self.match_starts,
                          device=str(self.device), block_bytes=self.block_bytes, **spec.options(self.windows.anchor))
 
     def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
@@ -161,7 +162,7 @@ class Map:
     def pair_scores(self, query_frames: ArrayLike, q_starts: np.ndarray, candidates: np.ndarray,
                     seq_len: int | None = None) -> torch.Tensor:
         """The map's matcher on ``candidates [M, K]`` for query windows of ``seq_len`` (default L_m) frames."""
-        seq_len = seq_len or self.config.match_len
+        seq_len = seq_len or self.config.windows.match_len
         return pair_scores_on_map(query_frames, self.frames, seq_len, q_starts, self.match_starts_for(seq_len),
                                   candidates, self.config.method.matcher, str(self.device), anchor=self.windows.anchor)
 
@@ -172,7 +173,7 @@ class Map:
 
     def match_starts_for(self, seq_len: int) -> np.ndarray:
         """``[R]`` window starts of the items for another L_m (clipped into the traverse)."""
-        if seq_len == self.config.match_len:
+        if seq_len == self.config.windows.match_len:
             return self.match_starts
         starts = self.items - window_offset(seq_len, self.config.window)
         return np.clip(starts, 0, len(self.frames) - seq_len)
@@ -182,7 +183,7 @@ class Map:
         """The map's HVPR (:func:`seqnet.matching.hvpr.hvpr_search`, the one assembly) for query items
         ``shortlist_query [M, D1]`` with windows ``q_starts`` of ``query_frames``."""
         return hvpr_search(lambda n: self.search(self.config.shortlist, shortlist_query, n, exact),
-                           lambda c: self.pair_scores(query_frames, q_starts, c), self.config.match_len, top_k, k)
+                           lambda c: self.pair_scores(query_frames, q_starts, c), self.windows.match_len, top_k, k)
 
     def describe(self, traverse: Traverse) -> Described:
         """The query items of ``traverse`` (windows as the map's), described by the map's models on demand."""
@@ -192,7 +193,7 @@ class Map:
         """One line: size, descriptors, index."""
         c = self.config
         return (f"map {self.path}: {len(self.items)} items / {len(self.frames)} frames, {c.method.name} "
-                f"(L={c.length}, L_m={c.match_len}, {c.window}), index {c.ann.kind}, {c.dtype}")
+                f"(L={c.windows.seq_len}, L_m={c.windows.match_len}, {c.window}), index {c.ann.kind}, {c.dtype}")
 
 
 def read_meta(path: Path) -> dict[str, Any]:

@@ -25,9 +25,10 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..core.memmaps import read_rows
 from ..core.memory import check_space
-from ..core.utils import ArrayLike, logger, to_numpy
+from ..core.tensors import ArrayLike, to_numpy
 from ..search.ann import (
     ADD_BYTES,
     AnnConfig,

@@ -28,8 +28,9 @@ import numpy as np
 from .._version import __version__
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
+from ..core.log import logger
 from ..core.memmaps import read_rows
-from ..core.utils import ArrayLike, logger, to_numpy
+from ..core.tensors import ArrayLike, to_numpy
 from ..search.ann import build_index, save_index
 from ..security.arrays import read_npy
 from ..security.digests import file_digest
@@ -115,12 +116,12 @@ def write_map(out: str | Path, conf: MapConfig, arrays: MapArrays, models: Mappi
               provenance: dict | None = None, info: Mapping[str, Any] | None = None) -> Path:
     """Write a map directory (see the module docstring) from ``arrays``; returns its path.
 
-    ``conf`` must be resolved (``seq_len`` and ``rerank_seq_len`` set); ``provenance`` is that of
+    ``conf`` must be resolved (``seq_len`` and ``match_len`` set); ``provenance`` is that of
     the raw reference descriptors the map was made from, ``info`` is stored under ``source``.
     """
     out = Path(out)
-    if conf.seq_len is None or conf.rerank_seq_len is None:
-        raise ConfigError("write_map needs a resolved MapConfig (seq_len and rerank_seq_len set)")
+    if conf.seq_len is None or conf.match_len is None:
+        raise ConfigError("write_map needs a resolved MapConfig (seq_len and match_len set)")
     arrays.check(conf.match_len)
     with locked(out):
         recover_dir(out)

@@ -32,9 +32,11 @@ from collections.abc import Callable
 import numpy as np
 
 from ..core.config import check_choice, check_float, check_int
+from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
-from ..core.utils import ArrayLike, as_tensor, get_device, logger, to_numpy
+from ..core.log import logger
+from ..core.tensors import ArrayLike, as_tensor, to_numpy
 from ..search.knn import as_pair, pairwise_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
 from .hashing import dh_candidates, hamming_topk

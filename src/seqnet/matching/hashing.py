@@ -26,9 +26,10 @@ import dataclasses
 import numpy as np
 
 from ..core.config import Config, check_float, check_int
+from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
-from ..core.utils import ArrayLike, get_device, to_numpy
+from ..core.tensors import ArrayLike, to_numpy
 from ..search.blocks import topk_smallest
 from ..search.knn import as_pair, rows_per_block, sq_norms
 

@@ -18,9 +18,10 @@ from collections.abc import Callable
 import numpy as np
 
 from ..core.config import check_choice, check_float, check_int
+from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
-from ..core.utils import ArrayLike, get_device, to_numpy
+from ..core.tensors import ArrayLike, to_numpy
 from ..search.knn import as_pair, knn
 from ..sequence.windows import MODE_ANCHORS, check_seq_len
 from .pairs import item_starts

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.lazy import lazy_module
 from ..core.memmaps import take_rows
-from ..core.utils import ArrayLike
+from ..core.tensors import ArrayLike
 from .hvpr import pair_scores
 from .registry import SEQUENCE_MATCHERS
 

@@ -15,9 +15,10 @@ import functools
 
 import numpy as np
 
+from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
-from ..core.utils import ArrayLike, as_tensor, get_device
+from ..core.tensors import ArrayLike, as_tensor
 from ..search.blocks import topk_smallest
 from ..search.knn import ExactIndex
 from ..sequence.windows import check_seq_len

@@ -16,12 +16,14 @@ from collections.abc import Iterator
 import numpy as np
 
 from ..core.config import check_int
+from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
-from ..core.utils import ArrayLike, get_device, to_numpy
-from ..search.blocks import blocked_topk, check_pair_dims, col_blocks, compute_dtype, rows
+from ..core.tensors import ArrayLike, to_numpy
+from ..search.blocks import blocked_topk, check_pair_dims, col_blocks, rows
 from ..search.knn import as_pair, finish_distances, rows_per_block, sq_norms
+from ..search.precision import compute_dtype
 from ..sequence.windows import check_seq_len
 from .pairs import window_scores
 

@@ -31,10 +31,11 @@ from collections.abc import Callable, Iterator, Sequence
 import numpy as np
 
 from ..core.config import check_choice, check_float, check_int
+from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
-from ..core.utils import ArrayLike, get_device, to_numpy
+from ..core.tensors import ArrayLike, to_numpy
 from ..search.blocks import blocked_topk
 from ..search.knn import as_pair, finish_distances, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len

@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from ..core.config import Config, check_bool, check_int
+from ..core.log import logger
 from ..core.stage import Written
-from ..core.utils import logger
 from ..data.io import load_dataset, save_dataset
 from ..data.synth import SynthConfig, make_synthetic
 from ..data.traverse import Dataset

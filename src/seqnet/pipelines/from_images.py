@@ -30,7 +30,7 @@ import numpy as np
 
 from ..core.config import Config, check_choice, check_float
 from ..core.errors import ConfigError, ImageError
-from ..core.utils import logger
+from ..core.log import logger
 from ..data.bags import DEFAULT_TOLERANCE, is_bag, match_positions
 from ..data.convert import assemble_dataset, match_names, read_positions_csv
 from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
@@ -40,7 +40,7 @@ from ..data.positives import read_positives
 from ..data.traverse import Traverse
 from ..describe import DescribeConfig, make_describer
 from ..describe.images import ImageList, list_images
-from ..describe.store import describe_provenance
+from ..describe.stage import describe_provenance
 from ..security.locks import locked
 from ..security.ownership import check_replaceable
 

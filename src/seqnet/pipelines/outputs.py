@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import OutputError, SeqnetError
-from ..core.utils import logger
+from ..core.log import logger
 from ..data.io import is_dataset_file
 from ..security.digests import changed_files, file_digest
 from ..security.dirs import remove_dead_temps

@@ -102,7 +102,7 @@ def summary_section(ev: Any, conf: ReportConfig) -> Section:
     facts = [("dataset", cfg.get("dataset", "")), ("queries evaluated", first.get("queries", "")),
              ("reference items (frames with a full window)", len(ev.r_items)), ("radius", cfg.get("radius", "")),
              ("L", cfg.get("seq_len", "")),
-             ("L_m", cfg.get("rerank_seq_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
+             ("L_m", cfg.get("match_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
              ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
     config = html.escape(json.dumps(cfg, indent=1, default=str))
     return Section("summary", "Summary", table_html(["", ""], facts)
@@ -129,7 +129,7 @@ def gallery_section(ev: Any, ds: Dataset, conf: ReportConfig) -> Section:
     entry, ranked = methods[name]["method"], ev.retrieved[name]
     m = parse_method(name)
     single = m.single_frame
-    length, mode = 1 if single else entry.get("rerank_seq_len") or entry["seq_len"], ev.results["config"]["window"]
+    length, mode = 1 if single else entry.get("match_len") or entry["seq_len"], ev.results["config"]["window"]
     view = ev.view(name)  # the method's own items (a single-frame method: every frame)
     correct = view.truth.hits(ranked[:, :1])[:, 0]
     cells = []

@@ -47,7 +47,7 @@ def method_label(entry: Mapping[str, Any]) -> str:
     m = entry.get("method") or {}
     single = m.get("shortlist") in SEQUENCE_DESCRIPTORS and SEQUENCE_DESCRIPTORS[m["shortlist"]].single_frame
     short = (m["shortlist"] if single else f"{m['shortlist']}(L={m.get('seq_len')})") if m.get("shortlist") else ""
-    rerank = f"{m['rerank']}(L_m={m.get('rerank_seq_len')})" if m.get("rerank") else ""
+    rerank = f"{m['rerank']}(L_m={m.get('match_len')})" if m.get("rerank") else ""
     if m.get("kind") == "hvpr" and m.get("fuse_weight"):  # hvpr-fused: its score says what ran
         return f"{short} top-{m.get('top_k')} -> {rerank}/L_m + {m['fuse_weight']:g}·d({m['shortlist']})"
     if m.get("kind") == "hvpr":

@@ -22,7 +22,7 @@ import numpy as np
 from ..core.config import Config, check_int
 from ..core.errors import CheckpointError, ConfigError, ResourceError
 from ..core.memmaps import read_rows, take_rows
-from ..core.utils import to_numpy
+from ..core.tensors import to_numpy
 
 TRAIN_PER_LIST = 256  # training vectors per IVF list (FAISS's own k-means cap)
 ADD_BYTES = 32 << 20  # vectors added to an index per block

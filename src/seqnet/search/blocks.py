@@ -17,7 +17,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import read_rows
-from ..core.utils import ArrayLike, as_tensor
+from ..core.tensors import ArrayLike, as_tensor
 
 torch = lazy_module("torch")
 
@@ -35,27 +35,6 @@ def matrix_shape(x: ArrayLike, name: str) -> tuple[int, int]:
     if isinstance(x, np.ndarray) and kind not in "fiub":
         raise ConfigError(f"{name} must hold numbers, got dtype {x.dtype}")
     return int(x.shape[0]), int(x.shape[1])
-
-
-PRECISIONS = ("float32", "float16", "bfloat16")  # names of torch dtypes: precision_dtype(name)
-HALF = ("float16", "bfloat16")  # read and multiplied in half precision, accumulated and finished in float32
-
-
-def precision_dtype(name: str) -> torch.dtype:
-    """The torch dtype of a :data:`PRECISIONS` name."""
-    if name not in PRECISIONS:
-        raise ConfigError(f"precision {name!r} is not one of {', '.join(PRECISIONS)}")
-    return getattr(torch, name)
-
-
-def is_half(dtype: torch.dtype) -> bool:
-    """Whether ``dtype`` is one of the :data:`HALF` precisions."""
-    return str(dtype).removeprefix("torch.") in HALF
-
-
-def compute_dtype(*xs: ArrayLike) -> torch.dtype:
-    """float64 when any input is float64 (exact tests), else float32 (float16 maps are computed in float32)."""
-    return torch.float64 if any(str(x.dtype).endswith("float64") for x in xs) else torch.float32
 
 
 def rows(x: ArrayLike, a: int, b: int, device: torch.device, dtype: torch.dtype) -> torch.Tensor:

@@ -12,12 +12,14 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from ..core.config import check_choice, check_int
+from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.gemv import matvec
 from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import limit, streamed
-from ..core.utils import ArrayLike, as_tensor, get_device
-from .blocks import blocked_topk, col_blocks, compute_dtype, is_half, matrix_shape, rows, topk_smallest
+from ..core.tensors import ArrayLike, as_tensor
+from .blocks import blocked_topk, col_blocks, matrix_shape, rows, topk_smallest
+from .precision import compute_dtype, is_half
 
 torch = lazy_module("torch")
 

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TypeVar
 
-from ..core.utils import logger
+from ..core.log import logger
 from .files import TEMP_SUFFIX, current_umask, in_place_of, temp_prefix
 
 T = TypeVar("T")

@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from ..core.errors import OutputError
-from ..core.utils import logger
+from ..core.log import logger
 from .dirs import recover_dir, swap_dir_in
 from .files import TEMP_MARK, TEMP_SUFFIX, current_umask, temp_prefix
 from .ownership import MANIFEST, owned, write_manifest

@@ -1,5 +1,5 @@
 """Reading an HDF5 file inside the sandbox's child (:mod:`seqnet.security.sandbox`); the parent side is
-:mod:`seqnet.security.hdf5`.
+:mod:`seqnet.security.hdf5file`.
 
 The file is opened from a file object (``h5py``'s ``fileobj`` driver: the library is given no name, so it
 cannot resolve another file relative to it) after :func:`seqnet.security.inputs.open_input`. Refused

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ..core.errors import LockedError, OutputError
-from ..core.utils import logger
+from ..core.log import logger
 from .inputs import nofollow_fd
 from .ownership import now
 

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..core.errors import CheckpointError
 from ..core.lazy import lazy_module
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.files import atomic_path
 from ..security.jsonfile import read_json
 from ..security.limits import DIM_MAX, SEQ_MAX, number

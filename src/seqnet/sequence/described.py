@@ -38,7 +38,7 @@ def describe_frames(raw: np.ndarray | torch.Tensor, seq_bounds: np.ndarray | Non
     ``which``), windows of ``windows.mode`` clamped into their sequence (``spill``: a large result is a
     temporary memory map, :func:`seqnet.sequence.descriptors.describe_windows`)."""
     d = SEQUENCE_DESCRIPTORS[name]
-    length = d.length(windows.length)
+    length = d.length(windows.seq_len)
     if length == 1 and which is not None:  # a frame's own descriptor: its window is the frame itself
         idx = np.asarray(which, dtype=np.int64)[:, None]
     else:
@@ -52,7 +52,7 @@ def describe_items(raw: np.ndarray | torch.Tensor, starts: np.ndarray, name: str
                    spill: bool = False) -> torch.Tensor | np.ndarray:
     """``[M, D']``: descriptor ``name`` (not single-frame) of the L-windows starting at ``starts [M]``."""
     d = SEQUENCE_DESCRIPTORS[name]
-    return describe_windows(raw, window_frames(starts, windows.length), d.window_fn(models), device=device,
+    return describe_windows(raw, window_frames(starts, windows.seq_len), d.window_fn(models), device=device,
                             progress=progress, spill=spill)
 
 
@@ -74,7 +74,7 @@ class Described:
         self.models, self.device, self.spill = models, device, spill
         self.side = windows.side(len(descriptors), seq_bounds)
         if len(self.side.items) == 0:
-            raise ConfigError(f"no {what} frame has a full window of seq_len={windows.length} (L_m="
+            raise ConfigError(f"no {what} frame has a full window of seq_len={windows.seq_len} (L_m="
                               f"{windows.match_len}) inside its sequence; use a shorter --seq-len")
         self._cache: dict[tuple[str, str], torch.Tensor] = {}
         self.ms: dict[tuple[str, str], float] = {}

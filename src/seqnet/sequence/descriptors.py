@@ -30,7 +30,7 @@ from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import RowsOut, take_rows
 from ..core.progress import progress as progress_bar
-from ..core.utils import as_tensor, l2_normalize
+from ..core.tensors import as_tensor, l2_normalize
 from .windows import gather_windows
 
 torch = lazy_module("torch")

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Mapping
+from typing import ClassVar
 
 import numpy as np
 
@@ -147,40 +149,40 @@ class Windows:
     """The windows of one evaluation, map or localiser, resolved once.
 
     Attributes:
-        length: L, the window of the sequence descriptors.
+        seq_len: L, the window of the sequence descriptors.
         match_len: L_m, the window of the sequence matchers.
         mode: ``"centred"`` (the paper's) or ``"causal"`` (online).
         anchor: the step of an L_m-window pinned to the item's frame by the anchored (variable-speed)
             matchers: ``"centre"`` for centred windows, ``"end"`` (the newest frame) for causal ones.
     """
 
-    length: int
+    seq_len: int
     match_len: int
     mode: str = "centred"
     anchor: str = ""
 
     def __post_init__(self) -> None:
-        check_seq_len(self.length, None, "seq_len")
-        check_seq_len(self.match_len, None, "rerank_seq_len")
+        check_seq_len(self.seq_len, None, "seq_len")
+        check_seq_len(self.match_len, None, "match_len")
         window_offset(1, self.mode)  # validates the mode
         if not self.anchor:
             object.__setattr__(self, "anchor", MODE_ANCHORS[self.mode])
 
     @classmethod
-    def resolve(cls, seq_len: int | None, rerank_seq_len: int | None, mode: str = "centred",
+    def resolve(cls, seq_len: int | None, match_len: int | None, mode: str = "centred",
                 model_len: int | None = None, anchor: str = "") -> Windows:
         """L (given, else the S_L model's ``model_len``, else :data:`DEFAULT_SEQ_LEN`) and L_m (given, else L)."""
-        length = seq_len or model_len or DEFAULT_SEQ_LEN
-        return cls(length, rerank_seq_len or length, mode, anchor)
+        seq_len = seq_len or model_len or DEFAULT_SEQ_LEN
+        return cls(seq_len, match_len or seq_len, mode, anchor)
 
     @property
     def longest(self) -> int:
         """max(L, L_m): the frames an item's windows span."""
-        return max(self.length, self.match_len)
+        return max(self.seq_len, self.match_len)
 
     def side(self, t_len: int, seq_bounds: np.ndarray | None) -> Side:
         """The items of a traverse of ``t_len`` frames: frames whose L- and L_m-windows fit inside their sequence."""
-        starts, ok = window_starts(t_len, self.length, self.mode, seq_bounds)
+        starts, ok = window_starts(t_len, self.seq_len, self.mode, seq_bounds)
         m_starts, m_ok = window_starts(t_len, self.match_len, self.mode, seq_bounds)
         items = np.flatnonzero(ok & m_ok)
         return Side(items, starts[items], m_starts[items])
@@ -202,24 +204,15 @@ class Side:
 
 
 class WindowSettings:
-    """Mixin of the configs that carry ``seq_len``, ``rerank_seq_len`` and ``window`` fields: L, L_m
-    and their :class:`Windows`, defaulted one way everywhere."""
+    """Mixin of the configs that carry ``seq_len`` (L), ``match_len`` (L_m) and ``window`` fields, as given
+    (None: the default); :attr:`windows` resolves them one way everywhere (L: :data:`DEFAULT_SEQ_LEN`, L_m: L)."""
 
     seq_len: int | None
-    rerank_seq_len: int | None
+    match_len: int | None
     window: str
-
-    @property
-    def length(self) -> int:
-        """L (:data:`DEFAULT_SEQ_LEN` when unset)."""
-        return self.seq_len or DEFAULT_SEQ_LEN
-
-    @property
-    def match_len(self) -> int:
-        """L_m: the sequence matchers' length (L when unset)."""
-        return self.rerank_seq_len or self.length
+    RENAMED_KEYS: ClassVar[Mapping[str, str]] = {"rerank_seq_len": "match_len"}  # configs written before 0.3
 
     @property
     def windows(self) -> Windows:
-        """The :class:`Windows` of these settings (L, L_m, mode)."""
-        return Windows(self.length, self.match_len, self.window)
+        """The :class:`Windows` of these settings (L, L_m resolved; the mode)."""
+        return Windows.resolve(self.seq_len, self.match_len, self.window)

@@ -13,9 +13,9 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from ..core.config import Config, check_choice, check_float, check_int
+from ..core.devices import check_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
-from ..core.utils import check_device
 from ..data.traverse import Dataset
 from ..security.inputs import ErrorType
 from ..security.limits import DIM_MAX, INDEX_MAX, SEQ_MAX, number

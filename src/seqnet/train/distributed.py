@@ -25,10 +25,11 @@ import pickle
 from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
+from ..core.devices import get_device
 from ..core.errors import ConfigError, ResourceError
 from ..core.lazy import lazy_module
+from ..core.log import logger
 from ..core.progress import progress_mode
-from ..core.utils import get_device, logger
 
 torch = lazy_module("torch")
 nn = lazy_module("torch.nn")

@@ -20,7 +20,7 @@ from typing import Any
 
 from .._version import __version__
 from ..core.errors import ConfigError
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.files import TEMP_SUFFIX, temp_prefix, write_json_atomic
 from ..security.jsonfile import read_json_object
 from ..security.locks import lock_file, locked

@@ -22,11 +22,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.devices import get_device
 from ..core.errors import ConfigError, DatasetError, OutputError
 from ..core.lazy import lazy_module
+from ..core.log import logger
 from ..core.memory import check_fits, gib
 from ..core.provenance import check_same
-from ..core.utils import get_device, logger
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..methods.checks import accepted_mismatch

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..core.lazy import lazy_module
 from ..core.memmaps import take_rows
-from ..core.utils import as_tensor
+from ..core.tensors import as_tensor
 from ..search.blocks import COL_BLOCK_BYTES
 from ..search.blocks import rows as read_block
 from ..search.knn import pairwise_distances

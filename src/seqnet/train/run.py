@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 from .._version import __version__
 from ..core.errors import CheckpointError, ResourceError
 from ..core.lazy import lazy_module
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.dirs import remove_dead_temps
 from ..security.files import write_json_atomic
 from ..security.ownership import MANIFEST

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import CheckpointError, ConfigError, OutputError
-from ..core.utils import logger
+from ..core.log import logger
 from ..security.files import TEMP_SUFFIX, temp_prefix
 from ..security.jsonfile import read_json_object
 from ..security.ownership import MANIFEST, read_manifest, write_manifest

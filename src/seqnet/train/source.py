@@ -12,7 +12,7 @@ import numpy as np
 from ..core.errors import DatasetError
 from ..core.lazy import lazy_module
 from ..core.memmaps import streamed, take_rows
-from ..core.utils import as_tensor
+from ..core.tensors import as_tensor
 from ..data.positives import Positives
 from ..data.traverse import Dataset, Traverse
 from ..sequence.windows import frame_bounds, gather_windows, speed_windows, window_frames, window_starts

@@ -3,7 +3,7 @@ longer re-ranking sequences L_m (5, 10, 20 by default), beside whole-map S_1 + S
 graph matcher at the same L_m.
 
 The S_L model and its windows stay L frames long; only the sequence matchers (SeqMatch, graph)
-use L_m frames (``EvalConfig.rerank_seq_len``). Queries are the places whose L_m window fits in
+use L_m frames (``EvalConfig.match_len``). Queries are the places whose L_m window fits in
 the split, so the longest L_m evaluates a few fewer queries (counted in the results).
 """
 
@@ -65,7 +65,7 @@ def main(conf: LongerConfig, data: str | Path | None, out: str | Path, cache: st
         methods = p.runnable(conf.methods)
         evs: dict[str, Evaluation] = {}
         for lm in conf.lengths:
-            ec = conf.benchmark.eval_config().replace(methods=methods, rerank_seq_len=lm)
+            ec = conf.benchmark.eval_config().replace(methods=methods, match_len=lm)
             for split, ev in evaluate_splits(p, ec).items():
                 evs[f"{split} L_m={lm}"] = ev
         header = ["method", *(f"R@1 {k}" for k in evs)]

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ...core.config import Config, check_choice
-from ...core.utils import logger
+from ...core.log import logger
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked
 from ...security.text import shown

@@ -12,15 +12,15 @@ from typing import Any
 import numpy as np
 
 from ...core.errors import ConfigError, DatasetError
+from ...core.log import logger
 from ...core.progress import progress
-from ...core.utils import logger
 from ...data.io import load_dataset, save_dataset
 from ...data.readers import read_names
 from ...data.traverse import Dataset, Traverse
 from ...describe import Describer, make_describer
 from ...describe.images import iter_batches
 from ...describe.pca import PCA
-from ...describe.store import describe_provenance
+from ...describe.stage import describe_provenance
 from ...security.arrays import read_npy
 from ...security.files import save_npy_atomic
 from ...security.locks import locked

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...core.lazy import lazy_module
-from ...core.utils import logger
+from ...core.log import logger
 from ...data.traverse import Dataset
 from ...describe.pca import PCA, fit_pca
 from ...security.dirs import remove_dead_temps

@@ -7,8 +7,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ...core.log import logger
 from ...core.stage import Written
-from ...core.utils import logger
 from ...data.traverse import Dataset
 from ...eval.evaluate import Evaluation, evaluate
 from ...metrics.recall import recall_curve

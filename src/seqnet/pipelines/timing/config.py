@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 
 from ...core.config import Config, check_bool, check_choice, check_float, check_int, check_ints
+from ...core.devices import check_device
 from ...core.errors import ConfigError
-from ...core.utils import check_device
 from ...maps.config import DTYPES
 from ...search.ann import ANN_INDEXES, AnnConfig
 

@@ -26,8 +26,9 @@ from ...maps import Map
 from ...matching.online import OnlineSeqMatch
 from ...matching.seqmatch import seqmatch_topk
 from ...metrics.recall import recall
-from ...search.blocks import compute_dtype, rows, topk_smallest
+from ...search.blocks import rows, topk_smallest
 from ...search.knn import ExactIndex, finish_distances, sq_norms
+from ...search.precision import compute_dtype
 from .config import TimingConfig
 from .queries import Queries
 

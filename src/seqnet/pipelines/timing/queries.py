@@ -75,7 +75,7 @@ def dataset_queries(conf: TimingConfig, mp: Map, dataset: str | Path) -> Queries
     pick = np.linspace(0, len(qd.side.items) - 1, min(conf.queries, len(qd.side.items))).round().astype(int)
     items = qd.side.items[pick]
     raw = torch.from_numpy(np.ascontiguousarray(q.traverse.descriptors[window_frames(qd.side.starts[pick],
-                                                                                       mp.config.length)]))
+                                                                                       mp.config.windows.seq_len)]))
     pos, radius = q.traverse.positions[items], q.radius
     models = {r: mp.models[r] for r in ("seqnet", "s1") if r in mp.models}
     frames = qd.frames(mp.config.frames_descriptor)

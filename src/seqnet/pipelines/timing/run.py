@@ -22,8 +22,8 @@ from typing import Any
 import torch
 
 from ...core.errors import ConfigError, ResourceError
+from ...core.log import logger
 from ...core.stage import Written
-from ...core.utils import logger
 from ...maps import MapConfig
 from ...security.dirs import recover_dir
 from ...security.files import write_json_atomic, write_text_atomic

@@ -19,13 +19,13 @@ from typing import Any
 
 import torch
 
+from ...core.devices import get_device
 from ...core.errors import SeqnetError
-from ...core.utils import get_device
 from ...maps import Map, MapConfig, build, load_map
 from ...security.files import write_json_atomic
 from .config import TimingConfig
+from .hvpr import build_indexes, float16_recall, hvpr_rows
 from .measure import describe_rows, knn_rows, seqmatch_rows
-from .measure_hvpr import build_indexes, float16_recall, hvpr_rows
 from .queries import dataset_queries, synthetic_queries
 from .synth import make_map
 
@@ -39,7 +39,7 @@ def build_job(job: dict[str, Any], conf: TimingConfig) -> dict[str, Any]:
     """Write the map of the job (synthetic, or from the job's dataset and models)."""
     t0 = time.perf_counter()
     if job.get("dataset"):
-        mconf = MapConfig.from_dict(job["map_config"]).replace(rerank_seq_len=max(conf.seq_lens), device=conf.device)
+        mconf = MapConfig.from_dict(job["map_config"]).replace(match_len=max(conf.seq_lens), device=conf.device)
         build(mconf, job["dataset"], job["map"], job.get("models", ()))
     else:
         make_map(conf, job["n"], job["dim"], Path(job["map"]))

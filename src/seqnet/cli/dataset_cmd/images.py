@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..data.bags import DEFAULT_TOLERANCE
-from ..describe import DESCRIBERS
-from ..pipelines.from_images import FIT_ON, FromImagesConfig, main
-from .common import add_device, add_topic, positive_float
-from .dataset_foreign import add_positions_format
-from .describe_cmd import add_describe_options, describe_config
+from ...data.bags import DEFAULT_TOLERANCE
+from ...describe import DESCRIBERS
+from ...pipelines.from_images import FIT_ON, FromImagesConfig, main
+from ..common import add_device, add_topic, positive_float
+from ..describe_cmd import add_describe_options, describe_config
+from .foreign import add_positions_format
 
 
 def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None:  # noqa: ANN001 - a function
@@ -63,7 +63,7 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
 def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN001 - a function
     truth = ("csv" if args.ref_csv else "utm" if args.utm_names else "frames" if args.frame_aligned
              else "bag" if args.positions_topic else "positives")
-    from ..core.errors import ConfigError
+    from ...core.errors import ConfigError
 
     if args.positions_format != "csv" and truth != "csv":
         raise ConfigError(f"--positions-format {args.positions_format} reads --ref-csv / --query-csv (the logs)")

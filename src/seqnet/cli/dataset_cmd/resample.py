@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import positive_int
+from ..common import positive_int
 
 RESAMPLE_HELP = ("keep every N-th frame of the recorded order, whatever the distance travelled (fixed-time "
                  "sampling: the paper's Oxford-FT test keeps every 6th frame)")
@@ -36,9 +36,9 @@ def register_resample(dsub: argparse._SubParsersAction) -> None:
 def run_resample(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from ..core.utils import logger
-    from ..data.io import load_dataset, save_dataset
-    from ..data.resample import resample_dataset
+    from ...core.log import logger
+    from ...data.io import load_dataset, save_dataset
+    from ...data.resample import resample_dataset
 
     ds = load_dataset(args.dir)
     out = resample_dataset(ds, args.every, args.side)

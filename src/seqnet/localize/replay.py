@@ -8,7 +8,6 @@ per-frame latency).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -16,25 +15,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.config import Config, check_bool, check_choice, check_float, check_int
+from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
+from ..core.log import logger
 from ..core.progress import progress
 from ..core.stage import Written
-from ..core.utils import check_device, get_device, logger
 from ..data.traverse import Dataset, default_split
-from ..eval.evaluation import single_windows
-from ..matching.velocity import ANCHORS
-from ..methods.grammar import FUSE_WEIGHT
-from ..methods.protocol import Reference
 from ..metrics.precision_recall import pr_summary, precision_recall
-from ..metrics.recall import check_radius, ground_truth
-from ..search.blocks import PRECISIONS, precision_dtype
+from ..metrics.recall import ground_truth
 from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
 from ..security.locks import locked
-from ..sequence.windows import Windows
-from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
+from .config import LocalizeConfig
+from .localizer import Estimate, Localizer, replay, traverse_reference
 from .trackfile import check_output, sidecar_of, track_rows, write_track
 
 torch = lazy_module("torch")
@@ -43,75 +37,6 @@ if TYPE_CHECKING:
     from ..data.positives import Positives
     from ..sequence.model import SeqNet
 
-
-
-@dataclasses.dataclass(frozen=True)
-class LocalizeConfig(Config):
-    """Settings of ``seqnet localize``.
-
-    Attributes:
-        method: a method name (:mod:`seqnet.methods.grammar`; not ``grh``).
-        seq_len: L (None: the S_L model's, else 5); rerank_seq_len: L_m (None: L).
-        top_k: HVPR shortlist size K; k: references ranked per frame (for the confidence).
-        anchor: pivot step of the variable-speed matchers (``end``: as ``seqnet eval --window causal``).
-        split: the split replayed (None: test when defined, else all).
-        radius: localisation radius (None: the dataset's): correctness and the confidence.
-        device: torch device; allow_mismatch: as ``seqnet eval --allow-mismatch``.
-        precision: ``float32``, or ``float16`` / ``bfloat16``: the models and the exact searches of every frame
-            read and multiply in half precision (half the bytes of a memory-bound step; the map is described in
-            float32 first, distances are accumulated in float32).
-    """
-
-    method: str = "hvpr"
-    seq_len: int | None = None
-    rerank_seq_len: int | None = None
-    top_k: int = 20
-    k: int = 20
-    anchor: str = "end"
-    split: str | None = None
-    radius: float | None = None
-    fuse_weight: float = FUSE_WEIGHT
-    fuse_top_k: int | None = None
-    device: str = "auto"
-    allow_mismatch: bool = False
-    precision: str = "float32"
-
-    def __post_init__(self) -> None:
-        self._set("method", online_method(self.method).name)
-        self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))
-        if self.fuse_top_k is not None:
-            self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
-        for key in ("seq_len", "rerank_seq_len"):
-            if getattr(self, key) is not None:
-                self._set(key, check_int(key, getattr(self, key), 1))
-        self._set("top_k", check_int("top_k", self.top_k, 1))
-        self._set("k", check_int("k", self.k, 1))
-        check_choice("anchor", self.anchor, ANCHORS)
-        if self.radius is not None:
-            self._set("radius", check_radius(self.radius))
-        self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
-        check_choice("precision", self.precision, PRECISIONS)
-        check_device(self.device)
-
-    def windows(self, models: Mapping[str, SeqNet]) -> Windows:
-        """The causal windows, resolved once: L (given, else the S_L model's, else 5), L_m (else L), the anchor; a
-        single-frame method (``single``, ``s1``) needs none: windows of one frame, so every frame is localised
-        and indexed, as ``seqnet eval`` scores it."""
-        windows = Windows.resolve(self.seq_len, self.rerank_seq_len, "causal",
-                                  getattr(models.get("seqnet"), "seq_len", None), self.anchor)
-        return single_windows(windows) if online_method(self.method).single_frame else windows
-
-    def localizer(self, reference: Reference, radius: float, exact: bool = False) -> Localizer:
-        """The :class:`Localizer` of these settings over ``reference`` (described before ``precision`` applies)."""
-        loc = Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact)
-        half = precision_dtype(self.precision) if self.precision != "float32" else None
-        if half is not None:
-            reference.precision = half
-        for model in loc.models.values():
-            if half is not None:
-                model.to(half)
-            model.pack_taps()  # one window per frame: S_L as w products of contiguous blocks
-        return loc
 
 
 def dataset_localizer(ds: Dataset, models: Mapping[str, SeqNet], conf: LocalizeConfig) -> Localizer:
@@ -218,7 +143,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     correct, has = track_truth(ds, loc.ref_items, radius, best)
     summary = summarize(est, correct, has)
     record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
-                                             "rerank_seq_len": loc.match_len, "radius": radius,
+                                             "match_len": loc.match_len, "radius": radius,
                                              "model_seq_len": model_lengths(loaded)},
               "inputs": {"dataset": str(Path(dataset).resolve()), **_matrix_inputs(distances, reading),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},

@@ -6,12 +6,12 @@ import argparse
 import json
 from pathlib import Path
 
-from ..core.errors import ConfigError
-from . import COMMANDS
-from .common import add_allow_mismatch, positive_float
-from .dataset_foreign import add_positions_format, register_from_msls
-from .dataset_images import register_from_images
-from .dataset_resample import register_resample
+from ...core.errors import ConfigError
+from .. import COMMANDS
+from ..common import add_allow_mismatch, positive_float
+from .foreign import add_positions_format, register_from_msls
+from .images import register_from_images
+from .resample import register_resample
 
 PRESET_HELP = ("dataset preset (nordland, alias nordland-sw / nordland-sf; oxford-v1.0, oxford-pnv, brisbane, msls): "
                "radius, training radii, splits")
@@ -106,7 +106,7 @@ def _register_seqnet(dsub: argparse._SubParsersAction) -> None:
 def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | None:
     """``NAME=A:B`` (queries A:B, the whole reference) or ``NAME=A:B,C:D`` (reference A:B, queries C:D) items →
     splits (None when there are none)."""
-    from ..data.traverse import parse_range_spec
+    from ...data.traverse import parse_range_spec
 
     out: dict[str, dict[str, tuple[int, int]]] = {}
     for item in items:
@@ -119,8 +119,8 @@ def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | No
 
 
 def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
-    from ..data.io import save_dataset
-    from ..metrics.summary import summarize_dataset
+    from ...data.io import save_dataset
+    from ...metrics.summary import summarize_dataset
 
     save_dataset(ds, args.out, overwrite=args.overwrite)
     s = summarize_dataset(ds)
@@ -131,7 +131,7 @@ def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
 
 
 def _positives(args: argparse.Namespace):  # noqa: ANN202
-    from ..data.positives import read_positives
+    from ...data.positives import read_positives
 
     return read_positives(args.positives) if args.positives else None
 
@@ -143,8 +143,8 @@ def _extra(args: argparse.Namespace) -> dict:
 def run_from_csv(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..data.convert import assemble_dataset, traverse_from_csv
-    from ..data.gps import DEFAULT_MAX_GAP, check_zones, traverse_from_log
+    from ...data.convert import assemble_dataset, traverse_from_csv
+    from ...data.gps import DEFAULT_MAX_GAP, check_zones, traverse_from_log
 
     extra = _extra(args)
     if args.positions_format != "csv":
@@ -170,7 +170,7 @@ def run_from_utm(args: argparse.Namespace) -> int:
     import dataclasses
     from pathlib import Path
 
-    from ..data.convert import assemble_dataset, read_seq_bounds, traverse_from_utm_names
+    from ...data.convert import assemble_dataset, read_seq_bounds, traverse_from_utm_names
 
     sides = []
     for side, label in (("ref", "reference"), ("query", "query")):
@@ -186,8 +186,8 @@ def run_from_utm(args: argparse.Namespace) -> int:
 
 
 def run_from_seqnet(args: argparse.Namespace) -> int:
-    from ..data.readers import read_descriptor_file, read_names
-    from ..data.structfiles import dataset_from_frame_lists, dataset_from_structs, read_db_struct
+    from ...data.readers import read_descriptor_file, read_names
+    from ...data.structfiles import dataset_from_frame_lists, dataset_from_structs, read_db_struct
 
     ref = [read_descriptor_file(f)[0] for f in args.ref_desc]
     qry = [read_descriptor_file(f)[0] for f in args.query_desc]
@@ -208,8 +208,8 @@ def run_from_seqnet(args: argparse.Namespace) -> int:
 
 def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) -> tuple[dict | None, dict | None]:
     """The provenance of the reference and query descriptor files, checked to be one (unless ``allow``)."""
-    from ..core.provenance import check_same
-    from ..data.readers import read_provenance
+    from ...core.provenance import check_same
+    from ...data.readers import read_provenance
 
     records = [read_provenance(f) for f in (*ref_files, *query_files)]
     for f, rec in zip((*ref_files, *query_files), records, strict=True):
@@ -218,10 +218,10 @@ def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) 
 
 
 def run_check(args: argparse.Namespace) -> int:
-    from ..core.errors import DatasetError
-    from ..data.io import load_dataset, recorded_digests
-    from ..metrics.summary import summarize_dataset
-    from ..security.digests import changed_files
+    from ...core.errors import DatasetError
+    from ...data.io import load_dataset, recorded_digests
+    from ...metrics.summary import summarize_dataset
+    from ...security.digests import changed_files
 
     ds = load_dataset(args.dir)
     changed = changed_files(Path(args.dir), recorded_digests(args.dir), full=True)
@@ -265,7 +265,7 @@ def format_summary(s: dict) -> str:
 
 
 def run_presets(args: argparse.Namespace) -> int:
-    from ..data.presets import PRESETS, preset_summary
+    from ...data.presets import PRESETS, preset_summary
 
     if args.json:
         print(json.dumps(PRESETS, indent=2))

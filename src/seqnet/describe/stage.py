@@ -22,14 +22,14 @@ import h5py
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError, OutputError
+from ..core.log import logger
 from ..core.memory import HDF5_OVERHEAD, check_space
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
-from ..core.utils import logger
 from ..data.readers import read_descriptor_file
 from ..security.dirs import remove_dead_temps
 from ..security.files import temp_prefix
-from ..security.hdf5 import check_hdf5
+from ..security.hdf5file import check_hdf5
 from ..security.locks import locked
 from .config import DescribeConfig, fit_summary
 from .describer import Describer, Sink, describe_images, fit_paths_of, make_describer, run_batches

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import add_allow_mismatch, positive_float
+from ..common import add_allow_mismatch, positive_float
 
 POSITIONS_FORMATS = ("csv", "robotcar-ins", "kitti-oxts")  # seqnet.data.gps.POSITIONS_FORMATS (checked by a test)
 
@@ -53,7 +53,7 @@ def register_from_msls(dsub: argparse._SubParsersAction, finish) -> None:  # noq
 
 
 def run_from_msls(args: argparse.Namespace, finish) -> int:  # noqa: ANN001 - a function
-    from ..data.msls import dataset_from_msls
+    from ...data.msls import dataset_from_msls
 
     extra = {k: v for k, v in (("pos_radius", args.pos_radius), ("neg_radius", args.neg_radius)) if v}
     ds = dataset_from_msls(args.root, args.city, args.ref_desc, args.query_desc, args.ref_names, args.query_names,
