@@ -241,7 +241,7 @@ def test_from_images_needs_a_radius_unless_positives_imply_one(folder, tmp_path,
 
 @pytest.mark.parametrize("argv, pattern", [
     (["--method", "single", "--top-k", "5"], "--top-k is the HVPR shortlist size"),
-    (["--method", "single", "--rerank-seq-len", "3"], "--rerank-seq-len is the length L_m"),
+    (["--method", "single", "--rerank-seq-len", "3"], "--match-len is the length L_m"),
 ])
 def test_localize_refuses_options_of_other_methods(small_dir, capsys, tmp_path, argv, pattern):
     out = tmp_path / "t.csv"

@@ -158,10 +158,10 @@ def check_method_options(args: argparse.Namespace, methods: list[str] | None) ->
     parsed = [parse_method(n) for n in methods]
     uses = {"--top-k": any(m.kind == "hvpr" and not m.fused for m in parsed),
             "--fuse-weight": any(m.fused for m in parsed), "--fuse-top-k": any(m.fused for m in parsed),
-            "--rerank-seq-len": any(m.matcher for m in parsed)}
+            "--match-len": any(m.matcher for m in parsed)}
     why = {"--top-k": "the HVPR shortlist size (hvpr-fused takes --fuse-top-k)",
            "--fuse-weight": "hvpr-fused's weight", "--fuse-top-k": "hvpr-fused's shortlist size",
-           "--rerank-seq-len": "the length L_m of a sequence matcher (+seqmatch, +graph, hvpr ...)"}
+           "--match-len": "the length L_m of a sequence matcher (+seqmatch, +graph, hvpr ...)"}
     given = {flag: getattr(args, flag[2:].replace("-", "_"), None) for flag in uses}
     for flag, value in given.items():
         if value is not None and not uses[flag]:

@@ -42,8 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="methods to run (repeatable or comma-separated; default: those of "
                         f"{', '.join(DEFAULT_METHODS)} the given models allow)")
     p.add_argument("--seq-len", type=positive_int, help="window length L (default: the S_L model's, else 5)")
-    p.add_argument("--rerank-seq-len", type=positive_int,
-                   help="length L_m of SeqMatch and other sequence matchers (default: L)")
+    p.add_argument("--match-len", "--rerank-seq-len", dest="match_len", type=positive_int,
+                   help="length L_m of SeqMatch and other sequence matchers (default: L; --rerank-seq-len: its "
+                        "earlier name)")
     p.add_argument("--window", choices=WINDOW_MODES, help=f"window position (default {_D.window})")
     p.add_argument("--radius", type=positive_float, help="localisation radius (default: the dataset's)")
     p.add_argument("--extra-radius", type=positive_float, action="append", default=[],

@@ -34,7 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"re-ranking frames and matcher, frames one of {', '.join(FRAME_FEATURES)} "
                         f"(default {_D.rerank})")
     b.add_argument("--seq-len", type=positive_int, help="L (default: the S_L model's, else 5)")
-    b.add_argument("--rerank-seq-len", type=positive_int, help="L_m (default: L)")
+    b.add_argument("--match-len", "--rerank-seq-len", dest="match_len", type=positive_int,
+                   help="L_m (default: L; --rerank-seq-len: its earlier name)")
     b.add_argument("--window", choices=WINDOW_MODES, help=f"window position (default {_D.window})")
     b.add_argument("--index", dest="kind", metavar="KIND",
                    help=f"index over the shortlist descriptors: {', '.join(ANN_INDEXES)} (default {_A.kind}: exact "

@@ -62,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--shortlist-model", metavar="CKPT", help="S_L checkpoint (seqnet, HVPR shortlists)")
     p.add_argument("--rerank-model", metavar="CKPT", help="S_1 checkpoint (s1, s1+<matcher>, HVPR re-ranking)")
     p.add_argument("--seq-len", type=positive_int, help="window length L (default: the S_L model's, else 5)")
-    p.add_argument("--rerank-seq-len", type=positive_int, help="length L_m of the sequence matchers (default: L)")
+    p.add_argument("--match-len", "--rerank-seq-len", dest="match_len", type=positive_int,
+                   help="length L_m of the sequence matchers (default: L; --rerank-seq-len: its earlier name)")
     p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
     p.add_argument("--k", type=positive_int, help=f"references ranked per frame, for the confidence (default {_D.k})")
     p.add_argument("--anchor", choices=ANCHORS, help=f"pivot step of vseqmatch / graph (default {_D.anchor}: the "
