@@ -12,7 +12,7 @@ from seqnet.cli import main as cli
 from seqnet.core.errors import ConfigError
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.eval.matrix import evaluate_matrix
-from seqnet.reference.matrix import MATRIX_METHODS
+from seqnet.reference.matrix import matrix_methods
 
 METHODS = ("single", "raw+seqmatch", "raw+seqmatch-rev", "raw+vseqmatch", "raw+vseqmatch-rev", "raw+graph",
            "hvpr-single:raw+seqmatch", "hvpr-single:raw+seqmatch-rev")
@@ -59,7 +59,7 @@ def test_methods_that_need_descriptors_are_refused(synth_dataset):
     for name in ("smoothing", "raw+grh", "hvpr-delta:raw+seqmatch", "hvpr-single:raw+graph", "s1+seqmatch"):
         with pytest.raises(ConfigError, match="needs descriptors; on a distance matrix: single, raw"):
             evaluate_matrix(ds, distances(ds), EvalConfig(methods=(name,), seq_len=4))
-    assert "hvpr-single:raw+seqmatch" in MATRIX_METHODS
+    assert "hvpr-single:raw+seqmatch" in matrix_methods()
 
 
 def test_cli_distances_and_similarities(synth_dataset, synth_dir, tmp_path, capsys):

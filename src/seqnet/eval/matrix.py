@@ -23,7 +23,7 @@ from ..core.stage import Written
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
 from ..methods.grammar import Method, parse_method
-from ..reference.matrix import MATRIX_METHODS, MatrixQuery, MatrixReference
+from ..reference.matrix import MatrixQuery, MatrixReference, matrix_methods
 from ..security.arrays import read_npy
 from ..security.digests import file_digest
 from ..sequence.windows import Windows
@@ -188,7 +188,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
     out = merge([_matrix_group(ds, d, ms, w, conf) for w, ms in
                  method_windows(methods, conf.windows, conf.common_queries).items()], conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": "cpu", "models": {},
-                             "matrix_methods": list(MATRIX_METHODS)}
+                             "matrix_methods": list(matrix_methods())}
     out.frame_names = (ds.query.names, ds.reference.names)
     out.dataset, out.matrix = ds, dist  # for the report: the evaluated frames and their given distances
     out.results["matrix_check"] = orientation_check(ds, dist, similarity, transposed)

@@ -55,7 +55,7 @@ class SequenceMatcher:
     window: Callable[..., torch.Tensor] | None = None  # the online form: dist [L, Nr] of one window -> [Nr - L + 1]
     diagonal: bool = False  # one trajectory of slope 1 (or -1): scores are sums along a frame-distance diagonal
     reverse: bool = False  # the reference traversed backwards
-    on_matrix: bool = True  # runs on a given frame-distance matrix alone (eval / localize --distances)
+    on_matrix: bool = False  # topk also takes a FrameDistances (a given distance matrix) as its query: --distances
 
     @property
     def online(self) -> bool:
@@ -73,24 +73,27 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
     m.name: m
     for m in (
         SequenceMatcher("seqmatch", "SeqMatch: summed distances of aligned frames (same speed, same direction)",
-                        seqmatch_topk, window_scores, window=seqmatch_window, diagonal=True),
+                        seqmatch_topk, window_scores, window=seqmatch_window, diagonal=True, on_matrix=True),
         SequenceMatcher("seqmatch-rev", "SeqMatch with the reference traversed backwards (reverse direction)",
                         functools.partial(seqmatch_topk, reverse=True), functools.partial(window_scores, reverse=True),
-                        window=functools.partial(seqmatch_window, reverse=True), diagonal=True, reverse=True),
+                        window=functools.partial(seqmatch_window, reverse=True), diagonal=True, reverse=True,
+                        on_matrix=True),
         SequenceMatcher("vseqmatch", "SeqMatch over trajectories of several slopes (0.5-2 reference frames per query "
                         "frame), the best one wins", velocity_topk, velocity_pairs, anchored=True,
-                        window=vseqmatch_window),
+                        window=vseqmatch_window, on_matrix=True),
         SequenceMatcher("vseqmatch-rev", "velocity-robust SeqMatch with the reference traversed backwards",
                         functools.partial(velocity_topk, reverse=True),
                         functools.partial(velocity_pairs, reverse=True), anchored=True,
-                        window=functools.partial(vseqmatch_window, reverse=True), reverse=True),
+                        window=functools.partial(vseqmatch_window, reverse=True), reverse=True,
+                        on_matrix=True),
         SequenceMatcher("graph", "GISM-style graph matching: cheapest path with reference steps 0..2 per query frame "
-                        "(stops and speed changes)", graph_topk, graph_pairs, anchored=True, window=graph_window),
+                        "(stops and speed changes)", graph_topk, graph_pairs, anchored=True, window=graph_window,
+                        on_matrix=True),
         SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
-                        grh_topk, grh_pairs, anchored=True, on_matrix=False),
+                        grh_topk, grh_pairs, anchored=True),
         SequenceMatcher("grh-dh", "GRH-style graph matching: paths start near Hamming candidates of learned binary "
                         "codes (a hashing network trained on the reference frames)",
                         functools.partial(grh_topk, codes="dh"), functools.partial(grh_pairs, codes="dh"),
-                        anchored=True, on_matrix=False),
+                        anchored=True),
     )
 }

@@ -6,7 +6,7 @@ row, SeqMatch re-ranks candidates from its diagonals (:func:`seqnet.matching.pai
 and HVPR shortlists and re-ranks from the same matrix (``shared_distances``); whole-map matching runs each
 matcher's block function on blocks of its rows (:class:`seqnet.matching.velocity.FrameDistances`; SeqMatch
 as the slope-1 trajectory).
-The methods are the ones that read single-frame distances (:data:`MATRIX_METHODS`); anything that
+The methods are the ones that read single-frame distances (:func:`matrix_methods`); anything that
 needs descriptors (sequence descriptors, models, GRH's LSH codes) is refused.
 
 Query frames are given as their row numbers (``[M, 1]``): the whole query offline, the frames of the
@@ -29,10 +29,13 @@ from ..sequence.windows import Windows
 
 torch = lazy_module("torch")
 
-WHOLE_MAP_MATCHERS = tuple(n for n, m in SEQUENCE_MATCHERS.items() if m.on_matrix)  # over the whole matrix
-DIAGONAL_MATCHERS = tuple(n for n, m in SEQUENCE_MATCHERS.items() if m.diagonal)  # HVPR re-ranking from the rows
-MATRIX_METHODS = ("single", *(f"raw+{m}" for m in WHOLE_MAP_MATCHERS), "hvpr-single:raw+seqmatch",
-                  "hvpr-single:raw+seqmatch-rev")
+
+
+def matrix_methods() -> tuple[str, ...]:
+    """The methods that run on a distance matrix, read off the matcher table: ``single``, ``raw+<m>`` for every
+    matcher whose whole-map form takes the matrix (``on_matrix``), HVPR re-ranking with a diagonal one."""
+    return ("single", *(f"raw+{n}" for n, m in SEQUENCE_MATCHERS.items() if m.on_matrix),
+            *(f"hvpr-single:raw+{n}" for n, m in SEQUENCE_MATCHERS.items() if m.diagonal))
 
 
 def frame_indices(n: int) -> torch.Tensor:
@@ -75,11 +78,13 @@ class MatrixReference:
 
     def check_method(self, m: Method) -> None:
         """Only methods that read single-frame distances run on a matrix."""
-        matchers = WHOLE_MAP_MATCHERS if m.kind == "match" else DIAGONAL_MATCHERS
-        ok = (m.shortlist in (None, "single") and m.frames in (None, "raw") and not m.fused
-              and (m.matcher is None or m.matcher in matchers) and m.models() == set())
+        spec = SEQUENCE_MATCHERS.get(m.matcher) if m.matcher else None
+        fits = spec is None or (spec.on_matrix if m.kind == "match" else spec.diagonal)
+        ok = (m.shortlist in (None, "single") and m.frames in (None, "raw") and not m.fused and fits
+              and m.models() == set())
         if not ok:
-            raise ConfigError(f"method {m.name!r} needs descriptors; on a distance matrix: {', '.join(MATRIX_METHODS)}")
+            raise ConfigError(f"method {m.name!r} needs descriptors; on a distance matrix: "
+                              f"{', '.join(matrix_methods())}")
 
     def prepare(self, m: Method) -> float:
         return 0.0
