@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from seqnet.core import memmaps
+from seqnet.core import memmaps, npy
 from seqnet.core.errors import ConfigError, ResourceError
 from seqnet.core.memmaps import Spilled, SpillWriter, read_rows, release, streamed, take_rows
 
@@ -139,7 +139,7 @@ def test_a_streamed_array_is_saved_in_blocks_as_numpy_saves_it(mapped, tmp_path,
     writer.write(x)
     for arr, name in ((mm, "mapped"), (writer.finish(), "spilled")):
         with open(tmp_path / f"{name}.npy", "wb") as f:
-            memmaps.write_npy(f, arr)
+            npy.write_npy(f, arr)
         np.save(tmp_path / "ref.npy", x)
         assert (tmp_path / f"{name}.npy").read_bytes() == (tmp_path / "ref.npy").read_bytes(), name
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 import mmap
 import os
 import tempfile
-from typing import BinaryIO
 
 import numpy as np
 
@@ -101,18 +100,6 @@ def take_rows(x: np.ndarray, idx: np.ndarray, spill: bool = False) -> np.ndarray
         part = order[s : s + step]
         out[part] = _run(x, idx[part])
     return out
-
-
-def write_npy(f: BinaryIO, x: np.ndarray) -> None:
-    """Write ``x`` to the open binary file ``f`` in ``.npy`` format (the bytes ``np.save`` writes); a streamed
-    C-contiguous ``x [N, ...]`` (e.g. a spill) in blocks of rows, its pages released after each."""
-    if not (streamed(x) and x.ndim >= 1 and x.flags.c_contiguous):
-        np.save(f, x)
-        return
-    np.lib.format.write_array_header_1_0(f, np.lib.format.header_data_from_array_1_0(x))
-    step = max(1, TAKE_BYTES // max(1, x[:1].nbytes))
-    for a in range(0, len(x), step):
-        f.write(read_rows(x, a, a + step).data)
 
 
 def _run(x: np.ndarray, idx: np.ndarray) -> np.ndarray:

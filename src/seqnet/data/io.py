@@ -15,7 +15,7 @@ import numpy as np
 
 from ..core.errors import DatasetError, OutputError
 from ..core.log import logger
-from ..core.memmaps import write_npy
+from ..core.npy import write_npy
 from ..security.arrays import read_npz
 from ..security.digests import changed_files, file_digest
 from ..security.dirs import read_consistent, recover_dir, write_dir

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, OutputError
 from ..core.memory import HDF5_OVERHEAD, check_space
+from ..core.npy import write_npy_rows
 from ..core.provenance import BOUND_KEY, MAX_SIDECAR, REPLACES_KEY
 from ..core.provenance import sidecar as provenance_sidecar
 from ..security.digests import file_digest
@@ -85,8 +86,7 @@ def _write_npy(out: Path, shape: tuple[int, int], blocks: Iterable[np.ndarray], 
     previous = replaced_record(out)
     with atomic_path(out) as tmp:  # the descriptors renamed last: the old output stays whole until then
         with open(tmp, "wb") as f:
-            np.lib.format.write_array_header_1_0(f, {"descr": "<f4", "fortran_order": False, "shape": tuple(shape)})
-            _copy(blocks, shape, lambda a, block: f.write(block.tobytes()))
+            write_npy_rows(f, shape, "<f4", blocks, "descriptor")
         record = {**prov, BOUND_KEY: {"descriptors": file_digest(tmp), "names": names}}
         write_json_atomic(provenance_sidecar(out), {**record, REPLACES_KEY: previous} if previous else record)
     write_text_atomic(names_file_for(out), "\n".join(names) + "\n")

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +30,7 @@ from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.memmaps import read_rows
+from ..core.npy import write_npy_rows
 from ..core.tensors import ArrayLike, to_numpy
 from ..search.ann import build_index, save_index
 from ..security.arrays import read_npy
@@ -98,17 +99,19 @@ class MapArrays:
 
 def save_array(path: Path, array: ArrayLike, dtype: str, name: str) -> Path:
     """Write ``array`` as ``.npy`` of ``dtype`` in row chunks (memory-bounded; NaN or inf is an error)."""
-    shape, dt = tuple(array.shape), np.dtype(dtype)
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:  # write() calls: a full disk is ENOSPC, not SIGBUS
-        np.lib.format.write_array_header_1_0(f, {"descr": np.lib.format.dtype_to_descr(dt), "fortran_order": False,
-                                                 "shape": shape})
+    shape = tuple(array.shape)
+
+    def blocks() -> Iterator[np.ndarray]:
         step = max(1, CHUNK_BYTES // max(1, 4 * int(np.prod(shape[1:]))))
         for a in range(0, shape[0], step):
             part = array[a : a + step] if isinstance(array, torch.Tensor) else read_rows(array, a, a + step)
             block = np.asarray(to_numpy(part), dtype=np.float32)
             if not np.isfinite(block).all():
                 raise ConfigError(f"{name} descriptors hold NaN or inf (rows {a}..{a + len(block) - 1})")
-            f.write(np.ascontiguousarray(block, dtype=dt).data)
+            yield block
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        write_npy_rows(f, shape, dtype, blocks(), name)
     return path
 
 

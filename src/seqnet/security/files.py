@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, OutputError, ResourceError, SeqnetError
+from ..core.npy import write_npy
 
 
 @contextlib.contextmanager
@@ -102,7 +103,7 @@ def save_npy_atomic(path: str | os.PathLike[str], array: np.ndarray) -> Path:
     """Save ``array`` as ``.npy`` atomically."""
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
-            np.save(f, array)
+            write_npy(f, array)
     return Path(path)
 
 
