@@ -242,7 +242,7 @@ def run_check(args: argparse.Namespace) -> int:
 
 
 def format_summary(s: dict) -> str:
-    """Human-readable lines of a :func:`seqnet.convert.summarize_dataset` summary."""
+    """Human-readable lines of a :func:`seqnet.data.convert.summarize_dataset` summary."""
     lines = [f"dataset {s['name']}: radius {s['radius']:g} {s['position_unit']}; ground truth: {s['ground_truth']}"]
     for side in ("reference", "query"):
         t = s[side]
