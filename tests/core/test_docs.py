@@ -29,7 +29,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 SRC = REPO / "src"
 PKG = SRC / "seqnet"
-DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+README = REPO / "README.md"
+DOCS = [README, *sorted((REPO / "docs").glob("*.md"))]
 SOURCES = [*sorted(PKG.rglob("*.py")), *sorted((REPO / "benchmarks").glob("*.py"))]
 SHELLS = {"bash", "sh", "shell", "console"}
 # Command lines of the docs that cannot parse as written, each with the reason (keep this tiny: fix the docs first).
@@ -43,7 +44,8 @@ EXTERNAL_PATHS = {
 FILE_SUFFIXES = {"pt", "pth", "py", "json", "npy", "npz", "h5", "csv", "txt", "log", "html", "png", "db", "mat"}
 DOTTED = re.compile(r"(?<![\w./-])seqnet(?:\.[A-Za-z_]\w*)+")
 RELATIVE = re.compile(r":(?:mod|func|class|meth|attr|data|obj|exc):`~?(\.+[A-Za-z_][\w.]*)`")
-PY_PATH = re.compile(r"(?<![\w/.:-])((?:[\w.-]+/)+[\w-]+\.py)(?![\w/])")
+# ``dir/file.py`` (.md, .sh) paths; those under out/, OUT/, RUN/, ... are what a command writes, not repository files
+PY_PATH = re.compile(r"(?<![\w/.:-])((?!(?:out|OUT|RUN|MAP|DIR|runs|data)/)(?:[\w.-]+/)+[\w-]+\.(?:py|md|sh))(?![\w/])")
 MD_LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
@@ -138,7 +140,8 @@ def class_has(module: str, cls: ast.ClassDef, attr: str) -> bool:
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.name == attr:
             return True
         if isinstance(node, (ast.Assign, ast.AnnAssign)) and (attr in targets(node) or any(
-                isinstance(t, ast.Attribute) and t.attr == attr for t in getattr(node, "targets", [node.target]))):
+                isinstance(t, ast.Attribute) and t.attr == attr
+                for t in (node.targets if isinstance(node, ast.Assign) else [node.target]))):
             return True
     return any(resolves(module, [ast.unparse(b), attr]) for b in cls.bases if ast.unparse(b) != "object")
 
@@ -177,7 +180,9 @@ def relative_target(path: Path, ref: str) -> str:
 
 # ---- 1. names and paths ---------------------------------------------------------------------------------------------
 def test_named_modules_and_names_exist():
-    stale = [f"{rel(p)}:{line}: {name}" for p, line, name in mentions(DOTTED)
+    named = list(mentions(DOTTED))
+    assert len(named) > 100, f"only {len(named)} seqnet.x names found: is the scanner broken?"
+    stale = [f"{rel(p)}:{line}: {name}" for p, line, name in named
              if not exists(name) and name.split(".")[-1] not in FILE_SUFFIXES]
     stale += [f"{rel(p)}:{line}: {ref} (= {relative_target(p, ref)})" for p, line, ref in mentions(RELATIVE)
               if p.suffix == ".py" and PKG in p.parents and not exists(relative_target(p, ref))]
@@ -190,7 +195,10 @@ def path_exists(doc: Path, ref: str) -> bool:
 
 
 def test_named_files_exist():
-    stale = [f"{rel(p)}:{line}: {ref}" for p, line, ref in mentions(PY_PATH)
+    named = list(mentions(PY_PATH))
+    assert len(named) > 10, f"only {len(named)} file paths found: is the scanner broken?"
+    assert set(EXTERNAL_PATHS) <= {ref for _, _, ref in named}, "EXTERNAL_PATHS names a path the docs no longer hold"
+    stale = [f"{rel(p)}:{line}: {ref}" for p, line, ref in named
              if not path_exists(p, ref) and ref not in EXTERNAL_PATHS]
     for doc in DOCS:
         for i, text in enumerate(doc.read_text(encoding="utf-8").splitlines(), 1):
@@ -295,15 +303,31 @@ def test_command_blocks_are_labelled():
         "\n".join(found)
 
 
+def test_python_blocks_compile_and_import():
+    """Every ```python block of the docs is Python, and what it imports from seqnet exists."""
+    stale = []
+    for doc in DOCS:
+        for start, _, body in blocks(doc, {"python"}):
+            try:
+                tree = ast.parse(body)
+            except SyntaxError as e:
+                stale.append(f"{rel(doc)}:{start + (e.lineno or 1) - 1}: {e.msg}")
+                continue
+            stale += [f"{rel(doc)}:{start + node.lineno - 1}: from {node.module} import {a.name}"
+                      for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.level == 0
+                      and (node.module or "").split(".")[0] == "seqnet" for a in node.names
+                      if not exists(f"{node.module}.{a.name}")]
+    assert not stale, "python blocks of the docs that do not compile or import what seqnet lacks:\n" + \
+        "\n".join(stale)
+
+
 # ---- 3. the README's Quick start, run --------------------------------------------------------------------------------
 def quick_start() -> tuple[list[tuple[int, str, list[str]]], list[str]]:
     """The seqnet calls and the Python snippets of the README's "Quick start" section."""
-    text = DOCS[0].read_text(encoding="utf-8")
-    section = re.search(r"^## Quick start\n(.*?)(?=^## )", text, re.M | re.S)
+    section = re.search(r"^## Quick start\n(.*?)(?=^## )", README.read_text(encoding="utf-8"), re.M | re.S)
     assert section, "README.md has no '## Quick start' section"
-    part = Path(DOCS[0].parent / "README.md")
-    calls = [c for c in command_lines(part) if c[1] in section.group(1)]
-    snippets = [body for _, _, body in blocks(part, {"python"}) if body in section.group(1)]
+    calls = [c for c in command_lines(README) if c[1] in section.group(1)]
+    snippets = [body for _, _, body in blocks(README, {"python"}) if body in section.group(1)]
     assert calls and snippets, "the Quick start holds no seqnet command or no Python snippet"
     return calls, snippets
 
@@ -313,9 +337,8 @@ def stand_in_model(cwd: Path, args) -> None:  # noqa: ANN001 - the parsed `seqne
     the synthetic dataset: 160 s on 2 cores), so the test checks its command line and the later commands run on this."""
     import torch
 
-    from seqnet.data.io import load_dataset
+    from seqnet import SeqNet, load_dataset
     from seqnet.sequence.checkpoints import save_checkpoint
-    from seqnet.sequence.model import SeqNet
 
     ds = load_dataset(cwd / args.dataset)
     torch.manual_seed(0)
@@ -327,14 +350,16 @@ def stand_in_model(cwd: Path, args) -> None:  # noqa: ANN001 - the parsed `seqne
 
 def test_quick_start_runs(tmp_path):
     calls, snippets = quick_start()
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")])}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(SRC), os.environ.get("PYTHONPATH")]))}
     for line, text, argv in calls:
+        args = parse(argv)
         if argv[0] == "train":
-            stand_in_model(tmp_path, parse(argv))
+            stand_in_model(tmp_path, args)
             continue
         done = subprocess.run([sys.executable, "-m", "seqnet", *argv], cwd=tmp_path, env=env, capture_output=True,
                               text=True, timeout=120)
         assert done.returncode == 0, f"README.md:{line}: {text}\n{done.stderr[-2000:]}"
+        assert not getattr(args, "out", None) or (tmp_path / args.out).exists(), f"README.md:{line}: no {args.out}"
     for code in snippets:
         done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
                               timeout=120)
