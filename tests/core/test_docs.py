@@ -2,9 +2,12 @@
 
 * every ``seqnet.x.y`` (and relative ``:mod:`.x```) named in the docs, in docstrings and comments of src/seqnet and
   benchmarks/ is a module of the source tree or a name defined in one (read from the modules' syntax trees, nothing
-  imported), and every ``dir/file.py`` path and markdown link they name is a file of the repository;
-* every ``seqnet ...`` line of a ```bash / ```sh / ```console block of the docs parses with seqnet's own parser;
-* the README's Quick start runs as written on the synthetic dataset it makes (its Python snippet too).
+  imported), and every ``dir/file.py`` (.md, .sh) path and markdown link they name is a file of the repository;
+* every ``seqnet ...`` call of a ```bash / ```sh / ```console block of the docs parses with seqnet's own parser
+  (nothing run; shell variables set in the block filled in), and no unlabelled block holds one;
+* every ```python block compiles and imports only what seqnet defines;
+* the README's Quick start runs as written on the synthetic dataset it makes, its Python snippet too (``seqnet train``
+  only parsed: an untrained model of the same shape stands in for what it would write).
 
 Everything is derived from the tree, so a module moved or renamed without its docs fails here, naming file:line.
 """
@@ -41,11 +44,13 @@ EXTERNAL_PATHS = {
     "datasets/msls.py": "src/seqnet/data/msls.py: a file of mapillary/mapillary_sls, whose layout it reads",
 }
 
-FILE_SUFFIXES = {"pt", "pth", "py", "json", "npy", "npz", "h5", "csv", "txt", "log", "html", "png", "db", "mat"}
+FILE_SUFFIXES = {  # ``seqnet.pt`` is a file name, not a module
+    "pt", "pth", "py", "json", "npy", "npz", "h5", "csv", "txt", "log", "html", "png", "db", "mat"}
 DOTTED = re.compile(r"(?<![\w./-])seqnet(?:\.[A-Za-z_]\w*)+")
 RELATIVE = re.compile(r":(?:mod|func|class|meth|attr|data|obj|exc):`~?(\.+[A-Za-z_][\w.]*)`")
 # ``dir/file.py`` (.md, .sh) paths; those under out/, OUT/, RUN/, ... are what a command writes, not repository files
-PY_PATH = re.compile(r"(?<![\w/.:-])((?!(?:out|OUT|RUN|MAP|DIR|runs|data)/)(?:[\w.-]+/)+[\w-]+\.(?:py|md|sh))(?![\w/])")
+OUTPUTS = "out|OUT|RUN|MAP|DIR|runs|data"
+FILE_PATH = re.compile(rf"(?<![\w/.:-])((?!(?:{OUTPUTS})/)(?:[\w.-]+/)+[\w-]+\.(?:py|md|sh))(?![\w/])")
 MD_LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
@@ -121,7 +126,9 @@ def namespace(module: str) -> dict[str, object]:
             names.update(dict.fromkeys(targets(node)))
         elif isinstance(node, ast.ImportFrom):
             src = absolute(module, path.name == "__init__.py", node.level, node.module) if node.level else node.module
-            names.update({a.asname or a.name: ("from", src, a.name) for a in node.names})
+            names.update({a.asname or a.name: ("from", src, a.name) for a in node.names if a.name != "*"})
+            if any(a.name == "*" for a in node.names) and src in MODULES:
+                names.update({k: v for k, v in namespace(src).items() if not k.startswith("_")})
         elif isinstance(node, ast.Import):
             names.update({(a.asname or a.name).split(".")[0]: ("from", a.name, None) for a in node.names})
     if "__getattr__" in names:  # PEP 562: the names it answers are string constants in it or keys of a table
@@ -195,7 +202,7 @@ def path_exists(doc: Path, ref: str) -> bool:
 
 
 def test_named_files_exist():
-    named = list(mentions(PY_PATH))
+    named = list(mentions(FILE_PATH))
     assert len(named) > 10, f"only {len(named)} file paths found: is the scanner broken?"
     assert set(EXTERNAL_PATHS) <= {ref for _, _, ref in named}, "EXTERNAL_PATHS names a path the docs no longer hold"
     stale = [f"{rel(p)}:{line}: {ref}" for p, line, ref in named
@@ -266,8 +273,8 @@ def command_lines(doc: Path) -> Iterator[tuple[int, str, list[str]]]:
 
 
 def parse(argv: list[str]):  # noqa: ANN201 - argparse.Namespace, or the usage error
+    from seqnet import SeqnetError
     from seqnet.cli import build_parser
-    from seqnet.core.errors import SeqnetError
 
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
@@ -353,6 +360,7 @@ def test_quick_start_runs(tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(SRC), os.environ.get("PYTHONPATH")]))}
     for line, text, argv in calls:
         args = parse(argv)
+        assert not isinstance(args, (Exception, str)), f"README.md:{line}: {text}\n    {args}"
         if argv[0] == "train":
             stand_in_model(tmp_path, args)
             continue
