@@ -48,8 +48,9 @@ FILE_SUFFIXES = {  # ``seqnet.pt`` is a file name, not a module
     "pt", "pth", "py", "json", "npy", "npz", "h5", "csv", "txt", "log", "html", "png", "db", "mat"}
 DOTTED = re.compile(r"(?<![\w./-])seqnet(?:\.[A-Za-z_]\w*)+")
 RELATIVE = re.compile(r":(?:mod|func|class|meth|attr|data|obj|exc):`~?(\.+[A-Za-z_][\w.]*)`")
-# ``dir/file.py`` (.md, .sh) paths; those under out/, OUT/, RUN/, ... are what a command writes, not repository files
-OUTPUTS = "out|OUT|RUN|MAP|DIR|runs|data"
+# ``dir/file.py`` (.md, .sh) paths; those under out/, OUT/, RUN/, ... are what a command writes, and ../ is outside the
+# repository (../shared/: data beside it, absent in CI), so neither is a repository file
+OUTPUTS = r"out|OUT|RUN|MAP|DIR|runs|data|\.\."
 FILE_PATH = re.compile(rf"(?<![\w/.:-])((?!(?:{OUTPUTS})/)(?:[\w.-]+/)+[\w-]+\.(?:py|md|sh))(?![\w/])")
 MD_LINK = re.compile(r"\]\(([^)\s]+)\)")
 
