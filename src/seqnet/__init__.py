@@ -50,7 +50,7 @@ __all__ = ["__version__", *_API]
 
 
 def __getattr__(name: str) -> Any:
-    """``seqnet.X`` (and ``from seqnet import X``): import X's module when X is first asked for."""
+    """``seqnet.<name>`` (and ``from seqnet import <name>``): import its module when it is first asked for."""
     if name in _API:
         value = getattr(importlib.import_module(_API[name], __name__), name)
         globals()[name] = value

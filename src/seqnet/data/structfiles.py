@@ -95,7 +95,7 @@ def _utm(v: np.ndarray, n: int, field: str, path: Path) -> np.ndarray:
 
 
 def read_db_struct(path: str | Path) -> DbStruct:
-    """Parse a SeqNet ``.db`` file (checked, then read in a child: :mod:`.sandboxed`);
+    """Parse a SeqNet ``.db`` file (checked, then read in a child: :mod:`seqnet.security.matlab`);
     :class:`DatasetError` names a missing or malformed field."""
     p = Path(path)
     if not p.exists():

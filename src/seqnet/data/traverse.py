@@ -6,7 +6,7 @@ sequence bounds ``[N, 2]`` (for each image, the half-open frame range ``[start, 
 sequence it belongs to). A *dataset* pairs a reference and a query traverse with a localisation
 radius and optional train/val/test index ranges.
 
-Directory format (read and written by :mod:`seqnet.dataset_io`; see docs/dataset_format.md)::
+Directory format (read and written by :mod:`seqnet.data.io`; see docs/dataset_format.md)::
 
     DIR/dataset.json            {"format": "seqnet-dataset/1", "radius": 1.0, ...}
     DIR/reference/descriptors.npy | descriptors.h5   [N, D] float32 (h5: dataset "descriptors")

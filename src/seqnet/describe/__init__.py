@@ -1,7 +1,7 @@
 """Single-image descriptors of image folders: pixels, GeM, GMP and NetVLAD, with optional PCA.
 
 Pipeline: list images (:mod:`.images`) → :class:`DescribeConfig` (:mod:`.config`) → a method of the
-:data:`DESCRIBERS` table (:mod:`.methods`; CNN backbones in :mod:`.cnn`, NetVLAD in :mod:`.netvlad`,
+:data:`DESCRIBERS` table (:mod:`.registry`; CNN backbones in :mod:`.cnn`, NetVLAD in :mod:`.netvlad`,
 pixels in :mod:`.pixels`) → a fitted :class:`Describer` (:mod:`.describer`, PCA in :mod:`.pca`,
 fitted-state files in :mod:`.state`) → resumable file output and the stage :func:`main` (:mod:`.store`)::
 

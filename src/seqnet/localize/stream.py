@@ -1,7 +1,7 @@
 """``seqnet localize --map MAP --query DESCRIPTORS_OR_IMAGES``: localise new data frame by frame.
 
 The map is what :func:`load_reference` returns: an index map (``seqnet index build --window causal``;
-:mod:`seqnet.localize.index`: its stored descriptors and ANN index are used), or a seqnet dataset
+:mod:`seqnet.maps`: its stored descriptors and ANN index are used), or a seqnet dataset
 directory whose reference traverse (optionally one split) is the map. The query is either a
 descriptor file (``.npy`` with its provenance sidecar, ``.h5``), a folder / list file of images, or a ROS
 bag's image topic (frames in timestamp order, named by their timestamp), described one by one as they are

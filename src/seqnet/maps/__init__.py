@@ -4,8 +4,9 @@ A map directory holds the shortlist descriptors of every reference item with an 
 them, the frame descriptors used for re-ranking (memory-mapped at use, float32 or float16), the
 items' frames and window starts, positions and names, the models, the resolved
 :class:`MapConfig` and the provenance of the descriptors (queries of another provenance or D are
-refused). Modules: :mod:`.config`, :mod:`.store` (writing), :mod:`.build` (from a dataset),
-:mod:`.map` / :mod:`.load` (the :class:`Map` API), :mod:`.rerank`, :mod:`.evaluate`.
+refused). Modules: :mod:`.config`, :mod:`.store` (writing), :mod:`.build` (from a dataset), :mod:`.shards`
+(an IVF index built in shards), :mod:`.map` / :mod:`.load` (the :class:`Map` API, re-ranking included),
+:mod:`.evaluate` (``seqnet eval --index``).
 """
 
 from .build import build

@@ -51,7 +51,7 @@ def seqmatch(
             (``-1`` = no candidate, scored ``inf``).
         reverse: pair ``query[a+t]`` with ``ref[b+L−1−t]``.
         device: computation device (default: CUDA when available, else CPU).
-        block_bytes: memory budget per block (default 512 MiB).
+        block_bytes: memory budget per block (default 64 MiB, :data:`seqnet.search.knn.DEFAULT_BLOCK_BYTES`).
         chunk_bytes: see :func:`full_blocks` (CPU tuning knob; default whole-block passes).
 
     Returns:

@@ -5,7 +5,7 @@
 * :class:`seqnet.maps.Map`: a prepared map on disk, searched through its ANN index.
 
 Evaluation (:func:`seqnet.eval.evaluate.run`), HVPR (:func:`seqnet.methods.rank.rank`) and the
-localiser (:class:`seqnet.localize.Localizer`) are written once against it.
+localiser (:class:`seqnet.localize.localizer.Localizer`) are written once against it.
 """
 
 from ..methods.protocol import Reference

@@ -242,7 +242,8 @@ def knn(query: ArrayLike, ref: ArrayLike, k: int, backend: str = "torch", metric
             ``"faiss"`` (flat index).
         metric: ``"l2"`` (ascending Euclidean distance) or ``"ip"`` (descending inner product).
         device: torch device (torch backend).
-        block_bytes: memory budget of one block of distances (torch backend; default 512 MiB).
+        block_bytes: memory budget of one block of distances (torch backend; default 64 MiB,
+            :data:`DEFAULT_BLOCK_BYTES`).
 
     Returns:
         ``(scores [Nq, k], indices [Nq, k])`` as numpy, best first.
