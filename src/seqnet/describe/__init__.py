@@ -3,7 +3,7 @@
 Pipeline: list images (:mod:`.images`) → :class:`DescribeConfig` (:mod:`.config`) → a method of the
 :data:`DESCRIBERS` table (:mod:`.registry`; CNN backbones in :mod:`.cnn`, NetVLAD in :mod:`.netvlad`,
 pixels in :mod:`.pixels`) → a fitted :class:`Describer` (:mod:`.describer`, PCA in :mod:`.pca`,
-fitted-state files in :mod:`.state`) → resumable file output and the stage :func:`main` (:mod:`.store`)::
+fitted-state files in :mod:`.state`) → resumable file output and the stage :func:`main` (:mod:`.stage`)::
 
     conf = DescribeConfig(method="gem", size=(256, 128))
     desc, names = describe_images(paths, conf)                          # in memory, [N, D] float32

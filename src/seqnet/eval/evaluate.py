@@ -54,10 +54,10 @@ class EvalConfig(WindowSettings, Config):
         radius: localisation radius (None: the dataset's); a retrieved reference is correct within it (≤).
         extra_radii: further radii to report.
         ks: the K of Recall@K; recall_denominator: ``positives`` (queries with a correct reference, the
-            original code's) or ``all`` (every evaluated query): :data:`.metrics.recall.RECALL_DENOMINATORS`.
+            original code's) or ``all`` (every evaluated query): :data:`seqnet.metrics.recall.RECALL_DENOMINATORS`.
         top_k: HVPR shortlist size K.
         fuse_weight, fuse_top_k: λ of the fused score and shortlist size K of ``hvpr-fused``
-            (defaults :data:`.methods.FUSE_WEIGHT`, :data:`.methods.FUSED_TOP_K`).
+            (defaults :data:`seqnet.methods.grammar.FUSE_WEIGHT`, :data:`seqnet.methods.grammar.FUSED_TOP_K`).
         split: the split evaluated by :func:`main` (None: test when defined, else all).
         resample_every, resample_side: keep every N-th frame (recorded order) of the query, reference or both
             sides of the evaluated split (:func:`seqnet.data.resample.resample_dataset`; None: all frames).
