@@ -48,8 +48,8 @@ async def read_limited(chunks: AsyncIterator[bytes], declared: str | None, limit
     if declared is not None:
         try:
             size = int(declared)
-        except ValueError:
-            raise BadBody(f"Content-Length {declared[:40]!r} is not a number") from None
+        except ValueError as e:
+            raise BadBody(f"Content-Length {declared[:40]!r} is not a number") from e
         if size > limit:
             raise HttpError(TOO_LARGE, f"the body declares {size} bytes, more than the limit of {limit}")
     parts, n = [], 0
@@ -64,8 +64,8 @@ async def read_limited(chunks: AsyncIterator[bytes], declared: str | None, limit
 def read_descriptor(body: bytes, dim: int) -> np.ndarray:
     """One descriptor ``[dim]`` float32 from the bytes of a ``.npy`` array of shape ``[D]`` (floating point)."""
     f = io.BytesIO(body)
-    shape, _, dtype = read_header(f, "the frame", BadBody)
-    check_dtype(dtype, "the frame", BadBody, kinds="f")
+    shape, _, dtype = read_header(f, "the body", BadBody)
+    check_dtype(dtype, "the body", BadBody, kinds="f")
     if len(shape) != 1:
         raise BadBody(f"the frame has shape {list(shape)}; send one descriptor of shape [{dim}]")
     need, have = nbytes_of(shape, dtype), len(body) - f.tell()

@@ -85,7 +85,8 @@ class Service:
                 "estimate_name": str(names[est.ref_frame]) if ok and names is not None else None,
                 "score": _finite(est.score) if ok else None,
                 "confidence": _finite(est.confidence) or 0.0,
-                "position": [float(v) for v in pos[est.ref_frame][:2]] if ok and pos.shape[1] >= 2 else None,
+                "position": [float(v) for v in pos[est.ref_frame][:2]] if ok and pos.ndim == 2 and pos.shape[1] >= 2
+                else None,
                 "latency_ms": round(float(spent_ms), 3), "full_window": bool(est.full_window)}
 
     def route(self) -> list[list[float]] | None:

@@ -68,8 +68,8 @@ def read_token(token_file: str | Path | None, environ: Mapping[str, str] = os.en
         raw = read_bytes(token_file, MAX_TOKEN_BYTES, "token file", ConfigError)
         try:
             text = raw.decode("ascii").strip()
-        except UnicodeDecodeError:
-            raise ConfigError(f"token file {token_file}: the token must be printable ASCII") from None
+        except UnicodeDecodeError as e:
+            raise ConfigError(f"token file {token_file}: the token must be printable ASCII") from e
         where = f"token file {token_file}"
     else:
         text, where = environ.get(TOKEN_ENV, "").strip(), TOKEN_ENV
