@@ -84,7 +84,8 @@ def bad_bodies(dim: int) -> dict[str, bytes]:
     truncated = npy(good)[:-3]
     return {"garbage": b"\x00garbage" * 10, "empty": b"", "wrong D": npy(np.ones(dim + 1, np.float32)),
             "NaN": npy(np.r_[good[:-1], np.nan].astype(np.float32)), "inf": npy(np.r_[good[:-1], np.inf]),
-            "beyond float32": npy(np.concatenate([good[:-1], [1e300]]).astype(np.float64)), "2-D": npy(good[None]), "ints": npy(np.ones(dim, int)),
+            "beyond float32": npy(np.concatenate([good[:-1], [1e300]]).astype(np.float64)),
+            "2-D": npy(good[None]), "ints": npy(np.ones(dim, int)),
             "objects": npy(np.array([object()] * dim)), "truncated": truncated, "trailing": npy(good) + b"xx",
             "bad header": b"\x93NUMPY\x01\x00\x10\x00{'descr': 1}    \n" + bytes(4 * dim),
             "npz": b"PK\x03\x04" + bytes(40)}
@@ -142,7 +143,8 @@ def test_metrics_are_prometheus_text(server):
     assert "# TYPE seqnet_serve_frame_latency_seconds histogram" in lines
     assert any(line.startswith('seqnet_serve_frames_total{outcome="ok"} ') for line in lines)
     assert any(line.startswith("seqnet_serve_sessions ") for line in lines)
-    buckets = [int(line.rsplit(" ", 1)[1]) for line in lines if line.startswith("seqnet_serve_frame_latency_seconds_bucket")]
+    hist = "seqnet_serve_frame_latency_seconds"
+    buckets = [int(line.rsplit(" ", 1)[1]) for line in lines if line.startswith(f"{hist}_bucket")]
     assert buckets == sorted(buckets) and buckets[-1] == int(next(
-        line.rsplit(" ", 1)[1] for line in lines if line.startswith("seqnet_serve_frame_latency_seconds_count")))
+        line.rsplit(" ", 1)[1] for line in lines if line.startswith(f"{hist}_count")))
     assert not any(line.startswith('seqnet_serve_requests_total{code="500"}') for line in lines)

@@ -27,8 +27,9 @@ function el(tag, attrs, text) {
 function scaler(route) {
   const xs = route.map(p => p[0]), ys = route.map(p => p[1]);
   const x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
-  const s = 560 / Math.max(x1 - x0, y1 - y0, 1e-9);
-  return p => [20 + (p[0] - x0) * s, 580 - (p[1] - y0) * s];
+  const s = 560 / Math.max(x1 - x0, y1 - y0, 1e-9);  // one scale for both axes, the route centred
+  const dx = (560 - (x1 - x0) * s) / 2, dy = (560 - (y1 - y0) * s) / 2;
+  return p => [20 + dx + (p[0] - x0) * s, 580 - dy - (p[1] - y0) * s];
 }
 function draw(state) {
   document.getElementById("map").textContent = state.map + " (" + state.frames + " frames)";

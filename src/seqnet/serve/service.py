@@ -126,7 +126,7 @@ def load_service(conf: LocalizeConfig, map_path: str | Path, models: Sequence[st
         service.describer = map_describer(reference, describer)
     except ConfigError as e:
         service.no_images = str(e).split(";")[0]
-        logger.info("serve: images are refused: %s", service.no_images)
+        logger.debug("serve: images are refused: %s", service.no_images)
     ms = service.warm()
     logger.debug("serve: map %s loaded and warmed up (%.1f ms)", map_path, ms)
     return service
