@@ -30,8 +30,9 @@ def test_frames_are_encoded_by_their_kind(tmp_path):
         encode_frame(np.ones((2, 3)))
     with pytest.raises(DatasetError, match="not found"):
         encode_frame(tmp_path / "missing.png")
-    with pytest.raises(ClientError, match="http://host:port"):
-        Client("ftp://example.org")
+    for bad in ("ftp://example.org", "http://", "http://host:1/; a note", "http://host:1/\x00"):
+        with pytest.raises(ClientError, match="http://host:port"):
+            Client(bad)
 
 
 def test_sessions_answers_and_refusals(serve_service, synth_dataset):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -70,7 +71,7 @@ def start(serve_map, env):
     if "serving" not in line:
         p.kill()
         pytest.fail(f"seqnet serve did not start: {line!r} {p.stderr.read()!r}")
-    return p, line.split(" on ")[1].split("/ ")[0] + "/"
+    return p, re.search(r"http://[^\s;]+/", line)[0]
 
 
 def test_served_answers_equal_localize_and_sigterm_drains(serve_map, synth_dataset, tmp_path):

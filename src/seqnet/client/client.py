@@ -87,6 +87,9 @@ class _Connection:
             except OSError as e:
                 self.close()
                 raise ClientError(0, f"cannot reach {self.url.geturl()}: {e}") from e
+            except http.client.HTTPException as e:  # not HTTP: a truncated or malformed answer
+                self.close()
+                raise ClientError(0, f"no valid HTTP answer from {self.url.geturl()}: {e!r}") from e
         return response.status, _decode(response.status, data, response.getheader("Content-Type", ""))
 
     def close(self) -> None:
@@ -156,7 +159,8 @@ class Client:
 
     def __init__(self, url: str, token: str | None = None, timeout: float = 30.0) -> None:
         self.url = urllib.parse.urlsplit(url)
-        if self.url.scheme not in ("http", "https") or not self.url.hostname:
+        if self.url.scheme not in ("http", "https") or not self.url.hostname or any(c.isspace() or not c.isprintable()
+                                                                                     for c in url):
             raise ClientError(0, f"the server's address must be http://host:port or https://host, got {url!r}")
         self.headers = {"Authorization": f"Bearer {token}"} if token else {}
         self.timeout = float(timeout)
