@@ -11,7 +11,8 @@ shortlist descriptors, raw+seqmatch re-ranking, causal windows; method ``hvpr-sm
 
 1. alone: each of the ``--sessions`` streams (``--per-session`` noisy frames of a stretch of the route) in a session
    of its own, one after the other, frames back to back: the single-client answers and round-trip latency;
-2. load: all streams at once, each at ``--fps`` (frames sent on a fixed schedule): errors, answers identical to 1.,
+2. load: all streams at once, each at ``--fps`` (frames sent on a fixed schedule, each camera's at a random phase;
+   ``--aligned``: all at the same instants): errors, answers identical to 1.,
    p99 round-trip latency against ``3 × single-client median + 50 ms``;
 3. RSS of the server after start-up and after the load, against ``1.5 × start-up + 200 MB``;
 4. saturation: 1, 2, 4, ... ``--sessions`` sessions sending back to back for ``--saturate-s`` seconds each: the
@@ -55,6 +56,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--per-session", type=int, default=100, help="frames each session sends")
     p.add_argument("--saturate-s", type=float, default=8.0, help="seconds of each saturation step")
     p.add_argument("--workers", type=int, default=2, help="seqnet serve --workers")
+    p.add_argument("--aligned", action="store_true", help="every session sends at the same instants (worst case; "
+                   "default: each camera at a random phase)")
     p.add_argument("--noise", type=float, default=0.5)
     p.add_argument("--keep", help="build the map here (and keep it) instead of a temporary folder")
     p.add_argument("--json", help="write the figures here")
@@ -109,15 +112,17 @@ def start_server(map_dir: Path, workers: int) -> tuple[subprocess.Popen, str]:
     return p, re.search(r"http://[^\s;]+/", line)[0]
 
 
-def run_stream(url: str, frames: np.ndarray, fps: float | None, out: dict, key: int, deadline: float) -> None:
-    """One session sending ``frames`` (at ``fps`` on a fixed schedule, or back to back); answers and latencies."""
+def run_stream(url: str, frames: np.ndarray, fps: float | None, out: dict, key: int, deadline: float,
+               phase: float = 0.0) -> None:
+    """One session sending ``frames`` (at ``fps`` on a fixed schedule shifted by ``phase`` seconds, or back to
+    back); answers and latencies."""
     answers, lat, errors = [], [], []
     try:
         with Client(url, timeout=30).session() as s:
             t0 = time.perf_counter()
             for i, f in enumerate(frames):
                 if fps:
-                    wait = t0 + i / fps - time.perf_counter()
+                    wait = t0 + phase + i / fps - time.perf_counter()
                     if wait > 0:
                         time.sleep(wait)
                 if time.monotonic() > deadline:
@@ -135,10 +140,15 @@ def run_stream(url: str, frames: np.ndarray, fps: float | None, out: dict, key: 
     out[key] = {"answers": answers, "latency_ms": lat, "errors": errors}
 
 
-def in_threads(url: str, streams: list[np.ndarray], fps: float | None, limit_s: float) -> dict:
+def in_threads(url: str, streams: list[np.ndarray], fps: float | None, limit_s: float, aligned: bool = False) -> dict:
+    """Every stream in a session of its own, at once; at ``fps``, each camera's clock at a random phase (seeded)
+    unless ``aligned`` (every session sends at the same instants: the worst case)."""
     out: dict = {}
     deadline = time.monotonic() + limit_s
-    threads = [threading.Thread(target=run_stream, args=(url, s, fps, out, i, deadline)) for i, s in enumerate(streams)]
+    rng = np.random.default_rng(1)
+    phases = [0.0 if aligned or not fps else float(rng.uniform(0, 1 / fps)) for _ in streams]
+    threads = [threading.Thread(target=run_stream, args=(url, s, fps, out, i, deadline, phases[i]))
+               for i, s in enumerate(streams)]
     for t in threads:
         t.start()
     for t in threads:
@@ -219,7 +229,7 @@ def measure(args: argparse.Namespace, server: subprocess.Popen, url: str, stream
     alone = {i: in_threads(url, [s], None, 300)[0] for i, s in enumerate(streams)}  # one session at a time
     single = np.concatenate([alone[i]["latency_ms"][5:] for i in alone])
     limit = args.per_session / args.fps + 120
-    load = in_threads(url, streams, args.fps, limit)
+    load = in_threads(url, streams, args.fps, limit, args.aligned)
     rss_load = rss_mb(server.pid)
     errors = [e for r in load.values() for e in r["errors"]] + [e for r in alone.values() for e in r["errors"]]
     same = all([{k: a[k] for k in COMPARED} for a in load[i]["answers"]]
@@ -231,7 +241,8 @@ def measure(args: argparse.Namespace, server: subprocess.Popen, url: str, stream
     sat = saturate(url, streams, args.saturate_s)
     own = localize_rate(map_dir, np.concatenate(streams), root)
     return {"map": {"frames": args.frames, "dim": args.dim, "index": args.index, "method": METHOD},
-            "sessions": args.sessions, "fps": args.fps, "per_session": args.per_session, "workers": args.workers,
+            "sessions": args.sessions, "fps": args.fps, "aligned": args.aligned, "per_session": args.per_session,
+            "workers": args.workers,
             "cpus": len(os.sched_getaffinity(0)), "errors": errors[:20], "n_errors": len(errors),
             "identical_to_single_session": same,
             "single_client_ms": {"median": round(median, 2), "p99": round(float(np.percentile(single, 99)), 2)},

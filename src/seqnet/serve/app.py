@@ -33,12 +33,13 @@ from starlette.routing import Route
 
 from ..core.errors import SeqnetError
 from ..core.utils import logger
+from ..localize.localizer import Estimate
 from . import page
 from .bodies import content_type, read_limited
 from .errors import BAD_REQUEST, UNAUTHORIZED, HttpError
 from .metrics import CONTENT_TYPE, Metrics
 from .service import Service
-from .sessions import Sessions
+from .sessions import Session, Sessions
 from .settings import ServeSettings
 
 Handler = Callable[[Request], Awaitable[Response]]
@@ -109,8 +110,7 @@ class Api:
                 body = await read_limited(request.stream(), request.headers.get("content-length"),
                                           self.settings.max_body)
                 t0 = time.perf_counter()
-                desc = await self.off_loop(self.service.frame, body, kind)
-                est = await self.off_loop(session.localizer.step, desc)
+                est = await self.off_loop(self.localize, session, body, kind)
                 spent = time.perf_counter() - t0
                 answer = self.service.answer(est, spent * 1e3)
                 session.frames += 1
@@ -124,6 +124,10 @@ class Api:
             raise HttpError(BAD_REQUEST, str(e)) from e
         self.metrics.answered(spent)
         return JSONResponse(answer)
+
+    def localize(self, session: Session, body: bytes, kind: str) -> Estimate:
+        """On a worker thread: the body's descriptor (an image described) through the session's localiser."""
+        return session.localizer.step(self.service.frame(body, kind))
 
     def guarded(self, handler: Handler) -> Handler:
         """``handler`` with every refusal as JSON and every status counted."""

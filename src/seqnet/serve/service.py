@@ -78,7 +78,8 @@ class Service:
         return np.asarray(desc[0], dtype=np.float32)
 
     def answer(self, est: Estimate, spent_ms: float) -> dict[str, Any]:
-        """The JSON answer of one frame (``spent_ms``: reading, describing and localising it here)."""
+        """The JSON answer of one frame (``spent_ms``: from its body, read, to its answer: describing, waiting for a
+        worker thread, localising)."""
         ok = est.ref_index >= 0
         names, pos = self.reference.names, self.reference.positions
         return {"frame": int(est.frame), "estimate": int(est.ref_frame) if ok else None,
