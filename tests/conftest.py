@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import shutil
@@ -283,3 +284,53 @@ def restorer(saved, out):
         shutil.rmtree(out, ignore_errors=True)
         shutil.copytree(saved, out, symlinks=True)
     return restore
+
+
+SERVE_METHOD = "hvpr-delta:raw+seqmatch"  # the method of serve_map (no model: fast)
+
+
+@pytest.fixture(scope="session")
+def serve_map(tmp_path_factory, synth_dataset):
+    """An index map (causal windows, L = 4, Delta shortlist, raw+seqmatch re-ranking) of ``synth_dataset``."""
+    from seqnet.data.io import save_dataset
+    from seqnet.maps import MapConfig, build
+
+    d = tmp_path_factory.mktemp("serve")
+    conf = MapConfig(shortlist="delta", rerank="raw+seqmatch", seq_len=4, window="causal")
+    return build(conf, save_dataset(synth_dataset, d / "ds"), d / "map")
+
+
+@pytest.fixture(scope="session")
+def serve_service(serve_map):
+    """``serve_map`` loaded once as ``seqnet serve`` loads it (:func:`seqnet.serve.service.load_service`)."""
+    from seqnet.localize.config import LocalizeConfig
+    from seqnet.serve.service import load_service
+
+    return load_service(LocalizeConfig(method=SERVE_METHOD, device="cpu"), serve_map)
+
+
+@contextlib.contextmanager
+def serving(service, **settings):
+    """``service`` served by uvicorn on a thread, on a free port of 127.0.0.1 (``--no-auth`` unless a ``token`` is
+    given); yields ``(url, api)`` (:class:`seqnet.serve.app.Api`: its sessions and metrics); stopped on exit."""
+    import threading
+    import time
+
+    from seqnet.serve.server import build_server, listen
+    from seqnet.serve.settings import ServeSettings
+
+    settings = ServeSettings(port=0, no_auth=settings.get("token") is None, **settings)
+    sock = listen("127.0.0.1", 0)
+    server = build_server(service, settings)
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 10
+    while not server.started and thread.is_alive() and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert server.started, "the test server did not start"
+    try:
+        yield f"http://127.0.0.1:{sock.getsockname()[1]}", server.config.app.state.api
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        sock.close()

@@ -24,7 +24,7 @@ print(code, 'torch' in sys.modules)
 
 
 LIGHT_COMMANDS = ("eval", "train", "localize", "index", "synth", "describe", "dataset", "demo", "benchmark",
-                  "experiment")
+                  "experiment", "serve")
 
 
 @pytest.mark.parametrize(("argv", "code"), [(["--help"], 0), (["--version"], 0), (["nosuch"], 2), ([], 2),

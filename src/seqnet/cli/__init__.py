@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {  # name -> one-line help; each name's module is <na
     "benchmark": 'run a benchmark: real data (nordland64) or compute time (timing)',
     "index": 'build a map (ANN index + re-ranking frames) for seqnet eval --index',
     "localize": 'localise a query stream frame by frame (online; latency, confidence)',
+    "serve": 'serve the online localiser over HTTP: one map, many sessions (needs seqnet[serve])',
     "experiment": "run one of the paper's supplementary experiments on nordland64",
 }
 

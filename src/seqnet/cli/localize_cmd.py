@@ -52,11 +52,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--positions-tolerance", type=positive_float, metavar="SECONDS", help="with --positions-topic: the "
                    f"largest gap between a frame and its position message (default {DEFAULT_TOLERANCE:g} s)")
     add_distances(p, "with --dataset: streamed row by row")
+    p.add_argument("--out", required=True, metavar="TRACK.csv",
+                   help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
+    add_localizer_options(p)
+    p.set_defaults(func=run, default_threads=1)  # a frame is little work: one thread (docs/online.md)
+
+
+def add_localizer_options(p: argparse.ArgumentParser) -> None:
+    """The localiser's options (method, describer, models, L, L_m, K, k, anchor, split, radius, precision,
+    --allow-mismatch, --device): ``seqnet localize`` and ``seqnet serve`` share them, names and defaults."""
     p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
     p.add_argument("--describer", metavar="PKG.MODULE:FACTORY", help="with --map and query images: the plug-in "
                    "describer the map was made with, named here because seqnet imports no code a file names")
-    p.add_argument("--out", required=True, metavar="TRACK.csv",
-                   help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="trained model checkpoint (S_L → 'seqnet', S_1 → 's1'); repeatable")
     p.add_argument("--shortlist-model", metavar="CKPT", help="S_L checkpoint (seqnet, HVPR shortlists)")
@@ -74,13 +81,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "or half precision: float16 / bfloat16 read half the bytes (docs/online.md)")
     add_allow_mismatch(p)
     add_device(p)
-    p.set_defaults(func=run, default_threads=1)  # a frame is little work: one thread (docs/online.md)
+
+
+def localizer_config(args: argparse.Namespace) -> LocalizeConfig:
+    """The :class:`LocalizeConfig` of the options :func:`add_localizer_options` added."""
+    return _D.replace(method=args.method, seq_len=args.seq_len, match_len=args.match_len,
+                      top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
+                      device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
 
 
 def run(args: argparse.Namespace) -> int:
-    conf = _D.replace(method=args.method, seq_len=args.seq_len, match_len=args.match_len,
-                      top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
-                      device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
+    conf = localizer_config(args)
     if args.describer is not None and args.query is None:
         raise ConfigError("--describer goes with --map and query images (the plug-in the map was described with)")
     if args.topic is not None and args.query is None:

@@ -38,6 +38,7 @@ from ..security.limits import number
 from ..security.locks import locked
 
 if TYPE_CHECKING:
+    from ..describe.describer import Describer
     from ..describe.images import ImageList  # describers (and h5py) load only when a query is described
     from ..maps.map import Map
 
@@ -106,10 +107,25 @@ def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Fram
 def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: bool,
                  describer: str | None = None) -> tuple[Frames, list[str], int]:
     """The ``images`` of ``source`` (a folder, a list file or a bag's image topic: :func:`list_images`), each
-    described when it is read by the map's describer. A plug-in describer the map's files name is imported only
-    when the user names the same one (``describer``, ``--describer``): seqnet runs no code a file names."""
+    described when it is read by the map's describer (:func:`map_describer`)."""
+    describe = map_describer(ref_map, describer)
+    check_described(ref_map, describe, describe(describe.load(images.paths[:1])),
+                    f"the query images of {source} as described here", allow)
+
+    def frames() -> Frames:
+        for p in images.paths:
+            t0 = time.perf_counter()
+            d = describe(describe.load([p]))[0]
+            yield d, (time.perf_counter() - t0) * 1e3
+
+    return frames(), images.names, len(images)
+
+
+def map_describer(ref_map: Reference, describer: str | None = None) -> Describer:
+    """The describer the map's descriptors were made with, rebuilt from its provenance (no fitted state: a PCA or
+    NetVLAD clusters cannot be rebuilt). A plug-in describer the map's files name is imported only when the user
+    names the same one (``describer``, ``--describer``): seqnet runs no code a file names."""
     from ..describe import DescribeConfig, make_describer
-    from ..describe.stage import describe_provenance
 
     prov = ref_map.provenance
     if not prov or prov.get("kind") != "describe":
@@ -124,18 +140,15 @@ def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: boo
         raise ConfigError(f"the map was described with fitted state ({conf.method}, PCA or clusters), which "
                           "localize cannot rebuild; describe the query images with `seqnet describe` using the "
                           "map's fitted state and pass the descriptor file as --query")
-    describer = make_describer(conf)
-    first = describer(describer.load(images.paths[:1]))
-    check_same(prov, describe_provenance(conf, None, first), "the map's descriptors",
-               f"the query images of {source} as described here", allow)
+    return make_describer(conf)
 
-    def frames() -> Frames:
-        for p in images.paths:
-            t0 = time.perf_counter()
-            d = describer(describer.load([p]))[0]
-            yield d, (time.perf_counter() - t0) * 1e3
 
-    return frames(), images.names, len(images)
+def check_described(ref_map: Reference, describer: Describer, desc: np.ndarray, what: str, allow: bool) -> None:
+    """Query descriptors ``desc [N, D]`` made here by ``describer`` must match the map's provenance."""
+    from ..describe.stage import describe_provenance
+
+    check_same(ref_map.provenance, describe_provenance(describer.config, None, desc), "the map's descriptors", what,
+               allow)
 
 
 def check_named_code(settings: Mapping[str, object], describer: str | None) -> None:

@@ -1,0 +1,133 @@
+"""The map a server shares: loaded once, as ``seqnet localize --map`` loads it, and what a frame becomes.
+
+:func:`load_service` loads the models and the map with :func:`seqnet.localize.stream.load_reference` and rebuilds the
+map's describer (:func:`seqnet.localize.stream.map_describer`) when images can be described as the map was; each
+session gets its own localiser from :meth:`LocalizeConfig.localizer <seqnet.localize.config.LocalizeConfig.localizer>`,
+the one ``seqnet localize`` uses, over the shared reference.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..core.errors import ConfigError, SeqnetError
+from ..core.log import logger
+from ..localize.config import LocalizeConfig
+from ..localize.localizer import Estimate, Localizer
+from ..localize.stream import check_described, load_reference, map_describer
+from ..methods.protocol import Reference
+from .bodies import DESCRIPTOR_TYPE, BadBody, ImageBytes, read_descriptor
+from .errors import UNSUPPORTED, HttpError
+
+if TYPE_CHECKING:
+    from ..describe.describer import Describer
+
+ROUTE_POINTS = 2000  # the live page draws at most this many reference positions
+
+
+@dataclasses.dataclass
+class Service:
+    """The shared map and how frames reach a localiser.
+
+    Attributes:
+        conf: the localiser's settings; reference: the map; radius: its localisation radius; name: for /health.
+        describer: the map's describer (images are described by it), or None; no_images: why images are refused.
+    """
+
+    conf: LocalizeConfig
+    reference: Reference
+    radius: float
+    name: str
+    describer: Describer | None = None
+    no_images: str = ""
+
+    @property
+    def dim(self) -> int:
+        """D of a frame's descriptor."""
+        return int(self.reference.input_dim)
+
+    @property
+    def frames(self) -> int:
+        """Frames of the map's reference traverse."""
+        return len(self.reference.positions)
+
+    def localizer(self) -> Localizer:
+        """A new session's localiser (its own causal window) over the shared map."""
+        return self.conf.localizer(self.reference, self.radius)
+
+    def frame(self, body: bytes, kind: str) -> np.ndarray:
+        """The descriptor ``[D]`` of a request body of content type ``kind``: as sent, or its image described."""
+        if kind == DESCRIPTOR_TYPE:
+            return read_descriptor(body, self.dim)
+        if self.describer is None:
+            raise HttpError(UNSUPPORTED, f"this server does not describe images ({self.no_images}); send "
+                            f"descriptors ({DESCRIPTOR_TYPE})")
+        try:
+            desc = self.describer(self.describer.load([ImageBytes(body, kind)]))
+            check_described(self.reference, self.describer, desc, "the image as described here",
+                            self.conf.allow_mismatch)
+        except SeqnetError as e:
+            raise BadBody(str(e)) from e
+        return np.asarray(desc[0], dtype=np.float32)
+
+    def answer(self, est: Estimate, spent_ms: float) -> dict[str, Any]:
+        """The JSON answer of one frame (``spent_ms``: from its body, read, to its answer: describing, waiting for a
+        worker thread, localising)."""
+        ok = est.ref_index >= 0
+        names, pos = self.reference.names, self.reference.positions
+        return {"frame": int(est.frame), "estimate": int(est.ref_frame) if ok else None,
+                "estimate_name": str(names[est.ref_frame]) if ok and names is not None else None,
+                "score": _finite(est.score) if ok else None,
+                "confidence": _finite(est.confidence) or 0.0,
+                "position": [float(v) for v in pos[est.ref_frame][:2]] if ok and pos.ndim == 2 and pos.shape[1] >= 2
+                else None,
+                "latency_ms": round(float(spent_ms), 3), "full_window": bool(est.full_window)}
+
+    def route(self) -> list[list[float]] | None:
+        """Up to :data:`ROUTE_POINTS` reference positions ``[x, y]`` in route order (None without two axes)."""
+        pos = np.asarray(self.reference.positions)
+        if pos.ndim != 2 or pos.shape[1] < 2 or not len(pos):
+            return None
+        step = max(1, math.ceil(len(pos) / ROUTE_POINTS))
+        keep = pos[::step, :2]
+        return [[float(x), float(y)] for x, y in keep if math.isfinite(x) and math.isfinite(y)]
+
+    def warm(self) -> float:
+        """Step a throwaway localiser through one full window of zero frames, so that whatever the map builds on
+        its first search is built before sessions share it; the milliseconds spent."""
+        t0 = time.perf_counter()
+        loc = self.localizer()
+        for _ in range(loc.windows.longest):
+            loc.step(np.zeros(self.dim, np.float32))
+        return (time.perf_counter() - t0) * 1e3
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def load_service(conf: LocalizeConfig, map_path: str | Path, models: Sequence[str | Path] = (),
+                 shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
+                 describer: str | None = None) -> Service:
+    """The map in ``map_path`` (an index map or a dataset directory, as ``seqnet localize --map``) with its
+    models, its describer when one can be rebuilt (else images are refused, with the reason), warmed up."""
+    from ..sequence.checkpoints import load_models
+
+    loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    reference, radius, _ = load_reference(map_path, loaded, conf)
+    service = Service(conf, reference, radius, Path(map_path).name)
+    try:
+        service.describer = map_describer(reference, describer)
+    except ConfigError as e:
+        service.no_images = str(e).split(";")[0]
+        logger.debug("serve: images are refused: %s", service.no_images)
+    ms = service.warm()
+    logger.debug("serve: map %s loaded and warmed up (%.1f ms)", map_path, ms)
+    return service
