@@ -1,10 +1,8 @@
 """Incremental sequence matching for a query stream (a robot localising frame by frame).
 
-:class:`Ring`: the last ``n`` rows of a stream as one contiguous view (the localiser's recent frames
-and frame descriptors). :class:`OnlineSeqMatch`: whole-map SeqMatch for a stream, one distance row per
-new frame (one GEMV, ``N_db·D``) kept in a ring of the last ``L_m`` rows, the window's score row
-then ``L_m`` shifted adds; it equals :func:`seqnet.matching.seqmatch.seqmatch` on the window of the
-last ``L_m`` frames. The window forms (``seqmatch_window``, ``vseqmatch_window``, ``graph_window``:
+:class:`Ring`: the last ``n`` rows of a stream as one contiguous view (the localiser's recent frames,
+frame descriptors and distance rows: one new row per frame, the window's scores then ``L_m`` shifted
+adds). The window forms (``seqmatch_window``, ``vseqmatch_window``, ``graph_window``:
 the L_m distance rows of a causal window → its scores against every reference window start) are
 the *online form* column of :data:`seqnet.matching.registry.SEQUENCE_MATCHERS`.
 """
@@ -13,14 +11,8 @@ from __future__ import annotations
 
 import functools
 
-import numpy as np
-
-from ..core.devices import get_device
 from ..core.errors import ConfigError
-from ..core.lazy import lazy_module, no_grad
-from ..core.tensors import ArrayLike, as_tensor
-from ..search.blocks import topk_smallest
-from ..search.knn import ExactIndex
+from ..core.lazy import lazy_module
 from ..sequence.windows import check_seq_len
 from .graph import DEFAULT_FAN_OUT
 from .paths import path_dp
@@ -92,56 +84,3 @@ def graph_window(dist: torch.Tensor, reverse: bool = False, anchor: str = "centr
     p = pivot_step(anchor, seq_len)
     costs = path_dp(lambda t: dist[t : t + 1], seq_len, DEFAULT_FAN_OUT, p)[0]
     return costs[p : p + dist.shape[1] - seq_len + 1]
-
-
-class OnlineSeqMatch:
-    """Whole-map SeqMatch over a stream of query frames.
-
-    Args:
-        ref: ``[Nr, D]`` reference frame descriptors (the map; held in memory on ``device``).
-        seq_len: L_m, the number of most recent query frames matched.
-        reverse: match the reference traversed backwards (``r[b + L_m − 1 − t]``).
-        device: torch device (default: CUDA when present).
-    """
-
-    def __init__(self, ref: ArrayLike, seq_len: int, reverse: bool = False, device: str | None = None) -> None:
-        self.device = get_device(device)
-        self.ref = as_tensor(ref, self.device, "reference", ndim=2, keep_float64=True)
-        self.seq_len = check_seq_len(seq_len, len(self.ref), "seq_len")
-        self.reverse = bool(reverse)
-        self.index = ExactIndex(self.ref, self.device)  # its norms are computed once; one GEMV per frame
-        self.rows = Ring(self.seq_len, len(self.ref), self.ref.dtype, self.device)
-
-    @property
-    def count(self) -> int:
-        """Frames seen since the last reset."""
-        return self.rows.count
-
-    @property
-    def n_windows(self) -> int:
-        """Number of reference windows (``Nr − L_m + 1``): the length of a score row."""
-        return len(self.ref) - self.seq_len + 1
-
-    def reset(self) -> None:
-        """Forget the frames seen (e.g. at a sequence bound)."""
-        self.rows.reset()
-
-    @no_grad
-    def step(self, descriptor: ArrayLike) -> torch.Tensor | None:
-        """Add a query frame ``[D]``; return the scores ``[Nr − L_m + 1]`` of its window (the last L_m
-        frames) against every reference window start, or None until L_m frames have been seen."""
-        q = as_tensor(descriptor, self.device, "query frame", keep_float64=True).to(self.ref.dtype).reshape(-1)
-        if q.shape[0] != self.ref.shape[1]:
-            raise ConfigError(f"dimension mismatch: query frame D={q.shape[0]}, map D={self.ref.shape[1]}")
-        if not bool(torch.isfinite(q).all()):
-            raise ConfigError(f"query frame {self.count} holds NaN or inf")
-        self.rows.push(self.index.distances(q[None])[0])
-        if self.rows.count < self.seq_len:
-            return None
-        return seqmatch_window(self.rows.window(), self.reverse)
-
-    def topk(self, scores: torch.Tensor, k: int, starts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The ``k`` best ``(scores [k], items [k])`` of a score row (among the window ``starts`` when given)."""
-        sub = scores if starts is None else scores[torch.as_tensor(starts, device=scores.device)]
-        v, i = topk_smallest(sub[None, :], k)
-        return v[0].cpu().numpy(), i[0].cpu().numpy()

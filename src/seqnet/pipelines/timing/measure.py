@@ -23,7 +23,6 @@ import numpy as np
 import torch
 
 from ...maps import Map
-from ...matching.online import OnlineSeqMatch
 from ...matching.seqmatch import seqmatch_topk
 from ...metrics.recall import recall
 from ...search.blocks import rows, topk_smallest
@@ -31,6 +30,7 @@ from ...search.knn import ExactIndex, finish_distances, sq_norms
 from ...search.precision import compute_dtype
 from .config import TimingConfig
 from .queries import Queries
+from .stream import OnlineSeqMatch
 
 
 def sync(device: torch.device) -> None:

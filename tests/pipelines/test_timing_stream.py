@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from seqnet.core.errors import ConfigError
-from seqnet.matching.online import OnlineSeqMatch
 from seqnet.matching.seqmatch import seqmatch
+from seqnet.pipelines.timing.stream import OnlineSeqMatch
 
 
 @pytest.mark.parametrize("L", [1, 2, 4])
