@@ -21,10 +21,11 @@ import tempfile
 import numpy as np
 
 from .errors import ConfigError, ResourceError
+from .memory import BLOCK_BYTES
 
 RESIDENT_BYTES = 256 << 20  # memory maps up to this size may stay resident; larger ones are streamed
 SPILL_BYTES = 256 << 20  # derived arrays above this go to a spill file instead of memory
-TAKE_BYTES = 64 << 20  # rows gathered per run by take_rows
+TAKE_BYTES = BLOCK_BYTES  # rows gathered per run by take_rows
 PAGE = mmap.PAGESIZE
 
 

@@ -16,6 +16,14 @@ from typing import Any
 
 from .errors import ResourceError
 
+BLOCK_BYTES = 64 << 20
+"""The one working-memory unit: every block, chunk and batch budget of the library is a stated multiple of it
+(one query x reference block of distances, rows gathered or written per step, windows per batch, vectors added
+to an index per call). It bounds what a step holds beside its inputs, whatever their size; docs/scale.md
+lists each use. Array thresholds (memory maps streamed, arrays spilled) and the memory check are separate
+settings with their own environment overrides (``SEQNET_RESIDENT_MB``, ``SEQNET_SPILL_MB``,
+``SEQNET_MEMORY_MB``)."""
+
 CGROUP = Path("/sys/fs/cgroup")
 
 
@@ -83,7 +91,7 @@ def check_fits(needed: int, what: str, hints: str) -> None:
         raise ResourceError(f"{what} needs about {gib(needed)} of memory, {gib(free)} available; hint: {hints}")
 
 
-WORKSPACE_BYTES = 4 * (64 << 20)  # a few query x reference blocks in flight (search.knn.DEFAULT_BLOCK_BYTES each)
+WORKSPACE_BYTES = 4 * BLOCK_BYTES  # a few query x reference blocks in flight (search.knn.DEFAULT_BLOCK_BYTES each)
 
 
 def workspace_bytes(n_query: int, n_ref: int) -> int:

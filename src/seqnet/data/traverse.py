@@ -26,6 +26,7 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from ..core.memmaps import read_rows
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from .positives import Positives
 
 FORMAT = "seqnet-dataset/1"
@@ -236,7 +237,7 @@ def _check_bounds(b: np.ndarray, n: int, name: str) -> None:
         )
 
 
-def _check_finite(a: np.ndarray, what: str, chunk_bytes: int = 16 << 20, nonzero: bool = False) -> None:
+def _check_finite(a: np.ndarray, what: str, chunk_bytes: int = MEMORY_BLOCK // 4, nonzero: bool = False) -> None:
     """NaN / inf anywhere (and, with ``nonzero``, an all-zero row) is a :class:`DatasetError` naming the first row.
     Read in blocks of ``chunk_bytes`` (a large memory map's pages are released after each: bounded memory)."""
     chunk = max(1, chunk_bytes // max(1, a[:1].nbytes))

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError, OutputError
 from ..core.log import logger
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.memory import HDF5_OVERHEAD, check_space
 from ..core.provenance import make as make_provenance
 from ..core.provenance import sidecar as provenance_sidecar
@@ -41,7 +42,7 @@ from .state import StateFile, provenance_fit, reused_fit, state_files
 __all__ = ["OUT_SUFFIXES", "describe_folder", "describe_to_file", "main", "names_file_for"]
 
 TODO, DONE, SKIPPED = 0, 1, 2
-BLOCK_BYTES = 32 << 20  # descriptors copied per block from the partial file into the output
+BLOCK_BYTES = MEMORY_BLOCK // 2  # descriptors copied per block from the partial file into the output
 
 
 def partial_file_for(out: str | os.PathLike[str]) -> Path:

@@ -19,6 +19,7 @@ from ..core.errors import ConfigError, DatasetError
 from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.memmaps import read_rows
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.stage import Written
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
@@ -88,7 +89,7 @@ def _vpr_bench_scores(path: str | Path, similarity: bool) -> np.ndarray:
     return m
 
 
-def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = 64 << 20) -> None:
+def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = MEMORY_BLOCK) -> None:
     """Every entry of the (memory-mapped) matrix ``m`` is finite, checked in blocks of rows (bounded memory)."""
     step = max(1, block_bytes // max(1, m.shape[1] * m.itemsize))
     for a in range(0, m.shape[0], step):
@@ -126,7 +127,7 @@ def orientation_check(ds: Dataset, dist: np.ndarray, similarity: bool, transpose
 SQUARE_Z = 2.5  # a square matrix reading better transposed on this many standard errors is named (sign test)
 
 
-def _top1(dist: np.ndarray, keep: np.ndarray, block_bytes: int = 64 << 20) -> dict[str, np.ndarray]:
+def _top1(dist: np.ndarray, keep: np.ndarray, block_bytes: int = MEMORY_BLOCK) -> dict[str, np.ndarray]:
     """Each reading's best reference ``[len(keep)]`` for the queries ``keep`` of ``dist [Nq, Nr]``: as given
     (argmin of the row), the other sense (argmax), and for a square matrix transposed (of the column) and
     transposed in the other sense; in blocks of rows or columns of at most ``block_bytes``."""

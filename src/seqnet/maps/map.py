@@ -18,6 +18,7 @@ import numpy as np
 from ..core.devices import get_device
 from ..core.errors import ConfigError, DatasetError
 from ..core.lazy import lazy_module
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.provenance import check_same
 from ..core.tensors import ArrayLike
 from ..data.traverse import Traverse
@@ -38,7 +39,7 @@ torch = lazy_module("torch")
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
 
-BLOCK_BYTES = 64 * 2**20  # working memory of one block of a whole-map search (the map itself stays mapped)
+BLOCK_BYTES = MEMORY_BLOCK  # working memory of one block of a whole-map search (the map itself stays mapped)
 
 
 class MapError(DatasetError):

@@ -30,6 +30,7 @@ from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.memmaps import read_rows
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.npy import write_npy_rows
 from ..core.tensors import ArrayLike, to_numpy
 from ..search.ann import build_index, save_index
@@ -52,7 +53,7 @@ MAP_FORMAT = "seqnet-map/1"
 MAP_JSON = "map.json"
 INDEX_FILE = "index.faiss"
 ARRAY_FILES = ("shortlist", "frames", "items", "match_starts", "positions", "seq_bounds")
-CHUNK_BYTES = 32 << 20  # rows written per chunk
+CHUNK_BYTES = MEMORY_BLOCK // 2  # rows written per chunk
 
 
 def is_map_file(rel: str) -> bool:

@@ -13,13 +13,14 @@ import numpy as np
 
 from ..core.lazy import lazy_module
 from ..core.memmaps import take_rows
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.tensors import ArrayLike
 from .hvpr import pair_scores
 from .registry import SEQUENCE_MATCHERS
 
 torch = lazy_module("torch")
 
-BLOCK_BYTES = 256 * 2**20  # frames gathered per block of queries
+BLOCK_BYTES = 4 * MEMORY_BLOCK  # frames gathered per block of queries
 
 
 def pair_scores_on_map(query_frames: ArrayLike, frames: ArrayLike, seq_len: int, q_starts: np.ndarray,

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.lazy import lazy_module
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..data.traverse import Traverse
 from ..matching.hvpr import candidate_scores
 from ..matching.on_disk import pair_scores_on_map
@@ -22,7 +23,7 @@ torch = lazy_module("torch")
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
 
-SHARED_BYTES = 128 << 20  # the largest query × reference frame-distance matrix HVPR keeps to reuse
+SHARED_BYTES = 2 * MEMORY_BLOCK  # the largest query × reference frame-distance matrix HVPR keeps to reuse
 
 
 class TraverseReference:

@@ -22,10 +22,11 @@ import numpy as np
 from ..core.config import Config, check_int
 from ..core.errors import CheckpointError, ConfigError, ResourceError
 from ..core.memmaps import read_rows, take_rows
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.tensors import to_numpy
 
 TRAIN_PER_LIST = 256  # training vectors per IVF list (FAISS's own k-means cap)
-ADD_BYTES = 32 << 20  # vectors added to an index per block
+ADD_BYTES = MEMORY_BLOCK // 2  # vectors added to an index per block
 # upper bounds of the settings (a map.json is read from anywhere: ef_search 10**12 must not allocate or hang)
 LIMITS = {"nlist": 1 << 24, "nprobe": 1 << 24, "hnsw_m": 1 << 10, "ef_search": 1 << 16, "ef_construction": 1 << 16,
           "pq_m": 1 << 12}

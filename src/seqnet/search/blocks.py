@@ -17,12 +17,13 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import read_rows
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.tensors import ArrayLike, as_tensor
 
 torch = lazy_module("torch")
 
 SORT_MAX = 2048  # up to this many scores a stable sort is quicker than topk + tie handling (the same result)
-COL_BLOCK_BYTES = 32 << 20  # reference bytes per column block (between 1,024 and 65,536 rows)
+COL_BLOCK_BYTES = MEMORY_BLOCK // 2  # reference bytes per column block (between 1,024 and 65,536 rows)
 
 
 def matrix_shape(x: ArrayLike, name: str) -> tuple[int, int]:

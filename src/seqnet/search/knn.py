@@ -17,13 +17,14 @@ from ..core.errors import ConfigError
 from ..core.gemv import matvec
 from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import limit, streamed
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.tensors import ArrayLike, as_tensor
 from .blocks import blocked_topk, col_blocks, matrix_shape, rows, topk_smallest
 from .precision import compute_dtype, is_half
 
 torch = lazy_module("torch")
 
-DEFAULT_BLOCK_BYTES = 64 << 20
+DEFAULT_BLOCK_BYTES = MEMORY_BLOCK
 NOT_FINITE = ("the distances are not finite: the {what} descriptors hold NaN or inf, or values too large for {dtype} "
               "(hint: L2-normalise them)")
 METRICS = ("l2", "ip")

@@ -29,6 +29,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import RowsOut, take_rows
+from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.progress import progress as progress_bar
 from ..core.tensors import as_tensor, l2_normalize
 from .windows import gather_windows
@@ -71,7 +72,7 @@ def first_frame(windows: torch.Tensor) -> torch.Tensor:
     return l2_normalize(windows[:, 0])
 
 
-WINDOW_BYTES = 32 << 20  # gathered windows per batch ([B, L, D] float32)
+WINDOW_BYTES = MEMORY_BLOCK // 2  # gathered windows per batch ([B, L, D] float32)
 
 
 def describe_windows(
