@@ -80,10 +80,9 @@ class LocalizeConfig(Config):
 
     def localizer(self, reference: Reference, radius: float, exact: bool = False) -> Localizer:
         """The :class:`Localizer` of these settings over ``reference`` (described before ``precision`` applies)."""
-        loc = Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact)
         half = precision_dtype(self.precision) if self.precision != "float32" else None
-        if half is not None:
-            reference.precision = half
+        loc = Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact,
+                        precision=half)
         for model in loc.models.values():
             if half is not None:
                 model.to(half)

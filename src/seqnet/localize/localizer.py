@@ -131,18 +131,19 @@ class Localizer:
             :data:`~seqnet.methods.grammar.FUSED_TOP_K`).
         exact: shortlist by exact search instead of the reference's ANN index.
         models: the models of the query side (default: the reference's).
+        precision: None, or the half dtype the reference's exact searches read and multiply in.
     """
 
     def __init__(self, reference: Reference, method: str = "hvpr", radius: float = 1.0, top_k: int = 20, k: int = 20,
                  fuse_weight: float = FUSE_WEIGHT, fuse_top_k: int | None = None, exact: bool = False,
-                 models: Mapping[str, SeqNet] | None = None) -> None:
+                 models: Mapping[str, SeqNet] | None = None, precision: torch.dtype | None = None) -> None:
         if reference.windows.mode != "causal":
             raise ConfigError(f"the map {reference.name} uses {reference.windows.mode} windows; the online "
                               "localiser needs causal ones (seqnet index build --window causal)")
         self.ref, self.method, self.windows = reference, online_method(method), reference.windows
         reference.check_method(self.method)
         self.models = dict(reference.models if models is None else models)
-        reference.resident = True  # searched every frame: kept in memory (the map's bytes), never streamed
+        reference.serve_online()  # searched every frame: kept in memory (the map's bytes), never streamed
         check_resident(reference, self.method, self.models)
         self.device, self.radius, self.k = reference.device, float(radius), int(k)
         self.top_k, self.fuse = self.method.shortlist_size(top_k, fuse_top_k), self.method.fuse_weight(fuse_weight)
@@ -150,6 +151,8 @@ class Localizer:
         self.as_given = reference.frame_indices  # frames are matrix rows: nothing to describe
         self.ref_items, self.r_pos = reference.items, reference.positions[reference.items]
         reference.prepare(self.method)  # describe the map once, before the first frame
+        if precision is not None:
+            reference.serve_online(precision)  # after the map is described in float32
         m, w = self.method, self.windows
         self.short_len = SEQUENCE_DESCRIPTORS[m.shortlist].length(w.seq_len) if m.shortlist else 1
         self.frames_name = FRAME_FEATURES[m.frames] if m.frames else None

@@ -107,6 +107,12 @@ class Map:
             served.append(parse_method(HVPR_FUSED if m.rerank == HVPR_RERANK else f"{HVPR_FUSED}:{m.rerank}"))
         return {x.name: x for x in served}
 
+    def serve_online(self, precision: torch.dtype | None = None) -> None:
+        """Searched frame by frame (the localiser): exact searches keep what they read resident, in ``precision``."""
+        self.resident = True
+        if precision is not None:
+            self.precision = precision
+
     def check_method(self, m: Method) -> None:
         """Refuse a method the map does not serve (a method is what it runs, not how it is named)."""
         served = self.served()

@@ -25,9 +25,9 @@ class Reference(Protocol):
         positions: ``[Nr, P]`` of every reference frame; names: ``Nr`` image names or None.
         provenance: how the raw reference descriptors were made; input_dim: their D.
         device: where the computations run; name: for messages; models: its models by role (S_L, S_1).
-        precision: None, or the half dtype its exact searches read and multiply in (the localiser's ``precision``).
-        resident: its exact searches keep what they search in memory, whatever its size (set by the localiser:
-            the same map every frame), instead of streaming a large one in blocks.
+        precision: None, or the half dtype its exact searches read and multiply in (:meth:`serve_online`).
+        resident: its exact searches keep what they search in memory, whatever its size, instead of streaming a
+            large one in blocks (:meth:`serve_online`: the same map searched every frame).
         frame_indices: its query frames are given as their row numbers into a distance matrix (nothing to
             describe: :class:`seqnet.reference.matrix.MatrixReference`), not as descriptors.
     """
@@ -46,6 +46,10 @@ class Reference(Protocol):
     resident: bool
     frame_indices: bool
 
+
+    def serve_online(self, precision: torch.dtype | None = None) -> None:
+        """Be searched frame by frame from now on (the localiser): keep what the exact searches read resident, and
+        read and multiply in ``precision`` (a half dtype) when given. The one way a caller changes a reference."""
 
     def check_method(self, m: Method) -> None:
         """Refuse a method this reference cannot run (a :class:`seqnet.core.errors.ConfigError`)."""

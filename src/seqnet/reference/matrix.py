@@ -76,6 +76,11 @@ class MatrixReference:
         self.frame_indices = True  # a query frame is its row number: the localiser streams rows, describes nothing
         self.precision, self.resident = None, True
 
+    def serve_online(self, precision: torch.dtype | None = None) -> None:
+        """A matrix is resident already and holds distances, not descriptors: no precision to choose."""
+        if precision is not None:
+            raise ConfigError("--precision applies to descriptors; a distance matrix is read as it is given")
+
     def check_method(self, m: Method) -> None:
         """Only methods that read single-frame distances run on a matrix."""
         spec = SEQUENCE_MATCHERS.get(m.matcher) if m.matcher else None

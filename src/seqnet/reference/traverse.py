@@ -50,6 +50,12 @@ class TraverseReference:
         self.frame_indices = False  # query frames are descriptors
         self._starts: torch.Tensor | None = None
 
+    def serve_online(self, precision: torch.dtype | None = None) -> None:
+        """Searched frame by frame (the localiser): exact searches keep what they read resident, in ``precision``."""
+        self.resident = True
+        if precision is not None:
+            self.precision = precision
+
     def check_method(self, m: Method) -> None:
         """Every method runs on a traverse (its models were checked when it was loaded)."""
 
