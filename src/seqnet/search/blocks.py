@@ -22,7 +22,7 @@ from ..core.tensors import ArrayLike, as_tensor
 
 torch = lazy_module("torch")
 
-SORT_MAX = 2048  # up to this many scores a stable sort is quicker than topk + tie handling (the same result)
+SORT_MAX = 2048  # up to this many scores a stable sort is quicker than topk + tie check (the same result)
 COL_BLOCK_BYTES = MEMORY_BLOCK // 2  # reference bytes per column block (between 1,024 and 65,536 rows)
 
 
@@ -56,31 +56,54 @@ def check_pair_dims(query: ArrayLike, ref: ArrayLike) -> tuple[int, int, int]:
     return nq, nr, dq
 
 
+def _exact_ties(key: torch.Tensor, k: int) -> torch.Tensor:
+    """Columns ``[B, k]`` of the ``k`` smallest of ``key [B, N]`` (no NaN) by (value, column): every entry tied
+    with the k-th value counted (the rows whose cut-off falls inside a run of ties)."""
+    kth = torch.topk(key, k, dim=1, largest=False, sorted=True).values[:, -1:]
+    less, ties = key < kth, key == kth
+    keep = less | (ties & (ties.cumsum(1) <= k - less.sum(1, keepdim=True)))
+    return keep.nonzero()[:, 1].reshape(key.shape[0], k)  # ascending column order
+
+
+def _canonical(vals: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """``idx [B, m]`` reordered by (value, column): a sort by column, then a stable sort by value."""
+    by_col = torch.sort(idx, dim=1).indices
+    vals, idx = vals.gather(1, by_col), idx.gather(1, by_col)
+    return idx.gather(1, torch.sort(vals, dim=1, stable=True).indices)
+
+
 def topk_smallest(scores: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
     """The ``k`` smallest entries of each row of ``scores [B, N]``, ascending.
 
     Ties are broken deterministically by the lower column index (also at the cut-off); NaN ranks
-    like +inf. Returns ``(values [B, k], indices [B, k])``; ``k`` is capped at N.
+    like +inf. Returns ``(values [B, k], indices [B, k])``; ``k`` is capped at N. The answer is a
+    stable argsort's; it costs one ``topk`` of ``k + 1`` over the scores: only the rows whose k-th
+    value is tied with the next one (or is not finite) are counted again over the whole row.
     """
     k = min(int(k), scores.shape[1])
     if k <= 0 or scores.shape[0] == 0:
         empty = scores.new_zeros((scores.shape[0], max(k, 0)))
         return empty, empty.long()
-    key = scores.masked_fill(torch.isnan(scores), float("inf")) if scores.is_floating_point() else scores
+    floating = scores.is_floating_point()
     if scores.shape[0] * scores.shape[1] <= SORT_MAX:  # a short row (a frame of a stream): one stable sort
+        key = scores.masked_fill(torch.isnan(scores), float("inf")) if floating else scores
         idx = torch.sort(key, dim=1, stable=True).indices[:, :k]
         return scores.gather(1, idx), idx
-    kth = torch.topk(key, k, dim=1, largest=False, sorted=True).values[:, -1:]
-    less = key < kth
-    ties = key == kth
-    need = k - less.sum(1, keepdim=True)
-    keep = less | (ties & (ties.cumsum(1) <= need))
-    idx = keep.nonzero()[:, 1].reshape(scores.shape[0], k)  # ascending column order
-    order = torch.sort(key.gather(1, idx), dim=1, stable=True).indices
-    idx = idx.gather(1, order)
+    kk = min(k + 1, scores.shape[1])
+    v, i = torch.topk(scores, kk, dim=1, largest=False, sorted=True)  # NaN last, as +inf would be
+    idx = _canonical(v, i)
+    v = scores.gather(1, idx)
+    redo = ~torch.isfinite(v[:, k - 1]) if floating else torch.zeros_like(v[:, 0], dtype=torch.bool)
+    if kk > k:
+        redo |= v[:, k] == v[:, k - 1]
+    idx = idx[:, :k]
+    rows = redo.nonzero()[:, 0]
+    if len(rows):  # a cut-off inside a run of ties, or inf / NaN in the selection: count the whole row
+        key = scores[rows]
+        key = key.masked_fill(torch.isnan(key), float("inf")) if floating else key
+        sel = _exact_ties(key, k)
+        idx[rows] = _canonical(key.gather(1, sel), sel)
     return scores.gather(1, idx), idx
-
-
 
 
 def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Tensor, cols: torch.Tensor | None,
@@ -92,10 +115,10 @@ def merge_topk(best: tuple[torch.Tensor, torch.Tensor] | None, scores: torch.Ten
         v, i = topk_smallest(scores, k)
         return v, cols[i] if cols is not None and cols.numel() else i
     vals, idx = best
-    cols = torch.arange(scores.shape[1], device=scores.device) if cols is None else cols
-    v, i = topk_smallest(torch.cat([vals, scores], dim=1), k)
-    all_cols = torch.cat([idx, cols.expand(len(idx), -1)], dim=1)
-    return v, all_cols.gather(1, i)
+    bv, bi = topk_smallest(scores, k)  # the block's own best (ties by column), then the two short lists:
+    bi = cols[bi] if cols is not None and cols.numel() else bi  # the earlier columns first, so ties stay by column
+    v, i = topk_smallest(torch.cat([vals, bv], dim=1), k)
+    return v, torch.cat([idx, bi], dim=1).gather(1, i)
 
 
 RowBlock = tuple[Any, Any]  # (rows of the output this block fills: a slice or an index array, the block's context)

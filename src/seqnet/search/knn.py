@@ -7,6 +7,7 @@ return ``(scores, indices)``, best first.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -21,8 +22,10 @@ from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.tensors import ArrayLike, as_tensor
 from .blocks import blocked_topk, col_blocks, matrix_shape, rows, topk_smallest
 from .precision import compute_dtype, is_half
+from .verify import full_float32, wrong_rows
 
 torch = lazy_module("torch")
+logger = logging.getLogger("seqnet")
 
 DEFAULT_BLOCK_BYTES = MEMORY_BLOCK
 NOT_FINITE = ("the distances are not finite: the {what} descriptors hold NaN or inf, or values too large for {dtype} "
@@ -159,18 +162,40 @@ class ExactIndex:
             raise ConfigError(NOT_FINITE.format(what="query", dtype=str(dtype).removeprefix("torch.")))
         blocks = [(0, self.n)] if self.keep else self.blocks
         norms = [self.all_norms(dtype)] if self.keep else self.norms(dtype)
-        parts = [inner(q, self.block(c0, c1, dtype)).to(acc(dtype)) for c0, c1 in blocks]
+        with full_float32():
+            parts = [inner(q, self.block(c0, c1, dtype)).to(acc(dtype)) for c0, c1 in blocks]
         parts = [d.neg_() if metric == "ip" else finish_distances(d, q_sq, n)
                  for d, n in zip(parts, norms, strict=True)]
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
 
     @no_grad
     def search(self, query: ArrayLike, k: int, metric: str = "l2") -> tuple[np.ndarray, np.ndarray]:
-        """``(scores [M, k], indices [M, k])``, best first, ties by the lower index (see :func:`knn`)."""
+        """``(scores [M, k], indices [M, k])``, best first, ties by the lower index (see :func:`knn`).
+
+        The products run at IEEE float32 whatever the process's matmul precision, and every query's best
+        score is checked against a float64 recomputation (:mod:`seqnet.search.verify`); when a kernel got one
+        wrong, the whole search runs again in float64 (logged), so the answer does not depend on the kernel."""
         nq, dq = matrix_shape(query, "query")
         if dq != self.dim:
             raise ConfigError(f"dimension mismatch: query D={dq}, reference D={self.dim}")
         dtype, k = self.dtype(query), min(k, self.n)
+        with full_float32():
+            vals, idx = self._search(query, nq, k, metric, dtype)
+        if is_half(dtype) or k == 0 or nq == 0:
+            return vals, idx  # half precision: the caller chose rounding; nothing to check
+        bad = wrong_rows(query, self.ref, vals[:, 0], idx[:, 0], metric, str(dtype).removeprefix("torch."))
+        if len(bad):  # the kernel is not to be trusted on this search: all of it again, in float64
+            logger.warning("exact search: %d of %d query rows had a best %s score off by more than %s rounding "
+                           "(a reduced-precision or faulty GEMM kernel); the search is run again in float64",
+                           len(bad), nq, metric, str(dtype).removeprefix("torch."))
+            v64, idx = ExactIndex(self.ref, self.device, self.block_bytes, keep=False)._search(
+                query, nq, k, metric, torch.float64)
+            vals = v64.astype(vals.dtype)
+        return vals, idx
+
+    def _search(self, query: ArrayLike, nq: int, k: int, metric: str,
+                dtype: torch.dtype) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`search` in ``dtype``, unchecked."""
         if self.keep and len(self.blocks) > 1 and nq * self.n * 16 <= (self.block_bytes or DEFAULT_BLOCK_BYTES):
             return self._search_rows(query, k, metric, dtype)  # a few rows against a kept reference: one GEMV
         width = max((b - a for a, b in self.blocks), default=1)
