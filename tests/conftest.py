@@ -311,3 +311,61 @@ def write_video(path, frames, times=None, creation_time: str | None = None, code
         for p in s.encode():
             c.mux(p)
     return path
+
+
+def route(n: int, spacing: float = 10.0, lat0: float = 66.0, lon0: float = 14.0) -> tuple[np.ndarray, np.ndarray]:
+    """``(lat [n], lon [n])`` of ``n`` places ``spacing`` metres apart along a winding road (degrees, WGS84)."""
+    heading = 0.5 + 1.8 * np.sin(np.arange(n) / 70.0)
+    step = spacing * np.stack([np.sin(heading), np.cos(heading)], axis=1)
+    en = np.concatenate([[[0.0, 0.0]], np.cumsum(step, axis=0)[:-1]])
+    return lat0 + en[:, 1] / 111320.0, lon0 + en[:, 0] / (111320.0 * np.cos(np.radians(lat0)))
+
+
+def _stamp(t0, seconds: float):
+    import datetime
+
+    return t0 + datetime.timedelta(seconds=float(seconds))
+
+
+def write_gpx(path, t0, times, lat, lon) -> Path:
+    """A GPX 1.1 track: one ``<trkpt>`` per sample at ``t0`` (an aware datetime) + ``times`` seconds."""
+    pts = "".join(f'<trkpt lat="{a:.9f}" lon="{b:.9f}"><ele>12.5</ele><time>'
+                  f'{_stamp(t0, t).strftime("%Y-%m-%dT%H:%M:%S.%fZ")}</time></trkpt>\n'
+                  for t, a, b in zip(times, lat, lon, strict=True))
+    Path(path).write_text('<?xml version="1.0" encoding="UTF-8"?>\n<gpx version="1.1" creator="seqnet tests" '
+                          'xmlns="http://www.topografix.com/GPX/1/1">\n<trk><name>drive</name><trkseg>\n'
+                          f"{pts}</trkseg></trk>\n</gpx>\n", encoding="utf-8")
+    return Path(path)
+
+
+def _nmea_angle(value: float, width: int, hemis: str) -> tuple[str, str]:
+    v = abs(value)
+    deg = int(v)
+    return f"{deg:0{width}d}{(v - deg) * 60:09.6f}", hemis[0] if value >= 0 else hemis[1]
+
+
+def write_nmea(path, t0, times, lat, lon, gga_only: bool = False) -> Path:
+    """An NMEA 0183 log: per sample a GGA sentence and (unless ``gga_only``) an RMC sentence, with checksums."""
+    import pynmea2
+
+    lines = []
+    for t, a, b in zip(times, lat, lon, strict=True):
+        s = _stamp(t0, t)
+        hms = s.strftime("%H%M%S.") + f"{s.microsecond // 10000:02d}"
+        la, ns = _nmea_angle(a, 2, "NS")
+        lo, ew = _nmea_angle(b, 3, "EW")
+        lines.append(str(pynmea2.GGA("GP", "GGA", (hms, la, ns, lo, ew, "1", "08", "0.9", "12.5", "M", "46.9", "M",
+                                                   "", ""))))
+        if not gga_only:
+            lines.append(str(pynmea2.RMC("GP", "RMC", (hms, "A", la, ns, lo, ew, "022.4", "084.4",
+                                                       s.strftime("%d%m%y"), "003.1", "W"))))
+    Path(path).write_text("\r\n".join(lines) + "\r\n", encoding="ascii")
+    return Path(path)
+
+
+def write_track_csv(path, times, lat, lon, t0=None) -> Path:
+    """A CSV track ``time,lat,lon``: seconds since the video's start, or ISO-8601 times from ``t0``."""
+    rows = [f"{t:.6f}" if t0 is None else _stamp(t0, t).isoformat() for t in times]
+    Path(path).write_text("time,lat,lon\n" + "".join(f"{r},{a:.9f},{b:.9f}\n" for r, a, b in zip(rows, lat, lon,
+                                                                                               strict=True)))
+    return Path(path)
