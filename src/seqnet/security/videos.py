@@ -142,6 +142,7 @@ def open_stream(name: str, timeout: float = DEFAULT_TIMEOUT) -> tuple[Any, Any]:
     try:
         container = av.open(name, format="v4l2" if DEVICE.fullmatch(name) else None, timeout=(timeout, timeout))
     except av_errors() as e:
-        raise DatasetError(f"cannot open the stream {shown(name)[:120]} ({why(e)}; within {timeout:g} s)") from e
+        raise DatasetError(f"cannot open the stream {shown(name)[:120]} ({why(e)}): no video came from it within "
+                           f"{timeout:g} s (hint: --timeout)") from e
     check_streams(container, name)
     return container, None
