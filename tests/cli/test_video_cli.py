@@ -93,3 +93,14 @@ def test_bad_inputs_are_one_line(videos, tmp_path, capsys, case):
     assert {"another day": "another day", "no overlap": "does not overlap", "no truth": "ground truth is needed"}.get(
         case, "video") in err
     assert not out.exists()
+
+
+def test_report_places_the_queries_and_shows_pairs_from_the_videos(videos, tmp_path):
+    assert _dataset(videos, tmp_path / "ds", "--radius", "15") == 0
+    assert cli_main(["-q", "eval", "--dataset", str(tmp_path / "ds"), "--method", "single", "--out",
+                     str(tmp_path / "ev"), "--report", "--images-query", str(videos["query"]), "--images-ref",
+                     str(videos["ref"]), "--device", "cpu"]) == 0
+    page = (tmp_path / "ev" / "report.html").read_text()
+    assert '<section id="trajectory">' in page and '<section id="pairs">' in page
+    pairs = page.split('<section id="pairs">')[1]
+    assert "best: query" in pairs and "pictures left out" not in pairs and pairs.count("data:image/png") >= 4
