@@ -47,7 +47,8 @@ def test_one_sample_track():
 
 
 def test_every_metres_at_ten_metre_spacing_keeps_half():
-    xy = np.stack([np.arange(100) * 10.0, np.zeros(100)], axis=1) + 1e-9 * np.random.default_rng(0).normal(size=(100, 2))
+    noise = 1e-9 * np.random.default_rng(0).normal(size=(100, 2))
+    xy = np.stack([np.arange(100) * 10.0, np.zeros(100)], axis=1) + noise
     keep = every_metres(xy, 20.0)
     assert len(keep) == 50 and keep[:3].tolist() == [0, 2, 4]
     assert len(every_metres(xy, 10.0)) == 100 and len(every_metres(xy, 1000.0)) == 1

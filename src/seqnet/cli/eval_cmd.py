@@ -181,7 +181,7 @@ def report_config(args: argparse.Namespace) -> ReportConfig | None:
         raise ConfigError("--report writes report.html beside results.json: give --out DIR")
     for flag, folder in (("--images-query", args.images_query), ("--images-ref", args.images_ref)):
         if folder is not None and not Path(folder).is_dir() and not (Path(folder).is_file() and is_video(folder)):
-            raise ConfigError(f"{flag} {folder} is neither a folder nor a video file")
+            raise ConfigError(f"{flag} {folder} is not a folder (nor a video file)")
     if bool(args.images_query) != bool(args.images_ref):
         raise ConfigError("the gallery needs both --images-query and --images-ref (or neither)")
     return ReportConfig(title=f"seqnet eval: {Path(args.dataset).name}", query_images=args.images_query,

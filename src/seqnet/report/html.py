@@ -34,7 +34,7 @@ from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
-SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery", "trajectory", "pairs")
+SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery")  # always; "trajectory", "pairs" with positions
 CSS = """body{font-family:sans-serif;margin:2em auto;max-width:1100px;color:#222}
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:2px 8px;text-align:right}
 td:first-child,th:first-child{text-align:left}nav a{margin-right:1em}pre{background:#f4f4f4;padding:.5em;
@@ -185,14 +185,22 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
 def place_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
     """With positions in metres: the trajectory plot; with the frames too (image folders or videos): the pair
     images of the worst and best queries (:mod:`seqnet.report.places`)."""
-    from .places import has_route, pairs_body, trajectory_body
+    from .places import has_route, pair_items, trajectory_png
 
     if not (has_route(ds) and len(ev.retrieved)):
         return []
-    out = [Section("trajectory", "Trajectory", trajectory_body(ev, ds))]
+    png, name = trajectory_png(ev, ds)
+    out = [Section("trajectory", "Trajectory", png_tag(png, "trajectory") + f"<p>Method <b>{html.escape(name)}</b>: "
+                   "each evaluated query placed where it was recognised on the reference route (green: within the "
+                   "radius, red: wrong, a line to its true position); right: the error in metres.</p>")]
     if conf.query_images and conf.ref_images and ds.query.names and ds.reference.names:
-        out.append(Section("pairs", "Worst and best queries",
-                           pairs_body(ev, ds, Path(conf.query_images), Path(conf.ref_images))))
+        name, items = pair_items(ev, ds, Path(conf.query_images), Path(conf.ref_images))
+        cells = "".join(f'<div class="ex {"ok" if ok else "bad"}" style="width:320px">'
+                        f'{png_tag(png, "pair") if png else ""}<p>{html.escape(text)}</p></div>'
+                        for ok, png, text in items)
+        out.append(Section("pairs", "Worst and best queries", f"<p>Method <b>{html.escape(name)}</b>: each picture "
+                           "is the query frame | the matched reference frame | the reference frame nearest to the "
+                           f"query's true position.</p>{cells}"))
     return out
 
 

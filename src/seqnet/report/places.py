@@ -6,7 +6,6 @@ nearest to the query's position).
 
 from __future__ import annotations
 
-import html
 from pathlib import Path
 from typing import Any
 
@@ -46,15 +45,10 @@ def has_route(ds: Dataset) -> bool:
     return ds.position_unit == "metres" and ds.reference.positions.ndim == 2 and ds.reference.positions.shape[1] == 2
 
 
-def trajectory_body(ev: Any, ds: Dataset) -> str:
-    """The trajectory section's HTML: the plot of the best method's answers."""
-    from .html import png_tag
-
+def trajectory_png(ev: Any, ds: Dataset) -> tuple[bytes, str]:
+    """``(PNG, method)``: the trajectory plot of the best method's answers."""
     name = best_method(ev)
-    fig = trajectory_figure(evaluation_view(ev, ds, name), name)
-    return (png_tag(figure_png(fig), "trajectory") + f"<p>Method <b>{html.escape(name)}</b>: each evaluated query "
-            "placed where it was recognised on the reference route (green: within the radius, red: wrong, a line to "
-            "its true position); right: the error in metres.</p>")
+    return figure_png(trajectory_figure(evaluation_view(ev, ds, name), name)), name
 
 
 def pick_pairs(view: TrackView, n: int = PAIRS) -> tuple[list[int], list[int]]:
@@ -85,30 +79,27 @@ def pair_png(frames: list[np.ndarray], gap: int = 3) -> bytes:
     return buf.getvalue()
 
 
-def pairs_body(ev: Any, ds: Dataset, query_root: Path, ref_root: Path) -> str:
-    """The pairs section's HTML: worst and best queries of the best method, query | matched | true reference."""
-    from .html import png_tag
-
+def pair_items(ev: Any, ds: Dataset, query_root: Path, ref_root: Path) -> tuple[str, list[tuple[bool, bytes | None,
+                                                                                                str]]]:
+    """``(method, [(correct, PNG or None, caption)])``: the worst and best queries of the best method, each the
+    query frame | the matched reference frame | the true reference frame (None: not readable, said in the
+    caption)."""
     name = best_method(ev)
     tv, view = evaluation_view(ev, ds, name), ev.view(name)
-    top = ev.retrieved[name][:, 0]
+    top, err = ev.retrieved[name][:, 0], errors(tv)
     worst, best = pick_pairs(tv)
-    cells = []
+    items = []
     for label, rows in (("worst", worst), ("best", best)):
         for row in rows:
             qi, mi = int(view.q_items[row]), int(view.r_items[top[row]])
             ti = int(np.argmin(np.linalg.norm(ds.reference.positions - ds.query.positions[qi], axis=1)))
             names = (ds.query.names[qi], ds.reference.names[mi], ds.reference.names[ti])
+            caption = (f"{label}: query {names[0]} → {names[1]} ({float(err[row]):.0f} {ds.position_unit} off; true "
+                       f"place {names[2]})")
             try:
                 png = pair_png([gallery_image(r, n) for r, n in zip((query_root, ref_root, ref_root), names,
                                                                      strict=True)])
-                image = png_tag(png, f"query {names[0]}")
             except SeqnetError as e:
-                image = f"<p>(pictures left out: {html.escape(str(e)[:300])})</p>"
-            err = float(errors(tv)[row])
-            cells.append(f'<div class="ex {"ok" if label == "best" else "bad"}" style="width:320px">{image}<p>'
-                         f"{label}: query {html.escape(names[0])} → {html.escape(names[1])} ({err:.0f} "
-                         f"{html.escape(ds.position_unit)} off; true place {html.escape(names[2])})</p></div>")
-    head = (f"<p>Method <b>{html.escape(name)}</b>: each picture is the query frame | the matched reference frame | "
-            "the reference frame nearest to the query's true position.</p>")
-    return head + "".join(cells)
+                png, caption = None, f"{caption} (pictures left out: {str(e)[:300]})"
+            items.append((label == "best", png, caption))
+    return name, items
