@@ -2,7 +2,7 @@
 
 Left: the reference route (grey), the query's true path (blue, dashed, with ground truth) and each estimate
 placed on the route, green when correct (within the radius) and red when wrong, a thin red line from the true
-position to a wrong estimate; without ground truth the estimates are coloured by confidence. Right (with ground
+position to a wrong estimate (fainter the more there are); without ground truth the estimates are coloured by confidence. Right (with ground
 truth): the error of each estimate in metres over the query frames, the radius dashed. Positions in frames (a
 frame-aligned dataset) are drawn as the estimated reference frame over the query frame.
 """
@@ -32,7 +32,7 @@ def _route(ax: Any, view: TrackView) -> None:
     """The 2-D panel: route, true path, estimates, wrong-estimate lines."""
     o = np.nanmin(view.ref, axis=0) if len(view.ref) else np.zeros(2)
     ref, est = view.ref - o, view.estimate - o
-    ax.plot(ref[:, 0], ref[:, 1], color=GREY, lw=4, alpha=0.5, label="reference route", zorder=1)
+    ax.plot(ref[:, 0], ref[:, 1], color=GREY, lw=4, alpha=0.6, label="reference route", zorder=1)
     ax.plot(*ref[0], marker="s", color="k", ms=6, ls="", label="route start", zorder=4)
     if view.truth is None:
         sc = ax.scatter(est[:, 0], est[:, 1], c=view.confidence, cmap="viridis", s=12, zorder=3, label="estimate")
@@ -43,8 +43,11 @@ def _route(ax: Any, view: TrackView) -> None:
         ok = np.asarray(view.correct, bool)
         known = np.asarray(view.has_positive, bool) if view.has_positive is not None else np.isfinite(true[:, 0])
         wrong = known & ~ok & np.isfinite(est[:, 0])
-        for i in np.flatnonzero(wrong):
-            ax.plot([true[i, 0], est[i, 0]], [true[i, 1], est[i, 1]], color=RED, lw=0.5, alpha=0.5, zorder=2)
+        from matplotlib.collections import LineCollection
+
+        segments = np.stack([true[wrong], est[wrong]], axis=1)  # [W, 2, 2]: true position -> wrong estimate
+        alpha = min(0.5, 40.0 / max(len(segments), 1))  # many wrong answers: faint lines, the route stays legible
+        ax.add_collection(LineCollection(segments, colors=RED, linewidths=0.5, alpha=alpha, zorder=0))
         for mask, colour, label in ((known & ok, GREEN, "correct"), (wrong, RED, "wrong"),
                                     (~known, GREY, "no ground truth")):
             if mask.any():
