@@ -2,9 +2,10 @@
 
 Left: the reference route (grey), the query's true path (blue, dashed, with ground truth) and each estimate
 placed on the route, green when correct (within the radius) and red when wrong, a thin red line from the true
-position to a wrong estimate (fainter the more there are); without ground truth the estimates are coloured by confidence. Right (with ground
-truth): the error of each estimate in metres over the query frames, the radius dashed. Positions in frames (a
-frame-aligned dataset) are drawn as the estimated reference frame over the query frame.
+position to a wrong estimate (fainter the more there are); without ground truth the estimates are coloured by
+confidence. Right (with ground truth): the error of each estimate in metres over the query frames, the radius
+dashed. Positions in frames (a frame-aligned dataset) are drawn as the estimated reference frame over the query
+frame.
 """
 
 from __future__ import annotations
