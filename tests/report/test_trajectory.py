@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seqnet.localize.trackfile import TrackView
+from seqnet.data.trajectory import TrackView
 from seqnet.report.places import pair_png, pick_pairs
 from seqnet.report.trajectory import errors, trajectory_figure
 

@@ -29,6 +29,7 @@ from ..core.stage import Written
 from ..core.utils import get_device, logger
 from ..data.bags import DEFAULT_TOLERANCE
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
+from ..data.trajectory import TrackView
 from ..eval.evaluate import EvalConfig
 from ..reference.base import Reference
 from ..security.dirs import remove_dead_temps
@@ -43,7 +44,7 @@ if TYPE_CHECKING:
 from .describing import map_describer
 from .localizer import Estimate, traverse_reference
 from .track import LocalizeConfig, frame_truth, summarize
-from .trackfile import TrackView, check_output, sidecar_of, track_rows, write_track
+from .trackfile import check_output, sidecar_of, track_rows, write_track
 from .truth import MapFrame, check_frame, query_positions
 from .video import VideoOptions, VideoQuery, check_options, is_video_query
 
@@ -211,7 +212,8 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     write_track(check_output(out), track_rows(est, names, ref_map.names, correct), record)
     logger.debug("localize: %d frames streamed", len(est))
     if on_track is not None:
-        on_track(TrackView.of(ref_map.positions, loc.r_pos, est, q_pos, correct, has, frame.unit, radius))
+        on_track(TrackView.of(ref_map.positions, loc.r_pos, best, np.array([e.confidence for e in est]), q_pos,
+                              correct, has, frame.unit, radius))
     return Written(out, record)
 
 

@@ -11,7 +11,6 @@ An existing track or summary is replaced only when seqnet localize wrote it.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import io
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,34 +30,6 @@ TRACK_COLUMNS = ("frame", "name", "estimate", "estimate_name", "score", "confide
                  "full_window")
 TRACK_KIND = "seqnet-localize/1"
 BOUND = "track"  # in the summary: the size and sampled hash of the track it summarises
-
-
-@dataclasses.dataclass(frozen=True)
-class TrackView:
-    """A track as drawn: the reference route ``ref [Nr, P]``, each frame's estimate ``estimate [Nq, P]`` (the
-    position of its best reference item; NaN without an answer), its true position ``truth [Nq, P]`` (None without
-    ground truth; NaN outside it), ``correct`` / ``has_positive [Nq]`` (None without), ``confidence [Nq]``, the
-    positions' ``unit`` and the ``radius``."""
-
-    ref: np.ndarray
-    estimate: np.ndarray
-    truth: np.ndarray | None
-    correct: np.ndarray | None
-    has_positive: np.ndarray | None
-    confidence: np.ndarray
-    unit: str | None
-    radius: float
-
-    @classmethod
-    def of(cls, ref: np.ndarray, r_pos: np.ndarray, est: Sequence[Estimate], truth: np.ndarray | None,
-           correct: np.ndarray | None, has: np.ndarray | None, unit: str | None, radius: float) -> TrackView:
-        """The view of the estimates ``est`` over reference items at ``r_pos [Nr', P]`` (route ``ref``)."""
-        best = np.array([e.ref_index for e in est], np.int64)
-        pos = np.asarray(r_pos, np.float64).reshape(len(r_pos), -1)
-        estimate = np.where((best >= 0)[:, None], pos[np.maximum(best, 0)], np.nan) if len(pos) else \
-            np.full((len(best), 1), np.nan)
-        return cls(np.asarray(ref, np.float64).reshape(len(ref), -1), estimate, truth, correct, has,
-                   np.array([e.confidence for e in est], np.float64), unit, float(radius))
 
 
 def sidecar_of(out: Path) -> Path:

@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SeqnetError
+from ..data.trajectory import TrackView
 from ..data.traverse import Dataset
-from ..localize.trackfile import TrackView
 from .figures import gallery_image
 from .tables import figure_png
 from .trajectory import errors, trajectory_figure

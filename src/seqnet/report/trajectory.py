@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ..localize.trackfile import TrackView
+from ..data.trajectory import TrackView
 from .tables import new_figure, save_figure
 
 GREEN, RED, GREY, BLUE = "#2ca02c", "#d62728", "#9a9a9a", "#1f77b4"
