@@ -334,3 +334,89 @@ def serving(service, **settings):
         server.should_exit = True
         thread.join(10)
         sock.close()
+
+
+def write_video(path, frames, times=None, creation_time: str | None = None, codec: str = "libx264",
+                rate: int = 10) -> Path:
+    """A video of ``frames`` (uint8 [H, W, 3], even sizes) written with PyAV: at ``rate`` frames per second, or at
+    ``times`` (seconds, increasing: a variable frame rate); ``creation_time`` (ISO-8601) in its metadata. x264 at
+    CRF 0 (lossless) by default, so a frame decodes as it was written but for the colour conversion."""
+    import fractions
+
+    import av
+
+    path = Path(path)
+    with av.open(str(path), "w") as c:
+        if creation_time:
+            c.metadata["creation_time"] = creation_time
+        s = c.add_stream(codec, rate=rate, options={"crf": "0"} if codec == "libx264" else {})
+        s.width, s.height = frames[0].shape[1], frames[0].shape[0]
+        s.pix_fmt = "yuv444p" if codec == "libx264" else "yuv420p"
+        s.codec_context.time_base = fractions.Fraction(1, 1000)
+        for i, img in enumerate(frames):
+            fr = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")
+            fr.pts = int(round(1000 * (i / rate if times is None else times[i])))
+            fr.time_base = fractions.Fraction(1, 1000)
+            for p in s.encode(fr):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    return path
+
+
+def route(n: int, spacing: float = 10.0, lat0: float = 66.0, lon0: float = 14.0) -> tuple[np.ndarray, np.ndarray]:
+    """``(lat [n], lon [n])`` of ``n`` places ``spacing`` metres apart along a winding road (degrees, WGS84)."""
+    heading = 0.5 + 1.8 * np.sin(np.arange(n) / 70.0)
+    step = spacing * np.stack([np.sin(heading), np.cos(heading)], axis=1)
+    en = np.concatenate([[[0.0, 0.0]], np.cumsum(step, axis=0)[:-1]])
+    return lat0 + en[:, 1] / 111320.0, lon0 + en[:, 0] / (111320.0 * np.cos(np.radians(lat0)))
+
+
+def _stamp(t0, seconds: float):
+    import datetime
+
+    return t0 + datetime.timedelta(seconds=float(seconds))
+
+
+def write_gpx(path, t0, times, lat, lon) -> Path:
+    """A GPX 1.1 track: one ``<trkpt>`` per sample at ``t0`` (an aware datetime) + ``times`` seconds."""
+    pts = "".join(f'<trkpt lat="{a:.9f}" lon="{b:.9f}"><ele>12.5</ele><time>'
+                  f'{_stamp(t0, t).strftime("%Y-%m-%dT%H:%M:%S.%fZ")}</time></trkpt>\n'
+                  for t, a, b in zip(times, lat, lon, strict=True))
+    Path(path).write_text('<?xml version="1.0" encoding="UTF-8"?>\n<gpx version="1.1" creator="seqnet tests" '
+                          'xmlns="http://www.topografix.com/GPX/1/1">\n<trk><name>drive</name><trkseg>\n'
+                          f"{pts}</trkseg></trk>\n</gpx>\n", encoding="utf-8")
+    return Path(path)
+
+
+def _nmea_angle(value: float, width: int, hemis: str) -> tuple[str, str]:
+    v = abs(value)
+    deg = int(v)
+    return f"{deg:0{width}d}{(v - deg) * 60:09.6f}", hemis[0] if value >= 0 else hemis[1]
+
+
+def write_nmea(path, t0, times, lat, lon, gga_only: bool = False) -> Path:
+    """An NMEA 0183 log: per sample a GGA sentence and (unless ``gga_only``) an RMC sentence, with checksums."""
+    import pynmea2
+
+    lines = []
+    for t, a, b in zip(times, lat, lon, strict=True):
+        s = _stamp(t0, t)
+        hms = s.strftime("%H%M%S.") + f"{s.microsecond // 10000:02d}"
+        la, ns = _nmea_angle(a, 2, "NS")
+        lo, ew = _nmea_angle(b, 3, "EW")
+        lines.append(str(pynmea2.GGA("GP", "GGA", (hms, la, ns, lo, ew, "1", "08", "0.9", "12.5", "M", "46.9", "M",
+                                                   "", ""))))
+        if not gga_only:
+            lines.append(str(pynmea2.RMC("GP", "RMC", (hms, "A", la, ns, lo, ew, "022.4", "084.4",
+                                                       s.strftime("%d%m%y"), "003.1", "W"))))
+    Path(path).write_text("\r\n".join(lines) + "\r\n", encoding="ascii")
+    return Path(path)
+
+
+def write_track_csv(path, times, lat, lon, t0=None) -> Path:
+    """A CSV track ``time,lat,lon``: seconds since the video's start, or ISO-8601 times from ``t0``."""
+    rows = [f"{t:.6f}" if t0 is None else _stamp(t0, t).isoformat() for t in times]
+    Path(path).write_text("time,lat,lon\n" + "".join(f"{r},{a:.9f},{b:.9f}\n" for r, a, b in zip(rows, lat, lon,
+                                                                                               strict=True)))
+    return Path(path)

@@ -273,7 +273,7 @@ def test_missing_model_is_an_error_not_a_substitute(test_split):
         evaluate(test_split, EvalConfig(methods=("hvpr",), device="cpu"), {"s1": SeqNet(16, 8, 1, 1)})
 
 
-def test_rerank_seq_len_separate_from_seq_len(test_split):
+def test_match_len_separate_from_seq_len(test_split):
     """L_m for the matchers, L for the descriptors; items need both windows to fit."""
     ev = evaluate(test_split, EvalConfig(methods=("delta", "raw+seqmatch", "hvpr-delta:raw+seqmatch"), seq_len=3,
                                          match_len=7, device="cpu"))

@@ -1,4 +1,4 @@
-"""S_L at another test length than it was trained with (eval.checks.check_models, shared by eval, localize and
+"""S_L at another test length than it was trained with (methods.checks.check_models, shared by eval, localize and
 index build): any L >= w runs, is recorded (``model_seq_len``) with one info line; L < w is refused."""
 
 from __future__ import annotations

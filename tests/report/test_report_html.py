@@ -64,7 +64,7 @@ def test_eval_report_is_self_contained(tmp_path, synth_dir, capsys):
     assert sorted(p.name for p in out.iterdir()) == [".seqnet-manifest.json", "pr_curve.png", "report.html",
                                                      "results.json"]  # the manifest: what seqnet wrote there
     tags = assert_self_contained(out / "report.html")
-    assert sum(t == "img" for t, _ in tags) == 3  # Recall@K, PR, distance matrix; no gallery without images
+    assert sum(t == "img" for t, _ in tags) == 4  # Recall@K, PR, distance matrix, trajectory; no gallery, no pairs
     text = (out / "report.html").read_text()
     assert "No gallery" in text and "hvpr-delta:raw+seqmatch" in text and "PR AUC" in text
 

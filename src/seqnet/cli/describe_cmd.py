@@ -30,7 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         usage="%(prog)s IMAGES --method M --out FILE [--shard k/N] [options]\n"
               "       %(prog)s merge SHARD [SHARD ...] --out FILE [--overwrite]",
         description="Describe the images of a folder (sorted by name), a list file (one path per line, relative "
-                    "to the list file) or a ROS bag's image topic (--topic; in timestamp order) into an HDF5 file "
+                    "to the list file), a ROS bag's image topic (--topic; in timestamp order) or a video file's "
+                    "frames (--fps; named by their time) into an HDF5 file "
                     "(datasets 'descriptors', 'names') or a .npy with names "
                     "beside it. Interrupted runs resume when re-run with the same options. Past one machine: "
                     "--shard k/N describes the k-th (0-based) of N contiguous slices of the images (under torchrun, "
@@ -45,6 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "k = 0..N-1 (default under torchrun with WORLD_SIZE > 1: RANK/WORLD_SIZE, written to "
                    "<stem>.shard-k-of-N<suffix> beside --out); merge the N outputs with `seqnet describe merge`")
     add_topic(p)
+    p.add_argument("--fps", type=positive_float, metavar="F", help="with a video file as IMAGES: frames described per "
+                   "second of video time (default: every frame; frames are named by their time in seconds)")
     add_describe_options(p)
     p.add_argument("--overwrite", action="store_true", help="recompute an existing output (and its partial run)")
     add_device(p)
@@ -124,5 +127,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--method is required (one of {', '.join(DESCRIBERS)})")
     shard = resolve_shard(args.shard)
     out = shard_output(args.out, shard) if shard is not None and args.shard is None else args.out  # torchrun rank
-    main(describe_config(args), args.images, out, overwrite=args.overwrite, shard=shard, topic=args.topic)
+    main(describe_config(args), args.images, out, overwrite=args.overwrite, shard=shard, topic=args.topic,
+         fps=args.fps)
     return 0

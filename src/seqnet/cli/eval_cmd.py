@@ -13,6 +13,7 @@ from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
 from ..security.text import shown
 from ..sequence.windows import WINDOW_MODES
+from ..sources.video import is_video
 from . import COMMANDS
 from .common import (
     add_allow_mismatch,
@@ -92,8 +93,10 @@ def add_output_options(p: argparse.ArgumentParser) -> None:
                    "that seqnet did not write; by default they are refused before any work")
     p.add_argument("--report", action="store_true", help="also write a self-contained report.html to --out "
                    "(results, Recall@K and PR plots, distance matrix, example queries)")
-    p.add_argument("--images-query", metavar="DIR", help="--report: folder of the query images (for the gallery)")
-    p.add_argument("--images-ref", metavar="DIR", help="--report: folder of the reference images (for the gallery)")
+    p.add_argument("--images-query", metavar="DIR|VIDEO", help="--report: folder of the query images, or the query "
+                   "video of a dataset from-video (for the gallery and the worst / best pairs)")
+    p.add_argument("--images-ref", metavar="DIR|VIDEO", help="--report: folder of the reference images, or the "
+                   "reference video")
 
 
 def add_recall_options(p: argparse.ArgumentParser) -> None:
@@ -178,8 +181,8 @@ def report_config(args: argparse.Namespace) -> ReportConfig | None:
     if not args.out:
         raise ConfigError("--report writes report.html beside results.json: give --out DIR")
     for flag, folder in (("--images-query", args.images_query), ("--images-ref", args.images_ref)):
-        if folder is not None and not Path(folder).is_dir():
-            raise ConfigError(f"{flag} {folder} is not a folder")
+        if folder is not None and not Path(folder).is_dir() and not (Path(folder).is_file() and is_video(folder)):
+            raise ConfigError(f"{flag} {folder} is not a folder (nor a video file)")
     if bool(args.images_query) != bool(args.images_ref):
         raise ConfigError("the gallery needs both --images-query and --images-ref (or neither)")
     return ReportConfig(title=f"seqnet eval: {Path(args.dataset).name}", query_images=args.images_query,

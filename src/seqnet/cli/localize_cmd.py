@@ -12,6 +12,7 @@ from ..localize.config import LocalizeConfig
 from ..localize.replay import main
 from ..localize.stream import Query, stream
 from ..localize.trackfile import TRACK_COLUMNS
+from ..localize.video import VideoOptions
 from ..matching.velocity import ANCHORS
 from ..methods.grammar import valid_methods
 from ..search.precision import PRECISIONS
@@ -41,9 +42,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--dataset", help="seqnet dataset directory: replay its query traverse against its reference")
     src.add_argument("--map", help="the map: an index map (seqnet index build --window causal; its index "
                      "shortlists) or a seqnet dataset directory, whose reference traverse is used")
-    p.add_argument("--query", metavar="DESCRIPTORS|IMAGES|BAG", help="with --map: a descriptor file (.npy, .h5), a "
-                   "folder / list file of images, or a ROS bag (with --topic), described one by one as the map was "
-                   "(see docs/online.md)")
+    p.add_argument("--query", metavar="DESCRIPTORS|IMAGES|BAG|VIDEO|URL", help="with --map: a descriptor file (.npy, "
+                   ".h5), a folder / list file of images, a ROS bag (with --topic), a video file, or a live stream (a "
+                   "URL or /dev/videoN), described one by one as the map was (see docs/online.md, docs/video.md)")
+    add_video_query(p)
     add_topic(p, "--query")
     p.add_argument("--positions-topic", metavar="TOPIC", help="with a ROS bag as --query: the ground truth, each frame "
                    "at the position of this topic's message nearest in time (sensor_msgs/NavSatFix: UTM metres; "
@@ -90,6 +92,44 @@ def localizer_config(args: argparse.Namespace) -> LocalizeConfig:
                       device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
 
 
+def add_video_query(p: argparse.ArgumentParser) -> None:
+    """The options of a video or stream as --query: --fps, --realtime, --positions, --video-start, --plot."""
+    p.add_argument("--fps", type=positive_float, metavar="F", help="video query: frames localised per second of video "
+                   "(default: every frame)")
+    p.add_argument("--realtime", action="store_true", help="video query: pace a file by its own clock and drop "
+                   "frames that come while the localiser is behind (the summary counts them: dropped)")
+    p.add_argument("--positions", metavar="FILE", help="video query: its GPS track (GPX, NMEA or CSV with a time "
+                   "column), the ground truth: error in metres, correct within --radius")
+    p.add_argument("--video-start", metavar="ISO", help="video query: when its first frame was recorded (ISO-8601), "
+                   "overriding its creation_time, to join a track of absolute times")
+    p.add_argument("--timeout", type=positive_float, metavar="SECONDS", help="live stream: seconds it may stall "
+                   "before it is given up (default 10)")
+    p.add_argument("--plot", metavar="TRACK.png", help="draw the trajectory: the map's route and each estimate on it, "
+                   "coloured correct / wrong with --positions (else by confidence)")
+
+
+def _plotter(path: str | None):  # noqa: ANN202 - a hook or None
+    """The ``on_track`` hook that draws the trajectory into ``path`` (None: no plot)."""
+    if path is None:
+        return None
+    if not path.lower().endswith(".png"):
+        raise ConfigError(f"--plot {path} must be a .png file")
+
+    def draw(view) -> None:  # noqa: ANN001 - a TrackView
+        from ..report.trajectory import write_trajectory
+
+        write_trajectory(view, path, Path(path).stem)
+
+    return draw
+
+
+def video_options(args: argparse.Namespace) -> VideoOptions:
+    """The :class:`VideoOptions` of the parsed options."""
+    return VideoOptions(fps=args.fps, realtime=args.realtime, video_start=args.video_start,
+                        positions=None if args.positions is None else Path(args.positions),
+                        **({"timeout": args.timeout} if args.timeout else {}))
+
+
 def run(args: argparse.Namespace) -> int:
     conf = localizer_config(args)
     if args.describer is not None and args.query is None:
@@ -101,6 +141,8 @@ def run(args: argparse.Namespace) -> int:
                           "--dataset replays a query traverse with its own positions")
     if args.positions_tolerance is not None and args.positions_topic is None:
         raise ConfigError("--positions-tolerance goes with --positions-topic")
+    if args.map is None and args.plot is not None:
+        raise ConfigError("--plot goes with --map and --query (the map's route and the query's estimates)")
     if (args.map is None) != (args.query is None):
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")
@@ -110,9 +152,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:
         query = Query(Path(args.query), args.topic, args.positions_topic,
-                      args.positions_tolerance or DEFAULT_TOLERANCE)
+                      args.positions_tolerance or DEFAULT_TOLERANCE, video_options(args), args.query)
         out = stream(conf, args.map, query, args.out, args.model, args.shortlist_model, args.rerank_model,
-                     describer=args.describer)
+                     describer=args.describer, on_track=_plotter(args.plot))
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
                    args.distances, args.similarity, args.transposed)
@@ -123,6 +165,12 @@ def run(args: argparse.Namespace) -> int:
         print(f": R@1 {s['recall@1']:.3f} ({s['queries']} with a reference within the radius), "
               f"AUC {s['auc']:.3f}, R@100P {s['recall@100p']:.3f}", end="")
     print("" if "describe_ms" not in s else f"; describing {s['describe_ms']['median']:.1f} ms per image (median)")
+    if "dropped" in s:
+        print(f"video: {s['decoded']} frames decoded, {s['dropped']} dropped"
+              + (f", {s['outside']} outside the track" if s.get("outside") else "")
+              + (f"; decoding {s['decode_share']:.0%} of the frame time" if "decode_share" in s else ""))
+    if args.plot:
+        print(f"trajectory plot in {args.plot}")
     print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
           f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms; track in {out}")
     return 0

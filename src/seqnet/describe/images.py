@@ -82,12 +82,22 @@ def natural_key(text: str) -> list:
     return [int(t) if t.isdecimal() else t.lower() for t in re.split(r"(\d+)", text)]  # "²".isdigit(), not int
 
 
-def list_images(source: str | Path, topic: str | None = None, positions_topic: str | None = None) -> ImageList:
-    """The images of a folder, a list file or the image ``topic`` of a ROS bag, in order (and the positions of the
-    bag's ``positions_topic``, read in the same pass); raise :class:`ImageError` when there are none."""
+def list_images(source: str | Path, topic: str | None = None, positions_topic: str | None = None,
+                fps: float | None = None) -> ImageList:
+    """The images of a folder, a list file, the image ``topic`` of a ROS bag (and the positions of its
+    ``positions_topic``, read in the same pass) or the frames of a video file (``fps`` per second of video, or
+    every frame: :mod:`seqnet.sources.video`), in order; raise :class:`ImageError` when there are none."""
     from ..data.bags import BAG_SUFFIXES, is_bag
+    from ..sources.video import is_video
 
     src = Path(source)
+    if is_video(src) and topic is None and positions_topic is None:
+        from ..sources.video import video_images
+
+        return ImageList(*video_images(src, fps))
+    if fps is not None:
+        raise ConfigError(f"--fps {fps:g} goes with a video file, but {src} is not one (a video ends in .mp4, .mov, "
+                          ".mkv, .avi, ...)")
     if is_bag(src) or (topic is not None and src.suffix.lower() in BAG_SUFFIXES):
         from .bags import bag_images
 

@@ -52,7 +52,8 @@ def partial_file_for(out: str | os.PathLike[str]) -> Path:
 
 
 def main(conf: DescribeConfig, images: str | os.PathLike[str], out: str | os.PathLike[str],
-         overwrite: bool = False, shard: Shard | None = None, topic: str | None = None) -> Path:
+         overwrite: bool = False, shard: Shard | None = None, topic: str | None = None,
+         fps: float | None = None) -> Path:
     """The describe stage: describe the folder or list file ``images`` (or the image ``topic`` of the ROS bag
     ``images``) into ``out`` (.h5/.hdf5/.npy).
 
@@ -60,17 +61,17 @@ def main(conf: DescribeConfig, images: str | os.PathLike[str], out: str | os.Pat
     ``shard``: describe only that slice of the images (:mod:`seqnet.describe.shards`; merge the
     outputs with :func:`seqnet.describe.merge.merge_shards`). Returns the path of the output file.
     """
-    describe_folder(images, conf, out=out, overwrite=overwrite, shard=shard, topic=topic)
+    describe_folder(images, conf, out=out, overwrite=overwrite, shard=shard, topic=topic, fps=fps)
     return Path(out)
 
 
 def describe_folder(source: str | os.PathLike[str], conf: DescribeConfig, out: str | os.PathLike[str] | None = None,
                     overwrite: bool = False, shard: Shard | None = None,
-                    topic: str | None = None) -> tuple[np.ndarray, list[str]]:
-    """Descriptors ``[N, D]`` and names of a folder or list file of images, or of the image ``topic`` of a ROS
-    bag (``shard``: of its slice only); with ``out``, also written there resumably (see the module docstring).
-    Logs one summary line."""
-    images = list_images(source, topic)
+                    topic: str | None = None, fps: float | None = None) -> tuple[np.ndarray, list[str]]:
+    """Descriptors ``[N, D]`` and names of a folder or list file of images, of the image ``topic`` of a ROS
+    bag, or of a video's frames (``fps`` per second; ``shard``: of its slice only); with ``out``, also written there
+    resumably (see the module docstring). Logs one summary line."""
+    images = list_images(source, topic, fps=fps)
     t0 = time.perf_counter()
     if out is None:
         if shard is not None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +30,7 @@ from ..core.provenance import check_same
 from ..core.stage import Written
 from ..data.bags import DEFAULT_TOLERANCE
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
+from ..data.trajectory import TrackView
 from ..eval.evaluate import EvalConfig
 from ..methods.protocol import Reference
 from ..security.dirs import remove_dead_temps
@@ -38,15 +39,16 @@ from ..security.limits import number
 from ..security.locks import locked
 
 if TYPE_CHECKING:
-    from ..describe.describer import Describer
-    from ..describe.images import ImageList  # describers (and h5py) load only when a query is described
+    from ..describe.images import ImageList
     from ..maps.map import Map
 
 from .config import LocalizeConfig
+from .describing import map_describer
 from .localizer import Estimate, traverse_reference
 from .replay import frame_truth, summarize
 from .trackfile import check_output, sidecar_of, track_rows, write_track
 from .truth import MapFrame, check_frame, query_positions
+from .video import VideoOptions, VideoQuery, check_options, is_video_query
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -108,62 +110,14 @@ def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: boo
                  describer: str | None = None) -> tuple[Frames, list[str], int]:
     """The ``images`` of ``source`` (a folder, a list file or a bag's image topic: :func:`list_images`), each
     described when it is read by the map's describer (:func:`map_describer`)."""
-    describe = map_describer(ref_map, describer)
-    check_described(ref_map, describe, describe(describe.load(images.paths[:1])),
-                    f"the query images of {source} as described here", allow)
+    d, check = map_describer(ref_map, allow, describer)
+    check(d(d.load(images.paths[:1])), f"the query images of {source} as described here")
 
     def frames() -> Frames:
         for p in images.paths:
             t0 = time.perf_counter()
-            d = describe(describe.load([p]))[0]
-            yield d, (time.perf_counter() - t0) * 1e3
-
-    return frames(), images.names, len(images)
-
-
-def map_describer(ref_map: Reference, describer: str | None = None) -> Describer:
-    """The describer the map's descriptors were made with, rebuilt from its provenance (no fitted state: a PCA or
-    NetVLAD clusters cannot be rebuilt). A plug-in describer the map's files name is imported only when the user
-    names the same one (``describer``, ``--describer``): seqnet runs no code a file names."""
-    from ..describe import DescribeConfig, make_describer
-
-    prov = ref_map.provenance
-    if not prov or prov.get("kind") != "describe":
-        raise ConfigError("the map's descriptors do not record how they were described (no 'describe' provenance), "
-                          "so query images cannot be described alike; describe them yourself and pass the "
-                          "descriptor file as --query")
-    derived = ("dim", "whiten", "describer_provenance")  # not options: the PCA's, a plug-in module's own
-    settings = prov.get("settings") if isinstance(prov.get("settings"), dict) else {}
-    check_named_code(settings, describer)
-    conf = DescribeConfig.from_dict({k: v for k, v in settings.items() if k not in derived})
-    if conf.needs_fit or "dim" in prov["settings"]:
-        raise ConfigError(f"the map was described with fitted state ({conf.method}, PCA or clusters), which "
-                          "localize cannot rebuild; describe the query images with `seqnet describe` using the "
-                          "map's fitted state and pass the descriptor file as --query")
-    return make_describer(conf)
-
-
-def check_described(ref_map: Reference, describer: Describer, desc: np.ndarray, what: str, allow: bool) -> None:
-    """Query descriptors ``desc [N, D]`` made here by ``describer`` must match the map's provenance."""
-    from ..describe.stage import describe_provenance
-
-    check_same(ref_map.provenance, describe_provenance(describer.config, None, desc), "the map's descriptors", what,
-               allow)
-
-
-def check_named_code(settings: Mapping[str, object], describer: str | None) -> None:
-    """Refuse to rebuild a describer that would run code or read a file named in the map's files: a plug-in
-    module (unless the user names the same one with ``--describer``) or a NetVLAD checkpoint."""
-    named = settings.get("describer")
-    if named and named != describer:
-        raise ConfigError(f"the map's descriptors were made by the plug-in describer {str(named)[:80]!r}, named in the "
-                          "map's files; seqnet imports no code a file names: pass --describer "
-                          f"{str(named)[:80]} if you trust that module")
-    if settings.get("checkpoint"):
-        raise ConfigError("the map was described with a checkpoint named in its files, which localize does not open; "
-                          "describe the query images with `seqnet describe` and that checkpoint, and pass the "
-                          "descriptor file as --query")
-
+            out = d(d.load([p]))[0]
+            yield out, (time.perf_counter() - t0) * 1e3
 
 @dataclasses.dataclass(frozen=True)
 class Query:
@@ -174,20 +128,29 @@ class Query:
     topic: str | None = None
     positions_topic: str | None = None
     tolerance: float = DEFAULT_TOLERANCE
+    video: VideoOptions = VideoOptions()
+    name: str | None = None  # as given (a URL keeps its '//'); None: str(path)
+
+    @property
+    def shown(self) -> str:
+        """The query as named."""
+        return self.name or str(self.path)
 
 
 def stream(conf: LocalizeConfig, map_dir: str | Path, query: str | Path | Query, out: str | Path,
            models: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
-           rerank_model: str | Path | None = None, topic: str | None = None, describer: str | None = None) -> Written:
+           rerank_model: str | Path | None = None, topic: str | None = None, describer: str | None = None,
+           on_track: Callable[[TrackView], None] | None = None) -> Written:
     """hloc-style stage: localise every frame of ``query`` (``topic``: the image topic of the ROS bag ``query``; a
     :class:`Query` names its positions topic too) against the map in ``map_dir`` with the model checkpoints given;
     writes ``out`` (track.csv) and its ``.json`` summary (with ground truth: R@1, AUC, R@100P); returns ``out``. The
     track is locked for the whole run (a second writer: exit 1). ``describer``: the plug-in describer the user
-    trusts (:func:`check_named_code`)."""
+    trusts (:func:`seqnet.localize.describing.check_named_code`). ``on_track``: called with the
+    :class:`TrackView` of the track written (e.g. to draw it)."""
     q = query if isinstance(query, Query) else Query(Path(query), topic)
     with locked(check_output(out)):
         remove_dead_temps([Path(out), sidecar_of(Path(out))])
-        return _stream(conf, map_dir, q, Path(out), models, shortlist_model, rerank_model, describer)
+        return _stream(conf, map_dir, q, Path(out), models, shortlist_model, rerank_model, describer, on_track)
 
 
 def query_images(q: Query) -> tuple[bool, ImageList | None, np.ndarray | None]:
@@ -210,17 +173,21 @@ def query_images(q: Query) -> tuple[bool, ImageList | None, np.ndarray | None]:
 
 
 def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, models: Sequence[str | Path],
-            shortlist_model: str | Path | None, rerank_model: str | Path | None, describer: str | None) -> Written:
+            shortlist_model: str | Path | None, rerank_model: str | Path | None, describer: str | None,
+            on_track: Callable[[TrackView], None] | None = None) -> Written:
     from ..sequence.checkpoints import load_models
 
-    is_file, images, q_pos = query_images(q)
+    video = is_video_query(q.shown) and q.topic is None
+    check_options(q.video, video, q.shown)
+    is_file, images, q_pos = (False, None, None) if video else query_images(q)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     ref_map, radius, frame = load_reference(map_dir, loaded, conf)
     if q_pos is not None:
         check_frame(frame, images.positions.frame, map_dir, q.positions_topic)
     loc = conf.localizer(ref_map, radius)
-    frames, names, n = (descriptor_frames(q.path, ref_map, conf.allow_mismatch) if is_file
-                        else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer))
+    vq = VideoQuery(q.shown, q.video, ref_map, conf.allow_mismatch, describer) if video else None
+    frames, names, n = ((vq.frames(), vq.names, None) if vq else descriptor_frames(q.path, ref_map, conf.allow_mismatch)
+                        if is_file else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer))
     est: list[Estimate] = []
     describe_ms = []
     for d, ms in progress(frames, desc=f"localize ({conf.method})", total=n, unit="frame"):
@@ -228,9 +195,13 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
         describe_ms.append(ms)
     best = np.array([e.ref_index for e in est], dtype=np.int64)
     correct, has = (None, None) if q_pos is None else frame_truth(q_pos, loc.r_pos, radius, best)
+    if vq is not None:
+        correct, has, q_pos = vq.truth(frame, map_dir, loc.r_pos, radius, best)
     summary = summarize(est, correct, has)
-    if not is_file:
+    if not is_file and describe_ms:
         summary["describe_ms"] = {"mean": float(np.mean(describe_ms)), "median": float(np.median(describe_ms))}
+    if vq is not None:
+        summary.update(vq.summary(np.array([e.latency_ms for e in est])))
     record = {"summary": summary, "config": {**conf.to_dict(), "seq_len": loc.seq_len, "match_len": loc.match_len,
                                              "radius": radius},
               "inputs": {"map": str(Path(map_dir).resolve()), **_query_inputs(q, images),
@@ -239,12 +210,18 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
                              "models": {r: m.provenance for r, m in loaded.items()}}}
     write_track(check_output(out), track_rows(est, names, ref_map.names, correct), record)
     logger.debug("localize: %d frames streamed", len(est))
+    if on_track is not None:
+        on_track(TrackView.of(ref_map.positions, loc.r_pos, best, np.array([e.confidence for e in est]), q_pos,
+                              correct, has, frame.unit, radius))
     return Written(out, record)
 
 
 def _query_inputs(q: Query, images: ImageList | None) -> dict[str, Any]:
     """The query's entries of the summary's ``inputs``: its path, topic, positions topic and frame."""
-    out: dict[str, Any] = {"query": str(q.path.resolve()), **({"topic": q.topic} if q.topic else {})}
+    name = q.name if q.name and is_video_query(q.name) and not q.path.exists() else str(q.path.resolve())
+    out: dict[str, Any] = {"query": name, **({"topic": q.topic} if q.topic else {})}
+    if q.video.positions is not None:
+        out["positions"] = str(Path(q.video.positions).resolve())
     if q.positions_topic is not None and images is not None and images.positions is not None:
         out.update(positions_topic=q.positions_topic, positions_tolerance=q.tolerance,
                    positions_frame=images.positions.frame)

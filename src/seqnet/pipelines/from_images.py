@@ -36,7 +36,7 @@ from ..data.convert import assemble_dataset, match_names, read_positions_csv
 from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.io import save_dataset
-from ..data.positives import read_positives
+from ..data.positives import Positives, read_positives
 from ..data.traverse import Traverse
 from ..describe import DescribeConfig, make_describer
 from ..describe.images import ImageList, list_images
@@ -174,6 +174,21 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
     (pos_r, bounds_r, unit, frame), (pos_q, bounds_q, _, _) = _both_positions(conf, (ref, qry), (reference, query),
                                                                              given)
     truth = read_positives(positives).check(len(qry), len(ref), str(positives)) if positives else None
+    extra = {"images": {"reference": str(Path(reference).resolve()), "query": str(Path(query).resolve())},
+             **({"topics": {"images": topic, "positions": positions_topic}} if topic else {})}
+    return write_dataset(conf, (ref, qry), ((pos_r, bounds_r), (pos_q, bounds_q)), (unit, frame), out, overwrite,
+                         truth, extra)
+
+
+def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
+                  positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
+                  unit: tuple[str, str | None], out: str | Path, overwrite: bool = False,
+                  truth: Positives | None = None, extra: dict | None = None) -> Path:
+    """Describe the reference and query ``images`` with one describer and write the dataset ``out``: their
+    ``positions`` (``[N, P]`` and sequence bounds or None, each) in ``unit`` (``(unit, frame)``), explicit
+    positives ``truth``, and ``extra`` metadata (what they were read from)."""
+    ref, qry = images
+    (pos_r, bounds_r), (pos_q, bounds_q) = positions
     with locked(Path(out)):
         if Path(out).exists() and any(Path(out).iterdir()) and not overwrite:
             raise ConfigError(f"output directory {out} exists and is not empty (use --overwrite to replace it)")
@@ -181,20 +196,19 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
         fit = _fit_images(conf, ref, qry)
         describer = make_describer(conf.describe.replace(fit=fit) if fit else conf.describe, fit or ref.paths)
         desc = {}
-        for side, images in (("reference", ref), ("query", qry)):
-            logger.info("describing %d %s images (%s)", len(images), side, conf.describe.method)
-            desc[side], got = describer.describe(images.paths, images.names, spill=True)  # large: a spill file
-            if len(got) != len(images):
-                missing = sorted(set(images.names) - set(got))
+        for side, side_images in (("reference", ref), ("query", qry)):
+            logger.info("describing %d %s images (%s)", len(side_images), side, conf.describe.method)
+            desc[side], got = describer.describe(side_images.paths, side_images.names, spill=True)  # large: spilled
+            if len(got) != len(side_images):
+                missing = sorted(set(side_images.names) - set(got))
                 raise ImageError(f"{len(missing)} {side} images could not be read (first: {missing[0]}); their "
                                  "ground truth would no longer line up: fix or remove them, then run again")
         prov = describe_provenance(describer.config, fit, desc["reference"])
         ds = assemble_dataset(
             Traverse(desc["reference"], pos_r, ref.names, bounds_r, "reference", prov),
-            Traverse(desc["query"], pos_q, qry.names, bounds_q, "query", prov), unit, conf.radius,
+            Traverse(desc["query"], pos_q, qry.names, bounds_q, "query", prov), unit[0], conf.radius,
             splits=conf.splits, name=conf.name or Path(out).name, positives=truth,
             extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "ground_truth": conf.ground_truth,
-                   "images": {"reference": str(Path(reference).resolve()), "query": str(Path(query).resolve())},
-                   "describe": describer.config.to_dict() | {"fit": None}, "positions_frame": frame,
-                   **({"topics": {"images": topic, "positions": positions_topic}} if topic else {})})
+                   "describe": describer.config.to_dict() | {"fit": None}, "positions_frame": unit[1],
+                   **(extra or {})})
         return save_dataset(ds, out, overwrite=overwrite)

@@ -8,6 +8,7 @@ bytes; nothing here writes files.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import os
 from collections.abc import Sequence
@@ -158,7 +159,10 @@ def gallery_image(root: Path, name: str) -> np.ndarray:
     from PIL import Image
 
     from ..security.pictures import decode
+    from ..sources.video import is_video
 
+    if is_video(root) and Path(root).is_file():  # the frames of a video (from-video), named by their time
+        return video_frame(Path(root), name)
     path = inside(root, name, "gallery image name", ImageError)
     with open_input(path, "image", ImageError) as f:
         opened = f"/proc/self/fd/{f.fileno()}"
@@ -167,3 +171,28 @@ def gallery_image(root: Path, name: str) -> np.ndarray:
             if os.path.commonpath([real, real_root]) != real_root:
                 raise ImageError(f"gallery image name {name!r} leads outside {root} (to {real})")
         return decode(lambda: Image.open(f), path)
+
+
+def video_frame(video: Path, name: str) -> np.ndarray:
+    """The frame of ``video`` named ``name`` (its time, as ``seqnet dataset from-video`` names frames), decoded as
+    images are; a name that is no frame's is an :class:`ImageError`."""
+    from ..security.pictures import decode
+    from ..sources.video import VideoFrame
+
+    v = _open_video(str(video))
+    index = {n: i for i, n in enumerate(v.names)}.get(name)
+    if index is None:
+        raise ImageError(f"{video} has no frame named {name[:40]!r} (frames are named by their time in seconds)")
+    frame = VideoFrame(v.file, index)
+    return decode(frame.open, frame)
+
+
+@functools.lru_cache(maxsize=4)
+def _open_video(path: str) -> Any:
+    """A video opened once for the report's frames (its frame names listed)."""
+    from types import SimpleNamespace
+
+    from ..sources.video import VideoFile, frame_name
+
+    v = VideoFile(path)
+    return SimpleNamespace(file=v, names=[frame_name(t) for t in v.times])

@@ -8,7 +8,9 @@ Sections (their ``id``): ``summary`` (what was evaluated and the resolved config
 distance matrix of the evaluated items, downsampled, with the ground truth and each method's top-1
 over it), ``gallery`` (example queries — the query window frames above the top-1 reference window
 frames, marked correct or wrong, failures first — when the dataset has image names and the image
-folders are given). Experiments add their own sections before these (:func:`write_html_report`).
+folders or videos are given), and with positions in metres ``trajectory`` (each query placed where it was
+recognised on the reference route) and ``pairs`` (query | matched | true reference frame of the worst and best
+queries, with the frames). Experiments add their own sections before these (:func:`write_html_report`).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
-SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery")
+SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery")  # always; "trajectory", "pairs" with positions
 CSS = """body{font-family:sans-serif;margin:2em auto;max-width:1100px;color:#222}
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:2px 8px;text-align:right}
 td:first-child,th:first-child{text-align:left}nav a{margin-right:1em}pre{background:#f4f4f4;padding:.5em;
@@ -176,7 +178,30 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
                                                                               conf.matrix_side)), "distance matrix")
                 + f"<p>{matrix_note(ev)}</p>"),
         gallery_section(ev, ds, conf),
+        *place_sections(ev, ds, conf),
     ]
+
+
+def place_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
+    """With positions in metres: the trajectory plot; with the frames too (image folders or videos): the pair
+    images of the worst and best queries (:mod:`seqnet.report.places`)."""
+    from .places import has_route, pair_items, trajectory_png
+
+    if not (has_route(ds) and len(ev.retrieved)):
+        return []
+    png, name = trajectory_png(ev, ds)
+    out = [Section("trajectory", "Trajectory", png_tag(png, "trajectory") + f"<p>Method <b>{html.escape(name)}</b>: "
+                   "each evaluated query placed where it was recognised on the reference route (green: within the "
+                   "radius, red: wrong, a line to its true position); right: the error in metres.</p>")]
+    if conf.query_images and conf.ref_images and ds.query.names and ds.reference.names:
+        name, items = pair_items(ev, ds, Path(conf.query_images), Path(conf.ref_images))
+        cells = "".join(f'<div class="ex {"ok" if ok else "bad"}" style="width:320px">'
+                        f'{png_tag(png, "pair") if png else ""}<p>{html.escape(text)}</p></div>'
+                        for ok, png, text in items)
+        out.append(Section("pairs", "Worst and best queries", f"<p>Method <b>{html.escape(name)}</b>: each picture "
+                           "is the query frame | the matched reference frame | the reference frame nearest to the "
+                           f"query's true position.</p>{cells}"))
+    return out
 
 
 def matrix_note(ev: Any) -> str:

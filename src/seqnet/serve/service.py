@@ -1,7 +1,7 @@
 """The map a server shares: loaded once, as ``seqnet localize --map`` loads it, and what a frame becomes.
 
 :func:`load_service` loads the models and the map with :func:`seqnet.localize.stream.load_reference` and rebuilds the
-map's describer (:func:`seqnet.localize.stream.map_describer`) when images can be described as the map was; each
+map's describer (:func:`seqnet.localize.describing.map_describer`) when images can be described as the map was; each
 session gets its own localiser from :meth:`LocalizeConfig.localizer <seqnet.localize.config.LocalizeConfig.localizer>`,
 the one ``seqnet localize`` uses, over the shared reference.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,8 +20,9 @@ import numpy as np
 from ..core.errors import ConfigError, SeqnetError
 from ..core.log import logger
 from ..localize.config import LocalizeConfig
+from ..localize.describing import map_describer
 from ..localize.localizer import Estimate, Localizer
-from ..localize.stream import check_described, load_reference, map_describer
+from ..localize.stream import load_reference
 from ..methods.protocol import Reference
 from .bodies import DESCRIPTOR_TYPE, BadBody, ImageBytes, read_descriptor
 from .errors import UNSUPPORTED, HttpError
@@ -46,6 +47,7 @@ class Service:
     radius: float
     name: str
     describer: Describer | None = None
+    check_image: Callable[[np.ndarray, str], None] | None = None  # the described image's provenance vs the map's
     no_images: str = ""
 
     @property
@@ -71,8 +73,7 @@ class Service:
                             f"descriptors ({DESCRIPTOR_TYPE})")
         try:
             desc = self.describer(self.describer.load([ImageBytes(body, kind)]))
-            check_described(self.reference, self.describer, desc, "the image as described here",
-                            self.conf.allow_mismatch)
+            self.check_image(desc, "the image as described here")
         except SeqnetError as e:
             raise BadBody(str(e)) from e
         return np.asarray(desc[0], dtype=np.float32)
@@ -124,7 +125,7 @@ def load_service(conf: LocalizeConfig, map_path: str | Path, models: Sequence[st
     reference, radius, _ = load_reference(map_path, loaded, conf)
     service = Service(conf, reference, radius, Path(map_path).name)
     try:
-        service.describer = map_describer(reference, describer)
+        service.describer, service.check_image = map_describer(reference, conf.allow_mismatch, describer)
     except ConfigError as e:
         service.no_images = str(e).split(";")[0]
         logger.debug("serve: images are refused: %s", service.no_images)

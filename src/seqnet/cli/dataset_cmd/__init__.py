@@ -12,6 +12,7 @@ from ..common import add_allow_mismatch, positive_float
 from .foreign import add_positions_format, register_from_msls
 from .images import register_from_images
 from .resample import register_resample
+from .video import register_from_video
 
 PRESET_HELP = ("dataset preset (nordland, alias nordland-sw / nordland-sf; oxford-v1.0, oxford-pnv, brisbane, msls): "
                "radius, training radii, splits")
@@ -25,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _register_utm(dsub)
     _register_seqnet(dsub)
     register_from_images(dsub, parse_splits)
+    register_from_video(dsub)
     register_from_msls(dsub, finish)
     register_resample(dsub)
     c = dsub.add_parser("check", help="validate a dataset directory and print a summary")

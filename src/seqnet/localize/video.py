@@ -1,0 +1,115 @@
+"""A video file or a live stream as the query of ``seqnet localize --map``: frames decoded one by one
+(:class:`seqnet.sources.stream.FrameStream`: ``--fps``, ``--realtime`` pacing and drops), each described by the
+map's describer, and ground truth from a GPS track (``--positions``: GPX, NMEA, CSV), interpolated at each frame's
+time in the map's UTM zone; frames outside the track have no ground truth (counted, ``outside``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..methods.protocol import Reference
+from .describing import map_describer
+from .track import frame_truth
+from .truth import MapFrame, check_frame
+
+if TYPE_CHECKING:
+    from ..sources.stream import FrameStream
+
+
+def is_video_query(name: str) -> bool:
+    """Whether ``--query`` names a video file or a live stream (a URL, ``/dev/videoN``)."""
+    from ..security.videos import is_stream_name
+    from ..sources.video import is_video
+
+    return is_stream_name(name) or is_video(name)
+
+
+@dataclasses.dataclass(frozen=True)
+class VideoOptions:
+    """How a video query is read: ``fps`` kept per second, ``realtime`` pacing, a ``positions`` track for ground
+    truth (``video_start``: when the video's first frame was recorded, ISO-8601), the stall ``timeout`` (s)."""
+
+    fps: float | None = None
+    realtime: bool = False
+    positions: Path | None = None
+    video_start: str | None = None
+    timeout: float = 10.0
+
+
+class VideoQuery:
+    """The frames of a video query, described as they come; after them, their ground truth and figures."""
+
+    def __init__(self, name: str, opts: VideoOptions, ref_map: Reference, allow: bool,
+                 describer: str | None = None) -> None:
+        from ..sources.stream import FrameStream
+
+        self.name, self.opts = name, opts
+        self.describer, self._check = map_describer(ref_map, allow, describer)
+        self.source: FrameStream = FrameStream(name, opts.fps, opts.realtime, opts.timeout)
+        self.names: list[str] = []
+        self.times: list[float] = []
+        self.describe_ms: list[float] = []
+        self.counts: dict[str, int] = {}
+
+    def frames(self) -> Iterator[tuple[np.ndarray, float]]:
+        """``(descriptor [D], milliseconds describing it)`` of each frame kept, in order."""
+        d = self.describer
+        for f in self.source:
+            t0 = time.perf_counter()
+            out = d(d.load([f]))
+            if not self.names:
+                self._check(out, f"the frames of {self.name} as described here")
+            ms = (time.perf_counter() - t0) * 1e3
+            self.names.append(f.name)
+            self.times.append(f.time)
+            self.describe_ms.append(ms)
+            yield out[0], ms
+
+    def truth(self, mf: MapFrame, map_path: str | Path, r_pos: np.ndarray, radius: float,
+              best: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """``(correct [N], has_positive [N], positions [N, 2])`` of the frames localised (None without
+        ``positions``); a frame outside the track has no positive (and a NaN position)."""
+        if self.opts.positions is None:
+            return None, None, None
+        from ..sources.placed import track_positions
+        from ..sources.tracks.clock import parse_start
+        from ..sources.tracks.metres import utm_zone
+
+        start = parse_start(self.opts.video_start) if self.opts.video_start else self.source.start
+        times = np.asarray(self.times, np.float64)
+        duration = float(times[-1]) + 1.0 if len(times) else 0.0
+        q_pos, inside, frame = track_positions(self.opts.positions, times, start, duration, utm_zone(mf.frame))
+        check_frame(mf, frame, map_path, str(self.opts.positions))
+        correct, has = np.zeros(len(times), bool), np.zeros(len(times), bool)
+        if inside.any():
+            correct[inside], has[inside] = frame_truth(q_pos[inside], r_pos, radius, best[inside])
+        self.counts["outside"] = int((~inside).sum())
+        return correct, has, q_pos
+
+    def summary(self, latency_ms: np.ndarray) -> dict[str, Any]:
+        """The summary's entries of a video query: frames decoded, dropped, outside the track, and per-frame decode,
+        describe and match times (ms) with decoding's share of the frame time."""
+        dec = np.asarray(self.source.decode_ms, np.float64)
+        total = dec.mean() + np.mean(self.describe_ms) + np.mean(latency_ms) if len(dec) else 0.0
+        stats = {k: {"mean": float(np.mean(v)), "median": float(np.median(v))}
+                 for k, v in (("decode_ms", dec), ("describe_ms", self.describe_ms)) if len(v)}
+        return {"decoded": self.source.decoded, "dropped": self.source.dropped, **self.counts, **stats,
+                **({"decode_share": float(dec.mean() / total)} if total > 0 else {})}
+
+
+def check_options(opts: VideoOptions, video: bool, query: str) -> None:
+    """Refuse the video options with a query that is not a video or stream."""
+    if video:
+        return
+    for flag, value in (("--fps", opts.fps), ("--realtime", opts.realtime or None), ("--positions", opts.positions),
+                        ("--video-start", opts.video_start)):
+        if value is not None:
+            raise ConfigError(f"{flag} goes with a video file or a live stream as --query, but {query} is neither")

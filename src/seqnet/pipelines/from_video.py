@@ -1,0 +1,119 @@
+"""Two videos (and their GPS tracks) → a dataset, described consistently: ``seqnet dataset from-video``.
+
+Each video's frames are read with PyAV (:mod:`seqnet.sources.video`), frame by frame, and named by their video
+time. With a positions file per video (GPX, NMEA 0183 RMC/GGA, CSV with a time column: :mod:`seqnet.sources.tracks`)
+each frame takes the position interpolated at its time, in UTM metres (both in the reference's zone); frames
+outside a track are dropped and counted. Frames are kept at ``fps`` per second of video, or one per
+``every_metres`` travelled. Without positions, ``aligned`` says frame i of the query shows the place of frame i of
+the reference (positions are frame numbers); otherwise there is no ground truth, and that is an error. Both
+videos are described with one describer (:func:`seqnet.pipelines.from_images.write_dataset`): the result is a
+normal seqnet dataset.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+from pathlib import Path
+
+import numpy as np
+
+from ..core.config import Config, check_float
+from ..core.errors import ConfigError
+from ..core.log import logger
+from ..describe import DescribeConfig
+from ..describe.images import ImageList
+from ..sources.placed import Placed, place_video
+from ..sources.tracks.interpolate import DEFAULT_MAX_GAP
+from ..sources.tracks.metres import utm_zone
+from .from_images import FIT_ON, FromImagesConfig, write_dataset
+
+
+@dataclasses.dataclass(frozen=True)
+class FromVideoConfig(Config):
+    """Settings of :func:`main`.
+
+    Attributes:
+        describe: how both videos' frames are described.
+        fps: frames kept per second of video (None: every frame); ignored with ``every_metres``.
+        every_metres: one frame kept per this many metres travelled (needs positions).
+        aligned: without positions: query frame i shows the place of reference frame i (radius in frames).
+        radius: localisation radius (metres with positions, frames when aligned); inclusive.
+        video_start: when both videos' first frames were recorded, overriding their ``creation_time`` (ISO-8601).
+        max_gap: seconds between two track samples a frame may be interpolated across.
+        fit_on: ``reference`` or ``both``: where PCA / NetVLAD clusters are fitted.
+        name: dataset name (None: the output directory's).
+    """
+
+    describe: DescribeConfig = DescribeConfig()
+    fps: float | None = None
+    every_metres: float | None = None
+    aligned: bool = False
+    radius: float = 25.0
+    video_start: str | None = None
+    max_gap: float = DEFAULT_MAX_GAP
+    fit_on: str = "reference"
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        for key in ("fps", "every_metres"):
+            if getattr(self, key) is not None:
+                self._set(key, check_float(key, getattr(self, key), 0.0, strict=True))
+        self._set("radius", check_float("radius", self.radius, 0.0, strict=True))
+        self._set("max_gap", check_float("max_gap", self.max_gap, 0.0, strict=True))
+        if self.fit_on not in FIT_ON:
+            raise ConfigError(f"fit_on {self.fit_on!r} is not one of {', '.join(FIT_ON)}")
+
+
+def _start(conf: FromVideoConfig) -> datetime.datetime | None:
+    from ..sources.tracks.clock import parse_start
+
+    return None if conf.video_start is None else parse_start(conf.video_start)
+
+
+def place_both(conf: FromVideoConfig, videos: tuple[str | Path, str | Path],
+               positions: tuple[str | Path | None, str | Path | None]) -> tuple[Placed, Placed]:
+    """The kept frames of both videos with their positions (the query's in the reference's UTM zone)."""
+    if (positions[0] is None) != (positions[1] is None):
+        raise ConfigError("give positions for both videos (--ref-positions and --query-positions), or neither "
+                          "(with --aligned)")
+    if positions[0] is None and not conf.aligned:
+        raise ConfigError("ground truth is needed: positions for both videos (--ref-positions FILE "
+                          "--query-positions FILE: GPX, NMEA or CSV), or --aligned when query frame i shows the "
+                          "place of reference frame i")
+    if positions[0] is not None and conf.aligned:
+        raise ConfigError("--aligned is for videos without positions; with --ref-positions / --query-positions the "
+                          "frames are placed by them")
+    kw = {"fps": conf.fps, "every_metres": conf.every_metres, "video_start": _start(conf), "max_gap": conf.max_gap}
+    ref = place_video(videos[0], positions[0], **kw)
+    qry = place_video(videos[1], positions[1], zone=utm_zone(ref.frame), **kw)
+    if ref.frame != qry.frame:
+        raise ConfigError(f"reference positions are in {ref.frame}, query positions in {qry.frame}: one frame "
+                          "(latitude / longitude in both files, or x / y in both)")
+    if conf.aligned and len(ref.frames) != len(qry.frames):
+        logger.warning("--aligned: the reference keeps %d frames, the query %d; frame i is matched to frame i",
+                       len(ref.frames), len(qry.frames))
+    return ref, qry
+
+
+def main(conf: FromVideoConfig, reference: str | Path, query: str | Path, out: str | Path,
+         positions: tuple[str | Path | None, str | Path | None] = (None, None), overwrite: bool = False) -> Path:
+    """Read, place and describe the videos ``reference`` and ``query`` (with the positions files ``positions``, or
+    frame-aligned) and write the dataset directory ``out``; returns it."""
+    ref, qry = place_both(conf, (reference, query), positions)
+    images = tuple(ImageList(list(p.frames), p.names) for p in (ref, qry))
+    if ref.positions is None:
+        pos = tuple((np.arange(len(p.frames), dtype=np.float64)[:, None], None) for p in (ref, qry))
+        unit = ("frames", None)
+    else:
+        pos = ((ref.positions, None), (qry.positions, None))
+        unit = ("metres", ref.frame)
+    inner = FromImagesConfig(describe=conf.describe, fit_on=conf.fit_on, radius=conf.radius, name=conf.name,
+                             ground_truth="frames" if conf.aligned else "csv")
+    extra = {"ground_truth": "aligned" if conf.aligned else "positions",
+             "videos": {side: {"path": str(Path(v).resolve()), "frames": p.counts,
+                               **({"positions": str(Path(f).resolve())} if f is not None else {})}
+                        for side, v, p, f in zip(("reference", "query"), (reference, query), (ref, qry), positions,
+                                                 strict=True)},
+             "sampling": {"fps": conf.fps, "every_metres": conf.every_metres}}
+    return write_dataset(inner, images, pos, unit, out, overwrite, None, extra)

@@ -1,0 +1,78 @@
+"""CSV tracks: a header with a time column and either latitude / longitude (degrees) or x / y (metres).
+
+* time (``time``, ``t``, ``timestamp``, ``seconds``): numbers are seconds since the video's start; ISO-8601
+  times (``2024-05-01T10:00:00.5Z``; one without a zone is UTC) are absolute and join the video by its clock.
+* ``lat`` / ``latitude`` and ``lon`` / ``lng`` / ``longitude``; or ``easting`` / ``northing``, ``x`` / ``y``
+  (metres, in the track's own frame).
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import io
+
+from ...core.errors import DatasetError
+from ...security.text import shown
+from .base import Track, track_of
+from .gpx import utc_seconds
+
+TIME_COLUMNS = ("time", "t", "timestamp", "seconds")
+COORDINATES = ((("lat", "latitude"), ("lon", "lng", "longitude")), (("easting", "x"), ("northing", "y")))
+
+
+def _column(header: list[str], names: tuple[str, ...]) -> int | None:
+    return next((header.index(n) for n in names if n in header), None)
+
+
+def _time(text: str, where: str) -> tuple[float, bool]:
+    """``(seconds, absolute)`` of a time cell: a number (seconds since the video's start) or ISO-8601."""
+    text = text.strip()
+    try:
+        return float(text), False
+    except ValueError:
+        pass
+    try:
+        return utc_seconds(datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))), True
+    except (ValueError, OverflowError, OSError) as e:
+        raise DatasetError(f"{where}: time {shown(text)[:60]} is neither seconds nor an ISO-8601 time") from e
+
+
+def _rows(text: str, source: str) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    try:
+        rows = [(n, r) for n, r in enumerate(csv.reader(io.StringIO(text, newline="")), start=1)
+                if r and any(c.strip() for c in r)]
+    except csv.Error as e:
+        raise DatasetError(f"{shown(source)}: not a valid CSV file ({' '.join(str(e).split())[:200]})") from e
+    if len(rows) < 2:
+        raise DatasetError(f"{shown(source)}: a CSV track needs a header row and at least one data row")
+    return [h.strip().lower() for h in rows[0][1]], rows[1:]
+
+
+def parse_csv(text: str, source: str) -> Track:
+    """The track of a CSV ``text`` (read from ``source``); a row it cannot read is an error naming its line."""
+    header, rows = _rows(text, source)
+    tcol = _column(header, TIME_COLUMNS)
+    found = [(_column(header, a), _column(header, b)) for a, b in COORDINATES]
+    geographic = None not in found[0]
+    cols = found[0] if geographic else found[1]
+    if tcol is None or None in cols:
+        raise DatasetError(f"{shown(source)}: a CSV track needs a time column ({', '.join(TIME_COLUMNS)}) and "
+                           f"lat, lon (degrees) or x, y / easting, northing (metres); its header: "
+                           f"{shown(','.join(header))[:200]}")
+    times, coords, kinds = [], [], set()
+    for line, r in rows:
+        where = f"{shown(source)}, line {line}"
+        if len(r) <= max(tcol, *cols):
+            raise DatasetError(f"{where}: {len(r)} fields, but the header has {len(header)}")
+        t, absolute = _time(r[tcol], where)
+        kinds.add(absolute)
+        try:
+            coords.append((float(r[cols[0]]), float(r[cols[1]])))
+        except ValueError as e:
+            raise DatasetError(f"{where}: position {shown(r[cols[0]])[:40]}, {shown(r[cols[1]])[:40]} is not two "
+                               "numbers") from e
+        times.append(t)
+    if len(kinds) > 1:
+        raise DatasetError(f"{shown(source)}: some times are seconds and some ISO-8601 times; one kind per track")
+    return track_of(times, coords, source, absolute=kinds.pop(), geographic=geographic)

@@ -1,0 +1,106 @@
+"""The video commands end to end: ``dataset from-video``, ``describe VIDEO``, ``localize --query VIDEO`` (with
+--positions, --plot, --realtime); a bad video or track is one line on stderr, exit 2, nothing left behind."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import time
+
+import numpy as np
+import pytest
+from conftest import drive, route, write_gpx, write_video
+
+from seqnet.cli import main as cli_main
+
+T0 = datetime.datetime(2024, 5, 1, 10, 0, tzinfo=datetime.timezone.utc)
+N = 30
+
+
+@pytest.fixture
+def videos(tmp_path):
+    lat, lon = route(N + 1)
+    times = np.arange(N + 1) / 10
+    out = {}
+    for side, seed, noise in (("ref", 1, 0), ("query", 2, 12)):
+        out[side] = write_video(tmp_path / f"{side}.mp4", drive(N, seed, noise), rate=10,
+                                creation_time=T0.isoformat())
+        out[f"{side}.gpx"] = write_gpx(tmp_path / f"{side}.gpx", T0, times, lat, lon)
+    return out
+
+
+def _dataset(videos, out, *extra):
+    return cli_main(["-q", "dataset", "from-video", str(videos["ref"]), str(videos["query"]), "--out", str(out),
+                     "--method", "pixels", "--device", "cpu", "--ref-positions", str(videos["ref.gpx"]),
+                     "--query-positions", str(videos["query.gpx"]), *extra])
+
+
+def test_from_video_then_localize_with_a_plot(videos, tmp_path, capsys):
+    assert _dataset(videos, tmp_path / "ds", "--radius", "15") == 0
+    assert "reference: 30 of 30 frames kept" in capsys.readouterr().out
+    track, png = tmp_path / "track.csv", tmp_path / "track.png"
+    assert cli_main(["localize", "--map", str(tmp_path / "ds"), "--query", str(videos["query"]), "--positions",
+                     str(videos["query.gpx"]), "--out", str(track), "--plot", str(png), "--method", "raw+seqmatch",
+                     "--seq-len", "3", "--device", "cpu"]) == 0
+    printed = capsys.readouterr().out
+    assert "30 frames decoded, 0 dropped" in printed and "R@1" in printed
+    s = json.loads(track.with_suffix(".json").read_text())["summary"]
+    assert s["recall@1"] > 0.8 and s["dropped"] == 0 and s["outside"] == 0
+    assert {"decode_ms", "describe_ms", "latency_ms", "decode_share"} <= set(s)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_describe_a_video(videos, tmp_path, capsys):
+    out = tmp_path / "d.npy"
+    assert cli_main(["-q", "describe", str(videos["query"]), "--method", "pixels", "--fps", "5", "--out", str(out),
+                     "--device", "cpu"]) == 0
+    assert np.load(out).shape[0] == 15
+    assert (tmp_path / "d.names.txt").read_text().split()[:2] == ["0.000000", "0.200000"]
+    assert cli_main(["describe", str(tmp_path), "--method", "pixels", "--fps", "5", "--out", str(out)]) == 2
+    assert "goes with a video file" in capsys.readouterr().err
+
+
+def test_realtime_takes_the_video_duration(videos, tmp_path, capsys):
+    assert _dataset(videos, tmp_path / "ds") == 0
+    short = write_video(tmp_path / "short.mp4", drive(N, 2, 12)[:12], rate=10)
+    t0 = time.monotonic()
+    assert cli_main(["-q", "localize", "--map", str(tmp_path / "ds"), "--query", str(short), "--realtime",
+                     "--out", str(tmp_path / "t.csv"), "--method", "single", "--device", "cpu"]) == 0
+    assert 1.1 < time.monotonic() - t0 < 6  # 12 frames at 10 fps: 1.1 s of video
+    s = json.loads((tmp_path / "t.json").read_text())["summary"]
+    assert s["decoded"] == 12 and s["frames"] + s["dropped"] == 12
+
+
+@pytest.mark.parametrize("case", ["empty", "text", "truncated", "another day", "no overlap", "no truth"])
+def test_bad_inputs_are_one_line(videos, tmp_path, capsys, case):
+    args = {"ref": videos["ref"], "ref.gpx": videos["ref.gpx"]}
+    bad = tmp_path / "bad.mp4"
+    if case in ("empty", "text", "truncated"):
+        data = videos["ref"].read_bytes()
+        bad.write_bytes({"empty": b"", "text": b"no video here\n" * 50, "truncated": data[: len(data) // 4]}[case])
+        args["ref"] = bad
+    elif case != "no truth":
+        lat, lon = route(N)
+        shift = datetime.timedelta(days=3) if case == "another day" else datetime.timedelta(hours=3)
+        args["ref.gpx"] = write_gpx(tmp_path / "other.gpx", T0 + shift, np.arange(N) / 10, lat, lon)
+    out = tmp_path / "ds"
+    extra = [] if case == "no truth" else ["--ref-positions", str(args["ref.gpx"]), "--query-positions",
+                                           str(videos["query.gpx"])]
+    rc = cli_main(["dataset", "from-video", str(args["ref"]), str(videos["query"]), "--out", str(out), "--method",
+                   "pixels", *extra])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert {"another day": "another day", "no overlap": "does not overlap", "no truth": "ground truth is needed"}.get(
+        case, "video") in err
+    assert not out.exists()
+
+
+def test_report_places_the_queries_and_shows_pairs_from_the_videos(videos, tmp_path):
+    assert _dataset(videos, tmp_path / "ds", "--radius", "15") == 0
+    assert cli_main(["-q", "eval", "--dataset", str(tmp_path / "ds"), "--method", "single", "--out",
+                     str(tmp_path / "ev"), "--report", "--images-query", str(videos["query"]), "--images-ref",
+                     str(videos["ref"]), "--device", "cpu"]) == 0
+    page = (tmp_path / "ev" / "report.html").read_text()
+    assert '<section id="trajectory">' in page and '<section id="pairs">' in page
+    pairs = page.split('<section id="pairs">')[1]
+    assert "best: query" in pairs and "pictures left out" not in pairs and pairs.count("data:image/png") >= 4

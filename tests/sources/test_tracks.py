@@ -1,0 +1,109 @@
+"""GPX, NMEA 0183 and CSV tracks: one :class:`Track` each, the same samples from each format; their refusals."""
+
+from __future__ import annotations
+
+import datetime
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import mutated, read_mutated, route, write_gpx, write_nmea, write_track_csv
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from seqnet.core.errors import ConfigError, DatasetError
+from seqnet.sources.tracks import read_track
+from seqnet.sources.tracks.clock import parse_start, video_times
+from seqnet.sources.tracks.metres import to_metres
+
+T0 = datetime.datetime(2024, 5, 1, 10, 0, 0, tzinfo=datetime.timezone.utc)
+
+
+def _samples(n: int = 30):
+    times = np.cumsum(np.r_[0.0, np.full(n - 1, 0.5)])
+    return (times, *route(n))
+
+
+def test_three_formats_give_one_track(tmp_path):
+    times, lat, lon = _samples()
+    gpx = read_track(write_gpx(tmp_path / "a.gpx", T0, times, lat, lon))
+    nmea = read_track(write_nmea(tmp_path / "a.nmea", T0, times, lat, lon))
+    iso = read_track(write_track_csv(tmp_path / "a.csv", times, lat, lon, t0=T0))
+    rel = read_track(write_track_csv(tmp_path / "r.csv", times, lat, lon))
+    for t in (gpx, nmea, iso):
+        assert t.absolute and t.geographic and t.dated
+        np.testing.assert_allclose(t.times, T0.timestamp() + times, atol=0.006)  # NMEA: hundredths of a second
+        np.testing.assert_allclose(t.coords, np.stack([lat, lon], 1), atol=1e-6)  # NMEA: 1e-6 minutes
+    assert not rel.absolute and rel.times[0] == 0.0
+    xy, frame = to_metres(gpx)
+    assert frame == "UTM zone 33W"
+    steps = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    np.testing.assert_allclose(steps, 10.0, rtol=0.01)  # the route's 10 m spacing, in metres again
+
+
+def test_nmea_without_dates_and_bad_lines(tmp_path):
+    times, lat, lon = _samples(10)
+    p = write_nmea(tmp_path / "gga.nmea", T0, times, lat, lon, gga_only=True)
+    text = p.read_text().splitlines()
+    text[3] = text[3][:-2] + "00"  # a wrong checksum: left out
+    p.write_text("\n".join(["$GPGSV,3,1,11,03,03,111,00*74", *text, "garbage"]) + "\n")
+    t = read_track(p)
+    assert not t.dated and len(t.times) == 9
+    np.testing.assert_allclose(t.times[:2], [36000.0, 36000.5])  # seconds of the day
+    rel = video_times(t, T0, 60.0)
+    np.testing.assert_allclose(rel[:2], [0.0, 0.5])
+
+
+def test_another_day_and_no_overlap_are_refused(tmp_path):
+    times, lat, lon = _samples()
+    track = read_track(write_gpx(tmp_path / "a.gpx", T0, times, lat, lon))
+    np.testing.assert_allclose(video_times(track, T0 - datetime.timedelta(seconds=5), 60.0)[:2], [5.0, 5.5])
+    with pytest.raises(DatasetError, match="a track of another day is refused, not shifted"):
+        video_times(track, T0 + datetime.timedelta(days=1), 60.0)
+    with pytest.raises(DatasetError, match="does not overlap the video"):
+        video_times(track, T0 + datetime.timedelta(hours=2), 60.0)
+    with pytest.raises(ConfigError, match="--video-start"):
+        video_times(track, None, 60.0)
+    assert parse_start("2024-05-01T10:00:00") == T0  # no zone: UTC
+    with pytest.raises(ConfigError, match="not an ISO-8601"):
+        parse_start("yesterday")
+
+
+@pytest.mark.parametrize("text, match", [
+    ('<?xml version="1.0"?><!DOCTYPE gpx [<!ENTITY a "b">]><gpx></gpx>', "declares a DTD"),
+    ('<gpx version="1.1"><trk><trkseg><trkpt lat="1" lon="2"></trkpt></trkseg></trk></gpx>', "has a time"),
+    ("<gpx", "not a GPX file"),
+    ("$GPGGA,bad\n", "no position with a time"),
+    ("time,lat\n1,2\n", "needs a time column"),
+    ("time,lat,lon\n1,2\n", "2 fields"),
+    ("time,lat,lon\nnoon,2,3\n", "neither seconds nor an ISO-8601"),
+    ("time,lat,lon\n1,95,3\n", "out of range"),
+    ("time,lat,lon\n1,2,x\n", "not two numbers"),
+    ("time,lat,lon\n1,2,3\n2024-05-01T10:00:00Z,2,3\n", "one kind per track"),
+])
+def test_refusals(tmp_path, text, match):
+    p = tmp_path / "t.txt"
+    p.write_text(text)
+    with pytest.raises(DatasetError, match=match):
+        read_track(p)
+
+
+def _good(kind: str) -> bytes:
+    times, lat, lon = _samples(6)
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / f"good.{kind}"
+        {"gpx": lambda: write_gpx(p, T0, times, lat, lon), "nmea": lambda: write_nmea(p, T0, times, lat, lon),
+         "csv": lambda: write_track_csv(p, times, lat, lon, t0=T0)}[kind]()
+        return p.read_bytes()
+
+
+@pytest.mark.parametrize("kind", ["gpx", "nmea", "csv"])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzzed_tracks_read_or_refuse(tmp_path, kind, data):
+    bad = data.draw(mutated(_good(kind)))
+    track = read_mutated(read_track, tmp_path / f"bad.{kind}", bad)
+    if track is not None:
+        assert np.isfinite(track.times).all() and (np.diff(track.times) > 0).all()
+        assert track.coords.shape == (len(track.times), 2)

@@ -1,0 +1,108 @@
+"""Video files read with PyAV: frame times, names, random and sequential access; bad videos refused in one line."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import drive, mutated, read_mutated, write_video
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from seqnet.core.errors import DatasetError, ImageError
+from seqnet.describe.images import list_images, load_images
+from seqnet.security.videos import check_streams, container_of, open_video_file
+from seqnet.sources.video import VideoFile, video_images
+
+TIMES = [0.0, 0.1, 0.25, 0.3, 0.7, 0.75, 1.2, 1.3, 1.35, 2.0]  # a variable frame rate
+
+
+@pytest.fixture
+def video(tmp_path):
+    return write_video(tmp_path / "drive.mp4", drive(10, 1), times=TIMES, creation_time="2024-05-01T10:00:00Z")
+
+
+def test_frames_times_and_names(video):
+    v = VideoFile(video)
+    np.testing.assert_allclose(v.times, TIMES, atol=1e-9)
+    assert v.start.isoformat() == "2024-05-01T10:00:00+00:00" and len(v) == 10
+    frames, names = video_images(video)
+    assert names[:3] == ["0.000000", "0.100000", "0.250000"] and str(frames[2]).endswith("drive.mp4@0.250000")
+    images = list_images(video, fps=2.0)  # the first frame of each half second
+    assert images.names == ["0.000000", "0.700000", "1.200000", "2.000000"]
+
+
+def test_decoded_frames_are_the_frames_written_in_any_order(video):
+    frames, _ = video_images(video)
+    written = np.stack(drive(10, 1)).astype(int)
+    in_order = load_images(frames)[0].astype(int)
+    assert np.abs(in_order - written).max() <= 3  # x264 lossless; RGB <-> YUV rounding only
+    shuffled = [9, 2, 5, 0, 0, 7]
+    np.testing.assert_array_equal(load_images([frames[i] for i in shuffled])[0], in_order[shuffled])
+
+
+def test_no_creation_time(tmp_path):
+    assert VideoFile(write_video(tmp_path / "a.mkv", drive(3, 1))).start is None
+
+
+def _bad_videos(tmp_path, video):
+    data = video.read_bytes()
+    yield tmp_path / "empty.mp4", b"", "has 0 bytes"
+    yield tmp_path / "text.mp4", b"hello, not a video\n" * 40, "not a video of a container seqnet reads"
+    yield tmp_path / "cut.mp4", data[: len(data) // 3], "cannot read the video"
+    yield tmp_path / "header.mp4", data[:40], "cannot read the video"
+
+
+def test_bad_videos_are_one_error(tmp_path, video):
+    for path, data, match in _bad_videos(tmp_path, video):
+        path.write_bytes(data)
+        with pytest.raises(DatasetError, match=match):
+            VideoFile(path)
+    fifo = tmp_path / "pipe.mp4"
+    os.mkfifo(fifo)
+    with pytest.raises(DatasetError, match="FIFO"):
+        VideoFile(fifo)
+    with pytest.raises(DatasetError, match="not found"):
+        VideoFile(tmp_path / "missing.mp4")
+
+
+def test_frame_size_is_bounded_before_decoding(video):
+    container, f = open_video_file(video)
+    with pytest.raises(DatasetError, match="more than the limit of 100"):
+        check_streams(container, video, max_pixels=100)
+    f.close()
+
+
+def test_containers_are_recognised_by_their_bytes():
+    assert container_of(b"\x00\x00\x00\x20ftypisom") == "mov"
+    assert container_of(b"\x1a\x45\xdf\xa3....") == "matroska"
+    assert container_of(b"#EXTM3U\nhttp://example.com/a.ts") is None  # a playlist: FFmpeg would fetch it
+    assert container_of(b"ffconcat version 1.0\nfile /etc/passwd") is None
+
+
+def _good() -> bytes:
+    with tempfile.TemporaryDirectory() as d:
+        return write_video(Path(d) / "v.mp4", drive(4, 1), codec="mpeg4").read_bytes()
+
+
+GOOD = _good()
+
+
+def _read_all(path: Path) -> np.ndarray:
+    frames, _ = video_images(path)
+    return load_images(frames)[0]
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzzed_videos_read_or_refuse(tmp_path, data):
+    bad = data.draw(mutated(GOOD))
+    try:
+        images = read_mutated(_read_all, tmp_path / "bad.mp4", bad)
+    except ImageError:  # a frame listed but damaged: refused by name
+        return
+    if images is not None:
+        assert images.dtype == np.uint8 and images.ndim == 4
