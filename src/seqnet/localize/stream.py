@@ -119,6 +119,9 @@ def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: boo
             out = d(d.load([p]))[0]
             yield out, (time.perf_counter() - t0) * 1e3
 
+    return frames(), images.names, len(images)
+
+
 @dataclasses.dataclass(frozen=True)
 class Query:
     """What ``seqnet localize --map`` streams: ``path`` (a descriptor file, images, or a ROS bag's image ``topic``)

@@ -17,7 +17,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..methods.protocol import Reference
 from .describing import map_describer
-from .track import frame_truth
+from .replay import frame_truth
 from .truth import MapFrame, check_frame
 
 if TYPE_CHECKING:
