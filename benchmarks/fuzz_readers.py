@@ -240,9 +240,9 @@ def _seed_bags(d: Path) -> list[Path]:
 
 
 def _read_bags(p: Path) -> object:
-    from seqnet.data.bags import read_positions
-    from seqnet.describe.bags import bag_images
     from seqnet.security.pictures import decode
+    from seqnet.sources.bags.images import bag_images
+    from seqnet.sources.bags.positions import read_positions
 
     bag = p if p.suffix == ".bag" else p.parent
     frames, names, positions = bag_images(bag, "/camera/image_raw", "/gps/fix")  # one pass, as localize reads

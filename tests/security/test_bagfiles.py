@@ -12,9 +12,9 @@ from conftest import bag_path, mutated, write_bag
 from hypothesis import HealthCheck, given, settings
 
 from seqnet.core.errors import DatasetError, SeqnetError
-from seqnet.data.bags import read_positions
 from seqnet.describe.images import list_images
 from seqnet.security.bagfiles import check_bag
+from seqnet.sources.bags.positions import read_positions
 
 pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'seqnet[ros]')")
 IMAGES = [np.zeros((4, 4, 3), np.uint8) + i for i in range(3)]

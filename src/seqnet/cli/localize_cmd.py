@@ -7,7 +7,6 @@ import argparse
 from pathlib import Path
 
 from ..core.errors import ConfigError
-from ..data.bags import DEFAULT_TOLERANCE
 from ..localize.config import LocalizeConfig
 from ..localize.replay import main
 from ..localize.stream import Query, stream
@@ -16,6 +15,7 @@ from ..localize.video import VideoOptions
 from ..matching.velocity import ANCHORS
 from ..methods.grammar import valid_methods
 from ..search.precision import PRECISIONS
+from ..sources.bags.positions import DEFAULT_TOLERANCE
 from . import COMMANDS
 from .common import (
     add_allow_mismatch,

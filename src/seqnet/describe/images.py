@@ -3,7 +3,7 @@
 A *source* is either a folder (its images with a known extension, in natural sort order, so
 ``img-2.png`` comes before ``img-10.png``), a text file with one image path per line (relative
 paths are relative to the list file's folder; blank lines and ``#`` comments are ignored), or a ROS bag
-with an image topic (:mod:`seqnet.describe.bags`: its frames in timestamp order). An image of a source is a
+with an image topic (:mod:`seqnet.sources.bags.images`: its frames in timestamp order). An image of a source is a
 ``Path`` or an :class:`ImageItem` (a frame that decodes itself); every reader goes through :func:`read_any`.
 """
 
@@ -25,7 +25,7 @@ from ..security.pictures import decode, read_image, size_mismatch
 from ..security.text import shown
 
 if TYPE_CHECKING:
-    from ..data.bags import Positions
+    from ..sources.bags.positions import Positions
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
 MAX_LIST = 1 << 30  # bytes of an image list file
@@ -87,7 +87,7 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
     """The images of a folder, a list file, the image ``topic`` of a ROS bag (and the positions of its
     ``positions_topic``, read in the same pass) or the frames of a video file (``fps`` per second of video, or
     every frame: :mod:`seqnet.sources.video`), in order; raise :class:`ImageError` when there are none."""
-    from ..data.bags import BAG_SUFFIXES, is_bag
+    from ..sources.bags.positions import BAG_SUFFIXES, is_bag
     from ..sources.video import is_video
 
     src = Path(source)
@@ -99,7 +99,7 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
         raise ConfigError(f"--fps {fps:g} goes with a video file, but {src} is not one (a video ends in .mp4, .mov, "
                           ".mkv, .avi, ...)")
     if is_bag(src) or (topic is not None and src.suffix.lower() in BAG_SUFFIXES):
-        from .bags import bag_images
+        from ..sources.bags.images import bag_images
 
         return ImageList(*bag_images(src, topic, positions_topic))
     for flag, value in (("--topic", topic), ("--positions-topic", positions_topic)):

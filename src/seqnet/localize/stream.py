@@ -28,7 +28,6 @@ from ..core.log import logger
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.stage import Written
-from ..data.bags import DEFAULT_TOLERANCE
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
 from ..data.trajectory import TrackView
 from ..eval.evaluate import EvalConfig
@@ -37,6 +36,7 @@ from ..security.dirs import remove_dead_temps
 from ..security.inputs import special_file
 from ..security.limits import number
 from ..security.locks import locked
+from ..sources.bags.positions import DEFAULT_TOLERANCE
 
 if TYPE_CHECKING:
     from ..describe.images import ImageList

@@ -2,7 +2,8 @@
 frame of the map's positions.
 
 ``seqnet localize --map MAP --query RUN.bag --topic T --positions-topic P``: each frame of ``T`` takes the
-position of the message of ``P`` nearest in time (:func:`seqnet.data.bags.match_positions`, within a tolerance;
+position of the message of ``P`` nearest in time
+(:func:`seqnet.sources.bags.positions.match_positions`, within a tolerance;
 ``sensor_msgs/NavSatFix`` as UTM metres, ``nav_msgs/Odometry`` / ``geometry_msgs/PoseStamped`` as their x, y).
 Those positions are compared with the map's only when both are in one frame (:func:`check_frame`): the map's
 positions must be metres in a frame it records (``positions_frame``, written by ``seqnet dataset from-images``
@@ -21,8 +22,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..data.bags import match_positions
 from ..security.text import shown
+from ..sources.bags.positions import match_positions
 
 if TYPE_CHECKING:
     from ..describe.images import ImageList

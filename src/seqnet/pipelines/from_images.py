@@ -17,7 +17,7 @@ construction (their provenance is recorded), then attaches the ground truth, one
   positions are frame indices (used for windows and the confidence's "same place");
 * ``bag``: both traverses are ROS bags (``--topic`` their image topic) and the positions come from a topic of
   each (``--positions-topic``: NavSatFix to UTM metres, or odometry x, y), matched to each image by the nearest
-  timestamp within ``positions_tolerance`` seconds (:mod:`seqnet.data.bags`).
+  timestamp within ``positions_tolerance`` seconds (:mod:`seqnet.sources.bags.positions`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,6 @@ import numpy as np
 from ..core.config import Config, check_choice, check_float
 from ..core.errors import ConfigError, ImageError
 from ..core.log import logger
-from ..data.bags import DEFAULT_TOLERANCE, is_bag, match_positions
 from ..data.convert import assemble_dataset, match_names, read_positions_csv
 from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
 from ..data.imagefolders import utm_positions
@@ -43,6 +42,7 @@ from ..describe.images import ImageList, list_images
 from ..describe.stage import describe_provenance
 from ..security.locks import locked
 from ..security.ownership import check_replaceable
+from ..sources.bags.positions import DEFAULT_TOLERANCE, is_bag, match_positions
 
 FIT_ON = ("reference", "both")
 

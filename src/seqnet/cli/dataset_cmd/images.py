@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from ...data.bags import DEFAULT_TOLERANCE
 from ...describe import DESCRIBERS
 from ...pipelines.from_images import FIT_ON, FromImagesConfig, main
+from ...sources.bags.positions import DEFAULT_TOLERANCE
 from ..common import add_device, add_topic, positive_float
 from ..describe_cmd import add_describe_options, describe_config
 from .foreign import add_positions_format

@@ -1,4 +1,5 @@
-"""Positions from a bag topic (seqnet.data.bags): NavSatFix to UTM metres, odometry x, y, nearest-time matching."""
+"""Positions from a bag topic (seqnet.sources.bags.positions): NavSatFix to UTM metres, odometry x, y,
+nearest-time matching."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from seqnet.core.errors import DatasetError
-from seqnet.data.bags import Positions, is_bag, match_positions, read_positions
+from seqnet.sources.bags.positions import Positions, is_bag, match_positions, read_positions
 
 pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'seqnet[ros]')")
 utm = pytest.importorskip("utm", reason="utm is not installed (pip install 'seqnet[ros]')")

@@ -173,8 +173,8 @@ def test_fuzzed_bags_give_frames_or_one_error(tmp_path_factory, data):
 
 @pytest.mark.parametrize("kind", BAG_KINDS)
 def test_images_and_their_positions_topic_are_read_in_one_pass(tmp_path, kind, monkeypatch):
-    from seqnet.data import bags
-    from seqnet.data.bags import read_positions
+    from seqnet.sources.bags import positions as bags
+    from seqnet.sources.bags.positions import read_positions
 
     bag = write_bag(bag_path(tmp_path, kind), random_images(4), kind, odometry=[(j, -j) for j in range(6)],
                     poses=[(2 * j, 1) for j in range(3)], start=START, period=PERIOD, position_offset=PERIOD // 3)

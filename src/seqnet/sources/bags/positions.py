@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, DatasetError
-from ..core.log import logger
-from ..security.bagfiles import check_bag
-from ..security.text import shown
+from ...core.errors import ConfigError, DatasetError
+from ...core.log import logger
+from ...security.bagfiles import check_bag
+from ...security.text import shown
 
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 ROS_HINT = "hint: pip install 'seqnet[ros]' (the pure-Python package rosbags)"
@@ -128,7 +128,7 @@ class Positions:
 
 def _navsat(msgs: list[Any]) -> tuple[np.ndarray, np.ndarray, str]:
     """``(kept [M] bool, xy [K, 2] UTM metres, frame)`` of NavSatFix messages: those with a fix and finite lat/lon."""
-    from .gps import latlon_to_utm
+    from ...data.gps import latlon_to_utm
 
     lat = np.array([m.latitude for m in msgs], np.float64)
     lon = np.array([m.longitude for m in msgs], np.float64)
@@ -199,7 +199,7 @@ def match_positions(stamps: np.ndarray, positions: Positions, tolerance: float, 
 
     Raises :class:`DatasetError` naming the first image farther than ``tolerance`` seconds from every position
     message (a position that far off would be a wrong ground truth, not an approximate one)."""
-    from .gps import nearest_within
+    from ...data.gps import nearest_within
 
     stamps = np.asarray(stamps, np.int64)
     nearest = nearest_within(positions.stamps, stamps, tolerance, lambda i, gap, count: (

@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, DatasetError, ImageError
-from ..data import bags
-from ..security.pictures import COMPRESSED_FORMATS as COMPRESSED_PIL
-from ..security.pictures import open_image
-from ..security.text import shown
+from ...core.errors import ConfigError, DatasetError, ImageError
+from ...security.pictures import COMPRESSED_FORMATS as COMPRESSED_PIL
+from ...security.pictures import open_image
+from ...security.text import shown
+from . import positions as bags
 
 ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True), "mono8": (1, False)}  # channels, reversed (BGR)
 COMPRESSED_FORMATS = ("jpeg", "jpg", "png")
@@ -64,7 +64,8 @@ IMAGE_TYPES: dict[str, Callable[[Any, str], Any]] = {
 
 class BagImages:
     """The image messages of ``topic`` in the bag ``path``: :attr:`stamps` ``[N]`` (ns, in order), read by index;
-    with a ``positions_topic``, its :attr:`positions` (:class:`~seqnet.data.bags.Positions`, read in the same pass).
+    with a ``positions_topic``, its :attr:`positions` (:class:`~seqnet.sources.bags.positions.Positions`, read in
+    the same pass).
 
     The reader opened here stays open for :meth:`read` (closed when the object goes away). A read of the frame
     after the last one read continues the pass; any other restarts it at that frame's timestamp."""
