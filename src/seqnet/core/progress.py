@@ -11,9 +11,10 @@ import contextlib
 import contextvars
 import weakref
 from collections.abc import Iterable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from tqdm.auto import tqdm
+if TYPE_CHECKING:
+    from tqdm.auto import tqdm
 
 _MODE: contextvars.ContextVar[bool | None] = contextvars.ContextVar("seqnet_progress", default=None)
 _OPEN: weakref.WeakSet = weakref.WeakSet()  # bars made here and not closed yet (closed before an error line)
@@ -39,6 +40,8 @@ def progress(iterable: Iterable[Any] | None = None, desc: str | None = None, tot
     disable = (not mode) if mode is not None else None
     if total is not None and total < min_total:
         disable = True
+    from tqdm.auto import tqdm  # on the first bar: a command that draws none (or its --help) never loads tqdm
+
     bar = tqdm(iterable, desc=desc, total=total, unit=unit, leave=False, disable=disable, dynamic_ncols=True,
                **kwargs)
     _OPEN.add(bar)

@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
-from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.memmaps import read_rows
 from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
@@ -25,14 +24,13 @@ from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, default_split
 from ..methods.grammar import Method, parse_method
 from ..reference.matrix import MatrixQuery, MatrixReference, matrix_methods
+from ..search.given import GivenMatrix
 from ..security.arrays import read_npy
 from ..security.digests import file_digest
 from ..sequence.windows import Windows
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
 from .evaluation import merge, method_windows
 from .outputs import EvalOutputs
-
-torch = lazy_module("torch")
 
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
 
@@ -42,7 +40,19 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
     """The ``[Nq, Nr]`` matrix of ``path`` (``.npy``, one row per query and one column per reference frame of
     the whole dataset ``ds``; ``transposed``: one row per reference, ``[Nr, Nq]``, as VPR_Tutorial's ``S``),
     restricted to the rows and columns of ``split`` (a name, a range spec, or ``all``: :meth:`Dataset.ranges`)
-    and as distances (float64). The file is memory-mapped: only the split's block is read and converted."""
+    and as distances (float64, in memory: :func:`open_matrix` reads it block by block instead)."""
+    given = open_matrix(path, ds, similarity, split, transposed)
+    if given.unchecked:
+        check_finite_rows(given.raw, path)
+    return given.dense()
+
+
+def open_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: str | None = "all",
+                transposed: bool = False) -> GivenMatrix:
+    """The matrix of ``path`` as :func:`read_matrix` describes it, as a :class:`seqnet.search.given.GivenMatrix`
+    over the (memory-mapped) file in its own dtype: nothing is converted or copied. When the split is a part
+    of the matrix, every entry of the file is checked finite here; else the first pass over it checks
+    (``unchecked`` is set)."""
     m = _vpr_bench_scores(path, similarity) if _holds_objects(path) else read_npy(path, True, "--distances",
                                                                                    ConfigError)
     want = (len(ds.reference), len(ds.query)) if transposed else (len(ds.query), len(ds.reference))
@@ -53,11 +63,15 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
         raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {len(ds.query)} query "
                           f"and {len(ds.reference)} reference frames (one row per {rows} frame, one column per "
                           f"{cols} frame{', as --transposed says' if transposed else ''}){hint}")
-    check_finite_rows(m, path)
     rng = ds.ranges(split)
     q, r = slice(*rng["query"]), slice(*rng["reference"])
-    out = np.array(m[r, q].T if transposed else m[q, r], dtype=np.float64)  # the split's block only
-    return np.negative(out, out=out) if similarity else out
+    raw = m[r, q] if transposed else m[q, r]  # a view: the split's block only is ever read
+    whole = raw.shape == m.shape
+    if not whole:
+        check_finite_rows(m, path)
+    given = GivenMatrix(raw, bool(similarity), bool(transposed), str(path))
+    given.unchecked = whole
+    return given
 
 
 def _holds_objects(path: str | Path) -> bool:
@@ -103,7 +117,8 @@ def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = MEMORY
 CHECK_ROWS = 2000  # queries sampled to compare the matrix's readings (a cheap argmin each)
 
 
-def orientation_check(ds: Dataset, dist: np.ndarray, similarity: bool, transposed: bool = False) -> dict[str, Any]:
+def orientation_check(ds: Dataset, dist: np.ndarray | GivenMatrix, similarity: bool, transposed: bool = False
+                      ) -> dict[str, Any]:
     """Single-frame R@1 of the matrix read as given and read the other ways a user may have meant (the other
     sense: similarity vs distance; transposed, for a square matrix), on up to :data:`CHECK_ROWS` queries with
     a true match; a warning names a better reading (:func:`_warn_reading`; ``transposed``: the file was read
@@ -127,10 +142,14 @@ def orientation_check(ds: Dataset, dist: np.ndarray, similarity: bool, transpose
 SQUARE_Z = 2.5  # a square matrix reading better transposed on this many standard errors is named (sign test)
 
 
-def _top1(dist: np.ndarray, keep: np.ndarray, block_bytes: int = MEMORY_BLOCK) -> dict[str, np.ndarray]:
+def _top1(dist: np.ndarray | GivenMatrix, keep: np.ndarray, block_bytes: int = MEMORY_BLOCK
+          ) -> dict[str, np.ndarray]:
     """Each reading's best reference ``[len(keep)]`` for the queries ``keep`` of ``dist [Nq, Nr]``: as given
     (argmin of the row), the other sense (argmax), and for a square matrix transposed (of the column) and
-    transposed in the other sense; in blocks of rows or columns of at most ``block_bytes``."""
+    transposed in the other sense; in blocks of rows or columns of at most ``block_bytes`` (a given matrix:
+    from its one pass, :meth:`seqnet.search.given.GivenMatrix.scan`)."""
+    if isinstance(dist, GivenMatrix):
+        return {k: v[keep] for k, v in dist.best().items()}
     out: dict[str, list[np.ndarray]] = {"as given": [], "other sense": []}
     step = max(1, block_bytes // max(1, dist.shape[1] * 8))
     for a in range(0, len(keep), step):
@@ -171,7 +190,7 @@ def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed:
                        "(%.3f); if its rows and columns are the other way round, %s", given, best, r1[best], hint)
 
 
-def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = None,
+def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfig | None = None,
                     similarity: bool = False, transposed: bool = False) -> Evaluation:
     """Evaluate ``conf.methods`` (default :data:`DEFAULT_MATRIX_METHODS`) of ``ds`` (the split already taken)
     on ``dist [Nq, Nr]`` distances between its query and reference frames (``similarity``, ``transposed``: how the
@@ -180,23 +199,23 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray, conf: EvalConfig | None = Non
     if dist.ndim != 2 or dist.shape != (len(ds.query), len(ds.reference)):
         raise ConfigError(f"the distance matrix is {list(dist.shape)} for {len(ds.query)} query and "
                           f"{len(ds.reference)} reference frames (one row per query, one column per reference)")
+    given = dist if isinstance(dist, GivenMatrix) else GivenMatrix(np.asarray(dist))
     if conf.resample_every is not None:  # the kept frames' rows and columns
         keep = kept_indices(ds, conf.resample_every, conf.resample_side)
-        dist, ds = dist[keep["query"]][:, keep["reference"]], resample_dataset(ds, conf.resample_every,
-                                                                                conf.resample_side)
-    d = torch.as_tensor(np.ascontiguousarray(dist))
+        given = GivenMatrix(given[np.ix_(keep["query"], keep["reference"])])
+        ds = resample_dataset(ds, conf.resample_every, conf.resample_side)
     methods = [parse_method(n) for n in conf.methods]
-    out = merge([_matrix_group(ds, d, ms, w, conf) for w, ms in
+    out = merge([_matrix_group(ds, given, ms, w, conf) for w, ms in
                  method_windows(methods, conf.windows, conf.common_queries).items()], conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": "cpu", "models": {},
                              "matrix_methods": list(matrix_methods())}
     out.frame_names = (ds.query.names, ds.reference.names)
-    out.dataset, out.matrix = ds, dist  # for the report: the evaluated frames and their given distances
-    out.results["matrix_check"] = orientation_check(ds, dist, similarity, transposed)
+    out.dataset, out.matrix = ds, given  # for the report: the evaluated frames and their given distances
+    out.results["matrix_check"] = orientation_check(ds, given, similarity, transposed)
     return out
 
 
-def _matrix_group(ds: Dataset, d: torch.Tensor, methods: list[Method], windows: Windows, conf: EvalConfig
+def _matrix_group(ds: Dataset, d: GivenMatrix, methods: list[Method], windows: Windows, conf: EvalConfig
                   ) -> Evaluation:
     """The methods that share ``windows``, on those windows' items of the matrix ``d [Nq, Nr]``."""
     query = MatrixQuery(len(ds.query), ds.query.seq_bounds, windows)
@@ -225,7 +244,7 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         ds = load_dataset(dataset)
         split = default_split(conf.split, ds.splits)
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
-        dist = read_matrix(distances, ds, similarity, split, transposed)
+        dist = open_matrix(distances, ds, similarity, split, transposed)
         ev = evaluate_matrix(sub, dist, conf.replace(split=split), similarity, transposed)
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
                                 "similarity": bool(similarity), "transposed": bool(transposed),

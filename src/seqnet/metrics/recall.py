@@ -39,11 +39,22 @@ def has_positive(q_pos: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndar
     """``[M]`` bool: whether any reference position ``r_pos [R, P]`` lies within ``radius``."""
     if len(r_pos) == 0 or len(q_pos) == 0:
         return np.zeros(len(q_pos), dtype=bool)
+    if r_pos.shape[1] == 1:  # positions along a route: the nearest is a neighbour in sorted order (no scipy)
+        return _has_positive_1d(q_pos, r_pos, radius)
     from scipy.spatial import cKDTree  # scipy loads on first use: `seqnet --help` imports this module
 
     _, nearest = cKDTree(r_pos).query(q_pos, k=1)
     # the same distance formula as :func:`hits`, so "has a positive" and "is a hit" agree exactly
     return np.linalg.norm(r_pos[nearest] - q_pos, axis=-1) <= radius
+
+
+def _has_positive_1d(q_pos: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndarray:
+    """:func:`has_positive` of 1-D positions ``[M, 1]``, ``[R, 1]``: the two sorted neighbours of each query,
+    their distances by :func:`hits`' formula."""
+    srt = np.sort(r_pos[:, 0])
+    j = np.searchsorted(srt, q_pos[:, 0])
+    near = [srt[np.clip(j - 1, 0, len(srt) - 1)], srt[np.clip(j, 0, len(srt) - 1)]]
+    return np.any([np.linalg.norm(n[:, None] - q_pos, axis=-1) <= radius for n in near], axis=0)
 
 
 def hits(retrieved: np.ndarray, q_pos: np.ndarray, r_pos: np.ndarray, radius: float) -> np.ndarray:

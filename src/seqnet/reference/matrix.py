@@ -25,10 +25,11 @@ from ..matching.pairs import item_scores_from_distances, nearest_items
 from ..matching.registry import SEQUENCE_MATCHERS
 from ..matching.velocity import FrameDistances, velocity_topk
 from ..methods.grammar import Method
+from ..search.given import GivenMatrix
+from ..search.nptopk import topk_smallest_np
 from ..sequence.windows import Windows
 
 torch = lazy_module("torch")
-
 
 
 def matrix_methods() -> tuple[str, ...]:
@@ -43,6 +44,11 @@ def frame_indices(n: int) -> torch.Tensor:
     return torch.arange(n, dtype=torch.float64)[:, None]
 
 
+def frame_rows(n: int) -> np.ndarray:
+    """:func:`frame_indices` as numpy (a query side that needs no torch)."""
+    return np.arange(n, dtype=np.float64)[:, None]
+
+
 class MatrixQuery:
     """The query side of a distance matrix: its items under ``windows`` (see :class:`seqnet.methods.rank.Query`)."""
 
@@ -52,29 +58,41 @@ class MatrixQuery:
             raise ConfigError(f"no query frame has a full window of seq_len={windows.seq_len}; use a shorter --seq-len")
         self.match_starts, self.items_index, self.n = self.side.match_starts, self.side.items, n
 
-    def items(self, name: str) -> torch.Tensor:
-        return frame_indices(self.n)[self.side.items]
+    def items(self, name: str) -> np.ndarray:
+        return frame_rows(self.n)[self.side.items]
 
-    def frames(self, name: str) -> torch.Tensor:
-        return frame_indices(self.n)
+    def frames(self, name: str) -> np.ndarray:
+        return frame_rows(self.n)
 
     def cost_ms(self, keys: list[tuple[str, str]]) -> float:
         return 0.0
 
 
 class MatrixReference:
-    """The reference traverse ``traverse`` seen through ``dist [Nq, Nr]`` (lower is closer; see the module)."""
+    """The reference traverse ``traverse`` seen through ``dist [Nq, Nr]`` (lower is closer; see the module): a
+    tensor, or a :class:`seqnet.search.given.GivenMatrix` (read block by block in numpy by :meth:`search`; made a
+    float64 tensor only when a method reads more than its nearest frames)."""
 
-    def __init__(self, dist: torch.Tensor, traverse: Traverse, windows: Windows, name: str = "reference") -> None:
+    def __init__(self, dist: torch.Tensor | GivenMatrix, traverse: Traverse, windows: Windows,
+                 name: str = "reference") -> None:
         if dist.ndim != 2 or dist.shape[1] != len(traverse):
             raise ConfigError(f"the distance matrix must be [N_query, {len(traverse)}], got {tuple(dist.shape)}")
-        self.dist, self.windows, self.name = dist, windows, name
+        self.given = dist if isinstance(dist, GivenMatrix) else None
+        self._dist = None if self.given is not None else dist
+        self.windows, self.name = windows, name
         side = windows.side(len(traverse), traverse.seq_bounds)
         self.items, self.match_starts = side.items, side.match_starts
         self.positions, self.names, self.provenance = traverse.positions, traverse.names, None
-        self.input_dim, self.device, self.models = 1, torch.device("cpu"), {}
+        self.input_dim, self.device, self.models = 1, "cpu", {}
         self.frame_indices = True  # a query frame is its row number: the localiser streams rows, describes nothing
         self.precision, self.resident = None, True
+
+    @property
+    def dist(self) -> torch.Tensor:
+        """The ``[Nq, Nr]`` distances as a tensor (a given matrix made one, float64, on first use)."""
+        if self._dist is None:
+            self._dist = torch.as_tensor(self.given.dense())
+        return self._dist
 
     def serve_online(self, precision: torch.dtype | None = None) -> None:
         """A matrix is resident already and holds distances, not descriptors: no precision to choose."""
@@ -97,7 +115,13 @@ class MatrixReference:
     def search(self, descriptor: str, query: torch.Tensor, k: int,
                exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The k nearest items of the query frames ``query [M, 1]`` (their rows)."""
-        return nearest_items(self.dist, torch.as_tensor(query)[:, 0], self.items, k)
+        if self._dist is not None:
+            return nearest_items(self.dist, torch.as_tensor(query)[:, 0], self.items, k)
+        rows = np.asarray(query)[:, 0].astype(np.int64)
+        every = len(self.items) == self.given.shape[1] and bool((self.items == np.arange(len(self.items))).all())
+        if every and len(rows) == self.given.shape[0] and bool((rows == np.arange(len(rows))).all()):
+            return self.given.scan(k).topk  # every row against every frame: the one pass over the file
+        return _nearest(self.given, rows, self.items, k)
 
     def shared_distances(self, frames: str, query_frames: torch.Tensor) -> torch.Tensor:
         """The rows of the query frames given (the matrix itself when they are all its rows, in order)."""
@@ -128,6 +152,17 @@ class MatrixReference:
     def frame_distances(self, frames: str, frame: torch.Tensor) -> torch.Tensor:
         """``[Nr]``: the matrix row of one query frame (``frame [1]``: its row number)."""
         return self.dist[int(frame[0])]
+
+
+def _nearest(given: GivenMatrix, rows: np.ndarray, items: np.ndarray, k: int,
+             block: int = 1024) -> tuple[np.ndarray, np.ndarray]:
+    """``(distances [M, k], items [M, k])`` of the query frames ``rows [M]`` among ``items`` (in blocks of rows):
+    :func:`seqnet.matching.pairs.nearest_items` on a given matrix, without torch."""
+    k = min(k, len(items))
+    out = [topk_smallest_np(given[np.ix_(rows[a:a + block], items)], k) for a in range(0, len(rows), block)]
+    if not out:
+        return np.zeros((0, k)), np.zeros((0, k), np.int64)
+    return np.concatenate([v for v, _ in out]), np.concatenate([i for _, i in out])
 
 
 def _rows(query_frames: torch.Tensor | np.ndarray) -> torch.Tensor:

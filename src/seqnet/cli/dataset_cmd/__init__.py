@@ -9,16 +9,17 @@ from pathlib import Path
 from ...core.errors import ConfigError
 from .. import COMMANDS
 from ..common import add_allow_mismatch, positive_float
-from .foreign import add_positions_format, register_from_msls
-from .images import register_from_images
-from .resample import register_resample
-from .video import register_from_video
 
 PRESET_HELP = ("dataset preset (nordland, alias nordland-sw / nordland-sf; oxford-v1.0, oxford-pnv, brisbane, msls): "
                "radius, training radii, splits")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from .foreign import register_from_msls  # the sub-commands' modules load only for `seqnet dataset`
+    from .images import register_from_images  # (eval imports .resample: not describe's modules with it)
+    from .resample import register_resample
+    from .video import register_from_video
+
     p = sub.add_parser("dataset", help=COMMANDS["dataset"],
                        description="Build datasets in the seqnet directory format and check them (docs/datasets.md).")
     dsub = p.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND", required=True)
@@ -57,6 +58,8 @@ def _common(p: argparse.ArgumentParser, radius: bool = True) -> None:
 
 
 def _register_csv(dsub: argparse._SubParsersAction) -> None:
+    from .foreign import add_positions_format
+
     p = dsub.add_parser("from-csv", help="from position CSVs (name + easting,northing or frame) and descriptor files",
                         description="CSV header: an image column (name/image/filename/...) and easting,northing "
                                     "(metres) or frame; optional sequence column. Rows are matched to descriptors "

@@ -1,0 +1,73 @@
+"""seqnet eval --distances reads the file in its own dtype, block by block, and answers as the float64 tensor did."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from seqnet.eval.evaluate import EvalConfig
+from seqnet.eval.matrix import _top1, evaluate_matrix, open_matrix, read_matrix
+from seqnet.reference.matrix import MatrixReference
+
+
+def unit(x):
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def similarity(ds):
+    return unit(ds.query.descriptors).astype(np.float64) @ unit(ds.reference.descriptors).T.astype(np.float64)
+
+
+@pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64])
+@pytest.mark.parametrize("sim", [False, True])
+@pytest.mark.parametrize("transposed", [False, True])
+def test_blockwise_reading_equals_the_float64_tensor(synth_dataset, tmp_path, dtype, sim, transposed):
+    ds = synth_dataset
+    s = similarity(ds)
+    m = (s if sim else 2 - 2 * s).astype(dtype)
+    m = m.T if transposed else m
+    path = tmp_path / "m.npy"
+    np.save(path, np.ascontiguousarray(m))
+    given, dense = open_matrix(path, ds, sim, "all", transposed), read_matrix(path, ds, sim, "all", transposed)
+    assert given.raw.dtype == dtype and isinstance(given.raw, np.memmap)  # no copy, no conversion
+    windows = EvalConfig(methods=("single",), seq_len=1).resolve({}, ds.radius).windows
+    old = MatrixReference(torch.as_tensor(dense), ds.reference, windows)  # the tensor path (before)
+    new = MatrixReference(given, ds.reference, windows)
+    rows = np.arange(len(ds.query), dtype=np.float64)[:, None]
+    for k in (1, 5):
+        for q in (rows, rows[::3]):  # every row (the one pass), and some rows (blocks of rows)
+            (ov, oi), (nv, ni) = old.search("single", q, k), new.search("single", q, k)
+            np.testing.assert_array_equal(ni, oi)
+            np.testing.assert_array_equal(nv, ov)
+    keep = np.arange(0, len(ds.query), 2)
+    want, got = _top1(dense, keep), _top1(given, keep)
+    assert set(want) == set(got)
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+    conf = EvalConfig(methods=("single", "raw+seqmatch"), seq_len=3, ks=(1, 5))
+    a, b = evaluate_matrix(ds, given, conf, sim, transposed), evaluate_matrix(ds, dense, conf, sim, transposed)
+    for name in conf.methods:
+        np.testing.assert_array_equal(a.retrieved[name], b.retrieved[name])
+        np.testing.assert_array_equal(a.scores[name], b.scores[name])
+        ra, rb = a.results["methods"][name], b.results["methods"][name]
+        assert {k: v for k, v in ra.items() if k != "timing_ms"} == {k: v for k, v in rb.items() if k != "timing_ms"}
+    assert a.results["matrix_check"] == b.results["matrix_check"]
+
+
+def test_matrix_evaluation_of_single_imports_no_torch(synth_dataset, tmp_path):
+    """`seqnet eval --distances M --method single` never loads torch (a fresh interpreter)."""
+    import subprocess
+    import sys
+
+    ds_dir = tmp_path / "ds"
+    from seqnet.data.io import save_dataset
+
+    save_dataset(synth_dataset, ds_dir)
+    np.save(tmp_path / "m.npy", similarity(synth_dataset).astype(np.float32))
+    code = ("import sys; from seqnet.cli import main; "
+            f"rc = main(['-q', 'eval', '--dataset', {str(ds_dir)!r}, '--distances', {str(tmp_path / 'm.npy')!r}, "
+            "'--similarity', '--method', 'single', '--ks', '1,5']); "
+            "print('torch' in sys.modules, rc)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split()[-2:] == ["False", "0"], out

@@ -1,0 +1,53 @@
+"""The numpy top-k (seqnet.search.nptopk) equals a stable argsort and the torch top-k, ties and NaN included."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from seqnet.search.blocks import topk_smallest
+from seqnet.search.nptopk import merge_topk_np, topk_smallest_np
+
+# few distinct values: runs of ties everywhere; ±0, ±inf and NaN
+VALUES = st.sampled_from([0.0, -0.0, 1.0, 2.0, 2.0, 3.0, -1.0, np.inf, -np.inf, np.nan])
+
+
+def naive(x, k):
+    key = np.where(np.isnan(x), np.inf, x)
+    idx = np.argsort(key, axis=1, kind="stable")[:, :k]
+    return np.take_along_axis(x, idx, 1), idx
+
+
+@settings(max_examples=150, deadline=None)
+@given(arrays(np.float64, st.tuples(st.integers(0, 6), st.integers(1, 90)), elements=VALUES), st.integers(1, 95))
+def test_topk_equals_a_stable_argsort_and_torch(x, k):
+    v, i = topk_smallest_np(x, k)
+    nv, ni = naive(x, min(k, x.shape[1]))
+    np.testing.assert_array_equal(i, ni)
+    np.testing.assert_array_equal(v, nv)
+    tv, ti = topk_smallest(torch.from_numpy(x), k)
+    np.testing.assert_array_equal(i, ti.numpy())
+
+
+@settings(max_examples=80, deadline=None)
+@given(arrays(np.float32, st.tuples(st.integers(1, 5), st.integers(2, 120)), elements=VALUES.map(np.float32)),
+       st.integers(1, 30), st.integers(1, 50))
+def test_blocks_merged_equal_the_whole_row(x, k, width):
+    best = None
+    for c in range(0, x.shape[1], width):
+        best = merge_topk_np(best, x[:, c:c + width], c, k)
+    nv, ni = naive(x, min(k, x.shape[1]))
+    np.testing.assert_array_equal(best[1], ni)
+    np.testing.assert_array_equal(best[0], nv)
+
+
+def test_large_rows_with_ties_at_the_cut_off():
+    rng = np.random.default_rng(0)
+    x = rng.integers(0, 20, (50, 3000)).astype(np.float32)  # every cut-off inside a run of ties
+    for k in (1, 7, 100):
+        np.testing.assert_array_equal(topk_smallest_np(x, k)[1], naive(x, k)[1])
+    y = rng.standard_normal((40, 5000))
+    np.testing.assert_array_equal(topk_smallest_np(y, 20)[1], naive(y, 20)[1])
