@@ -138,10 +138,11 @@ def calibrate(confidence: np.ndarray, correct: np.ndarray, target: float, risk: 
     stop = int(failed[0]) if failed.size else len(last)  # the fixed sequence ends at its first non-rejection
     if stop == 0:
         i = last[0]
+        errors = f"{int(n[i] - k[i])} error" + ("" if n[i] - k[i] == 1 else "s")
         return Calibration(threshold=None, **base, accepted=int(n[i]), correct=int(k[i]),
                            lower_bound=float(lower[0]),
                            reason=f"no threshold passes: the {int(n[i])} most confident of {m} calibration queries "
-                                  f"hold {int(n[i] - k[i])} errors (precision lower bound {lower[0]:.3f} < "
+                                  f"hold {errors} (precision lower bound {lower[0]:.3f} < "
                                   f"{target:g}); lower the target, raise the risk or calibrate on more queries")
     i = last[stop - 1]
     return Calibration(threshold=float(c[i]), **base, accepted=int(n[i]), correct=int(k[i]),
