@@ -212,5 +212,5 @@ def report_config(args: argparse.Namespace) -> ReportConfig | None:
             raise ConfigError(f"{flag} {folder} is not a folder")
     if bool(args.images_query) != bool(args.images_ref):
         raise ConfigError("the gallery needs both --images-query and --images-ref (or neither)")
-    return ReportConfig(title=f"seqnet eval: {Path(args.dataset).name}", query_images=args.images_query,
+    return ReportConfig(query_images=args.images_query,
                         ref_images=args.images_ref)
