@@ -38,7 +38,9 @@ def assert_self_contained(path: Path, sections=SECTIONS) -> list[tuple[str, dict
     p.feed(text)
     tags = p.tags
     names = {t for t, _ in tags}
-    assert not names & {"script", "link", "iframe", "object", "embed", "base", "video", "audio", "source"}
+    assert not names & {"link", "iframe", "object", "embed", "base", "video", "audio", "source"}
+    assert all(not attrs for t, attrs in tags if t == "script")  # only the inline sorting script: loads nothing
+    assert [t for t, _ in tags].count("script") <= 1
     for tag, attrs in tags:
         for key in ("src", "srcset", "data", "poster", "action", "background"):
             value = attrs.get(key)

@@ -167,3 +167,23 @@ def check_method_options(args: argparse.Namespace, methods: list[str] | None) ->
         if value is not None and not uses[flag]:
             raise ConfigError(f"{flag} is {why[flag]}; none of the methods given ({', '.join(methods)}) uses it: "
                               f"drop {flag} or add a method that does")
+
+
+def add_calibration_options(p: argparse.ArgumentParser) -> None:
+    """``--target-precision``, ``--calibrate-split``, ``--risk``: a confidence threshold calibrated on another
+    split, with a promise (:mod:`seqnet.metrics.calibration`)."""
+    p.add_argument("--target-precision", type=float, metavar="P", help="accept or abstain per query: calibrate on "
+                   "--calibrate-split a confidence threshold whose precision is >= P with probability >= 1 - "
+                   "--risk on new queries from the same distribution (declined, with the reason, when that split is "
+                   "too small: 299 queries at P = 0.99), and report what it accepts on the evaluated split and the "
+                   "precision achieved, with its interval (docs/online.md)")
+    p.add_argument("--calibrate-split", metavar="SPLIT", help="with --target-precision: the split it is calibrated "
+                   "on (a split name or a range A:B; default val); it must not overlap the evaluated split")
+    p.add_argument("--risk", type=float, metavar="R", help="with --target-precision: the probability that the "
+                   "promise fails (default 0.05)")
+
+
+def check_calibration_options(args: argparse.Namespace) -> None:
+    """``--calibrate-split`` and ``--risk`` go with ``--target-precision``."""
+    if args.target_precision is None and (args.calibrate_split is not None or args.risk is not None):
+        raise ConfigError("--calibrate-split and --risk go with --target-precision P")

@@ -17,9 +17,11 @@ from ..sources.video import is_video
 from . import COMMANDS
 from .common import (
     add_allow_mismatch,
+    add_calibration_options,
     add_device,
     add_distances,
     add_recall_denominator,
+    check_calibration_options,
     check_distances,
     check_method_options,
     int_list,
@@ -64,6 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="S_1 checkpoint used by 's1', 's1+seqmatch' and HVPR re-ranking")
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
     add_recall_options(p)
+    add_calibration_options(p)
     add_output_options(p)
     p.add_argument("--common-queries", action="store_true", help="evaluate every method on the sequence methods' "
                    "queries and references (one query set, as the paper's tables); by default single-frame methods "
@@ -114,7 +117,9 @@ def run(args: argparse.Namespace) -> int:
                                 ks=args.ks, allow_mismatch=args.allow_mismatch or None, fuse_weight=args.fuse_weight,
                                 fuse_top_k=args.fuse_top_k, resample_every=args.resample_every,
                                 resample_side=args.resample_side, recall_denominator=args.recall_denominator,
-                                common_queries=args.common_queries)
+                                common_queries=args.common_queries, target_precision=args.target_precision,
+                                calibrate_split=args.calibrate_split, risk=args.risk)
+    check_calibration_options(args)
     check_distances(args)
     check_route(args)
     check_method_options(args, methods)
@@ -153,9 +158,31 @@ def print_results(res: dict) -> None:
         who = "" if len(counts) == 1 else f"{', '.join(names)}: "
         print(f"{who}{queries} queries evaluated; {no_window} without a full window"
               f"{f' ({why})' if why else ''}, {no_positive} without a reference within the radius ({fate})")
+    print_calibration(res)
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
+
+
+def print_calibration(res: dict) -> None:
+    """Per method, the calibrated threshold and what it gives on the evaluated split (``--target-precision``)."""
+    cfg = res["config"]
+    if cfg.get("target_precision") is None:
+        return
+    print(f"calibrated on {shown(cfg['calibrate_split'])} for precision >= {cfg['target_precision']:g} "
+          f"(risk {cfg['risk']:g}); on {shown(cfg.get('split') or 'the evaluated split')}:")
+    for name, r in res["methods"].items():
+        c = r.get("calibrated")
+        if c is None:
+            continue
+        cal = c["calibration"]
+        if cal["threshold"] is None:
+            print(f"  {name}: abstains on every query ({cal['reason']})")
+            continue
+        lo, hi = c["precision_interval"] or (float("nan"), float("nan"))
+        prec = "–" if c["precision"] is None else f"{c['precision']:.3f} [{lo:.3f}, {hi:.3f}]"
+        print(f"  {name}: confidence >= {cal['threshold']:.4g} accepts {c['accepted']} of {c['queries']} "
+              f"({100 * c['accepted_fraction']:.1f}%), precision {prec}, recall {c['recall']:.3f}")
 
 
 def check_route(args: argparse.Namespace) -> None:
@@ -168,6 +195,9 @@ def check_route(args: argparse.Namespace) -> None:
     if args.index and fixed:
         raise ConfigError("--index uses the map's models and index; drop --model/--shortlist-model/--rerank-model/"
                           "--backend (they are fixed when the map is built)")
+    if args.target_precision is not None and (args.distances or args.index):
+        raise ConfigError("--target-precision calibrates on another split of the dataset's descriptors; it is not "
+                          "available with --distances or --index")
     if args.index and args.report:
         raise ConfigError("--report is not available with --index; evaluate the dataset without --index for a report")
 
@@ -185,5 +215,5 @@ def report_config(args: argparse.Namespace) -> ReportConfig | None:
             raise ConfigError(f"{flag} {folder} is not a folder (nor a video file)")
     if bool(args.images_query) != bool(args.images_ref):
         raise ConfigError("the gallery needs both --images-query and --images-ref (or neither)")
-    return ReportConfig(title=f"seqnet eval: {Path(args.dataset).name}", query_images=args.images_query,
+    return ReportConfig(query_images=args.images_query,
                         ref_images=args.images_ref)

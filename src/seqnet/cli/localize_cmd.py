@@ -14,14 +14,18 @@ from ..localize.trackfile import TRACK_COLUMNS
 from ..localize.video import VideoOptions
 from ..matching.velocity import ANCHORS
 from ..methods.grammar import valid_methods
+from ..metrics.calibration import RISK, check_target
 from ..search.precision import PRECISIONS
+from ..security.text import shown
 from ..sources.bags.positions import DEFAULT_TOLERANCE
 from . import COMMANDS
 from .common import (
     add_allow_mismatch,
+    add_calibration_options,
     add_device,
     add_distances,
     add_topic,
+    check_calibration_options,
     check_distances,
     check_method_options,
     positive_float,
@@ -57,6 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="TRACK.csv",
                    help="the per-frame CSV; a summary (config, inputs, R@1, latency) goes beside it as .json")
     add_localizer_options(p)
+    add_calibration_options(p)
     p.set_defaults(func=run, default_threads=1)  # a frame is little work: one thread (docs/online.md)
 
 
@@ -147,7 +152,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--query goes with --map (a map and new data to localise); --dataset replays the "
                           "dataset's own query traverse")
     check_distances(args)
+    check_calibration_options(args)
     check_method_options(args, [args.method])
+    if args.target_precision is not None and args.map is not None:
+        raise ConfigError("--target-precision calibrates on another split of --dataset; with --map calibrate with "
+                          "seqnet localize --dataset (or eval) and apply the threshold to the track's confidence")
     if args.map is not None and args.distances is not None:
         raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:
@@ -157,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
                      describer=args.describer, on_track=_plotter(args.plot))
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
-                   args.distances, args.similarity, args.transposed)
+                   args.distances, args.similarity, args.transposed, calibration(args))
     s = out.data["summary"]  # what the stage wrote beside the track
     lat = s.get("latency_ms", {})
     print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")
@@ -171,6 +180,30 @@ def run(args: argparse.Namespace) -> int:
               + (f"; decoding {s['decode_share']:.0%} of the frame time" if "decode_share" in s else ""))
     if args.plot:
         print(f"trajectory plot in {args.plot}")
+    print_calibrated(s.get("calibrated"))
     print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
           f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms; track in {out}")
     return 0
+
+
+def calibration(args: argparse.Namespace) -> tuple[float, str, float] | None:
+    """``(target precision, calibration split, risk)`` of ``--target-precision`` (checked), or None."""
+    if args.target_precision is None:
+        return None
+    target, risk = check_target(args.target_precision, RISK if args.risk is None else args.risk)
+    return target, args.calibrate_split or "val", risk
+
+
+def print_calibrated(c: dict | None) -> None:
+    """What the calibrated threshold gave on the replayed frames (the track's ``accepted`` column)."""
+    if c is None:
+        return
+    cal = c["calibration"]
+    head = f"calibrated on {shown(cal['split'])} for precision >= {cal['target']:g} (risk {cal['risk']:g}): "
+    if cal["threshold"] is None:
+        print(head + f"abstains on every frame ({cal['reason']})")
+        return
+    lo, hi = c["precision_interval"] or (float("nan"), float("nan"))
+    prec = "–" if c["precision"] is None else f"{c['precision']:.3f} [{lo:.3f}, {hi:.3f}]"
+    print(head + f"confidence >= {cal['threshold']:.4g} accepts {c['accepted']} of {c['queries']} frames "
+          f"({100 * c['accepted_fraction']:.1f}%), precision {prec}")

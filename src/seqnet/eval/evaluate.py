@@ -28,12 +28,14 @@ from ..methods.checks import check_inputs, leakage, model_lengths
 from ..methods.grammar import FUSE_WEIGHT, Method, default_methods, parse_method
 from ..methods.protocol import Reference
 from ..methods.rank import rank
+from ..metrics.calibration import RISK, check_target
 from ..metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
 from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
+from .calibrated import add_calibration, check_calibration_split
 from .evaluation import Evaluation, merge, method_windows, no_window_reason
 from .outputs import EvalOutputs
 from .results import method_results
@@ -69,6 +71,9 @@ class EvalConfig(WindowSettings, Config):
         common_queries: evaluate every method on the sequence methods' query and reference items (the
             paper's tables: one query set); by default a single-frame method (``single``, ``s1``) queries and
             indexes every frame (:mod:`seqnet.eval.evaluation`).
+        target_precision, calibrate_split, risk: with a target, :func:`main` also evaluates ``calibrate_split``
+            and gives each method a confidence threshold calibrated there, whose precision is ≥ the target
+            with probability ≥ 1 − ``risk`` (:mod:`seqnet.metrics.calibration`), applied to the evaluated split.
     """
 
     methods: tuple[str, ...] | None = None
@@ -89,6 +94,9 @@ class EvalConfig(WindowSettings, Config):
     device: str = "auto"
     allow_mismatch: bool = False
     common_queries: bool = False
+    target_precision: float | None = None
+    calibrate_split: str = "val"
+    risk: float = RISK
 
     def __post_init__(self) -> None:
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
@@ -113,6 +121,9 @@ class EvalConfig(WindowSettings, Config):
             self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
         check_choice("k-NN backend", self.backend, KNN_BACKENDS)
         check_device(self.device)  # validates the device name
+        if self.target_precision is not None:
+            self._set("target_precision", check_target(self.target_precision, self.risk)[0])
+        self._set("risk", check_target(0.5, self.risk)[1])
 
     def resolve(self, models: Mapping[str, SeqNet], radius: float) -> EvalConfig:
         """L (the S_L model's when unset), the radius (the dataset's when unset) and the methods (the defaults
@@ -265,7 +276,12 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     ds = load_dataset(dataset)
     split = default_split(conf.split, ds.splits)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    if conf.target_precision is not None:
+        check_calibration_split(ds, conf.calibrate_split, split)
     ev = evaluate(ds.split(split), conf.replace(split=split), loaded)
+    if conf.target_precision is not None:
+        cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
+        add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results["config"]["dataset_path"] = str(dataset)
     leaks = leakage(loaded, dataset, ds, split)
     if leaks:

@@ -37,10 +37,7 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     rec = recall(ranked, truth, ks, denominator)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"], recall_denominator=denominator)
-    pr_ranked, pr_scores = truth.without_soft(ranked, scores)  # soft positives: neither TP nor FP in PR
-    confidence = ratio_confidence(pr_scores, pr_ranked, truth.r_pos, truth.radius)
-    confidence[pr_ranked[:, 0] < 0 if ranked.shape[1] else slice(0)] = 0.0  # every retrieved was a soft match
-    correct = truth.hits(pr_ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
+    confidence, correct = top1_confidence(scores, ranked, truth)
     precision, rec, thresholds = precision_recall(confidence, correct, truth.has_positive())
     entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
                  confidence_for_precision=thresholds_for(precision, rec, thresholds))
@@ -48,6 +45,17 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
         entry["radii"] = {str(r): recall(ranked, GroundTruth(truth.q_pos, truth.r_pos, r), ks, denominator)
                           for r in extra_radii}
     return entry, confidence
+
+
+def top1_confidence(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth) -> tuple[np.ndarray, np.ndarray]:
+    """``(confidence [M], correct [M])`` of each query's top-1 among its ranked ``scores`` / ``ranked [M, K]``:
+    soft positives dropped first (neither true nor false positives in PR), confidence 0 when every retrieved was
+    one."""
+    pr_ranked, pr_scores = truth.without_soft(ranked, scores)  # soft positives: neither TP nor FP in PR
+    confidence = ratio_confidence(pr_scores, pr_ranked, truth.r_pos, truth.radius)
+    confidence[pr_ranked[:, 0] < 0 if ranked.shape[1] else slice(0)] = 0.0  # every retrieved was a soft match
+    correct = truth.hits(pr_ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
+    return confidence, correct
 
 
 def per_query_rows(ev: Any, top: int = 5) -> list[dict[str, Any]]:

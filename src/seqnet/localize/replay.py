@@ -22,6 +22,8 @@ from ..core.log import logger
 from ..core.progress import progress
 from ..core.stage import Written
 from ..data.traverse import Dataset, default_split
+from ..eval.calibrated import check_calibration_split
+from ..metrics.calibration import accepted, apply_threshold, calibrate
 from ..metrics.precision_recall import pr_summary, precision_recall
 from ..metrics.recall import ground_truth
 from ..security.digests import file_digest
@@ -97,19 +99,23 @@ def matrix_localizer(ds: Dataset, dist: np.ndarray, conf: LocalizeConfig) -> tup
 
 def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
-         distances: str | Path | None = None, similarity: bool = False, transposed: bool = False) -> Written:
+         distances: str | Path | None = None, similarity: bool = False, transposed: bool = False,
+         calibration: tuple[float, str, float] | None = None) -> Written:
     """hloc-style stage: replay the query traverse of split ``conf.split`` of the dataset directory
     ``dataset`` against its reference traverse (or, with ``distances``, the rows of that ``[Nq, Nr]`` matrix file
     of the whole dataset, ``[Nr, Nq]`` when ``transposed``; ``similarity``: higher is closer); writes ``out``
     (track.csv) and
-    its ``.json`` summary; returns ``out``. The track is locked for the whole run (a second writer: exit 1)."""
+    its ``.json`` summary; returns ``out``. ``calibration``: ``(target precision, calibration split, risk)``: the
+    calibration split is replayed first, a confidence threshold calibrated on it (:mod:`seqnet.metrics.calibration`)
+    decides per frame (the track's ``accepted`` column), and the summary's ``calibrated`` says what it gave.
+    The track is locked for the whole run (a second writer: exit 1)."""
     if distances is not None and (models or shortlist_model or rerank_model):
         raise ConfigError("--distances gives the frame distances: no model applies (methods on a matrix read "
                           "single-frame distances only)")
     with locked(check_output(out)):
         remove_dead_temps([Path(out), sidecar_of(Path(out))])
         return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, distances,
-                     (similarity, transposed))
+                     (similarity, transposed), calibration)
 
 
 def _localizer(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loaded: Mapping[str, SeqNet],
@@ -127,7 +133,7 @@ def _localizer(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loa
 
 def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
           shortlist_model: str | Path | None, rerank_model: str | Path | None, distances: str | Path | None,
-          reading: tuple[bool, bool]) -> Written:
+          reading: tuple[bool, bool], calibration: tuple[float, str, float] | None = None) -> Written:
     from ..data.io import load_dataset
     from ..methods.checks import model_lengths
     from ..sequence.checkpoints import load_models
@@ -135,13 +141,16 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     full = load_dataset(dataset)
     split = default_split(conf.split, full.splits)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    if calibration is not None:
+        check_calibration_split(full, calibration[1], split)
     ds = full.split(split)
-    loc, frames = _localizer(conf, ds, full, split, loaded, distances, reading)
+    loc, est, correct, has = _replay_split(conf, ds, full, split, loaded, distances, reading)
     radius = conf.radius or ds.radius
-    est = replay_query(loc, ds, frames)
-    best = np.array([e.ref_index for e in est], dtype=np.int64)
-    correct, has = track_truth(ds, loc.ref_items, radius, best)
     summary = summarize(est, correct, has)
+    accept = None
+    if calibration is not None:
+        replayed = _replay_split(conf, full.split(calibration[1]), full, calibration[1], loaded, distances, reading)
+        accept, summary["calibrated"] = _calibrated(replayed[1:3], (est, correct, has), *calibration)
     record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
                                              "match_len": loc.match_len, "radius": radius,
                                              "model_seq_len": model_lengths(loaded)},
@@ -149,9 +158,36 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct), record)
+    write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct, accept), record)
     logger.debug("localize: %s", json.dumps(summary))
     return Written(out, record)
+
+
+def _replay_split(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loaded: Mapping[str, SeqNet],
+                  distances: str | Path | None,
+                  reading: tuple[bool, bool]) -> tuple[Localizer, list[Estimate], np.ndarray, np.ndarray]:
+    """The split ``ds`` replayed: its localiser, estimates and ``(correct [Nq], has_positive [Nq])`` of their
+    top-1."""
+    loc, frames = _localizer(conf, ds, full, split, loaded, distances, reading)
+    est = replay_query(loc, ds, frames)
+    best = np.array([e.ref_index for e in est], dtype=np.int64)
+    return (loc, est, *track_truth(ds, loc.ref_items, conf.radius or ds.radius, best))
+
+
+def _calibrated(cal_run: tuple[list[Estimate], np.ndarray], run: tuple[list[Estimate], np.ndarray, np.ndarray],
+                target: float, cal_split: str, risk: float) -> tuple[np.ndarray, dict[str, Any]]:
+    """``(accepted [Nq], what it gave)``: a threshold calibrated on the full-window frames of the calibration
+    replay ``cal_run`` (estimates, correct), applied to the replay ``run`` (estimates, correct, has_positive); a
+    frame without a full window is never accepted."""
+    def arrays(est: list[Estimate]) -> tuple[np.ndarray, np.ndarray]:
+        return np.array([e.confidence for e in est]), np.array([e.full_window for e in est], bool)
+
+    conf_c, full_c = arrays(cal_run[0])
+    cal = calibrate(conf_c[full_c], cal_run[1][full_c], target, risk)
+    (conf_q, full_q), correct, has = arrays(run[0]), run[1], run[2]
+    out = apply_threshold(cal, conf_q[full_q], correct[full_q], has[full_q])
+    out["calibration"]["split"] = cal_split
+    return accepted(cal, conf_q) & full_q, out
 
 
 def _matrix_inputs(distances: str | Path | None, reading: tuple[bool, bool]) -> dict[str, Any]:

@@ -28,6 +28,7 @@ from .localizer import Estimate
 
 TRACK_COLUMNS = ("frame", "name", "estimate", "estimate_name", "score", "confidence", "latency_ms", "correct",
                  "full_window")
+ACCEPTED = "accepted"  # the column a calibrated track adds (--target-precision): 1 accept, 0 abstain
 TRACK_KIND = "seqnet-localize/1"
 BOUND = "track"  # in the summary: the size and sampled hash of the track it summarises
 
@@ -64,7 +65,8 @@ def _our_header(out: Path) -> bool:
     """A track whose summary was never written (a run killed between the two files) starts with our header."""
     try:
         with open_input(out, "track", OutputError) as f:
-            return f.readline(4096).decode("utf-8").rstrip("\n") == ",".join(TRACK_COLUMNS)
+            return f.readline(4096).decode("utf-8").rstrip("\n") in (",".join(TRACK_COLUMNS),
+                                                                      ",".join((*TRACK_COLUMNS, ACCEPTED)))
     except (OSError, UnicodeDecodeError, OutputError):
         return False
 
@@ -85,8 +87,9 @@ def read_summary(out: Path) -> dict[str, Any] | None:
 
 
 def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list[str] | None,
-               correct: np.ndarray | None) -> list[dict[str, Any]]:
-    """One row per query frame (:data:`TRACK_COLUMNS`); ``correct`` is empty without ground truth or answer."""
+               correct: np.ndarray | None, accepted: np.ndarray | None = None) -> list[dict[str, Any]]:
+    """One row per query frame (:data:`TRACK_COLUMNS`); ``correct`` is empty without ground truth or answer;
+    with ``accepted [Nq]`` (a calibrated threshold's decisions) the column :data:`ACCEPTED` too."""
     rows = []
     for i, e in enumerate(est):
         answered = e.ref_index >= 0
@@ -96,6 +99,8 @@ def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list
             "score": f"{e.score:.6g}" if answered else "", "confidence": f"{e.confidence:.6f}",
             "latency_ms": f"{e.latency_ms:.3f}",
             "correct": int(correct[i]) if correct is not None and answered else "", "full_window": int(e.full_window)})
+        if accepted is not None:
+            rows[-1][ACCEPTED] = int(accepted[i])
     return rows
 
 
@@ -104,7 +109,7 @@ def write_track(out: Path, rows: list[dict[str, Any]], record: dict[str, Any]) -
     summary, bound to the new track and holding the replaced track's record, then the track, then the summary
     alone."""
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(TRACK_COLUMNS), lineterminator="\n")
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else list(TRACK_COLUMNS), lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
     try:

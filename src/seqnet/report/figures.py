@@ -22,7 +22,8 @@ from ..data.traverse import Traverse
 from ..metrics.recall import GroundTruth
 from ..security.inputs import inside, open_input
 from ..sequence.windows import window_starts
-from .tables import method_colours, new_figure
+from .styles import family_legend, method_styles
+from .tables import new_figure
 
 MAX_TRUTH_POINTS = 20000  # ground-truth pairs drawn on the distance matrix at most
 
@@ -74,19 +75,24 @@ def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300
     else:
         d, qi, ri = item_distances(query.descriptors[ev.q_items], reference.descriptors[ev.r_items], side)
     m, r = len(ev.q_items), len(ev.r_items)
-    fig, ax = new_figure(7, 6.5)
+    fig, ax = new_figure(8.5, 6.5)
     ax.imshow(d, cmap="gray", aspect="auto", interpolation="nearest", extent=(-0.5, r - 0.5, m - 0.5, -0.5))
     tq, tr = truth_pairs(ev.truth)
     ax.scatter(tr, tq, s=10, c="cyan", alpha=0.8, marker="s", linewidths=0, label="ground truth")
     names = list(methods or ev.retrieved)
-    for name, colour in zip(names, method_colours(len(names)), strict=True):
+    styles = method_styles(names)
+    for name in names:
         rows, cols = top_one(ev, name)
-        ax.scatter(cols, rows, s=3, color=colour, linewidths=0, label=f"{name} top-1")
+        ax.scatter(cols, rows, s=6, color=styles[name]["color"], marker=styles[name]["marker"], linewidths=0,
+                   label=name)
     ax.set_xlim(-0.5, r - 0.5)
     ax.set_ylim(m - 0.5, -0.5)
     ax.set_xlabel(f"reference item ({r}; matrix shown at {len(ri)} columns)")
     ax.set_ylabel(f"query item ({m}; {len(qi)} rows)")
-    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, markerscale=4)  # beside
+    leg = family_legend(ax, names, {n: f"{n} top-1" for n in names}, first=["ground truth"])
+    for h in leg.legend_handles:
+        if hasattr(h, "set_sizes"):
+            h.set_sizes([30])  # a dot large enough to see its colour and marker
     ax.set_title("the given distances (dark = close)" if given is not None else
                  "single-image descriptor distances (dark = close)")
     return fig

@@ -32,6 +32,7 @@ from ..methods.grammar import parse_method
 from ..metrics.recall import recall_curve
 from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
+from .styles import method_family
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
 SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery")  # always; "trajectory", "pairs" with positions
@@ -40,7 +41,10 @@ table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding
 td:first-child,th:first-child{text-align:left}nav a{margin-right:1em}pre{background:#f4f4f4;padding:.5em;
 overflow-x:auto;font-size:80%}.ex{display:inline-block;margin:4px;padding:4px;border:3px solid}
 .ok{border-color:#2a2}.bad{border-color:#c22}.ex img{image-rendering:pixelated;width:100%}
-.ex p{margin:2px;font-size:80%}img{max-width:100%}"""
+.ex p{margin:2px;font-size:80%}img{max-width:100%}table.sortable th{cursor:pointer;user-select:none}
+table.sortable td:nth-child(2),table.sortable th:nth-child(2){text-align:left;white-space:nowrap}
+table.facts td{text-align:left}table.sortable{font-size:90%}
+th.asc:after{content:" \\25B2"}th.desc:after{content:" \\25BC"}"""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,7 +52,7 @@ class ReportConfig(Config):
     """Settings of the HTML report.
 
     Attributes:
-        title: the page title.
+        title: the page title (None: "seqnet evaluation: " and the evaluated dataset's name).
         k_max: Recall@K curves for K = 1..k_max.
         matrix_side: the distance matrix is drawn at most this many rows and columns.
         gallery_method: the method of the gallery (None: the one with the best R@1).
@@ -57,7 +61,7 @@ class ReportConfig(Config):
             dataset); without both, no gallery.
     """
 
-    title: str = "seqnet evaluation"
+    title: str | None = None
     k_max: int = 20
     matrix_side: int = 300
     gallery_method: str | None = None
@@ -90,11 +94,26 @@ def png_tag(png: bytes, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
 
 
-def table_html(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    """An HTML table (cells escaped)."""
-    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+def table_html(header: Sequence[str] | None, rows: Sequence[Sequence[Any]], sortable: bool = False) -> str:
+    """An HTML table (cells escaped; ``header`` None: none); ``sortable``: a click on a column's heading sorts the
+    rows by it (numbers as numbers; again: the other way), by the page's own script (:data:`SORT_JS`)."""
+    head = "" if header is None else \
+        "<thead><tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in header) + "</tr></thead>"
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+    cls = ' class="sortable"' if sortable else ' class="facts"' if header is None else ""
+    return f"<table{cls}>{head}<tbody>{body}</tbody></table>"
+
+
+# sorts a table.sortable by the clicked column: numbers numerically (a dash or empty cell last), text
+# alphabetically; a second click reverses. Inline: the report stays one file that loads nothing.
+SORT_JS = """document.querySelectorAll("table.sortable th").forEach(function(th,col){th.title="click to sort";
+th.addEventListener("click",function(){var tb=th.closest("table").tBodies[0],rows=Array.from(tb.rows),
+up=th.dataset.dir!=="asc";th.closest("tr").querySelectorAll("th").forEach(function(h){h.dataset.dir="";
+h.classList.remove("asc","desc")});th.dataset.dir=up?"asc":"desc";th.classList.add(up?"asc":"desc");
+function key(r){var t=r.cells[col].textContent.trim(),n=parseFloat(t);return isNaN(n)?t:n}
+rows.sort(function(a,b){var x=key(a),y=key(b),nx=typeof x==="number",ny=typeof y==="number";
+if(nx!==ny)return nx?-1:1;var c=nx?x-y:String(x).localeCompare(String(y));return up?c:-c});
+rows.forEach(function(r){tb.appendChild(r)})})});"""
 
 
 def summary_section(ev: Any, conf: ReportConfig) -> Section:
@@ -107,7 +126,7 @@ def summary_section(ev: Any, conf: ReportConfig) -> Section:
              ("L_m", cfg.get("match_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
              ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
     config = html.escape(json.dumps(cfg, indent=1, default=str))
-    return Section("summary", "Summary", table_html(["", ""], facts)
+    return Section("summary", "Summary", table_html(None, facts)
                    + f"<details><summary>resolved configuration</summary><pre>{config}</pre></details>")
 
 
@@ -115,9 +134,12 @@ def results_section(ev: Any) -> Section:
     """The results table: Recall@K, AUC, R@100P, queries, time."""
     ks = ev.results["config"].get("ks", [1, 5, 10, 20])
     header, rows = results_rows(ev.results["methods"], ks)
-    for row, r in zip(rows, ev.results["methods"].values(), strict=True):
+    for row, (name, r) in zip(rows, ev.results["methods"].items(), strict=True):
         row.extend(f"{r[k]:.3f}" if isinstance(r.get(k), float) else "" for k in ("auc", "recall@100p"))
-    return Section("results", "Results", table_html([*header, "PR AUC", "R@100P"], rows))
+        row.insert(1, method_family(name))
+    return Section("results", "Results", table_html([header[0], "family", *header[1:], "PR AUC", "R@100P"], rows,
+                                                    sortable=True)
+                   + "<p>Click a column's heading to sort by it (again: the other way).</p>")
 
 
 def gallery_section(ev: Any, ds: Dataset, conf: ReportConfig) -> Section:
@@ -217,7 +239,8 @@ def render_html(title: str, sections: Sequence[Section]) -> str:
     body = "".join(f'<section id="{html.escape(s.id)}"><h2>{html.escape(s.title)}</h2>{s.body}</section>'
                    for s in sections)
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
-            f"<style>{CSS}</style></head><body><h1>{html.escape(title)}</h1><nav>{nav}</nav>{body}</body></html>\n")
+            f"<style>{CSS}</style></head><body><h1>{html.escape(title)}</h1><nav>{nav}</nav>{body}"
+            f"<script>{SORT_JS}</script></body></html>\n")
 
 
 def write_html_report(ev: Any, ds: Dataset, path: str | Path, conf: ReportConfig | None = None,
@@ -225,7 +248,8 @@ def write_html_report(ev: Any, ds: Dataset, path: str | Path, conf: ReportConfig
     """Write the report of the evaluation ``ev`` of ``ds`` (the evaluated split) to ``path``, with the
     sections ``extra`` first (e.g. an experiment's own tables and figures); returns ``path``."""
     conf = conf or ReportConfig()
-    return write_text_atomic(Path(path), render_html(conf.title, [*extra, *evaluation_sections(ev, ds, conf)]))
+    title = conf.title or f"seqnet evaluation: {ds.name}"
+    return write_text_atomic(Path(path), render_html(title, [*extra, *evaluation_sections(ev, ds, conf)]))
 
 
 def figure_section(id_: str, title: str, fig: Any, text: str = "") -> Section:

@@ -98,22 +98,33 @@ def method_colours(n: int) -> list[Any]:
 
 
 def recall_figure(curves: Mapping[str, np.ndarray], title: str = "") -> Any:
-    """A figure of Recall@K curves (K = 1..len), one line per method (solid, then dashed after 10)."""
+    """A figure of Recall@K curves (K = 1..len), one line per method, styled by family
+    (:func:`seqnet.report.styles.method_styles`), the legend beside the axes grouped by family."""
     from matplotlib.ticker import MaxNLocator
 
-    fig, ax = new_figure(6, 4.5)
-    for i, ((name, c), colour) in enumerate(zip(curves.items(), method_colours(len(curves)), strict=True)):
-        ax.plot(np.arange(1, len(c) + 1), c, marker="o", markersize=3, label=name,
-                color=colour, linestyle="-" if i % 20 < 10 else "--")
+    from .styles import family_legend, method_styles
+
+    styles = method_styles(list(curves))
+    fig, ax = new_figure(*figure_size(len(curves)))
+    for name, c in curves.items():
+        ax.plot(np.arange(1, len(c) + 1), c, markersize=4, label=name, linewidth=1.3, **styles[name])
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("K (number of top reference candidates)")
     ax.set_ylabel("Recall@K")
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)  # beside the curves
+    family_legend(ax, list(curves))
     if title:
         ax.set_title(title, parse_math=False)  # a dataset's name is text, never mathtext (``$\\foo$`` fails)
     return fig
+
+
+def figure_size(n_methods: int) -> tuple[float, float]:
+    """``(width, height)`` in inches of a figure of ``n_methods`` curves with their legend beside it: taller as
+    the legend grows (about 0.16 inch a row, family headings included), wider for its second column."""
+    rows = n_methods + 9  # at most one heading per family
+    height = max(4.5, min(0.16 * rows, 7.5))
+    return (9.5 if rows > 30 else 7.5), height
 
 
 def plot_pr_curves(methods: Mapping[str, Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
@@ -123,19 +134,24 @@ def plot_pr_curves(methods: Mapping[str, Mapping[str, Any]], path: str | Path, t
 
 def pr_figure(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> Any:
     """The precision–recall curves of results entries (``pr_curve``: ``{"precision", "recall"}``, and
-    ``auc`` for the legend), one line per method; entries without a curve are left out."""
+    ``auc`` for the legend), one line per method styled by family (a marker every tenth of the curve); entries
+    without a curve are left out."""
+    from .styles import family_legend, method_styles
+
     entries = [(n, r) for n, r in methods.items() if r.get("pr_curve")]
-    fig, ax = new_figure(6, 4.5)
-    for i, ((name, r), colour) in enumerate(zip(entries, method_colours(len(entries)), strict=True)):
+    styles = method_styles([n for n, _ in entries])
+    fig, ax = new_figure(*figure_size(len(entries)))
+    for name, r in entries:
         c = r["pr_curve"]
-        ax.plot(c["recall"], c["precision"], label=f"{name} (AUC {float(r.get('auc', float('nan'))):.2f})",
-                color=colour, linestyle="-" if i % 20 < 10 else "--")
+        ax.plot(c["recall"], c["precision"], label=name, linewidth=1.3, markersize=4,
+                markevery=max(1, len(c["recall"]) // 10), **styles[name])
     ax.set_xlabel("recall (top-1 correct, accepted by confidence)")
     ax.set_ylabel("precision")
     ax.set_xlim(0, 1.02)
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)  # beside, never over a curve
+    family_legend(ax, [n for n, _ in entries],
+                  {n: f"{n} (AUC {float(r.get('auc', float('nan'))):.2f})" for n, r in entries})
     if title:
         ax.set_title(title, parse_math=False)  # a dataset's name is text, never mathtext (``$\\foo$`` fails)
     return fig
