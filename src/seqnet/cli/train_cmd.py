@@ -59,6 +59,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.add_argument("--batch-size", type=positive_int, help=f"queries per batch (default {_D.batch_size})")
     o.add_argument("--epochs", type=positive_int, help=f"number of epochs (default {_D.epochs})")
     o.add_argument("--patience", type=positive_int, help="stop after N epochs without a better val R@1 (default: off)")
+    o.add_argument("--stop-inactive", type=non_negative_int, metavar="N", help="stop after N epochs in a row without "
+                   f"an active triplet (the model no longer learns; default {_D.stop_inactive}, 0: never)")
     o.add_argument("--seed", type=non_negative_int, help=f"random seed (default {_D.seed})")
     t = p.add_argument_group("triplets")
     t.add_argument("--pos-radius", type=positive_float, help="positives lie within this distance (default: the "
