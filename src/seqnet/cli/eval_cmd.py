@@ -8,6 +8,7 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from ..eval.evaluate import EvalConfig, main
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
+from ..report.guidance import format_notes, learned_below_baseline
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
@@ -153,6 +154,8 @@ def print_results(res: dict) -> None:
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
+    for line in format_notes(learned_below_baseline(res)):
+        print(shown(line))
 
 
 def check_route(args: argparse.Namespace) -> None:
