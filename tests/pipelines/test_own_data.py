@@ -123,3 +123,14 @@ def test_a_dataset_described_into_spill_files_equals_one_described_in_memory(rou
         a, b = (tmp_path / d / side / "descriptors.npy" for d in ("held", "spilled"))
         assert a.read_bytes() == b.read_bytes(), side
     assert load_dataset(tmp_path / "spilled").reference.descriptors.shape == (80, 16 * 32)
+
+
+def test_pca_is_fitted_on_the_train_split_only(route, tmp_path, capsys):
+    splits = ["--split", "train=0:40,0:20", "--split", "val=40:60,20:30", "--split", "test=60:80,30:40"]
+    assert build(route, tmp_path / "p", "--utm-names", "--radius", "6", *splits, "--pca", "8") == 0
+    assert "fitted on the train split only" in capsys.readouterr().out
+    ds = load_dataset(tmp_path / "p")
+    assert ds.query.dim == 8 and ds.extra["pca"]["fit_ranges"] == {"reference": [0, 40], "query": [0, 20]}
+    assert (tmp_path / "p.pca.npz").is_file() and ds.reference.provenance["settings"]["dim"] == 8
+    assert build(route, tmp_path / "q", "--utm-names", "--radius", "6", "--pca", "8") == 2
+    assert "train split only" in capsys.readouterr().err and not (tmp_path / "q").exists()
