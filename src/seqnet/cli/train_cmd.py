@@ -47,9 +47,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--seq-len", type=positive_int, help=f"sequence length L (default {_D.seq_len}; S_1: 1)")
     m.add_argument("--w", type=positive_int, help=f"temporal filter width, 1 <= w <= L (default {_D.w}; S_1: 1)")
     m.add_argument("--out-dims", type=positive_int, help="output descriptor dimension (default: the input's)")
-    m.add_argument("--pca", type=positive_int, metavar="D", help="reduce the descriptors to D dimensions first, by a "
-                   "PCA fitted on the train split only, into DATASET-pcaD beside the dataset (reused when present; "
-                   "evaluate on it); advised when D > 4096 or above the training frames (the plan logged says)")
     m.add_argument("--window", choices=WINDOW_MODES, help=f"window position (default {_D.window})")
     o = p.add_argument_group("optimisation")
     o.add_argument("--optimizer", choices=list(OPTIMIZERS), help=f"optimiser (default {_D.optimizer})")
@@ -63,8 +60,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.add_argument("--batch-size", type=positive_int, help=f"queries per batch (default {_D.batch_size})")
     o.add_argument("--epochs", type=positive_int, help=f"number of epochs (default {_D.epochs})")
     o.add_argument("--patience", type=positive_int, help="stop after N epochs without a better val R@1 (default: off)")
-    o.add_argument("--stop-inactive", type=non_negative_int, metavar="N", help="stop after N epochs in a row without "
-                   f"an active triplet (the model no longer learns; default {_D.stop_inactive}, 0: never)")
     o.add_argument("--seed", type=non_negative_int, help=f"random seed (default {_D.seed})")
     t = p.add_argument_group("triplets")
     t.add_argument("--pos-radius", type=positive_float, help="positives lie within this distance (default: the "
@@ -80,9 +75,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--val-split", help=f"split to validate on (default {_D.val_split}; 'none': no validation, "
                    "best.pt = last)")
     add_learning(p)
+    add_guide(p)
     add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
+
+
+def add_guide(p: argparse.ArgumentParser) -> None:
+    """The flags the training plan advises (--pca) and the stop on epochs without an active triplet."""
+    g = p.add_argument_group("guide (the plan logged before training says when to reduce D)")
+    g.add_argument("--pca", type=positive_int, metavar="D", help="reduce the descriptors to D dimensions first, by a "
+                   "PCA fitted on the train split only, into DATASET-pcaD beside the dataset (reused when present; "
+                   "evaluate on it); advised when D > 4096 or above the training frames (the plan logged says)")
+    g.add_argument("--stop-inactive", type=non_negative_int, metavar="N", help="stop after N epochs in a row without "
+                   f"an active triplet (the model no longer learns; default {_D.stop_inactive}, 0: never)")
 
 
 def add_learning(p: argparse.ArgumentParser) -> None:
