@@ -64,6 +64,9 @@ def test_images_to_results(route, tmp_path, capsys, truth, radius):
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "single" in out and "queries evaluated" in out
+    header = out.splitlines()[0]
+    assert ("explicit positives" in header) == ("--positives" in truth) and ("radius" in header) != (
+        "--positives" in truth)  # R@K with explicit positives is not "within radius 1"
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     assert res["methods"]["single"]["recall@1"] >= 0.5  # 40 places: chance is 1/40
     rows = [json.loads(line) for line in (tmp_path / "pq.jsonl").read_text().splitlines()]
