@@ -69,3 +69,11 @@ def test_the_html_report_has_a_notes_section_only_when_there_is_one():
     assert notes_section(_results({"single": 0.5, "s1": 0.9})) == []
     (section,) = notes_section(_results({"single": 0.9, "s1<b>": 0.1, "s1": 0.5}))
     assert section.id == "notes" and "<li>s1 (R@1 0.500) is below the model-free single (0.900)" in section.body
+
+
+def test_a_table_without_a_header_has_no_empty_first_row():
+    from seqnet.report.html import table_html
+
+    assert table_html([], [("a", 1)]) == "<table><tr><td>a</td><td>1</td></tr></table>"
+    assert table_html(["", ""], [("a", 1)]).count("<tr>") == 1
+    assert table_html(["k", "v"], [("a", 1)]).startswith("<table><tr><th>k</th>")

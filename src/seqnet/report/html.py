@@ -91,23 +91,24 @@ def png_tag(png: bytes, alt: str) -> str:
 
 
 def table_html(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    """An HTML table (cells escaped)."""
+    """An HTML table (cells escaped); an empty ``header`` (or all its cells empty) makes no header row."""
     head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+    return f"<table>{f'<tr>{head}</tr>' if any(str(h) for h in header) else ''}{body}</table>"
 
 
 def summary_section(ev: Any, conf: ReportConfig) -> Section:
     """What was evaluated, on what, and the resolved configuration."""
     cfg = ev.results["config"]
     first = next(iter(ev.results["methods"].values()))
+    truth = ("ground truth", "explicit positives") if cfg.get("ground_truth") == "explicit positives" else \
+        ("radius", cfg.get("radius", ""))
     facts = [("dataset", cfg.get("dataset", "")), ("queries evaluated", first.get("queries", "")),
-             ("reference items (frames with a full window)", len(ev.r_items)), ("radius", cfg.get("radius", "")),
-             ("L", cfg.get("seq_len", "")),
+             ("reference items (frames with a full window)", len(ev.r_items)), truth, ("L", cfg.get("seq_len", "")),
              ("L_m", cfg.get("match_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
              ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
     config = html.escape(json.dumps(cfg, indent=1, default=str))
-    return Section("summary", "Summary", table_html(["", ""], facts)
+    return Section("summary", "Summary", table_html([], facts)
                    + f"<details><summary>resolved configuration</summary><pre>{config}</pre></details>")
 
 
