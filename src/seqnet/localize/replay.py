@@ -28,7 +28,7 @@ from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
 from ..security.locks import locked
 from .config import LocalizeConfig
-from .localizer import Estimate, Localizer, replay, traverse_reference
+from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
 from .trackfile import check_output, sidecar_of, track_rows, write_track
 
 torch = lazy_module("torch")
@@ -134,7 +134,14 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
 
     full = load_dataset(dataset)
     split = default_split(conf.split, full.splits)
-    loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    needed = online_method(conf.method).models()
+    if conf.seq_len is None and shortlist_model and "seqnet" not in needed:
+        logger.info("--shortlist-model is read for its L only (%s uses no S_L); --seq-len L skips reading it",
+                    conf.method)
+    skip_sl = "seqnet" not in needed and conf.seq_len is not None
+    loaded = load_models(models, None if skip_sl else shortlist_model, rerank_model if "s1" in needed else None,
+                         conf.seq_len)
+    conf, loaded = used_models(conf, loaded)
     ds = full.split(split)
     loc, frames = _localizer(conf, ds, full, split, loaded, distances, reading)
     radius = conf.radius or ds.radius
@@ -152,6 +159,19 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct), record)
     logger.debug("localize: %s", json.dumps(summary))
     return Written(out, record)
+
+
+def used_models(conf: LocalizeConfig, loaded: Mapping[str, SeqNet]) -> tuple[LocalizeConfig, dict[str, SeqNet]]:
+    """The models ``conf.method`` uses (the others are let go before any work, with a line saying so), and
+    ``conf`` with L set to the S_L model's when it gave the default L and is let go (the windows stay the same)."""
+    needed = online_method(conf.method).models()
+    unused = sorted(set(loaded) - needed)
+    if unused:
+        logger.info("%s uses no %s model: not kept", conf.method, " or ".join("S_1" if r == "s1" else "S_L"
+                                                                             for r in unused))
+    if "seqnet" in unused and conf.seq_len is None:
+        conf = conf.replace(seq_len=loaded["seqnet"].seq_len)
+    return conf, {r: m for r, m in loaded.items() if r in needed}
 
 
 def _matrix_inputs(distances: str | Path | None, reading: tuple[bool, bool]) -> dict[str, Any]:
