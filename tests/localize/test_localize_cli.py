@@ -132,7 +132,13 @@ def test_only_the_models_the_method_uses_are_kept(synth_dir, map_models, tmp_pat
                          "--device", "cpu", *extra]) == 0
         record = json.loads(out.with_suffix(".json").read_text())
         assert record["provenance"]["models"] == {}, name
-        tracks[name] = [r["estimate"] for r in csv.DictReader(out.open())]
+        rows = list(csv.DictReader(out.open()))
+        tracks[name] = [r["estimate"] for r in rows]
+        lat, first = record["summary"]["latency_ms"], next(i for i, r in enumerate(rows) if r["estimate"] != "-1")
+        assert lat["warmup_frames"] == first + 1  # up to the first answered frame: said apart, not in the stats
+        steady = [float(r["latency_ms"]) for r in rows[first + 1 :]]
+        assert lat["max"] == pytest.approx(max(steady), abs=1e-3)
+        assert lat["warmup_max"] == pytest.approx(max(float(r["latency_ms"]) for r in rows[: first + 1]), abs=1e-3)
         said = " ".join(r.getMessage() for r in caplog.records)
         assert ("raw+seqmatch uses no S_1 or S_L model: not kept" in said) == (name == "paths")
         if name == "paths":  # the S_L's L (4) is kept as the default L: the same windows as --seq-len 4

@@ -123,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
         print(f": R@1 {s['recall@1']:.3f} ({s['queries']} with a reference within the radius), "
               f"AUC {s['auc']:.3f}, R@100P {s['recall@100p']:.3f}", end="")
     print("" if "describe_ms" not in s else f"; describing {s['describe_ms']['median']:.1f} ms per image (median)")
+    warm = f" (the {lat['warmup_frames']} warm-up frames left out: up to {lat['warmup_max']:.1f} ms)" \
+        if lat.get("warmup_frames") else ""
     print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
-          f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms; track in {out}")
+          f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms{warm}; track in {out}")
     return 0
