@@ -109,4 +109,5 @@ def test_the_plan_is_logged_once_before_training(synth_dataset, tmp_path, caplog
     plans = [r.getMessage() for r in caplog.records if r.getMessage().startswith("training plan:")]
     assert len(plans) == 1 and "D 16->8" in plans[0] and "checkpoints" in plans[0]
     value, unit = plans[0].split("time         about ")[1].split(" per epoch")[0].split()
-    assert unit in ("ms", "s") and 0 < float(value) < 60
+    seconds = float(value) / (1000 if unit == "ms" else 1)
+    assert unit in ("ms", "s") and 0.01 < seconds < 60  # 7 batches of 16 and validation: about 0.2 s
