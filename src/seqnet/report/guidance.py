@@ -80,13 +80,18 @@ def likely_causes(name: str, results: Mapping[str, Any]) -> tuple[str, ...]:
     entry = results.get("methods", {}).get(name, {})
     models = (entry.get("method") or {}).get("models") or cfg.get("models") or {}
     out = []
+    m = parse_method(name)
+    if m.kind == "hvpr" and m.shortlist and not parse_method(m.shortlist).models():
+        top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
+        out.append(f"its shortlist is the model-free {m.shortlist}: it re-ranks only the places {m.shortlist} "
+                   f"ranks in its top {top or 'K'} (a better shortlist: hvpr, hvpr-fused)")
     dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
     if dims and dims[-1] > PCA_DIM:
         out.append(f"D = {dims[-1]} without PCA (the paper reduces to {PCA_DIM}; seqnet train --pca D, or seqnet "
                    "dataset from-images --pca D, fitted on the train split)")
     trained = models.get("seqnet", {}).get("seq_len") if isinstance(models.get("seqnet"), Mapping) else None
     evaluated = (entry.get("method") or {}).get("seq_len") or cfg.get("seq_len")
-    if "seqnet" in parse_method(name).models() and trained and evaluated and int(trained) != int(evaluated):
+    if "seqnet" in m.models() and trained and evaluated and int(trained) != int(evaluated):
         out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
     queries = entry.get("queries")
     if isinstance(queries, int) and 0 < queries < 50:
@@ -126,4 +131,4 @@ def format_notes(notes: list[Note]) -> list[str]:
 
 def row_marks(notes: list[Note]) -> dict[str, str]:
     """What a results table adds to each flagged method's row."""
-    return {n.learned: f"below {n.baseline}: see note" for n in notes}
+    return {n.learned: f"learned, below model-free {n.baseline}" for n in notes}
