@@ -84,11 +84,13 @@ def reduce_dataset(ds: Dataset, dims: int, split: str = "train") -> tuple[Datase
     settings = {**(source.get("settings") or {}), "dim": dims, "pca_on": split}
     prov = make_provenance(source.get("kind") or "external", settings, dim=dims,
                            fit=fit_digest([str(source.get("id")), split, repr(sorted(rng.items()))]))
-    side = lambda t: dataclasses.replace(t, descriptors=project(pca, t.descriptors), provenance=prov)  # noqa: E731
+
+    def side(t: Traverse) -> Traverse:
+        return dataclasses.replace(t, descriptors=project(pca, t.descriptors), provenance=prov)
+
     extra = {**ds.extra, "pca": {"dims": dims, "input_dim": ds.query.dim, "fit_split": split,
                                  "fit_ranges": {k: list(v) for k, v in rng.items()}, "source": source.get("id")}}
-    reference: Traverse = side(ds.reference)
-    return dataclasses.replace(ds, reference=reference, query=side(ds.query), extra=extra), pca
+    return dataclasses.replace(ds, reference=side(ds.reference), query=side(ds.query), extra=extra), pca
 
 
 def pca_path(dataset_dir: str | Path) -> Path:
