@@ -247,3 +247,40 @@ def test_localize_refuses_options_of_other_methods(small_dir, capsys, tmp_path, 
     out = tmp_path / "t.csv"
     run_error(capsys, ["localize", "--dataset", str(small_dir), "--out", str(out), *argv], pattern)
     assert not out.exists()
+
+
+def test_an_unknown_option_is_an_error_of_its_subcommand(capsys):
+    from seqnet.cli import main as cli_main
+
+    assert cli_main(["train", "--bogus", "1"]) == 2
+    assert capsys.readouterr().err.strip().startswith("seqnet train: error: unrecognized arguments: --bogus 1")
+    assert cli_main(["dataset", "from-images", "a", "b", "--method", "pixels", "--out", "x", "--utm-names",
+                     "--bogus"]) == 2
+    assert "seqnet dataset from-images: error: unrecognized arguments: --bogus" in capsys.readouterr().err
+
+
+def test_extra_radius_results_are_printed(synth_dir, capsys):
+    from seqnet.cli import main as cli_main
+
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "single", "--extra-radius", "30"]) == 0
+    out = capsys.readouterr().out
+    assert "within radius 30 (--extra-radius):" in out
+    line = next(x for x in out.splitlines() if x.startswith("  single: R@1 "))
+    assert float(line.split("R@1 ")[1].split(",")[0]) >= 0
+
+
+def test_ordinals_and_a_vpr_tutorial_gt_said_once(tmp_path, caplog):
+    import logging
+
+    import numpy as np
+
+    from seqnet.core.log import ordinal
+    from seqnet.data.positives import read_positives
+
+    assert [ordinal(n) for n in (1, 2, 3, 4, 11, 12, 13, 21, 22, 101, 111)] == \
+        ["1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "22nd", "101st", "111th"]
+    hard = np.eye(5, dtype=bool)
+    np.savez(tmp_path / "GT.npz", GThard=hard, GTsoft=hard | np.eye(5, k=1, dtype=bool))
+    caplog.set_level(logging.INFO, logger="seqnet")
+    read_positives(tmp_path / "GT.npz")
+    assert sum("ground-truth matrix" in r.getMessage() for r in caplog.records if r.levelno == logging.INFO) == 1

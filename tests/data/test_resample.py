@@ -107,7 +107,7 @@ def test_cli_dataset_resample_and_eval_flag(tmp_path, capsys):
     assert res["config"]["resample_every"] == 4 and res["config"]["resample_side"] == "query"
     assert res["config"]["recall_denominator"] == "all"  # --recall-denominator: eval's flag, shown in the table
     out = capsys.readouterr().out
-    assert "every 4-th query frame" in out and "method (R@K ÷ all)" in out
+    assert "every 4th query frame" in out and "method (R@K ÷ all)" in out
 
 
 def test_repeated_frames_keep_their_sequences_bounds_and_out_of_order_is_refused():

@@ -115,3 +115,32 @@ def test_stream_images_described_on_the_fly(tmp_path, capsys):
     assert cli_main(["localize", "--map", str(tmp_path / "map2"), "--query", str(tmp_path / "q.txt"), "--method",
                      "single", "--out", str(out), "--device", "cpu"]) == 2
     assert "fitted state" in capsys.readouterr().err
+
+
+def test_only_the_models_the_method_uses_are_kept(synth_dir, map_models, tmp_path, caplog):
+    import logging
+
+    sl, s1 = map_models
+    runs = {"none": [], "flags": ["--shortlist-model", str(sl), "--rerank-model", str(s1), "--seq-len", "4"],
+            "paths": ["--model", str(sl), "--model", str(s1)]}
+    caplog.set_level(logging.INFO, logger="seqnet")
+    tracks = {}
+    for name, extra in runs.items():
+        caplog.clear()
+        out = tmp_path / f"{name}.csv"
+        assert cli_main(["localize", "--dataset", str(synth_dir), "--method", "raw+seqmatch", "--out", str(out),
+                         "--device", "cpu", *extra]) == 0
+        record = json.loads(out.with_suffix(".json").read_text())
+        assert record["provenance"]["models"] == {}, name
+        rows = list(csv.DictReader(out.open()))
+        tracks[name] = [r["estimate"] for r in rows]
+        lat, first = record["summary"]["latency_ms"], next(i for i, r in enumerate(rows) if r["estimate"] != "-1")
+        assert lat["warmup_frames"] == first + 1  # up to the first answered frame: said apart, not in the stats
+        steady = [float(r["latency_ms"]) for r in rows[first + 1 :]]
+        assert lat["max"] == pytest.approx(max(steady), abs=1e-3)
+        assert lat["warmup_max"] == pytest.approx(max(float(r["latency_ms"]) for r in rows[: first + 1]), abs=1e-3)
+        said = " ".join(r.getMessage() for r in caplog.records)
+        assert ("raw+seqmatch uses no S_1 or S_L model: not kept" in said) == (name == "paths")
+        if name == "paths":  # the S_L's L (4) is kept as the default L: the same windows as --seq-len 4
+            assert record["config"]["seq_len"] == 4
+    assert tracks["flags"] == tracks["paths"]

@@ -64,6 +64,9 @@ def test_images_to_results(route, tmp_path, capsys, truth, radius):
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "single" in out and "queries evaluated" in out
+    header = out.splitlines()[0]
+    assert ("explicit positives" in header) == ("--positives" in truth) and ("radius" in header) != (
+        "--positives" in truth)  # R@K with explicit positives is not "within radius 1"
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     assert res["methods"]["single"]["recall@1"] >= 0.5  # 40 places: chance is 1/40
     rows = [json.loads(line) for line in (tmp_path / "pq.jsonl").read_text().splitlines()]
@@ -123,3 +126,14 @@ def test_a_dataset_described_into_spill_files_equals_one_described_in_memory(rou
         a, b = (tmp_path / d / side / "descriptors.npy" for d in ("held", "spilled"))
         assert a.read_bytes() == b.read_bytes(), side
     assert load_dataset(tmp_path / "spilled").reference.descriptors.shape == (80, 16 * 32)
+
+
+def test_pca_is_fitted_on_the_train_split_only(route, tmp_path, capsys):
+    splits = ["--split", "train=0:40,0:20", "--split", "val=40:60,20:30", "--split", "test=60:80,30:40"]
+    assert build(route, tmp_path / "p", "--utm-names", "--radius", "6", *splits, "--pca", "8") == 0
+    assert "fitted on the train split only" in capsys.readouterr().out
+    ds = load_dataset(tmp_path / "p")
+    assert ds.query.dim == 8 and ds.extra["pca"]["fit_ranges"] == {"reference": [0, 40], "query": [0, 20]}
+    assert (tmp_path / "p.pca.npz").is_file() and ds.reference.provenance["settings"]["dim"] == 8
+    assert build(route, tmp_path / "q", "--utm-names", "--radius", "6", "--pca", "8") == 2
+    assert "train split only" in capsys.readouterr().err and not (tmp_path / "q").exists()

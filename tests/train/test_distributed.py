@@ -216,7 +216,7 @@ def test_two_processes_match_one_with_the_same_global_batch(two_ranks):
     assert len(files) == 5 and files[:3] == [".seqnet-manifest.json", "best.pt", "config.json"], files
     assert files[4] == "last.pt" and files[3].startswith("events.out.tfevents") and not list(tmp.glob(".*.lock"))
     assert files[3] in json.loads((tmp / "epoch1" / ".seqnet-manifest.json").read_text())["files"]
-    assert "world size 2 (gloo)" in logs[0] and "trained S_3 (w=2, D=8->8) for 1 epochs" in logs[0]
+    assert "world size 2 (gloo)" in logs[0] and "trained S_3 (w=2, D=8->8) to epoch 1 of 1;" in logs[0]
     assert logs[1].strip() == "", logs[1]
 
 

@@ -116,6 +116,7 @@ def test_cli_loss_speed_and_joint(synth_dir, tmp_path, capsys):
                      "--s1-loss", "seqmatch", "--speed-augment", "0.5:2"]) == 0
     out = capsys.readouterr().out
     assert out.count("best val R@1") == 3 and "--rerank-model" in out
+    assert f"HVPR: seqnet eval --dataset {synth_dir.resolve()} --method hvpr" in out  # not a literal DIR
     assert read_checkpoint(tmp_path / "j" / "seqnet" / "best.pt")["config"]["speed_augment"] == [0.5, 2.0]
     assert read_checkpoint(tmp_path / "j" / "s1" / "best.pt")["config"]["speed_augment"] is None
     assert cli_main(["train", "--resume", str(tmp_path / "j"), "--epochs", "2"]) == 0

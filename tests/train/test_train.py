@@ -115,6 +115,7 @@ def test_cli_train_then_eval_end_to_end(synth_dir, tmp_path, capsys):
     assert read_checkpoint(tmp_path / "sl" / "last.pt")["epoch"] == 2
     out = capsys.readouterr().out
     assert "best val R@1" in out
+    assert "trained S_3 (w=2, D=16->8) to epoch 2 of 2;" in out.splitlines()[-3]  # the resumed run: its epoch
     args = ["eval", "--dataset", str(synth_dir), "--seq-len", "3",
             "--shortlist-model", str(tmp_path / "sl" / "best.pt"), "--rerank-model", str(tmp_path / "s1" / "best.pt"),
             "--top-k", "5", "--method", "seqnet,s1,s1+seqmatch,hvpr"]

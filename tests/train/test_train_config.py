@@ -13,9 +13,9 @@ from seqnet.train.config import OPTIMIZERS, MiningConfig, TrainConfig
 
 PAPER = {"seq_len": 5, "w": 3, "out_dims": None, "window": "centred", "margin": 0.3, "optimizer": "sgd", "lr": 1e-4,
          "momentum": 0.9, "weight_decay": 1e-3, "lr_step": 50, "lr_gamma": 0.5, "batch_size": 16, "epochs": 200,
-         "patience": None, "n_negatives": 10, "n_neg_sample": 1000, "cache_refresh": 1000, "pos_radius": None,
-         "neg_radius": None, "seed": 0, "device": "auto", "train_split": "train", "val_split": "val", "loss": "triplet",
-         "match_len": 5, "speed_augment": None}
+         "patience": None, "stop_inactive": 5, "n_negatives": 10, "n_neg_sample": 1000, "cache_refresh": 1000,
+         "pos_radius": None, "neg_radius": None, "seed": 0, "device": "auto", "train_split": "train",
+         "val_split": "val", "loss": "triplet", "match_len": 5, "speed_augment": None}
 
 
 def test_defaults_are_the_papers():

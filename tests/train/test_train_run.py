@@ -139,9 +139,10 @@ def test_logs_two_info_lines_and_one_debug_line_per_epoch(small, tmp_path, caplo
     mine = [r for r in caplog.records if r.module in ("loop", "run", "mining")]
     info = [r.getMessage() for r in mine if r.levelno == logging.INFO]
     debug = [r.getMessage() for r in mine if r.levelno == logging.DEBUG]
-    assert len(info) == 2, info
+    assert len(info) == 3, info  # the start, the plan (one block: seqnet.train.guide), the end
     assert info[0].startswith("training S_3 (w=2, D 8->8) on ") and "device cpu" in info[0]
-    assert info[1].startswith("trained S_3 for 2 epochs") and "best val R@1" in info[1]
+    assert info[1].startswith("training plan: S_3") and info[1].count("\n") == 3  # 4 lines, no advice
+    assert info[2].startswith("trained S_3 for 2 epochs") and "best val R@1" in info[2]
     assert [m.split(":")[0] for m in debug] == ["epoch 1/2", "epoch 2/2"]
 
 

@@ -59,6 +59,22 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:  # type: ignore[override]
         raise _ArgumentParserError(f"{self.prog}: error: {message} (see `{self.prog} --help`)")
 
+    def parse_known_args(self, args=None, namespace=None):  # noqa: ANN001, ANN201 - argparse's signature
+        """As argparse's, recording the deepest (sub)command parsed in ``namespace._command_prog``."""
+        namespace = argparse.Namespace() if namespace is None else namespace
+        namespace._command_prog = self.prog  # a subcommand's parser runs after its parent's: it overwrites
+        return super().parse_known_args(args, namespace)
+
+    def parse_args(self, args=None, namespace=None):  # noqa: ANN001, ANN201 - argparse's signature
+        """As argparse's; an unknown option is an error of the (sub)command it was given to, ``seqnet <command>``
+        (argparse names the top-level parser, ``seqnet``, for these)."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            prog = getattr(parsed, "_command_prog", self.prog)
+            raise _ArgumentParserError(f"{prog}: error: unrecognized arguments: {' '.join(extras)} "
+                                       f"(see `{prog} --help`)")
+        return parsed
+
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     """The top-level parser with one sub-parser per command (runtime options on every one). Only the command

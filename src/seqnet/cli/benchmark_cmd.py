@@ -13,6 +13,7 @@ from ..maps import MapConfig
 from ..maps.config import DTYPES
 from ..pipelines.nordland64 import Nordland64Config, main
 from ..pipelines.timing import BIG_SIZES, TimingConfig
+from ..report.guidance import format_notes, learned_below_baseline
 from ..report.tables import format_table
 from ..search.ann import ANN_INDEXES
 from ..security.text import shown
@@ -186,5 +187,7 @@ def run_nordland64(args: argparse.Namespace) -> int:
     print(f"nordland64 test {bench['test_range'][0]}:{bench['test_range'][1]}: {first['queries']} queries, "
           f"radius {cfg['radius']:g}, L={cfg['seq_len']}")
     print(format_table(res["methods"], cfg["ks"]))
+    for line in format_notes(learned_below_baseline(res)):
+        print(shown(line))
     print(f"done in {cfg['timings_s']['total']:.0f} s; results in {shown(Path(args.out) / 'results.md')}")
     return 0

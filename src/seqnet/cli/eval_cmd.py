@@ -6,8 +6,10 @@ import argparse
 from pathlib import Path
 
 from ..core.errors import ConfigError
+from ..core.log import ordinal
 from ..eval.evaluate import EvalConfig, main
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
+from ..report.guidance import format_notes, learned_below_baseline
 from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
@@ -146,9 +148,13 @@ def run(args: argparse.Namespace) -> int:
 def print_results(res: dict) -> None:
     """The results table, what was evaluated and how many queries (names from the data shown escaped)."""
     cfg = res["config"]
-    every = f", every {cfg['resample_every']}-th {cfg['resample_side']} frame" if cfg.get("resample_every") else ""
-    print(f"dataset {shown(cfg['dataset'])}, radius {cfg['radius']:g}, L={cfg['seq_len']} ({cfg['window']}){every}")
+    every = f", every {ordinal(cfg['resample_every'])} {cfg['resample_side']} frame" if cfg.get("resample_every") \
+        else ""
+    truth = "explicit positives (a hit is one of the query's positives)" \
+        if cfg.get("ground_truth") == "explicit positives" else f"radius {cfg['radius']:g}"
+    print(f"dataset {shown(cfg['dataset'])}, {truth}, L={cfg['seq_len']} ({cfg['window']}){every}")
     print(format_table(res["methods"], cfg["ks"]))
+    print_extra_radii(res)
     fate = 'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'
     counts: dict[tuple, list[str]] = {}  # methods evaluated on the same queries share a line
     for name, r in res["methods"].items():
@@ -162,6 +168,18 @@ def print_results(res: dict) -> None:
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
+    for line in format_notes(learned_below_baseline(res)):
+        print(shown(line))
+
+
+def print_extra_radii(res: dict) -> None:
+    """Recall@K within each ``--extra-radius``, one line per method and radius."""
+    for radius in res["config"].get("extra_radii") or ():
+        print(f"within radius {radius:g} (--extra-radius):")
+        for name, r in res["methods"].items():
+            at = (r.get("radii") or {}).get(str(float(radius))) or (r.get("radii") or {}).get(str(radius)) or {}
+            recalls = ", ".join(f"R@{k.split('@')[1]} {v:.3f}" for k, v in at.items() if k.startswith("recall@"))
+            print(f"  {shown(name)}: {recalls or '-'}")
 
 
 def print_calibration(res: dict) -> None:

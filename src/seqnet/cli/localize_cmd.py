@@ -181,8 +181,10 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         print(f"trajectory plot in {args.plot}")
     print_calibrated(s.get("calibrated"))
+    warm = f" (the {lat['warmup_frames']} warm-up frames left out: up to {lat['warmup_max']:.1f} ms)" \
+        if lat.get("warmup_frames") else ""
     print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
-          f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms; track in {out}")
+          f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms{warm}; track in {out}")
     return 0
 
 

@@ -12,6 +12,7 @@ from ..sequence.checkpoints import read_checkpoint
 from ..sequence.windows import WINDOW_MODES
 from ..train.config import OPTIMIZERS, RESUME_OVERRIDABLE, TrainConfig
 from ..train.distributed import env_world
+from ..train.guide import inactive_epochs
 from ..train.joint import S1_LOSS, is_joint, main_joint, s1_config
 from ..train.loop import main
 from ..train.losses import LOSSES
@@ -74,9 +75,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--val-split", help=f"split to validate on (default {_D.val_split}; 'none': no validation, "
                    "best.pt = last)")
     add_learning(p)
+    add_guide(p)
     add_allow_mismatch(p)
     add_device(p)
     p.set_defaults(func=run)
+
+
+def add_guide(p: argparse.ArgumentParser) -> None:
+    """The flags the training plan advises (--pca) and the stop on epochs without an active triplet."""
+    g = p.add_argument_group("guide (the plan logged before training says when to reduce D)")
+    g.add_argument("--pca", type=positive_int, metavar="D", help="reduce the descriptors to D dimensions first, by a "
+                   "PCA fitted on the train split only, into DATASET-pcaD beside the dataset (reused when present; "
+                   "evaluate on it); advised when D > 4096 or above the training frames (the plan logged says)")
+    g.add_argument("--stop-inactive", type=non_negative_int, metavar="N", help="stop after N epochs in a row without "
+                   f"an active triplet (the model no longer learns; default {_D.stop_inactive}, 0: never)")
 
 
 def add_learning(p: argparse.ArgumentParser) -> None:
@@ -103,6 +115,8 @@ _KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig) if f.name != "devi
 
 def run(args: argparse.Namespace) -> int:
     changes = {k: getattr(args, k) for k in _KEYS}
+    if args.pca is not None:
+        args.dataset = _reduced(args)
     if args.device != "auto" or not args.resume:
         changes["device"] = args.device
     if args.joint or (args.resume and is_joint(args.resume)):
@@ -112,6 +126,18 @@ def run(args: argparse.Namespace) -> int:
     if env_world().is_rank0:  # under torchrun, rank 0 alone wrote the run and reports it
         _print_summary(run_dir)
     return 0
+
+
+def _reduced(args: argparse.Namespace) -> str:
+    """``--pca D``: the dataset reduced by a PCA fitted on the train split (:mod:`seqnet.pipelines.pca`)."""
+    if args.resume:
+        raise ConfigError("--pca applies when a run starts; a resumed run continues on the dataset it recorded "
+                          "(drop --pca)")
+    if args.dataset is None:
+        raise ConfigError("--pca needs --dataset DIR")
+    from ..pipelines.pca import main as reduce_main
+
+    return str(reduce_main(args.dataset, args.pca, args.train_split or _D.train_split))
 
 
 def _run_joint(args: argparse.Namespace, changes: dict) -> int:
@@ -134,9 +160,17 @@ def _run_joint(args: argparse.Namespace, changes: dict) -> int:
     if env_world().is_rank0:
         for run_dir in dirs.values():
             _print_summary(run_dir)
-        print(f"HVPR: seqnet eval --dataset DIR --method hvpr --shortlist-model {dirs['seqnet'] / 'best.pt'} "
-              f"--rerank-model {dirs['s1'] / 'best.pt'}")
+        print(f"HVPR: seqnet eval --dataset {_dataset_of(dirs['seqnet'])} --method hvpr --shortlist-model "
+              f"{dirs['seqnet'] / 'best.pt'} --rerank-model {dirs['s1'] / 'best.pt'}")
     return 0
+
+
+def _dataset_of(run_dir: Path) -> str:
+    """The dataset path a run recorded in its config.json ('DIR' when it recorded none)."""
+    from ..security.jsonfile import read_json_object
+
+    path = read_json_object(run_dir / "config.json", "run configuration").get("dataset_path")
+    return path if isinstance(path, str) and path else "DIR"
 
 
 def _print_summary(run_dir: Path) -> None:
@@ -145,8 +179,20 @@ def _print_summary(run_dir: Path) -> None:
     role = "S_1" if model["seq_len"] == 1 and model["w"] == 1 else f"S_{model['seq_len']}"
     score = "n/a (no validation)" if math.isnan(best) else f"{best:.4f}"
     best_epoch = last.get("best_epoch", last["train_state"]["best_epoch"])
-    print(f"trained {role} (w={model['w']}, D={model['in_dims']}->{model['out_dims']}) for {last['epoch']} epochs; "
-          f"best val R@1 {score} at epoch {best_epoch}")
+    print(f"trained {role} (w={model['w']}, D={model['in_dims']}->{model['out_dims']}) to epoch {last['epoch']}"
+          f"{_stopped(last)}; best val R@1 {score} at epoch {best_epoch}")
     print(f"checkpoints: {run_dir / 'best.pt'} (best), {run_dir / 'last.pt'} (last)")
     flag = "--rerank-model" if role == "S_1" else f"--seq-len {model['seq_len']} --shortlist-model"
     print(f"evaluate: seqnet eval --dataset {last.get('dataset_path') or 'DIR'} {flag} {run_dir / 'best.pt'}")
+
+
+def _stopped(last: dict) -> str:
+    """`` of N`` when the run reached its last epoch, else why it stopped before it."""
+    conf, state = last.get("config") or {}, last["train_state"]
+    epochs = conf.get("epochs")
+    if not isinstance(epochs, int) or last["epoch"] >= epochs:
+        return f" of {epochs}" if isinstance(epochs, int) else ""
+    inactive = inactive_epochs(state.get("history") or [])
+    if conf.get("stop_inactive") and inactive >= conf["stop_inactive"]:
+        return f" of {epochs} (stopped: no active triplet for {inactive} epochs)"
+    return f" of {epochs} (early stop: no better val R@1 for {state.get('bad_epochs')} epochs)"

@@ -14,6 +14,7 @@ hostile file cannot run code.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -255,14 +256,14 @@ def _read_tutorial_npz(p: Path) -> Positives:
     hard, soft = z["GThard"], z.get("GTsoft")
     if hard.ndim != 2:
         raise DatasetError(f"{p}: GThard must be a [N_db, N_q] matrix, got shape {hard.shape}")
-    out = _numeric_matrix(hard.T, p)  # one row per query
+    out = _numeric_matrix(hard.T, p)  # one row per query (said once: GTsoft is read the same way, quietly)
     if soft is None:
         return out
     if soft.shape != hard.shape:
         raise DatasetError(f"{p}: GTsoft has shape {soft.shape} but GThard {hard.shape} (both [N_db, N_q])")
     if not (soft.dtype == bool or np.isin(soft, (0, 1)).all()):
         raise DatasetError(f"{p}: GTsoft must be a 0/1 [N_db, N_q] matrix like GThard")
-    both = _numeric_matrix(soft.T.astype(bool) | hard.T.astype(bool), p)
+    both = _numeric_matrix(soft.T.astype(bool) | hard.T.astype(bool), p, quiet=True)
     return dataclasses.replace(out, soft=both)
 
 
@@ -283,12 +284,13 @@ def _vpr_bench(arr: np.ndarray, p: Path) -> Positives:
     return Positives.from_lists(lists, str(p))
 
 
-def _numeric_matrix(arr: np.ndarray, p: Path) -> Positives:
+def _numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False) -> Positives:
     """A 2-D numeric array: a dense ``[Nq, Nr]`` ground-truth matrix when bool or 0/1 (any dtype), else one
-    row of reference indices per query padded with -1; anything else is refused."""
+    row of reference indices per query padded with -1; anything else is refused. ``quiet``: no INFO line."""
     if arr.dtype == bool or (arr.size and np.isin(arr, (0, 1)).all()):
         rows, cols = np.nonzero(arr)
-        logger.info("%s: read as a dense [%d, %d] ground-truth matrix (0/1 entries)", p, *arr.shape)
+        logger.log(logging.DEBUG if quiet else logging.INFO, "%s: read as a dense [%d, %d] ground-truth matrix "
+                   "(0/1 entries)", p, *arr.shape)
         found = Positives.from_pairs(rows.astype(np.int64), cols.astype(np.int64), arr.shape[0])
         return dataclasses.replace(found, n_refs=int(arr.shape[1]))
     if arr.dtype.kind in "iu" or (arr.dtype.kind == "f" and np.isfinite(arr).all() and (arr == arr.round()).all()):

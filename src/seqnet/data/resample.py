@@ -17,6 +17,7 @@ import dataclasses
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
+from ..core.log import ordinal
 from ..core.memmaps import take_rows
 from .traverse import Dataset, Traverse
 
@@ -80,6 +81,6 @@ def _kept_range(keep: np.ndarray, a: int, b: int, split: str, side: str, every: 
     """The new half-open range of the kept frames inside the old range ``a:b``."""
     lo, hi = int(np.searchsorted(keep, a)), int(np.searchsorted(keep, b))
     if lo >= hi:
-        raise DatasetError(f"split {split!r}: no {side} frame of {a}:{b} is kept when keeping every {every}-th "
+        raise DatasetError(f"split {split!r}: no {side} frame of {a}:{b} is kept when keeping every {ordinal(every)} "
                            "frame (hint: a smaller --every, or a longer split)")
     return lo, hi

@@ -10,6 +10,7 @@ with an image topic (:mod:`seqnet.sources.bags.images`: its frames in timestamp 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import re
 from collections.abc import Iterator, Sequence
@@ -19,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
+from ..core.log import logger
 from ..data.readers import check_names
 from ..security.inputs import read_text, special_file
 from ..security.pictures import decode, read_image, size_mismatch
@@ -163,8 +165,25 @@ def prepare_image(
     if isinstance(size, int):
         size = (size, max(1, round(size * img.shape[0] / img.shape[1])))
     if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+        warn_stretch(img.shape[1], img.shape[0], int(size[0]), int(size[1]))
         img = np.asarray(Image.fromarray(img).resize(tuple(int(v) for v in size), Image.BILINEAR))
     return img
+
+
+ASPECT_TOLERANCE = 0.10  # a resize changing the aspect ratio by more than this is said (once per sizes)
+
+
+@functools.lru_cache(maxsize=64)
+def warn_stretch(w: int, h: int, to_w: int, to_h: int) -> bool:
+    """Warn (once per pair of sizes) when resizing ``w x h`` images to ``to_w x to_h`` stretches them: their
+    aspect ratio changes by more than :data:`ASPECT_TOLERANCE`. Returns whether it warned."""
+    before, after = w / h, to_w / to_h
+    if abs(after / before - 1) <= ASPECT_TOLERANCE:
+        return False
+    logger.warning("resizing %dx%d images to %dx%d changes their aspect ratio from %.2f to %.2f (they are "
+                   "stretched); to keep it: --resize keep-aspect:%d (width %d, the height that keeps the ratio) or "
+                   "--resize native", w, h, to_w, to_h, before, after, to_w, to_w)
+    return True
 
 
 def load_images(

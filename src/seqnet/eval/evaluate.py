@@ -195,6 +195,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     parts = [_evaluate_group(ds, ms, w, conf, models, dev) for w, ms in groups.items()]
     out = merge(parts, conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
+                             "ground_truth": "explicit positives" if ds.positives is not None else "radius",
                              "models": {k: v.config() for k, v in models.items()},
                              "model_seq_len": model_lengths(models)}
     out.dataset, out.frame_names = ds, (ds.query.names, ds.reference.names)

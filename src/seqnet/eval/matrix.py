@@ -208,6 +208,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     out = merge([_matrix_group(ds, given, ms, w, conf) for w, ms in
                  method_windows(methods, conf.windows, conf.common_queries).items()], conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": "cpu", "models": {},
+                             "ground_truth": "explicit positives" if ds.positives is not None else "radius",
                              "matrix_methods": list(matrix_methods())}
     out.frame_names = (ds.query.names, ds.reference.names)
     out.dataset, out.matrix = ds, given  # for the report: the evaluated frames and their given distances

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.config import Config, check_choice, check_float
+from ..core.config import Config, check_choice, check_float, check_int
 from ..core.errors import ConfigError, ImageError
 from ..core.log import logger
 from ..data.convert import assemble_dataset, match_names, read_positions_csv
@@ -64,6 +64,8 @@ class FromImagesConfig(Config):
         positions_format: how the ``csv`` ground truth's files are read (:data:`seqnet.data.gps.POSITIONS_FORMATS`).
         max_time_gap: seconds; an image farther than this from every sample of a position log is refused.
         positions_tolerance: ``bag``: the largest gap (seconds) between an image and its position message.
+        pca: reduce the descriptors to this many dimensions by a PCA fitted on the ``train`` split only
+            (:mod:`seqnet.pipelines.pca`; needs that split); None: no reduction.
     """
 
     describe: DescribeConfig = DescribeConfig()
@@ -77,8 +79,14 @@ class FromImagesConfig(Config):
     positions_format: str = "csv"
     max_time_gap: float = DEFAULT_MAX_GAP
     positions_tolerance: float = DEFAULT_TOLERANCE
+    pca: int | None = None
 
     def __post_init__(self) -> None:
+        if self.pca is not None:
+            self._set("pca", check_int("pca", self.pca, 1))
+            if "train" not in (self.splits or {}):
+                raise ConfigError("--pca fits the PCA on the train split only (never val or test): give it, e.g. "
+                                  "--split train=A:B --split val=C:D --split test=E:F")
         check_choice("ground truth", self.ground_truth, GROUND_TRUTHS)
         check_choice("positions format", self.positions_format, POSITIONS_FORMATS)
         self._set("max_time_gap", check_float("max_time_gap", self.max_time_gap, 0.0, strict=True))
@@ -211,4 +219,8 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
             extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "ground_truth": conf.ground_truth,
                    "describe": describer.config.to_dict() | {"fit": None}, "positions_frame": unit[1],
                    **(extra or {})})
+        if getattr(conf, "pca", None) is not None:  # from-images' --pca (from-video has none)
+            from .pca import reduce_dataset, save_reduced
+
+            return save_reduced(*reduce_dataset(ds, conf.pca, "train"), out, overwrite=overwrite)
         return save_dataset(ds, out, overwrite=overwrite)

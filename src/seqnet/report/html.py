@@ -3,7 +3,8 @@ as a base64 ``data:`` URI, no script and no external URL, so it opens offline, i
 archive, exactly as written.
 
 Sections (their ``id``): ``summary`` (what was evaluated and the resolved configuration),
-``results`` (Recall@K, precision–recall AUC, R@100P, queries, time per method), ``recall``
+``results`` (Recall@K, precision–recall AUC, R@100P, queries, time per method), ``notes`` (only when a
+learned method is below its model-free counterpart: :mod:`seqnet.report.guidance`), ``recall``
 (Recall@K curves), ``pr`` (precision–recall curves), ``matrix`` (the single-image descriptor
 distance matrix of the evaluated items, downsampled, with the ground truth and each method's top-1
 over it), ``gallery`` (example queries — the query window frames above the top-1 reference window
@@ -32,6 +33,7 @@ from ..methods.grammar import parse_method
 from ..metrics.recall import recall_curve
 from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
+from .guidance import learned_below_baseline
 from .styles import method_family
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
@@ -120,9 +122,10 @@ def summary_section(ev: Any, conf: ReportConfig) -> Section:
     """What was evaluated, on what, and the resolved configuration."""
     cfg = ev.results["config"]
     first = next(iter(ev.results["methods"].values()))
+    truth = ("ground truth", "explicit positives") if cfg.get("ground_truth") == "explicit positives" else \
+        ("radius", cfg.get("radius", ""))
     facts = [("dataset", cfg.get("dataset", "")), ("queries evaluated", first.get("queries", "")),
-             ("reference items (frames with a full window)", len(ev.r_items)), ("radius", cfg.get("radius", "")),
-             ("L", cfg.get("seq_len", "")),
+             ("reference items (frames with a full window)", len(ev.r_items)), truth, ("L", cfg.get("seq_len", "")),
              ("L_m", cfg.get("match_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
              ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
     config = html.escape(json.dumps(cfg, indent=1, default=str))
@@ -191,6 +194,7 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
     return [
         summary_section(ev, conf),
         results_section(ev),
+        *notes_section(ev.results),
         Section("recall", "Recall@K", png_tag(figure_png(recall_figure(curves, "Recall@K")), "Recall@K curves")),
         Section("pr", "Precision–recall", png_tag(figure_png(pr),
                                                    "precision-recall curves")
@@ -224,6 +228,15 @@ def place_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
                            "is the query frame | the matched reference frame | the reference frame nearest to the "
                            f"query's true position.</p>{cells}"))
     return out
+
+
+def notes_section(results: Any) -> list[Section]:
+    """A ``notes`` section when a learned method is below its model-free counterpart (none otherwise)."""
+    notes = learned_below_baseline(results)
+    if not notes:
+        return []
+    items = "".join(f"<li>{html.escape(n.text())}</li>" for n in notes)
+    return [Section("notes", "Notes", f"<ul>{items}</ul>")]
 
 
 def matrix_note(ev: Any) -> str:

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..security.files import atomic_path
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from .guidance import learned_below_baseline, row_marks
 
 
 def _fmt(v: Any) -> str:
@@ -56,11 +57,13 @@ def method_label(entry: Mapping[str, Any]) -> str:
 
 
 def format_table(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 10, 20, 100)) -> str:
-    """A fixed-width text table of results (one row per method, with what it resolved to)."""
+    """A fixed-width text table of results (one row per method, with what it resolved to; a learned method
+    below its model-free counterpart is marked: :mod:`seqnet.report.guidance`)."""
     header, rows = results_rows(methods, ks)
     header.append("what")
-    for row, entry in zip(rows, methods.values(), strict=True):
-        row.append(method_label(entry))
+    marks = row_marks(learned_below_baseline({"methods": methods}))
+    for row, (name, entry) in zip(rows, methods.items(), strict=True):
+        row.append(method_label(entry) + (f"  [{marks[name]}]" if name in marks else ""))
     widths = [max(len(x) for x in col) for col in zip(header, *rows, strict=True)]
 
     def line(cells: Sequence[str]) -> str:

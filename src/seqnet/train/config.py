@@ -92,6 +92,8 @@ class TrainConfig(Config):
         lr_step, lr_gamma: the lr is multiplied by ``lr_gamma`` every ``lr_step`` epochs.
         batch_size: queries per optimiser step; epochs: the last epoch.
         patience: stop after this many epochs without a better val R@1 (None: never).
+        stop_inactive: stop after this many epochs in a row without an active triplet (the model no longer
+            learns: :func:`seqnet.train.guide.inactive_message` says why and what to change); 0: never.
         n_negatives, n_neg_sample, cache_refresh, pos_radius, neg_radius: see :class:`MiningConfig`
             (radii None: the dataset's, see :meth:`resolve`).
         loss: a key of :data:`~seqnet.train.losses.LOSSES`: ``triplet`` (the paper's), ``seqmatch``
@@ -121,6 +123,7 @@ class TrainConfig(Config):
     batch_size: int = 16
     epochs: int = 200
     patience: int | None = None
+    stop_inactive: int = 5
     n_negatives: int = 10
     n_neg_sample: int = 1000
     cache_refresh: int = 1000
@@ -140,6 +143,7 @@ class TrainConfig(Config):
         for key in ("lr_step", "batch_size", "epochs", "n_negatives", "n_neg_sample"):
             self._set(key, check_int(key, getattr(self, key), 1))
         self._set("cache_refresh", check_int("cache_refresh", self.cache_refresh, 0))
+        self._set("stop_inactive", check_int("stop_inactive", self.stop_inactive, 0))
         self._set("seed", check_int("seed", self.seed, 0))
         for key in ("out_dims", "patience"):
             if getattr(self, key) is not None:

@@ -35,6 +35,7 @@ from ..security.locks import locked
 from .config import TrainConfig, train_bytes
 from .distributed import World, joined
 from .epoch import train_epoch
+from .guide import inactive_epochs, inactive_message, plan, plan_text, val_warning
 from .losses import LOSSES
 from .run import (
     Run,
@@ -109,20 +110,41 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     logger.info("%straining %s (w=%d, D %d->%d) on %d queries%s, %d reference windows, epochs %d..%d, device %s%s, %s",
                 resumed, _name(m), m.w, m.in_dims, m.out_dims, src.n_queries, left, len(src.r_idx), first,
                 run.conf.epochs, device, procs, val)
+    run.world.rank0(lambda: _guide(run, src, val_ds, device))
     t0 = time.perf_counter()
+    inactive = False
     for epoch in range(first, run.conf.epochs + 1):
         t_epoch = time.perf_counter()
         stats = train_epoch(run, src, epoch)
         _end_epoch(run, epoch, stats, val_ds, device, t_epoch)
-        if run.should_stop:
+        inactive = 0 < run.conf.stop_inactive <= inactive_epochs(run.history)
+        if inactive:
+            logger.warning("%s", inactive_message(run.history, run.conf, src.n_queries))
+        if run.should_stop or inactive:
             break
     best = (f"best val R@1 {run.best_score:.4f} at epoch {run.best_epoch}" if val_ds is not None and run.best_epoch
             else "no validation (best.pt = last.pt)")
     early = run.should_stop and run.epoch < run.conf.epochs
     stop = f"; early stop: no better val R@1 for {run.bad_epochs} epochs" if early else ""
+    stop += f"; stopped: no active triplet for {inactive_epochs(run.history)} epochs" if inactive else ""
     n = run.epoch - first + 1
     logger.info("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
                 run.epoch, time.perf_counter() - t0, best, stop)
+
+
+def _guide(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device) -> None:
+    """Rank 0, before the first epoch: the training plan (memory, time, checkpoints, advice) in one block, and
+    a warning when the val split is too small to choose an epoch (:mod:`seqnet.train.guide`)."""
+    conf = run.conf
+    n_val = 0
+    if val_ds is not None:
+        n_val = len(split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad).q_idx)
+    n_frames = len(src.q_desc) + len(src.r_desc)
+    logger.info("%s", plan_text(plan(conf, run.model.in_dims, src.n_queries, len(src.r_idx), n_frames, n_val,
+                                     conf.epochs - run.epoch, device, len(src.r_desc), len(src.q_desc))))
+    warning = val_warning(n_val, val_ds.name) if val_ds is not None else None
+    if warning:
+        logger.warning("%s", warning)
 
 
 def _end_epoch(run: Run, epoch: int, stats: dict[str, float], val_ds: Dataset | None, device: torch.device,

@@ -8,7 +8,7 @@ import json
 from ...describe import DESCRIBERS
 from ...pipelines.from_images import FIT_ON, FromImagesConfig, main
 from ...sources.bags.positions import DEFAULT_TOLERANCE
-from ..common import add_device, add_topic, positive_float
+from ..common import add_device, add_topic, positive_float, positive_int
 from ..describe_cmd import add_describe_options, describe_config
 from .foreign import add_positions_format
 
@@ -54,6 +54,9 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
     p.add_argument("--name", help="dataset name (default: the output directory name)")
     p.add_argument("--pos-radius", type=positive_float, help="training positive radius (stored as metadata)")
     p.add_argument("--neg-radius", type=positive_float, help="training negative radius (stored as metadata)")
+    p.add_argument("--pca", type=positive_int, metavar="D", help="reduce the descriptors to D dimensions by a PCA "
+                   "fitted on the train split only (needs --split train=...; the projection is saved as DIR.pca.npz; "
+                   "advised when D > 4096 or above the training frames)")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if seqnet wrote it")
     add_describe_options(p, fit=False)
     add_device(p)
@@ -76,7 +79,7 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
                             radius=args.radius, splits=parse_splits(args.split), name=args.name,
                             pos_radius=args.pos_radius, neg_radius=args.neg_radius,
                             positions_format=args.positions_format,
-                            positions_tolerance=args.positions_tolerance or DEFAULT_TOLERANCE,
+                            positions_tolerance=args.positions_tolerance or DEFAULT_TOLERANCE, pca=args.pca,
                             **({"max_time_gap": args.max_time_gap} if args.max_time_gap else {}))
     out = main(conf, args.reference, args.query, args.out,
                positions=(args.ref_csv, args.query_csv) if truth == "csv" else None,
@@ -87,5 +90,8 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
     print(f"wrote {out}: {meta['name']}, ground truth {label}, radius {meta['radius']:g} {meta['position_unit']}, "
           f"descriptors {meta['provenance']['reference']['settings']['method']} "
           f"D={meta['provenance']['reference']['dim']} (provenance {meta['provenance']['reference']['id']})")
+    pca = meta.get("pca")
+    if pca:
+        print(f"PCA {pca['input_dim']} -> {pca['dims']} fitted on the {pca['fit_split']} split only: {pca['file']}")
     print(f"next: seqnet eval --dataset {out}")
     return 0

@@ -36,7 +36,7 @@ def register_resample(dsub: argparse._SubParsersAction) -> None:
 def run_resample(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from ...core.log import logger
+    from ...core.log import logger, ordinal
     from ...data.io import load_dataset, save_dataset
     from ...data.resample import resample_dataset
 
@@ -44,6 +44,6 @@ def run_resample(args: argparse.Namespace) -> int:
     out = resample_dataset(ds, args.every, args.side)
     out = dataclasses.replace(out, name=args.name or f"{ds.name}-every{args.every}")
     save_dataset(out, args.out, overwrite=args.overwrite)
-    logger.info("wrote %s: %d reference / %d query frames (from %d / %d, every %d-th of the %s side)", args.out,
-                len(out.reference), len(out.query), len(ds.reference), len(ds.query), args.every, args.side)
+    logger.info("wrote %s: %d reference / %d query frames (from %d / %d, every %s of the %s side)", args.out,
+                len(out.reference), len(out.query), len(ds.reference), len(ds.query), ordinal(args.every), args.side)
     return 0

@@ -1,0 +1,129 @@
+"""A dataset's descriptors reduced by a PCA fitted on its train split only (``--pca D``).
+
+``seqnet dataset from-images --pca D`` and ``seqnet train --pca D`` reduce D-dimensional descriptors to
+``D'`` before training: a SeqNet layer has D x out x w weights, so a 6400-D descriptor makes 0.5 GB per
+checkpoint and overfits a small training split (the SeqNet paper reduces NetVLAD to 4096 with PCA).
+
+The PCA (:func:`seqnet.describe.pca.fit_pca`, L2-normalised output as ``seqnet describe --dim``) is fitted
+on the frames of the **train split only** (both traverses' ranges of that split: what training sees;
+never the val or test queries, :func:`fit_on_split`), at most :data:`FIT_MAX` of them evenly spaced, and
+applied to every frame (:func:`reduce_dataset`). The reduced dataset records it: a new provenance (the
+source's settings with ``dim`` and ``pca_on``, its id hashing the source's id and the split's ranges), so a
+model trained on it is refused on the unreduced descriptors, and ``extra["pca"]`` (dimensions, split,
+source provenance, the PCA file). The projection itself is saved beside the dataset directory as
+``<DIR>.pca.npz`` (:meth:`seqnet.describe.pca.PCA.save`, tagged with the reduced provenance id), to
+describe further images alike (``seqnet describe --dim``'s sidecar format).
+
+``seqnet train --pca D`` writes the reduced dataset beside the given one, ``<DATASET>-pca<D>`` (reused when
+it is already that reduction of that dataset: :func:`main`), and trains on it; evaluate with it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..core.log import logger
+from ..core.provenance import fit_digest
+from ..core.provenance import make as make_provenance
+from ..data.io import load_dataset, save_dataset
+from ..data.traverse import Dataset, Traverse
+from ..describe.pca import PCA, fit_pca
+
+FIT_MAX = 20000  # frames a PCA is fitted on at most (evenly spaced): [N, D] float64 in memory
+BLOCK = 4096  # frames projected at a time
+
+
+def split_frames(ds: Dataset, split: str) -> np.ndarray:
+    """``[n, D]`` float32: the frames of both traverses in the split ``split`` (at most :data:`FIT_MAX`, evenly
+    spaced). Raises :class:`ConfigError` when the dataset has no such split."""
+    if split not in ds.splits:
+        have = ", ".join(ds.splits) or "none"
+        raise ConfigError(f"--pca fits the PCA on the {split!r} split only (never val or test), but dataset "
+                          f"{ds.name!r} has no such split (its splits: {have}); hint: --split {split}=A:B[,C:D] "
+                          "when building the dataset, or --train-split NAME")
+    part = ds.split(split)
+    n_r, n_q = len(part.reference), len(part.query)
+    take = min(n_r + n_q, FIT_MAX)
+    rows = np.unique(np.linspace(0, n_r + n_q - 1, take).round().astype(np.int64))
+    ref, qry = rows[rows < n_r], rows[rows >= n_r] - n_r
+    return np.concatenate([np.asarray(part.reference.descriptors[ref], np.float32),
+                           np.asarray(part.query.descriptors[qry], np.float32)])
+
+
+def fit_on_split(ds: Dataset, dims: int, split: str = "train") -> PCA:
+    """A PCA to ``dims`` dimensions fitted on the frames of ``split`` only (:func:`split_frames`)."""
+    frames = split_frames(ds, split)
+    if dims >= ds.query.dim:
+        raise ConfigError(f"--pca {dims} does not reduce {ds.query.dim}-D descriptors (hint: --pca below "
+                          f"{ds.query.dim})")
+    if dims > len(frames):
+        raise ConfigError(f"--pca {dims}: the {split!r} split has {len(frames)} frames, a PCA fitted on them has at "
+                          f"most {len(frames)} axes (hint: --pca {max(1, len(frames) // 2)} or a larger {split} split)")
+    logger.info("fitting PCA %d -> %d on the %d frames of the %s split", ds.query.dim, dims, len(frames), split)
+    return fit_pca(frames, dims)
+
+
+def project(pca: PCA, desc: np.ndarray) -> np.ndarray:
+    """``[N, D]`` → ``[N, dims]`` float32, :data:`BLOCK` rows at a time (a memory map is read in blocks)."""
+    out = np.empty((len(desc), pca.dims), np.float32)
+    for a in range(0, len(desc), BLOCK):
+        out[a : a + BLOCK] = pca.transform(np.asarray(desc[a : a + BLOCK], np.float32))
+    return out
+
+
+def reduce_dataset(ds: Dataset, dims: int, split: str = "train") -> tuple[Dataset, PCA]:
+    """``ds`` with its descriptors projected by a PCA fitted on ``split`` only, and that PCA; the provenance and
+    ``extra["pca"]`` say so (see the module docstring)."""
+    pca = fit_on_split(ds, dims, split)
+    source = ds.reference.provenance or {}
+    rng = ds.ranges(split)
+    settings = {**(source.get("settings") or {}), "dim": dims, "pca_on": split}
+    prov = make_provenance(source.get("kind") or "external", settings, dim=dims,
+                           fit=fit_digest([str(source.get("id")), split, repr(sorted(rng.items()))]))
+
+    def side(t: Traverse) -> Traverse:
+        return dataclasses.replace(t, descriptors=project(pca, t.descriptors), provenance=prov)
+
+    extra = {**ds.extra, "pca": {"dims": dims, "input_dim": ds.query.dim, "fit_split": split,
+                                 "fit_ranges": {k: list(v) for k, v in rng.items()}, "source": source.get("id")}}
+    return dataclasses.replace(ds, reference=side(ds.reference), query=side(ds.query), extra=extra), pca
+
+
+def pca_path(dataset_dir: str | Path) -> Path:
+    """Where the PCA of a reduced dataset directory is saved: ``<DIR>.pca.npz`` beside it."""
+    d = Path(dataset_dir)
+    return d.with_name(d.name + ".pca.npz")
+
+
+def save_reduced(ds: Dataset, pca: PCA, out: str | Path, overwrite: bool = False) -> Path:
+    """Write the reduced dataset ``ds`` to ``out`` and its PCA to :func:`pca_path` (tagged with the provenance)."""
+    ds = dataclasses.replace(ds, extra={**ds.extra, "pca": {**ds.extra["pca"], "file": pca_path(out).name}})
+    root = save_dataset(ds, out, overwrite=overwrite)
+    pca.save(pca_path(root), tag=ds.reference.provenance["id"])
+    return root
+
+
+def main(dataset: str | Path, dims: int, split: str = "train") -> Path:
+    """``seqnet train --pca D``: the dataset ``dataset`` reduced to ``dims`` by a PCA fitted on ``split``, in
+    ``<dataset>-pca<dims>`` beside it (written, or reused when it is that reduction of that dataset)."""
+    src = load_dataset(dataset)
+    out = Path(dataset).with_name(f"{Path(dataset).name}-pca{dims}")
+    if out.exists():
+        made = load_dataset(out).extra.get("pca") or {}
+        wanted = {"dims": dims, "fit_split": split, "source": (src.reference.provenance or {}).get("id"),
+                  "fit_ranges": {k: list(v) for k, v in src.ranges(split).items()} if split in src.splits else None}
+        if any(made.get(k) != v for k, v in wanted.items()):
+            raise ConfigError(f"{out} exists but is not {dataset} reduced by --pca {dims} on its {split!r} split "
+                              "(hint: remove or rename it)")
+        logger.info("reusing %s (%s reduced to %d dimensions by a PCA fitted on its %s split)", out, dataset, dims,
+                    split)
+        return out
+    reduced, pca = reduce_dataset(src, dims, split)
+    save_reduced(dataclasses.replace(reduced, name=f"{src.name}-pca{dims}"), pca, out)
+    logger.info("wrote %s: %s reduced from %d to %d dimensions by a PCA fitted on its %s split only (the "
+                "projection: %s); train and evaluate on it", out, dataset, src.query.dim, dims, split, pca_path(out))
+    return out

@@ -1,0 +1,134 @@
+"""Learned methods below their model-free counterparts, said with the likely cause.
+
+A learned method (one that needs a trained model: ``s1``, ``seqnet``, ``s1+<matcher>``, HVPR on S_L or
+S_1) should beat the method that does the same without the model, on the same data:
+
+* ``s1`` against ``single`` (the frame descriptor it maps);
+* ``seqnet`` against ``smoothing`` / ``delta`` / ``delta-paper`` (model-free sequence descriptors);
+* ``<learned frames>+<matcher>`` against ``raw+<matcher>``;
+* a learned HVPR (``hvpr``, ``hvpr-seqnet:...``, ``hvpr-fused``, ``hvpr-<d>:s1+<matcher>``) against
+  ``raw+<matcher>`` and any model-free HVPR with that matcher.
+
+:func:`learned_below_baseline` is a pure function of an evaluation's results (``results.json``: its
+``methods`` and ``config``) giving one :class:`Note` per learned method whose R@1 is below the best of its
+counterparts present in the results by at least one query; :func:`likely_causes` reads what the results
+record (the models' D, their training L against the evaluation's L, the queries) and names the usual
+causes. ``seqnet eval`` prints the notes under its table (:func:`format_notes`), the HTML report has them
+in a section of their own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any
+
+from ..core.errors import ConfigError
+from ..methods.grammar import parse_method
+
+PCA_DIM = 4096  # the SeqNet paper's descriptor size after PCA
+SEQUENCE_BASELINES = ("smoothing", "delta", "delta-paper")
+
+
+@dataclasses.dataclass(frozen=True)
+class Note:
+    """A learned method below a model-free counterpart: names, R@1 of both, the likely causes."""
+
+    learned: str
+    baseline: str
+    learned_r1: float
+    baseline_r1: float
+    causes: tuple[str, ...]
+
+    def text(self) -> str:
+        """One line: the finding and the causes."""
+        return (f"{self.learned} (R@1 {self.learned_r1:.3f}) is below the model-free {self.baseline} "
+                f"({self.baseline_r1:.3f}) on the same data; likely: {'; '.join(self.causes)}")
+
+
+def counterparts(name: str, present: Mapping[str, Any]) -> list[str]:
+    """The model-free methods of ``present`` that ``name`` (a learned method) should beat; [] when ``name``
+    needs no model or is not a method name."""
+    try:
+        m = parse_method(name)
+    except ConfigError:
+        return []
+    if not m.models():
+        return []
+    if m.kind == "knn":
+        wanted = ["single"] if m.shortlist == "s1" else list(SEQUENCE_BASELINES)
+    else:
+        wanted = [f"raw+{m.matcher}"]
+        if m.kind == "hvpr":
+            wanted += [other for other in present if _model_free_hvpr(other, m.matcher)]
+    return [w for w in dict.fromkeys(wanted) if w in present and w != name]
+
+
+def _model_free_hvpr(name: str, matcher: str | None) -> bool:
+    try:
+        m = parse_method(name)
+    except ConfigError:
+        return False
+    return m.kind == "hvpr" and not m.models() and m.matcher == matcher
+
+
+def likely_causes(name: str, results: Mapping[str, Any]) -> tuple[str, ...]:
+    """The usual causes of a learned method ``name`` losing to a model-free one, most specific first: a model
+    on descriptors of D > 4096 (no PCA), a model trained at another L than evaluated, few evaluated queries;
+    then the causes the results cannot show (training data, val split)."""
+    cfg = results.get("config", {})
+    entry = results.get("methods", {}).get(name, {})
+    models = (entry.get("method") or {}).get("models") or cfg.get("models") or {}
+    out = []
+    m = parse_method(name)
+    if m.kind == "hvpr" and m.shortlist and not parse_method(m.shortlist).models():
+        top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
+        out.append(f"its shortlist is the model-free {m.shortlist}: it re-ranks only the places {m.shortlist} "
+                   f"ranks in its top {top or 'K'} (a better shortlist: hvpr, hvpr-fused)")
+    dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
+    if dims and dims[-1] > PCA_DIM:
+        out.append(f"D = {dims[-1]} without PCA (the paper reduces to {PCA_DIM}; seqnet train --pca D, or seqnet "
+                   "dataset from-images --pca D, fitted on the train split)")
+    trained = models.get("seqnet", {}).get("seq_len") if isinstance(models.get("seqnet"), Mapping) else None
+    evaluated = (entry.get("method") or {}).get("seq_len") or cfg.get("seq_len")
+    if "seqnet" in m.models() and trained and evaluated and int(trained) != int(evaluated):
+        out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
+    queries = entry.get("queries")
+    if isinstance(queries, int) and 0 < queries < 50:
+        out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@1)")
+    out.append("too little training data for the model's D x out x w weights (see the training plan seqnet train "
+               "logs)")
+    out.append("a val split too small to choose the epoch, or a training/eval window mismatch (window, L); see "
+               "the training log")
+    return tuple(out)
+
+
+def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
+    """One :class:`Note` per learned method of ``results`` whose R@1 is below the best of its model-free
+    counterparts by at least one query (``1 / queries``; 0.001 when the count is unknown)."""
+    methods = results.get("methods", {})
+    notes = []
+    for name, entry in methods.items():
+        r1 = entry.get("recall@1")
+        if not isinstance(r1, (int, float)):
+            continue
+        scored = [(float(methods[b]["recall@1"]), b) for b in counterparts(name, methods)
+                  if isinstance(methods[b].get("recall@1"), (int, float))]
+        if not scored:
+            continue
+        best, base = max(scored)
+        queries = entry.get("queries")
+        step = 1.0 / queries if isinstance(queries, int) and queries > 0 else 0.001
+        if best - float(r1) >= step - 1e-9:
+            notes.append(Note(name, base, float(r1), best, likely_causes(name, results)))
+    return notes
+
+
+def format_notes(notes: list[Note]) -> list[str]:
+    """The notes as printed under the results table."""
+    return [f"note: {n.text()}" for n in notes]
+
+
+def row_marks(notes: list[Note]) -> dict[str, str]:
+    """What a results table adds to each flagged method's row."""
+    return {n.learned: f"learned, below model-free {n.baseline}" for n in notes}

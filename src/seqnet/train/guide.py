@@ -1,0 +1,221 @@
+"""The guide in the training loop: what a run will cost and what to change, said before it starts, and the
+checks that speak up while it runs.
+
+Before the first epoch :func:`plan` estimates, from N (training queries and reference windows), D, out, L
+and w: the peak memory (:func:`seqnet.train.config.train_bytes`, the estimate the memory check refuses
+on), the time per epoch (the epoch's multiply-adds, :func:`epoch_flops`, over the device's rate measured
+by timing one matrix product like the model's, :func:`measured_rate`, plus :data:`STEP_SECONDS` per
+batch, a measured constant) and the size of the two
+checkpoints; :func:`plan_text` is the one block logged, with the advice (:func:`advice`): PCA
+(``--pca D``) when D is above :data:`PCA_ADVISED_DIM` (the paper reduces NetVLAD to 4096) or above the
+training frames, a smaller ``--out-dims`` / ``--w`` when the checkpoints pass :data:`CHECKPOINT_ADVISED_BYTES`
+or the memory half of what is available.
+
+:func:`val_warning`: a val split with fewer than :data:`VAL_MIN` queries cannot choose an epoch (one query
+moves R@1 by 1/n). :func:`inactive_epochs`: the epochs in a row, up to the last, in which no triplet was
+active (the loop stops after ``TrainConfig.stop_inactive`` of them: :func:`inactive_message`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from ..core.lazy import lazy_module
+from ..core.memory import available_bytes
+from .config import TrainConfig, train_bytes
+from .losses import LOSSES
+
+torch = lazy_module("torch")
+
+VAL_MIN = 50  # val queries below which the best epoch is chosen by noise (1 query = 2% of R@1)
+PCA_ADVISED_DIM = 4096  # the paper reduces NetVLAD's 32768-D to 4096 with PCA
+CHECKPOINT_ADVISED_BYTES = 500 * 2**20  # best.pt + last.pt above this: advise fewer dimensions
+# seconds of each optimiser step beyond its FLOPs (indexing, the loss, the update, Python): measured on a
+# shared 2-core CPU, 200 epochs of S_5 on `seqnet synth` (D = 64, 22 batches an epoch): 0.66 s per epoch
+# where the FLOPs take under 0.05 s
+STEP_SECONDS = 0.025
+OPTIMIZER_COPIES = {"sgd": 1, "adam": 2}  # state per weight kept in last.pt (momentum / the two moments)
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What a training run will cost (estimates; see the module docstring).
+
+    Attributes:
+        n_queries, n_refs: training queries and reference windows; n_frames: the training split's frames
+            (both traverses: what a PCA fitted on it sees).
+        in_dims, out_dims, seq_len, w, epochs: the model and the epochs left to run.
+        weights: parameters of the model; checkpoint_bytes: ``best.pt`` + ``last.pt`` on disk.
+        peak_bytes: estimated peak memory; available: what this process may allocate (None: unknown).
+        flops: multiply-adds (x2) of one epoch; rate: the device's measured FLOP/s; device: its name;
+            batch_size: queries per optimiser step.
+    """
+
+    n_queries: int
+    n_refs: int
+    n_frames: int
+    in_dims: int
+    out_dims: int
+    seq_len: int
+    w: int
+    epochs: int
+    weights: int
+    checkpoint_bytes: int
+    peak_bytes: int
+    available: int | None
+    flops: float
+    rate: float
+    device: str
+    batch_size: int = 16
+
+    @property
+    def epoch_seconds(self) -> float:
+        """Estimated seconds per epoch: the FLOPs at the measured rate, plus :data:`STEP_SECONDS` per batch."""
+        steps = math.ceil(self.n_queries / self.batch_size) + 1  # the batches and validation
+        return self.flops / self.rate + steps * STEP_SECONDS if self.rate > 0 else math.nan
+
+
+def epoch_flops(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_val: int = 0) -> float:
+    """Floating-point operations of one epoch (an upper bound: every query with ``n_negatives`` triplets):
+    the mining descriptors of the ``n_refs`` reference windows at every refresh and of the queries, the
+    query-reference distances, forward and backward (x3) of each query's 2 + K windows, and validation's
+    ``n_val`` windows. One window through the model is one product by its ``[D w, out]`` weight,
+    ``2 w D out`` (:meth:`seqnet.sequence.model.SeqNet.forward`; a framewise loss's window: ``L_m`` frames
+    through S_1); the backward pass's weight gradient about as much again, the update a little more."""
+    out = int(conf.out_dims or in_dims)
+    window = 2.0 * conf.w * in_dims * out * (conf.window_len if LOSSES[conf.loss].framewise else 1)
+    refreshes = math.ceil(n_queries / conf.cache_refresh) if conf.cache_refresh else 1
+    mining = window * (refreshes * n_refs + n_queries) + 2.0 * n_queries * n_refs * out
+    steps = 3.0 * window * n_queries * (2 + conf.n_negatives)
+    return mining + steps + window * n_val
+
+
+def measured_rate(in_dims: int, out_dims: int, device: Any, repeats: int = 3) -> float:
+    """FLOP/s of the device on a ``[B, D] x [D, min(out, 1024)]`` float32 product (the model's kind of
+    work; B from 256 to 65536 rows, for about 1e8 operations: long enough to time), the best of ``repeats``
+    timings after one warm-up."""
+    cols = max(1, min(out_dims, 1024))
+    rows = int(min(65536, max(256, 1e8 // (2 * in_dims * cols))))
+    x = torch.randn(rows, in_dims, device=device)
+    weight = torch.randn(in_dims, cols, device=device)
+    sync = torch.cuda.synchronize if getattr(device, "type", str(device)).startswith("cuda") else (lambda: None)
+    best = math.inf
+    for i in range(repeats + 1):
+        sync()
+        t0 = time.perf_counter()
+        (x @ weight).sum().item()
+        sync()
+        if i:  # the first run warms up
+            best = min(best, time.perf_counter() - t0)
+    return 2.0 * rows * in_dims * cols / max(best, 1e-9)
+
+
+def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames: int, n_val: int,
+         epochs: int, device: Any, n_ref_frames: int | None = None, n_query_frames: int | None = None,
+         rate: float | None = None) -> Plan:
+    """The :class:`Plan` of training ``conf`` on ``in_dims``-D descriptors (``rate``: the device's FLOP/s,
+    measured when None; ``n_ref_frames`` / ``n_query_frames``: the dataset's, for the memory estimate)."""
+    out = int(conf.out_dims or in_dims)
+    weights = in_dims * out * conf.w + out
+    copies = OPTIMIZER_COPIES.get(conf.optimizer, 2)
+    checkpoint = 4 * weights * (2 + copies)  # best.pt: the weights; last.pt: the weights and the optimiser state
+    spill = getattr(device, "type", str(device)) == "cpu"
+    peak = train_bytes(conf, in_dims, n_ref_frames or n_refs, n_query_frames or n_queries, spill)
+    return Plan(n_queries, n_refs, n_frames, in_dims, out, conf.seq_len, conf.w, epochs, weights, checkpoint, peak,
+                available_bytes(), epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
+                measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size)
+
+
+def suggested_pca(p: Plan) -> int:
+    """A PCA dimension to advise: at most :data:`PCA_ADVISED_DIM` and below the training frames (a PCA fitted
+    on n frames has at most n - 1 meaningful axes), rounded down to a power of two (at least 8)."""
+    cap = min(PCA_ADVISED_DIM, p.in_dims - 1, max(8, p.n_frames - 1))
+    return max(8, 2 ** int(math.log2(max(cap, 8))))
+
+
+def advice(p: Plan) -> list[str]:
+    """What to change, and how (empty: nothing to say)."""
+    out = []
+    pca = suggested_pca(p)
+    if p.in_dims > PCA_ADVISED_DIM:
+        out.append(f"D = {p.in_dims} is above {PCA_ADVISED_DIM} (the SeqNet paper reduces its descriptors to 4096 "
+                   f"with PCA): reduce it with --pca {pca} (seqnet train, or seqnet dataset from-images), fitted on "
+                   "the train split only")
+    elif p.in_dims >= p.n_frames and p.in_dims > 8:
+        out.append(f"D = {p.in_dims} is not below the {p.n_frames} training frames: a D x D x w layer learnt from "
+                   f"{p.n_queries} queries overfits; reduce D with --pca {pca} (fitted on the train split only)")
+    if p.checkpoint_bytes > CHECKPOINT_ADVISED_BYTES:
+        out.append(f"the checkpoints take {_size(p.checkpoint_bytes)} (best.pt {_size(4 * p.weights)}, last.pt "
+                   f"with the optimiser state): fewer dimensions (--pca {pca}), a smaller --out-dims (e.g. 512) or "
+                   "--w 1 shrink them (the weights are D x out x w)")
+    if p.available is not None and p.peak_bytes > p.available / 2:
+        out.append(f"the estimated peak memory {_size(p.peak_bytes)} is over half of the {_size(p.available)} "
+                   "available: --pca, a smaller --out-dims, --w or --batch-size lower it")
+    return out
+
+
+def plan_text(p: Plan) -> str:
+    """The block logged before training: the model, memory, time, checkpoints and the advice."""
+    avail = f" of {_size(p.available)} available" if p.available is not None else ""
+    total = p.epoch_seconds * p.epochs
+    weights = f"{p.weights / 1e6:.1f} M" if p.weights >= 1e5 else f"{p.weights}"
+    lines = [f"training plan: S_{p.seq_len} (w={p.w}, D {p.in_dims}->{p.out_dims}): {weights} weights, "
+             f"{p.n_queries} queries, {p.n_refs} reference windows, {p.n_frames} training frames",
+             f"  peak memory  about {_size(p.peak_bytes)}{avail}",
+             f"  time         about {_duration(p.epoch_seconds)} per epoch on {p.device} (the device's measured "
+             f"{p.rate / 1e9:.1f} GFLOP/s, every negative active), {p.epochs} epoch{'s' * (p.epochs != 1)}: about "
+             f"{_duration(total)}",
+             f"  checkpoints  about {_size(p.checkpoint_bytes)} on disk (best.pt + last.pt)"]
+    lines += [f"  advice: {a}" for a in advice(p)]
+    return "\n".join(lines)
+
+
+def val_warning(n_val: int, val_name: str, minimum: int = VAL_MIN) -> str | None:
+    """Why a val split of ``n_val`` queries (with a positive) cannot choose an epoch, or None when it can."""
+    if n_val >= minimum:
+        return None
+    step = f"1/{n_val} = {1 / n_val:.2f}" if n_val else "undefined"
+    return (f"the val split {val_name} has {n_val} queries with a positive and a full window; choosing the best "
+            f"epoch needs about {minimum} or more (one query moves val R@1 by {step}). best.pt is still the epoch "
+            "of the best val R@1 (ties: the earliest), which on so few queries is mostly chance; give a larger "
+            "val split (--split val=A:B when building the dataset), or --val-split none to keep the last epoch "
+            "(best.pt = last.pt)")
+
+
+def inactive_epochs(history: Sequence[Mapping[str, Any]]) -> int:
+    """The epochs in a row, up to the last of ``history``, without an active triplet."""
+    n = 0
+    for h in reversed(history):
+        if float(h.get("active", 1.0)) > 0:
+            break
+        n += 1
+    return n
+
+
+def inactive_message(history: Sequence[Mapping[str, Any]], conf: TrainConfig, n_queries: int) -> str:
+    """Why training stops after ``conf.stop_inactive`` epochs without an active triplet, and what to change."""
+    n = inactive_epochs(history)
+    last = history[-1]
+    triplets = int(last.get("triplets", 0))
+    why = ("no query had a negative closer than its positive + the margin: every triplet is already satisfied"
+           if triplets == 0 else f"{triplets} triplets were mined but none had a positive loss")
+    return (f"stopping after epoch {last['epoch']}: no active triplet for {n} epochs in a row "
+            f"(stop_inactive={conf.stop_inactive}); {why}, so the model no longer learns. Likely: too little or "
+            f"too easy training data ({n_queries} queries); try a larger train split, a larger --margin (now "
+            f"{conf.margin:g}) or more negatives (--neg-radius, now {conf.neg_radius}); best.pt is kept")
+
+
+def _size(n: float) -> str:
+    return f"{n / 2**10:.0f} KiB" if n < 2**20 else f"{n / 2**20:.0f} MiB" if n < 2**30 else f"{n / 2**30:.1f} GiB"
+
+
+def _duration(s: float) -> str:
+    if not math.isfinite(s):
+        return "unknown"
+    if s < 1:
+        return f"{s * 1000:.0f} ms"
+    return f"{s:.1f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"

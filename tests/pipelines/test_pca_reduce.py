@@ -1,0 +1,82 @@
+"""--pca D: a PCA fitted on the train split only, applied to every frame, recorded with the dataset."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from seqnet.cli import main as cli_main
+from seqnet.core.errors import ConfigError
+from seqnet.data.io import load_dataset, save_dataset
+from seqnet.describe.pca import PCA, read_tag
+from seqnet.pipelines.pca import fit_on_split, main, pca_path, reduce_dataset, split_frames
+
+
+def _with_other_test_and_val(ds):
+    """``ds`` whose val and test frames (outside the train ranges) are replaced by large random ones."""
+    rng = np.random.default_rng(5)
+    sides = {}
+    for side in ("reference", "query"):
+        t = getattr(ds, side)
+        desc = np.array(t.descriptors, np.float32)
+        a, b = ds.splits["train"][side]
+        outside = np.ones(len(desc), bool)
+        outside[a:b] = False
+        desc[outside] = 100 * rng.standard_normal((int(outside.sum()), desc.shape[1]))
+        sides[side] = dataclasses.replace(t, descriptors=desc)
+    return dataclasses.replace(ds, **sides)
+
+
+def test_the_pca_sees_the_train_split_only(synth_dataset):
+    pca = fit_on_split(synth_dataset, 4)
+    train = synth_dataset.split("train")
+    frames = np.concatenate([train.reference.descriptors, train.query.descriptors])
+    assert np.allclose(pca.mean, frames.mean(axis=0), atol=1e-5)
+    assert split_frames(synth_dataset, "train").shape == (len(frames), 16)
+    other = fit_on_split(_with_other_test_and_val(synth_dataset), 4)
+    assert np.array_equal(other.mean, pca.mean) and np.array_equal(other.components, pca.components)
+    # and the check can fail: the whole dataset gives another PCA
+    whole = dataclasses.replace(synth_dataset, splits={**synth_dataset.splits, "train": {
+        "reference": (0, len(synth_dataset.reference)), "query": (0, len(synth_dataset.query))}})
+    assert not np.allclose(fit_on_split(whole, 4).mean, pca.mean)
+
+
+def test_reduce_projects_every_frame_and_records_it(synth_dataset):
+    reduced, pca = reduce_dataset(synth_dataset, 4)
+    assert reduced.query.dim == reduced.reference.dim == 4 and len(reduced.query) == len(synth_dataset.query)
+    assert np.allclose(reduced.query.descriptors, pca.transform(np.asarray(synth_dataset.query.descriptors)))
+    prov = reduced.reference.provenance
+    assert prov == reduced.query.provenance and prov["id"] != synth_dataset.reference.provenance["id"]
+    assert prov["settings"]["dim"] == 4 and prov["settings"]["pca_on"] == "train"
+    assert reduced.extra["pca"]["fit_split"] == "train" and reduced.extra["pca"]["input_dim"] == 16
+    with pytest.raises(ConfigError, match="no such split"):
+        reduce_dataset(dataclasses.replace(synth_dataset, splits={}), 4)
+    with pytest.raises(ConfigError, match="does not reduce"):
+        reduce_dataset(synth_dataset, 16)
+
+
+def test_main_writes_beside_then_reuses(synth_dataset, tmp_path):
+    src = save_dataset(synth_dataset, tmp_path / "ds")
+    out = main(src, 8)
+    assert out == tmp_path / "ds-pca8" and load_dataset(out).query.dim == 8
+    assert read_tag(pca_path(out)) == load_dataset(out).reference.provenance["id"]
+    assert PCA.load(pca_path(out)).dims == 8
+    stamp = (out / "dataset.json").stat().st_mtime_ns
+    assert main(src, 8) == out and (out / "dataset.json").stat().st_mtime_ns == stamp  # reused
+    (tmp_path / "ds-pca4").mkdir()
+    save_dataset(synth_dataset, tmp_path / "ds-pca4", overwrite=True)  # something else under that name
+    with pytest.raises(ConfigError, match="is not"):
+        main(src, 4)
+
+
+def test_cli_train_with_pca(synth_dataset, tmp_path, capsys):
+    src = save_dataset(synth_dataset, tmp_path / "ds")
+    common = ["--epochs", "1", "--optimizer", "adam", "--n-neg-sample", "50", "--device", "cpu", "--seq-len", "3",
+              "--w", "2"]
+    assert cli_main(["train", "--dataset", str(src), "--pca", "8", "--out", str(tmp_path / "r"), *common]) == 0
+    out = capsys.readouterr().out
+    assert f"--dataset {(tmp_path / 'ds-pca8').resolve()}" in out and "D=8->8" in out
+    assert cli_main(["train", "--resume", str(tmp_path / "r"), "--pca", "8"]) == 2
+    assert "--pca applies when a run starts" in capsys.readouterr().err

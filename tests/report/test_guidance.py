@@ -1,0 +1,87 @@
+"""Learned methods below their model-free counterparts: the notes, on small results dicts."""
+
+from __future__ import annotations
+
+from seqnet.report.guidance import counterparts, format_notes, learned_below_baseline, likely_causes, row_marks
+from seqnet.report.tables import format_table
+
+
+def _results(r1: dict[str, float], queries: int = 100, models: dict | None = None, seq_len: int = 5) -> dict:
+    methods = {n: {"recall@1": v, "queries": queries, "method": {"seq_len": seq_len, "models": models or {}}}
+               for n, v in r1.items()}
+    return {"methods": methods, "config": {"seq_len": seq_len, "models": models or {}}}
+
+
+def test_the_pairs():
+    present = dict.fromkeys(["single", "s1", "smoothing", "delta", "seqnet", "raw+seqmatch", "s1+seqmatch", "hvpr",
+                             "hvpr-delta:raw+seqmatch", "hvpr-fused", "raw+seqmatch-rev"])
+    assert counterparts("s1", present) == ["single"]
+    assert counterparts("seqnet", present) == ["smoothing", "delta"]
+    assert counterparts("s1+seqmatch", present) == ["raw+seqmatch"]
+    assert counterparts("hvpr", present) == ["raw+seqmatch", "hvpr-delta:raw+seqmatch"]
+    assert counterparts("hvpr-fused", present) == ["raw+seqmatch", "hvpr-delta:raw+seqmatch"]
+    for model_free in ("single", "delta", "raw+seqmatch", "hvpr-delta:raw+seqmatch", "not a method"):
+        assert counterparts(model_free, present) == []
+
+
+def test_the_issue_case_is_noted_with_its_causes():
+    # the issue: s1 0.500 vs single 0.694, hvpr 0.611 vs raw+seqmatch 0.917, on D = 6400, 36 queries
+    models = {"seqnet": {"in_dims": 6400, "out_dims": 6400, "seq_len": 5, "w": 3},
+              "s1": {"in_dims": 6400, "out_dims": 6400, "seq_len": 1, "w": 1}}
+    res = _results({"single": 0.694, "s1": 0.500, "raw+seqmatch": 0.917, "hvpr": 0.611, "seqnet": 0.9,
+                    "delta": 0.5}, queries=36, models=models)
+    notes = learned_below_baseline(res)
+    assert [(n.learned, n.baseline) for n in notes] == [("s1", "single"), ("hvpr", "raw+seqmatch")]
+    causes = " ".join(notes[0].causes)
+    assert "D = 6400 without PCA" in causes and "--pca" in causes and "36 evaluated queries" in causes
+    lines = format_notes(notes)
+    assert lines[0].startswith("note: s1 (R@1 0.500) is below the model-free single (0.694)")
+    assert row_marks(notes) == {"s1": "learned, below model-free single",
+                                "hvpr": "learned, below model-free raw+seqmatch"}
+
+
+def test_above_equal_or_within_one_query_says_nothing():
+    assert learned_below_baseline(_results({"single": 0.70, "s1": 0.80})) == []
+    assert learned_below_baseline(_results({"single": 0.70, "s1": 0.70})) == []
+    assert learned_below_baseline(_results({"single": 0.705, "s1": 0.70})) == []  # half a query of 100
+    assert len(learned_below_baseline(_results({"single": 0.71, "s1": 0.70}))) == 1  # one query
+    assert learned_below_baseline(_results({"s1": 0.1})) == []  # no counterpart evaluated
+    assert learned_below_baseline({"methods": {}}) == []
+
+
+def test_a_window_length_mismatch_is_named():
+    models = {"seqnet": {"in_dims": 512, "out_dims": 512, "seq_len": 10, "w": 5}}
+    causes = likely_causes("seqnet", _results({"seqnet": 0.2, "delta": 0.5}, models=models, seq_len=5))
+    assert any("trained on windows of L=10 but evaluated at L=5" in c for c in causes)
+    assert not any("without PCA" in c for c in causes)
+
+
+def test_the_text_table_marks_the_row():
+    res = _results({"single": 0.694, "s1": 0.500})
+    table = format_table(res["methods"], (1,))
+    s1_row = next(line for line in table.splitlines() if line.startswith("s1 "))
+    assert "[learned, below model-free single]" in s1_row
+    assert "below" not in next(line for line in table.splitlines() if line.startswith("single "))
+
+
+def test_the_html_report_has_a_notes_section_only_when_there_is_one():
+    from seqnet.report.html import notes_section
+
+    assert notes_section(_results({"single": 0.5, "s1": 0.9})) == []
+    (section,) = notes_section(_results({"single": 0.9, "s1<b>": 0.1, "s1": 0.5}))
+    assert section.id == "notes" and "<li>s1 (R@1 0.500) is below the model-free single (0.900)" in section.body
+
+
+def test_a_table_without_a_header_has_no_empty_first_row():
+    from seqnet.report.html import table_html
+
+    assert table_html([], [("a", 1)]) == "<table><tr><td>a</td><td>1</td></tr></table>"
+    assert table_html(["", ""], [("a", 1)]).count("<tr>") == 1
+    assert table_html(["k", "v"], [("a", 1)]).startswith("<table><tr><th>k</th>")
+
+
+def test_an_hvpr_on_a_model_free_shortlist_names_its_shortlist():
+    # Nordland64's benchmark: hvpr-single 0.441 below raw+seqmatch 0.460 (817 queries)
+    res = _results({"raw+seqmatch": 0.460, "hvpr-single": 0.441}, queries=817)
+    (note,) = learned_below_baseline(res)
+    assert note.causes[0].startswith("its shortlist is the model-free single")

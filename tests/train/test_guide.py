@@ -1,0 +1,113 @@
+"""The guide in the training loop: the plan logged before training, the small-val warning, the stop on
+epochs without an active triplet."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+
+from seqnet.train import TrainConfig, loop, train
+from seqnet.train.guide import (
+    Plan,
+    advice,
+    epoch_flops,
+    inactive_epochs,
+    inactive_message,
+    plan,
+    plan_text,
+    suggested_pca,
+    val_warning,
+)
+
+FAST = TrainConfig(optimizer="adam", lr=1e-2, batch_size=16, cache_refresh=40, n_neg_sample=50, seq_len=3, w=2,
+                   out_dims=8, device="cpu", epochs=1)
+
+
+def _plan(d: int, n_frames: int = 300, out: int | None = None, w: int = 3, available: int | None = 64 * 2**30,
+          **kw) -> Plan:
+    conf = TrainConfig(w=w, out_dims=out or d, **kw)
+    p = plan(conf, d, 96, 196, n_frames, 2, 3, "cpu", rate=1e10)
+    return Plan(**{**p.__dict__, "available": available})
+
+
+def test_the_high_dimensional_case_of_the_issue_is_costed_and_advised():
+    # D = 6400, S_5 w=3, SGD: the run that wrote 0.49 + 0.98 GB checkpoints (measured: 491548845 + 983109345 B)
+    p = _plan(6400)
+    assert p.weights == 6400 * 6400 * 3 + 6400
+    assert abs(p.checkpoint_bytes - (491548845 + 983109345)) < 0.01 * p.checkpoint_bytes
+    said = advice(p)
+    assert any("--pca 256" in a and "4096" in a for a in said)  # D > 4096 and > the 300 training frames
+    assert any("checkpoints take 1.4 GiB" in a for a in said)
+    text = plan_text(p)
+    assert "peak memory" in text and "per epoch" in text and "best.pt + last.pt" in text and "advice:" in text
+    # and a small model on plenty of data has nothing to advise (the advice can be absent)
+    small = _plan(256, n_frames=5000, available=None)
+    assert advice(small) == [] and "advice" not in plan_text(small)
+
+
+def test_pca_advice_below_4096_when_d_is_not_below_the_training_frames():
+    said = advice(_plan(2048, n_frames=120))
+    assert len(said) == 1 and "--pca 64" in said[0] and "120 training frames" in said[0]
+    assert suggested_pca(_plan(100000, n_frames=10**6)) == 4096
+
+
+def test_memory_advice_when_over_half_of_what_is_available():
+    p = _plan(1024, n_frames=5000, available=2**20)
+    assert any("peak memory" in a for a in advice(p))
+
+
+def test_epoch_flops_against_a_naive_count():
+    conf = TrainConfig(seq_len=5, w=3, out_dims=64, n_negatives=4, cache_refresh=10)
+    d, nq, nr, nv = 32, 25, 40, 7
+    window = 2 * 3 * d * 64  # one [D w] x [D w, out] product per window
+    refreshes = 3  # ceil(25 / 10)
+    naive = 0.0
+    for _ in range(refreshes):
+        naive += nr * window  # the reference windows, each refresh
+    for _ in range(nq):
+        naive += window + 2 * nr * 64  # the query's mining descriptor, its distances
+        naive += 3 * (2 + 4) * window  # forward and backward of q, p and K negatives
+    naive += nv * window
+    assert epoch_flops(conf, d, nq, nr, nv) == pytest.approx(naive)
+
+
+def test_val_warning_says_how_many_how_large_and_what_happens():
+    assert val_warning(50, "ds[val]") is None
+    msg = val_warning(6, "ds[val]")
+    assert "6 queries" in msg and "50" in msg and "1/6" in msg and "--val-split none" in msg
+
+
+def test_inactive_epochs_counts_the_trailing_run():
+    hist = [{"active": 3.0}, {"active": 0.0}, {"active": 1.0}, {"active": 0.0}, {"active": 0.0}]
+    assert inactive_epochs(hist) == 2 and inactive_epochs(hist[:3]) == 0 and inactive_epochs([]) == 0
+
+
+@pytest.mark.filterwarnings(r"ignore:Detected call of `lr_scheduler.step\(\)`")
+def test_training_stops_after_stop_inactive_epochs_without_an_active_triplet(synth_dataset, tmp_path, monkeypatch,
+                                                                              caplog):
+    def no_triplets(run, src, epoch):
+        return {"loss": 0.0, "queries": float(src.n_queries), "skipped": 0.0, "triplets": 0.0, "active": 0.0}
+
+    monkeypatch.setattr(loop, "train_epoch", no_triplets)
+    caplog.set_level(logging.INFO, logger="seqnet")
+    run = train(synth_dataset, FAST.replace(epochs=10, stop_inactive=3), tmp_path / "r")
+    assert run.epoch == 3 and (tmp_path / "r" / "best.pt").exists()
+    said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any("no active triplet for 3 epochs in a row" in m and "--margin" in m for m in said)
+    assert any("stopped: no active triplet for 3 epochs" in r.getMessage() for r in caplog.records)
+    # 0: never stops
+    run = train(synth_dataset, FAST.replace(epochs=4, stop_inactive=0), tmp_path / "never")
+    assert run.epoch == 4
+    conf = FAST.replace(stop_inactive=3).resolve(synth_dataset)
+    assert "0 active" not in inactive_message([{"epoch": 7, "triplets": 0.0, "active": 0.0}], conf, 5)
+
+
+def test_the_plan_is_logged_once_before_training(synth_dataset, tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="seqnet")
+    train(synth_dataset, FAST, tmp_path / "r")
+    plans = [r.getMessage() for r in caplog.records if r.getMessage().startswith("training plan:")]
+    assert len(plans) == 1 and "D 16->8" in plans[0] and "checkpoints" in plans[0]
+    value, unit = plans[0].split("time         about ")[1].split(" per epoch")[0].split()
+    seconds = float(value) / (1000 if unit == "ms" else 1)
+    assert unit in ("ms", "s") and 0.01 < seconds < 60  # 7 batches of 16 and validation: about 0.2 s
