@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from ..core.errors import ConfigError
+from ..core.stage import Written
 from ..localize.config import LocalizeConfig
 from ..localize.replay import main
 from ..localize.stream import Query, stream
@@ -167,7 +168,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
                    args.distances, args.similarity, args.transposed, calibration(args))
-    s = out.data["summary"]  # what the stage wrote beside the track
+    print_summary(conf, args, out)
+    return 0
+
+
+def print_summary(conf: LocalizeConfig, args: argparse.Namespace, out: Written) -> None:
+    """What the stage wrote beside the track, in a few lines."""
+    s = out.data["summary"]
     lat = s.get("latency_ms", {})
     print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")
     if "recall@1" in s:
@@ -185,7 +192,6 @@ def run(args: argparse.Namespace) -> int:
         if lat.get("warmup_frames") else ""
     print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
           f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms{warm}; track in {out}")
-    return 0
 
 
 def calibration(args: argparse.Namespace) -> tuple[float, str, float] | None:
