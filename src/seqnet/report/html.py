@@ -99,6 +99,7 @@ def png_tag(png: bytes, alt: str) -> str:
 def table_html(header: Sequence[str] | None, rows: Sequence[Sequence[Any]], sortable: bool = False) -> str:
     """An HTML table (cells escaped; ``header`` None: none); ``sortable``: a click on a column's heading sorts the
     rows by it (numbers as numbers; again: the other way), by the page's own script (:data:`SORT_JS`)."""
+    header = header if header and any(str(h) for h in header) else None  # all blank: no header row
     head = "" if header is None else \
         "<thead><tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in header) + "</tr></thead>"
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
