@@ -17,13 +17,13 @@ from seqnet.core.errors import DatasetError, SeqnetError
 from seqnet.data.gps import (
     POSITIONS_FORMATS,
     kitti_image_times,
-    latlon_to_utm,
     log_positions,
     parse_kitti_time,
     read_kitti_oxts,
     read_robotcar_ins,
 )
 from seqnet.data.io import load_dataset
+from seqnet.data.utm import latlon_to_utm
 
 # robotcar-dataset-sdk's ins.csv header
 INS = ("timestamp,ins_status,latitude,longitude,altitude,northing,easting,down,utm_zone,velocity_north,"

@@ -34,12 +34,11 @@ from ..security.text import shown
 from .convert import read_csv_rows
 from .readers import read_descriptor_file, read_provenance, read_text
 from .traverse import Traverse
+from .utm import latlon_to_utm
 
 DEFAULT_MAX_GAP = 0.1  # seconds: RobotCar's INS logs at 50 Hz, KITTI's oxts at 10 Hz (synced) or 100 Hz
 DIGITS = re.compile(r"[0-9]{1,18}")  # a timestamp or frame number: ASCII digits, within int64 ("²".isdigit())
 UTM_ZONE = re.compile(r"[0-9]{1,2}[C-HJ-NP-Xc-hj-np-x]?")  # "30U": zone number and latitude band
-
-
 @dataclasses.dataclass(frozen=True)
 class Samples:
     """A position log: ``times [S]`` (seconds, sorted), ``xy [S, 2]`` (easting, northing, metres), UTM zone."""
@@ -47,22 +46,6 @@ class Samples:
     times: np.ndarray
     xy: np.ndarray
     zone: str
-
-
-def latlon_to_utm(lat: np.ndarray, lon: np.ndarray, where: str) -> tuple[np.ndarray, str]:
-    """``[N, 2]`` UTM easting/northing of WGS84 ``lat, lon`` (degrees), all in the zone of the first point;
-    and that zone (e.g. ``"32U"``). Out-of-range coordinates are refused with their index."""
-    import utm
-
-    lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
-    bad = np.flatnonzero(~((lat >= -80) & (lat <= 84) & (np.abs(lon) <= 180)))
-    if bad.size:
-        i = int(bad[0])
-        raise DatasetError(f"{where}: sample {i}: latitude {float(lat[i])}, longitude {float(lon[i])} out of range "
-                           "(UTM covers latitudes -80..84 and longitudes -180..180, degrees)")
-    _, _, number, letter = utm.from_latlon(lat[:1], lon[:1])
-    e, n, _, _ = utm.from_latlon(lat, lon, force_zone_number=number, force_zone_letter=letter)
-    return np.stack([e, n], axis=1), f"{number}{letter}"
 
 
 def _times_of(fields: list[str], what: str) -> float:

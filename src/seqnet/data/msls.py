@@ -154,7 +154,7 @@ def _positions(folder: Path, keys: list[str]) -> np.ndarray:
     vals = _numbers(path, rows, [table[k] for k in keys], [col[c] for c in wanted[1:]], list(wanted[1:]), float)
     if path == post:
         return vals
-    from .gps import latlon_to_utm
+    from .utm import latlon_to_utm
 
     return latlon_to_utm(vals[:, 0], vals[:, 1], str(path))[0]
 

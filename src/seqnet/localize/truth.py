@@ -14,7 +14,6 @@ odometry frame. A map that records no frame is refused: a ground truth in anothe
 from __future__ import annotations
 
 import dataclasses
-import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -22,13 +21,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..data.utm import frame_zone
 from ..security.text import shown
 from ..sources.bags.positions import match_positions
 
 if TYPE_CHECKING:
     from ..describe.images import ImageList
 
-UTM_FRAME = re.compile(r"UTM zone ([0-9]{1,2})([C-HJ-NP-X])")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,8 +56,8 @@ def query_positions(images: ImageList, tolerance: float, source: str | Path) -> 
 
 def _utm(frame: str) -> tuple[int, bool] | None:
     """``(zone number, northern hemisphere)`` of ``UTM zone 32V``; None for another frame or an unknown zone."""
-    m = UTM_FRAME.fullmatch(frame)
-    return None if m is None else (int(m.group(1)), m.group(2) >= "N")
+    zone = frame_zone(frame)
+    return None if zone is None else (zone[0], zone[1] >= "N")
 
 
 def same_frame(a: str, b: str) -> bool:

@@ -128,7 +128,7 @@ class Positions:
 
 def _navsat(msgs: list[Any]) -> tuple[np.ndarray, np.ndarray, str]:
     """``(kept [M] bool, xy [K, 2] UTM metres, frame)`` of NavSatFix messages: those with a fix and finite lat/lon."""
-    from ...data.gps import latlon_to_utm
+    from ...data.utm import latlon_to_utm
 
     lat = np.array([m.latitude for m in msgs], np.float64)
     lon = np.array([m.longitude for m in msgs], np.float64)
