@@ -18,7 +18,8 @@ if TYPE_CHECKING:
 def map_describer(ref_map: Reference, allow: bool,
                   describer: str | None = None) -> tuple[Describer, Callable[[np.ndarray, str], None]]:
     """The describer the map was described with (rebuilt from its provenance) and ``check(descriptors [1, D],
-    what)``, which holds the first query descriptors' provenance to the map's. A plug-in describer the map's
+    what)``, which holds the first query descriptors' provenance to the map's (a call after one that passed returns
+    at once: a stream may call it on every frame). A plug-in describer the map's
     files name is imported only when the user names the same one (``describer``, ``--describer``): seqnet runs
     no code a file names."""
     from ..describe import DescribeConfig, make_describer
@@ -38,8 +39,13 @@ def map_describer(ref_map: Reference, allow: bool,
                           "localize cannot rebuild; describe the query images with `seqnet describe` using the "
                           "map's fitted state and pass the descriptor file as --query")
 
+    checked: list[bool] = []
+
     def check(first: np.ndarray, what: str) -> None:
+        if checked:  # one describer's outputs share their provenance: checked (or warned about) once
+            return
         check_same(prov, describe_provenance(conf, None, first), "the map's descriptors", what, allow)
+        checked.append(True)
 
     return make_describer(conf), check
 

@@ -111,13 +111,14 @@ def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: boo
     """The ``images`` of ``source`` (a folder, a list file or a bag's image topic: :func:`list_images`), each
     described when it is read by the map's describer (:func:`map_describer`)."""
     d, check = map_describer(ref_map, allow, describer)
-    check(d(d.load(images.paths[:1])), f"the query images of {source} as described here")
 
     def frames() -> Frames:
         for p in images.paths:
             t0 = time.perf_counter()
-            out = d(d.load([p]))[0]
-            yield out, (time.perf_counter() - t0) * 1e3
+            out = d(d.load([p]))
+            ms = (time.perf_counter() - t0) * 1e3
+            check(out, f"the query images of {source} as described here")
+            yield out[0], ms
 
     return frames(), images.names, len(images)
 

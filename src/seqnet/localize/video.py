@@ -65,9 +65,8 @@ class VideoQuery:
         for f in self.source:
             t0 = time.perf_counter()
             out = d(d.load([f]))
-            if not self.names:
-                self._check(out, f"the frames of {self.name} as described here")
             ms = (time.perf_counter() - t0) * 1e3
+            self._check(out, f"the frames of {self.name} as described here")
             self.names.append(f.name)
             self.times.append(f.time)
             self.describe_ms.append(ms)
@@ -79,14 +78,14 @@ class VideoQuery:
         ``positions``); a frame outside the track has no positive (and a NaN position)."""
         if self.opts.positions is None:
             return None, None, None
+        from ..data.utm import frame_zone
         from ..sources.placed import track_positions
         from ..sources.tracks.clock import parse_start
-        from ..sources.tracks.metres import utm_zone
 
         start = parse_start(self.opts.video_start) if self.opts.video_start else self.source.start
         times = np.asarray(self.times, np.float64)
         duration = float(times[-1]) + 1.0 if len(times) else 0.0
-        q_pos, inside, frame = track_positions(self.opts.positions, times, start, duration, utm_zone(mf.frame))
+        q_pos, inside, frame = track_positions(self.opts.positions, times, start, duration, frame_zone(mf.frame))
         check_frame(mf, frame, map_path, str(self.opts.positions))
         correct, has = np.zeros(len(times), bool), np.zeros(len(times), bool)
         if inside.any():
