@@ -113,7 +113,6 @@ class Api:
                 est = await self.off_loop(self.localize, session, body, kind)
                 spent = time.perf_counter() - t0
                 answer = self.service.answer(est, spent * 1e3)
-                session.frames += 1
                 session.recent.append(answer)
                 session.used = self.sessions.clock()
         except HttpError:

@@ -26,12 +26,11 @@ class Session:
         self.id, self.localizer = sid, localizer
         self.lock = asyncio.Lock()
         self.created = self.used = now
-        self.frames = 0
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT)
 
     def view(self, now: float) -> dict[str, Any]:
         """The session as the live page shows it."""
-        return {"session": self.id, "frames": self.frames, "idle_s": round(now - self.used, 1),
+        return {"session": self.id, "frames": self.localizer.frame, "idle_s": round(now - self.used, 1),
                 "latest": list(self.recent)}
 
 
