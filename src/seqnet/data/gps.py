@@ -39,6 +39,8 @@ from .utm import latlon_to_utm
 DEFAULT_MAX_GAP = 0.1  # seconds: RobotCar's INS logs at 50 Hz, KITTI's oxts at 10 Hz (synced) or 100 Hz
 DIGITS = re.compile(r"[0-9]{1,18}")  # a timestamp or frame number: ASCII digits, within int64 ("²".isdigit())
 UTM_ZONE = re.compile(r"[0-9]{1,2}[C-HJ-NP-Xc-hj-np-x]?")  # "30U": zone number and latitude band
+
+
 @dataclasses.dataclass(frozen=True)
 class Samples:
     """A position log: ``times [S]`` (seconds, sorted), ``xy [S, 2]`` (easting, northing, metres), UTM zone."""

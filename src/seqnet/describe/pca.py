@@ -14,6 +14,8 @@ from ..security.files import atomic_path
 
 TAG_KEY = "seqnet_tag"  # provenance string stored by PCA.save(tag=...)
 
+PAPER_PCA_DIM = 4096  # the SeqNet paper reduces its descriptors (NetVLAD 32768-D) to 4096 with PCA
+
 
 @dataclasses.dataclass
 class PCA:

@@ -219,7 +219,7 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
             extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "ground_truth": conf.ground_truth,
                    "describe": describer.config.to_dict() | {"fit": None}, "positions_frame": unit[1],
                    **(extra or {})})
-        if getattr(conf, "pca", None) is not None:  # from-images' --pca (from-video has none)
+        if conf.pca is not None:
             from .pca import reduce_dataset, save_reduced
 
             return save_reduced(*reduce_dataset(ds, conf.pca, "train"), out, overwrite=overwrite)

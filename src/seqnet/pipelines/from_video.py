@@ -21,11 +21,11 @@ import numpy as np
 from ..core.config import Config, check_float
 from ..core.errors import ConfigError
 from ..core.log import logger
+from ..data.utm import frame_zone
 from ..describe import DescribeConfig
 from ..describe.images import ImageList
 from ..sources.placed import Placed, place_video
 from ..sources.tracks.interpolate import DEFAULT_MAX_GAP
-from ..sources.tracks.metres import utm_zone
 from .from_images import FIT_ON, FromImagesConfig, write_dataset
 
 
@@ -86,7 +86,7 @@ def place_both(conf: FromVideoConfig, videos: tuple[str | Path, str | Path],
                           "frames are placed by them")
     kw = {"fps": conf.fps, "every_metres": conf.every_metres, "video_start": _start(conf), "max_gap": conf.max_gap}
     ref = place_video(videos[0], positions[0], **kw)
-    qry = place_video(videos[1], positions[1], zone=utm_zone(ref.frame), **kw)
+    qry = place_video(videos[1], positions[1], zone=frame_zone(ref.frame), **kw)
     if ref.frame != qry.frame:
         raise ConfigError(f"reference positions are in {ref.frame}, query positions in {qry.frame}: one frame "
                           "(latitude / longitude in both files, or x / y in both)")

@@ -24,9 +24,9 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..core.errors import ConfigError
+from ..describe.pca import PAPER_PCA_DIM
 from ..methods.grammar import parse_method
 
-PCA_DIM = 4096  # the SeqNet paper's descriptor size after PCA
 SEQUENCE_BASELINES = ("smoothing", "delta", "delta-paper")
 
 
@@ -86,8 +86,8 @@ def likely_causes(name: str, results: Mapping[str, Any]) -> tuple[str, ...]:
         out.append(f"its shortlist is the model-free {m.shortlist}: it re-ranks only the places {m.shortlist} "
                    f"ranks in its top {top or 'K'} (a better shortlist: hvpr, hvpr-fused)")
     dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
-    if dims and dims[-1] > PCA_DIM:
-        out.append(f"D = {dims[-1]} without PCA (the paper reduces to {PCA_DIM}; seqnet train --pca D, or seqnet "
+    if dims and dims[-1] > PAPER_PCA_DIM:
+        out.append(f"D = {dims[-1]} without PCA (the paper reduces to {PAPER_PCA_DIM}; seqnet train --pca D, or seqnet "
                    "dataset from-images --pca D, fitted on the train split)")
     trained = models.get("seqnet", {}).get("seq_len") if isinstance(models.get("seqnet"), Mapping) else None
     evaluated = (entry.get("method") or {}).get("seq_len") or cfg.get("seq_len")

@@ -7,7 +7,7 @@ on), the time per epoch (the epoch's multiply-adds, :func:`epoch_flops`, over th
 by timing one matrix product like the model's, :func:`measured_rate`, plus :data:`STEP_SECONDS` per
 batch, a measured constant) and the size of the two
 checkpoints; :func:`plan_text` is the one block logged, with the advice (:func:`advice`): PCA
-(``--pca D``) when D is above :data:`PCA_ADVISED_DIM` (the paper reduces NetVLAD to 4096) or above the
+(``--pca D``) when D is above :data:`PAPER_PCA_DIM` (the paper reduces NetVLAD to 4096) or above the
 training frames, a smaller ``--out-dims`` / ``--w`` when the checkpoints pass :data:`CHECKPOINT_ADVISED_BYTES`
 or the memory half of what is available.
 
@@ -26,13 +26,13 @@ from typing import Any
 
 from ..core.lazy import lazy_module
 from ..core.memory import available_bytes
+from ..describe.pca import PAPER_PCA_DIM
 from .config import TrainConfig, train_bytes
 from .losses import LOSSES
 
 torch = lazy_module("torch")
 
 VAL_MIN = 50  # val queries below which the best epoch is chosen by noise (1 query = 2% of R@1)
-PCA_ADVISED_DIM = 4096  # the paper reduces NetVLAD's 32768-D to 4096 with PCA
 CHECKPOINT_ADVISED_BYTES = 500 * 2**20  # best.pt + last.pt above this: advise fewer dimensions
 # seconds of each optimiser step beyond its FLOPs (indexing, the loss, the update, Python): measured on a
 # shared 2-core CPU, 200 epochs of S_5 on `seqnet synth` (D = 64, 22 batches an epoch): 0.66 s per epoch
@@ -131,9 +131,9 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
 
 
 def suggested_pca(p: Plan) -> int:
-    """A PCA dimension to advise: at most :data:`PCA_ADVISED_DIM` and below the training frames (a PCA fitted
+    """A PCA dimension to advise: at most :data:`PAPER_PCA_DIM` and below the training frames (a PCA fitted
     on n frames has at most n - 1 meaningful axes), rounded down to a power of two (at least 8)."""
-    cap = min(PCA_ADVISED_DIM, p.in_dims - 1, max(8, p.n_frames - 1))
+    cap = min(PAPER_PCA_DIM, p.in_dims - 1, max(8, p.n_frames - 1))
     return max(8, 2 ** int(math.log2(max(cap, 8))))
 
 
@@ -141,8 +141,8 @@ def advice(p: Plan) -> list[str]:
     """What to change, and how (empty: nothing to say)."""
     out = []
     pca = suggested_pca(p)
-    if p.in_dims > PCA_ADVISED_DIM:
-        out.append(f"D = {p.in_dims} is above {PCA_ADVISED_DIM} (the SeqNet paper reduces its descriptors to 4096 "
+    if p.in_dims > PAPER_PCA_DIM:
+        out.append(f"D = {p.in_dims} is above {PAPER_PCA_DIM} (the SeqNet paper reduces its descriptors to 4096 "
                    f"with PCA): reduce it with --pca {pca} (seqnet train, or seqnet dataset from-images), fitted on "
                    "the train split only")
     elif p.in_dims >= p.n_frames and p.in_dims > 8:

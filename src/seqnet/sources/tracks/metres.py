@@ -6,16 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...data.utm import frame_zone, latlon_to_utm
+from ...data.utm import latlon_to_utm
 from ...security.text import shown
 from .base import Track
 
 XY_FRAME = "x, y metres of the positions files"
-
-
-def utm_zone(frame: str | None) -> tuple[int, str] | None:
-    """``(number, letter)`` of a frame ``UTM zone 32V``; None for another frame (or None)."""
-    return frame_zone(frame)
 
 
 def to_metres(track: Track, zone: tuple[int, str] | None = None) -> tuple[np.ndarray, str]:
