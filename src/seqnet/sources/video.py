@@ -22,6 +22,7 @@ from ..core.errors import DatasetError, ImageError
 from ..security.text import shown
 from ..security.videos import av_errors, check_size, open_video_file, why
 from .sampling import every_seconds
+from .times import parse_iso
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".mkv", ".webm", ".avi", ".ts", ".mts", ".m2ts", ".mpg", ".mpeg", ".flv",
                   ".ogv", ".3gp")
@@ -45,11 +46,10 @@ def creation_time(*holders: Any) -> datetime.datetime | None:
     for h in holders:
         text = str((getattr(h, "metadata", None) or {}).get("creation_time", "")).strip()
         try:
-            t = datetime.datetime.fromisoformat(text.replace("Z", "+00:00")) if text else None
+            t = parse_iso(text) if text else None
         except ValueError:
             t = None
         if t is not None:
-            t = t if t.tzinfo else t.replace(tzinfo=datetime.timezone.utc)
             return t if t.year > 1970 else None
     return None
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from ...core.errors import ConfigError, DatasetError
 from ...security.text import shown
+from ..times import parse_iso
 from .base import Track
 
 DAY = 86400.0
@@ -23,11 +24,10 @@ DAY = 86400.0
 def parse_start(text: str) -> datetime.datetime:
     """``--video-start``: an ISO-8601 time (one without a zone is UTC) as an aware datetime."""
     try:
-        t = datetime.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+        return parse_iso(text)
     except ValueError as e:
         raise ConfigError(f"--video-start {shown(text)[:60]} is not an ISO-8601 time (e.g. "
                           "2024-05-01T10:00:00Z)") from e
-    return t if t.tzinfo else t.replace(tzinfo=datetime.timezone.utc)
 
 
 def _utc(seconds: float) -> str:

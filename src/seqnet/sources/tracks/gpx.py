@@ -6,18 +6,12 @@ A document declaring a DTD (``<!DOCTYPE``, where entities are declared) is refus
 
 from __future__ import annotations
 
-import datetime
-
 from ...core.errors import DatasetError
 from ...security.text import shown
+from ..times import utc_seconds
 from .base import Track, track_of
 
 PARSE_ERRORS = (ValueError, TypeError, AttributeError, IndexError, KeyError, OverflowError, RecursionError)
-
-
-def utc_seconds(t: datetime.datetime) -> float:
-    """Seconds since the epoch of ``t``; a time without a zone is UTC (as GPX and NMEA times are)."""
-    return (t if t.tzinfo else t.replace(tzinfo=datetime.timezone.utc)).timestamp()
 
 
 def parse_gpx(text: str, source: str) -> Track:

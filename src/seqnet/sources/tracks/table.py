@@ -9,13 +9,12 @@
 from __future__ import annotations
 
 import csv
-import datetime
 import io
 
 from ...core.errors import DatasetError
 from ...security.text import shown
+from ..times import parse_iso, utc_seconds
 from .base import Track, track_of
-from .gpx import utc_seconds
 
 TIME_COLUMNS = ("time", "t", "timestamp", "seconds")
 COORDINATES = ((("lat", "latitude"), ("lon", "lng", "longitude")), (("easting", "x"), ("northing", "y")))
@@ -33,7 +32,7 @@ def _time(text: str, where: str) -> tuple[float, bool]:
     except ValueError:
         pass
     try:
-        return utc_seconds(datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))), True
+        return utc_seconds(parse_iso(text)), True
     except (ValueError, OverflowError, OSError) as e:
         raise DatasetError(f"{where}: time {shown(text)[:60]} is neither seconds nor an ISO-8601 time") from e
 
