@@ -21,7 +21,8 @@ shortlist descriptors, raw+seqmatch re-ranking, causal windows; method ``hvpr-sm
 
 The clients run in this process (threads, standard-library HTTP): on a 2-core machine they share the cores with the
 server, so the rates are those of server and clients together. Everything is bounded: frame counts, and every
-request and phase by a timeout.
+request and phase by a timeout. The machine's load average (1, 5, 15 min) before and after is written beside the
+figures: on a shared machine the latencies follow it.
 """
 
 from __future__ import annotations
@@ -225,7 +226,7 @@ def main(argv: list[str] | None = None) -> dict:
 
 def measure(args: argparse.Namespace, server: subprocess.Popen, url: str, streams: list[np.ndarray], map_dir: Path,
             root: Path) -> dict:
-    rss_start = rss_mb(server.pid)
+    rss_start, load_before = rss_mb(server.pid), os.getloadavg()
     alone = {i: in_threads(url, [s], None, 300)[0] for i, s in enumerate(streams)}  # one session at a time
     single = np.concatenate([alone[i]["latency_ms"][5:] for i in alone])
     limit = args.per_session / args.fps + 120
@@ -244,6 +245,8 @@ def measure(args: argparse.Namespace, server: subprocess.Popen, url: str, stream
             "sessions": args.sessions, "fps": args.fps, "aligned": args.aligned, "per_session": args.per_session,
             "workers": args.workers,
             "cpus": len(os.sched_getaffinity(0)), "errors": errors[:20], "n_errors": len(errors),
+            "load_average": {"before": [round(v, 2) for v in load_before],
+                             "after": [round(v, 2) for v in os.getloadavg()]},
             "identical_to_single_session": same,
             "single_client_ms": {"median": round(median, 2), "p99": round(float(np.percentile(single, 99)), 2)},
             "load_ms": {"median": round(float(np.median(lat)), 2), "p99": round(p99, 2),

@@ -119,3 +119,19 @@ def test_served_answers_equal_localize_and_sigterm_drains(serve_map, synth_datas
     assert "stopped:" in out and "Traceback" not in err
     assert statuses and all(s in (200, 0) for s in statuses), statuses  # answered, or refused a connection
     assert stopped_in < 10, stopped_in
+
+
+def test_serving_switches_threads_often_and_restores_the_interval(serve_service):
+    """While serve() runs the GIL's switch interval is SWITCH_S (the event loop is not kept waiting 5 ms by the
+    localising threads); once it returns, the interval is what it was."""
+    from seqnet.serve.server import SWITCH_S, serve
+
+    before, seen = sys.getswitchinterval(), []
+
+    def started(port: int) -> None:
+        seen.append(sys.getswitchinterval())
+        os.kill(os.getpid(), signal.SIGTERM)  # a normal stop: serve() returns
+
+    stats = serve(serve_service, ServeSettings(port=0, no_auth=True), started)
+    assert seen == [SWITCH_S] and SWITCH_S < before
+    assert sys.getswitchinterval() == before and stats["frames"] == 0
