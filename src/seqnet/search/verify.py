@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import sys
 from collections.abc import Iterator
 
 import numpy as np
@@ -65,15 +66,20 @@ def full_float32() -> Iterator[None]:
             k.fp32_precision = v
 
 
+def _is_tensor(x: object) -> bool:
+    """Whether ``x`` is a torch tensor (without importing torch: a numpy search never loads it)."""
+    return "torch" in sys.modules and isinstance(x, sys.modules["torch"].Tensor)
+
+
 def _as64(x: ArrayLike) -> np.ndarray:
-    if isinstance(x, torch.Tensor):
+    if _is_tensor(x):
         return x.detach().cpu().double().numpy()
     return np.asarray(x, dtype=np.float64)
 
 
 def _gather(ref: ArrayLike, idx: np.ndarray) -> np.ndarray:
     """Rows ``idx`` of ``ref`` (numpy, memory map or tensor) as float64 ``[len(idx), D]``."""
-    if isinstance(ref, torch.Tensor):
+    if _is_tensor(ref):
         return _as64(ref[torch.as_tensor(idx, device=ref.device)])
     return _as64(take_rows(ref, idx))
 
