@@ -15,18 +15,22 @@ from collections.abc import Callable
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.memmaps import RowsOut, take_rows
+from ..core.memmaps import RowsOut, read_rows, take_rows
 from ..core.memory import BLOCK_BYTES
 from .windows import Windows, window_frames
 
 
 def l2_normalize_np(x: np.ndarray, axis: int = -1, eps: float = 1e-12) -> np.ndarray:
-    """:func:`seqnet.core.tensors.l2_normalize` in numpy: rows divided by their largest magnitude, then by their
-    norm (at least ``eps``; zero rows stay zero)."""
+    """:func:`seqnet.core.tensors.l2_normalize` in numpy (last axis): rows divided by their largest magnitude, then
+    by their norm (at least ``eps``; zero rows stay zero). One output array, no other full-size temporary."""
+    if axis not in (-1, x.ndim - 1):
+        raise ValueError("l2_normalize_np normalises along the last axis")
     x = x if x.dtype.kind == "f" else x.astype(np.float32)
-    scale = np.maximum(np.abs(x).max(axis=axis, keepdims=True), np.finfo(x.dtype).tiny)
-    y = x / scale
-    return y / np.maximum(np.linalg.norm(y, axis=axis, keepdims=True), eps)
+    scale = np.maximum(np.maximum(x.max(axis=-1), -x.min(axis=-1)), np.finfo(x.dtype).tiny)
+    y = x / scale[..., None]
+    norm = np.sqrt(np.einsum("...i,...i->...", y, y))
+    y /= np.maximum(norm, eps)[..., None]
+    return y
 
 
 def first_frame_np(windows: np.ndarray) -> np.ndarray:
@@ -74,10 +78,19 @@ def describe_np(raw: np.ndarray, idx: np.ndarray, name: str, spill: bool = False
     step = max(1, block_bytes // max(1, idx.shape[1] * raw.shape[1] * 8))
     out = RowsOut((len(idx), raw.shape[1]), np.float32, spill)
     for s in range(0, len(idx), step):
-        block = idx[s : s + step]
-        frames, local = np.unique(block, return_inverse=True)
-        out.put(fn(take_rows(raw, frames)[local.reshape(block.shape)]).astype(np.float32, copy=False))
+        out.put(fn(_windows(raw, idx[s : s + step])).astype(np.float32, copy=False))
     return out.finish()
+
+
+def _windows(raw: np.ndarray, block: np.ndarray) -> np.ndarray:
+    """``[B, L, D]``: the frames of the windows ``block [B, L]``, each frame read once (a run of frames: a slice,
+    a view of an array or a memory map held resident; one frame per window in order: no gather)."""
+    frames, local = np.unique(block, return_inverse=True)
+    a, b = int(frames[0]), int(frames[-1]) + 1
+    rows = read_rows(raw, a, b) if b - a == len(frames) else take_rows(raw, frames)
+    if block.shape[1] == 1 and len(frames) == len(block) and bool((frames == block[:, 0]).all()):
+        return rows[:, None]
+    return rows[local.reshape(block.shape)]
 
 
 class PlainDescribed:
