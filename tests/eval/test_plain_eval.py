@@ -69,3 +69,18 @@ def test_the_command_imports_no_torch_scipy_or_tqdm(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split()[-5:] == ["False", "False", "False", "False", "0"], out
     assert json.loads((tmp_path / "r.json").read_text())["methods"]["single"]["recall@1"] > 0.5
+
+
+def test_single_on_rows_whose_squares_overflow(synth_dataset, monkeypatch):
+    """float32 reference rows of 1e20: no inverse norms (squares overflow), so the normalised copy is searched;
+    the same answers as the torch path."""
+    import dataclasses
+
+    ref = dataclasses.replace(synth_dataset.reference,
+                              descriptors=synth_dataset.reference.descriptors * np.float32(1e20))
+    ds = dataclasses.replace(synth_dataset, reference=ref)
+    conf = EvalConfig(methods=("single",), ks=(1, 5), device="cpu")
+    a = evaluate(ds, conf)
+    monkeypatch.setattr(evaluate_module, "runs_plain", lambda *args: False)
+    b = evaluate(ds, conf)
+    np.testing.assert_array_equal(a.retrieved["single"], b.retrieved["single"])

@@ -112,3 +112,19 @@ def test_a_failed_check_runs_the_search_again_in_float64(monkeypatch, caplog):
     nv, ni = naive(q, r, 6)
     np.testing.assert_array_equal(i, ni)
     assert v.dtype == np.float32
+
+
+def test_row_scale_searches_the_scaled_rows():
+    """``row_scale``: the rows ``ref[i] * s[i]`` (single's normalised rows without a copy), checked as such."""
+    rng = np.random.default_rng(4)
+    r = rng.standard_normal((700, 24)) * rng.uniform(0.1, 9, (700, 1))
+    q = rng.standard_normal((30, 24)).astype(np.float32)
+    s = 1 / np.linalg.norm(r, axis=1)
+    v, i = NumpyExactIndex(r, 1 << 14, row_scale=s, dtype=np.float32).search(q, 8)
+    want = (r * s[:, None]).astype(np.float32)
+    wv, wi = NumpyExactIndex(want, 1 << 14).search(q, 8)
+    np.testing.assert_array_equal(i, wi)
+    np.testing.assert_allclose(v, wv, atol=2e-6)
+    assert v.dtype == np.float32
+    with pytest.raises(ConfigError, match="row_scale"):
+        NumpyExactIndex(r, row_scale=s[:5])

@@ -60,3 +60,19 @@ def test_plain_described_items_equal_described(name, synth_dataset):
     assert plain.cost_ms([("items", name)]) >= 0.0
     with pytest.raises(ConfigError, match="item descriptors only"):
         plain.frames(name)
+
+
+def test_inverse_norms_scale_rows_to_single(tmp_path):
+    from seqnet.sequence.npdescribed import inverse_norms
+
+    rng = np.random.default_rng(2)
+    raw = rng.standard_normal((50, 6)).astype(np.float32)
+    raw[7] = 0
+    inv = inverse_norms(raw, block_bytes=64)
+    assert inv[7] == 0
+    np.testing.assert_allclose(raw * inv[:, None], describe_np(raw, np.arange(50)[:, None], "single"), atol=1e-6)
+    big = raw.copy()
+    big[3, 0] = 1e30  # its square overflows float32: describe it instead
+    assert inverse_norms(big) is None
+    assert inverse_norms(np.full((2, 3), 1e-30, np.float32)) is None  # squares underflow
+    assert inverse_norms(np.full((2, 3), 1e30)) is not None  # float64 holds them

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -20,7 +21,7 @@ from ..core.errors import ConfigError
 from ..data.traverse import Traverse
 from ..methods.grammar import Method, needs
 from ..search.npexact import NumpyExactIndex
-from ..sequence.npdescribed import PLAIN_DESCRIPTORS, PlainDescribed
+from ..sequence.npdescribed import PLAIN_DESCRIPTORS, PlainDescribed, inverse_norms
 from ..sequence.windows import Windows
 
 NVIDIA_NODES = ("/dev/nvidiactl", "/proc/driver/nvidia/version")  # a CUDA machine, seen without loading torch
@@ -55,6 +56,8 @@ class PlainReference:
         self.provenance, self.input_dim = traverse.provenance, traverse.dim
         self.device, self.models, self.precision, self.resident, self.frame_indices = "cpu", {}, None, False, False
         self._index: dict[str, NumpyExactIndex] = {}
+        self._scaled_index: NumpyExactIndex | None | bool = False  # not made yet
+        self._scaled_ms = 0.0
 
     def check_method(self, m: Method) -> None:
         """Only k-NN on a model-free descriptor."""
@@ -62,11 +65,27 @@ class PlainReference:
             raise ConfigError(f"method {m.name!r} is not a model-free k-NN method ({', '.join(PLAIN_DESCRIPTORS)})")
 
     def prepare(self, m: Method) -> float:
-        """Describe the items ``m`` searches; milliseconds."""
+        """Describe the items ``m`` searches (``single`` on every frame: their inverse norms only); milliseconds."""
+        if m.shortlist == "single" and self._scaled() is not None:
+            return self._scaled_ms
         return self.described.cost_ms(needs(m))
 
     def search(self, descriptor: str, query: np.ndarray, k: int, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Exact k-NN over the items' ``descriptor`` (``exact`` changes nothing: the search is exact)."""
         if descriptor not in self._index:
-            self._index[descriptor] = NumpyExactIndex(self.described.items(descriptor))
+            scaled = self._scaled() if descriptor == "single" else None
+            self._index[descriptor] = scaled or NumpyExactIndex(self.described.items(descriptor))
         return self._index[descriptor].search(np.asarray(query), k)
+
+    def _scaled(self) -> NumpyExactIndex | None:
+        """``single`` over every reference frame as the file's rows scaled by their inverse norms (no normalised
+        copy of the reference: :func:`seqnet.sequence.npdescribed.inverse_norms`), float32 as the described rows
+        are; None when the items are not every frame or a norm is out of range."""
+        if self._scaled_index is False:
+            t0, raw, self._scaled_index = time.perf_counter(), self.traverse.descriptors, None
+            if len(self.items) == len(raw) and bool((self.items == np.arange(len(raw))).all()):
+                inv = inverse_norms(raw)
+                if inv is not None:
+                    self._scaled_index = NumpyExactIndex(raw, row_scale=inv, dtype=np.float32)
+            self._scaled_ms = (time.perf_counter() - t0) * 1e3
+        return self._scaled_index

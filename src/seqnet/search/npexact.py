@@ -48,17 +48,30 @@ def sq_norms(x: np.ndarray) -> np.ndarray:
 class NumpyExactIndex:
     """Exact k-NN over ``ref [N, D]`` (numpy array or memory map), streamed in column blocks (see the module).
 
-    The reference's squared norms are computed once per dtype and checked finite on first use."""
+    ``row_scale [N]``: the rows searched are ``ref[i] * row_scale[i]`` (the L2-normalised rows of a descriptor
+    file, searched without a normalised copy: each block's products scaled by column), in ``dtype`` (default:
+    float64 when the query or the reference is float64, else float32). The reference's squared norms are
+    computed once per dtype and checked finite on first use."""
 
-    def __init__(self, ref: np.ndarray, block_bytes: int | None = None) -> None:
-        self.ref, self.block_bytes = ref, block_bytes or BLOCK_BYTES
+    def __init__(self, ref: np.ndarray, block_bytes: int | None = None, row_scale: np.ndarray | None = None,
+                 dtype: np.dtype | str | None = None) -> None:
+        self.ref, self.block_bytes, self.row_scale = ref, block_bytes or BLOCK_BYTES, row_scale
         self.n, self.dim = array_shape(ref, "reference")
+        if row_scale is not None and np.shape(row_scale) != (self.n,):
+            raise ConfigError(f"row_scale must be [{self.n}], got shape {np.shape(row_scale)}")
         self.blocks = col_blocks(self.n, None, self.dim * ref.dtype.itemsize)
+        self.fixed = None if dtype is None else np.dtype(dtype)
         self._norms: dict[np.dtype, np.ndarray] = {}
 
     def dtype(self, query: np.ndarray) -> np.dtype:
-        """float64 when the query or the reference is float64 (exact tests), else float32."""
+        """The dtype given, else float64 when the query or the reference is float64 (exact tests), else float32."""
+        if self.fixed is not None:
+            return self.fixed
         return np.dtype(np.float64 if np.float64 in (query.dtype, self.ref.dtype) else np.float32)
+
+    def scale(self, c0: int, c1: int, dtype: np.dtype) -> np.ndarray | None:
+        """``row_scale[c0:c1]`` in ``dtype`` (None without one)."""
+        return None if self.row_scale is None else np.asarray(self.row_scale[c0:c1], dtype=dtype)
 
     def block(self, c0: int, c1: int, dtype: np.dtype) -> np.ndarray:
         """Reference rows ``c0:c1`` as ``dtype`` (a view when they are already; a streamed map's pages released)."""
@@ -68,6 +81,8 @@ class NumpyExactIndex:
         """``[N]`` squared norms of the reference rows in ``dtype`` (made and checked once)."""
         if dtype not in self._norms:
             whole = np.concatenate([sq_norms(self.block(a, b, dtype)) for a, b in self.blocks] or [np.zeros(0, dtype)])
+            if self.row_scale is not None:
+                whole *= np.square(self.scale(0, self.n, dtype))
             if not np.isfinite(whole * 4).all():
                 raise ConfigError(NOT_FINITE.format(what="reference", dtype=dtype.name))
             self._norms[dtype] = whole
@@ -84,7 +99,7 @@ class NumpyExactIndex:
         vals, idx = self._search(query, k, metric, dtype)
         if k == 0 or nq == 0:
             return vals, idx
-        bad = wrong_rows(query, self.ref, vals[:, 0], idx[:, 0], metric, dtype.name)
+        bad = wrong_rows(query, self.ref, vals[:, 0], idx[:, 0], metric, dtype.name, self.row_scale)
         if len(bad):  # the product is not to be trusted on this search: all of it again, in float64
             logger.warning("exact search: %d of %d query rows had a best %s score off by more than %s rounding "
                            "(a faulty GEMM kernel); the search is run again in float64", len(bad), nq, metric,
@@ -109,6 +124,8 @@ class NumpyExactIndex:
             best = None
             for c0, c1 in self.blocks:
                 d = qb @ self.block(c0, c1, dtype).T
+                if self.row_scale is not None:
+                    d *= self.scale(c0, c1, dtype)
                 if metric == "ip":
                     np.negative(d, out=d)
                 else:  # ‖r‖² − 2 q·r, then + ‖q‖²: torch's finish_distances, in its order

@@ -20,27 +20,26 @@ from ..core.memory import BLOCK_BYTES
 from .windows import Windows, window_frames
 
 
-def l2_normalize_np(x: np.ndarray, axis: int = -1, eps: float = 1e-12) -> np.ndarray:
-    """:func:`seqnet.core.tensors.l2_normalize` in numpy (last axis): rows divided by their largest magnitude, then
-    by their norm (at least ``eps``; zero rows stay zero). One output array, no other full-size temporary."""
-    if axis not in (-1, x.ndim - 1):
-        raise ValueError("l2_normalize_np normalises along the last axis")
+def l2_normalize_np(x: np.ndarray, out: np.ndarray | None = None, eps: float = 1e-12) -> np.ndarray:
+    """:func:`seqnet.core.tensors.l2_normalize` in numpy, along the last axis: rows divided by their largest
+    magnitude, then by their norm (at least ``eps``; zero rows stay zero), into ``out`` when given (e.g. float32
+    rows of a float64 ``x``); no other full-size temporary."""
     x = x if x.dtype.kind == "f" else x.astype(np.float32)
     scale = np.maximum(np.maximum(x.max(axis=-1), -x.min(axis=-1)), np.finfo(x.dtype).tiny)
-    y = x / scale[..., None]
+    y = np.divide(x, scale[..., None], out=out, casting="same_kind")
     norm = np.sqrt(np.einsum("...i,...i->...", y, y))
-    y /= np.maximum(norm, eps)[..., None]
+    y /= np.maximum(norm, eps).astype(y.dtype)[..., None]
     return y
 
 
-def first_frame_np(windows: np.ndarray) -> np.ndarray:
+def first_frame_np(windows: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``single``: the L2-normalised first frame, ``[M, L, D]`` → ``[M, D]``."""
-    return l2_normalize_np(windows[:, 0])
+    return l2_normalize_np(windows[:, 0], out)
 
 
-def smoothing_np(windows: np.ndarray) -> np.ndarray:
+def smoothing_np(windows: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``smoothing``: the L2-normalised mean of the L2-normalised frames."""
-    return l2_normalize_np(l2_normalize_np(windows).mean(axis=1))
+    return l2_normalize_np(l2_normalize_np(windows).mean(axis=1), out)
 
 
 def _check_len(windows: np.ndarray) -> int:
@@ -49,24 +48,43 @@ def _check_len(windows: np.ndarray) -> int:
     return windows.shape[1]
 
 
-def delta_np(windows: np.ndarray) -> np.ndarray:
+def delta_np(windows: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``delta``: the mean of the second half of the normalised frames minus the mean of the first half."""
     seq_len = _check_len(windows)
     h, w = seq_len // 2, l2_normalize_np(windows)
-    return l2_normalize_np(w[:, seq_len - h :].mean(axis=1) - w[:, :h].mean(axis=1))
+    return l2_normalize_np(w[:, seq_len - h :].mean(axis=1) - w[:, :h].mean(axis=1), out)
 
 
-def delta_paper_np(windows: np.ndarray) -> np.ndarray:
+def delta_paper_np(windows: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``delta-paper``: raw frames weighted ``±2 / L`` (the first ``L // 2`` negative), summed, normalised."""
     seq_len = _check_len(windows)
     x = windows if windows.dtype.kind == "f" else windows.astype(np.float32)
     weight = np.full(seq_len, 2.0 / seq_len, dtype=x.dtype)
     weight[: seq_len // 2] *= -1
-    return l2_normalize_np(np.einsum("mld,l->md", x, weight))
+    return l2_normalize_np(np.einsum("mld,l->md", x, weight), out)
 
 
-PLAIN_DESCRIPTORS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+# each: (windows [M, L, D], out [M, D] float32 or None) -> [M, D]
+PLAIN_DESCRIPTORS: dict[str, Callable[..., np.ndarray]] = {
     "single": first_frame_np, "smoothing": smoothing_np, "delta": delta_np, "delta-paper": delta_paper_np}
+
+
+def inverse_norms(raw: np.ndarray, block_bytes: int = BLOCK_BYTES) -> np.ndarray | None:
+    """``[N]`` float64 ``1 / ‖row‖`` of ``raw [N, D]`` (0 for a zero row), read in blocks: ``single``'s rows are
+    ``raw[i] * inverse_norms(raw)[i]`` (:func:`first_frame_np` to rounding), to search without a normalised copy.
+    None when a row's squared norm overflows or underflows its dtype (then describe it: :func:`describe_np`)."""
+    x0 = raw[:0]
+    dtype = x0.dtype if x0.dtype.kind == "f" else np.dtype(np.float32)
+    eps, tiny = np.finfo(dtype).eps, np.finfo(dtype).tiny
+    step, out = max(1, block_bytes // max(1, raw.shape[1] * dtype.itemsize)), []
+    for a in range(0, len(raw), step):
+        x = np.asarray(read_rows(raw, a, a + step), dtype=dtype)
+        sq = np.einsum("ij,ij->i", x, x).astype(np.float64)
+        big = np.maximum(x.max(axis=1), -x.min(axis=1)).astype(np.float64)
+        if not np.isfinite(sq).all() or ((big > 0) & (big * big < tiny / eps)).any():
+            return None
+        out.append(np.divide(1.0, np.sqrt(sq), out=np.zeros_like(sq), where=sq > 0))
+    return np.concatenate(out) if out else np.zeros(0)
 
 
 def describe_np(raw: np.ndarray, idx: np.ndarray, name: str, spill: bool = False,
@@ -78,7 +96,11 @@ def describe_np(raw: np.ndarray, idx: np.ndarray, name: str, spill: bool = False
     step = max(1, block_bytes // max(1, idx.shape[1] * raw.shape[1] * 8))
     out = RowsOut((len(idx), raw.shape[1]), np.float32, spill)
     for s in range(0, len(idx), step):
-        out.put(fn(_windows(raw, idx[s : s + step])).astype(np.float32, copy=False))
+        block = idx[s : s + step]
+        dest = out.slot(len(block))  # computed straight into the result's rows (None: spilled, put after)
+        y = fn(_windows(raw, block), np.empty((len(block), raw.shape[1]), np.float32) if dest is None else dest)
+        if dest is None:
+            out.put(y)
     return out.finish()
 
 
