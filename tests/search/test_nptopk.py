@@ -1,4 +1,5 @@
-"""The numpy top-k (seqnet.search.nptopk) equals a stable argsort and the torch top-k, ties and NaN included."""
+"""The numpy top-k (seqnet.search.nptopk) equals a stable argsort and the torch top-k, ties and NaN included; so does
+the bound-based merge_smallest, block by block."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from seqnet.search.blocks import topk_smallest
-from seqnet.search.nptopk import merge_topk_np, topk_smallest_np
+from seqnet.search.nptopk import merge_smallest, merge_topk_np, topk_smallest_np
 
 # few distinct values: runs of ties everywhere; ±0, ±inf and NaN
 VALUES = st.sampled_from([0.0, -0.0, 1.0, 2.0, 2.0, 3.0, -1.0, np.inf, -np.inf, np.nan])
@@ -51,3 +52,35 @@ def test_large_rows_with_ties_at_the_cut_off():
         np.testing.assert_array_equal(topk_smallest_np(x, k)[1], naive(x, k)[1])
     y = rng.standard_normal((40, 5000))
     np.testing.assert_array_equal(topk_smallest_np(y, 20)[1], naive(y, 20)[1])
+
+
+def merged(x, k, width, merge):
+    best = None
+    for c in range(0, x.shape[1], width):
+        best = merge(best, x[:, c:c + width], c, k)
+    return best
+
+
+@settings(max_examples=120, deadline=None)
+@given(arrays(np.float32, st.tuples(st.integers(0, 5), st.integers(1, 400)), elements=VALUES.map(np.float32)),
+       st.integers(1, 30), st.integers(1, 400))
+def test_merge_smallest_equals_a_stable_argsort(x, k, width):
+    """Runs of ties at the cut-off, ±0, ±inf and NaN (rows whose bound is not finite take the sort), any block width."""
+    got = merged(x, k, width, merge_smallest)
+    nv, ni = naive(x, min(k, x.shape[1]))
+    np.testing.assert_array_equal(got[1], ni)
+    np.testing.assert_array_equal(got[0], nv)
+
+
+def test_merge_smallest_on_route_like_rows_and_ties():
+    """Wide rows whose nearest columns are neighbours (a route: one strided group each), and integer rows tied
+    everywhere, in blocks: the same answer as a stable argsort and as merge_topk_np."""
+    rng = np.random.default_rng(1)
+    cols = np.arange(5000)
+    x = (np.abs(cols[None, :] - rng.integers(0, 5000, 30)[:, None]) + rng.random((30, 5000))).astype(np.float32)
+    ties = rng.integers(0, 9, (30, 5000)).astype(np.float32)
+    for y in (x, ties, -ties):
+        for k, width in ((1, 5000), (20, 5000), (20, 1777), (300, 2048)):
+            got = merged(y, k, width, merge_smallest)
+            np.testing.assert_array_equal(got[1], naive(y, k)[1])
+            np.testing.assert_array_equal(got[1], merged(y, k, width, merge_topk_np)[1])

@@ -4,18 +4,17 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
 from ..core.log import ordinal
 from ..eval.evaluate import EvalConfig, main
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..report.guidance import format_notes, learned_below_baseline
-from ..report.html import ReportConfig
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
 from ..security.text import shown
 from ..sequence.windows import WINDOW_MODES
-from ..sources.video import is_video
 from . import COMMANDS
 from .common import (
     add_allow_mismatch,
@@ -33,6 +32,9 @@ from .common import (
     positive_int,
 )
 from .dataset_cmd.resample import add_resample_options
+
+if TYPE_CHECKING:
+    from ..report.html import ReportConfig
 
 _D = EvalConfig()
 
@@ -228,6 +230,9 @@ def report_config(args: argparse.Namespace) -> ReportConfig | None:
         return None
     if not args.out:
         raise ConfigError("--report writes report.html beside results.json: give --out DIR")
+    from ..report.html import ReportConfig  # the report's modules (figures, gallery) load only for --report
+    from ..sources.video import is_video
+
     for flag, folder in (("--images-query", args.images_query), ("--images-ref", args.images_ref)):
         if folder is not None and not Path(folder).is_dir() and not (Path(folder).is_file() and is_video(folder)):
             raise ConfigError(f"{flag} {folder} is not a folder (nor a video file)")

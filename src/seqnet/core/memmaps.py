@@ -184,6 +184,14 @@ class RowsOut:
             self.buf[self.rows : self.rows + len(block)] = block
         self.rows += len(block)
 
+    def slot(self, n: int) -> np.ndarray | None:
+        """The next ``n`` rows of the held array, to be filled in place (counted as put), or None when spilling
+        (then :meth:`put` them): a block computed straight into its rows, no second copy."""
+        if self.writer is not None:
+            return None
+        self.rows += n
+        return self.buf[self.rows - n : self.rows]
+
     def finish(self, short: bool = False) -> np.ndarray:
         """The array (held) or a read-only :class:`Spilled` map; ``short``: only the rows put (fewer than N)."""
         if self.writer is not None:

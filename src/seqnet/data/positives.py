@@ -27,7 +27,6 @@ from ..security.arrays import is_npy, read_header, read_npy, read_npz
 from ..security.inputs import open_input
 from ..security.jsonfile import parse_json
 from ..security.limits import INDEX_MAX
-from ..security.unpickle import load_npy_objects
 from .readers import read_text
 
 INTEGER = re.compile(r"-?[0-9]{1,19}")  # an index of a text file: ASCII digits ("²".isdigit() is True)
@@ -209,6 +208,7 @@ def _read_object_npy(p: Path) -> Positives:
                 return _numeric_matrix(arr, p)
             return Positives.from_lists([np.asarray(r).ravel() for r in np.asarray(arr, dtype=object).ravel()],
                                         str(p))
+    from ..security.unpickle import load_npy_objects  # its tables load only for a pickled positives file
     value = load_npy_objects(p, str(p))
     arr = _object_array(value, p)
     if arr.ndim == 2 and arr.shape[1] == 2 and all(_is_index(q) for q in arr[:, 0]):

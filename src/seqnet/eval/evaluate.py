@@ -30,10 +30,12 @@ from ..methods.protocol import Reference
 from ..methods.rank import rank
 from ..metrics.calibration import RISK, check_target
 from ..metrics.recall import RECALL_DENOMINATORS, GroundTruth, check_radius, ground_truth
+from ..reference.plain import PlainReference, runs_plain
 from ..reference.traverse import TraverseReference
 from ..search.knn import KNN_BACKENDS
 from ..security.text import shown
 from ..sequence.described import Described
+from ..sequence.npdescribed import PlainDescribed
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
 from .calibrated import add_calibration, check_calibration_split
 from .evaluation import Evaluation, merge, method_windows, no_window_reason
@@ -140,16 +142,16 @@ class EvalConfig(WindowSettings, Config):
 
 def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | None) -> None:
     """The arguments of :func:`evaluate` are what they should be (a clear error instead of an AttributeError)."""
-    from ..sequence.model import SeqNet  # the model class loads torch: only when models are checked
-
     if not isinstance(ds, Dataset):
         raise ConfigError(f"evaluate() needs a seqnet Dataset, got {type(ds).__name__} (hint: load_dataset(DIR))")
     if not isinstance(conf, EvalConfig):
         raise ConfigError(f"evaluate() needs an EvalConfig, got {type(conf).__name__} {conf!r:.60} "
                           "(hint: EvalConfig(methods=('single',)) or EvalConfig.from_dict({...}))")
-    if models is not None and (not isinstance(models, Mapping) or
-                               not all(isinstance(m, SeqNet) for m in models.values())):
-        raise ConfigError("models must map a role ('seqnet' for S_L, 's1' for S_1) to a SeqNet model")
+    if models:  # the model class loads torch: only when there are models to check
+        from ..sequence.model import SeqNet
+
+        if not isinstance(models, Mapping) or not all(isinstance(m, SeqNet) for m in models.values()):
+            raise ConfigError("models must map a role ('seqnet' for S_L, 's1' for S_1) to a SeqNet model")
     unknown = set(models or {}) - {"seqnet", "s1"}
     if unknown:
         raise ConfigError(f"unknown model role(s) {sorted(unknown)}; valid: seqnet (S_L), s1 (S_1)")
@@ -189,10 +191,11 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     groups = method_windows(methods, conf.windows, conf.common_queries)
     check_inputs(ds, methods, models, conf.windows.seq_len, conf.windows.match_len, conf.allow_mismatch,
                  max(w.longest for w in groups))
-    dev = get_device(conf.device)
+    plain = runs_plain(methods, models, conf.backend, conf.device)  # numpy, no torch: reference.plain
+    dev = "cpu" if plain else get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
-    parts = [_evaluate_group(ds, ms, w, conf, models, dev) for w, ms in groups.items()]
+    parts = [_evaluate_group(ds, ms, w, conf, models, dev, plain) for w, ms in groups.items()]
     out = merge(parts, conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                              "ground_truth": "explicit positives" if ds.positives is not None else "radius",
@@ -203,10 +206,12 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
 
 
 def _evaluate_group(ds: Dataset, methods: list[Method], windows: Windows, conf: EvalConfig,
-                    models: Mapping[str, SeqNet], dev: Any) -> Evaluation:
-    """The methods that share ``windows``, on those windows' query and reference items."""
-    query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
-    ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
+                    models: Mapping[str, SeqNet], dev: Any, plain: bool = False) -> Evaluation:
+    """The methods that share ``windows``, on those windows' query and reference items (``plain``: in numpy)."""
+    query = (PlainDescribed(ds.query.descriptors, ds.query.seq_bounds, windows, "query") if plain
+             else Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query"))
+    ref = (PlainReference(ds.reference, windows, ds.name) if plain
+           else TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name))
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models), windows=windows)
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)

@@ -4,7 +4,6 @@ per-query rows (ranked references, scores, correct or not) for a CSV or JSONL fi
 from __future__ import annotations
 
 import contextlib
-import csv
 import io
 import json
 from collections.abc import Sequence
@@ -125,6 +124,8 @@ NAME_FIELDS = ("method", "query_name")  # text from the data: never a formula in
 
 
 def _rows_csv(rows: list[dict[str, Any]]) -> str:
+    import csv  # only for a per-query CSV
+
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS, lineterminator="\n")
     writer.writeheader()

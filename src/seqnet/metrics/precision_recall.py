@@ -76,7 +76,8 @@ def curve_points(precision: np.ndarray, recall: np.ndarray, max_points: int = 20
     """The PR curve as at most ``max_points`` evenly spaced points of it (first and last kept), rounded to
     4 decimals, for ``results.json`` and plots: ``{"precision": [...], "recall": [...]}``."""
     n = len(recall)
-    keep = np.unique(np.linspace(0, n - 1, min(n, max_points)).round().astype(np.int64)) if n else np.zeros(0, int)
+    keep = np.linspace(0, n - 1, min(n, max_points)).round().astype(np.int64)
+    keep = keep[np.r_[True, keep[1:] != keep[:-1]]] if n else keep  # sorted: np.unique without loading numpy.ma
     return {"precision": [round(float(p), 4) for p in np.asarray(precision)[keep]],
             "recall": [round(float(r), 4) for r in np.asarray(recall)[keep]]}
 

@@ -24,7 +24,6 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..core.errors import ConfigError
-from ..describe.pca import PAPER_PCA_DIM
 from ..methods.grammar import parse_method
 
 SEQUENCE_BASELINES = ("smoothing", "delta", "delta-paper")
@@ -86,6 +85,8 @@ def likely_causes(name: str, results: Mapping[str, Any]) -> tuple[str, ...]:
         out.append(f"its shortlist is the model-free {m.shortlist}: it re-ranks only the places {m.shortlist} "
                    f"ranks in its top {top or 'K'} (a better shortlist: hvpr, hvpr-fused)")
     dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
+    from ..describe.pca import PAPER_PCA_DIM  # here: the describe package (its describers, h5py) loads with it
+
     if dims and dims[-1] > PAPER_PCA_DIM:
         out.append(f"D = {dims[-1]} without PCA (the paper reduces to {PAPER_PCA_DIM}; seqnet train --pca D, or seqnet "
                    "dataset from-images --pca D, fitted on the train split)")

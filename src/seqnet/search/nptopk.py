@@ -59,3 +59,46 @@ def merge_topk_np(best: tuple[np.ndarray, np.ndarray] | None, x: np.ndarray, off
     vals, idx = np.concatenate([best[0], v], 1), np.concatenate([best[1], i], 1)
     order = np.argsort(_key(vals), axis=1, kind="stable")[:, :k]  # the earlier columns come first: ties stay
     return np.take_along_axis(vals, order, 1), np.take_along_axis(idx, order, 1)
+
+
+STRIDES = 256  # columns per stride of :func:`merge_smallest`'s bound (at least k of them)
+
+
+def merge_smallest(best: tuple[np.ndarray, np.ndarray] | None, x: np.ndarray, offset: int,
+                   k: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`merge_topk_np` (the same answer: lowest value, then lowest column; NaN as +inf) by a bound instead
+    of a partition of every row: the ``k``-th smallest of the minima of ``x``'s strided column groups (columns
+    ``j, j + m, j + 2m, ...``: neighbours on a route fall in different groups) bounds each row's k-th value from
+    above, so the entries at or under it hold the row's top k, ties at the cut-off included; only those are
+    sorted. Rows whose bound is not finite, and blocks too narrow for ``k`` groups, take :func:`merge_topk_np`."""
+    b, c = x.shape
+    k = min(int(k), c + (0 if best is None else best[0].shape[1]))
+    m = min(STRIDES, c)
+    if b == 0 or k <= 0 or m < k or x.dtype.kind != "f" or (best is not None and best[0].shape[1] < k):
+        return merge_topk_np(best, x, offset, k)
+    w = c // m
+    bound = np.partition(x[:, : w * m].reshape(b, w, m).min(1), k - 1, axis=1)[:, k - 1]
+    if best is not None:
+        bound = np.minimum(bound, best[0][:, k - 1])  # the running k-th: nothing over it can enter
+    odd = ~np.isfinite(bound)  # NaN or inf in the bound: the whole row, by sort
+    if odd.any():
+        bound[odd] = -np.inf  # no candidates taken from those rows here
+    flat = np.flatnonzero(x <= bound[:, None])
+    rows, cols = np.divmod(flat, c)
+    vals = x.ravel()[flat] if x.flags.c_contiguous else x[rows, cols]
+    cols = cols + offset
+    if best is not None:  # the earlier columns first: a stable sort keeps them ahead of a tie
+        rows = np.concatenate([np.repeat(np.arange(b), best[0].shape[1]), rows])
+        vals = np.concatenate([best[0].ravel(), vals.astype(best[0].dtype, copy=False)])
+        cols = np.concatenate([best[1].ravel(), cols])
+    order = np.lexsort((vals, rows))  # by row, then value; stable: ties keep the lower column
+    counts = np.bincount(rows, minlength=b)
+    pick = (np.cumsum(counts) - counts)[:, None] + np.arange(k)
+    out_v, out_i = np.empty((b, k), vals.dtype), np.empty((b, k), np.int64)
+    good = ~odd
+    if good.any():
+        out_v[good], out_i[good] = vals[order][pick[good]], cols[order][pick[good]]
+    if odd.any():
+        sub = None if best is None else (best[0][odd], best[1][odd])
+        out_v[odd], out_i[odd] = merge_topk_np(sub, x[odd], offset, k)
+    return out_v, out_i

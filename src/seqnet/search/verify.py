@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import sys
 from collections.abc import Iterator
 
 import numpy as np
@@ -32,7 +33,7 @@ logger = logging.getLogger("seqnet")
 # float32 GEMM + norm trick: |error of d²| / (‖q‖² + ‖r‖²) measured ≤ 2.2e-6 at D = 2048 on normalised rows,
 # rounding errors growing ~ sqrt(D) eps; a product with bfloat16 inputs is off by ~2^-9 per term.
 TOL_EPS = 4.0  # tolerance: TOL_EPS * sqrt(D) * eps(dtype) of ‖q‖² + ‖r‖² (10x the largest float32 error measured)
-CHECK_ROWS = 4096  # query rows checked per chunk (bounded memory)
+CHECK_ROWS = 1024  # query rows checked per chunk (bounded memory; small blocks: reused, not page-faulted)
 
 
 def _knobs() -> list:
@@ -65,30 +66,37 @@ def full_float32() -> Iterator[None]:
             k.fp32_precision = v
 
 
+def _is_tensor(x: object) -> bool:
+    """Whether ``x`` is a torch tensor (without importing torch: a numpy search never loads it)."""
+    return "torch" in sys.modules and isinstance(x, sys.modules["torch"].Tensor)
+
+
 def _as64(x: ArrayLike) -> np.ndarray:
-    if isinstance(x, torch.Tensor):
+    if _is_tensor(x):
         return x.detach().cpu().double().numpy()
     return np.asarray(x, dtype=np.float64)
 
 
 def _gather(ref: ArrayLike, idx: np.ndarray) -> np.ndarray:
     """Rows ``idx`` of ``ref`` (numpy, memory map or tensor) as float64 ``[len(idx), D]``."""
-    if isinstance(ref, torch.Tensor):
+    if _is_tensor(ref):
         return _as64(ref[torch.as_tensor(idx, device=ref.device)])
     return _as64(take_rows(ref, idx))
 
 
 def wrong_rows(query: ArrayLike, ref: ArrayLike, best_vals: np.ndarray, best_idx: np.ndarray, metric: str,
-               dtype: str) -> np.ndarray:
+               dtype: str, row_scale: np.ndarray | None = None) -> np.ndarray:
     """Indices of the query rows whose best score ``best_vals [M]`` (distance, or inner product for
     ``"ip"``) of reference ``best_idx [M]`` differs from the float64 recomputation by more than
     :data:`TOL_EPS` ``* sqrt(D) * eps(dtype)`` (``"float32"``/``"float64"``) of ``‖q‖² + ‖r‖²``. A NaN score is
-    wrong."""
+    wrong. ``row_scale [N]``: the reference rows searched were ``ref[i] * row_scale[i]``."""
     tol = TOL_EPS * np.sqrt(max(1, query.shape[1])) * float(np.finfo(dtype).eps)
     bad = []
     for s in range(0, len(best_idx), CHECK_ROWS):
         q = _as64(query[s : s + CHECK_ROWS])
         r = _gather(ref, best_idx[s : s + CHECK_ROWS])
+        if row_scale is not None:
+            r *= np.asarray(row_scale, np.float64)[best_idx[s : s + CHECK_ROWS], None]
         got = best_vals[s : s + CHECK_ROWS].astype(np.float64)
         scale = np.einsum("ij,ij->i", q, q) + np.einsum("ij,ij->i", r, r)
         if metric == "ip":

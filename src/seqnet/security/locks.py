@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import socket
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -77,6 +76,8 @@ def _acquire(lock: Path, path: Path, fcntl) -> int:  # noqa: ANN001 - the fcntl 
                                   "(move it away, or choose another output)")
             if stale:
                 logger.debug("taking over the lock of %s from a process that ended (%s)", path, stale)
+            import socket  # here: a lock taken, not every import of the output modules
+
             info = f"{LOCK_PREFIX}{os.getpid()} on {socket.gethostname()} since {now()}: {' '.join(sys.argv[:3])}"
             try:
                 os.ftruncate(fd, 0)

@@ -23,16 +23,18 @@ import contextlib
 import json
 import os
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from ..core.errors import DatasetError
 from .inputs import ErrorType
+
+if TYPE_CHECKING:
+    import subprocess
 
 BASE_MEMORY = 768 << 20  # the child's interpreter, numpy and the library itself
 MAX_HEADER = 1 << 30
@@ -85,6 +87,8 @@ def run_child(op: str, request: dict[str, Any], what: str, memory: int, timeout:
     """Run the reader ``op`` of :mod:`seqnet.security.child` on ``request`` in a limited child (module
     docstring); yields its answer and the stream of the bytes the answer announces. ``error`` names ``what``
     when the child refuses the input, dies or overruns ``timeout`` seconds."""
+    import subprocess  # here: a reader run, not every import of the readers
+
     code = "from seqnet.security.child import main\nmain()\n"
     cmd = python_command(code, BASE_MEMORY + memory, int(timeout) + 1)
     with tempfile.TemporaryFile() as err:
