@@ -4,8 +4,8 @@
 ``L−1−t`` reversed): each score is a sum along a diagonal band of ``d``. The map is cut into tiles
 of query windows × reference windows. A tile's distance rows live in one small buffer: one GEMM
 (the only pass over D) adds ``−2 q·r`` to ``‖q‖² + ‖r‖²`` written there first, a clamp and a square
-root finish the distances while the buffer is still in cache, and one strided reduction sums the
-L diagonals of the buffer straight into the tile of the result. Nothing passes over the whole
+root finish the distances while the buffer is still in cache, and L shifted adds sum the L
+diagonals of the buffer straight into the tile of the result. Nothing passes over the whole
 ``[Nq, Nr]`` matrix after the GEMM: the result is written once, tile by tile.
 
 Consecutive tiles of a column (query windows ``a0..a1``, then ``a1..``) share ``L − 1`` frames: their
@@ -86,6 +86,7 @@ def _column(q: torch.Tensor, q_sq: torch.Tensor, r: torch.Tensor, r_sq: torch.Te
     """Fill ``out [Nq−L+1, w]`` (the windows of reference frames ``r [w+L−1, D]``), ``rows`` query
     windows at a time; each tile's buffer starts with the previous tile's last ``L − 1`` distance rows."""
     halo, w = seq_len - 1, r.shape[0]
+    cols = [(halo - t) if reverse else t for t in range(seq_len)]  # reference shift of frame t
     done = 0  # query frames whose distance rows are in the buffer (the last ``halo`` of them carried)
     prev = None
     for a0 in range(0, out.shape[0], rows):
@@ -96,7 +97,7 @@ def _column(q: torch.Tensor, q_sq: torch.Tensor, r: torch.Tensor, r_sq: torch.Te
             tail = prev[prev.shape[0] - keep :]
             d[:keep].copy_(tail.clone() if prev.shape[0] < 2 * keep else tail)
         distances(d[keep:], q[done : a1 + halo], q_sq[done : a1 + halo], r, r_sq)
-        band_sum(d, a1 - a0, seq_len, reverse, out[a0:a1])
+        shifted_sum(d, 0, a1 - a0, cols, w - halo, out[a0:a1])
         done, prev = a1 + halo, d
 
 
@@ -107,10 +108,11 @@ def distances(d: torch.Tensor, q: torch.Tensor, q_sq: torch.Tensor, r: torch.Ten
     d.clamp_min_(0.0).sqrt_()
 
 
-def band_sum(d: torch.Tensor, n: int, seq_len: int, reverse: bool, out: torch.Tensor) -> torch.Tensor:
-    """``out[i, b] = Σ_t d[i+t, b+c_t]`` for ``i < n`` (``c_t = t``, reversed ``L−1−t``): the L diagonals
-    of the contiguous ``d [n+L−1, w]`` as one strided view, summed in one reduction."""
-    w = d.shape[1]
-    step, first = (w - 1, seq_len - 1) if reverse else (w + 1, 0)
-    band = d.as_strided((n, w - seq_len + 1, seq_len), (w, 1, step), d.storage_offset() + first)
-    return torch.sum(band, dim=2, out=out)
+def shifted_sum(dist: torch.Tensor, s: int, e: int, cols: list[int], nb: int, out: torch.Tensor) -> torch.Tensor:
+    """``out[i - s, b] = Σ_t dist[i + t, b + cols[t]]`` for rows ``i in [s, e)``: the L shifted adds."""
+    if len(cols) == 1:
+        return out.copy_(dist[s:e, cols[0] : cols[0] + nb])
+    torch.add(dist[s:e, cols[0] : cols[0] + nb], dist[s + 1 : e + 1, cols[1] : cols[1] + nb], out=out)
+    for t in range(2, len(cols)):
+        out.add_(dist[s + t : e + t, cols[t] : cols[t] + nb])
+    return out

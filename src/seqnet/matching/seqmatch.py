@@ -74,16 +74,6 @@ def seqmatch(
     return to_numpy(out)
 
 
-def shifted_sum(dist: torch.Tensor, s: int, e: int, cols: list[int], nb: int, out: torch.Tensor) -> torch.Tensor:
-    """``out[i - s, b] = Σ_t dist[i + t, b + cols[t]]`` for rows ``i in [s, e)``: the L shifted adds."""
-    if len(cols) == 1:
-        return out.copy_(dist[s:e, cols[0] : cols[0] + nb])
-    torch.add(dist[s:e, cols[0] : cols[0] + nb], dist[s + 1 : e + 1, cols[1] : cols[1] + nb], out=out)
-    for t in range(2, len(cols)):
-        out.add_(dist[s + t : e + t, cols[t] : cols[t] + nb])
-    return out
-
-
 @no_grad
 def seqmatch_topk(
     query: ArrayLike,

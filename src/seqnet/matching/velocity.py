@@ -18,7 +18,7 @@ windows of :mod:`seqnet.eval.evaluate`, the query item's frame is aligned with t
 frame, so Recall@K compares the positions of the frames that were matched.
 
 Whole map: per block of query windows one distance matrix (GEMM + norm trick), then per distinct
-trajectory L shifted column slices summed (:func:`seqnet.matching.seqmatch.shifted_sum`) and a running
+trajectory L shifted column slices summed (:func:`seqnet.matching.banded.shifted_sum`) and a running
 minimum; memory is bounded by blocks of about three ``[rows, Nr]`` buffers.
 """
 
@@ -39,8 +39,8 @@ from ..core.tensors import ArrayLike, to_numpy
 from ..search.blocks import blocked_topk
 from ..search.knn import as_pair, rows_per_block
 from ..sequence.windows import check_seq_len
-from .banded import distances, row_sq_norms
-from .seqmatch import check_starts, shifted_sum
+from .banded import distances, row_sq_norms, shifted_sum
+from .seqmatch import check_starts
 
 torch = lazy_module("torch")
 
