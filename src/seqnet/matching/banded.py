@@ -25,30 +25,21 @@ torch = lazy_module("torch")
 TILE_BYTES = BLOCK_BYTES // 4
 """A CPU tile's distance buffer (16 MiB): half the 32 MiB L3 of the 2-core machine the figures of
 docs/performance.md come from, so the finishing passes and the sums read the buffer from cache."""
-SERIAL_ELEMS = 16384
-"""Elements per element-wise op on the CPU: torch runs an op on fewer than 32,768 (its grain size) on the
-calling thread; this is half of it. Whole-tile ops would each be a parallel region, and on an
-oversubscribed machine every region waits for a descheduled thread (measured at a load average of 11 on
-2 cores: the norms of 3000 x 4096 in 4 MiB blocks took 350 ms on 2 threads, 13 ms on 1); the chunks
-also stay in L2."""
 MIN_ROWS = 1024
 """Query frames per tile's GEMM before a tile is made narrower: on that machine a GEMM of 1,024 query
 rows against 3,000 reference rows runs as fast per product as one of 3,000 (512 rows: ~10% slower)."""
 
 
 def row_sq_norms(x: torch.Tensor) -> torch.Tensor:
-    """:func:`seqnet.search.knn.sq_norms` of ``x [N, D]`` in blocks of rows under :data:`SERIAL_ELEMS` on the
-    CPU (the squares stay in cache, no parallel region: about 3× faster than one einsum on the 2-core
-    machine); other devices: one einsum."""
+    """:func:`seqnet.search.knn.sq_norms` of ``x [N, D]`` in blocks of rows (1 MiB each) on the CPU: the
+    squares stay in cache (about 3× faster than one einsum on the 2-core machine); other devices: one einsum."""
     if x.device.type != "cpu":
         return sq_norms(x)
     out = torch.empty(x.shape[0], dtype=x.dtype)
-    step = serial_rows(x)
-    tmp = torch.empty((step, x.shape[1]), dtype=x.dtype)
+    step = max(1, (TILE_BYTES // 16) // max(1, x.shape[1] * x.element_size()))
     for a in range(0, x.shape[0], step):
         block = x[a : a + step]
-        sq = torch.mul(block, block, out=tmp[: block.shape[0]])
-        torch.sum(sq, dim=1, out=out[a : a + step])
+        torch.sum(block * block, dim=1, out=out[a : a + step])
     return out
 
 
@@ -105,36 +96,15 @@ def _column(q: torch.Tensor, q_sq: torch.Tensor, r: torch.Tensor, r_sq: torch.Te
         if keep:  # frames a0 .. done: the rows at the end of the previous tile (clone if the two overlap)
             tail = prev[prev.shape[0] - keep :]
             d[:keep].copy_(tail.clone() if prev.shape[0] < 2 * keep else tail)
-        distances(d[keep:], q[done : a1 + halo], q_sq[done : a1 + halo], r, r_sq, finish=False)
-        step, fin = max(1, serial_rows(d) - halo), keep  # window rows per chunk; rows of d finished
-        for s in range(0, a1 - a0, step):  # finish and sum in chunks that stay in cache
-            e = min(a1 - a0, s + step)
-            _finish(d[fin : e + halo])
-            fin = e + halo
-            shifted_sum(d, s, e, cols, w - halo, out[a0 + s : a0 + e])
+        distances(d[keep:], q[done : a1 + halo], q_sq[done : a1 + halo], r, r_sq)
+        shifted_sum(d, 0, a1 - a0, cols, w - halo, out[a0:a1])
         done, prev = a1 + halo, d
 
 
-def serial_rows(d: torch.Tensor) -> int:
-    """Rows of ``d [n, w]`` per element-wise op: on the CPU under :data:`SERIAL_ELEMS` elements (no parallel
-    region), elsewhere all of them."""
-    return max(1, SERIAL_ELEMS // max(1, d.shape[1])) if d.device.type == "cpu" else max(1, d.shape[0])
-
-
-def distances(d: torch.Tensor, q: torch.Tensor, q_sq: torch.Tensor, r: torch.Tensor, r_sq: torch.Tensor,
-              finish: bool = True) -> None:
-    """In place: ``d [n, w] = sqrt(max(‖q‖² + ‖r‖² − 2 q·r, 0))`` (the norms written first, the GEMM adds to
-    them; ``finish=False``: without the clamp and root, left to the caller)."""
-    step = serial_rows(d)
-    for s in range(0, d.shape[0], step):
-        torch.add(q_sq[s : s + step, None], r_sq[None, :], out=d[s : s + step])
+def distances(d: torch.Tensor, q: torch.Tensor, q_sq: torch.Tensor, r: torch.Tensor, r_sq: torch.Tensor) -> None:
+    """In place: ``d [n, w] = sqrt(max(‖q‖² + ‖r‖² − 2 q·r, 0))`` (the norms written first, the GEMM adds to them)."""
+    torch.add(q_sq[:, None], r_sq[None, :], out=d)
     d.addmm_(q, r.T, alpha=-2.0)
-    if finish:
-        for s in range(0, d.shape[0], step):
-            _finish(d[s : s + step])
-
-
-def _finish(d: torch.Tensor) -> None:
     d.clamp_min_(0.0).sqrt_()
 
 
