@@ -30,19 +30,6 @@ MIN_ROWS = 1024
 rows against 3,000 reference rows runs as fast per product as one of 3,000 (512 rows: ~10% slower)."""
 
 
-def row_sq_norms(x: torch.Tensor) -> torch.Tensor:
-    """:func:`seqnet.search.knn.sq_norms` of ``x [N, D]`` in blocks of rows (1 MiB each) on the CPU: the
-    squares stay in cache (about 3× faster than one einsum on the 2-core machine); other devices: one einsum."""
-    if x.device.type != "cpu":
-        return sq_norms(x)
-    out = torch.empty(x.shape[0], dtype=x.dtype)
-    step = max(1, (TILE_BYTES // 16) // max(1, x.shape[1] * x.element_size()))
-    for a in range(0, x.shape[0], step):
-        block = x[a : a + step]
-        torch.sum(block * block, dim=1, out=out[a : a + step])
-    return out
-
-
 def tile_budget(device: torch.device, tile_bytes: int | None, block_bytes: int | None) -> int:
     """Bytes of one tile's buffer: ``tile_bytes``, else :data:`TILE_BYTES` on the CPU and
     :data:`~seqnet.core.memory.BLOCK_BYTES` elsewhere; at most ``block_bytes`` when given."""
@@ -71,7 +58,7 @@ def banded_map(q: torch.Tensor, r: torch.Tensor, seq_len: int, reverse: bool = F
     """
     halo = seq_len - 1
     na, nb = q.shape[0] - halo, r.shape[0] - halo
-    q_sq, r_sq = norms if norms is not None else (row_sq_norms(q), row_sq_norms(r))
+    q_sq, r_sq = norms if norms is not None else (sq_norms(q), sq_norms(r))
     rows, width = tile_shape(na, nb, halo, q.element_size(), budget)
     out = torch.empty((na, nb), dtype=q.dtype, device=q.device)
     buf = torch.empty((rows + halo) * (width + halo), dtype=q.dtype, device=q.device)

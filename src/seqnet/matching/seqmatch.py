@@ -20,10 +20,10 @@ from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
 from ..core.tensors import ArrayLike, as_tensor, to_numpy
 from ..search.blocks import blocked_topk, check_pair_dims, col_blocks, rows
-from ..search.knn import as_pair, rows_per_block
+from ..search.knn import as_pair, rows_per_block, sq_norms
 from ..search.precision import compute_dtype
 from ..sequence.windows import check_seq_len
-from .banded import banded_map, row_sq_norms, tile_budget
+from .banded import banded_map, tile_budget
 from .pairs import window_scores
 
 torch = lazy_module("torch")
@@ -155,7 +155,7 @@ def _pair_norms(query: ArrayLike, ref: ArrayLike,
     if q.shape[1] != r.shape[1]:
         as_pair(query, ref, dev)  # raises its dimension-mismatch error
     r = r.to(q.dtype)
-    norms = row_sq_norms(q), row_sq_norms(r)
+    norms = sq_norms(q), sq_norms(r)
     if not (bool(torch.isfinite(norms[0]).all()) and bool(torch.isfinite(norms[1]).all())):
         as_pair(query, ref, dev)  # raises its error: NaN or inf, or norms that overflow
     return q, r, norms

@@ -37,9 +37,9 @@ from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
 from ..core.tensors import ArrayLike, to_numpy
 from ..search.blocks import blocked_topk
-from ..search.knn import as_pair, rows_per_block
+from ..search.knn import as_pair, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
-from .banded import distances, row_sq_norms, shifted_sum
+from .banded import distances, shifted_sum
 from .seqmatch import check_starts
 
 torch = lazy_module("torch")
@@ -132,7 +132,7 @@ def score_blocks(block_fn: BlockFn, q: torch.Tensor, r: torch.Tensor, seq_len: i
     if isinstance(q, FrameDistances):  # given distances: rows of the matrix
         dist_rows = q.rows
     else:
-        q_sq, r_sq = row_sq_norms(q), row_sq_norms(r)
+        q_sq, r_sq = sq_norms(q), sq_norms(r)
 
         def dist_rows(a0: int, e: int) -> torch.Tensor:  # SeqMatch's own kernel: velocity 1 is SeqMatch exactly
             d = torch.empty((e - a0, r.shape[0]), dtype=q.dtype, device=q.device)
