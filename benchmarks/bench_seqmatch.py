@@ -50,9 +50,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=2, help="torch intra-op threads (default 2)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--chunk-kib", type=int, default=None,
-                   help="experiment: finish/sum the distance block in row chunks of this many KiB "
-                        "(default: the library's choice, whole blocks)")
+    p.add_argument("--tile-kib", type=int, default=None,
+                   help="experiment: fused tiles of this many KiB of distances "
+                        "(default: the library's choice, seqnet.matching.banded.TILE_BYTES on the CPU)")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     p.add_argument("--check", action="store_true", help="exit with status 1 when a target is missed")
     return p.parse_args(argv)
@@ -87,7 +87,7 @@ def cdist_loop(qw: torch.Tensor, rw: torch.Tensor, pairs: np.ndarray) -> torch.T
 
 def run(args: argparse.Namespace) -> dict:
     torch.set_num_threads(args.threads)
-    chunk = args.chunk_kib * 1024 if args.chunk_kib is not None else None
+    tile = args.tile_kib * 1024 if args.tile_kib is not None else None
     device = torch.device(args.device)
     gen = torch.Generator().manual_seed(args.seed)
     q = torch.nn.functional.normalize(torch.randn(args.nq, args.dim, generator=gen), dim=1).to(device)
@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> dict:
 
     # warm-up (allocator, BLAS threads); then every repeat times the GEMM, seqmatch and one slice of
     # the sampled loop, in alternating order, so that changing machine load hits all three alike
-    m = seqmatch(q, r, L, device=str(device), chunk_bytes=chunk)
+    m = seqmatch(q, r, L, device=str(device), tile_bytes=tile)
     _ = q @ r.T
     cdist_loop(qw, rw, pairs[: min(50, n_pairs)])
     t_gemm, t_seq, t_loop, loop_scores = [], [], 0.0, np.empty(n_pairs)
@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> dict:
             if which == "gemm":
                 t_gemm.append(_timed(lambda: q @ r.T, device))
             elif which == "seq":
-                t_seq.append(_timed(lambda: seqmatch(q, r, L, device=str(device), chunk_bytes=chunk), device))
+                t_seq.append(_timed(lambda: seqmatch(q, r, L, device=str(device), tile_bytes=tile), device))
             else:
                 sl = slices[i]
                 t0 = time.perf_counter()
@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> dict:
         "config": {"nq": args.nq, "nr": args.nr, "dim": args.dim, "seq_len": L, "dtype": "float32",
                    "repeats": args.repeats, "threads": args.threads, "device": str(device),
                    "loop_pairs_sampled": int(n_pairs), "torch": torch.__version__,
-                   "chunk_bytes": chunk,
+                   "tile_bytes": tile,
                    "machine": platform.processor() or platform.machine(), "cpu_count": os.cpu_count()},
         "load_average_start": load_start,
         "load_average_end": os.getloadavg(),

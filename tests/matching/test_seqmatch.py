@@ -52,8 +52,8 @@ def test_full_map_vs_loop(qr, L, reverse):
 def test_many_blocks_and_chunks(qr, block_bytes, reverse, L):
     q, r = qr
     q = np.concatenate([q, q[::-1], q])  # 51 query frames: several chunks
-    # chunk_bytes=1: the smallest row chunks, many chunks per block
-    m = seqmatch(q, r, L, reverse=reverse, device="cpu", block_bytes=block_bytes, chunk_bytes=1)
+    # tile_bytes=1: the smallest tiles (one window pair each), many tiles per block
+    m = seqmatch(q, r, L, reverse=reverse, device="cpu", block_bytes=block_bytes, tile_bytes=1)
     np.testing.assert_allclose(m, naive_seqmatch(q, r, L, reverse), rtol=1e-9, atol=1e-9)
     m = seqmatch(q, r, L, reverse=reverse, device="cpu", block_bytes=block_bytes)
     np.testing.assert_allclose(m, naive_seqmatch(q, r, L, reverse), rtol=1e-9, atol=1e-9)

@@ -14,9 +14,9 @@ import functools
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..sequence.windows import check_seq_len
+from .banded import shifted_sum
 from .graph import DEFAULT_FAN_OUT
 from .paths import path_dp
-from .seqmatch import shifted_sum
 from .velocity import DEFAULT_VELOCITIES, pivot_step, trajectories, velocity_block
 
 torch = lazy_module("torch")

@@ -5,13 +5,11 @@ SeqMatch (Milford & Wyeth 2012; SeqNet paper):
 score wins. With ``reverse=True`` the reference is traversed the other way:
 ``Σ_t ‖query[a+t] − ref[b+L−1−t]‖₂``.
 
-Whole-map scores are one distance matrix per query block (a GEMM with the norm trick) plus L
-shifted (diagonal or anti-diagonal) sums; blocks keep memory bounded.
+Whole-map scores are fused in cache-sized tiles (:mod:`seqnet.matching.banded`): per tile one GEMM
+with the norm trick and one sum of the L diagonals (or anti-diagonals), written once into the result.
 """
 
 from __future__ import annotations
-
-from collections.abc import Iterator
 
 import numpy as np
 
@@ -20,11 +18,12 @@ from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
-from ..core.tensors import ArrayLike, to_numpy
+from ..core.tensors import ArrayLike, as_tensor, to_numpy
 from ..search.blocks import blocked_topk, check_pair_dims, col_blocks, rows
-from ..search.knn import as_pair, finish_distances, rows_per_block, sq_norms
+from ..search.knn import as_pair, rows_per_block, sq_norms
 from ..search.precision import compute_dtype
 from ..sequence.windows import check_seq_len
+from .banded import banded_map, tile_budget
 from .pairs import window_scores
 
 torch = lazy_module("torch")
@@ -39,7 +38,7 @@ def seqmatch(
     reverse: bool = False,
     device: str | None = None,
     block_bytes: int | None = None,
-    chunk_bytes: int | None = None,
+    tile_bytes: int | None = None,
 ) -> ArrayLike:
     """SeqMatch scores between all query and reference windows (or candidate windows only).
 
@@ -52,118 +51,27 @@ def seqmatch(
         reverse: pair ``query[a+t]`` with ``ref[b+L−1−t]``.
         device: computation device (default: CUDA when available, else CPU).
         block_bytes: memory budget per block (default 64 MiB, :data:`seqnet.search.knn.DEFAULT_BLOCK_BYTES`).
-        chunk_bytes: see :func:`full_blocks` (CPU tuning knob; default whole-block passes).
+        tile_bytes: distances per fused tile of the whole map (default cache-sized on the CPU,
+            :data:`seqnet.matching.banded.TILE_BYTES`; at most ``block_bytes``).
 
     Returns:
         ``[Nq−L+1, Nr−L+1]`` scores (or ``[Nq−L+1, K]`` with candidates), numpy if ``query`` is
         numpy else a torch tensor on ``query``'s device. float64 inputs stay float64.
     """
     dev = get_device(device)
-    q, r = as_pair(query, ref, dev)
-    check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
     if candidates is None:
-        out = _full_map(q, r, seq_len, reverse, block_bytes, chunk_bytes)
+        q, r, norms = _pair_norms(query, ref, dev)
+        check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
+        out = banded_map(q, r, seq_len, reverse, tile_budget(dev, tile_bytes, block_bytes), norms)
+        maybe_nan = not nan_free(*norms, q.dtype)
     else:
-        cand = candidates if isinstance(candidates, torch.Tensor) else torch.as_tensor(np.asarray(candidates))
-        na = q.shape[0] - seq_len + 1
-        if cand.ndim != 2 or cand.shape[0] != na:
-            raise ConfigError(f"candidates must be [{na}, K] (one row per query window), got {tuple(cand.shape)}")
-        if cand.is_floating_point() and cand.numel() and not bool((cand == cand.round()).all()):
-            raise ConfigError("candidates must be integer window starts (or -1 for none)")
-        starts = torch.arange(na, device=dev)
-        out = window_scores(q, r, seq_len, starts, cand.to(dev), reverse, block_bytes)
-    if bool(torch.isnan(out).any()):
+        out, maybe_nan = _candidate_scores(query, ref, seq_len, candidates, reverse, dev, block_bytes), True
+    if maybe_nan and bool(torch.isnan(out).any()):
         raise ConfigError("SeqMatch scores hold NaN: the descriptors hold NaN or inf, or values too large for "
                           f"{str(out.dtype).removeprefix('torch.')} (hint: L2-normalise them)")
     if isinstance(query, torch.Tensor):
         return out.to(query.device)
     return to_numpy(out)
-
-
-def _chunk_rows(q: torch.Tensor, r: torch.Tensor, n: int, chunk_bytes: int | None) -> int:
-    """Rows per chunk for the element-wise passes over a block of ``n`` rows."""
-    if q.device.type != "cpu" or chunk_bytes is None:
-        return max(1, n)
-    return max(8, chunk_bytes // max(1, r.shape[0] * q.element_size()))
-
-
-def block_rows(q: torch.Tensor, r: torch.Tensor, block_bytes: int | None) -> int:
-    """Query windows per block: the distance block and the score block fit the budget."""
-    return rows_per_block(2 * r.shape[0] * q.element_size(), block_bytes)
-
-
-def _full_map(q: torch.Tensor, r: torch.Tensor, seq_len: int, reverse: bool, block_bytes: int | None,
-              chunk_bytes: int | None) -> torch.Tensor:
-    """The whole ``[Nq−L+1, Nr−L+1]`` SeqMatch map (one block: computed inside the GEMM's buffer)."""
-    na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
-    if na <= block_rows(q, r, block_bytes):
-        return next(full_blocks(q, r, seq_len, reverse, block_bytes, chunk_bytes))[1]
-    out = torch.empty((na, nb), dtype=q.dtype, device=q.device)
-    for _ in full_blocks(q, r, seq_len, reverse, block_bytes, chunk_bytes, out=out):
-        pass
-    return out
-
-
-def full_blocks(
-    q: torch.Tensor,
-    r: torch.Tensor,
-    seq_len: int,
-    reverse: bool = False,
-    block_bytes: int | None = None,
-    chunk_bytes: int | None = None,
-    out: torch.Tensor | None = None,
-) -> Iterator[tuple[int, torch.Tensor]]:
-    """Yield ``(first_window, M[block, Nr−L+1])`` over blocks of query windows.
-
-    Per block: one GEMM ``q[a0 : a1+L−1] @ r.T`` (the only pass over D), then, in place, the norm
-    trick + sqrt (4 element-wise passes) and the L shifted sums (L − 1 passes) written straight
-    into the result: ``out[a0:a1]`` when ``out`` is given, else a new buffer.
-
-    ``chunk_bytes`` (CPU only): finalise and sum the distance rows in cache-sized chunks (e.g.
-    1 MiB) instead of whole-block passes. Chunks read the distance block back from memory only once
-    and are fastest on an idle machine, but each costs ~10 parallel regions (thread barriers), which
-    dominate on an oversubscribed machine; whole-block passes (None, the default) stay within ~10%
-    of the bare GEMM either way. Each chunk is summed into a small buffer and packed row by row into
-    the front of the GEMM's own buffer (score row ``a`` only overwrites distance rows ``<= a``, which
-    no later chunk reads), so the block needs no second ``[rows, Nr]`` buffer.
-    """
-    na, nb = q.shape[0] - seq_len + 1, r.shape[0] - seq_len + 1
-    rows = block_rows(q, r, block_bytes)
-    r_sq, q_sq = sq_norms(r), sq_norms(q)
-    chunk = _chunk_rows(q, r, min(rows, na), chunk_bytes)
-    cols = [(seq_len - 1 - t) if reverse else t for t in range(seq_len)]  # reference shift of frame t
-    for a0 in range(0, na, rows):
-        a1 = min(na, a0 + rows)
-        n = a1 - a0
-        dist = torch.mm(q[a0 : a1 + seq_len - 1], r.T)  # [n + L - 1, Nr] inner products
-        if out is not None:
-            dest = out[a0:a1]
-        elif chunk >= n:  # one chunk: sum straight into a new buffer
-            dest = torch.empty((n, nb), dtype=q.dtype, device=q.device)
-        else:  # sum each chunk into a small buffer, then pack it into the front of ``dist``
-            dest, tmp = None, torch.empty((chunk, nb), dtype=q.dtype, device=q.device)
-        packed = dist.view(-1)
-        done = 0  # rows of ``dist`` already turned into distances
-        for s in range(0, n, chunk):
-            e = min(n, s + chunk)
-            if e + seq_len - 1 > done:
-                finish_distances(dist[done : e + seq_len - 1], q_sq[a0 + done : a0 + e + seq_len - 1], r_sq)
-                done = e + seq_len - 1
-            ms = dest[s:e] if dest is not None else tmp[: e - s]
-            shifted_sum(dist, s, e, cols, nb, ms)
-            if dest is None:
-                packed[s * nb : e * nb].view(e - s, nb).copy_(ms)
-        yield a0, (dest if dest is not None else packed[: n * nb].view(n, nb))
-
-
-def shifted_sum(dist: torch.Tensor, s: int, e: int, cols: list[int], nb: int, out: torch.Tensor) -> torch.Tensor:
-    """``out[i - s, b] = Σ_t dist[i + t, b + cols[t]]`` for rows ``i in [s, e)``: the L shifted adds."""
-    if len(cols) == 1:
-        return out.copy_(dist[s:e, cols[0] : cols[0] + nb])
-    torch.add(dist[s:e, cols[0] : cols[0] + nb], dist[s + 1 : e + 1, cols[1] : cols[1] + nb], out=out)
-    for t in range(2, len(cols)):
-        out.add_(dist[s + t : e + t, cols[t] : cols[t] + nb])
-    return out
 
 
 @no_grad
@@ -220,8 +128,45 @@ def seqmatch_topk(
 def _block_scores(qf: torch.Tensor, rf: torch.Tensor, seq_len: int, reverse: bool, q_windows: torch.Tensor,
                   r_windows: torch.Tensor) -> torch.Tensor:
     """SeqMatch scores ``[len(q_windows), len(r_windows)]`` of windows (starts local to the frame blocks)."""
-    m = next(full_blocks(qf, rf, seq_len, reverse, block_bytes=2**62))[1]  # every window pair of the blocks
+    m = banded_map(qf, rf, seq_len, reverse, tile_budget(qf.device, None, None))  # every window pair of the blocks
     return m[q_windows][:, r_windows]
+
+
+def _candidate_scores(query: ArrayLike, ref: ArrayLike, seq_len: int, candidates: ArrayLike, reverse: bool,
+                      dev: torch.device, block_bytes: int | None) -> torch.Tensor:
+    """:func:`seqmatch` of the candidate windows only: ``[Nq−L+1, K]``."""
+    q, r = as_pair(query, ref, dev)
+    check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
+    cand = candidates if isinstance(candidates, torch.Tensor) else torch.as_tensor(np.asarray(candidates))
+    na = q.shape[0] - seq_len + 1
+    if cand.ndim != 2 or cand.shape[0] != na:
+        raise ConfigError(f"candidates must be [{na}, K] (one row per query window), got {tuple(cand.shape)}")
+    if cand.is_floating_point() and cand.numel() and not bool((cand == cand.round()).all()):
+        raise ConfigError("candidates must be integer window starts (or -1 for none)")
+    starts = torch.arange(na, device=dev)
+    return window_scores(q, r, seq_len, starts, cand.to(dev), reverse, block_bytes)
+
+
+def _pair_norms(query: ArrayLike, ref: ArrayLike,
+                dev: torch.device) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    """:func:`seqnet.search.knn.as_pair`'s ``(q, r)`` (and its errors) and their squared row norms, computed once."""
+    q = as_tensor(query, dev, "query", ndim=2, keep_float64=True)
+    r = as_tensor(ref, dev, "reference", ndim=2, keep_float64=True)
+    if q.shape[1] != r.shape[1]:
+        as_pair(query, ref, dev)  # raises its dimension-mismatch error
+    r = r.to(q.dtype)
+    norms = sq_norms(q), sq_norms(r)
+    if not (bool(torch.isfinite(norms[0]).all()) and bool(torch.isfinite(norms[1]).all())):
+        as_pair(query, ref, dev)  # raises its error: NaN or inf, or norms that overflow
+    return q, r, norms
+
+
+def nan_free(q_sq: torch.Tensor, r_sq: torch.Tensor, dtype: torch.dtype) -> bool:
+    """Whether no SeqMatch score can be NaN: finite norms with ``max ‖q‖² + max ‖r‖²`` under a quarter of
+    the dtype's largest value (then ``|2 q·r| ≤ ‖q‖² + ‖r‖²`` and every step stays finite), so the result
+    needs no check."""
+    top = float(q_sq.max()) + float(r_sq.max())
+    return top < float(torch.finfo(dtype).max) / 4
 
 
 def check_starts(starts: ArrayLike, n: int, side: str) -> np.ndarray:

@@ -18,7 +18,7 @@ windows of :mod:`seqnet.eval.evaluate`, the query item's frame is aligned with t
 frame, so Recall@K compares the positions of the frames that were matched.
 
 Whole map: per block of query windows one distance matrix (GEMM + norm trick), then per distinct
-trajectory L shifted column slices summed (:func:`seqnet.matching.seqmatch.shifted_sum`) and a running
+trajectory L shifted column slices summed (:func:`seqnet.matching.banded.shifted_sum`) and a running
 minimum; memory is bounded by blocks of about three ``[rows, Nr]`` buffers.
 """
 
@@ -37,9 +37,10 @@ from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
 from ..core.tensors import ArrayLike, to_numpy
 from ..search.blocks import blocked_topk
-from ..search.knn import as_pair, finish_distances, rows_per_block, sq_norms
+from ..search.knn import as_pair, rows_per_block, sq_norms
 from ..sequence.windows import check_seq_len
-from .seqmatch import check_starts, shifted_sum
+from .banded import distances, shifted_sum
+from .seqmatch import check_starts
 
 torch = lazy_module("torch")
 
@@ -133,8 +134,10 @@ def score_blocks(block_fn: BlockFn, q: torch.Tensor, r: torch.Tensor, seq_len: i
     else:
         q_sq, r_sq = sq_norms(q), sq_norms(r)
 
-        def dist_rows(a0: int, e: int) -> torch.Tensor:
-            return finish_distances(torch.mm(q[a0:e], r.T), q_sq[a0:e], r_sq)
+        def dist_rows(a0: int, e: int) -> torch.Tensor:  # SeqMatch's own kernel: velocity 1 is SeqMatch exactly
+            d = torch.empty((e - a0, r.shape[0]), dtype=q.dtype, device=q.device)
+            distances(d, q[a0:e], q_sq[a0:e], r, r_sq)
+            return d
     for a0 in progress(range(0, na, rows), desc=desc):
         n = min(rows, na - a0)
         if starts is not None and np.searchsorted(starts, a0) == np.searchsorted(starts, a0 + n):
