@@ -14,8 +14,11 @@ The peers' ways are minimal scripts of this folder written after the peers' code
 - ``help``: ``seqnet --help`` and ``seqnet eval --help`` against the 0.5 s goal (no peer);
 - ``seqmatch``: whole-map SeqMatch against one bare GEMM of the same size (3000², D 4096, L 5), in one
   process per thread count (1 and 2);
-- ``train``: the original seqNet ``main.py`` is not run here (it needs its own data layout and
-  environment); the row prints the documented command (see docs/performance.md) and says so;
+- ``train``: one S_5 and one S_1 training epoch of the original seqNet ``main.py`` (a checkout named by
+  ``--seqnet-orig``, run as it is from the data layout it reads) against ``seqnet train`` on the same
+  descriptors and settings: ``benchmarks/peer_seqnet_train.py`` (D = 4096 × ``--scale``;
+  ``--train-repeats`` epochs of each side, interleaved); without ``--seqnet-orig`` the row says it did
+  not run and how to run it;
 - ``hvpr``: the online per-frame step against its bytes-read floor is measured by
   ``benchmarks/bench_localize.py``; the row names that command.
 
@@ -44,9 +47,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 ROWS = ("knn", "matrix10k", "matrix1k", "help", "seqmatch", "train", "hvpr")
-TRAIN_COMMAND = ("git clone https://github.com/oravus/seqNet && cd seqNet && python main.py --mode train "
-                 "--pooling seqnet --dataset nordland-sw --seqL 5 --w 5 --outDims 4096 --expName w5  "
-                 "(S_5; S_1: --pooling single --seqL 1 --w 1); seqnet: seqnet train on the same descriptors")
+TRAIN_COMMAND = ("git clone https://github.com/oravus/seqNet ORIG; pip install tensorboardX; "
+                 "python benchmarks/peers.py --rows train --seqnet-orig ORIG")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -57,6 +59,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--scale", type=float, default=1.0, help="scale the row sizes (a quick check: 0.1)")
     p.add_argument("--workdir", help="folder for the generated inputs (default: a temporary one)")
     p.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    p.add_argument("--seqnet-orig", metavar="DIR", help="checkout of github.com/oravus/seqNet (the train row)")
+    p.add_argument("--train-repeats", type=int, default=1, help="epochs of each side in the train row (default 1)")
     p.add_argument("--seqmatch-worker", type=int, help=argparse.SUPPRESS)  # internal: one thread count
     return p.parse_args(argv)
 
@@ -214,11 +218,30 @@ def row_seqmatch(work: Path, args: argparse.Namespace) -> list[dict]:
     return rows
 
 
-def row_not_run(name: str) -> list[dict]:
-    if name == "train":
+def row_train(work: Path, args: argparse.Namespace) -> list[dict]:
+    """S_5 and S_1: one epoch of the original ``main.py`` / one of ``seqnet train`` (benchmarks/peer_seqnet_train.py);
+    the goal is seqnet at least 30x faster (ratio seqnet / peer <= 1/30)."""
+    if not args.seqnet_orig:
         return [dict(job="S_L / S_1 training epoch vs the original seqNet main.py", peer="original seqNet main.py",
                      peer_value=None, ours_value=None, unit="", ratio=None, goal=None,
-                     answers=f"not run here: {TRAIN_COMMAND}", same=None)]
+                     answers=f"not run (no --seqnet-orig): {TRAIN_COMMAND}", same=None)]
+    dim, rows = max(16, int(4096 * args.scale)), []
+    for variant in ("s5", "s1"):
+        cmd = [sys.executable, str(HERE / "peer_seqnet_train.py"), "--orig", args.seqnet_orig, "--variant", variant,
+               "--dim", str(dim), "--threads", str(args.threads), "--repeats", str(args.train_repeats),
+               "--workdir", str(work / "train")]
+        res = json.loads(run_measured(cmd, args.threads)[2].strip().splitlines()[-1])
+        peer, ours = res["epoch_s"]["orig"], res["epoch_s"]["seqnet"]
+        rows.append(dict(job=f"{res['variant']} training epoch, Nordland train split (15000 + 15000), D {dim}",
+                         peer="original seqNet main.py --nEpochs 1", peer_value=peer, ours_value=ours, unit="s",
+                         ratio=ours / peer, goal=1 / 30,
+                         answers=f"{peer / ours:.1f}× faster wall, {res['cpu_ratio']:.1f}× less CPU "
+                                 f"({res['epoch_cpu_s']['orig']:.0f} / {res['epoch_cpu_s']['seqnet']:.0f} s)",
+                         same=None))
+    return rows
+
+
+def row_not_run(name: str) -> list[dict]:
     return [dict(job="online HVPR per frame / bytes-read floor", peer="bytes-read floor", peer_value=None,
                  ours_value=None, unit="", ratio=None, goal=None,
                  answers="not run here: python benchmarks/bench_localize.py --methods hvpr --threads 2", same=None)]
@@ -257,8 +280,8 @@ def table(rows: list[dict]) -> str:
     for r in rows:
         met = "–" if r["ratio"] is None else ("yes" if r["ratio"] <= r["goal"] and r["same"] is not False else "no")
         met = "not run" if r["ratio"] is None else met
-        ratio = "–" if r["ratio"] is None else f"{r['ratio']:.2f}×"
-        goal = "–" if r["goal"] is None else f"≤ {r['goal']:.2f}×"
+        ratio = "–" if r["ratio"] is None else f"{r['ratio']:.{2 if r['ratio'] >= 0.1 else 3}f}×"
+        goal = "–" if r["goal"] is None else f"≤ {r['goal']:.{2 if r['goal'] >= 0.1 else 3}f}×"
         same = "" if r["same"] is None else (" (identical)" if r["same"] else " (DIFFERENT)")
         lines.append(f"| {r['job']} | {r['peer']} | {fmt(r['peer_value'], r['unit'])} | "
                      f"{fmt(r['ours_value'], r['unit'])} | {ratio} | {goal} | {met} | {r['answers']}{same} |")
@@ -288,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
                 rows += row_help(work, args)
             elif name == "seqmatch":
                 rows += row_seqmatch(work, args)
+            elif name == "train":
+                rows += row_train(work, args)
             else:
                 rows += row_not_run(name)
     load_after = os.getloadavg()

@@ -59,7 +59,8 @@ class SeqNet(nn.Module):
         """
         weight = self.conv.weight
         x = self._check(x).to(weight.dtype)  # a half-precision model (to(torch.bfloat16)) reads half the bytes
-        per_tap = _tap_average(x.shape[1], self.w).to(x.device, x.dtype) @ x  # [B, w, D]
+        # [B, w, D]; with w = L (S_L at full width, S_1) the tap average is the identity: the windows themselves
+        per_tap = x if x.shape[1] == self.w else _tap_average(x.shape[1], self.w).to(x.device, x.dtype) @ x
         if self.packed:
             y = self._tap_products(per_tap)
         else:

@@ -33,6 +33,7 @@ from ..matching.graph import DEFAULT_FAN_OUT
 from ..matching.paths import path_dp
 from ..matching.velocity import DEFAULT_VELOCITIES, trajectories
 from ..search.knn import pairwise_distances
+from .hinge import triplet_hinge
 
 torch = lazy_module("torch")
 F = lazy_module("torch.nn.functional")
@@ -171,12 +172,13 @@ def triplet_loss(
         raise ConfigError(f"margin must be > 0, got {margin}")
     if total is not None and total < max(int(anchor.numel()), 1):
         raise ConfigError(f"total must be >= the {anchor.numel()} triplets given (and >= 1), got {total}")
-    d_pos = distance(query, positive)  # [B]
-    d_neg = distance(query[anchor], negatives)  # [T]
-    hinge = F.relu(d_pos[anchor] - d_neg + margin)
     n = int(anchor.numel())
-    return TripletLoss(hinge.sum() / (max(n, 1) if total is None else total), n, int((hinge > 0).sum()),
-                       hinge.detach())
+    denom = max(n, 1) if total is None else total
+    if distance is pair_distance and query.ndim == 2:  # the paper's loss: one node, its gradient written out
+        loss, hinge = triplet_hinge(query, positive, negatives, anchor, margin, denom, PAIRWISE_EPS)
+        return TripletLoss(loss, n, int((hinge > 0).sum()), hinge)
+    hinge = F.relu(distance(query, positive)[anchor] - distance(query[anchor], negatives) + margin)  # [T]
+    return TripletLoss(hinge.sum() / denom, n, int((hinge > 0).sum()), hinge.detach())
 
 
 def batch_triplet_loss(
