@@ -15,18 +15,22 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.devices import get_device
 from ..core.errors import ConfigError
-from ..data.traverse import Dataset
+from ..core.log import logger
+from ..core.stage import Written
+from ..data.traverse import Dataset, default_split
 from ..methods.grammar import FRAME_FEATURES, FUSED_TOP_K, parse_method
 from ..reference.traverse import TraverseReference
 from ..sequence.described import Described
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .evaluate import EvalConfig, dataset_truth
+from .evaluate import main as evaluate_main
 from .evaluation import method_windows
 
 if TYPE_CHECKING:
@@ -177,3 +181,32 @@ def _choose(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method:
     reason = (f"{method}: {shown} chosen on {where} ({queries} queries): R@1 {recall[i, j]:.3f}, the best of "
               f"{recall.size} settings ({why})")
     return Choice(method, settings, float(recall[i, j]), float(d), grid, queries, reason)
+
+
+def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
+         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
+         choose: Sequence[str] = SELECTABLE, **outputs: Any) -> Written:
+    """:func:`seqnet.eval.evaluate.main` (``outputs``: its output options) with the settings of ``choose`` chosen
+    first on the dataset's ``val`` split (:func:`select_hvpr`) when it has one and another split is evaluated;
+    what was chosen and why goes into the results (``"selection"``). Without a val split, or evaluating val
+    itself, nothing is chosen (the defaults, as without ``choose``)."""
+    from ..data.io import load_dataset
+    from ..sequence.checkpoints import load_models
+
+    choices: list[Choice] = []
+    extra: dict[str, Any] | None = None
+    if choose:
+        ds = load_dataset(dataset)
+        split = default_split(conf.split, ds.splits)
+        if split != "val" and "val" in (ds.splits or {}):
+            loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+            try:
+                conf, choices = select_hvpr(ds.split("val"), loaded, conf, choose, "the val split")
+            except ConfigError as e:  # e.g. no val query with a full window or a correct reference: said in the
+                # results; an error of the evaluation itself is its own (one line)
+                logger.debug("HVPR settings not chosen on the val split: %s", e)
+                extra = {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split (the "
+                                                                  f"defaults kept): {e}"}}
+            if choices:
+                extra = {"selection": {"hvpr": [c.to_dict() for c in choices]}}
+    return evaluate_main(conf, dataset, out, models, shortlist_model, rerank_model, extra=extra, **outputs)
