@@ -4,6 +4,7 @@ tie rule, settings left as given, and a test split that is never read."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -100,3 +101,24 @@ def test_the_choice_never_reads_the_test_split(data):
     again, choices2 = hvpr_on_val(poisoned, models, conf)
     assert (again.top_k, again.fuse_top_k, again.fuse_weight) == (picked.top_k, picked.fuse_top_k, picked.fuse_weight)
     assert [c.grid for c in choices2] == [c.grid for c in choices]
+
+
+def test_seqnet_eval_chooses_on_val_unless_told(synth_dir, map_models, tmp_path, capsys):
+    from seqnet.cli import main as cli_main
+
+    base = ["eval", "--dataset", str(synth_dir), *(a for p in map_models for a in ("--model", str(p))),
+            "--method", "s1+seqmatch,hvpr,hvpr-fused", "--device", "cpu"]
+    assert cli_main([*base, "--json", str(tmp_path / "a.json")]) == 0
+    res = json.loads((tmp_path / "a.json").read_text())
+    chosen = res["selection"]["hvpr"]
+    assert [c["method"] for c in chosen] == ["hvpr", "hvpr-fused"] and res["config"]["split"] == "test"
+    assert res["methods"]["hvpr"]["method"]["top_k"] == chosen[0]["settings"]["top_k"]
+    assert res["config"]["fuse_weight"] == chosen[1]["settings"]["fuse_weight"]
+    assert "chosen on the val split" in capsys.readouterr().out
+    flags = ["--top-k", "7", "--fuse-top-k", "50", "--fuse-weight", "0.5"]
+    assert cli_main([*base, *flags, "--json", str(tmp_path / "b.json")]) == 0  # explicit flags win
+    res = json.loads((tmp_path / "b.json").read_text())
+    assert "selection" not in res and res["methods"]["hvpr"]["method"]["top_k"] == 7
+    assert (res["config"]["fuse_top_k"], res["config"]["fuse_weight"]) == (50, 0.5)
+    assert cli_main([*base, "--split", "val", "--json", str(tmp_path / "c.json")]) == 0  # val itself: nothing chosen
+    assert "selection" not in json.loads((tmp_path / "c.json").read_text())
