@@ -53,15 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     for split in ("train", "val", "test"):
         a, b = getattr(_D, f"{split}_range")
         n.add_argument(f"--{split}-range", type=index_range, metavar="A:B", help=f"{split} places (default {a}:{b})")
-    n.add_argument("--descriptor", choices=list(DESCRIBERS),
-                   help="single-image descriptor (default: the one of --descriptors a model-free proxy prefers on "
-                        "val, before training; with --descriptor, a CNN at its default size unless --cnn-size)")
-    n.add_argument("--descriptors", metavar="NAME[,NAME...]",
-                   help=f"the candidates of the val choice (default {','.join(_D.descriptors)}; the CNN ones at "
-                        f"--cnn-size, left out when their backbone weights are not installed)")
-    n.add_argument("--cnn-size", metavar="WxH", help="input size of a CNN --descriptor (netvlad, gmp, gem), e.g. "
-                   "128x64 as the experiments use (default: the describer's own); without --descriptor, of the CNN "
-                   f"candidates (default {_D.cnn_size[0]}x{_D.cnn_size[1]})")
+    add_descriptor_options(n)
     n.add_argument("--patch", type=non_negative_int,
                    help=f"pixels patch-normalisation size (default {_D.describe.patch}; 8 = SeqSLAM's)")
     n.add_argument("--seq-len", type=positive_int,
@@ -131,6 +123,19 @@ def register_timing(bsub: argparse._SubParsersAction) -> None:
     t.add_argument("--split", help="--dataset split (default: test when defined, else all)")
     t.add_argument("--device", default="cpu", help="torch device (default cpu; cuda for a GPU)")
     t.set_defaults(func=run_timing)
+
+
+def add_descriptor_options(n: argparse.ArgumentParser) -> None:
+    """``--descriptor``, ``--descriptors`` (the val choice's candidates) and ``--cnn-size``."""
+    n.add_argument("--descriptor", choices=list(DESCRIBERS),
+                   help="single-image descriptor (default: the one of --descriptors a model-free proxy prefers on "
+                        "val, before training; with --descriptor, a CNN at its default size unless --cnn-size)")
+    n.add_argument("--descriptors", metavar="NAME[,NAME...]",
+                   help=f"the candidates of the val choice (default {','.join(_D.descriptors)}; the CNN ones at "
+                        f"--cnn-size, left out when their backbone weights are not installed)")
+    n.add_argument("--cnn-size", metavar="WxH", help="input size of a CNN --descriptor (netvlad, gmp, gem), e.g. "
+                   "128x64 as the experiments use (default: the describer's own); without --descriptor, of the CNN "
+                   f"candidates (default {_D.cnn_size[0]}x{_D.cnn_size[1]})")
 
 
 def add_overwrite(p: argparse.ArgumentParser, what: str) -> None:
