@@ -93,7 +93,8 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
     data = shared_data("nordland64")
     out = tmp_path / "b"
     args = ["benchmark", "nordland64", "--data", str(data), "--out", str(out), "--train-range", "0:120",
-            "--val-range", "130:170", "--test-range", "180:260", "--epochs", "1", "--threads", "2", "--pca-dims", "64"]
+            "--val-range", "130:170", "--test-range", "180:260", "--epochs", "1", "--threads", "2", "--pca-dims", "64",
+            "--descriptors", "pixels,gmp"]
     with open(tmp_path / "log", "w") as log:  # the log reads well in a file: no bars, a few lines
         with contextlib.redirect_stderr(log):
             assert cli_main(args) == 0
@@ -107,6 +108,14 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
     assert methods["single"]["queries"] == 76  # places 180..259 with a full centred L=5 window and a match
     assert res["config"]["benchmark"]["test_range"] == [180, 260] and "total" in res["config"]["timings_s"]
     assert res["methods"]["hvpr-single"]["method"]["rerank"] == "s1+seqmatch"
+    sel, bench = res["selection"], res["config"]["benchmark"]  # chosen on val, and said
+    assert sel["descriptor"]["chosen"] == bench["describe"]["method"] and set(sel["descriptor"]["scores"]) == \
+        {"pixels", "gmp"}
+    assert [c["method"] for c in sel["hvpr"]] == ["hvpr", "hvpr-fused"]
+    assert bench["top_k"] == sel["hvpr"][0]["settings"]["top_k"] == methods["hvpr"]["method"]["top_k"]
+    assert bench["fuse_weight"] == sel["hvpr"][1]["settings"]["fuse_weight"] == methods["hvpr-fused"]["method"][
+        "fuse_weight"]
+    assert "Chosen on val (never on test): descriptor" in (out / "results.md").read_text()
     assert (out / "recall_at_k.png").stat().st_size > 1000 and "| hvpr |" in (out / "results.md").read_text()
     assert (out / "models" / "seqnet.pt").is_file() and (out / "dataset" / "dataset.json").is_file()
     assert_self_contained(out / "report.html")  # the HTML report, one file
@@ -115,7 +124,8 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
     assert cli_main(args) == 0
     again = json.loads((out / "results.json").read_text())["methods"]
     assert {m: r["recall@5"] for m, r in again.items()} == {m: r["recall@5"] for m, r in methods.items()}
-    assert "nordland64 test 180:260" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "nordland64 test 180:260" in printed and "chosen on val places 130:170" in printed
 
 
 def test_bad_range_is_reported(tmp_path, capsys):
@@ -158,8 +168,9 @@ def test_cnn_size_sets_a_cnn_descriptors_input_and_is_refused_for_pixels(tmp_pat
     assert (nv.describe.method, nv.describe.size) == ("netvlad", (128, 64))
     assert conf("--descriptor", "netvlad").describe.size == "auto"  # the describer's own
     assert train_key(nv) != train_key(conf("--descriptor", "netvlad"))  # other descriptors, other models
-    rc = cli_main(["benchmark", "nordland64", "--data", "D", "--out", str(tmp_path / "o"), "--cnn-size", "128x64"])
-    assert rc == 2 and "hint: add --descriptor netvlad" in capsys.readouterr().err
+    rc = cli_main(["benchmark", "nordland64", "--data", "D", "--out", str(tmp_path / "o"), "--descriptor", "pixels",
+                   "--cnn-size", "128x64"])
+    assert rc == 2 and "hint: --descriptor netvlad" in capsys.readouterr().err
     rc = cli_main(["benchmark", "nordland64", "--data", "D", "--out", str(tmp_path / "o"), "--descriptor", "gmp",
                    "--cnn-size", "12x"])
     assert rc == 2 and "got '12x'" in capsys.readouterr().err

@@ -78,7 +78,7 @@ def tiny_run(tmp_path_factory):
     data = shared_data("nordland64")
     out = tmp_path_factory.mktemp("n64") / "b"
     assert cli_main(["benchmark", "nordland64", "--data", str(data), "--out", str(out), *TINY, "--query-speed",
-                     "0.5:2", "--device", "cpu", "-q"]) == 0
+                     "0.5:2", "--device", "cpu", "-q", "--descriptor", "pixels"]) == 0  # longer_sequences' descriptor
     return data, out
 
 

@@ -9,9 +9,12 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from ..describe import DESCRIBERS, DescribeConfig
 from ..describe.config import check_size
+from ..eval.select import FUSE_TOP_KS, FUSE_WEIGHTS, TOP_KS
 from ..maps import MapConfig
 from ..maps.config import DTYPES
 from ..pipelines.nordland64 import Nordland64Config, main
+from ..pipelines.nordland64.config import SELECTABLE
+from ..pipelines.nordland64.run import selection_notes
 from ..pipelines.timing import BIG_SIZES, TimingConfig
 from ..report.guidance import format_notes, learned_below_baseline
 from ..report.tables import format_table
@@ -50,10 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     for split in ("train", "val", "test"):
         a, b = getattr(_D, f"{split}_range")
         n.add_argument(f"--{split}-range", type=index_range, metavar="A:B", help=f"{split} places (default {a}:{b})")
-    n.add_argument("--descriptor", choices=list(DESCRIBERS),
-                   help=f"single-image descriptor (default {_D.describe.method}; others at their default size)")
-    n.add_argument("--cnn-size", metavar="WxH", help="input size of a CNN --descriptor (netvlad, gmp, gem), e.g. "
-                   "128x64 as the experiments use (default: the describer's own)")
+    add_descriptor_options(n)
     n.add_argument("--patch", type=non_negative_int,
                    help=f"pixels patch-normalisation size (default {_D.describe.patch}; 8 = SeqSLAM's)")
     n.add_argument("--seq-len", type=positive_int,
@@ -62,11 +62,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     n.add_argument("--epochs", type=positive_int, help=f"training epochs of S_L and S_1 (default {_D.train.epochs})")
     n.add_argument("--pca-dims", type=non_negative_int,
                    help=f"PCA size before training (0: none; default {_D.pca_dims})")
-    n.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
+    n.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default: chosen on val among "
+                   f"{','.join(map(str, TOP_KS))}, ties to {_D.top_k})")
     n.add_argument("--seed", type=non_negative_int, help=f"training seed (default {_D.train.seed})")
     n.add_argument("--fuse-weight", type=non_negative_float,
-                   help=f"λ of hvpr-fused's score matcher/L_m + λ·d(S_L) (default {_D.fuse_weight:g})")
-    n.add_argument("--fuse-top-k", type=positive_int, help=f"hvpr-fused's shortlist size (default {_D.fuse_top_k})")
+                   help=f"λ of hvpr-fused's score matcher/L_m + λ·d(S_L) (default: chosen on val among "
+                        f"{','.join(f'{w:g}' for w in FUSE_WEIGHTS)}, ties to {_D.fuse_weight:g})")
+    n.add_argument("--fuse-top-k", type=positive_int, help=f"hvpr-fused's shortlist size (default: chosen on val "
+                   f"among {','.join(map(str, FUSE_TOP_KS))}, ties to {_D.fuse_top_k})")
     n.add_argument("--s1-loss", choices=list(LOSSES), help=f"loss of S_1 (default {_D.train_s1.loss}; seqmatch: "
                    "SeqMatchNet-style, on SeqMatch scores of L-frame windows)")
     n.add_argument("--s1-margin", type=positive_float, help=f"margin of S_1's loss (default {_D.train_s1.margin:g})")
@@ -122,6 +125,19 @@ def register_timing(bsub: argparse._SubParsersAction) -> None:
     t.set_defaults(func=run_timing)
 
 
+def add_descriptor_options(n: argparse.ArgumentParser) -> None:
+    """``--descriptor``, ``--descriptors`` (the val choice's candidates) and ``--cnn-size``."""
+    n.add_argument("--descriptor", choices=list(DESCRIBERS),
+                   help="single-image descriptor (default: the one of --descriptors a model-free proxy prefers on "
+                        "val, before training; with --descriptor, a CNN at its default size unless --cnn-size)")
+    n.add_argument("--descriptors", metavar="NAME[,NAME...]",
+                   help=f"the candidates of the val choice (default {','.join(_D.descriptors)}; the CNN ones at "
+                        f"--cnn-size, left out when their backbone weights are not installed)")
+    n.add_argument("--cnn-size", metavar="WxH", help="input size of a CNN --descriptor (netvlad, gmp, gem), e.g. "
+                   "128x64 as the experiments use (default: the describer's own); without --descriptor, of the CNN "
+                   f"candidates (default {_D.cnn_size[0]}x{_D.cnn_size[1]})")
+
+
 def add_overwrite(p: argparse.ArgumentParser, what: str) -> None:
     """``--overwrite``: replace outputs in --out that this command did not write."""
     p.add_argument("--overwrite", action="store_true",
@@ -162,12 +178,16 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
              "speed_augment": None if no_augment else args.speed_augment}
     s1 = {"epochs": args.epochs, "seed": args.seed, "loss": args.s1_loss, "margin": args.s1_margin,
           "match_len": args.seq_len}
-    describe = None
+    describe, cnn_size = None, None
     cnn = args.descriptor and args.descriptor != _D.describe.method
-    if args.cnn_size and not cnn:
+    if args.cnn_size and args.descriptor and not cnn:
         cnns = ", ".join(d for d in DESCRIBERS if d != _D.describe.method)
         raise ConfigError(f"--cnn-size is the input size of a CNN --descriptor ({cnns}), "
-                          f"not of {args.descriptor or _D.describe.method}; hint: add --descriptor netvlad")
+                          f"not of {args.descriptor}; hint: --descriptor netvlad, or leave --descriptor out")
+    if args.cnn_size and not args.descriptor:
+        cnn_size = check_size(args.cnn_size)
+        if isinstance(cnn_size, str):
+            raise ConfigError(f"--cnn-size must be WxH (e.g. 128x64), got {args.cnn_size!r}")
     if cnn:
         describe = DescribeConfig(method=args.descriptor, **({"size": check_size(args.cnn_size)} if args.cnn_size
                                                             else {}))
@@ -177,7 +197,17 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
                       describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
                       pca_dims=args.pca_dims, train=train,
                       train_s1=s1, query_speed=args.query_speed, fuse_weight=args.fuse_weight,
-                      fuse_top_k=args.fuse_top_k, recall_denominator=args.recall_denominator)
+                      fuse_top_k=args.fuse_top_k, recall_denominator=args.recall_denominator,
+                      select=chosen_on_val(args), cnn_size=cnn_size,
+                      descriptors=tuple(parse_list([args.descriptors])) if args.descriptors else None)
+
+
+def chosen_on_val(args: argparse.Namespace) -> tuple[str, ...]:
+    """What the benchmark chooses on val: every setting of :data:`seqnet.pipelines.nordland64.config.SELECTABLE`
+    whose flag was not given (an explicit flag always wins; ``--patch`` means pixels)."""
+    given = {"descriptor": args.descriptor is not None or args.patch is not None, "top_k": args.top_k is not None,
+             "fuse_top_k": args.fuse_top_k is not None, "fuse_weight": args.fuse_weight is not None}
+    return tuple(k for k in SELECTABLE if not given[k])
 
 
 def run_nordland64(args: argparse.Namespace) -> int:
@@ -187,6 +217,8 @@ def run_nordland64(args: argparse.Namespace) -> int:
     print(f"nordland64 test {bench['test_range'][0]}:{bench['test_range'][1]}: {first['queries']} queries, "
           f"radius {cfg['radius']:g}, L={cfg['seq_len']}")
     print(format_table(res["methods"], cfg["ks"]))
+    for line in selection_notes(res.get("selection", {})):
+        print(shown(line))
     for line in format_notes(learned_below_baseline(res)):
         print(shown(line))
     print(f"done in {cfg['timings_s']['total']:.0f} s; results in {shown(Path(args.out) / 'results.md')}")

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
 from ..core.log import ordinal
-from ..eval.evaluate import EvalConfig, main
+from ..eval.evaluate import EvalConfig
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..report.guidance import format_notes, learned_below_baseline
 from ..report.tables import format_table
@@ -139,8 +139,11 @@ def run(args: argparse.Namespace) -> int:
 
         res = evaluate_main(conf, args.dataset, args.index, args.out, **outs).data
     else:
-        res = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
-                   report=report, **outs).data
+        from ..eval.select import main as choosing_main
+
+        free = [k for k in ("top_k", "fuse_top_k", "fuse_weight") if getattr(args, k) is None]
+        res = choosing_main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
+                            free, report=report, **outs).data
     print_results(res)
     if report is not None:
         print(f"report: {shown(Path(args.out) / 'report.html')}")
@@ -167,6 +170,10 @@ def print_results(res: dict) -> None:
         print(f"{who}{queries} queries evaluated; {no_window} without a full window"
               f"{f' ({why})' if why else ''}, {no_positive} without a reference within the radius ({fate})")
     print_calibration(res)
+    selection = res.get("selection", {})
+    for line in [c["reason"] for c in selection.get("hvpr", [])] + [selection.get("not_chosen") or ""]:
+        if line:
+            print(shown(line))
     for name, r in res["methods"].items():
         for key in (k for k in r if k.startswith("shortlist_recall@")):
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")

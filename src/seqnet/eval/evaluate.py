@@ -262,16 +262,19 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
          per_query: str | Path | None = None, report: Any = None, figures: bool = False, overwrite: bool = False,
-         json: str | Path | None = None) -> Written:
+         json: str | Path | None = None, extra: Mapping[str, Any] | None = None) -> Written:
     """hloc-style stage: evaluate ``conf.split`` of the dataset directory ``dataset`` with the model
-    checkpoints given; writes ``out/results.json`` (results, resolved config, inputs), with ``figures``
+    checkpoints given (``extra``: entries added to the results); writes ``out/results.json`` (results,
+    resolved config, inputs), with ``figures``
     ``out/pr_curve.png``, with ``report`` (a :class:`seqnet.report.html.ReportConfig`) ``out/report.html``,
     with ``per_query`` one row per method and query (``.csv`` or ``.jsonl``, ...), with ``json`` a copy of
     the results: :class:`seqnet.eval.outputs.EvalOutputs` (``out`` None: no folder); returns the results
     path and the results."""
     outputs = EvalOutputs(out, per_query, json, figures, report, overwrite)
     with outputs.session(conf.methods):  # a second evaluation into the same folder is refused (exit 1)
-        return outputs.write(_evaluate_dir(conf, dataset, models, shortlist_model, rerank_model))
+        ev = _evaluate_dir(conf, dataset, models, shortlist_model, rerank_model)
+        ev.results.update(extra or {})
+        return outputs.write(ev)
 
 
 def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | Path],

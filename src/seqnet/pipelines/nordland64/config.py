@@ -7,10 +7,17 @@ import dataclasses
 from ...core.config import Config, check_bool, check_choice, check_float, check_int, check_ints, check_range
 from ...core.errors import ConfigError
 from ...describe import DescribeConfig
+from ...describe.config import check_size
 from ...eval.evaluate import RECALL_DENOMINATORS, EvalConfig
 from ...methods.grammar import FUSE_WEIGHT, FUSED_TOP_K, parse_method
 from ...train import TrainConfig
 from .speed import check_speed
+
+# what the benchmark chooses on val when not given (docs/benchmark_nordland64.md, "Chosen on val")
+SELECTABLE = ("descriptor", "top_k", "fuse_top_k", "fuse_weight")
+# the descriptors the val proxy chooses among: pixels (DESCRIBE) and the CNN methods at cnn_size whose
+# backbone weights ship with an installed package (nothing is downloaded)
+DESCRIPTOR_CANDIDATES = ("pixels", "netvlad", "gem", "gmp")
 
 # 16x16 patches: learned S_L / S_1 clearly better on val than SeqSLAM's 8x8 (raw single worse)
 DESCRIBE = DescribeConfig(method="pixels", patch=16, size="native")
@@ -47,6 +54,11 @@ class Nordland64Config(Config):
             at A to B times the reference speed (:mod:`.speed`; training unchanged); None: as filmed.
         speed_seed: seed of the speed profile (the val and test ranges get their own streams).
         recall_denominator: ``positives`` (queries with a correct reference) or ``all`` queries.
+        select: what is chosen on the val range before use (:data:`SELECTABLE`): ``descriptor`` (among
+            ``descriptors``, by a model-free proxy before training, :mod:`.select`), ``top_k``, ``fuse_top_k``,
+            ``fuse_weight`` (by val R@1 after training, :mod:`seqnet.eval.select`); the others are used as given.
+        descriptors: the candidates of the descriptor choice (``pixels``: ``describe`` when it is pixels, else
+            :data:`DESCRIBE`); cnn_size: the (W, H) the CNN candidates read the frames at.
     """
 
     names_file: str = "nordland_clean_imageNames.txt"
@@ -73,6 +85,9 @@ class Nordland64Config(Config):
     query_speed: tuple[float, float] | None = None
     speed_seed: int = 0
     recall_denominator: str = "positives"
+    select: tuple[str, ...] = SELECTABLE
+    descriptors: tuple[str, ...] = DESCRIPTOR_CANDIDATES
+    cnn_size: tuple[int, int] = (128, 64)
 
     def __post_init__(self) -> None:
         for key in ("train_range", "val_range", "test_range"):
@@ -98,6 +113,15 @@ class Nordland64Config(Config):
         self._set("speed_seed", check_int("speed_seed", self.speed_seed, 0))
         self._set("recall_denominator", check_choice("recall_denominator", self.recall_denominator,
                                                      RECALL_DENOMINATORS))
+        self._set("select", tuple(dict.fromkeys(check_choice("select", x, SELECTABLE) for x in self.select)))
+        self._set("descriptors", tuple(dict.fromkeys(check_choice("descriptor", x, DESCRIPTOR_CANDIDATES)
+                                                     for x in self.descriptors)))
+        if not self.descriptors:
+            raise ConfigError("descriptors: give at least one candidate (e.g. pixels)")
+        size = check_size(self.cnn_size if isinstance(self.cnn_size, str) else tuple(self.cnn_size))
+        if isinstance(size, str):
+            raise ConfigError(f"cnn_size must be W x H (e.g. 128x64), got {self.cnn_size!r}")
+        self._set("cnn_size", size)
 
     @property
     def eval_methods(self) -> tuple[str, ...]:

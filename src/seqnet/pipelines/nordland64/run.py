@@ -22,6 +22,7 @@ from . import cache
 from .config import Nordland64Config
 from .data import SEASONS, SPLITS, build_dataset
 from .models import train_models
+from .select import choose_hvpr, descriptor_on_val
 from .speed import variable_speed
 
 if TYPE_CHECKING:
@@ -42,12 +43,30 @@ def evaluate_split(ds: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Co
     return evaluate(split_dataset(ds, conf, split), conf.eval_config(), models)
 
 
+def hvpr_on_val(ds: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Config) -> tuple[Nordland64Config, list]:
+    """``conf`` with the HVPR settings of ``conf.select`` chosen on the val range (:func:`.select.choose_hvpr`;
+    the test range is never read), and the choices."""
+    if not {"top_k", "fuse_top_k", "fuse_weight"} & set(conf.select):
+        return conf, []
+    conf, _, choices = choose_hvpr(split_dataset(ds, conf, "val"), models, conf, conf.eval_config())
+    return conf, choices
+
+
+def selection_notes(selection: Mapping[str, object]) -> list[str]:
+    """The sentences saying what was chosen on val and why (empty: nothing was chosen)."""
+    descriptor = selection.get("descriptor")
+    return ([descriptor["reason"]] if isinstance(descriptor, dict) else []) + \
+        [c["reason"] for c in selection.get("hvpr", [])]
+
+
 def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, seconds: Mapping[str, float],
-                 out: Path) -> None:
+                 out: Path, selection: Mapping[str, object] | None = None) -> None:
     """``results.json`` (eval schema + benchmark config and timings), ``val_results.json``,
     ``results.md`` (Table-I style, with AUC and R@100P), ``recall_at_k.png`` (Recall@K, K = 1..20,
     test range) and ``pr_curve.png`` (precision–recall of every method, test range)."""
     ev.results["config"].update(benchmark=conf.to_dict(), timings_s=dict(seconds))
+    ev.results["selection"] = dict(selection or {})
+    notes = selection_notes(selection or {})
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
     curves = {m: recall_curve(r, ev.view(m).truth, 20) for m, r in ev.retrieved.items()}
@@ -62,6 +81,7 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
         f"Reference summer, query winter; test places {a}:{b} ({first['queries']} queries with a full "
         f"L={conf.seq_len} window); radius {conf.radius:g} (frame steps); descriptor `{conf.describe.method}`."
         + speed_note(conf), "",
+        *(["Chosen on val (never on test): " + "; ".join(notes) + ".", ""] if notes else []),
         format_markdown(ev.results["methods"], ks=(1, 5, 20)),
         f"Validation (places {c}:{d}, used to select epochs and settings), R@1: "
         + ", ".join(f"{m} {r['recall@1']:.3f}" for m, r in val.results["methods"].items()), "",
@@ -99,20 +119,25 @@ def main(conf: Nordland64Config, data: str | Path, out: str | Path, overwrite: b
         cache.check_owned(out, (*cache.DESCRIPTORS, *cache.MODELS), overwrite)
         t0 = time.perf_counter()
         seconds: dict[str, float] = {}
+        conf, descriptor = descriptor_on_val(conf, data)
+        if descriptor is not None:
+            seconds["choose_descriptor"] = round(time.perf_counter() - t0, 2)
         ds, flipped = build_dataset(data, conf, out, overwrite)
-        seconds["descriptors"] = round(time.perf_counter() - t0, 2)
+        seconds["descriptors"] = round(time.perf_counter() - t0 - seconds.get("choose_descriptor", 0.0), 2)
         logger.info("nordland64: %d places, D=%d; train %s, val %s, test %s", len(ds.query), ds.query.dim,
                     conf.train_range, conf.val_range, conf.test_range)
         models, train_s = train_models(ds, conf, out, flipped, overwrite=overwrite)
         seconds.update({f"train_{k}": v for k, v in train_s.items()})
         t1 = time.perf_counter()
+        conf, choices = hvpr_on_val(ds, models, conf)
+        selection = {"descriptor": descriptor, "hvpr": [c.to_dict() for c in choices]}
         val = evaluate_split(ds, models, conf, "val")
         ev = evaluate_split(ds, models, conf, "test")
         seconds["evaluation"] = round(time.perf_counter() - t1, 2)
         seconds["total"] = round(time.perf_counter() - t0, 2)
 
         def write(tmp: Path) -> None:
-            write_report(ev, val, conf, seconds, tmp)
+            write_report(ev, val, conf, seconds, tmp, selection)
             write_html_report(ev, split_dataset(ds, conf, "test"), tmp / "report.html",
                               report_config(data, f"Nordland64 benchmark, test places {conf.test_range[0]}:"
                                                   f"{conf.test_range[1]}"))

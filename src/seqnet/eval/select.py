@@ -1,0 +1,212 @@
+"""Choosing HVPR's shortlist size K and fused weight λ on a validation split (never on test).
+
+:func:`hvpr_grid` scores a grid of ``(K, λ)`` for one HVPR method in one pass: the shortlist is searched
+once at the largest K, the matcher scores its candidates once, and every ``(K, λ)`` is then an argmin
+over the first K columns of ``matcher / L_m + λ · d_shortlist`` (the score
+:func:`seqnet.matching.hvpr.hvpr_search` orders by; λ = 0 is the paper's re-ranking). Recall@1 of each
+setting is what :func:`seqnet.eval.evaluate.evaluate` reports for that method with those settings.
+
+:func:`select_hvpr` picks, among the settings the caller left free, the best val Recall@1; a tie keeps the
+default (else the smallest K, then the λ nearest the default), and says what it picked and why
+(:class:`Choice`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..core.devices import get_device
+from ..core.errors import ConfigError
+from ..core.log import logger
+from ..core.stage import Written
+from ..data.traverse import Dataset, default_split
+from ..methods.grammar import FRAME_FEATURES, FUSED_TOP_K, parse_method
+from ..reference.traverse import TraverseReference
+from ..sequence.described import Described
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from .evaluate import EvalConfig, dataset_truth
+from .evaluate import main as evaluate_main
+from .evaluation import method_windows
+
+if TYPE_CHECKING:
+    from ..sequence.model import SeqNet
+
+TOP_KS = (5, 10, 20, 50, 100)  # the paper's HVPR (λ = 0): its K
+FUSE_TOP_KS = (50, 100, 200, 400)  # hvpr-fused: its K ...
+FUSE_WEIGHTS = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0)  # ... and λ
+SELECTABLE = ("top_k", "fuse_top_k", "fuse_weight")  # the EvalConfig settings :func:`select_hvpr` may choose
+
+
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    """What :func:`select_hvpr` chose for one method, and why.
+
+    Attributes:
+        method: the HVPR method scored; settings: the chosen ``{name: value}`` (only those left free).
+        recall: its val Recall@1; default_recall: the val Recall@1 of the defaults (None: not in the grid).
+        grid: every setting scored, ``[{"top_k": K, "fuse_weight": λ, "recall@1": r}, ...]``.
+        queries: val queries with a correct reference; reason: one sentence.
+    """
+
+    method: str
+    settings: dict[str, Any]
+    recall: float
+    default_recall: float | None
+    grid: list[dict[str, Any]]
+    queries: int
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def hvpr_grid(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method: str, top_ks: Sequence[int],
+              weights: Sequence[float]) -> tuple[np.ndarray, int]:
+    """Recall@1 ``[len(top_ks), len(weights)]`` of the HVPR ``method`` on ``ds`` (one split) with shortlist size
+    ``top_ks[i]`` and fused weight ``weights[j]`` (0: the matcher alone), on the query items
+    :func:`~seqnet.eval.evaluate.evaluate` gives it under ``conf``; and the queries counted (the denominator)."""
+    m = parse_method(method)
+    if m.kind != "hvpr" or m.shortlist == FRAME_FEATURES[m.frames]:
+        raise ConfigError(f"hvpr_grid scores an HVPR method whose shortlist is not its frames' descriptor, "
+                          f"got {method!r}")
+    if not top_ks or not weights or min(top_ks) < 1 or min(weights) < 0:
+        raise ConfigError(f"need shortlist sizes >= 1 and weights >= 0, got {list(top_ks)} and {list(weights)}")
+    models = dict(models)
+    conf = conf.resolve(models, ds.radius)
+    dev = get_device(conf.device)
+    for model in models.values():
+        model.to(dev).eval()
+    windows = next(w for w, ms in method_windows([parse_method(n) for n in conf.methods or (method,)],
+                                                 conf.windows, conf.common_queries).items()
+                   if any(x.kind == "hvpr" for x in ms))
+    query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
+    ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
+    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
+    dist, ranked = ref.search(m.shortlist, query.items(m.shortlist), max(top_ks))
+    frames = FRAME_FEATURES[m.frames]
+    scores = ref.rerank(frames, m.matcher, query.frames(frames), query.match_starts, ranked)
+    scores = np.asarray(scores.detach().cpu().numpy() if hasattr(scores, "detach") else scores)
+    hits = truth.hits(ranked)  # [M, K_max]
+    keep = truth.has_positive() if conf.recall_denominator == "positives" else np.ones(len(hits), bool)
+    return grid_recall(scores, np.asarray(dist), hits[keep], keep, windows.match_len, top_ks, weights), \
+        int(keep.sum())
+
+
+def grid_recall(scores: np.ndarray, dist: np.ndarray, hits: np.ndarray, keep: np.ndarray, match_len: int,
+                top_ks: Sequence[int], weights: Sequence[float]) -> np.ndarray:
+    """Recall@1 ``[len(top_ks), len(weights)]`` from the matcher ``scores [M, K_max]`` and shortlist distances
+    ``dist [M, K_max]`` of each query's shortlist, whether each candidate is correct (``hits [M', K_max]`` of the
+    queries ``keep [M]`` counted): the first candidate of the lowest ``scores / L_m + λ · dist`` among the first
+    K (λ = 0: the lowest score, ties in shortlist order, as :func:`seqnet.matching.hvpr.order`)."""
+    out = np.zeros((len(top_ks), len(weights)))
+    if not keep.any():
+        return out
+    s, d = scores[keep].astype(np.float32), dist[keep].astype(np.float32)
+    rows = np.arange(len(s))
+    for i, k in enumerate(top_ks):
+        k = min(int(k), s.shape[1])
+        for j, w in enumerate(weights):
+            fused = s[:, :k] if w == 0 else s[:, :k] / np.float32(match_len) + np.float32(w) * d[:, :k]
+            out[i, j] = hits[rows, np.argmin(fused, axis=1)].mean()
+    return out
+
+
+def pick(recall: np.ndarray, top_ks: Sequence[int], weights: Sequence[float],
+         default: tuple[int, float]) -> tuple[int, int]:
+    """The index ``(i, j)`` of the best Recall@1; a tie keeps ``default`` ``(K, λ)`` when it is among the best,
+    else the smallest K, then the λ nearest the default's."""
+    best = np.isclose(recall, recall.max(), rtol=0, atol=1e-12)
+    cells = [(i, j) for i, j in zip(*np.nonzero(best), strict=True)]
+    for i, j in cells:
+        if (top_ks[i], weights[j]) == default:
+            return int(i), int(j)
+    return min(cells, key=lambda c: (top_ks[c[0]], abs(weights[c[1]] - default[1]), weights[c[1]]))
+
+
+def select_hvpr(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, free: Sequence[str] = SELECTABLE,
+                where: str = "val") -> tuple[EvalConfig, list[Choice]]:
+    """``conf`` with the settings of ``free`` (of :data:`SELECTABLE`) chosen on ``ds`` (a validation split: the
+    caller's promise; it is never given test) by val Recall@1, and what was chosen (one :class:`Choice` per
+    method scored: the paper's ``hvpr`` for ``top_k``, ``hvpr-fused`` for ``fuse_top_k`` / ``fuse_weight``;
+    a setting whose method is not among ``conf.methods`` stays as it is). ``where`` names ``ds`` in the reasons."""
+    free = [f for f in free if f in SELECTABLE]
+    methods = [parse_method(n) for n in conf.resolve(dict(models), ds.radius).methods]
+    hvprs = [m for m in methods if m.kind == "hvpr" and m.shortlist in SEQUENCE_DESCRIPTORS
+             and m.shortlist != FRAME_FEATURES[m.frames] and set(m.models()) <= set(models)]
+    plain = next((m for m in hvprs if not m.fused), None)
+    fused = next((m for m in hvprs if m.fused), None)
+    choices, updates = [], {}
+    if "top_k" in free and plain is not None:
+        ch = _choose(ds, models, conf, plain.name, ("top_k",), {"top_k": conf.top_k, "fuse_weight": 0.0}, where)
+        choices.append(ch)
+        updates.update(ch.settings)
+    if fused is not None and {"fuse_top_k", "fuse_weight"} & set(free):
+        default = {"top_k": conf.fuse_top_k or FUSED_TOP_K, "fuse_weight": conf.fuse_weight}
+        names = tuple(f for f in ("fuse_top_k", "fuse_weight") if f in free)
+        ch = _choose(ds, models, conf, fused.name, names, default, where)
+        choices.append(ch)
+        updates.update(ch.settings)
+    return conf.replace(**updates), choices
+
+
+def _choose(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method: str, names: tuple[str, ...],
+            default: dict[str, Any], where: str) -> Choice:
+    """One method's grid (the settings ``names`` free, the others at ``default``), scored and picked."""
+    k_free = bool({"top_k", "fuse_top_k"} & set(names))
+    w_free = "fuse_weight" in names
+    top_ks = sorted({*(TOP_KS if "top_k" in names else FUSE_TOP_KS), default["top_k"]}) if k_free \
+        else [default["top_k"]]
+    weights = sorted({*FUSE_WEIGHTS, default["fuse_weight"]}) if w_free else [default["fuse_weight"]]
+    recall, queries = hvpr_grid(ds, models, conf, method, top_ks, weights)
+    i, j = pick(recall, top_ks, weights, (default["top_k"], default["fuse_weight"]))
+    k_name = "top_k" if "top_k" in names else "fuse_top_k"
+    settings = {**({k_name: int(top_ks[i])} if k_free else {}), **({"fuse_weight": float(weights[j])} if w_free
+                                                                   else {})}
+    grid = [{"top_k": int(k), "fuse_weight": float(w), "recall@1": round(float(recall[a, b]), 6)}
+            for a, k in enumerate(top_ks) for b, w in enumerate(weights)]
+    d = recall[top_ks.index(default["top_k"]), weights.index(default["fuse_weight"])]
+    n_best = int(np.isclose(recall, recall.max(), rtol=0, atol=1e-12).sum())
+    shown = ", ".join(f"{'K' if n != 'fuse_weight' else 'λ'} {v:g}" for n, v in settings.items())
+    if n_best > 1:
+        why = (f"tied with {n_best - 1} other setting{'s' if n_best > 2 else ''}; "
+               + ("the default kept" if (top_ks[i], weights[j]) == (default["top_k"], default["fuse_weight"])
+                  else "the smallest K kept"))
+    else:
+        why = f"the default scored {d:.3f}" if recall[i, j] > d else "the default"
+    reason = (f"{method}: {shown} chosen on {where} ({queries} queries): R@1 {recall[i, j]:.3f}, the best of "
+              f"{recall.size} settings ({why})")
+    return Choice(method, settings, float(recall[i, j]), float(d), grid, queries, reason)
+
+
+def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
+         shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
+         choose: Sequence[str] = SELECTABLE, **outputs: Any) -> Written:
+    """:func:`seqnet.eval.evaluate.main` (``outputs``: its output options) with the settings of ``choose`` chosen
+    first on the dataset's ``val`` split (:func:`select_hvpr`) when it has one and another split is evaluated;
+    what was chosen and why goes into the results (``"selection"``). Without a val split, or evaluating val
+    itself, nothing is chosen (the defaults, as without ``choose``)."""
+    from ..data.io import load_dataset
+    from ..sequence.checkpoints import load_models
+
+    choices: list[Choice] = []
+    extra: dict[str, Any] | None = None
+    if choose:
+        ds = load_dataset(dataset)
+        split = default_split(conf.split, ds.splits)
+        if split != "val" and "val" in (ds.splits or {}):
+            loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+            try:
+                conf, choices = select_hvpr(ds.split("val"), loaded, conf, choose, "the val split")
+            except ConfigError as e:  # e.g. no val query with a full window or a correct reference: said in the
+                # results; an error of the evaluation itself is its own (one line)
+                logger.debug("HVPR settings not chosen on the val split: %s", e)
+                extra = {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split (the "
+                                                                  f"defaults kept): {e}"}}
+            if choices:
+                extra = {"selection": {"hvpr": [c.to_dict() for c in choices]}}
+    return evaluate_main(conf, dataset, out, models, shortlist_model, rerank_model, extra=extra, **outputs)

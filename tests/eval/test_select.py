@@ -1,0 +1,124 @@
+"""Choosing HVPR's K and λ on a validation split: the one-pass grid against a naive loop of evaluations, the
+tie rule, settings left as given, and a test split that is never read."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from seqnet.data.synth import make_synthetic
+from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.eval.select import grid_recall, hvpr_grid, pick, select_hvpr
+from seqnet.sequence.model import SeqNet
+
+CONF = EvalConfig(methods=("single", "hvpr", "hvpr-fused"), seq_len=5, device="cpu", common_queries=True)
+
+
+@pytest.fixture(scope="module")
+def data():
+    torch.manual_seed(0)
+    ds = make_synthetic(places=200, dim=16, seed=1)
+    return ds, {"seqnet": SeqNet(16, 8, 5, 3), "s1": SeqNet(16, 8, 1, 1)}
+
+
+def test_the_grid_is_what_evaluate_reports_setting_by_setting(data):
+    ds, models = data
+    val = ds.split("val")
+    ks, ws = (1, 3, 40), (0.0, 0.25, 1.0)
+    recall, queries = hvpr_grid(val, models, CONF, "hvpr-fused", ks, ws)
+    for i, k in enumerate(ks):
+        for j, w in enumerate(ws):  # the naive loop: one whole evaluation per setting
+            one = CONF.replace(methods=("hvpr" if w == 0 else "hvpr-fused",), top_k=k, fuse_top_k=k, fuse_weight=w)
+            res = evaluate(val, one, models).results["methods"]
+            naive = res["hvpr-fused" if w > 0 else "hvpr"]
+            assert recall[i, j] == pytest.approx(naive["recall@1"], abs=1e-12), (k, w)
+            assert queries == naive["queries"]
+    assert len(np.unique(recall)) > 2  # the settings differ: the comparison means something
+
+
+def test_grid_recall_matches_a_loop_over_queries(rng):
+    m, kmax, lm = 30, 12, 5
+    scores, dist = rng.random((m, kmax)) * 10, rng.random((m, kmax))
+    scores[:, 3] = scores[:, 4]  # ties: the first in shortlist order wins
+    hits, keep = rng.random((m, kmax)) < 0.2, rng.random(m) < 0.8
+    ks, ws = (1, 4, 12, 50), (0.0, 0.5, 3.0)
+    got = grid_recall(scores, dist, hits[keep], keep, lm, ks, ws)
+    for i, k in enumerate(ks):
+        for j, w in enumerate(ws):
+            correct = []
+            for q in np.flatnonzero(keep):
+                k_ = min(k, kmax)
+                s = [np.float32(scores[q, c]) if w == 0 else np.float32(scores[q, c]) / np.float32(lm)
+                     + np.float32(w) * np.float32(dist[q, c]) for c in range(k_)]
+                best = min(range(k_), key=lambda c: (s[c], c))
+                correct.append(hits[q, best])
+            assert got[i, j] == pytest.approx(np.mean(correct)), (k, w)
+
+
+def test_ties_keep_the_default_else_the_smallest_k():
+    ks, ws = [10, 20, 50], [0.0, 0.25, 1.0]
+    r = np.array([[0.5, 0.9, 0.9], [0.9, 0.9, 0.1], [0.2, 0.2, 0.2]])
+    assert pick(r, ks, ws, (20, 0.25)) == (1, 1)  # the default is among the best: kept
+    assert pick(r, ks, ws, (50, 0.25)) == (0, 1)  # else the smallest K, then the λ nearest the default's
+    r[2, 2] = 0.95
+    assert pick(r, ks, ws, (20, 0.25)) == (2, 2)  # a strictly better setting wins over the default
+
+
+def test_settings_given_stay_and_the_choice_says_why(data):
+    ds, models = data
+    val = ds.split("val")
+    conf = CONF.replace(top_k=7, fuse_top_k=123, fuse_weight=0.3)
+    out, choices = select_hvpr(val, models, conf, free=("fuse_weight",))
+    assert (out.top_k, out.fuse_top_k) == (7, 123) and [c.method for c in choices] == ["hvpr-fused"]
+    assert set(choices[0].settings) == {"fuse_weight"} and {g["top_k"] for g in choices[0].grid} == {123}
+    assert "chosen on val" in choices[0].reason and "queries" in choices[0].reason
+    same, none = select_hvpr(val, models, conf, free=())
+    assert same == conf and none == []
+    every, chosen = select_hvpr(val, models, CONF)
+    assert [c.method for c in chosen] == ["hvpr", "hvpr-fused"]
+    assert every.top_k == chosen[0].settings["top_k"] and every.fuse_weight == chosen[1].settings["fuse_weight"]
+    assert chosen[1].recall == max(g["recall@1"] for g in chosen[1].grid) >= chosen[1].default_recall
+
+
+def test_the_choice_never_reads_the_test_split(data):
+    """The pipeline's entry (hvpr_on_val) gets the whole dataset; poisoning its test range changes nothing."""
+    from seqnet.pipelines.nordland64 import Nordland64Config
+    from seqnet.pipelines.nordland64.run import hvpr_on_val
+
+    ds, models = data
+    conf = Nordland64Config(device="cpu", methods=("hvpr", "hvpr-fused"))
+    picked, choices = hvpr_on_val(ds, models, conf)
+    (a, b), (c, d) = ds.splits["test"]["query"], ds.splits["test"]["reference"]
+    q, r = np.array(ds.query.descriptors), np.array(ds.reference.descriptors)
+    noise = np.random.default_rng(5)
+    q[a:b], r[c:d] = noise.normal(0, 100, q[a:b].shape), noise.normal(0, 100, r[c:d].shape)
+    poisoned = dataclasses.replace(ds, query=dataclasses.replace(ds.query, descriptors=q),
+                                   reference=dataclasses.replace(ds.reference, descriptors=r))
+    again, choices2 = hvpr_on_val(poisoned, models, conf)
+    assert (again.top_k, again.fuse_top_k, again.fuse_weight) == (picked.top_k, picked.fuse_top_k, picked.fuse_weight)
+    assert [c.grid for c in choices2] == [c.grid for c in choices]
+
+
+def test_seqnet_eval_chooses_on_val_unless_told(synth_dir, map_models, tmp_path, capsys):
+    from seqnet.cli import main as cli_main
+
+    base = ["eval", "--dataset", str(synth_dir), *(a for p in map_models for a in ("--model", str(p))),
+            "--method", "s1+seqmatch,hvpr,hvpr-fused", "--device", "cpu"]
+    assert cli_main([*base, "--json", str(tmp_path / "a.json")]) == 0
+    res = json.loads((tmp_path / "a.json").read_text())
+    chosen = res["selection"]["hvpr"]
+    assert [c["method"] for c in chosen] == ["hvpr", "hvpr-fused"] and res["config"]["split"] == "test"
+    assert res["methods"]["hvpr"]["method"]["top_k"] == chosen[0]["settings"]["top_k"]
+    assert res["config"]["fuse_weight"] == chosen[1]["settings"]["fuse_weight"]
+    assert "chosen on the val split" in capsys.readouterr().out
+    flags = ["--top-k", "7", "--fuse-top-k", "50", "--fuse-weight", "0.5"]
+    assert cli_main([*base, *flags, "--json", str(tmp_path / "b.json")]) == 0  # explicit flags win
+    res = json.loads((tmp_path / "b.json").read_text())
+    assert "selection" not in res and res["methods"]["hvpr"]["method"]["top_k"] == 7
+    assert (res["config"]["fuse_top_k"], res["config"]["fuse_weight"]) == (50, 0.5)
+    assert cli_main([*base, "--split", "val", "--json", str(tmp_path / "c.json")]) == 0  # val itself: nothing chosen
+    assert "selection" not in json.loads((tmp_path / "c.json").read_text())
