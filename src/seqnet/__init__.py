@@ -23,7 +23,7 @@ _API: dict[str, str] = {  # public name -> the module that defines it, imported 
     "make_synthetic": ".data.synth",
     "Dataset": ".data.traverse",
     "Traverse": ".data.traverse",
-    "EvalConfig": ".eval.evaluate",
+    "EvalConfig": ".eval.config",
     "Evaluation": ".eval.evaluate",
     "evaluate": ".eval.evaluate",
     "recall_at_k": ".metrics.recall",

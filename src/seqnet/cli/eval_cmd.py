@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
 from ..core.log import ordinal
-from ..eval.evaluate import EvalConfig
+from ..eval.config import EvalConfig
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..report.guidance import format_notes, learned_below_baseline
 from ..report.tables import format_table

@@ -30,7 +30,7 @@ from ..core.provenance import check_same
 from ..core.stage import Written
 from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
 from ..data.trajectory import TrackView
-from ..eval.evaluate import EvalConfig
+from ..eval.config import EvalConfig
 from ..methods.protocol import Reference
 from ..security.dirs import remove_dead_temps
 from ..security.inputs import special_file

@@ -8,8 +8,9 @@ from ...core.config import Config, check_bool, check_choice, check_float, check_
 from ...core.errors import ConfigError
 from ...describe import DescribeConfig
 from ...describe.config import check_size
-from ...eval.evaluate import RECALL_DENOMINATORS, EvalConfig
+from ...eval.config import EvalConfig
 from ...methods.grammar import FUSE_WEIGHT, FUSED_TOP_K, parse_method
+from ...metrics.recall import RECALL_DENOMINATORS
 from ...train import TrainConfig
 from .speed import check_speed
 
