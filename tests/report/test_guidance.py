@@ -86,3 +86,12 @@ def test_an_hvpr_on_a_model_free_shortlist_names_its_shortlist():
     res = _results({"raw+seqmatch": 0.460, "hvpr-single": 0.441}, queries=817)
     (note,) = learned_below_baseline(res)
     assert note.causes[0].startswith("its shortlist is the model-free single")
+
+
+def test_a_pca_folded_into_the_models_is_not_called_missing():
+    # the benchmark folds its PCA into the models: their in_dims are the raw D, but PCA was applied
+    models = {"s1": {"in_dims": 7168, "out_dims": 256, "seq_len": 1, "w": 1}}
+    res = _results({"single": 0.7, "s1": 0.4}, models=models)
+    assert any("D = 7168 without PCA" in c for c in likely_causes("s1", res))
+    res["config"]["benchmark"] = {"pca_dims": 64}
+    assert not any("without PCA" in c for c in likely_causes("s1", res))

@@ -87,7 +87,8 @@ def likely_causes(name: str, results: Mapping[str, Any]) -> tuple[str, ...]:
     dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
     from ..describe.pca import PAPER_PCA_DIM  # here: the describe package (its describers, h5py) loads with it
 
-    if dims and dims[-1] > PAPER_PCA_DIM:
+    folded = (cfg.get("benchmark") or {}).get("pca_dims") if isinstance(cfg.get("benchmark"), Mapping) else None
+    if dims and dims[-1] > PAPER_PCA_DIM and not folded:  # a PCA folded into the models reads D raw dims too
         out.append(f"D = {dims[-1]} without PCA (the paper reduces to {PAPER_PCA_DIM}; seqnet train --pca D, or seqnet "
                    "dataset from-images --pca D, fitted on the train split)")
     trained = models.get("seqnet", {}).get("seq_len") if isinstance(models.get("seqnet"), Mapping) else None
