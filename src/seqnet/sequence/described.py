@@ -19,11 +19,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..core.memmaps import take_rows
 from .descriptors import SEQUENCE_DESCRIPTORS, describe_windows
-from .windows import Windows, window_frames, window_indices
+from .windows import WindowedItems, Windows, window_frames, window_indices
 
 torch = lazy_module("torch")
 
@@ -56,7 +55,7 @@ def describe_items(raw: np.ndarray | torch.Tensor, starts: np.ndarray, name: str
                             progress=progress, spill=spill)
 
 
-class Described:
+class Described(WindowedItems):
     """One traverse's items under ``windows`` and its descriptors, each computed once and timed (ms).
 
     Args:
@@ -72,22 +71,9 @@ class Described:
                  models: Mapping[str, SeqNet], device: torch.device, what: str = "query", spill: bool = False) -> None:
         self.raw, self.seq_bounds, self.windows = descriptors, seq_bounds, windows
         self.models, self.device, self.spill = models, device, spill
-        self.side = windows.side(len(descriptors), seq_bounds)
-        if len(self.side.items) == 0:
-            raise ConfigError(f"no {what} frame has a full window of seq_len={windows.seq_len} (L_m="
-                              f"{windows.match_len}) inside its sequence; use a shorter --seq-len")
+        self._set_side(windows, len(descriptors), seq_bounds, what)
         self._cache: dict[tuple[str, str], torch.Tensor] = {}
         self.ms: dict[tuple[str, str], float] = {}
-
-    @property
-    def items_index(self) -> np.ndarray:
-        """``[M]`` frame of each item."""
-        return self.side.items
-
-    @property
-    def match_starts(self) -> np.ndarray:
-        """``[M]`` first frame of each item's L_m-window."""
-        return self.side.match_starts
 
     def items(self, name: str) -> torch.Tensor | np.ndarray:
         """``[M, D']`` item descriptors ``name`` (a tensor, or a :class:`~seqnet.core.memmaps.Spilled` map)."""

@@ -17,7 +17,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.memmaps import RowsOut, read_rows, take_rows
 from ..core.memory import BLOCK_BYTES
-from .windows import Windows, window_frames
+from .windows import WindowedItems, Windows, window_frames
 
 
 def l2_normalize_np(x: np.ndarray, out: np.ndarray | None = None, eps: float = 1e-12) -> np.ndarray:
@@ -115,7 +115,7 @@ def _windows(raw: np.ndarray, block: np.ndarray) -> np.ndarray:
     return rows[local.reshape(block.shape)]
 
 
-class PlainDescribed:
+class PlainDescribed(WindowedItems):
     """One traverse's items under ``windows`` and their model-free descriptors (numpy), each computed once and
     timed: the numpy counterpart of :class:`seqnet.sequence.described.Described` for k-NN methods (items only).
 
@@ -129,22 +129,9 @@ class PlainDescribed:
     def __init__(self, descriptors: np.ndarray, seq_bounds: np.ndarray | None, windows: Windows,
                  what: str = "query", spill: bool = False) -> None:
         self.raw, self.windows, self.spill = descriptors, windows, spill
-        self.side = windows.side(len(descriptors), seq_bounds)
-        if len(self.side.items) == 0:
-            raise ConfigError(f"no {what} frame has a full window of seq_len={windows.seq_len} (L_m="
-                              f"{windows.match_len}) inside its sequence; use a shorter --seq-len")
+        self._set_side(windows, len(descriptors), seq_bounds, what)
         self._cache: dict[str, np.ndarray] = {}
         self.ms: dict[str, float] = {}
-
-    @property
-    def items_index(self) -> np.ndarray:
-        """``[M]`` frame of each item."""
-        return self.side.items
-
-    @property
-    def match_starts(self) -> np.ndarray:
-        """``[M]`` first frame of each item's L_m-window."""
-        return self.side.match_starts
 
     def items(self, name: str) -> np.ndarray:
         """``[M, D]`` float32 item descriptors ``name`` (an array, or a spilled memory map)."""

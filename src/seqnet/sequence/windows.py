@@ -203,6 +203,30 @@ class Side:
     match_starts: np.ndarray
 
 
+class WindowedItems:
+    """Base of the described sides (:class:`seqnet.sequence.described.Described`, its numpy counterpart
+    :class:`seqnet.sequence.npdescribed.PlainDescribed`): the items of ``n`` frames under ``windows``."""
+
+    side: Side
+
+    def _set_side(self, windows: Windows, n: int, seq_bounds: np.ndarray | None, what: str) -> None:
+        """:attr:`side` of ``n`` frames (``seq_bounds [n, 2]`` or None); :class:`ConfigError` when no item fits."""
+        self.side = windows.side(n, seq_bounds)
+        if len(self.side.items) == 0:
+            raise ConfigError(f"no {what} frame has a full window of seq_len={windows.seq_len} (L_m="
+                              f"{windows.match_len}) inside its sequence; use a shorter --seq-len")
+
+    @property
+    def items_index(self) -> np.ndarray:
+        """``[M]`` frame of each item."""
+        return self.side.items
+
+    @property
+    def match_starts(self) -> np.ndarray:
+        """``[M]`` first frame of each item's L_m-window."""
+        return self.side.match_starts
+
+
 class WindowSettings:
     """Mixin of the configs that carry ``seq_len`` (L), ``match_len`` (L_m) and ``window`` fields, as given
     (None: the default); :attr:`windows` resolves them one way everywhere (L: :data:`DEFAULT_SEQ_LEN`, L_m: L)."""
