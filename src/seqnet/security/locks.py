@@ -76,9 +76,9 @@ def _acquire(lock: Path, path: Path, fcntl) -> int:  # noqa: ANN001 - the fcntl 
                                   "(move it away, or choose another output)")
             if stale:
                 logger.debug("taking over the lock of %s from a process that ended (%s)", path, stale)
-            import socket  # here: a lock taken, not every import of the output modules
-
-            info = f"{LOCK_PREFIX}{os.getpid()} on {socket.gethostname()} since {now()}: {' '.join(sys.argv[:3])}"
+            # the host by os.uname (socket's gethostname on POSIX): no import while the lock is held, so a child
+            # forked while another thread held an import lock cannot hang here holding it
+            info = f"{LOCK_PREFIX}{os.getpid()} on {os.uname().nodename} since {now()}: {' '.join(sys.argv[:3])}"
             try:
                 os.ftruncate(fd, 0)
                 os.lseek(fd, 0, os.SEEK_SET)
