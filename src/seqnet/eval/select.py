@@ -195,7 +195,8 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: 
 
     choices: list[Choice] = []
     extra: dict[str, Any] | None = None
-    if choose:
+    if choose and (conf.methods is None or any(parse_method(n).kind == "hvpr" for n in conf.methods)):
+        # only HVPR methods have settings to choose: others skip the second dataset load and the models
         ds = load_dataset(dataset)
         split = default_split(conf.split, ds.splits)
         if split != "val" and "val" in (ds.splits or {}):
