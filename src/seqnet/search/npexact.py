@@ -9,7 +9,8 @@ whose squared norms are not finite are refused, the products are float32 (float6
 every query's best score is checked against a float64 recomputation (:func:`seqnet.search.verify.wrong_rows`);
 when one is off by more than float32 rounding allows, the whole search runs again in float64 (logged).
 Memory is bounded: a query block times a reference block of distances, at most ``block_bytes``
-(:data:`seqnet.core.memory.BLOCK_BYTES`), the running top-k (:func:`seqnet.search.nptopk.merge_smallest`).
+(:data:`seqnet.core.memory.BLOCK_BYTES`), the running top-k
+(:func:`seqnet.search.nptopk.merge_distances`: the root taken only on candidates).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from ..core.errors import ConfigError
 from ..core.memmaps import read_rows
 from ..core.memory import BLOCK_BYTES
 from .blocks import col_blocks
-from .nptopk import merge_smallest
+from .nptopk import merge_distances, merge_smallest
 from .verify import wrong_rows
 
 logger = logging.getLogger("seqnet")
@@ -115,6 +116,7 @@ class NumpyExactIndex:
             return np.zeros((nq, k), dtype), np.zeros((nq, k), np.int64)
         width = max(b - a for a, b in self.blocks)
         step = max(1, self.block_bytes // ((2 * width + self.dim) * dtype.itemsize))
+        step = -(-nq // -(-nq // step))  # query blocks of equal size (a thin last block multiplies slowly)
         norms, out_v, out_i = self.norms(dtype), [], []
         for s in range(0, nq, step):
             qb = np.asarray(read_rows(query, s, min(nq, s + step)), dtype=dtype)
@@ -124,16 +126,16 @@ class NumpyExactIndex:
             best = None
             for c0, c1 in self.blocks:
                 d = qb @ self.block(c0, c1, dtype).T
-                if self.row_scale is not None:
-                    d *= self.scale(c0, c1, dtype)
                 if metric == "ip":
-                    np.negative(d, out=d)
-                else:  # ‖r‖² − 2 q·r, then + ‖q‖²: torch's finish_distances, in its order
-                    d *= -2.0
-                    d += norms[c0:c1]
-                    d += q_sq[:, None]
-                    np.sqrt(np.maximum(d, 0.0, out=d), out=d)
-                best = merge_smallest(best, d, c0, k)
+                    if self.row_scale is not None:
+                        d *= self.scale(c0, c1, dtype)
+                    best = merge_smallest(best, np.negative(d, out=d), c0, k)
+                    continue
+                # ‖r‖² − 2 q·r (the scale and −2 in one exact product), ‖q‖² and the root only on candidates
+                scale = self.scale(c0, c1, dtype)
+                d *= dtype.type(-2.0) if scale is None else scale * dtype.type(-2.0)
+                d += norms[c0:c1]
+                best = merge_distances(best, d, q_sq, c0, k)
             out_v.append(best[0])
             out_i.append(best[1])
         vals, idx = np.concatenate(out_v), np.concatenate(out_i)

@@ -9,6 +9,8 @@ ties keep the lower column).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 
@@ -71,21 +73,80 @@ def merge_smallest(best: tuple[np.ndarray, np.ndarray] | None, x: np.ndarray, of
     ``j, j + m, j + 2m, ...``: neighbours on a route fall in different groups) bounds each row's k-th value from
     above, so the entries at or under it hold the row's top k, ties at the cut-off included; only those are
     sorted. Rows whose bound is not finite, and blocks too narrow for ``k`` groups, take :func:`merge_topk_np`."""
-    b, c = x.shape
-    k = min(int(k), c + (0 if best is None else best[0].shape[1]))
-    m = min(STRIDES, c)
-    if b == 0 or k <= 0 or m < k or x.dtype.kind != "f" or (best is not None and best[0].shape[1] < k):
+    k = _capped(best, x, k)
+    if not _boundable(best, x, k):
         return merge_topk_np(best, x, offset, k)
-    w = c // m
-    bound = np.partition(x[:, : w * m].reshape(b, w, m).min(1), k - 1, axis=1)[:, k - 1]
+    bound = _group_bound(x, k)
     if best is not None:
         bound = np.minimum(bound, best[0][:, k - 1])  # the running k-th: nothing over it can enter
+    return _merge_under(best, x, offset, k, bound, bound, lambda v, rows: v, lambda rows: x[rows])
+
+
+def finished(u: np.ndarray, add: np.ndarray) -> np.ndarray:
+    """``sqrt(max(u + add[:, None], 0))`` of ``u [B, c]``, ``add [B]`` (distances from ``‖r‖² − 2 q·r`` and
+    ``‖q‖²``), in ``u``'s dtype, in that order of operations."""
+    v = u + add[:, None]
+    return np.sqrt(np.maximum(v, 0, out=v), out=v)
+
+
+def merge_distances(best: tuple[np.ndarray, np.ndarray] | None, u: np.ndarray, add: np.ndarray, offset: int,
+                    k: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`merge_smallest` of the distances ``finished(u, add)`` (``[B, c]``) with only the candidates finished:
+    the group bound is taken on ``u`` and finished, and the entries of ``u`` under the generous inverse of the
+    running k-th distance (:func:`_u_threshold`: every entry whose finished distance could be at or under it)
+    are finished, sorted and merged. The answer is that of ``merge_smallest(best, finished(u, add), ...)``."""
+    k = _capped(best, u, k)
+    if not _boundable(best, u, k):
+        return merge_smallest(best, finished(u, add), offset, k)
+    vb = finished(_group_bound(u, k)[:, None], add)[:, 0]  # k entries finish at or under it
+    if best is not None:
+        vb = np.minimum(vb, best[0][:, k - 1])
+    return _merge_under(best, u, offset, k, vb, _u_threshold(vb, add, u.dtype),
+                        lambda v, rows: np.sqrt(np.maximum(v + add[rows], 0)),
+                        lambda rows: finished(u[rows], add[rows]))
+
+
+def _capped(best: tuple[np.ndarray, np.ndarray] | None, x: np.ndarray, k: int) -> int:
+    """``k`` capped at the columns seen so far."""
+    return min(int(k), x.shape[1] + (0 if best is None else best[0].shape[1]))
+
+
+def _boundable(best: tuple[np.ndarray, np.ndarray] | None, x: np.ndarray, k: int) -> bool:
+    """Whether the group bound applies: float rows, at least ``k`` groups, a running top-k of ``k``."""
+    b, c = x.shape
+    return b > 0 and k > 0 and min(STRIDES, c) >= k and x.dtype.kind == "f" and (best is None or best[0].shape[1] >= k)
+
+
+def _group_bound(x: np.ndarray, k: int) -> np.ndarray:
+    """``[B]``: the k-th smallest of the minima of ``x``'s strided column groups (at least k entries under it)."""
+    b, c = x.shape
+    m = min(STRIDES, c)
+    w = c // m
+    return np.partition(x[:, : w * m].reshape(b, w, m).min(1), k - 1, axis=1)[:, k - 1]
+
+
+def _u_threshold(v: np.ndarray, add: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """``[B]`` in ``dtype``: a value of ``u`` at or over every ``u`` whose ``finished(u, add)`` is at or under ``v``
+    (the square of ``v`` two units in the last place up, less ``add``, with a margin for the addition's rounding;
+    rounded up). Generous: more candidates, never fewer."""
+    eps = float(np.finfo(dtype).eps)
+    v64 = v.astype(np.float64)
+    t = (v64 + 2 * np.spacing(v.astype(dtype)).astype(np.float64)) ** 2 * (1 + 4 * eps) - add
+    t = t + 4 * eps * (np.abs(t) + np.abs(add))
+    return np.nextafter(t.astype(dtype), np.inf)
+
+
+def _merge_under(best: tuple[np.ndarray, np.ndarray] | None, x: np.ndarray, offset: int, k: int,
+                 bound: np.ndarray, cut: np.ndarray, value: Callable, whole: Callable) -> tuple[np.ndarray, np.ndarray]:
+    """The merge of :func:`merge_smallest`: the entries of ``x`` at or under ``cut`` (per row) become values
+    (``value(entries, rows)``), are sorted with ``best`` by row, value, column, and the first ``k`` of each row
+    kept. Rows whose ``bound`` is not finite take :func:`merge_topk_np` of ``whole(rows)`` (their values)."""
+    b, c = x.shape
     odd = ~np.isfinite(bound)  # NaN or inf in the bound: the whole row, by sort
-    if odd.any():
-        bound[odd] = -np.inf  # no candidates taken from those rows here
-    flat = np.flatnonzero(x <= bound[:, None])
+    cut = np.where(odd, -np.inf, cut) if odd.any() else cut  # no candidates taken from those rows here
+    flat = np.flatnonzero(x <= cut[:, None])
     rows, cols = np.divmod(flat, c)
-    vals = x.ravel()[flat] if x.flags.c_contiguous else x[rows, cols]
+    vals = value(x.ravel()[flat] if x.flags.c_contiguous else x[rows, cols], rows)
     cols = cols + offset
     if best is not None:  # the earlier columns first: a stable sort keeps them ahead of a tie
         rows = np.concatenate([np.repeat(np.arange(b), best[0].shape[1]), rows])
@@ -100,5 +161,5 @@ def merge_smallest(best: tuple[np.ndarray, np.ndarray] | None, x: np.ndarray, of
         out_v[good], out_i[good] = vals[order][pick[good]], cols[order][pick[good]]
     if odd.any():
         sub = None if best is None else (best[0][odd], best[1][odd])
-        out_v[odd], out_i[odd] = merge_topk_np(sub, x[odd], offset, k)
+        out_v[odd], out_i[odd] = merge_topk_np(sub, whole(np.flatnonzero(odd)), offset, k)
     return out_v, out_i
