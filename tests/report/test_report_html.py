@@ -197,3 +197,32 @@ def test_eval_report_gallery_with_hostile_names(tmp_path, capsys):
     text = (out / "report.html").read_text()
     assert "pictures left out: gallery image name" in text and "leads outside" in text
     assert_self_contained(out / "report.html")
+
+
+def test_choices_section_says_what_val_chose_and_shows_each_grid():
+    """The benchmark's and ``seqnet eval``'s ``"selection"``: one line per choice (escaped), every grid scored, and
+    nothing when nothing was chosen."""
+    from seqnet.report.html import choices_section
+
+    sel = {"descriptor": {"chosen": "netvlad", "reason": "descriptor netvlad chosen on val <b>",
+                          "scores": {"pixels": {"raw+seqmatch": 0.58, "queries": 266},
+                                     "netvlad": {"raw+seqmatch": 0.9}}},
+           "hvpr": [{"method": "hvpr-fused", "reason": "K 200, λ 0.25", "grid": [
+               {"top_k": 50, "fuse_weight": 0.25, "recall@1": 0.989}, {"top_k": 200, "fuse_weight": 2.0,
+                                                                      "recall@1": 0.981}]}]}
+    (sec,) = choices_section({"selection": sel})
+    assert sec.id == "choices" and "chosen on val &lt;b&gt;" in sec.body
+    assert "K 200, λ 0.25" in sec.body and "never read" in sec.body
+    assert sec.body.count("<details>") == 2 and "0.989" in sec.body and "0.25" in sec.body and "pixels" in sec.body
+    (why,) = choices_section({"selection": {"hvpr": [], "not_chosen": "HVPR settings not chosen: no val query"}})
+    assert "no val query" in why.body and "never read" not in why.body
+    assert choices_section({}) == [] and choices_section({"selection": {"hvpr": []}}) == []
+
+
+def test_report_has_the_choices_of_its_results(tmp_path, synth_dataset):
+    ev = evaluate(synth_dataset, EvalConfig(methods=("single",)))
+    ev.results["selection"] = {"hvpr": [{"method": "hvpr", "reason": "hvpr: K 50 chosen on val", "grid": []}]}
+    write_html_report(ev, synth_dataset, tmp_path / "r.html", ReportConfig(title="x"))
+    text = (tmp_path / "r.html").read_text()
+    assert 'id="choices"' in text and "hvpr: K 50 chosen on val" in text
+    assert_self_contained(tmp_path / "r.html")

@@ -3,7 +3,8 @@ as a base64 ``data:`` URI, no script and no external URL, so it opens offline, i
 archive, exactly as written.
 
 Sections (their ``id``): ``summary`` (what was evaluated and the resolved configuration),
-``results`` (Recall@K, precision–recall AUC, R@100P, queries, time per method), ``notes`` (only when a
+``results`` (Recall@K, precision–recall AUC, R@100P, queries, time per method), ``choices`` (what was
+chosen on val and why, when something was), ``notes`` (only when a
 learned method is below its model-free counterpart: :mod:`seqnet.report.guidance`), ``recall``
 (Recall@K curves), ``pr`` (precision–recall curves), ``matrix`` (the single-image descriptor
 distance matrix of the evaluated items, downsampled, with the ground truth and each method's top-1
@@ -195,6 +196,7 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
     return [
         summary_section(ev, conf),
         results_section(ev),
+        *choices_section(ev.results),
         *notes_section(ev.results),
         Section("recall", "Recall@K", png_tag(figure_png(recall_figure(curves, "Recall@K")), "Recall@K curves")),
         Section("pr", "Precision–recall", png_tag(figure_png(pr),
@@ -229,6 +231,39 @@ def place_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
                            "is the query frame | the matched reference frame | the reference frame nearest to the "
                            f"query's true position.</p>{cells}"))
     return out
+
+
+def choices_section(results: Any) -> list[Section]:
+    """A ``choices`` section saying what was chosen on val and why (the descriptor, HVPR's K and λ, or why
+    nothing was), with each grid; none when nothing was left to choose."""
+    sel = results.get("selection") or {}
+    picks = ([sel["descriptor"]] if isinstance(sel.get("descriptor"), dict) else []) + list(sel.get("hvpr") or [])
+    items = [f"<li>{html.escape(str(c.get('reason', '')))}</li>" for c in picks]
+    if sel.get("not_chosen"):
+        items.append(f"<li>{html.escape(str(sel['not_chosen']))}</li>")
+    if not items:
+        return []
+    grids = "".join(f"<details><summary>{html.escape(str(c.get('method', 'descriptor')))}: every setting scored"
+                    f"</summary>{table_html(*grid_rows(grid_of(c)))}</details>" for c in picks if grid_of(c))
+    only = "<p>Chosen on the validation split only; the evaluated split was never read for it.</p>" if picks else ""
+    return [Section("choices", "Chosen on val", f"<ul>{''.join(items)}</ul>{grids}{only}")]
+
+
+def grid_of(choice: Any) -> list[dict[str, Any]]:
+    """The settings a choice scored: an HVPR choice's ``grid``, or the descriptor choice's ``scores`` as rows."""
+    if isinstance(choice.get("grid"), list):
+        return [g for g in choice["grid"] if isinstance(g, dict)]
+    scores = choice.get("scores")
+    if not isinstance(scores, dict):
+        return []
+    return [{"descriptor": k, **v} for k, v in scores.items() if isinstance(v, dict)]
+
+
+def grid_rows(grid: Sequence[Any]) -> tuple[list[str], list[list[str]]]:
+    """Header and rows of a choice's grid (``[{"setting": value, ..., "recall@1": r}, ...]``)."""
+    header = list(dict.fromkeys(k for g in grid for k in g))
+    return header, [[f"{g[k]:.3g}" if isinstance(g.get(k), float) else str(g.get(k, "")) for k in header]
+                    for g in grid]
 
 
 def notes_section(results: Any) -> list[Section]:
