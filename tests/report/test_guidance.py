@@ -65,7 +65,7 @@ def test_the_text_table_marks_the_row():
 
 
 def test_the_html_report_has_a_notes_section_only_when_there_is_one():
-    from seqnet.report.html import notes_section
+    from seqnet.report.notes import notes_section
 
     assert notes_section(_results({"single": 0.5, "s1": 0.9})) == []
     (section,) = notes_section(_results({"single": 0.9, "s1<b>": 0.1, "s1": 0.5}))
@@ -73,7 +73,7 @@ def test_the_html_report_has_a_notes_section_only_when_there_is_one():
 
 
 def test_a_table_without_a_header_has_no_empty_first_row():
-    from seqnet.report.html import table_html
+    from seqnet.report.markup import table_html
 
     for blank in (None, [], ["", ""]):
         out = table_html(blank, [("a", 1)])

@@ -202,7 +202,7 @@ def test_eval_report_gallery_with_hostile_names(tmp_path, capsys):
 def test_choices_section_says_what_val_chose_and_shows_each_grid():
     """The benchmark's and ``seqnet eval``'s ``"selection"``: one line per choice (escaped), every grid scored, and
     nothing when nothing was chosen."""
-    from seqnet.report.html import choices_section
+    from seqnet.report.notes import choices_section
 
     sel = {"descriptor": {"chosen": "netvlad", "reason": "descriptor netvlad chosen on val <b>",
                           "scores": {"pixels": {"raw+seqmatch": 0.58, "queries": 266},

@@ -54,7 +54,8 @@ def test_legend_beside_the_axes_and_grouped():
 
 
 def test_sortable_table_and_header_less_facts():
-    from seqnet.report.html import SORT_JS, Section, render_html, table_html
+    from seqnet.report.html import render_html
+    from seqnet.report.markup import SORT_JS, Section, table_html
 
     t = table_html(["method", "R@1"], [["a<b", "0.5"]], sortable=True)
     assert t.startswith('<table class="sortable"><thead><tr><th>method</th>') and "a&lt;b" in t

@@ -17,7 +17,6 @@ queries, with the frames). Experiments add their own sections before these (:fun
 
 from __future__ import annotations
 
-import base64
 import dataclasses
 import html
 import json
@@ -34,7 +33,8 @@ from ..methods.grammar import parse_method
 from ..metrics.recall import recall_curve
 from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
-from .guidance import learned_below_baseline
+from .markup import SORT_JS, Section, png_tag, table_html
+from .notes import choices_section, notes_section
 from .styles import method_family
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
@@ -80,44 +80,6 @@ class ReportConfig(Config):
         for key in ("query_images", "ref_images"):
             if getattr(self, key) is not None:
                 self._set(key, str(getattr(self, key)))
-
-
-@dataclasses.dataclass
-class Section:
-    """One section of the report: an ``id`` (anchor), a title and its HTML body."""
-
-    id: str
-    title: str
-    body: str
-
-
-def png_tag(png: bytes, alt: str) -> str:
-    """An ``<img>`` whose source is the PNG itself (a base64 data URI)."""
-    data = base64.b64encode(png).decode("ascii")
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
-
-
-def table_html(header: Sequence[str] | None, rows: Sequence[Sequence[Any]], sortable: bool = False) -> str:
-    """An HTML table (cells escaped; ``header`` None: none); ``sortable``: a click on a column's heading sorts the
-    rows by it (numbers as numbers; again: the other way), by the page's own script (:data:`SORT_JS`)."""
-    header = header if header and any(str(h) for h in header) else None  # all blank: no header row
-    head = "" if header is None else \
-        "<thead><tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in header) + "</tr></thead>"
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-    cls = ' class="sortable"' if sortable else ' class="facts"' if header is None else ""
-    return f"<table{cls}>{head}<tbody>{body}</tbody></table>"
-
-
-# sorts a table.sortable by the clicked column: numbers numerically (a dash or empty cell last), text
-# alphabetically; a second click reverses. Inline: the report stays one file that loads nothing.
-SORT_JS = """document.querySelectorAll("table.sortable th").forEach(function(th,col){th.title="click to sort";
-th.addEventListener("click",function(){var tb=th.closest("table").tBodies[0],rows=Array.from(tb.rows),
-up=th.dataset.dir!=="asc";th.closest("tr").querySelectorAll("th").forEach(function(h){h.dataset.dir="";
-h.classList.remove("asc","desc")});th.dataset.dir=up?"asc":"desc";th.classList.add(up?"asc":"desc");
-function key(r){var t=r.cells[col].textContent.trim(),n=parseFloat(t);return isNaN(n)?t:n}
-rows.sort(function(a,b){var x=key(a),y=key(b),nx=typeof x==="number",ny=typeof y==="number";
-if(nx!==ny)return nx?-1:1;var c=nx?x-y:String(x).localeCompare(String(y));return up?c:-c});
-rows.forEach(function(r){tb.appendChild(r)})})});"""
 
 
 def summary_section(ev: Any, conf: ReportConfig) -> Section:
@@ -231,48 +193,6 @@ def place_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
                            "is the query frame | the matched reference frame | the reference frame nearest to the "
                            f"query's true position.</p>{cells}"))
     return out
-
-
-def choices_section(results: Any) -> list[Section]:
-    """A ``choices`` section saying what was chosen on val and why (the descriptor, HVPR's K and λ, or why
-    nothing was), with each grid; none when nothing was left to choose."""
-    sel = results.get("selection") or {}
-    picks = ([sel["descriptor"]] if isinstance(sel.get("descriptor"), dict) else []) + list(sel.get("hvpr") or [])
-    items = [f"<li>{html.escape(str(c.get('reason', '')))}</li>" for c in picks]
-    if sel.get("not_chosen"):
-        items.append(f"<li>{html.escape(str(sel['not_chosen']))}</li>")
-    if not items:
-        return []
-    grids = "".join(f"<details><summary>{html.escape(str(c.get('method', 'descriptor')))}: every setting scored"
-                    f"</summary>{table_html(*grid_rows(grid_of(c)))}</details>" for c in picks if grid_of(c))
-    only = "<p>Chosen on the validation split only; the evaluated split was never read for it.</p>" if picks else ""
-    return [Section("choices", "Chosen on val", f"<ul>{''.join(items)}</ul>{grids}{only}")]
-
-
-def grid_of(choice: Any) -> list[dict[str, Any]]:
-    """The settings a choice scored: an HVPR choice's ``grid``, or the descriptor choice's ``scores`` as rows."""
-    if isinstance(choice.get("grid"), list):
-        return [g for g in choice["grid"] if isinstance(g, dict)]
-    scores = choice.get("scores")
-    if not isinstance(scores, dict):
-        return []
-    return [{"descriptor": k, **v} for k, v in scores.items() if isinstance(v, dict)]
-
-
-def grid_rows(grid: Sequence[Any]) -> tuple[list[str], list[list[str]]]:
-    """Header and rows of a choice's grid (``[{"setting": value, ..., "recall@1": r}, ...]``)."""
-    header = list(dict.fromkeys(k for g in grid for k in g))
-    return header, [[f"{g[k]:.3g}" if isinstance(g.get(k), float) else str(g.get(k, "")) for k in header]
-                    for g in grid]
-
-
-def notes_section(results: Any) -> list[Section]:
-    """A ``notes`` section when a learned method is below its model-free counterpart (none otherwise)."""
-    notes = learned_below_baseline(results)
-    if not notes:
-        return []
-    items = "".join(f"<li>{html.escape(n.text())}</li>" for n in notes)
-    return [Section("notes", "Notes", f"<ul>{items}</ul>")]
 
 
 def matrix_note(ev: Any) -> str:

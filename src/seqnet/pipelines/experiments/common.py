@@ -24,15 +24,8 @@ from ...core.errors import ConfigError
 from ...data.traverse import Dataset
 from ...eval.evaluate import EvalConfig, Evaluation, evaluate
 from ...methods.grammar import parse_method
-from ...report.html import (
-    ReportConfig,
-    Section,
-    evaluation_sections,
-    figure_section,
-    render_html,
-    rows_as_text,
-    table_html,
-)
+from ...report.html import ReportConfig, evaluation_sections, figure_section, render_html, rows_as_text
+from ...report.markup import Section, table_html
 from ...report.tables import save_figure
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked

@@ -1,0 +1,53 @@
+"""The report's sections of sentences: what was chosen on val and why (:func:`choices_section`), and the
+learned methods below their model-free counterparts (:func:`notes_section`, :mod:`seqnet.report.guidance`)."""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Sequence
+from typing import Any
+
+from .guidance import learned_below_baseline
+from .markup import Section, table_html
+
+
+def choices_section(results: Any) -> list[Section]:
+    """A ``choices`` section saying what was chosen on val and why (the descriptor, HVPR's K and λ, or why
+    nothing was), with each grid; none when nothing was left to choose."""
+    sel = results.get("selection") or {}
+    picks = ([sel["descriptor"]] if isinstance(sel.get("descriptor"), dict) else []) + list(sel.get("hvpr") or [])
+    items = [f"<li>{html.escape(str(c.get('reason', '')))}</li>" for c in picks]
+    if sel.get("not_chosen"):
+        items.append(f"<li>{html.escape(str(sel['not_chosen']))}</li>")
+    if not items:
+        return []
+    grids = "".join(f"<details><summary>{html.escape(str(c.get('method', 'descriptor')))}: every setting scored"
+                    f"</summary>{table_html(*grid_rows(grid_of(c)))}</details>" for c in picks if grid_of(c))
+    only = "<p>Chosen on the validation split only; the evaluated split was never read for it.</p>" if picks else ""
+    return [Section("choices", "Chosen on val", f"<ul>{''.join(items)}</ul>{grids}{only}")]
+
+
+def grid_of(choice: Any) -> list[dict[str, Any]]:
+    """The settings a choice scored: an HVPR choice's ``grid``, or the descriptor choice's ``scores`` as rows."""
+    if isinstance(choice.get("grid"), list):
+        return [g for g in choice["grid"] if isinstance(g, dict)]
+    scores = choice.get("scores")
+    if not isinstance(scores, dict):
+        return []
+    return [{"descriptor": k, **v} for k, v in scores.items() if isinstance(v, dict)]
+
+
+def grid_rows(grid: Sequence[Any]) -> tuple[list[str], list[list[str]]]:
+    """Header and rows of a choice's grid (``[{"setting": value, ..., "recall@1": r}, ...]``)."""
+    header = list(dict.fromkeys(k for g in grid for k in g))
+    return header, [[f"{g[k]:.3g}" if isinstance(g.get(k), float) else str(g.get(k, "")) for k in header]
+                    for g in grid]
+
+
+def notes_section(results: Any) -> list[Section]:
+    """A ``notes`` section when a learned method is below its model-free counterpart (none otherwise)."""
+    notes = learned_below_baseline(results)
+    if not notes:
+        return []
+    items = "".join(f"<li>{html.escape(n.text())}</li>" for n in notes)
+    return [Section("notes", "Notes", f"<ul>{items}</ul>")]
