@@ -9,9 +9,10 @@ import pytest
 from conftest import shared_data
 
 from seqnet.core.errors import ConfigError
+from seqnet.pipelines.descriptor_choice import runnable
 from seqnet.pipelines.nordland64 import Nordland64Config
 from seqnet.pipelines.nordland64.config import SELECTABLE
-from seqnet.pipelines.nordland64.select import candidate_config, descriptor_on_val, runnable
+from seqnet.pipelines.nordland64.select import candidate_config, descriptor_on_val
 
 
 def conf_of(*flags):

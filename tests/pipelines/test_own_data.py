@@ -137,3 +137,53 @@ def test_pca_is_fitted_on_the_train_split_only(route, tmp_path, capsys):
     assert (tmp_path / "p.pca.npz").is_file() and ds.reference.provenance["settings"]["dim"] == 8
     assert build(route, tmp_path / "q", "--utm-names", "--radius", "6", "--pca", "8") == 2
     assert "train split only" in capsys.readouterr().err and not (tmp_path / "q").exists()
+
+
+def test_without_method_the_descriptor_is_chosen_on_val(route, tmp_path, capsys, monkeypatch):
+    """No --method: each candidate that can run describes only the val images (never a test image), the model-free
+    proxy picks one, the dataset is described with it and the choice is recorded and said; without a val split it is
+    one line asking for one."""
+    from seqnet.cli.dataset_cmd import images as images_cmd
+    from seqnet.pipelines import descriptor_choice, from_images
+
+    monkeypatch.setattr(images_cmd, "CANDIDATES", ("pixels", "gmp"))
+    monkeypatch.setattr(descriptor_choice, "runnable", lambda d: None if d.method == "pixels" else "not installed")
+    described = []
+    real = from_images.make_describer
+
+    def spy(*a, **k):
+        d = real(*a, **k)
+        inner = d.describe
+        d.describe = lambda paths, names, **kw: (described.append(list(names)), inner(paths, names, **kw))[1]
+        return d
+
+    monkeypatch.setattr(from_images, "make_describer", spy)
+    base = ["-q", "dataset", "from-images", str(route / "ref"), str(route / "qry"), "--patch", "0",
+            "--positives", str(route / "positives.json")]
+    assert main([*base, "--out", str(tmp_path / "x")]) == 2
+    assert "needs a val split" in capsys.readouterr().err and not (tmp_path / "x").exists()
+    splits = ["--split", "val=0:80,0:20", "--split", "test=0:80,20:40"]
+    assert main([*base, *splits, "--out", str(tmp_path / "ds")]) == 0
+    capsys.readouterr()
+    meta = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    choice = meta["descriptor_choice"]
+    assert choice["chosen"] == "pixels" and choice["skipped"] == {"gmp": "not installed"}
+    assert choice["scores"]["pixels"]["queries"] == 16 and 0 <= choice["scores"]["pixels"]["raw+seqmatch"] <= 1
+    assert choice["reason"].startswith("descriptor pixels chosen on val queries 0:20 against reference 0:80 (16 ")
+    assert "not tried: gmp" in choice["reason"]
+    qry_names = sorted(p.name for p in (route / "qry").iterdir())
+    assert described[1] == qry_names[:20]  # the choice: the val queries only (after the val reference)
+    assert described[-1] == qry_names  # then the dataset: every query
+    assert load_dataset(tmp_path / "ds").query.provenance["settings"]["method"] == "pixels"
+
+
+def test_choose_on_val_ranks_by_the_proxy_then_single_then_order():
+    from seqnet.describe import DescribeConfig
+    from seqnet.pipelines.descriptor_choice import choose_on_val
+
+    got = {"pixels": (0.5, 0.2), "netvlad": (0.9, 0.3), "gem": (0.9, 0.4), "gmp": (0.9, 0.4)}
+    cands = {n: DescribeConfig(method=n) for n in got}
+    score = lambda d: {"raw+seqmatch": got[d.method][0], "single": got[d.method][1], "queries": 7}  # noqa: E731
+    dconf, record = choose_on_val(cands, score, "val")
+    assert dconf.method == "gem" and record["chosen"] == "gem"  # the tie-break: single, then the first listed
+    assert "against pixels 0.500, netvlad 0.900, gmp 0.900" in record["reason"]

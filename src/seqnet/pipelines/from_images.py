@@ -23,6 +23,7 @@ construction (their provenance is recorded), then attaches the ground truth, one
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -43,6 +44,9 @@ from ..describe.stage import describe_provenance
 from ..security.locks import locked
 from ..security.ownership import check_replaceable
 from ..sources.bags.positions import DEFAULT_TOLERANCE, is_bag, match_positions
+from .descriptor_choice import CANDIDATES, choose_on_val, evenly, proxy_scores
+
+PROXY_SEQ_LEN = 5  # the window of the proxy's raw+seqmatch: the default L
 
 FIT_ON = ("reference", "both")
 
@@ -66,6 +70,8 @@ class FromImagesConfig(Config):
         positions_tolerance: ``bag``: the largest gap (seconds) between an image and its position message.
         pca: reduce the descriptors to this many dimensions by a PCA fitted on the ``train`` split only
             (:mod:`seqnet.pipelines.pca`; needs that split); None: no reduction.
+        candidates: choose the describer among these methods on the ``val`` split (needs it) before describing,
+            each with ``describe``'s other settings (:mod:`seqnet.pipelines.descriptor_choice`); empty: ``describe``.
     """
 
     describe: DescribeConfig = DescribeConfig()
@@ -80,8 +86,15 @@ class FromImagesConfig(Config):
     max_time_gap: float = DEFAULT_MAX_GAP
     positions_tolerance: float = DEFAULT_TOLERANCE
     pca: int | None = None
+    candidates: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        self._set("candidates", tuple(self.candidates))
+        for name in self.candidates:
+            check_choice("descriptor candidate", name, CANDIDATES)
+        if self.candidates and "val" not in (self.splits or {}):
+            raise ConfigError("choosing the descriptor (no --method) needs a val split to choose it on (never test): "
+                              "give --split val=A:B[,C:D], or choose one with --method (e.g. pixels)")
         if self.pca is not None:
             self._set("pca", check_int("pca", self.pca, 1))
             if "train" not in (self.splits or {}):
@@ -188,6 +201,38 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
                          truth, extra)
 
 
+def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
+                     positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
+                     unit: tuple[str, str | None], truth: Positives | None) -> tuple[DescribeConfig, dict]:
+    """The describer :mod:`seqnet.pipelines.descriptor_choice` prefers among ``conf.candidates`` on the ``val``
+    split: each candidate describes only the val images of both traverses (a fitted state fitted on at most
+    :data:`~seqnet.pipelines.descriptor_choice.PROXY_FIT` of its fitting images); and the record of the choice."""
+    ref, qry = images
+    (pos_r, bounds_r), (pos_q, bounds_q) = positions
+    ones = (np.ones((len(ref), 1), np.float32), np.ones((len(qry), 1), np.float32))  # the ground truth's layout only
+    base = assemble_dataset(Traverse(ones[0], pos_r, ref.names, bounds_r, "reference"),
+                            Traverse(ones[1], pos_q, qry.names, bounds_q, "query"), unit[0], conf.radius,
+                            splits=conf.splits, name="val", positives=truth)
+    val, rng = base.split("val"), base.ranges("val")
+
+    def score(dconf: DescribeConfig) -> dict:
+        t0, fit = time.perf_counter(), evenly(_fit_images(conf.replace(describe=dconf), ref, qry) or [])
+        describer = make_describer(dconf.replace(fit=fit) if fit else dconf, fit or ref.paths)
+        desc = {}
+        for side, side_images in (("reference", ref), ("query", qry)):
+            a, b = rng[side]
+            desc[side], got = describer.describe(side_images.paths[a:b], side_images.names[a:b])
+            if len(got) != b - a:
+                raise ImageError(f"{b - a - len(got)} val {side} images could not be read: fix or remove them")
+        described = dataclasses.replace(val, reference=val.reference.with_descriptors(desc["reference"]),
+                                        query=val.query.with_descriptors(desc["query"]))
+        return proxy_scores(described, PROXY_SEQ_LEN, dconf.device, t0=t0)
+
+    (a, b), (c, d) = rng["reference"], rng["query"]
+    where = f"val queries {c}:{d} against reference {a}:{b}"
+    return choose_on_val({n: conf.describe.replace(method=n) for n in conf.candidates}, score, where)
+
+
 def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
                   positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
                   unit: tuple[str, str | None], out: str | Path, overwrite: bool = False,
@@ -201,6 +246,9 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         if Path(out).exists() and any(Path(out).iterdir()) and not overwrite:
             raise ConfigError(f"output directory {out} exists and is not empty (use --overwrite to replace it)")
         check_replaceable(out, "dataset")  # before any work: a user's files are never replaced
+        if conf.candidates:
+            dconf, record = choose_describer(conf, images, positions, unit, truth)
+            conf, extra = conf.replace(describe=dconf, candidates=()), {**(extra or {}), "descriptor_choice": record}
         fit = _fit_images(conf, ref, qry)
         describer = make_describer(conf.describe.replace(fit=fit) if fit else conf.describe, fit or ref.paths)
         desc = {}

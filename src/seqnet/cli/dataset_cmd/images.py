@@ -6,6 +6,7 @@ import argparse
 import json
 
 from ...describe import DESCRIBERS
+from ...pipelines.descriptor_choice import CANDIDATES
 from ...pipelines.from_images import FIT_ON, FromImagesConfig, main
 from ...sources.bags.positions import DEFAULT_TOLERANCE
 from ..common import add_device, add_topic, positive_float, positive_int
@@ -24,7 +25,10 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
                     "--positions-topic). See docs/own_data.md and docs/online.md (ROS bags).")
     p.add_argument("reference", metavar="REF_IMAGES", help="reference image folder, list file or ROS bag")
     p.add_argument("query", metavar="QUERY_IMAGES", help="query image folder, list file or ROS bag")
-    p.add_argument("--method", required=True, choices=list(DESCRIBERS), help="descriptor method")
+    p.add_argument("--method", choices=list(DESCRIBERS),
+                   help="descriptor method (default: chosen on the val split, which must be given (--split val=...), "
+                        "among pixels, netvlad, gem, gmp by the model-free raw+seqmatch R@1: the CNN ones only when "
+                        "their weights are installed)")
     p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--ref-csv", metavar="FILE", help="reference positions CSV (image name + easting,northing or "
@@ -75,11 +79,15 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
     if args.radius is None and truth != "positives":
         raise ConfigError(f"--radius is required with {truth} ground truth (metres or frames; only --positives "
                           "implies one)")
+    choose = args.method is None
+    if choose:
+        args.method = "pixels"  # the candidates take the other describe options; pixels: a valid placeholder
     conf = FromImagesConfig(describe=describe_config(args), fit_on=args.fit_on, ground_truth=truth,
                             radius=args.radius, splits=parse_splits(args.split), name=args.name,
                             pos_radius=args.pos_radius, neg_radius=args.neg_radius,
                             positions_format=args.positions_format,
                             positions_tolerance=args.positions_tolerance or DEFAULT_TOLERANCE, pca=args.pca,
+                            candidates=CANDIDATES if choose else (),
                             **({"max_time_gap": args.max_time_gap} if args.max_time_gap else {}))
     out = main(conf, args.reference, args.query, args.out,
                positions=(args.ref_csv, args.query_csv) if truth == "csv" else None,

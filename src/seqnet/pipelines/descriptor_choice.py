@@ -1,0 +1,95 @@
+"""Choosing the single-image descriptor on a val split, before training (never on test).
+
+Each candidate that can run here (:func:`runnable`: a CNN's backbone weights must ship with an installed
+package; nothing is downloaded) describes the val images of both traverses (anything it fits, such as the
+NetVLAD clusters, fitted on at most :data:`PROXY_FIT` images of its fitting set, evenly spaced), and the
+model-free methods :data:`PROXY_METHODS` are evaluated on them: the best ``raw+seqmatch`` val R@1 wins (ties:
+``single``'s, then the candidate listed first, the cheapest). It is a proxy: a descriptor that suits SeqMatch
+suits S_L and S_1 (on Nordland64's val every method ranked NetVLAD above pixels above GMP, docs/experiments.md,
+Table S3).
+
+Used by the Nordland64 benchmark (:mod:`seqnet.pipelines.nordland64.select`, without ``--descriptor``) and by
+own data (:mod:`seqnet.pipelines.from_images`, ``seqnet dataset from-images`` without ``--method``).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, TypeVar
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..core.log import logger
+from ..data.traverse import Dataset
+from ..describe import DescribeConfig
+from ..describe.lite import LITE_VARIANTS
+from ..eval.evaluate import EvalConfig, evaluate
+
+PROXY_METHODS = ("raw+seqmatch", "single")  # the proxy's score, then its tie-break
+PROXY_FIT = 250  # images (of each fitting set) a candidate's state is fitted on for the proxy, evenly spaced
+CANDIDATES = ("pixels", "netvlad", "gem", "gmp")  # the default candidates, cheapest first
+
+T = TypeVar("T")
+
+
+def runnable(dconf: DescribeConfig) -> str | None:
+    """Why ``dconf`` cannot run here without downloading anything (None: it can)."""
+    if dconf.method == "pixels":
+        return None
+    variant = LITE_VARIANTS.get(dconf.backbone)
+    if variant is None:
+        return f"its backbone {dconf.backbone} ships no weights"
+    if importlib.util.find_spec(variant.module) is None:
+        return f"the package {variant.package} (its {dconf.backbone} weights) is not installed"
+    return None
+
+
+def evenly(items: Sequence[T], n: int = PROXY_FIT) -> list[T]:
+    """At most ``n`` of ``items``, evenly spaced (the first and the last kept)."""
+    if len(items) <= n:
+        return list(items)
+    return [items[i] for i in np.unique(np.linspace(0, len(items) - 1, n).astype(int))]
+
+
+def proxy_scores(val: Dataset, seq_len: int, device: str = "auto", recall_denominator: str = "positives",
+                 t0: float | None = None) -> dict[str, Any]:
+    """Val R@1 of :data:`PROXY_METHODS` on ``val`` (described with one candidate), the queries counted, the
+    descriptor's D and the seconds since ``t0``."""
+    t0 = time.perf_counter() if t0 is None else t0
+    ev = evaluate(val, EvalConfig(methods=PROXY_METHODS, seq_len=seq_len, ks=(1,), device=device,
+                                  recall_denominator=recall_denominator, common_queries=True))
+    out = {m: round(float(ev.results["methods"][m]["recall@1"]), 6) for m in PROXY_METHODS}
+    return {**out, "queries": int(ev.results["methods"][PROXY_METHODS[0]]["queries"]), "dim": int(val.query.dim),
+            "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def choose_on_val(candidates: Mapping[str, DescribeConfig], score: Callable[[DescribeConfig], dict[str, Any]],
+                  where: str) -> tuple[DescribeConfig, dict[str, Any]]:
+    """The candidate (``{name: settings}``) whose ``score(settings)`` (:func:`proxy_scores` of the val split it
+    describes) is best, and the record of the choice (``{"chosen", "describe", "scores", "skipped",
+    "reason"}``); ``where`` names the val split in the reason. Candidates that cannot run are skipped (said)."""
+    scores, skipped = {}, {}
+    for name, dconf in candidates.items():
+        why = runnable(dconf)
+        if why is not None:
+            skipped[name] = why
+            logger.info("descriptor %s left out of the choice: %s", name, why)
+            continue
+        logger.info("val proxy: describing the val images with %s", name)
+        scores[name] = score(dconf)
+    if not scores:
+        raise ConfigError(f"no descriptor candidate can run here ({'; '.join(f'{k}: {v}' for k, v in skipped.items())})"
+                          "; hint: choose one (pixels needs nothing)")
+    order = list(scores)
+    best = max(scores, key=lambda n: (*(scores[n][m] for m in PROXY_METHODS), -order.index(n)))
+    others = ", ".join(f"{n} {s[PROXY_METHODS[0]]:.3f}" for n, s in scores.items() if n != best)
+    reason = (f"descriptor {best} chosen on {where} ({scores[best]['queries']} queries) before training: "
+              f"model-free {PROXY_METHODS[0]} R@1 {scores[best][PROXY_METHODS[0]]:.3f} "
+              f"(single {scores[best]['single']:.3f})" + (f" against {others}" if others else "")
+              + (f"; not tried: {', '.join(skipped)}" if skipped else ""))
+    logger.info("%s", reason)
+    return candidates[best], {"chosen": best, "describe": candidates[best].to_dict(), "scores": scores,
+                              "skipped": skipped, "reason": reason}
