@@ -25,10 +25,9 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
                     "--positions-topic). See docs/own_data.md and docs/online.md (ROS bags).")
     p.add_argument("reference", metavar="REF_IMAGES", help="reference image folder, list file or ROS bag")
     p.add_argument("query", metavar="QUERY_IMAGES", help="query image folder, list file or ROS bag")
-    p.add_argument("--method", choices=list(DESCRIBERS),
-                   help="descriptor method (default: chosen on the val split, which must be given (--split val=...), "
-                        "among pixels, netvlad, gem, gmp by the model-free raw+seqmatch R@1: the CNN ones only when "
-                        "their weights are installed)")
+    p.add_argument("--method", choices=list(DESCRIBERS), help="descriptor method (default: chosen on the val "
+                   "split, which must be given, among pixels, netvlad, gem, gmp (installed weights only) by the "
+                   "model-free raw+seqmatch R@1)")
     p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--ref-csv", metavar="FILE", help="reference positions CSV (image name + easting,northing or "
