@@ -124,17 +124,17 @@ def check_space(folder: Path, needed: int, what: str, largest: int | None = None
     limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
     largest = needed // 2 if largest is None else largest
     if limit != resource.RLIM_INFINITY and largest > limit:
-        raise ResourceError(f"{folder}: {what} make a file of about {_size(largest)}, over this process's file "
-                            f"size limit of {_size(limit)} (ulimit -f); hint: raise the limit")
+        raise ResourceError(f"{folder}: {what} make a file of about {human_bytes(largest)}, over this process's "
+                            f"file size limit of {human_bytes(limit)} (ulimit -f); hint: raise the limit")
     try:
         free = shutil.disk_usage(folder).free
     except OSError:
         return
     if free < needed + SPACE_MARGIN:
-        raise ResourceError(f"{folder}: {what} need about {_size(needed + SPACE_MARGIN)}, only {_size(free)} free; "
-                            "hint: free some space or write the output elsewhere")
+        raise ResourceError(f"{folder}: {what} need about {human_bytes(needed + SPACE_MARGIN)}, only "
+                            f"{human_bytes(free)} free; hint: free some space or write the output elsewhere")
 
 
-def _size(n: float) -> str:
-    """A byte count in KiB under 1 MiB, else MiB."""
-    return f"{n / 2**10:.0f} KiB" if n < 2**20 else f"{n / 2**20:.0f} MiB"
+def human_bytes(n: float) -> str:
+    """A byte count in KiB under 1 MiB, MiB under 1 GiB, else GiB (one decimal)."""
+    return f"{n / 2**10:.0f} KiB" if n < 2**20 else f"{n / 2**20:.0f} MiB" if n < 2**30 else f"{n / 2**30:.1f} GiB"

@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..core.lazy import lazy_module
-from ..core.memory import available_bytes
+from ..core.memory import available_bytes, human_bytes
 from ..describe.pca import PAPER_PCA_DIM
 from .config import TrainConfig, train_bytes
 from .losses import LOSSES
@@ -149,27 +149,27 @@ def advice(p: Plan) -> list[str]:
         out.append(f"D = {p.in_dims} is not below the {p.n_frames} training frames: a D x D x w layer learnt from "
                    f"{p.n_queries} queries overfits; reduce D with --pca {pca} (fitted on the train split only)")
     if p.checkpoint_bytes > CHECKPOINT_ADVISED_BYTES:
-        out.append(f"the checkpoints take {_size(p.checkpoint_bytes)} (best.pt {_size(4 * p.weights)}, last.pt "
-                   f"with the optimiser state): fewer dimensions (--pca {pca}), a smaller --out-dims (e.g. 512) or "
-                   "--w 1 shrink them (the weights are D x out x w)")
+        out.append(f"the checkpoints take {human_bytes(p.checkpoint_bytes)} (best.pt {human_bytes(4 * p.weights)}, "
+                   f"last.pt with the optimiser state): fewer dimensions (--pca {pca}), a smaller --out-dims "
+                   "(e.g. 512) or --w 1 shrink them (the weights are D x out x w)")
     if p.available is not None and p.peak_bytes > p.available / 2:
-        out.append(f"the estimated peak memory {_size(p.peak_bytes)} is over half of the {_size(p.available)} "
-                   "available: --pca, a smaller --out-dims, --w or --batch-size lower it")
+        out.append(f"the estimated peak memory {human_bytes(p.peak_bytes)} is over half of the "
+                   f"{human_bytes(p.available)} available: --pca, a smaller --out-dims, --w or --batch-size lower it")
     return out
 
 
 def plan_text(p: Plan) -> str:
     """The block logged before training: the model, memory, time, checkpoints and the advice."""
-    avail = f" of {_size(p.available)} available" if p.available is not None else ""
+    avail = f" of {human_bytes(p.available)} available" if p.available is not None else ""
     total = p.epoch_seconds * p.epochs
     weights = f"{p.weights / 1e6:.1f} M" if p.weights >= 1e5 else f"{p.weights}"
     lines = [f"training plan: S_{p.seq_len} (w={p.w}, D {p.in_dims}->{p.out_dims}): {weights} weights, "
              f"{p.n_queries} queries, {p.n_refs} reference windows, {p.n_frames} training frames",
-             f"  peak memory  about {_size(p.peak_bytes)}{avail}",
+             f"  peak memory  about {human_bytes(p.peak_bytes)}{avail}",
              f"  time         about {_duration(p.epoch_seconds)} per epoch on {p.device} (the device's measured "
              f"{p.rate / 1e9:.1f} GFLOP/s, every negative active), {p.epochs} epoch{'s' * (p.epochs != 1)}: about "
              f"{_duration(total)}",
-             f"  checkpoints  about {_size(p.checkpoint_bytes)} on disk (best.pt + last.pt)"]
+             f"  checkpoints  about {human_bytes(p.checkpoint_bytes)} on disk (best.pt + last.pt)"]
     lines += [f"  advice: {a}" for a in advice(p)]
     return "\n".join(lines)
 
@@ -207,10 +207,6 @@ def inactive_message(history: Sequence[Mapping[str, Any]], conf: TrainConfig, n_
             f"(stop_inactive={conf.stop_inactive}); {why}, so the model no longer learns. Likely: too little or "
             f"too easy training data ({n_queries} queries); try a larger train split, a larger --margin (now "
             f"{conf.margin:g}) or more negatives (--neg-radius, now {conf.neg_radius}); best.pt is kept")
-
-
-def _size(n: float) -> str:
-    return f"{n / 2**10:.0f} KiB" if n < 2**20 else f"{n / 2**20:.0f} MiB" if n < 2**30 else f"{n / 2**30:.1f} GiB"
 
 
 def _duration(s: float) -> str:
