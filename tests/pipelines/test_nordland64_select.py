@@ -78,3 +78,37 @@ def test_the_descriptor_proxy_never_reads_a_test_image(tmp_path, monkeypatch):
     json.dumps(record)  # it goes into results.json
     same, none = descriptor_on_val(conf.replace(select=("top_k",)), poisoned)
     assert none is None and same.describe == conf.describe  # not asked: nothing described
+
+
+def test_the_descriptor_choice_is_cached_whole(tmp_path, monkeypatch):
+    """With the benchmark's folder the choice is a cache unit: the second run reuses it without describing; another
+    val range or a changed record file chooses again; a user's file in its place is refused, never replaced."""
+    from seqnet.core.errors import OutputError
+    from seqnet.pipelines import descriptor_choice
+    from seqnet.pipelines.nordland64 import select
+
+    conf = Nordland64Config(train_range=(0, 20), val_range=(22, 40), test_range=(42, 60), device="cpu",
+                            descriptors=("pixels", "gmp"))
+    monkeypatch.setattr(descriptor_choice, "runnable", lambda d: None if d.method == "pixels" else "not installed")
+    data, out = nordland_copy(tmp_path), tmp_path / "out"
+    out.mkdir()
+    calls = []
+    real = select.proxy_scores
+    monkeypatch.setattr(select, "proxy_scores", lambda *a: (calls.append(a[-1].method), real(*a))[1])
+    first, rec = descriptor_on_val(conf, data, out)
+    assert calls == ["pixels"] and "cached" not in rec and (out / "descriptor_choice.json").is_file()
+    again, rec2 = descriptor_on_val(conf, data, out)
+    assert calls == ["pixels"] and rec2["cached"] is True and again.describe == first.describe
+    assert {k: v for k, v in rec2.items() if k != "cached"} == {**rec, "reason": rec2["reason"]}
+    assert rec2["reason"] == rec["reason"] + " (an earlier run's choice in this folder, reused)"
+    descriptor_on_val(conf.replace(val_range=(22, 38)), data, out)  # another val range: chosen again
+    assert calls == ["pixels", "pixels"]
+    (out / "descriptor_choice.json").write_text('{"chosen": "gmp"}')  # tampered: not reused, chosen again
+    _, rec3 = descriptor_on_val(conf.replace(val_range=(22, 38)), data, out)
+    assert calls == ["pixels"] * 3 and rec3["chosen"] == "pixels" and "cached" not in rec3
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "descriptor_choice.json").write_text("mine")
+    with pytest.raises(OutputError):
+        descriptor_on_val(conf, data, other)
+    assert (other / "descriptor_choice.json").read_text() == "mine"

@@ -1,8 +1,8 @@
 """The nordland64 cache (descriptors and models, reused by later runs and by the experiments): valid only whole.
 
-A cache folder holds up to two *units*: the descriptors (:data:`DESCRIPTORS`: ``dataset/``,
-``flip_train.npy``) and the models (:data:`MODELS`: ``models/`` and the training runs that made them).
-Its record (:data:`RECORD`) says
+A cache folder holds up to three *units*: the descriptor chosen on val (:data:`CHOICE`), the descriptors
+(:data:`DESCRIPTORS`: ``dataset/``, ``flip_train.npy``) and the models (:data:`MODELS`: ``models/`` and the
+training runs that made them). Its record (:data:`RECORD`) says
 
 * which entries the cache made (``owned``): only those are ever replaced (unless ``overwrite``), so a
   user's own dataset or training run in their place is refused, never deleted;
@@ -32,6 +32,7 @@ from ...train.run import RUN_FILES, is_run_file
 
 RECORD = ".seqnet-cache.json"
 FORMAT = "seqnet nordland64 cache 1"
+CHOICE = ("descriptor_choice.json",)  # the descriptor chosen on val (every candidate's score)
 DESCRIPTORS = ("dataset", "flip_train.npy")
 MODELS = ("models", "runs/seqnet", "runs/s1")
 MAX_RECORD = 16 << 20

@@ -116,10 +116,10 @@ def main(conf: Nordland64Config, data: str | Path, out: str | Path, overwrite: b
     out = Path(out)
     with locked(out):
         check_outputs_of(out, OUTPUTS, KIND, "nordland64 results", overwrite)
-        cache.check_owned(out, (*cache.DESCRIPTORS, *cache.MODELS), overwrite)
+        cache.check_owned(out, (*cache.CHOICE, *cache.DESCRIPTORS, *cache.MODELS), overwrite)
         t0 = time.perf_counter()
         seconds: dict[str, float] = {}
-        conf, descriptor = descriptor_on_val(conf, data)
+        conf, descriptor = descriptor_on_val(conf, data, out, overwrite)
         if descriptor is not None:
             seconds["choose_descriptor"] = round(time.perf_counter() - t0, 2)
         ds, flipped = build_dataset(data, conf, out, overwrite)

@@ -9,6 +9,8 @@ K and λ (:func:`choose_hvpr`): :func:`seqnet.eval.select.select_hvpr` on the va
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -16,15 +18,21 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...core.errors import DatasetError
+from ...core.errors import DatasetError, OutputError
 from ...core.log import logger
 from ...data.traverse import Dataset, Traverse
 from ...describe import DescribeConfig, make_describer
 from ...eval.evaluate import EvalConfig
 from ...eval.select import Choice, select_hvpr
+from ...security.files import write_json_atomic
+from ...security.jsonfile import read_json
+from ...security.text import shown
 from .. import descriptor_choice as choice
 from ..descriptor_choice import evenly
+from . import cache
 from .config import Nordland64Config
+
+MAX_CHOICE = 1 << 20  # bytes of a cached choice record
 
 if TYPE_CHECKING:
     from ...sequence.model import SeqNet
@@ -60,16 +68,42 @@ def proxy_scores(data: Path, names: list[str], pos: np.ndarray, conf: Nordland64
     return choice.proxy_scores(ds, conf.seq_len, conf.device, conf.recall_denominator, t0)
 
 
-def descriptor_on_val(conf: Nordland64Config, data: str | Path) -> tuple[Nordland64Config, dict[str, Any] | None]:
+def descriptor_on_val(conf: Nordland64Config, data: str | Path, out: Path | None = None,
+                      overwrite: bool = False) -> tuple[Nordland64Config, dict[str, Any] | None]:
     """``conf`` with its descriptor chosen on val when ``conf.select`` asks for it and there is a choice
-    (:func:`choose_descriptor`), and the record of the choice (None: no choice made)."""
+    (:func:`choose_descriptor`), and the record of the choice (None: no choice made). With ``out`` (the
+    benchmark's folder, locked by the caller) the choice is a cache unit (:mod:`.cache`): a later run with the
+    same candidates, ranges and data reuses it (``"cached": true`` in the record) instead of describing again."""
     if "descriptor" not in conf.select or len(conf.descriptors) < 2:
         return conf, None
     from .data import list_places, split_ranges
 
     names, pos = list_places(data, conf.names_file)
     lo, _ = split_ranges(conf, len(names))
-    return choose_descriptor(data, names[lo:], pos[lo:], conf, lo)
+    key = choice_key(conf, Path(data), names[lo:])
+    if out is not None and cache.unit(out, "choice", key) is not None:
+        record = read_json(out / cache.CHOICE[0], "cached descriptor choice", OutputError, MAX_CHOICE)
+        chosen = record.get("chosen") if isinstance(record, dict) else None
+        if chosen in conf.descriptors and record.get("describe") == candidate_config(conf, chosen).to_dict():
+            logger.info("descriptor choice reused from %s: %s", shown(out / cache.CHOICE[0]), record["reason"])
+            reason = f"{record['reason']} (an earlier run's choice in this folder, reused)"
+            return conf.replace(describe=candidate_config(conf, chosen)), {**record, "reason": reason, "cached": True}
+    conf, record = choose_descriptor(data, names[lo:], pos[lo:], conf, lo)
+    if out is not None:
+        cache.open_unit(out, "choice", cache.CHOICE, overwrite)  # its key removed first
+        write_json_atomic(out / cache.CHOICE[0], record)
+        cache.seal(out, "choice", key, list(cache.CHOICE))
+    return conf, record
+
+
+def choice_key(conf: Nordland64Config, data: Path, names: list[str]) -> str:
+    """The key of a cached descriptor choice: everything the proxy reads (candidates, ranges, L, radius,
+    denominator, device) and the data folder with its places in use."""
+    blob = json.dumps({"candidates": {n: candidate_config(conf, n).to_dict() for n in conf.descriptors},
+                       "ranges": [conf.train_range, conf.val_range], "seq_len": conf.seq_len, "radius": conf.radius,
+                       "denominator": conf.recall_denominator, "device": conf.device, "source": str(data.resolve()),
+                       "names": names}, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
 def choose_descriptor(data: str | Path, names: list[str], pos: np.ndarray, conf: Nordland64Config,
