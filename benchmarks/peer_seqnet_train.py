@@ -77,6 +77,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--sides", default="orig,seqnet", help="which sides to run (default both: orig,seqnet)")
     p.add_argument("--workdir", required=True, help="folder for the prepared inputs and runs (kept; reused)")
     p.add_argument("--json", metavar="FILE", help="also write the result as JSON")
+    p.add_argument("--orig-batches", type=int, metavar="N",
+                   help="stop the original at its first progress line at or past batch N and extrapolate its epoch: "
+                        "mining cache + training span x all batches / N (at D = 4096 an epoch takes hours)")
     return p.parse_args(argv)
 
 
@@ -212,6 +215,35 @@ def run_orig(orig: Path, run_dir: Path, variant: str, dim: int, threads: int) ->
     return secs, cpu, line
 
 
+def run_orig_partial(orig: Path, run_dir: Path, variant: str, dim: int, threads: int,
+                     batches: int) -> tuple[float, float, str]:
+    """The original's epoch extrapolated from its first ``batches`` batches (wall; CPU seconds of the part run):
+    the mining cache (``===> Training model`` .. its first ``Allocated:`` line) plus the training span up to the
+    progress line ``==> Epoch[1](n/total)`` with n >= ``batches``, times total / n. The process is then killed."""
+    proc = subprocess.Popen(orig_cmd(orig, variant, dim, threads), cwd=run_dir, env=environment(threads),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
+    t0 = t1 = None
+    try:
+        for line in proc.stdout:
+            now = time.perf_counter()
+            if t0 is None and line.startswith("===> Training model"):
+                t0 = now
+            elif t0 is not None and t1 is None and line.startswith("Allocated:"):
+                t1 = now
+            m = re.search(r"==> Epoch\[1\]\((\d+)/(\d+)\)", line)
+            if t1 is not None and m and int(m.group(1)) >= batches:
+                n, total = int(m.group(1)), int(m.group(2))
+                cpu = tree_cpu(proc.pid)
+                epoch = (t1 - t0) + (now - t1) * total / n
+                return epoch, cpu, (f"extrapolated: mining cache {t1 - t0:.1f} s, {n} of {total} batches in "
+                                    f"{now - t1:.1f} s")
+    finally:
+        proc.kill()
+        proc.wait()
+        shutil.rmtree(run_dir / "data" / "runs", ignore_errors=True)
+    raise SystemExit(f"the original ended before batch {batches} (cache seen: {t1 is not None})")
+
+
 def run_seqnet(ds: Path, work: Path, variant: str, dim: int, threads: int) -> tuple[float, float, str]:
     out = work / f"seqnet-run-{variant}-{dim}"
     shutil.rmtree(out, ignore_errors=True)
@@ -233,7 +265,10 @@ def measure(args: argparse.Namespace) -> dict:
     lines = {}
     for _ in range(args.repeats):
         for side in sides:
-            if side == "orig":
+            if side == "orig" and args.orig_batches:
+                secs, used, lines[side] = run_orig_partial(orig, run_dir, args.variant, args.dim, args.threads,
+                                                           args.orig_batches)
+            elif side == "orig":
                 secs, used, lines[side] = run_orig(orig, run_dir, args.variant, args.dim, args.threads)
             else:
                 secs, used, lines[side] = run_seqnet(ds, work, args.variant, args.dim, args.threads)
@@ -242,9 +277,12 @@ def measure(args: argparse.Namespace) -> dict:
     res = {"variant": VARIANTS[args.variant]["name"], "dim": args.dim, "threads": args.threads,
            "repeats": args.repeats, "epoch_s": best, "epoch_cpu_s": cpu, "lines": lines,
            "load_average": os.getloadavg()[0]}
+    if args.orig_batches:
+        res["orig_extrapolated_from_batches"] = args.orig_batches  # its CPU seconds are of the part run only
     if len(sides) == 2:
         res["ratio"] = best["orig"] / best["seqnet"]
-        res["cpu_ratio"] = cpu["orig"] / cpu["seqnet"]
+        if not args.orig_batches:
+            res["cpu_ratio"] = cpu["orig"] / cpu["seqnet"]
     return res
 
 
