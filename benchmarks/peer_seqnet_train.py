@@ -241,6 +241,8 @@ def run_orig_partial(orig: Path, run_dir: Path, variant: str, dim: int, threads:
         proc.kill()
         proc.wait()
         shutil.rmtree(run_dir / "data" / "runs", ignore_errors=True)
+        for left in (run_dir / "data" / "cache").glob("train_feat_cache_*.hdf5"):  # the original deletes its own at
+            left.unlink(missing_ok=True)  # the end of an epoch; a killed one leaves it (N x D floats)
     raise SystemExit(f"the original ended before batch {batches} (cache seen: {t1 is not None})")
 
 
@@ -288,6 +290,8 @@ def measure(args: argparse.Namespace) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.orig_batches is not None and args.orig_batches < 1:
+        raise SystemExit(f"--orig-batches must be at least 1, got {args.orig_batches}")
     res = measure(args)
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=1))

@@ -122,3 +122,7 @@ def test_seqnet_eval_chooses_on_val_unless_told(synth_dir, map_models, tmp_path,
     assert (res["config"]["fuse_top_k"], res["config"]["fuse_weight"]) == (50, 0.5)
     assert cli_main([*base, "--split", "val", "--json", str(tmp_path / "c.json")]) == 0  # val itself: nothing chosen
     assert "selection" not in json.loads((tmp_path / "c.json").read_text())
+    assert cli_main([*base, "--split", "all", "--json", str(tmp_path / "d.json")]) == 0  # all holds val: not chosen
+    res = json.loads((tmp_path / "d.json").read_text())
+    assert res["selection"]["hvpr"] == [] and "holds val queries" in res["selection"]["not_chosen"]
+    assert res["config"]["top_k"] == 20 and res["config"]["fuse_weight"] == 0.25  # the defaults

@@ -187,3 +187,26 @@ def test_choose_on_val_ranks_by_the_proxy_then_single_then_order():
     dconf, record = choose_on_val(cands, score, "val")
     assert dconf.method == "gem" and record["chosen"] == "gem"  # the tie-break: single, then the first listed
     assert "against pixels 0.500, netvlad 0.900, gmp 0.900" in record["reason"]
+
+
+def test_the_choice_fits_no_test_image(route, tmp_path, monkeypatch):
+    """A candidate that fits a state (here pixels with a PCA, --dim) is fitted, for the val proxy, only on its
+    fitting images of the train and val splits: with --fit-on both, the test queries are left out."""
+    from seqnet.cli.dataset_cmd import images as images_cmd
+    from seqnet.pipelines import descriptor_choice, from_images
+
+    monkeypatch.setattr(images_cmd, "CANDIDATES", ("pixels", "gmp"))
+    monkeypatch.setattr(descriptor_choice, "runnable", lambda d: None if d.method == "pixels" else "not installed")
+    fits = []
+    real = from_images.make_describer
+    monkeypatch.setattr(from_images, "make_describer", lambda conf, fit, *a, **k: (
+        fits.append([str(p) for p in fit] if conf.needs_fit else None), real(conf, fit, *a, **k))[1])
+    argv = ["-q", "dataset", "from-images", str(route / "ref"), str(route / "qry"), "--patch", "0", "--dim", "4",
+            "--fit-on", "both", "--positives", str(route / "positives.json"), "--split", "train=0:80,0:10",
+            "--split", "val=0:80,10:20", "--split", "test=0:80,20:40", "--out", str(tmp_path / "ds")]
+    assert main(argv) == 0
+    qry = sorted((route / "qry").iterdir())
+    test_queries = {str(p) for p in qry[20:]}
+    assert len(fits) == 2 and fits[0] and not test_queries & set(fits[0])  # the choice: no test query
+    assert {str(p) for p in qry[:20]} <= set(fits[0])
+    assert test_queries <= set(fits[1])  # the dataset itself: fitted as asked (--fit-on both)

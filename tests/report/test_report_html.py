@@ -212,10 +212,10 @@ def test_choices_section_says_what_val_chose_and_shows_each_grid():
                                                                       "recall@1": 0.981}]}]}
     (sec,) = choices_section({"selection": sel})
     assert sec.id == "choices" and "chosen on val &lt;b&gt;" in sec.body
-    assert "K 200, λ 0.25" in sec.body and "never read" in sec.body
+    assert "K 200, λ 0.25" in sec.body and "no other split was read" in sec.body
     assert sec.body.count("<details>") == 2 and "0.989" in sec.body and "0.25" in sec.body and "pixels" in sec.body
     (why,) = choices_section({"selection": {"hvpr": [], "not_chosen": "HVPR settings not chosen: no val query"}})
-    assert "no val query" in why.body and "never read" not in why.body
+    assert "no val query" in why.body and "no other split" not in why.body
     assert choices_section({}) == [] and choices_section({"selection": {"hvpr": []}}) == []
 
 

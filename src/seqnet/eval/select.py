@@ -183,13 +183,22 @@ def _choose(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method:
     return Choice(method, settings, float(recall[i, j]), float(d), grid, queries, reason)
 
 
+def holds_val_queries(ds: Dataset, split: str) -> bool:
+    """Whether the queries of ``split`` (a name or a range of ``ds``) and of its ``val`` split overlap."""
+    rng, val = ds.ranges(split), ds.ranges("val")
+    if rng is None or val is None:
+        return False
+    (a, b), (c, d) = rng["query"], val["query"]
+    return max(a, c) < min(b, d)
+
+
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
          choose: Sequence[str] = SELECTABLE, **outputs: Any) -> Written:
     """:func:`seqnet.eval.evaluate.main` (``outputs``: its output options) with the settings of ``choose`` chosen
     first on the dataset's ``val`` split (:func:`select_hvpr`) when it has one and another split is evaluated;
     what was chosen and why goes into the results (``"selection"``). Without a val split, or evaluating val
-    itself, nothing is chosen (the defaults, as without ``choose``)."""
+    itself or a split holding val queries (``all``), nothing is chosen (the defaults, as without ``choose``)."""
     from ..data.io import load_dataset
     from ..sequence.checkpoints import load_models
 
@@ -199,7 +208,11 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: 
         # only HVPR methods have settings to choose: others skip the second dataset load and the models
         ds = load_dataset(dataset)
         split = default_split(conf.split, ds.splits)
-        if split != "val" and "val" in (ds.splits or {}):
+        if split != "val" and "val" in (ds.splits or {}) and holds_val_queries(ds, split):
+            extra = {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split: the "
+                                   f"evaluated split {split!r} holds val queries, which would score their own "
+                                   "choice (the defaults kept)"}}
+        elif split != "val" and "val" in (ds.splits or {}):
             loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
             try:
                 conf, choices = select_hvpr(ds.split("val"), loaded, conf, choose, "the val split")

@@ -37,7 +37,7 @@ from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_posi
 from ..data.imagefolders import utm_positions
 from ..data.io import save_dataset
 from ..data.positives import Positives, read_positives
-from ..data.traverse import Traverse
+from ..data.traverse import Dataset, Traverse
 from ..describe import DescribeConfig, make_describer
 from ..describe.images import ImageList, list_images
 from ..describe.stage import describe_provenance
@@ -205,8 +205,8 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
                      positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
                      unit: tuple[str, str | None], truth: Positives | None) -> tuple[DescribeConfig, dict]:
     """The describer :mod:`seqnet.pipelines.descriptor_choice` prefers among ``conf.candidates`` on the ``val``
-    split: each candidate describes only the val images of both traverses (a fitted state fitted on at most
-    :data:`~seqnet.pipelines.descriptor_choice.PROXY_FIT` of its fitting images); and the record of the choice."""
+    split: each candidate describes only the val images of both traverses (a fitted state fitted on
+    :func:`_proxy_fit`'s images: no image of the test split); and the record of the choice."""
     ref, qry = images
     (pos_r, bounds_r), (pos_q, bounds_q) = positions
     ones = (np.ones((len(ref), 1), np.float32), np.ones((len(qry), 1), np.float32))  # the ground truth's layout only
@@ -216,7 +216,7 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
     val, rng = base.split("val"), base.ranges("val")
 
     def score(dconf: DescribeConfig) -> dict:
-        t0, fit = time.perf_counter(), evenly(_fit_images(conf.replace(describe=dconf), ref, qry) or [])
+        t0, fit = time.perf_counter(), _proxy_fit(conf.replace(describe=dconf), images, base)
         describer = make_describer(dconf.replace(fit=fit) if fit else dconf, fit or ref.paths)
         desc = {}
         for side, side_images in (("reference", ref), ("query", qry)):
@@ -231,6 +231,31 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
     (a, b), (c, d) = rng["reference"], rng["query"]
     where = f"val queries {c}:{d} against reference {a}:{b}"
     return choose_on_val({n: conf.describe.replace(method=n) for n in conf.candidates}, score, where)
+
+
+def _proxy_fit(conf: FromImagesConfig, images: tuple[ImageList, ImageList], base: Dataset) -> list:
+    """The images a candidate's state (``conf.describe``) is fitted on for the val proxy: its fitting images
+    (``conf.fit_on``) that lie in the train or val split, at most
+    :data:`~seqnet.pipelines.descriptor_choice.PROXY_FIT` evenly spaced (none when it fits nothing; the val images
+    when none of them does), so that choosing reads no image that only the test split holds."""
+    if not conf.describe.needs_fit:
+        return []
+    sides = {"reference": images[0], "query": images[1]}
+    allowed: dict[str, set[int]] = {"reference": set(), "query": set()}
+    for name in ("train", "val"):
+        rng = base.ranges(name) if name in base.splits else None
+        for side in allowed if rng else ():
+            allowed[side].update(range(*rng[side]))
+    if conf.fit_on in FIT_ON:
+        fitting = {side: range(len(sides[side])) for side in (("reference",) if conf.fit_on == "reference"
+                                                              else ("reference", "query"))}
+    else:
+        fitting = {side: range(*r) for side, r in base.ranges(conf.fit_on).items()}
+    fit = [sides[side].paths[i] for side, idx in fitting.items() for i in idx if i in allowed[side]]
+    if not fit:
+        val = base.ranges("val")
+        fit = [sides[side].paths[i] for side in sides for i in range(*val[side])]
+    return evenly(fit)
 
 
 def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],

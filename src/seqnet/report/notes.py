@@ -23,7 +23,7 @@ def choices_section(results: Any) -> list[Section]:
         return []
     grids = "".join(f"<details><summary>{html.escape(str(c.get('method', 'descriptor')))}: every setting scored"
                     f"</summary>{table_html(*grid_rows(grid_of(c)))}</details>" for c in picks if grid_of(c))
-    only = "<p>Chosen on the validation split only; the evaluated split was never read for it.</p>" if picks else ""
+    only = "<p>Chosen on the validation split only: no other split was read to choose.</p>" if picks else ""
     return [Section("choices", "Chosen on val", f"<ul>{''.join(items)}</ul>{grids}{only}")]
 
 

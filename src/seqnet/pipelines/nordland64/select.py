@@ -28,7 +28,7 @@ from ...security.files import write_json_atomic
 from ...security.jsonfile import read_json
 from ...security.text import shown
 from .. import descriptor_choice as choice
-from ..descriptor_choice import evenly
+from ..descriptor_choice import evenly, runnable
 from . import cache
 from .config import Nordland64Config
 
@@ -84,7 +84,8 @@ def descriptor_on_val(conf: Nordland64Config, data: str | Path, out: Path | None
     if out is not None and cache.unit(out, "choice", key) is not None:
         record = read_json(out / cache.CHOICE[0], "cached descriptor choice", OutputError, MAX_CHOICE)
         chosen = record.get("chosen") if isinstance(record, dict) else None
-        if chosen in conf.descriptors and record.get("describe") == candidate_config(conf, chosen).to_dict():
+        if chosen in conf.descriptors and record.get("describe") == candidate_config(conf, chosen).to_dict() \
+                and isinstance(record.get("reason"), str) and runnable(candidate_config(conf, chosen)) is None:
             logger.info("descriptor choice reused from %s: %s", shown(out / cache.CHOICE[0]), record["reason"])
             reason = f"{record['reason']} (an earlier run's choice in this folder, reused)"
             return conf.replace(describe=candidate_config(conf, chosen)), {**record, "reason": reason, "cached": True}
