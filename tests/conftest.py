@@ -6,6 +6,8 @@ import contextlib
 import multiprocessing
 import os
 import shutil
+import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -227,6 +229,16 @@ def mutated(data: bytes, max_flips: int = 8):
 # ---------------------------------------------------------------- crash points (kill -9 at each rename)
 
 
+def _fresh_locks_after_fork() -> None:
+    """In a forked child: new locks for a library seen hanging there on a lock the fork copied held (pyparsing's
+    packrat cache, reached from matplotlib's text code: a crash-point child idle in ``ParserElement._parseCache``
+    in a full run, killed by :func:`run_killed` after 120 s)."""
+    core = sys.modules.get("pyparsing.core")
+    if core is not None:
+        core.ParserElement.packrat_cache_lock = threading.RLock()
+        core.ParserElement.recursion_lock = threading.RLock()
+
+
 def _crash_at(k: int, when: str, target, *args) -> None:
     """In a forked child: run ``target(*args)``, dying (as ``kill -9``) at its ``k``-th rename, before or after."""
     import torch
@@ -234,6 +246,7 @@ def _crash_at(k: int, when: str, target, *args) -> None:
     import seqnet.security.dirs as dirs
 
     torch.set_num_threads(1)  # no OpenMP pool inherited across the fork
+    _fresh_locks_after_fork()
     count = [0]
 
     def wrap(fn):
