@@ -162,6 +162,8 @@ def test_without_method_the_descriptor_is_chosen_on_val(route, tmp_path, capsys,
             "--positives", str(route / "positives.json")]
     assert main([*base, "--out", str(tmp_path / "x")]) == 2
     assert "needs a val split" in capsys.readouterr().err and not (tmp_path / "x").exists()
+    assert main([*base, "--describer", "pkg.mod:make", "--out", str(tmp_path / "x")]) == 2
+    assert "--describer needs --method plugin" in capsys.readouterr().err and not (tmp_path / "x").exists()
     splits = ["--split", "val=0:80,0:20", "--split", "test=0:80,20:40"]
     assert main([*base, *splits, "--out", str(tmp_path / "ds")]) == 0
     capsys.readouterr()

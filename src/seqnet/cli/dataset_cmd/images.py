@@ -79,6 +79,9 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
         raise ConfigError(f"--radius is required with {truth} ground truth (metres or frames; only --positives "
                           "implies one)")
     choose = args.method is None
+    if choose and getattr(args, "describer", None):
+        raise ConfigError("--describer needs --method plugin (without --method the descriptor is chosen on the val "
+                          "split among pixels, netvlad, gem, gmp)")
     if choose:
         args.method = "pixels"  # the candidates take the other describe options; pixels: a valid placeholder
     conf = FromImagesConfig(describe=describe_config(args), fit_on=args.fit_on, ground_truth=truth,
