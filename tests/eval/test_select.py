@@ -126,3 +126,27 @@ def test_seqnet_eval_chooses_on_val_unless_told(synth_dir, map_models, tmp_path,
     res = json.loads((tmp_path / "d.json").read_text())
     assert res["selection"]["hvpr"] == [] and "holds val queries" in res["selection"]["not_chosen"]
     assert res["config"]["top_k"] == 20 and res["config"]["fuse_weight"] == 0.25  # the defaults
+
+
+def test_choosing_loads_the_dataset_and_the_models_once(synth_dir, map_models, tmp_path, monkeypatch):
+    """The choice on val runs on the dataset and models the evaluation loads: one load of each, not two."""
+    import seqnet.data.io as io
+    import seqnet.sequence.checkpoints as checkpoints
+    from seqnet.cli import main as cli_main
+
+    calls = {"dataset": 0, "models": 0}
+    real_ds, real_models = io.load_dataset, checkpoints.load_models
+
+    def count(name, fn):
+        def inner(*a, **k):
+            calls[name] += 1
+            return fn(*a, **k)
+        return inner
+
+    monkeypatch.setattr(io, "load_dataset", count("dataset", real_ds))
+    monkeypatch.setattr(checkpoints, "load_models", count("models", real_models))
+    argv = ["eval", "--dataset", str(synth_dir), *(a for p in map_models for a in ("--model", str(p))),
+            "--method", "hvpr,hvpr-fused", "--device", "cpu", "--json", str(tmp_path / "a.json")]
+    assert cli_main(argv) == 0
+    assert json.loads((tmp_path / "a.json").read_text())["selection"]["hvpr"]  # chosen on val
+    assert calls == {"dataset": 1, "models": 1}

@@ -42,6 +42,9 @@ from .results import method_results
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
 
+# (dataset, evaluated split, loaded models, settings) -> (settings, entries added to the results)
+Prepare = Callable[[Dataset, str, "Mapping[str, SeqNet]", EvalConfig], "tuple[EvalConfig, Mapping[str, Any] | None]"]
+
 
 def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | None) -> None:
     """The arguments of :func:`evaluate` are what they should be (a clear error instead of an AttributeError)."""
@@ -165,35 +168,40 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
          per_query: str | Path | None = None, report: Any = None, figures: bool = False, overwrite: bool = False,
-         json: str | Path | None = None, extra: Mapping[str, Any] | None = None) -> Written:
+         json: str | Path | None = None, extra: Mapping[str, Any] | None = None,
+         prepare: Prepare | None = None) -> Written:
     """hloc-style stage: evaluate ``conf.split`` of the dataset directory ``dataset`` with the model
     checkpoints given (``extra``: entries added to the results); writes ``out/results.json`` (results,
     resolved config, inputs), with ``figures``
     ``out/pr_curve.png``, with ``report`` (a :class:`seqnet.report.html.ReportConfig`) ``out/report.html``,
     with ``per_query`` one row per method and query (``.csv`` or ``.jsonl``, ...), with ``json`` a copy of
     the results: :class:`seqnet.eval.outputs.EvalOutputs` (``out`` None: no folder); returns the results
-    path and the results."""
+    path and the results. ``prepare(dataset, split, models, conf)``, called once both are loaded, may change the
+    settings and add entries to the results (:func:`seqnet.eval.select.main`: the HVPR settings chosen on val)."""
     outputs = EvalOutputs(out, per_query, json, figures, report, overwrite)
     with outputs.session(conf.methods):  # a second evaluation into the same folder is refused (exit 1)
-        ev = _evaluate_dir(conf, dataset, models, shortlist_model, rerank_model)
+        ev = _evaluate_dir(conf, dataset, models, shortlist_model, rerank_model, prepare)
         ev.results.update(extra or {})
         return outputs.write(ev)
 
 
 def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | Path],
-                  shortlist_model: str | Path | None, rerank_model: str | Path | None) -> Evaluation:
+                  shortlist_model: str | Path | None, rerank_model: str | Path | None,
+                  prepare: Prepare | None = None) -> Evaluation:
     from ..data.io import load_dataset
     from ..sequence.checkpoints import load_models
 
     ds = load_dataset(dataset)
     split = default_split(conf.split, ds.splits)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
+    conf, prepared = prepare(ds, split, loaded, conf) if prepare is not None else (conf, None)
     if conf.target_precision is not None:
         check_calibration_split(ds, conf.calibrate_split, split)
     ev = evaluate(ds.split(split), conf.replace(split=split), loaded)
     if conf.target_precision is not None:
         cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
+    ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
     leaks = leakage(loaded, dataset, ds, split)
     if leaks:

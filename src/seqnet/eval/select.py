@@ -24,7 +24,7 @@ from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.log import logger
 from ..core.stage import Written
-from ..data.traverse import Dataset, default_split
+from ..data.traverse import Dataset
 from ..methods.grammar import FRAME_FEATURES, FUSED_TOP_K, parse_method
 from ..reference.traverse import TraverseReference
 from ..sequence.described import Described
@@ -196,31 +196,29 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: 
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
          choose: Sequence[str] = SELECTABLE, **outputs: Any) -> Written:
     """:func:`seqnet.eval.evaluate.main` (``outputs``: its output options) with the settings of ``choose`` chosen
-    first on the dataset's ``val`` split (:func:`select_hvpr`) when it has one and another split is evaluated;
-    what was chosen and why goes into the results (``"selection"``). Without a val split, or evaluating val
-    itself or a split holding val queries (``all``), nothing is chosen (the defaults, as without ``choose``)."""
-    from ..data.io import load_dataset
-    from ..sequence.checkpoints import load_models
+    first on the dataset's ``val`` split (:func:`choose_on_val`, on the dataset and models the evaluation loads)
+    when an HVPR method is evaluated; what was chosen and why goes into the results (``"selection"``)."""
+    hvpr = conf.methods is None or any(parse_method(n).kind == "hvpr" for n in conf.methods)
+    prepare = (lambda ds, split, loaded, c: choose_on_val(ds, split, loaded, c, choose)) if choose and hvpr else None
+    return evaluate_main(conf, dataset, out, models, shortlist_model, rerank_model, prepare=prepare, **outputs)
 
-    choices: list[Choice] = []
-    extra: dict[str, Any] | None = None
-    if choose and (conf.methods is None or any(parse_method(n).kind == "hvpr" for n in conf.methods)):
-        # only HVPR methods have settings to choose: others skip the second dataset load and the models
-        ds = load_dataset(dataset)
-        split = default_split(conf.split, ds.splits)
-        if split != "val" and "val" in (ds.splits or {}) and holds_val_queries(ds, split):
-            extra = {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split: the "
-                                   f"evaluated split {split!r} holds val queries, which would score their own "
-                                   "choice (the defaults kept)"}}
-        elif split != "val" and "val" in (ds.splits or {}):
-            loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
-            try:
-                conf, choices = select_hvpr(ds.split("val"), loaded, conf, choose, "the val split")
-            except ConfigError as e:  # e.g. no val query with a full window or a correct reference: said in the
-                # results; an error of the evaluation itself is its own (one line)
-                logger.debug("HVPR settings not chosen on the val split: %s", e)
-                extra = {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split (the "
-                                                                  f"defaults kept): {e}"}}
-            if choices:
-                extra = {"selection": {"hvpr": [c.to_dict() for c in choices]}}
-    return evaluate_main(conf, dataset, out, models, shortlist_model, rerank_model, extra=extra, **outputs)
+
+def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: EvalConfig,
+                  choose: Sequence[str]) -> tuple[EvalConfig, dict[str, Any] | None]:
+    """``conf`` with the settings of ``choose`` chosen on ``ds``'s val split (:func:`select_hvpr`) for the
+    evaluation of ``split``, and the results' ``"selection"`` entry (None: nothing to say). Without a val split,
+    or evaluating val itself, nothing is chosen; nor when ``split`` holds val queries (``all``), or the choice
+    fails (no val query with a full window or a correct reference): the defaults kept, and said."""
+    if split == "val" or "val" not in (ds.splits or {}):
+        return conf, None
+    if holds_val_queries(ds, split):
+        return conf, {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split: the "
+                                    f"evaluated split {split!r} holds val queries, which would score their own "
+                                    "choice (the defaults kept)"}}
+    try:
+        conf, choices = select_hvpr(ds.split("val"), models, conf, choose, "the val split")
+    except ConfigError as e:  # said in the results; an error of the evaluation itself is its own (one line)
+        logger.debug("HVPR settings not chosen on the val split: %s", e)
+        return conf, {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split (the "
+                                                               f"defaults kept): {e}"}}
+    return conf, ({"selection": {"hvpr": [c.to_dict() for c in choices]}} if choices else None)
