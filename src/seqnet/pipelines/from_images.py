@@ -113,15 +113,19 @@ class FromImagesConfig(Config):
 
 def _fit_images(conf: FromImagesConfig, ref: ImageList, qry: ImageList) -> list[Path] | None:
     """The images the describer's state is fitted on (None: the method fits nothing)."""
+    ranges = _fit_ranges(conf, len(ref), len(qry))
+    sides = {"reference": ref, "query": qry}
+    return None if ranges is None else [sides[side].paths[i] for side, idx in ranges.items() for i in idx]
+
+
+def _fit_ranges(conf: FromImagesConfig, n_ref: int, n_query: int) -> dict[str, range] | None:
+    """The indices of the fitting images, reference then query, of ``conf.fit_on`` (None: nothing is fitted)."""
     if not conf.describe.needs_fit:
         return None
-    if conf.fit_on == "reference":
-        return list(ref.paths)
-    if conf.fit_on == "both":
-        return [*ref.paths, *qry.paths]
+    if conf.fit_on in FIT_ON:
+        return {"reference": range(n_ref), **({"query": range(n_query)} if conf.fit_on == "both" else {})}
     rng = conf.splits[conf.fit_on]
-    (a, b), (c, d) = rng["reference"], rng["query"]
-    return [*ref.paths[a:b], *qry.paths[c:d]]
+    return {"reference": range(*rng["reference"]), "query": range(*rng["query"])}
 
 
 Positions = tuple[np.ndarray, "np.ndarray | None", str, "str | None"]  # [N, P], sequence bounds, unit, frame
@@ -238,19 +242,15 @@ def _proxy_fit(conf: FromImagesConfig, images: tuple[ImageList, ImageList], base
     (``conf.fit_on``) that lie in the train or val split, at most
     :data:`~seqnet.pipelines.descriptor_choice.PROXY_FIT` evenly spaced (none when it fits nothing; the val images
     when none of them does), so that choosing reads no image that only the test split holds."""
-    if not conf.describe.needs_fit:
-        return []
     sides = {"reference": images[0], "query": images[1]}
+    fitting = _fit_ranges(conf, len(images[0]), len(images[1]))
+    if fitting is None:
+        return []
     allowed: dict[str, set[int]] = {"reference": set(), "query": set()}
     for name in ("train", "val"):
         rng = base.ranges(name) if name in base.splits else None
         for side in allowed if rng else ():
             allowed[side].update(range(*rng[side]))
-    if conf.fit_on in FIT_ON:
-        fitting = {side: range(len(sides[side])) for side in (("reference",) if conf.fit_on == "reference"
-                                                              else ("reference", "query"))}
-    else:
-        fitting = {side: range(*r) for side, r in base.ranges(conf.fit_on).items()}
     fit = [sides[side].paths[i] for side, idx in fitting.items() for i in idx if i in allowed[side]]
     if not fit:
         val = base.ranges("val")
