@@ -111,3 +111,42 @@ def test_the_plan_is_logged_once_before_training(synth_dataset, tmp_path, caplog
     value, unit = plans[0].split("time         about ")[1].split(" per epoch")[0].split()
     seconds = float(value) / (1000 if unit == "ms" else 1)
     assert unit in ("ms", "s") and 0.01 < seconds < 60  # 7 batches of 16 and validation: about 0.2 s
+
+
+def test_the_measured_rate_leaves_out_a_slow_start(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A process's first products are many times slower (its thread pool starting): the rate is timed after a
+    warm-up of at least ``min_seconds``, on runs of products that last as long, not on the first product."""
+    from seqnet.train import guide
+
+    clock = {"t": 0.0, "calls": 0}
+
+    class Product:
+        def sum(self) -> Product:
+            return self
+
+        def item(self) -> float:
+            clock["calls"] += 1
+            clock["t"] += 0.005 if clock["calls"] <= 6 else 0.001  # six products of 5 ms, then 1 ms each
+            return 0.0
+
+    class Tensor:
+        def __matmul__(self, other: object) -> Product:
+            return Product()
+
+    monkeypatch.setattr(guide.time, "perf_counter", lambda: clock["t"])
+    monkeypatch.setattr(guide, "torch", type("T", (), {"randn": staticmethod(lambda *a, **k: Tensor())}))
+    rate = guide.measured_rate(100, 100, "cpu", repeats=3, min_seconds=0.02)
+    rows = int(min(65536, max(256, 1e8 // (2 * 100 * 100))))
+    assert rate == pytest.approx(2.0 * rows * 100 * 100 / 0.001)  # the warm speed, not the slow start's
+    assert clock["calls"] >= 6 + 3 * 20  # each timed run lasted at least min_seconds
+
+
+def test_the_measured_rate_of_a_real_product_is_positive() -> None:
+    rate = measured_rate_cpu()
+    assert 1e6 < rate < 1e15
+
+
+def measured_rate_cpu() -> float:
+    from seqnet.train.guide import measured_rate
+
+    return measured_rate(64, 64, "cpu", repeats=1, min_seconds=0.005)

@@ -94,23 +94,34 @@ def epoch_flops(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_
     return mining + steps + window * n_val
 
 
-def measured_rate(in_dims: int, out_dims: int, device: Any, repeats: int = 3) -> float:
+def measured_rate(in_dims: int, out_dims: int, device: Any, repeats: int = 3, min_seconds: float = 0.02) -> float:
     """FLOP/s of the device on a ``[B, D] x [D, min(out, 1024)]`` float32 product (the model's kind of
-    work; B from 256 to 65536 rows, for about 1e8 operations: long enough to time), the best of ``repeats``
-    timings after one warm-up."""
+    work; B from 256 to 65536 rows, for about 1e8 operations), the best of ``repeats`` timings of a run of
+    products lasting at least ``min_seconds`` each, after a warm-up of at least ``min_seconds``: a process's
+    first products run many times slower (the thread pool starting; measured 2-4 GFLOP/s on the first product
+    of a process against 160-195 after, on 2 CPU cores), and one product of this size takes well under a
+    millisecond there, too short to time alone."""
     cols = max(1, min(out_dims, 1024))
     rows = int(min(65536, max(256, 1e8 // (2 * in_dims * cols))))
     x = torch.randn(rows, in_dims, device=device)
     weight = torch.randn(in_dims, cols, device=device)
     sync = torch.cuda.synchronize if getattr(device, "type", str(device)).startswith("cuda") else (lambda: None)
-    best = math.inf
-    for i in range(repeats + 1):
+
+    def timed(n: int) -> float:
         sync()
         t0 = time.perf_counter()
-        (x @ weight).sum().item()
+        for _ in range(n):
+            (x @ weight).sum().item()
         sync()
-        if i:  # the first run warms up
-            best = min(best, time.perf_counter() - t0)
+        return time.perf_counter() - t0
+
+    spent = 0.0
+    while spent < min_seconds:  # warm-up: products for at least min_seconds
+        spent += timed(1)
+    n = 1
+    while (first := timed(n)) < min_seconds:  # a run of products long enough to time
+        n *= 2
+    best = min([first] + [timed(n) for _ in range(repeats - 1)]) / n
     return 2.0 * rows * in_dims * cols / max(best, 1e-9)
 
 
