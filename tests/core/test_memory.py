@@ -129,3 +129,12 @@ def test_a_sharded_build_counts_one_training_sample():
     index = faiss.index_factory(64, "IVF256,PQ8")
     whole, codes = index_bytes(index, 100_000), index_bytes(index, 100_000, sample=False)
     assert codes == 100_000 * (8 + 8) and whole - codes == 4 * 64 * 65_536  # the sample: max(256 · 256, 65,536)
+
+
+@pytest.mark.parametrize(("n", "text"), [(0, "0 B"), (1023, "1023 B"), (1024, "1 KiB"), (2**20 - 1, "1 MiB"),
+                                         (2**20 - 600, "1023 KiB"), (2**20, "1 MiB"), (2**30 - 1, "1.0 GiB"),
+                                         (5 * 2**30, "5.0 GiB"), (1.5 * 2**20, "2 MiB")])
+def test_human_bytes_never_writes_1024_of_a_unit(n: float, text: str) -> None:
+    from seqnet.core.memory import human_bytes
+
+    assert human_bytes(n) == text

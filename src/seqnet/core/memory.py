@@ -136,5 +136,10 @@ def check_space(folder: Path, needed: int, what: str, largest: int | None = None
 
 
 def human_bytes(n: float) -> str:
-    """A byte count in KiB under 1 MiB, MiB under 1 GiB, else GiB (one decimal)."""
-    return f"{n / 2**10:.0f} KiB" if n < 2**20 else f"{n / 2**20:.0f} MiB" if n < 2**30 else f"{n / 2**30:.1f} GiB"
+    """A byte count in bytes under 1 KiB, KiB under 1 MiB, MiB under 1 GiB, else GiB (one decimal), the unit
+    chosen on the rounded value (2**20 - 1 bytes is "1 MiB", never "1024 KiB")."""
+    if round(n) < 2**10:
+        return f"{n:.0f} B"
+    if round(n / 2**10) < 2**10:
+        return f"{n / 2**10:.0f} KiB"
+    return f"{n / 2**20:.0f} MiB" if round(n / 2**20) < 2**10 else f"{n / 2**30:.1f} GiB"
