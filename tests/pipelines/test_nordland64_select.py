@@ -112,3 +112,30 @@ def test_the_descriptor_choice_is_cached_whole(tmp_path, monkeypatch):
     with pytest.raises(OutputError):
         descriptor_on_val(conf, data, other)
     assert (other / "descriptor_choice.json").read_text() == "mine"
+
+
+def test_the_cached_choice_ignores_places_after_every_range(tmp_path, monkeypatch):
+    """The places after the last range are never read: removing one keeps the cached choice; a val place changed
+    chooses again."""
+    from seqnet.pipelines import descriptor_choice
+    from seqnet.pipelines.nordland64 import select
+
+    conf = Nordland64Config(train_range=(0, 20), val_range=(22, 40), test_range=(42, 60), device="cpu",
+                            descriptors=("pixels", "gmp"))
+    monkeypatch.setattr(descriptor_choice, "runnable", lambda d: None if d.method == "pixels" else "not installed")
+    data, out = nordland_copy(tmp_path, n=66), tmp_path / "out"
+    out.mkdir()
+    calls = []
+    real = select.proxy_scores
+    monkeypatch.setattr(select, "proxy_scores", lambda *a: (calls.append(a[-1].method), real(*a))[1])
+    descriptor_on_val(conf, data, out)
+    last = sorted((data / "summer").iterdir())[-1].name
+    for season in ("summer", "winter"):
+        (data / season / last).unlink()  # place 65: after every range
+    _, rec = descriptor_on_val(conf, data, out)
+    assert calls == ["pixels"] and rec["cached"] is True
+    val_place = sorted((data / "summer").iterdir())[30].name
+    for season in ("summer", "winter"):
+        (data / season / val_place).unlink()  # a val place: the places in use changed
+    _, rec = descriptor_on_val(conf, data, out)
+    assert calls == ["pixels", "pixels"] and "cached" not in rec

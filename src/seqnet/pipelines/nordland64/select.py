@@ -79,8 +79,9 @@ def descriptor_on_val(conf: Nordland64Config, data: str | Path, out: Path | None
     from .data import list_places, split_ranges
 
     names, pos = list_places(data, conf.names_file)
-    lo, _ = split_ranges(conf, len(names))
-    key = choice_key(conf, Path(data), names[lo:])
+    lo, splits = split_ranges(conf, len(names))
+    hi = lo + max(r["query"][1] for r in splits.values())  # places after every range are never read
+    key = choice_key(conf, Path(data), names[lo:hi])
     if out is not None and cache.unit(out, "choice", key) is not None:
         record = read_json(out / cache.CHOICE[0], "cached descriptor choice", OutputError, MAX_CHOICE)
         chosen = record.get("chosen") if isinstance(record, dict) else None
@@ -89,7 +90,7 @@ def descriptor_on_val(conf: Nordland64Config, data: str | Path, out: Path | None
             logger.info("descriptor choice reused from %s: %s", shown(out / cache.CHOICE[0]), record["reason"])
             reason = f"{record['reason']} (an earlier run's choice in this folder, reused)"
             return conf.replace(describe=candidate_config(conf, chosen)), {**record, "reason": reason, "cached": True}
-    conf, record = choose_descriptor(data, names[lo:], pos[lo:], conf, lo)
+    conf, record = choose_descriptor(data, names[lo:hi], pos[lo:hi], conf, lo)
     if out is not None:
         cache.open_unit(out, "choice", cache.CHOICE, overwrite)  # its key removed first
         write_json_atomic(out / cache.CHOICE[0], record)
