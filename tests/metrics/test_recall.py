@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seqnet.core.errors import ConfigError
-from seqnet.metrics.recall import GroundTruth, check_radius, recall_at_k, recall_curve
+from seqnet.metrics.recall import GroundTruth, check_radius, recall, recall_at_k, recall_curve
 
 
 def naive_recall(retrieved, q_pos, r_pos, radius, ks):
@@ -198,3 +198,34 @@ def test_ground_truth_pairs_and_of_equal_a_naive_loop():
         assert t.of(i).tolist() == [j for a, j in naive if a == i]
     explicit = GroundTruth(q[:3], r[:4], 1.0, positives=Positives.from_lists([[2, 0], [], [3]]))
     assert [x.tolist() for x in explicit.pairs()] == [[0, 0, 2], [0, 2, 3]] and explicit.of(1).tolist() == []
+
+
+def test_a_wider_radius_with_explicit_positives_widens_around_the_positives() -> None:
+    """``--extra-radius`` with explicit positives: the references within the radius of a positive (reference
+    positions only), against a naive loop; the query's own positions (another numbering) are never read, and
+    recall never drops as the radius grows."""
+    from seqnet.data.positives import Positives
+
+    rng = np.random.default_rng(0)
+    for trial in range(30):
+        n_q, n_r = int(rng.integers(1, 12)), int(rng.integers(1, 30))
+        lists = [sorted(set(rng.integers(0, n_r, int(rng.integers(0, 3))).tolist())) for _ in range(n_q)]
+        r_pos = rng.integers(0, 40, (n_r, 1)).astype(float) if trial % 2 else rng.normal(size=(n_r, 2)) * 5
+        q_pos = rng.normal(size=(n_q, r_pos.shape[1])) * 1000  # another numbering: never comparable
+        truth = GroundTruth(q_pos, r_pos, 1.0, Positives.from_lists(lists))
+        retrieved = rng.integers(-1, n_r, (n_q, 5))
+        before = recall(retrieved, truth, (1, 5))
+        for radius in (0.01, 1.0, 2.5, 7.0):
+            wide = truth.within(radius)
+            for m in range(n_q):
+                want = sorted({j for p in lists[m] for j in range(n_r)
+                               if np.linalg.norm(r_pos[j] - r_pos[p]) <= radius})
+                assert wide.of(m).tolist() == want
+            assert wide.radius == radius
+            after = recall(retrieved, wide, (1, 5))
+            assert after["queries"] == before["queries"]
+            if before["queries"]:
+                assert after["recall@1"] >= before["recall@1"] and after["recall@5"] >= before["recall@5"]
+            before = after
+    plain = GroundTruth(np.zeros((2, 1)), np.arange(4.0)[:, None], 1.0)
+    assert plain.within(2.0).radius == 2.0 and plain.within(2.0).positives is None

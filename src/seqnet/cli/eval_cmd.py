@@ -183,8 +183,10 @@ def print_results(res: dict) -> None:
 
 def print_extra_radii(res: dict) -> None:
     """Recall@K within each ``--extra-radius``, one line per method and radius."""
+    explicit = res["config"].get("ground_truth") == "explicit positives"
     for radius in res["config"].get("extra_radii") or ():
-        print(f"within radius {radius:g} (--extra-radius):")
+        print(f"within {radius:g} of a positive (--extra-radius; the reference traverse's positions):" if explicit
+              else f"within radius {radius:g} (--extra-radius):")
         for name, r in res["methods"].items():
             at = (r.get("radii") or {}).get(str(float(radius))) or (r.get("radii") or {}).get(str(radius)) or {}
             recalls = ", ".join(f"R@{k.split('@')[1]} {v:.3f}" for k, v in at.items() if k.startswith("recall@"))

@@ -41,7 +41,7 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
                  confidence_for_precision=thresholds_for(precision, rec, thresholds))
     if extra_radii:
-        entry["radii"] = {str(r): recall(ranked, GroundTruth(truth.q_pos, truth.r_pos, r), ks, denominator)
+        entry["radii"] = {str(r): recall(ranked, truth.within(r), ks, denominator)
                           for r in extra_radii}
     return entry, confidence
 

@@ -112,6 +112,28 @@ class GroundTruth:
         q = np.repeat(np.arange(len(lists)), [len(x) for x in lists])
         return q, np.fromiter((j for x in lists for j in sorted(x)), dtype=np.int64, count=len(q))
 
+    def within(self, radius: float) -> GroundTruth:
+        """The ground truth at another ``radius`` (``--extra-radius``): the radius itself; with explicit
+        positives, the references within ``radius`` of one of the query's positives, measured between
+        reference positions only (the query's own positions need not be comparable with the reference's: two
+        traverses of different lengths, each numbered by frame). A query without a positive keeps none."""
+        if self.positives is None:
+            return GroundTruth(self.q_pos, self.r_pos, radius)
+        from scipy.spatial import cKDTree
+
+        from ..data.positives import Positives
+
+        radius = check_radius(radius)
+        q, r = self.positives.pairs()
+        lists = cKDTree(self.r_pos).query_ball_point(self.r_pos, r=radius)  # [R] references near each reference
+        counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
+        near = np.fromiter((j for x in lists for j in x), dtype=np.int64, count=int(counts.sum()))
+        starts = np.concatenate([[0], np.cumsum(counts)])[r]  # [nnz] where each positive's neighbours begin
+        n = counts[r]
+        offsets = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+        widened = Positives.from_pairs(np.repeat(q, n), near[np.repeat(starts, n) + offsets], len(self.q_pos))
+        return GroundTruth(self.q_pos, self.r_pos, radius, widened)
+
     def hits(self, retrieved: np.ndarray) -> np.ndarray:
         """``[M, K]`` bool: whether ``retrieved[m, k]`` (a reference item, -1 = none) is correct."""
         if self.positives is not None:
