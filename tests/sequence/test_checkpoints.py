@@ -136,3 +136,25 @@ def test_cli_eval_with_original_checkpoint(tmp_path, synth_dir, capsys):
     assert "seqnet" in out and "hvpr" in out
     wrong, _, _ = _original_run(tmp_path / "w", d=20)
     assert cli_main(["eval", "--dataset", str(synth_dir), "--model", str(wrong), "--method", "seqnet"]) == 2
+
+
+def test_a_models_role_is_read_without_its_weights(tmp_path):
+    """``model_role``: the role and L of a checkpoint, its 84 MB of weights mapped, not read (a command that does
+    not use the model never holds it); the same errors as loading for a file that is not a checkpoint."""
+    import subprocess
+    import sys
+
+    from seqnet.sequence.checkpoints import model_role
+
+    big = save_checkpoint(tmp_path / "big.pt", SeqNet(2048, 2048, 5, 5))
+    assert model_role(big) == ("seqnet", 5)
+    assert model_role(save_checkpoint(tmp_path / "s1.pt", SeqNet(8, 4, 1, 1))) == ("s1", 1)
+    probe = ("import resource, sys; from seqnet.sequence import checkpoints as c; import torch; "
+             "a = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss; getattr(c, sys.argv[1])(sys.argv[2]); "
+             "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - a)")
+    grown = {f: int(subprocess.run([sys.executable, "-c", probe, f, str(big)], capture_output=True, text=True,
+                                   check=True).stdout) for f in ("model_role", "load_model")}
+    assert grown["load_model"] > 80 * 1024 and grown["model_role"] < 20 * 1024, grown  # KiB
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="bad.pt"):
+        model_role(tmp_path / "bad.pt")

@@ -152,6 +152,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
         logger.info("--shortlist-model is read for its L only (%s uses no S_L); --seq-len L skips reading it",
                     conf.method)
     skip_sl = "seqnet" not in needed and conf.seq_len is not None
+    conf, models = unused_paths(conf, needed, models)
     loaded = load_models(models, None if skip_sl else shortlist_model, rerank_model if "s1" in needed else None,
                          conf.seq_len)
     conf, loaded = used_models(conf, loaded)
@@ -202,6 +203,28 @@ def _calibrated(cal_run: tuple[list[Estimate], np.ndarray], run: tuple[list[Esti
     out = apply_threshold(cal, conf_q[full_q], correct[full_q], has[full_q])
     out["calibration"]["split"] = cal_split
     return accepted(cal, conf_q) & full_q, out
+
+
+def unused_paths(conf: LocalizeConfig, needed: set[str],
+                 paths: Sequence[str | Path]) -> tuple[LocalizeConfig, list[str | Path]]:
+    """``conf`` and the ``--model`` paths ``conf.method`` uses: each checkpoint's role is looked up with its
+    weights mapped, not read (:func:`seqnet.sequence.checkpoints.model_role`), and a model the method does not
+    use is never loaded (a line says so); an unused S_L still gives L when none was given (the same windows)."""
+    from ..sequence.checkpoints import model_role
+
+    keep, unused = [], []
+    for path in paths:
+        role, seq_len = model_role(path)
+        if role in needed:
+            keep.append(path)
+            continue
+        unused.append(Path(path).name)
+        if role == "seqnet" and conf.seq_len is None:
+            conf = conf.replace(seq_len=seq_len)
+    if unused:
+        logger.info("%s does not use the model%s %s: not loaded", conf.method, "s" * (len(unused) > 1),
+                    ", ".join(unused))
+    return conf, keep
 
 
 def used_models(conf: LocalizeConfig, loaded: Mapping[str, SeqNet]) -> tuple[LocalizeConfig, dict[str, SeqNet]]:

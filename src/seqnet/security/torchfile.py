@@ -111,19 +111,24 @@ def check_archive(f: IO[bytes], where: str, what: str) -> None:
                                   "bytes it does not store as torch does (a damaged or crafted file)")
 
 
-def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint", installed: bool = False) -> Any:
+def load_torch_file(path: str | os.PathLike[str], what: str = "checkpoint", installed: bool = False,
+                    mapped: bool = False) -> Any:
     """A ``torch.save`` file read safely (module docstring); :class:`CheckpointError` if missing or unreadable.
     ``installed``: a file shipped inside an installed package (trusted like its code: pretrained weights), which
-    may be in torch's legacy format."""
+    may be in torch's legacy format. ``mapped``: the tensors are mapped from the file, not read into memory (for
+    a look at a checkpoint's architecture; the file opened here, through ``/proc/self/fd``, where the system has
+    it; else read as usual)."""
     import torch
 
     with open_input(path, what, CheckpointError) as f:
         if not installed:
             check_archive(f, str(path), what)
         f.seek(0)
+        fd_path = f"/proc/self/fd/{f.fileno()}"
+        source: Any = fd_path if mapped and os.path.exists(fd_path) else f
         try:
             with torch.serialization.safe_globals(_safe_globals()):
-                value = torch.load(f, map_location="cpu", weights_only=True)
+                value = torch.load(source, map_location="cpu", weights_only=True, mmap=source is not f)
         except CheckpointError as e:
             raise CheckpointError(f"cannot read {what} {path}: {e}") from e
         except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, zipfile errors ...

@@ -47,13 +47,13 @@ def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
     return path
 
 
-def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load a checkpoint file as a dict (:func:`seqnet.security.torchfile.load_torch_file`); :class:`CheckpointError`
-    if missing, unreadable or not a checkpoint."""
+def read_checkpoint(path: str | Path, mapped: bool = False) -> dict[str, Any]:
+    """Load a checkpoint file as a dict (:func:`seqnet.security.torchfile.load_torch_file`; ``mapped``: its
+    tensors mapped from the file, not read); :class:`CheckpointError` if missing, unreadable or not a checkpoint."""
     path = Path(path)
     if path.is_dir():
         raise CheckpointError(f"checkpoint not found: {path} (it is a directory; pass RUN/best.pt)")
-    payload = load_torch_file(path, "checkpoint")
+    payload = load_torch_file(path, "checkpoint", mapped=mapped)
     if not isinstance(payload, dict) or "state_dict" not in payload:
         got = f"dict with keys {list(payload)[:8]}" if isinstance(payload, dict) else type(payload).__name__
         raise CheckpointError(f"{path} is not a SeqNet checkpoint: expected a dict with a 'state_dict', got {got}")
@@ -192,6 +192,18 @@ def _from_original(payload: dict[str, Any], path: Path, seq_len: int | None) -> 
     cfg = {"in_dims": in_dims, "out_dims": out_dims, "seq_len": int(stored if stored is not None else seq_len), "w": w}
     logger.info("loaded original SeqNet checkpoint %s (epoch %s): %s", path, payload.get("epoch"), cfg)
     return _build(cfg, {"conv.weight": weight, "conv.bias": bias}, path)
+
+
+def model_role(path: str | Path) -> tuple[str, int]:
+    """``(role, L)`` of the model in a checkpoint (``"s1"`` or ``"seqnet"``, as :attr:`SeqNet.role`), its weights
+    mapped from the file and never read into memory: what a command learns of a model it will not use. An
+    original-code checkpoint is loaded."""
+    payload = read_checkpoint(path, mapped=True)
+    if payload.get("format") != CHECKPOINT_FORMAT:
+        model = load_model(path)
+        return model.role, model.seq_len
+    _, _, seq_len, w = check_architecture(payload.get("model"), payload["state_dict"], Path(path))
+    return ("s1" if seq_len == 1 and w == 1 else "seqnet"), seq_len
 
 
 def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
