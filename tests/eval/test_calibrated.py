@@ -29,6 +29,10 @@ def test_eval_calibrated_matches_per_query(easy_dir, tmp_path, capsys):
                      *TARGET, "--json", str(tmp_path / "r.json"), "--per-query", str(rows), "--device", "cpu"]) == 0
     assert "calibrated on val for precision >= 0.9 (risk 0.05); on test:" in capsys.readouterr().out
     res = json.loads((tmp_path / "r.json").read_text())
+    assert cli_main(["eval", "--dataset", str(easy_dir), "--method", "single", "--seq-len", "3", *TARGET,
+                     "--per-query", str(tmp_path / "q.csv"), "--device", "cpu"]) == 0
+    table = list(csv.DictReader((tmp_path / "q.csv").open()))
+    assert sum(r["accepted"] == "1" for r in table) == res["methods"]["single"]["calibrated"]["accepted"]
     assert res["config"]["target_precision"] == 0.9 and res["config"]["calibrate_split"] == "val"
     per = [json.loads(line) for line in rows.read_text().splitlines()]
     for name, entry in res["methods"].items():
@@ -38,7 +42,9 @@ def test_eval_calibrated_matches_per_query(easy_dir, tmp_path, capsys):
         mine = [r for r in per if r["method"] == name]
         conf = np.array([r["confidence"] for r in mine])
         ok = np.array([r["correct"][0] for r in mine])
-        acc = conf >= cal["threshold"] - 1e-6  # the per-query confidences are rounded to 6 decimals
+        acc = np.array([r["accepted"] for r in mine])  # the threshold applied as the count was made
+        assert np.array_equal(acc[np.abs(conf - cal["threshold"]) > 1e-6], (conf >= cal["threshold"])[
+            np.abs(conf - cal["threshold"]) > 1e-6])  # the per-query confidences are rounded to 6 decimals
         assert c["queries"] == len(mine) and c["accepted"] == int(acc.sum()) and c["correct"] == int(ok[acc].sum())
         lo, hi = c["precision_interval"]
         assert lo <= c["precision"] <= hi
@@ -71,3 +77,66 @@ def test_localize_accepted_column(easy_dir, tmp_path, capsys):
     assert all(float(r["confidence"]) >= c["calibration"]["threshold"] - 1e-6 for r in accepted)
     assert sum(r["correct"] == "1" for r in accepted) == c["correct"]
     assert cli_main(["localize", "--dataset", str(easy_dir), "--out", str(tmp_path / "t2.csv"), "--risk", "0.1"]) == 2
+
+
+def test_a_missed_target_is_said(capsys):
+    from seqnet.cli.eval_cmd import print_calibration
+
+    def entry(precision: float, met: bool) -> dict:
+        return {"calibrated": {"calibration": {"threshold": 0.5, "reason": ""}, "accepted": 90, "queries": 100,
+                               "accepted_fraction": 0.9, "precision": precision, "precision_interval": [0.8, 0.9],
+                               "recall": 0.8, "target_met": met}}
+
+    res = {"config": {"target_precision": 0.9, "calibrate_split": "val", "risk": 0.05, "split": "test"},
+           "methods": {"a": entry(0.95, True), "b": entry(0.85, False)}}
+    print_calibration(res)
+    out = capsys.readouterr().out.splitlines()
+    assert "BELOW" not in out[1] and out[2].endswith("— BELOW the target 0.9") and "measured below" in out[3]
+    res["methods"].pop("b")
+    print_calibration(res)
+    assert "below" not in capsys.readouterr().out.lower()
+
+
+def test_calibrating_on_training_queries_is_warned(tmp_path, caplog):
+    """A threshold calibrated on the queries a model was trained on is optimistic: said, as evaluating on them is."""
+    import logging
+
+    from seqnet.data.io import save_dataset
+    from seqnet.data.synth import make_synthetic
+    from seqnet.train import TrainConfig, train
+
+    ds = make_synthetic(places=400, dim=16, seed=3, noise=0.3)
+    path = save_dataset(ds, tmp_path / "ds")
+    train(ds, TrainConfig(seq_len=1, w=1, epochs=1, out_dims=8, device="cpu", n_neg_sample=30,
+                                batch_size=32), tmp_path / "run", dataset_path=path)
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    assert cli_main(["eval", "--dataset", str(path), "--method", "s1", "--model", str(tmp_path / "run" / "best.pt"),
+                     "--target-precision", "0.5", "--calibrate-split", "train", "--device", "cpu"]) == 0
+    said = " ".join(r.getMessage() for r in caplog.records)
+    assert "calibration queries ('train'" in said and "--calibrate-split val" in said
+
+
+def test_the_report_shows_the_calibration(easy_dir, tmp_path):
+    out = tmp_path / "rep"
+    assert cli_main(["eval", "--dataset", str(easy_dir), "--method", "single,raw+seqmatch", "--seq-len", "3",
+                     *TARGET, "--report", "--out", str(out), "--device", "cpu"]) == 0
+    page = (out / "report.html").read_text()
+    assert 'id="calibrated"' in page and "Calibrated confidence" in page
+    res = json.loads((out / "results.json").read_text())
+    for name, entry in res["methods"].items():
+        c = entry["calibrated"]
+        assert f"<td>{name}</td><td>{c['calibration']['threshold']:.4g}</td>" in page
+        assert f"{c['accepted']} of {c['queries']}" in page
+
+
+def test_the_report_says_a_missed_target():
+    from seqnet.report.notes import calibration_section
+
+    c = {"calibration": {"threshold": 0.2}, "accepted": 9, "queries": 10, "precision": 0.7,
+         "precision_interval": [0.4, 0.9], "recall": 0.7, "target_met": False}
+    declined = {"calibration": {"threshold": None, "reason": "too few queries"}}
+    res = {"config": {"target_precision": 0.9, "calibrate_split": "val", "risk": 0.05},
+           "methods": {"a<b": {"calibrated": c}, "d": {"calibrated": declined}}}
+    body = calibration_section(res)[0].body
+    assert "<td>NO</td>" in body and "Below the target: a&lt;b." in body and "too few queries" in body
+    assert calibration_section({"config": {}, "methods": {}}) == []

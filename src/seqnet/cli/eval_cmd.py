@@ -210,8 +210,14 @@ def print_calibration(res: dict) -> None:
             continue
         lo, hi = c["precision_interval"] or (float("nan"), float("nan"))
         prec = "–" if c["precision"] is None else f"{c['precision']:.3f} [{lo:.3f}, {hi:.3f}]"
+        missed = f" — BELOW the target {cfg['target_precision']:g}" if c.get("target_met") is False else ""
         print(f"  {name}: confidence >= {cal['threshold']:.4g} accepts {c['accepted']} of {c['queries']} "
-              f"({100 * c['accepted_fraction']:.1f}%), precision {prec}, recall {c['recall']:.3f}")
+              f"({100 * c['accepted_fraction']:.1f}%), precision {prec}, recall {c['recall']:.3f}{missed}")
+    if any((r.get("calibrated") or {}).get("target_met") is False for r in res["methods"].values()):
+        print(f"  (measured below the target: the promise is for queries drawn like those of "
+              f"{shown(cfg['calibrate_split'])}, and fails with probability risk, or by chance on few queries; "
+              "a gap beyond the interval means the evaluated queries differ from them, e.g. a harder stretch of "
+              "the route: calibrate on queries like the ones you will localise)")
 
 
 def check_route(args: argparse.Namespace) -> None:

@@ -204,6 +204,8 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
     leaks = leakage(loaded, dataset, ds, split)
+    if conf.target_precision is not None:
+        leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True)
     if leaks:
         ev.results["leakage"] = leaks
         for line in leaks:

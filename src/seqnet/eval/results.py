@@ -66,13 +66,17 @@ def per_query_rows(ev: Any, top: int = 5) -> list[dict[str, Any]]:
         head = ranked[:, :top]
         hits = view.truth.hits(head)
         has = view.truth.has_positive()
+        calibrated = ev.results["methods"].get(name, {}).get("calibrated")
+        threshold = calibrated["calibration"]["threshold"] if calibrated else None
         for m, q in enumerate(view.q_items):
             refs = [int(view.r_items[j]) if j >= 0 else -1 for j in head[m]]
             rows.append({"method": name, "query_frame": int(q),
                          "query_name": view.query_names[m] if view.query_names else "",
                          "references": refs, "scores": [_num(s) for s in ev.scores[name][m, :top]],
                          "correct": [bool(h) for h in hits[m]], "has_positive": bool(has[m]),
-                         "confidence": round(float(ev.confidence[name][m]), 6)})
+                         "confidence": round(float(ev.confidence[name][m]), 6),
+                         **({"accepted": threshold is not None and bool(ev.confidence[name][m] >= threshold)}
+                            if calibrated else {})})
     return rows
 
 
@@ -127,12 +131,13 @@ def _rows_csv(rows: list[dict[str, Any]]) -> str:
     import csv  # only for a per-query CSV
 
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS, lineterminator="\n")
+    fields = (*CSV_FIELDS, "accepted") if rows and "accepted" in rows[0] else CSV_FIELDS  # with --target-precision
+    writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     writer.writeheader()
     for r in rows:
         writer.writerow({k: csv_cell(v) if k in NAME_FIELDS else
-                         ";".join("" if x is None else str(x) for x in v) if isinstance(v, list) else v
-                         for k, v in r.items()})
+                         ";".join("" if x is None else str(x) for x in v) if isinstance(v, list) else
+                         int(v) if k == "accepted" else v for k, v in r.items()})
     return buf.getvalue()
 
 

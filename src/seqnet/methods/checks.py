@@ -129,8 +129,10 @@ def model_lengths(models: Mapping[str, SeqNet]) -> dict[str, int]:
     return {role: int(m.seq_len) for role, m in sorted(models.items())}
 
 
-def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
-    """One line per model trained on queries of ``dataset`` that the evaluated ``split`` contains too."""
+def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
+            calibration: bool = False) -> list[str]:
+    """One line per model trained on queries of ``dataset`` that the evaluated ``split`` (``calibration``: the
+    split a confidence threshold is calibrated on) contains too."""
     a, b = ds.ranges(split)["query"]
     out = []
     for role, m in sorted(models.items()):
@@ -143,9 +145,12 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
         ta, tb = trained["query"]
         both = max(0, min(b, tb) - max(a, ta))
         if both:
-            out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are training queries of the "
-                       f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} ({t['split']!r}, {ta}:{tb}): "
-                       "its results on them are not a test (hint: --split test)")
+            what = "calibration" if calibration else "evaluated"
+            out.append(f"{both} of the {b - a} {what} queries ({split!r}, {a}:{b}) are training queries of the "
+                       f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} ({t['split']!r}, {ta}:{tb}): " + (
+                           "a threshold calibrated on them is optimistic, its promise does not hold (hint: "
+                           "--calibrate-split val)" if calibration else
+                           "its results on them are not a test (hint: --split test)"))
     return out
 
 

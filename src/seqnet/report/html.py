@@ -34,7 +34,7 @@ from ..metrics.recall import recall_curve
 from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .markup import SORT_JS, Section, png_tag, table_html
-from .notes import choices_section, notes_section
+from .notes import calibration_section, choices_section, notes_section
 from .styles import method_family
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
@@ -160,6 +160,7 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
         results_section(ev),
         *choices_section(ev.results),
         *notes_section(ev.results),
+        *calibration_section(ev.results),
         Section("recall", "Recall@K", png_tag(figure_png(recall_figure(curves, "Recall@K")), "Recall@K curves")),
         Section("pr", "Precision–recall", png_tag(figure_png(pr),
                                                    "precision-recall curves")

@@ -1,5 +1,6 @@
-"""The report's sections of sentences: what was chosen on val and why (:func:`choices_section`), and the
-learned methods below their model-free counterparts (:func:`notes_section`, :mod:`seqnet.report.guidance`)."""
+"""The report's sections of sentences: what was chosen on val and why (:func:`choices_section`), the learned
+methods below their model-free counterparts (:func:`notes_section`, :mod:`seqnet.report.guidance`), and the
+calibrated confidence of ``--target-precision`` (:func:`calibration_section`)."""
 
 from __future__ import annotations
 
@@ -51,3 +52,35 @@ def notes_section(results: Any) -> list[Section]:
         return []
     items = "".join(f"<li>{html.escape(n.text())}</li>" for n in notes)
     return [Section("notes", "Notes", f"<ul>{items}</ul>")]
+
+
+def calibration_section(results: Any) -> list[Section]:
+    """A ``calibrated`` section with ``--target-precision``: per method, the threshold calibrated on the
+    calibration split (or why none), what it accepts of the evaluated queries and the precision achieved with its
+    interval, a missed target said in its row and below the table (none without calibration)."""
+    cfg = results.get("config") or {}
+    target = cfg.get("target_precision")
+    if target is None:
+        return []
+    header = ["method", "threshold", "accepted", "precision", "interval", "recall", "target met"]
+    rows, missed = [], []
+    for name, entry in (results.get("methods") or {}).items():
+        c = entry.get("calibrated") if isinstance(entry, dict) else None
+        if not isinstance(c, dict):
+            continue
+        cal = c.get("calibration") or {}
+        if cal.get("threshold") is None:
+            rows.append([name, "–", "abstains on every query", "–", "–", "–", str(cal.get("reason", ""))])
+            continue
+        lo, hi = c.get("precision_interval") or ("–", "–")
+        met = {True: "yes", False: "NO", None: "–"}[c.get("target_met")]
+        missed += [name] if c.get("target_met") is False else []
+        rows.append([name, f"{cal['threshold']:.4g}", f"{c['accepted']} of {c['queries']}",
+                     "–" if c.get("precision") is None else f"{c['precision']:.3f}", f"[{lo}, {hi}]",
+                     f"{c.get('recall', 0.0):.3f}", met])
+    intro = (f"<p>Confidence thresholds calibrated on {html.escape(str(cfg.get('calibrate_split')))} for a "
+             f"precision of at least {target:g} (risk {cfg.get('risk')}), applied to the evaluated queries.</p>")
+    warn = (f"<p><b>Below the target: {html.escape(', '.join(missed))}.</b> The promise is for queries drawn like "
+            "the calibration split's; a gap beyond the interval means the evaluated queries differ from them (e.g. "
+            "a harder stretch of the route).</p>") if missed else ""
+    return [Section("calibrated", "Calibrated confidence", intro + table_html(header, rows, sortable=True) + warn)]
