@@ -63,3 +63,9 @@ def test_sortable_table_and_header_less_facts():
     assert "<th>" not in facts and "<thead>" not in facts  # no empty heading row
     page = render_html("seqnet evaluation: nordland64[test]", [Section("results", "Results", t)])
     assert f"<script>{SORT_JS}</script>" in page and "src=" not in page
+
+
+def test_the_ground_truth_has_a_hue_no_family_has():
+    from seqnet.report.styles import FAMILIES, TRUTH_COLOUR
+
+    assert all(max(abs(a - b) for a, b in zip(TRUTH_COLOUR, rgb, strict=True)) > 0.2 for rgb in FAMILIES.values())

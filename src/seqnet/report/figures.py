@@ -22,7 +22,7 @@ from ..data.traverse import Traverse
 from ..metrics.recall import GroundTruth
 from ..security.inputs import inside, open_input
 from ..sequence.windows import window_starts
-from .styles import family_legend, method_styles
+from .styles import TRUTH_COLOUR, family_legend, method_styles
 from .tables import new_figure
 
 MAX_TRUTH_POINTS = 20000  # ground-truth pairs drawn on the distance matrix at most
@@ -66,7 +66,7 @@ def top_one(ev: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
 def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300,
                   methods: Sequence[str] | None = None) -> Any:
     """The single-image descriptor distance matrix of the evaluated items (downsampled to ``side``; the given
-    matrix ``ev.matrix`` when the evaluation ran on one), the ground truth (cyan) and each method's top-1
+    matrix ``ev.matrix`` when the evaluation ran on one), the ground truth (orange: no method family's hue) and each method's top-1
     (coloured dots) over it."""
     given = getattr(ev, "matrix", None)
     if given is not None:
@@ -78,7 +78,7 @@ def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300
     fig, ax = new_figure(8.5, 6.5)
     ax.imshow(d, cmap="gray", aspect="auto", interpolation="nearest", extent=(-0.5, r - 0.5, m - 0.5, -0.5))
     tq, tr = truth_pairs(ev.truth)
-    ax.scatter(tr, tq, s=10, c="cyan", alpha=0.8, marker="s", linewidths=0, label="ground truth")
+    ax.scatter(tr, tq, s=10, color=TRUTH_COLOUR, alpha=0.8, marker="s", linewidths=0, label="ground truth")
     names = list(methods or ev.retrieved)
     styles = method_styles(names)
     for name in names:
@@ -87,6 +87,10 @@ def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300
                    label=name)
     ax.set_xlim(-0.5, r - 0.5)
     ax.set_ylim(m - 0.5, -0.5)
+    from matplotlib.ticker import MaxNLocator  # items are whole numbers: no tick at 2.5
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel(f"reference item ({r}; matrix shown at {len(ri)} columns)")
     ax.set_ylabel(f"query item ({m}; {len(qi)} rows)")
     leg = family_legend(ax, names, {n: f"{n} top-1" for n in names}, first=["ground truth"])

@@ -29,6 +29,8 @@ FAMILIES: dict[str, tuple[float, float, float]] = {
     "other whole-map matcher": (0.890, 0.467, 0.761),  # pink
     "other": (0.498, 0.498, 0.498),  # grey
 }
+# the ground truth in the distance matrix: tab10's orange, the one hue no family has
+TRUTH_COLOUR = (1.0, 0.498, 0.055)
 MATCHER_FAMILIES = {"seqmatch": "SeqMatch", "vseqmatch": "velocity SeqMatch", "graph": "graph", "grh": "GRH",
                     "grh-dh": "GRH"}
 LINE_STYLES = ("-", "--", ":", "-.")
