@@ -66,8 +66,8 @@ def top_one(ev: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
 def matrix_figure(ev: Any, query: Traverse, reference: Traverse, side: int = 300,
                   methods: Sequence[str] | None = None) -> Any:
     """The single-image descriptor distance matrix of the evaluated items (downsampled to ``side``; the given
-    matrix ``ev.matrix`` when the evaluation ran on one), the ground truth (orange: no method family's hue) and each method's top-1
-    (coloured dots) over it."""
+    matrix ``ev.matrix`` when the evaluation ran on one), the ground truth (orange: no method family's hue) and
+    each method's top-1 (coloured dots) over it."""
     given = getattr(ev, "matrix", None)
     if given is not None:
         qi, ri = spread(len(ev.q_items), side), spread(len(ev.r_items), side)
