@@ -95,3 +95,61 @@ def test_a_pca_folded_into_the_models_is_not_called_missing():
     assert any("D = 7168 without PCA" in c for c in likely_causes("s1", res))
     res["config"]["benchmark"] = {"pca_dims": 64}
     assert not any("without PCA" in c for c in likely_causes("s1", res))
+
+
+def test_a_gap_a_sign_test_cannot_tell_says_so_and_nothing_generic():
+    from seqnet.report.guidance import within_chance
+
+    assert [within_chance(k) for k in range(8)] == [True] * 6 + [False] * 2
+    assert 2 * 0.5**5 > 0.05 > 2 * 0.5**6  # the sign test's two-sided p when all k differing queries go one way
+    (small,) = learned_below_baseline(_results({"single": 0.32, "s1": 0.30}, queries=150))  # 3 queries apart
+    assert small.causes == ("possibly chance: 3 of 150 queries apart (a sign test cannot tell fewer than 6 apart "
+                            "from chance)",)
+    (big,) = learned_below_baseline(_results({"single": 0.60, "s1": 0.30}, queries=150))
+    assert not any("chance" in c for c in big.causes) and "training data" in big.causes[-1]
+
+
+def test_the_shortlist_advice_names_only_what_did_better():
+    res = _results({"raw+seqmatch": 0.80, "hvpr-single": 0.714, "hvpr": 0.619, "hvpr-fused": 0.571})
+    note = next(n for n in learned_below_baseline(res) if n.learned == "hvpr-single")
+    assert not any("hvpr-fused" in c or "better" in c for c in note.causes)
+    res = _results({"raw+seqmatch": 0.80, "hvpr-single": 0.6, "hvpr": 0.7})
+    note = next(n for n in learned_below_baseline(res) if n.learned == "hvpr-single")
+    assert "(better here: hvpr)" in note.causes[0]
+    note = learned_below_baseline(_results({"raw+seqmatch": 0.80, "hvpr-single": 0.6}))[0]
+    assert "(a learned shortlist: hvpr, hvpr-fused)" in note.causes[0]
+
+
+def test_notes_with_the_same_causes_are_one_line():
+    notes = learned_below_baseline(_results({"single": 0.9, "s1": 0.3, "raw+seqmatch": 0.9, "s1+seqmatch": 0.4}))
+    (line,) = format_notes(notes)
+    assert line.startswith("note: s1 (R@1 0.300) is below the model-free single (0.900); s1+seqmatch (R@1 0.400)")
+    assert line.count("likely:") == 1 and notes[0].to_dict()["text"] == notes[0].text()
+
+
+def test_a_learned_method_alone_is_named_with_what_to_add():
+    from seqnet.report.guidance import unmatched
+
+    got = unmatched(_results({"seqnet": 0.5, "s1+seqmatch": 0.6, "s1": 0.2, "single": 0.1, "raw+seqmatch": 0.3,
+                              "delta": 0.2}))
+    assert got == []
+    assert unmatched(_results({"seqnet": 0.5, "s1+seqmatch": 0.6, "s1": 0.2})) == [
+        "seqnet (add smoothing or delta to see whether the model helps)",
+        "s1+seqmatch (add raw+seqmatch to see whether the model helps)",
+        "s1 (add single to see whether the model helps)"]
+
+
+def test_the_html_results_table_marks_the_row():
+    from types import SimpleNamespace
+
+    from seqnet.report.html import results_section
+
+    res = _results({"single": 0.9, "s1": 0.3})
+    for r in res["methods"].values():
+        r.update({f"recall@{k}": r["recall@1"] for k in (5, 10, 20)}, method={"kind": "knn"})
+    res["config"]["ks"] = [1, 5]
+    body = results_section(SimpleNamespace(results=res)).body
+    s1_row = next(row for row in body.split("<tr>") if row.startswith("<td>s1</td>"))
+    assert s1_row.split("</tr>")[0].endswith("<td>learned, below model-free single</td>")
+    single_row = next(row for row in body.split("<tr>") if row.startswith("<td>single</td>"))
+    assert single_row.split("</tr>")[0].endswith("<td></td>")

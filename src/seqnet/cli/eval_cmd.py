@@ -10,7 +10,7 @@ from ..core.errors import ConfigError
 from ..core.log import ordinal
 from ..eval.config import EvalConfig
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
-from ..report.guidance import format_notes, learned_below_baseline
+from ..report.guidance import format_notes, learned_below_baseline, unmatched
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
 from ..security.text import shown
@@ -179,6 +179,9 @@ def print_results(res: dict) -> None:
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
     for line in format_notes(learned_below_baseline(res)):
         print(shown(line))
+    alone = unmatched(res)
+    if alone:
+        print(shown(f"note: no model-free counterpart was evaluated for {'; '.join(alone)}"))
 
 
 def print_extra_radii(res: dict) -> None:

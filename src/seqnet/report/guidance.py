@@ -27,6 +27,7 @@ from ..core.errors import ConfigError
 from ..methods.grammar import parse_method
 
 SEQUENCE_BASELINES = ("smoothing", "delta", "delta-paper")
+CHANCE_QUERIES = 5  # the largest gap in queries a sign test at 0.05 cannot tell from chance (2 * 0.5**6 < 0.05)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,10 +40,18 @@ class Note:
     baseline_r1: float
     causes: tuple[str, ...]
 
+    def finding(self) -> str:
+        """The finding alone: which method is below which."""
+        return (f"{self.learned} (R@1 {self.learned_r1:.3f}) is below the model-free {self.baseline} "
+                f"({self.baseline_r1:.3f})")
+
     def text(self) -> str:
         """One line: the finding and the causes."""
-        return (f"{self.learned} (R@1 {self.learned_r1:.3f}) is below the model-free {self.baseline} "
-                f"({self.baseline_r1:.3f}) on the same data; likely: {'; '.join(self.causes)}")
+        return f"{self.finding()} on the same data; likely: {'; '.join(self.causes)}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (``results.json``'s ``learned_below_baseline``)."""
+        return {**dataclasses.asdict(self), "causes": list(self.causes), "text": self.text()}
 
 
 def counterparts(name: str, present: Mapping[str, Any]) -> list[str]:
@@ -71,19 +80,32 @@ def _model_free_hvpr(name: str, matcher: str | None) -> bool:
     return m.kind == "hvpr" and not m.models() and m.matcher == matcher
 
 
-def likely_causes(name: str, results: Mapping[str, Any]) -> tuple[str, ...]:
-    """The usual causes of a learned method ``name`` losing to a model-free one, most specific first: a model
-    on descriptors of D > 4096 (no PCA), a model trained at another L than evaluated, few evaluated queries;
-    then the causes the results cannot show (training data, val split)."""
+def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float] | None = None) -> tuple[str, ...]:
+    """The usual causes of a learned method ``name`` losing to a model-free one, most specific first: a gap
+    within chance (``gap``: the two R@1), a model-free shortlist, a model on descriptors of D > 4096 (no PCA),
+    a model trained at another L than evaluated, few evaluated queries; then, when nothing specific is seen,
+    the causes the results cannot show (training data, val split)."""
     cfg = results.get("config", {})
-    entry = results.get("methods", {}).get(name, {})
+    methods = results.get("methods", {})
+    entry = methods.get(name, {})
     models = (entry.get("method") or {}).get("models") or cfg.get("models") or {}
     out = []
+    queries = entry.get("queries")
+    apart = round((gap[1] - gap[0]) * queries) if gap is not None and isinstance(queries, int) else None
+    if apart is not None and within_chance(apart):
+        out.append(f"possibly chance: {apart} of {queries} queries apart (a sign test cannot tell fewer than "
+                   f"{CHANCE_QUERIES + 1} apart from chance)")
     m = parse_method(name)
     if m.kind == "hvpr" and m.shortlist and not parse_method(m.shortlist).models():
         top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
+        r1 = entry.get("recall@1", 0.0)
+        better = [b for b in ("hvpr", "hvpr-fused") if isinstance((methods.get(b) or {}).get("recall@1"), float)
+                  and methods[b]["recall@1"] > r1]
+        absent = [b for b in ("hvpr", "hvpr-fused") if b not in methods]
+        hint = f" (better here: {', '.join(better)})" if better else \
+            f" (a learned shortlist: {', '.join(absent)})" if absent else ""
         out.append(f"its shortlist is the model-free {m.shortlist}: it re-ranks only the places {m.shortlist} "
-                   f"ranks in its top {top or 'K'} (a better shortlist: hvpr, hvpr-fused)")
+                   f"ranks in its top {top or 'K'}{hint}")
     dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
     from ..describe.pca import PAPER_PCA_DIM  # here: the describe package (its describers, h5py) loads with it
 
@@ -95,14 +117,19 @@ def likely_causes(name: str, results: Mapping[str, Any]) -> tuple[str, ...]:
     evaluated = (entry.get("method") or {}).get("seq_len") or cfg.get("seq_len")
     if "seqnet" in m.models() and trained and evaluated and int(trained) != int(evaluated):
         out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
-    queries = entry.get("queries")
     if isinstance(queries, int) and 0 < queries < 50:
         out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@1)")
-    out.append("too little training data for the model's D x out x w weights (see the training plan seqnet train "
-               "logs)")
-    out.append("a val split too small to choose the epoch, or a training/eval window mismatch (window, L); see "
-               "the training log")
+    if not out:
+        out.append("too little or too different training data for the model's D x out x w weights, or a val split "
+                   "too small to choose the epoch (the training log of seqnet train says both)")
     return tuple(out)
+
+
+def within_chance(apart: int) -> bool:
+    """Whether two methods ``apart`` queries apart in R@1 (on the same queries) may differ by chance: even when
+    those are the only queries on which they differ, all one way (the most telling case), a two-sided sign test
+    gives ``2 * 0.5**apart``, above 0.05 up to :data:`CHANCE_QUERIES`; true whatever the per-query answers."""
+    return 0 <= apart <= CHANCE_QUERIES
 
 
 def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
@@ -122,13 +149,35 @@ def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
         queries = entry.get("queries")
         step = 1.0 / queries if isinstance(queries, int) and queries > 0 else 0.001
         if best - float(r1) >= step - 1e-9:
-            notes.append(Note(name, base, float(r1), best, likely_causes(name, results)))
+            notes.append(Note(name, base, float(r1), best, likely_causes(name, results, (float(r1), best))))
     return notes
 
 
 def format_notes(notes: list[Note]) -> list[str]:
-    """The notes as printed under the results table."""
-    return [f"note: {n.text()}" for n in notes]
+    """The notes as printed under the results table: the learned methods with the same likely causes on one
+    line."""
+    groups: dict[tuple[str, ...], list[Note]] = {}
+    for n in notes:
+        groups.setdefault(n.causes, []).append(n)
+    return [f"note: {'; '.join(n.finding() for n in group)} on the same data; likely: {'; '.join(causes)}"
+            for causes, group in groups.items()]
+
+
+def unmatched(results: Mapping[str, Any]) -> list[str]:
+    """The learned methods of ``results`` with no model-free counterpart evaluated beside them (nothing to say
+    whether the model helps), with the counterpart to add."""
+    methods = results.get("methods", {})
+    out = []
+    for name in methods:
+        try:
+            m = parse_method(name)
+        except ConfigError:
+            continue
+        if m.models() and not counterparts(name, methods):
+            want = "single" if m.kind == "knn" and m.shortlist == "s1" else \
+                "smoothing or delta" if m.kind == "knn" else f"raw+{m.matcher}"
+            out.append(f"{name} (add {want} to see whether the model helps)")
+    return out
 
 
 def row_marks(notes: list[Note]) -> dict[str, str]:

@@ -33,6 +33,7 @@ from ..methods.grammar import parse_method
 from ..metrics.recall import recall_curve
 from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
+from .guidance import learned_below_baseline, row_marks
 from .markup import SORT_JS, Section, png_tag, table_html
 from .notes import calibration_section, choices_section, notes_section
 from .styles import method_family
@@ -101,11 +102,13 @@ def results_section(ev: Any) -> Section:
     """The results table: Recall@K, AUC, R@100P, queries, time."""
     ks = ev.results["config"].get("ks", [1, 5, 10, 20])
     header, rows = results_rows(ev.results["methods"], ks)
+    marks = row_marks(learned_below_baseline(ev.results))  # learned below its model-free counterpart
     for row, (name, r) in zip(rows, ev.results["methods"].items(), strict=True):
         row.extend(f"{r[k]:.3f}" if isinstance(r.get(k), float) else "" for k in ("auc", "recall@100p"))
         row.insert(1, method_family(name))
-    return Section("results", "Results", table_html([header[0], "family", *header[1:], "PR AUC", "R@100P"], rows,
-                                                    sortable=True)
+        row.append(marks.get(name, ""))
+    return Section("results", "Results", table_html([header[0], "family", *header[1:], "PR AUC", "R@100P", "note"],
+                                                    rows, sortable=True)
                    + "<p>Click a column's heading to sort by it (again: the other way).</p>")
 
 

@@ -12,6 +12,7 @@ from ...core.stage import Written
 from ...data.traverse import Dataset
 from ...eval.evaluate import Evaluation, evaluate
 from ...metrics.recall import recall_curve
+from ...report.guidance import learned_below_baseline
 from ...report.html import ReportConfig, write_html_report
 from ...report.tables import format_markdown, plot_pr_curves, plot_recall_curves
 from ...security.files import write_json_atomic, write_text_atomic
@@ -66,6 +67,7 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
     test range) and ``pr_curve.png`` (precision–recall of every method, test range)."""
     ev.results["config"].update(benchmark=conf.to_dict(), timings_s=dict(seconds))
     ev.results["selection"] = dict(selection or {})
+    ev.results["learned_below_baseline"] = [n.to_dict() for n in learned_below_baseline(ev.results)]
     notes = selection_notes(selection or {})
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
