@@ -7,12 +7,14 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from ..core.errors import ConfigError
 from ..core.log import logger
 from ..core.provenance import check_same
 from ..data.traverse import Dataset
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
-from .grammar import Method
+from .grammar import Method, parse_method
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -198,3 +200,29 @@ def check_resident(reference: Any, method: Method, models: Mapping[str, SeqNet])
                f"localising against {reference.name!r} (kept in memory: {gib(held)})",
                "a map with a compressed index and float16 frames (seqnet index build --index ivf-pq --dtype "
                "float16), or fewer dimensions (--dim, PCA, --out-dims)")
+
+
+REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back
+
+
+def route_direction(truth: Any) -> float | None:
+    """The correlation of each query item's index with its correct references' indices (``truth.pairs()``): near
+    1 when the query traverse runs the way the reference does, near −1 when it runs back; None with fewer than 3
+    pairs or no spread."""
+    q, r = truth.pairs()
+    if len(q) < 3 or np.ptp(q) == 0 or np.ptp(r) == 0:
+        return None
+    return float(np.corrcoef(q.astype(np.float64), r.astype(np.float64))[0, 1])
+
+
+def reversed_route(truth: Any, methods: Iterable[str]) -> str | None:
+    """Why forward sequence methods among ``methods`` cannot match a query traverse that runs opposite to the
+    reference (:func:`route_direction` below :data:`REVERSED_BELOW`), and what to use; None otherwise."""
+    forward = [n for n in methods if not parse_method(n).single_frame and not n.endswith("-rev")]
+    corr = route_direction(truth) if forward else None
+    if corr is None or corr >= REVERSED_BELOW:
+        return None
+    return (f"the query traverse runs opposite to the reference: its correct references go back as it goes on "
+            f"(correlation {corr:.2f}), so the sequence methods {', '.join(forward[:4])}"
+            f"{' ...' if len(forward) > 4 else ''} compare frames in the wrong order; use the reversed matchers "
+            "(e.g. raw+seqmatch-rev) or give the query frames in the opposite order")
