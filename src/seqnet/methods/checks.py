@@ -205,11 +205,18 @@ def check_resident(reference: Any, method: Method, models: Mapping[str, SeqNet])
 REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back
 
 
-def route_direction(truth: Any) -> float | None:
-    """The correlation of each query item's index with its correct references' indices (``truth.pairs()``): near
-    1 when the query traverse runs the way the reference does, near −1 when it runs back; None with fewer than 3
-    pairs or no spread."""
-    q, r = truth.pairs()
+def route_direction(truth: Any, samples: int = 200) -> float | None:
+    """The correlation of query items' indices with their correct references' indices: near 1 when the query
+    traverse runs the way the reference does, near −1 when it runs back; None with fewer than 3 pairs or no
+    spread. Explicit positives: every pair; a radius: the nearest reference of ``samples`` evenly spaced queries
+    when it is within the radius (numpy only, one query at a time: bounded memory)."""
+    if truth.positives is not None:
+        q, r = truth.positives.pairs()
+    else:
+        items = np.unique(np.linspace(0, len(truth.q_pos) - 1, min(len(truth.q_pos), samples)).astype(np.int64))
+        near = np.array([np.square(truth.r_pos - truth.q_pos[i]).sum(axis=1).argmin() for i in items], np.int64)
+        close = np.square(truth.r_pos[near] - truth.q_pos[items]).sum(axis=1) <= truth.radius**2
+        q, r = items[close], near[close]
     if len(q) < 3 or np.ptp(q) == 0 or np.ptp(r) == 0:
         return None
     return float(np.corrcoef(q.astype(np.float64), r.astype(np.float64))[0, 1])
