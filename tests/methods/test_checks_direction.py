@@ -42,3 +42,8 @@ def test_eval_warns_on_a_reversed_query(tmp_path, caplog):
     assert cli_main(["eval", "--dataset", str(path), "--split", "all", "--method", "single,raw+seqmatch",
                      "--seq-len", "3", "--device", "cpu"]) == 0
     assert not any("runs opposite" in r.getMessage() for r in caplog.records)
+
+
+def test_no_reference_or_no_query_has_no_direction():
+    assert route_direction(GroundTruth(np.zeros((0, 1)), np.zeros((5, 1)), 1.0)) is None
+    assert route_direction(GroundTruth(np.zeros((4, 1)), np.zeros((0, 1)), 1.0)) is None

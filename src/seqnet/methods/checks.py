@@ -212,6 +212,8 @@ def route_direction(truth: Any, samples: int = 200) -> float | None:
     when it is within the radius (numpy only, one query at a time: bounded memory)."""
     if truth.positives is not None:
         q, r = truth.positives.pairs()
+    elif len(truth.r_pos) == 0:
+        return None
     else:
         items = np.unique(np.linspace(0, len(truth.q_pos) - 1, min(len(truth.q_pos), samples)).astype(np.int64))
         near = np.array([np.square(truth.r_pos - truth.q_pos[i]).sum(axis=1).argmin() for i in items], np.int64)
