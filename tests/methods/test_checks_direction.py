@@ -47,3 +47,15 @@ def test_eval_warns_on_a_reversed_query(tmp_path, caplog):
 def test_no_reference_or_no_query_has_no_direction():
     assert route_direction(GroundTruth(np.zeros((0, 1)), np.zeros((5, 1)), 1.0)) is None
     assert route_direction(GroundTruth(np.zeros((4, 1)), np.zeros((0, 1)), 1.0)) is None
+
+
+def test_a_ground_truth_that_makes_every_answer_right_is_named():
+    from seqnet.methods.checks import trivial_truth
+
+    same = GroundTruth(np.zeros((30, 2)), np.zeros((40, 2)), 5.0)  # constant positions
+    said = trivial_truth(same)
+    assert "100% of the 40 references" in said and "within the radius 5" in said
+    route = GroundTruth(np.arange(30.0)[:, None], np.arange(40.0)[:, None], 1.0)
+    assert trivial_truth(route) is None
+    wide = Positives.from_lists([list(range(30)) for _ in range(10)])
+    assert "as its positives" in trivial_truth(GroundTruth(np.zeros((10, 1)), np.zeros((40, 1)), 1.0, wide))

@@ -22,7 +22,7 @@ from ..core.log import logger
 from ..core.stage import Written
 from ..data.resample import resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
-from ..methods.checks import check_inputs, leakage, model_lengths, reversed_route
+from ..methods.checks import check_inputs, leakage, model_lengths, reversed_route, trivial_truth
 from ..methods.grammar import Method, parse_method
 from ..methods.protocol import Reference
 from ..methods.rank import rank
@@ -204,10 +204,10 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
-    backwards = reversed_route(ev.truth, ev.results["methods"])
-    if backwards:
-        logger.warning("%s", backwards)
-        ev.results["warnings"] = [*ev.results.get("warnings", []), backwards]
+    for said in (reversed_route(ev.truth, ev.results["methods"]), trivial_truth(ev.truth)):
+        if said:
+            logger.warning("%s", said)
+            ev.results["warnings"] = [*ev.results.get("warnings", []), said]
     leaks = leakage(loaded, dataset, ds, split)
     if conf.target_precision is not None:
         leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True)

@@ -235,3 +235,28 @@ def reversed_route(truth: Any, methods: Iterable[str]) -> str | None:
             f"(correlation {corr:.2f}), so the sequence methods {', '.join(forward[:4])}"
             f"{' ...' if len(forward) > 4 else ''} compare frames in the wrong order; use the reversed matchers "
             "(e.g. raw+seqmatch-rev) or give the query frames in the opposite order")
+
+
+TRIVIAL_SHARE = 0.5  # a query whose correct references are this share of the map or more: R@K says little
+
+
+def trivial_truth(truth: Any, samples: int = 200) -> str | None:
+    """Why the ground truth makes Recall@K near-trivial (the median query, of ``samples`` evenly spaced, has at
+    least :data:`TRIVIAL_SHARE` of the references correct: constant positions, or a radius as large as the route),
+    None otherwise."""
+    n_q, n_r = len(truth.q_pos), len(truth.r_pos)
+    if n_q == 0 or n_r < 4:
+        return None
+    items = np.unique(np.linspace(0, n_q - 1, min(n_q, samples)).astype(np.int64))
+    if truth.positives is not None:
+        counts = truth.positives.counts()[items]
+    else:
+        counts = np.array([int((np.square(truth.r_pos - truth.q_pos[i]).sum(axis=1) <= truth.radius**2).sum())
+                           for i in items])
+    share = float(np.median(counts)) / n_r
+    if share < TRIVIAL_SHARE:
+        return None
+    what = "positives" if truth.positives is not None else f"references within the radius {truth.radius:g}"
+    return (f"the median query has {share:.0%} of the {n_r} references as its {what}: any answer is likely correct "
+            "and Recall@K says little (constant positions, or a radius as large as the route? check the positions "
+            "and the radius, and their unit)")
