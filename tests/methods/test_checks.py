@@ -4,6 +4,7 @@ index build): any L >= w runs, is recorded (``model_seq_len``) with one info lin
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -141,3 +142,15 @@ def test_fuzzed_training_records_never_crash_the_check(record):
 
 
 FUZZ_DS = make_synthetic(places=100, dim=8, seed=0)
+
+
+def test_a_missing_model_names_the_model_free_method_to_use():
+    from seqnet.core.errors import ConfigError
+    from seqnet.methods.checks import check_methods, check_windows_fit
+    from seqnet.methods.grammar import parse_method
+
+    for name, free in (("hvpr", "raw+seqmatch"), ("s1", "single"), ("seqnet", "delta"), ("s1+graph", "raw+graph")):
+        with pytest.raises(ConfigError, match=rf"; or the model-free '{re.escape(free)}'$"):
+            check_methods([parse_method(name)], {}, 5)
+    with pytest.raises(ConfigError, match=r"\(1 frame\); use a shorter --seq-len or a longer split"):
+        check_windows_fit(5, 1, "the query traverse")

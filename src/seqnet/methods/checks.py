@@ -54,7 +54,8 @@ def check_memory(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet
 def check_windows_fit(longest: int, n: int, what: str) -> None:
     """The windows (``longest`` = max(L, L_m) frames) fit a traverse of ``n`` frames."""
     if longest > n:
-        raise ConfigError(f"seq_len={longest} is longer than {what} ({n} frames); use a shorter --seq-len")
+        raise ConfigError(f"seq_len={longest} is longer than {what} ({n} frame{'s' * (n != 1)}); use a shorter "
+                          "--seq-len or a longer split")
 
 
 def check_methods(methods: list[Method], models: Mapping[str, SeqNet], length: int) -> None:
@@ -64,8 +65,8 @@ def check_methods(methods: list[Method], models: Mapping[str, SeqNet], length: i
         if missing:
             need = " and ".join("an S_1 model (--rerank-model CKPT)" if r == "s1" else
                                 "an S_L model (--shortlist-model CKPT)" for r in sorted(missing))
-            free = _model_free(m)
-            hint = f"; or the model-free {free!r}" if free else ""
+            free = _model_free(m) or (f"raw+{m.matcher}" if m.matcher else "single" if m.single_frame else "delta")
+            hint = f"; or the model-free {free!r}"
             raise ConfigError(f"method {m.name!r} needs {need}{hint}")
         if m.min_len() > length:
             raise ConfigError(f"method {m.name!r} uses Delta descriptors, which need seq_len >= {m.min_len()} "
