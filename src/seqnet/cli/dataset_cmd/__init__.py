@@ -225,6 +225,7 @@ def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) 
 def run_check(args: argparse.Namespace) -> int:
     from ...core.errors import DatasetError
     from ...data.io import load_dataset, recorded_digests
+    from ...data.sanity import review
     from ...metrics.summary import summarize_dataset
     from ...security.digests import changed_files
 
@@ -234,6 +235,7 @@ def run_check(args: argparse.Namespace) -> int:
         raise DatasetError(f"{args.dir}: {', '.join(changed)} changed since seqnet wrote the dataset (every byte "
                            "hashed); hint: write it again, or drop 'checksums' from dataset.json if you changed "
                            "its files on purpose")
+    review(ds)  # frame-aligned traverses that do not pair up: refused; likely mistakes: one warning line each
     s = summarize_dataset(ds)
     if args.json:
         print(json.dumps(s, indent=2, default=str))
