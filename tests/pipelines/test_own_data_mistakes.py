@@ -37,8 +37,8 @@ def test_frame_aligned_folders_that_cannot_pair_up_are_refused(folders, tmp_path
     assert build(folders, tmp_path / "ds", "ref", str(short)) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
-    assert err.startswith("seqnet dataset") and ("error: --frame-aligned: query frame i is the place of reference "
-                                                 "frame i, but the reference has 12 images and the query 11") in err
+    assert err.startswith("seqnet dataset from-images: error: --frame-aligned: query frame i is the place of "
+                          "reference frame i, but the reference has 12 images and the query 11")
     shutil.copy(short / "f010.png", short / "f099.png")  # as many, but f005 missing: every later frame shifted
     (short / "f005.png").unlink()
     shutil.copy(short / "f010.png", short / "f098.png")

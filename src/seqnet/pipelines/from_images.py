@@ -201,6 +201,12 @@ def _proxy_fit(conf: FromImagesConfig, images: tuple[ImageList, ImageList], base
     return evenly(fit)
 
 
+def _split_frames(rng: dict, n_ref: int, n_query: int) -> int:
+    """The frames of both traverses in the split ``rng`` (``{"query": (a, b)}`` alone: the whole reference)."""
+    (a, b), (c, d) = rng.get("reference", (0, n_ref)), rng["query"]
+    return max(0, min(b, n_ref) - a) + max(0, min(d, n_query) - c)
+
+
 def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
                   positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
                   unit: tuple[str, str | None], out: str | Path, overwrite: bool = False,
@@ -214,6 +220,10 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         if Path(out).exists() and any(Path(out).iterdir()) and not overwrite:
             raise ConfigError(f"output directory {out} exists and is not empty (use --overwrite to replace it)")
         check_replaceable(out, "dataset")  # before any work: a user's files are never replaced
+        if conf.pca is not None:  # before any image is described
+            from .pca import check_fit_frames
+
+            check_fit_frames(conf.pca, _split_frames(conf.splits["train"], len(ref), len(qry)), "train")
         if conf.candidates:
             dconf, record = choose_describer(conf, images, positions, unit, truth)
             conf, extra = conf.replace(describe=dconf, candidates=()), {**(extra or {}), "descriptor_choice": record}
@@ -239,5 +249,5 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         if conf.pca is not None:
             from .pca import reduce_dataset, save_reduced
 
-            return save_reduced(*reduce_dataset(ds, conf.pca, "train"), out, overwrite=overwrite)
-        return save_dataset(ds, out, overwrite=overwrite)
+            return save_reduced(*reduce_dataset(ds, conf.pca, "train"), out, overwrite=overwrite, quiet=True)
+        return save_dataset(ds, out, overwrite=overwrite, quiet=True)  # the command says it, with more

@@ -37,6 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     ps = dsub.add_parser("presets", help="list the dataset presets")
     ps.add_argument("--json", action="store_true", help="print the presets as JSON")
     ps.set_defaults(func=run_presets)
+    for name, leaf in dsub.choices.items():  # errors name the subcommand: "seqnet dataset from-images: error: ..."
+        leaf.set_defaults(command=f"dataset {name}")
 
 
 def _common(p: argparse.ArgumentParser, radius: bool = True) -> None:
