@@ -55,3 +55,17 @@ def test_the_reference_as_query_and_shared_queries_are_warned(folders, tmp_path,
     assert "same: splits train (queries 0:6) and test (queries 4:12) share 2 queries" in err
     assert main(["dataset", "check", str(tmp_path / "same")]) == 0
     assert "every metric is trivially perfect" in capsys.readouterr().err
+
+
+def test_fit_on_a_split_of_queries_against_the_whole_reference(folders, tmp_path, capsys, monkeypatch):
+    """``--fit-on train`` with ``--split train=A:B`` (no reference range): fitted on the whole reference and the
+    train queries (was an internal KeyError)."""
+    from seqnet.pipelines import from_images
+
+    fits = []
+    real = from_images.make_describer
+    monkeypatch.setattr(from_images, "make_describer", lambda conf, fit, *a, **k: (fits.append(list(fit)),
+                                                                                     real(conf, fit, *a, **k))[1])
+    assert build(folders, tmp_path / "ds", "ref", "qry", "--dim", "4", "--fit-on", "train", "--split", "train=0:6",
+                 "--split", "test=6:12") == 0
+    assert sorted(p.parent.name for p in fits[0]) == ["qry"] * 6 + ["ref"] * 12

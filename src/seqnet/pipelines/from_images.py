@@ -124,8 +124,8 @@ def _fit_ranges(conf: FromImagesConfig, n_ref: int, n_query: int) -> dict[str, r
         return None
     if conf.fit_on in FIT_ON:
         return {"reference": range(n_ref), **({"query": range(n_query)} if conf.fit_on == "both" else {})}
-    rng = conf.splits[conf.fit_on]
-    return {"reference": range(*rng["reference"]), "query": range(*rng["query"])}
+    rng = conf.splits[conf.fit_on]  # NAME=A:B: queries A:B against the whole reference
+    return {"reference": range(*rng.get("reference", (0, n_ref))), "query": range(*rng["query"])}
 
 
 def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: str | Path,
