@@ -57,3 +57,17 @@ def test_a_transposed_descriptor_array_is_named(tmp_path, capsys):
     assert capsys.readouterr().err == (f"seqnet dataset from-csv: error: {tmp_path / 'r.csv'}: 5 rows but "
                                        f"{tmp_path / 'rT.npy'} holds 8 descriptors; transposed? the array is [8, 5]; "
                                        "seqnet expects [N, D] (one row per image)\n")
+
+
+def test_from_csv_with_constant_positions_is_warned(tmp_path, capsys):
+    rng = np.random.default_rng(4)
+    for side in ("r", "q"):
+        (tmp_path / f"{side}.csv").write_text("name,easting,northing\n" + "".join(f"{side}{i}.png,500000,6000000\n"
+                                                                                 for i in range(6)))
+        np.save(tmp_path / f"{side}.npy", rng.random((6, 4)).astype(np.float32))
+    argv = ["dataset", "from-csv", "--ref-csv", str(tmp_path / "r.csv"), "--ref-desc", str(tmp_path / "r.npy"),
+            "--query-csv", str(tmp_path / "q.csv"), "--query-desc", str(tmp_path / "q.npy"), "--radius", "25",
+            "--out", str(tmp_path / "ds")]
+    assert main(argv) == 0
+    assert ("ds: all 6 reference and 6 query positions lie within 0 metres of each other, inside the radius 25: "
+            "every reference is within the radius of every query, so R@K is 1 trivially") in capsys.readouterr().err

@@ -8,7 +8,7 @@ import pytest
 
 from seqnet.core.errors import DatasetError
 from seqnet.data.positives import Positives
-from seqnet.data.sanity import _row_hashes, check_frame_aligned, dataset_warnings, review
+from seqnet.data.sanity import _copy_of, _row_hashes, check_frame_aligned, dataset_warnings, review
 from seqnet.data.traverse import Dataset, Traverse
 
 
@@ -45,6 +45,25 @@ def test_row_hashes_vs_a_loop(desc):
     for i in range(len(rows)):
         for j in range(len(rows)):
             assert (h[i] == h[j]) == (rows[i].tobytes() == rows[j].tobytes())
+
+
+def test_copy_of_vs_a_loop(monkeypatch):
+    """Every query row's identical reference row, found by a hash of its first columns then compared whole, as
+    a loop over all pairs finds it; small blocks (several per array) and a shared prefix included."""
+    from seqnet.data import sanity
+
+    monkeypatch.setattr(sanity, "BLOCK_BYTES", 3 * 96 * 8)  # blocks of 3 rows compared, 12 hashed
+    rng = np.random.default_rng(3)
+    ref = rng.random((30, 24)).astype(np.float32)
+    ref[7, :16] = ref[8, :16]  # rows 7 and 8 share the hashed prefix
+    qry = ref[rng.integers(0, 30, 17)]
+    match = _copy_of(ref, qry)
+    for m, q in enumerate(qry):
+        assert [r for r in range(30) if ref[r].tobytes() == q.tobytes()] == [match[m]]
+    assert _copy_of(ref, ref[[8, 7, 8]]).tolist() == [8, 7, 8]
+    changed = qry.copy()
+    changed[11, 20] += 1  # same prefix, another row: no copy
+    assert _copy_of(ref, changed) is None
 
 
 def test_splits_sharing_queries_are_named(desc):

@@ -127,9 +127,11 @@ def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | No
 
 def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
     from ...data.io import save_dataset
+    from ...data.sanity import review
     from ...metrics.summary import summarize_dataset
 
     save_dataset(ds, args.out, overwrite=args.overwrite)
+    review(ds)  # likely mistakes (the same images, splits sharing queries, constant positions): one line each
     s = summarize_dataset(ds)
     print(f"wrote {args.out}: reference {s['reference']['images']} and query {s['query']['images']} images, "
           f"D={s['reference']['dim']}, radius {ds.radius:g} {ds.position_unit}, "
