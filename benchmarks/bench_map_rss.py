@@ -14,7 +14,8 @@ user types, each in a child process whose peak resident set size is read from ``
   ``--train-seq-len 5 --train-w 3`` trains S_L); the "map" is the reference and query descriptor files;
 * ``describe`` of a folder of ``--images`` greyscale PNGs of ``sqrt(D) x sqrt(D)`` pixels with the
   ``pixels`` describer (D = H·W), and ``dataset from-images`` of that folder and a query folder of
-  ``--query-images`` (frame-aligned); the "map" is the descriptors the command writes.
+  ``--query-images`` (query i at reference i: explicit positives); the "map" is the descriptors the command
+  writes.
 
 Usage::
 
@@ -76,6 +77,9 @@ def make_images(args: argparse.Namespace, root: Path) -> None:
             if name == "img-qry":
                 img = np.clip(img + rng.normal(0, 20, img.shape), 0, 255).astype(np.uint8)
             Image.fromarray(img, "L").save(root / name / f"{i:07d}.png")
+    # query i shows the place of reference i; the reference runs on, so the traverses are not frame-aligned
+    pairs = "".join(f"{i},{i}\n" for i in range(args.query_images))
+    (root / "img-positives.csv").write_text("query,reference\n" + pairs)
 
 
 def make_dataset(args: argparse.Namespace, root: Path) -> Path:
@@ -155,7 +159,7 @@ def describe(tmp: Path, args: argparse.Namespace) -> tuple[list[str], Path]:
 def from_images(tmp: Path, args: argparse.Namespace) -> tuple[list[str], list[Path]]:
     out = tmp / "ds-img"
     return ["dataset", "from-images", str(tmp / "img-ref"), str(tmp / "img-qry"), "--method", "pixels", "--out",
-            str(out), "--frame-aligned", "--radius", "2", "--device", "cpu"], \
+            str(out), "--positives", str(tmp / "img-positives.csv"), "--radius", "2", "--device", "cpu"], \
         [out / s / "descriptors.npy" for s in ("reference", "query")]
 
 

@@ -74,23 +74,23 @@ def test_images_to_results(route, tmp_path, capsys, truth, radius):
 
 
 def test_frame_aligned_and_errors(route, tmp_path, capsys):
-    # frame-aligned: query i <-> reference i (wrong for this route, but a valid request)
-    assert build(route, tmp_path / "fa", "--frame-aligned", "--radius", "2") == 0
-    capsys.readouterr()
+    # frame-aligned: query i <-> reference i cannot hold for 80 reference and 40 query frames: refused
+    assert build(route, tmp_path / "fa", "--frame-aligned", "--radius", "2") == 2
+    assert "reference has 80 images and the query 40" in capsys.readouterr().err and not (tmp_path / "fa").exists()
     rc = build(route, tmp_path / "x", "--ref-csv", str(route / "ref.csv"), "--radius", "1")
     assert rc == 2 and "--ref-csv needs --query-csv" in capsys.readouterr().err
     rc = build(route, tmp_path / "x", "--positives", str(route / "ref.csv"), "--radius", "1")
     assert rc == 2 and not (tmp_path / "x").exists()
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("mine")
-    rc = build(route, tmp_path / "mine", "--frame-aligned", "--radius", "1", "--overwrite")
+    rc = build(route, tmp_path / "mine", "--positives", str(route / "positives.json"), "--overwrite")
     err = capsys.readouterr().err
     assert rc == 2 and "seqnet did not write" in err and (tmp_path / "mine" / "notes.txt").read_text() == "mine"
 
 
 def test_one_fit_for_both_traverses(route, tmp_path):
     """A PCA is fitted once (on the reference) and applied to both: their provenance is one."""
-    assert build(route, tmp_path / "pca", "--frame-aligned", "--radius", "1", "--dim", "8") == 0
+    assert build(route, tmp_path / "pca", "--positives", str(route / "positives.json"), "--dim", "8") == 0
     ds = load_dataset(tmp_path / "pca")
     assert ds.reference.dim == ds.query.dim == 8
     assert ds.reference.provenance == ds.query.provenance and ds.reference.provenance["fit_images"]
@@ -104,24 +104,24 @@ def test_both_sides_positions_are_in_one_frame(monkeypatch, zones, error):
     """Metres compare only in one UTM zone: the zones of the two sides are checked as every other reader checks
     them (``data.gps.check_zones``: an unknown zone is let through), a zone on one side only is refused."""
     from seqnet.core.errors import SeqnetError
-    from seqnet.pipelines import from_images
+    from seqnet.pipelines import from_images, ground_truth
 
     sides = iter(zones)
-    monkeypatch.setitem(from_images.GROUND_TRUTH_SOURCES, "csv",
+    monkeypatch.setitem(ground_truth.GROUND_TRUTH_SOURCES, "csv",
                         lambda *a: (np.zeros((2, 2)), None, "metres", next(sides)))
     conf = from_images.FromImagesConfig(ground_truth="csv")
     if error is None:
-        from_images._both_positions(conf, (None, None), ("r", "q"), (None, None))
+        ground_truth.both_positions(conf, (None, None), ("r", "q"), (None, None))
     else:
         with pytest.raises(SeqnetError, match=error):
-            from_images._both_positions(conf, (None, None), ("r", "q"), (None, None))
+            ground_truth.both_positions(conf, (None, None), ("r", "q"), (None, None))
 
 
 def test_a_dataset_described_into_spill_files_equals_one_described_in_memory(route, tmp_path, monkeypatch):
-    assert build(route, tmp_path / "held", "--frame-aligned", "--radius", "2") == 0
+    assert build(route, tmp_path / "held", "--positives", str(route / "positives.json")) == 0
     monkeypatch.setenv("SEQNET_SPILL_MB", "0")  # both traverses' descriptors go to spill files, written in blocks
     monkeypatch.setenv("SEQNET_RESIDENT_MB", "0")
-    assert build(route, tmp_path / "spilled", "--frame-aligned", "--radius", "2") == 0
+    assert build(route, tmp_path / "spilled", "--positives", str(route / "positives.json")) == 0
     for side in ("reference", "query"):
         a, b = (tmp_path / d / side / "descriptors.npy" for d in ("held", "spilled"))
         assert a.read_bytes() == b.read_bytes(), side

@@ -27,7 +27,14 @@ from ..core.provenance import check_same
 from ..security.limits import POSITION_MAX
 from .imagefolders import utm_positions
 from .positives import Positives
-from .readers import check_names, read_descriptor_file, read_provenance, read_text, warn_unless_unit_rows
+from .readers import (
+    check_names,
+    read_descriptor_file,
+    read_provenance,
+    read_text,
+    transposed_hint,
+    warn_unless_unit_rows,
+)
 from .traverse import Dataset, Traverse
 
 NAME_COLUMNS = ("name", "image", "image_name", "filename", "file", "path", "key", "image_key")
@@ -182,8 +189,9 @@ def traverse_from_csv(csv_path: str | Path, desc_path: str | Path, names_file: s
     desc, desc_names = read_descriptor_file(desc_path, names_file)
     if desc_names is None:
         if len(names) != desc.shape[0]:
-            raise DatasetError(f"{csv_path}: {len(names)} rows but {desc_path} holds {desc.shape[0]} descriptors and "
-                               "no names; hint: give a names file (--*-names) or HDF5 'names' to match by name")
+            raise DatasetError(f"{csv_path}: {len(names)} rows but {desc_path} holds {desc.shape[0]} descriptors"
+                               + (transposed_hint(len(names), desc) or " and no names; hint: give a names file "
+                                  "(--*-names) or HDF5 'names' to match by name"))
         idx = np.arange(len(names))
     else:
         idx = match_names(names, desc_names, f"{csv_path} vs {desc_path}")

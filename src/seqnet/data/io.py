@@ -7,6 +7,7 @@ crash never leaves a half-written dataset.
 
 from __future__ import annotations
 
+import logging
 import warnings
 from pathlib import Path
 from typing import Any
@@ -192,13 +193,14 @@ def is_dataset_file(rel: str) -> bool:
     return len(parts) == 2 and parts[0] in ("reference", "query") and parts[1] in files
 
 
-def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path:
+def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False, quiet: bool = False) -> Path:
     """Write ``ds`` in the directory format; never leaves a half-written dataset behind.
 
     Everything is written into a temporary sibling directory which is then renamed onto ``path``,
     under the directory's lock (a second writer is refused). ``overwrite`` replaces an existing
     dataset only when every file in it was written by seqnet (listed in its manifest); the old
-    directory is renamed aside and deleted only after the new one is in place.
+    directory is renamed aside and deleted only after the new one is in place. ``quiet``: the line saying so is
+    DEBUG, not INFO (the caller says it, with more).
     """
     root = Path(path)
     with locked(root):
@@ -208,7 +210,8 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path
                 raise OutputError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")
             check_replaceable(root, "dataset", is_dataset_file)
         write_dir(root, lambda tmp: _write_dataset(ds, tmp))
-    logger.info("wrote dataset %s (reference %d, query %d images)", root, len(ds.reference), len(ds.query))
+    logger.log(logging.DEBUG if quiet else logging.INFO, "wrote dataset %s (reference %d, query %d images)", root,
+               len(ds.reference), len(ds.query))
     return root
 
 

@@ -55,8 +55,15 @@ def read_descriptor_file(path: str | Path, names_file: str | Path | None = None,
     if names is not None and len(names) != desc.shape[0]:
         src = names_file or f"{p}:names"
         raise DatasetError(f"{src}: {len(names)} names for {desc.shape[0]} descriptors in {p} (must be equal)"
-                           f"{_folder_hint(Path(names_file)) if names_file else ''}")
+                           f"{transposed_hint(len(names), desc)}{_folder_hint(Path(names_file)) if names_file else ''}")
     return desc, names
+
+
+def transposed_hint(n: int, desc: np.ndarray) -> str:
+    """``"; transposed? ..."`` when ``desc`` has ``n`` columns (``n`` images expected): a ``[D, N]`` array."""
+    if desc.ndim == 2 and desc.shape[1] == n != desc.shape[0]:
+        return f"; transposed? the array is [{desc.shape[0]}, {n}]; seqnet expects [N, D] (one row per image)"
+    return ""
 
 
 def _folder_hint(names_file: Path) -> str:

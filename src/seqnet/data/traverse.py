@@ -136,7 +136,7 @@ class Dataset:
         if self.positives is not None:
             if not isinstance(self.positives, Positives):
                 raise DatasetError(f"positives must be a Positives, got {type(self.positives).__name__}")
-            self.positives.check(len(self.query), len(self.reference))
+            self.positives = self.positives.check(len(self.query), len(self.reference))
         if self.position_unit is None:
             self.position_unit = "frames" if self.reference.positions.shape[1] == 1 else "metres"
         self.splits = {name: self._whole_reference(rng) for name, rng in self.splits.items()}

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -32,19 +31,20 @@ import numpy as np
 from ..core.config import Config, check_choice, check_float, check_int
 from ..core.errors import ConfigError, ImageError
 from ..core.log import logger
-from ..data.convert import assemble_dataset, match_names, read_positions_csv
-from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS, check_zones, log_positions
-from ..data.imagefolders import utm_positions
+from ..data.convert import assemble_dataset
+from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS
 from ..data.io import save_dataset
 from ..data.positives import Positives, read_positives
+from ..data.sanity import review
 from ..data.traverse import Dataset, Traverse
 from ..describe import DescribeConfig, make_describer
 from ..describe.images import ImageList, list_images
 from ..describe.stage import describe_provenance
 from ..security.locks import locked
 from ..security.ownership import check_replaceable
-from ..sources.bags.positions import DEFAULT_TOLERANCE, is_bag, match_positions
+from ..sources.bags.positions import DEFAULT_TOLERANCE, is_bag
 from .descriptor_choice import CANDIDATES, choose_on_val, evenly, proxy_scores
+from .ground_truth import GROUND_TRUTHS, both_positions
 
 PROXY_SEQ_LEN = 5  # the window of the proxy's raw+seqmatch: the default L
 
@@ -124,65 +124,8 @@ def _fit_ranges(conf: FromImagesConfig, n_ref: int, n_query: int) -> dict[str, r
         return None
     if conf.fit_on in FIT_ON:
         return {"reference": range(n_ref), **({"query": range(n_query)} if conf.fit_on == "both" else {})}
-    rng = conf.splits[conf.fit_on]
-    return {"reference": range(*rng["reference"]), "query": range(*rng["query"])}
-
-
-Positions = tuple[np.ndarray, "np.ndarray | None", str, "str | None"]  # [N, P], sequence bounds, unit, frame
-
-
-def _csv_positions(conf: FromImagesConfig, images: ImageList, source: str | Path, given: str | Path | None,
-                   side: str) -> Positions:
-    if given is None:
-        raise ConfigError(f"ground truth 'csv' needs a positions CSV for the {side} (--{side[:3]}-csv FILE)")
-    if conf.positions_format != "csv":  # a drive's position log (RobotCar ins.csv, KITTI oxts)
-        xy, zone = log_positions(conf.positions_format, given, images.names, list(images.paths), conf.max_time_gap)
-        return xy, None, "metres", f"UTM zone {zone}"
-    names, pos, unit, bounds = read_positions_csv(given)
-    idx = match_names(images.names, names, f"{given} vs the {side} images")
-    return pos[idx], None if bounds is None else bounds[idx], unit, None
-
-
-def _bag_positions(conf: FromImagesConfig, images: ImageList, source: str | Path, given: str | Path | None,
-                   side: str) -> Positions:
-    if given is None:
-        raise ConfigError("ground truth 'bag' needs the positions topic (--positions-topic TOPIC)")
-    if not is_bag(source):
-        raise ConfigError(f"ground truth 'bag' reads the {side} positions from its bag, but {source} is not a ROS bag "
-                          "(a .bag file or a ROS 2 bag directory)")
-    found = images.positions  # read with the images, in one pass (list_images of the positions topic)
-    if found is None:
-        raise ConfigError(f"the {side} images of {source} were listed without their positions topic")
-    stamps = np.array([frame.stamp for frame in images.paths], np.int64)  # bag frames (ImageList of a bag)
-    return match_positions(stamps, found, conf.positions_tolerance, f"the {side} bag {source}"), None, "metres", \
-        found.frame
-
-
-def _frame_positions(conf: FromImagesConfig, images: ImageList, *_: object) -> Positions:
-    return np.arange(len(images), dtype=np.float64)[:, None], None, "frames", None
-
-
-GROUND_TRUTH_SOURCES: dict[str, Callable[..., Positions]] = {
-    "csv": _csv_positions,
-    "utm": lambda conf, images, *_: (utm_positions(images.names), None, "metres", None),
-    "frames": _frame_positions,
-    "positives": _frame_positions,  # explicit positives: frames as positions (windows, confidence)
-    "bag": _bag_positions,
-}
-GROUND_TRUTHS = tuple(GROUND_TRUTH_SOURCES)
-
-
-def _both_positions(conf: FromImagesConfig, images: tuple[ImageList, ImageList], sources: tuple[str | Path, ...],
-                    given: tuple[str | Path | None, str | Path | None]) -> tuple[Positions, Positions]:
-    """The positions of the reference and the query, in one unit and frame (else :class:`ConfigError`)."""
-    ref, qry = (GROUND_TRUTH_SOURCES[conf.ground_truth](conf, im, src, g, side)
-                for im, src, g, side in zip(images, sources, given, ("reference", "query"), strict=True))
-    if ref[2] != qry[2] or (ref[3] is None) != (qry[3] is None):
-        raise ConfigError(f"reference positions are in {ref[3] or ref[2]} but query positions in {qry[3] or qry[2]}"
-                          " (hint: two traverses compare only in one frame)")
-    if ref[3] is not None:
-        check_zones(ref[3], qry[3])  # one UTM zone (an unknown zone, '?', is let through)
-    return ref, qry
+    rng = conf.splits[conf.fit_on]  # NAME=A:B: queries A:B against the whole reference
+    return {"reference": range(*rng.get("reference", (0, n_ref))), "query": range(*rng["query"])}
 
 
 def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: str | Path,
@@ -196,7 +139,7 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
     if conf.ground_truth == "positives" and positives is None:
         raise ConfigError("ground truth 'positives' needs --positives FILE (JSON list of lists, CSV pairs or .npy)")
     given = positions or ((positions_topic, positions_topic) if conf.ground_truth == "bag" else (None, None))
-    (pos_r, bounds_r, unit, frame), (pos_q, bounds_q, _, _) = _both_positions(conf, (ref, qry), (reference, query),
+    (pos_r, bounds_r, unit, frame), (pos_q, bounds_q, _, _) = both_positions(conf, (ref, qry), (reference, query),
                                                                              given)
     truth = read_positives(positives).check(len(qry), len(ref), str(positives)) if positives else None
     extra = {"images": {"reference": str(Path(reference).resolve()), "query": str(Path(query).resolve())},
@@ -258,6 +201,12 @@ def _proxy_fit(conf: FromImagesConfig, images: tuple[ImageList, ImageList], base
     return evenly(fit)
 
 
+def _split_frames(rng: dict, n_ref: int, n_query: int) -> int:
+    """The frames of both traverses in the split ``rng`` (``{"query": (a, b)}`` alone: the whole reference)."""
+    (a, b), (c, d) = rng.get("reference", (0, n_ref)), rng["query"]
+    return max(0, min(b, n_ref) - a) + max(0, min(d, n_query) - c)
+
+
 def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
                   positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
                   unit: tuple[str, str | None], out: str | Path, overwrite: bool = False,
@@ -271,6 +220,10 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         if Path(out).exists() and any(Path(out).iterdir()) and not overwrite:
             raise ConfigError(f"output directory {out} exists and is not empty (use --overwrite to replace it)")
         check_replaceable(out, "dataset")  # before any work: a user's files are never replaced
+        if conf.pca is not None:  # before any image is described
+            from .pca import check_fit_frames
+
+            check_fit_frames(conf.pca, _split_frames(conf.splits["train"], len(ref), len(qry)), "train")
         if conf.candidates:
             dconf, record = choose_describer(conf, images, positions, unit, truth)
             conf, extra = conf.replace(describe=dconf, candidates=()), {**(extra or {}), "descriptor_choice": record}
@@ -292,8 +245,9 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
             extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "ground_truth": conf.ground_truth,
                    "describe": describer.config.to_dict() | {"fit": None}, "positions_frame": unit[1],
                    **(extra or {})})
+        review(ds)  # the images' names were checked before describing; here the descriptors, splits, positions
         if conf.pca is not None:
             from .pca import reduce_dataset, save_reduced
 
-            return save_reduced(*reduce_dataset(ds, conf.pca, "train"), out, overwrite=overwrite)
-        return save_dataset(ds, out, overwrite=overwrite)
+            return save_reduced(*reduce_dataset(ds, conf.pca, "train"), out, overwrite=overwrite, quiet=True)
+        return save_dataset(ds, out, overwrite=overwrite, quiet=True)  # the command says it, with more

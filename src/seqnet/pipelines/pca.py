@@ -54,15 +54,22 @@ def split_frames(ds: Dataset, split: str) -> np.ndarray:
                            np.asarray(part.query.descriptors[qry], np.float32)])
 
 
+def check_fit_frames(dims: int, frames: int, split: str = "train") -> None:
+    """Raise :class:`ConfigError` when a PCA to ``dims`` cannot be fitted on ``frames`` frames of ``split`` (known
+    before anything is described: ``seqnet dataset from-images`` checks it first)."""
+    frames = min(frames, FIT_MAX)
+    if dims > frames:
+        raise ConfigError(f"--pca {dims}: the {split!r} split has {frames} frames, a PCA fitted on them has at "
+                          f"most {frames} axes (hint: --pca {max(1, frames // 2)} or a larger {split} split)")
+
+
 def fit_on_split(ds: Dataset, dims: int, split: str = "train") -> PCA:
     """A PCA to ``dims`` dimensions fitted on the frames of ``split`` only (:func:`split_frames`)."""
     frames = split_frames(ds, split)
     if dims >= ds.query.dim:
         raise ConfigError(f"--pca {dims} does not reduce {ds.query.dim}-D descriptors (hint: --pca below "
                           f"{ds.query.dim})")
-    if dims > len(frames):
-        raise ConfigError(f"--pca {dims}: the {split!r} split has {len(frames)} frames, a PCA fitted on them has at "
-                          f"most {len(frames)} axes (hint: --pca {max(1, len(frames) // 2)} or a larger {split} split)")
+    check_fit_frames(dims, len(frames), split)
     logger.info("fitting PCA %d -> %d on the %d frames of the %s split", ds.query.dim, dims, len(frames), split)
     return fit_pca(frames, dims)
 
@@ -99,10 +106,11 @@ def pca_path(dataset_dir: str | Path) -> Path:
     return d.with_name(d.name + ".pca.npz")
 
 
-def save_reduced(ds: Dataset, pca: PCA, out: str | Path, overwrite: bool = False) -> Path:
-    """Write the reduced dataset ``ds`` to ``out`` and its PCA to :func:`pca_path` (tagged with the provenance)."""
+def save_reduced(ds: Dataset, pca: PCA, out: str | Path, overwrite: bool = False, quiet: bool = False) -> Path:
+    """Write the reduced dataset ``ds`` to ``out`` and its PCA to :func:`pca_path` (tagged with the provenance);
+    ``quiet``: as :func:`seqnet.data.io.save_dataset`'s."""
     ds = dataclasses.replace(ds, extra={**ds.extra, "pca": {**ds.extra["pca"], "file": pca_path(out).name}})
-    root = save_dataset(ds, out, overwrite=overwrite)
+    root = save_dataset(ds, out, overwrite=overwrite, quiet=quiet)
     pca.save(pca_path(root), tag=ds.reference.provenance["id"])
     return root
 

@@ -37,6 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     ps = dsub.add_parser("presets", help="list the dataset presets")
     ps.add_argument("--json", action="store_true", help="print the presets as JSON")
     ps.set_defaults(func=run_presets)
+    for name, leaf in dsub.choices.items():  # errors name the subcommand: "seqnet dataset from-images: error: ..."
+        leaf.set_defaults(command=f"dataset {name}")
 
 
 def _common(p: argparse.ArgumentParser, radius: bool = True) -> None:
@@ -125,9 +127,11 @@ def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | No
 
 def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
     from ...data.io import save_dataset
+    from ...data.sanity import review
     from ...metrics.summary import summarize_dataset
 
     save_dataset(ds, args.out, overwrite=args.overwrite)
+    review(ds)  # likely mistakes (the same images, splits sharing queries, constant positions): one line each
     s = summarize_dataset(ds)
     print(f"wrote {args.out}: reference {s['reference']['images']} and query {s['query']['images']} images, "
           f"D={s['reference']['dim']}, radius {ds.radius:g} {ds.position_unit}, "
@@ -225,6 +229,7 @@ def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) 
 def run_check(args: argparse.Namespace) -> int:
     from ...core.errors import DatasetError
     from ...data.io import load_dataset, recorded_digests
+    from ...data.sanity import review
     from ...metrics.summary import summarize_dataset
     from ...security.digests import changed_files
 
@@ -234,6 +239,7 @@ def run_check(args: argparse.Namespace) -> int:
         raise DatasetError(f"{args.dir}: {', '.join(changed)} changed since seqnet wrote the dataset (every byte "
                            "hashed); hint: write it again, or drop 'checksums' from dataset.json if you changed "
                            "its files on purpose")
+    review(ds)  # frame-aligned traverses that do not pair up: refused; likely mistakes: one warning line each
     s = summarize_dataset(ds)
     if args.json:
         print(json.dumps(s, indent=2, default=str))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from ...describe import DESCRIBERS
 from ...pipelines.descriptor_choice import CANDIDATES
@@ -97,7 +98,7 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
                positions_topic=args.positions_topic)
     meta = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
     label = args.positions_format if truth == "csv" and args.positions_format != "csv" else truth
-    print(f"wrote {out}: {meta['name']}, ground truth {label}, radius {meta['radius']:g} {meta['position_unit']}, "
+    print(f"{written(out, meta)}: ground truth {label}, radius {meta['radius']:g} {meta['position_unit']}, "
           f"descriptors {meta['provenance']['reference']['settings']['method']} "
           f"D={meta['provenance']['reference']['dim']} (provenance {meta['provenance']['reference']['id']})")
     pca = meta.get("pca")
@@ -105,3 +106,12 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
         print(f"PCA {pca['input_dim']} -> {pca['dims']} fitted on the {pca['fit_split']} split only: {pca['file']}")
     print(f"next: seqnet eval --dataset {out}")
     return 0
+
+
+def written(out: Path, meta: dict) -> str:
+    """``wrote dataset OUT (reference N, query M images)``, and its name when it is not the directory's."""
+    from ...data.io import load_descriptors
+
+    ref, qry = (len(load_descriptors(out / side)[0]) for side in ("reference", "query"))  # memory-mapped: the shape
+    named = "" if meta.get("name") == out.name else f", named {meta.get('name')!r}"
+    return f"wrote dataset {out} (reference {ref}, query {qry} images{named})"

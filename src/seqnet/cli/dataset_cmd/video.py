@@ -9,6 +9,7 @@ from ...describe import DESCRIBERS
 from ...pipelines.from_video import FIT_ON, FromVideoConfig, main
 from ..common import add_device, positive_float
 from ..describe_cmd import add_describe_options, describe_config
+from .images import written
 
 
 def add_video_options(p: argparse.ArgumentParser) -> None:
@@ -63,7 +64,7 @@ def run_from_video(args: argparse.Namespace) -> int:
     counts = "; ".join(f"{side}: {v['frames']['kept']} of {v['frames']['total']} frames kept"
                        + (f", {v['frames']['outside']} outside its track" if v["frames"]["outside"] else "")
                        for side, v in videos.items())
-    print(f"wrote {out}: {meta['name']}, radius {meta['radius']:g} {meta['position_unit']}, descriptors "
+    print(f"{written(out, meta)}: radius {meta['radius']:g} {meta['position_unit']}, descriptors "
           f"{meta['provenance']['reference']['settings']['method']} D={meta['provenance']['reference']['dim']}; "
           f"{counts}")
     print(f"next: seqnet eval --dataset {out}")

@@ -1,141 +1,24 @@
-"""Explicit ground truth: for every query frame, the reference frames that show the same place.
-
-Public VPR benchmarks often give their ground truth as lists (query i matches references
-``[10i-1, 10i, 10i+1]``; ``-1`` or an empty list = no match) instead of positions and a radius.
-:class:`Positives` holds such lists as one CSR structure (``indptr [Nq+1]``, ``indices [nnz]``);
-when a dataset has them, Recall@K, training mining and every method use them instead of the radius.
-
-Readers (:func:`read_positives`): a JSON list of lists; a CSV of ``query,reference`` pairs (with
-or without a header); a ``.npy`` of a NumPy object array of index arrays (as pickled by many
-benchmarks), read by a restricted unpickler that can rebuild NumPy arrays and nothing else, so a
-hostile file cannot run code.
-"""
+"""Readers of explicit positives files (:func:`read_positives`): JSON, CSV, ``.npy`` / pickles, ``GT.npz``."""
 
 from __future__ import annotations
 
 import dataclasses
 import logging
 import re
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import DatasetError
-from ..core.log import logger
-from ..security.arrays import is_npy, read_header, read_npy, read_npz
-from ..security.inputs import open_input
-from ..security.jsonfile import parse_json
-from ..security.limits import INDEX_MAX
-from .readers import read_text
+from ...core.errors import DatasetError
+from ...core.log import logger
+from ...security.arrays import is_npy, read_header, read_npy, read_npz
+from ...security.inputs import open_input
+from ...security.jsonfile import parse_json
+from ...security.limits import INDEX_MAX
+from ..readers import read_text
+from .csr import Positives
 
 INTEGER = re.compile(r"-?[0-9]{1,19}")  # an index of a text file: ASCII digits ("²".isdigit() is True)
-
-
-@dataclasses.dataclass(frozen=True)
-class Positives:
-    """Per query, the sorted unique matching reference indices (CSR: ``indices[indptr[i]:indptr[i+1]]``)."""
-
-    indptr: np.ndarray  # [Nq + 1] int64
-    indices: np.ndarray  # [nnz] int64
-    n_refs: int | None = None  # the columns of the dense matrix it was read from (checked against the traverse)
-    # soft positives (VPR_Tutorial's GTsoft, a superset of these): never negatives in training, neither a true
-    # nor a false positive in PR; Recall@K counts only the hard ones
-    soft: Positives | None = None
-
-    @classmethod
-    def from_lists(cls, lists: Sequence[Sequence[int]], where: str = "positives") -> Positives:
-        """From one list of reference indices per query (``-1`` entries mean no match and are dropped)."""
-        rows = [_indices(row, f"{where}: query {i}") for i, row in enumerate(lists)]
-        indptr = np.concatenate([[0], np.cumsum([len(r) for r in rows])]).astype(np.int64)
-        indices = np.concatenate(rows).astype(np.int64) if rows else np.zeros(0, np.int64)
-        return cls(indptr, indices)
-
-    def __len__(self) -> int:
-        return len(self.indptr) - 1
-
-    def of(self, q: int) -> np.ndarray:
-        """The reference indices of query ``q``."""
-        return self.indices[self.indptr[q] : self.indptr[q + 1]]
-
-    def counts(self) -> np.ndarray:
-        """``[Nq]`` number of positives of every query."""
-        return np.diff(self.indptr)
-
-    def check(self, n_queries: int, n_refs: int, where: str = "positives") -> Positives:
-        """Raise :class:`DatasetError` unless there is one row per query and every index is a reference."""
-        if len(self) != n_queries:
-            raise DatasetError(f"{where}: {len(self)} rows of positives for {n_queries} query images (one per query)")
-        if self.n_refs is not None and self.n_refs != n_refs:
-            raise DatasetError(f"{where}: a ground-truth matrix of {self.n_refs} columns for {n_refs} reference "
-                               "images (one column per reference)")
-        if self.indices.size and self.indices.max() >= n_refs:
-            q = int(np.searchsorted(self.indptr, int(np.argmax(self.indices >= n_refs)), side="right") - 1)
-            raise DatasetError(f"{where}: query {q} lists reference {int(self.indices.max())}, but the reference "
-                               f"traverse has {n_refs} images (indices 0..{n_refs - 1})")
-        if self.soft is not None:
-            self.soft.check(n_queries, n_refs, f"{where} (soft positives)")
-        return self
-
-    @classmethod
-    def from_pairs(cls, rows: np.ndarray, cols: np.ndarray, n_queries: int) -> Positives:
-        """From ``(query, reference)`` pairs ``rows [P]``, ``cols [P]`` (non-negative, ``rows < n_queries``;
-        duplicates dropped). Sorted pair by pair: no product of indices, so none can overflow."""
-        rows, cols = np.asarray(rows, dtype=np.int64).ravel(), np.asarray(cols, dtype=np.int64).ravel()
-        order = np.lexsort((cols, rows))
-        r, c = rows[order], cols[order]
-        new = np.ones(len(r), dtype=bool)
-        new[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
-        r, c = r[new], c[new]
-        return cls(np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n_queries))]).astype(np.int64), c)
-
-    def pairs(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(query [nnz], reference [nnz])`` of every positive pair."""
-        return np.repeat(np.arange(len(self)), self.counts()), self.indices
-
-    def select(self, q_idx: np.ndarray, r_idx: np.ndarray) -> Positives:
-        """Positives of the queries ``q_idx [M]`` among the references ``r_idx [R]``, renumbered 0..R-1."""
-        q_idx, r_idx = np.asarray(q_idx, dtype=np.int64), np.asarray(r_idx, dtype=np.int64)
-        lookup = np.full(max(int(self.indices.max(initial=-1)), int(r_idx.max(initial=-1))) + 1, -1, np.int64)
-        lookup[r_idx] = np.arange(len(r_idx))
-        counts = self.counts()[q_idx]
-        flat = np.repeat(self.indptr[q_idx] - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
-        rows, cols = np.repeat(np.arange(len(q_idx)), counts), lookup[self.indices[flat]]
-        keep = cols >= 0
-        soft = self.soft.select(q_idx, r_idx) if self.soft is not None else None
-        return dataclasses.replace(Positives.from_pairs(rows[keep], cols[keep], len(q_idx)), soft=soft)
-
-    def mask(self, n_refs: int) -> np.ndarray:
-        """Dense ``[Nq, n_refs]`` bool matrix (for small blocks of queries)."""
-        out = np.zeros((len(self), n_refs), dtype=bool)
-        out[self.pairs()] = True
-        return out
-
-    def hits(self, retrieved: np.ndarray) -> np.ndarray:
-        """``[M, K]`` bool: whether ``retrieved[m, k]`` (a reference index, -1 = none) is a positive of query m."""
-        retrieved = np.asarray(retrieved, dtype=np.int64)
-        width = max(int(self.indices.max(initial=0)), int(retrieved.max(initial=0))) + 1
-        rows, cols = self.pairs()
-        wanted = np.arange(len(retrieved))[:, None] * width + retrieved
-        return np.isin(wanted, rows * width + cols) & (retrieved >= 0)
-
-
-def _indices(row: object, where: str) -> np.ndarray:
-    """The sorted unique reference indices of one query's list (``-1`` = no match, dropped); a value that is no
-    index (a fraction, a text, beyond ``INDEX_MAX``, below -1) is a :class:`DatasetError` naming it."""
-    try:
-        a = np.asarray(row).ravel()
-    except (TypeError, ValueError, OverflowError) as e:
-        raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}") from e
-    if a.size and (a.dtype.kind not in "iu" and not (a.dtype.kind == "f" and np.all(a == np.round(a)))):
-        raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}")
-    if a.size and a.dtype.kind in "uf" and np.abs(a).max() > INDEX_MAX:
-        raise DatasetError(f"{where}: reference index {a.flat[int(np.argmax(np.abs(a)))]:.0f} is too large to be the "
-                           "index of a reference image")
-    a = a.astype(np.int64)
-    if a.size and a.min() < -1:
-        raise DatasetError(f"{where}: reference index {int(a.min())} is negative (-1 = no match)")
-    return np.unique(a[a >= 0])
 
 
 def read_positives(path: str | Path) -> Positives:
@@ -160,18 +43,42 @@ def _read_json(p: Path) -> Positives:
     return Positives.from_lists([r if isinstance(r, list) else [r] for r in data], str(p))
 
 
+QUERY_COLUMNS = ("query", "queries", "q", "qry")  # a CSV header's names of the query column (lower case)
+REFERENCE_COLUMNS = ("reference", "references", "ref", "refs", "r", "db", "database", "map", "gallery")
+_SUFFIX = re.compile(r"[ _-]*(index|indices|idx|id|ids|frame|frames|image|images)$")
+
+
+def csv_columns(fields: list[str], where: str) -> tuple[int, int]:
+    """``(query column, reference column)`` named by the header ``fields`` of a positives CSV: ``query`` and
+    ``reference`` in either order, any case, or an alias (:data:`QUERY_COLUMNS`, :data:`REFERENCE_COLUMNS`; a
+    suffix such as ``_index`` or ``_id`` is ignored). A header naming anything else is refused: a guess could
+    swap the columns, and swapped positives score R@1 near 0 without any error."""
+    names = [_SUFFIX.sub("", f.strip().strip("\ufeff\"'").strip().lower()) for f in fields]
+    kinds = ["query" if n in QUERY_COLUMNS else "reference" if n in REFERENCE_COLUMNS else None for n in names]
+    if len(fields) != 2 or sorted(map(str, kinds)) != ["query", "reference"]:
+        raise DatasetError(f"{where}: header {','.join(fields)[:80]!r} does not name a query and a reference column; "
+                           "expected 'query,reference' or 'reference,query' (aliases: q, ref, db, database), or no "
+                           "header (then the columns are query,reference)")
+    return kinds.index("query"), kinds.index("reference")
+
+
 def _read_csv(p: Path) -> Positives:
-    """``query,reference`` pairs (``;`` also separates; a first line that is no pair is a header; reference -1:
-    the query has no match), gathered into CSR at once (:meth:`Positives.from_pairs`). The number of queries
-    is bounded by the file: a query index beyond :func:`query_bound` of its pairs is refused."""
-    queries, refs = [], []
+    """``query,reference`` pairs (``;`` also separates; reference -1: the query has no match), gathered into CSR
+    at once (:meth:`Positives.from_pairs`). A first line that is no pair is a header naming the two columns, in
+    either order (:func:`csv_columns`). The number of queries is bounded by the file: a query index beyond
+    :func:`query_bound` of its pairs is refused."""
+    queries, refs, (qc, rc), order = [], [], (0, 1), "query,reference"
     for n, line in enumerate(read_text(p, "positives file").splitlines(), start=1):
         fields = [f.strip() for f in line.replace(";", ",").split(",")]
-        if not line.strip() or (n == 1 and not INTEGER.fullmatch(fields[0])):
-            continue  # blank line or header
+        if not line.strip():
+            continue
+        if n == 1 and not INTEGER.fullmatch(fields[0]):
+            qc, rc = csv_columns(fields, f"{p}, line 1")
+            order = "reference,query" if qc else order
+            continue
         if len(fields) != 2 or not all(INTEGER.fullmatch(f) for f in fields):
-            raise DatasetError(f"{p}, line {n}: expected 'query,reference' (two integers), got {line[:80]!r}")
-        q, r = int(fields[0]), int(fields[1])
+            raise DatasetError(f"{p}, line {n}: expected '{order}' (two integers), got {line[:80]!r}")
+        q, r = int(fields[qc]), int(fields[rc])
         for value, what, low in ((q, "query", 0), (r, "reference", -1)):
             if not low <= value <= INDEX_MAX:
                 raise DatasetError(f"{p}, line {n}: {what} index {value} is {'negative' if value < 0 else 'too large'} "
@@ -187,7 +94,7 @@ def _read_csv(p: Path) -> Positives:
                            f"{bound} queries: queries without a pair are implied, not listed); hint: check the "
                            "file's columns (query,reference)")
     keep = cols >= 0
-    return Positives.from_pairs(rows[keep], cols[keep], nq)
+    return dataclasses.replace(Positives.from_pairs(rows[keep], cols[keep], nq), open_ended=True)
 
 
 def query_bound(pairs: int) -> int:
@@ -208,7 +115,7 @@ def _read_object_npy(p: Path) -> Positives:
                 return _numeric_matrix(arr, p)
             return Positives.from_lists([np.asarray(r).ravel() for r in np.asarray(arr, dtype=object).ravel()],
                                         str(p))
-    from ..security.unpickle import load_npy_objects  # its tables load only for a pickled positives file
+    from ...security.unpickle import load_npy_objects  # its tables load only for a pickled positives file
     value = load_npy_objects(p, str(p))
     arr = _object_array(value, p)
     if arr.ndim == 2 and arr.shape[1] == 2 and all(_is_index(q) for q in arr[:, 0]):
@@ -294,6 +201,11 @@ def _numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False) -> Positives:
         found = Positives.from_pairs(rows.astype(np.int64), cols.astype(np.int64), arr.shape[0])
         return dataclasses.replace(found, n_refs=int(arr.shape[1]))
     if arr.dtype.kind in "iu" or (arr.dtype.kind == "f" and np.isfinite(arr).all() and (arr == arr.round()).all()):
+        if arr.shape[1] == 2 and len(arr) > 1 and np.array_equal(arr[:, 0], np.arange(len(arr))):
+            raise DatasetError(f"{p}: a [{len(arr)}, 2] integer array whose first column is 0..{len(arr) - 1} may be "
+                               "(query, reference) pairs or two reference indices per query, and the two readings "
+                               "differ; hint: save it as a CSV with the header 'query,reference', or as a JSON list "
+                               "with one list of reference indices per query")
         return Positives.from_lists(list(arr), str(p))
     raise DatasetError(f"{p}: a [{arr.shape[0]}, {arr.shape[1]}] {arr.dtype} array is neither a 0/1 ground-truth "
                        "matrix nor integer reference indices per query (padded with -1)")

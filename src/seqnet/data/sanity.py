@@ -1,0 +1,158 @@
+"""Mistakes in a dataset that every command would accept and score: found when the dataset is built
+(``seqnet dataset from-images``) and by ``seqnet dataset check``.
+
+* :func:`check_frame_aligned`: frame-aligned ground truth (query frame i shows the place of reference frame
+  i) with traverses of different lengths, or with image names that do not pair up (a missing image shifts
+  the ground truth of every later frame): refused.
+* :func:`dataset_warnings` (logged by :func:`review`): the query images are the reference images (every metric
+  trivially perfect), splits that share queries (selection and test numbers optimistic), positions all within
+  the radius of each other (constant GPS: every reference is correct, R@K trivially 1). One line each.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..core.errors import DatasetError
+from ..core.log import logger
+from ..core.memory import BLOCK_BYTES
+from .traverse import Dataset
+
+ALTERNATIVES = ("give the ground truth another way: --positives FILE (per query its matching reference indices) "
+                "or positions (--ref-csv / --query-csv, --utm-names)")
+
+
+def check_frame_aligned(ref_names: Sequence[str], query_names: Sequence[str], where: str = "--frame-aligned") -> None:
+    """Raise :class:`DatasetError` unless query frame i can be the place of reference frame i: as many frames
+    on both sides and, when the two traverses name their images alike (some names in common), the same name
+    at every index."""
+    n_r, n_q = len(ref_names), len(query_names)
+    if n_r != n_q:
+        raise DatasetError(f"{where}: query frame i is the place of reference frame i, but the reference has {n_r} "
+                           f"images and the query {n_q}, so the ground truth cannot line up; hint: {ALTERNATIVES}")
+    if not set(ref_names) & set(query_names):
+        return  # named differently (two cameras, two clocks): nothing to pair by name
+    for i, (r, q) in enumerate(zip(ref_names, query_names, strict=True)):
+        if r != q:
+            raise DatasetError(f"{where}: reference image {i} is {r!r} but query image {i} is {q!r}: an image "
+                               "missing from one folder shifts every later frame and the ground truth would no "
+                               f"longer line up; fix or remove them so both folders hold the same names, or "
+                               f"{ALTERNATIVES}")
+
+
+def review(ds: Dataset) -> list[str]:
+    """Check ``ds`` as built: frame-aligned ground truth (recorded as ``"ground_truth": "frames"``) must pair up
+    (:func:`check_frame_aligned`, else :class:`DatasetError`); every :func:`dataset_warnings` line is logged as a
+    warning, and returned."""
+    if ds.extra.get("ground_truth") == "frames":
+        check_frame_aligned(ds.reference.names, ds.query.names, f"{ds.name}: frame-aligned ground truth")
+    found = dataset_warnings(ds)
+    for line in found:
+        logger.warning("%s", line)
+    return found
+
+
+def dataset_warnings(ds: Dataset) -> list[str]:
+    """One line per likely mistake in ``ds`` (none: an empty list): see the module's description."""
+    found = [_copied_queries(ds), _shared_queries(ds), _constant_positions(ds)]
+    return [f"{ds.name}: {line}" for line in found if line]
+
+
+def _copied_queries(ds: Dataset) -> str | None:
+    ref, qry = ds.reference.descriptors, ds.query.descriptors
+    if ref.shape[1:] != qry.shape[1:] or ref.dtype != qry.dtype or len(qry) == 0 or len(ref) == 0:
+        return None
+    if ref.shape == qry.shape and _same_rows(ref, qry):
+        return ("the query images are the reference images (identical descriptors, row for row): every metric is "
+                "trivially perfect; hint: give the query traverse's own folder")
+    if _copy_of(ref, qry) is not None:
+        return (f"every one of the {len(qry)} query descriptors is an exact copy of a reference descriptor (the "
+                "same images): every metric is trivially perfect; hint: give the query traverse's own images")
+    return None
+
+
+def _block_rows(row_bytes: int) -> int:
+    """Rows of ``row_bytes`` bytes per block: a block's bytes widened to uint64 fill at most ``BLOCK_BYTES``."""
+    return max(1, BLOCK_BYTES // max(1, row_bytes * 8))
+
+
+def _row_bytes(a: np.ndarray) -> int:
+    return a.itemsize * int(np.prod(a.shape[1:]))
+
+
+def _same_rows(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether ``a [N, D]`` and ``b [N, D]`` are equal, compared in blocks (bounded memory; the first block that
+    differs ends it)."""
+    step = _block_rows(_row_bytes(a))
+    return all(np.array_equal(a[i:i + step], b[i:i + step]) for i in range(0, len(a), step))
+
+
+def _copy_of(ref: np.ndarray, qry: np.ndarray) -> np.ndarray | None:
+    """``[M]``: for every row of ``qry [M, D]`` the index of an identical row of ``ref [N, D]``; None when a query
+    row has none. A query row whose sum no reference row has is no copy (a pass at memory speed ends most calls);
+    else candidates by a hash of the rows (:func:`_row_hashes`), each then compared whole."""
+    if not np.isin(_row_sums(qry), _row_sums(ref)).all():
+        return None
+    r_hash, q_hash = _row_hashes(ref), _row_hashes(qry)
+    order = np.argsort(r_hash, kind="stable")
+    at = np.minimum(np.searchsorted(r_hash[order], q_hash), len(order) - 1)
+    if not (r_hash[order][at] == q_hash).all():
+        return None
+    match, step = order[at], _block_rows(_row_bytes(qry))
+    for i in range(0, len(qry), step):
+        rows = np.sort(match[i:i + step])  # a memory map reads sorted rows faster
+        got = np.asarray(ref[rows])[np.argsort(np.argsort(match[i:i + step], kind="stable"), kind="stable")]
+        if not np.array_equal(got, qry[i:i + step]):
+            return None
+    return match
+
+
+def _row_sums(a: np.ndarray) -> np.ndarray:
+    """``[N]`` float64: the sum of every row (equal rows, equal sums: computed alike, block by block)."""
+    step = _block_rows(int(np.prod(a.shape[1:])))
+    return np.concatenate([np.asarray(a[i:i + step]).sum(axis=1, dtype=np.float64) for i in range(0, len(a), step)]
+                          or [np.zeros(0)])
+
+
+def _row_hashes(a: np.ndarray) -> np.ndarray:
+    """``[N]`` uint64: a hash of every row's bytes (a fixed random linear form, wrapping), in blocks."""
+    width = _row_bytes(a)
+    word = np.uint32 if width % 4 == 0 else np.uint8  # 4-byte words: a quarter of the products
+    words = width // np.dtype(word).itemsize
+    weights = np.random.default_rng(0).integers(1, 2**63, size=words, dtype=np.uint64) | np.uint64(1)
+    step, out = _block_rows(words), np.empty(len(a), np.uint64)
+    for i in range(0, len(a), step):
+        block = np.ascontiguousarray(a[i:i + step]).view(np.uint8).reshape(-1, width).view(word).astype(np.uint64)
+        out[i:i + step] = (block * weights).sum(axis=1)  # modulo 2**64
+    return out
+
+
+def _shared_queries(ds: Dataset) -> str | None:
+    """The pairs of splits whose query ranges overlap (as the calibration split and HVPR's val choice refuse)."""
+    names = list(ds.splits)
+    shared = []
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            (s, e), (t, f) = ds.splits[a]["query"], ds.splits[b]["query"]
+            if max(s, t) < min(e, f):
+                shared.append(f"{a} (queries {s}:{e}) and {b} (queries {t}:{f}) share {min(e, f) - max(s, t)}")
+    if not shared:
+        return None
+    return (f"splits {'; '.join(shared)} queries: what is chosen or trained on one is then scored on the same "
+            "queries, so the val / test numbers are optimistic (hint: give disjoint query ranges)")
+
+
+def _constant_positions(ds: Dataset) -> str | None:
+    """All positions within the radius of each other (the diagonal of their bounding box): every reference is
+    a positive of every query (explicit positives decide instead, when there are some)."""
+    if ds.positives is not None or not (len(ds.reference) and len(ds.query)):
+        return None
+    both = np.concatenate([ds.reference.positions, ds.query.positions])
+    span = float(np.linalg.norm(both.max(axis=0) - both.min(axis=0)))
+    if span > ds.radius:
+        return None
+    return (f"all {len(ds.reference)} reference and {len(ds.query)} query positions lie within {span:g} "
+            f"{ds.position_unit} of each other, inside the radius {ds.radius:g}: every reference is within the "
+            "radius of every query, so R@K is 1 trivially (hint: check the positions: constant GPS?)")

@@ -1,0 +1,73 @@
+"""What ``seqnet dataset ...`` says: errors name the subcommand, from-images says what it wrote in one line,
+an impossible ``--pca`` is refused before any image is described, a ``[D, N]`` descriptor array is named."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from seqnet.cli import main
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    root = tmp_path_factory.mktemp("imgs")
+    rng = np.random.default_rng(2)
+    for side in ("ref", "qry"):
+        (root / side).mkdir()
+        for i in range(10):
+            Image.fromarray((rng.random((8, 8)) * 255).astype(np.uint8)).save(root / side / f"{side}{i:02d}.png")
+    return root
+
+
+def from_images(folder, out, *extra):
+    return main(["dataset", "from-images", str(folder / "ref"), str(folder / "qry"), "--method", "pixels", "--patch",
+                 "0", "--frame-aligned", "--radius", "1", "--out", str(out), *extra])
+
+
+def test_from_images_says_what_it_wrote_in_one_line(folder, tmp_path, capsys):
+    assert from_images(folder, tmp_path / "ds") == 0
+    out, err = capsys.readouterr()
+    wrote = [line for line in (out + err).splitlines() if "wrote" in line]
+    assert wrote == [f"wrote dataset {tmp_path / 'ds'} (reference 10, query 10 images): ground truth frames, radius 1 "
+                     f"frames, descriptors pixels D=64 (provenance {wrote[0].rsplit(' ', 1)[-1][:-1]})"]
+    assert from_images(folder, tmp_path / "named", "--name", "sw") == 0
+    assert f"wrote dataset {tmp_path / 'named'} (reference 10, query 10 images, named 'sw'): " in capsys.readouterr()[0]
+
+
+def test_errors_name_the_subcommand_and_pca_is_checked_first(folder, tmp_path, capsys):
+    args = ["--split", "train=0:4", "--split", "test=4:10", "--pca", "20"]
+    assert from_images(folder, tmp_path / "p", *args) == 2
+    err = capsys.readouterr().err
+    assert err == ("seqnet dataset from-images: error: --pca 20: the 'train' split has 14 frames, a PCA fitted on "
+                   "them has at most 14 axes (hint: --pca 7 or a larger train split)\n")  # no image described
+    assert main(["dataset", "check", str(tmp_path / "none")]) == 2
+    assert capsys.readouterr().err.startswith("seqnet dataset check: error: ")
+
+
+def test_a_transposed_descriptor_array_is_named(tmp_path, capsys):
+    (tmp_path / "r.csv").write_text("name,frame\n" + "".join(f"r{i}.png,{i}\n" for i in range(5)))
+    np.save(tmp_path / "rT.npy", np.random.default_rng(0).random((8, 5)).astype(np.float32))  # [D, N]
+    np.save(tmp_path / "q.npy", np.random.default_rng(1).random((5, 8)).astype(np.float32))
+    argv = ["dataset", "from-csv", "--ref-csv", str(tmp_path / "r.csv"), "--ref-desc", str(tmp_path / "rT.npy"),
+            "--query-csv", str(tmp_path / "r.csv"), "--query-desc", str(tmp_path / "q.npy"), "--radius", "1",
+            "--out", str(tmp_path / "ds")]
+    assert main(argv) == 2
+    assert capsys.readouterr().err == (f"seqnet dataset from-csv: error: {tmp_path / 'r.csv'}: 5 rows but "
+                                       f"{tmp_path / 'rT.npy'} holds 8 descriptors; transposed? the array is [8, 5]; "
+                                       "seqnet expects [N, D] (one row per image)\n")
+
+
+def test_from_csv_with_constant_positions_is_warned(tmp_path, capsys):
+    rng = np.random.default_rng(4)
+    for side in ("r", "q"):
+        (tmp_path / f"{side}.csv").write_text("name,easting,northing\n" + "".join(f"{side}{i}.png,500000,6000000\n"
+                                                                                 for i in range(6)))
+        np.save(tmp_path / f"{side}.npy", rng.random((6, 4)).astype(np.float32))
+    argv = ["dataset", "from-csv", "--ref-csv", str(tmp_path / "r.csv"), "--ref-desc", str(tmp_path / "r.npy"),
+            "--query-csv", str(tmp_path / "q.csv"), "--query-desc", str(tmp_path / "q.npy"), "--radius", "25",
+            "--out", str(tmp_path / "ds")]
+    assert main(argv) == 0
+    assert ("ds: all 6 reference and 6 query positions lie within 0 metres of each other, inside the radius 25: "
+            "every reference is within the radius of every query, so R@K is 1 trivially") in capsys.readouterr().err

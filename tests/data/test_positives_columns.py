@@ -1,0 +1,60 @@
+"""Explicit positives whose layout could be read two ways: a CSV header naming its columns in either order,
+a pairs-like ``.npy``, a transposed dense matrix; each is read as it says, or refused, never guessed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seqnet.core.errors import DatasetError
+from seqnet.data.positives import read_positives
+
+PAIRS = [(0, 3), (1, 4), (2, 5), (2, 6)]  # (query, reference)
+
+
+def _rows(p) -> list[list[int]]:
+    return [p.of(i).tolist() for i in range(len(p))]
+
+
+@pytest.mark.parametrize("header, swap", [
+    ("query,reference", False), ("reference,query", True), ("Reference ; Query", True), ("db,q", True),
+    ("database_index,query_index", True), ("q,ref", False), ("\ufeffquery_id,ref_id", False),
+])
+def test_csv_header_names_the_columns_in_either_order(tmp_path, header, swap):
+    lines = [f"{r},{q}" if swap else f"{q},{r}" for q, r in PAIRS]
+    (tmp_path / "p.csv").write_text("\n".join([header, *lines]) + "\n", encoding="utf-8")
+    assert _rows(read_positives(tmp_path / "p.csv")) == [[3], [4], [5, 6]]
+
+
+@pytest.mark.parametrize("header", ["a,b", "query,query", "image,reference", "query,reference,score", "frame,db"])
+def test_csv_header_it_does_not_understand_is_refused(tmp_path, header):
+    (tmp_path / "p.csv").write_text(f"{header}\n0,3\n")
+    with pytest.raises(DatasetError, match=r"p\.csv, line 1: header .* does not name a query and a reference "
+                                           r"column; expected 'query,reference' or 'reference,query'"):
+        read_positives(tmp_path / "p.csv")
+
+
+def test_csv_pairs_imply_the_queries_after_the_last_pair(tmp_path):
+    """Pairs list no query without a match: the rows after the last pair are added, empty, for the traverse."""
+    (tmp_path / "p.csv").write_text("reference,query\n3,0\n5,2\n")
+    p = read_positives(tmp_path / "p.csv").check(5, 10)
+    assert _rows(p) == [[3], [], [5], [], []]
+    with pytest.raises(DatasetError, match="3 rows of positives for 2 query images"):
+        read_positives(tmp_path / "p.csv").check(2, 10)
+
+
+def test_npy_that_may_be_pairs_is_refused(tmp_path):
+    np.save(tmp_path / "p.npy", np.array(PAIRS[:3]))
+    with pytest.raises(DatasetError, match=r"may be \(query, reference\) pairs or two reference indices per query"):
+        read_positives(tmp_path / "p.npy")
+    np.save(tmp_path / "rows.npy", np.array([[3, 4], [4, -1], [5, 6]]))  # rows of references: unambiguous
+    assert _rows(read_positives(tmp_path / "rows.npy")) == [[3, 4], [4], [5, 6]]
+
+
+def test_transposed_dense_matrix_is_named(tmp_path):
+    gt = np.zeros((6, 4), bool)  # [N_ref, N_query]: the wrong way round
+    gt[np.arange(4), np.arange(4)] = True
+    np.save(tmp_path / "gt.npy", gt)
+    with pytest.raises(DatasetError, match=r"6 rows of positives for 4 query images .*transposed\? the matrix is "
+                                           r"\[6, 4\]; seqnet reads \[N_query, N_reference\]"):
+        read_positives(tmp_path / "gt.npy").check(4, 6)

@@ -1,0 +1,97 @@
+"""Likely mistakes in a dataset (seqnet.data.sanity): frame-aligned traverses that cannot pair up are refused;
+the query being the reference, splits sharing queries and constant positions are each one warning line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seqnet.core.errors import DatasetError
+from seqnet.data.positives import Positives
+from seqnet.data.sanity import _copy_of, _row_hashes, check_frame_aligned, dataset_warnings, review
+from seqnet.data.traverse import Dataset, Traverse
+
+
+def make(ref: np.ndarray, qry: np.ndarray, r_pos=None, q_pos=None, splits=None, radius=1.0, **kw) -> Dataset:
+    r_pos = np.arange(len(ref), dtype=float)[:, None] if r_pos is None else r_pos
+    q_pos = np.arange(len(qry), dtype=float)[:, None] if q_pos is None else q_pos
+    return Dataset(Traverse(ref, r_pos, [f"r{i:03d}.png" for i in range(len(ref))], name="reference"),
+                   Traverse(qry, q_pos, [f"q{i:03d}.png" for i in range(len(qry))], name="query"), radius,
+                   splits=splits or {}, name="d", **kw)
+
+
+@pytest.fixture
+def desc():
+    return np.random.default_rng(0).random((20, 6)).astype(np.float32) + 0.1
+
+
+def test_a_clean_dataset_has_no_warning(desc):
+    assert dataset_warnings(make(desc, desc[::-1] * 0.9, splits={"train": {"query": (0, 10)},
+                                                                 "test": {"query": (10, 20)}})) == []
+
+
+def test_the_query_being_the_reference_is_warned(desc):
+    [line] = dataset_warnings(make(desc, desc.copy()))
+    assert line.startswith("d: the query images are the reference images (identical descriptors, row for row): "
+                           "every metric is trivially perfect")
+    [line] = dataset_warnings(make(desc, desc[[5, 3, 9]]))  # copies, in another order: as trivial
+    assert "every one of the 3 query descriptors is an exact copy of a reference descriptor" in line
+    assert dataset_warnings(make(desc, np.concatenate([desc[[5, 3]], desc[:1] + 1e-3]))) == []
+
+
+def test_row_hashes_vs_a_loop(desc):
+    rows = np.concatenate([desc, desc[[2, 7]], desc[:3] + 1])
+    h = _row_hashes(rows)
+    for i in range(len(rows)):
+        for j in range(len(rows)):
+            assert (h[i] == h[j]) == (rows[i].tobytes() == rows[j].tobytes())
+
+
+def test_copy_of_vs_a_loop(monkeypatch):
+    """Every query row's identical reference row, found by a hash of its first columns then compared whole, as
+    a loop over all pairs finds it; small blocks (several per array) and a shared prefix included."""
+    from seqnet.data import sanity
+
+    monkeypatch.setattr(sanity, "BLOCK_BYTES", 3 * 96 * 8)  # blocks of 3 rows compared, 12 hashed
+    rng = np.random.default_rng(3)
+    ref = rng.random((30, 24)).astype(np.float32)
+    ref[7, :16] = ref[8, :16]  # rows 7 and 8 share the hashed prefix
+    qry = ref[rng.integers(0, 30, 17)]
+    match = _copy_of(ref, qry)
+    for m, q in enumerate(qry):
+        assert [r for r in range(30) if ref[r].tobytes() == q.tobytes()] == [match[m]]
+    assert _copy_of(ref, ref[[8, 7, 8]]).tolist() == [8, 7, 8]
+    changed = qry.copy()
+    changed[11, 20] += 1  # same prefix, another row: no copy
+    assert _copy_of(ref, changed) is None
+
+
+def test_splits_sharing_queries_are_named(desc):
+    splits = {"train": {"query": (0, 12)}, "val": {"query": (10, 16)}, "test": {"query": (15, 20)}}
+    [line] = dataset_warnings(make(desc, desc * 0.5, splits=splits))
+    assert ("splits train (queries 0:12) and val (queries 10:16) share 2; val (queries 10:16) and test (queries "
+            "15:20) share 1 queries") in line and "optimistic" in line
+
+
+def test_constant_positions_are_warned_unless_positives_decide(desc):
+    same = np.full((20, 2), 5.0)
+    [line] = dataset_warnings(make(desc, desc * 0.5, same, same, radius=25.0))
+    assert ("all 20 reference and 20 query positions lie within 0 metres of each other, inside the radius 25: every "
+            "reference is within the radius of every query, so R@K is 1 trivially") in line
+    truth = Positives.from_lists([[i] for i in range(20)])
+    assert dataset_warnings(make(desc, desc * 0.5, same, same, radius=25.0, positives=truth)) == []
+
+
+def test_frame_aligned_traverses_must_pair_up(desc, caplog):
+    with pytest.raises(DatasetError, match=r"--frame-aligned: query frame i is the place of reference frame i, but the "
+                                           r"reference has 3 images and the query 2, .* --positives FILE"):
+        check_frame_aligned(["a", "b", "c"], ["a", "c"])
+    with pytest.raises(DatasetError, match="reference image 1 is 'b' but query image 1 is 'c': an image missing"):
+        check_frame_aligned(["a", "b", "c"], ["a", "c", "d"])
+    check_frame_aligned(["a", "b"], ["x", "y"])  # named differently: nothing to pair by name
+    ds = make(desc, desc[:15] * 0.5, extra={"ground_truth": "frames"})
+    with pytest.raises(DatasetError, match="d: frame-aligned ground truth: .* has 20 images and the query 15"):
+        review(ds)
+    with caplog.at_level("WARNING", logger="seqnet"):
+        assert review(make(desc, desc.copy(), extra={"ground_truth": "frames"}))  # named r*/q*: no pairing by name
+    assert caplog.messages[0].startswith("d: the query images are the reference images")
