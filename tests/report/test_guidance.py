@@ -153,3 +153,18 @@ def test_the_html_results_table_marks_the_row():
     assert s1_row.split("</tr>")[0].endswith("<td>learned, below model-free single</td>")
     single_row = next(row for row in body.split("<tr>") if row.startswith("<td>single</td>"))
     assert single_row.split("</tr>")[0].endswith("<td></td>")
+
+
+def test_the_summary_gives_the_range_of_query_counts():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from seqnet.report.html import ReportConfig, summary_section
+
+    res = {"methods": {"single": {"queries": 25}, "raw+seqmatch": {"queries": 21}}, "config": {"dataset": "d"}}
+    body = summary_section(SimpleNamespace(results=res, r_items=np.arange(3)), ReportConfig()).body
+    assert "<td>queries evaluated</td><td>21–25 (by method: the results table&#x27;s column)</td>" in body
+    res["methods"].pop("single")
+    body = summary_section(SimpleNamespace(results=res, r_items=np.arange(3)), ReportConfig()).body
+    assert "<td>queries evaluated</td><td>21</td>" in body

@@ -89,7 +89,10 @@ def summary_section(ev: Any, conf: ReportConfig) -> Section:
     first = next(iter(ev.results["methods"].values()))
     truth = ("ground truth", "explicit positives") if cfg.get("ground_truth") == "explicit positives" else \
         ("radius", cfg.get("radius", ""))
-    facts = [("dataset", cfg.get("dataset", "")), ("queries evaluated", first.get("queries", "")),
+    counts = sorted({r.get("queries") for r in ev.results["methods"].values() if isinstance(r.get("queries"), int)})
+    queries = (f"{counts[0]}–{counts[-1]} (by method: the results table's column)" if len(counts) > 1 else
+               first.get("queries", ""))
+    facts = [("dataset", cfg.get("dataset", "")), ("queries evaluated", queries),
              ("reference items (frames with a full window)", len(ev.r_items)), truth, ("L", cfg.get("seq_len", "")),
              ("L_m", cfg.get("match_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
              ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
