@@ -140,3 +140,17 @@ def test_the_report_says_a_missed_target():
     body = calibration_section(res)[0].body
     assert "<td>NO</td>" in body and "Below the target: a&lt;b." in body and "too few queries" in body
     assert calibration_section({"config": {}, "methods": {}}) == []
+
+
+def test_a_calibration_split_too_short_for_the_windows_says_so(tmp_path, capsys):
+    from seqnet.data.io import save_dataset
+    from seqnet.data.synth import make_synthetic
+
+    ds = make_synthetic(places=120, dim=16, seed=1, noise=0.3)
+    n, r = len(ds.query), len(ds.reference)
+    ds.splits = {"val": {"reference": (0, r), "query": (0, 3)}, "test": {"reference": (0, r), "query": (10, n)}}
+    path = save_dataset(ds, tmp_path / "ds")
+    assert cli_main(["eval", "--dataset", str(path), "--method", "raw+seqmatch", "--seq-len", "5", *TARGET,
+                     "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert "calibrating on 'val': seq_len=5 is longer than the query traverse" in err and "(3 frames)" in err

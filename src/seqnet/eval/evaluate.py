@@ -196,11 +196,15 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     split = default_split(conf.split, ds.splits)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     conf, prepared = prepare(ds, split, loaded, conf) if prepare is not None else (conf, None)
-    if conf.target_precision is not None:
+    cal = None
+    if conf.target_precision is not None:  # first: a calibration split that cannot serve fails before any work
         check_calibration_split(ds, conf.calibrate_split, split)
+        try:
+            cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
+        except ConfigError as e:
+            raise ConfigError(f"calibrating on {conf.calibrate_split!r}: {e}") from e
     ev = evaluate(ds.split(split), conf.replace(split=split), loaded)
-    if conf.target_precision is not None:
-        cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
+    if cal is not None:
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
