@@ -2,9 +2,11 @@
 
 With positions only, a reference window is a positive within ``pos_radius`` of the query and a
 negative beyond ``neg_radius`` (NetVLAD / SeqNet). With explicit positives (:mod:`seqnet.data.positives`),
-the positives are the listed references and the negatives those beyond ``neg_radius`` that are not
-listed, nor soft positives (VPR_Tutorial's GTsoft), so a place the lists know about is never taken
-for a negative.
+the positives are the listed references and the negatives the references farther than ``neg_radius``
+from every positive of the query, measured between reference positions (the query's own positions
+need not be comparable with the reference's: other counts, an offset), that are not soft positives
+either (VPR_Tutorial's GTsoft), so a place the lists know about, or its neighbours, is never taken for
+a negative.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ torch = lazy_module("torch")
 def queries_with_pairs(q_pos: np.ndarray, r_pos: np.ndarray, pos_radius: float, neg_radius: float,
                        positives: Positives | None = None) -> np.ndarray:
     """``[M]`` bool: whether query position ``q_pos [M, P]`` has at least one positive (a reference
-    position ``r_pos [R, P]`` within ``pos_radius``, or an explicit positive) and one negative."""
+    position ``r_pos [R, P]`` within ``pos_radius``, or an explicit positive) and one negative (beyond
+    ``neg_radius`` of the query, or with explicit positives of all its positives: :func:`pair_masks`)."""
     if positives is not None:
         keys, has_neg = positive_keys(positives, len(r_pos)), np.zeros(len(q_pos), dtype=bool)
         soft = nonnegative_keys(positives, len(r_pos))
@@ -66,13 +69,27 @@ def pair_masks(q_pos: torch.Tensor, r_pos: torch.Tensor, pos_radius: float, neg_
                soft_keys: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Positive and negative masks ``[B, R]`` of the training queries ``rows [B]`` (positions ``q_pos [B, P]``):
     by radius, or, with explicit positive ``keys`` (:func:`positive_keys`), the listed pairs and the
-    references beyond ``neg_radius`` that are neither listed nor soft positives (``soft_keys``)."""
-    pos, neg = radius_masks(q_pos, r_pos, pos_radius, neg_radius)
+    references farther than ``neg_radius`` from every listed one (:func:`near_listed`; ``q_pos`` is
+    then not used) that are not soft positives (``soft_keys``) either."""
     if keys is None:
-        return pos, neg
+        return radius_masks(q_pos, r_pos, pos_radius, neg_radius)
     n = r_pos.shape[0]
     wanted = rows.to(keys.device)[:, None] * n + torch.arange(n, device=keys.device)[None, :]
-    listed = torch.isin(wanted, keys).to(pos.device)
+    listed = torch.isin(wanted, keys).to(r_pos.device)
+    neg = ~near_listed(listed, r_pos, neg_radius)
     if soft_keys is not None:
-        neg = neg & ~torch.isin(wanted, soft_keys.to(keys.device)).to(pos.device)
-    return listed, neg & ~listed
+        neg = neg & ~torch.isin(wanted, soft_keys.to(keys.device)).to(r_pos.device)
+    return listed, neg
+
+
+def near_listed(listed: torch.Tensor, r_pos: torch.Tensor, radius: float, block_elems: int = 2**24) -> torch.Tensor:
+    """``[B, R]`` bool: whether reference r lies within ``radius`` of one of the references ``listed [B, R]``
+    for row b (reference-to-reference distances of ``r_pos [R, P]``); the listed pairs themselves included.
+    In blocks of listed pairs of at most ``block_elems`` distances."""
+    b, p = listed.nonzero(as_tuple=True)
+    hits = torch.zeros(listed.shape, dtype=torch.int32, device=listed.device)
+    step = max(1, block_elems // max(1, r_pos.shape[0]))
+    for s in range(0, len(b), step):
+        close = radius_masks(r_pos[p[s : s + step]], r_pos, radius, radius)[0]
+        hits.index_add_(0, b[s : s + step], close.to(torch.int32))
+    return hits > 0
