@@ -194,7 +194,8 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
     check_same(dataset.reference.provenance, dataset.query.provenance, "the reference descriptors",
                "the query descriptors", allow_mismatch or accepted_mismatch(dataset))
     with joined() as world, contextlib.ExitStack() as held:
-        conf, payload, path = world.rank0(lambda: _claim(held, dataset, conf, out_dir, resume, dataset_path))
+        conf, payload, path = world.rank0(lambda: _claim(held, dataset, conf, out_dir, resume, dataset_path,
+                                                         allow_mismatch))
         run, src, val_ds, device = world.agree(lambda: _start(dataset, conf, out_dir, payload, path, world))
         run.net = world.wrap(run.model)  # DistributedDataParallel when distributed
         world.rank0(lambda: open_files(run))
@@ -209,13 +210,18 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
 
 
 def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | None, out_dir: Path,
-           resume: bool | str | Path, dataset_path: str | Path | None) -> tuple[TrainConfig, dict | None, str | None]:
+           resume: bool | str | Path, dataset_path: str | Path | None,
+           allow_mismatch: bool = False) -> tuple[TrainConfig, dict | None, str | None]:
     """Rank 0: lock ``out_dir`` (a second writer of this run is refused), read the checkpoint to resume
-    or check that the directory is free; the run's configuration, checkpoint and dataset path."""
+    (its descriptors' provenance checked against the dataset's: a rebuilt dataset is refused unless
+    ``allow_mismatch``) or check that the directory is free; the run's configuration, checkpoint and dataset path."""
     held.enter_context(locked(out_dir))
     payload = None
     if resume:
         payload = read_resume(out_dir if resume is True else Path(resume))
+        check_same(payload.get("provenance"), dataset.reference.provenance,
+                   f"the descriptors the run in {out_dir} was trained on",
+                   f"the descriptors of dataset {dataset.name!r}", allow_mismatch)
         conf = restored_config(payload, conf)
         dataset_path = dataset_path or stored_dataset_path(payload)
         if RESTART in payload:  # no last.pt: nothing to resume, the run starts again with its configuration

@@ -1,0 +1,40 @@
+"""Resuming a run: on the descriptors it was trained on only, and only to a later epoch."""
+
+from __future__ import annotations
+
+import pytest
+
+from seqnet.cli import main as cli_main
+from seqnet.data.io import save_dataset
+from seqnet.data.synth import make_synthetic
+
+ARGS = ["--seq-len", "3", "--w", "2", "--out-dims", "8", "--optimizer", "adam", "--lr", "1e-2",
+        "--n-neg-sample", "50", "--cache-refresh", "40", "--device", "cpu", "--val-split", "none"]
+
+
+@pytest.fixture(scope="module")
+def run2(tmp_path_factory):
+    """A dataset, the same rebuilt with other descriptors (another seed), and a two-epoch run of the first."""
+    root = tmp_path_factory.mktemp("resume")
+    data = save_dataset(make_synthetic(places=120, dim=8), root / "ds")
+    save_dataset(make_synthetic(places=120, dim=8, seed=1), root / "rebuilt")
+    assert cli_main(["-q", "--threads", "1", "train", "--dataset", str(data), "--out", str(root / "run"),
+                     "--epochs", "2", *ARGS]) == 0
+    return root
+
+
+def _err(capsys, argv):
+    capsys.readouterr()
+    rc = cli_main(["-q", "--threads", "1", *argv])
+    return rc, capsys.readouterr().err.strip().splitlines()
+
+
+def test_resume_on_rebuilt_descriptors_is_refused(run2, capsys):
+    """The dataset rebuilt with other descriptors (same D): one line naming the difference, the run untouched."""
+    last = (run2 / "run" / "last.pt").read_bytes()
+    rc, err = _err(capsys, ["train", "--resume", str(run2 / "run"), "--dataset", str(run2 / "rebuilt"),
+                            "--epochs", "3"])
+    assert rc == 2 and len(err) == 1, err
+    assert f"the descriptors the run in {run2 / 'run'} was trained on and the descriptors of dataset" in err[0]
+    assert "seed: 0 vs 1" in err[0] and "Traceback" not in err[0]
+    assert (run2 / "run" / "last.pt").read_bytes() == last
