@@ -49,6 +49,7 @@ from .run import (
 )
 from .rundir import RESTART, check_new, discard
 from .source import TripletSource, split_windows, triplet_source
+from .state import check_descriptors
 
 torch = lazy_module("torch")
 
@@ -219,9 +220,8 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
     payload = None
     if resume:
         payload = read_resume(out_dir if resume is True else Path(resume))
-        check_same(payload.get("provenance"), dataset.reference.provenance,
-                   f"the descriptors the run in {out_dir} was trained on",
-                   f"the descriptors of dataset {dataset.name!r}", allow_mismatch)
+        check_descriptors(payload, dataset.reference.provenance, dataset.query.dim, out_dir, dataset.name,
+                          allow_mismatch)
         conf = restored_config(payload, conf)
         dataset_path = dataset_path or stored_dataset_path(payload)
         if RESTART in payload:  # no last.pt: nothing to resume, the run starts again with its configuration

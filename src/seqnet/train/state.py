@@ -7,7 +7,8 @@ Checked: the architecture against the weights (:func:`seqnet.sequence.checkpoint
 :func:`seqnet.train.run.read_resume`), the weights finite, the optimiser's settings and buffers (the fresh
 optimiser's types and the parameters' shapes), the scheduler's keys and types, the generator state (size and
 dtype), the negative cache (shape, integer dtype, indices of reference windows or -1), the counters and the
-history.
+history; and, before any of it (:func:`check_descriptors`), that the dataset's descriptors are made as those the
+run was trained on.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import Any
 
 from ..core.errors import CheckpointError
 from ..core.lazy import lazy_module
+from ..core.provenance import check_same
 from ..security.limits import INDEX_MAX, number
 
 torch = lazy_module("torch")
@@ -97,6 +99,19 @@ def _counters(payload: Mapping[str, Any], st: Mapping[str, Any], path: Path) -> 
     if not isinstance(history, list) or not all(isinstance(h, Mapping) for h in history):
         raise CheckpointError(f"{path}: the history must be a list of per-epoch records, got {_short(history)}")
     return epoch, float(best), best_epoch, bad
+
+
+def check_descriptors(payload: Mapping[str, Any], provenance: dict | None, dim: int, run: Path, dataset: str,
+                      allow: bool = False) -> None:
+    """The run in ``run`` (its ``last.pt``, ``payload``) resumed on the descriptors of the dataset named
+    ``dataset``, of ``dim`` made as ``provenance``:
+    a :class:`~seqnet.core.provenance.ProvenanceError` naming the difference when the run's descriptors were
+    made otherwise (a dataset rebuilt since; ``allow``: a warning). Another D is left to the architecture
+    check (:func:`restore`), which says the checkpoint does not fit."""
+    model = payload.get("model")
+    if isinstance(model, Mapping) and model.get("in_dims") == dim:
+        check_same(payload.get("provenance"), provenance, f"the descriptors the run in {run} was trained on",
+                   f"the descriptors of dataset {dataset!r}", allow)
 
 
 def check_state(payload: Mapping[str, Any], path: Path) -> Mapping[str, Any]:
