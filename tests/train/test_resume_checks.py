@@ -23,9 +23,9 @@ def run2(tmp_path_factory):
     return root
 
 
-def _err(capsys, argv):
+def _err(capsys, argv, quiet=True):
     capsys.readouterr()
-    rc = cli_main(["-q", "--threads", "1", *argv])
+    rc = cli_main([*(["-q"] if quiet else []), "--threads", "1", *argv])
     return rc, capsys.readouterr().err.strip().splitlines()
 
 
@@ -38,3 +38,27 @@ def test_resume_on_rebuilt_descriptors_is_refused(run2, capsys):
     assert f"the descriptors the run in {run2 / 'run'} was trained on and the descriptors of dataset" in err[0]
     assert "seed: 0 vs 1" in err[0] and "Traceback" not in err[0]
     assert (run2 / "run" / "last.pt").read_bytes() == last
+
+
+def test_resume_to_no_more_epochs_is_refused(run2, capsys):
+    """--epochs is the total: not above the epochs done, one line saying so and what to give."""
+    for epochs in ("1", "2"):
+        rc, err = _err(capsys, ["train", "--resume", str(run2 / "run"), "--epochs", epochs])
+        assert rc == 2 and err == [f"seqnet train: error: {run2 / 'run'} is already trained to epoch 2; --epochs "
+                                   f"{epochs} is the total number of epochs (not more to run): give --epochs 3 or "
+                                   "more"], err
+    rc, err = _err(capsys, ["train", "--resume", str(run2 / "run")])  # its own 2 epochs: done
+    assert rc == 2 and "already trained to epoch 2; --epochs 2 is the total" in err[0]
+
+
+def test_joint_resume_to_no_more_epochs_is_refused_and_a_finished_role_left(run2, capsys):
+    joint = run2 / "joint"
+    argv = ["train", "--joint", "--dataset", str(run2 / "ds"), "--out", str(joint), "--epochs", "1", *ARGS]
+    assert _err(capsys, argv)[0] == 0
+    rc, err = _err(capsys, ["train", "--resume", str(joint), "--epochs", "1"])
+    assert rc == 2 and len(err) == 1 and "/s1 is already trained to epoch 1; --epochs 1 is the total" in err[0], err
+    for name in ("last.pt", "best.pt"):  # S_1 killed before its first epoch: only it has epochs left
+        (joint / "s1" / name).unlink()
+    rc, err = _err(capsys, ["train", "--resume", str(joint), "--epochs", "1"], quiet=False)
+    assert rc == 0 and f"{joint / 'seqnet'} is already trained to epoch 1 of 1; left as it is" in err, err
+    assert (joint / "s1" / "last.pt").is_file()

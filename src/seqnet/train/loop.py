@@ -39,6 +39,7 @@ from .guide import inactive_epochs, inactive_message, plan, plan_text, val_warni
 from .losses import LOSSES
 from .run import (
     Run,
+    check_epochs_left,
     finish_epoch,
     open_files,
     open_run,
@@ -223,6 +224,7 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
         check_descriptors(payload, dataset.reference.provenance, dataset.query.dim, out_dir, dataset.name,
                           allow_mismatch)
         conf = restored_config(payload, conf)
+        check_epochs_left(payload.get("epoch"), conf.epochs, out_dir)
         dataset_path = dataset_path or stored_dataset_path(payload)
         if RESTART in payload:  # no last.pt: nothing to resume, the run starts again with its configuration
             discard(out_dir, payload[RESTART], "starting it again from epoch 1 with its stored configuration")

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .._version import __version__
-from ..core.errors import CheckpointError, ResourceError
+from ..core.errors import CheckpointError, ConfigError, ResourceError
 from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..security.dirs import remove_dead_temps
@@ -140,6 +140,14 @@ def stored_dataset_path(payload: Mapping[str, Any]) -> str | None:
 def run_dataset_path(src: str | Path) -> str | None:
     """The dataset path recorded in the run in ``src`` (directory or ``last.pt``), if any."""
     return stored_dataset_path(read_resume(src))
+
+
+def check_epochs_left(done: Any, epochs: int, run: str | Path) -> None:
+    """Refuse to resume the run in ``run`` (trained to epoch ``done``; None: not known, nothing checked) with
+    ``epochs`` (the total, as when it started) not above the epochs it has done: nothing would be trained."""
+    if isinstance(done, int) and not isinstance(done, bool) and epochs <= done:
+        raise ConfigError(f"{run} is already trained to epoch {done}; --epochs {epochs} is the total number of "
+                          f"epochs (not more to run): give --epochs {done + 1} or more")
 
 
 def restored_config(payload: Mapping[str, Any], conf: TrainConfig | None) -> TrainConfig:
