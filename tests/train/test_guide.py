@@ -150,3 +150,25 @@ def measured_rate_cpu() -> float:
     from seqnet.train.guide import measured_rate
 
     return measured_rate(64, 64, "cpu", repeats=1, min_seconds=0.005)
+
+
+def test_the_memory_estimate_caps_the_batch_at_the_training_queries(synth_dataset, monkeypatch):
+    """--batch-size above the training queries makes the same batches: the estimate, the plan and the check
+    count at most those queries (dsA's 56 queries with --batch-size 4096 were 'needs about 28.4 GiB')."""
+    from seqnet.core.errors import ResourceError
+    from seqnet.train.config import train_bytes
+    from seqnet.train.guide import check_memory
+
+    conf = TrainConfig(seq_len=5, w=5, device="cpu")
+    n = len(synth_dataset.split("train").query)
+    huge, capped = conf.replace(batch_size=4096), conf.replace(batch_size=n)
+    assert train_bytes(huge, 256, 500, 900, n_train=n) == train_bytes(capped, 256, 500, 900, n_train=n)
+    assert train_bytes(huge, 256, 500, 900) > train_bytes(capped, 256, 500, 900)  # the frames cap the default
+    assert plan(huge, 256, 56, 196, 300, 2, 3, "cpu", rate=1e10).peak_bytes == \
+        plan(conf.replace(batch_size=56), 256, 56, 196, 300, 2, 3, "cpu", rate=1e10).peak_bytes
+    d = synth_dataset.query.dim
+    need = train_bytes(capped, d, len(synth_dataset.reference), len(synth_dataset.query), True, n)
+    monkeypatch.setenv("SEQNET_MEMORY_MB", str(2 * need / 2**20))
+    check_memory(huge, synth_dataset)  # fits: the batch is the train split's queries at most
+    with pytest.raises(ResourceError, match="needs about"):
+        check_memory(huge.replace(train_split="all", batch_size=10**6, out_dims=4096), synth_dataset)

@@ -22,20 +22,18 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..core.devices import get_device
 from ..core.errors import ConfigError, DatasetError, OutputError
 from ..core.lazy import lazy_module
 from ..core.log import logger
-from ..core.memory import check_fits, gib
 from ..core.provenance import check_same
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..methods.checks import accepted_mismatch
 from ..security.locks import locked
-from .config import TrainConfig, train_bytes
+from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
-from .guide import inactive_epochs, inactive_message, plan, plan_text, val_warning
+from .guide import check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
 from .losses import LOSSES
 from .run import (
     Run,
@@ -232,19 +230,8 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
     else:
         conf = (conf or TrainConfig()).resolve(dataset)
         check_new(out_dir)
-    _check_memory(conf, dataset)
+    check_memory(conf, dataset)
     return conf, payload, str(dataset_path) if dataset_path is not None else None
-
-
-def _check_memory(conf: TrainConfig, dataset: Dataset) -> None:
-    """Refuse, before any work, a training run whose estimate exceeds the available memory."""
-    d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
-    spill = get_device(conf.device).type == "cpu"  # the mining cache spills when large (one process)
-    check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill),
-               f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
-               f"{gib(4 * d * out * conf.w)})",
-               "a smaller --out-dims (e.g. 512), fewer dimensions when describing (--dim, PCA), a smaller --w "
-               "or --batch-size")
 
 
 def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | None, dataset_path: str | None,
