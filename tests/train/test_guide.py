@@ -90,7 +90,7 @@ def test_training_stops_after_stop_inactive_epochs_without_an_active_triplet(syn
         return {"loss": 0.0, "queries": float(src.n_queries), "skipped": 0.0, "triplets": 0.0, "active": 0.0}
 
     monkeypatch.setattr(loop, "train_epoch", no_triplets)
-    caplog.set_level(logging.INFO, logger="seqnet")
+    caplog.set_level(logging.DEBUG, logger="seqnet")  # the end line is DEBUG (seqnet train prints the summary)
     run = train(synth_dataset, FAST.replace(epochs=10, stop_inactive=3), tmp_path / "r")
     assert run.epoch == 3 and (tmp_path / "r" / "best.pt").exists()
     said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
@@ -172,3 +172,10 @@ def test_the_memory_estimate_caps_the_batch_at_the_training_queries(synth_datase
     check_memory(huge, synth_dataset)  # fits: the batch is the train split's queries at most
     with pytest.raises(ResourceError, match="needs about"):
         check_memory(huge.replace(train_split="all", batch_size=10**6, out_dims=4096), synth_dataset)
+
+
+def test_the_plan_counts_weights_in_one_format():
+    """65568 and 131136 weights were '65568' and '0.1 M': every count is exact, with thousands separators."""
+    small, large = _plan(256, out=64, w=4), _plan(6400)
+    assert plan_text(small).startswith(f"training plan: S_5 (w=4, D 256->64): {256 * 64 * 4 + 64:,} weights, ")
+    assert f"): {6400 * 6400 * 3 + 6400:,} weights, " in plan_text(large) and "122,886,400 weights" in plan_text(large)

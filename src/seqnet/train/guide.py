@@ -176,8 +176,7 @@ def plan_text(p: Plan) -> str:
     """The block logged before training: the model, memory, time, checkpoints and the advice."""
     avail = f" of {human_bytes(p.available)} available" if p.available is not None else ""
     total = p.epoch_seconds * p.epochs
-    weights = f"{p.weights / 1e6:.1f} M" if p.weights >= 1e5 else f"{p.weights}"
-    lines = [f"training plan: S_{p.seq_len} (w={p.w}, D {p.in_dims}->{p.out_dims}): {weights} weights, "
+    lines = [f"training plan: S_{p.seq_len} (w={p.w}, D {p.in_dims}->{p.out_dims}): {p.weights:,} weights, "
              f"{p.n_queries} queries, {p.n_refs} reference windows, {p.n_frames} training frames",
              f"  peak memory  about {human_bytes(p.peak_bytes)}{avail}",
              f"  time         about {_duration(p.epoch_seconds)} per epoch on {p.device} (the device's measured "

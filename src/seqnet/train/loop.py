@@ -128,7 +128,8 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     stop = f"; early stop: no better val R@1 for {run.bad_epochs} epochs" if early else ""
     stop += f"; stopped: no active triplet for {inactive_epochs(run.history)} epochs" if inactive else ""
     n = run.epoch - first + 1
-    logger.info("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
+    # DEBUG: seqnet train prints the summary (cli/train_cmd.py), once
+    logger.debug("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
                 run.epoch, time.perf_counter() - t0, best, stop)
 
 

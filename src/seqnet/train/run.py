@@ -21,6 +21,7 @@ import dataclasses
 import errno
 import logging
 import math
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -221,7 +222,9 @@ def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapp
     """Step the schedule, update best / patience, write ``best.pt`` (when improved) then ``last.pt`` and
     TensorBoard scalars (rank 0 only), log a debug line. Returns whether the epoch is the best so far."""
     lr = run.optimizer.param_groups[0]["lr"]
-    run.scheduler.step()
+    with warnings.catch_warnings():  # an epoch without an active triplet made no optimiser step: the schedule
+        warnings.filterwarnings("ignore", r"Detected call of `lr_scheduler\.step\(\)` before", UserWarning)
+        run.scheduler.step()  # still counts the epoch (the warning is torch's, about the call order)
     score = metrics.get("recall@1", math.nan)
     improved = math.isnan(score) or score > run.best_score  # no validation score: best.pt = last.pt
     run.epoch = epoch
