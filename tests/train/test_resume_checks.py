@@ -62,3 +62,18 @@ def test_joint_resume_to_no_more_epochs_is_refused_and_a_finished_role_left(run2
     rc, err = _err(capsys, ["train", "--resume", str(joint), "--epochs", "1"], quiet=False)
     assert rc == 0 and f"{joint / 'seqnet'} is already trained to epoch 1 of 1; left as it is" in err, err
     assert (joint / "s1" / "last.pt").is_file()
+
+
+def test_resume_on_other_descriptor_files_of_the_same_making_is_refused(run2, capsys):
+    """Descriptors made alike (same provenance) but other files (a rebuild on other images): the hashes seqnet
+    recorded in dataset.json name the change; --allow-mismatch goes on with a warning."""
+    import dataclasses
+
+    ds = make_synthetic(places=120, dim=8)
+    other = dataclasses.replace(ds.query, descriptors=ds.query.descriptors[::-1].copy())
+    data = save_dataset(dataclasses.replace(ds, query=other), run2 / "same-making")
+    argv = ["train", "--resume", str(run2 / "run"), "--dataset", str(data), "--epochs", "3"]
+    rc, err = _err(capsys, argv)
+    assert rc == 2 and len(err) == 1, err
+    assert (f"the descriptors of dataset 'synthetic' are not those the run in {run2 / 'run'} was trained on "
+            "(query/descriptors.npy changed: the dataset was rebuilt since)") in err[0]

@@ -48,7 +48,7 @@ from .run import (
 )
 from .rundir import RESTART, check_new, discard
 from .source import TripletSource, split_windows, triplet_source
-from .state import check_descriptors
+from .state import check_descriptors, check_digests, descriptor_digests
 
 torch = lazy_module("torch")
 
@@ -222,6 +222,8 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
         payload = read_resume(out_dir if resume is True else Path(resume))
         check_descriptors(payload, dataset.reference.provenance, dataset.query.dim, out_dir, dataset.name,
                           allow_mismatch)
+        if dataset_path is not None:  # the dataset given is that directory's: its recorded hashes
+            check_digests(payload, descriptor_digests(dataset_path), out_dir, dataset.name, allow_mismatch)
         conf = restored_config(payload, conf)
         check_epochs_left(payload.get("epoch"), conf.epochs, out_dir)
         dataset_path = dataset_path or stored_dataset_path(payload)
@@ -244,6 +246,7 @@ def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | N
                    n_refs=len(src.r_idx))
     run.world = world
     run.model.provenance = dataset.reference.provenance  # checkpoints record what the model reads
+    run.dataset_digests = descriptor_digests(dataset_path) if world.is_rank0 else None
     return run, src, val_ds, device
 
 

@@ -59,6 +59,7 @@ class Run:
     neg_cache: torch.Tensor  # [M, K] previous hard negatives per training query (-1 = none)
     out_dir: Path
     dataset_path: str | None = None
+    dataset_digests: dict[str, str] | None = None  # the descriptor files' recorded hashes (train.state)
     writer: Any = None
     epoch: int = 0
     best_score: float = -math.inf
@@ -234,7 +235,7 @@ def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapp
         run.bad_epochs += 1
     run.history.append({"epoch": epoch, "lr": lr, **stats, **metrics})
     fields = {"epoch": epoch, "best_score": run.best_score, "best_epoch": run.best_epoch, "metrics": dict(metrics),
-              "config": run.conf.to_dict(), "dataset_path": run.dataset_path}
+              "config": run.conf.to_dict(), "dataset_path": run.dataset_path, "dataset_digests": run.dataset_digests}
     if run.world.is_rank0:
         if improved:
             _save(run, "best.pt", fields)
