@@ -74,22 +74,51 @@ def pair_masks(q_pos: torch.Tensor, r_pos: torch.Tensor, pos_radius: float, neg_
     if keys is None:
         return radius_masks(q_pos, r_pos, pos_radius, neg_radius)
     n = r_pos.shape[0]
-    wanted = rows.to(keys.device)[:, None] * n + torch.arange(n, device=keys.device)[None, :]
-    listed = torch.isin(wanted, keys).to(r_pos.device)
+    listed = key_mask(keys, rows, n).to(r_pos.device)
     neg = ~near_listed(listed, r_pos, neg_radius)
     if soft_keys is not None:
-        neg = neg & ~torch.isin(wanted, soft_keys.to(keys.device)).to(r_pos.device)
+        neg = neg & ~key_mask(soft_keys.to(keys.device), rows, n).to(r_pos.device)
     return listed, neg
+
+
+def key_mask(keys: torch.Tensor, rows: torch.Tensor, n: int) -> torch.Tensor:
+    """``[B, n]`` bool: the pairs of sorted ``keys`` (:func:`positive_keys`) of the query rows ``rows [B]``: each
+    row's keys found by binary search, O(keys of the rows), not a test of every (row, reference) pair."""
+    rows = rows.to(keys.device)
+    lo, hi = torch.searchsorted(keys, rows * n), torch.searchsorted(keys, (rows + 1) * n)
+    counts = hi - lo
+    b = torch.repeat_interleave(torch.arange(len(rows), device=keys.device), counts)
+    first = torch.repeat_interleave(lo - (torch.cumsum(counts, 0) - counts), counts)  # keys[first + j]: j-th pair
+    k = keys[first + torch.arange(len(b), device=keys.device)]
+    mask = torch.zeros((len(rows), n), dtype=torch.bool, device=keys.device)
+    mask[b, k - rows[b] * n] = True
+    return mask
 
 
 def near_listed(listed: torch.Tensor, r_pos: torch.Tensor, radius: float, block_elems: int = 2**24) -> torch.Tensor:
     """``[B, R]`` bool: whether reference r lies within ``radius`` of one of the references ``listed [B, R]``
     for row b (reference-to-reference distances of ``r_pos [R, P]``); the listed pairs themselves included.
-    In blocks of listed pairs of at most ``block_elems`` distances."""
-    b, p = listed.nonzero(as_tuple=True)
-    hits = torch.zeros(listed.shape, dtype=torch.int32, device=listed.device)
-    step = max(1, block_elems // max(1, r_pos.shape[0]))
-    for s in range(0, len(b), step):
-        close = radius_masks(r_pos[p[s : s + step]], r_pos, radius, radius)[0]
-        hits.index_add_(0, b[s : s + step], close.to(torch.int32))
-    return hits > 0
+
+    Each distinct listed reference's neighbours come from one k-d tree query (O(pairs x neighbours), not
+    O(pairs x R)), written in blocks of at most ``block_elems`` (row, reference) pairs."""
+    b, p = (t.cpu().numpy() for t in listed.nonzero(as_tuple=True))
+    near = torch.zeros(listed.shape, dtype=torch.bool, device=listed.device)
+    if b.size == 0:
+        return near
+    pts = r_pos.cpu().numpy().astype(np.float64)
+    pts = pts - pts[:1]  # UTM coordinates lose metres in float32; the tree works in float64 all the same
+    uniq, inv = np.unique(p, return_inverse=True)
+    balls = cKDTree(pts).query_ball_point(pts[uniq], radius)
+    lens = np.fromiter((len(x) for x in balls), dtype=np.int64, count=len(balls))
+    flat, starts = np.concatenate([np.asarray(x, dtype=np.int64) for x in balls]), np.cumsum(lens) - lens
+    cnt = lens[inv]  # neighbours of each listed pair's reference
+    ends = np.cumsum(cnt)
+    s = 0
+    while s < len(b):  # blocks of pairs writing at most block_elems entries (at least one pair)
+        e = max(s + 1, int(np.searchsorted(ends, ends[s] - cnt[s] + block_elems, side="right")))
+        c = cnt[s:e]
+        rows = np.repeat(b[s:e], c)
+        cols = flat[np.repeat(starts[inv[s:e]] - (np.cumsum(c) - c), c) + np.arange(c.sum())]
+        near[torch.as_tensor(rows, device=near.device), torch.as_tensor(cols, device=near.device)] = True
+        s = e
+    return near
