@@ -68,3 +68,13 @@ def test_split_windows_mines_offset_positives_from_reference_positions():
         true = OFFSET + q_frames[i]
         assert r_frames[p_mask[i].numpy()].tolist() == [true]
         np.testing.assert_array_equal(n_mask[i].numpy(), np.abs(r_frames - true) > NEG_R)
+
+
+def test_key_mask_matches_isin_on_shuffled_rows():
+    from seqnet.train.truth import key_mask
+
+    rng = np.random.default_rng(3)
+    lists = [sorted(set(rng.integers(0, 25, rng.integers(0, 6)).tolist())) for _ in range(40)]
+    keys, rows = positive_keys(Positives.from_lists(lists), 25), torch.as_tensor(rng.permutation(40)[:17])
+    wanted = rows[:, None] * 25 + torch.arange(25)[None, :]
+    np.testing.assert_array_equal(key_mask(keys, rows, 25).numpy(), torch.isin(wanted, keys).numpy())
