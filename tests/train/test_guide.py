@@ -90,7 +90,7 @@ def test_training_stops_after_stop_inactive_epochs_without_an_active_triplet(syn
         return {"loss": 0.0, "queries": float(src.n_queries), "skipped": 0.0, "triplets": 0.0, "active": 0.0}
 
     monkeypatch.setattr(loop, "train_epoch", no_triplets)
-    caplog.set_level(logging.INFO, logger="seqnet")
+    caplog.set_level(logging.DEBUG, logger="seqnet")  # the end line is DEBUG (seqnet train prints the summary)
     run = train(synth_dataset, FAST.replace(epochs=10, stop_inactive=3), tmp_path / "r")
     assert run.epoch == 3 and (tmp_path / "r" / "best.pt").exists()
     said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
@@ -150,3 +150,32 @@ def measured_rate_cpu() -> float:
     from seqnet.train.guide import measured_rate
 
     return measured_rate(64, 64, "cpu", repeats=1, min_seconds=0.005)
+
+
+def test_the_memory_estimate_caps_the_batch_at_the_training_queries(synth_dataset, monkeypatch):
+    """--batch-size above the training queries makes the same batches: the estimate, the plan and the check
+    count at most those queries (dsA's 56 queries with --batch-size 4096 were 'needs about 28.4 GiB')."""
+    from seqnet.core.errors import ResourceError
+    from seqnet.train.config import train_bytes
+    from seqnet.train.guide import check_memory
+
+    conf = TrainConfig(seq_len=5, w=5, device="cpu")
+    n = len(synth_dataset.split("train").query)
+    huge, capped = conf.replace(batch_size=4096), conf.replace(batch_size=n)
+    assert train_bytes(huge, 256, 500, 900, n_train=n) == train_bytes(capped, 256, 500, 900, n_train=n)
+    assert train_bytes(huge, 256, 500, 900) > train_bytes(capped, 256, 500, 900)  # the frames cap the default
+    assert plan(huge, 256, 56, 196, 300, 2, 3, "cpu", rate=1e10).peak_bytes == \
+        plan(conf.replace(batch_size=56), 256, 56, 196, 300, 2, 3, "cpu", rate=1e10).peak_bytes
+    d = synth_dataset.query.dim
+    need = train_bytes(capped, d, len(synth_dataset.reference), len(synth_dataset.query), True, n)
+    monkeypatch.setenv("SEQNET_MEMORY_MB", str(2 * need / 2**20))
+    check_memory(huge, synth_dataset)  # fits: the batch is the train split's queries at most
+    with pytest.raises(ResourceError, match="needs about"):
+        check_memory(huge.replace(train_split="all", batch_size=10**6, out_dims=4096), synth_dataset)
+
+
+def test_the_plan_counts_weights_in_one_format():
+    """65568 and 131136 weights were '65568' and '0.1 M': every count is exact, with thousands separators."""
+    small, large = _plan(256, out=64, w=4), _plan(6400)
+    assert plan_text(small).startswith(f"training plan: S_5 (w=4, D 256->64): {256 * 64 * 4 + 64:,} weights, ")
+    assert f"): {6400 * 6400 * 3 + 6400:,} weights, " in plan_text(large) and "122,886,400 weights" in plan_text(large)

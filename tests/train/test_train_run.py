@@ -133,21 +133,21 @@ def test_main_returns_the_run_directory_and_finds_the_dataset_when_resuming(smal
         main(FAST, None, tmp_path / "x")
 
 
-def test_logs_two_info_lines_and_one_debug_line_per_epoch(small, tmp_path, caplog):
+def test_logs_two_info_lines_and_debug_lines_per_epoch_and_at_the_end(small, tmp_path, caplog):
     caplog.set_level(logging.DEBUG, logger="seqnet")
     train(small, FAST, tmp_path / "r")
     mine = [r for r in caplog.records if r.module in ("loop", "run", "mining")]
     info = [r.getMessage() for r in mine if r.levelno == logging.INFO]
     debug = [r.getMessage() for r in mine if r.levelno == logging.DEBUG]
-    assert len(info) == 3, info  # the start, the plan (one block: seqnet.train.guide), the end
+    assert len(info) == 2, info  # the start, the plan (one block: seqnet.train.guide); the CLI prints the end
     assert info[0].startswith("training S_3 (w=2, D 8->8) on ") and "device cpu" in info[0]
     assert info[1].startswith("training plan: S_3") and info[1].count("\n") == 3  # 4 lines, no advice
-    assert info[2].startswith("trained S_3 for 2 epochs") and "best val R@1" in info[2]
-    assert [m.split(":")[0] for m in debug] == ["epoch 1/2", "epoch 2/2"]
+    assert [m.split(":")[0] for m in debug[:2]] == ["epoch 1/2", "epoch 2/2"]
+    assert len(debug) == 3 and debug[2].startswith("trained S_3 for 2 epochs") and "best val R@1" in debug[2]
 
 
 def test_early_stop_is_in_the_last_line(small, tmp_path, caplog):
-    caplog.set_level(logging.INFO, logger="seqnet")
+    caplog.set_level(logging.DEBUG, logger="seqnet")
     run = train(small, FAST.replace(lr=1e-12, epochs=10, patience=2), tmp_path / "p")
     assert run.epoch == 3
     last = [r.getMessage() for r in caplog.records if r.module == "loop"][-1]
@@ -203,3 +203,18 @@ def test_a_last_pt_without_its_training_state_is_a_clear_error(small, tmp_path, 
     assert cli_main(["train", "--dataset", str(data), "--resume", str(tmp_path / "r"), "--epochs", "3"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "lacks what resuming needs (neg_cache)" in err[0], err
+
+
+def test_an_epoch_without_an_optimiser_step_warns_nothing_of_torch(small, tmp_path, monkeypatch):
+    """No active triplet in the first epoch: the schedule still steps (exact resume), without torch's
+    'lr_scheduler.step() before optimizer.step()' UserWarning leaking to the user."""
+    import warnings
+
+    import seqnet.train.epoch as epoch_module
+
+    stats = dict.fromkeys(("queries", "skipped", "triplets", "active", "loss"), 0.0)
+    monkeypatch.setattr(epoch_module, "train_step", lambda *a, **k: dict(stats))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        run = train(small, FAST.replace(epochs=1, val_split="none"), tmp_path / "r")
+    assert run.epoch == 1 and run.scheduler.last_epoch == 1

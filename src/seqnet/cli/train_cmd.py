@@ -63,8 +63,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.add_argument("--seed", type=non_negative_int, help=f"random seed (default {_D.seed})")
     t = p.add_argument_group("triplets")
     t.add_argument("--pos-radius", type=positive_float, help="positives lie within this distance (default: the "
-                   "dataset's pos_radius, else its localisation radius)")
-    t.add_argument("--neg-radius", type=positive_float, help="negatives lie beyond this distance (default: the "
+                   "dataset's pos_radius, else its localisation radius; not used with explicit positives)")
+    t.add_argument("--neg-radius", type=positive_float, help="negatives lie beyond this distance (with explicit "
+                   "positives: from every positive of the query, between reference positions; default: the "
                    "dataset's neg_radius, else 4 x the positive radius)")
     t.add_argument("--n-negatives", type=positive_int, help=f"hard negatives per query (default {_D.n_negatives})")
     t.add_argument("--n-neg-sample", type=positive_int,

@@ -257,10 +257,13 @@ def stored_config(values: Any, where: str, error: ErrorType = ConfigError) -> di
     return out
 
 
-def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill: bool = False) -> int:
+def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill: bool = False,
+                n_train: int | None = None) -> int:
     """Estimated peak bytes of training ``conf`` on ``in_dims``-D descriptors with ``n_ref`` reference and
     ``n_query`` query frames (one process): the weights with their gradients and optimiser state, the
     mining cache, its blocks in flight, and one batch of windows (its activations, kept for the backward pass).
+    A batch holds at most the ``n_train`` training queries (default ``n_query``): ``--batch-size`` above them
+    costs nothing more.
 
     The mining cache holds one descriptor per reference window (per frame for the framewise losses: about
     as many), unless ``spill`` (training on the CPU) sends one over ``SEQNET_SPILL_MB`` to a temporary file
@@ -277,8 +280,9 @@ def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill
     ref_cache = 4 * n_ref * out
     if spill and ref_cache > limit("SPILL"):
         ref_cache = 0  # in a spill file, read back one column block at a time
-    mined = min(conf.cache_refresh or n_query, n_query)
+    n_train = n_query if n_train is None else min(n_train, n_query)
+    mined = min(conf.cache_refresh or n_train, n_train)
     query_cache = 4 * mined * per_window * out
     blocks = min(COL_BLOCK_BYTES, 4 * n_ref * per_window * out) + 4 * 4 * min(2**24, mined * n_ref)  # [B, R] x 4
-    batch = 3 * conf.batch_size * (2 + conf.n_negatives) * conf.window_len * max(in_dims, out) * conf.w
+    batch = 3 * min(conf.batch_size, n_train) * (2 + conf.n_negatives) * conf.window_len * max(in_dims, out) * conf.w
     return 4 * (copies * weights + batch) + ref_cache + query_cache + blocks

@@ -24,8 +24,11 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from ..core.devices import get_device
+from ..core.errors import DatasetError
 from ..core.lazy import lazy_module
-from ..core.memory import available_bytes, human_bytes
+from ..core.memory import available_bytes, check_fits, gib, human_bytes
+from ..data.traverse import Dataset
 from ..describe.pca import PAPER_PCA_DIM
 from .config import TrainConfig, train_bytes
 from .losses import LOSSES
@@ -135,7 +138,7 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
     copies = OPTIMIZER_COPIES.get(conf.optimizer, 2)
     checkpoint = 4 * weights * (2 + copies)  # best.pt: the weights; last.pt: the weights and the optimiser state
     spill = getattr(device, "type", str(device)) == "cpu"
-    peak = train_bytes(conf, in_dims, n_ref_frames or n_refs, n_query_frames or n_queries, spill)
+    peak = train_bytes(conf, in_dims, n_ref_frames or n_refs, n_query_frames or n_queries, spill, n_queries)
     return Plan(n_queries, n_refs, n_frames, in_dims, out, conf.seq_len, conf.w, epochs, weights, checkpoint, peak,
                 available_bytes(), epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
                 measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size)
@@ -173,8 +176,7 @@ def plan_text(p: Plan) -> str:
     """The block logged before training: the model, memory, time, checkpoints and the advice."""
     avail = f" of {human_bytes(p.available)} available" if p.available is not None else ""
     total = p.epoch_seconds * p.epochs
-    weights = f"{p.weights / 1e6:.1f} M" if p.weights >= 1e5 else f"{p.weights}"
-    lines = [f"training plan: S_{p.seq_len} (w={p.w}, D {p.in_dims}->{p.out_dims}): {weights} weights, "
+    lines = [f"training plan: S_{p.seq_len} (w={p.w}, D {p.in_dims}->{p.out_dims}): {p.weights:,} weights, "
              f"{p.n_queries} queries, {p.n_refs} reference windows, {p.n_frames} training frames",
              f"  peak memory  about {human_bytes(p.peak_bytes)}{avail}",
              f"  time         about {_duration(p.epoch_seconds)} per epoch on {p.device} (the device's measured "
@@ -226,3 +228,24 @@ def _duration(s: float) -> str:
     if s < 1:
         return f"{s * 1000:.0f} ms"
     return f"{s:.1f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"
+
+
+def _train_frames(dataset: Dataset, conf: TrainConfig) -> int:
+    """The query frames of the train split: at most that many training queries (a bad split fails later)."""
+    try:
+        return len(dataset.split(conf.train_split).query)
+    except DatasetError:
+        return len(dataset.query)
+
+
+def check_memory(conf: TrainConfig, dataset: Dataset) -> None:
+    """Refuse, before any work, a training run whose estimate (:func:`~seqnet.train.config.train_bytes`, a batch
+    of at most the train split's query frames) exceeds the available memory."""
+    d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
+    spill = get_device(conf.device).type == "cpu"  # the mining cache spills when large (one process)
+    check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill,
+                           _train_frames(dataset, conf)),
+               f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
+               f"{gib(4 * d * out * conf.w)})",
+               "a smaller --out-dims (e.g. 512), fewer dimensions when describing (--dim, PCA), a smaller --w "
+               "or --batch-size")

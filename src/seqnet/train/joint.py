@@ -151,9 +151,13 @@ def _train_roles(root: Path, stored: dict[str, dict[str, Any]], dataset: str | P
 
     if resuming and dataset is not None and recorded is not None and Path(dataset).resolve() != Path(recorded):
         logger.info("resuming %s on %s, not on the dataset it recorded (%s)", root, dataset, recorded)
-    out_dirs = {}
+    out_dirs, finished = {}, _finished_roles(root, changes) if resuming else {}
     for role in JOINT_ROLES:
         sub = root / role
+        if role in finished:
+            logger.info("%s is already trained to epoch %d of %d; left as it is", sub, finished[role], finished[role])
+            out_dirs[role] = sub
+            continue
         if resuming and ((sub / "last.pt").is_file() or (sub / "last.pt").is_symlink()):
             out_dirs[role] = main(resume_config(sub, **changes), dataset, sub, sub, allow_mismatch)
             continue
@@ -163,3 +167,24 @@ def _train_roles(root: Path, stored: dict[str, dict[str, Any]], dataset: str | P
                               "give --dataset DIR")
         out_dirs[role] = main(TrainConfig.from_dict({**stored[role], **changes}), data, sub, None, allow_mismatch)
     return out_dirs
+
+
+def _finished_roles(root: Path, changes: dict[str, object]) -> dict[str, int]:
+    """Resuming the joint run ``root``: the roles already trained to their epochs (the total, ``changes``'
+    or the stored one) and those epochs, left as they are; refused when that total is below a role's epochs
+    done, or when both roles are done (nothing would be trained)."""
+    from .run import check_epochs_left, read_resume
+
+    finished: dict[str, int] = {}
+    for role in JOINT_ROLES:
+        if not (root / role / "last.pt").is_file():
+            continue
+        payload = read_resume(root / role)
+        done, epochs = payload.get("epoch"), changes.get("epochs") or payload["config"].get("epochs")
+        if not isinstance(done, int) or not isinstance(epochs, int):
+            continue
+        if epochs < done or (epochs == done and len(finished) == len(JOINT_ROLES) - 1):
+            check_epochs_left(done, epochs, root / role)
+        if epochs == done:
+            finished[role] = done
+    return finished

@@ -22,23 +22,22 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..core.devices import get_device
 from ..core.errors import ConfigError, DatasetError, OutputError
 from ..core.lazy import lazy_module
 from ..core.log import logger
-from ..core.memory import check_fits, gib
 from ..core.provenance import check_same
 from ..data.io import load_dataset
 from ..data.traverse import Dataset
 from ..methods.checks import accepted_mismatch
 from ..security.locks import locked
-from .config import TrainConfig, train_bytes
+from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
-from .guide import inactive_epochs, inactive_message, plan, plan_text, val_warning
+from .guide import check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
 from .losses import LOSSES
 from .run import (
     Run,
+    check_epochs_left,
     finish_epoch,
     open_files,
     open_run,
@@ -49,6 +48,7 @@ from .run import (
 )
 from .rundir import RESTART, check_new, discard
 from .source import TripletSource, split_windows, triplet_source
+from .state import check_descriptors, check_digests, descriptor_digests
 
 torch = lazy_module("torch")
 
@@ -128,7 +128,8 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     stop = f"; early stop: no better val R@1 for {run.bad_epochs} epochs" if early else ""
     stop += f"; stopped: no active triplet for {inactive_epochs(run.history)} epochs" if inactive else ""
     n = run.epoch - first + 1
-    logger.info("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
+    # DEBUG: seqnet train prints the summary (cli/train_cmd.py), once
+    logger.debug("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
                 run.epoch, time.perf_counter() - t0, best, stop)
 
 
@@ -194,7 +195,8 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
     check_same(dataset.reference.provenance, dataset.query.provenance, "the reference descriptors",
                "the query descriptors", allow_mismatch or accepted_mismatch(dataset))
     with joined() as world, contextlib.ExitStack() as held:
-        conf, payload, path = world.rank0(lambda: _claim(held, dataset, conf, out_dir, resume, dataset_path))
+        conf, payload, path = world.rank0(lambda: _claim(held, dataset, conf, out_dir, resume, dataset_path,
+                                                         allow_mismatch))
         run, src, val_ds, device = world.agree(lambda: _start(dataset, conf, out_dir, payload, path, world))
         run.net = world.wrap(run.model)  # DistributedDataParallel when distributed
         world.rank0(lambda: open_files(run))
@@ -209,14 +211,21 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
 
 
 def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | None, out_dir: Path,
-           resume: bool | str | Path, dataset_path: str | Path | None) -> tuple[TrainConfig, dict | None, str | None]:
+           resume: bool | str | Path, dataset_path: str | Path | None,
+           allow_mismatch: bool = False) -> tuple[TrainConfig, dict | None, str | None]:
     """Rank 0: lock ``out_dir`` (a second writer of this run is refused), read the checkpoint to resume
-    or check that the directory is free; the run's configuration, checkpoint and dataset path."""
+    (its descriptors' provenance checked against the dataset's: a rebuilt dataset is refused unless
+    ``allow_mismatch``) or check that the directory is free; the run's configuration, checkpoint and dataset path."""
     held.enter_context(locked(out_dir))
     payload = None
     if resume:
         payload = read_resume(out_dir if resume is True else Path(resume))
+        check_descriptors(payload, dataset.reference.provenance, dataset.query.dim, out_dir, dataset.name,
+                          allow_mismatch)
+        if dataset_path is not None:  # the dataset given is that directory's: its recorded hashes
+            check_digests(payload, descriptor_digests(dataset_path), out_dir, dataset.name, allow_mismatch)
         conf = restored_config(payload, conf)
+        check_epochs_left(payload.get("epoch"), conf.epochs, out_dir)
         dataset_path = dataset_path or stored_dataset_path(payload)
         if RESTART in payload:  # no last.pt: nothing to resume, the run starts again with its configuration
             discard(out_dir, payload[RESTART], "starting it again from epoch 1 with its stored configuration")
@@ -224,19 +233,8 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
     else:
         conf = (conf or TrainConfig()).resolve(dataset)
         check_new(out_dir)
-    _check_memory(conf, dataset)
+    check_memory(conf, dataset)
     return conf, payload, str(dataset_path) if dataset_path is not None else None
-
-
-def _check_memory(conf: TrainConfig, dataset: Dataset) -> None:
-    """Refuse, before any work, a training run whose estimate exceeds the available memory."""
-    d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
-    spill = get_device(conf.device).type == "cpu"  # the mining cache spills when large (one process)
-    check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill),
-               f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
-               f"{gib(4 * d * out * conf.w)})",
-               "a smaller --out-dims (e.g. 512), fewer dimensions when describing (--dim, PCA), a smaller --w "
-               "or --batch-size")
 
 
 def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | None, dataset_path: str | None,
@@ -248,6 +246,7 @@ def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | N
                    n_refs=len(src.r_idx))
     run.world = world
     run.model.provenance = dataset.reference.provenance  # checkpoints record what the model reads
+    run.dataset_digests = descriptor_digests(dataset_path) if world.is_rank0 else None
     return run, src, val_ds, device
 
 

@@ -2,12 +2,14 @@
 
 For each training query (a window of the query traverse):
 
-* **positive**: among the reference windows within ``pos_radius`` (position distance), the
-  closest in descriptor space (descriptors cached by the current model);
+* **positive**: among the reference windows within ``pos_radius`` (position distance; or the
+  dataset's explicit positives), the closest in descriptor space (descriptors cached by the current model);
 * **negatives**: about ``n_sample`` reference windows drawn at random among those farther than
-  ``neg_radius``, plus the query's hard negatives of the previous round (NetVLAD's negative
-  cache); the ``n_neg`` closest of them in descriptor space are kept, and only those that violate
-  the margin (``d_neg < d_pos + margin``) make triplets. A query without any is skipped.
+  ``neg_radius`` (from the query; with explicit positives, from every positive of the query, between
+  reference positions: :func:`~seqnet.train.truth.pair_masks`), plus the query's hard negatives of the
+  previous round (NetVLAD's negative cache); the ``n_neg`` closest of them in descriptor space are
+  kept, and only those that violate the margin (``d_neg < d_pos + margin``) make triplets. A query
+  without any is skipped.
 
 Everything is one ``[B, R]`` distance matrix and masks: no loop per query or per negative. The
 reference side of the mining cache (:class:`ReferenceCache`) is spilled to a temporary file when it
@@ -195,7 +197,7 @@ def mine_batch(
         q_feat: ``[B, D']`` cached descriptors of the batch queries (``[B, L, D']`` for a framewise loss).
         r_feat: ``[R, D']`` cached descriptors of all training reference windows (``[R, L, D']``), or their
             :class:`ReferenceCache` (read in column blocks).
-        pos_mask, neg_mask: ``[B, R]`` from :func:`radius_masks`.
+        pos_mask, neg_mask: ``[B, R]`` from :func:`~seqnet.train.truth.pair_masks`.
         n_neg: negatives per query K; n_sample: random negatives drawn per query.
         margin: triplet margin (a negative is kept only if ``d_neg < d_pos + margin``).
         generator: CPU generator for the sampling.

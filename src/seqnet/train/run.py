@@ -21,12 +21,13 @@ import dataclasses
 import errno
 import logging
 import math
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .._version import __version__
-from ..core.errors import CheckpointError, ResourceError
+from ..core.errors import CheckpointError, ConfigError, ResourceError
 from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..security.dirs import remove_dead_temps
@@ -58,6 +59,7 @@ class Run:
     neg_cache: torch.Tensor  # [M, K] previous hard negatives per training query (-1 = none)
     out_dir: Path
     dataset_path: str | None = None
+    dataset_digests: dict[str, str] | None = None  # the descriptor files' recorded hashes (train.state)
     writer: Any = None
     epoch: int = 0
     best_score: float = -math.inf
@@ -142,6 +144,14 @@ def run_dataset_path(src: str | Path) -> str | None:
     return stored_dataset_path(read_resume(src))
 
 
+def check_epochs_left(done: Any, epochs: int, run: str | Path) -> None:
+    """Refuse to resume the run in ``run`` (trained to epoch ``done``; None: not known, nothing checked) with
+    ``epochs`` (the total, as when it started) not above the epochs it has done: nothing would be trained."""
+    if isinstance(done, int) and not isinstance(done, bool) and epochs <= done:
+        raise ConfigError(f"{run} is already trained to epoch {done}; --epochs {epochs} is the total number of "
+                          f"epochs (not more to run): give --epochs {done + 1} or more")
+
+
 def restored_config(payload: Mapping[str, Any], conf: TrainConfig | None) -> TrainConfig:
     """The stored configuration of the run in ``payload`` with the changes ``conf`` makes (None: none);
     only epochs, patience and device may differ (:meth:`TrainConfig.resumed`)."""
@@ -213,7 +223,9 @@ def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapp
     """Step the schedule, update best / patience, write ``best.pt`` (when improved) then ``last.pt`` and
     TensorBoard scalars (rank 0 only), log a debug line. Returns whether the epoch is the best so far."""
     lr = run.optimizer.param_groups[0]["lr"]
-    run.scheduler.step()
+    with warnings.catch_warnings():  # an epoch without an active triplet made no optimiser step: the schedule
+        warnings.filterwarnings("ignore", r"Detected call of `lr_scheduler\.step\(\)` before", UserWarning)
+        run.scheduler.step()  # still counts the epoch (the warning is torch's, about the call order)
     score = metrics.get("recall@1", math.nan)
     improved = math.isnan(score) or score > run.best_score  # no validation score: best.pt = last.pt
     run.epoch = epoch
@@ -223,7 +235,7 @@ def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapp
         run.bad_epochs += 1
     run.history.append({"epoch": epoch, "lr": lr, **stats, **metrics})
     fields = {"epoch": epoch, "best_score": run.best_score, "best_epoch": run.best_epoch, "metrics": dict(metrics),
-              "config": run.conf.to_dict(), "dataset_path": run.dataset_path}
+              "config": run.conf.to_dict(), "dataset_path": run.dataset_path, "dataset_digests": run.dataset_digests}
     if run.world.is_rank0:
         if improved:
             _save(run, "best.pt", fields)

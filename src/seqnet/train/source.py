@@ -124,7 +124,8 @@ def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, wh
     ``ref_pad``: reference windows widened by that many frames on either side (:func:`widen_windows`).
 
     Raises :class:`DatasetError` when a traverse has no full window, or when no query has both a
-    reference within ``conf.pos_radius`` and one beyond ``conf.neg_radius``.
+    positive (a reference within ``conf.pos_radius``, or an explicit one) and a negative (beyond
+    ``conf.neg_radius`` of the query, or of all its explicit positives: :func:`~seqnet.train.truth.pair_masks`).
     """
     q_items, q_idx = _full_windows(ds.query, seq_len, window, what)
     r_items, r_idx = widen_windows(ds.reference, *_full_windows(ds.reference, seq_len, window, what), ref_pad)
@@ -135,13 +136,20 @@ def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, wh
     positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
     keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius, positives)
     if not keep.any():
-        hint = f"check the {what} ranges of reference and query, or --pos-radius / --neg-radius"
         raise DatasetError(f"{ds.name}: none of {len(q_items)} {'training' if what == 'train' else what} queries has "
-                           f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius="
-                           f"{conf.neg_radius:g} {ds.position_unit} (hint: {hint})")
+                           f"{_pair_words(conf, ds.position_unit, positives is not None, what)}")
     kept = positives.select(np.flatnonzero(keep), np.arange(len(r_items))) if positives is not None else None
     return SplitWindows(q_idx[keep], r_idx, q_pos[keep], r_pos, int((~keep).sum()), kept, q_items[keep],
                         sequence_bounds(ds.query, q_items[keep]))
+
+
+def _pair_words(conf: MiningConfig, unit: str, explicit: bool, what: str) -> str:
+    """What a query lacks when none has a positive and a negative (the end of the error), by radius or explicit."""
+    if explicit:
+        return (f"a positive and a reference farther than neg_radius={conf.neg_radius:g} {unit} from its positives "
+                f"(hint: check the {what} ranges of reference and query, the positives, or --neg-radius)")
+    return (f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius={conf.neg_radius:g} "
+            f"{unit} (hint: check the {what} ranges of reference and query, or --pos-radius / --neg-radius)")
 
 
 def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device,

@@ -7,7 +7,8 @@ Checked: the architecture against the weights (:func:`seqnet.sequence.checkpoint
 :func:`seqnet.train.run.read_resume`), the weights finite, the optimiser's settings and buffers (the fresh
 optimiser's types and the parameters' shapes), the scheduler's keys and types, the generator state (size and
 dtype), the negative cache (shape, integer dtype, indices of reference windows or -1), the counters and the
-history.
+history; and, before any of it (:func:`check_descriptors`, :func:`check_digests`), that the dataset's
+descriptors are made as those the run was trained on and, where seqnet recorded their hashes, are those files.
 """
 
 from __future__ import annotations
@@ -19,6 +20,9 @@ from typing import Any
 
 from ..core.errors import CheckpointError
 from ..core.lazy import lazy_module
+from ..core.log import logger
+from ..core.provenance import ProvenanceError, check_same
+from ..data.io import recorded_digests
 from ..security.limits import INDEX_MAX, number
 
 torch = lazy_module("torch")
@@ -97,6 +101,52 @@ def _counters(payload: Mapping[str, Any], st: Mapping[str, Any], path: Path) -> 
     if not isinstance(history, list) or not all(isinstance(h, Mapping) for h in history):
         raise CheckpointError(f"{path}: the history must be a list of per-epoch records, got {_short(history)}")
     return epoch, float(best), best_epoch, bad
+
+
+def check_descriptors(payload: Mapping[str, Any], provenance: dict | None, dim: int, run: Path, dataset: str,
+                      allow: bool = False) -> None:
+    """The run in ``run`` (its ``last.pt``, ``payload``) resumed on the descriptors of the dataset named
+    ``dataset``, of ``dim`` made as ``provenance``:
+    a :class:`~seqnet.core.provenance.ProvenanceError` naming the difference when the run's descriptors were
+    made otherwise (a dataset rebuilt since; ``allow``: a warning). Another D is left to the architecture
+    check (:func:`restore`), which says the checkpoint does not fit."""
+    model = payload.get("model")
+    if isinstance(model, Mapping) and model.get("in_dims") == dim:
+        check_same(payload.get("provenance"), provenance, f"the descriptors the run in {run} was trained on",
+                   f"the descriptors of dataset {dataset!r}", allow)
+
+
+def descriptor_digests(path: str | Path | None) -> dict[str, str] | None:
+    """The hashes seqnet recorded for the descriptor files of the dataset directory ``path`` (``checksums`` of its
+    ``dataset.json``): ``{"reference/descriptors.npy": "SIZE:HASH", ...}``; None when none are recorded."""
+    if path is None:
+        return None
+    out = {name: f"{entry.get('size')}:{entry.get('full') or entry.get('sample')}"
+           for name, entry in recorded_digests(path).items()
+           if isinstance(name, str) and isinstance(entry, Mapping)
+           and name.rsplit("/", 1)[-1].startswith("descriptors.")}
+    return out or None
+
+
+def check_digests(payload: Mapping[str, Any], now: Mapping[str, str] | None, run: Path, dataset: str,
+                  allow: bool = False) -> None:
+    """The run in ``run`` (its ``last.pt``, ``payload``, recording ``dataset_digests``) resumed on dataset
+    ``dataset`` whose descriptor files hash to ``now`` (:func:`descriptor_digests`): a
+    :class:`~seqnet.core.provenance.ProvenanceError` naming the files that changed (``allow``: a warning);
+    nothing is checked when either side recorded no hashes."""
+    then = payload.get("dataset_digests")
+    if not isinstance(then, Mapping) or not now:
+        return
+    changed = sorted(str(k) for k in set(then) | set(now) if then.get(k) != now.get(k))
+    if not changed:
+        return
+    msg = (f"the descriptors of dataset {dataset!r} are not those the run in {run} was trained on "
+           f"({', '.join(changed[:3])} changed: the dataset was rebuilt since)")
+    if allow:
+        logger.warning("%s; going on as asked (--allow-mismatch)", msg)
+        return
+    raise ProvenanceError(f"{msg}; hint: resume on the dataset the run was trained on, or start a new run "
+                          "(--allow-mismatch if you know they are comparable)")
 
 
 def check_state(payload: Mapping[str, Any], path: Path) -> Mapping[str, Any]:

@@ -2,9 +2,11 @@
 
 With positions only, a reference window is a positive within ``pos_radius`` of the query and a
 negative beyond ``neg_radius`` (NetVLAD / SeqNet). With explicit positives (:mod:`seqnet.data.positives`),
-the positives are the listed references and the negatives those beyond ``neg_radius`` that are not
-listed, nor soft positives (VPR_Tutorial's GTsoft), so a place the lists know about is never taken
-for a negative.
+the positives are the listed references and the negatives the references farther than ``neg_radius``
+from every positive of the query, measured between reference positions (the query's own positions
+need not be comparable with the reference's: other counts, an offset), that are not soft positives
+either (VPR_Tutorial's GTsoft), so a place the lists know about, or its neighbours, is never taken for
+a negative.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ torch = lazy_module("torch")
 def queries_with_pairs(q_pos: np.ndarray, r_pos: np.ndarray, pos_radius: float, neg_radius: float,
                        positives: Positives | None = None) -> np.ndarray:
     """``[M]`` bool: whether query position ``q_pos [M, P]`` has at least one positive (a reference
-    position ``r_pos [R, P]`` within ``pos_radius``, or an explicit positive) and one negative."""
+    position ``r_pos [R, P]`` within ``pos_radius``, or an explicit positive) and one negative (beyond
+    ``neg_radius`` of the query, or with explicit positives of all its positives: :func:`pair_masks`)."""
     if positives is not None:
         keys, has_neg = positive_keys(positives, len(r_pos)), np.zeros(len(q_pos), dtype=bool)
         soft = nonnegative_keys(positives, len(r_pos))
@@ -66,13 +69,56 @@ def pair_masks(q_pos: torch.Tensor, r_pos: torch.Tensor, pos_radius: float, neg_
                soft_keys: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Positive and negative masks ``[B, R]`` of the training queries ``rows [B]`` (positions ``q_pos [B, P]``):
     by radius, or, with explicit positive ``keys`` (:func:`positive_keys`), the listed pairs and the
-    references beyond ``neg_radius`` that are neither listed nor soft positives (``soft_keys``)."""
-    pos, neg = radius_masks(q_pos, r_pos, pos_radius, neg_radius)
+    references farther than ``neg_radius`` from every listed one (:func:`near_listed`; ``q_pos`` is
+    then not used) that are not soft positives (``soft_keys``) either."""
     if keys is None:
-        return pos, neg
+        return radius_masks(q_pos, r_pos, pos_radius, neg_radius)
     n = r_pos.shape[0]
-    wanted = rows.to(keys.device)[:, None] * n + torch.arange(n, device=keys.device)[None, :]
-    listed = torch.isin(wanted, keys).to(pos.device)
+    listed = key_mask(keys, rows, n).to(r_pos.device)
+    neg = ~near_listed(listed, r_pos, neg_radius)
     if soft_keys is not None:
-        neg = neg & ~torch.isin(wanted, soft_keys.to(keys.device)).to(pos.device)
-    return listed, neg & ~listed
+        neg = neg & ~key_mask(soft_keys.to(keys.device), rows, n).to(r_pos.device)
+    return listed, neg
+
+
+def key_mask(keys: torch.Tensor, rows: torch.Tensor, n: int) -> torch.Tensor:
+    """``[B, n]`` bool: the pairs of sorted ``keys`` (:func:`positive_keys`) of the query rows ``rows [B]``: each
+    row's keys found by binary search, O(keys of the rows), not a test of every (row, reference) pair."""
+    rows = rows.to(keys.device)
+    lo, hi = torch.searchsorted(keys, rows * n), torch.searchsorted(keys, (rows + 1) * n)
+    counts = hi - lo
+    b = torch.repeat_interleave(torch.arange(len(rows), device=keys.device), counts)
+    first = torch.repeat_interleave(lo - (torch.cumsum(counts, 0) - counts), counts)  # keys[first + j]: j-th pair
+    k = keys[first + torch.arange(len(b), device=keys.device)]
+    mask = torch.zeros((len(rows), n), dtype=torch.bool, device=keys.device)
+    mask[b, k - rows[b] * n] = True
+    return mask
+
+
+def near_listed(listed: torch.Tensor, r_pos: torch.Tensor, radius: float, block_elems: int = 2**24) -> torch.Tensor:
+    """``[B, R]`` bool: whether reference r lies within ``radius`` of one of the references ``listed [B, R]``
+    for row b (reference-to-reference distances of ``r_pos [R, P]``); the listed pairs themselves included.
+
+    Each distinct listed reference's neighbours come from one k-d tree query (O(pairs x neighbours), not
+    O(pairs x R)), written in blocks of at most ``block_elems`` (row, reference) pairs."""
+    b, p = (t.cpu().numpy() for t in listed.nonzero(as_tuple=True))
+    near = torch.zeros(listed.shape, dtype=torch.bool, device=listed.device)
+    if b.size == 0:
+        return near
+    pts = r_pos.cpu().numpy().astype(np.float64)
+    pts = pts - pts[:1]  # UTM coordinates lose metres in float32; the tree works in float64 all the same
+    uniq, inv = np.unique(p, return_inverse=True)
+    balls = cKDTree(pts).query_ball_point(pts[uniq], radius)
+    lens = np.fromiter((len(x) for x in balls), dtype=np.int64, count=len(balls))
+    flat, starts = np.concatenate([np.asarray(x, dtype=np.int64) for x in balls]), np.cumsum(lens) - lens
+    cnt = lens[inv]  # neighbours of each listed pair's reference
+    ends = np.cumsum(cnt)
+    s = 0
+    while s < len(b):  # blocks of pairs writing at most block_elems entries (at least one pair)
+        e = max(s + 1, int(np.searchsorted(ends, ends[s] - cnt[s] + block_elems, side="right")))
+        c = cnt[s:e]
+        rows = np.repeat(b[s:e], c)
+        cols = flat[np.repeat(starts[inv[s:e]] - (np.cumsum(c) - c), c) + np.arange(c.sum())]
+        near[torch.as_tensor(rows, device=near.device), torch.as_tensor(cols, device=near.device)] = True
+        s = e
+    return near
