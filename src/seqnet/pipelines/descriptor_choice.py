@@ -27,6 +27,7 @@ from ..data.traverse import Dataset
 from ..describe import DescribeConfig
 from ..describe.lite import LITE_VARIANTS
 from ..eval.evaluate import EvalConfig, evaluate
+from ..train.guide import VAL_MIN
 
 PROXY_METHODS = ("raw+seqmatch", "single")  # the proxy's score, then its tie-break
 PROXY_FIT = 250  # images (of each fitting set) a candidate's state is fitted on for the proxy, evenly spaced
@@ -91,5 +92,12 @@ def choose_on_val(candidates: Mapping[str, DescribeConfig], score: Callable[[Des
               f"(single {scores[best]['single']:.3f})" + (f" against {others}" if others else "")
               + (f"; not tried: {', '.join(skipped)}" if skipped else ""))
     logger.info("%s", reason)
-    return candidates[best], {"chosen": best, "describe": candidates[best].to_dict(), "scores": scores,
-                              "skipped": skipped, "reason": reason}
+    record = {"chosen": best, "describe": candidates[best].to_dict(), "scores": scores, "skipped": skipped,
+              "reason": reason}
+    n = int(scores[best]["queries"])
+    if n < VAL_MIN and len(scores) > 1:
+        record["warning"] = (f"the descriptor was chosen on {n} val queries (one query moves R@1 by "
+                             f"{1 / max(n, 1):.2f}): the choice is mostly chance; about {VAL_MIN} or more are needed "
+                             "(a larger --split val=A:B, or --method to choose yourself)")
+        logger.warning("%s", record["warning"])
+    return candidates[best], record
