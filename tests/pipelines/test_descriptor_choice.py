@@ -9,7 +9,7 @@ from seqnet.pipelines.descriptor_choice import choose_on_val
 
 
 def test_a_choice_on_a_few_val_queries_is_warned(caplog):
-    cands = {"pixels": DescribeConfig(method="pixels"), "pixels8": DescribeConfig(method="pixels", patch=8)}
+    cands = {"pixels": DescribeConfig(method="pixels", patch=16), "pixels8": DescribeConfig(method="pixels", patch=8)}
 
     def score(queries):
         return lambda d: {"raw+seqmatch": 0.5 + 0.1 * (d.patch == 8), "single": 0.2, "queries": queries, "dim": 4,
