@@ -165,10 +165,11 @@ def print_results(res: dict) -> None:
     for name, r in res["methods"].items():
         counts.setdefault((r["queries"], r["no_full_window"], r["no_positive"], r.get("no_full_window_reason")),
                           []).append(name)
+    lacking = "a positive" if cfg.get("ground_truth") == "explicit positives" else "a reference within the radius"
     for (queries, no_window, no_positive, why), names in counts.items():
         who = "" if len(counts) == 1 else f"{', '.join(names)}: "
         print(f"{who}{queries} queries evaluated; {no_window} without a full window"
-              f"{f' ({why})' if why else ''}, {no_positive} without a reference within the radius ({fate})")
+              f"{f' ({why})' if why else ''}, {no_positive} without {lacking} ({fate})")
     print_calibration(res)
     selection = res.get("selection", {})
     for line in [c["reason"] for c in selection.get("hvpr", [])] + [selection.get("not_chosen") or ""]:
