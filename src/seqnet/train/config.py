@@ -275,7 +275,9 @@ def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill
 
     out = int(conf.out_dims or in_dims)
     weights = in_dims * out * conf.w + out
-    copies = 4 if conf.optimizer == "adam" else 3  # weights, gradients, Adam's two moments / SGD's momentum
+    # weights, gradients, Adam's two moments / SGD's momentum, and the step's temporaries: measured on 205 M
+    # weights, Adam's step peaks two weight-sized arrays above its state, SGD's one
+    copies = 6 if conf.optimizer == "adam" else 4
     per_window = conf.window_len if LOSSES[conf.loss].framewise else 1
     ref_cache = 4 * n_ref * out
     if spill and ref_cache > limit("SPILL"):

@@ -42,6 +42,10 @@ CHECKPOINT_ADVISED_BYTES = 500 * 2**20  # best.pt + last.pt above this: advise f
 # where the FLOPs take under 0.05 s
 STEP_SECONDS = 0.025
 OPTIMIZER_COPIES = {"sgd": 1, "adam": 2}  # state per weight kept in last.pt (momentum / the two moments)
+# bytes per second of writing a checkpoint (torch.save to a temporary, renamed): 2.3 GiB in 11.6 s measured on
+# this project's shared machine; each epoch writes last.pt (and best.pt when val improves)
+WRITE_BYTES_PER_S = 200e6
+UPDATE_PROBE = 1 << 22  # weights of the tensor an optimiser step is timed on (scaled to the model's weights)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,12 +78,15 @@ class Plan:
     rate: float
     device: str
     batch_size: int = 16
+    update_seconds: float = 0.0
 
     @property
     def epoch_seconds(self) -> float:
-        """Estimated seconds per epoch: the FLOPs at the measured rate, plus :data:`STEP_SECONDS` per batch."""
-        steps = math.ceil(self.n_queries / self.batch_size) + 1  # the batches and validation
-        return self.flops / self.rate + steps * STEP_SECONDS if self.rate > 0 else math.nan
+        """Estimated seconds per epoch: the FLOPs at the measured rate, :data:`STEP_SECONDS` and the optimiser's
+        update (``update_seconds``, measured) per batch, and writing the checkpoints (:data:`WRITE_BYTES_PER_S`)."""
+        steps = math.ceil(self.n_queries / self.batch_size)
+        extra = (steps + 1) * STEP_SECONDS + steps * self.update_seconds + self.checkpoint_bytes / WRITE_BYTES_PER_S
+        return self.flops / self.rate + extra if self.rate > 0 else math.nan
 
 
 def epoch_flops(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_val: int = 0) -> float:
@@ -128,6 +135,27 @@ def measured_rate(in_dims: int, out_dims: int, device: Any, repeats: int = 3, mi
     return 2.0 * rows * in_dims * cols / max(best, 1e-9)
 
 
+def measured_update(weights: int, optimizer: str, device: Any, repeats: int = 3) -> float:
+    """Seconds of one optimiser step (``adam``, else SGD with momentum) on ``weights`` weights: the best of
+    ``repeats`` steps on a tensor of at most :data:`UPDATE_PROBE` weights, after one warm-up step (it allocates
+    the state), scaled linearly (the update is a few passes over the weights, their gradient and its state)."""
+    n = max(1, min(weights, UPDATE_PROBE))
+    param = torch.nn.Parameter(torch.zeros(n, device=device))
+    param.grad = torch.randn(n, device=device)
+    opt = torch.optim.Adam([param], lr=1e-4) if optimizer == "adam" else torch.optim.SGD([param], lr=1e-4,
+                                                                                              momentum=0.9)
+    sync = torch.cuda.synchronize if getattr(device, "type", str(device)).startswith("cuda") else (lambda: None)
+    best = math.inf
+    for i in range(repeats + 1):
+        sync()
+        t0 = time.perf_counter()
+        opt.step()
+        sync()
+        if i:
+            best = min(best, time.perf_counter() - t0)
+    return best * weights / n
+
+
 def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames: int, n_val: int,
          epochs: int, device: Any, n_ref_frames: int | None = None, n_query_frames: int | None = None,
          rate: float | None = None) -> Plan:
@@ -141,7 +169,8 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
     peak = train_bytes(conf, in_dims, n_ref_frames or n_refs, n_query_frames or n_queries, spill, n_queries)
     return Plan(n_queries, n_refs, n_frames, in_dims, out, conf.seq_len, conf.w, epochs, weights, checkpoint, peak,
                 available_bytes(), epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
-                measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size)
+                measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size,
+                measured_update(weights, conf.optimizer, device) if rate is None else 0.0)
 
 
 def suggested_pca(p: Plan) -> int:
