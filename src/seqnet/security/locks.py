@@ -42,8 +42,15 @@ def locked(path: str | os.PathLike[str]) -> Iterator[Path]:
             _HELD[path] -= 1
         return
     lock = lock_file(path)
-    lock.parent.mkdir(parents=True, exist_ok=True)
-    fd = _acquire(lock, path, fcntl)
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        fd = _acquire(lock, path, fcntl)
+    except LockedError:
+        raise
+    except (OutputError, OSError) as e:  # the output's folder cannot hold a file: say which output
+        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+        raise OutputError(f"cannot write {path}: its lock file {lock.name} cannot be made in {lock.parent} "
+                          f"({why})") from e
     _HELD[path] = 1
     try:
         yield path
