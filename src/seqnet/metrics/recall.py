@@ -12,7 +12,7 @@ evaluated query counts, those without a correct reference as failures.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -62,6 +62,34 @@ def hits(retrieved: np.ndarray, q_pos: np.ndarray, r_pos: np.ndarray, radius: fl
     valid = retrieved >= 0
     d = np.linalg.norm(r_pos[np.where(valid, retrieved, 0)] - q_pos[:, None, :], axis=-1)
     return (d <= radius) & valid
+
+
+def near_pairs(rows: np.ndarray, refs: np.ndarray, r_pos: np.ndarray, radius: float,
+               block: int = 2**24) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Blocks of ``(row [n], reference [n])`` pairs: for each pair ``(rows[i], refs[i])``, every reference within
+    ``radius`` of reference ``refs[i]`` (distances between the reference positions ``r_pos [R, P]`` only),
+    itself included. One k-d tree query per distinct reference (O(pairs x neighbours), not O(pairs x R)), in
+    float64 about the first position (UTM coordinates lose metres in float32); each block holds at most
+    ``block`` pairs (at least one input pair's)."""
+    from scipy.spatial import cKDTree
+
+    rows, refs = np.asarray(rows, dtype=np.int64), np.asarray(refs, dtype=np.int64)
+    if rows.size == 0:
+        return
+    pts = np.asarray(r_pos, dtype=np.float64).reshape(len(r_pos), -1)
+    pts = pts - pts[:1]
+    uniq, inv = np.unique(refs, return_inverse=True)
+    balls = cKDTree(pts).query_ball_point(pts[uniq], radius)
+    lens = np.fromiter((len(x) for x in balls), dtype=np.int64, count=len(balls))
+    flat, starts = np.concatenate([np.asarray(x, dtype=np.int64) for x in balls]), np.cumsum(lens) - lens
+    cnt = lens[inv]  # neighbours of each pair's reference
+    ends = np.cumsum(cnt)
+    s = 0
+    while s < len(rows):
+        e = max(s + 1, int(np.searchsorted(ends, ends[s] - cnt[s] + block, side="right")))
+        c = cnt[s:e]
+        yield np.repeat(rows[s:e], c), flat[np.repeat(starts[inv[s:e]] - (np.cumsum(c) - c), c) + np.arange(c.sum())]
+        s = e
 
 
 @dataclasses.dataclass
@@ -119,20 +147,10 @@ class GroundTruth:
         traverses of different lengths, each numbered by frame). A query without a positive keeps none."""
         if self.positives is None:
             return GroundTruth(self.q_pos, self.r_pos, radius)
-        from scipy.spatial import cKDTree
-
-        from ..data.positives import Positives
-
         radius = check_radius(radius)
-        q, r = self.positives.pairs()
-        lists = cKDTree(self.r_pos).query_ball_point(self.r_pos, r=radius)  # [R] references near each reference
-        counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
-        near = np.fromiter((j for x in lists for j in x), dtype=np.int64, count=int(counts.sum()))
-        starts = np.concatenate([[0], np.cumsum(counts)])[r]  # [nnz] where each positive's neighbours begin
-        n = counts[r]
-        offsets = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
-        widened = Positives.from_pairs(np.repeat(q, n), near[np.repeat(starts, n) + offsets], len(self.q_pos))
-        return GroundTruth(self.q_pos, self.r_pos, radius, widened)
+        blocks = list(near_pairs(*self.positives.pairs(), self.r_pos, radius))
+        q, r = (np.concatenate(x) for x in zip(*blocks, strict=True)) if blocks else (np.zeros(0, np.int64),) * 2
+        return GroundTruth(self.q_pos, self.r_pos, radius, Positives.from_pairs(q, r, len(self.q_pos)))
 
     def hits(self, retrieved: np.ndarray) -> np.ndarray:
         """``[M, K]`` bool: whether ``retrieved[m, k]`` (a reference item, -1 = none) is correct."""

@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 
 from ..core.lazy import lazy_module
 from ..data.positives import Positives
+from ..metrics.recall import near_pairs
 
 torch = lazy_module("torch")
 
@@ -99,12 +100,13 @@ def near_listed(listed: torch.Tensor, r_pos: torch.Tensor, radius: float, block_
     """``[B, R]`` bool: whether reference r lies within ``radius`` of one of the references ``listed [B, R]``
     for row b (reference-to-reference distances of ``r_pos [R, P]``); the listed pairs themselves included.
 
-    Each distinct listed reference's neighbours come from one k-d tree query (O(pairs x neighbours), not
-    O(pairs x R)), written in blocks of at most ``block_elems`` (row, reference) pairs."""
+    The neighbours come from :func:`seqnet.metrics.recall.near_pairs` (one k-d tree query per distinct listed
+    reference), written in blocks of at most ``block_elems`` (row, reference) pairs."""
     b, p = (t.cpu().numpy() for t in listed.nonzero(as_tuple=True))
     near = torch.zeros(listed.shape, dtype=torch.bool, device=listed.device)
-    if b.size == 0:
-        return near
+    for rows, cols in near_pairs(b, p, r_pos.cpu().numpy(), radius, block_elems):
+        near[torch.as_tensor(rows, device=near.device), torch.as_tensor(cols, device=near.device)] = True
+    return near
     pts = r_pos.cpu().numpy().astype(np.float64)
     pts = pts - pts[:1]  # UTM coordinates lose metres in float32; the tree works in float64 all the same
     uniq, inv = np.unique(p, return_inverse=True)
