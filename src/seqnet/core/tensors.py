@@ -1,4 +1,5 @@
-"""Arrays as tensors and back: ``ArrayLike`` (numpy or torch), conversion, L2 normalisation."""
+"""Arrays as tensors and back: ``ArrayLike`` (numpy or torch), conversion, L2 normalisation; evenly spread
+indices (:func:`spread`)."""
 
 from __future__ import annotations
 
@@ -57,3 +58,8 @@ def l2_normalize(x: torch.Tensor, dim: int = -1, eps: float = 1e-12) -> torch.Te
     scale = x.abs().amax(dim=dim, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny if x.is_floating_point() else 1)
     y = x / scale
     return y / y.norm(dim=dim, keepdim=True).clamp_min(eps)
+
+
+def spread(n: int, k: int) -> np.ndarray:
+    """At most ``k`` of the indices ``0..n-1``, evenly spaced (the first and the last kept), ascending."""
+    return np.unique(np.linspace(0, n - 1, min(k, n)).astype(np.int64))

@@ -12,6 +12,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.log import logger
 from ..core.provenance import check_same
+from ..core.tensors import spread
 from ..data.traverse import Dataset
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .grammar import Method, parse_method
@@ -216,7 +217,7 @@ def route_direction(truth: Any, samples: int = 200) -> float | None:
     elif len(truth.r_pos) == 0:
         return None
     else:
-        items = np.unique(np.linspace(0, len(truth.q_pos) - 1, min(len(truth.q_pos), samples)).astype(np.int64))
+        items = spread(len(truth.q_pos), samples)
         near = np.array([np.square(truth.r_pos - truth.q_pos[i]).sum(axis=1).argmin() for i in items], np.int64)
         close = np.square(truth.r_pos[near] - truth.q_pos[items]).sum(axis=1) <= truth.radius**2
         q, r = items[close], near[close]
@@ -248,12 +249,7 @@ def trivial_truth(truth: Any, samples: int = 200) -> str | None:
     n_q, n_r = len(truth.q_pos), len(truth.r_pos)
     if n_q == 0 or n_r < 4:
         return None
-    items = np.unique(np.linspace(0, n_q - 1, min(n_q, samples)).astype(np.int64))
-    if truth.positives is not None:
-        counts = truth.positives.counts()[items]
-    else:
-        counts = np.array([int((np.square(truth.r_pos - truth.q_pos[i]).sum(axis=1) <= truth.radius**2).sum())
-                           for i in items])
+    counts = [len(truth.of(int(i))) for i in spread(n_q, samples)]  # the ground truth's own test
     share = float(np.median(counts)) / n_r
     if share < TRIVIAL_SHARE:
         return None

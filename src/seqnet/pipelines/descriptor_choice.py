@@ -19,10 +19,9 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TypeVar
 
-import numpy as np
-
 from ..core.errors import ConfigError
 from ..core.log import logger
+from ..core.tensors import spread
 from ..data.traverse import Dataset
 from ..describe import DescribeConfig
 from ..describe.lite import LITE_VARIANTS
@@ -50,9 +49,7 @@ def runnable(dconf: DescribeConfig) -> str | None:
 
 def evenly(items: Sequence[T], n: int = PROXY_FIT) -> list[T]:
     """At most ``n`` of ``items``, evenly spaced (the first and the last kept)."""
-    if len(items) <= n:
-        return list(items)
-    return [items[i] for i in np.unique(np.linspace(0, len(items) - 1, n).astype(int))]
+    return [items[i] for i in spread(len(items), n)]
 
 
 def proxy_scores(val: Dataset, seq_len: int, device: str = "auto", recall_denominator: str = "positives",

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ImageError, SeqnetError
+from ..core.tensors import spread
 from ..data.traverse import Traverse
 from ..metrics.recall import GroundTruth
 from ..security.inputs import inside, open_input
@@ -43,11 +44,6 @@ def item_distances(query: np.ndarray, ref: np.ndarray, side: int) -> tuple[np.nd
     a, b = np.asarray(query[qi], np.float64), np.asarray(ref[ri], np.float64)
     sq = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2 * a @ b.T
     return np.sqrt(np.maximum(sq, 0.0)), qi, ri
-
-
-def spread(n: int, side: int) -> np.ndarray:
-    """At most ``side`` evenly spaced indices of ``n``."""
-    return np.unique(np.linspace(0, n - 1, min(side, n)).astype(np.int64))
 
 
 def top_one(ev: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -127,10 +123,7 @@ def pick_examples(correct: np.ndarray, has_positive: np.ndarray, n: int) -> list
     n_wrong = min(len(wrong), max(n - min(len(right), n // 3), 0))
     n_right = min(len(right), n - n_wrong)
 
-    def spread(rows: np.ndarray, k: int) -> list[int]:
-        return [int(rows[i]) for i in np.unique(np.linspace(0, len(rows) - 1, k).astype(int))] if k else []
-
-    return spread(wrong, n_wrong) + spread(right, n_right)
+    return [int(wrong[i]) for i in spread(len(wrong), n_wrong)] + [int(right[i]) for i in spread(len(right), n_right)]
 
 
 def gallery_png(item: GalleryItem, query_root: Path, ref_root: Path, gap: int = 2,
