@@ -7,6 +7,8 @@ import json
 import numpy as np
 import pytest
 import torch
+from conftest import mutated, read_mutated
+from hypothesis import HealthCheck, given, settings
 
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import CheckpointError
@@ -158,3 +160,25 @@ def test_a_models_role_is_read_without_its_weights(tmp_path):
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="bad.pt"):
         model_role(tmp_path / "bad.pt")
+
+
+def _small_checkpoint() -> bytes:
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        return save_checkpoint(Path(d) / "m.pt", SeqNet(6, 4, 3, 2)).read_bytes()
+
+
+SMALL = _small_checkpoint()
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+@given(data=mutated(SMALL))
+def test_fuzzed_checkpoint_role_is_read_or_one_error(tmp_path_factory, data):
+    """``model_role`` reads a checkpoint mapped, not loaded: a damaged file is its role and L, or one
+    CheckpointError, as loading it is."""
+    from seqnet.sequence.checkpoints import model_role
+
+    got = read_mutated(model_role, tmp_path_factory.mktemp("fz") / "m.pt", data, CheckpointError)
+    assert got is None or (got[0] in ("s1", "seqnet") and isinstance(got[1], int) and got[1] >= 1)
