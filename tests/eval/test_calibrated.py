@@ -154,3 +154,60 @@ def test_a_calibration_split_too_short_for_the_windows_says_so(tmp_path, capsys)
                      "--device", "cpu"]) == 2
     err = capsys.readouterr().err
     assert "calibrating on 'val': seq_len=5 is longer than the query traverse" in err and "(3 frames)" in err
+
+
+def test_sequence_confidence_is_what_eval_reports_and_calibrates_on(easy_dir, tmp_path, capsys):
+    from seqnet.data.io import load_dataset
+    from seqnet.eval.calibrated import top1
+    from seqnet.eval.evaluate import EvalConfig, evaluate
+    from seqnet.metrics.consistency import QueryOrder, sequence_confidence
+
+    ds = load_dataset(easy_dir).split("test")
+    conf = EvalConfig(methods=("single", "raw+seqmatch"), seq_len=3, device="cpu")
+    plain, seq = evaluate(ds, conf), evaluate(ds, conf.replace(confidence="sequence"))
+    for name in ("single", "raw+seqmatch"):
+        view = plain.view(name)
+        np.testing.assert_array_equal(seq.retrieved[name], plain.retrieved[name])  # the answers are the same
+        bounds = ds.query.seq_bounds
+        order = QueryOrder(view.q_items, view.r_items, 3, q_seq=None if bounds is None else bounds[view.q_items, 0])
+        want = sequence_confidence(plain.confidence[name], plain.retrieved[name][:, 0], order)
+        np.testing.assert_allclose(seq.confidence[name], want)
+        np.testing.assert_array_equal(top1(seq, name)[0], seq.confidence[name])  # what calibration thresholds
+        assert seq.results["methods"][name]["auc"] >= plain.results["methods"][name]["auc"] - 0.02
+    out = tmp_path / "r.json"
+    assert cli_main(["eval", "--dataset", str(easy_dir), "--method", "raw+seqmatch", "--seq-len", "3", *TARGET,
+                     "--confidence", "sequence", "--json", str(out), "--per-query", str(tmp_path / "q.csv"),
+                     "--device", "cpu"]) == 0
+    res = json.loads(out.read_text())
+    assert res["config"]["confidence"] == "sequence"
+    rows = list(csv.DictReader((tmp_path / "q.csv").open()))
+    np.testing.assert_allclose([float(r["confidence"]) for r in rows], seq.confidence["raw+seqmatch"], atol=1e-6)
+    assert cli_main(["eval", "--dataset", str(easy_dir), "--confidence", "votes"]) == 2
+    assert "invalid choice" in capsys.readouterr().err
+    with pytest.raises(Exception, match="confidence"):
+        EvalConfig(confidence="votes")
+
+
+def test_sequence_confidence_from_a_matrix_and_a_map(synth_dir, tmp_path):
+    """The same answers give the same sequence confidence whether they come from descriptors, a distance matrix
+    (``--distances``) or a prebuilt map (``--index``)."""
+    from seqnet.data.io import load_dataset
+
+    ds = load_dataset(synth_dir)
+    q, r = np.asarray(ds.query.descriptors, np.float64), np.asarray(ds.reference.descriptors, np.float64)
+    np.save(tmp_path / "d.npy", np.sqrt(((q[:, None] - r[None]) ** 2).sum(-1)).astype(np.float32))
+    base = ["-q", "eval", "--dataset", str(synth_dir), "--method", "raw+seqmatch", "--seq-len", "3",
+            "--confidence", "sequence", "--device", "cpu"]
+    got = {}
+    for name, extra in (("descriptors", []), ("matrix", ["--distances", str(tmp_path / "d.npy")])):
+        assert cli_main([*base, *extra, "--per-query", str(tmp_path / f"{name}.csv")]) == 0
+        got[name] = [(r["references"].split(";")[0], float(r["confidence"]))
+                     for r in csv.DictReader((tmp_path / f"{name}.csv").open())]
+    assert [a for a, _ in got["matrix"]] == [a for a, _ in got["descriptors"]]
+    np.testing.assert_allclose([c for _, c in got["matrix"]], [c for _, c in got["descriptors"]], atol=2e-6)
+    assert cli_main(["-q", "index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank",
+                     "raw+seqmatch", "--seq-len", "3", "--out", str(tmp_path / "map"), "--device", "cpu"]) == 0
+    assert cli_main(["-q", "eval", "--dataset", str(synth_dir), "--index", str(tmp_path / "map"), "--confidence",
+                     "sequence", "--json", str(tmp_path / "m.json"), "--device", "cpu"]) == 0
+    res = json.loads((tmp_path / "m.json").read_text())
+    assert res["config"]["confidence"] == "sequence" and all(0 <= e["auc"] <= 1 for e in res["methods"].values())

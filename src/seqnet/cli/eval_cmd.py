@@ -10,6 +10,7 @@ from ..core.errors import ConfigError
 from ..core.log import ordinal
 from ..eval.config import EvalConfig
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
+from ..metrics.consistency import CONFIDENCES
 from ..report.guidance import format_notes, learned_below_baseline, unmatched
 from ..report.tables import format_table
 from ..search.knn import KNN_BACKENDS
@@ -71,6 +72,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=list(KNN_BACKENDS), help=f"k-NN backend (default {_D.backend})")
     add_recall_options(p)
     add_calibration_options(p)
+    p.add_argument("--confidence", choices=list(CONFIDENCES), help="what a top-1's confidence is (the per-query "
+                   "confidence, the PR curve, --target-precision): ratio, from the query's own scores (the "
+                   "localiser's); sequence, also whether the top-1s of the L queries on either side (the L before, "
+                   "with causal windows) agree with it: far better at telling wrong answers on a route "
+                   "(docs/online.md) (default ratio)")
     add_output_options(p)
     p.add_argument("--common-queries", action="store_true", help="evaluate every method on the sequence methods' "
                    "queries and references (one query set, as the paper's tables); by default single-frame methods "
@@ -122,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
                                 fuse_top_k=args.fuse_top_k, resample_every=args.resample_every,
                                 resample_side=args.resample_side, recall_denominator=args.recall_denominator,
                                 common_queries=args.common_queries, target_precision=args.target_precision,
-                                calibrate_split=args.calibrate_split, risk=args.risk)
+                                calibrate_split=args.calibrate_split, risk=args.risk, confidence=args.confidence)
     check_calibration_options(args)
     check_distances(args)
     check_route(args)

@@ -12,7 +12,7 @@ from ..core.log import logger
 from ..data.traverse import Dataset
 from ..metrics.calibration import apply_threshold, calibrate
 from .evaluation import Evaluation
-from .results import top1_confidence
+from .results import top1_correct
 
 
 def check_calibration_split(ds: Dataset, calibrate_split: str, split: str) -> None:
@@ -32,8 +32,8 @@ def check_calibration_split(ds: Dataset, calibrate_split: str, split: str) -> No
 def top1(ev: Evaluation, name: str) -> tuple[Any, Any, Any]:
     """``(confidence [M], correct [M], has_positive [M])`` of method ``name``'s top-1 answers in ``ev``."""
     view = ev.view(name)
-    conf, correct = top1_confidence(ev.scores[name], ev.retrieved[name], view.truth)
-    return conf, correct, view.truth.has_positive()
+    correct = top1_correct(view.truth.without_soft(ev.retrieved[name], ev.scores[name])[0], view.truth)
+    return ev.confidence[name], correct, view.truth.has_positive()
 
 
 def add_calibration(ev: Evaluation, cal_ev: Evaluation, target: float, risk: float, calibrate_split: str) -> None:

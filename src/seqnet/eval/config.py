@@ -13,6 +13,7 @@ from ..core.errors import ConfigError
 from ..data.resample import RESAMPLE_SIDES
 from ..methods.grammar import FUSE_WEIGHT, Method, default_methods, parse_method
 from ..metrics.calibration import RISK, check_target
+from ..metrics.consistency import CONFIDENCES
 from ..metrics.recall import RECALL_DENOMINATORS, check_radius
 from ..search.knn import KNN_BACKENDS
 from ..sequence.windows import WINDOW_MODES, Windows, WindowSettings
@@ -51,6 +52,9 @@ class EvalConfig(WindowSettings, Config):
         target_precision, calibrate_split, risk: with a target, :func:`main` also evaluates ``calibrate_split``
             and gives each method a confidence threshold calibrated there, whose precision is ≥ the target
             with probability ≥ 1 − ``risk`` (:mod:`seqnet.metrics.calibration`), applied to the evaluated split.
+        confidence: what a top-1's confidence is (:data:`seqnet.metrics.consistency.CONFIDENCES`): ``ratio``,
+            from the query's own scores (the localiser's); ``sequence``, also whether the L neighbouring queries'
+            top-1s agree with it (:mod:`seqnet.metrics.consistency`; the L before only, with causal windows).
     """
 
     methods: tuple[str, ...] | None = None
@@ -74,6 +78,7 @@ class EvalConfig(WindowSettings, Config):
     target_precision: float | None = None
     calibrate_split: str = "val"
     risk: float = RISK
+    confidence: str = "ratio"
 
     def __post_init__(self) -> None:
         self._set("allow_mismatch", check_bool("allow_mismatch", self.allow_mismatch))
@@ -88,6 +93,7 @@ class EvalConfig(WindowSettings, Config):
         check_choice("resample side", self.resample_side, RESAMPLE_SIDES)
         check_choice("recall denominator", self.recall_denominator, RECALL_DENOMINATORS)
         check_choice("window mode", self.window, WINDOW_MODES)
+        check_choice("confidence", self.confidence, CONFIDENCES)
         if self.radius is not None:
             self._set("radius", check_radius(self.radius))
         self._set("extra_radii", tuple(check_radius(r) for r in self.extra_radii))

@@ -25,7 +25,8 @@ from ..data.traverse import Dataset, Traverse, default_split
 from ..methods.checks import check_inputs, leakage, model_lengths, reversed_route, trivial_truth
 from ..methods.grammar import Method, parse_method
 from ..methods.protocol import Reference
-from ..methods.rank import rank
+from ..methods.rank import Query, rank
+from ..metrics.consistency import QueryOrder
 from ..metrics.recall import GroundTruth, ground_truth
 from ..reference.plain import PlainReference, runs_plain
 from ..reference.traverse import TraverseReference
@@ -157,13 +158,25 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
                                                          m.fuse_weight(conf.fuse_weight))
         timing["total"] = sum(timing.values())
         entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
-                                                   conf.extra_radii, conf.recall_denominator)
+                                                   conf.extra_radii, conf.recall_denominator,
+                                                   query_order(conf, query, ref.items, windows))
         entry.update(extra(m, retrieved[m.name]) if extra else {}, no_full_window=left_out, **why,
                      timing_ms={k: round(v, 3) for k, v in timing.items()}, method=info(m))
         results[m.name] = entry
         logger.debug("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
     return Evaluation({"methods": results}, retrieved, scores, truth, query.items_index, ref.items, confidence,
                       windows=windows)
+
+
+def query_order(conf: EvalConfig, query: Query, r_items: np.ndarray, windows: Windows) -> QueryOrder | None:
+    """Where the evaluated items lie, for the sequence confidence (``conf.confidence == "sequence"``; else None):
+    neighbours within L query frames (the L before with causal windows), in the query's own sequence."""
+    if conf.confidence != "sequence":
+        return None
+    q_items = np.asarray(query.items_index)
+    bounds = query.seq_bounds
+    return QueryOrder(q_items, np.asarray(r_items), conf.seq_len or windows.seq_len, windows.mode == "causal",
+                      None if bounds is None else np.asarray(bounds)[q_items, 0])
 
 
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, OutputError
+from ..metrics.consistency import QueryOrder, sequence_confidence
 from ..metrics.precision_recall import (
     curve_points,
     pr_summary,
@@ -28,15 +29,16 @@ from .msls_predictions import MSLS_MARK, msls_predictions
 
 
 def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, ks: Sequence[int],
-                   extra_radii: Sequence[float] = (), denominator: str = "positives") -> tuple[dict[str, Any],
-                                                                                           np.ndarray]:
+                   extra_radii: Sequence[float] = (), denominator: str = "positives",
+                   order: QueryOrder | None = None) -> tuple[dict[str, Any], np.ndarray]:
     """The results entry of one method (Recall@K over the ``denominator`` queries, queries, AUC, R@100P, the
-    PR curve ``pr_curve`` (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (see
-    :mod:`seqnet.metrics.precision_recall`)."""
+    PR curve ``pr_curve`` (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (the
+    ratio confidence of :mod:`seqnet.metrics.precision_recall`; with ``order``, the sequence confidence of
+    :mod:`seqnet.metrics.consistency`)."""
     rec = recall(ranked, truth, ks, denominator)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"], recall_denominator=denominator)
-    confidence, correct = top1_confidence(scores, ranked, truth)
+    confidence, correct = top1_confidence(scores, ranked, truth, order)
     precision, rec, thresholds = precision_recall(confidence, correct, truth.has_positive())
     entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
                  confidence_for_precision=thresholds_for(precision, rec, thresholds))
@@ -46,15 +48,24 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     return entry, confidence
 
 
-def top1_confidence(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth) -> tuple[np.ndarray, np.ndarray]:
+def top1_confidence(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth,
+                    order: QueryOrder | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(confidence [M], correct [M])`` of each query's top-1 among its ranked ``scores`` / ``ranked [M, K]``:
     soft positives dropped first (neither true nor false positives in PR), confidence 0 when every retrieved was
-    one."""
+    one; with ``order`` (where the items lie in their traverses), the sequence confidence of that top-1."""
     pr_ranked, pr_scores = truth.without_soft(ranked, scores)  # soft positives: neither TP nor FP in PR
     confidence = ratio_confidence(pr_scores, pr_ranked, truth.r_pos, truth.radius)
     confidence[pr_ranked[:, 0] < 0 if ranked.shape[1] else slice(0)] = 0.0  # every retrieved was a soft match
-    correct = truth.hits(pr_ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
+    correct = top1_correct(pr_ranked, truth)
+    if order is not None:
+        top = pr_ranked[:, 0] if ranked.shape[1] else np.full(len(ranked), -1)
+        confidence = sequence_confidence(confidence, top, order)
     return confidence, correct
+
+
+def top1_correct(ranked: np.ndarray, truth: GroundTruth) -> np.ndarray:
+    """``[M]`` bool: each query's top-1 in ``ranked [M, K]`` (soft positives already dropped) is correct."""
+    return truth.hits(ranked[:, :1])[:, 0] if ranked.shape[1] else np.zeros(len(ranked), bool)
 
 
 def per_query_rows(ev: Any, top: int = 5) -> list[dict[str, Any]]:

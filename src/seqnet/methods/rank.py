@@ -27,11 +27,13 @@ Ranking = tuple[np.ndarray, np.ndarray, dict[str, float]]  # scores [M, k], item
 
 class Query(Protocol):
     """The query side: item descriptors ``items(name) [M, D1]``, frame descriptors ``frames(name) [Nq, D2]``,
-    each item's L_m-window start ``match_starts [M]`` and frame ``items_index [M]`` in them, and the time
-    spent on a set of them, each counted once (ms)."""
+    each item's L_m-window start ``match_starts [M]`` and frame ``items_index [M]`` in them, the frames'
+    sequence ranges ``seq_bounds [Nq, 2]`` (None: one sequence), and the time spent on a set of them, each
+    counted once (ms)."""
 
     match_starts: np.ndarray
     items_index: np.ndarray
+    seq_bounds: np.ndarray | None
 
     def items(self, name: str) -> torch.Tensor: ...
 

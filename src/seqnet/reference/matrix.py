@@ -57,6 +57,7 @@ class MatrixQuery:
         if len(self.side.items) == 0:
             raise ConfigError(f"no query frame has a full window of seq_len={windows.seq_len}; use a shorter --seq-len")
         self.match_starts, self.items_index, self.n = self.side.match_starts, self.side.items, n
+        self.seq_bounds = seq_bounds
 
     def items(self, name: str) -> np.ndarray:
         return frame_rows(self.n)[self.side.items]
