@@ -30,6 +30,7 @@ from .._version import __version__
 from ..core.config import Config, check_int
 from ..data.traverse import Dataset
 from ..methods.grammar import parse_method
+from ..metrics.consistency import CONFIDENCES
 from ..metrics.recall import recall_curve
 from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
@@ -156,11 +157,20 @@ def gallery_cell(item: GalleryItem, png: bytes | None, note: str = "") -> str:
     return f'<div class="ex {"ok" if item.correct else "bad"}" style="width:300px">{image}{text}</div>'
 
 
+CONFIDENCE_NOTES = {
+    "ratio": "Confidence of a top-1: the ratio test against the best other place (seqnet.metrics.precision_recall).",
+    "sequence": "Confidence of a top-1: how many of the L queries on either side have a top-1 in line with it, "
+                "ties broken by the ratio test against the best other place (seqnet.metrics.consistency).",
+}
+
+
 def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
     """The report sections of one :class:`~seqnet.eval.evaluate.Evaluation` of the dataset ``ds`` (the
     evaluated split: its traverses give the descriptors and image names)."""
     curves = {m: recall_curve(r, ev.view(m).truth, conf.k_max) for m, r in ev.retrieved.items()}
-    pr = pr_figure(ev.results["methods"], "precision–recall (ratio confidence)")
+    kind = ev.results.get("config", {}).get("confidence")
+    kind = kind if kind in CONFIDENCES else "ratio"
+    pr = pr_figure(ev.results["methods"], f"precision–recall ({kind} confidence)")
     return [
         summary_section(ev, conf),
         results_section(ev),
@@ -170,8 +180,7 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
         Section("recall", "Recall@K", png_tag(figure_png(recall_figure(curves, "Recall@K")), "Recall@K curves")),
         Section("pr", "Precision–recall", png_tag(figure_png(pr),
                                                    "precision-recall curves")
-                + "<p>Confidence of a top-1: the ratio test against the best other place "
-                "(seqnet.metrics.precision_recall).</p>"),
+                + f"<p>{CONFIDENCE_NOTES[kind]}</p>"),
         Section("matrix", "Distance matrix", png_tag(figure_png(matrix_figure(ev, ds.query, ds.reference,
                                                                               conf.matrix_side)), "distance matrix")
                 + f"<p>{matrix_note(ev)}</p>"),
