@@ -213,3 +213,32 @@ def test_sequence_confidence_from_a_matrix_and_a_map(synth_dir, tmp_path):
                      "sequence", "--json", str(tmp_path / "m.json"), "--device", "cpu"]) == 0
     res = json.loads((tmp_path / "m.json").read_text())
     assert res["config"]["confidence"] == "sequence" and all(0 <= e["auc"] <= 1 for e in res["methods"].values())
+
+
+def test_one_retrieved_reference_gives_no_confidence(synth_dir, tmp_path, capsys):
+    """With --ks 1 a k-NN top-1 has no other place to be compared with: no PR summary (not a confidence of 1 for
+    every query), a warning, and --target-precision refused."""
+    out = tmp_path / "r.json"
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "single,raw+seqmatch,hvpr-delta:raw+seqmatch",
+                     "--seq-len", "3", "--ks", "1", "--json", str(out), "--out", str(tmp_path / "o"), "--report",
+                     "--device", "cpu"]) == 0
+    assert "retrieved one reference per query" in capsys.readouterr().err
+    res = json.loads(out.read_text())
+    for name in ("single", "raw+seqmatch"):
+        e = res["methods"][name]
+        assert e["auc"] is None and e["recall@100p"] is None and e["pr_curve"]["recall"] == []
+        assert set(e["confidence_for_precision"].values()) == {None}
+    assert res["methods"]["hvpr-delta:raw+seqmatch"]["auc"] is not None  # its shortlist is retrieved: K ≥ 2
+    assert any("one reference per query" in w for w in res["warnings"])
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "single", "--ks", "1", "--target-precision",
+                     "0.9", "--device", "cpu"]) == 2
+    assert "needs a K of 2 or more" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra", [[], ["--window", "causal"], ["--seq-len", "1"]])
+def test_sequence_confidence_of_model_free_single_frame_methods(synth_dir, tmp_path, extra):
+    """The numpy path (single-frame, model-free methods) has the query's sequence bounds too."""
+    out = tmp_path / "r.json"
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "single", "--confidence", "sequence", *extra,
+                     "--json", str(out), "--device", "cpu"]) == 0
+    assert json.loads(out.read_text())["methods"]["single"]["auc"] is not None

@@ -24,17 +24,37 @@ def naive_step(q, t, seq, answered, span):
     return float(np.median(near)) if near else float(v0)
 
 
-def naive_confidence(ratio, top, order, step):
+def naive_pairs(q, seq, answered, span):
+    return sum(1 for i in range(len(q)) for j in range(len(q))
+               if seq[i] == seq[j] and answered[i] and answered[j] and 0 < q[j] - q[i] <= span)
+
+
+def naive_steps(order, top):
+    """Each query's step: its sequence's own (with ≥ 2 span pairs of answers), else all sequences' together."""
+    seq = np.zeros(len(top), int) if order.q_seq is None else order.q_seq
+    t = np.where(top >= 0, order.r_frames[top.clip(0)], 0)
+    pooled = naive_step(order.q_frames, t, seq, top >= 0, order.span)
+    out = np.full(len(top), pooled)
+    for s in set(seq.tolist()):
+        mine = seq == s
+        if len(set(seq.tolist())) > 1 and naive_pairs(order.q_frames[mine], seq[mine], (top >= 0)[mine],
+                                                      order.span) >= 2 * order.span:
+            out[mine] = naive_step(order.q_frames[mine], t[mine], seq[mine], (top >= 0)[mine], order.span)
+    return out
+
+
+def naive_confidence(ratio, top, order):
     out = []
     offsets = list(range(-order.span, 0)) + ([] if order.causal else list(range(1, order.span + 1)))
     seq = np.zeros(len(top), int) if order.q_seq is None else order.q_seq
+    steps = naive_steps(order, top)
     for i in range(len(top)):
-        agree = 0
+        agree, step = 0, steps[i]
         for d in offsets:
             for j in range(len(top)):
                 if seq[j] == seq[i] and order.q_frames[j] == order.q_frames[i] + d and top[i] >= 0 and top[j] >= 0:
                     dt = order.r_frames[top[j]] - order.r_frames[top[i]]
-                    agree += abs(dt - step * d) <= max(1.0, abs(step))
+                    agree += abs(step) * order.span >= 1 and abs(dt - step * d) <= max(1.0, abs(step))
         out.append((agree + ratio[i]) / (len(offsets) + 1))
     return np.clip(out, 0, 1)
 
@@ -58,12 +78,8 @@ def cases(draw):
 @settings(max_examples=150, deadline=None)
 def test_sequence_confidence_vs_loop(case):
     ratio, top, order = case
-    seq = np.zeros(len(top), int) if order.q_seq is None else order.q_seq
-    t = np.where(top >= 0, order.r_frames[top.clip(0)], 0)
-    by = np.lexsort((order.q_frames, seq))
-    step = naive_step(order.q_frames[by], t[by], seq[by], (top >= 0)[by], order.span)
     got = sequence_confidence(ratio, top, order)
-    np.testing.assert_allclose(got, naive_confidence(ratio, top, order, step), atol=1e-12)
+    np.testing.assert_allclose(got, naive_confidence(ratio, top, order), atol=1e-12)
     assert ((got >= 0) & (got <= 1)).all()
 
 
@@ -102,3 +118,14 @@ def test_sequences_and_unanswered_queries():
     assert conf[3] == 0.0 and conf[0] == pytest.approx(3 / 11)
     assert sequence_confidence(np.zeros(0), np.zeros(0, int), QueryOrder(q[:0], np.arange(3), span=2)).shape == (0,)
     assert map_step(q[:1], top[:1], seq[:1], np.ones(1, bool), 3) == 1.0  # no pair: the equal-sampling step
+
+
+def test_a_stuck_matcher_gets_no_agreement_and_each_sequence_its_own_step():
+    q = np.arange(60)
+    ratio = np.linspace(0, 1, 60)
+    stuck = sequence_confidence(ratio, np.full(60, 5), QueryOrder(q, np.arange(80), span=5))
+    np.testing.assert_allclose(stuck, ratio / 11)  # every answer the same reference: nothing moves, no witness
+    seq = np.array([0] * 30 + [1] * 30)
+    top = np.r_[np.arange(30) + 10, 70 - np.arange(30)]  # the second sequence driven the other way
+    conf = sequence_confidence(np.zeros(60), top, QueryOrder(q, np.arange(80), span=5, q_seq=seq))
+    assert conf[15] == pytest.approx(10 / 11) and conf[45] == pytest.approx(10 / 11)

@@ -179,6 +179,17 @@ def query_order(conf: EvalConfig, query: Query, r_items: np.ndarray, windows: Wi
                       None if bounds is None else np.asarray(bounds)[q_items, 0])
 
 
+def one_retrieved(ev: Evaluation) -> str | None:
+    """What to say when some methods retrieved one reference per query (``--ks 1``): their confidence cannot
+    compare the top-1 with another place, so their PR entries are empty."""
+    names = [n for n, r in ev.retrieved.items() if r.shape[1] < 2]
+    if not names:
+        return None
+    return (f"{', '.join(names)} retrieved one reference per query (the largest K of --ks is 1): the confidence "
+            "compares the top-1 with the best other place retrieved, so no PR curve, AUC, R@100P or "
+            "confidence_for_precision is given for them; add a larger K (e.g. --ks 1,20)")
+
+
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
          per_query: str | Path | None = None, report: Any = None, figures: bool = False, overwrite: bool = False,
@@ -211,6 +222,9 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     conf, prepared = prepare(ds, split, loaded, conf) if prepare is not None else (conf, None)
     cal = None
     if conf.target_precision is not None:  # first: a calibration split that cannot serve fails before any work
+        if max(conf.ks) < 2:
+            raise ConfigError(f"--target-precision needs a K of 2 or more in --ks (got {max(conf.ks)}): the "
+                              "confidence compares the top-1 with the best other place retrieved; e.g. --ks 1,20")
         check_calibration_split(ds, conf.calibrate_split, split)
         try:
             cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
@@ -221,7 +235,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
-    for said in (reversed_route(ev.truth, ev.results["methods"]), trivial_truth(ev.truth)):
+    for said in (reversed_route(ev.truth, ev.results["methods"]), trivial_truth(ev.truth), one_retrieved(ev)):
         if said:
             logger.warning("%s", said)
             ev.results["warnings"] = [*ev.results.get("warnings", []), said]

@@ -34,14 +34,18 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     """The results entry of one method (Recall@K over the ``denominator`` queries, queries, AUC, R@100P, the
     PR curve ``pr_curve`` (at most 200 of its points), extra radii) and its ``[M]`` per-query confidence (the
     ratio confidence of :mod:`seqnet.metrics.precision_recall`; with ``order``, the sequence confidence of
-    :mod:`seqnet.metrics.consistency`)."""
+    :mod:`seqnet.metrics.consistency`). With one reference retrieved per query (``--ks 1``) the confidence has no
+    other place to compare with: the PR entries are left empty (AUC and R@100P None, no thresholds)."""
     rec = recall(ranked, truth, ks, denominator)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"], recall_denominator=denominator)
     confidence, correct = top1_confidence(scores, ranked, truth, order)
-    precision, rec, thresholds = precision_recall(confidence, correct, truth.has_positive())
+    scored = slice(None) if ranked.shape[1] >= 2 else slice(0)  # one retrieved: no other place to compare with
+    precision, rec, thresholds = precision_recall(confidence[scored], correct[scored], truth.has_positive())
     entry.update(pr_summary(precision, rec), pr_curve=curve_points(precision, rec),
                  confidence_for_precision=thresholds_for(precision, rec, thresholds))
+    if not len(precision):  # nothing to summarise: null in results.json (NaN is not JSON)
+        entry.update({"auc": None, "recall@100p": None})
     if extra_radii:
         entry["radii"] = {str(r): recall(ranked, truth.within(r), ks, denominator)
                           for r in extra_radii}

@@ -10,14 +10,17 @@ is usually alone. The *sequence confidence* of query ``i`` counts its neighbours
     | (t_j − t_i) − v · (q_j − q_i) |  ≤  max(1, |v|)          (reference frames)
 
 where ``v`` is the step of the map per query frame (1 at equal sampling, −1 on a route driven the other way): the
-one on which the most pairs of neighbouring answers agree (:func:`map_step`; a wrong answer agrees with nothing
-in particular, so even a majority of wrong answers leaves it where the right ones put it), and the tolerance is
-one query step (one reference frame when the map is sparser than the queries). Then
+one on which the most pairs of neighbouring answers agree, in each query sequence (:func:`sequence_steps`,
+:func:`map_step`; a wrong answer agrees with nothing in particular, so even a majority of wrong answers leaves it
+where the right ones put it), and the tolerance is one query step (one reference frame when the map is sparser
+than the queries). A sequence whose answers stand still (``|v| · span < 1``: a matcher stuck on one reference,
+or a map far sparser than the queries) has no neighbour counted: its confidence is the ratio's, scaled. Then
 
     confidence = (agreeing neighbours + ratio confidence) / (neighbours possible + 1)   in [0, 1]
 
-so the count decides and the ratio breaks ties. It assumes what SeqMatch assumes: a steady relative speed over
-the ``span``; reference frames are numbered in the map's recorded order.
+so the count decides and the ratio breaks ties. It assumes what SeqMatch assumes, a steady relative speed, here
+over each query sequence (stops or speed changes within one weaken it); reference frames are numbered in the
+map's recorded order.
 """
 
 from __future__ import annotations
@@ -71,17 +74,35 @@ def sequence_confidence(ratio: np.ndarray, top: np.ndarray, order: QueryOrder) -
         width = int(q.max() - min(q.min(), 0)) + 2 * order.span + 2  # frames (and their neighbours) per sequence
         key = rank * width + (q - min(q.min(), 0) + order.span)  # one integer per (sequence, frame), sortable
         by = np.argsort(key, kind="stable")
-        step = map_step(q[by], t[by], rank[by], answered[by], order.span)
-        tol = max(1.0, abs(step))
+        step = sequence_steps(q[by], t[by], rank[by], answered[by], order.span)[rank]  # [M] each query's step
+        tol = np.maximum(1.0, np.abs(step))
+        moving = np.abs(step) * order.span >= 1.0  # answers that stand still carry no evidence: not counted
         for d in offsets:
             pos = np.searchsorted(key[by], key + d).clip(0, m - 1)
             j = by[pos]  # the neighbour d frames away, when it was evaluated
-            ok = (key[j] == key + d) & answered & answered[j]
+            ok = (key[j] == key + d) & answered & answered[j] & moving
             agree += ok & (np.abs((t[j] - t) - step * d) <= tol)
     return np.clip((agree + ratio) / (len(offsets) + 1), 0.0, 1.0)
 
 
 STEPS = np.round(np.arange(-4.0, 4.0001, 0.05), 2)  # the map steps per query frame considered (reference frames)
+
+
+def sequence_steps(q: np.ndarray, t: np.ndarray, seq: np.ndarray, answered: np.ndarray, span: int) -> np.ndarray:
+    """``[S]`` the map's step per query frame of each query sequence ``0…S−1`` (:func:`map_step` of its own
+    answers; the step of all sequences together for one with fewer than ``2 span`` pairs of answers). Inputs as
+    :func:`map_step`'s, ``seq`` numbered ``0…S−1``."""
+    n_seq = int(seq.max()) + 1 if len(seq) else 0
+    pooled = map_step(q, t, seq, answered, span)
+    if n_seq <= 1:
+        return np.full(n_seq, pooled)
+    steps = np.full(n_seq, pooled)
+    bounds = np.searchsorted(seq, np.arange(n_seq + 1))  # sorted by sequence: each one's rows
+    for s in range(n_seq):
+        a, b = bounds[s], bounds[s + 1]
+        if len(_pairs(q[a:b], t[a:b], seq[a:b], answered[a:b], span)[0]) >= 2 * span:
+            steps[s] = map_step(q[a:b], t[a:b], seq[a:b], answered[a:b], span)
+    return steps
 
 
 def map_step(q: np.ndarray, t: np.ndarray, seq: np.ndarray, answered: np.ndarray, span: int) -> float:

@@ -55,6 +55,8 @@ def precision_recall(confidence: np.ndarray, correct: np.ndarray,
     Thresholds are the distinct confidences, descending; ties are accepted together.
     """
     conf = np.asarray(confidence, dtype=np.float64)
+    if not len(conf):
+        return np.zeros(0), np.zeros(0), np.zeros(0)
     order = np.argsort(-conf, kind="stable")
     tp = np.cumsum(np.asarray(correct, bool)[order])
     n = np.arange(1, len(conf) + 1)

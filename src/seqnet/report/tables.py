@@ -32,9 +32,14 @@ def results_rows(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int],
     for name, r in methods.items():
         total, n = r.get("timing_ms", {}).get("total", float("nan")), r.get("queries") or 0
         rows.append([name, *(_fmt(r.get(f"recall@{k}", float("nan"))) for k in ks),
-                     *(_fmt(float(r.get(key, float("nan")))) for _, key in extra), str(r.get("queries", "")),
+                     *(_fmt(float(_or_nan(r.get(key)))) for _, key in extra), str(r.get("queries", "")),
                      f"{total:.1f}", f"{total / n:.2f}" if n else "-"])
     return header, rows
+
+
+def _or_nan(v: Any) -> Any:
+    """``v``, or NaN for a missing or null entry (a method without a PR summary)."""
+    return float("nan") if v is None else v
 
 
 def denominator_label(methods: Mapping[str, Mapping[str, Any]]) -> str:
@@ -141,7 +146,7 @@ def pr_figure(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> Any:
     without a curve are left out."""
     from .styles import family_legend, method_styles
 
-    entries = [(n, r) for n, r in methods.items() if r.get("pr_curve")]
+    entries = [(n, r) for n, r in methods.items() if (r.get("pr_curve") or {}).get("recall")]
     styles = method_styles([n for n, _ in entries])
     fig, ax = new_figure(*figure_size(len(entries)))
     for name, r in entries:
@@ -154,7 +159,7 @@ def pr_figure(methods: Mapping[str, Mapping[str, Any]], title: str = "") -> Any:
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
     family_legend(ax, [n for n, _ in entries],
-                  {n: f"{n} (AUC {float(r.get('auc', float('nan'))):.2f})" for n, r in entries})
+                  {n: f"{n} (AUC {float(r.get('auc') or 0.0):.2f})" for n, r in entries})
     if title:
         ax.set_title(title, parse_math=False)  # a dataset's name is text, never mathtext (``$\\foo$`` fails)
     return fig

@@ -208,10 +208,12 @@ class WindowedItems:
     :class:`seqnet.sequence.npdescribed.PlainDescribed`): the items of ``n`` frames under ``windows``."""
 
     side: Side
+    seq_bounds: np.ndarray | None
 
     def _set_side(self, windows: Windows, n: int, seq_bounds: np.ndarray | None, what: str) -> None:
-        """:attr:`side` of ``n`` frames (``seq_bounds [n, 2]`` or None); :class:`ConfigError` when no item fits."""
-        self.side = windows.side(n, seq_bounds)
+        """:attr:`side` of ``n`` frames (``seq_bounds [n, 2]`` or None, kept as :attr:`seq_bounds`);
+        :class:`ConfigError` when no item fits."""
+        self.side, self.seq_bounds = windows.side(n, seq_bounds), seq_bounds
         if len(self.side.items) == 0:
             raise ConfigError(f"no {what} frame has a full window of seq_len={windows.seq_len} (L_m="
                               f"{windows.match_len}) inside its sequence; use a shorter --seq-len")
