@@ -179,7 +179,9 @@ def test_sequence_confidence_is_what_eval_reports_and_calibrates_on(easy_dir, tm
                      "--confidence", "sequence", "--json", str(out), "--per-query", str(tmp_path / "q.csv"),
                      "--out", str(tmp_path / "o"), "--report", "--device", "cpu"]) == 0
     page = (tmp_path / "o" / "report.html").read_text()
+    assert "Confidence thresholds (sequence confidence) calibrated on val" in page
     assert "seqnet.metrics.consistency" in page and "(seqnet.metrics.precision_recall)" not in page
+    assert "for precision >= 0.9 (risk 0.05, sequence confidence); on test:" in capsys.readouterr().out
     res = json.loads(out.read_text())
     assert res["config"]["confidence"] == "sequence"
     rows = list(csv.DictReader((tmp_path / "q.csv").open()))

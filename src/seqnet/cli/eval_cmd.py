@@ -209,7 +209,8 @@ def print_calibration(res: dict) -> None:
     if cfg.get("target_precision") is None:
         return
     print(f"calibrated on {shown(cfg['calibrate_split'])} for precision >= {cfg['target_precision']:g} "
-          f"(risk {cfg['risk']:g}); on {shown(cfg.get('split') or 'the evaluated split')}:")
+          f"(risk {cfg['risk']:g}{', sequence confidence' if cfg.get('confidence') == 'sequence' else ''}); on "
+          f"{shown(cfg.get('split') or 'the evaluated split')}:")
     for name, r in res["methods"].items():
         c = r.get("calibrated")
         if c is None:

@@ -78,7 +78,8 @@ def calibration_section(results: Any) -> list[Section]:
         rows.append([name, f"{cal['threshold']:.4g}", f"{c['accepted']} of {c['queries']}",
                      "–" if c.get("precision") is None else f"{c['precision']:.3f}", f"[{lo}, {hi}]",
                      f"{c.get('recall', 0.0):.3f}", met])
-    intro = (f"<p>Confidence thresholds calibrated on {html.escape(str(cfg.get('calibrate_split')))} for a "
+    kind = " (sequence confidence)" if cfg.get("confidence") == "sequence" else ""
+    intro = (f"<p>Confidence thresholds{kind} calibrated on {html.escape(str(cfg.get('calibrate_split')))} for a "
              f"precision of at least {target:g} (risk {cfg.get('risk')}), applied to the evaluated queries.</p>")
     warn = (f"<p><b>Below the target: {html.escape(', '.join(missed))}.</b> The promise is for queries drawn like "
             "the calibration split's; a gap beyond the interval means the evaluated queries differ from them (e.g. "
