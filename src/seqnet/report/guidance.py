@@ -176,8 +176,20 @@ def unmatched(results: Mapping[str, Any]) -> list[str]:
         if m.models() and not counterparts(name, methods):
             want = "single" if m.kind == "knn" and m.shortlist == "s1" else \
                 "smoothing or delta" if m.kind == "knn" else f"raw+{m.matcher}"
-            out.append(f"{name} (add {want} to see whether the model helps)")
+            out.append(f"{name} (add {want} to see whether the model helps{_below_single(name, m, methods)})")
     return out
+
+
+def _below_single(name: str, m: Any, methods: Mapping[str, Any]) -> str:
+    """``; it is already below ...`` when a learned sequence descriptor scores below the raw single frame."""
+    if m.kind != "knn" or m.shortlist == "s1" or "single" not in methods:
+        return ""
+    try:
+        mine, single = float(methods[name]["recall@1"]), float(methods["single"]["recall@1"])
+    except (KeyError, TypeError, ValueError):
+        return ""
+    return f"; it is already below the single-frame single: R@1 {mine:.3f} against {single:.3f}" if mine < single \
+        else ""
 
 
 def row_marks(notes: list[Note]) -> dict[str, str]:
