@@ -144,3 +144,16 @@ def test_only_the_models_the_method_uses_are_kept(synth_dir, map_models, tmp_pat
         if name == "paths":  # the S_L's L (4) is kept as the default L: the same windows as --seq-len 4
             assert record["config"]["seq_len"] == 4
     assert tracks["flags"] == tracks["paths"]
+
+
+def test_one_ranked_reference_is_refused(synth_dir, capsys):
+    """With one reference ranked per frame every confidence would be 1: refused, saying why."""
+    from seqnet.cli import main as cli_main
+    from seqnet.core.errors import ConfigError
+    from seqnet.localize.config import LocalizeConfig
+
+    with pytest.raises(ConfigError, match="it would be 1 for every frame"):
+        LocalizeConfig(k=1)
+    assert cli_main(["localize", "--dataset", str(synth_dir), "--method", "single", "--k", "1", "--out",
+                     str(synth_dir.parent / "t.csv")]) == 2
+    assert "give --k 2 or more" in capsys.readouterr().err

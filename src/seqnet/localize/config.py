@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.devices import check_device
+from ..core.errors import ConfigError
 from ..eval.evaluation import single_windows
 from ..matching.velocity import ANCHORS
 from ..methods.grammar import FUSE_WEIGHT
@@ -62,6 +63,9 @@ class LocalizeConfig(Config):
             if getattr(self, key) is not None:
                 self._set(key, check_int(key, getattr(self, key), 1))
         self._set("top_k", check_int("top_k", self.top_k, 1))
+        if isinstance(self.k, int) and not isinstance(self.k, bool) and self.k == 1:
+            raise ConfigError("k = 1 ranks one reference per frame: the confidence compares the top-1 with the best "
+                              "other place ranked, so it would be 1 for every frame; give --k 2 or more (default 20)")
         self._set("k", check_int("k", self.k, 1))
         check_choice("anchor", self.anchor, ANCHORS)
         if self.radius is not None:
