@@ -168,7 +168,7 @@ def test_gallery_never_reads_outside_its_image_folders(tmp_path, monkeypatch):
         assert len(notes) == 1 and "leads outside" in notes[0], notes
     assert not [p for p in opened if "secret" in p or "link" in p or "up/" in p], opened
 
-    monkeypatch.setattr(figures, "inside", lambda root, rel, *a: root / rel)  # a link swapped in after the check
+    monkeypatch.setattr(figures, "find_inside", lambda root, rel, *a: root / rel)  # a link swapped in after the check
     notes = []
     assert gallery_png(GalleryItem(0, ["ok.png"], ["link.png"], True, 0.5), imgs, imgs, notes=notes) is None
     assert "leads outside" in notes[0]

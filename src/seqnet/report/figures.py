@@ -21,7 +21,7 @@ from ..core.errors import ImageError, SeqnetError
 from ..core.tensors import spread
 from ..data.traverse import Traverse
 from ..metrics.recall import GroundTruth
-from ..security.inputs import inside, open_input
+from ..security.inputs import find_inside, open_input
 from ..sequence.windows import window_starts
 from .styles import TRUTH_COLOUR, family_legend, method_styles
 from .tables import new_figure
@@ -156,24 +156,29 @@ def gallery_png(item: GalleryItem, query_root: Path, ref_root: Path, gap: int = 
 
 def gallery_image(root: Path, name: str) -> np.ndarray:
     """The image ``name`` (read from the dataset: untrusted) in the folder ``root``, decoded by the describers'
-    reader (size limit before decoding): a name that is absolute, holds ``..`` or leads through a symbolic
-    link out of ``root`` is refused (:func:`seqnet.security.inputs.inside`), and so is a file whose opened
-    path is not in ``root`` (a link swapped in meanwhile); a FIFO or device is never opened for reading."""
-    from PIL import Image
-
-    from ..security.pictures import decode
+    reader (its formats only; size limit before decoding). ``name`` is found inside ``root`` by
+    :func:`seqnet.security.inputs.find_inside` (relative to ``root``, or as the path a list file gave, e.g.
+    ``../data/winter/img.png`` or an absolute one, when it lies in ``root``, or by its last parts, e.g.
+    ``img.png``); nothing outside ``root`` is opened: the file is opened at its resolved path without following
+    a link (``O_NOFOLLOW``), and refused when the opened file is not in ``root`` (a link swapped in meanwhile); a
+    FIFO or device is never opened for reading."""
+    from ..security.pictures import decode, open_image
     from ..sources.video import is_video
 
     if is_video(root) and Path(root).is_file():  # the frames of a video (from-video), named by their time
         return video_frame(Path(root), name)
-    path = inside(root, name, "gallery image name", ImageError)
-    with open_input(path, "image", ImageError) as f:
+    what = "gallery image name"
+    path, real_root = find_inside(root, name, what, ImageError), os.path.realpath(root)
+    real = os.path.realpath(path)
+    if os.path.commonpath([real, real_root]) != real_root:
+        raise ImageError(f"{what} {name!r} leads outside {root} (to {real}); not read")
+    with open_input(real, "image", ImageError, follow=False) as f:
         opened = f"/proc/self/fd/{f.fileno()}"
         if os.path.islink(opened):  # Linux: where the descriptor really leads
-            real, real_root = os.path.realpath(opened), os.path.realpath(root)
+            real = os.path.realpath(opened)
             if os.path.commonpath([real, real_root]) != real_root:
-                raise ImageError(f"gallery image name {name!r} leads outside {root} (to {real})")
-        return decode(lambda: Image.open(f), path)
+                raise ImageError(f"{what} {name!r} leads outside {root} (to {real}); not read")
+        return decode(lambda: open_image(f), path)
 
 
 def video_frame(video: Path, name: str) -> np.ndarray:

@@ -151,7 +151,7 @@ def gallery_cell(item: GalleryItem, png: bytes | None, note: str = "") -> str:
     text = (f"<p>{status}: query {html.escape(item.query_frames[len(item.query_frames) // 2])} → "
             f"{html.escape(item.ref_frames[len(item.ref_frames) // 2]) if item.ref_frames else 'none'}"
             f" (confidence {item.confidence:.2f})</p>")
-    why = f": {note[:300]}" if note else ""
+    why = f": {note[:500]}" if note else ""
     image = png_tag(png, f"query {item.query}") if png is not None else \
         f"<p>(pictures left out{html.escape(why)})</p>"
     return f'<div class="ex {"ok" if item.correct else "bad"}" style="width:300px">{image}{text}</div>'

@@ -5,6 +5,8 @@
 * :func:`read_bytes` reads a whole small file (JSON, text), refusing one larger than its bound.
 * :func:`inside` resolves a path read from a file (``dataset.json``'s traverses, ``map.json``'s models,
   checksum keys) inside that file's folder: absolute paths, ``..`` and links leading out are refused.
+* :func:`find_inside` finds the file a name kept as a user gave it (``../data/img.png``, an absolute path)
+  names inside a given folder: by the name, its path, or its last parts, each through :func:`inside`.
 * :func:`check_name` refuses a name (an image name, a key) holding a NUL or a line separator.
 """
 
@@ -109,6 +111,53 @@ def inside(root: str | os.PathLike[str], rel: object, what: str, error: ErrorTyp
         raise error(f"{what}: {rel!r} leads outside {root} through a symbolic link (to {real})")
     return out
 
+
+
+def find_inside(root: str | os.PathLike[str], name: object, what: str, error: ErrorType = DatasetError) -> Path:
+    """The existing file inside the folder ``root`` that ``name`` (read from a file: untrusted) names, for names
+    kept as a user gave them (``../data/winter/img.png``, ``/data/winter/img.png``, ``img.png``). Looked for, in
+    order: ``root / name`` (a relative name without ``..``); the path ``name`` itself (absolute, or relative to
+    the working directory) when it resolves inside ``root``; the name's trailing parts (``winter/img.png``, then
+    ``img.png``) in ``root``, unless the path ``name`` is an existing file outside ``root`` (a file of the same
+    name in ``root`` would be another picture). Each is checked by :func:`inside` (no ``..``, no symbolic link out
+    of ``root``), so nothing outside ``root`` is ever returned; ``error`` naming ``root`` and what was looked for
+    when none exists."""
+    if not isinstance(name, str) or not name.strip() or "\x00" in name or "\\" in name:
+        raise error(f"{what}: {name!r} is not a path to look for in {root}")
+    real_root = os.path.realpath(root)
+    tried, linked = [], []
+    for rel in _names_to_try(name, real_root):
+        try:
+            path = inside(root, rel, what, error)
+        except SeqnetError:
+            linked.append(rel)
+            continue
+        if os.path.exists(path) and not os.path.isdir(path):  # a FIFO is returned: opening it says what it is
+            return path
+        tried.append(rel)
+    why = [f"looked for {', '.join(map(repr, tried))} there"] if tried else []
+    if linked:
+        why.append(f"{', '.join(map(repr, linked))} there leads outside {root} through a symbolic link (not read)")
+    as_given = os.path.realpath(name)
+    if len(Path(name).parts) > 1 and os.path.commonpath([real_root, as_given]) != real_root:
+        why.append(f"the path as given leads outside {root}, to the file {as_given}: not read, nor any file of its "
+                   "name in the folder (hint: name the folder that holds it)" if os.path.exists(as_given) else
+                   f"the path as given leads outside {root}, to {as_given}, where there is no file")
+    raise error(f"{what} {name!r}: not found in {root} ({'; '.join(why) or 'nothing to look for'})")
+
+
+def _names_to_try(name: str, real_root: str) -> list[str]:
+    """The paths relative to ``root`` that :func:`find_inside` tries for ``name``, in order, each once."""
+    parts = Path(name).parts
+    out = [name] if not Path(name).is_absolute() and ".." not in parts else []
+    if len(parts) > 1:
+        real = os.path.realpath(name)
+        if real != real_root and os.path.commonpath([real_root, real]) == real_root:
+            out.append(os.path.relpath(real, real_root))
+        elif os.path.exists(real):  # the file is elsewhere: one of the same name in root is another picture
+            return list(dict.fromkeys(out))
+        out += [str(Path(*parts[i:])) for i in range(1, len(parts)) if ".." not in parts[i:]]
+    return list(dict.fromkeys(out))
 
 def check_name(name: str, where: str, error: ErrorType = DatasetError) -> str:
     """``name`` unless it holds a NUL (no file system or CSV keeps one); ``error`` naming it."""
