@@ -1,5 +1,6 @@
 """Choosing HVPR's K and λ on a validation split: the one-pass grid against a naive loop of evaluations, the
-tie rule, settings left as given, and a test split that is never read."""
+tie rule, settings left as given, each method's own choice whatever else is listed, and a test split that is
+never read."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import torch
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.eval.select import grid_recall, hvpr_grid, pick, select_hvpr
+from seqnet.methods.grammar import parse_method
 from seqnet.sequence.model import SeqNet
 
 CONF = EvalConfig(methods=("single", "hvpr", "hvpr-fused"), seq_len=5, device="cpu", common_queries=True)
@@ -38,6 +40,11 @@ def test_the_grid_is_what_evaluate_reports_setting_by_setting(data):
             assert recall[i, j] == pytest.approx(naive["recall@1"], abs=1e-12), (k, w)
             assert queries == naive["queries"]
     assert len(np.unique(recall)) > 2  # the settings differ: the comparison means something
+    shared = "hvpr-single:raw+seqmatch"  # shortlist and re-ranking on one frame descriptor (shared distances)
+    recall, _ = hvpr_grid(val, models, CONF, shared, ks, (0.0,))
+    for i, k in enumerate(ks):
+        naive = evaluate(val, CONF.replace(methods=(shared,), top_k=k), models).results["methods"][shared]
+        assert recall[i, 0] == pytest.approx(naive["recall@1"], abs=1e-12), k
 
 
 def test_grid_recall_matches_a_loop_over_queries(rng):
@@ -80,7 +87,9 @@ def test_settings_given_stay_and_the_choice_says_why(data):
     assert same == conf and none == []
     every, chosen = select_hvpr(val, models, CONF)
     assert [c.method for c in chosen] == ["hvpr", "hvpr-fused"]
-    assert every.top_k == chosen[0].settings["top_k"] and every.fuse_weight == chosen[1].settings["fuse_weight"]
+    assert every.shortlist_size(parse_method("hvpr")) == every.method_top_k["hvpr"] == chosen[0].settings["top_k"]
+    assert every.weight(parse_method("hvpr-fused")) == chosen[1].settings["fuse_weight"]
+    assert (every.top_k, every.fuse_weight) == (CONF.top_k, CONF.fuse_weight)  # each method's own, not everyone's
     assert chosen[1].recall == max(g["recall@1"] for g in chosen[1].grid) >= chosen[1].default_recall
 
 
@@ -99,7 +108,8 @@ def test_the_choice_never_reads_the_test_split(data):
     poisoned = dataclasses.replace(ds, query=dataclasses.replace(ds.query, descriptors=q),
                                    reference=dataclasses.replace(ds.reference, descriptors=r))
     again, choices2 = hvpr_on_val(poisoned, models, conf)
-    assert (again.top_k, again.fuse_top_k, again.fuse_weight) == (picked.top_k, picked.fuse_top_k, picked.fuse_weight)
+    assert picked.method_top_k and picked.method_fuse_weight
+    assert (again.method_top_k, again.method_fuse_weight) == (picked.method_top_k, picked.method_fuse_weight)
     assert [c.grid for c in choices2] == [c.grid for c in choices]
 
 
@@ -113,7 +123,8 @@ def test_seqnet_eval_chooses_on_val_unless_told(synth_dir, map_models, tmp_path,
     chosen = res["selection"]["hvpr"]
     assert [c["method"] for c in chosen] == ["hvpr", "hvpr-fused"] and res["config"]["split"] == "test"
     assert res["methods"]["hvpr"]["method"]["top_k"] == chosen[0]["settings"]["top_k"]
-    assert res["config"]["fuse_weight"] == chosen[1]["settings"]["fuse_weight"]
+    assert res["methods"]["hvpr-fused"]["method"]["fuse_weight"] == chosen[1]["settings"]["fuse_weight"]
+    assert res["config"]["method_fuse_weight"] == {"hvpr-fused": chosen[1]["settings"]["fuse_weight"]}
     assert "chosen on the val split" in capsys.readouterr().out
     flags = ["--top-k", "7", "--fuse-top-k", "50", "--fuse-weight", "0.5"]
     assert cli_main([*base, *flags, "--json", str(tmp_path / "b.json")]) == 0  # explicit flags win
@@ -126,6 +137,26 @@ def test_seqnet_eval_chooses_on_val_unless_told(synth_dir, map_models, tmp_path,
     res = json.loads((tmp_path / "d.json").read_text())
     assert res["selection"]["hvpr"] == [] and "holds val queries" in res["selection"]["not_chosen"]
     assert res["config"]["top_k"] == 20 and res["config"]["fuse_weight"] == 0.25  # the defaults
+    assert res["config"]["method_top_k"] is None
+
+
+ORDERED = ("hvpr", "hvpr-delta:raw+seqmatch", "hvpr-single", "hvpr-fused", "hvpr-fused:raw+seqmatch")
+
+
+def test_each_method_gets_its_own_choice_whatever_else_is_listed(data):
+    """A method's K (and λ) chosen on val, and so its test R@1, are the same alone, listed first or listed last."""
+    ds, models = data
+    val, test = ds.split("val"), ds.split("test")
+    runs = {}
+    for methods in [(m,) for m in ORDERED] + [ORDERED, ORDERED[::-1]]:
+        conf, choices = select_hvpr(val, models, CONF.replace(methods=methods))
+        assert [c.method for c in choices] == list(methods)  # one choice per method, said in the order listed
+        res = evaluate(test, conf, models).results["methods"]
+        runs[methods] = {m: (res[m]["method"]["top_k"], res[m]["method"].get("fuse_weight"), res[m]["recall@1"],
+                             next(c.reason for c in choices if c.method == m)) for m in methods}
+    for m in ORDERED:
+        assert runs[(m,)][m] == runs[ORDERED][m] == runs[ORDERED[::-1]][m], m
+    assert len({runs[(m,)][m][0] for m in ORDERED[:3]}) > 1  # the plain methods' Ks differ: the test means something
 
 
 def test_choosing_loads_the_dataset_and_the_models_once(synth_dir, map_models, tmp_path, monkeypatch):
@@ -150,3 +181,45 @@ def test_choosing_loads_the_dataset_and_the_models_once(synth_dir, map_models, t
     assert cli_main(argv) == 0
     assert json.loads((tmp_path / "a.json").read_text())["selection"]["hvpr"]  # chosen on val
     assert calls == {"dataset": 1, "models": 1}
+
+
+def test_seqnet_eval_says_each_methods_choice_and_an_explicit_k_is_everyones(synth_dir, map_models, tmp_path, capsys):
+    from seqnet.cli import main as cli_main
+
+    base = ["eval", "--dataset", str(synth_dir), *(a for p in map_models for a in ("--model", str(p))),
+            "--device", "cpu"]
+    pair = ("hvpr-delta:raw+seqmatch", "hvpr")
+    out = {}
+    for i, methods in enumerate((pair, pair[::-1], pair[:1], pair[1:])):
+        capsys.readouterr()
+        assert cli_main([*base, "--method", ",".join(methods), "--json", str(tmp_path / f"{i}.json")]) == 0
+        res, said = json.loads((tmp_path / f"{i}.json").read_text()), capsys.readouterr().out
+        sel = {c["method"]: c for c in res["selection"]["hvpr"]}
+        assert list(sel) == list(methods) and all(sel[m]["reason"] in said for m in methods)  # one line each
+        for m in methods:
+            assert res["config"]["method_top_k"][m] == sel[m]["settings"]["top_k"] == res["methods"][m]["method"][
+                "top_k"]
+            out.setdefault(m, []).append((sel[m]["settings"], res["methods"][m]["recall@1"]))
+    assert all(len(set(map(str, v))) == 1 for v in out.values()), out  # alone or listed with the other, either order
+    assert cli_main([*base, "--method", ",".join(pair), "--top-k", "7", "--json", str(tmp_path / "k.json")]) == 0
+    res = json.loads((tmp_path / "k.json").read_text())
+    assert "selection" not in res and {res["methods"][m]["method"]["top_k"] for m in pair} == {7}
+
+
+def test_a_methods_own_settings_are_checked_and_used_for_it_only():
+    from seqnet.core.errors import ConfigError
+
+    conf = EvalConfig(method_top_k={"hvpr-delta-orig:raw+seqmatch": 50, "hvpr-fused": 100},
+                      method_fuse_weight={"hvpr-fused": 1.0})
+    assert conf.method_top_k == {"hvpr-delta-paper:raw+seqmatch": 50, "hvpr-fused": 100}  # canonical names
+    sizes = {n: conf.shortlist_size(parse_method(n)) for n in ("hvpr-delta-paper:raw+seqmatch", "hvpr",
+                                                                "hvpr-fused", "hvpr-fused:raw+seqmatch")}
+    assert sizes == {"hvpr-delta-paper:raw+seqmatch": 50, "hvpr": 20, "hvpr-fused": 100, "hvpr-fused:raw+seqmatch": 200}
+    assert (conf.weight(parse_method("hvpr-fused")), conf.weight(parse_method("hvpr-fused:raw+seqmatch")),
+            conf.weight(parse_method("hvpr"))) == (1.0, 0.25, 0.0)
+    assert EvalConfig.from_dict(conf.to_dict()) == conf and EvalConfig(method_top_k={}).method_top_k is None
+    for bad in ({"method_top_k": {"single": 5}}, {"method_top_k": {"hvpr": 0}}, {"method_top_k": [("hvpr", 5)]},
+                {"method_fuse_weight": {"hvpr": 0.5}}, {"method_fuse_weight": {"hvpr-fused": -1}},
+                {"method_top_k": {"nope": 5}}):
+        with pytest.raises(ConfigError):
+            EvalConfig(**bad)

@@ -111,10 +111,12 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
     sel, bench = res["selection"], res["config"]["benchmark"]  # chosen on val, and said
     assert sel["descriptor"]["chosen"] == bench["describe"]["method"] and set(sel["descriptor"]["scores"]) == \
         {"pixels", "gmp"}
-    assert [c["method"] for c in sel["hvpr"]] == ["hvpr", "hvpr-fused"]
-    assert bench["top_k"] == sel["hvpr"][0]["settings"]["top_k"] == methods["hvpr"]["method"]["top_k"]
-    assert bench["fuse_weight"] == sel["hvpr"][1]["settings"]["fuse_weight"] == methods["hvpr-fused"]["method"][
-        "fuse_weight"]
+    assert [c["method"] for c in sel["hvpr"]] == ["hvpr", "hvpr-single", "hvpr-delta", "hvpr-fused"]  # each its own
+    for c in sel["hvpr"]:
+        k = c["settings"].get("top_k", c["settings"].get("fuse_top_k"))
+        assert bench["method_top_k"][c["method"]] == k == methods[c["method"]]["method"]["top_k"]
+    assert bench["method_fuse_weight"]["hvpr-fused"] == sel["hvpr"][3]["settings"]["fuse_weight"] == \
+        methods["hvpr-fused"]["method"]["fuse_weight"]
     assert "Chosen on val (never on test): descriptor" in (out / "results.md").read_text()
     assert (out / "recall_at_k.png").stat().st_size > 1000 and "| hvpr |" in (out / "results.md").read_text()
     assert (out / "models" / "seqnet.pt").is_file() and (out / "dataset" / "dataset.json").is_file()

@@ -60,7 +60,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split", help="split to evaluate: train, val, test, all, or a range A:B (queries, the whole "
                    "reference) / A:B,C:D (reference, queries) (default: test when defined, else all)")
     add_resample_options(p)
-    p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
+    p.add_argument("--top-k", type=positive_int, help="HVPR shortlist size, of every HVPR method (default: each "
+                   f"method's own, chosen on the val split when the dataset has one and another is evaluated, else "
+                   f"{_D.top_k})")
     p.add_argument("--fuse-weight", type=non_negative_float,
                    help=f"hvpr-fused: weight λ of the S_L distance in its score (default {_D.fuse_weight:g})")
     p.add_argument("--fuse-top-k", type=positive_int, help=f"hvpr-fused: shortlist size (default {FUSED_TOP_K})")

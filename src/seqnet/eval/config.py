@@ -38,6 +38,9 @@ class EvalConfig(WindowSettings, Config):
         top_k: HVPR shortlist size K.
         fuse_weight, fuse_top_k: λ of the fused score and shortlist size K of ``hvpr-fused``
             (defaults :data:`seqnet.methods.grammar.FUSE_WEIGHT`, :data:`seqnet.methods.grammar.FUSED_TOP_K`).
+        method_top_k, method_fuse_weight: ``{HVPR method name: K}`` and ``{hvpr-fused method name: λ}``, one
+            method's own settings (e.g. chosen on val for it, :mod:`seqnet.eval.select`), in place of ``top_k`` /
+            ``fuse_top_k`` and ``fuse_weight`` for that method only (:meth:`shortlist_size`, :meth:`weight`).
         split: the split evaluated by :func:`main` (None: test when defined, else all).
         resample_every, resample_side: keep every N-th frame (recorded order) of the query, reference or both
             sides of the evaluated split (:func:`seqnet.data.resample.resample_dataset`; None: all frames).
@@ -68,6 +71,8 @@ class EvalConfig(WindowSettings, Config):
     top_k: int = 20
     fuse_weight: float = FUSE_WEIGHT
     fuse_top_k: int | None = None
+    method_top_k: Mapping[str, int] | None = None
+    method_fuse_weight: Mapping[str, float] | None = None
     split: str | None = None
     resample_every: int | None = None
     resample_side: str = "query"
@@ -102,6 +107,8 @@ class EvalConfig(WindowSettings, Config):
         self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))
         if self.fuse_top_k is not None:
             self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
+        self._set("method_top_k", per_method("method_top_k", self.method_top_k, False))
+        self._set("method_fuse_weight", per_method("method_fuse_weight", self.method_fuse_weight, True))
         check_choice("k-NN backend", self.backend, KNN_BACKENDS)
         check_device(self.device)  # validates the device name
         if self.target_precision is not None:
@@ -117,5 +124,28 @@ class EvalConfig(WindowSettings, Config):
                             methods=self.methods or default_methods(models, seq_len))
 
     def shortlist_size(self, m: Method) -> int:
-        """The HVPR shortlist size K of method ``m`` (``fuse_top_k`` for ``hvpr-fused``)."""
-        return m.shortlist_size(self.top_k, self.fuse_top_k)
+        """The HVPR shortlist size K of method ``m``: its own (``method_top_k``), else ``fuse_top_k`` for
+        ``hvpr-fused``, else ``top_k``."""
+        return (self.method_top_k or {}).get(m.name) or m.shortlist_size(self.top_k, self.fuse_top_k)
+
+    def weight(self, m: Method) -> float:
+        """λ of method ``m``'s fused score: its own (``method_fuse_weight``), else ``fuse_weight``, for
+        ``hvpr-fused``; 0 (the matcher alone) for any other method."""
+        own = (self.method_fuse_weight or {}).get(m.name)
+        return m.fuse_weight(self.fuse_weight if own is None else own)
+
+
+def per_method(name: str, values: Mapping[str, float] | None, fused: bool) -> dict[str, float] | None:
+    """``values`` (``{method name: K}``, or ``{hvpr-fused method name: λ}`` when ``fused``) checked, with each
+    name canonical (:func:`seqnet.methods.grammar.parse_method`); None or empty: None."""
+    if not values:
+        return None
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"{name} must map method names to values, got {values!r:.80}")
+    out: dict[str, float] = {}
+    for key, value in values.items():
+        m = parse_method(key)
+        if m.kind != "hvpr" or (fused and not m.fused):
+            raise ConfigError(f"{name}: {key!r} is not an {'hvpr-fused' if fused else 'HVPR'} method")
+        out[m.name] = check_float(f"{name}[{key!r}]", value, 0.0) if fused else check_int(f"{name}[{key!r}]", value, 1)
+    return out

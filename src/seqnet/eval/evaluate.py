@@ -74,7 +74,7 @@ def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[st
     if m.kind == "hvpr":
         info["top_k"] = conf.shortlist_size(m)
     if m.fused:
-        info["fuse_weight"] = conf.fuse_weight
+        info["fuse_weight"] = conf.weight(m)
     info["models"] = {r: models[r].config() for r in sorted(m.models())}
     return info
 
@@ -155,7 +155,7 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
     for m in methods:
         ref.check_method(m)
         scores[m.name], retrieved[m.name], timing = rank(m, query, ref, max(conf.ks), conf.shortlist_size(m),
-                                                         m.fuse_weight(conf.fuse_weight))
+                                                         conf.weight(m))
         timing["total"] = sum(timing.values())
         entry, confidence[m.name] = method_results(scores[m.name], retrieved[m.name], truth, conf.ks,
                                                    conf.extra_radii, conf.recall_denominator,

@@ -6,9 +6,10 @@ over the first K columns of ``matcher / L_m + λ · d_shortlist`` (the score
 :func:`seqnet.matching.hvpr.hvpr_search` orders by; λ = 0 is the paper's re-ranking). Recall@1 of each
 setting is what :func:`seqnet.eval.evaluate.evaluate` reports for that method with those settings.
 
-:func:`select_hvpr` picks, among the settings the caller left free, the best val Recall@1; a tie keeps the
-default (else the smallest K, then the λ nearest the default), and says what it picked and why
-(:class:`Choice`).
+:func:`select_hvpr` picks, for each HVPR method on its own (its K, or ``hvpr-fused``'s K and λ: a method's
+choice never depends on the other methods listed) among the settings the caller left free, the best val
+Recall@1; a tie keeps the default (else the smallest K, then the λ nearest the default), and says what it
+picked and why (:class:`Choice`, one per method).
 """
 
 from __future__ import annotations
@@ -25,10 +26,9 @@ from ..core.errors import ConfigError
 from ..core.log import logger
 from ..core.stage import Written
 from ..data.traverse import Dataset
-from ..methods.grammar import FRAME_FEATURES, FUSED_TOP_K, parse_method
+from ..methods.grammar import FRAME_FEATURES, parse_method
 from ..reference.traverse import TraverseReference
 from ..sequence.described import Described
-from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .evaluate import EvalConfig, dataset_truth
 from .evaluate import main as evaluate_main
 from .evaluation import method_windows
@@ -66,14 +66,15 @@ class Choice:
 
 
 def hvpr_grid(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method: str, top_ks: Sequence[int],
-              weights: Sequence[float]) -> tuple[np.ndarray, int]:
+              weights: Sequence[float], sides: dict | None = None) -> tuple[np.ndarray, int]:
     """Recall@1 ``[len(top_ks), len(weights)]`` of the HVPR ``method`` on ``ds`` (one split) with shortlist size
     ``top_ks[i]`` and fused weight ``weights[j]`` (0: the matcher alone), on the query items
-    :func:`~seqnet.eval.evaluate.evaluate` gives it under ``conf``; and the queries counted (the denominator)."""
+    :func:`~seqnet.eval.evaluate.evaluate` gives it under ``conf``; and the queries counted (the denominator).
+    ``sides``: a dict kept by the caller across methods, so that each window group's query and reference sides
+    are described once."""
     m = parse_method(method)
-    if m.kind != "hvpr" or m.shortlist == FRAME_FEATURES[m.frames]:
-        raise ConfigError(f"hvpr_grid scores an HVPR method whose shortlist is not its frames' descriptor, "
-                          f"got {method!r}")
+    if m.kind != "hvpr":
+        raise ConfigError(f"hvpr_grid scores an HVPR method, got {method!r}")
     if not top_ks or not weights or min(top_ks) < 1 or min(weights) < 0:
         raise ConfigError(f"need shortlist sizes >= 1 and weights >= 0, got {list(top_ks)} and {list(weights)}")
     models = dict(models)
@@ -81,12 +82,15 @@ def hvpr_grid(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, metho
     dev = get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
-    windows = next(w for w, ms in method_windows([parse_method(n) for n in conf.methods or (method,)],
-                                                 conf.windows, conf.common_queries).items()
-                   if any(x.kind == "hvpr" for x in ms))
-    query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
-    ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
-    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
+    listed = [parse_method(n) for n in conf.methods] if m.name in conf.methods else [m]
+    windows = next(w for w, ms in method_windows(listed, conf.windows, conf.common_queries).items()
+                   if any(x.name == m.name for x in ms))  # the windows evaluate() gives this method
+    sides = {} if sides is None else sides
+    if windows not in sides:
+        query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
+        ref = TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name)
+        sides[windows] = query, ref, dataset_truth(ds, query.side.items, ref.items, conf.radius)
+    query, ref, truth = sides[windows]
     dist, ranked = ref.search(m.shortlist, query.items(m.shortlist), max(top_ks))
     frames = FRAME_FEATURES[m.frames]
     scores = ref.rerank(frames, m.matcher, query.frames(frames), query.match_starts, ranked)
@@ -131,38 +135,36 @@ def pick(recall: np.ndarray, top_ks: Sequence[int], weights: Sequence[float],
 def select_hvpr(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, free: Sequence[str] = SELECTABLE,
                 where: str = "val") -> tuple[EvalConfig, list[Choice]]:
     """``conf`` with the settings of ``free`` (of :data:`SELECTABLE`) chosen on ``ds`` (a validation split: the
-    caller's promise; it is never given test) by val Recall@1, and what was chosen (one :class:`Choice` per
-    method scored: the paper's ``hvpr`` for ``top_k``, ``hvpr-fused`` for ``fuse_top_k`` / ``fuse_weight``;
-    a setting whose method is not among ``conf.methods`` stays as it is). ``where`` names ``ds`` in the reasons."""
+    caller's promise; it is never given test) by val Recall@1, for each HVPR method of ``conf.methods`` on its
+    own (``method_top_k``, ``method_fuse_weight``: a method's choice never depends on the other methods listed),
+    and what was chosen (one :class:`Choice` per method scored, in the order listed: ``top_k`` for every HVPR
+    method but ``hvpr-fused``, ``fuse_top_k`` / ``fuse_weight`` for each ``hvpr-fused``; a method whose models
+    are not given is left as it is). ``where`` names ``ds`` in the reasons."""
     free = [f for f in free if f in SELECTABLE]
-    methods = [parse_method(n) for n in conf.resolve(dict(models), ds.radius).methods]
-    hvprs = [m for m in methods if m.kind == "hvpr" and m.shortlist in SEQUENCE_DESCRIPTORS
-             and m.shortlist != FRAME_FEATURES[m.frames] and set(m.models()) <= set(models)]
-    plain = next((m for m in hvprs if not m.fused), None)
-    fused = next((m for m in hvprs if m.fused), None)
-    choices, updates = [], {}
-    if "top_k" in free and plain is not None:
-        ch = _choose(ds, models, conf, plain.name, ("top_k",), {"top_k": conf.top_k, "fuse_weight": 0.0}, where)
+    methods = [parse_method(n) for n in dict.fromkeys(conf.resolve(dict(models), ds.radius).methods)]
+    hvprs = [m for m in methods if m.kind == "hvpr" and set(m.models()) <= set(models)]
+    choices, top_ks, weights, sides = [], dict(conf.method_top_k or {}), dict(conf.method_fuse_weight or {}), {}
+    for m in hvprs:
+        names = tuple(f for f in (("fuse_top_k", "fuse_weight") if m.fused else ("top_k",)) if f in free)
+        if not names:
+            continue
+        default = {"top_k": conf.shortlist_size(m), "fuse_weight": conf.weight(m)}
+        ch = _choose(ds, models, conf, m.name, names, default, where, sides)
         choices.append(ch)
-        updates.update(ch.settings)
-    if fused is not None and {"fuse_top_k", "fuse_weight"} & set(free):
-        default = {"top_k": conf.fuse_top_k or FUSED_TOP_K, "fuse_weight": conf.fuse_weight}
-        names = tuple(f for f in ("fuse_top_k", "fuse_weight") if f in free)
-        ch = _choose(ds, models, conf, fused.name, names, default, where)
-        choices.append(ch)
-        updates.update(ch.settings)
-    return conf.replace(**updates), choices
+        for name, value in ch.settings.items():
+            (weights if name == "fuse_weight" else top_ks)[m.name] = value
+    return conf.replace(method_top_k=top_ks or None, method_fuse_weight=weights or None), choices
 
 
 def _choose(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method: str, names: tuple[str, ...],
-            default: dict[str, Any], where: str) -> Choice:
+            default: dict[str, Any], where: str, sides: dict) -> Choice:
     """One method's grid (the settings ``names`` free, the others at ``default``), scored and picked."""
     k_free = bool({"top_k", "fuse_top_k"} & set(names))
     w_free = "fuse_weight" in names
     top_ks = sorted({*(TOP_KS if "top_k" in names else FUSE_TOP_KS), default["top_k"]}) if k_free \
         else [default["top_k"]]
     weights = sorted({*FUSE_WEIGHTS, default["fuse_weight"]}) if w_free else [default["fuse_weight"]]
-    recall, queries = hvpr_grid(ds, models, conf, method, top_ks, weights)
+    recall, queries = hvpr_grid(ds, models, conf, method, top_ks, weights, sides)
     i, j = pick(recall, top_ks, weights, (default["top_k"], default["fuse_weight"]))
     k_name = "top_k" if "top_k" in names else "fuse_top_k"
     settings = {**({k_name: int(top_ks[i])} if k_free else {}), **({"fuse_weight": float(weights[j])} if w_free

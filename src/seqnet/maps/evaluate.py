@@ -130,8 +130,8 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     conf = conf.replace(seq_len=c.windows.seq_len, match_len=c.windows.match_len, radius=radius)
 
     def info(m: Method) -> dict[str, Any]:
-        return {**m.summary(), "seq_len": c.windows.seq_len, "match_len": c.windows.match_len, "top_k": conf.top_k,
-                "index": c.ann.kind}
+        return {**m.summary(), "seq_len": c.windows.seq_len, "match_len": c.windows.match_len,
+                "top_k": conf.shortlist_size(m), "index": c.ann.kind}
 
     extra = _shortlist_recall(mp, query.items(c.shortlist), conf.top_k)
     ev = run(methods, query, mp, truth, conf, len(q.traverse), info, extra)

@@ -8,7 +8,7 @@ from ...core.config import Config, check_bool, check_choice, check_float, check_
 from ...core.errors import ConfigError
 from ...describe import DescribeConfig
 from ...describe.config import check_size
-from ...eval.config import EvalConfig
+from ...eval.config import EvalConfig, per_method
 from ...methods.grammar import FUSE_WEIGHT, FUSED_TOP_K, parse_method
 from ...metrics.recall import RECALL_DENOMINATORS
 from ...train import TrainConfig
@@ -51,6 +51,8 @@ class Nordland64Config(Config):
             :data:`VARIABLE_SPEED_METHODS`); device: torch device.
         fuse_weight, fuse_top_k: λ and shortlist size of ``hvpr-fused`` (chosen on val, see
             docs/experiments.md).
+        method_top_k, method_fuse_weight: one HVPR method's own K / λ (each chosen on val for that method,
+            :func:`seqnet.eval.select.select_hvpr`), in place of the above for it (as in :class:`EvalConfig`).
         query_speed: ``(A, B)``: evaluate on the winter traverse of the val and test ranges re-sampled
             at A to B times the reference speed (:mod:`.speed`; training unchanged); None: as filmed.
         speed_seed: seed of the speed profile (the val and test ranges get their own streams).
@@ -81,6 +83,8 @@ class Nordland64Config(Config):
     top_k: int = 20
     fuse_weight: float = FUSE_WEIGHT  # the library's λ and K (chosen on this benchmark's val, both speeds)
     fuse_top_k: int = FUSED_TOP_K
+    method_top_k: dict[str, int] | None = None
+    method_fuse_weight: dict[str, float] | None = None
     ks: tuple[int, ...] = (1, 5, 10, 20)
     device: str = "auto"
     query_speed: tuple[float, float] | None = None
@@ -108,6 +112,8 @@ class Nordland64Config(Config):
         self._set("top_k", check_int("top_k", self.top_k, 1))
         self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))
         self._set("fuse_top_k", check_int("fuse_top_k", self.fuse_top_k, 1))
+        self._set("method_top_k", per_method("method_top_k", self.method_top_k, False))
+        self._set("method_fuse_weight", per_method("method_fuse_weight", self.method_fuse_weight, True))
         self._set("ks", check_ints("ks", self.ks, 1))
         if self.query_speed is not None:
             self._set("query_speed", check_speed(self.query_speed))
@@ -133,6 +139,7 @@ class Nordland64Config(Config):
     def eval_config(self) -> EvalConfig:
         """The evaluation settings of the val and test ranges."""
         return EvalConfig(methods=self.eval_methods, seq_len=self.seq_len, ks=self.ks, top_k=self.top_k,
-                          fuse_weight=self.fuse_weight, fuse_top_k=self.fuse_top_k, device=self.device,
+                          fuse_weight=self.fuse_weight, fuse_top_k=self.fuse_top_k, method_top_k=self.method_top_k,
+                          method_fuse_weight=self.method_fuse_weight, device=self.device,
                           recall_denominator=self.recall_denominator,
                           common_queries=True)  # the paper's Table I: every method on one query set

@@ -17,6 +17,7 @@ from typing import Any
 from ...core.config import check_ints
 from ...core.log import logger
 from ...eval.evaluate import evaluate
+from ...methods.grammar import parse_method
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked
 from .config import Nordland64Config
@@ -57,8 +58,9 @@ def longer_sequences(conf: Nordland64Config, data: str | Path, out: str | Path, 
 def longer_markdown(record: dict[str, Any], conf: Nordland64Config) -> str:
     """R@1 and AUC tables (rows: methods; columns: L_m) for each split of a :func:`longer_sequences` record."""
     lengths = [str(lm) for lm in record["lengths"]]
+    top_k = conf.eval_config().shortlist_size(parse_method("hvpr"))
     lines = ["# Nordland64: longer sequences", "",
-             f"L = {conf.seq_len} (S_L shortlist of HVPR, top {conf.top_k}); L_m = sequence-matcher length; "
+             f"L = {conf.seq_len} (S_L shortlist of HVPR, top {top_k}); L_m = sequence-matcher length; "
              f"radius {conf.radius:g}." + speed_note(conf), ""]
     for split, by_len in record["results"].items():
         a, b = getattr(conf, f"{split}_range")

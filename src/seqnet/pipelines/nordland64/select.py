@@ -127,6 +127,5 @@ def choose_hvpr(val: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Conf
                                  f"val places {conf.val_range[0]}:{conf.val_range[1]}")
     for ch in choices:
         logger.debug("%s", ch.reason)
-    conf = conf.replace(top_k=econf.top_k, fuse_top_k=econf.fuse_top_k or conf.fuse_top_k,
-                        fuse_weight=econf.fuse_weight)
+    conf = conf.replace(method_top_k=econf.method_top_k, method_fuse_weight=econf.method_fuse_weight)
     return conf, econf, choices
