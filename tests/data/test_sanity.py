@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from seqnet.core.errors import DatasetError
+from seqnet.data import sanity
 from seqnet.data.positives import Positives
 from seqnet.data.sanity import (
     _copy_of,
@@ -103,13 +104,18 @@ def test_shuffled_query_rows_are_warned(desc):
     assert dataset_warnings(make(big, big * 0.5)) == []
 
 
-def test_duplicated_rows_vs_a_loop(desc):
+def test_duplicated_rows_vs_a_loop(desc, monkeypatch):
     rng = np.random.default_rng(3)
     rows = rng.random((300, 5)).astype(np.float32)
     rows[rng.integers(0, 300, 40)] = rows[rng.integers(0, 300, 40)]
     naive = 300 - len({r.tobytes() for r in rows})
     assert duplicated_rows(rows, "query").startswith(f"{naive} of the 300 query rows are exact duplicates")
     assert duplicated_rows(rows[:1], "query") is None and duplicated_rows(desc, "query") is None
+    many = np.random.default_rng(4).random((5000, 4)).astype(np.float32)
+    many[1::2] = many[0::2]  # every frame twice: found in runs of consecutive rows beyond the byte budget
+    monkeypatch.setattr(sanity, "DUPLICATES_BYTES", 1)
+    n, rest = duplicated_rows(many, "query").split(" ", 1)
+    assert 7 * 127 <= int(n) <= 896 and rest.startswith("of 1792 checked (of 5000) query rows are exact duplicates")
     [line] = dataset_warnings(make(desc, np.concatenate([desc[:10] * 0.5] * 2)))
     assert "10 of the 20 query rows are exact duplicates" in line
 

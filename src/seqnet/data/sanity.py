@@ -20,6 +20,7 @@ import numpy as np
 from ..core.errors import DatasetError
 from ..core.log import logger
 from ..core.memory import BLOCK_BYTES
+from ..core.tensors import spread
 from .spacing import DEGREES_HINT, looks_like_degrees, out_of_order
 from .traverse import Dataset
 
@@ -175,23 +176,31 @@ def _constant_positions(ds: Dataset) -> str | None:
 
 
 DUPLICATES_SHARE = 0.01  # exact duplicate rows above this share of a side (and at least 2) are named
+DUPLICATES_BYTES = 64 << 20  # rows hashed at most (runs of consecutive rows spread over the side beyond it)
+RUN = 256  # consecutive rows per run of the sample
 
 
 def duplicated_rows(desc: np.ndarray, side: str) -> str | None:
     """Why ``desc [N, D]`` looks wrong: more than :data:`DUPLICATES_SHARE` of its rows (at least 2) are exact
-    copies of an earlier row (by a hash of every row, :func:`_row_hashes`; candidates checked whole); None
-    otherwise."""
+    copies of another row (by a hash of every row, :func:`_row_hashes`; up to 100 candidates checked whole), among
+    every row or, beyond :data:`DUPLICATES_BYTES`, runs of :data:`RUN` consecutive rows spread over ``desc``;
+    None otherwise."""
     if desc.ndim != 2 or len(desc) < 2:
         return None
-    h = _row_hashes(desc)
+    k = max(2000, DUPLICATES_BYTES // max(1, _row_bytes(desc)))
+    rows = np.arange(len(desc)) if len(desc) <= k else np.unique(
+        spread(len(desc) - RUN + 1, max(1, k // RUN))[:, None] + np.arange(RUN))
+    sub = np.asarray(desc[rows])
+    h = _row_hashes(sub)
     _, first = np.unique(h, return_index=True)
     dup = np.setdiff1d(np.arange(len(h)), first)
-    if len(dup) < max(2, DUPLICATES_SHARE * len(desc)):
+    if len(dup) < max(2, DUPLICATES_SHARE * len(sub)):
         return None
     order = np.argsort(h, kind="stable")
     at = order[np.searchsorted(h[order], h[dup[:100]])]  # the first row of each checked duplicate's hash
-    if not all(np.array_equal(desc[i], desc[j]) for i, j in zip(dup[:100], at, strict=True)):
+    if not all(np.array_equal(sub[i], sub[j]) for i, j in zip(dup[:100], at, strict=True)):
         return None
-    return (f"{len(dup)} of the {len(desc)} {side} rows are exact duplicates of another row (identical "
-            "descriptors: the same image given twice, or a describer that failed on them?): duplicates carry no "
-            "place and their ties are broken by index (hint: check the images and the describer)")
+    of = f"the {len(desc)}" if len(sub) == len(desc) else f"{len(sub)} checked (of {len(desc)})"
+    return (f"{len(dup)} of {of} {side} rows are exact duplicates of another row (identical descriptors: the same "
+            "image given twice, or a describer that failed on them?): duplicates carry no place and their ties are "
+            "broken by index (hint: check the images and the describer)")
