@@ -107,6 +107,21 @@ def test_csv_count_mismatch_without_names(tmp_path, rng):
         traverse_from_csv(tmp_path / "r.csv", tmp_path / "r.npy")
 
 
+def test_csv_rows_paired_by_order_are_said(tmp_path, rng, caplog):
+    import logging
+
+    caplog.set_level(logging.INFO, logger="seqnet")
+    _write_csv(tmp_path / "r.csv", [("b", 1, 2), ("a", 3, 4)])
+    np.save(tmp_path / "r.npy", rng.random((2, 4), dtype=np.float32))
+    traverse_from_csv(tmp_path / "r.csv", tmp_path / "r.npy", name="query")
+    said = [r.getMessage() for r in caplog.records if "by order" in r.getMessage()]
+    assert len(said) == 1 and "not by its image names" in said[0] and "--query-names" in said[0]
+    caplog.clear()
+    (tmp_path / "names.txt").write_text("a\nb\n")
+    t, _ = traverse_from_csv(tmp_path / "r.csv", tmp_path / "r.npy", tmp_path / "names.txt", name="query")
+    assert not any("by order" in r.getMessage() for r in caplog.records) and t.names == ["b", "a"]
+
+
 def test_parse_utm_name():
     assert parse_utm_name("003/@0543256.96@4477929.94@17@T@040.44@-079.99@000@@@@@@pitch1_yaw1@.jpg") == (
         543256.96, 4477929.94)

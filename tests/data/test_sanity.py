@@ -7,8 +7,17 @@ import numpy as np
 import pytest
 
 from seqnet.core.errors import DatasetError
+from seqnet.data import sanity
 from seqnet.data.positives import Positives
-from seqnet.data.sanity import _copy_of, _row_hashes, check_frame_aligned, dataset_warnings, review
+from seqnet.data.sanity import (
+    _copy_of,
+    _row_hashes,
+    check_frame_aligned,
+    dataset_warnings,
+    duplicated_rows,
+    review,
+    shared_queries,
+)
 from seqnet.data.traverse import Dataset, Traverse
 
 
@@ -71,6 +80,44 @@ def test_splits_sharing_queries_are_named(desc):
     [line] = dataset_warnings(make(desc, desc * 0.5, splits=splits))
     assert ("splits train (queries 0:12) and val (queries 10:16) share 2; val (queries 10:16) and test (queries "
             "15:20) share 1 queries") in line and "optimistic" in line
+
+
+def test_shared_queries_of_named_splits_and_ranges(desc):
+    ds = make(desc, desc * 0.5, splits={"train": {"query": (0, 12)}, "val": {"query": (10, 16)}})
+    assert "train (queries 0:12) and val (queries 10:16) share 2" in shared_queries(ds, ["train", "val"])
+    assert "share 6" in shared_queries(ds, ["all", "val"]) and shared_queries(ds, ["val", "14:20"]) is not None
+    assert shared_queries(ds, ["train", "12:20"]) is None and shared_queries(ds, ["train", "nope"]) is None
+
+
+def test_positions_in_degrees_are_named(desc):
+    deg = np.stack([np.full(20, 10.0), 63 + np.arange(20) * 9e-5], axis=1)
+    [line] = dataset_warnings(make(desc, desc * 0.5, deg, deg, radius=25.0))
+    assert "positions look like degrees (latitude/longitude), not metres" in line and "constant GPS" not in line
+
+
+def test_shuffled_query_rows_are_warned(desc):
+    rng = np.random.default_rng(0)
+    big = rng.random((200, 4)).astype(np.float32) + 0.1
+    shuffled = np.arange(200.0)[rng.permutation(200), None]
+    [line] = dataset_warnings(make(big, big * 0.5, q_pos=shuffled))
+    assert line.startswith("d: ") and "the query's consecutive frames lie far apart" in line
+    assert dataset_warnings(make(big, big * 0.5)) == []
+
+
+def test_duplicated_rows_vs_a_loop(desc, monkeypatch):
+    rng = np.random.default_rng(3)
+    rows = rng.random((300, 5)).astype(np.float32)
+    rows[rng.integers(0, 300, 40)] = rows[rng.integers(0, 300, 40)]
+    naive = 300 - len({r.tobytes() for r in rows})
+    assert duplicated_rows(rows, "query").startswith(f"{naive} of the 300 query rows are exact duplicates")
+    assert duplicated_rows(rows[:1], "query") is None and duplicated_rows(desc, "query") is None
+    many = np.random.default_rng(4).random((5000, 4)).astype(np.float32)
+    many[1::2] = many[0::2]  # every frame twice: found in runs of consecutive rows beyond the byte budget
+    monkeypatch.setattr(sanity, "DUPLICATES_BYTES", 1)
+    n, rest = duplicated_rows(many, "query").split(" ", 1)
+    assert 7 * 127 <= int(n) <= 896 and rest.startswith("of 1792 checked (of 5000) query rows are exact duplicates")
+    [line] = dataset_warnings(make(desc, np.concatenate([desc[:10] * 0.5] * 2)))
+    assert "10 of the 20 query rows are exact duplicates" in line
 
 
 def test_constant_positions_are_warned_unless_positives_decide(desc):

@@ -71,3 +71,23 @@ def test_matrix_evaluation_of_single_imports_no_torch(synth_dataset, tmp_path):
             "print('torch' in sys.modules, rc)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split()[-2:] == ["False", "0"], out
+
+
+def test_a_constant_matrix_is_warned(synth_dataset, caplog):
+    from seqnet.eval.matrix import constant_rows
+    from seqnet.search.given import GivenMatrix
+
+    ds = synth_dataset
+    nq, nr = len(ds.query), len(ds.reference)
+    flat = evaluate_matrix(ds, np.full((nq, nr), 0.5), EvalConfig(methods=("single",)))
+    assert flat.results["warnings"] == ["the matrix is constant: it carries no information, every rank is a tie "
+                                        "broken by index"]
+    assert any("the matrix is constant" in r.getMessage() for r in caplog.records)
+    rows = np.repeat(np.arange(nq, dtype=float)[:, None], nr, axis=1)
+    assert constant_rows(GivenMatrix(rows)).startswith("every row of the matrix is constant")
+    rows[: nq // 3] = np.random.default_rng(0).random((nq // 3, nr))
+    assert constant_rows(GivenMatrix(rows)).startswith(f"{nq - nq // 3} of the {nq} rows of the matrix are constant")
+    rows[: nq * 2 // 3] = np.random.default_rng(1).random((nq * 2 // 3, nr))
+    assert constant_rows(GivenMatrix(rows)) is None
+    assert "warnings" not in evaluate_matrix(ds, np.asarray(similarity(ds)) * -1, EvalConfig(methods=("single",))
+                                             ).results

@@ -138,3 +138,15 @@ def test_cli_train_bad_inputs_exit_2_with_one_line(synth_dataset, synth_dir, tmp
         assert cli_main(["train", *case]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("seqnet train: error:"), err
+
+
+def test_a_val_split_sharing_train_queries_is_warned(synth_dataset, caplog):
+    from seqnet.train.loop import prepare
+
+    a, b = synth_dataset.splits["train"]["query"]
+    conf, said = FAST.resolve(synth_dataset), "best epoch is chosen on queries it trains on"
+    prepare(synth_dataset, conf, torch.device("cpu"))
+    assert not any(said in r.getMessage() for r in caplog.records)
+    prepare(synth_dataset, conf.replace(val_split=f"{b - 20}:{b}"), torch.device("cpu"))
+    [line] = [r.getMessage() for r in caplog.records if said in r.getMessage()]
+    assert f"splits train (queries {a}:{b}) and {b - 20}:{b} (queries {b - 20}:{b}) share 20 queries" in line

@@ -193,6 +193,9 @@ def traverse_from_csv(csv_path: str | Path, desc_path: str | Path, names_file: s
                                + (transposed_hint(len(names), desc) or " and no names; hint: give a names file "
                                   "(--*-names) or HDF5 'names' to match by name"))
         idx = np.arange(len(names))
+        logger.info("%s: its rows are paired with the descriptors of %s by order (row i is descriptor i), not by "
+                    "its image names: the rows must be in the descriptors' order; hint: a names file (--%s-names) "
+                    "or HDF5 'names' pairs them by name", csv_path, desc_path, "ref" if name == "reference" else name)
     else:
         idx = match_names(names, desc_names, f"{csv_path} vs {desc_path}")
     d = desc if np.array_equal(idx, np.arange(desc.shape[0])) else np.asarray(desc[idx])

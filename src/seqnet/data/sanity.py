@@ -6,7 +6,9 @@
   the ground truth of every later frame): refused.
 * :func:`dataset_warnings` (logged by :func:`review`): the query images are the reference images (every metric
   trivially perfect), splits that share queries (selection and test numbers optimistic), positions all within
-  the radius of each other (constant GPS: every reference is correct, R@K trivially 1). One line each.
+  the radius of each other (constant GPS, or degrees: every reference is correct, R@K trivially 1), rows not in
+  route order (:func:`seqnet.data.spacing.out_of_order`), exact duplicate query rows (:func:`duplicated_rows`).
+  One line each.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import numpy as np
 from ..core.errors import DatasetError
 from ..core.log import logger
 from ..core.memory import BLOCK_BYTES
+from ..core.tensors import spread
+from .spacing import DEGREES_HINT, looks_like_degrees, out_of_order
 from .traverse import Dataset
 
 ALTERNATIVES = ("give the ground truth another way: --positives FILE (per query its matching reference indices) "
@@ -57,6 +61,10 @@ def review(ds: Dataset) -> list[str]:
 def dataset_warnings(ds: Dataset) -> list[str]:
     """One line per likely mistake in ``ds`` (none: an empty list): see the module's description."""
     found = [_copied_queries(ds), _shared_queries(ds), _constant_positions(ds)]
+    if ds.positives is None or ds.position_unit != "frames":  # frame positions of explicit positives: in order
+        found += [out_of_order(t.positions, t.seq_bounds, ds.radius, ds.position_unit, side)
+                  for side, t in (("query", ds.query), ("reference", ds.reference))]
+    found.append(duplicated_rows(ds.query.descriptors, "query"))
     return [f"{ds.name}: {line}" for line in found if line]
 
 
@@ -131,11 +139,19 @@ def _row_hashes(a: np.ndarray) -> np.ndarray:
 
 def _shared_queries(ds: Dataset) -> str | None:
     """The pairs of splits whose query ranges overlap (as the calibration split and HVPR's val choice refuse)."""
-    names = list(ds.splits)
+    return shared_queries(ds, list(ds.splits))
+
+
+def shared_queries(ds: Dataset, names: Sequence[str]) -> str | None:
+    """Why the splits ``names`` (named splits, ranges or ``all``) misuse queries: pairs of them whose query
+    ranges overlap (one line naming each pair); None when they are disjoint or cannot be read."""
     shared = []
     for i, a in enumerate(names):
         for b in names[i + 1:]:
-            (s, e), (t, f) = ds.splits[a]["query"], ds.splits[b]["query"]
+            ra, rb = ds.ranges(a), ds.ranges(b)
+            if ra is None or rb is None:
+                continue
+            (s, e), (t, f) = ra["query"], rb["query"]
             if max(s, t) < min(e, f):
                 shared.append(f"{a} (queries {s}:{e}) and {b} (queries {t}:{f}) share {min(e, f) - max(s, t)}")
     if not shared:
@@ -155,4 +171,36 @@ def _constant_positions(ds: Dataset) -> str | None:
         return None
     return (f"all {len(ds.reference)} reference and {len(ds.query)} query positions lie within {span:g} "
             f"{ds.position_unit} of each other, inside the radius {ds.radius:g}: every reference is within the "
-            "radius of every query, so R@K is 1 trivially (hint: check the positions: constant GPS?)")
+            "radius of every query, so R@K is 1 trivially (hint: " + (
+                DEGREES_HINT if looks_like_degrees(both) else "check the positions: constant GPS?") + ")")
+
+
+DUPLICATES_SHARE = 0.01  # exact duplicate rows above this share of a side (and at least 2) are named
+DUPLICATES_BYTES = 64 << 20  # rows hashed at most (runs of consecutive rows spread over the side beyond it)
+RUN = 256  # consecutive rows per run of the sample
+
+
+def duplicated_rows(desc: np.ndarray, side: str) -> str | None:
+    """Why ``desc [N, D]`` looks wrong: more than :data:`DUPLICATES_SHARE` of its rows (at least 2) are exact
+    copies of another row (by a hash of every row, :func:`_row_hashes`; up to 100 candidates checked whole), among
+    every row or, beyond :data:`DUPLICATES_BYTES`, runs of :data:`RUN` consecutive rows spread over ``desc``;
+    None otherwise."""
+    if desc.ndim != 2 or len(desc) < 2:
+        return None
+    k = max(2000, DUPLICATES_BYTES // max(1, _row_bytes(desc)))
+    rows = np.arange(len(desc)) if len(desc) <= k else np.unique(
+        spread(len(desc) - RUN + 1, max(1, k // RUN))[:, None] + np.arange(RUN))
+    sub = np.asarray(desc[rows])
+    h = _row_hashes(sub)
+    _, first = np.unique(h, return_index=True)
+    dup = np.setdiff1d(np.arange(len(h)), first)
+    if len(dup) < max(2, DUPLICATES_SHARE * len(sub)):
+        return None
+    order = np.argsort(h, kind="stable")
+    at = order[np.searchsorted(h[order], h[dup[:100]])]  # the first row of each checked duplicate's hash
+    if not all(np.array_equal(sub[i], sub[j]) for i, j in zip(dup[:100], at, strict=True)):
+        return None
+    of = f"the {len(desc)}" if len(sub) == len(desc) else f"{len(sub)} checked (of {len(desc)})"
+    return (f"{len(dup)} of {of} {side} rows are exact duplicates of another row (identical descriptors: the same "
+            "image given twice, or a describer that failed on them?): duplicates carry no place and their ties are "
+            "broken by index (hint: check the images and the describer)")

@@ -22,10 +22,11 @@ from ..core.log import logger
 from ..core.stage import Written
 from ..data.resample import resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
-from ..methods.checks import check_inputs, leakage, model_lengths, reversed_route, trivial_truth
+from ..methods.checks import check_inputs, leakage, model_lengths
 from ..methods.grammar import Method, parse_method
 from ..methods.protocol import Reference
 from ..methods.rank import Query, rank
+from ..methods.route import route_warnings
 from ..metrics.consistency import QueryOrder
 from ..metrics.recall import GroundTruth, ground_truth
 from ..reference.plain import PlainReference, runs_plain
@@ -235,7 +236,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
-    for said in (reversed_route(ev.truth, ev.results["methods"]), trivial_truth(ev.truth), one_retrieved(ev)):
+    for said in [*route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev)]:
         if said:
             logger.warning("%s", said)
             ev.results["warnings"] = [*ev.results.get("warnings", []), said]

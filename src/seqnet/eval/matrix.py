@@ -213,7 +213,26 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     out.frame_names = (ds.query.names, ds.reference.names)
     out.dataset, out.matrix = ds, given  # for the report: the evaluated frames and their given distances
     out.results["matrix_check"] = orientation_check(ds, given, similarity, transposed)
+    if said := constant_rows(given):
+        logger.warning("%s", said)
+        out.results["warnings"] = [*out.results.get("warnings", []), said]
     return out
+
+
+def constant_rows(given: GivenMatrix) -> str | None:
+    """Why the matrix cannot rank: every row (or at least half of them) holds one value, so its best and worst
+    reference are the same (:meth:`seqnet.search.given.GivenMatrix.best`, the first on ties); None otherwise."""
+    best = given.best()
+    same = best["as given"] == best["other sense"]
+    n, nq = int(same.sum()), len(same)
+    if nq == 0 or n < nq / 2:
+        return None
+    if n < nq:
+        return f"{n} of the {nq} rows of the matrix are constant: for those queries every rank is a tie broken by index"
+    if np.ptp(given[:, np.array([0])]) == 0:
+        return "the matrix is constant: it carries no information, every rank is a tie broken by index"
+    return ("every row of the matrix is constant: it carries no information on which reference matches, every rank "
+            "is a tie broken by index")
 
 
 def _matrix_group(ds: Dataset, d: GivenMatrix, methods: list[Method], windows: Windows, conf: EvalConfig

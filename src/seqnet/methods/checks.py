@@ -7,15 +7,13 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from ..core.errors import ConfigError
 from ..core.log import logger
 from ..core.provenance import check_same
-from ..core.tensors import spread
 from ..data.traverse import Dataset
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
-from .grammar import Method, parse_method
+from .grammar import Method
+from .route import REVERSED_BELOW, TRIVIAL_SHARE, reversed_route, route_direction, trivial_truth  # noqa: F401
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -202,58 +200,3 @@ def check_resident(reference: Any, method: Method, models: Mapping[str, SeqNet])
                f"localising against {reference.name!r} (kept in memory: {gib(held)})",
                "a map with a compressed index and float16 frames (seqnet index build --index ivf-pq --dtype "
                "float16), or fewer dimensions (--dim, PCA, --out-dims)")
-
-
-REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back
-
-
-def route_direction(truth: Any, samples: int = 200) -> float | None:
-    """The correlation of query items' indices with their correct references' indices: near 1 when the query
-    traverse runs the way the reference does, near −1 when it runs back; None with fewer than 3 pairs or no
-    spread. Explicit positives: every pair; a radius: the nearest reference of ``samples`` evenly spaced queries
-    when it is within the radius (numpy only, one query at a time: bounded memory)."""
-    if truth.positives is not None:
-        q, r = truth.positives.pairs()
-    elif len(truth.r_pos) == 0:
-        return None
-    else:
-        items = spread(len(truth.q_pos), samples)
-        near = np.array([np.square(truth.r_pos - truth.q_pos[i]).sum(axis=1).argmin() for i in items], np.int64)
-        close = np.square(truth.r_pos[near] - truth.q_pos[items]).sum(axis=1) <= truth.radius**2
-        q, r = items[close], near[close]
-    if len(q) < 3 or np.ptp(q) == 0 or np.ptp(r) == 0:
-        return None
-    return float(np.corrcoef(q.astype(np.float64), r.astype(np.float64))[0, 1])
-
-
-def reversed_route(truth: Any, methods: Iterable[str]) -> str | None:
-    """Why forward sequence methods among ``methods`` cannot match a query traverse that runs opposite to the
-    reference (:func:`route_direction` below :data:`REVERSED_BELOW`), and what to use; None otherwise."""
-    forward = [n for n in methods if not parse_method(n).single_frame and not n.endswith("-rev")]
-    corr = route_direction(truth) if forward else None
-    if corr is None or corr >= REVERSED_BELOW:
-        return None
-    return (f"the query traverse runs opposite to the reference: its correct references go back as it goes on "
-            f"(correlation {corr:.2f}), so the sequence methods {', '.join(forward[:4])}"
-            f"{' ...' if len(forward) > 4 else ''} compare frames in the wrong order; use the reversed matchers "
-            "(e.g. raw+seqmatch-rev) or give the query frames in the opposite order")
-
-
-TRIVIAL_SHARE = 0.5  # a query whose correct references are this share of the map or more: R@K says little
-
-
-def trivial_truth(truth: Any, samples: int = 200) -> str | None:
-    """Why the ground truth makes Recall@K near-trivial (the median query, of ``samples`` evenly spaced, has at
-    least :data:`TRIVIAL_SHARE` of the references correct: constant positions, or a radius as large as the route),
-    None otherwise."""
-    n_q, n_r = len(truth.q_pos), len(truth.r_pos)
-    if n_q == 0 or n_r < 4:
-        return None
-    counts = [len(truth.of(int(i))) for i in spread(n_q, samples)]  # the ground truth's own test
-    share = float(np.median(counts)) / n_r
-    if share < TRIVIAL_SHARE:
-        return None
-    what = "positives" if truth.positives is not None else f"references within the radius {truth.radius:g}"
-    return (f"the median query has {share:.0%} of the {n_r} references as its {what}: any answer is likely correct "
-            "and Recall@K says little (constant positions, or a radius as large as the route? check the positions "
-            "and the radius, and their unit)")

@@ -27,6 +27,7 @@ from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.provenance import check_same
 from ..data.io import load_dataset
+from ..data.sanity import shared_queries
 from ..data.traverse import Dataset
 from ..methods.checks import accepted_mismatch
 from ..security.locks import locked
@@ -93,6 +94,8 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
         return src, None
     val_ds = _split(dataset, conf.val_split, "val")
     split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad)
+    if said := shared_queries(dataset, [conf.train_split, conf.val_split]):
+        logger.warning("the best epoch is chosen on queries it trains on: %s", said)
     return src, val_ds
 
 

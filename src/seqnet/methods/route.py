@@ -1,0 +1,122 @@
+"""The checks of an evaluated route that say the user probably meant something else (one line each, logged
+and kept in the results' ``warnings`` by ``seqnet eval``): a query sequence driven opposite to the reference
+(:func:`reversed_route`), a near-trivial ground truth (:func:`trivial_truth`), and, through
+:func:`route_warnings`, rows out of route order, different sampling rates and duplicated query rows."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from ..core.tensors import spread
+from ..data.sanity import duplicated_rows
+from ..data.spacing import DEGREES_HINT, looks_like_degrees, out_of_order, step_rates
+from .grammar import parse_method
+
+REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back
+
+
+def route_direction(truth: Any, samples: int = 200, rows: tuple[int, int] | None = None) -> float | None:
+    """The correlation of query items' indices with their correct references' indices: near 1 when the query
+    traverse runs the way the reference does, near −1 when it runs back; None with fewer than 3 pairs or no
+    spread. Explicit positives: every pair; a radius: the nearest reference of ``samples`` evenly spaced queries
+    when it is within the radius (numpy only, one query at a time: bounded memory). ``rows``: only the query
+    items ``a:b`` (one sequence)."""
+    a, b = rows if rows is not None else (0, len(truth.q_pos))
+    if truth.positives is not None:
+        q, r = truth.positives.pairs()
+        q, r = q[(q >= a) & (q < b)], r[(q >= a) & (q < b)]
+    elif len(truth.r_pos) == 0 or b <= a:
+        return None
+    else:
+        items = a + spread(b - a, samples)
+        near = np.array([np.square(truth.r_pos - truth.q_pos[i]).sum(axis=1).argmin() for i in items], np.int64)
+        close = np.square(truth.r_pos[near] - truth.q_pos[items]).sum(axis=1) <= truth.radius**2
+        q, r = items[close], near[close]
+    if len(q) < 3 or np.ptp(q) == 0 or np.ptp(r) == 0:
+        return None
+    return float(np.corrcoef(q.astype(np.float64), r.astype(np.float64))[0, 1])
+
+
+def sequences(bounds: np.ndarray | None, items: np.ndarray) -> dict[tuple[int, int], tuple[int, int]]:
+    """The half-open range of evaluated items (``items [M]``: ascending query frames) in each query sequence,
+    by the sequence's frames (``bounds [N, 2]``: the half-open sequence of every frame; None: one sequence)."""
+    whole = {(0, len(items)): (0, len(items))}
+    if bounds is None or len(bounds) == 0:
+        return whole
+    seqs = np.unique(np.asarray(bounds), axis=0)
+    at = np.searchsorted(items, seqs)
+    return {(int(s), int(e)): (int(a), int(b)) for (s, e), (a, b) in zip(seqs, at, strict=True) if b > a} or whole
+
+
+def reversed_route(truth: Any, methods: Iterable[str], bounds: np.ndarray | None = None,
+                   items: np.ndarray | None = None) -> str | None:
+    """Why forward sequence methods among ``methods`` cannot match a query traverse (or, with several query
+    sequences, ``bounds [N, 2]`` of the query frames, some of them) that runs opposite to the reference
+    (:func:`route_direction` below :data:`REVERSED_BELOW`), and what to use; None otherwise. ``items [M]``: the
+    query frame of each of the truth's items (default: item i is frame i)."""
+    forward = [n for n in methods if not parse_method(n).single_frame and not n.endswith("-rev")]
+    if not forward:
+        return None
+    runs = sequences(bounds, np.arange(len(truth.q_pos)) if items is None else np.asarray(items))
+    corr = {seq: route_direction(truth, rows=r) for seq, r in runs.items()}
+    back = [(seq, c) for seq, c in corr.items() if c is not None and c < REVERSED_BELOW]
+    if not back:
+        return None
+    named = f"{', '.join(forward[:4])}{' ...' if len(forward) > 4 else ''}"
+    if len(back) == len(runs):  # the whole traverse (one sequence, or every one)
+        whole = route_direction(truth) if len(runs) > 1 else None
+        whole = back[0][1] if whole is None else whole
+        return (f"the query traverse runs opposite to the reference: its correct references go back as it goes on "
+                f"(correlation {whole:.2f}), so the sequence methods {named} compare frames in the wrong "
+                "order; use the reversed matchers (e.g. raw+seqmatch-rev) or give the query frames in the "
+                "opposite order")
+    which = ", ".join(f"{a}:{b} (correlation {c:.2f})" for (a, b), c in back[:6])
+    return (f"{len(back)} of the {len(runs)} query sequences run opposite to the reference (query frames {which}"
+            f"{' ...' if len(back) > 6 else ''}): their correct references go back as they go on, so the sequence "
+            f"methods {named} compare their frames in the wrong order; evaluate them apart with the reversed "
+            "matchers (e.g. raw+seqmatch-rev) or give their frames in the opposite order")
+
+
+TRIVIAL_SHARE = 0.5  # a query whose correct references are this share of the map or more: R@K says little
+
+
+def trivial_truth(truth: Any, samples: int = 200) -> str | None:
+    """Why the ground truth makes Recall@K near-trivial (the median query, of ``samples`` evenly spaced, has at
+    least :data:`TRIVIAL_SHARE` of the references correct: constant positions, positions in degrees, or a radius
+    as large as the route), None otherwise."""
+    n_q, n_r = len(truth.q_pos), len(truth.r_pos)
+    if n_q == 0 or n_r < 4:
+        return None
+    counts = [len(truth.of(int(i))) for i in spread(n_q, samples)]  # the ground truth's own test
+    share = float(np.median(counts)) / n_r
+    if share < TRIVIAL_SHARE:
+        return None
+    what = "positives" if truth.positives is not None else f"references within the radius {truth.radius:g}"
+    hint = (f"({DEGREES_HINT})" if truth.positives is None and looks_like_degrees(np.concatenate(
+        [truth.q_pos, truth.r_pos])) else "(constant positions, or a radius as large as the route? check the "
+            "positions and the radius, and their unit)")
+    return (f"the median query has {share:.0%} of the {n_r} references as its {what}: any answer is likely correct "
+            f"and Recall@K says little {hint}")
+
+
+def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str]) -> list[str]:
+    """Every line of this module's checks on an evaluation: ``ds`` the evaluated split (re-sampled as asked;
+    None: only the truth's checks), ``truth`` over its query frames ``items [M]``, for ``methods``: reversed
+    sequences, trivial truth, rows out of route order and different sampling rates (for real positions, when a
+    sequence method is evaluated), duplicated query rows."""
+    methods = list(methods)
+    if ds is None:
+        return [line for line in (reversed_route(truth, methods), trivial_truth(truth)) if line]
+    q, r = ds.query, ds.reference
+    found = [reversed_route(truth, methods, q.seq_bounds, items), trivial_truth(truth)]
+    real = not (ds.positives is not None and ds.position_unit == "frames")  # frame indices say nothing of steps
+    if real and any(not parse_method(n).single_frame for n in methods):
+        found += [out_of_order(t.positions, t.seq_bounds, ds.radius, ds.position_unit, side)
+                  for side, t in (("query", q), ("reference", r))]
+        if not any(found[2:]):
+            found.append(step_rates(q.positions, q.seq_bounds, r.positions, r.seq_bounds, ds.position_unit))
+    found.append(duplicated_rows(q.descriptors, "query"))
+    return [line for line in found if line]

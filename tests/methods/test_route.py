@@ -1,0 +1,93 @@
+"""The evaluated route's warnings (seqnet.methods.route): a reversed query sequence among forward ones, rows out
+of route order, different sampling rates and duplicated query rows, each one line; none on real Nordland64 frames
+in order."""
+
+from __future__ import annotations
+
+import numpy as np
+from conftest import shared_data
+
+from seqnet.data.positives import Positives
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.methods.route import reversed_route, route_warnings, sequences
+from seqnet.metrics.recall import GroundTruth
+
+METHODS = ["single", "raw+seqmatch"]
+
+
+def two_sequences(back_second: bool = True) -> tuple[GroundTruth, np.ndarray]:
+    """A query of two 150-frame sequences over a 300-frame reference, the second driven back (or forward)."""
+    fwd = np.arange(150, 300, dtype=float)
+    q = np.concatenate([np.arange(150.0), fwd[::-1] if back_second else fwd])[:, None]
+    return GroundTruth(q, np.arange(300.0)[:, None], 1.0), np.repeat([[0, 150], [150, 300]], 150, axis=0)
+
+
+def test_a_reversed_sequence_among_forward_ones_is_named():
+    truth, bounds = two_sequences()
+    assert reversed_route(truth, METHODS) is None  # the whole query: no clear direction
+    said = reversed_route(truth, METHODS, bounds)
+    assert said.startswith("1 of the 2 query sequences run opposite") and "query frames 150:300" in said
+    assert reversed_route(two_sequences(False)[0], METHODS, two_sequences(False)[1]) is None
+    assert reversed_route(truth, ["single"], bounds) is None
+
+
+def test_sequences_map_frames_to_evaluated_items():
+    items = np.array([2, 3, 4, 152, 153])  # windows leave the ends of each sequence out
+    bounds = np.repeat([[0, 150], [150, 300]], 150, axis=0)
+    assert sequences(bounds, items) == {(0, 150): (0, 3), (150, 300): (3, 5)}
+    assert sequences(None, items) == {(0, 5): (0, 5)}
+    truth, _ = two_sequences()
+    sub = GroundTruth(truth.q_pos[items], truth.r_pos, 1.0)
+    assert reversed_route(sub, METHODS, bounds, items) is None  # two items: too few to tell a direction
+
+
+def test_every_sequence_reversed_keeps_the_whole_traverse_message():
+    q = np.arange(300.0)[::-1, None]
+    said = reversed_route(GroundTruth(q, np.arange(300.0)[:, None], 1.0), METHODS,
+                          np.repeat([[0, 150], [150, 300]], 150, axis=0))
+    assert said.startswith("the query traverse runs opposite to the reference") and "-1.00" in said
+
+
+def dataset(q_pos: np.ndarray, r_pos: np.ndarray, radius: float = 1.0, q_desc=None, **kw) -> Dataset:
+    rng = np.random.default_rng(0)
+    q_desc = rng.random((len(q_pos), 8), dtype=np.float32) if q_desc is None else q_desc
+    return Dataset(Traverse(rng.random((len(r_pos), 8), dtype=np.float32), r_pos, name="reference"),
+                   Traverse(q_desc, q_pos, name="query"), radius, name="d", **kw)
+
+
+def test_route_warnings_name_shuffles_rates_and_duplicates():
+    r = np.arange(300.0)[:, None]
+    shuffled = dataset(np.random.default_rng(1).permutation(r), r)
+    said = route_warnings(shuffled, GroundTruth(shuffled.query.positions, r, 1.0), np.arange(300), METHODS)
+    assert len(said) == 1 and "not be in route order" in said[0]
+    assert route_warnings(shuffled, GroundTruth(shuffled.query.positions, r, 1.0), np.arange(300), ["single"]) == []
+    slow = dataset(np.arange(0, 300, 0.5)[:, None], r)
+    said = route_warnings(slow, GroundTruth(slow.query.positions, r, 1.0), np.arange(600), METHODS)
+    assert len(said) == 1 and "ratio 0.5" in said[0]
+    dup = dataset(r, r, q_desc=np.ones((300, 8), np.float32))
+    said = route_warnings(dup, GroundTruth(r, r, 1.0), np.arange(300), METHODS)
+    assert len(said) == 1 and said[0].startswith("299 of the 300 query rows are exact duplicates")
+
+
+def test_frame_positions_of_explicit_positives_say_nothing_of_steps():
+    r, q = np.arange(300.0)[:, None], np.arange(0, 300, 0.5)[:, None]
+    pos = Positives.from_lists([[int(i)] for i in q[:, 0]])
+    ds = dataset(q, r, positives=pos, position_unit="frames")
+    assert route_warnings(ds, GroundTruth(q, r, 1.0, pos), np.arange(600), METHODS) == []
+
+
+def test_real_nordland64_frames_in_order_warn_nothing():
+    from seqnet.data.sanity import dataset_warnings
+    from seqnet.pipelines.nordland64 import list_places
+    from seqnet.security.pictures import read_image
+
+    data = shared_data("nordland64")
+    names, pos = list_places(data)
+    names, pos = names[:300], np.asarray(pos[:300], dtype=float)[:, None]
+    summer, winter = ([read_image(data / s / n).astype(np.float32).ravel() for n in names]
+                      for s in ("summer", "winter"))
+    ds = Dataset(Traverse(np.stack(summer), pos, name="reference"), Traverse(np.stack(winter), pos, name="query"),
+                 2.0, position_unit="frames", name="nordland64")
+    truth = GroundTruth(pos, pos, 2.0)
+    assert route_warnings(ds, truth, np.arange(300), METHODS) == []
+    assert dataset_warnings(ds) == []
