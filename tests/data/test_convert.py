@@ -110,7 +110,7 @@ def test_csv_count_mismatch_without_names(tmp_path, rng):
 def test_csv_rows_paired_by_order_are_said(tmp_path, rng, caplog):
     import logging
 
-    caplog.set_level(logging.INFO, logger="seqnet")
+    caplog.set_level(logging.DEBUG, logger="seqnet")
     _write_csv(tmp_path / "r.csv", [("b", 1, 2), ("a", 3, 4)])
     np.save(tmp_path / "r.npy", rng.random((2, 4), dtype=np.float32))
     traverse_from_csv(tmp_path / "r.csv", tmp_path / "r.npy", name="query")

@@ -193,7 +193,7 @@ def traverse_from_csv(csv_path: str | Path, desc_path: str | Path, names_file: s
                                + (transposed_hint(len(names), desc) or " and no names; hint: give a names file "
                                   "(--*-names) or HDF5 'names' to match by name"))
         idx = np.arange(len(names))
-        logger.info("%s: its rows are paired with the descriptors of %s by order (row i is descriptor i), not by "
+        logger.debug("%s: its rows are paired with the descriptors of %s by order (row i is descriptor i), not by "
                     "its image names: the rows must be in the descriptors' order; hint: a names file (--%s-names) "
                     "or HDF5 'names' pairs them by name", csv_path, desc_path, "ref" if name == "reference" else name)
     else:
