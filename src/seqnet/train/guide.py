@@ -37,10 +37,10 @@ torch = lazy_module("torch")
 
 VAL_MIN = 50  # val queries below which the best epoch is chosen by noise (1 query = 2% of R@1)
 CHECKPOINT_ADVISED_BYTES = 500 * 2**20  # best.pt + last.pt above this: advise fewer dimensions
-# seconds of each optimiser step beyond its FLOPs (indexing, the loss, the update, Python): measured on a
-# shared 2-core CPU, 200 epochs of S_5 on `seqnet synth` (D = 64, 22 batches an epoch): 0.66 s per epoch
-# where the FLOPs take under 0.05 s
-STEP_SECONDS = 0.025
+# seconds of each optimiser step beyond its FLOPs (indexing, the loss, Python): measured 2026-12-03 on the
+# shared 2-core CPU, S_5 on `seqnet synth --places 2000` (D = 64, 74 batches an epoch): 0.1-0.3 s per epoch,
+# SGD and Adam, validation included (the 0.025 s used before made the plan 1.9 s per epoch, 6-19x too long)
+STEP_SECONDS = 0.003
 OPTIMIZER_COPIES = {"sgd": 1, "adam": 2}  # state per weight kept in last.pt (momentum / the two moments)
 # bytes per second of writing a checkpoint (torch.save to a temporary, renamed): 2.3 GiB in 11.6 s measured on
 # this project's shared machine; each epoch writes last.pt (and best.pt when val improves)
