@@ -93,15 +93,12 @@ def sequence_steps(q: np.ndarray, t: np.ndarray, seq: np.ndarray, answered: np.n
     answers; the step of all sequences together for one with fewer than ``2 span`` pairs of answers). Inputs as
     :func:`map_step`'s, ``seq`` numbered ``0…S−1``."""
     n_seq = int(seq.max()) + 1 if len(seq) else 0
-    pooled = map_step(q, t, seq, answered, span)
-    if n_seq <= 1:
-        return np.full(n_seq, pooled)
-    steps = np.full(n_seq, pooled)
-    bounds = np.searchsorted(seq, np.arange(n_seq + 1))  # sorted by sequence: each one's rows
-    for s in range(n_seq):
-        a, b = bounds[s], bounds[s + 1]
-        if len(_pairs(q[a:b], t[a:b], seq[a:b], answered[a:b], span)[0]) >= 2 * span:
-            steps[s] = map_step(q[a:b], t[a:b], seq[a:b], answered[a:b], span)
+    dt, dq, of = _pairs(q, t, seq, answered, span)  # every sequence's pairs, found once
+    steps = np.full(n_seq, _voted_step(dt, dq))
+    if n_seq > 1:
+        for s in np.flatnonzero(np.bincount(of, minlength=n_seq) >= 2 * span):
+            mine = of == s
+            steps[s] = _voted_step(dt[mine], dq[mine])
     return steps
 
 
@@ -111,7 +108,11 @@ def map_step(q: np.ndarray, t: np.ndarray, seq: np.ndarray, answered: np.ndarray
     the step ``v0`` of :data:`STEPS` with the most pairs ``|(t_j − t_i) − v0 (q_j − q_i)| ≤ 1`` (ties: nearest
     1), refined to the median slope ``(t_j − t_i) / (q_j − q_i)`` of the pairs within ``max(1, |v0|)`` of it;
     1 when there is no pair."""
-    dt, dq = _pairs(q, t, seq, answered, span)
+    return _voted_step(*_pairs(q, t, seq, answered, span)[:2])
+
+
+def _voted_step(dt: np.ndarray, dq: np.ndarray) -> float:
+    """:func:`map_step` of the pairs' ``dt = t_j − t_i`` and ``dq = q_j − q_i``."""
     if not len(dt):
         return 1.0
     votes = np.zeros(len(STEPS))
@@ -124,14 +125,17 @@ def map_step(q: np.ndarray, t: np.ndarray, seq: np.ndarray, answered: np.ndarray
 
 
 def _pairs(q: np.ndarray, t: np.ndarray, seq: np.ndarray, answered: np.ndarray,
-           span: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(t_j − t_i, q_j − q_i)`` of the answered pairs ``0 < q_j − q_i ≤ span`` of one sequence (sorted input)."""
-    dts, dqs = [], []
+           span: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(t_j − t_i, q_j − q_i, sequence)`` of the answered pairs ``0 < q_j − q_i ≤ span`` of one sequence
+    (sorted input)."""
+    dts, dqs, seqs = [], [], []
     for lag in range(1, min(span, len(q) - 1) + 1):  # items ``lag`` apart in the sorted order
         dq = q[lag:] - q[:-lag]
         pair = (seq[lag:] == seq[:-lag]) & answered[lag:] & answered[:-lag] & (dq > 0) & (dq <= span)
         dts.append((t[lag:] - t[:-lag])[pair])
         dqs.append(dq[pair])
+        seqs.append(seq[lag:][pair])
     if not dts:
-        return np.zeros(0), np.zeros(0)
-    return np.concatenate(dts).astype(np.float64), np.concatenate(dqs).astype(np.float64)
+        return np.zeros(0), np.zeros(0), np.zeros(0, np.int64)
+    return (np.concatenate(dts).astype(np.float64), np.concatenate(dqs).astype(np.float64),
+            np.concatenate(seqs).astype(np.int64))
