@@ -60,12 +60,25 @@ def review(ds: Dataset) -> list[str]:
 
 def dataset_warnings(ds: Dataset) -> list[str]:
     """One line per likely mistake in ``ds`` (none: an empty list): see the module's description."""
-    found = [_copied_queries(ds), _shared_queries(ds), _constant_positions(ds)]
-    if ds.positives is None or ds.position_unit != "frames":  # frame positions of explicit positives: in order
-        found += [out_of_order(t.positions, t.seq_bounds, ds.radius, ds.position_unit, side)
-                  for side, t in (("query", ds.query), ("reference", ds.reference))]
-    found.append(duplicated_rows(ds.query.descriptors, "query"))
+    found = [_copied_queries(ds), _shared_queries(ds), _constant_positions(ds), *route_order(ds),
+             duplicated_rows(ds.query.descriptors, "query")]
     return [f"{ds.name}: {line}" for line in found if line]
+
+
+def real_positions(ds: Dataset) -> bool:
+    """Whether ``ds``'s positions say how far frames are apart (not the frame numbers that stand in for positions
+    beside explicit positives)."""
+    return ds.positives is None or ds.position_unit != "frames"
+
+
+def route_order(ds: Dataset) -> list[str]:
+    """The :func:`seqnet.data.spacing.out_of_order` lines of the query and the reference of ``ds`` (none when
+    its positions are frame numbers: :func:`real_positions`)."""
+    if not real_positions(ds):
+        return []
+    found = [out_of_order(t.positions, t.seq_bounds, ds.radius, ds.position_unit, side)
+             for side, t in (("query", ds.query), ("reference", ds.reference))]
+    return [line for line in found if line]
 
 
 def _copied_queries(ds: Dataset) -> str | None:

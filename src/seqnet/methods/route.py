@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 
 from ..core.tensors import spread
-from ..data.sanity import duplicated_rows
-from ..data.spacing import DEGREES_HINT, looks_like_degrees, out_of_order, step_rates
+from ..data.sanity import duplicated_rows, real_positions, route_order
+from ..data.spacing import DEGREES_HINT, looks_like_degrees, step_rates
 from .grammar import parse_method
 
 REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back
@@ -112,11 +112,8 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
         return [line for line in (reversed_route(truth, methods), trivial_truth(truth)) if line]
     q, r = ds.query, ds.reference
     found = [reversed_route(truth, methods, q.seq_bounds, items), trivial_truth(truth)]
-    real = not (ds.positives is not None and ds.position_unit == "frames")  # frame indices say nothing of steps
-    if real and any(not parse_method(n).single_frame for n in methods):
-        found += [out_of_order(t.positions, t.seq_bounds, ds.radius, ds.position_unit, side)
-                  for side, t in (("query", q), ("reference", r))]
-        if not any(found[2:]):
-            found.append(step_rates(q.positions, q.seq_bounds, r.positions, r.seq_bounds, ds.position_unit))
+    if real_positions(ds) and any(not parse_method(n).single_frame for n in methods):
+        disorder = route_order(ds)
+        found += disorder or [step_rates(q.positions, q.seq_bounds, r.positions, r.seq_bounds, ds.position_unit)]
     found.append(duplicated_rows(q.descriptors, "query"))
     return [line for line in found if line]
