@@ -21,7 +21,7 @@ from ..core.errors import ImageError, SeqnetError
 from ..core.tensors import spread
 from ..data.traverse import Traverse
 from ..metrics.recall import GroundTruth
-from ..security.inputs import find_inside, open_input
+from ..security.inputs import find_inside, open_input, within
 from ..sequence.windows import window_starts
 from .styles import TRUTH_COLOUR, family_legend, method_styles
 from .tables import new_figure
@@ -170,14 +170,12 @@ def gallery_image(root: Path, name: str) -> np.ndarray:
     what = "gallery image name"
     path, real_root = find_inside(root, name, what, ImageError), os.path.realpath(root)
     real = os.path.realpath(path)
-    if os.path.commonpath([real, real_root]) != real_root:
+    if not within(real_root, real):
         raise ImageError(f"{what} {name!r} leads outside {root} (to {real}); not read")
     with open_input(real, "image", ImageError, follow=False) as f:
         opened = f"/proc/self/fd/{f.fileno()}"
-        if os.path.islink(opened):  # Linux: where the descriptor really leads
-            real = os.path.realpath(opened)
-            if os.path.commonpath([real, real_root]) != real_root:
-                raise ImageError(f"{what} {name!r} leads outside {root} (to {real}); not read")
+        if os.path.islink(opened) and not within(real_root, real := os.path.realpath(opened)):  # where it leads
+            raise ImageError(f"{what} {name!r} leads outside {root} (to {real}); not read")
         return decode(lambda: open_image(f), path)
 
 

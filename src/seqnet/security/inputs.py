@@ -5,6 +5,7 @@
 * :func:`read_bytes` reads a whole small file (JSON, text), refusing one larger than its bound.
 * :func:`inside` resolves a path read from a file (``dataset.json``'s traverses, ``map.json``'s models,
   checksum keys) inside that file's folder: absolute paths, ``..`` and links leading out are refused.
+* :func:`within` says whether a resolved path lies in a resolved folder (the one test of the module's guards).
 * :func:`find_inside` finds the file a name kept as a user gave it (``../data/img.png``, an absolute path)
   names inside a given folder: by the name, its path, or its last parts, each through :func:`inside`.
 * :func:`check_name` refuses a name (an image name, a key) holding a NUL or a line separator.
@@ -107,10 +108,15 @@ def inside(root: str | os.PathLike[str], rel: object, what: str, error: ErrorTyp
     out = Path(root) / rel
     real_root = os.path.realpath(root)
     real = os.path.realpath(out)
-    if os.path.commonpath([real_root, real]) != real_root:
+    if not within(real_root, real):
         raise error(f"{what}: {rel!r} leads outside {root} through a symbolic link (to {real})")
     return out
 
+
+def within(real_root: str, real: str) -> bool:
+    """Whether the resolved path ``real`` is the resolved folder ``real_root`` or lies in it (both through
+    :func:`os.path.realpath`)."""
+    return os.path.commonpath([real_root, real]) == real_root
 
 
 def find_inside(root: str | os.PathLike[str], name: object, what: str, error: ErrorType = DatasetError) -> Path:
@@ -139,7 +145,7 @@ def find_inside(root: str | os.PathLike[str], name: object, what: str, error: Er
     if linked:
         why.append(f"{', '.join(map(repr, linked))} there leads outside {root} through a symbolic link (not read)")
     as_given = os.path.realpath(name)
-    if len(Path(name).parts) > 1 and os.path.commonpath([real_root, as_given]) != real_root:
+    if len(Path(name).parts) > 1 and not within(real_root, as_given):
         why.append(f"the path as given leads outside {root}, to the file {as_given}: not read, nor any file of its "
                    "name in the folder (hint: name the folder that holds it)" if os.path.exists(as_given) else
                    f"the path as given leads outside {root}, to {as_given}, where there is no file")
@@ -152,7 +158,7 @@ def _names_to_try(name: str, real_root: str) -> list[str]:
     out = [name] if not Path(name).is_absolute() and ".." not in parts else []
     if len(parts) > 1:
         real = os.path.realpath(name)
-        if real != real_root and os.path.commonpath([real_root, real]) == real_root:
+        if real != real_root and within(real_root, real):
             out.append(os.path.relpath(real, real_root))
         elif os.path.exists(real):  # the file is elsewhere: one of the same name in root is another picture
             return list(dict.fromkeys(out))
