@@ -164,7 +164,7 @@ def test_cli_build_and_eval(synth_dir, map_models, tmp_path, capsys):
                             "--out", str(tmp_path / "t.csv")], "--window causal")
 
 
-def test_explicit_positives_apply_to_a_map_of_the_same_dataset_only(synth_dir, tmp_path):
+def test_explicit_positives_apply_to_a_map_of_the_same_dataset_only(synth_dir, tmp_path, capsys):
     from seqnet.data.positives import Positives
 
     ds = load_dataset(synth_dir, mmap=False)
@@ -176,6 +176,12 @@ def test_explicit_positives_apply_to_a_map_of_the_same_dataset_only(synth_dir, t
     mp_path = build(FREE, tmp_path / "pos", tmp_path / "map")
     mapped = results(evaluate_main(econf, tmp_path / "pos", mp_path, tmp_path / "mapped"))
     assert mapped["hvpr-delta:raw+seqmatch"]["recall@1"] == exact["hvpr-delta:raw+seqmatch"]["recall@1"]
+    assert json.loads((tmp_path / "mapped" / "results.json").read_text())["config"]["ground_truth"] == \
+        "explicit positives"
+    assert cli(["eval", "--dataset", str(tmp_path / "pos"), "--index", str(mp_path), "--method",
+                     "hvpr-delta:raw+seqmatch", "--seq-len", "4"]) == 0
+    said = capsys.readouterr().out
+    assert "explicit positives" in said and "radius" not in said.split("\n")[0], said  # not "radius 1" (exact-frame)
     foreign = build(FREE, synth_dir, tmp_path / "foreign")
     with pytest.raises(ConfigError, match="explicit positives"):
         evaluate_main(econf, tmp_path / "pos", foreign, tmp_path / "o")

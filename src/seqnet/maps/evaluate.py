@@ -124,7 +124,8 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     radius = conf.radius or q.radius
     query = mp.describe(q.traverse)
     items = query.side.items
-    truth = ground_truth(q.traverse.positions[items], mp.positions[mp.items], radius, _positives(mp, q, items),
+    positives = _positives(mp, q, items)
+    truth = ground_truth(q.traverse.positions[items], mp.positions[mp.items], radius, positives,
                          f"{q.name} against map {mp.path}")
     c = mp.config
     conf = conf.replace(seq_len=c.windows.seq_len, match_len=c.windows.match_len, radius=radius)
@@ -137,7 +138,8 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     ev = run(methods, query, mp, truth, conf, len(q.traverse), info, extra)
     ev.results["config"] = {**conf.to_dict(), "methods": [m.name for m in methods], "split": q.split,
                             "dataset": q.name, "device": str(mp.device), "index": str(mp.path),
-                            "map": mp.meta["config"]}
+                            "map": mp.meta["config"],
+                            "ground_truth": "explicit positives" if positives is not None else "radius"}
     ev.query_names = [q.traverse.names[i] for i in items] if q.traverse.names else None
     ev.reference_names = [mp.names[i] for i in mp.items] if mp.names else None
     ev.frame_names = (q.traverse.names, mp.names)
