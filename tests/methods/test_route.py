@@ -64,6 +64,11 @@ def test_route_warnings_name_shuffles_rates_and_duplicates():
     slow = dataset(np.arange(0, 300, 0.5)[:, None], r)
     said = route_warnings(slow, GroundTruth(slow.query.positions, r, 1.0), np.arange(600), METHODS)
     assert len(said) == 1 and "ratio 0.5" in said[0]
+    truth = GroundTruth(slow.query.positions, r, 1.0)
+    for robust in (["single", "raw+vseqmatch"], ["s1+graph", "hvpr-single:raw+vseqmatch"]):  # they follow the rate
+        assert route_warnings(slow, truth, np.arange(600), robust) == []
+    for sensitive in (["raw+vseqmatch", "seqnet"], ["hvpr-seqnet:s1+vseqmatch"], ["delta+graph"]):  # S_L / delta steps
+        assert len(route_warnings(slow, truth, np.arange(600), sensitive)) == 1, sensitive
     dup = dataset(r, r, q_desc=np.ones((300, 8), np.float32))
     said = route_warnings(dup, GroundTruth(r, r, 1.0), np.arange(300), METHODS)
     assert len(said) == 1 and said[0].startswith("299 of the 300 query rows are exact duplicates")

@@ -56,6 +56,7 @@ class SequenceMatcher:
     diagonal: bool = False  # one trajectory of slope 1 (or -1): scores are sums along a frame-distance diagonal
     reverse: bool = False  # the reference traversed backwards
     on_matrix: bool = False  # topk also takes a FrameDistances (a given distance matrix) as its query: --distances
+    speed_robust: bool = False  # follows query and reference advancing at different rates (0.5-2x, stops)
 
     @property
     def online(self) -> bool:
@@ -80,20 +81,20 @@ SEQUENCE_MATCHERS: dict[str, SequenceMatcher] = {
                         on_matrix=True),
         SequenceMatcher("vseqmatch", "SeqMatch over trajectories of several slopes (0.5-2 reference frames per query "
                         "frame), the best one wins", velocity_topk, velocity_pairs, anchored=True,
-                        window=vseqmatch_window, on_matrix=True),
+                        window=vseqmatch_window, on_matrix=True, speed_robust=True),
         SequenceMatcher("vseqmatch-rev", "velocity-robust SeqMatch with the reference traversed backwards",
                         functools.partial(velocity_topk, reverse=True),
                         functools.partial(velocity_pairs, reverse=True), anchored=True,
                         window=functools.partial(vseqmatch_window, reverse=True), reverse=True,
-                        on_matrix=True),
+                        on_matrix=True, speed_robust=True),
         SequenceMatcher("graph", "GISM-style graph matching: cheapest path with reference steps 0..2 per query frame "
                         "(stops and speed changes)", graph_topk, graph_pairs, anchored=True, window=graph_window,
-                        on_matrix=True),
+                        on_matrix=True, speed_robust=True),
         SequenceMatcher("grh", "GRH-style graph matching: paths start near FAISS LSH candidates of the first frame",
-                        grh_topk, grh_pairs, anchored=True),
+                        grh_topk, grh_pairs, anchored=True, speed_robust=True),
         SequenceMatcher("grh-dh", "GRH-style graph matching: paths start near Hamming candidates of learned binary "
                         "codes (a hashing network trained on the reference frames)",
                         functools.partial(grh_topk, codes="dh"), functools.partial(grh_pairs, codes="dh"),
-                        anchored=True),
+                        anchored=True, speed_robust=True),
     )
 }

@@ -63,6 +63,16 @@ class Method:
         ``s1``): it needs no window, so it queries and indexes every frame whatever L is."""
         return self.kind == "knn" and SEQUENCE_DESCRIPTORS[self.shortlist].single_frame
 
+    @property
+    def rate_sensitive(self) -> bool:
+        """Whether the method assumes query and reference advance by equal steps per frame: a multi-frame
+        descriptor (S_L, smoothing, delta: as shortlist or as the matched frames) or a matcher that is not
+        speed-robust (``seqmatch``)."""
+        if self.single_frame:
+            return False
+        multi = any(not SEQUENCE_DESCRIPTORS[d].single_frame for d in self.descriptors())
+        return multi or not SEQUENCE_MATCHERS[self.matcher].speed_robust
+
     def descriptors(self) -> list[str]:
         """The sequence descriptors this method computes (shortlist, then frame descriptor)."""
         return [d for d in (self.shortlist, self.frames and FRAME_FEATURES[self.frames]) if d]

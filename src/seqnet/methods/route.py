@@ -112,8 +112,11 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
         return [line for line in (reversed_route(truth, methods), trivial_truth(truth)) if line]
     q, r = ds.query, ds.reference
     found = [reversed_route(truth, methods, q.seq_bounds, items), trivial_truth(truth)]
-    if real_positions(ds) and any(not parse_method(n).single_frame for n in methods):
+    parsed = [parse_method(n) for n in methods]
+    if real_positions(ds) and any(not m.single_frame for m in parsed):
         disorder = route_order(ds)
-        found += disorder or [step_rates(q.positions, q.seq_bounds, r.positions, r.seq_bounds, ds.position_unit)]
+        rates = any(m.rate_sensitive for m in parsed) and step_rates(q.positions, q.seq_bounds, r.positions,
+                                                                     r.seq_bounds, ds.position_unit)
+        found += disorder or [rates or None]
     found.append(duplicated_rows(q.descriptors, "query"))
     return [line for line in found if line]
