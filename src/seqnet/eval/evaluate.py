@@ -20,7 +20,7 @@ from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.log import logger
 from ..core.stage import Written
-from ..data.resample import resample_dataset
+from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
 from ..methods.checks import check_inputs, leakage, model_lengths
 from ..methods.grammar import Method, parse_method
@@ -93,6 +93,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     """
     conf = EvalConfig() if conf is None else conf
     check_types(ds, conf, models)
+    keep = kept_indices(ds, conf.resample_every, conf.resample_side) if conf.resample_every else None
     ds = resample_dataset(ds, conf.resample_every, conf.resample_side)
     models = dict(models or {})
     conf = conf.resolve(models, ds.radius)
@@ -111,6 +112,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
                              "models": {k: v.config() for k, v in models.items()},
                              "model_seq_len": model_lengths(models)}
     out.dataset, out.frame_names = ds, (ds.query.names, ds.reference.names)
+    out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)
     return out
 
 

@@ -69,6 +69,15 @@ class Evaluation:
     views: dict[str, ItemView] = dataclasses.field(default_factory=dict)  # method -> its items, when not the above
     windows: Windows | None = None  # the windows of ``q_items`` / ``r_items``
     frame_names: tuple[list[str] | None, list[str] | None] = (None, None)  # every query / reference frame's name
+    # each query / reference frame's number in the split before --resample-every (None: not re-sampled)
+    frame_numbers: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+
+    def frame_number(self, side: int, frames: np.ndarray) -> np.ndarray:
+        """``frames [N]`` of the evaluated query (``side`` 0) or reference (1) traverse as the user numbers them:
+        the split's frame numbers before re-sampling (-1 stays -1)."""
+        numbers = self.frame_numbers[side]
+        frames = np.asarray(frames, dtype=np.int64)
+        return frames if numbers is None else np.where(frames >= 0, numbers[np.maximum(frames, 0)], -1)
 
     def view(self, method: str) -> ItemView:
         """The items ``method`` was evaluated on (its own view, else the evaluation's)."""

@@ -200,6 +200,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
         raise ConfigError(f"the distance matrix is {list(dist.shape)} for {len(ds.query)} query and "
                           f"{len(ds.reference)} reference frames (one row per query, one column per reference)")
     given = dist if isinstance(dist, GivenMatrix) else GivenMatrix(np.asarray(dist))
+    keep = None
     if conf.resample_every is not None:  # the kept frames' rows and columns
         keep = kept_indices(ds, conf.resample_every, conf.resample_side)
         given = GivenMatrix(given[np.ix_(keep["query"], keep["reference"])])
@@ -211,6 +212,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
                              "ground_truth": "explicit positives" if ds.positives is not None else "radius",
                              "matrix_methods": list(matrix_methods())}
     out.frame_names = (ds.query.names, ds.reference.names)
+    out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)
     out.dataset, out.matrix = ds, given  # for the report: the evaluated frames and their given distances
     out.results["matrix_check"] = orientation_check(ds, given, similarity, transposed)
     if said := constant_rows(given):

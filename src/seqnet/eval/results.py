@@ -83,8 +83,10 @@ def per_query_rows(ev: Any, top: int = 5) -> list[dict[str, Any]]:
         has = view.truth.has_positive()
         calibrated = ev.results["methods"].get(name, {}).get("calibrated")
         threshold = calibrated["calibration"]["threshold"] if calibrated else None
-        for m, q in enumerate(view.q_items):
-            refs = [int(view.r_items[j]) if j >= 0 else -1 for j in head[m]]
+        q_frames = ev.frame_number(0, view.q_items)
+        r_frames = ev.frame_number(1, np.where(head >= 0, view.r_items[np.maximum(head, 0)], -1))
+        for m, q in enumerate(q_frames):
+            refs = [int(j) for j in r_frames[m]]
             rows.append({"method": name, "query_frame": int(q),
                          "query_name": view.query_names[m] if view.query_names else "",
                          "references": refs, "scores": [_num(s) for s in ev.scores[name][m, :top]],
@@ -117,7 +119,8 @@ def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
     for m, (q, row) in enumerate(zip(view.query_names, ranked[:, :top], strict=True)):
         parts = ["Query path:", q + "\n", "Predictions paths:", "\n".join(refs[j] for j in row if j >= 0) + "\n",
                  "Positives paths:", "\n".join(refs[j] for j in view.truth.of(m)) + "\n"]
-        out[f"{int(view.q_items[m]):03d}.txt"] = "\n".join(parts)  # its query frame: a query left out keeps its number
+        # its query frame (before re-sampling): a query left out keeps its number
+        out[f"{int(ev.frame_number(0, view.q_items[m:m + 1])[0]):03d}.txt"] = "\n".join(parts)
     return out
 
 
