@@ -122,7 +122,8 @@ def test_only_the_models_the_method_uses_are_kept(synth_dir, map_models, tmp_pat
 
     sl, s1 = map_models
     runs = {"none": [], "flags": ["--shortlist-model", str(sl), "--rerank-model", str(s1), "--seq-len", "4"],
-            "paths": ["--model", str(sl), "--model", str(s1)]}
+            "paths": ["--model", str(sl), "--model", str(s1)],
+            "flags, no L": ["--shortlist-model", str(sl), "--rerank-model", str(s1)]}
     caplog.set_level(logging.INFO, logger="seqnet")
     tracks = {}
     for name, extra in runs.items():
@@ -141,9 +142,11 @@ def test_only_the_models_the_method_uses_are_kept(synth_dir, map_models, tmp_pat
         assert lat["warmup_max"] == pytest.approx(max(float(r["latency_ms"]) for r in rows[: first + 1]), abs=1e-3)
         said = " ".join(r.getMessage() for r in caplog.records)
         assert ("raw+seqmatch does not use the models sl.pt, s1.pt: not loaded" in said) == (name == "paths"), said
-        if name == "paths":  # the S_L's L (4) is kept as the default L: the same windows as --seq-len 4
+        if name.startswith("flags"):
+            assert "does not use the model sl.pt: not loaded" in said and "the model s1.pt: not loaded" in said
+        if name != "none":  # the S_L's L (4) is kept as the default L: the same windows as --seq-len 4
             assert record["config"]["seq_len"] == 4
-    assert tracks["flags"] == tracks["paths"]
+    assert tracks["flags"] == tracks["paths"] == tracks["flags, no L"]
 
 
 def test_one_ranked_reference_is_refused(synth_dir, capsys):

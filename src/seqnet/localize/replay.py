@@ -148,14 +148,12 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     full = load_dataset(dataset)
     split = default_split(conf.split, full.splits)
     needed = online_method(conf.method).models()
-    if conf.seq_len is None and shortlist_model and "seqnet" not in needed:
-        logger.info("--shortlist-model is read for its L only (%s uses no S_L); --seq-len L skips reading it",
-                    conf.method)
-    skip_sl = "seqnet" not in needed and conf.seq_len is not None
     conf, models = unused_paths(conf, needed, models)
-    loaded = load_models(models, None if skip_sl else shortlist_model, rerank_model if "s1" in needed else None,
-                         conf.seq_len)
-    conf, loaded = used_models(conf, loaded)
+    if shortlist_model and "seqnet" not in needed:  # its L only (mapped, not loaded) when none was given
+        conf, shortlist_model = unused_paths(conf, needed, [shortlist_model])[0], None
+    if rerank_model and "s1" not in needed:
+        conf, rerank_model = unused_paths(conf, needed, [rerank_model])[0], None
+    loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     if calibration is not None:
         check_calibration_split(full, calibration[1], split)
     ds = full.split(split)
@@ -225,19 +223,6 @@ def unused_paths(conf: LocalizeConfig, needed: set[str],
         logger.info("%s does not use the model%s %s: not loaded", conf.method, "s" * (len(unused) > 1),
                     ", ".join(unused))
     return conf, keep
-
-
-def used_models(conf: LocalizeConfig, loaded: Mapping[str, SeqNet]) -> tuple[LocalizeConfig, dict[str, SeqNet]]:
-    """The models ``conf.method`` uses (the others are let go before any work, with a line saying so), and
-    ``conf`` with L set to the S_L model's when it gave the default L and is let go (the windows stay the same)."""
-    needed = online_method(conf.method).models()
-    unused = sorted(set(loaded) - needed)
-    if unused:
-        logger.info("%s uses no %s model: not kept", conf.method, " or ".join("S_1" if r == "s1" else "S_L"
-                                                                             for r in unused))
-    if "seqnet" in unused and conf.seq_len is None:
-        conf = conf.replace(seq_len=loaded["seqnet"].seq_len)
-    return conf, {r: m for r, m in loaded.items() if r in needed}
 
 
 def _matrix_inputs(distances: str | Path | None, reading: tuple[bool, bool]) -> dict[str, Any]:
