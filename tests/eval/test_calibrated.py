@@ -139,6 +139,8 @@ def test_the_report_says_a_missed_target():
            "methods": {"a<b": {"calibrated": c}, "d": {"calibrated": declined}}}
     body = calibration_section(res)[0].body
     assert "<td>NO</td>" in body and "Below the target: a&lt;b." in body and "too few queries" in body
+    assert "[0.400,\u00a00.900]" in body and "<td>declined</td>" in body  # the interval never wraps
+    assert "<li>d: too few queries</li>" in body  # the reason under the table, not in a column
     assert calibration_section({"config": {}, "methods": {}}) == []
 
 

@@ -63,25 +63,37 @@ def calibration_section(results: Any) -> list[Section]:
     if target is None:
         return []
     header = ["method", "threshold", "accepted", "precision", "interval", "recall", "target met"]
-    rows, missed = [], []
+    rows, missed, declined = [], [], []
     for name, entry in (results.get("methods") or {}).items():
         c = entry.get("calibrated") if isinstance(entry, dict) else None
         if not isinstance(c, dict):
             continue
         cal = c.get("calibration") or {}
         if cal.get("threshold") is None:
-            rows.append([name, "–", "abstains on every query", "–", "–", "–", str(cal.get("reason", ""))])
+            rows.append([name, "–", "none (abstains)", "–", "–", "–", "declined"])
+            declined.append(f"<li>{html.escape(name)}: {html.escape(str(cal.get('reason', '')))}</li>")
             continue
-        lo, hi = c.get("precision_interval") or ("–", "–")
         met = {True: "yes", False: "NO", None: "–"}[c.get("target_met")]
         missed += [name] if c.get("target_met") is False else []
         rows.append([name, f"{cal['threshold']:.4g}", f"{c['accepted']} of {c['queries']}",
-                     "–" if c.get("precision") is None else f"{c['precision']:.3f}", f"[{lo}, {hi}]",
-                     f"{c.get('recall', 0.0):.3f}", met])
+                     "–" if c.get("precision") is None else f"{c['precision']:.3f}",
+                     _interval(c.get("precision_interval")), f"{c.get('recall', 0.0):.3f}", met])
     kind = " (sequence confidence)" if cfg.get("confidence") == "sequence" else ""
     intro = (f"<p>Confidence thresholds{kind} calibrated on {html.escape(str(cfg.get('calibrate_split')))} for a "
              f"precision of at least {target:g} (risk {cfg.get('risk')}), applied to the evaluated queries.</p>")
     warn = (f"<p><b>Below the target: {html.escape(', '.join(missed))}.</b> The promise is for queries drawn like "
             "the calibration split's; a gap beyond the interval means the evaluated queries differ from them (e.g. "
             "a harder stretch of the route).</p>") if missed else ""
-    return [Section("calibrated", "Calibrated confidence", intro + table_html(header, rows, sortable=True) + warn)]
+    why = f"<p>Declined (no threshold keeps the promise on the calibration split):</p><ul>{''.join(declined)}</ul>" \
+        if declined else ""
+    return [Section("calibrated", "Calibrated confidence",
+                    intro + table_html(header, rows, sortable=True) + why + warn)]
+
+
+def _interval(bounds: Any) -> str:
+    """``[lo, hi]`` of a precision interval at 3 decimals, as the CLI prints it (``–`` when unknown)."""
+    try:
+        lo, hi = (float(b) for b in bounds)
+    except (TypeError, ValueError):
+        return "–"
+    return f"[{lo:.3f},\u00a0{hi:.3f}]"  # a non-breaking space: the interval never wraps
