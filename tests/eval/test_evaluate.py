@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -547,3 +550,38 @@ def test_single_frame_methods_need_no_window_to_fit_the_traverse():
     assert ev.results["methods"]["single"]["queries"] == 2 and ev.results["methods"]["single"]["recall@1"] == 1.0
     with pytest.raises(ConfigError, match="seq_len=5 is longer than the query traverse"):
         evaluate(ds, EvalConfig(methods=("single", "raw+seqmatch"), seq_len=5))
+
+
+def test_models_the_methods_do_not_use_are_not_loaded(synth_dir, map_models, tmp_path, caplog, monkeypatch):
+    """`eval --method raw+seqmatch,s1 --model SL --model S1`: the S_L is mapped for its role and L, never loaded
+    (one line names it); the answers are those of a run given only the S_1 and S_L's L."""
+    import logging
+
+    from seqnet.cli import main as cli_main
+    from seqnet.sequence import checkpoints
+
+    sl, s1 = map_models
+    loaded = []
+    real = checkpoints.load_model
+    monkeypatch.setattr(checkpoints, "load_model", lambda p, **kw: loaded.append(Path(p).name) or real(p, **kw))
+    caplog.set_level(logging.INFO, logger="seqnet")
+    runs = {"both": ["--model", str(sl), "--model", str(s1)], "flags": ["--shortlist-model", str(sl),
+            "--rerank-model", str(s1)], "s1 only": ["--model", str(s1), "--seq-len", "4"]}
+    res = {}
+    for name, extra in runs.items():
+        loaded.clear()
+        caplog.clear()
+        out = tmp_path / name.replace(" ", "_")
+        assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "raw+seqmatch,s1", "--out", str(out),
+                         "--device", "cpu", *extra]) == 0
+        assert loaded == ["s1.pt"], name
+        said = " ".join(r.getMessage() for r in caplog.records)
+        assert ("raw+seqmatch, s1 do not use the model sl.pt: not loaded" in said) == (name != "s1 only"), said
+        r = json.loads((out / "results.json").read_text())
+        assert r["config"]["seq_len"] == 4
+        res[name] = {m: v["recall@1"] for m, v in r["methods"].items()}
+    assert res["both"] == res["flags"] == res["s1 only"]
+    loaded.clear()
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--out", str(tmp_path / "all"), "--device", "cpu",
+                     *runs["both"]]) == 0  # the default methods: every model they allow is loaded
+    assert sorted(loaded) == ["s1.pt", "sl.pt"]

@@ -217,10 +217,16 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
                   shortlist_model: str | Path | None, rerank_model: str | Path | None,
                   prepare: Prepare | None = None) -> Evaluation:
     from ..data.io import load_dataset
-    from ..sequence.checkpoints import load_models
+    from ..sequence.checkpoints import load_models, used_models
 
     ds = load_dataset(dataset)
     split = default_split(conf.split, ds.splits)
+    if conf.methods is not None:  # a model none of the methods use is not loaded (None: the defaults it allows)
+        used = used_models(", ".join(conf.methods), set().union(*(parse_method(m).models() for m in conf.methods)),
+                           models, shortlist_model, rerank_model)
+        if conf.seq_len is None and used.seq_len is not None:  # an unused S_L still gives L: the same windows
+            conf = conf.replace(seq_len=used.seq_len)
+        models, shortlist_model, rerank_model = used.paths, used.shortlist_model, used.rerank_model
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     conf, prepared = prepare(ds, split, loaded, conf) if prepare is not None else (conf, None)
     cal = None

@@ -143,16 +143,14 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
           reading: tuple[bool, bool], calibration: tuple[float, str, float] | None = None) -> Written:
     from ..data.io import load_dataset
     from ..methods.checks import model_lengths
-    from ..sequence.checkpoints import load_models
+    from ..sequence.checkpoints import load_models, used_models
 
     full = load_dataset(dataset)
     split = default_split(conf.split, full.splits)
-    needed = online_method(conf.method).models()
-    conf, models = unused_paths(conf, needed, models)
-    if shortlist_model and "seqnet" not in needed:  # its L only (mapped, not loaded) when none was given
-        conf, shortlist_model = unused_paths(conf, needed, [shortlist_model])[0], None
-    if rerank_model and "s1" not in needed:
-        conf, rerank_model = unused_paths(conf, needed, [rerank_model])[0], None
+    used = used_models(conf.method, online_method(conf.method).models(), models, shortlist_model, rerank_model)
+    if conf.seq_len is None and used.seq_len is not None:  # an unused S_L still gives L: the same windows
+        conf = conf.replace(seq_len=used.seq_len)
+    models, shortlist_model, rerank_model = used.paths, used.shortlist_model, used.rerank_model
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     if calibration is not None:
         check_calibration_split(full, calibration[1], split)
@@ -201,28 +199,6 @@ def _calibrated(cal_run: tuple[list[Estimate], np.ndarray], run: tuple[list[Esti
     out = apply_threshold(cal, conf_q[full_q], correct[full_q], has[full_q])
     out["calibration"]["split"] = cal_split
     return accepted(cal, conf_q) & full_q, out
-
-
-def unused_paths(conf: LocalizeConfig, needed: set[str],
-                 paths: Sequence[str | Path]) -> tuple[LocalizeConfig, list[str | Path]]:
-    """``conf`` and the ``--model`` paths ``conf.method`` uses: each checkpoint's role is looked up with its
-    weights mapped, not read (:func:`seqnet.sequence.checkpoints.model_role`), and a model the method does not
-    use is never loaded (a line says so); an unused S_L still gives L when none was given (the same windows)."""
-    from ..sequence.checkpoints import model_role
-
-    keep, unused = [], []
-    for path in paths:
-        role, seq_len = model_role(path)
-        if role in needed:
-            keep.append(path)
-            continue
-        unused.append(Path(path).name)
-        if role == "seqnet" and conf.seq_len is None:
-            conf = conf.replace(seq_len=seq_len)
-    if unused:
-        logger.info("%s does not use the model%s %s: not loaded", conf.method, "s" * (len(unused) > 1),
-                    ", ".join(unused))
-    return conf, keep
 
 
 def _matrix_inputs(distances: str | Path | None, reading: tuple[bool, bool]) -> dict[str, Any]:

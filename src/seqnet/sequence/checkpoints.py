@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from ..core.errors import CheckpointError
 from ..core.lazy import lazy_module
@@ -219,3 +219,43 @@ def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | 
     if rerank_model:
         models["s1"] = load_model(rerank_model)
     return models
+
+
+class UsedModels(NamedTuple):
+    """The checkpoints a command's methods use (:func:`used_models`): the ``--model`` paths, the S_L
+    ``--shortlist-model`` and the S_1 ``--rerank-model`` (None when unused or not given), the file names of those
+    it will not load, and the L of an unused S_L (None when none): a command without L takes its windows from it."""
+
+    paths: list[str | Path]
+    shortlist_model: str | Path | None
+    rerank_model: str | Path | None
+    unused: list[str]
+    seq_len: int | None
+
+
+def used_models(by: str, needed: set[str], paths: Sequence[str | Path] = (),
+                shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None) -> UsedModels:
+    """Split the checkpoints given by the roles ``needed`` (``"seqnet"``, ``"s1"``): each ``--model``'s role is
+    looked up with its weights mapped, not read (:func:`model_role`), so a model no method uses is never loaded
+    (S_L at D = 16384 is 5 GB); one line names those left out and ``by``, the methods that do not use them."""
+    unused, seq_len = [], None
+    listed = []
+    for path in paths:
+        role, length = model_role(path)
+        if role in needed:
+            listed.append(path)
+            continue
+        unused.append(Path(path).name)
+        seq_len = length if role == "seqnet" and seq_len is None else seq_len
+    named = {}
+    for path, role in ((shortlist_model, "seqnet"), (rerank_model, "s1")):
+        if path and role in needed:
+            named[role] = path
+        elif path:
+            unused.append(Path(path).name)
+            if role == "seqnet" and seq_len is None:  # its L only: mapped, not loaded
+                seq_len = model_role(path)[1]
+    if unused:
+        logger.info("%s %s not use the model%s %s: not loaded", by, "does" if "," not in by else "do",
+                    "s" * (len(unused) > 1), ", ".join(unused))
+    return UsedModels(listed, named.get("seqnet"), named.get("s1"), unused, seq_len)
