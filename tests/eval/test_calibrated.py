@@ -83,7 +83,8 @@ def test_a_missed_target_is_said(capsys):
     from seqnet.cli.eval_cmd import print_calibration
 
     def entry(precision: float, met: bool) -> dict:
-        return {"calibrated": {"calibration": {"threshold": 0.5, "reason": ""}, "accepted": 90, "queries": 100,
+        return {"calibrated": {"calibration": {"threshold": 0.5, "reason": "", "target": 0.9, "risk": 0.05,
+                                               "split": "val"}, "accepted": 90, "queries": 100,
                                "accepted_fraction": 0.9, "precision": precision, "precision_interval": [0.8, 0.9],
                                "recall": 0.8, "target_met": met}}
 
@@ -92,8 +93,18 @@ def test_a_missed_target_is_said(capsys):
     print_calibration(res)
     out = capsys.readouterr().out.splitlines()
     assert "BELOW" not in out[1] and out[2].endswith("— BELOW the target 0.9") and "measured below" in out[3]
+    assert "precision 0.850 [0.800, 0.900] (95% interval), recall 0.800" in out[2]  # the interval's level said
     res["methods"].pop("b")
     print_calibration(res)
+    assert "below" not in capsys.readouterr().out.lower()
+    from seqnet.cli.localize_cmd import print_calibrated  # localize says the same of its frames
+
+    print_calibrated(entry(0.85, False)["calibrated"])
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("calibrated on val for precision >= 0.9 (risk 0.05): confidence >= 0.5 accepts 90 of "
+                             "100 frames") and out[0].endswith("(95% interval), recall 0.800 — BELOW the target 0.9")
+    assert "measured below" in out[1]
+    print_calibrated(entry(0.95, True)["calibrated"])
     assert "below" not in capsys.readouterr().out.lower()
 
 

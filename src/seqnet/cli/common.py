@@ -187,3 +187,24 @@ def check_calibration_options(args: argparse.Namespace) -> None:
     """``--calibrate-split`` and ``--risk`` go with ``--target-precision``."""
     if args.target_precision is None and (args.calibrate_split is not None or args.risk is not None):
         raise ConfigError("--calibrate-split and --risk go with --target-precision P")
+
+
+def calibrated_result(c: dict[str, Any], what: str = "") -> str:
+    """What a calibrated threshold gave (:func:`seqnet.metrics.calibration.apply_threshold`'s entry ``c``):
+    'confidence >= 0.31 accepts 720 of 817 (88.1%), precision 1.000 [0.996, 1.000] (90% interval), recall
+    0.881', ending '— BELOW the target 0.99' when the measured precision missed it. ``what``: the items' word."""
+    cal = c["calibration"]
+    lo, hi = c["precision_interval"] or (float("nan"), float("nan"))
+    level = f"{100 * (1 - cal['risk']):g}% interval"
+    prec = "–" if c["precision"] is None else f"{c['precision']:.3f} [{lo:.3f}, {hi:.3f}] ({level})"
+    missed = f" — BELOW the target {cal['target']:g}" if c.get("target_met") is False else ""
+    return (f"confidence >= {cal['threshold']:.4g} accepts {c['accepted']} of {c['queries']}{what} "
+            f"({100 * c['accepted_fraction']:.1f}%), precision {prec}, recall {c['recall']:.3f}{missed}")
+
+
+def missed_target_note(calibrate_split: str) -> str:
+    """Why a measured precision can fall below the target, and what to do (printed once under the results)."""
+    return (f"  (measured below the target: the promise is for queries drawn like those of {calibrate_split}, and "
+            "fails with probability risk, or by chance on few queries; a gap beyond the interval means the "
+            "evaluated queries differ from them, e.g. a harder stretch of the route: calibrate on queries like "
+            "the ones you will localise)")

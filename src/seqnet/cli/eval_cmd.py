@@ -23,10 +23,12 @@ from .common import (
     add_device,
     add_distances,
     add_recall_denominator,
+    calibrated_result,
     check_calibration_options,
     check_distances,
     check_method_options,
     int_list,
+    missed_target_note,
     non_negative_float,
     parse_list,
     positive_float,
@@ -221,16 +223,9 @@ def print_calibration(res: dict) -> None:
         if cal["threshold"] is None:
             print(f"  {name}: abstains on every query ({cal['reason']})")
             continue
-        lo, hi = c["precision_interval"] or (float("nan"), float("nan"))
-        prec = "–" if c["precision"] is None else f"{c['precision']:.3f} [{lo:.3f}, {hi:.3f}]"
-        missed = f" — BELOW the target {cfg['target_precision']:g}" if c.get("target_met") is False else ""
-        print(f"  {name}: confidence >= {cal['threshold']:.4g} accepts {c['accepted']} of {c['queries']} "
-              f"({100 * c['accepted_fraction']:.1f}%), precision {prec}, recall {c['recall']:.3f}{missed}")
+        print(f"  {name}: {calibrated_result(c)}")
     if any((r.get("calibrated") or {}).get("target_met") is False for r in res["methods"].values()):
-        print(f"  (measured below the target: the promise is for queries drawn like those of "
-              f"{shown(cfg['calibrate_split'])}, and fails with probability risk, or by chance on few queries; "
-              "a gap beyond the interval means the evaluated queries differ from them, e.g. a harder stretch of "
-              "the route: calibrate on queries like the ones you will localise)")
+        print(missed_target_note(shown(cfg["calibrate_split"])))
 
 
 def check_route(args: argparse.Namespace) -> None:

@@ -26,9 +26,11 @@ from .common import (
     add_device,
     add_distances,
     add_topic,
+    calibrated_result,
     check_calibration_options,
     check_distances,
     check_method_options,
+    missed_target_note,
     positive_float,
     positive_int,
 )
@@ -211,7 +213,6 @@ def print_calibrated(c: dict | None) -> None:
     if cal["threshold"] is None:
         print(head + f"abstains on every frame ({cal['reason']})")
         return
-    lo, hi = c["precision_interval"] or (float("nan"), float("nan"))
-    prec = "–" if c["precision"] is None else f"{c['precision']:.3f} [{lo:.3f}, {hi:.3f}]"
-    print(head + f"confidence >= {cal['threshold']:.4g} accepts {c['accepted']} of {c['queries']} frames "
-          f"({100 * c['accepted_fraction']:.1f}%), precision {prec}")
+    print(head + calibrated_result(c, " frames"))
+    if c.get("target_met") is False:
+        print(missed_target_note(shown(cal["split"])))
