@@ -126,6 +126,7 @@ def test_seqnet_eval_chooses_on_val_unless_told(synth_dir, map_models, tmp_path,
     assert res["methods"]["hvpr-fused"]["method"]["fuse_weight"] == chosen[1]["settings"]["fuse_weight"]
     assert res["config"]["method_fuse_weight"] == {"hvpr-fused": chosen[1]["settings"]["fuse_weight"]}
     assert "chosen on the val split" in capsys.readouterr().out
+    assert "33 val queries (1 query = 0.03 of R@1): the choice is mostly chance" in res["selection"]["warning"]
     flags = ["--top-k", "7", "--fuse-top-k", "50", "--fuse-weight", "0.5"]
     assert cli_main([*base, *flags, "--json", str(tmp_path / "b.json")]) == 0  # explicit flags win
     res = json.loads((tmp_path / "b.json").read_text())
@@ -223,3 +224,27 @@ def test_a_methods_own_settings_are_checked_and_used_for_it_only():
                 {"method_top_k": {"nope": 5}}):
         with pytest.raises(ConfigError):
             EvalConfig(**bad)
+
+
+def test_a_small_val_split_is_said_and_a_large_enough_one_is_not(synth_dir, map_models, tmp_path, caplog,
+                                                                  monkeypatch):
+    """A choice on fewer than VAL_MIN val queries is made (as training chooses its epoch) and said: a warning line
+    and the selection's ``warning``; with enough queries nothing is said."""
+    import logging
+
+    from seqnet.cli import main as cli_main
+    from seqnet.eval import select
+
+    base = ["eval", "--dataset", str(synth_dir), *(a for p in map_models for a in ("--model", str(p))),
+            "--method", "hvpr", "--device", "cpu"]
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    assert cli_main([*base, "--json", str(tmp_path / "a.json")]) == 0
+    res = json.loads((tmp_path / "a.json").read_text())
+    assert res["selection"]["hvpr"] and "about 50 or more are needed" in res["selection"]["warning"]
+    assert any("mostly chance" in r.getMessage() for r in caplog.records)
+    caplog.clear()
+    monkeypatch.setattr(select, "VAL_MIN", 33)
+    assert cli_main([*base, "--json", str(tmp_path / "b.json")]) == 0
+    res2 = json.loads((tmp_path / "b.json").read_text())
+    assert "warning" not in res2["selection"] and res2["selection"]["hvpr"] == res["selection"]["hvpr"]
+    assert not any("mostly chance" in r.getMessage() for r in caplog.records)

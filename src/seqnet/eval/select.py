@@ -27,6 +27,7 @@ from ..core.log import logger
 from ..core.stage import Written
 from ..data.traverse import Dataset
 from ..methods.grammar import FRAME_FEATURES, parse_method
+from ..metrics.recall import VAL_MIN
 from ..reference.traverse import TraverseReference
 from ..sequence.described import Described
 from .evaluate import EvalConfig, dataset_truth
@@ -223,4 +224,11 @@ def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: E
         logger.debug("HVPR settings not chosen on the val split: %s", e)
         return conf, {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split (the "
                                                                f"defaults kept): {e}"}}
+    few = min((c.queries for c in choices), default=VAL_MIN)
+    if few < VAL_MIN:  # chosen all the same, as training chooses its epoch: said, with what would do better
+        said = (f"HVPR settings chosen on {few} val quer{'y' if few == 1 else 'ies'} (1 query = "
+                f"{1 / max(few, 1):.2f} of R@1): the choice is mostly chance; about {VAL_MIN} or more are needed, "
+                "or give --top-k / --fuse-top-k / --fuse-weight yourself")
+        logger.warning("%s", said)
+        return conf, {"selection": {"hvpr": [c.to_dict() for c in choices], "warning": said}}
     return conf, ({"selection": {"hvpr": [c.to_dict() for c in choices]}} if choices else None)

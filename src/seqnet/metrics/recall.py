@@ -20,6 +20,7 @@ from ..core.errors import ConfigError
 from ..data.positives import Positives
 
 DEFAULT_KS = (1, 5, 10, 20, 100)
+VAL_MIN = 50  # val queries below which a choice by R@1 (an epoch, K, λ) is mostly noise: 1 query = 2% of R@1
 RECALL_DENOMINATORS = {"positives": "queries with a correct reference (the others left out, counted)",
                        "all": "every evaluated query (those without a correct reference are failures)"}
 
