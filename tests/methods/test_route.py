@@ -96,3 +96,38 @@ def test_real_nordland64_frames_in_order_warn_nothing():
     truth = GroundTruth(pos, pos, 2.0)
     assert route_warnings(ds, truth, np.arange(300), METHODS) == []
     assert dataset_warnings(ds) == []
+
+
+def test_the_reference_given_as_the_query_is_said_at_evaluation(tmp_path):
+    """A dataset whose query descriptors are the reference's (row for row, or each a copy of some reference row)
+    scores 1.000 everywhere: the evaluation says why, as dataset building does."""
+    r = np.arange(300.0)[:, None]
+    same = dataset(r, r)
+    same = Dataset(same.reference, Traverse(same.reference.descriptors.copy(), r, name="query"), 1.0, name="d")
+    said = route_warnings(same, GroundTruth(r, r, 1.0), np.arange(300), METHODS)
+    assert len(said) == 1 and "the query images are the reference images" in said[0]
+    picked = np.random.default_rng(2).permutation(300)[:100]
+    some = Dataset(same.reference, Traverse(same.reference.descriptors[picked], r[picked], name="query"), 1.0)
+    said = route_warnings(some, GroundTruth(r[picked], r, 1.0), np.arange(100), ["single"])
+    assert len(said) == 1 and "every one of the 100 query descriptors is an exact copy" in said[0]
+    assert route_warnings(dataset(r, r), GroundTruth(r, r, 1.0), np.arange(300), METHODS) == []
+
+
+def test_eval_of_a_copied_query_warns(synth_dir, tmp_path, caplog):
+    import json
+    import logging
+
+    from seqnet.cli import main as cli_main
+    from seqnet.data.io import load_dataset, save_dataset
+
+    ds = load_dataset(synth_dir)
+    copy = Dataset(ds.reference, Traverse(ds.reference.descriptors.copy(), ds.reference.positions, name="query"),
+                   ds.radius, name="copy")
+    save_dataset(copy, tmp_path / "copy")
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    assert cli_main(["eval", "--dataset", str(tmp_path / "copy"), "--method", "single", "--json",
+                     str(tmp_path / "r.json"), "--device", "cpu"]) == 0
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["methods"]["single"]["recall@1"] == 1.0
+    assert any("the query images are the reference images" in w for w in res["warnings"])
+    assert any("trivially perfect" in r.getMessage() for r in caplog.records)

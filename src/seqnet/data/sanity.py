@@ -60,7 +60,7 @@ def review(ds: Dataset) -> list[str]:
 
 def dataset_warnings(ds: Dataset) -> list[str]:
     """One line per likely mistake in ``ds`` (none: an empty list): see the module's description."""
-    found = [_copied_queries(ds), _shared_queries(ds), _constant_positions(ds), *route_order(ds),
+    found = [copied_queries(ds), _shared_queries(ds), _constant_positions(ds), *route_order(ds),
              duplicated_rows(ds.query.descriptors, "query")]
     return [f"{ds.name}: {line}" for line in found if line]
 
@@ -81,7 +81,9 @@ def route_order(ds: Dataset) -> list[str]:
     return [line for line in found if line]
 
 
-def _copied_queries(ds: Dataset) -> str | None:
+def copied_queries(ds: Dataset) -> str | None:
+    """A line when every query descriptor of ``ds`` is an exact copy of a reference descriptor (the reference
+    images given as the query: every metric would be trivially perfect), else None."""
     ref, qry = ds.reference.descriptors, ds.query.descriptors
     if ref.shape[1:] != qry.shape[1:] or ref.dtype != qry.dtype or len(qry) == 0 or len(ref) == 0:
         return None
