@@ -158,3 +158,24 @@ def test_one_ranked_reference_is_refused(synth_dir, capsys):
     assert cli_main(["localize", "--dataset", str(synth_dir), "--method", "single", "--k", "1", "--out",
                      str(synth_dir.parent / "t.csv")]) == 2
     assert "give --k 2 or more" in capsys.readouterr().err
+
+
+def test_explicit_positives_are_named_as_such(synth_dir, tmp_path, capsys):
+    """With explicit positives the summary counts frames 'with a positive' (no radius is involved)."""
+    from seqnet.data.io import load_dataset, save_dataset
+    from seqnet.data.positives import Positives
+    from seqnet.data.traverse import Dataset
+
+    ds = load_dataset(synth_dir)
+    nearest = np.abs(ds.query.positions[:, :1] - ds.reference.positions[:, 0][None]).argmin(1)
+    explicit = Dataset(ds.reference, ds.query, ds.radius, name="explicit", splits=ds.splits,
+                       positives=Positives.from_lists([[int(i)] for i in nearest]))
+    save_dataset(explicit, tmp_path / "explicit")
+    for name, path in (("radius", synth_dir), ("explicit positives", tmp_path / "explicit")):
+        out = tmp_path / f"{name.split()[0]}.csv"
+        assert cli_main(["localize", "--dataset", str(path), "--method", "raw+seqmatch", "--out", str(out),
+                         "--device", "cpu"]) == 0
+        said = capsys.readouterr().out
+        assert json.loads(out.with_suffix(".json").read_text())["config"]["ground_truth"] == name
+        assert ("with a positive)" in said) == (name != "radius")
+        assert ("within the radius" in said) == (name == "radius")

@@ -180,7 +180,9 @@ def print_summary(conf: LocalizeConfig, args: argparse.Namespace, out: Written) 
     lat = s.get("latency_ms", {})
     print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")
     if "recall@1" in s:
-        print(f": R@1 {s['recall@1']:.3f} ({s['queries']} with a reference within the radius), "
+        has = "a positive" if out.data.get("config", {}).get("ground_truth") == "explicit positives" else \
+            "a reference within the radius"
+        print(f": R@1 {s['recall@1']:.3f} ({s['queries']} with {has}), "
               f"AUC {s['auc']:.3f}, R@100P {s['recall@100p']:.3f}", end="")
     print("" if "describe_ms" not in s else f"; describing {s['describe_ms']['median']:.1f} ms per image (median)")
     if "dropped" in s:

@@ -164,7 +164,8 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
         accept, summary["calibrated"] = _calibrated(replayed[1:3], (est, correct, has), *calibration)
     record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
                                              "match_len": loc.match_len, "radius": radius,
-                                             "model_seq_len": model_lengths(loaded)},
+                                             "ground_truth": "explicit positives" if ds.positives is not None
+                                             else "radius", "model_seq_len": model_lengths(loaded)},
               "inputs": {"dataset": str(Path(dataset).resolve()), **_matrix_inputs(distances, reading),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
