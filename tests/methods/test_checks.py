@@ -154,3 +154,26 @@ def test_a_missing_model_names_the_model_free_method_to_use():
             check_methods([parse_method(name)], {}, 5)
     with pytest.raises(ConfigError, match=r"\(1 frame\); use a shorter --seq-len or a longer split"):
         check_windows_fit(5, 1, "the query traverse")
+
+
+def test_a_window_too_long_names_the_option_that_set_it(synth_dir, capsys):
+    """--match-len longer than a traverse is named as such (the message said --seq-len when L_m set the window)."""
+    from seqnet.cli import main as cli_main
+    from seqnet.core.errors import ConfigError
+    from seqnet.sequence.windows import Windows
+
+    for extra, option in ((["--seq-len", "3", "--match-len", "5000"], "--match-len"),
+                          (["--seq-len", "5000", "--match-len", "3"], "--seq-len")):
+        assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "raw+seqmatch", *extra, "--device",
+                         "cpu"]) == 2
+        err = capsys.readouterr().err
+        assert f"use a shorter {option} or a longer split" in err and f"{option[2:].replace('-', '_')}=5000" in err
+    with pytest.raises(ConfigError, match="use a shorter --match-len$"):
+        _no_window(Windows(3, 9))  # no frame of 4 fits L_m = 9
+    assert Windows(5, 5).longest_option == "--seq-len"
+
+
+def _no_window(windows) -> None:
+    from seqnet.sequence.windows import WindowedItems
+
+    WindowedItems()._set_side(windows, 4, None, "query")

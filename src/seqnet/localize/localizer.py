@@ -95,7 +95,7 @@ def traverse_reference(t: Traverse, models: Mapping[str, SeqNet], method: str, w
         models = {role: model for role, model in models.items() if role in m.models()}
     check_methods([m], models, windows.seq_len)
     check_models(models, t.dim, t.provenance, f"the map {name!r}", windows.seq_len, allow_mismatch)
-    check_windows_fit(windows.longest, len(t), "the map's reference traverse")
+    check_windows_fit(windows.longest, len(t), "the map's reference traverse", windows.longest_option)
     for model in models.values():
         model.to(device).eval()
     return TraverseReference(t, windows, models, device, name=name)

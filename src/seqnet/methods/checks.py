@@ -12,6 +12,7 @@ from ..core.log import logger
 from ..core.provenance import check_same
 from ..data.traverse import Dataset
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
+from ..sequence.windows import longest_option
 from .grammar import Method
 from .route import REVERSED_BELOW, TRIVIAL_SHARE, reversed_route, route_direction, trivial_truth  # noqa: F401
 
@@ -29,7 +30,7 @@ def check_inputs(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet
     check_provenance(ds, models, length, allow_mismatch)
     for side, t in (("query", ds.query), ("reference", ds.reference)):
         check_windows_fit(max(length, match_len) if longest is None else longest, len(t),
-                   f"the {side} traverse of dataset {ds.name!r}")
+                          f"the {side} traverse of dataset {ds.name!r}", longest_option(length, match_len))
     check_memory(ds, methods, models)
 
 
@@ -50,11 +51,12 @@ def check_memory(ds: Dataset, methods: list[Method], models: Mapping[str, SeqNet
                "or a smaller S_L / S_1 (--out-dims)")
 
 
-def check_windows_fit(longest: int, n: int, what: str) -> None:
-    """The windows (``longest`` = max(L, L_m) frames) fit a traverse of ``n`` frames."""
+def check_windows_fit(longest: int, n: int, what: str, option: str = "--seq-len") -> None:
+    """The windows (``longest`` = max(L, L_m) frames, set by ``option``) fit a traverse of ``n`` frames."""
     if longest > n:
-        raise ConfigError(f"seq_len={longest} is longer than {what} ({n} frame{'s' * (n != 1)}); use a shorter "
-                          "--seq-len or a longer split")
+        name = "match_len" if option == "--match-len" else "seq_len"
+        raise ConfigError(f"{name}={longest} is longer than {what} ({n} frame{'s' * (n != 1)}); use a shorter "
+                          f"{option} or a longer split")
 
 
 def check_methods(methods: list[Method], models: Mapping[str, SeqNet], length: int) -> None:

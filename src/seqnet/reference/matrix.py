@@ -55,7 +55,8 @@ class MatrixQuery:
     def __init__(self, n: int, seq_bounds: np.ndarray | None, windows: Windows) -> None:
         self.side = windows.side(n, seq_bounds)
         if len(self.side.items) == 0:
-            raise ConfigError(f"no query frame has a full window of seq_len={windows.seq_len}; use a shorter --seq-len")
+            raise ConfigError(f"no query frame has a full window of seq_len={windows.seq_len} (L_m={windows.match_len})"
+                              f"; use a shorter {windows.longest_option}")
         self.match_starts, self.items_index, self.n = self.side.match_starts, self.side.items, n
         self.seq_bounds = seq_bounds
 

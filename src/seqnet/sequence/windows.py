@@ -180,12 +180,22 @@ class Windows:
         """max(L, L_m): the frames an item's windows span."""
         return max(self.seq_len, self.match_len)
 
+    @property
+    def longest_option(self) -> str:
+        """The option that sets the longer window (what to shorten when it does not fit)."""
+        return longest_option(self.seq_len, self.match_len)
+
     def side(self, t_len: int, seq_bounds: np.ndarray | None) -> Side:
         """The items of a traverse of ``t_len`` frames: frames whose L- and L_m-windows fit inside their sequence."""
         starts, ok = window_starts(t_len, self.seq_len, self.mode, seq_bounds)
         m_starts, m_ok = window_starts(t_len, self.match_len, self.mode, seq_bounds)
         items = np.flatnonzero(ok & m_ok)
         return Side(items, starts[items], m_starts[items])
+
+
+def longest_option(seq_len: int, match_len: int) -> str:
+    """``--match-len`` when L_m > L, else ``--seq-len``: the option that sets the longest window."""
+    return "--match-len" if match_len > seq_len else "--seq-len"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -216,7 +226,7 @@ class WindowedItems:
         self.side, self.seq_bounds = windows.side(n, seq_bounds), seq_bounds
         if len(self.side.items) == 0:
             raise ConfigError(f"no {what} frame has a full window of seq_len={windows.seq_len} (L_m="
-                              f"{windows.match_len}) inside its sequence; use a shorter --seq-len")
+                              f"{windows.match_len}) inside its sequence; use a shorter {windows.longest_option}")
 
     @property
     def items_index(self) -> np.ndarray:
