@@ -192,3 +192,14 @@ def test_from_video_refuses_a_track_elsewhere_and_a_radius_in_degrees(videos, ca
     assert out.count("wrote") == 1
     meta = json.loads((videos / "ok" / "dataset.json").read_text())
     assert meta["positions_frame"] == "UTM zone 33W"
+
+
+def test_resample_says_wrote_once_and_warns_when_thinning_loses_matches(csvs, capsys):
+    assert from_csv(csvs, "r.csv", "q.csv", "5") == 0
+    capsys.readouterr()
+    assert main(["dataset", "resample", str(csvs / "ds"), "--every", "4", "--side", "reference", "--out",
+                 str(csvs / "thin")]) == 0  # a reference every 40 m, radius 5: a query in four keeps its match
+    out, err = capsys.readouterr()
+    assert [line for line in (out + err).splitlines() if "wrote" in line] == [
+        f"wrote {csvs / 'thin'}: 5 reference / 20 query frames (from 20 / 20, every 4th of the reference side)"]
+    assert "ds-every4: only 5 of 20 queries (25%) have a reference within the radius 5 metres" in err
