@@ -80,7 +80,7 @@ def test_frame_csv(tmp_path):
     assert names == ["a.png", "b.png"] and pos.tolist() == [[3.0], [4.0]] and unit == "frames" and bounds is None
 
 
-@pytest.mark.parametrize("header,match", [("name,lat,lon", "easting and northing"), ("x,y", "image-name column"),
+@pytest.mark.parametrize("header,match", [("name,lat", "lat and lon columns"), ("x,y", "image-name column"),
                                           ("name,easting", "easting and northing")])
 def test_csv_header_errors(tmp_path, header, match):
     _write_csv(tmp_path / "bad.csv", [("a", 1, 2)], header=header)

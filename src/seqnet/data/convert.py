@@ -5,7 +5,8 @@ Inputs, per traverse (reference and query):
 * a descriptor file ``[N, D]``: ``.npy`` (image names from a names file, one per line) or HDF5
   (``.h5`` / ``.hdf5``: dataset ``descriptors`` and optional ``names``);
 * positions, either from a CSV file (a header row naming an image column and ``easting, northing``
-  in metres, or ``frame``; rows are matched to the descriptors by image name, and an optional
+  in metres, ``lat, lon`` in degrees (unit ``degrees``: :func:`traverses_in_metres` makes both UTM metres), or
+  ``frame``; rows are matched to the descriptors by image name, and an optional
   ``sequence`` column gives sequence bounds), or from the image names themselves when they carry
   UTM coordinates as ``@<easting>@<northing>@...`` (Pittsburgh, Tokyo 24/7, MSLS-style names).
 
@@ -36,10 +37,13 @@ from .readers import (
     warn_unless_unit_rows,
 )
 from .traverse import Dataset, Traverse
+from .utm import check_latlon, latlon_pair
 
 NAME_COLUMNS = ("name", "image", "image_name", "filename", "file", "path", "key", "image_key")
 EAST_COLUMNS = ("easting", "east", "utm_east", "utm_easting", "x")
 NORTH_COLUMNS = ("northing", "north", "utm_north", "utm_northing", "y")
+LAT_COLUMNS = ("lat", "latitude")
+LON_COLUMNS = ("lon", "lng", "longitude")
 FRAME_COLUMNS = ("frame", "frame_number", "frame_id", "frame_index")
 SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
 
@@ -99,7 +103,9 @@ def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np
     """Read a positions CSV: ``(names, positions [N, P], unit, seq_bounds [N, 2] or None)``.
 
     The header names an image column (one of :data:`NAME_COLUMNS`) and either easting/northing
-    columns (metres) or a frame column (frames); an optional sequence column gives, for each row,
+    columns (metres), lat/lon columns (unit ``degrees``: ``[N, 2]`` latitude, longitude, each checked
+    in range; :func:`seqnet.data.utm.latlon_pair` makes them metres) or a frame column (frames); an
+    optional sequence column gives, for each row,
     the half-open range of the run of consecutive rows with the same sequence key. A row with too
     few fields, a non-numeric position or a repeated image name is an error naming its line.
     """
@@ -118,7 +124,9 @@ def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np
                                "must have one position (hint: remove the duplicate row)")
         first_line[name] = line
     check_names(names, f"{p} (column {header[col['name']]!r})")
-    pos_cols = [col["east"], col["north"]] if "east" in col else [col["frame"]]
+    unit = "metres" if "east" in col else "degrees" if "lat" in col else "frames"
+    pos_cols = {"metres": ["east", "north"], "degrees": ["lat", "lon"], "frames": ["frame"]}[unit]
+    pos_cols = [col[c] for c in pos_cols]
     pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
     for i, (line, r) in enumerate(rows):
         try:
@@ -128,8 +136,10 @@ def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np
         if not (np.abs(pos[i]) <= POSITION_MAX).all():  # NaN too
             raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
                                f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}")
+    if unit == "degrees":
+        check_latlon(pos, str(p), [line for line, _ in rows])
     bounds = runs_to_bounds([r[col["seq"]] for _, r in rows]) if "seq" in col else None
-    return names, pos, ("metres" if "east" in col else "frames"), bounds
+    return names, pos, unit, bounds
 
 
 def _find_columns(header: list[str], p: Path) -> dict[str, int]:
@@ -138,15 +148,17 @@ def _find_columns(header: list[str], p: Path) -> dict[str, int]:
 
     col = {k: i for k, i in (("name", first(NAME_COLUMNS)), ("east", first(EAST_COLUMNS)),
                              ("north", first(NORTH_COLUMNS)), ("frame", first(FRAME_COLUMNS)),
+                             ("lat", first(LAT_COLUMNS)), ("lon", first(LON_COLUMNS)),
                              ("seq", first(SEQUENCE_COLUMNS))) if i is not None}
     if "name" not in col:
         raise DatasetError(f"{p}: header {header} has no image-name column; valid: {', '.join(NAME_COLUMNS)}")
-    if ("east" in col) != ("north" in col) or ("east" not in col and "frame" not in col):
+    pairs = [("east" in col, "north" in col), ("lat" in col, "lon" in col)]
+    if any(a != b for a, b in pairs) or not (any(a for a, _ in pairs) or "frame" in col):
         raise DatasetError(f"{p}: header {header} needs easting and northing columns ({'/'.join(EAST_COLUMNS)}, "
-                           f"{'/'.join(NORTH_COLUMNS)}) or a frame column ({'/'.join(FRAME_COLUMNS)})")
-    if "east" in col:
-        col.pop("frame", None)
-    return col
+                           f"{'/'.join(NORTH_COLUMNS)}), lat and lon columns ({'/'.join(LAT_COLUMNS)}, "
+                           f"{'/'.join(LON_COLUMNS)}; degrees) or a frame column ({'/'.join(FRAME_COLUMNS)})")
+    drop = ("frame", "lat", "lon") if "east" in col else ("frame",) if "lat" in col else ()
+    return {k: i for k, i in col.items() if k not in drop}
 
 
 def runs_to_bounds(keys: list[str]) -> np.ndarray:
@@ -201,6 +213,15 @@ def traverse_from_csv(csv_path: str | Path, desc_path: str | Path, names_file: s
     d = desc if np.array_equal(idx, np.arange(desc.shape[0])) else np.asarray(desc[idx])
     return Traverse(descriptors=d, positions=pos, names=names, seq_bounds=bounds, name=name,
                     provenance=read_provenance(desc_path)), unit
+
+
+def traverses_in_metres(ref: Traverse, qry: Traverse, files: tuple[str, str]) -> tuple[Traverse, Traverse, str]:
+    """Both traverses with their lat/lon positions (unit ``degrees``, read from ``files``) as UTM metres, the
+    query in the reference's zone (:func:`seqnet.data.utm.latlon_pair`); and that positions frame."""
+    import dataclasses
+
+    r, q, frame = latlon_pair(ref.positions, qry.positions, (str(files[0]), str(files[1])))
+    return dataclasses.replace(ref, positions=r), dataclasses.replace(qry, positions=q), frame
 
 
 def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None = None,

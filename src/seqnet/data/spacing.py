@@ -93,5 +93,6 @@ def looks_like_degrees(positions: np.ndarray, samples: int = SAMPLES) -> bool:
 
 
 DEGREES_HINT = ("positions look like degrees (latitude/longitude), not metres: convert them to UTM easting/northing "
-                "metres (seqnet.data.utm.latlon_to_utm; from-images --positions-format robotcar / kitti converts "
-                "those logs) or give easting/northing")
+                "metres (a positions CSV with lat,lon columns is converted by from-csv / from-images; "
+                "seqnet.data.utm.latlon_to_utm; --positions-format robotcar-ins / kitti-oxts converts those logs) "
+                "or give easting/northing")

@@ -39,3 +39,40 @@ def latlon_to_utm(lat: np.ndarray, lon: np.ndarray, where: str,
     except ValueError as err:  # utm.error.OutOfRangeError: too far from the zone asked for
         raise DatasetError(f"{where}: cannot place its points in UTM zone {zone[0]}{zone[1]} ({err})") from err
     return np.stack([e, n], axis=1), f"{zone[0]}{zone[1]}"
+
+
+SWAP_FAR = 1.0  # degrees: traverses' centres further apart than this ...
+SWAP_NEAR = 0.1  # ... and within this once one traverse's lat and lon are swapped: its columns are swapped
+
+
+def check_latlon(latlon: np.ndarray, where: str, lines: list[int] | None = None) -> None:
+    """Refuse ``latlon [N, 2]`` (latitude, longitude in degrees) with a latitude outside -90..90 or a longitude
+    outside -180..180, naming the row (``lines``: its line in the file) and the likely cause: the two columns
+    swapped (every value fits the other column), or metres under lat/lon names."""
+    lat, lon = latlon[:, 0], latlon[:, 1]
+    bad = np.flatnonzero((np.abs(lat) > 90) | (np.abs(lon) > 180))
+    if not bad.size:
+        return
+    i = int(bad[0])
+    row = f"line {lines[i]}" if lines is not None else f"row {i}"
+    swapped = bool((np.abs(lon) <= 90).all() and (np.abs(lat) <= 180).all())
+    hint = ("the lat and lon columns are swapped (every longitude is a valid latitude): swap their names in the "
+            "header" if swapped else "metres under lat/lon names? name them easting,northing")
+    raise DatasetError(f"{where}, {row}: latitude {float(lat[i]):g}, longitude {float(lon[i]):g} out of range "
+                       f"(latitude -90..90, longitude -180..180 degrees); hint: {hint}")
+
+
+def latlon_pair(ref: np.ndarray, query: np.ndarray, where: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str]:
+    """``(ref [N, 2], query [M, 2], frame)``: both traverses' ``lat, lon`` degrees as UTM metres, the query in the
+    reference's zone (its first point's), and that positions frame (``UTM zone 33W``). Traverses whose centres lie
+    more than :data:`SWAP_FAR` degrees apart, within :data:`SWAP_NEAR` once one's lat and lon are swapped, are
+    refused (which one is swapped the numbers cannot say: both files are named)."""
+    centre = [np.median(np.asarray(p, np.float64), axis=0) for p in (ref, query)]
+    apart = float(np.abs(centre[0] - centre[1]).max())
+    if apart > SWAP_FAR and float(np.abs(centre[0][::-1] - centre[1]).max()) <= SWAP_NEAR:
+        raise DatasetError(f"the lat and lon columns of {where[0]} or of {where[1]} look swapped: as given their "
+                           f"positions lie {apart:.1f} degrees apart, with one file's two columns swapped they meet; "
+                           "hint: swap the two column names in the header of the wrong one")
+    r, zone = latlon_to_utm(ref[:, 0], ref[:, 1], where[0])
+    q, _ = latlon_to_utm(query[:, 0], query[:, 1], where[1], (int(zone[:-1]), zone[-1]))
+    return r, q, f"UTM zone {zone}"

@@ -6,8 +6,9 @@ default, or on both, or on a split), so reference and query descriptors are comp
 construction (their provenance is recorded), then attaches the ground truth, one of
 :data:`GROUND_TRUTHS`:
 
-* ``csv``: positions CSV files (an image-name column and ``easting,northing`` in metres or ``frame``;
-  optional ``sequence``), one per traverse, matched to the images by name; or, with
+* ``csv``: positions CSV files (an image-name column and ``easting,northing`` in metres, ``lat,lon`` in degrees
+  (UTM metres, the query in the reference's zone) or ``frame``; optional ``sequence``), one per traverse, matched
+  to the images by name; or, with
   ``positions_format`` ``robotcar-ins`` / ``kitti-oxts``, a drive's position log, the images matched
   to it by timestamp (:mod:`seqnet.data.gps`);
 * ``utm``: UTM coordinates in the image names (``@<easting>@<northing>@...``);
@@ -44,7 +45,7 @@ from ..security.locks import locked
 from ..security.ownership import check_replaceable
 from ..sources.bags.positions import DEFAULT_TOLERANCE, is_bag
 from .descriptor_choice import CANDIDATES, choose_on_val, evenly, proxy_scores
-from .ground_truth import GROUND_TRUTHS, both_positions
+from .ground_truth import GROUND_TRUTHS, both_positions, check_true_matches
 
 PROXY_SEQ_LEN = 5  # the window of the proxy's raw+seqmatch: the default L
 
@@ -133,7 +134,8 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
          overwrite: bool = False, topic: str | None = None, positions_topic: str | None = None) -> Path:
     """Describe the image folders (or list files, or ROS bags: their image ``topic``) ``reference`` and ``query``
     with one describer and write the dataset directory ``out`` (descriptors, positions, names, ground truth,
-    provenance). ``positions``: the two positions CSVs (``csv``); ``positions_topic``: the bags' topic (``bag``)."""
+    provenance). ``positions``: the two positions CSVs (``csv``); ``positions_topic``: the bags' topic (``bag``).
+    A dataset in which no query would have a true match is refused before any image is described."""
     bag_topic = positions_topic if conf.ground_truth == "bag" else None
     ref, qry = (list_images(src, topic, bag_topic if is_bag(src) else None) for src in (reference, query))
     if conf.ground_truth == "positives" and positives is None:
@@ -148,18 +150,26 @@ def main(conf: FromImagesConfig, reference: str | Path, query: str | Path, out: 
                          truth, extra)
 
 
-def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
-                     positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
-                     unit: tuple[str, str | None], truth: Positives | None) -> tuple[DescribeConfig, dict]:
-    """The describer :mod:`seqnet.pipelines.descriptor_choice` prefers among ``conf.candidates`` on the ``val``
-    split: each candidate describes only the val images of both traverses (a fitted state fitted on
-    :func:`_proxy_fit`'s images: no image of the test split); and the record of the choice."""
+def positions_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
+                      positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
+                      unit: str, truth: Positives | None, name: str) -> Dataset:
+    """The dataset ``images`` will make, but for its descriptors (``[N, 1]`` ones: the ground truth's layout only):
+    its true matches are checked and the descriptor chosen on it before any image is described."""
     ref, qry = images
     (pos_r, bounds_r), (pos_q, bounds_q) = positions
-    ones = (np.ones((len(ref), 1), np.float32), np.ones((len(qry), 1), np.float32))  # the ground truth's layout only
-    base = assemble_dataset(Traverse(ones[0], pos_r, ref.names, bounds_r, "reference"),
-                            Traverse(ones[1], pos_q, qry.names, bounds_q, "query"), unit[0], conf.radius,
-                            splits=conf.splits, name="val", positives=truth)
+    ones = (np.ones((len(ref), 1), np.float32), np.ones((len(qry), 1), np.float32))
+    return assemble_dataset(Traverse(ones[0], pos_r, ref.names, bounds_r, "reference"),
+                            Traverse(ones[1], pos_q, qry.names, bounds_q, "query"), unit, conf.radius,
+                            splits=conf.splits, name=name, positives=truth)
+
+
+def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
+                     base: Dataset) -> tuple[DescribeConfig, dict]:
+    """The describer :mod:`seqnet.pipelines.descriptor_choice` prefers among ``conf.candidates`` on the ``val``
+    split of ``base`` (:func:`positions_dataset`): each candidate describes only the val images of both traverses
+    (a fitted state fitted on :func:`_proxy_fit`'s images: no image of the test split); and the record of the
+    choice."""
+    ref, qry = images
     val, rng = base.split("val"), base.ranges("val")
 
     def score(dconf: DescribeConfig) -> dict:
@@ -207,6 +217,21 @@ def _split_frames(rng: dict, n_ref: int, n_query: int) -> int:
     return max(0, min(b, n_ref) - a) + max(0, min(d, n_query) - c)
 
 
+def _before_describing(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
+                       positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
+                       unit: tuple[str, str | None], truth: Positives | None, name: str) -> Dataset:
+    """The checks before any image is described: a ``--pca`` the train split can fit, and queries with true
+    matches (:func:`seqnet.pipelines.ground_truth.check_true_matches`: none is refused); the dataset's
+    :func:`positions_dataset`."""
+    if conf.pca is not None:
+        from .pca import check_fit_frames
+
+        check_fit_frames(conf.pca, _split_frames(conf.splits["train"], len(images[0]), len(images[1])), "train")
+    base = positions_dataset(conf, images, positions, unit[0], truth, name)
+    check_true_matches(base)
+    return base
+
+
 def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
                   positions: tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]],
                   unit: tuple[str, str | None], out: str | Path, overwrite: bool = False,
@@ -220,12 +245,9 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         if Path(out).exists() and any(Path(out).iterdir()) and not overwrite:
             raise ConfigError(f"output directory {out} exists and is not empty (use --overwrite to replace it)")
         check_replaceable(out, "dataset")  # before any work: a user's files are never replaced
-        if conf.pca is not None:  # before any image is described
-            from .pca import check_fit_frames
-
-            check_fit_frames(conf.pca, _split_frames(conf.splits["train"], len(ref), len(qry)), "train")
+        base = _before_describing(conf, images, positions, unit, truth, conf.name or Path(out).name)
         if conf.candidates:
-            dconf, record = choose_describer(conf, images, positions, unit, truth)
+            dconf, record = choose_describer(conf, images, base)
             conf, extra = conf.replace(describe=dconf, candidates=()), {**(extra or {}), "descriptor_choice": record}
         fit = _fit_images(conf, ref, qry)
         describer = make_describer(conf.describe.replace(fit=fit) if fit else conf.describe, fit or ref.paths)
@@ -240,7 +262,7 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         prov = describe_provenance(describer.config, fit, desc["reference"])
         ds = assemble_dataset(
             Traverse(desc["reference"], pos_r, ref.names, bounds_r, "reference", prov),
-            Traverse(desc["query"], pos_q, qry.names, bounds_q, "query", prov), unit[0], conf.radius,
+            Traverse(desc["query"], pos_q, qry.names, bounds_q, "query", prov), unit[0], base.radius,
             splits=conf.splits, name=conf.name or Path(out).name, positives=truth,
             extra={"pos_radius": conf.pos_radius, "neg_radius": conf.neg_radius, "ground_truth": conf.ground_truth,
                    "describe": describer.config.to_dict() | {"fit": None}, "positions_frame": unit[1],

@@ -10,11 +10,15 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, DatasetError
+from ..core.log import logger
 from ..data.convert import match_names, read_positions_csv
 from ..data.gps import check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
+from ..data.spacing import DEGREES_HINT, looks_like_degrees
+from ..data.traverse import Dataset
+from ..data.utm import latlon_pair
 from ..describe.images import ImageList
 from ..sources.bags.positions import is_bag, match_positions
 
@@ -70,9 +74,64 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
         check_frame_aligned(images[0].names, images[1].names)
     ref, qry = (GROUND_TRUTH_SOURCES[conf.ground_truth](conf, im, src, g, side)
                 for im, src, g, side in zip(images, sources, given, ("reference", "query"), strict=True))
+    if ref[2] == qry[2] == "degrees":  # lat/lon CSVs: UTM metres, the query in the reference's zone
+        r, q, frame = latlon_pair(ref[0], qry[0], (str(given[0]), str(given[1])))
+        ref, qry = (r, ref[1], "metres", frame), (q, qry[1], "metres", frame)
     if ref[2] != qry[2] or (ref[3] is None) != (qry[3] is None):
         raise ConfigError(f"reference positions are in {ref[3] or ref[2]} but query positions in {qry[3] or qry[2]}"
                           " (hint: two traverses compare only in one frame)")
     if ref[3] is not None:
         check_zones(ref[3], qry[3])  # one UTM zone (an unknown zone, '?', is let through)
     return ref, qry
+
+
+FEW_MATCHES = 0.5  # a dataset in which fewer queries than this share have a true match is warned about
+
+
+def check_true_matches(ds: Dataset) -> str | None:
+    """Whether ``ds``'s queries have true matches, by the one ground truth of evaluation
+    (:func:`seqnet.metrics.recall.ground_truth`): none is a :class:`DatasetError` (the dataset is unusable), fewer
+    than :data:`FEW_MATCHES` of them a warning line (logged, and returned), each naming the likely cause
+    (:func:`_mismatch_hint`); None when most queries have one."""
+    from ..metrics.recall import ground_truth
+
+    truth = ground_truth(ds.query.positions, ds.reference.positions, ds.radius, ds.positives, require=False)
+    n, m = int(truth.has_positive().sum()), len(ds.query)
+    if m == 0 or n >= FEW_MATCHES * m:
+        return None
+    what = "an explicit positive" if ds.positives is not None else (f"a reference within the radius "
+                                                                       f"{ds.radius:g} {ds.position_unit}")
+    if n == 0:
+        raise DatasetError(f"{ds.name}: none of the {m} queries has {what}, so every Recall@K would be undefined; "
+                           f"nothing written: {_mismatch_hint(ds, n)}")
+    line = f"{ds.name}: only {n} of {m} queries ({100 * n / m:.0f}%) have {what}: {_mismatch_hint(ds, n)}"
+    logger.warning("%s", line)
+    return line
+
+
+def _mismatch_hint(ds: Dataset, matched: int) -> str:
+    """Why few queries of ``ds`` have a true match: how far the nearest references are against the radius, and
+    the likely cause (one traverse's two position columns swapped, when swapping them gives more queries a match;
+    degrees; else swapped columns or a radius in another unit)."""
+    if ds.positives is not None:
+        return "hint: check the positives file (per query its matching reference indices, counted from 0)"
+    from scipy.spatial import cKDTree
+
+    from ..metrics.recall import has_positive
+
+    q, r, unit = ds.query.positions, ds.reference.positions, ds.position_unit
+    if not len(r):
+        return "hint: the reference holds no image"
+    near = cKDTree(r).query(q, k=1)[0]
+    said = (f"the nearest reference to any query is {float(near.min()):.1f} {unit} away (median over the queries "
+            f"{float(np.median(near)):.1f} {unit}), the radius is {ds.radius:g} {unit}")
+    if q.shape[1] == 2:
+        swapped = int(has_positive(q[:, ::-1], r, ds.radius).sum())
+        if swapped > matched and swapped >= FEW_MATCHES * len(q):
+            return (f"{said}; with one traverse's two position columns swapped {swapped} of {len(q)} queries would "
+                    "have one: easting/northing (or x/y, lat/lon) swapped in the reference's or the query's "
+                    "positions? (hint: swap the two column names in its header)")
+    if looks_like_degrees(np.concatenate([r, q])):
+        return f"{said}; {DEGREES_HINT}"
+    return (f"{said}: positions swapped (easting/northing, lat/lon), the radius in another unit, or traverses in "
+            "different coordinate frames? (hint: check both position files and the radius)")

@@ -64,8 +64,9 @@ def _register_csv(dsub: argparse._SubParsersAction) -> None:
 
     p = dsub.add_parser("from-csv", help="from position CSVs (name + easting,northing or frame) and descriptor files",
                         description="CSV header: an image column (name/image/filename/...) and easting,northing "
-                                    "(metres) or frame; optional sequence column. Rows are matched to descriptors "
-                                    "by image name (HDF5 'names' or --*-names file), else taken in order.")
+                                    "(metres), lat,lon (degrees: UTM metres, the query in the reference's zone) or "
+                                    "frame; optional sequence column. Rows are matched to descriptors by image name "
+                                    "(HDF5 'names' or --*-names file), else taken in order.")
     for side in ("ref", "query"):
         p.add_argument(f"--{side}-csv", required=True, help=f"{side} positions CSV")
         p.add_argument(f"--{side}-desc", required=True, help=f"{side} descriptors (.npy, .h5, .hdf5)")
@@ -129,8 +130,10 @@ def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
     from ...data.io import save_dataset
     from ...data.sanity import review
     from ...metrics.summary import summarize_dataset
+    from ...pipelines.ground_truth import check_true_matches
 
-    save_dataset(ds, args.out, overwrite=args.overwrite)
+    check_true_matches(ds)  # no query with a true match: refused, nothing written; few: one warning line
+    save_dataset(ds, args.out, overwrite=args.overwrite, quiet=True)  # said below, with more
     review(ds)  # likely mistakes (the same images, splits sharing queries, constant positions): one line each
     s = summarize_dataset(ds)
     print(f"wrote {args.out}: reference {s['reference']['images']} and query {s['query']['images']} images, "
@@ -152,7 +155,7 @@ def _extra(args: argparse.Namespace) -> dict:
 def run_from_csv(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ...data.convert import assemble_dataset, traverse_from_csv
+    from ...data.convert import assemble_dataset, traverse_from_csv, traverses_in_metres
     from ...data.gps import DEFAULT_MAX_GAP, check_zones, traverse_from_log
 
     extra = _extra(args)
@@ -170,6 +173,9 @@ def run_from_csv(args: argparse.Namespace) -> int:
         qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
     if unit_r != unit_q:
         raise ConfigError(f"reference positions are in {unit_r} but query positions in {unit_q}")
+    if unit_r == "degrees":  # lat/lon columns: UTM metres, the query in the reference's zone
+        ref, qry, extra["positions_frame"] = traverses_in_metres(ref, qry, (args.ref_csv, args.query_csv))
+        unit_r = "metres"
     ds = assemble_dataset(ref, qry, unit_r, args.radius, args.preset, parse_splits(args.split),
                           args.name or Path(args.out).name, extra, _positives(args), args.allow_mismatch)
     return finish(ds, args)

@@ -31,8 +31,8 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
                    "model-free raw+seqmatch R@1)")
     p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--ref-csv", metavar="FILE", help="reference positions CSV (image name + easting,northing or "
-                   "frame; optional sequence); needs --query-csv")
+    g.add_argument("--ref-csv", metavar="FILE", help="reference positions CSV (image name + easting,northing, "
+                   "lat,lon (degrees: UTM metres) or frame; optional sequence); needs --query-csv")
     g.add_argument("--utm-names", action="store_true", help="positions from '@easting@northing@' in image names")
     g.add_argument("--frame-aligned", action="store_true",
                    help="query frame i shows the place of reference frame i (radius in frames)")

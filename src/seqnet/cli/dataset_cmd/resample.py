@@ -39,11 +39,13 @@ def run_resample(args: argparse.Namespace) -> int:
     from ...core.log import logger, ordinal
     from ...data.io import load_dataset, save_dataset
     from ...data.resample import resample_dataset
+    from ...pipelines.ground_truth import check_true_matches
 
     ds = load_dataset(args.dir)
     out = resample_dataset(ds, args.every, args.side)
     out = dataclasses.replace(out, name=args.name or f"{ds.name}-every{args.every}")
-    save_dataset(out, args.out, overwrite=args.overwrite)
+    check_true_matches(out)  # a reference thinned below the radius: refused, nothing written; few: one warning
+    save_dataset(out, args.out, overwrite=args.overwrite, quiet=True)  # said below, with the counts
     logger.info("wrote %s: %d reference / %d query frames (from %d / %d, every %s of the %s side)", args.out,
                 len(out.reference), len(out.query), len(ds.reference), len(ds.query), ordinal(args.every), args.side)
     return 0

@@ -1,0 +1,51 @@
+"""The true-match check of every dataset builder: no query with one is refused naming the likely cause (columns
+swapped when swapping them helps; degrees; else the distances against the radius); few is one warning line."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from seqnet.core.errors import DatasetError
+from seqnet.data.positives import Positives
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.pipelines.ground_truth import check_true_matches
+
+
+def dataset(ref_pos, qry_pos, radius: float, positives: Positives | None = None, unit: str = "metres") -> Dataset:
+    ones = [np.ones((len(p), 1), np.float32) for p in (ref_pos, qry_pos)]
+    return Dataset(Traverse(ones[0], ref_pos, name="reference"), Traverse(ones[1], qry_pos, name="query"), radius,
+                   unit, name="ds", positives=positives)
+
+
+ROUTE = np.stack([500000 + 10.0 * np.arange(30), 6000000 + 0.5 * np.arange(30)], axis=1)
+
+
+def test_matches_pass_and_swapped_columns_are_named():
+    assert check_true_matches(dataset(ROUTE, ROUTE + [2.0, 0.0], 5.0)) is None
+    with pytest.raises(DatasetError, match=r"^ds: none of the 30 queries has a reference within the radius 5 metres"
+                                           r".*with one traverse's two position columns swapped 30 of 30 queries "
+                                           "would have one"):
+        check_true_matches(dataset(ROUTE, ROUTE[:, ::-1] + [0.0, 2.0], 5.0))
+
+
+def test_unit_mistakes_say_the_distances_and_degrees():
+    with pytest.raises(DatasetError, match=r"the nearest reference to any query is 2.0 metres away \(median over the "
+                                           r"queries 2.0 metres\), the radius is 0.0002 metres: positions swapped"):
+        check_true_matches(dataset(ROUTE, ROUTE + [2.0, 0.0], 0.0002))
+    deg = np.stack([14.0 + 1e-4 * np.arange(30), np.full(30, 66.0)], axis=1)
+    with pytest.raises(DatasetError, match="positions look like degrees"):
+        check_true_matches(dataset(deg, deg + [0.0, 1e-4], 1e-6))
+
+
+def test_few_matches_warn_once_and_empty_positives_are_refused(caplog):
+    qry = ROUTE + np.where(np.arange(30) < 10, 2.0, 900.0)[:, None] * [1.0, 0.0]
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        line = check_true_matches(dataset(ROUTE, qry, 5.0))
+    assert line.startswith("ds: only 10 of 30 queries (33%) have a reference within the radius 5 metres: ")
+    assert [r.getMessage() for r in caplog.records] == [line]
+    empty = Positives.from_lists([[] for _ in range(30)])
+    with pytest.raises(DatasetError, match="none of the 30 queries has an explicit positive.*check the positives"):
+        check_true_matches(dataset(ROUTE, ROUTE, 5.0, empty))
