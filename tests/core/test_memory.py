@@ -22,6 +22,30 @@ def test_available_memory_is_the_lowest_known_limit(monkeypatch):
     memory.check_fits(2**20, "x", "h")
 
 
+def test_a_refusal_with_what_the_process_holds_names_the_whole():
+    with pytest.raises(ResourceError, match=r"x needs about 2\.0 GiB of memory \(0\.5 GiB held by this process "
+                                            r"before it \+ 1\.5 GiB more\), 1\.5 GiB available; hint: h"):
+        memory.check_fits(3 << 29, "x", "h", held=1 << 29, free=1 << 30)
+    memory.check_fits(1 << 30, "x", "h", held=1 << 29, free=1 << 30)  # what is held is not needed again
+
+
+def test_the_process_memory_is_its_resident_set(tmp_path, monkeypatch):
+    """VmRSS (torch is imported here: over 100 MiB); without /proc its peak so far; without that a constant."""
+    import resource
+    import types
+
+    status = dict(line.split(":", 1) for line in open("/proc/self/status").read().splitlines() if ":" in line)
+    now = memory.rss_bytes()
+    assert now > 100 << 20 and abs(now - int(status["VmRSS"].split()[0]) * 1024) < 64 << 20
+    monkeypatch.setattr(memory, "Path", lambda _: tmp_path / "absent")
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    assert before <= memory.rss_bytes() <= resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # the peak
+    assert before >= now - (64 << 20)
+    monkeypatch.setattr(memory, "resource", types.SimpleNamespace(getrusage=lambda _: types.SimpleNamespace(
+        ru_maxrss=0), RUSAGE_SELF=0))
+    assert memory.rss_bytes() == memory.BASE_BYTES
+
+
 def test_the_training_estimate_grows_with_the_model():
     conf = TrainConfig(seq_len=5, w=5, optimizer="adam")
     wide = train_bytes(conf, 19200, 111, 111)

@@ -157,15 +157,16 @@ def test_the_memory_estimate_caps_the_batch_at_the_training_queries(synth_datase
     count at most those queries (dsA's 56 queries with --batch-size 4096 were 'needs about 28.4 GiB')."""
     from seqnet.core.errors import ResourceError
     from seqnet.train.config import train_bytes
-    from seqnet.train.guide import check_memory
+    from seqnet.train.guide import Budget, check_memory
 
     conf = TrainConfig(seq_len=5, w=5, device="cpu")
     n = len(synth_dataset.split("train").query)
     huge, capped = conf.replace(batch_size=4096), conf.replace(batch_size=n)
     assert train_bytes(huge, 256, 500, 900, n_train=n) == train_bytes(capped, 256, 500, 900, n_train=n)
     assert train_bytes(huge, 256, 500, 900) > train_bytes(capped, 256, 500, 900)  # the frames cap the default
-    assert plan(huge, 256, 56, 196, 300, 2, 3, "cpu", rate=1e10).peak_bytes == \
-        plan(conf.replace(batch_size=56), 256, 56, 196, 300, 2, 3, "cpu", rate=1e10).peak_bytes
+    held = Budget(300 << 20, None)  # the process's memory, the same for both
+    assert plan(huge, 256, 56, 196, 300, 2, 3, "cpu", rate=1e10, budget=held).peak_bytes == \
+        plan(conf.replace(batch_size=56), 256, 56, 196, 300, 2, 3, "cpu", rate=1e10, budget=held).peak_bytes
     d = synth_dataset.query.dim
     need = train_bytes(capped, d, len(synth_dataset.reference), len(synth_dataset.query), True, n)
     monkeypatch.setenv("SEQNET_MEMORY_MB", str(2 * need / 2**20))
@@ -205,3 +206,127 @@ def test_the_memory_estimate_counts_the_updates_temporaries():
     sgd = train_bytes(TrainConfig(optimizer="sgd", w=5, out_dims=6400), 6400, 10, 10)
     weights = 6400 * 6400 * 5 + 6400
     assert adam >= 6 * 4 * weights and sgd >= 4 * 4 * weights and adam - sgd == 2 * 4 * weights
+
+
+GiB = 2**30
+
+
+def _wide(dim: int = 16384):
+    """A synthetic dataset of ``dim``-D descriptors (16-D ones repeated: make_synthetic takes 74 s at 16384)."""
+    import dataclasses
+
+    import numpy as np
+
+    from seqnet.data.synth import make_synthetic
+
+    ds = make_synthetic(places=100, dim=16, seed=0)
+    sides = {k: dataclasses.replace(t, descriptors=np.tile(t.descriptors, (1, dim // 16)))
+             for k, t in (("reference", ds.reference), ("query", ds.query))}
+    return dataclasses.replace(ds, **sides)
+
+
+def _memory(monkeypatch, held: int, free: int) -> None:
+    """What the process holds (VmRSS) and may still allocate, as the guide reads them."""
+    from seqnet.train import guide
+
+    monkeypatch.setattr(guide, "rss_bytes", lambda: held)
+    monkeypatch.setattr(guide, "available_bytes", lambda: free)
+
+
+def test_a_plan_over_the_available_memory_is_refused_and_the_check_agrees_with_the_plan(monkeypatch):
+    """The issue: D = 16384, the plan said a peak of 20.9 GiB of 17.7 GiB available, advised, and trained. The
+    check before any work refuses what the plan would put over what is available; between half and all, it
+    lets the run start and the plan advises."""
+    from seqnet.core.errors import ResourceError
+    from seqnet.train.guide import Budget, check_memory
+
+    ds = _wide()
+    conf = TrainConfig(seq_len=5, w=5, device="cpu").resolve(ds)
+    held = int(0.3 * GiB)
+    _memory(monkeypatch, held, int(17.7 * GiB))
+    with pytest.raises(ResourceError) as e:
+        check_memory(conf, ds)
+    msg = str(e.value)
+    assert "\n" not in msg and "D=16384->16384" in msg and "needs about 21.3 GiB of memory" in msg, msg
+    assert "(0.3 GiB held by this process before it + 21.0 GiB more), 18.0 GiB available" in msg, msg
+    assert all(h in msg for h in ("--pca 64", "--out-dims", "--w", "--batch-size")), msg
+    need = check_memory.__globals__["train_bytes"](conf, 16384, len(ds.reference), len(ds.query), True,
+                                                   len(ds.split("train").query))
+    for free in (need - 1, need, 2 * need - 1):  # the decision: refused iff the plan's peak is over its available
+        _memory(monkeypatch, held, free)
+        budget = None
+        try:
+            budget = check_memory(conf, ds)
+        except ResourceError:
+            pass
+        p = plan(conf, 16384, len(ds.split("train").query), len(ds.split("train").reference), 80, 0, 1, "cpu",
+                 len(ds.split("train").reference), len(ds.split("train").query), rate=1e10,
+                 budget=Budget(held, free))
+        assert (budget is None) == (free < need) and (p.peak_bytes > p.available) <= (budget is None), free
+        if budget is not None:
+            assert budget == Budget(held, free)
+            assert any("is over half of the" in a for a in advice(p))  # between half and all: trained, advised
+
+
+def test_the_plan_counts_what_the_process_holds_before_training(monkeypatch):
+    """The peak was 16-90x too low on small runs (4 MiB planned, 361 MiB measured): it left out the process
+    (Python, torch, the dataset: VmRSS at the check) and what training loads (torch.optim, TensorBoard)."""
+    from seqnet.train.config import LIBRARY_BYTES, train_bytes
+    from seqnet.train.guide import Budget
+
+    conf = TrainConfig(seq_len=5, w=3)
+    p = plan(conf, 64, 96, 196, 300, 2, 3, "cpu", rate=1e10, budget=Budget(260 << 20, 10 * GiB))
+    assert p.peak_bytes == (260 << 20) + train_bytes(conf, 64, 196, 96, True, 96) and p.held_bytes == 260 << 20
+    assert train_bytes(conf, 64, 196, 96) > LIBRARY_BYTES > 64 << 20 and p.available == 10 * GiB + (260 << 20)
+    assert "peak memory  about 359 MiB (260 MiB held before training) of 10.3 GiB available" in plan_text(p)
+    _memory(monkeypatch, 123 << 20, GiB)  # without a budget: the process now
+    assert plan(conf, 64, 96, 196, 300, 2, 3, "cpu", rate=1e10).held_bytes == 123 << 20
+
+
+def test_training_over_the_available_memory_is_refused_by_the_cli_before_any_work(tmp_path, monkeypatch, capsys):
+    """Exit 1, one line naming the estimate, what is available and the flags; no model, no run written."""
+    from seqnet.cli import main as cli_main
+    from seqnet.data.io import save_dataset
+
+    data = save_dataset(_wide(), tmp_path / "ds")
+    _memory(monkeypatch, int(0.3 * GiB), int(17.7 * GiB))
+    made = []
+    monkeypatch.setattr(loop, "open_run", lambda *a, **k: made.append(a))
+    capsys.readouterr()
+    rc = cli_main(["train", "--dataset", str(data), "--out", str(tmp_path / "run"), "--seq-len", "5", "--w", "5",
+                   "--epochs", "1", "--device", "cpu"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1, (rc, err)
+    assert "needs about 21.3 GiB of memory" in err[0] and "18.0 GiB available" in err[0], err
+    assert "--pca 64 (seqnet train, or seqnet dataset from-images)" in err[0] and "--out-dims" in err[0], err
+    assert not made and not list(tmp_path.glob("run/*.pt")) and not (tmp_path / "run" / "config.json").exists()
+
+
+def test_training_between_half_and_all_of_the_memory_trains_and_advises(tmp_path, monkeypatch, capsys):
+    from seqnet.cli import main as cli_main
+    from seqnet.data.io import save_dataset
+    from seqnet.data.synth import make_synthetic
+    from seqnet.train.config import LIBRARY_BYTES
+
+    data = save_dataset(make_synthetic(places=200, dim=8), tmp_path / "ds")
+    _memory(monkeypatch, 10 << 20, int(1.5 * LIBRARY_BYTES))  # the run needs a little over LIBRARY_BYTES
+    rc = cli_main(["--threads", "1", "train", "--dataset", str(data), "--out", str(tmp_path / "run"),
+                   "--epochs", "1", "--out-dims", "8", "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert rc == 0 and (tmp_path / "run" / "best.pt").exists(), err
+    assert "advice: the estimated peak memory" in err and "is over half of the" in err, err
+
+
+def test_the_plan_logged_is_against_the_memory_checked_before_the_model_was_made(synth_dataset, tmp_path,
+                                                                                   monkeypatch, caplog):
+    """The plan read the memory after the model and the data were on the device (17.7 GiB of what had been more
+    at the check): a peak over it, yet trained. It now states the check's budget."""
+    from seqnet.train import guide
+
+    frees = iter([10 * GiB])  # the check's reading; a second one would be 1 MiB
+    monkeypatch.setattr(guide, "rss_bytes", lambda: 100 << 20)
+    monkeypatch.setattr(guide, "available_bytes", lambda: next(frees, 1 << 20))
+    caplog.set_level(logging.INFO, logger="seqnet")
+    train(synth_dataset, FAST, tmp_path / "r")
+    plans = [r.getMessage() for r in caplog.records if r.getMessage().startswith("training plan:")]
+    assert len(plans) == 1 and "(100 MiB held before training) of 10.1 GiB available" in plans[0], plans

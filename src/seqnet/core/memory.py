@@ -3,13 +3,15 @@
 :func:`available_bytes` is what this process may still allocate: the kernel's ``MemAvailable``, lowered
 by a cgroup limit (``memory.max`` − ``memory.current``) and by ``ulimit -v`` when set. :func:`check_fits`
 refuses an estimate over it with a :class:`ResourceError` (one line, exit 1) naming the estimate, what
-is available and the hints.
+is available and the hints; with ``held`` (what the process already holds, :func:`rss_bytes`) both figures
+are the process's whole: its peak and what it can reach.
 """
 
 from __future__ import annotations
 
 import os
 import resource
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -84,11 +86,34 @@ def gib(n: float) -> str:
     return f"{n / 2**30:.1f} GiB"
 
 
-def check_fits(needed: int, what: str, hints: str) -> None:
-    """Refuse ``needed`` bytes for ``what`` when more than :func:`available_bytes` (nothing when unknown)."""
-    free = available_bytes()
+def check_fits(needed: int, what: str, hints: str, held: int = 0, free: int | None = None) -> None:
+    """Refuse ``needed`` more bytes for ``what`` when more than ``free`` (default :func:`available_bytes`;
+    nothing when unknown). With ``held``, the bytes the process already holds, the message names the whole:
+    a peak of ``held + needed`` against ``held + free`` available."""
+    free = available_bytes() if free is None else free
     if free is not None and needed > free:
-        raise ResourceError(f"{what} needs about {gib(needed)} of memory, {gib(free)} available; hint: {hints}")
+        of = f" ({gib(held)} held by this process before it + {gib(needed)} more)" if held else ""
+        raise ResourceError(f"{what} needs about {gib(held + needed)} of memory{of}, {gib(held + free)} available; "
+                            f"hint: {hints}")
+
+
+BASE_BYTES = 258 << 20
+"""Resident memory of a Python process with torch and seqnet imported (VmRSS of ``python -c "import torch,
+seqnet.train, seqnet.cli"``: 258 MiB measured 2026-12-04, torch 2.13 CPU): what :func:`rss_bytes` says where
+the process's own figure cannot be read."""
+
+
+def rss_bytes() -> int:
+    """Bytes this process holds now: ``VmRSS`` of ``/proc/self/status``; else its peak so far (``ru_maxrss``,
+    KiB on Linux, bytes on macOS); else :data:`BASE_BYTES`."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    peak = int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+    return peak * (1 if sys.platform == "darwin" else 1024) if peak > 0 else BASE_BYTES
 
 
 WORKSPACE_BYTES = 4 * BLOCK_BYTES  # a few query x reference blocks in flight (search.knn.DEFAULT_BLOCK_BYTES each)

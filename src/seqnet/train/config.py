@@ -228,6 +228,10 @@ class TrainConfig(Config):
         return dataclasses.replace(self, **{k: getattr(conf, k) for k in RESUME_OVERRIDABLE})
 
 
+# what training loads beyond the process at its memory check (torch with the dataset): the first optimiser's
+# imports (torch.optim: 71 MiB), autograd, the TensorBoard writer (5 MiB) and the plan's timing products; measured
+# 2026-12-04, torch 2.13 CPU: 98-100 MiB between the check and the peak of S_5 on synth D = 64 and D = 2048
+LIBRARY_BYTES = 96 << 20
 _STORED_MAX = {"seq_len": SEQ_MAX, "w": SEQ_MAX, "match_len": SEQ_MAX, "out_dims": DIM_MAX, "seed": 2**63 - 1}
 PATH_MAX = 4096
 
@@ -260,8 +264,9 @@ def stored_config(values: Any, where: str, error: ErrorType = ConfigError) -> di
 def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill: bool = False,
                 n_train: int | None = None) -> int:
     """Estimated peak bytes of training ``conf`` on ``in_dims``-D descriptors with ``n_ref`` reference and
-    ``n_query`` query frames (one process): the weights with their gradients and optimiser state, the
-    mining cache, its blocks in flight, and one batch of windows (its activations, kept for the backward pass).
+    ``n_query`` query frames (one process), beyond what the process holds before it: :data:`LIBRARY_BYTES`,
+    the weights with their gradients and optimiser state, the mining cache, its blocks in flight, and one batch
+    of windows (its activations, kept for the backward pass).
     A batch holds at most the ``n_train`` training queries (default ``n_query``): ``--batch-size`` above them
     costs nothing more.
 
@@ -287,4 +292,4 @@ def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill
     query_cache = 4 * mined * per_window * out
     blocks = min(COL_BLOCK_BYTES, 4 * n_ref * per_window * out) + 4 * 4 * min(2**24, mined * n_ref)  # [B, R] x 4
     batch = 3 * min(conf.batch_size, n_train) * (2 + conf.n_negatives) * conf.window_len * max(in_dims, out) * conf.w
-    return 4 * (copies * weights + batch) + ref_cache + query_cache + blocks
+    return LIBRARY_BYTES + 4 * (copies * weights + batch) + ref_cache + query_cache + blocks

@@ -2,14 +2,14 @@
 checks that speak up while it runs.
 
 Before the first epoch :func:`plan` estimates, from N (training queries and reference windows), D, out, L
-and w: the peak memory (:func:`seqnet.train.config.train_bytes`, the estimate the memory check refuses
-on), the time per epoch (the epoch's multiply-adds, :func:`epoch_flops`, over the device's rate measured
-by timing one matrix product like the model's, :func:`measured_rate`, plus :data:`STEP_SECONDS` per
-batch, a measured constant) and the size of the two
-checkpoints; :func:`plan_text` is the one block logged, with the advice (:func:`advice`): PCA
+and w: the peak memory (held at the memory check, :class:`Budget`, + :func:`seqnet.train.config.train_bytes`:
+:func:`check_memory` refuses, before any work, more than is available), the time per epoch (the epoch's
+multiply-adds, :func:`epoch_flops`, over the device's rate measured by timing one matrix product like the
+model's, :func:`measured_rate`, plus :data:`STEP_SECONDS` per batch, a measured constant) and the size of the
+two checkpoints; :func:`plan_text` is the one block logged, with the advice (:func:`advice`): PCA
 (``--pca D``) when D is above :data:`PAPER_PCA_DIM` (the paper reduces NetVLAD to 4096) or above the
 training frames, a smaller ``--out-dims`` / ``--w`` when the checkpoints pass :data:`CHECKPOINT_ADVISED_BYTES`
-or the memory half of what is available.
+or the memory half of what is available (over all of it, training was refused).
 
 :func:`val_warning`: a val split with fewer than :data:`VAL_MIN` queries cannot choose an epoch (one query
 moves R@1 by 1/n). :func:`inactive_epochs`: the epochs in a row, up to the last, in which no triplet was
@@ -27,7 +27,7 @@ from typing import Any
 from ..core.devices import get_device
 from ..core.errors import DatasetError
 from ..core.lazy import lazy_module
-from ..core.memory import available_bytes, check_fits, gib, human_bytes
+from ..core.memory import available_bytes, check_fits, gib, human_bytes, rss_bytes
 from ..data.traverse import Dataset
 from ..describe.pca import PAPER_PCA_DIM
 from .config import TrainConfig, train_bytes
@@ -49,6 +49,19 @@ UPDATE_PROBE = 1 << 22  # weights of the tensor an optimiser step is timed on (s
 
 
 @dataclasses.dataclass(frozen=True)
+class Budget:
+    """The process's memory at the check before training: ``held`` bytes resident (Python, torch, the dataset:
+    0.26 GiB or more), ``free`` what it may still allocate (None: unknown); the peak adds ``train_bytes``."""
+
+    held: int
+    free: int | None
+
+    @classmethod
+    def now(cls) -> Budget:
+        return cls(rss_bytes(), available_bytes())
+
+
+@dataclasses.dataclass(frozen=True)
 class Plan:
     """What a training run will cost (estimates; see the module docstring).
 
@@ -57,7 +70,8 @@ class Plan:
             (both traverses: what a PCA fitted on it sees).
         in_dims, out_dims, seq_len, w, epochs: the model and the epochs left to run.
         weights: parameters of the model; checkpoint_bytes: ``best.pt`` + ``last.pt`` on disk.
-        peak_bytes: estimated peak memory; available: what this process may allocate (None: unknown).
+        peak_bytes: estimated peak memory of the process, ``held_bytes`` (held before training) included;
+            available: what it may hold (``held_bytes`` + what it may still allocate; None: unknown).
         flops: multiply-adds (x2) of one epoch; rate: the device's measured FLOP/s; device: its name;
             batch_size: queries per optimiser step.
     """
@@ -79,6 +93,7 @@ class Plan:
     device: str
     batch_size: int = 16
     update_seconds: float = 0.0
+    held_bytes: int = 0
 
     @property
     def epoch_seconds(self) -> float:
@@ -158,25 +173,31 @@ def measured_update(weights: int, optimizer: str, device: Any, repeats: int = 3)
 
 def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames: int, n_val: int,
          epochs: int, device: Any, n_ref_frames: int | None = None, n_query_frames: int | None = None,
-         rate: float | None = None) -> Plan:
+         rate: float | None = None, budget: Budget | None = None) -> Plan:
     """The :class:`Plan` of training ``conf`` on ``in_dims``-D descriptors (``rate``: the device's FLOP/s,
-    measured when None; ``n_ref_frames`` / ``n_query_frames``: the dataset's, for the memory estimate)."""
+    measured when None; ``n_ref_frames`` / ``n_query_frames``: the dataset's, for the memory estimate;
+    ``budget``: the memory check's, :meth:`Budget.now` when None)."""
     out = int(conf.out_dims or in_dims)
     weights = in_dims * out * conf.w + out
     copies = OPTIMIZER_COPIES.get(conf.optimizer, 2)
     checkpoint = 4 * weights * (2 + copies)  # best.pt: the weights; last.pt: the weights and the optimiser state
     spill = getattr(device, "type", str(device)) == "cpu"
-    peak = train_bytes(conf, in_dims, n_ref_frames or n_refs, n_query_frames or n_queries, spill, n_queries)
+    b = budget or Budget.now()
+    peak = b.held + train_bytes(conf, in_dims, n_ref_frames or n_refs, n_query_frames or n_queries, spill, n_queries)
     return Plan(n_queries, n_refs, n_frames, in_dims, out, conf.seq_len, conf.w, epochs, weights, checkpoint, peak,
-                available_bytes(), epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
+                None if b.free is None else b.held + b.free, epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
                 measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size,
-                measured_update(weights, conf.optimizer, device) if rate is None else 0.0)
+                measured_update(weights, conf.optimizer, device) if rate is None else 0.0, b.held)
 
 
 def suggested_pca(p: Plan) -> int:
     """A PCA dimension to advise: at most :data:`PAPER_PCA_DIM` and below the training frames (a PCA fitted
     on n frames has at most n - 1 meaningful axes), rounded down to a power of two (at least 8)."""
-    cap = min(PAPER_PCA_DIM, p.in_dims - 1, max(8, p.n_frames - 1))
+    return _pca_dims(p.in_dims, p.n_frames)
+
+
+def _pca_dims(in_dims: int, n_frames: int) -> int:
+    cap = min(PAPER_PCA_DIM, in_dims - 1, max(8, n_frames - 1))
     return max(8, 2 ** int(math.log2(max(cap, 8))))
 
 
@@ -204,10 +225,11 @@ def advice(p: Plan) -> list[str]:
 def plan_text(p: Plan) -> str:
     """The block logged before training: the model, memory, time, checkpoints and the advice."""
     avail = f" of {human_bytes(p.available)} available" if p.available is not None else ""
+    held = f" ({human_bytes(p.held_bytes)} held before training)" if p.held_bytes else ""
     total = p.epoch_seconds * p.epochs
     lines = [f"training plan: S_{p.seq_len} (w={p.w}, D {p.in_dims}->{p.out_dims}): {p.weights:,} weights, "
              f"{p.n_queries} queries, {p.n_refs} reference windows, {p.n_frames} training frames",
-             f"  peak memory  about {human_bytes(p.peak_bytes)}{avail}",
+             f"  peak memory  about {human_bytes(p.peak_bytes)}{held}{avail}",
              f"  time         about {_duration(p.epoch_seconds)} per epoch on {p.device} (the device's measured "
              f"{p.rate / 1e9:.1f} GFLOP/s, every negative active), {p.epochs} epoch{'s' * (p.epochs != 1)}: about "
              f"{_duration(total)}",
@@ -230,12 +252,7 @@ def val_warning(n_val: int, val_name: str, minimum: int = VAL_MIN) -> str | None
 
 def inactive_epochs(history: Sequence[Mapping[str, Any]]) -> int:
     """The epochs in a row, up to the last of ``history``, without an active triplet."""
-    n = 0
-    for h in reversed(history):
-        if float(h.get("active", 1.0)) > 0:
-            break
-        n += 1
-    return n
+    return next((i for i, h in enumerate(reversed(history)) if float(h.get("active", 1.0)) > 0), len(history))
 
 
 def inactive_message(history: Sequence[Mapping[str, Any]], conf: TrainConfig, n_queries: int) -> str:
@@ -254,9 +271,8 @@ def inactive_message(history: Sequence[Mapping[str, Any]], conf: TrainConfig, n_
 def _duration(s: float) -> str:
     if not math.isfinite(s):
         return "unknown"
-    if s < 1:
-        return f"{s * 1000:.0f} ms"
-    return f"{s:.1f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"
+    return (f"{s * 1000:.0f} ms" if s < 1 else f"{s:.1f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200
+            else f"{s / 3600:.1f} h")
 
 
 def _train_frames(dataset: Dataset, conf: TrainConfig) -> int:
@@ -267,14 +283,18 @@ def _train_frames(dataset: Dataset, conf: TrainConfig) -> int:
         return len(dataset.query)
 
 
-def check_memory(conf: TrainConfig, dataset: Dataset) -> None:
-    """Refuse, before any work, a training run whose estimate (:func:`~seqnet.train.config.train_bytes`, a batch
-    of at most the train split's query frames) exceeds the available memory."""
+def check_memory(conf: TrainConfig, dataset: Dataset) -> Budget:
+    """Refuse before any work (ResourceError, exit 1, naming both and what lowers them) a training run whose
+    :func:`~seqnet.train.config.train_bytes` (a batch of at most the train split's query frames) is over what
+    the process may still allocate; the :class:`Budget` checked (the plan's)."""
     d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
     spill = get_device(conf.device).type == "cpu"  # the mining cache spills when large (one process)
-    check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill,
-                           _train_frames(dataset, conf)),
+    n_train = _train_frames(dataset, conf)
+    budget = Budget.now()
+    pca = f"--pca {_pca_dims(d, 2 * n_train)} (seqnet train, or seqnet dataset from-images), " if d > 8 else ""
+    check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill, n_train),
                f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
                f"{gib(4 * d * out * conf.w)})",
-               "a smaller --out-dims (e.g. 512), fewer dimensions when describing (--dim, PCA), a smaller --w "
-               "or --batch-size")
+               f"fewer dimensions: {pca}a smaller --out-dims (e.g. 512), a smaller --w (the weights are D x out x w) "
+               "or --batch-size", budget.held, budget.free)
+    return budget

@@ -34,7 +34,7 @@ from ..security.locks import locked
 from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
-from .guide import check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
+from .guide import Budget, check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
 from .losses import LOSSES
 from .run import (
     Run,
@@ -103,7 +103,8 @@ def _name(model: SeqNet) -> str:
     return "S_1" if model.role == "s1" else f"S_{model.seq_len}"
 
 
-def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device) -> None:
+def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device,
+         budget: Budget | None = None) -> None:
     """The epochs from the run's next one to ``conf.epochs`` (or early stopping), with the two INFO lines."""
     first, m, world = run.epoch + 1, run.model, run.world
     resumed = f"resuming {run.out_dir} after epoch {run.epoch}: " if run.epoch else ""
@@ -113,7 +114,7 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     logger.info("%straining %s (w=%d, D %d->%d) on %d queries%s, %d reference windows, epochs %d..%d, device %s%s, %s",
                 resumed, _name(m), m.w, m.in_dims, m.out_dims, src.n_queries, left, len(src.r_idx), first,
                 run.conf.epochs, device, procs, val)
-    run.world.rank0(lambda: _guide(run, src, val_ds, device))
+    run.world.rank0(lambda: _guide(run, src, val_ds, device, budget))
     t0 = time.perf_counter()
     inactive = False
     for epoch in range(first, run.conf.epochs + 1):
@@ -136,16 +137,19 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
                 run.epoch, time.perf_counter() - t0, best, stop)
 
 
-def _guide(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device) -> None:
-    """Rank 0, before the first epoch: the training plan (memory, time, checkpoints, advice) in one block, and
-    a warning when the val split is too small to choose an epoch (:mod:`seqnet.train.guide`)."""
+def _guide(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device,
+           budget: Budget | None = None) -> None:
+    """Rank 0, before the first epoch: the training plan (memory, time, checkpoints, advice; ``budget``: the
+    memory check's, before the model existed) in one block, and a warning when the val split is too small to
+    choose an epoch (:mod:`seqnet.train.guide`)."""
     conf = run.conf
     n_val = 0
     if val_ds is not None:
         n_val = len(split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad).q_idx)
     n_frames = len(src.q_desc) + len(src.r_desc)
     logger.info("%s", plan_text(plan(conf, run.model.in_dims, src.n_queries, len(src.r_idx), n_frames, n_val,
-                                     conf.epochs - run.epoch, device, len(src.r_desc), len(src.q_desc))))
+                                     conf.epochs - run.epoch, device, len(src.r_desc), len(src.q_desc),
+                                     budget=budget)))
     warning = val_warning(n_val, val_ds.name) if val_ds is not None else None
     if warning:
         logger.warning("%s", warning)
@@ -198,14 +202,14 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
     check_same(dataset.reference.provenance, dataset.query.provenance, "the reference descriptors",
                "the query descriptors", allow_mismatch or accepted_mismatch(dataset))
     with joined() as world, contextlib.ExitStack() as held:
-        conf, payload, path = world.rank0(lambda: _claim(held, dataset, conf, out_dir, resume, dataset_path,
+        conf, payload, path, budget = world.rank0(lambda: _claim(held, dataset, conf, out_dir, resume, dataset_path,
                                                          allow_mismatch))
         run, src, val_ds, device = world.agree(lambda: _start(dataset, conf, out_dir, payload, path, world))
         run.net = world.wrap(run.model)  # DistributedDataParallel when distributed
         world.rank0(lambda: open_files(run))
         done = False
         try:
-            _fit(run, src, val_ds, device)
+            _fit(run, src, val_ds, device, budget)
             done = True
         finally:
             run.close(failed=not done)
@@ -215,10 +219,11 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
 
 def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | None, out_dir: Path,
            resume: bool | str | Path, dataset_path: str | Path | None,
-           allow_mismatch: bool = False) -> tuple[TrainConfig, dict | None, str | None]:
+           allow_mismatch: bool = False) -> tuple[TrainConfig, dict | None, str | None, Budget]:
     """Rank 0: lock ``out_dir`` (a second writer of this run is refused), read the checkpoint to resume
     (its descriptors' provenance checked against the dataset's: a rebuilt dataset is refused unless
-    ``allow_mismatch``) or check that the directory is free; the run's configuration, checkpoint and dataset path."""
+    ``allow_mismatch``) or check that the directory is free, and refuse a run over the memory available; the
+    run's configuration, checkpoint, dataset path and the memory checked (the plan's)."""
     held.enter_context(locked(out_dir))
     payload = None
     if resume:
@@ -236,8 +241,8 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
     else:
         conf = (conf or TrainConfig()).resolve(dataset)
         check_new(out_dir)
-    check_memory(conf, dataset)
-    return conf, payload, str(dataset_path) if dataset_path is not None else None
+    budget = check_memory(conf, dataset)
+    return conf, payload, str(dataset_path) if dataset_path is not None else None, budget
 
 
 def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | None, dataset_path: str | None,
