@@ -158,10 +158,35 @@ def test_cli_build_and_eval(synth_dir, map_models, tmp_path, capsys):
                    "cannot run method 'single'")
     one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--seq-len", "3"],
                    "seq_len=3 but map")
-    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(out), "--report", "--out",
-                            str(tmp_path / "rep")], "--report is not available with --index")
     one_line_error(capsys, ["localize", "--map", str(out), "--query", str(synth_dir / "query" / "descriptors.npy"),
                             "--out", str(tmp_path / "t.csv")], "--window causal")
+
+
+def test_a_report_with_index_holds_the_results_and_says_what_a_map_lacks(synth_dir, map_models, tmp_path, capsys):
+    """``eval --index MAP --report`` writes report.html beside results.json: the summary, the results table (every
+    method and its R@1 as in results.json), the extra radii; the distance matrix and the gallery, which read the
+    reference side as a dataset, are a line saying why."""
+    mp = tmp_path / "map"
+    assert cli(["-q", "index", "build", "--dataset", str(synth_dir), "--model", str(map_models[0]), "--model",
+                str(map_models[1]), "--out", str(mp)]) == 0
+    rep = tmp_path / "rep"
+    assert cli(["-q", "eval", "--dataset", str(synth_dir), "--index", str(mp), "--report", "--extra-radius", "9",
+                "--out", str(rep)]) == 0
+    assert f"report: {rep / 'report.html'}" in capsys.readouterr().out
+    res = json.loads((rep / "results.json").read_text())
+    page = (rep / "report.html").read_text()
+    assert res["methods"] and "learned_below_baseline" in res
+    for name, entry in res["methods"].items():
+        assert f"<tr><td>{name}</td>" in page and f"<td>{entry['recall@1']:.3f}</td>" in page
+    for section in ("summary", "results", "radii", "recall", "pr", "matrix", "gallery"):
+        assert f'<section id="{section}">' in page, section
+    assert "No distance matrix: the queries were evaluated against a prebuilt map (seqnet eval --index)" in page
+    assert "No gallery: the queries were evaluated against a prebuilt map" in page
+    assert f"<tr><td>reference</td><td>the map {mp}</td></tr>" in page
+    radii = page.split('<section id="radii">')[1].split("</section>")[0]
+    first = next(iter(res["methods"]))
+    r1 = res["methods"][first]["radii"]["9.0"]["recall@1"]
+    assert f"<tr><td>{first}</td><td>9</td><td>{r1:.3f}</td>" in radii
 
 
 def test_explicit_positives_apply_to_a_map_of_the_same_dataset_only(synth_dir, tmp_path, capsys):

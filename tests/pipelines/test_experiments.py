@@ -127,7 +127,8 @@ def test_comparison(tmp_path, cache):
             "hvpr-fused"} <= set(test)
     md = (tmp_path / "t1" / "results.md").read_text()
     hvpr = paper_row(md, "HVPR (S_5 to S_1)")
-    assert hvpr[1] == "`hvpr`" and hvpr[3] == "/".join(f"{test['hvpr'][f'recall@{k}']:.3f}" for k in (1, 5, 20))
+    assert hvpr[1].split(" [learned, below model-free ")[0] == "`hvpr`"  # marked when below raw+seqmatch
+    assert hvpr[3] == "/".join(f"{test['hvpr'][f'recall@{k}']:.3f}" for k in (1, 5, 20))
     assert hvpr[4:] == ["0.72/0.82/0.88", "0.29/0.40/0.55"]  # the paper's, as printed
     assert paper_row(md, "AP-GeM")[1:4] == ["–", "–", "–"]  # not a descriptor here
     assert paper_row(md, "seqnet: hvpr-fused")[4:] == ["-", "-"]
@@ -347,3 +348,38 @@ def test_tables_holds_its_folders_lock(tmp_path, cache, capsys):
         os.close(holder)
     assert rc != 0 and "is in use by another seqnet process" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_an_experiment_marks_learned_methods_below_model_free_and_says_its_ground_truth(
+        synth_dataset, map_models, tmp_path, capsys):
+    """table-1 on a user's dataset with explicit positives: results.json has eval's ``learned_below_baseline`` (each
+    entry naming its evaluation), results.md marks each such row and lists the notes, and its header names the
+    explicit positives, not a radius."""
+    from seqnet.data.io import save_dataset
+    from seqnet.report.guidance import learned_below_baseline
+
+    ds = synth_dataset
+    d = np.linalg.norm(ds.query.positions[:, None] - ds.reference.positions[None], axis=-1)
+    ds.positives = Positives.from_lists([np.flatnonzero(row <= 3.0) for row in d])
+    save_dataset(ds, tmp_path / "pos")
+    out = tmp_path / "t1"
+    sl, s1 = (str(p) for p in map_models)  # random models: below the model-free methods
+    assert cli_main(["experiment", "table-1", "--dataset", str(tmp_path / "pos"), "--model", sl, "--model", s1,
+                     "--out", str(out), "--threads", "1"]) == 0
+    res = json.loads((out / "results.json").read_text())
+    md = (out / "results.md").read_text()
+    assert "explicit positives (a hit is one of the query's positives)" in md.split("\n\n")[1]
+    assert "radius" not in md.split("\n\n")[1]
+    notes = res["learned_below_baseline"]
+    assert notes and {n["evaluation"] for n in notes} <= {"val", "test"}
+    assert all(set(n) >= {"learned", "baseline", "learned_r1", "baseline_r1", "causes", "text"} for n in notes)
+    details = res["details"]["test"]  # the same findings as the test evaluation's own results give
+    expected = [(n.learned, n.baseline) for n in learned_below_baseline({"methods": details})]
+    assert [(n["learned"], n["baseline"]) for n in notes if n["evaluation"] == "test"] == expected
+    for n in notes:
+        row = next(line for line in md.splitlines() if f"| `{n['learned']}` [" in line)
+        where = row.split(f" {n['baseline']} (", 1)[1].split(")")[0]  # its evaluations: "val, test"
+        assert "[learned, below model-free " in row and n["evaluation"] in where.split(", ")
+        assert f"{n['learned']} (R@1 {n['learned_r1']:.3f}) is below the model-free {n['baseline']}" in md
+    assert "Learned methods below their model-free counterparts (test):" in md
+    assert "Learned methods below their model-free counterparts" in capsys.readouterr().out  # the CLI prints it

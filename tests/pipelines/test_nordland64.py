@@ -118,6 +118,14 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
     assert bench["method_fuse_weight"]["hvpr-fused"] == sel["hvpr"][3]["settings"]["fuse_weight"] == \
         methods["hvpr-fused"]["method"]["fuse_weight"]
     assert "Chosen on val (never on test): descriptor" in (out / "results.md").read_text()
+    md = (out / "results.md").read_text()
+    assert "radius 1 (frame steps)" in md  # nordland64's ground truth: the radius
+    for n in res["learned_below_baseline"]:  # each flagged row marked as in the terminal table, its note below
+        row = next(line for line in md.splitlines() if line.startswith(f"| {n['learned']} |"))
+        assert row.endswith(f"| learned, below model-free {n['baseline']} |")
+        assert f"{n['learned']} (R@1 {n['learned_r1']:.3f}) is below the model-free {n['baseline']}" in md
+        assert f"| learned, below model-free {n['baseline']} |" not in _row(md, n["baseline"])
+    assert ("| note |" in md) == bool(res["learned_below_baseline"])
     assert (out / "recall_at_k.png").stat().st_size > 1000 and "| hvpr |" in (out / "results.md").read_text()
     assert (out / "models" / "seqnet.pt").is_file() and (out / "dataset" / "dataset.json").is_file()
     assert_self_contained(out / "report.html")  # the HTML report, one file
@@ -215,3 +223,7 @@ def test_the_benchmark_replaces_only_what_it_wrote(tmp_path, capsys, synth_datas
         assert "report.html was not written by seqnet" in capsys.readouterr().err
     assert (out / "report.html").read_text() == "<p>my own report</p>"
     assert json.loads((mine / "dataset.json").read_text())["name"] == synth_dataset.name
+
+
+def _row(md: str, name: str) -> str:
+    return next(line for line in md.splitlines() if line.startswith(f"| {name} |"))

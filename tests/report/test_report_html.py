@@ -226,3 +226,18 @@ def test_report_has_the_choices_of_its_results(tmp_path, synth_dataset):
     text = (tmp_path / "r.html").read_text()
     assert 'id="choices"' in text and "hvpr: K 50 chosen on val" in text
     assert_self_contained(tmp_path / "r.html")
+
+
+def test_the_results_table_wraps_and_scrolls_in_its_own_box():
+    """A wide results table (long method names, the note column) wraps its text cells and, in a window narrower
+    than it, scrolls sideways inside its box instead of running off the page (checked by eye at 1200 and 800 px)."""
+    from types import SimpleNamespace
+
+    from seqnet.report.html import CSS, results_section
+
+    res = {"methods": {"hvpr-fused:s1+seqmatch-rev": {"recall@1": 0.5, "queries": 10}}, "config": {"ks": [1]}}
+    body = results_section(SimpleNamespace(results=res)).body
+    assert body.startswith('<div class="wide"><table class="sortable">') and "</table></div>" in body
+    assert ".wide{overflow-x:auto" in CSS
+    assert "#results td:last-child,#results th:last-child{text-align:left;white-space:normal" in CSS
+    assert "#results td:nth-child(2){white-space:normal" in CSS  # the family column wraps too

@@ -17,7 +17,7 @@ from ..pipelines.nordland64.config import SELECTABLE
 from ..pipelines.nordland64.run import selection_notes
 from ..pipelines.timing import BIG_SIZES, TimingConfig
 from ..report.guidance import format_notes, learned_below_baseline
-from ..report.tables import format_table
+from ..report.tables import format_table, ground_truth_text
 from ..search.ann import ANN_INDEXES
 from ..security.text import shown
 from ..sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS
@@ -215,7 +215,7 @@ def run_nordland64(args: argparse.Namespace) -> int:
     cfg, bench = res["config"], res["config"]["benchmark"]
     first = next(iter(res["methods"].values()))
     print(f"nordland64 test {bench['test_range'][0]}:{bench['test_range'][1]}: {first['queries']} queries, "
-          f"radius {cfg['radius']:g}, L={cfg['seq_len']}")
+          f"{ground_truth_text(cfg)}, L={cfg['seq_len']}")
     print(format_table(res["methods"], cfg["ks"]))
     for line in selection_notes(res.get("selection", {})):
         print(shown(line))

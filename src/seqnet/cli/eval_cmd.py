@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.index:
         from ..maps import evaluate_main
 
-        res = evaluate_main(conf, args.dataset, args.index, args.out, **outs).data
+        res = evaluate_main(conf, args.dataset, args.index, args.out, report=report, **outs).data
     else:
         from ..eval.select import main as choosing_main
 
@@ -241,8 +241,6 @@ def check_route(args: argparse.Namespace) -> None:
     if args.target_precision is not None and (args.distances or args.index):
         raise ConfigError("--target-precision calibrates on another split of the dataset's descriptors; it is not "
                           "available with --distances or --index")
-    if args.index and args.report:
-        raise ConfigError("--report is not available with --index; evaluate the dataset without --index for a report")
 
 
 def report_config(args: argparse.Namespace) -> ReportConfig | None:

@@ -27,6 +27,7 @@ from ..eval.evaluate import EvalConfig, Evaluation, run
 from ..eval.outputs import EvalOutputs
 from ..methods.grammar import Method, parse_method
 from ..metrics.recall import ground_truth
+from ..report.guidance import learned_below_baseline, note_entries
 from ..search.ann import shortlist_recall
 from .load import load_map
 from .map import Map
@@ -148,15 +149,18 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
 
 def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Path | None,
          per_query: str | Path | None = None, figures: bool = False, overwrite: bool = False,
-         json: str | Path | None = None) -> Written:
+         json: str | Path | None = None, report: Any = None) -> Written:
     """hloc-style stage: evaluate ``conf.split`` of the dataset's queries against the map ``index``;
-    writes ``out/results.json`` and what ``per_query``, ``figures`` (``out/pr_curve.png``) and ``json`` ask,
-    as one set (:class:`seqnet.eval.outputs.EvalOutputs`); returns the results path and the results."""
-    outputs = EvalOutputs(out, per_query, json, figures, None, overwrite)
+    writes ``out/results.json`` and what ``per_query``, ``figures`` (``out/pr_curve.png``), ``report`` (a
+    :class:`seqnet.report.html.ReportConfig`: ``out/report.html``, without the sections that read the reference
+    side as a dataset) and ``json`` ask, as one set (:class:`seqnet.eval.outputs.EvalOutputs`); returns the
+    results path and the results."""
+    outputs = EvalOutputs(out, per_query, json, figures, report, overwrite)
     with outputs.session(conf.methods):  # a second evaluation into the same folder is refused (exit 1)
         mp = load_map(index, conf.device)
         outputs.check_methods([m.name for m in check_conf(mp, conf)])
         ev = evaluate_map(mp, load_query(dataset, conf.split), conf)
         ev.results["config"]["dataset_path"] = str(dataset)
+        ev.results["learned_below_baseline"] = note_entries(learned_below_baseline(ev.results))
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "index": str(Path(index).resolve())}
         return outputs.write(ev)

@@ -20,7 +20,7 @@ in a section of their own.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..core.errors import ConfigError
@@ -195,3 +195,10 @@ def _below_single(name: str, m: Any, methods: Mapping[str, Any]) -> str:
 def row_marks(notes: list[Note]) -> dict[str, str]:
     """What a results table adds to each flagged method's row."""
     return {n.learned: f"learned, below model-free {n.baseline}" for n in notes}
+
+
+def note_entries(notes: Sequence[Note], evaluation: str | None = None) -> list[dict[str, Any]]:
+    """``results.json``'s ``learned_below_baseline``: :meth:`Note.to_dict` of each of ``notes`` (of
+    :func:`learned_below_baseline`; ``evaluation``: which of several evaluations they are about, added to each entry
+    as ``evaluation``)."""
+    return [{**n.to_dict(), **({"evaluation": evaluation} if evaluation else {})} for n in notes]

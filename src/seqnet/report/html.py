@@ -5,14 +5,17 @@ archive, exactly as written.
 Sections (their ``id``): ``summary`` (what was evaluated and the resolved configuration),
 ``results`` (Recall@K, precision–recall AUC, R@100P, queries, time per method), ``choices`` (what was
 chosen on val and why, when something was), ``notes`` (only when a
-learned method is below its model-free counterpart: :mod:`seqnet.report.guidance`), ``recall``
+learned method is below its model-free counterpart: :mod:`seqnet.report.guidance`), ``radii`` (with
+``--extra-radius``: Recall@K within each radius), ``calibrated`` (with ``--target-precision``), ``recall``
 (Recall@K curves), ``pr`` (precision–recall curves), ``matrix`` (the single-image descriptor
 distance matrix of the evaluated items, downsampled, with the ground truth and each method's top-1
 over it), ``gallery`` (example queries — the query window frames above the top-1 reference window
 frames, marked correct or wrong, failures first — when the dataset has image names and the image
 folders or videos are given), and with positions in metres ``trajectory`` (each query placed where it was
 recognised on the reference route) and ``pairs`` (query | matched | true reference frame of the worst and best
-queries, with the frames). Experiments add their own sections before these (:func:`write_html_report`).
+queries, with the frames). Experiments add their own sections before these (:func:`write_html_report`). An
+evaluation against a map (``seqnet eval --index``) has no dataset: its ``matrix`` and ``gallery`` say why they
+are empty.
 """
 
 from __future__ import annotations
@@ -36,19 +39,21 @@ from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .guidance import learned_below_baseline, row_marks
 from .markup import SORT_JS, Section, png_tag, table_html
-from .notes import calibration_section, choices_section, notes_section
+from .notes import calibration_section, choices_section, notes_section, radii_section
 from .styles import method_family
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
 SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery")  # always; "trajectory", "pairs" with positions
-CSS = """body{font-family:sans-serif;margin:2em auto;max-width:1100px;color:#222}
+CSS = """body{font-family:sans-serif;margin:2em auto;padding:0 1em;max-width:1100px;color:#222}
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:2px 8px;text-align:right}
 td:first-child,th:first-child{text-align:left}nav a{margin-right:1em}pre{background:#f4f4f4;padding:.5em;
 overflow-x:auto;font-size:80%}.ex{display:inline-block;margin:4px;padding:4px;border:3px solid}
 .ok{border-color:#2a2}.bad{border-color:#c22}.ex img{image-rendering:pixelated;width:100%}
 .ex p{margin:2px;font-size:80%}img{max-width:100%}table.sortable th{cursor:pointer;user-select:none}
 table.sortable td:nth-child(2),table.sortable th:nth-child(2){text-align:left;white-space:nowrap}
-table.facts td{text-align:left}table.sortable{font-size:90%}
+table.facts td{text-align:left}table.sortable{font-size:90%}.wide{overflow-x:auto;max-width:100%}
+#results td,#results th{padding:2px 5px}#results td:nth-child(2){white-space:normal;min-width:7em}
+#results td:last-child,#results th:last-child{text-align:left;white-space:normal;min-width:9em;max-width:14em}
 th.asc:after{content:" \\25B2"}th.desc:after{content:" \\25BC"}"""
 
 
@@ -97,6 +102,8 @@ def summary_section(ev: Any, conf: ReportConfig) -> Section:
              ("reference items (frames with a full window)", len(ev.r_items)), truth, ("L", cfg.get("seq_len", "")),
              ("L_m", cfg.get("match_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
              ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
+    if cfg.get("index"):  # seqnet eval --index: the reference side is the map's
+        facts.insert(1, ("reference", f"the map {cfg['index']}"))
     config = html.escape(json.dumps(cfg, indent=1, default=str))
     return Section("summary", "Summary", table_html(None, facts)
                    + f"<details><summary>resolved configuration</summary><pre>{config}</pre></details>")
@@ -111,8 +118,8 @@ def results_section(ev: Any) -> Section:
         row.extend(f"{r[k]:.3f}" if isinstance(r.get(k), float) else "" for k in ("auc", "recall@100p"))
         row.insert(1, method_family(name))
         row.append(marks.get(name, ""))
-    return Section("results", "Results", table_html([header[0], "family", *header[1:], "PR AUC", "R@100P", "note"],
-                                                    rows, sortable=True)
+    table = table_html([header[0], "family", *header[1:], "PR AUC", "R@100P", "note"], rows, sortable=True)
+    return Section("results", "Results", f'<div class="wide">{table}</div>'
                    + "<p>Click a column's heading to sort by it (again: the other way).</p>")
 
 
@@ -164,9 +171,10 @@ CONFIDENCE_NOTES = {
 }
 
 
-def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
+def evaluation_sections(ev: Any, ds: Dataset | None, conf: ReportConfig) -> list[Section]:
     """The report sections of one :class:`~seqnet.eval.evaluate.Evaluation` of the dataset ``ds`` (the
-    evaluated split: its traverses give the descriptors and image names)."""
+    evaluated split: its traverses give the descriptors and image names; None: an evaluation against a map, whose
+    sections that read the dataset say why they are empty)."""
     curves = {m: recall_curve(r, ev.view(m).truth, conf.k_max) for m, r in ev.retrieved.items()}
     kind = ev.results.get("config", {}).get("confidence")
     kind = kind if kind in CONFIDENCES else "ratio"
@@ -176,11 +184,30 @@ def evaluation_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Sectio
         results_section(ev),
         *choices_section(ev.results),
         *notes_section(ev.results),
+        *radii_section(ev.results),
         *calibration_section(ev.results),
         Section("recall", "Recall@K", png_tag(figure_png(recall_figure(curves, "Recall@K")), "Recall@K curves")),
         Section("pr", "Precision–recall", png_tag(figure_png(pr),
                                                    "precision-recall curves")
                 + f"<p>{CONFIDENCE_NOTES[kind]}</p>"),
+        *(dataset_sections(ev, ds, conf) if ds is not None else without_dataset()),
+    ]
+
+
+MAP_ONLY = ("the queries were evaluated against a prebuilt map (seqnet eval --index), and this section reads both "
+            "sides' frames and names from a dataset; evaluate the dataset without --index to see it")
+
+
+def without_dataset() -> list[Section]:
+    """The sections of an evaluation against a map that need the reference side as a dataset: a line saying why
+    they are empty."""
+    return [Section("matrix", "Distance matrix", f"<p>No distance matrix: {html.escape(MAP_ONLY)}.</p>"),
+            Section("gallery", "Example queries", f"<p>No gallery: {html.escape(MAP_ONLY)}.</p>")]
+
+
+def dataset_sections(ev: Any, ds: Dataset, conf: ReportConfig) -> list[Section]:
+    """The sections that read the evaluated dataset ``ds``: the distance matrix, the gallery, the places."""
+    return [
         Section("matrix", "Distance matrix", png_tag(figure_png(matrix_figure(ev, ds.query, ds.reference,
                                                                               conf.matrix_side)), "distance matrix")
                 + f"<p>{matrix_note(ev)}</p>"),
@@ -228,12 +255,14 @@ def render_html(title: str, sections: Sequence[Section]) -> str:
             f"<script>{SORT_JS}</script></body></html>\n")
 
 
-def write_html_report(ev: Any, ds: Dataset, path: str | Path, conf: ReportConfig | None = None,
+def write_html_report(ev: Any, ds: Dataset | None, path: str | Path, conf: ReportConfig | None = None,
                       extra: Sequence[Section] = ()) -> Path:
-    """Write the report of the evaluation ``ev`` of ``ds`` (the evaluated split) to ``path``, with the
-    sections ``extra`` first (e.g. an experiment's own tables and figures); returns ``path``."""
+    """Write the report of the evaluation ``ev`` of ``ds`` (the evaluated split; None: an evaluation against a
+    map) to ``path``, with the sections ``extra`` first (e.g. an experiment's own tables and figures); returns
+    ``path``."""
     conf = conf or ReportConfig()
-    title = conf.title or f"seqnet evaluation: {ds.name}"
+    name = ds.name if ds is not None else ev.results.get("config", {}).get("dataset", "")
+    title = conf.title or f"seqnet evaluation: {name}"
     return write_text_atomic(Path(path), render_html(title, [*extra, *evaluation_sections(ev, ds, conf)]))
 
 

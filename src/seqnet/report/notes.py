@@ -1,6 +1,7 @@
-"""The report's sections of sentences: what was chosen on val and why (:func:`choices_section`), the learned
-methods below their model-free counterparts (:func:`notes_section`, :mod:`seqnet.report.guidance`), and the
-calibrated confidence of ``--target-precision`` (:func:`calibration_section`)."""
+"""The report's sections beside the results table: what was chosen on val and why (:func:`choices_section`), the
+learned methods below their model-free counterparts (:func:`notes_section`, :mod:`seqnet.report.guidance`), the
+Recall@K at each ``--extra-radius`` (:func:`radii_section`) and the calibrated confidence of ``--target-precision``
+(:func:`calibration_section`)."""
 
 from __future__ import annotations
 
@@ -52,6 +53,31 @@ def notes_section(results: Any) -> list[Section]:
         return []
     items = "".join(f"<li>{html.escape(n.text())}</li>" for n in notes)
     return [Section("notes", "Notes", f"<ul>{items}</ul>")]
+
+
+def radii_section(results: Any) -> list[Section]:
+    """A ``radii`` section with ``--extra-radius``: per method and radius, Recall@K within that radius (the
+    entries' ``radii``; none without extra radii)."""
+    cfg = results.get("config") or {}
+    radii = [float(r) for r in cfg.get("extra_radii") or ()]
+    if not radii:
+        return []
+    ks = [int(k) for k in cfg.get("ks") or (1, 5, 10, 20)]
+    rows = []
+    for name, entry in (results.get("methods") or {}).items():
+        within = (entry.get("radii") or {}) if isinstance(entry, dict) else {}
+        for r in radii:
+            at = within.get(str(r)) or within.get(f"{r:g}") or {}
+            rows.append([name, f"{r:g}", *(f"{at[f'recall@{k}']:.3f}" if isinstance(at.get(f"recall@{k}"), float)
+                                           else "–" for k in ks)])
+    explicit = cfg.get("ground_truth") == "explicit positives"
+    radius = cfg.get("radius")
+    intro = ("<p>Recall@K counting a retrieved reference within each radius of one of the query's positives "
+             "(--extra-radius; the reference traverse's positions), beside the results' explicit positives.</p>"
+             if explicit else "<p>Recall@K at other localisation radii (--extra-radius) than the results' "
+             f"{f'{radius:g}' if isinstance(radius, (int, float)) else html.escape(str(radius))}.</p>")
+    table = table_html(["method", "radius", *(f"R@{k}" for k in ks)], rows, sortable=True)
+    return [Section("radii", "Other radii", f'{intro}<div class="wide">{table}</div>')]
 
 
 def calibration_section(results: Any) -> list[Section]:

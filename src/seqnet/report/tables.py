@@ -12,7 +12,7 @@ import numpy as np
 
 from ..security.files import atomic_path
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
-from .guidance import learned_below_baseline, row_marks
+from .guidance import Note, format_notes, learned_below_baseline, row_marks
 
 
 def _fmt(v: Any) -> str:
@@ -78,17 +78,85 @@ def format_table(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (
     return "\n".join([line(header), line(["-" * w for w in widths]), *(line(r) for r in rows)])
 
 
-def format_markdown(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 20)) -> str:
-    """A Markdown table of results: R@K, AUC and R@100P (precision–recall), queries, per-stage timings."""
+def format_markdown(methods: Mapping[str, Mapping[str, Any]], ks: Sequence[int] = (1, 5, 20),
+                    results: Mapping[str, Any] | None = None) -> str:
+    """A Markdown table of results: R@K, AUC and R@100P (precision–recall), queries, per-stage timings; a learned
+    method below its model-free counterpart marked in a last ``note`` column (only when one is), as the terminal
+    table and the report mark it (``results``: the whole results, whose config names the causes; default just
+    ``methods``)."""
     header, rows = results_rows(methods, ks, pr=True)
     stages = sorted({s for r in methods.values() for s in r.get("timing_ms", {}) if s != "total"})
     header = [*header, *(f"{s} ms" for s in stages)]
     for row, r in zip(rows, methods.values(), strict=True):
         timing = r.get("timing_ms", {})
         row.extend(f"{timing[s]:.1f}" if s in timing else "–" for s in stages)
+    marks = row_marks(learned_below_baseline(results if results is not None else {"methods": methods}))
+    if marks:
+        header.append("note")
+        for row, name in zip(rows, methods, strict=True):
+            row.append(marks.get(name, ""))
     out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     out += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(out) + "\n"
+
+
+def markdown_notes(notes: Sequence[Note], label: str = "") -> str:
+    """The notes on learned methods below their model-free counterparts as a Markdown list to print under a
+    results table (the same lines as the terminal's, :func:`seqnet.report.guidance.format_notes`; ``label``: which
+    evaluation they are about); empty without notes."""
+    lines = format_notes(list(notes))
+    if not lines:
+        return ""
+    about = f" ({label})" if label else ""
+    return "\n".join([f"Learned methods below their model-free counterparts{about}:", "",
+                      *(f"- {line.removeprefix('note: ')}" for line in lines)]) + "\n"
+
+
+def mark_markdown_rows(md: str, marks: Mapping[str, str]) -> str:
+    """``md`` with the rows of flagged methods marked in each Markdown table: a table whose first column names
+    methods gets a last ``note`` column (the mark, or nothing); in another, a cell naming a flagged method in
+    backticks (as :func:`seqnet.report.paper.side_by_side` writes its seqnet column) gets ``[mark]``."""
+    lines = md.split("\n")
+    i = 0
+    while i < len(lines):
+        if _is_row(lines[i]) and i + 1 < len(lines) and lines[i + 1].startswith("|---"):
+            end = i + 2
+            while end < len(lines) and _is_row(lines[end]):
+                end += 1
+            lines[i:end] = _marked_table(lines[i:end], marks)
+            i = end
+        else:
+            i += 1
+    return "\n".join(lines)
+
+
+def _is_row(line: str) -> bool:
+    return line.startswith("| ") and line.endswith(" |")
+
+
+def _marked_table(table: list[str], marks: Mapping[str, str]) -> list[str]:
+    """One Markdown table (header, ``|---|`` line, rows) with its flagged rows marked (:func:`mark_markdown_rows`)."""
+    rows = [line[2:-2].split(" | ") for line in table[2:]]
+    if any(r[0].strip() in marks for r in rows):
+        return [table[0] + " note |", table[1] + "---|",
+                *(line + f" {marks.get(r[0].strip(), '')} |" for line, r in zip(table[2:], rows, strict=True))]
+    out = table[:2]
+    for cells in rows:
+        for k, cell in enumerate(cells):
+            name = cell.strip()
+            if len(name) > 2 and name[0] == name[-1] == "`" and name[1:-1] in marks:
+                cells[k] = f"{cell} [{marks[name[1:-1]]}]"
+                break
+        out.append("| " + " | ".join(cells) + " |")
+    return out
+
+
+def ground_truth_text(config: Mapping[str, Any]) -> str:
+    """What counted as correct, as the header of a results table says it (from an evaluation's config): the
+    dataset's explicit positives, or the radius."""
+    if config.get("ground_truth") == "explicit positives":
+        return "explicit positives (a hit is one of the query's positives)"
+    return f"radius {float(config.get('radius', float('nan'))):g}"
 
 
 def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title: str = "") -> Path:

@@ -24,9 +24,10 @@ from ...core.errors import ConfigError
 from ...data.traverse import Dataset
 from ...eval.evaluate import EvalConfig, Evaluation, evaluate
 from ...methods.grammar import parse_method
+from ...report.guidance import learned_below_baseline, note_entries
 from ...report.html import ReportConfig, evaluation_sections, figure_section, render_html, rows_as_text
 from ...report.markup import Section, table_html
-from ...report.tables import save_figure
+from ...report.tables import ground_truth_text, mark_markdown_rows, markdown_notes, save_figure
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked
 from ..nordland64 import Nordland64Config, build_dataset, train_models
@@ -165,6 +166,7 @@ class Outputs:
     figure: Any  # a matplotlib figure, saved as NAME.png
     sections: list[Section]  # the experiment's own report sections (tables, figure)
     evaluation: tuple[Evaluation, Dataset] | None = None  # an evaluation (and its split) whose report follows
+    evaluations: Mapping[str, Evaluation] | None = None  # every evaluation, by label (None: ``evaluation``'s)
 
 
 def output_names(name: str, *extra: str) -> tuple[str, ...]:
@@ -201,8 +203,9 @@ def write_files(o: Outputs, conf: Any, data: str | Path, out: Path, title: str) 
     """``results.json``, ``results.md``, ``NAME.png``, ``report.html`` and ``config.json`` (the resolved
     configuration, the data folder and the provenance of the descriptors) in ``out``; returns the
     path of ``results.json``."""
+    markdown = with_notes(o)
     write_json_atomic(out / "results.json", o.results)
-    write_text_atomic(out / "results.md", o.markdown)
+    write_text_atomic(out / "results.md", markdown)
     png = save_figure(o.figure, out / f"{o.name}.png")
     sections = [*o.sections, figure_section("figure", f"Figure ({png.name})", o.figure)]
     if o.evaluation is not None:
@@ -213,6 +216,35 @@ def write_files(o: Outputs, conf: Any, data: str | Path, out: Path, title: str) 
     write_json_atomic(out / "config.json", {"experiment": o.name, **conf.to_dict(), "data": str(data),
                                             "figure": png.name, "provenance": o.results.get("provenance")})
     return out / "results.json"
+
+
+def with_notes(o: Outputs) -> str:
+    """The learned methods below their model-free counterparts in each evaluation of ``o``
+    (:mod:`seqnet.report.guidance`): added to ``o.results`` as ``learned_below_baseline`` (eval's entries, each
+    with the ``evaluation`` it is about; none without evaluations) and to ``o.markdown``, returned: the rows of
+    flagged methods marked, the notes listed under the tables."""
+    evs = o.evaluations if o.evaluations is not None else \
+        {"report": o.evaluation[0]} if o.evaluation is not None else {}
+    if not evs:
+        return o.markdown
+    entries: list[dict[str, Any]] = []
+    marks: dict[str, dict[str, list[str]]] = {}  # learned method -> baseline -> the evaluations
+    said = []
+    for label, ev in evs.items():
+        notes = learned_below_baseline(ev.results)
+        entries += note_entries(notes, label)
+        for n in notes:
+            marks.setdefault(n.learned, {}).setdefault(n.baseline, []).append(label)
+        said += [markdown_notes(notes, label)] if notes else []
+    o.results["learned_below_baseline"] = entries
+    flagged = {name: "learned, below model-free " + ", ".join(f"{b} ({', '.join(labels)})" for b, labels in by.items())
+               for name, by in marks.items()}
+    return mark_markdown_rows(o.markdown, flagged) + "".join("\n" + text for text in said)
+
+
+def truth_text(ev: Evaluation) -> str:
+    """What counted as correct in an experiment's header: the radius, or the dataset's explicit positives."""
+    return ground_truth_text(ev.results["config"])
 
 
 def recall_table(evs: Mapping[str, Evaluation], methods: Sequence[str], k: int = 1) -> list[list[Any]]:

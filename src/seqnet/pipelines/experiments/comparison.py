@@ -31,6 +31,7 @@ from .common import (
     source,
     summary,
     table_section,
+    truth_text,
     write_outputs,
 )
 
@@ -68,7 +69,7 @@ def main(conf: ComparisonConfig, data: str | Path | None, out: str | Path, cache
         values = [evs[s].results["methods"] for s in p.splits]
         denominator = conf.benchmark.recall_denominator
         md = (f"# Performance comparison (paper: Table I), {p.name}\n\n"
-              f"L = {conf.benchmark.seq_len}, radius {p.ds.radius:g}, shortlist K = {conf.benchmark.top_k}; "
+              f"L = {conf.benchmark.seq_len}, {truth_text(evs[p.main])}, shortlist K = {conf.benchmark.top_k}; "
               "queries: " + ", ".join(f"{s} {queries_of(evs[s])}" for s in p.splits) + ".\n\n"
               + side_by_side(table, tuple(f"{p.name} {s}" for s in p.splits), recall_lookup(values), denominator)
               + own_data_command(methods, conf.benchmark.seq_len))
@@ -81,7 +82,7 @@ def main(conf: ComparisonConfig, data: str | Path | None, out: str | Path, cache
                     [table_section("experiment", "Performance comparison (Table I)",
                                    {f"Recall@K, {p.main}": (header, rows)},
                                    f"The paper's Table I methods on the {p.name} {p.main} split.")],
-                    (evs[p.main], p.ds.split(p.main)))
+                    (evs[p.main], p.ds.split(p.main)), evs)
         return write_outputs(o, conf, dataset or data, out,
                              f"Experiment: performance comparison (paper Table I), {p.main}", overwrite)
 

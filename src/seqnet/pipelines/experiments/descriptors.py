@@ -120,7 +120,7 @@ def main(conf: DescriptorsConfig, data: str | Path, out: str | Path, cache: str 
         o = Outputs("descriptors", results, md, descriptors_figure(rows, list(evs), conf.descriptors),
                     [table_section("experiment", "Descriptors", {"Recall@1": (header, rows)}, "Per-descriptor "
                                    "reports: " + ", ".join(f"{d}/report.html" for d in conf.descriptors))],
-                    first)
+                    first, evs)
         return write_outputs(o, conf, data, out, "Experiment: single-image descriptors", overwrite,
                              lambda tmp: write_reports(reports, data, tmp))
 

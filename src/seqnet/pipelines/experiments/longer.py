@@ -85,7 +85,7 @@ def main(conf: LongerConfig, data: str | Path | None, out: str | Path, cache: st
         o = Outputs("longer_sequences", results, md, longer_figure(rows, list(evs), conf.lengths),
                     [table_section("experiment", "Longer sequences", {"Recall@1": (header, rows)},
                                    f"S_L (L={conf.benchmark.seq_len}) shortlist; sequence matchers over L_m frames.")],
-                    (evs[f"{p.main} L_m={last}"], p.ds.split(p.main)))
+                    (evs[f"{p.main} L_m={last}"], p.ds.split(p.main)), evs)
         return write_outputs(o, conf, dataset or data, out, f"Experiment: longer sequences ({p.main}, L_m={last})",
                              overwrite)
 

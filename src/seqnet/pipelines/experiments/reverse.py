@@ -33,6 +33,7 @@ from .common import (
     source,
     summary,
     table_section,
+    truth_text,
     write_outputs,
 )
 
@@ -85,14 +86,14 @@ def main(conf: ReverseConfig, data: str | Path | None, out: str | Path, cache: s
                    "provenance": p.ds.reference.provenance}
         rev_main = rev[p.main].results["methods"]
         md = (f"# Reverse traverse (reference in reverse order), {p.name}\n\nRecall@1; S_L as trained on forward "
-              f"sequences; radius {p.ds.radius:g}.\n\n" + markdown_table(header, rows) + "\nThe paper's table "
+              f"sequences; {truth_text(fwd[p.main])}.\n\n" + markdown_table(header, rows) + "\nThe paper's table "
               f"(both columns on the reversed reference, {p.main} split):\n\n"
               + side_by_side(TABLE_III, ("vanilla", "reverse"), recall_lookup([rev_main, rev_main]),
                              conf.benchmark.recall_denominator))
         o = Outputs("reverse", results, md, reverse_figure(rows, list(evs)),
                     [table_section("experiment", "Reverse traverse", {"Recall@1": (header, rows)},
                                    "The reference is traversed in reverse order; S_L is used as trained.")],
-                    (rev[p.main], reverse_reference(p.ds.split(p.main))))
+                    (rev[p.main], reverse_reference(p.ds.split(p.main))), evs)
         return write_outputs(o, conf, dataset or data, out,
                              f"Experiment: reverse traverse ({p.main}, reference reversed)", overwrite)
 

@@ -93,7 +93,8 @@ def main(conf: SeedsConfig, data: str | Path, out: str | Path, cache: str | Path
         o = Outputs("seeds", results, md, seeds_figure(rows, len(conf.seeds)),
                     [table_section("experiment", "Seeds", {"Recall@1 over seeds": (header, rows)},
                                    f"{len(conf.seeds)} training seeds; the report below is seed {first}'s test.")],
-                    (runs[first]["test"], p.ds.split("test")))
+                    (runs[first]["test"], p.ds.split("test")),
+                    {f"{split} seed {s}": e for s in conf.seeds for split, e in runs[s].items()})
         return write_outputs(o, conf, data, out, f"Experiment: {len(conf.seeds)} seeds", overwrite)
 
 

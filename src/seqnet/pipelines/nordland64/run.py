@@ -12,9 +12,9 @@ from ...core.stage import Written
 from ...data.traverse import Dataset
 from ...eval.evaluate import Evaluation, evaluate
 from ...metrics.recall import recall_curve
-from ...report.guidance import learned_below_baseline
+from ...report.guidance import learned_below_baseline, note_entries
 from ...report.html import ReportConfig, write_html_report
-from ...report.tables import format_markdown, plot_pr_curves, plot_recall_curves
+from ...report.tables import format_markdown, ground_truth_text, markdown_notes, plot_pr_curves, plot_recall_curves
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked
 from ...security.text import shown
@@ -67,7 +67,8 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
     test range) and ``pr_curve.png`` (precision–recall of every method, test range)."""
     ev.results["config"].update(benchmark=conf.to_dict(), timings_s=dict(seconds))
     ev.results["selection"] = dict(selection or {})
-    ev.results["learned_below_baseline"] = [n.to_dict() for n in learned_below_baseline(ev.results)]
+    below = learned_below_baseline(ev.results)
+    ev.results["learned_below_baseline"] = note_entries(below)
     notes = selection_notes(selection or {})
     write_json_atomic(out / "results.json", ev.results)
     write_json_atomic(out / "val_results.json", val.results)
@@ -81,15 +82,22 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
     lines = [
         "# Nordland64 benchmark results", "",
         f"Reference summer, query winter; test places {a}:{b} ({first['queries']} queries with a full "
-        f"L={conf.seq_len} window); radius {conf.radius:g} (frame steps); descriptor `{conf.describe.method}`."
+        f"L={conf.seq_len} window); {truth_note(ev.results['config'])}; descriptor `{conf.describe.method}`."
         + speed_note(conf), "",
         *(["Chosen on val (never on test): " + "; ".join(notes) + ".", ""] if notes else []),
-        format_markdown(ev.results["methods"], ks=(1, 5, 20)),
+        format_markdown(ev.results["methods"], ks=(1, 5, 20), results=ev.results),
+        *([markdown_notes(below)] if below else []),
         f"Validation (places {c}:{d}, used to select epochs and settings), R@1: "
         + ", ".join(f"{m} {r['recall@1']:.3f}" for m, r in val.results["methods"].items()), "",
         "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in seconds.items()), "",
     ]
     write_text_atomic(out / "results.md", "\n".join(lines))
+
+
+def truth_note(config: dict) -> str:
+    """What counted as correct in ``results.md``'s header: the radius in frame steps, or explicit positives."""
+    text = ground_truth_text(config)
+    return text if config.get("ground_truth") == "explicit positives" else f"{text} (frame steps)"
 
 
 def speed_note(conf: Nordland64Config) -> str:

@@ -1,0 +1,27 @@
+"""The report's sections beside the results table (:mod:`seqnet.report.notes`): the ``--extra-radius`` results."""
+
+from __future__ import annotations
+
+from seqnet.report.notes import radii_section
+
+
+def _results(r1: dict[str, float], queries: int = 100) -> dict:
+    methods = {n: {"recall@1": v, "recall@5": v, "queries": queries} for n, v in r1.items()}
+    return {"methods": methods, "config": {"seq_len": 5, "radius": 1.0}}
+
+
+def test_the_report_has_the_extra_radius_results():
+    res = _results({"single": 0.5, "delta": 0.6})
+    assert radii_section(res) == []
+    res["config"].update(extra_radii=[3.0, 10.0], ks=[1, 5])
+    for i, entry in enumerate(res["methods"].values()):
+        entry["radii"] = {"3.0": {"recall@1": 0.61 + i / 10, "recall@5": 0.7},
+                          "10.0": {"recall@1": 0.9, "recall@5": 1.0}}
+    (section,) = radii_section(res)
+    assert section.id == "radii" and "at other localisation radii (--extra-radius) than the results' 1.</p>" in \
+        section.body
+    assert "<th>method</th><th>radius</th><th>R@1</th><th>R@5</th>" in section.body
+    assert "<tr><td>single</td><td>3</td><td>0.610</td><td>0.700</td></tr>" in section.body
+    assert "<tr><td>delta</td><td>10</td><td>0.900</td><td>1.000</td></tr>" in section.body
+    res["config"]["ground_truth"] = "explicit positives"
+    assert "within each radius of one of the query's positives" in radii_section(res)[0].body
