@@ -26,7 +26,7 @@ from ..data.traverse import Dataset
 from ..describe import DescribeConfig
 from ..describe.lite import LITE_VARIANTS
 from ..eval.evaluate import EvalConfig, evaluate
-from ..train.guide import VAL_MIN
+from ..metrics.recall import VAL_MIN
 
 PROXY_METHODS = ("raw+seqmatch", "single")  # the proxy's score, then its tie-break
 PROXY_FIT = 250  # images (of each fitting set) a candidate's state is fitted on for the proxy, evenly spaced

@@ -30,12 +30,12 @@ from ..core.lazy import lazy_module
 from ..core.memory import available_bytes, check_fits, gib, human_bytes, rss_bytes
 from ..data.traverse import Dataset
 from ..describe.pca import PAPER_PCA_DIM
+from ..metrics.recall import VAL_MIN
 from .config import TrainConfig, train_bytes
 from .losses import LOSSES
 
 torch = lazy_module("torch")
 
-VAL_MIN = 50  # val queries below which the best epoch is chosen by noise (1 query = 2% of R@1)
 CHECKPOINT_ADVISED_BYTES = 500 * 2**20  # best.pt + last.pt above this: advise fewer dimensions
 # seconds of each optimiser step beyond its FLOPs (indexing, the loss, Python): measured 2026-12-03 on the
 # shared 2-core CPU, S_5 on `seqnet synth --places 2000` (D = 64, 74 batches an epoch): 0.1-0.3 s per epoch,

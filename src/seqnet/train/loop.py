@@ -27,7 +27,7 @@ from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.provenance import check_same
 from ..data.io import load_dataset
-from ..data.sanity import shared_queries
+from ..data.sanity import copied_queries, shared_queries
 from ..data.traverse import Dataset
 from ..methods.checks import accepted_mismatch
 from ..security.locks import locked
@@ -88,8 +88,10 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
     """The training windows on ``device`` and the val split (None: no validation), both checked
     (windows fit, some query has a positive and a negative): everything that can fail on the data
     fails here, before a run directory is created."""
-    src = triplet_source(_split(dataset, conf.train_split, "train"), conf.window_len, conf.window, conf.mining,
-                         device, conf.ref_pad)
+    train_ds = _split(dataset, conf.train_split, "train")
+    src = triplet_source(train_ds, conf.window_len, conf.window, conf.mining, device, conf.ref_pad)
+    if said := copied_queries(train_ds):  # val would score 1.000 too: a model of nothing, said before training
+        logger.warning("training on the %r split: %s", conf.train_split, said)
     if not conf.validates:
         return src, None
     val_ds = _split(dataset, conf.val_split, "val")
