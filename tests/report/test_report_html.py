@@ -216,6 +216,8 @@ def test_choices_section_says_what_val_chose_and_shows_each_grid():
     assert sec.body.count("<details>") == 2 and "0.989" in sec.body and "0.25" in sec.body and "pixels" in sec.body
     (why,) = choices_section({"selection": {"hvpr": [], "not_chosen": "HVPR settings not chosen: no val query"}})
     assert "no val query" in why.body and "no other split" not in why.body
+    (few,) = choices_section({"selection": {**sel, "warning": "HVPR settings chosen on 3 val queries <i>"}})
+    assert "chosen on 3 val queries &lt;i&gt;" in few.body and "K 200, λ 0.25" in few.body
     assert choices_section({}) == [] and choices_section({"selection": {"hvpr": []}}) == []
 
 

@@ -12,7 +12,7 @@ from ..eval.config import EvalConfig
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..metrics.consistency import CONFIDENCES
 from ..report.guidance import format_notes, learned_below_baseline, unmatched
-from ..report.tables import format_table
+from ..report.tables import format_table, ground_truth_text
 from ..search.knn import KNN_BACKENDS
 from ..security.text import shown
 from ..sequence.windows import WINDOW_MODES
@@ -165,9 +165,7 @@ def print_results(res: dict) -> None:
     cfg = res["config"]
     every = f", every {ordinal(cfg['resample_every'])} {cfg['resample_side']} frame" if cfg.get("resample_every") \
         else ""
-    truth = "explicit positives (a hit is one of the query's positives)" \
-        if cfg.get("ground_truth") == "explicit positives" else f"radius {cfg['radius']:g}"
-    print(f"dataset {shown(cfg['dataset'])}, {truth}, L={cfg['seq_len']} ({cfg['window']}){every}")
+    print(f"dataset {shown(cfg['dataset'])}, {ground_truth_text(cfg)}, L={cfg['seq_len']} ({cfg['window']}){every}")
     print(format_table(res["methods"], cfg["ks"]))
     print_extra_radii(res)
     fate = 'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'

@@ -31,7 +31,7 @@ from ..metrics.consistency import QueryOrder
 from ..metrics.recall import GroundTruth, ground_truth
 from ..reference.plain import PlainReference, runs_plain
 from ..reference.traverse import TraverseReference
-from ..report.guidance import learned_below_baseline
+from ..report.guidance import learned_below_baseline, note_entries
 from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.npdescribed import PlainDescribed
@@ -255,7 +255,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         ev.results["leakage"] = leaks
         for line in leaks:
             logger.warning("%s", shown(line))  # it names checkpoints' records: text from files
-    ev.results["learned_below_baseline"] = [n.to_dict() for n in learned_below_baseline(ev.results)]
+    ev.results["learned_below_baseline"] = note_entries(learned_below_baseline(ev.results))
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
     return ev

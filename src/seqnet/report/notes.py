@@ -19,8 +19,7 @@ def choices_section(results: Any) -> list[Section]:
     sel = results.get("selection") or {}
     picks = ([sel["descriptor"]] if isinstance(sel.get("descriptor"), dict) else []) + list(sel.get("hvpr") or [])
     items = [f"<li>{html.escape(str(c.get('reason', '')))}</li>" for c in picks]
-    if sel.get("not_chosen"):
-        items.append(f"<li>{html.escape(str(sel['not_chosen']))}</li>")
+    items += [f"<li>{html.escape(str(sel[k]))}</li>" for k in ("not_chosen", "warning") if sel.get(k)]
     if not items:
         return []
     grids = "".join(f"<details><summary>{html.escape(str(c.get('method', 'descriptor')))}: every setting scored"
