@@ -182,3 +182,21 @@ def test_fuzzed_checkpoint_role_is_read_or_one_error(tmp_path_factory, data):
 
     got = read_mutated(model_role, tmp_path_factory.mktemp("fz") / "m.pt", data, CheckpointError)
     assert got is None or (got[0] in ("s1", "seqnet") and isinstance(got[1], int) and got[1] >= 1)
+
+
+def test_swapped_shortlist_and_rerank_models_are_named(map_models, synth_dir, capsys):
+    """An S_1 given as --shortlist-model and an S_L as --rerank-model: refused naming the kind of each and the
+    fix (it failed later with 'SeqNet with w=2 needs windows of >= 2 frames, got 1')."""
+    from seqnet.sequence.checkpoints import load_models
+
+    sl, s1 = map_models
+    with pytest.raises(CheckpointError, match=r"--shortlist-model s1.pt is an S_1 \(L=1, w=1\), not an S_L: give it "
+                                              r"as --rerank-model \(the two swapped\?\)"):
+        load_models(shortlist_model=s1)
+    with pytest.raises(CheckpointError, match=r"--rerank-model sl.pt is an S_4 \(L=4, w=2\), not an S_1"):
+        load_models(rerank_model=sl)
+    assert set(load_models(shortlist_model=sl, rerank_model=s1)) == {"seqnet", "s1"}
+    assert cli_main(["eval", "--dataset", str(synth_dir), "--shortlist-model", str(s1), "--rerank-model", str(sl),
+                     "--method", "hvpr", "--device", "cpu"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is an S_1 (L=1, w=1), not an S_L" in err[0]

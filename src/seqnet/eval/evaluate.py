@@ -213,20 +213,32 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: 
         return outputs.write(ev)
 
 
+def _used(conf: EvalConfig, models: Sequence[str | Path], shortlist_model: str | Path | None,
+          rerank_model: str | Path | None) -> tuple[EvalConfig, tuple[Sequence[str | Path], Any, Any]]:
+    """``conf`` and the checkpoints its methods use (:func:`seqnet.sequence.checkpoints.used_models`): a model no
+    method uses is not loaded; an unused S_L still gives L (the same windows). Methods None: every model given
+    (the defaults are those the models allow)."""
+    from ..sequence.checkpoints import used_models
+
+    if conf.methods is None:
+        return conf, (models, shortlist_model, rerank_model)
+    used = used_models(", ".join(conf.methods), set().union(*(parse_method(m).models() for m in conf.methods)),
+                       models, shortlist_model, rerank_model)
+    if conf.seq_len is None and used.seq_len is not None:
+        conf = conf.replace(seq_len=used.seq_len)
+    return conf, (used.paths, used.shortlist_model, used.rerank_model)
+
+
 def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | Path],
                   shortlist_model: str | Path | None, rerank_model: str | Path | None,
                   prepare: Prepare | None = None) -> Evaluation:
     from ..data.io import load_dataset
-    from ..sequence.checkpoints import load_models, used_models
+    from ..sequence.checkpoints import load_models
 
     ds = load_dataset(dataset)
     split = default_split(conf.split, ds.splits)
-    if conf.methods is not None:  # a model none of the methods use is not loaded (None: the defaults it allows)
-        used = used_models(", ".join(conf.methods), set().union(*(parse_method(m).models() for m in conf.methods)),
-                           models, shortlist_model, rerank_model)
-        if conf.seq_len is None and used.seq_len is not None:  # an unused S_L still gives L: the same windows
-            conf = conf.replace(seq_len=used.seq_len)
-        models, shortlist_model, rerank_model = used.paths, used.shortlist_model, used.rerank_model
+    evaluated = ds.split(split)  # an unknown split fails before any work
+    conf, (models, shortlist_model, rerank_model) = _used(conf, models, shortlist_model, rerank_model)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     conf, prepared = prepare(ds, split, loaded, conf) if prepare is not None else (conf, None)
     cal = None
@@ -239,12 +251,13 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
             cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
         except ConfigError as e:
             raise ConfigError(f"calibrating on {conf.calibrate_split!r}: {e}") from e
-    ev = evaluate(ds.split(split), conf.replace(split=split), loaded)
+    ev = evaluate(evaluated, conf.replace(split=split), loaded)
     if cal is not None:
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
-    for said in [*route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev)]:
+    chosen = (prepared or {}).get("selection", {}).get("warning")  # said once the evaluation has succeeded
+    for said in [chosen, *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev)]:
         if said:
             logger.warning("%s", said)
             ev.results["warnings"] = [*ev.results.get("warnings", []), said]

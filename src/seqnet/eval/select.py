@@ -225,10 +225,9 @@ def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: E
         return conf, {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split (the "
                                                                f"defaults kept): {e}"}}
     few = min((c.queries for c in choices), default=VAL_MIN)
-    if few < VAL_MIN:  # chosen all the same, as training chooses its epoch: said, with what would do better
+    if few < VAL_MIN:  # chosen all the same, as training chooses its epoch: said (once evaluated), with the remedy
         said = (f"HVPR settings chosen on {few} val quer{'y' if few == 1 else 'ies'} (1 query = "
                 f"{1 / max(few, 1):.2f} of R@1): the choice is mostly chance; about {VAL_MIN} or more are needed, "
                 "or give --top-k / --fuse-top-k / --fuse-weight yourself")
-        logger.warning("%s", said)
         return conf, {"selection": {"hvpr": [c.to_dict() for c in choices], "warning": said}}
     return conf, ({"selection": {"hvpr": [c.to_dict() for c in choices]}} if choices else None)

@@ -214,11 +214,22 @@ def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | 
     for path in paths:
         model = load_model(path)
         models[model.role] = model
-    if shortlist_model:
-        models["seqnet"] = load_model(shortlist_model, seq_len=seq_len)
-    if rerank_model:
-        models["s1"] = load_model(rerank_model)
+    for role, path in (("seqnet", shortlist_model), ("s1", rerank_model)):
+        if path:
+            models[role] = _as_role(load_model(path, seq_len=seq_len) if role == "seqnet" else load_model(path),
+                                    role, path)
     return models
+
+
+def _as_role(model: SeqNet, role: str, path: str | Path) -> SeqNet:
+    """``model`` given by the flag of ``role``, refused when it is the other kind (the two flags swapped)."""
+    if model.role == role:
+        return model
+    flag, other = ("--shortlist-model", "--rerank-model") if role == "seqnet" else ("--rerank-model",
+                                                                                   "--shortlist-model")
+    kind = "an S_1 (L=1, w=1)" if model.role == "s1" else f"an S_{model.seq_len} (L={model.seq_len}, w={model.w})"
+    raise CheckpointError(f"{flag} {Path(path).name} is {kind}, not {'an S_L' if role == 'seqnet' else 'an S_1'}: "
+                          f"give it as {other} (the two swapped?), or as --model, which reads each model's kind")
 
 
 class UsedModels(NamedTuple):
