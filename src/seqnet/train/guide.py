@@ -289,12 +289,12 @@ def check_memory(conf: TrainConfig, dataset: Dataset) -> Budget:
     the process may still allocate; the :class:`Budget` checked (the plan's)."""
     d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
     spill = get_device(conf.device).type == "cpu"  # the mining cache spills when large (one process)
-    n_train = _train_frames(dataset, conf)
-    budget = Budget.now()
-    pca = f"--pca {_pca_dims(d, 2 * n_train)} (seqnet train, or seqnet dataset from-images), " if d > 8 else ""
+    n_train, budget = _train_frames(dataset, conf), Budget.now()
+    pca = f"fewer dimensions: --pca {_pca_dims(d, 2 * n_train)} (seqnet train, or seqnet dataset from-images), "
+    pca = pca if d > 8 else ""
     check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill, n_train),
                f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
                f"{gib(4 * d * out * conf.w)})",
-               f"fewer dimensions: {pca}a smaller --out-dims (e.g. 512), a smaller --w (the weights are D x out x w) "
-               "or --batch-size", budget.held, budget.free)
+               f"{'' if out > d else pca}a smaller --out-dims (e.g. 512), {pca if out > d else ''}a smaller --w (the "
+               "weights are D x out x w) or --batch-size", budget.held, budget.free)
     return budget
