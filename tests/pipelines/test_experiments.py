@@ -355,12 +355,14 @@ def test_an_experiment_marks_learned_methods_below_model_free_and_says_its_groun
     """table-1 on a user's dataset with explicit positives: results.json has eval's ``learned_below_baseline`` (each
     entry naming its evaluation), results.md marks each such row and lists the notes, and its header names the
     explicit positives, not a radius."""
+    import dataclasses
+
     from seqnet.data.io import save_dataset
     from seqnet.report.guidance import learned_below_baseline
 
-    ds = synth_dataset
-    d = np.linalg.norm(ds.query.positions[:, None] - ds.reference.positions[None], axis=-1)
-    ds.positives = Positives.from_lists([np.flatnonzero(row <= 3.0) for row in d])
+    d = np.linalg.norm(synth_dataset.query.positions[:, None] - synth_dataset.reference.positions[None], axis=-1)
+    ds = dataclasses.replace(synth_dataset, positives=Positives.from_lists([np.flatnonzero(r <= 3.0) for r in d]))
+    assert synth_dataset.positives is None  # a copy: the shared fixture stays as it is for later tests
     save_dataset(ds, tmp_path / "pos")
     out = tmp_path / "t1"
     sl, s1 = (str(p) for p in map_models)  # random models: below the model-free methods
