@@ -92,7 +92,7 @@ def check_true_matches(ds: Dataset) -> str | None:
     """Whether ``ds``'s queries have true matches, by the one ground truth of evaluation
     (:func:`seqnet.metrics.recall.ground_truth`): none is a :class:`DatasetError` (the dataset is unusable), fewer
     than :data:`FEW_MATCHES` of them a warning line (logged, and returned), each naming the likely cause
-    (:func:`_mismatch_hint`); None when most queries have one."""
+    (:func:`mismatch_hint`); None when most queries have one."""
     from ..metrics.recall import ground_truth
 
     truth = ground_truth(ds.query.positions, ds.reference.positions, ds.radius, ds.positives, require=False)
@@ -103,13 +103,13 @@ def check_true_matches(ds: Dataset) -> str | None:
                                                                        f"{ds.radius:g} {ds.position_unit}")
     if n == 0:
         raise DatasetError(f"{ds.name}: none of the {m} queries has {what}, so every Recall@K would be undefined; "
-                           f"nothing written: {_mismatch_hint(ds, n)}")
-    line = f"{ds.name}: only {n} of {m} queries ({100 * n / m:.0f}%) have {what}: {_mismatch_hint(ds, n)}"
+                           f"nothing written: {mismatch_hint(ds, n)}")
+    line = f"{ds.name}: only {n} of {m} queries ({100 * n / m:.0f}%) have {what}: {mismatch_hint(ds, n)}"
     logger.warning("%s", line)
     return line
 
 
-def _mismatch_hint(ds: Dataset, matched: int) -> str:
+def mismatch_hint(ds: Dataset, matched: int) -> str:
     """Why few queries of ``ds`` have a true match: how far the nearest references are against the radius, and
     the likely cause (one traverse's two position columns swapped, when swapping them gives more queries a match;
     degrees; else swapped columns or a radius in another unit)."""

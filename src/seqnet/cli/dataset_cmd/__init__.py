@@ -237,6 +237,7 @@ def run_check(args: argparse.Namespace) -> int:
     from ...data.io import load_dataset, recorded_digests
     from ...data.sanity import review
     from ...metrics.summary import summarize_dataset
+    from ...pipelines.ground_truth import mismatch_hint
     from ...security.digests import changed_files
 
     ds = load_dataset(args.dir)
@@ -252,9 +253,9 @@ def run_check(args: argparse.Namespace) -> int:
     else:
         print(format_summary(s))
     if s["queries_with_match"] == 0:
-        raise DatasetError(f"{args.dir}: no query has a reference within radius {ds.radius:g} {ds.position_unit} "
-                           "(hint: check the radius, the position unit and that both traverses share one "
-                           "coordinate frame)")
+        what = "an explicit positive" if ds.positives is not None else \
+            f"a reference within radius {ds.radius:g} {ds.position_unit}"
+        raise DatasetError(f"{args.dir}: no query has {what}: {mismatch_hint(ds, 0)}")
     return 0
 
 
