@@ -104,3 +104,39 @@ def test_report_places_the_queries_and_shows_pairs_from_the_videos(videos, tmp_p
     assert '<section id="trajectory">' in page and '<section id="pairs">' in page
     pairs = page.split('<section id="pairs">')[1]
     assert "best: query" in pairs and "pictures left out" not in pairs and pairs.count("data:image/png") >= 4
+
+
+def test_aligned_videos_keeping_different_counts_are_refused_and_checked(tmp_path, capsys):
+    """``--aligned --fps 5`` on a 3 s video (10 fps) and a 1.2 s one (25 fps) keeps 15 and 6 frames: refused in one
+    line naming --fps, nothing written (it used to log a line and pair frame i with frame i). ``dataset check``
+    refuses such a dataset written before, recorded as ``"ground_truth": "aligned"``."""
+    from seqnet.data.io import save_dataset
+    from seqnet.data.traverse import Dataset, Traverse
+
+    slow = write_video(tmp_path / "slow.mp4", drive(N, 1), rate=10)
+    fast = write_video(tmp_path / "fast.mp4", drive(N, 2, 12), rate=25)
+    out = tmp_path / "ds"
+    rc = cli_main(["dataset", "from-video", str(slow), str(fast), "--method", "pixels", "--aligned", "--fps", "5",
+                   "--radius", "1", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and not out.exists(), err
+    assert ("--aligned: query frame i is the place of reference frame i, but the reference keeps 15 frames and the "
+            "query 6: --fps 5 keeps frames in proportion to each video's length (3.0 s and 1.2 s), so videos of "
+            "different frame rates or lengths keep different counts") in err
+    assert "hint: give positions for both videos (--ref-positions / --query-positions FILE" in err
+    short = write_video(tmp_path / "short.mp4", drive(N - 10, 2, 12), rate=25)
+    rc = cli_main(["dataset", "from-video", str(slow), str(short), "--method", "pixels", "--aligned", "--out",
+                   str(out)])
+    assert rc == 2 and "every frame is kept (30 frames at 10 fps, 20 at 25 fps)" in capsys.readouterr().err
+    rc = cli_main(["dataset", "from-video", str(slow), str(fast), "--method", "pixels", "--aligned", "--out", str(out)])
+    assert rc == 0 and out.exists()  # 30 and 30 frames: as many, so frame i pairs with frame i (the user's claim)
+    capsys.readouterr()
+    desc = np.random.default_rng(0).random((15, 8)).astype(np.float32)
+    ref, qry = (Traverse(d, np.arange(len(d), dtype=float)[:, None], [f"{i / r:.6f}" for i in range(len(d))], name=n)
+                for d, r, n in ((desc, 5, "reference"), (desc[:6], 5, "query")))
+    save_dataset(Dataset(ref, qry, 1.0, name="old", extra={"ground_truth": "aligned"}), tmp_path / "old")
+    assert cli_main(["dataset", "check", str(tmp_path / "old")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("seqnet dataset check: error: old: frame-aligned ground truth: query frame i is the place "
+                          "of reference frame i, but the reference has 15 images and the query 6") and \
+        len(err.strip().splitlines()) == 1, err

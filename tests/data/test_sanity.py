@@ -142,3 +142,18 @@ def test_frame_aligned_traverses_must_pair_up(desc, caplog):
     with caplog.at_level("WARNING", logger="seqnet"):
         assert review(make(desc, desc.copy(), extra={"ground_truth": "frames"}))  # named r*/q*: no pairing by name
     assert caplog.messages[0].startswith("d: the query images are the reference images")
+
+
+def test_video_aligned_ground_truth_must_pair_up_by_count(desc):
+    """``from-video --aligned`` records ``"ground_truth": "aligned"``: refused like ``frames`` when the counts
+    differ (the hint names the videos' positions), but its frames, named by video time, are not paired by name."""
+    with pytest.raises(DatasetError, match=r"d: frame-aligned ground truth: .* reference has 20 images and the query "
+                                           r"15, .*\(--ref-positions / --query-positions .* equal length and frame"):
+        review(make(desc, desc[:15] * 0.5, extra={"ground_truth": "aligned"}))
+    times = make(desc, desc * 0.5, extra={"ground_truth": "aligned"})
+    times.reference.names = [f"{i / 10:.6f}" for i in range(20)]  # 10 fps against 25 fps: names in common, differ
+    times.query.names = [f"{i / 25:.6f}" for i in range(20)]
+    review(times)
+    times.extra["ground_truth"] = "frames"  # image folders: the names pair up too
+    with pytest.raises(DatasetError, match="reference image 1 is '0.100000' but query image 1 is '0.040000'"):
+        review(times)

@@ -28,15 +28,21 @@ ALTERNATIVES = ("give the ground truth another way: --positives FILE (per query 
                 "or positions (--ref-csv / --query-csv, --utm-names)")
 
 
-def check_frame_aligned(ref_names: Sequence[str], query_names: Sequence[str], where: str = "--frame-aligned") -> None:
+VIDEO_ALTERNATIVES = ("give positions for both videos (--ref-positions / --query-positions FILE: GPX, NMEA or "
+                      "CSV tracks), or use two videos of equal length and frame rate")
+ALIGNED_TRUTHS = ("frames", "aligned")  # recorded ground truths of frame-aligned traverses: from-images, from-video
+
+
+def check_frame_aligned(ref_names: Sequence[str], query_names: Sequence[str], where: str = "--frame-aligned",
+                        by_name: bool = True, hint: str = ALTERNATIVES) -> None:
     """Raise :class:`DatasetError` unless query frame i can be the place of reference frame i: as many frames
-    on both sides and, when the two traverses name their images alike (some names in common), the same name
-    at every index."""
+    on both sides and, when ``by_name`` and the two traverses name their images alike (some names in common),
+    the same name at every index (video frames, named by their time, are compared by count only)."""
     n_r, n_q = len(ref_names), len(query_names)
     if n_r != n_q:
         raise DatasetError(f"{where}: query frame i is the place of reference frame i, but the reference has {n_r} "
-                           f"images and the query {n_q}, so the ground truth cannot line up; hint: {ALTERNATIVES}")
-    if not set(ref_names) & set(query_names):
+                           f"images and the query {n_q}, so the ground truth cannot line up; hint: {hint}")
+    if not by_name or not set(ref_names) & set(query_names):
         return  # named differently (two cameras, two clocks): nothing to pair by name
     for i, (r, q) in enumerate(zip(ref_names, query_names, strict=True)):
         if r != q:
@@ -47,11 +53,14 @@ def check_frame_aligned(ref_names: Sequence[str], query_names: Sequence[str], wh
 
 
 def review(ds: Dataset) -> list[str]:
-    """Check ``ds`` as built: frame-aligned ground truth (recorded as ``"ground_truth": "frames"``) must pair up
-    (:func:`check_frame_aligned`, else :class:`DatasetError`); every :func:`dataset_warnings` line is logged as a
-    warning, and returned."""
-    if ds.extra.get("ground_truth") == "frames":
-        check_frame_aligned(ds.reference.names, ds.query.names, f"{ds.name}: frame-aligned ground truth")
+    """Check ``ds`` as built: frame-aligned ground truth (recorded as ``"ground_truth"`` ``"frames"`` or, from
+    videos, ``"aligned"``: :data:`ALIGNED_TRUTHS`) must pair up (:func:`check_frame_aligned`, else
+    :class:`DatasetError`); every :func:`dataset_warnings` line is logged as a warning, and returned."""
+    truth = ds.extra.get("ground_truth")
+    if truth in ALIGNED_TRUTHS:
+        video = truth == "aligned"  # frames named by their video time: the counts must match, not the names
+        check_frame_aligned(ds.reference.names, ds.query.names, f"{ds.name}: frame-aligned ground truth",
+                            by_name=not video, hint=VIDEO_ALTERNATIVES if video else ALTERNATIVES)
     found = dataset_warnings(ds)
     for line in found:
         logger.warning("%s", line)

@@ -5,9 +5,9 @@ time. With a positions file per video (GPX, NMEA 0183 RMC/GGA, CSV with a time c
 each frame takes the position interpolated at its time, in UTM metres (both in the reference's zone); frames
 outside a track are dropped and counted. Frames are kept at ``fps`` per second of video, or one per
 ``every_metres`` travelled. Without positions, ``aligned`` says frame i of the query shows the place of frame i of
-the reference (positions are frame numbers); otherwise there is no ground truth, and that is an error. Both
-videos are described with one describer (:func:`seqnet.pipelines.from_images.write_dataset`): the result is a
-normal seqnet dataset.
+the reference (positions are frame numbers; both videos must keep as many frames, else refused); otherwise
+there is no ground truth, and that is an error. Both videos are described with one describer
+(:func:`seqnet.pipelines.from_images.write_dataset`): the result is a normal seqnet dataset.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.config import Config, check_float
-from ..core.errors import ConfigError
-from ..core.log import logger
+from ..core.errors import ConfigError, DatasetError
+from ..data.sanity import VIDEO_ALTERNATIVES
 from ..data.utm import frame_zone
 from ..describe import DescribeConfig
 from ..describe.images import ImageList
@@ -62,7 +62,7 @@ class FromVideoConfig(Config):
         self._set("radius", check_float("radius", self.radius, 0.0, strict=True))
         self._set("max_gap", check_float("max_gap", self.max_gap, 0.0, strict=True))
         if self.fit_on not in FIT_ON:
-            raise ConfigError(f"fit_on {self.fit_on!r} is not one of {', '.join(FIT_ON)}")
+            raise ConfigError(f"--fit-on {self.fit_on!r} is not one of {', '.join(FIT_ON)}")
 
 
 def _start(conf: FromVideoConfig) -> datetime.datetime | None:
@@ -91,9 +91,21 @@ def place_both(conf: FromVideoConfig, videos: tuple[str | Path, str | Path],
         raise ConfigError(f"reference positions are in {ref.frame}, query positions in {qry.frame}: one frame "
                           "(latitude / longitude in both files, or x / y in both)")
     if conf.aligned and len(ref.frames) != len(qry.frames):
-        logger.warning("--aligned: the reference keeps %d frames, the query %d; frame i is matched to frame i",
-                       len(ref.frames), len(qry.frames))
+        raise DatasetError(_unaligned(conf, ref, qry))
     return ref, qry
+
+
+def _unaligned(conf: FromVideoConfig, ref: Placed, qry: Placed) -> str:
+    """Why ``--aligned`` cannot pair the kept frames of ``ref`` and ``qry`` (their counts differ), and what to do."""
+    videos = [p.frames[0].video if p.frames else None for p in (ref, qry)]
+    seconds = [f"{v.duration:.1f} s" if v else "no frame" for v in videos]
+    rates = [f"{len(v) / v.duration:.3g} fps" if v and v.duration > 0 else "?" for v in videos]
+    why = (f"--fps {conf.fps:g} keeps frames in proportion to each video's length ({seconds[0]} and {seconds[1]})"
+           if conf.fps is not None else f"every frame is kept ({ref.counts['total']} frames at {rates[0]}, "
+           f"{qry.counts['total']} at {rates[1]})")
+    return (f"--aligned: query frame i is the place of reference frame i, but the reference keeps {len(ref.frames)} "
+            f"frames and the query {len(qry.frames)}: {why}, so videos of different frame rates or lengths keep "
+            f"different counts and the ground truth cannot line up; nothing written; hint: {VIDEO_ALTERNATIVES}")
 
 
 def main(conf: FromVideoConfig, reference: str | Path, query: str | Path, out: str | Path,
