@@ -71,3 +71,34 @@ def test_from_csv_with_constant_positions_is_warned(tmp_path, capsys):
     assert main(argv) == 0
     assert ("ds: all 6 reference and 6 query positions lie within 0 metres of each other, inside the radius 25: "
             "every reference is within the radius of every query, so R@K is 1 trivially") in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("splits", "said"), [
+    (["train=0:5", "train=5:10"], "--split train=5:10: the split train is given twice (first --split train=0:5); "
+                                  "give each split once"),
+    (["all=0:5", "test=5:10"], "--split all=0:5: the name 'all' is reserved: all means every query (eval --split "
+                               "all, train --train-split all): this split could never be chosen; give the split "
+                               "another name"),
+    (["NONE=0:5"], "--split NONE=0:5: the name 'NONE' is reserved: none means no validation"),
+])
+def test_split_names_given_twice_or_reserved_are_refused(folder, tmp_path, capsys, splits, said):
+    """The last of two splits of one name won silently, and a split named ``all`` was shadowed by every query
+    (with a warning that it shared queries with test): refused in one line, nothing written."""
+    args = [a for s in splits for a in ("--split", s)]
+    assert from_images(folder, tmp_path / "ds", *args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"seqnet dataset from-images: error: {said}") and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "ds").exists()
+
+
+def test_split_names_other_than_train_val_test_are_warned(folder, tmp_path, capsys):
+    assert from_images(folder, tmp_path / "ds", "--split", "Train=0:5", "--split", "holdout=5:10") == 0
+    err = capsys.readouterr().err
+    assert "--split Train=0:5: split names are case-sensitive; did you mean train? seqnet's commands use the splits " \
+           "train, val and test by default" in err
+    assert "--split holdout=5:10: seqnet's commands use the splits train, val and test by default (train trains on " \
+           "train and chooses the epoch on val; eval, index and localize take test), so holdout is used only where " \
+           "a command names it (--split holdout, --train-split holdout)" in err
+    assert from_images(folder, tmp_path / "ok", "--split", "train=0:4", "--split", "val=4:6", "--split",
+                       "test=6:10") == 0
+    assert "--split" not in capsys.readouterr().err

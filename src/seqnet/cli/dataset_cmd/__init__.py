@@ -9,6 +9,7 @@ from pathlib import Path
 from ...core.errors import ConfigError
 from .. import COMMANDS
 from ..common import add_allow_mismatch, positive_float
+from .splits import parse_splits
 
 PRESET_HELP = ("dataset preset (nordland, alias nordland-sw / nordland-sf; oxford-v1.0, oxford-pnv, brisbane, msls): "
                "radius, training radii, splits")
@@ -109,21 +110,6 @@ def _register_seqnet(dsub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
     add_allow_mismatch(p)
     p.set_defaults(func=run_from_seqnet)
-
-
-def parse_splits(items: list[str]) -> dict[str, dict[str, tuple[int, int]]] | None:
-    """``NAME=A:B`` (queries A:B, the whole reference) or ``NAME=A:B,C:D`` (reference A:B, queries C:D) items →
-    splits (None when there are none)."""
-    from ...data.traverse import parse_range_spec
-
-    out: dict[str, dict[str, tuple[int, int]]] = {}
-    for item in items:
-        name, _, spec = item.partition("=")
-        rng = parse_range_spec(spec) if name and spec else None
-        if rng is None:
-            raise ConfigError(f"--split {item!r}: expected NAME=A:B or NAME=A:B,C:D (reference, query)")
-        out[name] = rng
-    return out or None
 
 
 def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
