@@ -208,7 +208,7 @@ LATE = [
     (["dataset", "from-images", "{imgs}", "{base}/nowhere", "--method", "pixels", "--frame-aligned", "--radius",
       "1", "--out", "{out}/o"], "not found"),
     (["dataset", "from-images", "{imgs}", "{imgs}", "--method", "pixels", "--frame-aligned", "--radius", "1",
-      "--fit-on", "train", "--out", "{out}/o"], "fit_on"),
+      "--fit-on", "train", "--out", "{out}/o"], "--fit-on 'train' is not one of reference, both or a split name"),
     (["dataset", "from-images", "{imgs}", "{imgs}", "--method", "pixels", "--ref-csv", "{base}/ok.csv",
       "--radius", "1", "--out", "{out}/o"], "--ref-csv needs --query-csv"),
     (["benchmark", "nordland64", "--data", "{base}/nowhere", "--out", "{out}/b"], "is not the nordland64 data"),

@@ -69,3 +69,16 @@ def test_fit_on_a_split_of_queries_against_the_whole_reference(folders, tmp_path
     assert build(folders, tmp_path / "ds", "ref", "qry", "--dim", "4", "--fit-on", "train", "--split", "train=0:6",
                  "--split", "test=6:12") == 0
     assert sorted(p.parent.name for p in fits[0]) == ["qry"] * 6 + ["ref"] * 12
+
+
+@pytest.mark.parametrize("split", ["test", "Test"])
+def test_fit_on_the_test_split_is_refused(folders, tmp_path, capsys, split):
+    """``--fit-on test`` fitted the PCA / clusters on the test queries silently (``--pca`` refuses it): refused in
+    one line naming the flag, nothing written."""
+    assert build(folders, tmp_path / "ds", "ref", "qry", "--dim", "4", "--fit-on", split, "--split", "train=0:6",
+                 "--split", f"{split}=6:12") == 2
+    err = capsys.readouterr().err
+    assert err.splitlines()[-1] == (f"seqnet dataset from-images: error: --fit-on {split}: fitting the describer's PCA "
+                                    "/ NetVLAD clusters on the test split's images makes its numbers optimistic; fit "
+                                    "on the reference (the default) or on a train split (--fit-on train)")
+    assert not (tmp_path / "ds").exists()

@@ -58,7 +58,7 @@ class FromImagesConfig(Config):
 
     Attributes:
         describe: how both traverses are described.
-        fit_on: where PCA / NetVLAD clusters are fitted: ``reference``, ``both``, or a split name
+        fit_on: where PCA / NetVLAD clusters are fitted: ``reference``, ``both``, or a split name (never test)
             (the images of that split of both traverses; needs ``splits``).
         ground_truth: one of :data:`GROUND_TRUTHS`.
         radius: localisation radius (metres for UTM / CSV eastings, frames otherwise); inclusive. None with
@@ -107,8 +107,12 @@ class FromImagesConfig(Config):
         self._set("positions_tolerance", check_float("positions tolerance", self.positions_tolerance, 0.0))
         if self.radius is not None:
             self._set("radius", check_float("radius", self.radius, 0.0, strict=True))
+        if str(self.fit_on).lower() == "test":  # as --pca: never fitted on the test queries
+            raise ConfigError(f"--fit-on {self.fit_on}: fitting the describer's PCA / NetVLAD clusters on the test "
+                              "split's images makes its numbers optimistic; fit on the reference (the default) or "
+                              "on a train split (--fit-on train)")
         if self.fit_on not in FIT_ON and self.fit_on not in (self.splits or {}):
-            raise ConfigError(f"fit_on {self.fit_on!r} is not one of {', '.join(FIT_ON)} or a split name "
+            raise ConfigError(f"--fit-on {self.fit_on!r} is not one of {', '.join(FIT_ON)} or a split name "
                               f"({', '.join(self.splits or {}) or 'no splits given'})")
 
 
