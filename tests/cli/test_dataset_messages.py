@@ -40,8 +40,14 @@ def test_errors_name_the_subcommand_and_pca_is_checked_first(folder, tmp_path, c
     args = ["--split", "train=0:4", "--split", "test=4:10", "--pca", "20"]
     assert from_images(folder, tmp_path / "p", *args) == 2
     err = capsys.readouterr().err
-    assert err == ("seqnet dataset from-images: error: --pca 20: the 'train' split has 14 frames, a PCA fitted on "
-                   "them has at most 14 axes (hint: --pca 7 or a larger train split)\n")  # no image described
+    assert err == ("seqnet dataset from-images: error: --pca 20: the 'train' split has 14 frames, and a PCA fitted "
+                   "on them has at most 13 axes (N frames centred on their mean span N - 1) (hint: --pca 6 or a larger "
+                   "train split)\n")  # no image described
+    assert from_images(folder, tmp_path / "p", *args[:-1], "14") == 2  # as many as the frames: one axis arbitrary
+    assert "--pca 14: the 'train' split has 14 frames, and a PCA fitted on them has at most 13 axes" in \
+        capsys.readouterr().err and not (tmp_path / "p").exists()
+    assert from_images(folder, tmp_path / "p", *args[:-1], "13") == 0
+    capsys.readouterr()
     assert main(["dataset", "check", str(tmp_path / "none")]) == 2
     assert capsys.readouterr().err.startswith("seqnet dataset check: error: ")
 

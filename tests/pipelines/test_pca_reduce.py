@@ -80,3 +80,13 @@ def test_cli_train_with_pca(synth_dataset, tmp_path, capsys):
     assert f"--dataset {(tmp_path / 'ds-pca8').resolve()}" in out and "D=8->8" in out
     assert cli_main(["train", "--resume", str(tmp_path / "r"), "--pca", "8"]) == 2
     assert "--pca applies when a run starts" in capsys.readouterr().err
+
+
+def test_dims_must_be_below_the_train_frames(synth_dataset):
+    """N centred frames span at most N - 1 axes: ``--pca N`` on N train frames (was accepted: its last axis
+    arbitrary) is refused, as ``seqnet train --pca`` reaches it; N - 1 fits."""
+    small = dataclasses.replace(synth_dataset, splits={"train": {"reference": (0, 4), "query": (0, 4)}})
+    with pytest.raises(ConfigError, match=r"--pca 8: the 'train' split has 8 frames, and a PCA fitted on them has "
+                                          r"at most 7 axes .* \(hint: --pca 3 or a larger train split\)"):
+        reduce_dataset(small, 8)
+    assert reduce_dataset(small, 7)[0].query.dim == 7

@@ -55,12 +55,14 @@ def split_frames(ds: Dataset, split: str) -> np.ndarray:
 
 
 def check_fit_frames(dims: int, frames: int, split: str = "train") -> None:
-    """Raise :class:`ConfigError` when a PCA to ``dims`` cannot be fitted on ``frames`` frames of ``split`` (known
-    before anything is described: ``seqnet dataset from-images`` checks it first)."""
+    """Raise :class:`ConfigError` when a PCA to ``dims`` cannot be fitted on ``frames`` frames of ``split``: N frames
+    centred on their mean span at most N - 1 axes, so ``dims`` must be below ``frames`` (known before anything is
+    described: ``seqnet dataset from-images`` checks it first)."""
     frames = min(frames, FIT_MAX)
-    if dims > frames:
-        raise ConfigError(f"--pca {dims}: the {split!r} split has {frames} frames, a PCA fitted on them has at "
-                          f"most {frames} axes (hint: --pca {max(1, frames // 2)} or a larger {split} split)")
+    if dims >= frames:
+        raise ConfigError(f"--pca {dims}: the {split!r} split has {frames} frames, and a PCA fitted on them has at "
+                          f"most {max(0, frames - 1)} axes (N frames centred on their mean span N - 1) (hint: --pca "
+                          f"{max(1, (frames - 1) // 2)} or a larger {split} split)")
 
 
 def fit_on_split(ds: Dataset, dims: int, split: str = "train") -> PCA:
