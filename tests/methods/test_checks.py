@@ -177,3 +177,25 @@ def _no_window(windows) -> None:
     from seqnet.sequence.windows import WindowedItems
 
     WindowedItems()._set_side(windows, 4, None, "query")
+
+
+def test_the_training_queries_hint_names_a_split_that_exists(synth_dataset, tmp_path):
+    """The warning about training queries evaluated says ``--split S`` with S a split of the dataset: ``Test`` when
+    the user named it so, else a split without training queries (it said ``--split test`` whatever the splits)."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from seqnet.methods.checks import leakage
+
+    def said(splits, evaluated):
+        ds = dataclasses.replace(synth_dataset, splits=splits)
+        record = {"dataset": str(tmp_path), "split": "Train", "checkpoint": "r/best.pt"}
+        return leakage({"s1": SimpleNamespace(trained_on=record)}, tmp_path, ds, evaluated)
+
+    s = synth_dataset.splits
+    caps = {"Train": s["train"], "Val": s["val"], "Test": s["test"]}
+    assert said(caps, "Train")[0].endswith("(hint: --split Test)")
+    assert said({"Train": s["train"], "Val": s["val"]}, "all")[0].endswith("(hint: --split Val)")
+    assert said({"Train": s["train"]}, "all")[0].endswith("(hint: --split A:B, a range of queries without training "
+                                                          "ones)")
+    assert said({"Train": s["train"], "test": s["test"]}, "all")[0].endswith("(hint: --split test)")

@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..sequence.checkpoints import read_checkpoint
 from ..sequence.windows import WINDOW_MODES
 from ..train.config import OPTIMIZERS, RESUME_OVERRIDABLE, TrainConfig
@@ -45,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "only --epochs, --patience and --device may change")
     m = p.add_argument_group("model")
     m.add_argument("--seq-len", type=positive_int, help=f"sequence length L (default {_D.seq_len}; S_1: 1)")
-    m.add_argument("--w", type=positive_int, help=f"temporal filter width, 1 <= w <= L (default {_D.w}; S_1: 1)")
+    m.add_argument("--w", type=positive_int,
+                   help=f"temporal filter width, 1 <= w <= L (default {_D.w}, or L when L < {_D.w}; S_1: 1)")
     m.add_argument("--out-dims", type=positive_int, help="output descriptor dimension (default: the input's)")
     m.add_argument("--window", choices=WINDOW_MODES, help=f"window position (default {_D.window})")
     o = p.add_argument_group("optimisation")
@@ -114,8 +116,19 @@ def add_learning(p: argparse.ArgumentParser) -> None:
 _KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig) if f.name != "device")  # one flag each
 
 
+def default_w(seq_len: int | None, w: int | None) -> int | None:
+    """``--w`` as given, else at most L: ``--seq-len 1`` (S_1) or 2 without ``--w`` trains with w = L (the
+    default w does not fit in a shorter window); None: the default."""
+    if w is None and seq_len is not None and seq_len < _D.w:
+        logger.info("--seq-len %d without --w: w = %d (w <= L)", seq_len, seq_len)
+        return seq_len
+    return w
+
+
 def run(args: argparse.Namespace) -> int:
     changes = {k: getattr(args, k) for k in _KEYS}
+    if not args.resume:
+        changes["w"] = default_w(args.seq_len, args.w)
     if args.pca is not None:
         args.dataset = _reduced(args)
     if args.device != "auto" or not args.resume:

@@ -102,7 +102,7 @@ class EvalConfig(WindowSettings, Config):
         if self.radius is not None:
             self._set("radius", check_radius(self.radius))
         self._set("extra_radii", tuple(check_radius(r) for r in self.extra_radii))
-        self._set("ks", check_ints("ks", self.ks, 1))
+        self._set("ks", tuple(dict.fromkeys(check_ints("ks", self.ks, 1))))  # --ks 1,1,5: R@1 once
         self._set("top_k", check_int("top_k", self.top_k, 1))
         self._set("fuse_weight", check_float("fuse_weight", self.fuse_weight, 0.0))
         if self.fuse_top_k is not None:

@@ -39,6 +39,7 @@ from ..sequence.windows import Windows
 from .calibrated import add_calibration, check_calibration_split
 from .config import EvalConfig
 from .evaluation import Evaluation, merge, method_windows, no_window_reason
+from .notices import add_warnings, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
 from .outputs import EvalOutputs
 from .results import method_results
 
@@ -257,10 +258,10 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
     chosen = (prepared or {}).get("selection", {}).get("warning")  # said once the evaluation has succeeded
-    for said in [chosen, *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev)]:
-        if said:
-            logger.warning("%s", said)
-            ev.results["warnings"] = [*ev.results.get("warnings", []), said]
+    add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), chosen,
+                      *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
+                      shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None), trivial_ks(ev, conf.ks),
+                      *selection_leakage(loaded, dataset, ds, split)])
     leaks = leakage(loaded, dataset, ds, split)
     if conf.target_precision is not None:
         leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True)

@@ -30,6 +30,7 @@ from ..security.digests import file_digest
 from ..sequence.windows import Windows
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names, run
 from .evaluation import merge, method_windows
+from .notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
 from .outputs import EvalOutputs
 
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
@@ -195,6 +196,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     """Evaluate ``conf.methods`` (default :data:`DEFAULT_MATRIX_METHODS`) of ``ds`` (the split already taken)
     on ``dist [Nq, Nr]`` distances between its query and reference frames (``similarity``, ``transposed``: how the
     file was read, for the orientation check's hints)."""
+    radius = conf.radius if conf is not None else None  # as given: moot with explicit positives
     conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
     if dist.ndim != 2 or dist.shape != (len(ds.query), len(ds.reference)):
         raise ConfigError(f"the distance matrix is {list(dist.shape)} for {len(ds.query)} query and "
@@ -215,9 +217,8 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)
     out.dataset, out.matrix = ds, given  # for the report: the evaluated frames and their given distances
     out.results["matrix_check"] = orientation_check(ds, given, similarity, transposed)
-    if said := constant_rows(given):
-        logger.warning("%s", said)
-        out.results["warnings"] = [*out.results.get("warnings", []), said]
+    add_warnings(out, [constant_rows(given), shift_notice(out), radius_ignored(radius, ds.positives is not None),
+                       trivial_ks(out, conf.ks)])
     return out
 
 
@@ -268,6 +269,7 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
         dist = open_matrix(distances, ds, similarity, split, transposed)
         ev = evaluate_matrix(sub, dist, conf.replace(split=split), similarity, transposed)
+        add_warnings(ev, [split_note(conf.split, list(ds.splits), len(sub.query))])
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
                                 "similarity": bool(similarity), "transposed": bool(transposed),
                                 "distances_digest": file_digest(distances)}

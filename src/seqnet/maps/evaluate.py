@@ -24,6 +24,7 @@ from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse, default_split
 from ..eval.evaluate import EvalConfig, Evaluation, run
+from ..eval.notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
 from ..eval.outputs import EvalOutputs
 from ..methods.grammar import Method, parse_method
 from ..metrics.recall import ground_truth
@@ -43,6 +44,8 @@ class QueryData:
     name: str
     query_range: tuple[int, int]
     root: Path
+    unit: str = "metres"  # of the positions: "frames" (frame numbers), "metres", ...
+    note: str | None = None  # what is scored when no split was given and none is named test
 
 
 def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
@@ -58,7 +61,7 @@ def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
     t = load_traverse(root / (meta.get("traverses") or {}).get("query", "query"), "query")
     t.provenance = (meta.get("provenance") or {}).get("query")
     splits = meta.get("splits") or {}
-    split = default_split(split, splits)
+    given, split = split, default_split(split, splits)
     rng = (0, len(t))
     if split != "all":
         if split not in splits:
@@ -67,7 +70,22 @@ def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
         rng = (int(raw[0]), int(raw[1]))
         t = t.subset(*rng)
     name = str(meta.get("name", root.name))
-    return QueryData(t, split, radius, name if split == "all" else f"{name}[{split}]", rng, root)
+    unit = meta.get("position_unit") or ("frames" if t.positions.shape[1] == 1 else "metres")
+    note = split_note(given, list(splits), len(t))
+    return QueryData(t, split, radius, name if split == "all" else f"{name}[{split}]", rng, root, str(unit), note)
+
+
+def check_source(mp: Map, q: QueryData) -> None:
+    """Refuse a map built from another dataset when the positions are frame numbers: frame numbers of two
+    datasets name unrelated places (positions in metres, e.g. UTM, of another traverse of the same area are
+    comparable: such a map is evaluated)."""
+    src = mp.meta.get("source") or {}
+    if src.get("dataset_path") in (None, str(q.root.resolve())) or (q.root / POSITIVES_FILE).is_file():
+        return  # the same dataset, or explicit positives (refused by :func:`_positives` unless the same split)
+    if "frames" in (q.unit, src.get("position_unit")):
+        raise ConfigError(f"dataset {q.root} and map {mp.path} give positions as frame numbers, but the map was "
+                          f"built from {src.get('dataset_path')} [{src.get('split')}]: frame numbers of two datasets "
+                          "do not name the same places; hint: build the map from this dataset and split")
 
 
 def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
@@ -122,12 +140,13 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     conf = conf or EvalConfig()
     methods = check_conf(mp, conf)
     mp.check_query(q.traverse.dim, q.traverse.provenance, conf.allow_mismatch)
+    check_source(mp, q)
     radius = conf.radius or q.radius
     query = mp.describe(q.traverse)
     items = query.side.items
     positives = _positives(mp, q, items)
     truth = ground_truth(q.traverse.positions[items], mp.positions[mp.items], radius, positives,
-                         f"{q.name} against map {mp.path}")
+                         f"{q.name} against map {mp.path}", q.unit)
     c = mp.config
     conf = conf.replace(seq_len=c.windows.seq_len, match_len=c.windows.match_len, radius=radius)
 
@@ -159,8 +178,11 @@ def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Pa
     with outputs.session(conf.methods):  # a second evaluation into the same folder is refused (exit 1)
         mp = load_map(index, conf.device)
         outputs.check_methods([m.name for m in check_conf(mp, conf)])
-        ev = evaluate_map(mp, load_query(dataset, conf.split), conf)
+        q = load_query(dataset, conf.split)
+        ev = evaluate_map(mp, q, conf)
         ev.results["config"]["dataset_path"] = str(dataset)
+        explicit = ev.results["config"]["ground_truth"] == "explicit positives"
+        add_warnings(ev, [q.note, shift_notice(ev), radius_ignored(conf.radius, explicit), trivial_ks(ev, conf.ks)])
         ev.results["learned_below_baseline"] = note_entries(learned_below_baseline(ev.results))
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "index": str(Path(index).resolve())}
         return outputs.write(ev)

@@ -154,8 +154,24 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
                        f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} ({t['split']!r}, {ta}:{tb}): " + (
                            "a threshold calibrated on them is optimistic, its promise does not hold (hint: "
                            "--calibrate-split val)" if calibration else
-                           "its results on them are not a test (hint: --split test)"))
+                           f"its results on them are not a test (hint: {_test_hint(ds, (ta, tb))})"))
     return out
+
+
+def named_test_split(splits: Iterable[str]) -> str | None:
+    """The split that is the test split: ``test``, else one named so in another case (``Test``); None."""
+    splits = list(splits)
+    return "test" if "test" in splits else next((s for s in splits if s.lower() == "test"), None)
+
+
+def _test_hint(ds: Dataset, trained: tuple[int, int]) -> str:
+    """``--split S`` with S a split of ``ds`` to test on: its test split, else one without training queries."""
+    test = named_test_split(ds.splits)
+    if test is None:
+        apart = [s for s in ds.splits if (r := ds.ranges(s)) and min(r["query"][1], trained[1]) <= max(
+            r["query"][0], trained[0])]
+        return f"--split {apart[0]}" if apart else "--split A:B, a range of queries without training ones"
+    return f"--split {test}"
 
 
 MAX_RECORD_TEXT = 4096

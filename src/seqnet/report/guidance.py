@@ -167,7 +167,7 @@ def unmatched(results: Mapping[str, Any]) -> list[str]:
     """The learned methods of ``results`` with no model-free counterpart evaluated beside them (nothing to say
     whether the model helps), with the counterpart to add."""
     methods = results.get("methods", {})
-    out = []
+    out, wants = [], {}
     for name in methods:
         try:
             m = parse_method(name)
@@ -177,7 +177,21 @@ def unmatched(results: Mapping[str, Any]) -> list[str]:
             want = "single" if m.kind == "knn" and m.shortlist == "s1" else \
                 "smoothing or delta" if m.kind == "knn" else f"raw+{m.matcher}"
             out.append(f"{name} (add {want} to see whether the model helps{_below_single(name, m, methods)})")
-    return out
+            wants[name] = want.split(" or ")[-1]
+    index = (results.get("config") or {}).get("index")
+    return [without_index(results, wants)] if index and wants else out
+
+
+def without_index(results: Mapping[str, Any], wants: Mapping[str, str]) -> str:
+    """What ``eval --index`` says of its learned methods without a counterpart (``wants``: method -> the model-free
+    one): a map serves only its own methods, so the baseline runs on the dataset, without ``--index``."""
+    cfg = results.get("config") or {}
+    split = cfg.get("split")
+    split = f" --split {split}" if split and split != "all" else ""
+    command = (f"seqnet eval --dataset {cfg.get('dataset_path') or 'DS'}{split} "
+               f"--method {','.join(dict.fromkeys(wants.values()))}")
+    return (f"{', '.join(wants)} (map {cfg.get('index')} serves only its own methods; to see whether the model "
+            f"helps, evaluate the model-free baseline without --index: {command})")
 
 
 def _below_single(name: str, m: Any, methods: Mapping[str, Any]) -> str:

@@ -98,6 +98,9 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
     split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad)
     if said := shared_queries(dataset, [conf.train_split, conf.val_split]):
         logger.warning("the best epoch is chosen on queries it trains on: %s", said)
+    if conf.val_split.lower() == "test":  # the user's Test too
+        logger.warning("--val-split %s: choosing the epoch on the test split makes its test numbers optimistic "
+                       "(hint: --val-split val)", conf.val_split)
     return src, val_ds
 
 

@@ -1,0 +1,143 @@
+"""What an evaluation says beside its numbers when the user probably meant something else (one line each, logged
+as a warning and kept in the results' ``warnings``): explicit positives that look shifted (:func:`shift_notice`),
+a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
+(:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), and a model whose epoch was
+chosen on the evaluated queries (:func:`selection_leakage`)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..core.errors import SeqnetError
+from ..core.log import logger
+from ..methods.checks import named_test_split, training_record
+from ..metrics.shift import shifted_offset, top1_offsets
+from ..security.text import shown
+from .config import EvalConfig
+from .evaluation import Evaluation
+
+if TYPE_CHECKING:
+    from ..data.traverse import Dataset
+    from ..sequence.model import SeqNet
+
+
+def add_warnings(ev: Evaluation, lines: Iterable[str | None]) -> None:
+    """Log each line of ``lines`` (None: nothing to say) as a warning and keep it in ``ev.results["warnings"]``."""
+    for said in lines:
+        if said:
+            logger.warning("%s", shown(said))
+            ev.results["warnings"] = [*ev.results.get("warnings", []), said]
+
+
+def shift_notice(ev: Evaluation) -> str | None:
+    """Why explicit positives look shifted: the top-1s of every method evaluated, pooled, cluster at one constant
+    offset from the listed positives (:func:`seqnet.metrics.shift.shifted_offset`); None otherwise or without
+    explicit positives."""
+    pooled, names = [], []
+    for name, retrieved in ev.retrieved.items():
+        view = ev.view(name)
+        if view.truth.positives is None or retrieved.ndim != 2 or retrieved.shape[1] == 0:
+            continue
+        r_items = np.asarray(view.r_items, dtype=np.int64)
+        top = retrieved[:, 0].astype(np.int64)
+        top1 = np.where(top >= 0, r_items[np.maximum(top, 0)], -1)
+        q, r = view.truth.positives.pairs()
+        pooled.append(top1_offsets(top1, q, r_items[r]))
+        names.append(name)
+    offsets = np.concatenate(pooled) if pooled else np.zeros(0, np.int64)
+    o = shifted_offset(offsets)
+    if o is None:
+        return None
+    n, hits = int((offsets == o).sum()), int((offsets == 0).sum())
+    side = "before" if o < 0 else "after"
+    return (f"positives look shifted by {o:+d}{' (1-based indices?)' if o == -1 else ''}: {n} of {len(offsets)} "
+            f"top-1 answers ({', '.join(names)}) lie exactly {abs(o)} reference frame{'s' if abs(o) > 1 else ''} "
+            f"{side} a listed positive, against {hits} on one; hint: check the positives file's indices (0-based: "
+            "reference 0 is the first reference image)")
+
+
+def radius_ignored(radius: float | None, explicit: bool) -> str | None:
+    """Why ``--radius`` changed nothing: explicit positives decide what is correct."""
+    if radius is None or not explicit:
+        return None
+    return (f"--radius does not change Recall@K with explicit positives (they decide what is correct); use "
+            f"--extra-radius {radius:g} to also count references within {radius:g} of a positive")
+
+
+def split_note(given: str | None, splits: Sequence[str], n_queries: int) -> str | None:
+    """What is scored when no split was given, the dataset has splits and none is named ``test``: every query,
+    the training ones too."""
+    if given is not None or not splits or "test" in splits:
+        return None
+    test = named_test_split(splits)
+    hint = f"--split {test}" if test else f"--split NAME (one of {', '.join(splits)}) or a range A:B"
+    return f"no split named test (splits: {', '.join(splits)}); scoring all {n_queries} queries — hint: {hint}"
+
+
+def trivial_ks(ev: Evaluation, ks: Sequence[int]) -> str | None:
+    """Which K of ``ks`` (given with ``--ks``: not the default Ks, whose R@100 a small dataset makes trivial every
+    time) are at least the references a method indexes (its R@K is 1 for every query with a positive: says
+    nothing)."""
+    if tuple(ks) == EvalConfig().ks:
+        return None
+    trivial: dict[int, int] = {}
+    for name in ev.retrieved:
+        n = len(ev.view(name).r_items)
+        for k in ks:
+            if k >= n:
+                trivial[k] = min(n, trivial.get(k, n))
+    if not trivial:
+        return None
+    said = ", ".join(f"R@{k} (K >= the {n} references indexed)" for k, n in sorted(trivial.items()))
+    return f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
+
+
+def _val_range(record: Mapping[str, str], ds: Dataset) -> tuple[str, tuple[int, int]] | None:
+    """The split a model chose its epoch on and its query range, from the ``config.json`` beside its checkpoint
+    (a run directory); None when unknown or not validated."""
+    from ..security.jsonfile import read_json_object
+
+    path = Path(record["checkpoint"]).parent / "config.json"
+    try:
+        cfg = read_json_object(path, "run configuration") if path.is_file() else {}
+    except (SeqnetError, OSError):
+        return None
+    val = cfg.get("val_split")
+    if not isinstance(val, str) or val.lower() == "none" or cfg.get("dataset_path") != record["dataset"]:
+        return None
+    rng = ds.ranges(val)
+    return None if rng is None else (val, rng["query"])
+
+
+def _same(a: str | Path, b: str | Path) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except (OSError, ValueError, RuntimeError):
+        return False
+
+
+def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
+    """One line per model whose epoch was chosen on queries of ``dataset`` that the evaluated ``split`` holds."""
+
+    a, b = ds.ranges(split)["query"]
+    out = []
+    for role, m in sorted(models.items()):
+        t = training_record(m)
+        chosen = _val_range(t, ds) if t is not None and _same(t["dataset"], dataset) else None
+        if chosen is None:
+            continue
+        val, (va, vb) = chosen
+        both = max(0, min(b, vb) - max(a, va))
+        if both:
+            test = named_test_split(ds.splits)
+            hint = ("choosing the epoch on the test split makes its test numbers optimistic; hint: train with "
+                    "--val-split val" if val == test else
+                    f"hint: --split {test}" if test else "hint: evaluate queries apart from the val split")
+            out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are queries the "
+                       f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} chose its epoch on ({val!r}, "
+                       f"{va}:{vb}), so its results on them are optimistic: {hint}")
+    return out

@@ -1,0 +1,102 @@
+"""What an evaluation says beside its numbers (seqnet.eval.notices): shifted positives, a moot --radius, no
+split named test, trivial K, a model whose epoch was chosen on the evaluated queries; and in results.json."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+from types import SimpleNamespace
+
+import numpy as np
+
+from seqnet.data.io import load_dataset, save_dataset
+from seqnet.data.positives import Positives
+from seqnet.data.synth import make_synthetic
+from seqnet.eval.config import EvalConfig
+from seqnet.eval.evaluate import evaluate
+from seqnet.eval.evaluate import main as eval_main
+from seqnet.eval.notices import radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
+
+METHODS = ("single", "raw+seqmatch")
+
+
+def with_positives(ds, shift: int):
+    """``ds`` with explicit positives: each query's nearest reference by position, listed ``shift`` frames on."""
+    d = np.linalg.norm(ds.query.positions[:, None] - ds.reference.positions[None], axis=-1)
+    near = d.argmin(axis=1) + shift
+    lists = [[int(r)] if 0 <= r < len(ds.reference) else [] for r in near]
+    return dataclasses.replace(ds, positives=Positives.from_lists(lists))
+
+
+def clear():
+    """A synthetic dataset on which single-frame R@1 means something (little noise)."""
+    return make_synthetic(places=200, dim=16, noise=0.05, nuisance=0.0, seed=1)
+
+
+def test_one_based_positives_are_said_and_correct_ones_are_not(synth_dataset):
+    right = evaluate(with_positives(clear(), 0), EvalConfig(methods=METHODS))
+    assert right.results["methods"]["raw+seqmatch"]["recall@1"] > 0.5
+    assert shift_notice(right) is None
+    shifted = evaluate(with_positives(clear(), 1), EvalConfig(methods=METHODS))
+    said = shift_notice(shifted)
+    assert said is not None and said.startswith("positives look shifted by -1 (1-based indices?): "), said
+    assert "single, raw+seqmatch" in said
+    for ds in (synth_dataset, with_positives(synth_dataset, 0)):  # a radius; poor answers on correct positives
+        assert shift_notice(evaluate(ds, EvalConfig(methods=METHODS))) is None
+
+
+def test_the_other_lines():
+    assert radius_ignored(None, True) is None and radius_ignored(10.0, False) is None
+    said = radius_ignored(10.0, True)
+    assert said.startswith("--radius does not change Recall@K with explicit positives") and "use --extra-radius 10" \
+        in said
+    assert split_note(None, ["train", "test"], 9) is None and split_note("Val", ["Val"], 9) is None
+    assert split_note(None, [], 9) is None
+    assert split_note(None, ["Train", "Val", "Test"], 200) == \
+        "no split named test (splits: Train, Val, Test); scoring all 200 queries — hint: --split Test"
+    assert split_note(None, ["a", "b"], 5).endswith("hint: --split NAME (one of a, b) or a range A:B")
+
+
+def test_trivial_k(synth_dataset):
+    ev = evaluate(synth_dataset.split("test"), EvalConfig(methods=("single",), ks=(1, 5, 5000)))
+    n = len(ev.view("single").r_items)
+    assert trivial_ks(ev, (1, 5)) is None
+    assert n < 100 and trivial_ks(ev, EvalConfig().ks) is None  # the default Ks: not the user's choice
+    assert trivial_ks(ev, (1, 100)).startswith(f"R@100 (K >= the {n} references indexed)")
+    assert trivial_ks(ev, (1, n, n + 1)).startswith(f"R@{n} (K >= the {n} references indexed), R@{n + 1} ")
+
+
+def test_a_model_whose_epoch_was_chosen_on_the_evaluated_queries(synth_dataset, synth_dir, tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    model = SimpleNamespace(trained_on={"dataset": str(synth_dir), "split": "train",
+                                        "checkpoint": str(run / "best.pt")})
+    (run / "config.json").write_text(json.dumps({"dataset_path": str(synth_dir), "val_split": "test"}))
+    said = selection_leakage({"s1": model}, synth_dir, synth_dataset, "test")
+    assert len(said) == 1 and "chose its epoch on ('test'" in said[0], said
+    assert "choosing the epoch on the test split makes its test numbers optimistic" in said[0]
+    assert selection_leakage({"s1": model}, synth_dir, synth_dataset, "train") == []  # apart from val
+    (run / "config.json").write_text(json.dumps({"dataset_path": str(synth_dir), "val_split": "val"}))
+    assert selection_leakage({"s1": model}, synth_dir, synth_dataset, "test") == []
+    assert "hint: --split test" in selection_leakage({"s1": model}, synth_dir, synth_dataset, "val")[0]
+    (run / "config.json").write_text("{not json")
+    assert selection_leakage({"s1": model}, synth_dir, synth_dataset, "val") == []  # unreadable: nothing said
+
+
+def test_results_json_keeps_the_warnings(tmp_path, caplog):
+    ds = with_positives(clear(), 1)
+    ds = dataclasses.replace(ds, splits={k.capitalize(): v for k, v in ds.splits.items()})
+    path = save_dataset(ds, tmp_path / "ds")
+    conf = EvalConfig(methods=METHODS, radius=50.0, ks=(1, 1, 5, 10_000))
+    assert conf.ks == (1, 5, 10_000)  # a K given twice is one column
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        eval_main(conf, path, tmp_path / "out")
+    warnings = json.loads((tmp_path / "out" / "results.json").read_text())["warnings"]
+    n = len(load_dataset(path).query)
+    expected = [f"no split named test (splits: Train, Val, Test); scoring all {n} queries — hint: --split Test",
+                "positives look shifted by -1 (1-based indices?)", "--radius does not change Recall@K",
+                "R@10000 (K >= the"]
+    for start in expected:
+        assert sum(w.startswith(start) for w in warnings) == 1, (start, warnings)
+        assert any(r.getMessage().startswith(start) for r in caplog.records), start
