@@ -32,7 +32,10 @@ def framed(ds, name: str):
 
 def test_a_map_of_another_dataset_with_frame_numbers_is_refused(synth_dataset, tmp_path, capsys):
     a = save_dataset(framed(synth_dataset, "A"), tmp_path / "A")
-    b = save_dataset(framed(synth_dataset, "B"), tmp_path / "B")  # the same frames, but another dataset
+    other = framed(synth_dataset, "B")  # the same numbering, but another dataset's images
+    other = dataclasses.replace(other, reference=dataclasses.replace(
+        other.reference, names=[f"other-{i:05d}.png" for i in range(len(other.reference))]))
+    b = save_dataset(other, tmp_path / "B")
     map_b = build(FREE.replace(split="a"), b, tmp_path / "mapB")
     with pytest.raises(ConfigError, match="give positions as frame numbers, but the map was built from .*B \\[a\\]: "
                                           "frame numbers of two datasets do not name the same places; hint: build "
@@ -48,6 +51,13 @@ def test_a_map_of_another_dataset_with_frame_numbers_is_refused(synth_dataset, t
     # the error says the positions' unit
     with pytest.raises(ConfigError, match="has a reference within radius 1 frames"):
         evaluate_main(CONF.replace(split="b"), a, map_a, tmp_path / "o3")
+
+
+def test_a_frames_dataset_moved_after_its_map_was_built_is_scored(synth_dataset, tmp_path):
+    a = save_dataset(framed(synth_dataset, "A"), tmp_path / "A")
+    map_a = build(FREE.replace(split="a"), a, tmp_path / "mapA")
+    moved = shutil.move(str(a), str(tmp_path / "moved"))  # the same reference names and frame numbers
+    assert evaluate_main(CONF.replace(split="a"), moved, map_a, tmp_path / "o").data["methods"]
 
 
 def test_a_map_of_another_traverse_in_metres_is_scored(synth_dir, tmp_path):

@@ -46,6 +46,7 @@ class QueryData:
     root: Path
     unit: str = "metres"  # of the positions: "frames" (frame numbers), "metres", ...
     note: str | None = None  # what is scored when no split was given and none is named test
+    ref_dir: Path | None = None  # the dataset's reference traverse folder
 
 
 def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
@@ -72,7 +73,9 @@ def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
     name = str(meta.get("name", root.name))
     unit = meta.get("position_unit") or ("frames" if t.positions.shape[1] == 1 else "metres")
     note = split_note(given, list(splits), len(t))
-    return QueryData(t, split, radius, name if split == "all" else f"{name}[{split}]", rng, root, str(unit), note)
+    ref_dir = root / (meta.get("traverses") or {}).get("reference", "reference")
+    return QueryData(t, split, radius, name if split == "all" else f"{name}[{split}]", rng, root, str(unit), note,
+                     ref_dir)
 
 
 def check_source(mp: Map, q: QueryData) -> None:
@@ -82,10 +85,25 @@ def check_source(mp: Map, q: QueryData) -> None:
     src = mp.meta.get("source") or {}
     if src.get("dataset_path") in (None, str(q.root.resolve())) or (q.root / POSITIVES_FILE).is_file():
         return  # the same dataset, or explicit positives (refused by :func:`_positives` unless the same split)
-    if "frames" in (q.unit, src.get("position_unit")):
+    if "frames" in (q.unit, src.get("position_unit")) and not _same_reference(mp, q):
         raise ConfigError(f"dataset {q.root} and map {mp.path} give positions as frame numbers, but the map was "
                           f"built from {src.get('dataset_path')} [{src.get('split')}]: frame numbers of two datasets "
                           "do not name the same places; hint: build the map from this dataset and split")
+
+
+def _same_reference(mp: Map, q: QueryData) -> bool:
+    """Whether the dataset's reference (over the map's reference range) has the map's names and positions: the
+    same dataset, moved or copied since the map was built."""
+    try:
+        ref = load_traverse(q.ref_dir, "reference") if q.ref_dir is not None else None
+        a, b = (mp.meta.get("source") or {}).get("reference_range") or (0, 0)
+    except DatasetError:
+        return False
+    if ref is None or not 0 <= a < b <= len(ref) or b - a != len(mp.positions):
+        return False
+    names_ok = ref.names is None or mp.names is None or list(ref.names[a:b]) == list(mp.names)
+    pos = np.asarray(ref.positions[a:b])
+    return names_ok and pos.shape == mp.positions.shape and bool(np.array_equal(pos, mp.positions))
 
 
 def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
