@@ -5,9 +5,10 @@ The map is what :func:`load_reference` returns: an index map (``seqnet index bui
 directory whose reference traverse (optionally one split) is the map. The query is either a
 descriptor file (``.npy`` with its provenance sidecar, ``.h5``), a folder / list file of images, or a ROS
 bag's image topic (frames in timestamp order, named by their timestamp), described one by one as they are
-read, by the describer the map was described with (rebuilt from the map's provenance; only describers without
-fitted state — a PCA or NetVLAD clusters — can be rebuilt, otherwise describe the images with ``seqnet
-describe`` using the map's fitted state and pass the file). Either way the query's provenance must match the
+read, by the describer the map was described with (rebuilt from the map's provenance, with the dataset's
+train-split PCA of ``--pca D`` applied: :func:`seqnet.localize.describing.map_describer`; a describer with fitted
+state of its own — ``--dim``, NetVLAD clusters — is not rebuilt: describe the images with ``seqnet describe``
+fitted on the same images and pass the file). Either way the query's provenance must match the
 map's (:func:`seqnet.core.provenance.check_same`).
 Without ground truth the ``correct`` column is empty.
 """
@@ -107,10 +108,10 @@ def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Fram
 
 
 def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: bool,
-                 describer: str | None = None) -> tuple[Frames, list[str], int]:
+                 describer: str | None = None, map_dir: str | Path | None = None) -> tuple[Frames, list[str], int]:
     """The ``images`` of ``source`` (a folder, a list file or a bag's image topic: :func:`list_images`), each
-    described when it is read by the map's describer (:func:`map_describer`)."""
-    d, check = map_describer(ref_map, allow, describer)
+    described when it is read by the map's describer (:func:`map_describer`; ``map_dir``: the ``--map``)."""
+    d, check = map_describer(ref_map, allow, describer, map_dir)
 
     def frames() -> Frames:
         for p in images.paths:
@@ -189,9 +190,9 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     if q_pos is not None:
         check_frame(frame, images.positions.frame, map_dir, q.positions_topic)
     loc = conf.localizer(ref_map, radius)
-    vq = VideoQuery(q.shown, q.video, ref_map, conf.allow_mismatch, describer) if video else None
+    vq = VideoQuery(q.shown, q.video, ref_map, conf.allow_mismatch, describer, map_dir) if video else None
     frames, names, n = ((vq.frames(), vq.names, None) if vq else descriptor_frames(q.path, ref_map, conf.allow_mismatch)
-                        if is_file else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer))
+                        if is_file else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer, map_dir))
     est: list[Estimate] = []
     describe_ms = []
     for d, ms in progress(frames, desc=f"localize ({conf.method})", total=n, unit="frame"):
