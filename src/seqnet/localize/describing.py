@@ -3,6 +3,7 @@ PCA of ``--pca D`` is applied after it), and no code a file names."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -21,15 +22,17 @@ if TYPE_CHECKING:
     from ..describe.pca import PCA
 
 
-def map_describer(ref_map: Reference, allow: bool, describer: str | None = None,
-                  map_dir: str | Path | None = None
+def map_describer(ref_map: Reference, allow: bool, describer: str | None = None, map_dir: str | Path | None = None,
+                  resize: tuple[int, int] | None = None
                   ) -> tuple[Describer | ReducedDescriber, Callable[[np.ndarray, str], None]]:
     """The describer the map was described with (rebuilt from its provenance; with the dataset's train-split PCA
     applied when it was built with ``--pca``: :func:`dataset_pca`) and ``check(descriptors [1, D], what)``, which
-    holds the first query descriptors' provenance to the map's (a call after one that passed returns
+    holds the first query descriptors' D and provenance to the map's (a call after one that passed returns
     at once: a stream may call it on every frame). A plug-in describer the map's
     files name is imported only when the user names the same one (``describer``, ``--describer``): seqnet runs
-    no code a file names. ``map_dir``: the ``--map`` given (a dataset directory or an index map)."""
+    no code a file names. ``map_dir``: the ``--map`` given (a dataset directory or an index map). ``resize``
+    (``--resize WxH``): the size of the map's reference images, when they were described at their own (native)
+    size and the query images are another size: the query images are resized to it, their provenance is the map's."""
     from ..describe import DescribeConfig, make_describer
 
     prov = ref_map.provenance
@@ -44,27 +47,44 @@ def map_describer(ref_map: Reference, allow: bool, describer: str | None = None,
     pca_on = settings.get("pca_on")
     if conf.needs_fit or ("dim" in settings and pca_on is None):
         raise ConfigError(fitted_state_refusal(conf.method, settings.get("dim")))
-    d: Describer | ReducedDescriber = make_describer(conf)
+    native = conf.resolved().size == "native"
+    if resize is not None and not native:
+        raise ConfigError(f"--resize {resize[0]}x{resize[1]}: the map's images were resized to {conf.resolved().size} "
+                          "when described, and localize resizes the query images alike; drop --resize")
+    d: Describer | ReducedDescriber = make_describer(conf if resize is None else dataclasses.replace(conf, size=resize))
     if pca_on is not None:
-        d = ReducedDescriber(d, dataset_pca(ref_map, map_dir, prov))
+        d = ReducedDescriber(d, dataset_pca(ref_map, map_dir, prov), size_hint(native, resize))
     checked: list[bool] = []
 
     def check(first: np.ndarray, what: str) -> None:
         if checked:  # one describer's outputs share their provenance: checked (or warned about) once
             return
+        if isinstance(prov.get("dim"), int) and first.shape[1] != prov["dim"] and (native or resize):
+            raise ConfigError(f"{what} have D={first.shape[1]}, the map's descriptors D={prov['dim']}: "
+                              f"{size_hint(native, resize)}")
         check_same(prov, query_provenance(conf, d.pca, pca_on, prov, first), "the map's descriptors", what, allow)
         checked.append(True)
 
     return d, check
 
 
+def size_hint(native: bool, resize: tuple[int, int] | None) -> str:
+    """Why query images of a map described at the images' own size can give another D, and what to do."""
+    if resize is not None:
+        return (f"--resize {resize[0]}x{resize[1]} is not the size of the map's reference images (they were described "
+                "at their own size); hint: --resize WxH, their width and height")
+    return ("the map's reference images were described at their own size (native), and these images are another "
+            "size; hint: --resize WxH, the size of the map's reference images" if native else "")
+
+
 class ReducedDescriber:
     """The map's describer ``inner`` followed by its dataset's train-split ``pca`` (``--pca D``): ``load`` and call
     as a :class:`~seqnet.describe.describer.Describer`. Raw descriptors of another D than the PCA reduces are
-    refused (a dataset reduced twice: ``seqnet train --pca`` on a ``--pca`` dataset)."""
+    refused (images of another size than a native-size map's, ``hint``; or a dataset reduced twice: ``seqnet train
+    --pca`` on a ``--pca`` dataset)."""
 
-    def __init__(self, inner: Describer, pca: PCA) -> None:
-        self.inner, self.pca = inner, pca
+    def __init__(self, inner: Describer, pca: PCA, hint: str = "") -> None:
+        self.inner, self.pca, self.hint = inner, pca, hint
 
     def load(self, paths: list[ImageRef]) -> np.ndarray:
         """The images as ``inner`` reads them."""
@@ -74,10 +94,11 @@ class ReducedDescriber:
         """``[B, dims]`` float32: ``inner``'s descriptors of ``images`` projected by ``pca`` (L2-normalised)."""
         raw = self.inner(images)
         if raw.shape[1] != self.pca.input_dim:
+            twice = ("its dataset was reduced from an already reduced one (localize applies one PCA: build the map "
+                     "from a dataset reduced once, --pca D on the unreduced dataset)")
             raise ConfigError(f"the map's PCA reduces {self.pca.input_dim}-D descriptors, but its describer "
-                              f"({self.inner.method}) makes {raw.shape[1]}-D ones: its dataset was reduced from an "
-                              "already reduced one, and localize applies one PCA; hint: build the map from a dataset "
-                              "reduced once (--pca D on the unreduced dataset)")
+                              f"({self.inner.method}) makes {raw.shape[1]}-D ones of these images: "
+                              + (f"{self.hint}; or {twice}" if self.hint else twice))
         return self.pca.transform(raw)
 
 
