@@ -576,7 +576,7 @@ def test_models_the_methods_do_not_use_are_not_loaded(synth_dir, map_models, tmp
                          "--device", "cpu", *extra]) == 0
         assert loaded == ["s1.pt"], name
         said = " ".join(r.getMessage() for r in caplog.records)
-        assert ("raw+seqmatch, s1 do not use the model sl.pt: not loaded" in said) == (name != "s1 only"), said
+        assert (f"raw+seqmatch, s1 do not use the model {sl}: not loaded" in said) == (name != "s1 only"), said
         r = json.loads((out / "results.json").read_text())
         assert r["config"]["seq_len"] == 4
         res[name] = {m: v["recall@1"] for m, v in r["methods"].items()}

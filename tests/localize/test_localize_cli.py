@@ -141,10 +141,25 @@ def test_only_the_models_the_method_uses_are_kept(synth_dir, map_models, tmp_pat
         assert lat["max"] == pytest.approx(max(steady), abs=1e-3)
         assert lat["warmup_max"] == pytest.approx(max(float(r["latency_ms"]) for r in rows[: first + 1]), abs=1e-3)
         said = " ".join(r.getMessage() for r in caplog.records)
-        assert ("raw+seqmatch does not use the models sl.pt, s1.pt: not loaded" in said) == (name != "none"), said
+        assert (f"raw+seqmatch does not use the models {sl}, {s1}: not loaded" in said) == (name != "none"), said
         if name != "none":  # the S_L's L (4) is kept as the default L: the same windows as --seq-len 4
             assert record["config"]["seq_len"] == 4
     assert tracks["flags"] == tracks["paths"] == tracks["flags, no L"]
+
+
+def test_an_unused_model_is_named_by_the_path_given(synth_dir, map_models, tmp_path, monkeypatch, caplog):
+    import logging
+    import shutil
+
+    for run, model in zip(("r5", "r1"), map_models, strict=True):  # two runs' best.pt: the S_5-like S_L and the S_1
+        (tmp_path / run).mkdir()
+        shutil.copy(model, tmp_path / run / "best.pt")
+    monkeypatch.chdir(tmp_path)
+    caplog.set_level(logging.INFO, logger="seqnet")
+    assert cli_main(["localize", "--dataset", str(synth_dir), "--method", "s1+seqmatch", "--model", "r5/best.pt",
+                     "--model", "r1/best.pt", "--out", "t.csv", "--device", "cpu"]) == 0
+    said = " ".join(r.getMessage() for r in caplog.records)
+    assert "s1+seqmatch does not use the model r5/best.pt: not loaded" in said, said
 
 
 def test_one_ranked_reference_is_refused(synth_dir, capsys):

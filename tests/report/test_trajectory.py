@@ -43,3 +43,16 @@ def test_pair_png():
     from PIL import Image
 
     assert Image.open(BytesIO(png)).size == (32 * 2 + 3, 16)
+
+
+def test_without_ground_truth_the_estimates_have_a_legend_colour_and_a_colour_bar():
+    for dims in (1, 2):  # frames (a frame-aligned dataset) and metres
+        view = _view(False, dims)
+        view.confidence[:5] = np.nan  # the first frames unanswered, as a stream's are: the scatter's first point
+        fig = trajectory_figure(view)
+        assert len(fig.axes) == 2 and fig.axes[1].get_ylabel() == "confidence", dims
+        legend = fig.axes[0].get_legend()
+        entry = next(h for h, t in zip(legend.legend_handles, legend.get_texts(), strict=True)
+                     if t.get_text().startswith("estimate"))
+        assert entry.get_facecolor()[0][3] > 0, dims  # visible (an empty marker was drawn before)
+        assert legend.get_texts()[-1].get_text() == "estimate (35; colour: confidence)"

@@ -91,3 +91,27 @@ def test_a_map_without_describe_provenance_refuses_images_with_415(serve_service
         with pytest.raises(ClientError) as e:
             s.send(paths[0])
         assert e.value.status == 415 and "does not describe images" in e.value.message
+
+
+def test_a_pca_datasets_images_are_reduced_by_its_pca(tmp_path):
+    """A map reduced by ``--pca D`` serves images: described, then projected by ``<DATASET>.pca.npz``."""
+    from seqnet.data.io import load_dataset, save_dataset
+    from seqnet.data.traverse import Dataset, Traverse
+    from seqnet.describe import DescribeConfig, make_describer
+    from seqnet.describe.stage import describe_provenance
+    from seqnet.localize.config import LocalizeConfig
+    from seqnet.pipelines.pca import reduce_dataset, save_reduced
+    from seqnet.serve.service import load_service
+
+    folder = image_folder(tmp_path / "imgs", n=30, seed=3)
+    conf = DescribeConfig(method="pixels", patch=8, size="native")
+    paths = sorted(folder.iterdir(), key=lambda p: int(p.stem[1:]))
+    ref, names = make_describer(conf).describe(paths)
+    t = Traverse(ref, np.c_[np.arange(30) * 2.0, np.zeros(30)], names=names,
+                 provenance=describe_provenance(conf, None, ref))
+    save_dataset(Dataset(t, t, 3.0, splits={"train": {"reference": (0, 20), "query": (0, 20)}}), tmp_path / "raw")
+    save_reduced(*reduce_dataset(load_dataset(tmp_path / "raw"), 8), tmp_path / "ds")
+    service = load_service(LocalizeConfig(method="raw+seqmatch", seq_len=3, device="cpu"), tmp_path / "ds")
+    assert service.describer is not None, service.no_images
+    out = service.describer(service.describer.load(paths[:4]))
+    np.testing.assert_allclose(out, np.asarray(load_dataset(tmp_path / "ds").query.descriptors[:4]), atol=1e-5)

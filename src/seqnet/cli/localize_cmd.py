@@ -53,6 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    ".h5), a folder / list file of images, a ROS bag (with --topic), a video file, or a live stream (a "
                    "URL or /dev/videoN), described one by one as the map was (see docs/online.md, docs/video.md)")
     add_video_query(p)
+    p.add_argument("--resize", metavar="WxH", help="with --map and query images (a folder, list file, bag or video): "
+                   "describe them at WxH, the size of the map's reference images, when the map was described at "
+                   "the images' own size (pixels' default) and the query images are another size")
     add_topic(p, "--query")
     p.add_argument("--positions-topic", metavar="TOPIC", help="with a ROS bag as --query: the ground truth, each frame "
                    "at the position of this topic's message nearest in time (sensor_msgs/NavSatFix: UTM metres; "
@@ -149,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
                           "--dataset replays a query traverse with its own positions")
     if args.positions_tolerance is not None and args.positions_topic is None:
         raise ConfigError("--positions-tolerance goes with --positions-topic")
+    if args.resize is not None and args.query is None:
+        raise ConfigError("--resize goes with --map and query images (the size of the map's reference images)")
     if args.map is None and args.plot is not None:
         raise ConfigError("--plot goes with --map and --query (the map's route and the query's estimates)")
     if (args.map is None) != (args.query is None):
@@ -164,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--distances goes with --dataset (the matrix covers the dataset's query and reference)")
     if args.map is not None:
         query = Query(Path(args.query), args.topic, args.positions_topic,
-                      args.positions_tolerance or DEFAULT_TOLERANCE, video_options(args), args.query)
+                      args.positions_tolerance or DEFAULT_TOLERANCE, video_options(args), args.query,
+                      query_size(args.resize))
         out = stream(conf, args.map, query, args.out, args.model, args.shortlist_model, args.rerank_model,
                      describer=args.describer, on_track=_plotter(args.plot))
     else:
@@ -172,6 +178,19 @@ def run(args: argparse.Namespace) -> int:
                    args.distances, args.similarity, args.transposed, calibration(args))
     print_summary(conf, args, out)
     return 0
+
+
+def query_size(resize: str | None) -> tuple[int, int] | None:
+    """``--resize WxH`` as ``(W, H)`` (checked as ``seqnet describe --resize``; only WxH: a size the map's reference
+    images have), or None."""
+    from ..describe.config import check_size
+
+    if resize is None:
+        return None
+    size = check_size(resize)
+    if not isinstance(size, tuple):
+        raise ConfigError(f"--resize {resize}: localize takes WxH, the size of the map's reference images")
+    return size
 
 
 def print_summary(conf: LocalizeConfig, args: argparse.Namespace, out: Written) -> None:

@@ -93,6 +93,30 @@ def read_tag(path: str | os.PathLike[str]) -> str | None:
     return str(arrays[TAG_KEY][()]) if TAG_KEY in arrays else None
 
 
+def dataset_pca_path(dataset_dir: str | os.PathLike[str]) -> Path:
+    """Where the train-split PCA of a reduced dataset directory is saved (``--pca D``): ``<DIR>.pca.npz`` beside it."""
+    d = Path(dataset_dir)
+    return d.with_name(d.name + ".pca.npz")
+
+
+def load_dataset_pca(path: str | os.PathLike[str], provenance: dict) -> PCA:
+    """The PCA in ``path`` that reduced descriptors of ``provenance`` (``--pca D``: the file's tag is their provenance
+    id, its output D theirs); :class:`ConfigError` when it is missing or written for other descriptors,
+    :class:`CheckpointError` when it is not a PCA file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"the map's descriptors were reduced by the PCA in {path} (--pca), which is missing; "
+                          "query images can only be described alike with it (hint: keep it beside the dataset "
+                          "directory it was written with, or rebuild the dataset)")
+    pca = PCA.load(path)
+    tag = read_tag(path)
+    if tag != provenance.get("id") or pca.dims != provenance.get("dim"):
+        raise ConfigError(f"{path} is not the PCA the map's descriptors were reduced with (its tag {tag!r} and "
+                          f"{pca.dims} dimensions, the map's provenance {provenance.get('id')!r} and "
+                          f"{provenance.get('dim')}); hint: rebuild the dataset with --pca")
+    return pca
+
+
 def fit_pca(x: np.ndarray, dims: int, whiten: bool = False, l2: bool = True, eps: float = 1e-9) -> PCA:
     """Fit a PCA of ``[N, D]`` data keeping ``dims`` components.
 

@@ -1,53 +1,145 @@
-"""The map's describer, rebuilt for query images: only one without fitted state, and no code a file names."""
+"""The map's describer, rebuilt for query images: only one without fitted state of its own (a dataset's train-split
+PCA of ``--pca D`` is applied after it), and no code a file names."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.provenance import check_same
+from ..core.provenance import make as make_provenance
 from ..methods.protocol import Reference
 
 if TYPE_CHECKING:
+    from ..describe.config import DescribeConfig
     from ..describe.describer import Describer
+    from ..describe.images import ImageRef
+    from ..describe.pca import PCA
 
 
-def map_describer(ref_map: Reference, allow: bool,
-                  describer: str | None = None) -> tuple[Describer, Callable[[np.ndarray, str], None]]:
-    """The describer the map was described with (rebuilt from its provenance) and ``check(descriptors [1, D],
-    what)``, which holds the first query descriptors' provenance to the map's (a call after one that passed returns
+def map_describer(ref_map: Reference, allow: bool, describer: str | None = None, map_dir: str | Path | None = None,
+                  resize: tuple[int, int] | None = None
+                  ) -> tuple[Describer | ReducedDescriber, Callable[[np.ndarray, str], None]]:
+    """The describer the map was described with (rebuilt from its provenance; with the dataset's train-split PCA
+    applied when it was built with ``--pca``: :func:`dataset_pca`) and ``check(descriptors [1, D], what)``, which
+    holds the first query descriptors' D and provenance to the map's (a call after one that passed returns
     at once: a stream may call it on every frame). A plug-in describer the map's
     files name is imported only when the user names the same one (``describer``, ``--describer``): seqnet runs
-    no code a file names."""
+    no code a file names. ``map_dir``: the ``--map`` given (a dataset directory or an index map). ``resize``
+    (``--resize WxH``): the size of the map's reference images, when they were described at their own (native)
+    size and the query images are another size: the query images are resized to it, their provenance is the map's."""
     from ..describe import DescribeConfig, make_describer
-    from ..describe.stage import describe_provenance
 
     prov = ref_map.provenance
     if not prov or prov.get("kind") != "describe":
         raise ConfigError("the map's descriptors do not record how they were described (no 'describe' provenance), "
                           "so query images cannot be described alike; describe them yourself and pass the "
                           "descriptor file as --query")
-    derived = ("dim", "whiten", "describer_provenance")  # not options: the PCA's, a plug-in module's own
+    derived = ("dim", "whiten", "describer_provenance", "pca_on")  # not options: the PCA's, a plug-in module's own
     settings = prov.get("settings") if isinstance(prov.get("settings"), dict) else {}
     check_named_code(settings, describer)
     conf = DescribeConfig.from_dict({k: v for k, v in settings.items() if k not in derived})
-    if conf.needs_fit or "dim" in prov["settings"]:
-        raise ConfigError(f"the map was described with fitted state ({conf.method}, PCA or clusters), which "
-                          "localize cannot rebuild; describe the query images with `seqnet describe` using the "
-                          "map's fitted state and pass the descriptor file as --query")
-
+    pca_on = settings.get("pca_on")
+    if conf.needs_fit or ("dim" in settings and pca_on is None):
+        raise ConfigError(fitted_state_refusal(conf.method, settings.get("dim")))
+    native = conf.resolved().size == "native"
+    if resize is not None and not native:
+        raise ConfigError(f"--resize {resize[0]}x{resize[1]}: the map's images were resized to {conf.resolved().size} "
+                          "when described, and localize resizes the query images alike; drop --resize")
+    d: Describer | ReducedDescriber = make_describer(conf if resize is None else dataclasses.replace(conf, size=resize))
+    if pca_on is not None:
+        d = ReducedDescriber(d, dataset_pca(ref_map, map_dir, prov), size_hint(native, resize))
     checked: list[bool] = []
 
     def check(first: np.ndarray, what: str) -> None:
         if checked:  # one describer's outputs share their provenance: checked (or warned about) once
             return
-        check_same(prov, describe_provenance(conf, None, first), "the map's descriptors", what, allow)
+        if isinstance(prov.get("dim"), int) and first.shape[1] != prov["dim"] and (native or resize):
+            raise ConfigError(f"{what} have D={first.shape[1]}, the map's descriptors D={prov['dim']}: "
+                              f"{size_hint(native, resize)}")
+        check_same(prov, query_provenance(conf, d.pca, pca_on, prov, first), "the map's descriptors", what, allow)
         checked.append(True)
 
-    return make_describer(conf), check
+    return d, check
+
+
+def size_hint(native: bool, resize: tuple[int, int] | None) -> str:
+    """Why query images of a map described at the images' own size can give another D, and what to do."""
+    if resize is not None:
+        return (f"--resize {resize[0]}x{resize[1]} is not the size of the map's reference images (they were described "
+                "at their own size); hint: --resize WxH, their width and height")
+    return ("the map's reference images were described at their own size (native), and these images are another "
+            "size; hint: --resize WxH, the size of the map's reference images" if native else "")
+
+
+class ReducedDescriber:
+    """The map's describer ``inner`` followed by its dataset's train-split ``pca`` (``--pca D``): ``load`` and call
+    as a :class:`~seqnet.describe.describer.Describer`. Raw descriptors of another D than the PCA reduces are
+    refused (images of another size than a native-size map's, ``hint``; or a dataset reduced twice: ``seqnet train
+    --pca`` on a ``--pca`` dataset)."""
+
+    def __init__(self, inner: Describer, pca: PCA, hint: str = "") -> None:
+        self.inner, self.pca, self.hint = inner, pca, hint
+
+    def load(self, paths: list[ImageRef]) -> np.ndarray:
+        """The images as ``inner`` reads them."""
+        return self.inner.load(paths)
+
+    def __call__(self, images: np.ndarray) -> np.ndarray:
+        """``[B, dims]`` float32: ``inner``'s descriptors of ``images`` projected by ``pca`` (L2-normalised)."""
+        raw = self.inner(images)
+        if raw.shape[1] != self.pca.input_dim:
+            twice = ("its dataset was reduced from an already reduced one (localize applies one PCA: build the map "
+                     "from a dataset reduced once, --pca D on the unreduced dataset)")
+            raise ConfigError(f"the map's PCA reduces {self.pca.input_dim}-D descriptors, but its describer "
+                              f"({self.inner.method}) makes {raw.shape[1]}-D ones of these images: "
+                              + (f"{self.hint}; or {twice}" if self.hint else twice))
+        return self.pca.transform(raw)
+
+
+def fitted_state_refusal(method: str, dim: object) -> str:
+    """The refusal of a map described with fitted state of its own (``--dim``, NetVLAD clusters), with the command
+    that describes query images alike: ``seqnet describe`` refits the same state on the same images."""
+    state = f"--dim {dim}" if isinstance(dim, int) else "its fitted clusters"
+    return (f"the map was described with fitted state ({method}, {state}), which localize cannot rebuild from the "
+            f"map; describe the query images as the reference was: seqnet describe IMAGES --method {method}"
+            f"{f' --dim {dim}' if isinstance(dim, int) else ''} --fit-on REFERENCE_IMAGES (the images its state was "
+            "fitted on; the reference's other describe options) --out FRAMES.npy, then --query FRAMES.npy "
+            "(or build the dataset with --pca D, whose PCA localize applies)")
+
+
+def dataset_pca(ref_map: Reference, map_dir: str | Path | None, prov: dict) -> PCA:
+    """The train-split PCA (``--pca D``, ``<DATASET>.pca.npz``) that reduced the map's descriptors: beside the
+    dataset directory given as ``--map``, or beside the dataset an index map was built from; checked to be that
+    PCA (its tag and D: :func:`seqnet.describe.pca.load_dataset_pca`)."""
+    from ..describe.pca import dataset_pca_path, load_dataset_pca
+
+    meta = getattr(ref_map, "meta", None)  # an index map: map.json names the dataset it was built from
+    source = meta.get("source") if isinstance(meta, dict) and isinstance(meta.get("source"), dict) else {}
+    dataset = source.get("dataset_path") if isinstance(source.get("dataset_path"), str) else map_dir
+    if dataset is None:
+        raise ConfigError("the map's descriptors were reduced by a dataset's PCA (--pca), but the map names no "
+                          "dataset to read it from; describe the query images yourself and pass the file as --query")
+    return load_dataset_pca(dataset_pca_path(dataset), prov)
+
+
+def query_provenance(conf: DescribeConfig, pca: PCA | None, pca_on: str | None, prov: dict,
+                     out: np.ndarray) -> dict:
+    """The provenance of query descriptors ``out [N, D]`` described by ``conf`` (and reduced by the map's ``pca``
+    fitted on the split ``pca_on``, recorded as :func:`seqnet.pipelines.pca.reduce_dataset` records it: the
+    describer's settings with ``dim`` and ``pca_on``, the map's fit hash)."""
+    from ..describe.stage import describe_provenance
+
+    if pca is None:
+        return describe_provenance(conf, None, out)
+    raw = describe_provenance(conf, None, np.empty((0, pca.input_dim), np.float32))
+    return make_provenance(raw["kind"], {**raw["settings"], "dim": pca.dims, "pca_on": pca_on}, dim=int(out.shape[1]),
+                           fit=prov.get("fit_images"))
 
 
 def check_named_code(settings: Mapping[str, object], describer: str | None) -> None:

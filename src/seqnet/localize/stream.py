@@ -5,9 +5,10 @@ The map is what :func:`load_reference` returns: an index map (``seqnet index bui
 directory whose reference traverse (optionally one split) is the map. The query is either a
 descriptor file (``.npy`` with its provenance sidecar, ``.h5``), a folder / list file of images, or a ROS
 bag's image topic (frames in timestamp order, named by their timestamp), described one by one as they are
-read, by the describer the map was described with (rebuilt from the map's provenance; only describers without
-fitted state — a PCA or NetVLAD clusters — can be rebuilt, otherwise describe the images with ``seqnet
-describe`` using the map's fitted state and pass the file). Either way the query's provenance must match the
+read, by the describer the map was described with (rebuilt from the map's provenance, with the dataset's
+train-split PCA of ``--pca D`` applied: :func:`seqnet.localize.describing.map_describer`; a describer with fitted
+state of its own — ``--dim``, NetVLAD clusters — is not rebuilt: describe the images with ``seqnet describe``
+fitted on the same images and pass the file). Either way the query's provenance must match the
 map's (:func:`seqnet.core.provenance.check_same`).
 Without ground truth the ``correct`` column is empty.
 """
@@ -106,11 +107,13 @@ def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Fram
     return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
 
 
-def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: bool,
-                 describer: str | None = None) -> tuple[Frames, list[str], int]:
+def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: bool, describer: str | None = None,
+                 map_dir: str | Path | None = None,
+                 resize: tuple[int, int] | None = None) -> tuple[Frames, list[str], int]:
     """The ``images`` of ``source`` (a folder, a list file or a bag's image topic: :func:`list_images`), each
-    described when it is read by the map's describer (:func:`map_describer`)."""
-    d, check = map_describer(ref_map, allow, describer)
+    described when it is read by the map's describer (:func:`map_describer`; ``map_dir``: the ``--map``, ``resize``:
+    ``--resize``)."""
+    d, check = map_describer(ref_map, allow, describer, map_dir, resize)
 
     def frames() -> Frames:
         for p in images.paths:
@@ -126,7 +129,9 @@ def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: boo
 @dataclasses.dataclass(frozen=True)
 class Query:
     """What ``seqnet localize --map`` streams: ``path`` (a descriptor file, images, or a ROS bag's image ``topic``)
-    and, for a bag, the ``positions_topic`` giving each frame's ground truth within ``tolerance`` seconds."""
+    and, for a bag, the ``positions_topic`` giving each frame's ground truth within ``tolerance`` seconds;
+    ``resize``: images described at this ``(W, H)``, the size of the reference images of a map described at their
+    own size (:func:`seqnet.localize.describing.map_describer`)."""
 
     path: Path
     topic: str | None = None
@@ -134,6 +139,7 @@ class Query:
     tolerance: float = DEFAULT_TOLERANCE
     video: VideoOptions = VideoOptions()
     name: str | None = None  # as given (a URL keeps its '//'); None: str(path)
+    resize: tuple[int, int] | None = None  # --resize: the size of a native-size map's reference images
 
     @property
     def shown(self) -> str:
@@ -169,6 +175,9 @@ def query_images(q: Query) -> tuple[bool, ImageList | None, np.ndarray | None]:
     for flag, value in (("--topic", q.topic), ("--positions-topic", q.positions_topic)):
         if is_file and value is not None:
             raise ConfigError(f"{flag} {value} goes with a ROS bag as --query, but {q.path} is a descriptor file")
+    if is_file and q.resize is not None:
+        raise ConfigError(f"--resize goes with query images (a folder, a list file, a bag, a video), but {q.path} "
+                          "is a descriptor file")
     if is_file:
         return True, None, None
     images = list_images(q.path, q.topic, q.positions_topic)  # a wrong source or topic first: the user's to fix
@@ -189,9 +198,10 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     if q_pos is not None:
         check_frame(frame, images.positions.frame, map_dir, q.positions_topic)
     loc = conf.localizer(ref_map, radius)
-    vq = VideoQuery(q.shown, q.video, ref_map, conf.allow_mismatch, describer) if video else None
+    vq = VideoQuery(q.shown, q.video, ref_map, conf.allow_mismatch, describer, map_dir, q.resize) if video else None
     frames, names, n = ((vq.frames(), vq.names, None) if vq else descriptor_frames(q.path, ref_map, conf.allow_mismatch)
-                        if is_file else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer))
+                        if is_file else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer, map_dir,
+                                                     q.resize))
     est: list[Estimate] = []
     describe_ms = []
     for d, ms in progress(frames, desc=f"localize ({conf.method})", total=n, unit="frame"):

@@ -48,11 +48,12 @@ class VideoQuery:
     """The frames of a video query, described as they come; after them, their ground truth and figures."""
 
     def __init__(self, name: str, opts: VideoOptions, ref_map: Reference, allow: bool,
-                 describer: str | None = None) -> None:
+                 describer: str | None = None, map_dir: str | Path | None = None,
+                 resize: tuple[int, int] | None = None) -> None:
         from ..sources.stream import FrameStream
 
         self.name, self.opts = name, opts
-        self.describer, self._check = map_describer(ref_map, allow, describer)
+        self.describer, self._check = map_describer(ref_map, allow, describer, map_dir, resize)
         self.source: FrameStream = FrameStream(name, opts.fps, opts.realtime, opts.timeout)
         self.names: list[str] = []
         self.times: list[float] = []

@@ -31,7 +31,7 @@ from ..core.provenance import fit_digest
 from ..core.provenance import make as make_provenance
 from ..data.io import load_dataset, save_dataset
 from ..data.traverse import Dataset, Traverse
-from ..describe.pca import PCA, fit_pca
+from ..describe.pca import PCA, dataset_pca_path, fit_pca
 
 FIT_MAX = 20000  # frames a PCA is fitted on at most (evenly spaced): [N, D] float64 in memory
 BLOCK = 4096  # frames projected at a time
@@ -103,9 +103,9 @@ def reduce_dataset(ds: Dataset, dims: int, split: str = "train") -> tuple[Datase
 
 
 def pca_path(dataset_dir: str | Path) -> Path:
-    """Where the PCA of a reduced dataset directory is saved: ``<DIR>.pca.npz`` beside it."""
-    d = Path(dataset_dir)
-    return d.with_name(d.name + ".pca.npz")
+    """Where the PCA of a reduced dataset directory is saved: ``<DIR>.pca.npz`` beside it (one convention:
+    :func:`seqnet.describe.pca.dataset_pca_path`, which ``seqnet localize`` reads)."""
+    return dataset_pca_path(dataset_dir)
 
 
 def save_reduced(ds: Dataset, pca: PCA, out: str | Path, overwrite: bool = False, quiet: bool = False) -> Path:

@@ -36,8 +36,7 @@ def _route(ax: Any, view: TrackView) -> None:
     ax.plot(ref[:, 0], ref[:, 1], color=GREY, lw=4, alpha=0.6, label="reference route", zorder=1)
     ax.plot(*ref[0], marker="s", color="k", ms=6, ls="", label="route start", zorder=4)
     if view.truth is None:
-        sc = ax.scatter(est[:, 0], est[:, 1], c=view.confidence, cmap="viridis", s=12, zorder=3, label="estimate")
-        ax.figure.colorbar(sc, ax=ax, label="confidence", shrink=0.8)
+        _by_confidence(ax, est[:, 0], est[:, 1], view.confidence, 12)
     else:
         true = np.asarray(view.truth, np.float64) - o
         ax.plot(true[:, 0], true[:, 1], color=BLUE, lw=1, ls="--", label="query (true path)", zorder=2)
@@ -61,6 +60,18 @@ def _route(ax: Any, view: TrackView) -> None:
     ax.grid(alpha=0.3)
 
 
+def _by_confidence(ax: Any, x: np.ndarray, y: np.ndarray, confidence: np.ndarray, size: float) -> None:
+    """Estimates ``(x, y) [N]`` coloured by ``confidence [N]`` (NaN: unanswered frames, not drawn), a colour bar,
+    and a legend entry in the colour of the median confidence (a scatter's own entry takes its first point's
+    colour: none when the first frames are unanswered)."""
+    conf = np.asarray(confidence, np.float64)
+    shown = np.isfinite(conf) & np.isfinite(np.asarray(x, np.float64)) & np.isfinite(np.asarray(y, np.float64))
+    sc = ax.scatter(np.asarray(x)[shown], np.asarray(y)[shown], c=conf[shown], cmap="viridis", s=size, zorder=3)
+    ax.figure.colorbar(sc, ax=ax, label="confidence", shrink=0.8)
+    mid = sc.cmap(sc.norm(float(np.median(conf[shown])))) if shown.any() else GREY
+    ax.scatter([], [], color=mid, s=size, label=f"estimate ({int(shown.sum())}; colour: confidence)")
+
+
 def _frames(ax: Any, view: TrackView) -> None:
     """The 1-D panel: estimated reference frame over the query frame."""
     q = np.arange(len(view.estimate))
@@ -70,7 +81,7 @@ def _frames(ax: Any, view: TrackView) -> None:
         for mask, colour, label in ((ok, GREEN, "correct"), (~ok, RED, "wrong")):
             ax.scatter(q[mask], view.estimate[mask, 0], color=colour, s=8, label=label)
     else:
-        ax.scatter(q, view.estimate[:, 0], c=view.confidence, cmap="viridis", s=8, label="estimate")
+        _by_confidence(ax, q, view.estimate[:, 0], view.confidence, 8)
     ax.set_xlabel("query frame")
     ax.set_ylabel("reference frame")
     ax.legend(fontsize=7)

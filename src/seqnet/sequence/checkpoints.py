@@ -235,7 +235,8 @@ def _as_role(model: SeqNet, role: str, path: str | Path) -> SeqNet:
 class UsedModels(NamedTuple):
     """The checkpoints a command's methods use (:func:`used_models`): the ``--model`` paths, the S_L
     ``--shortlist-model`` and the S_1 ``--rerank-model`` (None when unused or not given), the file names of those
-    it will not load, and the L of an unused S_L (None when none): a command without L takes its windows from it."""
+    it will not load (as given: two ``best.pt`` of different runs stay apart), and the L of an unused S_L (None when
+    none): a command without L takes its windows from it."""
 
     paths: list[str | Path]
     shortlist_model: str | Path | None
@@ -256,14 +257,14 @@ def used_models(by: str, needed: set[str], paths: Sequence[str | Path] = (),
         if role in needed:
             listed.append(path)
             continue
-        unused.append(Path(path).name)
+        unused.append(str(path))
         seq_len = length if role == "seqnet" and seq_len is None else seq_len
     named = {}
     for path, role in ((shortlist_model, "seqnet"), (rerank_model, "s1")):
         if path and role in needed:
             named[role] = path
         elif path:
-            unused.append(Path(path).name)
+            unused.append(str(path))
             if role == "seqnet" and seq_len is None:  # its L only: mapped, not loaded
                 seq_len = model_role(path)[1]
     if unused:

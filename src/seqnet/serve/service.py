@@ -125,7 +125,7 @@ def load_service(conf: LocalizeConfig, map_path: str | Path, models: Sequence[st
     reference, radius, _ = load_reference(map_path, loaded, conf)
     service = Service(conf, reference, radius, Path(map_path).name)
     try:
-        service.describer, service.check_image = map_describer(reference, conf.allow_mismatch, describer)
+        service.describer, service.check_image = map_describer(reference, conf.allow_mismatch, describer, map_path)
     except ConfigError as e:
         service.no_images = str(e).split(";")[0]
         logger.debug("serve: images are refused: %s", service.no_images)

@@ -1,0 +1,115 @@
+"""``seqnet localize --map DS --query IMAGES`` on a dataset reduced by ``--pca D`` (and on its index map): the query
+images are described and reduced by the dataset's own train-split PCA, as its queries were."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+
+import numpy as np
+import pytest
+
+from seqnet.cli import main as cli_main
+
+
+@pytest.fixture(scope="module")
+def pca_dataset(tmp_path_factory):
+    """A Nordland64 dataset of 60 frames reduced to 16 dimensions by a PCA fitted on its train split, the list file
+    of its test query images, and the test queries' indices."""
+    from conftest import shared_data
+
+    data = shared_data("nordland64")
+    root = tmp_path_factory.mktemp("pca")
+    names = [f"images-{i:05d}.png" for i in range(10000, 10600, 10)]
+    for side, season in (("ref", "summer"), ("query", "winter")):
+        (root / f"{side}.txt").write_text("".join(f"{data / season / n}\n" for n in names))
+    (root / "q.txt").write_text("".join(f"{data / 'winter' / n}\n" for n in names[40:]))
+    assert cli_main(["dataset", "from-images", str(root / "ref.txt"), str(root / "query.txt"), "--method", "pixels",
+                     "--patch", "16", "--pca", "16", "--frame-aligned", "--radius", "1", "--split", "train=0:40",
+                     "--split", "test=40:60", "--out", str(root / "ds")]) == 0
+    assert (root / "ds.pca.npz").is_file()
+    return root
+
+
+def _estimates(path):
+    return [int(r["estimate"]) for r in csv.DictReader(path.open())]
+
+
+def _localize(*args):
+    return cli_main(["localize", *map(str, args), "--method", "raw+seqmatch", "--seq-len", "3", "--device", "cpu"])
+
+
+def test_query_images_are_reduced_by_the_datasets_pca(pca_dataset, tmp_path, capsys):
+    from seqnet.data.io import load_dataset
+    from seqnet.describe.pca import PCA
+    from seqnet.localize.config import LocalizeConfig
+    from seqnet.localize.describing import map_describer
+    from seqnet.localize.stream import load_reference
+
+    root = pca_dataset
+    ds = load_dataset(root / "ds")
+    ref, _, _ = load_reference(root / "ds", {}, LocalizeConfig(method="raw+seqmatch", seq_len=3, device="cpu"))
+    d, check = map_describer(ref, False, None, root / "ds")
+    paths = (root / "q.txt").read_text().split()
+    out = d(d.load(paths))
+    check(out, "the test query images")  # their provenance is the dataset's: no error
+    assert out.shape == (20, 16)
+    np.testing.assert_allclose(out, np.asarray(ds.query.descriptors[40:]), atol=1e-5)
+    assert d.pca is not None and np.array_equal(d.pca.components, PCA.load(root / "ds.pca.npz").components)
+
+    replay, streamed = tmp_path / "replay.csv", tmp_path / "streamed.csv"
+    assert _localize("--dataset", root / "ds", "--split", "test", "--out", replay) == 0
+    assert _localize("--map", root / "ds", "--split", "test", "--query", root / "q.txt", "--out", streamed) == 0
+    assert _estimates(streamed) == _estimates(replay)
+    assert cli_main(["index", "build", "--dataset", str(root / "ds"), "--split", "test", "--shortlist", "single",
+                     "--rerank", "raw+seqmatch", "--seq-len", "3", "--window", "causal", "--out",
+                     str(tmp_path / "map")]) == 0
+    from_map = tmp_path / "map.csv"
+    capsys.readouterr()
+    assert _localize("--map", tmp_path / "map", "--query", root / "q.txt", "--out", from_map) == 0, \
+        capsys.readouterr().err
+    assert _estimates(from_map) == _estimates(replay)
+
+
+def test_a_missing_or_foreign_pca_is_refused(pca_dataset, tmp_path, capsys):
+    from seqnet.describe.pca import fit_pca
+
+    ds = tmp_path / "ds"
+    shutil.copytree(pca_dataset / "ds", ds)
+    out = tmp_path / "t.csv"
+    assert _localize("--map", ds, "--query", pca_dataset / "q.txt", "--out", out) == 2
+    err = capsys.readouterr().err
+    assert f"reduced by the PCA in {tmp_path / 'ds.pca.npz'} (--pca), which is missing" in err
+    assert "pca_on" not in err and len(err.strip().splitlines()) == 1
+    fit_pca(np.random.default_rng(0).normal(size=(40, 2048)), 16).save(tmp_path / "ds.pca.npz", tag="other")
+    assert _localize("--map", ds, "--query", pca_dataset / "q.txt", "--out", out) == 2
+    assert "is not the PCA the map's descriptors were reduced with" in capsys.readouterr().err
+    shutil.copy(pca_dataset / "ds.pca.npz", tmp_path / "ds.pca.npz")
+    assert _localize("--map", ds, "--query", pca_dataset / "q.txt", "--out", out) == 0
+
+
+def test_the_advice_for_a_map_with_its_own_fitted_pca_works(pca_dataset, tmp_path, capsys):
+    root = pca_dataset
+    assert cli_main(["dataset", "from-images", str(root / "ref.txt"), str(root / "query.txt"), "--method", "pixels",
+                     "--dim", "8", "--frame-aligned", "--radius", "1", "--out", str(tmp_path / "ds")]) == 0
+    capsys.readouterr()
+    assert _localize("--map", tmp_path / "ds", "--query", root / "q.txt", "--out", tmp_path / "t.csv") == 2
+    err = capsys.readouterr().err
+    advice = "seqnet describe IMAGES --method pixels --dim 8 --fit-on REFERENCE_IMAGES"
+    assert advice in err and "--query FRAMES.npy" in err, err
+    frames = tmp_path / "frames.npy"  # the advice followed: the same PCA refitted on the same reference images
+    assert cli_main(["describe", str(root / "q.txt"), "--method", "pixels", "--dim", "8", "--fit-on",
+                     str(root / "ref.txt"), "--out", str(frames)]) == 0
+    assert _localize("--map", tmp_path / "ds", "--query", frames, "--out", tmp_path / "t.csv") == 0
+
+
+def test_a_dataset_reduced_twice_is_refused(pca_dataset, tmp_path, capsys):
+    from seqnet.pipelines.pca import main as reduce_again
+
+    shutil.copytree(pca_dataset / "ds", tmp_path / "ds")
+    twice = reduce_again(tmp_path / "ds", 8)  # seqnet train --pca 8 on the --pca 16 dataset
+    assert (tmp_path / "ds-pca8.pca.npz").is_file()
+    capsys.readouterr()
+    assert _localize("--map", twice, "--query", pca_dataset / "q.txt", "--out", tmp_path / "t.csv") == 2
+    err = capsys.readouterr().err
+    assert "the map's PCA reduces 16-D descriptors, but its describer (pixels) makes 2048-D ones" in err, err
