@@ -43,8 +43,22 @@ def test_the_query_being_the_reference_is_warned(desc):
     [line] = dataset_warnings(make(desc, desc.copy()))
     assert line.startswith("d: the query images are the reference images (identical descriptors, row for row): "
                            "every metric is trivially perfect")
-    [line] = dataset_warnings(make(desc, desc[[5, 3, 9]]))  # copies, in another order: as trivial
+    at = np.array([5, 3, 9], dtype=float)[:, None]  # copies, in another order, at their own places: as trivial
+    [line] = dataset_warnings(make(desc, desc[[5, 3, 9]], q_pos=at))
     assert "every one of the 3 query descriptors is an exact copy of a reference descriptor" in line
+    assert dataset_warnings(make(desc, desc[[5, 3, 9]], q_pos=at + 0.5)) != []  # within the radius
+    pos = Positives.from_lists([[5], [3], [9]])
+    assert len(dataset_warnings(make(desc, desc[[5, 3, 9]], positives=pos))) == 1
+
+
+def test_copies_elsewhere_on_the_route_are_not_trivial(desc):
+    """A training set that uses each traverse both ways (the benchmark's symmetric training): every query is a
+    reference row too, but far from its place, so nothing is trivially perfect (it was warned)."""
+    ds = make(np.concatenate([desc[:10], desc[10:]]), np.concatenate([desc[10:], desc[:10]]),
+              q_pos=np.arange(20, dtype=float)[:, None])
+    assert dataset_warnings(ds) == []
+    assert dataset_warnings(make(desc, desc[[5, 3, 9]])) == []  # query 0 (place 0) is reference 5's copy
+    assert dataset_warnings(make(desc, desc[[5, 3, 9]], positives=Positives.from_lists([[4], [3], [9]]))) == []
     assert dataset_warnings(make(desc, np.concatenate([desc[[5, 3]], desc[:1] + 1e-3]))) == []
 
 

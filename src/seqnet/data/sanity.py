@@ -99,10 +99,22 @@ def copied_queries(ds: Dataset) -> str | None:
     if ref.shape == qry.shape and _same_rows(ref, qry):
         return ("the query images are the reference images (identical descriptors, row for row): every metric is "
                 "trivially perfect; hint: give the query traverse's own folder")
-    if _copy_of(ref, qry) is not None:
+    copy = _copy_of(ref, qry)
+    if copy is not None and _at_own_place(ds, copy):
         return (f"every one of the {len(qry)} query descriptors is an exact copy of a reference descriptor (the "
                 "same images): every metric is trivially perfect; hint: give the query traverse's own images")
     return None
+
+
+def _at_own_place(ds: Dataset, copy: np.ndarray) -> bool:
+    """Whether each query's copy ``copy [M]`` (a reference index) is a true match of it: a copy elsewhere on the
+    route (a training set that uses each traverse both ways, its sequences far apart) answers nothing."""
+    if ds.positives is not None:
+        return bool(ds.positives.hits(copy[:, None]).all())
+    q, r = np.asarray(ds.query.positions, dtype=np.float64), np.asarray(ds.reference.positions, dtype=np.float64)
+    if q.shape[1:] != r.shape[1:]:
+        return True  # no comparable positions: the copies alone are the evidence
+    return bool((np.linalg.norm(q - r[copy], axis=1) <= ds.radius).all())
 
 
 def _block_rows(row_bytes: int) -> int:
