@@ -186,3 +186,10 @@ def test_route_order_hint_fits_how_positions_were_paired():
     named = out_of_order(shuffled, None, 1.0, "frames", "query", named=True)
     assert "pair them by image name: --ref-names / --query-names" in unnamed
     assert "pair them by image name" not in named and "put the images in route order" in named
+
+
+def test_decimal_commas_get_a_hint(tmp_path):
+    (tmp_path / "p.csv").write_text("name;easting;northing\na.png;500000,5;4000000,25\n")
+    with pytest.raises(DatasetError, match=r"p.csv, line 2: .*got \['500000,5', '4000000,25'\]; hint: write decimal "
+                                           "points, not decimal commas"):
+        read_positions_csv(tmp_path / "p.csv")

@@ -93,8 +93,10 @@ def read_positions_table(path: str | Path) -> PositionsTable:
         except ValueError:
             pos[i] = np.nan
         if not (np.abs(pos[i]) <= POSITION_MAX).all():  # NaN too
+            comma = any("," in r[c] for c in pos_cols)  # a ';'-separated spreadsheet export with decimal commas
             raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
-                               f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}")
+                               f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}"
+                               + ("; hint: write decimal points, not decimal commas" if comma else ""))
     if unit == "degrees":
         check_latlon(pos, str(p), names.lines)
     keys = [r[col["seq"]].strip() for _, r in rows] if "seq" in col else None
