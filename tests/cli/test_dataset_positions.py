@@ -41,6 +41,7 @@ def csvs(tmp_path):
     for side, off in (("r", 0.0), ("q", 3.0)):
         write_positions(tmp_path / f"{side}.csv", side, (e + off, n))
         np.save(tmp_path / f"{side}.npy", rng.random((N, 4)).astype(np.float32))
+        (tmp_path / f"{side}.names.txt").write_text("".join(f"{side}{i}.png\n" for i in range(N)))  # read by name
     write_positions(tmp_path / "q_swapped.csv", "q", (n, e + 3.0))  # easting and northing swapped in the query
     return tmp_path
 

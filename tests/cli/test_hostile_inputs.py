@@ -64,6 +64,8 @@ def base(tmp_path_factory) -> Path:
     np.save(root / "strings.npy", np.array([["a"] * 8] * 4))
     (root / "empty.txt").write_text("")
     (root / "names4.txt").write_text("0.png\n1.png\n2.png\n3.png\n")
+    for stem in ("d4", "d4_16", "zeros", "nan"):  # names beside the .npy, as seqnet describe writes them: rows of
+        (root / f"{stem}.names.txt").write_text("0.png\n1.png\n2.png\n3.png\n")  # ok.csv are paired by name
     (root / "bad_positives.json").write_text('{"not": "a list"}')
     (root / "flags").mkdir()
     return root

@@ -95,7 +95,7 @@ def test_csv_non_numeric_names_line(tmp_path):
 
 
 def test_unmatched_names_are_named():
-    with pytest.raises(DatasetError, match="1 of 2 image names have no descriptor.*'zzz.jpg'"):
+    with pytest.raises(DatasetError, match="1 of 2 image names has no descriptor.*'zzz.jpg'"):
         match_names(["a.jpg", "zzz.jpg"], ["x/a.jpg", "x/b.jpg"], "test")
     assert match_names(["dir/b.png", "a"], ["a.jpg", "b.png"], "t").tolist() == [1, 0]
 
@@ -119,7 +119,11 @@ def test_csv_rows_paired_by_order_are_said(tmp_path, rng, caplog):
     caplog.clear()
     (tmp_path / "names.txt").write_text("a\nb\n")
     t, _ = traverse_from_csv(tmp_path / "r.csv", tmp_path / "r.npy", tmp_path / "names.txt", name="query")
-    assert not any("by order" in r.getMessage() for r in caplog.records) and t.names == ["b", "a"]
+    assert not any("by order" in r.getMessage() for r in caplog.records)
+    # matched by name, the traverse follows the descriptors' order (a, b); the CSV's other order is said
+    assert t.names == ["a", "b"] and t.positions.tolist() == [[3, 4], [1, 2]]
+    assert any("another order than" in r.getMessage() and "line 2, 'b', is descriptor 1" in r.getMessage()
+               for r in caplog.records if r.levelname == "WARNING")
 
 
 def test_parse_utm_name():

@@ -34,6 +34,28 @@ def test_csv_header_it_does_not_understand_is_refused(tmp_path, header):
         read_positives(tmp_path / "p.csv")
 
 
+@pytest.mark.parametrize("sep", ["\t", " ", "  "])
+def test_csv_pairs_separated_by_tabs_or_spaces(tmp_path, sep):
+    """L2: a tab- or space-separated file was read as a header ('header '0\\t3' does not name ...'), now as pairs,
+    with or without a header."""
+    (tmp_path / "p.csv").write_text("\n".join(f"{q}{sep}{r}" for q, r in PAIRS) + "\n")
+    assert _rows(read_positives(tmp_path / "p.csv")) == [[3], [4], [5, 6]]
+    (tmp_path / "h.csv").write_text("\n".join([f"reference{sep}query", *(f"{r}{sep}{q}" for q, r in PAIRS)]) + "\n")
+    assert _rows(read_positives(tmp_path / "h.csv")) == [[3], [4], [5, 6]]
+
+
+@pytest.mark.parametrize("text, match", [
+    ("0|3\n1|4\n", r"p\.csv, line 1: '0\|3' is neither two integers separated by ',', ';', a tab or spaces, nor a "
+                   "header naming"),
+    ("0\t3\n1,4\n", r"p\.csv, line 2: expected 'query,reference' \(two integers\), got '1,4' \(fields separated by "
+                      r"tabs, as on the first line\)"),
+])
+def test_csv_data_line_with_another_separator_is_not_called_a_header(tmp_path, text, match):
+    (tmp_path / "p.csv").write_text(text)
+    with pytest.raises(DatasetError, match=match):
+        read_positives(tmp_path / "p.csv")
+
+
 def test_csv_pairs_imply_the_queries_after_the_last_pair(tmp_path):
     """Pairs list no query without a match: the rows after the last pair are added, empty, for the traverse."""
     (tmp_path / "p.csv").write_text("reference,query\n3,0\n5,2\n")

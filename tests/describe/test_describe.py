@@ -271,3 +271,18 @@ def test_spilled_descriptors_equal_the_held_ones(folder, monkeypatch):
     assert isinstance(spilled, Spilled) and names_s == names
     np.testing.assert_array_equal(np.asarray(spilled), held)
     assert not isinstance(d.describe(paths)[0], Spilled)  # only when asked
+
+
+def test_skipped_images_are_counted_in_the_singular_and_plural(folder, caplog):
+    """'skipped 1 unreadable image(s)' is now 'skipped 1 unreadable image' / 'skipped 2 unreadable images'."""
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    (folder / "f5.png").write_bytes(b"broken")
+    d = make_describer(DescribeConfig(skip_corrupted=True, batch_size=20))
+    d.describe(sorted(folder.iterdir()))
+    assert [r.getMessage().split(":")[0] for r in caplog.records] == ["skipped 1 unreadable image"]
+    caplog.clear()
+    (folder / "f6.png").write_bytes(b"broken")
+    d.describe(sorted(folder.iterdir()))
+    assert [r.getMessage().split(":")[0] for r in caplog.records] == ["skipped 2 unreadable images"]

@@ -69,3 +69,38 @@ def test_mixed_sizes(tmp_path):
     with pytest.raises(ImageError, match=r"b.png has size 12x9"):
         load_images([a, b])
     assert load_images([a, b], size=(6, 4))[0].shape == (2, 4, 6, 3)
+
+
+def test_webp_and_gif_are_images_and_other_files_are_counted(tmp_path, caplog):
+    """.webp and .gif are formats seqnet reads: listed (they were skipped silently); what is left out is said,
+    hidden files (macOS ._* AppleDouble files) among it."""
+    import logging
+
+    caplog.set_level(logging.INFO, logger="seqnet")
+    for name in ("a1.png", "a2.webp", "a3.gif", "a4.PNG"):
+        _save(tmp_path / name)
+    (tmp_path / "notes.txt").write_text("x")
+    (tmp_path / "._a1.png").write_bytes(b"\x00\x05\x16\x07 AppleDouble")  # not an image, though named .png
+    (tmp_path / ".DS_Store").write_bytes(b"\x00")
+    lst = list_images(tmp_path)
+    assert lst.names == ["a1.png", "a2.webp", "a3.gif", "a4.PNG"]
+    imgs, skipped = load_images(lst.paths)
+    assert imgs.shape == (4, 8, 12, 3) and skipped == []
+    said = [r.getMessage() for r in caplog.records if "left out" in r.getMessage()]
+    assert len(said) == 1 and "1 file of other extensions (.txt: 1)" in said[0] and "2 hidden files" in said[0]
+    caplog.clear()
+    (tmp_path / "notes.txt").unlink()
+    for hidden in (tmp_path / "._a1.png", tmp_path / ".DS_Store"):
+        hidden.unlink()
+    list_images(tmp_path)
+    assert not [r for r in caplog.records if "left out" in r.getMessage()]  # nothing left out: nothing said
+
+
+def test_duplicate_line_in_a_list_file_names_both_lines(tmp_path):
+    _save(tmp_path / "x.png")
+    _save(tmp_path / "y.png")
+    lf = tmp_path / "list.txt"
+    lf.write_text("x.png\n# c\ny.png\nx.png\n")
+    with pytest.raises(ImageError, match=r"list.txt, line 4: 'x.png' is listed again \(first on line 1\).*remove "
+                                         r"the duplicate line\)$"):
+        list_images(lf)

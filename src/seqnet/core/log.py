@@ -11,3 +11,8 @@ def ordinal(n: int) -> str:
     """``1st``, ``2nd``, ``3rd``, ``4th``, ``11th``, ``12th``, ``13th``, ``21st`` ... (for messages)."""
     suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
     return f"{n}{suffix}"
+
+
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """``1 image``, ``2 images`` (``plural`` when the noun does not take an ``s``), for messages."""
+    return f"{n} {noun if n == 1 else plural or noun + 's'}"

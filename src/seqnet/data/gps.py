@@ -31,7 +31,7 @@ from ..core.log import logger
 from ..security.inputs import inside
 from ..security.limits import INDEX_MAX
 from ..security.text import shown
-from .convert import read_csv_rows
+from .convert import names_flag, read_csv_rows
 from .readers import read_descriptor_file, read_provenance, read_text
 from .traverse import Traverse
 from .utm import latlon_to_utm
@@ -269,10 +269,10 @@ def check_zones(ref_zone: str, query_zone: str) -> None:
 def traverse_from_log(fmt: str, source: str | Path, desc_path: str | Path, names_file: str | Path | None,
                       name: str, max_gap: float = DEFAULT_MAX_GAP) -> tuple[Traverse, str]:
     """A traverse from a descriptor file (with image names) placed by a position log; also the UTM zone."""
-    desc, names = read_descriptor_file(desc_path, names_file)
+    desc, names = read_descriptor_file(desc_path, names_file, beside=True)
     if names is None:
-        raise DatasetError(f"{desc_path}: no image names to time the images by; give --*-names FILE or an HDF5 "
-                           "file with 'names'")
+        raise DatasetError(f"{desc_path}: no image names to time the images by; give {names_flag(name)} FILE, an "
+                           "HDF5 file with 'names', or a .npy with its names file beside it (FILE.names.txt)")
     xy, zone = log_positions(fmt, source, names, None, max_gap)
     return Traverse(descriptors=desc, positions=xy, names=names, name=name,
                     provenance=read_provenance(desc_path)), zone

@@ -29,7 +29,7 @@ from ..core.errors import ConfigError, DatasetError
 from ..core.provenance import check_same
 from ..security.limits import INDEX_MAX
 from ..security.text import shown
-from .convert import POSITION_MAX, assemble_dataset, match_names, read_csv_rows, runs_to_bounds
+from .convert import POSITION_MAX, assemble_dataset, match_names, names_flag, read_csv_rows, runs_to_bounds
 from .presets import get_preset
 from .readers import read_descriptor_file, read_names, read_provenance
 from .traverse import Dataset, Traverse
@@ -185,16 +185,17 @@ def msls_traverse(folder: Path, desc_path: str | Path, names: str | Path | None,
     images = folder / "images"
     read = {} if read is None else read
     if (desc_path, names) not in read:
-        read[desc_path, names] = (*read_descriptor_file(desc_path, names), read_provenance(desc_path))
+        read[desc_path, names] = (*read_descriptor_file(desc_path, names, beside=True), read_provenance(desc_path))
     desc, desc_names, provenance = read[desc_path, names]
     if desc_names is None:
         if not images.is_dir():
             raise DatasetError(f"{desc_path}: no image names and no {images} folder to take them from; hint: give "
-                               "--*-names FILE or an HDF5 file with 'names'")
+                               f"{names_flag(label)} FILE, an HDF5 file with 'names', or a .npy with its names file "
+                               "beside it (FILE.names.txt)")
         desc_names = read_names(images)
         if len(desc_names) != desc.shape[0]:
             raise DatasetError(f"{desc_path}: {desc.shape[0]} descriptors but {len(desc_names)} images in {images} "
-                               "(names are taken from the folder in sorted order); hint: give --*-names")
+                               f"(names are taken from the folder in sorted order); hint: give {names_flag(label)}")
     idx = match_names(side.keys, desc_names, f"{folder / 'seq_info.csv'} vs {desc_path}")
     city = folder.parent.name
     return Traverse(descriptors=np.asarray(desc[idx]), positions=side.positions,

@@ -37,9 +37,30 @@ LINE_SEPARATORS = frozenset("\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029")
 MAX_TEXT = 1 << 30  # a text file read whole (names, CSV, timestamps)
 
 
+def names_file_for(path: str | Path) -> Path:
+    """The names text file beside a ``.npy`` of descriptors: ``names.txt`` for ``descriptors.npy`` (a traverse
+    directory), else ``<stem>.names.txt`` (what ``seqnet describe --out FILE.npy`` writes)."""
+    p = Path(path)
+    return p.with_name("names.txt") if p.name == "descriptors.npy" else p.with_name(p.stem + ".names.txt")
+
+
+def names_beside(path: str | Path) -> tuple[list[str], str] | None:
+    """The image names of the ``.npy`` ``path`` kept beside it, and where they came from: the names its
+    describe sidecar binds to these descriptors (:func:`bound_names`), else :func:`names_file_for`'s file;
+    None when there are neither (or ``path`` is no ``.npy``)."""
+    p = Path(path)
+    if p.suffix.lower() != ".npy":
+        return None
+    f, bound = names_file_for(p), bound_names(p)
+    if bound is not None:  # the names written with these descriptors (a names file may be a killed run's)
+        return check_names(bound, str(sidecar(p))), str(f if f.is_file() else sidecar(p))
+    return (read_names(f), str(f)) if f.is_file() else None
+
+
 def read_descriptor_file(path: str | Path, names_file: str | Path | None = None,
-                         mmap: bool = True) -> tuple[np.ndarray, list[str] | None]:
-    """Descriptors ``[N, D]`` (native float32) and their image names (HDF5 ``names`` or ``names_file``; else None)."""
+                         mmap: bool = True, beside: bool = False) -> tuple[np.ndarray, list[str] | None]:
+    """Descriptors ``[N, D]`` (native float32) and their image names (HDF5 ``names`` or ``names_file``; with
+    ``beside``, else the names kept beside a ``.npy``: :func:`names_beside`; else None)."""
     p = Path(path)
     if not p.is_file():
         kind = "directory" if p.is_dir() else special_file(p)
@@ -50,10 +71,13 @@ def read_descriptor_file(path: str | Path, names_file: str | Path | None = None,
         raise DatasetError(f"descriptor file {p} must be .npy, .h5 or .hdf5 (got {p.suffix or 'no extension'!r})")
     desc, names = (read_array(p, mmap, "descriptor file", kinds="f"), None) if suffix == ".npy" else _read_h5(p)
     desc = as_float32(desc, p)
+    src: str | Path = f"{p}:names"
     if names_file is not None:
-        names = read_names(names_file)
+        names, src = read_names(names_file), names_file
+    elif names is None and beside and (found := names_beside(p)) is not None:
+        names, src = found
+        logger.debug("%s: image names from %s", p, src)
     if names is not None and len(names) != desc.shape[0]:
-        src = names_file or f"{p}:names"
         raise DatasetError(f"{src}: {len(names)} names for {desc.shape[0]} descriptors in {p} (must be equal)"
                            f"{transposed_hint(len(names), desc)}{_folder_hint(Path(names_file)) if names_file else ''}")
     return desc, names
@@ -193,8 +217,15 @@ def read_names(path: str | Path) -> list[str]:
 
 def read_text(p: Path, what: str = "file") -> str:
     """A UTF-8 text file, opened without blocking (:func:`seqnet.security.inputs.read_text`: a FIFO or device
-    is refused, never read); :class:`DatasetError` naming the byte where it is not UTF-8."""
-    return read_input_text(p, MAX_TEXT, what)
+    is refused, never read); :class:`DatasetError` naming the byte where it is not UTF-8. A byte-order mark
+    (Excel's "CSV UTF-8") is dropped."""
+    return read_input_text(p, MAX_TEXT, what).removeprefix("\ufeff")
+
+
+def field_separator(line: str) -> str | None:
+    """The field separator of a delimited text file, from its first line: the first of ``,``, ``;`` (a spreadsheet
+    in a locale with decimal commas), tab (TSV) the line holds; None when it holds none."""
+    return next((s for s in (",", ";", "\t") if s in line), None)
 
 
 def read_positions_file(f: Path) -> np.ndarray:

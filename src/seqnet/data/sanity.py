@@ -85,7 +85,7 @@ def route_order(ds: Dataset) -> list[str]:
     its positions are frame numbers: :func:`real_positions`)."""
     if not real_positions(ds):
         return []
-    found = [out_of_order(t.positions, t.seq_bounds, ds.radius, ds.position_unit, side)
+    found = [out_of_order(t.positions, t.seq_bounds, ds.radius, ds.position_unit, side, t.names is not None)
              for side, t in (("query", ds.query), ("reference", ds.reference))]
     return [line for line in found if line]
 

@@ -45,10 +45,11 @@ def spacing(positions: np.ndarray, samples: int = 200, pool: int = POOL) -> floa
 
 
 def out_of_order(positions: np.ndarray, bounds: np.ndarray | None, radius: float, unit: str,
-                 side: str) -> str | None:
+                 side: str, named: bool = False) -> str | None:
     """Why the ``side`` traverse's rows may not be in route order: most consecutive steps (within a sequence)
     are longer than :data:`FAR_RADII` radii and :data:`FAR_SPACING` times the route's own spacing
-    (:func:`spacing`); None otherwise (or with fewer than 10 steps)."""
+    (:func:`spacing`); None otherwise (or with fewer than 10 steps). ``named``: the frames have image names
+    (positions were matched to them by name: the hint is then about the images' order, not the pairing)."""
     s = steps(positions, bounds)
     if len(s) < 10:
         return None
@@ -59,7 +60,11 @@ def out_of_order(positions: np.ndarray, bounds: np.ndarray | None, radius: float
     return (f"{far:.0%} of the {side}'s consecutive frames lie far apart (median step {np.median(s):g} {unit} "
             f"against a radius of {radius:g} and a spacing of {own:g} between neighbouring positions): its rows "
             "may not be in route order, or not paired with the right descriptors; sequence methods assume frames "
-            "in route order (hint: sort the rows by time, or pair them by image name)")
+            "in route order " + (
+                "(hint: the frames follow their images' order, the folder's natural sort, a list file's lines or the "
+                "descriptor file's rows, and positions were matched to them by name: put the images in route order, "
+                "with a list file or names that sort in route order)" if named else
+                "(hint: sort the rows by time, or pair them by image name: --ref-names / --query-names)"))
 
 
 def step_rates(query: np.ndarray, q_bounds: np.ndarray | None, reference: np.ndarray,

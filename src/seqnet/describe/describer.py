@@ -10,7 +10,7 @@ import numpy as np
 
 from ..core.devices import get_device
 from ..core.errors import ConfigError, ImageError
-from ..core.log import logger
+from ..core.log import counted, logger
 from ..core.memmaps import RowsOut
 from ..core.progress import progress
 from ..security.pictures import size_mismatch
@@ -180,7 +180,7 @@ def run_batches(paths: Sequence[ImageRef], d: Describer, todo: np.ndarray, sink:
         keep = np.delete(b, skipped)
         if skipped:
             bad = ", ".join(str(paths[b[i]]) for i in skipped)
-            logger.warning("skipped %d unreadable image(s): %s", len(skipped), bad)
+            logger.warning("skipped %s: %s", counted(len(skipped), "unreadable image"), bad)
             sink(b[skipped], None)
         if len(keep):
             if shape is not None and imgs.shape[1:] != shape:

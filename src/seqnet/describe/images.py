@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
-from ..core.log import logger
+from ..core.log import counted, logger
 from ..data.readers import check_names
 from ..security.inputs import read_text, special_file
 from ..security.pictures import decode, read_image, size_mismatch
@@ -29,7 +29,10 @@ from ..security.text import shown
 if TYPE_CHECKING:
     from ..sources.bags.positions import Positions
 
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
+# the file extensions of the formats seqnet reads (seqnet.security.pictures.FORMATS; PPM: also PGM and PBM). Wider
+# than seqnet.data.imagefolders.IMAGE_EXTENSIONS, which is VPR-methods-evaluation's rule for which files its
+# descriptor rows are (.jpg/.jpeg/.png), followed there to pair rows with images, not to read them.
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".pbm", ".tif", ".tiff", ".webp", ".gif")
 MAX_LIST = 1 << 30  # bytes of an image list file
 MAX_SIDE = 8192  # largest accepted resize width or height (and image size stored in a checkpoint)
 
@@ -109,7 +112,9 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
             raise ConfigError(f"{flag} {value} goes with a ROS bag (a .bag file or a ROS 2 bag directory), but {src} "
                               "is not one")
     if src.is_dir():
-        files = [p for p in src.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
+        entries = list(src.iterdir())
+        files = [p for p in entries if p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith(".")]
+        _say_left_out(src, [p for p in entries if p.suffix.lower() not in IMAGE_EXTENSIONS or p.name.startswith(".")])
         odd = next((p for p in files if not p.is_file()), None)
         if odd is not None:  # left out, it would shift every frame after it (frame-aligned ground truth)
             kind = special_file(odd) or ("broken link" if odd.is_symlink() else "directory")
@@ -127,6 +132,24 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
     raise ImageError(f"image folder or list file not found: {src}")
 
 
+def _say_left_out(src: Path, others: list[Path]) -> None:
+    """Say (INFO) what of the folder ``src`` is not taken as an image: hidden files (macOS ``._*`` AppleDouble
+    files, ``.DS_Store``), sub-folders and files of other extensions, counted by kind."""
+    if not others:
+        return
+    hidden = sum(p.name.startswith(".") for p in others)
+    folders = sum(p.is_dir() and not p.name.startswith(".") for p in others)
+    kinds: dict[str, int] = {}
+    for p in others:
+        if not p.name.startswith(".") and not p.is_dir():
+            kinds[p.suffix.lower() or "no extension"] = kinds.get(p.suffix.lower() or "no extension", 0) + 1
+    parts = ([f"{counted(sum(kinds.values()), 'file')} of other extensions ("
+              + ", ".join(f"{k}: {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])[:5]) + ")"]
+             if kinds else []) + ([counted(hidden, "hidden file")] if hidden else []) + \
+        ([counted(folders, "sub-folder")] if folders else [])
+    logger.info("%s: left out %s (images are %s files)", src, ", ".join(parts), " ".join(IMAGE_EXTENSIONS))
+
+
 def _read_list_file(src: Path) -> ImageList:
     if src.suffix.lower() in IMAGE_EXTENSIONS:
         return ImageList(paths=[src], names=[src.name])
@@ -136,9 +159,16 @@ def _read_list_file(src: Path) -> ImageList:
         if "not UTF-8" not in str(err):
             raise
         raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths ({err})") from err
-    names = [s.strip() for s in lines if s.strip() and not s.strip().startswith("#")]
-    if not names:
+    listed = [(n, s.strip()) for n, s in enumerate(lines, start=1) if s.strip() and not s.strip().startswith("#")]
+    if not listed:
         raise ImageError(f"list file {src} names no images (expected one image path per line)")
+    first: dict[str, int] = {}
+    for n, name in listed:
+        if name in first:
+            raise ImageError(f"{src}, line {n}: '{shown(name)}' is listed again (first on line {first[name]}); each "
+                             "image is listed once (hint: remove the duplicate line)")
+        first[name] = n
+    names = [name for _, name in listed]
     paths = [Path(n) if Path(n).is_absolute() else src.parent / n for n in names]
     return ImageList(paths=paths, names=_checked(names, src))
 

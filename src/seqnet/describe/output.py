@@ -14,7 +14,6 @@ for other tools follows the descriptors. Sidecars that seqnet did not write are 
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -26,17 +25,12 @@ from ..core.memory import HDF5_OVERHEAD, check_space
 from ..core.npy import write_npy_rows
 from ..core.provenance import BOUND_KEY, MAX_SIDECAR, REPLACES_KEY
 from ..core.provenance import sidecar as provenance_sidecar
+from ..data.readers import names_file_for  # the one rule, also the converters' (names beside a .npy)
 from ..security.digests import file_digest
 from ..security.files import atomic_path, write_json_atomic, write_text_atomic
 from ..security.jsonfile import read_json
 
 OUT_SUFFIXES = (".h5", ".hdf5", ".npy")
-
-
-def names_file_for(out: str | os.PathLike[str]) -> Path:
-    """The names text file written beside a ``.npy`` output."""
-    out = Path(out)
-    return out.with_name("names.txt") if out.name == "descriptors.npy" else out.with_name(out.stem + ".names.txt")
 
 
 def check_sidecars(out: Path, overwrite: bool = False) -> None:

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..core.config import Config, check_choice, check_float, check_int
 from ..core.errors import ConfigError, ImageError
-from ..core.log import logger
+from ..core.log import counted, logger
 from ..data.convert import assemble_dataset
 from ..data.gps import DEFAULT_MAX_GAP, POSITIONS_FORMATS
 from ..data.io import save_dataset
@@ -184,7 +184,8 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
             a, b = rng[side]
             desc[side], got = describer.describe(side_images.paths[a:b], side_images.names[a:b])
             if len(got) != b - a:
-                raise ImageError(f"{b - a - len(got)} val {side} images could not be read: fix or remove them")
+                raise ImageError(f"{counted(b - a - len(got), f'val {side} image')} could not be read: fix or "
+                                 "remove them")
         described = dataclasses.replace(val, reference=val.reference.with_descriptors(desc["reference"]),
                                         query=val.query.with_descriptors(desc["query"]))
         return proxy_scores(described, PROXY_SEQ_LEN, dconf.device, t0=t0)
@@ -261,8 +262,9 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
             desc[side], got = describer.describe(side_images.paths, side_images.names, spill=True)  # large: spilled
             if len(got) != len(side_images):
                 missing = sorted(set(side_images.names) - set(got))
-                raise ImageError(f"{len(missing)} {side} images could not be read (first: {missing[0]}); their "
-                                 "ground truth would no longer line up: fix or remove them, then run again")
+                raise ImageError(f"{counted(len(missing), side + ' image')} could not be read (first: "
+                                 f"{missing[0]}); their ground truth would no longer line up: fix or remove them, "
+                                 "then run again")
         prov = describe_provenance(describer.config, fit, desc["reference"])
         ds = assemble_dataset(
             Traverse(desc["reference"], pos_r, ref.names, bounds_r, "reference", prov),

@@ -15,7 +15,7 @@ from ...security.arrays import is_npy, read_header, read_npy, read_npz
 from ...security.inputs import open_input
 from ...security.jsonfile import parse_json
 from ...security.limits import INDEX_MAX
-from ..readers import read_text
+from ..readers import field_separator, read_text
 from .csr import Positives
 
 INTEGER = re.compile(r"-?[0-9]{1,19}")  # an index of a text file: ASCII digits ("²".isdigit() is True)
@@ -63,21 +63,30 @@ def csv_columns(fields: list[str], where: str) -> tuple[int, int]:
 
 
 def _read_csv(p: Path) -> Positives:
-    """``query,reference`` pairs (``;`` also separates; reference -1: the query has no match), gathered into CSR
+    """``query,reference`` pairs (``;`` also separates; a file whose first line has neither: tabs or spaces,
+    :func:`seqnet.data.readers.field_separator`; reference -1: the query has no match), gathered into CSR
     at once (:meth:`Positives.from_pairs`). A first line that is no pair is a header naming the two columns, in
     either order (:func:`csv_columns`). The number of queries is bounded by the file: a query index beyond
     :func:`query_bound` of its pairs is refused."""
     queries, refs, (qc, rc), order = [], [], (0, 1), "query,reference"
-    for n, line in enumerate(read_text(p, "positives file").splitlines(), start=1):
-        fields = [f.strip() for f in line.replace(";", ",").split(",")]
+    lines = read_text(p, "positives file").splitlines()  # (a byte-order mark dropped)
+    sep = field_separator(next((line for line in lines if line.strip()), ""))
+    split, between = ((lambda line: line.replace(";", ",").split(","), "',' or ';'") if sep in (",", ";") else
+                      ((lambda line: line.split("\t")), "tabs") if sep == "\t" else (str.split, "spaces"))
+    for n, line in enumerate(lines, start=1):
+        fields = [f.strip() for f in split(line)]
         if not line.strip():
             continue
         if n == 1 and not INTEGER.fullmatch(fields[0]):
+            if re.match(r"-?[0-9]", fields[0]):  # data, not a header: its separator is not one seqnet reads
+                raise DatasetError(f"{p}, line 1: {line[:80]!r} is neither two integers separated by ',', ';', a tab "
+                                   "or spaces, nor a header naming the query and reference columns")
             qc, rc = csv_columns(fields, f"{p}, line 1")
             order = "reference,query" if qc else order
             continue
         if len(fields) != 2 or not all(INTEGER.fullmatch(f) for f in fields):
-            raise DatasetError(f"{p}, line {n}: expected '{order}' (two integers), got {line[:80]!r}")
+            raise DatasetError(f"{p}, line {n}: expected '{order}' (two integers), got {line[:80]!r} (fields "
+                               f"separated by {between}, as on the first line)")
         q, r = int(fields[qc]), int(fields[rc])
         for value, what, low in ((q, "query", 0), (r, "reference", -1)):
             if not low <= value <= INDEX_MAX:

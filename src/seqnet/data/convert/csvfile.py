@@ -1,0 +1,189 @@
+"""Positions CSV files: an image-name column, position columns, an optional sequence column.
+
+The header names an image column (one of :data:`NAME_COLUMNS`) and either easting/northing columns
+(metres), lat/lon columns (unit ``degrees``) or a frame column (frames); fields are separated by ``,``, ``;``
+or a tab (:func:`seqnet.data.readers.field_separator`, as the positives reader), and a UTF-8 byte-order mark is
+dropped. An optional sequence column gives sequence bounds: each run of consecutive rows with the same key
+is one sequence (:func:`sequence_bounds`, which warns when a key comes back after other keys' rows, or when
+every sequence is shorter than the default sequence length).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+from pathlib import Path
+
+import numpy as np
+
+from ...core.errors import DatasetError
+from ...core.log import counted, logger
+from ...security.limits import POSITION_MAX
+from ..readers import check_names, field_separator, read_text
+from ..utm import check_latlon
+from .names import CsvNames
+
+NAME_COLUMNS = ("name", "image", "image_name", "filename", "file", "path", "key", "image_key")
+EAST_COLUMNS = ("easting", "east", "utm_east", "utm_easting", "x")
+NORTH_COLUMNS = ("northing", "north", "utm_north", "utm_northing", "y")
+LAT_COLUMNS = ("lat", "latitude")
+LON_COLUMNS = ("lon", "lng", "longitude")
+FRAME_COLUMNS = ("frame", "frame_number", "frame_id", "frame_index")
+SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
+SHORT_SEQUENCE = 5  # the default sequence length L (seqnet.sequence.windows.DEFAULT_SEQ_LEN; a test keeps them equal)
+
+
+def read_csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    """The lower-cased header and the non-blank data rows ``(line number, fields)`` of a UTF-8 CSV file
+    (fields separated by ``,``, ``;`` or a tab, as its first line is)."""
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError(f"CSV file not found: {p}")
+    text = read_text(p, "CSV file")  # a FIFO or device is refused, never read; a byte-order mark dropped
+    first = next((line for line in text.splitlines() if line.strip()), "")
+    try:
+        reader = csv.reader(io.StringIO(text, newline=""), delimiter=field_separator(first) or ",")
+        rows = [(n, r) for n, r in enumerate(reader, start=1)]
+    except csv.Error as e:
+        raise DatasetError(f"{p}: not a valid CSV file ({' '.join(str(e).split())[:200]})") from e
+    rows = [(n, r) for n, r in rows if r and any(c.strip() for c in r)]
+    if len(rows) < 2:
+        raise DatasetError(f"{p}: needs a header row and at least one data row")
+    return [h.strip().lower() for h in rows[0][1]], rows[1:]
+
+
+@dataclasses.dataclass
+class PositionsTable:
+    """A positions CSV as read: names (with their lines), ``positions [N, P]``, their unit, and the sequence
+    column's keys (None without one) and name."""
+
+    names: CsvNames
+    positions: np.ndarray
+    unit: str
+    keys: list[str] | None
+    column: str | None
+
+
+def read_positions_table(path: str | Path) -> PositionsTable:
+    """Read a positions CSV (module docstring). A row with too few fields, a non-numeric position or a
+    repeated image name is an error naming its line; lat/lon are checked in range
+    (:func:`seqnet.data.utm.latlon_pair` makes them metres)."""
+    p = Path(path)
+    header, rows = read_csv_rows(p)
+    col = _find_columns(header, p)
+    for line, r in rows:
+        if len(r) <= max(col.values()):
+            raise DatasetError(f"{p}, line {line}: {len(r)} fields, but the header has {len(header)} "
+                               f"(columns {header})")
+    names = CsvNames([r[col["name"]].strip() for _, r in rows], p, [line for line, _ in rows])
+    first_line: dict[str, int] = {}
+    for line, name in zip(names.lines, names, strict=True):
+        if name in first_line:
+            raise DatasetError(f"{p}: image name {name!r} appears on lines {first_line[name]} and {line}; each image "
+                               "must have one position (hint: remove the duplicate row)")
+        first_line[name] = line
+    check_names(names, f"{p} (column {header[col['name']]!r})")
+    unit = "metres" if "east" in col else "degrees" if "lat" in col else "frames"
+    pos_cols = [col[c] for c in {"metres": ["east", "north"], "degrees": ["lat", "lon"], "frames": ["frame"]}[unit]]
+    pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
+    for i, (line, r) in enumerate(rows):
+        try:
+            pos[i] = [float(r[c]) for c in pos_cols]
+        except ValueError:
+            pos[i] = np.nan
+        if not (np.abs(pos[i]) <= POSITION_MAX).all():  # NaN too
+            comma = any("," in r[c] for c in pos_cols)  # a ';'-separated spreadsheet export with decimal commas
+            raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
+                               f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}"
+                               + ("; hint: write decimal points, not decimal commas" if comma else ""))
+    if unit == "degrees":
+        check_latlon(pos, str(p), names.lines)
+    keys = [r[col["seq"]].strip() for _, r in rows] if "seq" in col else None
+    return PositionsTable(names, pos, unit, keys, f"{p} (column {header[col['seq']]!r})" if "seq" in col else None)
+
+
+def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np.ndarray | None]:
+    """Read a positions CSV: ``(names, positions [N, P], unit, seq_bounds [N, 2] or None)``, rows in the file's
+    order (:func:`read_positions_table`; ``names`` is a :class:`CsvNames` that knows each name's line; the
+    bounds: :func:`sequence_bounds` of the sequence column)."""
+    t = read_positions_table(path)
+    bounds = None if t.keys is None else sequence_bounds(t.keys, str(t.column))
+    return t.names, t.positions, t.unit, bounds
+
+
+def _find_columns(header: list[str], p: Path) -> dict[str, int]:
+    def first(options: tuple[str, ...]) -> int | None:
+        return next((header.index(o) for o in options if o in header), None)
+
+    col = {k: i for k, i in (("name", first(NAME_COLUMNS)), ("east", first(EAST_COLUMNS)),
+                             ("north", first(NORTH_COLUMNS)), ("frame", first(FRAME_COLUMNS)),
+                             ("lat", first(LAT_COLUMNS)), ("lon", first(LON_COLUMNS)),
+                             ("seq", first(SEQUENCE_COLUMNS))) if i is not None}
+    if "name" not in col:
+        spaced = len(header) == 1 and len(header[0].split()) > 1
+        raise DatasetError(f"{p}: header {header} has no image-name column; valid: {', '.join(NAME_COLUMNS)}"
+                           + ("; fields are separated by ',', ';' or a tab, not spaces" if spaced else ""))
+    pairs = [("east" in col, "north" in col), ("lat" in col, "lon" in col)]
+    if any(a != b for a, b in pairs) or not (any(a for a, _ in pairs) or "frame" in col):
+        raise DatasetError(f"{p}: header {header} needs easting and northing columns ({'/'.join(EAST_COLUMNS)}, "
+                           f"{'/'.join(NORTH_COLUMNS)}), lat and lon columns ({'/'.join(LAT_COLUMNS)}, "
+                           f"{'/'.join(LON_COLUMNS)}; degrees) or a frame column ({'/'.join(FRAME_COLUMNS)})")
+    drop = ("frame", "lat", "lon") if "east" in col else ("frame",) if "lat" in col else ()
+    return {k: i for k, i in col.items() if k not in drop}
+
+
+def runs_to_bounds(keys: list[str]) -> np.ndarray:
+    """``[N, 2]`` half-open range of the run of equal consecutive keys each row belongs to."""
+    n = len(keys)
+    starts = [0] + [i for i in range(1, n) if keys[i] != keys[i - 1]]
+    ends = starts[1:] + [n]
+    out = np.empty((n, 2), dtype=np.int64)
+    for a, b in zip(starts, ends, strict=True):
+        out[a:b] = (a, b)
+    return out
+
+
+def sequence_bounds(keys: list[str], where: str) -> np.ndarray:
+    """:func:`runs_to_bounds` of a sequence column's ``keys`` (in route order), with a warning naming the
+    column ``where`` when a key occurs in more than one run of rows (rows of sequences interleaved, or a
+    column that is no sequence id, such as a camera id: each run becomes its own sequence) and when every
+    sequence is shorter than :data:`SHORT_SEQUENCE` frames (sequence methods then have no full window at the
+    default sequence length)."""
+    bounds = runs_to_bounds(keys)
+    starts = np.unique(bounds[:, 0])
+    lengths = bounds[starts, 1] - starts
+    runs: dict[str, int] = {}
+    for s in starts:
+        runs[keys[s]] = runs.get(keys[s], 0) + 1
+    split = [k for k, c in runs.items() if c > 1]
+    if split:
+        logger.warning("%s: sequence id %r occurs in %d separate runs of rows (%s); each run of consecutive rows "
+                       "is one sequence, so the %s form %s (median length %g); hint: sort the rows so that each "
+                       "sequence's rows are together, or drop the column if it is not a sequence id (a camera id?)",
+                       where, split[0], runs[split[0]], f"{counted(len(split), 'id')} of {len(runs)} do so",
+                       counted(len(keys), "row"), counted(len(starts), "sequence"), float(np.median(lengths)))
+    if len(keys) >= SHORT_SEQUENCE and lengths.max() < SHORT_SEQUENCE:
+        logger.warning("%s: every sequence is shorter than %d frames (the longest has %d), the default sequence "
+                       "length L; sequence methods need --seq-len at most %d, or longer sequences", where,
+                       SHORT_SEQUENCE, int(lengths.max()), int(lengths.max()))
+    return bounds
+
+
+def read_seq_bounds(path: str | Path, n: int | None = None) -> np.ndarray:
+    """Sequence bounds file (one ``start end`` row per image, half-open) as ``[N, 2]`` int64."""
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError(f"sequence bounds file not found: {p}")
+    rows = [ln for ln in read_text(p, "sequence bounds file").splitlines() if ln.split("#")[0].strip()]
+    if not rows:  # (loadtxt would warn, then return nothing)
+        raise DatasetError(f"{p}: holds no sequence bounds (the file is empty)")
+    try:
+        b = np.loadtxt(rows, dtype=np.int64, ndmin=2)
+    except (ValueError, OverflowError) as e:
+        raise DatasetError(f"{p}: expected one 'start end' row of integers per image ({str(e)[:160]})") from e
+    if b.shape[1] != 2:
+        raise DatasetError(f"{p}: expected 2 columns (start end), got {b.shape[1]}")
+    if n is not None and len(b) != n:
+        raise DatasetError(f"{p}: {len(b)} sequence-bound rows for {n} images (must be one row per image)")
+    return b
