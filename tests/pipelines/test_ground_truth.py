@@ -49,3 +49,21 @@ def test_few_matches_warn_once_and_empty_positives_are_refused(caplog):
     empty = Positives.from_lists([[] for _ in range(30)])
     with pytest.raises(DatasetError, match="none of the 30 queries has an explicit positive.*check the positives"):
         check_true_matches(dataset(ROUTE, ROUTE, 5.0, empty))
+
+
+def test_a_sequence_column_follows_the_images_order_not_the_csvs(tmp_path):
+    """A positions CSV listed in another order than the images (here reversed): each image gets its own row's
+    position and its sequence is the run of equal ids in the images' order (it indexed the CSV-order bounds by
+    image position: 'seq_bounds[0] = [3, 6] does not contain image 0')."""
+    from types import SimpleNamespace
+
+    from seqnet.pipelines.ground_truth import _csv_positions
+
+    names = [f"f{i}.png" for i in range(6)]
+    seqs = ["a", "a", "a", "b", "b", "b"]
+    csv = tmp_path / "pos.csv"
+    csv.write_text("name,frame,sequence\n" + "".join(f"{names[i]},{i},{seqs[i]}\n" for i in reversed(range(6))))
+    pos, bounds, unit, _ = _csv_positions(SimpleNamespace(positions_format="csv"), SimpleNamespace(names=names),
+                                          tmp_path, csv, "reference")
+    assert unit == "frames" and pos[:, 0].tolist() == list(range(6))
+    assert bounds.tolist() == [[0, 3]] * 3 + [[3, 6]] * 3

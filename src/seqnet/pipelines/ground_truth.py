@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.log import logger
-from ..data.convert import match_names, read_positions_csv
+from ..data.convert import match_names, read_positions_table, sequence_bounds
 from ..data.gps import check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
@@ -32,9 +32,10 @@ def _csv_positions(conf: Any, images: ImageList, source: str | Path, given: str 
     if conf.positions_format != "csv":  # a drive's position log (RobotCar ins.csv, KITTI oxts)
         xy, zone = log_positions(conf.positions_format, given, images.names, list(images.paths), conf.max_time_gap)
         return xy, None, "metres", f"UTM zone {zone}"
-    names, pos, unit, bounds = read_positions_csv(given)
-    idx = match_names(images.names, names, f"{given} vs the {side} images")
-    return pos[idx], None if bounds is None else bounds[idx], unit, None
+    table = read_positions_table(given)
+    idx = match_names(images.names, table.names, f"{given} vs the {side} images")  # each image's CSV row
+    bounds = None if table.keys is None else sequence_bounds([table.keys[i] for i in idx], str(table.column))
+    return table.positions[idx], bounds, table.unit, None  # sequences: runs of the images' order, as the positions
 
 
 def _bag_positions(conf: Any, images: ImageList, source: str | Path, given: str | Path | None,
