@@ -109,7 +109,7 @@ def test_fit_sets(folder, tmp_path):
     (tmp_path / "fit.txt").write_text("imgs/f1.png\nimgs/f2.png\n")
     assert [p.name for p in fit_paths_of(DescribeConfig(fit=tmp_path / "fit.txt"), paths)] == ["f1.png", "f2.png"]
     assert DescribeConfig(fit=paths[:2]).fit == (str(paths[0]), str(paths[1]))
-    with pytest.raises(ConfigError, match=r"dims=3 must be between 1 and min\(N, D\) = min\(2, 512\)"):
+    with pytest.raises(ConfigError, match=r"--dim 3: the PCA is fitted on 2 images, .* at most 1 axes"):
         describe_images(paths, DescribeConfig(dim=3, fit=2))
 
 

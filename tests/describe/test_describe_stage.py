@@ -239,3 +239,13 @@ def test_output_copied_in_blocks_equals_one_written_at_once(folder, tmp_path, su
     if suffix == ".npy":
         assert isinstance(blocks, np.memmap)  # the output read back mapped, not held
         assert (tmp_path / "a.npy").read_bytes() == (tmp_path / "b.npy").read_bytes()
+
+
+def test_dim_as_large_as_the_fit_images_is_refused(folder, tmp_path, capsys):
+    assert describe(folder, "--method", "pixels", "--dim", "5", "--fit-on", "5", "--out", tmp_path / "p.npy") == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line or "Traceback" in line]
+    assert len(err) == 1 and "--dim 5: the PCA is fitted on 5 images, and a PCA fitted on them has at most 4 axes" \
+        in err[0] and "Traceback" not in err[0], err
+    assert not (tmp_path / "p.npy").exists()
+    assert describe(folder, "--method", "pixels", "--dim", "4", "--fit-on", "5", "--out", tmp_path / "p.npy") == 0
+    assert np.load(tmp_path / "p.npy").shape == (10, 4)

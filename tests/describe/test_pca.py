@@ -39,8 +39,12 @@ def test_unwhitened_full_rank_preserves_distances(rng):
 
 
 def test_errors(tmp_path, rng):
-    with pytest.raises(ConfigError, match=r"dims=20 .*min\(10, 8\)"):
+    with pytest.raises(ConfigError, match=r"--dim 20: the PCA is fitted on 10 images, .* at most 9 axes"):
         fit_pca(rng.normal(size=(10, 8)), dims=20)
+    with pytest.raises(ConfigError, match=r"--dim 9: a PCA of 8-D descriptors keeps between 1 and 8 dimensions"):
+        fit_pca(rng.normal(size=(20, 8)), dims=9)
+    with pytest.raises(ConfigError, match=r"--dim 0: .* between 1 and 8"):
+        fit_pca(rng.normal(size=(20, 8)), dims=0)
     pca = fit_pca(rng.normal(size=(10, 8)), dims=2)
     with pytest.raises(ConfigError, match=r"\[N, 8\]"):
         pca.transform(np.zeros((3, 7)))
@@ -59,3 +63,28 @@ def test_provenance_tag(tmp_path, rng):
     assert read_tag(tagged) == '{"output": "ref.h5"}' and PCA.load(tagged).dims == 2
     (tmp_path / "user.npz").write_text("my pca\n")
     assert read_tag(tmp_path / "user.npz") is None and read_tag(tmp_path / "missing.npz") is None
+
+
+def test_n_rows_span_at_most_n_minus_1_axes(rng):
+    x = rng.normal(size=(6, 50))
+    with pytest.raises(ConfigError) as e:  # 6 centred rows: rank 5, a 6th axis would be noise of the SVD
+        fit_pca(x, dims=6)
+    assert str(e.value) == ("--dim 6: the PCA is fitted on 6 images, and a PCA fitted on them has at most 5 axes "
+                            "(N images centred on their mean span N - 1) (hint: --dim 2 or more images to fit it on "
+                            "(--fit-on))")
+    assert np.linalg.matrix_rank(x - x.mean(axis=0)) == 5
+    pca = fit_pca(x, dims=5)
+    np.testing.assert_allclose(pca.components @ pca.components.T, np.eye(5), atol=1e-5)
+    assert fit_pca(rng.normal(size=(9, 8)), dims=8).dims == 8  # N - 1 = D: every axis
+
+
+def test_the_dataset_pca_check_shares_the_message():
+    from seqnet.describe.pca import check_fit_rows
+    from seqnet.pipelines.pca import check_fit_frames
+
+    with pytest.raises(ConfigError) as e:
+        check_fit_frames(14, 14)
+    assert str(e.value) == ("--pca 14: the 'train' split has 14 frames, and a PCA fitted on them has at most 13 axes "
+                            "(N frames centred on their mean span N - 1) (hint: --pca 6 or a larger train split)")
+    check_fit_frames(13, 14)
+    check_fit_rows(3, 4, "--dim", "x", "y")

@@ -100,3 +100,45 @@ def test_results_json_keeps_the_warnings(tmp_path, caplog):
     for start in expected:
         assert sum(w.startswith(start) for w in warnings) == 1, (start, warnings)
         assert any(r.getMessage().startswith(start) for r in caplog.records), start
+
+
+def test_the_checkpoint_alone_says_which_queries_chose_its_epoch(synth_dataset, synth_dir, tmp_path):
+    alone = tmp_path / "copied" / "best.pt"  # no run directory, no config.json beside it
+    record = {"dataset": str(synth_dir), "split": "train", "checkpoint": str(alone), "val_split": "test"}
+    a, b = synth_dataset.ranges("test")["query"]
+    model = SimpleNamespace(trained_on={**record, "val_queries": [a, a + 5]})  # the range recorded at training
+    said = selection_leakage({"s1": model}, synth_dir, synth_dataset, "test")
+    assert len(said) == 1 and f"5 of the {b - a} evaluated queries" in said[0] and f"('test', {a}:{a + 5})" in said[0]
+    model = SimpleNamespace(trained_on=record)  # written before the range was recorded: the dataset's split
+    assert f"('test', {a}:{b})" in selection_leakage({"s1": model}, synth_dir, synth_dataset, "test")[0]
+    run = tmp_path / "copied"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"dataset_path": str(synth_dir), "val_split": "test"}))
+    model = SimpleNamespace(trained_on={**record, "val_split": "none", "val_queries": None})  # not validated
+    assert selection_leakage({"s1": model}, synth_dir, synth_dataset, "test") == []
+
+
+def test_a_trained_checkpoint_copied_alone_still_warns(tmp_path, caplog):
+    import shutil
+
+    from seqnet.cli import main as cli_main
+    from seqnet.sequence.checkpoints import load_model
+
+    ds = make_synthetic(places=200, dim=8)
+    data = save_dataset(ds, tmp_path / "ds")
+    assert cli_main(["-q", "--threads", "1", "train", "--dataset", str(data), "--seq-len", "1", "--val-split", "test",
+                     "--out", str(tmp_path / "run"), "--epochs", "1", "--out-dims", "8", "--n-neg-sample", "50",
+                     "--cache-refresh", "40", "--device", "cpu"]) == 0
+    (tmp_path / "elsewhere").mkdir()
+    copy = tmp_path / "elsewhere" / "s1.pt"
+    shutil.copy(tmp_path / "run" / "best.pt", copy)
+    shutil.rmtree(tmp_path / "run")
+    t = load_model(copy).trained_on
+    assert t["val_split"] == "test" and t["val_queries"] == list(ds.ranges("test")["query"]), t
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        assert cli_main(["eval", "--dataset", str(data), "--model", str(copy), "--method", "single,s1",
+                         "--json", str(tmp_path / "r.json")]) == 0
+    said = [r.getMessage() for r in caplog.records]
+    assert any(f"are queries the S_1 model {copy} chose its epoch on ('test'" in s for s in said), said
+    assert any("chose its epoch on" in w for w in json.loads((tmp_path / "r.json").read_text())["warnings"])

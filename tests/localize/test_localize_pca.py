@@ -113,3 +113,83 @@ def test_a_dataset_reduced_twice_is_refused(pca_dataset, tmp_path, capsys):
     assert _localize("--map", twice, "--query", pca_dataset / "q.txt", "--out", tmp_path / "t.csv") == 2
     err = capsys.readouterr().err
     assert "the map's PCA reduces 16-D descriptors, but its describer (pixels) makes 2048-D ones" in err, err
+
+
+def _build_map(ds, out):
+    return cli_main(["index", "build", "--dataset", str(ds), "--split", "test", "--shortlist", "single", "--rerank",
+                     "raw+seqmatch", "--seq-len", "3", "--window", "causal", "--out", str(out)])
+
+
+def test_a_map_carries_its_datasets_pca_and_takes_images_without_the_dataset(pca_dataset, tmp_path, capsys, caplog):
+    import json
+    import logging
+
+    from seqnet.describe.pca import PCA, read_tag
+    from seqnet.localize.config import LocalizeConfig
+    from seqnet.serve.service import load_service
+
+    root = pca_dataset
+    src = tmp_path / "src"
+    src.mkdir()
+    shutil.copytree(root / "ds", src / "ds")
+    shutil.copy(root / "ds.pca.npz", src / "ds.pca.npz")
+    assert _build_map(src / "ds", tmp_path / "map") == 0
+    meta = json.loads((tmp_path / "map" / "map.json").read_text())
+    manifest = json.loads((tmp_path / "map" / ".seqnet-manifest.json").read_text())
+    assert meta["pca"] == "pca.npz" and "pca.npz" in meta["checksums"] and "pca.npz" in manifest["files"]
+    assert np.array_equal(PCA.load(tmp_path / "map" / "pca.npz").components, PCA.load(root / "ds.pca.npz").components)
+
+    moved = tmp_path / "elsewhere" / "map"  # the map copied to another machine: no dataset, no PCA beside it
+    moved.parent.mkdir()
+    shutil.move(tmp_path / "map", moved)
+    shutil.rmtree(src)
+    replay, from_map = tmp_path / "replay.csv", tmp_path / "map.csv"
+    assert _localize("--dataset", root / "ds", "--split", "test", "--out", replay) == 0
+    capsys.readouterr()
+    caplog.set_level(logging.INFO, logger="seqnet")
+    assert _localize("--map", moved, "--query", root / "q.txt", "--out", from_map) == 0, capsys.readouterr().err
+    assert _estimates(from_map) == _estimates(replay)
+    assert not any("holds no copy" in r.getMessage() for r in caplog.records)
+    service = load_service(LocalizeConfig(method="raw+seqmatch", seq_len=3, device="cpu"), moved)
+    assert service.describer is not None and service.describer.pca.dims == 16  # seqnet serve takes images too
+
+    pca = PCA.load(moved / "pca.npz")  # tampered: one value changed, a valid PCA file of the same size
+    pca.components[8, 1024] += 0.5
+    tag = read_tag(moved / "pca.npz")
+    pca.save(moved / "pca.npz", tag=tag)
+    capsys.readouterr()
+    assert _localize("--map", moved, "--query", root / "q.txt", "--out", from_map) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"{moved / 'pca.npz'} changed since the map was written" in err, err
+
+
+def test_a_map_built_before_it_carried_the_pca_reads_it_beside_its_dataset(pca_dataset, tmp_path, capsys, caplog):
+    import json
+    import logging
+
+    assert _build_map(pca_dataset / "ds", tmp_path / "map") == 0
+    meta = json.loads((tmp_path / "map" / "map.json").read_text())
+    del meta["pca"], meta["checksums"]["pca.npz"]  # as seqnet wrote maps before: no copy of the PCA
+    (tmp_path / "map" / "map.json").write_text(json.dumps(meta))
+    (tmp_path / "map" / "pca.npz").unlink()
+    caplog.set_level(logging.INFO, logger="seqnet")
+    replay, from_map = tmp_path / "replay.csv", tmp_path / "map.csv"
+    assert _localize("--dataset", pca_dataset / "ds", "--split", "test", "--out", replay) == 0
+    assert _localize("--map", tmp_path / "map", "--query", pca_dataset / "q.txt", "--out", from_map) == 0, \
+        capsys.readouterr().err
+    assert _estimates(from_map) == _estimates(replay)
+    said = " ".join(r.getMessage() for r in caplog.records if r.levelno == logging.INFO)
+    assert "holds no copy of its dataset's PCA" in said and str(pca_dataset / "ds") in said, said
+
+
+def test_a_map_from_a_dataset_whose_pca_is_missing_is_built_with_a_warning(pca_dataset, tmp_path, capsys, caplog):
+    import json
+
+    shutil.copytree(pca_dataset / "ds", tmp_path / "ds")  # its PCA not copied beside it
+    assert _build_map(tmp_path / "ds", tmp_path / "map") == 0
+    assert "written without its dataset's PCA" in caplog.text and not (tmp_path / "map" / "pca.npz").exists()
+    assert "pca" not in json.loads((tmp_path / "map" / "map.json").read_text())
+    capsys.readouterr()
+    assert _localize("--map", tmp_path / "map", "--query", pca_dataset / "q.txt", "--out", tmp_path / "t.csv") == 2
+    assert "(--pca), which is missing" in capsys.readouterr().err

@@ -117,12 +117,23 @@ def load_dataset_pca(path: str | os.PathLike[str], provenance: dict) -> PCA:
     return pca
 
 
+def check_fit_rows(dims: int, rows: int, option: str, source: str, more: str, unit: str = "frames") -> None:
+    """Raise :class:`ConfigError` when a PCA to ``dims`` cannot be fitted on ``rows`` descriptors: N rows centred on
+    their mean span at most N - 1 axes, so ``dims`` must be below ``rows``. The message names the ``option``
+    (``--pca``, ``--dim``), where the rows come from (``source``, e.g. "the 'train' split has"), their ``unit`` and
+    what gives ``more`` of them."""
+    if dims >= rows:
+        raise ConfigError(f"{option} {dims}: {source} {rows} {unit}, and a PCA fitted on them has at most "
+                          f"{max(0, rows - 1)} axes (N {unit} centred on their mean span N - 1) (hint: {option} "
+                          f"{max(1, (rows - 1) // 2)} or {more})")
+
+
 def fit_pca(x: np.ndarray, dims: int, whiten: bool = False, l2: bool = True, eps: float = 1e-9) -> PCA:
     """Fit a PCA of ``[N, D]`` data keeping ``dims`` components.
 
     Args:
         x: ``[N, D]`` training descriptors.
-        dims: output dimension, 1 <= dims <= min(N, D).
+        dims: output dimension, 1 <= dims <= min(N - 1, D) (N centred rows span at most N - 1 axes).
         whiten: scale each component to unit variance.
         l2: default of :meth:`PCA.transform`'s output L2-normalisation.
         eps: added to the variances before whitening.
@@ -131,11 +142,10 @@ def fit_pca(x: np.ndarray, dims: int, whiten: bool = False, l2: bool = True, eps
     if x.ndim != 2:
         raise ConfigError(f"PCA needs [N, D] data, got shape {x.shape}")
     n, d = x.shape
-    if not 1 <= dims <= min(n, d):
-        raise ConfigError(
-            f"PCA dims={dims} must be between 1 and min(N, D) = min({n}, {d}) = {min(n, d)} "
-            "(hint: fit on more images or ask for fewer output dims)"
-        )
+    check_fit_rows(dims, n, "--dim", "the PCA is fitted on", "more images to fit it on (--fit-on)", "images")
+    if not 1 <= dims <= d:
+        raise ConfigError(f"--dim {dims}: a PCA of {d}-D descriptors keeps between 1 and {d} dimensions (hint: "
+                          f"--dim {min(max(1, dims), d)})")
     mean = x.mean(axis=0)
     xc = x - mean
     if d <= n:

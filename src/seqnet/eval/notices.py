@@ -14,7 +14,7 @@ import numpy as np
 
 from ..core.errors import SeqnetError
 from ..core.log import logger
-from ..methods.checks import named_test_split, training_record
+from ..methods.checks import MAX_RECORD_TEXT, named_test_split, training_record
 from ..metrics.shift import shifted_offset, top1_offsets
 from ..security.text import shown
 from .config import EvalConfig
@@ -96,9 +96,26 @@ def trivial_ks(ev: Evaluation, ks: Sequence[int]) -> str | None:
     return f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
 
 
-def _val_range(record: Mapping[str, str], ds: Dataset) -> tuple[str, tuple[int, int]] | None:
-    """The split a model chose its epoch on and its query range, from the ``config.json`` beside its checkpoint
-    (a run directory); None when unknown or not validated."""
+def _val_range(model: SeqNet, record: Mapping[str, str], ds: Dataset) -> tuple[str, tuple[int, int]] | None:
+    """The split a model chose its epoch on and its query range, as its checkpoint records them (``trained_on``'s
+    ``val_split`` and ``val_queries``: a checkpoint copied out of its run folder says it too); for a checkpoint
+    written before training recorded the range, that split's range in ``ds``; for one without a val split, the
+    ``config.json`` beside it (a run directory). None when unknown or not validated."""
+    t = getattr(model, "trained_on", None)
+    val = t.get("val_split") if isinstance(t, Mapping) else None
+    if not isinstance(val, str) or not val or len(val) > MAX_RECORD_TEXT:
+        return _run_config_range(record, ds)
+    if val.lower() == "none":
+        return None
+    q = t.get("val_queries")
+    if isinstance(q, list | tuple) and len(q) == 2 and all(type(v) is int and v >= 0 for v in q) and q[0] < q[1]:
+        return val, (q[0], q[1])
+    rng = ds.ranges(val)
+    return None if rng is None else (val, rng["query"])
+
+
+def _run_config_range(record: Mapping[str, str], ds: Dataset) -> tuple[str, tuple[int, int]] | None:
+    """The val split and its query range from the ``config.json`` beside the checkpoint (a run directory)."""
     from ..security.jsonfile import read_json_object
 
     path = Path(record["checkpoint"]).parent / "config.json"
@@ -127,7 +144,7 @@ def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dat
     out = []
     for role, m in sorted(models.items()):
         t = training_record(m)
-        chosen = _val_range(t, ds) if t is not None and _same(t["dataset"], dataset) else None
+        chosen = _val_range(m, t, ds) if t is not None and _same(t["dataset"], dataset) else None
         if chosen is None:
             continue
         val, (va, vb) = chosen

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..core.provenance import check_same
 from ..core.provenance import make as make_provenance
 from ..methods.protocol import Reference
@@ -114,17 +115,25 @@ def fitted_state_refusal(method: str, dim: object) -> str:
 
 
 def dataset_pca(ref_map: Reference, map_dir: str | Path | None, prov: dict) -> PCA:
-    """The train-split PCA (``--pca D``, ``<DATASET>.pca.npz``) that reduced the map's descriptors: beside the
-    dataset directory given as ``--map``, or beside the dataset an index map was built from; checked to be that
-    PCA (its tag and D: :func:`seqnet.describe.pca.load_dataset_pca`)."""
+    """The train-split PCA (``--pca D``) that reduced the map's descriptors: an index map's own copy (``pca.npz``,
+    :attr:`seqnet.maps.Map.pca_file`), else ``<DATASET>.pca.npz`` beside the dataset directory given as ``--map`` or
+    (a map built before maps held it) beside the dataset the map was built from; checked to be that PCA (its tag
+    and D: :func:`seqnet.describe.pca.load_dataset_pca`)."""
     from ..describe.pca import dataset_pca_path, load_dataset_pca
 
+    own = getattr(ref_map, "pca_file", None)
+    if own is not None:
+        return load_dataset_pca(own, prov)
     meta = getattr(ref_map, "meta", None)  # an index map: map.json names the dataset it was built from
     source = meta.get("source") if isinstance(meta, dict) and isinstance(meta.get("source"), dict) else {}
     dataset = source.get("dataset_path") if isinstance(source.get("dataset_path"), str) else map_dir
     if dataset is None:
         raise ConfigError("the map's descriptors were reduced by a dataset's PCA (--pca), but the map names no "
                           "dataset to read it from; describe the query images yourself and pass the file as --query")
+    if isinstance(meta, dict):
+        logger.info("map %s holds no copy of its dataset's PCA (built before seqnet index build copied it): reading "
+                    "it beside the dataset it was built from, %s (rebuild the map to carry it)",
+                    getattr(ref_map, "path", map_dir), dataset)
     return load_dataset_pca(dataset_pca_path(dataset), prov)
 
 

@@ -9,11 +9,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.devices import get_device
-from ..core.errors import ConfigError
+from ..core.errors import CheckpointError, ConfigError
 from ..core.log import logger
 from ..core.memory import check_fits, model_bytes, workspace_bytes
 from ..data.io import load_dataset
 from ..data.traverse import Dataset, default_split
+from ..describe.pca import PCA, dataset_pca_path, load_dataset_pca
 from ..methods.checks import check_models as check_model_inputs
 from ..methods.checks import descriptor_dims, model_lengths
 from ..reference.traverse import TraverseReference
@@ -27,7 +28,6 @@ from .store import MapArrays, is_map_file, write_map
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
-
 
 
 def resolve(conf: MapConfig, models: Mapping[str, SeqNet]) -> MapConfig:
@@ -69,6 +69,21 @@ def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> N
                "dimensions (--dim, PCA, --out-dims)")
 
 
+def dataset_pca(dataset: str | Path, provenance: dict | None) -> PCA | None:
+    """The train-split PCA (``<DATASET>.pca.npz``) that reduced the dataset's descriptors (``--pca D``), copied into
+    the map so that localize and serve reduce query images alike wherever the map is; None when no PCA reduced
+    them, or (with a warning: the map then localises descriptor files, not images) when it is missing or foreign."""
+    settings = (provenance or {}).get("settings")
+    if not isinstance(settings, dict) or settings.get("pca_on") is None:
+        return None
+    try:
+        return load_dataset_pca(dataset_pca_path(dataset), provenance or {})
+    except (ConfigError, CheckpointError) as e:
+        logger.warning("the map is written without its dataset's PCA, so it cannot localise query images (only "
+                       "descriptor files): %s", e)
+        return None
+
+
 def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = ()) -> Path:
     """Describe the reference side of ``conf.split`` of the dataset directory ``dataset`` with the model
     checkpoints ``models`` (S_L and/or S_1, by their stored role) and write the map to ``out``."""
@@ -81,6 +96,7 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
     check_models(conf, sub, loaded)
     check_index(conf, sub, loaded)
     check_replaceable(out, "map", is_map_file)  # before any work
+    pca = dataset_pca(dataset, ds.reference.provenance)
     dev = get_device(conf.device)
     for model in loaded.values():
         model.to(dev).eval()
@@ -97,4 +113,4 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
             "explicit_positives": ds.positives is not None, "input_dim": ds.reference.dim,
             "model_seq_len": model_lengths(loaded),
             "describe_seconds": round(time.perf_counter() - t0, 3)}
-    return write_map(out, conf, arrays, loaded, ds.reference.provenance, info)
+    return write_map(out, conf, arrays, loaded, ds.reference.provenance, info, pca)

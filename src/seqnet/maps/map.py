@@ -28,11 +28,12 @@ from ..matching.registry import SEQUENCE_MATCHERS
 from ..methods.grammar import HVPR_FUSED, HVPR_RERANK, Method, parse_method
 from ..search.ann import search as ann_search
 from ..search.knn import ExactIndex
+from ..security.digests import verify_digests
 from ..security.jsonfile import read_json
 from ..sequence.described import Described
 from ..sequence.windows import Windows, window_offset
 from .config import MapConfig
-from .store import MAP_FORMAT, MAP_JSON
+from .store import MAP_FORMAT, MAP_JSON, PCA_FILE
 
 torch = lazy_module("torch")
 
@@ -84,6 +85,22 @@ class Map:
     def input_dim(self) -> int:
         """D of the raw descriptors the map's models read (the frame D for maps made from arrays)."""
         return int(self.meta.get("input_dim") or self.frames.shape[1])
+
+    @property
+    def pca_file(self) -> Path | None:
+        """The map's copy of the ``--pca D`` PCA that reduced its descriptors (``pca.npz``), its every byte checked
+        against the map's checksum (opening the map checks a sample); None for a map without one (reduced by no PCA,
+        or built before seqnet copied it)."""
+        rel = self.meta.get("pca")
+        if rel is None:
+            return None
+        checksums = self.meta.get("checksums") if isinstance(self.meta.get("checksums"), dict) else {}
+        if rel != PCA_FILE or PCA_FILE not in checksums:
+            raise MapError(f"{self.path / MAP_JSON}: 'pca' must be {PCA_FILE!r}, a file of its checksums, got "
+                           f"{str(rel)[:80]!r} (the map is damaged; rebuild it)")
+        verify_digests(self.path, {PCA_FILE: checksums[PCA_FILE]}, MapError, "map",
+                       "a map is written whole: rebuild it with seqnet index build", full=True)
+        return self.path / PCA_FILE
 
     @property
     def nbytes(self) -> int:

@@ -9,6 +9,8 @@ Layout of a map directory ``MAP/`` (format ``seqnet-map/1``)::
     positions.npy       [Nr, P]  positions of the frames;  names.txt, seq_bounds.npy (optional)
     index.faiss         ANN index over shortlist.npy (absent for ``flat``: exact search over the file)
     models/<role>.pt    the models the descriptors were made with (the map is self-contained)
+    pca.npz             a ``--pca D`` dataset's train-split PCA, which reduces query images' descriptors as the
+                        map's were (its tag: their provenance id; absent for descriptors reduced by no PCA)
     .seqnet-manifest.json
 
 It is written into a temporary sibling directory under the lock of ``MAP`` and renamed into
@@ -47,11 +49,13 @@ from .shards import build_sharded_index, split_rows
 torch = lazy_module("torch")
 
 if TYPE_CHECKING:
+    from ..describe.pca import PCA
     from ..sequence.model import SeqNet
 
 MAP_FORMAT = "seqnet-map/1"
 MAP_JSON = "map.json"
 INDEX_FILE = "index.faiss"
+PCA_FILE = "pca.npz"
 ARRAY_FILES = ("shortlist", "frames", "items", "match_starts", "positions", "seq_bounds")
 CHUNK_BYTES = MEMORY_BLOCK // 2  # rows written per chunk
 
@@ -61,7 +65,8 @@ def is_map_file(rel: str) -> bool:
     parts = rel.split("/")
     if len(parts) == 2:
         return parts[0] == "models" and parts[1].endswith(".pt")
-    return rel in (MAP_JSON, INDEX_FILE, "index.ivfdata", "names.txt") or rel in {f"{a}.npy" for a in ARRAY_FILES}
+    return rel in (MAP_JSON, INDEX_FILE, PCA_FILE, "index.ivfdata", "names.txt") or \
+        rel in {f"{a}.npy" for a in ARRAY_FILES}
 
 
 @dataclasses.dataclass
@@ -117,11 +122,12 @@ def save_array(path: Path, array: ArrayLike, dtype: str, name: str) -> Path:
 
 
 def write_map(out: str | Path, conf: MapConfig, arrays: MapArrays, models: Mapping[str, SeqNet] | None = None,
-              provenance: dict | None = None, info: Mapping[str, Any] | None = None) -> Path:
+              provenance: dict | None = None, info: Mapping[str, Any] | None = None, pca: PCA | None = None) -> Path:
     """Write a map directory (see the module docstring) from ``arrays``; returns its path.
 
     ``conf`` must be resolved (``seq_len`` and ``match_len`` set); ``provenance`` is that of
-    the raw reference descriptors the map was made from, ``info`` is stored under ``source``.
+    the raw reference descriptors the map was made from, ``info`` is stored under ``source``; ``pca``: the
+    ``--pca D`` PCA that reduced them (written as ``pca.npz``, tagged with ``provenance``'s id).
     """
     out = Path(out)
     if conf.seq_len is None or conf.match_len is None:
@@ -130,14 +136,14 @@ def write_map(out: str | Path, conf: MapConfig, arrays: MapArrays, models: Mappi
     with locked(out):
         recover_dir(out)
         check_replaceable(out, "map", is_map_file)
-        write_dir(out, lambda tmp: _write(tmp, conf, arrays, dict(models or {}), provenance, dict(info or {})))
+        write_dir(out, lambda tmp: _write(tmp, conf, arrays, dict(models or {}), provenance, dict(info or {}), pca))
     logger.info("wrote map %s (%d items, %d frames, index %s)", out, len(arrays.items), len(arrays.frames),
                 conf.ann.kind)
     return out
 
 
 def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet], provenance: dict | None,
-           info: dict[str, Any]) -> None:
+           info: dict[str, Any], pca: PCA | None) -> None:
     shortlist = save_array(root / "shortlist.npy", a.shortlist, conf.dtype, "shortlist")
     save_array(root / "frames.npy", a.frames, conf.dtype, "frame")
     for name in ("items", "match_starts"):
@@ -156,12 +162,16 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
     info["index_seconds"] = round(time.perf_counter() - t0, 3)
     for role, model in models.items():
         save_checkpoint(root / "models" / f"{role}.pt", model)
+    if pca is not None:
+        pca.save(root / PCA_FILE, tag=(provenance or {}).get("id"))
     checksums = {p.relative_to(root).as_posix(): file_digest(p, full=True) for p in sorted(root.rglob("*"))
                  if p.is_file()}  # sampled hashes checked on every open, full ones by seqnet index check --full
     meta = {"format": MAP_FORMAT, "seqnet_version": __version__, "config": conf.to_dict(), "checksums": checksums,
             "items": len(a.items), "frames": len(a.frames), "shortlist_dim": int(a.shortlist.shape[1]),
             "frame_dim": int(a.frames.shape[1]), "input_dim": info.pop("input_dim", None),
             "provenance": provenance, "models": {r: f"models/{r}.pt" for r in models}, "source": info}
+    if pca is not None:
+        meta["pca"] = PCA_FILE
     write_json_atomic(root / MAP_JSON, meta)
     write_manifest(root, "map", [p for p in root.rglob("*") if p.is_file()])
 

@@ -31,7 +31,7 @@ from ..core.provenance import fit_digest
 from ..core.provenance import make as make_provenance
 from ..data.io import load_dataset, save_dataset
 from ..data.traverse import Dataset, Traverse
-from ..describe.pca import PCA, dataset_pca_path, fit_pca
+from ..describe.pca import PCA, check_fit_rows, dataset_pca_path, fit_pca
 
 FIT_MAX = 20000  # frames a PCA is fitted on at most (evenly spaced): [N, D] float64 in memory
 BLOCK = 4096  # frames projected at a time
@@ -57,12 +57,8 @@ def split_frames(ds: Dataset, split: str) -> np.ndarray:
 def check_fit_frames(dims: int, frames: int, split: str = "train") -> None:
     """Raise :class:`ConfigError` when a PCA to ``dims`` cannot be fitted on ``frames`` frames of ``split``: N frames
     centred on their mean span at most N - 1 axes, so ``dims`` must be below ``frames`` (known before anything is
-    described: ``seqnet dataset from-images`` checks it first)."""
-    frames = min(frames, FIT_MAX)
-    if dims >= frames:
-        raise ConfigError(f"--pca {dims}: the {split!r} split has {frames} frames, and a PCA fitted on them has at "
-                          f"most {max(0, frames - 1)} axes (N frames centred on their mean span N - 1) (hint: --pca "
-                          f"{max(1, (frames - 1) // 2)} or a larger {split} split)")
+    described: ``seqnet dataset from-images`` checks it first; :func:`seqnet.describe.pca.check_fit_rows`)."""
+    check_fit_rows(dims, min(frames, FIT_MAX), "--pca", f"the {split!r} split has", f"a larger {split} split")
 
 
 def fit_on_split(ds: Dataset, dims: int, split: str = "train") -> PCA:

@@ -5,6 +5,7 @@ seqnet format (``RUN/last.pt``, ``RUN/best.pt``), a ``torch.save`` dict::
     {"format": "seqnet-checkpoint/1", "model": {"in_dims", "out_dims", "seq_len", "w"},
      "state_dict": {"conv.weight": [D_out, D, w], "conv.bias": [D_out]}, "epoch", "best_score",
      "best_epoch", "metrics", "config" (TrainConfig.to_dict()), "dataset_path",
+     "val_queries": [a, b) the val split's queries (the best epoch's; None without validation),
      "train_state" (last.pt only): {optimiser, scheduler, generator state, negative cache, ...}}
 
 Original format (``checkpoint.pth.tar`` / ``model_best.pth.tar``): ``{"state_dict":
@@ -75,7 +76,9 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
         in_dims: expected input dimension D (e.g. the dataset's); a mismatch raises CheckpointError.
 
     The model's ``provenance`` is that of the descriptors it was trained on (None when unknown), its
-    ``trained_on`` the dataset directory and split of its training queries (None when unknown).
+    ``trained_on`` the dataset directory and split of its training queries, the split its epoch was chosen on
+    (``val_split``, ``"none"`` without validation) and that split's query range (``val_queries``, ``[a, b]``;
+    None for checkpoints written before training recorded it) (None when unknown).
     """
     payload = read_checkpoint(path)
     fmt = payload.get("format")
@@ -87,7 +90,8 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
         model.provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else None
         config = payload.get("config") if isinstance(payload.get("config"), dict) else {}
         model.trained_on = {"dataset": payload.get("dataset_path"), "split": config.get("train_split"),
-                            "checkpoint": str(path)} if payload.get("dataset_path") else None
+                            "checkpoint": str(path), "val_split": config.get("val_split"),
+                            "val_queries": payload.get("val_queries")} if payload.get("dataset_path") else None
     else:
         model = _from_original(payload, Path(path), seq_len)
     if in_dims is not None and in_dims != model.in_dims:

@@ -43,6 +43,7 @@ from .run import (
     open_files,
     open_run,
     read_resume,
+    record_data,
     restored_config,
     run_dataset_path,
     stored_dataset_path,
@@ -258,7 +259,7 @@ def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | N
     run = open_run(conf, src.n_queries, dataset.query.dim, device, out_dir, payload, dataset_path, files=False,
                    n_refs=len(src.r_idx))
     run.world = world
-    run.model.provenance = dataset.reference.provenance  # checkpoints record what the model reads
+    record_data(run, dataset)  # checkpoints record what the model reads and its val queries
     run.dataset_digests = descriptor_digests(dataset_path) if world.is_rank0 else None
     return run, src, val_ds, device
 
