@@ -30,6 +30,16 @@ def shared_data(sub: str) -> Path:
     return path
 
 
+def nordland_lists(root: Path, first: int = 10000, n: int = 60) -> tuple[Path, list[str]]:
+    """List files ``root/ref.txt`` (summer) and ``root/query.txt`` (winter) of ``n`` Nordland64 frames from ``first``
+    (every 10th): the shared data folder and the frames' names (skips when the shared data is absent)."""
+    data = shared_data("nordland64")
+    names = [f"images-{i:05d}.png" for i in range(first, first + 10 * n, 10)]
+    for side, season in (("ref", "summer"), ("query", "winter")):
+        (root / f"{side}.txt").write_text("".join(f"{data / season / name}\n" for name in names))
+    return data, names
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)

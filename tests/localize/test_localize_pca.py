@@ -16,13 +16,10 @@ from seqnet.cli import main as cli_main
 def pca_dataset(tmp_path_factory):
     """A Nordland64 dataset of 60 frames reduced to 16 dimensions by a PCA fitted on its train split, the list file
     of its test query images, and the test queries' indices."""
-    from conftest import shared_data
+    from conftest import nordland_lists
 
-    data = shared_data("nordland64")
     root = tmp_path_factory.mktemp("pca")
-    names = [f"images-{i:05d}.png" for i in range(10000, 10600, 10)]
-    for side, season in (("ref", "summer"), ("query", "winter")):
-        (root / f"{side}.txt").write_text("".join(f"{data / season / n}\n" for n in names))
+    data, names = nordland_lists(root)
     (root / "q.txt").write_text("".join(f"{data / 'winter' / n}\n" for n in names[40:]))
     assert cli_main(["dataset", "from-images", str(root / "ref.txt"), str(root / "query.txt"), "--method", "pixels",
                      "--patch", "16", "--pca", "16", "--frame-aligned", "--radius", "1", "--split", "train=0:40",

@@ -16,13 +16,10 @@ from seqnet.cli import main as cli_main
 def native_map(tmp_path_factory):
     """A pixels dataset of Nordland64's 64x32 frames described at their own size, the test query images at that size
     (``small.txt``) and the same images at 128x64 (``big/``)."""
-    from conftest import shared_data
+    from conftest import nordland_lists
 
-    data = shared_data("nordland64")
     root = tmp_path_factory.mktemp("native")
-    names = [f"images-{i:05d}.png" for i in range(10000, 10600, 10)]
-    for side, season in (("ref", "summer"), ("query", "winter")):
-        (root / f"{side}.txt").write_text("".join(f"{data / season / n}\n" for n in names))
+    data, names = nordland_lists(root)
     (root / "small.txt").write_text("".join(f"{data / 'winter' / n}\n" for n in names[40:]))
     (root / "big").mkdir()
     for n in names[40:]:
