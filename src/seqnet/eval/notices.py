@@ -14,7 +14,7 @@ import numpy as np
 
 from ..core.errors import SeqnetError
 from ..core.log import logger
-from ..methods.checks import MAX_RECORD_TEXT, named_test_split, training_record
+from ..methods.checks import MAX_RECORD_TEXT, named_test_split, same_path, training_record
 from ..metrics.shift import shifted_offset, top1_offsets
 from ..security.text import shown
 from .config import EvalConfig
@@ -130,13 +130,6 @@ def _run_config_range(record: Mapping[str, str], ds: Dataset) -> tuple[str, tupl
     return None if rng is None else (val, rng["query"])
 
 
-def _same(a: str | Path, b: str | Path) -> bool:
-    try:
-        return Path(a).resolve() == Path(b).resolve()
-    except (OSError, ValueError, RuntimeError):
-        return False
-
-
 def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
     """One line per model whose epoch was chosen on queries of ``dataset`` that the evaluated ``split`` holds."""
 
@@ -144,7 +137,7 @@ def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dat
     out = []
     for role, m in sorted(models.items()):
         t = training_record(m)
-        chosen = _val_range(m, t, ds) if t is not None and _same(t["dataset"], dataset) else None
+        chosen = _val_range(m, t, ds) if t is not None and same_path(t["dataset"], dataset) else None
         if chosen is None:
             continue
         val, (va, vb) = chosen

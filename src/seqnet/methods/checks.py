@@ -141,7 +141,7 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
     out = []
     for role, m in sorted(models.items()):
         t = training_record(m)
-        if t is None or not _same_path(t["dataset"], dataset):
+        if t is None or not same_path(t["dataset"], dataset):
             continue
         trained = ds.ranges(t["split"])
         if trained is None:
@@ -191,7 +191,8 @@ def training_record(model: Any) -> dict[str, str] | None:
     return None
 
 
-def _same_path(a: str | Path | None, b: str | Path) -> bool:
+def same_path(a: str | Path | None, b: str | Path) -> bool:
+    """Whether ``a`` and ``b`` name the same file or folder (False when ``a`` is None or cannot be resolved)."""
     try:
         return a is not None and Path(a).resolve() == Path(b).resolve()
     except (OSError, ValueError, RuntimeError):
