@@ -16,7 +16,7 @@ from seqnet.core.errors import ConfigError, DatasetError
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.describe.pca import fit_pca
 from seqnet.pipelines.nordland64 import Nordland64Config, describe_flipped, fold_pca, list_places, training_dataset
-from seqnet.pipelines.nordland64.models import train_key
+from seqnet.pipelines.nordland64.models import fit_train_pca, train_key
 from seqnet.security.text import shown
 from seqnet.sequence.model import SeqNet
 
@@ -31,6 +31,17 @@ def test_fold_pca_is_exact(rng):
     assert folded.in_dims == 32 and folded.config()["w"] == 3
     with torch.no_grad():
         torch.testing.assert_close(folded(torch.from_numpy(x)), model(projected), atol=1e-5, rtol=1e-4)
+
+
+@pytest.mark.parametrize(("pca_dims", "kept"), [(4, 4), (11, 11), (12, 11), (64, 11)])
+def test_train_pca_is_capped_at_one_below_the_training_images(rng, pca_dims, kept):
+    """6 + 6 train images span at most 11 axes once centred: more dims are capped, not refused."""
+    d = rng.standard_normal((10, 16)).astype(np.float32)
+    pos = np.arange(10) / 1.0
+    ds = Dataset(Traverse(d, pos), Traverse(d + 0.1, pos), radius=1.0, position_unit="frames",
+                 splits={"train": {"reference": (0, 6), "query": (0, 6)}})
+    pca = fit_train_pca(ds, Nordland64Config(pca_dims=pca_dims))
+    assert pca.transform(d, l2=False).shape == (10, kept)
 
 
 def test_training_dataset_symmetric(rng):

@@ -60,12 +60,14 @@ def train_key(conf: Nordland64Config) -> str:
 
 
 def fit_train_pca(ds: Dataset, conf: Nordland64Config) -> PCA | None:
-    """PCA to ``conf.pca_dims`` (capped by the data) of both seasons' train descriptors; None when 0."""
+    """PCA to ``conf.pca_dims`` of both seasons' train descriptors, None when 0.
+
+    Capped by the data: N centred images span at most N - 1 axes, and D-dimensional ones D."""
     if not conf.pca_dims:
         return None
     a, b = ds.splits["train"]["query"]
     x = np.concatenate([ds.reference.descriptors[a:b], ds.query.descriptors[a:b]])
-    dims = min(conf.pca_dims, *x.shape)
+    dims = min(conf.pca_dims, len(x) - 1, x.shape[1])
     if dims < conf.pca_dims:
         logger.warning("PCA: %d dims asked, %d possible with %d training images", conf.pca_dims, dims, len(x))
     return fit_pca(x, dims, whiten=conf.pca_whiten, l2=False)
