@@ -140,3 +140,64 @@ def test_aligned_videos_keeping_different_counts_are_refused_and_checked(tmp_pat
     assert err.startswith("seqnet dataset check: error: old: frame-aligned ground truth: query frame i is the place "
                           "of reference frame i, but the reference has 15 images and the query 6") and \
         len(err.strip().splitlines()) == 1, err
+
+
+def _localize(videos, tmp_path, ds, *extra, positions=None, out="t.csv"):
+    return cli_main(["localize", "--map", str(tmp_path / ds), "--query", str(videos["query"]), "--out",
+                     str(tmp_path / out), "--method", "raw+seqmatch", "--seq-len", "3", "--device", "cpu",
+                     "--positions", str(positions or videos["query.gpx"]), *extra])
+
+
+def test_localize_samples_the_query_as_the_map_was(videos, tmp_path, capsys):
+    """A map keeping 5 of the video's 10 frames/s (or one frame per 20 m) localises the query at that rate by
+    default, as eval scores it; another rate is warned."""
+    assert _dataset(videos, tmp_path / "ds5", "--radius", "15", "--fps", "5") == 0
+    assert _dataset(videos, tmp_path / "dsm", "--radius", "15", "--every-metres", "20") == 0
+    capsys.readouterr()
+    assert _localize(videos, tmp_path, "ds5") == 0
+    out = capsys.readouterr().out
+    s = json.loads((tmp_path / "t.json").read_text())["summary"]
+    assert s["frames"] == 15 and s["sampling"] == {"fps": 5.0, "every_metres": None, "as": "map"}
+    assert "(5 frames/s, as the map)" in out and s["recall@1"] > 0.8
+    assert _localize(videos, tmp_path, "dsm") == 0
+    s = json.loads((tmp_path / "t.json").read_text())["summary"]
+    kept = json.loads((tmp_path / "dsm" / "dataset.json").read_text())
+    assert s["frames"] == 15 and s["sampling"]["every_metres"] == 20  # 10 m per frame: every other frame
+    assert "one frame per 20 m, as the map" in capsys.readouterr().out and kept["sampling"]["every_metres"] == 20
+    assert _localize(videos, tmp_path, "ds5", "--fps", "10") == 0
+    err = capsys.readouterr().err
+    assert "the map keeps 5 frames/s of its video, this query 10 frames/s" in err and "hint: --fps 5" in err
+    assert json.loads((tmp_path / "t.json").read_text())["summary"]["frames"] == 30
+
+
+def test_a_track_placing_nothing_is_refused_before_any_frame(videos, tmp_path, capsys):
+    """A track in milliseconds, or with latitude and longitude swapped, places no frame near the map: one line,
+    exit 2, no track written (it said "this is a bug" after localising every frame)."""
+    from conftest import write_track_csv
+
+    assert _dataset(videos, tmp_path / "ds", "--radius", "15") == 0
+    lat, lon = route(N + 1)
+    times = np.arange(N + 1) / 10
+    bad = {"ms": write_track_csv(tmp_path / "ms.csv", times * 1000, lat, lon),
+           "swapped": write_track_csv(tmp_path / "sw.csv", times, lon, lat)}
+    capsys.readouterr()
+    for case, text in (("ms", "times in milliseconds?"), ("swapped", "latitude and longitude swapped")):
+        assert _localize(videos, tmp_path, "ds", positions=bad[case], out=f"track_{case}.csv") == 2
+        err = capsys.readouterr().err
+        assert text in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / f"track_{case}.csv").exists()
+    rc = cli_main(["dataset", "from-video", str(videos["ref"]), str(videos["query"]), "--out", str(tmp_path / "dm"),
+                   "--method", "pixels", "--ref-positions", str(videos["ref.gpx"]), "--query-positions",
+                   str(bad["ms"])])
+    assert rc == 2 and "times in milliseconds?" in capsys.readouterr().err and not (tmp_path / "dm").exists()
+
+
+def test_a_video_clock_off_by_seconds_is_said(videos, tmp_path, capsys):
+    assert _dataset(videos, tmp_path / "ds", "--radius", "15") == 0
+    capsys.readouterr()
+    late = (T0 + datetime.timedelta(seconds=1.5)).isoformat()
+    assert _localize(videos, tmp_path, "ds", "--video-start", late) == 0
+    err = capsys.readouterr().err
+    assert "the estimates run 1.5 s behind the track" in err and "--video-start" in err
+    assert _localize(videos, tmp_path, "ds") == 0
+    assert "the estimates run" not in capsys.readouterr().err

@@ -160,3 +160,15 @@ def test_frames_compare_by_utm_zone_and_hemisphere_or_by_name():
     check_frame(MapFrame.of({"position_unit": "metres", "positions_frame": "UTM zone 32U"}), "UTM zone 32V", "m", "/f")
     with pytest.raises(ConfigError, match="does not record the frame of its positions"):
         check_frame(MapFrame("metres", "UTM zone ?"), "UTM zone 32V", "m", "/f")  # a log without its zone
+
+
+def test_a_track_in_x_y_metres_goes_with_a_map_of_unframed_metres(caplog):
+    """A map built from an easting/northing CSV records no frame: a track in x, y metres is taken as in it (said),
+    a lat/lon track (UTM) is refused with a hint a CSV user can follow."""
+    from seqnet.sources.tracks.metres import XY_FRAME
+
+    with caplog.at_level("WARNING", logger="seqnet"):
+        check_frame(MapFrame("metres", None), XY_FRAME, "m", "t.csv")
+    assert "taken to be in the map's frame, unchecked" in caplog.text
+    with pytest.raises(ConfigError, match=r"give the track in the map's own metres .*lat,lon positions"):
+        check_frame(MapFrame("metres", None), "UTM zone 32V", "m", "t.csv")

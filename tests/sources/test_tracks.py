@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from seqnet.core.errors import ConfigError, DatasetError
 from seqnet.sources.tracks import read_track
-from seqnet.sources.tracks.clock import parse_start, video_times
+from seqnet.sources.tracks.clock import in_milliseconds, parse_start, video_times, why_outside
 from seqnet.sources.tracks.metres import to_metres
 
 T0 = datetime.datetime(2024, 5, 1, 10, 0, 0, tzinfo=datetime.timezone.utc)
@@ -107,3 +107,14 @@ def test_fuzzed_tracks_read_or_refuse(tmp_path, kind, data):
     if track is not None:
         assert np.isfinite(track.times).all() and (np.diff(track.times) > 0).all()
         assert track.coords.shape == (len(track.times), 2)
+
+
+def test_why_no_frame_lies_on_the_track():
+    ms = np.arange(0, 20000, 100) / 1.0  # a 20 s track written in milliseconds
+    assert in_milliseconds(ms, 20.0) and not in_milliseconds(np.arange(0, 20, 0.1), 20.0)
+    assert "times in milliseconds?" in why_outside(ms, 20.0, 10.0)
+    gap = np.array([-5.0, 0.0, 60.0, 61.0])  # the 20 s video falls in a 60 s gap
+    said = why_outside(gap, 20.0, 10.0)
+    assert "inside a gap of the track of 60 s, longer than the 10 s a frame is interpolated across" in said
+    later = np.arange(100.0, 130.0)
+    assert "do not overlap the video's 0 .. 20.0 s" in why_outside(later, 20.0, 10.0)

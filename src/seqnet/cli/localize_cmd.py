@@ -104,9 +104,12 @@ def localizer_config(args: argparse.Namespace) -> LocalizeConfig:
 
 
 def add_video_query(p: argparse.ArgumentParser) -> None:
-    """The options of a video or stream as --query: --fps, --realtime, --positions, --video-start, --plot."""
+    """The options of a video or stream as --query: --fps, --every-metres, --realtime, --positions, --video-start,
+    --plot."""
     p.add_argument("--fps", type=positive_float, metavar="F", help="video query: frames localised per second of video "
-                   "(default: every frame)")
+                   "(default: as the map's video was sampled, else every frame)")
+    p.add_argument("--every-metres", type=positive_float, metavar="M", help="video query with --positions: one frame "
+                   "localised per M metres travelled (default: as the map's video was sampled)")
     p.add_argument("--realtime", action="store_true", help="video query: pace a file by its own clock and drop "
                    "frames that come while the localiser is behind (the summary counts them: dropped)")
     p.add_argument("--positions", metavar="FILE", help="video query: its GPS track (GPX, NMEA or CSV with a time "
@@ -136,7 +139,8 @@ def _plotter(path: str | None):  # noqa: ANN202 - a hook or None
 
 def video_options(args: argparse.Namespace) -> VideoOptions:
     """The :class:`VideoOptions` of the parsed options."""
-    return VideoOptions(fps=args.fps, realtime=args.realtime, video_start=args.video_start,
+    return VideoOptions(fps=args.fps, every_metres=args.every_metres, realtime=args.realtime,
+                        video_start=args.video_start,
                         positions=None if args.positions is None else Path(args.positions),
                         **({"timeout": args.timeout} if args.timeout else {}))
 
@@ -198,14 +202,16 @@ def print_summary(conf: LocalizeConfig, args: argparse.Namespace, out: Written) 
     s = out.data["summary"]
     lat = s.get("latency_ms", {})
     print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")
+    has = "a positive" if out.data.get("config", {}).get("ground_truth") == "explicit positives" else \
+        "a reference within the radius"
     if "recall@1" in s:
-        has = "a positive" if out.data.get("config", {}).get("ground_truth") == "explicit positives" else \
-            "a reference within the radius"
         print(f": R@1 {s['recall@1']:.3f} ({s['queries']} with {has}), "
               f"AUC {s['auc']:.3f}, R@100P {s['recall@100p']:.3f}", end="")
+    elif "queries" in s:
+        print(f": no R@1 (no frame with a full window has {has})", end="")
     print("" if "describe_ms" not in s else f"; describing {s['describe_ms']['median']:.1f} ms per image (median)")
     if "dropped" in s:
-        print(f"video: {s['decoded']} frames decoded, {s['dropped']} dropped"
+        print(f"video: {s['decoded']} frames decoded{_sampled(s.get('sampling'))}, {s['dropped']} dropped"
               + (f", {s['outside']} outside the track" if s.get("outside") else "")
               + (f"; decoding {s['decode_share']:.0%} of the frame time" if "decode_share" in s else ""))
     if args.plot:
@@ -215,6 +221,16 @@ def print_summary(conf: LocalizeConfig, args: argparse.Namespace, out: Written) 
         if lat.get("warmup_frames") else ""
     print(f"latency per frame: mean {lat.get('mean', 0):.2f} ms, median {lat.get('median', 0):.2f} ms, "
           f"p95 {lat.get('p95', 0):.2f} ms, p99 {lat.get('p99', 0):.2f} ms{warm}; track in {out}")
+
+
+def _sampled(sampling: dict | None) -> str:
+    """`` at 5 frames/s (as the map)`` of the summary's ``sampling`` (empty for every frame)."""
+    from ..localize.track import Sampling
+
+    if not sampling or (sampling.get("fps") is None and sampling.get("every_metres") is None):
+        return ""
+    s = Sampling(sampling.get("fps"), sampling.get("every_metres"))
+    return f" ({s.said()}{', as the map' if sampling.get('as') == 'map' else ''})"
 
 
 def calibration(args: argparse.Namespace) -> tuple[float, str, float] | None:

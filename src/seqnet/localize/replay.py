@@ -81,9 +81,10 @@ def summarize(est: Sequence[Estimate], correct: np.ndarray | None, has: np.ndarr
     if correct is not None and has is not None:
         pos = full & has
         conf = np.array([e.confidence for e in est])
-        out.update(queries=int(pos.sum()), no_positive=int((full & ~has).sum()),
-                   **{"recall@1": float(correct[pos].mean()) if pos.any() else float("nan")},
-                   **pr_summary(*precision_recall(conf[full], correct[full], has[full])[:2]))
+        out.update(queries=int(pos.sum()), no_positive=int((full & ~has).sum()))
+        if pos.any():  # else nothing to score: no R@1 (null in the JSON, never NaN)
+            out.update({"recall@1": float(correct[pos].mean())},
+                       **pr_summary(*precision_recall(conf[full], correct[full], has[full])[:2]))
     if len(lat):
         answered = np.flatnonzero([e.ref_index >= 0 for e in est])
         warm = int(answered[0]) + 1 if len(answered) and answered[0] + 1 < len(lat) else 0

@@ -71,7 +71,7 @@ def load_reference(path: str | Path, models: Mapping[str, SeqNet],
         ds = load_dataset(path).split(conf.split or "all")
         ref = traverse_reference(ds.reference, models, conf.method, conf.windows(models), get_device(conf.device),
                                  conf.allow_mismatch, ds.name)
-        return ref, conf.radius or ds.radius, MapFrame(ds.position_unit, MapFrame.of(ds.extra).frame)
+        return ref, conf.radius or ds.radius, dataclasses.replace(MapFrame.of(ds.extra), unit=ds.position_unit)
     if models:
         raise ConfigError(f"{path} is an index map: it stores the models its descriptors were made with; drop "
                           "--model / --shortlist-model / --rerank-model")
@@ -198,7 +198,10 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     if q_pos is not None:
         check_frame(frame, images.positions.frame, map_dir, q.positions_topic)
     loc = conf.localizer(ref_map, radius)
-    vq = VideoQuery(q.shown, q.video, ref_map, conf.allow_mismatch, describer, map_dir, q.resize) if video else None
+    vq = VideoQuery(q.shown, q.video, ref_map, conf.allow_mismatch, describer, map_dir, q.resize,
+                    frame.sampling) if video else None
+    if vq is not None:
+        vq.prepare(frame, map_dir, loc.r_pos, radius)
     frames, names, n = ((vq.frames(), vq.names, None) if vq else descriptor_frames(q.path, ref_map, conf.allow_mismatch)
                         if is_file else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer, map_dir,
                                                      q.resize))

@@ -21,9 +21,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..data.utm import frame_zone
 from ..security.text import shown
 from ..sources.bags.positions import match_positions
+from ..sources.tracks.metres import XY_FRAME
+from .track import Sampling, map_sampling
 
 if TYPE_CHECKING:
     from ..describe.images import ImageList
@@ -33,16 +36,19 @@ if TYPE_CHECKING:
 @dataclasses.dataclass(frozen=True)
 class MapFrame:
     """Where a map's positions are: their ``unit`` (``metres`` / ``frames``) and ``frame`` (``UTM zone 32V``,
-    ``odometry frame 'odom'``; None: not recorded)."""
+    ``odometry frame 'odom'``; None: not recorded); and, for a map made from a video, how its frames were sampled
+    (``sampling``, :func:`seqnet.localize.track.map_sampling`)."""
 
     unit: str | None
     frame: str | None
+    sampling: Sampling | None = None
 
     @classmethod
     def of(cls, meta: Mapping[str, Any]) -> MapFrame:
         """The frame recorded in a dataset's metadata or an index map's ``source`` (text, else unknown)."""
         unit, frame = meta.get("position_unit"), meta.get("positions_frame")
-        return cls(unit if isinstance(unit, str) else None, frame if isinstance(frame, str) else None)
+        return cls(unit if isinstance(unit, str) else None, frame if isinstance(frame, str) else None,
+                   map_sampling(meta))
 
 
 def query_positions(images: ImageList, tolerance: float, source: str | Path) -> np.ndarray:
@@ -77,10 +83,17 @@ def check_frame(mf: MapFrame, frame: str, map_path: str | Path, topic: str) -> N
         raise ConfigError(f"the map {map_path} has positions in {mf.unit or 'an unknown unit'}, not metres, so the "
                           f"{where} cannot be compared with them (a map built from frame-aligned traverses or "
                           "explicit positives has no metric positions)")
+    if mf.frame is None and frame == XY_FRAME:  # a CSV's x, y metres against a map of a CSV's x, y metres
+        logger.warning("the map %s does not record the frame of its positions (a positions CSV's easting/northing or "
+                       "x/y), nor does %s: its x, y metres are taken to be in the map's frame, unchecked", map_path,
+                       shown(topic)[:120])
+        return
     if mf.frame is None or (mf.frame.startswith("UTM") and _utm(mf.frame) is None):  # "UTM zone ?": a log's
         raise ConfigError(f"the map {map_path} does not record the frame of its positions (UTM zone or odometry "
-                          f"frame), so the {where} cannot be checked to be in it; hint: build its dataset with "
-                          "`seqnet dataset from-images --positions-topic` (or --positions-format), which records it")
+                          f"frame), so the {where} cannot be checked to be in it; hint: give the track in the map's "
+                          "own metres (columns time,x,y or time,easting,northing), or build the map's dataset from "
+                          "lat,lon positions (a CSV with lat,lon columns, a GPS track, --positions-topic), which "
+                          "records the UTM zone")
     if not same_frame(mf.frame, frame):
         raise ConfigError(f"the map {map_path} has positions in {shown(mf.frame)[:80]}, the {where}: positions in "
                           "two frames are not comparable")

@@ -110,6 +110,7 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
     info = {"dataset": ds.name, "dataset_path": str(Path(dataset).resolve()), "split": split,
             "reference_range": [int(a), int(b)], "radius": ds.radius, "position_unit": ds.position_unit,
             "positions_frame": ds.extra.get("positions_frame"),
+            "sampling": ds.extra.get("sampling"),
             "explicit_positives": ds.positives is not None, "input_dim": ds.reference.dim,
             "model_seq_len": model_lengths(loaded),
             "describe_seconds": round(time.perf_counter() - t0, 3)}

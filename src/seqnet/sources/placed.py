@@ -16,7 +16,7 @@ from ..security.text import shown
 from .sampling import every_metres as by_metres
 from .sampling import every_seconds
 from .tracks import read_track
-from .tracks.clock import video_times
+from .tracks.clock import in_milliseconds, video_times, why_outside
 from .tracks.interpolate import DEFAULT_MAX_GAP, at_times
 from .tracks.metres import to_metres
 from .video import VideoFile, VideoFrame
@@ -59,9 +59,7 @@ def place_video(path: str | Path, positions: str | Path | None = None, fps: floa
     if positions is not None:
         xy, inside, frame = track_positions(positions, video.times, video_start or video.start, video.duration,
                                             zone, max_gap)
-        if not inside.any():
-            raise DatasetError(f"no frame of the video {shown(path)} lies within the track {shown(positions)} "
-                               f"(the track's times do not overlap the video's {video.duration:.1f} s)")
+        _check_placed(int(inside.sum()), video, positions, video_start or video.start, max_gap)
         idx = idx[inside]
     if every_metres is not None:
         idx = idx[by_metres(xy[idx], every_metres)]
@@ -73,3 +71,16 @@ def place_video(path: str | Path, positions: str | Path | None = None, fps: floa
                        counts["outside"], counts["total"], positions)
     frames = [VideoFrame(video, int(i)) for i in idx]
     return Placed(frames, [f.name for f in frames], None if xy is None else xy[idx], frame, counts)
+
+
+def _check_placed(placed: int, video: VideoFile, positions: str | Path, start: datetime.datetime | None,
+                  max_gap: float) -> None:
+    """Refuse a track that places no frame of ``video``, or under half of them with times that look like
+    milliseconds (a dataset of a frame or two is no dataset), naming why (:func:`why_outside`)."""
+    n = len(video.times)
+    if 2 * placed >= n:
+        return
+    rel = video_times(read_track(positions), start, video.duration)
+    where = f"the track {shown(positions)} places {placed or 'none'} of the {n} frames of the video {shown(video.path)}"
+    if not placed or in_milliseconds(rel, video.duration):
+        raise DatasetError(f"{where}: {why_outside(rel, video.duration, max_gap)}")

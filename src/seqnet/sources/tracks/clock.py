@@ -19,6 +19,7 @@ from ..times import parse_iso
 from .base import Track
 
 DAY = 86400.0
+MS_RATIO = 200.0  # a track spanning this many times the video's length: its times are probably milliseconds
 
 
 def parse_start(text: str) -> datetime.datetime:
@@ -58,3 +59,30 @@ def video_times(track: Track, start: datetime.datetime | None, duration: float) 
                            f"{_utc(times[-1])} UTC, the video {_utc(t0)} .. {_utc(t0 + duration)} UTC (hint: "
                            "--video-start if the video's clock is wrong)")
     return rel
+
+
+def in_milliseconds(track_times: np.ndarray, duration: float) -> bool:
+    """Whether a track of sorted times ``[S]`` spans far more than the ``duration`` s video it goes with
+    (:data:`MS_RATIO` times): times written in milliseconds, read as seconds."""
+    t = np.asarray(track_times, np.float64)
+    return bool(len(t) > 1 and duration > 0 and t[-1] - t[0] > MS_RATIO * duration)
+
+
+def why_outside(track_times: np.ndarray, duration: float, max_gap: float) -> str:
+    """Why no frame of a ``duration`` s video lies on a track of sorted times ``[S]`` (seconds since the video's
+    first frame): times in milliseconds, frames inside a gap longer than ``max_gap``, or no overlap."""
+    t = np.asarray(track_times, np.float64)
+    span = float(t[-1] - t[0]) if len(t) else 0.0
+    if in_milliseconds(t, duration):
+        return (f"the track spans {span:.0f} s against a video of {duration:.1f} s: times in milliseconds? (numeric "
+                "times are read as seconds since the video's start)")
+    gaps = np.diff(t)
+    inside = (t[:-1] < duration) & (t[1:] > 0) & (gaps > max_gap)
+    if inside.any():
+        g = float(gaps[inside].max())
+        return (f"the video's frames fall inside a gap of the track of {g:.3g} s, longer than the {max_gap:g} s a "
+                f"frame is interpolated across (--max-gap) (the track has {len(t)} fixes over {span:.3g} s: times "
+                "in milliseconds, or a sparse track?)")
+    return (f"the track's times ({t[0]:.3g} .. {t[-1]:.3g} s) do not overlap the video's 0 .. {duration:.1f} s "
+            "(numeric times are read as seconds since the video's start; absolute ones need the video's "
+            "creation_time or --video-start)")
