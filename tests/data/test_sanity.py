@@ -7,17 +7,16 @@ import numpy as np
 import pytest
 
 from seqnet.core.errors import DatasetError
-from seqnet.data import sanity
 from seqnet.data.positives import Positives
 from seqnet.data.sanity import (
-    _copy_of,
-    _row_hashes,
     check_frame_aligned,
+    copies,
     dataset_warnings,
     duplicated_rows,
     review,
     shared_queries,
 )
+from seqnet.data.sanity.copies import _copy_of, _row_hashes
 from seqnet.data.traverse import Dataset, Traverse
 
 
@@ -73,9 +72,8 @@ def test_row_hashes_vs_a_loop(desc):
 def test_copy_of_vs_a_loop(monkeypatch):
     """Every query row's identical reference row, found by a hash of its first columns then compared whole, as
     a loop over all pairs finds it; small blocks (several per array) and a shared prefix included."""
-    from seqnet.data import sanity
 
-    monkeypatch.setattr(sanity, "BLOCK_BYTES", 3 * 96 * 8)  # blocks of 3 rows compared, 12 hashed
+    monkeypatch.setattr(copies, "BLOCK_BYTES", 3 * 96 * 8)  # blocks of 3 rows compared, 12 hashed
     rng = np.random.default_rng(3)
     ref = rng.random((30, 24)).astype(np.float32)
     ref[7, :16] = ref[8, :16]  # rows 7 and 8 share the hashed prefix
@@ -127,7 +125,7 @@ def test_duplicated_rows_vs_a_loop(desc, monkeypatch):
     assert duplicated_rows(rows[:1], "query") is None and duplicated_rows(desc, "query") is None
     many = np.random.default_rng(4).random((5000, 4)).astype(np.float32)
     many[1::2] = many[0::2]  # every frame twice: found in runs of consecutive rows beyond the byte budget
-    monkeypatch.setattr(sanity, "DUPLICATES_BYTES", 1)
+    monkeypatch.setattr(copies, "DUPLICATES_BYTES", 1)
     n, rest = duplicated_rows(many, "query").split(" ", 1)
     assert 7 * 127 <= int(n) <= 896 and rest.startswith("of 1792 checked (of 5000) query rows are exact duplicates")
     [line] = dataset_warnings(make(desc, np.concatenate([desc[:10] * 0.5] * 2)))

@@ -1,0 +1,94 @@
+"""Mistakes in a dataset that every command would accept and score: found when the dataset is built
+(``seqnet dataset from-images``) and by ``seqnet dataset check``.
+
+* :func:`check_frame_aligned`: frame-aligned ground truth (query frame i shows the place of reference frame
+  i) with traverses of different lengths, or with image names that do not pair up (a missing image shifts
+  the ground truth of every later frame): refused.
+* :func:`dataset_warnings` (logged by :func:`review`): the query images are the reference images (every metric
+  trivially perfect), splits that share queries (selection and test numbers optimistic), positions all within
+  the radius of each other (constant GPS, or degrees: every reference is correct, R@K trivially 1), rows not in
+  route order (:func:`seqnet.data.spacing.out_of_order`), exact duplicate query rows (:func:`duplicated_rows`).
+  One line each.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from ...core.errors import DatasetError
+from ...core.log import logger
+from ..spacing import out_of_order
+from ..traverse import Dataset
+from .copies import copied_queries, duplicated_rows
+from .truth import constant_positions, shared_queries
+
+__all__ = ["ALIGNED_TRUTHS", "ALTERNATIVES", "VIDEO_ALTERNATIVES", "check_frame_aligned",
+           "copied_queries", "dataset_warnings", "duplicated_rows", "real_positions", "review", "route_order",
+           "shared_queries"]
+
+ALTERNATIVES = ("give the ground truth another way: --positives FILE (per query its matching reference indices) "
+                "or positions (--ref-csv / --query-csv, --utm-names)")
+
+
+VIDEO_ALTERNATIVES = ("give positions for both videos (--ref-positions / --query-positions FILE: GPX, NMEA or "
+                      "CSV tracks), or use two videos of equal length and frame rate")
+ALIGNED_TRUTHS = ("frames", "aligned")  # recorded ground truths of frame-aligned traverses: from-images, from-video
+
+
+def check_frame_aligned(ref_names: Sequence[str], query_names: Sequence[str], where: str = "--frame-aligned",
+                        by_name: bool = True, hint: str = ALTERNATIVES) -> None:
+    """Raise :class:`DatasetError` unless query frame i can be the place of reference frame i: as many frames
+    on both sides and, when ``by_name`` and the two traverses name their images alike (some names in common),
+    the same name at every index (video frames, named by their time, are compared by count only)."""
+    n_r, n_q = len(ref_names), len(query_names)
+    if n_r != n_q:
+        raise DatasetError(f"{where}: query frame i is the place of reference frame i, but the reference has {n_r} "
+                           f"images and the query {n_q}, so the ground truth cannot line up; hint: {hint}")
+    if not by_name or not set(ref_names) & set(query_names):
+        return  # named differently (two cameras, two clocks): nothing to pair by name
+    for i, (r, q) in enumerate(zip(ref_names, query_names, strict=True)):
+        if r != q:
+            raise DatasetError(f"{where}: reference image {i} is {r!r} but query image {i} is {q!r}: an image "
+                               "missing from one folder shifts every later frame and the ground truth would no "
+                               f"longer line up; fix or remove them so both folders hold the same names, or "
+                               f"{ALTERNATIVES}")
+
+
+def review(ds: Dataset) -> list[str]:
+    """Check ``ds`` as built: frame-aligned ground truth (recorded as ``"ground_truth"`` ``"frames"`` or, from
+    videos, ``"aligned"``: :data:`ALIGNED_TRUTHS`) must pair up (:func:`check_frame_aligned`, else
+    :class:`DatasetError`); every :func:`dataset_warnings` line is logged as a warning, and returned."""
+    truth = ds.extra.get("ground_truth")
+    if truth in ALIGNED_TRUTHS:
+        video = truth == "aligned"  # frames named by their video time: the counts must match, not the names
+        check_frame_aligned(ds.reference.names, ds.query.names, f"{ds.name}: frame-aligned ground truth",
+                            by_name=not video, hint=VIDEO_ALTERNATIVES if video else ALTERNATIVES)
+    found = dataset_warnings(ds)
+    for line in found:
+        logger.warning("%s", line)
+    return found
+
+
+def dataset_warnings(ds: Dataset) -> list[str]:
+    """One line per likely mistake in ``ds`` (none: an empty list): see the module's description."""
+    found = [copied_queries(ds), shared_queries(ds, list(ds.splits)), constant_positions(ds), *route_order(ds),
+             duplicated_rows(ds.query.descriptors, "query")]
+    return [f"{ds.name}: {line}" for line in found if line]
+
+
+def real_positions(ds: Dataset) -> bool:
+    """Whether ``ds``'s positions say how far frames are apart (not the frame numbers that stand in for positions
+    beside explicit positives)."""
+    return ds.positives is None or ds.position_unit != "frames"
+
+
+def route_order(ds: Dataset) -> list[str]:
+    """The :func:`seqnet.data.spacing.out_of_order` lines of the query and the reference of ``ds`` (none when
+    its positions are frame numbers: :func:`real_positions`)."""
+    if not real_positions(ds):
+        return []
+    found = [out_of_order(t.positions, t.seq_bounds, ds.radius, ds.position_unit, side, t.names is not None)
+             for side, t in (("query", ds.query), ("reference", ds.reference))]
+    return [line for line in found if line]
+
+
