@@ -142,3 +142,22 @@ def test_a_trained_checkpoint_copied_alone_still_warns(tmp_path, caplog):
     said = [r.getMessage() for r in caplog.records]
     assert any(f"are queries the S_1 model {copy} chose its epoch on ('test'" in s for s in said), said
     assert any("chose its epoch on" in w for w in json.loads((tmp_path / "r.json").read_text())["warnings"])
+
+
+def test_transposed_square_positives_are_said_instead_of_a_shift(tmp_path, caplog):
+    """Square positives given as [N_reference, N_query] (VPR_Tutorial's GThard) look like a shift to the top-1s;
+    eval says the transposed reading instead of blaming the indices."""
+    from data.test_sanity import make
+
+    rng = np.random.default_rng(1)
+    places = np.cumsum(rng.normal(size=(80, 16)), axis=0).astype(np.float32)
+    seen = places + rng.normal(scale=0.3, size=places.shape).astype(np.float32)
+    ref = np.roll(places, -5, axis=0)  # reference j shows place j + 5: query i matches reference i - 5
+    rows = [(i, j) for i in range(80) for j in (i - 6, i - 5, i - 4) if 0 <= j < 80]
+    given = Positives.from_pairs(np.array([j for _, j in rows]), np.array([i for i, _ in rows]), 80)  # transposed
+    path = save_dataset(make(ref, seen, positives=given), tmp_path / "ds")
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        eval_main(EvalConfig(methods=METHODS), path, tmp_path / "out")
+    warnings = json.loads((tmp_path / "out" / "results.json").read_text())["warnings"]
+    assert any(w.startswith("the positives read better transposed") for w in warnings), warnings
+    assert not any("look shifted" in w for w in warnings)

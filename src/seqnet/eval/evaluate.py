@@ -234,6 +234,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
                   shortlist_model: str | Path | None, rerank_model: str | Path | None,
                   prepare: Prepare | None = None) -> Evaluation:
     from ..data.io import load_dataset
+    from ..data.sanity.truth import transposed_positives
     from ..sequence.checkpoints import load_models
 
     ds = load_dataset(dataset)
@@ -258,9 +259,11 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
     chosen = (prepared or {}).get("selection", {}).get("warning")  # said once the evaluation has succeeded
+    flipped = transposed_positives(ds)  # the whole dataset's square positives; said instead of a shift
     add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), chosen,
                       *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
-                      shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None), trivial_ks(ev, conf.ks),
+                      flipped or shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None),
+                      trivial_ks(ev, conf.ks),
                       *selection_leakage(loaded, dataset, ds, split)])
     leaks = leakage(loaded, dataset, ds, split)
     if conf.target_precision is not None:

@@ -106,7 +106,7 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
     """Every line of this module's checks on an evaluation: ``ds`` the evaluated split (re-sampled as asked;
     None: only the truth's checks), ``truth`` over its query frames ``items [M]``, for ``methods``: reversed
     sequences, trivial truth, rows out of route order and different sampling rates (for real positions, when a
-    sequence method is evaluated), duplicated query rows, queries that are copies of references."""
+    sequence method is evaluated), duplicated rows of either side, queries that are copies of references."""
     methods = list(methods)
     if ds is None:
         return [line for line in (reversed_route(truth, methods), trivial_truth(truth)) if line]
@@ -118,5 +118,6 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
         rates = any(m.rate_sensitive for m in parsed) and step_rates(q.positions, q.seq_bounds, r.positions,
                                                                      r.seq_bounds, ds.position_unit)
         found += disorder or [rates or None]
-    found += [duplicated_rows(q.descriptors, "query"), copied_queries(ds)]
+    found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
+              copied_queries(ds)]
     return [line for line in found if line]

@@ -7,8 +7,10 @@
 * :func:`dataset_warnings` (logged by :func:`review`): the query images are the reference images (every metric
   trivially perfect), splits that share queries (selection and test numbers optimistic), positions all within
   the radius of each other (constant GPS, or degrees: every reference is correct, R@K trivially 1), rows not in
-  route order (:func:`seqnet.data.spacing.out_of_order`), exact duplicate query rows (:func:`duplicated_rows`).
-  One line each.
+  route order (:func:`seqnet.data.spacing.out_of_order`), exact duplicate rows of either side
+  (:func:`duplicated_rows`), square positives that read better transposed (:func:`.truth.transposed_positives`), a
+  frame radius as wide as a metres one (:func:`.truth.wide_frame_radius`), a frozen GPS fix
+  (:func:`.truth.frozen_positions`). One line each.
 """
 
 from __future__ import annotations
@@ -20,10 +22,10 @@ from ...core.log import logger
 from ..spacing import out_of_order
 from ..traverse import Dataset
 from .copies import copied_queries, duplicated_rows
-from .truth import constant_positions, shared_queries
+from .truth import constant_positions, frozen_positions, shared_queries, transposed_positives, wide_frame_radius
 
 __all__ = ["ALIGNED_TRUTHS", "ALTERNATIVES", "VIDEO_ALTERNATIVES", "check_frame_aligned",
-           "copied_queries", "dataset_warnings", "duplicated_rows", "real_positions", "review", "route_order",
+           "copied_queries", "dataset_warnings", "duplicated_rows", "frozen", "real_positions", "review", "route_order",
            "shared_queries"]
 
 ALTERNATIVES = ("give the ground truth another way: --positives FILE (per query its matching reference indices) "
@@ -72,8 +74,19 @@ def review(ds: Dataset) -> list[str]:
 def dataset_warnings(ds: Dataset) -> list[str]:
     """One line per likely mistake in ``ds`` (none: an empty list): see the module's description."""
     found = [copied_queries(ds), shared_queries(ds, list(ds.splits)), constant_positions(ds), *route_order(ds),
-             duplicated_rows(ds.query.descriptors, "query")]
+             duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
+             transposed_positives(ds), wide_frame_radius(ds), *frozen(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
+
+
+def frozen(ds: Dataset) -> list[str]:
+    """The :func:`frozen_positions` lines of the query and the reference of ``ds``, when positions decide what is
+    correct (real positions, no explicit positives, not all within the radius: :func:`constant_positions`)."""
+    if ds.positives is not None or ds.position_unit == "frames" or constant_positions(ds):
+        return []
+    found = [frozen_positions(t.positions, t.descriptors, side) for side, t in (("query", ds.query),
+                                                                                 ("reference", ds.reference))]
+    return [line for line in found if line]
 
 
 def real_positions(ds: Dataset) -> bool:

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ...core.tensors import spread
 from ..spacing import DEGREES_HINT, looks_like_degrees
 from ..traverse import Dataset
 
@@ -44,3 +45,103 @@ def constant_positions(ds: Dataset) -> str | None:
                 DEGREES_HINT if looks_like_degrees(both) else "check the positions: constant GPS?") + ")")
 
 
+
+
+TRANSPOSED_SAMPLES = 200  # queries whose nearest reference tells the two readings of square positives apart
+TRANSPOSED_BYTES = 512 << 20  # reference descriptors read at most for it
+TRANSPOSED_SHARE, TRANSPOSED_RATIO = 0.2, 3.0  # the transposed reading's top-1 hits: at least, and times the given's
+
+
+def transposed_positives(ds: Dataset) -> str | None:
+    """Why explicit positives of a square dataset (as many queries as references) look transposed: the nearest
+    reference of a sample of queries (by their descriptors) is a listed positive far more often when query and
+    reference are swapped (a ``[N_reference, N_query]`` matrix, as VPR_Tutorial's ``GThard``, or pairs written
+    ``reference,query``); None otherwise (symmetric positives read alike both ways)."""
+    p, ref = ds.positives, ds.reference.descriptors
+    n = len(ds.query)
+    if p is None or len(ref) != n or n < 10 or ref.nbytes > TRANSPOSED_BYTES:
+        return None
+    q_idx = spread(n, TRANSPOSED_SAMPLES)
+    top1 = nearest_rows(ref, np.asarray(ds.query.descriptors[q_idx], np.float32))
+    rows, cols = p.pairs()
+    listed = rows.astype(np.int64) * n + cols
+    given = np.isin(q_idx * n + top1, listed).mean()
+    swapped = np.isin(top1 * n + q_idx, listed).mean()
+    if swapped < max(TRANSPOSED_SHARE, TRANSPOSED_RATIO * given):
+        return None
+    return (f"the positives read better transposed: the nearest reference of {len(q_idx)} sampled queries is a listed "
+            f"positive for {given:.0%} of them, but for {swapped:.0%} with query and reference swapped (a "
+            "[N_reference, N_query] matrix, as VPR_Tutorial's GThard, or pairs written reference,query?); hint: give "
+            "the matrix transposed ([N_query, N_reference]) or the pairs as query,reference")
+
+
+def nearest_rows(ref: np.ndarray, q: np.ndarray, block: int = 8192) -> np.ndarray:
+    """``[M]`` int64: the row of ``ref [N, D]`` nearest (Euclidean) to each row of ``q [M, D]``, over blocks of
+    ``block`` reference rows (first on ties)."""
+    best = np.full(len(q), np.inf)
+    arg = np.zeros(len(q), np.int64)
+    for s in range(0, len(ref), block):
+        r = np.asarray(ref[s:s + block], np.float32)
+        d = (r * r).sum(axis=1)[None, :] - 2.0 * (q @ r.T)  # + |q|², the same for every reference
+        j = d.argmin(axis=1)
+        v = d[np.arange(len(q)), j]
+        better = v < best
+        best[better], arg[better] = v[better], j[better] + s
+    return arg
+
+
+WIDE_COUNT, WIDE_SHARE = 20, 0.1  # a frame radius giving the median query more correct references than both
+
+
+def wide_frame_radius(ds: Dataset, samples: int = 200) -> str | None:
+    """Why a radius in frames looks like one meant in metres: the median query has more than :data:`WIDE_COUNT`
+    references within it and more than :data:`WIDE_SHARE` of the map (``--frame-aligned --radius 25``); None
+    otherwise, with explicit positives, or when every reference is within it (:func:`constant_positions`)."""
+    if ds.positives is not None or ds.position_unit != "frames" or len(ds.reference) < 4 or not len(ds.query):
+        return None
+    from scipy.spatial import cKDTree
+
+    r_pos, q_pos = np.asarray(ds.reference.positions, np.float64), np.asarray(ds.query.positions, np.float64)
+    counts = cKDTree(r_pos).query_ball_point(q_pos[spread(len(q_pos), samples)], ds.radius, return_length=True)
+    m, n_r = float(np.median(counts)), len(r_pos)
+    if m <= max(WIDE_COUNT, WIDE_SHARE * n_r) or m >= n_r:
+        return None
+    return (f"radius {ds.radius:g} frames: the median query has {m:.0f} correct references ({m / n_r:.0%} of the "
+            f"{n_r}), so Recall@K is easy; with frame-numbered positions --radius counts frames, not metres (hint: "
+            "a radius of 1-3 frames, or positions in metres)")
+
+
+FROZEN_RUN = 10  # consecutive rows sharing one position, at least, before it looks like a frozen GPS fix
+FROZEN_CHANGE = 0.5  # ... while their images change at least this share of the route's median change per row
+
+
+def frozen_positions(positions: np.ndarray, desc: np.ndarray, side: str, pairs: int = 2000) -> str | None:
+    """Why the positions ``[N, P]`` of a side look frozen (a GPS receiver repeating its last fix): a run of at least
+    :data:`FROZEN_RUN` consecutive rows with one position while their descriptors ``desc [N, D]`` change as much as
+    along the route (a stopped vehicle's images barely change: silent); None otherwise."""
+    pos = np.asarray(positions, np.float64)
+    if len(pos) <= FROZEN_RUN:
+        return None
+    same = np.r_[False, (np.diff(pos, axis=0) == 0).all(axis=1), False]
+    edges = np.flatnonzero(np.diff(same.astype(np.int8)))
+    starts, stops = edges[::2], edges[1::2] + 1  # run [start, stop): rows start..stop-1 share a position
+    long = stops - starts >= FROZEN_RUN
+    if not long.any():
+        return None
+    i = spread(len(pos) - 1, pairs)
+    route = float(np.median(_steps(desc, i)))
+    frozen = [(a, b) for a, b in zip(starts[long], stops[long], strict=True)
+              if np.median(_steps(desc, np.arange(a, b - 1))) >= FROZEN_CHANGE * route > 0]
+    if not frozen:
+        return None
+    a, b = max(frozen, key=lambda r: r[1] - r[0])
+    more = f"; {len(frozen)} such runs, {sum(e - s for s, e in frozen)} rows in all" if len(frozen) > 1 else ""
+    return (f"{b - a} consecutive {side} rows ({a}:{b}) share one position while their images change as much as "
+            f"along the route{more}: a frozen GPS fix? (each takes that one place as its ground truth; hint: drop "
+            "those rows or give them their true positions)")
+
+
+def _steps(desc: np.ndarray, i: np.ndarray) -> np.ndarray:
+    """``[K]`` the distance from descriptor row ``i`` to row ``i + 1`` for each of ``i [K]``."""
+    a, b = np.asarray(desc[i], np.float64), np.asarray(desc[i + 1], np.float64)
+    return np.linalg.norm(a - b, axis=1)

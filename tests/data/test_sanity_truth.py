@@ -1,0 +1,84 @@
+"""The ground-truth checks of seqnet.data.sanity.truth: square positives read better transposed, a frame radius as
+wide as a metres one, a frozen GPS fix; each against a loop or a hand-made case, silent on correct data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from data.test_sanity import make
+
+from seqnet.data.positives import Positives
+from seqnet.data.sanity import dataset_warnings
+from seqnet.data.sanity.truth import frozen_positions, nearest_rows, transposed_positives, wide_frame_radius
+
+
+@pytest.fixture
+def route():
+    """60 places along a route: a random walk of descriptors (neighbours alike), seen twice with noise."""
+    rng = np.random.default_rng(1)
+    places = np.cumsum(rng.normal(size=(60, 16)), axis=0).astype(np.float32)
+    return places, places + rng.normal(scale=0.3, size=places.shape).astype(np.float32)
+
+
+def test_nearest_rows_vs_a_loop(route):
+    ref, q = route
+    got = nearest_rows(ref, q[::3], block=7)
+    assert got.tolist() == [int(np.argmin([np.linalg.norm(r - x) for r in ref])) for x in q[::3]]
+
+
+def _shifted(n: int, by: int) -> list[list[int]]:
+    """Query i matches reference i - by (and its neighbours): not symmetric."""
+    return [[j for j in (i - by - 1, i - by, i - by + 1) if 0 <= j < n] for i in range(n)]
+
+
+def test_square_positives_given_transposed_are_warned(route):
+    places, seen = route
+    ref = np.roll(places, -5, axis=0)  # reference j shows place j + 5; query i shows place i
+    lists = _shifted(60, 5)
+    good = Positives.from_lists(lists)
+    rows, cols = good.pairs()
+    flipped = Positives.from_pairs(cols, rows, 60)  # [N_reference, N_query] read as [N_query, N_reference]
+    assert transposed_positives(make(ref, seen, positives=good)) is None
+    line = transposed_positives(make(ref, seen, positives=flipped))
+    assert line.startswith("the positives read better transposed") and "query,reference" in line
+    symmetric = Positives.from_lists(_shifted(60, 0))
+    assert transposed_positives(make(places, seen, positives=symmetric)) is None  # both readings alike
+    assert transposed_positives(make(ref[:50], seen, positives=flipped.select(np.arange(60), np.arange(50)))) is None
+    assert any("read better transposed" in w for w in dataset_warnings(make(ref, seen, positives=flipped)))
+
+
+def test_a_frame_radius_as_wide_as_metres_is_warned(route):
+    places, seen = route
+    assert wide_frame_radius(make(places, seen, radius=1.0)) is None
+    line = wide_frame_radius(make(places, seen, radius=10.0))
+    assert line.startswith("radius 10 frames: the median query has 21 correct references (35% of the 60)")
+    assert wide_frame_radius(make(places, seen, radius=100.0)) is None  # every reference: constant positions say it
+    assert wide_frame_radius(make(places, seen, radius=10.0, positives=Positives.from_lists(_shifted(60, 0)))) is None
+    metres = np.c_[np.arange(60.0) * 10, np.zeros(60)]
+    assert wide_frame_radius(make(places, seen, metres, metres, radius=100.0)) is None
+
+
+def test_a_frozen_fix_is_warned_but_a_stopped_vehicle_is_not(route):
+    places, seen = route
+    pos = np.c_[np.arange(60.0) * 10, np.zeros(60)]
+    frozen = pos.copy()
+    frozen[20:35] = frozen[20]
+    line = frozen_positions(frozen, seen, "query")
+    assert line.startswith("15 consecutive query rows (20:35) share one position while their images change")
+    stopped = seen.copy()
+    stopped[20:35] = seen[20] + np.random.default_rng(2).normal(scale=1e-3, size=(15, 16))
+    assert frozen_positions(frozen, stopped, "query") is None  # images barely change: a stop
+    assert frozen_positions(pos, seen, "query") is None
+    short = pos.copy()
+    short[20:25] = short[20]
+    assert frozen_positions(short, seen, "query") is None  # 5 rows: a pause
+    lines = dataset_warnings(make(places, seen, pos, frozen, radius=15.0))
+    assert [w for w in lines if "frozen GPS fix" in w] and all("reference rows" not in w for w in lines)
+
+
+def test_duplicate_reference_rows_are_warned(route):
+    places, seen = route
+    ref = places.copy()
+    ref[10:20] = ref[10]
+    lines = dataset_warnings(make(ref, seen))
+    assert any(w.startswith("d: 9 of the 60 reference rows are exact duplicates") for w in lines)
