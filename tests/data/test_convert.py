@@ -80,6 +80,27 @@ def test_frame_csv(tmp_path):
     assert names == ["a.png", "b.png"] and pos.tolist() == [[3.0], [4.0]] and unit == "frames" and bounds is None
 
 
+def test_a_frame_column_of_timestamps_is_refused_and_file_numbers_warned(tmp_path, caplog):
+    """Timestamps in seconds under a frame column made --radius 1 cover 21 frames silently."""
+    _write_csv(tmp_path / "t.csv", [(f"{i}.png", f"{1418235223.45 + 0.1 * i:.3f}") for i in range(5)],
+               header="name,frame")
+    with pytest.raises(DatasetError, match=r"t.csv, line 2: frame number 1418235223.45 in column 'frame' is not a "
+                                           r"whole number \(5 of 5 rows\): timestamps\?"):
+        read_positions_csv(tmp_path / "t.csv")
+    _write_csv(tmp_path / "us.csv", [("a.png", 1418235223450000)], header="name,frame")
+    with pytest.raises(DatasetError, match="must be finite numbers.*hint: frame numbers count frames"):
+        read_positions_csv(tmp_path / "us.csv")
+    _write_csv(tmp_path / "n.csv", [(f"{i}.png", 10000 + 10 * i) for i in range(5)], header="name,frame")
+    with caplog.at_level("WARNING", logger="seqnet"):
+        read_positions_csv(tmp_path / "n.csv")
+    assert "step by 10 from one row to the next: --radius counts frame numbers" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="seqnet"):
+        _write_csv(tmp_path / "ok.csv", [(f"{i}.png", i) for i in range(5)], header="name,frame")
+        read_positions_csv(tmp_path / "ok.csv")
+    assert "step by" not in caplog.text
+
+
 @pytest.mark.parametrize("header,match", [("name,lat", "lat and lon columns"), ("x,y", "image-name column"),
                                           ("name,easting", "easting and northing")])
 def test_csv_header_errors(tmp_path, header, match):

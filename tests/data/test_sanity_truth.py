@@ -82,3 +82,18 @@ def test_duplicate_reference_rows_are_warned(route):
     ref[10:20] = ref[10]
     lines = dataset_warnings(make(ref, seen))
     assert any(w.startswith("d: 9 of the 60 reference rows are exact duplicates") for w in lines)
+
+
+def test_degrees_taken_as_metres_are_warned_whatever_the_radius(route):
+    from seqnet.data.sanity.truth import degree_positions
+
+    places, seen = route
+    deg = np.c_[10.39 + np.arange(60) * 1e-4, 63.43 + np.zeros(60)]
+    line = degree_positions(make(places, seen, deg, deg + 1e-6, radius=0.0002))
+    assert line.startswith("the positions span 0.0059 units around (10.39295, 63.43000), taken as metres with a "
+                           "radius of 0.0002: positions look like degrees")
+    metres = np.c_[500000 + np.arange(60) * 10.0, np.full(60, 7e6)]
+    assert degree_positions(make(places, seen, metres, metres, radius=25.0)) is None
+    table = np.c_[np.arange(60) * 0.01, np.zeros(60)]  # a tabletop's metres near the origin
+    assert degree_positions(make(places, seen, table, table, radius=0.02)) is None
+    assert degree_positions(make(places, seen, deg, deg, radius=10.0)) is None  # every one within: said elsewhere

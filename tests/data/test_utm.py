@@ -17,6 +17,13 @@ def test_check_latlon_names_the_line_and_the_cause():
         check_latlon(np.array([[14.0, 66.0], [151.2, -33.9]]), "p.csv", [2, 3])
     with pytest.raises(DatasetError, match=r"row 0: latitude 6e\+06.*metres under lat/lon names"):
         check_latlon(np.array([[6e6, 5e5]]), "p.csv")
+    e7 = np.array([[634300000, 103900000], [634300900, 103902000]], dtype=np.float64)  # degrees × 1e7
+    with pytest.raises(DatasetError, match=r"hint: degrees × 10\^7 .*divide the lat and lon columns by 1e7$"):
+        check_latlon(e7, "p.csv")
+    with pytest.raises(DatasetError, match=r"degrees × 10\^6 .*by 1e6; or metres under lat/lon names"):
+        check_latlon(np.round(e7 / 10), "p.csv")  # E6 and UTM metres can look alike: both said
+    with pytest.raises(DatasetError, match=r"hint: metres under lat/lon names"):
+        check_latlon(e7 + 0.5, "p.csv")  # not whole numbers: no scaled degrees
 
 
 def test_latlon_pair_is_metres_in_the_reference_zone_and_refuses_a_swapped_file():

@@ -40,6 +40,15 @@ def test_unit_mistakes_say_the_distances_and_degrees():
         check_true_matches(dataset(deg, deg + [0.0, 1e-4], 1e-6))
 
 
+def test_frames_numbered_differently_are_named():
+    """A query CSV numbering its frames from 10000 (file numbers), the reference from 0: said as such, not as swapped
+    easting/northing."""
+    ref, qry = np.arange(30.0)[:, None], 10000 + 10 * np.arange(30.0)[:, None]
+    with pytest.raises(DatasetError, match=r"the two files number their frames differently \(reference from 0, query "
+                                           r"from 10000\)\?"):
+        check_true_matches(dataset(ref, qry, 1.0, unit="frames"))
+
+
 def test_few_matches_warn_once_and_empty_positives_are_refused(caplog):
     qry = ROUTE + np.where(np.arange(30) < 10, 2.0, 900.0)[:, None] * [1.0, 0.0]
     with caplog.at_level(logging.WARNING, logger="seqnet"):

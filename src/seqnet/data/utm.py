@@ -56,10 +56,20 @@ def check_latlon(latlon: np.ndarray, where: str, lines: list[int] | None = None)
     i = int(bad[0])
     row = f"line {lines[i]}" if lines is not None else f"row {i}"
     swapped = bool((np.abs(lon) <= 90).all() and (np.abs(lat) <= 180).all())
+    metres = "metres under lat/lon names? name them easting,northing"
+    scale = next((k for k in (7, 6) if (np.abs(lat) <= 90 * 10**k).all() and (np.abs(lon) <= 180 * 10**k).all()
+                  and (np.abs(lat) > 90 * 10 ** (k - 1)).any()), None) if _integral(latlon) else None
+    scaled = f"degrees × 10^{scale} (integers, as Android and OSM write them)? divide the lat and lon columns by " \
+        f"1e{scale}" + ("" if scale == 7 else f"; or {metres}")  # UTM northings stay below 9e7: not E7
     hint = ("the lat and lon columns are swapped (every longitude is a valid latitude): swap their names in the "
-            "header" if swapped else "metres under lat/lon names? name them easting,northing")
+            "header" if swapped else scaled if scale is not None else metres)
     raise DatasetError(f"{where}, {row}: latitude {float(lat[i]):g}, longitude {float(lon[i]):g} out of range "
                        f"(latitude -90..90, longitude -180..180 degrees); hint: {hint}")
+
+
+def _integral(a: np.ndarray) -> bool:
+    """Whether every value of ``a`` is a whole number."""
+    return bool(np.all(a == np.round(a)))
 
 
 def latlon_pair(ref: np.ndarray, query: np.ndarray, where: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str]:

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.tensors import spread
 from ..data.sanity import copied_queries, duplicated_rows, real_positions, route_order
+from ..data.sanity.truth import degree_positions
 from ..data.spacing import DEGREES_HINT, looks_like_degrees, step_rates
 from .grammar import parse_method
 
@@ -106,7 +107,8 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
     """Every line of this module's checks on an evaluation: ``ds`` the evaluated split (re-sampled as asked;
     None: only the truth's checks), ``truth`` over its query frames ``items [M]``, for ``methods``: reversed
     sequences, trivial truth, rows out of route order and different sampling rates (for real positions, when a
-    sequence method is evaluated), duplicated rows of either side, queries that are copies of references."""
+    sequence method is evaluated), duplicated rows of either side, queries that are copies of references,
+    positions in degrees taken as metres."""
     methods = list(methods)
     if ds is None:
         return [line for line in (reversed_route(truth, methods), trivial_truth(truth)) if line]
@@ -119,5 +121,5 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
                                                                      r.seq_bounds, ds.position_unit)
         found += disorder or [rates or None]
     found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
-              copied_queries(ds)]
+              copied_queries(ds), None if found[1] else degree_positions(ds)]
     return [line for line in found if line]

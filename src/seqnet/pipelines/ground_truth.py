@@ -134,5 +134,9 @@ def mismatch_hint(ds: Dataset, matched: int) -> str:
                     "positions? (hint: swap the two column names in its header)")
     if looks_like_degrees(np.concatenate([r, q])):
         return f"{said}; {DEGREES_HINT}"
+    if unit == "frames":
+        return (f"{said}: the two files number their frames differently (reference from {float(r.min()):g}, query "
+                f"from {float(q.min()):g})? (hint: number both from 0, frame i of the query at the place of frame i "
+                "of the reference, or give positions in metres)")
     return (f"{said}: positions swapped (easting/northing, lat/lon), the radius in another unit, or traverses in "
             "different coordinate frames? (hint: check both position files and the radius)")

@@ -96,9 +96,13 @@ def read_positions_table(path: str | Path) -> PositionsTable:
             comma = any("," in r[c] for c in pos_cols)  # a ';'-separated spreadsheet export with decimal commas
             raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
                                f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}"
-                               + ("; hint: write decimal points, not decimal commas" if comma else ""))
+                               + ("; hint: write decimal points, not decimal commas" if comma else "")
+                               + ("; hint: frame numbers count frames (0, 1, 2, ...): timestamps?"
+                                  if unit == "frames" and not comma else ""))
     if unit == "degrees":
         check_latlon(pos, str(p), names.lines)
+    if unit == "frames":
+        check_frames(pos[:, 0], str(p), names.lines, header[pos_cols[0]])
     keys = [r[col["seq"]].strip() for _, r in rows] if "seq" in col else None
     return PositionsTable(names, pos, unit, keys, f"{p} (column {header[col['seq']]!r})" if "seq" in col else None)
 
@@ -187,3 +191,22 @@ def read_seq_bounds(path: str | Path, n: int | None = None) -> np.ndarray:
     if n is not None and len(b) != n:
         raise DatasetError(f"{p}: {len(b)} sequence-bound rows for {n} images (must be one row per image)")
     return b
+
+
+def check_frames(frames: np.ndarray, where: str, lines: list[int], column: str) -> None:
+    """Refuse a frame column ``frames [N]`` that is not whole numbers (timestamps in seconds read as frames would
+    make ``--radius 1`` cover many frames), naming the first such line; warn when the numbers step by more than 1
+    from row to row (file numbers: ``--radius`` counts frame numbers, so it covers fewer rows than meant)."""
+    frac = np.flatnonzero(frames != np.round(frames))
+    if frac.size:
+        i = int(frac[0])
+        raise DatasetError(f"{where}, line {lines[i]}: frame number {frames[i]:.12g} in column {column!r} is not a "
+                           f"whole number ({frac.size} of {len(frames)} rows): timestamps? a frame column counts "
+                           "frames; hint: number the frames 0, 1, 2, ... or give positions (easting,northing or "
+                           "lat,lon)")
+    if len(frames) > 2:
+        step = float(np.median(np.abs(np.diff(frames))))
+        if step > 1:
+            logger.warning("%s: the frame numbers in column %r step by %g from one row to the next: --radius counts "
+                           "frame numbers, so a radius of R covers about R/%g rows (hint: number the rows' frames 0, "
+                           "1, 2, ... or scale --radius)", where, column, step, step)

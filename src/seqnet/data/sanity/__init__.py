@@ -22,7 +22,14 @@ from ...core.log import logger
 from ..spacing import out_of_order
 from ..traverse import Dataset
 from .copies import copied_queries, duplicated_rows
-from .truth import constant_positions, frozen_positions, shared_queries, transposed_positives, wide_frame_radius
+from .truth import (
+    constant_positions,
+    degree_positions,
+    frozen_positions,
+    shared_queries,
+    transposed_positives,
+    wide_frame_radius,
+)
 
 __all__ = ["ALIGNED_TRUTHS", "ALTERNATIVES", "VIDEO_ALTERNATIVES", "check_frame_aligned",
            "copied_queries", "dataset_warnings", "duplicated_rows", "frozen", "real_positions", "review", "route_order",
@@ -75,7 +82,7 @@ def dataset_warnings(ds: Dataset) -> list[str]:
     """One line per likely mistake in ``ds`` (none: an empty list): see the module's description."""
     found = [copied_queries(ds), shared_queries(ds, list(ds.splits)), constant_positions(ds), *route_order(ds),
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
-             transposed_positives(ds), wide_frame_radius(ds), *frozen(ds)]
+             transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), *frozen(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
 
 

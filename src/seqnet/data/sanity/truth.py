@@ -145,3 +145,19 @@ def _steps(desc: np.ndarray, i: np.ndarray) -> np.ndarray:
     """``[K]`` the distance from descriptor row ``i`` to row ``i + 1`` for each of ``i [K]``."""
     a, b = np.asarray(desc[i], np.float64), np.asarray(desc[i + 1], np.float64)
     return np.linalg.norm(a - b, axis=1)
+
+
+def degree_positions(ds: Dataset) -> str | None:
+    """Why positions taken as metres look like degrees whatever the radius: both traverses within a unit of each
+    other, |x| <= 180, |y| <= 90, fractional, away from the origin (:func:`seqnet.data.spacing.looks_like_degrees`;
+    a tabletop's metres near 0 stay silent); None otherwise, or when every position is within the radius
+    (:func:`constant_positions` says it)."""
+    if ds.positives is not None or ds.position_unit != "metres" or not (len(ds.reference) and len(ds.query)):
+        return None
+    both = np.concatenate([ds.reference.positions, ds.query.positions]).astype(np.float64)
+    if not looks_like_degrees(both) or np.abs(both).max() < 1.0 or constant_positions(ds):
+        return None
+    span = float(np.linalg.norm(np.ptp(both, axis=0)))
+    x, y = np.median(both, axis=0)
+    return (f"the positions span {span:.2g} units around ({x:.5f}, {y:.5f}), taken as metres with a radius of "
+            f"{ds.radius:g}: {DEGREES_HINT}")
