@@ -91,9 +91,13 @@ def test_a_frame_column_of_timestamps_is_refused_and_file_numbers_warned(tmp_pat
     with pytest.raises(DatasetError, match="must be finite numbers.*hint: frame numbers count frames"):
         read_positions_csv(tmp_path / "us.csv")
     _write_csv(tmp_path / "n.csv", [(f"{i}.png", 10000 + 10 * i) for i in range(5)], header="name,frame")
+    _write_csv(tmp_path / "s.csv", [(f"{i}.png", f"{0.1 * i:.1f}") for i in range(5)], header="name,frame")
     with caplog.at_level("WARNING", logger="seqnet"):
         read_positions_csv(tmp_path / "n.csv")
+        assert read_positions_csv(tmp_path / "s.csv")[1][:, 0].tolist() == [0.0, 0.1, 0.2, 0.3, 0.4]
     assert "step by 10 from one row to the next: --radius counts frame numbers" in caplog.text
+    assert "step by 0.1 from one row to the next (timestamps?)" in caplog.text
+    assert "covers about 10 R rows" in caplog.text
     caplog.clear()
     with caplog.at_level("WARNING", logger="seqnet"):
         _write_csv(tmp_path / "ok.csv", [(f"{i}.png", i) for i in range(5)], header="name,frame")

@@ -193,12 +193,16 @@ def read_seq_bounds(path: str | Path, n: int | None = None) -> np.ndarray:
     return b
 
 
+EPOCH_LIKE = 1e6  # fractional frame numbers this large are clock times, not places along a route
+
+
 def check_frames(frames: np.ndarray, where: str, lines: list[int], column: str) -> None:
-    """Refuse a frame column ``frames [N]`` that is not whole numbers (timestamps in seconds read as frames would
-    make ``--radius 1`` cover many frames), naming the first such line; warn when the numbers step by more than 1
-    from row to row (file numbers: ``--radius`` counts frame numbers, so it covers fewer rows than meant)."""
+    """Refuse a frame column ``frames [N]`` of large non-whole numbers (clock timestamps read as frames made
+    ``--radius 1`` cover many frames), naming the first such line; warn when the numbers step by other than 1 from
+    row to row (``--radius`` counts frame numbers, so it covers another count of rows than it says). Small fractions
+    are places along a route (a reference at two frames per query frame: 0, 0.5, 1, ...)."""
     frac = np.flatnonzero(frames != np.round(frames))
-    if frac.size:
+    if frac.size and np.abs(frames).max() >= EPOCH_LIKE:
         i = int(frac[0])
         raise DatasetError(f"{where}, line {lines[i]}: frame number {frames[i]:.12g} in column {column!r} is not a "
                            f"whole number ({frac.size} of {len(frames)} rows): timestamps? a frame column counts "
@@ -206,7 +210,8 @@ def check_frames(frames: np.ndarray, where: str, lines: list[int], column: str) 
                            "lat,lon)")
     if len(frames) > 2:
         step = float(np.median(np.abs(np.diff(frames))))
-        if step > 1:
-            logger.warning("%s: the frame numbers in column %r step by %g from one row to the next: --radius counts "
-                           "frame numbers, so a radius of R covers about R/%g rows (hint: number the rows' frames 0, "
-                           "1, 2, ... or scale --radius)", where, column, step, step)
+        if step > 0 and not 0.9 <= step <= 1.1:
+            logger.warning("%s: the frame numbers in column %r step by %g from one row to the next%s: --radius counts "
+                           "frame numbers, so a radius of R covers about %g R rows (hint: number the rows' frames 0, "
+                           "1, 2, ... or scale --radius)", where, column, step, " (timestamps?)" if frac.size else "",
+                           1 / step)
