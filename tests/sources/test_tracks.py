@@ -118,3 +118,21 @@ def test_why_no_frame_lies_on_the_track():
     assert "inside a gap of the track of 60 s, longer than the 10 s a frame is interpolated across" in said
     later = np.arange(100.0, 130.0)
     assert "do not overlap the video's 0 .. 20.0 s" in why_outside(later, 20.0, 10.0)
+
+
+@pytest.mark.parametrize("metres, outcome", [(0.0, "silent"), (110.0, "warned"), (5000.0, "refused")])
+def test_two_fixes_at_one_time_are_warned_or_refused(tmp_path, caplog, metres, outcome):
+    """Two receivers merged: a second fix at t = 1.5 s, ``metres`` north of the first; the first is used."""
+    lat, lon = route(30)
+    times = list(np.arange(30) / 10) + [1.5]
+    lat, lon = np.append(lat, lat[15] + metres / 111320.0), np.append(lon, lon[15])
+    path = write_track_csv(tmp_path / "dup.csv", times, lat, lon)
+    if outcome == "refused":
+        with pytest.raises(DatasetError, match=r"1 samples repeat a time with another position, up to 5000 m apart "
+                           r"\(at 1.5 s\): two receivers merged\?"):
+            read_track(path)
+        return
+    with caplog.at_level("WARNING"):
+        track = read_track(path)
+    assert len(track.times) == 30 and track.coords[15, 0] == pytest.approx(lat[15])
+    assert ("up to 110 m apart (at 1.5 s)" in caplog.text) == (outcome == "warned"), caplog.text

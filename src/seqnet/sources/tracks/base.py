@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import datetime
 
 import numpy as np
 
 from ...core.errors import DatasetError
+from ...core.log import logger
 from ...security.text import shown
 
 MAX_TRACK_BYTES = 1 << 28  # a GPX / NMEA / CSV track file larger than this is refused before it is read
@@ -32,7 +34,8 @@ class Track:
 
 
 def track_of(times: list[float], coords: list[tuple[float, float]], source: str, **kw: bool) -> Track:
-    """A :class:`Track` of the samples read (any order; a repeated time keeps its first sample); a track with no
+    """A :class:`Track` of the samples read (any order; a repeated time keeps its first sample, warned when another
+    lies elsewhere, refused far away: :func:`_check_repeats`); a track with no
     sample, or a coordinate out of range, is a :class:`DatasetError`."""
     t = np.asarray(times, np.float64)
     c = np.asarray(coords, np.float64).reshape(-1, 2)
@@ -48,4 +51,34 @@ def track_of(times: list[float], coords: list[tuple[float, float]], source: str,
     order = np.argsort(t, kind="stable")
     t, c = t[order], c[order]
     first = np.concatenate([[True], np.diff(t) > 0])
+    _check_repeats(t, c, first, source, kw.get("geographic", True), kw.get("absolute", True))
     return Track(times=t[first], coords=c[first], source=source, **{"absolute": True, "geographic": True, **kw})
+
+
+REPEAT_WARN = 5.0  # metres between two fixes of one time: warned (one of them is used)
+REPEAT_REFUSE = 1000.0  # metres: refused (two receivers merged, or a broken log)
+
+
+def _check_repeats(t: np.ndarray, c: np.ndarray, first: np.ndarray, source: str, geographic: bool,
+                   absolute: bool) -> None:
+    """Warn when samples of one time (sorted ``t [S]``, ``c [S, 2]``; ``first``: the sample kept of each time)
+    lie more than :data:`REPEAT_WARN` metres from the one kept, naming the time and distance; refuse
+    (:class:`DatasetError`) beyond :data:`REPEAT_REFUSE`."""
+    if first.all():
+        return
+    kept = c[np.flatnonzero(first)[np.cumsum(first) - 1]]  # the sample kept for each row's time
+    d = c - kept
+    if geographic:
+        d = np.stack([d[:, 0] * 111320.0, d[:, 1] * 111320.0 * np.cos(np.radians(c[:, 0]))], axis=1)
+    dist = np.linalg.norm(d, axis=1)
+    worst = int(np.argmax(dist))
+    if dist[worst] <= REPEAT_WARN:
+        return
+    when = (datetime.datetime.fromtimestamp(t[worst], datetime.timezone.utc).isoformat() if absolute
+            else f"{t[worst]:g} s")
+    n = int((dist > REPEAT_WARN).sum())
+    msg = (f"{shown(source)}: {n} samples repeat a time with another position, up to {dist[worst]:.0f} m apart (at "
+           f"{when}): two receivers merged?")
+    if dist[worst] > REPEAT_REFUSE:
+        raise DatasetError(msg + " (hint: keep one receiver's fixes)")
+    logger.warning("%s; the first sample of each time is used", msg)
