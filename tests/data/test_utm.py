@@ -39,3 +39,16 @@ def test_latlon_pair_is_metres_in_the_reference_zone_and_refuses_a_swapped_file(
     far = ref + [0.0, 3.0]  # another place (3 degrees east, another zone), not a swap: placed in the reference's zone
     _, q, _ = latlon_pair(ref, far, ("r.csv", "q.csv"))
     assert np.linalg.norm(q[0] - r[0]) > 100_000
+
+
+def test_mixed_frames_is_one_sentence_with_a_hint():
+    from seqnet.data.utm import mixed_frames
+
+    said = mixed_frames("UTM zone 32V", "x, y metres of the positions files")
+    assert said == ("the reference positions are metres in UTM zone 32V and the query positions x, y metres of the "
+                    "positions files: positions in two frames do not compare; hint: give both positions files one "
+                    "kind of positions (latitude / longitude in both, or easting / northing (x, y) metres of one "
+                    "frame in both)")
+    assert mixed_frames("degrees", "metres", "CSVs").startswith("the reference positions are latitude / longitude "
+                                                                "degrees and the query positions easting / northing")
+    assert "frame numbers in both" in mixed_frames("frames", "metres")

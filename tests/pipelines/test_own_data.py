@@ -98,7 +98,7 @@ def test_one_fit_for_both_traverses(route, tmp_path):
 
 @pytest.mark.parametrize(("zones", "error"), [(("32V", "32V"), None), (("32V", "?"), None),
                                               (("32V", "33V"), "UTM zone 32V, query positions in 33V"),
-                                              (("32V", None), "are in 32V but query positions in metres"),
+                                              (("32V", None), "are metres in 32V and the query positions easting"),
                                               ((None, None), None)])
 def test_both_sides_positions_are_in_one_frame(monkeypatch, zones, error):
     """Metres compare only in one UTM zone: the zones of the two sides are checked as every other reader checks

@@ -86,3 +86,19 @@ def latlon_pair(ref: np.ndarray, query: np.ndarray, where: tuple[str, str]) -> t
     r, zone = latlon_to_utm(ref[:, 0], ref[:, 1], where[0])
     q, _ = latlon_to_utm(query[:, 0], query[:, 1], where[1], (int(zone[:-1]), zone[-1]))
     return r, q, f"UTM zone {zone}"
+
+
+UNIT_WORDS = {"degrees": "latitude / longitude degrees", "metres": "easting / northing metres",
+              "frames": "frame numbers"}  # a positions CSV's units (seqnet.data.convert.csvfile), in messages
+
+
+def mixed_frames(reference: str, query: str, files: str = "positions files") -> str:
+    """The one-line message for traverses whose positions are in two frames, ``reference`` and ``query`` each a
+    CSV's unit (:data:`UNIT_WORDS`) or a positions frame (``UTM zone 32V``, a track's ``x, y metres ...``), with the
+    hint to give both ``files`` one kind of positions."""
+    said = [UNIT_WORDS.get(f, f if f.startswith("x, y") else f"metres in {f}") for f in (reference, query)]
+    kinds = "latitude / longitude in both, or easting / northing (x, y) metres of one frame in both"
+    if "frames" in (reference, query):
+        kinds = "latitude / longitude in both, easting / northing metres in both, or frame numbers in both"
+    return (f"the reference positions are {said[0]} and the query positions {said[1]}: positions in two frames do "
+            f"not compare; hint: give both {files} one kind of positions ({kinds})")

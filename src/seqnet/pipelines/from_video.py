@@ -21,7 +21,7 @@ import numpy as np
 from ..core.config import Config, check_float
 from ..core.errors import ConfigError, DatasetError
 from ..data.sanity import VIDEO_ALTERNATIVES
-from ..data.utm import frame_zone
+from ..data.utm import frame_zone, mixed_frames
 from ..describe import DescribeConfig
 from ..describe.images import ImageList
 from ..sources.placed import Placed, place_video
@@ -88,8 +88,7 @@ def place_both(conf: FromVideoConfig, videos: tuple[str | Path, str | Path],
     ref = place_video(videos[0], positions[0], **kw)
     qry = place_video(videos[1], positions[1], zone=frame_zone(ref.frame), **kw)
     if ref.frame != qry.frame:
-        raise ConfigError(f"reference positions are in {ref.frame}, query positions in {qry.frame}: one frame "
-                          "(latitude / longitude in both files, or x / y in both)")
+        raise ConfigError(mixed_frames(str(ref.frame), str(qry.frame)))
     if conf.aligned and len(ref.frames) != len(qry.frames):
         raise DatasetError(_unaligned(conf, ref, qry))
     return ref, qry

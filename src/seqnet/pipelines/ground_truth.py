@@ -18,7 +18,7 @@ from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
 from ..data.spacing import DEGREES_HINT, looks_like_degrees
 from ..data.traverse import Dataset
-from ..data.utm import latlon_pair
+from ..data.utm import latlon_pair, mixed_frames
 from ..describe.images import ImageList
 from ..sources.bags.positions import is_bag, match_positions
 
@@ -79,8 +79,7 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
         r, q, frame = latlon_pair(ref[0], qry[0], (str(given[0]), str(given[1])))
         ref, qry = (r, ref[1], "metres", frame), (q, qry[1], "metres", frame)
     if ref[2] != qry[2] or (ref[3] is None) != (qry[3] is None):
-        raise ConfigError(f"reference positions are in {ref[3] or ref[2]} but query positions in {qry[3] or qry[2]}"
-                          " (hint: two traverses compare only in one frame)")
+        raise ConfigError(mixed_frames(ref[3] or ref[2], qry[3] or qry[2], "positions sources"))
     if ref[3] is not None:
         check_zones(ref[3], qry[3])  # one UTM zone (an unknown zone, '?', is let through)
     return ref, qry

@@ -158,7 +158,9 @@ def run_from_csv(args: argparse.Namespace) -> int:
         ref, unit_r = traverse_from_csv(args.ref_csv, args.ref_desc, args.ref_names, "reference")
         qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
     if unit_r != unit_q:
-        raise ConfigError(f"reference positions are in {unit_r} but query positions in {unit_q}")
+        from ...data.utm import mixed_frames
+
+        raise ConfigError(mixed_frames(unit_r, unit_q, "CSVs"))
     if unit_r == "degrees":  # lat/lon columns: UTM metres, the query in the reference's zone
         ref, qry, extra["positions_frame"] = traverses_in_metres(ref, qry, (args.ref_csv, args.query_csv))
         unit_r = "metres"
