@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import pickle
 from pathlib import Path
@@ -452,10 +453,11 @@ def test_a_subset_is_not_scanned_again(monkeypatch):
     assert part.descriptors.base is not None  # a view, not a copy
 
 
-def test_datasets_carry_checksums_checked_on_open_and_by_check(ds, tmp_path, capsys):
+def test_datasets_carry_checksums_checked_on_open_and_by_check(ds, tmp_path, capsys, caplog):
     """A seqnet-written dataset records its files' hashes. Changed by hand (the directory format allows
-    it), it still opens after every content check, with a warning naming the file (held back by the CLI,
-    shown with -v); `seqnet dataset check` hashes every byte and refuses it."""
+    it), it still opens after every content check, with a warning naming the file (logged at default
+    verbosity, once per process even when a command opens it twice); `seqnet dataset check` hashes every byte
+    and refuses it."""
     from seqnet.cli import main as cli_main
 
     root = save_dataset(ds, tmp_path / "d")
@@ -463,8 +465,11 @@ def test_datasets_carry_checksums_checked_on_open_and_by_check(ds, tmp_path, cap
     assert cli_main(["dataset", "check", str(root)]) == 0
     desc = np.load(root / "query" / "descriptors.npy")
     np.save(root / "query" / "descriptors.npy", desc[:, ::-1].copy())  # valid, but not what seqnet wrote
-    with pytest.warns(UserWarning, match="query/descriptors.npy changed since seqnet wrote the dataset"):
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
         load_dataset(root)
+        load_dataset(root)
+    said = [r.getMessage() for r in caplog.records if "changed since seqnet wrote the dataset" in r.getMessage()]
+    assert len(said) == 1 and "query/descriptors.npy" in said[0] and said[0].startswith(str(root)), said
     capsys.readouterr()
     assert cli_main(["dataset", "check", str(root)]) == 2
     assert "query/descriptors.npy changed since seqnet wrote the dataset" in capsys.readouterr().err

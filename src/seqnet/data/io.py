@@ -8,7 +8,6 @@ crash never leaves a half-written dataset.
 from __future__ import annotations
 
 import logging
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -39,9 +38,23 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
     ds, digests = read_consistent(Path(path), lambda: _load_dataset(Path(path), mmap), DatasetError)
     changed = changed_files(Path(path), digests)
     if changed:  # the directory format may be edited by hand; the contents were checked all the same
-        warnings.warn(f"{path}: {', '.join(changed[:3])}{' ...' if len(changed) > 3 else ''} changed since seqnet "
-                      f"wrote the dataset (seqnet dataset check {path} refuses it)", stacklevel=2)
+        _say_changed(Path(path), changed)
     return ds
+
+
+_CHANGED_SAID: set[tuple[str, tuple[str, ...]]] = set()
+
+
+def _say_changed(path: Path, changed: list[str]) -> None:
+    """Warn (at default verbosity, once per dataset and set of changed files in a process: a command may open a
+    dataset more than once) that files of ``path`` are not the ones seqnet wrote."""
+    key = (str(path.resolve()), tuple(changed))
+    if key in _CHANGED_SAID:
+        return
+    _CHANGED_SAID.add(key)
+    logger.warning("%s: %s%s changed since seqnet wrote the dataset (seqnet dataset check %s refuses it); the "
+                   "numbers are of the files as they are now", path, ", ".join(changed[:3]),
+                   " ..." if len(changed) > 3 else "", path)
 
 
 def recorded_digests(path: str | Path) -> dict[str, Any]:
