@@ -170,9 +170,26 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
+    warnings = _notices(conf, full, split, loaded, dataset, summary, calibration)
+    if warnings:
+        record["warnings"] = warnings
     write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct, accept), record)
     logger.debug("localize: %s", json.dumps(summary))
     return Written(out, record)
+
+
+def _notices(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mapping[str, SeqNet], dataset: str | Path,
+             summary: Mapping[str, Any], calibration: tuple[float, str, float] | None) -> list[str]:
+    """What eval says beside the same R@1 (``eval --window causal``), said as warnings: no split named test,
+    training or epoch-selection queries among the replayed ones (:func:`seqnet.eval.notices.scored_notices`), and
+    an R@1 over few frames (:func:`seqnet.eval.notices.few_queries`)."""
+    from ..eval.notices import few_queries, say, scored_notices
+
+    lines: list[str | None] = [*scored_notices(conf.split, full, split, loaded, dataset,
+                                               calibration[1] if calibration is not None else None)]
+    if "queries" in summary:
+        lines.append(few_queries({conf.method: (summary["queries"], summary["recall@1"])}))
+    return say(lines)
 
 
 def _replay_split(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loaded: Mapping[str, SeqNet],
