@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -485,3 +486,19 @@ def test_a_range_in_place_of_a_split_name_needs_no_new_dataset(synth_dataset):
     for bad, msg in (("10:5000", "outside"), ("x", "or a range A:B"), ("5:2", "outside")):
         with pytest.raises(DatasetError, match=msg):
             ds.split(bad)
+
+
+def test_a_copied_dataset_is_named_after_its_folder(ds, tmp_path):
+    """A dataset named after the folder seqnet wrote it into, copied (``cp -r``) or renamed, is named after the
+    folder it is in now; a name given apart from the folder (``--name``) stays."""
+    import shutil
+
+    root = save_dataset(dataclasses.replace(ds, name="orig"), tmp_path / "orig")
+    assert json.loads((root / "dataset.json").read_text())["folder"] == "orig"
+    assert load_dataset(root).name == "orig"
+    shutil.copytree(root, tmp_path / "copy")
+    assert load_dataset(tmp_path / "copy").name == "copy"
+    assert load_dataset(tmp_path / "copy").split("0:3").name == "copy[0:3]"
+    named = save_dataset(ds, tmp_path / "d2")  # named "toy", written into d2
+    shutil.copytree(named, tmp_path / "d3")
+    assert load_dataset(tmp_path / "d3").name == "toy"
