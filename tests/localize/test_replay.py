@@ -28,3 +28,18 @@ def test_localize_says_what_eval_says_about_the_scored_queries(synth_dataset, tm
     assert 0 < n < 10 and record["warnings"][0].startswith(f"only {n} queries scored: one query changes R@1 by 1/{n}")
     localize_main(dataclasses.replace(conf, split="train"), path, tmp_path / "train.csv")
     assert "warnings" not in json.loads((tmp_path / "train.json").read_text())  # nothing to say: no key
+
+
+def test_the_track_holds_each_frames_truth_and_error(synth_dir, tmp_path):
+    """With the dataset's positions: each frame's true position and error, the error within the radius exactly
+    where the frame is correct; the JSON holds them, null where unknown."""
+    import csv
+
+    localize_main(LocalizeConfig(method="raw+seqmatch", seq_len=3), synth_dir, tmp_path / "t.csv")
+    rows = list(csv.DictReader((tmp_path / "t.csv").open()))
+    record = json.loads((tmp_path / "t.json").read_text())
+    radius = record["config"]["radius"]
+    scored = [r for r in rows if r["correct"] != ""]
+    assert scored and all(r["error"] != "" and (float(r["error"]) <= radius) == (r["correct"] == "1") for r in scored)
+    assert [r["error"] == "" for r in rows] == [e is None for e in record["truth"]["errors"]]
+    assert record["truth"]["unit"] == "metres" and all(r["true_x"] != "" for r in rows)

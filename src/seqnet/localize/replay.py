@@ -31,7 +31,7 @@ from ..security.dirs import remove_dead_temps
 from ..security.locks import locked
 from .config import LocalizeConfig
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
-from .trackfile import check_output, sidecar_of, track_rows, write_track
+from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
 
 torch = lazy_module("torch")
 
@@ -173,9 +173,21 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     warnings = _notices(conf, full, split, loaded, dataset, summary, calibration)
     if warnings:
         record["warnings"] = warnings
-    write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct, accept), record)
+    truth = _truth(ds, loc, est)
+    if truth is not None:
+        record["truth"] = truth.record()
+    write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct, accept, truth),
+                record)
     logger.debug("localize: %s", json.dumps(summary))
     return Written(out, record)
+
+
+def _truth(ds: Dataset, loc: Localizer, est: Sequence[Estimate]) -> FrameTruth | None:
+    """Each replayed frame's position and the error of its estimate (:class:`FrameTruth`); None without positions."""
+    if ds.query.positions is None or ds.reference.positions is None:
+        return None
+    best = np.array([e.ref_index for e in est], dtype=np.int64)
+    return FrameTruth.of(ds.query.positions, ds.reference.positions[loc.ref_items], best, ds.position_unit)
 
 
 def _notices(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mapping[str, SeqNet], dataset: str | Path,
