@@ -31,6 +31,24 @@ def test_make_and_differences():
     assert differences(a, c) == ["fitted state (PCA / NetVLAD clusters): fitted on different images"]
 
 
+def test_unknown_provenance_against_a_known_one_is_a_warning_once_per_file(caplog):
+    """Descriptors of unknown provenance held to known ones pass on their D alone: said at default verbosity
+    (a warning with a hint), once per file; two unknown sides (files all from elsewhere) stay a debug note."""
+    import logging
+
+    a = make("describe", {"method": "pixels"}, None, 8)
+    with caplog.at_level(logging.DEBUG, logger="seqnet"):
+        for _ in range(3):
+            check_same(a, None, "the map's descriptors", "the query descriptors q_once.npy")
+        check_same(None, None, "the descriptors of r_both.npy", "the descriptors of q_both.npy")
+    said = [(r.levelno, r.getMessage()) for r in caplog.records if "unknown" in r.getMessage()]
+    warned = [m for lvl, m in said if lvl == logging.WARNING]
+    assert len(warned) == 1 and warned[0].startswith("provenance of the query descriptors q_once.npy unknown: "
+                                                     "only the descriptor dimension is checked against the map's")
+    assert "hint: make them with `seqnet describe`" in warned[0] and ".provenance.json" in warned[0]
+    assert [lvl for lvl, m in said if "r_both.npy" in m] == [logging.DEBUG]
+
+
 @pytest.fixture
 def two_folders(tmp_path):
     rng = np.random.default_rng(0)

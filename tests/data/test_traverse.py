@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import logging
 import os
 import pickle
 from pathlib import Path
@@ -452,10 +454,11 @@ def test_a_subset_is_not_scanned_again(monkeypatch):
     assert part.descriptors.base is not None  # a view, not a copy
 
 
-def test_datasets_carry_checksums_checked_on_open_and_by_check(ds, tmp_path, capsys):
+def test_datasets_carry_checksums_checked_on_open_and_by_check(ds, tmp_path, capsys, caplog):
     """A seqnet-written dataset records its files' hashes. Changed by hand (the directory format allows
-    it), it still opens after every content check, with a warning naming the file (held back by the CLI,
-    shown with -v); `seqnet dataset check` hashes every byte and refuses it."""
+    it), it still opens after every content check, with a warning naming the file (logged at default
+    verbosity, once per process even when a command opens it twice); `seqnet dataset check` hashes every byte
+    and refuses it."""
     from seqnet.cli import main as cli_main
 
     root = save_dataset(ds, tmp_path / "d")
@@ -463,8 +466,11 @@ def test_datasets_carry_checksums_checked_on_open_and_by_check(ds, tmp_path, cap
     assert cli_main(["dataset", "check", str(root)]) == 0
     desc = np.load(root / "query" / "descriptors.npy")
     np.save(root / "query" / "descriptors.npy", desc[:, ::-1].copy())  # valid, but not what seqnet wrote
-    with pytest.warns(UserWarning, match="query/descriptors.npy changed since seqnet wrote the dataset"):
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
         load_dataset(root)
+        load_dataset(root)
+    said = [r.getMessage() for r in caplog.records if "changed since seqnet wrote the dataset" in r.getMessage()]
+    assert len(said) == 1 and "query/descriptors.npy" in said[0] and said[0].startswith(str(root)), said
     capsys.readouterr()
     assert cli_main(["dataset", "check", str(root)]) == 2
     assert "query/descriptors.npy changed since seqnet wrote the dataset" in capsys.readouterr().err
@@ -480,3 +486,19 @@ def test_a_range_in_place_of_a_split_name_needs_no_new_dataset(synth_dataset):
     for bad, msg in (("10:5000", "outside"), ("x", "or a range A:B"), ("5:2", "outside")):
         with pytest.raises(DatasetError, match=msg):
             ds.split(bad)
+
+
+def test_a_copied_dataset_is_named_after_its_folder(ds, tmp_path):
+    """A dataset named after the folder seqnet wrote it into, copied (``cp -r``) or renamed, is named after the
+    folder it is in now; a name given apart from the folder (``--name``) stays."""
+    import shutil
+
+    root = save_dataset(dataclasses.replace(ds, name="orig"), tmp_path / "orig")
+    assert json.loads((root / "dataset.json").read_text())["folder"] == "orig"
+    assert load_dataset(root).name == "orig"
+    shutil.copytree(root, tmp_path / "copy")
+    assert load_dataset(tmp_path / "copy").name == "copy"
+    assert load_dataset(tmp_path / "copy").split("0:3").name == "copy[0:3]"
+    named = save_dataset(ds, tmp_path / "d2")  # named "toy", written into d2
+    shutil.copytree(named, tmp_path / "d3")
+    assert load_dataset(tmp_path / "d3").name == "toy"

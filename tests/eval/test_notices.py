@@ -16,7 +16,16 @@ from seqnet.data.synth import make_synthetic
 from seqnet.eval.config import EvalConfig
 from seqnet.eval.evaluate import evaluate
 from seqnet.eval.evaluate import main as eval_main
-from seqnet.eval.notices import radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
+from seqnet.eval.notices import (
+    few_queries,
+    radius_ignored,
+    scored_notices,
+    selection_leakage,
+    shift_notice,
+    split_note,
+    trivial_ks,
+    wilson,
+)
 
 METHODS = ("single", "raw+seqmatch")
 
@@ -161,3 +170,32 @@ def test_transposed_square_positives_are_said_instead_of_a_shift(tmp_path, caplo
     warnings = json.loads((tmp_path / "out" / "results.json").read_text())["warnings"]
     assert any(w.startswith("the positives read better transposed") for w in warnings), warnings
     assert not any("look shifted" in w for w in warnings)
+
+
+def test_few_scored_queries_get_a_note_with_their_intervals():
+    assert few_queries({"single": (30, 0.5)}) is None and few_queries({}) is None
+    assert few_queries({"single": (0, 0.0)}) is None  # nothing scored: the table says so
+    said = few_queries({"single": (6, 0.0)})
+    assert said.startswith("only 6 queries scored: one query changes R@1 by 1/6 = 0.167; 95% intervals of R@1 "
+                           "(Wilson): single 0.000 in 0.000-0.390"), said
+    both = few_queries({"single": (6, 0.5), "raw+seqmatch": (2, 1.0)})
+    assert both.startswith("only 2 to 6 queries (by method) scored: one query changes R@1 by up to 1/2 = 0.500")
+    assert "single 0.500 in 0.188-0.812" in both and "raw+seqmatch 1.000 in 0.342-1.000" in both, both
+    lo, hi = wilson(0.5, 100)
+    assert abs(lo - 0.404) < 1e-3 and abs(hi - 0.596) < 1e-3
+
+
+def test_scored_notices_are_evals_for_another_stage(synth_dataset, synth_dir):
+    """No split named test and training queries: the lines eval says, for a stage scoring queries as it does."""
+    import dataclasses
+
+    ds = dataclasses.replace(synth_dataset, splits={"train": synth_dataset.splits["train"]})
+    model = SimpleNamespace(trained_on={"dataset": str(synth_dir), "split": "train", "checkpoint": "run/best.pt",
+                                        "val_split": "none"})
+    said = scored_notices(None, ds, "all", {"s1": model}, synth_dir)
+    n, (a, b) = len(ds.query), ds.ranges("train")["query"]
+    assert said[0] == f"no split named test (splits: train); scoring all {n} queries — hint: --split NAME (one of " \
+        "train) or a range A:B", said
+    assert len(said) == 2 and said[1].startswith(f"{b - a} of the {n} evaluated queries ('all', 0:{n}) are training "
+                                                 "queries of the S_1 model run/best.pt"), said
+    assert scored_notices("train", synth_dataset, "test", {}, synth_dir) == []

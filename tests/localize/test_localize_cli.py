@@ -10,7 +10,7 @@ import pytest
 
 from seqnet.cli import main as cli_main
 from seqnet.localize.config import LocalizeConfig
-from seqnet.localize.trackfile import TRACK_COLUMNS
+from seqnet.localize.trackfile import TRACK_COLUMNS, TRUTH_COLUMNS
 
 
 def test_track_equals_causal_eval(synth_dir, tmp_path, capsys):
@@ -20,7 +20,7 @@ def test_track_equals_causal_eval(synth_dir, tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "R@1" in printed and "latency per frame" in printed
     rows = list(csv.DictReader(out.open()))
-    assert tuple(rows[0]) == TRACK_COLUMNS
+    assert tuple(rows[0]) == (*TRACK_COLUMNS, *TRUTH_COLUMNS)  # the dataset's positions: each frame's truth, last
     record = json.loads(out.with_suffix(".json").read_text())
     assert record["kind"] == "seqnet-localize/1" and record["config"]["split"] == "test"
     assert len(rows) == record["summary"]["frames"] and rows[0]["estimate"] == "-1" and rows[0]["correct"] == ""

@@ -8,7 +8,8 @@ models and runs carry it; reference and query descriptors, and a model and the d
 used on, must have the same id. NetVLAD at 160×120 against 640×320 gives R@1 0.19 instead of 0.87
 with no other sign of trouble: a wrong number is worse than an error, so a mismatch is a
 :class:`ProvenanceError` naming both settings (``--allow-mismatch`` for experts). Unknown
-provenance (files from elsewhere) is accepted with a debug note: only the dimension is checked.
+provenance (files from elsewhere) is accepted: only the dimension is checked, said as a warning when the other side's
+provenance is known (once per file), else as a debug note.
 """
 
 from __future__ import annotations
@@ -70,8 +71,7 @@ def check_same(a: Mapping[str, Any] | None, b: Mapping[str, Any] | None, what_a:
                allow: bool = False) -> None:
     """Raise :class:`ProvenanceError` when both records are known and differ (unless ``allow``)."""
     if not a or not b:
-        logger.debug("provenance of %s unknown: only the descriptor dimension is checked",
-                     what_a if not a else what_b)
+        _say_unknown(what_a if not a else what_b, what_b if not a else what_a, known=bool(a or b))
         return
     if a.get("id") == b.get("id"):
         return
@@ -83,6 +83,25 @@ def check_same(a: Mapping[str, Any] | None, b: Mapping[str, Any] | None, what_a:
     raise ProvenanceError(f"{what_a} and {what_b} were made differently: {'; '.join(diff)}; hint: describe both "
                           "with the same settings and fitted state (seqnet dataset from-images does), or pass "
                           "--allow-mismatch if you know they are comparable")
+
+
+_UNKNOWN_SAID: set[str] = set()
+
+
+def _say_unknown(unknown: str, other: str, known: bool) -> None:
+    """Say that ``unknown``'s provenance is unknown: a warning (once per process and ``unknown``) when ``other``'s
+    is known, since descriptors made otherwise (another describer, random vectors) then pass on their D alone; a
+    debug note when neither is known (files all from elsewhere: there is nothing to hold them to)."""
+    if not known:
+        logger.debug("provenance of %s unknown: only the descriptor dimension is checked", unknown)
+        return
+    if unknown in _UNKNOWN_SAID:
+        return
+    _UNKNOWN_SAID.add(unknown)
+    logger.warning("provenance of %s unknown: only the descriptor dimension is checked against %s, so descriptors "
+                   "made otherwise (another describer or its settings) would pass; hint: make them with `seqnet "
+                   "describe` and the same settings (it writes <stem>%s beside them, which is then checked)",
+                   unknown, other, PROVENANCE_SUFFIX)
 
 
 def sidecar(path: str | Path) -> Path:

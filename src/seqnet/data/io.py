@@ -8,7 +8,7 @@ crash never leaves a half-written dataset.
 from __future__ import annotations
 
 import logging
-import warnings
+import os
 from pathlib import Path
 from typing import Any
 
@@ -39,9 +39,23 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
     ds, digests = read_consistent(Path(path), lambda: _load_dataset(Path(path), mmap), DatasetError)
     changed = changed_files(Path(path), digests)
     if changed:  # the directory format may be edited by hand; the contents were checked all the same
-        warnings.warn(f"{path}: {', '.join(changed[:3])}{' ...' if len(changed) > 3 else ''} changed since seqnet "
-                      f"wrote the dataset (seqnet dataset check {path} refuses it)", stacklevel=2)
+        _say_changed(Path(path), changed)
     return ds
+
+
+_CHANGED_SAID: set[tuple[str, tuple[str, ...]]] = set()
+
+
+def _say_changed(path: Path, changed: list[str]) -> None:
+    """Warn (at default verbosity, once per dataset and set of changed files in a process: a command may open a
+    dataset more than once) that files of ``path`` are not the ones seqnet wrote."""
+    key = (str(path.resolve()), tuple(changed))
+    if key in _CHANGED_SAID:
+        return
+    _CHANGED_SAID.add(key)
+    logger.warning("%s: %s%s changed since seqnet wrote the dataset (seqnet dataset check %s refuses it); the "
+                   "numbers are of the files as they are now", path, ", ".join(changed[:3]),
+                   " ..." if len(changed) > 3 else "", path)
 
 
 def recorded_digests(path: str | Path) -> dict[str, Any]:
@@ -84,11 +98,22 @@ def _load_dataset(root: Path, mmap: bool) -> tuple[Dataset, dict[str, Any]]:
         radius=radius,
         position_unit=meta.get("position_unit"),
         splits=_parse_splits(meta.get("splits", {}), meta_path),
-        name=check_name(str(meta.get("name", root.name)), f"{meta_path}: name"),
+        name=_dataset_name(meta, root, meta_path),
         extra={k: v for k, v in meta.items() if k not in _META_KEYS},
         positives=load_positives(root / POSITIVES_FILE) if (root / POSITIVES_FILE).is_file() else None,
     )
     return ds, (meta.get("checksums") or {})
+
+
+def _dataset_name(meta: dict[str, Any], root: Path, meta_path: Path) -> str:
+    """The name ``dataset.json`` records; for a dataset named after the folder seqnet wrote it into (``folder``)
+    and since copied or renamed, the folder it is in now (``cp -r ds ds_edit``: ``ds_edit``, not ``ds``)."""
+    recorded = check_name(str(meta.get("name", root.name)), f"{meta_path}: name")
+    folder, here = meta.get("folder"), Path(os.path.abspath(root)).name
+    if isinstance(folder, str) and folder == recorded and here and here != folder:
+        logger.debug("dataset %s was written as %s: named %s", root, recorded, here)
+        return check_name(here, f"{root}: name")
+    return recorded
 
 
 POSITIVES_FILE = "positives.npz"
@@ -119,7 +144,8 @@ def _csr(indptr: np.ndarray, indices: np.ndarray, f: Path, prefix: str) -> Posit
     return Positives(indptr.astype(np.int64), indices.astype(np.int64))
 
 
-_META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses", "provenance", "checksums"}
+_META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses", "provenance", "checksums",
+              "folder"}
 
 
 def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]]:
@@ -209,13 +235,14 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False, quiet: 
             if not overwrite and root.is_dir():
                 raise OutputError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")
             check_replaceable(root, "dataset", is_dataset_file)
-        write_dir(root, lambda tmp: _write_dataset(ds, tmp))
+        write_dir(root, lambda tmp: _write_dataset(ds, tmp, Path(os.path.abspath(root)).name))
     logger.log(logging.DEBUG if quiet else logging.INFO, "wrote dataset %s (reference %d, query %d images)", root,
                len(ds.reference), len(ds.query))
     return root
 
 
-def _write_dataset(ds: Dataset, root: Path) -> None:
+def _write_dataset(ds: Dataset, root: Path, folder: str) -> None:
+    """``ds`` written into ``root`` (a temporary directory renamed to the folder named ``folder`` afterwards)."""
     for side, t in (("reference", ds.reference), ("query", ds.query)):
         save_traverse(t, root / side)
     if ds.positives is not None:
@@ -229,6 +256,7 @@ def _write_dataset(ds: Dataset, root: Path) -> None:
                       if p.is_file()},
         "format": FORMAT,
         "name": ds.name,
+        "folder": folder,
         "radius": ds.radius,
         "position_unit": ds.position_unit,
         "splits": {k: {s: list(v[s]) for s in ("reference", "query")} for k, v in ds.splits.items()},

@@ -1,8 +1,9 @@
 """What an evaluation says beside its numbers when the user probably meant something else (one line each, logged
 as a warning and kept in the results' ``warnings``): explicit positives that look shifted (:func:`shift_notice`),
 a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
-(:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), and a model whose epoch was
-chosen on the evaluated queries (:func:`selection_leakage`)."""
+(:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), a model whose epoch was
+chosen on the evaluated queries (:func:`selection_leakage`), all of these for another stage that scores queries
+(:func:`scored_notices`), and an R@1 over few queries (:func:`few_queries`)."""
 
 from __future__ import annotations
 
@@ -25,12 +26,58 @@ if TYPE_CHECKING:
     from ..sequence.model import SeqNet
 
 
+FEW_QUERIES = 30  # below this many scored queries, R@1 moves by more than 0.033 per query: a note says so
+
+
 def add_warnings(ev: Evaluation, lines: Iterable[str | None]) -> None:
     """Log each line of ``lines`` (None: nothing to say) as a warning and keep it in ``ev.results["warnings"]``."""
-    for said in lines:
-        if said:
-            logger.warning("%s", shown(said))
-            ev.results["warnings"] = [*ev.results.get("warnings", []), said]
+    for said in say(lines):
+        ev.results["warnings"] = [*ev.results.get("warnings", []), said]
+
+
+def say(lines: Iterable[str | None]) -> list[str]:
+    """Log each line of ``lines`` (None: nothing to say) as a warning; the lines said."""
+    out = [line for line in lines if line]
+    for line in out:
+        logger.warning("%s", shown(line))
+    return out
+
+
+def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[str, SeqNet], dataset: str | Path,
+                   calibrate_split: str | None = None) -> list[str]:
+    """What eval says about the queries a run scores on split ``split`` of the dataset ``ds`` (directory
+    ``dataset``; ``given``: the ``--split`` given, None for the default): no split named test
+    (:func:`split_note`), queries a model chose its epoch on (:func:`selection_leakage`) or was trained on
+    (:func:`seqnet.methods.checks.leakage`; ``calibrate_split``: the split a threshold is calibrated on, too). For
+    the stages that score queries as eval does (``seqnet localize --dataset``)."""
+    from ..methods.checks import leakage
+
+    lines = [split_note(given, list(ds.splits), len(ds.split(split).query)),
+             *selection_leakage(models, dataset, ds, split), *leakage(models, dataset, ds, split)]
+    if calibrate_split is not None:
+        lines += leakage(models, dataset, ds, calibrate_split, calibration=True)
+    return [line for line in lines if line]
+
+
+def few_queries(scored: Mapping[str, tuple[int, float]]) -> str | None:
+    """Why R@1 over few queries says little: ``scored`` maps each method to ``(queries scored, R@1)``; below
+    :data:`FEW_QUERIES` of them, one query moves R@1 by 1/n, and each R@1's 95% (Wilson) interval is given."""
+    counts = [n for n, _ in scored.values() if n > 0]
+    if not counts or min(counts) >= FEW_QUERIES:
+        return None
+    n, most = min(counts), max(counts)
+    spans = ", ".join(f"{name} {r:.3f} in {lo:.3f}-{hi:.3f}" for name, (k, r) in scored.items() if k > 0
+                      for lo, hi in [wilson(r, k)])
+    many = f"{n} quer{'y' if n == 1 else 'ies'}" if most == n else f"{n} to {most} queries (by method)"
+    return (f"only {many} scored: one query changes R@1 by {'' if most == n else 'up to '}1/{n} = {1 / n:.3f}; 95% "
+            f"intervals of R@1 (Wilson): {spans}; hint: a larger split or range (--split) to compare methods")
+
+
+def wilson(p: float, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval ``(low, high)`` of a proportion ``p`` observed over ``n`` > 0 trials."""
+    centre, half = p + z * z / (2 * n), z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    denom = 1 + z * z / n
+    return max(0.0, (centre - half) / denom), min(1.0, (centre + half) / denom)
 
 
 def shift_notice(ev: Evaluation) -> str | None:

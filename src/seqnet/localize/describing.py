@@ -69,6 +69,16 @@ def map_describer(ref_map: Reference, allow: bool, describer: str | None = None,
     return d, check
 
 
+def check_query_dim(shape: tuple[int, ...], map_dim: int, what: str) -> None:
+    """Refuse query descriptors of shape ``[N, D]`` whose D is not the map's ``map_dim``, one line naming both; a
+    ``[D, N]`` array (its first axis is the map's D, as a transposed file has it) gets the converters' hint."""
+    if len(shape) != 2 or shape[1] == map_dim:
+        return
+    hint = (f"; transposed? the array is [{shape[0]}, {shape[1]}]; seqnet expects [N, D] (one row per frame): save "
+            "its transpose" if shape[0] == map_dim else "; hint: describe the query frames as the map's reference was")
+    raise ConfigError(f"dimension mismatch: query frame D={shape[1]}, map D={map_dim} ({what}){hint}")
+
+
 def size_hint(native: bool, resize: tuple[int, int] | None) -> str:
     """Why query images of a map described at the images' own size can give another D, and what to do."""
     if resize is not None:

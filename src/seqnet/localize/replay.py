@@ -31,7 +31,7 @@ from ..security.dirs import remove_dead_temps
 from ..security.locks import locked
 from .config import LocalizeConfig
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
-from .trackfile import check_output, sidecar_of, track_rows, write_track
+from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
 
 torch = lazy_module("torch")
 
@@ -171,9 +171,38 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct, accept), record)
+    warnings = _notices(conf, full, split, loaded, dataset, summary, calibration)
+    if warnings:
+        record["warnings"] = warnings
+    truth = _truth(ds, loc, est)
+    if truth is not None:
+        record["truth"] = truth.record()
+    write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct, accept, truth),
+                record)
     logger.debug("localize: %s", json.dumps(summary))
     return Written(out, record)
+
+
+def _truth(ds: Dataset, loc: Localizer, est: Sequence[Estimate]) -> FrameTruth | None:
+    """Each replayed frame's position and the error of its estimate (:class:`FrameTruth`); None without positions."""
+    if ds.query.positions is None or ds.reference.positions is None:
+        return None
+    best = np.array([e.ref_index for e in est], dtype=np.int64)
+    return FrameTruth.of(ds.query.positions, ds.reference.positions[loc.ref_items], best, ds.position_unit)
+
+
+def _notices(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mapping[str, SeqNet], dataset: str | Path,
+             summary: Mapping[str, Any], calibration: tuple[float, str, float] | None) -> list[str]:
+    """What eval says beside the same R@1 (``eval --window causal``), said as warnings: no split named test,
+    training or epoch-selection queries among the replayed ones (:func:`seqnet.eval.notices.scored_notices`), and
+    an R@1 over few frames (:func:`seqnet.eval.notices.few_queries`)."""
+    from ..eval.notices import few_queries, say, scored_notices
+
+    lines: list[str | None] = [*scored_notices(conf.split, full, split, loaded, dataset,
+                                               calibration[1] if calibration is not None else None)]
+    if "queries" in summary:
+        lines.append(few_queries({conf.method: (summary["queries"], summary["recall@1"])}))
+    return say(lines)
 
 
 def _replay_split(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loaded: Mapping[str, SeqNet],

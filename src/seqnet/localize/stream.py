@@ -44,10 +44,10 @@ if TYPE_CHECKING:
     from ..maps.map import Map
 
 from .config import LocalizeConfig
-from .describing import map_describer
+from .describing import check_query_dim, map_describer
 from .localizer import Estimate, traverse_reference
 from .replay import frame_truth, summarize
-from .trackfile import check_output, sidecar_of, track_rows, write_track
+from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
 from .truth import MapFrame, check_frame, query_positions
 from .video import VideoOptions, VideoQuery, check_options, is_video_query
 
@@ -102,6 +102,7 @@ def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
 def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Frames, list[str] | None, int]:
     """The frames of a descriptor file (checked against the map's provenance), their names and count."""
     desc, names = read_descriptor_file(path)
+    check_query_dim(desc.shape, ref_map.input_dim, f"the query descriptors {path.name}")
     check_same(ref_map.provenance, read_provenance(path), "the map's descriptors",
                f"the query descriptors {path.name}", allow)
     return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
@@ -225,7 +226,10 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    write_track(check_output(out), track_rows(est, names, ref_map.names, correct), record)
+    truth = FrameTruth.of(q_pos, loc.r_pos, best, frame.unit)
+    if truth is not None:
+        record["truth"] = truth.record()
+    write_track(check_output(out), track_rows(est, names, ref_map.names, correct, truth=truth), record)
     logger.debug("localize: %d frames streamed", len(est))
     if on_track is not None:
         on_track(TrackView.of(ref_map.positions, loc.r_pos, best, np.array([e.confidence for e in est]), q_pos,

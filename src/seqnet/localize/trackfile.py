@@ -11,6 +11,7 @@ An existing track or summary is replaced only when seqnet localize wrote it.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 from collections.abc import Sequence
 from pathlib import Path
@@ -29,6 +30,9 @@ from .localizer import Estimate
 TRACK_COLUMNS = ("frame", "name", "estimate", "estimate_name", "score", "confidence", "latency_ms", "correct",
                  "full_window")
 ACCEPTED = "accepted"  # the column a calibrated track adds (--target-precision): 1 accept, 0 abstain
+# the columns a track with ground-truth positions adds, last: each frame's true position (x, y: the map's positions,
+# metres or frame numbers) and the distance from it to the estimate's reference position (empty: no truth or answer)
+TRUTH_COLUMNS = ("true_x", "true_y", "error")
 TRACK_KIND = "seqnet-localize/1"
 BOUND = "track"  # in the summary: the size and sampled hash of the track it summarises
 
@@ -65,10 +69,11 @@ def _our_header(out: Path) -> bool:
     """A track whose summary was never written (a run killed between the two files) starts with our header."""
     try:
         with open_input(out, "track", OutputError) as f:
-            return f.readline(4096).decode("utf-8").rstrip("\n") in (",".join(TRACK_COLUMNS),
-                                                                      ",".join((*TRACK_COLUMNS, ACCEPTED)))
+            header = f.readline(4096).decode("utf-8").rstrip("\n").split(",")
     except (OSError, UnicodeDecodeError, OutputError):
         return False
+    n = len(TRACK_COLUMNS)
+    return tuple(header[:n]) == TRACK_COLUMNS and all(c in (ACCEPTED, *TRUTH_COLUMNS) for c in header[n:])
 
 
 def read_summary(out: Path) -> dict[str, Any] | None:
@@ -86,10 +91,57 @@ def read_summary(out: Path) -> dict[str, Any] | None:
                        "its two files?); hint: run it again")
 
 
+@dataclasses.dataclass
+class FrameTruth:
+    """Each query frame's true position ``positions [Nq, P]`` (a NaN row: no truth for that frame) and the distance
+    ``error [Nq]`` from it to the reference position of its estimate (NaN: no truth or no answer), in ``unit`` (the
+    map's positions: ``metres``, ``frames``; None when unknown)."""
+
+    positions: np.ndarray
+    error: np.ndarray
+    unit: str | None
+
+    @classmethod
+    def of(cls, q_pos: np.ndarray | None, r_pos: np.ndarray, best: np.ndarray,
+           unit: str | None) -> FrameTruth | None:
+        """The truth of query frames at ``q_pos [Nq, P]`` (None: no ground truth, gives None) whose estimates are
+        ``best [Nq]`` (-1: none; rows of the reference positions ``r_pos [Nr, P]``)."""
+        if q_pos is None:
+            return None
+        best = np.asarray(best, np.int64)
+        q = np.asarray(q_pos, np.float64).reshape(len(best), -1)
+        r = np.asarray(r_pos, np.float64).reshape(len(r_pos), -1)
+        err = np.full(len(best), np.nan)
+        ok = (best >= 0) & np.isfinite(q).all(axis=1)
+        err[ok] = np.linalg.norm(q[ok] - r[best[ok]], axis=1)
+        return cls(q, err, unit)
+
+    def cells(self, i: int) -> dict[str, str]:
+        """Frame ``i``'s :data:`TRUTH_COLUMNS` (empty cells where unknown)."""
+        x = self.positions[i]
+        known = bool(np.isfinite(x).all())
+        coord = [f"{x[k]:.3f}" if known and k < len(x) else "" for k in (0, 1)]
+        err = f"{self.error[i]:.3f}" if np.isfinite(self.error[i]) else ""
+        return dict(zip(TRUTH_COLUMNS, (*coord, err), strict=True))
+
+    def record(self) -> dict[str, Any]:
+        """The summary's ``truth``: the unit, each frame's true position and error (null where unknown: JSON holds
+        no NaN), and the median and mean error over the frames with both."""
+        known = np.isfinite(self.error)
+        rows = [[round(float(v), 3) for v in x] if np.isfinite(x).all() else None for x in self.positions]
+        return {"unit": self.unit, "true_positions": rows,
+                "errors": [round(float(e), 3) if np.isfinite(e) else None for e in self.error],
+                "frames_with_error": int(known.sum()),
+                "error_median": float(np.median(self.error[known])) if known.any() else None,
+                "error_mean": float(self.error[known].mean()) if known.any() else None}
+
+
 def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list[str] | None,
-               correct: np.ndarray | None, accepted: np.ndarray | None = None) -> list[dict[str, Any]]:
+               correct: np.ndarray | None, accepted: np.ndarray | None = None,
+               truth: FrameTruth | None = None) -> list[dict[str, Any]]:
     """One row per query frame (:data:`TRACK_COLUMNS`); ``correct`` is empty without ground truth or answer;
-    with ``accepted [Nq]`` (a calibrated threshold's decisions) the column :data:`ACCEPTED` too."""
+    with ``accepted [Nq]`` (a calibrated threshold's decisions) the column :data:`ACCEPTED` too; with ``truth``
+    (:func:`frame_truth`) the columns :data:`TRUTH_COLUMNS`, last."""
     rows = []
     for i, e in enumerate(est):
         answered = e.ref_index >= 0
@@ -101,6 +153,8 @@ def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list
             "correct": int(correct[i]) if correct is not None and answered else "", "full_window": int(e.full_window)})
         if accepted is not None:
             rows[-1][ACCEPTED] = int(accepted[i])
+        if truth is not None:
+            rows[-1].update(truth.cells(i))
     return rows
 
 

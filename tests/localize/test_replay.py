@@ -1,0 +1,45 @@
+"""``seqnet localize --dataset``: its R@1 is eval's (``--window causal``), and so are eval's notes beside it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+
+from seqnet.data.io import save_dataset
+from seqnet.localize.config import LocalizeConfig
+from seqnet.localize.replay import main as localize_main
+
+
+def test_localize_says_what_eval_says_about_the_scored_queries(synth_dataset, tmp_path, caplog):
+    """No split named test (every query scored) and few scored queries: warned, and kept in the track's JSON."""
+    ds = dataclasses.replace(synth_dataset, splits={"train": synth_dataset.splits["train"]})
+    path = save_dataset(ds, tmp_path / "ds")
+    conf = LocalizeConfig(method="raw+seqmatch", seq_len=3)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        localize_main(conf, path, tmp_path / "all.csv")
+    said = json.loads((tmp_path / "all.json").read_text())["warnings"]
+    assert said == [f"no split named test (splits: train); scoring all {len(ds.query)} queries — hint: --split NAME "
+                    "(one of train) or a range A:B"], said
+    assert any(r.getMessage() == said[0] for r in caplog.records)
+    localize_main(dataclasses.replace(conf, split="0:150,10:20"), path, tmp_path / "few.csv")
+    record = json.loads((tmp_path / "few.json").read_text())
+    n = record["summary"]["queries"]
+    assert 0 < n < 10 and record["warnings"][0].startswith(f"only {n} queries scored: one query changes R@1 by 1/{n}")
+    localize_main(dataclasses.replace(conf, split="train"), path, tmp_path / "train.csv")
+    assert "warnings" not in json.loads((tmp_path / "train.json").read_text())  # nothing to say: no key
+
+
+def test_the_track_holds_each_frames_truth_and_error(synth_dir, tmp_path):
+    """With the dataset's positions: each frame's true position and error, the error within the radius exactly
+    where the frame is correct; the JSON holds them, null where unknown."""
+    import csv
+
+    localize_main(LocalizeConfig(method="raw+seqmatch", seq_len=3), synth_dir, tmp_path / "t.csv")
+    rows = list(csv.DictReader((tmp_path / "t.csv").open()))
+    record = json.loads((tmp_path / "t.json").read_text())
+    radius = record["config"]["radius"]
+    scored = [r for r in rows if r["correct"] != ""]
+    assert scored and all(r["error"] != "" and (float(r["error"]) <= radius) == (r["correct"] == "1") for r in scored)
+    assert [r["error"] == "" for r in rows] == [e is None for e in record["truth"]["errors"]]
+    assert record["truth"]["unit"] == "metres" and all(r["true_x"] != "" for r in rows)
