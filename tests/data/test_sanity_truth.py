@@ -97,3 +97,30 @@ def test_degrees_taken_as_metres_are_warned_whatever_the_radius(route):
     table = np.c_[np.arange(60) * 0.01, np.zeros(60)]  # a tabletop's metres near the origin
     assert degree_positions(make(places, seen, table, table, radius=0.02)) is None
     assert degree_positions(make(places, seen, deg, deg, radius=10.0)) is None  # every one within: said elsewhere
+
+
+def test_a_split_whose_ranges_share_no_place_is_warned(route):
+    from seqnet.data.sanity.truth import unmatched_splits
+
+    places, seen = route
+    meant = {"train": {"reference": (0, 60), "query": (0, 20)}, "val": {"reference": (0, 60), "query": (20, 40)}}
+    assert unmatched_splits(make(places, seen, splits=meant)) is None
+    chunks = {"train": {"reference": (0, 20), "query": (40, 60)}, "val": {"reference": (0, 60), "query": (20, 40)}}
+    line = unmatched_splits(make(places, seen, splits=chunks))
+    assert line.startswith("split train (reference 0:20, queries 40:60) has no query with a true match in the split's "
+                           "reference range: NAME=A:B,C:D is reference A:B and queries C:D")
+    pos = Positives.from_lists(_shifted(60, 0))
+    assert "split train" in unmatched_splits(make(places, seen, splits=chunks, positives=pos))
+
+
+def test_a_matrix_given_as_descriptors_is_warned(route):
+    from seqnet.data.sanity.truth import matrix_as_descriptors
+
+    places, seen = route
+    dist = np.linalg.norm(places[:, None] - places[None], axis=-1)
+    for m in (np.exp(-dist / dist.mean()), dist):  # similarity (peaks on the diagonal), distance (dips there)
+        line = matrix_as_descriptors(make(m.astype(np.float32), m.astype(np.float32)))
+        assert line is not None and line.startswith("the reference descriptors are [60, 60], D equal to the number")
+    square = np.random.default_rng(5).random((60, 60)).astype(np.float32)  # D = N by chance
+    assert matrix_as_descriptors(make(square, square)) is None
+    assert matrix_as_descriptors(make(places, seen)) is None

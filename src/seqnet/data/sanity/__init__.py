@@ -26,8 +26,10 @@ from .truth import (
     constant_positions,
     degree_positions,
     frozen_positions,
+    matrix_as_descriptors,
     shared_queries,
     transposed_positives,
+    unmatched_splits,
     wide_frame_radius,
 )
 
@@ -82,7 +84,8 @@ def dataset_warnings(ds: Dataset) -> list[str]:
     """One line per likely mistake in ``ds`` (none: an empty list): see the module's description."""
     found = [copied_queries(ds), shared_queries(ds, list(ds.splits)), constant_positions(ds), *route_order(ds),
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
-             transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), *frozen(ds)]
+             transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), unmatched_splits(ds),
+             matrix_as_descriptors(ds), *frozen(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
 
 

@@ -161,3 +161,55 @@ def degree_positions(ds: Dataset) -> str | None:
     x, y = np.median(both, axis=0)
     return (f"the positions span {span:.2g} units around ({x:.5f}, {y:.5f}), taken as metres with a radius of "
             f"{ds.radius:g}: {DEGREES_HINT}")
+
+
+def unmatched_splits(ds: Dataset) -> str | None:
+    """The splits none of whose queries has a true match within the split's reference range (``NAME=A:B,C:D`` is
+    reference A:B, queries C:D: two query chunks given that way share no place), one line; None when every split has
+    some (or the dataset has no splits)."""
+    bad = []
+    for name in ds.splits:
+        sub = ds.split(name)
+        if len(sub.query) and not _matched(sub):
+            r, q = ds.splits[name]["reference"], ds.splits[name]["query"]
+            bad.append(f"{name} (reference {r[0]}:{r[1]}, queries {q[0]}:{q[1]})")
+    if not bad:
+        return None
+    return (f"split{'s' if len(bad) > 1 else ''} {'; '.join(bad)} {'have' if len(bad) > 1 else 'has'} no query with a "
+            "true match in the split's reference range: NAME=A:B,C:D is reference A:B and queries C:D (hint: NAME=A:B "
+            "alone selects queries A:B against the whole reference)")
+
+
+def _matched(ds: Dataset) -> bool:
+    """Whether some query of ``ds`` has a true match: an explicit positive, or a reference within the radius."""
+    if ds.positives is not None:
+        return bool((ds.positives.counts() > 0).any())
+    if not len(ds.reference):
+        return False
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(np.asarray(ds.reference.positions, np.float64)).query(
+        np.asarray(ds.query.positions, np.float64), k=1)
+    return bool((d <= ds.radius).any())
+
+
+MATRIX_SHARE = 0.9  # reference rows peaking at their own column, at least, for [N, N] descriptors to be a matrix
+
+
+def matrix_as_descriptors(ds: Dataset, samples: int = 200) -> str | None:
+    """Why the descriptors look like a similarity or distance matrix: D equals the number of references and (of
+    ``samples`` evenly spaced reference rows) at least :data:`MATRIX_SHARE` peak (max or min) at their own column,
+    as a reference-to-reference matrix does; None otherwise (real descriptors with D = N peak there by chance)."""
+    ref = ds.reference.descriptors
+    n = len(ref)
+    if ref.ndim != 2 or n < 10 or ref.shape[1] != n:
+        return None
+    i = spread(n, samples)
+    rows = np.asarray(ref[i], np.float64)
+    own = np.maximum((rows.argmax(axis=1) == i).mean(), (rows.argmin(axis=1) == i).mean())
+    if own < MATRIX_SHARE:
+        return None
+    return (f"the reference descriptors are [{n}, {n}], D equal to the number of reference images, and {own:.0%} of "
+            "the rows peak at their own column: a similarity or distance matrix? (hint: a [N_query, N_reference] "
+            "matrix is scored with seqnet eval --distances FILE, with --similarity for similarities, not given as "
+            "descriptors)")
