@@ -213,3 +213,5 @@ def test_a_model_of_other_dimensions_names_the_dataset_it_was_trained_on():
         check_models({"s1": model}, 2048, None, "dataset 'DS'", 1)
     assert str(named.value) == ("the s1 model (S_1) expects D=32 descriptors but the dataset has D=2048; hint: it "
                                 "was trained on the dataset /data/DS-pca32: --dataset /data/DS-pca32")
+    with pytest.raises(ConfigError, match="trained on the dataset /data/DS-pca32: a map built from that dataset$"):
+        check_models({"s1": model}, 2048, None, "the map 'M'", 1)
