@@ -316,7 +316,8 @@ def test_a_matrix_read_as_the_user_did_not_mean_is_named(tmp_path, capsys, given
         assert "reads much better" not in err and check["best_reading"] == "as given"
         assert json.loads((tmp_path / "r.json").read_text())["methods"]["single"]["recall@1"] > 0.5
     else:
-        assert f"reads much better {warned}" in err and check["best_reading"] == warned
+        assert f"(the {warned} reading): single-frame R@1 is" in err and check["best_reading"] == warned
+        assert "the matrix reads much better " in err and "so it was most likely written that way (hint: " in err
 
 
 @pytest.mark.parametrize("transposed, hint", [(False, "pass --transposed"), (True, "drop --transposed")])

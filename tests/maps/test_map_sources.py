@@ -30,6 +30,23 @@ def framed(ds, name: str):
                                        "b": {"reference": (n // 2, n), "query": (n // 2, n)}})
 
 
+def test_a_map_in_metres_against_a_dataset_of_frame_numbers_names_each_unit(synth_dataset, tmp_path):
+    """A map built from a metres dataset, scored on another dataset whose positions are frame numbers: each
+    side's unit is said as it is (the map's positions are metres, not frame numbers)."""
+    a = save_dataset(framed(synth_dataset, "A"), tmp_path / "A")
+    n = min(len(synth_dataset.reference), len(synth_dataset.query))
+    metres = dataclasses.replace(synth_dataset, name="M", reference=synth_dataset.reference.subset(0, n),
+                                 query=synth_dataset.query.subset(0, n),
+                                 splits={"a": {"reference": (0, n // 2), "query": (0, n // 2)}})
+    map_m = build(FREE.replace(split="a"), save_dataset(metres, tmp_path / "M"), tmp_path / "mapM")
+    with pytest.raises(ConfigError) as e:
+        evaluate_main(CONF.replace(split="a"), a, map_m, tmp_path / "o1")
+    assert f"dataset {a} gives positions as frame numbers and map {tmp_path / 'mapM'} as metres, but the map was " \
+           "built from" in str(e.value)
+    assert str(e.value).endswith(": frame numbers and metres do not name the same places; hint: build the map "
+                                 "from this dataset and split")
+
+
 def test_a_map_of_another_dataset_with_frame_numbers_is_refused(synth_dataset, tmp_path, capsys):
     a = save_dataset(framed(synth_dataset, "A"), tmp_path / "A")
     other = framed(synth_dataset, "B")  # the same numbering, but another dataset's images

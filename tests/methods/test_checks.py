@@ -199,3 +199,19 @@ def test_the_training_queries_hint_names_a_split_that_exists(synth_dataset, tmp_
     assert said({"Train": s["train"]}, "all")[0].endswith("(hint: --split A:B, a range of queries without training "
                                                           "ones)")
     assert said({"Train": s["train"], "test": s["test"]}, "all")[0].endswith("(hint: --split test)")
+
+
+def test_a_model_of_other_dimensions_names_the_dataset_it_was_trained_on():
+    """A model trained on DS-pca32 (``train --pca 32`` on DS) evaluated on DS: the error names the dataset its
+    checkpoint records; a model that records none keeps the bare error."""
+    model = SeqNet(32, 8, 1, 1)
+    with pytest.raises(ConfigError) as bare:
+        check_models({"s1": model}, 2048, None, "dataset 'DS'", 1)
+    assert str(bare.value) == "the s1 model (S_1) expects D=32 descriptors but the dataset has D=2048"
+    model.trained_on = {"dataset": "/data/DS-pca32", "split": "train"}
+    with pytest.raises(ConfigError) as named:
+        check_models({"s1": model}, 2048, None, "dataset 'DS'", 1)
+    assert str(named.value) == ("the s1 model (S_1) expects D=32 descriptors but the dataset has D=2048; hint: it "
+                                "was trained on the dataset /data/DS-pca32: --dataset /data/DS-pca32")
+    with pytest.raises(ConfigError, match="trained on the dataset /data/DS-pca32: a map built from that dataset$"):
+        check_models({"s1": model}, 2048, None, "the map 'M'", 1)

@@ -74,11 +74,35 @@ def test_route_warnings_name_shuffles_rates_and_duplicates():
     assert len(said) == 1 and said[0].startswith("299 of the 300 query rows are exact duplicates")
 
 
-def test_frame_positions_of_explicit_positives_say_nothing_of_steps():
+def test_explicit_positives_of_frame_positions_give_the_rate_from_the_positives():
+    """Frame numbers say nothing of steps; the positives do: a query at twice the reference's rate (each
+    reference frame the positive of two query frames) is said with its ratio and the side to re-sample, a query
+    at the reference's rate (±1 frame positives) is not, and frame-wise methods are never warned."""
     r, q = np.arange(300.0)[:, None], np.arange(0, 300, 0.5)[:, None]
     pos = Positives.from_lists([[int(i)] for i in q[:, 0]])
     ds = dataset(q, r, positives=pos, position_unit="frames")
-    assert route_warnings(ds, GroundTruth(q, r, 1.0, pos), np.arange(600), METHODS) == []
+    [said] = route_warnings(ds, GroundTruth(q, r, 1.0, pos), np.arange(600), METHODS)
+    assert said.startswith("the query advances 0.5 reference frames per query frame (the mean step of its explicit "
+                           "positives): SeqMatch-style matchers assume both traverses advance by equal steps")
+    assert said.endswith("(--resample-every 2 --resample-side query)")
+    assert route_warnings(ds, GroundTruth(q, r, 1.0, pos), np.arange(600), ["single"]) == []
+    even = Positives.from_lists([[j for j in (i - 1, i, i + 1) if 0 <= j < 300] for i in range(300)])
+    ds = dataset(r, r, positives=even, position_unit="frames")
+    assert route_warnings(ds, GroundTruth(r, r, 1.0, even), np.arange(300), METHODS) == []
+
+
+def test_a_resampled_query_of_explicit_positives_is_said_with_the_resampling():
+    """``eval --resample-every 2 --resample-side query`` on traverses at equal rates: the line names the
+    re-sampling and the now denser reference side."""
+    from seqnet.data.resample import resample_dataset
+
+    r = np.arange(300.0)[:, None]
+    even = Positives.from_lists([[j for j in (i - 1, i, i + 1) if 0 <= j < 300] for i in range(300)])
+    ds = resample_dataset(dataset(r, r, positives=even, position_unit="frames"), 2, "query")
+    [said] = route_warnings(ds, GroundTruth(ds.query.positions, r, 1.0, ds.positives), np.arange(150), METHODS)
+    assert said.startswith("the query advances 2 reference frames per query frame (the mean step of its explicit "
+                           "positives, after --resample-every 2 --resample-side query): ")
+    assert said.endswith("(--resample-every 2 --resample-side reference)")
 
 
 def test_real_nordland64_frames_in_order_warn_nothing():

@@ -82,3 +82,18 @@ def test_fit_on_the_test_split_is_refused(folders, tmp_path, capsys, split):
                                     "/ NetVLAD clusters on the test split's images makes its numbers optimistic; fit "
                                     "on the reference (the default) or on a train split (--fit-on train)")
     assert not (tmp_path / "ds").exists()
+
+
+def test_reference_and_query_images_of_two_sizes_are_refused_with_the_resize(folders, tmp_path, capsys):
+    """Two cameras: each folder has one size, but not the same one; described natively the descriptors differ in
+    length. The error names both sizes and the --resize that fixes it, before any image is described."""
+    big = tmp_path / "big"
+    big.mkdir()
+    for p in sorted((folders / "qry").iterdir()):
+        Image.open(p).resize((32, 16)).save(big / p.name)
+    assert build(folders, tmp_path / "ds", "ref", str(big)) == 2
+    err = capsys.readouterr().err
+    assert err == ("seqnet dataset from-images: error: the reference images are 16x8 and the query images 32x16 "
+                   "(native size): their descriptors would differ in length; give --resize 16x8\n")
+    assert not (tmp_path / "ds").exists()
+    assert build(folders, tmp_path / "ds", "ref", str(big), "--resize", "16x8") == 0

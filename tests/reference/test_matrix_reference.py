@@ -204,4 +204,5 @@ def test_a_transposed_matrix_is_read_as_such_by_eval_and_localize(synth_dataset,
     capsys.readouterr()
     assert cli(["localize", *common, "--distances", str(tmp_path / "d.npy"), "--similarity",  # the other sense
                 "--out", str(tmp_path / "s.csv")]) == 0
-    assert "reads much better other sense" in (err := capsys.readouterr().err) and "drop --similarity" in err
+    assert "reads much better as distances (the other sense reading)" in (err := capsys.readouterr().err)
+    assert "drop --similarity" in err

@@ -170,3 +170,26 @@ def test_training_on_copied_queries_is_warned(synth_dataset, caplog):
     prepare(copy, conf, torch.device("cpu"))
     [line] = [r.getMessage() for r in caplog.records if "trivially perfect" in r.getMessage()]
     assert line.startswith("training on the 'train' split: ") and "the query images are the reference images" in line
+
+
+def test_training_on_a_query_traverse_run_backwards_is_warned(synth_dataset, caplog):
+    """The query traverse driven opposite to the reference: eval's route-direction warning, said at train time
+    before any epoch (an S_L learns nothing useful from windows reversed on one side); not for S_1."""
+    import dataclasses
+
+    from seqnet.data.traverse import Traverse
+    from seqnet.train.loop import prepare
+
+    conf, said = FAST.resolve(synth_dataset).replace(train_split="all", val_split="none"), "runs opposite"
+    prepare(synth_dataset, conf, torch.device("cpu"))
+    assert not any(said in r.getMessage() for r in caplog.records)
+    q = synth_dataset.query
+    back = dataclasses.replace(synth_dataset, query=Traverse(q.descriptors[::-1].copy(), q.positions[::-1].copy(),
+                                                             name="query"), splits={})
+    prepare(back, conf, torch.device("cpu"))
+    [line] = [r.getMessage() for r in caplog.records if said in r.getMessage()]
+    assert line.startswith("training on the 'all' split: the query traverse runs opposite to the reference")
+    assert "(correlation -1.00)" in line
+    caplog.clear()
+    prepare(back, conf.replace(seq_len=1, w=1), torch.device("cpu"))
+    assert not any(said in r.getMessage() for r in caplog.records)

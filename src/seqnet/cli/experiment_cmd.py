@@ -74,10 +74,27 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "this experiment did not write (default: refuse)")
         if exp.data:
             _data_options(e, name, exp.own_data)
+        if not exp.own_data:
+            e.add_argument("--dataset", action=_NoDataset, nargs="?", help=argparse.SUPPRESS)
         for flag, key, kind, text in OPTIONS[name]:
             e.add_argument(flag, dest=key, type=kind, action="append" if key in LISTS else None, help=text)
         add_device(e)
         e.set_defaults(func=run, experiment_name=name)
+
+
+class _NoDataset(argparse.Action):
+    """``--dataset`` given to an experiment that runs only on the nordland64 data: refused naming those that take
+    it (before argparse's "required: --data", which would not say why)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        own = [exp.alias or n for n, exp in EXPERIMENTS.items() if exp.own_data]
+        name = parser.prog.split()[-1]
+        exp = EXPERIMENTS[name]
+        data = ("it runs on the nordland64 data only, given by --data (the nordland64 folder)" if exp.data else
+                "it reads no data")
+        parser.error(f"{exp.alias or name} takes no --dataset: {data}; only "
+                     f"{', '.join(own)} take a seqnet dataset (--dataset)")
 
 
 def _data_options(e: argparse.ArgumentParser, name: str, own_data: bool) -> None:

@@ -272,3 +272,16 @@ def iter_batches(n: int, batch_size: int, todo: np.ndarray | None = None) -> Ite
     idx = np.arange(n) if todo is None else np.flatnonzero(todo)
     for s in range(0, idx.size, batch_size):
         yield idx[s : s + batch_size]
+
+
+def sides_size_mismatch(ref: Sequence[ImageRef], query: Sequence[ImageRef], size: Any) -> ImageError | None:
+    """The error when the reference and query images differ in size (their first images, e.g. two cameras) and
+    ``size`` (the describer's resolved resize; None: native) keeps each at its own size: their descriptors would
+    differ in length; None when they agree, when ``size`` brings both to one size, or when either side is empty."""
+    if size is not None or not ref or not query:
+        return None
+    (h0, w0), (h1, w1) = (read_any(as_image(s[0]), grey=True).shape[:2] for s in (ref, query))
+    if (h0, w0) == (h1, w1):
+        return None
+    return ImageError(f"the reference images are {w0}x{h0} and the query images {w1}x{h1} (native size): their "
+                      f"descriptors would differ in length; give --resize {w0}x{h0}")

@@ -183,9 +183,12 @@ def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed:
     turn = "drop --transposed" if transposed else "pass --transposed (one row per reference, as VPR_Tutorial's S)"
     hint = {"other sense": flag, "transposed": turn, "transposed, other sense": f"{turn}, and {flag}"}[best]
     if r1[best] >= 2 * given and r1[best] >= given + 0.1:
-        logger.warning("the matrix reads much better %s: single-frame R@1 %.3f read as given (%s, one row per "
-                       "query), %.3f %s; the user probably meant that (hint: %s)", best, given, sense, r1[best],
-                       best, hint)
+        other = "similarities" if not similarity else "distances"
+        read = {"other sense": f"as {other}", "transposed": f"with one row per reference, as {sense}",
+                "transposed, other sense": f"with one row per reference, as {other}"}[best]
+        logger.warning("the matrix reads much better %s (the %s reading): single-frame R@1 is %.3f read as given "
+                       "(%s, one row per query) but %.3f read %s, so it was most likely written that way (hint: %s)",
+                       read, best, given, sense, r1[best], read, hint)
     elif best.startswith("transposed") and z >= SQUARE_Z:
         logger.warning("a square matrix: rows read as queries (single-frame R@1 %.3f), but it reads better %s "
                        "(%.3f); if its rows and columns are the other way round, %s", given, best, r1[best], hint)

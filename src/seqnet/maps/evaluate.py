@@ -85,10 +85,15 @@ def check_source(mp: Map, q: QueryData) -> None:
     src = mp.meta.get("source") or {}
     if src.get("dataset_path") in (None, str(q.root.resolve())) or (q.root / POSITIVES_FILE).is_file():
         return  # the same dataset, or explicit positives (refused by :func:`_positives` unless the same split)
-    if "frames" in (q.unit, src.get("position_unit")) and not _same_reference(mp, q):
-        raise ConfigError(f"dataset {q.root} and map {mp.path} give positions as frame numbers, but the map was "
-                          f"built from {src.get('dataset_path')} [{src.get('split')}]: frame numbers of two datasets "
-                          "do not name the same places; hint: build the map from this dataset and split")
+    units = (q.unit, src.get("position_unit") or "metres")
+    if "frames" in units and not _same_reference(mp, q):
+        said = {"frames": "frame numbers", "metres": "metres"}
+        give = (f"dataset {q.root} and map {mp.path} give positions as frame numbers" if len(set(units)) == 1 else
+                f"dataset {q.root} gives positions as {said.get(units[0], units[0])} and map {mp.path} as "
+                f"{said.get(units[1], units[1])}")
+        why = "frame numbers of two datasets" if len(set(units)) == 1 else "frame numbers and metres"
+        raise ConfigError(f"{give}, but the map was built from {src.get('dataset_path')} [{src.get('split')}]: "
+                          f"{why} do not name the same places; hint: build the map from this dataset and split")
 
 
 def _same_reference(mp: Map, q: QueryData) -> bool:

@@ -11,6 +11,7 @@ from ..core.errors import ConfigError
 from ..core.log import logger
 from ..core.provenance import check_same
 from ..data.traverse import Dataset
+from ..security.text import shown
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import longest_option
 from .grammar import Method
@@ -108,11 +109,21 @@ def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None
         name = "S_1" if role == "s1" else f"S_{model.seq_len}"
         if model.in_dims != dim:
             raise ConfigError(f"the {role} model ({name}) expects D={model.in_dims} descriptors "
-                              f"but the dataset has D={dim}")
+                              f"but the dataset has D={dim}{_trained_on_hint(model, where)}")
         check_same(model.provenance, provenance, f"the descriptors the {name} model was trained on",
                    f"the descriptors of {where}", allow)
         if role == "seqnet" and model.seq_len != length:
             check_window_len(model, length, use)
+
+
+def _trained_on_hint(model: SeqNet, where: str) -> str:
+    """The hint naming the dataset a checkpoint was trained on (e.g. the ``DS-pca32`` that ``train --pca 32``
+    wrote beside ``DS``), when it records one (``--dataset`` named when ``where`` is a dataset); else empty."""
+    path = (getattr(model, "trained_on", None) or {}).get("dataset")
+    if not path:
+        return ""
+    use = f"--dataset {shown(path)}" if where.startswith("dataset") else "a map built from that dataset"
+    return f"; hint: it was trained on the dataset {shown(path)}: {use}"
 
 
 def check_window_len(model: SeqNet, length: int, use: str = "is evaluated with") -> None:

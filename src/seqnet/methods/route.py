@@ -13,7 +13,7 @@ import numpy as np
 from ..core.tensors import spread
 from ..data.sanity import copied_queries, duplicated_rows, real_positions, route_order
 from ..data.sanity.truth import degree_positions
-from ..data.spacing import DEGREES_HINT, looks_like_degrees, step_rates
+from ..data.spacing import DEGREES_HINT, RATE_RATIO, looks_like_degrees, step_rates
 from .grammar import parse_method
 
 REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back
@@ -120,6 +120,38 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
         rates = any(m.rate_sensitive for m in parsed) and step_rates(q.positions, q.seq_bounds, r.positions,
                                                                      r.seq_bounds, ds.position_unit)
         found += disorder or [rates or None]
+    elif ds.positives is not None and any(m.rate_sensitive for m in parsed):
+        found.append(positives_rates(ds))
     found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
               copied_queries(ds), None if found[1] else degree_positions(ds)]
     return [line for line in found if line]
+
+
+def positives_rates(ds: Any) -> str | None:
+    """The :func:`seqnet.data.spacing.step_rates` line of a dataset whose explicit positives are its only
+    geometry (positions are frame numbers): the step of the mean positive reference between consecutive query
+    frames that both have positives (a trimmed mean: reference frames per query frame; 1: equal rates), e.g. 2 after
+    ``--resample-every 2 --resample-side query`` of traverses recorded at equal rates; None within
+    :data:`~seqnet.data.spacing.RATE_RATIO` either way or with fewer than 3 such steps."""
+    q, r = ds.positives.pairs()
+    n = len(ds.query)
+    count = np.bincount(q, minlength=n)
+    has = np.flatnonzero(count)
+    if len(has) < 4:
+        return None
+    centre = np.bincount(q, weights=r.astype(np.float64), minlength=n)[has] / count[has]
+    near = np.diff(has) == 1  # consecutive query frames: a sequence's jump or a gap is no step
+    step = np.sort(np.abs(np.diff(centre))[near])
+    if len(step) < 3:
+        return None
+    cut = len(step) // 10  # a trimmed mean: steps of whole frames (0, 1, 0, 1 at half rate) average right
+    rate = float(step[cut:len(step) - cut].mean())
+    if rate <= 0 or max(rate, 1 / rate) <= RATE_RATIO:
+        return None
+    done = "".join(f", after --resample-every {d['every']} --resample-side {d['side']}"
+                   for d in ds.extra.get("resample", [])[-1:])
+    dense = "query" if rate < 1 else "reference"
+    return (f"the query advances {rate:.2g} reference frames per query frame (the mean step of its explicit "
+            f"positives{done}): SeqMatch-style matchers assume both traverses advance by equal steps; use a "
+            "velocity-robust matcher (raw+vseqmatch, s1+vseqmatch, raw+graph) or re-sample the denser side "
+            f"(--resample-every {round(max(rate, 1 / rate))} --resample-side {dense})")

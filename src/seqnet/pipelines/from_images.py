@@ -39,7 +39,7 @@ from ..data.positives import Positives, read_positives
 from ..data.sanity import review
 from ..data.traverse import Dataset, Traverse
 from ..describe import DescribeConfig, make_describer
-from ..describe.images import ImageList, list_images
+from ..describe.images import ImageList, list_images, sides_size_mismatch
 from ..describe.stage import describe_provenance
 from ..security.locks import locked
 from ..security.ownership import check_replaceable
@@ -255,6 +255,8 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
             dconf, record = choose_describer(conf, images, base)
             conf, extra = conf.replace(describe=dconf, candidates=()), {**(extra or {}), "descriptor_choice": record}
         fit = _fit_images(conf, ref, qry)
+        if mismatch := sides_size_mismatch(ref.paths, qry.paths, conf.describe.image_size):
+            raise mismatch
         describer = make_describer(conf.describe.replace(fit=fit) if fit else conf.describe, fit or ref.paths)
         desc = {}
         for side, side_images in (("reference", ref), ("query", qry)):

@@ -31,6 +31,7 @@ import numpy as np
 
 from .._version import __version__
 from ..core.config import Config, check_int
+from ..core.log import logger
 from ..data.traverse import Dataset
 from ..methods.grammar import parse_method
 from ..metrics.consistency import CONFIDENCES
@@ -40,6 +41,7 @@ from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, win
 from .guidance import learned_below_baseline, row_marks
 from .markup import SORT_JS, Section, png_tag, table_html
 from .notes import calibration_section, choices_section, notes_section, radii_section
+from .sources import swapped_sources
 from .styles import method_family
 from .tables import figure_png, pr_figure, recall_figure, results_rows
 
@@ -263,6 +265,10 @@ def write_html_report(ev: Any, ds: Dataset | None, path: str | Path, conf: Repor
     conf = conf or ReportConfig()
     name = ds.name if ds is not None else ev.results.get("config", {}).get("dataset", "")
     title = conf.title or f"seqnet evaluation: {name}"
+    swapped = swapped_sources(ds.extra, conf.query_images, conf.ref_images) if ds is not None else None
+    if swapped:
+        logger.warning("%s", swapped)
+        extra = [Section("sources", "Picture sources", f"<p><b>Warning:</b> {html.escape(swapped)}.</p>"), *extra]
     return write_text_atomic(Path(path), render_html(title, [*extra, *evaluation_sections(ev, ds, conf)]))
 
 

@@ -27,7 +27,7 @@ from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.provenance import check_same
 from ..data.io import load_dataset
-from ..data.sanity import copied_queries, shared_queries
+from ..data.sanity import shared_queries
 from ..data.traverse import Dataset
 from ..methods.checks import accepted_mismatch
 from ..security.locks import locked
@@ -36,6 +36,7 @@ from .distributed import World, joined
 from .epoch import train_epoch
 from .guide import Budget, check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
 from .losses import LOSSES
+from .route import split_warnings
 from .run import (
     Run,
     check_epochs_left,
@@ -86,13 +87,12 @@ def _split(ds: Dataset, name: str, what: str) -> Dataset:
 
 
 def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[TripletSource, Dataset | None]:
-    """The training windows on ``device`` and the val split (None: no validation), both checked
-    (windows fit, some query has a positive and a negative): everything that can fail on the data
-    fails here, before a run directory is created."""
+    """The training windows on ``device`` and the val split (None: no validation), both checked (windows fit, some
+    query has a positive and a negative): everything that can fail on the data fails here, before a run directory."""
     train_ds = _split(dataset, conf.train_split, "train")
     src = triplet_source(train_ds, conf.window_len, conf.window, conf.mining, device, conf.ref_pad)
-    if said := copied_queries(train_ds):  # val would score 1.000 too: a model of nothing, said before training
-        logger.warning("training on the %r split: %s", conf.train_split, said)
+    for said in split_warnings(train_ds, conf):  # said before training
+        logger.warning("%s", said)
     if not conf.validates:
         return src, None
     val_ds = _split(dataset, conf.val_split, "val")
