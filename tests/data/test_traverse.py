@@ -149,9 +149,10 @@ def test_bad_json(ds_dir, text, pattern):
     expect(ds_dir, pattern)
 
 
-@pytest.mark.parametrize("radius, pattern", [(..., "missing key 'radius'"), ("far", "radius must be a number"),
-                                             (None, "radius must be a number"), (0, "radius must be a positive"),
-                                             (-3, "radius must be a positive")])
+@pytest.mark.parametrize("radius, pattern", [(..., "missing key 'radius'"),
+                                             ("far", "radius must be a positive number, got .far."),
+                                             (None, "radius must be a positive number"),
+                                             (0, "radius must be a positive"), (-3, "radius must be a positive")])
 def test_bad_radius(ds_dir, radius, pattern):
     set_meta(ds_dir, radius=radius)
     expect(ds_dir, pattern)

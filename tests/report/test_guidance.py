@@ -137,6 +137,8 @@ def test_a_learned_method_alone_is_named_with_what_to_add():
         "seqnet (add smoothing or delta to see whether the model helps)",
         "s1+seqmatch (add raw+seqmatch to see whether the model helps)",
         "s1 (add single to see whether the model helps)"]
+    assert unmatched(_results({"hvpr": 0.5, "s1+seqmatch": 0.6})) == [
+        "hvpr and s1+seqmatch (add raw+seqmatch to see whether the models help)"]  # one counterpart: one line
     assert unmatched(_results({"seqnet": 0.268, "single": 0.4})) == [
         "seqnet (add smoothing or delta to see whether the model helps; it is already below the single-frame "
         "single: R@1 0.268 against 0.400)"]

@@ -80,7 +80,7 @@ def _load_dataset(root: Path, mmap: bool) -> tuple[Dataset, dict[str, Any]]:
     meta = read_json_object(meta_path, "dataset.json")
     if "radius" not in meta:
         raise DatasetError(f"{meta_path}: missing key 'radius' (localisation radius, metres or frames)")
-    radius = number(meta["radius"], f"{meta_path}: radius", -1e300, 1e300, integer=False)  # > 0: checked by Dataset
+    radius = number(meta["radius"], f"{meta_path}: radius", 1e-300, 1e300, integer=False)
     trav = meta.get("traverses", {"reference": "reference", "query": "query"})
     if not isinstance(trav, dict) or not all(isinstance(v, str) for v in trav.values()):
         raise DatasetError(f"{meta_path}: 'traverses' must be an object like "

@@ -167,7 +167,8 @@ def unmatched(results: Mapping[str, Any]) -> list[str]:
     """The learned methods of ``results`` with no model-free counterpart evaluated beside them (nothing to say
     whether the model helps), with the counterpart to add."""
     methods = results.get("methods", {})
-    out, wants = [], {}
+    groups: dict[str, list[str]] = {}  # the counterpart to add -> the learned methods wanting it
+    wants, below = {}, {}
     for name in methods:
         try:
             m = parse_method(name)
@@ -176,10 +177,18 @@ def unmatched(results: Mapping[str, Any]) -> list[str]:
         if m.models() and not counterparts(name, methods):
             want = "single" if m.kind == "knn" and m.shortlist == "s1" else \
                 "smoothing or delta" if m.kind == "knn" else f"raw+{m.matcher}"
-            out.append(f"{name} (add {want} to see whether the model helps{_below_single(name, m, methods)})")
-            wants[name] = want.split(" or ")[-1]
+            groups.setdefault(want, []).append(name)
+            wants[name], below[name] = want.split(" or ")[-1], _below_single(name, m, methods)
     index = (results.get("config") or {}).get("index")
-    return [without_index(results, wants)] if index and wants else out
+    if index and wants:
+        return [without_index(results, wants)]
+    return [f"{_and(names)} (add {want} to see whether the model{'s help' if len(names) > 1 else ' helps'}"
+            f"{''.join(below[n] for n in names)})" for want, names in groups.items()]
+
+
+def _and(names: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
 
 
 def without_index(results: Mapping[str, Any], wants: Mapping[str, str]) -> str:
