@@ -13,3 +13,19 @@ def test_a_tiny_query_range_gets_a_small_sample_note(synth_dir, capsys):
         "single " in out, out
     assert cli_main([*base, "--split", "test"]) == 0
     assert "queries scored" not in capsys.readouterr().out  # a test split of 30 or more queries: nothing said
+
+
+def test_a_dataset_changed_since_seqnet_wrote_it_is_warned_at_default_verbosity(synth_dir, tmp_path, capsys):
+    """The warning that a dataset's files changed since seqnet wrote it reaches stderr without -v (it went through
+    Python warnings, which the CLI shows only with -v), once."""
+    import shutil
+
+    import numpy as np
+
+    root = tmp_path / "edited"
+    shutil.copytree(synth_dir, root)
+    q = np.load(root / "query" / "descriptors.npy")
+    np.save(root / "query" / "descriptors.npy", q[::-1].copy())
+    assert cli_main(["eval", "--dataset", str(root), "--method", "single", "--seq-len", "3"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("query/descriptors.npy changed since seqnet wrote the dataset") == 1, err

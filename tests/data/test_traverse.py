@@ -503,3 +503,20 @@ def test_a_copied_dataset_is_named_after_its_folder(ds, tmp_path):
     named = save_dataset(ds, tmp_path / "d2")  # named "toy", written into d2
     shutil.copytree(named, tmp_path / "d3")
     assert load_dataset(tmp_path / "d3").name == "toy"
+
+
+def test_a_copied_dataset_written_before_folders_were_recorded_is_named_by_both(ds, tmp_path):
+    """A dataset seqnet wrote before dataset.json recorded its folder (checksums, no ``folder``), copied: both
+    names (``copy (written as orig)``); a hand-written dataset.json (no checksums) keeps its name."""
+    import shutil
+
+    root = save_dataset(dataclasses.replace(ds, name="orig"), tmp_path / "orig")
+    meta = json.loads((root / "dataset.json").read_text())
+    del meta["folder"]
+    (root / "dataset.json").write_text(json.dumps(meta))
+    assert load_dataset(root).name == "orig"
+    shutil.copytree(root, tmp_path / "copy")
+    assert load_dataset(tmp_path / "copy").name == "copy (written as orig)"
+    del meta["checksums"]
+    (tmp_path / "copy" / "dataset.json").write_text(json.dumps(meta))
+    assert load_dataset(tmp_path / "copy").name == "orig"

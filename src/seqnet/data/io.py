@@ -107,12 +107,18 @@ def _load_dataset(root: Path, mmap: bool) -> tuple[Dataset, dict[str, Any]]:
 
 def _dataset_name(meta: dict[str, Any], root: Path, meta_path: Path) -> str:
     """The name ``dataset.json`` records; for a dataset named after the folder seqnet wrote it into (``folder``)
-    and since copied or renamed, the folder it is in now (``cp -r ds ds_edit``: ``ds_edit``, not ``ds``)."""
+    and since copied or renamed, the folder it is in now (``cp -r ds ds_edit``: ``ds_edit``, not ``ds``). A dataset
+    seqnet wrote before it recorded the folder (it has ``checksums`` but no ``folder``) in a folder of another name
+    is named by both: ``ds_edit (written as ds)``."""
     recorded = check_name(str(meta.get("name", root.name)), f"{meta_path}: name")
     folder, here = meta.get("folder"), Path(os.path.abspath(root)).name
-    if isinstance(folder, str) and folder == recorded and here and here != folder:
+    if not here or here == recorded:
+        return recorded
+    if isinstance(folder, str) and folder == recorded:
         logger.debug("dataset %s was written as %s: named %s", root, recorded, here)
         return check_name(here, f"{root}: name")
+    if folder is None and "checksums" in meta:
+        return check_name(f"{here} (written as {recorded})", f"{root}: name")
     return recorded
 
 
