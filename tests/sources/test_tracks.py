@@ -128,7 +128,7 @@ def test_two_fixes_at_one_time_are_warned_or_refused(tmp_path, caplog, metres, o
     lat, lon = np.append(lat, lat[15] + metres / 111320.0), np.append(lon, lon[15])
     path = write_track_csv(tmp_path / "dup.csv", times, lat, lon)
     if outcome == "refused":
-        with pytest.raises(DatasetError, match=r"1 samples repeat a time with another position, up to 5000 m apart "
+        with pytest.raises(DatasetError, match=r"1 sample repeats a time with another position, up to 5000 m apart "
                            r"\(at 1.5 s\): two receivers merged\?"):
             read_track(path)
         return

@@ -77,8 +77,9 @@ def _check_repeats(t: np.ndarray, c: np.ndarray, first: np.ndarray, source: str,
     when = (datetime.datetime.fromtimestamp(t[worst], datetime.timezone.utc).isoformat() if absolute
             else f"{t[worst]:g} s")
     n = int((dist > REPEAT_WARN).sum())
-    msg = (f"{shown(source)}: {n} samples repeat a time with another position, up to {dist[worst]:.0f} m apart (at "
-           f"{when}): two receivers merged?")
+    said = "1 sample repeats" if n == 1 else f"{n} samples repeat"
+    msg = (f"{shown(source)}: {said} a time with another position, up to {dist[worst]:.0f} m apart (at {when}): two "
+           "receivers merged?")
     if dist[worst] > REPEAT_REFUSE:
         raise DatasetError(msg + " (hint: keep one receiver's fixes)")
     logger.warning("%s; the first sample of each time is used", msg)
