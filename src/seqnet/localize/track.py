@@ -16,13 +16,16 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.log import logger
 from ..security.text import shown
+
+if TYPE_CHECKING:
+    from ..sources.placed import JoinedTrack
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,53 +85,38 @@ def _flag(s: Sampling) -> str:
         "" if s.fps is None else f"--fps {s.fps:g}"
 
 
-@dataclasses.dataclass(frozen=True)
-class PlacedTrack:
-    """A track joined to a video's clock: its fixes ``times [S]`` (seconds since the video's first frame) at
-    ``xy [S, 2]`` metres in ``frame``, and ``kept [K]``, the video times of the frames sampled by distance (None:
-    sampled by time as they are decoded)."""
-
-    times: np.ndarray
-    xy: np.ndarray
-    frame: str
-    kept: np.ndarray | None = None
-
-
 def place_track(video: str | Path, positions: str | Path, start: Any, zone: tuple[int, str] | None,
                 r_pos: np.ndarray, radius: float, every_metres: float | None,
-                on_frame: Callable[[str], None] | None = None, max_gap: float | None = None) -> PlacedTrack:
+                on_frame: Callable[[str], None] | None = None,
+                max_gap: float | None = None) -> tuple[JoinedTrack, np.ndarray | None]:
     """The track ``positions`` on the video file ``video`` (recorded from ``start``, a datetime or None), in the
     UTM ``zone`` of the map whose reference positions are ``r_pos [R, 2]``: refused (:class:`DatasetError`) when it
-    places no frame, or none within ``radius`` of the map's route; with ``every_metres``, the frames kept.
+    places no frame, or none within ``radius`` of the map's route. With the track, the video times of the frames
+    ``every_metres`` keeps (None without it).
     ``on_frame`` checks the frame of the track's positions (e.g. the map's UTM zone) before they are compared."""
+    from ..sources.placed import join_track
     from ..sources.sampling import every_metres as by_metres
-    from ..sources.tracks import read_track
-    from ..sources.tracks.clock import in_milliseconds, video_times, why_outside
-    from ..sources.tracks.interpolate import DEFAULT_MAX_GAP, at_times
-    from ..sources.tracks.metres import to_metres
+    from ..sources.tracks.clock import check_placed
+    from ..sources.tracks.interpolate import DEFAULT_MAX_GAP
     from ..sources.video import VideoFile
 
     gap = DEFAULT_MAX_GAP if max_gap is None else max_gap
     v = VideoFile(video)
-    track = read_track(positions)
-    rel = video_times(track, start, v.duration)
-    xy_track, frame = to_metres(track, zone)
+    track = join_track(positions, start, v.duration, zone)
     if on_frame is not None:
-        on_frame(frame)
-    xy, inside = at_times(rel, xy_track, v.times, gap)
+        on_frame(track.frame)
+    xy, inside = track.at(v.times, gap)
     where = f"the track {shown(positions)[:120]}"
     placed, n = int(inside.sum()), len(v.times)
-    if not placed or (2 * placed < n and in_milliseconds(rel, v.duration)):
-        raise DatasetError(f"{where} places {placed or 'none'} of the {n} frames of {shown(video)[:120]}: "
-                           f"{why_outside(rel, v.duration, gap)}")
-    if 2 * placed < n:
-        logger.warning("%s places %d of the %d frames of %s: %s", where, placed, n, shown(video)[:120],
-                       why_outside(rel, v.duration, gap))
+    line = check_placed(placed, n, track.times, v.duration, gap,
+                        f"{where} places {placed or 'none'} of the {n} frames of {shown(video)[:120]}")
+    if line:
+        logger.warning("%s", line)
     check_near_route(xy[inside], r_pos, radius, where, track.geographic)
     kept = None
     if every_metres is not None:
         kept = v.times[inside][by_metres(xy[inside], every_metres)]
-    return PlacedTrack(rel, xy_track, frame, kept)
+    return track, kept
 
 
 def check_near_route(q_xy: np.ndarray, r_pos: np.ndarray, radius: float, where: str, geographic: bool) -> None:

@@ -19,10 +19,11 @@ from ..core.log import logger
 from ..methods.protocol import Reference
 from .describing import map_describer
 from .replay import frame_truth
-from .track import PlacedTrack, Sampling, clock_offset, offset_note, place_track, resolve_sampling
+from .track import Sampling, clock_offset, offset_note, place_track, resolve_sampling
 from .truth import MapFrame, check_frame
 
 if TYPE_CHECKING:
+    from ..sources.placed import JoinedTrack
     from ..sources.stream import FrameStream
 
 
@@ -61,7 +62,8 @@ class VideoQuery:
         self.describer, self._check = map_describer(ref_map, allow, describer, map_dir, resize)
         self.sampling = resolve_sampling(opts.fps, opts.every_metres, recorded, opts.positions is not None)
         self.source: FrameStream = FrameStream(name, self.sampling.fps, opts.realtime, opts.timeout)
-        self.track: PlacedTrack | None = None
+        self.track: JoinedTrack | None = None  # a video file's --positions, joined before any frame (prepare)
+        self.kept: np.ndarray | None = None  # the video times --every-metres keeps (None: sampled by time)
         self.names: list[str] = []
         self.times: list[float] = []
         self.describe_ms: list[float] = []
@@ -70,7 +72,7 @@ class VideoQuery:
     def frames(self) -> Iterator[tuple[np.ndarray, float]]:
         """``(descriptor [D], milliseconds describing it)`` of each frame kept, in order."""
         d = self.describer
-        kept = None if self.track is None else self.track.kept
+        kept = self.kept
         tol = 0.25 / (float(self.source.stream.average_rate or 0) or 30.0)
         for f in self.source:
             if kept is not None and not _near(kept, f.time, tol):
@@ -93,12 +95,17 @@ class VideoQuery:
                                   "stream: give --fps")
             return
         from ..data.utm import frame_zone
+
+        self.track, self.kept = place_track(
+            self.name, self.opts.positions, self._start(), frame_zone(mf.frame), r_pos, radius,
+            self.sampling.every_metres,
+            on_frame=lambda frame: check_frame(mf, frame, map_path, str(self.opts.positions)))
+
+    def _start(self) -> Any:
+        """When the video's first frame was recorded: ``--video-start``, else the video's own (None: unknown)."""
         from ..sources.tracks.clock import parse_start
 
-        start = parse_start(self.opts.video_start) if self.opts.video_start else self.source.start
-        self.track = place_track(self.name, self.opts.positions, start, frame_zone(mf.frame), r_pos, radius,
-                                 self.sampling.every_metres,
-                                 on_frame=lambda frame: check_frame(mf, frame, map_path, str(self.opts.positions)))
+        return parse_start(self.opts.video_start) if self.opts.video_start else self.source.start
 
     def truth(self, mf: MapFrame, map_path: str | Path, r_pos: np.ndarray, radius: float,
               best: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
@@ -111,16 +118,13 @@ class VideoQuery:
         if self.track is None:  # a live stream: its track is joined to the frames' times once they are known
             from ..data.utm import frame_zone
             from ..sources.placed import track_positions
-            from ..sources.tracks.clock import parse_start
 
-            start = parse_start(self.opts.video_start) if self.opts.video_start else self.source.start
             duration = float(times[-1]) + 1.0 if len(times) else 0.0
-            q_pos, inside, frame = track_positions(self.opts.positions, times, start, duration, frame_zone(mf.frame))
+            q_pos, inside, frame = track_positions(self.opts.positions, times, self._start(), duration,
+                                                   frame_zone(mf.frame))
             check_frame(mf, frame, map_path, str(self.opts.positions))
         else:
-            from ..sources.tracks.interpolate import at_times
-
-            q_pos, inside = at_times(self.track.times, self.track.xy, times)
+            q_pos, inside = self.track.at(times)
         correct, has = np.zeros(len(times), bool), np.zeros(len(times), bool)
         if inside.any():
             correct[inside], has[inside] = frame_truth(q_pos[inside], r_pos, radius, best[inside])

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import ConfigError, DatasetError
+from ..core.errors import ConfigError
 from ..core.log import logger
 from ..security.text import shown
 from .sampling import every_metres as by_metres
 from .sampling import every_seconds
 from .tracks import read_track
-from .tracks.clock import in_milliseconds, video_times, why_outside
+from .tracks.clock import check_placed, video_times
 from .tracks.interpolate import DEFAULT_MAX_GAP, at_times
 from .tracks.metres import to_metres
 from .video import VideoFile, VideoFrame
@@ -34,16 +34,37 @@ class Placed:
     counts: dict[str, int]
 
 
+@dataclasses.dataclass(frozen=True)
+class JoinedTrack:
+    """A track joined to a video's clock: its fixes' ``times [S]`` (seconds since the video's first frame) at
+    ``xy [S, 2]`` metres in ``frame``; ``geographic``: read as latitude / longitude."""
+
+    times: np.ndarray
+    xy: np.ndarray
+    frame: str
+    geographic: bool
+
+    def at(self, times: np.ndarray, max_gap: float = DEFAULT_MAX_GAP) -> tuple[np.ndarray, np.ndarray]:
+        """``(xy [N, 2], inside [N])`` at the frame ``times [N]`` (:func:`at_times`)."""
+        return at_times(self.times, self.xy, times, max_gap)
+
+
+def join_track(positions: str | Path, start: datetime.datetime | None, duration: float,
+               zone: tuple[int, str] | None = None) -> JoinedTrack:
+    """The track in ``positions`` on the clock of a video recorded from ``start``, ``duration`` s long, in metres
+    (UTM ``zone`` when given)."""
+    track = read_track(positions)
+    xy, frame = to_metres(track, zone)
+    return JoinedTrack(video_times(track, start, duration), xy, frame, track.geographic)
+
+
 def track_positions(positions: str | Path, times: np.ndarray, start: datetime.datetime | None, duration: float,
                     zone: tuple[int, str] | None = None,
                     max_gap: float = DEFAULT_MAX_GAP) -> tuple[np.ndarray, np.ndarray, str]:
     """``(xy [N, 2], inside [N], frame)``: the positions at ``times [N]`` (seconds of a video recorded from
     ``start``, ``duration`` s long) on the track in ``positions``, in metres (UTM ``zone`` when given)."""
-    track = read_track(positions)
-    rel = video_times(track, start, duration)
-    xy_track, frame = to_metres(track, zone)
-    xy, inside = at_times(rel, xy_track, times, max_gap)
-    return xy, inside, frame
+    joined = join_track(positions, start, duration, zone)
+    return (*joined.at(times, max_gap), joined.frame)
 
 
 def place_video(path: str | Path, positions: str | Path | None = None, fps: float | None = None,
@@ -57,9 +78,12 @@ def place_video(path: str | Path, positions: str | Path | None = None, fps: floa
     idx = np.arange(len(video))
     xy, frame = None, None
     if positions is not None:
-        xy, inside, frame = track_positions(positions, video.times, video_start or video.start, video.duration,
-                                            zone, max_gap)
-        _check_placed(int(inside.sum()), video, positions, video_start or video.start, max_gap)
+        joined = join_track(positions, video_start or video.start, video.duration, zone)
+        xy, inside = joined.at(video.times, max_gap)
+        frame, placed = joined.frame, int(inside.sum())
+        check_placed(placed, len(video.times), joined.times, video.duration, max_gap,
+                     f"the track {shown(positions)} places {placed or 'none'} of the {len(video.times)} frames of "
+                     f"the video {shown(path)}")
         idx = idx[inside]
     if every_metres is not None:
         idx = idx[by_metres(xy[idx], every_metres)]
@@ -72,15 +96,3 @@ def place_video(path: str | Path, positions: str | Path | None = None, fps: floa
     frames = [VideoFrame(video, int(i)) for i in idx]
     return Placed(frames, [f.name for f in frames], None if xy is None else xy[idx], frame, counts)
 
-
-def _check_placed(placed: int, video: VideoFile, positions: str | Path, start: datetime.datetime | None,
-                  max_gap: float) -> None:
-    """Refuse a track that places no frame of ``video``, or under half of them with times that look like
-    milliseconds (a dataset of a frame or two is no dataset), naming why (:func:`why_outside`)."""
-    n = len(video.times)
-    if 2 * placed >= n:
-        return
-    rel = video_times(read_track(positions), start, video.duration)
-    where = f"the track {shown(positions)} places {placed or 'none'} of the {n} frames of the video {shown(video.path)}"
-    if not placed or in_milliseconds(rel, video.duration):
-        raise DatasetError(f"{where}: {why_outside(rel, video.duration, max_gap)}")

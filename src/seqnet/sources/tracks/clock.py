@@ -86,3 +86,17 @@ def why_outside(track_times: np.ndarray, duration: float, max_gap: float) -> str
     return (f"the track's times ({t[0]:.3g} .. {t[-1]:.3g} s) do not overlap the video's 0 .. {duration:.1f} s "
             "(numeric times are read as seconds since the video's start; absolute ones need the video's "
             "creation_time or --video-start)")
+
+
+def check_placed(placed: int, n: int, track_times: np.ndarray, duration: float, max_gap: float,
+                 said: str) -> str | None:
+    """Refuse (:class:`DatasetError`, ``said: why``) a track that places ``placed`` of a video's ``n`` frames when
+    that is none, or under half with times that look like milliseconds (a dataset of a frame or two is no dataset);
+    under half otherwise: that line, to warn with (:func:`why_outside`); else None. ``track_times [S]``: the track's
+    times in seconds since the video's first frame, ``duration``: the video's seconds."""
+    if 2 * placed >= n:
+        return None
+    line = f"{said}: {why_outside(track_times, duration, max_gap)}"
+    if not placed or in_milliseconds(track_times, duration):
+        raise DatasetError(line)
+    return line
