@@ -23,26 +23,26 @@ def number(value: Any, what: str, lo: float, hi: float, error: ErrorType = Datas
            integer: bool = True) -> int | float:
     """``value`` as an int (``integer``) or float in ``[lo, hi]``; ``error`` naming ``what`` otherwise (the range
     said in words when it is only a sign: ``lo`` 1e-300 is "positive", ``lo`` -1e300 with ``hi`` 1e300 "finite")."""
-    kind = "an integer" if integer else "a number"
-    if hi >= 1e300 and 0 < lo <= 1e-300:
-        kind = f"a positive {kind.split()[-1]}"
-    if hi >= 1e300 and lo <= -1e300:
-        kind = f"a finite {kind.split()[-1]}"
+    said = _range("integer" if integer else "number", lo, hi)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and isinstance(value, float)
                                                                           and not value.is_integer()):
-        raise error(f"{what} must be {_kind(kind, lo, hi)}, got {_short(value)}")
+        raise error(f"{what} must be {said}, got {_short(value)}")
     try:
         finite = math.isfinite(value)
     except OverflowError:  # an int beyond any float
         finite = False
     if not finite or not lo <= value <= hi:
-        raise error(f"{what} must be {_kind(kind, lo, hi)}, got {_short(value)}")
+        raise error(f"{what} must be {said}, got {_short(value)}")
     return int(value) if integer else float(value)
 
 
-def _kind(kind: str, lo: float, hi: float) -> str:
-    """``a positive number`` (a sign said in words) or ``a number in LO..HI``."""
-    return kind if kind.split()[1] in ("positive", "finite") else f"{kind} in {lo}..{hi}"
+def _range(noun: str, lo: float, hi: float) -> str:
+    """``a positive number`` / ``a finite integer`` when the range is only a sign, else ``an integer in LO..HI``."""
+    if hi >= 1e300 and 0 < lo <= 1e-300:
+        return f"a positive {noun}"
+    if hi >= 1e300 and lo <= -1e300:
+        return f"a finite {noun}"
+    return f"{'an' if noun == 'integer' else 'a'} {noun} in {lo}..{hi}"
 
 
 def _short(value: Any) -> str:
