@@ -12,10 +12,10 @@ from ..metrics.recall import ground_truth
 from .config import TrainConfig
 
 
-def route_warning(train_ds: Dataset, conf: TrainConfig, split: str) -> str | None:
-    """The line for training on ``train_ds`` (the ``split`` split) with ``conf`` when its query traverse (or
-    some query sequences) runs opposite to the reference and the model compares windows of several frames
-    (``window_len > 1``); None otherwise."""
+def route_warning(train_ds: Dataset, conf: TrainConfig) -> str | None:
+    """The line for training on ``train_ds`` with ``conf`` when its query traverse (or some query sequences) runs
+    opposite to the reference and the model compares windows of several frames (``window_len > 1``); None
+    otherwise."""
     if conf.window_len <= 1:
         return None
     q, r = train_ds.query, train_ds.reference
@@ -23,12 +23,10 @@ def route_warning(train_ds: Dataset, conf: TrainConfig, split: str) -> str | Non
     said = reversed_route(truth, ["seqnet"], q.seq_bounds)
     if said is None:
         return None
-    return (f"training on the {split!r} split: {said}; a sequence model trained on these windows learns their "
-            "frames in the wrong order")
+    return f"{said}; a sequence model trained on these windows learns their frames in the wrong order"
 
 
 def split_warnings(train_ds: Dataset, conf: TrainConfig) -> list[str]:
-    """Every line of this module's checks on the train split ``train_ds`` of ``conf``."""
-    found = [copied_queries(train_ds), route_warning(train_ds, conf, conf.train_split)]
-    return [line if line.startswith("training on") else f"training on the {conf.train_split!r} split: {line}"
-            for line in found if line]
+    """Every line of this module's checks on the train split ``train_ds`` of ``conf``, each naming the split."""
+    found = [copied_queries(train_ds), route_warning(train_ds, conf)]
+    return [f"training on the {conf.train_split!r} split: {line}" for line in found if line]
