@@ -79,9 +79,15 @@ def step_rates(query: np.ndarray, q_bounds: np.ndarray | None, reference: np.nda
         return None
     dense = "query" if q < r else "reference"
     return (f"the query advances {q:g} {unit} per frame and the reference {r:g} {unit} (median steps, ratio "
-            f"{q / r:.2g}): SeqMatch-style matchers assume both traverses advance by equal steps; use a "
-            "velocity-robust matcher (raw+vseqmatch, s1+vseqmatch, raw+graph) or re-sample the denser side "
-            f"(--resample-every {round(max(q, r) / min(q, r))} --resample-side {dense})")
+            f"{q / r:.2g}): {unequal_steps(round(max(q, r) / min(q, r)), dense)}")
+
+
+def unequal_steps(every: int, dense: str) -> str:
+    """What unequal steps of the two traverses do, and the fix: re-sample the ``dense`` side every ``every``-th frame
+    (or a velocity-robust matcher)."""
+    return ("SeqMatch-style matchers assume both traverses advance by equal steps; use a velocity-robust matcher "
+            "(raw+vseqmatch, s1+vseqmatch, raw+graph) or re-sample the denser side "
+            f"(--resample-every {every} --resample-side {dense})")
 
 
 def looks_like_degrees(positions: np.ndarray, samples: int = SAMPLES) -> bool:

@@ -13,7 +13,7 @@ import numpy as np
 from ..core.tensors import spread
 from ..data.sanity import copied_queries, duplicated_rows, real_positions, route_order
 from ..data.sanity.truth import degree_positions
-from ..data.spacing import DEGREES_HINT, RATE_RATIO, looks_like_degrees, step_rates
+from ..data.spacing import DEGREES_HINT, RATE_RATIO, looks_like_degrees, step_rates, unequal_steps
 from .grammar import parse_method
 
 REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back
@@ -152,6 +152,4 @@ def positives_rates(ds: Any) -> str | None:
                    for d in ds.extra.get("resample", [])[-1:])
     dense = "query" if rate < 1 else "reference"
     return (f"the query advances {rate:.2g} reference frames per query frame (the mean step of its explicit "
-            f"positives{done}): SeqMatch-style matchers assume both traverses advance by equal steps; use a "
-            "velocity-robust matcher (raw+vseqmatch, s1+vseqmatch, raw+graph) or re-sample the denser side "
-            f"(--resample-every {round(max(rate, 1 / rate))} --resample-side {dense})")
+            f"positives{done}): {unequal_steps(round(max(rate, 1 / rate)), dense)}")
