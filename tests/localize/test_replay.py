@@ -43,3 +43,14 @@ def test_the_track_holds_each_frames_truth_and_error(synth_dir, tmp_path):
     assert scored and all(r["error"] != "" and (float(r["error"]) <= radius) == (r["correct"] == "1") for r in scored)
     assert [r["error"] == "" for r in rows] == [e is None for e in record["truth"]["errors"]]
     assert record["truth"]["unit"] == "metres" and all(r["true_x"] != "" for r in rows)
+
+
+def test_a_replay_with_no_true_match_has_no_r_at_1_and_no_error(synth_dataset, tmp_path):
+    """Queries far from every reference of the split: the track is written, with no R@1 in its summary (a missing
+    R@1 ended in a KeyError from the few-queries note)."""
+    a, b = synth_dataset.splits["train"]["query"]
+    far = {"train": {"reference": (a, a + 40), "query": (b - 40, b)}}
+    path = save_dataset(dataclasses.replace(synth_dataset, splits=far), tmp_path / "ds")
+    localize_main(LocalizeConfig(method="single", split="train"), path, tmp_path / "t.csv")
+    summary = json.loads((tmp_path / "t.json").read_text())["summary"]
+    assert summary["queries"] == 0 and "recall@1" not in summary and summary["frames"] == 40

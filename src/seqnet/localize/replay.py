@@ -200,7 +200,7 @@ def _notices(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mapping[st
 
     lines: list[str | None] = [*scored_notices(conf.split, full, split, loaded, dataset,
                                                calibration[1] if calibration is not None else None)]
-    if "queries" in summary:
+    if "recall@1" in summary:  # absent when no replayed frame has a true match
         lines.append(few_queries({conf.method: (summary["queries"], summary["recall@1"])}))
     return say(lines)
 
