@@ -3,8 +3,20 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Hashable
+from typing import Any
 
 logger = logging.getLogger("seqnet")
+_SAID: set[Hashable] = set()  # the keys warn_once has said in this process
+
+
+def warn_once(key: Hashable, msg: str, *args: Any) -> None:
+    """Log ``msg % args`` as a warning the first time ``key`` comes in this process (a command may open one file
+    more than once; the warning is about the file, not the opening)."""
+    if key in _SAID:
+        return
+    _SAID.add(key)
+    logger.warning(msg, *args)
 
 
 def ordinal(n: int) -> str:

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
-from .log import logger
+from .log import logger, warn_once
 
 PROVENANCE_SUFFIX = ".provenance.json"
 # in a .npy's sidecar: the descriptors it belongs to (size and sampled hash) and their names; the record of the
@@ -85,9 +85,6 @@ def check_same(a: Mapping[str, Any] | None, b: Mapping[str, Any] | None, what_a:
                           "--allow-mismatch if you know they are comparable")
 
 
-_UNKNOWN_SAID: set[str] = set()
-
-
 def _say_unknown(unknown: str, other: str, known: bool) -> None:
     """Say that ``unknown``'s provenance is unknown: a warning (once per process and ``unknown``) when ``other``'s
     is known, since descriptors made otherwise (another describer, random vectors) then pass on their D alone; a
@@ -95,13 +92,11 @@ def _say_unknown(unknown: str, other: str, known: bool) -> None:
     if not known:
         logger.debug("provenance of %s unknown: only the descriptor dimension is checked", unknown)
         return
-    if unknown in _UNKNOWN_SAID:
-        return
-    _UNKNOWN_SAID.add(unknown)
-    logger.warning("provenance of %s unknown: only the descriptor dimension is checked against %s, so descriptors "
-                   "made otherwise (another describer or its settings) would pass; hint: make them with `seqnet "
-                   "describe` and the same settings (it writes <stem>%s beside them, which is then checked)",
-                   unknown, other, PROVENANCE_SUFFIX)
+    warn_once(("provenance unknown", unknown),
+              "provenance of %s unknown: only the descriptor dimension is checked against %s, so descriptors made "
+              "otherwise (another describer or its settings) would pass; hint: make them with `seqnet describe` and "
+              "the same settings (it writes <stem>%s beside them, which is then checked)", unknown, other,
+              PROVENANCE_SUFFIX)
 
 
 def sidecar(path: str | Path) -> Path:

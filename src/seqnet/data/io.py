@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError, OutputError
-from ..core.log import logger
+from ..core.log import logger, warn_once
 from ..core.npy import write_npy
 from ..security.arrays import read_npz
 from ..security.digests import changed_files, file_digest
@@ -43,19 +43,12 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
     return ds
 
 
-_CHANGED_SAID: set[tuple[str, tuple[str, ...]]] = set()
-
-
 def _say_changed(path: Path, changed: list[str]) -> None:
     """Warn (at default verbosity, once per dataset and set of changed files in a process: a command may open a
     dataset more than once) that files of ``path`` are not the ones seqnet wrote."""
-    key = (str(path.resolve()), tuple(changed))
-    if key in _CHANGED_SAID:
-        return
-    _CHANGED_SAID.add(key)
-    logger.warning("%s: %s%s changed since seqnet wrote the dataset (seqnet dataset check %s refuses it); the "
-                   "numbers are of the files as they are now", path, ", ".join(changed[:3]),
-                   " ..." if len(changed) > 3 else "", path)
+    warn_once(("dataset changed", str(path.resolve()), tuple(changed)),
+              "%s: %s%s changed since seqnet wrote the dataset (seqnet dataset check %s refuses it); the numbers are "
+              "of the files as they are now", path, ", ".join(changed[:3]), " ..." if len(changed) > 3 else "", path)
 
 
 def recorded_digests(path: str | Path) -> dict[str, Any]:
