@@ -188,12 +188,8 @@ def print_results(res: dict) -> None:
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
     for line in format_notes(learned_below_baseline(res)):
         print(shown(line))
-    from ..eval.notices import few_queries
-
-    few = few_queries({name: (r["queries"], r["recall@1"]) for name, r in res["methods"].items()
-                       if isinstance(r.get("recall@1"), float) and isinstance(r.get("queries"), int)})
-    if few:
-        print(shown(f"note: {few}"))
+    if res.get("few_queries"):
+        print(shown(f"note: {res['few_queries']}"))
     alone = unmatched(res)
     if alone:
         print(shown(f"note: no model-free counterpart was evaluated for {'; '.join(alone)}"))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -71,6 +71,12 @@ def few_queries(scored: Mapping[str, tuple[int, float]]) -> str | None:
     many = f"{n} quer{'y' if n == 1 else 'ies'}" if most == n else f"{n} to {most} queries (by method)"
     return (f"only {many} scored: one query changes R@1 by {'' if most == n else 'up to '}1/{n} = {1 / n:.3f}; 95% "
             f"intervals of R@1 (Wilson): {spans}; hint: a larger split or range (--split) to compare methods")
+
+
+def few_queries_note(results: Mapping[str, Any]) -> str | None:
+    """:func:`few_queries` of an evaluation's ``results`` (its methods' scored queries and R@1)."""
+    return few_queries({name: (r["queries"], r["recall@1"]) for name, r in (results.get("methods") or {}).items()
+                        if isinstance(r.get("recall@1"), float) and isinstance(r.get("queries"), int)})
 
 
 def wilson(p: float, n: int, z: float = 1.96) -> tuple[float, float]:

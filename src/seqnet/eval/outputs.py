@@ -33,6 +33,7 @@ from ..security.folders import check_outputs, update_folder
 from ..security.jsonfile import read_json
 from ..security.locks import locked
 from ..security.ownership import MANIFEST
+from .notices import few_queries_note
 from .results import check_per_query, per_query_format, per_query_text
 
 RESULTS, PR_CURVE, REPORT = "results.json", "pr_curve.png", "report.html"
@@ -131,7 +132,10 @@ class EvalOutputs:
     def write(self, ev: Any) -> Written:
         """Write the outputs of the evaluation ``ev`` (inside :meth:`session`): those outside ``out`` first, then
         the set in ``out`` at once; returns the results file (``out/results.json``, else the ``--json`` file,
-        else no path) and the results."""
+        else no path) and the results. An R@1 over few queries is noted in the results (``"few_queries"``)."""
+        note = few_queries_note(ev.results)
+        if note:
+            ev.results["few_queries"] = note
         if self.per_query is not None and self.in_out(self.per_query, "--per-query") is None:
             from .results import write_per_query
 

@@ -46,11 +46,14 @@ def grid_rows(grid: Sequence[Any]) -> tuple[list[str], list[list[str]]]:
 
 
 def notes_section(results: Any) -> list[Section]:
-    """A ``notes`` section when a learned method is below its model-free counterpart (none otherwise)."""
-    notes = learned_below_baseline(results)
-    if not notes:
+    """A ``notes`` section when a learned method is below its model-free counterpart, or R@1 is over few queries
+    (the results' ``"few_queries"``); none otherwise."""
+    texts = [n.text() for n in learned_below_baseline(results)]
+    if isinstance(results.get("few_queries"), str):
+        texts.append(results["few_queries"])
+    if not texts:
         return []
-    items = "".join(f"<li>{html.escape(n.text())}</li>" for n in notes)
+    items = "".join(f"<li>{html.escape(t)}</li>" for t in texts)
     return [Section("notes", "Notes", f"<ul>{items}</ul>")]
 
 
