@@ -54,3 +54,26 @@ def test_a_replay_with_no_true_match_has_no_r_at_1_and_no_error(synth_dataset, t
     localize_main(LocalizeConfig(method="single", split="train"), path, tmp_path / "t.csv")
     summary = json.loads((tmp_path / "t.json").read_text())["summary"]
     assert summary["queries"] == 0 and "recall@1" not in summary and summary["frames"] == 40
+
+
+def test_hvpr_settings_are_chosen_on_val_as_eval_chooses_them(synth_dir, tmp_path):
+    """``localize --dataset`` with an HVPR and no --top-k chooses K on val as ``eval --window causal`` does, says
+    so in the track's JSON, and gives eval's R@1; a K given is kept (it used K = 20 whatever eval had chosen)."""
+    from seqnet.cli import main as cli_main
+
+    method = "hvpr-delta:raw+seqmatch"
+    assert cli_main(["-q", "localize", "--dataset", str(synth_dir), "--method", method, "--seq-len", "3",
+                     "--out", str(tmp_path / "t.csv")]) == 0
+    record = json.loads((tmp_path / "t.json").read_text())
+    chosen = record["selection"]["hvpr"][0]
+    assert chosen["method"] == method and "val" in chosen["reason"]
+    assert record["config"]["top_k"] == chosen["settings"]["top_k"]
+    assert cli_main(["-q", "eval", "--dataset", str(synth_dir), "--method", method, "--seq-len", "3", "--window",
+                     "causal", "--out", str(tmp_path / "ev")]) == 0
+    ev = json.loads((tmp_path / "ev" / "results.json").read_text())
+    assert ev["selection"]["hvpr"][0]["settings"] == chosen["settings"]
+    assert abs(ev["methods"][method]["recall@1"] - record["summary"]["recall@1"]) < 1e-9
+    assert cli_main(["-q", "localize", "--dataset", str(synth_dir), "--method", method, "--seq-len", "3",
+                     "--top-k", "7", "--out", str(tmp_path / "k.csv")]) == 0
+    record = json.loads((tmp_path / "k.json").read_text())
+    assert record["config"]["top_k"] == 7 and "selection" not in record

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..core.stage import Written
+from ..eval.select import SELECTABLE
 from ..localize.config import LocalizeConfig
 from ..localize.replay import main
 from ..localize.stream import Query, stream
@@ -179,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
                      describer=args.describer, on_track=_plotter(args.plot))
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
-                   args.distances, args.similarity, args.transposed, calibration(args))
+                   args.distances, args.similarity, args.transposed, calibration(args),
+                   choose=tuple(k for k in SELECTABLE if k != "top_k" or args.top_k is None))
     print_summary(conf, args, out)
     return 0
 

@@ -29,6 +29,7 @@ from ..metrics.recall import ground_truth
 from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
 from ..security.locks import locked
+from ..security.text import shown
 from .config import LocalizeConfig
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
 from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
@@ -108,7 +109,7 @@ def matrix_localizer(ds: Dataset, dist: np.ndarray, conf: LocalizeConfig) -> tup
 def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
          distances: str | Path | None = None, similarity: bool = False, transposed: bool = False,
-         calibration: tuple[float, str, float] | None = None) -> Written:
+         calibration: tuple[float, str, float] | None = None, choose: Sequence[str] = ()) -> Written:
     """hloc-style stage: replay the query traverse of split ``conf.split`` of the dataset directory
     ``dataset`` against its reference traverse (or, with ``distances``, the rows of that ``[Nq, Nr]`` matrix file
     of the whole dataset, ``[Nr, Nq]`` when ``transposed``; ``similarity``: higher is closer); writes ``out``
@@ -116,6 +117,8 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
     its ``.json`` summary; returns ``out``. ``calibration``: ``(target precision, calibration split, risk)``: the
     calibration split is replayed first, a confidence threshold calibrated on it (:mod:`seqnet.metrics.calibration`)
     decides per frame (the track's ``accepted`` column), and the summary's ``calibrated`` says what it gave.
+    ``choose``: the HVPR settings the user left free (``top_k``, ``fuse_top_k``, ``fuse_weight``), chosen on the val
+    split first as ``seqnet eval --window causal`` chooses them (:func:`chosen_on_val`).
     The track is locked for the whole run (a second writer: exit 1)."""
     if distances is not None and (models or shortlist_model or rerank_model):
         raise ConfigError("--distances gives the frame distances: no model applies (methods on a matrix read "
@@ -123,7 +126,7 @@ def main(conf: LocalizeConfig, dataset: str | Path, out: str | Path, models: Seq
     with locked(check_output(out)):
         remove_dead_temps([Path(out), sidecar_of(Path(out))])
         return _main(conf, dataset, Path(out), models, shortlist_model, rerank_model, distances,
-                     (similarity, transposed), calibration)
+                     (similarity, transposed), calibration, choose)
 
 
 def _localizer(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loaded: Mapping[str, SeqNet],
@@ -141,7 +144,8 @@ def _localizer(conf: LocalizeConfig, ds: Dataset, full: Dataset, split: str, loa
 
 def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence[str | Path],
           shortlist_model: str | Path | None, rerank_model: str | Path | None, distances: str | Path | None,
-          reading: tuple[bool, bool], calibration: tuple[float, str, float] | None = None) -> Written:
+          reading: tuple[bool, bool], calibration: tuple[float, str, float] | None = None,
+          choose: Sequence[str] = ()) -> Written:
     from ..data.io import load_dataset
     from ..methods.checks import model_lengths
     from ..sequence.checkpoints import load_models, used_models
@@ -155,6 +159,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     if calibration is not None:
         check_calibration_split(full, calibration[1], split)
+    conf, selection = chosen_on_val(conf, full, split, loaded, choose if distances is None else ())
     ds = full.split(split)
     loc, est, correct, has = _replay_split(conf, ds, full, split, loaded, distances, reading)
     radius = conf.radius or ds.radius
@@ -171,6 +176,8 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"reference": ds.reference.provenance, "query": ds.query.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
+    if selection:
+        record["selection"] = selection
     warnings = _notices(conf, full, split, loaded, dataset, summary, calibration)
     if warnings:
         record["warnings"] = warnings
@@ -181,6 +188,34 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
                 record)
     logger.debug("localize: %s", json.dumps(summary))
     return Written(out, record)
+
+
+def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mapping[str, SeqNet],
+                  choose: Sequence[str]) -> tuple[LocalizeConfig, dict[str, Any] | None]:
+    """``conf`` with the HVPR settings of ``choose`` chosen on the val split of ``full`` for replaying ``split``, as
+    ``seqnet eval --window causal`` chooses them (:func:`seqnet.eval.select.choose_on_val`: never on test; nothing
+    chosen on val itself, or without one), and what was chosen and why (None: nothing to say; the reasons are
+    logged). So the replay's R@1 is the one eval gives with the same settings."""
+    from ..eval.config import EvalConfig
+    from ..eval.select import choose_on_val
+
+    if not choose or online_method(conf.method).kind != "hvpr":
+        return conf, None
+    econf = EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, match_len=conf.match_len, window="causal",
+                       radius=conf.radius, top_k=conf.top_k, fuse_weight=conf.fuse_weight,
+                       fuse_top_k=conf.fuse_top_k, device=conf.device, allow_mismatch=conf.allow_mismatch)
+    _, found = choose_on_val(full, split, loaded, econf, choose)
+    if found is None:
+        return conf, None
+    selection = found["selection"]
+    for choice in selection.get("hvpr", []):
+        conf = conf.replace(**{k: v for k, v in choice["settings"].items() if k in ("top_k", "fuse_top_k",
+                                                                                      "fuse_weight")})
+        logger.info("%s", shown(choice["reason"]))
+    for key in ("not_chosen", "warning"):
+        if selection.get(key):
+            logger.warning("%s", shown(selection[key]))
+    return conf, selection
 
 
 def _truth(ds: Dataset, loc: Localizer, est: Sequence[Estimate]) -> FrameTruth | None:
