@@ -113,3 +113,29 @@ def test_fuzzed_images_decode_or_are_one_error(tmp_path_factory, data):
     except ImageError:
         return
     assert out.dtype == np.uint8 and out.ndim == 3 and out.shape[2] == 3
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_exif_orientation_is_applied_as_viewers_do(tmp_path, orientation):
+    from PIL import ImageOps
+
+    rng = np.random.default_rng(orientation)
+    stored = Image.fromarray(rng.integers(0, 256, (12, 20, 3), dtype=np.uint8))
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    stored.save(tmp_path / "a.png", exif=exif)
+    shown = np.asarray(ImageOps.exif_transpose(Image.open(tmp_path / "a.png")).convert("RGB"))  # what viewers show
+    np.testing.assert_array_equal(read_image(tmp_path / "a.png"), shown)
+    assert read_image(tmp_path / "a.png").shape[:2] == ((20, 12) if orientation >= 5 else (12, 20))
+
+
+def test_a_phone_jpeg_stored_sideways_reads_upright(tmp_path):
+    rng = np.random.default_rng(0)
+    upright = np.repeat(np.repeat(rng.integers(0, 256, (4, 8, 3), dtype=np.uint8), 8, 0), 8, 1)  # 64x32, smooth
+    exif = Image.Exif()
+    exif[0x0112] = 6  # "rotate 90 CW to view"
+    Image.fromarray(upright).transpose(Image.Transpose.ROTATE_90).save(tmp_path / "p.jpg", quality=98, exif=exif)
+    Image.fromarray(upright).save(tmp_path / "plain.jpg", quality=98)
+    got, plain = read_image(tmp_path / "p.jpg"), read_image(tmp_path / "plain.jpg")
+    assert got.shape == plain.shape == (32, 64, 3)
+    assert np.abs(got.astype(int) - plain.astype(int)).mean() < 3

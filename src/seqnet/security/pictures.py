@@ -6,6 +6,8 @@
 * An image declaring more than ``max_pixels`` is refused from its header; PIL's own decompression-bomb
   check stays on, its warning an error too.
 * Whatever a decoder raises on damaged bytes is one :class:`ImageError` naming the image (shown escaped).
+* An image is read the way viewers show it: its EXIF orientation (a phone photo stored sideways, tag 0x0112) is
+  applied (:func:`upright`), as ``PIL.ImageOps.exif_transpose`` does.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ FORMATS = ("PNG", "JPEG", "BMP", "TIFF", "WEBP", "PPM", "GIF")  # PPM: also PGM 
 COMPRESSED_FORMATS = ("JPEG", "PNG")  # of a ROS CompressedImage
 MAX_PIXELS = 100_000_000  # larger images are refused before decoding (a "decompression bomb" or a mistake)
 HIGH_DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I")  # 16-bit (and 32-bit integer) greyscale
+ORIENTATION = 0x0112  # the EXIF tag a camera writes instead of rotating the pixels
 # what PIL's decoders raise on damaged bytes besides OSError (seen by fuzzing PNG, JPEG, BMP, TIFF, GIF)
 DECODE_ERRORS = (OSError, ValueError, SyntaxError, EOFError, struct.error, IndexError, KeyError, TypeError,
                  ZeroDivisionError, OverflowError, AttributeError, RecursionError, MemoryError, zlib.error)
@@ -64,7 +67,7 @@ def decode(opener: Callable[[], Any], where: Any, grey: bool = False, max_pixels
                     raise ImageError(f"image {name} is too large: it declares {im.width}x{im.height} pixels, more "
                                      f"than the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
                 im.load()
-                return to_uint8(im, name, grey)
+                return to_uint8(upright(im), name, grey)
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as e:
         raise ImageError(f"image {name} is too large to decode safely ({' '.join(str(e).split())[:200]}; hint: "
                          "--skip-corrupted leaves it out)") from e
@@ -74,6 +77,22 @@ def decode(opener: Callable[[], Any], where: Any, grey: bool = False, max_pixels
     except DECODE_ERRORS as e:
         raise ImageError(f"cannot read image {name} ({type(e).__name__}: {' '.join(str(e).split())[:200]}; hint: "
                          "--skip-corrupted leaves such images out)") from e
+
+
+def upright(im: Any) -> Any:
+    """The loaded PIL image ``im`` as viewers show it: its EXIF orientation applied (2..8: a mirror and/or a
+    rotation by 90, 180 or 270 degrees; the same transposes as ``PIL.ImageOps.exif_transpose``); ``im`` itself
+    when it has none, or when its EXIF block is unreadable (viewers then show the stored pixels too)."""
+    from PIL import Image
+
+    try:
+        orientation = im.getexif().get(ORIENTATION)
+    except DECODE_ERRORS:
+        return im
+    t = Image.Transpose
+    method = {2: t.FLIP_LEFT_RIGHT, 3: t.ROTATE_180, 4: t.FLIP_TOP_BOTTOM, 5: t.TRANSPOSE, 6: t.ROTATE_270,
+              7: t.TRANSVERSE, 8: t.ROTATE_90}.get(orientation)  # type: ignore[call-overload]
+    return im if method is None else im.transpose(method)
 
 
 def to_uint8(im: Any, path: Any, grey: bool) -> np.ndarray:
