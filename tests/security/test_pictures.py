@@ -139,3 +139,52 @@ def test_a_phone_jpeg_stored_sideways_reads_upright(tmp_path):
     got, plain = read_image(tmp_path / "p.jpg"), read_image(tmp_path / "plain.jpg")
     assert got.shape == plain.shape == (32, 64, 3)
     assert np.abs(got.astype(int) - plain.astype(int)).mean() < 3
+
+
+def _png16_rgb(path, a):
+    """A 16-bit RGB PNG (colour type 2, bit depth 16) of ``a`` (uint16 [H, W, 3]): PIL cannot write one."""
+    import struct
+    import zlib
+
+    h, w, _ = a.shape
+    raw = b"".join(b"\x00" + a[y].astype(">u2").tobytes() for y in range(h))
+
+    def chunk(t, d):
+        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xFFFFFFFF)
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    return path
+
+
+def test_8_bit_values_in_a_16_bit_file_read_as_8_bit_said_once_per_folder(tmp_path, caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    rng = np.random.default_rng(0)
+    grey8 = [rng.integers(0, 256, (12, 20)).astype(np.uint8) for _ in range(3)]
+    rgb8 = rng.integers(0, 256, (12, 20, 3)).astype(np.uint8)
+    for i, g in enumerate(grey8):
+        Image.fromarray(g.astype(np.uint16)).save(tmp_path / f"g{i}.png")  # uint8 data saved as uint16
+    _png16_rgb(tmp_path / "c.png", rgb8.astype(np.uint16))
+    for i, g in enumerate(grey8):
+        np.testing.assert_array_equal(read_image(tmp_path / f"g{i}.png", grey=True), g)
+    np.testing.assert_array_equal(read_image(tmp_path / "c.png"), rgb8)
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and "g0.png is 16-bit" in said[0] and "values are 0..255 only" in said[0], said
+    assert "read as 8-bit" in said[0] and "without another line" in said[0]
+
+
+def test_genuine_16_bit_images_are_scaled_and_silent(tmp_path, caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    rng = np.random.default_rng(1)
+    g, c = rng.integers(0, 256, (12, 20)).astype(np.uint8), rng.integers(0, 256, (12, 20, 3)).astype(np.uint8)
+    Image.fromarray(g.astype(np.uint16) * 257).save(tmp_path / "g.png")
+    _png16_rgb(tmp_path / "c.png", c.astype(np.uint16) * 257)
+    _png16_rgb(tmp_path / "black.png", np.zeros((4, 4, 3), np.uint16))
+    np.testing.assert_array_equal(read_image(tmp_path / "g.png", grey=True), g)
+    np.testing.assert_array_equal(read_image(tmp_path / "c.png"), c)
+    assert not read_image(tmp_path / "black.png").any()
+    assert caplog.records == []
