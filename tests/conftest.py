@@ -363,10 +363,11 @@ def serving(service, **settings):
 
 
 def write_video(path, frames, times=None, creation_time: str | None = None, codec: str = "libx264",
-                rate: int = 10) -> Path:
+                rate: int = 10, rotation: int = 0) -> Path:
     """A video of ``frames`` (uint8 [H, W, 3], even sizes) written with PyAV: at ``rate`` frames per second, or at
     ``times`` (seconds, increasing: a variable frame rate); ``creation_time`` (ISO-8601) in its metadata. x264 at
-    CRF 0 (lossless) by default, so a frame decodes as it was written but for the colour conversion."""
+    CRF 0 (lossless) by default, so a frame decodes as it was written but for the colour conversion; ``rotation``:
+    the stream's display rotation (degrees counter-clockwise, as a phone writes it)."""
     import fractions
 
     import av
@@ -378,6 +379,8 @@ def write_video(path, frames, times=None, creation_time: str | None = None, code
         s = c.add_stream(codec, rate=rate, options={"crf": "0"} if codec == "libx264" else {})
         s.width, s.height = frames[0].shape[1], frames[0].shape[0]
         s.pix_fmt = "yuv444p" if codec == "libx264" else "yuv420p"
+        if rotation:
+            s.set_display_rotation(rotation)
         s.codec_context.time_base = fractions.Fraction(1, 1000)
         for i, img in enumerate(frames):
             fr = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")

@@ -112,3 +112,33 @@ def test_training_records_the_provenance(tmp_path):
     ds = make_synthetic(places=200, dim=8, seed=0)
     train(ds, TrainConfig(epochs=1, seq_len=3, w=2, device="cpu"), tmp_path / "run")
     assert load_model(tmp_path / "run" / "best.pt").provenance == ds.reference.provenance
+
+
+def test_image_size_is_checked_beside_the_id_not_in_it(caplog):
+    import logging
+
+    settings = {"method": "pixels", "size": "native", "crop_bottom": 0, "patch": 8}
+    old = make("describe", settings, dim=2048)  # a record made before image sizes were recorded
+    land, port = (make("describe", settings, dim=2048, image_size=s) for s in ((64, 32), (32, 64)))
+    assert old["id"] == land["id"] == port["id"] == "e343f8688483ae77"  # existing maps keep matching
+    check_same(old, port, "the map's descriptors", "the query descriptors")  # one side silent on its size: as before
+    check_same(land, dict(land), "a", "b")
+    with pytest.raises(ProvenanceError, match=r"made from 64x32 images and the query descriptors from 32x64 images "
+                                              r"\(native size\).*--resize 64x32"):
+        check_same(land, port, "the map's descriptors", "the query descriptors")
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    check_same(land, port, "a", "b", allow=True)
+    assert "going on as asked" in caplog.text
+
+
+def test_describe_records_the_size_it_saw(tmp_path):
+    from seqnet.describe import DescribeConfig
+    from seqnet.describe.describer import make_describer
+    from seqnet.describe.stage import describe_provenance
+
+    for i in range(2):
+        Image.fromarray(np.full((16, 40, 3), 40 * i, np.uint8)).save(tmp_path / f"{i}.png")
+    d = make_describer(DescribeConfig(method="pixels", patch=0))
+    desc, _ = d.describe(sorted(tmp_path.iterdir()))
+    assert d.seen_size == (40, 16)
+    assert describe_provenance(d.config, None, desc, d.seen_size)["image_size"] == [40, 16]

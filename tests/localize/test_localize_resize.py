@@ -73,3 +73,22 @@ def test_resize_is_refused_where_it_means_nothing(native_map, tmp_path, capsys):
                      tmp_path / "t.csv") == 2
     assert "the map's images were resized to (32, 16) when described" in capsys.readouterr().err
     assert _localize("--map", tmp_path / "ds16", "--query", root / "big", "--out", tmp_path / "t.csv") == 0
+
+
+def test_one_image_of_another_size_is_named_and_the_frames_done_are_kept(native_map, tmp_path, capsys):
+    import json
+
+    root = native_map
+    lines = (root / "small.txt").read_text().splitlines()
+    (tmp_path / "q").mkdir()
+    for k, line in enumerate(lines[:12]):
+        im = Image.open(line)
+        (im.resize((128, 64)) if k == 8 else im).save(tmp_path / "q" / f"f{k:02d}.png")  # the 9th: another size
+    out = tmp_path / "t.csv"
+    capsys.readouterr()
+    assert _localize("--map", root / "ds", "--query", tmp_path / "q", "--out", out) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "f08.png has size 128x64" in err and "f00.png) have 64x32" in err, err
+    assert "--resize 64x32" in err and f"the track of the 8 frames localised before it is written: {out}" in err
+    assert len(list(csv.DictReader(out.open()))) == 8
+    assert json.loads(out.with_suffix(".json").read_text())["summary"]["partial"] is True

@@ -113,3 +113,78 @@ def test_fuzzed_images_decode_or_are_one_error(tmp_path_factory, data):
     except ImageError:
         return
     assert out.dtype == np.uint8 and out.ndim == 3 and out.shape[2] == 3
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_exif_orientation_is_applied_as_viewers_do(tmp_path, orientation):
+    from PIL import ImageOps
+
+    rng = np.random.default_rng(orientation)
+    stored = Image.fromarray(rng.integers(0, 256, (12, 20, 3), dtype=np.uint8))
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    stored.save(tmp_path / "a.png", exif=exif)
+    shown = np.asarray(ImageOps.exif_transpose(Image.open(tmp_path / "a.png")).convert("RGB"))  # what viewers show
+    np.testing.assert_array_equal(read_image(tmp_path / "a.png"), shown)
+    assert read_image(tmp_path / "a.png").shape[:2] == ((20, 12) if orientation >= 5 else (12, 20))
+
+
+def test_a_phone_jpeg_stored_sideways_reads_upright(tmp_path):
+    rng = np.random.default_rng(0)
+    upright = np.repeat(np.repeat(rng.integers(0, 256, (4, 8, 3), dtype=np.uint8), 8, 0), 8, 1)  # 64x32, smooth
+    exif = Image.Exif()
+    exif[0x0112] = 6  # "rotate 90 CW to view"
+    Image.fromarray(upright).transpose(Image.Transpose.ROTATE_90).save(tmp_path / "p.jpg", quality=98, exif=exif)
+    Image.fromarray(upright).save(tmp_path / "plain.jpg", quality=98)
+    got, plain = read_image(tmp_path / "p.jpg"), read_image(tmp_path / "plain.jpg")
+    assert got.shape == plain.shape == (32, 64, 3)
+    assert np.abs(got.astype(int) - plain.astype(int)).mean() < 3
+
+
+def _png16_rgb(path, a):
+    """A 16-bit RGB PNG (colour type 2, bit depth 16) of ``a`` (uint16 [H, W, 3]): PIL cannot write one."""
+    import struct
+    import zlib
+
+    h, w, _ = a.shape
+    raw = b"".join(b"\x00" + a[y].astype(">u2").tobytes() for y in range(h))
+
+    def chunk(t, d):
+        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xFFFFFFFF)
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    return path
+
+
+def test_8_bit_values_in_a_16_bit_file_read_as_8_bit_said_once_per_folder(tmp_path, caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    rng = np.random.default_rng(0)
+    grey8 = [rng.integers(0, 256, (12, 20)).astype(np.uint8) for _ in range(3)]
+    rgb8 = rng.integers(0, 256, (12, 20, 3)).astype(np.uint8)
+    for i, g in enumerate(grey8):
+        Image.fromarray(g.astype(np.uint16)).save(tmp_path / f"g{i}.png")  # uint8 data saved as uint16
+    _png16_rgb(tmp_path / "c.png", rgb8.astype(np.uint16))
+    for i, g in enumerate(grey8):
+        np.testing.assert_array_equal(read_image(tmp_path / f"g{i}.png", grey=True), g)
+    np.testing.assert_array_equal(read_image(tmp_path / "c.png"), rgb8)
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and "g0.png is 16-bit" in said[0] and "values are 0..255 only" in said[0], said
+    assert "read as 8-bit" in said[0] and "without another line" in said[0]
+
+
+def test_genuine_16_bit_images_are_scaled_and_silent(tmp_path, caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    rng = np.random.default_rng(1)
+    g, c = rng.integers(0, 256, (12, 20)).astype(np.uint8), rng.integers(0, 256, (12, 20, 3)).astype(np.uint8)
+    Image.fromarray(g.astype(np.uint16) * 257).save(tmp_path / "g.png")
+    _png16_rgb(tmp_path / "c.png", c.astype(np.uint16) * 257)
+    _png16_rgb(tmp_path / "black.png", np.zeros((4, 4, 3), np.uint16))
+    np.testing.assert_array_equal(read_image(tmp_path / "g.png", grey=True), g)
+    np.testing.assert_array_equal(read_image(tmp_path / "c.png"), c)
+    assert not read_image(tmp_path / "black.png").any()
+    assert caplog.records == []

@@ -106,3 +106,16 @@ def test_fuzzed_videos_read_or_refuse(tmp_path, data):
         return
     if images is not None:
         assert images.dtype == np.uint8 and images.ndim == 4
+
+
+@pytest.mark.parametrize("rotation", [-90, 90, 180])
+def test_frames_come_upright_by_the_display_rotation(tmp_path, rotation):
+    from seqnet.sources.stream import FrameStream
+
+    upright = [np.asarray(f) for f in drive(3, 1)]  # what a player shows
+    stored = [np.rot90(f, k=-rotation // 90) for f in upright]  # a phone's pixels: turned back by the rotation
+    path = write_video(tmp_path / f"r{rotation}.mp4", stored, rotation=rotation)
+    frames, _ = video_images(path)
+    for got in (load_images(frames)[0], load_images(list(FrameStream(str(path))))[0]):
+        assert got.shape[1:3] == upright[0].shape[:2]
+        assert np.abs(got.astype(int) - np.stack(upright).astype(int)).max() <= 3

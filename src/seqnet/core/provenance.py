@@ -10,6 +10,11 @@ with no other sign of trouble: a wrong number is worse than an error, so a misma
 :class:`ProvenanceError` naming both settings (``--allow-mismatch`` for experts). Unknown
 provenance (files from elsewhere) is accepted: only the dimension is checked, said as a warning when the other side's
 provenance is known (once per file), else as a debug note.
+
+A record made from images also holds ``image_size``: ``[W, H]`` of the images as the describer saw them (after
+cropping and resizing; at native size, the images' own size). It is not part of the ``id`` (records made before it
+keep theirs, and so match new ones), but two records that both have it must agree: the same settings on images of
+another shape (portrait against landscape, a rotated camera) give descriptors of the same D that do not compare.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ PROVENANCE_SUFFIX = ".provenance.json"
 # output being replaced, while it is
 BOUND_KEY, REPLACES_KEY = "written_with", "replaces"
 MAX_SIDECAR = 1 << 30
+IMAGE_SIZE_KEY = "image_size"  # [W, H] of the images described: checked beside the id, not hashed into it
 
 
 class ProvenanceError(ConfigError):
@@ -44,14 +50,25 @@ def fit_digest(fit_images: Iterable[str]) -> str:
 
 
 def make(kind: str, settings: Mapping[str, Any], fit_images: Iterable[str] | None = None,
-         dim: int | None = None, fit: str | None = None) -> dict[str, Any]:
+         dim: int | None = None, fit: str | None = None, image_size: tuple[int, int] | None = None) -> dict[str, Any]:
     """A provenance record (see the module docstring); ``fit_images`` are the names or paths of the
     images fitted state was computed on (hashed: :func:`fit_digest`), or ``fit`` that hash itself (state
-    fitted by another run and reused), ``dim`` the descriptor size D."""
+    fitted by another run and reused), ``dim`` the descriptor size D, ``image_size`` ``(W, H)`` of the images
+    described (recorded beside the id, not in it)."""
     settings = json.loads(json.dumps(dict(settings), default=str))
     fit = fit_digest(fit_images) if fit_images is not None else fit
     record = {"kind": kind, "settings": settings, "fit_images": fit, "dim": dim}
-    return {**record, "id": _digest(record)}
+    size = {IMAGE_SIZE_KEY: [int(v) for v in image_size]} if image_size else {}
+    return {**record, "id": _digest(record), **size}
+
+
+def image_size_of(record: Mapping[str, Any] | None) -> tuple[int, int] | None:
+    """``(W, H)`` of the images a record's descriptors were made from; None when it does not say (older records,
+    descriptors from elsewhere) or says something malformed."""
+    size = (record or {}).get(IMAGE_SIZE_KEY)
+    if isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size):
+        return size[0], size[1]
+    return None
 
 
 def differences(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[str]:
@@ -64,6 +81,9 @@ def differences(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[str]:
         out.append("fitted state (PCA / NetVLAD clusters): fitted on different images")
     if a.get("dim") != b.get("dim"):
         out.append(f"D: {a.get('dim')} vs {b.get('dim')}")
+    (wa, ha), (wb, hb) = image_size_of(a) or (0, 0), image_size_of(b) or (0, 0)
+    if wa and wb and (wa, ha) != (wb, hb):
+        out.append(f"images: {wa}x{ha} vs {wb}x{hb}")
     return out
 
 
@@ -74,6 +94,7 @@ def check_same(a: Mapping[str, Any] | None, b: Mapping[str, Any] | None, what_a:
         _say_unknown(what_a if not a else what_b, what_b if not a else what_a, known=bool(a or b))
         return
     if a.get("id") == b.get("id"):
+        _check_sizes(a, b, what_a, what_b, allow)
         return
     diff = differences(a, b) or ["their provenance records differ"]
     if allow:
@@ -83,6 +104,24 @@ def check_same(a: Mapping[str, Any] | None, b: Mapping[str, Any] | None, what_a:
     raise ProvenanceError(f"{what_a} and {what_b} were made differently: {'; '.join(diff)}; hint: describe both "
                           "with the same settings and fitted state (seqnet dataset from-images does), or pass "
                           "--allow-mismatch if you know they are comparable")
+
+
+def _check_sizes(a: Mapping[str, Any], b: Mapping[str, Any], what_a: str, what_b: str, allow: bool) -> None:
+    """Raise :class:`ProvenanceError` when two records of the same settings both record their images' size and
+    the sizes differ (a warning with ``allow``)."""
+    sa, sb = image_size_of(a), image_size_of(b)
+    if sa is None or sb is None or sa == sb:
+        return
+    native = (a.get("settings") or {}).get("size") == "native"
+    msg = (f"{what_a} were made from {sa[0]}x{sa[1]} images and {what_b} from {sb[0]}x{sb[1]} images"
+           f"{' (native size)' if native else ''}: the same settings on images of another shape (rotated? another "
+           "camera?) give descriptors that do not compare")
+    if allow:
+        logger.warning("%s; going on as asked (--allow-mismatch)", msg)
+        return
+    raise ProvenanceError(f"{msg}; hint: describe both at one size (--resize {sa[0]}x{sa[1]} where the command "
+                          "has it, else `seqnet describe --resize` for the other side), or pass --allow-mismatch if "
+                          "you know they are comparable")
 
 
 def _say_unknown(unknown: str, other: str, known: bool) -> None:

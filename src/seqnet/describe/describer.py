@@ -35,11 +35,14 @@ class Describer:
         config: the settings, ``size`` resolved ("native" or (W, H)).
         extract: the method's raw descriptors ``[B, D0]``.
         pca: the PCA applied after ``extract`` (``config.dim``), or None.
+        seen_size: ``(W, H)`` of the images it last loaded (cropped and resized as described), None before any:
+            recorded in the descriptors' provenance (:mod:`seqnet.core.provenance`).
     """
 
     config: DescribeConfig
     extract: Extract
     pca: PCA | None = None
+    seen_size: tuple[int, int] | None = None
 
     @property
     def method(self) -> str:
@@ -53,16 +56,25 @@ class Describer:
     def load_some(self, paths: Sequence[str | os.PathLike[str] | ImageItem]) -> tuple[np.ndarray, list[int]]:
         """Images as :meth:`load`, leaving unreadable ones out with ``skip_corrupted``; also their indices."""
         c = self.config
-        return load_images([as_image(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
-                           grey=c.method_spec.grey, skip_corrupted=c.skip_corrupted)
+        imgs, skipped = load_images([as_image(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
+                                    grey=c.method_spec.grey, skip_corrupted=c.skip_corrupted)
+        self._saw(imgs)
+        return imgs, skipped
+
+    def _saw(self, imgs: np.ndarray) -> None:
+        """Note the size of images ``[N, H, W(, 3)]`` just loaded (when there are any)."""
+        if len(imgs):
+            self.seen_size = (int(imgs.shape[2]), int(imgs.shape[1]))
 
     def load(self, paths: Sequence[str | os.PathLike[str] | ImageItem]) -> np.ndarray:
         """uint8 images ``[N, H, W]`` (grey methods) or ``[N, H, W, 3]`` read, cropped and resized as the
         describer reads them (files, or :class:`~seqnet.describe.images.ImageItem` s such as bag frames); an
         unreadable image raises :class:`ImageError` (rows match ``paths``)."""
         c = self.config
-        return load_images([as_image(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
+        imgs = load_images([as_image(p) for p in paths], size=c.image_size, crop_bottom=c.crop_bottom,
                            grey=c.method_spec.grey)[0]
+        self._saw(imgs)
+        return imgs
 
     def batches(self, paths: Sequence[ImageRef], what: str) -> Iterator[np.ndarray]:
         """Image batches of ``paths`` (for fitting), with a progress bar labelled ``what``."""

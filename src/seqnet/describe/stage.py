@@ -140,21 +140,23 @@ def _describe_to_file(images: ImageList, conf: DescribeConfig, out: Path, overwr
     fitted_on = fit_paths_of(conf, images.paths) if conf.needs_fit else None
     with h5py.File(partial, "r") as h:
         ds = h["descriptors"]
-        prov = {**describe_provenance(conf, fitted_on, ds), **({SHARD_KEY: part} if part else {})}
+        prov = {**describe_provenance(conf, fitted_on, ds, describer.seen_size), **({SHARD_KEY: part} if part else {})}
         write_output(out, (len(keep), ds.shape[1]), kept_blocks(ds, keep), names, json.dumps(record, sort_keys=True),
                      prov)
     partial.unlink()
     return read_descriptor_file(out)[0], names  # a .npy output memory-mapped
 
 
-def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc: np.ndarray | h5py.Dataset) -> dict:
+def describe_provenance(conf: DescribeConfig, fitted_on: list[Path] | None, desc: np.ndarray | h5py.Dataset,
+                        image_size: tuple[int, int] | None = None) -> dict:
     """The provenance record (:mod:`seqnet.core.provenance`) of descriptors ``desc [N, D]`` (only their
-    dimension is read) made with ``conf``, whose fitted state (if any) was fitted on the images ``fitted_on``."""
+    dimension is read) made with ``conf``, whose fitted state (if any) was fitted on the images ``fitted_on``, from
+    images of ``image_size`` ``(W, H)`` as described (:attr:`Describer.seen_size`; recorded beside the id)."""
     settings = {k: v for k, v in conf.settings().items() if k not in ("fit", "fit_max")}
     fit = provenance_fit(fitted_on) if fitted_on is not None else reused_fit(conf, settings)
     if fitted_on is None and fit is not None:  # seqnet's own fitted state, reused as documented: the fitting
         settings["checkpoint"] = None  # run's provenance
-    return make_provenance("describe", settings, dim=int(desc.shape[1]), fit=fit)
+    return make_provenance("describe", settings, dim=int(desc.shape[1]), fit=fit, image_size=image_size)
 
 
 def _describe_into(h: h5py.File, images: ImageList, describer: Describer, settings: str) -> np.ndarray:

@@ -63,7 +63,8 @@ def map_describer(ref_map: Reference, allow: bool, describer: str | None = None,
         if isinstance(prov.get("dim"), int) and first.shape[1] != prov["dim"] and (native or resize):
             raise ConfigError(f"{what} have D={first.shape[1]}, the map's descriptors D={prov['dim']}: "
                               f"{size_hint(native, resize)}")
-        check_same(prov, query_provenance(conf, d.pca, pca_on, prov, first), "the map's descriptors", what, allow)
+        check_same(prov, query_provenance(conf, d.pca, pca_on, prov, first, d.seen_size), "the map's descriptors",
+                   what, allow)
         checked.append(True)
 
     return d, check
@@ -96,6 +97,11 @@ class ReducedDescriber:
 
     def __init__(self, inner: Describer, pca: PCA, hint: str = "") -> None:
         self.inner, self.pca, self.hint = inner, pca, hint
+
+    @property
+    def seen_size(self) -> tuple[int, int] | None:
+        """``(W, H)`` of the images the describer last loaded."""
+        return self.inner.seen_size
 
     def load(self, paths: list[ImageRef]) -> np.ndarray:
         """The images as ``inner`` reads them."""
@@ -148,17 +154,17 @@ def dataset_pca(ref_map: Reference, map_dir: str | Path | None, prov: dict) -> P
 
 
 def query_provenance(conf: DescribeConfig, pca: PCA | None, pca_on: str | None, prov: dict,
-                     out: np.ndarray) -> dict:
+                     out: np.ndarray, image_size: tuple[int, int] | None = None) -> dict:
     """The provenance of query descriptors ``out [N, D]`` described by ``conf`` (and reduced by the map's ``pca``
     fitted on the split ``pca_on``, recorded as :func:`seqnet.pipelines.pca.reduce_dataset` records it: the
-    describer's settings with ``dim`` and ``pca_on``, the map's fit hash)."""
+    describer's settings with ``dim`` and ``pca_on``, the map's fit hash), from images of ``image_size`` (W, H)."""
     from ..describe.stage import describe_provenance
 
     if pca is None:
-        return describe_provenance(conf, None, out)
+        return describe_provenance(conf, None, out, image_size)
     raw = describe_provenance(conf, None, np.empty((0, pca.input_dim), np.float32))
     return make_provenance(raw["kind"], {**raw["settings"], "dim": pca.dims, "pca_on": pca_on}, dim=int(out.shape[1]),
-                           fit=prov.get("fit_images"))
+                           fit=prov.get("fit_images"), image_size=image_size)
 
 
 def check_named_code(settings: Mapping[str, object], describer: str | None) -> None:

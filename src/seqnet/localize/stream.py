@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.devices import get_device
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, SeqnetError
 from ..core.log import logger
 from ..core.progress import progress
 from ..core.provenance import check_same
@@ -37,6 +37,7 @@ from ..security.dirs import remove_dead_temps
 from ..security.inputs import special_file
 from ..security.limits import number
 from ..security.locks import locked
+from ..security.pictures import size_mismatch
 from ..sources.bags.positions import DEFAULT_TOLERANCE
 
 if TYPE_CHECKING:
@@ -117,9 +118,14 @@ def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: boo
     d, check = map_describer(ref_map, allow, describer, map_dir, resize)
 
     def frames() -> Frames:
+        first: tuple[Any, tuple[int, ...]] | None = None
         for p in images.paths:
             t0 = time.perf_counter()
-            out = d(d.load([p]))
+            img = d.load([p])
+            if first is not None and img.shape[1:3] != first[1]:  # its D would differ: say the image and the sizes
+                raise size_mismatch(p, img.shape[1:3], first[0], first[1])
+            first = first or (p, img.shape[1:3])
+            out = d(img)
             ms = (time.perf_counter() - t0) * 1e3
             check(out, f"the query images of {source} as described here")
             yield out[0], ms
@@ -206,11 +212,7 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     frames, names, n = ((vq.frames(), vq.names, None) if vq else descriptor_frames(q.path, ref_map, conf.allow_mismatch)
                         if is_file else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer, map_dir,
                                                      q.resize))
-    est: list[Estimate] = []
-    describe_ms = []
-    for d, ms in progress(frames, desc=f"localize ({conf.method})", total=n, unit="frame"):
-        est.append(loc.step(d))
-        describe_ms.append(ms)
+    est, describe_ms = _localise(loc, frames, n, conf.method, lambda e: _write_partial(out, e, names, ref_map))
     best = np.array([e.ref_index for e in est], dtype=np.int64)
     correct, has = (None, None) if q_pos is None else frame_truth(q_pos, loc.r_pos, radius, best)
     if vq is not None:
@@ -235,6 +237,35 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
         on_track(TrackView.of(ref_map.positions, loc.r_pos, best, np.array([e.confidence for e in est]), q_pos,
                               correct, has, frame.unit, radius))
     return Written(out, record)
+
+
+def _localise(loc: Any, frames: Frames, n: int | None, method: str,
+              partial: Callable[[list[Estimate]], Path | None]) -> tuple[list[Estimate], list[float]]:
+    """``(estimates, describe_ms)`` of every frame; a frame that fails (an image of another size, a damaged one)
+    ends the run with its error, after ``partial`` wrote the track of the frames localised before it."""
+    est: list[Estimate] = []
+    describe_ms = []
+    try:
+        for d, ms in progress(frames, desc=f"localize ({method})", total=n, unit="frame"):
+            est.append(loc.step(d))
+            describe_ms.append(ms)
+    except SeqnetError as e:
+        written = partial(est) if est else None
+        if written is None:
+            raise
+        raise type(e)(f"{e} (the track of the {len(est)} frames localised before it is written: {written})") from e
+    return est, describe_ms
+
+
+def _write_partial(out: Path, est: list[Estimate], names: Sequence[str] | None, ref_map: Reference) -> Path | None:
+    """Write the track of the frames ``est`` localised before a failure (as a whole track is written, without
+    ground truth: its summary says ``partial``); None when it cannot be written (the failure is said alone)."""
+    try:
+        rows = track_rows(est, list(names)[:len(est)] if names is not None else None, ref_map.names, None)
+        return write_track(check_output(out), rows, {"summary": {**summarize(est, None, None), "partial": True}})
+    except (SeqnetError, OSError) as e:
+        logger.debug("the track of the frames done was not written: %s", e)
+        return None
 
 
 def _query_inputs(q: Query, images: ImageList | None) -> dict[str, Any]:

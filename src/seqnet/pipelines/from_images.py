@@ -267,7 +267,7 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
                 raise ImageError(f"{counted(len(missing), side + ' image')} could not be read (first: "
                                  f"{missing[0]}); their ground truth would no longer line up: fix or remove them, "
                                  "then run again")
-        prov = describe_provenance(describer.config, fit, desc["reference"])
+        prov = describe_provenance(describer.config, fit, desc["reference"], describer.seen_size)
         ds = assemble_dataset(
             Traverse(desc["reference"], pos_r, ref.names, bounds_r, "reference", prov),
             Traverse(desc["query"], pos_q, qry.names, bounds_q, "query", prov), unit[0], base.radius,

@@ -19,7 +19,7 @@ from typing import Any
 from ..core.errors import DatasetError
 from ..security.text import shown
 from ..security.videos import DEFAULT_TIMEOUT, av_errors, check_size, is_stream_name, open_stream, why
-from .video import creation_time, frame_name
+from .video import creation_time, frame_image, frame_name
 
 
 class StreamFrame:
@@ -36,8 +36,8 @@ class StreamFrame:
         return frame_name(self.time)
 
     def open(self) -> Any:
-        """The frame as an RGB PIL image."""
-        return self.frame.to_image()
+        """The frame as an upright RGB PIL image (:func:`~seqnet.sources.video.frame_image`)."""
+        return frame_image(self.frame)
 
     def key(self) -> str:
         return f"{self.source}@{self.name}"

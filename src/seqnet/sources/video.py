@@ -5,7 +5,8 @@ times, in seconds from the first frame), through :func:`seqnet.security.videos.o
 decoded when it is opened: frames opened in order cost one decoding pass (one frame in memory at a time);
 any other frame is reached by seeking to the keyframe before it. Each frame is named by its video time
 (``12.345678``, seconds), so positions join it by time; :func:`video_images` lists the frames of a video
-(every frame, or ``fps`` per second of video).
+(every frame, or ``fps`` per second of video). A frame comes upright (:func:`frame_image`): the stream's display
+rotation (what phones write instead of rotating the pixels) is applied, as players do.
 """
 
 from __future__ import annotations
@@ -52,6 +53,17 @@ def creation_time(*holders: Any) -> datetime.datetime | None:
         if t is not None:
             return t if t.year > 1970 else None
     return None
+
+
+def frame_image(frame: Any) -> Any:
+    """A decoded PyAV ``VideoFrame`` as an RGB PIL image the way players show it: turned by its display rotation
+    (``frame.rotation``, degrees counter-clockwise, from the stream's display matrix; rounded to a quarter turn)."""
+    from PIL import Image
+
+    im = frame.to_image()
+    quarter = round(float(getattr(frame, "rotation", 0) or 0) / 90) % 4
+    t = Image.Transpose
+    return im if quarter == 0 else im.transpose((t.ROTATE_90, t.ROTATE_180, t.ROTATE_270)[quarter - 1])
 
 
 def _close(container: Any, file: Any) -> None:
@@ -158,8 +170,9 @@ class VideoFrame:
         return frame_name(self.time)
 
     def open(self) -> Any:
-        """The frame as an RGB PIL image (decoded from there by :func:`~seqnet.security.pictures.decode`)."""
-        return self.video.read(self.index).to_image()
+        """The frame as an upright RGB PIL image (:func:`frame_image`; decoded from there by
+        :func:`~seqnet.security.pictures.decode`)."""
+        return frame_image(self.video.read(self.index))
 
     def key(self) -> str:
         """Identity for provenance hashes: the resolved video path and the frame's timestamp."""
