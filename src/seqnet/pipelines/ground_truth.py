@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.log import logger
-from ..data.convert import match_names, read_positions_table, sequence_bounds
+from ..data.convert import match_names, read_positions_table, sequence_bounds, warn_reordered
 from ..data.gps import check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
@@ -34,6 +34,9 @@ def _csv_positions(conf: Any, images: ImageList, source: str | Path, given: str 
         return xy, None, "metres", f"UTM zone {zone}"
     table = read_positions_table(given)
     idx = match_names(images.names, table.names, f"{given} vs the {side} images")  # each image's CSV row
+    warn_reordered(idx, images.names, table.names, f"the order of the {side} images of {source}",
+                   "if the CSV's order is the route's, give the images as a list file (one path per line) in that "
+                   "order")
     bounds = None if table.keys is None else sequence_bounds([table.keys[i] for i in idx], str(table.column))
     return table.positions[idx], bounds, table.unit, None  # sequences: runs of the images' order, as the positions
 

@@ -42,13 +42,14 @@ from .csvfile import (
     runs_to_bounds,
     sequence_bounds,
 )
-from .names import CsvNames, match_names
+from .names import CsvNames, match_names, warn_reordered
 
 __all__ = [
     "FRAME_COLUMNS", "NAME_COLUMNS", "POSITION_MAX", "SEQUENCE_COLUMNS", "CsvNames", "assemble_dataset",
     "match_names", "names_flag", "positives_radius", "read_csv_rows", "read_positions_csv", "read_positions_table",
     "read_seq_bounds",
     "runs_to_bounds", "sequence_bounds", "traverse_from_csv", "traverse_from_utm_names", "traverses_in_metres",
+    "warn_reordered",
 ]
 
 def names_flag(name: str) -> str:

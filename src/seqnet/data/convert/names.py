@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core.errors import DatasetError
-from ...core.log import counted
+from ...core.log import counted, logger
 
 
 class CsvNames(list):
@@ -45,6 +45,20 @@ def _plural(names: Sequence[str], wanted: bool) -> str:
     if isinstance(names, CsvNames):
         return f"rows of {names.path}"
     return "images" if wanted else "descriptors"
+
+
+def warn_reordered(rows: np.ndarray, names: Sequence[str], csv: CsvNames, source: str, hint: str) -> bool:
+    """Warn (and return True) when ``csv`` lists ``names`` (a traverse's images, in their order; ``rows[i]``: the
+    row of ``csv`` of image ``i``, [N] int) in another order; ``source`` names where the order comes from."""
+    back = np.flatnonzero(np.diff(rows) < 0)
+    if not back.size:
+        return False
+    i = int(back[0]) + 1
+    logger.warning("%s lists the images in another order than %s (image %d, %r, is on line %d, after the line %d "
+                   "of image %d, %r); the traverse follows %s, the CSV only places the images; hint: %s", csv.path,
+                   source, i, names[i], csv.lines[rows[i]], csv.lines[rows[i - 1]], i - 1, names[i - 1], source,
+                   hint)
+    return True
 
 
 def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarray:
