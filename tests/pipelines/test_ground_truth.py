@@ -99,3 +99,30 @@ def test_a_csv_in_another_order_than_the_images_is_said(tmp_path, caplog, order)
     else:
         assert len(said) == 1 and "lists the images in another order than the order of the query images" in said[0]
         assert "image 2, 'f2.png', is on line 3, after the line 4 of image 1, 'f1.png'" in said[0]
+
+
+def test_a_csv_with_lat_lon_and_x_y_uses_the_kind_the_other_csv_has(tmp_path, caplog):
+    """A query CSV with lat,lon and x,y (GPS and a local odometry frame) against a lat,lon reference: x,y was used
+    silently and the error then said the query had easting / northing only; now lat, lon is used, said in one
+    line; two CSVs with one kind each stay silent."""
+    from types import SimpleNamespace
+
+    from seqnet.pipelines.ground_truth import both_positions
+
+    names = [f"f{i}.png" for i in range(5)]
+    ref = tmp_path / "ref.csv"
+    ref.write_text("name,lat,lon\n" + "".join(f"{n},63.43,{10.39 + 1e-4 * i}\n" for i, n in enumerate(names)))
+    both = tmp_path / "both.csv"
+    both.write_text("name,lat,lon,x,y\n" + "".join(f"{n},63.43,{10.39 + 1e-4 * i},{5 * i},0\n"
+                                                   for i, n in enumerate(names)))
+    conf = SimpleNamespace(ground_truth="csv", positions_format="csv")
+    images = (SimpleNamespace(names=names), SimpleNamespace(names=names))
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        r, q = both_positions(conf, images, (tmp_path, tmp_path), (ref, both))
+    assert r[2] == q[2] == "metres" and np.allclose(r[0], q[0])
+    said = [m.getMessage() for m in caplog.records if "position columns" in m.getMessage()]
+    assert len(said) == 1 and "lat, lon (degrees): using lat, lon (the kind" in said[0] and "ref.csv has)" in said[0]
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        both_positions(conf, images, (tmp_path, tmp_path), (ref, ref))
+    assert not [m for m in caplog.records if "position columns" in m.getMessage()]

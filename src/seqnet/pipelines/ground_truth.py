@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.log import logger
-from ..data.convert import match_names, read_positions_table, sequence_bounds, warn_reordered
+from ..data.convert import agreed_kinds, match_names, read_positions_table, sequence_bounds, warn_reordered
 from ..data.gps import check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
@@ -26,13 +26,13 @@ Positions = tuple[np.ndarray, "np.ndarray | None", str, "str | None"]  # [N, P],
 
 
 def _csv_positions(conf: Any, images: ImageList, source: str | Path, given: str | Path | None,
-                   side: str) -> Positions:
+                   side: str, kind: str | None = None) -> Positions:
     if given is None:
         raise ConfigError(f"ground truth 'csv' needs a positions CSV for the {side} (--{side[:3]}-csv FILE)")
     if conf.positions_format != "csv":  # a drive's position log (RobotCar ins.csv, KITTI oxts)
         xy, zone = log_positions(conf.positions_format, given, images.names, list(images.paths), conf.max_time_gap)
         return xy, None, "metres", f"UTM zone {zone}"
-    table = read_positions_table(given)
+    table = read_positions_table(given, kind)  # kind: of positions, both CSVs' one (agreed_kinds)
     idx = match_names(images.names, table.names, f"{given} vs the {side} images")  # each image's CSV row
     warn_reordered(idx, images.names, table.names, f"the order of the {side} images of {source}",
                    "if the CSV's order is the route's, give the images as a list file (one path per line) in that "
@@ -76,8 +76,11 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
     traverses must pair up (:func:`seqnet.data.sanity.check_frame_aligned`), checked before any image is described."""
     if conf.ground_truth == "frames":
         check_frame_aligned(images[0].names, images[1].names)
-    ref, qry = (GROUND_TRUTH_SOURCES[conf.ground_truth](conf, im, src, g, side)
-                for im, src, g, side in zip(images, sources, given, ("reference", "query"), strict=True))
+    kinds: tuple[str | None, ...] = (None, None)
+    if conf.ground_truth == "csv" and conf.positions_format == "csv" and None not in given:
+        kinds = agreed_kinds((str(given[0]), str(given[1])))  # lat/lon and x/y in one CSV: the kind both have
+    ref, qry = (GROUND_TRUTH_SOURCES[conf.ground_truth](conf, im, src, g, side, *([k] if k else []))
+                for im, src, g, side, k in zip(images, sources, given, ("reference", "query"), kinds, strict=True))
     if ref[2] == qry[2] == "degrees":  # lat/lon CSVs: UTM metres, the query in the reference's zone
         r, q, frame = latlon_pair(ref[0], qry[0], (str(given[0]), str(given[1])))
         ref, qry = (r, ref[1], "metres", frame), (q, qry[1], "metres", frame)
