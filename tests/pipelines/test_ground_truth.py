@@ -126,3 +126,33 @@ def test_a_csv_with_lat_lon_and_x_y_uses_the_kind_the_other_csv_has(tmp_path, ca
     with caplog.at_level(logging.INFO, logger="seqnet"):
         both_positions(conf, images, (tmp_path, tmp_path), (ref, ref))
     assert not [m for m in caplog.records if "position columns" in m.getMessage()]
+
+
+def _pairs_file(tmp_path, n_listed: int, n_refs: int = 200):
+    from seqnet.data.positives import read_positives
+
+    f = tmp_path / "ps.csv"
+    f.write_text("query,reference\n" + "".join(f"{q},{r}\n" for q in range(n_listed)
+                                                for r in (2 * q - 1, 2 * q, 2 * q + 1) if 0 <= r < n_refs))
+    return read_positives(f)
+
+
+@pytest.mark.parametrize("listed", [60, 100])
+def test_positives_that_stop_early_and_a_split_with_few_matches_are_warned(tmp_path, caplog, listed):
+    """A positives file cut after query 59 of 100 (a truncated export) was accepted silently: 60% overall is above
+    the 'fewer than half' check, and the test split 50:100 (10 of 50 matched) was not checked; now both are
+    said. The complete file stays silent."""
+    positives = _pairs_file(tmp_path, listed)
+    ref, qry = (np.arange(n, dtype=np.float64)[:, None] for n in (200, 100))
+    ds = dataset(ref, 2 * qry, 1.0, positives, unit="frames")
+    ds.splits = {"test": {"reference": (0, 200), "query": (50, 100)}}
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        assert check_true_matches(ds) is None
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    if listed == 100:
+        assert not said
+        return
+    assert len(said) == 2
+    assert "positives give queries 0..59 a match (60 of them) and none of the last 40 of 100 queries: a truncated" \
+        in said[0]
+    assert "split test (queries 50:100): only 10 of 50 queries (20%) have a true match" in said[1]

@@ -91,19 +91,30 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
     return ref, qry
 
 
-FEW_MATCHES = 0.5  # a dataset in which fewer queries than this share have a true match is warned about
+FEW_MATCHES = 0.5  # a dataset (or named split) in which fewer queries than this share have a true match is warned
+TRUNCATED = 0.1  # explicit positives whose last listed query leaves this share of the queries after it: warned
+
+
+def _matched(ds: Dataset) -> np.ndarray:
+    """``[M]`` bool: whether each query of ``ds`` has a true match, by the one ground truth of evaluation."""
+    from ..metrics.recall import ground_truth
+
+    return ground_truth(ds.query.positions, ds.reference.positions, ds.radius, ds.positives,
+                        require=False).has_positive()
 
 
 def check_true_matches(ds: Dataset) -> str | None:
     """Whether ``ds``'s queries have true matches, by the one ground truth of evaluation
     (:func:`seqnet.metrics.recall.ground_truth`): none is a :class:`DatasetError` (the dataset is unusable), fewer
     than :data:`FEW_MATCHES` of them a warning line (logged, and returned), each naming the likely cause
-    (:func:`mismatch_hint`); None when most queries have one."""
-    from ..metrics.recall import ground_truth
-
-    truth = ground_truth(ds.query.positions, ds.reference.positions, ds.radius, ds.positives, require=False)
-    n, m = int(truth.has_positive().sum()), len(ds.query)
+    (:func:`mismatch_hint`); None when most queries have one. Each named split with fewer than
+    :data:`FEW_MATCHES` is warned about too, and explicit positives that stop well before the last query
+    (:func:`truncated_positives`)."""
+    has = _matched(ds)
+    n, m = int(has.sum()), len(ds.query)
+    truncated_positives(ds, has)
     if m == 0 or n >= FEW_MATCHES * m:
+        _check_splits(ds)
         return None
     what = "an explicit positive" if ds.positives is not None else (f"a reference within the radius "
                                                                        f"{ds.radius:g} {ds.position_unit}")
@@ -111,6 +122,37 @@ def check_true_matches(ds: Dataset) -> str | None:
         raise DatasetError(f"{ds.name}: none of the {m} queries has {what}, so every Recall@K would be undefined; "
                            f"nothing written: {mismatch_hint(ds, n)}")
     line = f"{ds.name}: only {n} of {m} queries ({100 * n / m:.0f}%) have {what}: {mismatch_hint(ds, n)}"
+    logger.warning("%s", line)
+    return line
+
+
+def _check_splits(ds: Dataset) -> None:
+    """Warn about each named split of ``ds`` in which fewer than :data:`FEW_MATCHES` of the queries have a true
+    match (against the split's references), when the dataset as a whole has enough."""
+    for name in ds.splits:
+        sub = ds.split(name)
+        n, m = int(_matched(sub).sum()), len(sub.query)
+        if m and n < FEW_MATCHES * m:
+            a, b = ds.splits[name]["query"]
+            logger.warning("%s: split %s (queries %d:%d): only %d of %d queries (%.0f%%) have a true match, so its "
+                           "Recall@K is over those %d only: %s", ds.name, name, a, b, n, m, 100 * n / m, n,
+                           mismatch_hint(sub, n))
+
+
+def truncated_positives(ds: Dataset, has: np.ndarray) -> str | None:
+    """A warning line (logged, and returned) when ``ds``'s explicit positives give nearly every query up to some
+    query a match and none after it, for at least :data:`TRUNCATED` of the queries (and 5): a positives file cut
+    short (a truncated export) reads as that many queries without a match; None otherwise."""
+    m = len(has)
+    if ds.positives is None or not has.any():
+        return None
+    last = int(np.flatnonzero(has)[-1])
+    tail = m - 1 - last
+    if tail < max(5, TRUNCATED * m) or has[:last + 1].mean() < 0.9:
+        return None
+    line = (f"{ds.name}: the explicit positives give queries 0..{last} a match ({int(has.sum())} of them) and none "
+            f"of the last {tail} of {m} queries: a truncated positives file? (hint: check that the file lists the "
+            f"queries up to {m - 1}; queries past the end of the reference's route have none)")
     logger.warning("%s", line)
     return line
 
