@@ -156,3 +156,27 @@ def test_positives_that_stop_early_and_a_split_with_few_matches_are_warned(tmp_p
     assert "positives give queries 0..59 a match (60 of them) and none of the last 40 of 100 queries: a truncated" \
         in said[0]
     assert "split test (queries 50:100): only 10 of 50 queries (20%) have a true match" in said[1]
+
+
+@pytest.mark.parametrize(("start", "level"), [(0, None), (1, logging.WARNING), (3, logging.INFO)])
+def test_frame_columns_that_start_at_different_numbers_are_said(tmp_path, caplog, start, level):
+    """A 1-based frame column in the query CSV against a 0-based one in the reference moved every true match by
+    one frame with no line; now a warning (1 against 0), a note for other starts, nothing when both agree."""
+    from types import SimpleNamespace
+
+    from seqnet.pipelines.ground_truth import both_positions
+
+    names = [f"f{i}.png" for i in range(8)]
+    files = []
+    for side, first in (("ref", 0), ("qry", start)):
+        files.append(tmp_path / f"{side}.csv")
+        files[-1].write_text("name,frame\n" + "".join(f"{n},{first + i}\n" for i, n in enumerate(names)))
+    images = (SimpleNamespace(names=names), SimpleNamespace(names=names))
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        both_positions(SimpleNamespace(ground_truth="csv", positions_format="csv"), images, (tmp_path, tmp_path),
+                       tuple(files))
+    said = [r for r in caplog.records if "start at" in r.getMessage()]
+    assert [r.levelno for r in said] == ([] if level is None else [level])
+    if start == 1:
+        assert "the reference frames (" in said[0].getMessage() and "at 1: one file numbered from 1?" in \
+            said[0].getMessage()

@@ -88,7 +88,24 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
         raise ConfigError(mixed_frames(ref[3] or ref[2], qry[3] or qry[2], "positions sources"))
     if ref[3] is not None:
         check_zones(ref[3], qry[3])  # one UTM zone (an unknown zone, '?', is let through)
+    if conf.ground_truth == "csv" and ref[2] == qry[2] == "frames" and len(ref[0]) and len(qry[0]):
+        frame_starts(float(ref[0].min()), float(qry[0].min()), (str(given[0]), str(given[1])))
     return ref, qry
+
+
+def frame_starts(ref: float, qry: float, files: tuple[str, str]) -> None:
+    """Say when the frame columns of the two CSVs ``files`` start at different numbers (``ref``, ``qry``): a
+    warning when one starts at 0 and the other at 1 (one file numbered from 1: every query's true references
+    shift by one frame, silently), else a note (a query over part of the route)."""
+    if ref == qry:
+        return
+    said = f"the reference frames ({files[0]}) start at {ref:g}, the query frames ({files[1]}) at {qry:g}"
+    if {ref, qry} == {0.0, 1.0}:
+        logger.warning("%s: one file numbered from 1? frame i of the query is taken to be at the place of frame i "
+                       "of the reference, so every true match moves by one frame (hint: number both files from 0)",
+                       said)
+    else:
+        logger.info("%s (frame i of the query is at the place of frame i of the reference)", said)
 
 
 FEW_MATCHES = 0.5  # a dataset (or named split) in which fewer queries than this share have a true match is warned
