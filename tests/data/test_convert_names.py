@@ -193,3 +193,18 @@ def test_decimal_commas_get_a_hint(tmp_path):
     with pytest.raises(DatasetError, match=r"p.csv, line 2: .*got \['500000,5', '4000000,25'\]; hint: write decimal "
                                            "points, not decimal commas"):
         read_positions_csv(tmp_path / "p.csv")
+
+
+def test_names_that_differ_only_in_unicode_normalisation_match():
+    """macOS file names in NFD ('o' + a combining diaeresis) against NFC names typed in a CSV matched nothing, and
+    the error showed two identical-looking names; they now match (an NFC rung after exact, file name, stem)."""
+    import unicodedata
+
+    nfc = [f"Straße_Köln_{k:03d}.png" for k in range(4)]
+    nfd = [unicodedata.normalize("NFD", "photos/" + n) for n in nfc]
+    assert nfd[0] != "photos/" + nfc[0]
+    csv = CsvNames(nfc[::-1], "pos.csv", [5, 4, 3, 2])
+    assert match_names(nfd, csv, "pos.csv vs the images").tolist() == [3, 2, 1, 0]
+    assert match_names(nfc, nfd, "x").tolist() == [0, 1, 2, 3]
+    with pytest.raises(DatasetError, match="each also in Unicode NFC form"):
+        match_names(nfd + ["Münster.png"], csv, "pos.csv vs the images")

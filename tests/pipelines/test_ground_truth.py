@@ -76,3 +76,107 @@ def test_a_sequence_column_follows_the_images_order_not_the_csvs(tmp_path):
                                           tmp_path, csv, "reference")
     assert unit == "frames" and pos[:, 0].tolist() == list(range(6))
     assert bounds.tolist() == [[0, 3]] * 3 + [[3, 6]] * 3
+
+
+@pytest.mark.parametrize("order", ["same", "other"])
+def test_a_csv_in_another_order_than_the_images_is_said(tmp_path, caplog, order):
+    """docs/datasets.md: 'a CSV listed in another order is said by a warning' (from-images said nothing: images
+    named 0.5.png, 0.25.png, ... sorted out of time order went by silently); the same order stays silent."""
+    from types import SimpleNamespace
+
+    from seqnet.pipelines.ground_truth import _csv_positions
+
+    names = [f"f{i}.png" for i in range(6)]
+    rows = list(range(6)) if order == "same" else [0, 2, 1, 3, 4, 5]
+    csv = tmp_path / "pos.csv"
+    csv.write_text("name,frame\n" + "".join(f"{names[i]},{i}\n" for i in rows))
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        _csv_positions(SimpleNamespace(positions_format="csv"), SimpleNamespace(names=names), tmp_path / "q", csv,
+                       "query")
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    if order == "same":
+        assert not said
+    else:
+        assert len(said) == 1 and "lists the images in another order than the order of the query images" in said[0]
+        assert "image 2, 'f2.png', is on line 3, after the line 4 of image 1, 'f1.png'" in said[0]
+
+
+def test_a_csv_with_lat_lon_and_x_y_uses_the_kind_the_other_csv_has(tmp_path, caplog):
+    """A query CSV with lat,lon and x,y (GPS and a local odometry frame) against a lat,lon reference: x,y was used
+    silently and the error then said the query had easting / northing only; now lat, lon is used, said in one
+    line; two CSVs with one kind each stay silent."""
+    from types import SimpleNamespace
+
+    from seqnet.pipelines.ground_truth import both_positions
+
+    names = [f"f{i}.png" for i in range(5)]
+    ref = tmp_path / "ref.csv"
+    ref.write_text("name,lat,lon\n" + "".join(f"{n},63.43,{10.39 + 1e-4 * i}\n" for i, n in enumerate(names)))
+    both = tmp_path / "both.csv"
+    both.write_text("name,lat,lon,x,y\n" + "".join(f"{n},63.43,{10.39 + 1e-4 * i},{5 * i},0\n"
+                                                   for i, n in enumerate(names)))
+    conf = SimpleNamespace(ground_truth="csv", positions_format="csv")
+    images = (SimpleNamespace(names=names), SimpleNamespace(names=names))
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        r, q = both_positions(conf, images, (tmp_path, tmp_path), (ref, both))
+    assert r[2] == q[2] == "metres" and np.allclose(r[0], q[0])
+    said = [m.getMessage() for m in caplog.records if "position columns" in m.getMessage()]
+    assert len(said) == 1 and "lat, lon (degrees): using lat, lon (the kind" in said[0] and "ref.csv has)" in said[0]
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        both_positions(conf, images, (tmp_path, tmp_path), (ref, ref))
+    assert not [m for m in caplog.records if "position columns" in m.getMessage()]
+
+
+def _pairs_file(tmp_path, n_listed: int, n_refs: int = 200):
+    from seqnet.data.positives import read_positives
+
+    f = tmp_path / "ps.csv"
+    f.write_text("query,reference\n" + "".join(f"{q},{r}\n" for q in range(n_listed)
+                                                for r in (2 * q - 1, 2 * q, 2 * q + 1) if 0 <= r < n_refs))
+    return read_positives(f)
+
+
+@pytest.mark.parametrize("listed", [60, 100])
+def test_positives_that_stop_early_and_a_split_with_few_matches_are_warned(tmp_path, caplog, listed):
+    """A positives file cut after query 59 of 100 (a truncated export) was accepted silently: 60% overall is above
+    the 'fewer than half' check, and the test split 50:100 (10 of 50 matched) was not checked; now both are
+    said. The complete file stays silent."""
+    positives = _pairs_file(tmp_path, listed)
+    ref, qry = (np.arange(n, dtype=np.float64)[:, None] for n in (200, 100))
+    ds = dataset(ref, 2 * qry, 1.0, positives, unit="frames")
+    ds.splits = {"test": {"reference": (0, 200), "query": (50, 100)}}
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        assert check_true_matches(ds) is None
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    if listed == 100:
+        assert not said
+        return
+    assert len(said) == 2
+    assert "positives give queries 0..59 a match (60 of them) and none of the last 40 of 100 queries: a truncated" \
+        in said[0]
+    assert "split test (queries 50:100): only 10 of 50 queries (20%) have a true match" in said[1]
+
+
+@pytest.mark.parametrize(("start", "level"), [(0, None), (1, logging.WARNING), (3, logging.INFO)])
+def test_frame_columns_that_start_at_different_numbers_are_said(tmp_path, caplog, start, level):
+    """A 1-based frame column in the query CSV against a 0-based one in the reference moved every true match by
+    one frame with no line; now a warning (1 against 0), a note for other starts, nothing when both agree."""
+    from types import SimpleNamespace
+
+    from seqnet.pipelines.ground_truth import both_positions
+
+    names = [f"f{i}.png" for i in range(8)]
+    files = []
+    for side, first in (("ref", 0), ("qry", start)):
+        files.append(tmp_path / f"{side}.csv")
+        files[-1].write_text("name,frame\n" + "".join(f"{n},{first + i}\n" for i, n in enumerate(names)))
+    images = (SimpleNamespace(names=names), SimpleNamespace(names=names))
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        both_positions(SimpleNamespace(ground_truth="csv", positions_format="csv"), images, (tmp_path, tmp_path),
+                       tuple(files))
+    said = [r for r in caplog.records if "start at" in r.getMessage()]
+    assert [r.levelno for r in said] == ([] if level is None else [level])
+    if start == 1:
+        assert "the reference frames (" in said[0].getMessage() and "at 1: one file numbered from 1?" in \
+            said[0].getMessage()

@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-import re
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
@@ -21,6 +20,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..core.log import counted, logger
+from ..data.order import name_order
 from ..data.readers import check_names
 from ..security.inputs import read_text, special_file
 from ..security.pictures import decode, read_image, size_mismatch
@@ -82,11 +82,6 @@ class ImageList:
         return len(self.paths)
 
 
-def natural_key(text: str) -> list:
-    """Sort key that orders embedded numbers numerically (``a2`` < ``a10``)."""
-    return [int(t) if t.isdecimal() else t.lower() for t in re.split(r"(\d+)", text)]  # "²".isdigit(), not int
-
-
 def list_images(source: str | Path, topic: str | None = None, positions_topic: str | None = None,
                 fps: float | None = None) -> ImageList:
     """The images of a folder, a list file, the image ``topic`` of a ROS bag (and the positions of its
@@ -120,7 +115,7 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
             kind = special_file(odd) or ("broken link" if odd.is_symlink() else "directory")
             raise ImageError(f"{shown(odd)} is a {kind}, not an image file; remove or rename it (images are paired by "
                              "their order in the folder)")
-        files.sort(key=lambda p: natural_key(p.name))
+        files = [files[i] for i in name_order([p.name for p in files])]  # decimal names by value
         if not files:
             raise ImageError(
                 f"no images in folder {src} (looked for {', '.join(IMAGE_EXTENSIONS)}; "

@@ -41,6 +41,62 @@ def route_direction(truth: Any, samples: int = 200, rows: tuple[int, int] | None
     return float(np.corrcoef(q.astype(np.float64), r.astype(np.float64))[0, 1])
 
 
+LEG_SAMPLES = 4000  # query items looked at for backward legs within a sequence (evenly spaced), at most
+
+
+def _matched_refs(truth: Any, items: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The query items of ``items [S]`` with a correct reference, and for each its reference index: the mean of its
+    positives, or its nearest reference when within the radius (a k-d tree: O(S log R))."""
+    if truth.positives is not None:
+        q, r = truth.positives.pairs()
+        n = len(truth.q_pos)
+        count = np.bincount(q, minlength=n)[items]
+        mean = np.bincount(q, weights=r.astype(np.float64), minlength=n)[items] / np.maximum(count, 1)
+        return items[count > 0], mean[count > 0]
+    from scipy.spatial import cKDTree
+
+    dist, near = cKDTree(truth.r_pos).query(truth.q_pos[items], k=1)
+    close = dist <= truth.radius
+    return items[close], near[close].astype(np.float64)
+
+
+def window_correlations(q: np.ndarray, r: np.ndarray, w: int) -> np.ndarray:
+    """``[S - w + 1]``: the correlation of ``q [S]`` and ``r [S]`` over each window of ``w`` consecutive entries
+    (0 where either is constant in the window: a stop)."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    qs, rs = (sliding_window_view(np.asarray(v, dtype=np.float64), w) for v in (q, r))
+    qc, rc = qs - qs.mean(axis=1, keepdims=True), rs - rs.mean(axis=1, keepdims=True)
+    den = np.sqrt((qc * qc).sum(axis=1) * (rc * rc).sum(axis=1))
+    return np.where(den > 0, (qc * rc).sum(axis=1) / np.where(den > 0, den, 1.0), 0.0)
+
+
+def backward_legs(truth: Any, rows: tuple[int, int]) -> list[tuple[int, int, float, float]]:
+    """The runs of query items within ``rows`` (``a:b``, one sequence that as a whole runs forward) whose correct
+    references go back: ``(first item, last item + 1, reference at its start, at its end)`` each, from the
+    farthest reference of the run to its nearest. Over at most
+    :data:`LEG_SAMPLES` evenly spaced items with a correct reference, a window of ``w`` of them (1/25 of them, at
+    least 8) is backward when the correlation of item and reference index in it is below :data:`REVERSED_BELOW`;
+    a run of overlapping backward windows is a leg when it spans ``2 w`` items and its reference goes back by at
+    least ``w / 2`` frames (a stop's jitter does neither). O(S w), ``w`` bounded by the samples: O(S)."""
+    a, b = rows
+    if len(truth.r_pos) == 0 or b - a < 16:
+        return []
+    q, r = _matched_refs(truth, a + spread(b - a, LEG_SAMPLES))
+    w = max(8, len(q) // 25)
+    if len(q) < 2 * w:
+        return []
+    back = np.concatenate([[False], window_correlations(q, r, w) < REVERSED_BELOW, [False]])
+    starts, ends = np.flatnonzero(~back[:-1] & back[1:]), np.flatnonzero(back[:-1] & ~back[1:])
+    legs = []
+    for s, e in zip(starts, ends, strict=True):  # windows s..e-1 cover samples s .. e-1+w-1
+        last = e - 1 + w - 1
+        top, low = s + int(np.argmax(r[s:last + 1])), s + int(np.argmin(r[s:last + 1]))  # the turns
+        if last - s + 1 >= 2 * w and low > top and r[top] - r[low] >= w / 2:
+            legs.append((int(q[top]), int(q[low]) + 1, float(r[top]), float(r[low])))
+    return legs
+
+
 def sequences(bounds: np.ndarray | None, items: np.ndarray) -> dict[tuple[int, int], tuple[int, int]]:
     """The half-open range of evaluated items (``items [M]``: ascending query frames) in each query sequence,
     by the sequence's frames (``bounds [N, 2]``: the half-open sequence of every frame; None: one sequence)."""
@@ -64,9 +120,10 @@ def reversed_route(truth: Any, methods: Iterable[str], bounds: np.ndarray | None
     runs = sequences(bounds, np.arange(len(truth.q_pos)) if items is None else np.asarray(items))
     corr = {seq: route_direction(truth, rows=r) for seq, r in runs.items()}
     back = [(seq, c) for seq, c in corr.items() if c is not None and c < REVERSED_BELOW]
-    if not back:
-        return None
     named = f"{', '.join(forward[:4])}{' ...' if len(forward) > 4 else ''}"
+    if not back:
+        frames = np.arange(len(truth.q_pos)) if items is None else np.asarray(items)
+        return backward_leg_line(truth, [r for r in runs.values()], frames, named)
     if len(back) == len(runs):  # the whole traverse (one sequence, or every one)
         whole = route_direction(truth) if len(runs) > 1 else None
         whole = back[0][1] if whole is None else whole
@@ -79,6 +136,21 @@ def reversed_route(truth: Any, methods: Iterable[str], bounds: np.ndarray | None
             f"{' ...' if len(back) > 6 else ''}): their correct references go back as they go on, so the sequence "
             f"methods {named} compare their frames in the wrong order; evaluate them apart with the reversed "
             "matchers (e.g. raw+seqmatch-rev) or give their frames in the opposite order")
+
+
+def backward_leg_line(truth: Any, runs: list[tuple[int, int]], frames: np.ndarray, named: str) -> str | None:
+    """The line for query sequences (item ranges ``runs``) that run forward as a whole but hold a leg whose correct
+    references go back (:func:`backward_legs`: an out-and-back drive in one sequence); ``frames [M]``: each item's
+    query frame. None when there is none."""
+    legs = [leg for run in runs for leg in backward_legs(truth, run)]
+    if not legs:
+        return None
+    which = ", ".join(f"{int(frames[a])}:{int(frames[b - 1]) + 1} (references {r0:.0f} back to {r1:.0f})"
+                      for a, b, r0, r1 in legs[:4])
+    return (f"query frames {which}{' ...' if len(legs) > 4 else ''} run opposite to the reference within a query "
+            f"sequence that otherwise runs forward: there the sequence methods {named} compare frames in the wrong "
+            "order; split the traverse into sequences at the turns (a sequence column in the query's CSV) and "
+            "evaluate the backward ones with the reversed matchers (e.g. raw+seqmatch-rev), or use raw+graph")
 
 
 TRIVIAL_SHARE = 0.5  # a query whose correct references are this share of the map or more: R@K says little

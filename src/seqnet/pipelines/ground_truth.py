@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError
 from ..core.log import logger
-from ..data.convert import match_names, read_positions_table, sequence_bounds
+from ..data.convert import agreed_kinds, match_names, read_positions_table, sequence_bounds, warn_reordered
 from ..data.gps import check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
@@ -26,14 +26,17 @@ Positions = tuple[np.ndarray, "np.ndarray | None", str, "str | None"]  # [N, P],
 
 
 def _csv_positions(conf: Any, images: ImageList, source: str | Path, given: str | Path | None,
-                   side: str) -> Positions:
+                   side: str, kind: str | None = None) -> Positions:
     if given is None:
         raise ConfigError(f"ground truth 'csv' needs a positions CSV for the {side} (--{side[:3]}-csv FILE)")
     if conf.positions_format != "csv":  # a drive's position log (RobotCar ins.csv, KITTI oxts)
         xy, zone = log_positions(conf.positions_format, given, images.names, list(images.paths), conf.max_time_gap)
         return xy, None, "metres", f"UTM zone {zone}"
-    table = read_positions_table(given)
+    table = read_positions_table(given, kind)  # kind: of positions, both CSVs' one (agreed_kinds)
     idx = match_names(images.names, table.names, f"{given} vs the {side} images")  # each image's CSV row
+    warn_reordered(idx, images.names, table.names, f"the order of the {side} images of {source}",
+                   "if the CSV's order is the route's, give the images as a list file (one path per line) in that "
+                   "order")
     bounds = None if table.keys is None else sequence_bounds([table.keys[i] for i in idx], str(table.column))
     return table.positions[idx], bounds, table.unit, None  # sequences: runs of the images' order, as the positions
 
@@ -73,8 +76,11 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
     traverses must pair up (:func:`seqnet.data.sanity.check_frame_aligned`), checked before any image is described."""
     if conf.ground_truth == "frames":
         check_frame_aligned(images[0].names, images[1].names)
-    ref, qry = (GROUND_TRUTH_SOURCES[conf.ground_truth](conf, im, src, g, side)
-                for im, src, g, side in zip(images, sources, given, ("reference", "query"), strict=True))
+    kinds: tuple[str | None, ...] = (None, None)
+    if conf.ground_truth == "csv" and conf.positions_format == "csv" and None not in given:
+        kinds = agreed_kinds((str(given[0]), str(given[1])))  # lat/lon and x/y in one CSV: the kind both have
+    ref, qry = (GROUND_TRUTH_SOURCES[conf.ground_truth](conf, im, src, g, side, *([k] if k else []))
+                for im, src, g, side, k in zip(images, sources, given, ("reference", "query"), kinds, strict=True))
     if ref[2] == qry[2] == "degrees":  # lat/lon CSVs: UTM metres, the query in the reference's zone
         r, q, frame = latlon_pair(ref[0], qry[0], (str(given[0]), str(given[1])))
         ref, qry = (r, ref[1], "metres", frame), (q, qry[1], "metres", frame)
@@ -82,22 +88,50 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
         raise ConfigError(mixed_frames(ref[3] or ref[2], qry[3] or qry[2], "positions sources"))
     if ref[3] is not None:
         check_zones(ref[3], qry[3])  # one UTM zone (an unknown zone, '?', is let through)
+    if conf.ground_truth == "csv" and ref[2] == qry[2] == "frames" and len(ref[0]) and len(qry[0]):
+        frame_starts(float(ref[0].min()), float(qry[0].min()), (str(given[0]), str(given[1])))
     return ref, qry
 
 
-FEW_MATCHES = 0.5  # a dataset in which fewer queries than this share have a true match is warned about
+def frame_starts(ref: float, qry: float, files: tuple[str, str]) -> None:
+    """Say when the frame columns of the two CSVs ``files`` start at different numbers (``ref``, ``qry``): a
+    warning when one starts at 0 and the other at 1 (one file numbered from 1: every query's true references
+    shift by one frame, silently), else a note (a query over part of the route)."""
+    if ref == qry:
+        return
+    said = f"the reference frames ({files[0]}) start at {ref:g}, the query frames ({files[1]}) at {qry:g}"
+    if {ref, qry} == {0.0, 1.0}:
+        logger.warning("%s: one file numbered from 1? frame i of the query is taken to be at the place of frame i "
+                       "of the reference, so every true match moves by one frame (hint: number both files from 0)",
+                       said)
+    else:
+        logger.info("%s (frame i of the query is at the place of frame i of the reference)", said)
+
+
+FEW_MATCHES = 0.5  # a dataset (or named split) in which fewer queries than this share have a true match is warned
+TRUNCATED = 0.1  # explicit positives whose last listed query leaves this share of the queries after it: warned
+
+
+def _matched(ds: Dataset) -> np.ndarray:
+    """``[M]`` bool: whether each query of ``ds`` has a true match, by the one ground truth of evaluation."""
+    from ..metrics.recall import ground_truth
+
+    return ground_truth(ds.query.positions, ds.reference.positions, ds.radius, ds.positives,
+                        require=False).has_positive()
 
 
 def check_true_matches(ds: Dataset) -> str | None:
     """Whether ``ds``'s queries have true matches, by the one ground truth of evaluation
     (:func:`seqnet.metrics.recall.ground_truth`): none is a :class:`DatasetError` (the dataset is unusable), fewer
     than :data:`FEW_MATCHES` of them a warning line (logged, and returned), each naming the likely cause
-    (:func:`mismatch_hint`); None when most queries have one."""
-    from ..metrics.recall import ground_truth
-
-    truth = ground_truth(ds.query.positions, ds.reference.positions, ds.radius, ds.positives, require=False)
-    n, m = int(truth.has_positive().sum()), len(ds.query)
+    (:func:`mismatch_hint`); None when most queries have one. Each named split with fewer than
+    :data:`FEW_MATCHES` is warned about too, and explicit positives that stop well before the last query
+    (:func:`truncated_positives`)."""
+    has = _matched(ds)
+    n, m = int(has.sum()), len(ds.query)
+    truncated_positives(ds, has)
     if m == 0 or n >= FEW_MATCHES * m:
+        _check_splits(ds)
         return None
     what = "an explicit positive" if ds.positives is not None else (f"a reference within the radius "
                                                                        f"{ds.radius:g} {ds.position_unit}")
@@ -105,6 +139,37 @@ def check_true_matches(ds: Dataset) -> str | None:
         raise DatasetError(f"{ds.name}: none of the {m} queries has {what}, so every Recall@K would be undefined; "
                            f"nothing written: {mismatch_hint(ds, n)}")
     line = f"{ds.name}: only {n} of {m} queries ({100 * n / m:.0f}%) have {what}: {mismatch_hint(ds, n)}"
+    logger.warning("%s", line)
+    return line
+
+
+def _check_splits(ds: Dataset) -> None:
+    """Warn about each named split of ``ds`` in which fewer than :data:`FEW_MATCHES` of the queries have a true
+    match (against the split's references), when the dataset as a whole has enough."""
+    for name in ds.splits:
+        sub = ds.split(name)
+        n, m = int(_matched(sub).sum()), len(sub.query)
+        if m and n < FEW_MATCHES * m:
+            a, b = ds.splits[name]["query"]
+            logger.warning("%s: split %s (queries %d:%d): only %d of %d queries (%.0f%%) have a true match, so its "
+                           "Recall@K is over those %d only: %s", ds.name, name, a, b, n, m, 100 * n / m, n,
+                           mismatch_hint(sub, n))
+
+
+def truncated_positives(ds: Dataset, has: np.ndarray) -> str | None:
+    """A warning line (logged, and returned) when ``ds``'s explicit positives give nearly every query up to some
+    query a match and none after it, for at least :data:`TRUNCATED` of the queries (and 5): a positives file cut
+    short (a truncated export) reads as that many queries without a match; None otherwise."""
+    m = len(has)
+    if ds.positives is None or not has.any():
+        return None
+    last = int(np.flatnonzero(has)[-1])
+    tail = m - 1 - last
+    if tail < max(5, TRUNCATED * m) or has[:last + 1].mean() < 0.9:
+        return None
+    line = (f"{ds.name}: the explicit positives give queries 0..{last} a match ({int(has.sum())} of them) and none "
+            f"of the last {tail} of {m} queries: a truncated positives file? (hint: check that the file lists the "
+            f"queries up to {m - 1}; queries past the end of the reference's route have none)")
     logger.warning("%s", line)
     return line
 

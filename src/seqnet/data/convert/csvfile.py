@@ -65,13 +65,53 @@ class PositionsTable:
     column: str | None
 
 
-def read_positions_table(path: str | Path) -> PositionsTable:
-    """Read a positions CSV (module docstring). A row with too few fields, a non-numeric position or a
+KIND_COLUMNS = {"metres": ("east", "north"), "degrees": ("lat", "lon"), "frames": ("frame",)}  # in default order
+
+
+def position_kinds(path: str | Path) -> dict[str, list[str]]:
+    """The kinds of positions a positions CSV has (``metres``, ``degrees``, ``frames``, in :data:`KIND_COLUMNS`'s
+    order: the first is used by default), each with its columns as the header names them."""
+    p = Path(path)
+    header, _ = read_csv_rows(p)
+    col = _find_columns(header, p)
+    return {k: [header[col[c]] for c in cs] for k, cs in KIND_COLUMNS.items() if all(c in col for c in cs)}
+
+
+def agreed_kinds(paths: tuple[str | Path, str | Path]) -> tuple[str, str]:
+    """The kind of positions to read from each of two positions CSVs (reference, query): the first kind both have
+    (a CSV with lat, lon and x, y against one with lat, lon only: lat, lon), else each its default. A CSV with
+    two kinds of position columns (metres and degrees), or read in another than its default kind, is said."""
+    kinds = [position_kinds(p) for p in paths]
+    common = [k for k in KIND_COLUMNS if k in kinds[0] and k in kinds[1]]
+    chosen = [common[0] if common else next(iter(ks)) for ks in kinds]
+    for i, (p, ks, k) in enumerate(zip(paths, kinds, chosen, strict=True)):
+        if k != next(iter(ks)) or ("metres" in ks and "degrees" in ks):
+            why = (f"the kind {paths[1 - i]} has" if len(kinds[1 - i]) == 1 and k in kinds[1 - i] else
+                   "both CSVs have them" if k in kinds[1 - i] else f"{paths[1 - i]} has no kind in common")
+            _say_kinds(p, ks, k, why)
+    return chosen[0], chosen[1]
+
+
+def _say_kinds(p: str | Path, kinds: dict[str, list[str]], used: str, why: str) -> None:
+    has = " and ".join(f"{', '.join(cs)} ({u})" for u, cs in kinds.items())
+    logger.info("%s has position columns %s: using %s (%s)", p, has, ", ".join(kinds[used]), why)
+
+
+def read_positions_table(path: str | Path, kind: str | None = None) -> PositionsTable:
+    """Read a positions CSV (module docstring), its positions of ``kind`` (``metres``, ``degrees``, ``frames``:
+    :func:`agreed_kinds`; by default the first it has). A row with too few fields, a non-numeric position or a
     repeated image name is an error naming its line; lat/lon are checked in range
     (:func:`seqnet.data.utm.latlon_pair` makes them metres)."""
     p = Path(path)
     header, rows = read_csv_rows(p)
     col = _find_columns(header, p)
+    kinds = [k for k, cs in KIND_COLUMNS.items() if all(c in col for c in cs)]
+    if kind is not None and kind not in kinds:
+        raise DatasetError(f"{p}: header {header} has no {kind} position columns (it has {', '.join(kinds)})")
+    if kind is None and "metres" in kinds and "degrees" in kinds:
+        _say_kinds(p, {k: [header[col[c]] for c in KIND_COLUMNS[k]] for k in kinds}, kinds[0], "the first kind")
+    kind = kind or kinds[0]
+    col = {k: i for k, i in col.items() if k in ("name", "seq") or k in KIND_COLUMNS[kind]}
     for line, r in rows:
         if len(r) <= max(col.values()):
             raise DatasetError(f"{p}, line {line}: {len(r)} fields, but the header has {len(header)} "
@@ -84,8 +124,8 @@ def read_positions_table(path: str | Path) -> PositionsTable:
                                "must have one position (hint: remove the duplicate row)")
         first_line[name] = line
     check_names(names, f"{p} (column {header[col['name']]!r})")
-    unit = "metres" if "east" in col else "degrees" if "lat" in col else "frames"
-    pos_cols = [col[c] for c in {"metres": ["east", "north"], "degrees": ["lat", "lon"], "frames": ["frame"]}[unit]]
+    unit = kind
+    pos_cols = [col[c] for c in KIND_COLUMNS[unit]]
     pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
     for i, (line, r) in enumerate(rows):
         try:
@@ -133,8 +173,7 @@ def _find_columns(header: list[str], p: Path) -> dict[str, int]:
         raise DatasetError(f"{p}: header {header} needs easting and northing columns ({'/'.join(EAST_COLUMNS)}, "
                            f"{'/'.join(NORTH_COLUMNS)}), lat and lon columns ({'/'.join(LAT_COLUMNS)}, "
                            f"{'/'.join(LON_COLUMNS)}; degrees) or a frame column ({'/'.join(FRAME_COLUMNS)})")
-    drop = ("frame", "lat", "lon") if "east" in col else ("frame",) if "lat" in col else ()
-    return {k: i for k, i in col.items() if k not in drop}
+    return col
 
 
 def runs_to_bounds(keys: list[str]) -> np.ndarray:

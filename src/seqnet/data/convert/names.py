@@ -1,6 +1,7 @@
 """Matching image names of one list to another (CSV rows to descriptors, images to CSV rows).
 
-Names match exactly, else by file name (last path component), else by file name without extension. A name
+Names match exactly, else by file name (last path component), else by file name without extension, else the
+same in Unicode NFC form (macOS NFD file names against NFC names typed in a CSV). A name
 matching two of the other list, and two names matching the same one, are errors naming both (and the CSV
 lines, for names read from a CSV: :class:`CsvNames`); a name matching none is an error saying which side lacks
 it, with a hint when the names differ only in case.
@@ -8,13 +9,14 @@ it, with a hint when the names differ only in case.
 
 from __future__ import annotations
 
+import unicodedata
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from ...core.errors import DatasetError
-from ...core.log import counted
+from ...core.log import counted, logger
 
 
 class CsvNames(list):
@@ -30,8 +32,19 @@ def _basename(s: str) -> str:
     return s.replace("\\", "/").rsplit("/", 1)[-1]
 
 
-NAME_KEYS: tuple[Callable[[str], str], ...] = (lambda s: s, _basename,
-                                                lambda s: _basename(s).rsplit(".", 1)[0])  # exact, file name, stem
+def _stem(s: str) -> str:
+    return _basename(s).rsplit(".", 1)[0]
+
+
+def _nfc(key: Callable[[str], str]) -> Callable[[str], str]:
+    """``key`` of the name in Unicode NFC form: macOS file names are often NFD (``o`` + a combining diaeresis),
+    names typed in a CSV NFC (``ö``); they print alike but differ."""
+    return lambda s: unicodedata.normalize("NFC", key(s))
+
+
+NAME_KEYS: tuple[Callable[[str], str], ...] = (lambda s: s, _basename, _stem,  # exact, file name, stem, then in NFC
+                                                _nfc(lambda s: s), _nfc(_basename), _nfc(_stem))
+MATCHED = "names are matched exactly, then by file name, then without extension (each also in Unicode NFC form)"
 
 
 def _shown(names: Sequence[str], i: int) -> str:
@@ -45,6 +58,20 @@ def _plural(names: Sequence[str], wanted: bool) -> str:
     if isinstance(names, CsvNames):
         return f"rows of {names.path}"
     return "images" if wanted else "descriptors"
+
+
+def warn_reordered(rows: np.ndarray, names: Sequence[str], csv: CsvNames, source: str, hint: str) -> bool:
+    """Warn (and return True) when ``csv`` lists ``names`` (a traverse's images, in their order; ``rows[i]``: the
+    row of ``csv`` of image ``i``, [N] int) in another order; ``source`` names where the order comes from."""
+    back = np.flatnonzero(np.diff(rows) < 0)
+    if not back.size:
+        return False
+    i = int(back[0]) + 1
+    logger.warning("%s lists the images in another order than %s (image %d, %r, is on line %d, after the line %d "
+                   "of image %d, %r); the traverse follows %s, the CSV only places the images; hint: %s", csv.path,
+                   source, i, names[i], csv.lines[rows[i]], csv.lines[rows[i - 1]], i - 1, names[i - 1], source,
+                   hint)
+    return True
 
 
 def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarray:
@@ -78,9 +105,8 @@ def _refuse_ambiguous(wanted: list[str], available: list[str], hits: list[list[i
         j = h[0]
         if j in seen:
             raise DatasetError(f"{what}: the name {_shown(available, j)} matches two {_plural(wanted, True)}, "
-                               f"{_shown(wanted, seen[j])} and {_shown(wanted, i)} (names are matched exactly, then "
-                               "by file name, then without extension); hint: give names that identify one image "
-                               "each, with their extension")
+                               f"{_shown(wanted, seen[j])} and {_shown(wanted, i)} ({MATCHED}); hint: give names "
+                               "that identify one image each, with their extension")
         seen[j] = i
 
 
@@ -96,4 +122,4 @@ def _missing(wanted: list[str], available: list[str], hits: list[list[int]], wha
             if twin is not None else "")
     return DatasetError(f"{what}: {len(missing)} of {counted(len(wanted), 'image name')} "
                         f"{'has' if len(missing) == 1 else 'have'} {lacks} (first: {_shown(wanted, missing[0])}; "
-                        f"{looks}){case}; hint: names are matched exactly, then by file name, then without extension")
+                        f"{looks}){case}; hint: {MATCHED}")
