@@ -354,13 +354,16 @@ def test_evaluating_training_queries_is_flagged(synth_dir, tmp_path, capsys):
                 "--out", str(tmp_path / "run")]) == 0
     model = str(tmp_path / "run" / "best.pt")
     assert cli(["eval", "--dataset", str(synth_dir), "--model", model, "--split", "all", "--method", "seqnet",
-                "--seq-len", "3", "--out", str(tmp_path / "all")]) == 0
+                "--seq-len", "3", "--out", str(tmp_path / "all"), "--report"]) == 0
     leaks = json.loads((tmp_path / "all" / "results.json").read_text())["leakage"]
     assert len(leaks) == 1 and "are training queries of the S_L model" in leaks[0] and "'train'" in leaks[0]
     assert "are training queries" in capsys.readouterr().err
+    report = (tmp_path / "all" / "report.html").read_text()  # the shared report says it too, beside the table
+    assert 'id="warnings"' in report and "are training queries of the S_L model" in report
     assert cli(["eval", "--dataset", str(synth_dir), "--model", model, "--split", "test", "--method", "seqnet",
-                "--seq-len", "3", "--out", str(tmp_path / "test")]) == 0
+                "--seq-len", "3", "--out", str(tmp_path / "test"), "--report"]) == 0
     assert "leakage" not in json.loads((tmp_path / "test" / "results.json").read_text())
+    assert "are training queries" not in (tmp_path / "test" / "report.html").read_text()
 
 
 def test_a_missing_s1_suggests_the_model_free_variant():

@@ -40,7 +40,7 @@ from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .guidance import learned_below_baseline, row_marks
 from .markup import SORT_JS, Section, png_tag, table_html
-from .notes import calibration_section, choices_section, notes_section, radii_section
+from .notes import calibration_section, choices_section, notes_section, radii_section, warnings_section
 from .sources import swapped_sources
 from .styles import method_family
 from .tables import figure_png, pr_figure, recall_figure, results_rows
@@ -184,6 +184,7 @@ def evaluation_sections(ev: Any, ds: Dataset | None, conf: ReportConfig) -> list
     return [
         summary_section(ev, conf),
         results_section(ev),
+        *warnings_section(ev.results),
         *choices_section(ev.results),
         *notes_section(ev.results),
         *radii_section(ev.results),

@@ -1,7 +1,7 @@
-"""The report's sections beside the results table: what was chosen on val and why (:func:`choices_section`), the
-learned methods below their model-free counterparts (:func:`notes_section`, :mod:`seqnet.report.guidance`), the
-Recall@K at each ``--extra-radius`` (:func:`radii_section`) and the calibrated confidence of ``--target-precision``
-(:func:`calibration_section`)."""
+"""The report's sections beside the results table: what the evaluation warned of (:func:`warnings_section`), what
+was chosen on val and why (:func:`choices_section`), the learned methods below their model-free counterparts
+(:func:`notes_section`, :mod:`seqnet.report.guidance`), the Recall@K at each ``--extra-radius``
+(:func:`radii_section`) and the calibrated confidence of ``--target-precision`` (:func:`calibration_section`)."""
 
 from __future__ import annotations
 
@@ -55,6 +55,17 @@ def notes_section(results: Any) -> list[Section]:
         return []
     items = "".join(f"<li>{html.escape(t)}</li>" for t in texts)
     return [Section("notes", "Notes", f"<ul>{items}</ul>")]
+
+
+def warnings_section(results: Any) -> list[Section]:
+    """A ``warnings`` section with what the evaluation warned of (the results' ``"leakage"``: queries a model was
+    trained on or chose its epoch on, then ``"warnings"``: the data and settings), beside the table it qualifies
+    (the report is what gets shared; stderr is not); none when nothing was said."""
+    lines = [str(w) for key in ("leakage", "warnings") for w in (results.get(key) or []) if w]
+    if not lines:
+        return []
+    items = "".join(f"<li>{html.escape(line)}</li>" for line in dict.fromkeys(lines))
+    return [Section("warnings", "Warnings", f"<p>The evaluation said these beside its numbers:</p><ul>{items}</ul>")]
 
 
 def radii_section(results: Any) -> list[Section]:
