@@ -588,3 +588,14 @@ def test_models_the_methods_do_not_use_are_not_loaded(synth_dir, map_models, tmp
     assert cli_main(["eval", "--dataset", str(synth_dir), "--out", str(tmp_path / "all"), "--device", "cpu",
                      *runs["both"]]) == 0  # the default methods: every model they allow is loaded
     assert sorted(loaded) == ["s1.pt", "sl.pt"]
+
+
+def test_an_hvpr_entry_records_what_its_shortlist_holds(synth_dataset):
+    """An HVPR's ``shortlist_recall`` is the share of queries whose K-shortlist holds a correct reference: its own
+    R@K (the re-ranking only reorders the first K), the cap of its R@1; other methods have none."""
+    conf = EvalConfig(methods=("hvpr-delta:raw+seqmatch", "single"), seq_len=3, top_k=10, ks=(1, 10, 20))
+    ev = evaluate(synth_dataset.split("test"), conf)
+    entry = ev.results["methods"]["hvpr-delta:raw+seqmatch"]
+    assert entry["shortlist_recall"] == {"k": 10, "recall": entry["recall@10"]}
+    assert entry["recall@1"] <= entry["shortlist_recall"]["recall"]
+    assert "shortlist_recall" not in ev.results["methods"]["single"]

@@ -184,3 +184,18 @@ def test_window_correlations_match_a_loop():
     w = 8
     loop = [0.0 if np.ptp(r[i:i + w]) == 0 else np.corrcoef(q[i:i + w], r[i:i + w])[0, 1] for i in range(50 - w + 1)]
     assert np.allclose(window_correlations(q, r, w), loop)
+
+
+def test_nearest_1d_is_a_naive_search():
+    """The sorted search of frame numbers gives the nearest reference of a loop (the distance exactly; the index
+    of a tie may differ, never its distance)."""
+    from seqnet.methods.route import nearest_1d
+
+    rng = np.random.default_rng(0)
+    for n_ref in (1, 2, 7, 50):
+        ref = rng.integers(0, 30, n_ref).astype(np.float64)
+        query = rng.uniform(-5, 35, 40)
+        dist, idx = nearest_1d(ref, query)
+        naive = np.abs(query[:, None] - ref[None]).min(axis=1)
+        np.testing.assert_allclose(dist, naive)
+        np.testing.assert_allclose(np.abs(ref[idx] - query), naive)

@@ -175,3 +175,33 @@ def test_the_summary_gives_the_range_of_query_counts():
     res["methods"].pop("single")
     body = summary_section(SimpleNamespace(results=res, r_items=np.arange(3)), ReportConfig()).body
     assert "<td>queries evaluated</td><td>21</td>" in body
+
+
+def test_a_specific_cause_that_does_not_explain_keeps_the_training_cause_beside_it():
+    """An L mismatch (or D, or few queries) may add to the loss, not explain it: the training-data cause is said
+    beside it (it was dropped, and following the --seq-len hint left the model as far below)."""
+    models = {"seqnet": {"in_dims": 512, "out_dims": 512, "seq_len": 5, "w": 3}}
+    causes = likely_causes("seqnet", _results({"seqnet": 0.2, "delta": 0.7}, models=models, seq_len=10))
+    assert any("evaluated at L=10" in c for c in causes) and any("too little or too different" in c for c in causes)
+    near = likely_causes("s1", _results({"s1": 0.69, "single": 0.70}), (0.69, 0.70))  # one query: chance explains
+    assert near[0].startswith("possibly chance") and not any("too little" in c for c in near)
+
+
+def test_an_hvpr_capped_by_its_shortlist_says_so():
+    """An HVPR whose R@1 reaches what its shortlist of K holds (the entry's shortlist_recall) loses in the shortlist,
+    not the re-ranking, learned shortlist or not: said, with --top-k; with room left, not said."""
+    res = _results({"hvpr-s1": 0.786, "raw+seqmatch": 0.911}, queries=56)
+    res["methods"]["hvpr-s1"]["shortlist_recall"] = {"k": 10, "recall": 0.786}
+    (note,) = learned_below_baseline(res)
+    assert note.causes[0].startswith("its shortlist (s1 top-10) holds a correct reference for only 0.786")
+    assert "--top-k" in note.causes[0] and not any("too little" in c for c in note.causes)
+    res["methods"]["hvpr-s1"]["shortlist_recall"]["recall"] = 0.95
+    assert not any("its shortlist" in c for c in learned_below_baseline(res)[0].causes)
+
+
+def test_without_r_at_1_the_smallest_k_is_compared():
+    """--ks 5,10: the notes compare R@5 (they vanished without R@1) and say so."""
+    methods = {"single": {"recall@5": 0.733, "recall@10": 0.767, "queries": 60},
+               "s1": {"recall@5": 0.583, "recall@10": 0.650, "queries": 60}}
+    (note,) = learned_below_baseline({"methods": methods, "config": {}})
+    assert note.k == 5 and note.finding() == "s1 (R@5 0.583) is below the model-free single (0.733)"

@@ -165,11 +165,26 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
                                                    conf.extra_radii, conf.recall_denominator,
                                                    query_order(conf, query, ref.items, windows))
         entry.update(extra(m, retrieved[m.name]) if extra else {}, no_full_window=left_out, **why,
-                     timing_ms={k: round(v, 3) for k, v in timing.items()}, method=info(m))
+                     timing_ms={k: round(v, 3) for k, v in timing.items()}, method=info(m),
+                     **shortlist_cap(m, retrieved[m.name], truth, conf))
         results[m.name] = entry
         logger.debug("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
     return Evaluation({"methods": results}, retrieved, scores, truth, query.items_index, ref.items, confidence,
                       windows=windows)
+
+
+def shortlist_cap(m: Method, retrieved: np.ndarray, truth: GroundTruth, conf: EvalConfig) -> dict[str, Any]:
+    """``{"shortlist_recall": {"k": K, "recall": r}}`` of an HVPR ``m``: the share of the counted queries whose
+    shortlist of K (the first K of ``retrieved [M, ≥K]``, which the re-ranking only reorders) holds a correct
+    reference, the most its R@1 can reach; empty for other methods, or when fewer than K were retrieved."""
+    k = conf.shortlist_size(m) if m.kind == "hvpr" else 0
+    if not k or retrieved.shape[1] < k or not len(retrieved):
+        return {}
+    keep = truth.has_positive() if conf.recall_denominator == "positives" else np.ones(len(retrieved), bool)
+    if not keep.any():
+        return {}
+    held = truth.hits(retrieved[:, :k])[keep].any(axis=1)
+    return {"shortlist_recall": {"k": int(k), "recall": float(held.mean())}}
 
 
 def query_order(conf: EvalConfig, query: Query, r_items: np.ndarray, windows: Windows) -> QueryOrder | None:

@@ -53,11 +53,26 @@ def _matched_refs(truth: Any, items: np.ndarray) -> tuple[np.ndarray, np.ndarray
         count = np.bincount(q, minlength=n)[items]
         mean = np.bincount(q, weights=r.astype(np.float64), minlength=n)[items] / np.maximum(count, 1)
         return items[count > 0], mean[count > 0]
-    from scipy.spatial import cKDTree
+    r_pos, q_pos = np.asarray(truth.r_pos), np.asarray(truth.q_pos)[items]
+    if r_pos.shape[1] == 1:  # frame numbers: a sorted search (no scipy on the plain numpy route)
+        dist, near = nearest_1d(r_pos[:, 0], q_pos[:, 0])
+    else:
+        from scipy.spatial import cKDTree
 
-    dist, near = cKDTree(truth.r_pos).query(truth.q_pos[items], k=1)
+        dist, near = cKDTree(r_pos).query(q_pos, k=1)
     close = dist <= truth.radius
     return items[close], near[close].astype(np.float64)
+
+
+def nearest_1d(ref: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(distance [S], index [S])`` of the nearest of ``ref [R]`` (R ≥ 1, any order) to each of ``query [S]``
+    (ties: the lower index of the sorted values). O((R + S) log R)."""
+    order = np.argsort(ref, kind="stable")
+    srt = ref[order]
+    at = np.clip(np.searchsorted(srt, query), 1, len(srt) - 1) if len(srt) > 1 else np.zeros(len(query), np.int64)
+    lo, hi = srt[np.maximum(at - 1, 0)], srt[at]
+    pick = np.where(np.abs(query - lo) <= np.abs(hi - query), np.maximum(at - 1, 0), at)
+    return np.abs(srt[pick] - query), order[pick]
 
 
 def window_correlations(q: np.ndarray, r: np.ndarray, w: int) -> np.ndarray:

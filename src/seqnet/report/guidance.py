@@ -10,11 +10,11 @@ S_1) should beat the method that does the same without the model, on the same da
   ``raw+<matcher>`` and any model-free HVPR with that matcher.
 
 :func:`learned_below_baseline` is a pure function of an evaluation's results (``results.json``: its
-``methods`` and ``config``) giving one :class:`Note` per learned method whose R@1 is below the best of its
-counterparts present in the results by at least one query; :func:`likely_causes` reads what the results
-record (the models' D, their training L against the evaluation's L, the queries) and names the usual
-causes. ``seqnet eval`` prints the notes under its table (:func:`format_notes`), the HTML report has them
-in a section of their own.
+``methods`` and ``config``) giving one :class:`Note` per learned method whose R@1 (else the smallest K
+evaluated) is below the best of its counterparts present in the results by at least one query;
+:func:`likely_causes` reads what the results record (the models' D, their training L against the evaluation's
+L, the queries, an HVPR's shortlist recall) and names the usual causes. ``seqnet eval`` prints the notes under
+its table (:func:`format_notes`), the HTML report has them in a section of their own.
 """
 
 from __future__ import annotations
@@ -39,10 +39,11 @@ class Note:
     learned_r1: float
     baseline_r1: float
     causes: tuple[str, ...]
+    k: int = 1  # the K of the recalls compared: 1, else the smallest K evaluated (--ks without 1)
 
     def finding(self) -> str:
         """The finding alone: which method is below which."""
-        return (f"{self.learned} (R@1 {self.learned_r1:.3f}) is below the model-free {self.baseline} "
+        return (f"{self.learned} (R@{self.k} {self.learned_r1:.3f}) is below the model-free {self.baseline} "
                 f"({self.baseline_r1:.3f})")
 
     def text(self) -> str:
@@ -96,6 +97,9 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
         out.append(f"possibly chance: {apart} of {queries} queries apart (a sign test cannot tell fewer than "
                    f"{CHANCE_QUERIES + 1} apart from chance)")
     m = parse_method(name)
+    capped = shortlist_capped(name, entry)
+    if capped:
+        out.append(capped)
     if m.kind == "hvpr" and m.shortlist and not parse_method(m.shortlist).models():
         top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
         r1 = entry.get("recall@1", 0.0)
@@ -119,10 +123,28 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
         out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
     if isinstance(queries, int) and 0 < queries < 50:
         out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@1)")
-    if not out:
+    explained = bool(out) and (out[0].startswith("possibly chance") or capped is not None or
+                               any(c.startswith("its shortlist is the model-free") for c in out))
+    if not explained:  # the other causes (D, L, few queries) may add to it: it is said beside them
         out.append("too little or too different training data for the model's D x out x w weights, or a val split "
                    "too small to choose the epoch (the training log of seqnet train says both)")
     return tuple(out)
+
+
+def shortlist_capped(name: str, entry: Mapping[str, Any]) -> str | None:
+    """Why an HVPR's R@1 cannot rise: its shortlist of K holds a correct reference for barely more queries than
+    its R@1 counts (the entry's ``shortlist_recall``, within one query), so the re-ranking is not what loses;
+    None when the shortlist leaves room, or is not recorded."""
+    cap, r1, queries = entry.get("shortlist_recall"), entry.get("recall@1"), entry.get("queries")
+    if not isinstance(cap, Mapping) or not isinstance(r1, (int, float)) or not isinstance(cap.get("recall"), float):
+        return None
+    step = 1.0 / queries if isinstance(queries, int) and queries > 0 else 0.001
+    if cap["recall"] - float(r1) >= step - 1e-9:
+        return None
+    shortlist = parse_method(name).shortlist
+    return (f"its shortlist ({shortlist} top-{cap['k']}) holds a correct reference for only {cap['recall']:.3f} of "
+            f"the queries, which caps its R@1: the re-ranking is not what loses; a larger --top-k (or a better "
+            f"shortlist)")
 
 
 def within_chance(apart: int) -> bool:
@@ -136,21 +158,31 @@ def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
     """One :class:`Note` per learned method of ``results`` whose R@1 is below the best of its model-free
     counterparts by at least one query (``1 / queries``; 0.001 when the count is unknown)."""
     methods = results.get("methods", {})
+    k = compared_k(methods)
+    key = f"recall@{k}"
     notes = []
     for name, entry in methods.items():
-        r1 = entry.get("recall@1")
+        r1 = entry.get(key)
         if not isinstance(r1, (int, float)):
             continue
-        scored = [(float(methods[b]["recall@1"]), b) for b in counterparts(name, methods)
-                  if isinstance(methods[b].get("recall@1"), (int, float))]
+        scored = [(float(methods[b][key]), b) for b in counterparts(name, methods)
+                  if isinstance(methods[b].get(key), (int, float))]
         if not scored:
             continue
         best, base = max(scored)
         queries = entry.get("queries")
         step = 1.0 / queries if isinstance(queries, int) and queries > 0 else 0.001
         if best - float(r1) >= step - 1e-9:
-            notes.append(Note(name, base, float(r1), best, likely_causes(name, results, (float(r1), best))))
+            notes.append(Note(name, base, float(r1), best, likely_causes(name, results, (float(r1), best)), k))
     return notes
+
+
+def compared_k(methods: Mapping[str, Any]) -> int:
+    """The K whose Recall@K the notes compare: 1 when evaluated, else the smallest K of the results (``--ks``
+    without 1: the notes would otherwise vanish however far below a model is)."""
+    ks = {int(key.split("@")[1]) for entry in methods.values() if isinstance(entry, Mapping) for key in entry
+          if key.startswith("recall@") and key.split("@")[1].isdecimal()}
+    return 1 if 1 in ks or not ks else min(ks)
 
 
 def format_notes(notes: list[Note]) -> list[str]:
