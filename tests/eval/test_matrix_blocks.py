@@ -91,3 +91,25 @@ def test_a_constant_matrix_is_warned(synth_dataset, caplog):
     assert constant_rows(GivenMatrix(rows)) is None
     assert "warnings" not in evaluate_matrix(ds, np.asarray(similarity(ds)) * -1, EvalConfig(methods=("single",))
                                              ).results
+
+
+def test_no_method_is_timed_with_the_start_up_costs(synth_dataset, tmp_path):
+    """Lazy imports (torch, 1–4 s; NumPy's masked arrays) and first kernels are paid before the first method is
+    timed (a fresh interpreter: they made the first method listed look up to 300 times slower)."""
+    import subprocess
+    import sys
+
+    from seqnet.data.io import save_dataset
+
+    ds_dir = save_dataset(synth_dataset, tmp_path / "ds")
+    np.save(tmp_path / "m.npy", similarity(synth_dataset).astype(np.float32))
+    code = ("import sys; import seqnet.eval.evaluate as ev; first = []; rank = ev.rank\n"
+            "def spy(*a, **k):\n"
+            "    first.append(first or ['torch' in sys.modules, 'numpy.ma' in sys.modules]); return rank(*a, **k)\n"
+            "ev.rank = spy\n"
+            "from seqnet.cli import main\n"
+            f"rc = main(['-q', 'eval', '--dataset', {str(ds_dir)!r}, '--distances', {str(tmp_path / 'm.npy')!r}, "
+            "'--similarity', '--method', 'raw+seqmatch,raw+vseqmatch', '--seq-len', '3'])\n"
+            "print(*first[0], rc)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split()[-3:] == ["True", "True", "0"], out

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..core.devices import get_device
 from ..core.errors import ConfigError
+from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.stage import Written
 from ..data.resample import kept_indices, resample_dataset
@@ -42,6 +43,8 @@ from .evaluation import Evaluation, merge, method_windows, no_window_reason
 from .notices import add_warnings, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
 from .outputs import EvalOutputs
 from .results import method_results
+
+torch = lazy_module("torch")
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -106,6 +109,8 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     dev = "cpu" if plain else get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
+        with torch.no_grad():  # its first call allocates: not charged to the first method that uses it
+            model(torch.zeros((1, model.seq_len, model.in_dims), device=dev))
     parts = [_evaluate_group(ds, ms, w, conf, models, dev, plain) for w, ms in groups.items()]
     out = merge(parts, conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
@@ -125,7 +130,8 @@ def _evaluate_group(ds: Dataset, methods: list[Method], windows: Windows, conf: 
     ref = (PlainReference(ds.reference, windows, ds.name) if plain
            else TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name))
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
-    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models), windows=windows)
+    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models), windows=windows,
+              with_torch=not plain)
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
 
@@ -146,16 +152,18 @@ def item_names(t: Traverse, items: np.ndarray) -> list[str] | None:
 def run(methods: Sequence[Method], query: Described, ref: Reference, truth: GroundTruth, conf: EvalConfig,
         n_frames: int, info: Callable[[Method], dict[str, Any]],
         extra: Callable[[Method, np.ndarray], dict[str, Any]] | None = None,
-        windows: Windows | None = None) -> Evaluation:
+        windows: Windows | None = None, with_torch: bool = True) -> Evaluation:
     """The one evaluation loop: rank every method against ``ref`` (:func:`seqnet.methods.rank.rank`), score
     it (Recall@K, PR, AUC) and time it; ``info(m)`` describes the method, ``extra(m, items)`` adds entries
     (a map's shortlist recall). ``n_frames``: query frames, for the count left out (no full window) under
-    ``windows`` (default ``conf.windows``), and why."""
+    ``windows`` (default ``conf.windows``), and why. ``with_torch``: the methods run in torch, which is loaded and
+    warmed up before the first is timed (:func:`warm_up`)."""
     windows = windows or conf.windows
     left_out = int(n_frames - len(truth.q_pos))
     why = {"no_full_window_reason": no_window_reason(windows)} if left_out else {}
     results: dict[str, Any] = {}
     retrieved, scores, confidence = {}, {}, {}
+    warm_up(with_torch)
     for m in methods:
         ref.check_method(m)
         scores[m.name], retrieved[m.name], timing = rank(m, query, ref, max(conf.ks), conf.shortlist_size(m),
@@ -171,6 +179,16 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
         logger.debug("%s: R@1 %.3f (%d queries)", m.name, entry.get("recall@1", float("nan")), entry["queries"])
     return Evaluation({"methods": results}, retrieved, scores, truth, query.items_index, ref.items, confidence,
                       windows=windows)
+
+
+def warm_up(with_torch: bool) -> None:
+    """Pay the one-time start-up costs before any method is timed, so each method's time is its own: the lazy
+    imports (NumPy loads its masked arrays on a first ``np.unique``; torch, ``with_torch``, 1–4 s) and torch's first
+    kernels. Charged to whichever method came first, they made it look up to 300 times slower."""
+    np.unique(np.zeros(2))
+    if with_torch:
+        x = torch.zeros((4, 4))
+        torch.topk(x @ x.T, 2, dim=1)
 
 
 def shortlist_cap(m: Method, retrieved: np.ndarray, truth: GroundTruth, conf: EvalConfig) -> dict[str, Any]:

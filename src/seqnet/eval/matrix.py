@@ -249,7 +249,8 @@ def _matrix_group(ds: Dataset, d: GivenMatrix, methods: list[Method], windows: W
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
     out = run(methods, query, ref, truth, conf, len(ds.query),
               lambda m: {**m.summary(), "on": "distance matrix", "seq_len": conf.windows.seq_len,
-                         "match_len": conf.windows.match_len, "top_k": conf.shortlist_size(m)}, windows=windows)
+                         "match_len": conf.windows.match_len, "top_k": conf.shortlist_size(m)}, windows=windows,
+              with_torch=any(m.kind != "knn" for m in methods))  # single on a matrix runs in NumPy
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
 
