@@ -113,6 +113,20 @@ def test_a_split_whose_ranges_share_no_place_is_warned(route):
     assert "split train" in unmatched_splits(make(places, seen, splits=chunks, positives=pos))
 
 
+def test_a_split_against_the_whole_reference_is_named_for_what_it_lacks(route):
+    """A test split NAME=A:B (the whole reference) whose queries' positives are all empty: the positives are named,
+    not the range syntax (which it already uses) nor the radius (which explicit positives ignore)."""
+    from seqnet.data.sanity.truth import unmatched_splits
+
+    places, seen = route
+    lists = [[i] if i < 40 else [] for i in range(60)]
+    splits = {"train": {"reference": (0, 60), "query": (0, 40)}, "test": {"reference": (0, 60), "query": (40, 60)}}
+    line = unmatched_splits(make(places, seen, splits=splits, positives=Positives.from_lists(lists)))
+    assert line == ("split test (queries 40:60): the explicit positives list no reference for any of its queries (an "
+                    "empty list is no match): it cannot be scored"), line
+    assert "NAME=A:B" not in line
+
+
 def test_a_matrix_given_as_descriptors_is_warned(route):
     from seqnet.data.sanity.truth import matrix_as_descriptors
 

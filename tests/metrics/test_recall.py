@@ -229,3 +229,16 @@ def test_a_wider_radius_with_explicit_positives_widens_around_the_positives() ->
             before = after
     plain = GroundTruth(np.zeros((2, 1)), np.arange(4.0)[:, None], 1.0)
     assert plain.within(2.0).radius == 2.0 and plain.within(2.0).positives is None
+
+
+def test_no_explicit_positive_among_the_references_does_not_blame_the_radius():
+    """With explicit positives the radius plays no part: the error says so and points at the positives and the
+    split's reference range (it hinted at the radius and its unit)."""
+    from seqnet.data.positives import Positives
+    from seqnet.metrics.recall import ground_truth
+
+    pos = Positives.from_lists([[], [], []])
+    with pytest.raises(ConfigError, match="radius plays no part with explicit positives: check that the positives"):
+        ground_truth(np.zeros((3, 1)), np.zeros((4, 1)), 1.0, pos)
+    with pytest.raises(ConfigError, match="check the radius and its unit"):
+        ground_truth(np.zeros((3, 1)), np.full((4, 1), 9.0), 1.0)

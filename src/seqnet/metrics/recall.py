@@ -263,7 +263,10 @@ def ground_truth(q_pos: np.ndarray, r_pos: np.ndarray, radius: float, positives:
     if require and not truth.has_positive().any():
         what = ("any of its explicit positives among the indexed references" if positives is not None else
                 f"a reference within radius {radius:g} {unit}")
+        hint = ("the radius plays no part with explicit positives: check that the positives list references for "
+                "these queries (an empty list is no match) and that the split's reference range holds them"
+                if positives is not None else "check the radius and its unit, the split, and that both traverses "
+                "share one coordinate frame")
         raise ConfigError(f"none of the {len(q_pos)} evaluated queries of {name!r} has {what}, so Recall@K is "
-                          "undefined; hint: check the radius and its unit, the split, and that both traverses "
-                          "share one coordinate frame")
+                          f"undefined; hint: {hint}")
     return truth

@@ -165,19 +165,28 @@ def degree_positions(ds: Dataset) -> str | None:
 
 def unmatched_splits(ds: Dataset) -> str | None:
     """The splits none of whose queries has a true match within the split's reference range (``NAME=A:B,C:D`` is
-    reference A:B, queries C:D: two query chunks given that way share no place), one line; None when every split has
-    some (or the dataset has no splits)."""
-    bad = []
+    reference A:B, queries C:D: two query chunks given that way share no place), one line; a split against the whole
+    reference is named for what it lacks instead (its queries' explicit positives are all empty, or no reference is
+    within the radius); None when every split has some (or the dataset has no splits)."""
+    bad, lines = [], []
     for name in ds.splits:
         sub = ds.split(name)
-        if len(sub.query) and not _matched(sub):
-            r, q = ds.splits[name]["reference"], ds.splits[name]["query"]
+        if not len(sub.query) or _matched(sub):
+            continue
+        r, q = ds.splits[name]["reference"], ds.splits[name]["query"]
+        if tuple(r) != (0, len(ds.reference)):
             bad.append(f"{name} (reference {r[0]}:{r[1]}, queries {q[0]}:{q[1]})")
-    if not bad:
-        return None
-    return (f"split{'s' if len(bad) > 1 else ''} {'; '.join(bad)} {'have' if len(bad) > 1 else 'has'} no query with a "
-            "true match in the split's reference range: NAME=A:B,C:D is reference A:B and queries C:D (hint: NAME=A:B "
-            "alone selects queries A:B against the whole reference)")
+        elif ds.positives is not None:  # against the whole reference: the range is not the cause
+            lines.append(f"split {name} (queries {q[0]}:{q[1]}): the explicit positives list no reference for any "
+                         "of its queries (an empty list is no match): it cannot be scored")
+        else:
+            lines.append(f"split {name} (queries {q[0]}:{q[1]}): no query has a reference within the radius "
+                         f"{ds.radius:g}: it cannot be scored")
+    if bad:
+        lines.insert(0, f"split{'s' if len(bad) > 1 else ''} {'; '.join(bad)} {'have' if len(bad) > 1 else 'has'} no "
+                        "query with a true match in the split's reference range: NAME=A:B,C:D is reference A:B and "
+                        "queries C:D (hint: NAME=A:B alone selects queries A:B against the whole reference)")
+    return "; ".join(lines) or None
 
 
 def _matched(ds: Dataset) -> bool:
