@@ -21,3 +21,28 @@ def test_another_dimension_is_refused_without_the_transposed_hint():
         check_query_dim((200, 64), 2048, "q.npy")
     assert "transposed" not in str(e.value)
     check_query_dim((200, 2048), 2048, "q.npy")  # the map's D: accepted
+
+
+def test_a_datasets_own_descriptors_carry_its_provenance_into_localize(synth_dataset, tmp_path):
+    """--query DS/query/descriptors.npy of another dataset: the provenance its dataset.json records is checked (it
+    was 'unknown', and the run went on); --query DS (a dataset folder) names what to give."""
+    import dataclasses
+
+    import pytest
+
+    from seqnet.core.errors import ConfigError
+    from seqnet.core.provenance import make
+    from seqnet.data.io import save_dataset
+    from seqnet.localize.config import LocalizeConfig
+    from seqnet.localize.stream import Query, stream
+
+    ours = save_dataset(synth_dataset, tmp_path / "ours")
+    prov = make("synthetic", {"seed": 2}, dim=16)
+    other = dataclasses.replace(synth_dataset, query=dataclasses.replace(synth_dataset.query, provenance=prov))
+    theirs = save_dataset(other, tmp_path / "theirs")
+    conf = LocalizeConfig(method="single")
+    with pytest.raises(ConfigError, match="made differently"):
+        stream(conf, ours, Query(theirs / "query" / "descriptors.npy"), tmp_path / "t.csv")
+    with pytest.raises(ConfigError, match="is a seqnet dataset .* localize --dataset"):
+        stream(conf, ours, Query(theirs), tmp_path / "t.csv")
+    stream(conf, ours, Query(ours / "query" / "descriptors.npy"), tmp_path / "ok.csv")  # its own: accepted

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, SeqnetError
 from ..core.log import logger
 from ..core.provenance import check_same
 from ..core.provenance import make as make_provenance
@@ -179,3 +179,32 @@ def check_named_code(settings: Mapping[str, object], describer: str | None) -> N
         raise ConfigError("the map was described with a checkpoint named in its files, which localize does not open; "
                           "describe the query images with `seqnet describe` and that checkpoint, and pass the "
                           "descriptor file as --query")
+
+
+def query_file_provenance(path: Path) -> dict | None:
+    """The provenance of a query descriptor file: its sidecar (:func:`seqnet.data.readers.read_provenance`), else,
+    for a traverse's descriptors inside a seqnet dataset (``DS/query/descriptors.npy``), the provenance its
+    ``dataset.json`` records for that traverse; None when neither says."""
+    from ..data.readers import read_provenance
+    from ..security.jsonfile import read_json_object
+
+    prov = read_provenance(path)
+    meta_path = path.parent.parent / "dataset.json"
+    if prov or not meta_path.is_file():
+        return prov
+    try:
+        meta = read_json_object(meta_path, "dataset.json")
+    except SeqnetError:
+        return None
+    folders = meta.get("traverses") if isinstance(meta.get("traverses"), dict) else {}
+    side = next((s for s in ("reference", "query") if folders.get(s, s) == path.parent.name), None)
+    recorded = (meta.get("provenance") or {}).get(side) if isinstance(meta.get("provenance"), dict) else None
+    return recorded if isinstance(recorded, dict) else None
+
+
+def check_not_dataset(path: Path) -> None:
+    """Refuse a seqnet dataset folder given as query images (it holds descriptors, no images), naming what to give."""
+    if path.is_dir() and (path / "dataset.json").is_file():
+        raise ConfigError(f"--query {path} is a seqnet dataset (it holds descriptors, not images): give its query "
+                          f"descriptors (--query {path / 'query' / 'descriptors.npy'}), or replay it with seqnet "
+                          f"localize --dataset {path}")

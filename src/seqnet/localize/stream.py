@@ -29,7 +29,7 @@ from ..core.log import logger
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.stage import Written
-from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file, read_provenance
+from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file
 from ..data.trajectory import TrackView
 from ..eval.config import EvalConfig
 from ..methods.protocol import Reference
@@ -45,7 +45,7 @@ if TYPE_CHECKING:
     from ..maps.map import Map
 
 from .config import LocalizeConfig
-from .describing import check_query_dim, map_describer
+from .describing import check_not_dataset, check_query_dim, map_describer, query_file_provenance
 from .localizer import Estimate, traverse_reference
 from .replay import frame_truth, summarize
 from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
@@ -104,7 +104,7 @@ def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Fram
     """The frames of a descriptor file (checked against the map's provenance), their names and count."""
     desc, names = read_descriptor_file(path)
     check_query_dim(desc.shape, ref_map.input_dim, f"the query descriptors {path.name}")
-    check_same(ref_map.provenance, read_provenance(path), "the map's descriptors",
+    check_same(ref_map.provenance, query_file_provenance(path), "the map's descriptors",
                f"the query descriptors {path.name}", allow)
     return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
 
@@ -187,6 +187,7 @@ def query_images(q: Query) -> tuple[bool, ImageList | None, np.ndarray | None]:
                           "is a descriptor file")
     if is_file:
         return True, None, None
+    check_not_dataset(q.path)
     images = list_images(q.path, q.topic, q.positions_topic)  # a wrong source or topic first: the user's to fix
     positions = None if q.positions_topic is None else query_positions(images, q.tolerance, q.path)
     return False, images, positions
