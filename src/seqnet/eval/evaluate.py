@@ -267,7 +267,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
                       *selection_leakage(loaded, dataset, ds, split)])
     leaks = leakage(loaded, dataset, ds, split)
     if conf.target_precision is not None:
-        leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True)
+        leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split)
     if leaks:
         ev.results["leakage"] = leaks
         for line in leaks:

@@ -30,12 +30,14 @@ from ..data.io import load_dataset
 from ..data.sanity import shared_queries
 from ..data.traverse import Dataset
 from ..methods.checks import accepted_mismatch
+from ..methods.trained import descriptor_digests
 from ..security.locks import locked
 from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
 from .guide import Budget, check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
 from .losses import LOSSES
+from .record import check_resumed, record_data
 from .route import split_warnings
 from .run import (
     Run,
@@ -44,14 +46,12 @@ from .run import (
     open_files,
     open_run,
     read_resume,
-    record_data,
     restored_config,
     run_dataset_path,
     stored_dataset_path,
 )
 from .rundir import RESTART, check_new, discard
 from .source import TripletSource, split_windows, triplet_source
-from .state import check_descriptors, check_digests, descriptor_digests
 
 torch = lazy_module("torch")
 
@@ -234,11 +234,8 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
     payload = None
     if resume:
         payload = read_resume(out_dir if resume is True else Path(resume))
-        check_descriptors(payload, dataset.reference.provenance, dataset.query.dim, out_dir, dataset.name,
-                          allow_mismatch)
-        if dataset_path is not None:  # the dataset given is that directory's: its recorded hashes
-            check_digests(payload, descriptor_digests(dataset_path), out_dir, dataset.name, allow_mismatch)
-        conf = restored_config(payload, conf)
+        conf = restored_config(payload, conf)  # then its descriptors and splits, those of the dataset now
+        check_resumed(payload, dataset, dataset_path, out_dir, conf, allow_mismatch)
         check_epochs_left(payload.get("epoch"), conf.epochs, out_dir)
         dataset_path = dataset_path or stored_dataset_path(payload)
         if RESTART in payload:  # no last.pt: nothing to resume, the run starts again with its configuration
