@@ -87,4 +87,4 @@ def check_resumed(payload: Mapping[str, Any], dataset: Dataset, dataset_path: st
     check_descriptors(payload, dataset.reference.provenance, dataset.query.dim, run, dataset.name, allow_mismatch)
     if dataset_path is not None:  # the dataset given is that directory's: its recorded hashes
         check_digests(payload, descriptor_digests(dataset_path), run, dataset.name, allow_mismatch)
-    pass  # F4-TMP
+    check_splits(payload, dataset, conf, run)
