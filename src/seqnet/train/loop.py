@@ -38,7 +38,7 @@ from .epoch import train_epoch
 from .guide import Budget, check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
 from .losses import LOSSES
 from .record import check_resumed, record_data
-from .route import split_warnings
+from .route import holds_test_queries, split_warnings
 from .run import (
     Run,
     check_epochs_left,
@@ -91,7 +91,7 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
     query has a positive and a negative): everything that can fail on the data fails here, before a run directory."""
     train_ds = _split(dataset, conf.train_split, "train")
     src = triplet_source(train_ds, conf.window_len, conf.window, conf.mining, device, conf.ref_pad)
-    for said in split_warnings(train_ds, conf):  # said before training
+    for said in [*split_warnings(train_ds, conf), *holds_test_queries(dataset, conf)]:  # said before training
         logger.warning("%s", said)
     if not conf.validates:
         return src, None
@@ -99,9 +99,6 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
     split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad)
     if said := shared_queries(dataset, [conf.train_split, conf.val_split]):
         logger.warning("the best epoch is chosen on queries it trains on: %s", said)
-    if conf.val_split.lower() == "test":  # the user's Test too
-        logger.warning("--val-split %s: choosing the epoch on the test split makes its test numbers optimistic "
-                       "(hint: --val-split val)", conf.val_split)
     return src, val_ds
 
 
