@@ -96,3 +96,21 @@ def test_the_checkpoint_records_what_identifies_its_training_queries(trained):
     t = load_model(ckpt).trained_on
     assert t["dataset_digests"] == descriptor_digests(data)
     assert t["query_names"] == names_digest(load_dataset(data).query.names)
+
+
+def test_the_calibration_hint_names_queries_free_of_training_not_the_split_in_use(synth_dataset, synth_dir):
+    """Calibrating on a val split that holds training queries: the hint was ``--calibrate-split val``, the split in
+    use; it names queries apart from training (and from the evaluated split), or says none are."""
+    ds = synth_dataset  # queries: train 0:105, val 105:141, test 141:197
+    record = {"dataset": str(synth_dir), "split": "0:120", "checkpoint": "r/best.pt", "val_split": "none"}
+    said = leakage({"s1": SimpleNamespace(trained_on=record)}, synth_dir, ds, "val", calibration=True,
+                   evaluated="test")
+    assert said == ["15 of the 36 calibration queries ('val', 105:141) are training queries of the S_1 model "
+                    "r/best.pt ('0:120', 0:120): a threshold calibrated on them is optimistic, its promise does not "
+                    "hold (hint: --calibrate-split 120:141 (queries free of the models' training and epoch-selection "
+                    "ones))"], said
+    record = {**record, "split": "0:130"}
+    said = leakage({"s1": SimpleNamespace(trained_on=record)}, synth_dir, ds, "val", calibration=True,
+                   evaluated="test")
+    assert said[0].endswith("(hint: no range of 20 or more queries is free of the models' training queries: retrain "
+                            "with --train-split / --val-split that leave queries apart for calibration)"), said
