@@ -199,3 +199,16 @@ def test_scored_notices_are_evals_for_another_stage(synth_dataset, synth_dir):
     assert len(said) == 2 and said[1].startswith(f"{b - a} of the {n} evaluated queries ('all', 0:{n}) are training "
                                                  "queries of the S_1 model run/best.pt"), said
     assert scored_notices("train", synth_dataset, "test", {}, synth_dir) == []
+
+
+def test_the_selection_hint_never_repeats_the_evaluated_split(synth_dataset, synth_dir):
+    """An epoch chosen on queries inside test, test evaluated: the hint said ``--split test`` (the split in use);
+    it now says to retrain apart from test, or names queries free of the model's training and selection ones."""
+    a, b = synth_dataset.ranges("test")["query"]
+    record = {"dataset": str(synth_dir), "split": "train", "checkpoint": "r/best.pt", "val_split": f"{a}:{a + 30}",
+              "val_queries": [a, a + 30]}
+    said = selection_leakage({"s1": SimpleNamespace(trained_on=record)}, synth_dir, synth_dataset, "test")
+    assert len(said) == 1 and "--split test" not in said[0], said
+    assert said[0].endswith(f"hint: retrain with --train-split / --val-split apart from the test split ({a}:{b}), "
+                            "or evaluate queries free of the models' training and epoch-selection ones: --split "
+                            "val"), said

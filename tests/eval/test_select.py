@@ -248,3 +248,21 @@ def test_a_small_val_split_is_said_and_a_large_enough_one_is_not(synth_dir, map_
     res2 = json.loads((tmp_path / "b.json").read_text())
     assert "warning" not in res2["selection"] and res2["selection"]["hvpr"] == res["selection"]["hvpr"]
     assert not any("mostly chance" in r.getMessage() for r in caplog.records)
+
+
+def test_settings_chosen_on_training_queries_are_said(synth_dataset, synth_dir):
+    """HVPR's K chosen on val queries that are training queries of a model: said like a calibration on them (it
+    was silent); a model trained apart from val stays silent."""
+    from types import SimpleNamespace
+
+    from seqnet.eval.select import Choice, training_choice
+
+    choice = [Choice("hvpr", {"top_k": 20}, 0.8, 0.8, [], 30, "")]
+    record = {"dataset": str(synth_dir), "split": "0:120", "checkpoint": "r/best.pt"}
+    said = training_choice({"s1": SimpleNamespace(trained_on=record)}, synth_dir, synth_dataset, choice)
+    assert said == ("HVPR settings of hvpr chosen on the val split (105:141, 36 queries), of which 15 are training "
+                    "queries of the S_1 model r/best.pt (0:120): the setting that suits what a model memorised wins "
+                    "(hint: give --top-k / --fuse-top-k / --fuse-weight yourself, or rebuild the dataset with a val "
+                    "split apart from the training queries)"), said
+    apart = {**record, "split": "train"}
+    assert training_choice({"s1": SimpleNamespace(trained_on=apart)}, synth_dir, synth_dataset, choice) is None

@@ -196,8 +196,8 @@ def test_the_training_queries_hint_names_a_split_that_exists(synth_dataset, tmp_
     caps = {"Train": s["train"], "Val": s["val"], "Test": s["test"]}
     assert said(caps, "Train")[0].endswith("(hint: --split Test)")
     assert said({"Train": s["train"], "Val": s["val"]}, "all")[0].endswith("(hint: --split Val)")
-    assert said({"Train": s["train"]}, "all")[0].endswith("(hint: --split A:B, a range of queries without training "
-                                                          "ones)")
+    assert said({"Train": s["train"]}, "all")[0].endswith("(hint: --split 105:197 (queries free of the models' "
+                                                          "training and epoch-selection ones))")
     assert said({"Train": s["train"], "test": s["test"]}, "all")[0].endswith("(hint: --split test)")
 
 

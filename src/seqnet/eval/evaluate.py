@@ -291,16 +291,16 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
-    chosen = (prepared or {}).get("selection", {}).get("warning")  # said once the evaluation has succeeded
+    chosen = [(prepared or {}).get("selection", {}).get(k) for k in ("warning", "leakage")]  # said once it succeeded
     flipped = transposed_positives(ds)  # the whole dataset's square positives; said instead of a shift
-    add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), chosen,
+    add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), *chosen,
                       *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
                       flipped or shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None),
                       trivial_ks(ev, conf.ks),
                       *selection_leakage(loaded, dataset, ds, split)])
     leaks = leakage(loaded, dataset, ds, split)
     if conf.target_precision is not None:
-        leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True)
+        leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split)
     if leaks:
         ev.results["leakage"] = leaks
         for line in leaks:

@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.errors import SeqnetError
 from ..core.log import logger
-from ..methods.checks import MAX_RECORD_TEXT, named_test_split, same_path, training_record
+from ..methods.checks import named_test_split, training_record
+from ..methods.trained import chosen_range, free_hint, used_ranges
 from ..metrics.shift import shifted_offset, top1_offsets
 from ..security.text import shown
 from .config import EvalConfig
@@ -55,7 +55,7 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
     lines = [split_note(given, list(ds.splits), len(ds.split(split).query)),
              *selection_leakage(models, dataset, ds, split), *leakage(models, dataset, ds, split)]
     if calibrate_split is not None:
-        lines += leakage(models, dataset, ds, calibrate_split, calibration=True)
+        lines += leakage(models, dataset, ds, calibrate_split, calibration=True, evaluated=split)
     return [line for line in lines if line]
 
 
@@ -149,57 +149,25 @@ def trivial_ks(ev: Evaluation, ks: Sequence[int]) -> str | None:
     return f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
 
 
-def _val_range(model: SeqNet, record: Mapping[str, str], ds: Dataset) -> tuple[str, tuple[int, int]] | None:
-    """The split a model chose its epoch on and its query range, as its checkpoint records them (``trained_on``'s
-    ``val_split`` and ``val_queries``: a checkpoint copied out of its run folder says it too); for a checkpoint
-    written before training recorded the range, that split's range in ``ds``; for one without a val split, the
-    ``config.json`` beside it (a run directory). None when unknown or not validated."""
-    t = getattr(model, "trained_on", None)
-    val = t.get("val_split") if isinstance(t, Mapping) else None
-    if not isinstance(val, str) or not val or len(val) > MAX_RECORD_TEXT:
-        return _run_config_range(record, ds)
-    if val.lower() == "none":
-        return None
-    q = t.get("val_queries")
-    if isinstance(q, list | tuple) and len(q) == 2 and all(type(v) is int and v >= 0 for v in q) and q[0] < q[1]:
-        return val, (q[0], q[1])
-    rng = ds.ranges(val)
-    return None if rng is None else (val, rng["query"])
-
-
-def _run_config_range(record: Mapping[str, str], ds: Dataset) -> tuple[str, tuple[int, int]] | None:
-    """The val split and its query range from the ``config.json`` beside the checkpoint (a run directory)."""
-    from ..security.jsonfile import read_json_object
-
-    path = Path(record["checkpoint"]).parent / "config.json"
-    try:
-        cfg = read_json_object(path, "run configuration") if path.is_file() else {}
-    except (SeqnetError, OSError):
-        return None
-    val = cfg.get("val_split")
-    if not isinstance(val, str) or val.lower() == "none" or cfg.get("dataset_path") != record["dataset"]:
-        return None
-    rng = ds.ranges(val)
-    return None if rng is None else (val, rng["query"])
-
-
 def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
-    """One line per model whose epoch was chosen on queries of ``dataset`` that the evaluated ``split`` holds."""
+    """One line per model whose epoch was chosen on queries of ``dataset`` that the evaluated ``split`` holds (the
+    val range its checkpoint recorded: :func:`seqnet.methods.trained.chosen_range`), with a hint naming queries free
+    of every model's training and epoch-selection ones, never the split in use."""
 
     a, b = ds.ranges(split)["query"]
+    trained, picked = used_ranges(models, dataset, ds)
     out = []
     for role, m in sorted(models.items()):
         t = training_record(m)
-        chosen = _val_range(m, t, ds) if t is not None and same_path(t["dataset"], dataset) else None
+        chosen = chosen_range(m, dataset, ds) if t is not None else None
         if chosen is None:
             continue
         val, (va, vb) = chosen
         both = max(0, min(b, vb) - max(a, va))
         if both:
-            test = named_test_split(ds.splits)
             hint = ("choosing the epoch on the test split makes its test numbers optimistic; hint: train with "
-                    "--val-split val" if val == test else
-                    f"hint: --split {test}" if test else "hint: evaluate queries apart from the val split")
+                    "--val-split val" if val == named_test_split(ds.splits) else
+                    f"hint: {free_hint(ds, trained, picked, split)}")
             out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are queries the "
                        f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} chose its epoch on ({val!r}, "
                        f"{va}:{vb}), so its results on them are optimistic: {hint}")

@@ -26,7 +26,9 @@ from ..core.errors import ConfigError
 from ..core.log import logger
 from ..core.stage import Written
 from ..data.traverse import Dataset
+from ..methods.checks import training_record
 from ..methods.grammar import FRAME_FEATURES, parse_method
+from ..methods.trained import train_range
 from ..metrics.recall import VAL_MIN
 from ..reference.traverse import TraverseReference
 from ..sequence.described import Described
@@ -202,16 +204,19 @@ def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: 
     first on the dataset's ``val`` split (:func:`choose_on_val`, on the dataset and models the evaluation loads)
     when an HVPR method is evaluated; what was chosen and why goes into the results (``"selection"``)."""
     hvpr = conf.methods is None or any(parse_method(n).kind == "hvpr" for n in conf.methods)
-    prepare = (lambda ds, split, loaded, c: choose_on_val(ds, split, loaded, c, choose)) if choose and hvpr else None
+    prepare = (lambda ds, split, loaded, c: choose_on_val(ds, split, loaded, c, choose, dataset)) \
+        if choose and hvpr else None
     return evaluate_main(conf, dataset, out, models, shortlist_model, rerank_model, prepare=prepare, **outputs)
 
 
 def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: EvalConfig,
-                  choose: Sequence[str]) -> tuple[EvalConfig, dict[str, Any] | None]:
+                  choose: Sequence[str], dataset: str | Path | None = None) -> tuple[EvalConfig, dict[str, Any] | None]:
     """``conf`` with the settings of ``choose`` chosen on ``ds``'s val split (:func:`select_hvpr`) for the
     evaluation of ``split``, and the results' ``"selection"`` entry (None: nothing to say). Without a val split,
     or evaluating val itself, nothing is chosen; nor when ``split`` holds val queries (``all``), or the choice
-    fails (no val query with a full window or a correct reference): the defaults kept, and said."""
+    fails (no val query with a full window or a correct reference): the defaults kept, and said. A choice made on
+    val queries that are training queries of the models (``ds`` the dataset directory ``dataset``) is said too
+    (``"leakage"``: :func:`training_choice`)."""
     if split == "val" or "val" not in (ds.splits or {}):
         return conf, None
     if holds_val_queries(ds, split):
@@ -224,10 +229,37 @@ def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: E
         logger.debug("HVPR settings not chosen on the val split: %s", e)
         return conf, {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split (the "
                                                                f"defaults kept): {e}"}}
+    leak = {"leakage": said} if dataset is not None and (said := training_choice(models, dataset, ds, choices)) \
+        else {}
     few = min((c.queries for c in choices), default=VAL_MIN)
     if few < VAL_MIN:  # chosen all the same, as training chooses its epoch: said (once evaluated), with the remedy
         said = (f"HVPR settings chosen on {few} val quer{'y' if few == 1 else 'ies'} (1 query = "
                 f"{1 / max(few, 1):.2f} of R@1): the choice is mostly chance; about {VAL_MIN} or more are needed, "
                 "or give --top-k / --fuse-top-k / --fuse-weight yourself")
-        return conf, {"selection": {"hvpr": [c.to_dict() for c in choices], "warning": said}}
-    return conf, ({"selection": {"hvpr": [c.to_dict() for c in choices]}} if choices else None)
+        return conf, {"selection": {"hvpr": [c.to_dict() for c in choices], "warning": said, **leak}}
+    return conf, ({"selection": {"hvpr": [c.to_dict() for c in choices], **leak}} if choices else None)
+
+
+def training_choice(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset,
+                    choices: Sequence[Choice]) -> str | None:
+    """The line for HVPR settings (``choices``) chosen on val queries of ``ds`` (directory ``dataset``) that are
+    training queries of the models (the range each checkpoint recorded:
+    :func:`seqnet.methods.trained.train_range`): the setting that suits what a model memorised wins, as a
+    threshold calibrated on them promises too much; None when none is, or nothing was chosen."""
+    rng = ds.ranges("val")
+    if not choices or rng is None:
+        return None
+    a, b = rng["query"]
+    said = []
+    for role, m in sorted(models.items()):
+        t, trained = training_record(m), train_range(m, dataset, ds)
+        both = max(0, min(b, trained[1]) - max(a, trained[0])) if t is not None and trained is not None else 0
+        if both:
+            said.append(f"{both} are training queries of the {'S_1' if role == 's1' else 'S_L'} model "
+                        f"{t['checkpoint']} ({trained[0]}:{trained[1]})")
+    if not said:
+        return None
+    return (f"HVPR settings of {', '.join(c.method for c in choices)} chosen on the val split ({a}:{b}, {b - a} "
+            f"queries), of which {'; '.join(said)}: the setting that suits what a model memorised wins (hint: give "
+            "--top-k / --fuse-top-k / --fuse-weight yourself, or rebuild the dataset with a val split apart from "
+            "the training queries)")

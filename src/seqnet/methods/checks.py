@@ -16,6 +16,7 @@ from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import longest_option
 from .grammar import Method
 from .route import REVERSED_BELOW, TRIVIAL_SHARE, reversed_route, route_direction, trivial_truth  # noqa: F401
+from .trained import free_hint, train_range, used_ranges
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -145,27 +146,32 @@ def model_lengths(models: Mapping[str, SeqNet]) -> dict[str, int]:
 
 
 def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
-            calibration: bool = False) -> list[str]:
+            calibration: bool = False, evaluated: str | None = None) -> list[str]:
     """One line per model trained on queries of ``dataset`` that the evaluated ``split`` (``calibration``: the
-    split a confidence threshold is calibrated on) contains too."""
+    split a confidence threshold is calibrated on, for the evaluation of ``evaluated``) contains too: the train
+    range its checkpoint recorded wherever the same descriptors are read (:func:`seqnet.methods.trained.train_range`),
+    and a hint naming queries free of every model's training and epoch-selection ones
+    (:func:`seqnet.methods.trained.free_hint`), never the split in use."""
     a, b = ds.ranges(split)["query"]
+    trained, chosen = used_ranges(models, dataset, ds)
     out = []
     for role, m in sorted(models.items()):
         t = training_record(m)
-        if t is None or not same_path(t["dataset"], dataset):
+        rng = train_range(m, dataset, ds) if t is not None else None
+        both = max(0, min(b, rng[1]) - max(a, rng[0])) if rng is not None else 0
+        if not both:
             continue
-        trained = ds.ranges(t["split"])
-        if trained is None:
-            continue
-        ta, tb = trained["query"]
-        both = max(0, min(b, tb) - max(a, ta))
-        if both:
-            what = "calibration" if calibration else "evaluated"
-            out.append(f"{both} of the {b - a} {what} queries ({split!r}, {a}:{b}) are training queries of the "
-                       f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} ({t['split']!r}, {ta}:{tb}): " + (
-                           "a threshold calibrated on them is optimistic, its promise does not hold (hint: "
-                           "--calibrate-split val)" if calibration else
-                           f"its results on them are not a test (hint: {_test_hint(ds, (ta, tb))})"))
+        now = ds.ranges(t["split"])
+        when = "" if now is not None and tuple(now["query"]) == rng else " when it was trained"
+        if calibration:
+            avoid = [ds.ranges(evaluated)["query"]] if ds.ranges(evaluated) is not None else []
+            tail = ("a threshold calibrated on them is optimistic, its promise does not hold (hint: "
+                    f"{free_hint(ds, trained, chosen, split, '--calibrate-split', avoid)})")
+        else:
+            tail = f"its results on them are not a test (hint: {free_hint(ds, trained, chosen, split)})"
+        out.append(f"{both} of the {b - a} {'calibration' if calibration else 'evaluated'} queries ({split!r}, "
+                   f"{a}:{b}) are training queries of the {'S_1' if role == 's1' else 'S_L'} model "
+                   f"{t['checkpoint']} ({t['split']!r}{when}, {rng[0]}:{rng[1]}): {tail}")
     return out
 
 
@@ -173,16 +179,6 @@ def named_test_split(splits: Iterable[str]) -> str | None:
     """The split that is the test split: ``test``, else one named so in another case (``Test``); None."""
     splits = list(splits)
     return "test" if "test" in splits else next((s for s in splits if s.lower() == "test"), None)
-
-
-def _test_hint(ds: Dataset, trained: tuple[int, int]) -> str:
-    """``--split S`` with S a split of ``ds`` to test on: its test split, else one without training queries."""
-    test = named_test_split(ds.splits)
-    if test is None:
-        apart = [s for s in ds.splits if (r := ds.ranges(s)) and min(r["query"][1], trained[1]) <= max(
-            r["query"][0], trained[0])]
-        return f"--split {apart[0]}" if apart else "--split A:B, a range of queries without training ones"
-    return f"--split {test}"
 
 
 MAX_RECORD_TEXT = 4096

@@ -6,6 +6,9 @@ seqnet format (``RUN/last.pt``, ``RUN/best.pt``), a ``torch.save`` dict::
      "state_dict": {"conv.weight": [D_out, D, w], "conv.bias": [D_out]}, "epoch", "best_score",
      "best_epoch", "metrics", "config" (TrainConfig.to_dict()), "dataset_path",
      "val_queries": [a, b) the val split's queries (the best epoch's; None without validation),
+     "train_queries" / "train_references": [a, b) the train split's queries / references, "val_references",
+     "query_names": "N:HASH" of the query traverse's image names (None without names), "dataset_digests": the
+     descriptor files' recorded hashes: what identifies the training queries wherever the data are read again,
      "train_state" (last.pt only): {optimiser, scheduler, generator state, negative cache, ...}}
 
 Original format (``checkpoint.pth.tar`` / ``model_best.pth.tar``): ``{"state_dict":
@@ -78,7 +81,8 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
     The model's ``provenance`` is that of the descriptors it was trained on (None when unknown), its
     ``trained_on`` the dataset directory and split of its training queries, the split its epoch was chosen on
     (``val_split``, ``"none"`` without validation) and that split's query range (``val_queries``, ``[a, b]``;
-    None for checkpoints written before training recorded it) (None when unknown).
+    None for checkpoints written before training recorded it), the train split's query range (``train_queries``)
+    and what identifies those queries (``query_names``, ``dataset_digests``) (None when unknown)
     """
     payload = read_checkpoint(path)
     fmt = payload.get("format")
@@ -91,7 +95,8 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
         config = payload.get("config") if isinstance(payload.get("config"), dict) else {}
         model.trained_on = {"dataset": payload.get("dataset_path"), "split": config.get("train_split"),
                             "checkpoint": str(path), "val_split": config.get("val_split"),
-                            "val_queries": payload.get("val_queries")} if payload.get("dataset_path") else None
+                            **{k: payload.get(k) for k in ("val_queries", "train_queries", "query_names",
+                                                           "dataset_digests")}} if payload.get("dataset_path") else None
     else:
         model = _from_original(payload, Path(path), seq_len)
     if in_dims is not None and in_dims != model.in_dims:

@@ -30,13 +30,15 @@ from ..data.io import load_dataset
 from ..data.sanity import shared_queries
 from ..data.traverse import Dataset
 from ..methods.checks import accepted_mismatch
+from ..methods.trained import descriptor_digests
 from ..security.locks import locked
 from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
 from .guide import Budget, check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
 from .losses import LOSSES
-from .route import split_warnings
+from .record import check_resumed, record_data
+from .route import holds_test_queries, split_warnings
 from .run import (
     Run,
     check_epochs_left,
@@ -44,14 +46,12 @@ from .run import (
     open_files,
     open_run,
     read_resume,
-    record_data,
     restored_config,
     run_dataset_path,
     stored_dataset_path,
 )
 from .rundir import RESTART, check_new, discard
 from .source import TripletSource, split_windows, triplet_source
-from .state import check_descriptors, check_digests, descriptor_digests
 
 torch = lazy_module("torch")
 
@@ -91,7 +91,7 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
     query has a positive and a negative): everything that can fail on the data fails here, before a run directory."""
     train_ds = _split(dataset, conf.train_split, "train")
     src = triplet_source(train_ds, conf.window_len, conf.window, conf.mining, device, conf.ref_pad)
-    for said in split_warnings(train_ds, conf):  # said before training
+    for said in [*split_warnings(train_ds, conf), *holds_test_queries(dataset, conf)]:  # said before training
         logger.warning("%s", said)
     if not conf.validates:
         return src, None
@@ -99,9 +99,6 @@ def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[
     split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad)
     if said := shared_queries(dataset, [conf.train_split, conf.val_split]):
         logger.warning("the best epoch is chosen on queries it trains on: %s", said)
-    if conf.val_split.lower() == "test":  # the user's Test too
-        logger.warning("--val-split %s: choosing the epoch on the test split makes its test numbers optimistic "
-                       "(hint: --val-split val)", conf.val_split)
     return src, val_ds
 
 
@@ -234,11 +231,8 @@ def _claim(held: contextlib.ExitStack, dataset: Dataset, conf: TrainConfig | Non
     payload = None
     if resume:
         payload = read_resume(out_dir if resume is True else Path(resume))
-        check_descriptors(payload, dataset.reference.provenance, dataset.query.dim, out_dir, dataset.name,
-                          allow_mismatch)
-        if dataset_path is not None:  # the dataset given is that directory's: its recorded hashes
-            check_digests(payload, descriptor_digests(dataset_path), out_dir, dataset.name, allow_mismatch)
-        conf = restored_config(payload, conf)
+        conf = restored_config(payload, conf)  # then its descriptors and splits, those of the dataset now
+        check_resumed(payload, dataset, dataset_path, out_dir, conf, allow_mismatch)
         check_epochs_left(payload.get("epoch"), conf.epochs, out_dir)
         dataset_path = dataset_path or stored_dataset_path(payload)
         if RESTART in payload:  # no last.pt: nothing to resume, the run starts again with its configuration

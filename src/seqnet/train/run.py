@@ -42,7 +42,6 @@ from .state import restore
 torch = lazy_module("torch")
 
 if TYPE_CHECKING:
-    from ..data.traverse import Dataset
     from ..sequence.model import SeqNet
 
 @dataclasses.dataclass
@@ -61,7 +60,7 @@ class Run:
     out_dir: Path
     dataset_path: str | None = None
     dataset_digests: dict[str, str] | None = None  # the descriptor files' recorded hashes (train.state)
-    val_queries: list[int] | None = None  # [a, b): the val split's queries, the best epoch's (None: no val)
+    record: dict[str, Any] = dataclasses.field(default_factory=dict)  # train/val ranges (train.record.data_record)
     writer: Any = None
     epoch: int = 0
     best_score: float = -math.inf
@@ -199,14 +198,6 @@ def open_run(conf: TrainConfig, n_queries: int, in_dims: int, device: torch.devi
     return run
 
 
-def record_data(run: Run, dataset: Dataset) -> None:
-    """What the run's checkpoints record of ``dataset``: its descriptors' provenance (what the model reads) and the
-    query range of the val split (the queries the best epoch is chosen on: eval warns on them, the checkpoint alone)."""
-    run.model.provenance = dataset.reference.provenance
-    rng = dataset.ranges(run.conf.val_split) if run.conf.validates else None
-    run.val_queries = [int(v) for v in rng["query"]] if rng else None
-
-
 def open_files(run: Run) -> None:
     """Create the run directory, record it in its manifest (:func:`seqnet.train.rundir.claim`), remove the
     temporary files a killed run left there, write ``config.json`` (when resuming, saying where the old one
@@ -246,7 +237,7 @@ def finish_epoch(run: Run, epoch: int, stats: Mapping[str, float], metrics: Mapp
     run.history.append({"epoch": epoch, "lr": lr, **stats, **metrics})
     fields = {"epoch": epoch, "best_score": run.best_score, "best_epoch": run.best_epoch, "metrics": dict(metrics),
               "config": run.conf.to_dict(), "dataset_path": run.dataset_path, "dataset_digests": run.dataset_digests,
-              "val_queries": run.val_queries}
+              **run.record}
     if run.world.is_rank0:
         if improved:
             _save(run, "best.pt", fields)

@@ -22,7 +22,6 @@ from ..core.errors import CheckpointError
 from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.provenance import ProvenanceError, check_same
-from ..data.io import recorded_digests
 from ..security.limits import INDEX_MAX, number
 
 torch = lazy_module("torch")
@@ -116,22 +115,10 @@ def check_descriptors(payload: Mapping[str, Any], provenance: dict | None, dim: 
                    f"the descriptors of dataset {dataset!r}", allow)
 
 
-def descriptor_digests(path: str | Path | None) -> dict[str, str] | None:
-    """The hashes seqnet recorded for the descriptor files of the dataset directory ``path`` (``checksums`` of its
-    ``dataset.json``): ``{"reference/descriptors.npy": "SIZE:HASH", ...}``; None when none are recorded."""
-    if path is None:
-        return None
-    out = {name: f"{entry.get('size')}:{entry.get('full') or entry.get('sample')}"
-           for name, entry in recorded_digests(path).items()
-           if isinstance(name, str) and isinstance(entry, Mapping)
-           and name.rsplit("/", 1)[-1].startswith("descriptors.")}
-    return out or None
-
-
 def check_digests(payload: Mapping[str, Any], now: Mapping[str, str] | None, run: Path, dataset: str,
                   allow: bool = False) -> None:
     """The run in ``run`` (its ``last.pt``, ``payload``, recording ``dataset_digests``) resumed on dataset
-    ``dataset`` whose descriptor files hash to ``now`` (:func:`descriptor_digests`): a
+    ``dataset`` whose descriptor files hash to ``now`` (:func:`seqnet.methods.trained.descriptor_digests`): a
     :class:`~seqnet.core.provenance.ProvenanceError` naming the files that changed (``allow``: a warning);
     nothing is checked when either side recorded no hashes."""
     then = payload.get("dataset_digests")
