@@ -23,7 +23,8 @@ from ..core.stage import Written
 from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse, default_split
-from ..eval.evaluate import EvalConfig, Evaluation, run
+from ..eval.evaluate import EvalConfig, Evaluation
+from ..eval.loop import run
 from ..eval.notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
 from ..eval.outputs import EvalOutputs
 from ..methods.grammar import Method, parse_method
@@ -159,7 +160,7 @@ def _shortlist_recall(mp: Map, q_short: np.ndarray, top_k: int) -> Callable[[Met
 
 def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evaluation:
     """Evaluate the query side ``q`` against the map ``mp`` (methods: :meth:`Map.served`): the
-    evaluation loop of :func:`seqnet.eval.evaluate.run` with the map as the reference."""
+    evaluation loop of :func:`seqnet.eval.loop.run` with the map as the reference."""
     conf = conf or EvalConfig()
     methods = check_conf(mp, conf)
     mp.check_query(q.traverse.dim, q.traverse.provenance, conf.allow_mismatch)
