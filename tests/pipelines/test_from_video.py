@@ -90,6 +90,7 @@ def test_every_metres_and_frames_outside_the_track(drives, tmp_path):
     ds = load_dataset(out)
     assert len(ds.reference) == N // 4 and len(ds.query) == N // 2  # 10 m spacing, one frame per 20 m
     assert ds.extra["videos"]["reference"]["frames"] == {"total": N, "outside": N // 2, "kept": N // 4}
+    assert ds.extra["videos"]["query"]["stream"] == 0  # the video stream read, recorded
     steps = np.linalg.norm(np.diff(ds.query.positions, axis=0), axis=1)
     np.testing.assert_allclose(steps, 20.0, rtol=0.01)
 

@@ -88,12 +88,13 @@ def _flag(s: Sampling) -> str:
 def place_track(video: str | Path, positions: str | Path, start: Any, zone: tuple[int, str] | None,
                 r_pos: np.ndarray, radius: float, every_metres: float | None,
                 on_frame: Callable[[str], None] | None = None,
-                max_gap: float | None = None) -> tuple[JoinedTrack, np.ndarray | None]:
+                max_gap: float | None = None, stream: int = 0) -> tuple[JoinedTrack, np.ndarray | None]:
     """The track ``positions`` on the video file ``video`` (recorded from ``start``, a datetime or None), in the
     UTM ``zone`` of the map whose reference positions are ``r_pos [R, 2]``: refused (:class:`DatasetError`) when it
     places no frame, or none within ``radius`` of the map's route. With the track, the video times of the frames
     ``every_metres`` keeps (None without it).
-    ``on_frame`` checks the frame of the track's positions (e.g. the map's UTM zone) before they are compared."""
+    ``on_frame`` checks the frame of the track's positions (e.g. the map's UTM zone) before they are compared;
+    ``stream``: the video stream read (the number :func:`seqnet.sources.video.choose_stream` chose)."""
     from ..sources.placed import join_track
     from ..sources.sampling import every_metres as by_metres
     from ..sources.tracks.clock import check_placed
@@ -101,7 +102,7 @@ def place_track(video: str | Path, positions: str | Path, start: Any, zone: tupl
     from ..sources.video import VideoFile
 
     gap = DEFAULT_MAX_GAP if max_gap is None else max_gap
-    v = VideoFile(video)
+    v = VideoFile(video, stream)
     track = join_track(positions, start, v.duration, zone)
     if on_frame is not None:
         on_frame(track.frame)

@@ -40,7 +40,7 @@ class VideoOptions:
     """How a video query is read: ``fps`` kept per second or one frame per ``every_metres`` travelled (neither: as
     the map's video was sampled, :func:`seqnet.localize.track.resolve_sampling`), ``realtime`` pacing, a
     ``positions`` track for ground truth (``video_start``: when the video's first frame was recorded, ISO-8601),
-    the stall ``timeout`` (s)."""
+    the stall ``timeout`` (s), which video ``stream`` of a file (None: the first that is not a cover picture)."""
 
     fps: float | None = None
     every_metres: float | None = None
@@ -48,6 +48,7 @@ class VideoOptions:
     positions: Path | None = None
     video_start: str | None = None
     timeout: float = 10.0
+    stream: int | None = None
 
 
 class VideoQuery:
@@ -61,7 +62,8 @@ class VideoQuery:
         self.name, self.opts = name, opts
         self.describer, self._check = map_describer(ref_map, allow, describer, map_dir, resize)
         self.sampling = resolve_sampling(opts.fps, opts.every_metres, recorded, opts.positions is not None)
-        self.source: FrameStream = FrameStream(name, self.sampling.fps, opts.realtime, opts.timeout)
+        self.source: FrameStream = FrameStream(name, self.sampling.fps, opts.realtime, opts.timeout,
+                                                 stream=opts.stream)
         self.track: JoinedTrack | None = None  # a video file's --positions, joined before any frame (prepare)
         self.kept: np.ndarray | None = None  # the video times --every-metres keeps (None: sampled by time)
         self.names: list[str] = []
@@ -98,7 +100,7 @@ class VideoQuery:
 
         self.track, self.kept = place_track(
             self.name, self.opts.positions, self._start(), frame_zone(mf.frame), r_pos, radius,
-            self.sampling.every_metres,
+            self.sampling.every_metres, stream=self.source.stream_number,
             on_frame=lambda frame: check_frame(mf, frame, map_path, str(self.opts.positions)))
 
     def _start(self) -> Any:
@@ -163,6 +165,7 @@ def check_options(opts: VideoOptions, video: bool, query: str) -> None:
         return
     for flag, value in (("--fps", opts.fps), ("--every-metres", opts.every_metres),
                         ("--realtime", opts.realtime or None), ("--positions", opts.positions),
+                        ("--stream", opts.stream),
                         ("--video-start", opts.video_start)):
         if value is not None:
             hint = "; hint: for images with positions, build a dataset (seqnet dataset from-images REF QUERY " \

@@ -25,13 +25,15 @@ from .video import VideoFile, VideoFrame
 @dataclasses.dataclass
 class Placed:
     """Frames of one video: ``frames`` (:class:`VideoFrame` s), ``names``, ``positions [K, 2]`` metres in
-    ``frame`` (None without a track), and the counts ``total`` / ``outside`` (dropped: no position) / ``kept``."""
+    ``frame`` (None without a track), the counts ``total`` / ``outside`` (dropped: no position) / ``kept``, and
+    ``stream``: the number of the video stream read (0: the file's first)."""
 
     frames: list[VideoFrame]
     names: list[str]
     positions: np.ndarray | None
     frame: str | None
     counts: dict[str, int]
+    stream: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,12 +71,14 @@ def track_positions(positions: str | Path, times: np.ndarray, start: datetime.da
 
 def place_video(path: str | Path, positions: str | Path | None = None, fps: float | None = None,
                 every_metres: float | None = None, video_start: datetime.datetime | None = None,
-                zone: tuple[int, str] | None = None, max_gap: float = DEFAULT_MAX_GAP) -> Placed:
+                zone: tuple[int, str] | None = None, max_gap: float = DEFAULT_MAX_GAP, stream: int | None = None,
+                flag: str = "--stream") -> Placed:
     """The frames of the video ``path`` kept and placed (see the module docstring); ``video_start`` overrides the
-    container's ``creation_time``; ``zone``: the UTM zone positions are computed in (default: the track's)."""
+    container's ``creation_time``; ``zone``: the UTM zone positions are computed in (default: the track's);
+    ``stream``: which of its video streams (:func:`~seqnet.sources.video.choose_stream`, ``flag`` names it)."""
     if every_metres is not None and positions is None:
         raise ConfigError("--every-metres needs positions (--ref-positions / --query-positions FILE)")
-    video = VideoFile(path)
+    video = VideoFile(path, stream, flag)
     idx = np.arange(len(video))
     xy, frame = None, None
     if positions is not None:
@@ -94,5 +98,6 @@ def place_video(path: str | Path, positions: str | Path | None = None, fps: floa
         logger.warning("%s: %d of %d frames lie outside the track %s (no position): dropped", path,
                        counts["outside"], counts["total"], positions)
     frames = [VideoFrame(video, int(i)) for i in idx]
-    return Placed(frames, [f.name for f in frames], None if xy is None else xy[idx], frame, counts)
+    return Placed(frames, [f.name for f in frames], None if xy is None else xy[idx], frame, counts,
+                  video.stream_number)
 
