@@ -136,3 +136,21 @@ def test_two_fixes_at_one_time_are_warned_or_refused(tmp_path, caplog, metres, o
         track = read_track(path)
     assert len(track.times) == 30 and track.coords[15, 0] == pytest.approx(lat[15])
     assert ("up to 110 m apart (at 1.5 s)" in caplog.text) == (outcome == "warned"), caplog.text
+
+
+@pytest.mark.parametrize("sep, bom", [(";", ""), ("\t", ""), (",", "\ufeff"), (";", "\ufeff")])
+def test_csv_tracks_read_as_positions_csvs_do(tmp_path, sep, bom):
+    times, lat, lon = _samples(6)
+    want = read_track(write_track_csv(tmp_path / "plain.csv", times, lat, lon))
+    text = (tmp_path / "plain.csv").read_text().replace(",", sep).replace("time", "Time", 1)
+    (tmp_path / "other.csv").write_text(bom + text, encoding="utf-8")
+    got = read_track(tmp_path / "other.csv")
+    np.testing.assert_array_equal(got.times, want.times)
+    np.testing.assert_array_equal(got.coords, want.coords)
+
+
+def test_decimal_commas_in_a_track_are_named(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("time;lat;lon\n0;63,43;10,39\n")
+    with pytest.raises(DatasetError, match="decimal commas"):
+        read_track(p)

@@ -1,5 +1,8 @@
 """CSV tracks: a header with a time column and either latitude / longitude (degrees) or x / y (metres).
 
+Fields are separated by ``,``, ``;`` or a tab (as the header is: :func:`seqnet.data.readers.field_separator`, as
+positions CSVs), and a UTF-8 byte-order mark (Excel's "CSV UTF-8") is dropped.
+
 * time (``time``, ``t``, ``timestamp``, ``seconds``): numbers are seconds since the video's start; ISO-8601
   times (``2024-05-01T10:00:00.5Z``; one without a zone is UTC) are absolute and join the video by its clock.
 * ``lat`` / ``latitude`` and ``lon`` / ``lng`` / ``longitude``; or ``easting`` / ``northing``, ``x`` / ``y``
@@ -12,6 +15,7 @@ import csv
 import io
 
 from ...core.errors import DatasetError
+from ...data.readers import field_separator
 from ...security.text import shown
 from ..times import parse_iso, utc_seconds
 from .base import Track, track_of
@@ -38,9 +42,11 @@ def _time(text: str, where: str) -> tuple[float, bool]:
 
 
 def _rows(text: str, source: str) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    text = text.removeprefix("\ufeff")
+    first = next((line for line in text.splitlines() if line.strip()), "")
     try:
-        rows = [(n, r) for n, r in enumerate(csv.reader(io.StringIO(text, newline="")), start=1)
-                if r and any(c.strip() for c in r)]
+        reader = csv.reader(io.StringIO(text, newline=""), delimiter=field_separator(first) or ",")
+        rows = [(n, r) for n, r in enumerate(reader, start=1) if r and any(c.strip() for c in r)]
     except csv.Error as e:
         raise DatasetError(f"{shown(source)}: not a valid CSV file ({' '.join(str(e).split())[:200]})") from e
     if len(rows) < 2:
@@ -69,8 +75,9 @@ def parse_csv(text: str, source: str) -> Track:
         try:
             coords.append((float(r[cols[0]]), float(r[cols[1]])))
         except ValueError as e:
+            comma = " (decimal commas? write 63.43, not 63,43)" if "," in r[cols[0]] + r[cols[1]] else ""
             raise DatasetError(f"{where}: position {shown(r[cols[0]])[:40]}, {shown(r[cols[1]])[:40]} is not two "
-                               "numbers") from e
+                               f"numbers{comma}") from e
         times.append(t)
     if len(kinds) > 1:
         raise DatasetError(f"{shown(source)}: some times are seconds and some ISO-8601 times; one kind per track")
