@@ -154,3 +154,34 @@ def test_decimal_commas_in_a_track_are_named(tmp_path):
     p.write_text("time;lat;lon\n0;63,43;10,39\n")
     with pytest.raises(DatasetError, match="decimal commas"):
         read_track(p)
+
+
+@pytest.mark.parametrize("per_second, unit", [(1, "seconds"), (1e3, "milliseconds"), (1e6, "microseconds"),
+                                              (1e9, "nanoseconds")])
+def test_unix_epoch_numbers_are_absolute_times(tmp_path, per_second, unit):
+    times, lat, lon = _samples(6)
+    iso = read_track(write_track_csv(tmp_path / "iso.csv", times, lat, lon, t0=T0))
+    stamps = [f"{(T0.timestamp() + t):.3f}" if per_second == 1 else f"{round((T0.timestamp() + t) * per_second)}"
+              for t in times]  # seconds with decimals; the smaller units as integers, as loggers write them
+    (tmp_path / "epoch.csv").write_text("timestamp,lat,lon\n" + "".join(
+        f"{s},{a:.9f},{b:.9f}\n" for s, a, b in zip(stamps, lat, lon, strict=True)))
+    track = read_track(tmp_path / "epoch.csv")
+    assert track.absolute and track.epoch == unit
+    np.testing.assert_allclose(track.times, iso.times, atol=1e-6)
+    np.testing.assert_allclose(video_times(track, T0, 60.0), times, atol=1e-6)  # placed by the video's clock
+    with pytest.raises(ConfigError, match=f"absolute times \\(Unix epoch {unit}: 2024-05-01 10:00:00 UTC on\\), "
+                                          "but the video records no creation_time; give its start with --video-start"):
+        video_times(track, None, 60.0)
+
+
+def test_seconds_since_the_start_stay_relative(tmp_path):
+    times, lat, lon = _samples(6)
+    for offset in (0.0, 1e6, 3e8):  # however long the log ran before the video: never an epoch time
+        track = read_track(write_track_csv(tmp_path / "rel.csv", times + offset, lat, lon))
+        assert not track.absolute and not track.epoch
+
+
+@pytest.mark.parametrize("per_second, unit", [(1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")])
+def test_the_unit_of_times_since_the_start_is_guessed_from_the_ratio(per_second, unit):
+    t = np.arange(0, 20, 0.1) * per_second  # a 20 s track since the video's start, in a smaller unit
+    assert f"times in {unit}?" in why_outside(t, 20.0, 10.0)

@@ -1,10 +1,10 @@
 """Joining a track's clock to a video's: every track time as seconds since the video's first frame.
 
 A track in seconds since the video's start (a CSV of numbers) is taken as it is. A track of absolute times (GPX,
-NMEA, ISO-8601 CSV) is placed by the video's own clock, the time its first frame was recorded: the container's
-``creation_time``, or ``--video-start`` (which wins: a phone may store the end of the recording, or local time
-as UTC). A track that does not overlap the video is refused, never shifted: another day's track by its date,
-the same day's by both time spans.
+NMEA, ISO-8601 or Unix epoch times in a CSV) is placed by the video's own clock, the time its first frame was
+recorded: the container's ``creation_time``, or ``--video-start`` (which wins: a phone may store the end of the
+recording, or local time as UTC). A track that does not overlap the video is refused, never shifted: another
+day's track by its date, the same day's by both time spans.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from .base import Track
 
 DAY = 86400.0
 MS_RATIO = 200.0  # a track spanning this many times the video's length: its times are probably milliseconds
+UNIT_RATIOS = ((2e5, "milliseconds"), (2e8, "microseconds"), (float("inf"), "nanoseconds"))  # span / duration below
 
 
 def parse_start(text: str) -> datetime.datetime:
@@ -42,8 +43,9 @@ def video_times(track: Track, start: datetime.datetime | None, duration: float) 
     if not track.absolute:
         return track.times
     if start is None:
-        raise ConfigError(f"{shown(track.source)} has absolute times, but the video records no creation_time; give "
-                          "its start with --video-start ISO-8601 (e.g. 2024-05-01T10:00:00Z)")
+        kind = f" (Unix epoch {track.epoch}: {_utc(track.times[0])} UTC on)" if track.epoch else ""
+        raise ConfigError(f"{shown(track.source)} has absolute times{kind}, but the video records no creation_time; "
+                          "give its start with --video-start ISO-8601 (e.g. 2024-05-01T10:00:00Z)")
     t0 = start.timestamp()
     times = track.times
     if not track.dated:  # NMEA GGA only: times of day, taken on the video's (UTC) day
@@ -63,9 +65,20 @@ def video_times(track: Track, start: datetime.datetime | None, duration: float) 
 
 def in_milliseconds(track_times: np.ndarray, duration: float) -> bool:
     """Whether a track of sorted times ``[S]`` spans far more than the ``duration`` s video it goes with
-    (:data:`MS_RATIO` times): times written in milliseconds, read as seconds."""
+    (:data:`MS_RATIO` times): times written in milliseconds (or a smaller unit: :func:`time_unit`), read as
+    seconds."""
+    return time_unit(track_times, duration) is not None
+
+
+def time_unit(track_times: np.ndarray, duration: float) -> str | None:
+    """The unit the times ``[S]`` (sorted) of a track far longer than its ``duration`` s video were probably
+    written in, by the ratio of the spans (about 1e3: ``milliseconds``, 1e6: ``microseconds``, 1e9:
+    ``nanoseconds``; :data:`UNIT_RATIOS`); None when the spans are alike (under :data:`MS_RATIO` times)."""
     t = np.asarray(track_times, np.float64)
-    return bool(len(t) > 1 and duration > 0 and t[-1] - t[0] > MS_RATIO * duration)
+    if not (len(t) > 1 and duration > 0 and t[-1] - t[0] > MS_RATIO * duration):
+        return None
+    ratio = (t[-1] - t[0]) / duration
+    return next(name for bound, name in UNIT_RATIOS if ratio < bound)
 
 
 def why_outside(track_times: np.ndarray, duration: float, max_gap: float) -> str:
@@ -73,9 +86,10 @@ def why_outside(track_times: np.ndarray, duration: float, max_gap: float) -> str
     first frame): times in milliseconds, frames inside a gap longer than ``max_gap``, or no overlap."""
     t = np.asarray(track_times, np.float64)
     span = float(t[-1] - t[0]) if len(t) else 0.0
-    if in_milliseconds(t, duration):
-        return (f"the track spans {span:.0f} s against a video of {duration:.1f} s: times in milliseconds? (numeric "
-                "times are read as seconds since the video's start)")
+    unit = time_unit(t, duration)
+    if unit is not None:
+        return (f"the track spans {span:.0f} s against a video of {duration:.1f} s: times in {unit}? (numeric "
+                "times are read as seconds since the video's start, unless they are Unix epoch times)")
     gaps = np.diff(t)
     inside = (t[:-1] < duration) & (t[1:] > 0) & (gaps > max_gap)
     if inside.any():

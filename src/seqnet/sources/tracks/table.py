@@ -3,8 +3,10 @@
 Fields are separated by ``,``, ``;`` or a tab (as the header is: :func:`seqnet.data.readers.field_separator`, as
 positions CSVs), and a UTF-8 byte-order mark (Excel's "CSV UTF-8") is dropped.
 
-* time (``time``, ``t``, ``timestamp``, ``seconds``): numbers are seconds since the video's start; ISO-8601
-  times (``2024-05-01T10:00:00.5Z``; one without a zone is UTC) are absolute and join the video by its clock.
+* time (``time``, ``t``, ``timestamp``, ``seconds``): numbers are seconds since the video's start, but for Unix
+  epoch times (seconds around 1.7e9, or milliseconds, microseconds, nanoseconds: :func:`.base.epoch_unit`),
+  which are absolute, as ISO-8601 times (``2024-05-01T10:00:00.5Z``; one without a zone is UTC) are: they join
+  the video by its clock.
 * ``lat`` / ``latitude`` and ``lon`` / ``lng`` / ``longitude``; or ``easting`` / ``northing``, ``x`` / ``y``
   (metres, in the track's own frame).
 """
@@ -12,13 +14,16 @@ positions CSVs), and a UTF-8 byte-order mark (Excel's "CSV UTF-8") is dropped.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
+
+import numpy as np
 
 from ...core.errors import DatasetError
 from ...data.readers import field_separator
 from ...security.text import shown
 from ..times import parse_iso, utc_seconds
-from .base import Track, track_of
+from .base import Track, epoch_unit, track_of
 
 TIME_COLUMNS = ("time", "t", "timestamp", "seconds")
 COORDINATES = ((("lat", "latitude"), ("lon", "lng", "longitude")), (("easting", "x"), ("northing", "y")))
@@ -81,4 +86,9 @@ def parse_csv(text: str, source: str) -> Track:
         times.append(t)
     if len(kinds) > 1:
         raise DatasetError(f"{shown(source)}: some times are seconds and some ISO-8601 times; one kind per track")
-    return track_of(times, coords, source, absolute=kinds.pop(), geographic=geographic)
+    absolute = kinds.pop()
+    unit = None if absolute else epoch_unit(np.asarray(times, np.float64))
+    if unit is not None:
+        track = track_of([t / unit[0] for t in times], coords, source, absolute=True, geographic=geographic)
+        return dataclasses.replace(track, epoch=unit[1])
+    return track_of(times, coords, source, absolute=absolute, geographic=geographic)
