@@ -185,3 +185,23 @@ def test_seconds_since_the_start_stay_relative(tmp_path):
 def test_the_unit_of_times_since_the_start_is_guessed_from_the_ratio(per_second, unit):
     t = np.arange(0, 20, 0.1) * per_second  # a 20 s track since the video's start, in a smaller unit
     assert f"times in {unit}?" in why_outside(t, 20.0, 10.0)
+
+
+def test_a_track_whole_hours_off_names_the_zone_or_the_video_clock(tmp_path):
+    times, lat, lon = _samples(6)
+    local = T0.replace(tzinfo=None) + datetime.timedelta(hours=2)  # 12:00 local (UTC+2) written without a zone
+    p = tmp_path / "local.csv"
+    p.write_text("time,lat,lon\n" + "".join(f"{(local + datetime.timedelta(seconds=t)).isoformat()},{a},{b}\n"
+                                            for t, a, b in zip(times, lat, lon, strict=True)))
+    track = read_track(p)
+    assert not track.zoned
+    with pytest.raises(DatasetError, match=r"2 h after the video's .*: local time\? its times name no zone and are "
+                                           r"read as UTC \(hint: write them with their zone, e.g. "
+                                           r"2024-05-01T12:00:00\+02:00\)"):
+        video_times(track, T0, 60.0)
+    gpx = read_track(write_gpx(tmp_path / "a.gpx", T0, times, lat, lon))  # zoned times; the video's clock 5:30 off
+    with pytest.raises(DatasetError, match=r"5.5 h before .* \(hint: --video-start 2024-05-01T10:00:00Z"):
+        video_times(gpx, T0 + datetime.timedelta(hours=5, minutes=30), 60.0)
+    with pytest.raises(DatasetError, match=r"UTC \(hint: --video-start if the video's clock is wrong\)"):
+        video_times(gpx, T0 + datetime.timedelta(hours=2, minutes=10), 60.0)  # not whole hours: as before
+    np.testing.assert_allclose(video_times(gpx, T0, 60.0), times)  # a right track: placed, nothing said

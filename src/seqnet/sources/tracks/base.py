@@ -38,6 +38,7 @@ class Track:
         source: the file (for messages).
         epoch: how numbers read as Unix epoch times were written (``milliseconds``: :data:`EPOCH_UNITS`), for
             messages; "" for any other track.
+        zoned: False when ISO-8601 times were written without a zone (read as UTC; local time is a common slip).
     """
 
     times: np.ndarray
@@ -47,6 +48,7 @@ class Track:
     source: str
     dated: bool = True
     epoch: str = ""
+    zoned: bool = True
 
 
 def track_of(times: list[float], coords: list[tuple[float, float]], source: str, **kw: bool) -> Track:

@@ -19,6 +19,7 @@ from ..times import parse_iso
 from .base import Track
 
 DAY = 86400.0
+MAX_ZONE = 14.0  # hours: the largest offset of a time zone from UTC
 MS_RATIO = 200.0  # a track spanning this many times the video's length: its times are probably milliseconds
 UNIT_RATIOS = ((2e5, "milliseconds"), (2e8, "microseconds"), (float("inf"), "nanoseconds"))  # span / duration below
 
@@ -52,6 +53,7 @@ def video_times(track: Track, start: datetime.datetime | None, duration: float) 
         times = times + (t0 - t0 % DAY)
     rel = times - t0
     if rel[-1] < 0 or rel[0] > duration:
+        _refuse_hours_off(track, rel, start, duration)
         day_t, day_v = _utc(times[0])[:10], _utc(t0)[:10]
         if day_t != day_v and _utc(times[-1])[:10] != day_v:
             raise DatasetError(f"{shown(track.source)} is a track of {day_t} (UTC), the video was recorded on {day_v}: "
@@ -61,6 +63,35 @@ def video_times(track: Track, start: datetime.datetime | None, duration: float) 
                            f"{_utc(times[-1])} UTC, the video {_utc(t0)} .. {_utc(t0 + duration)} UTC (hint: "
                            "--video-start if the video's clock is wrong)")
     return rel
+
+
+def hours_off(rel: np.ndarray, duration: float) -> float | None:
+    """The whole number of half hours (in hours, within :data:`MAX_ZONE` h) by which a track of times ``rel [S]``
+    (seconds since the video's first frame) that misses a ``duration`` s video would overlap it when shifted
+    earlier: a clock in local time read as UTC (or the other way round); None when no such shift overlaps."""
+    k = round(float(rel[0]) / 1800.0) * 1800.0
+    if k == 0 or abs(k) > MAX_ZONE * 3600.0:
+        return None
+    return k / 3600.0 if rel[-1] - k >= 0 and rel[0] - k <= duration else None
+
+
+def _refuse_hours_off(track: Track, rel: np.ndarray, start: datetime.datetime, duration: float) -> None:
+    """Refuse (:class:`DatasetError`) a track a whole number of hours off the video, naming the likely fix: the
+    zone of a track written in local time without one, else the video's clock (``--video-start``)."""
+    h = hours_off(rel, duration)
+    if h is None:
+        return
+    way = "after" if h > 0 else "before"
+    said = (f"{shown(track.source)} does not overlap the video: the track spans {_utc(track.times[0])} .. "
+            f"{_utc(track.times[-1])} UTC, {abs(h):g} h {way} the video's {_utc(start.timestamp())} .. "
+            f"{_utc(start.timestamp() + duration)} UTC")
+    if not track.zoned:
+        zone = f"{'+' if h > 0 else '-'}{int(abs(h)):02d}:{round(abs(h) % 1 * 60):02d}"
+        raise DatasetError(f"{said}: local time? its times name no zone and are read as UTC (hint: write them with "
+                           f"their zone, e.g. {_utc(track.times[0]).replace(' ', 'T')}{zone})")
+    fixed = datetime.datetime.fromtimestamp(start.timestamp() + h * 3600.0, datetime.timezone.utc)
+    raise DatasetError(f"{said}: the video's clock in another time zone? (hint: --video-start "
+                       f"{fixed.strftime('%Y-%m-%dT%H:%M:%S')}Z if the track's times are right)")
 
 
 def in_milliseconds(track_times: np.ndarray, duration: float) -> bool:

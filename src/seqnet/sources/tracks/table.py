@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import datetime
 import io
 
 import numpy as np
@@ -33,15 +34,17 @@ def _column(header: list[str], names: tuple[str, ...]) -> int | None:
     return next((header.index(n) for n in names if n in header), None)
 
 
-def _time(text: str, where: str) -> tuple[float, bool]:
-    """``(seconds, absolute)`` of a time cell: a number (seconds since the video's start) or ISO-8601."""
+def _time(text: str, where: str) -> tuple[float, bool, bool]:
+    """``(seconds, absolute, zoned)`` of a time cell: a number (seconds since the video's start) or ISO-8601
+    (``zoned``: it names its zone; one without is read as UTC)."""
     text = text.strip()
     try:
-        return float(text), False
+        return float(text), False, True
     except ValueError:
         pass
     try:
-        return utc_seconds(parse_iso(text)), True
+        return utc_seconds(parse_iso(text)), True, datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))\
+            .tzinfo is not None
     except (ValueError, OverflowError, OSError) as e:
         raise DatasetError(f"{where}: time {shown(text)[:60]} is neither seconds nor an ISO-8601 time") from e
 
@@ -70,13 +73,14 @@ def parse_csv(text: str, source: str) -> Track:
         raise DatasetError(f"{shown(source)}: a CSV track needs a time column ({', '.join(TIME_COLUMNS)}) and "
                            f"lat, lon (degrees) or x, y / easting, northing (metres); its header: "
                            f"{shown(','.join(header))[:200]}")
-    times, coords, kinds = [], [], set()
+    times, coords, kinds, zoned = [], [], set(), True
     for line, r in rows:
         where = f"{shown(source)}, line {line}"
         if len(r) <= max(tcol, *cols):
             raise DatasetError(f"{where}: {len(r)} fields, but the header has {len(header)}")
-        t, absolute = _time(r[tcol], where)
+        t, absolute, has_zone = _time(r[tcol], where)
         kinds.add(absolute)
+        zoned = zoned and has_zone
         try:
             coords.append((float(r[cols[0]]), float(r[cols[1]])))
         except ValueError as e:
@@ -91,4 +95,5 @@ def parse_csv(text: str, source: str) -> Track:
     if unit is not None:
         track = track_of([t / unit[0] for t in times], coords, source, absolute=True, geographic=geographic)
         return dataclasses.replace(track, epoch=unit[1])
-    return track_of(times, coords, source, absolute=absolute, geographic=geographic)
+    track = track_of(times, coords, source, absolute=absolute, geographic=geographic)
+    return track if zoned else dataclasses.replace(track, zoned=False)
