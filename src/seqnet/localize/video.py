@@ -19,7 +19,7 @@ from ..core.log import logger
 from ..methods.protocol import Reference
 from .describing import map_describer
 from .replay import frame_truth
-from .track import Sampling, clock_offset, offset_note, place_track, resolve_sampling
+from .track import Sampling, place_track, resolve_sampling
 from .truth import MapFrame, check_frame
 
 if TYPE_CHECKING:
@@ -135,7 +135,9 @@ class VideoQuery:
             answered = best >= 0
             est = np.full((len(best), 2), np.nan)
             est[answered] = r_pos[best[answered]]
-            note = offset_note(clock_offset(times, est, self.track.times, self.track.xy))
+            from ..sources.tracks.offset import clock_offset, offset_note
+
+            note = offset_note(clock_offset(times, est, self.track.times, self.track.xy), not self.track.absolute)
             if note:
                 logger.warning("%s", note)
         return correct, has, q_pos

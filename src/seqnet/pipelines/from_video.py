@@ -127,7 +127,8 @@ def main(conf: FromVideoConfig, reference: str | Path, query: str | Path, out: s
                              ground_truth="frames" if conf.aligned else "csv")
     extra = {"ground_truth": "aligned" if conf.aligned else "positions",
              "videos": {side: {"path": str(Path(v).resolve()), "stream": p.stream, "frames": p.counts,
-                               **({"positions": str(Path(f).resolve())} if f is not None else {})}
+                               **({"positions": str(Path(f).resolve()), "track_times": p.track_times}
+                                  if f is not None else {})}
                         for side, v, p, f in zip(("reference", "query"), (reference, query), (ref, qry), positions,
                                                  strict=True)},
              "sampling": {"fps": conf.fps, "every_metres": conf.every_metres}}
