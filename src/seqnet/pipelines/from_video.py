@@ -42,6 +42,8 @@ class FromVideoConfig(Config):
         video_start: when both videos' first frames were recorded, overriding their ``creation_time`` (ISO-8601).
         max_gap: seconds between two track samples a frame may be interpolated across.
         fit_on: ``reference`` or ``both``: where PCA / NetVLAD clusters are fitted.
+        splits: named half-open ranges of the kept frames ``{name: {"reference": (a, b), "query": (c, d)}}``
+            (``--split``, as the other builders: :class:`~seqnet.pipelines.from_images.FromImagesConfig`).
         streams: which video stream of each file (reference, query) is read (None: the first that is not a cover
             picture; :func:`seqnet.sources.video.choose_stream`).
         name: dataset name (None: the output directory's).
@@ -57,6 +59,7 @@ class FromVideoConfig(Config):
     fit_on: str = "reference"
     name: str | None = None
     streams: tuple[int | None, int | None] = (None, None)
+    splits: dict | None = None
 
     def __post_init__(self) -> None:
         for key in ("fps", "every_metres"):
@@ -124,7 +127,7 @@ def main(conf: FromVideoConfig, reference: str | Path, query: str | Path, out: s
         pos = ((ref.positions, None), (qry.positions, None))
         unit = ("metres", ref.frame)
     inner = FromImagesConfig(describe=conf.describe, fit_on=conf.fit_on, radius=conf.radius, name=conf.name,
-                             ground_truth="frames" if conf.aligned else "csv")
+                             ground_truth="frames" if conf.aligned else "csv", splits=conf.splits)
     extra = {"ground_truth": "aligned" if conf.aligned else "positions",
              "videos": {side: {"path": str(Path(v).resolve()), "stream": p.stream, "frames": p.counts,
                                **({"positions": str(Path(f).resolve()), "track_times": p.track_times}
