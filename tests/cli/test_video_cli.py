@@ -201,3 +201,22 @@ def test_a_video_clock_off_by_seconds_is_said(videos, tmp_path, capsys):
     assert "the estimates run 1.5 s behind the track" in err and "--video-start" in err
     assert _localize(videos, tmp_path, "ds") == 0
     assert "the estimates run" not in capsys.readouterr().err
+
+
+def test_from_video_takes_splits_of_the_kept_frames(videos, tmp_path):
+    from seqnet.data.io import load_dataset
+
+    assert _dataset(videos, tmp_path / "ds", "--split", "train=0:15", "--split", "test=15:30") == 0
+    ds = load_dataset(tmp_path / "ds")
+    assert set(ds.splits) == {"train", "test"} and len(ds.split("test").query) == 15
+    assert json.loads((tmp_path / "ds" / "dataset.json").read_text())["videos"]["query"]["stream"] == 0
+
+
+def test_localize_stream_picks_a_video_stream(videos, tmp_path, capsys):
+    assert _dataset(videos, tmp_path / "ds") == 0
+    rc = cli_main(["localize", "--map", str(tmp_path / "ds"), "--query", str(videos["query"]), "--stream", "1",
+                   "--out", str(tmp_path / "t.csv"), "--method", "single"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--stream 1: video stream 1 of" in err and "holds 1 video stream (0: 32x16)" in err, err
+    assert cli_main(["-q", "localize", "--map", str(tmp_path / "ds"), "--query", str(videos["query"]), "--stream",
+                     "0", "--out", str(tmp_path / "t.csv"), "--method", "single"]) == 0

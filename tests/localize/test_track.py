@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from seqnet.core.errors import ConfigError, DatasetError
-from seqnet.localize.track import Sampling, check_near_route, clock_offset, map_sampling, offset_note, resolve_sampling
+from seqnet.localize.track import Sampling, check_near_route, map_sampling, resolve_sampling
 
 
 @pytest.mark.parametrize(("meta", "want"), [
@@ -56,45 +56,3 @@ def test_a_track_far_from_the_route_is_refused_with_a_hint():
         check_near_route(r[:5] + [0, 100], r, 25.0, "the track t.csv", True)
     with pytest.raises(DatasetError, match="another place"):
         check_near_route(r[:5] + [0, 100], r, 25.0, "the track t.csv", False)
-
-
-def _naive_offset(frame_t, est_xy, track_t, track_xy):
-    offs = []
-    for t, e in zip(frame_t, est_xy, strict=True):
-        if not np.isfinite(e).all():
-            continue
-        d = [np.hypot(*(e - p)) for p in track_xy]
-        offs.append(track_t[int(np.argmin(d))] - t)
-    med = float(np.median(offs))
-    spread = float(np.median([abs(o - med) for o in offs]))
-    return med if abs(med) >= 1.0 and spread <= max(0.25 * abs(med), 1.0) else None
-
-
-@pytest.mark.parametrize("shift", [-5.0, -1.0, 0.0, 0.5, 3.0])
-def test_clock_offset_matches_a_loop(rng, shift):
-    track_t = np.arange(0, 30, 0.1)
-    track_xy = np.stack([track_t * 10.0, 30 * np.sin(track_t / 2)], axis=1)
-    frame_t = np.arange(0, 20, 0.1)
-    est = np.interp(frame_t + shift, track_t, track_xy[:, 0]), np.interp(frame_t + shift, track_t, track_xy[:, 1])
-    est_xy = np.stack(est, axis=1) + rng.normal(0, 1.0, (len(frame_t), 2))
-    est_xy[::7] = np.nan  # unanswered frames
-    got = clock_offset(frame_t, est_xy, track_t, track_xy)
-    assert got == _naive_offset(frame_t, est_xy, track_t, track_xy)
-    if abs(shift) >= 1:
-        assert got == pytest.approx(shift, abs=0.15)
-    else:
-        assert got is None
-
-
-def test_random_estimates_have_no_clock_offset(rng):
-    track_t = np.arange(0, 30, 0.1)
-    track_xy = np.stack([track_t * 10.0, np.zeros_like(track_t)], axis=1)
-    est = track_xy[rng.integers(0, len(track_t), 200)]
-    assert clock_offset(np.arange(0, 20, 0.1), est, track_t, track_xy) is None
-    assert clock_offset(np.arange(5.0), est[:5], track_t, track_xy) is None  # too few frames
-
-
-def test_offset_note_says_which_way():
-    assert "5.0 s behind the track" in offset_note(-5.0) and "5.0 s late?" in offset_note(-5.0)
-    assert "3.0 s ahead of the track" in offset_note(3.0) and "3.0 s early?" in offset_note(3.0)
-    assert offset_note(None) is None

@@ -90,6 +90,7 @@ def test_every_metres_and_frames_outside_the_track(drives, tmp_path):
     ds = load_dataset(out)
     assert len(ds.reference) == N // 4 and len(ds.query) == N // 2  # 10 m spacing, one frame per 20 m
     assert ds.extra["videos"]["reference"]["frames"] == {"total": N, "outside": N // 2, "kept": N // 4}
+    assert ds.extra["videos"]["query"]["stream"] == 0  # the video stream read, recorded
     steps = np.linalg.norm(np.diff(ds.query.positions, axis=0), axis=1)
     np.testing.assert_allclose(steps, 20.0, rtol=0.01)
 
@@ -108,3 +109,21 @@ def test_aligned_and_the_ground_truth_refusals(drives, tmp_path):
         main(FromVideoConfig(describe=PIXELS), drives["summer"], drives["winter"], tmp_path / "x",
              (drives["winter.gpx"], drives["winter.gpx"]))
     assert not (tmp_path / "x").exists()
+
+
+def test_eval_names_a_query_track_a_constant_time_off(drives, tmp_path, caplog):
+    from seqnet.eval.evaluate import video_clock_note
+
+    lat, lon = route(N + 1)
+    times = np.append(drives["q_times"], drives["q_times"][-1] + 0.1)
+    late = write_track_csv(tmp_path / "late.csv", times + 2.0, lat, lon)  # a logger that started counting 2 s late
+    out = main(FromVideoConfig(describe=PIXELS, radius=15.0), drives["summer"], drives["winter"], tmp_path / "late",
+               (drives["summer.csv"], late))
+    ds = load_dataset(out)
+    assert ds.extra["videos"]["query"]["track_times"] == "seconds"
+    ev = evaluate(ds, EvalConfig(methods=METHODS, device="cpu"))
+    note = video_clock_note(ev)
+    assert note and "the query track runs 2.0 s late against the reference's (hint: subtract 2.0 s" in note, note
+    good = main(FromVideoConfig(describe=PIXELS, radius=15.0), drives["summer"], drives["winter"], tmp_path / "good",
+                (drives["summer.csv"], drives["winter.csv"]))
+    assert video_clock_note(evaluate(load_dataset(good), EvalConfig(methods=METHODS, device="cpu"))) is None

@@ -62,3 +62,35 @@ def test_every_seconds_keeps_the_first_frame_of_each_interval():
     assert len(every_seconds(times, 100.0)) == 100  # faster than the video: every frame
     vfr = np.array([0.0, 0.05, 0.6, 0.61, 0.62, 2.5])
     assert every_seconds(vfr, 2.0).tolist() == [0, 2, 5]
+
+
+def _naive_every_metres(xy, metres):
+    keep = [0]
+    for j in range(1, len(xy)):
+        along = sum(np.linalg.norm(xy[k + 1] - xy[k]) for k in range(keep[-1], j))
+        if along >= 0.995 * metres and np.linalg.norm(xy[j] - xy[keep[-1]]) >= 0.995 * metres:
+            keep.append(j)
+    return keep
+
+
+def test_every_metres_keeps_no_frame_at_a_standstill_with_gps_jitter():
+    rng = np.random.default_rng(1)
+    s = np.concatenate([np.arange(80) * 1.0, np.full(300, 80.0), 80 + np.arange(1, 81) * 1.0])  # 10 m/s, a stop
+    xy = np.stack([s, np.zeros_like(s)], axis=1) + rng.normal(0, 0.5, (len(s), 2))  # 0.5 m GPS noise
+    keep = every_metres(xy, 5.0)
+    stopped = ((keep >= 80) & (keep < 380)).sum()
+    assert stopped <= 1, stopped  # 30 s at a red light: no copies of one place (summing the jitter: about 190)
+    assert 0.8 * 160 / 5 <= len(keep) <= 160 / 5 + 1  # about one per 5 m of the 160 m driven (noise overshoots)
+    assert keep.tolist() == _naive_every_metres(xy, 5.0)
+    clean = every_metres(np.stack([s, np.zeros_like(s)], axis=1), 5.0)  # without noise: exactly one per 5 m
+    assert len(clean) == 160 / 5 + 1 and ((clean >= 80) & (clean < 380)).sum() == 1  # 80 m: where the stop begins
+
+
+def test_every_metres_on_a_curve_and_against_a_naive_loop():
+    a = np.arange(200) * 2 * np.arcsin(0.05)  # 10 m steps (chords) on a circle of radius 100 m
+    xy = 100.0 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    keep = every_metres(xy, 20.0)
+    assert np.diff(keep).tolist() == [2] * 99  # chords of 19.98 m count as 20 m
+    rng = np.random.default_rng(3)
+    walk = np.cumsum(rng.normal(0, 3, (500, 2)), axis=0)
+    assert every_metres(walk, 7.0).tolist() == _naive_every_metres(walk, 7.0)

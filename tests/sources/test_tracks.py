@@ -136,3 +136,72 @@ def test_two_fixes_at_one_time_are_warned_or_refused(tmp_path, caplog, metres, o
         track = read_track(path)
     assert len(track.times) == 30 and track.coords[15, 0] == pytest.approx(lat[15])
     assert ("up to 110 m apart (at 1.5 s)" in caplog.text) == (outcome == "warned"), caplog.text
+
+
+@pytest.mark.parametrize("sep, bom", [(";", ""), ("\t", ""), (",", "\ufeff"), (";", "\ufeff")])
+def test_csv_tracks_read_as_positions_csvs_do(tmp_path, sep, bom):
+    times, lat, lon = _samples(6)
+    want = read_track(write_track_csv(tmp_path / "plain.csv", times, lat, lon))
+    text = (tmp_path / "plain.csv").read_text().replace(",", sep).replace("time", "Time", 1)
+    (tmp_path / "other.csv").write_text(bom + text, encoding="utf-8")
+    got = read_track(tmp_path / "other.csv")
+    np.testing.assert_array_equal(got.times, want.times)
+    np.testing.assert_array_equal(got.coords, want.coords)
+
+
+def test_decimal_commas_in_a_track_are_named(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("time;lat;lon\n0;63,43;10,39\n")
+    with pytest.raises(DatasetError, match="decimal commas"):
+        read_track(p)
+
+
+@pytest.mark.parametrize("per_second, unit", [(1, "seconds"), (1e3, "milliseconds"), (1e6, "microseconds"),
+                                              (1e9, "nanoseconds")])
+def test_unix_epoch_numbers_are_absolute_times(tmp_path, per_second, unit):
+    times, lat, lon = _samples(6)
+    iso = read_track(write_track_csv(tmp_path / "iso.csv", times, lat, lon, t0=T0))
+    stamps = [f"{(T0.timestamp() + t):.3f}" if per_second == 1 else f"{round((T0.timestamp() + t) * per_second)}"
+              for t in times]  # seconds with decimals; the smaller units as integers, as loggers write them
+    (tmp_path / "epoch.csv").write_text("timestamp,lat,lon\n" + "".join(
+        f"{s},{a:.9f},{b:.9f}\n" for s, a, b in zip(stamps, lat, lon, strict=True)))
+    track = read_track(tmp_path / "epoch.csv")
+    assert track.absolute and track.epoch == unit
+    np.testing.assert_allclose(track.times, iso.times, atol=1e-6)
+    np.testing.assert_allclose(video_times(track, T0, 60.0), times, atol=1e-6)  # placed by the video's clock
+    with pytest.raises(ConfigError, match=f"absolute times \\(Unix epoch {unit}: 2024-05-01 10:00:00 UTC on\\), "
+                                          "but the video records no creation_time; give its start with --video-start"):
+        video_times(track, None, 60.0)
+
+
+def test_seconds_since_the_start_stay_relative(tmp_path):
+    times, lat, lon = _samples(6)
+    for offset in (0.0, 1e6, 3e8):  # however long the log ran before the video: never an epoch time
+        track = read_track(write_track_csv(tmp_path / "rel.csv", times + offset, lat, lon))
+        assert not track.absolute and not track.epoch
+
+
+@pytest.mark.parametrize("per_second, unit", [(1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")])
+def test_the_unit_of_times_since_the_start_is_guessed_from_the_ratio(per_second, unit):
+    t = np.arange(0, 20, 0.1) * per_second  # a 20 s track since the video's start, in a smaller unit
+    assert f"times in {unit}?" in why_outside(t, 20.0, 10.0)
+
+
+def test_a_track_whole_hours_off_names_the_zone_or_the_video_clock(tmp_path):
+    times, lat, lon = _samples(6)
+    local = T0.replace(tzinfo=None) + datetime.timedelta(hours=2)  # 12:00 local (UTC+2) written without a zone
+    p = tmp_path / "local.csv"
+    p.write_text("time,lat,lon\n" + "".join(f"{(local + datetime.timedelta(seconds=t)).isoformat()},{a},{b}\n"
+                                            for t, a, b in zip(times, lat, lon, strict=True)))
+    track = read_track(p)
+    assert not track.zoned
+    with pytest.raises(DatasetError, match=r"2 h after the video's .*: local time\? its times name no zone and are "
+                                           r"read as UTC \(hint: write them with their zone, e.g. "
+                                           r"2024-05-01T12:00:00\+02:00\)"):
+        video_times(track, T0, 60.0)
+    gpx = read_track(write_gpx(tmp_path / "a.gpx", T0, times, lat, lon))  # zoned times; the video's clock 5:30 off
+    with pytest.raises(DatasetError, match=r"5.5 h before .* \(hint: --video-start 2024-05-01T10:00:00Z"):
+        video_times(gpx, T0 + datetime.timedelta(hours=5, minutes=30), 60.0)
+    with pytest.raises(DatasetError, match=r"UTC \(hint: --video-start if the video's clock is wrong\)"):
+        video_times(gpx, T0 + datetime.timedelta(hours=2, minutes=10), 60.0)  # not whole hours: as before
+    np.testing.assert_allclose(video_times(gpx, T0, 60.0), times)  # a right track: placed, nothing said

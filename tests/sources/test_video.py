@@ -12,10 +12,10 @@ from conftest import drive, mutated, read_mutated, write_video
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from seqnet.core.errors import DatasetError, ImageError
+from seqnet.core.errors import ConfigError, DatasetError, ImageError
 from seqnet.describe.images import list_images, load_images
 from seqnet.security.videos import check_streams, container_of, open_video_file
-from seqnet.sources.video import VideoFile, video_images
+from seqnet.sources.video import VideoFile, choose_stream, video_images
 
 TIMES = [0.0, 0.1, 0.25, 0.3, 0.7, 0.75, 1.2, 1.3, 1.35, 2.0]  # a variable frame rate
 
@@ -119,3 +119,57 @@ def test_frames_come_upright_by_the_display_rotation(tmp_path, rotation):
     for got in (load_images(frames)[0], load_images(list(FrameStream(str(path))))[0]):
         assert got.shape[1:3] == upright[0].shape[:2]
         assert np.abs(got.astype(int) - np.stack(upright).astype(int)).max() <= 3
+
+
+def _dual(path, front, rear):
+    """A file of two video streams (a dual dashcam): ``rear`` stored first, ``front`` second (10 fps, lossless)."""
+    import av
+
+    with av.open(str(path), "w") as c:
+        streams = []
+        for frames in (rear, front):
+            s = c.add_stream("libx264", rate=10, options={"crf": "0"})
+            s.width, s.height, s.pix_fmt = frames[0].shape[1], frames[0].shape[0], "yuv444p"
+            streams.append(s)
+        for i in range(len(front)):
+            for s, frames in zip(streams, (rear, front), strict=True):
+                for p in s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frames[i]), format="rgb24")):
+                    c.mux(p)
+        for s in streams:
+            for p in s.encode():
+                c.mux(p)
+    return path
+
+
+def test_a_file_of_two_video_streams_is_said_and_either_can_be_read(tmp_path, caplog):
+    front = drive(4, 1)
+    rear = [f[:, ::-1] for f in front]
+    path = _dual(tmp_path / "dual.mp4", front, rear)
+    first = load_images(video_images(path)[0])[0].astype(int)
+    assert "dual.mp4 has 2 video streams (0: 32x16, 1: 32x16); using 0 (hint: --stream N" in caplog.text
+    assert np.abs(first - np.stack(rear)).max() <= 3
+    caplog.clear()
+    v = VideoFile(path, stream=1, flag="--query-stream")
+    assert v.stream_number == 1 and not caplog.text  # chosen: nothing to say
+    second = load_images(video_images(path, stream=1)[0])[0].astype(int)
+    assert np.abs(second - np.stack(front)).max() <= 3
+    with pytest.raises(ConfigError, match=r"--query-stream 2: video stream 2 of .*dual.mp4 does not exist; it holds "
+                                          r"2 video streams \(0: 32x16, 1: 32x16\)"):
+        VideoFile(path, stream=2, flag="--query-stream")
+
+
+def test_one_video_stream_is_silent(video, caplog):
+    assert VideoFile(video).stream_number == 0 and not caplog.text
+
+
+def test_a_cover_picture_is_not_taken_for_the_video(caplog):
+    from types import SimpleNamespace
+
+    def stream(w, h, disposition):
+        return SimpleNamespace(codec_context=SimpleNamespace(width=w, height=h), disposition=disposition)
+
+    cover, video = stream(600, 600, 0x400 | 1), stream(64, 32, 0)
+    container = SimpleNamespace(streams=SimpleNamespace(video=[cover, video]))
+    assert choose_stream(container, "song.mp4") == (video, 1) and not caplog.text  # one video: nothing to say
+    with pytest.raises(ConfigError, match="stream 0 of song.mp4 is a cover picture"):
+        choose_stream(container, "song.mp4", 0)

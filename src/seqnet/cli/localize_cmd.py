@@ -117,6 +117,8 @@ def add_video_query(p: argparse.ArgumentParser) -> None:
                    "column), the ground truth: error in metres, correct within --radius")
     p.add_argument("--video-start", metavar="ISO", help="video query: when its first frame was recorded (ISO-8601), "
                    "overriding its creation_time, to join a track of absolute times")
+    p.add_argument("--stream", type=int, metavar="N", help="video query: the file's video stream N (0: its first; "
+                   "default: the first that is not a cover picture, warned when it holds several)")
     p.add_argument("--timeout", type=positive_float, metavar="SECONDS", help="live stream: seconds it may stall "
                    "before it is given up (default 10)")
     p.add_argument("--plot", metavar="TRACK.png", help="draw the trajectory: the map's route and each estimate on it, "
@@ -141,7 +143,7 @@ def _plotter(path: str | None):  # noqa: ANN202 - a hook or None
 def video_options(args: argparse.Namespace) -> VideoOptions:
     """The :class:`VideoOptions` of the parsed options."""
     return VideoOptions(fps=args.fps, every_metres=args.every_metres, realtime=args.realtime,
-                        video_start=args.video_start,
+                        video_start=args.video_start, stream=args.stream,
                         positions=None if args.positions is None else Path(args.positions),
                         **({"timeout": args.timeout} if args.timeout else {}))
 

@@ -157,6 +157,16 @@ def one_retrieved(ev: Evaluation) -> str | None:
             "confidence_for_precision is given for them; add a larger K (e.g. --ks 1,20)")
 
 
+def video_clock_note(ev: Evaluation) -> str | None:
+    """A ``dataset from-video`` query track a constant time off the reference's, seen in the top-1 answers of a
+    method (the first that shows it: :func:`seqnet.sources.tracks.offset.dataset_offset_note`); else None."""
+    from ..sources.tracks.offset import dataset_offset_note
+
+    notes = (dataset_offset_note(ev.dataset, ev.view(n).q_items, ev.view(n).r_items, r[:, 0])
+             for n, r in ev.retrieved.items() if r.ndim == 2 and r.shape[1])
+    return next((note for note in notes if note), None)
+
+
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
          shortlist_model: str | Path | None = None, rerank_model: str | Path | None = None,
          per_query: str | Path | None = None, report: Any = None, figures: bool = False, overwrite: bool = False,
@@ -226,7 +236,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), *chosen,
                       *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
                       flipped or shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None),
-                      trivial_ks(ev, conf.ks),
+                      trivial_ks(ev, conf.ks), video_clock_note(ev),
                       *selection_leakage(loaded, dataset, ds, split)])
     leaks = leakage(loaded, dataset, ds, split)
     if conf.target_precision is not None:

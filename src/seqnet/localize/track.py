@@ -7,8 +7,8 @@
   places no frame (:func:`seqnet.sources.tracks.clock.why_outside`: times in milliseconds, a gap, no overlap) or
   places none near the map's
   route (lat and lon swapped, another place): such a run has nothing to score.
-* :func:`clock_offset`: after the run, a near-constant time offset between where the frames were estimated and
-  where the track puts them (a video clock a few seconds off).
+* after the run, a near-constant time offset between where the frames were estimated and where the track puts
+  them (a video clock a few seconds off) is found by :func:`seqnet.sources.tracks.offset.clock_offset`.
 """
 
 from __future__ import annotations
@@ -88,12 +88,13 @@ def _flag(s: Sampling) -> str:
 def place_track(video: str | Path, positions: str | Path, start: Any, zone: tuple[int, str] | None,
                 r_pos: np.ndarray, radius: float, every_metres: float | None,
                 on_frame: Callable[[str], None] | None = None,
-                max_gap: float | None = None) -> tuple[JoinedTrack, np.ndarray | None]:
+                max_gap: float | None = None, stream: int = 0) -> tuple[JoinedTrack, np.ndarray | None]:
     """The track ``positions`` on the video file ``video`` (recorded from ``start``, a datetime or None), in the
     UTM ``zone`` of the map whose reference positions are ``r_pos [R, 2]``: refused (:class:`DatasetError`) when it
     places no frame, or none within ``radius`` of the map's route. With the track, the video times of the frames
     ``every_metres`` keeps (None without it).
-    ``on_frame`` checks the frame of the track's positions (e.g. the map's UTM zone) before they are compared."""
+    ``on_frame`` checks the frame of the track's positions (e.g. the map's UTM zone) before they are compared;
+    ``stream``: the video stream read (the number :func:`seqnet.sources.video.choose_stream` chose)."""
     from ..sources.placed import join_track
     from ..sources.sampling import every_metres as by_metres
     from ..sources.tracks.clock import check_placed
@@ -101,7 +102,7 @@ def place_track(video: str | Path, positions: str | Path, start: Any, zone: tupl
     from ..sources.video import VideoFile
 
     gap = DEFAULT_MAX_GAP if max_gap is None else max_gap
-    v = VideoFile(video)
+    v = VideoFile(video, stream)
     track = join_track(positions, start, v.duration, zone)
     if on_frame is not None:
         on_frame(track.frame)
@@ -134,30 +135,3 @@ def check_near_route(q_xy: np.ndarray, r_pos: np.ndarray, radius: float, where: 
         "a track of another place, or in another frame than the map's positions?"
     raise DatasetError(f"no frame that {where} places ({len(q_xy)}) lies within the radius {radius:g} m of the "
                        f"map's route: the nearest is {float(d.min()):.0f} m away ({hint})")
-
-
-def clock_offset(frame_t: np.ndarray, est_xy: np.ndarray, track_t: np.ndarray, track_xy: np.ndarray,
-                 min_frames: int = 10) -> float | None:
-    """The time offset (s) by which the estimates ``est_xy [N, 2]`` of the frames at ``frame_t [N]`` lag the track
-    (fixes ``track_t [S]`` at ``track_xy [S, 2]``; negative: the estimates sit where the track was earlier), when
-    it is near-constant: each estimate's nearest fix gives its track time, and their offsets from the frame times
-    agree within a quarter of their median (and 1 s). None when too few frames or no common offset."""
-    ok = np.isfinite(est_xy).all(axis=1)
-    if ok.sum() < min_frames or len(track_t) < 2:
-        return None
-    from scipy.spatial import cKDTree
-
-    _, near = cKDTree(track_xy).query(est_xy[ok], k=1)
-    off = track_t[near] - frame_t[ok]
-    med = float(np.median(off))
-    spread = float(np.median(np.abs(off - med)))
-    return med if abs(med) >= 1.0 and spread <= max(0.25 * abs(med), 1.0) else None
-
-
-def offset_note(offset: float | None) -> str | None:
-    """What :func:`clock_offset` says, as a warning line (None: nothing to say)."""
-    if offset is None:
-        return None
-    way, fix = ("behind", "late") if offset < 0 else ("ahead of", "early")
-    return (f"the estimates run {abs(offset):.1f} s {way} the track at nearly every frame: is --video-start (or the "
-            f"video's creation_time) {abs(offset):.1f} s {fix}?")

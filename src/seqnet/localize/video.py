@@ -19,7 +19,7 @@ from ..core.log import logger
 from ..methods.protocol import Reference
 from .describing import map_describer
 from .replay import frame_truth
-from .track import Sampling, clock_offset, offset_note, place_track, resolve_sampling
+from .track import Sampling, place_track, resolve_sampling
 from .truth import MapFrame, check_frame
 
 if TYPE_CHECKING:
@@ -40,7 +40,7 @@ class VideoOptions:
     """How a video query is read: ``fps`` kept per second or one frame per ``every_metres`` travelled (neither: as
     the map's video was sampled, :func:`seqnet.localize.track.resolve_sampling`), ``realtime`` pacing, a
     ``positions`` track for ground truth (``video_start``: when the video's first frame was recorded, ISO-8601),
-    the stall ``timeout`` (s)."""
+    the stall ``timeout`` (s), which video ``stream`` of a file (None: the first that is not a cover picture)."""
 
     fps: float | None = None
     every_metres: float | None = None
@@ -48,6 +48,7 @@ class VideoOptions:
     positions: Path | None = None
     video_start: str | None = None
     timeout: float = 10.0
+    stream: int | None = None
 
 
 class VideoQuery:
@@ -61,7 +62,8 @@ class VideoQuery:
         self.name, self.opts = name, opts
         self.describer, self._check = map_describer(ref_map, allow, describer, map_dir, resize)
         self.sampling = resolve_sampling(opts.fps, opts.every_metres, recorded, opts.positions is not None)
-        self.source: FrameStream = FrameStream(name, self.sampling.fps, opts.realtime, opts.timeout)
+        self.source: FrameStream = FrameStream(name, self.sampling.fps, opts.realtime, opts.timeout,
+                                                 stream=opts.stream)
         self.track: JoinedTrack | None = None  # a video file's --positions, joined before any frame (prepare)
         self.kept: np.ndarray | None = None  # the video times --every-metres keeps (None: sampled by time)
         self.names: list[str] = []
@@ -98,7 +100,7 @@ class VideoQuery:
 
         self.track, self.kept = place_track(
             self.name, self.opts.positions, self._start(), frame_zone(mf.frame), r_pos, radius,
-            self.sampling.every_metres,
+            self.sampling.every_metres, stream=self.source.stream_number,
             on_frame=lambda frame: check_frame(mf, frame, map_path, str(self.opts.positions)))
 
     def _start(self) -> Any:
@@ -133,7 +135,9 @@ class VideoQuery:
             answered = best >= 0
             est = np.full((len(best), 2), np.nan)
             est[answered] = r_pos[best[answered]]
-            note = offset_note(clock_offset(times, est, self.track.times, self.track.xy))
+            from ..sources.tracks.offset import clock_offset, offset_note
+
+            note = offset_note(clock_offset(times, est, self.track.times, self.track.xy), not self.track.absolute)
             if note:
                 logger.warning("%s", note)
         return correct, has, q_pos
@@ -163,6 +167,7 @@ def check_options(opts: VideoOptions, video: bool, query: str) -> None:
         return
     for flag, value in (("--fps", opts.fps), ("--every-metres", opts.every_metres),
                         ("--realtime", opts.realtime or None), ("--positions", opts.positions),
+                        ("--stream", opts.stream),
                         ("--video-start", opts.video_start)):
         if value is not None:
             hint = "; hint: for images with positions, build a dataset (seqnet dataset from-images REF QUERY " \

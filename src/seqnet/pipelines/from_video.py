@@ -42,6 +42,10 @@ class FromVideoConfig(Config):
         video_start: when both videos' first frames were recorded, overriding their ``creation_time`` (ISO-8601).
         max_gap: seconds between two track samples a frame may be interpolated across.
         fit_on: ``reference`` or ``both``: where PCA / NetVLAD clusters are fitted.
+        splits: named half-open ranges of the kept frames ``{name: {"reference": (a, b), "query": (c, d)}}``
+            (``--split``, as the other builders: :class:`~seqnet.pipelines.from_images.FromImagesConfig`).
+        streams: which video stream of each file (reference, query) is read (None: the first that is not a cover
+            picture; :func:`seqnet.sources.video.choose_stream`).
         name: dataset name (None: the output directory's).
     """
 
@@ -54,6 +58,8 @@ class FromVideoConfig(Config):
     max_gap: float = DEFAULT_MAX_GAP
     fit_on: str = "reference"
     name: str | None = None
+    streams: tuple[int | None, int | None] = (None, None)
+    splits: dict | None = None
 
     def __post_init__(self) -> None:
         for key in ("fps", "every_metres"):
@@ -85,8 +91,9 @@ def place_both(conf: FromVideoConfig, videos: tuple[str | Path, str | Path],
         raise ConfigError("--aligned is for videos without positions; with --ref-positions / --query-positions the "
                           "frames are placed by them")
     kw = {"fps": conf.fps, "every_metres": conf.every_metres, "video_start": _start(conf), "max_gap": conf.max_gap}
-    ref = place_video(videos[0], positions[0], **kw)
-    qry = place_video(videos[1], positions[1], zone=frame_zone(ref.frame), **kw)
+    ref = place_video(videos[0], positions[0], stream=conf.streams[0], flag="--ref-stream", **kw)
+    qry = place_video(videos[1], positions[1], zone=frame_zone(ref.frame), stream=conf.streams[1],
+                      flag="--query-stream", **kw)
     if ref.frame != qry.frame:
         raise ConfigError(mixed_frames(str(ref.frame), str(qry.frame)))
     if conf.aligned and len(ref.frames) != len(qry.frames):
@@ -120,10 +127,11 @@ def main(conf: FromVideoConfig, reference: str | Path, query: str | Path, out: s
         pos = ((ref.positions, None), (qry.positions, None))
         unit = ("metres", ref.frame)
     inner = FromImagesConfig(describe=conf.describe, fit_on=conf.fit_on, radius=conf.radius, name=conf.name,
-                             ground_truth="frames" if conf.aligned else "csv")
+                             ground_truth="frames" if conf.aligned else "csv", splits=conf.splits)
     extra = {"ground_truth": "aligned" if conf.aligned else "positions",
-             "videos": {side: {"path": str(Path(v).resolve()), "frames": p.counts,
-                               **({"positions": str(Path(f).resolve())} if f is not None else {})}
+             "videos": {side: {"path": str(Path(v).resolve()), "stream": p.stream, "frames": p.counts,
+                               **({"positions": str(Path(f).resolve()), "track_times": p.track_times}
+                                  if f is not None else {})}
                         for side, v, p, f in zip(("reference", "query"), (reference, query), (ref, qry), positions,
                                                  strict=True)},
              "sampling": {"fps": conf.fps, "every_metres": conf.every_metres}}

@@ -25,24 +25,30 @@ from .video import VideoFile, VideoFrame
 @dataclasses.dataclass
 class Placed:
     """Frames of one video: ``frames`` (:class:`VideoFrame` s), ``names``, ``positions [K, 2]`` metres in
-    ``frame`` (None without a track), and the counts ``total`` / ``outside`` (dropped: no position) / ``kept``."""
+    ``frame`` (None without a track), the counts ``total`` / ``outside`` (dropped: no position) / ``kept``, and
+    ``stream``: the number of the video stream read (0: the file's first); ``track_times``: ``seconds`` (since the
+    video's start) or ``absolute``, the kind of its track's times (None without a track)."""
 
     frames: list[VideoFrame]
     names: list[str]
     positions: np.ndarray | None
     frame: str | None
     counts: dict[str, int]
+    stream: int = 0
+    track_times: str | None = None
 
 
 @dataclasses.dataclass(frozen=True)
 class JoinedTrack:
     """A track joined to a video's clock: its fixes' ``times [S]`` (seconds since the video's first frame) at
-    ``xy [S, 2]`` metres in ``frame``; ``geographic``: read as latitude / longitude."""
+    ``xy [S, 2]`` metres in ``frame``; ``geographic``: read as latitude / longitude; ``absolute``: its times were
+    absolute (ISO-8601, GPX, NMEA, Unix epoch), not seconds since the video's start."""
 
     times: np.ndarray
     xy: np.ndarray
     frame: str
     geographic: bool
+    absolute: bool = True
 
     def at(self, times: np.ndarray, max_gap: float = DEFAULT_MAX_GAP) -> tuple[np.ndarray, np.ndarray]:
         """``(xy [N, 2], inside [N])`` at the frame ``times [N]`` (:func:`at_times`)."""
@@ -55,7 +61,7 @@ def join_track(positions: str | Path, start: datetime.datetime | None, duration:
     (UTM ``zone`` when given)."""
     track = read_track(positions)
     xy, frame = to_metres(track, zone)
-    return JoinedTrack(video_times(track, start, duration), xy, frame, track.geographic)
+    return JoinedTrack(video_times(track, start, duration), xy, frame, track.geographic, track.absolute)
 
 
 def track_positions(positions: str | Path, times: np.ndarray, start: datetime.datetime | None, duration: float,
@@ -69,18 +75,21 @@ def track_positions(positions: str | Path, times: np.ndarray, start: datetime.da
 
 def place_video(path: str | Path, positions: str | Path | None = None, fps: float | None = None,
                 every_metres: float | None = None, video_start: datetime.datetime | None = None,
-                zone: tuple[int, str] | None = None, max_gap: float = DEFAULT_MAX_GAP) -> Placed:
+                zone: tuple[int, str] | None = None, max_gap: float = DEFAULT_MAX_GAP, stream: int | None = None,
+                flag: str = "--stream") -> Placed:
     """The frames of the video ``path`` kept and placed (see the module docstring); ``video_start`` overrides the
-    container's ``creation_time``; ``zone``: the UTM zone positions are computed in (default: the track's)."""
+    container's ``creation_time``; ``zone``: the UTM zone positions are computed in (default: the track's);
+    ``stream``: which of its video streams (:func:`~seqnet.sources.video.choose_stream`, ``flag`` names it)."""
     if every_metres is not None and positions is None:
         raise ConfigError("--every-metres needs positions (--ref-positions / --query-positions FILE)")
-    video = VideoFile(path)
+    video = VideoFile(path, stream, flag)
     idx = np.arange(len(video))
-    xy, frame = None, None
+    xy, frame, kind = None, None, None
     if positions is not None:
         joined = join_track(positions, video_start or video.start, video.duration, zone)
         xy, inside = joined.at(video.times, max_gap)
         frame, placed = joined.frame, int(inside.sum())
+        kind = "absolute" if joined.absolute else "seconds"
         check_placed(placed, len(video.times), joined.times, video.duration, max_gap,
                      f"the track {shown(positions)} places {placed or 'none'} of the {len(video.times)} frames of "
                      f"the video {shown(path)}")
@@ -94,5 +103,6 @@ def place_video(path: str | Path, positions: str | Path | None = None, fps: floa
         logger.warning("%s: %d of %d frames lie outside the track %s (no position): dropped", path,
                        counts["outside"], counts["total"], positions)
     frames = [VideoFrame(video, int(i)) for i in idx]
-    return Placed(frames, [f.name for f in frames], None if xy is None else xy[idx], frame, counts)
+    return Placed(frames, [f.name for f in frames], None if xy is None else xy[idx], frame, counts,
+                  video.stream_number, kind)
 

@@ -19,7 +19,7 @@ from typing import Any
 from ..core.errors import DatasetError
 from ..security.text import shown
 from ..security.videos import DEFAULT_TIMEOUT, av_errors, check_size, is_stream_name, open_stream, why
-from .video import creation_time, frame_image, frame_name
+from .video import choose_stream, creation_time, frame_image, frame_name
 
 
 class StreamFrame:
@@ -49,15 +49,21 @@ class StreamFrame:
 class FrameStream:
     """The frames of ``name`` (a URL, ``/dev/videoN`` or a video file) in order; iterate once. :attr:`start`: when
     its first frame was recorded (a file's ``creation_time``; a live stream's arrival of its first frame), known
-    after the first frame; :attr:`decoded`, :attr:`dropped` and :attr:`decode_ms` (per frame handed over)."""
+    after the first frame; :attr:`decoded`, :attr:`dropped` and :attr:`decode_ms` (per frame handed over).
+    ``stream``: which video stream of several (:func:`~seqnet.sources.video.choose_stream`; ``flag`` names it)."""
 
     def __init__(self, name: str, fps: float | None = None, realtime: bool = False, timeout: float = DEFAULT_TIMEOUT,
                  lag: float | None = None, clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+                 sleep: Callable[[float], None] = time.sleep, stream: int | None = None,
+                 flag: str = "--stream") -> None:
         self.name, self.fps, self.realtime, self.timeout = str(name), fps, realtime, timeout
         self.live = is_stream_name(self.name)
         self.container, self._file = open_stream(self.name, timeout)
-        self.stream = self.container.streams.video[0]
+        try:
+            self.stream, self.stream_number = choose_stream(self.container, self.name, stream, flag)
+        except BaseException:
+            self.close()
+            raise
         rate = float(self.stream.average_rate or 0) or 30.0
         self.lag = lag if lag is not None else 1.5 / rate  # behind by more than a frame and a half: dropped
         self.start = None if self.live else creation_time(self.container, self.stream)

@@ -6,7 +6,10 @@ decoded when it is opened: frames opened in order cost one decoding pass (one fr
 any other frame is reached by seeking to the keyframe before it. Each frame is named by its video time
 (``12.345678``, seconds), so positions join it by time; :func:`video_images` lists the frames of a video
 (every frame, or ``fps`` per second of video). A frame comes upright (:func:`frame_image`): the stream's display
-rotation (what phones write instead of rotating the pixels) is applied, as players do.
+rotation (what phones write instead of rotating the pixels) is applied, as players do. A file of several video
+streams (a dual-camera dashcam's front and rear) is read from the one :func:`choose_stream` picks: the number
+given (``--stream N``: 0 is the first video stream), else the first that is not a cover picture, said in a warning
+listing them all.
 """
 
 from __future__ import annotations
@@ -19,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import DatasetError, ImageError
+from ..core.errors import ConfigError, DatasetError, ImageError
+from ..core.log import logger
 from ..security.text import shown
 from ..security.videos import av_errors, check_size, open_video_file, why
 from .sampling import every_seconds
@@ -66,21 +70,61 @@ def frame_image(frame: Any) -> Any:
     return im if quarter == 0 else im.transpose((t.ROTATE_90, t.ROTATE_180, t.ROTATE_270)[quarter - 1])
 
 
+ATTACHED_PIC = 0x400  # FFmpeg's AV_DISPOSITION_ATTACHED_PIC: a cover picture stored as a one-frame video stream
+
+
+def is_cover(stream: Any) -> bool:
+    """Whether a PyAV video stream is an attached picture (cover art), not a video."""
+    try:
+        return bool(int(getattr(stream, "disposition", 0) or 0) & ATTACHED_PIC)
+    except (TypeError, ValueError):
+        return False
+
+
+def _said(i: int, stream: Any) -> str:
+    cc = stream.codec_context
+    return f"{i}: {cc.width}x{cc.height}" + (" cover picture" if is_cover(stream) else "")
+
+
+def choose_stream(container: Any, where: Any, number: int | None = None, flag: str = "--stream") -> tuple[Any, int]:
+    """``(stream, n)``: video stream ``number`` of an open container (0: its first video stream), else the first
+    that is not a cover picture; more than one such video stream is warned (their sizes, the one used, ``flag``), a
+    ``number`` it lacks or a cover picture is a :class:`ConfigError`. Its frame size is checked before decoding."""
+    streams = list(container.streams.video)
+    listed = ", ".join(_said(i, s) for i, s in enumerate(streams))
+    if number is not None:
+        if not 0 <= number < len(streams) or is_cover(streams[number]):
+            what = "is a cover picture, not a video" if 0 <= number < len(streams) else "does not exist"
+            raise ConfigError(f"{flag} {number}: video stream {number} of {shown(where)} {what}; it holds "
+                              f"{len(streams)} video stream{'s' if len(streams) != 1 else ''} ({listed})")
+        chosen = number
+    else:
+        videos = [i for i, s in enumerate(streams) if not is_cover(s)] or [0]
+        chosen = videos[0]
+        if len(videos) > 1:
+            logger.warning("%s has %d video streams (%s); using %d (hint: %s N picks another, 0 the first)",
+                           where, len(streams), listed, chosen, flag)
+    stream = streams[chosen]
+    check_size(int(stream.codec_context.width or 0), int(stream.codec_context.height or 0), where)
+    return stream, chosen
+
+
 def _close(container: Any, file: Any) -> None:
     container.close()
     file.close()
 
 
 class VideoFile:
-    """The frames of a video file's first video stream: :attr:`pts` ``[N]`` (in order), :attr:`times` ``[N]``
-    (seconds from the first frame), :attr:`start` (when it was recorded, or None) and :attr:`duration` (s).
+    """The frames of one video stream of a file (:func:`choose_stream`; :attr:`stream_number`): :attr:`pts`
+    ``[N]`` (in order), :attr:`times` ``[N]`` (seconds from the first frame), :attr:`start` (when it was
+    recorded, or None) and :attr:`duration` (s).
     The file stays open for :meth:`read` until :meth:`close` (or the object goes away)."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, stream: int | None = None, flag: str = "--stream") -> None:
         self.path = Path(path)
         self.container, file = open_video_file(self.path)
         self._finalizer = weakref.finalize(self, _close, self.container, file)
-        self.stream = self.container.streams.video[0]
+        self.stream, self.stream_number = choose_stream(self.container, self.path, stream, flag)
         self.pts = self._index()
         self.time_base = float(self.stream.time_base)
         self.times = (self.pts - self.pts[0]) * self.time_base
@@ -188,9 +232,11 @@ class VideoFrame:
         return self  # a reference into an open video: copies share it
 
 
-def video_images(path: str | Path, fps: float | None = None) -> tuple[list[VideoFrame], list[str]]:
-    """``(frames, names)`` of the video ``path``: every frame, or the first of each ``1 / fps`` seconds."""
-    video = VideoFile(path)
+def video_images(path: str | Path, fps: float | None = None,
+                 stream: int | None = None) -> tuple[list[VideoFrame], list[str]]:
+    """``(frames, names)`` of the video ``path`` (its video ``stream``: :func:`choose_stream`): every frame, or the
+    first of each ``1 / fps`` seconds."""
+    video = VideoFile(path, stream)
     keep = range(len(video)) if fps is None else every_seconds(video.times, fps)
     frames = [VideoFrame(video, int(i)) for i in keep]
     names = [f.name for f in frames]

@@ -10,6 +10,7 @@ from ...pipelines.from_video import FIT_ON, FromVideoConfig, main
 from ..common import add_device, positive_float
 from ..describe_cmd import add_describe_options, describe_config
 from .images import written
+from .splits import parse_splits
 
 
 def add_video_options(p: argparse.ArgumentParser) -> None:
@@ -44,6 +45,12 @@ def register_from_video(dsub: argparse._SubParsersAction) -> None:
                    "frames with --aligned; default 25 m, or 1 frame)")
     p.add_argument("--max-gap", type=positive_float, metavar="SECONDS", help="track samples further apart than this "
                    "place no frame between them (default 10 s)")
+    for side, what in (("ref", "reference"), ("query", "query")):
+        p.add_argument(f"--{side}-stream", type=int, metavar="N", help=f"the {what} file's video stream N (0: its "
+                       "first; default: the first that is not a cover picture, warned when it holds several)")
+    p.add_argument("--split", action="append", default=[], metavar="NAME=A:B[,C:D]",
+                   help="named split of the kept frames: NAME=A:B selects query frames A:B against the whole "
+                   "reference; NAME=A:B,C:D gives the reference range A:B and the query frames C:D; repeatable")
     p.add_argument("--fit-on", choices=FIT_ON, default="reference", help="frames to fit PCA / NetVLAD clusters on")
     p.add_argument("--name", help="dataset name (default: the output directory name)")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if seqnet wrote it")
@@ -56,7 +63,9 @@ def run_from_video(args: argparse.Namespace) -> int:
     radius = args.radius or (1.0 if args.aligned else 25.0)
     conf = FromVideoConfig(describe=describe_config(args), fps=args.fps, every_metres=args.every_metres,
                            aligned=args.aligned, radius=radius, video_start=args.video_start, fit_on=args.fit_on,
-                           name=args.name, **({"max_gap": args.max_gap} if args.max_gap else {}))
+                           name=args.name, streams=(args.ref_stream, args.query_stream),
+                           splits=parse_splits(args.split),
+                           **({"max_gap": args.max_gap} if args.max_gap else {}))
     out = main(conf, args.reference, args.query, args.out, (args.ref_positions, args.query_positions),
                overwrite=args.overwrite)
     meta = json.loads((out / "dataset.json").read_text(encoding="utf-8"))

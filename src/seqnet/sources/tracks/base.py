@@ -12,6 +12,19 @@ from ...core.log import logger
 from ...security.text import shown
 
 MAX_TRACK_BYTES = 1 << 28  # a GPX / NMEA / CSV track file larger than this is refused before it is read
+EPOCH_UNITS = ((1.0, "seconds"), (1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds"))
+EPOCH_SPAN = (1e9, 1e10)  # Unix epoch seconds of 2001-09-09 .. 2286-11-20: numbers this large are no video's seconds
+
+
+def epoch_unit(times: np.ndarray) -> tuple[float, str] | None:
+    """``(per second, name)`` of numeric track times ``[S]`` that are all Unix epoch times in one of
+    :data:`EPOCH_UNITS` (seconds around 1.7e9, milliseconds 1.7e12, microseconds 1.7e15, nanoseconds 1.7e18);
+    None for any other numbers (seconds since a video's start)."""
+    t = np.asarray(times, np.float64)
+    if not len(t) or not np.isfinite(t).all():
+        return None
+    lo, hi = float(t.min()), float(t.max())
+    return next(((k, name) for k, name in EPOCH_UNITS if EPOCH_SPAN[0] <= lo / k and hi / k < EPOCH_SPAN[1]), None)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,6 +36,9 @@ class Track:
             track of GGA sentences only (times of day, no date: ``dated`` False) counts from its day's midnight.
         coords: latitude, longitude (degrees) when ``geographic``; else x, y (metres, in the track's own frame).
         source: the file (for messages).
+        epoch: how numbers read as Unix epoch times were written (``milliseconds``: :data:`EPOCH_UNITS`), for
+            messages; "" for any other track.
+        zoned: False when ISO-8601 times were written without a zone (read as UTC; local time is a common slip).
     """
 
     times: np.ndarray
@@ -31,6 +47,8 @@ class Track:
     geographic: bool
     source: str
     dated: bool = True
+    epoch: str = ""
+    zoned: bool = True
 
 
 def track_of(times: list[float], coords: list[tuple[float, float]], source: str, **kw: bool) -> Track:

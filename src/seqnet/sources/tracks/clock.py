@@ -1,10 +1,10 @@
 """Joining a track's clock to a video's: every track time as seconds since the video's first frame.
 
 A track in seconds since the video's start (a CSV of numbers) is taken as it is. A track of absolute times (GPX,
-NMEA, ISO-8601 CSV) is placed by the video's own clock, the time its first frame was recorded: the container's
-``creation_time``, or ``--video-start`` (which wins: a phone may store the end of the recording, or local time
-as UTC). A track that does not overlap the video is refused, never shifted: another day's track by its date,
-the same day's by both time spans.
+NMEA, ISO-8601 or Unix epoch times in a CSV) is placed by the video's own clock, the time its first frame was
+recorded: the container's ``creation_time``, or ``--video-start`` (which wins: a phone may store the end of the
+recording, or local time as UTC). A track that does not overlap the video is refused, never shifted: another
+day's track by its date, the same day's by both time spans.
 """
 
 from __future__ import annotations
@@ -19,7 +19,9 @@ from ..times import parse_iso
 from .base import Track
 
 DAY = 86400.0
+MAX_ZONE = 14.0  # hours: the largest offset of a time zone from UTC
 MS_RATIO = 200.0  # a track spanning this many times the video's length: its times are probably milliseconds
+UNIT_RATIOS = ((2e5, "milliseconds"), (2e8, "microseconds"), (float("inf"), "nanoseconds"))  # span / duration below
 
 
 def parse_start(text: str) -> datetime.datetime:
@@ -42,14 +44,16 @@ def video_times(track: Track, start: datetime.datetime | None, duration: float) 
     if not track.absolute:
         return track.times
     if start is None:
-        raise ConfigError(f"{shown(track.source)} has absolute times, but the video records no creation_time; give "
-                          "its start with --video-start ISO-8601 (e.g. 2024-05-01T10:00:00Z)")
+        kind = f" (Unix epoch {track.epoch}: {_utc(track.times[0])} UTC on)" if track.epoch else ""
+        raise ConfigError(f"{shown(track.source)} has absolute times{kind}, but the video records no creation_time; "
+                          "give its start with --video-start ISO-8601 (e.g. 2024-05-01T10:00:00Z)")
     t0 = start.timestamp()
     times = track.times
     if not track.dated:  # NMEA GGA only: times of day, taken on the video's (UTC) day
         times = times + (t0 - t0 % DAY)
     rel = times - t0
     if rel[-1] < 0 or rel[0] > duration:
+        _refuse_hours_off(track, rel, start, duration)
         day_t, day_v = _utc(times[0])[:10], _utc(t0)[:10]
         if day_t != day_v and _utc(times[-1])[:10] != day_v:
             raise DatasetError(f"{shown(track.source)} is a track of {day_t} (UTC), the video was recorded on {day_v}: "
@@ -61,11 +65,51 @@ def video_times(track: Track, start: datetime.datetime | None, duration: float) 
     return rel
 
 
+def hours_off(rel: np.ndarray, duration: float) -> float | None:
+    """The whole number of half hours (in hours, within :data:`MAX_ZONE` h) by which a track of times ``rel [S]``
+    (seconds since the video's first frame) that misses a ``duration`` s video would overlap it when shifted
+    earlier: a clock in local time read as UTC (or the other way round); None when no such shift overlaps."""
+    k = round(float(rel[0]) / 1800.0) * 1800.0
+    if k == 0 or abs(k) > MAX_ZONE * 3600.0:
+        return None
+    return k / 3600.0 if rel[-1] - k >= 0 and rel[0] - k <= duration else None
+
+
+def _refuse_hours_off(track: Track, rel: np.ndarray, start: datetime.datetime, duration: float) -> None:
+    """Refuse (:class:`DatasetError`) a track a whole number of hours off the video, naming the likely fix: the
+    zone of a track written in local time without one, else the video's clock (``--video-start``)."""
+    h = hours_off(rel, duration)
+    if h is None:
+        return
+    way = "after" if h > 0 else "before"
+    said = (f"{shown(track.source)} does not overlap the video: the track spans {_utc(track.times[0])} .. "
+            f"{_utc(track.times[-1])} UTC, {abs(h):g} h {way} the video's {_utc(start.timestamp())} .. "
+            f"{_utc(start.timestamp() + duration)} UTC")
+    if not track.zoned:
+        zone = f"{'+' if h > 0 else '-'}{int(abs(h)):02d}:{round(abs(h) % 1 * 60):02d}"
+        raise DatasetError(f"{said}: local time? its times name no zone and are read as UTC (hint: write them with "
+                           f"their zone, e.g. {_utc(track.times[0]).replace(' ', 'T')}{zone})")
+    fixed = datetime.datetime.fromtimestamp(start.timestamp() + h * 3600.0, datetime.timezone.utc)
+    raise DatasetError(f"{said}: the video's clock in another time zone? (hint: --video-start "
+                       f"{fixed.strftime('%Y-%m-%dT%H:%M:%S')}Z if the track's times are right)")
+
+
 def in_milliseconds(track_times: np.ndarray, duration: float) -> bool:
     """Whether a track of sorted times ``[S]`` spans far more than the ``duration`` s video it goes with
-    (:data:`MS_RATIO` times): times written in milliseconds, read as seconds."""
+    (:data:`MS_RATIO` times): times written in milliseconds (or a smaller unit: :func:`time_unit`), read as
+    seconds."""
+    return time_unit(track_times, duration) is not None
+
+
+def time_unit(track_times: np.ndarray, duration: float) -> str | None:
+    """The unit the times ``[S]`` (sorted) of a track far longer than its ``duration`` s video were probably
+    written in, by the ratio of the spans (about 1e3: ``milliseconds``, 1e6: ``microseconds``, 1e9:
+    ``nanoseconds``; :data:`UNIT_RATIOS`); None when the spans are alike (under :data:`MS_RATIO` times)."""
     t = np.asarray(track_times, np.float64)
-    return bool(len(t) > 1 and duration > 0 and t[-1] - t[0] > MS_RATIO * duration)
+    if not (len(t) > 1 and duration > 0 and t[-1] - t[0] > MS_RATIO * duration):
+        return None
+    ratio = (t[-1] - t[0]) / duration
+    return next(name for bound, name in UNIT_RATIOS if ratio < bound)
 
 
 def why_outside(track_times: np.ndarray, duration: float, max_gap: float) -> str:
@@ -73,9 +117,10 @@ def why_outside(track_times: np.ndarray, duration: float, max_gap: float) -> str
     first frame): times in milliseconds, frames inside a gap longer than ``max_gap``, or no overlap."""
     t = np.asarray(track_times, np.float64)
     span = float(t[-1] - t[0]) if len(t) else 0.0
-    if in_milliseconds(t, duration):
-        return (f"the track spans {span:.0f} s against a video of {duration:.1f} s: times in milliseconds? (numeric "
-                "times are read as seconds since the video's start)")
+    unit = time_unit(t, duration)
+    if unit is not None:
+        return (f"the track spans {span:.0f} s against a video of {duration:.1f} s: times in {unit}? (numeric "
+                "times are read as seconds since the video's start, unless they are Unix epoch times)")
     gaps = np.diff(t)
     inside = (t[:-1] < duration) & (t[1:] > 0) & (gaps > max_gap)
     if inside.any():
