@@ -149,7 +149,7 @@ def _read_list_file(src: Path) -> ImageList:
     if src.suffix.lower() in IMAGE_EXTENSIONS:
         return ImageList(paths=[src], names=[src.name])
     try:
-        lines = read_text(src, MAX_LIST, "image list file", ImageError).splitlines()
+        lines = read_text(src, MAX_LIST, "image list file", ImageError).removeprefix("\ufeff").splitlines()
     except ImageError as err:
         if "not UTF-8" not in str(err):
             raise
@@ -163,9 +163,23 @@ def _read_list_file(src: Path) -> ImageList:
             raise ImageError(f"{src}, line {n}: '{shown(name)}' is listed again (first on line {first[name]}); each "
                              "image is listed once (hint: remove the duplicate line)")
         first[name] = n
-    names = [name for _, name in listed]
+    names = [_forward_slashes(src, n, name) for n, name in listed]
     paths = [Path(n) if Path(n).is_absolute() else src.parent / n for n in names]
+    if names != [name for _, name in listed]:
+        logger.info("%s: paths written with backslashes (Windows) read with '/'", src)
     return ImageList(paths=paths, names=_checked(names, src))
+
+
+def _forward_slashes(src: Path, line: int, name: str) -> str:
+    """A listed ``name`` as it is, or with ``\\`` read as ``/`` (a list written on Windows) when only that is a
+    file; a backslash path that is neither: :class:`ImageError`, with the hint."""
+    if "\\" not in name or (src.parent / name).exists():
+        return name
+    slashed = name.replace("\\", "/")
+    if (src.parent / slashed).exists():
+        return slashed
+    raise ImageError(f"{src}, line {line}: image not found: '{shown(name)}' (nor with '/' for its backslashes); hint: "
+                     "a Windows path? List the images relative to the list file's folder, with '/'")
 
 
 def _checked(names: list[str], src: Path) -> list[str]:
