@@ -113,6 +113,14 @@ def test_csv_header_errors(tmp_path, header, match):
         read_positions_csv(tmp_path / "bad.csv")
 
 
+def test_long_is_a_longitude_header(tmp_path):
+    """``lat,long`` (Google Takeout, many loggers) reads as ``lat,lon``."""
+    for header in ("name,lat,lon", "name,Lat,Long"):
+        (tmp_path / "p.csv").write_text(f"{header}\na.png,67.28,14.40\nb.png,67.29,14.41\n")
+        names, pos, unit, _ = read_positions_csv(tmp_path / "p.csv")
+        assert unit == "degrees" and pos.tolist() == [[67.28, 14.40], [67.29, 14.41]]
+
+
 def test_csv_non_numeric_names_line(tmp_path):
     _write_csv(tmp_path / "bad.csv", [("a", 1, 2), ("b", "oops", 2)])
     with pytest.raises(DatasetError, match="line 3"):
