@@ -121,6 +121,26 @@ def test_long_is_a_longitude_header(tmp_path):
         assert unit == "degrees" and pos.tolist() == [[67.28, 14.40], [67.29, 14.41]]
 
 
+def test_csv_repeated_header_and_leading_comment_lines(tmp_path, caplog):
+    """Two logs concatenated: the repeated header is named by its line (not 'must be finite numbers ...
+    timestamps?'); '# exported by ...' lines before the header are left out and said; a plain CSV says nothing."""
+    rows = "".join(f"{i}.png,{i}\n" for i in range(4))
+    (tmp_path / "cat.csv").write_text("name,frame\n" + rows + "Name, Frame\n" + rows.replace(".png", "b.png"))
+    with pytest.raises(DatasetError, match=r"cat.csv, line 6: the header repeats \(two files concatenated\?\); "
+                                           r"hint: remove line 6"):
+        read_positions_csv(tmp_path / "cat.csv")
+    (tmp_path / "c.csv").write_text("# exported by mylogger 1.2, v3\n#\nname;frame\n" + rows.replace(",", ";"))
+    with caplog.at_level("INFO", logger="seqnet"):
+        names, pos, unit, _ = read_positions_csv(tmp_path / "c.csv")
+    assert list(names) == ["0.png", "1.png", "2.png", "3.png"] and pos[:, 0].tolist() == [0, 1, 2, 3]
+    assert "c.csv: left out 2 comment lines ('#') before the header" in caplog.text
+    caplog.clear()
+    (tmp_path / "ok.csv").write_text("name,frame\n" + rows)
+    with caplog.at_level("INFO", logger="seqnet"):
+        read_positions_csv(tmp_path / "ok.csv")
+    assert not caplog.records
+
+
 def test_csv_non_numeric_names_line(tmp_path):
     _write_csv(tmp_path / "bad.csv", [("a", 1, 2), ("b", "oops", 2)])
     with pytest.raises(DatasetError, match="line 3"):

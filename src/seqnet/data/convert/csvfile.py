@@ -34,23 +34,34 @@ SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
 SHORT_SEQUENCE = 5  # the default sequence length L (seqnet.sequence.windows.DEFAULT_SEQ_LEN; a test keeps them equal)
 
 
-def read_csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+def read_csv_rows(path: str | Path, quiet: bool = False) -> tuple[list[str], list[tuple[int, list[str]]]]:
     """The lower-cased header and the non-blank data rows ``(line number, fields)`` of a UTF-8 CSV file
-    (fields separated by ``,``, ``;`` or a tab, as its first line is)."""
+    (fields separated by ``,``, ``;`` or a tab, as its first line is). ``#`` comment lines before the header
+    are left out (said in one line, unless ``quiet``); the header repeated among the rows (two files
+    concatenated) is an error."""
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"CSV file not found: {p}")
     text = read_text(p, "CSV file")  # a FIFO or device is refused, never read; a byte-order mark dropped
-    first = next((line for line in text.splitlines() if line.strip()), "")
+    first = next((line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")), "")
     try:
         reader = csv.reader(io.StringIO(text, newline=""), delimiter=field_separator(first) or ",")
         rows = [(n, r) for n, r in enumerate(reader, start=1)]
     except csv.Error as e:
         raise DatasetError(f"{p}: not a valid CSV file ({' '.join(str(e).split())[:200]})") from e
     rows = [(n, r) for n, r in rows if r and any(c.strip() for c in r)]
+    comments = next((i for i, (_, r) in enumerate(rows) if not r[0].lstrip().startswith("#")), len(rows))
+    if comments and not quiet:
+        logger.info("%s: left out %s ('#') before the header", p, counted(comments, "comment line"))
+    rows = rows[comments:]
     if len(rows) < 2:
         raise DatasetError(f"{p}: needs a header row and at least one data row")
-    return [h.strip().lower() for h in rows[0][1]], rows[1:]
+    header = [h.strip().lower() for h in rows[0][1]]
+    again = next((n for n, r in rows[1:] if [h.strip().lower() for h in r] == header), None)
+    if again is not None:
+        raise DatasetError(f"{p}, line {again}: the header repeats (two files concatenated?); hint: remove line "
+                           f"{again}, and check that the rows after it belong to this traverse")
+    return header, rows[1:]
 
 
 @dataclasses.dataclass
@@ -72,7 +83,7 @@ def position_kinds(path: str | Path) -> dict[str, list[str]]:
     """The kinds of positions a positions CSV has (``metres``, ``degrees``, ``frames``, in :data:`KIND_COLUMNS`'s
     order: the first is used by default), each with its columns as the header names them."""
     p = Path(path)
-    header, _ = read_csv_rows(p)
+    header, _ = read_csv_rows(p, quiet=True)  # said when the rows are read
     col = _find_columns(header, p)
     return {k: [header[col[c]] for c in cs] for k, cs in KIND_COLUMNS.items() if all(c in col for c in cs)}
 
