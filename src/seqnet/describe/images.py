@@ -19,12 +19,13 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
-from ..core.log import counted, logger
+from ..core.log import logger
 from ..data.order import name_order
 from ..data.readers import check_names
 from ..security.inputs import read_text, special_file
 from ..security.pictures import decode, read_image, size_mismatch
 from ..security.text import shown
+from .folders import empty_folder_hint, say_left_out
 
 if TYPE_CHECKING:
     from ..sources.bags.positions import Positions
@@ -109,7 +110,8 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
     if src.is_dir():
         entries = list(src.iterdir())
         files = [p for p in entries if p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith(".")]
-        _say_left_out(src, [p for p in entries if p.suffix.lower() not in IMAGE_EXTENSIONS or p.name.startswith(".")])
+        say_left_out(src, [p for p in entries if p.suffix.lower() not in IMAGE_EXTENSIONS or p.name.startswith(".")],
+                     IMAGE_EXTENSIONS)
         odd = next((p for p in files if not p.is_file()), None)
         if odd is not None:  # left out, it would shift every frame after it (frame-aligned ground truth)
             kind = special_file(odd) or ("broken link" if odd.is_symlink() else "directory")
@@ -117,32 +119,12 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
                              "their order in the folder)")
         files = [files[i] for i in name_order([p.name for p in files])]  # decimal names by value
         if not files:
-            raise ImageError(
-                f"no images in folder {src} (looked for {', '.join(IMAGE_EXTENSIONS)}; "
-                "hint: pass a folder of images or a text file listing them)"
-            )
+            raise ImageError(f"no images in folder {src} (looked for {', '.join(IMAGE_EXTENSIONS)}; "
+                             f"{empty_folder_hint(src, IMAGE_EXTENSIONS)})")
         return ImageList(paths=files, names=_checked([p.name for p in files], src))
     if src.exists():
         return _read_list_file(src)
     raise ImageError(f"image folder or list file not found: {src}")
-
-
-def _say_left_out(src: Path, others: list[Path]) -> None:
-    """Say (INFO) what of the folder ``src`` is not taken as an image: hidden files (macOS ``._*`` AppleDouble
-    files, ``.DS_Store``), sub-folders and files of other extensions, counted by kind."""
-    if not others:
-        return
-    hidden = sum(p.name.startswith(".") for p in others)
-    folders = sum(p.is_dir() and not p.name.startswith(".") for p in others)
-    kinds: dict[str, int] = {}
-    for p in others:
-        if not p.name.startswith(".") and not p.is_dir():
-            kinds[p.suffix.lower() or "no extension"] = kinds.get(p.suffix.lower() or "no extension", 0) + 1
-    parts = ([f"{counted(sum(kinds.values()), 'file')} of other extensions ("
-              + ", ".join(f"{k}: {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])[:5]) + ")"]
-             if kinds else []) + ([counted(hidden, "hidden file")] if hidden else []) + \
-        ([counted(folders, "sub-folder")] if folders else [])
-    logger.info("%s: left out %s (images are %s files)", src, ", ".join(parts), " ".join(IMAGE_EXTENSIONS))
 
 
 def _read_list_file(src: Path) -> ImageList:
