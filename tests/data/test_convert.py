@@ -141,6 +141,23 @@ def test_csv_repeated_header_and_leading_comment_lines(tmp_path, caplog):
     assert not caplog.records
 
 
+def test_rows_without_a_gps_fix_are_named_together(tmp_path):
+    """A GPS outage (nan,nan or empty fields) and lat/lon 0, 0 'no fix' markers: one error naming the lines and
+    what to do (not 'must be finite numbers' at the first); x,y 0, 0 is a position; a bad number keeps its line."""
+    rows = [f"{i}.png,67.{28 + i},14.40" for i in range(8)]
+    for bad in (("nan", "nan"), ("", ""), ("0", "0.0")):
+        text = "\n".join(r if i not in (3, 4) else f"{i}.png,{bad[0]},{bad[1]}" for i, r in enumerate(rows))
+        (tmp_path / "p.csv").write_text("name,lat,lon\n" + text + "\n")
+        with pytest.raises(DatasetError, match=r"p.csv: 2 rows without a position \(empty, NaN or lat/lon 0, 0: no "
+                                               r"GPS fix\?\) on lines 5, 6; hint: give them positions"):
+            read_positions_csv(tmp_path / "p.csv")
+    (tmp_path / "m.csv").write_text("name,x,y\na.png,0,0\nb.png,1,0\n")
+    assert read_positions_csv(tmp_path / "m.csv")[1].tolist() == [[0, 0], [1, 0]]
+    (tmp_path / "m.csv").write_text("name,x,y\na.png,0,0\nb.png,1,inf\n")
+    with pytest.raises(DatasetError, match=r"m.csv, line 3: position columns \['x', 'y'\] must be finite"):
+        read_positions_csv(tmp_path / "m.csv")
+
+
 def test_csv_non_numeric_names_line(tmp_path):
     _write_csv(tmp_path / "bad.csv", [("a", 1, 2), ("b", "oops", 2)])
     with pytest.raises(DatasetError, match="line 3"):

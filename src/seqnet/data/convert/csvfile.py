@@ -137,25 +137,46 @@ def read_positions_table(path: str | Path, kind: str | None = None) -> Positions
     check_names(names, f"{p} (column {header[col['name']]!r})")
     unit = kind
     pos_cols = [col[c] for c in KIND_COLUMNS[unit]]
-    pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
-    for i, (line, r) in enumerate(rows):
-        try:
-            pos[i] = [float(r[c]) for c in pos_cols]
-        except ValueError:
-            pos[i] = np.nan
-        if not (np.abs(pos[i]) <= POSITION_MAX).all():  # NaN too
-            comma = any("," in r[c] for c in pos_cols)  # a ';'-separated spreadsheet export with decimal commas
-            raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
-                               f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}"
-                               + ("; hint: write decimal points, not decimal commas" if comma else "")
-                               + ("; hint: frame numbers count frames (0, 1, 2, ...): timestamps?"
-                                  if unit == "frames" and not comma else ""))
+    pos = _positions(p, header, rows, pos_cols, unit)
     if unit == "degrees":
         check_latlon(pos, str(p), names.lines)
     if unit == "frames":
         check_frames(pos[:, 0], str(p), names.lines, header[pos_cols[0]])
     keys = [r[col["seq"]].strip() for _, r in rows] if "seq" in col else None
     return PositionsTable(names, pos, unit, keys, f"{p} (column {header[col['seq']]!r})" if "seq" in col else None)
+
+
+NO_FIX = ("", "nan", "na", "n/a", "null", "none", "-")  # a GPS logger's empty position (lat/lon 0, 0 too)
+
+
+def _positions(p: Path, header: list[str], rows: list[tuple[int, list[str]]], pos_cols: list[int],
+               unit: str) -> np.ndarray:
+    """``[N, P]`` positions of ``rows``; a value that is no finite number is an error naming its line, rows
+    without a fix (every position empty or NaN; lat/lon 0, 0) one error that names them all."""
+    pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
+    no_fix = []
+    for i, (line, r) in enumerate(rows):
+        try:
+            pos[i] = [float(r[c]) for c in pos_cols]
+        except ValueError:
+            pos[i] = np.nan
+        if all(r[c].strip().lower() in NO_FIX for c in pos_cols) or (unit == "degrees" and not pos[i].any()):
+            no_fix.append(line)
+        elif not (np.abs(pos[i]) <= POSITION_MAX).all():  # NaN too
+            comma = any("," in r[c] for c in pos_cols)  # a ';'-separated spreadsheet export with decimal commas
+            raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
+                               f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}"
+                               + ("; hint: write decimal points, not decimal commas" if comma else "")
+                               + ("; hint: frame numbers count frames (0, 1, 2, ...): timestamps?"
+                                  if unit == "frames" and not comma else ""))
+    if no_fix:
+        shown = ", ".join(map(str, no_fix[:5])) + (", ..." if len(no_fix) > 5 else "")
+        raise DatasetError(f"{p}: {counted(len(no_fix), 'row')} without a position (empty, NaN"
+                           + (" or lat/lon 0, 0" if unit == "degrees" else "") + f": no GPS fix?) on line"
+                           f"{'s' if len(no_fix) > 1 else ''} {shown}; hint: give them positions (interpolated "
+                           "between the rows around them), or remove those rows and their images (frame-aligned "
+                           "or --positives data: the same frames of the other traverse too)")
+    return pos
 
 
 def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np.ndarray | None]:
