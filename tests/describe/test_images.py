@@ -127,3 +127,9 @@ def test_duplicate_line_in_a_list_file_names_both_lines(tmp_path):
     with pytest.raises(ImageError, match=r"list.txt, line 4: 'x.png' is listed again \(first on line 1\).*remove "
                                          r"the duplicate line\)$"):
         list_images(lf)
+
+
+def test_a_list_file_in_cp1252_is_told_to_be_saved_as_utf8(tmp_path):
+    (tmp_path / "l.txt").write_bytes("røf.png\n".encode("cp1252"))
+    with pytest.raises(ImageError, match=r"not UTF-8 text .*; hint: a list in another encoding .*Save it as UTF-8"):
+        list_images(tmp_path / "l.txt")

@@ -135,7 +135,8 @@ def _read_list_file(src: Path) -> ImageList:
     except ImageError as err:
         if "not UTF-8" not in str(err):
             raise
-        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths ({err})") from err
+        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths ({err}); hint: a "
+                         "list in another encoding (Windows-1252, Latin-1)? Save it as UTF-8") from err
     listed = [(n, s.strip()) for n, s in enumerate(lines, start=1) if s.strip() and not s.strip().startswith("#")]
     if not listed:
         raise ImageError(f"list file {src} names no images (expected one image path per line)")

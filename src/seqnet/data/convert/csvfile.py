@@ -31,6 +31,7 @@ LAT_COLUMNS = ("lat", "latitude")
 LON_COLUMNS = ("lon", "lng", "long", "longitude")  # "long": Google Takeout, many loggers
 FRAME_COLUMNS = ("frame", "frame_number", "frame_id", "frame_index")
 SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
+ENCODING_HINT = "hint: text in another encoding (Windows-1252, Latin-1)? Save it as UTF-8"
 SHORT_SEQUENCE = 5  # the default sequence length L (seqnet.sequence.windows.DEFAULT_SEQ_LEN; a test keeps them equal)
 
 
@@ -42,7 +43,12 @@ def read_csv_rows(path: str | Path, quiet: bool = False) -> tuple[list[str], lis
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"CSV file not found: {p}")
-    text = read_text(p, "CSV file")  # a FIFO or device is refused, never read; a byte-order mark dropped
+    try:
+        text = read_text(p, "CSV file")  # a FIFO or device is refused, never read; a byte-order mark dropped
+    except DatasetError as e:
+        if "not UTF-8" not in str(e):
+            raise
+        raise DatasetError(f"{e}; {ENCODING_HINT}") from e
     first = next((line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")), "")
     try:
         reader = csv.reader(io.StringIO(text, newline=""), delimiter=field_separator(first) or ",")
