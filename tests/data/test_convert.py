@@ -113,6 +113,51 @@ def test_csv_header_errors(tmp_path, header, match):
         read_positions_csv(tmp_path / "bad.csv")
 
 
+def test_long_is_a_longitude_header(tmp_path):
+    """``lat,long`` (Google Takeout, many loggers) reads as ``lat,lon``."""
+    for header in ("name,lat,lon", "name,Lat,Long"):
+        (tmp_path / "p.csv").write_text(f"{header}\na.png,67.28,14.40\nb.png,67.29,14.41\n")
+        names, pos, unit, _ = read_positions_csv(tmp_path / "p.csv")
+        assert unit == "degrees" and pos.tolist() == [[67.28, 14.40], [67.29, 14.41]]
+
+
+def test_csv_repeated_header_and_leading_comment_lines(tmp_path, caplog):
+    """Two logs concatenated: the repeated header is named by its line (not 'must be finite numbers ...
+    timestamps?'); '# exported by ...' lines before the header are left out and said; a plain CSV says nothing."""
+    rows = "".join(f"{i}.png,{i}\n" for i in range(4))
+    (tmp_path / "cat.csv").write_text("name,frame\n" + rows + "Name, Frame\n" + rows.replace(".png", "b.png"))
+    with pytest.raises(DatasetError, match=r"cat.csv, line 6: the header repeats \(two files concatenated\?\); "
+                                           r"hint: remove line 6"):
+        read_positions_csv(tmp_path / "cat.csv")
+    (tmp_path / "c.csv").write_text("# exported by mylogger 1.2, v3\n#\nname;frame\n" + rows.replace(",", ";"))
+    with caplog.at_level("INFO", logger="seqnet"):
+        names, pos, unit, _ = read_positions_csv(tmp_path / "c.csv")
+    assert list(names) == ["0.png", "1.png", "2.png", "3.png"] and pos[:, 0].tolist() == [0, 1, 2, 3]
+    assert "c.csv: left out 2 comment lines ('#') before the header" in caplog.text
+    caplog.clear()
+    (tmp_path / "ok.csv").write_text("name,frame\n" + rows)
+    with caplog.at_level("INFO", logger="seqnet"):
+        read_positions_csv(tmp_path / "ok.csv")
+    assert not caplog.records
+
+
+def test_rows_without_a_gps_fix_are_named_together(tmp_path):
+    """A GPS outage (nan,nan or empty fields) and lat/lon 0, 0 'no fix' markers: one error naming the lines and
+    what to do (not 'must be finite numbers' at the first); x,y 0, 0 is a position; a bad number keeps its line."""
+    rows = [f"{i}.png,67.{28 + i},14.40" for i in range(8)]
+    for bad in (("nan", "nan"), ("", ""), ("0", "0.0")):
+        text = "\n".join(r if i not in (3, 4) else f"{i}.png,{bad[0]},{bad[1]}" for i, r in enumerate(rows))
+        (tmp_path / "p.csv").write_text("name,lat,lon\n" + text + "\n")
+        with pytest.raises(DatasetError, match=r"p.csv: 2 rows without a position \(empty, NaN or lat/lon 0, 0: no "
+                                               r"GPS fix\?\) on lines 5, 6; hint: give them positions"):
+            read_positions_csv(tmp_path / "p.csv")
+    (tmp_path / "m.csv").write_text("name,x,y\na.png,0,0\nb.png,1,0\n")
+    assert read_positions_csv(tmp_path / "m.csv")[1].tolist() == [[0, 0], [1, 0]]
+    (tmp_path / "m.csv").write_text("name,x,y\na.png,0,0\nb.png,1,inf\n")
+    with pytest.raises(DatasetError, match=r"m.csv, line 3: position columns \['x', 'y'\] must be finite"):
+        read_positions_csv(tmp_path / "m.csv")
+
+
 def test_csv_non_numeric_names_line(tmp_path):
     _write_csv(tmp_path / "bad.csv", [("a", 1, 2), ("b", "oops", 2)])
     with pytest.raises(DatasetError, match="line 3"):

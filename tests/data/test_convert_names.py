@@ -208,3 +208,27 @@ def test_names_that_differ_only_in_unicode_normalisation_match():
     assert match_names(nfc, nfd, "x").tolist() == [0, 1, 2, 3]
     with pytest.raises(DatasetError, match="each also in Unicode NFC form"):
         match_names(nfd + ["Münster.png"], csv, "pos.csv vs the images")
+
+
+def test_names_whose_leading_zeros_a_spreadsheet_stripped_match_by_value(tmp_path, caplog):
+    """KITTI-style ``0000000000.png`` images against CSV names ``0, 1, 2`` (Excel made them numbers): matched by
+    value and said; two images equal as numbers are refused as ambiguous; exact names say nothing."""
+    images = [f"{k:010d}.png" for k in range(3)]
+    with caplog.at_level("INFO", logger="seqnet"):
+        assert match_names(images, ["2", "0", "1"], "t").tolist() == [1, 2, 0]
+    assert "t: names matched as numbers ('0000000000.png' and '0'): leading zeros stripped" in caplog.text
+    with pytest.raises(DatasetError, match="matches two"):
+        match_names(["1"], ["01.png", "001.png"], "t")
+    caplog.clear()
+    with caplog.at_level("INFO", logger="seqnet"):
+        assert match_names(images, images, "t").tolist() == [0, 1, 2]
+    assert not caplog.records
+
+
+def test_a_csv_in_cp1252_is_told_to_be_saved_as_utf8(tmp_path):
+    from seqnet.data.convert import read_positions_csv
+
+    (tmp_path / "p.csv").write_bytes("name,frame\nkøy.png,0\n".encode("cp1252"))
+    with pytest.raises(DatasetError, match=r"not UTF-8 text .*; hint: text in another encoding \(Windows-1252, "
+                                           r"Latin-1\)\? Save it as UTF-8"):
+        read_positions_csv(tmp_path / "p.csv")

@@ -62,6 +62,40 @@ def test_image_outside_the_log_is_refused_by_name(tmp_path):
         log_positions("robotcar-ins", tmp_path / "ins.csv", ["left.png"])
 
 
+def test_another_runs_log_is_named_and_max_time_gap_offered_only_for_small_misses(tmp_path):
+    """Every image days outside the log (the query log of another run): the dates and 'another run's ins.csv?',
+    never 'raise --max-time-gap' (which would place every image at the log's last sample); a small miss offers
+    it with the value needed; a large one, or a gap inside the log, says where the images lie."""
+    write_ins(tmp_path / "ins.csv")
+    other_run = [f"{1422953110000000 + k * 62500}.png" for k in range(20)]
+    with pytest.raises(DatasetError, match=r"no image lies within the log: the images are from 2015-02-03 08:45:10 "
+                                           r"UTC, the log from 2014-12-10 .*; hint: another run's ins.csv\?") as err:
+        log_positions("robotcar-ins", tmp_path / "ins.csv", other_run)
+    assert "max-time-gap" not in str(err.value)
+    late = f"{T0 + 20000 * 49 + 420000}.png"
+    with pytest.raises(DatasetError, match=r"of these, 1 after its end; hint: trim the images to the log, or raise "
+                                           r"--max-time-gap to 0.42 "):
+        log_positions("robotcar-ins", tmp_path / "ins.csv", [f"{T0}.png", late])
+    early = f"{T0 - 30_000_000}.png"  # 30 s before the log: trim, not a 30 s tolerance
+    with pytest.raises(DatasetError, match=r"of these, 1 before the log's start; hint: trim the images to the "
+                                           r"log$"):
+        log_positions("robotcar-ins", tmp_path / "ins.csv", [early, f"{T0}.png"])
+    f = tmp_path / "ins.csv"  # an INS outage: samples 10..39 missing
+    f.write_text("\n".join(ln for i, ln in enumerate(f.read_text().splitlines()) if not 11 <= i <= 40) + "\n")
+    with pytest.raises(DatasetError, match=r"of these, 1 in gaps of the log \(samples missing\); hint: leave out "
+                                           r"the images in its gaps, or raise --max-time-gap to 0.3 "):
+        log_positions("robotcar-ins", f, [f"{T0 + 20000 * 25}.png"])
+
+
+def test_kitti_images_of_another_drive_are_named(tmp_path):
+    drive = write_kitti_drive(tmp_path / "d")
+    stamps = drive / "image_02" / "timestamps.txt"
+    stamps.write_text(stamps.read_text().replace("2011-09-26", "2011-09-30"))
+    with pytest.raises(DatasetError, match=r"the images are from 2011-09-30 13:02:25 UTC.*; hint: another "
+                                           r"drive's oxts folder\?"):
+        log_positions("kitti-oxts", drive / "oxts", ["image_02/data/0000000000.png"])
+
+
 @pytest.mark.parametrize("edit, match", [
     (lambda t: t.replace(",620003.000,", ",east,"), r"line 5: easting/northing must be numbers"),
     (lambda t: t.replace(f"{T0 + 40000},", "soon,", 1), r"line 4: timestamp 'soon' is not an integer"),

@@ -30,3 +30,26 @@ def test_fuzzed_names_file_gives_names_or_one_error(tmp_path, data):
     names = read_mutated(read_names, tmp_path / "n.txt", data)
     assert names is None or len(set(names)) == len(names) and all(n and n == n.strip() and "\x00" not in n
                                                                   for n in names)
+
+
+def test_descriptors_with_a_size_one_axis_are_read_as_n_by_d(tmp_path, caplog):
+    """``[N, 1, D]`` (torch's unsqueeze, stacked ``[1, D]`` rows): read as ``[N, D]`` with a note; a 3-D array of
+    three real axes is still refused; ``[N, D]`` says nothing."""
+    import numpy as np
+
+    from seqnet.data.readers import read_descriptor_file
+
+    d = np.random.default_rng(0).standard_normal((20, 8)).astype(np.float32)
+    np.save(tmp_path / "a.npy", d[:, None, :])
+    with caplog.at_level("INFO", logger="seqnet"):
+        got, _ = read_descriptor_file(tmp_path / "a.npy")
+    assert got.shape == (20, 8) and np.array_equal(got, d)
+    assert "a.npy: descriptors of shape (20, 1, 8) read as [N, D] (size-1 axes dropped)" in caplog.text
+    np.save(tmp_path / "b.npy", d.reshape(20, 2, 4))
+    with pytest.raises(DatasetError, match=r"must be a 2-D \[N, D\] array, got shape \(20, 2, 4\)"):
+        read_descriptor_file(tmp_path / "b.npy")
+    caplog.clear()
+    np.save(tmp_path / "c.npy", d)
+    with caplog.at_level("INFO", logger="seqnet"):
+        assert read_descriptor_file(tmp_path / "c.npy")[0].shape == (20, 8)
+    assert not caplog.records

@@ -156,6 +156,18 @@ def test_frame_aligned_traverses_must_pair_up(desc, caplog):
     assert caplog.messages[0].startswith("d: the query images are the reference images")
 
 
+def test_frame_aligned_names_that_differ_only_in_zero_padding_pair_up():
+    """img1..img200 against img001..img200 (both complete, same natural order): paired by number, said in one
+    line; a real gap is still refused, also when no name is spelled alike; equal names say nothing."""
+    ref, qry = [f"img{k}.png" for k in range(1, 201)], [f"img{k:03d}.png" for k in range(1, 201)]
+    assert check_frame_aligned(ref, qry) == ("--frame-aligned: the names differ only in zero-padding or case "
+                                             "(reference 'img1.png', query 'img001.png'): paired by their numbers")
+    assert check_frame_aligned(ref, ref) is None and check_frame_aligned(ref[:99], qry[:99]) is not None
+    assert check_frame_aligned(["IMG1.PNG"], ["img1.png"]) is not None
+    with pytest.raises(DatasetError, match="reference image 4 is 'img5.png' but query image 4 is 'img006.png'"):
+        check_frame_aligned(ref[:99], qry[:4] + qry[5:100])  # img005 missing, none spelled alike
+
+
 def test_video_aligned_ground_truth_must_pair_up_by_count(desc):
     """``from-video --aligned`` records ``"ground_truth": "aligned"``: refused like ``frames`` when the counts
     differ (the hint names the videos' positions), but its frames, named by video time, are not paired by name."""

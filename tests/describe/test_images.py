@@ -96,6 +96,29 @@ def test_webp_and_gif_are_images_and_other_files_are_counted(tmp_path, caplog):
     assert not [r for r in caplog.records if "left out" in r.getMessage()]  # nothing left out: nothing said
 
 
+def test_list_file_with_a_bom_and_windows_backslashes(tmp_path, caplog):
+    """Notepad's "UTF-8 with BOM": the BOM is not part of the first path; Windows paths (``a\\x.png``) are read
+    with '/' where only that is a file, said in one line; a Windows absolute path is refused at its line with
+    the hint; a list with '/' says nothing."""
+    (tmp_path / "a").mkdir()
+    _save(tmp_path / "a" / "x.png")
+    _save(tmp_path / "y.png")
+    lf = tmp_path / "list.txt"
+    lf.write_text("\ufeffa/x.png\r\ny.png\r\n", encoding="utf-8")
+    with caplog.at_level("INFO", logger="seqnet"):
+        assert list_images(lf).names == ["a/x.png", "y.png"]
+    assert not caplog.records
+    lf.write_text("a\\x.png\r\ny.png\r\n")
+    with caplog.at_level("INFO", logger="seqnet"):
+        lst = list_images(lf)
+    assert lst.names == ["a/x.png", "y.png"] and lst.paths[0] == tmp_path / "a" / "x.png"
+    assert "paths written with backslashes (Windows) read with '/'" in caplog.text
+    lf.write_text("y.png\nC:\\data\\a\\x.png\n")
+    with pytest.raises(ImageError, match=r"list.txt, line 2: image not found: 'C:\\data\\a\\x.png' \(nor with '/' "
+                                         r"for its backslashes\); hint: a Windows path\?"):
+        list_images(lf)
+
+
 def test_duplicate_line_in_a_list_file_names_both_lines(tmp_path):
     _save(tmp_path / "x.png")
     _save(tmp_path / "y.png")
@@ -104,3 +127,9 @@ def test_duplicate_line_in_a_list_file_names_both_lines(tmp_path):
     with pytest.raises(ImageError, match=r"list.txt, line 4: 'x.png' is listed again \(first on line 1\).*remove "
                                          r"the duplicate line\)$"):
         list_images(lf)
+
+
+def test_a_list_file_in_cp1252_is_told_to_be_saved_as_utf8(tmp_path):
+    (tmp_path / "l.txt").write_bytes("røf.png\n".encode("cp1252"))
+    with pytest.raises(ImageError, match=r"not UTF-8 text .*; hint: a list in another encoding .*Save it as UTF-8"):
+        list_images(tmp_path / "l.txt")

@@ -33,6 +33,8 @@ from ..security.limits import INDEX_MAX
 from ..security.text import shown
 from .convert import names_flag, read_csv_rows
 from .readers import read_descriptor_file, read_provenance, read_text
+from .timematch import gap_hint, nearest_in_time
+from .timematch import nearest_within as nearest_within  # where sources.bags imports it from
 from .traverse import Traverse
 from .utm import latlon_to_utm
 
@@ -197,50 +199,36 @@ class PositionLog:
     image_times: Callable[[list[Path], Path | None], np.ndarray]  # (image files, root of names read from a file)
     image_root: Callable[[Path], Path]  # the folder descriptor names are relative to (without image paths)
     help: str
+    other: str = "another run's log"  # a message's guess when no image falls within the log
 
 
 POSITION_LOGS: dict[str, PositionLog] = {
     "robotcar-ins": PositionLog(read_robotcar_ins, robotcar_image_times, lambda p: p.parent,
-                                   "Oxford RobotCar gps/ins.csv (or gps.csv); images named <timestamp us>.png"),
+                                   "Oxford RobotCar gps/ins.csv (or gps.csv); images named <timestamp us>.png",
+                                   "another run's ins.csv"),
     "kitti-oxts": PositionLog(read_kitti_oxts, kitti_image_times,
                                  lambda p: p if (p / "oxts").is_dir() else p.parent,
                                  "a KITTI drive's oxts/ folder; image times from image_0x/timestamps.txt "
-                                 "(descriptor names relative to the drive folder: image_02/data/0000000000.png)"),
+                                 "(descriptor names relative to the drive folder: image_02/data/0000000000.png)",
+                                 "another drive's oxts folder"),
 }
 POSITIONS_FORMATS = ("csv", *POSITION_LOGS)  # csv: the positions CSV (seqnet.data.convert)
 
 
-def nearest_in_time(times: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(index [N], gap [N])``: the sample of the sorted ``times [S]`` nearest to each of ``query [N]`` (the
-    earlier one on a tie) and its distance, in the unit of the times (the one rule of seqnet's position logs
-    and ROS bags)."""
-    right = np.clip(np.searchsorted(times, query), 0, len(times) - 1)
-    left = np.clip(right - 1, 0, len(times) - 1)
-    idx = np.where(np.abs(times[left] - query) <= np.abs(times[right] - query), left, right)
-    return idx, np.abs(times[idx] - query)
-
-
-def nearest_within(times: np.ndarray, query: np.ndarray, tolerance: float, refusal: Callable[[int, float, int], str],
-                   scale: float = 1.0) -> np.ndarray:
-    """:func:`nearest_in_time` indices; a query farther than ``tolerance`` (in the times' unit ÷ ``scale``) is a
-    :class:`DatasetError` of ``refusal(first index, its gap, how many)``."""
-    idx, gap = nearest_in_time(times, query)
-    gap = gap / scale
-    bad = np.flatnonzero(gap > tolerance)
-    if bad.size:
-        raise DatasetError(refusal(int(bad[0]), float(gap[bad[0]]), int(bad.size)))
-    return idx
-
-
 def nearest_samples(image_times: np.ndarray, log: Samples, names: list[str], max_gap: float,
-                    where: str) -> np.ndarray:
+                    where: str, other: str = "another run's log") -> np.ndarray:
     """``[N]`` index of the log sample nearest in time to each image; an image more than ``max_gap`` seconds
-    from every sample is refused by name."""
+    from every sample is refused by name, with a hint from :func:`gap_hint`."""
     t = log.times
-    return nearest_within(t, image_times, max_gap, lambda i, gap, count: (
-        f"{where}: image {names[i]!r} is {gap:.3f} s from the nearest position sample (tolerance {max_gap:g} s; "
-        f"the log spans {t[0]:.3f}..{t[-1]:.3f} s; {count} such images); hint: trim the images to the log, or "
-        "raise --max-time-gap"))
+    idx, gap = nearest_in_time(t, image_times)
+    bad = np.flatnonzero(gap > max_gap)
+    if bad.size:
+        i = int(bad[0])
+        raise DatasetError(
+            f"{where}: image {names[i]!r} is {gap[i]:.3f} s from the nearest position sample (tolerance "
+            f"{max_gap:g} s; the log spans {t[0]:.3f}..{t[-1]:.3f} s; {bad.size} such images); "
+            + gap_hint(t, image_times, bad, gap, other))
+    return idx
 
 
 def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Path] | None = None,
@@ -253,7 +241,7 @@ def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Pa
     if paths is None:  # names read from a file: what is read for them stays in the log's image root
         root = src.image_root(Path(source))
         paths = [root / n for n in names]
-    idx = nearest_samples(src.image_times(paths, root), log, names, max_gap, f"{source} ({fmt})")
+    idx = nearest_samples(src.image_times(paths, root), log, names, max_gap, f"{source} ({fmt})", src.other)
     logger.info("%s: %d images placed from %d %s samples (UTM zone %s)", source, len(names), len(log.times), fmt,
                 log.zone)
     return log.xy[idx], log.zone

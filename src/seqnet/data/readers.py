@@ -117,7 +117,10 @@ def warn_unless_unit_rows(desc: np.ndarray, where: str | Path, block: int = 1 <<
 
 
 def as_float32(desc: np.ndarray, where: Path | str) -> np.ndarray:
-    """``desc`` as a native-byte-order float32 ``[N, D]`` array (memory maps of float32 are kept)."""
+    """``desc`` as a native-byte-order float32 ``[N, D]`` array (float32 memory maps kept; ``[N, 1, D]`` squeezed)."""
+    if desc.ndim > 2 and sum(n > 1 for n in desc.shape) == 2:  # torch's unsqueeze, stacked [1, D] rows
+        logger.info("%s: descriptors of shape %s read as [N, D] (size-1 axes dropped)", where, tuple(desc.shape))
+        desc = desc.reshape([n for n in desc.shape if n > 1])
     if desc.ndim != 2:
         raise DatasetError(f"{where}: descriptors must be a 2-D [N, D] array, got shape {tuple(desc.shape)}")
     if desc.dtype.kind != "f":
@@ -125,9 +128,8 @@ def as_float32(desc: np.ndarray, where: Path | str) -> np.ndarray:
                            "(hint: save them as float32)")
     if desc.dtype == np.float32 and desc.dtype.isnative:
         return desc
-    with np.errstate(over="ignore"):
-        out = np.asarray(desc, dtype=np.float32)  # float64 beyond float32's range becomes inf: caught by validation
-    return out
+    with np.errstate(over="ignore"):  # float64 beyond float32's range becomes inf: caught by validation
+        return np.asarray(desc, dtype=np.float32)
 
 
 def read_npy(f: Path, mmap: bool = True) -> np.ndarray:

@@ -19,12 +19,13 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
-from ..core.log import counted, logger
+from ..core.log import logger
 from ..data.order import name_order
 from ..data.readers import check_names
 from ..security.inputs import read_text, special_file
 from ..security.pictures import decode, read_image, size_mismatch
 from ..security.text import shown
+from .folders import empty_folder_hint, say_left_out
 
 if TYPE_CHECKING:
     from ..sources.bags.positions import Positions
@@ -109,7 +110,8 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
     if src.is_dir():
         entries = list(src.iterdir())
         files = [p for p in entries if p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith(".")]
-        _say_left_out(src, [p for p in entries if p.suffix.lower() not in IMAGE_EXTENSIONS or p.name.startswith(".")])
+        say_left_out(src, [p for p in entries if p.suffix.lower() not in IMAGE_EXTENSIONS or p.name.startswith(".")],
+                     IMAGE_EXTENSIONS)
         odd = next((p for p in files if not p.is_file()), None)
         if odd is not None:  # left out, it would shift every frame after it (frame-aligned ground truth)
             kind = special_file(odd) or ("broken link" if odd.is_symlink() else "directory")
@@ -117,43 +119,24 @@ def list_images(source: str | Path, topic: str | None = None, positions_topic: s
                              "their order in the folder)")
         files = [files[i] for i in name_order([p.name for p in files])]  # decimal names by value
         if not files:
-            raise ImageError(
-                f"no images in folder {src} (looked for {', '.join(IMAGE_EXTENSIONS)}; "
-                "hint: pass a folder of images or a text file listing them)"
-            )
+            raise ImageError(f"no images in folder {src} (looked for {', '.join(IMAGE_EXTENSIONS)}; "
+                             f"{empty_folder_hint(src, IMAGE_EXTENSIONS)})")
         return ImageList(paths=files, names=_checked([p.name for p in files], src))
     if src.exists():
         return _read_list_file(src)
     raise ImageError(f"image folder or list file not found: {src}")
 
 
-def _say_left_out(src: Path, others: list[Path]) -> None:
-    """Say (INFO) what of the folder ``src`` is not taken as an image: hidden files (macOS ``._*`` AppleDouble
-    files, ``.DS_Store``), sub-folders and files of other extensions, counted by kind."""
-    if not others:
-        return
-    hidden = sum(p.name.startswith(".") for p in others)
-    folders = sum(p.is_dir() and not p.name.startswith(".") for p in others)
-    kinds: dict[str, int] = {}
-    for p in others:
-        if not p.name.startswith(".") and not p.is_dir():
-            kinds[p.suffix.lower() or "no extension"] = kinds.get(p.suffix.lower() or "no extension", 0) + 1
-    parts = ([f"{counted(sum(kinds.values()), 'file')} of other extensions ("
-              + ", ".join(f"{k}: {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])[:5]) + ")"]
-             if kinds else []) + ([counted(hidden, "hidden file")] if hidden else []) + \
-        ([counted(folders, "sub-folder")] if folders else [])
-    logger.info("%s: left out %s (images are %s files)", src, ", ".join(parts), " ".join(IMAGE_EXTENSIONS))
-
-
 def _read_list_file(src: Path) -> ImageList:
     if src.suffix.lower() in IMAGE_EXTENSIONS:
         return ImageList(paths=[src], names=[src.name])
     try:
-        lines = read_text(src, MAX_LIST, "image list file", ImageError).splitlines()
+        lines = read_text(src, MAX_LIST, "image list file", ImageError).removeprefix("\ufeff").splitlines()
     except ImageError as err:
         if "not UTF-8" not in str(err):
             raise
-        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths ({err})") from err
+        raise ImageError(f"{src} is neither a folder, an image nor a text list of image paths ({err}); hint: a "
+                         "list in another encoding (Windows-1252, Latin-1)? Save it as UTF-8") from err
     listed = [(n, s.strip()) for n, s in enumerate(lines, start=1) if s.strip() and not s.strip().startswith("#")]
     if not listed:
         raise ImageError(f"list file {src} names no images (expected one image path per line)")
@@ -163,9 +146,23 @@ def _read_list_file(src: Path) -> ImageList:
             raise ImageError(f"{src}, line {n}: '{shown(name)}' is listed again (first on line {first[name]}); each "
                              "image is listed once (hint: remove the duplicate line)")
         first[name] = n
-    names = [name for _, name in listed]
+    names = [_forward_slashes(src, n, name) for n, name in listed]
     paths = [Path(n) if Path(n).is_absolute() else src.parent / n for n in names]
+    if names != [name for _, name in listed]:
+        logger.info("%s: paths written with backslashes (Windows) read with '/'", src)
     return ImageList(paths=paths, names=_checked(names, src))
+
+
+def _forward_slashes(src: Path, line: int, name: str) -> str:
+    """A listed ``name`` as it is, or with ``\\`` read as ``/`` (a list written on Windows) when only that is a
+    file; a backslash path that is neither: :class:`ImageError`, with the hint."""
+    if "\\" not in name or (src.parent / name).exists():
+        return name
+    slashed = name.replace("\\", "/")
+    if (src.parent / slashed).exists():
+        return slashed
+    raise ImageError(f"{src}, line {line}: image not found: '{shown(name)}' (nor with '/' for its backslashes); hint: "
+                     "a Windows path? List the images relative to the list file's folder, with '/'")
 
 
 def _checked(names: list[str], src: Path) -> list[str]:

@@ -75,7 +75,9 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
     """The positions of the reference and the query, in one unit and frame (else :class:`ConfigError`); frame-aligned
     traverses must pair up (:func:`seqnet.data.sanity.check_frame_aligned`), checked before any image is described."""
     if conf.ground_truth == "frames":
-        check_frame_aligned(images[0].names, images[1].names)
+        note = check_frame_aligned(images[0].names, images[1].names)
+        if note:
+            logger.info("%s", note)
     kinds: tuple[str | None, ...] = (None, None)
     if conf.ground_truth == "csv" and conf.positions_format == "csv" and None not in given:
         kinds = agreed_kinds((str(given[0]), str(given[1])))  # lat/lon and x/y in one CSV: the kind both have

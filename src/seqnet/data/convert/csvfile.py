@@ -28,29 +28,46 @@ NAME_COLUMNS = ("name", "image", "image_name", "filename", "file", "path", "key"
 EAST_COLUMNS = ("easting", "east", "utm_east", "utm_easting", "x")
 NORTH_COLUMNS = ("northing", "north", "utm_north", "utm_northing", "y")
 LAT_COLUMNS = ("lat", "latitude")
-LON_COLUMNS = ("lon", "lng", "longitude")
+LON_COLUMNS = ("lon", "lng", "long", "longitude")  # "long": Google Takeout, many loggers
 FRAME_COLUMNS = ("frame", "frame_number", "frame_id", "frame_index")
 SEQUENCE_COLUMNS = ("sequence", "sequence_key", "seq", "seq_key")
+ENCODING_HINT = "hint: text in another encoding (Windows-1252, Latin-1)? Save it as UTF-8"
 SHORT_SEQUENCE = 5  # the default sequence length L (seqnet.sequence.windows.DEFAULT_SEQ_LEN; a test keeps them equal)
 
 
-def read_csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+def read_csv_rows(path: str | Path, quiet: bool = False) -> tuple[list[str], list[tuple[int, list[str]]]]:
     """The lower-cased header and the non-blank data rows ``(line number, fields)`` of a UTF-8 CSV file
-    (fields separated by ``,``, ``;`` or a tab, as its first line is)."""
+    (fields separated by ``,``, ``;`` or a tab, as its first line is). ``#`` comment lines before the header
+    are left out (said in one line, unless ``quiet``); the header repeated among the rows (two files
+    concatenated) is an error."""
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"CSV file not found: {p}")
-    text = read_text(p, "CSV file")  # a FIFO or device is refused, never read; a byte-order mark dropped
-    first = next((line for line in text.splitlines() if line.strip()), "")
+    try:
+        text = read_text(p, "CSV file")  # a FIFO or device is refused, never read; a byte-order mark dropped
+    except DatasetError as e:
+        if "not UTF-8" not in str(e):
+            raise
+        raise DatasetError(f"{e}; {ENCODING_HINT}") from e
+    first = next((line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")), "")
     try:
         reader = csv.reader(io.StringIO(text, newline=""), delimiter=field_separator(first) or ",")
         rows = [(n, r) for n, r in enumerate(reader, start=1)]
     except csv.Error as e:
         raise DatasetError(f"{p}: not a valid CSV file ({' '.join(str(e).split())[:200]})") from e
     rows = [(n, r) for n, r in rows if r and any(c.strip() for c in r)]
+    comments = next((i for i, (_, r) in enumerate(rows) if not r[0].lstrip().startswith("#")), len(rows))
+    if comments and not quiet:
+        logger.info("%s: left out %s ('#') before the header", p, counted(comments, "comment line"))
+    rows = rows[comments:]
     if len(rows) < 2:
         raise DatasetError(f"{p}: needs a header row and at least one data row")
-    return [h.strip().lower() for h in rows[0][1]], rows[1:]
+    header = [h.strip().lower() for h in rows[0][1]]
+    again = next((n for n, r in rows[1:] if [h.strip().lower() for h in r] == header), None)
+    if again is not None:
+        raise DatasetError(f"{p}, line {again}: the header repeats (two files concatenated?); hint: remove line "
+                           f"{again}, and check that the rows after it belong to this traverse")
+    return header, rows[1:]
 
 
 @dataclasses.dataclass
@@ -72,7 +89,7 @@ def position_kinds(path: str | Path) -> dict[str, list[str]]:
     """The kinds of positions a positions CSV has (``metres``, ``degrees``, ``frames``, in :data:`KIND_COLUMNS`'s
     order: the first is used by default), each with its columns as the header names them."""
     p = Path(path)
-    header, _ = read_csv_rows(p)
+    header, _ = read_csv_rows(p, quiet=True)  # said when the rows are read
     col = _find_columns(header, p)
     return {k: [header[col[c]] for c in cs] for k, cs in KIND_COLUMNS.items() if all(c in col for c in cs)}
 
@@ -126,25 +143,46 @@ def read_positions_table(path: str | Path, kind: str | None = None) -> Positions
     check_names(names, f"{p} (column {header[col['name']]!r})")
     unit = kind
     pos_cols = [col[c] for c in KIND_COLUMNS[unit]]
-    pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
-    for i, (line, r) in enumerate(rows):
-        try:
-            pos[i] = [float(r[c]) for c in pos_cols]
-        except ValueError:
-            pos[i] = np.nan
-        if not (np.abs(pos[i]) <= POSITION_MAX).all():  # NaN too
-            comma = any("," in r[c] for c in pos_cols)  # a ';'-separated spreadsheet export with decimal commas
-            raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
-                               f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}"
-                               + ("; hint: write decimal points, not decimal commas" if comma else "")
-                               + ("; hint: frame numbers count frames (0, 1, 2, ...): timestamps?"
-                                  if unit == "frames" and not comma else ""))
+    pos = _positions(p, header, rows, pos_cols, unit)
     if unit == "degrees":
         check_latlon(pos, str(p), names.lines)
     if unit == "frames":
         check_frames(pos[:, 0], str(p), names.lines, header[pos_cols[0]])
     keys = [r[col["seq"]].strip() for _, r in rows] if "seq" in col else None
     return PositionsTable(names, pos, unit, keys, f"{p} (column {header[col['seq']]!r})" if "seq" in col else None)
+
+
+NO_FIX = ("", "nan", "na", "n/a", "null", "none", "-")  # a GPS logger's empty position (lat/lon 0, 0 too)
+
+
+def _positions(p: Path, header: list[str], rows: list[tuple[int, list[str]]], pos_cols: list[int],
+               unit: str) -> np.ndarray:
+    """``[N, P]`` positions of ``rows``; a value that is no finite number is an error naming its line, rows
+    without a fix (every position empty or NaN; lat/lon 0, 0) one error that names them all."""
+    pos = np.empty((len(rows), len(pos_cols)), dtype=np.float64)
+    no_fix = []
+    for i, (line, r) in enumerate(rows):
+        try:
+            pos[i] = [float(r[c]) for c in pos_cols]
+        except ValueError:
+            pos[i] = np.nan
+        if all(r[c].strip().lower() in NO_FIX for c in pos_cols) or (unit == "degrees" and not pos[i].any()):
+            no_fix.append(line)
+        elif not (np.abs(pos[i]) <= POSITION_MAX).all():  # NaN too
+            comma = any("," in r[c] for c in pos_cols)  # a ';'-separated spreadsheet export with decimal commas
+            raise DatasetError(f"{p}, line {line}: position columns {[header[c] for c in pos_cols]} must be finite "
+                               f"numbers within ±{POSITION_MAX:g}, got {[r[c][:40] for c in pos_cols]}"
+                               + ("; hint: write decimal points, not decimal commas" if comma else "")
+                               + ("; hint: frame numbers count frames (0, 1, 2, ...): timestamps?"
+                                  if unit == "frames" and not comma else ""))
+    if no_fix:
+        shown = ", ".join(map(str, no_fix[:5])) + (", ..." if len(no_fix) > 5 else "")
+        raise DatasetError(f"{p}: {counted(len(no_fix), 'row')} without a position (empty, NaN"
+                           + (" or lat/lon 0, 0" if unit == "degrees" else "") + f": no GPS fix?) on line"
+                           f"{'s' if len(no_fix) > 1 else ''} {shown}; hint: give them positions (interpolated "
+                           "between the rows around them), or remove those rows and their images (frame-aligned "
+                           "or --positives data: the same frames of the other traverse too)")
+    return pos
 
 
 def read_positions_csv(path: str | Path) -> tuple[list[str], np.ndarray, str, np.ndarray | None]:

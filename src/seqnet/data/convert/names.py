@@ -1,7 +1,8 @@
 """Matching image names of one list to another (CSV rows to descriptors, images to CSV rows).
 
 Names match exactly, else by file name (last path component), else by file name without extension, else the
-same in Unicode NFC form (macOS NFD file names against NFC names typed in a CSV). A name
+same in Unicode NFC form (macOS NFD file names against NFC names typed in a CSV), else as numbers (a spreadsheet
+stripped the leading zeros of ``0000000042``: said in one line). A name
 matching two of the other list, and two names matching the same one, are errors naming both (and the CSV
 lines, for names read from a CSV: :class:`CsvNames`); a name matching none is an error saying which side lacks
 it, with a hint when the names differ only in case.
@@ -42,9 +43,17 @@ def _nfc(key: Callable[[str], str]) -> Callable[[str], str]:
     return lambda s: unicodedata.normalize("NFC", key(s))
 
 
+def _by_value(s: str) -> str:
+    """The file name without extension, a number's without its leading zeros (``0000000042.png`` → ``42``: a
+    spreadsheet stores the name ``0000000042`` as the number 42)."""
+    stem = _stem(s)
+    return str(int(stem)) if stem.isascii() and stem.isdigit() and len(stem) <= 30 else stem
+
+
 NAME_KEYS: tuple[Callable[[str], str], ...] = (lambda s: s, _basename, _stem,  # exact, file name, stem, then in NFC
-                                                _nfc(lambda s: s), _nfc(_basename), _nfc(_stem))
-MATCHED = "names are matched exactly, then by file name, then without extension (each also in Unicode NFC form)"
+                                                _nfc(lambda s: s), _nfc(_basename), _nfc(_stem), _by_value)
+MATCHED = ("names are matched exactly, then by file name, then without extension (each also in Unicode NFC form), "
+           "then as numbers")
 
 
 def _shown(names: Sequence[str], i: int) -> str:
@@ -89,6 +98,10 @@ def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarra
         hits = [table.get(key(n), []) for n in wanted]
         if all(hits):
             _refuse_ambiguous(wanted, available, hits, what)
+            odd = next((i for i, h in enumerate(hits) if _stem(wanted[i]) != _stem(available[h[0]])), None)
+            if key is _by_value and odd is not None:
+                logger.info("%s: names matched as numbers (%r and %r): leading zeros stripped (a spreadsheet?)",
+                            what, wanted[odd], available[hits[odd][0]])
             return np.asarray([h[0] for h in hits], dtype=np.int64)
     raise _missing(wanted, available, hits, what)
 

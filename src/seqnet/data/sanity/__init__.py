@@ -19,6 +19,7 @@ from collections.abc import Sequence
 
 from ...core.errors import DatasetError
 from ...core.log import logger
+from ..order import natural_key
 from ..spacing import out_of_order
 from ..traverse import Dataset
 from .copies import copied_queries, duplicated_rows
@@ -47,22 +48,32 @@ ALIGNED_TRUTHS = ("frames", "aligned")  # recorded ground truths of frame-aligne
 
 
 def check_frame_aligned(ref_names: Sequence[str], query_names: Sequence[str], where: str = "--frame-aligned",
-                        by_name: bool = True, hint: str = ALTERNATIVES) -> None:
+                        by_name: bool = True, hint: str = ALTERNATIVES) -> str | None:
     """Raise :class:`DatasetError` unless query frame i can be the place of reference frame i: as many frames
     on both sides and, when ``by_name`` and the two traverses name their images alike (some names in common),
-    the same name at every index (video frames, named by their time, are compared by count only)."""
+    the same name at every index (video frames, named by their time, are compared by count only). Names are
+    compared by their :func:`~seqnet.data.order.natural_key` (numbers by value, letters in any case): ``img1.png``
+    pairs with ``img001.png``; returned is then a line that says so (else None)."""
     n_r, n_q = len(ref_names), len(query_names)
     if n_r != n_q:
         raise DatasetError(f"{where}: query frame i is the place of reference frame i, but the reference has {n_r} "
                            f"images and the query {n_q}, so the ground truth cannot line up; hint: {hint}")
-    if not by_name or not set(ref_names) & set(query_names):
-        return  # named differently (two cameras, two clocks): nothing to pair by name
+    if not by_name:
+        return None
+    keys_r, keys_q = [tuple(natural_key(n)) for n in ref_names], [tuple(natural_key(n)) for n in query_names]
+    if not set(keys_r) & set(keys_q):
+        return None  # named differently (two cameras, two clocks): nothing to pair by name
     for i, (r, q) in enumerate(zip(ref_names, query_names, strict=True)):
-        if r != q:
+        if keys_r[i] != keys_q[i]:
             raise DatasetError(f"{where}: reference image {i} is {r!r} but query image {i} is {q!r}: an image "
                                "missing from one folder shifts every later frame and the ground truth would no "
                                f"longer line up; fix or remove them so both folders hold the same names, or "
                                f"{ALTERNATIVES}")
+    odd = next((i for i, (r, q) in enumerate(zip(ref_names, query_names, strict=True)) if r != q), None)
+    if odd is None:
+        return None
+    return (f"{where}: the names differ only in zero-padding or case (reference {ref_names[odd]!r}, query "
+            f"{query_names[odd]!r}): paired by their numbers")
 
 
 def review(ds: Dataset) -> list[str]:

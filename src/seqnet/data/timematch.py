@@ -1,0 +1,68 @@
+"""Images matched to a timed log: the nearest sample in time, and why an image has none near it.
+
+The one rule of seqnet's position logs (:mod:`seqnet.data.gps`) and ROS bags: each image takes the sample
+nearest in time (the earlier one on a tie), refused beyond a tolerance, never given a far position.
+"""
+
+from __future__ import annotations
+
+import datetime
+from collections.abc import Callable
+
+import numpy as np
+
+from ..core.errors import DatasetError
+
+
+def nearest_in_time(times: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(index [N], gap [N])``: the sample of the sorted ``times [S]`` nearest to each of ``query [N]`` (the
+    earlier one on a tie) and its distance, in the unit of the times (the one rule of seqnet's position logs
+    and ROS bags)."""
+    right = np.clip(np.searchsorted(times, query), 0, len(times) - 1)
+    left = np.clip(right - 1, 0, len(times) - 1)
+    idx = np.where(np.abs(times[left] - query) <= np.abs(times[right] - query), left, right)
+    return idx, np.abs(times[idx] - query)
+
+
+def nearest_within(times: np.ndarray, query: np.ndarray, tolerance: float, refusal: Callable[[int, float, int], str],
+                   scale: float = 1.0) -> np.ndarray:
+    """:func:`nearest_in_time` indices; a query farther than ``tolerance`` (in the times' unit ÷ ``scale``) is a
+    :class:`DatasetError` of ``refusal(first index, its gap, how many)``."""
+    idx, gap = nearest_in_time(times, query)
+    gap = gap / scale
+    bad = np.flatnonzero(gap > tolerance)
+    if bad.size:
+        raise DatasetError(refusal(int(bad[0]), float(gap[bad[0]]), int(bad.size)))
+    return idx
+
+
+SMALL_MISS = 1.0  # seconds: a miss --max-time-gap may bridge (a few dropped samples); beyond it, trim or fix
+
+
+def _when(t: float) -> str:
+    """Epoch seconds as ``2015-02-03 08:45:10 UTC`` (plain seconds where they are no plausible date)."""
+    if not 0 < t < 4.2e9:
+        return f"{t:.3f} s"
+    return datetime.datetime.fromtimestamp(t, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def gap_hint(log_times: np.ndarray, image_times: np.ndarray, bad: np.ndarray, gaps: np.ndarray,
+             other: str) -> str:
+    """The hint for images ``bad`` (indices into ``image_times [N]``) farther than the tolerance from every
+    sample of the sorted ``log_times [S]``: another run's log when no image falls near it, else how many lie
+    before / after the log or in its gaps; ``--max-time-gap`` only for a miss of at most :data:`SMALL_MISS`."""
+    t0, t1 = float(log_times[0]), float(log_times[-1])
+    worst = float(gaps[bad].max())
+    if bad.size == len(image_times) and float(gaps.min()) > SMALL_MISS:
+        return (f"no image lies within the log: the images are from {_when(float(image_times.min()))}, the log "
+                f"from {_when(t0)} to {_when(t1)}; hint: {other}? Give the log recorded with these images")
+    tb = image_times[bad]
+    parts = [f"{n} {w}" for n, w in ((int((tb < t0).sum()), "before the log's start"),
+                                     (int((tb > t1).sum()), "after its end"),
+                                     (int(((tb >= t0) & (tb <= t1)).sum()), "in gaps of the log (samples missing)"))
+             if n]
+    fix = "trim the images to the log" if (tb < t0).any() or (tb > t1).any() else "leave out the images in its gaps"
+    if worst <= SMALL_MISS:
+        need = np.ceil(round(worst * 100, 3)) / 100
+        fix += f", or raise --max-time-gap to {need:g} (each such image then takes a sample that far off)"
+    return f"of these, {', '.join(parts)}; hint: {fix}"
