@@ -149,6 +149,13 @@ def test_csv_tracks_read_as_positions_csvs_do(tmp_path, sep, bom):
     np.testing.assert_array_equal(got.coords, want.coords)
 
 
+def test_long_names_a_tracks_longitude_as_in_positions_csvs(tmp_path):
+    times, lat, lon = _samples(6)
+    want = read_track(write_track_csv(tmp_path / "plain.csv", times, lat, lon))
+    (tmp_path / "long.csv").write_text((tmp_path / "plain.csv").read_text().replace(",lon", ",long", 1))
+    np.testing.assert_array_equal(read_track(tmp_path / "long.csv").coords, want.coords)
+
+
 def test_decimal_commas_in_a_track_are_named(tmp_path):
     p = tmp_path / "t.csv"
     p.write_text("time;lat;lon\n0;63,43;10,39\n")

@@ -7,7 +7,7 @@ positions CSVs), and a UTF-8 byte-order mark (Excel's "CSV UTF-8") is dropped.
   epoch times (seconds around 1.7e9, or milliseconds, microseconds, nanoseconds: :func:`.base.epoch_unit`),
   which are absolute, as ISO-8601 times (``2024-05-01T10:00:00.5Z``; one without a zone is UTC) are: they join
   the video by its clock.
-* ``lat`` / ``latitude`` and ``lon`` / ``lng`` / ``longitude``; or ``easting`` / ``northing``, ``x`` / ``y``
+* ``lat`` / ``latitude`` and ``lon`` / ``lng`` / ``long`` / ``longitude``; or ``easting`` / ``northing``, ``x`` / ``y``
   (metres, in the track's own frame).
 """
 
@@ -27,7 +27,7 @@ from ..times import parse_iso, utc_seconds
 from .base import Track, epoch_unit, track_of
 
 TIME_COLUMNS = ("time", "t", "timestamp", "seconds")
-COORDINATES = ((("lat", "latitude"), ("lon", "lng", "longitude")), (("easting", "x"), ("northing", "y")))
+COORDINATES = ((("lat", "latitude"), ("lon", "lng", "long", "longitude")), (("easting", "x"), ("northing", "y")))
 
 
 def _column(header: list[str], names: tuple[str, ...]) -> int | None:
