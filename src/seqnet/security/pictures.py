@@ -78,7 +78,7 @@ def decode(opener: Callable[[], Any], where: Any, grey: bool = False, max_pixels
                 if im.width * im.height > max_pixels:
                     raise ImageError(f"image {name} is too large: it declares {im.width}x{im.height} pixels, more "
                                      f"than the limit of {max_pixels:,} (hint: --skip-corrupted leaves it out)")
-                wide = WIDE_RGB.get(str(im.tile[0].args)) if im.format == "PNG" and len(im.tile) == 1 else None
+                wide = WIDE_RGB.get(str(im.tile[0][3])) if im.format == "PNG" and len(im.tile) == 1 else None
                 im.load()
                 if wide is None or np.asarray(im).any():
                     return to_uint8(upright(im), name, grey)
@@ -98,7 +98,8 @@ def low_bytes(opener: Callable[[], Any], rawmode: str, name: str, grey: bool) ->
     """A 16-bit RGB(A) PNG whose high bytes are all zero, decoded again with ``rawmode`` (the low byte of each
     sample): its values 0..255 as they are (said by :func:`say_8_bit` unless they are all zero: black either way)."""
     with opener() as im:
-        im.tile = [t._replace(args=rawmode) for t in im.tile]
+        im.tile = [t._replace(args=rawmode) if hasattr(t, "_replace") else (*t[:3], rawmode)  # Pillow < 11: tuples
+                   for t in im.tile]
         im.load()
         if np.asarray(im).any():
             say_8_bit(name, im.mode, int(np.asarray(im).max()))
