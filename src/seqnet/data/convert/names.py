@@ -73,14 +73,19 @@ def warn_reordered(rows: np.ndarray, names: Sequence[str], csv: CsvNames, source
     """Warn (and return True) when ``csv`` lists ``names`` (a traverse's images, in their order; ``rows[i]``: the
     row of ``csv`` of image ``i``, [N] int) in another order; ``source`` names where the order comes from."""
     back = np.flatnonzero(np.diff(rows) < 0)
-    if not back.size:
-        return False
+    if not back.size or sorted_as_text([names[j] for j in np.argsort(rows, kind="stable")]):
+        return False  # a CSV sorted as text (ls, sorted(), a spreadsheet's sort) says nothing of the route's order
     i = int(back[0]) + 1
-    logger.warning("%s lists the images in another order than %s (image %d, %r, is on line %d, after the line %d "
-                   "of image %d, %r); the traverse follows %s, the CSV only places the images; hint: %s", csv.path,
+    logger.warning("%s lists the images in another order than %s (image %d, %r, is on line %d, after line %d "
+                   "(image %d, %r)); the traverse follows %s, the CSV only places the images; hint: %s", csv.path,
                    source, i, names[i], csv.lines[rows[i]], csv.lines[rows[i - 1]], i - 1, names[i - 1], source,
                    hint)
     return True
+
+
+def sorted_as_text(names: Sequence[str]) -> bool:
+    """Whether ``names`` are in plain text order (``img1, img10, img2``), case-sensitive or not."""
+    return list(names) == sorted(names) or list(names) == sorted(names, key=str.lower)
 
 
 def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarray:
