@@ -181,3 +181,27 @@ def test_frame_columns_that_start_at_different_numbers_are_said(tmp_path, caplog
     if start == 1:
         assert "the reference frames (" in said[0].getMessage() and "at 1: one file numbered from 1?" in \
             said[0].getMessage()
+
+
+def test_a_split_without_a_match_is_said_once_and_not_blamed_on_numbering(caplog):
+    """A split none of whose queries has a match is left to data.sanity's one line (it was said twice, once as
+    'Recall@K is over those 0 only'); a split with few matches of files numbered alike is not told they number
+    their frames differently (its queries start mid-route, the files do not)."""
+    import numpy as np
+
+    from seqnet.data.traverse import Dataset, Traverse
+    from seqnet.pipelines.ground_truth import _check_splits
+
+    d = np.random.default_rng(0).standard_normal((30, 8)).astype(np.float32)
+    ref = Traverse(d, np.arange(30.0)[:, None], name="reference")
+    q_pos = np.r_[np.arange(20.0), np.arange(120.0, 130.0)]
+    qry = Traverse(d, q_pos[:, None], name="query")
+    splits = {"val": {"reference": (0, 30), "query": (0, 20)}, "test": {"reference": (0, 30), "query": (20, 30)},
+              "few": {"reference": (0, 30), "query": (15, 30)}}
+    ds = Dataset(ref, qry, radius=1.0, position_unit="frames", splits=splits, name="far")
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        _check_splits(ds)
+    said = [r.getMessage() for r in caplog.records]
+    assert not any("split test" in s for s in said), said
+    (few,) = [s for s in said if "split few" in s]
+    assert "number their frames differently" not in few and "check the split's ranges" in few, few

@@ -151,11 +151,11 @@ def _check_splits(ds: Dataset) -> None:
     for name in ds.splits:
         sub = ds.split(name)
         n, m = int(_matched(sub).sum()), len(sub.query)
-        if m and n < FEW_MATCHES * m:
+        if m and 0 < n < FEW_MATCHES * m:  # none at all: data.sanity's unmatched_splits says it, with its cause
             a, b = ds.splits[name]["query"]
             logger.warning("%s: split %s (queries %d:%d): only %d of %d queries (%.0f%%) have a true match, so its "
                            "Recall@K is over those %d only: %s", ds.name, name, a, b, n, m, 100 * n / m, n,
-                           mismatch_hint(sub, n))
+                           mismatch_hint(sub, n, ds))
 
 
 def truncated_positives(ds: Dataset, has: np.ndarray) -> str | None:
@@ -176,10 +176,11 @@ def truncated_positives(ds: Dataset, has: np.ndarray) -> str | None:
     return line
 
 
-def mismatch_hint(ds: Dataset, matched: int) -> str:
+def mismatch_hint(ds: Dataset, matched: int, whole: Dataset | None = None) -> str:
     """Why few queries of ``ds`` have a true match: how far the nearest references are against the radius, and
     the likely cause (one traverse's two position columns swapped, when swapping them gives more queries a match;
-    degrees; else swapped columns or a radius in another unit)."""
+    degrees; frames numbered from different starts, by the first frames of ``whole`` when ``ds`` is a split of it;
+    else swapped columns or a radius in another unit)."""
     if ds.positives is not None:
         return "hint: check the positives file (per query its matching reference indices, counted from 0)"
     from scipy.spatial import cKDTree
@@ -200,9 +201,12 @@ def mismatch_hint(ds: Dataset, matched: int) -> str:
                     "positions? (hint: swap the two column names in its header)")
     if looks_like_degrees(np.concatenate([r, q])):
         return f"{said}; {DEGREES_HINT}"
+    first_r, first_q = (float(t.positions.min()) for t in ((whole or ds).reference, (whole or ds).query))
+    if unit == "frames" and first_r != first_q:
+        return (f"{said}: the two files number their frames differently (reference from {first_r:g}, query from "
+                f"{first_q:g})? (hint: number both from 0, frame i of the query at the place of frame i of the "
+                "reference, or give positions in metres)")
     if unit == "frames":
-        return (f"{said}: the two files number their frames differently (reference from {float(r.min()):g}, query "
-                f"from {float(q.min()):g})? (hint: number both from 0, frame i of the query at the place of frame i "
-                "of the reference, or give positions in metres)")
+        return f"{said}: its queries lie where the reference has few frames (hint: check the split's ranges)"
     return (f"{said}: positions swapped (easting/northing, lat/lon), the radius in another unit, or traverses in "
             "different coordinate frames? (hint: check both position files and the radius)")
