@@ -199,3 +199,22 @@ def test_nearest_1d_is_a_naive_search():
         naive = np.abs(query[:, None] - ref[None]).min(axis=1)
         np.testing.assert_allclose(dist, naive)
         np.testing.assert_allclose(np.abs(ref[idx] - query), naive)
+
+
+def test_one_matching_pass_for_every_sequence_finds_the_legs_of_each():
+    """backward_leg_line matches every sequence's samples in one pass (it rebuilt a k-d tree per sequence: 14 s on
+    500 sequences of a 100k map): the same legs as backward_legs run sequence by sequence."""
+    from types import SimpleNamespace
+
+    from seqnet.methods.route import backward_leg_line, backward_legs
+
+    r = np.c_[np.arange(400.0), np.zeros(400)]
+    out_back = np.r_[np.arange(0, 120), np.arange(119, 39, -1)]  # a sequence out, then back
+    q = np.r_[out_back, np.arange(200, 360)].astype(float)
+    truth = SimpleNamespace(positives=None, r_pos=r, q_pos=np.c_[q, np.zeros(len(q))], radius=1.5)
+    runs = [(0, 200), (200, 360)]
+    per_run = [leg for run in runs for leg in backward_legs(truth, run)]
+    assert len(per_run) == 1
+    a, b, r0, r1 = per_run[0]
+    line = backward_leg_line(truth, runs, np.arange(len(q)), "raw+seqmatch")
+    assert line.startswith(f"query frames {a}:{b} (references {r0:.0f} back to {r1:.0f})"), line

@@ -97,7 +97,12 @@ def backward_legs(truth: Any, rows: tuple[int, int]) -> list[tuple[int, int, flo
     a, b = rows
     if len(truth.r_pos) == 0 or b - a < 16:
         return []
-    q, r = _matched_refs(truth, a + spread(b - a, LEG_SAMPLES))
+    return legs_of(*_matched_refs(truth, a + spread(b - a, LEG_SAMPLES)))
+
+
+def legs_of(q: np.ndarray, r: np.ndarray) -> list[tuple[int, int, float, float]]:
+    """:func:`backward_legs` of one sequence's sampled query items ``q [S]`` (ascending) with a correct reference,
+    and each one's reference index ``r [S]``."""
     w = max(8, len(q) // 25)
     if len(q) < 2 * w:
         return []
@@ -157,7 +162,12 @@ def backward_leg_line(truth: Any, runs: list[tuple[int, int]], frames: np.ndarra
     """The line for query sequences (item ranges ``runs``) that run forward as a whole but hold a leg whose correct
     references go back (:func:`backward_legs`: an out-and-back drive in one sequence); ``frames [M]``: each item's
     query frame. None when there is none."""
-    legs = [leg for run in runs for leg in backward_legs(truth, run)]
+    runs = [(a, b) for a, b in runs if b - a >= 16]
+    if not runs or len(truth.r_pos) == 0:
+        return None
+    q, r = _matched_refs(truth, np.unique(np.concatenate([a + spread(b - a, LEG_SAMPLES) for a, b in runs])))
+    cuts = np.searchsorted(q, np.asarray(runs).ravel())  # one matching pass for every sequence, sliced per run
+    legs = [leg for lo, hi in cuts.reshape(-1, 2) for leg in legs_of(q[lo:hi], r[lo:hi])]
     if not legs:
         return None
     which = ", ".join(f"{int(frames[a])}:{int(frames[b - 1]) + 1} (references {r0:.0f} back to {r1:.0f})"
