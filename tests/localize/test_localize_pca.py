@@ -100,16 +100,34 @@ def test_the_advice_for_a_map_with_its_own_fitted_pca_works(pca_dataset, tmp_pat
     assert _localize("--map", tmp_path / "ds", "--query", frames, "--out", tmp_path / "t.csv") == 0
 
 
-def test_a_dataset_reduced_twice_is_refused(pca_dataset, tmp_path, capsys):
+def test_a_dataset_reduced_twice_is_refused_naming_the_chain(pca_dataset, tmp_path, capsys):
+    """``seqnet train --pca 8`` on a ``--pca 16`` dataset, then localize on the map's own images: the refusal led
+    with a wrong cause (the images' size, --resize); it names the chain first, on the dataset and on its index
+    map, from the record of the chain (``input_pca``) or, for a dataset reduced before it was recorded, from the
+    dataset beside it (``<DIR>`` of ``<DIR>-pca8``) that its PCA reduced."""
+    import json
+
     from seqnet.pipelines.pca import main as reduce_again
 
     shutil.copytree(pca_dataset / "ds", tmp_path / "ds")
+    shutil.copy(pca_dataset / "ds.pca.npz", tmp_path / "ds.pca.npz")
     twice = reduce_again(tmp_path / "ds", 8)  # seqnet train --pca 8 on the --pca 16 dataset
     assert (tmp_path / "ds-pca8.pca.npz").is_file()
-    capsys.readouterr()
-    assert _localize("--map", twice, "--query", pca_dataset / "q.txt", "--out", tmp_path / "t.csv") == 2
-    err = capsys.readouterr().err
-    assert "the map's PCA reduces 16-D descriptors, but its describer (pixels) makes 2048-D ones" in err, err
+    assert _build_map(twice, tmp_path / "map") == 0
+    chain = ("error: the map's descriptors were reduced twice (2048-D to 16-D to 8-D: its dataset ds-pca8 was made "
+             "by --pca 8 on an already reduced dataset), and localize applies one PCA, the last, to the describer's "
+             "2048-D descriptors, so it cannot describe query images; hint: build the map from a dataset reduced "
+             "once: seqnet dataset from-images --pca 8, or seqnet train --pca 8 on a dataset built without --pca")
+    meta = json.loads((twice / "dataset.json").read_text())
+    for recorded in (True, False):
+        if not recorded:  # written before the chain was recorded
+            del meta["pca"]["input_pca"]
+            (twice / "dataset.json").write_text(json.dumps(meta))
+        for where in (twice, tmp_path / "map"):
+            capsys.readouterr()
+            assert _localize("--map", where, "--query", pca_dataset / "q.txt", "--out", tmp_path / "t.csv") == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and err[0].endswith(chain) and "--resize" not in err[0], (recorded, where, err)
 
 
 def _build_map(ds, out):

@@ -71,6 +71,32 @@ def test_main_writes_beside_then_reuses(synth_dataset, tmp_path):
         main(src, 4)
 
 
+def test_pca_on_a_reduced_dataset_is_warned_naming_the_unreduced_one(synth_dataset, tmp_path, caplog):
+    """``seqnet train --pca 4`` on a dataset already reduced (``ds-pca8``, or a ``from-images --pca`` one) wrote a
+    twice-reduced dataset without a word, whose map cannot take images: one warning names the unreduced dataset
+    beside it when there is one, else the rebuild; the chain is recorded (``input_pca``); an unreduced dataset
+    stays silent."""
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    src = save_dataset(synth_dataset, tmp_path / "ds")
+    once = main(src, 8)
+    assert not caplog.records  # the unreduced dataset: silent
+    twice = main(once, 4)
+    said = [r.getMessage() for r in caplog.records]
+    assert said == [f"{once} is already reduced by a PCA (16-D to 8-D): --pca 4 reduces it a second time, and "
+                    "localize, index build and serve apply one PCA to the query images they describe, so its map "
+                    "will not take images (descriptor files only); hint: reduce the unreduced descriptors once: "
+                    f"seqnet train --dataset {src} --pca 4"], said
+    assert load_dataset(twice).extra["pca"]["input_pca"] == {"dims": 8, "input_dim": 16,
+                                                             "source": synth_dataset.reference.provenance["id"]}
+    caplog.clear()
+    main(save_dataset(load_dataset(once), tmp_path / "alone"), 4)  # reduced, nothing unreduced beside it
+    assert len(caplog.records) == 1 and caplog.records[0].getMessage().endswith(
+        "hint: reduce the unreduced descriptors once: build the dataset with seqnet dataset from-images --pca 4 (or "
+        "without --pca, then seqnet train --pca 4 on it)")
+
+
 def test_cli_train_with_pca(synth_dataset, tmp_path, capsys):
     src = save_dataset(synth_dataset, tmp_path / "ds")
     common = ["--epochs", "1", "--optimizer", "adam", "--n-neg-sample", "50", "--device", "cpu", "--seq-len", "3",

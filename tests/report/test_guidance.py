@@ -205,3 +205,35 @@ def test_without_r_at_1_the_smallest_k_is_compared():
                "s1": {"recall@5": 0.583, "recall@10": 0.650, "queries": 60}}
     (note,) = learned_below_baseline({"methods": methods, "config": {}})
     assert note.k == 5 and note.finding() == "s1 (R@5 0.583) is below the model-free single (0.733)"
+
+
+def test_the_training_queries_a_checkpoint_records_are_named_in_the_training_cause(synth_dataset):
+    """A model trained on 12 queries below its baseline got only the generic training-data cause; the count its
+    checkpoint records (``trained_on["train_queries"]``) reaches ``results.json`` (``training_queries``, by
+    :func:`model_entries` in eval) and the cause names it. A checkpoint that records none keeps the generic text."""
+    import torch
+
+    from seqnet.eval.config import EvalConfig
+    from seqnet.eval.evaluate import evaluate
+    from seqnet.report.guidance import model_entries
+    from seqnet.sequence.model import SeqNet
+
+    s1 = {"in_dims": 64, "out_dims": 64, "seq_len": 1, "w": 1}
+    causes = likely_causes("s1", _results({"s1": 0.27, "single": 0.53}, 30, {"s1": {**s1, "training_queries": 12}}))
+    assert any("D x out x w weights (S_1 learnt from 12 training queries), or a val split" in c for c in causes)
+    both = {"seqnet": {**s1, "seq_len": 5, "training_queries": 180}, "s1": {**s1, "training_queries": 1}}
+    causes = likely_causes("hvpr", _results({"hvpr": 0.2, "raw+seqmatch": 0.7}, models=both))
+    assert any("(S_L learnt from 180 training queries, S_1 learnt from 1 training query)" in c for c in causes)
+    plain = likely_causes("s1", _results({"s1": 0.27, "single": 0.53}, 30, {"s1": s1}))
+    assert any(c.startswith("too little or too different training data for the model's D x out x w weights, or")
+               for c in plain)
+
+    torch.manual_seed(0)
+    model = SeqNet(synth_dataset.query.dim, 8, 1, 1)
+    assert model_entries({"s1": model}) == {"s1": model.config()}  # none recorded
+    model.trained_on = {"dataset": "ds", "split": "train", "train_queries": [0, 12]}
+    assert model_entries({"s1": model})["s1"] == {**model.config(), "training_queries": 12}
+    res = evaluate(synth_dataset.split("test"), EvalConfig(methods=("single", "s1"), seq_len=1, device="cpu"),
+                   {"s1": model}).results
+    assert res["config"]["models"]["s1"]["training_queries"] == 12
+    assert res["methods"]["s1"]["method"]["models"]["s1"]["training_queries"] == 12

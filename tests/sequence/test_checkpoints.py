@@ -12,8 +12,9 @@ from hypothesis import HealthCheck, given, settings
 
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import CheckpointError
-from seqnet.sequence.checkpoints import find_flags, load_model, read_checkpoint, save_checkpoint
+from seqnet.sequence.checkpoints import load_model, read_checkpoint, save_checkpoint
 from seqnet.sequence.model import SeqNet
+from seqnet.sequence.original import find_flags
 
 
 def _reference_descriptors(weight: torch.Tensor, bias: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -200,3 +201,63 @@ def test_swapped_shortlist_and_rerank_models_are_named(map_models, synth_dir, ca
                      "--method", "hvpr", "--device", "cpu"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is an S_1 (L=1, w=1), not an S_L" in err[0]
+
+
+def _pair(tmp_path, name: str, seq_len: int, w: int) -> list:
+    """Two checkpoints of one kind (another seed each): ``<name>a.pt`` (L=seq_len) and ``<name>b.pt`` (L=seq_len+1
+    for an S_L)."""
+    out = []
+    for i, suffix in enumerate("ab"):
+        torch.manual_seed(i)
+        length = seq_len + i * (seq_len > 1)
+        out.append(save_checkpoint(tmp_path / f"{name}{suffix}.pt", SeqNet(16, 12, length, w)))
+    return out
+
+
+def test_two_checkpoints_of_one_kind_are_refused_naming_both(tmp_path, synth_dir, capsys):
+    """``--model A --model B`` of one kind (two S_1, or two S_L): the last replaced the first silently, and a
+    second S_L the L of the whole table; refused in one line naming both and the fix (a run of its own each), at
+    loading (index build, serve, localize on a map) and at the choice of the models a command uses (eval,
+    localize on a dataset), used or not. One S_1 and one S_L, or the same file twice, are one model each."""
+    from seqnet.sequence.checkpoints import load_models, used_models
+
+    s1a, s1b = _pair(tmp_path, "s1", 1, 1)
+    sla, slb = _pair(tmp_path, "sl", 4, 2)
+    second = r"is a second S_1, beside --model .*s1a.pt: a run uses one S_1 and one S_L; to compare them, evaluate " \
+             r"each in a run of its own \(one --model each\)"
+    with pytest.raises(CheckpointError, match=rf"--model .*s1b.pt {second}"):
+        load_models([s1a, s1b])
+    with pytest.raises(CheckpointError, match=r"--model .*slb.pt is a second S_L \(L=5; the first has L=4\), beside "
+                                              r"--model .*sla.pt"):
+        used_models("single", {"s1"}, [sla, slb])  # unused, yet one of them would give L
+    with pytest.raises(CheckpointError, match=r"--shortlist-model .*slb.pt is a second S_L .* beside --model "):
+        used_models("hvpr", {"seqnet", "s1"}, [sla], shortlist_model=slb)
+    with pytest.raises(CheckpointError, match=r"--rerank-model .*s1b.pt is a second S_1"):
+        load_models([s1a], rerank_model=s1b)
+    assert set(load_models([sla, s1a])) == {"seqnet", "s1"}
+    assert list(load_models([s1a, tmp_path / "." / "s1a.pt"], rerank_model=s1a)) == ["s1"]
+    assert used_models("s1", {"s1"}, [s1a, s1a], rerank_model=s1a).paths == [s1a]
+    for argv in (["eval", "--dataset", str(synth_dir), "--method", "s1"],
+                 ["localize", "--dataset", str(synth_dir), "--method", "s1+seqmatch", "--out", str(tmp_path / "l.csv")],
+                 ["index", "build", "--dataset", str(synth_dir), "--out", str(tmp_path / "map")]):
+        assert cli_main([*argv, "--model", str(s1a), "--model", str(s1b), "--device", "cpu"]) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(s1a) in err[0] and str(s1b) in err[0] and "a second S_1" in err[0], err
+    assert not (tmp_path / "l.csv").exists() and not (tmp_path / "map").exists()
+
+
+def test_a_run_folder_given_as_a_checkpoint_names_the_checkpoints_it_holds(tmp_path):
+    """``--model RUN`` of a joint run (RUN/seqnet/best.pt, RUN/s1/best.pt) said 'pass RUN/best.pt', which does not
+    exist: the two checkpoints are named with their kind; a plain run's best.pt is named as it is."""
+    joint = tmp_path / "joint"
+    for role, (seq_len, w) in {"seqnet": (4, 2), "s1": (1, 1)}.items():
+        (joint / role).mkdir(parents=True)
+        save_checkpoint(joint / role / "best.pt", SeqNet(8, 4, seq_len, w))
+    with pytest.raises(CheckpointError, match=rf"pass its checkpoints, one --model each: {joint}/s1/best.pt \(S_1\) "
+                                              rf"and {joint}/seqnet/best.pt \(S_L\)\)$"):
+        load_model(joint)
+    with pytest.raises(CheckpointError, match=rf"pass {joint}/s1/best.pt\)$"):
+        load_model(joint / "s1")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(CheckpointError, match=r"pass RUN/best.pt, the checkpoint of a training run\)$"):
+        load_model(tmp_path / "empty")

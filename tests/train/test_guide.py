@@ -4,6 +4,7 @@ epochs without an active triplet."""
 from __future__ import annotations
 
 import logging
+import re
 
 import pytest
 
@@ -95,6 +96,9 @@ def test_training_stops_after_stop_inactive_epochs_without_an_active_triplet(syn
     assert run.epoch == 3 and (tmp_path / "r" / "best.pt").exists()
     said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert any("no active triplet for 3 epochs in a row" in m and "--margin" in m for m in said)
+    # a direction: a larger --neg-radius gives fewer negatives (the hint said "more negatives (--neg-radius)")
+    assert any(re.search(r"more negatives: a smaller --neg-radius \(now [\d.]+; references farther than it are "
+                         r"negatives\)", m) for m in said), said
     assert any("stopped: no active triplet for 3 epochs" in r.getMessage() for r in caplog.records)
     # 0: never stops
     run = train(synth_dataset, FAST.replace(epochs=4, stop_inactive=0), tmp_path / "never")

@@ -146,7 +146,7 @@ def test_triplet_source_windows_and_errors(synth_dataset):
     assert torch.all(src.q_idx[:, 1:] - src.q_idx[:, :-1] == 1)
     centre = src.q_idx[:, 2].numpy()
     np.testing.assert_allclose(src.q_pos.numpy(), ds.query.positions[centre])
-    with pytest.raises(DatasetError, match="pos_radius"):
+    with pytest.raises(DatasetError, match=r"pos_radius.*hint: .*a larger --pos-radius / a smaller --neg-radius\)"):
         triplet_source(ds, 5, "centred", MiningConfig(pos_radius=1e-9, neg_radius=1e9), torch.device("cpu"))
     with pytest.raises(DatasetError, match="train split: .*full window"):
         triplet_source(ds, 10_000, "centred", conf, torch.device("cpu"))

@@ -29,7 +29,7 @@ from ..methods.route import route_warnings
 from ..metrics.recall import GroundTruth, ground_truth
 from ..reference.plain import PlainReference, runs_plain
 from ..reference.traverse import TraverseReference
-from ..report.guidance import learned_below_baseline, note_entries
+from ..report.guidance import learned_below_baseline, model_entries, note_entries
 from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.npdescribed import PlainDescribed
@@ -77,7 +77,7 @@ def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[st
         info["top_k"] = conf.shortlist_size(m)
     if m.fused:
         info["fuse_weight"] = conf.weight(m)
-    info["models"] = {r: models[r].config() for r in sorted(m.models())}
+    info["models"] = model_entries({r: models[r] for r in sorted(m.models())})
     return info
 
 
@@ -112,7 +112,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     out = merge(parts, conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                              "ground_truth": "explicit positives" if ds.positives is not None else "radius",
-                             "models": {k: v.config() for k, v in models.items()},
+                             "models": model_entries(models),
                              "model_seq_len": model_lengths(models)}
     out.dataset, out.frame_names = ds, (ds.query.names, ds.reference.names)
     out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)

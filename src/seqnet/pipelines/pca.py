@@ -32,6 +32,7 @@ from ..core.provenance import make as make_provenance
 from ..data.io import load_dataset, save_dataset
 from ..data.traverse import Dataset, Traverse
 from ..describe.pca import PCA, check_fit_rows, dataset_pca_path, fit_pca
+from ..localize.describing import unreduced_dataset
 
 FIT_MAX = 20000  # frames a PCA is fitted on at most (evenly spaced): [N, D] float64 in memory
 BLOCK = 4096  # frames projected at a time
@@ -93,8 +94,11 @@ def reduce_dataset(ds: Dataset, dims: int, split: str = "train") -> tuple[Datase
     def side(t: Traverse) -> Traverse:
         return dataclasses.replace(t, descriptors=project(pca, t.descriptors), provenance=prov)
 
+    before = ds.extra.get("pca") if isinstance(ds.extra.get("pca"), dict) else None  # a chain: said by localize
+    chain = {"input_pca": {k: before.get(k) for k in ("dims", "input_dim", "source")}} if before else {}
     extra = {**ds.extra, "pca": {"dims": dims, "input_dim": ds.query.dim, "fit_split": split,
-                                 "fit_ranges": {k: list(v) for k, v in rng.items()}, "source": source.get("id")}}
+                                 "fit_ranges": {k: list(v) for k, v in rng.items()}, "source": source.get("id"),
+                                 **chain}}
     return dataclasses.replace(ds, reference=side(ds.reference), query=side(ds.query), extra=extra), pca
 
 
@@ -118,6 +122,7 @@ def main(dataset: str | Path, dims: int, split: str = "train") -> Path:
     ``<dataset>-pca<dims>`` beside it (written, or reused when it is that reduction of that dataset)."""
     src = load_dataset(dataset)
     out = Path(dataset).with_name(f"{Path(dataset).name}-pca{dims}")
+    warn_reduced(dataset, src, dims)
     if out.exists():
         made = load_dataset(out).extra.get("pca") or {}
         wanted = {"dims": dims, "fit_split": split, "source": (src.reference.provenance or {}).get("id"),
@@ -133,3 +138,21 @@ def main(dataset: str | Path, dims: int, split: str = "train") -> Path:
     logger.info("wrote %s: %s reduced from %d to %d dimensions by a PCA fitted on its %s split only (the "
                 "projection: %s); train and evaluate on it", out, dataset, src.query.dim, dims, split, pca_path(out))
     return out
+
+
+def warn_reduced(dataset: str | Path, src: Dataset, dims: int) -> None:
+    """Warn when ``--pca dims`` is asked of a dataset already reduced by a PCA (``from-images --pca`` or ``train
+    --pca``): the result is reduced twice, and localize, index build and serve apply one PCA to the images they
+    describe, so its map cannot take query images. Names the unreduced dataset when it lies beside
+    (:func:`seqnet.localize.describing.unreduced_dataset`), else the rebuild."""
+    before = src.extra.get("pca")
+    if not isinstance(before, dict):
+        return
+    source = unreduced_dataset(dataset)
+    hint = (f"seqnet train --dataset {source} --pca {dims}" if source is not None else "build the dataset with "
+            f"seqnet dataset from-images --pca {dims} (or without --pca, then seqnet train --pca {dims} on it)")
+    logger.warning("%s is already reduced by a PCA (%s-D to %d-D): --pca %d reduces it a second time, and localize, "
+                   "index build and serve apply one PCA to the query images they describe, so its map will not take "
+                   "images (descriptor files only); hint: reduce the unreduced descriptors once: %s", dataset,
+                   before.get("input_dim", "?"), src.query.dim, dims, hint)
+

@@ -126,9 +126,31 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
     explained = bool(out) and (out[0].startswith("possibly chance") or capped is not None or
                                any(c.startswith("its shortlist is the model-free") for c in out))
     if not explained:  # the other causes (D, L, few queries) may add to it: it is said beside them
-        out.append("too little or too different training data for the model's D x out x w weights, or a val split "
-                   "too small to choose the epoch (the training log of seqnet train says both)")
+        out.append(f"too little or too different training data for the model's D x out x w weights{_learnt(models)}, "
+                   "or a val split too small to choose the epoch (the training log of seqnet train says both)")
     return tuple(out)
+
+
+def _learnt(models: Mapping[str, Any]) -> str:
+    """`` (S_1 learnt from 12 training queries)``: the training queries each model's checkpoint records
+    (``training_queries`` of :func:`model_entries`); "" when none does."""
+    said = [f"{'S_1' if role == 's1' else 'S_L'} learnt from {n} training quer{'y' if n == 1 else 'ies'}"
+            for role, v in sorted(models.items(), key=lambda kv: kv[0] != "seqnet") if isinstance(v, Mapping)
+            and type(n := v.get("training_queries")) is int and n > 0]
+    return f" ({', '.join(said)})" if said else ""
+
+
+def model_entries(models: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """What ``results.json`` records of each model by role (:func:`likely_causes` reads it): its architecture
+    (``in_dims``, ``out_dims``, ``seq_len``, ``w``) and, when its checkpoint records its train range, the number of
+    its training queries (``training_queries``)."""
+    out = {}
+    for role, model in models.items():
+        t = getattr(model, "trained_on", None)
+        rng = t.get("train_queries") if isinstance(t, Mapping) else None
+        ok = isinstance(rng, list | tuple) and len(rng) == 2 and all(type(v) is int for v in rng) and rng[1] > rng[0]
+        out[role] = {**model.config(), **({"training_queries": rng[1] - rng[0]} if ok else {})}
+    return out
 
 
 def shortlist_capped(name: str, entry: Mapping[str, Any]) -> str | None:

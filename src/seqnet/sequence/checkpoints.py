@@ -13,7 +13,8 @@ seqnet format (``RUN/last.pt``, ``RUN/best.pt``), a ``torch.save`` dict::
 
 Original format (``checkpoint.pth.tar`` / ``model_best.pth.tar``): ``{"state_dict":
 {"pool.0.conv.weight", "pool.0.conv.bias"}, "epoch", "best_score", ...}``, with the run's flags
-(``seqL``, ``w``, ``outDims``, ``pooling``) in ``checkpoints/flags.json`` beside it.
+(``seqL``, ``w``, ``outDims``, ``pooling``) in ``checkpoints/flags.json`` beside it (read by
+:mod:`seqnet.sequence.original`).
 
 Checkpoints are read with :func:`seqnet.security.torchfile.load_torch_file` (``torch.load(weights_only=True)``):
 they can hold tensors and plain data only, never code.
@@ -29,9 +30,9 @@ from ..core.errors import CheckpointError
 from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..security.files import atomic_path
-from ..security.jsonfile import read_json
 from ..security.limits import DIM_MAX, SEQ_MAX, number
 from ..security.torchfile import load_torch_file
+from .original import original_model
 
 torch = lazy_module("torch")
 
@@ -56,7 +57,7 @@ def read_checkpoint(path: str | Path, mapped: bool = False) -> dict[str, Any]:
     tensors mapped from the file, not read); :class:`CheckpointError` if missing, unreadable or not a checkpoint."""
     path = Path(path)
     if path.is_dir():
-        raise CheckpointError(f"checkpoint not found: {path} (it is a directory; pass RUN/best.pt)")
+        raise CheckpointError(f"checkpoint not found: {path} (it is a directory; {_in_folder(path)})")
     payload = load_torch_file(path, "checkpoint", mapped=mapped)
     if not isinstance(payload, dict) or "state_dict" not in payload:
         got = f"dict with keys {list(payload)[:8]}" if isinstance(payload, dict) else type(payload).__name__
@@ -66,6 +67,21 @@ def read_checkpoint(path: str | Path, mapped: bool = False) -> dict[str, Any]:
         raise CheckpointError(f"{path}: 'state_dict' must map parameter names to tensors, got "
                               f"{type(state).__name__}")
     return payload
+
+
+def _in_folder(path: Path) -> str:
+    """What to pass for the folder ``path``: the checkpoints it holds (``RUN/best.pt``, or each model's of a joint
+    run: ``RUN/seqnet/best.pt`` and ``RUN/s1/best.pt``, with their kind), else RUN/best.pt."""
+    try:
+        found = [p for p in (path / "best.pt", *sorted(path.glob("*/best.pt"))[:4]) if p.is_file()]
+        kinds = {p: "S_1" if model_role(p).role == "s1" else "S_L" for p in found}
+    except (OSError, CheckpointError):
+        found, kinds = [], {}
+    if not found:
+        return "pass RUN/best.pt, the checkpoint of a training run"
+    if len(found) == 1 or len(set(kinds.values())) < len(found):
+        return f"pass {' or '.join(map(str, found))}"
+    return f"pass its checkpoints, one --model each: {' and '.join(f'{p} ({kinds[p]})' for p in found)}"
 
 
 def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None = None) -> SeqNet:
@@ -90,7 +106,7 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
         raise CheckpointError(f"{path} is a checkpoint of format {fmt[:40]!r}, written by a newer seqnet; this seqnet "
                               f"reads {CHECKPOINT_FORMAT!r} (hint: upgrade seqnet: pip install -U seqnet)")
     if fmt == CHECKPOINT_FORMAT:
-        model = _from_seqnet(payload, Path(path))
+        model = _build(payload.get("model"), payload["state_dict"], Path(path))
         model.provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else None
         config = payload.get("config") if isinstance(payload.get("config"), dict) else {}
         model.trained_on = {"dataset": payload.get("dataset_path"), "split": config.get("train_split"),
@@ -98,7 +114,7 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
                             **{k: payload.get(k) for k in ("val_queries", "train_queries", "query_names",
                                                            "dataset_digests")}} if payload.get("dataset_path") else None
     else:
-        model = _from_original(payload, Path(path), seq_len)
+        model = _build(*original_model(payload, Path(path), seq_len), Path(path))
     if in_dims is not None and in_dims != model.in_dims:
         raise CheckpointError(f"{path} expects D={model.in_dims} input descriptors but the data has D={in_dims} "
                               "(hint: use the descriptors the model was trained on)")
@@ -143,91 +159,56 @@ def _build(cfg: dict[str, Any], state: dict[str, torch.Tensor], path: Path) -> S
     return model
 
 
-def _from_seqnet(payload: dict[str, Any], path: Path) -> SeqNet:
-    return _build(payload.get("model"), payload["state_dict"], path)
+class Role(NamedTuple):
+    """A checkpoint's role and L, as :func:`model_role` reads them."""
+
+    role: str
+    seq_len: int
 
 
-def find_flags(path: Path) -> Path | None:
-    """``flags.json`` of an original-code run: beside the checkpoint, or in ``checkpoints/`` of its folder
-    (never further up: a file is read from the checkpoint's own folder only)."""
-    here = path.resolve().parent
-    for cand in (here / "flags.json", here / "checkpoints" / "flags.json"):
-        if cand.is_file():
-            return cand
-    return None
-
-
-def _original_weights(payload: dict[str, Any], path: Path) -> tuple[torch.Tensor, torch.Tensor]:
-    state = {k.removeprefix("module."): v for k, v in payload["state_dict"].items()}
-    weights = [k for k in state if k.endswith("conv.weight")]
-    if len(weights) != 1 or not torch.is_tensor(state[weights[0]]) or state[weights[0]].ndim != 3:
-        raise CheckpointError(f"{path}: expected one Conv1d weight 'pool.0.conv.weight' [D_out, D, w] in state_dict, "
-                              f"found keys {sorted(state)[:8]}")
-    bias = state.get(weights[0][: -len("weight")] + "bias")
-    if bias is None:
-        raise CheckpointError(f"{path}: state_dict has {weights[0]} but no matching conv bias")
-    return state[weights[0]], bias
-
-
-def read_flags(path: Path) -> dict[str, Any]:
-    """The original run's ``flags.json`` (empty when absent), with ``seqL``, ``w``, ``outDims`` checked to be
-    integers >= 1; :class:`CheckpointError` naming the file and key otherwise."""
-    flags_path = find_flags(path)
-    if flags_path is None:
-        return {}
-    flags = read_json(flags_path, "flags file", CheckpointError, limit=1 << 20)
-    if not isinstance(flags, dict):
-        raise CheckpointError(f"{flags_path}: must hold a JSON object of the run's flags")
-    for key in ("seqL", "w", "outDims"):
-        value = flags.get(key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise CheckpointError(f"{flags_path}: {key} must be an integer >= 1, got {value!r}")
-    return flags
-
-
-def _from_original(payload: dict[str, Any], path: Path, seq_len: int | None) -> SeqNet:
-    weight, bias = _original_weights(payload, path)
-    out_dims, in_dims, w = (int(x) for x in weight.shape)
-    flags = read_flags(path)
-    for key, actual in (("w", w), ("outDims", out_dims)):
-        if flags.get(key) is not None and flags[key] != actual:
-            raise CheckpointError(f"{find_flags(path)}: {key}={flags[key]} does not match the weights "
-                                  f"{tuple(weight.shape)} in {path}")
-    stored = 1 if str(flags.get("pooling", "")).lower() == "s1+seqmatch" else flags.get("seqL")
-    if seq_len is None and stored is None:
-        raise CheckpointError(f"{path}: original SeqNet checkpoint (D={in_dims} → {out_dims}, w={w}) without "
-                              "flags.json giving seqL; pass the sequence length (seqnet eval --seq-len L, or "
-                              "load_model(path, seq_len=L))")
-    cfg = {"in_dims": in_dims, "out_dims": out_dims, "seq_len": int(stored if stored is not None else seq_len), "w": w}
-    logger.info("loaded original SeqNet checkpoint %s (epoch %s): %s", path, payload.get("epoch"), cfg)
-    return _build(cfg, {"conv.weight": weight, "conv.bias": bias}, path)
-
-
-def model_role(path: str | Path) -> tuple[str, int]:
+def model_role(path: str | Path) -> Role:
     """``(role, L)`` of the model in a checkpoint (``"s1"`` or ``"seqnet"``, as :attr:`SeqNet.role`), its weights
     mapped from the file and never read into memory: what a command learns of a model it will not use. An
     original-code checkpoint is loaded."""
     payload = read_checkpoint(path, mapped=True)
     if payload.get("format") != CHECKPOINT_FORMAT:
         model = load_model(path)
-        return model.role, model.seq_len
+        return Role(model.role, model.seq_len)
     _, _, seq_len, w = check_architecture(payload.get("model"), payload["state_dict"], Path(path))
-    return ("s1" if seq_len == 1 and w == 1 else "seqnet"), seq_len
+    return Role("s1" if seq_len == 1 and w == 1 else "seqnet", seq_len)
 
 
 def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
                 rerank_model: str | Path | None = None, seq_len: int | None = None) -> dict[str, SeqNet]:
     """Models by role: ``paths`` by their stored role, then the S_L ``shortlist_model`` (an original
     checkpoint without flags.json takes ``seq_len``) and the S_1 ``rerank_model``."""
-    models = {}
+    models, seen = {}, {}
     for path in paths:
         model = load_model(path)
-        models[model.role] = model
+        models.update({} if one_per_role(seen, model, path, "--model") else {model.role: model})
     for role, path in (("seqnet", shortlist_model), ("s1", rerank_model)):
         if path:
-            models[role] = _as_role(load_model(path, seq_len=seq_len) if role == "seqnet" else load_model(path),
-                                    role, path)
+            model = _as_role(load_model(path, seq_len=seq_len) if role == "seqnet" else load_model(path), role, path)
+            models.update({} if one_per_role(seen, model, path, FLAGS[role]) else {role: model})
     return models
+
+
+FLAGS = {"seqnet": "--shortlist-model", "s1": "--rerank-model"}  # the flag of a checkpoint of one role
+
+
+def one_per_role(seen: dict[str, tuple], model: Any, path: str | Path, flag: str) -> bool:
+    """Record in ``seen`` the checkpoint ``path`` (given with ``flag``) of ``model`` (its ``role``, ``seq_len``);
+    a second one of its role is refused (it would replace the first, and an S_L the L of the whole run). True
+    when ``path`` is the file already recorded (given twice: one model)."""
+    if model.role not in seen:
+        seen[model.role] = (flag, path, model.seq_len)
+        return False
+    first = seen[model.role]
+    if Path(first[1]).resolve() == Path(path).resolve():
+        return True
+    kind = "S_1" if model.role == "s1" else f"S_L (L={model.seq_len}; the first has L={first[2]})"
+    raise CheckpointError(f"{flag} {path} is a second {kind}, beside {first[0]} {first[1]}: a run uses one S_1 and "
+                          f"one S_L; to compare them, evaluate each in a run of its own (one {flag} each)")
 
 
 def _as_role(model: SeqNet, role: str, path: str | Path) -> SeqNet:
@@ -259,10 +240,12 @@ def used_models(by: str, needed: set[str], paths: Sequence[str | Path] = (),
     """Split the checkpoints given by the roles ``needed`` (``"seqnet"``, ``"s1"``): each ``--model``'s role is
     looked up with its weights mapped, not read (:func:`model_role`), so a model no method uses is never loaded
     (S_L at D = 16384 is 5 GB); one line names those left out and ``by``, the methods that do not use them."""
-    unused, seq_len = [], None
+    unused, seq_len, seen = [], None, {}
     listed = []
     for path in paths:
-        role, length = model_role(path)
+        role, length = found = model_role(path)
+        if one_per_role(seen, found, path, "--model"):
+            continue
         if role in needed:
             listed.append(path)
             continue
@@ -270,6 +253,9 @@ def used_models(by: str, needed: set[str], paths: Sequence[str | Path] = (),
         seq_len = length if role == "seqnet" and seq_len is None else seq_len
     named = {}
     for path, role in ((shortlist_model, "seqnet"), (rerank_model, "s1")):
+        if path and role in seen and (found := model_role(path)).role == role and \
+                one_per_role(seen, found, path, FLAGS[role]):  # another kind: refused, named, when loaded
+            continue
         if path and role in needed:
             named[role] = path
         elif path:

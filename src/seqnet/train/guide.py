@@ -257,15 +257,15 @@ def inactive_epochs(history: Sequence[Mapping[str, Any]]) -> int:
 
 def inactive_message(history: Sequence[Mapping[str, Any]], conf: TrainConfig, n_queries: int) -> str:
     """Why training stops after ``conf.stop_inactive`` epochs without an active triplet, and what to change."""
-    n = inactive_epochs(history)
-    last = history[-1]
+    n, last = inactive_epochs(history), history[-1]
     triplets = int(last.get("triplets", 0))
     why = ("no query had a negative closer than its positive + the margin: every triplet is already satisfied"
            if triplets == 0 else f"{triplets} triplets were mined but none had a positive loss")
     return (f"stopping after epoch {last['epoch']}: no active triplet for {n} epochs in a row "
             f"(stop_inactive={conf.stop_inactive}); {why}, so the model no longer learns. Likely: too little or "
             f"too easy training data ({n_queries} queries); try a larger train split, a larger --margin (now "
-            f"{conf.margin:g}) or more negatives (--neg-radius, now {conf.neg_radius}); best.pt is kept")
+            f"{conf.margin:g}) or more negatives: a smaller --neg-radius (now {conf.neg_radius}; references "
+            "farther than it are negatives); best.pt is kept")
 
 
 def _duration(s: float) -> str:

@@ -147,9 +147,10 @@ def _pair_words(conf: MiningConfig, unit: str, explicit: bool, what: str) -> str
     """What a query lacks when none has a positive and a negative (the end of the error), by radius or explicit."""
     if explicit:
         return (f"a positive and a reference farther than neg_radius={conf.neg_radius:g} {unit} from its positives "
-                f"(hint: check the {what} ranges of reference and query, the positives, or --neg-radius)")
+                f"(hint: check the {what} ranges of reference and query, the positives, or a smaller --neg-radius)")
     return (f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius={conf.neg_radius:g} "
-            f"{unit} (hint: check the {what} ranges of reference and query, or --pos-radius / --neg-radius)")
+            f"{unit} (hint: check the {what} ranges of reference and query, or a larger --pos-radius / a smaller "
+            "--neg-radius)")
 
 
 def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device,
