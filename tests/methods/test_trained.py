@@ -57,6 +57,8 @@ def test_other_descriptors_or_an_old_checkpoint_keep_their_rules(trained, synth_
     ds = load_dataset(data)
     model = load_model(ckpt)
     model.trained_on = {**model.trained_on, "dataset_digests": {"query/descriptors.npy": "1:x"}}
+    assert same_data(model, data, ds)  # other bits, the same images described alike (a GPU rebuild): the same data
+    model.provenance = {**(model.provenance or {}), "id": "another describer"}
     assert not same_data(model, data, ds) and leakage({"s1": model}, data, ds, "train") == []
     old = SimpleNamespace(trained_on={"dataset": str(data), "split": "train", "checkpoint": "r/best.pt"})
     assert "('train', 0:119)" in leakage({"s1": old}, data, ds, "train")[0]

@@ -60,19 +60,22 @@ def _same_path(a: Any, b: str | Path) -> bool:
 
 def same_data(model: Any, dataset: str | Path, ds: Dataset) -> bool:
     """Whether ``ds`` (the dataset directory ``dataset``) holds the descriptors ``model`` was trained on, frame for
-    frame: its checkpoint's descriptor hashes equal those recorded now; else (no hashes on one side) the same
-    provenance and query names; else the same dataset path."""
+    frame: its checkpoint's descriptor hashes equal those recorded now; else the same provenance and query names
+    (the same images described the same way: a rebuild whose descriptors differ in the last bits, as a GPU
+    describer's or another thread count's do, is the same data); else, with no hashes on one side, the same
+    dataset path."""
     t = getattr(model, "trained_on", None)
     if not isinstance(t, Mapping):
         return False
     then, now = t.get("dataset_digests"), descriptor_digests(dataset)
-    if isinstance(then, Mapping) and then and now:
-        return dict(then) == now
+    hashed = isinstance(then, Mapping) and bool(then) and bool(now)
+    if hashed and dict(then) == now:
+        return True
     names, here = t.get("query_names"), names_digest(ds.query.names)
     prov, prov_now = getattr(model, "provenance", None), ds.query.provenance
     if isinstance(names, str) and here and isinstance(prov, Mapping) and isinstance(prov_now, Mapping):
         return names == here and prov.get("id") is not None and prov.get("id") == prov_now.get("id")
-    return _same_path(t.get("dataset"), dataset)
+    return not hashed and _same_path(t.get("dataset"), dataset)
 
 
 def holds_training_data(model: Any, dataset: str | Path, ds: Dataset) -> bool:
