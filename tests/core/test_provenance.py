@@ -131,6 +131,17 @@ def test_image_size_is_checked_beside_the_id_not_in_it(caplog):
     assert "going on as asked" in caplog.text
 
 
+def test_a_cnn_descriptor_of_another_resolution_compares_a_rotated_one_does_not():
+    """A pooled CNN descriptor at native size from a 1280x720 and a 1920x1080 camera: one D, comparable, accepted
+    as before; portrait against landscape is refused; pixels of another grid are refused (above)."""
+    settings = {"method": "netvlad", "size": "native", "crop_bottom": 0}
+    hd, fhd, port = (make("describe", settings, dim=4096, image_size=s) for s in ((1280, 720), (1920, 1080),
+                                                                                 (720, 1280)))
+    check_same(hd, fhd, "the map's descriptors", "the query descriptors")
+    with pytest.raises(ProvenanceError, match="made from 1280x720 images and the query descriptors from 720x1280"):
+        check_same(hd, port, "the map's descriptors", "the query descriptors")
+
+
 def test_describe_records_the_size_it_saw(tmp_path):
     from seqnet.describe import DescribeConfig
     from seqnet.describe.describer import make_describer

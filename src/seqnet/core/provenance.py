@@ -13,8 +13,10 @@ provenance is known (once per file), else as a debug note.
 
 A record made from images also holds ``image_size``: ``[W, H]`` of the images as the describer saw them (after
 cropping and resizing; at native size, the images' own size). It is not part of the ``id`` (records made before it
-keep theirs, and so match new ones), but two records that both have it must agree: the same settings on images of
-another shape (portrait against landscape, a rotated camera) give descriptors of the same D that do not compare.
+keep theirs, and so match new ones), but two records that both have it must agree where it matters: the same
+settings on images of another shape give descriptors of the same D that do not compare when they describe the pixel
+grid (``pixels``), or when one side is portrait and the other landscape (a rotated camera); a pooled CNN descriptor of
+another camera's resolution compares, as before.
 """
 
 from __future__ import annotations
@@ -111,6 +113,10 @@ def _check_sizes(a: Mapping[str, Any], b: Mapping[str, Any], what_a: str, what_b
     the sizes differ (a warning with ``allow``)."""
     sa, sb = image_size_of(a), image_size_of(b)
     if sa is None or sb is None or sa == sb:
+        return
+    grid = (a.get("settings") or {}).get("method") == "pixels"  # a descriptor of the pixel grid itself
+    turned = (sa[0] - sa[1]) * (sb[0] - sb[1]) < 0  # portrait against landscape: a rotated camera
+    if not grid and not turned:  # a pooled CNN descriptor of another camera's resolution compares (as before)
         return
     native = (a.get("settings") or {}).get("size") == "native"
     msg = (f"{what_a} were made from {sa[0]}x{sa[1]} images and {what_b} from {sb[0]}x{sb[1]} images"
