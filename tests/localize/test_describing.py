@@ -46,3 +46,9 @@ def test_a_datasets_own_descriptors_carry_its_provenance_into_localize(synth_dat
     with pytest.raises(ConfigError, match="is a seqnet dataset .* localize --dataset"):
         stream(conf, ours, Query(theirs), tmp_path / "t.csv")
     stream(conf, ours, Query(ours / "query" / "descriptors.npy"), tmp_path / "ok.csv")  # its own: accepted
+    import numpy as np
+
+    from seqnet.localize.describing import query_file_provenance
+
+    np.save(theirs / "query" / "mine.npy", np.load(theirs / "query" / "descriptors.npy"))  # a user's other file
+    assert query_file_provenance(theirs / "query" / "mine.npy") is None  # not the traverse's: not its record

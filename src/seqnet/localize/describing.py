@@ -257,12 +257,13 @@ def query_file_provenance(path: Path) -> dict | None:
     for a traverse's descriptors inside a seqnet dataset (``DS/query/descriptors.npy``), the provenance its
     ``dataset.json`` records for that traverse; None when neither says."""
     from ..data.readers import read_provenance
+    from ..data.traverse import DESCRIPTOR_FILES
     from ..security.jsonfile import read_json_object
 
     prov = read_provenance(path)
     meta_path = path.parent.parent / "dataset.json"
-    if prov or not meta_path.is_file():
-        return prov
+    if prov or path.name not in DESCRIPTOR_FILES or not meta_path.is_file():  # another file there is not the
+        return prov  # traverse's descriptors: its provenance stays its own
     try:
         meta = read_json_object(meta_path, "dataset.json")
     except SeqnetError:

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..core.devices import get_device
 from ..core.errors import ConfigError, SeqnetError
-from ..core.log import logger
+from ..core.log import counted, logger
 from ..core.progress import progress
 from ..core.provenance import check_same
 from ..core.stage import Written
@@ -254,7 +254,8 @@ def _localise(loc: Any, frames: Frames, n: int | None, method: str,
         written = partial(est) if est else None
         if written is None:
             raise
-        raise type(e)(f"{e} (the track of the {len(est)} frames localised before it is written: {written})") from e
+        e.args = (f"{e} (the track of the {counted(len(est), 'frame')} localised before it is written: {written})",)
+        raise
     return est, describe_ms
 
 
