@@ -173,3 +173,21 @@ def test_a_cover_picture_is_not_taken_for_the_video(caplog):
     assert choose_stream(container, "song.mp4") == (video, 1) and not caplog.text  # one video: nothing to say
     with pytest.raises(ConfigError, match="stream 0 of song.mp4 is a cover picture"):
         choose_stream(container, "song.mp4", 0)
+
+
+def test_a_pyav_without_frame_rotation_is_said_not_silent(caplog):
+    """An older PyAV without VideoFrame.rotation reads phone videos sideways: said once, not silently."""
+    import logging
+
+    import numpy as np
+    from PIL import Image
+
+    from seqnet.sources.video import frame_image
+
+    class OldFrame:
+        def to_image(self):
+            return Image.fromarray(np.zeros((4, 8, 3), np.uint8))
+
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        assert frame_image(OldFrame()).size == (8, 4)
+    assert "does not give a frame's display rotation" in caplog.text

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
-from ..core.log import logger
+from ..core.log import logger, warn_once
 from ..security.text import shown
 from ..security.videos import av_errors, check_size, open_video_file, why
 from .sampling import every_seconds
@@ -65,6 +65,9 @@ def frame_image(frame: Any) -> Any:
     from PIL import Image
 
     im = frame.to_image()
+    if not hasattr(frame, "rotation"):
+        warn_once(("no frame rotation",), "this PyAV does not give a frame's display rotation: a phone video stored "
+                  "sideways is read sideways (hint: pip install -U av)")
     quarter = round(float(getattr(frame, "rotation", 0) or 0) / 90) % 4
     t = Image.Transpose
     return im if quarter == 0 else im.transpose((t.ROTATE_90, t.ROTATE_180, t.ROTATE_270)[quarter - 1])
