@@ -57,6 +57,8 @@ def test_eval_calibration_refusals_and_decline(easy_dir, synth_dir, tmp_path, ca
     assert cli_main([*base, "--risk", "0.1"]) == 2
     assert "go with --target-precision" in capsys.readouterr().err
     assert cli_main([*base, "--target-precision", "1.5"]) == 2
+    assert cli_main([*base, *TARGET, "--risk", "0.95"]) == 2  # a confidence level where the risk is meant
+    assert "did you mean --risk 0.05?" in capsys.readouterr().err
     assert cli_main([*base, *TARGET, "--calibrate-split", "nope"]) == 2
     # the small synthetic dataset's val split cannot promise 0.99: every query abstains, and why is said
     assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "raw+seqmatch", "--seq-len", "3",
@@ -77,6 +79,9 @@ def test_localize_accepted_column(easy_dir, tmp_path, capsys):
     assert all(float(r["confidence"]) >= c["calibration"]["threshold"] - 1e-6 for r in accepted)
     assert sum(r["correct"] == "1" for r in accepted) == c["correct"]
     assert cli_main(["localize", "--dataset", str(easy_dir), "--out", str(tmp_path / "t2.csv"), "--risk", "0.1"]) == 2
+    assert cli_main(["localize", "--dataset", str(easy_dir), "--out", str(tmp_path / "t3.csv"), *TARGET,
+                     "--risk", "0.95"]) == 2
+    assert "did you mean --risk 0.05?" in capsys.readouterr().err
 
 
 def test_a_missed_target_is_said(capsys):

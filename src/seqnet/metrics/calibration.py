@@ -36,10 +36,15 @@ RISK = 0.05  # the default probability that the promise fails
 
 
 def check_target(target: float, risk: float) -> tuple[float, float]:
-    """``(target, risk)`` as floats in (0, 1); a clear error otherwise."""
+    """``(target, risk)`` as floats in (0, 1), the risk at most 0.5 (above, it is a confidence level given
+    where the risk is meant: ``0.95`` for ``0.05``); a clear error otherwise."""
     for name, v in (("target precision", target), ("risk", risk)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < float(v) < 1.0:
             raise ConfigError(f"{name} must be a number strictly between 0 and 1, got {v!r}")
+    if float(risk) > 0.5:  # a confidence level given where the risk is meant: a promise that mostly fails
+        raise ConfigError(f"--risk {float(risk):g}: the promise would fail with probability up to {float(risk):g} "
+                          f"(the risk is the chance that it fails, not a confidence level); "
+                          f"did you mean --risk {round(1.0 - float(risk), 12):g}?")
     return float(target), float(risk)
 
 
