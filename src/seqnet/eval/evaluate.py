@@ -37,7 +37,7 @@ from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.npdescribed import PlainDescribed
 from ..sequence.windows import Windows
-from .calibrated import add_calibration, check_calibration_split
+from .calibrated import add_calibration, calibration_on_test, check_calibration_split
 from .config import EvalConfig
 from .evaluation import Evaluation, merge, method_windows, no_window_reason
 from .notices import add_warnings, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
@@ -296,7 +296,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), *chosen,
                       *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
                       flipped or shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None),
-                      trivial_ks(ev, conf.ks),
+                      trivial_ks(ev, conf.ks), calibration_on_test(ds, conf.calibrate_split if cal else None, split),
                       *selection_leakage(loaded, dataset, ds, split)])
     leaks = leakage(loaded, dataset, ds, split)
     if conf.target_precision is not None:

@@ -18,6 +18,7 @@ from ..methods.checks import named_test_split, training_record
 from ..methods.trained import chosen_range, free_hint, used_ranges
 from ..metrics.shift import shifted_offset, top1_offsets
 from ..security.text import shown
+from .calibrated import calibration_on_test
 from .config import EvalConfig
 from .evaluation import Evaluation
 
@@ -48,14 +49,16 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
     """What eval says about the queries a run scores on split ``split`` of the dataset ``ds`` (directory
     ``dataset``; ``given``: the ``--split`` given, None for the default): no split named test
     (:func:`split_note`), queries a model chose its epoch on (:func:`selection_leakage`) or was trained on
-    (:func:`seqnet.methods.checks.leakage`; ``calibrate_split``: the split a threshold is calibrated on, too). For
+    (:func:`seqnet.methods.checks.leakage`; ``calibrate_split``: the split a threshold is calibrated on, too, and
+    whether it is the test split, :func:`seqnet.eval.calibrated.calibration_on_test`). For
     the stages that score queries as eval does (``seqnet localize --dataset``)."""
     from ..methods.checks import leakage
 
     lines = [split_note(given, list(ds.splits), len(ds.split(split).query)),
              *selection_leakage(models, dataset, ds, split), *leakage(models, dataset, ds, split)]
     if calibrate_split is not None:
-        lines += leakage(models, dataset, ds, calibrate_split, calibration=True, evaluated=split)
+        lines += [calibration_on_test(ds, calibrate_split, split),
+                  *leakage(models, dataset, ds, calibrate_split, calibration=True, evaluated=split)]
     return [line for line in lines if line]
 
 
