@@ -212,3 +212,13 @@ def test_the_selection_hint_never_repeats_the_evaluated_split(synth_dataset, syn
     assert said[0].endswith(f"hint: retrain with --train-split / --val-split apart from the test split ({a}:{b}), "
                             "or evaluate queries free of the models' training and epoch-selection ones: --split "
                             "val"), said
+
+
+def test_selection_leakage_counts_the_queries_kept_by_resample_every(synth_dataset, synth_dir):
+    a, b = synth_dataset.ranges("test")["query"]
+    model = SimpleNamespace(trained_on={"dataset": str(synth_dir), "split": "train", "checkpoint": "r/best.pt",
+                                        "val_split": "test", "val_queries": [a, a + 10]})
+    said = selection_leakage({"s1": model}, synth_dir, synth_dataset, "test", every=3)
+    kept = range(a, b, 3)
+    assert said[0].startswith(f"{sum(q < a + 10 for q in kept)} of the {len(kept)} evaluated queries ('test', "
+                              f"every 3rd of {a}:{b})"), said

@@ -23,7 +23,7 @@ from ..core.log import logger
 from ..core.stage import Written
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
-from ..methods.checks import check_inputs, leakage, model_lengths
+from ..methods.checks import check_inputs, model_lengths
 from ..methods.grammar import Method, parse_method
 from ..methods.protocol import Reference
 from ..methods.rank import Query, rank
@@ -40,7 +40,7 @@ from ..sequence.windows import Windows
 from .calibrated import add_calibration, calibration_on_test, check_calibration_split
 from .config import EvalConfig
 from .evaluation import Evaluation, merge, method_windows, no_window_reason
-from .notices import add_warnings, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
+from .notices import add_warnings, leakages, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
 from .outputs import EvalOutputs
 from .results import method_results
 
@@ -297,10 +297,8 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
                       *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
                       flipped or shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None),
                       trivial_ks(ev, conf.ks), calibration_on_test(ds, conf.calibrate_split if cal else None, split),
-                      *selection_leakage(loaded, dataset, ds, split)])
-    leaks = leakage(loaded, dataset, ds, split)
-    if conf.target_precision is not None:
-        leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split)
+                      *selection_leakage(loaded, dataset, ds, split, conf.query_every)])
+    leaks = leakages(loaded, dataset, ds, split, conf)
     if leaks:
         ev.results["leakage"] = leaks
         for line in leaks:

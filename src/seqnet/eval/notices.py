@@ -2,8 +2,8 @@
 as a warning and kept in the results' ``warnings``): explicit positives that look shifted (:func:`shift_notice`),
 a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
 (:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), a model whose epoch was
-chosen on the evaluated queries (:func:`selection_leakage`), all of these for another stage that scores queries
-(:func:`scored_notices`), and an R@1 over few queries (:func:`few_queries`)."""
+chosen on the evaluated queries (:func:`selection_leakage`) or trained on them (:func:`leakages`), all of these
+for another stage that scores queries (:func:`scored_notices`), and an R@1 over few queries (:func:`few_queries`)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.log import logger
-from ..methods.checks import named_test_split, training_record
+from ..methods.checks import kept_count, named_test_split, queries_span, training_record
 from ..methods.trained import chosen_range, free_hint, used_ranges
 from ..metrics.shift import shifted_offset, top1_offsets
 from ..security.text import shown
@@ -60,6 +60,18 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
         lines += [calibration_on_test(ds, calibrate_split, split),
                   *leakage(models, dataset, ds, calibrate_split, calibration=True, evaluated=split)]
     return [line for line in lines if line]
+
+
+def leakages(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str, conf: EvalConfig) -> list[str]:
+    """:func:`seqnet.methods.checks.leakage` of the evaluated ``split`` and, with ``conf.target_precision``, of the
+    calibration split, counting the queries ``conf`` keeps (``--resample-every``)."""
+    from ..methods.checks import leakage
+
+    out = leakage(models, dataset, ds, split, every=conf.query_every)
+    if conf.target_precision is not None:
+        out += leakage(models, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split,
+                       every=conf.query_every)
+    return out
 
 
 def few_queries(scored: Mapping[str, tuple[int, float]]) -> str | None:
@@ -152,10 +164,12 @@ def trivial_ks(ev: Evaluation, ks: Sequence[int]) -> str | None:
     return f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
 
 
-def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
+def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
+                      every: int | None = None) -> list[str]:
     """One line per model whose epoch was chosen on queries of ``dataset`` that the evaluated ``split`` holds (the
     val range its checkpoint recorded: :func:`seqnet.methods.trained.chosen_range`), with a hint naming queries free
-    of every model's training and epoch-selection ones, never the split in use."""
+    of every model's training and epoch-selection ones, never the split in use. ``every``: the split's queries are
+    re-sampled (``--resample-every``), and only the kept ones are counted."""
 
     a, b = ds.ranges(split)["query"]
     trained, picked = used_ranges(models, dataset, ds)
@@ -166,12 +180,13 @@ def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dat
         if chosen is None:
             continue
         val, (va, vb) = chosen
-        both = max(0, min(b, vb) - max(a, va))
+        both = kept_count(a, max(a, va), min(b, vb), every)
         if both:
             hint = ("choosing the epoch on the test split makes its test numbers optimistic; hint: train with "
                     "--val-split val" if val == named_test_split(ds.splits) else
                     f"hint: {free_hint(ds, trained, picked, split)}")
-            out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are queries the "
+            out.append(f"{both} of the {kept_count(a, a, b, every)} evaluated queries ({split!r}, "
+                       f"{queries_span(a, b, every)}) are queries the "
                        f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} chose its epoch on ({val!r}, "
                        f"{va}:{vb}), so its results on them are optimistic: {hint}")
     return out
