@@ -3,7 +3,8 @@ as a warning and kept in the results' ``warnings``): explicit positives that loo
 a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
 (:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), a model whose epoch was
 chosen on the evaluated queries (:func:`selection_leakage`) or trained on them (:func:`leakages`), all of these
-for another stage that scores queries (:func:`scored_notices`), and an R@1 over few queries (:func:`few_queries`)."""
+for another stage that scores queries (:func:`scored_notices`), an R@1 over few queries (:func:`few_queries`), and
+HVPR settings chosen on training queries (:func:`training_choice`)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import numpy as np
 
 from ..core.log import logger
 from ..methods.checks import kept_count, named_test_split, queries_span, training_record
-from ..methods.trained import chosen_range, free_hint, used_ranges
+from ..methods.trained import chosen_range, free_hint, train_range, used_ranges
 from ..metrics.shift import shifted_offset, top1_offsets
 from ..security.text import shown
 from .calibrated import calibration_on_test
@@ -190,3 +191,28 @@ def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dat
                        f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} chose its epoch on ({val!r}, "
                        f"{va}:{vb}), so its results on them are optimistic: {hint}")
     return out
+
+
+def training_choice(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset,
+                    choices: Sequence[Any]) -> str | None:
+    """The line for HVPR settings (``choices``: :class:`seqnet.eval.select.Choice`) chosen on val queries of ``ds``
+    (directory ``dataset``) that are training queries of the models (the range each checkpoint recorded:
+    :func:`seqnet.methods.trained.train_range`): the setting that suits what a model memorised wins, as a
+    threshold calibrated on them promises too much; None when none is, or nothing was chosen."""
+    rng = ds.ranges("val")
+    if not choices or rng is None:
+        return None
+    a, b = rng["query"]
+    said = []
+    for role, m in sorted(models.items()):
+        t, trained = training_record(m), train_range(m, dataset, ds)
+        both = max(0, min(b, trained[1]) - max(a, trained[0])) if t is not None and trained is not None else 0
+        if both:
+            said.append(f"{both} are training queries of the {'S_1' if role == 's1' else 'S_L'} model "
+                        f"{t['checkpoint']} ({trained[0]}:{trained[1]})")
+    if not said:
+        return None
+    return (f"HVPR settings of {', '.join(c.method for c in choices)} chosen on the val split ({a}:{b}, {b - a} "
+            f"queries), of which {'; '.join(said)}: the setting that suits what a model memorised wins (hint: give "
+            "--top-k / --fuse-top-k / --fuse-weight yourself, or rebuild the dataset with a val split apart from "
+            "the training queries)")
