@@ -142,3 +142,8 @@ def test_a_confidence_level_given_as_the_risk_is_refused(risk, meant):
 def test_a_risk_up_to_one_half_is_accepted():
     for risk in (0.05, 0.2, 0.5):
         assert check_target(0.9, risk) == (0.9, risk)
+
+
+def test_one_calibration_query_is_said_in_the_singular():
+    cal = calibrate(np.ones(1), np.ones(1, bool), 0.9, 0.05)
+    assert cal.reason.startswith("1 calibration query; promising"), cal.reason

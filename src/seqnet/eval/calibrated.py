@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..core.errors import ConfigError
-from ..core.log import logger
+from ..core.log import counted, logger
 from ..data.traverse import Dataset
 from ..methods.checks import named_test_split
 from ..metrics.calibration import apply_threshold, calibrate
@@ -49,8 +49,8 @@ def calibration_on_test(ds: Dataset, calibrate_split: str | None, split: str) ->
         head = f"--calibrate-split {shown(calibrate_split)}: calibrating the threshold on the test split"
     else:
         where = calibrate_split if calibrate_split == f"{a}:{b}" else f"{shown(calibrate_split)} (queries {a}:{b})"
-        head = (f"--calibrate-split {where} holds {both} of the {tb - ta} queries of the test split {test!r} "
-                f"({ta}:{tb}): calibrating the threshold on them")
+        head = (f"--calibrate-split {where} holds {both} of the {counted(tb - ta, 'query', 'queries')} of the test "
+                f"split {test!r} ({ta}:{tb}): calibrating the threshold on them")
     return f"{head} makes every test figure with it optimistic (hint: {_apart_hint(ds, (ta, tb), split)})"
 
 

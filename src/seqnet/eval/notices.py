@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.log import logger
+from ..core.log import counted, logger
 from ..methods.checks import kept_count, named_test_split, queries_span, training_record
 from ..methods.trained import chosen_range, free_hint, train_range, used_ranges
 from ..metrics.shift import shifted_offset, top1_offsets
@@ -150,19 +150,33 @@ def split_note(given: str | None, splits: Sequence[str], n_queries: int) -> str 
 def trivial_ks(ev: Evaluation, ks: Sequence[int]) -> str | None:
     """Which K of ``ks`` (given with ``--ks``: not the default Ks, whose R@100 a small dataset makes trivial every
     time) are at least the references a method indexes (its R@K is 1 for every query with a positive: says
-    nothing)."""
-    if tuple(ks) == EvalConfig().ks:
-        return None
+    nothing), and which HVPR shortlists hold every reference (:func:`whole_shortlists`), in one line."""
     trivial: dict[int, int] = {}
-    for name in ev.retrieved:
+    for name in ev.retrieved if tuple(ks) != EvalConfig().ks else ():
         n = len(ev.view(name).r_items)
         for k in ks:
             if k >= n:
                 trivial[k] = min(n, trivial.get(k, n))
-    if not trivial:
-        return None
     said = ", ".join(f"R@{k} (K >= the {n} references indexed)" for k, n in sorted(trivial.items()))
-    return f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
+    lines = [f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
+             if trivial else None, whole_shortlists(ev)]
+    return "; ".join(line for line in lines if line) or None
+
+
+def whole_shortlists(ev: Evaluation) -> str | None:
+    """The HVPR methods whose shortlist size K is at least the references they index: the shortlist is every
+    reference, so the method re-ranks them all (its label's ``top-K`` is not a shortlist)."""
+    whole = {}
+    for name, entry in ev.results.get("methods", {}).items():
+        k = (entry.get("method") or {}).get("top_k")
+        if name in ev.retrieved and isinstance(k, int) and k >= (n := len(ev.view(name).r_items)):
+            whole[name] = (k, n, "--fuse-top-k" if "fuse_weight" in (entry.get("method") or {}) else "--top-k")
+    if not whole:
+        return None
+    said = ", ".join(f"{name} (K {k} >= the {n} references indexed)" for name, (k, n, _) in whole.items())
+    flags = " / ".join(sorted({flag for *_, flag in whole.values()}, reverse=True))
+    return (f"{said}: the shortlist holds every reference, so it re-ranks them all; hint: {flags} below the "
+            "references for a shortlist")
 
 
 def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
@@ -186,7 +200,8 @@ def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dat
             hint = ("choosing the epoch on the test split makes its test numbers optimistic; hint: train with "
                     "--val-split val" if val == named_test_split(ds.splits) else
                     f"hint: {free_hint(ds, trained, picked, split)}")
-            out.append(f"{both} of the {kept_count(a, a, b, every)} evaluated queries ({split!r}, "
+            n = counted(kept_count(a, a, b, every), "evaluated query", "evaluated queries")
+            out.append(f"{both} of the {n} ({split!r}, "
                        f"{queries_span(a, b, every)}) are queries the "
                        f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} chose its epoch on ({val!r}, "
                        f"{va}:{vb}), so its results on them are optimistic: {hint}")

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError
-from ..core.log import logger, ordinal
+from ..core.log import counted, logger, ordinal
 from ..core.provenance import check_same
 from ..data.traverse import Dataset
 from ..security.text import shown
@@ -183,8 +183,9 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
                     f"{free_hint(ds, trained, chosen, split, '--calibrate-split', avoid)})")
         else:
             tail = f"its results on them are not a test (hint: {free_hint(ds, trained, chosen, split)})"
-        out.append(f"{both} of the {kept_count(a, a, b, every)} {'calibration' if calibration else 'evaluated'} "
-                   f"queries ({split!r}, {queries_span(a, b, every)}) are training queries of the "
+        what = "calibration" if calibration else "evaluated"
+        out.append(f"{both} of the {counted(kept_count(a, a, b, every), what + ' query', what + ' queries')} "
+                   f"({split!r}, {queries_span(a, b, every)}) are training queries of the "
                    f"{'S_1' if role == 's1' else 'S_L'} model "
                    f"{t['checkpoint']} ({t['split']!r}{when}, {rng[0]}:{rng[1]}): {tail}")
     return out

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.log import counted
 
 RISK = 0.05  # the default probability that the promise fails
 
@@ -126,9 +127,10 @@ def calibrate(confidence: np.ndarray, correct: np.ndarray, target: float, risk: 
         raise ConfigError(f"confidence and correct must be two [M] arrays, got {conf.shape} and {ok.shape}")
     m, needed = len(conf), min_queries(target, risk)
     base = {"target": target, "risk": risk, "queries": m, "needed": needed}
+    cal_queries = counted(m, "calibration query", "calibration queries")
     if m < needed:
         return Calibration(threshold=None, **base,
-                           reason=f"{m} calibration queries; promising precision ≥ {target:g} with risk {risk:g} "
+                           reason=f"{cal_queries}; promising precision ≥ {target:g} with risk {risk:g} "
                                   f"needs at least {needed} accepted queries, all correct: calibrate on a larger "
                                   "split, lower the target or raise the risk")
     order = np.argsort(-conf, kind="stable")
@@ -146,7 +148,7 @@ def calibrate(confidence: np.ndarray, correct: np.ndarray, target: float, risk: 
         errors = f"{int(n[i] - k[i])} error" + ("" if n[i] - k[i] == 1 else "s")
         return Calibration(threshold=None, **base, accepted=int(n[i]), correct=int(k[i]),
                            lower_bound=float(lower[0]),
-                           reason=f"no threshold passes: the {int(n[i])} most confident of {m} calibration queries "
+                           reason=f"no threshold passes: the {int(n[i])} most confident of {cal_queries} "
                                   f"hold {errors} (precision lower bound {lower[0]:.3f} < "
                                   f"{target:g}); lower the target, raise the risk or calibrate on more queries")
     i = last[stop - 1]
