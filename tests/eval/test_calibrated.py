@@ -170,7 +170,8 @@ def test_a_calibration_split_too_short_for_the_windows_says_so(tmp_path, capsys)
     assert cli_main(["eval", "--dataset", str(path), "--method", "raw+seqmatch", "--seq-len", "5", *TARGET,
                      "--device", "cpu"]) == 2
     err = capsys.readouterr().err
-    assert "calibrating on 'val': seq_len=5 is longer than the query traverse" in err and "(3 frames)" in err
+    assert "calibrating on 'val' (queries 0:3, 3 frames): seq_len=5 is longer than the query traverse" in err
+    assert "the calibration split is the short one: give --calibrate-split A:B, longer than 3 frames" in err
 
 
 def test_sequence_confidence_is_what_eval_reports_and_calibrates_on(easy_dir, tmp_path, capsys):

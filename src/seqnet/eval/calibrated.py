@@ -31,6 +31,18 @@ def check_calibration_split(ds: Dataset, calibrate_split: str, split: str) -> No
                           f"{split!r} (queries {c}:{d}); calibrate on other queries (--calibrate-split)")
 
 
+def calibration_failed(ds: Dataset, calibrate_split: str, e: ConfigError) -> ConfigError:
+    """The error of evaluating the calibration split, saying that split's size; when it is too short for the
+    windows (:func:`seqnet.methods.checks.check_windows_fit`), the fix is a longer calibration split, not a longer
+    evaluated one, or no calibration."""
+    a, b = ds.ranges(calibrate_split)["query"]
+    said = f"calibrating on {calibrate_split!r} (queries {a}:{b}, {b - a} frames): {e}"
+    if "is longer than" in str(e):
+        said += (f" (the calibration split is the short one: give --calibrate-split A:B, longer than {b - a} frames "
+                 "and apart from the evaluated queries, or leave out --target-precision to evaluate without it)")
+    return ConfigError(said)
+
+
 def calibration_on_test(ds: Dataset, calibrate_split: str | None, split: str) -> str | None:
     """One line when the calibration split is the test split of ``ds`` or holds some of its queries: the threshold a
     robot will use is then fitted on the held-out queries, and every test figure with it is optimistic (as

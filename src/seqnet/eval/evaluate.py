@@ -37,7 +37,7 @@ from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.npdescribed import PlainDescribed
 from ..sequence.windows import Windows
-from .calibrated import add_calibration, calibration_on_test, check_calibration_split
+from .calibrated import add_calibration, calibration_failed, calibration_on_test, check_calibration_split
 from .config import EvalConfig
 from .evaluation import Evaluation, merge, method_windows, no_window_reason
 from .notices import add_warnings, leakages, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
@@ -285,7 +285,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         try:
             cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
         except ConfigError as e:
-            raise ConfigError(f"calibrating on {conf.calibrate_split!r}: {e}") from e
+            raise calibration_failed(ds, conf.calibrate_split, e) from e
     ev = evaluate(evaluated, conf.replace(split=split), loaded)
     if cal is not None:
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
