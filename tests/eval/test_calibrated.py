@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 
 import numpy as np
 import pytest
@@ -57,6 +58,8 @@ def test_eval_calibration_refusals_and_decline(easy_dir, synth_dir, tmp_path, ca
     assert cli_main([*base, "--risk", "0.1"]) == 2
     assert "go with --target-precision" in capsys.readouterr().err
     assert cli_main([*base, "--target-precision", "1.5"]) == 2
+    assert cli_main([*base, *TARGET, "--risk", "0.95"]) == 2  # a confidence level where the risk is meant
+    assert "did you mean --risk 0.05?" in capsys.readouterr().err
     assert cli_main([*base, *TARGET, "--calibrate-split", "nope"]) == 2
     # the small synthetic dataset's val split cannot promise 0.99: every query abstains, and why is said
     assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "raw+seqmatch", "--seq-len", "3",
@@ -77,6 +80,9 @@ def test_localize_accepted_column(easy_dir, tmp_path, capsys):
     assert all(float(r["confidence"]) >= c["calibration"]["threshold"] - 1e-6 for r in accepted)
     assert sum(r["correct"] == "1" for r in accepted) == c["correct"]
     assert cli_main(["localize", "--dataset", str(easy_dir), "--out", str(tmp_path / "t2.csv"), "--risk", "0.1"]) == 2
+    assert cli_main(["localize", "--dataset", str(easy_dir), "--out", str(tmp_path / "t3.csv"), *TARGET,
+                     "--risk", "0.95"]) == 2
+    assert "did you mean --risk 0.05?" in capsys.readouterr().err
 
 
 def test_a_missed_target_is_said(capsys):
@@ -110,8 +116,6 @@ def test_a_missed_target_is_said(capsys):
 
 def test_calibrating_on_training_queries_is_warned(tmp_path, caplog):
     """A threshold calibrated on the queries a model was trained on is optimistic: said, as evaluating on them is."""
-    import logging
-
     from seqnet.data.io import save_dataset
     from seqnet.data.synth import make_synthetic
     from seqnet.train import TrainConfig, train
@@ -166,7 +170,8 @@ def test_a_calibration_split_too_short_for_the_windows_says_so(tmp_path, capsys)
     assert cli_main(["eval", "--dataset", str(path), "--method", "raw+seqmatch", "--seq-len", "5", *TARGET,
                      "--device", "cpu"]) == 2
     err = capsys.readouterr().err
-    assert "calibrating on 'val': seq_len=5 is longer than the query traverse" in err and "(3 frames)" in err
+    assert "calibrating on 'val' (queries 0:3, 3 frames): seq_len=5 is longer than the query traverse" in err
+    assert "the calibration split is the short one: give --calibrate-split A:B, longer than 3 frames" in err
 
 
 def test_sequence_confidence_is_what_eval_reports_and_calibrates_on(easy_dir, tmp_path, capsys):
@@ -257,3 +262,40 @@ def test_sequence_confidence_of_model_free_single_frame_methods(synth_dir, tmp_p
     assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "single", "--confidence", "sequence", *extra,
                      "--json", str(out), "--device", "cpu"]) == 0
     assert json.loads(out.read_text())["methods"]["single"]["auc"] is not None
+
+
+def test_calibration_on_the_test_split_is_warned():
+    """A threshold fitted on the test queries makes every test figure with it optimistic: said for the test split,
+    its other spelling and a range inside it, each hint apart from test and the evaluated split; silent otherwise."""
+    from seqnet.data.synth import make_synthetic
+    from seqnet.eval.calibrated import calibration_on_test
+
+    ds = make_synthetic(places=200, dim=8, seed=1)  # train 0:113, val 113:148, test 148:191 (queries)
+    line = calibration_on_test(ds, "test", "val")
+    assert line.startswith("--calibrate-split test: calibrating the threshold on the test split makes every test "
+                           "figure with it optimistic (hint: --calibrate-split A:B, a range apart from 148:191 and "
+                           "113:148)")
+    assert calibration_on_test(ds, "test", "0:100").endswith("(hint: --calibrate-split val)")
+    inside = calibration_on_test(ds, "160:200", "val")
+    assert inside.startswith("--calibrate-split 160:200 holds 31 of the 43 queries of the test split 'test' (148:191)")
+    assert calibration_on_test(ds, "val", "test") is None and calibration_on_test(ds, "0:148", "test") is None
+
+
+def test_eval_and_localize_warn_for_calibrate_split_test(easy_dir, tmp_path, caplog):
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    base = ["--dataset", str(easy_dir), "--method", "raw+seqmatch", "--seq-len", "3", "--split", "val", *TARGET,
+            "--device", "cpu"]
+
+    def said() -> str:
+        out = " ".join(r.getMessage() for r in caplog.records)
+        caplog.clear()
+        return out
+
+    assert cli_main(["eval", *base, "--calibrate-split", "test", "--json", str(tmp_path / "r.json")]) == 0
+    line = "--calibrate-split test: calibrating the threshold on the test split makes every test figure"
+    assert line in said()
+    assert any(line in w for w in json.loads((tmp_path / "r.json").read_text())["warnings"])
+    assert cli_main(["localize", *base, "--calibrate-split", "test", "--out", str(tmp_path / "t.csv")]) == 0
+    assert line in said()
+    assert cli_main(["localize", *base[:6], *TARGET, "--device", "cpu", "--out", str(tmp_path / "t2.csv")]) == 0
+    assert "--calibrate-split" not in said()  # calibrated on val, evaluated on test: silent

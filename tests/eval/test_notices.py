@@ -212,3 +212,34 @@ def test_the_selection_hint_never_repeats_the_evaluated_split(synth_dataset, syn
     assert said[0].endswith(f"hint: retrain with --train-split / --val-split apart from the test split ({a}:{b}), "
                             "or evaluate queries free of the models' training and epoch-selection ones: --split "
                             "val"), said
+
+
+def test_selection_leakage_counts_the_queries_kept_by_resample_every(synth_dataset, synth_dir):
+    a, b = synth_dataset.ranges("test")["query"]
+    model = SimpleNamespace(trained_on={"dataset": str(synth_dir), "split": "train", "checkpoint": "r/best.pt",
+                                        "val_split": "test", "val_queries": [a, a + 10]})
+    said = selection_leakage({"s1": model}, synth_dir, synth_dataset, "test", every=3)
+    kept = range(a, b, 3)
+    assert said[0].startswith(f"{sum(q < a + 10 for q in kept)} of the {len(kept)} evaluated queries ('test', "
+                              f"every 3rd of {a}:{b})"), said
+
+
+def test_a_shortlist_of_every_reference_is_said(synth_dataset):
+    """``--top-k 500`` on fewer references was labelled ``top-500`` with no word that it re-ranks them all."""
+    import torch
+
+    from seqnet.sequence.model import SeqNet
+
+    torch.manual_seed(0)
+    models = {"seqnet": SeqNet(16, 8, 5, 3), "s1": SeqNet(16, 8, 1, 1)}
+    test = synth_dataset.split("test")
+    conf = EvalConfig(methods=("hvpr", "hvpr-fused"), seq_len=5, device="cpu", top_k=500, fuse_top_k=7,
+                      fuse_weight=0.0)
+    ev = evaluate(test, conf, models)
+    n = len(ev.view("hvpr").r_items)
+    assert trivial_ks(ev, EvalConfig().ks) == (
+        f"hvpr (K 500 >= the {n} references indexed): the shortlist holds every reference, so it re-ranks them all; "
+        "hint: --top-k below the references for a shortlist")
+    ev = evaluate(test, conf.replace(top_k=n - 1, fuse_top_k=n), models)
+    assert trivial_ks(ev, EvalConfig().ks).endswith("hint: --fuse-top-k below the references for a shortlist")
+    assert trivial_ks(evaluate(test, conf.replace(top_k=5, fuse_top_k=5), models), EvalConfig().ks) is None

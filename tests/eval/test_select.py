@@ -266,3 +266,37 @@ def test_settings_chosen_on_training_queries_are_said(synth_dataset, synth_dir):
                     "split apart from the training queries)"), said
     apart = {**record, "split": "train"}
     assert training_choice({"s1": SimpleNamespace(trained_on=apart)}, synth_dir, synth_dataset, choice) is None
+
+
+def test_grid_ks_scores_every_k_past_the_reference_once():
+    from seqnet.eval.select import grid_ks
+
+    assert grid_ks({5, 10, 20, 50, 100}, 46, 20) == [5, 10, 20, 50]  # 50 and 100 both re-rank all 46 items
+    assert grid_ks({50, 100, 200, 400}, 46, 200) == [200]  # the default kept among them
+    assert grid_ks({5, 10, 20, 50, 100}, 296, 20) == [5, 10, 20, 50, 100]  # a longer reference: the grid as it was
+
+
+def test_k_chosen_on_a_short_val_reference_is_said_against_the_evaluated_one(data):
+    """On a val reference shorter than the K grid, K 50 and 100 both meant "no shortlist", and the K carried over
+    to a longer evaluated reference was a setting val never scored: scored once, and said with both sizes."""
+    from seqnet.eval.select import against, reference_items
+
+    ds, models = data
+    val = ds.split("val")
+    n = reference_items(val, models, CONF, "hvpr")
+    assert n < 50
+    _, choices = select_hvpr(val, models, CONF)
+    hvpr = next(c for c in choices if c.method == "hvpr")
+    ks = sorted({g["top_k"] for g in hvpr.grid})
+    assert sum(k >= n for k in ks) == 1 and hvpr.reference_items == n  # 50 and 100: one setting
+    assert f"the val reference has {n} items, so every K of {n} or more re-ranks all of them" in hvpr.reason
+    longer = make_synthetic(places=1200, dim=16, seed=1).split("test")
+    m = reference_items(longer, models, CONF, "hvpr")
+    wide = dataclasses.replace(hvpr, settings={"top_k": max(ks)}, reason=hvpr.reason + f", K {max(ks)} too")
+    said = against(wide, longer, models, CONF).reason
+    assert said.endswith(f"; the evaluated reference has {m} items, where K {max(ks)} is a shortlist that val did "
+                         "not score (hint: give --top-k yourself, or build the dataset with a val split whose "
+                         "reference has more items than the K grid's largest)"), said
+    _, wide_val = select_hvpr(make_synthetic(places=1200, dim=16, seed=1).split("val"), models, CONF)
+    assert "val reference has" not in wide_val[0].reason  # hvpr: a val reference past its grid (K <= 100), silent
+    assert {g["top_k"] for g in wide_val[0].grid} == {5, 10, 20, 50, 100}

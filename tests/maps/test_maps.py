@@ -279,3 +279,12 @@ def test_index_check_finds_a_change_the_sampled_hash_misses(synth_dir, tmp_path,
     capsys.readouterr()
     assert cli_main(["index", "check", str(built), "--full"]) == 2
     assert "frames.npy changed since the map was written" in capsys.readouterr().err
+
+
+def test_a_causal_map_evaluated_with_the_default_window_names_the_flag(synth_dir, tmp_path, capsys):
+    """``eval --index MAP`` of a causal map without --window: the refusal gives ``--window causal``."""
+    mp_path = build(MapConfig(shortlist="delta", rerank="raw+graph", seq_len=4, window="causal"), synth_dir,
+                    tmp_path / "map")
+    one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(mp_path), "--seq-len", "4"],
+                   "uses 'causal' windows (hint: --window causal, the map's")
+    assert cli(["-q", "eval", "--dataset", str(synth_dir), "--index", str(mp_path), "--window", "causal"]) == 0

@@ -215,3 +215,13 @@ def test_a_model_of_other_dimensions_names_the_dataset_it_was_trained_on():
                                 "was trained on the dataset /data/DS-pca32: --dataset /data/DS-pca32")
     with pytest.raises(ConfigError, match="trained on the dataset /data/DS-pca32: a map built from that dataset$"):
         check_models({"s1": model}, 2048, None, "the map 'M'", 1)
+
+
+@settings(max_examples=200, deadline=None)
+@given(a=st.integers(0, 40), lo=st.integers(-5, 90), span=st.integers(0, 60), every=st.integers(1, 9))
+def test_kept_count_matches_a_loop(a, lo, span, every):
+    """The queries ``a, a + every, ...`` of a re-sampled split that lie in ``lo:hi``, against a loop."""
+    from seqnet.methods.checks import kept_count
+
+    hi = lo + span
+    assert kept_count(a, lo, hi, every) == sum(lo <= q < hi for q in range(a, max(a, hi) + every, every))

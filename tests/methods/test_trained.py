@@ -116,3 +116,28 @@ def test_the_calibration_hint_names_queries_free_of_training_not_the_split_in_us
                    evaluated="test")
     assert said[0].endswith("(hint: no range of 20 or more queries is free of the models' training queries: retrain "
                             "with --train-split / --val-split that leave queries apart for calibration)"), said
+
+
+def test_leakage_counts_the_queries_kept_by_resample_every(trained, caplog):
+    """With ``--resample-every N`` the warnings counted the split's queries before re-sampling ("119 of the 197
+    evaluated" when every 2nd was evaluated): they count the kept ones, and say which."""
+    import logging
+
+    data, ckpt = trained
+    ds = load_dataset(data)
+    n, (ta, tb) = len(ds.query), ds.ranges("train")["query"]
+    caplog.set_level(logging.WARNING, logger="seqnet")
+    assert cli_main(["--threads", "1", "eval", "--dataset", str(data), "--model", str(ckpt), "--method",
+                     "single,s1", "--split", "all", "--resample-every", "2", "--device", "cpu"]) == 0
+    said = " ".join(r.getMessage() for r in caplog.records)
+    kept = range(0, n, 2)
+    assert (f"{sum(ta <= q < tb for q in kept)} of the {len(kept)} evaluated queries ('all', every 2nd of 0:{n}) "
+            f"are training queries") in said, said
+    model = load_model(ckpt)
+    for a, b, every in ((0, n, 3), (5, 150, 4), (ta + 1, n, 7)):  # against a loop over the kept queries
+        line = leakage({"s1": model}, data, ds, f"{a}:{b}", every=every)[0]
+        kept = range(a, b, every)
+        assert line.startswith(f"{sum(ta <= q < tb for q in kept)} of the {len(kept)} evaluated queries ('{a}:{b}', "
+                               f"every {every}"), line
+    assert leakage({"s1": model}, data, ds, "all", every=1)[0].startswith(f"{tb - ta} of the {n} evaluated queries "
+                                                                           f"('all', 0:{n})")

@@ -15,6 +15,7 @@ from seqnet.metrics.calibration import (
     accepted,
     apply_threshold,
     calibrate,
+    check_target,
     clopper_pearson,
     min_queries,
     start_count,
@@ -128,3 +129,21 @@ def test_apply_reports_precision_and_interval():
 def test_bad_target_or_risk_refused(target, risk):
     with pytest.raises(ConfigError):
         calibrate(np.ones(3), np.ones(3, bool), target, risk)
+
+
+@pytest.mark.parametrize("risk,meant", [(0.95, "0.05"), (0.999, "0.001"), (0.9, "0.1")])
+def test_a_confidence_level_given_as_the_risk_is_refused(risk, meant):
+    """``--risk 0.95`` (a confidence level where the risk is meant) would promise a precision that fails 95% of
+    the time: refused, naming the risk meant."""
+    with pytest.raises(ConfigError, match=rf"did you mean --risk {meant}\?"):
+        calibrate(np.ones(3), np.ones(3, bool), 0.9, risk)
+
+
+def test_a_risk_up_to_one_half_is_accepted():
+    for risk in (0.05, 0.2, 0.5):
+        assert check_target(0.9, risk) == (0.9, risk)
+
+
+def test_one_calibration_query_is_said_in_the_singular():
+    cal = calibrate(np.ones(1), np.ones(1, bool), 0.9, 0.05)
+    assert cal.reason.startswith("1 calibration query; promising"), cal.reason

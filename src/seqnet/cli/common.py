@@ -180,7 +180,7 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibrate-split", metavar="SPLIT", help="with --target-precision: the split it is calibrated "
                    "on (a split name or a range A:B; default val); it must not overlap the evaluated split")
     p.add_argument("--risk", type=float, metavar="R", help="with --target-precision: the probability that the "
-                   "promise fails (default 0.05)")
+                   "promise fails (default 0.05; at most 0.5: a risk, not a confidence level)")
 
 
 def check_calibration_options(args: argparse.Namespace) -> None:

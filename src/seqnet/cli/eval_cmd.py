@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
-from ..core.log import ordinal
+from ..core.log import counted, ordinal
 from ..eval.config import EvalConfig
 from ..methods.grammar import DEFAULT_METHODS, FUSED_TOP_K, valid_methods
 from ..metrics.consistency import CONFIDENCES
@@ -176,7 +176,7 @@ def print_results(res: dict) -> None:
     lacking = "a positive" if cfg.get("ground_truth") == "explicit positives" else "a reference within the radius"
     for (queries, no_window, no_positive, why), names in counts.items():
         who = "" if len(counts) == 1 else f"{', '.join(names)}: "
-        print(f"{who}{queries} queries evaluated; {no_window} without a full window"
+        print(f"{who}{counted(queries, 'query', 'queries')} evaluated; {no_window} without a full window"
               f"{f' ({why})' if why else ''}, {no_positive} without {lacking} ({fate})")
     print_calibration(res)
     selection = res.get("selection", {})

@@ -8,9 +8,11 @@ from __future__ import annotations
 from typing import Any
 
 from ..core.errors import ConfigError
-from ..core.log import logger
+from ..core.log import counted, logger
 from ..data.traverse import Dataset
+from ..methods.checks import named_test_split
 from ..metrics.calibration import apply_threshold, calibrate
+from ..security.text import shown
 from .evaluation import Evaluation
 from .results import top1_correct
 
@@ -27,6 +29,54 @@ def check_calibration_split(ds: Dataset, calibrate_split: str, split: str) -> No
     if max(a, c) < min(b, d):
         raise ConfigError(f"the calibration split {calibrate_split!r} (queries {a}:{b}) overlaps the evaluated split "
                           f"{split!r} (queries {c}:{d}); calibrate on other queries (--calibrate-split)")
+
+
+def calibration_failed(ds: Dataset, calibrate_split: str, e: ConfigError) -> ConfigError:
+    """The error of evaluating the calibration split, saying that split's size; when it is too short for the
+    windows (:func:`seqnet.methods.checks.check_windows_fit`), the fix is a longer calibration split, not a longer
+    evaluated one, or no calibration."""
+    a, b = ds.ranges(calibrate_split)["query"]
+    said = f"calibrating on {calibrate_split!r} (queries {a}:{b}, {b - a} frames): {e}"
+    if "is longer than" in str(e):
+        said += (f" (the calibration split is the short one: give --calibrate-split A:B, longer than {b - a} frames "
+                 "and apart from the evaluated queries, or leave out --target-precision to evaluate without it)")
+    return ConfigError(said)
+
+
+def calibration_on_test(ds: Dataset, calibrate_split: str | None, split: str) -> str | None:
+    """One line when the calibration split is the test split of ``ds`` or holds some of its queries: the threshold a
+    robot will use is then fitted on the held-out queries, and every test figure with it is optimistic (as
+    ``train --val-split test`` says); the hint names a split apart from the test and the evaluated (``split``)
+    queries. None otherwise (and for no calibration split)."""
+    if calibrate_split is None:
+        return None
+    test, cal = named_test_split(ds.splits), ds.ranges(calibrate_split)
+    if test is None or cal is None:
+        return None
+    (a, b), (ta, tb) = cal["query"], ds.ranges(test)["query"]
+    both = max(0, min(b, tb) - max(a, ta))
+    if not both:
+        return None
+    if calibrate_split.lower() == "test":
+        head = f"--calibrate-split {shown(calibrate_split)}: calibrating the threshold on the test split"
+    else:
+        where = calibrate_split if calibrate_split == f"{a}:{b}" else f"{shown(calibrate_split)} (queries {a}:{b})"
+        head = (f"--calibrate-split {where} holds {both} of the {counted(tb - ta, 'query', 'queries')} of the test "
+                f"split {test!r} ({ta}:{tb}): calibrating the threshold on them")
+    return f"{head} makes every test figure with it optimistic (hint: {_apart_hint(ds, (ta, tb), split)})"
+
+
+def _apart_hint(ds: Dataset, test: tuple[int, int], split: str) -> str:
+    """``--calibrate-split S`` with S a split apart from the ``test`` queries and the evaluated split (val first,
+    never a train split), else a range to give."""
+    ev = ds.ranges(split)
+    avoid = [test, *([tuple(ev["query"])] if ev is not None else [])]
+    for name in sorted(ds.splits, key=lambda s: s.lower() != "val"):
+        a, b = ds.ranges(name)["query"]
+        if name.lower() not in ("test", "train") and all(min(b, d) <= max(a, c) for c, d in avoid):
+            return f"--calibrate-split {name}"
+    spans = " and ".join(f"{c}:{d}" for c, d in avoid)
+    return f"--calibrate-split A:B, a range apart from {spans}"
 
 
 def top1(ev: Evaluation, name: str) -> tuple[Any, Any, Any]:

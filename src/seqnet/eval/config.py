@@ -115,6 +115,12 @@ class EvalConfig(WindowSettings, Config):
             self._set("target_precision", check_target(self.target_precision, self.risk)[0])
         self._set("risk", check_target(0.5, self.risk)[1])
 
+    @property
+    def query_every(self) -> int | None:
+        """N of ``resample_every`` when it thins the queries (side ``query`` or ``both``), else None: the
+        evaluated queries of a split ``a:b`` are ``a, a + N, ...`` (what the leakage counts count)."""
+        return self.resample_every if self.resample_every and self.resample_side != "reference" else None
+
     def resolve(self, models: Mapping[str, SeqNet], radius: float) -> EvalConfig:
         """L (the S_L model's when unset), the radius (the dataset's when unset) and the methods (the defaults
         the models allow when unset), resolved once."""

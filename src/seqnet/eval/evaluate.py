@@ -23,7 +23,7 @@ from ..core.log import logger
 from ..core.stage import Written
 from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, Traverse, default_split
-from ..methods.checks import check_inputs, leakage, model_lengths
+from ..methods.checks import check_inputs, model_lengths
 from ..methods.grammar import Method, parse_method
 from ..methods.route import route_warnings
 from ..metrics.recall import GroundTruth, ground_truth
@@ -34,11 +34,11 @@ from ..security.text import shown
 from ..sequence.described import Described
 from ..sequence.npdescribed import PlainDescribed
 from ..sequence.windows import Windows
-from .calibrated import add_calibration, check_calibration_split
+from .calibrated import add_calibration, calibration_failed, calibration_on_test, check_calibration_split
 from .config import EvalConfig
 from .evaluation import Evaluation, merge, method_windows
 from .loop import run
-from .notices import add_warnings, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
+from .notices import add_warnings, leakages, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
 from .outputs import EvalOutputs
 
 torch = lazy_module("torch")
@@ -225,7 +225,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         try:
             cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
         except ConfigError as e:
-            raise ConfigError(f"calibrating on {conf.calibrate_split!r}: {e}") from e
+            raise calibration_failed(ds, conf.calibrate_split, e) from e
     ev = evaluate(evaluated, conf.replace(split=split), loaded)
     if cal is not None:
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
@@ -237,10 +237,9 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
                       *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
                       flipped or shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None),
                       trivial_ks(ev, conf.ks), video_clock_note(ev),
-                      *selection_leakage(loaded, dataset, ds, split)])
-    leaks = leakage(loaded, dataset, ds, split)
-    if conf.target_precision is not None:
-        leaks += leakage(loaded, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split)
+                      calibration_on_test(ds, conf.calibrate_split if cal else None, split),
+                      *selection_leakage(loaded, dataset, ds, split, conf.query_every)])
+    leaks = leakages(loaded, dataset, ds, split, conf)
     if leaks:
         ev.results["leakage"] = leaks
         for line in leaks:

@@ -2,8 +2,9 @@
 as a warning and kept in the results' ``warnings``): explicit positives that look shifted (:func:`shift_notice`),
 a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
 (:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), a model whose epoch was
-chosen on the evaluated queries (:func:`selection_leakage`), all of these for another stage that scores queries
-(:func:`scored_notices`), and an R@1 over few queries (:func:`few_queries`)."""
+chosen on the evaluated queries (:func:`selection_leakage`) or trained on them (:func:`leakages`), all of these
+for another stage that scores queries (:func:`scored_notices`), an R@1 over few queries (:func:`few_queries`), and
+HVPR settings chosen on training queries (:func:`training_choice`)."""
 
 from __future__ import annotations
 
@@ -13,11 +14,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.log import logger
-from ..methods.checks import named_test_split, training_record
-from ..methods.trained import chosen_range, free_hint, used_ranges
+from ..core.log import counted, logger
+from ..methods.checks import kept_count, named_test_split, queries_span, training_record
+from ..methods.trained import chosen_range, free_hint, train_range, used_ranges
 from ..metrics.shift import shifted_offset, top1_offsets
 from ..security.text import shown
+from .calibrated import calibration_on_test
 from .config import EvalConfig
 from .evaluation import Evaluation
 
@@ -48,15 +50,29 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
     """What eval says about the queries a run scores on split ``split`` of the dataset ``ds`` (directory
     ``dataset``; ``given``: the ``--split`` given, None for the default): no split named test
     (:func:`split_note`), queries a model chose its epoch on (:func:`selection_leakage`) or was trained on
-    (:func:`seqnet.methods.checks.leakage`; ``calibrate_split``: the split a threshold is calibrated on, too). For
+    (:func:`seqnet.methods.checks.leakage`; ``calibrate_split``: the split a threshold is calibrated on, too, and
+    whether it is the test split, :func:`seqnet.eval.calibrated.calibration_on_test`). For
     the stages that score queries as eval does (``seqnet localize --dataset``)."""
     from ..methods.checks import leakage
 
     lines = [split_note(given, list(ds.splits), len(ds.split(split).query)),
              *selection_leakage(models, dataset, ds, split), *leakage(models, dataset, ds, split)]
     if calibrate_split is not None:
-        lines += leakage(models, dataset, ds, calibrate_split, calibration=True, evaluated=split)
+        lines += [calibration_on_test(ds, calibrate_split, split),
+                  *leakage(models, dataset, ds, calibrate_split, calibration=True, evaluated=split)]
     return [line for line in lines if line]
+
+
+def leakages(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str, conf: EvalConfig) -> list[str]:
+    """:func:`seqnet.methods.checks.leakage` of the evaluated ``split`` and, with ``conf.target_precision``, of the
+    calibration split, counting the queries ``conf`` keeps (``--resample-every``)."""
+    from ..methods.checks import leakage
+
+    out = leakage(models, dataset, ds, split, every=conf.query_every)
+    if conf.target_precision is not None:
+        out += leakage(models, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split,
+                       every=conf.query_every)
+    return out
 
 
 def few_queries(scored: Mapping[str, tuple[int, float]]) -> str | None:
@@ -134,25 +150,41 @@ def split_note(given: str | None, splits: Sequence[str], n_queries: int) -> str 
 def trivial_ks(ev: Evaluation, ks: Sequence[int]) -> str | None:
     """Which K of ``ks`` (given with ``--ks``: not the default Ks, whose R@100 a small dataset makes trivial every
     time) are at least the references a method indexes (its R@K is 1 for every query with a positive: says
-    nothing)."""
-    if tuple(ks) == EvalConfig().ks:
-        return None
+    nothing), and which HVPR shortlists hold every reference (:func:`whole_shortlists`), in one line."""
     trivial: dict[int, int] = {}
-    for name in ev.retrieved:
+    for name in ev.retrieved if tuple(ks) != EvalConfig().ks else ():
         n = len(ev.view(name).r_items)
         for k in ks:
             if k >= n:
                 trivial[k] = min(n, trivial.get(k, n))
-    if not trivial:
-        return None
     said = ", ".join(f"R@{k} (K >= the {n} references indexed)" for k, n in sorted(trivial.items()))
-    return f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
+    lines = [f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
+             if trivial else None, whole_shortlists(ev)]
+    return "; ".join(line for line in lines if line) or None
 
 
-def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str) -> list[str]:
+def whole_shortlists(ev: Evaluation) -> str | None:
+    """The HVPR methods whose shortlist size K is at least the references they index: the shortlist is every
+    reference, so the method re-ranks them all (its label's ``top-K`` is not a shortlist)."""
+    whole = {}
+    for name, entry in ev.results.get("methods", {}).items():
+        k = (entry.get("method") or {}).get("top_k")
+        if name in ev.retrieved and isinstance(k, int) and k >= (n := len(ev.view(name).r_items)):
+            whole[name] = (k, n, "--fuse-top-k" if "fuse_weight" in (entry.get("method") or {}) else "--top-k")
+    if not whole:
+        return None
+    said = ", ".join(f"{name} (K {k} >= the {n} references indexed)" for name, (k, n, _) in whole.items())
+    flags = " / ".join(sorted({flag for *_, flag in whole.values()}, reverse=True))
+    return (f"{said}: the shortlist holds every reference, so it re-ranks them all; hint: {flags} below the "
+            "references for a shortlist")
+
+
+def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
+                      every: int | None = None) -> list[str]:
     """One line per model whose epoch was chosen on queries of ``dataset`` that the evaluated ``split`` holds (the
     val range its checkpoint recorded: :func:`seqnet.methods.trained.chosen_range`), with a hint naming queries free
-    of every model's training and epoch-selection ones, never the split in use."""
+    of every model's training and epoch-selection ones, never the split in use. ``every``: the split's queries are
+    re-sampled (``--resample-every``), and only the kept ones are counted."""
 
     a, b = ds.ranges(split)["query"]
     trained, picked = used_ranges(models, dataset, ds)
@@ -163,12 +195,39 @@ def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dat
         if chosen is None:
             continue
         val, (va, vb) = chosen
-        both = max(0, min(b, vb) - max(a, va))
+        both = kept_count(a, max(a, va), min(b, vb), every)
         if both:
             hint = ("choosing the epoch on the test split makes its test numbers optimistic; hint: train with "
                     "--val-split val" if val == named_test_split(ds.splits) else
                     f"hint: {free_hint(ds, trained, picked, split)}")
-            out.append(f"{both} of the {b - a} evaluated queries ({split!r}, {a}:{b}) are queries the "
+            n = counted(kept_count(a, a, b, every), "evaluated query", "evaluated queries")
+            out.append(f"{both} of the {n} ({split!r}, "
+                       f"{queries_span(a, b, every)}) are queries the "
                        f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} chose its epoch on ({val!r}, "
                        f"{va}:{vb}), so its results on them are optimistic: {hint}")
     return out
+
+
+def training_choice(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset,
+                    choices: Sequence[Any]) -> str | None:
+    """The line for HVPR settings (``choices``: :class:`seqnet.eval.select.Choice`) chosen on val queries of ``ds``
+    (directory ``dataset``) that are training queries of the models (the range each checkpoint recorded:
+    :func:`seqnet.methods.trained.train_range`): the setting that suits what a model memorised wins, as a
+    threshold calibrated on them promises too much; None when none is, or nothing was chosen."""
+    rng = ds.ranges("val")
+    if not choices or rng is None:
+        return None
+    a, b = rng["query"]
+    said = []
+    for role, m in sorted(models.items()):
+        t, trained = training_record(m), train_range(m, dataset, ds)
+        both = max(0, min(b, trained[1]) - max(a, trained[0])) if t is not None and trained is not None else 0
+        if both:
+            said.append(f"{both} are training queries of the {'S_1' if role == 's1' else 'S_L'} model "
+                        f"{t['checkpoint']} ({trained[0]}:{trained[1]})")
+    if not said:
+        return None
+    return (f"HVPR settings of {', '.join(c.method for c in choices)} chosen on the val split ({a}:{b}, {b - a} "
+            f"queries), of which {'; '.join(said)}: the setting that suits what a model memorised wins (hint: give "
+            "--top-k / --fuse-top-k / --fuse-weight yourself, or rebuild the dataset with a val split apart from "
+            "the training queries)")

@@ -23,18 +23,17 @@ import numpy as np
 
 from ..core.devices import get_device
 from ..core.errors import ConfigError
-from ..core.log import logger
+from ..core.log import counted, logger
 from ..core.stage import Written
 from ..data.traverse import Dataset
-from ..methods.checks import training_record
 from ..methods.grammar import FRAME_FEATURES, parse_method
-from ..methods.trained import train_range
 from ..metrics.recall import VAL_MIN
 from ..reference.traverse import TraverseReference
 from ..sequence.described import Described
 from .evaluate import EvalConfig, dataset_truth
 from .evaluate import main as evaluate_main
 from .evaluation import method_windows
+from .notices import training_choice
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -54,6 +53,8 @@ class Choice:
         recall: its val Recall@1; default_recall: the val Recall@1 of the defaults (None: not in the grid).
         grid: every setting scored, ``[{"top_k": K, "fuse_weight": λ, "recall@1": r}, ...]``.
         queries: val queries with a correct reference; reason: one sentence.
+        reference_items: the val reference's items the shortlist was drawn from (None: not known); every K at or
+            above it re-ranks the whole val reference, so only one such K is scored.
     """
 
     method: str
@@ -63,6 +64,7 @@ class Choice:
     grid: list[dict[str, Any]]
     queries: int
     reason: str
+    reference_items: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -85,9 +87,7 @@ def hvpr_grid(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, metho
     dev = get_device(conf.device)
     for model in models.values():
         model.to(dev).eval()
-    listed = [parse_method(n) for n in conf.methods] if m.name in conf.methods else [m]
-    windows = next(w for w, ms in method_windows(listed, conf.windows, conf.common_queries).items()
-                   if any(x.name == m.name for x in ms))  # the windows evaluate() gives this method
+    windows = _windows_of(conf, m.name)
     sides = {} if sides is None else sides
     if windows not in sides:
         query = Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query")
@@ -102,6 +102,29 @@ def hvpr_grid(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, metho
     keep = truth.has_positive() if conf.recall_denominator == "positives" else np.ones(len(hits), bool)
     return grid_recall(scores, np.asarray(dist), hits[keep], keep, windows.match_len, top_ks, weights), \
         int(keep.sum())
+
+
+def _windows_of(conf: EvalConfig, method: str) -> Any:
+    """The windows :func:`~seqnet.eval.evaluate.evaluate` gives ``method`` under ``conf`` (resolved)."""
+    m = parse_method(method)
+    listed = [parse_method(n) for n in conf.methods] if m.name in conf.methods else [m]
+    return next(w for w, ms in method_windows(listed, conf.windows, conf.common_queries).items()
+                if any(x.name == m.name for x in ms))
+
+
+def reference_items(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method: str) -> int:
+    """How many reference items of ``ds`` the HVPR ``method`` shortlists from under ``conf`` (frames whose windows
+    fit): a K at or above it re-ranks them all."""
+    windows = _windows_of(conf.resolve(dict(models), ds.radius), method)
+    return len(windows.side(len(ds.reference), ds.reference.seq_bounds).items)
+
+
+def grid_ks(ks: Sequence[int], items: int, default: int) -> list[int]:
+    """``ks`` (sorted, once each) with the values at or above ``items`` (the reference's items: each re-ranks all of
+    them, one setting) kept once: the default when it is one of them, else the smallest."""
+    ks = sorted(set(ks))
+    over = [k for k in ks if k >= items]
+    return [k for k in ks if k < items] + ([default if default in over else over[0]] if over else [])
 
 
 def grid_recall(scores: np.ndarray, dist: np.ndarray, hits: np.ndarray, keep: np.ndarray, match_len: int,
@@ -164,8 +187,9 @@ def _choose(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method:
     """One method's grid (the settings ``names`` free, the others at ``default``), scored and picked."""
     k_free = bool({"top_k", "fuse_top_k"} & set(names))
     w_free = "fuse_weight" in names
-    top_ks = sorted({*(TOP_KS if "top_k" in names else FUSE_TOP_KS), default["top_k"]}) if k_free \
-        else [default["top_k"]]
+    items = reference_items(ds, models, conf, method)
+    every_k = {*(TOP_KS if "top_k" in names else FUSE_TOP_KS), default["top_k"]}
+    top_ks = grid_ks(every_k, items, default["top_k"]) if k_free else [default["top_k"]]
     weights = sorted({*FUSE_WEIGHTS, default["fuse_weight"]}) if w_free else [default["fuse_weight"]]
     recall, queries = hvpr_grid(ds, models, conf, method, top_ks, weights, sides)
     i, j = pick(recall, top_ks, weights, (default["top_k"], default["fuse_weight"]))
@@ -183,9 +207,12 @@ def _choose(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method:
                   else "the smallest K kept"))
     else:
         why = f"the default scored {d:.3f}" if recall[i, j] > d else "the default"
-    reason = (f"{method}: {shown} chosen on {where} ({queries} queries): R@1 {recall[i, j]:.3f}, the best of "
-              f"{recall.size} settings ({why})")
-    return Choice(method, settings, float(recall[i, j]), float(d), grid, queries, reason)
+    reason = (f"{method}: {shown} chosen on {where} ({counted(queries, 'query', 'queries')}): R@1 "
+              f"{recall[i, j]:.3f}, the best of {counted(recall.size, 'setting')} ({why})")
+    if k_free and (sum(k >= items for k in every_k) > 1 or top_ks[i] >= items):  # K values merged, or K = all
+        reason += (f"; the val reference has {items} items, so every K of {items} or more re-ranks all of them "
+                   "(scored once)" + (f", K {top_ks[i]} too: no shortlist on val" if top_ks[i] >= items else ""))
+    return Choice(method, settings, float(recall[i, j]), float(d), grid, queries, reason, items)
 
 
 def holds_val_queries(ds: Dataset, split: str) -> bool:
@@ -229,6 +256,7 @@ def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: E
         logger.debug("HVPR settings not chosen on the val split: %s", e)
         return conf, {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split (the "
                                                                f"defaults kept): {e}"}}
+    choices = [against(c, ds.split(split), models, conf) for c in choices]
     leak = {"leakage": said} if dataset is not None and (said := training_choice(models, dataset, ds, choices)) \
         else {}
     few = min((c.queries for c in choices), default=VAL_MIN)
@@ -240,26 +268,17 @@ def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: E
     return conf, ({"selection": {"hvpr": [c.to_dict() for c in choices], **leak}} if choices else None)
 
 
-def training_choice(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset,
-                    choices: Sequence[Choice]) -> str | None:
-    """The line for HVPR settings (``choices``) chosen on val queries of ``ds`` (directory ``dataset``) that are
-    training queries of the models (the range each checkpoint recorded:
-    :func:`seqnet.methods.trained.train_range`): the setting that suits what a model memorised wins, as a
-    threshold calibrated on them promises too much; None when none is, or nothing was chosen."""
-    rng = ds.ranges("val")
-    if not choices or rng is None:
-        return None
-    a, b = rng["query"]
-    said = []
-    for role, m in sorted(models.items()):
-        t, trained = training_record(m), train_range(m, dataset, ds)
-        both = max(0, min(b, trained[1]) - max(a, trained[0])) if t is not None and trained is not None else 0
-        if both:
-            said.append(f"{both} are training queries of the {'S_1' if role == 's1' else 'S_L'} model "
-                        f"{t['checkpoint']} ({trained[0]}:{trained[1]})")
-    if not said:
-        return None
-    return (f"HVPR settings of {', '.join(c.method for c in choices)} chosen on the val split ({a}:{b}, {b - a} "
-            f"queries), of which {'; '.join(said)}: the setting that suits what a model memorised wins (hint: give "
-            "--top-k / --fuse-top-k / --fuse-weight yourself, or rebuild the dataset with a val split apart from "
-            "the training queries)")
+def against(choice: Choice, evaluated: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig) -> Choice:
+    """``choice`` with the evaluated reference's items beside the val reference's when the K grid reached past
+    the latter (its reason says so): a K chosen where it re-ranked every val item is a shortlist of the larger
+    evaluated reference, a setting val did not score; the hint names what to do."""
+    flag = "--top-k" if "top_k" in choice.settings else "--fuse-top-k"
+    n, k = choice.reference_items, choice.settings.get("top_k", choice.settings.get("fuse_top_k"))
+    if n is None or k is None or "; the val reference has" not in choice.reason:
+        return choice
+    m = reference_items(evaluated, models, conf, choice.method)
+    said = f"; the evaluated reference has {m} items"
+    if n <= k < m:
+        said += (f", where K {k} is a shortlist that val did not score (hint: give {flag} yourself, or build the "
+                 "dataset with a val split whose reference has more items than the K grid's largest)")
+    return dataclasses.replace(choice, reason=choice.reason + said)

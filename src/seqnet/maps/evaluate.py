@@ -132,7 +132,8 @@ def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
         if want is not None and want != have:
             raise ConfigError(f"{key}={want} but map {mp.path} was built with {have}; rebuild the map to change it")
     if conf.window != c.window:
-        raise ConfigError(f"window {conf.window!r} but map {mp.path} uses {c.window!r} windows")
+        raise ConfigError(f"window {conf.window!r} but map {mp.path} uses {c.window!r} windows (hint: --window "
+                          f"{c.window}, the map's; --window {conf.window} needs a map built with it)")
     if conf.resample_every is not None:
         raise ConfigError(f"map {mp.path} holds its reference as built; re-sample the dataset first (seqnet dataset "
                           "resample --every N) and evaluate it, or build a map from the re-sampled dataset")

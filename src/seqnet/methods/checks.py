@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError
-from ..core.log import logger
+from ..core.log import counted, logger, ordinal
 from ..core.provenance import check_same
 from ..data.traverse import Dataset
 from ..security.text import shown
@@ -145,20 +145,34 @@ def model_lengths(models: Mapping[str, SeqNet]) -> dict[str, int]:
     return {role: int(m.seq_len) for role, m in sorted(models.items())}
 
 
+def kept_count(a: int, lo: int, hi: int, every: int | None = None) -> int:
+    """How many of the queries ``a, a + every, ...`` of a split starting at ``a`` (``--resample-every``; None: every
+    query) lie in ``lo:hi``."""
+    n = every or 1
+    lo, hi = max(lo, a), max(hi, a)
+    return max(0, -((a - hi) // n) - -((a - lo) // n))  # ceil((hi - a) / n) - ceil((lo - a) / n)
+
+
+def queries_span(a: int, b: int, every: int | None = None) -> str:
+    """The evaluated queries of ``a:b`` in words: ``a:b``, or ``every 2nd of a:b`` when re-sampled."""
+    return f"every {ordinal(every)} of {a}:{b}" if every and every > 1 else f"{a}:{b}"
+
+
 def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
-            calibration: bool = False, evaluated: str | None = None) -> list[str]:
+            calibration: bool = False, evaluated: str | None = None, every: int | None = None) -> list[str]:
     """One line per model trained on queries of ``dataset`` that the evaluated ``split`` (``calibration``: the
     split a confidence threshold is calibrated on, for the evaluation of ``evaluated``) contains too: the train
     range its checkpoint recorded wherever the same descriptors are read (:func:`seqnet.methods.trained.train_range`),
     and a hint naming queries free of every model's training and epoch-selection ones
-    (:func:`seqnet.methods.trained.free_hint`), never the split in use."""
+    (:func:`seqnet.methods.trained.free_hint`), never the split in use. ``every``: the split's queries are
+    re-sampled (``--resample-every``), and only the kept ones are counted."""
     a, b = ds.ranges(split)["query"]
     trained, chosen = used_ranges(models, dataset, ds)
     out = []
     for role, m in sorted(models.items()):
         t = training_record(m)
         rng = train_range(m, dataset, ds) if t is not None else None
-        both = max(0, min(b, rng[1]) - max(a, rng[0])) if rng is not None else 0
+        both = kept_count(a, max(a, rng[0]), min(b, rng[1]), every) if rng is not None else 0
         if not both:
             continue
         now = ds.ranges(t["split"])
@@ -169,8 +183,10 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
                     f"{free_hint(ds, trained, chosen, split, '--calibrate-split', avoid)})")
         else:
             tail = f"its results on them are not a test (hint: {free_hint(ds, trained, chosen, split)})"
-        out.append(f"{both} of the {b - a} {'calibration' if calibration else 'evaluated'} queries ({split!r}, "
-                   f"{a}:{b}) are training queries of the {'S_1' if role == 's1' else 'S_L'} model "
+        what = "calibration" if calibration else "evaluated"
+        out.append(f"{both} of the {counted(kept_count(a, a, b, every), what + ' query', what + ' queries')} "
+                   f"({split!r}, {queries_span(a, b, every)}) are training queries of the "
+                   f"{'S_1' if role == 's1' else 'S_L'} model "
                    f"{t['checkpoint']} ({t['split']!r}{when}, {rng[0]}:{rng[1]}): {tail}")
     return out
 

@@ -31,15 +31,21 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.log import counted
 
 RISK = 0.05  # the default probability that the promise fails
 
 
 def check_target(target: float, risk: float) -> tuple[float, float]:
-    """``(target, risk)`` as floats in (0, 1); a clear error otherwise."""
+    """``(target, risk)`` as floats in (0, 1), the risk at most 0.5 (above, it is a confidence level given
+    where the risk is meant: ``0.95`` for ``0.05``); a clear error otherwise."""
     for name, v in (("target precision", target), ("risk", risk)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < float(v) < 1.0:
             raise ConfigError(f"{name} must be a number strictly between 0 and 1, got {v!r}")
+    if float(risk) > 0.5:  # a confidence level given where the risk is meant: a promise that mostly fails
+        raise ConfigError(f"--risk {float(risk):g}: the promise would fail with probability up to {float(risk):g} "
+                          f"(the risk is the chance that it fails, not a confidence level); "
+                          f"did you mean --risk {round(1.0 - float(risk), 12):g}?")
     return float(target), float(risk)
 
 
@@ -121,9 +127,10 @@ def calibrate(confidence: np.ndarray, correct: np.ndarray, target: float, risk: 
         raise ConfigError(f"confidence and correct must be two [M] arrays, got {conf.shape} and {ok.shape}")
     m, needed = len(conf), min_queries(target, risk)
     base = {"target": target, "risk": risk, "queries": m, "needed": needed}
+    cal_queries = counted(m, "calibration query", "calibration queries")
     if m < needed:
         return Calibration(threshold=None, **base,
-                           reason=f"{m} calibration queries; promising precision ≥ {target:g} with risk {risk:g} "
+                           reason=f"{cal_queries}; promising precision ≥ {target:g} with risk {risk:g} "
                                   f"needs at least {needed} accepted queries, all correct: calibrate on a larger "
                                   "split, lower the target or raise the risk")
     order = np.argsort(-conf, kind="stable")
@@ -141,7 +148,7 @@ def calibrate(confidence: np.ndarray, correct: np.ndarray, target: float, risk: 
         errors = f"{int(n[i] - k[i])} error" + ("" if n[i] - k[i] == 1 else "s")
         return Calibration(threshold=None, **base, accepted=int(n[i]), correct=int(k[i]),
                            lower_bound=float(lower[0]),
-                           reason=f"no threshold passes: the {int(n[i])} most confident of {m} calibration queries "
+                           reason=f"no threshold passes: the {int(n[i])} most confident of {cal_queries} "
                                   f"hold {errors} (precision lower bound {lower[0]:.3f} < "
                                   f"{target:g}); lower the target, raise the risk or calibrate on more queries")
     i = last[stop - 1]
