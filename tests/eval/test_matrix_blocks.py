@@ -103,7 +103,7 @@ def test_no_method_is_timed_with_the_start_up_costs(synth_dataset, tmp_path):
 
     ds_dir = save_dataset(synth_dataset, tmp_path / "ds")
     np.save(tmp_path / "m.npy", similarity(synth_dataset).astype(np.float32))
-    code = ("import sys; import seqnet.eval.loop as ev; first = []; rank = ev.rank\n"
+    code = ("import sys; import seqnet.eval.runner as ev; first = []; rank = ev.rank\n"
             "def spy(*a, **k):\n"
             "    first.append(first or ['torch' in sys.modules, 'numpy.ma' in sys.modules]); return rank(*a, **k)\n"
             "ev.rank = spy\n"

@@ -37,9 +37,9 @@ from ..sequence.windows import Windows
 from .calibrated import add_calibration, calibration_failed, calibration_on_test, check_calibration_split
 from .config import EvalConfig
 from .evaluation import Evaluation, merge, method_windows
-from .loop import run
 from .notices import add_warnings, leakages, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
 from .outputs import EvalOutputs
+from .runner import run
 
 torch = lazy_module("torch")
 

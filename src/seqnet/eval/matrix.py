@@ -4,7 +4,7 @@ VPR-Bench, VPR_Tutorial and many tools hand over a matrix instead of descriptors
 the dataset's whole query and reference traverses (row i: query frame i, column j: reference frame
 j); a split evaluates its sub-matrix. A similarity matrix (``--similarity``, higher is closer) is
 negated: SeqMatch then sums similarities, and the lowest score wins as for distances. The methods
-and the one evaluation loop are those of :func:`seqnet.eval.loop.run`, on a
+and the one evaluation loop are those of :func:`seqnet.eval.runner.run`, on a
 :class:`seqnet.reference.matrix.MatrixReference`.
 """
 
@@ -30,9 +30,9 @@ from ..security.digests import file_digest
 from ..sequence.windows import Windows
 from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names
 from .evaluation import merge, method_windows
-from .loop import run
 from .notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
 from .outputs import EvalOutputs
+from .runner import run
 
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
 

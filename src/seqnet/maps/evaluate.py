@@ -24,9 +24,9 @@ from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse, default_split
 from ..eval.evaluate import EvalConfig, Evaluation
-from ..eval.loop import run
 from ..eval.notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
 from ..eval.outputs import EvalOutputs
+from ..eval.runner import run
 from ..methods.grammar import Method, parse_method
 from ..metrics.recall import ground_truth
 from ..report.guidance import learned_below_baseline, note_entries
@@ -161,7 +161,7 @@ def _shortlist_recall(mp: Map, q_short: np.ndarray, top_k: int) -> Callable[[Met
 
 def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evaluation:
     """Evaluate the query side ``q`` against the map ``mp`` (methods: :meth:`Map.served`): the
-    evaluation loop of :func:`seqnet.eval.loop.run` with the map as the reference."""
+    evaluation loop of :func:`seqnet.eval.runner.run` with the map as the reference."""
     conf = conf or EvalConfig()
     methods = check_conf(mp, conf)
     mp.check_query(q.traverse.dim, q.traverse.provenance, conf.allow_mismatch)

@@ -4,7 +4,7 @@
   the fly (in memory or memory-mapped), searched exactly;
 * :class:`seqnet.maps.Map`: a prepared map on disk, searched through its ANN index.
 
-Evaluation (:func:`seqnet.eval.loop.run`), HVPR (:func:`seqnet.methods.rank.rank`) and the
+Evaluation (:func:`seqnet.eval.runner.run`), HVPR (:func:`seqnet.methods.rank.rank`) and the
 localiser (:class:`seqnet.localize.localizer.Localizer`) are written once against it.
 """
 

@@ -1,6 +1,6 @@
 """A reference side given as a precomputed ``[Nq, Nr]`` frame-distance matrix (VPR-Bench, VPR_Tutorial, any tool).
 
-Evaluation runs its one loop (:func:`seqnet.eval.loop.run`) on a :class:`MatrixReference` and a
+Evaluation runs its one loop (:func:`seqnet.eval.runner.run`) on a :class:`MatrixReference` and a
 :class:`MatrixQuery`: the frame "descriptors" are the frames' indices into the matrix, k-NN reads a
 row, SeqMatch re-ranks candidates from its diagonals (:func:`seqnet.matching.pairs.item_scores_from_distances`)
 and HVPR shortlists and re-ranks from the same matrix (``shared_distances``); whole-map matching runs each
