@@ -16,7 +16,14 @@ from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import longest_option
 from .grammar import Method
 from .route import REVERSED_BELOW, TRIVIAL_SHARE, reversed_route, route_direction, trivial_truth  # noqa: F401
-from .trained import free_hint, train_range, used_ranges
+from .trained import (  # noqa: F401 - same_path, named_test_split: methods.checks names, used by others
+    MAX_RECORD_TEXT,
+    free_hint,
+    named_test_split,
+    same_path,
+    train_range,
+    used_ranges,
+)
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -191,15 +198,6 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
     return out
 
 
-def named_test_split(splits: Iterable[str]) -> str | None:
-    """The split that is the test split: ``test``, else one named so in another case (``Test``); None."""
-    splits = list(splits)
-    return "test" if "test" in splits else next((s for s in splits if s.lower() == "test"), None)
-
-
-MAX_RECORD_TEXT = 4096
-
-
 def training_record(model: Any) -> dict[str, str] | None:
     """A model's ``trained_on`` (``dataset``, ``split``, ``checkpoint``, read from its checkpoint file) when
     every field is usable text; None otherwise (an unusable record is ignored, with a debug line)."""
@@ -212,14 +210,6 @@ def training_record(model: Any) -> dict[str, str] | None:
     logger.debug("ignoring the training record of %.200r: its dataset, split and checkpoint are not all text "
                  "(%.200r)", fields.get("checkpoint"), fields)
     return None
-
-
-def same_path(a: str | Path | None, b: str | Path) -> bool:
-    """Whether ``a`` and ``b`` name the same file or folder (False when ``a`` is None or cannot be resolved)."""
-    try:
-        return a is not None and Path(a).resolve() == Path(b).resolve()
-    except (OSError, ValueError, RuntimeError):
-        return False
 
 
 def descriptor_dims(names: Iterable[str], models: Mapping[str, SeqNet], dim: int) -> list[int]:

@@ -51,11 +51,21 @@ def recorded_range(value: Any) -> tuple[int, int] | None:
     return None
 
 
-def _same_path(a: Any, b: str | Path) -> bool:
+def same_path(a: str | Path | None, b: str | Path) -> bool:
+    """Whether ``a`` and ``b`` name the same file or folder (False when ``a`` is None or cannot be resolved)."""
     try:
-        return isinstance(a, str) and Path(a).resolve() == Path(b).resolve()
-    except (OSError, ValueError, RuntimeError):
+        return a is not None and Path(a).resolve() == Path(b).resolve()
+    except (OSError, ValueError, RuntimeError, TypeError):  # a record from a file: any type
         return False
+
+
+def named_test_split(splits: Iterable[str]) -> str | None:
+    """The split that is the test split: ``test``, else one named so in another case (``Test``); None."""
+    splits = list(splits)
+    return "test" if "test" in splits else next((s for s in splits if s.lower() == "test"), None)
+
+
+MAX_RECORD_TEXT = 4096
 
 
 def same_data(model: Any, dataset: str | Path, ds: Dataset) -> bool:
@@ -75,7 +85,7 @@ def same_data(model: Any, dataset: str | Path, ds: Dataset) -> bool:
     prov, prov_now = getattr(model, "provenance", None), ds.query.provenance
     if isinstance(names, str) and here and isinstance(prov, Mapping) and isinstance(prov_now, Mapping):
         return names == here and prov.get("id") is not None and prov.get("id") == prov_now.get("id")
-    return not hashed and _same_path(t.get("dataset"), dataset)
+    return not hashed and same_path(t.get("dataset"), dataset)
 
 
 def holds_training_data(model: Any, dataset: str | Path, ds: Dataset) -> bool:
@@ -86,7 +96,7 @@ def holds_training_data(model: Any, dataset: str | Path, ds: Dataset) -> bool:
         return False
     if recorded_range(t.get("train_queries")) is not None:
         return same_data(model, dataset, ds)
-    return _same_path(t.get("dataset"), dataset)
+    return same_path(t.get("dataset"), dataset)
 
 
 def train_range(model: Any, dataset: str | Path, ds: Dataset) -> tuple[int, int] | None:
@@ -113,7 +123,7 @@ def chosen_range(model: Any, dataset: str | Path, ds: Dataset) -> tuple[str, tup
         return None
     t = model.trained_on
     val = t.get("val_split")
-    if not isinstance(val, str) or not val or len(val) > 4096:
+    if not isinstance(val, str) or not val or len(val) > MAX_RECORD_TEXT:
         return _run_config_range(t, ds)
     if val.lower() == "none":
         return None
@@ -182,7 +192,7 @@ def free_hint(ds: Dataset, trained: list[tuple[int, int]], chosen: list[tuple[in
     evaluated split, for a calibration split), never ``used`` itself; else S free of training queries only, said;
     else retraining apart from the split in use. Names the split in use when it is the test split (the numbers
     to keep clean: retrain)."""
-    test = next((s for s in ds.splits if s.lower() == "test"), None)
+    test = named_test_split(ds.splits)
     both = _free(ds, [*trained, *chosen], used, avoid)
     if both is not None and flag == "--split" and used == test:
         a, b = ds.ranges(test)["query"]
