@@ -167,7 +167,7 @@ def test_an_out_and_back_leg_within_one_sequence_is_named():
     said = reversed_route(GroundTruth(route[:, None], ref, 1.0), METHODS)
     assert said.startswith("query frames 199:300 (references 199 back to 100) run opposite") and "-rev" in said
     pos = Positives.from_lists([[int(p)] for p in route])
-    assert backward_legs(GroundTruth(route[:, None], ref, 1.0, pos), (0, 300)) == [(199, 300, 199.0, 100.0)]
+    assert backward_legs(GroundTruth(route[:, None], ref, 1.0, pos), [(0, 300)]) == [(199, 300, 199.0, 100.0)]
     rng = np.random.default_rng(0)
     stops = np.concatenate([np.arange(80), np.full(60, 80), np.arange(80, 200)]).astype(float)
     jitter = np.stack([10 * stops + rng.normal(0, 3, len(stops)), rng.normal(0, 3, len(stops))], axis=1)
@@ -213,7 +213,7 @@ def test_one_matching_pass_for_every_sequence_finds_the_legs_of_each():
     q = np.r_[out_back, np.arange(200, 360)].astype(float)
     truth = SimpleNamespace(positives=None, r_pos=r, q_pos=np.c_[q, np.zeros(len(q))], radius=1.5)
     runs = [(0, 200), (200, 360)]
-    per_run = [leg for run in runs for leg in backward_legs(truth, run)]
+    per_run = [leg for run in runs for leg in backward_legs(truth, [run])]
     assert len(per_run) == 1
     a, b, r0, r1 = per_run[0]
     line = backward_leg_line(truth, runs, np.arange(len(q)), "raw+seqmatch")

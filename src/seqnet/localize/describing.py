@@ -212,8 +212,7 @@ def dataset_pca(ref_map: Reference, map_dir: str | Path | None, prov: dict) -> P
     if own is not None:
         return load_dataset_pca(own, prov)
     meta = getattr(ref_map, "meta", None)  # an index map: map.json names the dataset it was built from
-    source = meta.get("source") if isinstance(meta, dict) and isinstance(meta.get("source"), dict) else {}
-    dataset = source.get("dataset_path") if isinstance(source.get("dataset_path"), str) else map_dir
+    dataset = map_dataset(ref_map, map_dir)
     if dataset is None:
         raise ConfigError("the map's descriptors were reduced by a dataset's PCA (--pca), but the map names no "
                           "dataset to read it from; describe the query images yourself and pass the file as --query")

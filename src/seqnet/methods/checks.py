@@ -16,11 +16,10 @@ from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import longest_option
 from .grammar import Method
 from .route import REVERSED_BELOW, TRIVIAL_SHARE, reversed_route, route_direction, trivial_truth  # noqa: F401
-from .trained import (  # noqa: F401 - same_path, named_test_split: methods.checks names, used by others
+from .trained import (  # noqa: F401 - named_test_split: a methods.checks name, used by others
     MAX_RECORD_TEXT,
     free_hint,
     named_test_split,
-    same_path,
     train_range,
     used_ranges,
 )

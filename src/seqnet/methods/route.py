@@ -5,7 +5,7 @@ and kept in the results' ``warnings`` by ``seqnet eval``): a query sequence driv
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -86,22 +86,25 @@ def window_correlations(q: np.ndarray, r: np.ndarray, w: int) -> np.ndarray:
     return np.where(den > 0, (qc * rc).sum(axis=1) / np.where(den > 0, den, 1.0), 0.0)
 
 
-def backward_legs(truth: Any, rows: tuple[int, int]) -> list[tuple[int, int, float, float]]:
-    """The runs of query items within ``rows`` (``a:b``, one sequence that as a whole runs forward) whose correct
-    references go back: ``(first item, last item + 1, reference at its start, at its end)`` each, from the
+def backward_legs(truth: Any, runs: Sequence[tuple[int, int]]) -> list[tuple[int, int, float, float]]:
+    """The runs of query items within each of ``runs`` (``a:b``, a sequence that as a whole runs forward) whose
+    correct references go back: ``(first item, last item + 1, reference at its start, at its end)`` each, from the
     farthest reference of the run to its nearest. Over at most
-    :data:`LEG_SAMPLES` evenly spaced items with a correct reference, a window of ``w`` of them (1/25 of them, at
-    least 8) is backward when the correlation of item and reference index in it is below :data:`REVERSED_BELOW`;
-    a run of overlapping backward windows is a leg when it spans ``2 w`` items and its reference goes back by at
-    least ``w / 2`` frames (a stop's jitter does neither). O(S w), ``w`` bounded by the samples: O(S)."""
-    a, b = rows
-    if len(truth.r_pos) == 0 or b - a < 16:
+    :data:`LEG_SAMPLES` evenly spaced items with a correct reference per sequence, a window of ``w`` of them (1/25
+    of them, at least 8) is backward when the correlation of item and reference index in it is below
+    :data:`REVERSED_BELOW`; a run of overlapping backward windows is a leg when it spans ``2 w`` items and its
+    reference goes back by at least ``w / 2`` frames (a stop's jitter does neither). One matching pass serves every
+    sequence (:func:`legs_of` each); O(S w), ``w`` bounded by the samples: O(S)."""
+    runs = [(a, b) for a, b in runs if b - a >= 16]
+    if not runs or len(truth.r_pos) == 0:
         return []
-    return legs_of(*_matched_refs(truth, a + spread(b - a, LEG_SAMPLES)))
+    q, r = _matched_refs(truth, np.unique(np.concatenate([a + spread(b - a, LEG_SAMPLES) for a, b in runs])))
+    cuts = np.searchsorted(q, np.asarray(runs).ravel())  # sliced per run
+    return [leg for lo, hi in cuts.reshape(-1, 2) for leg in legs_of(q[lo:hi], r[lo:hi])]
 
 
 def legs_of(q: np.ndarray, r: np.ndarray) -> list[tuple[int, int, float, float]]:
-    """:func:`backward_legs` of one sequence's sampled query items ``q [S]`` (ascending) with a correct reference,
+    """The backward legs of one sequence's sampled query items ``q [S]`` (ascending) with a correct reference,
     and each one's reference index ``r [S]``."""
     w = max(8, len(q) // 25)
     if len(q) < 2 * w:
@@ -137,13 +140,13 @@ def reversed_route(truth: Any, methods: Iterable[str], bounds: np.ndarray | None
     forward = [n for n in methods if not parse_method(n).single_frame and not n.endswith("-rev")]
     if not forward:
         return None
-    runs = sequences(bounds, np.arange(len(truth.q_pos)) if items is None else np.asarray(items))
+    frames = np.arange(len(truth.q_pos)) if items is None else np.asarray(items)
+    runs = sequences(bounds, frames)
     corr = {seq: route_direction(truth, rows=r) for seq, r in runs.items()}
     back = [(seq, c) for seq, c in corr.items() if c is not None and c < REVERSED_BELOW]
     named = f"{', '.join(forward[:4])}{' ...' if len(forward) > 4 else ''}"
     if not back:
-        frames = np.arange(len(truth.q_pos)) if items is None else np.asarray(items)
-        return backward_leg_line(truth, [r for r in runs.values()], frames, named)
+        return backward_leg_line(truth, list(runs.values()), frames, named)
     if len(back) == len(runs):  # the whole traverse (one sequence, or every one)
         whole = route_direction(truth) if len(runs) > 1 else None
         whole = back[0][1] if whole is None else whole
@@ -162,12 +165,7 @@ def backward_leg_line(truth: Any, runs: list[tuple[int, int]], frames: np.ndarra
     """The line for query sequences (item ranges ``runs``) that run forward as a whole but hold a leg whose correct
     references go back (:func:`backward_legs`: an out-and-back drive in one sequence); ``frames [M]``: each item's
     query frame. None when there is none."""
-    runs = [(a, b) for a, b in runs if b - a >= 16]
-    if not runs or len(truth.r_pos) == 0:
-        return None
-    q, r = _matched_refs(truth, np.unique(np.concatenate([a + spread(b - a, LEG_SAMPLES) for a, b in runs])))
-    cuts = np.searchsorted(q, np.asarray(runs).ravel())  # one matching pass for every sequence, sliced per run
-    legs = [leg for lo, hi in cuts.reshape(-1, 2) for leg in legs_of(q[lo:hi], r[lo:hi])]
+    legs = backward_legs(truth, runs)
     if not legs:
         return None
     which = ", ".join(f"{int(frames[a])}:{int(frames[b - 1]) + 1} (references {r0:.0f} back to {r1:.0f})"

@@ -24,6 +24,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..core.errors import ConfigError
+from ..core.log import counted
 from ..methods.grammar import parse_method
 
 SEQUENCE_BASELINES = ("smoothing", "delta", "delta-paper")
@@ -93,14 +94,16 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
     out = []
     queries = entry.get("queries")
     apart = round((gap[1] - gap[0]) * queries) if gap is not None and isinstance(queries, int) else None
-    if apart is not None and within_chance(apart):
+    chance = apart is not None and within_chance(apart)
+    if chance:
         out.append(f"possibly chance: {apart} of {queries} queries apart (a sign test cannot tell fewer than "
                    f"{CHANCE_QUERIES + 1} apart from chance)")
     m = parse_method(name)
     capped = shortlist_capped(name, entry)
     if capped:
         out.append(capped)
-    if m.kind == "hvpr" and m.shortlist and not parse_method(m.shortlist).models():
+    free_shortlist = m.kind == "hvpr" and bool(m.shortlist) and not parse_method(m.shortlist).models()
+    if free_shortlist:
         top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
         r1 = entry.get("recall@1", 0.0)
         better = [b for b in ("hvpr", "hvpr-fused") if isinstance((methods.get(b) or {}).get("recall@1"), float)
@@ -123,9 +126,7 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
         out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
     if isinstance(queries, int) and 0 < queries < 50:
         out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@1)")
-    explained = bool(out) and (out[0].startswith("possibly chance") or capped is not None or
-                               any(c.startswith("its shortlist is the model-free") for c in out))
-    if not explained:  # the other causes (D, L, few queries) may add to it: it is said beside them
+    if not (chance or capped or free_shortlist):  # the other causes (D, L, few queries) may add to it: said beside
         out.append(f"too little or too different training data for the model's D x out x w weights{_learnt(models)}, "
                    "or a val split too small to choose the epoch (the training log of seqnet train says both)")
     return tuple(out)
@@ -134,7 +135,7 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
 def _learnt(models: Mapping[str, Any]) -> str:
     """`` (S_1 learnt from 12 training queries)``: the training queries each model's checkpoint records
     (``training_queries`` of :func:`model_entries`); "" when none does."""
-    said = [f"{'S_1' if role == 's1' else 'S_L'} learnt from {n} training quer{'y' if n == 1 else 'ies'}"
+    said = [f"{'S_1' if role == 's1' else 'S_L'} learnt from {counted(n, 'training query', 'training queries')}"
             for role, v in sorted(models.items(), key=lambda kv: kv[0] != "seqnet") if isinstance(v, Mapping)
             and type(n := v.get("training_queries")) is int and n > 0]
     return f" ({', '.join(said)})" if said else ""
@@ -160,8 +161,7 @@ def shortlist_capped(name: str, entry: Mapping[str, Any]) -> str | None:
     cap, r1, queries = entry.get("shortlist_recall"), entry.get("recall@1"), entry.get("queries")
     if not isinstance(cap, Mapping) or not isinstance(r1, (int, float)) or not isinstance(cap.get("recall"), float):
         return None
-    step = 1.0 / queries if isinstance(queries, int) and queries > 0 else 0.001
-    if cap["recall"] - float(r1) >= step - 1e-9:
+    if cap["recall"] - float(r1) >= one_query(queries) - 1e-9:
         return None
     shortlist = parse_method(name).shortlist
     return (f"its shortlist ({shortlist} top-{cap['k']}) holds a correct reference for only {cap['recall']:.3f} of "
@@ -192,11 +192,14 @@ def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
         if not scored:
             continue
         best, base = max(scored)
-        queries = entry.get("queries")
-        step = 1.0 / queries if isinstance(queries, int) and queries > 0 else 0.001
-        if best - float(r1) >= step - 1e-9:
+        if best - float(r1) >= one_query(entry.get("queries")) - 1e-9:
             notes.append(Note(name, base, float(r1), best, likely_causes(name, results, (float(r1), best)), k))
     return notes
+
+
+def one_query(queries: Any) -> float:
+    """What one query is of a recall over ``queries`` (``1 / queries``; 0.001 when the count is unknown)."""
+    return 1.0 / queries if isinstance(queries, int) and queries > 0 else 0.001
 
 
 def compared_k(methods: Mapping[str, Any]) -> int:
