@@ -34,7 +34,6 @@ from ..security.text import shown
 from .convert import names_flag, read_csv_rows
 from .readers import read_descriptor_file, read_provenance, read_text
 from .timematch import gap_hint, nearest_in_time
-from .timematch import nearest_within as nearest_within  # where sources.bags imports it from
 from .traverse import Traverse
 from .utm import latlon_to_utm
 

@@ -131,12 +131,12 @@ class VideoQuery:
         if inside.any():
             correct[inside], has[inside] = frame_truth(q_pos[inside], r_pos, radius, best[inside])
         self.counts["outside"] = int((~inside).sum())
-        if self.track is not None and has.sum() >= 10 and correct[has].mean() < 0.2:
+        from ..sources.tracks.offset import clock_offset, mostly_wrong, offset_note
+
+        if self.track is not None and mostly_wrong(correct[has]):
             answered = best >= 0
             est = np.full((len(best), 2), np.nan)
             est[answered] = r_pos[best[answered]]
-            from ..sources.tracks.offset import clock_offset, offset_note
-
             note = offset_note(clock_offset(times, est, self.track.times, self.track.xy), not self.track.absolute)
             if note:
                 logger.warning("%s", note)

@@ -36,7 +36,6 @@ from .csvfile import (
     SEQUENCE_COLUMNS,
     PositionsTable,
     agreed_kinds,
-    position_kinds,
     read_csv_rows,
     read_positions_csv,
     read_positions_table,
@@ -48,7 +47,7 @@ from .names import CsvNames, match_names, warn_reordered
 
 __all__ = [
     "FRAME_COLUMNS", "NAME_COLUMNS", "POSITION_MAX", "SEQUENCE_COLUMNS", "CsvNames", "agreed_kinds", "assemble_dataset",
-    "match_names", "names_flag", "position_kinds", "positives_radius", "read_csv_rows", "read_positions_csv",
+    "match_names", "names_flag", "positives_radius", "read_csv_rows", "read_positions_csv",
     "read_positions_table", "read_seq_bounds",
     "runs_to_bounds", "sequence_bounds", "traverse_from_csv", "traverse_from_utm_names", "traverses_in_metres",
     "warn_reordered",

@@ -90,7 +90,11 @@ def position_kinds(path: str | Path) -> dict[str, list[str]]:
     order: the first is used by default), each with its columns as the header names them."""
     p = Path(path)
     header, _ = read_csv_rows(p, quiet=True)  # said when the rows are read
-    col = _find_columns(header, p)
+    return _kinds(header, _find_columns(header, p))
+
+
+def _kinds(header: list[str], col: dict[str, int]) -> dict[str, list[str]]:
+    """The kinds of positions of a header whose columns are ``col`` (:func:`position_kinds`)."""
     return {k: [header[col[c]] for c in cs] for k, cs in KIND_COLUMNS.items() if all(c in col for c in cs)}
 
 
@@ -122,12 +126,12 @@ def read_positions_table(path: str | Path, kind: str | None = None) -> Positions
     p = Path(path)
     header, rows = read_csv_rows(p)
     col = _find_columns(header, p)
-    kinds = [k for k, cs in KIND_COLUMNS.items() if all(c in col for c in cs)]
+    kinds = _kinds(header, col)
     if kind is not None and kind not in kinds:
         raise DatasetError(f"{p}: header {header} has no {kind} position columns (it has {', '.join(kinds)})")
     if kind is None and "metres" in kinds and "degrees" in kinds:
-        _say_kinds(p, {k: [header[col[c]] for c in KIND_COLUMNS[k]] for k in kinds}, kinds[0], "the first kind")
-    kind = kind or kinds[0]
+        _say_kinds(p, kinds, next(iter(kinds)), "the first kind")
+    kind = kind or next(iter(kinds))
     col = {k: i for k, i in col.items() if k in ("name", "seq") or k in KIND_COLUMNS[kind]}
     for line, r in rows:
         if len(r) <= max(col.values()):

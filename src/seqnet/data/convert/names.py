@@ -103,8 +103,9 @@ def match_names(wanted: list[str], available: list[str], what: str) -> np.ndarra
         hits = [table.get(key(n), []) for n in wanted]
         if all(hits):
             _refuse_ambiguous(wanted, available, hits, what)
-            odd = next((i for i, h in enumerate(hits) if _stem(wanted[i]) != _stem(available[h[0]])), None)
-            if key is _by_value and odd is not None:
+            odd = None if key is not _by_value else \
+                next((i for i, h in enumerate(hits) if _stem(wanted[i]) != _stem(available[h[0]])), None)
+            if odd is not None:
                 logger.info("%s: names matched as numbers (%r and %r): leading zeros stripped (a spreadsheet?)",
                             what, wanted[odd], available[hits[odd][0]])
             return np.asarray([h[0] for h in hits], dtype=np.int64)

@@ -199,7 +199,7 @@ def match_positions(stamps: np.ndarray, positions: Positions, tolerance: float, 
 
     Raises :class:`DatasetError` naming the first image farther than ``tolerance`` seconds from every position
     message (a position that far off would be a wrong ground truth, not an approximate one)."""
-    from ...data.gps import nearest_within
+    from ...data.timematch import nearest_within
 
     stamps = np.asarray(stamps, np.int64)
     nearest = nearest_within(positions.stamps, stamps, tolerance, lambda i, gap, count: (

@@ -48,6 +48,12 @@ def offset_note(offset: float | None, numeric: bool = False) -> str | None:
     return f"{said}: is --video-start (or the video's creation_time) {d:.1f} s {fix}?"
 
 
+def mostly_wrong(correct: np.ndarray) -> bool:
+    """Whether answers ``correct [N]`` (bool) are enough (10 or more) and mostly wrong (under :data:`WRONG_SHARE`
+    correct): when a clock offset is looked for."""
+    return len(correct) >= 10 and bool(correct.mean() < WRONG_SHARE)
+
+
 def dataset_offset_note(ds: Any, q_items: np.ndarray, r_items: np.ndarray, top1: np.ndarray) -> str | None:
     """The warning line when the query track of a ``dataset from-video`` dataset ``ds`` (a
     :class:`~seqnet.data.traverse.Dataset` whose ``extra`` has ``videos`` with tracks) runs a constant time off the
@@ -66,7 +72,7 @@ def dataset_offset_note(ds: Any, q_items: np.ndarray, r_items: np.ndarray, top1:
     q_xy = ds.query.positions[q]
     est_xy = np.where((top >= 0)[:, None], ds.reference.positions[np.asarray(r_items)[np.maximum(top, 0)]], np.nan)
     correct = np.linalg.norm(est_xy - q_xy, axis=1) <= ds.radius  # no answer (NaN): wrong
-    if len(correct) < 10 or correct.mean() >= WRONG_SHARE:
+    if not mostly_wrong(correct):
         return None
     order = np.argsort(q_times, kind="stable")
     offset = clock_offset(q_times, est_xy, q_times[order], q_xy[order])
