@@ -182,8 +182,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     if warnings:
         record["warnings"] = warnings
     truth = _truth(ds, loc, est)
-    if truth is not None:
-        record["truth"] = truth.record()
+    record["truth"] = truth.record()
     write_track(check_output(out), track_rows(est, ds.query.names, ds.reference.names, correct, accept, truth),
                 record)
     logger.debug("localize: %s", json.dumps(summary))
@@ -209,8 +208,7 @@ def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mappi
         return conf, None
     selection = found["selection"]
     for choice in selection.get("hvpr", []):
-        conf = conf.replace(**{k: v for k, v in choice["settings"].items() if k in ("top_k", "fuse_top_k",
-                                                                                      "fuse_weight")})
+        conf = conf.replace(**choice["settings"])  # of SELECTABLE: top_k, fuse_top_k, fuse_weight
         logger.info("%s", shown(choice["reason"]))
     for key in ("not_chosen", "warning"):
         if selection.get(key):
@@ -218,10 +216,9 @@ def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mappi
     return conf, selection
 
 
-def _truth(ds: Dataset, loc: Localizer, est: Sequence[Estimate]) -> FrameTruth | None:
-    """Each replayed frame's position and the error of its estimate (:class:`FrameTruth`); None without positions."""
-    if ds.query.positions is None or ds.reference.positions is None:
-        return None
+def _truth(ds: Dataset, loc: Localizer, est: Sequence[Estimate]) -> FrameTruth:
+    """Each replayed frame's position and the error of its estimate (:class:`FrameTruth`; a dataset's traverses
+    always hold positions)."""
     best = np.array([e.ref_index for e in est], dtype=np.int64)
     return FrameTruth.of(ds.query.positions, ds.reference.positions[loc.ref_items], best, ds.position_unit)
 
