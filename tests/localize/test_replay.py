@@ -77,3 +77,27 @@ def test_hvpr_settings_are_chosen_on_val_as_eval_chooses_them(synth_dir, tmp_pat
                      "--top-k", "7", "--out", str(tmp_path / "k.csv")]) == 0
     record = json.loads((tmp_path / "k.json").read_text())
     assert record["config"]["top_k"] == 7 and "selection" not in record
+
+
+def test_hvpr_settings_chosen_on_training_queries_are_warned_as_eval_warns(tmp_path, caplog):
+    """``localize --dataset`` choosing K on val queries that the S_1 model trained on says so, in the log and the
+    track's JSON, with the few-val-queries warning beside it (the choice's leakage was said by eval only)."""
+    from seqnet.cli import main as cli_main
+    from seqnet.data.synth import make_synthetic
+
+    ds = make_synthetic(places=200, dim=8)
+    data = save_dataset(ds, tmp_path / "ds")
+    a, b = ds.ranges("val")["query"]
+    assert cli_main(["-q", "--threads", "1", "train", "--dataset", str(data), "--seq-len", "1", "--train-split",
+                     f"0:{b}", "--out", str(tmp_path / "run"), "--epochs", "1", "--out-dims", "8", "--n-neg-sample",
+                     "50", "--cache-refresh", "40", "--device", "cpu"]) == 0
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        assert cli_main(["localize", "--dataset", str(data), "--model", str(tmp_path / "run" / "best.pt"), "--method",
+                         "hvpr-delta:s1+seqmatch", "--seq-len", "3", "--out", str(tmp_path / "t.csv")]) == 0
+    said = json.loads((tmp_path / "t.json").read_text())["warnings"]
+    leak = [w for w in said if w.startswith("HVPR settings of hvpr-delta:s1+seqmatch chosen on the val split")]
+    assert len(leak) == 1 and f"({a}:{b}, {b - a} queries), of which {b - a} are training queries of the S_1" in leak[0]
+    assert any("the choice is mostly chance" in w for w in said), said
+    logged = [r.getMessage() for r in caplog.records]
+    assert all(logged.count(w) == 1 for w in said), logged  # each said once

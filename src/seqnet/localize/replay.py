@@ -159,7 +159,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     if calibration is not None:
         check_calibration_split(full, calibration[1], split)
-    conf, selection = chosen_on_val(conf, full, split, loaded, choose if distances is None else ())
+    conf, selection = chosen_on_val(conf, full, split, loaded, choose if distances is None else (), dataset)
     ds = full.split(split)
     loc, est, correct, has = _replay_split(conf, ds, full, split, loaded, distances, reading)
     radius = conf.radius or ds.radius
@@ -178,7 +178,8 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
                              "models": {r: m.provenance for r, m in loaded.items()}}}
     if selection:
         record["selection"] = selection
-    warnings = _notices(conf, full, split, loaded, dataset, summary, calibration)
+    warnings = _notices(conf, full, split, loaded, dataset, summary, calibration,
+                        [(selection or {}).get(k) for k in ("warning", "leakage")])
     if warnings:
         record["warnings"] = warnings
     truth = _truth(ds, loc, est)
@@ -190,11 +191,14 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
 
 
 def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mapping[str, SeqNet],
-                  choose: Sequence[str]) -> tuple[LocalizeConfig, dict[str, Any] | None]:
-    """``conf`` with the HVPR settings of ``choose`` chosen on the val split of ``full`` for replaying ``split``, as
-    ``seqnet eval --window causal`` chooses them (:func:`seqnet.eval.select.choose_on_val`: never on test; nothing
-    chosen on val itself, or without one), and what was chosen and why (None: nothing to say; the reasons are
-    logged). So the replay's R@1 is the one eval gives with the same settings."""
+                  choose: Sequence[str], dataset: str | Path | None = None
+                  ) -> tuple[LocalizeConfig, dict[str, Any] | None]:
+    """``conf`` with the HVPR settings of ``choose`` chosen on the val split of ``full`` (the dataset directory
+    ``dataset``) for replaying ``split``, as ``seqnet eval --window causal`` chooses them
+    (:func:`seqnet.eval.select.choose_on_val`: never on test; nothing chosen on val itself, or without one), and
+    what was chosen and why (None: nothing to say; the reasons are logged; a choice made on the models' training
+    queries, or few val queries, is the selection's ``"leakage"`` / ``"warning"``, said with the run's other
+    warnings). So the replay's R@1 is the one eval gives with the same settings."""
     from ..eval.config import EvalConfig
     from ..eval.select import choose_on_val
 
@@ -203,16 +207,15 @@ def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mappi
     econf = EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, match_len=conf.match_len, window="causal",
                        radius=conf.radius, top_k=conf.top_k, fuse_weight=conf.fuse_weight,
                        fuse_top_k=conf.fuse_top_k, device=conf.device, allow_mismatch=conf.allow_mismatch)
-    _, found = choose_on_val(full, split, loaded, econf, choose)
+    _, found = choose_on_val(full, split, loaded, econf, choose, dataset)
     if found is None:
         return conf, None
     selection = found["selection"]
     for choice in selection.get("hvpr", []):
         conf = conf.replace(**choice["settings"])  # of SELECTABLE: top_k, fuse_top_k, fuse_weight
         logger.info("%s", shown(choice["reason"]))
-    for key in ("not_chosen", "warning"):
-        if selection.get(key):
-            logger.warning("%s", shown(selection[key]))
+    if selection.get("not_chosen"):
+        logger.warning("%s", shown(selection["not_chosen"]))
     return conf, selection
 
 
@@ -224,14 +227,16 @@ def _truth(ds: Dataset, loc: Localizer, est: Sequence[Estimate]) -> FrameTruth:
 
 
 def _notices(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mapping[str, SeqNet], dataset: str | Path,
-             summary: Mapping[str, Any], calibration: tuple[float, str, float] | None) -> list[str]:
+             summary: Mapping[str, Any], calibration: tuple[float, str, float] | None,
+             chosen: Sequence[str | None] = ()) -> list[str]:
     """What eval says beside the same R@1 (``eval --window causal``), said as warnings: no split named test,
-    training or epoch-selection queries among the replayed ones (:func:`seqnet.eval.notices.scored_notices`), and
-    an R@1 over few frames (:func:`seqnet.eval.notices.few_queries`)."""
+    training or epoch-selection queries among the replayed ones (:func:`seqnet.eval.notices.scored_notices`), what
+    the choice of HVPR settings on val warned of (``chosen``: few val queries, training queries), and an R@1 over
+    few frames (:func:`seqnet.eval.notices.few_queries`)."""
     from ..eval.notices import few_queries, say, scored_notices
 
     lines: list[str | None] = [*scored_notices(conf.split, full, split, loaded, dataset,
-                                               calibration[1] if calibration is not None else None)]
+                                               calibration[1] if calibration is not None else None), *chosen]
     if "recall@1" in summary:  # absent when no replayed frame has a true match
         lines.append(few_queries({conf.method: (summary["queries"], summary["recall@1"])}))
     return say(lines)
