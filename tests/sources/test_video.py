@@ -158,6 +158,29 @@ def test_a_file_of_two_video_streams_is_said_and_either_can_be_read(tmp_path, ca
         VideoFile(path, stream=2, flag="--query-stream")
 
 
+def test_every_stream_that_may_be_read_is_bounded_before_decoding(tmp_path):
+    """Each video stream but a cover picture has its frame size checked on opening (only the first was: a larger
+    second stream, readable with --stream 1, passed to the per-frame check); a large cover picture is no video."""
+    from types import SimpleNamespace
+
+    front = drive(4, 1)
+    big = [np.repeat(np.repeat(f, 2, axis=0), 2, axis=1) for f in front]  # 64x32 beside 32x16
+    container, f = open_video_file(_dual(tmp_path / "dual.mp4", big, front))
+    with pytest.raises(DatasetError, match="declares frames of 64x32 pixels, more than the limit of 600"):
+        check_streams(container, "dual.mp4", max_pixels=600)
+    f.close()
+
+    def stream(w, h, disposition):
+        return SimpleNamespace(codec_context=SimpleNamespace(width=w, height=h, name="h264"), disposition=disposition)
+
+    cover, video = stream(600, 600, 0x400), stream(64, 32, 0)
+    container = SimpleNamespace(streams=SimpleNamespace(video=[cover, video]), close=lambda: None)
+    assert check_streams(container, "song.mp4", max_pixels=5000) is video  # the cover is never decoded
+    container = SimpleNamespace(streams=SimpleNamespace(video=[cover]), close=lambda: None)
+    with pytest.raises(DatasetError, match="600x600"):  # a cover alone is what would be read
+        check_streams(container, "song.mp4", max_pixels=5000)
+
+
 def test_one_video_stream_is_silent(video, caplog):
     assert VideoFile(video).stream_number == 0 and not caplog.text
 

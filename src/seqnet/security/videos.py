@@ -5,8 +5,9 @@
 * Its container is recognised from its first bytes (:data:`CONTAINERS`: MP4/MOV, Matroska/WebM, AVI, MPEG-TS,
   MPEG-PS, FLV, Ogg) and only that demuxer reads it; FFmpeg does not probe the bytes with every demuxer it has
   (a playlist or a concat list would make it open what they name).
-* A frame size above ``max_pixels`` (:data:`~seqnet.security.pictures.MAX_PIXELS`) is refused from the stream's
-  header, before a frame is decoded, and again for each frame decoded (a stream may change size).
+* A frame size above ``max_pixels`` (:data:`~seqnet.security.pictures.MAX_PIXELS`) is refused from the header of
+  every video stream that may be decoded (all but cover pictures), before a frame is decoded, and again for each
+  frame decoded (a stream may change size).
 * A live stream (a URL the user names, or a V4L2 device ``/dev/videoN``) is opened with a timeout: a stream that
   stalls is a :class:`~seqnet.core.errors.DatasetError` after ``timeout`` seconds, never a hang.
 * Whatever PyAV raises on damaged bytes is one :class:`~seqnet.core.errors.DatasetError` naming the video.
@@ -32,6 +33,7 @@ URL = re.compile(r"([a-z][a-z0-9+.-]*)://", re.IGNORECASE)
 DEVICE = re.compile(r"/dev/video[0-9]{1,3}")
 DEFAULT_TIMEOUT = 10.0  # seconds a live stream may stall before it is given up
 MAX_VIDEO_BYTES = 1 << 40  # a larger "video" is refused before FFmpeg reads it
+ATTACHED_PIC = 0x400  # FFmpeg's AV_DISPOSITION_ATTACHED_PIC: a cover picture stored as a one-frame video stream
 
 
 def container_of(head: bytes) -> str | None:
@@ -97,19 +99,30 @@ def open_video_file(path: str | os.PathLike[str]) -> tuple[Any, Any]:
         raise
 
 
-def check_streams(container: Any, where: Any, max_pixels: int = MAX_PIXELS) -> Any:
-    """The first video stream of an open container, its frame size checked against ``max_pixels`` (and its
-    codec known) before a frame is decoded; else :class:`DatasetError` (the container is closed)."""
+def is_cover(stream: Any) -> bool:
+    """Whether a PyAV video stream is an attached picture (cover art), not a video."""
     try:
-        if not container.streams.video:
+        return bool(int(getattr(stream, "disposition", 0) or 0) & ATTACHED_PIC)
+    except (TypeError, ValueError):
+        return False
+
+
+def check_streams(container: Any, where: Any, max_pixels: int = MAX_PIXELS) -> Any:
+    """The first video stream of an open container that is not a cover picture (else the first), every stream that
+    may be decoded (each that is not a cover picture, else the first) checked before a frame is decoded: its frame
+    size against ``max_pixels``, its codec known; else :class:`DatasetError` (the container is closed)."""
+    try:
+        streams = list(container.streams.video)
+        if not streams:
             raise DatasetError(f"{shown(where)} holds no video stream")
-        stream = container.streams.video[0]
-        cc = stream.codec_context
-        if cc is None or not getattr(cc, "name", None):
-            raise DatasetError(f"{shown(where)}: the video stream's codec is unknown to FFmpeg (codec id "
-                               f"{getattr(stream, 'codec_tag', '?')!r})")
-        check_size(int(cc.width or 0), int(cc.height or 0), where, max_pixels)
-        return stream
+        videos = [s for s in streams if not is_cover(s)] or streams[:1]  # a cover is never decoded
+        for stream in videos:
+            cc = stream.codec_context
+            if cc is None or not getattr(cc, "name", None):
+                raise DatasetError(f"{shown(where)}: the video stream's codec is unknown to FFmpeg (codec id "
+                                   f"{getattr(stream, 'codec_tag', '?')!r})")
+            check_size(int(cc.width or 0), int(cc.height or 0), where, max_pixels)
+        return videos[0]
     except BaseException:
         container.close()
         raise

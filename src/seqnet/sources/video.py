@@ -25,7 +25,7 @@ import numpy as np
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..core.log import logger, warn_once
 from ..security.text import shown
-from ..security.videos import av_errors, check_size, open_video_file, why
+from ..security.videos import av_errors, check_size, is_cover, open_video_file, why
 from .sampling import every_seconds
 from .times import parse_iso
 
@@ -73,17 +73,6 @@ def frame_image(frame: Any) -> Any:
     return im if quarter == 0 else im.transpose((t.ROTATE_90, t.ROTATE_180, t.ROTATE_270)[quarter - 1])
 
 
-ATTACHED_PIC = 0x400  # FFmpeg's AV_DISPOSITION_ATTACHED_PIC: a cover picture stored as a one-frame video stream
-
-
-def is_cover(stream: Any) -> bool:
-    """Whether a PyAV video stream is an attached picture (cover art), not a video."""
-    try:
-        return bool(int(getattr(stream, "disposition", 0) or 0) & ATTACHED_PIC)
-    except (TypeError, ValueError):
-        return False
-
-
 def _said(i: int, stream: Any) -> str:
     cc = stream.codec_context
     return f"{i}: {cc.width}x{cc.height}" + (" cover picture" if is_cover(stream) else "")
@@ -92,7 +81,8 @@ def _said(i: int, stream: Any) -> str:
 def choose_stream(container: Any, where: Any, number: int | None = None, flag: str = "--stream") -> tuple[Any, int]:
     """``(stream, n)``: video stream ``number`` of an open container (0: its first video stream), else the first
     that is not a cover picture; more than one such video stream is warned (their sizes, the one used, ``flag``), a
-    ``number`` it lacks or a cover picture is a :class:`ConfigError`. Its frame size is checked before decoding."""
+    ``number`` it lacks or a cover picture is a :class:`ConfigError`. Its frame size was checked on opening
+    (:func:`seqnet.security.videos.check_streams`)."""
     streams = list(container.streams.video)
     listed = ", ".join(_said(i, s) for i, s in enumerate(streams))
     if number is not None:
@@ -107,9 +97,7 @@ def choose_stream(container: Any, where: Any, number: int | None = None, flag: s
         if len(videos) > 1:
             logger.warning("%s has %d video streams (%s); using %d (hint: %s N picks another, 0 the first)",
                            where, len(streams), listed, chosen, flag)
-    stream = streams[chosen]
-    check_size(int(stream.codec_context.width or 0), int(stream.codec_context.height or 0), where)
-    return stream, chosen
+    return streams[chosen], chosen  # its frame size was checked on opening (security.videos.check_streams)
 
 
 def _close(container: Any, file: Any) -> None:
