@@ -10,7 +10,8 @@
   route order (:func:`seqnet.data.spacing.out_of_order`), exact duplicate rows of either side
   (:func:`duplicated_rows`), square positives that read better transposed (:func:`.truth.transposed_positives`), a
   frame radius as wide as a metres one (:func:`.truth.wide_frame_radius`), a frozen GPS fix
-  (:func:`.truth.frozen_positions`). One line each.
+  (:func:`.truth.frozen_positions`), the reference's positions given for the query too
+  (:func:`.positions.copied_positions`). One line each.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from ..order import natural_key
 from ..spacing import out_of_order
 from ..traverse import Dataset
 from .copies import copied_queries, duplicated_rows
+from .positions import copied_positions
 from .truth import (
     constant_positions,
     degree_positions,
@@ -96,7 +98,8 @@ def dataset_warnings(ds: Dataset) -> list[str]:
     found = [copied_queries(ds), shared_queries(ds, list(ds.splits)), constant_positions(ds), *route_order(ds),
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
              transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), unmatched_splits(ds),
-             matrix_as_descriptors(ds), *frozen(ds)]
+             matrix_as_descriptors(ds), *frozen(ds),
+             copied_positions(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
 
 

@@ -1,0 +1,58 @@
+"""The reference's positions given for the query too (seqnet.data.sanity.positions): said when the images show
+other places at the same rows; silent for traverses recorded in sync that share one track."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seqnet.data.positives import Positives
+from seqnet.data.sanity import dataset_warnings
+from seqnet.data.sanity.positions import copied_positions, own_row_rank
+from seqnet.data.traverse import Dataset, Traverse
+
+
+def drive(shift: int, n: int = 60, same_positions: bool = True, **kw) -> Dataset:
+    """Places 10 m apart; the query's images start ``shift`` places later; its positions: the reference's
+    (``same_positions``) or its own, with 1 m noise."""
+    rng = np.random.default_rng(2)
+    place = rng.standard_normal((n + shift, 16))
+    ref = (place[:n] + 0.3 * rng.standard_normal((n, 16))).astype(np.float32)
+    qry = (place[shift:] + 0.3 * rng.standard_normal((n, 16))).astype(np.float32)
+    r_pos = np.c_[500000 + 10.0 * np.arange(n), 7000000 + 30 * np.sin(np.arange(n) / 40)]
+    q_pos = r_pos.copy() if same_positions else r_pos + 10.0 * shift + rng.normal(0, 1, r_pos.shape)
+    return Dataset(Traverse(ref, r_pos, [f"f{i:04d}.png" for i in range(n)], name="reference"),
+                   Traverse(qry, q_pos, [f"f{i:04d}.png" for i in range(n)], name="query"), 12.0, name="d", **kw)
+
+
+def test_the_reference_positions_given_for_the_query_are_said():
+    [line] = dataset_warnings(drive(15))
+    assert line.startswith("d: the query positions are the reference positions, row for row (all 60 equal), but the "
+                           "images disagree: the reference image of a query's own row is farther from it than ")
+    assert line.endswith("the same positions file given for both traverses? (hint: give the query traverse's own "
+                         "positions, e.g. --query-csv)")
+
+
+def test_synchronised_traverses_sharing_one_track_stay_silent():
+    assert dataset_warnings(drive(0)) == []  # Nordland's seasons: one GPS track for frame-synchronised videos
+    assert dataset_warnings(drive(15, same_positions=False)) == []  # own positions: nothing to say here
+    assert copied_positions(drive(15, positives=Positives.from_lists([[i] for i in range(60)]))) is None
+    ds = drive(15)
+    frames = Dataset(ds.reference, ds.query, 1.0, position_unit="frames", name="d")
+    assert copied_positions(frames) is None  # frame-aligned: equal frame numbers by design
+
+
+def test_own_row_rank_vs_a_loop():
+    ds = drive(15)
+    got = own_row_rank(ds, samples=200)
+    unit = [t.descriptors / np.linalg.norm(t.descriptors, axis=1, keepdims=True) for t in (ds.query, ds.reference)]
+    shares = []
+    for i in range(60):
+        d_own = np.linalg.norm(unit[0][i] - unit[1][i])
+        far = [j for j in range(60) if np.linalg.norm(ds.query.positions[i] - ds.reference.positions[j]) > 12.0]
+        shares.append(np.mean([np.linalg.norm(unit[0][i] - unit[1][j]) < d_own for j in far]))
+    assert abs(got - np.median(shares)) < 1e-9
+    assert got > 0.3 and own_row_rank(drive(0)) < 0.05
+
+
+def test_clean_synthetic_dataset_is_silent(synth_dataset):
+    assert copied_positions(synth_dataset) is None
