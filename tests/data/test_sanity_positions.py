@@ -56,3 +56,22 @@ def test_own_row_rank_vs_a_loop():
 
 def test_clean_synthetic_dataset_is_silent(synth_dataset):
     assert copied_positions(synth_dataset) is None
+
+
+def test_positions_in_kilometres_are_named_not_constant_gps():
+    ds = drive(0, same_positions=False)
+    km = Dataset(Traverse(ds.reference.descriptors, ds.reference.positions / 1000, ds.reference.names),
+                 Traverse(ds.query.descriptors, ds.query.positions / 1000, ds.query.names), 12.0, name="d")
+    [line] = dataset_warnings(km)
+    assert "so R@K is 1 trivially (hint: the positions advance steadily, 0.01 per row (median), so the GPS is not " \
+           "constant: positions in kilometres? multiply them by 1000, or give the radius in their unit (--radius " \
+           "0.012))" in line
+    frozen = np.full((60, 2), 5.0)
+    still = Dataset(Traverse(ds.reference.descriptors, frozen, ds.reference.names),
+                    Traverse(ds.query.descriptors, frozen, ds.query.names), 12.0, name="d")
+    assert "(hint: check the positions: constant GPS?)" in dataset_warnings(still)[0]
+    n = np.arange(60, dtype=float)[:, None]
+    frames = Dataset(Traverse(ds.reference.descriptors, n, ds.reference.names),
+                     Traverse(ds.query.descriptors, n, ds.query.names), 60.0, name="d")
+    assert ("(hint: the frame numbers advance 1 per row, and the radius 60 frames covers the whole route: a radius "
+            "of 1-3 frames)") in " ".join(dataset_warnings(frames))

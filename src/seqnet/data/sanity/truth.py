@@ -41,8 +41,25 @@ def constant_positions(ds: Dataset) -> str | None:
         return None
     return (f"all {len(ds.reference)} reference and {len(ds.query)} query positions lie within {span:g} "
             f"{ds.position_unit} of each other, inside the radius {ds.radius:g}: every reference is within the "
-            "radius of every query, so R@K is 1 trivially (hint: " + (
-                DEGREES_HINT if looks_like_degrees(both) else "check the positions: constant GPS?") + ")")
+            f"radius of every query, so R@K is 1 trivially (hint: {_spread_hint(ds, both)})")
+
+
+def _spread_hint(ds: Dataset, both: np.ndarray) -> str:
+    """What to do about positions ``both [N, P]`` (both traverses) all within the radius: degrees, a larger unit
+    than the radius's (positions that advance row by row: kilometres, or frames with a radius in metres), or a
+    frozen GPS (positions that do not move)."""
+    if looks_like_degrees(both):
+        return DEGREES_HINT
+    steps = np.concatenate([np.linalg.norm(np.diff(np.asarray(t.positions, np.float64), axis=0), axis=1)
+                            for t in (ds.reference, ds.query)])
+    if not len(steps) or (steps > 0).mean() < 0.5:
+        return "check the positions: constant GPS?"
+    step = float(np.median(steps[steps > 0]))
+    if ds.position_unit == "frames":
+        return (f"the frame numbers advance {step:.2g} per row, and the radius {ds.radius:g} frames covers the whole "
+                "route: a radius of 1-3 frames")
+    return (f"the positions advance steadily, {step:.2g} per row (median), so the GPS is not constant: positions in "
+            f"kilometres? multiply them by 1000, or give the radius in their unit (--radius {ds.radius / 1000:g})")
 
 
 
