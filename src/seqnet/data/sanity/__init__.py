@@ -11,7 +11,8 @@
   (:func:`duplicated_rows`), square positives that read better transposed (:func:`.truth.transposed_positives`), a
   frame radius as wide as a metres one (:func:`.truth.wide_frame_radius`), a frozen GPS fix
   (:func:`.truth.frozen_positions`), the reference's positions given for the query too
-  (:func:`.positions.copied_positions`). One line each.
+  (:func:`.positions.copied_positions`), a reference that passes places twice unknown to the ground truth
+  (:func:`.revisits.revisited_reference`). One line each.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from ..spacing import out_of_order
 from ..traverse import Dataset
 from .copies import copied_queries, duplicated_rows
 from .positions import copied_positions
+from .revisits import revisited_reference
 from .truth import (
     constant_positions,
     degree_positions,
@@ -99,7 +101,7 @@ def dataset_warnings(ds: Dataset) -> list[str]:
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
              transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), unmatched_splits(ds),
              matrix_as_descriptors(ds), *frozen(ds),
-             copied_positions(ds)]
+             copied_positions(ds), revisited_reference(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
 
 
