@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..describe import DESCRIBERS, DescribeConfig
-from ..describe.config import check_size
+from ..describe.config import Size, check_size
 from ..eval.select import FUSE_TOP_KS, FUSE_WEIGHTS, TOP_KS
 from ..maps import MapConfig
 from ..maps.config import DTYPES
@@ -133,6 +133,8 @@ def add_descriptor_options(n: argparse.ArgumentParser) -> None:
     n.add_argument("--descriptors", metavar="NAME[,NAME...]",
                    help=f"the candidates of the val choice (default {','.join(_D.descriptors)}; the CNN ones at "
                         f"--cnn-size, left out when their backbone weights are not installed)")
+    n.add_argument("--views", metavar="VIEW[,VIEW...]", help="with --descriptor: describe each frame in these "
+                   "photometric views, concatenated (e.g. raw,equalize; default raw; docs/describe.md#views)")
     n.add_argument("--cnn-size", metavar="WxH", help="input size of a CNN --descriptor (netvlad, gmp, gem), e.g. "
                    "128x64 as the experiments use (default: the describer's own); without --descriptor, of the CNN "
                    f"candidates (default {_D.cnn_size[0]}x{_D.cnn_size[1]})")
@@ -170,6 +172,32 @@ def run_timing(args: argparse.Namespace) -> int:
     return 0
 
 
+def _describe_of(args: argparse.Namespace) -> tuple[DescribeConfig | None, Size | None]:
+    """The benchmark's describe settings (None: the default's, or the val choice's) and the CNN candidates' size
+    (None: the default) from ``--descriptor``, ``--cnn-size``, ``--views`` and ``--patch``."""
+    cnn = args.descriptor and args.descriptor != _D.describe.method
+    if args.cnn_size and args.descriptor and not cnn:
+        cnns = ", ".join(d for d in DESCRIBERS if d != _D.describe.method)
+        raise ConfigError(f"--cnn-size is the input size of a CNN --descriptor ({cnns}), "
+                          f"not of {args.descriptor}; hint: --descriptor netvlad, or leave --descriptor out")
+    if args.views and not args.descriptor:
+        raise ConfigError(f"--views goes with --descriptor (the val choice's candidates name their views, e.g. "
+                          f"{next(d for d in _D.descriptors if '+' in d)}); hint: --descriptor netvlad --views "
+                          f"{args.views}")
+    views = {"views": args.views} if args.views else {}
+    if args.cnn_size and not args.descriptor:
+        cnn_size = check_size(args.cnn_size)
+        if isinstance(cnn_size, str):
+            raise ConfigError(f"--cnn-size must be WxH (e.g. 128x64), got {args.cnn_size!r}")
+        return None, cnn_size
+    if cnn:
+        return DescribeConfig(method=args.descriptor, **views, **({"size": check_size(args.cnn_size)}
+                                                                  if args.cnn_size else {})), None
+    if args.patch is not None or views:
+        return _D.describe.replace(**({"patch": args.patch} if args.patch is not None else {}), **views), None
+    return None, None
+
+
 def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
     """The benchmark settings from the command-line flags (unset flags keep the defaults)."""
     no_augment = args.speed_augment == (1.0, 1.0)  # 1:1 is no augmentation, the default's (None: replace keeps it)
@@ -178,21 +206,7 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
              "speed_augment": None if no_augment else args.speed_augment}
     s1 = {"epochs": args.epochs, "seed": args.seed, "loss": args.s1_loss, "margin": args.s1_margin,
           "match_len": args.seq_len}
-    describe, cnn_size = None, None
-    cnn = args.descriptor and args.descriptor != _D.describe.method
-    if args.cnn_size and args.descriptor and not cnn:
-        cnns = ", ".join(d for d in DESCRIBERS if d != _D.describe.method)
-        raise ConfigError(f"--cnn-size is the input size of a CNN --descriptor ({cnns}), "
-                          f"not of {args.descriptor}; hint: --descriptor netvlad, or leave --descriptor out")
-    if args.cnn_size and not args.descriptor:
-        cnn_size = check_size(args.cnn_size)
-        if isinstance(cnn_size, str):
-            raise ConfigError(f"--cnn-size must be WxH (e.g. 128x64), got {args.cnn_size!r}")
-    if cnn:
-        describe = DescribeConfig(method=args.descriptor, **({"size": check_size(args.cnn_size)} if args.cnn_size
-                                                            else {}))
-    elif args.patch is not None:
-        describe = _D.describe.replace(patch=args.patch)
+    describe, cnn_size = _describe_of(args)
     return _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
                       describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
                       pca_dims=args.pca_dims, train=train,

@@ -9,6 +9,7 @@ from ..describe import BACKBONES, DESCRIBERS, DescribeConfig, main
 from ..describe.config import MAX_SIDE
 from ..describe.merge import merge_shards
 from ..describe.shards import resolve_shard, shard_output
+from ..describe.views import VIEWS
 from . import COMMANDS
 from .common import add_device, add_topic, non_negative_int, positive_float, positive_int
 
@@ -87,11 +88,15 @@ def add_describe_options(p: argparse.ArgumentParser, fit: bool = True) -> None:
     p.add_argument("--no-wpca", dest="use_wpca", action="store_false", help="netvlad: ignore the checkpoint's WPCA")
     p.add_argument("--clusters", type=positive_int, help=f"netvlad: clusters K when fitted (default {_D.clusters})")
     p.add_argument("--seed", type=non_negative_int, help=f"netvlad: k-means seed (default {_D.seed})")
+    p.add_argument("--views", metavar="VIEW[,VIEW...]",
+                   help=f"describe each image in these photometric views and concatenate their descriptors (D times "
+                        f"the views): {', '.join(VIEWS)}, e.g. raw,equalize (default raw; docs/describe.md#views)")
     p.add_argument("--skip-corrupted", action="store_true", help="leave unreadable images out instead of failing")
 
 
 DESCRIBE_KEYS = ("describer", "size", "crop_bottom", "batch_size", "dim", "whiten", "fit", "fit_max", "patch",
-                 "backbone", "layer", "gem_p", "checkpoint", "use_wpca", "clusters", "seed", "skip_corrupted", "device")
+                 "backbone", "layer", "gem_p", "checkpoint", "use_wpca", "clusters", "seed", "skip_corrupted", "device",
+                 "views")
 
 
 def describe_config(args: argparse.Namespace) -> DescribeConfig:

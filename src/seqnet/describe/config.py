@@ -17,6 +17,7 @@ from ..core.errors import ConfigError
 from .cnn import BACKBONES
 from .images import MAX_SIDE, ImageItem
 from .registry import DESCRIBERS, DescribeMethod
+from .views import DEFAULT_VIEWS, check_views
 
 AUTO, NATIVE, KEEP_ASPECT = "auto", "native", "keep-aspect:"
 Size = str | tuple[int, int]  # "auto", "native", "keep-aspect:W" or (W, H)
@@ -51,6 +52,8 @@ class DescribeConfig(Config):
         fit_max: the size of the default fitting set.
         skip_corrupted: leave unreadable images out instead of failing.
         seed: random seed of the NetVLAD k-means.
+        views: the photometric views each image is described in (:data:`~seqnet.describe.views.VIEWS`, e.g.
+            ``("raw", "equalize")``): their descriptors concatenated, D times the views (:mod:`.views`).
     """
 
     method: str = "pixels"
@@ -72,6 +75,7 @@ class DescribeConfig(Config):
     fit_max: int = 1000
     skip_corrupted: bool = False
     seed: int = 0
+    views: tuple[str, ...] = DEFAULT_VIEWS
 
     def __post_init__(self) -> None:
         check_choice("descriptor method", self.method, DESCRIBERS)
@@ -92,6 +96,7 @@ class DescribeConfig(Config):
             takes = [n for n, m in DESCRIBERS.items() if m.takes_describer]
             raise ConfigError(f"--describer goes with --method {' / '.join(takes)}, not {self.method!r}")
         self._set("fit", check_fit(self.fit))
+        self._set("views", check_views(self.views))
         check_device(self.device)  # validates the device name
         DESCRIBERS[self.method].of(self)  # the method checks its own settings
 
@@ -127,6 +132,8 @@ class DescribeConfig(Config):
                                **dataclasses.asdict(spec), **spec.extra_settings()}
         if self.dim is not None:
             out.update(dim=self.dim, whiten=self.whiten)
+        if self.views != DEFAULT_VIEWS:  # absent by default: the settings (and ids) of plain descriptors unchanged
+            out.update(views=list(self.views))
         if self.needs_fit:
             out.update(fit=fit_summary(self.fit), fit_max=self.fit_max)
         return json.loads(json.dumps(out))

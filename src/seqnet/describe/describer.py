@@ -19,6 +19,7 @@ from .images import ImageItem, ImageRef, as_image, iter_batches, list_images, lo
 from .pca import PCA, fit_pca
 from .registry import Extract, FitContext
 from .state import StateFile, method_state_file, pca_file
+from .views import VIEWS, described_views
 
 Sink = Callable[[np.ndarray, np.ndarray | None], None]
 
@@ -50,8 +51,13 @@ class Describer:
         return self.config.method
 
     def __call__(self, images: np.ndarray) -> np.ndarray:
-        raw = self.extract(images)
+        raw = self.raw(images)
         return raw if self.pca is None else self.pca.transform(raw)
+
+    def raw(self, images: np.ndarray) -> np.ndarray:
+        """``[B, D]`` before the PCA: ``extract`` of each of the config's views of ``images``, concatenated
+        (:func:`~seqnet.describe.views.described_views`; one view: ``extract`` itself)."""
+        return described_views(images, self.config.views, self.extract)
 
     def load_some(self, paths: Sequence[str | os.PathLike[str] | ImageItem]) -> tuple[np.ndarray, list[int]]:
         """Images as :meth:`load`, leaving unreadable ones out with ``skip_corrupted``; also their indices."""
@@ -76,12 +82,13 @@ class Describer:
         self._saw(imgs)
         return imgs
 
-    def batches(self, paths: Sequence[ImageRef], what: str) -> Iterator[np.ndarray]:
-        """Image batches of ``paths`` (for fitting), with a progress bar labelled ``what``."""
+    def batches(self, paths: Sequence[ImageRef], what: str, views: bool = False) -> Iterator[np.ndarray]:
+        """Image batches of ``paths`` (for fitting), with a progress bar labelled ``what``; ``views``: each batch
+        once per view of the config (a method's state, the NetVLAD clusters, fitted on every view it describes)."""
         for b in progress(list(iter_batches(len(paths), self.config.batch_size)), desc=what, unit="batch"):
             imgs, _ = self.load_some([paths[i] for i in b])
             if len(imgs):
-                yield imgs
+                yield from ((VIEWS[v](imgs) for v in self.config.views) if views else (imgs,))
 
     def describe(self, paths: Sequence[str | os.PathLike[str] | ImageItem], names: Sequence[str] | None = None,
                  spill: bool = False) -> tuple[np.ndarray, list[str]]:
@@ -138,8 +145,8 @@ def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str] 
     pca_state, own_state = pca_file(conf, sidecar, fit_paths), method_state_file(conf, sidecar, fit_paths)
     reuse_pca, reuse_own = (f is not None and f.reusable() for f in (pca_state, own_state))
     loader = Describer(conf, lambda images: images)
-    ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths),
-                     batches=lambda: loader.batches(fit_paths, f"fitting images ({conf.method})"),
+    ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths) * len(conf.views),
+                     batches=lambda: loader.batches(fit_paths, f"fitting images ({conf.method})", views=True),
                      state=own_state.path if own_state else None, reuse=reuse_own,
                      tag=own_state.tag if own_state else None, image_size=conf.image_size)
     d = Describer(conf, conf.method_spec.extractor(ctx))
@@ -153,7 +160,7 @@ def _pca_for(d: Describer, fit_paths: list[ImageRef], state: StateFile | None, r
     if state is not None and reuse:
         logger.info("reusing the PCA of %s", state.path)
         return PCA.load(state.path)
-    raw = [d.extract(imgs) for imgs in d.batches(fit_paths, "PCA descriptors")]
+    raw = [d.raw(imgs) for imgs in d.batches(fit_paths, "PCA descriptors")]
     x = np.concatenate(raw) if raw else np.zeros((0, 1), np.float32)
     dim = int(d.config.dim or 0)
     logger.info("fitting PCA %d -> %d%s on %d images", x.shape[1], dim, " whitened" * d.config.whiten, len(x))

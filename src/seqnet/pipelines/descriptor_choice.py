@@ -25,14 +25,24 @@ from ..core.tensors import spread
 from ..data.traverse import Dataset
 from ..describe import DescribeConfig
 from ..describe.lite import LITE_VARIANTS
+from ..describe.views import DEFAULT_VIEWS, RAW
 from ..eval.evaluate import EvalConfig, evaluate
 from ..metrics.recall import VAL_MIN
 
 PROXY_METHODS = ("raw+seqmatch", "single")  # the proxy's score, then its tie-break
 PROXY_FIT = 250  # images (of each fitting set) a candidate's state is fitted on for the proxy, evenly spaced
-CANDIDATES = ("pixels", "netvlad", "gem", "gmp")  # the default candidates, cheapest first
+# the default candidates, cheapest first; METHOD+VIEW: the method's descriptors of the raw and of that view of each
+# image, concatenated (seqnet.describe.views: netvlad+equalize also describes the histogram-equalised images)
+CANDIDATES = ("pixels", "netvlad", "netvlad+equalize", "gem", "gmp")
 
 T = TypeVar("T")
+
+
+def candidate_describe(base: DescribeConfig, name: str) -> DescribeConfig:
+    """``base`` as candidate ``name`` describes: ``METHOD`` (its own view of the images), or ``METHOD+VIEW...``
+    (the raw images and each named view, :mod:`seqnet.describe.views`)."""
+    method, *views = name.split("+")
+    return base.replace(method=method, views=(RAW, *views) if views else DEFAULT_VIEWS)
 
 
 def runnable(dconf: DescribeConfig) -> str | None:

@@ -44,7 +44,7 @@ from ..describe.stage import describe_provenance
 from ..security.locks import locked
 from ..security.ownership import check_replaceable
 from ..sources.bags.positions import DEFAULT_TOLERANCE, is_bag
-from .descriptor_choice import CANDIDATES, choose_on_val, evenly, proxy_scores
+from .descriptor_choice import CANDIDATES, candidate_describe, choose_on_val, evenly, proxy_scores
 from .ground_truth import GROUND_TRUTHS, both_positions, check_true_matches
 
 PROXY_SEQ_LEN = 5  # the window of the proxy's raw+seqmatch: the default L
@@ -192,7 +192,7 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
 
     (a, b), (c, d) = rng["reference"], rng["query"]
     where = f"val queries {c}:{d} against reference {a}:{b}"
-    return choose_on_val({n: conf.describe.replace(method=n) for n in conf.candidates}, score, where)
+    return choose_on_val({n: candidate_describe(conf.describe, n) for n in conf.candidates}, score, where)
 
 
 def _proxy_fit(conf: FromImagesConfig, images: tuple[ImageList, ImageList], base: Dataset) -> list:

@@ -17,8 +17,9 @@ from .speed import check_speed
 # what the benchmark chooses on val when not given (docs/benchmark_nordland64.md, "Chosen on val")
 SELECTABLE = ("descriptor", "top_k", "fuse_top_k", "fuse_weight")
 # the descriptors the val proxy chooses among: pixels (DESCRIBE) and the CNN methods at cnn_size whose
-# backbone weights ship with an installed package (nothing is downloaded)
-DESCRIPTOR_CANDIDATES = ("pixels", "netvlad", "gem", "gmp")
+# backbone weights ship with an installed package (nothing is downloaded); netvlad+equalize: NetVLAD of the raw and
+# the histogram-equalised frames, concatenated (seqnet.describe.views)
+DESCRIPTOR_CANDIDATES = ("pixels", "netvlad", "netvlad+equalize", "gem", "gmp")
 
 # 16x16 patches: learned S_L / S_1 clearly better on val than SeqSLAM's 8x8 (raw single worse)
 DESCRIBE = DescribeConfig(method="pixels", patch=16, size="native")

@@ -28,7 +28,7 @@ from ...security.files import write_json_atomic
 from ...security.jsonfile import read_json
 from ...security.text import shown
 from .. import descriptor_choice as choice
-from ..descriptor_choice import evenly, runnable
+from ..descriptor_choice import candidate_describe, evenly, runnable
 from . import cache
 from .config import Nordland64Config
 
@@ -39,11 +39,12 @@ if TYPE_CHECKING:
 
 def candidate_config(conf: Nordland64Config, name: str) -> DescribeConfig:
     """The describe settings of candidate ``name``: the benchmark's pixels, or a CNN method at ``conf.cnn_size``
-    (the settings ``--descriptor NAME --cnn-size WxH`` gives)."""
+    (the settings ``--descriptor NAME --cnn-size WxH`` gives; ``METHOD+VIEW``: also ``--views raw,VIEW``,
+    :func:`~seqnet.pipelines.descriptor_choice.candidate_describe`)."""
     if name == "pixels":
         return conf.describe if conf.describe.method == "pixels" else DescribeConfig(method="pixels", patch=16,
                                                                                      size="native")
-    return DescribeConfig(method=name, size=conf.cnn_size)
+    return candidate_describe(DescribeConfig(size=conf.cnn_size), name)
 
 
 def proxy_scores(data: Path, names: list[str], pos: np.ndarray, conf: Nordland64Config, offset: int,

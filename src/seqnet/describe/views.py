@@ -1,0 +1,73 @@
+"""Photometric views of images: a describer with ``views`` describes each image once per view and concatenates the
+views' descriptors (each L2-normalised, the whole divided by √views, so a row stays of unit norm).
+
+:data:`VIEWS`: ``raw`` (the image as read) and ``equalize`` (each image's histogram equalised per channel, as
+Pillow's ``ImageOps.equalize``: a snowfield or a dim frame spread over the whole range of grey levels). The
+views of one place under two conditions differ in different ways, so their descriptors fail on different frames;
+concatenated, the sequence models trained on them learn from both (docs/describe.md#views,
+docs/benchmark_nordland64.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from ..core.errors import ConfigError
+
+RAW = "raw"
+DEFAULT_VIEWS = (RAW,)
+
+
+def equalize(images: np.ndarray) -> np.ndarray:
+    """Each image of ``images`` uint8 ``[B, H, W]`` or ``[B, H, W, C]`` with its histogram equalised per channel,
+    exactly as Pillow's ``ImageOps.equalize`` (same dtype and shape): the lookup table of each image's channel is
+    ``(step // 2 + count of darker pixels) // step`` with ``step = (pixels - pixels at the brightest level) // 255``;
+    a channel of one level (or a step of 0) is left as it is."""
+    x = np.asarray(images)
+    if x.dtype != np.uint8:
+        raise ConfigError(f"equalize needs uint8 images, got {x.dtype}")
+    if x.size == 0:
+        return x.copy()
+    b = x.reshape(x.shape[0], -1, x.shape[3] if x.ndim == 4 else 1)  # [B, P, C]
+    n, p, c = b.shape
+    offsets = (np.arange(n)[:, None, None] * c + np.arange(c)[None, None, :]) * 256
+    hist = np.bincount((b.astype(np.int64) + offsets).ravel(), minlength=n * c * 256).reshape(n, c, 256)
+    last = 255 - np.argmax(hist[..., ::-1] > 0, axis=-1)  # [B, C] the brightest level present
+    top = np.take_along_axis(hist, last[..., None], -1)[..., 0]
+    step = (p - top) // 255  # [B, C]
+    darker = np.cumsum(hist, -1) - hist  # [B, C, 256] pixels below each level
+    safe = np.maximum(step, 1)[..., None]
+    lut = np.minimum((safe // 2 + darker) // safe, 255)
+    levels = (hist > 0).sum(-1)
+    keep = (step == 0) | (levels <= 1)
+    lut = np.where(keep[..., None], np.arange(256), lut).astype(np.uint8)  # [B, C, 256]
+    out = np.take_along_axis(lut, b.transpose(0, 2, 1).astype(np.int64), -1)  # [B, C, P]
+    return out.transpose(0, 2, 1).reshape(x.shape)
+
+
+VIEWS: dict[str, Callable[[np.ndarray], np.ndarray]] = {RAW: lambda images: images, "equalize": equalize}
+
+
+def check_views(views: Sequence[str] | str) -> tuple[str, ...]:
+    """``views`` as a tuple of distinct :data:`VIEWS` names (also ``"raw,equalize"``); else :class:`ConfigError`."""
+    names = tuple(v.strip() for v in views.split(",")) if isinstance(views, str) else tuple(views)
+    unknown = [v for v in names if v not in VIEWS]
+    if not names or unknown or len(set(names)) != len(names):
+        why = (f"unknown view {unknown[0]!r}" if unknown else "a view given twice" if names else "no view")
+        raise ConfigError(f"views: {why} (give distinct names of {', '.join(VIEWS)}, e.g. raw,equalize)")
+    return names
+
+
+def described_views(images: np.ndarray, views: Sequence[str],
+                    extract: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """``[B, views × D]`` float32: ``extract`` (``[B, ...] uint8 → [B, D]``) of each view of ``images``, each row
+    L2-normalised, concatenated in the order of ``views`` and divided by √views (rows of unit norm)."""
+    if tuple(views) == DEFAULT_VIEWS:
+        return extract(images)
+    parts = []
+    for v in views:
+        d = np.asarray(extract(VIEWS[v](images)), dtype=np.float32)
+        parts.append(d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12))
+    return (np.concatenate(parts, axis=1) / np.float32(np.sqrt(len(parts)))).astype(np.float32)

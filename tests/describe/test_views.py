@@ -1,0 +1,88 @@
+"""Photometric views (:mod:`seqnet.describe.views`): histogram equalisation against Pillow's, image by image, and
+descriptors of several views concatenated."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from PIL import Image, ImageOps
+
+from seqnet.core.errors import ConfigError
+from seqnet.core.provenance import make
+from seqnet.describe import DescribeConfig, make_describer
+from seqnet.describe.views import check_views, described_views, equalize
+
+
+def _pillow(images: np.ndarray) -> np.ndarray:
+    """The naive reference: Pillow's ImageOps.equalize, one image at a time."""
+    return np.stack([np.asarray(ImageOps.equalize(Image.fromarray(im))) for im in images])
+
+
+@settings(max_examples=200, deadline=None)
+@given(arrays(np.uint8, st.tuples(st.integers(1, 3), st.integers(1, 7), st.integers(1, 7), st.sampled_from([1, 3]))),
+       st.sampled_from(["any", "few", "bright", "flat"]))
+def test_equalize_is_pillows_equalize(images, kind):
+    if kind == "few":  # two or three levels: a small step
+        images = (images % 3) * 100
+    elif kind == "bright":
+        images = 250 + images % 6
+    elif kind == "flat":  # one level: left as it is
+        images = np.broadcast_to(images[:, :1, :1], images.shape).copy()
+    images = images[..., 0] if images.shape[-1] == 1 else images  # grey [B, H, W] too
+    assert np.array_equal(equalize(images), _pillow(images))
+
+
+def test_equalize_edge_cases():
+    assert equalize(np.zeros((0, 4, 4, 3), np.uint8)).shape == (0, 4, 4, 3)
+    one = np.array([[[0, 255]]], np.uint8)  # two pixels, two levels
+    assert np.array_equal(equalize(one), _pillow(one))
+    with pytest.raises(ConfigError, match="uint8"):
+        equalize(np.zeros((1, 2, 2), np.float32))
+
+
+def test_views_are_checked():
+    assert check_views("raw, equalize") == ("raw", "equalize")
+    for bad, said in (("raw,sharpen", "unknown view 'sharpen'"), ("raw,raw", "a view given twice"), ((), "no view")):
+        with pytest.raises(ConfigError, match=said):
+            check_views(bad)
+
+
+def test_views_are_concatenated_normalised_in_order():
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 120, (4, 6, 8, 3), dtype=np.uint8)  # dim: equalising changes them
+
+    def extract(x):
+        return x.reshape(len(x), -1)[:, :5].astype(np.float32) + 1
+
+    both = described_views(images, ("raw", "equalize"), extract)
+    assert both.shape == (4, 10) and np.allclose(np.linalg.norm(both, axis=1), 1, atol=1e-6)
+    raw, eq = extract(images), extract(equalize(images))
+    for part, want in ((both[:, :5], raw), (both[:, 5:], eq)):
+        want = want / np.linalg.norm(want, axis=1, keepdims=True) / np.sqrt(2)
+        assert np.allclose(part, want, atol=1e-6)
+    assert np.array_equal(described_views(images, ("raw",), extract), raw)  # one view: extract itself
+
+
+def test_default_views_leave_the_settings_and_ids_unchanged():
+    plain = DescribeConfig(method="pixels")
+    assert "views" not in plain.settings()  # descriptors made before views keep their provenance id
+    viewed = plain.replace(views=("raw", "equalize"))
+    assert viewed.settings()["views"] == ["raw", "equalize"]
+    assert make("describe", plain.settings())["id"] != make("describe", viewed.settings())["id"]
+
+
+def test_a_describer_with_views_describes_each_view(tmp_path):
+    rng = np.random.default_rng(1)
+    paths = []
+    for i in range(3):
+        paths.append(tmp_path / f"{i}.png")
+        Image.fromarray(rng.integers(0, 90, (16, 32, 3), dtype=np.uint8)).save(paths[-1])
+    conf = DescribeConfig(method="pixels", patch=0, size="native")
+    plain, _ = make_describer(conf).describe(paths)
+    both, names = make_describer(conf.replace(views=("raw", "equalize"))).describe(paths)
+    assert both.shape == (3, 2 * plain.shape[1]) and names == ["0.png", "1.png", "2.png"]
+    assert np.allclose(both[:, : plain.shape[1]] * np.sqrt(2), plain / np.linalg.norm(plain, axis=1, keepdims=True),
+                       atol=1e-5)
