@@ -23,6 +23,7 @@ from ..order import natural_key
 from ..spacing import out_of_order
 from ..traverse import Dataset
 from .copies import copied_queries, duplicated_rows
+from .route import route_checks
 from .truth import (
     constant_positions,
     degree_positions,
@@ -96,7 +97,7 @@ def dataset_warnings(ds: Dataset) -> list[str]:
     found = [copied_queries(ds), shared_queries(ds, list(ds.splits)), constant_positions(ds), *route_order(ds),
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
              transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), unmatched_splits(ds),
-             matrix_as_descriptors(ds), *frozen(ds)]
+             matrix_as_descriptors(ds), *frozen(ds), *route_checks(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
 
 
