@@ -1,13 +1,14 @@
-"""Route checks of a dataset (seqnet.data.sanity.route): a vehicle standing still over a large share of a split is
-one warning line, at build / check (dataset_warnings) and per evaluated split (route_warnings); clean routes,
-station stops and the synthetic dataset are silent."""
+"""Route checks of a dataset (seqnet.data.sanity.route): a vehicle standing still over a large share of a split, and a
+jump inside one sequence are one warning line each, at build /
+check (dataset_warnings) and per evaluated split (route_warnings); clean routes, station stops and the synthetic
+dataset are silent."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from seqnet.data.sanity import dataset_warnings
-from seqnet.data.sanity.route import route_checks, standstills
+from seqnet.data.sanity.route import jumps, route_checks, standstills
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.methods.route import route_warnings
 from seqnet.metrics.recall import GroundTruth
@@ -70,11 +71,15 @@ def naive_standstills(pos: np.ndarray, step: float, window: int = 10) -> list[li
     return out
 
 
-def test_standstills_vs_a_loop():
+def test_standstills_and_jumps_vs_a_loop():
     rng = np.random.default_rng(1)
     for _ in range(20):
         pos = np.cumsum(rng.choice([0.0, 0.05, 1.0, 30.0], size=(120, 2), p=[0.3, 0.3, 0.35, 0.05]), axis=0)
         assert standstills(pos, None, 1.0).tolist() == naive_standstills(pos, 1.0)
+        d = np.linalg.norm(np.diff(pos, axis=0), axis=1)
+        far = [i for i in range(119) if d[i] > 10 and (i == 0 or np.linalg.norm(pos[i + 1] - pos[i - 1]) > 10)
+               and (i == 118 or np.linalg.norm(pos[i + 2] - pos[i]) > 10)]
+        assert jumps(pos, None, 1.0).tolist() == far
 
 
 def test_a_standing_query_is_said_with_its_share_of_each_split():
@@ -115,4 +120,30 @@ def test_a_frozen_fix_is_said_once_as_frozen():
     ds = dataset(q, place(np.arange(200)))
     [line] = dataset_warnings(ds)
     assert "a frozen GPS fix?" in line
+
+
+def test_a_gap_inside_one_sequence_is_said_where_and_how_far():
+    """The report's M4: 60 reference frames dropped (a tunnel) inside one sequence: one line naming the frames, the
+    jump in metres and in usual steps, and the sequence-column hint; split there, it is silent."""
+    keep = np.r_[np.arange(100), np.arange(160, 300)]
+    q = noisy(place(np.arange(300)))
+    [line] = dataset_warnings(dataset(q, place(keep)))
+    assert line.startswith("d: the reference's positions jump 611.4 metres (61× its usual step of 10 metres) between "
+                           "frames 99 and 100 inside one sequence: a tunnel, a logger outage or dropped frames?")
+    assert "split the sequence there, e.g. a sequence column in the reference's positions CSV with a new value from " \
+           "frame 100" in line
+    bounds = np.repeat([[0, 100], [100, 240]], [100, 140], axis=0)
+    assert dataset_warnings(dataset(q, place(keep), r_bounds=bounds)) == []
+    gapped, truth = dataset(place(keep), r := place(np.arange(300))), GroundTruth(place(keep), r, 12.0)
+    [said] = route_warnings(gapped, truth, np.arange(240), METHODS)  # the query's gap, at evaluation
+    assert said.startswith("the query's positions jump 611.4 metres") and "frames 99 and 100 of d inside" in said
+    assert route_warnings(gapped, truth, np.arange(240), ["single"]) == []  # no window to straddle it
+
+
+def test_a_stray_position_and_sparse_rows_in_order_are_no_gap():
+    r = place(np.arange(300))
+    stray = noisy(r)
+    stray[50] += [0.0, 500.0]  # one wrong fix: away and back, not a gap to split at
+    assert route_checks(dataset(stray, r)) == []
+    assert route_checks(dataset(noisy(place(np.arange(0, 300, 3))), r)) == []  # every 3rd place: even steps
 

@@ -4,6 +4,8 @@ split by ``seqnet eval``):
 
 * :func:`standstill`: the vehicle stood still (consecutive rows that move less than one usual step in
   :data:`STILL_WINDOW` frames: GPS jitter around one place), a large share of a traverse or split;
+* :func:`position_jumps`: positions jump many usual steps between consecutive frames of one sequence (a tunnel, a
+  logger outage), so sequence windows straddle the jump;
 
 Steps come from :mod:`seqnet.data.spacing`; every check is vectorised numpy, O(N) in the rows."""
 
@@ -18,6 +20,7 @@ from .truth import frozen_positions
 STILL_WINDOW = 10  # frames over which a standstill moves less than ...
 STILL_STEPS = 1.0  # ... this many usual steps (under a tenth of the usual speed; GPS jitter of a few metres stays in)
 STILL_SHARE = 0.1  # standing rows above this share of a traverse or of a split's rows are warned (R@K moves by it)
+JUMP_STEPS = 10.0  # a step of more than this many usual steps inside one sequence is a jump
 
 
 def every_step(positions: np.ndarray, bounds: np.ndarray | None, lag: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -107,14 +110,48 @@ def thin_hint(ds: Dataset) -> str:
 
 
 
+def jumps(positions: np.ndarray, bounds: np.ndarray | None, step: float) -> np.ndarray:
+    """``[J]`` the rows ``i`` whose step to ``i + 1`` inside one sequence is longer than :data:`JUMP_STEPS` ``step``
+    and stays so across the neighbouring rows (``i - 1 → i + 1`` and ``i → i + 2``): a gap in the route, not a
+    single stray position (which jumps away and back)."""
+    far = JUMP_STEPS * step
+    dist, inside = every_step(positions, bounds)
+    if step <= 0 or not len(dist):
+        return np.zeros(0, np.int64)
+    big = np.flatnonzero(inside & (dist > far))
+    two, _ = every_step(positions, None, 2)  # two[i]: row i to row i + 2
+    before = np.r_[np.inf, two][big]  # row i - 1 to i + 1 (none before the first row)
+    after = np.r_[two, np.inf][big]  # row i to i + 2 (none after the last)
+    return big[(before > far) & (after > far)]
+
+
+def position_jumps(t: Traverse, unit: str, side: str, view: str = "") -> str | None:
+    """Why sequence windows of the ``side`` traverse ``t`` may straddle a gap: its positions :func:`jump
+    <jumps>` inside one sequence (the largest named, with its size in usual steps); None otherwise, or when so
+    many steps are long that the rows look out of route order (:func:`seqnet.data.spacing.out_of_order` says it).
+    ``view``: the evaluated split the frames are numbered in (as :func:`standstill`)."""
+    step = usual_step(t.positions, t.seq_bounds)
+    at = jumps(t.positions, t.seq_bounds, step)
+    if not len(at) or len(at) > 0.1 * len(t.positions):
+        return None
+    dist, _ = every_step(t.positions, None)
+    i = int(at[np.argmax(dist[at])])
+    more = f" and {len(at) - 1} more jump(s) of over {JUMP_STEPS:g} usual steps" if len(at) > 1 else ""
+    return (f"the {side}'s positions jump {dist[i]:.4g} {unit} ({dist[i] / step:.0f}× its usual step of {step:.3g} "
+            f"{unit}) between frames {i} and {i + 1}{' of ' + view if view else ''} inside one sequence{more}: a "
+            "tunnel, a logger outage or dropped frames? sequence windows that straddle a jump compare frames far apart "
+            f"along the route, so the queries beside it are lost (hint: split the sequence there, e.g. a sequence "
+            f"column in the {side}'s positions CSV with a new value from frame {i + 1}, or check the rows' order)")
+
+
 def route_checks(ds: Dataset, radius: float | None = None, sequence: bool = True, view: bool = False) -> list[str]:
     """The lines of this module's checks on ``ds`` (``radius``: the one evaluated, default ``ds.radius``; ``view``:
     ``ds`` is an evaluated split, its rows numbered from the split's first, which the lines say), for real
     positions only (not frame numbers beside explicit positives): a standstill of either side (its share of each
-    named split), for a side in route
+    named split), jumps inside a sequence (only when ``sequence`` methods are concerned), both for a side in route
     order (:func:`seqnet.data.spacing.out_of_order` says the other) without a frozen GPS fix (whose catch-up is no
     gap: :func:`seqnet.data.sanity.truth.frozen_positions` says it) and in distance units (frame numbers skip frames
-    without moving: Nordland's stops left out), a radius below the reference's spacing (without explicit positives)."""
+    without moving: Nordland's stops left out)."""
     if ds.positives is not None and ds.position_unit == "frames":
         return []
     unit, name = ds.position_unit, ds.name if view else ""
@@ -124,5 +161,6 @@ def route_checks(ds: Dataset, radius: float | None = None, sequence: bool = True
                  ds.ranges(split)[side] for split in ds.splits}
         if unit != "frames" and not (out_of_order(t.positions, t.seq_bounds, ds.radius, unit, side) or
                                      frozen_positions(t.positions, t.descriptors, side)):
-            found.append(standstill(t, unit, side, parts, thin_hint(ds), name))
+            found += [standstill(t, unit, side, parts, thin_hint(ds), name),
+                      position_jumps(t, unit, side, name) if sequence else None]
     return [line for line in found if line]
