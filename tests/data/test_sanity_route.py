@@ -1,5 +1,5 @@
-"""Route checks of a dataset (seqnet.data.sanity.route): a vehicle standing still over a large share of a split, and a
-jump inside one sequence are one warning line each, at build /
+"""Route checks of a dataset (seqnet.data.sanity.route): a vehicle standing still over a large share of a split, a
+jump inside one sequence and a radius below the reference's frame spacing are one warning line each, at build /
 check (dataset_warnings) and per evaluated split (route_warnings); clean routes, station stops and the synthetic
 dataset are silent."""
 
@@ -147,3 +147,24 @@ def test_a_stray_position_and_sparse_rows_in_order_are_no_gap():
     assert route_checks(dataset(stray, r)) == []
     assert route_checks(dataset(noisy(place(np.arange(0, 300, 3))), r)) == []  # every 3rd place: even steps
 
+
+def test_a_radius_below_the_reference_spacing_is_said():
+    """The report's M3: reference every 10 m, queries 4.5 m along: radius 5 (at most half the spacing) and 8 (below
+    it) are said, with the usual radius; 10 and 12 m, frame radii of one frame and explicit positives are not."""
+    r, q = place(np.arange(300)), noisy(place(np.arange(300) + 0.45), seed=3)
+    [line] = dataset_warnings(dataset(q, r, radius=5.0))
+    assert line == ("d: the radius 5 metres is at most half the reference's frame spacing (10 metres between "
+                    "neighbouring frames, median): each query has at most one correct reference, and one between two "
+                    "reference frames may have none (hint: a radius of at least the spacing is usual, e.g. --radius 10 "
+                    "or more)")
+    [line] = route_checks(dataset(q, r, radius=8.0))
+    assert line.startswith("the radius 8 metres is below the reference's frame spacing (10 metres")
+    assert "may have none" not in line
+    for radius in (10.0, 12.0):
+        assert route_checks(dataset(q, r, radius=radius)) == []
+    frames = np.arange(300.0)[:, None]
+    ones = np.ones((300, 2), np.float32)
+    assert route_checks(Dataset(Traverse(ones, frames), Traverse(ones, frames), 1.0, "frames")) == []
+    ds = dataset(q, r, radius=12.0)  # built at 12 m, evaluated at 4 m: said for the radius evaluated
+    [said] = route_warnings(ds, GroundTruth(q, r, 4.0), np.arange(300), ["single"])
+    assert said.startswith("the radius 4 metres is at most half the reference's frame spacing")

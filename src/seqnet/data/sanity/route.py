@@ -6,14 +6,18 @@ split by ``seqnet eval``):
   :data:`STILL_WINDOW` frames: GPS jitter around one place), a large share of a traverse or split;
 * :func:`position_jumps`: positions jump many usual steps between consecutive frames of one sequence (a tunnel, a
   logger outage), so sequence windows straddle the jump;
+* :func:`sparse_reference`: a radius below the reference's frame spacing (each query has at most one correct
+  reference, one between two frames none).
 
 Steps come from :mod:`seqnet.data.spacing`; every check is vectorised numpy, O(N) in the rows."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from ..spacing import out_of_order, steps
+from ..spacing import out_of_order, spacing, steps
 from ..traverse import Dataset, Traverse
 from .truth import frozen_positions
 
@@ -21,6 +25,7 @@ STILL_WINDOW = 10  # frames over which a standstill moves less than ...
 STILL_STEPS = 1.0  # ... this many usual steps (under a tenth of the usual speed; GPS jitter of a few metres stays in)
 STILL_SHARE = 0.1  # standing rows above this share of a traverse or of a split's rows are warned (R@K moves by it)
 JUMP_STEPS = 10.0  # a step of more than this many usual steps inside one sequence is a jump
+SPARSE = 0.9  # a radius below this share of the reference's spacing is warned (GPS noise moves the spacing a little)
 
 
 def every_step(positions: np.ndarray, bounds: np.ndarray | None, lag: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -144,6 +149,33 @@ def position_jumps(t: Traverse, unit: str, side: str, view: str = "") -> str | N
             f"column in the {side}'s positions CSV with a new value from frame {i + 1}, or check the rows' order)")
 
 
+def sparse_reference(reference: np.ndarray, radius: float, unit: str) -> str | None:
+    """Why a radius of ``radius`` is tight for the reference positions ``reference [N, P]``: below :data:`SPARSE`
+    times the reference's frame spacing (:func:`below_spacing`), each query has at most one correct reference;
+    None otherwise."""
+    said = below_spacing(reference, radius, unit)
+    return f"the radius {radius:g} {unit} is {said}" if said else None
+
+
+def below_spacing(reference: np.ndarray, radius: float, unit: str) -> str | None:
+    """How ``radius`` compares with the reference's frame spacing (:func:`seqnet.data.spacing.spacing` of
+    ``reference [N, P]``) when below :data:`SPARSE` times it ("below the reference's frame spacing (...): each query
+    has at most one correct reference ..." and the hint; at most half of it, a query between two frames may have
+    none); None otherwise."""
+    gap = spacing(reference)
+    if not (radius > 0 and np.isfinite(gap)) or radius >= SPARSE * gap:
+        return None
+    half = radius <= 0.55 * gap
+    return (f"{'at most half' if half else 'below'} the reference's frame spacing ({gap:.3g} {unit} between "
+            "neighbouring frames, median): each query has at most one correct reference" +
+            (", and one between two reference frames may have none" if half else "") + f" ({radius_hint(gap)})")
+
+
+def radius_hint(gap: float) -> str:
+    """The hint for a radius below the reference's frame spacing ``gap``: a round radius of at least it."""
+    return f"hint: a radius of at least the spacing is usual, e.g. --radius {math.ceil(float(f'{gap:.2g}')):g} or more"
+
+
 def route_checks(ds: Dataset, radius: float | None = None, sequence: bool = True, view: bool = False) -> list[str]:
     """The lines of this module's checks on ``ds`` (``radius``: the one evaluated, default ``ds.radius``; ``view``:
     ``ds`` is an evaluated split, its rows numbered from the split's first, which the lines say), for real
@@ -151,7 +183,7 @@ def route_checks(ds: Dataset, radius: float | None = None, sequence: bool = True
     named split), jumps inside a sequence (only when ``sequence`` methods are concerned), both for a side in route
     order (:func:`seqnet.data.spacing.out_of_order` says the other) without a frozen GPS fix (whose catch-up is no
     gap: :func:`seqnet.data.sanity.truth.frozen_positions` says it) and in distance units (frame numbers skip frames
-    without moving: Nordland's stops left out)."""
+    without moving: Nordland's stops left out), a radius below the reference's spacing (without explicit positives)."""
     if ds.positives is not None and ds.position_unit == "frames":
         return []
     unit, name = ds.position_unit, ds.name if view else ""
@@ -163,4 +195,6 @@ def route_checks(ds: Dataset, radius: float | None = None, sequence: bool = True
                                      frozen_positions(t.positions, t.descriptors, side)):
             found += [standstill(t, unit, side, parts, thin_hint(ds), name),
                       position_jumps(t, unit, side, name) if sequence else None]
+    if ds.positives is None:
+        found.append(sparse_reference(ds.reference.positions, ds.radius if radius is None else radius, unit))
     return [line for line in found if line]
