@@ -205,3 +205,16 @@ def test_a_split_without_a_match_is_said_once_and_not_blamed_on_numbering(caplog
     assert not any("split test" in s for s in said), said
     (few,) = [s for s in said if "split few" in s]
     assert "number their frames differently" not in few and "check the split's ranges" in few, few
+
+
+def test_a_radius_below_the_reference_spacing_is_named_first(caplog):
+    """Reference every 10 m, queries 4.5 m along, radius 4: the few-matches line names the radius against the
+    reference's spacing (not swapped columns or units) and the usual radius."""
+    ref = np.stack([500000 + 10.0 * np.arange(300), 7000000 + 30 * np.sin(np.arange(300) / 40)], axis=1)
+    qry = ref + [4.5, 0.0] + np.random.default_rng(3).normal(0, 1, ref.shape)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        line = check_true_matches(dataset(ref, qry, 4.0))
+    assert line.startswith("ds: only ") and "the radius is 4 metres, at most half the reference's frame spacing (10 " \
+        "metres between neighbouring frames, median): the queries lie between its frames, out of a radius this small " \
+        "(hint: a radius of at least the spacing is usual, e.g. --radius 10 or more)" in line
+    assert "swapped" not in line and "another unit" not in line

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.tensors import spread
 from ..data.sanity import copied_queries, duplicated_rows, real_positions, route_order
+from ..data.sanity.route import route_checks
 from ..data.sanity.truth import degree_positions
 from ..data.spacing import DEGREES_HINT, RATE_RATIO, looks_like_degrees, step_rates, unequal_steps
 from .grammar import parse_method
@@ -219,6 +220,7 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
         found.append(positives_rates(ds))
     found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
               copied_queries(ds), None if found[1] else degree_positions(ds)]
+    found += route_checks(ds, truth.radius, any(not m.single_frame for m in parsed), view=True)  # stops, jumps
     return [line for line in found if line]
 
 

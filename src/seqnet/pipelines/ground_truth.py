@@ -16,7 +16,8 @@ from ..data.convert import agreed_kinds, match_names, read_positions_table, sequ
 from ..data.gps import check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
-from ..data.spacing import DEGREES_HINT, looks_like_degrees
+from ..data.sanity.route import SPARSE, radius_hint
+from ..data.spacing import DEGREES_HINT, looks_like_degrees, spacing
 from ..data.traverse import Dataset
 from ..data.utm import latlon_pair, mixed_frames
 from ..describe.images import ImageList
@@ -176,9 +177,23 @@ def truncated_positives(ds: Dataset, has: np.ndarray) -> str | None:
     return line
 
 
+def below_spacing(r: np.ndarray, radius: float, unit: str, near: float) -> str | None:
+    """Why few queries have a reference within ``radius``, when the queries lie among the reference's frames (their
+    median distance ``near`` to the nearest is within the spacing of the reference positions ``r [N, P]``) and the
+    radius is below :data:`~seqnet.data.sanity.route.SPARSE` times that spacing: the radius is too small (a radius
+    ten times smaller than the spacing or more: None, another unit is likelier)."""
+    gap = spacing(r)
+    if not (0.1 * gap <= radius < SPARSE * gap and near <= gap):
+        return None
+    return (f"{'at most half' if radius <= 0.55 * gap else 'below'} the reference's frame spacing ({gap:.3g} {unit} "
+            f"between neighbouring frames, median): the queries lie between its frames, out of a radius this small "
+            f"({radius_hint(gap)})")
+
+
 def mismatch_hint(ds: Dataset, matched: int, whole: Dataset | None = None) -> str:
     """Why few queries of ``ds`` have a true match: how far the nearest references are against the radius, and
-    the likely cause (one traverse's two position columns swapped, when swapping them gives more queries a match;
+    the likely cause (a radius below the reference's frame spacing, but not ten times, while the queries lie among
+    its frames: the radius; one traverse's two position columns swapped, when swapping them gives more queries a match;
     degrees; frames numbered from different starts, by the first frames of ``whole`` when ``ds`` is a split of it;
     else swapped columns or a radius in another unit)."""
     if ds.positives is not None:
@@ -193,6 +208,9 @@ def mismatch_hint(ds: Dataset, matched: int, whole: Dataset | None = None) -> st
     near = cKDTree(r).query(q, k=1)[0]
     said = (f"the nearest reference to any query is {float(near.min()):.1f} {unit} away (median over the queries "
             f"{float(np.median(near)):.1f} {unit}), the radius is {ds.radius:g} {unit}")
+    tight = below_spacing(r, ds.radius, unit, float(np.median(near)))
+    if tight:
+        return f"{said}, {tight}"
     if q.shape[1] == 2:
         swapped = int(has_positive(q[:, ::-1], r, ds.radius).sum())
         if swapped > matched and swapped >= FEW_MATCHES * len(q):

@@ -12,7 +12,8 @@
   frame radius as wide as a metres one (:func:`.truth.wide_frame_radius`), a frozen GPS fix
   (:func:`.truth.frozen_positions`), the reference's positions given for the query too
   (:func:`.positions.copied_positions`), a reference that passes places twice unknown to the ground truth
-  (:func:`.revisits.revisited_reference`). One line each.
+  (:func:`.revisits.revisited_reference`), a vehicle standing still, positions that jump inside a sequence and a
+  radius below the reference's frame spacing (:func:`.route.route_checks`). One line each.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from ..traverse import Dataset
 from .copies import copied_queries, duplicated_rows
 from .positions import copied_positions
 from .revisits import revisited_reference
+from .route import route_checks
 from .truth import (
     constant_positions,
     degree_positions,
@@ -100,8 +102,7 @@ def dataset_warnings(ds: Dataset) -> list[str]:
     found = [copied_queries(ds), shared_queries(ds, list(ds.splits)), constant_positions(ds), *route_order(ds),
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
              transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), unmatched_splits(ds),
-             matrix_as_descriptors(ds), *frozen(ds),
-             copied_positions(ds), revisited_reference(ds)]
+             matrix_as_descriptors(ds), *frozen(ds), copied_positions(ds), revisited_reference(ds), *route_checks(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
 
 

@@ -1,0 +1,170 @@
+"""Route checks of a dataset (seqnet.data.sanity.route): a vehicle standing still over a large share of a split, a
+jump inside one sequence and a radius below the reference's frame spacing are one warning line each, at build /
+check (dataset_warnings) and per evaluated split (route_warnings); clean routes, station stops and the synthetic
+dataset are silent."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seqnet.data.sanity import dataset_warnings
+from seqnet.data.sanity.route import jumps, route_checks, standstills
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.methods.route import route_warnings
+from seqnet.metrics.recall import GroundTruth
+
+METHODS = ["single", "raw+seqmatch"]
+
+
+def place(i: np.ndarray) -> np.ndarray:
+    """``[N, 2]`` the position of place ``i`` (fractional: between places) on the report's route: 10 m per place."""
+    i = np.asarray(i, np.float64)
+    return np.stack([500000 + 10.0 * i, 7000000 + 30 * np.sin(i / 40)], axis=1)
+
+
+def dataset(q_pos: np.ndarray, r_pos: np.ndarray, radius: float = 12.0, splits=None, q_bounds=None,
+            r_bounds=None) -> Dataset:
+    rng = np.random.default_rng(0)
+    return Dataset(Traverse(rng.random((len(r_pos), 8), dtype=np.float32), r_pos, seq_bounds=r_bounds,
+                            name="reference"),
+                   Traverse(rng.random((len(q_pos), 8), dtype=np.float32), q_pos, seq_bounds=q_bounds, name="query"),
+                   radius, name="d", splits=splits or {})
+
+
+def noisy(pos: np.ndarray, sd: float = 1.0, seed: int = 0) -> np.ndarray:
+    return pos + np.random.default_rng(seed).normal(0, sd, pos.shape)
+
+
+def standing_query(seed: int = 4) -> np.ndarray:
+    """The report's H2 query: places 0..199 with 1 m GPS noise, 80 rows at place 150 (GPS jitter 0.8 m)."""
+    rng = np.random.default_rng(seed)
+    idx = np.r_[np.arange(151), np.full(79, 150), np.arange(151, 200)]
+    jitter = np.r_[np.zeros(151), np.ones(79), np.zeros(49)][:, None] * rng.normal(0, 0.8, (279, 2))
+    return noisy(place(idx), 1.0, seed) + jitter
+
+
+def station_stop(stop: int, n: int = 300, ramp: int = 5, at: int = 150, sd: float = 1.0) -> np.ndarray:
+    """``[n, 2]`` a train at 10 m per frame that slows over ``ramp`` frames, stands ``stop`` frames at ``at`` and
+    speeds up again, with GPS noise ``sd``."""
+    v = np.ones(n)
+    v[at - ramp:at] = np.linspace(1, 0, ramp + 1)[1:]
+    v[at:at + stop] = 0
+    v[at + stop:at + stop + ramp] = np.linspace(0, 1, ramp + 1)[1:]
+    return noisy(place(np.cumsum(v)), sd)
+
+
+def naive_standstills(pos: np.ndarray, step: float, window: int = 10) -> list[list[int]]:
+    still = np.zeros(len(pos), bool)
+    for i in range(len(pos) - window):
+        if np.linalg.norm(pos[i + window] - pos[i]) < step:
+            still[i:i + window + 1] = True
+    out, i = [], 0
+    while i < len(pos):
+        if still[i]:
+            j = i
+            while j < len(pos) and still[j]:
+                j += 1
+            out.append([i, j])
+            i = j
+        else:
+            i += 1
+    return out
+
+
+def test_standstills_and_jumps_vs_a_loop():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        pos = np.cumsum(rng.choice([0.0, 0.05, 1.0, 30.0], size=(120, 2), p=[0.3, 0.3, 0.35, 0.05]), axis=0)
+        assert standstills(pos, None, 1.0).tolist() == naive_standstills(pos, 1.0)
+        d = np.linalg.norm(np.diff(pos, axis=0), axis=1)
+        far = [i for i in range(119) if d[i] > 10 and (i == 0 or np.linalg.norm(pos[i + 1] - pos[i - 1]) > 10)
+               and (i == 118 or np.linalg.norm(pos[i + 2] - pos[i]) > 10)]
+        assert jumps(pos, None, 1.0).tolist() == far
+
+
+def test_a_standing_query_is_said_with_its_share_of_each_split():
+    """The report's H2: 80 query rows at one place, 45% of the test split's queries: one line at build / check,
+    and at evaluation of the split (rows numbered in the split)."""
+    ds = dataset(standing_query(), place(np.arange(300)), splits={"test": {"query": (100, 279)}})
+    [line] = dataset_warnings(ds)
+    assert line.startswith("d: 80 consecutive query rows (150:230) lie within ") and "the vehicle stood still" in line
+    assert "they are 45% of split test's queries" in line and "constant-speed assumption of SeqMatch" in line
+    assert "(hint: drop those rows but one, or thin the frames by distance travelled)" in line
+    test = ds.split("test")
+    truth = GroundTruth(test.query.positions, test.reference.positions, 12.0)
+    [said] = route_warnings(test, truth, np.arange(179), ["single"])  # a single-image method: its R@1 is skewed too
+    assert said.startswith("80 consecutive query rows (50:130 of d[test])") and "45% of d[test]'s query rows" in said
+
+
+def test_a_video_sampled_by_time_is_told_every_metres():
+    ds = dataset(standing_query(), place(np.arange(300)))
+    ds.extra["sampling"] = {"fps": 1.0, "every_metres": None}
+    [line] = route_checks(ds)
+    assert "29% of the query's rows" in line and line.endswith("or sample the videos by distance travelled: "
+                                                              "from-video --every-metres M)")
+
+
+def test_station_stops_clean_routes_and_synthetic_data_are_silent(synth_dataset):
+    r = place(np.arange(300))
+    assert dataset_warnings(dataset(noisy(r), r)) == []  # Nordland-like spacing, 1 m GPS noise
+    for stop in (5, 8, 10):  # a train slowing at a station over 5 frames, standing 5-10: a few % of the route
+        assert route_checks(dataset(station_stop(stop), r)) == [], stop
+    assert route_checks(dataset(station_stop(80), r))  # standing 80 frames of 300: said
+    assert route_checks(synth_dataset) == [] and route_checks(synth_dataset, sequence=False) == []
+
+
+def test_a_frozen_fix_is_said_once_as_frozen():
+    """Rows at exactly one position while the images change: the frozen-GPS line, not a second standstill line."""
+    q = noisy(place(np.arange(200)))
+    q[100:160] = q[100]
+    ds = dataset(q, place(np.arange(200)))
+    [line] = dataset_warnings(ds)
+    assert "a frozen GPS fix?" in line
+
+
+def test_a_gap_inside_one_sequence_is_said_where_and_how_far():
+    """The report's M4: 60 reference frames dropped (a tunnel) inside one sequence: one line naming the frames, the
+    jump in metres and in usual steps, and the sequence-column hint; split there, it is silent."""
+    keep = np.r_[np.arange(100), np.arange(160, 300)]
+    q = noisy(place(np.arange(300)))
+    [line] = dataset_warnings(dataset(q, place(keep)))
+    assert line.startswith("d: the reference's positions jump 611.4 metres (61× its usual step of 10 metres) between "
+                           "frames 99 and 100 inside one sequence: a tunnel, a logger outage or dropped frames?")
+    assert "split the sequence there, e.g. a sequence column in the reference's positions CSV with a new value from " \
+           "frame 100" in line
+    bounds = np.repeat([[0, 100], [100, 240]], [100, 140], axis=0)
+    assert dataset_warnings(dataset(q, place(keep), r_bounds=bounds)) == []
+    gapped, truth = dataset(place(keep), r := place(np.arange(300))), GroundTruth(place(keep), r, 12.0)
+    [said] = route_warnings(gapped, truth, np.arange(240), METHODS)  # the query's gap, at evaluation
+    assert said.startswith("the query's positions jump 611.4 metres") and "frames 99 and 100 of d inside" in said
+    assert route_warnings(gapped, truth, np.arange(240), ["single"]) == []  # no window to straddle it
+
+
+def test_a_stray_position_and_sparse_rows_in_order_are_no_gap():
+    r = place(np.arange(300))
+    stray = noisy(r)
+    stray[50] += [0.0, 500.0]  # one wrong fix: away and back, not a gap to split at
+    assert route_checks(dataset(stray, r)) == []
+    assert route_checks(dataset(noisy(place(np.arange(0, 300, 3))), r)) == []  # every 3rd place: even steps
+
+
+def test_a_radius_below_the_reference_spacing_is_said():
+    """The report's M3: reference every 10 m, queries 4.5 m along: radius 5 (at most half the spacing) and 8 (below
+    it) are said, with the usual radius; 10 and 12 m, frame radii of one frame and explicit positives are not."""
+    r, q = place(np.arange(300)), noisy(place(np.arange(300) + 0.45), seed=3)
+    [line] = dataset_warnings(dataset(q, r, radius=5.0))
+    assert line == ("d: the radius 5 metres is at most half the reference's frame spacing (10 metres between "
+                    "neighbouring frames, median): each query has at most one correct reference, and one between two "
+                    "reference frames may have none (hint: a radius of at least the spacing is usual, e.g. --radius 10 "
+                    "or more)")
+    [line] = route_checks(dataset(q, r, radius=8.0))
+    assert line.startswith("the radius 8 metres is below the reference's frame spacing (10 metres")
+    assert "may have none" not in line
+    for radius in (10.0, 12.0):
+        assert route_checks(dataset(q, r, radius=radius)) == []
+    frames = np.arange(300.0)[:, None]
+    ones = np.ones((300, 2), np.float32)
+    assert route_checks(Dataset(Traverse(ones, frames), Traverse(ones, frames), 1.0, "frames")) == []
+    ds = dataset(q, r, radius=12.0)  # built at 12 m, evaluated at 4 m: said for the radius evaluated
+    [said] = route_warnings(ds, GroundTruth(q, r, 4.0), np.arange(300), ["single"])
+    assert said.startswith("the radius 4 metres is at most half the reference's frame spacing")
