@@ -48,21 +48,53 @@ class _ArgumentParserError(SeqnetError):
     """A command-line usage error (reported as one line, exit code 2)."""
 
 
+class _StoreOnce(argparse._StoreAction):
+    """argparse's ``store`` (every option of one value, or one list of values), refusing the option given again
+    with another value: argparse would keep the last silently (``serve --map A --map B`` serving B alone).
+    Options meant to repeat (``--model``, ``--split``) use ``append`` and repeat as before. ``once_hint``: what to
+    do instead, said after the refusal."""
+
+    def __init__(self, *args, once_hint: str = "", **kwargs) -> None:  # noqa: ANN002, ANN003 - argparse's
+        super().__init__(*args, **kwargs)
+        self.once_hint = once_hint
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:
+        given = namespace.__dict__.setdefault("_given_once", {})
+        typed = f"{option_string} {' '.join(getattr(self, 'typed', ()))}".strip()
+        if self.option_strings and self.dest in given and given[self.dest][1] != values:
+            raise argparse.ArgumentError(self, f"given twice ({given[self.dest][0]}, then {typed}): it takes one "
+                                         "value, and the second would silently replace the first; "
+                                         f"{self.once_hint or 'give it once'}")
+        given[self.dest] = (typed, values)
+        super().__call__(parser, namespace, values, option_string)
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors raise instead of printing the usage and exiting,
-    and that never accepts abbreviations ("--shortlist" must not silently mean "--shortlist-model")."""
+    that never accepts abbreviations ("--shortlist" must not silently mean "--shortlist-model"), and whose
+    one-value options refuse a second value (:class:`_StoreOnce`, for every command and argument group)."""
 
     def __init__(self, *args, **kwargs) -> None:  # noqa: ANN002, ANN003 - argparse's signature
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
+        self.register("action", None, _StoreOnce)
+        self.register("action", "store", _StoreOnce)
 
     def error(self, message: str) -> NoReturn:  # type: ignore[override]
         raise _ArgumentParserError(f"{self.prog}: error: {message} (see `{self.prog} --help`)")
+
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> object:
+        """As argparse's; a :class:`_StoreOnce` keeps the strings as typed (``typed``), to name them if repeated."""
+        if isinstance(action, _StoreOnce):
+            action.typed = list(arg_strings)
+        return super()._get_values(action, arg_strings)
 
     def parse_known_args(self, args=None, namespace=None):  # noqa: ANN001, ANN201 - argparse's signature
         """As argparse's, recording the deepest (sub)command parsed in ``namespace._command_prog``."""
         namespace = argparse.Namespace() if namespace is None else namespace
         namespace._command_prog = self.prog  # a subcommand's parser runs after its parent's: it overwrites
+        namespace._given_once = {}  # the one-value options given so far (:class:`_StoreOnce`), this parser's
         return super().parse_known_args(args, namespace)
 
     def parse_args(self, args=None, namespace=None):  # noqa: ANN001, ANN201 - argparse's signature

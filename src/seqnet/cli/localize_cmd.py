@@ -75,7 +75,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def add_localizer_options(p: argparse.ArgumentParser) -> None:
     """The localiser's options (method, describer, models, L, L_m, K, k, anchor, split, radius, precision,
     --allow-mismatch, --device): ``seqnet localize`` and ``seqnet serve`` share them, names and defaults."""
-    p.add_argument("--method", default=_D.method, help=f"method (default {_D.method})")
+    p.add_argument("--method", help=f"method (default: an index map's own, the one seqnet index build made it for; "
+                   f"else {_D.method})")
     p.add_argument("--describer", metavar="PKG.MODULE:FACTORY", help="with --map and query images: the plug-in "
                    "describer the map was made with, named here because seqnet imports no code a file names")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
@@ -98,10 +99,33 @@ def add_localizer_options(p: argparse.ArgumentParser) -> None:
 
 
 def localizer_config(args: argparse.Namespace) -> LocalizeConfig:
-    """The :class:`LocalizeConfig` of the options :func:`add_localizer_options` added."""
+    """The :class:`LocalizeConfig` of the options :func:`add_localizer_options` added; without ``--method``, an
+    index map's own method (:func:`map_method`), else the default."""
+    if args.method is None:
+        args.method = map_method(getattr(args, "map", None)) or _D.method
     return _D.replace(method=args.method, seq_len=args.seq_len, match_len=args.match_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
                       device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
+
+
+def map_method(where: str | None) -> str | None:
+    """The method the index map in ``where`` was built for (``seqnet index build --shortlist --rerank``), said in
+    one line; None for anything else (a dataset directory runs every method; a damaged map is refused later, when
+    it is loaded)."""
+    from ..core.errors import SeqnetError
+    from ..core.log import logger
+    from ..maps.config import MapConfig
+    from ..maps.map import read_meta
+    from ..maps.store import MAP_JSON
+
+    if where is None or not (Path(where) / MAP_JSON).is_file():
+        return None
+    try:
+        name = MapConfig.from_dict(read_meta(Path(where))["config"]).method.name
+    except (SeqnetError, KeyError, TypeError, ValueError):
+        return None
+    logger.info("--method not given: %s, the method map %s was built for", name, shown(where))
+    return name
 
 
 def add_video_query(p: argparse.ArgumentParser) -> None:

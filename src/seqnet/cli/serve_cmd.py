@@ -23,7 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "session, each session's answers those of `seqnet localize` on the same frames in order. "
                        f"Needs a token (--token-file or {TOKEN_ENV}) unless --no-auth on 127.0.0.1; needs "
                        "seqnet[serve]. API, errors and TLS behind a reverse proxy: docs/serve.md.")
-    p.add_argument("--map", required=True, help="the map: an index map (seqnet index build --window causal) or a "
+    p.add_argument("--map", required=True, once_hint="one server serves one map: run a second server (another "
+                   "--port) for another map", help="the map: an index map (seqnet index build --window causal) or a "
                    "seqnet dataset directory, whose reference traverse is used (as seqnet localize --map)")
     p.add_argument("--host", default=d.host, help=f"address to listen on (default {d.host}; put TLS in front: "
                    "docs/serve.md)")

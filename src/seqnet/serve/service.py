@@ -19,12 +19,13 @@ import numpy as np
 
 from ..core.errors import ConfigError, SeqnetError
 from ..core.log import logger
+from ..core.provenance import image_size_of
 from ..localize.config import LocalizeConfig
 from ..localize.describing import map_describer
 from ..localize.localizer import Estimate, Localizer
 from ..localize.stream import load_reference
 from ..methods.protocol import Reference
-from .bodies import DESCRIPTOR_TYPE, BadBody, ImageBytes, read_descriptor
+from .bodies import DESCRIPTOR_TYPE, BadBody, load_image, read_descriptor
 from .errors import UNSUPPORTED, HttpError
 
 if TYPE_CHECKING:
@@ -65,15 +66,26 @@ class Service:
         return self.conf.localizer(self.reference, self.radius)
 
     def frame(self, body: bytes, kind: str) -> np.ndarray:
-        """The descriptor ``[D]`` of a request body of content type ``kind``: as sent, or its image described."""
+        """The descriptor ``[D]`` of a request body of content type ``kind``: as sent, or its image described.
+        Every image is held to the map's image size (:func:`size_refusal`), whatever was sent before it."""
         if kind == DESCRIPTOR_TYPE:
             return read_descriptor(body, self.dim)
         if self.describer is None:
             raise HttpError(UNSUPPORTED, f"this server does not describe images ({self.no_images}); send "
                             f"descriptors ({DESCRIPTOR_TYPE})")
+        images = load_image(self.describer, body, kind)
+        seen = (int(images.shape[2]), int(images.shape[1]))
+        prov = self.reference.provenance or {}
+        refusal = size_refusal(prov, seen, self.conf.allow_mismatch)
+        if refusal:
+            raise BadBody(refusal)
         try:
-            desc = self.describer(self.describer.load([ImageBytes(body, kind)]))
+            desc = self.describer(images)
+            if desc.shape[1] != self.dim:
+                raise BadBody(size_refusal(prov, seen, False, (int(desc.shape[1]), self.dim)) or "")
             self.check_image(desc, "the image as described here")
+        except BadBody:
+            raise
         except SeqnetError as e:
             raise BadBody(str(e)) from e
         return np.asarray(desc[0], dtype=np.float32)
@@ -108,6 +120,35 @@ class Service:
         for _ in range(loc.windows.longest):
             loc.step(np.zeros(self.dim, np.float32))
         return (time.perf_counter() - t0) * 1e3
+
+
+def size_refusal(prov: dict, seen: tuple[int, int], allow: bool, dims: tuple[int, int] | None = None) -> str | None:
+    """Why an image of ``seen`` ``(W, H)`` (as the map's describer crops and resizes it) is refused by a map of
+    provenance ``prov``, phrased for an HTTP client; None when it is not. Before describing (``dims`` None) the
+    sizes are held as ``seqnet localize`` holds them (:func:`seqnet.core.provenance.check_same`): refused when they
+    differ and the descriptor is the pixel grid itself (``pixels``) or one side is portrait and the other landscape
+    (unless ``allow``, ``--allow-mismatch``). ``dims``: ``(the image's D, the map's D)`` after describing, when
+    they differ (always refused)."""
+    want = image_size_of(prov)
+    settings = prov.get("settings") if isinstance(prov.get("settings"), dict) else {}
+    if dims is None:
+        turned = want is not None and (want[0] - want[1]) * (seen[0] - seen[1]) < 0
+        if want is None or seen == want or allow or not (settings.get("method") == "pixels" or turned):
+            return None
+    native = " (described at their own size)" if settings.get("size") == "native" else ""
+    crop = settings.get("crop_bottom") if isinstance(settings.get("crop_bottom"), int) else 0
+    cropped = f" after the map's crop of {crop} bottom rows" if crop else ""
+    got = f"the image is {seen[0]}x{seen[1]}{cropped}"
+    if want is None or (dims and seen == want):  # the map's image size unknown (or not the cause)
+        return (f"{got} and gives D={dims[0] if dims else '?'}, this map's descriptors D={dims[1] if dims else '?'}"
+                f"{native}: send frames of the size of the map's reference images")
+    send = f"{want[0]}x{want[1] + crop}"
+    if (want[0] - want[1]) * (seen[0] - seen[1]) < 0:
+        return (f"{got}, {'portrait' if seen[0] < seen[1] else 'landscape'}, and this map's images are "
+                f"{want[0]}x{want[1]}{cropped}, {'portrait' if want[0] < want[1] else 'landscape'}{native}: a "
+                f"turned camera? send frames as the map's were taken, {send}")
+    return (f"{got} and this map's images are {want[0]}x{want[1]}{cropped}{native}: resize frames to {send} before "
+            "sending")
 
 
 def _finite(v: float) -> float | None:
