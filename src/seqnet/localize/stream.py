@@ -218,7 +218,8 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     correct, has = (None, None) if q_pos is None else frame_truth(q_pos, loc.r_pos, radius, best)
     if vq is not None:
         correct, has, q_pos = vq.truth(frame, map_dir, loc.r_pos, radius, best)
-    summary = summarize(est, correct, has)
+    known = _known(q_pos)
+    summary = summarize(est, correct, has, known)
     if not is_file and describe_ms:
         summary["describe_ms"] = {"mean": float(np.mean(describe_ms)), "median": float(np.median(describe_ms))}
     if vq is not None:
@@ -232,12 +233,22 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     truth = FrameTruth.of(q_pos, loc.r_pos, best, frame.unit)
     if truth is not None:
         record["truth"] = truth.record()
-    write_track(check_output(out), track_rows(est, names, ref_map.names, correct, truth=truth), record)
+    write_track(check_output(out), track_rows(est, names, ref_map.names, correct, truth=truth, known=known),
+                record)
     logger.debug("localize: %d frames streamed", len(est))
     if on_track is not None:
         on_track(TrackView.of(ref_map.positions, loc.r_pos, best, np.array([e.confidence for e in est]), q_pos,
                               correct, has, frame.unit, radius))
     return Written(out, record)
+
+
+def _known(q_pos: np.ndarray | None) -> np.ndarray | None:
+    """``[Nq]``: whether each frame's true position ``q_pos [Nq, P]`` is known (a NaN row: a video's frame outside
+    its track); None without ground truth."""
+    if q_pos is None:
+        return None
+    q = np.isfinite(np.asarray(q_pos, np.float64))
+    return q.all(axis=1) if q.ndim > 1 else q
 
 
 def _localise(loc: Any, frames: Frames, n: int | None, method: str,
