@@ -68,7 +68,7 @@ def videos(tmp_path):
         out[side] = write_video(tmp_path / f"{side}.mp4", drive(N, seed, noise), rate=10,
                                 creation_time=T0.isoformat())
         out[f"{side}.gpx"] = write_gpx(tmp_path / f"{side}.gpx", T0, times, lat, lon)
-    half = N // 2
+    half = 15  # 0 .. 1.4 s of a 4 s video: under half of it
     out["half.gpx"] = write_gpx(tmp_path / "half.gpx", T0, times[:half], lat[:half], lon[:half])
     assert cli_main(["-q", "dataset", "from-video", str(out["ref"]), str(out["query"]), "--out",
                      str(tmp_path / "ds"), "--method", "pixels", "--device", "cpu", "--ref-positions",
@@ -104,3 +104,33 @@ def test_a_full_track_has_every_frame_scored(videos, tmp_path):
     rows, s = _localize(videos, tmp_path, "query.gpx", "full.csv")
     assert s["outside"] == 0 and s["no_truth"] == 0
     assert all(r["correct"] != "" for r in rows if r["estimate"] != "-1")
+
+
+def test_a_half_track_is_said_to_cover_half_and_per_metre_maps_localise_the_rest(videos, tmp_path, capsys):
+    """A track of the video's first 1.4 s was said not to overlap it ("do not overlap the video's 0 .. 4.0 s"); on a map
+    sampled per metre the frames after its end were neither localised nor counted (``outside: 0``). Now the
+    line says what the track covers and how many frames it leaves out, and those frames are sampled by time at
+    the rate kept along the track, localised and counted as ``outside``, as on a map sampled by time."""
+    assert cli_main(["-q", "dataset", "from-video", str(videos["ref"]), str(videos["query"]), "--out",
+                     str(tmp_path / "dsm"), "--method", "pixels", "--device", "cpu", "--ref-positions",
+                     str(videos["ref.gpx"]), "--query-positions", str(videos["query.gpx"]), "--radius", "15",
+                     "--every-metres", "20"]) == 0
+    capsys.readouterr()
+    rows, s = _localize(videos, tmp_path, "half.gpx", "h.csv")  # every frame (the map's own sampling)
+    said = capsys.readouterr().err
+    assert "do not overlap" not in said and "the track covers 0 .. 1.4 s of the video's 0 .. 4.0 s: the 25 " \
+        "frames after its end have no position; they are localised" in said, said
+    assert s["frames"] == N and s["outside"] == 25
+    capsys.readouterr()
+    (tmp_path / "ds").rename(tmp_path / "ds_every")
+    (tmp_path / "dsm").rename(tmp_path / "ds")
+    rows, s = _localize(videos, tmp_path, "half.gpx", "m.csv")
+    said = capsys.readouterr().err
+    assert "the 25 frames after its end have no position; with no track to measure metres on, those frames are " \
+        "sampled by time at 5 frames/s (the rate one frame per 20 m kept along the track)" in said, said
+    assert s["outside"] == 13 and s["frames"] == 8 + 13 and s["no_truth"] == sum(
+        r["full_window"] == "1" and r["true_x"] == "" for r in rows)
+    assert [float(r["name"]) for r in rows] == pytest.approx(np.r_[np.arange(0, 1.5, 0.2), np.arange(1.5, 4, 0.2)])
+    capsys.readouterr()
+    rows, s = _localize(videos, tmp_path, "query.gpx", "full.csv")  # a whole track: as before, silent
+    assert s["frames"] == 20 and s["outside"] == 0 and not capsys.readouterr().err
