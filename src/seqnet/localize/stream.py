@@ -45,6 +45,7 @@ if TYPE_CHECKING:
     from ..maps.map import Map
 
 from .config import LocalizeConfig
+from .copies import CopyWatch, reference_rows
 from .describing import check_not_dataset, check_query_dim, map_describer, query_file_provenance
 from .localizer import Estimate, traverse_reference
 from .replay import frame_truth, summarize
@@ -254,11 +255,13 @@ def _known(q_pos: np.ndarray | None) -> np.ndarray | None:
 def _localise(loc: Any, frames: Frames, n: int | None, method: str,
               partial: Callable[[list[Estimate]], Path | None]) -> tuple[list[Estimate], list[float]]:
     """``(estimates, describe_ms)`` of every frame; a frame that fails (an image of another size, a damaged one)
-    ends the run with its error, after ``partial`` wrote the track of the frames localised before it."""
+    ends the run with its error, after ``partial`` wrote the track of the frames localised before it. The map's own
+    frames given as the query are said (:class:`~seqnet.localize.copies.CopyWatch`)."""
     est: list[Estimate] = []
     describe_ms = []
+    copies = CopyWatch(reference_rows(loc.ref))
     try:
-        for d, ms in progress(frames, desc=f"localize ({method})", total=n, unit="frame"):
+        for d, ms in progress(copies.watch(frames), desc=f"localize ({method})", total=n, unit="frame"):
             est.append(loc.step(d))
             describe_ms.append(ms)
     except SeqnetError as e:
@@ -267,6 +270,9 @@ def _localise(loc: Any, frames: Frames, n: int | None, method: str,
             raise
         e.args = (f"{e} (the track of the {counted(len(est), 'frame')} localised before it is written: {written})",)
         raise
+    note = copies.note()
+    if note:
+        logger.warning("%s", note)
     return est, describe_ms
 
 
