@@ -212,3 +212,22 @@ def test_a_track_whole_hours_off_names_the_zone_or_the_video_clock(tmp_path):
     with pytest.raises(DatasetError, match=r"UTC \(hint: --video-start if the video's clock is wrong\)"):
         video_times(gpx, T0 + datetime.timedelta(hours=2, minutes=10), 60.0)  # not whole hours: as before
     np.testing.assert_allclose(video_times(gpx, T0, 60.0), times)  # a right track: placed, nothing said
+
+
+def test_a_track_covering_part_of_the_video_is_said_to_cover_it():
+    """A track of the video's first half was said not to overlap it; now what it covers and the frames left out,
+    before its start, after its end and in its gaps, counted from the frames' times."""
+    frames = np.arange(300) / 10  # a 30 s video at 10 frames/s
+    half = np.arange(150) / 10
+    inside = frames <= half[-1]
+    said = why_outside(half, 30.0, 10.0, frames, inside)
+    assert said == "the track covers 0 .. 14.9 s of the video's 0 .. 30.0 s: the 150 frames after its end have no " \
+        "position"
+    middle = np.r_[np.arange(50, 100), np.arange(130, 200)] / 10.0  # 5 .. 20 s with a 3 s gap; --max-gap 2
+    inside = np.zeros(300, bool)
+    inside[50:100] = inside[130:200] = True
+    said = why_outside(middle, 30.0, 2.0, frames, inside)
+    assert said == "the track covers 5 .. 19.9 s of the video's 0 .. 30.0 s: 180 frames have no position (50 " \
+        "before its start, 100 after its end, 30 in its gaps of more than 2 s (--max-gap))"
+    assert "do not overlap" not in why_outside(half, 30.0, 10.0)  # without the frames: no counts, still true
+    assert "do not overlap the video's 0 .. 20.0 s" in why_outside(np.arange(100.0, 130.0), 20.0, 10.0)

@@ -70,16 +70,23 @@ def frame_truth(q_pos: np.ndarray, r_pos: np.ndarray, radius: float, best: np.nd
     return truth.hits(best[:, None])[:, 0], truth.has_positive()
 
 
-def summarize(est: Sequence[Estimate], correct: np.ndarray | None, has: np.ndarray | None) -> dict[str, Any]:
+def summarize(est: Sequence[Estimate], correct: np.ndarray | None, has: np.ndarray | None,
+              known: np.ndarray | None = None) -> dict[str, Any]:
     """Frames, answers, R@1 / AUC / R@100P over the full-window frames, and latency statistics (ms) in the steady
     state: the warm-up, every frame up to the first answered one (the first search allocates and warms its kernels:
     ~26 ms against a 2 ms median on a 200-frame map, hundreds of ms with large models), is left out of them and
-    said apart (``warmup_frames``, ``warmup_max``)."""
+    said apart (``warmup_frames``, ``warmup_max``). ``known [Nq]``: the frames whose truth is known (None: all);
+    the others (a video's frames outside its track) are left out of every figure, counted as ``no_truth``: a
+    frame whose place is unknown is neither right nor wrong (where a frame known to have no reference within the
+    radius is a wrong answer when accepted)."""
     full = np.array([e.full_window for e in est], bool)
     lat = np.array([e.latency_ms for e in est])
     out: dict[str, Any] = {"frames": len(est), "answered": int(sum(e.ref_index >= 0 for e in est)),
                            "full_window": int(full.sum())}
     if correct is not None and has is not None:
+        if known is not None:
+            out["no_truth"] = int((full & ~known).sum())
+            full = full & known
         pos = full & has
         conf = np.array([e.confidence for e in est])
         out.update(queries=int(pos.sum()), no_positive=int((full & ~has).sum()))

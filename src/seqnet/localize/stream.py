@@ -45,6 +45,7 @@ if TYPE_CHECKING:
     from ..maps.map import Map
 
 from .config import LocalizeConfig
+from .copies import CopyWatch, reference_rows
 from .describing import check_not_dataset, check_query_dim, map_describer, query_file_provenance
 from .localizer import Estimate, traverse_reference
 from .replay import frame_truth, summarize
@@ -218,7 +219,8 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     correct, has = (None, None) if q_pos is None else frame_truth(q_pos, loc.r_pos, radius, best)
     if vq is not None:
         correct, has, q_pos = vq.truth(frame, map_dir, loc.r_pos, radius, best)
-    summary = summarize(est, correct, has)
+    known = _known(q_pos)
+    summary = summarize(est, correct, has, known)
     if not is_file and describe_ms:
         summary["describe_ms"] = {"mean": float(np.mean(describe_ms)), "median": float(np.median(describe_ms))}
     if vq is not None:
@@ -232,7 +234,8 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     truth = FrameTruth.of(q_pos, loc.r_pos, best, frame.unit)
     if truth is not None:
         record["truth"] = truth.record()
-    write_track(check_output(out), track_rows(est, names, ref_map.names, correct, truth=truth), record)
+    write_track(check_output(out), track_rows(est, names, ref_map.names, correct, truth=truth, known=known),
+                record)
     logger.debug("localize: %d frames streamed", len(est))
     if on_track is not None:
         on_track(TrackView.of(ref_map.positions, loc.r_pos, best, np.array([e.confidence for e in est]), q_pos,
@@ -240,14 +243,25 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     return Written(out, record)
 
 
+def _known(q_pos: np.ndarray | None) -> np.ndarray | None:
+    """``[Nq]``: whether each frame's true position ``q_pos [Nq, P]`` is known (a NaN row: a video's frame outside
+    its track); None without ground truth."""
+    if q_pos is None:
+        return None
+    q = np.isfinite(np.asarray(q_pos, np.float64))
+    return q.all(axis=1) if q.ndim > 1 else q
+
+
 def _localise(loc: Any, frames: Frames, n: int | None, method: str,
               partial: Callable[[list[Estimate]], Path | None]) -> tuple[list[Estimate], list[float]]:
     """``(estimates, describe_ms)`` of every frame; a frame that fails (an image of another size, a damaged one)
-    ends the run with its error, after ``partial`` wrote the track of the frames localised before it."""
+    ends the run with its error, after ``partial`` wrote the track of the frames localised before it. The map's own
+    frames given as the query are said (:class:`~seqnet.localize.copies.CopyWatch`)."""
     est: list[Estimate] = []
     describe_ms = []
+    copies = CopyWatch(reference_rows(loc.ref))
     try:
-        for d, ms in progress(frames, desc=f"localize ({method})", total=n, unit="frame"):
+        for d, ms in progress(copies.watch(frames), desc=f"localize ({method})", total=n, unit="frame"):
             est.append(loc.step(d))
             describe_ms.append(ms)
     except SeqnetError as e:
@@ -256,6 +270,9 @@ def _localise(loc: Any, frames: Frames, n: int | None, method: str,
             raise
         e.args = (f"{e} (the track of the {counted(len(est), 'frame')} localised before it is written: {written})",)
         raise
+    note = copies.note()
+    if note:
+        logger.warning("%s", note)
     return est, describe_ms
 
 

@@ -6,7 +6,8 @@
 * :func:`place_track`: the ``--positions`` track joined to a video file's clock before decoding it, refused when it
   places no frame (:func:`seqnet.sources.tracks.clock.why_outside`: times in milliseconds, a gap, no overlap) or
   places none near the map's
-  route (lat and lon swapped, another place): such a run has nothing to score.
+  route (lat and lon swapped, another place): such a run has nothing to score. Frames off the track are localised
+  without ground truth (``outside``); with ``--every-metres`` they are kept by time, at the rate kept along it.
 * after the run, a near-constant time offset between where the frames were estimated and where the track puts
   them (a video clock a few seconds off) is found by :func:`seqnet.sources.tracks.offset.clock_offset`.
 """
@@ -91,13 +92,14 @@ def place_track(video: str | Path, positions: str | Path, start: Any, zone: tupl
                 max_gap: float | None = None, stream: int = 0) -> tuple[JoinedTrack, np.ndarray | None]:
     """The track ``positions`` on the video file ``video`` (recorded from ``start``, a datetime or None), in the
     UTM ``zone`` of the map whose reference positions are ``r_pos [R, 2]``: refused (:class:`DatasetError`) when it
-    places no frame, or none within ``radius`` of the map's route. With the track, the video times of the frames
-    ``every_metres`` keeps (None without it).
+    places no frame, or none within ``radius`` of the map's route; a track that leaves frames out is warned (how
+    many, where, what happens to them). With the track, the video times of the frames ``every_metres`` keeps
+    (None without it; the frames off the track by time, :func:`with_untracked`).
     ``on_frame`` checks the frame of the track's positions (e.g. the map's UTM zone) before they are compared;
     ``stream``: the video stream read (the number :func:`seqnet.sources.video.choose_stream` chose)."""
     from ..sources.placed import join_track
     from ..sources.sampling import every_metres as by_metres
-    from ..sources.tracks.clock import check_placed
+    from ..sources.tracks.clock import check_placed, why_outside
     from ..sources.tracks.interpolate import DEFAULT_MAX_GAP
     from ..sources.video import VideoFile
 
@@ -109,15 +111,37 @@ def place_track(video: str | Path, positions: str | Path, start: Any, zone: tupl
     xy, inside = track.at(v.times, gap)
     where = f"the track {shown(positions)[:120]}"
     placed, n = int(inside.sum()), len(v.times)
-    line = check_placed(placed, n, track.times, v.duration, gap,
-                        f"{where} places {placed or 'none'} of the {n} frames of {shown(video)[:120]}")
-    if line:
-        logger.warning("%s", line)
+    said = f"{where} places {placed or 'none'} of the {n} frames of {shown(video)[:120]}"
+    line = check_placed(placed, n, track.times, v.duration, gap, said, v.times, inside)
     check_near_route(xy[inside], r_pos, radius, where, track.geographic)
     kept = None
     if every_metres is not None:
         kept = v.times[inside][by_metres(xy[inside], every_metres)]
+        if placed < n:  # no metres off the track: the frames there are kept at the rate kept along it
+            kept, rate = with_untracked(kept, v.times[~inside])
+            line = line or f"{said}: {why_outside(track.times, v.duration, gap, v.times, inside)}"
+            line = (f"{line}; with no track to measure metres on, those frames are sampled by time at {rate} "
+                    f"(the rate one frame per {every_metres:g} m kept along the track), localised, and left out of "
+                    "the scores (outside)")
+    elif line:
+        line += "; they are localised, and left out of the scores (outside)"
+    if line:
+        logger.warning("%s", line)
     return track, kept
+
+
+def with_untracked(kept: np.ndarray, untracked: np.ndarray) -> tuple[np.ndarray, str]:
+    """``(times [K'], rate said)``: the sorted video times ``kept [K]`` that per-metre sampling kept along a
+    track, with the times ``untracked [U]`` of the frames off the track (no metres there) kept by time at the
+    mean rate of ``kept`` (every frame when that has no rate: under two frames, or no time between them)."""
+    from ..sources.sampling import every_seconds
+
+    span = float(kept[-1] - kept[0]) if len(kept) > 1 else 0.0
+    if span <= 0:
+        return np.sort(np.concatenate([kept, untracked])), "every frame"
+    fps = (len(kept) - 1) / span
+    extra = untracked[every_seconds(untracked, fps)] if len(untracked) else untracked
+    return np.sort(np.concatenate([kept, extra])), f"{fps:.3g} frames/s"
 
 
 def check_near_route(q_xy: np.ndarray, r_pos: np.ndarray, radius: float, where: str, geographic: bool) -> None:

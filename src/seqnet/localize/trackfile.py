@@ -138,8 +138,9 @@ class FrameTruth:
 
 def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list[str] | None,
                correct: np.ndarray | None, accepted: np.ndarray | None = None,
-               truth: FrameTruth | None = None) -> list[dict[str, Any]]:
-    """One row per query frame (:data:`TRACK_COLUMNS`); ``correct`` is empty without ground truth or answer;
+               truth: FrameTruth | None = None, known: np.ndarray | None = None) -> list[dict[str, Any]]:
+    """One row per query frame (:data:`TRACK_COLUMNS`); ``correct`` is empty without ground truth or answer (and
+    where ``known [Nq]``, the frames whose truth is known, is False: a video's frames outside its track);
     with ``accepted [Nq]`` (a calibrated threshold's decisions) the column :data:`ACCEPTED` too; with ``truth``
     (:func:`frame_truth`) the columns :data:`TRUTH_COLUMNS`, last."""
     rows = []
@@ -150,7 +151,8 @@ def track_rows(est: Sequence[Estimate], q_names: list[str] | None, r_names: list
             "estimate_name": csv_cell(r_names[e.ref_frame]) if r_names and answered else "",
             "score": f"{e.score:.6g}" if answered else "", "confidence": f"{e.confidence:.6f}",
             "latency_ms": f"{e.latency_ms:.3f}",
-            "correct": int(correct[i]) if correct is not None and answered else "", "full_window": int(e.full_window)})
+            "correct": int(correct[i]) if correct is not None and answered and (known is None or known[i]) else "",
+            "full_window": int(e.full_window)})
         if accepted is not None:
             rows[-1][ACCEPTED] = int(accepted[i])
         if truth is not None:

@@ -92,7 +92,7 @@ def place_video(path: str | Path, positions: str | Path | None = None, fps: floa
         kind = "absolute" if joined.absolute else "seconds"
         check_placed(placed, len(video.times), joined.times, video.duration, max_gap,
                      f"the track {shown(positions)} places {placed or 'none'} of the {len(video.times)} frames of "
-                     f"the video {shown(path)}")
+                     f"the video {shown(path)}", video.times, inside)
         idx = idx[inside]
     if every_metres is not None:
         idx = idx[by_metres(xy[idx], every_metres)]

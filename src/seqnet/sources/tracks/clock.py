@@ -112,36 +112,69 @@ def time_unit(track_times: np.ndarray, duration: float) -> str | None:
     return next(name for bound, name in UNIT_RATIOS if ratio < bound)
 
 
-def why_outside(track_times: np.ndarray, duration: float, max_gap: float) -> str:
-    """Why no frame of a ``duration`` s video lies on a track of sorted times ``[S]`` (seconds since the video's
-    first frame): times in milliseconds, frames inside a gap longer than ``max_gap``, or no overlap."""
+def why_outside(track_times: np.ndarray, duration: float, max_gap: float, frame_times: np.ndarray | None = None,
+                inside: np.ndarray | None = None) -> str:
+    """Why frames of a ``duration`` s video lie off a track of sorted times ``[S]`` (seconds since the video's
+    first frame): times in milliseconds, no overlap, a track that covers only part of the video (with the frames'
+    ``frame_times [N]`` and ``inside [N]``: how many lie before its start, after its end and in its gaps,
+    :func:`coverage`), or frames inside a gap longer than ``max_gap``."""
     t = np.asarray(track_times, np.float64)
     span = float(t[-1] - t[0]) if len(t) else 0.0
     unit = time_unit(t, duration)
     if unit is not None:
         return (f"the track spans {span:.0f} s against a video of {duration:.1f} s: times in {unit}? (numeric "
                 "times are read as seconds since the video's start, unless they are Unix epoch times)")
+    if t[-1] < 0 or t[0] > duration:
+        return (f"the track's times ({t[0]:.3g} .. {t[-1]:.3g} s) do not overlap the video's 0 .. {duration:.1f} s "
+                "(numeric times are read as seconds since the video's start; absolute ones need the video's "
+                "creation_time or --video-start)")
+    partial = bool(t[0] > 0 or t[-1] < duration)
+    said = coverage(t, duration, max_gap, frame_times, inside) if partial and frame_times is not None else None
     gaps = np.diff(t)
-    inside = (t[:-1] < duration) & (t[1:] > 0) & (gaps > max_gap)
-    if inside.any():
-        g = float(gaps[inside].max())
-        return (f"the video's frames fall inside a gap of the track of {g:.3g} s, longer than the {max_gap:g} s a "
-                f"frame is interpolated across (--max-gap) (the track has {len(t)} fixes over {span:.3g} s: times "
-                "in milliseconds, or a sparse track?)")
-    return (f"the track's times ({t[0]:.3g} .. {t[-1]:.3g} s) do not overlap the video's 0 .. {duration:.1f} s "
-            "(numeric times are read as seconds since the video's start; absolute ones need the video's "
-            "creation_time or --video-start)")
+    within = (t[:-1] < duration) & (t[1:] > 0) & (gaps > max_gap)
+    if said is None and within.any():
+        return (f"the video's frames fall inside a gap of the track of {float(gaps[within].max()):.3g} s, longer "
+                f"than the {max_gap:g} s a frame is interpolated across (--max-gap) (the track has {len(t)} fixes "
+                f"over {span:.3g} s: times in milliseconds, or a sparse track?)")
+    return said or coverage(t, duration, max_gap) or ""
+
+
+def coverage(track_times: np.ndarray, duration: float, max_gap: float, frame_times: np.ndarray | None = None,
+             inside: np.ndarray | None = None) -> str | None:
+    """``the track covers 0 .. 14.8 s of the video's 0 .. 30.0 s: the 151 frames after its end have no
+    position`` for a track of times ``[S]`` (seconds since the video's first frame) overlapping a ``duration`` s
+    video in part; the counts of frames before its start, after its end and in its gaps (longer than
+    ``max_gap``) need the frames' ``frame_times [N]`` and ``inside [N]``. None when it leaves no frame out."""
+    t = np.asarray(track_times, np.float64)
+    shown_span = f"{max(float(t[0]), 0.0):.3g} .. {min(float(t[-1]), duration):.3g} s"
+    head = f"the track covers {shown_span} of the video's 0 .. {duration:.1f} s"
+    if frame_times is None or inside is None:
+        return f"{head}: the frames outside it have no position"
+    ft, off = np.asarray(frame_times, np.float64), ~np.asarray(inside, bool)
+    before, after = int((off & (ft < t[0])).sum()), int((off & (ft > t[-1])).sum())
+    parts = [(k, what) for k, what in ((before, "before its start"), (after, "after its end"),
+                                       (int(off.sum()) - before - after,
+                                        f"in its gaps of more than {max_gap:g} s (--max-gap)")) if k]
+    if not parts:
+        return None
+    if len(parts) == 1:
+        k, what = parts[0]
+        return f"{head}: {'the frame' if k == 1 else f'the {k} frames'} {what} {'has' if k == 1 else 'have'} " \
+            "no position"
+    listed = ", ".join(f"{k} {what}" for k, what in parts)
+    return f"{head}: {int(off.sum())} frames have no position ({listed})"
 
 
 def check_placed(placed: int, n: int, track_times: np.ndarray, duration: float, max_gap: float,
-                 said: str) -> str | None:
+                 said: str, frame_times: np.ndarray | None = None, inside: np.ndarray | None = None) -> str | None:
     """Refuse (:class:`DatasetError`, ``said: why``) a track that places ``placed`` of a video's ``n`` frames when
     that is none, or under half with times that look like milliseconds (a dataset of a frame or two is no dataset);
-    under half otherwise: that line, to warn with (:func:`why_outside`); else None. ``track_times [S]``: the track's
-    times in seconds since the video's first frame, ``duration``: the video's seconds."""
+    under half otherwise: that line, to warn with (:func:`why_outside`, with the frames' ``frame_times [N]`` and
+    ``inside [N]`` when given: how many lie before, after and within the track); else None. ``track_times [S]``:
+    the track's times in seconds since the video's first frame, ``duration``: the video's seconds."""
     if 2 * placed >= n:
         return None
-    line = f"{said}: {why_outside(track_times, duration, max_gap)}"
+    line = f"{said}: {why_outside(track_times, duration, max_gap, frame_times, inside)}"
     if not placed or in_milliseconds(track_times, duration):
         raise DatasetError(line)
     return line
