@@ -54,12 +54,12 @@ def test_views_are_concatenated_normalised_in_order():
     rng = np.random.default_rng(0)
     images = rng.integers(0, 120, (4, 6, 8, 3), dtype=np.uint8)  # dim: equalising changes them
 
-    def extract(x):
-        return x.reshape(len(x), -1)[:, :5].astype(np.float32) + 1
+    def extract(view, x):
+        return x.reshape(len(x), -1)[:, :5].astype(np.float32) + (1 if view == "raw" else 2)
 
     both = described_views(images, ("raw", "equalize"), extract)
     assert both.shape == (4, 10) and np.allclose(np.linalg.norm(both, axis=1), 1, atol=1e-6)
-    raw, eq = extract(images), extract(equalize(images))
+    raw, eq = extract("raw", images), extract("equalize", equalize(images))  # each view its own extract
     for part, want in ((both[:, :5], raw), (both[:, 5:], eq)):
         want = want / np.linalg.norm(want, axis=1, keepdims=True) / np.sqrt(2)
         assert np.allclose(part, want, atol=1e-6)
@@ -86,3 +86,36 @@ def test_a_describer_with_views_describes_each_view(tmp_path):
     assert both.shape == (3, 2 * plain.shape[1]) and names == ["0.png", "1.png", "2.png"]
     assert np.allclose(both[:, : plain.shape[1]] * np.sqrt(2), plain / np.linalg.norm(plain, axis=1, keepdims=True),
                        atol=1e-5)
+
+
+def test_netvlad_fits_clusters_per_view_keeps_them_and_reuses_them(tmp_path, caplog):
+    """Each view fits its own NetVLAD clusters (one set fitted on both views was worse on Nordland64's val), kept
+    beside the output as <stem>.netvlad.pth.tar and <stem>.equalize.netvlad.pth.tar and reused by a second run; a
+    seqnet-fitted checkpoint of one view is refused with several views."""
+    import logging
+
+    import h5py
+
+    from seqnet.cli import main as cli_main
+    from seqnet.describe.netvlad import load_netvlad
+
+    rng = np.random.default_rng(0)
+    (tmp_path / "imgs").mkdir()
+    for i in range(4):
+        Image.fromarray((rng.random((40, 80, 3)) ** 3 * 255).astype(np.uint8)).save(tmp_path / "imgs" / f"{i}.png")
+    base = ["-q", "describe", str(tmp_path / "imgs"), "--method", "netvlad", "--clusters", "4", "--batch-size", "2",
+            "--resize", "64x32", "--views", "raw,equalize"]
+    assert cli_main([*base, "--out", str(tmp_path / "nv.h5")]) == 0
+    raw, eq = (load_netvlad(tmp_path / f"nv{v}.netvlad.pth.tar") for v in ("", ".equalize"))
+    assert not np.allclose(raw.pool.centroids.detach().numpy(), eq.pool.centroids.detach().numpy())
+    with h5py.File(tmp_path / "nv.h5") as h:
+        first = h["descriptors"][()]
+    conf = DescribeConfig(method="netvlad", clusters=4, batch_size=2, size=(64, 32), views=("raw", "equalize"))
+    paths = sorted((tmp_path / "imgs").iterdir())
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        again, _ = make_describer(conf, paths, sidecar=tmp_path / "nv.h5").describe(paths)
+    assert sum("reusing the NetVLAD clusters" in r.getMessage() for r in caplog.records) == 2
+    np.testing.assert_allclose(again, first, atol=1e-5)
+    with pytest.raises(ConfigError, match="fits one per view"):
+        make_describer(conf.replace(checkpoint=str(tmp_path / "nv.netvlad.pth.tar")), paths)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -34,16 +35,18 @@ class Describer:
 
     Attributes:
         config: the settings, ``size`` resolved ("native" or (W, H)).
-        extract: the method's raw descriptors ``[B, D0]``.
+        extract: the method's raw descriptors ``[B, D0]`` (of the first of the config's views).
         pca: the PCA applied after ``extract`` (``config.dim``), or None.
         seen_size: ``(W, H)`` of the images it last loaded (cropped and resized as described), None before any:
             recorded in the descriptors' provenance (:mod:`seqnet.core.provenance`).
+        view_extracts: each view's ``extract`` (its own fitted state), when the config has several views.
     """
 
     config: DescribeConfig
     extract: Extract
     pca: PCA | None = None
     seen_size: tuple[int, int] | None = None
+    view_extracts: dict[str, Extract] | None = None
 
     @property
     def method(self) -> str:
@@ -57,7 +60,8 @@ class Describer:
     def raw(self, images: np.ndarray) -> np.ndarray:
         """``[B, D]`` before the PCA: ``extract`` of each of the config's views of ``images``, concatenated
         (:func:`~seqnet.describe.views.described_views`; one view: ``extract`` itself)."""
-        return described_views(images, self.config.views, self.extract)
+        extracts = self.view_extracts or {}
+        return described_views(images, self.config.views, lambda view, x: extracts.get(view, self.extract)(x))
 
     def load_some(self, paths: Sequence[str | os.PathLike[str] | ImageItem]) -> tuple[np.ndarray, list[int]]:
         """Images as :meth:`load`, leaving unreadable ones out with ``skip_corrupted``; also their indices."""
@@ -82,13 +86,14 @@ class Describer:
         self._saw(imgs)
         return imgs
 
-    def batches(self, paths: Sequence[ImageRef], what: str, views: bool = False) -> Iterator[np.ndarray]:
-        """Image batches of ``paths`` (for fitting), with a progress bar labelled ``what``; ``views``: each batch
-        once per view of the config (a method's state, the NetVLAD clusters, fitted on every view it describes)."""
+    def batches(self, paths: Sequence[ImageRef], what: str, view: str | None = None) -> Iterator[np.ndarray]:
+        """Image batches of ``paths`` (for fitting), with a progress bar labelled ``what``; ``view``: that
+        :data:`~seqnet.describe.views.VIEWS` view of them (a method's state, the NetVLAD clusters, is fitted per
+        view)."""
         for b in progress(list(iter_batches(len(paths), self.config.batch_size)), desc=what, unit="batch"):
             imgs, _ = self.load_some([paths[i] for i in b])
             if len(imgs):
-                yield from ((VIEWS[v](imgs) for v in self.config.views) if views else (imgs,))
+                yield imgs if view is None else VIEWS[view](imgs)
 
     def describe(self, paths: Sequence[str | os.PathLike[str] | ImageItem], names: Sequence[str] | None = None,
                  spill: bool = False) -> tuple[np.ndarray, list[str]]:
@@ -141,18 +146,38 @@ def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str] 
             file there that this output did not write raises :class:`ConfigError`). None: nothing saved.
     """
     conf = conf.resolved()
+    check_view_checkpoint(conf)
     fit_paths = fit_paths_of(conf, [as_image(p) for p in paths]) if conf.needs_fit else []
-    pca_state, own_state = pca_file(conf, sidecar, fit_paths), method_state_file(conf, sidecar, fit_paths)
-    reuse_pca, reuse_own = (f is not None and f.reusable() for f in (pca_state, own_state))
+    pca_state = pca_file(conf, sidecar, fit_paths)
+    reuse_pca = pca_state is not None and pca_state.reusable()
     loader = Describer(conf, lambda images: images)
-    ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths) * len(conf.views),
-                     batches=lambda: loader.batches(fit_paths, f"fitting images ({conf.method})", views=True),
-                     state=own_state.path if own_state else None, reuse=reuse_own,
-                     tag=own_state.tag if own_state else None, image_size=conf.image_size)
-    d = Describer(conf, conf.method_spec.extractor(ctx))
+    extracts: dict[str, Extract] = {}
+    for view in conf.views:  # a fitted state per view; a method that fits none is built once
+        if extracts and not conf.method_spec.fits_state:
+            extracts[view] = extracts[conf.views[0]]
+            continue
+        own = method_state_file(conf, sidecar, fit_paths, view)
+        what = f"fitting images ({conf.method}{'' if len(conf.views) == 1 else ', ' + view})"
+        ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths),
+                         batches=lambda v=view, w=what: loader.batches(fit_paths, w, v),
+                         state=own.path if own else None, reuse=own is not None and own.reusable(),
+                         tag=own.tag if own else None, image_size=conf.image_size)
+        extracts[view] = conf.method_spec.extractor(ctx)
+    d = Describer(conf, extracts[conf.views[0]], view_extracts=extracts if len(extracts) > 1 else None)
     if conf.dim is not None:
         d.pca = _pca_for(d, fit_paths, pca_state, reuse_pca)
     return d
+
+
+def check_view_checkpoint(conf: DescribeConfig) -> None:
+    """Refuse several views with a state fitted by seqnet for one (``--checkpoint`` of a NetVLAD it fitted): each
+    view fits its own, so the other views would be described with the first one's clusters (a pretrained
+    checkpoint from elsewhere serves every view)."""
+    path = getattr(conf.method_spec, "checkpoint", None)
+    if len(conf.views) > 1 and path and conf.method_spec.read_tag(Path(path)) is not None:
+        raise ConfigError(f"--checkpoint {path} holds the {conf.method} state seqnet fitted for one view, and "
+                          f"--views {','.join(conf.views)} fits one per view (hint: describe both traverses in one "
+                          "run, e.g. seqnet dataset from-images ... --views, which fits them once for both)")
 
 
 def _pca_for(d: Describer, fit_paths: list[ImageRef], state: StateFile | None, reuse: bool) -> PCA:

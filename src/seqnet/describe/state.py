@@ -20,6 +20,7 @@ from ..core.provenance import fit_digest
 from .config import DescribeConfig, fit_summary
 from .images import ImageItem, image_key
 from .pca import read_tag as read_pca_tag
+from .views import RAW
 
 PCA_SUFFIX = ".pca.npz"
 
@@ -55,11 +56,14 @@ class StateFile:
                           "another --out)")
 
 
-def state_tag(conf: DescribeConfig, output: str | os.PathLike[str], fit_paths: Sequence[Path | ImageItem] = ()) -> str:
-    """The tag of state fitted for ``output`` with the settings of ``conf`` on the images ``fit_paths``."""
+def state_tag(conf: DescribeConfig, output: str | os.PathLike[str], fit_paths: Sequence[Path | ImageItem] = (),
+              view: str = RAW) -> str:
+    """The tag of state fitted for ``output`` with the settings of ``conf`` on the images ``fit_paths`` (in their
+    ``view``, named in the tag when the config has several: :mod:`seqnet.describe.views`)."""
     fitted_on = fit_summary(tuple(str(p) for p in fit_paths))
+    per_view = {"view": view} if len(conf.views) > 1 else {}
     return json.dumps({"output": Path(output).name, "settings": conf.settings(), "fit_images": fitted_on,
-                       "provenance_fit": provenance_fit(fit_paths)}, sort_keys=True)  # what a reuser records
+                       "provenance_fit": provenance_fit(fit_paths), **per_view}, sort_keys=True)  # a reuser records
 
 
 def provenance_fit(paths: Sequence[str | os.PathLike[str] | ImageItem]) -> str:
@@ -108,19 +112,22 @@ def pca_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
 
 
 def method_state_file(conf: DescribeConfig, output: str | os.PathLike[str] | None,
-                      fit_paths: Sequence[Path | ImageItem] = ()) -> StateFile | None:
-    """The file of the method's fitted state (NetVLAD clusters) beside ``output``; None when it fits none."""
+                      fit_paths: Sequence[Path | ImageItem] = (), view: str = RAW) -> StateFile | None:
+    """The file of the method's fitted state (NetVLAD clusters) of ``view`` beside ``output`` (``<stem>.VIEW<suffix>``
+    for a view other than the first of several); None when it fits none."""
     method = conf.method_spec
     if output is None or not method.fits_state or method.state_suffix is None:
         return None
     path = Path(output).with_suffix("")
     no_pca = dataclasses.replace(conf, dim=None, whiten=False)  # the PCA does not change this state
-    tag = state_tag(no_pca, output, fit_paths)
-    return StateFile(path.with_name(path.name + method.state_suffix), f"{method.name} state", tag, method.read_tag)
+    tag = state_tag(no_pca, output, fit_paths, view)
+    infix = f".{view}" if view != conf.views[0] else ""
+    return StateFile(path.with_name(path.name + infix + method.state_suffix),
+                     f"{method.name} state" + (f" ({view})" if infix else ""), tag, method.read_tag)
 
 
 def state_files(conf: DescribeConfig, output: str | os.PathLike[str] | None,
                 fit_paths: Sequence[Path | ImageItem] = ()) -> list[StateFile]:
     """The fitted-state files a run of ``conf`` writing ``output`` (fitting on ``fit_paths``) reads and writes."""
-    files = (method_state_file(conf, output, fit_paths), pca_file(conf, output, fit_paths))
+    files = (*(method_state_file(conf, output, fit_paths, v) for v in conf.views), pca_file(conf, output, fit_paths))
     return [f for f in files if f is not None]

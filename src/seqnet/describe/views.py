@@ -61,13 +61,14 @@ def check_views(views: Sequence[str] | str) -> tuple[str, ...]:
 
 
 def described_views(images: np.ndarray, views: Sequence[str],
-                    extract: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-    """``[B, views × D]`` float32: ``extract`` (``[B, ...] uint8 → [B, D]``) of each view of ``images``, each row
-    L2-normalised, concatenated in the order of ``views`` and divided by √views (rows of unit norm)."""
-    if tuple(views) == DEFAULT_VIEWS:
-        return extract(images)
+                    extract: Callable[[str, np.ndarray], np.ndarray]) -> np.ndarray:
+    """``[B, views × D]`` float32: ``extract(view, images of that view)`` (``[B, ...] uint8 → [B, D]``: each view
+    may have its own fitted state) of each view of ``images``, each row L2-normalised, concatenated in the order of
+    ``views`` and divided by √views (rows of unit norm); one view: ``extract`` of the images as they are."""
+    if len(views) == 1:
+        return extract(views[0], VIEWS[views[0]](images))
     parts = []
     for v in views:
-        d = np.asarray(extract(VIEWS[v](images)), dtype=np.float32)
+        d = np.asarray(extract(v, VIEWS[v](images)), dtype=np.float32)
         parts.append(d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12))
     return (np.concatenate(parts, axis=1) / np.float32(np.sqrt(len(parts)))).astype(np.float32)
