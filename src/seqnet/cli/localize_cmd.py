@@ -110,7 +110,7 @@ def localizer_config(args: argparse.Namespace) -> LocalizeConfig:
 
 def map_method(where: str | None) -> str | None:
     """The method the index map in ``where`` was built for (``seqnet index build --shortlist --rerank``), said in
-    one line; None for anything else (a dataset directory runs every method; a damaged map is refused later, when
+    one line when it is not the default; None for anything else (a dataset directory runs every method; a damaged map is refused later, when
     it is loaded)."""
     from ..core.errors import SeqnetError
     from ..core.log import logger
@@ -124,7 +124,8 @@ def map_method(where: str | None) -> str | None:
         name = MapConfig.from_dict(read_meta(Path(where))["config"]).method.name
     except (SeqnetError, KeyError, TypeError, ValueError):
         return None
-    logger.info("--method not given: %s, the method map %s was built for", name, shown(where))
+    if name != _D.method:  # the default itself needs no word
+        logger.info("--method not given: %s, the method map %s was built for", name, shown(where))
     return name
 
 
