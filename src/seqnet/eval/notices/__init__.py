@@ -1,5 +1,5 @@
 """What an evaluation says beside its numbers when the user probably meant something else (one line each, logged
-as a warning and kept in the results' ``warnings``): explicit positives that look shifted (:func:`shift_notice`),
+as a warning and kept in the results' ``warnings``): ground truth that looks shifted (:func:`shift_notice`),
 a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
 (:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), a model whose epoch was
 chosen on the evaluated queries (:func:`selection_leakage`) or trained on them (:func:`leakages`), all of these
@@ -14,18 +14,18 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.log import counted, logger
-from ..methods.checks import kept_count, named_test_split, queries_span, training_record
-from ..methods.trained import chosen_range, free_hint, train_range, used_ranges
-from ..metrics.shift import shifted_offset, top1_offsets
-from ..security.text import shown
-from .calibrated import calibration_on_test
-from .config import EvalConfig
-from .evaluation import Evaluation
+from ...core.log import counted, logger
+from ...methods.checks import kept_count, named_test_split, queries_span, training_record
+from ...methods.trained import chosen_range, free_hint, train_range, used_ranges
+from ...security.text import shown
+from ..calibrated import calibration_on_test
+from ..config import EvalConfig
+from ..evaluation import Evaluation
+from .shift import shift_notice  # noqa: F401 - a notices name, used by eval, maps
 
 if TYPE_CHECKING:
-    from ..data.traverse import Dataset
-    from ..sequence.model import SeqNet
+    from ...data.traverse import Dataset
+    from ...sequence.model import SeqNet
 
 
 FEW_QUERIES = 30  # below this many scored queries, R@1 moves by more than 0.033 per query: a note says so
@@ -53,7 +53,7 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
     (:func:`seqnet.methods.checks.leakage`; ``calibrate_split``: the split a threshold is calibrated on, too, and
     whether it is the test split, :func:`seqnet.eval.calibrated.calibration_on_test`). For
     the stages that score queries as eval does (``seqnet localize --dataset``)."""
-    from ..methods.checks import leakage
+    from ...methods.checks import leakage
 
     lines = [split_note(given, list(ds.splits), len(ds.split(split).query)),
              *selection_leakage(models, dataset, ds, split), *leakage(models, dataset, ds, split)]
@@ -66,7 +66,7 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
 def leakages(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str, conf: EvalConfig) -> list[str]:
     """:func:`seqnet.methods.checks.leakage` of the evaluated ``split`` and, with ``conf.target_precision``, of the
     calibration split, counting the queries ``conf`` keeps (``--resample-every``)."""
-    from ..methods.checks import leakage
+    from ...methods.checks import leakage
 
     out = leakage(models, dataset, ds, split, every=conf.query_every)
     if conf.target_precision is not None:
@@ -100,33 +100,6 @@ def wilson(p: float, n: int, z: float = 1.96) -> tuple[float, float]:
     centre, half = p + z * z / (2 * n), z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
     denom = 1 + z * z / n
     return max(0.0, (centre - half) / denom), min(1.0, (centre + half) / denom)
-
-
-def shift_notice(ev: Evaluation) -> str | None:
-    """Why explicit positives look shifted: the top-1s of every method evaluated, pooled, cluster at one constant
-    offset from the listed positives (:func:`seqnet.metrics.shift.shifted_offset`); None otherwise or without
-    explicit positives."""
-    pooled, names = [], []
-    for name, retrieved in ev.retrieved.items():
-        view = ev.view(name)
-        if view.truth.positives is None or retrieved.ndim != 2 or retrieved.shape[1] == 0:
-            continue
-        r_items = np.asarray(view.r_items, dtype=np.int64)
-        top = retrieved[:, 0].astype(np.int64)
-        top1 = np.where(top >= 0, r_items[np.maximum(top, 0)], -1)
-        q, r = view.truth.positives.pairs()
-        pooled.append(top1_offsets(top1, q, r_items[r]))
-        names.append(name)
-    offsets = np.concatenate(pooled) if pooled else np.zeros(0, np.int64)
-    o = shifted_offset(offsets)
-    if o is None:
-        return None
-    n, hits = int((offsets == o).sum()), int((offsets == 0).sum())
-    side = "before" if o < 0 else "after"
-    return (f"positives look shifted by {o:+d}{' (1-based indices?)' if o == -1 else ''}: {n} of {len(offsets)} "
-            f"top-1 answers ({', '.join(names)}) lie exactly {abs(o)} reference frame{'s' if abs(o) > 1 else ''} "
-            f"{side} a listed positive, against {hits} on one; hint: check the positives file's indices (0-based: "
-            "reference 0 is the first reference image)")
 
 
 def radius_ignored(radius: float | None, explicit: bool) -> str | None:
