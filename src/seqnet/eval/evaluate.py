@@ -38,6 +38,7 @@ from .calibrated import add_calibration, calibration_failed, calibration_on_test
 from .config import EvalConfig
 from .evaluation import Evaluation, merge, method_windows
 from .notices import add_warnings, leakages, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
+from .notices.chance import chance_notice
 from .outputs import EvalOutputs
 from .runner import run
 
@@ -235,7 +236,8 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     flipped = transposed_positives(ds)  # the whole dataset's square positives; said instead of a shift
     add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), *chosen,
                       *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
-                      flipped or shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None),
+                      flipped or shift_notice(ev) or chance_notice(ev, conf.ks),
+                      radius_ignored(conf.radius, ds.positives is not None),
                       trivial_ks(ev, conf.ks), video_clock_note(ev),
                       calibration_on_test(ds, conf.calibrate_split if cal else None, split),
                       *selection_leakage(loaded, dataset, ds, split, conf.query_every)])
