@@ -1,7 +1,8 @@
 """What an evaluation says beside its numbers when the user probably meant something else (one line each, logged
 as a warning and kept in the results' ``warnings``): ground truth that looks shifted (:func:`shift_notice`),
 a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
-(:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), a model whose epoch was
+(:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`; a default K:
+:func:`default_ks_note`), a model whose epoch was
 chosen on the evaluated queries (:func:`selection_leakage`) or trained on them (:func:`leakages`), all of these
 for another stage that scores queries (:func:`scored_notices`), an R@1 over few queries (:func:`few_queries`), and
 HVPR settings chosen on training queries (:func:`training_choice`)."""
@@ -122,18 +123,44 @@ def split_note(given: str | None, splits: Sequence[str], n_queries: int) -> str 
 
 def trivial_ks(ev: Evaluation, ks: Sequence[int]) -> str | None:
     """Which K of ``ks`` (given with ``--ks``: not the default Ks, whose R@100 a small dataset makes trivial every
-    time) are at least the references a method indexes (its R@K is 1 for every query with a positive: says
-    nothing), and which HVPR shortlists hold every reference (:func:`whole_shortlists`), in one line."""
-    trivial: dict[int, int] = {}
-    for name in ev.retrieved if tuple(ks) != EvalConfig().ks else ():
-        n = len(ev.view(name).r_items)
-        for k in ks:
-            if k >= n:
-                trivial[k] = min(n, trivial.get(k, n))
+    time: a warning on every such run, with a hint about a choice the user did not make; :func:`default_ks_note`
+    says those columns as a note instead) are at least the references a method indexes (its R@K is 1 for every
+    query with a positive: says nothing), and which HVPR shortlists hold every reference
+    (:func:`whole_shortlists`), in one line."""
+    trivial = trivial_columns(ev, ks) if tuple(ks) != EvalConfig().ks else {}
     said = ", ".join(f"R@{k} (K >= the {n} references indexed)" for k, n in sorted(trivial.items()))
     lines = [f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
              if trivial else None, whole_shortlists(ev)]
     return "; ".join(line for line in lines if line) or None
+
+
+def trivial_columns(ev: Evaluation, ks: Sequence[int]) -> dict[int, int]:
+    """Each K of ``ks`` that is at least the references some method indexes, with the fewest such references."""
+    trivial: dict[int, int] = {}
+    for name in ev.retrieved:
+        n = len(ev.view(name).r_items)
+        for k in ks:
+            if k >= n:
+                trivial[k] = min(n, trivial.get(k, n))
+    return trivial
+
+
+def default_ks_note(ev: Evaluation, ks: Sequence[int]) -> str | None:
+    """The note (printed after the table, not a warning: :func:`trivial_ks` says why) for the default Ks' columns
+    that are at least the references a method indexes: they read 1.000 for every query with a positive."""
+    if tuple(ks) != EvalConfig().ks:
+        return None
+    trivial = trivial_columns(ev, ks)
+    if not trivial:
+        return None
+    cols = ", ".join(f"R@{k}" for k in sorted(trivial))
+    fewest = min(len(ev.view(name).r_items) for name in ev.retrieved)
+    below = ",".join(str(k) for k in ks if k < fewest)
+    hint = f"--ks {below} leaves them out" if below else "--ks with Ks below the references"
+    one = len(trivial) == 1
+    return (f"{cols} {'is' if one else 'are'} trivial here (K >= the {min(trivial.values())} references indexed): "
+            f"every query with a positive counts as found, so {'that column says' if one else 'those columns say'} "
+            f"nothing (the default Ks; {hint})")
 
 
 def whole_shortlists(ev: Evaluation) -> str | None:
