@@ -243,3 +243,30 @@ def test_a_shortlist_of_every_reference_is_said(synth_dataset):
     ev = evaluate(test, conf.replace(top_k=n - 1, fuse_top_k=n), models)
     assert trivial_ks(ev, EvalConfig().ks).endswith("hint: --fuse-top-k below the references for a shortlist")
     assert trivial_ks(evaluate(test, conf.replace(top_k=5, fuse_top_k=5), models), EvalConfig().ks) is None
+
+
+def test_the_default_ks_note_their_trivial_columns_after_the_table(synth_dir, tmp_path, capsys):
+    """The default Ks on a split of fewer references than R@20 / R@100: a note after the table names those columns
+    (not a warning: the user chose no K) and is kept in the results; an explicit --ks warns as before."""
+    from seqnet.cli import main
+
+    assert main(["eval", "--dataset", str(synth_dir), "--split", "test", "--method", "single,raw+seqmatch",
+                 "--json", str(tmp_path / "r.json")]) == 0
+    out, err = capsys.readouterr()
+    res = json.loads((tmp_path / "r.json").read_text())
+    notes = [line for line in out.splitlines() if line.startswith("note: R@")]
+    assert len(notes) == 1 and notes[0].startswith("note: R@100 is trivial here (K >= the "), notes
+    assert "every query with a positive counts as found, so that column says nothing (the default Ks; " \
+           "--ks 1,5,10,20 leaves them out)" in notes[0]
+    assert res["trivial_ks"] == notes[0].removeprefix("note: ")
+    assert not any("trivial" in w for w in res.get("warnings", [])) and "trivial" not in err
+
+
+def test_the_default_ks_note_is_silent_on_large_splits_and_explicit_ks(synth_dataset):
+    from seqnet.eval.notices import default_ks_note
+
+    ev = evaluate(synth_dataset.split("test"), EvalConfig(methods=("single",)))
+    assert default_ks_note(ev, (1, 5, 100)) is None  # given Ks: trivial_ks warns instead
+    assert default_ks_note(ev, EvalConfig().ks) is not None
+    big = evaluate(make_synthetic(places=400, dim=16, seed=2), EvalConfig(methods=("single",)))
+    assert len(big.view("single").r_items) > 100 and default_ks_note(big, EvalConfig().ks) is None

@@ -188,8 +188,9 @@ def print_results(res: dict) -> None:
             print(f"{name}: {key} {r[key]:.3f} (the map's index against exact search)")
     for line in format_notes(learned_below_baseline(res)):
         print(shown(line))
-    if res.get("few_queries"):
-        print(shown(f"note: {res['few_queries']}"))
+    for key in ("trivial_ks", "few_queries"):
+        if res.get(key):
+            print(shown(f"note: {res[key]}"))
     alone = unmatched(res)
     if alone:
         print(shown(f"note: no model-free counterpart was evaluated for {'; '.join(alone)}"))

@@ -37,7 +37,17 @@ from ..sequence.windows import Windows
 from .calibrated import add_calibration, calibration_failed, calibration_on_test, check_calibration_split
 from .config import EvalConfig
 from .evaluation import Evaluation, merge, method_windows
-from .notices import add_warnings, leakages, radius_ignored, selection_leakage, shift_notice, split_note, trivial_ks
+from .notices import (
+    add_warnings,
+    default_ks_note,
+    leakages,
+    radius_ignored,
+    selection_leakage,
+    shift_notice,
+    split_note,
+    trivial_ks,
+)
+from .notices.chance import chance_notice
 from .outputs import EvalOutputs
 from .runner import run
 
@@ -235,7 +245,8 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     flipped = transposed_positives(ds)  # the whole dataset's square positives; said instead of a shift
     add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), *chosen,
                       *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
-                      flipped or shift_notice(ev), radius_ignored(conf.radius, ds.positives is not None),
+                      flipped or shift_notice(ev) or chance_notice(ev, conf.ks),
+                      radius_ignored(conf.radius, ds.positives is not None),
                       trivial_ks(ev, conf.ks), video_clock_note(ev),
                       calibration_on_test(ds, conf.calibrate_split if cal else None, split),
                       *selection_leakage(loaded, dataset, ds, split, conf.query_every)])
@@ -245,6 +256,8 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         for line in leaks:
             logger.warning("%s", shown(line))  # it names checkpoints' records: text from files
     ev.results["learned_below_baseline"] = note_entries(learned_below_baseline(ev.results))
+    if (trivial := default_ks_note(ev, conf.ks)) is not None:
+        ev.results["trivial_ks"] = trivial  # a note after the table (cli), not a warning
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
     return ev

@@ -1,7 +1,8 @@
 """What an evaluation says beside its numbers when the user probably meant something else (one line each, logged
-as a warning and kept in the results' ``warnings``): explicit positives that look shifted (:func:`shift_notice`),
+as a warning and kept in the results' ``warnings``): ground truth that looks shifted (:func:`shift_notice`),
 a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
-(:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`), a model whose epoch was
+(:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`; a default K:
+:func:`default_ks_note`), a model whose epoch was
 chosen on the evaluated queries (:func:`selection_leakage`) or trained on them (:func:`leakages`), all of these
 for another stage that scores queries (:func:`scored_notices`), an R@1 over few queries (:func:`few_queries`), and
 HVPR settings chosen on training queries (:func:`training_choice`)."""
@@ -14,18 +15,18 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.log import counted, logger
-from ..methods.checks import kept_count, named_test_split, queries_span, training_record
-from ..methods.trained import chosen_range, free_hint, train_range, used_ranges
-from ..metrics.shift import shifted_offset, top1_offsets
-from ..security.text import shown
-from .calibrated import calibration_on_test
-from .config import EvalConfig
-from .evaluation import Evaluation
+from ...core.log import counted, logger
+from ...methods.checks import kept_count, named_test_split, queries_span, training_record
+from ...methods.trained import chosen_range, free_hint, train_range, used_ranges
+from ...security.text import shown
+from ..calibrated import calibration_on_test
+from ..config import EvalConfig
+from ..evaluation import Evaluation
+from .shift import shift_notice  # noqa: F401 - a notices name, used by eval, maps
 
 if TYPE_CHECKING:
-    from ..data.traverse import Dataset
-    from ..sequence.model import SeqNet
+    from ...data.traverse import Dataset
+    from ...sequence.model import SeqNet
 
 
 FEW_QUERIES = 30  # below this many scored queries, R@1 moves by more than 0.033 per query: a note says so
@@ -53,7 +54,7 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
     (:func:`seqnet.methods.checks.leakage`; ``calibrate_split``: the split a threshold is calibrated on, too, and
     whether it is the test split, :func:`seqnet.eval.calibrated.calibration_on_test`). For
     the stages that score queries as eval does (``seqnet localize --dataset``)."""
-    from ..methods.checks import leakage
+    from ...methods.checks import leakage
 
     lines = [split_note(given, list(ds.splits), len(ds.split(split).query)),
              *selection_leakage(models, dataset, ds, split), *leakage(models, dataset, ds, split)]
@@ -66,7 +67,7 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
 def leakages(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str, conf: EvalConfig) -> list[str]:
     """:func:`seqnet.methods.checks.leakage` of the evaluated ``split`` and, with ``conf.target_precision``, of the
     calibration split, counting the queries ``conf`` keeps (``--resample-every``)."""
-    from ..methods.checks import leakage
+    from ...methods.checks import leakage
 
     out = leakage(models, dataset, ds, split, every=conf.query_every)
     if conf.target_precision is not None:
@@ -102,33 +103,6 @@ def wilson(p: float, n: int, z: float = 1.96) -> tuple[float, float]:
     return max(0.0, (centre - half) / denom), min(1.0, (centre + half) / denom)
 
 
-def shift_notice(ev: Evaluation) -> str | None:
-    """Why explicit positives look shifted: the top-1s of every method evaluated, pooled, cluster at one constant
-    offset from the listed positives (:func:`seqnet.metrics.shift.shifted_offset`); None otherwise or without
-    explicit positives."""
-    pooled, names = [], []
-    for name, retrieved in ev.retrieved.items():
-        view = ev.view(name)
-        if view.truth.positives is None or retrieved.ndim != 2 or retrieved.shape[1] == 0:
-            continue
-        r_items = np.asarray(view.r_items, dtype=np.int64)
-        top = retrieved[:, 0].astype(np.int64)
-        top1 = np.where(top >= 0, r_items[np.maximum(top, 0)], -1)
-        q, r = view.truth.positives.pairs()
-        pooled.append(top1_offsets(top1, q, r_items[r]))
-        names.append(name)
-    offsets = np.concatenate(pooled) if pooled else np.zeros(0, np.int64)
-    o = shifted_offset(offsets)
-    if o is None:
-        return None
-    n, hits = int((offsets == o).sum()), int((offsets == 0).sum())
-    side = "before" if o < 0 else "after"
-    return (f"positives look shifted by {o:+d}{' (1-based indices?)' if o == -1 else ''}: {n} of {len(offsets)} "
-            f"top-1 answers ({', '.join(names)}) lie exactly {abs(o)} reference frame{'s' if abs(o) > 1 else ''} "
-            f"{side} a listed positive, against {hits} on one; hint: check the positives file's indices (0-based: "
-            "reference 0 is the first reference image)")
-
-
 def radius_ignored(radius: float | None, explicit: bool) -> str | None:
     """Why ``--radius`` changed nothing: explicit positives decide what is correct."""
     if radius is None or not explicit:
@@ -149,18 +123,44 @@ def split_note(given: str | None, splits: Sequence[str], n_queries: int) -> str 
 
 def trivial_ks(ev: Evaluation, ks: Sequence[int]) -> str | None:
     """Which K of ``ks`` (given with ``--ks``: not the default Ks, whose R@100 a small dataset makes trivial every
-    time) are at least the references a method indexes (its R@K is 1 for every query with a positive: says
-    nothing), and which HVPR shortlists hold every reference (:func:`whole_shortlists`), in one line."""
-    trivial: dict[int, int] = {}
-    for name in ev.retrieved if tuple(ks) != EvalConfig().ks else ():
-        n = len(ev.view(name).r_items)
-        for k in ks:
-            if k >= n:
-                trivial[k] = min(n, trivial.get(k, n))
+    time: a warning on every such run, with a hint about a choice the user did not make; :func:`default_ks_note`
+    says those columns as a note instead) are at least the references a method indexes (its R@K is 1 for every
+    query with a positive: says nothing), and which HVPR shortlists hold every reference
+    (:func:`whole_shortlists`), in one line."""
+    trivial = trivial_columns(ev, ks) if tuple(ks) != EvalConfig().ks else {}
     said = ", ".join(f"R@{k} (K >= the {n} references indexed)" for k, n in sorted(trivial.items()))
     lines = [f"{said}: every query with a positive counts as found, trivially; hint: a K below the references"
              if trivial else None, whole_shortlists(ev)]
     return "; ".join(line for line in lines if line) or None
+
+
+def trivial_columns(ev: Evaluation, ks: Sequence[int]) -> dict[int, int]:
+    """Each K of ``ks`` that is at least the references some method indexes, with the fewest such references."""
+    trivial: dict[int, int] = {}
+    for name in ev.retrieved:
+        n = len(ev.view(name).r_items)
+        for k in ks:
+            if k >= n:
+                trivial[k] = min(n, trivial.get(k, n))
+    return trivial
+
+
+def default_ks_note(ev: Evaluation, ks: Sequence[int]) -> str | None:
+    """The note (printed after the table, not a warning: :func:`trivial_ks` says why) for the default Ks' columns
+    that are at least the references a method indexes: they read 1.000 for every query with a positive."""
+    if tuple(ks) != EvalConfig().ks:
+        return None
+    trivial = trivial_columns(ev, ks)
+    if not trivial:
+        return None
+    cols = ", ".join(f"R@{k}" for k in sorted(trivial))
+    fewest = min(len(ev.view(name).r_items) for name in ev.retrieved)
+    below = ",".join(str(k) for k in ks if k < fewest)
+    hint = f"--ks {below} leaves them out" if below else "--ks with Ks below the references"
+    one = len(trivial) == 1
+    return (f"{cols} {'is' if one else 'are'} trivial here (K >= the {min(trivial.values())} references indexed): "
+            f"every query with a positive counts as found, so {'that column says' if one else 'those columns say'} "
+            f"nothing (the default Ks; {hint})")
 
 
 def whole_shortlists(ev: Evaluation) -> str | None:
