@@ -110,8 +110,8 @@ def localizer_config(args: argparse.Namespace) -> LocalizeConfig:
 
 def map_method(where: str | None) -> str | None:
     """The method the index map in ``where`` was built for (``seqnet index build --shortlist --rerank``), said in
-    one line when it is not the default; None for anything else (a dataset directory runs every method; a damaged map is refused later, when
-    it is loaded)."""
+    one line when it is not the default; None for anything else (a dataset directory runs every method; a
+    damaged map is refused later, when it is loaded)."""
     from ..core.errors import SeqnetError
     from ..core.log import logger
     from ..maps.config import MapConfig
