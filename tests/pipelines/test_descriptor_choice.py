@@ -23,3 +23,21 @@ def test_a_choice_on_a_few_val_queries_is_warned(caplog):
     assert "warning" not in record
     _, record = choose_on_val({"pixels": cands["pixels"]}, score(6), "val")  # one candidate: nothing was chosen
     assert "warning" not in record
+
+
+def test_a_candidate_names_its_views():
+    """``METHOD+VIEW`` is the method's descriptors of the raw and of that view of each image; the benchmark and
+    own data offer netvlad+equalize to the val choice, after netvlad (a tie keeps the cheaper)."""
+    from seqnet.describe import DescribeConfig
+    from seqnet.pipelines.descriptor_choice import CANDIDATES, candidate_describe
+    from seqnet.pipelines.nordland64 import Nordland64Config
+    from seqnet.pipelines.nordland64.select import candidate_config
+
+    base = DescribeConfig(size=(128, 64), views=("raw", "equalize"))
+    assert candidate_describe(base, "netvlad").views == ("raw",)  # a plain name: the method's own view
+    both = candidate_describe(base.replace(views=("raw",)), "netvlad+equalize")
+    assert (both.method, both.views, both.size) == ("netvlad", ("raw", "equalize"), (128, 64))
+    assert CANDIDATES.index("netvlad") < CANDIDATES.index("netvlad+equalize")
+    conf = Nordland64Config()
+    assert "netvlad+equalize" in conf.descriptors
+    assert candidate_config(conf, "netvlad+equalize").views == ("raw", "equalize")

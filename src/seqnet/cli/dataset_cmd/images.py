@@ -27,7 +27,8 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
     p.add_argument("reference", metavar="REF_IMAGES", help="reference image folder, list file or ROS bag")
     p.add_argument("query", metavar="QUERY_IMAGES", help="query image folder, list file or ROS bag")
     p.add_argument("--method", choices=list(DESCRIBERS), help="descriptor method (default: chosen on the val "
-                   "split, which must be given, among pixels, netvlad, gem, gmp (installed weights only) by the "
+                   f"split, which must be given, among {', '.join(CANDIDATES)} (installed weights only; "
+                   "netvlad+equalize: NetVLAD of the raw and the histogram-equalised images, --views) by the "
                    "model-free raw+seqmatch R@1)")
     p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
     g = p.add_mutually_exclusive_group(required=True)
@@ -82,7 +83,11 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
     choose = args.method is None
     if choose and getattr(args, "describer", None):
         raise ConfigError("--describer needs --method plugin (without --method the descriptor is chosen on the val "
-                          "split among pixels, netvlad, gem, gmp)")
+                          f"split among {', '.join(CANDIDATES)})")
+    if choose and getattr(args, "views", None):
+        raise ConfigError(f"--views goes with --method (without --method the descriptor is chosen on the val split "
+                          f"among {', '.join(CANDIDATES)}: netvlad+equalize is NetVLAD with --views raw,equalize); "
+                          f"hint: --method netvlad --views {args.views}")
     if choose:
         args.method = "pixels"  # the candidates take the other describe options; pixels: a valid placeholder
     conf = FromImagesConfig(describe=describe_config(args), fit_on=args.fit_on, ground_truth=truth,
