@@ -26,10 +26,9 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
                     "--positions-topic). See docs/own_data.md and docs/online.md (ROS bags).")
     p.add_argument("reference", metavar="REF_IMAGES", help="reference image folder, list file or ROS bag")
     p.add_argument("query", metavar="QUERY_IMAGES", help="query image folder, list file or ROS bag")
-    p.add_argument("--method", choices=list(DESCRIBERS), help="descriptor method (default: chosen on the val "
-                   f"split, which must be given, among {', '.join(CANDIDATES)} (installed weights only; "
-                   "netvlad+equalize: NetVLAD of the raw and the histogram-equalised images, --views) by the "
-                   "model-free raw+seqmatch R@1)")
+    p.add_argument("--method", choices=list(DESCRIBERS), help=f"descriptor method (default: chosen on the val "
+                   f"split, which must be given, among {', '.join(CANDIDATES)} (installed weights only; netvlad+"
+                   "equalize: NetVLAD of the raw and the histogram-equalised images, --views) by raw+seqmatch R@1)")
     p.add_argument("--out", required=True, metavar="DIR", help="output dataset directory")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--ref-csv", metavar="FILE", help="reference positions CSV (image name + easting,northing, "
