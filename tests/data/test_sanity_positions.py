@@ -75,3 +75,15 @@ def test_positions_in_kilometres_are_named_not_constant_gps():
                      Traverse(ds.query.descriptors, n, ds.query.names), 60.0, name="d")
     assert ("(hint: the frame numbers advance 1 per row, and the radius 60 frames covers the whole route: a radius "
             "of 1-3 frames)") in " ".join(dataset_warnings(frames))
+
+
+def test_a_short_route_in_metres_inside_a_large_radius_is_not_called_kilometres():
+    """Frames 2 m apart over 50 m, radius 100 m: the positions are metres, the radius too large (the kilometres
+    hint, with --radius 0.1, was wrong)."""
+    ds = drive(0, same_positions=False)
+    n = len(ds.reference)
+    line = np.c_[np.arange(n) * 2.0, np.zeros(n)]
+    short = Dataset(Traverse(ds.reference.descriptors, line, ds.reference.names),
+                    Traverse(ds.query.descriptors, line + 0.3, ds.query.names), 1000.0, name="d")
+    said = " ".join(dataset_warnings(short))
+    assert "kilometres" not in said and "a radius near the frame spacing (e.g. --radius 2)" in said, said

@@ -36,6 +36,9 @@ def test_the_note_compares_a_bounded_sample_row_for_row(rng):
     one_off = rows.copy()
     one_off[SAMPLE - 1] = rows[0]  # the last frame compared differs
     assert _noted(rows, one_off) is None
+    black = rows.copy()
+    black[:SAMPLE] = rows[0]  # two drives that both start with black (constant) frames: alike, not the same drive
+    assert _noted(black, black.copy()) is None
 
 
 @pytest.fixture

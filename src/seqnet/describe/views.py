@@ -24,27 +24,28 @@ def equalize(images: np.ndarray) -> np.ndarray:
     """Each image of ``images`` uint8 ``[B, H, W]`` or ``[B, H, W, C]`` with its histogram equalised per channel,
     exactly as Pillow's ``ImageOps.equalize`` (same dtype and shape): the lookup table of each image's channel is
     ``(step // 2 + count of darker pixels) // step`` with ``step = (pixels - pixels at the brightest level) // 255``;
-    a channel of one level (or a step of 0) is left as it is."""
+    a channel of one level (or a step of 0) is left as it is. One image at a time: the working memory is one
+    image's, not the batch's."""
     x = np.asarray(images)
     if x.dtype != np.uint8:
         raise ConfigError(f"equalize needs uint8 images, got {x.dtype}")
-    if x.size == 0:
-        return x.copy()
-    b = x.reshape(x.shape[0], -1, x.shape[3] if x.ndim == 4 else 1)  # [B, P, C]
-    n, p, c = b.shape
-    offsets = (np.arange(n)[:, None, None] * c + np.arange(c)[None, None, :]) * 256
-    hist = np.bincount((b.astype(np.int64) + offsets).ravel(), minlength=n * c * 256).reshape(n, c, 256)
-    last = 255 - np.argmax(hist[..., ::-1] > 0, axis=-1)  # [B, C] the brightest level present
-    top = np.take_along_axis(hist, last[..., None], -1)[..., 0]
-    step = (p - top) // 255  # [B, C]
-    darker = np.cumsum(hist, -1) - hist  # [B, C, 256] pixels below each level
-    safe = np.maximum(step, 1)[..., None]
-    lut = np.minimum((safe // 2 + darker) // safe, 255)
-    levels = (hist > 0).sum(-1)
-    keep = (step == 0) | (levels <= 1)
-    lut = np.where(keep[..., None], np.arange(256), lut).astype(np.uint8)  # [B, C, 256]
-    out = np.take_along_axis(lut, b.transpose(0, 2, 1).astype(np.int64), -1)  # [B, C, P]
-    return out.transpose(0, 2, 1).reshape(x.shape)
+    out = np.empty_like(x)
+    for k in range(len(x)):
+        img = x[k] if x.ndim == 4 else x[k][..., None]  # [H, W, C]
+        luts = np.stack([_lut(np.bincount(img[..., c].ravel(), minlength=256)) for c in range(img.shape[-1])])
+        done = np.stack([luts[c][img[..., c]] for c in range(img.shape[-1])], axis=-1)  # uint8 indexing
+        out[k] = done if x.ndim == 4 else done[..., 0]
+    return out
+
+
+def _lut(hist: np.ndarray) -> np.ndarray:
+    """``[256]`` uint8: Pillow's equalisation table of one channel's histogram ``hist [256]``."""
+    levels = np.flatnonzero(hist)
+    step = (int(hist.sum()) - int(hist[levels[-1]])) // 255 if len(levels) else 0
+    if len(levels) <= 1 or step == 0:
+        return np.arange(256, dtype=np.uint8)
+    darker = np.cumsum(hist) - hist
+    return np.minimum((step // 2 + darker) // step, 255).astype(np.uint8)
 
 
 VIEWS: dict[str, Callable[[np.ndarray], np.ndarray]] = {RAW: lambda images: images, "equalize": equalize}

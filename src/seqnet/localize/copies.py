@@ -56,13 +56,14 @@ class CopyWatch:
 
     def note(self) -> str | None:
         """A line when every sampled query descriptor equals the map's reference row of its number (at least
-        :data:`MIN_FRAMES` of them), else None."""
+        :data:`MIN_FRAMES` of them, and as many distinct rows: the black frames two drives start with are alike),
+        else None."""
         n = len(self.sample)
         if self.rows is None or n < MIN_FRAMES or len(self.rows) < n:
             return None
         q = np.stack(self.sample).astype(np.float64)
         r = np.asarray(self.rows[:n], np.float64)
-        if q.shape != r.shape:
+        if q.shape != r.shape or len(np.unique(r, axis=0)) < MIN_FRAMES:  # black or constant frames: any drive
             return None
         if not np.array_equal(q, r):
             qn, rn = (a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-30) for a in (q, r))

@@ -16,8 +16,8 @@ from ..data.convert import agreed_kinds, match_names, read_positions_table, sequ
 from ..data.gps import check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
-from ..data.sanity.route import SPARSE, radius_hint
-from ..data.spacing import DEGREES_HINT, looks_like_degrees, spacing
+from ..data.sanity.route import radius_hint, spacing_share
+from ..data.spacing import DEGREES_HINT, looks_like_degrees
 from ..data.traverse import Dataset
 from ..data.utm import latlon_pair, mixed_frames
 from ..describe.images import ImageList
@@ -181,13 +181,14 @@ def below_spacing(r: np.ndarray, radius: float, unit: str, near: float) -> str |
     """Why few queries have a reference within ``radius``, when the queries lie among the reference's frames (their
     median distance ``near`` to the nearest is within the spacing of the reference positions ``r [N, P]``) and the
     radius is below :data:`~seqnet.data.sanity.route.SPARSE` times that spacing: the radius is too small (a radius
-    ten times smaller than the spacing or more: None, another unit is likelier)."""
-    gap = spacing(r)
-    if not (0.1 * gap <= radius < SPARSE * gap and near <= gap):
+    ten times smaller than the spacing or more: None, another unit is likelier;
+    :func:`~seqnet.data.sanity.route.spacing_share`)."""
+    found = spacing_share(r, radius, low=0.1)
+    if found is None or near > found[1]:
         return None
-    return (f"{'at most half' if radius <= 0.55 * gap else 'below'} the reference's frame spacing ({gap:.3g} {unit} "
-            f"between neighbouring frames, median): the queries lie between its frames, out of a radius this small "
-            f"({radius_hint(gap)})")
+    share, gap = found
+    return (f"{share} the reference's frame spacing ({gap:.3g} {unit} between neighbouring frames, median): the "
+            f"queries lie between its frames, out of a radius this small ({radius_hint(gap)})")
 
 
 def mismatch_hint(ds: Dataset, matched: int, whole: Dataset | None = None) -> str:

@@ -9,7 +9,7 @@ from ...core.tensors import spread
 from ..traverse import Dataset
 
 REVISIT_SAMPLES = 200  # reference rows looked at (evenly spaced)
-REVISIT_BYTES = 128 << 20  # reference rows compared with them, at most (evenly spaced beyond)
+REVISIT_BYTES = 128 << 20  # reference rows compared with them, and their distances, at most (evenly spaced beyond)
 REVISIT_RATIO = 0.25  # nearest other stretch's image nearer than this share of the median other image: the same place
 REVISIT_LEFT = 0.5  # ... while the frame midway between them is farther than this share: the route left and came back
 REVISIT_RUN = 4  # consecutive sampled rows whose partners run alongside, at least
@@ -29,7 +29,8 @@ def revisited_reference(ds: Dataset) -> str | None:
     if n < 20 or desc.ndim != 2:
         return None
     i = spread(n, REVISIT_SAMPLES)
-    c = spread(n, max(REVISIT_SAMPLES, REVISIT_BYTES // max(1, 8 * desc.shape[1])))
+    # candidates: their rows, and the [S, C] distances with their temporaries (about 4 copies), within the bound
+    c = spread(n, max(REVISIT_SAMPLES, REVISIT_BYTES // (8 * max(desc.shape[1], 4 * REVISIT_SAMPLES))))
     rows, cand = _unit(desc[i]), _unit(desc[c])
     d = np.sqrt(np.maximum(2.0 - 2.0 * (rows @ cand.T), 0.0))  # [S, C]
     typical = np.median(d, axis=1)

@@ -158,17 +158,27 @@ def sparse_reference(reference: np.ndarray, radius: float, unit: str) -> str | N
 
 
 def below_spacing(reference: np.ndarray, radius: float, unit: str) -> str | None:
-    """How ``radius`` compares with the reference's frame spacing (:func:`seqnet.data.spacing.spacing` of
-    ``reference [N, P]``) when below :data:`SPARSE` times it ("below the reference's frame spacing (...): each query
-    has at most one correct reference ..." and the hint; at most half of it, a query between two frames may have
-    none); None otherwise."""
-    gap = spacing(reference)
-    if not (radius > 0 and np.isfinite(gap)) or radius >= SPARSE * gap:
+    """How ``radius`` compares with the reference's frame spacing (:func:`spacing_share`) when below :data:`SPARSE`
+    times it ("below the reference's frame spacing (...): each query has at most one correct reference ..." and the
+    hint; at most half of it, a query between two frames may have none); None otherwise."""
+    found = spacing_share(reference, radius)
+    if found is None:
         return None
-    half = radius <= 0.55 * gap
-    return (f"{'at most half' if half else 'below'} the reference's frame spacing ({gap:.3g} {unit} between "
-            "neighbouring frames, median): each query has at most one correct reference" +
-            (", and one between two reference frames may have none" if half else "") + f" ({radius_hint(gap)})")
+    share, gap = found
+    return (f"{share} the reference's frame spacing ({gap:.3g} {unit} between neighbouring frames, median): each "
+            "query has at most one correct reference" +
+            (", and one between two reference frames may have none" if share == "at most half" else "") +
+            f" ({radius_hint(gap)})")
+
+
+def spacing_share(reference: np.ndarray, radius: float, low: float = 0.0) -> tuple[str, float] | None:
+    """``(share, gap)`` when ``radius`` lies from ``low`` to :data:`SPARSE` times the frame spacing ``gap``
+    (:func:`seqnet.data.spacing.spacing` of ``reference [N, P]``): ``share`` is ``"at most half"`` or ``"below"``;
+    None otherwise (the one rule of the radius-below-spacing lines)."""
+    gap = spacing(reference)
+    if not (radius > 0 and np.isfinite(gap)) or not low * gap <= radius < SPARSE * gap:
+        return None
+    return ("at most half" if radius <= 0.55 * gap else "below"), gap
 
 
 def radius_hint(gap: float) -> str:

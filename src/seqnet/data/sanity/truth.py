@@ -44,6 +44,9 @@ def constant_positions(ds: Dataset) -> str | None:
             f"radius of every query, so R@K is 1 trivially (hint: {_spread_hint(ds, both)})")
 
 
+KM_STEP = 0.1  # a median step per row below this (under the radius) reads as kilometres: 100 m per frame at most
+
+
 def _spread_hint(ds: Dataset, both: np.ndarray) -> str:
     """What to do about positions ``both [N, P]`` (both traverses) all within the radius: degrees, a larger unit
     than the radius's (positions that advance row by row: kilometres, or frames with a radius in metres), or a
@@ -58,10 +61,11 @@ def _spread_hint(ds: Dataset, both: np.ndarray) -> str:
     if ds.position_unit == "frames":
         return (f"the frame numbers advance {step:.2g} per row, and the radius {ds.radius:g} frames covers the whole "
                 "route: a radius of 1-3 frames")
+    if step >= KM_STEP:  # metre-sized steps: a short route inside a large radius, not another unit
+        return (f"the positions advance {step:.2g} {ds.position_unit} per row (median), and the radius covers the "
+                f"whole route: a radius near the frame spacing (e.g. --radius {max(step, 1.0):g})")
     return (f"the positions advance steadily, {step:.2g} per row (median), so the GPS is not constant: positions in "
             f"kilometres? multiply them by 1000, or give the radius in their unit (--radius {ds.radius / 1000:g})")
-
-
 
 
 TRANSPOSED_SAMPLES = 200  # queries whose nearest reference tells the two readings of square positives apart
