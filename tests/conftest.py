@@ -418,6 +418,19 @@ def write_gpx(path, t0, times, lat, lon) -> Path:
     return Path(path)
 
 
+def gps_videos(folder: Path, n: int, t0) -> dict[str, Path]:
+    """A drive filmed twice at 10 fps (``ref.mp4``, ``query.mp4``: ``n`` frames, the query noisier) with each
+    recording's GPX track (``ref.gpx``, ``query.gpx``: ``n + 1`` samples from ``t0``, an aware datetime)."""
+    lat, lon = route(n + 1)
+    times = np.arange(n + 1) / 10
+    out = {}
+    for side, seed, noise in (("ref", 1, 0), ("query", 2, 12)):
+        out[side] = write_video(Path(folder) / f"{side}.mp4", drive(n, seed, noise), rate=10,
+                                creation_time=t0.isoformat())
+        out[f"{side}.gpx"] = write_gpx(Path(folder) / f"{side}.gpx", t0, times, lat, lon)
+    return out
+
+
 def _nmea_angle(value: float, width: int, hemis: str) -> tuple[str, str]:
     v = abs(value)
     deg = int(v)

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import drive, route, write_gpx, write_video
+from conftest import drive, gps_videos, route, write_gpx, write_video
 
 from seqnet.cli import main as cli_main
 
@@ -19,14 +19,7 @@ N = 30
 
 @pytest.fixture
 def videos(tmp_path):
-    lat, lon = route(N + 1)
-    times = np.arange(N + 1) / 10
-    out = {}
-    for side, seed, noise in (("ref", 1, 0), ("query", 2, 12)):
-        out[side] = write_video(tmp_path / f"{side}.mp4", drive(N, seed, noise), rate=10,
-                                creation_time=T0.isoformat())
-        out[f"{side}.gpx"] = write_gpx(tmp_path / f"{side}.gpx", T0, times, lat, lon)
-    return out
+    return gps_videos(tmp_path, N, T0)
 
 
 def _dataset(videos, out, *extra):

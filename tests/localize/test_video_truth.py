@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import drive, route, write_gpx, write_video
+from conftest import gps_videos, route, write_gpx
 
 from seqnet.cli import main as cli_main
 from seqnet.localize.localizer import Estimate
@@ -61,13 +61,9 @@ def test_correct_is_empty_where_the_truth_is_unknown(rng):
 
 @pytest.fixture
 def videos(tmp_path):
+    out = gps_videos(tmp_path, N, T0)
     lat, lon = route(N + 1)
     times = np.arange(N + 1) / 10
-    out = {}
-    for side, seed, noise in (("ref", 1, 0), ("query", 2, 12)):
-        out[side] = write_video(tmp_path / f"{side}.mp4", drive(N, seed, noise), rate=10,
-                                creation_time=T0.isoformat())
-        out[f"{side}.gpx"] = write_gpx(tmp_path / f"{side}.gpx", T0, times, lat, lon)
     half = 15  # 0 .. 1.4 s of a 4 s video: under half of it
     out["half.gpx"] = write_gpx(tmp_path / "half.gpx", T0, times[:half], lat[:half], lon[:half])
     assert cli_main(["-q", "dataset", "from-video", str(out["ref"]), str(out["query"]), "--out",
