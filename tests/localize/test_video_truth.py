@@ -130,3 +130,12 @@ def test_a_half_track_is_said_to_cover_half_and_per_metre_maps_localise_the_rest
     capsys.readouterr()
     rows, s = _localize(videos, tmp_path, "query.gpx", "full.csv")  # a whole track: as before, silent
     assert s["frames"] == 20 and s["outside"] == 0 and not capsys.readouterr().err
+
+
+def test_the_printed_summary_says_how_many_frames_have_no_known_position(videos, tmp_path, capsys):
+    assert cli_main(["localize", "--map", str(tmp_path / "ds"), "--query", str(videos["query"]), "--out",
+                     str(tmp_path / "p.csv"), "--method", "raw+seqmatch", "--seq-len", "3", "--device", "cpu",
+                     "--positions", str(videos["half.gpx"])]) == 0
+    s = json.loads((tmp_path / "p.json").read_text())["summary"]
+    out = capsys.readouterr().out
+    assert s["no_truth"] > 0 and f"({s['no_truth']} of them with no known position: not scored)" in out, out

@@ -230,7 +230,8 @@ def print_summary(conf: LocalizeConfig, args: argparse.Namespace, out: Written) 
     """What the stage wrote beside the track, in a few lines."""
     s = out.data["summary"]
     lat = s.get("latency_ms", {})
-    print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window", end="")
+    unknown = f" ({s['no_truth']} of them with no known position: not scored)" if s.get("no_truth") else ""
+    print(f"{conf.method}: {s['frames']} frames, {s['full_window']} with a full window{unknown}", end="")
     has = "a positive" if out.data.get("config", {}).get("ground_truth") == "explicit positives" else \
         "a reference within the radius"
     if "recall@1" in s:
