@@ -24,8 +24,11 @@ def test_frames_are_encoded_by_their_kind(tmp_path):
     assert encode_frame(tmp_path / "d.npy") == ((tmp_path / "d.npy").read_bytes(), "application/x-npy")
     assert encode_frame(b"\x89PNG\r\n\x1a\nrest")[1] == "image/png"
     assert encode_frame(bytearray(b"\xff\xd8\xff\xe0rest"))[1] == "image/jpeg"
-    with pytest.raises(ClientError, match="PNG or JPEG"):
+    assert encode_frame(b"RIFF\x10\x00\x00\x00WEBPVP8L")[1] == "image/webp"  # the server reads WEBP too
+    with pytest.raises(ClientError, match="PNG, JPEG or WEBP"):
         encode_frame(b"GIF89a")
+    with pytest.raises(ClientError, match="PNG, JPEG or WEBP"):
+        encode_frame(b"RIFF\x10\x00\x00\x00WAVEfmt ")  # RIFF, but sound
     with pytest.raises(ClientError, match=r"shape \[D\]"):
         encode_frame(np.ones((2, 3)))
     with pytest.raises(DatasetError, match="not found"):

@@ -42,15 +42,17 @@ class ClientError(SeqnetError):
 
 
 def encode_frame(frame: Any) -> tuple[bytes, str]:
-    """``(body, content type)`` of a frame: a descriptor (array-like ``[D]``) as ``.npy`` float32, PNG / JPEG /
+    """``(body, content type)`` of a frame: a descriptor (array-like ``[D]``) as ``.npy`` float32, PNG / JPEG / WEBP /
     ``.npy`` bytes as they are, or a file path (``str`` / ``Path``) read and sent as its bytes are."""
     if isinstance(frame, (str, os.PathLike)):
         frame = read_bytes(frame, MAX_FRAME_BYTES, "frame file", DatasetError)
     if isinstance(frame, (bytes, bytearray, memoryview)):
         data = bytes(frame)
         kind = next((k for magic, k in MAGIC.items() if data.startswith(magic)), None)
+        if kind is None and data[:4] == b"RIFF" and data[8:12] == b"WEBP":  # RIFF, size, WEBP: the server reads it
+            kind = "image/webp"
         if kind is None:
-            raise ClientError(0, "a frame given as bytes must be a PNG or JPEG image or a .npy array")
+            raise ClientError(0, "a frame given as bytes must be a PNG, JPEG or WEBP image or a .npy array")
         return data, kind
     arr = np.asarray(frame, dtype=np.float32)
     if arr.ndim != 1:
