@@ -70,6 +70,9 @@ def test_the_html_report_has_a_notes_section_only_when_there_is_one():
     assert notes_section(_results({"single": 0.5, "s1": 0.9})) == []
     (section,) = notes_section(_results({"single": 0.9, "s1<b>": 0.1, "s1": 0.5}))
     assert section.id == "notes" and "<li>s1 (R@1 0.500) is below the model-free single (0.900)" in section.body
+    trivial = {**_results({"single": 0.5, "s1": 0.9}), "trivial_ks": "R@20 & R@100 are trivial here"}
+    (section,) = notes_section(trivial)  # the default Ks' note after the table is in the shared report too
+    assert "<li>R@20 &amp; R@100 are trivial here</li>" in section.body
 
 
 def test_a_table_without_a_header_has_no_empty_first_row():

@@ -46,11 +46,10 @@ def grid_rows(grid: Sequence[Any]) -> tuple[list[str], list[list[str]]]:
 
 
 def notes_section(results: Any) -> list[Section]:
-    """A ``notes`` section when a learned method is below its model-free counterpart, or R@1 is over few queries
-    (the results' ``"few_queries"``); none otherwise."""
+    """A ``notes`` section when a learned method is below its model-free counterpart, R@1 is over few queries
+    (the results' ``"few_queries"``), or a default K's column is trivial (``"trivial_ks"``); none otherwise."""
     texts = [n.text() for n in learned_below_baseline(results)]
-    if isinstance(results.get("few_queries"), str):
-        texts.append(results["few_queries"])
+    texts += [results[k] for k in ("few_queries", "trivial_ks") if isinstance(results.get(k), str)]
     if not texts:
         return []
     items = "".join(f"<li>{html.escape(t)}</li>" for t in texts)
