@@ -82,3 +82,18 @@ def test_clean_synthetic_dataset_is_silent(synth_dataset):
     assert revisited_reference(synth_dataset) is None
     for split in synth_dataset.splits:
         assert revisited_reference(synth_dataset.split(split)) is None
+
+
+def test_eval_says_a_second_pass_too(tmp_path, caplog):
+    """A dataset built before the check (or written by other means) is said at eval, per evaluated split."""
+    import logging
+
+    from seqnet.data.io import save_dataset
+    from seqnet.eval.config import EvalConfig
+    from seqnet.eval.evaluate import main as eval_main
+
+    path = save_dataset(make(loop()), tmp_path / "ds")
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        written = eval_main(EvalConfig(methods=("single",), radius=1.0), path, None)
+    said = [w for w in written.data.get("warnings", []) if "closely resemble" in w]
+    assert len(said) == 1 and said[0].startswith("reference frames 60:90 closely resemble frames 0:30"), said

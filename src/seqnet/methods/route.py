@@ -12,6 +12,8 @@ import numpy as np
 
 from ..core.tensors import spread
 from ..data.sanity import copied_queries, duplicated_rows, real_positions, route_order
+from ..data.sanity.positions import copied_positions
+from ..data.sanity.revisits import revisited_reference
 from ..data.sanity.route import route_checks
 from ..data.sanity.truth import degree_positions
 from ..data.spacing import DEGREES_HINT, RATE_RATIO, looks_like_degrees, step_rates, unequal_steps
@@ -204,7 +206,9 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
     None: only the truth's checks), ``truth`` over its query frames ``items [M]``, for ``methods``: reversed
     sequences, trivial truth, rows out of route order and different sampling rates (for real positions, when a
     sequence method is evaluated), duplicated rows of either side, queries that are copies of references,
-    positions in degrees taken as metres."""
+    positions in degrees taken as metres, the reference's positions given for the query, a reference that passes
+    places twice unknown to the ground truth (:mod:`seqnet.data.sanity`: said at build, and here for a dataset
+    built before or by other means)."""
     methods = list(methods)
     if ds is None:
         return [line for line in (reversed_route(truth, methods), trivial_truth(truth)) if line]
@@ -219,7 +223,8 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
     elif ds.positives is not None and any(m.rate_sensitive for m in parsed):
         found.append(positives_rates(ds))
     found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
-              copied_queries(ds), None if found[1] else degree_positions(ds)]
+              copied_queries(ds), None if found[1] else degree_positions(ds), copied_positions(ds),
+              revisited_reference(ds)]
     found += route_checks(ds, truth.radius, any(not m.single_frame for m in parsed), view=True)  # stops, jumps
     return [line for line in found if line]
 
