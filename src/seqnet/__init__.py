@@ -39,6 +39,8 @@ _API: dict[str, str] = {  # public name -> the module that defines it, imported 
     "knn": ".search.knn",
     "pairwise_distances": ".search.knn",
     "SeqNet": ".sequence.model",
+    "load_model": ".sequence.checkpoints",
+    "load_models": ".sequence.checkpoints",
     "delta": ".sequence.descriptors",
     "smoothing": ".sequence.descriptors",
     "Windows": ".sequence.windows",
