@@ -116,3 +116,20 @@ def test_dims_must_be_below_the_train_frames(synth_dataset):
                                           r"at most 7 axes .* \(hint: --pca 3 or a larger train split\)"):
         reduce_dataset(small, 8)
     assert reduce_dataset(small, 7)[0].query.dim == 7
+
+
+def test_the_reduced_descriptors_keep_the_size_their_images_had(synth_dataset):
+    """Each side's image size stays beside the one id (a map reduced by --pca recorded none, so a portrait query
+    of the same D passed localize and serve); a side without one stays without."""
+    from seqnet.core.provenance import image_size_of, make
+
+    ref = make("describe", {"method": "pixels"}, dim=synth_dataset.reference.dim, image_size=(64, 32))
+    qry = make("describe", {"method": "pixels"}, dim=synth_dataset.query.dim, image_size=(48, 24))
+    ds = dataclasses.replace(synth_dataset, reference=dataclasses.replace(synth_dataset.reference, provenance=ref),
+                             query=dataclasses.replace(synth_dataset.query, provenance=qry))
+    reduced, _ = reduce_dataset(ds, 4)
+    assert image_size_of(reduced.reference.provenance) == (64, 32)
+    assert image_size_of(reduced.query.provenance) == (48, 24)
+    assert reduced.reference.provenance["id"] == reduced.query.provenance["id"]
+    plain, _ = reduce_dataset(synth_dataset, 4)
+    assert image_size_of(plain.reference.provenance) is None

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.log import logger
-from ..core.provenance import fit_digest
+from ..core.provenance import fit_digest, image_size_of
 from ..core.provenance import make as make_provenance
 from ..data.io import load_dataset, save_dataset
 from ..data.traverse import Dataset, Traverse
@@ -88,10 +88,11 @@ def reduce_dataset(ds: Dataset, dims: int, split: str = "train") -> tuple[Datase
     source = ds.reference.provenance or {}
     rng = ds.ranges(split)
     settings = {**(source.get("settings") or {}), "dim": dims, "pca_on": split}
-    prov = make_provenance(source.get("kind") or "external", settings, dim=dims,
-                           fit=fit_digest([str(source.get("id")), split, repr(sorted(rng.items()))]))
+    fit = fit_digest([str(source.get("id")), split, repr(sorted(rng.items()))])
 
-    def side(t: Traverse) -> Traverse:
+    def side(t: Traverse) -> Traverse:  # one id; each side keeps the size its images were described at
+        prov = make_provenance(source.get("kind") or "external", settings, dim=dims, fit=fit,
+                               image_size=image_size_of(t.provenance))
         return dataclasses.replace(t, descriptors=project(pca, t.descriptors), provenance=prov)
 
     before = ds.extra.get("pca") if isinstance(ds.extra.get("pca"), dict) else None  # a chain: said by localize
