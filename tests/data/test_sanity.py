@@ -16,7 +16,7 @@ from seqnet.data.sanity import (
     review,
     shared_queries,
 )
-from seqnet.data.sanity.copies import _copy_of, _row_hashes
+from seqnet.data.sanity.copies import _copies, _row_hashes
 from seqnet.data.traverse import Dataset, Traverse
 
 
@@ -78,13 +78,13 @@ def test_copy_of_vs_a_loop(monkeypatch):
     ref = rng.random((30, 24)).astype(np.float32)
     ref[7, :16] = ref[8, :16]  # rows 7 and 8 share the hashed prefix
     qry = ref[rng.integers(0, 30, 17)]
-    match = _copy_of(ref, qry)
+    match = _copies(ref, qry)
     for m, q in enumerate(qry):
         assert [r for r in range(30) if ref[r].tobytes() == q.tobytes()] == [match[m]]
-    assert _copy_of(ref, ref[[8, 7, 8]]).tolist() == [8, 7, 8]
+    assert _copies(ref, ref[[8, 7, 8]]).tolist() == [8, 7, 8]
     changed = qry.copy()
     changed[11, 20] += 1  # same prefix, another row: no copy
-    assert _copy_of(ref, changed) is None
+    assert _copies(ref, changed)[11] == -1  # the one changed row has no copy
 
 
 def test_splits_sharing_queries_are_named(desc):

@@ -97,13 +97,6 @@ def _same_rows(a: np.ndarray, b: np.ndarray) -> bool:
     return all(np.array_equal(a[i:i + step], b[i:i + step]) for i in range(0, len(a), step))
 
 
-def _copy_of(ref: np.ndarray, qry: np.ndarray) -> np.ndarray | None:
-    """``[M]``: for every row of ``qry [M, D]`` the index of an identical row of ``ref [N, D]``; None when a query
-    row has none (:func:`_copies`)."""
-    copy = _copies(ref, qry)
-    return copy if (copy >= 0).all() else None
-
-
 def _copies(ref: np.ndarray, qry: np.ndarray) -> np.ndarray:
     """``[M]`` int64: for every row of ``qry [M, D]`` the index of an identical row of ``ref [N, D]``, -1 where it
     has none. Only query rows whose sum some reference row has can be copies, and only reference rows whose sum

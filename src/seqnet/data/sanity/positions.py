@@ -7,6 +7,7 @@ import numpy as np
 
 from ...core.tensors import spread
 from ..traverse import Dataset
+from .revisits import unit_rows
 from .truth import constant_positions
 
 SAME_MIN = 10  # rows, at least, before equal positions say anything
@@ -40,7 +41,7 @@ def own_row_rank(ds: Dataset, samples: int = 200) -> float | None:
     with too few such rows."""
     n = min(len(ds.query), len(ds.reference))
     i, j = spread(n, samples), spread(len(ds.reference), samples)
-    q, own, other = (_unit(np.asarray(a, np.float64)) for a in (ds.query.descriptors[i], ds.reference.descriptors[i],
+    q, own, other = (unit_rows(a) for a in (ds.query.descriptors[i], ds.reference.descriptors[i],
                                                                 ds.reference.descriptors[j]))
     d_own = np.linalg.norm(q - own, axis=1)  # [S]
     d = np.sqrt(np.maximum(2.0 - 2.0 * (q @ other.T), 0.0))  # [S, S]: unit rows (zero rows: as far as any)
@@ -52,8 +53,3 @@ def own_row_rank(ds: Dataset, samples: int = 200) -> float | None:
         return None
     share = ((d < d_own[:, None]) & far).sum(axis=1)[ok] / count[ok]
     return float(np.median(share))
-
-
-def _unit(a: np.ndarray) -> np.ndarray:
-    """``a [K, D]`` with rows scaled to unit length (zero rows kept)."""
-    return a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)

@@ -31,16 +31,17 @@ def revisited_reference(ds: Dataset) -> str | None:
     i = spread(n, REVISIT_SAMPLES)
     # candidates: their rows, and the [S, C] distances with their temporaries (about 4 copies), within the bound
     c = spread(n, max(REVISIT_SAMPLES, REVISIT_BYTES // (8 * max(desc.shape[1], 4 * REVISIT_SAMPLES))))
-    rows, cand = _unit(desc[i]), _unit(desc[c])
+    rows, cand = unit_rows(desc[i]), unit_rows(desc[c])
     d = np.sqrt(np.maximum(2.0 - 2.0 * (rows @ cand.T), 0.0))  # [S, C]
     typical = np.median(d, axis=1)
-    away = np.abs(c[None, :] - i[:, None]) > 2 * _in_view(desc, i, typical)
+    view = 2 * _in_view(desc, i, typical)  # frames one place stays in view, both ways
+    away = np.abs(c[None, :] - i[:, None]) > view
     d = np.where(away, d, np.inf)
     k = d.argmin(axis=1)
     j, near = c[k], d[np.arange(len(i)), k]
-    mid = np.linalg.norm(rows - _unit(desc[(i + j) // 2]), axis=1)
+    mid = np.linalg.norm(rows - unit_rows(desc[(i + j) // 2]), axis=1)
     found = (near < REVISIT_RATIO * typical) & (mid > REVISIT_LEFT * typical) & ~_same_place(ds, i, j)
-    found &= _in_step(i, j, found, 2 * _in_view(desc, i, typical))
+    found &= _in_step(i, j, found, view)
     if found.sum() < max(REVISIT_MIN, REVISIT_SHARE * len(i)):
         return None
     a, b = np.maximum(i, j)[found], np.minimum(i, j)[found]
@@ -52,7 +53,7 @@ def revisited_reference(ds: Dataset) -> str | None:
             "reference's positions (GPS), or list both passes in the positives)")
 
 
-def _unit(a: np.ndarray) -> np.ndarray:
+def unit_rows(a: np.ndarray) -> np.ndarray:
     """``a [K, D]`` as float64 rows of unit length (zero rows kept)."""
     a = np.asarray(a, np.float64)
     return a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
@@ -67,7 +68,7 @@ def _in_view(desc: np.ndarray, i: np.ndarray, typical: np.ndarray) -> int:
         at = i[i + lag < n]
         if len(at) < 3:
             break
-        step = np.linalg.norm(_unit(desc[at]) - _unit(desc[at + lag]), axis=1)
+        step = np.linalg.norm(unit_rows(desc[at]) - unit_rows(desc[at + lag]), axis=1)
         if np.median(step / typical[i + lag < n]) > REVISIT_LEFT:
             return int(lag)
     return int(LAGS[-1])
