@@ -108,15 +108,23 @@ def check_same(a: Mapping[str, Any] | None, b: Mapping[str, Any] | None, what_a:
                           "--allow-mismatch if you know they are comparable")
 
 
+def turned(sa: tuple[int, int], sb: tuple[int, int]) -> bool:
+    """Whether of two ``(W, H)`` image sizes one is portrait and the other landscape (a rotated camera)."""
+    return (sa[0] - sa[1]) * (sb[0] - sb[1]) < 0
+
+
+def sizes_clash(method: Any, sa: tuple[int, int], sb: tuple[int, int]) -> bool:
+    """Whether descriptors of ``method`` from images of sizes ``sa`` and ``sb`` do not compare: the sizes differ and
+    the descriptor is the pixel grid itself (``pixels``) or one image is portrait and the other landscape (a pooled
+    CNN descriptor of another camera's resolution compares)."""
+    return tuple(sa) != tuple(sb) and (method == "pixels" or turned(sa, sb))
+
+
 def _check_sizes(a: Mapping[str, Any], b: Mapping[str, Any], what_a: str, what_b: str, allow: bool) -> None:
     """Raise :class:`ProvenanceError` when two records of the same settings both record their images' size and
     the sizes differ (a warning with ``allow``)."""
     sa, sb = image_size_of(a), image_size_of(b)
-    if sa is None or sb is None or sa == sb:
-        return
-    grid = (a.get("settings") or {}).get("method") == "pixels"  # a descriptor of the pixel grid itself
-    turned = (sa[0] - sa[1]) * (sb[0] - sb[1]) < 0  # portrait against landscape: a rotated camera
-    if not grid and not turned:  # a pooled CNN descriptor of another camera's resolution compares (as before)
+    if sa is None or sb is None or not sizes_clash((a.get("settings") or {}).get("method"), sa, sb):
         return
     native = (a.get("settings") or {}).get("size") == "native"
     msg = (f"{what_a} were made from {sa[0]}x{sa[1]} images and {what_b} from {sb[0]}x{sb[1]} images"

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, SeqnetError
 from ..core.log import logger
-from ..core.provenance import image_size_of
+from ..core.provenance import image_size_of, sizes_clash, turned
 from ..localize.config import LocalizeConfig
 from ..localize.describing import map_describer
 from ..localize.localizer import Estimate, Localizer
@@ -131,10 +131,8 @@ def size_refusal(prov: dict, seen: tuple[int, int], allow: bool, dims: tuple[int
     they differ (always refused)."""
     want = image_size_of(prov)
     settings = prov.get("settings") if isinstance(prov.get("settings"), dict) else {}
-    if dims is None:
-        turned = want is not None and (want[0] - want[1]) * (seen[0] - seen[1]) < 0
-        if want is None or seen == want or allow or not (settings.get("method") == "pixels" or turned):
-            return None
+    if dims is None and (want is None or allow or not sizes_clash(settings.get("method"), want, seen)):
+        return None
     native = " (described at their own size)" if settings.get("size") == "native" else ""
     crop = settings.get("crop_bottom") if isinstance(settings.get("crop_bottom"), int) else 0
     cropped = f" after the map's crop of {crop} bottom rows" if crop else ""
@@ -143,7 +141,7 @@ def size_refusal(prov: dict, seen: tuple[int, int], allow: bool, dims: tuple[int
         return (f"{got} and gives D={dims[0] if dims else '?'}, this map's descriptors D={dims[1] if dims else '?'}"
                 f"{native}: send frames of the size of the map's reference images")
     send = f"{want[0]}x{want[1] + crop}"
-    if (want[0] - want[1]) * (seen[0] - seen[1]) < 0:
+    if turned(want, seen):
         return (f"{got}, {'portrait' if seen[0] < seen[1] else 'landscape'}, and this map's images are "
                 f"{want[0]}x{want[1]}{cropped}, {'portrait' if want[0] < want[1] else 'landscape'}{native}: a "
                 f"turned camera? send frames as the map's were taken, {send}")

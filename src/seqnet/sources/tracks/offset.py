@@ -65,14 +65,14 @@ def dataset_offset_note(ds: Any, q_items: np.ndarray, r_items: np.ndarray, top1:
             or ds.position_unit != "metres" or ds.query.positions.shape[1] != 2:
         return None
     q, top = np.asarray(q_items, np.int64), np.asarray(top1, np.int64)
-    try:
-        q_times = np.asarray([float(ds.query.names[i]) for i in q], np.float64)
-    except ValueError:
-        return None
     q_xy = ds.query.positions[q]
     est_xy = np.where((top >= 0)[:, None], ds.reference.positions[np.asarray(r_items)[np.maximum(top, 0)]], np.nan)
     correct = np.linalg.norm(est_xy - q_xy, axis=1) <= ds.radius  # no answer (NaN): wrong
-    if not mostly_wrong(correct):
+    if not mostly_wrong(correct):  # the usual case, before the names are parsed (once per method evaluated)
+        return None
+    try:
+        q_times = np.asarray([float(ds.query.names[i]) for i in q], np.float64)
+    except ValueError:
         return None
     order = np.argsort(q_times, kind="stable")
     offset = clock_offset(q_times, est_xy, q_times[order], q_xy[order])

@@ -23,7 +23,7 @@ import numpy as np
 from ...core.errors import DatasetError
 from ...data.readers import field_separator
 from ...security.text import shown
-from ..times import parse_iso, utc_seconds
+from ..times import utc_seconds
 from .base import Track, epoch_unit, track_of
 
 TIME_COLUMNS = ("time", "t", "timestamp", "seconds")
@@ -43,8 +43,8 @@ def _time(text: str, where: str) -> tuple[float, bool, bool]:
     except ValueError:
         pass
     try:
-        return utc_seconds(parse_iso(text)), True, datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))\
-            .tzinfo is not None
+        t = datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))  # parsed once: its zone, then UTC seconds
+        return utc_seconds(t), True, t.tzinfo is not None
     except (ValueError, OverflowError, OSError) as e:
         raise DatasetError(f"{where}: time {shown(text)[:60]} is neither seconds nor an ISO-8601 time") from e
 
