@@ -3,7 +3,7 @@ the flag on models evaluated on their own training queries (:func:`leakage`)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -173,14 +173,10 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
     (:func:`seqnet.methods.trained.free_hint`), never the split in use. ``every``: the split's queries are
     re-sampled (``--resample-every``), and only the kept ones are counted."""
     a, b = ds.ranges(split)["query"]
-    trained, chosen = used_ranges(models, dataset, ds)
-    out = []
-    for role, m in sorted(models.items()):
-        t = training_record(m)
-        rng = train_range(m, dataset, ds) if t is not None else None
-        both = kept_count(a, max(a, rng[0]), min(b, rng[1]), every) if rng is not None else 0
-        if not both:
-            continue
+    out, ranges = [], None
+    for role, t, rng, both in overlapping(models, lambda m: train_range(m, dataset, ds), a, b, every):
+        ranges = ranges or used_ranges(models, dataset, ds)  # for the hint: read once, when there is one
+        trained, chosen = ranges
         now = ds.ranges(t["split"])
         when = "" if now is not None and tuple(now["query"]) == rng else " when it was trained"
         if calibration:
@@ -191,10 +187,30 @@ def leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spli
             tail = f"its results on them are not a test (hint: {free_hint(ds, trained, chosen, split)})"
         what = "calibration" if calibration else "evaluated"
         out.append(f"{both} of the {counted(kept_count(a, a, b, every), what + ' query', what + ' queries')} "
-                   f"({split!r}, {queries_span(a, b, every)}) are training queries of the "
-                   f"{'S_1' if role == 's1' else 'S_L'} model "
+                   f"({split!r}, {queries_span(a, b, every)}) are training queries of the {role_label(role)} model "
                    f"{t['checkpoint']} ({t['split']!r}{when}, {rng[0]}:{rng[1]}): {tail}")
     return out
+
+
+def overlapping(models: Mapping[str, Any], found_of: Callable[[Any], Any], a: int, b: int, every: int | None = None,
+                span: Callable[[Any], tuple[int, int]] = lambda found: found) -> Iterator[tuple[str, dict, Any, int]]:
+    """``(role, record, found, count)`` per model (in role order) with a training record
+    (:func:`training_record`) whose ``found_of(model)`` (a recorded range, or what holds one: ``span(found)``)
+    shares ``count`` > 0 queries with ``a:b`` (``every``: only the re-sampled ones counted, :func:`kept_count`)."""
+    for role, m in sorted(models.items()):
+        t = training_record(m)
+        found = found_of(m) if t is not None else None
+        if found is None:
+            continue
+        lo, hi = span(found)
+        both = kept_count(a, max(a, lo), min(b, hi), every)
+        if both:
+            yield role, t, found, both
+
+
+def role_label(role: str) -> str:
+    """``S_1`` for the role ``s1``, else ``S_L`` (the sequence model)."""
+    return "S_1" if role == "s1" else "S_L"
 
 
 def training_record(model: Any) -> dict[str, str] | None:

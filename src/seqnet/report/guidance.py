@@ -25,6 +25,7 @@ from typing import Any
 
 from ..core.errors import ConfigError
 from ..core.log import counted
+from ..methods.checks import role_label
 from ..methods.grammar import parse_method
 
 SEQUENCE_BASELINES = ("smoothing", "delta", "delta-paper")
@@ -135,7 +136,7 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
 def _learnt(models: Mapping[str, Any]) -> str:
     """`` (S_1 learnt from 12 training queries)``: the training queries each model's checkpoint records
     (``training_queries`` of :func:`model_entries`); "" when none does."""
-    said = [f"{'S_1' if role == 's1' else 'S_L'} learnt from {counted(n, 'training query', 'training queries')}"
+    said = [f"{role_label(role)} learnt from {counted(n, 'training query', 'training queries')}"
             for role, v in sorted(models.items(), key=lambda kv: kv[0] != "seqnet") if isinstance(v, Mapping)
             and type(n := v.get("training_queries")) is int and n > 0]
     return f" ({', '.join(said)})" if said else ""

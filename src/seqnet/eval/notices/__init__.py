@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...core.log import counted, logger
-from ...methods.checks import kept_count, named_test_split, queries_span, training_record
+from ...methods.checks import kept_count, named_test_split, overlapping, queries_span, role_label, training_record
 from ...methods.trained import chosen_range, free_hint, train_range, used_ranges
 from ...security.text import shown
 from ..calibrated import calibration_on_test
@@ -187,24 +187,18 @@ def selection_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dat
     re-sampled (``--resample-every``), and only the kept ones are counted."""
 
     a, b = ds.ranges(split)["query"]
-    trained, picked = used_ranges(models, dataset, ds)
-    out = []
-    for role, m in sorted(models.items()):
-        t = training_record(m)
-        chosen = chosen_range(m, dataset, ds) if t is not None else None
-        if chosen is None:
-            continue
-        val, (va, vb) = chosen
-        both = kept_count(a, max(a, va), min(b, vb), every)
-        if both:
-            hint = ("choosing the epoch on the test split makes its test numbers optimistic; hint: train with "
-                    "--val-split val" if val == named_test_split(ds.splits) else
-                    f"hint: {free_hint(ds, trained, picked, split)}")
-            n = counted(kept_count(a, a, b, every), "evaluated query", "evaluated queries")
-            out.append(f"{both} of the {n} ({split!r}, "
-                       f"{queries_span(a, b, every)}) are queries the "
-                       f"{'S_1' if role == 's1' else 'S_L'} model {t['checkpoint']} chose its epoch on ({val!r}, "
-                       f"{va}:{vb}), so its results on them are optimistic: {hint}")
+    out, ranges = [], None
+    for role, t, (val, (va, vb)), both in overlapping(models, lambda m: chosen_range(m, dataset, ds), a, b, every,
+                                                      span=lambda found: found[1]):
+        ranges = ranges or used_ranges(models, dataset, ds)  # for the hint: read once, when there is one
+        trained, picked = ranges
+        hint = ("choosing the epoch on the test split makes its test numbers optimistic; hint: train with "
+                "--val-split val" if val == named_test_split(ds.splits) else
+                f"hint: {free_hint(ds, trained, picked, split)}")
+        n = counted(kept_count(a, a, b, every), "evaluated query", "evaluated queries")
+        out.append(f"{both} of the {n} ({split!r}, {queries_span(a, b, every)}) are queries the {role_label(role)} "
+                   f"model {t['checkpoint']} chose its epoch on ({val!r}, {va}:{vb}), so its results on them are "
+                   f"optimistic: {hint}")
     return out
 
 
@@ -223,7 +217,7 @@ def training_choice(models: Mapping[str, SeqNet], dataset: str | Path, ds: Datas
         t, trained = training_record(m), train_range(m, dataset, ds)
         both = max(0, min(b, trained[1]) - max(a, trained[0])) if t is not None and trained is not None else 0
         if both:
-            said.append(f"{both} are training queries of the {'S_1' if role == 's1' else 'S_L'} model "
+            said.append(f"{both} are training queries of the {role_label(role)} model "
                         f"{t['checkpoint']} ({trained[0]}:{trained[1]})")
     if not said:
         return None
