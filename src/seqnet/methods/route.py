@@ -56,15 +56,20 @@ def _matched_refs(truth: Any, items: np.ndarray) -> tuple[np.ndarray, np.ndarray
         count = np.bincount(q, minlength=n)[items]
         mean = np.bincount(q, weights=r.astype(np.float64), minlength=n)[items] / np.maximum(count, 1)
         return items[count > 0], mean[count > 0]
-    r_pos, q_pos = np.asarray(truth.r_pos), np.asarray(truth.q_pos)[items]
-    if r_pos.shape[1] == 1:  # frame numbers: a sorted search (no scipy on the plain numpy route)
-        dist, near = nearest_1d(r_pos[:, 0], q_pos[:, 0])
-    else:
-        from scipy.spatial import cKDTree
-
-        dist, near = cKDTree(r_pos).query(q_pos, k=1)
+    dist, near = nearest_position(np.asarray(truth.r_pos), np.asarray(truth.q_pos)[items])
     close = dist <= truth.radius
     return items[close], near[close].astype(np.float64)
+
+
+def nearest_position(r_pos: np.ndarray, q_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(distance [S], index [S])`` of the nearest row of ``r_pos [R, P]`` (R ≥ 1) to each of ``q_pos [S, P]``: for
+    one coordinate (frame numbers) a sorted search (:func:`nearest_1d`: no scipy on the plain NumPy route), else a
+    k-d tree."""
+    if r_pos.shape[1] == 1:
+        return nearest_1d(r_pos[:, 0], q_pos[:, 0])
+    from scipy.spatial import cKDTree
+
+    return cKDTree(r_pos).query(q_pos, k=1)
 
 
 def nearest_1d(ref: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ...methods.route import nearest_position
 from ...metrics.shift import shifted_offset, top1_offsets
 from ..evaluation import Evaluation, ItemView
 
@@ -67,23 +68,7 @@ def route_offsets(view: ItemView, top: np.ndarray) -> np.ndarray:
     top = top[keep]
     correct = np.linalg.norm(r_pos[top] - q_pos, axis=1) <= t.radius
     r_items = np.asarray(view.r_items, dtype=np.int64)
-    return np.where(correct, 0, r_items[top] - r_items[nearest(q_pos, r_pos)])
-
-
-def nearest(q_pos: np.ndarray, r_pos: np.ndarray) -> np.ndarray:
-    """``[M]`` int64: the row of ``r_pos [R, P]`` nearest each of ``q_pos [M, P]`` (1-D: the two sorted neighbours,
-    no scipy, as plain eval needs none)."""
-    if r_pos.shape[1] == 1:
-        order = np.argsort(r_pos[:, 0], kind="stable")
-        srt = r_pos[order, 0]
-        j = np.clip(np.searchsorted(srt, q_pos[:, 0]), 1, max(1, len(srt) - 1))
-        lo = np.clip(j - 1, 0, len(srt) - 1)
-        hi = np.clip(j, 0, len(srt) - 1)
-        pick = np.where(np.abs(srt[hi] - q_pos[:, 0]) < np.abs(srt[lo] - q_pos[:, 0]), hi, lo)
-        return order[pick].astype(np.int64)
-    from scipy.spatial import cKDTree
-
-    return np.asarray(cKDTree(r_pos).query(q_pos, k=1)[1], dtype=np.int64)
+    return np.where(correct, 0, r_items[top] - r_items[nearest_position(r_pos, q_pos)[1].astype(np.int64)])
 
 
 def positives_line(o: int, n: int, total: int, hits: int, names: list[str]) -> str:
