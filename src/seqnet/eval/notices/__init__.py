@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...core.log import counted, logger
-from ...methods.checks import kept_count, named_test_split, overlapping, queries_span, role_label, training_record
+from ...methods.checks import kept_count, named_test_split, overlapping, queries_span, role_label
 from ...methods.trained import chosen_range, free_hint, train_range, used_ranges
 from ...security.text import shown
 from ..calibrated import calibration_on_test
@@ -212,13 +212,8 @@ def training_choice(models: Mapping[str, SeqNet], dataset: str | Path, ds: Datas
     if not choices or rng is None:
         return None
     a, b = rng["query"]
-    said = []
-    for role, m in sorted(models.items()):
-        t, trained = training_record(m), train_range(m, dataset, ds)
-        both = max(0, min(b, trained[1]) - max(a, trained[0])) if t is not None and trained is not None else 0
-        if both:
-            said.append(f"{both} are training queries of the {role_label(role)} model "
-                        f"{t['checkpoint']} ({trained[0]}:{trained[1]})")
+    said = [f"{both} are training queries of the {role_label(role)} model {t['checkpoint']} ({lo}:{hi})"
+            for role, t, (lo, hi), both in overlapping(models, lambda m: train_range(m, dataset, ds), a, b)]
     if not said:
         return None
     return (f"HVPR settings of {', '.join(c.method for c in choices)} chosen on the val split ({a}:{b}, {b - a} "
