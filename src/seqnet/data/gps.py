@@ -33,7 +33,7 @@ from ..security.limits import INDEX_MAX
 from ..security.text import shown
 from .convert import names_flag, read_csv_rows
 from .readers import read_descriptor_file, read_provenance, read_text
-from .timematch import gap_hint, nearest_in_time
+from .timematch import gap_hint, nearest_within
 from .traverse import Traverse
 from .utm import latlon_to_utm
 
@@ -219,15 +219,10 @@ def nearest_samples(image_times: np.ndarray, log: Samples, names: list[str], max
     """``[N]`` index of the log sample nearest in time to each image; an image more than ``max_gap`` seconds
     from every sample is refused by name, with a hint from :func:`gap_hint`."""
     t = log.times
-    idx, gap = nearest_in_time(t, image_times)
-    bad = np.flatnonzero(gap > max_gap)
-    if bad.size:
-        i = int(bad[0])
-        raise DatasetError(
-            f"{where}: image {names[i]!r} is {gap[i]:.3f} s from the nearest position sample (tolerance "
-            f"{max_gap:g} s; the log spans {t[0]:.3f}..{t[-1]:.3f} s; {bad.size} such images); "
-            + gap_hint(t, image_times, bad, gap, other))
-    return idx
+    return nearest_within(t, image_times, max_gap, lambda bad, gap: (
+        f"{where}: image {names[bad[0]]!r} is {gap[bad[0]]:.3f} s from the nearest position sample (tolerance "
+        f"{max_gap:g} s; the log spans {t[0]:.3f}..{t[-1]:.3f} s; {bad.size} such images); "
+        + gap_hint(t, image_times, bad, gap, other)))
 
 
 def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Path] | None = None,

@@ -24,15 +24,16 @@ def nearest_in_time(times: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, n
     return idx, np.abs(times[idx] - query)
 
 
-def nearest_within(times: np.ndarray, query: np.ndarray, tolerance: float, refusal: Callable[[int, float, int], str],
-                   scale: float = 1.0) -> np.ndarray:
+def nearest_within(times: np.ndarray, query: np.ndarray, tolerance: float,
+                   refusal: Callable[[np.ndarray, np.ndarray], str], scale: float = 1.0) -> np.ndarray:
     """:func:`nearest_in_time` indices; a query farther than ``tolerance`` (in the times' unit ÷ ``scale``) is a
-    :class:`DatasetError` of ``refusal(first index, its gap, how many)``."""
+    :class:`DatasetError` of ``refusal(bad, gap)``: the indices of all such queries ``[B]`` (ascending) and every
+    query's gap ``[N]`` (÷ ``scale``)."""
     idx, gap = nearest_in_time(times, query)
     gap = gap / scale
     bad = np.flatnonzero(gap > tolerance)
     if bad.size:
-        raise DatasetError(refusal(int(bad[0]), float(gap[bad[0]]), int(bad.size)))
+        raise DatasetError(refusal(bad, gap))
     return idx
 
 

@@ -202,8 +202,8 @@ def match_positions(stamps: np.ndarray, positions: Positions, tolerance: float, 
     from ...data.timematch import nearest_within
 
     stamps = np.asarray(stamps, np.int64)
-    nearest = nearest_within(positions.stamps, stamps, tolerance, lambda i, gap, count: (
-        f"{count} of {len(stamps)} images of {what} have no position message within {tolerance:g} s (first: image "
-        f"{i}, timestamp {int(stamps[i])}, {gap:.3f} s from the nearest); hint: a larger --positions-tolerance, "
-        "or check the positions topic"), scale=1e9)
+    nearest = nearest_within(positions.stamps, stamps, tolerance, lambda bad, gap: (
+        f"{bad.size} of {len(stamps)} images of {what} have no position message within {tolerance:g} s (first: "
+        f"image {bad[0]}, timestamp {int(stamps[bad[0]])}, {gap[bad[0]]:.3f} s from the nearest); hint: a larger "
+        "--positions-tolerance, or check the positions topic"), scale=1e9)
     return positions.xy[nearest]
