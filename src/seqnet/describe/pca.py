@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +98,23 @@ def dataset_pca_path(dataset_dir: str | os.PathLike[str]) -> Path:
     """Where the train-split PCA of a reduced dataset directory is saved (``--pca D``): ``<DIR>.pca.npz`` beside it."""
     d = Path(dataset_dir)
     return d.with_name(d.name + ".pca.npz")
+
+
+REDUCED_SUFFIX = re.compile(r"-pca\d+$")  # the suffix of reduced_dataset_path
+
+
+def reduced_dataset_path(dataset_dir: str | os.PathLike[str], dims: int) -> Path:
+    """Where ``seqnet train --pca D`` writes the dataset directory ``dataset_dir`` reduced to ``dims``:
+    ``<DIR>-pca<dims>`` beside it."""
+    d = Path(dataset_dir)
+    return d.with_name(f"{d.name}-pca{dims}")
+
+
+def unreduced_dataset_path(dataset_dir: str | os.PathLike[str]) -> Path:
+    """The directory that :func:`reduced_dataset_path` named ``dataset_dir`` after (``<DIR>`` of
+    ``<DIR>-pca<D>``); ``dataset_dir`` itself when its name has no such suffix."""
+    d = Path(dataset_dir)
+    return d.with_name(REDUCED_SUFFIX.sub("", d.name))
 
 
 def load_dataset_pca(path: str | os.PathLike[str], provenance: dict) -> PCA:

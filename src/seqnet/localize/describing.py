@@ -4,7 +4,6 @@ PCA of ``--pca D`` is applied after it), and no code a file names."""
 from __future__ import annotations
 
 import dataclasses
-import re
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -159,7 +158,9 @@ def _dataset_record(dataset: Path) -> tuple[dict | None, object] | None:
 def _reduced_from(dataset: Path, pca: Mapping) -> tuple[Path, tuple[dict | None, object]] | None:
     """The ``<DIR>`` beside ``dataset`` = ``<DIR>-pca<D>`` (``seqnet train --pca D``'s name) whose descriptors its
     PCA reduced (its provenance id is the PCA's ``source``), with its record; None otherwise."""
-    parent = dataset.with_name(re.sub(r"-pca\d+$", "", dataset.name))
+    from ..describe.pca import unreduced_dataset_path
+
+    parent = unreduced_dataset_path(dataset)
     there = _dataset_record(parent) if parent != dataset else None
     return (parent, there) if there is not None and there[1] == pca.get("source") else None
 

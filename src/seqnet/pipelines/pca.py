@@ -31,7 +31,7 @@ from ..core.provenance import fit_digest, image_size_of
 from ..core.provenance import make as make_provenance
 from ..data.io import load_dataset, save_dataset
 from ..data.traverse import Dataset, Traverse
-from ..describe.pca import PCA, check_fit_rows, dataset_pca_path, fit_pca
+from ..describe.pca import PCA, check_fit_rows, dataset_pca_path, fit_pca, reduced_dataset_path
 from ..localize.describing import unreduced_dataset
 
 FIT_MAX = 20000  # frames a PCA is fitted on at most (evenly spaced): [N, D] float64 in memory
@@ -122,7 +122,7 @@ def main(dataset: str | Path, dims: int, split: str = "train") -> Path:
     """``seqnet train --pca D``: the dataset ``dataset`` reduced to ``dims`` by a PCA fitted on ``split``, in
     ``<dataset>-pca<dims>`` beside it (written, or reused when it is that reduction of that dataset)."""
     src = load_dataset(dataset)
-    out = Path(dataset).with_name(f"{Path(dataset).name}-pca{dims}")
+    out = reduced_dataset_path(dataset, dims)
     warn_reduced(dataset, src, dims)
     if out.exists():
         made = load_dataset(out).extra.get("pca") or {}
