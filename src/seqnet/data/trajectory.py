@@ -30,9 +30,15 @@ class TrackView:
            radius: float) -> TrackView:
         """The view of the answers ``best [Nq]`` (indices into reference items at ``r_pos [Nr', P]``; -1: none)
         on the route ``ref``."""
-        best = np.asarray(best, np.int64)
-        pos = np.asarray(r_pos, np.float64).reshape(len(r_pos), -1)
-        estimate = np.where((best >= 0)[:, None], pos[np.maximum(best, 0)], np.nan) if len(pos) else \
-            np.full((len(best), 1), np.nan)
-        return cls(np.asarray(ref, np.float64).reshape(len(ref), -1), estimate, truth, correct, has,
-                   np.asarray(confidence, np.float64), unit, float(radius))
+        return cls(np.asarray(ref, np.float64).reshape(len(ref), -1), answer_positions(r_pos, best), truth, correct,
+                   has, np.asarray(confidence, np.float64), unit, float(radius))
+
+
+def answer_positions(r_pos: np.ndarray, best: np.ndarray) -> np.ndarray:
+    """``[N, P]`` float64: the position of each answer ``best [N]`` (indices into reference items at
+    ``r_pos [R, P]``); NaN for no answer (-1), and ``[N, 1]`` NaN when there is no reference item."""
+    best = np.asarray(best, np.int64)
+    if not len(r_pos):
+        return np.full((len(best), 1), np.nan)
+    pos = np.asarray(r_pos, np.float64).reshape(len(r_pos), -1)
+    return np.where((best >= 0)[:, None], pos[np.maximum(best, 0)], np.nan)

@@ -131,12 +131,11 @@ class VideoQuery:
         if inside.any():
             correct[inside], has[inside] = frame_truth(q_pos[inside], r_pos, radius, best[inside])
         self.counts["outside"] = int((~inside).sum())
+        from ..data.trajectory import answer_positions
         from ..sources.tracks.offset import clock_offset, mostly_wrong, offset_note
 
         if self.track is not None and mostly_wrong(correct[has]):
-            answered = best >= 0
-            est = np.full((len(best), 2), np.nan)
-            est[answered] = r_pos[best[answered]]
+            est = answer_positions(r_pos, best)
             note = offset_note(clock_offset(times, est, self.track.times, self.track.xy), not self.track.absolute)
             if note:
                 logger.warning("%s", note)

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SeqnetError
-from ..data.trajectory import TrackView
+from ..data.trajectory import TrackView, answer_positions
 from ..data.traverse import Dataset
 from .figures import gallery_image
 from .tables import figure_png
@@ -31,8 +31,7 @@ def evaluation_view(ev: Any, ds: Dataset, name: str) -> TrackView:
     """The :class:`TrackView` of method ``name``'s top-1 answers over the evaluated queries of ``ds``."""
     view = ev.view(name)
     top = ev.retrieved[name][:, 0]
-    r_pos = ds.reference.positions[view.r_items]
-    est = np.where((top >= 0)[:, None], r_pos[np.maximum(top, 0)], np.nan)
+    est = answer_positions(ds.reference.positions[view.r_items], top)
     correct = view.truth.hits(ev.retrieved[name][:, :1])[:, 0]
     return TrackView(np.asarray(ds.reference.positions, np.float64), est,
                      np.asarray(ds.query.positions[view.q_items], np.float64), correct, view.truth.has_positive(),

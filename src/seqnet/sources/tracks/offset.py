@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from ...data.trajectory import answer_positions
+
 WRONG_SHARE = 0.2  # the offset is looked for when fewer answers than this share are correct
 
 
@@ -42,9 +44,9 @@ def offset_note(offset: float | None, numeric: bool = False) -> str | None:
     way, fix = ("behind", "late") if offset < 0 else ("ahead of", "early")
     said = f"the estimates run {d:.1f} s {way} the track at nearly every frame"
     if numeric:
-        late, op = ("late", "subtract") if offset > 0 else ("early", "add")
-        return (f"{said}: the track's times run {d:.1f} s {late} (hint: {op} {d:.1f} s {'from' if offset > 0 else 'to'}"
-                " its times: numbers count seconds from the video's start, which --video-start does not move)")
+        late, shift = shift_hint(offset, "its")
+        return (f"{said}: the track's times run {d:.1f} s {late} (hint: {shift}: numbers count seconds from the "
+                "video's start, which --video-start does not move)")
     return f"{said}: is --video-start (or the video's creation_time) {d:.1f} s {fix}?"
 
 
@@ -66,7 +68,7 @@ def dataset_offset_note(ds: Any, q_items: np.ndarray, r_items: np.ndarray, top1:
         return None
     q, top = np.asarray(q_items, np.int64), np.asarray(top1, np.int64)
     q_xy = ds.query.positions[q]
-    est_xy = np.where((top >= 0)[:, None], ds.reference.positions[np.asarray(r_items)[np.maximum(top, 0)]], np.nan)
+    est_xy = answer_positions(ds.reference.positions[np.asarray(r_items, np.int64)], top)
     correct = np.linalg.norm(est_xy - q_xy, axis=1) <= ds.radius  # no answer (NaN): wrong
     if not mostly_wrong(correct):  # the usual case, before the names are parsed (once per method evaluated)
         return None
@@ -79,13 +81,20 @@ def dataset_offset_note(ds: Any, q_items: np.ndarray, r_items: np.ndarray, top1:
     if offset is None:
         return None
     d = abs(offset)
-    late, op = ("late", "subtract") if offset > 0 else ("early", "add")
+    late, shift = shift_hint(offset, "the query track's")
     kinds = {(videos.get(side) or {}).get("track_times") for side in ("query", "reference")}
     how = ("; numeric times count from the video's start: --video-start does not move them" if "seconds" in kinds
            else "; a video's creation_time off its track's clock? --video-start sets both videos' start"
            if "absolute" in kinds else "")
     return (f"most answers are wrong ({int(correct.sum())} of {len(correct)} correct), but they sit {d:.1f} s "
             f"{'ahead of' if offset > 0 else 'behind'} the query frames along the query track at nearly every frame: "
-            f"the query track runs {d:.1f} s {late} against the reference's (hint: {op} {d:.1f} s "
-            f"{'from' if offset > 0 else 'to'} the query track's times, or the opposite to the reference's, and "
-            f"build the dataset again{how})")
+            f"the query track runs {d:.1f} s {late} against the reference's (hint: {shift}, or the opposite to the "
+            f"reference's, and build the dataset again{how})")
+
+
+def shift_hint(offset: float, whose: str) -> tuple[str, str]:
+    """``("late", "subtract 2.0 s from <whose> times")`` for a track running ``offset`` s late (negative: early, and
+    the hint is to add)."""
+    d = abs(offset)
+    return ("late", f"subtract {d:.1f} s from {whose} times") if offset > 0 else \
+        ("early", f"add {d:.1f} s to {whose} times")
