@@ -23,6 +23,10 @@ class ConfigError(SeqnetError, ValueError):
     """A parameter (sequence length, radius, method name, ...) is out of its valid range."""
 
 
+class WindowsTooLongError(ConfigError):
+    """The sequence windows (L, L_m) are longer than the traverse or split they slide over."""
+
+
 class CheckpointError(SeqnetError):
     """A model checkpoint is missing, corrupted or does not fit the data."""
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, WindowsTooLongError
 from ..core.log import counted, logger
 from ..data.traverse import Dataset
 from ..methods.checks import named_test_split
@@ -37,7 +37,7 @@ def calibration_failed(ds: Dataset, calibrate_split: str, e: ConfigError) -> Con
     evaluated one, or no calibration."""
     a, b = ds.ranges(calibrate_split)["query"]
     said = f"calibrating on {calibrate_split!r} (queries {a}:{b}, {b - a} frames): {e}"
-    if "is longer than" in str(e):
+    if isinstance(e, WindowsTooLongError):
         said += (f" (the calibration split is the short one: give --calibrate-split A:B, longer than {b - a} frames "
                  "and apart from the evaluated queries, or leave out --target-precision to evaluate without it)")
     return ConfigError(said)

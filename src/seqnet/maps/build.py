@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.devices import get_device
-from ..core.errors import CheckpointError, ConfigError
+from ..core.errors import CheckpointError, ConfigError, WindowsTooLongError
 from ..core.log import logger
 from ..core.memory import check_fits, model_bytes, workspace_bytes
 from ..data.io import load_dataset
@@ -47,7 +47,7 @@ def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> 
                  conf.allow_mismatch, use="the map uses")
     w = conf.windows
     if w.longest > len(ds.reference):
-        raise ConfigError(f"L={w.seq_len} / L_m={w.match_len} is longer than the reference traverse "
+        raise WindowsTooLongError(f"L={w.seq_len} / L_m={w.match_len} is longer than the reference traverse "
                           f"({len(ds.reference)} frames)")
 
 

@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, WindowsTooLongError
 from ..core.log import counted, logger, ordinal
 from ..core.provenance import check_same
 from ..data.traverse import Dataset
@@ -63,7 +63,7 @@ def check_windows_fit(longest: int, n: int, what: str, option: str = "--seq-len"
     """The windows (``longest`` = max(L, L_m) frames, set by ``option``) fit a traverse of ``n`` frames."""
     if longest > n:
         name = "match_len" if option == "--match-len" else "seq_len"
-        raise ConfigError(f"{name}={longest} is longer than {what} ({n} frame{'s' * (n != 1)}); use a shorter "
+        raise WindowsTooLongError(f"{name}={longest} is longer than {what} ({n} frame{'s' * (n != 1)}); use a shorter "
                           f"{option} or a longer split")
 
 

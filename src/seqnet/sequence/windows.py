@@ -20,7 +20,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..core.config import check_float
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, WindowsTooLongError
 from ..core.lazy import lazy_module
 
 torch = lazy_module("torch")
@@ -33,7 +33,7 @@ def check_seq_len(seq_len: int, n: int | None = None, what: str = "seq_len") -> 
     if isinstance(seq_len, bool) or not isinstance(seq_len, (int, np.integer)) or seq_len < 1:
         raise ConfigError(f"{what} must be an integer >= 1, got {seq_len!r}")
     if n is not None and seq_len > n:
-        raise ConfigError(f"{what}={seq_len} is longer than the traverse ({n} frames)")
+        raise WindowsTooLongError(f"{what}={seq_len} is longer than the traverse ({n} frames)")
     return int(seq_len)
 
 
