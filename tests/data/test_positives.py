@@ -144,7 +144,7 @@ def test_evaluate_with_positives_equal_to_radius_gives_same_recall():
 def test_evaluate_uses_positives_not_the_radius():
     n = 30
     shifted = Positives.from_lists([[(i + 10) % n] for i in range(n)])  # wrong on purpose: far from the radius
-    conf = EvalConfig(methods=("single",), seq_len=1, ks=(1, 30), device="cpu")
+    conf = EvalConfig(methods=("single",), seq_len=1, ks=(1, 30), device="cpu", split="all")
     ev = evaluate(frame_dataset(positives=shifted), conf)
     hits = ev.truth.hits(ev.retrieved["single"])
     assert ev.results["methods"]["single"]["recall@30"] == 1.0

@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from seqnet.eval import evaluate as evaluate_module
+from seqnet.eval import score as evaluate_module
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.methods.grammar import parse_method
 from seqnet.reference import plain

@@ -42,7 +42,7 @@ def test_stream_equals_causal_evaluation(small, method, match_len):
     ds, models = small
     # the localiser queries and indexes what eval scores for each method: every frame for a single-frame method
     conf = EvalConfig(window="causal", match_len=match_len, ks=(1, 7), top_k=5, device="cpu")
-    ev = evaluate(ds, conf.replace(methods=(method,)), models)
+    ev = evaluate(ds, conf.replace(methods=(method,), split="all"), models)  # every frame, as the replay
     view = ev.view(method)
     loc = loc_of(ds, models, method, match_len=match_len, k=7, top_k=5)
     assert loc.ref_items.tolist() == view.r_items.tolist()

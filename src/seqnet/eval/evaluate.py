@@ -1,11 +1,12 @@
-"""Evaluation: run methods on a dataset and report Recall@K with per-stage timing.
+"""Evaluation: what ``seqnet eval`` does, minus the files (:func:`evaluate`, the Python API), and the stage that
+reads a dataset directory and checkpoints and writes the outputs (:func:`main`: load, :func:`evaluate`, write).
 
-A sequence method's queries are the frames whose windows (L frames for sequence descriptors, L_m for
-the sequence matchers) fit inside their sequence, and its references the reference frames whose
-windows fit; a single-frame method (``single``, ``s1``) needs no window: it queries and indexes every
-frame (``common_queries``: every method on the sequence methods' items, one query set). Each
-method's entry reports its queries and the number left out (no full window, and why; no reference
-within the radius). See :mod:`seqnet.eval.evaluation`.
+:func:`evaluate` takes the split ``conf.split`` of the dataset (test when it defines one, else all of it), calibrates
+a confidence threshold on ``conf.calibrate_split`` when ``conf.target_precision`` is set
+(:mod:`seqnet.eval.calibrated`), scores the methods (:func:`seqnet.eval.score.score`: which queries each method
+evaluates, and why some are left out) and says what the data suggest the user meant instead (one
+``logger.warning`` line each, kept in ``results["warnings"]``; a model scored on its own training queries in
+``results["leakage"]``; learned methods below their model-free counterpart in ``results["learned_below_baseline"]``).
 """
 
 from __future__ import annotations
@@ -14,44 +15,32 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from ..core.devices import get_device
 from ..core.errors import ConfigError
-from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.stage import Written
-from ..data.resample import kept_indices, resample_dataset
-from ..data.traverse import Dataset, Traverse, default_split
-from ..methods.checks import check_inputs, model_lengths
-from ..methods.grammar import Method, parse_method
+from ..data.traverse import Dataset, default_split
+from ..methods.grammar import parse_method
 from ..methods.route import route_warnings
-from ..metrics.recall import GroundTruth, ground_truth
-from ..reference.plain import PlainReference, runs_plain
-from ..reference.traverse import TraverseReference
-from ..report.guidance import learned_below_baseline, model_entries, note_entries
+from ..report.guidance import learned_below_baseline, note_entries
 from ..security.text import shown
-from ..sequence.described import Described
-from ..sequence.npdescribed import PlainDescribed
-from ..sequence.windows import Windows
 from .calibrated import add_calibration, calibration_failed, calibration_on_test, check_calibration_split
 from .config import EvalConfig
-from .evaluation import Evaluation, merge, method_windows
+from .evaluation import Evaluation
 from .notices import (
     add_warnings,
     default_ks_note,
     leakages,
+    one_retrieved,
     radius_ignored,
     selection_leakage,
     shift_notice,
     split_note,
     trivial_ks,
+    video_clock_note,
 )
 from .notices.chance import chance_notice
 from .outputs import EvalOutputs
-from .runner import run
-
-torch = lazy_module("torch")
+from .score import check_types, dataset_truth, item_names, score  # noqa: F401 - eval.matrix, eval.select use them
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
@@ -60,121 +49,99 @@ if TYPE_CHECKING:
 Prepare = Callable[[Dataset, str, "Mapping[str, SeqNet]", EvalConfig], "tuple[EvalConfig, Mapping[str, Any] | None]"]
 
 
-def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | None) -> None:
-    """The arguments of :func:`evaluate` are what they should be (a clear error instead of an AttributeError)."""
-    if not isinstance(ds, Dataset):
-        raise ConfigError(f"evaluate() needs a seqnet Dataset, got {type(ds).__name__} (hint: load_dataset(DIR))")
-    if not isinstance(conf, EvalConfig):
-        raise ConfigError(f"evaluate() needs an EvalConfig, got {type(conf).__name__} {conf!r:.60} "
-                          "(hint: EvalConfig(methods=('single',)) or EvalConfig.from_dict({...}))")
-    if models:  # the model class loads torch: only when there are models to check
-        from ..sequence.model import SeqNet
-
-        if not isinstance(models, Mapping) or not all(isinstance(m, SeqNet) for m in models.values()):
-            raise ConfigError("models must map a role ('seqnet' for S_L, 's1' for S_1) to a SeqNet model")
-    unknown = set(models or {}) - {"seqnet", "s1"}
-    if unknown:
-        raise ConfigError(f"unknown model role(s) {sorted(unknown)}; valid: seqnet (S_L), s1 (S_1)")
-
-
-def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[str, Any]:
-    """What a method resolved to: kind, shortlister, re-ranker, lengths, K, models."""
-    info = m.summary()
-    info["seq_len"] = conf.windows.seq_len
-    if m.rerank:
-        info["match_len"] = conf.windows.match_len
-    if m.kind == "hvpr":
-        info["top_k"] = conf.shortlist_size(m)
-    if m.fused:
-        info["fuse_weight"] = conf.weight(m)
-    info["models"] = model_entries({r: models[r] for r in sorted(m.models())})
-    return info
-
-
-def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqNet] | None = None) -> Evaluation:
-    """Evaluate methods on ``ds`` (already restricted to the split to evaluate).
+def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqNet] | None = None, *,
+             source: str | Path | None = None, prepare: Prepare | None = None) -> Evaluation:
+    """What ``seqnet eval`` does for ``ds``, ``conf`` and ``models``, minus writing files: the split ``conf.split``
+    of ``ds`` (None: test when ``ds`` defines it, else all; a dataset with no splits, e.g. ``ds.split("test")``,
+    is evaluated whole, and a split it does not hold is refused), a threshold calibrated on
+    ``conf.calibrate_split`` with ``conf.target_precision``, and the warnings and notes of ``seqnet eval``
+    (logged, and kept in the results).
 
     Args:
-        ds: dataset (reference + query traverses, radius).
-        conf: settings (default :class:`EvalConfig`).
+        ds: dataset (reference + query traverses, radius, splits).
+        conf: settings (default :class:`EvalConfig`); ``results["config"]["split"]`` is the split evaluated.
         models: trained models by role: ``{"seqnet": S_L, "s1": S_1}`` (optional).
+        source: the dataset directory ``ds`` was loaded from (``seqnet eval --dataset``): the leakage checks then
+            also compare the file hashes and path a checkpoint recorded; without it, a model's training and
+            epoch-selection queries are found by its recorded provenance and query names (a whole dataset from
+            :func:`seqnet.load_dataset`; not a split of it, nor one built in memory: said at DEBUG).
+        prepare: ``prepare(ds, split, models, conf)`` -> ``(conf, entries)``, called first, may change the settings
+            and add entries to the results (:func:`seqnet.eval.select.main`: the HVPR settings chosen on val).
 
     Returns:
         :class:`Evaluation` whose ``results`` follow the ``--json`` schema.
     """
     conf = EvalConfig() if conf is None else conf
     check_types(ds, conf, models)
-    keep = kept_indices(ds, conf.resample_every, conf.resample_side) if conf.resample_every else None
-    ds = resample_dataset(ds, conf.resample_every, conf.resample_side)
     models = dict(models or {})
-    conf = conf.resolve(models, ds.radius)
-    methods = [parse_method(n) for n in conf.methods]
-    groups = method_windows(methods, conf.windows, conf.common_queries)
-    check_inputs(ds, methods, models, conf.windows.seq_len, conf.windows.match_len, conf.allow_mismatch,
-                 max(w.longest for w in groups))
-    plain = runs_plain(methods, models, conf.backend, conf.device)  # numpy, no torch: reference.plain
-    dev = "cpu" if plain else get_device(conf.device)
-    for model in models.values():
-        model.to(dev).eval()
-        with torch.no_grad():  # its first call allocates: not charged to the first method that uses it
-            model(torch.zeros((1, model.seq_len, model.in_dims), device=dev))
-    parts = [_evaluate_group(ds, ms, w, conf, models, dev, plain) for w, ms in groups.items()]
-    out = merge(parts, conf.methods)
-    out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
-                             "ground_truth": "explicit positives" if ds.positives is not None else "radius",
-                             "models": model_entries(models),
-                             "model_seq_len": model_lengths(models)}
-    out.dataset, out.frame_names = ds, (ds.query.names, ds.reference.names)
-    out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)
-    return out
+    split = default_split(conf.split, ds.splits)
+    evaluated = split_of(ds, split)  # an unknown split fails before any work
+    conf, prepared = prepare(ds, split, models, conf) if prepare is not None else (conf, None)
+    cal = calibration(ds, split, conf, models)  # first: a calibration split that cannot serve fails before any work
+    ev = score(evaluated, conf.replace(split=split), models)
+    if cal is not None:
+        add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
+    ev.results.update(prepared or {})
+    if source is not None:
+        ev.results["config"]["dataset_path"] = str(source)
+    elif models:
+        logger.debug("evaluate(): no dataset directory given; the models' training and epoch-selection queries are "
+                     "found by their recorded provenance and query names (a whole dataset from load_dataset)")
+    say_notices(ev, ds, split, conf, models, source, prepared, calibrated=cal is not None)
+    return ev
 
 
-def _evaluate_group(ds: Dataset, methods: list[Method], windows: Windows, conf: EvalConfig,
-                    models: Mapping[str, SeqNet], dev: Any, plain: bool = False) -> Evaluation:
-    """The methods that share ``windows``, on those windows' query and reference items (``plain``: in numpy)."""
-    query = (PlainDescribed(ds.query.descriptors, ds.query.seq_bounds, windows, "query") if plain
-             else Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query"))
-    ref = (PlainReference(ds.reference, windows, ds.name) if plain
-           else TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name))
-    truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
-    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models), windows=windows,
-              with_torch=not plain)
-    out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
-    return out
+def split_of(ds: Dataset, split: str) -> Dataset:
+    """The split ``split`` of ``ds`` (a name it defines, ``all`` or a range ``A:B``); a name given to a dataset that
+    defines no splits (one already split, or built without) is refused with a hint."""
+    if not ds.splits and split != "all" and ds.ranges(split) is None:
+        raise ConfigError(f"split {split!r}: dataset {ds.name!r} defines no splits (a split of a dataset has none); "
+                          f"hint: evaluate the whole dataset (load_dataset(DIR)) with split={split!r}, or this one "
+                          "without a split")
+    return ds.split(split)
 
 
-def dataset_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: float) -> GroundTruth:
-    """What is correct for the query items ``q_items`` among the reference items ``r_items`` of ``ds``: its
-    explicit positives, else the radius."""
-    positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
-    return ground_truth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives, ds.name,
-                        ds.position_unit)
-
-
-def item_names(t: Traverse, items: np.ndarray) -> list[str] | None:
-    """The image names of the frames ``items`` of ``t`` (None when it has none)."""
-    return [t.names[i] for i in items] if t.names else None
-
-
-def one_retrieved(ev: Evaluation) -> str | None:
-    """What to say when some methods retrieved one reference per query (``--ks 1``): their confidence cannot
-    compare the top-1 with another place, so their PR entries are empty."""
-    names = [n for n, r in ev.retrieved.items() if r.shape[1] < 2]
-    if not names:
+def calibration(ds: Dataset, split: str, conf: EvalConfig, models: Mapping[str, SeqNet]) -> Evaluation | None:
+    """The evaluation of ``conf.calibrate_split`` a threshold is calibrated on (``conf.target_precision``; None
+    without one), after checking that it can serve: a K of 2 or more, a split apart from the evaluated ``split``."""
+    if conf.target_precision is None:
         return None
-    return (f"{', '.join(names)} retrieved one reference per query (the largest K of --ks is 1): the confidence "
-            "compares the top-1 with the best other place retrieved, so no PR curve, AUC, R@100P or "
-            "confidence_for_precision is given for them; add a larger K (e.g. --ks 1,20)")
+    if max(conf.ks) < 2:
+        raise ConfigError(f"--target-precision needs a K of 2 or more in --ks (got {max(conf.ks)}): the "
+                          "confidence compares the top-1 with the best other place retrieved; e.g. --ks 1,20")
+    check_calibration_split(ds, conf.calibrate_split, split)
+    try:
+        return score(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), models)
+    except ConfigError as e:
+        raise calibration_failed(ds, conf.calibrate_split, e) from e
 
 
-def video_clock_note(ev: Evaluation) -> str | None:
-    """A ``dataset from-video`` query track a constant time off the reference's, seen in the top-1 answers of a
-    method (the first that shows it: :func:`seqnet.sources.tracks.offset.dataset_offset_note`); else None."""
-    from ..sources.tracks.offset import dataset_offset_note
+def say_notices(ev: Evaluation, ds: Dataset, split: str, conf: EvalConfig, models: Mapping[str, SeqNet],
+                source: str | Path | None, prepared: Mapping[str, Any] | None, calibrated: bool) -> None:
+    """Log ``seqnet eval``'s warnings on the evaluation ``ev`` of ``split`` of ``ds`` and keep them in its results:
+    ``warnings`` (the data, the settings, the val choice of ``prepared``), ``leakage`` (models scored on their own
+    training queries), ``learned_below_baseline`` and ``trivial_ks`` (notes after the table)."""
+    from ..data.sanity.truth import transposed_positives
 
-    notes = (dataset_offset_note(ev.dataset, ev.view(n).q_items, ev.view(n).r_items, r[:, 0])
-             for n, r in ev.retrieved.items() if r.ndim == 2 and r.shape[1])
-    return next((note for note in notes if note), None)
+    dataset: Any = source  # None: the checkpoints' records are held to provenance and query names only
+    chosen = [(prepared or {}).get("selection", {}).get(k) for k in ("warning", "leakage")]  # said once it succeeded
+    flipped = transposed_positives(ds)  # the whole dataset's square positives; said instead of a shift
+    a, b = ds.ranges(split)["query"]
+    add_warnings(ev, [split_note(conf.split, list(ds.splits), b - a), *chosen,
+                      *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
+                      flipped or shift_notice(ev) or chance_notice(ev, conf.ks),
+                      radius_ignored(conf.radius, ds.positives is not None),
+                      trivial_ks(ev, conf.ks), video_clock_note(ev),
+                      calibration_on_test(ds, conf.calibrate_split if calibrated else None, split),
+                      *selection_leakage(models, dataset, ds, split, conf.query_every)])
+    leaks = leakages(models, dataset, ds, split, conf)
+    if leaks:
+        ev.results["leakage"] = leaks
+        for line in leaks:
+            logger.warning("%s", shown(line))  # it names checkpoints' records: text from files
+    ev.results["learned_below_baseline"] = note_entries(learned_below_baseline(ev.results))
+    if (trivial := default_ks_note(ev, conf.ks)) is not None:
+        ev.results["trivial_ks"] = trivial  # a note after the table (cli), not a warning
 
 
 def main(conf: EvalConfig, dataset: str | Path, out: str | Path | None, models: Sequence[str | Path] = (),
@@ -216,48 +183,16 @@ def _used(conf: EvalConfig, models: Sequence[str | Path], shortlist_model: str |
 def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | Path],
                   shortlist_model: str | Path | None, rerank_model: str | Path | None,
                   prepare: Prepare | None = None) -> Evaluation:
+    """:func:`evaluate` of the dataset directory ``dataset`` with the checkpoints its methods use (``inputs``: the
+    paths read)."""
     from ..data.io import load_dataset
-    from ..data.sanity.truth import transposed_positives
     from ..sequence.checkpoints import load_models
 
     ds = load_dataset(dataset)
-    split = default_split(conf.split, ds.splits)
-    evaluated = ds.split(split)  # an unknown split fails before any work
+    split_of(ds, default_split(conf.split, ds.splits))  # an unknown split fails before any model is loaded
     conf, (models, shortlist_model, rerank_model) = _used(conf, models, shortlist_model, rerank_model)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
-    conf, prepared = prepare(ds, split, loaded, conf) if prepare is not None else (conf, None)
-    cal = None
-    if conf.target_precision is not None:  # first: a calibration split that cannot serve fails before any work
-        if max(conf.ks) < 2:
-            raise ConfigError(f"--target-precision needs a K of 2 or more in --ks (got {max(conf.ks)}): the "
-                              "confidence compares the top-1 with the best other place retrieved; e.g. --ks 1,20")
-        check_calibration_split(ds, conf.calibrate_split, split)
-        try:
-            cal = evaluate(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), loaded)
-        except ConfigError as e:
-            raise calibration_failed(ds, conf.calibrate_split, e) from e
-    ev = evaluate(evaluated, conf.replace(split=split), loaded)
-    if cal is not None:
-        add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
-    ev.results.update(prepared or {})
-    ev.results["config"]["dataset_path"] = str(dataset)
-    chosen = [(prepared or {}).get("selection", {}).get(k) for k in ("warning", "leakage")]  # said once it succeeded
-    flipped = transposed_positives(ds)  # the whole dataset's square positives; said instead of a shift
-    add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), *chosen,
-                      *route_warnings(ev.dataset, ev.truth, ev.q_items, ev.results["methods"]), one_retrieved(ev),
-                      flipped or shift_notice(ev) or chance_notice(ev, conf.ks),
-                      radius_ignored(conf.radius, ds.positives is not None),
-                      trivial_ks(ev, conf.ks), video_clock_note(ev),
-                      calibration_on_test(ds, conf.calibrate_split if cal else None, split),
-                      *selection_leakage(loaded, dataset, ds, split, conf.query_every)])
-    leaks = leakages(loaded, dataset, ds, split, conf)
-    if leaks:
-        ev.results["leakage"] = leaks
-        for line in leaks:
-            logger.warning("%s", shown(line))  # it names checkpoints' records: text from files
-    ev.results["learned_below_baseline"] = note_entries(learned_below_baseline(ev.results))
-    if (trivial := default_ks_note(ev, conf.ks)) is not None:
-        ev.results["trivial_ks"] = trivial  # a note after the table (cli), not a warning
+    ev = evaluate(ds, conf, loaded, source=dataset, prepare=prepare)
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
     return ev

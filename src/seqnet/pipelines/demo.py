@@ -18,7 +18,7 @@ from ..core.stage import Written
 from ..data.io import load_dataset, save_dataset
 from ..data.synth import SynthConfig, make_synthetic
 from ..data.traverse import Dataset
-from ..eval.evaluate import EvalConfig, evaluate
+from ..eval.evaluate import EvalConfig, score
 from ..security.files import write_json_atomic
 from ..security.locks import locked
 from ..sequence.checkpoints import load_model
@@ -116,7 +116,7 @@ def run_demo(conf: DemoConfig, tmp: Path, root: Path, t0: float) -> dict[str, An
     logger.info("demo dataset: %d reference / %d query frames, D=%d", len(ds.reference), len(ds.query),
                 ds.query.dim)
     models, seconds = train_demo_models(ds, conf, tmp, root / "dataset") if conf.train_models else ({}, {})
-    ev = evaluate(ds.split("test"), EvalConfig(methods=conf.methods, seq_len=conf.seq_len, device=conf.device),
+    ev = score(ds.split("test"), EvalConfig(methods=conf.methods, seq_len=conf.seq_len, device=conf.device),
                   models)
     ev.results["config"].update(demo=conf.to_dict(), demo_seconds=round(time.perf_counter() - t0, 2),
                                 train_seconds=seconds)

@@ -26,7 +26,7 @@ from ..data.traverse import Dataset
 from ..describe import DescribeConfig
 from ..describe.lite import LITE_VARIANTS
 from ..describe.views import DEFAULT_VIEWS, RAW
-from ..eval.evaluate import EvalConfig, evaluate
+from ..eval.evaluate import EvalConfig, score
 from ..metrics.recall import VAL_MIN
 
 PROXY_METHODS = ("raw+seqmatch", "single")  # the proxy's score, then its tie-break
@@ -67,7 +67,7 @@ def proxy_scores(val: Dataset, seq_len: int, device: str = "auto", recall_denomi
     """Val R@1 of :data:`PROXY_METHODS` on ``val`` (described with one candidate), the queries counted, the
     descriptor's D and the seconds since ``t0``."""
     t0 = time.perf_counter() if t0 is None else t0
-    ev = evaluate(val, EvalConfig(methods=PROXY_METHODS, seq_len=seq_len, ks=(1,), device=device,
+    ev = score(val, EvalConfig(methods=PROXY_METHODS, seq_len=seq_len, ks=(1,), device=device,
                                   recall_denominator=recall_denominator, common_queries=True))
     out = {m: round(float(ev.results["methods"][m]["recall@1"]), 6) for m in PROXY_METHODS}
     return {**out, "queries": int(ev.results["methods"][PROXY_METHODS[0]]["queries"]), "dim": int(val.query.dim),

@@ -66,14 +66,14 @@ def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig,
     """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1; the
     loss's ``val_method`` over its windows, e.g. ``s1+seqmatch`` for the seqmatch loss) on ``device``
     (default ``conf.device``); ``{}`` without a val split. Leaves the model in training mode."""
-    from ..eval.evaluate import EvalConfig, evaluate
+    from ..eval.evaluate import EvalConfig, score
 
     if val_ds is None:
         return {}
     role, dev = model.role, conf.device if device is None else str(device)
     method = LOSSES[conf.loss].val_method or role
     ev_conf = EvalConfig(methods=(method,), seq_len=conf.window_len, window=conf.window, ks=VAL_KS, device=dev)
-    ev = evaluate(val_ds, ev_conf, {role: model})
+    ev = score(val_ds, ev_conf, {role: model})
     model.train()
     return {k: float(v) for k, v in ev.results["methods"][method].items() if k.startswith("recall@")}
 

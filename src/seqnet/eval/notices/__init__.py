@@ -1,11 +1,11 @@
-"""What an evaluation says beside its numbers when the user probably meant something else (one line each, logged
-as a warning and kept in the results' ``warnings``): ground truth that looks shifted (:func:`shift_notice`),
-a ``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test
-(:func:`split_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`; a default K:
-:func:`default_ks_note`), a model whose epoch was
-chosen on the evaluated queries (:func:`selection_leakage`) or trained on them (:func:`leakages`), all of these
-for another stage that scores queries (:func:`scored_notices`), an R@1 over few queries (:func:`few_queries`), and
-HVPR settings chosen on training queries (:func:`training_choice`)."""
+"""What an evaluation says beside its numbers when the user probably meant something else (one line each, logged as a
+warning and kept in the results' ``warnings``): ground truth that looks shifted (:func:`shift_notice`), a
+``--radius`` that explicit positives make moot (:func:`radius_ignored`), no split named test (:func:`split_note`), a
+method that retrieved one reference per query (:func:`one_retrieved`), a video's query clock off the reference's
+(:func:`video_clock_note`), a K of ``--ks`` that scores every query (:func:`trivial_ks`; a default K:
+:func:`default_ks_note`), a model whose epoch was chosen on the evaluated queries (:func:`selection_leakage`) or
+trained on them (:func:`leakages`), all of these for another stage that scores queries (:func:`scored_notices`), an
+R@1 over few queries (:func:`few_queries`), and HVPR settings chosen on training queries (:func:`training_choice`)."""
 
 from __future__ import annotations
 
@@ -74,6 +74,27 @@ def leakages(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spl
         out += leakage(models, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split,
                        every=conf.query_every)
     return out
+
+
+def one_retrieved(ev: Evaluation) -> str | None:
+    """What to say when some methods retrieved one reference per query (``--ks 1``): their confidence cannot
+    compare the top-1 with another place, so their PR entries are empty."""
+    names = [n for n, r in ev.retrieved.items() if r.shape[1] < 2]
+    if not names:
+        return None
+    return (f"{', '.join(names)} retrieved one reference per query (the largest K of --ks is 1): the confidence "
+            "compares the top-1 with the best other place retrieved, so no PR curve, AUC, R@100P or "
+            "confidence_for_precision is given for them; add a larger K (e.g. --ks 1,20)")
+
+
+def video_clock_note(ev: Evaluation) -> str | None:
+    """A ``dataset from-video`` query track a constant time off the reference's, seen in the top-1 answers of a
+    method (the first that shows it: :func:`seqnet.sources.tracks.offset.dataset_offset_note`); else None."""
+    from ...sources.tracks.offset import dataset_offset_note
+
+    notes = (dataset_offset_note(ev.dataset, ev.view(n).q_items, ev.view(n).r_items, r[:, 0])
+             for n, r in ev.retrieved.items() if r.ndim == 2 and r.shape[1])
+    return next((note for note in notes if note), None)
 
 
 def few_queries(scored: Mapping[str, tuple[int, float]]) -> str | None:

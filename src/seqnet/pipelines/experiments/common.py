@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from ...core.errors import ConfigError
 from ...data.traverse import Dataset
-from ...eval.evaluate import EvalConfig, Evaluation, evaluate
+from ...eval.evaluate import EvalConfig, Evaluation, score
 from ...methods.grammar import parse_method
 from ...report.guidance import learned_below_baseline, note_entries
 from ...report.html import ReportConfig, evaluation_sections, figure_section, render_html, rows_as_text
@@ -125,7 +125,7 @@ def evaluate_splits(p: Prepared, conf: EvalConfig, transform: Any = None) -> dic
     out = {}
     for split in p.splits:
         ds = p.ds.split(split)
-        out[split] = evaluate(transform(ds) if transform else ds, conf, p.models)
+        out[split] = score(transform(ds) if transform else ds, conf, p.models)
     return out
 
 

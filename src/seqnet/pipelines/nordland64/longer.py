@@ -16,7 +16,7 @@ from typing import Any
 
 from ...core.config import check_ints
 from ...core.log import logger
-from ...eval.evaluate import evaluate
+from ...eval.evaluate import score
 from ...methods.grammar import parse_method
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked
@@ -45,7 +45,7 @@ def longer_sequences(conf: Nordland64Config, data: str | Path, out: str | Path, 
         for split in LONGER_SPLITS:
             sub = split_dataset(ds, conf, split)
             for lm in lengths:
-                ev = evaluate(sub, conf.eval_config().replace(methods=tuple(methods), match_len=lm), models)
+                ev = score(sub, conf.eval_config().replace(methods=tuple(methods), match_len=lm), models)
                 results.setdefault(split, {})[str(lm)] = ev.results["methods"]
                 logger.info("longer sequences: %s L_m=%d done", split, lm)
         record = {"results": results, "lengths": list(lengths), "methods": list(methods),

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 from ...core.log import logger
 from ...core.stage import Written
 from ...data.traverse import Dataset
-from ...eval.evaluate import Evaluation, evaluate
+from ...eval.evaluate import Evaluation, score
 from ...metrics.recall import recall_curve
 from ...report.guidance import learned_below_baseline, note_entries
 from ...report.html import ReportConfig, write_html_report
@@ -41,7 +41,7 @@ def split_dataset(ds: Dataset, conf: Nordland64Config, split: str) -> Dataset:
 
 def evaluate_split(ds: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Config, split: str) -> Evaluation:
     """Every benchmark method on one split (centred L-frame windows; ``hvpr-*`` re-rank with S_1)."""
-    return evaluate(split_dataset(ds, conf, split), conf.eval_config(), models)
+    return score(split_dataset(ds, conf, split), conf.eval_config(), models)
 
 
 def hvpr_on_val(ds: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Config) -> tuple[Nordland64Config, list]:

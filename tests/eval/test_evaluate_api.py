@@ -1,0 +1,136 @@
+"""seqnet.evaluate (the Python API) does what seqnet eval does, minus the files: it evaluates conf.split (test by
+default when the dataset defines it), calibrates with target_precision, and says the same warnings (logged, and in
+the results); a split of a dataset is evaluated whole; repr is one line; the descriptors evaluated are recorded."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from seqnet.core.errors import ConfigError
+from seqnet.data.io import load_dataset, save_dataset
+from seqnet.data.positives import Positives
+from seqnet.data.synth import make_synthetic
+from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.eval.evaluate import main as eval_main
+from seqnet.eval.score import score
+
+METHODS = ("single", "raw+seqmatch")
+
+
+def numbers(ev):
+    return {m: (r["recall@1"], r["queries"]) for m, r in ev.results["methods"].items()}
+
+
+def clear():
+    """A synthetic dataset on which single-frame R@1 means something (little noise), with splits."""
+    return make_synthetic(places=200, dim=16, noise=0.05, nuisance=0.0, seed=1)
+
+
+def shifted(ds, shift: int):
+    """``ds`` with explicit positives ``shift`` frames off each query's nearest reference by position."""
+    d = np.linalg.norm(ds.query.positions[:, None] - ds.reference.positions[None], axis=-1)
+    near = d.argmin(axis=1) + shift
+    return dataclasses.replace(ds, positives=Positives.from_lists([[int(r)] if 0 <= r < len(ds.reference) else []
+                                                                   for r in near]))
+
+
+def test_the_split_asked_for_is_the_split_evaluated(synth_dataset):
+    conf = EvalConfig(methods=METHODS, ks=(1, 5))
+    test = evaluate(synth_dataset.split("test"), conf)  # the README's form: the numbers it always gave
+    assert numbers(test) == numbers(score(synth_dataset.split("test"), conf))
+    assert test.results["config"]["split"] == "all"  # all of the split given
+    for asked in ("test", None):  # None: test, as seqnet eval
+        ev = evaluate(synth_dataset, conf.replace(split=asked))
+        assert numbers(ev) == numbers(test) and ev.results["config"]["split"] == "test"
+    val = evaluate(synth_dataset, conf.replace(split="val"))
+    assert numbers(val) == numbers(score(synth_dataset.split("val"), conf))
+    assert evaluate(synth_dataset, conf.replace(split="all")).results["methods"]["single"]["queries"] == \
+        len(synth_dataset.query)
+
+
+def test_a_split_is_refused_where_the_dataset_defines_none(synth_dataset):
+    with pytest.raises(ConfigError, match=r"split 'test': dataset '.*\[test\]' defines no splits.*hint"):
+        evaluate(synth_dataset.split("test"), EvalConfig(methods=("single",), split="test"))
+    with pytest.raises(Exception, match="has no split 'nope'"):
+        evaluate(synth_dataset, EvalConfig(methods=("single",), split="nope"))
+    part = evaluate(synth_dataset.split("test"), EvalConfig(methods=("single",), split="0:20"))  # a range: fine
+    assert part.results["methods"]["single"]["queries"] == 20
+
+
+def test_target_precision_calibrates_as_the_cli_does(synth_dir, tmp_path):
+    conf = EvalConfig(methods=METHODS, ks=(1, 20), target_precision=0.5)
+    ev = evaluate(load_dataset(synth_dir), conf)
+    cli = eval_main(conf, synth_dir, None, json=tmp_path / "r.json").data
+    for name in METHODS:
+        cal = ev.results["methods"][name]["calibrated"]
+        assert cal["calibration"]["split"] == "val" and cal == cli["methods"][name]["calibrated"]
+    with pytest.raises(ConfigError, match="not a split of dataset .* evaluate the whole dataset"):
+        evaluate(load_dataset(synth_dir).split("test"), conf)
+
+
+def test_the_api_says_what_the_cli_says(tmp_path, caplog):
+    ds = shifted(clear(), 1)
+    path = save_dataset(ds, tmp_path / "ds")
+    conf = EvalConfig(methods=METHODS, ks=(1, 5, 10_000), radius=50.0)
+    cli = eval_main(conf, path, None, json=tmp_path / "r.json").data
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        ev = evaluate(ds, conf)
+    assert ev.results["warnings"] == cli["warnings"] and len(cli["warnings"]) == 3, cli["warnings"]
+    assert any("positives look shifted by -1" in w for w in ev.results["warnings"])
+    assert [r.getMessage() for r in caplog.records] == ev.results["warnings"]
+    assert ev.results["learned_below_baseline"] == cli["learned_below_baseline"]
+    assert numbers(ev) == numbers(cli_view(cli))
+
+
+def cli_view(results):
+    return type("R", (), {"results": results})
+
+
+def test_correct_data_stay_silent(synth_dataset, caplog):
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        ev = evaluate(clear(), EvalConfig(methods=METHODS))
+        evaluate(synth_dataset.split("test"), EvalConfig(methods=(*METHODS, "delta")))
+    assert "warnings" not in ev.results and not caplog.records, [r.getMessage() for r in caplog.records]
+
+
+def test_warnings_show_in_a_plain_script(tmp_path):
+    """No logging configured: the warning reaches stderr all the same (Python's last-resort handler)."""
+    script = ("import dataclasses, numpy as np\n"
+              "from seqnet import EvalConfig, evaluate, make_synthetic\n"
+              "from seqnet.data.positives import Positives\n"
+              "ds = make_synthetic(places=200, dim=16, noise=0.05, nuisance=0.0, seed=1).split('test')\n"
+              "near = np.abs(ds.query.positions[:, None, 0] - ds.reference.positions[None, :, 0]).argmin(1) + 1\n"
+              "p = Positives.from_lists([[int(r)] if r < len(ds.reference) else [] for r in near])\n"
+              "evaluate(dataclasses.replace(ds, positives=p), EvalConfig(methods=('single', 'raw+seqmatch')))\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and "positives look shifted by -1" in out.stderr, out.stderr
+
+
+def test_a_model_scored_on_its_training_queries_is_said_without_the_directory(tmp_path, caplog):
+    from seqnet.cli import main as cli_main
+    from seqnet.sequence.checkpoints import load_model
+
+    data = save_dataset(make_synthetic(places=200, dim=8), tmp_path / "ds")
+    assert cli_main(["-q", "--threads", "1", "train", "--dataset", str(data), "--seq-len", "1", "--out",
+                     str(tmp_path / "run"), "--epochs", "1", "--out-dims", "8", "--n-neg-sample", "50",
+                     "--cache-refresh", "40", "--device", "cpu"]) == 0
+    models = {"s1": load_model(tmp_path / "run" / "best.pt")}
+    ds, conf = load_dataset(data), EvalConfig(methods=("single", "s1"), split="all", device="cpu")
+    cli = eval_main(conf, data, None, models=[tmp_path / "run" / "best.pt"], json=tmp_path / "r.json").data
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        ev = evaluate(ds, conf, models)  # no directory: the checkpoint's provenance and query names tell
+    assert ev.results["leakage"] == cli["leakage"] and "are training queries of the S_1 model" in cli["leakage"][0]
+    assert ev.results["warnings"] == cli["warnings"]  # the epoch chosen on val queries
+    assert any("are training queries" in r.getMessage() for r in caplog.records)
+    assert "leakage" not in evaluate(ds, conf.replace(split="test"), models).results
+    other = dataclasses.replace(ds, query=dataclasses.replace(ds.query, provenance=None))  # nothing identifies it
+    assert "leakage" not in evaluate(other, conf, models).results
+
