@@ -134,3 +134,10 @@ def test_a_model_scored_on_its_training_queries_is_said_without_the_directory(tm
     other = dataclasses.replace(ds, query=dataclasses.replace(ds.query, provenance=None))  # nothing identifies it
     assert "leakage" not in evaluate(other, conf, models).results
 
+
+
+def test_repr_is_one_short_line(synth_dataset):
+    ev = evaluate(synth_dataset, EvalConfig(methods=METHODS))
+    said = repr(ev)
+    assert len(said) < 300 and "\n" not in said and "single R@1" in said and "raw+seqmatch R@1" in said, said
+    assert "dataset 'synthetic[test]', split 'test'" in said

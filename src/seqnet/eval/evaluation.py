@@ -85,6 +85,15 @@ class Evaluation:
             return self.views[method]
         return ItemView(self.truth, self.q_items, self.r_items, self.query_names, self.reference_names, self.windows)
 
+    def __repr__(self) -> str:
+        """One line: the dataset, split and each method's R@1 over its queries (``results`` holds the rest)."""
+        cfg = self.results.get("config") or {}
+        said = ", ".join(f"{name} R@1 {r['recall@1']:.3f} ({r.get('queries')} queries)" if
+                         isinstance(r.get("recall@1"), float) else f"{name} ({r.get('queries')} queries)"
+                         for name, r in (self.results.get("methods") or {}).items())
+        return (f"Evaluation(dataset {cfg.get('dataset')!r}, split {cfg.get('split')!r}: {said}; "
+                f"{len(self.results.get('warnings', []))} warnings; .results holds the rest)")
+
     @property
     def q_pos(self) -> np.ndarray:
         """``[M, P]`` positions of the evaluated query frames."""
@@ -149,3 +158,4 @@ def merge(parts: Sequence[Evaluation], order: Sequence[str]) -> Evaluation:
         if name in p.confidence:
             out.confidence[name] = p.confidence[name]
     return out
+
