@@ -5,6 +5,7 @@ the results); a split of a dataset is evaluated whole; repr is one line; the des
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import subprocess
 import sys
@@ -141,3 +142,23 @@ def test_repr_is_one_short_line(synth_dataset):
     said = repr(ev)
     assert len(said) < 300 and "\n" not in said and "single R@1" in said and "raw+seqmatch R@1" in said, said
     assert "dataset 'synthetic[test]', split 'test'" in said
+
+
+def test_the_descriptors_evaluated_are_recorded(synth_dataset):
+    ev = evaluate(synth_dataset, EvalConfig(methods=("single",)))
+    prov = synth_dataset.query.provenance
+    rec = ev.results["descriptors"]
+    assert rec["query"] == rec["reference"] == {"kind": "synthetic", "method": None, "views": None, "size": None,
+                                                "pca": None, "dim": synth_dataset.query.dim,
+                                                "provenance": prov["id"]}
+    described = {"method": "pixels", "size": "native", "crop_bottom": 0, "patch": 8, "views": ["raw", "equalize"]}
+    q = dataclasses.replace(synth_dataset.query, provenance={"kind": "describe", "settings": described, "id": "abc"})
+    r = dataclasses.replace(synth_dataset.reference, provenance=None)  # unknown: the dataset's describe record
+    ds = dataclasses.replace(synth_dataset, query=q, reference=r,
+                             extra={"describe": {"method": "pixels", "size": "native"}, "pca": {"dims": 16}})
+    rec = evaluate(ds, EvalConfig(methods=("single",), allow_mismatch=True)).results["descriptors"]
+    assert rec["query"] == {"kind": "describe", "method": "pixels", "views": ["raw", "equalize"], "size": "native",
+                            "pca": 16, "dim": 16, "provenance": "abc"}
+    assert rec["reference"] == {"kind": None, "method": "pixels", "views": ["raw"], "size": "native", "pca": 16,
+                                "dim": 16, "provenance": None}
+    assert json.loads(json.dumps(rec)) == rec

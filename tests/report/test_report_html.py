@@ -243,3 +243,27 @@ def test_the_results_table_wraps_and_scrolls_in_its_own_box():
     assert ".wide{overflow-x:auto" in CSS
     assert "#results td:last-child,#results th:last-child{text-align:left;white-space:normal" in CSS
     assert "#results td:nth-child(2){white-space:normal" in CSS  # the family column wraps too
+
+
+def test_the_summary_names_the_descriptors_evaluated(tmp_path, synth_dataset):
+    """Which descriptors were compared (method, views, PCA, D, provenance id) is in the results and the Summary."""
+    import dataclasses
+
+    from seqnet.report.html import summary_section
+
+    settings = {"method": "pixels", "size": "native", "patch": 8, "views": ["raw", "equalize"], "dim": 8,
+                "pca_on": "train"}
+    prov = {"kind": "describe", "settings": settings, "dim": 16, "id": "6d180b12166d4a0d"}
+    ds = dataclasses.replace(synth_dataset, reference=dataclasses.replace(synth_dataset.reference, provenance=prov),
+                             query=dataclasses.replace(synth_dataset.query, provenance=prov))
+    ev = evaluate(ds, EvalConfig(methods=("single",)))
+    body = summary_section(ev, ReportConfig()).body
+    assert "<td>descriptors</td><td>pixels, views raw+equalize, PCA to 8, D=16 (provenance 6d180b12166d4a0d)</td>" \
+        in body, body
+    q = dataclasses.replace(ds.query, provenance=None)
+    ev = evaluate(dataclasses.replace(ds, query=q), EvalConfig(methods=("single",), allow_mismatch=True))
+    body = summary_section(ev, ReportConfig()).body
+    assert ("reference: pixels, views raw+equalize, PCA to 8, D=16 (provenance 6d180b12166d4a0d); query: unknown "
+            "method, D=16 (provenance unknown)") in body
+    ev.results.pop("descriptors")  # a route that records none (a matrix, a map): no row
+    assert "descriptors" not in summary_section(ev, ReportConfig()).body

@@ -13,7 +13,7 @@ it), so a run whose methods all share the windows is what it always was.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -159,3 +159,23 @@ def merge(parts: Sequence[Evaluation], order: Sequence[str]) -> Evaluation:
             out.confidence[name] = p.confidence[name]
     return out
 
+
+def descriptor_record(ds: Dataset) -> dict[str, dict[str, Any]]:
+    """Which descriptors each side of ``ds`` holds (``{"reference": ..., "query": ...}``): ``kind`` (``describe``,
+    ``synthetic``, ``external`` ...), ``method``, ``views``, image ``size``, ``pca`` (the dimensions a PCA reduced
+    to, None without one), ``dim`` (D) and ``provenance`` (its id, :mod:`seqnet.core.provenance`). Read from each
+    traverse's provenance, else from the dataset's ``describe`` and ``pca`` records (``dataset.json``); None where
+    neither says."""
+    described, pca = (ds.extra.get(k) if isinstance(ds.extra.get(k), Mapping) else {} for k in ("describe", "pca"))
+    return {side: _side_record(getattr(ds, side), described, pca) for side in ("reference", "query")}
+
+
+def _side_record(t: Any, described: Mapping[str, Any], pca: Mapping[str, Any]) -> dict[str, Any]:
+    prov = t.provenance if isinstance(t.provenance, Mapping) else {}
+    settings = prov.get("settings") if isinstance(prov.get("settings"), Mapping) else {}
+    known = settings if settings.get("method") else described
+    method = known.get("method")
+    return {"kind": prov.get("kind"), "method": method,
+            "views": list(known.get("views") or ["raw"]) if method else None, "size": known.get("size"),
+            "pca": settings.get("dim") if "pca_on" in settings else pca.get("dims"), "dim": int(t.dim),
+            "provenance": prov.get("id")}

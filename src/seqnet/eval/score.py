@@ -31,7 +31,7 @@ from ..sequence.described import Described
 from ..sequence.npdescribed import PlainDescribed
 from ..sequence.windows import Windows
 from .config import EvalConfig
-from .evaluation import Evaluation, merge, method_windows
+from .evaluation import Evaluation, descriptor_record, merge, method_windows
 from .runner import run
 
 torch = lazy_module("torch")
@@ -106,6 +106,7 @@ def score(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqN
                              "ground_truth": "explicit positives" if ds.positives is not None else "radius",
                              "models": model_entries(models),
                              "model_seq_len": model_lengths(models)}
+    out.results["descriptors"] = descriptor_record(ds)
     out.dataset, out.frame_names = ds, (ds.query.names, ds.reference.names)
     out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)
     return out

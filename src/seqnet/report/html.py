@@ -43,7 +43,7 @@ from .markup import SORT_JS, Section, png_tag, table_html
 from .notes import calibration_section, choices_section, notes_section, radii_section, warnings_section
 from .sources import swapped_sources
 from .styles import method_family
-from .tables import figure_png, pr_figure, recall_figure, results_rows
+from .tables import descriptors_text, figure_png, pr_figure, recall_figure, results_rows
 
 SECTIONS = ("summary", "results", "recall", "pr", "matrix", "gallery")  # always; "trajectory", "pairs" with positions
 CSS = """body{font-family:sans-serif;margin:2em auto;padding:0 1em;max-width:1100px;color:#222}
@@ -104,6 +104,8 @@ def summary_section(ev: Any, conf: ReportConfig) -> Section:
              ("reference items (frames with a full window)", len(ev.r_items)), truth, ("L", cfg.get("seq_len", "")),
              ("L_m", cfg.get("match_len") or cfg.get("seq_len", "")), ("window", cfg.get("window", "")),
              ("methods", ", ".join(ev.results["methods"])), ("seqnet", __version__)]
+    if (described := descriptors_text(ev.results.get("descriptors"))) is not None:
+        facts.insert(4, ("descriptors", described))
     if cfg.get("index"):  # seqnet eval --index: the reference side is the map's
         facts.insert(1, ("reference", f"the map {cfg['index']}"))
     config = html.escape(json.dumps(cfg, indent=1, default=str))

@@ -159,6 +159,30 @@ def ground_truth_text(config: Mapping[str, Any]) -> str:
     return f"radius {float(config.get('radius', float('nan'))):g}"
 
 
+def descriptors_text(record: Mapping[str, Any] | None) -> str | None:
+    """The descriptors an evaluation compared (its results' ``descriptors``, see
+    :func:`seqnet.eval.evaluation.descriptor_record`) in one line: method, views, image size, PCA, D and provenance
+    id; one part per side when the sides differ; None when not recorded."""
+    if not isinstance(record, Mapping) or not record:
+        return None
+    sides = {side: _side_text(r) for side, r in record.items() if isinstance(r, Mapping)}
+    if len(set(sides.values())) == 1:
+        return next(iter(sides.values()))
+    return "; ".join(f"{side}: {text}" for side, text in sides.items())
+
+
+def _side_text(r: Mapping[str, Any]) -> str:
+    what = [str(r.get("method") or r.get("kind") or "unknown method")]
+    if r.get("views") and list(r["views"]) != ["raw"]:
+        what.append(f"views {'+'.join(map(str, r['views']))}")
+    if r.get("size") not in (None, "native"):
+        what.append(f"size {r['size']}")
+    if r.get("pca"):
+        what.append(f"PCA to {r['pca']}")
+    prov = f"provenance {r['provenance']}" if r.get("provenance") else "provenance unknown"
+    return f"{', '.join(what)}, D={r.get('dim')} ({prov})"
+
+
 def plot_recall_curves(curves: Mapping[str, np.ndarray], path: str | Path, title: str = "") -> Path:
     """Save Recall@K curves (K = 1..len) as a PNG, one line per method (paper Fig. 3 style)."""
     return save_figure(recall_figure(curves, title), path)
