@@ -176,7 +176,8 @@ def test_per_query_inside_out_joins_the_set(synth_dir, tmp_path, capsys):
     assert set(files) == {"results.json", "pr_curve.png", "pq.csv", "copy.json"}
     assert json.loads((out / "copy.json").read_text()) == json.loads((out / "results.json").read_text())
     assert main([*argv, "--per-query", str(out / "preds")]) == 0  # a predictions folder in the set
-    assert "preds/002.txt" in json.loads((out / ".seqnet-manifest.json").read_text())["files"]  # L=5: frame 2 first
+    # test = queries 141:197 of the query list; L=5: the split's frame 2 first
+    assert "preds/143.txt" in json.loads((out / ".seqnet-manifest.json").read_text())["files"]
     _one_line(capsys, [*argv, "--per-query", str(out / "sub" / "pq.csv")], 2, "not directly in it")
     _one_line(capsys, [*argv, "--json", str(out)], 2, "is the --out folder itself")
     _one_line(capsys, [*argv, "--per-query", str(out / "pr_curve.png")], 2, "must end in")

@@ -241,6 +241,7 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
     ev.results["config"]["dataset_path"] = str(dataset)
+    ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering (VME)
     chosen = [(prepared or {}).get("selection", {}).get(k) for k in ("warning", "leakage")]  # said once it succeeded
     flipped = transposed_positives(ds)  # the whole dataset's square positives; said instead of a shift
     add_warnings(ev, [split_note(conf.split, list(ds.splits), len(evaluated.query)), *chosen,

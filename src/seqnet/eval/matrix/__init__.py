@@ -214,6 +214,7 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
         dist = open_matrix(distances, ds, similarity, split, transposed)
         ev = evaluate_matrix(sub, dist, conf.replace(split=split))  # the reading: open_matrix's
+        ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering
         add_warnings(ev, [split_note(conf.split, list(ds.splits), len(sub.query))])
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
                                 "similarity": bool(similarity), "transposed": bool(transposed),
