@@ -399,3 +399,38 @@ def test_descriptor_rows_not_unit_length_are_warned_about_on_the_vme_route(tmp_p
         assert not caplog.text
         traverse_from_utm_names(tmp_path / "raw.npy", tmp_path / "n.txt")
     assert "raw.npy: row 1 has L2 norm 3, not 1; seqnet L2-normalises rows" in caplog.text
+
+
+def test_vme_names_that_sort_off_the_drive_are_said_with_their_long_steps(tmp_path, caplog):
+    """The report's M2: unpadded local metres (0 .. 1990) sort as text 0, 1000, 100, 1010, ...: the frames follow
+    the names' text, and 40 of the 199 steps jump (the one line named a tunnel); a list file in drive order,
+    zero-padded names and names given in a file are silent."""
+    import logging
+
+    from seqnet.data.convert import traverse_from_utm_names
+
+    def folder(name, fmt):
+        d = tmp_path / name
+        d.mkdir()
+        for k, e in enumerate(range(0, 2000, 10)):
+            (d / f"@{fmt.format(e)}@0@33@V@x{k}.png").write_bytes(b"")
+        return d
+
+    np.save(tmp_path / "d.npy", np.eye(200, 8, dtype=np.float32)[np.arange(200) % 8])  # unit rows
+    desc = tmp_path / "d.npy"
+    queries = folder("queries", "{}")
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        t = traverse_from_utm_names(desc, queries, "query")
+    assert t.names[:3] == ["@0@0@33@V@x0.png", "@1000@0@33@V@x100.png", "@100@0@33@V@x10.png"]
+    [line] = [r.getMessage() for r in caplog.records if "sorted image names" in r.getMessage()]
+    assert "40 of the 199 steps between consecutive frames are longer than 3 usual steps (10 metres" in line
+    assert "no list file queries_images_paths.txt" in line and "zero-padded" in line and "tunnel" not in line
+    caplog.clear()
+    listed = sorted(os.listdir(queries), key=lambda n: float(n.split("@")[1]))  # a list file in drive order
+    (tmp_path / "queries_images_paths.txt").write_text("".join(n + "\n" for n in listed))
+    (tmp_path / "names.txt").write_text("".join(n + "\n" for n in listed))
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        assert traverse_from_utm_names(desc, queries, "query").names == listed
+        traverse_from_utm_names(desc, folder("padded", "{:07.2f}"), "query")  # zero-padded: text order = drive
+        traverse_from_utm_names(desc, tmp_path / "names.txt", "query")
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]

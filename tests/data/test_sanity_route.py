@@ -168,3 +168,30 @@ def test_a_radius_below_the_reference_spacing_is_said():
     ds = dataset(q, r, radius=12.0)  # built at 12 m, evaluated at 4 m: said for the radius evaluated
     [said] = route_warnings(ds, GroundTruth(q, r, 4.0), np.arange(300), ["single"])
     assert said.startswith("the radius 4 metres is at most half the reference's frame spacing")
+
+
+def unpadded_order(n: int) -> np.ndarray:
+    """The places ``0 .. n-1`` in the order of their names ``@<10 i>@...`` sorted as text (unpadded local metres,
+    VPR-methods-evaluation's sorted glob): 0, 1000, 100, 1010, ... (the report's M2)."""
+    return np.asarray(sorted(range(n), key=lambda i: f"@{10 * i}@0@33@V@x.png"))
+
+
+def test_many_long_steps_are_said_as_an_order_not_a_tunnel():
+    """The report's M2: 40 of the 199 steps jump, and the one line named the largest as a tunnel, with a hint
+    (split the sequence there) that fixes nothing; the count is a naive loop's."""
+    from seqnet.data.sanity.route import LONG_STEPS, long_steps
+
+    order = unpadded_order(200)
+    pos = place(order)
+    at, n, step = long_steps(pos, None)
+    naive = [i for i in range(199) if np.linalg.norm(pos[i + 1] - pos[i]) > LONG_STEPS * step]
+    assert list(at) == naive and len(naive) == 40 and n == 199
+    ds = dataset(pos, pos)
+    ds.query.names = ds.reference.names = [f"@{10 * i}@0@33@V@x{i}.png" for i in order]
+    lines = [line for line in dataset_warnings(ds) if "steps" in line]
+    assert len(lines) == 2 and not any("a tunnel, a logger outage" in line for line in lines)
+    assert lines[0].startswith("d: 40 of the 199 steps between consecutive query frames are longer than 3 usual "
+                               "steps (10 metres; the largest")
+    assert "the rows are likely not in route order" in lines[0] and "names that sort in drive order" in lines[0]
+    keep = np.r_[np.arange(100), np.arange(160, 300)]  # one tunnel among clean steps: still a tunnel
+    assert len(long_steps(place(keep), None)[0]) == 0

@@ -431,14 +431,17 @@ def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
     out = tmp_path / "logs" / "preds"
     argv = ["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--method", "raw+seqmatch", "--per-query", str(out)]
     assert cli(argv) == 0
-    ds = load_dataset(synth_dir).split("test")
+    whole = load_dataset(synth_dir)
+    ds, a = whole.split("test"), whole.ranges("test")["query"][0]
     files = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     assert all(re.fullmatch(r"\d{3}\.txt", f) for f in files)
-    # numbered by the query's index in the query list, as VME: windows of L=4 leave out frames 0, 1 and the last
-    assert files[0] == "002.txt" and files[-1] == f"{len(ds.query) - 2:03d}.txt" and len(files) == len(ds.query) - 3
+    # numbered by the query's index in the whole query list, as VME: windows of L=4 leave out the split's frames
+    # 0, 1 and its last
+    assert files[0] == f"{a + 2:03d}.txt" and files[-1] == f"{a + len(ds.query) - 2:03d}.txt"
+    assert len(files) == len(ds.query) - 3
     for f in files:
-        assert (out / f).read_text().split("\n")[1] == ds.query.names[int(f[:3])]
-    text = (out / "002.txt").read_text()
+        assert (out / f).read_text().split("\n")[1] == whole.query.names[int(f[:3])]
+    text = (out / f"{a + 2:03d}.txt").read_text()
     head, preds, positives = text.split("\n\n")[:3]
     assert head.split("\n")[0] == "Query path:" and head.split("\n")[1] in ds.query.names
     assert preds.split("\n")[0] == "Predictions paths:" and len(preds.split("\n")[1:]) == 5
@@ -449,7 +452,7 @@ def test_vpr_methods_evaluation_predictions_folder(synth_dir, tmp_path, capsys):
     argv[argv.index("raw+seqmatch")] = "single"  # a single-frame method: every query frame, 000 to the last
     assert cli([*argv, "--overwrite"]) == 0
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == \
-        [f"{i:03d}.txt" for i in range(len(ds.query))]
+        [f"{a + i:03d}.txt" for i in range(len(ds.query))]
     q = ds.query.names.index(head.split("\n")[1])  # the positives: the evaluated references within the radius
     near = [n for n, p in zip(ds.reference.names, ds.reference.positions, strict=True)
             if np.linalg.norm(p - ds.query.positions[q]) <= ds.radius]

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from seqnet.eval.evaluate import EvalConfig
-from seqnet.eval.matrix import _top1, evaluate_matrix, open_matrix, read_matrix
+from seqnet.eval.matrix import evaluate_matrix, open_matrix, read_matrix
+from seqnet.eval.matrix.orientation import _top1
 from seqnet.reference.matrix import MatrixReference
 
 
@@ -46,13 +47,15 @@ def test_blockwise_reading_equals_the_float64_tensor(synth_dataset, tmp_path, dt
     for key in want:
         np.testing.assert_array_equal(got[key], want[key], err_msg=key)
     conf = EvalConfig(methods=("single", "raw+seqmatch"), seq_len=3, ks=(1, 5))
-    a, b = evaluate_matrix(ds, given, conf, sim, transposed), evaluate_matrix(ds, dense, conf, sim, transposed)
+    a, b = evaluate_matrix(ds, given, conf), evaluate_matrix(ds, dense, conf)
+    c = evaluate_matrix(ds, np.asarray(m), conf, sim, transposed)  # an array: the reading applied
     for name in conf.methods:
         np.testing.assert_array_equal(a.retrieved[name], b.retrieved[name])
         np.testing.assert_array_equal(a.scores[name], b.scores[name])
         ra, rb = a.results["methods"][name], b.results["methods"][name]
         assert {k: v for k, v in ra.items() if k != "timing_ms"} == {k: v for k, v in rb.items() if k != "timing_ms"}
-    assert a.results["matrix_check"] == b.results["matrix_check"]
+        np.testing.assert_array_equal(c.retrieved[name], a.retrieved[name])
+    assert a.results["matrix_check"] == b.results["matrix_check"] == c.results["matrix_check"]
 
 
 def test_matrix_evaluation_of_single_imports_no_torch(synth_dataset, tmp_path):

@@ -176,7 +176,8 @@ def test_per_query_inside_out_joins_the_set(synth_dir, tmp_path, capsys):
     assert set(files) == {"results.json", "pr_curve.png", "pq.csv", "copy.json"}
     assert json.loads((out / "copy.json").read_text()) == json.loads((out / "results.json").read_text())
     assert main([*argv, "--per-query", str(out / "preds")]) == 0  # a predictions folder in the set
-    assert "preds/002.txt" in json.loads((out / ".seqnet-manifest.json").read_text())["files"]  # L=5: frame 2 first
+    # test = queries 141:197 of the query list; L=5: the split's frame 2 first
+    assert "preds/143.txt" in json.loads((out / ".seqnet-manifest.json").read_text())["files"]
     _one_line(capsys, [*argv, "--per-query", str(out / "sub" / "pq.csv")], 2, "not directly in it")
     _one_line(capsys, [*argv, "--json", str(out)], 2, "is the --out folder itself")
     _one_line(capsys, [*argv, "--per-query", str(out / "pr_curve.png")], 2, "must end in")
@@ -326,7 +327,7 @@ def test_a_square_matrix_reading_better_transposed_beyond_chance_is_named(caplog
     is named when the sign test over the queries where the readings disagree says it is better beyond chance
     (VPR_Tutorial's untransposed S: R@1 0.117 against 0.137 on 3218 queries), not on a few queries' noise (a
     correct 50 x 50 matrix read 0.96 as given, 1.00 transposed: 2 queries against 0)."""
-    from seqnet.eval.matrix import SQUARE_Z, _warn_reading, sign_z
+    from seqnet.eval.matrix.orientation import SQUARE_Z, _warn_reading, sign_z
 
     r1 = {"as given": 0.117, "other sense": 0.0, "transposed": 0.137, "transposed, other sense": 0.0}
     with caplog.at_level("WARNING", logger="seqnet"):
@@ -349,7 +350,7 @@ def test_a_square_matrix_reading_better_transposed_beyond_chance_is_named(caplog
 
 
 def test_the_readings_are_found_in_bounded_blocks_as_a_naive_loop_finds_them():
-    from seqnet.eval.matrix import _top1
+    from seqnet.eval.matrix.orientation import _top1
 
     m = np.random.default_rng(1).random((37, 37))
     keep = np.array([0, 3, 4, 20, 36])

@@ -82,6 +82,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     if cal is not None:
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
+    ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering (VME)
     if source is not None:
         ev.results["config"]["dataset_path"] = str(source)
     elif models:

@@ -103,10 +103,11 @@ def _num(x: float) -> float | None:
 
 def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
     """VPR-methods-evaluation's saved predictions (``visualizations.save_preds``): per query a file
-    ``<query frame:03d>.txt`` (the query's index in the query traverse, as VPR-methods-evaluation numbers it by
-    its query list: a query left out of the evaluation keeps its number) holding ``Query path:``, the query,
-    ``Predictions paths:``, its top-``top`` references (best first) and ``Positives paths:``, every correct
-    reference (image names as the dataset stores them). One method only, and the names must be known."""
+    ``<query index:03d>.txt`` holding ``Query path:``, the query, ``Predictions paths:``, its top-``top``
+    references (best first) and ``Positives paths:``, every correct reference (image names as the dataset
+    stores them). The index is the query's row in the whole query list, as VPR-methods-evaluation numbers
+    it (``enumerate`` over its queries): a query left out of the evaluation keeps its number, and a split
+    adds its first query (:func:`query_start`). One method only, and the names must be known."""
     if len(ev.retrieved) != 1:
         raise ConfigError(f"a VPR-methods-evaluation predictions folder holds one method, got {len(ev.retrieved)} "
                           f"({', '.join(ev.retrieved)}); hint: --method M")
@@ -115,13 +116,20 @@ def vpr_methods_predictions(ev: Any, top: int = 5) -> dict[str, str]:
     if view.query_names is None or view.reference_names is None:
         raise ConfigError("a predictions folder needs image names for the query and reference images")
     refs = view.reference_names
+    rows = query_start(ev) + ev.frame_number(0, view.q_items)  # [M] before re-sampling, in the whole query list
     out = {}
     for m, (q, row) in enumerate(zip(view.query_names, ranked[:, :top], strict=True)):
         parts = ["Query path:", q + "\n", "Predictions paths:", "\n".join(refs[j] for j in row if j >= 0) + "\n",
                  "Positives paths:", "\n".join(refs[j] for j in view.truth.of(m)) + "\n"]
-        # its query frame (before re-sampling): a query left out keeps its number
-        out[f"{int(ev.frame_number(0, view.q_items[m:m + 1])[0]):03d}.txt"] = "\n".join(parts)
+        out[f"{int(rows[m]):03d}.txt"] = "\n".join(parts)
     return out
+
+
+def query_start(ev: Any) -> int:
+    """The evaluated split's first query frame in the dataset's whole query traverse (``results["config"]
+    ["query_range"]``, which ``seqnet eval`` records); 0 when not recorded (an evaluation of a dataset as given)."""
+    rng = ev.results.get("config", {}).get("query_range")
+    return int(rng[0]) if rng else 0
 
 
 def _write_folder(path: Path, files: dict[str, str]) -> Path:

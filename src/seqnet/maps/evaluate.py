@@ -182,6 +182,7 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     extra = _shortlist_recall(mp, query.items(c.shortlist), conf.top_k)
     ev = run(methods, query, mp, truth, conf, len(q.traverse), info, extra)
     ev.results["config"] = {**conf.to_dict(), "methods": [m.name for m in methods], "split": q.split,
+                            "query_range": list(q.query_range),  # the per-query files' numbering (VME)
                             "dataset": q.name, "device": str(mp.device), "index": str(mp.path),
                             "map": mp.meta["config"],
                             "ground_truth": "explicit positives" if positives is not None else "radius"}

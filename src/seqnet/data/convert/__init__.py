@@ -25,7 +25,7 @@ from ...core.errors import ConfigError, DatasetError
 from ...core.log import logger
 from ...core.provenance import check_same
 from ...security.limits import POSITION_MAX
-from ..imagefolders import utm_positions
+from ..imagefolders import list_file, utm_positions
 from ..positives import Positives
 from ..readers import read_descriptor_file, read_provenance, transposed_hint, warn_unless_unit_rows
 from ..traverse import Dataset, Traverse
@@ -123,8 +123,32 @@ def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None
                            "file with a 'names' dataset, or a .npy with its names file beside it (FILE.names.txt, "
                            "as seqnet describe writes)")
     warn_unless_unit_rows(desc, desc_path)
-    return Traverse(descriptors=desc, positions=utm_positions(names), names=names, name=name,
+    positions = utm_positions(names)
+    if names_file is not None and Path(names_file).is_dir() and not list_file(Path(names_file)).exists():
+        warn_name_order(Path(names_file), names, positions)
+    return Traverse(descriptors=desc, positions=positions, names=names, name=name,
                     provenance=read_provenance(desc_path))
+
+
+def warn_name_order(folder: Path, names: list[str], positions: np.ndarray) -> bool:
+    """Warn (and return True) when the UTM-coded ``names`` of ``folder`` in sorted order (VPR-methods-evaluation's
+    rule without a list file), at ``positions [N, 2]``, take many long steps
+    (:func:`seqnet.data.sanity.route.long_steps`): the names begin with their coordinates, so the frames follow
+    the coordinates' text (unpadded, ``@1000@`` sorts before ``@100@``), not the drive, and sequence methods see
+    that order."""
+    from ..sanity.route import LONG_STEPS, long_steps, order_hint
+
+    at, n, step = long_steps(positions, None)
+    if not len(at):
+        return False
+    i = int(at[0])
+    logger.warning("%s: the frames follow the sorted image names (VPR-methods-evaluation's rule: sorted(glob), no "
+                   "list file %s), which begin with their coordinates, and %d of the %d steps between consecutive "
+                   "frames are longer than %g usual steps (%.3g metres; first: %r, then %r): the frames are in an "
+                   "order of the names' text, not the drive's, and sequence methods would see it (hint: %s)",
+                   folder, list_file(folder).name, len(at), n, LONG_STEPS, step, names[i], names[i + 1],
+                   order_hint(True))
+    return True
 
 
 def positives_radius(positives: Positives, ref_positions: np.ndarray) -> float:

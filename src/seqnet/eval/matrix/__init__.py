@@ -15,24 +15,24 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, DatasetError
-from ..core.log import logger
-from ..core.memmaps import read_rows
-from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
-from ..core.stage import Written
-from ..data.resample import kept_indices, resample_dataset
-from ..data.traverse import Dataset, default_split
-from ..methods.grammar import Method, parse_method
-from ..reference.matrix import MatrixQuery, MatrixReference, matrix_methods
-from ..search.given import GivenMatrix
-from ..security.arrays import read_npy
-from ..security.digests import file_digest
-from ..sequence.windows import Windows
-from .evaluate import EvalConfig, Evaluation, dataset_truth, item_names
-from .evaluation import merge, method_windows
-from .notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
-from .outputs import EvalOutputs
-from .runner import run
+from ...core.errors import ConfigError, DatasetError
+from ...core.memmaps import read_rows
+from ...core.memory import BLOCK_BYTES as MEMORY_BLOCK
+from ...core.stage import Written
+from ...data.resample import kept_indices, resample_dataset
+from ...data.traverse import Dataset, default_split
+from ...methods.grammar import Method, parse_method
+from ...reference.matrix import MatrixQuery, MatrixReference, matrix_methods
+from ...search.given import GivenMatrix
+from ...security.arrays import read_npy
+from ...security.digests import file_digest
+from ...sequence.windows import Windows
+from ..evaluate import EvalConfig, Evaluation, dataset_truth, item_names
+from ..evaluation import merge, method_windows
+from ..notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
+from ..outputs import EvalOutputs
+from ..runner import run
+from .orientation import orientation_check
 
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
 
@@ -78,8 +78,8 @@ def open_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
 
 def _holds_objects(path: str | Path) -> bool:
     """Whether the ``.npy`` file ``path`` declares Python objects (a pickle) rather than numbers."""
-    from ..security.arrays import read_header
-    from ..security.inputs import open_input
+    from ...security.arrays import read_header
+    from ...security.inputs import open_input
 
     with open_input(path, "--distances", ConfigError) as f:
         try:
@@ -92,7 +92,7 @@ def _vpr_bench_scores(path: str | Path, similarity: bool) -> np.ndarray:
     """The score matrix ``[Nq, Nr]`` (element 3, higher is better) of VPR-Bench's ``precomputed_data_corrected.npy``
     (an object array: query indices, best references, best scores, scores, encode and match times), read with
     seqnet's data-only unpickler; any other pickled ``.npy`` is refused."""
-    from ..security.unpickle import load_npy_objects
+    from ...security.unpickle import load_npy_objects
 
     x = load_npy_objects(path, "--distances", ConfigError)
     m = x[3] if isinstance(x, np.ndarray) and x.shape == (6,) and isinstance(x[3], np.ndarray) else None
@@ -116,96 +116,21 @@ def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = MEMORY
                                "finite)")
 
 
-CHECK_ROWS = 2000  # queries sampled to compare the matrix's readings (a cheap argmin each)
-
-
-def orientation_check(ds: Dataset, dist: np.ndarray | GivenMatrix, similarity: bool, transposed: bool = False
-                      ) -> dict[str, Any]:
-    """Single-frame R@1 of the matrix read as given and read the other ways a user may have meant (the other
-    sense: similarity vs distance; transposed, for a square matrix), on up to :data:`CHECK_ROWS` queries with
-    a true match; a warning names a better reading (:func:`_warn_reading`; ``transposed``: the file was read
-    transposed, as --transposed says)."""
-    q = np.arange(len(ds.query))
-    truth = dataset_truth(ds, q, np.arange(len(ds.reference)), ds.radius)
-    keep = np.flatnonzero(truth.has_positive())
-    keep = keep[np.linspace(0, len(keep) - 1, min(len(keep), CHECK_ROWS)).round().astype(np.int64)] if len(keep) \
-        else keep
-    sampled = dataset_truth(ds, keep, np.arange(len(ds.reference)), ds.radius) if len(keep) else None
-    hits = {k: sampled.hits(top[:, None])[:, 0] if sampled else np.zeros(0, bool)
-            for k, top in _top1(dist, keep).items()}
-    r1 = {k: float(h.mean()) if len(h) else float("nan") for k, h in hits.items()}
-    best = max(r1, key=lambda k: r1[k])
-    if best != "as given":
-        _warn_reading(best, r1, similarity, transposed, sign_z(hits[best], hits["as given"]))
-    return {"single_r@1": {k: round(v, 4) for k, v in r1.items()}, "queries_checked": int(len(keep)),
-            "best_reading": best}
-
-
-SQUARE_Z = 2.5  # a square matrix reading better transposed on this many standard errors is named (sign test)
-
-
-def _top1(dist: np.ndarray | GivenMatrix, keep: np.ndarray, block_bytes: int = MEMORY_BLOCK
-          ) -> dict[str, np.ndarray]:
-    """Each reading's best reference ``[len(keep)]`` for the queries ``keep`` of ``dist [Nq, Nr]``: as given
-    (argmin of the row), the other sense (argmax), and for a square matrix transposed (of the column) and
-    transposed in the other sense; in blocks of rows or columns of at most ``block_bytes`` (a given matrix:
-    from its one pass, :meth:`seqnet.search.given.GivenMatrix.scan`)."""
-    if isinstance(dist, GivenMatrix):
-        return {k: v[keep] for k, v in dist.best().items()}
-    out: dict[str, list[np.ndarray]] = {"as given": [], "other sense": []}
-    step = max(1, block_bytes // max(1, dist.shape[1] * 8))
-    for a in range(0, len(keep), step):
-        rows = np.asarray(dist[keep[a:a + step]], dtype=np.float64)
-        out["as given"].append(rows.argmin(1))
-        out["other sense"].append(rows.argmax(1))
-    if dist.shape[0] == dist.shape[1]:
-        out |= {"transposed": [], "transposed, other sense": []}
-        step = max(1, block_bytes // max(1, dist.shape[0] * 8))
-        for a in range(0, len(keep), step):
-            cols = np.asarray(dist[:, keep[a:a + step]], dtype=np.float64)
-            out["transposed"].append(cols.argmin(0))
-            out["transposed, other sense"].append(cols.argmax(0))
-    return {k: np.concatenate(v) if v else np.zeros(0, np.int64) for k, v in out.items()}
-
-
-def sign_z(better: np.ndarray, given: np.ndarray) -> float:
-    """The sign test's z of two readings' per-query hits ``[M]`` bool: ``(b - c) / sqrt(b + c)`` over the queries
-    where exactly one is right (b: ``better`` only, c: ``given`` only); 0 when none differ."""
-    b, c = int((better & ~given).sum()), int((given & ~better).sum())
-    return (b - c) / np.sqrt(b + c) if b + c else 0.0
-
-
-def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed: bool, z: float = 0.0) -> None:
-    """A warning naming a reading of the matrix that beats the one used: clearly (R@1 at least twice, and 0.1
-    above), or, for a square matrix whose shape cannot tell rows from columns, beyond chance (the sign test's
-    ``z`` at least :data:`SQUARE_Z`: two aligned traverses read about as well either way)."""
-    given, sense = r1["as given"], "similarities" if similarity else "distances"
-    flag = "drop --similarity" if similarity else "pass --similarity"
-    turn = "drop --transposed" if transposed else "pass --transposed (one row per reference, as VPR_Tutorial's S)"
-    hint = {"other sense": flag, "transposed": turn, "transposed, other sense": f"{turn}, and {flag}"}[best]
-    if r1[best] >= 2 * given and r1[best] >= given + 0.1:
-        other = "similarities" if not similarity else "distances"
-        read = {"other sense": f"as {other}", "transposed": f"with one row per reference, as {sense}",
-                "transposed, other sense": f"with one row per reference, as {other}"}[best]
-        logger.warning("the matrix reads much better %s (the %s reading): single-frame R@1 is %.3f read as given "
-                       "(%s, one row per query) but %.3f read %s, so it was most likely written that way (hint: %s)",
-                       read, best, given, sense, r1[best], read, hint)
-    elif best.startswith("transposed") and z >= SQUARE_Z:
-        logger.warning("a square matrix: rows read as queries (single-frame R@1 %.3f), but it reads better %s "
-                       "(%.3f); if its rows and columns are the other way round, %s", given, best, r1[best], hint)
-
-
 def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfig | None = None,
-                    similarity: bool = False, transposed: bool = False) -> Evaluation:
+                    similarity: bool | None = None, transposed: bool | None = None) -> Evaluation:
     """Evaluate ``conf.methods`` (default :data:`DEFAULT_MATRIX_METHODS`) of ``ds`` (the split already taken)
-    on ``dist [Nq, Nr]`` distances between its query and reference frames (``similarity``, ``transposed``: how the
-    file was read, for the orientation check's hints)."""
+    on the matrix ``dist`` between its query and reference frames: an array ``[Nq, Nr]`` of distances,
+    of similarities (higher is closer) when ``similarity``, ``[Nr, Nq]`` (one row per reference, as
+    VPR_Tutorial's ``S``) when ``transposed``; or a :class:`GivenMatrix` (:func:`open_matrix`), which
+    carries its own reading. The orientation check names a reading that fits the ground truth better."""
     radius = conf.radius if conf is not None else None  # as given: moot with explicit positives
     conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
-    if dist.ndim != 2 or dist.shape != (len(ds.query), len(ds.reference)):
-        raise ConfigError(f"the distance matrix is {list(dist.shape)} for {len(ds.query)} query and "
-                          f"{len(ds.reference)} reference frames (one row per query, one column per reference)")
-    given = dist if isinstance(dist, GivenMatrix) else GivenMatrix(np.asarray(dist))
+    given = as_given(dist, similarity, transposed)
+    if given.shape != (len(ds.query), len(ds.reference)):
+        rows, cols = ("reference", "query") if given.transposed else ("query", "reference")
+        raise ConfigError(f"the distance matrix is {list(given.raw.shape)} for {len(ds.query)} query and "
+                          f"{len(ds.reference)} reference frames (one row per {rows}, one column per {cols})")
+    similarity, transposed = given.negate, given.transposed
     keep = None
     if conf.resample_every is not None:  # the kept frames' rows and columns
         keep = kept_indices(ds, conf.resample_every, conf.resample_side)
@@ -224,6 +149,21 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     add_warnings(out, [constant_rows(given), shift_notice(out), radius_ignored(radius, ds.positives is not None),
                        trivial_ks(out, conf.ks)])
     return out
+
+
+def as_given(dist: np.ndarray | GivenMatrix, similarity: bool | None, transposed: bool | None) -> GivenMatrix:
+    """``dist`` as a :class:`GivenMatrix`: an array read as ``similarity`` and ``transposed`` say (None: False),
+    a given matrix as it was opened (a ``similarity`` or ``transposed`` that contradicts it is refused)."""
+    if not isinstance(dist, GivenMatrix):
+        m = np.asarray(dist)
+        if m.ndim != 2:
+            raise ConfigError(f"the distance matrix has shape {list(m.shape)}: it must be 2-D, one row per query")
+        return GivenMatrix(m, bool(similarity), bool(transposed))
+    for name, said, held in (("similarity", similarity, dist.negate), ("transposed", transposed, dist.transposed)):
+        if said is not None and bool(said) != held:
+            raise ConfigError(f"{name}={said!r}, but the matrix was opened with {name}={held} (open_matrix reads "
+                              f"it so): leave {name} out, or open it again with {name}={said!r}")
+    return dist
 
 
 def constant_rows(given: GivenMatrix) -> str | None:
@@ -263,7 +203,7 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
     (``similarity``: higher is closer; ``transposed``: one row per reference); writes ``out/results.json``
     (results, config, inputs) and what
     ``per_query``, ``report``, ``figures`` and ``json`` ask, as :func:`seqnet.eval.evaluate.main` does."""
-    from ..data.io import load_dataset
+    from ...data.io import load_dataset
 
     defaults = conf.methods == EvalConfig().methods
     conf = conf.replace(methods=DEFAULT_MATRIX_METHODS if defaults else conf.methods)
@@ -273,7 +213,8 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         split = default_split(conf.split, ds.splits)
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
         dist = open_matrix(distances, ds, similarity, split, transposed)
-        ev = evaluate_matrix(sub, dist, conf.replace(split=split), similarity, transposed)
+        ev = evaluate_matrix(sub, dist, conf.replace(split=split))  # the reading: open_matrix's
+        ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering
         add_warnings(ev, [split_note(conf.split, list(ds.splits), len(sub.query))])
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
                                 "similarity": bool(similarity), "transposed": bool(transposed),

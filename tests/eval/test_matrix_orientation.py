@@ -1,0 +1,120 @@
+"""Which reading of a given matrix was meant: the sense first, then transposition only beyond chance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seqnet.data.traverse import Dataset, Traverse
+from seqnet.eval.evaluate import EvalConfig, evaluate
+from seqnet.eval.matrix import evaluate_matrix, open_matrix
+from seqnet.eval.matrix.orientation import SQUARE_Z, choose_reading, sign_z
+
+SINGLE = EvalConfig(methods=("single",), ks=(1, 5))
+
+
+def aligned(n: int = 200, seed: int = 18) -> tuple[Dataset, np.ndarray]:
+    """Two aligned traverses (frame i of each at place i, radius 1) and their similarity ``[Nq, Nr]``, one row
+    per query: correctly oriented, but with this seed its transposed reading is a little better (R@1 0.625
+    against 0.575, sign test z 1.5: noise), as Nordland's S of the report (0.393 against 0.373)."""
+    rng = np.random.default_rng(seed)
+    r = rng.standard_normal((n, 32))
+    q = r + 1.6 * rng.standard_normal((n, 32))
+    frames = np.arange(float(n))
+    ds = Dataset(Traverse(r.astype(np.float32), frames, name="ref"), Traverse(q.astype(np.float32), frames,
+                                                                             name="qry"), radius=1.0)
+    return ds, q @ r.T
+
+
+def warnings_of(caplog) -> str:
+    return " ".join(r.getMessage() for r in caplog.records if r.levelname == "WARNING")
+
+
+def test_a_correct_square_similarity_read_as_distances_is_told_the_sense_only(caplog):
+    """The report's H3: the other sense's transposed reading was marginally better, so the hint named
+    --transposed as well, and following it scored the traverses the other way round."""
+    ds, s = aligned()
+    with caplog.at_level("WARNING", logger="seqnet"):
+        ev = evaluate_matrix(ds, s, SINGLE)  # similarities read as distances
+    check = ev.results["matrix_check"]
+    assert check["single_r@1"]["transposed, other sense"] > check["single_r@1"]["other sense"]  # the trap is set
+    assert check["best_reading"] == "other sense"
+    text = warnings_of(caplog)
+    assert "(hint: pass --similarity)" in text and "--transposed" not in text
+
+
+def test_evaluate_matrix_applies_similarity_to_an_array(caplog):
+    """`evaluate_matrix(ds, S, similarity=True)` used to read S as distances (R@1 0.000) and hint at flags."""
+    ds, s = aligned()
+    want = evaluate_matrix(ds, -s, SINGLE).results["methods"]["single"]["recall@1"]
+    with caplog.at_level("WARNING", logger="seqnet"):
+        got = evaluate_matrix(ds, s, SINGLE, similarity=True)
+    assert got.results["methods"]["single"]["recall@1"] == want == pytest.approx(0.575)
+    assert got.results["matrix_check"]["best_reading"] == "as given" and not warnings_of(caplog)
+    turned = evaluate_matrix(ds, s.T, SINGLE, similarity=True, transposed=True)  # VPR_Tutorial's S = db @ q.T
+    np.testing.assert_array_equal(turned.retrieved["single"], got.retrieved["single"])
+    assert evaluate(ds, SINGLE).results["methods"]["single"]["recall@1"] > 0.5
+
+
+def test_a_given_matrix_keeps_its_reading_and_refuses_a_contradiction(tmp_path):
+    from seqnet.core.errors import ConfigError
+
+    ds, s = aligned(60)
+    np.save(tmp_path / "s.npy", s)
+    given = open_matrix(tmp_path / "s.npy", ds, True)
+    assert evaluate_matrix(ds, given, SINGLE).results["matrix_check"]["best_reading"] == "as given"
+    with pytest.raises(ConfigError, match="opened with similarity=True"):
+        evaluate_matrix(ds, given, SINGLE, similarity=False)
+    with pytest.raises(ConfigError, match=r"is \[60, 59\] for 60 query and 60 reference frames"):
+        evaluate_matrix(ds, s[:, :59], SINGLE)
+
+
+def test_transposition_needs_the_sign_test_within_the_chosen_sense():
+    """Against a naive loop over the four readings: the sense is the clearly better one, transposition is
+    named only when its z within that sense reaches SQUARE_Z."""
+    rng = np.random.default_rng(0)
+
+    def hits(p):
+        return rng.random(400) < p
+
+    for _ in range(200):
+        h = {k: hits(p) for k, p in zip(("as given", "other sense", "transposed", "transposed, other sense"),
+                                        rng.choice([0.0, 0.02, 0.3, 0.35, 0.6, 0.65], 4), strict=True)}
+        r1 = {k: v.mean() for k, v in h.items()}
+        own, other = max(r1["as given"], r1["transposed"]), max(r1["other sense"], r1["transposed, other sense"])
+        flip = other >= 2 * own and other >= own + 0.1
+        plain, turned = ("other sense", "transposed, other sense") if flip else ("as given", "transposed")
+        b = sum(x and not y for x, y in zip(h[turned], h[plain], strict=True))
+        c = sum(y and not x for x, y in zip(h[turned], h[plain], strict=True))
+        want = turned if b + c and (b - c) / np.sqrt(b + c) >= SQUARE_Z else plain
+        assert choose_reading(h) == want
+    two = {"as given": hits(0.1), "other sense": hits(0.6)}  # not square: two readings only
+    assert choose_reading(two) == "other sense"
+    assert sign_z(two["other sense"], two["as given"]) > SQUARE_Z
+
+
+def test_a_truly_transposed_square_matrix_is_still_named(caplog):
+    """Traverses not aligned (the queries a permutation of the places): the transposed reading wins by far."""
+    ds, s = aligned()
+    perm = np.random.default_rng(1).permutation(len(ds.query))
+    q = Traverse(ds.query.descriptors[perm], ds.query.positions[perm], name="qry")
+    ds = Dataset(ds.reference, q, radius=1.0)
+    with caplog.at_level("WARNING", logger="seqnet"):
+        check = evaluate_matrix(ds, -s[perm].T, SINGLE).results["matrix_check"]
+    assert check["best_reading"] == "transposed"
+    assert "pass --transposed" in warnings_of(caplog) and "--similarity" not in warnings_of(caplog)
+
+
+@pytest.mark.parametrize("n_ref", [150, 120])
+def test_the_sense_warning_under_transposed_describes_the_reading_used(tmp_path, caplog, n_ref):
+    """The report's L6: VPR_Tutorial's S [N_db, N_q] read with --transposed but without --similarity was
+    described as "(distances, one row per query)"."""
+    ds, s = aligned(n_ref)
+    ds = Dataset(ds.reference, ds.query.subset(0, 120), radius=1.0)
+    np.save(tmp_path / "S.npy", s[:120, :n_ref].T)
+    given = open_matrix(tmp_path / "S.npy", ds, False, "all", True)
+    with caplog.at_level("WARNING", logger="seqnet"):
+        evaluate_matrix(ds, given, SINGLE)
+    text = warnings_of(caplog)
+    assert "read as given (distances, read transposed: one row per reference)" in text
+    assert "(hint: pass --similarity)" in text and "one row per query)" not in text
