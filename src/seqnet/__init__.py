@@ -36,7 +36,7 @@ _API: dict[str, str] = {  # public name -> the module that defines it, imported 
     "Reference": ".methods.protocol",
     "TraverseReference": ".reference",
     "topk_smallest": ".search.blocks",
-    "knn": ".search.knn",
+    "knn": ".search.api",
     "pairwise_distances": ".search.knn",
     "SeqNet": ".sequence.model",
     "load_model": ".sequence.checkpoints",
