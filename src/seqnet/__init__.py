@@ -21,6 +21,8 @@ _API: dict[str, str] = {  # public name -> the module that defines it, imported 
     "load_dataset": ".data.io",
     "save_dataset": ".data.io",
     "make_synthetic": ".data.synth",
+    "Positives": ".data.positives",
+    "read_positives": ".data.positives",
     "Dataset": ".data.traverse",
     "Traverse": ".data.traverse",
     "EvalConfig": ".eval.config",
