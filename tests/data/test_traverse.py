@@ -520,3 +520,69 @@ def test_a_copied_dataset_written_before_folders_were_recorded_is_named_by_both(
     del meta["checksums"]
     (tmp_path / "copy" / "dataset.json").write_text(json.dumps(meta))
     assert load_dataset(tmp_path / "copy").name == "orig"
+
+
+def _unit_rows(n=30, d=8, seed=0):
+    x = np.random.default_rng(seed).standard_normal((n, d)).astype(np.float32)
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def test_api_built_traverses_name_their_side_and_transposed_descriptors():
+    """Both sides were 'traverse'; [D, N] descriptors got '30 positions for 8 descriptors' without a hint."""
+    from seqnet.data.traverse import Dataset, Traverse
+
+    q, fr = _unit_rows(), np.arange(30.0)
+    bad = q.copy()
+    bad[3] = np.nan
+    with pytest.raises(DatasetError, match=r"name='query' or 'reference'\) names it\): descriptors contain NaN"):
+        Traverse(bad, fr)
+    with pytest.raises(DatasetError, match=r"descriptors look transposed \(\[D, N\] = \[8, 30\]\): pass descriptors.T"):
+        Traverse(q.T, fr)
+    ds = Dataset(reference=Traverse(q, fr), query=Traverse(q, fr), radius=1.0)
+    assert (ds.reference.name, ds.query.name) == ("reference", "query")
+
+
+def test_dataset_repr_is_short():
+    """repr(Dataset) printed the whole memory map (30 KB)."""
+    from seqnet.data.traverse import Dataset, Traverse
+
+    q, fr = _unit_rows(3000, 64), np.arange(3000.0)
+    ds = Dataset(reference=Traverse(q, fr), query=Traverse(q, fr), radius=2.0, name="x",
+                 splits={"test": {"query": (0, 9)}})
+    assert repr(ds) == ("Dataset('x': 3000 reference x 3000 query images, D=64, radius 2 frames, splits test=0:9)")
+
+
+def test_positives_as_lists_or_bool_matrix(caplog):
+    """Lists and bool matrices were refused ('positives must be a Positives, got list') with no hint."""
+    import logging
+
+    from seqnet.data.positives import Positives
+    from seqnet.data.traverse import Dataset, Traverse
+
+    q, fr = _unit_rows(), np.arange(30.0)
+    lists = [[j for j in (i - 1, i, i + 1) if 0 <= j < 30] for i in range(30)]
+    grid = np.zeros((30, 30), bool)
+    for i, row in enumerate(lists):
+        grid[i, row] = True
+    want = Positives.from_lists(lists)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        for given in (lists, grid, want):
+            ds = Dataset(reference=Traverse(q, fr), query=Traverse(q, fr), radius=1.0, positives=given)
+            assert np.array_equal(ds.positives.indices, want.indices)
+    assert not caplog.records  # symmetric positives read alike both ways: nothing to say
+    with pytest.raises(DatasetError, match=r"transposed\? the matrix is \[30, 20\]"):
+        Dataset(reference=Traverse(q, fr), query=Traverse(q[:20], fr[:20]), radius=1.0, positives=grid[:20].T)
+    with pytest.raises(DatasetError, match=r"Positives.from_lists"):
+        Dataset(reference=Traverse(q, fr), query=Traverse(q, fr), radius=1.0, positives="gt.json")
+
+
+def test_all_zero_rows_name_their_images():
+    """A blank image was refused by row number only."""
+    from seqnet.data.traverse import Traverse
+
+    q = _unit_rows()
+    q[[4, 5]] = 0
+    names = [f"images-{i:05d}.png" for i in range(30)]
+    with pytest.raises(DatasetError, match=r"query: descriptors: row 4 \(image images-00004.png\) is all zeros \(2 "
+                                           r"such images.*images-00004.png, images-00005.png\).*same name from both"):
+        Traverse(q, np.arange(30.0), names=names, name="query")

@@ -388,3 +388,41 @@ def test_hvpr_reading_one_shared_matrix_equals_hvpr_apart(synth_dir, tmp_path, m
         rx, ry = json.loads(x), json.loads(y)
         assert rx["references"] == ry["references"]
         np.testing.assert_allclose(rx["scores"], ry["scores"], rtol=1e-5)
+
+
+def test_seqmatch_says_rows_far_from_unit_norm_and_normalize_matches_unit_rows(caplog):
+    """seqmatch compared non-unit rows as given, unlike evaluate(), and said nothing (R@1 0.061 against 0.753)."""
+    import logging
+
+    rng = np.random.default_rng(3)
+    qu, ru = (x / np.linalg.norm(x, axis=1, keepdims=True) for x in rng.standard_normal((2, 12, 6)).astype(np.float32))
+    qs, rs = (x * rng.uniform(0.3, 3, (12, 1)).astype(np.float32) for x in (qu, ru))
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        seqmatch(qs, rs, 3)
+    assert "seqmatch: query row" in caplog.text and "normalize=True" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        out = seqmatch(qs, rs, 3, normalize=True)
+        plain = seqmatch(qs, rs, 3, normalize=False)
+        unit_rows = seqmatch(qu, ru, 3)
+    assert not caplog.records
+    assert isinstance(out, np.ndarray)
+    np.testing.assert_allclose(out, unit_rows, atol=1e-5)
+    np.testing.assert_allclose(out, naive_seqmatch(qu, ru, 3), atol=1e-4)
+    np.testing.assert_allclose(plain, naive_seqmatch(qs, rs, 3), atol=1e-4)
+
+
+def test_readme_seqmatch_example_is_silent(caplog):
+    """The README passed non-unit np.random.rand rows to seqmatch (now: unit rows, no warning)."""
+    import logging
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    lines = [ln for ln in re.search(r"```python\n(.*?)```", text, re.S).group(1).splitlines()
+             if ln.startswith(("import numpy", "unit =", "q, r =", "M =", "M_rev ="))]
+    assert any(ln.startswith("M =") for ln in lines)
+    env = {"seqmatch": seqmatch}
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        exec("\n".join(lines), env)  # noqa: S102 - the README's own lines
+    assert env["M"].shape == (296, 396) and not caplog.records

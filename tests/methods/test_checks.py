@@ -225,3 +225,18 @@ def test_kept_count_matches_a_loop(a, lo, span, every):
 
     hi = lo + span
     assert kept_count(a, lo, hi, every) == sum(lo <= q < hi for q in range(a, max(a, hi) + every, every))
+
+
+def test_models_under_swapped_roles_are_named_with_the_fix():
+    """{"seqnet": S_1, "s1": S_5} failed with 'SeqNet with w=3 needs windows of >= 3 frames, got 1'."""
+    from seqnet.core.errors import ConfigError
+    from seqnet.methods.checks import check_models
+    from seqnet.sequence.model import SeqNet
+
+    s5, s1 = SeqNet(8, 4, 5, 3), SeqNet(8, 4, 1, 1)
+    with pytest.raises(ConfigError, match=r"models\['s1'\] is an S_5 \(L=5, w=3\): the 's1' role takes an S_1; "
+                                          r"did you swap the roles\?"):
+        check_models({"s1": s5}, 8, None, "dataset 'x'", 5)
+    with pytest.raises(ConfigError, match=r"models\['seqnet'\] is an S_1 \(L=1, w=1\)"):
+        check_models({"seqnet": s1, "s1": s5}, 8, None, "dataset 'x'", 5)
+    check_models({"seqnet": s5, "s1": s1}, 8, None, "dataset 'x'", 5)  # the right roles: no error

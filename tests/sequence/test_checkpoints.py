@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -261,3 +262,14 @@ def test_a_run_folder_given_as_a_checkpoint_names_the_checkpoints_it_holds(tmp_p
     (tmp_path / "empty").mkdir()
     with pytest.raises(CheckpointError, match=r"pass RUN/best.pt, the checkpoint of a training run\)$"):
         load_model(tmp_path / "empty")
+
+
+def test_load_models_takes_one_path_as_one_checkpoint(tmp_path):
+    """load_models("run/best.pt") read the string's characters ('checkpoint not found: r'); a Path gave
+    TypeError: 'PosixPath' object is not iterable."""
+    from seqnet.sequence.checkpoints import load_models
+
+    s1a, _ = _pair(tmp_path, "s1", 1, 1)
+    for one in (str(s1a), Path(s1a)):
+        models = load_models(one)
+        assert list(models) == ["s1"] and models["s1"].seq_len == 1

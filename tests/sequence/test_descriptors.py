@@ -194,3 +194,20 @@ def test_seqnet_gemm_forward_equals_conv(seq_len, w):
     g1 = torch.autograd.grad(model(x).sum(), model.conv.weight)[0]
     g2 = torch.autograd.grad(model.forward_conv(x).sum(), model.conv.weight)[0]
     assert torch.allclose(g1, g2, atol=1e-5)
+
+
+@pytest.mark.parametrize("fn", [smoothing, delta, delta_paper])
+def test_one_window_is_refused_with_the_leading_axis_hint(fn):
+    """A single window [L, D] was read as L windows of D one-dimensional frames and gave [L] silently."""
+    with pytest.raises(ConfigError, match=r"\[M, L, D\].*\(5, 64\).*x\[None\]"):
+        fn(torch.randn(5, 64))
+
+
+@pytest.mark.parametrize("fn, naive", [(smoothing, naive_smoothing), (delta, naive_delta)])
+def test_numpy_windows_give_numpy_equal_to_the_loop(fn, naive):
+    """numpy windows raised AttributeError ('numpy.ndarray' object has no attribute 'abs')."""
+    w = np.random.default_rng(0).standard_normal((3, 5, 8)).astype(np.float32)
+    out = fn(w)
+    assert isinstance(out, np.ndarray) and out.shape == (3, 8)
+    np.testing.assert_allclose(out, naive(w), atol=1e-5)
+    np.testing.assert_allclose(out, fn(torch.from_numpy(w)).numpy(), atol=1e-6)

@@ -25,9 +25,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError
-from ..core.memmaps import read_rows
-from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
-from .positives import Positives
+from .positives import Positives, as_positives
+from .validation import validate_traverse
 
 FORMAT = "seqnet-dataset/1"
 POSITION_UNITS = ("frames", "metres")
@@ -114,7 +113,10 @@ class Dataset:
     as ``{"query": (start, stop)}`` alone selects queries against the whole reference (the map stays whole).
     ``extra`` holds any other metadata (positive/negative training radii, preset, source, ...).
     ``positives`` (optional) is explicit ground truth: the matching reference frames of every query
-    frame; when given, it decides what is correct instead of the radius.
+    frame; when given, it decides what is correct instead of the radius. It is a :class:`Positives`, one list of
+    reference indices per query, or a ``[N_query, N_reference]`` bool matrix (a ``[N_reference, N_query]`` one is
+    refused with a hint when not square; a square one is read as given, and one that reads better transposed is
+    said by the evaluation: :func:`seqnet.data.sanity.truth.transposed_positives`).
     """
 
     reference: Traverse
@@ -130,17 +132,23 @@ class Dataset:
         for side in ("reference", "query"):
             if not isinstance(getattr(self, side), Traverse):
                 raise DatasetError(f"Dataset {side} must be a Traverse, got {type(getattr(self, side)).__name__}")
+            if getattr(self, side).name == "traverse":  # built without a name: its messages name its side
+                getattr(self, side).name = side
         if isinstance(self.radius, (bool, str)) or not isinstance(self.radius, (int, float, np.number)):
             raise DatasetError(f"radius must be a number, got {self.radius!r}")
         self.radius = float(self.radius)
         if self.positives is not None:
-            if not isinstance(self.positives, Positives):
-                raise DatasetError(f"positives must be a Positives, got {type(self.positives).__name__}")
-            self.positives = self.positives.check(len(self.query), len(self.reference))
+            self.positives = as_positives(self.positives, len(self.query), len(self.reference))
         if self.position_unit is None:
             self.position_unit = "frames" if self.reference.positions.shape[1] == 1 else "metres"
         self.splits = {name: self._whole_reference(rng) for name, rng in self.splits.items()}
         validate_dataset(self)
+
+    def __repr__(self) -> str:
+        splits = ", ".join(f"{k}={v['query'][0]}:{v['query'][1]}" for k, v in self.splits.items()) or "none"
+        truth = "explicit positives" if self.positives is not None else f"radius {self.radius:g} {self.position_unit}"
+        return (f"Dataset({self.name!r}: {len(self.reference)} reference x {len(self.query)} query images, "
+                f"D={self.reference.dim}, {truth}, splits {splits})")
 
     def _whole_reference(self, rng: dict[str, tuple[int, int]]) -> dict[str, tuple[int, int]]:
         """``rng`` with the whole reference when it gives only a query range (a split selects queries)."""
@@ -196,63 +204,6 @@ def parse_range_spec(spec: str) -> dict[str, tuple[int, int]] | None:
 def default_split(split: str | None, splits: Mapping[str, Any]) -> str:
     """``split``, else ``test`` when the dataset defines one, else ``all``."""
     return split or ("test" if "test" in splits else "all")
-
-
-def validate_traverse(t: Traverse) -> None:
-    """Raise :class:`DatasetError` naming the first problem of traverse ``t``."""
-    d = t.descriptors
-    if d.ndim != 2:
-        raise DatasetError(f"{t.name}: descriptors must be [N, D], got shape {tuple(d.shape)}")
-    if d.shape[0] == 0 or d.shape[1] == 0:
-        raise DatasetError(f"{t.name}: descriptors are empty (shape {tuple(d.shape)})")
-    if not np.issubdtype(d.dtype, np.floating):
-        raise DatasetError(f"{t.name}: descriptors must be floating point, got dtype {d.dtype}")
-    _check_finite(d, f"{t.name}: descriptors", nonzero=True)
-    n = d.shape[0]
-    p = t.positions
-    if p.ndim != 2 or p.shape[1] not in (1, 2):
-        raise DatasetError(
-            f"{t.name}: positions must be [N, 1] (frames) or [N, 2] (easting, northing), "
-            f"got shape {tuple(p.shape)}"
-        )
-    if p.shape[0] != n:
-        raise DatasetError(f"{t.name}: {p.shape[0]} positions for {n} descriptors (must be equal)")
-    _check_finite(p, f"{t.name}: positions")
-    if t.names is not None and len(t.names) != n:
-        raise DatasetError(f"{t.name}: {len(t.names)} image names for {n} descriptors")
-    if t.seq_bounds is not None:
-        _check_bounds(t.seq_bounds, n, t.name)
-
-
-def _check_bounds(b: np.ndarray, n: int, name: str) -> None:
-    if b.shape != (n, 2):
-        raise DatasetError(f"{name}: seq_bounds must be [{n}, 2], got shape {tuple(b.shape)}")
-    idx = np.arange(n)
-    bad = np.flatnonzero((b[:, 0] < 0) | (b[:, 0] > idx) | (b[:, 1] <= idx) | (b[:, 1] > n))
-    if bad.size:
-        i = int(bad[0])
-        raise DatasetError(
-            f"{name}: seq_bounds[{i}] = {b[i].tolist()} does not contain image {i} within 0:{n} "
-            f"({bad.size} bad rows; each row is the half-open range [start, end) of the image's sequence)"
-        )
-
-
-def _check_finite(a: np.ndarray, what: str, chunk_bytes: int = MEMORY_BLOCK // 4, nonzero: bool = False) -> None:
-    """NaN / inf anywhere (and, with ``nonzero``, an all-zero row) is a :class:`DatasetError` naming the first row.
-    Read in blocks of ``chunk_bytes`` (a large memory map's pages are released after each: bounded memory)."""
-    chunk = max(1, chunk_bytes // max(1, a[:1].nbytes))
-    for s in range(0, a.shape[0], chunk):
-        block = np.asarray(read_rows(a, s, s + chunk))
-        if not np.isfinite(block).all():
-            row = s + int(np.flatnonzero(~np.isfinite(block).all(axis=1))[0])
-            raise DatasetError(f"{what} contain NaN or inf (first at row {row})")
-        if nonzero and block.size:
-            zero = ~block.any(axis=1)
-            if zero.any():
-                row = s + int(np.flatnonzero(zero)[0])
-                raise DatasetError(f"{what}: row {row} is all zeros ({int(zero.sum())} such rows in rows {s}.."
-                                   f"{s + len(block) - 1}); a zero descriptor matches nothing (e.g. a blank image: "
-                                   "remove it)")
 
 
 def validate_dataset(ds: Dataset) -> None:

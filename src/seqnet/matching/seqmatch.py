@@ -19,6 +19,7 @@ from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
 from ..core.tensors import ArrayLike, as_tensor, to_numpy
+from ..search.api import prepared
 from ..search.blocks import blocked_topk, check_pair_dims, col_blocks, rows
 from ..search.knn import as_pair, rows_per_block, sq_norms
 from ..search.precision import compute_dtype
@@ -39,6 +40,7 @@ def seqmatch(
     device: str | None = None,
     block_bytes: int | None = None,
     tile_bytes: int | None = None,
+    normalize: bool | None = None,
 ) -> ArrayLike:
     """SeqMatch scores between all query and reference windows (or candidate windows only).
 
@@ -53,12 +55,16 @@ def seqmatch(
         block_bytes: memory budget per block (default 64 MiB, :data:`seqnet.search.knn.DEFAULT_BLOCK_BYTES`).
         tile_bytes: distances per fused tile of the whole map (default cache-sized on the CPU,
             :data:`seqnet.matching.banded.TILE_BYTES`; at most ``block_bytes``).
+        normalize: ``True``: L2-normalise every frame's row first, as ``evaluate()`` and ``seqnet eval``
+            (``raw+seqmatch``) do; ``None`` (default): the rows as given, with a WARNING line when they are far
+            from unit norm (then the scores rank otherwise than the evaluation's); ``False``: as given, unchecked.
 
     Returns:
         ``[Nq−L+1, Nr−L+1]`` scores (or ``[Nq−L+1, K]`` with candidates), numpy if ``query`` is
         numpy else a torch tensor on ``query``'s device. float64 inputs stay float64.
     """
-    dev = get_device(device)
+    dev, given = get_device(device), query
+    query, ref = prepared(query, ref, "seqmatch", normalize)
     if candidates is None:
         q, r, norms = _pair_norms(query, ref, dev)
         check_seq_len(seq_len, min(q.shape[0], r.shape[0]), "seq_len")
@@ -69,8 +75,8 @@ def seqmatch(
     if maybe_nan and bool(torch.isnan(out).any()):
         raise ConfigError("SeqMatch scores hold NaN: the descriptors hold NaN or inf, or values too large for "
                           f"{str(out.dtype).removeprefix('torch.')} (hint: L2-normalise them)")
-    if isinstance(query, torch.Tensor):
-        return out.to(query.device)
+    if isinstance(given, torch.Tensor):
+        return out.to(given.device)
     return to_numpy(out)
 
 

@@ -114,6 +114,7 @@ def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None
     it), and L < w is refused."""
     for role, model in models.items():
         name = "S_1" if role == "s1" else f"S_{model.seq_len}"
+        check_role(role, model)
         if model.in_dims != dim:
             raise ConfigError(f"the {role} model ({name}) expects D={model.in_dims} descriptors "
                               f"but the dataset has D={dim}{_trained_on_hint(model, where)}")
@@ -121,6 +122,18 @@ def check_models(models: Mapping[str, SeqNet], dim: int, provenance: dict | None
                    f"the descriptors of {where}", allow)
         if role == "seqnet" and model.seq_len != length:
             check_window_len(model, length, use)
+
+
+def check_role(role: str, model: SeqNet) -> None:
+    """A model given under the other role (``{"seqnet": S_1, "s1": S_5}``) is refused naming the role and the fix
+    (it failed later with 'SeqNet with w=3 needs windows of >= 3 frames, got 1')."""
+    given = getattr(model, "role", role)
+    if role in ("seqnet", "s1") and given != role:
+        kind = "an S_1 (L=1, w=1)" if given == "s1" else f"an S_{model.seq_len} (L={model.seq_len}, w={model.w})"
+        want = "an S_1" if role == "s1" else "an S_L (L > 1)"
+        raise ConfigError(f"models[{role!r}] is {kind}: the {role!r} role takes {want}; did you swap the roles? "
+                          f"(hint: models[{given!r}] takes it; load_models([...]) assigns the roles from the "
+                          "checkpoints)")
 
 
 def _trained_on_hint(model: SeqNet, where: str) -> str:

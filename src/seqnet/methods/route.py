@@ -16,7 +16,8 @@ from ..data.sanity.positions import copied_positions
 from ..data.sanity.revisits import revisited_reference
 from ..data.sanity.route import route_checks
 from ..data.sanity.truth import degree_positions
-from ..data.spacing import DEGREES_HINT, RATE_RATIO, looks_like_degrees, step_rates, unequal_steps
+from ..data.spacing import RATE_RATIO, step_rates, unequal_steps
+from ..metrics.inputs import TRIVIAL_SHARE, trivial_truth  # noqa: F401 - re-exported (methods.checks)
 from .grammar import parse_method
 
 REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back
@@ -182,28 +183,6 @@ def backward_leg_line(truth: Any, runs: list[tuple[int, int]], frames: np.ndarra
             f"sequence that otherwise runs forward: there the sequence methods {named} compare frames in the wrong "
             "order; split the traverse into sequences at the turns (a sequence column in the query's CSV) and "
             "evaluate the backward ones with the reversed matchers (e.g. raw+seqmatch-rev), or use raw+graph")
-
-
-TRIVIAL_SHARE = 0.5  # a query whose correct references are this share of the map or more: R@K says little
-
-
-def trivial_truth(truth: Any, samples: int = 200) -> str | None:
-    """Why the ground truth makes Recall@K near-trivial (the median query, of ``samples`` evenly spaced, has at
-    least :data:`TRIVIAL_SHARE` of the references correct: constant positions, positions in degrees, or a radius
-    as large as the route), None otherwise."""
-    n_q, n_r = len(truth.q_pos), len(truth.r_pos)
-    if n_q == 0 or n_r < 4:
-        return None
-    counts = [len(truth.of(int(i))) for i in spread(n_q, samples)]  # the ground truth's own test
-    share = float(np.median(counts)) / n_r
-    if share < TRIVIAL_SHARE:
-        return None
-    what = "positives" if truth.positives is not None else f"references within the radius {truth.radius:g}"
-    hint = (f"({DEGREES_HINT})" if truth.positives is None and looks_like_degrees(np.concatenate(
-        [truth.q_pos, truth.r_pos])) else "(constant positions, or a radius as large as the route? check the "
-            "positions and the radius, and their unit)")
-    return (f"the median query has {share:.0%} of the {n_r} references as its {what}: any answer is likely correct "
-            f"and Recall@K says little {hint}")
 
 
 def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str]) -> list[str]:

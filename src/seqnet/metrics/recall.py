@@ -17,7 +17,9 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.log import logger
 from ..data.positives import Positives
+from .inputs import integral, positions_array, trivial_truth
 
 DEFAULT_KS = (1, 5, 10, 20, 100)
 VAL_MIN = 50  # val queries below which a choice by R@1 (an epoch, K, λ) is mostly noise: 1 query = 2% of R@1
@@ -111,7 +113,7 @@ class GroundTruth:
 
     def __post_init__(self) -> None:
         self.radius = check_radius(self.radius)
-        self.q_pos, self.r_pos = _positions(self.q_pos, "query"), _positions(self.r_pos, "reference")
+        self.q_pos, self.r_pos = positions_array(self.q_pos, "query"), positions_array(self.r_pos, "reference")
         if self.q_pos.shape[1] != self.r_pos.shape[1]:
             raise ConfigError(f"query positions are {self.q_pos.shape[1]}-D but reference positions "
                               f"{self.r_pos.shape[1]}-D")
@@ -182,6 +184,8 @@ class GroundTruth:
         if retrieved.ndim != 2 or retrieved.shape[0] != len(self.q_pos):
             raise ConfigError(f"retrieved must be [{len(self.q_pos)}, K] (one row per query), got shape "
                               f"{retrieved.shape}")
+        if retrieved.dtype.kind not in "iu":
+            retrieved = integral(retrieved)
         retrieved = retrieved.astype(np.int64, copy=False)
         if retrieved.size and (retrieved.min() < -1 or retrieved.max() >= len(self.r_pos)):
             raise ConfigError(f"retrieved indices must lie in 0..{len(self.r_pos) - 1} (or -1 for none)")
@@ -236,17 +240,17 @@ def recall_at_k(
         q_pos: ``[M, P]`` query positions; r_pos: ``[R, P]`` reference positions.
         radius: localisation radius (same unit as positions; inclusive).
         ks: the K values.
+
+    A WARNING line when the ground truth makes Recall@K near-trivial (the median query has half the references
+    within the radius: positions in degrees or kilometres with a radius in metres, constant positions), as
+    ``seqnet eval`` says (:func:`seqnet.metrics.inputs.trivial_truth`).
     """
-    return recall(retrieved, GroundTruth(q_pos, r_pos, radius), ks)
-
-
-def _positions(p: np.ndarray, side: str) -> np.ndarray:
-    p = np.asarray(p, dtype=np.float64)
-    if p.ndim == 1:
-        p = p[:, None]
-    if p.ndim != 2:
-        raise ConfigError(f"{side} positions must be [N, P], got shape {p.shape}")
-    return p
+    truth = GroundTruth(q_pos, r_pos, radius)
+    out = recall(retrieved, truth, ks)
+    line = trivial_truth(truth)
+    if line:
+        logger.warning("recall_at_k: %s", line)
+    return out
 
 
 def recall_curve(retrieved: np.ndarray, truth: GroundTruth, k_max: int = 20) -> np.ndarray:

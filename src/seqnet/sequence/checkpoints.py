@@ -22,6 +22,7 @@ they can hold tensors and plain data only, never code.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -90,8 +91,9 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
     Args:
         path: checkpoint file.
         seq_len: sequence length L the model was trained with, for an original checkpoint without
-            ``flags.json`` only (a stored L is never changed: evaluating with another L is checked,
-            and refused unless asked for, by :func:`seqnet.eval.evaluate.evaluate`).
+            ``flags.json`` only (a stored L is never changed; evaluating at another L >= w is valid and runs,
+            the convolution averaged over that window's ``L - w + 1`` outputs: :func:`seqnet.eval.evaluate.evaluate`
+            logs one INFO line and records ``model_seq_len`` in the results; L < w is refused).
         in_dims: expected input dimension D (e.g. the dataset's); a mismatch raises CheckpointError.
 
     The model's ``provenance`` is that of the descriptors it was trained on (None when unknown), its
@@ -178,10 +180,13 @@ def model_role(path: str | Path) -> Role:
     return Role("s1" if seq_len == 1 and w == 1 else "seqnet", seq_len)
 
 
-def load_models(paths: Sequence[str | Path] = (), shortlist_model: str | Path | None = None,
+def load_models(paths: Sequence[str | Path] | str | Path = (), shortlist_model: str | Path | None = None,
                 rerank_model: str | Path | None = None, seq_len: int | None = None) -> dict[str, SeqNet]:
-    """Models by role: ``paths`` by their stored role, then the S_L ``shortlist_model`` (an original
-    checkpoint without flags.json takes ``seq_len``) and the S_1 ``rerank_model``."""
+    """Models by role: ``paths`` (a list of checkpoints; one path alone is taken as a list of one) by their stored
+    role, then the S_L ``shortlist_model`` (an original checkpoint without flags.json takes ``seq_len``) and the
+    S_1 ``rerank_model``."""
+    if isinstance(paths, (str, os.PathLike)):  # one checkpoint, not its characters
+        paths = [paths]
     models, seen = {}, {}
     for path in paths:
         model = load_model(path)

@@ -31,7 +31,7 @@ from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import RowsOut, take_rows
 from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.progress import progress as progress_bar
-from ..core.tensors import as_tensor, l2_normalize
+from ..core.tensors import ArrayLike, as_tensor, l2_normalize
 from .windows import gather_windows
 
 torch = lazy_module("torch")
@@ -40,31 +40,53 @@ if TYPE_CHECKING:
     from .model import SeqNet
 
 
-def smoothing(windows: torch.Tensor) -> torch.Tensor:
-    """Window average: ``[M, L, D]`` → L2-normalised ``[M, D]``."""
-    return l2_normalize(l2_normalize(windows).mean(dim=1))
+def smoothing(windows: ArrayLike) -> ArrayLike:
+    """Window average: ``[M, L, D]`` → L2-normalised ``[M, D]`` (numpy in, numpy out; one window ``[L, D]`` is
+    refused: pass ``x[None]``)."""
+    w, numpy_in = window_batch(windows, "smoothing")
+    return as_given(l2_normalize(l2_normalize(w).mean(dim=1)), numpy_in)
 
 
-def delta(windows: torch.Tensor) -> torch.Tensor:
-    """Delta descriptor: ``[M, L, D]`` (L ≥ 2) → L2-normalised ``[M, D]``."""
+def delta(windows: ArrayLike) -> ArrayLike:
+    """Delta descriptor: ``[M, L, D]`` (L ≥ 2) → L2-normalised ``[M, D]`` (numpy in, numpy out; one window
+    ``[L, D]`` is refused: pass ``x[None]``)."""
+    windows, numpy_in = window_batch(windows, "delta")
     seq_len = windows.shape[1]
     if seq_len < 2:
         raise ConfigError(f"Delta descriptors need seq_len >= 2, got {seq_len}")
     h = seq_len // 2
     w = l2_normalize(windows)
-    return l2_normalize(w[:, seq_len - h :].mean(dim=1) - w[:, :h].mean(dim=1))
+    return as_given(l2_normalize(w[:, seq_len - h :].mean(dim=1) - w[:, :h].mean(dim=1)), numpy_in)
 
 
-def delta_paper(windows: torch.Tensor) -> torch.Tensor:
+def delta_paper(windows: ArrayLike) -> ArrayLike:
     """The paper's Delta baseline (the original SeqNet code's): ``[M, L, D]`` (L ≥ 2) → L2-normalised
     ``Σ_t w_t x_t`` with ``w = ±1 / (L/2)``, the first ``L // 2`` frames negative, on raw (not normalised)
     frames."""
+    windows, numpy_in = window_batch(windows, "delta_paper")
     seq_len = windows.shape[1]
     if seq_len < 2:
         raise ConfigError(f"Delta descriptors need seq_len >= 2, got {seq_len}")
     weight = torch.full((seq_len,), 2.0 / seq_len, dtype=windows.dtype, device=windows.device)
     weight[: seq_len // 2] *= -1
-    return l2_normalize(torch.einsum("mld,l->md", windows, weight))
+    return as_given(l2_normalize(torch.einsum("mld,l->md", windows, weight)), numpy_in)
+
+
+def window_batch(windows: ArrayLike, what: str) -> tuple[torch.Tensor, bool]:
+    """``(windows as a float tensor [M, L, D], whether they came as numpy)``; any other number of axes is a
+    :class:`ConfigError` (a single window ``[L, D]`` would be read as L windows of one-dimensional frames)."""
+    numpy_in = not isinstance(windows, torch.Tensor)
+    t = as_tensor(windows, name=f"{what} windows", keep_float64=True) if numpy_in else windows
+    if t.ndim != 3:
+        hint = "; one window of L frames? add a leading axis (x[None])" if t.ndim == 2 else ""
+        raise ConfigError(f"{what}: windows must be [M, L, D] (M windows of L frames of D values), got shape "
+                          f"{tuple(t.shape)}{hint}")
+    return t, numpy_in
+
+
+def as_given(x: torch.Tensor, numpy_in: bool) -> ArrayLike:
+    """``x`` as numpy when the input came as numpy, else as it is."""
+    return x.detach().cpu().numpy() if numpy_in else x
 
 
 def first_frame(windows: torch.Tensor) -> torch.Tensor:

@@ -15,6 +15,6 @@ unpickler that can rebuild NumPy arrays and nothing else, so a hostile file cann
 from __future__ import annotations
 
 from .csr import Positives
-from .files import query_bound, read_positives
+from .files import as_positives, query_bound, read_positives
 
-__all__ = ["Positives", "query_bound", "read_positives"]
+__all__ = ["Positives", "as_positives", "query_bound", "read_positives"]

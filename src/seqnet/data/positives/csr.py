@@ -36,6 +36,10 @@ class Positives:
     def __len__(self) -> int:
         return len(self.indptr) - 1
 
+    def __repr__(self) -> str:
+        soft = ", with soft positives" if self.soft is not None else ""
+        return f"Positives({len(self)} queries, {len(self.indices)} query-reference pairs{soft})"
+
     def of(self, q: int) -> np.ndarray:
         """The reference indices of query ``q``."""
         return self.indices[self.indptr[q] : self.indptr[q + 1]]

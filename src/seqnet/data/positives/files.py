@@ -121,7 +121,7 @@ def _read_object_npy(p: Path) -> Positives:
         if not dtype.hasobject:
             arr = read_npy(p, False, "positives file")
             if arr.ndim == 2:
-                return _numeric_matrix(arr, p)
+                return numeric_matrix(arr, p)
             return Positives.from_lists([np.asarray(r).ravel() for r in np.asarray(arr, dtype=object).ravel()],
                                         str(p))
     from ...security.unpickle import load_npy_objects  # its tables load only for a pickled positives file
@@ -130,7 +130,7 @@ def _read_object_npy(p: Path) -> Positives:
     if arr.ndim == 2 and arr.shape[1] == 2 and all(_is_index(q) for q in arr[:, 0]):
         return _vpr_bench(arr, p)
     if arr.ndim == 2 and arr.dtype != object:
-        return _numeric_matrix(arr, p)
+        return numeric_matrix(arr, p)
     return Positives.from_lists([_row(r, p) for r in arr.ravel()], str(p))
 
 
@@ -172,14 +172,14 @@ def _read_tutorial_npz(p: Path) -> Positives:
     hard, soft = z["GThard"], z.get("GTsoft")
     if hard.ndim != 2:
         raise DatasetError(f"{p}: GThard must be a [N_db, N_q] matrix, got shape {hard.shape}")
-    out = _numeric_matrix(hard.T, p)  # one row per query (said once: GTsoft is read the same way, quietly)
+    out = numeric_matrix(hard.T, p)  # one row per query (said once: GTsoft is read the same way, quietly)
     if soft is None:
         return out
     if soft.shape != hard.shape:
         raise DatasetError(f"{p}: GTsoft has shape {soft.shape} but GThard {hard.shape} (both [N_db, N_q])")
     if not (soft.dtype == bool or np.isin(soft, (0, 1)).all()):
         raise DatasetError(f"{p}: GTsoft must be a 0/1 [N_db, N_q] matrix like GThard")
-    both = _numeric_matrix(soft.T.astype(bool) | hard.T.astype(bool), p, quiet=True)
+    both = numeric_matrix(soft.T.astype(bool) | hard.T.astype(bool), p, quiet=True)
     return dataclasses.replace(out, soft=both)
 
 
@@ -200,7 +200,7 @@ def _vpr_bench(arr: np.ndarray, p: Path) -> Positives:
     return Positives.from_lists(lists, str(p))
 
 
-def _numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False) -> Positives:
+def numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False) -> Positives:
     """A 2-D numeric array: a dense ``[Nq, Nr]`` ground-truth matrix when bool or 0/1 (any dtype), else one
     row of reference indices per query padded with -1; anything else is refused. ``quiet``: no INFO line."""
     if arr.dtype == bool or (arr.size and np.isin(arr, (0, 1)).all()):
@@ -218,3 +218,18 @@ def _numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False) -> Positives:
         return Positives.from_lists(list(arr), str(p))
     raise DatasetError(f"{p}: a [{arr.shape[0]}, {arr.shape[1]}] {arr.dtype} array is neither a 0/1 ground-truth "
                        "matrix nor integer reference indices per query (padded with -1)")
+
+
+def as_positives(value: object, n_queries: int, n_refs: int, where: str = "positives") -> Positives:
+    """Explicit positives given in Python, checked against ``n_queries`` x ``n_refs``: a :class:`Positives`, one
+    list of reference indices per query (``-1`` / empty: no match, as a JSON file), or a ``[N_query,
+    N_reference]`` 0/1 matrix (or rows of indices padded with -1, as a ``.npy``), as ``--positives`` reads them."""
+    if isinstance(value, Positives):
+        return value.check(n_queries, n_refs, where)
+    if isinstance(value, np.ndarray) and value.ndim == 2 and value.dtype != object:
+        return numeric_matrix(value, Path(where)).check(n_queries, n_refs, where)
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return Positives.from_lists(list(value), where).check(n_queries, n_refs, where)
+    raise DatasetError(f"{where} must be a Positives, one list of reference indices per query, or a [N_query, "
+                       f"N_reference] bool matrix, got {type(value).__name__} (hint: Positives.from_lists(lists), or "
+                       "read_positives(FILE) for a file; both from seqnet)")

@@ -1,0 +1,68 @@
+"""What Recall@K is given that says the user meant something else: ranked indices that are no integers
+(:func:`integral`: distances passed as indices), positions transposed or not finite (:func:`positions_array`),
+ground truth that makes Recall@K near-trivial (:func:`trivial_truth`: said by ``seqnet eval`` through
+:func:`seqnet.methods.route.route_warnings`, and by :func:`seqnet.metrics.recall.recall_at_k`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..core.tensors import spread
+from ..data.spacing import DEGREES_HINT, looks_like_degrees
+
+TRIVIAL_SHARE = 0.5  # a query whose correct references are this share of the map or more: R@K says little
+
+
+def trivial_truth(truth: Any, samples: int = 200) -> str | None:
+    """Why the ground truth makes Recall@K near-trivial (the median query, of ``samples`` evenly spaced, has at
+    least :data:`TRIVIAL_SHARE` of the references correct: constant positions, positions in degrees, or a radius
+    as large as the route), None otherwise."""
+    n_q, n_r = len(truth.q_pos), len(truth.r_pos)
+    if n_q == 0 or n_r < 4:
+        return None
+    counts = [len(truth.of(int(i))) for i in spread(n_q, samples)]  # the ground truth's own test
+    share = float(np.median(counts)) / n_r
+    if share < TRIVIAL_SHARE:
+        return None
+    what = "positives" if truth.positives is not None else f"references within the radius {truth.radius:g}"
+    hint = (f"({DEGREES_HINT})" if truth.positives is None and looks_like_degrees(np.concatenate(
+        [truth.q_pos, truth.r_pos])) else "(constant positions, or a radius as large as the route? check the "
+            "positions and the radius, and their unit)")
+    return (f"the median query has {share:.0%} of the {n_r} references as its {what}: any answer is likely correct "
+            f"and Recall@K says little {hint}")
+
+
+def integral(retrieved: np.ndarray) -> np.ndarray:
+    """Ranked reference indices given as another dtype: whole numbers are taken, anything else (distances passed
+    as indices, e.g. knn's ``(scores, indices)`` unpacked the other way round) is a :class:`ConfigError`."""
+    if retrieved.dtype.kind not in "fb":
+        raise ConfigError(f"retrieved must hold reference indices (integers), got dtype {retrieved.dtype}")
+    bad = retrieved[~(np.isfinite(retrieved) & (retrieved == np.round(retrieved)))]
+    if bad.size:
+        shown = ", ".join(f"{v:.4g}" for v in bad[:3])
+        raise ConfigError(f"retrieved holds non-integers ({shown}{', ...' if bad.size > 3 else ''}), not reference "
+                          "indices: distances passed as indices? (hint: knn returns (scores, indices): unpack it as "
+                          "scores, idx = knn(...) and pass idx)")
+    return retrieved
+
+
+def positions_array(p: np.ndarray, side: str) -> np.ndarray:
+    """``p`` as float64 ``[N, P]`` (a 1-D array: ``[N, 1]``); a transposed array or NaN / inf is a
+    :class:`ConfigError`."""
+    p = np.asarray(p, dtype=np.float64)
+    if p.ndim == 1:
+        p = p[:, None]
+    if p.ndim != 2:
+        raise ConfigError(f"{side} positions must be [N, P], got shape {p.shape}")
+    if p.shape[1] > 3 >= p.shape[0]:
+        raise ConfigError(f"{side} positions look transposed: shape {p.shape}, but positions are [N, P] (one row per "
+                          f"image, P = 1 frame number or 2 coordinates); hint: pass them transposed ([{p.shape[1]}, "
+                          f"{p.shape[0]}], e.g. pos.T)")
+    if not np.isfinite(p).all():
+        row = int(np.flatnonzero(~np.isfinite(p).all(axis=1))[0])
+        raise ConfigError(f"{side} positions hold NaN or inf (first at row {row}); hint: drop those rows (and their "
+                          "descriptors), or give them positions")
+    return p

@@ -1,0 +1,75 @@
+"""The public ``seqnet.knn`` (:mod:`seqnet.search.api`): lists taken, rows checked for unit norm or normalised."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+import torch
+
+import seqnet
+from seqnet.core.errors import ConfigError
+from seqnet.search.api import knn
+from seqnet.search.knn import knn as exact_knn
+
+
+def unit(x):
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def rescaled(rng, n=40, d=16):
+    base = unit(rng.standard_normal((n, d)).astype(np.float32))
+    return base, base * rng.uniform(0.3, 3, (n, 1)).astype(np.float32)
+
+
+def test_seqnet_knn_is_the_checked_one():
+    assert seqnet.knn is knn
+
+
+def test_lists_of_rows_are_taken(rng):
+    """Lists gave AttributeError: 'list' object has no attribute 'dtype'."""
+    q, r = rng.standard_normal((5, 8)).astype(np.float32), rng.standard_normal((9, 8)).astype(np.float32)
+    s, i = knn(q.tolist(), r.tolist(), 3, normalize=False)
+    s0, i0 = exact_knn(q, r, 3)
+    np.testing.assert_array_equal(i, i0)
+    np.testing.assert_allclose(s, s0, rtol=1e-6)
+
+
+def test_rows_far_from_unit_norm_are_said_once_naming_row_and_norm(rng, caplog):
+    """Non-unit rows ranked otherwise than evaluate() silently (R@1 0.17 against 0.37 on rescaled Nordland rows)."""
+    _, q = rescaled(rng)
+    r, _ = rescaled(rng)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        knn(q, r, 3)
+    lines = [rec.getMessage() for rec in caplog.records if rec.levelno == logging.WARNING]
+    assert len(lines) == 1
+    norm = np.linalg.norm(q[0])
+    assert f"knn: query row 0 has L2 norm {norm:.4g}, not 1" in lines[0] and "normalize=True" in lines[0]
+
+
+@pytest.mark.parametrize("normalize", [True, False])
+def test_unit_rows_and_explicit_choices_are_silent(rng, caplog, normalize):
+    q, qs = rescaled(rng)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        knn(q, q, 2)  # unit rows: no line
+        knn(qs, qs, 2, normalize=normalize)
+        knn(q.astype(np.float16), q.astype(np.float16), 2)  # float16 rounding of unit rows
+        knn(torch.from_numpy(q), torch.from_numpy(q), 2)
+    assert not caplog.records
+
+
+def test_normalize_ranks_as_the_normalised_rows_do(rng):
+    qu, qs = rescaled(rng)
+    ru, rs = rescaled(rng, 50)
+    s, i = knn(qs, rs, 5, normalize=True)
+    s0, i0 = exact_knn(qu, ru, 5)
+    np.testing.assert_array_equal(i, i0)
+    np.testing.assert_allclose(s, s0, atol=1e-5)
+    naive = np.argsort(np.linalg.norm(qu[:, None] - ru[None], axis=2), axis=1, kind="stable")[:, :5]
+    np.testing.assert_array_equal(i, naive)
+
+
+def test_normalize_must_be_a_bool_or_none(rng):
+    with pytest.raises(ConfigError, match="normalize"):
+        knn(np.eye(3, dtype=np.float32), np.eye(3, dtype=np.float32), 1, normalize="yes")
