@@ -40,7 +40,7 @@ from .notices import (
 )
 from .notices.chance import chance_notice
 from .outputs import EvalOutputs
-from .score import check_types, dataset_truth, item_names, score  # noqa: F401 - eval.matrix, eval.select use them
+from .score import check_types, score
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet

@@ -30,10 +30,11 @@ from ..methods.grammar import FRAME_FEATURES, parse_method
 from ..metrics.recall import VAL_MIN
 from ..reference.traverse import TraverseReference
 from ..sequence.described import Described
-from .evaluate import EvalConfig, dataset_truth
+from .config import EvalConfig
 from .evaluate import main as evaluate_main
 from .evaluation import method_windows
 from .notices import training_choice
+from .score import dataset_truth
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet

@@ -18,7 +18,8 @@ from ..core.stage import Written
 from ..data.io import load_dataset, save_dataset
 from ..data.synth import SynthConfig, make_synthetic
 from ..data.traverse import Dataset
-from ..eval.evaluate import EvalConfig, score
+from ..eval.config import EvalConfig
+from ..eval.score import score
 from ..security.files import write_json_atomic
 from ..security.locks import locked
 from ..sequence.checkpoints import load_model

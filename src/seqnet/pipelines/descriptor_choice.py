@@ -26,7 +26,8 @@ from ..data.traverse import Dataset
 from ..describe import DescribeConfig
 from ..describe.lite import LITE_VARIANTS
 from ..describe.views import DEFAULT_VIEWS, RAW
-from ..eval.evaluate import EvalConfig, score
+from ..eval.config import EvalConfig
+from ..eval.score import score
 from ..metrics.recall import VAL_MIN
 
 PROXY_METHODS = ("raw+seqmatch", "single")  # the proxy's score, then its tie-break

@@ -66,7 +66,8 @@ def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig,
     """Recall@1/5/10/20 of ``model`` on the validation split (method "seqnet" for S_L, "s1" for S_1; the
     loss's ``val_method`` over its windows, e.g. ``s1+seqmatch`` for the seqmatch loss) on ``device``
     (default ``conf.device``); ``{}`` without a val split. Leaves the model in training mode."""
-    from ..eval.evaluate import EvalConfig, score
+    from ..eval.config import EvalConfig
+    from ..eval.score import score
 
     if val_ds is None:
         return {}

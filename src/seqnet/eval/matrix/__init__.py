@@ -27,11 +27,12 @@ from ...search.given import GivenMatrix
 from ...security.arrays import read_npy
 from ...security.digests import file_digest
 from ...sequence.windows import Windows
-from ..evaluate import EvalConfig, Evaluation, dataset_truth, item_names
-from ..evaluation import merge, method_windows
+from ..config import EvalConfig
+from ..evaluation import Evaluation, merge, method_windows
 from ..notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
 from ..outputs import EvalOutputs
 from ..runner import run
+from ..score import dataset_truth, item_names
 from .orientation import orientation_check
 
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")

@@ -16,7 +16,7 @@ from ...core.log import logger
 from ...core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ...data.traverse import Dataset
 from ...search.given import GivenMatrix
-from ..evaluate import dataset_truth
+from ..score import dataset_truth
 
 CHECK_ROWS = 2000  # queries sampled to compare the matrix's readings (a cheap argmin each)
 
