@@ -40,6 +40,8 @@ def test_flat_map_equals_the_exact_evaluation(synth_dir, map_models, tmp_path, w
             assert mapped[name][key] == pytest.approx(exact[name][key]), (name, key)
     assert mapped[methods[0]]["shortlist_recall@20"] == 1.0
     assert mp.nbytes > 0 and set(mp.models) == ({"seqnet", "s1"} if with_models else set())
+    said = [json.loads((tmp_path / d / "results.json").read_text())["descriptors"] for d in ("exact", "mapped")]
+    assert said[0] == said[1] and said[1]["reference"]["provenance"]  # the map's descriptors, as the dataset's
 
 
 @pytest.mark.parametrize("window", ["centred", "causal"])

@@ -167,15 +167,20 @@ def descriptor_record(ds: Dataset) -> dict[str, dict[str, Any]]:
     traverse's provenance, else from the dataset's ``describe`` and ``pca`` records (``dataset.json``); None where
     neither says."""
     described, pca = (ds.extra.get(k) if isinstance(ds.extra.get(k), Mapping) else {} for k in ("describe", "pca"))
-    return {side: _side_record(getattr(ds, side), described, pca) for side in ("reference", "query")}
+    return {side: side_record(getattr(ds, side).provenance, getattr(ds, side).dim, described, pca)
+            for side in ("reference", "query")}
 
 
-def _side_record(t: Any, described: Mapping[str, Any], pca: Mapping[str, Any]) -> dict[str, Any]:
-    prov = t.provenance if isinstance(t.provenance, Mapping) else {}
+def side_record(provenance: Any, dim: int, described: Mapping[str, Any] | None = None,
+                pca: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """One side of :func:`descriptor_record`: descriptors of ``dim`` D and ``provenance`` (a dict or None), else
+    ``described`` / ``pca`` (the dataset's records)."""
+    described, pca = described or {}, pca or {}
+    prov = provenance if isinstance(provenance, Mapping) else {}
     settings = prov.get("settings") if isinstance(prov.get("settings"), Mapping) else {}
     known = settings if settings.get("method") else described
     method = known.get("method")
     return {"kind": prov.get("kind"), "method": method,
             "views": list(known.get("views") or ["raw"]) if method else None, "size": known.get("size"),
-            "pca": settings.get("dim") if "pca_on" in settings else pca.get("dims"), "dim": int(t.dim),
+            "pca": settings.get("dim") if "pca_on" in settings else pca.get("dims"), "dim": int(dim),
             "provenance": prov.get("id")}

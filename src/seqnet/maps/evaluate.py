@@ -24,6 +24,7 @@ from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse, default_split
 from ..eval.evaluate import EvalConfig, Evaluation
+from ..eval.evaluation import side_record
 from ..eval.notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
 from ..eval.outputs import EvalOutputs
 from ..eval.runner import run
@@ -186,6 +187,8 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
                             "dataset": q.name, "device": str(mp.device), "index": str(mp.path),
                             "map": mp.meta["config"],
                             "ground_truth": "explicit positives" if positives is not None else "radius"}
+    ev.results["descriptors"] = {"reference": side_record(mp.provenance, mp.input_dim),
+                                 "query": side_record(q.traverse.provenance, q.traverse.dim)}
     ev.query_names = [q.traverse.names[i] for i in items] if q.traverse.names else None
     ev.reference_names = [mp.names[i] for i in mp.items] if mp.names else None
     ev.frame_names = (q.traverse.names, mp.names)
