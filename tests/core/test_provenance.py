@@ -10,7 +10,7 @@ from PIL import Image
 
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import ConfigError
-from seqnet.core.provenance import ProvenanceError, check_same, differences, make, sidecar
+from seqnet.core.provenance import ProvenanceError, check_same, described_text, differences, make, sidecar
 from seqnet.data.readers import read_provenance
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
@@ -111,6 +111,14 @@ def test_views_on_one_side_show_the_default_and_hint_the_views_without_allow_mis
     assert "--allow-mismatch" not in str(e.value) and "D: 2048 vs 1024" in str(e.value)
     ext = make("external", {"format": "npy"}, None, 2048)  # not a describe record: nothing filled in
     assert differences(ext, make("external", {"format": "h5"}, None, 2048)) == ['format: "npy" vs "h5"']
+
+
+def test_described_text_names_the_views_only_when_not_the_default():
+    assert described_text(make("describe", {"method": "pixels"}, None, 2048)) == "pixels, D=2048"
+    assert described_text(make("describe", {"method": "pixels", "views": ["raw"]}, None, 2048)) == "pixels, D=2048"
+    two = make("describe", {"method": "netvlad", "views": ["raw", "equalize"]}, None, 14336)
+    assert described_text(two) == "netvlad, views raw,equalize, D=14336"
+    assert described_text(make("synthetic", {"places": 100}, None, 8)) == "D=8" and described_text(None) == ""
 
 
 def test_allow_mismatch_cannot_compare_two_dimensions(tmp_path, capsys):

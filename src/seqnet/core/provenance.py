@@ -84,6 +84,17 @@ def settings_of(record: Mapping[str, Any] | None) -> dict[str, Any]:
     return {**(OMITTED_DEFAULTS if "method" in settings else {}), **settings}
 
 
+def described_text(record: Mapping[str, Any] | None) -> str:
+    """How a record's descriptors were described, for a log line: ``pixels``, ``netvlad, views raw,equalize``
+    (views only when not the default), then ``D=...`` when known; ``""`` when the record says neither."""
+    settings, dim = settings_of(record), (record or {}).get("dim")
+    views = settings.get("views")
+    parts = [str(settings["method"])] if "method" in settings else []
+    if isinstance(views, list) and views != OMITTED_DEFAULTS["views"]:
+        parts.append("views " + ",".join(map(str, views)))
+    return ", ".join(parts + ([f"D={dim}"] if isinstance(dim, int) else []))
+
+
 def differences(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[str]:
     """``key: value_a vs value_b`` for every setting (and the fit and D) that differs."""
     out = [f"kind: {a.get('kind')} vs {b.get('kind')}"] if a.get("kind") != b.get("kind") else []

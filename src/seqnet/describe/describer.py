@@ -162,7 +162,8 @@ def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str] 
         ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths),
                          batches=lambda v=view, w=what: loader.batches(fit_paths, w, v),
                          state=own.path if own else None, reuse=own is not None and own.reusable(),
-                         tag=own.tag if own else None, image_size=conf.image_size)
+                         tag=own.tag if own else None, image_size=conf.image_size,
+                         view=view if len(conf.views) > 1 else None)
         extracts[view] = conf.method_spec.extractor(ctx)
     d = Describer(conf, extracts[conf.views[0]], view_extracts=extracts if len(extracts) > 1 else None)
     if conf.dim is not None:

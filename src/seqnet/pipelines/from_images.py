@@ -260,7 +260,7 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         describer = make_describer(conf.describe.replace(fit=fit) if fit else conf.describe, fit or ref.paths)
         desc = {}
         for side, side_images in (("reference", ref), ("query", qry)):
-            logger.info("describing %d %s images (%s)", len(side_images), side, conf.describe.method)
+            logger.info("describing %d %s images (%s)", len(side_images), side, conf.describe.label)
             desc[side], got = describer.describe(side_images.paths, side_images.names, spill=True)  # large: spilled
             if len(got) != len(side_images):
                 missing = sorted(set(side_images.names) - set(got))
