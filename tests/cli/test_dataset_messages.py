@@ -31,9 +31,31 @@ def test_from_images_says_what_it_wrote_in_one_line(folder, tmp_path, capsys):
     out, err = capsys.readouterr()
     wrote = [line for line in (out + err).splitlines() if "wrote" in line]
     assert wrote == [f"wrote dataset {tmp_path / 'ds'} (reference 10, query 10 images): ground truth frames, radius 1 "
-                     f"frames, descriptors pixels D=64 (provenance {wrote[0].rsplit(' ', 1)[-1][:-1]})"]
+                     f"frames, descriptors pixels, D=64 (provenance {wrote[0].rsplit(' ', 1)[-1][:-1]})"]
     assert from_images(folder, tmp_path / "named", "--name", "sw") == 0
     assert f"wrote dataset {tmp_path / 'named'} (reference 10, query 10 images, named 'sw'): " in capsys.readouterr()[0]
+
+
+def test_from_images_names_the_views_beside_the_doubled_d(folder, tmp_path, capsys, caplog):
+    """With --views the lines say them: D=128 of 8x8 pixels is two views of 64, not a wrong size."""
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        assert from_images(folder, tmp_path / "dv", "--views", "raw,equalize") == 0
+    out = capsys.readouterr()[0]
+    assert "descriptors pixels, views raw,equalize, D=128 (provenance " in out
+    said = [r.getMessage() for r in caplog.records]
+    assert "describing 10 reference images (pixels, views raw,equalize)" in said
+    assert "describing 10 query images (pixels, views raw,equalize)" in said
+    for side in ("ref", "qry"):  # from-csv's line too
+        assert main(["-q", "describe", str(folder / side), "--method", "pixels", "--patch", "0", "--views",
+                     "raw,equalize", "--out", str(tmp_path / f"{side}.npy")]) == 0
+    for side in ("ref", "qry"):
+        (tmp_path / f"{side}.csv").write_text("name,frame\n" + "".join(f"{side}{i:02d}.png,{i}\n" for i in range(10)))
+    assert main(["dataset", "from-csv", "--ref-csv", str(tmp_path / "ref.csv"), "--ref-desc", str(tmp_path / "ref.npy"),
+                 "--query-csv", str(tmp_path / "qry.csv"), "--query-desc", str(tmp_path / "qry.npy"), "--radius",
+                 "1", "--out", str(tmp_path / "dc")]) == 0
+    assert "images, descriptors pixels, views raw,equalize, D=128, radius 1 frames" in capsys.readouterr()[0]
 
 
 def test_errors_name_the_subcommand_and_pca_is_checked_first(folder, tmp_path, capsys):

@@ -10,7 +10,7 @@ from PIL import Image
 
 from seqnet.cli import main as cli_main
 from seqnet.core.errors import ConfigError
-from seqnet.core.provenance import ProvenanceError, check_same, differences, make, sidecar
+from seqnet.core.provenance import ProvenanceError, check_same, described_text, differences, make, sidecar
 from seqnet.data.readers import read_provenance
 from seqnet.data.synth import make_synthetic
 from seqnet.eval.evaluate import EvalConfig, evaluate
@@ -83,6 +83,62 @@ def test_from_csv_refuses_descriptors_described_differently(two_folders, capsys)
     assert cli_main(argv) == 0
     meta = json.loads((root / "ds" / "dataset.json").read_text())
     assert meta["provenance"]["reference"]["id"] == meta["provenance"]["query"]["id"]
+
+
+def test_views_on_one_side_show_the_default_and_hint_the_views_without_allow_mismatch():
+    """A describe record leaves ``views`` out at its default: a mismatch shows it as ``["raw"]`` (not ``null``),
+    the hint names the ``--views`` to give, and ``--allow-mismatch`` (which cannot compare two D) is not offered."""
+    a = make("describe", {"method": "pixels", "views": ["raw", "equalize"]}, None, 4096)
+    b = make("describe", {"method": "pixels"}, None, 2048)
+    assert differences(a, b) == ['views: ["raw", "equalize"] vs ["raw"]', "D: 4096 vs 2048"]
+    with pytest.raises(ProvenanceError) as e:
+        check_same(a, b, "the reference descriptors", "the query descriptors")
+    msg = str(e.value)
+    assert "null" not in msg and "--allow-mismatch" not in msg
+    assert msg.endswith("hint: make the query descriptors with --views raw,equalize as the reference descriptors "
+                        "were, or both without --views")
+    with pytest.raises(ProvenanceError, match=r"hint: make the query descriptors with --views raw,equalize"):
+        check_same(b, a, "the query descriptors", "the reference descriptors")  # either side plain
+    c = make("describe", {"method": "pixels", "views": ["equalize", "raw"]}, None, 4096)
+    with pytest.raises(ProvenanceError, match=r"hint: make both with the same --views .*, or pass --allow-mismatch"):
+        check_same(a, c, "x", "y")  # same D: --allow-mismatch may still help
+    d = make("describe", {"method": "pixels", "patch": 4}, None, 2048)
+    with pytest.raises(ProvenanceError, match=r"hint: describe both .*, or pass --allow-mismatch if you know"):
+        check_same(b, d, "x", "y")
+    e2 = make("describe", {"method": "pixels", "patch": 4}, None, 1024)
+    with pytest.raises(ProvenanceError) as e:
+        check_same(b, e2, "x", "y")
+    assert "--allow-mismatch" not in str(e.value) and "D: 2048 vs 1024" in str(e.value)
+    ext = make("external", {"format": "npy"}, None, 2048)  # not a describe record: nothing filled in
+    assert differences(ext, make("external", {"format": "h5"}, None, 2048)) == ['format: "npy" vs "h5"']
+
+
+def test_described_text_names_the_views_only_when_not_the_default():
+    assert described_text(make("describe", {"method": "pixels"}, None, 2048)) == "pixels, D=2048"
+    assert described_text(make("describe", {"method": "pixels", "views": ["raw"]}, None, 2048)) == "pixels, D=2048"
+    two = make("describe", {"method": "netvlad", "views": ["raw", "equalize"]}, None, 14336)
+    assert described_text(two) == "netvlad, views raw,equalize, D=14336"
+    assert described_text(make("synthetic", {"places": 100}, None, 8)) == "D=8" and described_text(None) == ""
+
+
+def test_allow_mismatch_cannot_compare_two_dimensions(tmp_path, capsys):
+    """Why the hint leaves ``--allow-mismatch`` out when D differs: with it, the build fails on the dimensions."""
+    q = np.random.default_rng(0).random((4, 8)).astype(np.float32)
+    for stem, desc, settings in (("r", np.hstack([q, q]), {"method": "pixels", "views": ["raw", "equalize"]}),
+                                 ("q", q, {"method": "pixels"})):
+        np.save(tmp_path / f"{stem}.npy", desc)
+        (tmp_path / f"{stem}.names.txt").write_text("".join(f"f{i}.png\n" for i in range(4)))
+        sidecar(tmp_path / f"{stem}.npy").write_text(json.dumps(make("describe", settings, None, desc.shape[1])))
+    (tmp_path / "pos.csv").write_text("name,frame\n" + "".join(f"f{i}.png,{i}\n" for i in range(4)))
+    argv = ["dataset", "from-csv", "--ref-csv", str(tmp_path / "pos.csv"), "--ref-desc", str(tmp_path / "r.npy"),
+            "--query-csv", str(tmp_path / "pos.csv"), "--query-desc", str(tmp_path / "q.npy"), "--radius", "1",
+            "--out", str(tmp_path / "ds")]
+    capsys.readouterr()
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err
+    assert '["raw", "equalize"] vs ["raw"]' in err and "--views raw,equalize" in err and "--allow-mismatch" not in err
+    assert cli_main([*argv, "--allow-mismatch"]) == 2
+    assert "dimension mismatch" in capsys.readouterr().err
 
 
 def test_model_on_foreign_descriptors_and_other_seq_len(tmp_path):

@@ -119,3 +119,52 @@ def test_netvlad_fits_clusters_per_view_keeps_them_and_reuses_them(tmp_path, cap
     np.testing.assert_allclose(again, first, atol=1e-5)
     with pytest.raises(ConfigError, match="fits one per view"):
         make_describer(conf.replace(checkpoint=str(tmp_path / "nv.netvlad.pth.tar")), paths)
+
+
+def test_one_view_checkpoint_refusal_names_the_fit_on_route_which_works(tmp_path):
+    """A --checkpoint seqnet fitted for one view is refused with --views; the hint names --fit-on with the images
+    that state was fitted on (docs/describe.md#views), and following it gives the same provenance id."""
+    from seqnet.cli import main as cli_main
+    from seqnet.data.readers import read_provenance
+
+    rng = np.random.default_rng(1)
+    (tmp_path / "imgs").mkdir()
+    for i in range(4):
+        Image.fromarray((rng.random((40, 80, 3)) ** 3 * 255).astype(np.uint8)).save(tmp_path / "imgs" / f"{i}.png")
+    base = ["-q", "describe", str(tmp_path / "imgs"), "--method", "netvlad", "--clusters", "4", "--batch-size", "2",
+            "--resize", "64x32", "--views", "raw,equalize"]
+    assert cli_main([*base, "--out", str(tmp_path / "r.h5")]) == 0
+    conf = DescribeConfig(method="netvlad", clusters=4, batch_size=2, size=(64, 32), views=("raw", "equalize"),
+                          checkpoint=str(tmp_path / "r.netvlad.pth.tar"))
+    with pytest.raises(ConfigError) as e:
+        make_describer(conf, sorted((tmp_path / "imgs").iterdir()))
+    assert "hint: drop --checkpoint and pass --fit-on the 4 images r.h5 was fitted on (their folder or list file)" \
+        in str(e.value) and "seqnet dataset from-images" in str(e.value)
+    assert cli_main([*base, "--fit-on", str(tmp_path / "imgs"), "--out", str(tmp_path / "q.h5")]) == 0
+    assert read_provenance(tmp_path / "q.h5")["id"] == read_provenance(tmp_path / "r.h5")["id"]
+
+
+def test_fit_and_describe_lines_name_the_view(tmp_path, caplog):
+    """Several views fit one state each: each NetVLAD fit line names its view (one view: as before); the describe
+    line names the views beside the D they double."""
+    import logging
+
+    from seqnet.describe.stage import describe_folder
+
+    rng = np.random.default_rng(2)
+    (tmp_path / "imgs").mkdir()
+    for i in range(3):
+        Image.fromarray((rng.random((40, 80, 3)) * 255).astype(np.uint8)).save(tmp_path / "imgs" / f"{i}.png")
+    paths = sorted((tmp_path / "imgs").iterdir())
+    conf = DescribeConfig(method="netvlad", clusters=2, batch_size=3, size=(64, 32))
+    two = ["NetVLAD (raw view): 2 clusters", "NetVLAD (equalize view): 2 clusters"]
+    for views, want in ((("raw",), ["NetVLAD: 2 clusters"]), (("raw", "equalize"), two)):
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="seqnet"):
+            make_describer(conf.replace(views=views), paths)
+        fits = [r.getMessage() for r in caplog.records if "clusters from" in r.getMessage()]
+        assert [f.split(" from")[0] for f in fits] == want
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        describe_folder(tmp_path / "imgs", DescribeConfig(method="pixels", size=(8, 4), views=("raw", "equalize")))
+    assert any("3 descriptors of dim 64 (pixels, views raw,equalize)" in r.getMessage() for r in caplog.records)

@@ -130,6 +130,8 @@ def test_tiny_benchmark_end_to_end(tmp_path, capsys):
         methods["hvpr-fused"]["method"]["fuse_weight"]
     assert "Chosen on val (never on test): descriptor" in (out / "results.md").read_text()
     md = (out / "results.md").read_text()
+    dim = np.load(out / "dataset" / "query" / "descriptors.npy", mmap_mode="r").shape[1]  # the headline: as described
+    assert f"; descriptor `{sel['descriptor']['chosen']}` (D={dim})." in md and "by the val proxy's model-free" in md
     assert "radius 1 (frame steps)" in md  # nordland64's ground truth: the radius
     for n in res["learned_below_baseline"]:  # each flagged row marked as in the terminal table, its note below
         row = next(line for line in md.splitlines() if line.startswith(f"| {n['learned']} |"))

@@ -212,3 +212,7 @@ def test_the_choice_fits_no_test_image(route, tmp_path, monkeypatch):
     assert len(fits) == 2 and fits[0] and not test_queries & set(fits[0])  # the choice: no test query
     assert {str(p) for p in qry[:20]} <= set(fits[0])
     assert test_queries <= set(fits[1])  # the dataset itself: fitted as asked (--fit-on both)
+    reason = json.loads((tmp_path / "ds" / "dataset.json").read_text())["descriptor_choice"]["reason"]
+    assert "by the val proxy's model-free raw+seqmatch R@1" in reason  # its figures: the proxy's, fitted on fewer
+    assert (f"(the proxy's figures: its fitted state on {len(fits[0])} images, the final descriptors' on "
+            f"{len(fits[1])}, so their val R@1 differ)") in reason and len(fits[0]) < len(fits[1])

@@ -36,6 +36,8 @@ PROVENANCE_SUFFIX = ".provenance.json"
 BOUND_KEY, REPLACES_KEY = "written_with", "replaces"
 MAX_SIDECAR = 1 << 30
 IMAGE_SIZE_KEY = "image_size"  # [W, H] of the images described: checked beside the id, not hashed into it
+# settings a describe record leaves out at their default (seqnet.describe.config: ids made before them unchanged)
+OMITTED_DEFAULTS: dict[str, Any] = {"views": ["raw"]}
 
 
 class ProvenanceError(ConfigError):
@@ -73,10 +75,30 @@ def image_size_of(record: Mapping[str, Any] | None) -> tuple[int, int] | None:
     return None
 
 
+def settings_of(record: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The settings of a provenance record, those a describe record (one naming its ``method``) leaves out at their
+    default (:data:`OMITTED_DEFAULTS`: ``views`` ``["raw"]``) filled in; ``{}`` when it has none."""
+    settings = (record or {}).get("settings")
+    if not isinstance(settings, Mapping):
+        return {}
+    return {**(OMITTED_DEFAULTS if "method" in settings else {}), **settings}
+
+
+def described_text(record: Mapping[str, Any] | None) -> str:
+    """How a record's descriptors were described, for a log line: ``pixels``, ``netvlad, views raw,equalize``
+    (views only when not the default), then ``D=...`` when known; ``""`` when the record says neither."""
+    settings, dim = settings_of(record), (record or {}).get("dim")
+    views = settings.get("views")
+    parts = [str(settings["method"])] if "method" in settings else []
+    if isinstance(views, list) and views != OMITTED_DEFAULTS["views"]:
+        parts.append("views " + ",".join(map(str, views)))
+    return ", ".join(parts + ([f"D={dim}"] if isinstance(dim, int) else []))
+
+
 def differences(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[str]:
     """``key: value_a vs value_b`` for every setting (and the fit and D) that differs."""
     out = [f"kind: {a.get('kind')} vs {b.get('kind')}"] if a.get("kind") != b.get("kind") else []
-    sa, sb = (s if isinstance(s, Mapping) else {} for s in (a.get("settings"), b.get("settings")))
+    sa, sb = settings_of(a), settings_of(b)
     out += [f"{k}: {json.dumps(sa.get(k), default=str)} vs {json.dumps(sb.get(k), default=str)}"
             for k in sorted(set(sa) | set(sb), key=str) if sa.get(k) != sb.get(k)]
     if a.get("fit_images") != b.get("fit_images"):
@@ -103,9 +125,28 @@ def check_same(a: Mapping[str, Any] | None, b: Mapping[str, Any] | None, what_a:
         logger.warning("%s and %s were made differently (%s); going on as asked (--allow-mismatch)",
                        what_a, what_b, "; ".join(diff))
         return
-    raise ProvenanceError(f"{what_a} and {what_b} were made differently: {'; '.join(diff)}; hint: describe both "
-                          "with the same settings and fitted state (seqnet dataset from-images does), or pass "
-                          "--allow-mismatch if you know they are comparable")
+    raise ProvenanceError(f"{what_a} and {what_b} were made differently: {'; '.join(diff)}; "
+                          f"{mismatch_hint(a, b, what_a, what_b)}")
+
+
+def mismatch_hint(a: Mapping[str, Any], b: Mapping[str, Any], what_a: str, what_b: str) -> str:
+    """The hint of a refused mismatch of two records: the ``--views`` to give when their views differ, else the same
+    settings; ``--allow-mismatch`` only when both have the same D (descriptors of two sizes never compare: it
+    cannot help then)."""
+    va, vb = settings_of(a).get("views"), settings_of(b).get("views")
+    default = OMITTED_DEFAULTS["views"]
+    if va != vb and isinstance(va, list) and isinstance(vb, list) and default in (va, vb):
+        plain, other, views = (what_a, what_b, vb) if va == default else (what_b, what_a, va)
+        hint = (f"hint: make {plain} with --views {','.join(map(str, views))} as {other} were, or both without "
+                "--views")
+    elif va != vb:
+        hint = "hint: make both with the same --views (the same views, in the same order)"
+    else:
+        hint = "hint: describe both with the same settings and fitted state (seqnet dataset from-images does)"
+    da, db = a.get("dim"), b.get("dim")
+    if isinstance(da, int) and isinstance(db, int) and da != db:
+        return hint
+    return f"{hint}, or pass --allow-mismatch if you know they are comparable"
 
 
 def turned(sa: tuple[int, int], sb: tuple[int, int]) -> bool:

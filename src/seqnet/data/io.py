@@ -17,6 +17,7 @@ import numpy as np
 from ..core.errors import DatasetError, OutputError
 from ..core.log import logger, warn_once
 from ..core.npy import write_npy
+from ..core.provenance import described_text
 from ..security.arrays import read_npz
 from ..security.digests import changed_files, file_digest
 from ..security.dirs import read_consistent, recover_dir, write_dir
@@ -235,8 +236,9 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False, quiet: 
                 raise OutputError(f"output directory {root} exists and is not empty (use --overwrite to replace it)")
             check_replaceable(root, "dataset", is_dataset_file)
         write_dir(root, lambda tmp: _write_dataset(ds, tmp, Path(os.path.abspath(root)).name))
-    logger.log(logging.DEBUG if quiet else logging.INFO, "wrote dataset %s (reference %d, query %d images)", root,
-               len(ds.reference), len(ds.query))
+    logger.log(logging.DEBUG if quiet else logging.INFO, "wrote dataset %s (reference %d, query %d images; "
+               "descriptors %s)", root, len(ds.reference), len(ds.query),
+               described_text(ds.reference.provenance) or f"D={ds.reference.dim}")
     return root
 
 

@@ -121,6 +121,12 @@ class DescribeConfig(Config):
         return dataclasses.replace(self, size=resolved)
 
     @property
+    def label(self) -> str:
+        """The method and, when not the default, the views, for log lines: ``pixels``, ``netvlad, views raw,equalize``
+        (D doubles with two views: said beside it)."""
+        return self.method + ("" if self.views == DEFAULT_VIEWS else f", views {','.join(self.views)}")
+
+    @property
     def needs_fit(self) -> bool:
         """Whether images are needed to fit a PCA or the method's state."""
         return self.dim is not None or self.method_spec.fits_state

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -161,7 +162,8 @@ def make_describer(conf: DescribeConfig, paths: Sequence[str | os.PathLike[str] 
         ctx = FitContext(device=get_device(conf.device), n_images=len(fit_paths),
                          batches=lambda v=view, w=what: loader.batches(fit_paths, w, v),
                          state=own.path if own else None, reuse=own is not None and own.reusable(),
-                         tag=own.tag if own else None, image_size=conf.image_size)
+                         tag=own.tag if own else None, image_size=conf.image_size,
+                         view=view if len(conf.views) > 1 else None)
         extracts[view] = conf.method_spec.extractor(ctx)
     d = Describer(conf, extracts[conf.views[0]], view_extracts=extracts if len(extracts) > 1 else None)
     if conf.dim is not None:
@@ -174,10 +176,28 @@ def check_view_checkpoint(conf: DescribeConfig) -> None:
     view fits its own, so the other views would be described with the first one's clusters (a pretrained
     checkpoint from elsewhere serves every view)."""
     path = getattr(conf.method_spec, "checkpoint", None)
-    if len(conf.views) > 1 and path and conf.method_spec.read_tag(Path(path)) is not None:
+    tag = conf.method_spec.read_tag(Path(path)) if len(conf.views) > 1 and path else None
+    if tag is not None:
         raise ConfigError(f"--checkpoint {path} holds the {conf.method} state seqnet fitted for one view, and "
-                          f"--views {','.join(conf.views)} fits one per view (hint: describe both traverses in one "
-                          "run, e.g. seqnet dataset from-images ... --views, which fits them once for both)")
+                          f"--views {','.join(conf.views)} fits one per view (hint: drop --checkpoint and pass "
+                          f"--fit-on {fitted_on_text(tag)}: the same state is fitted again for each view; or "
+                          "describe both traverses in one run, e.g. seqnet dataset from-images ... --views, which "
+                          "fits them once for both)")
+
+
+def fitted_on_text(tag: str) -> str:
+    """The images the state of ``tag`` (:func:`.state.state_tag`) was fitted on, as far as the tag says (the output it
+    was fitted for, the number of images): ``the 200 images r.h5 was fitted on (their folder or list file)``."""
+    try:
+        found = json.loads(tag)
+    except (ValueError, RecursionError):
+        found = None
+    found = found if isinstance(found, dict) else {}
+    output, fit = found.get("output"), found.get("fit_images")
+    n = fit.get("paths") if isinstance(fit, dict) else None
+    images = f"the {n} images" if isinstance(n, int) else "the images"
+    made = f" {output} was fitted on" if isinstance(output, str) and output else " it was fitted on"
+    return f"{images}{made} (their folder or list file)"
 
 
 def _pca_for(d: Describer, fit_paths: list[ImageRef], state: StateFile | None, reuse: bool) -> PCA:

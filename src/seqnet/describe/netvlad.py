@@ -239,7 +239,8 @@ def save_netvlad(model: NetVLADModel, path: str | os.PathLike[str], tag: str | N
 
 
 def fit_netvlad(encoder: nn.Module, batches: Iterable[np.ndarray], n_images: int, clusters: int = 64,
-                seed: int = 0, device: torch.device | str = "cpu", features_per_cluster: int = 50) -> NetVLADModel:
+                seed: int = 0, device: torch.device | str = "cpu", features_per_cluster: int = 50,
+                what: str = "NetVLAD") -> NetVLADModel:
     """A NetVLAD model on ``encoder`` with clusters from k-means of local features of images.
 
     Args:
@@ -247,6 +248,7 @@ def fit_netvlad(encoder: nn.Module, batches: Iterable[np.ndarray], n_images: int
         batches: uint8 image batches ``[B, H, W, 3]``.
         n_images: number of images in ``batches`` (to spread ~``features_per_cluster`` × K features).
         clusters: K.
+        what: how the log line names the fit (``NetVLAD (equalize view)`` with several views).
     """
     encoder = encoder.to(device).eval()
     gen = torch.Generator().manual_seed(seed)
@@ -259,5 +261,5 @@ def fit_netvlad(encoder: nn.Module, batches: Iterable[np.ndarray], n_images: int
     x = torch.cat(feats).numpy() if feats else np.zeros((0, encoder.out_dim), np.float32)
     pool = NetVLAD(clusters, encoder.out_dim)
     pool.init_from_clusters(kmeans(x, clusters, seed=seed), x)
-    logger.info("NetVLAD: %d clusters from %d local features of %d images", clusters, len(x), n_images)
+    logger.info("%s: %d clusters from %d local features of %d images", what, clusters, len(x), n_images)
     return NetVLADModel(encoder, pool, arch=encoder.arch).to(device).eval()

@@ -43,6 +43,8 @@ class FitContext:
         state: the file holding the method's fitted state (None: keep it in memory only).
         reuse: load ``state`` instead of fitting (it exists and was written for these settings).
         tag: provenance string to store in ``state`` when it is written.
+        image_size: ``(W, H)`` (or a width) the fitting images are resized to; None: native.
+        view: the view (:mod:`seqnet.describe.views`) the state is fitted on, when there are several; else None.
     """
 
     device: torch.device
@@ -52,6 +54,7 @@ class FitContext:
     reuse: bool = False
     tag: str | None = None
     image_size: tuple[int, int] | int | None = None
+    view: str | None = None  # the view fitted, when the describer has several (named in the log line)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,8 +216,8 @@ class NetVLADMethod(DescribeMethod):
                 raise ConfigError("NetVLAD without a checkpoint needs images to fit its clusters on (hint: --fit-on)")
             backbone = BACKBONES[self.backbone]
             encoder = backbone.build(backbone.local_layer if self.layer is None else self.layer)
-            model = fit_netvlad(encoder, ctx.batches(), ctx.n_images, self.clusters, self.seed,
-                                           ctx.device)
+            model = fit_netvlad(encoder, ctx.batches(), ctx.n_images, self.clusters, self.seed, ctx.device,
+                                what="NetVLAD" + (f" ({ctx.view} view)" if ctx.view else ""))
             if ctx.state is not None:
                 save_netvlad(model, ctx.state, tag=ctx.tag, image_size=ctx.image_size)
         return cnn_extractor(model, lambda v: v, ctx.device)

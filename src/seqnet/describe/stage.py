@@ -81,9 +81,9 @@ def describe_folder(source: str | os.PathLike[str], conf: DescribeConfig, out: s
         desc, names = describe_to_file(images, conf, Path(out), overwrite, shard)
     seconds = time.perf_counter() - t0
     a, b = (0, len(images)) if shard is None else shard.frames(len(images), conf.batch_size)
-    logger.info("described %d images of %s%s in %.1f s (%.1f images/s): %d descriptors of dim %d%s%s", b - a,
+    logger.info("described %d images of %s%s in %.1f s (%.1f images/s): %d descriptors of dim %d (%s)%s%s", b - a,
                 source, f" (shard {shard.index}/{shard.count}: images {a}..{b - 1})" if shard else "", seconds,
-                (b - a) / max(seconds, 1e-9), len(desc), desc.shape[1],
+                (b - a) / max(seconds, 1e-9), len(desc), desc.shape[1], conf.label,
                 f", {b - a - len(desc)} skipped" if len(desc) < b - a else "",
                 f", written to {out}" if out is not None else "")
     return desc, names

@@ -46,6 +46,22 @@ def candidate_describe(base: DescribeConfig, name: str) -> DescribeConfig:
     return base.replace(method=method, views=(RAW, *views) if views else DEFAULT_VIEWS)
 
 
+def candidate_name(dconf: DescribeConfig) -> str:
+    """The candidate name of ``dconf`` (the inverse of :func:`candidate_describe`): ``netvlad``, or
+    ``netvlad+equalize`` for views ``raw,equalize``; views not led by ``raw``: the method alone (its views said
+    beside it where they matter: :func:`descriptor_text`)."""
+    views = dconf.views
+    return dconf.method + "".join(f"+{v}" for v in views[1:]) if views[0] == RAW else dconf.method
+
+
+def descriptor_text(dconf: DescribeConfig, dim: int | None = None) -> str:
+    """``dconf`` for a headline, in Markdown: the candidate name in backticks, then the views (when not the
+    default) and D: ``netvlad+equalize`` (views raw,equalize, D=14336)."""
+    extra = ([] if dconf.views == DEFAULT_VIEWS else [f"views {','.join(dconf.views)}"]) + \
+        ([] if dim is None else [f"D={dim}"])
+    return f"`{candidate_name(dconf)}`" + (f" ({', '.join(extra)})" if extra else "")
+
+
 def runnable(dconf: DescribeConfig) -> str | None:
     """Why ``dconf`` cannot run here without downloading anything (None: it can)."""
     if dconf.method == "pixels":
@@ -76,10 +92,14 @@ def proxy_scores(val: Dataset, seq_len: int, device: str = "auto", recall_denomi
 
 
 def choose_on_val(candidates: Mapping[str, DescribeConfig], score: Callable[[DescribeConfig], dict[str, Any]],
-                  where: str) -> tuple[DescribeConfig, dict[str, Any]]:
+                  where: str, final_fit: Callable[[DescribeConfig], int] | None = None
+                  ) -> tuple[DescribeConfig, dict[str, Any]]:
     """The candidate (``{name: settings}``) whose ``score(settings)`` (:func:`proxy_scores` of the val split it
-    describes) is best, and the record of the choice (``{"chosen", "describe", "scores", "skipped",
-    "reason"}``); ``where`` names the val split in the reason. Candidates that cannot run are skipped (said)."""
+    describes, with ``"fit_images"``: how many images its state was fitted on) is best, and the record of the choice
+    (``{"chosen", "describe", "scores", "skipped", "reason"}``); ``where`` names the val split in the reason.
+    Candidates that cannot run are skipped (said). ``final_fit(settings)``: how many images the final descriptors'
+    state is fitted on; when the chosen one's differs from the proxy's, the reason says that its figures are the
+    proxy's (an evaluation of the final descriptors on the same split gives others)."""
     scores, skipped = {}, {}
     for name, dconf in candidates.items():
         why = runnable(dconf)
@@ -95,9 +115,10 @@ def choose_on_val(candidates: Mapping[str, DescribeConfig], score: Callable[[Des
     order = list(scores)
     best = max(scores, key=lambda n: (*(scores[n][m] for m in PROXY_METHODS), -order.index(n)))
     others = ", ".join(f"{n} {s[PROXY_METHODS[0]]:.3f}" for n, s in scores.items() if n != best)
-    reason = (f"descriptor {best} chosen on {where} ({scores[best]['queries']} queries) before training: "
-              f"model-free {PROXY_METHODS[0]} R@1 {scores[best][PROXY_METHODS[0]]:.3f} "
+    reason = (f"descriptor {best} chosen on {where} ({scores[best]['queries']} queries) before training, by the "
+              f"val proxy's model-free {PROXY_METHODS[0]} R@1 {scores[best][PROXY_METHODS[0]]:.3f} "
               f"(single {scores[best]['single']:.3f})" + (f" against {others}" if others else "")
+              + proxy_fit_note(scores[best].get("fit_images"), final_fit(candidates[best]) if final_fit else None)
               + (f"; not tried: {', '.join(skipped)}" if skipped else ""))
     logger.info("%s", reason)
     record = {"chosen": best, "describe": candidates[best].to_dict(), "scores": scores, "skipped": skipped,
@@ -109,3 +130,13 @@ def choose_on_val(candidates: Mapping[str, DescribeConfig], score: Callable[[Des
                              "(a larger --split val=A:B, or --method to choose yourself)")
         logger.warning("%s", record["warning"])
     return candidates[best], record
+
+
+def proxy_fit_note(proxy: int | None, final: int | None) -> str:
+    """The reason's note when the proxy fitted the chosen descriptor's state (NetVLAD clusters, PCA) on ``proxy``
+    images and the final descriptors fit it on ``final`` others: the proxy's R@1 are not the final descriptors'
+    (empty when either fits nothing or both fit on as many images)."""
+    if not proxy or not final or proxy == final:
+        return ""
+    return (f" (the proxy's figures: its fitted state on {proxy} images, the final descriptors' on {final}, so their "
+            "val R@1 differ)")

@@ -188,11 +188,14 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
                                  "remove them")
         described = dataclasses.replace(val, reference=val.reference.with_descriptors(desc["reference"]),
                                         query=val.query.with_descriptors(desc["query"]))
-        return proxy_scores(described, PROXY_SEQ_LEN, dconf.device, t0=t0)
+        return {**proxy_scores(described, PROXY_SEQ_LEN, dconf.device, t0=t0), "fit_images": len(fit)}
+
+    def final_fit(dconf: DescribeConfig) -> int:
+        return len(_fit_images(conf.replace(describe=dconf), ref, qry) or [])
 
     (a, b), (c, d) = rng["reference"], rng["query"]
     where = f"val queries {c}:{d} against reference {a}:{b}"
-    return choose_on_val({n: candidate_describe(conf.describe, n) for n in conf.candidates}, score, where)
+    return choose_on_val({n: candidate_describe(conf.describe, n) for n in conf.candidates}, score, where, final_fit)
 
 
 def _proxy_fit(conf: FromImagesConfig, images: tuple[ImageList, ImageList], base: Dataset) -> list:
@@ -260,7 +263,7 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         describer = make_describer(conf.describe.replace(fit=fit) if fit else conf.describe, fit or ref.paths)
         desc = {}
         for side, side_images in (("reference", ref), ("query", qry)):
-            logger.info("describing %d %s images (%s)", len(side_images), side, conf.describe.method)
+            logger.info("describing %d %s images (%s)", len(side_images), side, conf.describe.label)
             desc[side], got = describer.describe(side_images.paths, side_images.names, spill=True)  # large: spilled
             if len(got) != len(side_images):
                 missing = sorted(set(side_images.names) - set(got))

@@ -113,6 +113,7 @@ def _register_seqnet(dsub: argparse._SubParsersAction) -> None:
 
 
 def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
+    from ...core.provenance import described_text
     from ...data.io import save_dataset
     from ...data.sanity import review
     from ...metrics.summary import summarize_dataset
@@ -122,8 +123,9 @@ def finish(ds, args: argparse.Namespace) -> int:  # noqa: ANN001
     save_dataset(ds, args.out, overwrite=args.overwrite, quiet=True)  # said below, with more
     review(ds)  # likely mistakes (the same images, splits sharing queries, constant positions): one line each
     s = summarize_dataset(ds)
+    dim, text = f"D={s['reference']['dim']}", described_text(ds.reference.provenance)  # method, views beside D
     print(f"wrote {args.out}: reference {s['reference']['images']} and query {s['query']['images']} images, "
-          f"D={s['reference']['dim']}, radius {ds.radius:g} {ds.position_unit}, "
+          f"{dim if text in ('', dim) else 'descriptors ' + text}, radius {ds.radius:g} {ds.position_unit}, "
           f"{s['queries_with_match']} queries with a true match, splits: {', '.join(ds.splits) or 'none'}")
     return 0
 

@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from ...core.provenance import described_text
 from ...describe import DESCRIBERS
 from ...pipelines.descriptor_choice import CANDIDATES
 from ...pipelines.from_images import FIT_ON, FromImagesConfig, main
@@ -103,8 +104,8 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
     meta = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
     label = args.positions_format if truth == "csv" and args.positions_format != "csv" else truth
     print(f"{written(out, meta)}: ground truth {label}, radius {meta['radius']:g} {meta['position_unit']}, "
-          f"descriptors {meta['provenance']['reference']['settings']['method']} "
-          f"D={meta['provenance']['reference']['dim']} (provenance {meta['provenance']['reference']['id']})")
+          f"descriptors {described_text(meta['provenance']['reference'])} "
+          f"(provenance {meta['provenance']['reference']['id']})")
     pca = meta.get("pca")
     if pca:
         print(f"PCA {pca['input_dim']} -> {pca['dims']} fitted on the {pca['fit_split']} split only: {pca['file']}")

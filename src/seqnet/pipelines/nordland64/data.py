@@ -78,7 +78,7 @@ def describe_seasons(data: Path, names: list[str], conf: Nordland64Config, offse
     describer = make_describer(conf.describe.replace(fit=fit), fit)
     out: dict[str, Any] = {}
     for season in SEASONS:
-        logger.info("describing %d %s images (%s)", len(names), season, conf.describe.method)
+        logger.info("describing %d %s images (%s)", len(names), season, conf.describe.label)
         desc, got = describer.describe([data / season / n for n in names], names)
         if len(got) != len(names):
             raise DatasetError(f"{len(names) - len(got)} {season} images could not be read")

@@ -18,6 +18,7 @@ from ...report.tables import format_markdown, ground_truth_text, markdown_notes,
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked
 from ...security.text import shown
+from ..descriptor_choice import descriptor_text
 from ..outputs import check_outputs_of, write_outputs
 from . import cache
 from .config import Nordland64Config
@@ -61,10 +62,11 @@ def selection_notes(selection: Mapping[str, object]) -> list[str]:
 
 
 def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, seconds: Mapping[str, float],
-                 out: Path, selection: Mapping[str, object] | None = None) -> None:
+                 out: Path, selection: Mapping[str, object] | None = None, dim: int | None = None) -> None:
     """``results.json`` (eval schema + benchmark config and timings), ``val_results.json``,
-    ``results.md`` (Table-I style, with AUC and R@100P), ``recall_at_k.png`` (Recall@K, K = 1..20,
-    test range) and ``pr_curve.png`` (precision–recall of every method, test range)."""
+    ``results.md`` (Table-I style, with AUC and R@100P; its headline names the descriptors: ``conf.describe``'s
+    method and views, and their D ``dim``), ``recall_at_k.png`` (Recall@K, K = 1..20, test range) and
+    ``pr_curve.png`` (precision–recall of every method, test range)."""
     ev.results["config"].update(benchmark=conf.to_dict(), timings_s=dict(seconds))
     ev.results["selection"] = dict(selection or {})
     below = learned_below_baseline(ev.results)
@@ -82,7 +84,8 @@ def write_report(ev: Evaluation, val: Evaluation, conf: Nordland64Config, second
     lines = [
         "# Nordland64 benchmark results", "",
         f"Reference summer, query winter; test places {a}:{b} ({first['queries']} queries with a full "
-        f"L={conf.seq_len} window); {truth_note(ev.results['config'])}; descriptor `{conf.describe.method}`."
+        f"L={conf.seq_len} window); {truth_note(ev.results['config'])}; descriptor "
+        f"{descriptor_text(conf.describe, dim)}."
         + speed_note(conf), "",
         *(["Chosen on val (never on test): " + "; ".join(notes) + ".", ""] if notes else []),
         format_markdown(ev.results["methods"], ks=(1, 5, 20), results=ev.results),
@@ -147,7 +150,7 @@ def main(conf: Nordland64Config, data: str | Path, out: str | Path, overwrite: b
         seconds["total"] = round(time.perf_counter() - t0, 2)
 
         def write(tmp: Path) -> None:
-            write_report(ev, val, conf, seconds, tmp, selection)
+            write_report(ev, val, conf, seconds, tmp, selection, ds.query.dim)
             write_html_report(ev, split_dataset(ds, conf, "test"), tmp / "report.html",
                               report_config(data, f"Nordland64 benchmark, test places {conf.test_range[0]}:"
                                                   f"{conf.test_range[1]}"))

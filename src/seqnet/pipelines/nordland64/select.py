@@ -66,7 +66,8 @@ def proxy_scores(data: Path, names: list[str], pos: np.ndarray, conf: Nordland64
             raise DatasetError(f"{len(val) - len(got)} {season} val images could not be read")
     ds = Dataset(Traverse(desc[SEASONS[0]], vpos, name=SEASONS[0]), Traverse(desc[SEASONS[1]], vpos, name=SEASONS[1]),
                  radius=conf.radius, position_unit="frames", name="nordland64 val")
-    return choice.proxy_scores(ds, conf.seq_len, conf.device, conf.recall_denominator, t0)
+    return {**choice.proxy_scores(ds, conf.seq_len, conf.device, conf.recall_denominator, t0),
+            "fit_images": len(fit) if dconf.needs_fit else 0}
 
 
 def descriptor_on_val(conf: Nordland64Config, data: str | Path, out: Path | None = None,
@@ -113,10 +114,13 @@ def choose_descriptor(data: str | Path, names: list[str], pos: np.ndarray, conf:
                       offset: int = 0) -> tuple[Nordland64Config, dict[str, Any]]:
     """``conf`` with the descriptor the val proxy prefers among ``conf.descriptors`` (see the module
     docstring), and the record of the choice (``{"chosen", "scores", "skipped", "reason"}``)."""
-    c, d = conf.val_range
+    from .data import SEASONS
+
+    (a, b), (c, d) = conf.train_range, conf.val_range
     candidates = {name: candidate_config(conf, name) for name in conf.descriptors}
+    final = len(SEASONS) * (b - a)  # the final descriptors' state: fitted on every train place of both seasons
     dconf, record = choice.choose_on_val(candidates, lambda dc: proxy_scores(Path(data), names, pos, conf, offset, dc),
-                                         f"val places {c}:{d}")
+                                         f"val places {c}:{d}", lambda dc: final if dc.needs_fit else 0)
     return conf.replace(describe=dconf), record
 
 
