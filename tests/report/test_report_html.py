@@ -258,12 +258,12 @@ def test_the_summary_names_the_descriptors_evaluated(tmp_path, synth_dataset):
                              query=dataclasses.replace(synth_dataset.query, provenance=prov))
     ev = evaluate(ds, EvalConfig(methods=("single",)))
     body = summary_section(ev, ReportConfig()).body
-    assert "<td>descriptors</td><td>pixels, views raw+equalize, PCA to 8, D=16 (provenance 6d180b12166d4a0d)</td>" \
+    assert "<td>descriptors</td><td>pixels, views raw,equalize, PCA to 8, D=16 (provenance 6d180b12166d4a0d)</td>" \
         in body, body
     q = dataclasses.replace(ds.query, provenance=None)
     ev = evaluate(dataclasses.replace(ds, query=q), EvalConfig(methods=("single",), allow_mismatch=True))
     body = summary_section(ev, ReportConfig()).body
-    assert ("reference: pixels, views raw+equalize, PCA to 8, D=16 (provenance 6d180b12166d4a0d); query: unknown "
+    assert ("reference: pixels, views raw,equalize, PCA to 8, D=16 (provenance 6d180b12166d4a0d); query: unknown "
             "method, D=16 (provenance unknown)") in body
     ev.results.pop("descriptors")  # a route that records none (a matrix, a map): no row
     assert "descriptors" not in summary_section(ev, ReportConfig()).body

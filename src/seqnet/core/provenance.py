@@ -84,14 +84,20 @@ def settings_of(record: Mapping[str, Any] | None) -> dict[str, Any]:
     return {**(OMITTED_DEFAULTS if "method" in settings else {}), **settings}
 
 
+def views_text(views: Any) -> str | None:
+    """``views raw,equalize`` for a list of photometric views other than the default (``["raw"]``); None for the
+    default, none given, or not a list (for messages: one spelling wherever views are said)."""
+    if not isinstance(views, (list, tuple)) or not views or list(views) == OMITTED_DEFAULTS["views"]:
+        return None
+    return "views " + ",".join(map(str, views))
+
+
 def described_text(record: Mapping[str, Any] | None) -> str:
     """How a record's descriptors were described, for a log line: ``pixels``, ``netvlad, views raw,equalize``
     (views only when not the default), then ``D=...`` when known; ``""`` when the record says neither."""
     settings, dim = settings_of(record), (record or {}).get("dim")
-    views = settings.get("views")
-    parts = [str(settings["method"])] if "method" in settings else []
-    if isinstance(views, list) and views != OMITTED_DEFAULTS["views"]:
-        parts.append("views " + ",".join(map(str, views)))
+    views = views_text(settings.get("views"))
+    parts = ([str(settings["method"])] if "method" in settings else []) + ([views] if views else [])
     return ", ".join(parts + ([f"D={dim}"] if isinstance(dim, int) else []))
 
 

@@ -14,6 +14,7 @@ from typing import Any
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.devices import check_device
 from ..core.errors import ConfigError
+from ..core.provenance import views_text
 from .cnn import BACKBONES
 from .images import MAX_SIDE, ImageItem
 from .registry import DESCRIBERS, DescribeMethod
@@ -124,7 +125,8 @@ class DescribeConfig(Config):
     def label(self) -> str:
         """The method and, when not the default, the views, for log lines: ``pixels``, ``netvlad, views raw,equalize``
         (D doubles with two views: said beside it)."""
-        return self.method + ("" if self.views == DEFAULT_VIEWS else f", views {','.join(self.views)}")
+        views = views_text(list(self.views))
+        return self.method + (f", {views}" if views else "")
 
     @property
     def needs_fit(self) -> bool:

@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 
 from ..core.errors import ConfigError
 from ..core.log import logger
+from ..core.provenance import views_text
 from ..core.tensors import spread
 from ..data.traverse import Dataset
 from ..describe import DescribeConfig
@@ -57,8 +58,8 @@ def candidate_name(dconf: DescribeConfig) -> str:
 def descriptor_text(dconf: DescribeConfig, dim: int | None = None) -> str:
     """``dconf`` for a headline, in Markdown: the candidate name in backticks, then the views (when not the
     default) and D: ``netvlad+equalize`` (views raw,equalize, D=14336)."""
-    extra = ([] if dconf.views == DEFAULT_VIEWS else [f"views {','.join(dconf.views)}"]) + \
-        ([] if dim is None else [f"D={dim}"])
+    views = views_text(list(dconf.views))
+    extra = ([views] if views else []) + ([] if dim is None else [f"D={dim}"])
     return f"`{candidate_name(dconf)}`" + (f" ({', '.join(extra)})" if extra else "")
 
 

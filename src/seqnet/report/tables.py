@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.provenance import views_text
 from ..security.files import atomic_path
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from .guidance import Note, format_notes, learned_below_baseline, row_marks
@@ -173,8 +174,8 @@ def descriptors_text(record: Mapping[str, Any] | None) -> str | None:
 
 def _side_text(r: Mapping[str, Any]) -> str:
     what = [str(r.get("method") or r.get("kind") or "unknown method")]
-    if r.get("views") and list(r["views"]) != ["raw"]:
-        what.append(f"views {'+'.join(map(str, r['views']))}")
+    if views := views_text(r.get("views")):
+        what.append(views)
     if r.get("size") not in (None, "native"):
         what.append(f"size {r['size']}")
     if r.get("pca"):
