@@ -22,7 +22,9 @@ from typing import TYPE_CHECKING, Any
 
 from ...core.errors import ConfigError
 from ...data.traverse import Dataset
-from ...eval.evaluate import EvalConfig, Evaluation, score
+from ...eval.config import EvalConfig
+from ...eval.evaluation import Evaluation
+from ...eval.score import score
 from ...methods.grammar import parse_method
 from ...report.guidance import learned_below_baseline, note_entries
 from ...report.html import ReportConfig, evaluation_sections, figure_section, render_html, rows_as_text

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ...core.config import Config
-from ...eval.evaluate import Evaluation
+from ...eval.evaluation import Evaluation
 from ...methods.grammar import parse_method
 from ...report.paper import TABLE_I, PaperRow, PaperTable, methods_of, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure

@@ -21,7 +21,7 @@ from ...core.errors import ConfigError
 from ...data.traverse import Dataset
 from ...describe import DescribeConfig
 from ...describe.config import check_size
-from ...eval.evaluate import Evaluation
+from ...eval.evaluation import Evaluation
 from ...methods.grammar import parse_method
 from ...report.html import write_html_report
 from ...report.paper import TABLE_S3, recall_lookup, side_by_side

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core.config import Config, check_ints
-from ...eval.evaluate import Evaluation
+from ...eval.evaluation import Evaluation
 from ...methods.grammar import parse_method
 from ...report.paper import TABLE_S2, recall_lookup, side_by_side
 from ...report.tables import method_colours, new_figure

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core.config import Config, check_ints
-from ...eval.evaluate import Evaluation
+from ...eval.evaluation import Evaluation
 from ...report.tables import method_colours, new_figure
 from ..nordland64 import Nordland64Config
 from .common import (

@@ -16,7 +16,7 @@ from typing import Any
 
 from ...core.config import check_ints
 from ...core.log import logger
-from ...eval.evaluate import score
+from ...eval.score import score
 from ...methods.grammar import parse_method
 from ...security.files import write_json_atomic, write_text_atomic
 from ...security.locks import locked

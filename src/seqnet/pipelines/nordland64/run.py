@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING
 from ...core.log import logger
 from ...core.stage import Written
 from ...data.traverse import Dataset
-from ...eval.evaluate import Evaluation, score
+from ...eval.evaluation import Evaluation
+from ...eval.score import score
 from ...metrics.recall import recall_curve
 from ...report.guidance import learned_below_baseline, note_entries
 from ...report.html import ReportConfig, write_html_report

@@ -22,7 +22,7 @@ from ...core.errors import DatasetError, OutputError
 from ...core.log import logger
 from ...data.traverse import Dataset, Traverse
 from ...describe import DescribeConfig, make_describer
-from ...eval.evaluate import EvalConfig
+from ...eval.config import EvalConfig
 from ...eval.select import Choice, select_hvpr
 from ...security.files import write_json_atomic
 from ...security.jsonfile import read_json
