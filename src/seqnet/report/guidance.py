@@ -100,9 +100,10 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
         out.append(f"possibly chance: {apart} of {queries} queries apart (a sign test cannot tell fewer than "
                    f"{CHANCE_QUERIES + 1} apart from chance)")
     m = parse_method(name)
-    capped = shortlist_capped(name, entry)
+    capped = shortlist_capped(name, entry, gap[1] if gap is not None else None)
     if capped:
         out.append(capped)
+    capped = bool(capped) and "which caps its R@1" in capped  # the whole loss: no training cause beside it
     free_shortlist = m.kind == "hvpr" and bool(m.shortlist) and not parse_method(m.shortlist).models()
     if free_shortlist:
         top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
@@ -155,19 +156,30 @@ def model_entries(models: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     return out
 
 
-def shortlist_capped(name: str, entry: Mapping[str, Any]) -> str | None:
-    """Why an HVPR's R@1 cannot rise: its shortlist of K holds a correct reference for barely more queries than
-    its R@1 counts (the entry's ``shortlist_recall``, within one query), so the re-ranking is not what loses;
-    None when the shortlist leaves room, or is not recorded."""
+def shortlist_capped(name: str, entry: Mapping[str, Any], baseline: float | None = None) -> str | None:
+    """Why an HVPR's R@1 cannot rise: its shortlist of K holds a correct reference for at most one query more than
+    its R@1 counts (the entry's ``shortlist_recall``), so the re-ranking is not what loses; or that recall is below
+    the model-free ``baseline`` R@1 by a query or more, so no re-ranking of that shortlist reaches it (the
+    re-ranking may lose too: said beside the other causes). None when the shortlist leaves room, or is not
+    recorded."""
     cap, r1, queries = entry.get("shortlist_recall"), entry.get("recall@1"), entry.get("queries")
     if not isinstance(cap, Mapping) or not isinstance(r1, (int, float)) or not isinstance(cap.get("recall"), float):
         return None
-    if cap["recall"] - float(r1) >= one_query(queries) - 1e-9:
-        return None
-    shortlist = parse_method(name).shortlist
-    return (f"its shortlist ({shortlist} top-{cap['k']}) holds a correct reference for only {cap['recall']:.3f} of "
-            f"the queries, which caps its R@1: the re-ranking is not what loses; a larger --top-k (or a better "
-            f"shortlist)")
+    held = f"its shortlist ({parse_method(name).shortlist} top-{cap['k']}) holds a correct reference for only " \
+        f"{cap['recall']:.3f} of the queries"
+    hint = "a larger --top-k (or a better shortlist)"
+    if queries_apart(float(r1), cap["recall"], queries) <= 1:
+        return f"{held}, which caps its R@1: the re-ranking is not what loses; {hint}"
+    if baseline is not None and queries_apart(cap["recall"], baseline, queries) >= 1:
+        return f"{held}, below the model-free {baseline:.3f}: no re-ranking of it reaches that; {hint}"
+    return None
+
+
+def queries_apart(low: float, high: float, queries: Any) -> float:
+    """How many queries ``high`` is above ``low``: two recalls over the same ``queries`` are a whole number of
+    queries apart (rounded: the recorded recalls may be rounded); in thousandths when the count is unknown."""
+    apart = (high - low) / one_query(queries)
+    return float(round(apart)) if isinstance(queries, int) and queries > 0 else apart
 
 
 def within_chance(apart: int) -> bool:
