@@ -259,3 +259,36 @@ def test_the_training_queries_a_checkpoint_records_are_named_in_the_training_cau
                    {"s1": model}).results
     assert res["config"]["models"]["s1"]["training_queries"] == 12
     assert res["methods"]["s1"]["method"]["models"]["s1"]["training_queries"] == 12
+
+
+def _reduced(learned: float, reduced: float, unreduced: float, queries: int = 86) -> dict:
+    """s1+seqmatch and raw+seqmatch on a --pca dataset, raw+seqmatch's recall on the unreduced one recorded."""
+    res = _results({"raw+seqmatch": reduced, "s1+seqmatch": learned}, queries=queries)
+    res["methods"]["raw+seqmatch"]["unreduced"] = {"dataset": "/w/ds_32x16", "dims": [512, 256],
+                                                   "recall@1": unreduced, "queries": queries}
+    return res
+
+
+def test_a_learned_method_below_the_unreduced_counterpart_is_noted_with_the_pcas_cost():
+    """The 51a M2 case: after --pca 256, s1+seqmatch 0.930 beat the reduced raw+seqmatch 0.837 and went unmarked,
+    while the unreduced raw+seqmatch gave 0.953: the note names that baseline and the PCA's cost (no training
+    cause: the model gains on what it was given). Below both: the training cause too. Above the unreduced one, or
+    without the record: as before."""
+    (note,) = learned_below_baseline(_reduced(0.930, 0.837, 0.953))
+    assert (note.baseline, note.baseline_r1) == ("raw+seqmatch on the unreduced ds_32x16", 0.953)
+    assert note.causes[0].startswith("the PCA (512 -> 256 dims) alone cost raw+seqmatch R@1 0.953 -> 0.837 on these "
+                                     "queries (ds_32x16 holds the unreduced descriptors); hint: compare with a model "
+                                     "trained on ds_32x16 itself")
+    assert not any("too little" in c for c in note.causes)
+    assert format_notes([note])[0].startswith("note: s1+seqmatch (R@1 0.930) is below the model-free raw+seqmatch on "
+                                              "the unreduced ds_32x16 (0.953) on the same queries; likely: the PCA")
+    assert row_marks([note]) == {"s1+seqmatch": "learned, below model-free raw+seqmatch on the unreduced ds_32x16"}
+    (both,) = learned_below_baseline(_reduced(0.700, 0.837, 0.953))
+    assert both.causes[0].startswith("the PCA") and any("too little" in c for c in both.causes)
+    assert learned_below_baseline(_reduced(0.960, 0.837, 0.953)) == []
+    assert learned_below_baseline(_reduced(0.930, 0.837, 0.9302)) == []  # within a query of the unreduced one
+    (plain,) = learned_below_baseline(_reduced(0.800, 0.837, 0.700))  # the PCA helped: the usual note
+    assert plain.baseline == "raw+seqmatch" and not plain.causes[0].startswith("the PCA")
+    other = _reduced(0.930, 0.837, 0.953)
+    other["methods"]["raw+seqmatch"]["unreduced"]["queries"] = 90  # not the same queries: not compared
+    assert learned_below_baseline(other) == []

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from ...core.errors import ConfigError
@@ -55,7 +56,11 @@ class Note:
 
     def text(self) -> str:
         """One line: the finding and the causes."""
-        return f"{self.finding()} on the same data; likely: {'; '.join(self.causes)}"
+        return f"{self.finding()} {self.compared()}; likely: {'; '.join(self.causes)}"
+
+    def compared(self) -> str:
+        """What the two were compared on: the same data, or the same queries of the unreduced descriptors."""
+        return "on the same queries" if " on the unreduced " in self.baseline else "on the same data"
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (``results.json``'s ``learned_below_baseline``)."""
@@ -90,7 +95,9 @@ def _model_free_hvpr(name: str, matcher: str | None) -> bool:
 
 def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
     """One :class:`Note` per learned method of ``results`` whose R@1 is below the best of its model-free
-    counterparts by at least one query (``1 / queries``; 0.001 when the count is unknown)."""
+    counterparts by at least one query (``1 / queries``; 0.001 when the count is unknown): those evaluated beside
+    it and, on a dataset that ``--pca`` reduced, the same on the unreduced descriptors (their entries' ``unreduced``:
+    :func:`seqnet.eval.notices.unreduced.unreduced_counterparts`), whose loss to the PCA is then named first."""
     methods = results.get("methods", {})
     k = compared_k(methods)
     key = f"recall@{k}"
@@ -104,9 +111,37 @@ def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
         if not scored:
             continue
         best, base = max(scored)
-        if best - float(r1) >= one_query(entry.get("queries")) - 1e-9:
+        below = best - float(r1) >= one_query(entry.get("queries")) - 1e-9
+        pca = unreduced_best(results, name, key, best)
+        if pca is not None and pca[0] - float(r1) >= one_query(entry.get("queries")) - 1e-9:
+            causes = likely_causes(name, results, (float(r1), pca[0]), explained=not below)
+            notes.append(Note(name, pca[1], float(r1), pca[0], (pca[2], *causes), k))
+        elif below:
             notes.append(Note(name, base, float(r1), best, likely_causes(name, results, (float(r1), best)), k))
     return notes
+
+
+def unreduced_best(results: Mapping[str, Any], name: str, key: str, best: float) -> tuple[float, str, str] | None:
+    """``(its recall, the counterpart's label, the PCA's cost said as a cause)`` of the best model-free counterpart
+    of ``name`` on the unreduced descriptors (the counterpart's entry's ``unreduced``, scored on as many queries),
+    when it is above ``best`` (the best evaluated beside it) by a query or more; else None."""
+    methods = results.get("methods", {})
+    there = {b: methods[b]["unreduced"] for b in counterparts(name, methods)
+             if isinstance(methods[b].get("unreduced"), Mapping)}
+    scored = [(float(u[key]), b) for b, u in there.items()
+              if isinstance(u.get(key), float) and u.get("queries") == methods[b].get("queries")]
+    if not scored or max(scored)[0] - best < one_query(methods[name].get("queries")) - 1e-9:
+        return None
+    r, b = max(scored)
+    free = there[b]
+    where = Path(str(free.get("dataset"))).name
+    dims = free.get("dims") if isinstance(free.get("dims"), list) and len(free["dims"]) == 2 else ["D", "D'"]
+    cause = (f"the PCA ({dims[0]} -> {dims[1]} dims) alone cost {b} R@{key.split('@')[1]} {r:.3f} -> "
+             f"{float(methods[b][key]):.3f} on these queries ({where} holds the unreduced descriptors); hint: compare "
+             f"with a model "
+             f"trained on {where} itself (seqnet train --dataset {free.get('dataset')}, without --pca), or keep more "
+             "dimensions (--pca D)")
+    return r, f"{b} on the unreduced {where}", cause
 
 
 def compared_k(methods: Mapping[str, Any]) -> int:
@@ -122,9 +157,9 @@ def format_notes(notes: list[Note]) -> list[str]:
     line."""
     groups: dict[tuple[str, ...], list[Note]] = {}
     for n in notes:
-        groups.setdefault(n.causes, []).append(n)
-    return [f"note: {'; '.join(n.finding() for n in group)} on the same data; likely: {'; '.join(causes)}"
-            for causes, group in groups.items()]
+        groups.setdefault((*n.causes, n.compared()), []).append(n)
+    return [f"note: {'; '.join(n.finding() for n in group)} {group[0].compared()}; likely: {'; '.join(causes)}"
+            for (*causes, _), group in groups.items()]
 
 
 def unmatched(results: Mapping[str, Any]) -> list[str]:

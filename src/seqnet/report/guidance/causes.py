@@ -14,11 +14,13 @@ from ...methods.grammar import parse_method
 CHANCE_QUERIES = 5  # the largest gap in queries a sign test at 0.05 cannot tell from chance (2 * 0.5**6 < 0.05)
 
 
-def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float] | None = None) -> tuple[str, ...]:
+def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float] | None = None, *,
+                  explained: bool = False) -> tuple[str, ...]:
     """The usual causes of a learned method ``name`` losing to a model-free one, most specific first: a gap
     within chance (``gap``: the two R@1), a model-free shortlist, a model on descriptors of D > 4096 (no PCA),
     a model trained at another L than evaluated, few evaluated queries; then, when nothing specific is seen,
-    the causes the results cannot show (training data, val split)."""
+    the causes the results cannot show (training data, val split); not those when ``explained`` (the gap is a
+    cause said beside these: a PCA's cost)."""
     cfg = results.get("config", {})
     methods = results.get("methods", {})
     entry = methods.get(name, {})
@@ -35,17 +37,9 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
     if capped:
         out.append(capped)
     capped = bool(capped) and "which caps its R@1" in capped  # the whole loss: no training cause beside it
-    free_shortlist = m.kind == "hvpr" and bool(m.shortlist) and not parse_method(m.shortlist).models()
+    free_shortlist = free_shortlist_cause(name, entry, methods, cfg)
     if free_shortlist:
-        top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
-        r1 = entry.get("recall@1", 0.0)
-        better = [b for b in ("hvpr", "hvpr-fused") if isinstance((methods.get(b) or {}).get("recall@1"), float)
-                  and methods[b]["recall@1"] > r1]
-        absent = [b for b in ("hvpr", "hvpr-fused") if b not in methods]
-        hint = f" (better here: {', '.join(better)})" if better else \
-            f" (a learned shortlist: {', '.join(absent)})" if absent else ""
-        out.append(f"its shortlist is the model-free {m.shortlist}: it re-ranks only the places {m.shortlist} "
-                   f"ranks in its top {top or 'K'}{hint}")
+        out.append(free_shortlist)
     dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
     from ...describe.pca import PAPER_PCA_DIM  # here: the describe package (its describers, h5py) loads with it
 
@@ -59,10 +53,28 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
         out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
     if isinstance(queries, int) and 0 < queries < 50:
         out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@1)")
-    if not (chance or capped or free_shortlist):  # the other causes (D, L, few queries) may add to it: said beside
+    if not (chance or capped or free_shortlist or explained):  # the other causes (D, L, few queries): said beside
         out.append(f"too little or too different training data for the model's D x out x w weights{learnt(models)}, "
                    "or a val split too small to choose the epoch (the training log of seqnet train says both)")
     return tuple(out)
+
+
+def free_shortlist_cause(name: str, entry: Mapping[str, Any], methods: Mapping[str, Any],
+                         cfg: Mapping[str, Any]) -> str | None:
+    """An HVPR on a model-free shortlist: it re-ranks only what that shortlist ranks, with the learned HVPRs that did
+    better here (or that were not evaluated); None for any other method."""
+    m = parse_method(name)
+    if not (m.kind == "hvpr" and m.shortlist and not parse_method(m.shortlist).models()):
+        return None
+    top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
+    r1 = entry.get("recall@1", 0.0)
+    better = [b for b in ("hvpr", "hvpr-fused") if isinstance((methods.get(b) or {}).get("recall@1"), float)
+              and methods[b]["recall@1"] > r1]
+    absent = [b for b in ("hvpr", "hvpr-fused") if b not in methods]
+    hint = f" (better here: {', '.join(better)})" if better else \
+        f" (a learned shortlist: {', '.join(absent)})" if absent else ""
+    return (f"its shortlist is the model-free {m.shortlist}: it re-ranks only the places {m.shortlist} ranks in its "
+            f"top {top or 'K'}{hint}")
 
 
 def learnt(models: Mapping[str, Any]) -> str:
