@@ -292,3 +292,31 @@ def test_a_learned_method_below_the_unreduced_counterpart_is_noted_with_the_pcas
     other = _reduced(0.930, 0.837, 0.953)
     other["methods"]["raw+seqmatch"]["unreduced"]["queries"] = 90  # not the same queries: not compared
     assert learned_below_baseline(other) == []
+
+
+def test_a_checkpoint_from_the_first_epoch_is_named_as_barely_trained(tmp_path):
+    """The 51a L3 case: best.pt from epoch 1 of 40 (SGD at lr 1e-4, loss 0.3098 then) was blamed on the training
+    data only; what the checkpoint and the last.pt beside it record names it. A later epoch says nothing."""
+    import torch
+
+    from seqnet.report.guidance import barely_trained, training_record
+
+    state = {"conv.weight": torch.zeros(4, 4, 1), "conv.bias": torch.zeros(4)}
+    base = {"format": "seqnet-checkpoint/1", "model": {"in_dims": 4, "out_dims": 4, "seq_len": 1, "w": 1},
+            "state_dict": state, "best_epoch": 1, "config": {"epochs": 40}, "dataset_path": "/d"}
+    history = [{"epoch": e, "loss": 0.3098 - 0.0019 * (e - 1)} for e in range(1, 41)]
+    torch.save({**base, "epoch": 1}, tmp_path / "best.pt")
+    torch.save({**base, "epoch": 40, "train_state": {"history": history}}, tmp_path / "last.pt")
+    record = training_record(str(tmp_path / "best.pt"))
+    assert record is not None and (record["epoch"], record["epochs"], record["last_epoch"]) == (1, 40, 40)
+    said = barely_trained({"seqnet": {"training": record}})
+    assert said == ("S_L's checkpoint is from epoch 1 of 40 (val R@1 never rose after it, training loss 0.3098 at "
+                    "epoch 1, 0.2357 at 40): the model is barely trained; hint: a larger --lr or --optimizer adam, "
+                    "and a val split large enough to choose the epoch")
+    models = {"seqnet": {"in_dims": 4, "out_dims": 4, "seq_len": 5, "w": 3, "training": record}}
+    (note,) = learned_below_baseline(_results({"seqnet": 0.488, "delta": 0.698}, queries=86, models=models))
+    assert any(c.startswith("S_L's checkpoint is from epoch 1 of 40") for c in note.causes)
+    assert barely_trained({"seqnet": {"training": {**record, "epoch": 12}}}) is None
+    assert barely_trained({"s1": {"training": {"epoch": 1, "epochs": 1}}}) is None  # --epochs 1: nothing else ran
+    assert barely_trained({"s1": {"training": {"epoch": 1, "epochs": 40}}}).startswith(
+        "S_1's checkpoint is from epoch 1 of 40 planned (val R@1 never rose after it)")

@@ -4,7 +4,10 @@ the training queries each checkpoint records (:func:`model_entries`)."""
 
 from __future__ import annotations
 
+import functools
+import os
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from ...core.log import counted
@@ -53,6 +56,8 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
         out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
     if isinstance(queries, int) and 0 < queries < 50:
         out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@1)")
+    if (early := barely_trained(models)) and not chance:
+        out.append(early)
     if not (chance or capped or free_shortlist or explained):  # the other causes (D, L, few queries): said beside
         out.append(f"too little or too different training data for the model's D x out x w weights{learnt(models)}, "
                    "or a val split too small to choose the epoch (the training log of seqnet train says both)")
@@ -95,8 +100,62 @@ def model_entries(models: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
         t = getattr(model, "trained_on", None)
         rng = t.get("train_queries") if isinstance(t, Mapping) else None
         ok = isinstance(rng, list | tuple) and len(rng) == 2 and all(type(v) is int for v in rng) and rng[1] > rng[0]
-        out[role] = {**model.config(), **({"training_queries": rng[1] - rng[0]} if ok else {})}
+        record = training_record(str(t["checkpoint"])) if isinstance(t, Mapping) and t.get("checkpoint") else None
+        out[role] = {**model.config(), **({"training_queries": rng[1] - rng[0]} if ok else {}),
+                     **({"training": record} if record else {})}
     return out
+
+
+def training_record(path: str) -> dict[str, Any] | None:
+    """What the checkpoint ``path`` and the ``last.pt`` beside it (same run) record of its training:
+    ``{"epoch": the chosen epoch, "epochs": planned, "last_epoch": run, "loss": {epoch: training loss}}`` (the
+    losses and the last epoch only with that ``last.pt``); None when unreadable (tensors mapped, not read)."""
+    try:
+        stat = os.stat(path)
+        return _record(path, stat.st_mtime_ns)
+    except OSError:
+        return None
+
+
+@functools.lru_cache(maxsize=32)
+def _record(path: str, mtime: int) -> dict[str, Any] | None:
+    from ...core.errors import SeqnetError
+    from ...sequence.checkpoints import read_checkpoint
+
+    try:
+        best = read_checkpoint(path, mapped=True)
+        last_path = Path(path).with_name("last.pt")
+        last = best if Path(path).name == "last.pt" or not last_path.is_file() else \
+            read_checkpoint(last_path, mapped=True)
+    except (SeqnetError, OSError):
+        return None
+    epoch, epochs = best.get("epoch"), (best.get("config") or {}).get("epochs")
+    if type(epoch) is not int or type(epochs) is not int:
+        return None
+    same = last.get("dataset_path") == best.get("dataset_path") and last.get("best_epoch") == best.get("best_epoch")
+    history = (last.get("train_state") or {}).get("history") if same else None
+    loss = {int(h["epoch"]): float(h["loss"]) for h in history or [] if isinstance(h, Mapping)
+            and type(h.get("epoch")) is int and isinstance(h.get("loss"), float)}
+    return {"epoch": epoch, "epochs": epochs, **({"last_epoch": max(loss), "loss": loss} if loss else {})}
+
+
+def barely_trained(models: Mapping[str, Any]) -> str | None:
+    """A model whose checkpoint is from its first epoch though more were planned or run (``training`` of
+    :func:`model_entries`): the chosen epoch is the barely trained first one; None otherwise."""
+    said = []
+    for role, v in sorted(models.items(), key=lambda kv: kv[0] != "seqnet"):
+        t = v.get("training") if isinstance(v, Mapping) else None
+        if not isinstance(t, Mapping) or t.get("epoch") != 1 or max(t.get("last_epoch", 1), t.get("epochs", 1)) < 2:
+            continue
+        ran = t.get("last_epoch")
+        loss = t.get("loss") or {}
+        after = f", training loss {loss[1]:.4f} at epoch 1, {loss[ran]:.4f} at {ran}" if ran and 1 in loss else ""
+        said.append(f"{role_label(role)}'s checkpoint is from epoch 1 of {ran or t['epochs']}"
+                    f"{'' if ran else ' planned'} (val R@1 never rose after it{after})")
+    if not said:
+        return None
+    return (f"{'; '.join(said)}: the model is barely trained; hint: a larger --lr or --optimizer adam, and a val "
+            "split large enough to choose the epoch")
 
 
 def shortlist_capped(name: str, entry: Mapping[str, Any], baseline: float | None = None) -> str | None:
