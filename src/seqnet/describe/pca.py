@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import CheckpointError, ConfigError
+from ..core.errors import CheckpointError, ConfigError, SeqnetError
 from ..security.arrays import read_npz
 from ..security.files import atomic_path
+from ..security.jsonfile import read_json_object
 
 TAG_KEY = "seqnet_tag"  # provenance string stored by PCA.save(tag=...)
 
@@ -116,6 +117,36 @@ def unreduced_dataset_path(dataset_dir: str | os.PathLike[str]) -> Path:
     d = Path(dataset_dir)
     return d.with_name(REDUCED_SUFFIX.sub("", d.name))
 
+
+
+def unreduced_source(dataset_dir: str | os.PathLike[str]) -> Path | None:
+    """The dataset directory that a chain of ``seqnet train --pca`` reductions of ``dataset_dir`` started from
+    (``<DIR>`` of ``<DIR>-pca<D>[-pca<D'>]``, beside it, each PCA's recorded ``source`` the provenance id of the
+    reference descriptors of the one before); None when ``dataset_dir`` records no PCA or its source is not found.
+    (:func:`seqnet.localize.describing.unreduced_dataset` walks the same chain.)"""
+    path = Path(dataset_dir)
+    here = _pca_record(path)
+    while here is not None and here[0] is not None:
+        parent = unreduced_dataset_path(path)
+        there = _pca_record(parent) if parent != path else None
+        if there is None or there[1] != here[0].get("source"):
+            return None
+        path, here = parent, there
+    return path if here is not None and path != Path(dataset_dir) else None
+
+
+def _pca_record(dataset_dir: Path) -> tuple[dict | None, object] | None:
+    """``(the "pca" entry of its dataset.json or None, its reference provenance id)``; None when ``dataset_dir`` is
+    not a dataset directory that can be read."""
+    try:
+        meta = read_json_object(dataset_dir / "dataset.json", "dataset file") if dataset_dir.is_dir() else None
+    except (SeqnetError, OSError):
+        return None
+    if meta is None:
+        return None
+    prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
+    ref = prov.get("reference") if isinstance(prov.get("reference"), dict) else {}
+    return (meta["pca"] if isinstance(meta.get("pca"), dict) else None), ref.get("id")
 
 def load_dataset_pca(path: str | os.PathLike[str], provenance: dict) -> PCA:
     """The PCA in ``path`` that reduced descriptors of ``provenance`` (``--pca D``: the file's tag is their provenance

@@ -39,6 +39,7 @@ from .notices import (
     video_clock_note,
 )
 from .notices.chance import chance_notice
+from .notices.unreduced import unreduced_counterparts
 from .outputs import EvalOutputs
 from .score import check_types, score
 
@@ -140,6 +141,7 @@ def say_notices(ev: Evaluation, ds: Dataset, split: str, conf: EvalConfig, model
         ev.results["leakage"] = leaks
         for line in leaks:
             logger.warning("%s", shown(line))  # it names checkpoints' records: text from files
+    unreduced_counterparts(ev, ds, split, conf, source)  # a --pca dataset: the counterparts on its unreduced one
     ev.results["learned_below_baseline"] = note_entries(learned_below_baseline(ev.results))
     if (trivial := default_ks_note(ev, conf.ks)) is not None:
         ev.results["trivial_ks"] = trivial  # a note after the table (cli), not a warning

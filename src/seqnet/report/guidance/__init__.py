@@ -21,15 +21,23 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
-from ..core.errors import ConfigError
-from ..core.log import counted
-from ..methods.checks import role_label
-from ..methods.grammar import parse_method
+from ...core.errors import ConfigError
+from ...methods.grammar import parse_method
+from .causes import (  # noqa: F401 - guidance names, used by eval, the cli and the tests
+    CHANCE_QUERIES,
+    barely_trained,
+    likely_causes,
+    model_entries,
+    one_query,
+    shortlist_capped,
+    training_record,
+    within_chance,
+)
 
 SEQUENCE_BASELINES = ("smoothing", "delta", "delta-paper")
-CHANCE_QUERIES = 5  # the largest gap in queries a sign test at 0.05 cannot tell from chance (2 * 0.5**6 < 0.05)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,7 +58,11 @@ class Note:
 
     def text(self) -> str:
         """One line: the finding and the causes."""
-        return f"{self.finding()} on the same data; likely: {'; '.join(self.causes)}"
+        return f"{self.finding()} {self.compared()}; likely: {'; '.join(self.causes)}"
+
+    def compared(self) -> str:
+        """What the two were compared on: the same data, or the same queries of the unreduced descriptors."""
+        return "on the same queries" if " on the unreduced " in self.baseline else "on the same data"
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (``results.json``'s ``learned_below_baseline``)."""
@@ -83,103 +95,11 @@ def _model_free_hvpr(name: str, matcher: str | None) -> bool:
     return m.kind == "hvpr" and not m.models() and m.matcher == matcher
 
 
-def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float] | None = None) -> tuple[str, ...]:
-    """The usual causes of a learned method ``name`` losing to a model-free one, most specific first: a gap
-    within chance (``gap``: the two R@1), a model-free shortlist, a model on descriptors of D > 4096 (no PCA),
-    a model trained at another L than evaluated, few evaluated queries; then, when nothing specific is seen,
-    the causes the results cannot show (training data, val split)."""
-    cfg = results.get("config", {})
-    methods = results.get("methods", {})
-    entry = methods.get(name, {})
-    models = (entry.get("method") or {}).get("models") or cfg.get("models") or {}
-    out = []
-    queries = entry.get("queries")
-    apart = round((gap[1] - gap[0]) * queries) if gap is not None and isinstance(queries, int) else None
-    chance = apart is not None and within_chance(apart)
-    if chance:
-        out.append(f"possibly chance: {apart} of {queries} queries apart (a sign test cannot tell fewer than "
-                   f"{CHANCE_QUERIES + 1} apart from chance)")
-    m = parse_method(name)
-    capped = shortlist_capped(name, entry)
-    if capped:
-        out.append(capped)
-    free_shortlist = m.kind == "hvpr" and bool(m.shortlist) and not parse_method(m.shortlist).models()
-    if free_shortlist:
-        top = (entry.get("method") or {}).get("top_k") or cfg.get("top_k")
-        r1 = entry.get("recall@1", 0.0)
-        better = [b for b in ("hvpr", "hvpr-fused") if isinstance((methods.get(b) or {}).get("recall@1"), float)
-                  and methods[b]["recall@1"] > r1]
-        absent = [b for b in ("hvpr", "hvpr-fused") if b not in methods]
-        hint = f" (better here: {', '.join(better)})" if better else \
-            f" (a learned shortlist: {', '.join(absent)})" if absent else ""
-        out.append(f"its shortlist is the model-free {m.shortlist}: it re-ranks only the places {m.shortlist} "
-                   f"ranks in its top {top or 'K'}{hint}")
-    dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
-    from ..describe.pca import PAPER_PCA_DIM  # here: the describe package (its describers, h5py) loads with it
-
-    folded = (cfg.get("benchmark") or {}).get("pca_dims") if isinstance(cfg.get("benchmark"), Mapping) else None
-    if dims and dims[-1] > PAPER_PCA_DIM and not folded:  # a PCA folded into the models reads D raw dims too
-        out.append(f"D = {dims[-1]} without PCA (the paper reduces to {PAPER_PCA_DIM}; seqnet train --pca D, or seqnet "
-                   "dataset from-images --pca D, fitted on the train split)")
-    trained = models.get("seqnet", {}).get("seq_len") if isinstance(models.get("seqnet"), Mapping) else None
-    evaluated = (entry.get("method") or {}).get("seq_len") or cfg.get("seq_len")
-    if "seqnet" in m.models() and trained and evaluated and int(trained) != int(evaluated):
-        out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
-    if isinstance(queries, int) and 0 < queries < 50:
-        out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@1)")
-    if not (chance or capped or free_shortlist):  # the other causes (D, L, few queries) may add to it: said beside
-        out.append(f"too little or too different training data for the model's D x out x w weights{_learnt(models)}, "
-                   "or a val split too small to choose the epoch (the training log of seqnet train says both)")
-    return tuple(out)
-
-
-def _learnt(models: Mapping[str, Any]) -> str:
-    """`` (S_1 learnt from 12 training queries)``: the training queries each model's checkpoint records
-    (``training_queries`` of :func:`model_entries`); "" when none does."""
-    said = [f"{role_label(role)} learnt from {counted(n, 'training query', 'training queries')}"
-            for role, v in sorted(models.items(), key=lambda kv: kv[0] != "seqnet") if isinstance(v, Mapping)
-            and type(n := v.get("training_queries")) is int and n > 0]
-    return f" ({', '.join(said)})" if said else ""
-
-
-def model_entries(models: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
-    """What ``results.json`` records of each model by role (:func:`likely_causes` reads it): its architecture
-    (``in_dims``, ``out_dims``, ``seq_len``, ``w``) and, when its checkpoint records its train range, the number of
-    its training queries (``training_queries``)."""
-    out = {}
-    for role, model in models.items():
-        t = getattr(model, "trained_on", None)
-        rng = t.get("train_queries") if isinstance(t, Mapping) else None
-        ok = isinstance(rng, list | tuple) and len(rng) == 2 and all(type(v) is int for v in rng) and rng[1] > rng[0]
-        out[role] = {**model.config(), **({"training_queries": rng[1] - rng[0]} if ok else {})}
-    return out
-
-
-def shortlist_capped(name: str, entry: Mapping[str, Any]) -> str | None:
-    """Why an HVPR's R@1 cannot rise: its shortlist of K holds a correct reference for barely more queries than
-    its R@1 counts (the entry's ``shortlist_recall``, within one query), so the re-ranking is not what loses;
-    None when the shortlist leaves room, or is not recorded."""
-    cap, r1, queries = entry.get("shortlist_recall"), entry.get("recall@1"), entry.get("queries")
-    if not isinstance(cap, Mapping) or not isinstance(r1, (int, float)) or not isinstance(cap.get("recall"), float):
-        return None
-    if cap["recall"] - float(r1) >= one_query(queries) - 1e-9:
-        return None
-    shortlist = parse_method(name).shortlist
-    return (f"its shortlist ({shortlist} top-{cap['k']}) holds a correct reference for only {cap['recall']:.3f} of "
-            f"the queries, which caps its R@1: the re-ranking is not what loses; a larger --top-k (or a better "
-            f"shortlist)")
-
-
-def within_chance(apart: int) -> bool:
-    """Whether two methods ``apart`` queries apart in R@1 (on the same queries) may differ by chance: even when
-    those are the only queries on which they differ, all one way (the most telling case), a two-sided sign test
-    gives ``2 * 0.5**apart``, above 0.05 up to :data:`CHANCE_QUERIES`; true whatever the per-query answers."""
-    return 0 <= apart <= CHANCE_QUERIES
-
-
 def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
     """One :class:`Note` per learned method of ``results`` whose R@1 is below the best of its model-free
-    counterparts by at least one query (``1 / queries``; 0.001 when the count is unknown)."""
+    counterparts by at least one query (``1 / queries``; 0.001 when the count is unknown): those evaluated beside
+    it and, on a dataset that ``--pca`` reduced, the same on the unreduced descriptors (their entries' ``unreduced``:
+    :func:`seqnet.eval.notices.unreduced.unreduced_counterparts`), whose loss to the PCA is then named first."""
     methods = results.get("methods", {})
     k = compared_k(methods)
     key = f"recall@{k}"
@@ -193,14 +113,37 @@ def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
         if not scored:
             continue
         best, base = max(scored)
-        if best - float(r1) >= one_query(entry.get("queries")) - 1e-9:
+        below = best - float(r1) >= one_query(entry.get("queries")) - 1e-9
+        pca = unreduced_best(results, name, key, best)
+        if pca is not None and pca[0] - float(r1) >= one_query(entry.get("queries")) - 1e-9:
+            causes = likely_causes(name, results, (float(r1), pca[0]), explained=not below)
+            notes.append(Note(name, pca[1], float(r1), pca[0], (pca[2], *causes), k))
+        elif below:
             notes.append(Note(name, base, float(r1), best, likely_causes(name, results, (float(r1), best)), k))
     return notes
 
 
-def one_query(queries: Any) -> float:
-    """What one query is of a recall over ``queries`` (``1 / queries``; 0.001 when the count is unknown)."""
-    return 1.0 / queries if isinstance(queries, int) and queries > 0 else 0.001
+def unreduced_best(results: Mapping[str, Any], name: str, key: str, best: float) -> tuple[float, str, str] | None:
+    """``(its recall, the counterpart's label, the PCA's cost said as a cause)`` of the best model-free counterpart
+    of ``name`` on the unreduced descriptors (the counterpart's entry's ``unreduced``, scored on as many queries),
+    when it is above ``best`` (the best evaluated beside it) by a query or more; else None."""
+    methods = results.get("methods", {})
+    there = {b: methods[b]["unreduced"] for b in counterparts(name, methods)
+             if isinstance(methods[b].get("unreduced"), Mapping)}
+    scored = [(float(u[key]), b) for b, u in there.items()
+              if isinstance(u.get(key), float) and u.get("queries") == methods[b].get("queries")]
+    if not scored or max(scored)[0] - best < one_query(methods[name].get("queries")) - 1e-9:
+        return None
+    r, b = max(scored)
+    free = there[b]
+    where = Path(str(free.get("dataset"))).name
+    dims = free.get("dims") if isinstance(free.get("dims"), list) and len(free["dims"]) == 2 else ["D", "D'"]
+    cause = (f"the PCA ({dims[0]} -> {dims[1]} dims) alone cost {b} R@{key.split('@')[1]} {r:.3f} -> "
+             f"{float(methods[b][key]):.3f} on these queries ({where} holds the unreduced descriptors); hint: compare "
+             f"with a model "
+             f"trained on {where} itself (seqnet train --dataset {free.get('dataset')}, without --pca), or keep more "
+             "dimensions (--pca D)")
+    return r, f"{b} on the unreduced {where}", cause
 
 
 def compared_k(methods: Mapping[str, Any]) -> int:
@@ -216,9 +159,9 @@ def format_notes(notes: list[Note]) -> list[str]:
     line."""
     groups: dict[tuple[str, ...], list[Note]] = {}
     for n in notes:
-        groups.setdefault(n.causes, []).append(n)
-    return [f"note: {'; '.join(n.finding() for n in group)} on the same data; likely: {'; '.join(causes)}"
-            for causes, group in groups.items()]
+        groups.setdefault((*n.causes, n.compared()), []).append(n)
+    return [f"note: {'; '.join(n.finding() for n in group)} {group[0].compared()}; likely: {'; '.join(causes)}"
+            for (*causes, _), group in groups.items()]
 
 
 def unmatched(results: Mapping[str, Any]) -> list[str]:
