@@ -122,20 +122,27 @@ def unreduced_dataset_path(dataset_dir: str | os.PathLike[str]) -> Path:
 def unreduced_source(dataset_dir: str | os.PathLike[str]) -> Path | None:
     """The dataset directory that a chain of ``seqnet train --pca`` reductions of ``dataset_dir`` started from
     (``<DIR>`` of ``<DIR>-pca<D>[-pca<D'>]``, beside it, each PCA's recorded ``source`` the provenance id of the
-    reference descriptors of the one before); None when ``dataset_dir`` records no PCA or its source is not found.
-    (:func:`seqnet.localize.describing.unreduced_dataset` walks the same chain.)"""
+    reference descriptors of the one before); None when ``dataset_dir`` records no PCA or its source is not found."""
     path = Path(dataset_dir)
-    here = _pca_record(path)
+    here = pca_record(path)
     while here is not None and here[0] is not None:
-        parent = unreduced_dataset_path(path)
-        there = _pca_record(parent) if parent != path else None
-        if there is None or there[1] != here[0].get("source"):
+        found = reduced_from(path, here[0])
+        if found is None:
             return None
-        path, here = parent, there
+        path, here = found
     return path if here is not None and path != Path(dataset_dir) else None
 
 
-def _pca_record(dataset_dir: Path) -> tuple[dict | None, object] | None:
+def reduced_from(dataset_dir: Path, pca: dict) -> tuple[Path, tuple[dict | None, object]] | None:
+    """The ``<DIR>`` beside ``dataset_dir`` = ``<DIR>-pca<D>`` whose descriptors its PCA (``pca``: the ``"pca"``
+    entry of its dataset.json) reduced, i.e. whose reference provenance id is the PCA's ``source``, with its
+    :func:`pca_record`; None otherwise."""
+    parent = unreduced_dataset_path(dataset_dir)
+    there = pca_record(parent) if parent != dataset_dir else None
+    return (parent, there) if there is not None and there[1] == pca.get("source") else None
+
+
+def pca_record(dataset_dir: Path) -> tuple[dict | None, object] | None:
     """``(the "pca" entry of its dataset.json or None, its reference provenance id)``; None when ``dataset_dir`` is
     not a dataset directory that can be read."""
     try:
@@ -147,6 +154,7 @@ def _pca_record(dataset_dir: Path) -> tuple[dict | None, object] | None:
     prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
     ref = prov.get("reference") if isinstance(prov.get("reference"), dict) else {}
     return (meta["pca"] if isinstance(meta.get("pca"), dict) else None), ref.get("id")
+
 
 def load_dataset_pca(path: str | os.PathLike[str], provenance: dict) -> PCA:
     """The PCA in ``path`` that reduced descriptors of ``provenance`` (``--pca D``: the file's tag is their provenance

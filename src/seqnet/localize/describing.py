@@ -139,60 +139,24 @@ def map_dataset(ref_map: Reference, map_dir: str | Path | None) -> str | Path | 
     return source.get("dataset_path") if isinstance(source.get("dataset_path"), str) else map_dir
 
 
-def _dataset_record(dataset: Path) -> tuple[dict | None, object] | None:
-    """``(extra["pca"] or None, the reference provenance id)`` that the ``dataset.json`` of ``dataset`` records;
-    None when it is not a dataset directory that can be read."""
-    from ..security.jsonfile import read_json_object
-
-    try:
-        meta = read_json_object(dataset / "dataset.json", "dataset file") if dataset.is_dir() else None
-    except (SeqnetError, OSError):
-        meta = None
-    if meta is None:
-        return None
-    prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
-    ref = prov.get("reference") if isinstance(prov.get("reference"), dict) else {}
-    return (meta["pca"] if isinstance(meta.get("pca"), dict) else None), ref.get("id")
-
-
-def _reduced_from(dataset: Path, pca: Mapping) -> tuple[Path, tuple[dict | None, object]] | None:
-    """The ``<DIR>`` beside ``dataset`` = ``<DIR>-pca<D>`` (``seqnet train --pca D``'s name) whose descriptors its
-    PCA reduced (its provenance id is the PCA's ``source``), with its record; None otherwise."""
-    from ..describe.pca import unreduced_dataset_path
-
-    parent = unreduced_dataset_path(dataset)
-    there = _dataset_record(parent) if parent != dataset else None
-    return (parent, there) if there is not None and there[1] == pca.get("source") else None
-
-
-def unreduced_dataset(dataset: str | Path) -> Path | None:
-    """The dataset beside ``dataset`` that a chain of ``seqnet train --pca`` reductions started from, unreduced
-    (``<DIR>`` of ``<DIR>-pca<D>[-pca<D'>]``, each PCA's source the one before); None when there is none."""
-    path, here = Path(dataset), _dataset_record(Path(dataset))
-    while here is not None and here[0] is not None:
-        found = _reduced_from(path, here[0])
-        if found is None:
-            return None
-        path, here = found
-    return path if here is not None and path != Path(dataset) else None
-
-
 def check_reduced_once(dataset: str | Path | None) -> None:
     """Refuse to describe query images for a map whose dataset was reduced twice (``seqnet train --pca`` on a dataset
     already reduced by ``--pca``: its ``extra["pca"]["input_pca"]``, or, recorded before that, the ``<DIR>`` of a
     ``<DIR>-pca<D>`` that its PCA reduced, holding a PCA of its own): localize applies one PCA, the last, to what the
     describer makes, which is the first PCA's input."""
-    here = _dataset_record(Path(dataset)) if dataset is not None else None
+    from ..describe.pca import pca_record, reduced_from, unreduced_source
+
+    here = pca_record(Path(dataset)) if dataset is not None else None
     if here is None or here[0] is None:
         return
     pca = here[0]
     before = pca.get("input_pca")
     if not isinstance(before, dict):
-        found = _reduced_from(Path(dataset), pca)
+        found = reduced_from(Path(dataset), pca)
         before = found[1][0] if found is not None else None
     if not isinstance(before, dict):
         return
-    dims, source = pca.get("dims"), unreduced_dataset(dataset)
+    dims, source = pca.get("dims"), unreduced_source(dataset)
     unreduced = f"seqnet train --dataset {source} --pca {dims} (its unreduced descriptors)" if source else \
         f"seqnet dataset from-images --pca {dims}, or seqnet train --pca {dims} on a dataset built without --pca"
     raise ConfigError(f"the map's descriptors were reduced twice ({before.get('input_dim')}-D to "

@@ -31,8 +31,7 @@ from ..core.provenance import fit_digest, image_size_of
 from ..core.provenance import make as make_provenance
 from ..data.io import load_dataset, save_dataset
 from ..data.traverse import Dataset, Traverse
-from ..describe.pca import PCA, check_fit_rows, dataset_pca_path, fit_pca, reduced_dataset_path
-from ..localize.describing import unreduced_dataset
+from ..describe.pca import PCA, check_fit_rows, dataset_pca_path, fit_pca, reduced_dataset_path, unreduced_source
 
 FIT_MAX = 20000  # frames a PCA is fitted on at most (evenly spaced): [N, D] float64 in memory
 BLOCK = 4096  # frames projected at a time
@@ -145,11 +144,11 @@ def warn_reduced(dataset: str | Path, src: Dataset, dims: int) -> None:
     """Warn when ``--pca dims`` is asked of a dataset already reduced by a PCA (``from-images --pca`` or ``train
     --pca``): the result is reduced twice, and localize, index build and serve apply one PCA to the images they
     describe, so its map cannot take query images. Names the unreduced dataset when it lies beside
-    (:func:`seqnet.localize.describing.unreduced_dataset`), else the rebuild."""
+    (:func:`seqnet.describe.pca.unreduced_source`), else the rebuild."""
     before = src.extra.get("pca")
     if not isinstance(before, dict):
         return
-    source = unreduced_dataset(dataset)
+    source = unreduced_source(dataset)
     hint = (f"seqnet train --dataset {source} --pca {dims}" if source is not None else "build the dataset with "
             f"seqnet dataset from-images --pca {dims} (or without --pca, then seqnet train --pca {dims} on it)")
     logger.warning("%s is already reduced by a PCA (%s-D to %d-D): --pca %d reduces it a second time, and localize, "
