@@ -114,9 +114,10 @@ class Dataset:
     ``extra`` holds any other metadata (positive/negative training radii, preset, source, ...).
     ``positives`` (optional) is explicit ground truth: the matching reference frames of every query
     frame; when given, it decides what is correct instead of the radius. It is a :class:`Positives`, one list of
-    reference indices per query, or a ``[N_query, N_reference]`` bool matrix (a ``[N_reference, N_query]`` one is
-    refused with a hint when not square; a square one is read as given, and one that reads better transposed is
-    said by the evaluation: :func:`seqnet.data.sanity.truth.transposed_positives`).
+    reference indices per query, or a ``[N_query, N_reference]`` bool or 0/1 matrix, as an array or as its rows
+    (``.tolist()``; 0/1 rows that fit both readings, at most two wide, are refused). A ``[N_reference, N_query]``
+    matrix is refused with a hint when not square; a square one is read as given, and one that reads better
+    transposed is said by the evaluation: :func:`seqnet.data.sanity.truth.transposed_positives`.
     """
 
     reference: Traverse
