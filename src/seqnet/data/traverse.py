@@ -18,6 +18,7 @@ Directory format (read and written by :mod:`seqnet.data.io`; see docs/dataset_fo
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Mapping
 from typing import Any
@@ -134,7 +135,9 @@ class Dataset:
             if not isinstance(getattr(self, side), Traverse):
                 raise DatasetError(f"Dataset {side} must be a Traverse, got {type(getattr(self, side)).__name__}")
             if getattr(self, side).name == "traverse":  # built without a name: its messages name its side
-                getattr(self, side).name = side
+                named = copy.copy(getattr(self, side))  # a shallow copy: the caller's traverse keeps its name,
+                named.name = side  # and the checked arrays are shared, not checked again
+                setattr(self, side, named)
         if isinstance(self.radius, (bool, str)) or not isinstance(self.radius, (int, float, np.number)):
             raise DatasetError(f"radius must be a number, got {self.radius!r}")
         self.radius = float(self.radius)
