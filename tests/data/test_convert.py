@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -423,7 +424,8 @@ def test_vme_names_that_sort_off_the_drive_are_said_with_their_long_steps(tmp_pa
         t = traverse_from_utm_names(desc, queries, "query")
     assert t.names[:3] == ["@0@0@33@V@x0.png", "@1000@0@33@V@x100.png", "@100@0@33@V@x10.png"]
     [line] = [r.getMessage() for r in caplog.records if "sorted image names" in r.getMessage()]
-    assert "40 of the 199 steps between consecutive frames are longer than 3 usual steps (10 metres" in line
+    assert "40 of the 199 steps between consecutive frames pass over other frames of the route (longer than 3 " \
+           "usual steps of 10 metres" in line
     assert "no list file queries_images_paths.txt" in line and "zero-padded" in line and "tunnel" not in line
     caplog.clear()
     listed = sorted(os.listdir(queries), key=lambda n: float(n.split("@")[1]))  # a list file in drive order
@@ -434,3 +436,25 @@ def test_vme_names_that_sort_off_the_drive_are_said_with_their_long_steps(tmp_pa
         traverse_from_utm_names(desc, folder("padded", "{:07.2f}"), "query")  # zero-padded: text order = drive
         traverse_from_utm_names(desc, tmp_path / "names.txt", "query")
     assert not [r for r in caplog.records if r.levelname == "WARNING"]
+
+
+def test_names_in_drive_order_that_change_speed_are_silent(caplog):
+    """The review's M1: zero-padded names sorted in drive order, 8 m/s with a 40-frame bypass at 30 m/s, were told
+    to use names that sort in drive order (40 of 399 steps 'long'); the same positions sorted as unpadded text
+    are still said."""
+    import logging
+
+    from seqnet.data.convert import warn_name_order
+
+    e = 500000.0 + np.cumsum(np.r_[np.full(200, 8.0), np.full(40, 30.0), np.full(160, 8.0)])
+    names = [f"@{x:09.2f}@4477000.00@17@T@@@@@@@.jpg" for x in e]
+    pos = np.stack([e, np.full_like(e, 4477000.0)], 1)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        assert names == sorted(names) and not warn_name_order(Path("database"), names, pos)
+    assert not caplog.records
+    local = np.cumsum(np.r_[np.full(100, 10.0), np.full(40, 30.0), np.full(60, 10.0)])  # local metres, unpadded
+    text = sorted(range(200), key=lambda i: f"@{local[i]:g}@0@")
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        assert warn_name_order(Path("database"), [f"@{local[i]:g}@0@.jpg" for i in text],
+                               np.stack([local[text], np.zeros(200)], 1))
+    assert "the frames are in an order of the names' text, not the drive's" in caplog.text

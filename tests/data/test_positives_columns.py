@@ -80,3 +80,49 @@ def test_transposed_dense_matrix_is_named(tmp_path):
     with pytest.raises(DatasetError, match=r"6 rows of positives for 4 query images .*transposed\? the matrix is "
                                            r"\[6, 4\]; seqnet reads \[N_query, N_reference\]"):
         read_positives(tmp_path / "gt.npy").check(4, 6)
+
+
+def _naive_matrix_rows(grid) -> list[list[int]]:
+    """The positives a 0/1 matrix means, by a loop: the columns of each row that hold a 1."""
+    return [[j for j, v in enumerate(row) if v] for row in grid]
+
+
+@pytest.mark.parametrize("convert", [
+    lambda g: g.astype(int).tolist(), lambda g: g.astype(bool).tolist(), lambda g: g.astype(float).tolist(),
+    lambda g: [tuple(r) for r in g.astype(int)], lambda g: list(g.astype(np.uint8)),
+])
+def test_dataset_reads_rows_of_zeros_and_ones_as_the_matrix(convert):
+    """A ground-truth matrix's ``.tolist()`` was read as lists of reference indices: every query got {0, 1}."""
+    from seqnet.data.traverse import Dataset, Traverse
+
+    rng = np.random.default_rng(0)
+    grid = rng.random((12, 20)) < 0.2
+    fr = np.arange(20.0)
+    ds = Dataset(Traverse(np.ones((20, 4), np.float32), fr), Traverse(np.ones((12, 4), np.float32), fr[:12]),
+                 radius=1.0, positives=convert(grid))
+    assert _rows(ds.positives) == _naive_matrix_rows(grid)
+
+
+def test_rows_of_zeros_and_ones_that_could_be_indices_are_refused_at_the_matrix_width():
+    """Two references and rows [0, 1] / [1, 0]: a matrix (one positive) or indices (both); refused, not guessed."""
+    from seqnet.data.positives import Positives, as_positives
+
+    with pytest.raises(DatasetError, match=r"different positives \(hint: np.asarray\(rows, dtype=bool\)"):
+        as_positives([[0, 1], [1, 0], [0, 1]], 3, 2)
+    assert _rows(as_positives(np.array([[0, 1], [1, 0], [0, 1]], bool), 3, 2)) == [[1], [0], [1]]
+    assert _rows(as_positives(Positives.from_lists([[0, 1], [1, 0], [0, 1]]), 3, 2)) == [[0, 1]] * 3
+    assert _rows(as_positives([[0, 1], [1, 0], [0, 1]], 3, 5)) == [[0, 1]] * 3  # 5 wide: only indices fit
+    assert _rows(as_positives([[0, 4], [2], []], 3, 5)) == [[0, 4], [2], []]  # index lists stay index lists
+
+
+def test_zero_one_rows_elsewhere_are_a_matrix_or_refused(tmp_path):
+    """A JSON 0/1 matrix and ``Positives.from_lists(matrix.tolist())`` were read as indices {0, 1}."""
+    from seqnet.data.positives import Positives
+
+    grid = np.eye(6, dtype=int)
+    (tmp_path / "gt.json").write_text(str(grid.tolist()))
+    assert _rows(read_positives(tmp_path / "gt.json")) == _naive_matrix_rows(grid)
+    with pytest.raises(DatasetError, match=r"query 0: reference indices repeat.*0/1 \[N_query, N_reference\] matrix"):
+        Positives.from_lists(grid.tolist())
+    with pytest.raises(DatasetError, match=r"must be integers.*hint: give a matrix as a numpy array"):
+        Positives.from_lists(grid.astype(bool).tolist())

@@ -176,22 +176,53 @@ def unpadded_order(n: int) -> np.ndarray:
     return np.asarray(sorted(range(n), key=lambda i: f"@{10 * i}@0@33@V@x.png"))
 
 
-def test_many_long_steps_are_said_as_an_order_not_a_tunnel():
+def naive_crossing(pos: np.ndarray, long: float = 3.0, across: float = 0.25) -> list[int]:
+    """The steps ``i → i+1`` longer than ``long`` times the 75th-percentile step with another frame within ``across``
+    of their length from their middle, by a loop."""
+    d = [float(np.linalg.norm(pos[i + 1] - pos[i])) for i in range(len(pos) - 1)]
+    usual = float(np.percentile(d, 75))
+    return [i for i in range(len(pos) - 1) if d[i] > long * usual and
+            min(np.linalg.norm(p - (pos[i] + pos[i + 1]) / 2) for p in pos) < across * d[i]]
+
+
+def test_rows_sorted_by_unpadded_names_are_said_as_an_order_not_a_tunnel():
     """The report's M2: 40 of the 199 steps jump, and the one line named the largest as a tunnel, with a hint
-    (split the sequence there) that fixes nothing; the count is a naive loop's."""
-    from seqnet.data.sanity.route import LONG_STEPS, long_steps
+    (split the sequence there) that fixes nothing; now one line of the one order detector, counted as a loop."""
+    from seqnet.data.spacing import crossing_steps
 
     order = unpadded_order(200)
     pos = place(order)
-    at, n, step = long_steps(pos, None)
-    naive = [i for i in range(199) if np.linalg.norm(pos[i + 1] - pos[i]) > LONG_STEPS * step]
-    assert list(at) == naive and len(naive) == 40 and n == 199
+    at, n, step = crossing_steps(pos, None)
+    assert list(at) == naive_crossing(pos) and len(at) == 40 and n == 199 and round(step) == 10
     ds = dataset(pos, pos)
     ds.query.names = ds.reference.names = [f"@{10 * i}@0@33@V@x{i}.png" for i in order]
     lines = [line for line in dataset_warnings(ds) if "steps" in line]
     assert len(lines) == 2 and not any("a tunnel, a logger outage" in line for line in lines)
-    assert lines[0].startswith("d: 40 of the 199 steps between consecutive query frames are longer than 3 usual "
-                               "steps (10 metres; the largest")
-    assert "the rows are likely not in route order" in lines[0] and "names that sort in drive order" in lines[0]
-    keep = np.r_[np.arange(100), np.arange(160, 300)]  # one tunnel among clean steps: still a tunnel
-    assert len(long_steps(place(keep), None)[0]) == 0
+    assert lines[0].startswith("d: 40 of the 199 steps between consecutive query frames pass over other frames of "
+                               "the route (longer than 3 usual steps of 10 metres")
+    assert "its rows are not in route order" in lines[0] and "names that sort in route order" in lines[0]
+    said = route_warnings(ds, GroundTruth(pos, pos, 12.0), np.arange(200), METHODS)
+    assert sum("not in route order" in line for line in said) == 2 and not any("tunnel" in line for line in said)
+
+
+def drive(speeds: np.ndarray, sd: float = 0.0) -> np.ndarray:
+    """``[N, 2]`` a drive in order, one frame a second at ``speeds [N]`` metres per second, with GPS noise ``sd``."""
+    return noisy(place(np.cumsum(speeds) / 10.0), sd) if sd else place(np.cumsum(speeds) / 10.0)
+
+
+def test_correct_drives_that_change_speed_stop_or_cross_a_tunnel_are_not_out_of_order():
+    """The review's M1: a drive in order with a 60-frame highway stretch at 3.5x its town speed (and a tunnel) was
+    said 'the rows are likely not in route order' (61 long steps), and the tunnel line was dropped."""
+    town, fast = np.full(600, 10.0), np.r_[np.full(300, 10.0), np.full(60, 35.0), np.full(240, 10.0)]
+    tunnel = fast.copy()
+    tunnel[450] = 400.0
+    ds = dataset(drive(tunnel), place(np.arange(3000)))
+    [line] = [line for line in route_checks(ds) if "jump" in line]
+    assert line.startswith("the query's positions jump 401 metres (40× its usual step") and "a tunnel" in line
+    from seqnet.data.spacing import crossing_steps, out_of_order
+
+    stops = np.r_[np.full(200, 10.0), np.zeros(40), np.full(200, 10.0), np.full(80, 30.0), np.zeros(30), town[:50]]
+    for speeds in (fast, tunnel, stops, np.r_[town[:200], np.linspace(10, 40, 100), np.full(200, 40.0)]):
+        for pos in (drive(speeds), drive(speeds, 1.0)):
+            assert len(crossing_steps(pos, None)[0]) == 0
+            assert out_of_order(pos, None, 12.0, "metres", "query") is None

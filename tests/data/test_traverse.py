@@ -586,3 +586,18 @@ def test_all_zero_rows_name_their_images():
     with pytest.raises(DatasetError, match=r"query: descriptors: row 4 \(image images-00004.png\) is all zeros \(2 "
                                            r"such images.*images-00004.png, images-00005.png\).*same name from both"):
         Traverse(q, np.arange(30.0), names=names, name="query")
+
+
+def test_dataset_names_its_sides_without_renaming_the_callers_traverses():
+    """Dataset() renamed the caller's unnamed traverses in place: a self-matching query was called 'reference'."""
+    from seqnet.data.traverse import Dataset, Traverse
+
+    q, fr = _unit_rows(), np.arange(30.0)
+    t = Traverse(q, fr)
+    ds = Dataset(reference=t, query=t, radius=1.0)
+    assert (t.name, ds.reference.name, ds.query.name) == ("traverse", "reference", "query")
+    assert ds.query.descriptors is t.descriptors  # a shallow copy: no array is copied
+    again = Dataset(reference=Traverse(q, fr), query=t, radius=1.0)
+    assert again.query.name == "query"
+    named = Traverse(q, fr, name="winter")
+    assert Dataset(reference=named, query=named, radius=1.0).query is named  # a named traverse is kept as given

@@ -109,3 +109,32 @@ def test_evaluate_hvpr_fused(test_split_fused):
 @pytest.fixture
 def test_split_fused(synth_dataset):
     return synth_dataset.split("test")
+
+
+def test_public_hvpr_checks_unit_rows_and_normalizes_like_knn_and_seqmatch(rng, caplog, monkeypatch):
+    """seqnet.hvpr compared non-unit rows as given with neither the check nor normalize= of knn and seqmatch."""
+    import logging
+
+    import seqnet.core.log
+
+    monkeypatch.setattr(seqnet.core.log, "_SAID", set())  # said once a process: another test may have said it
+    unit = [x / np.linalg.norm(x, axis=1, keepdims=True) for x in
+            (rng.standard_normal((12, 6)), rng.standard_normal((14, 6)), rng.standard_normal((14, 5)),
+             rng.standard_normal((16, 5)))]
+    scaled = [x * rng.uniform(0.3, 3, (len(x), 1)) for x in unit]
+    starts = np.arange(12), np.arange(14)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        hvpr(*scaled, 3, *starts, top_k=5, device="cpu")
+        hvpr(*scaled, 3, *starts, top_k=5, device="cpu")  # once a process, not once a call
+    [line] = [r.getMessage() for r in caplog.records]
+    assert line.startswith("hvpr: shortlist query row 0 has L2 norm") and "hvpr(..., normalize=True)" in line
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        got = hvpr(*scaled, 3, *starts, top_k=5, device="cpu", normalize=True)
+        hvpr(*scaled, 3, *starts, top_k=5, device="cpu", normalize=False)
+        want = hvpr(*unit, 3, *starts, top_k=5, device="cpu")
+    assert not caplog.records
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_allclose(got[0], want[0], atol=1e-5)
+    items, _ = naive_fused(*unit, 3, *starts, 5, 0.0)
+    np.testing.assert_array_equal(want[1][:, :5], items)

@@ -28,6 +28,14 @@ def test_distances_passed_as_indices_are_refused_with_the_knn_hint(rng):
         recall_at_k(scores, frames(), frames(), 1)
 
 
+@pytest.mark.parametrize("given", [np.eye(N, 2, dtype=bool), np.eye(N, dtype=bool), np.ones((N, 1), bool)])
+def test_booleans_passed_as_indices_are_refused(given):
+    """A bool hit or ground-truth matrix passed as retrieved was read as indices 0/1: R@1 0.0 with no error."""
+    with pytest.raises(ConfigError, match=r"retrieved holds booleans \(60 x \d+\), not reference indices.*hint: "
+                                          r"knn returns \(scores, indices\)"):
+        recall_at_k(given, frames(), frames(), 0.5, ks=(1,))
+
+
 def test_whole_float_indices_are_taken_as_the_integers(rng):
     idx = ranked(rng)
     assert recall_at_k(idx.astype(np.float64), frames(), frames(), 1) == recall_at_k(idx, frames(), frames(), 1)

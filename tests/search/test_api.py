@@ -36,16 +36,31 @@ def test_lists_of_rows_are_taken(rng):
     np.testing.assert_allclose(s, s0, rtol=1e-6)
 
 
-def test_rows_far_from_unit_norm_are_said_once_naming_row_and_norm(rng, caplog):
-    """Non-unit rows ranked otherwise than evaluate() silently (R@1 0.17 against 0.37 on rescaled Nordland rows)."""
+@pytest.fixture
+def unsaid(monkeypatch):
+    """A process in which no warn_once line was said yet (another test may have said the same one)."""
+    import seqnet.core.log
+
+    monkeypatch.setattr(seqnet.core.log, "_SAID", set())
+
+
+def test_rows_far_from_unit_norm_are_said_once_naming_row_and_norm(rng, caplog, unsaid):
+    """Non-unit rows ranked otherwise than evaluate() silently (R@1 0.17 against 0.37 on rescaled Nordland rows);
+    a loop over query batches said the line again on every call."""
     _, q = rescaled(rng)
     r, _ = rescaled(rng)
     with caplog.at_level(logging.WARNING, logger="seqnet"):
-        knn(q, r, 3)
+        for batch in range(0, 40, 10):
+            knn(q[batch:batch + 10], r, 3)
     lines = [rec.getMessage() for rec in caplog.records if rec.levelno == logging.WARNING]
     assert len(lines) == 1
     norm = np.linalg.norm(q[0])
     assert f"knn: query row 0 has L2 norm {norm:.4g}, not 1" in lines[0] and "normalize=True" in lines[0]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        knn(r, q, 3)  # non-unit reference rows: the same advice, said once a process
+        seqnet.seqmatch(r, q, 3)  # another function: its own line
+    assert [rec.getMessage()[:26] for rec in caplog.records] == ["seqmatch: reference row 0 "]
 
 
 @pytest.mark.parametrize("normalize", [True, False])

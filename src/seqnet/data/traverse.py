@@ -18,6 +18,7 @@ Directory format (read and written by :mod:`seqnet.data.io`; see docs/dataset_fo
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Mapping
 from typing import Any
@@ -114,9 +115,10 @@ class Dataset:
     ``extra`` holds any other metadata (positive/negative training radii, preset, source, ...).
     ``positives`` (optional) is explicit ground truth: the matching reference frames of every query
     frame; when given, it decides what is correct instead of the radius. It is a :class:`Positives`, one list of
-    reference indices per query, or a ``[N_query, N_reference]`` bool matrix (a ``[N_reference, N_query]`` one is
-    refused with a hint when not square; a square one is read as given, and one that reads better transposed is
-    said by the evaluation: :func:`seqnet.data.sanity.truth.transposed_positives`).
+    reference indices per query, or a ``[N_query, N_reference]`` bool or 0/1 matrix, as an array or as its rows
+    (``.tolist()``; 0/1 rows that fit both readings, at most two wide, are refused). A ``[N_reference, N_query]``
+    matrix is refused with a hint when not square; a square one is read as given, and one that reads better
+    transposed is said by the evaluation: :func:`seqnet.data.sanity.truth.transposed_positives`.
     """
 
     reference: Traverse
@@ -133,7 +135,9 @@ class Dataset:
             if not isinstance(getattr(self, side), Traverse):
                 raise DatasetError(f"Dataset {side} must be a Traverse, got {type(getattr(self, side)).__name__}")
             if getattr(self, side).name == "traverse":  # built without a name: its messages name its side
-                getattr(self, side).name = side
+                named = copy.copy(getattr(self, side))  # a shallow copy: the caller's traverse keeps its name,
+                named.name = side  # and the checked arrays are shared, not checked again
+                setattr(self, side, named)
         if isinstance(self.radius, (bool, str)) or not isinstance(self.radius, (int, float, np.number)):
             raise DatasetError(f"radius must be a number, got {self.radius!r}")
         self.radius = float(self.radius)

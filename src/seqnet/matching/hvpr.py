@@ -22,6 +22,7 @@ from ..core.devices import get_device
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module, no_grad
 from ..core.tensors import ArrayLike, to_numpy
+from ..search.api import prepared
 from ..search.knn import as_pair, knn
 from ..sequence.windows import MODE_ANCHORS, check_seq_len
 from .pairs import item_starts
@@ -83,6 +84,7 @@ def hvpr(
     device: str | None = None,
     fuse: float = 0.0,
     window: str = "centred",
+    normalize: bool | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hierarchical VPR on arrays: shortlist by exact k-NN, re-rank by a sequence matcher (:func:`hvpr_search`).
 
@@ -100,12 +102,20 @@ def hvpr(
         backend: k-NN backend of the shortlist.
         fuse: λ >= 0 of the fused score ``matcher / L_m + λ · d_shortlist`` (0: the matcher score alone).
         window: ``"centred"`` or ``"causal"`` windows (anchored matchers pin the item's frame in them).
+        normalize: ``True``: L2-normalise every row of the four arrays first, as ``evaluate()`` and ``seqnet
+            eval`` do; ``None`` (default): compare the rows as given, with a WARNING line (once a process) when
+            rows are far from unit norm; ``False``: as given, unchecked (as :func:`seqnet.knn` and
+            :func:`seqnet.seqmatch`).
 
     Returns:
         ``(scores [M, max(k, K)], items [M, max(k, K)])``: reference items, the re-ranked shortlist
         first (ascending matcher or fused score), then the rest of the k-NN list (score ``inf``).
     """
     anchor = MODE_ANCHORS[check_choice("window mode", window, MODE_ANCHORS)]
+    shortlist_query, shortlist_ref = prepared(shortlist_query, shortlist_ref, "hvpr", normalize,
+                                              ("shortlist query", "shortlist reference"))
+    rerank_query, rerank_ref = prepared(rerank_query, rerank_ref, "hvpr", normalize,
+                                        ("re-rank query", "re-rank reference"))
     return hvpr_search(lambda n: knn(shortlist_query, shortlist_ref, n, backend=backend, device=device),
                        lambda c: pair_scores(rerank_query, rerank_ref, seq_len, q_starts, r_starts, c, matcher,
                                              device, anchor), seq_len, top_k, k, fuse)

@@ -36,9 +36,14 @@ def trivial_truth(truth: Any, samples: int = 200) -> str | None:
 
 
 def integral(retrieved: np.ndarray) -> np.ndarray:
-    """Ranked reference indices given as another dtype: whole numbers are taken, anything else (distances passed
-    as indices, e.g. knn's ``(scores, indices)`` unpacked the other way round) is a :class:`ConfigError`."""
-    if retrieved.dtype.kind not in "fb":
+    """Ranked reference indices ``[M, K]`` given as another dtype: whole floats are taken, anything else (distances
+    passed as indices, e.g. knn's ``(scores, indices)`` unpacked the other way round, or booleans: a hit matrix) is
+    a :class:`ConfigError`."""
+    if retrieved.dtype == bool:  # read as indices 0 / 1 it gave R@1 near 0 with no error
+        raise ConfigError(f"retrieved holds booleans ({retrieved.shape[0]} x {retrieved.shape[1]}), not reference "
+                          "indices: a hit or ground-truth matrix passed as the ranking? (hint: knn returns (scores, "
+                          "indices): unpack it as scores, idx = knn(...) and pass idx)")
+    if retrieved.dtype.kind != "f":
         raise ConfigError(f"retrieved must hold reference indices (integers), got dtype {retrieved.dtype}")
     bad = retrieved[~(np.isfinite(retrieved) & (retrieved == np.round(retrieved)))]
     if bad.size:

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
-from ..core.log import logger
+from ..core.log import warn_once
 from ..core.tensors import ArrayLike, as_tensor, l2_normalize, spread
 from . import knn as exact
 
@@ -51,21 +51,24 @@ def unit_rows_notice(x: ArrayLike, side: str, caller: str) -> str | None:
             "ranks as evaluate() does; normalize=False ranks the rows as given without this check)")
 
 
-def prepared(query: ArrayLike | list, ref: ArrayLike | list, caller: str,
-             normalize: bool | None) -> tuple[ArrayLike, ArrayLike]:
+def prepared(query: ArrayLike | list, ref: ArrayLike | list, caller: str, normalize: bool | None,
+             sides: tuple[str, str] = ("query", "reference")) -> tuple[ArrayLike, ArrayLike]:
     """``(query, ref)`` ready for the search: as arrays; L2-normalised rows (float tensors) when ``normalize``;
-    checked for rows far from unit norm when ``normalize`` is None (one WARNING line, the first side found); as
-    given when False."""
+    checked for rows far from unit norm when ``normalize`` is None (one WARNING line, the first side found, said
+    once per ``caller`` in a process: its advice, ``normalize=``, is the same for every batch of a loop and for
+    every side); as given when False. ``sides``: the two arrays' names in the line."""
     if normalize is not None and not isinstance(normalize, bool):
         raise ConfigError(f"normalize must be True, False or None, got {normalize!r}")
     pair = as_array(query), as_array(ref)
     if normalize:
         return tuple(l2_normalize(as_tensor(x, name=side, ndim=2, keep_float64=True))
-                     for x, side in zip(pair, ("query", "reference"), strict=True))
+                     for x, side in zip(pair, sides, strict=True))
     if normalize is None:
-        line = unit_rows_notice(pair[0], "query", caller) or unit_rows_notice(pair[1], "reference", caller)
-        if line:
-            logger.warning(line)
+        for x, side in zip(pair, sides, strict=True):
+            line = unit_rows_notice(x, side, caller)
+            if line:
+                warn_once(("unit rows", caller), "%s", line)
+                break
     return pair
 
 

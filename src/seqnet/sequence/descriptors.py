@@ -44,7 +44,7 @@ def smoothing(windows: ArrayLike) -> ArrayLike:
     """Window average: ``[M, L, D]`` → L2-normalised ``[M, D]`` (numpy in, numpy out; one window ``[L, D]`` is
     refused: pass ``x[None]``)."""
     w, numpy_in = window_batch(windows, "smoothing")
-    return as_given(l2_normalize(l2_normalize(w).mean(dim=1)), numpy_in)
+    return like_input(l2_normalize(l2_normalize(w).mean(dim=1)), numpy_in)
 
 
 def delta(windows: ArrayLike) -> ArrayLike:
@@ -56,7 +56,7 @@ def delta(windows: ArrayLike) -> ArrayLike:
         raise ConfigError(f"Delta descriptors need seq_len >= 2, got {seq_len}")
     h = seq_len // 2
     w = l2_normalize(windows)
-    return as_given(l2_normalize(w[:, seq_len - h :].mean(dim=1) - w[:, :h].mean(dim=1)), numpy_in)
+    return like_input(l2_normalize(w[:, seq_len - h :].mean(dim=1) - w[:, :h].mean(dim=1)), numpy_in)
 
 
 def delta_paper(windows: ArrayLike) -> ArrayLike:
@@ -69,7 +69,7 @@ def delta_paper(windows: ArrayLike) -> ArrayLike:
         raise ConfigError(f"Delta descriptors need seq_len >= 2, got {seq_len}")
     weight = torch.full((seq_len,), 2.0 / seq_len, dtype=windows.dtype, device=windows.device)
     weight[: seq_len // 2] *= -1
-    return as_given(l2_normalize(torch.einsum("mld,l->md", windows, weight)), numpy_in)
+    return like_input(l2_normalize(torch.einsum("mld,l->md", windows, weight)), numpy_in)
 
 
 def window_batch(windows: ArrayLike, what: str) -> tuple[torch.Tensor, bool]:
@@ -84,8 +84,8 @@ def window_batch(windows: ArrayLike, what: str) -> tuple[torch.Tensor, bool]:
     return t, numpy_in
 
 
-def as_given(x: torch.Tensor, numpy_in: bool) -> ArrayLike:
-    """``x`` as numpy when the input came as numpy, else as it is."""
+def like_input(x: torch.Tensor, numpy_in: bool) -> ArrayLike:
+    """``x`` back in the input's kind: numpy when the windows came as numpy (``numpy_in``), else the tensor."""
     return x.detach().cpu().numpy() if numpy_in else x
 
 

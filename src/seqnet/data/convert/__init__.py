@@ -28,6 +28,7 @@ from ...security.limits import POSITION_MAX
 from ..imagefolders import list_file, utm_positions
 from ..positives import Positives
 from ..readers import read_descriptor_file, read_provenance, transposed_hint, warn_unless_unit_rows
+from ..spacing import LONG_STEPS, crossing_steps, many_crossing, order_hint
 from ..traverse import Dataset, Traverse
 from ..utm import latlon_pair
 from .csvfile import (
@@ -132,22 +133,20 @@ def traverse_from_utm_names(desc_path: str | Path, names_file: str | Path | None
 
 def warn_name_order(folder: Path, names: list[str], positions: np.ndarray) -> bool:
     """Warn (and return True) when the UTM-coded ``names`` of ``folder`` in sorted order (VPR-methods-evaluation's
-    rule without a list file), at ``positions [N, 2]``, take many long steps
-    (:func:`seqnet.data.sanity.route.long_steps`): the names begin with their coordinates, so the frames follow
+    rule without a list file), at ``positions [N, 2]``, take many steps that pass over the route's own frames
+    (:func:`seqnet.data.spacing.crossing_steps`): the names begin with their coordinates, so the frames follow
     the coordinates' text (unpadded, ``@1000@`` sorts before ``@100@``), not the drive, and sequence methods see
-    that order."""
-    from ..sanity.route import LONG_STEPS, long_steps, order_hint
-
-    at, n, step = long_steps(positions, None)
-    if not len(at):
+    that order. A drive in name order that changes speed or has a gap is silent."""
+    found, n, step = crossing_steps(positions, None)
+    if not many_crossing(found, n):
         return False
-    i = int(at[0])
+    i = int(found[0])
     logger.warning("%s: the frames follow the sorted image names (VPR-methods-evaluation's rule: sorted(glob), no "
                    "list file %s), which begin with their coordinates, and %d of the %d steps between consecutive "
-                   "frames are longer than %g usual steps (%.3g metres; first: %r, then %r): the frames are in an "
-                   "order of the names' text, not the drive's, and sequence methods would see it (hint: %s)",
-                   folder, list_file(folder).name, len(at), n, LONG_STEPS, step, names[i], names[i + 1],
-                   order_hint(True))
+                   "frames pass over other frames of the route (longer than %g usual steps of %.3g metres, with "
+                   "frames at their middle; first: %r, then %r): the frames are in an order of the names' text, not "
+                   "the drive's, and sequence methods would see it (hint: %s)", folder, list_file(folder).name,
+                   len(found), n, LONG_STEPS, step, names[i], names[i + 1], order_hint(True))
     return True
 
 

@@ -121,8 +121,13 @@ def _indices(row: object, where: str) -> np.ndarray:
         a = np.asarray(row).ravel()
     except (TypeError, ValueError, OverflowError) as e:
         raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}") from e
+    matrix_row = (a.dtype == bool or (a.size > 2 and np.isin(a, (0, 1)).all())) and a.size > 1
+    hint = (" (a row of a 0/1 [N_query, N_reference] matrix? hint: give a matrix as a numpy array, "
+            "np.asarray(rows, dtype=bool), or as a .npy file)") if matrix_row else ""
     if a.size and (a.dtype.kind not in "iu" and not (a.dtype.kind == "f" and np.all(a == np.round(a)))):
-        raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}")
+        raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}{hint}")
+    if matrix_row:  # more than two entries of only 0 and 1: an index repeats, which no list of indices does
+        raise DatasetError(f"{where}: reference indices repeat, got {str(row)[:60]}{hint}")
     if a.size and a.dtype.kind in "uf" and np.abs(a).max() > INDEX_MAX:
         raise DatasetError(f"{where}: reference index {a.flat[int(np.argmax(np.abs(a)))]:.0f} is too large to be the "
                            "index of a reference image")

@@ -40,6 +40,9 @@ def _read_json(p: Path) -> Positives:
     if not isinstance(data, list) or not all(isinstance(r, (list, int)) for r in data):
         raise DatasetError(f"{p}: expected a JSON list with one list of reference indices per query, "
                            "e.g. [[0, 1], [2], []]")
+    rows = zero_one_rows(data)
+    if rows is not None and (rows.dtype == bool or repeats(rows)):  # a 0/1 matrix: no list of indices repeats one
+        return numeric_matrix(rows, p)
     return Positives.from_lists([r if isinstance(r, list) else [r] for r in data], str(p))
 
 
@@ -223,13 +226,43 @@ def numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False) -> Positives:
 def as_positives(value: object, n_queries: int, n_refs: int, where: str = "positives") -> Positives:
     """Explicit positives given in Python, checked against ``n_queries`` x ``n_refs``: a :class:`Positives`, one
     list of reference indices per query (``-1`` / empty: no match, as a JSON file), or a ``[N_query,
-    N_reference]`` 0/1 matrix (or rows of indices padded with -1, as a ``.npy``), as ``--positives`` reads them."""
+    N_reference]`` 0/1 matrix (or rows of indices padded with -1, as a ``.npy``), as ``--positives`` reads them.
+    Rows of equal length holding only bools or 0/1 are the matrix when no index list could hold them (bools, or a
+    value repeated in a row); rows that fit both readings at the matrix's width (at most 2 references) are refused."""
     if isinstance(value, Positives):
         return value.check(n_queries, n_refs, where)
     if isinstance(value, np.ndarray) and value.ndim == 2 and value.dtype != object:
         return numeric_matrix(value, Path(where)).check(n_queries, n_refs, where)
     if isinstance(value, (list, tuple, np.ndarray)):
+        rows = zero_one_rows(value)
+        if rows is not None and (rows.dtype == bool or repeats(rows)):  # no list of indices repeats an index
+            return numeric_matrix(rows, Path(where), quiet=True).check(n_queries, n_refs, where)
+        if rows is not None and rows.shape[1] == n_refs:
+            raise DatasetError(f"{where}: {len(rows)} rows of {n_refs} zeros and ones read as a [N_query, "
+                               f"N_reference] matrix and as reference indices per query give different positives "
+                               "(hint: np.asarray(rows, dtype=bool) for the matrix, Positives.from_lists(rows) for "
+                               "indices)")
         return Positives.from_lists(list(value), where).check(n_queries, n_refs, where)
     raise DatasetError(f"{where} must be a Positives, one list of reference indices per query, or a [N_query, "
                        f"N_reference] bool matrix, got {type(value).__name__} (hint: Positives.from_lists(lists), or "
                        "read_positives(FILE) for a file; both from seqnet)")
+
+
+def zero_one_rows(value: object) -> np.ndarray | None:
+    """``value`` as a 2-D array ``[N_query, L]`` when it is rows of equal length holding only bools or 0/1 (the
+    form of a ground-truth matrix's ``.tolist()`` or of a JSON matrix), else None."""
+    rows = list(value)  # type: ignore[call-overload]
+    if not rows or not all(isinstance(r, (list, tuple, np.ndarray)) for r in rows):
+        return None
+    try:
+        arr = np.asarray(rows)
+    except (ValueError, TypeError):  # rows of different lengths
+        return None
+    if arr.ndim != 2 or not arr.size or arr.dtype.kind not in "biuf":
+        return None
+    return arr if arr.dtype == bool or np.isin(arr, (0, 1)).all() else None
+
+
+def repeats(rows: np.ndarray) -> bool:
+    """Whether some row of a ``[N, L]`` array of 0/1 holds one value twice (so it is no list of indices)."""
+    return rows.shape[1] > 2 or (rows.shape[1] == 2 and bool((rows[:, 0] == rows[:, 1]).any()))

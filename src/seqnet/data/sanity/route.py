@@ -5,8 +5,8 @@ split by ``seqnet eval``):
 * :func:`standstill`: the vehicle stood still (consecutive rows that move less than one usual step in
   :data:`STILL_WINDOW` frames: GPS jitter around one place), a large share of a traverse or split;
 * :func:`position_jumps`: positions jump many usual steps between consecutive frames of one sequence (a tunnel, a
-  logger outage), so sequence windows straddle the jump; many long steps (:func:`long_steps`) say the rows'
-  order instead (frames sorted by a name that is not the drive's order);
+  logger outage), so sequence windows straddle the jump (for a side in route order: rows out of it are
+  :func:`seqnet.data.spacing.out_of_order`'s);
 * :func:`sparse_reference`: a radius below the reference's frame spacing (each query has at most one correct
   reference, one between two frames none).
 
@@ -26,8 +26,6 @@ STILL_WINDOW = 10  # frames over which a standstill moves less than ...
 STILL_STEPS = 1.0  # ... this many usual steps (under a tenth of the usual speed; GPS jitter of a few metres stays in)
 STILL_SHARE = 0.1  # standing rows above this share of a traverse or of a split's rows are warned (R@K moves by it)
 JUMP_STEPS = 10.0  # a step of more than this many usual steps inside one sequence is a jump
-LONG_STEPS = 3.0  # a step of more than this many usual steps is long (counted: many say the rows' order) ...
-MANY_LONG = (3, 0.05)  # ... at least this many, and above this share of the steps: not one gap, an order
 SPARSE = 0.9  # a radius below this share of the reference's spacing is warned (GPS noise moves the spacing a little)
 
 
@@ -133,52 +131,24 @@ def jumps(positions: np.ndarray, bounds: np.ndarray | None, step: float) -> np.n
     return big[(before > far) & (after > far)]
 
 
-def long_steps(positions: np.ndarray, bounds: np.ndarray | None) -> tuple[np.ndarray, int, float]:
-    """``[K]`` the rows ``i`` whose step to ``i + 1`` inside one sequence is longer than :data:`LONG_STEPS` usual
-    steps (:func:`usual_step`), the number of steps inside a sequence, and the usual step; none when they are
-    not :data:`MANY_LONG` (a gap or two: a tunnel, an outage), so many that the rows are likely out of order."""
-    step = usual_step(positions, bounds)
-    dist, inside = every_step(positions, bounds)
-    n = int(inside.sum())
-    at = np.flatnonzero(inside & (dist > LONG_STEPS * step)) if step > 0 else np.zeros(0, np.int64)
-    many = len(at) >= MANY_LONG[0] and len(at) > MANY_LONG[1] * n
-    return (at if many else np.zeros(0, np.int64)), n, step
-
-
 def position_jumps(t: Traverse, unit: str, side: str, view: str = "") -> str | None:
     """Why sequence windows of the ``side`` traverse ``t`` may straddle a gap: its positions :func:`jump
-    <jumps>` inside one sequence (the largest named, with its size in usual steps; when :func:`long_steps` finds
-    many, their count: an order, not a tunnel); None otherwise, or when so many steps are long that the rows
-    look out of route order (:func:`seqnet.data.spacing.out_of_order` says it). ``view``: the evaluated split
-    the frames are numbered in (as :func:`standstill`)."""
+    <jumps>` inside one sequence (the largest named, with its size in usual steps); None otherwise, or when so many
+    jump that the rows look out of route order (:func:`seqnet.data.spacing.out_of_order` says it, and
+    :func:`route_checks` asks this only of a side in route order). ``view``: the evaluated split the frames are
+    numbered in (as :func:`standstill`)."""
     step = usual_step(t.positions, t.seq_bounds)
     at = jumps(t.positions, t.seq_bounds, step)
     if not len(at) or len(at) > 0.1 * len(t.positions):
         return None
     dist, _ = every_step(t.positions, None)
     i = int(at[np.argmax(dist[at])])
-    long, n, _ = long_steps(t.positions, t.seq_bounds)
-    if len(long):
-        return (f"{len(long)} of the {n} steps between consecutive {side} frames{' of ' + view if view else ''} "
-                f"are longer than {LONG_STEPS:g} usual steps ({step:.3g} {unit}; the largest {dist[i]:.4g} {unit} "
-                f"between frames {i} and {i + 1}): too many for a tunnel or an outage, the rows are likely not in "
-                "route order, and sequence windows then hold frames far apart along the route, or in an order taken "
-                f"from their positions (hint: {order_hint(t.names is not None)})")
     more = f" and {len(at) - 1} more jump(s) of over {JUMP_STEPS:g} usual steps" if len(at) > 1 else ""
     return (f"the {side}'s positions jump {dist[i]:.4g} {unit} ({dist[i] / step:.0f}× its usual step of {step:.3g} "
             f"{unit}) between frames {i} and {i + 1}{' of ' + view if view else ''} inside one sequence{more}: a "
             "tunnel, a logger outage or dropped frames? sequence windows that straddle a jump compare frames far apart "
             f"along the route, so the queries beside it are lost (hint: split the sequence there, e.g. a sequence "
             f"column in the {side}'s positions CSV with a new value from frame {i + 1}, or check the rows' order)")
-
-
-def order_hint(named: bool) -> str:
-    """How to put frames in drive order: named frames by a list of the images or names that sort so, else by time."""
-    if named:
-        return ("put the frames in drive order: a list of the images in drive order (VPR-methods-evaluation's "
-                "<folder>_images_paths.txt beside an image folder), or names that sort in drive order (zero-padded "
-                "frame numbers or timestamps first)")
-    return "sort the rows by time, or pair them with their images by name"
 
 
 def sparse_reference(reference: np.ndarray, radius: float, unit: str) -> str | None:
