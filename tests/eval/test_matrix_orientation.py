@@ -118,3 +118,28 @@ def test_the_sense_warning_under_transposed_describes_the_reading_used(tmp_path,
     text = warnings_of(caplog)
     assert "read as given (distances, read transposed: one row per reference)" in text
     assert "(hint: pass --similarity)" in text and "one row per query)" not in text
+
+
+def test_read_matrix_carries_its_reading_so_flags_are_never_applied_twice(tmp_path, caplog):
+    """Review M2: read_matrix(similarity=True) already gives distances; passing its output to evaluate_matrix
+    with similarity=True negated it again (R@1 0.143 -> 0.036), and transposed=True on a square matrix turned
+    it a second time, silently."""
+    from seqnet.core.errors import ConfigError
+    from seqnet.eval.matrix import read_matrix
+
+    ds, s = aligned(60)
+    np.save(tmp_path / "S.npy", s.T)  # VPR_Tutorial's S: similarities, one row per reference (square)
+    d = read_matrix(tmp_path / "S.npy", ds, True, "all", True)
+    want = evaluate_matrix(ds, -s, SINGLE).results["methods"]["single"]["recall@1"]
+    with caplog.at_level("WARNING", logger="seqnet"):
+        for flags in ({}, {"similarity": True}, {"transposed": True}, {"similarity": True, "transposed": True}):
+            ev = evaluate_matrix(ds, d, SINGLE, **flags)
+            assert ev.results["methods"]["single"]["recall@1"] == want, flags
+            assert ev.results["matrix_check"]["best_reading"] == "as given"
+    assert not warnings_of(caplog)
+    with pytest.raises(ConfigError, match="read_matrix already applied similarity=True"):
+        evaluate_matrix(ds, d, SINGLE, similarity=False)
+    with pytest.raises(ConfigError, match="read_matrix already applied transposed=True"):
+        evaluate_matrix(ds, d[:, :], SINGLE, transposed=False)  # a view keeps the reading
+    plain = np.asarray(d)  # a plain array: the flags apply to it
+    assert evaluate_matrix(ds, -plain, SINGLE, similarity=True).results["methods"]["single"]["recall@1"] == want
