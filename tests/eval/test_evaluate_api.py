@@ -45,7 +45,7 @@ def test_the_split_asked_for_is_the_split_evaluated(synth_dataset):
     conf = EvalConfig(methods=METHODS, ks=(1, 5))
     test = evaluate(synth_dataset.split("test"), conf)  # the README's form: the numbers it always gave
     assert numbers(test) == numbers(score(synth_dataset.split("test"), conf))
-    assert test.results["config"]["split"] == "all"  # all of the split given
+    assert test.results["config"]["split"] == "test"  # the split given, named as in the dataset it came from
     for asked in ("test", None):  # None: test, as seqnet eval
         ev = evaluate(synth_dataset, conf.replace(split=asked))
         assert numbers(ev) == numbers(test) and ev.results["config"]["split"] == "test"
@@ -71,14 +71,18 @@ def test_target_precision_calibrates_as_the_cli_does(synth_dir, tmp_path):
     for name in METHODS:
         cal = ev.results["methods"][name]["calibrated"]
         assert cal["calibration"]["split"] == "val" and cal == cli["methods"][name]["calibrated"]
+    split = evaluate(load_dataset(synth_dir).split("test"), conf)  # the split form: its dataset's val, the same
+    assert all(split.results["methods"][n]["calibrated"] == cli["methods"][n]["calibrated"] for n in METHODS)
+    moved = load_dataset(synth_dir).split("test")
+    moved = dataclasses.replace(moved, query=moved.query.subset(0, 40))  # no longer that split: nothing to calibrate on
     with pytest.raises(ConfigError, match="not a split of dataset .* evaluate the whole dataset"):
-        evaluate(load_dataset(synth_dir).split("test"), conf)
+        evaluate(moved, conf)
 
 
 def test_the_api_says_what_the_cli_says(tmp_path, caplog):
     ds = shifted(clear(), 1)
     path = save_dataset(ds, tmp_path / "ds")
-    conf = EvalConfig(methods=METHODS, ks=(1, 5, 10_000), radius=50.0)
+    conf = EvalConfig(methods=METHODS, ks=(1, 5, 10_000), radius=50.0, split="test")
     cli = eval_main(conf, path, None, json=tmp_path / "r.json").data
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="seqnet"):
@@ -97,7 +101,7 @@ def cli_view(results):
 def test_correct_data_stay_silent(synth_dataset, caplog):
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="seqnet"):
-        ev = evaluate(clear(), EvalConfig(methods=METHODS))
+        ev = evaluate(clear(), EvalConfig(methods=METHODS, split="test"))
         evaluate(synth_dataset.split("test"), EvalConfig(methods=(*METHODS, "delta")))
     assert "warnings" not in ev.results and not caplog.records, [r.getMessage() for r in caplog.records]
 
@@ -162,3 +166,80 @@ def test_the_descriptors_evaluated_are_recorded(synth_dataset):
     assert rec["reference"] == {"kind": None, "method": "pixels", "views": ["raw"], "size": "native", "pca": 16,
                                 "dim": 16, "provenance": None}
     assert json.loads(json.dumps(rec)) == rec
+
+
+def test_the_default_split_is_said_once_and_the_split_form_agrees(synth_dataset, caplog):
+    """Review M3: evaluate(ds) on a dataset with splits silently scored its test split only (75 of 291 queries),
+    and ds.split('test') numbered its queries 0:75 where the whole dataset's form said 216:291."""
+    ds = dataclasses.replace(synth_dataset, name="m3-default")
+    conf = EvalConfig(methods=METHODS, ks=(1, 5))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        ev = evaluate(ds, conf)
+        evaluate(ds, conf)  # said once
+    lines = [r.getMessage() for r in caplog.records]
+    a, b = ds.ranges("test")["query"]
+    assert len(lines) == 1 and f"scoring its test split only (queries {a}:{b}, {b - a} of {len(ds.query)})" in \
+        lines[0] and "EvalConfig(split='all')" in lines[0], lines
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        given = evaluate(ds, conf.replace(split="test"))
+        form = evaluate(ds.split("test"), conf)
+        evaluate(ds, conf.replace(split="all"))
+    assert not caplog.records, [r.getMessage() for r in caplog.records]
+    for e in (given, form):
+        assert numbers(e) == numbers(ev) and e.results["config"]["query_range"] == [a, b]
+        assert e.results["config"]["split"] == "test"
+
+
+def test_leakage_is_found_on_a_split_of_the_dataset(tmp_path, caplog):
+    """Review M3: evaluate(ds.split('train'), conf, models) found no leakage (the names of a split are not the
+    dataset's), where evaluate(ds, split='train') did."""
+    from seqnet.cli import main as cli_main
+    from seqnet.sequence.checkpoints import load_model
+
+    data = save_dataset(make_synthetic(places=120, dim=8), tmp_path / "ds")
+    assert cli_main(["-q", "--threads", "1", "train", "--dataset", str(data), "--seq-len", "1", "--out",
+                     str(tmp_path / "run"), "--epochs", "1", "--out-dims", "8", "--n-neg-sample", "20",
+                     "--cache-refresh", "40", "--device", "cpu"]) == 0
+    models = {"s1": load_model(tmp_path / "run" / "best.pt")}
+    ds, conf = load_dataset(data), EvalConfig(methods=("s1",), device="cpu")
+    whole = evaluate(ds, conf.replace(split="train"), models)
+    split = evaluate(ds.split("train"), conf, models)
+    assert whole.results["leakage"] and split.results["leakage"] == whole.results["leakage"]
+    assert split.results["config"]["query_range"] == whole.results["config"]["query_range"]
+    saved = load_dataset(save_dataset(ds.split("train"), tmp_path / "train"))  # its source is gone: said once
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        evaluate(saved, conf, models)
+        evaluate(saved, conf, models)
+    said = [r.getMessage() for r in caplog.records if "cannot be checked" in r.getMessage()]
+    assert len(said) == 1 and "is a split whose source is not known here" in said[0], said
+
+
+def test_learned_below_baseline_notes_are_said_from_python(synth_dir, tmp_path, caplog, capsys):
+    """Hostile 51a L1: evaluate() computed the learned-below notes but never said them; seqnet eval prints them
+    under its table (once: not logged there too)."""
+    import torch
+
+    from seqnet.cli import main as cli_main
+    from seqnet.sequence.checkpoints import save_checkpoint
+    from seqnet.sequence.model import SeqNet
+
+    torch.manual_seed(0)
+    ds = load_dataset(synth_dir)
+    model = SeqNet(ds.reference.dim, 8, 1, 1)  # untrained: below single on the same data
+    model.provenance = ds.reference.provenance
+    path = save_checkpoint(tmp_path / "s1.pt", model)
+    conf = EvalConfig(methods=("single", "s1"), split="test", device="cpu")
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        ev = evaluate(ds, conf, {"s1": model})
+    assert ev.results["learned_below_baseline"], ev.results["methods"]
+    said = [r.getMessage() for r in caplog.records if "likely:" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("note: s1"), said
+    capsys.readouterr()
+    assert cli_main(["--threads", "1", "eval", "--dataset", str(synth_dir), "--model", str(path), "--method",
+                     "single,s1", "--split", "test", "--device", "cpu"]) == 0
+    out, err = capsys.readouterr()
+    assert out.count("likely:") == 1 and "likely:" not in err

@@ -290,3 +290,27 @@ def test_a_causal_map_evaluated_with_the_default_window_names_the_flag(synth_dir
     one_line_error(capsys, ["eval", "--dataset", str(synth_dir), "--index", str(mp_path), "--seq-len", "4"],
                    "uses 'causal' windows (hint: --window causal, the map's")
     assert cli(["-q", "eval", "--dataset", str(synth_dir), "--index", str(mp_path), "--window", "causal"]) == 0
+
+
+def test_eval_index_records_the_descriptors_as_seqnet_eval_does(tmp_path, synth_dataset):
+    """Review L5: eval --index recorded `descriptors` without the dataset's describe/pca records, so a dataset
+    whose traverses carry no provenance got method None there and the describer in seqnet eval's results.json."""
+    import dataclasses
+
+    from seqnet.data.io import save_dataset
+    from seqnet.eval.evaluate import EvalConfig
+    from seqnet.eval.evaluate import main as eval_main
+    from seqnet.maps import MapConfig, build
+    from seqnet.maps.evaluate import main as map_eval
+
+    bare = dataclasses.replace(synth_dataset, reference=dataclasses.replace(synth_dataset.reference, provenance=None),
+                               query=dataclasses.replace(synth_dataset.query, provenance=None),
+                               extra={"describe": {"method": "netvlad", "views": ["raw", "equalize"]},
+                                      "pca": {"dims": 16}})
+    data = save_dataset(bare, tmp_path / "ds")
+    index = build(MapConfig(shortlist="single", rerank="raw+seqmatch", seq_len=4), data, tmp_path / "map")
+    conf = EvalConfig(methods=("single",), split="test", device="cpu")
+    want = eval_main(conf, data, None, json=tmp_path / "a.json").data["descriptors"]
+    got = map_eval(conf, data, index, None, json=tmp_path / "b.json").data["descriptors"]
+    assert want["query"]["method"] == "netvlad" and want["query"]["pca"] == 16
+    assert got == want

@@ -129,6 +129,8 @@ class Dataset:
     name: str = "dataset"
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
     positives: Positives | None = None
+    # split(): the dataset it was taken from and the split's name (in memory only: what identifies its queries)
+    source: tuple[Dataset, str] | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for side in ("reference", "query"):
@@ -190,6 +192,7 @@ class Dataset:
             splits={},
             name=f"{self.name}[{split}]",
             positives=positives,
+            source=(self, split) if self.source is None else None,  # a split of a split: its numbering is lost
         )
 
 

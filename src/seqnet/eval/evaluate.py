@@ -15,13 +15,15 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from ..core.errors import ConfigError
-from ..core.log import logger
+from ..core.log import logger, warn_once
 from ..core.stage import Written
 from ..data.traverse import Dataset, default_split
 from ..methods.grammar import parse_method
 from ..methods.route import route_warnings
-from ..report.guidance import learned_below_baseline, note_entries
+from ..report.guidance import format_notes, learned_below_baseline, note_entries
 from ..security.text import shown
 from .calibrated import add_calibration, calibration_failed, calibration_on_test, check_calibration_split
 from .config import EvalConfig
@@ -53,10 +55,12 @@ Prepare = Callable[[Dataset, str, "Mapping[str, SeqNet]", EvalConfig], "tuple[Ev
 def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqNet] | None = None, *,
              source: str | Path | None = None, prepare: Prepare | None = None) -> Evaluation:
     """What ``seqnet eval`` does for ``ds``, ``conf`` and ``models``, minus writing files: the split ``conf.split``
-    of ``ds`` (None: test when ``ds`` defines it, else all; a dataset with no splits, e.g. ``ds.split("test")``,
-    is evaluated whole, and a split it does not hold is refused), a threshold calibrated on
-    ``conf.calibrate_split`` with ``conf.target_precision``, and the warnings and notes of ``seqnet eval``
-    (logged, and kept in the results).
+    of ``ds`` (None: test when ``ds`` defines it, said in one warning naming how to score every query, else all;
+    a split of a dataset, ``ds.split("test")``, is evaluated whole as that split of the dataset it was taken
+    from: the same query numbering and leakage checks; a split it does not hold is refused), a threshold
+    calibrated on ``conf.calibrate_split`` with ``conf.target_precision``, and the warnings and notes of
+    ``seqnet eval`` (logged, and kept in the results; the notes the CLI prints under its table, learned methods
+    below their model-free counterpart, are logged as warnings too).
 
     Args:
         ds: dataset (reference + query traverses, radius, splits).
@@ -64,8 +68,8 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
         models: trained models by role: ``{"seqnet": S_L, "s1": S_1}`` (optional).
         source: the dataset directory ``ds`` was loaded from (``seqnet eval --dataset``): the leakage checks then
             also compare the file hashes and path a checkpoint recorded; without it, a model's training and
-            epoch-selection queries are found by its recorded provenance and query names (a whole dataset from
-            :func:`seqnet.load_dataset`; not a split of it, nor one built in memory: said at DEBUG).
+            epoch-selection queries are found by its recorded provenance and query names (a dataset from
+            :func:`seqnet.load_dataset`, or a split of one; a split whose source is unknown is said once).
         prepare: ``prepare(ds, split, models, conf)`` -> ``(conf, entries)``, called first, may change the settings
             and add entries to the results (:func:`seqnet.eval.select.main`: the HVPR settings chosen on val).
 
@@ -74,9 +78,44 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     """
     conf = EvalConfig() if conf is None else conf
     check_types(ds, conf, models)
+    whole, split = split_source(ds, conf.split)
+    if whole is ds:
+        evaluated = split_of(ds, split)  # an unknown split fails before any work
+        if conf.split is None and split != "all":
+            a, b = ds.ranges(split)["query"]
+            warn_once(("evaluate", ds.name, split), "evaluate(): dataset %r has splits and no split was given: "
+                      "scoring its %s split only (queries %d:%d, %d of %d), as seqnet eval does; hint: "
+                      "EvalConfig(split='all') scores every query", ds.name, split, a, b, b - a, len(ds.query))
+    else:
+        evaluated, conf = ds, conf.replace(split=split)
+    ev = evaluate_split(whole, split, evaluated, conf, models, source, prepare)
+    for line in format_notes(learned_below_baseline(ev.results)):
+        logger.warning("%s", shown(line))  # printed under the table by seqnet eval, which calls evaluate_split
+    return ev
+
+
+def split_source(ds: Dataset, split: str | None) -> tuple[Dataset, str]:
+    """``(whole, split)``: the dataset ``ds`` was split from and the split's name when ``ds`` is an unchanged
+    ``whole.split(name)`` (its frames are still that split's) and no other split is asked; else ``ds`` and
+    ``split`` (None: test when ``ds`` defines it, else all)."""
+    if ds.source is None or split not in (None, "all"):
+        return ds, default_split(split, ds.splits)
+    whole, name = ds.source
+    rng = whole.ranges(name)
+    same = rng is not None and all(
+        len(getattr(ds, side)) == rng[side][1] - rng[side][0] and np.array_equal(
+            getattr(ds, side).positions, getattr(whole, side).positions[slice(*rng[side])]) and
+        getattr(ds, side).names == (None if getattr(whole, side).names is None else
+                                    getattr(whole, side).names[slice(*rng[side])]) for side in ("query", "reference"))
+    return (whole, name) if same else (ds, default_split(split, ds.splits))
+
+
+def evaluate_split(ds: Dataset, split: str, evaluated: Dataset, conf: EvalConfig,
+                   models: Mapping[str, SeqNet] | None, source: str | Path | None = None,
+                   prepare: Prepare | None = None) -> Evaluation:
+    """:func:`evaluate` of the split ``split`` of ``ds``, already taken (``evaluated``: ``ds.split(split)``), with
+    the warnings of ``seqnet eval``; the notes after the table are left to the caller (the CLI prints them)."""
     models = dict(models or {})
-    split = default_split(conf.split, ds.splits)
-    evaluated = split_of(ds, split)  # an unknown split fails before any work
     conf, prepared = prepare(ds, split, models, conf) if prepare is not None else (conf, None)
     cal = calibration(ds, split, conf, models)  # first: a calibration split that cannot serve fails before any work
     ev = score(evaluated, conf.replace(split=split), models)
@@ -86,11 +125,19 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering (VME)
     if source is not None:
         ev.results["config"]["dataset_path"] = str(source)
-    elif models:
-        logger.debug("evaluate(): no dataset directory given; the models' training and epoch-selection queries are "
-                     "found by their recorded provenance and query names (a whole dataset from load_dataset)")
+    elif models and any(getattr(m, "trained_on", None) for m in models.values()) and unknown_split(ds):
+        warn_once(("leakage", ds.name), "evaluate(): dataset %r is a split whose source is not known here (saved and "
+                  "loaded again, changed, or a split of a split): whether the models were trained on its queries "
+                  "cannot be checked; hint: evaluate the whole dataset with EvalConfig(split=NAME)", ds.name)
     say_notices(ev, ds, split, conf, models, source, prepared, calibrated=cal is not None)
     return ev
+
+
+def unknown_split(ds: Dataset) -> bool:
+    """Whether ``ds`` looks like a split of a dataset (``name[split]``, no splits of its own) that is evaluated
+    without the dataset it was taken from (:func:`split_source`): query numbers and names are not the ones a
+    checkpoint recorded."""
+    return not ds.splits and ds.name.endswith("]") and "[" in ds.name
 
 
 def split_of(ds: Dataset, split: str) -> Dataset:
@@ -192,10 +239,12 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     from ..sequence.checkpoints import load_models
 
     ds = load_dataset(dataset)
-    split_of(ds, default_split(conf.split, ds.splits))  # an unknown split fails before any model is loaded
+    split = default_split(conf.split, ds.splits)
+    evaluated = split_of(ds, split)  # taken once; an unknown split fails before any model is loaded
     conf, (models, shortlist_model, rerank_model) = _used(conf, models, shortlist_model, rerank_model)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
-    ev = evaluate(ds, conf, loaded, source=dataset, prepare=prepare)
+    check_types(ds, conf, loaded)
+    ev = evaluate_split(ds, split, evaluated, conf, loaded, source=dataset, prepare=prepare)
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}
     return ev

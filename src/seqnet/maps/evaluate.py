@@ -49,6 +49,7 @@ class QueryData:
     unit: str = "metres"  # of the positions: "frames" (frame numbers), "metres", ...
     note: str | None = None  # what is scored when no split was given and none is named test
     ref_dir: Path | None = None  # the dataset's reference traverse folder
+    records: dict[str, Any] = dataclasses.field(default_factory=dict)  # dataset.json's describe and pca records
 
 
 def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
@@ -76,8 +77,9 @@ def load_query(dataset: str | Path, split: str | None = None) -> QueryData:
     unit = meta.get("position_unit") or ("frames" if t.positions.shape[1] == 1 else "metres")
     note = split_note(given, list(splits), len(t))
     ref_dir = root / (meta.get("traverses") or {}).get("reference", "reference")
+    records = {k: meta[k] for k in ("describe", "pca") if isinstance(meta.get(k), dict)}
     return QueryData(t, split, radius, name if split == "all" else f"{name}[{split}]", rng, root, str(unit), note,
-                     ref_dir)
+                     ref_dir, records)
 
 
 def check_source(mp: Map, q: QueryData) -> None:
@@ -187,8 +189,11 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
                             "dataset": q.name, "device": str(mp.device), "index": str(mp.path),
                             "map": mp.meta["config"],
                             "ground_truth": "explicit positives" if positives is not None else "radius"}
-    ev.results["descriptors"] = {"reference": side_record(mp.provenance, mp.input_dim),
-                                 "query": side_record(q.traverse.provenance, q.traverse.dim)}
+    same = (mp.meta.get("source") or {}).get("dataset_path") in (None, str(q.root.resolve()))
+    ref_records = q.records if same else {}  # the map's own dataset's records are not read
+    ev.results["descriptors"] = {  # as seqnet eval's (eval.evaluation.descriptor_record): the dataset's records too
+        "reference": side_record(mp.provenance, mp.input_dim, ref_records.get("describe"), ref_records.get("pca")),
+        "query": side_record(q.traverse.provenance, q.traverse.dim, q.records.get("describe"), q.records.get("pca"))}
     ev.query_names = [q.traverse.names[i] for i in items] if q.traverse.names else None
     ev.reference_names = [mp.names[i] for i in mp.items] if mp.names else None
     ev.frame_names = (q.traverse.names, mp.names)

@@ -38,16 +38,32 @@ from .orientation import orientation_check
 DEFAULT_MATRIX_METHODS = ("single", "raw+seqmatch", "hvpr-single:raw+seqmatch")
 
 
+class ReadMatrix(np.ndarray):
+    """The distances ``[Nq, Nr]`` float64 that :func:`read_matrix` made, with the reading it applied:
+    ``reading`` = ``(similarity, transposed)``. :func:`evaluate_matrix` reads it as distances, one row per query,
+    and names that reading in its hints; a ``similarity`` or ``transposed`` that contradicts it is refused, so the
+    reading is never applied twice. A view (slice) keeps it; ``np.asarray(m)`` is a plain array again."""
+
+    reading: tuple[bool, bool] | None = None
+
+    def __array_finalize__(self, obj: Any) -> None:
+        self.reading = getattr(obj, "reading", None)
+
+
 def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: str | None = "all",
-                transposed: bool = False) -> np.ndarray:
+                transposed: bool = False) -> ReadMatrix:
     """The ``[Nq, Nr]`` matrix of ``path`` (``.npy``, one row per query and one column per reference frame of
     the whole dataset ``ds``; ``transposed``: one row per reference, ``[Nr, Nq]``, as VPR_Tutorial's ``S``),
     restricted to the rows and columns of ``split`` (a name, a range spec, or ``all``: :meth:`Dataset.ranges`)
-    and as distances (float64, in memory: :func:`open_matrix` reads it block by block instead)."""
+    and as distances (float64, in memory: :func:`open_matrix` reads it block by block instead): a
+    :class:`ReadMatrix`, which carries the reading applied (``similarity``, ``transposed``) so that
+    :func:`evaluate_matrix` does not apply it again."""
     given = open_matrix(path, ds, similarity, split, transposed)
     if given.unchecked:
         check_finite_rows(given.raw, path)
-    return given.dense()
+    out = given.dense().view(ReadMatrix)
+    out.reading = (bool(similarity), bool(transposed))
+    return out
 
 
 def open_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: str | None = "all",
@@ -120,10 +136,12 @@ def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = MEMORY
 def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfig | None = None,
                     similarity: bool | None = None, transposed: bool | None = None) -> Evaluation:
     """Evaluate ``conf.methods`` (default :data:`DEFAULT_MATRIX_METHODS`) of ``ds`` (the split already taken)
-    on the matrix ``dist`` between its query and reference frames: an array ``[Nq, Nr]`` of distances,
+    on the matrix ``dist`` between its query and reference frames: a plain array ``[Nq, Nr]`` of distances,
     of similarities (higher is closer) when ``similarity``, ``[Nr, Nq]`` (one row per reference, as
-    VPR_Tutorial's ``S``) when ``transposed``; or a :class:`GivenMatrix` (:func:`open_matrix`), which
-    carries its own reading. The orientation check names a reading that fits the ground truth better."""
+    VPR_Tutorial's ``S``) when ``transposed`` (the only input the two flags apply to); or a matrix that carries
+    its own reading: a :class:`GivenMatrix` (:func:`open_matrix`) or a :class:`ReadMatrix` (:func:`read_matrix`,
+    already distances, one row per query), where a flag that contradicts that reading is refused. The
+    orientation check names a reading that fits the ground truth better."""
     radius = conf.radius if conf is not None else None  # as given: moot with explicit positives
     conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
     given = as_given(dist, similarity, transposed)
@@ -131,7 +149,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
         rows, cols = ("reference", "query") if given.transposed else ("query", "reference")
         raise ConfigError(f"the distance matrix is {list(given.raw.shape)} for {len(ds.query)} query and "
                           f"{len(ds.reference)} reference frames (one row per {rows}, one column per {cols})")
-    similarity, transposed = given.negate, given.transposed
+    similarity, transposed = getattr(dist, "reading", None) or (given.negate, given.transposed)  # for the hints
     keep = None
     if conf.resample_every is not None:  # the kept frames' rows and columns
         keep = kept_indices(ds, conf.resample_every, conf.resample_side)
@@ -153,18 +171,25 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
 
 
 def as_given(dist: np.ndarray | GivenMatrix, similarity: bool | None, transposed: bool | None) -> GivenMatrix:
-    """``dist`` as a :class:`GivenMatrix`: an array read as ``similarity`` and ``transposed`` say (None: False),
-    a given matrix as it was opened (a ``similarity`` or ``transposed`` that contradicts it is refused)."""
-    if not isinstance(dist, GivenMatrix):
-        m = np.asarray(dist)
-        if m.ndim != 2:
-            raise ConfigError(f"the distance matrix has shape {list(m.shape)}: it must be 2-D, one row per query")
-        return GivenMatrix(m, bool(similarity), bool(transposed))
-    for name, said, held in (("similarity", similarity, dist.negate), ("transposed", transposed, dist.transposed)):
-        if said is not None and bool(said) != held:
-            raise ConfigError(f"{name}={said!r}, but the matrix was opened with {name}={held} (open_matrix reads "
-                              f"it so): leave {name} out, or open it again with {name}={said!r}")
-    return dist
+    """``dist`` as a :class:`GivenMatrix`: a plain array read as ``similarity`` and ``transposed`` say (None:
+    False); a given matrix as it was opened, and a :class:`ReadMatrix` as the distances it holds (a
+    ``similarity`` or ``transposed`` that contradicts the reading either carries is refused: never applied
+    twice)."""
+    reading = (dist.negate, dist.transposed) if isinstance(dist, GivenMatrix) else getattr(dist, "reading", None)
+    if reading is not None:
+        opened = isinstance(dist, GivenMatrix)
+        for name, said, held in (("similarity", similarity, reading[0]), ("transposed", transposed, reading[1])):
+            if said is not None and bool(said) != held:
+                how = (f"the matrix was opened with {name}={held} (open_matrix reads it so)" if opened else
+                       f"read_matrix already applied {name}={held} (it returns distances, one row per query)")
+                raise ConfigError(f"{name}={said!r}, but {how}: leave {name} out, or read the file again with "
+                                  f"{name}={said!r}")
+    if isinstance(dist, GivenMatrix):
+        return dist
+    m = np.asarray(dist)  # a ReadMatrix: distances, one row per query, its reading already applied
+    if m.ndim != 2:
+        raise ConfigError(f"the distance matrix has shape {list(m.shape)}: it must be 2-D, one row per query")
+    return GivenMatrix(m) if reading is not None else GivenMatrix(m, bool(similarity), bool(transposed))
 
 
 def constant_rows(given: GivenMatrix) -> str | None:
