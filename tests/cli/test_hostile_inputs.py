@@ -322,7 +322,7 @@ def test_out_of_memory_is_one_line(base, tmp_path, capsys, monkeypatch):
     def boom(*a, **k):
         raise MemoryError("could not allocate 4 TiB")
 
-    monkeypatch.setattr(ev, "evaluate", boom)
+    monkeypatch.setattr(ev, "evaluate_split", boom)  # what seqnet eval calls
     run(capsys, ["eval", "--dataset", str(base / "ds")], 1, "out of memory")
 
 

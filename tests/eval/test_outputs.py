@@ -35,7 +35,8 @@ def no_work(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("the evaluation ran")
 
-    monkeypatch.setattr(evaluate_mod, "evaluate", fail)
+    for name in ("evaluate", "evaluate_split"):  # the API's and the one seqnet eval calls
+        monkeypatch.setattr(evaluate_mod, name, fail)
 
 
 @pytest.fixture
@@ -71,7 +72,8 @@ def test_a_users_file_in_out_is_refused_before_work_and_overwrite_replaces_it(sy
     (out / "mine.txt").write_text("mine")
     argv = ["-q", "eval", "--dataset", str(synth_dir), "--method", "single", "--out", str(out), "--report"]
     with monkeypatch.context() as m:
-        m.setattr(evaluate_mod, "evaluate", lambda *a, **k: pytest.fail("the evaluation ran"))
+        for f in ("evaluate", "evaluate_split"):
+            m.setattr(evaluate_mod, f, lambda *a, **k: pytest.fail("the evaluation ran"))
         _one_line(capsys, argv, 2, "was not written by seqnet")
     assert (out / name).read_text() == "the user's own"
     assert sorted(p.name for p in out.iterdir()) == sorted([name, "mine.txt"])  # nothing written
