@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from seqnet.core.errors import ConfigError
 from seqnet.eval.evaluate import EvalConfig
 from seqnet.eval.matrix import evaluate_matrix, open_matrix, read_matrix
 from seqnet.eval.matrix.orientation import _top1
@@ -116,3 +117,28 @@ def test_no_method_is_timed_with_the_start_up_costs(synth_dataset, tmp_path):
             "print(*first[0], rc)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split()[-3:] == ["True", "True", "0"], out
+
+
+@pytest.mark.parametrize("transposed", [False, True])
+def test_a_split_asked_of_a_whole_matrix_scores_that_split(synth_dataset, transposed):
+    """Hostile 52 H1: evaluate_matrix(ds, whole matrix, split='test') scored every query (R@1 0.256 on 297) and
+    recorded 'test' (0.512 on its 82). The split's block of the matrix, the block given, and the naive loop agree."""
+    ds, conf = synth_dataset, EvalConfig(methods=("single",), ks=(1, 5), split="test")
+    d = 2 - 2 * similarity(ds)
+    (a, b), (c, e) = ds.ranges("test")["query"], ds.ranges("test")["reference"]
+    ev = evaluate_matrix(ds, d.T if transposed else d, conf, transposed=transposed)
+    block = evaluate_matrix(ds.split("test"), d[a:b, c:e], conf)  # the split already taken: as given
+    def scores(e):
+        return {k: v for k, v in e.results["methods"]["single"].items() if k != "timing_ms"}
+
+    got = scores(ev)
+    assert got == scores(block) and got["queries"] <= b - a
+    assert ev.results["config"]["split"] == "test" and ev.results["config"]["query_range"] == [a, b]
+    test = ds.split("test")
+    hits = [np.linalg.norm(test.reference.positions[np.argmin(d[a + i, c:e])] - test.query.positions[i]) <=
+            test.radius for i in range(b - a)]
+    assert got["recall@1"] == pytest.approx(np.mean(hits))
+    part = evaluate_matrix(ds, d[a:b, c:e], conf)  # the split's block with the whole dataset: that split
+    assert scores(part) == got
+    with pytest.raises(ConfigError, match="defines the splits"):
+        evaluate_matrix(ds, d, conf.replace(split="nope"))

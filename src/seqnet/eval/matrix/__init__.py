@@ -145,6 +145,7 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     radius = conf.radius if conf is not None else None  # as given: moot with explicit positives
     conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
     given = as_given(dist, similarity, transposed)
+    ds, given, query_range = split_matrix(ds, given, conf.split)
     if given.shape != (len(ds.query), len(ds.reference)):
         rows, cols = ("reference", "query") if given.transposed else ("query", "reference")
         raise ConfigError(f"the distance matrix is {list(given.raw.shape)} for {len(ds.query)} query and "
@@ -163,11 +164,39 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
                              "matrix_methods": list(matrix_methods())}
     out.frame_names = (ds.query.names, ds.reference.names)
     out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)
+    if query_range is not None:
+        out.results["config"]["query_range"] = list(query_range)  # per-query numbering (VME)
     out.dataset, out.matrix = ds, given  # for the report: the evaluated frames and their given distances
     out.results["matrix_check"] = orientation_check(ds, given, similarity, transposed)
     add_warnings(out, [constant_rows(given), shift_notice(out), radius_ignored(radius, ds.positives is not None),
                        trivial_ks(out, conf.ks)])
     return out
+
+
+def split_matrix(ds: Dataset, given: GivenMatrix, split: str | None
+                 ) -> tuple[Dataset, GivenMatrix, tuple[int, int] | None]:
+    """``(ds, given, query_range)`` of the split ``split``: a dataset that defines it (a name or a range spec)
+    with the whole matrix ``[Nq, Nr]`` gives its split and the split's block of the matrix (a view; the query
+    range recorded), or with the split's block already taken, its split; None / ``all``, or a dataset already
+    split (no splits of its own) with a matrix of its size, is evaluated as given. Anything else is refused:
+    never a whole matrix scored under a split's name."""
+    whole = (len(ds.query), len(ds.reference))
+    if split in (None, "all"):
+        return ds, given, None
+    rng = ds.ranges(split)
+    if rng is None:
+        if not ds.splits and given.shape == whole:
+            return ds, given, None  # ds.split(name) with its matrix: that split, already taken
+        raise ConfigError(f"split {split!r}: dataset {ds.name!r} defines "
+                          f"{'the splits ' + ', '.join(ds.splits) if ds.splits else 'no splits'}; hint: "
+                          "EvalConfig(split=None) evaluates the dataset and matrix as given")
+    sub = ds.split(split)
+    if given.shape != whole:
+        return sub, given, None  # the split's block, already taken (checked against the split's size next)
+    (a, b), (c, d) = rng["query"], rng["reference"]
+    rows, cols = (slice(c, d), slice(a, b)) if given.transposed else (slice(a, b), slice(c, d))
+    part = GivenMatrix(given.raw[rows, cols], given.negate, given.transposed, given.where, given.unchecked)
+    return sub, part, (a, b)
 
 
 def as_given(dist: np.ndarray | GivenMatrix, similarity: bool | None, transposed: bool | None) -> GivenMatrix:
@@ -239,7 +268,8 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         split = default_split(conf.split, ds.splits)
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
         dist = open_matrix(distances, ds, similarity, split, transposed)
-        ev = evaluate_matrix(sub, dist, conf.replace(split=split))  # the reading: open_matrix's
+        ev = evaluate_matrix(sub, dist, conf.replace(split="all"))  # the split taken; the reading open_matrix's
+        ev.results["config"]["split"] = split
         ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering
         add_warnings(ev, [split_note(conf.split, list(ds.splits), len(sub.query))])
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
