@@ -2,7 +2,7 @@
 checks that speak up while it runs.
 
 Before the first epoch :func:`plan` estimates, from N (training queries and reference windows), D, out, L
-and w: the peak memory (held at the memory check, :class:`Budget`, + :func:`seqnet.train.config.train_bytes`:
+and w: the peak memory (held at the memory check, :class:`Budget`, + :func:`seqnet.train.memory.train_bytes`:
 :func:`check_memory` refuses, before any work, more than is available), the time per epoch (the epoch's
 multiply-adds, :func:`epoch_flops`, over the device's rate measured by timing one matrix product like the
 model's, :func:`measured_rate`, plus :data:`STEP_SECONDS` per batch, a measured constant) and the size of the
@@ -11,9 +11,7 @@ two checkpoints; :func:`plan_text` is the one block logged, with the advice (:fu
 training frames, a smaller ``--out-dims`` / ``--w`` when the checkpoints pass :data:`CHECKPOINT_ADVISED_BYTES`
 or the memory half of what is available (over all of it, training was refused).
 
-:func:`val_warning`: a val split with fewer than :data:`VAL_MIN` queries cannot choose an epoch (one query
-moves R@1 by 1/n). :func:`inactive_epochs`: the epochs in a row, up to the last, in which no triplet was
-active (the loop stops after ``TrainConfig.stop_inactive`` of them: :func:`inactive_message`).
+The checks that speak up while a run trains (a val split too small, no active triplet): :mod:`seqnet.train.watch`.
 """
 
 from __future__ import annotations
@@ -21,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..core.devices import get_device
@@ -30,9 +27,9 @@ from ..core.lazy import lazy_module
 from ..core.memory import available_bytes, check_fits, gib, human_bytes, rss_bytes
 from ..data.traverse import Dataset
 from ..describe.pca import PAPER_PCA_DIM
-from ..metrics.recall import VAL_MIN
-from .config import TrainConfig, train_bytes
+from .config import TrainConfig
 from .losses import LOSSES
+from .memory import memory_hint, train_bytes
 
 torch = lazy_module("torch")
 
@@ -94,6 +91,7 @@ class Plan:
     batch_size: int = 16
     update_seconds: float = 0.0
     held_bytes: int = 0
+    memory_hint: str = ""
 
     @property
     def epoch_seconds(self) -> float:
@@ -183,11 +181,13 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
     checkpoint = 4 * weights * (2 + copies)  # best.pt: the weights; last.pt: the weights and the optimiser state
     spill = getattr(device, "type", str(device)) == "cpu"
     b = budget or Budget.now()
-    peak = b.held + train_bytes(conf, in_dims, n_ref_frames or n_refs, n_query_frames or n_queries, spill, n_queries)
+    sizes = (in_dims, n_ref_frames or n_refs, n_query_frames or n_queries)
+    peak = b.held + train_bytes(conf, *sizes, spill, n_queries)
+    hint = memory_hint(conf, *sizes, n_queries, spill, _pca_dims(in_dims, n_frames))
     return Plan(n_queries, n_refs, n_frames, in_dims, out, conf.seq_len, conf.w, epochs, weights, checkpoint, peak,
                 None if b.free is None else b.held + b.free, epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
                 measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size,
-                measured_update(weights, conf.optimizer, device) if rate is None else 0.0, b.held)
+                measured_update(weights, conf.optimizer, device) if rate is None else 0.0, b.held, hint)
 
 
 def suggested_pca(p: Plan) -> int:
@@ -213,12 +213,14 @@ def advice(p: Plan) -> list[str]:
         out.append(f"D = {p.in_dims} is not below the {p.n_frames} training frames: a D x D x w layer learnt from "
                    f"{p.n_queries} queries overfits; reduce D with --pca {pca} (fitted on the train split only)")
     if p.checkpoint_bytes > CHECKPOINT_ADVISED_BYTES:
+        ways = [f"fewer dimensions (--pca {pca})"] * (pca < p.in_dims) + ["a smaller --out-dims (e.g. 512)"] * (
+            p.out_dims > 512) + ["--w 1"] * (p.w > 1)
         out.append(f"the checkpoints take {human_bytes(p.checkpoint_bytes)} (best.pt {human_bytes(4 * p.weights)}, "
-                   f"last.pt with the optimiser state): fewer dimensions (--pca {pca}), a smaller --out-dims "
-                   "(e.g. 512) or --w 1 shrink them (the weights are D x out x w)")
+                   f"last.pt with the optimiser state): {', '.join(ways) or 'fewer dimensions'} shrink them (the "
+                   "weights are D x out x w)")
     if p.available is not None and p.peak_bytes > p.available / 2:
         out.append(f"the estimated peak memory {human_bytes(p.peak_bytes)} is over half of the "
-                   f"{human_bytes(p.available)} available: --pca, a smaller --out-dims, --w or --batch-size lower it")
+                   f"{human_bytes(p.available)} available; what lowers it most: {p.memory_hint}")
     return out
 
 
@@ -238,36 +240,6 @@ def plan_text(p: Plan) -> str:
     return "\n".join(lines)
 
 
-def val_warning(n_val: int, val_name: str, minimum: int = VAL_MIN) -> str | None:
-    """Why a val split of ``n_val`` queries (with a positive) cannot choose an epoch, or None when it can."""
-    if n_val >= minimum:
-        return None
-    step = f"1/{n_val} = {1 / n_val:.2f}" if n_val else "undefined"
-    return (f"the val split {val_name} has {n_val} queries with a positive and a full window; choosing the best "
-            f"epoch needs about {minimum} or more (one query moves val R@1 by {step}). best.pt is still the epoch "
-            "of the best val R@1 (ties: the earliest), which on so few queries is mostly chance; give a larger "
-            "val split (--split val=A:B when building the dataset), or --val-split none to keep the last epoch "
-            "(best.pt = last.pt)")
-
-
-def inactive_epochs(history: Sequence[Mapping[str, Any]]) -> int:
-    """The epochs in a row, up to the last of ``history``, without an active triplet."""
-    return next((i for i, h in enumerate(reversed(history)) if float(h.get("active", 1.0)) > 0), len(history))
-
-
-def inactive_message(history: Sequence[Mapping[str, Any]], conf: TrainConfig, n_queries: int) -> str:
-    """Why training stops after ``conf.stop_inactive`` epochs without an active triplet, and what to change."""
-    n, last = inactive_epochs(history), history[-1]
-    triplets = int(last.get("triplets", 0))
-    why = ("no query had a negative closer than its positive + the margin: every triplet is already satisfied"
-           if triplets == 0 else f"{triplets} triplets were mined but none had a positive loss")
-    return (f"stopping after epoch {last['epoch']}: no active triplet for {n} epochs in a row "
-            f"(stop_inactive={conf.stop_inactive}); {why}, so the model no longer learns. Likely: too little or "
-            f"too easy training data ({n_queries} queries); try a larger train split, a larger --margin (now "
-            f"{conf.margin:g}) or more negatives: a smaller --neg-radius (now {conf.neg_radius}; references "
-            "farther than it are negatives); best.pt is kept")
-
-
 def _duration(s: float) -> str:
     if not math.isfinite(s):
         return "unknown"
@@ -285,16 +257,15 @@ def _train_frames(dataset: Dataset, conf: TrainConfig) -> int:
 
 def check_memory(conf: TrainConfig, dataset: Dataset) -> Budget:
     """Refuse before any work (ResourceError, exit 1, naming both and what lowers them) a training run whose
-    :func:`~seqnet.train.config.train_bytes` (a batch of at most the train split's query frames) is over what
+    :func:`~seqnet.train.memory.train_bytes` (a batch of at most the train split's query frames) is over what
     the process may still allocate; the :class:`Budget` checked (the plan's)."""
     d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
     spill = get_device(conf.device).type == "cpu"  # the mining cache spills when large (one process)
     n_train, budget = _train_frames(dataset, conf), Budget.now()
-    pca = f"fewer dimensions: --pca {_pca_dims(d, 2 * n_train)} (seqnet train, or seqnet dataset from-images), "
-    pca = pca if d > 8 else ""
-    check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill, n_train),
+    n_ref, n_query = len(dataset.reference), len(dataset.query)
+    check_fits(train_bytes(conf, d, n_ref, n_query, spill, n_train),
                f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
                f"{gib(4 * d * out * conf.w)})",
-               f"{'' if out > d else pca}a smaller --out-dims (e.g. 512), {pca if out > d else ''}a smaller --w (the "
-               "weights are D x out x w) or --batch-size", budget.held, budget.free)
+               memory_hint(conf, d, n_ref, n_query, n_train, spill, _pca_dims(d, 2 * n_train)), budget.held,
+               budget.free)
     return budget

@@ -35,7 +35,7 @@ from ..security.locks import locked
 from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
-from .guide import Budget, check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
+from .guide import Budget, check_memory, plan, plan_text
 from .losses import LOSSES
 from .record import check_resumed, record_data
 from .route import holds_test_queries, split_warnings
@@ -52,6 +52,7 @@ from .run import (
 )
 from .rundir import RESTART, check_new, discard
 from .source import TripletSource, split_windows, triplet_source
+from .watch import inactive_epochs, inactive_message, val_warning
 
 torch = lazy_module("torch")
 
