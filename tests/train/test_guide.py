@@ -9,6 +9,7 @@ import re
 import pytest
 
 from seqnet.train import TrainConfig, loop, train
+from seqnet.train.config import RESUME_OVERRIDABLE
 from seqnet.train.guide import (
     Plan,
     advice,
@@ -24,9 +25,9 @@ FAST = TrainConfig(optimizer="adam", lr=1e-2, batch_size=16, cache_refresh=40, n
 
 
 def _plan(d: int, n_frames: int = 300, out: int | None = None, w: int = 3, available: int | None = 64 * 2**30,
-          **kw) -> Plan:
+          n_queries: int = 96, **kw) -> Plan:
     conf = TrainConfig(w=w, out_dims=out or d, **kw)
-    p = plan(conf, d, 96, 196, n_frames, 2, 3, "cpu", rate=1e10)
+    p = plan(conf, d, n_queries, 196, n_frames, 2, 3, "cpu", rate=1e10)
     return Plan(**{**p.__dict__, "available": available})
 
 
@@ -36,19 +37,24 @@ def test_the_high_dimensional_case_of_the_issue_is_costed_and_advised():
     assert p.weights == 6400 * 6400 * 3 + 6400
     assert abs(p.checkpoint_bytes - (491548845 + 983109345)) < 0.01 * p.checkpoint_bytes
     said = advice(p)
-    assert any("--pca 256" in a and "4096" in a for a in said)  # D > 4096 and > the 300 training frames
+    assert any("--pca 256" in a and "4096" in a for a in said)  # D > 4096 and > the 96 + 196 training windows
     assert any("checkpoints take 1.4 GiB" in a for a in said)
-    text = plan_text(p)
-    assert "peak memory" in text and "per epoch" in text and "best.pt + last.pt" in text and "advice:" in text
+    text = plan_text(p)  # the advice is logged apart (warnings), not in the INFO block
+    assert "peak memory" in text and "per epoch" in text and "best.pt + last.pt" in text and "advice" not in text
     # and a small model on plenty of data has nothing to advise (the advice can be absent)
     small = _plan(256, n_frames=5000, available=None)
     assert advice(small) == [] and "advice" not in plan_text(small)
 
 
-def test_pca_advice_below_4096_when_d_is_not_below_the_training_frames():
-    said = advice(_plan(2048, n_frames=120))
-    assert len(said) == 1 and "--pca 64" in said[0] and "120 training frames" in said[0]
-    assert suggested_pca(_plan(100000, n_frames=10**6)) == 4096
+def test_pca_advice_below_4096_when_d_is_not_below_the_windows_the_layer_is_learnt_from():
+    """The layer is learnt from the training queries and reference windows, not from every frame of the split:
+    D = 512 on 96 + 196 windows among 600 frames was not advised (its frames were counted)."""
+    said = advice(_plan(512, n_frames=600))
+    assert len(said) == 1 and "--pca 256" in said[0], said
+    assert "not below the 292 windows the layer is learnt from (96 training queries, 196 reference windows)" \
+        in said[0] and "training frames" not in said[0] and "786,944 weights" in said[0], said
+    assert advice(_plan(256, n_frames=600)) == []  # D below the windows: nothing to say
+    assert suggested_pca(_plan(100000, n_frames=10**6, n_queries=10**5)) == 4096
 
 
 def test_memory_advice_when_over_half_of_what_is_available():
@@ -75,6 +81,10 @@ def test_val_warning_says_how_many_how_large_and_what_happens():
     assert val_warning(50, "ds[val]") is None
     msg = val_warning(6, "ds[val]")
     assert "6 queries" in msg and "50" in msg and "1/6" in msg and "--val-split none" in msg
+    # resuming refuses --val-split (RESUME_OVERRIDABLE): the hint says the change is for a new run
+    resumed = val_warning(6, "ds[val]", resumed=True)
+    assert "a resumed run keeps its val split; in a new run, give a larger val split" in resumed, resumed
+    assert "val_split" not in RESUME_OVERRIDABLE
 
 
 def test_inactive_epochs_counts_the_trailing_run():
@@ -95,8 +105,9 @@ def test_training_stops_after_stop_inactive_epochs_without_an_active_triplet(syn
     said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert any("no active triplet for 3 epochs in a row" in m and "--margin" in m for m in said)
     # a direction: a larger --neg-radius gives fewer negatives (the hint said "more negatives (--neg-radius)")
-    assert any(re.search(r"more negatives: a smaller --neg-radius \(now [\d.]+; references farther than it are "
+    assert any(re.search(r"harder negatives: a smaller --neg-radius \(now [\d.]+; references farther than it are "
                          r"negatives\)", m) for m in said), said
+    assert any("No triplet was active from the first epoch" in m for m in said) and run.advice[-1] in said
     assert any("stopped: no active triplet for 3 epochs" in r.getMessage() for r in caplog.records)
     # 0: never stops
     run = train(synth_dataset, FAST.replace(epochs=4, stop_inactive=0), tmp_path / "never")

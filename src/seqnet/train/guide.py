@@ -6,10 +6,11 @@ and w: the peak memory (held at the memory check, :class:`Budget`, + :func:`seqn
 :func:`check_memory` refuses, before any work, more than is available), the time per epoch (the epoch's
 multiply-adds, :func:`epoch_flops`, over the device's rate measured by timing one matrix product like the
 model's, :func:`measured_rate`, plus :data:`STEP_SECONDS` per batch, a measured constant) and the size of the
-two checkpoints; :func:`plan_text` is the one block logged, with the advice (:func:`advice`): PCA
-(``--pca D``) when D is above :data:`PAPER_PCA_DIM` (the paper reduces NetVLAD to 4096) or above the
-training frames, a smaller ``--out-dims`` / ``--w`` when the checkpoints pass :data:`CHECKPOINT_ADVISED_BYTES`
-or the memory half of what is available (over all of it, training was refused).
+two checkpoints; :func:`plan_text` is the one block logged (INFO), then the advice (:func:`advice`, one
+warning each, kept in ``Run.advice``): PCA (``--pca D``) when D is above :data:`PAPER_PCA_DIM` (the paper
+reduces NetVLAD to 4096) or not below the windows the layer is learnt from (training queries and reference
+windows), a smaller ``--out-dims`` / ``--w`` when the checkpoints pass :data:`CHECKPOINT_ADVISED_BYTES` or the
+memory half of what is available (over all of it, training was refused).
 
 The checks that speak up while a run trains (a val split too small, no active triplet): :mod:`seqnet.train.watch`.
 """
@@ -183,7 +184,7 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
     b = budget or Budget.now()
     sizes = (in_dims, n_ref_frames or n_refs, n_query_frames or n_queries)
     peak = b.held + train_bytes(conf, *sizes, spill, n_queries)
-    hint = memory_hint(conf, *sizes, n_queries, spill, _pca_dims(in_dims, n_frames))
+    hint = memory_hint(conf, *sizes, n_queries, spill, _pca_dims(in_dims, min(n_frames, n_queries + n_refs)))
     return Plan(n_queries, n_refs, n_frames, in_dims, out, conf.seq_len, conf.w, epochs, weights, checkpoint, peak,
                 None if b.free is None else b.held + b.free, epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
                 measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size,
@@ -191,9 +192,10 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
 
 
 def suggested_pca(p: Plan) -> int:
-    """A PCA dimension to advise: at most :data:`PAPER_PCA_DIM` and below the training frames (a PCA fitted
-    on n frames has at most n - 1 meaningful axes), rounded down to a power of two (at least 8)."""
-    return _pca_dims(p.in_dims, p.n_frames)
+    """A PCA dimension to advise: at most :data:`PAPER_PCA_DIM`, below the windows the layer is learnt from (the
+    training queries and the reference windows) and below the training frames (a PCA fitted on n frames has at
+    most n - 1 meaningful axes), rounded down to a power of two (at least 8)."""
+    return _pca_dims(p.in_dims, min(p.n_frames, p.n_queries + p.n_refs))
 
 
 def _pca_dims(in_dims: int, n_frames: int) -> int:
@@ -209,9 +211,10 @@ def advice(p: Plan) -> list[str]:
         out.append(f"D = {p.in_dims} is above {PAPER_PCA_DIM} (the SeqNet paper reduces its descriptors to 4096 "
                    f"with PCA): reduce it with --pca {pca} (seqnet train, or seqnet dataset from-images), fitted on "
                    "the train split only")
-    elif p.in_dims >= p.n_frames and p.in_dims > 8:
-        out.append(f"D = {p.in_dims} is not below the {p.n_frames} training frames: a D x D x w layer learnt from "
-                   f"{p.n_queries} queries overfits; reduce D with --pca {pca} (fitted on the train split only)")
+    elif p.in_dims >= p.n_queries + p.n_refs and p.in_dims > 8:
+        out.append(f"D = {p.in_dims} is not below the {p.n_queries + p.n_refs} windows the layer is learnt from "
+                   f"({p.n_queries} training queries, {p.n_refs} reference windows): its {p.weights:,} weights "
+                   f"(D x out x w) overfit them; reduce D with --pca {pca} (fitted on the train split only)")
     if p.checkpoint_bytes > CHECKPOINT_ADVISED_BYTES:
         ways = [f"fewer dimensions (--pca {pca})"] * (pca < p.in_dims) + ["a smaller --out-dims (e.g. 512)"] * (
             p.out_dims > 512) + ["--w 1"] * (p.w > 1)
@@ -225,7 +228,8 @@ def advice(p: Plan) -> list[str]:
 
 
 def plan_text(p: Plan) -> str:
-    """The block logged before training: the model, memory, time, checkpoints and the advice."""
+    """The block logged before training: the model, memory, time and checkpoints (the advice, :func:`advice`, is
+    logged apart, as warnings: a Python caller sees them without an INFO handler)."""
     avail = f" of {human_bytes(p.available)} available" if p.available is not None else ""
     held = f" ({human_bytes(p.held_bytes)} held before training)" if p.held_bytes else ""
     total = p.epoch_seconds * p.epochs
@@ -236,7 +240,6 @@ def plan_text(p: Plan) -> str:
              f"{p.rate / 1e9:.1f} GFLOP/s, every negative active), {p.epochs} epoch{'s' * (p.epochs != 1)}: about "
              f"{_duration(total)}",
              f"  checkpoints  about {human_bytes(p.checkpoint_bytes)} on disk (best.pt + last.pt)"]
-    lines += [f"  advice: {a}" for a in advice(p)]
     return "\n".join(lines)
 
 
