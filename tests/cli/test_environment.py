@@ -59,7 +59,7 @@ def test_an_allocation_beyond_the_address_space_limit_is_exit_1(tmp_path):
                         "--out-dims", "250000", "--epochs", "1", "--out", str(out)], preexec_fn=limit,
                        capture_output=True, text=True, timeout=300)
     _one_line_exit_1(p, "needs about")
-    assert "GiB available; hint: a smaller --out-dims" in p.stderr and not out.exists()
+    assert "GiB available; hint: --out-dims 512 (saves about" in p.stderr and not out.exists()
 
 
 def test_allocator_errors_are_told_from_other_runtime_errors():

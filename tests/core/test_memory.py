@@ -9,7 +9,8 @@ from seqnet.cli import main as cli
 from seqnet.core import memory
 from seqnet.core.errors import ResourceError
 from seqnet.data.io import save_dataset
-from seqnet.train.config import TrainConfig, train_bytes
+from seqnet.train.config import TrainConfig
+from seqnet.train.memory import train_bytes
 
 
 def test_available_memory_is_the_lowest_known_limit(monkeypatch):

@@ -13,11 +13,11 @@ from ..sequence.checkpoints import read_checkpoint
 from ..sequence.windows import WINDOW_MODES
 from ..train.config import OPTIMIZERS, RESUME_OVERRIDABLE, TrainConfig
 from ..train.distributed import env_world
-from ..train.guide import inactive_epochs
 from ..train.joint import S1_LOSS, is_joint, main_joint, s1_config
 from ..train.loop import main
 from ..train.losses import LOSSES
 from ..train.run import resume_config
+from ..train.watch import inactive_epochs
 from . import COMMANDS
 from .common import (
     add_allow_mismatch,

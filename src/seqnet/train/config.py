@@ -93,7 +93,7 @@ class TrainConfig(Config):
         batch_size: queries per optimiser step; epochs: the last epoch.
         patience: stop after this many epochs without a better val R@1 (None: never).
         stop_inactive: stop after this many epochs in a row without an active triplet (the model no longer
-            learns: :func:`seqnet.train.guide.inactive_message` says why and what to change); 0: never.
+            learns: :func:`seqnet.train.watch.inactive_message` says why and what to change); 0: never.
         n_negatives, n_neg_sample, cache_refresh, pos_radius, neg_radius: see :class:`MiningConfig`
             (radii None: the dataset's, see :meth:`resolve`).
         loss: a key of :data:`~seqnet.train.losses.LOSSES`: ``triplet`` (the paper's), ``seqmatch``
@@ -228,10 +228,6 @@ class TrainConfig(Config):
         return dataclasses.replace(self, **{k: getattr(conf, k) for k in RESUME_OVERRIDABLE})
 
 
-# what training loads beyond the process at its memory check (torch with the dataset): the first optimiser's
-# imports (torch.optim: 71 MiB), autograd, the TensorBoard writer (5 MiB) and the plan's timing products; measured
-# 2026-12-04, torch 2.13 CPU: 98-100 MiB between the check and the peak of S_5 on synth D = 64 and D = 2048
-LIBRARY_BYTES = 96 << 20
 _STORED_MAX = {"seq_len": SEQ_MAX, "w": SEQ_MAX, "match_len": SEQ_MAX, "out_dims": DIM_MAX, "seed": 2**63 - 1}
 PATH_MAX = 4096
 
@@ -259,37 +255,3 @@ def stored_config(values: Any, where: str, error: ErrorType = ConfigError) -> di
     except (ConfigError, TypeError, ValueError, OverflowError) as e:
         raise error(f"{where}: {' '.join(str(e).split())[:300]}") from e
     return out
-
-
-def train_bytes(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, spill: bool = False,
-                n_train: int | None = None) -> int:
-    """Estimated peak bytes of training ``conf`` on ``in_dims``-D descriptors with ``n_ref`` reference and
-    ``n_query`` query frames (one process), beyond what the process holds before it: :data:`LIBRARY_BYTES`,
-    the weights with their gradients and optimiser state, the mining cache, its blocks in flight, and one batch
-    of windows (its activations, kept for the backward pass).
-    A batch holds at most the ``n_train`` training queries (default ``n_query``): ``--batch-size`` above them
-    costs nothing more.
-
-    The mining cache holds one descriptor per reference window (per frame for the framewise losses: about
-    as many), unless ``spill`` (training on the CPU) sends one over ``SEQNET_SPILL_MB`` to a temporary file
-    (:func:`seqnet.train.mining.compute_cache`); and one per window of the ``cache_refresh`` queries mined
-    together (``window_len`` per window for the framewise losses). The frame descriptors themselves are the
-    dataset's (a large memory map on the CPU is read in blocks, not copied)."""
-    from ..core.memmaps import limit
-    from ..search.blocks import COL_BLOCK_BYTES
-
-    out = int(conf.out_dims or in_dims)
-    weights = in_dims * out * conf.w + out
-    # weights, gradients, Adam's two moments / SGD's momentum, and the step's temporaries: measured on 205 M
-    # weights, Adam's step peaks two weight-sized arrays above its state, SGD's one
-    copies = 6 if conf.optimizer == "adam" else 4
-    per_window = conf.window_len if LOSSES[conf.loss].framewise else 1
-    ref_cache = 4 * n_ref * out
-    if spill and ref_cache > limit("SPILL"):
-        ref_cache = 0  # in a spill file, read back one column block at a time
-    n_train = n_query if n_train is None else min(n_train, n_query)
-    mined = min(conf.cache_refresh or n_train, n_train)
-    query_cache = 4 * mined * per_window * out
-    blocks = min(COL_BLOCK_BYTES, 4 * n_ref * per_window * out) + 4 * 4 * min(2**24, mined * n_ref)  # [B, R] x 4
-    batch = 3 * min(conf.batch_size, n_train) * (2 + conf.n_negatives) * conf.window_len * max(in_dims, out) * conf.w
-    return LIBRARY_BYTES + 4 * (copies * weights + batch) + ref_cache + query_cache + blocks

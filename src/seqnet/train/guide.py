@@ -2,18 +2,17 @@
 checks that speak up while it runs.
 
 Before the first epoch :func:`plan` estimates, from N (training queries and reference windows), D, out, L
-and w: the peak memory (held at the memory check, :class:`Budget`, + :func:`seqnet.train.config.train_bytes`:
+and w: the peak memory (held at the memory check, :class:`Budget`, + :func:`seqnet.train.memory.train_bytes`:
 :func:`check_memory` refuses, before any work, more than is available), the time per epoch (the epoch's
 multiply-adds, :func:`epoch_flops`, over the device's rate measured by timing one matrix product like the
 model's, :func:`measured_rate`, plus :data:`STEP_SECONDS` per batch, a measured constant) and the size of the
-two checkpoints; :func:`plan_text` is the one block logged, with the advice (:func:`advice`): PCA
-(``--pca D``) when D is above :data:`PAPER_PCA_DIM` (the paper reduces NetVLAD to 4096) or above the
-training frames, a smaller ``--out-dims`` / ``--w`` when the checkpoints pass :data:`CHECKPOINT_ADVISED_BYTES`
-or the memory half of what is available (over all of it, training was refused).
+two checkpoints; :func:`plan_text` is the one block logged (INFO), then the advice (:func:`advice`, one
+warning each, kept in ``Run.advice``): PCA (``--pca D``) when D is above :data:`PAPER_PCA_DIM` (the paper
+reduces NetVLAD to 4096) or not below the windows the layer is learnt from (training queries and reference
+windows), a smaller ``--out-dims`` / ``--w`` when the checkpoints pass :data:`CHECKPOINT_ADVISED_BYTES` or the
+memory half of what is available (over all of it, training was refused).
 
-:func:`val_warning`: a val split with fewer than :data:`VAL_MIN` queries cannot choose an epoch (one query
-moves R@1 by 1/n). :func:`inactive_epochs`: the epochs in a row, up to the last, in which no triplet was
-active (the loop stops after ``TrainConfig.stop_inactive`` of them: :func:`inactive_message`).
+The checks that speak up while a run trains (a val split too small, no active triplet): :mod:`seqnet.train.watch`.
 """
 
 from __future__ import annotations
@@ -21,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..core.devices import get_device
@@ -30,9 +28,9 @@ from ..core.lazy import lazy_module
 from ..core.memory import available_bytes, check_fits, gib, human_bytes, rss_bytes
 from ..data.traverse import Dataset
 from ..describe.pca import PAPER_PCA_DIM
-from ..metrics.recall import VAL_MIN
-from .config import TrainConfig, train_bytes
+from .config import TrainConfig
 from .losses import LOSSES
+from .memory import memory_hint, train_bytes
 
 torch = lazy_module("torch")
 
@@ -94,6 +92,7 @@ class Plan:
     batch_size: int = 16
     update_seconds: float = 0.0
     held_bytes: int = 0
+    memory_hint: str = ""
 
     @property
     def epoch_seconds(self) -> float:
@@ -183,17 +182,20 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
     checkpoint = 4 * weights * (2 + copies)  # best.pt: the weights; last.pt: the weights and the optimiser state
     spill = getattr(device, "type", str(device)) == "cpu"
     b = budget or Budget.now()
-    peak = b.held + train_bytes(conf, in_dims, n_ref_frames or n_refs, n_query_frames or n_queries, spill, n_queries)
+    sizes = (in_dims, n_ref_frames or n_refs, n_query_frames or n_queries)
+    peak = b.held + train_bytes(conf, *sizes, spill, n_queries)
+    hint = memory_hint(conf, *sizes, n_queries, spill, _pca_dims(in_dims, min(n_frames, n_queries + n_refs)))
     return Plan(n_queries, n_refs, n_frames, in_dims, out, conf.seq_len, conf.w, epochs, weights, checkpoint, peak,
                 None if b.free is None else b.held + b.free, epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
                 measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size,
-                measured_update(weights, conf.optimizer, device) if rate is None else 0.0, b.held)
+                measured_update(weights, conf.optimizer, device) if rate is None else 0.0, b.held, hint)
 
 
 def suggested_pca(p: Plan) -> int:
-    """A PCA dimension to advise: at most :data:`PAPER_PCA_DIM` and below the training frames (a PCA fitted
-    on n frames has at most n - 1 meaningful axes), rounded down to a power of two (at least 8)."""
-    return _pca_dims(p.in_dims, p.n_frames)
+    """A PCA dimension to advise: at most :data:`PAPER_PCA_DIM`, below the windows the layer is learnt from (the
+    training queries and the reference windows) and below the training frames (a PCA fitted on n frames has at
+    most n - 1 meaningful axes), rounded down to a power of two (at least 8)."""
+    return _pca_dims(p.in_dims, min(p.n_frames, p.n_queries + p.n_refs))
 
 
 def _pca_dims(in_dims: int, n_frames: int) -> int:
@@ -209,21 +211,25 @@ def advice(p: Plan) -> list[str]:
         out.append(f"D = {p.in_dims} is above {PAPER_PCA_DIM} (the SeqNet paper reduces its descriptors to 4096 "
                    f"with PCA): reduce it with --pca {pca} (seqnet train, or seqnet dataset from-images), fitted on "
                    "the train split only")
-    elif p.in_dims >= p.n_frames and p.in_dims > 8:
-        out.append(f"D = {p.in_dims} is not below the {p.n_frames} training frames: a D x D x w layer learnt from "
-                   f"{p.n_queries} queries overfits; reduce D with --pca {pca} (fitted on the train split only)")
+    elif p.in_dims >= p.n_queries + p.n_refs and p.in_dims > 8:
+        out.append(f"D = {p.in_dims} is not below the {p.n_queries + p.n_refs} windows the layer is learnt from "
+                   f"({p.n_queries} training queries, {p.n_refs} reference windows): its {p.weights:,} weights "
+                   f"(D x out x w) overfit them; reduce D with --pca {pca} (fitted on the train split only)")
     if p.checkpoint_bytes > CHECKPOINT_ADVISED_BYTES:
+        ways = [f"fewer dimensions (--pca {pca})"] * (pca < p.in_dims) + ["a smaller --out-dims (e.g. 512)"] * (
+            p.out_dims > 512) + ["--w 1"] * (p.w > 1)
         out.append(f"the checkpoints take {human_bytes(p.checkpoint_bytes)} (best.pt {human_bytes(4 * p.weights)}, "
-                   f"last.pt with the optimiser state): fewer dimensions (--pca {pca}), a smaller --out-dims "
-                   "(e.g. 512) or --w 1 shrink them (the weights are D x out x w)")
+                   f"last.pt with the optimiser state): {', '.join(ways) or 'fewer dimensions'} shrink them (the "
+                   "weights are D x out x w)")
     if p.available is not None and p.peak_bytes > p.available / 2:
         out.append(f"the estimated peak memory {human_bytes(p.peak_bytes)} is over half of the "
-                   f"{human_bytes(p.available)} available: --pca, a smaller --out-dims, --w or --batch-size lower it")
+                   f"{human_bytes(p.available)} available; what lowers it most: {p.memory_hint}")
     return out
 
 
 def plan_text(p: Plan) -> str:
-    """The block logged before training: the model, memory, time, checkpoints and the advice."""
+    """The block logged before training: the model, memory, time and checkpoints (the advice, :func:`advice`, is
+    logged apart, as warnings: a Python caller sees them without an INFO handler)."""
     avail = f" of {human_bytes(p.available)} available" if p.available is not None else ""
     held = f" ({human_bytes(p.held_bytes)} held before training)" if p.held_bytes else ""
     total = p.epoch_seconds * p.epochs
@@ -234,38 +240,7 @@ def plan_text(p: Plan) -> str:
              f"{p.rate / 1e9:.1f} GFLOP/s, every negative active), {p.epochs} epoch{'s' * (p.epochs != 1)}: about "
              f"{_duration(total)}",
              f"  checkpoints  about {human_bytes(p.checkpoint_bytes)} on disk (best.pt + last.pt)"]
-    lines += [f"  advice: {a}" for a in advice(p)]
     return "\n".join(lines)
-
-
-def val_warning(n_val: int, val_name: str, minimum: int = VAL_MIN) -> str | None:
-    """Why a val split of ``n_val`` queries (with a positive) cannot choose an epoch, or None when it can."""
-    if n_val >= minimum:
-        return None
-    step = f"1/{n_val} = {1 / n_val:.2f}" if n_val else "undefined"
-    return (f"the val split {val_name} has {n_val} queries with a positive and a full window; choosing the best "
-            f"epoch needs about {minimum} or more (one query moves val R@1 by {step}). best.pt is still the epoch "
-            "of the best val R@1 (ties: the earliest), which on so few queries is mostly chance; give a larger "
-            "val split (--split val=A:B when building the dataset), or --val-split none to keep the last epoch "
-            "(best.pt = last.pt)")
-
-
-def inactive_epochs(history: Sequence[Mapping[str, Any]]) -> int:
-    """The epochs in a row, up to the last of ``history``, without an active triplet."""
-    return next((i for i, h in enumerate(reversed(history)) if float(h.get("active", 1.0)) > 0), len(history))
-
-
-def inactive_message(history: Sequence[Mapping[str, Any]], conf: TrainConfig, n_queries: int) -> str:
-    """Why training stops after ``conf.stop_inactive`` epochs without an active triplet, and what to change."""
-    n, last = inactive_epochs(history), history[-1]
-    triplets = int(last.get("triplets", 0))
-    why = ("no query had a negative closer than its positive + the margin: every triplet is already satisfied"
-           if triplets == 0 else f"{triplets} triplets were mined but none had a positive loss")
-    return (f"stopping after epoch {last['epoch']}: no active triplet for {n} epochs in a row "
-            f"(stop_inactive={conf.stop_inactive}); {why}, so the model no longer learns. Likely: too little or "
-            f"too easy training data ({n_queries} queries); try a larger train split, a larger --margin (now "
-            f"{conf.margin:g}) or more negatives: a smaller --neg-radius (now {conf.neg_radius}; references "
-            "farther than it are negatives); best.pt is kept")
 
 
 def _duration(s: float) -> str:
@@ -285,16 +260,15 @@ def _train_frames(dataset: Dataset, conf: TrainConfig) -> int:
 
 def check_memory(conf: TrainConfig, dataset: Dataset) -> Budget:
     """Refuse before any work (ResourceError, exit 1, naming both and what lowers them) a training run whose
-    :func:`~seqnet.train.config.train_bytes` (a batch of at most the train split's query frames) is over what
+    :func:`~seqnet.train.memory.train_bytes` (a batch of at most the train split's query frames) is over what
     the process may still allocate; the :class:`Budget` checked (the plan's)."""
     d, out = dataset.query.dim, int(conf.out_dims or dataset.query.dim)
     spill = get_device(conf.device).type == "cpu"  # the mining cache spills when large (one process)
     n_train, budget = _train_frames(dataset, conf), Budget.now()
-    pca = f"fewer dimensions: --pca {_pca_dims(d, 2 * n_train)} (seqnet train, or seqnet dataset from-images), "
-    pca = pca if d > 8 else ""
-    check_fits(train_bytes(conf, d, len(dataset.reference), len(dataset.query), spill, n_train),
+    n_ref, n_query = len(dataset.reference), len(dataset.query)
+    check_fits(train_bytes(conf, d, n_ref, n_query, spill, n_train),
                f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
                f"{gib(4 * d * out * conf.w)})",
-               f"{'' if out > d else pca}a smaller --out-dims (e.g. 512), {pca if out > d else ''}a smaller --w (the "
-               "weights are D x out x w) or --batch-size", budget.held, budget.free)
+               memory_hint(conf, d, n_ref, n_query, n_train, spill, _pca_dims(d, 2 * n_train)), budget.held,
+               budget.free)
     return budget

@@ -35,7 +35,7 @@ from ..security.locks import locked
 from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
-from .guide import Budget, check_memory, inactive_epochs, inactive_message, plan, plan_text, val_warning
+from .guide import Budget, advice, check_memory, plan, plan_text
 from .losses import LOSSES
 from .record import check_resumed, record_data
 from .route import holds_test_queries, split_warnings
@@ -52,6 +52,7 @@ from .run import (
 )
 from .rundir import RESTART, check_new, discard
 from .source import TripletSource, split_windows, triplet_source
+from .watch import inactive_epochs, inactive_message, val_warning
 
 torch = lazy_module("torch")
 
@@ -127,7 +128,9 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
         _end_epoch(run, epoch, stats, val_ds, device, t_epoch)
         inactive = 0 < run.conf.stop_inactive <= inactive_epochs(run.history)
         if inactive:
-            logger.warning("%s", inactive_message(run.history, run.conf, src.n_queries))
+            said = inactive_message(run.history, run.conf, src.n_queries, run.best_epoch)
+            logger.warning("%s", said)
+            run.advice.append(said)
         if run.should_stop or inactive:
             break
     best = (f"best val R@1 {run.best_score:.4f} at epoch {run.best_epoch}" if val_ds is not None and run.best_epoch
@@ -143,20 +146,21 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
 
 def _guide(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device,
            budget: Budget | None = None) -> None:
-    """Rank 0, before the first epoch: the training plan (memory, time, checkpoints, advice; ``budget``: the
-    memory check's, before the model existed) in one block, and a warning when the val split is too small to
-    choose an epoch (:mod:`seqnet.train.guide`)."""
+    """Rank 0, before the first epoch: the training plan (memory, time, checkpoints; ``budget``: the memory
+    check's, before the model existed) in one INFO block, then the advice and a val split too small to choose an
+    epoch, one warning each (seen from Python without a handler), kept in ``run.advice`` (:mod:`seqnet.train.guide`)."""
     conf = run.conf
     n_val = 0
     if val_ds is not None:
         n_val = len(split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad).q_idx)
     n_frames = len(src.q_desc) + len(src.r_desc)
-    logger.info("%s", plan_text(plan(conf, run.model.in_dims, src.n_queries, len(src.r_idx), n_frames, n_val,
-                                     conf.epochs - run.epoch, device, len(src.r_desc), len(src.q_desc),
-                                     budget=budget)))
-    warning = val_warning(n_val, val_ds.name) if val_ds is not None else None
-    if warning:
-        logger.warning("%s", warning)
+    p = plan(conf, run.model.in_dims, src.n_queries, len(src.r_idx), n_frames, n_val, conf.epochs - run.epoch,
+             device, len(src.r_desc), len(src.q_desc), budget=budget)
+    logger.info("%s", plan_text(p))
+    warning = val_warning(n_val, val_ds.name, resumed=run.epoch > 0) if val_ds is not None else None
+    run.advice = [f"advice: {a}" for a in advice(p)] + [warning] * bool(warning)
+    for said in run.advice:
+        logger.warning("%s", said)
 
 
 def _end_epoch(run: Run, epoch: int, stats: dict[str, float], val_ds: Dataset | None, device: torch.device,

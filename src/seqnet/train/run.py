@@ -49,7 +49,8 @@ class Run:
     """A training run: model, optimiser, scheduler, generator, negative cache, progress and logs.
 
     ``world``: the training processes (rank 0 alone writes files); ``net``: what the training step
-    calls, the model or its DistributedDataParallel (None: the model)."""
+    calls, the model or its DistributedDataParallel (None: the model); ``advice``: the warnings the guide logged
+    on rank 0 (the plan's advice, a val split too small, why training stopped early; :mod:`seqnet.train.guide`)."""
 
     conf: TrainConfig
     model: SeqNet
@@ -67,6 +68,7 @@ class Run:
     best_epoch: int = 0
     bad_epochs: int = 0
     history: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    advice: list[str] = dataclasses.field(default_factory=list)
     world: World = dataclasses.field(default_factory=World)
     net: torch.nn.Module | None = None
 
