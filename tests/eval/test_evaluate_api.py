@@ -56,8 +56,8 @@ def test_the_split_asked_for_is_the_split_evaluated(synth_dataset):
 
 
 def test_a_split_is_refused_where_the_dataset_defines_none(synth_dataset):
-    with pytest.raises(ConfigError, match=r"split 'test': dataset '.*\[test\]' defines no splits.*hint"):
-        evaluate(synth_dataset.split("test"), EvalConfig(methods=("single",), split="test"))
+    with pytest.raises(ConfigError, match=r"split 'val': dataset '.*\[test\]' defines no splits.*hint"):
+        evaluate(synth_dataset.split("test"), EvalConfig(methods=("single",), split="val"))  # its own name: taken
     with pytest.raises(Exception, match="has no split 'nope'"):
         evaluate(synth_dataset, EvalConfig(methods=("single",), split="nope"))
     part = evaluate(synth_dataset.split("test"), EvalConfig(methods=("single",), split="0:20"))  # a range: fine
@@ -168,26 +168,30 @@ def test_the_descriptors_evaluated_are_recorded(synth_dataset):
     assert json.loads(json.dumps(rec)) == rec
 
 
-def test_the_default_split_is_said_once_and_the_split_form_agrees(synth_dataset, caplog):
+def test_the_default_split_is_said_and_the_split_form_agrees(synth_dataset, caplog):
     """Review M3: evaluate(ds) on a dataset with splits silently scored its test split only (75 of 291 queries),
-    and ds.split('test') numbered its queries 0:75 where the whole dataset's form said 216:291."""
+    and ds.split('test') numbered its queries 0:75 where the whole dataset's form said 216:291. Hostile 52 M6:
+    the line was said once per dataset name (a second dataset of the same name heard nothing) and not kept in
+    the results."""
     ds = dataclasses.replace(synth_dataset, name="m3-default")
     conf = EvalConfig(methods=METHODS, ks=(1, 5))
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="seqnet"):
         ev = evaluate(ds, conf)
-        evaluate(ds, conf)  # said once
+        again = evaluate(dataclasses.replace(ds), conf)  # another dataset of the same name: said too
     lines = [r.getMessage() for r in caplog.records]
     a, b = ds.ranges("test")["query"]
-    assert len(lines) == 1 and f"scoring its test split only (queries {a}:{b}, {b - a} of {len(ds.query)})" in \
-        lines[0] and "EvalConfig(split='all')" in lines[0], lines
+    assert len(lines) == 2 and f"scoring its test split only (queries {a}:{b}, {b - a} of {len(ds.query)})" in \
+        lines[0] and "EvalConfig(split='all')" in lines[0] and lines[0] == lines[1], lines
+    assert ev.results["warnings"] == again.results["warnings"] == [lines[0]]
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="seqnet"):
         given = evaluate(ds, conf.replace(split="test"))
         form = evaluate(ds.split("test"), conf)
+        named = evaluate(ds.split("test"), conf.replace(split="test"))  # hostile 52 L4: its own name, accepted
         evaluate(ds, conf.replace(split="all"))
     assert not caplog.records, [r.getMessage() for r in caplog.records]
-    for e in (given, form):
+    for e in (given, form, named):
         assert numbers(e) == numbers(ev) and e.results["config"]["query_range"] == [a, b]
         assert e.results["config"]["split"] == "test"
 
@@ -208,13 +212,31 @@ def test_leakage_is_found_on_a_split_of_the_dataset(tmp_path, caplog):
     split = evaluate(ds.split("train"), conf, models)
     assert whole.results["leakage"] and split.results["leakage"] == whole.results["leakage"]
     assert split.results["config"]["query_range"] == whole.results["config"]["query_range"]
-    saved = load_dataset(save_dataset(ds.split("train"), tmp_path / "train"))  # its source is gone: said once
+    saved = load_dataset(save_dataset(ds.split("train"), tmp_path / "train"))  # its source is gone: said
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="seqnet"):
-        evaluate(saved, conf, models)
+        first = evaluate(saved, conf, models)
         evaluate(saved, conf, models)
     said = [r.getMessage() for r in caplog.records if "cannot be checked" in r.getMessage()]
-    assert len(said) == 1 and "is a split whose source is not known here" in said[0], said
+    assert len(said) == 2 and "is a split whose source is not known here" in said[0], said
+    assert said[0] in first.results["warnings"]  # hostile 52 M6: kept in the results too
+
+
+def test_a_split_with_other_descriptors_is_not_its_source_any_more(synth_dir):
+    """Hostile 52 M1: ds.split('test') with its descriptors replaced was still calibrated on its source's val
+    (the old descriptors' threshold: precision 0.141 at target 0.8); it is now a dataset of its own."""
+    ds = load_dataset(synth_dir)
+    conf = EvalConfig(methods=("single",), ks=(1, 5), target_precision=0.8)
+    test = ds.split("test")
+    assert evaluate(test, conf).results["config"]["query_range"] == list(ds.ranges("test")["query"])
+    rng = np.random.default_rng(0)
+    proj = rng.standard_normal((ds.query.dim, 16)).astype(np.float32)
+    other = dataclasses.replace(test, query=test.query.with_descriptors(test.query.descriptors @ proj),
+                                reference=test.reference.with_descriptors(test.reference.descriptors @ proj))
+    with pytest.raises(ConfigError, match="not a split of dataset .* evaluate the whole dataset"):
+        evaluate(other, conf)  # nothing to calibrate on: never the old descriptors' threshold
+    copied = dataclasses.replace(test, query=test.query.with_descriptors(test.query.descriptors.copy()))
+    assert evaluate(copied, conf).results["config"]["query_range"] == list(ds.ranges("test")["query"])  # equal
 
 
 def test_learned_below_baseline_notes_are_said_from_python(synth_dir, tmp_path, caplog, capsys):

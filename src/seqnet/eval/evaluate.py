@@ -16,11 +16,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.lib.array_utils import byte_bounds
 
 from ..core.errors import ConfigError
-from ..core.log import logger, warn_once
+from ..core.log import logger
 from ..core.stage import Written
-from ..data.traverse import Dataset, default_split
+from ..data.traverse import Dataset, Traverse, default_split
 from ..methods.grammar import parse_method
 from ..methods.route import route_warnings
 from ..report.guidance import format_notes, learned_below_baseline, note_entries
@@ -79,16 +80,17 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
     conf = EvalConfig() if conf is None else conf
     check_types(ds, conf, models)
     whole, split = split_source(ds, conf.split)
+    said = None
     if whole is ds:
         evaluated = split_of(ds, split)  # an unknown split fails before any work
         if conf.split is None and split != "all":
             a, b = ds.ranges(split)["query"]
-            warn_once(("evaluate", ds.name, split), "evaluate(): dataset %r has splits and no split was given: "
-                      "scoring its %s split only (queries %d:%d, %d of %d), as seqnet eval does; hint: "
-                      "EvalConfig(split='all') scores every query", ds.name, split, a, b, b - a, len(ds.query))
+            said = (f"evaluate(): dataset {ds.name!r} has splits and no split was given: scoring its {split} split "
+                    f"only (queries {a}:{b}, {b - a} of {len(ds.query)}), as seqnet eval does; hint: "
+                    "EvalConfig(split='all') scores every query")
     else:
         evaluated, conf = ds, conf.replace(split=split)
-    ev = evaluate_split(whole, split, evaluated, conf, models, source, prepare)
+    ev = evaluate_split(whole, split, evaluated, conf, models, source, prepare, said)
     for line in format_notes(learned_below_baseline(ev.results)):
         logger.warning("%s", shown(line))  # printed under the table by seqnet eval, which calls evaluate_split
     return ev
@@ -96,25 +98,47 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
 
 def split_source(ds: Dataset, split: str | None) -> tuple[Dataset, str]:
     """``(whole, split)``: the dataset ``ds`` was split from and the split's name when ``ds`` is an unchanged
-    ``whole.split(name)`` (its frames are still that split's) and no other split is asked; else ``ds`` and
-    ``split`` (None: test when ``ds`` defines it, else all)."""
-    if ds.source is None or split not in (None, "all"):
+    ``whole.split(name)`` (its frames, descriptors, radius and positives still that split's) and no other split
+    is asked (None, ``all`` or that name); else ``ds`` and ``split`` (None: test when ``ds`` defines it, else
+    all)."""
+    if ds.source is None or split not in (None, "all", ds.source[1]):
         return ds, default_split(split, ds.splits)
     whole, name = ds.source
     rng = whole.ranges(name)
-    same = rng is not None and all(
-        len(getattr(ds, side)) == rng[side][1] - rng[side][0] and np.array_equal(
-            getattr(ds, side).positions, getattr(whole, side).positions[slice(*rng[side])]) and
-        getattr(ds, side).names == (None if getattr(whole, side).names is None else
-                                    getattr(whole, side).names[slice(*rng[side])]) for side in ("query", "reference"))
-    return (whole, name) if same else (ds, default_split(split, ds.splits))
+    same = rng is not None and ds.radius == whole.radius and all(
+        same_frames(getattr(ds, side), getattr(whole, side), rng[side]) for side in ("query", "reference"))
+    same = same and same_positives(ds, whole, rng)
+    return (whole, name) if same else (ds, default_split(None if split == name else split, ds.splits))
+
+
+def same_frames(part: Traverse, whole: Traverse, rng: tuple[int, int]) -> bool:
+    """Whether ``part`` holds frames ``rng`` of ``whole``: the same positions, names and descriptors (the same
+    memory, as :meth:`Traverse.subset` leaves them, else equal values)."""
+    a, b = rng
+    d, w = part.descriptors, whole.descriptors[a:b]
+    if len(part) != b - a or not np.array_equal(part.positions, whole.positions[a:b]):
+        return False
+    if part.names != (None if whole.names is None else whole.names[a:b]):
+        return False
+    if d.shape != w.shape or d.dtype != w.dtype:
+        return False
+    return d is w or byte_bounds(d) == byte_bounds(w) and d.strides == w.strides or bool(np.array_equal(d, w))
+
+
+def same_positives(ds: Dataset, whole: Dataset, rng: Mapping[str, tuple[int, int]]) -> bool:
+    """Whether ``ds``'s explicit positives (or their absence) are those of the split ``rng`` of ``whole``."""
+    if ds.positives is None or whole.positives is None:
+        return ds.positives is None and whole.positives is None
+    mine = whole.positives.select(np.arange(*rng["query"]), np.arange(*rng["reference"]))
+    return bool(np.array_equal(mine.indptr, ds.positives.indptr) and np.array_equal(mine.indices, ds.positives.indices))
 
 
 def evaluate_split(ds: Dataset, split: str, evaluated: Dataset, conf: EvalConfig,
                    models: Mapping[str, SeqNet] | None, source: str | Path | None = None,
-                   prepare: Prepare | None = None) -> Evaluation:
+                   prepare: Prepare | None = None, said: str | None = None) -> Evaluation:
     """:func:`evaluate` of the split ``split`` of ``ds``, already taken (``evaluated``: ``ds.split(split)``), with
-    the warnings of ``seqnet eval``; the notes after the table are left to the caller (the CLI prints them)."""
+    the warnings of ``seqnet eval`` (and ``said``, the caller's, first); the notes after the table are left to
+    the caller (the CLI prints them)."""
     models = dict(models or {})
     conf, prepared = prepare(ds, split, models, conf) if prepare is not None else (conf, None)
     cal = calibration(ds, split, conf, models)  # first: a calibration split that cannot serve fails before any work
@@ -122,13 +146,14 @@ def evaluate_split(ds: Dataset, split: str, evaluated: Dataset, conf: EvalConfig
     if cal is not None:
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
+    add_warnings(ev, [said])
     ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering (VME)
     if source is not None:
         ev.results["config"]["dataset_path"] = str(source)
     elif models and any(getattr(m, "trained_on", None) for m in models.values()) and unknown_split(ds):
-        warn_once(("leakage", ds.name), "evaluate(): dataset %r is a split whose source is not known here (saved and "
-                  "loaded again, changed, or a split of a split): whether the models were trained on its queries "
-                  "cannot be checked; hint: evaluate the whole dataset with EvalConfig(split=NAME)", ds.name)
+        add_warnings(ev, [f"evaluate(): dataset {ds.name!r} is a split whose source is not known here (saved and "
+                          "loaded again, changed, or a split of a split): whether the models were trained on its "
+                          "queries cannot be checked; hint: evaluate the whole dataset with EvalConfig(split=NAME)"])
     say_notices(ev, ds, split, conf, models, source, prepared, calibrated=cal is not None)
     return ev
 
