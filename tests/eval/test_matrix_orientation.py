@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from seqnet.core.errors import ConfigError
 from seqnet.data.traverse import Dataset, Traverse
 from seqnet.eval.evaluate import EvalConfig, evaluate
 from seqnet.eval.matrix import evaluate_matrix, open_matrix
@@ -40,7 +41,7 @@ def test_a_correct_square_similarity_read_as_distances_is_told_the_sense_only(ca
     assert check["single_r@1"]["transposed, other sense"] > check["single_r@1"]["other sense"]  # the trap is set
     assert check["best_reading"] == "other sense"
     text = warnings_of(caplog)
-    assert "(hint: pass --similarity)" in text and "--transposed" not in text
+    assert "(hint: pass --similarity (similarity=True in Python))" in text and "--transposed" not in text
 
 
 def test_evaluate_matrix_applies_similarity_to_an_array(caplog):
@@ -119,7 +120,7 @@ def test_the_sense_warning_under_transposed_describes_the_reading_used(tmp_path,
         evaluate_matrix(ds, given, SINGLE)
     text = warnings_of(caplog)
     assert "read as given (distances, read transposed: one row per reference)" in text
-    assert "(hint: pass --similarity)" in text and "one row per query)" not in text
+    assert "(hint: pass --similarity (similarity=True in Python))" in text and "one row per query)" not in text
 
 
 def test_read_matrix_carries_its_reading_so_flags_are_never_applied_twice(tmp_path, caplog):
@@ -192,7 +193,7 @@ def test_a_few_dozen_queries_still_name_a_transposed_or_wrong_sense_matrix(caplo
     assert not warnings_of(caplog)
     with caplog.at_level("WARNING", logger="seqnet"):
         assert evaluate_matrix(ds, s, SINGLE).results["matrix_check"]["best_reading"] == "other sense"
-    assert "(hint: pass --similarity)" in warnings_of(caplog)
+    assert "(hint: pass --similarity (similarity=True in Python))" in warnings_of(caplog)
     caplog.clear()
     perm = np.random.default_rng(1).permutation(n)
     ds = Dataset(ds.reference, Traverse(ds.query.descriptors[perm], ds.query.positions[perm], name="qry"),
@@ -201,3 +202,16 @@ def test_a_few_dozen_queries_still_name_a_transposed_or_wrong_sense_matrix(caplo
         check = evaluate_matrix(ds, -s[perm].T, SINGLE).results["matrix_check"]
     assert check["best_reading"] == "transposed", check
     assert "pass --transposed" in warnings_of(caplog)
+
+
+def test_the_reading_warning_is_kept_in_the_results_and_a_flag_must_be_a_bool(caplog):
+    """Hostile 52 L8: the orientation warning was logged only (results['warnings'] and results.json had none);
+    L6: similarity='no' was read as True."""
+    ds, s = aligned()
+    with caplog.at_level("WARNING", logger="seqnet"):
+        ev = evaluate_matrix(ds, s, SINGLE)  # similarities read as distances: said
+    assert ev.results["warnings"] == [warnings_of(caplog)] and "warning" not in ev.results["matrix_check"]
+    for bad in ("no", 0, 1.0):
+        with pytest.raises(ConfigError, match="give True, False or None"):
+            evaluate_matrix(ds, s, SINGLE, similarity=bad)
+    assert evaluate_matrix(ds, s, SINGLE, similarity=np.True_).results["matrix_check"]["best_reading"] == "as given"

@@ -142,6 +142,9 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     its own reading: a :class:`GivenMatrix` (:func:`open_matrix`) or a :class:`ReadMatrix` (:func:`read_matrix`,
     already distances, one row per query), where a flag that contradicts that reading is refused. The
     orientation check names a reading that fits the ground truth better."""
+    for name, flag in (("similarity", similarity), ("transposed", transposed)):
+        if flag is not None and not isinstance(flag, (bool, np.bool_)):
+            raise ConfigError(f"{name}={flag!r}: give True, False or None (a string such as 'no' would read as True)")
     radius = conf.radius if conf is not None else None  # as given: moot with explicit positives
     conf = (conf or EvalConfig(methods=DEFAULT_MATRIX_METHODS)).resolve({}, ds.radius)
     given = as_given(dist, similarity, transposed)
@@ -167,7 +170,10 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     if query_range is not None:
         out.results["config"]["query_range"] = list(query_range)  # per-query numbering (VME)
     out.dataset, out.matrix = ds, given  # for the report: the evaluated frames and their given distances
-    out.results["matrix_check"] = orientation_check(ds, given, similarity, transposed)
+    check = orientation_check(ds, given, similarity, transposed)  # its warning is said there: kept here
+    out.results["matrix_check"] = {k: v for k, v in check.items() if k != "warning"}
+    if "warning" in check:
+        out.results["warnings"] = [*out.results.get("warnings", []), check["warning"]]
     add_warnings(out, [constant_rows(given), shift_notice(out), radius_ignored(radius, ds.positives is not None),
                        trivial_ks(out, conf.ks)])
     return out

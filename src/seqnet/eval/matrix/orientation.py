@@ -16,6 +16,7 @@ from ...core.log import logger
 from ...core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ...data.traverse import Dataset
 from ...search.given import GivenMatrix
+from ...security.text import shown
 from ..score import dataset_truth
 
 CHECK_ROWS = 2000  # queries sampled to compare the matrix's readings (a cheap argmin each)
@@ -37,10 +38,10 @@ def orientation_check(ds: Dataset, dist: np.ndarray | GivenMatrix, similarity: b
             for k, top in _top1(dist, keep).items()}
     r1 = {k: float(h.mean()) if len(h) else float("nan") for k, h in hits.items()}
     best = choose_reading(hits)
-    if best != "as given":
-        _warn_reading(best, r1, similarity, transposed, sign_z(hits[best], hits["as given"]))
+    said = None if best == "as given" else _warn_reading(best, r1, similarity, transposed,
+                                                         sign_z(hits[best], hits["as given"]))
     return {"single_r@1": {k: round(v, 4) for k, v in r1.items()}, "queries_checked": int(len(keep)),
-            "best_reading": best}
+            "best_reading": best, **({"warning": said} if said else {})}
 
 
 def much_better(r1: float, than: float) -> bool:
@@ -106,32 +107,35 @@ def sign_z(better: np.ndarray, given: np.ndarray) -> float:
     return (b - c) / np.sqrt(b + c) if b + c else 0.0
 
 
-def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed: bool, z: float = 0.0) -> None:
+def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed: bool, z: float = 0.0) -> str:
     """A warning naming the reading :func:`choose_reading` chose, ``best`` (not "as given": the decision has passed
     its thresholds, so it is always said): how clearly it beats the one used (:func:`much_better`), or, for a
     square matrix whose shape cannot tell rows from columns, the sign test's ``z``; else every reading's R@1.
     ``similarity``, ``transposed``: how the matrix was read (a ``transposed`` reading of a matrix read with
-    --transposed has one row per query)."""
+    --transposed has one row per query). Logged, and returned (kept in the results' warnings)."""
     given, sense = r1["as given"], "similarities" if similarity else "distances"
     other = "distances" if similarity else "similarities"
     rows, turned_rows = ("reference", "query") if transposed else ("query", "reference")
-    flag = "drop --similarity" if similarity else "pass --similarity"
-    turn = "drop --transposed" if transposed else "pass --transposed (one row per reference, as VPR_Tutorial's S)"
+    flag = ("drop --similarity (similarity=False in Python)" if similarity else
+            "pass --similarity (similarity=True in Python)")
+    turn = ("drop --transposed (transposed=False)" if transposed else
+            "pass --transposed (transposed=True in Python; one row per reference, as VPR_Tutorial's S)")
     hint = {"other sense": flag, "transposed": turn, "transposed, other sense": f"{turn}, and {flag}"}[best]
     layout = f"{sense}, read transposed: one row per reference" if transposed else f"{sense}, one row per query"
     if much_better(r1[best], given):
         read = {"other sense": f"as {other}", "transposed": f"with one row per {turned_rows}, as {sense}",
                 "transposed, other sense": f"with one row per {turned_rows}, as {other}"}[best]
-        logger.warning("the matrix reads much better %s (the %s reading): single-frame R@1 is %.3f read as given "
-                       "(%s) but %.3f read %s, so it was most likely written that way (hint: %s)",
-                       read, best, given, layout, r1[best], read, hint)
+        msg = (f"the matrix reads much better {read} (the {best} reading): single-frame R@1 is {given:.3f} read "
+               f"as given ({layout}) but {r1[best]:.3f} read {read}, so it was most likely written that way "
+               f"(hint: {hint})")
     elif best.startswith("transposed") and z >= SQUARE_Z:
-        logger.warning("a square matrix: read with one row per %s (single-frame R@1 %.3f), but it reads better "
-                       "%s (%.3f, one row per %s; sign test z = %.1f over the queries where the two readings "
-                       "disagree); if its rows and columns are the other way round, %s",
-                       rows, given, best, r1[best], turned_rows, z, hint)
+        msg = (f"a square matrix: read with one row per {rows} (single-frame R@1 {given:.3f}), but it reads "
+               f"better {best} ({r1[best]:.3f}, one row per {turned_rows}; sign test z = {z:.1f} over the queries "
+               f"where the two readings disagree); if its rows and columns are the other way round, {hint}")
     else:  # chosen on the sense's best layout (or a small sample): every reading other than the one given is said
         told = ", ".join(f"{k} {v:.3f}" for k, v in r1.items())
-        logger.warning("the matrix reads better %s than as given (%s): single-frame R@1 by reading: %s, so it was "
-                       "most likely written that way (hint: %s)", best.replace("other sense", f"as {other}"),
-                       layout, told, hint)
+        read = best.replace("other sense", f"as {other}")
+        msg = (f"the matrix reads better {read} than as given ({layout}): single-frame R@1 by reading: {told}, so "
+               f"it was most likely written that way (hint: {hint})")
+    logger.warning("%s", shown(msg))
+    return msg
