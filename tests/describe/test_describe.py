@@ -123,7 +123,7 @@ def test_config_defaults_normalising_and_round_trip():
     assert DescribeConfig().size == "auto" and DescribeConfig().image_size is None
     assert DescribeConfig(size=[32, 16]).size == (32, 16) and DescribeConfig(size="NATIVE").size == "native"
     assert DescribeConfig(size=(8192, 1)).size == (8192, 1)
-    assert conf.replace(size=None, dim=4).size == (64, 32)  # None keeps
+    assert conf.merge(size=None, dim=4).size == (64, 32)  # None keeps (the CLI's merge)
     assert DescribeConfig(method="gem", checkpoint="x.pth.tar", backbone="vgg16").backbone == "vgg16"
 
 

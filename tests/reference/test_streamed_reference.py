@@ -55,5 +55,7 @@ def test_an_index_filled_in_blocks_equals_one_filled_at_once(rng, index, monkeyp
     monkeypatch.setattr(ann, "ADD_BYTES", 500 * 16 * 4)  # six blocks
     blocks = ann.build_index(x, conf)
     q = rng.standard_normal((50, 16)).astype(np.float32)
-    for got, want in zip(blocks.search(q, 10), whole.search(q, 10), strict=True):
-        np.testing.assert_array_equal(got, want)
+    (d_got, i_got), (d_want, i_want) = blocks.search(q, 10), whole.search(q, 10)
+    np.testing.assert_array_equal(i_got, i_want)  # the same neighbours, in the same order
+    # the same distances: faiss 1.15's HNSW scores may differ in the last float32 bit between the two fills
+    np.testing.assert_allclose(d_got, d_want, rtol=1e-6, atol=0)

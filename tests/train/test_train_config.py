@@ -67,7 +67,8 @@ def test_resolve_fills_dataset_dependent_defaults(synth_dataset):
     conf = TrainConfig().resolve(synth_dataset)
     assert (conf.pos_radius, conf.neg_radius) == (5.0, 20.0)  # dataset.extra
     assert conf.out_dims == synth_dataset.query.dim
-    assert conf.replace(out_dims=None) == conf  # None keeps
+    assert conf.merge(out_dims=None) == conf  # None keeps
+    assert conf.replace(out_dims=None).out_dims is None  # None is a value
     bare = dataclasses.replace(synth_dataset, extra={}, radius=3.0)
     assert (TrainConfig().resolve(bare).pos_radius, TrainConfig().resolve(bare).neg_radius) == (3.0, 12.0)
     assert TrainConfig(pos_radius=2.0).resolve(bare).neg_radius == 8.0

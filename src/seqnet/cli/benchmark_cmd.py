@@ -151,7 +151,7 @@ def timing_config(args: argparse.Namespace) -> TimingConfig:
     indexes = None
     if args.indexes is not None:
         indexes = () if args.indexes.strip() == "none" else tuple(parse_list([args.indexes]))
-    return _T.replace(sizes=args.sizes or (BIG_SIZES if args.big else None), dims=args.dims,
+    return _T.merge(sizes=args.sizes or (BIG_SIZES if args.big else None), dims=args.dims,
                       max_elements=args.max_elements, seq_lens=args.seq_lens, top_ks=args.top_ks,
                       queries=args.queries, repeats=args.repeats, indexes=indexes, device=args.device,
                       ann={"nlist": args.nlist, "nprobe": args.nprobe, "ef_search": args.ef_search}, dtype=args.dtype,
@@ -160,7 +160,7 @@ def timing_config(args: argparse.Namespace) -> TimingConfig:
 
 def run_timing(args: argparse.Namespace) -> int:
     conf = timing_config(args)
-    mconf = MapConfig().replace(shortlist=args.shortlist, rerank=args.rerank, split=args.split)
+    mconf = MapConfig().merge(shortlist=args.shortlist, rerank=args.rerank, split=args.split)
     from ..pipelines.timing.run import main as timing_main
 
     path = timing_main(conf, args.out, args.dataset, args.model, mconf, overwrite=args.overwrite)
@@ -194,7 +194,7 @@ def _describe_of(args: argparse.Namespace) -> tuple[DescribeConfig | None, Size 
         return DescribeConfig(method=args.descriptor, **views, **({"size": check_size(args.cnn_size)}
                                                                   if args.cnn_size else {})), None
     if args.patch is not None or views:
-        return _D.describe.replace(**({"patch": args.patch} if args.patch is not None else {}), **views), None
+        return _D.describe.merge(**({"patch": args.patch} if args.patch is not None else {}), **views), None
     return None, None
 
 
@@ -207,7 +207,7 @@ def nordland64_config(args: argparse.Namespace) -> Nordland64Config:
     s1 = {"epochs": args.epochs, "seed": args.seed, "loss": args.s1_loss, "margin": args.s1_margin,
           "match_len": args.seq_len}
     describe, cnn_size = _describe_of(args)
-    return _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
+    return _D.merge(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
                       describe=describe, seq_len=args.seq_len, top_k=args.top_k, device=args.device,
                       pca_dims=args.pca_dims, train=train,
                       train_s1=s1, query_speed=args.query_speed, fuse_weight=args.fuse_weight,

@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    conf = DemoConfig().replace(places=args.places, seed=args.seed, train_models=not args.no_train,
+    conf = DemoConfig().merge(places=args.places, seed=args.seed, train_models=not args.no_train,
                                 device=args.device, train={"epochs": args.epochs})
     with contextlib.nullcontext(Path(args.out)) if args.out else private_temp(TEMP_PREFIX) as where:
         res = main(conf, where if args.out else where / "demo", overwrite=args.overwrite).data

@@ -101,7 +101,7 @@ DESCRIBE_KEYS = ("describer", "size", "crop_bottom", "batch_size", "dim", "white
 
 def describe_config(args: argparse.Namespace) -> DescribeConfig:
     """The :class:`DescribeConfig` of the parsed options (unset ones keep the defaults)."""
-    return _D.replace(method=args.method, **{k: getattr(args, k, None) for k in DESCRIBE_KEYS})
+    return _D.merge(method=args.method, **{k: getattr(args, k, None) for k in DESCRIBE_KEYS})
 
 
 def _auto_sizes() -> str:

@@ -125,7 +125,7 @@ def add_recall_options(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     methods = parse_list(args.methods, None, "method") or None
-    conf = EvalConfig().replace(methods=methods, seq_len=args.seq_len, match_len=args.match_len,
+    conf = EvalConfig().merge(methods=methods, seq_len=args.seq_len, match_len=args.match_len,
                                 window=args.window, radius=args.radius, extra_radii=tuple(args.extra_radius) or None,
                                 top_k=args.top_k, split=args.split, backend=args.backend, device=args.device,
                                 ks=args.ks, allow_mismatch=args.allow_mismatch or None, fuse_weight=args.fuse_weight,

@@ -131,16 +131,16 @@ def experiment_config(args: argparse.Namespace) -> Any:
         value = getattr(args, key)
         own[key] = (tuple(parse_list(value)) or None) if key in LISTS else value
     if not exp.data:  # compute-time: the timing sweep's settings
-        return exp.config().replace(timing={"device": "cpu" if args.device == "auto" else args.device, **own})
+        return exp.config().merge(timing={"device": "cpu" if args.device == "auto" else args.device, **own})
     train = {"epochs": args.epochs, "seed": args.seed}
     describe = None
     if name != "descriptors" and (args.descriptor or args.cnn_size):
         size = check_size(args.cnn_size) if args.cnn_size else CNN_SIZE
         describe = describe_config(args.descriptor or _D.describe.method, size)
-    bench = _D.replace(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
+    bench = _D.merge(train_range=args.train_range, val_range=args.val_range, test_range=args.test_range,
                        pca_dims=args.pca_dims, device=args.device, train=train, train_s1=train, describe=describe,
                        recall_denominator=args.recall_denominator)
-    return exp.config().replace(benchmark=bench, **own)
+    return exp.config().merge(benchmark=bench, **own)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -84,7 +84,7 @@ def map_config(args: argparse.Namespace) -> MapConfig:
     """The map settings from the flags (unset flags keep the defaults)."""
     ann = drop_none({k: getattr(args, k) for k in ("kind", "nlist", "nprobe", "hnsw_m", "ef_search",
                                                    "ef_construction", "pq_m", "pq_bits", "seed")})
-    return _D.replace(shortlist=args.shortlist, rerank=args.rerank, seq_len=args.seq_len,
+    return _D.merge(shortlist=args.shortlist, rerank=args.rerank, seq_len=args.seq_len,
                       match_len=args.match_len, window=args.window, ann=ann, dtype=args.dtype,
                       split=args.split, device=args.device, allow_mismatch=args.allow_mismatch or None,
                       shards=args.shards)

@@ -103,7 +103,7 @@ def localizer_config(args: argparse.Namespace) -> LocalizeConfig:
     index map's own method (:func:`map_method`), else the default."""
     if args.method is None:
         args.method = map_method(getattr(args, "map", None)) or _D.method
-    return _D.replace(method=args.method, seq_len=args.seq_len, match_len=args.match_len,
+    return _D.merge(method=args.method, seq_len=args.seq_len, match_len=args.match_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
                       device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
 

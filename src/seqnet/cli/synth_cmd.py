@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    conf = SynthConfig().replace(places=args.places, dim=args.dim, seed=args.seed, noise=args.noise,
+    conf = SynthConfig().merge(places=args.places, dim=args.dim, seed=args.seed, noise=args.noise,
                                  nuisance=args.nuisance)
     out = main(conf, args.out, overwrite=args.overwrite)
     from ..data.io import load_dataset

@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
         changes["device"] = args.device
     if args.joint or (args.resume and is_joint(args.resume)):
         return _run_joint(args, changes)
-    conf = resume_config(args.resume, **changes) if args.resume else TrainConfig().replace(**changes)
+    conf = resume_config(args.resume, **changes) if args.resume else TrainConfig().merge(**changes)
     run_dir = main(conf, args.dataset, args.out, args.resume, allow_mismatch=args.allow_mismatch)
     if env_world().is_rank0:  # under torchrun, rank 0 alone wrote the run and reports it
         _print_summary(run_dir)
@@ -168,7 +168,7 @@ def _run_joint(args: argparse.Namespace, changes: dict) -> int:
         if args.loss is not None and LOSSES[args.loss].framewise:  # S_1-only losses
             raise ConfigError(f"--loss {args.loss} with --joint: the S_L model trains with the triplet loss "
                               "(hint: --s1-loss for the S_1 model)")
-        conf = TrainConfig().replace(**changes)
+        conf = TrainConfig().merge(**changes)
         s1 = s1_config(conf, args.s1_loss, args.s1_lr, args.s1_margin)
         dirs = main_joint(conf, s1, args.dataset, args.out, None, args.allow_mismatch)
     if env_world().is_rank0:

@@ -43,16 +43,25 @@ class Config:
         return cls(**values)  # type: ignore[call-arg]
 
     def replace(self: C, **changes: Any) -> C:
-        """A copy with ``changes`` applied; ``None`` values keep the current value; nested configs
-        accept a mapping of their own changes. Validation runs again on the result."""
+        """A copy with ``changes`` applied, ``None`` included (``conf.replace(target_precision=None)`` turns
+        calibration off); nested configs accept a mapping of their own changes. Validation runs again on the
+        result."""
+        return self._changed(changes, keep_none=False)
+
+    def merge(self: C, **changes: Any) -> C:
+        """:meth:`replace`, but a ``None`` value keeps the current one: how the CLI lays the options given over
+        a configuration (an option not given is None)."""
+        return self._changed(changes, keep_none=True)
+
+    def _changed(self: C, changes: Mapping[str, Any], keep_none: bool) -> C:
         _reject_unknown(type(self), changes)
         nested = _nested_types(type(self))
         out = {}
         for key, value in changes.items():
-            if value is None:
+            if value is None and keep_none:
                 continue
             if key in nested and isinstance(value, Mapping):
-                value = getattr(self, key).replace(**value)
+                value = getattr(self, key)._changed(value, keep_none)
             out[key] = value
         return dataclasses.replace(self, **out)  # type: ignore[type-var]
 

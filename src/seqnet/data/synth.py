@@ -117,7 +117,7 @@ def make_synthetic(conf: SynthConfig | None = None, **overrides: Any) -> Dataset
 
     ``overrides`` change fields of ``conf`` (default :class:`SynthConfig`), e.g. ``make_synthetic(places=200)``.
     """
-    conf = (conf or SynthConfig()).replace(**overrides)
+    conf = (conf or SynthConfig()).merge(**overrides)
     places, noise, nuisance = conf.places, conf.noise, conf.nuisance
     rng = np.random.default_rng(conf.seed)
     z = _latent_route(rng, conf.places, conf.dim)

@@ -126,7 +126,7 @@ class EvalConfig(WindowSettings, Config):
         the models allow when unset), resolved once."""
         model_len = getattr(models.get("seqnet"), "seq_len", None)
         seq_len = Windows.resolve(self.seq_len, None, self.window, model_len).seq_len
-        return self.replace(radius=radius if self.radius is None else self.radius, seq_len=seq_len,
+        return self.merge(radius=radius if self.radius is None else self.radius, seq_len=seq_len,
                             methods=self.methods or default_methods(models, seq_len))
 
     def shortlist_size(self, m: Method) -> int:

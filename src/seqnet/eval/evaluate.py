@@ -89,7 +89,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
                     f"only (queries {a}:{b}, {b - a} of {len(ds.query)}), as seqnet eval does; hint: "
                     "EvalConfig(split='all') scores every query")
     else:
-        evaluated, conf = ds, conf.replace(split=split)
+        evaluated, conf = ds, conf.merge(split=split)
     ev = evaluate_split(whole, split, evaluated, conf, models, source, prepare, said)
     for line in format_notes(learned_below_baseline(ev.results)):
         logger.warning("%s", shown(line))  # printed under the table by seqnet eval, which calls evaluate_split
@@ -142,7 +142,7 @@ def evaluate_split(ds: Dataset, split: str, evaluated: Dataset, conf: EvalConfig
     models = dict(models or {})
     conf, prepared = prepare(ds, split, models, conf) if prepare is not None else (conf, None)
     cal = calibration(ds, split, conf, models)  # first: a calibration split that cannot serve fails before any work
-    ev = score(evaluated, conf.replace(split=split), models)
+    ev = score(evaluated, conf.merge(split=split), models)
     if cal is not None:
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
@@ -185,7 +185,7 @@ def calibration(ds: Dataset, split: str, conf: EvalConfig, models: Mapping[str, 
                           "confidence compares the top-1 with the best other place retrieved; e.g. --ks 1,20")
     check_calibration_split(ds, conf.calibrate_split, split)
     try:
-        return score(ds.split(conf.calibrate_split), conf.replace(split=conf.calibrate_split), models)
+        return score(ds.split(conf.calibrate_split), conf.merge(split=conf.calibrate_split), models)
     except ConfigError as e:
         raise calibration_failed(ds, conf.calibrate_split, e) from e
 
@@ -251,7 +251,7 @@ def _used(conf: EvalConfig, models: Sequence[str | Path], shortlist_model: str |
     used = used_models(", ".join(conf.methods), set().union(*(parse_method(m).models() for m in conf.methods)),
                        models, shortlist_model, rerank_model)
     if conf.seq_len is None and used.seq_len is not None:
-        conf = conf.replace(seq_len=used.seq_len)
+        conf = conf.merge(seq_len=used.seq_len)
     return conf, (used.paths, used.shortlist_model, used.rerank_model)
 
 

@@ -180,7 +180,7 @@ def select_hvpr(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, fre
         choices.append(ch)
         for name, value in ch.settings.items():
             (weights if name == "fuse_weight" else top_ks)[m.name] = value
-    return conf.replace(method_top_k=top_ks or None, method_fuse_weight=weights or None), choices
+    return conf.merge(method_top_k=top_ks or None, method_fuse_weight=weights or None), choices
 
 
 def _choose(ds: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig, method: str, names: tuple[str, ...],

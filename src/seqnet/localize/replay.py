@@ -161,7 +161,7 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     split = default_split(conf.split, full.splits)
     used = used_models(conf.method, online_method(conf.method).models(), models, shortlist_model, rerank_model)
     if conf.seq_len is None and used.seq_len is not None:  # an unused S_L still gives L: the same windows
-        conf = conf.replace(seq_len=used.seq_len)
+        conf = conf.merge(seq_len=used.seq_len)
     models, shortlist_model, rerank_model = used.paths, used.shortlist_model, used.rerank_model
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
     if calibration is not None:
@@ -219,7 +219,7 @@ def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mappi
         return conf, None
     selection = found["selection"]
     for choice in selection.get("hvpr", []):
-        conf = conf.replace(**choice["settings"])  # of SELECTABLE: top_k, fuse_top_k, fuse_weight
+        conf = conf.merge(**choice["settings"])  # of SELECTABLE: top_k, fuse_top_k, fuse_weight
         logger.info("%s", shown(choice["reason"]))
     if selection.get("not_chosen"):
         logger.warning("%s", shown(selection["not_chosen"]))

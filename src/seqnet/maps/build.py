@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 def resolve(conf: MapConfig, models: Mapping[str, SeqNet]) -> MapConfig:
     """``conf`` with L and L_m resolved once (:meth:`seqnet.sequence.windows.Windows.resolve`)."""
     w = Windows.resolve(conf.seq_len, conf.match_len, conf.window, getattr(models.get("seqnet"), "seq_len", None))
-    return conf.replace(seq_len=w.seq_len, match_len=w.match_len)
+    return conf.merge(seq_len=w.seq_len, match_len=w.match_len)
 
 
 def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> None:
@@ -91,7 +91,7 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
     ds = load_dataset(dataset)
     split = default_split(conf.split, ds.splits)
     loaded = load_models(models, seq_len=conf.seq_len)
-    conf = resolve(conf.replace(split=split), loaded)
+    conf = resolve(conf.merge(split=split), loaded)
     sub = ds.split(split)
     check_models(conf, sub, loaded)
     check_index(conf, sub, loaded)

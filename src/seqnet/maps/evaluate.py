@@ -176,7 +176,7 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     truth = ground_truth(q.traverse.positions[items], mp.positions[mp.items], radius, positives,
                          f"{q.name} against map {mp.path}", q.unit)
     c = mp.config
-    conf = conf.replace(seq_len=c.windows.seq_len, match_len=c.windows.match_len, radius=radius)
+    conf = conf.merge(seq_len=c.windows.seq_len, match_len=c.windows.match_len, radius=radius)
 
     def info(m: Method) -> dict[str, Any]:
         return {**m.summary(), "seq_len": c.windows.seq_len, "match_len": c.windows.match_len,

@@ -69,8 +69,8 @@ class DemoConfig(Config):
 
     def model_configs(self) -> dict[str, TrainConfig]:
         """The training settings of S_L ("seqnet") and S_1 ("s1")."""
-        base = self.train.replace(device=self.device, seed=self.seed)
-        return {"seqnet": base.replace(seq_len=self.seq_len, w=self.w), "s1": base.replace(seq_len=1, w=1)}
+        base = self.train.merge(device=self.device, seed=self.seed)
+        return {"seqnet": base.merge(seq_len=self.seq_len, w=self.w), "s1": base.merge(seq_len=1, w=1)}
 
 
 def train_demo_models(ds: Dataset, conf: DemoConfig, root: Path, data_dir: Path) -> tuple[dict[str, Any], dict]:

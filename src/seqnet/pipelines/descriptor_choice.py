@@ -44,7 +44,7 @@ def candidate_describe(base: DescribeConfig, name: str) -> DescribeConfig:
     """``base`` as candidate ``name`` describes: ``METHOD`` (its own view of the images), or ``METHOD+VIEW...``
     (the raw images and each named view, :mod:`seqnet.describe.views`)."""
     method, *views = name.split("+")
-    return base.replace(method=method, views=(RAW, *views) if views else DEFAULT_VIEWS)
+    return base.merge(method=method, views=(RAW, *views) if views else DEFAULT_VIEWS)
 
 
 def candidate_name(dconf: DescribeConfig) -> str:

@@ -177,8 +177,8 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
     val, rng = base.split("val"), base.ranges("val")
 
     def score(dconf: DescribeConfig) -> dict:
-        t0, fit = time.perf_counter(), _proxy_fit(conf.replace(describe=dconf), images, base)
-        describer = make_describer(dconf.replace(fit=fit) if fit else dconf, fit or ref.paths)
+        t0, fit = time.perf_counter(), _proxy_fit(conf.merge(describe=dconf), images, base)
+        describer = make_describer(dconf.merge(fit=fit) if fit else dconf, fit or ref.paths)
         desc = {}
         for side, side_images in (("reference", ref), ("query", qry)):
             a, b = rng[side]
@@ -191,7 +191,7 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
         return {**proxy_scores(described, PROXY_SEQ_LEN, dconf.device, t0=t0), "fit_images": len(fit)}
 
     def final_fit(dconf: DescribeConfig) -> int:
-        return len(_fit_images(conf.replace(describe=dconf), ref, qry) or [])
+        return len(_fit_images(conf.merge(describe=dconf), ref, qry) or [])
 
     (a, b), (c, d) = rng["reference"], rng["query"]
     where = f"val queries {c}:{d} against reference {a}:{b}"
@@ -256,11 +256,11 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
         base = _before_describing(conf, images, positions, unit, truth, conf.name or Path(out).name)
         if conf.candidates:
             dconf, record = choose_describer(conf, images, base)
-            conf, extra = conf.replace(describe=dconf, candidates=()), {**(extra or {}), "descriptor_choice": record}
+            conf, extra = conf.merge(describe=dconf, candidates=()), {**(extra or {}), "descriptor_choice": record}
         fit = _fit_images(conf, ref, qry)
         if mismatch := sides_size_mismatch(ref.paths, qry.paths, conf.describe.image_size):
             raise mismatch
-        describer = make_describer(conf.describe.replace(fit=fit) if fit else conf.describe, fit or ref.paths)
+        describer = make_describer(conf.describe.merge(fit=fit) if fit else conf.describe, fit or ref.paths)
         desc = {}
         for side, side_images in (("reference", ref), ("query", qry)):
             logger.info("describing %d %s images (%s)", len(side_images), side, conf.describe.label)

@@ -213,7 +213,7 @@ class TrainConfig(Config):
         ``ds.extra["neg_radius"]``, else 4 × ``pos_radius``."""
         pos = self.pos_radius or ds.extra.get("pos_radius") or ds.radius
         neg = self.neg_radius or ds.extra.get("neg_radius") or 4 * float(pos)
-        return self.replace(out_dims=self.out_dims or ds.query.dim, pos_radius=pos, neg_radius=neg)
+        return self.merge(out_dims=self.out_dims or ds.query.dim, pos_radius=pos, neg_radius=neg)
 
     def resumed(self, conf: TrainConfig | None) -> TrainConfig:
         """This (a run's stored, resolved) configuration with the changes ``conf`` may make when

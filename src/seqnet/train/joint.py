@@ -38,7 +38,7 @@ S1_LOSS = "triplet"  # the S_1 loss of a joint run unless given
 def s1_config(conf: TrainConfig, loss: str = S1_LOSS, lr: float | None = None,
               margin: float | None = None) -> TrainConfig:
     """The S_1 settings of a joint run whose S_L settings are ``conf`` (lr, margin None: ``conf``'s)."""
-    return dataclasses.replace(conf.replace(seq_len=1, w=1, loss=loss, lr=lr, margin=margin), speed_augment=None)
+    return dataclasses.replace(conf.merge(seq_len=1, w=1, loss=loss, lr=lr, margin=margin), speed_augment=None)
 
 
 def is_joint(run: str | Path) -> bool:

@@ -267,14 +267,14 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
     from ...data.io import load_dataset
 
     defaults = conf.methods == EvalConfig().methods
-    conf = conf.replace(methods=DEFAULT_MATRIX_METHODS if defaults else conf.methods)
+    conf = conf.merge(methods=DEFAULT_MATRIX_METHODS if defaults else conf.methods)
     outputs = EvalOutputs(out, per_query, json, figures, report, overwrite)
     with outputs.session(conf.methods):
         ds = load_dataset(dataset)
         split = default_split(conf.split, ds.splits)
         sub = ds.split(split)  # a bad split is refused here, before the matrix is read
         dist = open_matrix(distances, ds, similarity, split, transposed)
-        ev = evaluate_matrix(sub, dist, conf.replace(split="all"))  # the split taken; the reading open_matrix's
+        ev = evaluate_matrix(sub, dist, conf.merge(split="all"))  # the split taken; the reading open_matrix's
         ev.results["config"]["split"] = split
         ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering
         add_warnings(ev, [split_note(conf.split, list(ds.splits), len(sub.query))])

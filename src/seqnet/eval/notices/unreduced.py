@@ -47,7 +47,7 @@ def unreduced_counterparts(ev: Evaluation, ds: Dataset, split: str, conf: EvalCo
             logger.debug("not comparing with the unreduced %s: its %r split differs", parent, split)
             return None
         cfg = ev.results.get("config") or {}
-        base = score(full.split(split), conf.replace(methods=wanted, seq_len=cfg.get("seq_len", conf.seq_len),
+        base = score(full.split(split), conf.merge(methods=wanted, seq_len=cfg.get("seq_len", conf.seq_len),
                                                      match_len=cfg.get("match_len", conf.match_len),
                                                      target_precision=None), {})
     except SeqnetError as e:

@@ -65,7 +65,7 @@ def main(conf: ComparisonConfig, data: str | Path | None, out: str | Path, cache
         check_experiment(out, "comparison", overwrite)
         p = source(conf.benchmark, data, cache, dataset, models, overwrite)
         methods = p.runnable(methods_of(table))  # rows without their models show "–"
-        evs = evaluate_splits(p, conf.benchmark.eval_config().replace(methods=methods))
+        evs = evaluate_splits(p, conf.benchmark.eval_config().merge(methods=methods))
         values = [evs[s].results["methods"] for s in p.splits]
         denominator = conf.benchmark.recall_denominator
         md = (f"# Performance comparison (paper: Table I), {p.name}\n\n"

@@ -93,7 +93,7 @@ def main(conf: DescriptorsConfig, data: str | Path, out: str | Path, cache: str 
     cache = Path(cache) if cache else out
     with locked_dirs(out, cache):
         check_experiment(out, "descriptors", overwrite, conf.descriptors)
-        benches = {name: conf.benchmark.replace(describe=conf.describe(name), methods=conf.methods)
+        benches = {name: conf.benchmark.merge(describe=conf.describe(name), methods=conf.methods)
                    for name in conf.descriptors}
         for bench in benches.values():  # before any work
             check_cache(bench, cache, overwrite=overwrite)

@@ -65,7 +65,7 @@ def main(conf: LongerConfig, data: str | Path | None, out: str | Path, cache: st
         methods = p.runnable(conf.methods)
         evs: dict[str, Evaluation] = {}
         for lm in conf.lengths:
-            ec = conf.benchmark.eval_config().replace(methods=methods, match_len=lm)
+            ec = conf.benchmark.eval_config().merge(methods=methods, match_len=lm)
             for split, ev in evaluate_splits(p, ec).items():
                 evs[f"{split} L_m={lm}"] = ev
         header = ["method", *(f"R@1 {k}" for k in evs)]

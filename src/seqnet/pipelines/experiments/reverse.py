@@ -76,7 +76,7 @@ def main(conf: ReverseConfig, data: str | Path | None, out: str | Path, cache: s
         check_experiment(out, "reverse", overwrite)
         p = source(conf.benchmark, data, cache, dataset, models, overwrite)
         methods = p.runnable(conf.methods)
-        ec = conf.benchmark.eval_config().replace(methods=methods)
+        ec = conf.benchmark.eval_config().merge(methods=methods)
         fwd, rev = evaluate_splits(p, ec), evaluate_splits(p, ec, transform=reverse_reference)
         evs = {f"{s} {d}": e[s] for s in p.splits for d, e in (("forward", fwd), ("reversed", rev))}
         header = ["method", *(f"R@1 {k}" for k in evs)]

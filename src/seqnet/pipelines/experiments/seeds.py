@@ -44,7 +44,7 @@ class SeedsConfig(Config):
 
     def seeded(self, seed: int) -> Nordland64Config:
         """The benchmark settings with both models trained with ``seed``."""
-        return self.benchmark.replace(train={"seed": seed}, train_s1={"seed": seed})
+        return self.benchmark.merge(train={"seed": seed}, train_s1={"seed": seed})
 
     def models_sub(self, seed: int) -> str | None:
         """Where the models of ``seed`` are cached: the benchmark's own (None) or ``seeds/seedN``."""

@@ -51,7 +51,7 @@ def _planned(key: str, conf: TablesConfig) -> tuple[str, Any, Config, str]:
     """The experiment of table ``key`` (or figure): its name, entry, settings and sub-folder."""
     name = _by_table().get(key, key)
     exp = PAPER_EXPERIMENTS[name]
-    return name, exp, exp.config().replace(benchmark=conf.benchmark) if exp.data else exp.config(), exp.alias or name
+    return name, exp, exp.config().merge(benchmark=conf.benchmark) if exp.data else exp.config(), exp.alias or name
 
 
 def _check_all(conf: TablesConfig, out: Path, overwrite: bool) -> None:

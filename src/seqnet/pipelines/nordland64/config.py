@@ -79,7 +79,7 @@ class Nordland64Config(Config):
     flip: bool = True
     seq_len: int = 5
     train: TrainConfig = TRAIN
-    train_s1: TrainConfig = TRAIN.replace(seq_len=1, w=1, lr=3e-4)
+    train_s1: TrainConfig = TRAIN.merge(seq_len=1, w=1, lr=3e-4)
     methods: tuple[str, ...] = METHODS
     top_k: int = 20
     fuse_weight: float = FUSE_WEIGHT  # the library's λ and K (chosen on this benchmark's val, both speeds)

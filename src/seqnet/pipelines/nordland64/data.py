@@ -75,7 +75,7 @@ def describe_seasons(data: Path, names: list[str], conf: Nordland64Config, offse
     a, b = conf.train_range
     train_names = names[a - offset : b - offset]
     fit = [data / s / n for s in SEASONS for n in train_names]  # the train images of both seasons
-    describer = make_describer(conf.describe.replace(fit=fit), fit)
+    describer = make_describer(conf.describe.merge(fit=fit), fit)
     out: dict[str, Any] = {}
     for season in SEASONS:
         logger.info("describing %d %s images (%s)", len(names), season, conf.describe.label)

@@ -35,7 +35,7 @@ def longer_sequences(conf: Nordland64Config, data: str | Path, out: str | Path, 
     ranges of the nordland64 folder ``data``; ``out`` holds the descriptor and model caches (shared
     with ``seqnet benchmark nordland64 --out``), ``longer.json`` and ``longer.md``. Returns the JSON path."""
     lengths = check_ints("lengths", tuple(lengths), 1)
-    conf = conf.replace(methods=tuple(methods))
+    conf = conf.merge(methods=tuple(methods))
     out = Path(out)
     with locked(out):
         t0 = time.perf_counter()
@@ -45,7 +45,7 @@ def longer_sequences(conf: Nordland64Config, data: str | Path, out: str | Path, 
         for split in LONGER_SPLITS:
             sub = split_dataset(ds, conf, split)
             for lm in lengths:
-                ev = score(sub, conf.eval_config().replace(methods=tuple(methods), match_len=lm), models)
+                ev = score(sub, conf.eval_config().merge(methods=tuple(methods), match_len=lm), models)
                 results.setdefault(split, {})[str(lm)] = ev.results["methods"]
                 logger.info("longer sequences: %s L_m=%d done", split, lm)
         record = {"results": results, "lengths": list(lengths), "methods": list(methods),

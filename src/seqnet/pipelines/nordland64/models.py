@@ -102,7 +102,7 @@ def train_models(ds: Dataset, conf: Nordland64Config, out: Path, flipped: np.nda
         tds = training_dataset(ds, pca, conf.symmetric, flipped)
         models, seconds = {}, {}
         for role, tconf in zip(ROLES, (conf.train, conf.train_s1), strict=True):
-            models[role], seconds[role] = train_one(tds, tconf.replace(device=conf.device), out, role, pca, ds)
+            models[role], seconds[role] = train_one(tds, tconf.merge(device=conf.device), out, role, pca, ds)
         files = [f"models/{f}" for f in ("pca.npz", *(f"{r}.pt" for r in ROLES)) if (models_dir / f).is_file()]
         cache.seal(out, "models", key, files, seconds=seconds, inputs=inputs)
     return models, seconds

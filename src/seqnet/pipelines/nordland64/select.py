@@ -57,7 +57,7 @@ def proxy_scores(data: Path, names: list[str], pos: np.ndarray, conf: Nordland64
     t0 = time.perf_counter()
     (a, b), (c, d) = conf.train_range, conf.val_range
     fit = [data / s / n for s in SEASONS for n in evenly(names[a - offset: b - offset])]
-    describer = make_describer(dconf.replace(fit=fit) if dconf.needs_fit else dconf, fit)
+    describer = make_describer(dconf.merge(fit=fit) if dconf.needs_fit else dconf, fit)
     val, vpos = names[c - offset: d - offset], pos[c - offset: d - offset]
     desc = {}
     for season in SEASONS:
@@ -91,7 +91,7 @@ def descriptor_on_val(conf: Nordland64Config, data: str | Path, out: Path | None
                 and isinstance(record.get("reason"), str) and runnable(candidate_config(conf, chosen)) is None:
             logger.info("descriptor choice reused from %s: %s", shown(out / cache.CHOICE[0]), record["reason"])
             reason = f"{record['reason']} (an earlier run's choice in this folder, reused)"
-            return conf.replace(describe=candidate_config(conf, chosen)), {**record, "reason": reason, "cached": True}
+            return conf.merge(describe=candidate_config(conf, chosen)), {**record, "reason": reason, "cached": True}
     conf, record = choose_descriptor(data, names[lo:hi], pos[lo:hi], conf, lo)
     if out is not None:
         cache.open_unit(out, "choice", cache.CHOICE, overwrite)  # its key removed first
@@ -121,7 +121,7 @@ def choose_descriptor(data: str | Path, names: list[str], pos: np.ndarray, conf:
     final = len(SEASONS) * (b - a)  # the final descriptors' state: fitted on every train place of both seasons
     dconf, record = choice.choose_on_val(candidates, lambda dc: proxy_scores(Path(data), names, pos, conf, offset, dc),
                                          f"val places {c}:{d}", lambda dc: final if dc.needs_fit else 0)
-    return conf.replace(describe=dconf), record
+    return conf.merge(describe=dconf), record
 
 
 def choose_hvpr(val: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Config,
@@ -132,5 +132,5 @@ def choose_hvpr(val: Dataset, models: Mapping[str, SeqNet], conf: Nordland64Conf
                                  f"val places {conf.val_range[0]}:{conf.val_range[1]}")
     for ch in choices:
         logger.debug("%s", ch.reason)
-    conf = conf.replace(method_top_k=econf.method_top_k, method_fuse_weight=econf.method_fuse_weight)
+    conf = conf.merge(method_top_k=econf.method_top_k, method_fuse_weight=econf.method_fuse_weight)
     return conf, econf, choices

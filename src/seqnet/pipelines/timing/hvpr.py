@@ -23,7 +23,7 @@ def build_indexes(mp: Map, conf: TimingConfig) -> tuple[dict[str, Any], dict[str
     indexes, seconds = {}, {}
     for kind in conf.indexes:
         t0 = time.perf_counter()
-        indexes[kind] = build_index(x, conf.ann.replace(kind=kind))
+        indexes[kind] = build_index(x, conf.ann.merge(kind=kind))
         seconds[kind] = round(time.perf_counter() - t0, 3)
     return indexes, seconds
 

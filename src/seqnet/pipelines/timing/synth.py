@@ -82,7 +82,7 @@ def make_map(conf: TimingConfig, n: int, dim: int, out: Path) -> Path:
     items = lay.items
     shortlist = window_means(frames, lay.starts(conf.seq_len, items), conf.seq_len)
     mconf = MapConfig(shortlist="smoothing", rerank="raw+seqmatch", seq_len=conf.seq_len,
-                      match_len=max(conf.seq_lens), ann=conf.ann.replace(kind="flat"), dtype=conf.dtype)
+                      match_len=max(conf.seq_lens), ann=conf.ann.merge(kind="flat"), dtype=conf.dtype)
     arrays = MapArrays(shortlist, frames, items, lay.starts(max(conf.seq_lens), items),
                        np.arange(n, dtype=np.float64)[:, None])
     prov = make_provenance("synthetic", {"generator": "timing-route", "rho": RHO, "seed": conf.seed}, dim=dim)

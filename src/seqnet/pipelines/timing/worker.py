@@ -39,7 +39,7 @@ def build_job(job: dict[str, Any], conf: TimingConfig) -> dict[str, Any]:
     """Write the map of the job (synthetic, or from the job's dataset and models)."""
     t0 = time.perf_counter()
     if job.get("dataset"):
-        mconf = MapConfig.from_dict(job["map_config"]).replace(match_len=max(conf.seq_lens), device=conf.device)
+        mconf = MapConfig.from_dict(job["map_config"]).merge(match_len=max(conf.seq_lens), device=conf.device)
         build(mconf, job["dataset"], job["map"], job.get("models", ()))
     else:
         make_map(conf, job["n"], job["dim"], Path(job["map"]))
