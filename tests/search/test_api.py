@@ -88,3 +88,33 @@ def test_normalize_ranks_as_the_normalised_rows_do(rng):
 def test_normalize_must_be_a_bool_or_none(rng):
     with pytest.raises(ConfigError, match="normalize"):
         knn(np.eye(3, dtype=np.float32), np.eye(3, dtype=np.float32), 1, normalize="yes")
+
+
+def test_all_zero_rows_are_said_once_naming_the_row(rng, caplog, unsaid):
+    """An all-zero query row (a failed descriptor) was ranked without a word: arbitrary ties at 0.99999994,
+    while Traverse refuses the same rows."""
+    r = unit(rng.standard_normal((50, 8)).astype(np.float32))
+    q = unit(r + 0.05 * rng.standard_normal((50, 8)).astype(np.float32))
+    q[[3, 7]] = 0
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        for normalize in (None, True, False):
+            s, i = knn(q, r, 3, normalize=normalize)
+        seqnet.seqmatch(q, r, 3, normalize=True)
+    lines = [rec.getMessage() for rec in caplog.records]
+    assert len(lines) == 2, lines  # once per function
+    assert lines[0].startswith("knn: query row 3 is all zeros (2 such rows of 50); a zero descriptor matches "
+                               "nothing") and "Traverse" in lines[0]
+    assert lines[1].startswith("seqmatch: query row 3 is all zeros")
+    naive = np.argsort(np.linalg.norm(q[:, None] - r[None], axis=2), axis=1, kind="stable")[:, :3]
+    np.testing.assert_array_equal(np.delete(i, [3, 7], 0), np.delete(naive, [3, 7], 0))  # the rest is unchanged
+
+
+@pytest.mark.parametrize("normalize", [None, True, False])
+def test_nan_rows_are_named_not_told_to_normalise(rng, normalize):
+    """NaN with normalize=True was told 'hint: L2-normalise them'."""
+    q = unit(rng.standard_normal((20, 8)).astype(np.float32))
+    q[5, 2] = np.nan
+    with pytest.raises(ConfigError, match=r"knn: reference row 5 holds NaN or inf.*drop that row") as err:
+        knn(q[:3], q, 2, normalize=normalize)
+    assert "L2-normalise" not in str(err.value)
+

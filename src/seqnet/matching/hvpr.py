@@ -104,7 +104,7 @@ def hvpr(
         window: ``"centred"`` or ``"causal"`` windows (anchored matchers pin the item's frame in them).
         normalize: ``True``: L2-normalise every row of the four arrays first, as ``evaluate()`` and ``seqnet
             eval`` do; ``None`` (default): compare the rows as given, with a WARNING line (once a process) when
-            rows are far from unit norm; ``False``: as given, unchecked (as :func:`seqnet.knn` and
+            rows are far from unit norm; ``False``: as given, without the unit-norm check (as :func:`seqnet.knn` and
             :func:`seqnet.seqmatch`).
 
     Returns:
