@@ -118,3 +118,14 @@ def test_nan_rows_are_named_not_told_to_normalise(rng, normalize):
         knn(q[:3], q, 2, normalize=normalize)
     assert "L2-normalise" not in str(err.value)
 
+
+def test_cosine_is_refused_before_any_row_warning_with_the_ip_hint(rng, caplog, unsaid):
+    """metric='cosine' logged the unit-norm WARNING before it was refused."""
+    _, q = rescaled(rng)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        with pytest.raises(ConfigError, match=r"metric 'cosine'.*metric='ip' with normalize=True"):
+            knn(q, q, 2, metric="cosine")
+        with pytest.raises(ConfigError, match="k must be an integer"):
+            knn(q, q, 0)
+    assert not caplog.records
+

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.config import check_choice, check_int
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..core.log import counted, warn_once
@@ -131,5 +132,11 @@ def knn(query: ArrayLike, ref: ArrayLike, k: int, backend: str = "torch", metric
     Returns:
         ``(scores [Nq, k], indices [Nq, k])`` as numpy, best first (scores first: unpack as ``scores, idx``).
     """
+    if metric == "cosine":  # checked before the rows: the arguments' errors come before the rows' warnings
+        raise ConfigError("metric 'cosine' is not one of l2, ip (hint: cosine similarity is metric='ip' with "
+                          "normalize=True)")
+    check_choice("metric", metric, exact.METRICS)
+    check_choice("k-NN backend", backend, exact.KNN_BACKENDS)
+    check_int("k", k, 1)
     q, r = prepared(query, ref, "knn", normalize)
     return exact.knn(q, r, k, backend, metric, device, block_bytes)
