@@ -129,3 +129,11 @@ def test_cosine_is_refused_before_any_row_warning_with_the_ip_hint(rng, caplog, 
             knn(q, q, 0)
     assert not caplog.records
 
+
+def test_numpy_bools_are_taken_as_normalize(rng):
+    """normalize=np.True_ (e.g. from an array of flags) was refused."""
+    qu, qs = rescaled(rng)
+    for flag, rows in ((np.True_, qu), (np.False_, qs)):
+        s, i = knn(qs, qs, 3, normalize=flag)
+        naive = np.argsort(np.linalg.norm(rows[:, None] - rows[None], axis=2), axis=1, kind="stable")[:, :3]
+        np.testing.assert_array_equal(i, naive)

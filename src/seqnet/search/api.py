@@ -93,8 +93,9 @@ def prepared(query: ArrayLike | list, ref: ArrayLike | list, caller: str, normal
     once per ``caller`` in a process: its advice, ``normalize=``, is the same for every batch of a loop and for
     every side); as given when False. Whatever ``normalize``, :func:`row_checks` first (a non-finite row refused,
     all-zero rows said once per ``caller``). ``sides``: the two arrays' names in the line."""
-    if normalize is not None and not isinstance(normalize, bool):
+    if normalize is not None and not isinstance(normalize, (bool, np.bool_)):
         raise ConfigError(f"normalize must be True, False or None, got {normalize!r}")
+    normalize = None if normalize is None else bool(normalize)
     pair = as_array(query), as_array(ref)
     for x, side in zip(pair, sides, strict=True):
         line = row_checks(x, side, caller)
