@@ -112,6 +112,9 @@ def hvpr(
         first (ascending matcher or fused score), then the rest of the k-NN list (score ``inf``).
     """
     anchor = MODE_ANCHORS[check_choice("window mode", window, MODE_ANCHORS)]
+    for starts, name, rows, of in ((q_starts, "q_starts", shortlist_query, "shortlist_query"),
+                                   (r_starts, "r_starts", shortlist_ref, "shortlist_ref")):
+        _one_per_row(starts, name, len(rows), of)
     shortlist_query, shortlist_ref = prepared(shortlist_query, shortlist_ref, "hvpr", normalize,
                                               ("shortlist query", "shortlist reference"))
     rerank_query, rerank_ref = prepared(rerank_query, rerank_ref, "hvpr", normalize,
@@ -119,6 +122,15 @@ def hvpr(
     return hvpr_search(lambda n: knn(shortlist_query, shortlist_ref, n, backend=backend, device=device),
                        lambda c: pair_scores(rerank_query, rerank_ref, seq_len, q_starts, r_starts, c, matcher,
                                              device, anchor), seq_len, top_k, k, fuse)
+
+
+def _one_per_row(starts: ArrayLike, name: str, n: int, of: str) -> None:
+    """A :class:`ConfigError` unless ``starts`` is ``[n]``: one window start per row of ``of`` (checked before
+    :func:`pair_scores`, whose errors name its own arguments)."""
+    shape = tuple(starts.shape) if hasattr(starts, "shape") else np.shape(starts)
+    if shape != (n,):
+        raise ConfigError(f"{name} must have one entry per {of} row ({n}), got "
+                          f"{shape[0] if len(shape) == 1 else f'shape {shape}'}")
 
 
 @no_grad
