@@ -5,6 +5,7 @@ ground truth that makes Recall@K near-trivial (:func:`trivial_truth`: said by ``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -36,6 +37,31 @@ def trivial_truth(truth: Any, samples: int = 200) -> str | None:
 
 
 KNN_HINT = "hint: knn returns (scores, indices): unpack it as scores, idx = knn(...) and pass idx"
+
+
+def k_values(ks: Any) -> list[int]:
+    """The K values of Recall@K: a sequence of integers >= 1, or one integer K (``ks=5``: ``[5]``); anything
+    else (a bool, a string, a float K, K < 1, none at all) is a :class:`ConfigError`."""
+    def whole(k: Any) -> bool:
+        return isinstance(k, (int, np.integer)) and not isinstance(k, (bool, np.bool_)) and k >= 1
+
+    many = isinstance(ks, (Sequence, np.ndarray)) and not isinstance(ks, (str, bytes))
+    given = [ks] if whole(ks) else ks if many else ()
+    if not len(given) or not all(whole(k) for k in given):
+        raise ConfigError(f"every K must be an integer >= 1: ks is one K or a sequence of them (e.g. ks=(1, 5, 10)), "
+                          f"got {ks!r}")
+    return [int(k) for k in given]
+
+
+def retrieved_array(retrieved: Any) -> np.ndarray:
+    """``retrieved`` as a numpy array; rows of different lengths (a ragged list) are a :class:`ConfigError`."""
+    try:
+        return np.asarray(retrieved)
+    except ValueError as err:  # numpy refuses ragged nested sequences
+        lens = sorted({len(r) for r in retrieved if hasattr(r, "__len__")}) if hasattr(retrieved, "__iter__") else []
+        raise ConfigError(f"retrieved must be [M, K] (K reference indices in every row), got rows of lengths "
+                          f"{', '.join(map(str, lens[:5]))}{', ...' if len(lens) > 5 else ''} (hint: pad the short "
+                          "rows with -1, which means none)") from err
 
 
 def integral(retrieved: np.ndarray) -> np.ndarray:
