@@ -325,6 +325,18 @@ def test_traverse_constructor_errors(rng):
         Traverse(np.zeros((2, 2), np.float32), np.zeros(2), seq_bounds=np.array([[0.5, 2.0]] * 2))
 
 
+@pytest.mark.parametrize("p", [2, 1])
+def test_transposed_positions_say_transpose(rng, p):
+    """Positions given as [2, N] were refused without the hint recall_at_k gives (pos.T)."""
+    d = rng.standard_normal((40, 8)).astype(np.float32)
+    with pytest.raises(DatasetError, match=rf"got shape \({p}, 40\); they look transposed .*pass positions\.T "
+                                           rf"\(\[40, {p}\]"):
+        Traverse(d, rng.random((p, 40)))
+    with pytest.raises(DatasetError, match=r"got shape \(3, 40\)$"):  # 3 coordinates: no transpose would do
+        Traverse(d, rng.random((3, 40)))
+    assert Traverse(d, rng.random((2, 40)).T).positions.shape == (40, 2)
+
+
 # ----------------------------------------------------------------------------- subset and split
 
 
