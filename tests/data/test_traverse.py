@@ -337,6 +337,15 @@ def test_transposed_positions_say_transpose(rng, p):
     assert Traverse(d, rng.random((2, 40)).T).positions.shape == (40, 2)
 
 
+def test_repr_is_one_short_line(rng):
+    """The dataclass repr printed every name and array: 31,702 characters for 1000 frames."""
+    names = [f"img{i:05d}.jpg" for i in range(1000)]
+    t = Traverse(rng.random((1000, 64), dtype=np.float32), np.arange(1000), names=names, name="query")
+    assert repr(t) == "Traverse('query': 1000 images, D=64 float32, frame numbers, names)"
+    u = Traverse(np.ones((3, 2), np.float32), np.ones((3, 2)), seq_bounds=np.array([[0, 3]] * 3))
+    assert repr(u) == "Traverse('traverse': 3 images, D=2 float32, positions [3, 2], seq_bounds)"
+
+
 # ----------------------------------------------------------------------------- subset and split
 
 
