@@ -126,3 +126,23 @@ def test_zero_one_rows_elsewhere_are_a_matrix_or_refused(tmp_path):
         Positives.from_lists(grid.tolist())
     with pytest.raises(DatasetError, match=r"must be integers.*hint: give a matrix as a numpy array"):
         Positives.from_lists(grid.astype(bool).tolist())
+
+
+def test_python_array_that_may_be_pairs_is_refused_with_the_python_hint():
+    """An [Nq, 2] array of two references per query (first column 0..Nq-1) was refused with a hint to save a CSV
+    or a JSON file; in Python the two readings are Positives.from_lists and Positives.from_pairs."""
+    from seqnet.data.positives import Positives, as_positives
+
+    n = 8
+    idx = np.array([[i, min(i + 1, n - 1)] for i in range(n)])
+    with pytest.raises(DatasetError, match=r"pairs or two reference indices per query.*hint: Positives\.from_lists"
+                                           r"\(arr\.tolist\(\)\) .*Positives\.from_pairs\(arr\[:, 0\], arr\[:, 1\], "
+                                           r"n_queries\)") as err:
+        as_positives(idx, n, n)
+    assert "CSV" not in str(err.value)
+    naive = [sorted({int(a), int(b)}) for a, b in idx]  # two references per query, by a loop
+    assert _rows(as_positives(Positives.from_lists(idx.tolist()), n, n)) == naive
+    pairs = as_positives(Positives.from_pairs(idx[:, 0], idx[:, 1], n), n, n)
+    assert _rows(pairs) == [[int(b)] for _, b in idx]
+    shifted = idx[::-1].copy()  # first column not 0..n-1: only rows of references fit, taken as such
+    assert _rows(as_positives(shifted, n, n)) == [sorted({int(a), int(b)}) for a, b in shifted]
