@@ -146,3 +146,19 @@ def test_python_array_that_may_be_pairs_is_refused_with_the_python_hint():
     assert _rows(pairs) == [[int(b)] for _, b in idx]
     shifted = idx[::-1].copy()  # first column not 0..n-1: only rows of references fit, taken as such
     assert _rows(as_positives(shifted, n, n)) == [sorted({int(a), int(b)}) for a, b in shifted]
+
+
+def test_json_rows_of_zeros_and_ones_that_could_be_indices_are_refused_at_the_matrix_width(tmp_path):
+    """JSON [[0, 1], [1, 0], [0, 1]] with 2 references was read as indices ({0, 1} for every query) without the
+    check as_positives makes on the same Python list."""
+    from seqnet.data.positives import as_positives
+
+    rows = [[0, 1], [1, 0], [0, 1]]
+    (tmp_path / "amb.json").write_text(str(rows))
+    with pytest.raises(DatasetError, match=r"3 rows of 2 zeros and ones .*different positives \(hint: write a "
+                                           r"matrix with true / false entries"):
+        as_positives(read_positives(tmp_path / "amb.json"), 3, 2)
+    naive = [sorted(set(r)) for r in rows]  # 5 references: only the index reading fits
+    assert _rows(as_positives(read_positives(tmp_path / "amb.json"), 3, 5)) == naive
+    (tmp_path / "bool.json").write_text("[[false, true], [true, false], [false, true]]")
+    assert _rows(as_positives(read_positives(tmp_path / "bool.json"), 3, 2)) == _naive_matrix_rows(rows)

@@ -43,7 +43,8 @@ def _read_json(p: Path) -> Positives:
     rows = zero_one_rows(data)
     if rows is not None and (rows.dtype == bool or repeats(rows)):  # a 0/1 matrix: no list of indices repeats one
         return numeric_matrix(rows, p)
-    return Positives.from_lists([r if isinstance(r, list) else [r] for r in data], str(p))
+    found = Positives.from_lists([r if isinstance(r, list) else [r] for r in data], str(p))
+    return found if rows is None else dataclasses.replace(found, zero_one_width=int(rows.shape[1]))
 
 
 QUERY_COLUMNS = ("query", "queries", "q", "qry")  # a CSV header's names of the query column (lower case)
