@@ -124,7 +124,13 @@ class Positives:
 
 def _indices(row: object, where: str) -> np.ndarray:
     """The sorted unique reference indices of one query's list (``-1`` = no match, dropped); a value that is no
-    index (a fraction, a text, beyond ``INDEX_MAX``, below -1) is a :class:`DatasetError` naming it."""
+    index (a fraction, a text, beyond ``INDEX_MAX``, below -1) is a :class:`DatasetError` naming it. A set (or a
+    range) is its members, as the pickle reader takes them."""
+    if isinstance(row, (set, frozenset, range)):
+        try:
+            row = sorted(row)
+        except TypeError as e:  # members of kinds that do not compare: no indices
+            raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}") from e
     try:
         a = np.asarray(row).ravel()
     except (TypeError, ValueError, OverflowError) as e:
