@@ -59,6 +59,19 @@ def test_check_errors():
         Positives.from_lists([[-3]])
 
 
+def test_sets_of_indices_are_their_members(rng):
+    """Positives as sets ([{0}, {1}, ...]) were refused with 'reference indices must be integers, got {0}', while
+    the pickle reader takes sets."""
+    from seqnet.data.positives import as_positives
+
+    lists = [set(rng.integers(-1, 9, size=int(rng.integers(0, 4))).tolist()) for _ in range(12)]
+    lists[3] = frozenset({7, 2})
+    got = as_positives(lists, 12, 9)
+    assert [got.of(i).tolist() for i in range(12)] == [sorted(x for x in row if x >= 0) for row in lists]
+    with pytest.raises(DatasetError, match=r"query 0: reference indices must be integers, got \{"):
+        as_positives([{"a", 1}], 1, 9)
+
+
 def test_read_json_csv_npy(tmp_path):
     (tmp_path / "p.json").write_text(json.dumps([[0, 1], [1, 2, 3], [], [-1], 4]))
     p = read_positives(tmp_path / "p.json")

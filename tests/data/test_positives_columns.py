@@ -126,3 +126,39 @@ def test_zero_one_rows_elsewhere_are_a_matrix_or_refused(tmp_path):
         Positives.from_lists(grid.tolist())
     with pytest.raises(DatasetError, match=r"must be integers.*hint: give a matrix as a numpy array"):
         Positives.from_lists(grid.astype(bool).tolist())
+
+
+def test_python_array_that_may_be_pairs_is_refused_with_the_python_hint():
+    """An [Nq, 2] array of two references per query (first column 0..Nq-1) was refused with a hint to save a CSV
+    or a JSON file; in Python the two readings are Positives.from_lists and Positives.from_pairs."""
+    from seqnet.data.positives import Positives, as_positives
+
+    n = 8
+    idx = np.array([[i, min(i + 1, n - 1)] for i in range(n)])
+    with pytest.raises(DatasetError, match=r"pairs or two reference indices per query.*hint: Positives\.from_lists"
+                                           r"\(arr\.tolist\(\)\) .*Positives\.from_pairs\(arr\[:, 0\], arr\[:, 1\], "
+                                           r"n_queries\)") as err:
+        as_positives(idx, n, n)
+    assert "CSV" not in str(err.value)
+    naive = [sorted({int(a), int(b)}) for a, b in idx]  # two references per query, by a loop
+    assert _rows(as_positives(Positives.from_lists(idx.tolist()), n, n)) == naive
+    pairs = as_positives(Positives.from_pairs(idx[:, 0], idx[:, 1], n), n, n)
+    assert _rows(pairs) == [[int(b)] for _, b in idx]
+    shifted = idx[::-1].copy()  # first column not 0..n-1: only rows of references fit, taken as such
+    assert _rows(as_positives(shifted, n, n)) == [sorted({int(a), int(b)}) for a, b in shifted]
+
+
+def test_json_rows_of_zeros_and_ones_that_could_be_indices_are_refused_at_the_matrix_width(tmp_path):
+    """JSON [[0, 1], [1, 0], [0, 1]] with 2 references was read as indices ({0, 1} for every query) without the
+    check as_positives makes on the same Python list."""
+    from seqnet.data.positives import as_positives
+
+    rows = [[0, 1], [1, 0], [0, 1]]
+    (tmp_path / "amb.json").write_text(str(rows))
+    with pytest.raises(DatasetError, match=r"3 rows of 2 zeros and ones .*different positives \(hint: write a "
+                                           r"matrix with true / false entries"):
+        as_positives(read_positives(tmp_path / "amb.json"), 3, 2)
+    naive = [sorted(set(r)) for r in rows]  # 5 references: only the index reading fits
+    assert _rows(as_positives(read_positives(tmp_path / "amb.json"), 3, 5)) == naive
+    (tmp_path / "bool.json").write_text("[[false, true], [true, false], [false, true]]")
+    assert _rows(as_positives(read_positives(tmp_path / "bool.json"), 3, 2)) == _naive_matrix_rows(rows)

@@ -325,6 +325,27 @@ def test_traverse_constructor_errors(rng):
         Traverse(np.zeros((2, 2), np.float32), np.zeros(2), seq_bounds=np.array([[0.5, 2.0]] * 2))
 
 
+@pytest.mark.parametrize("p", [2, 1])
+def test_transposed_positions_say_transpose(rng, p):
+    """Positions given as [2, N] were refused without the hint recall_at_k gives (pos.T)."""
+    d = rng.standard_normal((40, 8)).astype(np.float32)
+    with pytest.raises(DatasetError, match=rf"got shape \({p}, 40\); they look transposed .*pass positions\.T "
+                                           rf"\(\[40, {p}\]"):
+        Traverse(d, rng.random((p, 40)))
+    with pytest.raises(DatasetError, match=r"got shape \(3, 40\)$"):  # 3 coordinates: no transpose would do
+        Traverse(d, rng.random((3, 40)))
+    assert Traverse(d, rng.random((2, 40)).T).positions.shape == (40, 2)
+
+
+def test_repr_is_one_short_line(rng):
+    """The dataclass repr printed every name and array: 31,702 characters for 1000 frames."""
+    names = [f"img{i:05d}.jpg" for i in range(1000)]
+    t = Traverse(rng.random((1000, 64), dtype=np.float32), np.arange(1000), names=names, name="query")
+    assert repr(t) == "Traverse('query': 1000 images, D=64 float32, frame numbers, names)"
+    u = Traverse(np.ones((3, 2), np.float32), np.ones((3, 2)), seq_bounds=np.array([[0, 3]] * 3))
+    assert repr(u) == "Traverse('traverse': 3 images, D=2 float32, positions [3, 2], seq_bounds)"
+
+
 # ----------------------------------------------------------------------------- subset and split
 
 

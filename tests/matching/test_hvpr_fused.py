@@ -138,3 +138,20 @@ def test_public_hvpr_checks_unit_rows_and_normalizes_like_knn_and_seqmatch(rng, 
     np.testing.assert_allclose(got[0], want[0], atol=1e-5)
     items, _ = naive_fused(*unit, 3, *starts, 5, 0.0)
     np.testing.assert_array_equal(want[1][:, :5], items)
+
+
+def test_window_starts_of_the_wrong_length_name_themselves(rng):
+    """24 q_starts for 27 shortlist rows were blamed on 'candidates', an argument hvpr has not got."""
+    L = 4
+    q, r = rng.standard_normal((30, 6)), rng.standard_normal((40, 6))
+    sq, sr = rng.standard_normal((27, 5)), rng.standard_normal((37, 5))
+    with pytest.raises(ConfigError, match=r"^q_starts must have one entry per shortlist_query row \(27\), got 24$"):
+        hvpr(sq, sr, q, r, L, np.arange(24), np.arange(37), top_k=5, device="cpu")
+    with pytest.raises(ConfigError, match=r"^r_starts must have one entry per shortlist_ref row \(37\), got 34$"):
+        hvpr(sq, sr, q, r, L, list(range(27)), torch.arange(34), top_k=5, device="cpu")
+    with pytest.raises(ConfigError, match=r"q_starts must have one entry.*got shape \(27, 1\)"):
+        hvpr(sq, sr, q, r, L, np.arange(27)[:, None], np.arange(37), top_k=5, device="cpu")
+    scores, items = hvpr(sq, sr, q, r, L, list(range(27)), torch.arange(37), top_k=5, device="cpu")
+    n_items, n_scores = naive_fused(sq, sr, q, r, L, np.arange(27), np.arange(37), 5, 0.0)
+    np.testing.assert_array_equal(items[:, :5], n_items)
+    np.testing.assert_allclose(scores[:, :5], n_scores * L, rtol=1e-9)  # fuse 0: the matcher score, not / L

@@ -255,7 +255,7 @@ def test_hvpr_top_k_larger_than_references(rng):
     scores, items = hvpr(q[:4], r[:4], q, r, 3, np.arange(4), np.arange(4), top_k=50, device="cpu")
     assert items.shape == (4, 4) and sorted(items[0].tolist()) == [0, 1, 2, 3]
     with pytest.raises(ConfigError, match="top_k"):
-        hvpr(q, r, q, r, 3, np.arange(4), np.arange(4), top_k=0)
+        hvpr(q[:4], r[:4], q, r, 3, np.arange(4), np.arange(4), top_k=0)
 
 
 def test_rerank_missing_candidates_rank_last(rng):

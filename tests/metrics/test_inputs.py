@@ -77,3 +77,27 @@ def test_correct_inputs_stay_silent(rng, caplog):
         a = recall_at_k(ranked(rng), pos, pos, 25)
         b = recall_at_k(ranked(rng), frames(), frames(), 1)
     assert not caplog.records and 0 <= a["recall@1"] <= 1 and 0 <= b["recall@1"] <= 1
+
+
+def test_whole_number_scores_passed_as_indices_are_refused(rng):
+    """knn's ip scores of binary descriptors (19, 17, 16, 15, 15) were read as indices: R@1 0.0125, not 0.7625."""
+    from seqnet.search.api import knn
+
+    r = (rng.random((80, 32)) > 0.5).astype(np.float32)
+    q = np.where(rng.random(r.shape) < 0.1, 1 - r, r)
+    pos = np.arange(80.0)
+    scores, idx = knn(q, r, 5, metric="ip", normalize=False)
+    with pytest.raises(ConfigError, match=r"retrieved row \d+ \(.*\) repeats a value.*knn returns \(scores, indices"):
+        recall_at_k(scores, pos, pos, 0.5, (1, 5))
+    got = recall_at_k(idx.astype(np.float64), pos, pos, 0.5, (1, 5))
+    naive = np.mean([abs(idx[m, 0] - m) <= 0.5 for m in range(80)])  # a naive loop over the queries
+    assert got["recall@1"] == pytest.approx(naive) and naive > 0.5
+
+
+def test_whole_float_rankings_padded_with_minus_one_are_taken(rng):
+    """The repeat rule never refuses a ranking: only -1 (none) may repeat in a row."""
+    idx = ranked(rng).astype(np.float64)
+    idx[::3, 2:] = -1
+    got = recall_at_k(idx, frames(), frames(), 1, ks=(1, 5))
+    naive = np.mean([any(r >= 0 and abs(r - m) <= 1 for r in idx[m]) for m in range(N)])
+    assert got["recall@5"] == pytest.approx(naive)

@@ -242,3 +242,28 @@ def test_no_explicit_positive_among_the_references_does_not_blame_the_radius():
         ground_truth(np.zeros((3, 1)), np.zeros((4, 1)), 1.0, pos)
     with pytest.raises(ConfigError, match="check the radius and its unit"):
         ground_truth(np.zeros((3, 1)), np.full((4, 1), 9.0), 1.0)
+
+
+@pytest.mark.parametrize("ks", [5, np.int64(5), (5,), np.array([5])])
+def test_one_integer_k_is_that_k(rng, ks):
+    """recall_at_k(..., ks=5) raised TypeError: 'int' object is not iterable."""
+    pos = rng.uniform(0, 100, (40, 2))
+    ret = np.argsort(rng.random((40, 40)), 1)[:, :5]
+    naive = np.mean([any(np.linalg.norm(pos[j] - pos[m]) <= 30 for j in ret[m]) for m in range(40)])
+    out = recall_at_k(ret, pos, pos, 30.0, ks)
+    assert set(out) == {"recall@5", "queries", "no_positive"} and out["recall@5"] == pytest.approx(naive)
+
+
+@pytest.mark.parametrize("ks", [True, "1,5", b"1", 2.0, [1.5], None, [True]])
+def test_ks_that_are_no_integers_are_refused(ks):
+    q = np.zeros((2, 2))
+    with pytest.raises(ConfigError, match=r"every K must be an integer >= 1: ks is one K or a sequence"):
+        recall_at_k(np.zeros((2, 1), int), q, q, 1.0, ks=ks)
+
+
+def test_ragged_retrieved_is_one_line_naming_the_row_lengths():
+    """Rows of different lengths raised numpy's ValueError (inhomogeneous shape)."""
+    q = np.zeros((4, 2))
+    with pytest.raises(ConfigError, match=r"retrieved must be \[M, K\].*rows of lengths 1, 2 \(hint: pad the short "
+                                          r"rows with -1"):
+        recall_at_k([[1, 2], [3], [0], [0]], q, q, 1.0, (1,))

@@ -88,3 +88,52 @@ def test_normalize_ranks_as_the_normalised_rows_do(rng):
 def test_normalize_must_be_a_bool_or_none(rng):
     with pytest.raises(ConfigError, match="normalize"):
         knn(np.eye(3, dtype=np.float32), np.eye(3, dtype=np.float32), 1, normalize="yes")
+
+
+def test_all_zero_rows_are_said_once_naming_the_row(rng, caplog, unsaid):
+    """An all-zero query row (a failed descriptor) was ranked without a word: arbitrary ties at 0.99999994,
+    while Traverse refuses the same rows."""
+    r = unit(rng.standard_normal((50, 8)).astype(np.float32))
+    q = unit(r + 0.05 * rng.standard_normal((50, 8)).astype(np.float32))
+    q[[3, 7]] = 0
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        for normalize in (None, True, False):
+            s, i = knn(q, r, 3, normalize=normalize)
+        seqnet.seqmatch(q, r, 3, normalize=True)
+    lines = [rec.getMessage() for rec in caplog.records]
+    assert len(lines) == 2, lines  # once per function
+    assert lines[0].startswith("knn: query row 3 is all zeros (2 such rows of 50); a zero descriptor matches "
+                               "nothing") and "Traverse" in lines[0]
+    assert lines[1].startswith("seqmatch: query row 3 is all zeros")
+    naive = np.argsort(np.linalg.norm(q[:, None] - r[None], axis=2), axis=1, kind="stable")[:, :3]
+    np.testing.assert_array_equal(np.delete(i, [3, 7], 0), np.delete(naive, [3, 7], 0))  # the rest is unchanged
+
+
+@pytest.mark.parametrize("normalize", [None, True, False])
+def test_nan_rows_are_named_not_told_to_normalise(rng, normalize):
+    """NaN with normalize=True was told 'hint: L2-normalise them'."""
+    q = unit(rng.standard_normal((20, 8)).astype(np.float32))
+    q[5, 2] = np.nan
+    with pytest.raises(ConfigError, match=r"knn: reference row 5 holds NaN or inf.*drop that row") as err:
+        knn(q[:3], q, 2, normalize=normalize)
+    assert "L2-normalise" not in str(err.value)
+
+
+def test_cosine_is_refused_before_any_row_warning_with_the_ip_hint(rng, caplog, unsaid):
+    """metric='cosine' logged the unit-norm WARNING before it was refused."""
+    _, q = rescaled(rng)
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        with pytest.raises(ConfigError, match=r"metric 'cosine'.*metric='ip' with normalize=True"):
+            knn(q, q, 2, metric="cosine")
+        with pytest.raises(ConfigError, match="k must be an integer"):
+            knn(q, q, 0)
+    assert not caplog.records
+
+
+def test_numpy_bools_are_taken_as_normalize(rng):
+    """normalize=np.True_ (e.g. from an array of flags) was refused."""
+    qu, qs = rescaled(rng)
+    for flag, rows in ((np.True_, qu), (np.False_, qs)):
+        s, i = knn(qs, qs, 3, normalize=flag)
+        naive = np.argsort(np.linalg.norm(rows[:, None] - rows[None], axis=2), axis=1, kind="stable")[:, :3]
+        np.testing.assert_array_equal(i, naive)

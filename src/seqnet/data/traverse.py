@@ -78,6 +78,14 @@ class Traverse:
     def __len__(self) -> int:
         return int(self.descriptors.shape[0])
 
+    def __repr__(self) -> str:  # one line: the dataclass's printed every name (31,702 characters for 1000 frames)
+        d, p = self.descriptors, self.positions
+        what = "frame numbers" if p.ndim == 2 and p.shape[1] == 1 else f"positions {list(p.shape)}"
+        extra = [x for x, has in (("names", self.names is not None), ("seq_bounds", self.seq_bounds is not None),
+                                  ("provenance", self.provenance is not None)) if has]
+        return (f"Traverse({self.name!r}: {len(d)} images, D={d.shape[1] if d.ndim == 2 else '?'} {d.dtype}, "
+                f"{what}{''.join(', ' + x for x in extra)})")
+
     @property
     def dim(self) -> int:
         """Descriptor dimension D."""

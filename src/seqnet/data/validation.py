@@ -22,13 +22,12 @@ def validate_traverse(t: Any) -> None:
     if not np.issubdtype(d.dtype, np.floating):
         raise DatasetError(f"{name}: descriptors must be floating point, got dtype {d.dtype}")
     _check_finite(d, f"{name}: descriptors", nonzero=True, names=t.names)
-    n = d.shape[0]
-    p = t.positions
+    n, p = d.shape[0], t.positions
     if p.ndim != 2 or p.shape[1] not in (1, 2):
-        raise DatasetError(
-            f"{name}: positions must be [N, 1] (frames) or [N, 2] (easting, northing), "
-            f"got shape {tuple(p.shape)}"
-        )
+        flipped = (f"; they look transposed ([P, N] with N = {n} descriptors): pass positions.T ([{n}, {p.shape[0]}], "
+                   "one row per image)" if p.ndim == 2 and p.shape[0] in (1, 2) and p.shape[1] == n else "")
+        raise DatasetError(f"{name}: positions must be [N, 1] (frames) or [N, 2] (easting, northing), got shape "
+                           f"{tuple(p.shape)}{flipped}")
     if p.shape[0] != n:
         flipped = (f"; the descriptors look transposed ([D, N] = {list(d.shape)}): pass descriptors.T ([N, D], one "
                    "row per image)" if d.shape[1] == p.shape[0] != n else "")

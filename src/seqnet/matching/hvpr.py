@@ -104,14 +104,13 @@ def hvpr(
         window: ``"centred"`` or ``"causal"`` windows (anchored matchers pin the item's frame in them).
         normalize: ``True``: L2-normalise every row of the four arrays first, as ``evaluate()`` and ``seqnet
             eval`` do; ``None`` (default): compare the rows as given, with a WARNING line (once a process) when
-            rows are far from unit norm; ``False``: as given, unchecked (as :func:`seqnet.knn` and
-            :func:`seqnet.seqmatch`).
+            rows are far from unit norm; ``False``: as given, no unit-norm check (as :func:`seqnet.knn`).
 
-    Returns:
-        ``(scores [M, max(k, K)], items [M, max(k, K)])``: reference items, the re-ranked shortlist
-        first (ascending matcher or fused score), then the rest of the k-NN list (score ``inf``).
+    Returns ``(scores [M, max(k, K)], items [M, max(k, K)])``: reference items, the re-ranked shortlist first
+    (ascending matcher or fused score), then the rest of the k-NN list (score ``inf``).
     """
     anchor = MODE_ANCHORS[check_choice("window mode", window, MODE_ANCHORS)]
+    _one_per_row(q_starts, r_starts, len(shortlist_query), len(shortlist_ref))
     shortlist_query, shortlist_ref = prepared(shortlist_query, shortlist_ref, "hvpr", normalize,
                                               ("shortlist query", "shortlist reference"))
     rerank_query, rerank_ref = prepared(rerank_query, rerank_ref, "hvpr", normalize,
@@ -119,6 +118,17 @@ def hvpr(
     return hvpr_search(lambda n: knn(shortlist_query, shortlist_ref, n, backend=backend, device=device),
                        lambda c: pair_scores(rerank_query, rerank_ref, seq_len, q_starts, r_starts, c, matcher,
                                              device, anchor), seq_len, top_k, k, fuse)
+
+
+def _one_per_row(q_starts: ArrayLike, r_starts: ArrayLike, m: int, r: int) -> None:
+    """A :class:`ConfigError` unless ``q_starts`` is ``[m]`` and ``r_starts`` ``[r]``: one window start per row of
+    ``shortlist_query`` / ``shortlist_ref`` (checked before :func:`pair_scores`, whose errors name its arguments)."""
+    for starts, name, n, of in ((q_starts, "q_starts", m, "shortlist_query"),
+                                (r_starts, "r_starts", r, "shortlist_ref")):
+        shape = tuple(starts.shape) if hasattr(starts, "shape") else np.shape(starts)
+        if shape != (n,):
+            raise ConfigError(f"{name} must have one entry per {of} row ({n}), got "
+                              f"{shape[0] if len(shape) == 1 else f'shape {shape}'}")
 
 
 @no_grad

@@ -20,7 +20,7 @@ from ..core.lazy import lazy_module, no_grad
 from ..core.progress import progress
 from ..core.tensors import ArrayLike, as_tensor, to_numpy
 from ..search.api import prepared
-from ..search.blocks import blocked_topk, check_pair_dims, col_blocks, rows
+from ..search.blocks import FINITE_HINT, blocked_topk, check_pair_dims, col_blocks, rows
 from ..search.knn import as_pair, rows_per_block, sq_norms
 from ..search.precision import compute_dtype
 from ..sequence.windows import check_seq_len
@@ -57,7 +57,8 @@ def seqmatch(
             :data:`seqnet.matching.banded.TILE_BYTES`; at most ``block_bytes``).
         normalize: ``True``: L2-normalise every frame's row first, as ``evaluate()`` and ``seqnet eval``
             (``raw+seqmatch``) do; ``None`` (default): the rows as given, with a WARNING line when they are far
-            from unit norm (then the scores rank otherwise than the evaluation's); ``False``: as given, unchecked.
+            from unit norm (then the scores rank otherwise than the evaluation's); ``False``: as given, without the
+            unit-norm check. Any ``normalize``: a row with NaN / inf is refused, all-zero rows are said (one line).
 
     Returns:
         ``[Nq−L+1, Nr−L+1]`` scores (or ``[Nq−L+1, K]`` with candidates), numpy if ``query`` is
@@ -74,7 +75,7 @@ def seqmatch(
         out, maybe_nan = _candidate_scores(query, ref, seq_len, candidates, reverse, dev, block_bytes), True
     if maybe_nan and bool(torch.isnan(out).any()):
         raise ConfigError("SeqMatch scores hold NaN: the descriptors hold NaN or inf, or values too large for "
-                          f"{str(out.dtype).removeprefix('torch.')} (hint: L2-normalise them)")
+                          f"{str(out.dtype).removeprefix('torch.')} ({FINITE_HINT})")
     if isinstance(given, torch.Tensor):
         return out.to(given.device)
     return to_numpy(out)

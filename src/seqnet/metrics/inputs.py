@@ -5,6 +5,7 @@ ground truth that makes Recall@K near-trivial (:func:`trivial_truth`: said by ``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -35,23 +36,67 @@ def trivial_truth(truth: Any, samples: int = 200) -> str | None:
             f"and Recall@K says little {hint}")
 
 
+KNN_HINT = "hint: knn returns (scores, indices): unpack it as scores, idx = knn(...) and pass idx"
+
+
+def k_values(ks: Any) -> list[int]:
+    """The K values of Recall@K: a sequence of integers >= 1, or one integer K (``ks=5``: ``[5]``); anything
+    else (a bool, a string, a float K, K < 1, none at all) is a :class:`ConfigError`."""
+    def whole(k: Any) -> bool:
+        return isinstance(k, (int, np.integer)) and not isinstance(k, (bool, np.bool_)) and k >= 1
+
+    many = isinstance(ks, (Sequence, np.ndarray)) and not isinstance(ks, (str, bytes))
+    given = [ks] if whole(ks) else ks if many else ()
+    if not len(given) or not all(whole(k) for k in given):
+        raise ConfigError(f"every K must be an integer >= 1: ks is one K or a sequence of them (e.g. ks=(1, 5, 10)), "
+                          f"got {ks!r}")
+    return [int(k) for k in given]
+
+
+def retrieved_array(retrieved: Any) -> np.ndarray:
+    """``retrieved`` as a numpy array; rows of different lengths (a ragged list) are a :class:`ConfigError`."""
+    try:
+        return np.asarray(retrieved)
+    except ValueError as err:  # numpy refuses ragged nested sequences
+        lens = sorted({len(r) for r in retrieved if hasattr(r, "__len__")}) if hasattr(retrieved, "__iter__") else []
+        raise ConfigError(f"retrieved must be [M, K] (K reference indices in every row), got rows of lengths "
+                          f"{', '.join(map(str, lens[:5]))}{', ...' if len(lens) > 5 else ''} (hint: pad the short "
+                          "rows with -1, which means none)") from err
+
+
 def integral(retrieved: np.ndarray) -> np.ndarray:
     """Ranked reference indices ``[M, K]`` given as another dtype: whole floats are taken, anything else (distances
     passed as indices, e.g. knn's ``(scores, indices)`` unpacked the other way round, or booleans: a hit matrix) is
-    a :class:`ConfigError`."""
+    a :class:`ConfigError`.
+
+    Whole floats that repeat a value >= 0 within a row are refused too: a ranking never retrieves a reference
+    twice, so such a row holds scores (inner products of binary descriptors are whole numbers, and tie). The
+    rule cannot refuse a correct ranking (only -1, "none", may repeat); whole-number scores without a tie in
+    any row (e.g. K = 1) cannot be told from indices."""
     if retrieved.dtype == bool:  # read as indices 0 / 1 it gave R@1 near 0 with no error
         raise ConfigError(f"retrieved holds booleans ({retrieved.shape[0]} x {retrieved.shape[1]}), not reference "
-                          "indices: a hit or ground-truth matrix passed as the ranking? (hint: knn returns (scores, "
-                          "indices): unpack it as scores, idx = knn(...) and pass idx)")
+                          f"indices: a hit or ground-truth matrix passed as the ranking? ({KNN_HINT})")
     if retrieved.dtype.kind != "f":
         raise ConfigError(f"retrieved must hold reference indices (integers), got dtype {retrieved.dtype}")
     bad = retrieved[~(np.isfinite(retrieved) & (retrieved == np.round(retrieved)))]
     if bad.size:
         shown = ", ".join(f"{v:.4g}" for v in bad[:3])
         raise ConfigError(f"retrieved holds non-integers ({shown}{', ...' if bad.size > 3 else ''}), not reference "
-                          "indices: distances passed as indices? (hint: knn returns (scores, indices): unpack it as "
-                          "scores, idx = knn(...) and pass idx)")
+                          f"indices: distances passed as indices? ({KNN_HINT})")
+    _no_repeats(retrieved)
     return retrieved
+
+
+def _no_repeats(retrieved: np.ndarray) -> None:
+    """A :class:`ConfigError` naming the first row of whole floats ``[M, K]`` that repeats a value >= 0."""
+    srt = np.sort(retrieved, axis=1)
+    rep = (srt[:, 1:] == srt[:, :-1]) & (srt[:, 1:] >= 0)
+    if rep.any():
+        row = int(np.flatnonzero(rep.any(axis=1))[0])
+        shown = ", ".join(f"{v:g}" for v in retrieved[row, :5])
+        raise ConfigError(f"retrieved row {row} ({shown}{', ...' if retrieved.shape[1] > 5 else ''}) repeats a "
+                          f"value, but a ranking never retrieves a reference twice: whole-number scores passed as "
+                          f"indices? ({KNN_HINT})")
 
 
 def positions_array(p: np.ndarray, side: str) -> np.ndarray:

@@ -19,7 +19,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.log import logger
 from ..data.positives import Positives
-from .inputs import integral, positions_array, trivial_truth
+from .inputs import integral, k_values, positions_array, retrieved_array, trivial_truth
 
 DEFAULT_KS = (1, 5, 10, 20, 100)
 VAL_MIN = 50  # val queries below which a choice by R@1 (an epoch, K, λ) is mostly noise: 1 query = 2% of R@1
@@ -178,7 +178,7 @@ class GroundTruth:
 
     def check_retrieved(self, retrieved: np.ndarray) -> np.ndarray:
         """``retrieved`` as an int64 ``[M, K]`` array of valid reference items (or -1)."""
-        retrieved = np.asarray(retrieved)
+        retrieved = retrieved_array(retrieved)
         if retrieved.ndim == 1:
             retrieved = retrieved[:, None]
         if retrieved.ndim != 2 or retrieved.shape[0] != len(self.q_pos):
@@ -192,7 +192,7 @@ class GroundTruth:
         return retrieved
 
 
-def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAULT_KS,
+def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] | int = DEFAULT_KS,
            denominator: str = "positives") -> dict[str, float | int]:
     """Recall@K for each K in ``ks`` of the ranked reference items ``retrieved [M, K_max]`` (best first),
     over the queries with a correct reference (``denominator="positives"``) or over all M (``"all"``).
@@ -201,9 +201,7 @@ def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] = DEFAUL
     "no_positive": the queries without one}``; recall is ``nan`` when no query has a correct reference. K larger
     than the list length uses the whole list.
     """
-    ks = list(ks)
-    if not ks or any(int(k) < 1 for k in ks):
-        raise ConfigError(f"every K must be >= 1 (and at least one K given), got {ks}")
+    ks = k_values(ks)
     if denominator not in RECALL_DENOMINATORS:
         raise ConfigError(f"recall denominator {denominator!r} is not one of {', '.join(RECALL_DENOMINATORS)}")
     retrieved = truth.check_retrieved(retrieved)
@@ -231,7 +229,7 @@ def recall_at_k(
     q_pos: np.ndarray,
     r_pos: np.ndarray,
     radius: float,
-    ks: Sequence[int] = DEFAULT_KS,
+    ks: Sequence[int] | int = DEFAULT_KS,
 ) -> dict[str, float | int]:
     """Recall@K with the radius ground truth (see :func:`recall`).
 
@@ -239,7 +237,7 @@ def recall_at_k(
         retrieved: ``[M, K_max]`` ranked indices into ``r_pos`` (best first).
         q_pos: ``[M, P]`` query positions; r_pos: ``[R, P]`` reference positions.
         radius: localisation radius (same unit as positions; inclusive).
-        ks: the K values.
+        ks: the K values (one integer: that K alone).
 
     A WARNING line when the ground truth makes Recall@K near-trivial (the median query has half the references
     within the radius: positions in degrees or kilometres with a radius in metres, constant positions), as

@@ -20,6 +20,8 @@ from ..core.memmaps import read_rows
 from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.tensors import ArrayLike, as_tensor
 
+FINITE_HINT = "hint: drop or recompute rows that hold NaN or inf; L2-normalise rows of large values"
+
 torch = lazy_module("torch")
 
 SORT_MAX = 2048  # up to this many scores a stable sort is quicker than topk + tie check (the same result)
@@ -149,7 +151,7 @@ def blocked_topk(row_blocks: Iterable[RowBlock], col_blocks: Sequence[Any], scor
             done.append((sel, best[0].cpu(), best[1].cpu()))
     if bad is not None and bool(bad):
         raise ConfigError("the distances are not finite: the descriptors hold NaN or inf, or values too large "
-                          f"for {str(dtype).removeprefix('torch.')} (hint: L2-normalise them)")
+                          f"for {str(dtype).removeprefix('torch.')} ({FINITE_HINT})")
     if len(done) == 1 and done[0][0] == slice(0, n_rows):  # one block of every row, in order
         return done[0][1].numpy(), done[0][2].numpy()
     vals, idx = torch.zeros((n_rows, k), dtype=dtype), torch.zeros((n_rows, k), dtype=torch.long)

@@ -20,7 +20,7 @@ from ..core.lazy import lazy_module, no_grad
 from ..core.memmaps import limit, streamed
 from ..core.memory import BLOCK_BYTES as MEMORY_BLOCK
 from ..core.tensors import ArrayLike, as_tensor
-from .blocks import blocked_topk, col_blocks, matrix_shape, rows, topk_smallest
+from .blocks import FINITE_HINT, blocked_topk, col_blocks, matrix_shape, rows, topk_smallest
 from .precision import compute_dtype, is_half
 from .verify import full_float32, wrong_rows
 
@@ -29,7 +29,7 @@ logger = logging.getLogger("seqnet")
 
 DEFAULT_BLOCK_BYTES = MEMORY_BLOCK
 NOT_FINITE = ("the distances are not finite: the {what} descriptors hold NaN or inf, or values too large for {dtype} "
-              "(hint: L2-normalise them)")
+              f"({FINITE_HINT})")
 METRICS = ("l2", "ip")
 
 
@@ -43,7 +43,7 @@ def as_pair(query: ArrayLike, ref: ArrayLike, device: torch.device) -> tuple[tor
     for name, x in (("query", q), ("reference", r)):
         if not bool(torch.isfinite(sq_norms(x)).all()):  # NaN / inf, or squared norms that overflow
             raise ConfigError(f"{name} descriptors hold NaN or inf, or values too large for "
-                              f"{str(x.dtype).removeprefix('torch.')} distances (hint: L2-normalise them)")
+                              f"{str(x.dtype).removeprefix('torch.')} distances ({FINITE_HINT})")
     return q, r
 
 

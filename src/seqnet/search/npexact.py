@@ -22,14 +22,14 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.memmaps import read_rows
 from ..core.memory import BLOCK_BYTES
-from .blocks import col_blocks
+from .blocks import FINITE_HINT, col_blocks
 from .nptopk import merge_distances, merge_smallest
 from .verify import wrong_rows
 
 logger = logging.getLogger("seqnet")
 
 NOT_FINITE = ("the distances are not finite: the {what} descriptors hold NaN or inf, or values too large for {dtype} "
-              "(hint: L2-normalise them)")
+              f"({FINITE_HINT})")
 
 
 def array_shape(x: np.ndarray, name: str) -> tuple[int, int]:

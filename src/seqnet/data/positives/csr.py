@@ -24,6 +24,9 @@ class Positives:
     # read from pairs (a CSV): a query after the last one listed has no match, so the rows end where the file's
     # pairs end and :meth:`check` adds the missing rows, empty, up to the number of query images
     open_ended: bool = False
+    # read as indices from rows of 0/1 this wide (a JSON file): a [N_query, N_reference] matrix of that many
+    # references would be read otherwise, so :meth:`check` refuses it when the reference has that many images
+    zero_one_width: int | None = None
 
     @classmethod
     def from_lists(cls, lists: Sequence[Sequence[int]], where: str = "positives") -> Positives:
@@ -60,6 +63,11 @@ class Positives:
             hint = f" (transposed? the matrix is [{n_refs}, {n_queries}]; seqnet reads [N_query, N_reference])"
             raise DatasetError(f"{where}: {len(self)} rows of positives for {n_queries} query images (one per "
                                f"query){hint if flipped else ''}")
+        if self.zero_one_width == n_refs:
+            raise DatasetError(f"{where}: {len(self)} rows of {n_refs} zeros and ones read as a [N_query, "
+                               "N_reference] matrix and as reference indices per query give different positives "
+                               "(hint: write a matrix with true / false entries, or indices as a CSV of "
+                               "query,reference pairs)")
         if self.n_refs is not None and self.n_refs != n_refs:
             raise DatasetError(f"{where}: a ground-truth matrix of {self.n_refs} columns for {n_refs} reference "
                                "images (one column per reference)")
@@ -116,7 +124,13 @@ class Positives:
 
 def _indices(row: object, where: str) -> np.ndarray:
     """The sorted unique reference indices of one query's list (``-1`` = no match, dropped); a value that is no
-    index (a fraction, a text, beyond ``INDEX_MAX``, below -1) is a :class:`DatasetError` naming it."""
+    index (a fraction, a text, beyond ``INDEX_MAX``, below -1) is a :class:`DatasetError` naming it. A set (or a
+    range) is its members, as the pickle reader takes them."""
+    if isinstance(row, (set, frozenset, range)):
+        try:
+            row = sorted(row)
+        except TypeError as e:  # members of kinds that do not compare: no indices
+            raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}") from e
     try:
         a = np.asarray(row).ravel()
     except (TypeError, ValueError, OverflowError) as e:

@@ -43,7 +43,8 @@ def _read_json(p: Path) -> Positives:
     rows = zero_one_rows(data)
     if rows is not None and (rows.dtype == bool or repeats(rows)):  # a 0/1 matrix: no list of indices repeats one
         return numeric_matrix(rows, p)
-    return Positives.from_lists([r if isinstance(r, list) else [r] for r in data], str(p))
+    found = Positives.from_lists([r if isinstance(r, list) else [r] for r in data], str(p))
+    return found if rows is None else dataclasses.replace(found, zero_one_width=int(rows.shape[1]))
 
 
 QUERY_COLUMNS = ("query", "queries", "q", "qry")  # a CSV header's names of the query column (lower case)
@@ -203,9 +204,16 @@ def _vpr_bench(arr: np.ndarray, p: Path) -> Positives:
     return Positives.from_lists(lists, str(p))
 
 
-def numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False) -> Positives:
+FILE_PAIRS_HINT = ("save it as a CSV with the header 'query,reference', or as a JSON list with one list of reference "
+                   "indices per query")
+PYTHON_PAIRS_HINT = ("Positives.from_lists(arr.tolist()) for two reference indices per query, Positives.from_pairs("
+                     "arr[:, 0], arr[:, 1], n_queries) for (query, reference) pairs; both from seqnet")
+
+
+def numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False, pairs_hint: str = FILE_PAIRS_HINT) -> Positives:
     """A 2-D numeric array: a dense ``[Nq, Nr]`` ground-truth matrix when bool or 0/1 (any dtype), else one
-    row of reference indices per query padded with -1; anything else is refused. ``quiet``: no INFO line."""
+    row of reference indices per query padded with -1; anything else is refused. ``quiet``: no INFO line;
+    ``pairs_hint``: how to say which reading a ``[N, 2]`` array that may be pairs has (a file's, or Python's)."""
     if arr.dtype == bool or (arr.size and np.isin(arr, (0, 1)).all()):
         rows, cols = np.nonzero(arr)
         logger.log(logging.DEBUG if quiet else logging.INFO, "%s: read as a dense [%d, %d] ground-truth matrix "
@@ -216,8 +224,7 @@ def numeric_matrix(arr: np.ndarray, p: Path, quiet: bool = False) -> Positives:
         if arr.shape[1] == 2 and len(arr) > 1 and np.array_equal(arr[:, 0], np.arange(len(arr))):
             raise DatasetError(f"{p}: a [{len(arr)}, 2] integer array whose first column is 0..{len(arr) - 1} may be "
                                "(query, reference) pairs or two reference indices per query, and the two readings "
-                               "differ; hint: save it as a CSV with the header 'query,reference', or as a JSON list "
-                               "with one list of reference indices per query")
+                               f"differ; hint: {pairs_hint}")
         return Positives.from_lists(list(arr), str(p))
     raise DatasetError(f"{p}: a [{arr.shape[0]}, {arr.shape[1]}] {arr.dtype} array is neither a 0/1 ground-truth "
                        "matrix nor integer reference indices per query (padded with -1)")
@@ -232,7 +239,7 @@ def as_positives(value: object, n_queries: int, n_refs: int, where: str = "posit
     if isinstance(value, Positives):
         return value.check(n_queries, n_refs, where)
     if isinstance(value, np.ndarray) and value.ndim == 2 and value.dtype != object:
-        return numeric_matrix(value, Path(where)).check(n_queries, n_refs, where)
+        return numeric_matrix(value, Path(where), pairs_hint=PYTHON_PAIRS_HINT).check(n_queries, n_refs, where)
     if isinstance(value, (list, tuple, np.ndarray)):
         rows = zero_one_rows(value)
         if rows is not None and (rows.dtype == bool or repeats(rows)):  # no list of indices repeats an index
