@@ -371,7 +371,8 @@ def test_a_missing_s1_suggests_the_model_free_variant():
 
     with pytest.raises(ConfigError, match=r"needs an S_1 model .*; or the model-free 'hvpr-single:raw\+seqmatch'"):
         check_methods([parse_method("hvpr-single")], {}, 5)
-    with pytest.raises(ConfigError, match=r"S_L model \(--shortlist-model CKPT\); or the model-free .raw\+seqmatch.$"):
+    with pytest.raises(ConfigError, match=r"S_L model \(--shortlist-model CKPT; models=\{'seqnet': "
+                       r"load_model\(CKPT\)\} in Python\); or the model-free .raw\+seqmatch.$"):
         check_methods([parse_method("hvpr")], {}, 5)
 
 

@@ -211,7 +211,7 @@ def test_the_selection_hint_never_repeats_the_evaluated_split(synth_dataset, syn
     assert len(said) == 1 and "--split test" not in said[0], said
     assert said[0].endswith(f"hint: retrain with --train-split / --val-split apart from the test split ({a}:{b}), "
                             "or evaluate queries free of the models' training and epoch-selection ones: --split "
-                            "val"), said
+                            "val (EvalConfig(split='val') in Python)"), said
 
 
 def test_selection_leakage_counts_the_queries_kept_by_resample_every(synth_dataset, synth_dir):

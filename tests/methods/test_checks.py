@@ -194,11 +194,15 @@ def test_the_training_queries_hint_names_a_split_that_exists(synth_dataset, tmp_
 
     s = synth_dataset.splits
     caps = {"Train": s["train"], "Val": s["val"], "Test": s["test"]}
-    assert said(caps, "Train")[0].endswith("(hint: --split Test)")
-    assert said({"Train": s["train"], "Val": s["val"]}, "all")[0].endswith("(hint: --split Val)")
-    assert said({"Train": s["train"]}, "all")[0].endswith("(hint: --split 105:197 (queries free of the models' "
+    assert said(caps, "Train")[0].endswith("(hint: --split Test (EvalConfig(split='Test') in Python))")
+    assert said({"Train": s["train"], "Val": s["val"]}, "all")[0].endswith("(hint: --split Val"
+                                                                           " (EvalConfig(split='Val') in Python))")
+    assert said({"Train": s["train"]}, "all")[0].endswith("(hint: --split 105:197"
+                                                          " (EvalConfig(split='105:197') in Python)"
+                                                          " (queries free of the models' "
                                                           "training and epoch-selection ones))")
-    assert said({"Train": s["train"], "test": s["test"]}, "all")[0].endswith("(hint: --split test)")
+    assert said({"Train": s["train"], "test": s["test"]}, "all")[0].endswith("(hint: --split test"
+                                                                             " (EvalConfig(split='test') in Python))")
 
 
 def test_a_model_of_other_dimensions_names_the_dataset_it_was_trained_on():

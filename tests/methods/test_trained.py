@@ -46,7 +46,8 @@ def test_training_queries_are_found_wherever_the_same_descriptors_are_read(train
     assert said == [f"60 of the 60 evaluated queries ('test', 40:100) are training queries of the S_1 model {ckpt} "
                     "('train' when it was trained, 0:119): its results on them are not a test (hint: retrain with "
                     "--train-split / --val-split apart from the test split (40:100), or evaluate queries free of "
-                    "the models' training and epoch-selection ones: --split 145:191)"], said
+                    "the models' training and epoch-selection ones: --split 145:191"
+                    " (EvalConfig(split='145:191') in Python))"], said
     assert leakage({"s1": model}, data, load_dataset(data), "test") == []  # correct data: silent
 
 
@@ -83,10 +84,12 @@ def test_the_hint_never_names_the_split_in_use(synth_dataset):
     ds = synth_dataset  # train 0:105, val 105:141, test 141:197 (queries)
     (ta, tb), (va, vb) = ds.ranges("train")["query"], ds.ranges("val")["query"]
     te = ds.ranges("test")["query"]
-    assert free_hint(ds, [(ta, tb)], [(va, vb)], "train") == "--split test"
+    assert free_hint(ds, [(ta, tb)], [(va, vb)], "train") == "--split test (EvalConfig(split='test') in Python)"
     assert free_hint(ds, [(ta, te[1])], [], "test").startswith("no range of 20 or more queries")
     hint = free_hint(ds, [(0, 80)], [(80, 141)], "val", "--calibrate-split", [te])
-    assert hint == ("--calibrate-split 80:141 (free of the models' training queries, though an epoch was chosen on "
+    assert hint == ("--calibrate-split 80:141"
+                    " (EvalConfig(calibrate_split='80:141') in Python)"
+                    " (free of the models' training queries, though an epoch was chosen on "
                     "some)"), hint
     hint = free_hint(ds, [(0, 141), (150, 197)], [], "val", "--calibrate-split", [(141, 150)])
     assert hint == "no range of 20 or more queries is free of the models' training queries: retrain with " \
@@ -109,7 +112,9 @@ def test_the_calibration_hint_names_queries_free_of_training_not_the_split_in_us
                    evaluated="test")
     assert said == ["15 of the 36 calibration queries ('val', 105:141) are training queries of the S_1 model "
                     "r/best.pt ('0:120', 0:120): a threshold calibrated on them is optimistic, its promise does not "
-                    "hold (hint: --calibrate-split 120:141 (queries free of the models' training and epoch-selection "
+                    "hold (hint: --calibrate-split 120:141"
+                    " (EvalConfig(calibrate_split='120:141') in Python)"
+                    " (queries free of the models' training and epoch-selection "
                     "ones))"], said
     record = {**record, "split": "0:130"}
     said = leakage({"s1": SimpleNamespace(trained_on=record)}, synth_dir, ds, "val", calibration=True,

@@ -26,11 +26,13 @@ def check_calibration_split(ds: Dataset, calibrate_split: str, split: str) -> No
         whole = "" if ds.splits else (" (a split of a dataset has none: evaluate the whole dataset, whose val split "
                                       "it calibrates on, with split='test')")
         raise ConfigError(f"calibration split {calibrate_split!r} is not a split of dataset {ds.name!r} (its "
-                          f"splits: {valid}) nor a range A:B; give --calibrate-split{whole}")
+                          f"splits: {valid}) nor a range A:B; give --calibrate-split (calibrate_split= in Python)"
+                          f"{whole}")
     (a, b), (c, d) = cal["query"], ev["query"] if ev is not None else (0, 0)
     if max(a, c) < min(b, d):
         raise ConfigError(f"the calibration split {calibrate_split!r} (queries {a}:{b}) overlaps the evaluated split "
-                          f"{split!r} (queries {c}:{d}); calibrate on other queries (--calibrate-split)")
+                          f"{split!r} (queries {c}:{d}); calibrate on other queries (--calibrate-split; "
+                          "EvalConfig(calibrate_split=...) in Python)")
 
 
 def calibration_failed(ds: Dataset, calibrate_split: str, e: ConfigError) -> ConfigError:

@@ -182,7 +182,8 @@ def calibration(ds: Dataset, split: str, conf: EvalConfig, models: Mapping[str, 
         return None
     if max(conf.ks) < 2:
         raise ConfigError(f"--target-precision needs a K of 2 or more in --ks (got {max(conf.ks)}): the "
-                          "confidence compares the top-1 with the best other place retrieved; e.g. --ks 1,20")
+                          "confidence compares the top-1 with the best other place retrieved; e.g. --ks 1,20 "
+                          "(EvalConfig(ks=(1, 20)) in Python)")
     check_calibration_split(ds, conf.calibrate_split, split)
     try:
         return score(ds.split(conf.calibrate_split), conf.merge(split=conf.calibrate_split), models)

@@ -72,8 +72,9 @@ def check_methods(methods: list[Method], models: Mapping[str, SeqNet], length: i
     for m in methods:
         missing = m.models() - set(models)
         if missing:
-            need = " and ".join("an S_1 model (--rerank-model CKPT)" if r == "s1" else
-                                "an S_L model (--shortlist-model CKPT)" for r in sorted(missing))
+            need = " and ".join("an S_1 model (--rerank-model CKPT; models={'s1': load_model(CKPT)} in Python)"
+                                if r == "s1" else "an S_L model (--shortlist-model CKPT; models={'seqnet': "
+                                "load_model(CKPT)} in Python)" for r in sorted(missing))
             free = _model_free(m) or (f"raw+{m.matcher}" if m.matcher else "single" if m.single_frame else "delta")
             hint = f"; or the model-free {free!r}"
             raise ConfigError(f"method {m.name!r} needs {need}{hint}")

@@ -185,6 +185,11 @@ def _free(ds: Dataset, taken: list[tuple[int, int]], used: str, avoid: Sequence[
     return f"{gaps[0][0]}:{gaps[0][1]}" if gaps and gaps[0][1] - gaps[0][0] >= MIN_FREE else None
 
 
+def python_form(flag: str, value: str) -> str:
+    """`` (EvalConfig(split='0:80') in Python)``: the option ``flag value`` as :func:`seqnet.evaluate` takes it."""
+    return f" (EvalConfig({flag.lstrip('-').replace('-', '_')}={value!r}) in Python)"
+
+
 def free_hint(ds: Dataset, trained: list[tuple[int, int]], chosen: list[tuple[int, int]], used: str,
               flag: str = "--split", avoid: Sequence[tuple[int, int]] = ()) -> str:
     """The hint of a warning on split ``used`` (given with ``flag``): ``flag S``, with S queries of ``ds`` free of
@@ -197,12 +202,13 @@ def free_hint(ds: Dataset, trained: list[tuple[int, int]], chosen: list[tuple[in
     if both is not None and flag == "--split" and used == test:
         a, b = ds.ranges(test)["query"]
         return (f"retrain with --train-split / --val-split apart from the test split ({a}:{b}), or evaluate queries "
-                f"free of the models' training and epoch-selection ones: --split {both}")
+                f"free of the models' training and epoch-selection ones: --split {both}{python_form(flag, both)}")
     if both is not None:
-        return f"{flag} {both}" + (" (queries free of the models' training and epoch-selection ones)"
-                                   if both not in ds.splits else "")
+        return f"{flag} {both}{python_form(flag, both)}" + (
+            " (queries free of the models' training and epoch-selection ones)" if both not in ds.splits else "")
     some = _free(ds, trained, used, avoid)
     if some is not None:
-        return f"{flag} {some} (free of the models' training queries, though an epoch was chosen on some)"
+        return (f"{flag} {some}{python_form(flag, some)} (free of the models' training queries, though an epoch "
+                "was chosen on some)")
     return (f"no range of {MIN_FREE} or more queries is free of the models' training queries: retrain with "
             f"--train-split / --val-split that leave queries apart for {'calibration' if avoid else 'testing'}")

@@ -84,7 +84,8 @@ def one_retrieved(ev: Evaluation) -> str | None:
         return None
     return (f"{', '.join(names)} retrieved one reference per query (the largest K of --ks is 1): the confidence "
             "compares the top-1 with the best other place retrieved, so no PR curve, AUC, R@100P or "
-            "confidence_for_precision is given for them; add a larger K (e.g. --ks 1,20)")
+            "confidence_for_precision is given for them; add a larger K (e.g. --ks 1,20; "
+            "EvalConfig(ks=(1, 20)) in Python)")
 
 
 def video_clock_note(ev: Evaluation) -> str | None:
