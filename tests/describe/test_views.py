@@ -88,6 +88,16 @@ def test_a_describer_with_views_describes_each_view(tmp_path):
                        atol=1e-5)
 
 
+def _netvlad_views_command(tmp_path, seed: int) -> list[str]:
+    """Four random 80x40 images in tmp_path/imgs and the describe command (no --out) of two-view NetVLAD."""
+    rng = np.random.default_rng(seed)
+    (tmp_path / "imgs").mkdir()
+    for i in range(4):
+        Image.fromarray((rng.random((40, 80, 3)) ** 3 * 255).astype(np.uint8)).save(tmp_path / "imgs" / f"{i}.png")
+    return ["-q", "describe", str(tmp_path / "imgs"), "--method", "netvlad", "--clusters", "4", "--batch-size", "2",
+            "--resize", "64x32", "--views", "raw,equalize"]
+
+
 def test_netvlad_fits_clusters_per_view_keeps_them_and_reuses_them(tmp_path, caplog):
     """Each view fits its own NetVLAD clusters (one set fitted on both views was worse on Nordland64's val), kept
     beside the output as <stem>.netvlad.pth.tar and <stem>.equalize.netvlad.pth.tar and reused by a second run; a
@@ -99,12 +109,7 @@ def test_netvlad_fits_clusters_per_view_keeps_them_and_reuses_them(tmp_path, cap
     from seqnet.cli import main as cli_main
     from seqnet.describe.netvlad import load_netvlad
 
-    rng = np.random.default_rng(0)
-    (tmp_path / "imgs").mkdir()
-    for i in range(4):
-        Image.fromarray((rng.random((40, 80, 3)) ** 3 * 255).astype(np.uint8)).save(tmp_path / "imgs" / f"{i}.png")
-    base = ["-q", "describe", str(tmp_path / "imgs"), "--method", "netvlad", "--clusters", "4", "--batch-size", "2",
-            "--resize", "64x32", "--views", "raw,equalize"]
+    base = _netvlad_views_command(tmp_path, seed=0)
     assert cli_main([*base, "--out", str(tmp_path / "nv.h5")]) == 0
     raw, eq = (load_netvlad(tmp_path / f"nv{v}.netvlad.pth.tar") for v in ("", ".equalize"))
     assert not np.allclose(raw.pool.centroids.detach().numpy(), eq.pool.centroids.detach().numpy())
@@ -127,12 +132,7 @@ def test_one_view_checkpoint_refusal_names_the_fit_on_route_which_works(tmp_path
     from seqnet.cli import main as cli_main
     from seqnet.data.readers import read_provenance
 
-    rng = np.random.default_rng(1)
-    (tmp_path / "imgs").mkdir()
-    for i in range(4):
-        Image.fromarray((rng.random((40, 80, 3)) ** 3 * 255).astype(np.uint8)).save(tmp_path / "imgs" / f"{i}.png")
-    base = ["-q", "describe", str(tmp_path / "imgs"), "--method", "netvlad", "--clusters", "4", "--batch-size", "2",
-            "--resize", "64x32", "--views", "raw,equalize"]
+    base = _netvlad_views_command(tmp_path, seed=1)
     assert cli_main([*base, "--out", str(tmp_path / "r.h5")]) == 0
     conf = DescribeConfig(method="netvlad", clusters=4, batch_size=2, size=(64, 32), views=("raw", "equalize"),
                           checkpoint=str(tmp_path / "r.netvlad.pth.tar"))

@@ -138,7 +138,7 @@ class GivenMatrix:
 
     def _refuse(self, block: np.ndarray, a: int) -> None:
         r, c = np.argwhere(~np.isfinite(block))[0]
-        raise DatasetError(f"--distances {self.where}: entry [{r + a}, {c}] is {block[r, c]} (every entry must be "
+        raise DatasetError(f"{self.where}: entry [{r + a}, {c}] is {block[r, c]} (every entry must be "
                            "finite)")
 
 

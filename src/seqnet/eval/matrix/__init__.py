@@ -79,7 +79,7 @@ def open_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
         rows, cols = ("reference", "query") if transposed else ("query", "reference")
         turned = m.ndim == 2 and m.shape == want[::-1]
         hint = f"; it is the other way round: {'drop' if transposed else 'pass'} --transposed" if turned else ""
-        raise ConfigError(f"--distances {path}: shape {m.shape}, but dataset {ds.name!r} has {len(ds.query)} query "
+        raise ConfigError(f"distance matrix {path}: shape {m.shape}, but dataset {ds.name!r} has {len(ds.query)} query "
                           f"and {len(ds.reference)} reference frames (one row per {rows} frame, one column per "
                           f"{cols} frame{', as --transposed says' if transposed else ''}){hint}")
     rng = ds.ranges(split)
@@ -88,7 +88,7 @@ def open_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
     whole = raw.shape == m.shape
     if not whole:
         check_finite_rows(m, path)
-    given = GivenMatrix(raw, bool(similarity), bool(transposed), str(path))
+    given = GivenMatrix(raw, bool(similarity), bool(transposed), f"distance matrix {path}")
     given.unchecked = whole
     return given
 
@@ -114,11 +114,11 @@ def _vpr_bench_scores(path: str | Path, similarity: bool) -> np.ndarray:
     x = load_npy_objects(path, "--distances", ConfigError)
     m = x[3] if isinstance(x, np.ndarray) and x.shape == (6,) and isinstance(x[3], np.ndarray) else None
     if m is None or m.ndim != 2 or m.dtype.kind not in "fiu":
-        raise ConfigError(f"--distances {path}: holds Python objects, not a matrix of numbers (VPR-Bench's "
+        raise ConfigError(f"distance matrix {path}: holds Python objects, not a matrix of numbers (VPR-Bench's "
                           "precomputed_data_corrected.npy is read; this is not one)")
     if not similarity:
-        raise ConfigError(f"--distances {path}: a VPR-Bench precomputed file holds similarities (higher is better): "
-                          "add --similarity")
+        raise ConfigError(f"distance matrix {path}: a VPR-Bench precomputed file holds similarities (higher is "
+                          "better): add --similarity (similarity=True in Python)")
     return m
 
 
@@ -129,7 +129,7 @@ def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = MEMORY
         bad = ~np.isfinite(read_rows(m, a, a + step))  # a large map's pages released after each block
         if bad.any():
             r, c = np.argwhere(bad)[0]
-            raise DatasetError(f"--distances {path}: entry [{r + a}, {c}] is {m[r + a, c]} (every entry must be "
+            raise DatasetError(f"distance matrix {path}: entry [{r + a}, {c}] is {m[r + a, c]} (every entry must be "
                                "finite)")
 
 
