@@ -320,3 +320,10 @@ def test_a_checkpoint_from_the_first_epoch_is_named_as_barely_trained(tmp_path):
     assert barely_trained({"s1": {"training": {"epoch": 1, "epochs": 1}}}) is None  # --epochs 1: nothing else ran
     assert barely_trained({"s1": {"training": {"epoch": 1, "epochs": 40}}}).startswith(
         "S_1's checkpoint is from epoch 1 of 40 planned (val R@1 never rose after it)")
+    adam = {**record, "optimizer": "adam", "lr": 0.001}  # hostile 52 own-data M2: Adam was offered to an Adam run
+    assert barely_trained({"seqnet": {"training": adam}}).endswith(
+        "barely trained; hint: a larger --lr (it was 0.001), and a val split large enough to choose the epoch")
+    fit = {**adam, "loss": {1: 0.2993, 2: 0.1, 3: 0.0322}, "last_epoch": 3, "epochs": 3}  # the loss fell 9x
+    said = barely_trained({"seqnet": {"training": fit}})
+    assert "fit its training queries but did not generalise" in said and "barely" not in said, said
+    assert "--optimizer" not in said and "training loss 0.2993 at epoch 1, 0.0322 at 3" in said, said

@@ -136,13 +136,17 @@ def _record(path: str, mtime: int) -> dict[str, Any] | None:
     history = (last.get("train_state") or {}).get("history") if same else None
     loss = {int(h["epoch"]): float(h["loss"]) for h in history or [] if isinstance(h, Mapping)
             and type(h.get("epoch")) is int and isinstance(h.get("loss"), float)}
-    return {"epoch": epoch, "epochs": epochs, **({"last_epoch": max(loss), "loss": loss} if loss else {})}
+    conf = best.get("config") or {}
+    how = {k: conf[k] for k in ("optimizer", "lr") if isinstance(conf.get(k), str | float)}
+    return {"epoch": epoch, "epochs": epochs, **how, **({"last_epoch": max(loss), "loss": loss} if loss else {})}
 
 
 def barely_trained(models: Mapping[str, Any]) -> str | None:
     """A model whose checkpoint is from its first epoch though more were planned or run (``training`` of
-    :func:`model_entries`): the chosen epoch is the barely trained first one; None otherwise."""
-    said = []
+    :func:`model_entries`): barely trained when its training loss did not fall to half of epoch 1's (the hint
+    names only the optimiser settings it did not use), or fit to its training queries without generalising
+    when it did (val R@1 never rose while the training loss fell); None otherwise."""
+    said, fell, used = [], False, set()
     for role, v in sorted(models.items(), key=lambda kv: kv[0] != "seqnet"):
         t = v.get("training") if isinstance(v, Mapping) else None
         if not isinstance(t, Mapping) or t.get("epoch") != 1 or max(t.get("last_epoch", 1), t.get("epochs", 1)) < 2:
@@ -150,12 +154,21 @@ def barely_trained(models: Mapping[str, Any]) -> str | None:
         ran = t.get("last_epoch")
         loss = t.get("loss") or {}
         after = f", training loss {loss[1]:.4f} at epoch 1, {loss[ran]:.4f} at {ran}" if ran and 1 in loss else ""
+        fell = fell or bool(after and loss[ran] < loss[1] / 2)
+        used |= {f"--optimizer {t.get('optimizer')}", f"--lr {t['lr']:g}" if "lr" in t else ""}
         said.append(f"{role_label(role)}'s checkpoint is from epoch 1 of {ran or t['epochs']}"
                     f"{'' if ran else ' planned'} (val R@1 never rose after it{after})")
     if not said:
         return None
-    return (f"{'; '.join(said)}: the model is barely trained; hint: a larger --lr or --optimizer adam, and a val "
-            "split large enough to choose the epoch")
+    if fell:
+        return (f"{'; '.join(said)}: the model fit its training queries but did not generalise to val (or the "
+                "val split is too small to choose the epoch); hint: more training queries, fewer weights (a smaller "
+                "--out-dims or --w), and a val split large enough to choose the epoch")
+    lrs = sorted(u.split()[1] for u in used if u.startswith("--lr "))
+    options = [f"a larger --lr{f' (it was {lrs[0]})' if len(lrs) == 1 else ''}",
+               *([] if "--optimizer adam" in used else ["--optimizer adam"])]
+    return (f"{'; '.join(said)}: the model is barely trained; hint: {' or '.join(options)}, and a val split large "
+            "enough to choose the epoch")
 
 
 def shortlist_capped(name: str, entry: Mapping[str, Any], baseline: float | None = None) -> str | None:
