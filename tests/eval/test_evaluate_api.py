@@ -136,7 +136,11 @@ def test_a_model_scored_on_its_training_queries_is_said_without_the_directory(tm
     assert ev.results["warnings"] == cli["warnings"]  # the epoch chosen on val queries
     assert any("are training queries" in r.getMessage() for r in caplog.records)
     assert "leakage" not in evaluate(ds, conf.replace(split="test"), models).results
-    other = dataclasses.replace(ds, query=dataclasses.replace(ds.query, provenance=None))  # nothing identifies it
+    other = dataclasses.replace(ds, query=dataclasses.replace(ds.query, provenance=None), path=None)  # built in
+    assert "leakage" not in evaluate(other, conf, models).results  # memory, no provenance: nothing identifies it
+    other.path = data  # load_dataset's directory: the checkpoint's record of it finds the training queries
+    assert evaluate(other, conf, models).results["leakage"] == cli["leakage"]
+    other = dataclasses.replace(other, path=None)
     assert "leakage" not in evaluate(other, conf, models).results
 
 

@@ -46,5 +46,22 @@ def test_nothing_more_without_a_reduction_or_a_learned_method(tmp_path, synth_da
     free = evaluate(load_dataset(reduced), EvalConfig(methods=("single", "raw+seqmatch"), seq_len=3, device="cpu"),
                     source=reduced).results
     assert not any("unreduced" in e for e in free["methods"].values())
-    api = evaluate(load_dataset(reduced), conf, {"s1": _s1(2)}).results
+    loaded = load_dataset(reduced)
+    loaded.path = None  # a dataset whose directory is not known (built in memory): nothing to compare with
+    api = evaluate(loaded, conf, {"s1": _s1(2)}).results
     assert not any("unreduced" in e for e in api["methods"].values())
+
+
+def test_the_api_finds_the_unreduced_dataset_as_the_cli_does(tmp_path, synth_dataset):
+    """Own-data hostile 52 M1: evaluate(load_dataset(reduced), conf, models) without source= dropped the note the
+    CLI gives (the PCA alone cost single 0.280 -> 0.120): load_dataset's directory is the default source."""
+    raw = save_dataset(synth_dataset, tmp_path / "ds")
+    reduced = reduce_main(raw, 2)
+    conf = EvalConfig(methods=METHODS, seq_len=3, device="cpu")
+    given = evaluate(load_dataset(reduced), conf, {"s1": _s1(2)}, source=reduced).results
+    found = evaluate(load_dataset(reduced), conf, {"s1": _s1(2)}).results
+    assert found["methods"]["single"]["unreduced"] == given["methods"]["single"]["unreduced"]
+    assert found.get("learned_below_baseline") == given.get("learned_below_baseline")
+    assert found["config"]["dataset_path"] == str(reduced)
+    split = evaluate(load_dataset(reduced).split("test"), conf, {"s1": _s1(2)}).results  # a split: its source's
+    assert split["methods"]["single"]["unreduced"] == given["methods"]["single"]["unreduced"]

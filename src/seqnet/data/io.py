@@ -41,6 +41,7 @@ def load_dataset(path: str | Path, mmap: bool = True) -> Dataset:
     changed = changed_files(Path(path), digests)
     if changed:  # the directory format may be edited by hand; the contents were checked all the same
         _say_changed(Path(path), changed)
+    ds.path = Path(path)  # what seqnet.evaluate finds it by (leakage checks, the unreduced dataset of a --pca one)
     return ds
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -139,6 +140,8 @@ class Dataset:
     positives: Positives | None = None
     # split(): the dataset it was taken from and the split's name (in memory only: what identifies its queries)
     source: tuple[Dataset, str] | None = dataclasses.field(default=None, repr=False, compare=False)
+    # load_dataset(): the directory it was read from (in memory only; a split has none: its source has it)
+    path: Path | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for side in ("reference", "query"):
@@ -201,6 +204,7 @@ class Dataset:
             name=f"{self.name}[{split}]",
             positives=positives,
             source=(self, split) if self.source is None else None,  # a split of a split: its numbering is lost
+            path=None,
         )
 
 

@@ -67,10 +67,12 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
         ds: dataset (reference + query traverses, radius, splits).
         conf: settings (default :class:`EvalConfig`); ``results["config"]["split"]`` is the split evaluated.
         models: trained models by role: ``{"seqnet": S_L, "s1": S_1}`` (optional).
-        source: the dataset directory ``ds`` was loaded from (``seqnet eval --dataset``): the leakage checks then
-            also compare the file hashes and path a checkpoint recorded; without it, a model's training and
-            epoch-selection queries are found by its recorded provenance and query names (a dataset from
-            :func:`seqnet.load_dataset`, or a split of one; a split whose source is unknown is said once).
+        source: the dataset directory ``ds`` was loaded from (``seqnet eval --dataset``; default: the one
+            :func:`seqnet.load_dataset` read it from, ``ds.path``, or its source's for a split): the leakage checks
+            then also compare the file hashes and path a checkpoint recorded, and a ``--pca`` reduction's learned
+            methods are compared with the model-free ones on the unreduced dataset beside it; without it, a model's
+            training and epoch-selection queries are found by its recorded provenance and query names (a split
+            whose source is unknown is said).
         prepare: ``prepare(ds, split, models, conf)`` -> ``(conf, entries)``, called first, may change the settings
             and add entries to the results (:func:`seqnet.eval.select.main`: the HVPR settings chosen on val).
 
@@ -90,6 +92,7 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
                     "EvalConfig(split='all') scores every query")
     else:
         evaluated, conf = ds, conf.merge(split=split)
+    source = source if source is not None else whole.path  # load_dataset's directory: what seqnet eval is given
     ev = evaluate_split(whole, split, evaluated, conf, models, source, prepare, said)
     for line in format_notes(learned_below_baseline(ev.results)):
         logger.warning("%s", shown(line))  # printed under the table by seqnet eval, which calls evaluate_split
@@ -150,7 +153,7 @@ def evaluate_split(ds: Dataset, split: str, evaluated: Dataset, conf: EvalConfig
     ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering (VME)
     if source is not None:
         ev.results["config"]["dataset_path"] = str(source)
-    elif models and any(getattr(m, "trained_on", None) for m in models.values()) and unknown_split(ds):
+    if models and any(getattr(m, "trained_on", None) for m in models.values()) and unknown_split(ds):
         add_warnings(ev, [f"evaluate(): dataset {ds.name!r} is a split whose source is not known here (saved and "
                           "loaded again, changed, or a split of a split): whether the models were trained on its "
                           "queries cannot be checked; hint: evaluate the whole dataset with EvalConfig(split=NAME)"])
