@@ -174,7 +174,8 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
     out.results["matrix_check"] = {k: v for k, v in check.items() if k != "warning"}
     if "warning" in check:
         out.results["warnings"] = [*out.results.get("warnings", []), check["warning"]]
-    add_warnings(out, [constant_rows(given), shift_notice(out), radius_ignored(radius, ds.positives is not None),
+    shift = None if "warning" in check else shift_notice(out)  # a matrix read the wrong way looks shifted too
+    add_warnings(out, [constant_rows(given), shift, radius_ignored(radius, ds.positives is not None),
                        trivial_ks(out, conf.ks)])
     return out
 
