@@ -327,3 +327,11 @@ def test_a_checkpoint_from_the_first_epoch_is_named_as_barely_trained(tmp_path):
     said = barely_trained({"seqnet": {"training": fit}})
     assert "fit its training queries but did not generalise" in said and "barely" not in said, said
     assert "--optimizer" not in said and "training loss 0.2993 at epoch 1, 0.0322 at 3" in said, said
+
+
+def test_the_few_queries_cause_names_the_recall_compared():
+    """Own-data hostile 52 L7: with --ks 5,20 the note compared R@5 and said 'one query is 0.05 of R@1'."""
+    res = {"methods": {n: {"recall@5": v, "recall@20": 0.9, "queries": 20, "method": {"seq_len": 5, "models": {}}}
+                       for n, v in {"single": 0.60, "s1": 0.30}.items()}, "config": {"seq_len": 5, "models": {}}}
+    (note,) = learned_below_baseline(res)
+    assert note.k == 5 and "only 20 evaluated queries (one query is 0.05 of R@5)" in note.causes, note.causes

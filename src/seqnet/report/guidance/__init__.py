@@ -116,10 +116,10 @@ def learned_below_baseline(results: Mapping[str, Any]) -> list[Note]:
         below = best - float(r1) >= one_query(entry.get("queries")) - 1e-9
         pca = unreduced_best(results, name, key, best)
         if pca is not None and pca[0] - float(r1) >= one_query(entry.get("queries")) - 1e-9:
-            causes = likely_causes(name, results, (float(r1), pca[0]), explained=not below)
+            causes = likely_causes(name, results, (float(r1), pca[0]), explained=not below, k=k)
             notes.append(Note(name, pca[1], float(r1), pca[0], (pca[2], *causes), k))
         elif below:
-            notes.append(Note(name, base, float(r1), best, likely_causes(name, results, (float(r1), best)), k))
+            notes.append(Note(name, base, float(r1), best, likely_causes(name, results, (float(r1), best), k=k), k))
     return notes
 
 

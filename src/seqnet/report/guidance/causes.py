@@ -18,7 +18,7 @@ CHANCE_QUERIES = 5  # the largest gap in queries a sign test at 0.05 cannot tell
 
 
 def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float] | None = None, *,
-                  explained: bool = False) -> tuple[str, ...]:
+                  explained: bool = False, k: int = 1) -> tuple[str, ...]:
     """The usual causes of a learned method ``name`` losing to a model-free one, most specific first: a gap
     within chance (``gap``: the two R@1), a model-free shortlist, a model on descriptors of D > 4096 (no PCA),
     a model trained at another L than evaluated, few evaluated queries; then, when nothing specific is seen,
@@ -55,7 +55,7 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
     if "seqnet" in m.models() and trained and evaluated and int(trained) != int(evaluated):
         out.append(f"S_L trained on windows of L={trained} but evaluated at L={evaluated} (--seq-len {trained})")
     if isinstance(queries, int) and 0 < queries < 50:
-        out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@1)")
+        out.append(f"only {queries} evaluated queries (one query is {1 / queries:.2f} of R@{k})")
     if (early := barely_trained(models)) and not chance:
         out.append(early)
     if not (chance or capped or free_shortlist or explained):  # the other causes (D, L, few queries): said beside
