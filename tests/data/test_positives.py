@@ -297,3 +297,17 @@ def test_csv_pairs_build_the_csr_at_once(tmp_path):
 def test_fuzzed_csv_gives_positives_or_one_error(tmp_path_factory, data):
     p = read_mutated(read_positives, tmp_path_factory.mktemp("p") / "p.csv", data)
     assert p is None or len(p) <= 16 * 8 + 10**6 and (p.indices >= 0).all()
+
+
+def test_a_file_counted_from_one_is_told_so():
+    """Own-data hostile 52 L8: a pairs CSV of queries and references 1..120 was refused as '121 rows of positives
+    for 120 query images' with no word of its indices starting at 1."""
+    one_based = Positives.from_pairs(np.arange(1, 121), np.arange(1, 121), 121)
+    with pytest.raises(DatasetError, match=r"121 rows of positives for 120 query images .*count from 1.*subtract 1"):
+        one_based.check(120, 120, "pos1.csv")
+    refs = Positives.from_lists([[i + 1] for i in range(120)])  # references counted from 1 only
+    with pytest.raises(DatasetError, match=r"lists reference 120, .*count from 1"):
+        refs.check(120, 120)
+    with pytest.raises(DatasetError) as e:
+        Positives.from_lists([[0]] * 5).check(4, 4)  # one row too many, but row 0 is used: no such hint
+    assert "count from 1" not in str(e.value)

@@ -10,6 +10,10 @@ import numpy as np
 from ...core.errors import DatasetError
 from ...security.limits import INDEX_MAX
 
+# a file counted from 1 (no query or reference 0, one past the last): said beside the refusal
+ONE_BASED = " (hint: the file seems to count from 1, with no index 0; seqnet counts queries and references from 0: " \
+    "subtract 1 from every index)"
+
 
 @dataclasses.dataclass(frozen=True)
 class Positives:
@@ -61,8 +65,10 @@ class Positives:
         if len(self) != n_queries:
             flipped = self.n_refs == n_queries and len(self) == n_refs  # a dense [N_ref, N_query] matrix
             hint = f" (transposed? the matrix is [{n_refs}, {n_queries}]; seqnet reads [N_query, N_reference])"
+            one_based = len(self) == n_queries + 1 and self.counts()[0] == 0
+            hint = hint if flipped else ONE_BASED if one_based else ""
             raise DatasetError(f"{where}: {len(self)} rows of positives for {n_queries} query images (one per "
-                               f"query){hint if flipped else ''}")
+                               f"query){hint}")
         if self.zero_one_width == n_refs:
             raise DatasetError(f"{where}: {len(self)} rows of {n_refs} zeros and ones read as a [N_query, "
                                "N_reference] matrix and as reference indices per query give different positives "
@@ -73,8 +79,9 @@ class Positives:
                                "images (one column per reference)")
         if self.indices.size and self.indices.max() >= n_refs:
             q = int(np.searchsorted(self.indptr, int(np.argmax(self.indices >= n_refs)), side="right") - 1)
+            one_based = int(self.indices.max()) == n_refs and int(self.indices.min()) >= 1
             raise DatasetError(f"{where}: query {q} lists reference {int(self.indices.max())}, but the reference "
-                               f"traverse has {n_refs} images (indices 0..{n_refs - 1})")
+                               f"traverse has {n_refs} images (indices 0..{n_refs - 1}){ONE_BASED * one_based}")
         if self.soft is not None:
             self.soft.check(n_queries, n_refs, f"{where} (soft positives)")
         return self
