@@ -64,7 +64,23 @@ def test_eval_calibration_refusals_and_decline(easy_dir, synth_dir, tmp_path, ca
     # the small synthetic dataset's val split cannot promise 0.99: every query abstains, and why is said
     assert cli_main(["eval", "--dataset", str(synth_dir), "--method", "raw+seqmatch", "--seq-len", "3",
                      "--target-precision", "0.99", "--device", "cpu"]) == 0
-    assert "abstains on every query" in capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert "abstains on every query" in out and "abstains" not in err  # said once: in the table
+
+
+def test_the_api_says_a_method_that_abstains_on_every_query(synth_dir, caplog):
+    """Own-data hostile 52 L9: from Python, calibration that abstains on every query was silent (the reason was
+    only in results['methods'][m]['calibrated']), where seqnet eval prints it."""
+    import logging
+
+    from seqnet import EvalConfig, evaluate, load_dataset
+
+    conf = EvalConfig(methods=("raw+seqmatch",), seq_len=3, target_precision=0.99, device="cpu")
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        ev = evaluate(load_dataset(synth_dir), conf)
+    reason = ev.results["methods"]["raw+seqmatch"]["calibrated"]["calibration"]["reason"]
+    said = [r.getMessage() for r in caplog.records if "abstains on every query" in r.getMessage()]
+    assert said == [f"evaluate(): raw+seqmatch abstains on every query at target precision 0.99 ({reason})"], said
 
 
 def test_localize_accepted_column(easy_dir, tmp_path, capsys):

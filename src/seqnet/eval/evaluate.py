@@ -94,9 +94,22 @@ def evaluate(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, S
         evaluated, conf = ds, conf.merge(split=split)
     source = source if source is not None else whole.path  # load_dataset's directory: what seqnet eval is given
     ev = evaluate_split(whole, split, evaluated, conf, models, source, prepare, said)
-    for line in format_notes(learned_below_baseline(ev.results)):
-        logger.warning("%s", shown(line))  # printed under the table by seqnet eval, which calls evaluate_split
+    for line in after_table(ev.results):
+        logger.warning("%s", shown(line))
     return ev
+
+
+def after_table(results: Mapping[str, Any]) -> list[str]:
+    """What ``seqnet eval`` prints after its table and :func:`evaluate` logs instead (the CLI calls
+    :func:`evaluate_split`): the learned-below-baseline notes, and each method whose calibrated threshold abstains
+    on every query, with why."""
+    lines = format_notes(learned_below_baseline(results))
+    for name, r in results.get("methods", {}).items():
+        cal = (r.get("calibrated") or {}).get("calibration") or {}
+        if cal and cal.get("threshold") is None:
+            lines.append(f"evaluate(): {name} abstains on every query at target precision "
+                         f"{results['config'].get('target_precision')} ({cal.get('reason')})")
+    return lines
 
 
 def split_source(ds: Dataset, split: str | None) -> tuple[Dataset, str]:
