@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -229,3 +231,22 @@ def test_training_uses_explicit_positives(tmp_path):
     for i in range(0, src.n_queries, 17):
         listed = r_frames[p_mask[i]].tolist()
         assert listed == [min(n_r - 1, int(q_frames[i]) + 7)], (i, listed)
+
+
+def test_positions_in_degrees_are_named_when_no_query_has_pairs(synth_dataset):
+    """Own-data hostile 52 M4: positions in degrees read as metres made train refuse with 'check the train ranges,
+    or a larger --pos-radius / a smaller --neg-radius', which failed again when followed: the cause is named."""
+    val = synth_dataset.split("val")
+
+    def degrees(t):  # a route along a line of latitude, in degrees: 1e-5 degrees a metre, about
+        return dataclasses.replace(t, positions=np.column_stack([10.75 + 1e-5 * t.positions[:, 0],
+                                                                 np.full(len(t), 59.91)]))
+
+    deg = {s: degrees(getattr(val, s)) for s in ("query", "reference")}
+    with pytest.raises(DatasetError, match=r"none of .* val queries .*positions look like degrees") as e:
+        split_windows(dataclasses.replace(val, **deg), 3, "centred", MiningConfig(pos_radius=3.0, neg_radius=12.0),
+                      "val")
+    assert "--pos-radius" not in str(e.value)
+    with pytest.raises(DatasetError) as e:  # metres: the radius hint as before
+        split_windows(val, 3, "centred", MiningConfig(pos_radius=1e-9, neg_radius=1e9), "val")
+    assert "degrees" not in str(e.value) and "--pos-radius" in str(e.value)

@@ -14,6 +14,7 @@ from ..core.lazy import lazy_module
 from ..core.memmaps import streamed, take_rows
 from ..core.tensors import as_tensor
 from ..data.positives import Positives
+from ..data.spacing import DEGREES_HINT, looks_like_degrees
 from ..data.traverse import Dataset, Traverse
 from ..sequence.windows import frame_bounds, gather_windows, speed_windows, window_frames, window_starts
 from .config import MiningConfig
@@ -136,8 +137,11 @@ def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, wh
     positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
     keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius, positives)
     if not keep.any():
+        words = _pair_words(conf, ds.position_unit, positives is not None, what)
+        if positives is None and looks_like_degrees(np.concatenate([q_pos, r_pos])):
+            words = words.split(" (hint:")[0] + f" ({DEGREES_HINT}; no radius in metres fits degrees)"
         raise DatasetError(f"{ds.name}: none of {len(q_items)} {'training' if what == 'train' else what} queries has "
-                           f"{_pair_words(conf, ds.position_unit, positives is not None, what)}")
+                           f"{words}")
     kept = positives.select(np.flatnonzero(keep), np.arange(len(r_items))) if positives is not None else None
     return SplitWindows(q_idx[keep], r_idx, q_pos[keep], r_pos, int((~keep).sum()), kept, q_items[keep],
                         sequence_bounds(ds.query, q_items[keep]))
