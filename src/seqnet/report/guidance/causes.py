@@ -146,7 +146,7 @@ def barely_trained(models: Mapping[str, Any]) -> str | None:
     :func:`model_entries`): barely trained when its training loss did not fall to half of epoch 1's (the hint
     names only the optimiser settings it did not use), or fit to its training queries without generalising
     when it did (val R@1 never rose while the training loss fell); None otherwise."""
-    said, fell, used = [], False, set()
+    said, fell, optimizers, lrs = [], False, set(), set()
     for role, v in sorted(models.items(), key=lambda kv: kv[0] != "seqnet"):
         t = v.get("training") if isinstance(v, Mapping) else None
         if not isinstance(t, Mapping) or t.get("epoch") != 1 or max(t.get("last_epoch", 1), t.get("epochs", 1)) < 2:
@@ -155,7 +155,8 @@ def barely_trained(models: Mapping[str, Any]) -> str | None:
         loss = t.get("loss") or {}
         after = f", training loss {loss[1]:.4f} at epoch 1, {loss[ran]:.4f} at {ran}" if ran and 1 in loss else ""
         fell = fell or bool(after and loss[ran] < loss[1] / 2)
-        used |= {f"--optimizer {t.get('optimizer')}", f"--lr {t['lr']:g}" if "lr" in t else ""}
+        optimizers.add(t.get("optimizer"))
+        lrs |= {f"{t['lr']:g}"} if "lr" in t else set()
         said.append(f"{role_label(role)}'s checkpoint is from epoch 1 of {ran or t['epochs']}"
                     f"{'' if ran else ' planned'} (val R@1 never rose after it{after})")
     if not said:
@@ -164,9 +165,8 @@ def barely_trained(models: Mapping[str, Any]) -> str | None:
         return (f"{'; '.join(said)}: the model fit its training queries but did not generalise to val (or the "
                 "val split is too small to choose the epoch); hint: more training queries, fewer weights (a smaller "
                 "--out-dims or --w), and a val split large enough to choose the epoch")
-    lrs = sorted(u.split()[1] for u in used if u.startswith("--lr "))
-    options = [f"a larger --lr{f' (it was {lrs[0]})' if len(lrs) == 1 else ''}",
-               *([] if "--optimizer adam" in used else ["--optimizer adam"])]
+    options = [f"a larger --lr{f' (it was {next(iter(lrs))})' if len(lrs) == 1 else ''}",
+               *([] if "adam" in optimizers else ["--optimizer adam"])]
     return (f"{'; '.join(said)}: the model is barely trained; hint: {' or '.join(options)}, and a val split large "
             "enough to choose the epoch")
 
