@@ -66,6 +66,12 @@ class GivenMatrix:
         out = self._finish(self.raw)
         return np.ascontiguousarray(out.T) if self.transposed else out
 
+    def block(self, q: slice, r: slice) -> GivenMatrix:
+        """The query rows ``q`` and reference columns ``r`` as a matrix of their own: a view of ``raw`` (nothing
+        read or copied) with the same reading."""
+        raw = self.raw[r, q] if self.transposed else self.raw[q, r]
+        return GivenMatrix(raw, self.negate, self.transposed, self.where, self.unchecked)
+
     def __getitem__(self, key: tuple[Any, Any]) -> np.ndarray:
         """Float64 distances of ``dense()[key]`` for a ``(rows, columns)`` key (``np.ix_``, slices, indices),
         reading only those entries."""

@@ -83,12 +83,11 @@ def open_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
                           f"and {len(ds.reference)} reference frames (one row per {rows} frame, one column per "
                           f"{cols} frame{', as --transposed says' if transposed else ''}){hint}")
     rng = ds.ranges(split)
-    q, r = slice(*rng["query"]), slice(*rng["reference"])
-    raw = m[r, q] if transposed else m[q, r]  # a view: the split's block only is ever read
-    whole = raw.shape == m.shape
+    given = GivenMatrix(m, bool(similarity), bool(transposed), f"distance matrix {path}")
+    given = given.block(slice(*rng["query"]), slice(*rng["reference"]))  # a view: only the split's block is read
+    whole = given.raw.shape == m.shape
     if not whole:
         check_finite_rows(m, path)
-    given = GivenMatrix(raw, bool(similarity), bool(transposed), f"distance matrix {path}")
     given.unchecked = whole
     return given
 
@@ -200,10 +199,7 @@ def split_matrix(ds: Dataset, given: GivenMatrix, split: str | None
     sub = ds.split(split)
     if given.shape != whole:
         return sub, given, None  # the split's block, already taken (checked against the split's size next)
-    (a, b), (c, d) = rng["query"], rng["reference"]
-    rows, cols = (slice(c, d), slice(a, b)) if given.transposed else (slice(a, b), slice(c, d))
-    part = GivenMatrix(given.raw[rows, cols], given.negate, given.transposed, given.where, given.unchecked)
-    return sub, part, (a, b)
+    return sub, given.block(slice(*rng["query"]), slice(*rng["reference"])), rng["query"]
 
 
 def as_given(dist: np.ndarray | GivenMatrix, similarity: bool | None, transposed: bool | None) -> GivenMatrix:
