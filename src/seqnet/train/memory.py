@@ -96,9 +96,8 @@ def memory_hint(conf: TrainConfig, in_dims: int, n_ref: int, n_query: int, n_tra
         said.append((base - train_bytes(conf.merge(out_dims=o), d, n_ref, n_query, spill, n_train), flag))
     changes = {"--w 1": {"w": 1}, "--optimizer sgd": {"optimizer": "sgd"}, f"--batch-size {max(1, batch // 4)}":
                {"batch_size": max(1, batch // 4)}}
-    for flag, change in changes.items():
-        if all(getattr(conf, k) != v for k, v in change.items()) and (flag[:4] != "--ba" or batch > 1):
-            said.append((base - train_bytes(conf.merge(**change), in_dims, n_ref, n_query, spill, n_train), flag))
+    for flag, change in changes.items():  # a value the run already has saves nothing: dropped below
+        said.append((base - train_bytes(conf.merge(**change), in_dims, n_ref, n_query, spill, n_train), flag))
     said = sorted((s for s in said if s[0] > 0), reverse=True)
     where = {f"--pca {pca}": "; seqnet train, or seqnet dataset from-images"}
     return ", ".join(f"{flag} (saves about {human_bytes(s)}{where.get(flag, '')})" for s, flag in said) or \

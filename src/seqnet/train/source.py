@@ -137,24 +137,25 @@ def split_windows(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, wh
     positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
     keep = queries_with_pairs(q_pos, r_pos, conf.pos_radius, conf.neg_radius, positives)
     if not keep.any():
-        words = _pair_words(conf, ds.position_unit, positives is not None, what)
-        if positives is None and looks_like_degrees(np.concatenate([q_pos, r_pos])):
-            words = words.split(" (hint:")[0] + f" ({DEGREES_HINT}; no radius in metres fits degrees)"
+        degrees = positives is None and looks_like_degrees(np.concatenate([q_pos, r_pos]))
         raise DatasetError(f"{ds.name}: none of {len(q_items)} {'training' if what == 'train' else what} queries has "
-                           f"{words}")
+                           f"{_pair_words(conf, ds.position_unit, positives is not None, what, degrees)}")
     kept = positives.select(np.flatnonzero(keep), np.arange(len(r_items))) if positives is not None else None
     return SplitWindows(q_idx[keep], r_idx, q_pos[keep], r_pos, int((~keep).sum()), kept, q_items[keep],
                         sequence_bounds(ds.query, q_items[keep]))
 
 
-def _pair_words(conf: MiningConfig, unit: str, explicit: bool, what: str) -> str:
-    """What a query lacks when none has a positive and a negative (the end of the error), by radius or explicit."""
+def _pair_words(conf: MiningConfig, unit: str, explicit: bool, what: str, degrees: bool = False) -> str:
+    """What a query lacks when none has a positive and a negative (the end of the error), by radius or explicit;
+    ``degrees``: the positions look like degrees, which no radius in metres fits (said instead of the radius
+    hint)."""
     if explicit:
         return (f"a positive and a reference farther than neg_radius={conf.neg_radius:g} {unit} from its positives "
                 f"(hint: check the {what} ranges of reference and query, the positives, or a smaller --neg-radius)")
+    hint = (f"{DEGREES_HINT}; no radius in metres fits degrees" if degrees else f"hint: check the {what} ranges of "
+            "reference and query, or a larger --pos-radius / a smaller --neg-radius")
     return (f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius={conf.neg_radius:g} "
-            f"{unit} (hint: check the {what} ranges of reference and query, or a larger --pos-radius / a smaller "
-            "--neg-radius)")
+            f"{unit} ({hint})")
 
 
 def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device,
