@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.lib.array_utils import byte_bounds
 
 from ..core.errors import ConfigError
 from ..core.log import logger
@@ -138,7 +137,8 @@ def same_frames(part: Traverse, whole: Traverse, rng: tuple[int, int]) -> bool:
         return False
     if d.shape != w.shape or d.dtype != w.dtype:
         return False
-    return d is w or byte_bounds(d) == byte_bounds(w) and d.strides == w.strides or bool(np.array_equal(d, w))
+    same_memory = d.__array_interface__["data"][0] == w.__array_interface__["data"][0] and d.strides == w.strides
+    return d is w or same_memory or bool(np.array_equal(d, w))
 
 
 def same_positives(ds: Dataset, whole: Dataset, rng: Mapping[str, tuple[int, int]]) -> bool:
@@ -285,7 +285,6 @@ def _evaluate_dir(conf: EvalConfig, dataset: str | Path, models: Sequence[str | 
     evaluated = split_of(ds, split)  # taken once; an unknown split fails before any model is loaded
     conf, (models, shortlist_model, rerank_model) = _used(conf, models, shortlist_model, rerank_model)
     loaded = load_models(models, shortlist_model, rerank_model, conf.seq_len)
-    check_types(ds, conf, loaded)
     ev = evaluate_split(ds, split, evaluated, conf, loaded, source=dataset, prepare=prepare)
     ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()),
                             "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]}

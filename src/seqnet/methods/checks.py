@@ -15,7 +15,7 @@ from ..security.text import shown
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import longest_option
 from .grammar import Method
-from .route import REVERSED_BELOW, TRIVIAL_SHARE, reversed_route, route_direction, trivial_truth  # noqa: F401
+from .route import REVERSED_BELOW, reversed_route, route_direction, trivial_truth  # noqa: F401
 from .trained import (  # noqa: F401 - named_test_split: a methods.checks name, used by others
     MAX_RECORD_TEXT,
     free_hint,

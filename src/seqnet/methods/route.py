@@ -17,7 +17,7 @@ from ..data.sanity.revisits import revisited_reference
 from ..data.sanity.route import route_checks
 from ..data.sanity.truth import degree_positions
 from ..data.spacing import RATE_RATIO, step_rates, unequal_steps
-from ..metrics.inputs import TRIVIAL_SHARE, trivial_truth  # noqa: F401 - re-exported (methods.checks)
+from ..metrics.inputs import trivial_truth  # noqa: F401 - re-exported (methods.checks)
 from .grammar import parse_method
 
 REVERSED_BELOW = -0.5  # the correlation of the query's and its positives' frame order below which a route runs back

@@ -19,6 +19,7 @@ from ..core.config import check_choice, check_int
 from ..core.errors import ConfigError
 from ..core.lazy import lazy_module
 from ..core.log import counted, warn_once
+from ..core.memmaps import read_rows
 from ..core.tensors import ArrayLike, as_tensor, l2_normalize, spread
 from . import knn as exact
 
@@ -63,7 +64,7 @@ def row_checks(x: ArrayLike, side: str, caller: str) -> str | None:
         return None  # the search refuses it, or nothing to check
     step, zeros, first = max(1, CHECK_BYTES // max(1, int(x.shape[1]) * 8)), 0, -1
     for s in range(0, int(x.shape[0]), step):
-        finite, zero = _flags(x[s:s + step] if tensor else np.asarray(x[s:s + step]))
+        finite, zero = _flags(x[s:s + step] if tensor else np.asarray(read_rows(x, s, s + step)))  # pages released
         if not finite.all():
             row = s + int(np.flatnonzero(~finite)[0])
             raise ConfigError(f"{caller}: {side} row {row} holds NaN or inf: it has no distance to any row (hint: "

@@ -142,7 +142,8 @@ def _indices(row: object, where: str) -> np.ndarray:
         a = np.asarray(row).ravel()
     except (TypeError, ValueError, OverflowError) as e:
         raise DatasetError(f"{where}: reference indices must be integers, got {str(row)[:60]}") from e
-    matrix_row = (a.dtype == bool or (a.size > 2 and np.isin(a, (0, 1)).all())) and a.size > 1
+    only_01 = a.size > 2 and (a.dtype.kind not in "iu" or a.max() <= 1) and np.isin(a, (0, 1)).all()  # max first:
+    matrix_row = (a.dtype == bool or only_01) and a.size > 1  # most index rows skip the isin
     hint = (" (a row of a 0/1 [N_query, N_reference] matrix? hint: give a matrix as a numpy array, "
             "np.asarray(rows, dtype=bool), or as a .npy file)") if matrix_row else ""
     if a.size and (a.dtype.kind not in "iu" and not (a.dtype.kind == "f" and np.all(a == np.round(a)))):

@@ -27,12 +27,10 @@ from typing import Any
 from ...core.errors import ConfigError
 from ...methods.grammar import parse_method
 from .causes import (  # noqa: F401 - guidance names, used by eval, the cli and the tests
-    CHANCE_QUERIES,
     barely_trained,
     likely_causes,
     model_entries,
     one_query,
-    shortlist_capped,
     training_record,
     within_chance,
 )
