@@ -57,8 +57,9 @@ def check_types(ds: Dataset, conf: EvalConfig, models: Mapping[str, SeqNet] | No
         raise ConfigError(f"unknown model role(s) {sorted(unknown)}; valid: seqnet (S_L), s1 (S_1)")
 
 
-def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[str, Any]:
-    """What a method resolved to: kind, shortlister, re-ranker, lengths, K, models."""
+def _entry(m: Method, conf: EvalConfig, entries: Mapping[str, dict[str, Any]]) -> dict[str, Any]:
+    """What a method resolved to: kind, shortlister, re-ranker, lengths, K, models (of ``entries``: every
+    model's :func:`~seqnet.report.guidance.model_entries`, made once)."""
     info = m.summary()
     info["seq_len"] = conf.windows.seq_len
     if m.rerank:
@@ -67,7 +68,7 @@ def _entry(m: Method, conf: EvalConfig, models: Mapping[str, SeqNet]) -> dict[st
         info["top_k"] = conf.shortlist_size(m)
     if m.fused:
         info["fuse_weight"] = conf.weight(m)
-    info["models"] = model_entries({r: models[r] for r in sorted(m.models())})
+    info["models"] = {r: dict(entries[r]) for r in sorted(m.models())}
     return info
 
 
@@ -100,11 +101,12 @@ def score(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqN
         model.to(dev).eval()
         with torch.no_grad():  # its first call allocates: not charged to the first method that uses it
             model(torch.zeros((1, model.seq_len, model.in_dims), device=dev))
-    parts = [_evaluate_group(ds, ms, w, conf, models, dev, plain) for w, ms in groups.items()]
+    entries = model_entries(models)  # once: it reads each checkpoint's training record
+    parts = [_evaluate_group(ds, ms, w, conf, models, dev, plain, entries) for w, ms in groups.items()]
     out = merge(parts, conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
                              "ground_truth": "explicit positives" if ds.positives is not None else "radius",
-                             "models": model_entries(models),
+                             "models": entries,
                              "model_seq_len": model_lengths(models)}
     out.results["descriptors"] = descriptor_record(ds)
     out.dataset, out.frame_names = ds, (ds.query.names, ds.reference.names)
@@ -113,14 +115,15 @@ def score(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqN
 
 
 def _evaluate_group(ds: Dataset, methods: list[Method], windows: Windows, conf: EvalConfig,
-                    models: Mapping[str, SeqNet], dev: Any, plain: bool = False) -> Evaluation:
+                    models: Mapping[str, SeqNet], dev: Any, plain: bool,
+                    entries: Mapping[str, dict[str, Any]]) -> Evaluation:
     """The methods that share ``windows``, on those windows' query and reference items (``plain``: in numpy)."""
     query = (PlainDescribed(ds.query.descriptors, ds.query.seq_bounds, windows, "query") if plain
              else Described(ds.query.descriptors, ds.query.seq_bounds, windows, models, dev, "query"))
     ref = (PlainReference(ds.reference, windows, ds.name) if plain
            else TraverseReference(ds.reference, windows, models, dev, conf.backend, ds.name))
     truth = dataset_truth(ds, query.side.items, ref.items, conf.radius)
-    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, models), windows=windows,
+    out = run(methods, query, ref, truth, conf, len(ds.query), lambda m: _entry(m, conf, entries), windows=windows,
               with_torch=not plain)
     out.query_names, out.reference_names = item_names(ds.query, query.side.items), item_names(ds.reference, ref.items)
     return out
