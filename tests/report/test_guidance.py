@@ -259,6 +259,35 @@ def test_the_training_queries_a_checkpoint_records_are_named_in_the_training_cau
                    {"s1": model}).results
     assert res["config"]["models"]["s1"]["training_queries"] == 12
     assert res["methods"]["s1"]["method"]["models"]["s1"]["training_queries"] == 12
+    model.trained_on["trained_queries"] = 9  # the queries it trained on, since 2026-12-05
+    assert model_entries({"s1": model})["s1"]["training_queries"] == 9
+
+
+def test_the_training_queries_named_are_those_trained_on_not_the_split(tmp_path, caplog):
+    """The notes said "S_L learnt from 60 training queries" (the train range's length) of a run whose training
+    logged "on 56 queries" (4 without a full window): the checkpoint records the count trained on, and the notes
+    name it."""
+    import logging
+    import re
+
+    from seqnet.data.io import save_dataset
+    from seqnet.data.synth import make_synthetic
+    from seqnet.report.guidance import model_entries
+    from seqnet.sequence.checkpoints import load_model
+    from seqnet.train.config import TrainConfig
+    from seqnet.train.loop import main
+
+    data = save_dataset(make_synthetic(places=200, dim=8), tmp_path / "ds")
+    conf = TrainConfig(optimizer="adam", lr=1e-2, batch_size=16, cache_refresh=40, n_neg_sample=50, seq_len=5, w=3,
+                       out_dims=8, device="cpu", epochs=1)
+    with caplog.at_level(logging.INFO, logger="seqnet"):
+        run = main(conf, data, tmp_path / "run")
+    logged = int(re.search(r"training S_5 .* on (\d+) queries", caplog.text).group(1))
+    model = load_model(run / "best.pt")
+    a, b = model.trained_on["train_queries"]
+    assert logged < b - a  # the range's ends have no full window
+    assert model.trained_on["trained_queries"] == logged
+    assert model_entries({"seqnet": model})["seqnet"]["training_queries"] == logged
 
 
 def _reduced(learned: float, reduced: float, unreduced: float, queries: int = 86) -> dict:

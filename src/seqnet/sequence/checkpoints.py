@@ -41,6 +41,8 @@ if TYPE_CHECKING:
     from .model import SeqNet
 
 CHECKPOINT_FORMAT = "seqnet-checkpoint/1"
+#: What a checkpoint records of its training data that ``trained_on`` carries (besides dataset, split, val split).
+TRAINED_ON = ("val_queries", "train_queries", "trained_queries", "query_names", "dataset_digests")
 
 
 def save_checkpoint(path: str | Path, model: SeqNet, **fields: Any) -> Path:
@@ -99,8 +101,10 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
     The model's ``provenance`` is that of the descriptors it was trained on (None when unknown), its
     ``trained_on`` the dataset directory and split of its training queries, the split its epoch was chosen on
     (``val_split``, ``"none"`` without validation) and that split's query range (``val_queries``, ``[a, b]``;
-    None for checkpoints written before training recorded it), the train split's query range (``train_queries``)
-    and what identifies those queries (``query_names``, ``dataset_digests``) (None when unknown)
+    None for checkpoints written before training recorded it), the train split's query range (``train_queries``),
+    how many of its queries the model trained on (``trained_queries``: those with a full window, a positive and a
+    negative; None for checkpoints written before 2026-12-05) and what identifies those queries (``query_names``,
+    ``dataset_digests``) (None when unknown)
     """
     payload = read_checkpoint(path)
     fmt = payload.get("format")
@@ -113,8 +117,7 @@ def load_model(path: str | Path, seq_len: int | None = None, in_dims: int | None
         config = payload.get("config") if isinstance(payload.get("config"), dict) else {}
         model.trained_on = {"dataset": payload.get("dataset_path"), "split": config.get("train_split"),
                             "checkpoint": str(path), "val_split": config.get("val_split"),
-                            **{k: payload.get(k) for k in ("val_queries", "train_queries", "query_names",
-                                                           "dataset_digests")}} if payload.get("dataset_path") else None
+                            **{k: payload.get(k) for k in TRAINED_ON}} if payload.get("dataset_path") else None
     else:
         model = _build(*original_model(payload, Path(path), seq_len), Path(path))
     if in_dims is not None and in_dims != model.in_dims:

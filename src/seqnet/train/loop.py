@@ -119,6 +119,7 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     logger.info("%straining %s (w=%d, D %d->%d) on %d queries%s, %d reference windows, epochs %d..%d, device %s%s, %s",
                 resumed, _name(m), m.w, m.in_dims, m.out_dims, src.n_queries, left, len(src.r_idx), first,
                 run.conf.epochs, device, procs, val)
+    run.record["trained_queries"] = src.n_queries  # the queries trained on (a full window, a positive, a negative)
     run.world.rank0(lambda: _guide(run, src, val_ds, device, budget))
     t0 = time.perf_counter()
     inactive = False

@@ -93,15 +93,17 @@ def learnt(models: Mapping[str, Any]) -> str:
 
 def model_entries(models: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     """What ``results.json`` records of each model by role (:func:`likely_causes` reads it): its architecture
-    (``in_dims``, ``out_dims``, ``seq_len``, ``w``) and, when its checkpoint records its train range, the number of
-    its training queries (``training_queries``)."""
+    (``in_dims``, ``out_dims``, ``seq_len``, ``w``) and, when its checkpoint records them, the number of its
+    training queries (``training_queries``: those it trained on; for older checkpoints its train range's length)."""
     out = {}
     for role, model in models.items():
         t = getattr(model, "trained_on", None)
         rng = t.get("train_queries") if isinstance(t, Mapping) else None
         ok = isinstance(rng, list | tuple) and len(rng) == 2 and all(type(v) is int for v in rng) and rng[1] > rng[0]
         record = training_record(str(t["checkpoint"])) if isinstance(t, Mapping) and t.get("checkpoint") else None
-        out[role] = {**model.config(), **({"training_queries": rng[1] - rng[0]} if ok else {}),
+        n = t.get("trained_queries") if isinstance(t, Mapping) else None
+        n = n if type(n) is int and n >= 0 else rng[1] - rng[0] if ok else None
+        out[role] = {**model.config(), **({"training_queries": n} if n is not None else {}),
                      **({"training": record} if record else {})}
     return out
 
