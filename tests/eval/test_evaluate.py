@@ -170,8 +170,21 @@ def test_seq_len_equal_to_traverse_length():
     assert ev.results["methods"]["single"]["no_full_window"] == 0
     assert ev.results["methods"]["smoothing"]["no_full_window"] == 4
     assert ev.results["methods"]["smoothing"]["no_full_window_reason"] == (
-        "windows of 5 centred frames (L=5) do not fit within 2 frames of each sequence end")
+        "windows of 5 centred frames (L=5) do not fit within 2 frames of the evaluated range's start or end")
     assert ev.retrieved["raw+seqmatch"].shape == (1, 3)
+
+
+def test_windows_cut_by_a_split_are_not_blamed_on_sequence_ends():
+    """Without sequence bounds the windows lost are cut by the evaluated range's ends (a split's, or the
+    traverse's); it said "each sequence end" of a dataset that has none. With bounds it names the sequences."""
+    ev = evaluate(toy(12, 12), EvalConfig(methods=("smoothing",), seq_len=5, split="4:10", device="cpu"))
+    assert ev.results["methods"]["smoothing"]["no_full_window"] == 4
+    assert ev.results["methods"]["smoothing"]["no_full_window_reason"].endswith(
+        "within 2 frames of the evaluated range's start or end")
+    bounds = np.repeat([[0, 6], [6, 12]], 6, axis=0)
+    ev = evaluate(toy(12, 12, bounds), EvalConfig(methods=("smoothing",), seq_len=5, device="cpu"))
+    assert ev.results["methods"]["smoothing"]["no_full_window_reason"].endswith(
+        "within 2 frames of each sequence's start or end")
 
 
 def test_seq_len_longer_than_traverse():
@@ -201,7 +214,7 @@ def test_causal_window():
     assert ev.q_items.tolist() == list(range(2, 9))
     assert ev.view("single").q_items.tolist() == list(range(9))
     assert ev.results["methods"]["smoothing"]["no_full_window_reason"] == (
-        "causal windows of 3 frames (L=3) do not fit in the first 2 frames of each sequence")
+        "causal windows of 3 frames (L=3) do not fit in the first 2 frames of the evaluated range")
 
 
 @pytest.mark.parametrize("cfg, pattern", [

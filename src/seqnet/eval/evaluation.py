@@ -124,16 +124,20 @@ def method_windows(methods: Sequence[Method], windows: Windows, common: bool = F
     return {w: ms for w, ms in groups.items() if ms}
 
 
-def no_window_reason(windows: Windows) -> str:
-    """Why frames have no query or reference item under ``windows`` (their windows do not fit their sequence)."""
+def no_window_reason(windows: Windows, bounded: bool = True) -> str:
+    """Why frames have no query or reference item under ``windows`` (their windows do not fit their sequence):
+    ``bounded``, the frames carry sequence bounds; else the only ends are those of the frames evaluated (the
+    traverse, or the split's range, which cuts windows as well)."""
     n = windows.longest
     lens = f"L={windows.seq_len}" + (f", L_m={windows.match_len}" if windows.match_len != windows.seq_len else "")
     if windows.mode == "centred":
         head, tail = window_offset(n, "centred"), n - 1 - window_offset(n, "centred")
-        ends = f"{_frames(head)} of each sequence end" if head == tail else \
-            f"{_frames(head)} of a sequence's start or {tail} of its end"
+        where = "each sequence" if bounded else "the evaluated range"
+        ends = f"{_frames(head)} of {where}'s start or end" if head == tail else \
+            f"{_frames(head)} of {where}'s start or {tail} of its end"
         return f"windows of {n} centred frames ({lens}) do not fit within {ends}"
-    return f"causal windows of {n} frames ({lens}) do not fit in the first {_frames(n - 1)} of each sequence"
+    where = "each sequence" if bounded else "the evaluated range"
+    return f"causal windows of {n} frames ({lens}) do not fit in the first {_frames(n - 1)} of {where}"
 
 
 def _frames(n: int) -> str:

@@ -36,7 +36,7 @@ def run(methods: Sequence[Method], query: Described, ref: Reference, truth: Grou
     warmed up before the first is timed (:func:`warm_up`)."""
     windows = windows or conf.windows
     left_out = int(n_frames - len(truth.q_pos))
-    why = {"no_full_window_reason": no_window_reason(windows)} if left_out else {}
+    why = {"no_full_window_reason": no_window_reason(windows, query.seq_bounds is not None)} if left_out else {}
     results: dict[str, Any] = {}
     retrieved, scores, confidence = {}, {}, {}
     warm_up(with_torch)
