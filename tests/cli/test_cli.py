@@ -76,8 +76,9 @@ def test_logging_follows_captured_stderr(small_dir, capsys):
 
 def test_synth_outputs(tmp_path, capsys):
     assert main(["synth", str(tmp_path / "s"), "--places", "100", "--dim", "8"]) == 0
-    out, _ = capsys.readouterr()
+    out, err = capsys.readouterr()
     assert "wrote" in out and (tmp_path / "s" / "dataset.json").is_file()
+    assert "wrote" not in err  # said once: it was said again on stderr, in other words
 
 
 # ----------------------------------------------------------------------------- error paths

@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     conf = SynthConfig().merge(places=args.places, dim=args.dim, seed=args.seed, noise=args.noise,
                                  nuisance=args.nuisance)
-    out = main(conf, args.out, overwrite=args.overwrite)
+    out = main(conf, args.out, overwrite=args.overwrite, quiet=True)  # said below, once
     from ..data.io import load_dataset
 
     ds = load_dataset(out)

@@ -141,6 +141,7 @@ def make_synthetic(conf: SynthConfig | None = None, **overrides: Any) -> Dataset
     )
 
 
-def main(conf: SynthConfig, out: str | Path, overwrite: bool = False) -> Path:
-    """Write the synthetic dataset of ``conf`` to the directory ``out`` (hloc-style stage)."""
-    return save_dataset(make_synthetic(conf), out, overwrite=overwrite)
+def main(conf: SynthConfig, out: str | Path, overwrite: bool = False, quiet: bool = False) -> Path:
+    """Write the synthetic dataset of ``conf`` to the directory ``out`` (hloc-style stage); ``quiet``: the line
+    saying so is DEBUG (the caller says it)."""
+    return save_dataset(make_synthetic(conf), out, overwrite=overwrite, quiet=quiet)
