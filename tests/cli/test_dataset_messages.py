@@ -63,7 +63,7 @@ def test_errors_name_the_subcommand_and_pca_is_checked_first(folder, tmp_path, c
     assert from_images(folder, tmp_path / "p", *args) == 2
     err = capsys.readouterr().err
     assert err == ("seqnet dataset from-images: error: --pca 20: the 'train' split has 14 frames, and a PCA fitted "
-                   "on them has at most 13 axes (N frames centred on their mean span N - 1) (hint: --pca 6 or a larger "
+                   "on them has at most 13 axes (N frames centred on their mean span N - 1) (hint: --pca 4 or a larger "
                    "train split)\n")  # no image described
     assert from_images(folder, tmp_path / "p", *args[:-1], "14") == 2  # as many as the frames: one axis arbitrary
     assert "--pca 14: the 'train' split has 14 frames, and a PCA fitted on them has at most 13 axes" in \

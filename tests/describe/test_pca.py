@@ -85,6 +85,6 @@ def test_the_dataset_pca_check_shares_the_message():
     with pytest.raises(ConfigError) as e:
         check_fit_frames(14, 14)
     assert str(e.value) == ("--pca 14: the 'train' split has 14 frames, and a PCA fitted on them has at most 13 axes "
-                            "(N frames centred on their mean span N - 1) (hint: --pca 6 or a larger train split)")
+                            "(N frames centred on their mean span N - 1) (hint: --pca 4 or a larger train split)")
     check_fit_frames(13, 14)
     check_fit_rows(3, 4, "--dim", "x", "y")

@@ -113,7 +113,7 @@ def test_dims_must_be_below_the_train_frames(synth_dataset):
     arbitrary) is refused, as ``seqnet train --pca`` reaches it; N - 1 fits."""
     small = dataclasses.replace(synth_dataset, splits={"train": {"reference": (0, 4), "query": (0, 4)}})
     with pytest.raises(ConfigError, match=r"--pca 8: the 'train' split has 8 frames, and a PCA fitted on them has "
-                                          r"at most 7 axes .* \(hint: --pca 3 or a larger train split\)"):
+                                          r"at most 7 axes .* \(hint: --pca 2 or a larger train split\)"):
         reduce_dataset(small, 8)
     assert reduce_dataset(small, 7)[0].query.dim == 7
 

@@ -37,7 +37,7 @@ def test_the_high_dimensional_case_of_the_issue_is_costed_and_advised():
     assert p.weights == 6400 * 6400 * 3 + 6400
     assert abs(p.checkpoint_bytes - (491548845 + 983109345)) < 0.01 * p.checkpoint_bytes
     said = advice(p)
-    assert any("--pca 256" in a and "4096" in a for a in said)  # D > 4096 and > the 96 + 196 training windows
+    assert any("--pca 128" in a and "4096" in a for a in said)  # D > 4096 and > the 96 + 196 training windows
     assert any("checkpoints take 1.4 GiB" in a for a in said)
     text = plan_text(p)  # the advice is logged apart (warnings), not in the INFO block
     assert "peak memory" in text and "per epoch" in text and "best.pt + last.pt" in text and "advice" not in text
@@ -263,7 +263,7 @@ def test_a_plan_over_the_available_memory_is_refused_and_the_check_agrees_with_t
     msg = str(e.value)
     assert "\n" not in msg and "D=16384->16384" in msg and "needs about 20.6 GiB of memory" in msg, msg
     assert "(0.3 GiB held by this process before it + 20.3 GiB more), 18.0 GiB available" in msg, msg
-    assert all(h in msg for h in ("--pca 64", "--out-dims", "--w", "--batch-size")), msg
+    assert all(h in msg for h in ("--pca 32", "--out-dims", "--w", "--batch-size")), msg
     need = check_memory.__globals__["train_bytes"](conf, 16384, len(ds.reference), len(ds.query), True,
                                                    len(ds.split("train").query))
     for free in (need - 1, need, 2 * need - 1):  # the decision: refused iff the plan's peak is over its available
@@ -312,7 +312,7 @@ def test_training_over_the_available_memory_is_refused_by_the_cli_before_any_wor
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(err) == 1, (rc, err)
     assert "needs about 20.6 GiB of memory" in err[0] and "18.0 GiB available" in err[0], err
-    assert "--pca 64 (saves about 20.2 GiB; seqnet train, or seqnet dataset from-images)" in err[0], err
+    assert "--pca 32 (saves about 20.2 GiB; seqnet train, or seqnet dataset from-images)" in err[0], err
     assert "--out-dims" in err[0], err
     assert not made and not list(tmp_path.glob("run/*.pt")) and not (tmp_path / "run" / "config.json").exists()
 

@@ -17,6 +17,8 @@ from ..train.joint import S1_LOSS, is_joint, main_joint, s1_config
 from ..train.loop import main
 from ..train.losses import LOSSES
 from ..train.run import resume_config
+from ..train.rundir import check_new
+from ..train.source import check_splits
 from ..train.watch import inactive_epochs
 from . import COMMANDS
 from .common import (
@@ -129,10 +131,10 @@ def run(args: argparse.Namespace) -> int:
     changes = {k: getattr(args, k) for k in _KEYS}
     if not args.resume:
         changes["w"] = default_w(args.seq_len, args.w)
-    if args.pca is not None:
-        args.dataset = _reduced(args)
     if args.device != "auto" or not args.resume:
         changes["device"] = args.device
+    if args.pca is not None:
+        args.dataset = _reduced(args, TrainConfig().merge(**changes))
     if args.joint or (args.resume and is_joint(args.resume)):
         return _run_joint(args, changes)
     conf = resume_config(args.resume, **changes) if args.resume else TrainConfig().merge(**changes)
@@ -142,15 +144,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _reduced(args: argparse.Namespace) -> str:
-    """``--pca D``: the dataset reduced by a PCA fitted on the train split (:mod:`seqnet.pipelines.pca`)."""
+def _reduced(args: argparse.Namespace, conf: TrainConfig) -> str:
+    """``--pca D``: the dataset reduced by a PCA fitted on the train split (:mod:`seqnet.pipelines.pca`), after the
+    checks that can refuse the run on its positions and run directory (nothing written before them)."""
     if args.resume:
         raise ConfigError("--pca applies when a run starts; a resumed run continues on the dataset it recorded "
                           "(drop --pca)")
     if args.dataset is None:
         raise ConfigError("--pca needs --dataset DIR")
+    from ..data.io import load_dataset
     from ..pipelines.pca import main as reduce_main
 
+    check_splits(load_dataset(args.dataset), conf)
+    if args.out is not None:
+        check_new(Path(args.out))
     return str(reduce_main(args.dataset, args.pca, args.train_split or _D.train_split))
 
 

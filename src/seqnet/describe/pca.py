@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 from pathlib import Path
@@ -174,6 +175,14 @@ def load_dataset_pca(path: str | os.PathLike[str], provenance: dict) -> PCA:
     return pca
 
 
+def suggested_pca_dims(rows: int, in_dims: int | None = None) -> int:
+    """The PCA size every message suggests (the training guide, its memory refusal, a ``--pca`` / ``--dim`` too large
+    for its frames): a power of two at most :data:`PAPER_PCA_DIM`, below ``in_dims`` and at most half the ``rows``
+    it is fitted on (N rows centred span N - 1 axes; half leaves each axis two frames), at least 1."""
+    cap = min(PAPER_PCA_DIM, (rows - 1) // 2, PAPER_PCA_DIM if in_dims is None else in_dims - 1)
+    return 2 ** int(math.log2(cap)) if cap >= 1 else 1
+
+
 def check_fit_rows(dims: int, rows: int, option: str, source: str, more: str, unit: str = "frames") -> None:
     """Raise :class:`ConfigError` when a PCA to ``dims`` cannot be fitted on ``rows`` descriptors: N rows centred on
     their mean span at most N - 1 axes, so ``dims`` must be below ``rows``. The message names the ``option``
@@ -182,7 +191,7 @@ def check_fit_rows(dims: int, rows: int, option: str, source: str, more: str, un
     if dims >= rows:
         raise ConfigError(f"{option} {dims}: {source} {rows} {unit}, and a PCA fitted on them has at most "
                           f"{max(0, rows - 1)} axes (N {unit} centred on their mean span N - 1) (hint: {option} "
-                          f"{max(1, (rows - 1) // 2)} or {more})")
+                          f"{suggested_pca_dims(rows)} or {more})")
 
 
 def fit_pca(x: np.ndarray, dims: int, whiten: bool = False, l2: bool = True, eps: float = 1e-9) -> PCA:

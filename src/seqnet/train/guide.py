@@ -27,10 +27,11 @@ from ..core.errors import DatasetError
 from ..core.lazy import lazy_module
 from ..core.memory import available_bytes, check_fits, gib, human_bytes, rss_bytes
 from ..data.traverse import Dataset
-from ..describe.pca import PAPER_PCA_DIM
+from ..describe.pca import PAPER_PCA_DIM, suggested_pca_dims
 from .config import TrainConfig
 from .losses import LOSSES
 from .memory import memory_hint, train_bytes
+from .pca_cost import PcaAdvice
 
 torch = lazy_module("torch")
 
@@ -184,7 +185,7 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
     b = budget or Budget.now()
     sizes = (in_dims, n_ref_frames or n_refs, n_query_frames or n_queries)
     peak = b.held + train_bytes(conf, *sizes, spill, n_queries)
-    hint = memory_hint(conf, *sizes, n_queries, spill, _pca_dims(in_dims, min(n_frames, n_queries + n_refs)))
+    hint = memory_hint(conf, *sizes, n_queries, spill, suggested_pca_dims(n_frames, in_dims))
     return Plan(n_queries, n_refs, n_frames, in_dims, out, conf.seq_len, conf.w, epochs, weights, checkpoint, peak,
                 None if b.free is None else b.held + b.free, epoch_flops(conf, in_dims, n_queries, n_refs, n_val),
                 measured_rate(in_dims, out, device) if rate is None else rate, str(device), conf.batch_size,
@@ -192,38 +193,51 @@ def plan(conf: TrainConfig, in_dims: int, n_queries: int, n_refs: int, n_frames:
 
 
 def suggested_pca(p: Plan) -> int:
-    """A PCA dimension to advise: at most :data:`PAPER_PCA_DIM`, below the windows the layer is learnt from (the
-    training queries and the reference windows) and below the training frames (a PCA fitted on n frames has at
-    most n - 1 meaningful axes), rounded down to a power of two (at least 8)."""
-    return _pca_dims(p.in_dims, min(p.n_frames, p.n_queries + p.n_refs))
+    """The PCA dimension to name: :func:`seqnet.describe.pca.suggested_pca_dims` of the training frames (what a PCA
+    fitted on the train split sees) and D, the one size every message suggests."""
+    return suggested_pca_dims(p.n_frames, p.in_dims)
 
 
-def _pca_dims(in_dims: int, n_frames: int) -> int:
-    cap = min(PAPER_PCA_DIM, in_dims - 1, max(8, n_frames - 1))
-    return max(8, 2 ** int(math.log2(max(cap, 8))))
+def names_pca(p: Plan) -> bool:
+    """Whether :func:`advice` would name a PCA (then measured first: :func:`seqnet.train.pca_cost.pca_advice`)."""
+    over_half = p.available is not None and p.peak_bytes > p.available / 2
+    return suggested_pca(p) < p.in_dims and (p.in_dims > PAPER_PCA_DIM or _windows_below(p) or over_half or
+                                              p.checkpoint_bytes > CHECKPOINT_ADVISED_BYTES)
 
 
-def advice(p: Plan) -> list[str]:
-    """What to change, and how (empty: nothing to say)."""
+def _windows_below(p: Plan) -> bool:
+    return p.in_dims >= p.n_queries + p.n_refs and p.in_dims > 8
+
+
+def advice(p: Plan, pca: PcaAdvice | None = None) -> list[str]:
+    """What to change, and how (empty: nothing to say); ``pca``: the PCA to name and what it costs (measured:
+    named as the way only when cheap, else its cost and the other ways; None: :func:`suggested_pca`, unmeasured)."""
     out = []
-    pca = suggested_pca(p)
+    pca = pca or PcaAdvice(suggested_pca(p))
+    why = ""
     if p.in_dims > PAPER_PCA_DIM:
-        out.append(f"D = {p.in_dims} is above {PAPER_PCA_DIM} (the SeqNet paper reduces its descriptors to 4096 "
-                   f"with PCA): reduce it with --pca {pca} (seqnet train, or seqnet dataset from-images), fitted on "
-                   "the train split only")
-    elif p.in_dims >= p.n_queries + p.n_refs and p.in_dims > 8:
-        out.append(f"D = {p.in_dims} is not below the {p.n_queries + p.n_refs} windows the layer is learnt from "
-                   f"({p.n_queries} training queries, {p.n_refs} reference windows): its {p.weights:,} weights "
-                   f"(D x out x w) overfit them; reduce D with --pca {pca} (fitted on the train split only)")
+        why = (f"D = {p.in_dims} is above {PAPER_PCA_DIM} (the SeqNet paper reduces its descriptors to 4096 with "
+               "PCA)")
+    elif _windows_below(p):
+        why = (f"D = {p.in_dims} is not below the {p.n_queries + p.n_refs} windows the layer is learnt from "
+               f"({p.n_queries} training queries, {p.n_refs} reference windows): its {p.weights:,} weights (D x out x "
+               "w) overfit them")
+    others = ["--w 1"] * (p.w > 1) + ["a smaller --out-dims (e.g. 512)"] * (p.out_dims > 512)
+    if why and pca.advised:
+        cost = f"; measured, {pca.cost_text()}" if pca.cost is not None else ""
+        out.append(f"{why}: reduce it with {pca.flag} (fitted on the train split only{cost})")
+    elif why:
+        out.append(f"{why}; but {pca.cost_text()}, so it is not advised here; fewer weights that keep every dimension: "
+                   f"{', '.join(others) or 'more training frames'}")
     if p.checkpoint_bytes > CHECKPOINT_ADVISED_BYTES:
-        ways = [f"fewer dimensions (--pca {pca})"] * (pca < p.in_dims) + ["a smaller --out-dims (e.g. 512)"] * (
-            p.out_dims > 512) + ["--w 1"] * (p.w > 1)
+        ways = [f"fewer dimensions ({pca.flag})"] * (pca.dims < p.in_dims and pca.advised) + others
         out.append(f"the checkpoints take {human_bytes(p.checkpoint_bytes)} (best.pt {human_bytes(4 * p.weights)}, "
                    f"last.pt with the optimiser state): {', '.join(ways) or 'fewer dimensions'} shrink them (the "
                    "weights are D x out x w)")
     if p.available is not None and p.peak_bytes > p.available / 2:
+        cost = f" ({pca.cost_text()})" if not pca.advised and f"--pca {pca.dims}" in p.memory_hint else ""
         out.append(f"the estimated peak memory {human_bytes(p.peak_bytes)} is over half of the "
-                   f"{human_bytes(p.available)} available; what lowers it most: {p.memory_hint}")
+                   f"{human_bytes(p.available)} available; what lowers it most: {p.memory_hint}{cost}")
     return out
 
 
@@ -258,6 +272,16 @@ def _train_frames(dataset: Dataset, conf: TrainConfig) -> int:
         return len(dataset.query)
 
 
+def _fit_frames(dataset: Dataset, conf: TrainConfig) -> int:
+    """The frames of both traverses of the train split (what a ``--pca`` is fitted on; the whole dataset's when the
+    split is bad: it fails later)."""
+    try:
+        part = dataset.split(conf.train_split)
+    except DatasetError:
+        part = dataset
+    return len(part.reference) + len(part.query)
+
+
 def check_memory(conf: TrainConfig, dataset: Dataset) -> Budget:
     """Refuse before any work (ResourceError, exit 1, naming both and what lowers them) a training run whose
     :func:`~seqnet.train.memory.train_bytes` (a batch of at most the train split's query frames) is over what
@@ -269,6 +293,7 @@ def check_memory(conf: TrainConfig, dataset: Dataset) -> Budget:
     check_fits(train_bytes(conf, d, n_ref, n_query, spill, n_train),
                f"training S_{conf.seq_len} (w={conf.w}, D={d}->{out}, {conf.optimizer}: the weights alone are "
                f"{gib(4 * d * out * conf.w)})",
-               memory_hint(conf, d, n_ref, n_query, n_train, spill, _pca_dims(d, 2 * n_train)), budget.held,
+               memory_hint(conf, d, n_ref, n_query, n_train, spill, suggested_pca_dims(_fit_frames(dataset, conf), d)),
+               budget.held,
                budget.free)
     return budget

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..core.errors import ConfigError, DatasetError, OutputError
+from ..core.errors import ConfigError, DatasetError
 from ..core.lazy import lazy_module
 from ..core.log import logger
 from ..core.provenance import check_same
@@ -35,8 +35,9 @@ from ..security.locks import locked
 from .config import TrainConfig
 from .distributed import World, joined
 from .epoch import train_epoch
-from .guide import Budget, advice, check_memory, plan, plan_text
+from .guide import Budget, advice, check_memory, names_pca, plan, plan_text, suggested_pca
 from .losses import LOSSES
+from .pca_cost import pca_advice
 from .record import check_resumed, record_data
 from .route import holds_test_queries, split_warnings
 from .run import (
@@ -50,8 +51,8 @@ from .run import (
     run_dataset_path,
     stored_dataset_path,
 )
-from .rundir import RESTART, check_new, discard
-from .source import TripletSource, split_windows, triplet_source
+from .rundir import RESTART, check_new, check_resume_target, discard
+from .source import TripletSource, named_split, split_windows, triplet_source
 from .watch import inactive_epochs, inactive_message, val_warning
 
 torch = lazy_module("torch")
@@ -80,24 +81,16 @@ def validate(model: SeqNet, val_ds: Dataset | None, conf: TrainConfig,
     return {k: float(v) for k, v in ev.results["methods"][method].items() if k.startswith("recall@")}
 
 
-def _split(ds: Dataset, name: str, what: str) -> Dataset:
-    try:
-        return ds.split(name)
-    except DatasetError as e:
-        hint = " or none to skip validation" if what == "val" else " (all: the whole dataset)"
-        raise DatasetError(f"{e} (hint: --{what}-split NAME{hint})") from e
-
-
 def prepare(dataset: Dataset, conf: TrainConfig, device: torch.device) -> tuple[TripletSource, Dataset | None]:
     """The training windows on ``device`` and the val split (None: no validation), both checked (windows fit, some
     query has a positive and a negative): everything that can fail on the data fails here, before a run directory."""
-    train_ds = _split(dataset, conf.train_split, "train")
+    train_ds = named_split(dataset, conf.train_split, "train")
     src = triplet_source(train_ds, conf.window_len, conf.window, conf.mining, device, conf.ref_pad)
     for said in [*split_warnings(train_ds, conf), *holds_test_queries(dataset, conf)]:  # said before training
         logger.warning("%s", said)
     if not conf.validates:
         return src, None
-    val_ds = _split(dataset, conf.val_split, "val")
+    val_ds = named_split(dataset, conf.val_split, "val")
     split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad)
     if said := shared_queries(dataset, [conf.train_split, conf.val_split]):
         logger.warning("the best epoch is chosen on queries it trains on: %s", said)
@@ -109,7 +102,7 @@ def _name(model: SeqNet) -> str:
 
 
 def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device,
-         budget: Budget | None = None) -> None:
+         budget: Budget | None = None, dataset: Dataset | None = None) -> None:
     """The epochs from the run's next one to ``conf.epochs`` (or early stopping), with the two INFO lines."""
     first, m, world = run.epoch + 1, run.model, run.world
     resumed = f"resuming {run.out_dir} after epoch {run.epoch}: " if run.epoch else ""
@@ -120,7 +113,7 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
                 resumed, _name(m), m.w, m.in_dims, m.out_dims, src.n_queries, left, len(src.r_idx), first,
                 run.conf.epochs, device, procs, val)
     run.record["trained_queries"] = src.n_queries  # the queries trained on (a full window, a positive, a negative)
-    run.world.rank0(lambda: _guide(run, src, val_ds, device, budget))
+    run.world.rank0(lambda: _guide(run, src, val_ds, device, budget, dataset))
     t0 = time.perf_counter()
     inactive = False
     for epoch in range(first, run.conf.epochs + 1):
@@ -146,20 +139,22 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
 
 
 def _guide(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device,
-           budget: Budget | None = None) -> None:
+           budget: Budget | None = None, dataset: Dataset | None = None) -> None:
     """Rank 0, before the first epoch: the training plan (memory, time, checkpoints; ``budget``: the memory
-    check's, before the model existed) in one INFO block, then the advice and a val split too small to choose an
-    epoch, one warning each (seen from Python without a handler), kept in ``run.advice`` (:mod:`seqnet.train.guide`)."""
+    check's, before the model existed) in one INFO block, then the advice (a PCA it names measured on ``dataset``
+    first: :func:`~seqnet.train.pca_cost.pca_advice`) and a val split too small to choose an epoch, one warning
+    each (seen from Python without a handler), kept in ``run.advice`` (:mod:`seqnet.train.guide`)."""
     conf = run.conf
-    n_val = 0
-    if val_ds is not None:
-        n_val = len(split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad).q_idx)
+    n_val = 0 if val_ds is None else \
+        len(split_windows(val_ds, conf.window_len, conf.window, conf.mining, "val", conf.ref_pad).q_idx)
     n_frames = len(src.q_desc) + len(src.r_desc)
     p = plan(conf, run.model.in_dims, src.n_queries, len(src.r_idx), n_frames, n_val, conf.epochs - run.epoch,
              device, len(src.r_desc), len(src.q_desc), budget=budget)
     logger.info("%s", plan_text(p))
     warning = val_warning(n_val, val_ds.name, resumed=run.epoch > 0) if val_ds is not None else None
-    run.advice = [f"advice: {a}" for a in advice(p)] + [warning] * bool(warning)
+    measured = pca_advice(dataset, conf, suggested_pca(p), run.dataset_path) if dataset is not None and \
+        names_pca(p) else None
+    run.advice = [f"advice: {a}" for a in advice(p, measured)] + [warning] * bool(warning)
     for said in run.advice:
         logger.warning("%s", said)
 
@@ -218,7 +213,7 @@ def train(dataset: Dataset, conf: TrainConfig | None, out_dir: str | Path, resum
         world.rank0(lambda: open_files(run))
         done = False
         try:
-            _fit(run, src, val_ds, device, budget)
+            _fit(run, src, val_ds, device, budget, dataset)
             done = True
         finally:
             run.close(failed=not done)
@@ -262,18 +257,6 @@ def _start(dataset: Dataset, conf: TrainConfig, out_dir: Path, payload: dict | N
     record_data(run, dataset)  # checkpoints record what the model reads and its val queries
     run.dataset_digests = descriptor_digests(dataset_path) if world.is_rank0 else None
     return run, src, val_ds, device
-
-
-def check_resume_target(resume: bool | str | Path, out_dir: Path) -> None:
-    """``--resume A`` writes only to A: an ``out_dir`` naming another directory is an error."""
-    if not resume or resume is True:
-        return
-    src = Path(resume)
-    run_dir = src.parent if src.is_file() else src
-    if run_dir.resolve() != out_dir.resolve():
-        raise OutputError(f"--resume {resume} continues the run in {run_dir}, but --out names another directory "
-                          f"{out_dir}; a resumed run is written where it is (hint: drop --out, or copy the run "
-                          "directory first and resume the copy)")
 
 
 def main(conf: TrainConfig | None, dataset: str | Path | None, out: str | Path | None,

@@ -165,3 +165,15 @@ def explain_config(path: Path, new: dict[str, Any], kept: tuple[str, ...]) -> No
         logger.warning("%s disagreed with last.pt (%s: %.60r there, %.60r in last.pt); rewriting it from last.pt, "
                        "whose configuration the run continues with", path, differ[0], old.get(differ[0]),
                        new[differ[0]])
+
+
+def check_resume_target(resume: bool | str | Path, out_dir: Path) -> None:
+    """``--resume A`` writes only to A: an ``out_dir`` naming another directory is an error."""
+    if not resume or resume is True:
+        return
+    src = Path(resume)
+    run_dir = src.parent if src.is_file() else src
+    if run_dir.resolve() != out_dir.resolve():
+        raise OutputError(f"--resume {resume} continues the run in {run_dir}, but --out names another directory "
+                          f"{out_dir}; a resumed run is written where it is (hint: drop --out, or copy the run "
+                          "directory first and resume the copy)")

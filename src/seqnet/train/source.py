@@ -17,7 +17,7 @@ from ..data.positives import Positives
 from ..data.spacing import DEGREES_HINT, looks_like_degrees
 from ..data.traverse import Dataset, Traverse
 from ..sequence.windows import frame_bounds, gather_windows, speed_windows, window_frames, window_starts
-from .config import MiningConfig
+from .config import MiningConfig, TrainConfig
 from .truth import nonnegative_keys, positive_keys, queries_with_pairs
 
 torch = lazy_module("torch")
@@ -156,6 +156,28 @@ def _pair_words(conf: MiningConfig, unit: str, explicit: bool, what: str, degree
             "reference and query, or a larger --pos-radius / a smaller --neg-radius")
     return (f"a reference within pos_radius={conf.pos_radius:g} and one beyond neg_radius={conf.neg_radius:g} "
             f"{unit} ({hint})")
+
+
+def named_split(ds: Dataset, name: str, what: str) -> Dataset:
+    """The split ``name`` of ``ds`` (``what``: "train" or "val", the flag the error's hint names)."""
+    try:
+        return ds.split(name)
+    except DatasetError as e:
+        hint = " or none to skip validation" if what == "val" else " (all: the whole dataset)"
+        raise DatasetError(f"{e} (hint: --{what}-split NAME{hint})") from e
+
+
+def check_splits(dataset: Dataset, conf: TrainConfig) -> None:
+    """The checks of the training data that read no descriptor (:func:`seqnet.train.loop.prepare`'s: the splits
+    exist, their windows fit, some training query has a positive and a negative), with ``conf``'s radii resolved
+    on ``dataset``: for a caller about to write something first (``seqnet train --pca`` writes the reduced
+    dataset: refused runs leave nothing behind)."""
+    conf = conf.resolve(dataset)
+    split_windows(named_split(dataset, conf.train_split, "train"), conf.window_len, conf.window, conf.mining,
+                  "train", conf.ref_pad)
+    if conf.validates:
+        split_windows(named_split(dataset, conf.val_split, "val"), conf.window_len, conf.window, conf.mining, "val",
+                      conf.ref_pad)
 
 
 def triplet_source(ds: Dataset, seq_len: int, window: str, conf: MiningConfig, device: torch.device,
