@@ -27,6 +27,9 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DatasetError
+from ..core.log import logger
+from .orientation import OVERRIDE_ENV, OVERRIDE_KEY, overridden, read_square
+from .orientation import hint as orientation_hint
 from .positives import Positives, as_positives
 from .validation import validate_traverse
 
@@ -239,6 +242,29 @@ def validate_dataset(ds: Dataset) -> None:
         raise DatasetError(f"position_unit {ds.position_unit!r} is not one of {POSITION_UNITS}")
     for split, rng in ds.splits.items():
         check_split(split, rng, ds)
+    if ds.source is None:  # a split's traverses are its source's, checked when it was made
+        check_orientation(ds)
+
+
+def check_orientation(ds: Dataset) -> None:
+    """Refuse ``ds`` when a square ``[N, N]`` descriptor array (whose shape cannot tell images from dimensions)
+    reads decisively as ``[D, N]`` (:func:`seqnet.data.orientation.read_square`), unless the user said the rows are
+    images (:func:`seqnet.data.orientation.overridden`: said in the environment, it is recorded in ``ds.extra``, so
+    the dataset written keeps it); suggestive evidence is a warning of :mod:`seqnet.data.sanity`."""
+    if ds.extra.get(OVERRIDE_KEY):
+        return
+    for side, t in (("reference", ds.reference), ("query", ds.query)):
+        o = read_square(t.descriptors)
+        if o.verdict != "transposed" or not o.strong:
+            continue
+        if overridden():
+            ds.extra[OVERRIDE_KEY] = True
+            logger.warning("%s: the %s descriptors read as transposed (%s); kept as given (%s)", ds.name, side,
+                           o.why, OVERRIDE_ENV)
+            return
+        n = len(t)
+        raise DatasetError(f"{ds.name}: the {side} descriptors [{n}, {n}] look transposed (their columns look like "
+                           f"the images: {o.why}); seqnet expects [N, D], one row per image; {orientation_hint(side)}")
 
 
 def check_split(split: str, rng: dict[str, tuple[int, int]], ds: Dataset) -> None:

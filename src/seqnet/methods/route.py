@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..core.tensors import spread
-from ..data.sanity import copied_queries, duplicated_rows, real_positions, route_order
+from ..data.sanity import copied_queries, duplicated_rows, real_positions, route_order, transposed_descriptors
 from ..data.sanity.positions import copied_positions
 from ..data.sanity.revisits import revisited_reference
 from ..data.sanity.route import route_checks
@@ -191,7 +191,8 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
     sequences, trivial truth, rows out of route order and different sampling rates (for real positions, when a
     sequence method is evaluated), duplicated rows of either side, queries that are copies of references,
     positions in degrees taken as metres, the reference's positions given for the query, a reference that passes
-    places twice unknown to the ground truth (:mod:`seqnet.data.sanity`: said at build, and here for a dataset
+    places twice unknown to the ground truth, square descriptors that may be transposed (of the whole dataset the
+    split is of) (:mod:`seqnet.data.sanity`: said at build, and here for a dataset
     built before or by other means)."""
     methods = list(methods)
     if ds is None:
@@ -208,7 +209,7 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
         found.append(positives_rates(ds))
     found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
               copied_queries(ds), None if found[1] else degree_positions(ds), copied_positions(ds),
-              revisited_reference(ds)]
+              revisited_reference(ds), *transposed_descriptors(ds.source[0] if ds.source is not None else ds)]
     found += route_checks(ds, truth.radius, any(not m.single_frame for m in parsed), view=True)  # stops, jumps
     return [line for line in found if line]
 

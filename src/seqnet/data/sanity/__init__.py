@@ -13,7 +13,8 @@
   (:func:`.truth.frozen_positions`), the reference's positions given for the query too
   (:func:`.positions.copied_positions`), a reference that passes places twice unknown to the ground truth
   (:func:`.revisits.revisited_reference`), a vehicle standing still, positions that jump inside a sequence and a
-  radius below the reference's frame spacing (:func:`.route.route_checks`). One line each.
+  radius below the reference's frame spacing (:func:`.route.route_checks`), square descriptors that may be
+  ``[D, N]`` (:func:`transposed_descriptors`). One line each.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ from collections.abc import Sequence
 from ...core.errors import DatasetError
 from ...core.log import logger
 from ..order import natural_key
+from ..orientation import hint as orientation_hint
+from ..orientation import overridden, read_square
 from ..spacing import out_of_order
 from ..traverse import Dataset
 from .copies import copied_queries, duplicated_rows
@@ -42,7 +45,7 @@ from .truth import (
 
 __all__ = ["ALIGNED_TRUTHS", "ALTERNATIVES", "VIDEO_ALTERNATIVES", "check_frame_aligned",
            "copied_queries", "dataset_warnings", "duplicated_rows", "frozen", "real_positions", "review", "route_order",
-           "shared_queries"]
+           "shared_queries", "transposed_descriptors"]
 
 ALTERNATIVES = ("give the ground truth another way: --positives FILE (per query its matching reference indices) "
                 "or positions (--ref-csv / --query-csv, --utm-names)")
@@ -102,8 +105,25 @@ def dataset_warnings(ds: Dataset) -> list[str]:
     found = [copied_queries(ds), shared_queries(ds, list(ds.splits)), constant_positions(ds), *route_order(ds),
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
              transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), unmatched_splits(ds),
-             matrix_as_descriptors(ds), *frozen(ds), copied_positions(ds), revisited_reference(ds), *route_checks(ds)]
+             matrix_as_descriptors(ds), *transposed_descriptors(ds), *frozen(ds), copied_positions(ds),
+             revisited_reference(ds), *route_checks(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
+
+
+def transposed_descriptors(ds: Dataset) -> list[str]:
+    """A line for each square ``[N, N]`` descriptor array of ``ds`` whose values suggest, short of deciding, that it
+    is ``[D, N]`` (:func:`seqnet.data.orientation.read_square`; decisive evidence is refused when the dataset is
+    made); none when the user said the rows are images (:func:`seqnet.data.orientation.overridden`)."""
+    if overridden(ds.extra):
+        return []
+    found = []
+    for side, t in (("reference", ds.reference), ("query", ds.query)):
+        o = read_square(t.descriptors)
+        if o.verdict == "transposed" and not o.strong:
+            found.append(f"the {side} descriptors are square ([{len(t)}, {len(t)}]), so their shape cannot say "
+                         f"which axis holds the images, and they may be transposed ([D, N]): {o.why}; "
+                         f"{orientation_hint(side)}")
+    return found
 
 
 def frozen(ds: Dataset) -> list[str]:
