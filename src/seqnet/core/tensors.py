@@ -63,3 +63,27 @@ def l2_normalize(x: torch.Tensor, dim: int = -1, eps: float = 1e-12) -> torch.Te
 def spread(n: int, k: int) -> np.ndarray:
     """At most ``k`` of the indices ``0..n-1``, evenly spaced (the first and the last kept), ascending."""
     return np.unique(np.linspace(0, n - 1, min(k, n)).astype(np.int64))
+
+
+#: Below this :func:`direction_spread`, L2-normalised rows differ by less than float32 distances resolve.
+NARROW_SPREAD = 1e-2
+
+
+def direction_spread(x: ArrayLike, samples: int = 4096) -> float:
+    """How far apart the directions of the rows of ``x [N, D]`` are: ``sqrt(mean ‖u_i − ū‖²)`` over the
+    L2-normalised rows ``u_i`` of at most ``samples`` evenly spaced rows (non-zero, finite), in float64; NaN when
+    fewer than two such rows. Descriptors of distinct places spread 0.3–1.4; rows sharing a common offset 1000
+    times their spread, below 0.002: after normalisation (as every search does) every row points the same way
+    and float32 distances (``‖q‖² + ‖r‖² − 2 q·r``) cancel to rounding noise (R@1 0.99 -> 0.75 at that offset)."""
+    if x.ndim != 2 or x.shape[0] < 2:
+        return float("nan")
+    idx = spread(int(x.shape[0]), samples)
+    rows = (x[torch.as_tensor(idx, device=x.device)].detach().double().cpu().numpy() if isinstance(x, torch.Tensor)
+            else np.asarray(x[idx], dtype=np.float64))
+    with np.errstate(all="ignore"):
+        norms = np.sqrt(np.einsum("ij,ij->i", rows, rows))
+        keep = np.isfinite(norms) & (norms > 0)
+        if keep.sum() < 2:
+            return float("nan")
+        u = rows[keep] / norms[keep, None]
+    return float(np.sqrt(np.mean(np.sum((u - u.mean(axis=0)) ** 2, axis=1))))

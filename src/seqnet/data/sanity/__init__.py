@@ -14,7 +14,8 @@
   (:func:`.positions.copied_positions`), a reference that passes places twice unknown to the ground truth
   (:func:`.revisits.revisited_reference`), a vehicle standing still, positions that jump inside a sequence and a
   radius below the reference's frame spacing (:func:`.route.route_checks`), square descriptors that may be
-  ``[D, N]`` (:func:`transposed_descriptors`). One line each.
+  ``[D, N]`` (:func:`transposed_descriptors`), rows that share a common offset far beyond their spread
+  (:func:`.values.narrow_directions`). One line each.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from .truth import (
     unmatched_splits,
     wide_frame_radius,
 )
+from .values import narrow_directions
 
 __all__ = ["ALIGNED_TRUTHS", "ALTERNATIVES", "VIDEO_ALTERNATIVES", "check_frame_aligned",
            "copied_queries", "dataset_warnings", "duplicated_rows", "frozen", "real_positions", "review", "route_order",
@@ -106,7 +108,7 @@ def dataset_warnings(ds: Dataset) -> list[str]:
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
              transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), unmatched_splits(ds),
              matrix_as_descriptors(ds), *transposed_descriptors(ds), *frozen(ds), copied_positions(ds),
-             revisited_reference(ds), *route_checks(ds)]
+             revisited_reference(ds), *route_checks(ds), narrow_directions(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
 
 
