@@ -622,3 +622,15 @@ def test_dataset_names_its_sides_without_renaming_the_callers_traverses():
     assert again.query.name == "query"
     named = Traverse(q, fr, name="winter")
     assert Dataset(reference=named, query=named, radius=1.0).query is named  # a named traverse is kept as given
+
+
+@pytest.mark.parametrize("unit, hint", [("meters", '"metres"'), ("m", '"metres"'), ("Frame", '"frames"'),
+                                        ("furlongs", None)])
+def test_a_unit_spelt_another_way_is_named(unit, hint):
+    """A hand-written dataset.json with "meters" or "m" was refused without saying what to write."""
+    pos = np.arange(4, dtype=float)[:, None]
+    x = np.eye(4, 3, dtype=np.float32) + 0.5
+    with pytest.raises(DatasetError) as e:
+        Dataset(Traverse(x, pos), Traverse(x.copy(), pos.copy()), 1.0, position_unit=unit)
+    assert str(e.value).startswith(f"position_unit {unit!r} is not one of ('frames', 'metres')")
+    assert (f"(hint: {hint}" in str(e.value)) if hint else "hint" not in str(e.value)

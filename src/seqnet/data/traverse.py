@@ -239,11 +239,22 @@ def validate_dataset(ds: Dataset) -> None:
     if not (np.isfinite(ds.radius) and ds.radius > 0):
         raise DatasetError(f"radius must be a positive number, got {ds.radius!r}")
     if ds.position_unit not in POSITION_UNITS:
-        raise DatasetError(f"position_unit {ds.position_unit!r} is not one of {POSITION_UNITS}")
+        said = ds.position_unit
+        raise DatasetError(f"position_unit {said!r} is not one of {POSITION_UNITS}{unit_hint(said)}")
     for split, rng in ds.splits.items():
         check_split(split, rng, ds)
     if ds.source is None:  # a split's traverses are its source's, checked when it was made
         check_orientation(ds)
+
+
+def unit_hint(unit: object) -> str:
+    """`` (hint: "metres" ...)`` for a ``position_unit`` spelt another way ("meters", "m", "frame"), else ""."""
+    said = str(unit).strip().lower()
+    if said in ("m", "meter", "meters", "metre", "metres", "utm"):
+        return ' (hint: "metres": UTM easting/northing or any metric positions)'
+    if said in ("frame", "frames", "index", "indices"):
+        return ' (hint: "frames": frame numbers, the radius a number of frames)'
+    return ""
 
 
 def check_orientation(ds: Dataset) -> None:
