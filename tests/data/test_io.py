@@ -24,3 +24,32 @@ def test_the_wrote_line_says_how_the_descriptors_were_made(tmp_path, caplog):
     with caplog.at_level(logging.INFO, logger="seqnet"):
         save_dataset(described, tmp_path / "views")
     assert any("descriptors pixels, views raw,equalize, D=8)" in m for m in caplog.messages)
+
+
+def test_a_misspelt_key_is_said_not_kept_silently(tmp_path, caplog, monkeypatch):
+    """A hand-edited dataset.json with "position_units" (or "raduis") kept it as metadata and used the default
+    without a word."""
+    import json
+
+    import pytest
+
+    import seqnet.core.log
+    from seqnet.core.errors import DatasetError
+    from seqnet.data.io import load_dataset
+
+    monkeypatch.setattr(seqnet.core.log, "_SAID", set())
+    path = save_dataset(make_synthetic(places=100, dim=8), tmp_path / "ds")
+    meta = json.loads((path / "dataset.json").read_text())
+    meta["position_units"], meta["source_note"] = "metres", "mine"  # a typo, and a key of the user's own
+    (path / "dataset.json").write_text(json.dumps(meta))
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        load_dataset(path)
+    said = [r.getMessage() for r in caplog.records if "not one seqnet reads" in r.getMessage()]
+    assert said == [f"{path / 'dataset.json'}: key 'position_units' is not one seqnet reads (kept as metadata, "
+                    "unused); did you mean 'position_unit'?"]
+    meta["raduis"] = meta.pop("radius")
+    (path / "dataset.json").write_text(json.dumps(meta))
+    with caplog.at_level(logging.WARNING, logger="seqnet"), pytest.raises(DatasetError, match="missing key 'radius'"):
+        load_dataset(path)
+    assert any("'raduis' is not one seqnet reads (kept as metadata, unused); did you mean 'radius'?"
+               in r.getMessage() for r in caplog.records)

@@ -7,6 +7,7 @@ crash never leaves a half-written dataset.
 
 from __future__ import annotations
 
+import difflib
 import logging
 import os
 from pathlib import Path
@@ -73,6 +74,7 @@ def _load_dataset(root: Path, mmap: bool) -> tuple[Dataset, dict[str, Any]]:
         raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing "
                            "(hint: `seqnet synth DIR` writes an example)")
     meta = read_json_object(meta_path, "dataset.json")
+    _misspelt(meta, meta_path)
     if "radius" not in meta:
         raise DatasetError(f"{meta_path}: missing key 'radius' (localisation radius, metres or frames)")
     radius = number(meta["radius"], f"{meta_path}: radius", 1e-300, 1e300, integer=False)
@@ -147,6 +149,18 @@ def _csr(indptr: np.ndarray, indices: np.ndarray, f: Path, prefix: str) -> Posit
 
 _META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses", "provenance", "checksums",
               "folder"}
+_READ_EXTRA = {"pos_radius", "neg_radius", "ground_truth"}  # keys of ``extra`` that seqnet reads
+
+
+def _misspelt(meta: dict[str, Any], meta_path: Path) -> None:
+    """Warn (once per key) of a ``dataset.json`` key close to one seqnet reads (``raduis``, ``position_units``):
+    kept as metadata and never read, so its value would go unused without a word."""
+    known = sorted(_META_KEYS | _READ_EXTRA)
+    for key in meta:
+        near = [] if key in known else difflib.get_close_matches(str(key), known, 1, 0.8)
+        if near:
+            warn_once(("misspelt", str(meta_path), key), "%s: key %r is not one seqnet reads (kept as metadata, "
+                      "unused); did you mean %r?", meta_path, key, near[0])
 
 
 def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]]:
