@@ -53,3 +53,19 @@ def test_a_misspelt_key_is_said_not_kept_silently(tmp_path, caplog, monkeypatch)
         load_dataset(path)
     assert any("'raduis' is not one seqnet reads (kept as metadata, unused); did you mean 'radius'?"
                in r.getMessage() for r in caplog.records)
+
+
+def test_training_radii_that_training_would_refuse_are_refused_at_build(tmp_path):
+    """--pos-radius 50 --neg-radius 10 were written into dataset.json without complaint; seqnet train refused the
+    dataset later. Refused before anything is written."""
+    import pytest
+
+    from seqnet.core.errors import ConfigError
+
+    ds = make_synthetic(places=100, dim=8)
+    bad = dataclasses.replace(ds, extra={**ds.extra, "pos_radius": 50.0, "neg_radius": 10.0})
+    with pytest.raises(ConfigError, match=r"need pos_radius <= neg_radius, got pos_radius=50, neg_radius=10: .*"
+                                          r"the two swapped\?"):
+        save_dataset(bad, tmp_path / "ds")
+    assert not (tmp_path / "ds").exists()
+    save_dataset(dataclasses.replace(ds, extra={**ds.extra, "pos_radius": 10.0, "neg_radius": 50.0}), tmp_path / "ok")

@@ -7,7 +7,6 @@ crash never leaves a half-written dataset.
 
 from __future__ import annotations
 
-import difflib
 import logging
 import os
 from pathlib import Path
@@ -28,6 +27,7 @@ from ..security.jsonfile import read_json, read_json_object
 from ..security.limits import INDEX_MAX, number
 from ..security.locks import locked
 from ..security.ownership import check_replaceable, write_manifest
+from .metakeys import META_KEYS, check_extra_radii, misspelt_keys
 from .positives import Positives
 from .readers import check_names, read_descriptor_file, read_names, read_npy, read_positions_file
 from .traverse import DESCRIPTOR_FILES, FORMAT, POSITION_FILES, Dataset, Traverse
@@ -74,7 +74,7 @@ def _load_dataset(root: Path, mmap: bool) -> tuple[Dataset, dict[str, Any]]:
         raise DatasetError(f"{root} is not a seqnet dataset: dataset.json is missing "
                            "(hint: `seqnet synth DIR` writes an example)")
     meta = read_json_object(meta_path, "dataset.json")
-    _misspelt(meta, meta_path)
+    misspelt_keys(meta, meta_path)
     if "radius" not in meta:
         raise DatasetError(f"{meta_path}: missing key 'radius' (localisation radius, metres or frames)")
     radius = number(meta["radius"], f"{meta_path}: radius", 1e-300, 1e300, integer=False)
@@ -96,7 +96,7 @@ def _load_dataset(root: Path, mmap: bool) -> tuple[Dataset, dict[str, Any]]:
         position_unit=meta.get("position_unit"),
         splits=_parse_splits(meta.get("splits", {}), meta_path),
         name=_dataset_name(meta, root, meta_path),
-        extra={k: v for k, v in meta.items() if k not in _META_KEYS},
+        extra={k: v for k, v in meta.items() if k not in META_KEYS},
         positives=load_positives(root / POSITIVES_FILE) if (root / POSITIVES_FILE).is_file() else None,
     )
     return ds, (meta.get("checksums") or {})
@@ -145,22 +145,6 @@ def _csr(indptr: np.ndarray, indices: np.ndarray, f: Path, prefix: str) -> Posit
     if indices.size and indices.min() < 0:
         raise DatasetError(f"{f}: {prefix}indices (reference indices) must be >= 0")
     return Positives(indptr.astype(np.int64), indices.astype(np.int64))
-
-
-_META_KEYS = {"format", "radius", "position_unit", "splits", "name", "traverses", "provenance", "checksums",
-              "folder"}
-_READ_EXTRA = {"pos_radius", "neg_radius", "ground_truth"}  # keys of ``extra`` that seqnet reads
-
-
-def _misspelt(meta: dict[str, Any], meta_path: Path) -> None:
-    """Warn (once per key) of a ``dataset.json`` key close to one seqnet reads (``raduis``, ``position_units``):
-    kept as metadata and never read, so its value would go unused without a word."""
-    known = sorted(_META_KEYS | _READ_EXTRA)
-    for key in meta:
-        near = [] if key in known else difflib.get_close_matches(str(key), known, 1, 0.8)
-        if near:
-            warn_once(("misspelt", str(meta_path), key), "%s: key %r is not one seqnet reads (kept as metadata, "
-                      "unused); did you mean %r?", meta_path, key, near[0])
 
 
 def _parse_splits(raw: Any, where: Path) -> dict[str, dict[str, tuple[int, int]]]:
@@ -244,6 +228,7 @@ def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False, quiet: 
     DEBUG, not INFO (the caller says it, with more).
     """
     root = Path(path)
+    check_extra_radii(ds.extra)
     with locked(root):
         recover_dir(root)
         if root.exists() and (not root.is_dir() or any(root.iterdir())):
@@ -267,7 +252,7 @@ def _write_dataset(ds: Dataset, root: Path, folder: str) -> None:
             extra = {} if soft is None else {"soft_indptr": soft.indptr, "soft_indices": soft.indices}
             np.savez(f, indptr=ds.positives.indptr, indices=ds.positives.indices, **extra)
     meta = {
-        **{k: v for k, v in ds.extra.items() if k not in _META_KEYS},
+        **{k: v for k, v in ds.extra.items() if k not in META_KEYS},
         "checksums": {p.relative_to(root).as_posix(): file_digest(p, full=True) for p in sorted(root.rglob("*"))
                       if p.is_file()},
         "format": FORMAT,
