@@ -47,3 +47,21 @@ def test_names_that_are_decimal_numbers_sort_by_value(fmt):
     assert [shuffled[i] for i in name_order(shuffled)] == names
     assert decimal_values(names) is not None
     assert sorted(names, key=old_natural_key) != names  # the old order was scrambled
+
+
+def test_text_sorted_pair_finds_a_list_in_text_order_only():
+    """An ``ls`` / ``sorted()`` of unpadded frame numbers is found with an example pair; a list in natural order,
+    one whose numbers change nothing, one in any other order or differing only in case is not."""
+    from seqnet.data.order import text_order_line, text_sorted_pair
+
+    frames = [f"img_{i}.png" for i in range(200)]
+    assert text_sorted_pair(sorted(frames)) == ("img_10.png", "img_2.png")
+    assert text_sorted_pair(sorted(frames, key=str.lower)) == ("img_10.png", "img_2.png")
+    assert text_sorted_pair(sorted(["0.25.png", "1.5.png", "1.png", "10.png"])) == ("1.5.png", "1.png")
+    for silent in (frames, frames[::-1], sorted(f"f{i:05d}.png" for i in range(30)), ["b.png", "a.png"],
+                   ["B.png", "a.png"], ["a.png", "b.png"], ["img_10.png"], [frames[k] for k in (3, 1, 2, 10)]):
+        assert text_sorted_pair(silent) is None, silent
+    line = text_order_line(sorted(frames), "image list ref.txt")
+    assert line is not None and line.startswith("image list ref.txt is in text order, not by the numbers in its names: "
+                                                "'img_10.png' comes before 'img_2.png' (a plain ls or sorted()?)")
+    assert "hint: list the images by number: ls -v (or sort -V)" in line

@@ -199,12 +199,13 @@ class PositionLog:
     image_root: Callable[[Path], Path]  # the folder descriptor names are relative to (without image paths)
     help: str
     other: str = "another run's log"  # a message's guess when no image falls within the log
+    unit: str | None = None  # the unit of the times image names are read in (timematch.UNITS), if named by time
 
 
 POSITION_LOGS: dict[str, PositionLog] = {
     "robotcar-ins": PositionLog(read_robotcar_ins, robotcar_image_times, lambda p: p.parent,
                                    "Oxford RobotCar gps/ins.csv (or gps.csv); images named <timestamp us>.png",
-                                   "another run's ins.csv"),
+                                   "another run's ins.csv", "microseconds"),
     "kitti-oxts": PositionLog(read_kitti_oxts, kitti_image_times,
                                  lambda p: p if (p / "oxts").is_dir() else p.parent,
                                  "a KITTI drive's oxts/ folder; image times from image_0x/timestamps.txt "
@@ -215,14 +216,14 @@ POSITIONS_FORMATS = ("csv", *POSITION_LOGS)  # csv: the positions CSV (seqnet.da
 
 
 def nearest_samples(image_times: np.ndarray, log: Samples, names: list[str], max_gap: float,
-                    where: str, other: str = "another run's log") -> np.ndarray:
+                    where: str, other: str = "another run's log", unit: str | None = None) -> np.ndarray:
     """``[N]`` index of the log sample nearest in time to each image; an image more than ``max_gap`` seconds
     from every sample is refused by name, with a hint from :func:`gap_hint`."""
     t = log.times
     return nearest_within(t, image_times, max_gap, lambda bad, gap: (
         f"{where}: image {names[bad[0]]!r} is {gap[bad[0]]:.3f} s from the nearest position sample (tolerance "
         f"{max_gap:g} s; the log spans {t[0]:.3f}..{t[-1]:.3f} s; {bad.size} such images); "
-        + gap_hint(t, image_times, bad, gap, other)))
+        + gap_hint(t, image_times, bad, gap, other, unit)))
 
 
 def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Path] | None = None,
@@ -235,7 +236,8 @@ def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Pa
     if paths is None:  # names read from a file: what is read for them stays in the log's image root
         root = src.image_root(Path(source))
         paths = [root / n for n in names]
-    idx = nearest_samples(src.image_times(paths, root), log, names, max_gap, f"{source} ({fmt})", src.other)
+    idx = nearest_samples(src.image_times(paths, root), log, names, max_gap, f"{source} ({fmt})", src.other,
+                          src.unit)
     logger.info("%s: %d images placed from %d %s samples (UTM zone %s)", source, len(names), len(log.times), fmt,
                 log.zone)
     return log.xy[idx], log.zone

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, DatasetError, ImageError
 from ..core.log import logger
-from ..data.order import name_order
+from ..data.order import name_order, text_order_line
 from ..data.readers import check_names
 from ..security.inputs import read_text, special_file
 from ..security.pictures import decode, read_image, size_mismatch
@@ -150,6 +150,8 @@ def _read_list_file(src: Path) -> ImageList:
     paths = [Path(n) if Path(n).is_absolute() else src.parent / n for n in names]
     if names != [name for _, name in listed]:
         logger.info("%s: paths written with backslashes (Windows) read with '/'", src)
+    if said := text_order_line(names, f"image list {src}"):  # an ls of unpadded numbers: the route scrambled
+        logger.warning("%s", shown(said))
     return ImageList(paths=paths, names=_checked(names, src))
 
 

@@ -1,7 +1,8 @@
 """The checks of an evaluated route that say the user probably meant something else (one line each, logged
 and kept in the results' ``warnings`` by ``seqnet eval``): a query sequence driven opposite to the reference
 (:func:`reversed_route`), a near-trivial ground truth (:func:`trivial_truth`), and, through
-:func:`route_warnings`, rows out of route order, different sampling rates and duplicated query rows."""
+:func:`route_warnings`, rows out of route order (names in text order: :func:`seqnet.data.order.frame_order_lines`),
+different sampling rates and duplicated query rows."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..core.tensors import spread
+from ..data.order import frame_order_lines
 from ..data.sanity import copied_queries, duplicated_rows, real_positions, route_order, transposed_descriptors
 from ..data.sanity.positions import copied_positions
 from ..data.sanity.revisits import revisited_reference
@@ -208,6 +210,7 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
         found += disorder or [rates or None]
     elif ds.positives is not None and any(m.rate_sensitive for m in parsed):
         found.append(positives_rates(ds))
+    found += [f"{ds.name}: {line}" for line in frame_order_lines(ds)]  # frame-index truth: names show the order
     found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
               copied_queries(ds), None if found[1] else degree_positions(ds), copied_positions(ds),
               revisited_reference(ds), *transposed_descriptors(ds.source[0] if ds.source is not None else ds),

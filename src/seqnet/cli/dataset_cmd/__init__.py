@@ -224,11 +224,14 @@ def _same_provenance(ref_files: list[str], query_files: list[str], allow: bool) 
 
 def run_check(args: argparse.Namespace) -> int:
     from ...core.errors import DatasetError
+    from ...core.log import logger
     from ...data.io import load_dataset, recorded_digests
+    from ...data.order import frame_order_lines
     from ...data.sanity import review
     from ...metrics.summary import summarize_dataset
     from ...pipelines.ground_truth import mismatch_hint
     from ...security.digests import changed_files
+    from ...security.text import shown
 
     ds = load_dataset(args.dir)
     changed = changed_files(Path(args.dir), recorded_digests(args.dir), full=True)
@@ -237,6 +240,8 @@ def run_check(args: argparse.Namespace) -> int:
                            "hashed); hint: write it again, or drop 'checksums' from dataset.json if you changed "
                            "its files on purpose")
     review(ds)  # frame-aligned traverses that do not pair up: refused; likely mistakes: one warning line each
+    for line in frame_order_lines(ds):  # names listed in text order: nothing else shows it with frame-index truth
+        logger.warning("%s: %s", ds.name, shown(line))
     s = summarize_dataset(ds)
     if args.json:
         print(json.dumps(s, indent=2, default=str))
