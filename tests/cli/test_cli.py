@@ -209,13 +209,13 @@ def test_eval_ks_and_per_query(small_dir, capsys, tmp_path, suffix):
         rows = [json.loads(line) for line in text.splitlines()]
         seq = res["methods"]["raw+seqmatch"]  # its own queries: single queries every frame
         assert len(rows) == n + seq["queries"] + seq["no_positive"] and seq["no_full_window"] > 0
-        assert rows[0]["method"] == "single" and len(rows[0]["references"]) == 3  # K max
+        assert rows[0]["method"] == "single" and len(rows[0]["reference_indices"]) == 3  # K max
         r1 = sum(r["correct"][0] for r in rows if r["method"] == "single" and r["has_positive"]) / entry["queries"]
         assert r1 == pytest.approx(entry["recall@1"])
     else:
         lines = text.splitlines()
         seq = res["methods"]["raw+seqmatch"]
-        assert lines[0].startswith("method,query_frame,query_name,references")
+        assert lines[0].startswith("method,query_index,query_name,reference_indices,reference_names")
         assert len(lines) == n + seq["queries"] + seq["no_positive"] + 1
 
 

@@ -93,25 +93,29 @@ def test_eval_resamples_the_evaluated_split_and_records_it():
 
 
 def test_per_query_rows_number_frames_as_before_resampling():
-    """--per-query's query_frame / references are the split's frame numbers, not the re-sampled indices."""
-    from seqnet.eval.results import per_query_rows
+    """--per-query's query_index / reference_indices are the dataset's rows before re-sampling (the split's frame
+    numbers plus its start), not the re-sampled indices."""
+    from seqnet.eval.results import per_query_rows, query_start, reference_start
 
     ds = make_synthetic(places=120, dim=8, seed=0).split("test")
     conf = EvalConfig(methods=("single", "raw+seqmatch"), seq_len=3, device="cpu", ks=(1, 5))
-    full = {(r["method"], r["query_frame"]): r for r in per_query_rows(evaluate(ds, conf))}
+    ev = evaluate(ds, conf)
+    q0, r0 = query_start(ev), reference_start(ev)
+    full = {(r["method"], r["query_index"]): r for r in per_query_rows(ev)}
     for side in ("query", "reference", "both"):
         rows = per_query_rows(evaluate(ds, conf.replace(resample_every=3, resample_side=side)))
-        assert rows and all(r["query_frame"] % 3 == 0 for r in rows) if side != "reference" else True
+        assert rows and all((r["query_index"] - q0) % 3 == 0 for r in rows) if side != "reference" else True
         step = 3 if side != "query" else 1
-        assert all(j % step == 0 for r in rows for j in r["references"] if j >= 0)
+        assert all((j - r0) % step == 0 for r in rows for j in r["reference_indices"] if j >= 0)
         if side == "reference":
-            assert {r["query_frame"] for r in rows if r["method"] == "single"} == set(range(len(ds.query)))
+            assert {r["query_index"] - q0 for r in rows if r["method"] == "single"} == set(range(len(ds.query)))
         else:  # a kept query frame's name is the full evaluation's row of that frame number
-            known = [r for r in rows if (r["method"], r["query_frame"]) in full]
-            assert all(full[(r["method"], r["query_frame"])]["query_name"] == r["query_name"] for r in known)
-            assert len({r["query_name"] for r in rows}) == len({r["query_frame"] for r in rows})
+            known = [r for r in rows if (r["method"], r["query_index"]) in full]
+            assert all(full[(r["method"], r["query_index"])]["query_name"] == r["query_name"] for r in known)
+            assert len({r["query_name"] for r in rows}) == len({r["query_index"] for r in rows})
     single = [r for r in per_query_rows(evaluate(ds, conf.replace(resample_every=3))) if r["method"] == "single"]
-    assert [r["references"] for r in single] == [full[("single", r["query_frame"])]["references"] for r in single]
+    assert [r["reference_indices"] for r in single] == [full[("single", r["query_index"])]["reference_indices"]
+                                                        for r in single]
 
 
 def test_cli_dataset_resample_and_eval_flag(tmp_path, capsys):

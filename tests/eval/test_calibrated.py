@@ -239,7 +239,7 @@ def test_sequence_confidence_from_a_matrix_and_a_map(synth_dir, tmp_path):
     got = {}
     for name, extra in (("descriptors", []), ("matrix", ["--distances", str(tmp_path / "d.npy")])):
         assert cli_main([*base, *extra, "--per-query", str(tmp_path / f"{name}.csv")]) == 0
-        got[name] = [(r["references"].split(";")[0], float(r["confidence"]))
+        got[name] = [(r["reference_indices"].split(";")[0], float(r["confidence"]))
                      for r in csv.DictReader((tmp_path / f"{name}.csv").open())]
     assert [a for a, _ in got["matrix"]] == [a for a, _ in got["descriptors"]]
     np.testing.assert_allclose([c for _, c in got["matrix"]], [c for _, c in got["descriptors"]], atol=2e-6)

@@ -386,7 +386,7 @@ def test_hvpr_reading_one_shared_matrix_equals_hvpr_apart(synth_dir, tmp_path, m
     for x, y in zip((tmp_path / "shared.jsonl").read_text().splitlines(),
                     (tmp_path / "apart.jsonl").read_text().splitlines(), strict=True):
         rx, ry = json.loads(x), json.loads(y)
-        assert rx["references"] == ry["references"]
+        assert rx["reference_indices"] == ry["reference_indices"]
         np.testing.assert_allclose(rx["scores"], ry["scores"], rtol=1e-5)
 
 

@@ -74,8 +74,8 @@ def test_trivial_truth_is_said_as_seqnet_eval_says_it(rng, caplog, pos, hint):
 def test_correct_inputs_stay_silent(rng, caplog):
     pos = np.c_[np.zeros(N), np.arange(N) * 10.0]
     with caplog.at_level(logging.WARNING, logger="seqnet"):
-        a = recall_at_k(ranked(rng), pos, pos, 25)
-        b = recall_at_k(ranked(rng), frames(), frames(), 1)
+        a = recall_at_k(ranked(rng), pos, pos, 25, ks=(1, 5))
+        b = recall_at_k(ranked(rng), frames(), frames(), 1, ks=(1, 5))
     assert not caplog.records and 0 <= a["recall@1"] <= 1 and 0 <= b["recall@1"] <= 1
 
 

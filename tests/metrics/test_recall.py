@@ -45,9 +45,11 @@ def test_recall_vs_loop(rng, dims):
     q_pos = rng.uniform(-10, 60, (30, dims))  # some queries have no reference within the radius
     retrieved = np.array([rng.permutation(40)[:25] for _ in range(30)])
     retrieved[3, 5] = -1
-    ks = (1, 5, 10, 20, 100)
+    ks = (1, 5, 10, 20, 25)
     res = recall_at_k(retrieved, q_pos, r_pos, 3.0, ks)
     assert_same(res, naive_recall(retrieved, q_pos, r_pos, 3.0, ks))
+    truth = GroundTruth(q_pos, r_pos, 3.0)  # the evaluation's own recall scores a K above the columns as before
+    assert_same(recall(retrieved, truth, (*ks, 100)), naive_recall(retrieved, q_pos, r_pos, 3.0, (*ks, 100)))
     assert res["no_positive"] > 0 and res["queries"] + res["no_positive"] == 30
 
 
@@ -68,9 +70,39 @@ def test_radius_boundary_is_inclusive():
 
 
 def test_k_larger_than_list_uses_whole_list():
-    r_pos = np.arange(5.0)[:, None]
-    res = recall_at_k(np.array([[4, 0]]), np.array([[0.0]]), r_pos, 0.5, ks=(1, 2, 100))
+    """Every reference retrieved (2 of 2): R@100 is well defined, as the evaluation scores a short reference."""
+    r_pos = np.arange(2.0)[:, None]
+    res = recall_at_k(np.array([[1, 0]]), np.array([[0.0]]), r_pos, 0.5, ks=(1, 2, 100))
     assert res["recall@1"] == 0.0 and res["recall@2"] == 1.0 and res["recall@100"] == 1.0
+    res = recall(np.array([[4, 0]]), GroundTruth(np.array([[0.0]]), np.arange(5.0)[:, None], 0.5), (1, 2, 100))
+    assert res["recall@100"] == 1.0  # the evaluation's recall: the whole list
+
+
+def five_of_hundred():
+    """5 columns retrieved of 100 references, every one wrong but column 5 of half the queries (hunt F3)."""
+    pos = np.stack([np.arange(100) * 100.0, np.zeros(100)], 1)
+    ret = np.full((100, 5), 99)
+    ret[:, 4] = np.where(np.arange(100) < 50, np.arange(100), 99)
+    return ret, pos
+
+
+def test_k_above_the_columns_retrieved_is_refused():
+    """R@10 = R@20 = R@5 = 0.51 from 5 columns of 100 references, without a word (hunt F3)."""
+    ret, pos = five_of_hundred()
+    with pytest.raises(ConfigError, match=r"K 10, 20 above the 5 columns retrieved \(of 100 references\).*"
+                                          r"knn\(\.\.\., k=20\).*ks= up to 5"):
+        recall_at_k(ret, pos, pos, 25, ks=(1, 5, 10, 20))
+    assert recall_at_k(ret, pos, pos, 25, ks=(1, 5))["recall@5"] == 0.51
+
+
+def test_default_ks_stop_at_the_columns_retrieved(caplog):
+    """The default ks after knn(k=3) gave an R@100 from 3 columns; now the Ks above 3 are left out, said once."""
+    ret, pos = five_of_hundred()
+    with caplog.at_level("WARNING", logger="seqnet"):
+        res = recall_at_k(ret[:, 2:], pos, pos, 25)
+    assert [k for k in res if k.startswith("recall@")] == ["recall@1"] and res["recall@1"] == 0.01
+    assert "R@5, R@10, R@20, R@100 left out: the 3 columns retrieved (of 100 references)" in caplog.text
+    assert "knn(..., k=100)" in caplog.text
 
 
 def test_empty_inputs():
@@ -78,6 +110,8 @@ def test_empty_inputs():
     assert res["queries"] == 0 and res["no_positive"] == 0 and math.isnan(res["recall@1"])
     res = recall_at_k(np.zeros((2, 0), np.int64), np.zeros((2, 2)), np.zeros((3, 2)), 1.0, ks=(1,))
     assert res == {"recall@1": 0.0, "queries": 2, "no_positive": 0}  # nothing retrieved: nothing found
+    res = recall_at_k(np.zeros((2, 0), np.int64), np.zeros((2, 2)), np.zeros((3, 2)), 1.0)
+    assert res["recall@100"] == 0.0  # no column: a method that found nothing, not a short retrieval
     res = recall_at_k(np.full((2, 1), -1), np.zeros((2, 2)), np.zeros((0, 2)), 1.0, ks=(1,))
     assert res["queries"] == 0 and res["no_positive"] == 2
 
@@ -126,7 +160,11 @@ def test_recall_property(m, n, k, seed):
     q_pos = rng.integers(0, 12, (m, 1)).astype(float)
     retrieved = rng.integers(-1, n, (m, k))
     ks = (1, 2, 5)
-    assert_same(recall_at_k(retrieved, q_pos, r_pos, 1.0, ks), naive_recall(retrieved, q_pos, r_pos, 1.0, ks))
+    naive = naive_recall(retrieved, q_pos, r_pos, 1.0, ks)
+    assert_same(recall(retrieved, GroundTruth(q_pos, r_pos, 1.0), ks), naive)
+    scored = tuple(x for x in ks if x <= k or k >= n)  # recall_at_k refuses a K above k columns of n references
+    want = {key: v for key, v in naive.items() if not key.startswith("recall@") or int(key[7:]) in scored}
+    assert_same(recall_at_k(retrieved, q_pos, r_pos, 1.0, scored), want)
 
 
 def test_recall_denominator_positives_or_all_vs_loop(rng):
@@ -254,7 +292,7 @@ def test_one_integer_k_is_that_k(rng, ks):
     assert set(out) == {"recall@5", "queries", "no_positive"} and out["recall@5"] == pytest.approx(naive)
 
 
-@pytest.mark.parametrize("ks", [True, "1,5", b"1", 2.0, [1.5], None, [True]])
+@pytest.mark.parametrize("ks", [True, "1,5", b"1", 2.0, [1.5], [None], [True]])  # None alone: the default
 def test_ks_that_are_no_integers_are_refused(ks):
     q = np.zeros((2, 2))
     with pytest.raises(ConfigError, match=r"every K must be an integer >= 1: ks is one K or a sequence"):

@@ -94,7 +94,8 @@ def add_output_options(p: argparse.ArgumentParser) -> None:
     """What eval reads besides descriptors (``--distances``, ``--index``) and what it writes (``--per-query``,
     ``--out``, ``--json``, ``--report``)."""
     p.add_argument("--per-query", metavar="FILE", help="per-query results: FILE.csv / .jsonl (per method and query: "
-                   "top-5 references, scores, correct or not, confidence); .txt: MSLS's predictions (one method; a "
+                   "the query's and top-5 references' rows in the dataset's names.txt, whatever the split, "
+                   "their names, scores, correct or not, confidence); .txt: MSLS's predictions (one method; a "
                    "row per query key, then its top-20 reference keys: im2im image keys for single / s1, seq2seq "
                    "window keys for sequence methods; the log names evaluate.py's --task); no extension: a "
                    "VPR-methods-evaluation preds folder. "

@@ -163,7 +163,8 @@ def evaluate_split(ds: Dataset, split: str, evaluated: Dataset, conf: EvalConfig
         add_calibration(ev, cal, conf.target_precision, conf.risk, conf.calibrate_split)
     ev.results.update(prepared or {})
     add_warnings(ev, [said])
-    ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering (VME)
+    rng = ds.ranges(split)  # per-query numbering (VME, --per-query): rows of the dataset's whole lists
+    ev.results["config"].update(query_range=list(rng["query"]), reference_range=list(rng["reference"]))
     if source is not None:
         ev.results["config"]["dataset_path"] = str(source)
     if models and any(getattr(m, "trained_on", None) for m in models.values()) and unknown_split(ds):

@@ -73,9 +73,13 @@ def top1_correct(ranked: np.ndarray, truth: GroundTruth) -> np.ndarray:
 
 
 def per_query_rows(ev: Any, top: int = 5) -> list[dict[str, Any]]:
-    """One row per (method, query): query frame and name, top-``top`` reference frames and scores,
-    whether each is correct, whether the query has a correct reference, and the confidence."""
+    """One row per (method, query): the query's index and name, its top-``top`` references' indices, names and
+    scores, whether each is correct, whether the query has a correct reference, and the confidence. An index is
+    the frame's row in the dataset's whole query / reference list (``names.txt``), before a split and
+    re-sampling (:func:`query_start`, :func:`reference_start`); -1 (and name "") is no reference; a name is ""
+    when the dataset has none."""
     rows = []
+    q0, r0 = query_start(ev), reference_start(ev)
     for name, ranked in ev.retrieved.items():
         view = ev.view(name)  # a single-frame method's items are every frame
         head = ranked[:, :top]
@@ -83,13 +87,16 @@ def per_query_rows(ev: Any, top: int = 5) -> list[dict[str, Any]]:
         has = view.truth.has_positive()
         calibrated = ev.results["methods"].get(name, {}).get("calibrated")
         threshold = calibrated["calibration"]["threshold"] if calibrated else None
-        q_frames = ev.frame_number(0, view.q_items)
+        q_rows = q0 + ev.frame_number(0, view.q_items)
         r_frames = ev.frame_number(1, np.where(head >= 0, view.r_items[np.maximum(head, 0)], -1))
-        for m, q in enumerate(q_frames):
-            refs = [int(j) for j in r_frames[m]]
-            rows.append({"method": name, "query_frame": int(q),
+        r_rows = np.where(r_frames >= 0, r0 + r_frames, -1)
+        names = view.reference_names
+        for m, q in enumerate(q_rows):
+            rows.append({"method": name, "query_index": int(q),
                          "query_name": view.query_names[m] if view.query_names else "",
-                         "references": refs, "scores": [_num(s) for s in ev.scores[name][m, :top]],
+                         "reference_indices": [int(j) for j in r_rows[m]],
+                         "reference_names": [names[j] if names and j >= 0 else "" for j in head[m]],
+                         "scores": [_num(s) for s in ev.scores[name][m, :top]],
                          "correct": [bool(h) for h in hits[m]], "has_positive": bool(has[m]),
                          "confidence": round(float(ev.confidence[name][m]), 6),
                          **({"accepted": threshold is not None and bool(ev.confidence[name][m] >= threshold)}
@@ -132,6 +139,13 @@ def query_start(ev: Any) -> int:
     return int(rng[0]) if rng else 0
 
 
+def reference_start(ev: Any) -> int:
+    """The evaluated split's first reference frame in the dataset's whole reference traverse (``results["config"]
+    ["reference_range"]``, recorded with ``query_range``); 0 when not recorded."""
+    rng = ev.results.get("config", {}).get("reference_range")
+    return int(rng[0]) if rng else 0
+
+
 def _write_folder(path: Path, files: dict[str, str]) -> Path:
     """A folder of per-query files, swapped in whole; an existing one is replaced only if seqnet wrote it."""
     from ..security.dirs import recover_dir, write_dir
@@ -149,8 +163,13 @@ def _write_folder(path: Path, files: dict[str, str]) -> Path:
         return write_dir(path, fill)
 
 
-CSV_FIELDS = ("method", "query_frame", "query_name", "references", "scores", "correct", "has_positive", "confidence")
-NAME_FIELDS = ("method", "query_name")  # text from the data: never a formula in a spreadsheet (csv_cell)
+CSV_FIELDS = ("method", "query_index", "query_name", "reference_indices", "reference_names", "scores", "correct",
+              "has_positive", "confidence")
+# seqnet's per-query columns before the indices were the dataset's (split-relative query_frame, references): a file
+# with them is still seqnet's to replace, and an old reader of the renamed columns fails instead of misreading
+OLD_CSV_FIELDS = ("method", "query_frame", "query_name", "references", "scores", "correct", "has_positive",
+                  "confidence")
+NAME_FIELDS = ("method", "query_name", "reference_names")  # text from the data: never a spreadsheet formula
 
 
 def _rows_csv(rows: list[dict[str, Any]]) -> str:
@@ -161,7 +180,8 @@ def _rows_csv(rows: list[dict[str, Any]]) -> str:
     writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     writer.writeheader()
     for r in rows:
-        writer.writerow({k: csv_cell(v) if k in NAME_FIELDS else
+        writer.writerow({k: ";".join(csv_cell(x) for x in v) if k == "reference_names" else
+                         csv_cell(v) if k in NAME_FIELDS else
                          ";".join("" if x is None else str(x) for x in v) if isinstance(v, list) else
                          int(v) if k == "accepted" else v for k, v in r.items()})
     return buf.getvalue()
@@ -235,11 +255,11 @@ def _our_rows(path: Path, fmt: str) -> bool:
     except (OSError, OutputError, UnicodeDecodeError):
         return False
     if fmt == ".csv":
-        return line == ",".join(CSV_FIELDS)
+        return any(line in (",".join(f), ",".join((*f, "accepted"))) for f in (CSV_FIELDS, OLD_CSV_FIELDS))
     if fmt == ".txt":
         return line.startswith(MSLS_MARK)
     if fmt == ".jsonl":
         with contextlib.suppress(ValueError):
             row = json.loads(line)
-            return isinstance(row, dict) and tuple(row) == CSV_FIELDS
+            return isinstance(row, dict) and tuple(k for k in row if k != "accepted") in (CSV_FIELDS, OLD_CSV_FIELDS)
     return False

@@ -190,6 +190,8 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
                             "map": mp.meta["config"],
                             "ground_truth": "explicit positives" if positives is not None else "radius"}
     same = (mp.meta.get("source") or {}).get("dataset_path") in (None, str(q.root.resolve()))
+    if same and (mp.meta.get("source") or {}).get("reference_range"):  # --per-query: the dataset's reference rows
+        ev.results["config"]["reference_range"] = list(mp.meta["source"]["reference_range"])
     ref_records = q.records if same else {}  # the map's own dataset's records are not read
     ev.results["descriptors"] = {  # as seqnet eval's (eval.evaluation.descriptor_record): the dataset's records too
         "reference": side_record(mp.provenance, mp.input_dim, ref_records.get("describe"), ref_records.get("pca")),

@@ -199,7 +199,8 @@ def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] | int = 
 
     Returns ``{"recall@K": value, ..., "queries": the denominator (the queries with a correct reference, or all M),
     "no_positive": the queries without one}``; recall is ``nan`` when no query has a correct reference. K larger
-    than the list length uses the whole list.
+    than the list length uses the whole list (as the evaluation scores a reference of fewer than K items:
+    every one retrieved); :func:`recall_at_k` refuses it otherwise.
     """
     ks = k_values(ks)
     if denominator not in RECALL_DENOMINATORS:
@@ -229,7 +230,7 @@ def recall_at_k(
     q_pos: np.ndarray,
     r_pos: np.ndarray,
     radius: float,
-    ks: Sequence[int] | int = DEFAULT_KS,
+    ks: Sequence[int] | int | None = None,
 ) -> dict[str, float | int]:
     """Recall@K with the radius ground truth (see :func:`recall`).
 
@@ -237,18 +238,38 @@ def recall_at_k(
         retrieved: ``[M, K_max]`` ranked indices into ``r_pos`` (best first).
         q_pos: ``[M, P]`` query positions; r_pos: ``[R, P]`` reference positions.
         radius: localisation radius (same unit as positions; inclusive).
-        ks: the K values (one integer: that K alone).
+        ks: the K values (one integer: that K alone); None: :data:`DEFAULT_KS` up to the ``K_max`` retrieved.
 
-    A WARNING line when the ground truth makes Recall@K near-trivial (the median query has half the references
-    within the radius: positions in degrees or kilometres with a radius in metres, constant positions), as
-    ``seqnet eval`` says (:func:`seqnet.metrics.inputs.trivial_truth`).
+    A K above ``K_max`` is undefined unless every reference was retrieved (``K_max >= R``): a given one is a
+    :class:`ConfigError`, a default one is left out with a WARNING line (:func:`retrieved_ks`). A WARNING line
+    when the ground truth makes Recall@K near-trivial (the median query has half the references within the
+    radius: positions in degrees or kilometres with a radius in metres, constant positions), as ``seqnet eval``
+    says (:func:`seqnet.metrics.inputs.trivial_truth`).
     """
     truth = GroundTruth(q_pos, r_pos, radius)
-    out = recall(retrieved, truth, ks)
+    out = recall(retrieved, truth, retrieved_ks(ks, truth.check_retrieved(retrieved).shape[1], len(truth.r_pos)))
     line = trivial_truth(truth)
     if line:
         logger.warning("recall_at_k: %s", line)
     return out
+
+
+def retrieved_ks(ks: Sequence[int] | int | None, width: int, n_refs: int) -> list[int]:
+    """The K values :func:`recall_at_k` can score from ``width`` columns retrieved of ``n_refs`` references: a K
+    above ``width`` counts only what was retrieved (R@100 from 5 columns is R@5), so it is refused when given,
+    and left out with a WARNING when ``ks`` is None (:data:`DEFAULT_KS`); every K is defined when every
+    reference was retrieved (``width >= n_refs``) or none was (``width`` 0: nothing found)."""
+    given = k_values(DEFAULT_KS if ks is None else ks)
+    over = [k for k in given if width < min(k, n_refs) and width > 0]
+    if not over:
+        return given
+    fix = f"retrieve more (knn(..., k={max(over)})) or pass ks= up to {width}"
+    if ks is not None:
+        raise ConfigError(f"recall_at_k: K {', '.join(map(str, over))} above the {width} columns retrieved (of "
+                          f"{n_refs} references) would count only those {width}; {fix}")
+    logger.warning("recall_at_k: R@%s left out: the %d columns retrieved (of %d references) cannot score them; %s",
+                   ", R@".join(map(str, over)), width, n_refs, fix)
+    return [k for k in given if k not in over]
 
 
 def recall_curve(retrieved: np.ndarray, truth: GroundTruth, k_max: int = 20) -> np.ndarray:

@@ -166,8 +166,9 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
                              "matrix_methods": list(matrix_methods())}
     out.frame_names = (ds.query.names, ds.reference.names)
     out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)
-    if query_range is not None:
-        out.results["config"]["query_range"] = list(query_range)  # per-query numbering (VME)
+    if query_range is not None:  # per-query numbering (VME, --per-query): rows of the dataset's whole lists
+        out.results["config"].update(query_range=list(query_range["query"]),
+                                     reference_range=list(query_range["reference"]))
     out.dataset, out.matrix = ds, given  # for the report: the evaluated frames and their given distances
     check = orientation_check(ds, given, similarity, transposed)  # its warning is said there: kept here
     out.results["matrix_check"] = {k: v for k, v in check.items() if k != "warning"}
@@ -180,12 +181,12 @@ def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfi
 
 
 def split_matrix(ds: Dataset, given: GivenMatrix, split: str | None
-                 ) -> tuple[Dataset, GivenMatrix, tuple[int, int] | None]:
-    """``(ds, given, query_range)`` of the split ``split``: a dataset that defines it (a name or a range spec)
+                 ) -> tuple[Dataset, GivenMatrix, dict[str, tuple[int, int]] | None]:
+    """``(ds, given, ranges)`` of the split ``split``: a dataset that defines it (a name or a range spec)
     with the whole matrix ``[Nq, Nr]`` gives its split and the split's block of the matrix (a view; the query
-    range recorded), or with the split's block already taken, its split; None / ``all``, or a dataset already
-    split (no splits of its own) with a matrix of its size, is evaluated as given. Anything else is refused:
-    never a whole matrix scored under a split's name."""
+    and reference ranges recorded), or with the split's block already taken, its split; None / ``all``, or a
+    dataset already split (no splits of its own) with a matrix of its size, is evaluated as given. Anything else is
+    refused: never a whole matrix scored under a split's name."""
     whole = (len(ds.query), len(ds.reference))
     if split in (None, "all"):
         return ds, given, None
@@ -199,7 +200,7 @@ def split_matrix(ds: Dataset, given: GivenMatrix, split: str | None
     sub = ds.split(split)
     if given.shape != whole:
         return sub, given, None  # the split's block, already taken (checked against the split's size next)
-    return sub, given.block(slice(*rng["query"]), slice(*rng["reference"])), rng["query"]
+    return sub, given.block(slice(*rng["query"]), slice(*rng["reference"])), rng
 
 
 def as_given(dist: np.ndarray | GivenMatrix, similarity: bool | None, transposed: bool | None) -> GivenMatrix:
@@ -273,7 +274,8 @@ def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str 
         dist = open_matrix(distances, ds, similarity, split, transposed)
         ev = evaluate_matrix(sub, dist, conf.merge(split="all"))  # the split taken; the reading open_matrix's
         ev.results["config"]["split"] = split
-        ev.results["config"]["query_range"] = list(ds.ranges(split)["query"])  # per-query numbering
+        rng = ds.ranges(split)  # per-query numbering: rows of the dataset's whole lists
+        ev.results["config"].update(query_range=list(rng["query"]), reference_range=list(rng["reference"]))
         add_warnings(ev, [split_note(conf.split, list(ds.splits), len(sub.query))])
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "distances": str(Path(distances).resolve()),
                                 "similarity": bool(similarity), "transposed": bool(transposed),
