@@ -92,7 +92,7 @@ RESERVE_BASE_BYTES = 96 << 20
 """Address space beyond the resident estimate besides threads: untouched pages of allocations (calloc, the
 heap's free part), libraries mapped on first use. Measured 2026-12-05 (torch 2.13 CPU, ``seqnet train --epochs 1
 --device cpu``, the smallest ``ulimit -v`` that trains, bisected in 7 MiB steps, less ``VmSize`` at the check
-and the plan's ``train_bytes``): 203-214 MiB at ``--threads 1``, 271-281 MiB at 2 and 400 MiB at 4 (D = 4096
+and the plan's ``train_bytes``): 203-214 MiB at ``--threads 1``, 271-298 MiB at 2 and 400 MiB at 4 (D = 4096
 and 2048, batch 16 and 4), i.e. 72 MiB a thread over the ``n + 1`` threads training starts (torch's ``n - 1``
 workers and two more) and 40-70 MiB besides: :func:`reserved_bytes` is 240 / 312 / 456 MiB there."""
 
