@@ -1,10 +1,12 @@
 """Memory estimates checked before the work: refuse what cannot fit, with the estimate and the way out.
 
 :func:`available_bytes` is what this process may still allocate: the kernel's ``MemAvailable``, lowered
-by a cgroup limit (``memory.max`` − ``memory.current``) and by ``ulimit -v`` when set. :func:`check_fits`
-refuses an estimate over it with a :class:`ResourceError` (one line, exit 1) naming the estimate, what
-is available and the hints; with ``held`` (what the process already holds, :func:`rss_bytes`) both figures
-are the process's whole: its peak and what it can reach.
+by a cgroup limit (``memory.max`` − ``memory.current``) and by ``ulimit -v`` when set: that limit is on
+address space, of which the work reserves more than it makes resident (:func:`reserved_bytes`), so its room is
+the limit less ``VmSize`` less that reserve. :func:`check_fits` refuses an estimate over it with a
+:class:`ResourceError` (one line, exit 1) naming the estimate, what is available and the hints (under ``ulimit -v``,
+also raising it and fewer threads); with ``held`` (what the process already holds, :func:`rss_bytes`) both
+figures are the process's whole: its peak and what it can reach.
 """
 
 from __future__ import annotations
@@ -65,14 +67,53 @@ def _reclaimable() -> int:
 
 def available_bytes() -> int | None:
     """Bytes this process may still allocate (None: unknown, e.g. not Linux)."""
-    found = [b for b in (_meminfo_available(), _cgroup_available()) if b is not None]
+    found = _limits()
+    return max(0, min(found.values())) if found else None
+
+
+def _limits() -> dict[str, int]:
+    """Each known limit's room, by name; ``"address space"`` (``ulimit -v``) net of :func:`reserved_bytes`."""
+    found = {k: b for k, b in (("memory", _meminfo_available()), ("cgroup", _cgroup_available())) if b is not None}
     soft = resource.getrlimit(resource.RLIMIT_AS)[0]
     if soft != resource.RLIM_INFINITY:
-        found.append(soft - _address_space())
+        found["address space"] = soft - _address_space() - reserved_bytes()
     env = os.environ.get("SEQNET_MEMORY_MB")  # an explicit budget (a shared machine, a test)
     if env:
-        found.append(int(float(env) * 2**20))
-    return max(0, min(found)) if found else None
+        found["budget"] = int(float(env) * 2**20)
+    return found
+
+
+ARENA_BYTES = 64 << 20
+"""Address space a thread's own glibc malloc arena reserves (``HEAP_MAX_SIZE`` on 64-bit; mapped but mostly
+``PROT_NONE``, so never resident, yet counted against ``ulimit -v``): a new thread that allocates gets one, up to
+``MALLOC_ARENA_MAX`` arenas (default 8 per CPU) with the main one."""
+STACK_BYTES = 8 << 20  # a thread's stack: glibc's default is the soft ``ulimit -s``, 8 MiB by default
+RESERVE_BASE_BYTES = 96 << 20
+"""Address space beyond the resident estimate besides threads: untouched pages of allocations (calloc, the
+heap's free part), libraries mapped on first use. Measured 2026-12-05 (torch 2.13 CPU, ``seqnet train --epochs 1
+--device cpu``, the smallest ``ulimit -v`` that trains, bisected in 7 MiB steps, less ``VmSize`` at the check
+and the plan's ``train_bytes``): 203-214 MiB at ``--threads 1``, 271-298 MiB at 2 and 400 MiB at 4 (D = 4096
+and 2048, batch 16 and 4), i.e. 72 MiB a thread over the ``n + 1`` threads training starts (torch's ``n - 1``
+workers and two more) and 40-70 MiB besides: :func:`reserved_bytes` is 240 / 312 / 456 MiB there."""
+
+
+def reserved_bytes(n: int | None = None) -> int:
+    """Address space the work about to run reserves beyond the resident memory it is planned to use (what
+    ``ulimit -v`` counts and a resident estimate does not): :data:`RESERVE_BASE_BYTES` and, for each of the
+    ``n + 1`` threads it starts (``n``: torch's intra-op threads, default the current number, or the usable CPUs
+    where torch is not loaded), a stack and a malloc arena (:data:`ARENA_BYTES`; fewer under
+    ``MALLOC_ARENA_MAX``)."""
+    threads = (n or _threads()) + 1
+    cap = os.environ.get("MALLOC_ARENA_MAX", "")
+    arenas = min(threads, max(0, int(cap) - 1)) if cap.isdigit() else threads  # the main arena is one of them
+    return RESERVE_BASE_BYTES + threads * STACK_BYTES + arenas * ARENA_BYTES
+
+
+def _threads() -> int:
+    torch = sys.modules.get("torch")
+    if torch is not None and hasattr(torch, "get_num_threads"):
+        return max(1, int(torch.get_num_threads()))
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def _address_space() -> int:
@@ -94,7 +135,20 @@ def check_fits(needed: int, what: str, hints: str, held: int = 0, free: int | No
     if free is not None and needed > free:
         of = f" ({gib(held)} held by this process before it + {gib(needed)} more)" if held else ""
         raise ResourceError(f"{what} needs about {gib(held + needed)} of memory{of}, {gib(held + free)} available; "
-                            f"hint: {hints}")
+                            f"hint: {hints}{_address_space_hint()}")
+
+
+def _address_space_hint() -> str:
+    """Where ``ulimit -v`` is the limit that binds: what else lowers the need (a higher limit, fewer threads)."""
+    found = _limits()
+    room = found.get("address space")
+    if room is None or room > min(found.values()):
+        return ""
+    n = _threads()
+    fewer = f", or --threads 1 (saves about {human_bytes(reserved_bytes(n) - reserved_bytes(1))})" if n > 1 else ""
+    return (f"; the binding limit is the address space (ulimit -v), of which {n + 1} threads' stacks and malloc "
+            f"arenas and the allocator reserve about {human_bytes(reserved_bytes())} beyond the memory used: raise "
+            f"the limit{fewer}")
 
 
 BASE_BYTES = 258 << 20
