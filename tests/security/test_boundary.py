@@ -41,6 +41,32 @@ def test_open_input_refuses_what_is_not_a_regular_file(tmp_path):
         read_bytes(tmp_path / "f", 5)
 
 
+def test_a_small_file_is_read_without_setting_its_limit_aside(tmp_path):
+    """read_bytes read f.read(limit + 1): 1 GiB of address space set aside for a 100-byte names.txt, so under
+    ``ulimit -v`` a dataset's load died of MemoryError. Run in a child with 200 MiB of address space to spare."""
+    import subprocess
+    import sys
+
+    (tmp_path / "names.txt").write_bytes(b"a.png\n" * 20)
+    code = ("import re, resource, sys\n"
+            "from seqnet.security.inputs import read_bytes\n"
+            "vm = int(re.search(r'VmSize:\\s+(\\d+)', open('/proc/self/status').read()).group(1)) * 1024\n"
+            "resource.setrlimit(resource.RLIMIT_AS, (vm + (200 << 20), resource.RLIM_INFINITY))\n"
+            "assert read_bytes(sys.argv[1], 1 << 30) == b'a.png\\n' * 20\n")
+    done = subprocess.run([sys.executable, "-c", code, str(tmp_path / "names.txt")], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr[-500:]
+
+
+def test_a_file_that_grows_while_read_is_read_on_to_its_limit(tmp_path, monkeypatch):
+    (tmp_path / "f").write_bytes(b"x" * 10)
+    real = os.fstat
+    monkeypatch.setattr(os, "fstat", lambda fd: os.stat_result((*real(fd)[:6], 4, *real(fd)[7:])))  # 4 bytes then
+    assert read_bytes(tmp_path / "f", 20) == b"x" * 10
+    with pytest.raises(DatasetError, match="grew past 8 bytes"):
+        read_bytes(tmp_path / "f", 8)
+
+
 @pytest.mark.parametrize("rel, ok", [("a/b.npy", True), ("/etc/passwd", False), ("../x", False), ("a/../../x", False),
                                      ("", False), ("a\x00b", False), ("a\\b", False), (5, False), ("link/x", False)])
 def test_inside_keeps_paths_from_files_in_their_folder(tmp_path, rel, ok):
