@@ -364,3 +364,35 @@ def test_the_few_queries_cause_names_the_recall_compared():
                        for n, v in {"single": 0.60, "s1": 0.30}.items()}, "config": {"seq_len": 5, "models": {}}}
     (note,) = learned_below_baseline(res)
     assert note.k == 5 and "only 20 evaluated queries (one query is 0.05 of R@5)" in note.causes, note.causes
+
+
+def test_a_model_trained_on_another_dataset_is_named_as_a_cause(tmp_path):
+    """A checkpoint trained on dataset A evaluated on dataset B (same D) below its baseline got only the generic
+    training-data cause; the checkpoint records its dataset, so the cause names it. On A itself it is not said."""
+    from seqnet.data.io import load_dataset, save_dataset
+    from seqnet.data.synth import make_synthetic
+    from seqnet.eval.config import EvalConfig
+    from seqnet.eval.evaluate import evaluate
+    from seqnet.sequence.checkpoints import load_model
+    from seqnet.train.config import TrainConfig
+    from seqnet.train.loop import main
+
+    def bare(seed: int):  # descriptors of unknown making (a user's .npy files): no provenance to tell them apart
+        ds = make_synthetic(places=200, dim=8, seed=seed)
+        ds.reference.provenance = ds.query.provenance = None
+        return ds
+
+    a, b = (save_dataset(bare(seed), tmp_path / name) for seed, name in ((0, "a"), (1, "b")))
+    conf = TrainConfig(optimizer="adam", lr=1e-2, batch_size=16, cache_refresh=40, n_neg_sample=50, seq_len=1, w=1,
+                       out_dims=8, device="cpu", epochs=1)
+    model = load_model(main(conf, a, tmp_path / "run") / "best.pt")
+    ev_conf = EvalConfig(methods=("single", "s1"), seq_len=1, device="cpu", split="test")
+    on_b = evaluate(load_dataset(b), ev_conf, {"s1": model}).results
+    assert on_b["config"]["models"]["s1"]["trained_on_dataset"] == str(a.resolve())
+    causes = likely_causes("s1", on_b, explained=True)
+    assert causes[0] == (f"S_1 was trained on another dataset ({a.resolve()}): a model learns the descriptors and "
+                         "places it trained on, and another describer's descriptors of the same D fit it in shape "
+                         "only (hint: train on this dataset's train split: seqnet train --dataset THIS)")
+    on_a = evaluate(load_dataset(a), ev_conf, {"s1": model}).results
+    assert "trained_on_dataset" not in on_a["config"]["models"]["s1"]
+    assert not any("another dataset" in c for c in likely_causes("s1", on_a))

@@ -23,6 +23,7 @@ from ..data.resample import kept_indices, resample_dataset
 from ..data.traverse import Dataset, Traverse
 from ..methods.checks import check_inputs, model_lengths
 from ..methods.grammar import Method, parse_method
+from ..methods.trained import holds_training_data
 from ..metrics.recall import GroundTruth, ground_truth
 from ..reference.plain import PlainReference, runs_plain
 from ..reference.traverse import TraverseReference
@@ -101,7 +102,7 @@ def score(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqN
         model.to(dev).eval()
         with torch.no_grad():  # its first call allocates: not charged to the first method that uses it
             model(torch.zeros((1, model.seq_len, model.in_dims), device=dev))
-    entries = model_entries(models)  # once: it reads each checkpoint's training record
+    entries = trained_elsewhere(model_entries(models), models, ds)  # once: it reads each checkpoint's record
     parts = [_evaluate_group(ds, ms, w, conf, models, dev, plain, entries) for w, ms in groups.items()]
     out = merge(parts, conf.methods)
     out.results["config"] = {**conf.to_dict(), "dataset": ds.name, "device": str(dev),
@@ -112,6 +113,23 @@ def score(ds: Dataset, conf: EvalConfig | None = None, models: Mapping[str, SeqN
     out.dataset, out.frame_names = ds, (ds.query.names, ds.reference.names)
     out.frame_numbers = (keep["query"], keep["reference"]) if keep else (None, None)
     return out
+
+
+def trained_elsewhere(entries: dict[str, dict[str, Any]], models: Mapping[str, SeqNet],
+                      ds: Dataset) -> dict[str, dict[str, Any]]:
+    """``entries`` with ``"trained_on_dataset"`` (the path its checkpoint records) for each model trained on
+    another dataset than ``ds``'s, read from a folder (not the same descriptors:
+    :func:`~seqnet.methods.trained.holds_training_data`; unknown: nothing added); the learned-below-baseline notes
+    name it as a likely cause."""
+    whole = ds.source[0] if ds.source is not None else ds
+    if whole.path is None:
+        return entries
+    for role, model in models.items():
+        t = getattr(model, "trained_on", None)
+        if isinstance(t, Mapping) and isinstance(t.get("dataset"), str) and role in entries \
+                and not holds_training_data(model, whole.path, whole):
+            entries[role]["trained_on_dataset"] = t["dataset"]
+    return entries
 
 
 def _evaluate_group(ds: Dataset, methods: list[Method], windows: Windows, conf: EvalConfig,

@@ -43,6 +43,7 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
     free_shortlist = free_shortlist_cause(name, entry, methods, cfg)
     if free_shortlist:
         out.append(free_shortlist)
+    out += elsewhere(models)
     dims = sorted({int(v["in_dims"]) for v in models.values() if isinstance(v, Mapping) and "in_dims" in v})
     from ...describe.pca import PAPER_PCA_DIM  # here: the describe package (its describers, h5py) loads with it
 
@@ -62,6 +63,16 @@ def likely_causes(name: str, results: Mapping[str, Any], gap: tuple[float, float
         out.append(f"too little or too different training data for the model's D x out x w weights{learnt(models)}, "
                    "or a val split too small to choose the epoch (the training log of seqnet train says both)")
     return tuple(out)
+
+
+def elsewhere(models: Mapping[str, Any]) -> list[str]:
+    """A line for each model whose checkpoint was trained on another dataset than the one evaluated
+    (``trained_on_dataset`` of its entry: :func:`seqnet.eval.score.trained_elsewhere`)."""
+    return [f"{role_label(role)} was trained on another dataset ({v['trained_on_dataset']}): a model learns the "
+            "descriptors and places it trained on, and another describer's descriptors of the same D fit it in shape "
+            "only (hint: train on this dataset's train split: seqnet train --dataset THIS)"
+            for role, v in sorted(models.items()) if isinstance(v, Mapping)
+            and isinstance(v.get("trained_on_dataset"), str)]
 
 
 def free_shortlist_cause(name: str, entry: Mapping[str, Any], methods: Mapping[str, Any],
