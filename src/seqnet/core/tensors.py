@@ -3,6 +3,7 @@ indices (:func:`spread`)."""
 
 from __future__ import annotations
 
+import sys
 from typing import Union
 
 import numpy as np
@@ -78,7 +79,8 @@ def direction_spread(x: ArrayLike, samples: int = 4096) -> float:
     if x.ndim != 2 or x.shape[0] < 2:
         return float("nan")
     idx = spread(int(x.shape[0]), samples)
-    rows = (x[torch.as_tensor(idx, device=x.device)].detach().double().cpu().numpy() if isinstance(x, torch.Tensor)
+    tensor = "torch" in sys.modules and isinstance(x, sys.modules["torch"].Tensor)  # numpy input loads no torch
+    rows = (x[torch.as_tensor(idx, device=x.device)].detach().double().cpu().numpy() if tensor
             else np.asarray(x[idx], dtype=np.float64))
     with np.errstate(all="ignore"):
         norms = np.sqrt(np.einsum("ij,ij->i", rows, rows))
