@@ -202,5 +202,5 @@ def test_resample_says_wrote_once_and_warns_when_thinning_loses_matches(csvs, ca
                  str(csvs / "thin")]) == 0  # a reference every 40 m, radius 5: a query in four keeps its match
     out, err = capsys.readouterr()
     assert [line for line in (out + err).splitlines() if "wrote" in line] == [
-        f"wrote {csvs / 'thin'}: 5 reference / 20 query frames (from 20 / 20, every 4th of the reference side)"]
+        f"wrote {csvs / 'thin'}: 5 reference / 20 query frames (from 20 / 20, every 4th frame of the reference side)"]
     assert "ds-every4: only 5 of 20 queries (25%) have a reference within the radius 5 metres" in err

@@ -142,3 +142,16 @@ def test_a_split_asked_of_a_whole_matrix_scores_that_split(synth_dataset, transp
     assert scores(part) == got
     with pytest.raises(ConfigError, match="defines the splits"):
         evaluate_matrix(ds, d, conf.replace(split="nope"))
+
+
+@pytest.mark.parametrize("value, hint", [(np.inf, "give masked pairs a finite value past every real one"),
+                                         (np.nan, "compute those entries again")])
+def test_a_masked_pair_is_refused_with_what_to_do(tmp_path, value, hint):
+    """inf (a common 'masked pair' convention) was refused with 'every entry must be finite' and no way out."""
+    from seqnet.core.errors import DatasetError
+    from seqnet.eval.matrix import check_finite_rows
+
+    m = np.arange(12, dtype=np.float32).reshape(3, 4)
+    m[1, 2] = value
+    with pytest.raises(DatasetError, match=rf"entry \[1, 2\] is {value} \(every entry must be finite; hint: {hint}"):
+        check_finite_rows(m, tmp_path / "D.npy")

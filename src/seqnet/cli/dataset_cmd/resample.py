@@ -46,6 +46,7 @@ def run_resample(args: argparse.Namespace) -> int:
     out = dataclasses.replace(out, name=args.name or f"{ds.name}-every{args.every}")
     check_true_matches(out)  # a reference thinned below the radius: refused, nothing written; few: one warning
     save_dataset(out, args.out, overwrite=args.overwrite, quiet=True)  # said below, with the counts
-    logger.info("wrote %s: %d reference / %d query frames (from %d / %d, every %s of the %s side)", args.out,
-                len(out.reference), len(out.query), len(ds.reference), len(ds.query), ordinal(args.every), args.side)
+    sides = "both sides" if args.side == "both" else f"the {args.side} side"
+    logger.info("wrote %s: %d reference / %d query frames (from %d / %d, every %s frame of %s)", args.out,
+                len(out.reference), len(out.query), len(ds.reference), len(ds.query), ordinal(args.every), sides)
     return 0

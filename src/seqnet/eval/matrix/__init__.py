@@ -128,8 +128,12 @@ def check_finite_rows(m: np.ndarray, path: str | Path, block_bytes: int = MEMORY
         bad = ~np.isfinite(read_rows(m, a, a + step))  # a large map's pages released after each block
         if bad.any():
             r, c = np.argwhere(bad)[0]
-            raise DatasetError(f"distance matrix {path}: entry [{r + a}, {c}] is {m[r + a, c]} (every entry must be "
-                               "finite)")
+            v = m[r + a, c]
+            hint = ("hint: give masked pairs a finite value past every real one, e.g. m[~np.isfinite(m)] = "
+                    "np.nanmax(np.where(np.isfinite(m), m, np.nan)) + 1 for distances (the smallest minus 1 for "
+                    "similarities)" if np.isinf(v) else "hint: compute those entries again, or drop their rows")
+            raise DatasetError(f"distance matrix {path}: entry [{r + a}, {c}] is {v} (every entry must be finite; "
+                               f"{hint})")
 
 
 def evaluate_matrix(ds: Dataset, dist: np.ndarray | GivenMatrix, conf: EvalConfig | None = None,
