@@ -93,7 +93,7 @@ def test_reference_and_query_images_of_two_sizes_are_refused_with_the_resize(fol
         Image.open(p).resize((32, 16)).save(big / p.name)
     assert build(folders, tmp_path / "ds", "ref", str(big)) == 2
     err = capsys.readouterr().err
-    assert err == ("seqnet dataset from-images: error: the reference images are 16x8 and the query images 32x16 "
-                   "(native size): their descriptors would differ in length; give --resize 16x8\n")
+    assert err == ("seqnet dataset from-images: error: the first reference image is 16x8 and the first query image "
+                   "32x16 (native size): their descriptors would differ in length; give --resize 16x8\n")
     assert not (tmp_path / "ds").exists()
     assert build(folders, tmp_path / "ds", "ref", str(big), "--resize", "16x8") == 0

@@ -277,5 +277,5 @@ def sides_size_mismatch(ref: Sequence[ImageRef], query: Sequence[ImageRef], size
     (h0, w0), (h1, w1) = (read_any(as_image(s[0]), grey=True).shape[:2] for s in (ref, query))
     if (h0, w0) == (h1, w1):
         return None
-    return ImageError(f"the reference images are {w0}x{h0} and the query images {w1}x{h1} (native size): their "
-                      f"descriptors would differ in length; give --resize {w0}x{h0}")
+    return ImageError(f"the first reference image is {w0}x{h0} and the first query image {w1}x{h1} (native size): "
+                      f"their descriptors would differ in length; give --resize {w0}x{h0}")
