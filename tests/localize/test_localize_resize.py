@@ -43,7 +43,7 @@ def test_images_of_another_size_get_a_hint_that_works(native_map, tmp_path, caps
     for extra in ([], ["--allow-mismatch"]):  # --allow-mismatch cannot compare D=8192 with D=2048: not suggested
         assert _localize("--map", root / "ds", "--query", root / "big", "--out", tmp_path / "t.csv", *extra) == 2
         err = capsys.readouterr().err
-        assert "have D=8192, the map's descriptors D=2048" in err and "hint: --resize WxH" in err, err
+        assert "have D=8192, the map's descriptors D=2048" in err and "hint: --resize 64x32" in err, err
         assert "--allow-mismatch" not in err and len(err.strip().splitlines()) == 1
     small, big = tmp_path / "small.csv", tmp_path / "big.csv"
     assert _localize("--map", root / "ds", "--query", root / "small.txt", "--out", small) == 0
@@ -51,7 +51,8 @@ def test_images_of_another_size_get_a_hint_that_works(native_map, tmp_path, caps
     same = sum(a == b for a, b in zip(_estimates(big), _estimates(small), strict=True))
     assert same >= 17, (_estimates(big), _estimates(small))  # resampled twice (up, then down): close, not equal
     assert _localize("--map", root / "ds", "--query", root / "big", "--resize", "100x50", "--out", big) == 2
-    assert "--resize 100x50 is not the size of the map's reference images" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--resize 100x50 is not the size of the map's reference images" in err and "hint: --resize 64x32" in err
 
 
 def test_resize_is_refused_where_it_means_nothing(native_map, tmp_path, capsys):

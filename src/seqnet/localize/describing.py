@@ -55,7 +55,8 @@ def map_describer(ref_map: Reference, allow: bool, describer: str | None = None,
     d: Describer | ReducedDescriber = make_describer(conf if resize is None else dataclasses.replace(conf, size=resize))
     if pca_on is not None:
         check_reduced_once(map_dataset(ref_map, map_dir))
-        d = ReducedDescriber(d, dataset_pca(ref_map, map_dir, prov), size_hint(native, resize))
+        d = ReducedDescriber(d, dataset_pca(ref_map, map_dir, prov),
+                             size_hint(native, resize, prov.get("image_size")))
     checked: list[bool] = []
 
     def check(first: np.ndarray, what: str) -> None:
@@ -63,7 +64,7 @@ def map_describer(ref_map: Reference, allow: bool, describer: str | None = None,
             return
         if isinstance(prov.get("dim"), int) and first.shape[1] != prov["dim"] and (native or resize):
             raise ConfigError(f"{what} have D={first.shape[1]}, the map's descriptors D={prov['dim']}: "
-                              f"{size_hint(native, resize)}")
+                              f"{size_hint(native, resize, prov.get('image_size'))}")
         check_same(prov, query_provenance(conf, d.pca, pca_on, prov, first, d.seen_size), "the map's descriptors",
                    what, allow)
         checked.append(True)
@@ -81,13 +82,16 @@ def check_query_dim(shape: tuple[int, ...], map_dim: int, what: str) -> None:
     raise ConfigError(f"dimension mismatch: query frame D={shape[1]}, map D={map_dim} ({what}){hint}")
 
 
-def size_hint(native: bool, resize: tuple[int, int] | None) -> str:
-    """Why query images of a map described at the images' own size can give another D, and what to do."""
+def size_hint(native: bool, resize: tuple[int, int] | None, seen: object = None) -> str:
+    """Why query images of a map described at the images' own size can give another D, and what to do; ``seen``:
+    ``[W, H]`` of the map's images as described (its provenance's ``image_size``), named in the hint when known."""
+    known = isinstance(seen, list | tuple) and len(seen) == 2 and all(type(v) is int and v > 0 for v in seen)
+    fix = f"--resize {seen[0]}x{seen[1]}" if known else "--resize WxH, their width and height"
     if resize is not None:
         return (f"--resize {resize[0]}x{resize[1]} is not the size of the map's reference images (they were described "
-                "at their own size); hint: --resize WxH, their width and height")
+                f"at their own size); hint: {fix}")
     return ("the map's reference images were described at their own size (native), and these images are another "
-            "size; hint: --resize WxH, the size of the map's reference images" if native else "")
+            f"size; hint: {fix}" if native else "")
 
 
 class ReducedDescriber:
