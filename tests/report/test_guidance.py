@@ -396,3 +396,25 @@ def test_a_model_trained_on_another_dataset_is_named_as_a_cause(tmp_path):
     on_a = evaluate(load_dataset(a), ev_conf, {"s1": model}).results
     assert "trained_on_dataset" not in on_a["config"]["models"]["s1"]
     assert not any("another dataset" in c for c in likely_causes("s1", on_a))
+
+
+def test_a_narrow_layer_is_named_first_and_never_told_to_narrow(tmp_path):
+    """S_1 with --out-dims 16 on 256-D descriptors (s1 R@1 0.050 against single 0.433; 0.467 without it) got
+    'barely trained: --optimizer adam' (0.067 when followed) and then 'fewer weights (a smaller --out-dims)': the
+    narrow layer is named, and no hint narrows it further."""
+    s1 = {"in_dims": 256, "out_dims": 16, "seq_len": 1, "w": 1}
+    fit = {"epoch": 1, "epochs": 6, "last_epoch": 6, "optimizer": "adam", "lr": 0.01,
+           "loss": {1: 0.3, 6: 0.05}}  # loss fell: fit to training queries
+    causes = likely_causes("s1", _results({"s1": 0.05, "single": 0.433}, 60, {"s1": {**s1, "training": fit}}))
+    assert causes[0] == ("S_1 maps 256-D descriptors to 16-D (--out-dims): a layer this narrow loses much of what "
+                         "tells places apart; hint: train without --out-dims (out = D), or with a larger one; to save "
+                         "memory, reduce D with a PCA measured on val instead (seqnet train says what it costs)")
+    assert not any("smaller --out-dims" in c for c in causes)
+    assert any("did not generalise" in c for c in causes)
+    for out in (256, 128):  # out = D, or half of it: not narrow (64, a quarter, scored 0.217: narrow)
+        wide = likely_causes("s1", _results({"s1": 0.05, "single": 0.433}, 60, {"s1": {**s1, "out_dims": out,
+                                                                                       "training": fit}}))
+        assert not any("narrow" in c for c in wide) and any("smaller --out-dims" in c for c in wide)
+    both = {"seqnet": {**s1, "seq_len": 5, "w": 5, "out_dims": 8}, "s1": {**s1, "out_dims": 31, "in_dims": 64}}
+    assert likely_causes("hvpr", _results({"hvpr": 0.2, "raw+seqmatch": 0.7}, models=both))[0].startswith(
+        "S_L maps 256-D descriptors to 8-D and S_1 maps 64-D descriptors to 31-D (--out-dims)")
