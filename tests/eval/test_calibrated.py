@@ -315,3 +315,38 @@ def test_eval_and_localize_warn_for_calibrate_split_test(easy_dir, tmp_path, cap
     assert line in said()
     assert cli_main(["localize", *base[:6], *TARGET, "--device", "cpu", "--out", str(tmp_path / "t2.csv")]) == 0
     assert "--calibrate-split" not in said()  # calibrated on val, evaluated on test: silent
+
+
+def test_below_target_on_training_queries_names_that_cause(tmp_path):
+    """--calibrate-split train (the models' training queries) was warned, but a precision below the target was then
+    blamed on 'a harder stretch of the route': the results record the calibration on training queries and the
+    note and the report name it first."""
+    from seqnet.cli.common import missed_target_note
+    from seqnet.data.io import load_dataset, save_dataset
+    from seqnet.data.synth import make_synthetic
+    from seqnet.eval.config import EvalConfig as Conf
+    from seqnet.eval.evaluate import evaluate
+    from seqnet.report.notes import calibration_section
+    from seqnet.sequence.checkpoints import load_model
+    from seqnet.train.config import TrainConfig
+    from seqnet.train.loop import main
+
+    data = save_dataset(make_synthetic(places=200, dim=8), tmp_path / "ds")
+    conf = TrainConfig(optimizer="adam", lr=1e-2, batch_size=16, cache_refresh=40, n_neg_sample=50, seq_len=1, w=1,
+                       out_dims=8, device="cpu", epochs=1)
+    model = {"s1": load_model(main(conf, data, tmp_path / "run") / "best.pt")}
+    ds = load_dataset(data)
+    on_train = evaluate(ds, Conf(methods=("s1",), seq_len=1, device="cpu", split="test", target_precision=0.3,
+                                 calibrate_split="train", risk=0.2), model).results
+    assert on_train["config"]["calibrated_on_training_queries"] is True
+    on_val = evaluate(ds, Conf(methods=("s1",), seq_len=1, device="cpu", split="test", target_precision=0.9,
+                               calibrate_split="val", risk=0.1), model).results
+    assert on_val["config"].get("calibrated_on_training_queries") is not True
+    assert missed_target_note("train", True).startswith("  (measured below the target: train holds queries the "
+                                                        "models were trained on (warned above)")
+    assert "harder stretch" in missed_target_note("val")
+    entry = on_train["methods"]["s1"]["calibrated"]  # as if a threshold was found and measured below the target
+    entry["calibration"]["threshold"] = 0.5
+    entry.update(target_met=False, accepted=10, queries=56, precision=0.2, precision_interval=[0.1, 0.4], recall=0.1)
+    (section,) = calibration_section(on_train)
+    assert "holds queries the models were trained on" in section.body and "harder stretch" not in section.body

@@ -202,8 +202,14 @@ def calibrated_result(c: dict[str, Any], what: str = "") -> str:
             f"({100 * c['accepted_fraction']:.1f}%), precision {prec}, recall {c['recall']:.3f}{missed}")
 
 
-def missed_target_note(calibrate_split: str) -> str:
-    """Why a measured precision can fall below the target, and what to do (printed once under the results)."""
+def missed_target_note(calibrate_split: str, on_training: bool = False) -> str:
+    """Why a measured precision can fall below the target, and what to do (printed once under the results);
+    ``on_training``: the calibration split holds queries the models were trained on (warned before), the cause
+    named first."""
+    if on_training:
+        return (f"  (measured below the target: {calibrate_split} holds queries the models were trained on (warned "
+                "above), where they are right more often and surer than on new queries, so its threshold promises "
+                "too much; calibrate on queries apart from training, as the warning's hint says)")
     return (f"  (measured below the target: the promise is for queries drawn like those of {calibrate_split}, and "
             "fails with probability risk, or by chance on few queries; a gap beyond the interval means the "
             "evaluated queries differ from them, e.g. a harder stretch of the route: calibrate on queries like "

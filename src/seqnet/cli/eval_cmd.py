@@ -227,7 +227,7 @@ def print_calibration(res: dict) -> None:
             continue
         print(f"  {name}: {calibrated_result(c)}")
     if any((r.get("calibrated") or {}).get("target_met") is False for r in res["methods"].values()):
-        print(missed_target_note(shown(cfg["calibrate_split"])))
+        print(missed_target_note(shown(cfg["calibrate_split"]), cfg.get("calibrated_on_training_queries") is True))
 
 
 def check_route(args: argparse.Namespace) -> None:

@@ -30,6 +30,7 @@ from .config import EvalConfig
 from .evaluation import Evaluation
 from .notices import (
     add_warnings,
+    calibration_leakage,
     default_ks_note,
     leakages,
     one_retrieved,
@@ -229,6 +230,8 @@ def say_notices(ev: Evaluation, ds: Dataset, split: str, conf: EvalConfig, model
     leaks = leakages(models, dataset, ds, split, conf)
     if leaks:
         ev.results["leakage"] = leaks
+        trained = bool(calibration_leakage(models, dataset, ds, split, conf))  # the below-target note names it
+        ev.results["config"]["calibrated_on_training_queries"] = trained
         for line in leaks:
             logger.warning("%s", shown(line))  # it names checkpoints' records: text from files
     unreduced_counterparts(ev, ds, split, conf, source)  # a --pca dataset: the counterparts on its unreduced one

@@ -69,11 +69,20 @@ def leakages(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, spl
     calibration split, counting the queries ``conf`` keeps (``--resample-every``)."""
     from ...methods.checks import leakage
 
-    out = leakage(models, dataset, ds, split, every=conf.query_every)
-    if conf.target_precision is not None:
-        out += leakage(models, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split,
-                       every=conf.query_every)
-    return out
+    return [*leakage(models, dataset, ds, split, every=conf.query_every),
+            *calibration_leakage(models, dataset, ds, split, conf)]
+
+
+def calibration_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
+                        conf: EvalConfig) -> list[str]:
+    """The :func:`seqnet.methods.checks.leakage` lines of the calibration split (with ``conf.target_precision``):
+    its queries that the models were trained on."""
+    from ...methods.checks import leakage
+
+    if conf.target_precision is None:
+        return []
+    return leakage(models, dataset, ds, conf.calibrate_split, calibration=True, evaluated=split,
+                   every=conf.query_every)
 
 
 def one_retrieved(ev: Evaluation) -> str | None:
