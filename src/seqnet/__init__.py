@@ -51,6 +51,8 @@ _API: dict[str, str] = {  # public name -> the module that defines it, imported 
 }
 
 __all__ = ["__version__", *_API]
+_PACKAGES = ("core", "security", "data", "sequence", "search", "client", "sources", "matching", "metrics", "describe",
+             "methods", "reference", "report", "eval", "maps", "localize", "train", "pipelines", "serve")
 
 
 def __getattr__(name: str) -> Any:
@@ -59,8 +61,10 @@ def __getattr__(name: str) -> Any:
         value = getattr(importlib.import_module(_API[name], __name__), name)
         globals()[name] = value
         return value
+    if name in _PACKAGES:  # seqnet.train.train(...), seqnet.describe...: a subpackage, as after importing it
+        return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'seqnet' has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_API))
+    return sorted(set(globals()) | set(_API) | set(_PACKAGES))

@@ -45,6 +45,21 @@ def test_the_public_api_loads_on_first_use():
     assert p.stdout.split() == ["False", "True", "SeqNet", "[]"], (p.stdout, p.stderr[-2000:])
 
 
+def test_the_subpackages_are_attributes_after_import_seqnet():
+    """``import seqnet; seqnet.train.train(...)`` was an AttributeError (only ``from seqnet.train import train``
+    worked); every subpackage of the layer order is an attribute, loaded on first use."""
+    from pathlib import Path
+
+    import seqnet
+
+    src = Path(seqnet.__file__).parent
+    packages = {p.name for p in src.iterdir() if (p / "__init__.py").is_file()} - {"cli", "__pycache__"}
+    assert packages == set(seqnet._PACKAGES) and set(seqnet._PACKAGES) <= set(dir(seqnet))
+    assert seqnet.train.train is __import__("seqnet.train", fromlist=["train"]).train
+    with pytest.raises(AttributeError, match="no attribute 'nosuch'"):
+        seqnet.nosuch  # noqa: B018
+
+
 def test_every_command_is_listed_and_builds():
     from seqnet.cli import COMMANDS, build_parser
 
