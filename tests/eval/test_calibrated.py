@@ -350,3 +350,25 @@ def test_below_target_on_training_queries_names_that_cause(tmp_path):
     entry.update(target_met=False, accepted=10, queries=56, precision=0.2, precision_interval=[0.1, 0.4], recall=0.1)
     (section,) = calibration_section(on_train)
     assert "holds queries the models were trained on" in section.body and "harder stretch" not in section.body
+
+
+def test_a_missing_val_split_gets_a_free_range_to_calibrate_on():
+    """A dataset with train and test splits only: '--target-precision' said 'give --calibrate-split' and nothing
+    more, while the only named split left was the models' training one; the queries in no split are offered."""
+    import dataclasses
+
+    from seqnet.core.errors import ConfigError
+    from seqnet.data.synth import make_synthetic
+    from seqnet.eval.calibrated import check_calibration_split
+
+    ds = make_synthetic(places=300, dim=8)
+    n = len(ds.query)
+    two = dataclasses.replace(ds, splits={"train": {"reference": (0, len(ds.reference)), "query": (0, 200)},
+                             "test": {"reference": (0, len(ds.reference)), "query": (240, n)}})
+    with pytest.raises(ConfigError, match=r"give --calibrate-split \(calibrate_split= in Python\) \(e\.g\. "
+                                          r"--calibrate-split 200:240: 40 queries in no split\)$"):
+        check_calibration_split(two, "val", "test")
+    train = {"reference": (0, len(ds.reference)), "query": (0, 230)}
+    tight = dataclasses.replace(two, splits={**two.splits, "train": train})
+    with pytest.raises(ConfigError, match=r"in Python\)$"):  # 10 queries free: too few to offer
+        check_calibration_split(tight, "val", "test")

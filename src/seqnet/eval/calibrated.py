@@ -27,12 +27,32 @@ def check_calibration_split(ds: Dataset, calibrate_split: str, split: str) -> No
                                       "it calibrates on, with split='test')")
         raise ConfigError(f"calibration split {calibrate_split!r} is not a split of dataset {ds.name!r} (its "
                           f"splits: {valid}) nor a range A:B; give --calibrate-split (calibrate_split= in Python)"
-                          f"{whole}")
+                          f"{whole or unsplit_hint(ds)}")
     (a, b), (c, d) = cal["query"], ev["query"] if ev is not None else (0, 0)
     if max(a, c) < min(b, d):
         raise ConfigError(f"the calibration split {calibrate_split!r} (queries {a}:{b}) overlaps the evaluated split "
                           f"{split!r} (queries {c}:{d}); calibrate on other queries (--calibrate-split; "
                           "EvalConfig(calibrate_split=...) in Python)")
+
+
+FREE_MIN = 20  # queries: a range in no split shorter than this is not offered to calibrate on
+
+
+def unsplit_hint(ds: Dataset) -> str:
+    """`` (e.g. --calibrate-split 200:240: 40 queries in no split)``: the longest query range of ``ds`` in none of
+    its splits (so neither trained, chosen nor evaluated on), when it has :data:`FREE_MIN` or more; else ""."""
+    n = len(ds.query)
+    used = sorted(tuple(ds.ranges(name)["query"]) for name in ds.splits)
+    edges, free = [*used, (n, n)], []
+    start = 0
+    for a, b in edges:
+        if a - start >= FREE_MIN:
+            free.append((a - start, start, a))
+        start = max(start, b)
+    if not free:
+        return ""
+    _, a, b = max(free)
+    return f" (e.g. --calibrate-split {a}:{b}: {b - a} queries in no split)"
 
 
 def calibration_failed(ds: Dataset, calibrate_split: str, e: ConfigError) -> ConfigError:
