@@ -300,3 +300,24 @@ def test_k_chosen_on_a_short_val_reference_is_said_against_the_evaluated_one(dat
     _, wide_val = select_hvpr(make_synthetic(places=1200, dim=16, seed=1).split("val"), models, CONF)
     assert "val reference has" not in wide_val[0].reason  # hvpr: a val reference past its grid (K <= 100), silent
     assert {g["top_k"] for g in wide_val[0].grid} == {5, 10, 20, 50, 100}
+
+
+def test_no_val_split_keeps_the_defaults_and_says_so():
+    """Without a val split an HVPR's K silently stayed 20 (it capped hvpr-single:raw+seqmatch at 0.768 in the
+    hostile test); the defaults kept are said, with what to do."""
+    import dataclasses
+
+    from seqnet.data.synth import make_synthetic
+    from seqnet.eval.config import EvalConfig
+    from seqnet.eval.select import SELECTABLE, choose_on_val
+
+    ds = make_synthetic(places=200, dim=8)
+    ds = dataclasses.replace(ds, splits={k: v for k, v in ds.splits.items() if k != "val"})
+    conf = EvalConfig(methods=("hvpr", "hvpr-fused", "single"))
+    same, said = choose_on_val(ds, "test", {}, conf, SELECTABLE)
+    assert same is conf
+    assert said == {"selection": {"hvpr": [], "not_chosen": (
+        "HVPR settings not chosen: dataset 'synthetic' has no val split to choose them on, so the defaults are kept "
+        "(hvpr K 20; hvpr-fused K 200, λ 0.25; hint: give --top-k/--fuse-top-k/--fuse-weight yourself, or rebuild "
+        "the dataset with --split val=A:B)")}}
+    assert choose_on_val(ds, "val", {}, conf, SELECTABLE) == (conf, None)
