@@ -40,3 +40,17 @@ def test_resume_on_a_dataset_rebuilt_with_new_splits_is_refused(tmp_path):
     (data / "dataset.json").write_text(json.dumps(meta))
     main(FAST.replace(epochs=2), None, None, resume=run)
     assert read_checkpoint(run / "last.pt")["epoch"] == 2
+
+
+def test_resume_on_descriptors_of_another_d_says_so_first(tmp_path):
+    """Resuming on another dataset of another D said 'the dataset was rebuilt since', and with --allow-mismatch as
+    hinted, 'the checkpoint does not fit': the D is named first, with the dataset the run trained on."""
+    data = save_dataset(make_synthetic(places=200, dim=8), tmp_path / "ds")
+    run = main(FAST, data, tmp_path / "run")
+    other = save_dataset(make_synthetic(places=200, dim=16), tmp_path / "ds16")
+    for allow in (False, True):
+        with pytest.raises(ConfigError) as e:
+            main(FAST.replace(epochs=2), other, None, resume=run, allow_mismatch=allow)
+        assert str(e.value).startswith(f"the run in {run} trained on D=8 descriptors and dataset ")
+        assert "has D=16: another dataset, or another PCA of it; hint: resume on the dataset the run trained on" \
+            in str(e.value) and "rebuilt since" not in str(e.value)
