@@ -33,9 +33,10 @@ def test_localize_dataset_map_and_eval_index_use_the_same_k(synth_dir, built, tm
     assert sel["split"] == "val" and sel["settings"] == {"top_k": k_dataset}
     assert sel["hvpr"][0]["recall"] > 0 and "chosen on the val split" in sel["hvpr"][0]["reason"]
     query = synth_dir / "query" / "descriptors.npy"
+    capsys.readouterr()
     assert cli(["-q", "localize", "--map", str(built), "--query", str(query), "--out", str(tmp_path / "t2.csv")]) == 0
     assert _k(tmp_path / "t2.json") == k_dataset
-    capsys.readouterr()
+    assert f"K {k_dataset}, the map's (chosen on the val split" in capsys.readouterr().out
     assert cli(["-q", "eval", "--index", str(built), "--dataset", str(synth_dir), "--window", "causal",
                 "--json", str(tmp_path / "r.json")]) == 0
     out = capsys.readouterr().out
@@ -44,13 +45,13 @@ def test_localize_dataset_map_and_eval_index_use_the_same_k(synth_dir, built, tm
     assert f"K {k_dataset}, the map's (chosen on the val split" in out
 
 
-def test_an_explicit_top_k_wins_and_is_said(synth_dir, built, tmp_path, capsys, caplog):
+def test_an_explicit_top_k_wins_and_is_said(synth_dir, built, tmp_path, capsys):
     query = synth_dir / "query" / "descriptors.npy"
-    with caplog.at_level("INFO", logger="seqnet"):
-        assert cli(["localize", "--map", str(built), "--query", str(query), "--top-k", "20",
-                    "--out", str(tmp_path / "t.csv")]) == 0
+    capsys.readouterr()
+    assert cli(["-q", "localize", "--map", str(built), "--query", str(query), "--top-k", "20",
+                "--out", str(tmp_path / "t.csv")]) == 0
     assert _k(tmp_path / "t.json") == 20
-    assert "--top-k 20 as given (the map's K 10, chosen on val, not used)" in caplog.text
+    assert "--top-k 20 as given (the map's K 10, chosen on val, not used)" in capsys.readouterr().out
     capsys.readouterr()
     assert cli(["-q", "eval", "--index", str(built), "--dataset", str(synth_dir), "--window", "causal", "--top-k",
                 "20", "--json", str(tmp_path / "r.json")]) == 0

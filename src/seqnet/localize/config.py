@@ -95,23 +95,21 @@ class LocalizeConfig(Config):
         return loc
 
 
-def map_settings(where: str | Path | None, method: str, given: Mapping[str, Any]) -> dict[str, Any]:
+def map_settings(where: str | Path | None, method: str,
+                 given: Mapping[str, Any]) -> tuple[dict[str, Any], str | None]:
     """The HVPR settings the index map in ``where`` stores for ``method`` (chosen on val when it was built:
-    :mod:`seqnet.maps.chosen`) that ``given`` (``{"top_k": --top-k}``) leaves free, said in one line; empty for
-    anything else (a dataset directory, a map without the record: the defaults)."""
+    :mod:`seqnet.maps.chosen`) that ``given`` (``{"top_k": --top-k}``) leaves free, and the line that says which
+    were used (to say once the map is loaded); ``({}, None)`` for anything else (a dataset directory, a map without
+    the record: the defaults)."""
     from ..core.errors import SeqnetError
-    from ..core.log import logger
     from ..maps.chosen import settings_to_use
     from ..maps.map import read_meta
     from ..maps.store import MAP_JSON
 
     if where is None or not (Path(where) / MAP_JSON).is_file():
-        return {}
+        return {}, None
     try:
-        use, line = settings_to_use(read_meta(Path(where)), method, given)
+        return settings_to_use(read_meta(Path(where)), method, given)
     except (SeqnetError, TypeError, ValueError):
-        return {}  # a damaged map is refused when it is loaded
-    if line:
-        logger.info("%s", line)
-    return use
+        return {}, None  # a damaged map is refused when it is loaded
 
