@@ -208,3 +208,26 @@ def test_a_map_from_a_dataset_whose_pca_is_missing_is_built_with_a_warning(pca_d
     capsys.readouterr()
     assert _localize("--map", tmp_path / "map", "--query", pca_dataset / "q.txt", "--out", tmp_path / "t.csv") == 2
     assert "(--pca), which is missing" in capsys.readouterr().err
+
+
+def test_descriptor_files_against_a_pca_map_are_sent_to_query_images(pca_dataset, tmp_path, capsys):
+    """seqnet describe cannot apply the map's PCA: a raw (2048-D) file's refusal and a plain file of the map's D
+    (unknown making: it ran at chance, with a warning only) name --query IMAGES, which works; --allow-mismatch goes
+    on, warned; the dataset's own reduced query descriptors (their provenance known) still run."""
+    root = pca_dataset
+    assert _build_map(root / "ds", tmp_path / "map") == 0
+    raw = tmp_path / "raw.npy"
+    assert cli_main(["describe", str(root / "q.txt"), "--method", "pixels", "--patch", "16", "--out", str(raw)]) == 0
+    plain = tmp_path / "plain.npy"  # the map's D, no provenance sidecar
+    np.save(plain, np.load(root / "ds" / "query" / "descriptors.npy")[40:])
+    for query, d in ((raw, "D=2048, map D=16"), (plain, "record no provenance")):
+        capsys.readouterr()
+        assert _localize("--map", tmp_path / "map", "--query", query, "--out", tmp_path / "t.csv") == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and d in err, err
+        assert "--query IMAGES" in err and "reduced to 16-D by its dataset's train-split PCA" in err, err
+        assert str(tmp_path / "map" / "pca.npz") in err and "2048-D pixels" in err, err
+    assert _localize("--map", tmp_path / "map", "--query", plain, "--out", tmp_path / "t.csv",
+                     "--allow-mismatch") == 0
+    assert _localize("--map", tmp_path / "map", "--query", root / "ds" / "query" / "descriptors.npy",
+                     "--out", tmp_path / "t.csv") == 0

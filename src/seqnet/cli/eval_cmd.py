@@ -148,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.index:
         from ..maps import evaluate_main
 
-        res = evaluate_main(conf, args.dataset, args.index, args.out, report=report, **outs).data
+        free = [k for k in ("top_k", "fuse_top_k", "fuse_weight") if getattr(args, k) is None]
+        res = evaluate_main(conf, args.dataset, args.index, args.out, report=report, free=free, **outs).data
     else:
         from ..eval.select import main as choosing_main
 

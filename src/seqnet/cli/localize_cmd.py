@@ -9,7 +9,7 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from ..core.stage import Written
 from ..eval.select import SELECTABLE
-from ..localize.config import LocalizeConfig
+from ..localize.config import LocalizeConfig, map_settings
 from ..localize.replay import main
 from ..localize.stream import Query, stream
 from ..localize.trackfile import TRACK_COLUMNS
@@ -103,9 +103,11 @@ def localizer_config(args: argparse.Namespace) -> LocalizeConfig:
     index map's own method (:func:`map_method`), else the default."""
     if args.method is None:
         args.method = map_method(getattr(args, "map", None)) or _D.method
-    return _D.merge(method=args.method, seq_len=args.seq_len, match_len=args.match_len,
+    conf = _D.merge(method=args.method, seq_len=args.seq_len, match_len=args.match_len,
                       top_k=args.top_k, k=args.k, anchor=args.anchor, split=args.split, radius=args.radius,
                       device=args.device, allow_mismatch=args.allow_mismatch or None, precision=args.precision)
+    use, args.settings_line = map_settings(getattr(args, "map", None), conf.method, {"top_k": args.top_k})
+    return conf.merge(**use)  # the line is said once the map is loaded (a refusal stays one line)
 
 
 def map_method(where: str | None) -> str | None:
@@ -205,6 +207,8 @@ def run(args: argparse.Namespace) -> int:
                       query_size(args.resize))
         out = stream(conf, args.map, query, args.out, args.model, args.shortlist_model, args.rerank_model,
                      describer=args.describer, on_track=_plotter(args.plot))
+        if args.settings_line:
+            print(shown(args.settings_line))
     else:
         out = main(conf, args.dataset, args.out, args.model, args.shortlist_model, args.rerank_model,
                    args.distances, args.similarity, args.transposed, calibration(args),

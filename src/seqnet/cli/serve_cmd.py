@@ -7,6 +7,7 @@ import argparse
 import os
 import sys
 
+from ..security.text import shown
 from . import COMMANDS
 from .common import check_method_options, positive_float, positive_int
 from .localize_cmd import add_localizer_options, localizer_config
@@ -57,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     from ..serve.service import load_service
 
     service = load_service(conf, args.map, args.model, args.shortlist_model, args.rerank_model, args.describer)
+    if args.settings_line:  # the map's K chosen on val, or the --top-k that won over it
+        print(shown(args.settings_line), flush=True)
 
     def started(port: int) -> None:
         host = f"[{settings.host}]" if ":" in settings.host else settings.host

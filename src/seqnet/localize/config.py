@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, ClassVar
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from ..core.config import Config, check_bool, check_choice, check_float, check_int
 from ..core.devices import check_device
@@ -92,3 +93,23 @@ class LocalizeConfig(Config):
                 model.to(half)
             model.pack_taps()  # one window per frame: S_L as w products of contiguous blocks
         return loc
+
+
+def map_settings(where: str | Path | None, method: str,
+                 given: Mapping[str, Any]) -> tuple[dict[str, Any], str | None]:
+    """The HVPR settings the index map in ``where`` stores for ``method`` (chosen on val when it was built:
+    :mod:`seqnet.maps.chosen`) that ``given`` (``{"top_k": --top-k}``) leaves free, and the line that says which
+    were used (to say once the map is loaded); ``({}, None)`` for anything else (a dataset directory, a map without
+    the record: the defaults)."""
+    from ..core.errors import SeqnetError
+    from ..maps.chosen import settings_to_use
+    from ..maps.map import read_meta
+    from ..maps.store import MAP_JSON
+
+    if where is None or not (Path(where) / MAP_JSON).is_file():
+        return {}, None
+    try:
+        return settings_to_use(read_meta(Path(where)), method, given)
+    except (SeqnetError, TypeError, ValueError):
+        return {}, None  # a damaged map is refused when it is loaded
+

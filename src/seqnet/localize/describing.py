@@ -72,13 +72,15 @@ def map_describer(ref_map: Reference, allow: bool, describer: str | None = None,
     return d, check
 
 
-def check_query_dim(shape: tuple[int, ...], map_dim: int, what: str) -> None:
+def check_query_dim(shape: tuple[int, ...], map_dim: int, what: str, route: str | None = None) -> None:
     """Refuse query descriptors of shape ``[N, D]`` whose D is not the map's ``map_dim``, one line naming both; a
-    ``[D, N]`` array (its first axis is the map's D, as a transposed file has it) gets the converters' hint."""
+    ``[D, N]`` array (its first axis is the map's D, as a transposed file has it) gets the converters' hint; a map
+    whose descriptors a PCA reduced names its ``route`` (:func:`pca_route`)."""
     if len(shape) != 2 or shape[1] == map_dim:
         return
     hint = (f"; transposed? the array is [{shape[0]}, {shape[1]}]; seqnet expects [N, D] (one row per frame): save "
-            "its transpose" if shape[0] == map_dim else "; hint: describe the query frames as the map's reference was")
+            "its transpose" if shape[0] == map_dim else f"; hint: {route}" if route else
+            "; hint: describe the query frames as the map's reference was")
     raise ConfigError(f"dimension mismatch: query frame D={shape[1]}, map D={map_dim} ({what}){hint}")
 
 
@@ -248,3 +250,41 @@ def check_not_dataset(path: Path) -> None:
         raise ConfigError(f"--query {path} is a seqnet dataset (it holds descriptors, not images): give its query "
                           f"descriptors (--query {path / 'query' / 'descriptors.npy'}), or replay it with seqnet "
                           f"localize --dataset {path}")
+
+
+def pca_route(ref_map: Reference, map_dir: str | Path | None) -> str | None:
+    """For a map whose descriptors its dataset's train-split PCA reduced (``--pca D``), what a query descriptor file
+    cannot follow and what works: ``seqnet describe`` does not apply that PCA, ``--query IMAGES`` does (localize
+    describes them as the map's reference was and reduces them); None for any other map."""
+    from ..describe.pca import dataset_pca_path
+
+    prov = ref_map.provenance or {}
+    settings = prov.get("settings") if isinstance(prov.get("settings"), dict) else {}
+    if prov.get("kind") != "describe" or settings.get("pca_on") is None:
+        return None
+    where = getattr(ref_map, "pca_file", None)
+    if where is None and map_dataset(ref_map, map_dir) is not None:
+        where = dataset_pca_path(map_dataset(ref_map, map_dir))
+    try:
+        raw = f"{dataset_pca(ref_map, map_dir, prov).input_dim}-D "
+    except (SeqnetError, OSError, ValueError):
+        raw = ""
+    return (f"the map's descriptors are {raw}{settings.get('method', 'image')} descriptors reduced to "
+            f"{prov.get('dim', settings.get('dim'))}-D by its dataset's train-split PCA"
+            f"{f' ({where})' if where else ''}, which seqnet describe does not apply: give the query images instead, "
+            "--query IMAGES (a folder, a list file, a video), which localize describes as the map's reference was "
+            "and reduces with that PCA")
+
+
+def check_known_file(prov: dict | None, route: str | None, what: str, allow: bool) -> None:
+    """Refuse query descriptors of unknown making (``prov`` None: no sidecar) against a map whose descriptors a PCA
+    reduced (``route``: :func:`pca_route`): of the map's D, they pass the D check alone, and descriptors not
+    reduced by that very PCA localise at chance; ``allow`` (``--allow-mismatch``): a warning, and on."""
+    if prov or route is None:
+        return
+    said = (f"{what} record no provenance (no <stem>.provenance.json beside them), and {route}; descriptors of the "
+            "map's D made otherwise localise at chance")
+    if allow:
+        logger.warning("%s; going on as asked (--allow-mismatch): only D is checked", said)
+        return
+    raise ConfigError(f"{said}; or, if they were reduced by that very PCA, pass --allow-mismatch")

@@ -16,8 +16,7 @@ Without ground truth the ``correct`` column is empty.
 from __future__ import annotations
 
 import dataclasses
-import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,9 +26,8 @@ from ..core.devices import get_device
 from ..core.errors import ConfigError, SeqnetError
 from ..core.log import counted, logger
 from ..core.progress import progress
-from ..core.provenance import check_same
 from ..core.stage import Written
-from ..data.readers import DESCRIPTOR_SUFFIXES, read_descriptor_file
+from ..data.readers import DESCRIPTOR_SUFFIXES
 from ..data.trajectory import TrackView
 from ..eval.config import EvalConfig
 from ..methods.protocol import Reference
@@ -37,7 +35,6 @@ from ..security.dirs import remove_dead_temps
 from ..security.inputs import special_file
 from ..security.limits import number
 from ..security.locks import locked
-from ..security.pictures import size_mismatch
 from ..sources.bags.positions import DEFAULT_TOLERANCE
 
 if TYPE_CHECKING:
@@ -46,7 +43,8 @@ if TYPE_CHECKING:
 
 from .config import LocalizeConfig
 from .copies import CopyWatch, reference_rows
-from .describing import check_not_dataset, check_query_dim, map_describer, query_file_provenance
+from .describing import check_not_dataset
+from .frames import Frames, descriptor_frames, image_frames
 from .localizer import Estimate, traverse_reference
 from .replay import frame_truth, summarize
 from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
@@ -55,9 +53,6 @@ from .video import VideoOptions, VideoQuery, check_options, is_video_query
 
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
-
-
-Frames = Iterator[tuple[np.ndarray, float]]  # (descriptor [D], milliseconds spent describing it)
 
 
 def load_reference(path: str | Path, models: Mapping[str, SeqNet],
@@ -99,39 +94,6 @@ def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
     if radius is None:
         raise ConfigError(f"map {mp.path} records no localisation radius; give one (--radius)")
     return mp, float(number(radius, f"map {mp.path}: radius", 1e-300, 1e300, ConfigError, integer=False))
-
-
-def descriptor_frames(path: Path, ref_map: Reference, allow: bool) -> tuple[Frames, list[str] | None, int]:
-    """The frames of a descriptor file (checked against the map's provenance), their names and count."""
-    desc, names = read_descriptor_file(path)
-    check_query_dim(desc.shape, ref_map.input_dim, f"the query descriptors {path.name}")
-    check_same(ref_map.provenance, query_file_provenance(path), "the map's descriptors",
-               f"the query descriptors {path.name}", allow)
-    return ((np.asarray(d), 0.0) for d in desc), names, len(desc)
-
-
-def image_frames(source: Path, images: ImageList, ref_map: Reference, allow: bool, describer: str | None = None,
-                 map_dir: str | Path | None = None,
-                 resize: tuple[int, int] | None = None) -> tuple[Frames, list[str], int]:
-    """The ``images`` of ``source`` (a folder, a list file or a bag's image topic: :func:`list_images`), each
-    described when it is read by the map's describer (:func:`map_describer`; ``map_dir``: the ``--map``, ``resize``:
-    ``--resize``)."""
-    d, check = map_describer(ref_map, allow, describer, map_dir, resize)
-
-    def frames() -> Frames:
-        first: tuple[Any, tuple[int, ...]] | None = None
-        for p in images.paths:
-            t0 = time.perf_counter()
-            img = d.load([p])
-            if first is not None and img.shape[1:3] != first[1]:  # its D would differ: say the image and the sizes
-                raise size_mismatch(p, img.shape[1:3], first[0], first[1])
-            first = first or (p, img.shape[1:3])
-            out = d(img)
-            ms = (time.perf_counter() - t0) * 1e3
-            check(out, f"the query images of {source} as described here")
-            yield out[0], ms
-
-    return frames(), images.names, len(images)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -211,9 +173,9 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
                     frame.sampling) if video else None
     if vq is not None:
         vq.prepare(frame, map_dir, loc.r_pos, radius)
-    frames, names, n = ((vq.frames(), vq.names, None) if vq else descriptor_frames(q.path, ref_map, conf.allow_mismatch)
-                        if is_file else image_frames(q.path, images, ref_map, conf.allow_mismatch, describer, map_dir,
-                                                     q.resize))
+    frames, names, n = ((vq.frames(), vq.names, None) if vq else
+                        descriptor_frames(q.path, ref_map, conf.allow_mismatch, map_dir) if is_file else
+                        image_frames(q.path, images, ref_map, conf.allow_mismatch, describer, map_dir, q.resize))
     est, describe_ms = _localise(loc, frames, n, conf.method, lambda e: _write_partial(out, e, names, ref_map))
     best = np.array([e.ref_index for e in est], dtype=np.int64)
     correct, has = (None, None) if q_pos is None else frame_truth(q_pos, loc.r_pos, radius, best)

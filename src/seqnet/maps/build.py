@@ -22,6 +22,7 @@ from ..search.ann import index_bytes, make_index, train_sample_bytes
 from ..security.ownership import check_replaceable
 from ..sequence.checkpoints import load_models
 from ..sequence.windows import Windows
+from .chosen import choose_for_map
 from .config import MapConfig
 from .shards import check_ivf, split_rows
 from .store import MapArrays, is_map_file, write_map
@@ -113,5 +114,6 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
             "sampling": ds.extra.get("sampling"),
             "explicit_positives": ds.positives is not None, "input_dim": ds.reference.dim,
             "model_seq_len": model_lengths(loaded),
-            "describe_seconds": round(time.perf_counter() - t0, 3)}
+            "describe_seconds": round(time.perf_counter() - t0, 3),
+            "selection": choose_for_map(conf, ds, split, loaded, dataset)}  # map.json's "selection"
     return write_map(out, conf, arrays, loaded, ds.reference.provenance, info, pca)

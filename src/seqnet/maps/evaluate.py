@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -182,7 +182,7 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
         return {**m.summary(), "seq_len": c.windows.seq_len, "match_len": c.windows.match_len,
                 "top_k": conf.shortlist_size(m), "index": c.ann.kind}
 
-    extra = _shortlist_recall(mp, query.items(c.shortlist), conf.top_k)
+    extra = _shortlist_recall(mp, query.items(c.shortlist), conf.shortlist_size(c.method))
     ev = run(methods, query, mp, truth, conf, len(q.traverse), info, extra)
     ev.results["config"] = {**conf.to_dict(), "methods": [m.name for m in methods], "split": q.split,
                             "query_range": list(q.query_range),  # the per-query files' numbering (VME)
@@ -204,21 +204,50 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
 
 def main(conf: EvalConfig, dataset: str | Path, index: str | Path, out: str | Path | None,
          per_query: str | Path | None = None, figures: bool = False, overwrite: bool = False,
-         json: str | Path | None = None, report: Any = None) -> Written:
+         json: str | Path | None = None, report: Any = None, free: Sequence[str] = ()) -> Written:
     """hloc-style stage: evaluate ``conf.split`` of the dataset's queries against the map ``index``;
     writes ``out/results.json`` and what ``per_query``, ``figures`` (``out/pr_curve.png``), ``report`` (a
     :class:`seqnet.report.html.ReportConfig`: ``out/report.html``, without the sections that read the reference
     side as a dataset) and ``json`` ask, as one set (:class:`seqnet.eval.outputs.EvalOutputs`); returns the
-    results path and the results."""
+    results path and the results. The map's HVPR settings chosen on val when it was built
+    (:mod:`seqnet.maps.chosen`) replace those of ``free`` (the settings the caller left free: ``seqnet eval --index``
+    passes the flags not given; empty, the API's default: ``conf`` as given); the results' ``"selection"`` says
+    which were used."""
     outputs = EvalOutputs(out, per_query, json, figures, report, overwrite)
     with outputs.session(conf.methods):  # a second evaluation into the same folder is refused (exit 1)
         mp = load_map(index, conf.device)
         outputs.check_methods([m.name for m in check_conf(mp, conf)])
+        conf, selection = with_map_settings(mp, conf, free)
         q = load_query(dataset, conf.split)
         ev = evaluate_map(mp, q, conf)
+        if selection:
+            ev.results["selection"] = selection
         ev.results["config"]["dataset_path"] = str(dataset)
         explicit = ev.results["config"]["ground_truth"] == "explicit positives"
         add_warnings(ev, [q.note, shift_notice(ev), radius_ignored(conf.radius, explicit), trivial_ks(ev, conf.ks)])
         ev.results["learned_below_baseline"] = note_entries(learned_below_baseline(ev.results))
         ev.results["inputs"] = {"dataset": str(Path(dataset).resolve()), "index": str(Path(index).resolve())}
         return outputs.write(ev)
+
+
+def with_map_settings(mp: Map, conf: EvalConfig, free: Sequence[str]) -> tuple[EvalConfig, dict[str, Any] | None]:
+    """``conf`` with the map's stored HVPR settings (:func:`seqnet.maps.chosen.settings_to_use`) for its method,
+    where ``free`` (names of ``top_k``, ``fuse_top_k``, ``fuse_weight``) leaves them free, and the results'
+    ``"selection"`` (its ``hvpr`` choices; ``not_chosen``: the flags that won or why
+    none is stored); None for a map without the record."""
+    from .chosen import FLAGS, settings_to_use
+
+    method = mp.config.method
+    given = {k: None if k in free else getattr(conf, k) for k in FLAGS}
+    use, line = settings_to_use(mp.meta, method.name, given)
+    if line is None:
+        return conf, None
+    if "fuse_weight" in use:
+        conf = conf.merge(method_fuse_weight={**(conf.method_fuse_weight or {}), method.name: use["fuse_weight"]})
+    k = use.get("top_k", use.get("fuse_top_k"))
+    if k is not None:
+        conf = conf.merge(method_top_k={**(conf.method_top_k or {}), method.name: k})
+    rec = mp.meta["selection"]
+    chosen = [c for c in rec.get("hvpr") or [] if isinstance(c, dict)] if use else []
+    return conf, {"hvpr": [{**c, "reason": line} for c in chosen[:1]], "from_map": True,
+                  **({} if chosen else {"not_chosen": line})}

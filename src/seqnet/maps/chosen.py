@@ -1,0 +1,94 @@
+"""HVPR's settings (K; ``hvpr-fused``'s K and λ) chosen on the dataset's val split when a map is built, stored in
+its ``map.json`` (``"selection"``), and used by ``seqnet localize --map``, ``seqnet serve`` and ``seqnet eval
+--index`` unless the user gives them (``--top-k``, ``--fuse-top-k``, ``--fuse-weight``).
+
+The choice is :func:`seqnet.eval.select.choose_on_val`'s, the one ``seqnet eval`` and ``seqnet localize --dataset``
+make (never on test), so the three routes use the same K on the same data. A map written before maps carried the
+record (or built from a dataset without a val split) keeps the defaults.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..core.log import logger
+from ..security.text import shown
+
+if TYPE_CHECKING:
+    from ..data.traverse import Dataset
+    from ..sequence.model import SeqNet
+    from .config import MapConfig
+
+FLAGS = {"top_k": "--top-k", "fuse_top_k": "--fuse-top-k", "fuse_weight": "--fuse-weight"}
+NAMES = {"top_k": "K", "fuse_top_k": "K", "fuse_weight": "λ"}
+
+
+def choose_for_map(conf: MapConfig, ds: Dataset, split: str, models: Mapping[str, SeqNet],
+                   dataset: str | Path) -> dict[str, Any]:
+    """The ``"selection"`` record of a map of ``split`` of ``ds`` (the dataset directory ``dataset``) with the
+    resolved ``conf``: the map's HVPR settings chosen on the val split (:func:`seqnet.eval.select.choose_on_val`),
+    with the val R@1 of each choice; ``"not_chosen"`` says why none was chosen (no val split, the map's split is
+    val or holds val queries, no val query to score). Said in one line."""
+    from ..eval.config import EvalConfig
+    from ..eval.select import SELECTABLE, choose_on_val
+
+    method = conf.method.name
+    econf = EvalConfig(methods=(method,), seq_len=conf.seq_len, match_len=conf.match_len, window=conf.window,
+                       device=conf.device, allow_mismatch=conf.allow_mismatch)
+    _, found = choose_on_val(ds, split, models, econf, SELECTABLE, dataset)
+    sel = dict((found or {}).get("selection") or {})
+    if not sel.get("hvpr") and not sel.get("not_chosen"):
+        why = ("the map is of the val split itself" if split == "val" else
+               f"dataset {ds.name} has no val split")
+        sel["not_chosen"] = f"HVPR settings not chosen on a val split: {why} (the defaults kept)"
+    settings = {k: v for c in sel.get("hvpr", []) for k, v in c["settings"].items()}
+    record = {"method": method, "split": "val", "settings": settings, **sel}
+    logger.info("%s", shown(build_line(record)))
+    return record
+
+
+def build_line(record: Mapping[str, Any]) -> str:
+    """The one line ``seqnet index build`` says of the ``"selection"`` record."""
+    chosen = record.get("hvpr") or []
+    if not chosen:
+        return f"{record.get('not_chosen') or 'HVPR settings not chosen'}; localize and eval --index use them"
+    lines = [str(c.get("reason", "")) for c in chosen]
+    extra = [str(record[k]) for k in ("warning", "leakage") if record.get(k)]
+    return "; ".join([*lines, *extra]) + "; stored in the map: localize --map, serve and eval --index use it"
+
+
+def stored(meta: Mapping[str, Any] | None, method: str) -> dict[str, Any]:
+    """The settings stored in a map's ``map.json`` for ``method`` (``{"top_k": K}``, or ``hvpr-fused``'s
+    ``{"fuse_top_k": K, "fuse_weight": λ}``); empty for a map without the record, or of another method."""
+    rec = (meta or {}).get("selection")
+    if not isinstance(rec, dict) or rec.get("method") != method or not isinstance(rec.get("settings"), dict):
+        return {}
+    return {k: v for k, v in rec["settings"].items() if k in FLAGS and isinstance(v, int | float)
+            and not isinstance(v, bool)}
+
+
+def settings_to_use(meta: Mapping[str, Any] | None, method: str,
+                    given: Mapping[str, Any]) -> tuple[dict[str, Any], str | None]:
+    """``(settings, line)``: the map's stored settings of ``method`` that the user did not give (``given``:
+    ``{name: value or None}`` of :data:`FLAGS`; a value given wins) and one line saying which were used; ``({},
+    None)`` for a map without the record (the defaults, as before maps carried it)."""
+    have = stored(meta, method)
+    rec = (meta or {}).get("selection") if isinstance((meta or {}).get("selection"), dict) else None
+    if rec is None or rec.get("method") != method:
+        return {}, None
+    if not have:
+        return {}, f"{method}: the defaults ({shown(str(rec.get('not_chosen') or 'nothing chosen on val'))})"
+    use = {k: v for k, v in have.items() if given.get(k) is None}
+    over = {k: given[k] for k in have if given.get(k) is not None}
+    r1 = next((c.get("recall") for c in rec.get("hvpr") or [] if isinstance(c, dict)), None)
+    at = f": val R@1 {r1:.3f}" if isinstance(r1, float) else ""
+    parts = []
+    if use:
+        parts.append(", ".join(f"{NAMES[k]} {v:g}" for k, v in use.items())
+                     + f", the map's (chosen on the val split when it was built{at})")
+    if over:
+        parts.append(", ".join(f"{FLAGS[k]} {v:g} as given (the map's {NAMES[k]} {have[k]:g}, chosen on val, "
+                               "not used)" for k, v in over.items()))
+    return use, f"{method}: " + "; ".join(parts)

@@ -1,0 +1,68 @@
+"""HVPR's K chosen on val when a map is built, stored in map.json and used by localize --map and eval --index: the
+same K as localize --dataset on the same data, unless --top-k is given."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from seqnet.cli import main as cli
+
+METHOD = "hvpr-delta:raw+graph"  # on the synthetic dataset its val choice is K 10, not the default 20
+
+
+@pytest.fixture
+def built(synth_dir, tmp_path):
+    mp = tmp_path / "map"
+    assert cli(["-q", "index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank", "raw+graph",
+                "--seq-len", "4", "--window", "causal", "--out", str(mp)]) == 0
+    return mp
+
+
+def _k(path):
+    return json.loads(path.read_text())["config"]["top_k"]
+
+
+def test_localize_dataset_map_and_eval_index_use_the_same_k(synth_dir, built, tmp_path, capsys):
+    assert cli(["-q", "localize", "--dataset", str(synth_dir), "--method", METHOD, "--seq-len", "4",
+                "--out", str(tmp_path / "t1.csv")]) == 0
+    k_dataset = _k(tmp_path / "t1.json")
+    assert k_dataset != 20  # chosen on val, not the default
+    sel = json.loads((built / "map.json").read_text())["selection"]
+    assert sel["split"] == "val" and sel["settings"] == {"top_k": k_dataset}
+    assert sel["hvpr"][0]["recall"] > 0 and "chosen on the val split" in sel["hvpr"][0]["reason"]
+    query = synth_dir / "query" / "descriptors.npy"
+    capsys.readouterr()
+    assert cli(["-q", "localize", "--map", str(built), "--query", str(query), "--out", str(tmp_path / "t2.csv")]) == 0
+    assert _k(tmp_path / "t2.json") == k_dataset
+    assert f"K {k_dataset}, the map's (chosen on the val split" in capsys.readouterr().out
+    assert cli(["-q", "eval", "--index", str(built), "--dataset", str(synth_dir), "--window", "causal",
+                "--json", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["methods"][METHOD]["method"]["top_k"] == k_dataset
+    assert f"K {k_dataset}, the map's (chosen on the val split" in out
+
+
+def test_an_explicit_top_k_wins_and_is_said(synth_dir, built, tmp_path, capsys):
+    query = synth_dir / "query" / "descriptors.npy"
+    capsys.readouterr()
+    assert cli(["-q", "localize", "--map", str(built), "--query", str(query), "--top-k", "20",
+                "--out", str(tmp_path / "t.csv")]) == 0
+    assert _k(tmp_path / "t.json") == 20
+    assert "--top-k 20 as given (the map's K 10, chosen on val, not used)" in capsys.readouterr().out
+    capsys.readouterr()
+    assert cli(["-q", "eval", "--index", str(built), "--dataset", str(synth_dir), "--window", "causal", "--top-k",
+                "20", "--json", str(tmp_path / "r.json")]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["methods"][METHOD]["method"]["top_k"] == 20
+    assert "--top-k 20 as given" in capsys.readouterr().out
+
+
+def test_a_map_without_the_record_keeps_the_default(synth_dir, built, tmp_path):
+    meta = json.loads((built / "map.json").read_text())
+    del meta["selection"]  # as written before maps carried it
+    (built / "map.json").write_text(json.dumps(meta))
+    query = synth_dir / "query" / "descriptors.npy"
+    assert cli(["-q", "localize", "--map", str(built), "--query", str(query), "--out", str(tmp_path / "t.csv")]) == 0
+    assert _k(tmp_path / "t.json") == 20
