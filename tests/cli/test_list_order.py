@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import logging
 
-import numpy as np
 import pytest
-from PIL import Image
+from conftest import image_folder
 
 from seqnet.cli import main
 
@@ -19,11 +18,8 @@ TEXT_ORDER = "is in text order, not by the numbers in its names: 'ref/img_10.png
 @pytest.fixture(scope="module")
 def lists(tmp_path_factory):
     root = tmp_path_factory.mktemp("lists")
-    rng = np.random.default_rng(3)
-    for side in ("ref", "qry"):
-        (root / side).mkdir()
-        for i in range(N):
-            Image.fromarray((rng.random((8, 8)) * 255).astype(np.uint8)).save(root / side / f"img_{i}.png")
+    for seed, side in enumerate(("ref", "qry")):
+        image_folder(root / side, N, seed, stem="img_")
         names = [f"{side}/img_{i}.png" for i in range(N)]
         (root / f"{side}_ls.txt").write_text("".join(f"{n}\n" for n in sorted(names)))  # as `ls` writes them
         (root / f"{side}_v.txt").write_text("".join(f"{n}\n" for n in names))  # as `ls -v` writes them
