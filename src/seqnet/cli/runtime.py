@@ -172,7 +172,7 @@ def report_error(command: str | None, e: BaseException, trace: BaseException | N
     if sys.stderr.isatty() and not quiet:
         sys.stderr.write("\r\x1b[K")
     if isinstance(e, KeyboardInterrupt):
-        print(f"seqnet {command}: interrupted", file=sys.stderr)
+        print(f"seqnet {command}: interrupted{shown(str(getattr(e, 'seqnet_hint', '')))}", file=sys.stderr)
         return 130
     if isinstance(e, OSError):
         e = os_error(e)

@@ -115,18 +115,7 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     run.record["trained_queries"] = src.n_queries  # the queries trained on (a full window, a positive, a negative)
     run.world.rank0(lambda: _guide(run, src, val_ds, device, budget, dataset))
     t0 = time.perf_counter()
-    inactive = False
-    for epoch in range(first, run.conf.epochs + 1):
-        t_epoch = time.perf_counter()
-        stats = train_epoch(run, src, epoch)
-        _end_epoch(run, epoch, stats, val_ds, device, t_epoch)
-        inactive = 0 < run.conf.stop_inactive <= inactive_epochs(run.history)
-        if inactive:
-            said = inactive_message(run.history, run.conf, src.n_queries, run.best_epoch)
-            logger.warning("%s", said)
-            run.advice.append(said)
-        if run.should_stop or inactive:
-            break
+    inactive = _epochs(run, src, val_ds, device, first)
     best = (f"best val R@1 {run.best_score:.4f} at epoch {run.best_epoch}" if val_ds is not None and run.best_epoch
             else "no validation (best.pt = last.pt)")
     early = run.should_stop and run.epoch < run.conf.epochs
@@ -136,6 +125,32 @@ def _fit(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.dev
     # DEBUG: seqnet train prints the summary (cli/train_cmd.py), once
     logger.debug("trained %s for %d epoch%s (to epoch %d) in %.1f s; %s%s", _name(m), n, "" if n == 1 else "s",
                 run.epoch, time.perf_counter() - t0, best, stop)
+
+
+def _epochs(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device, first: int) -> bool:
+    """The epochs from ``first`` to ``conf.epochs`` (or a stop); whether they stopped for want of active triplets.
+    Interrupted (Ctrl-C), the interruption carries what the run holds and how to continue (``seqnet_hint``, said
+    by the CLI): it said only "interrupted"."""
+    epoch = first
+    try:
+        for epoch in range(first, run.conf.epochs + 1):
+            t_epoch = time.perf_counter()
+            stats = train_epoch(run, src, epoch)
+            _end_epoch(run, epoch, stats, val_ds, device, t_epoch)
+            inactive = 0 < run.conf.stop_inactive <= inactive_epochs(run.history)
+            if inactive:
+                said = inactive_message(run.history, run.conf, src.n_queries, run.best_epoch)
+                logger.warning("%s", said)
+                run.advice.append(said)
+            if run.should_stop or inactive:
+                return inactive
+    except KeyboardInterrupt as e:
+        held = (f"{run.out_dir} holds last.pt of epoch {run.epoch} (best.pt: epoch {run.best_epoch or run.epoch}); "
+                f"continue with seqnet train --resume {run.out_dir}" if run.epoch else
+                f"no epoch was finished; {run.out_dir} can be trained into again")
+        e.seqnet_hint = f" during epoch {epoch} of {run.conf.epochs}: {held}"  # type: ignore[attr-defined]
+        raise
+    return False
 
 
 def _guide(run: Run, src: TripletSource, val_ds: Dataset | None, device: torch.device,
