@@ -58,14 +58,14 @@ def run(args: argparse.Namespace) -> int:
     from ..serve.service import load_service
 
     service = load_service(conf, args.map, args.model, args.shortlist_model, args.rerank_model, args.describer)
-    if args.settings_line:  # the map's K chosen on val, or the --top-k that won over it
-        print(shown(args.settings_line), flush=True)
 
     def started(port: int) -> None:
         host = f"[{settings.host}]" if ":" in settings.host else settings.host
         images = "descriptors and images" if service.describer is not None else "descriptors"
         print(f"serving {service.name} ({service.frames} frames, {conf.method}; {images}) on http://{host}:{port}/"
               f"{'' if settings.token is None else ' (token required)'}; stop with SIGTERM or Ctrl-C", flush=True)
+        if args.settings_line:  # the map's K chosen on val, or the --top-k that won over it: after the address
+            print(shown(args.settings_line), flush=True)  # line, which tools read first
 
     stats = serve(service, settings, started)
     print(f"stopped: {stats['frames']} frames answered ({stats['refused']} refused), {stats['sessions']} sessions")

@@ -134,6 +134,17 @@ class EvalConfig(WindowSettings, Config):
         ``hvpr-fused``, else ``top_k``."""
         return (self.method_top_k or {}).get(m.name) or m.shortlist_size(self.top_k, self.fuse_top_k)
 
+    def hvpr_settings(self, names: tuple[str, ...] | list[str]) -> str:
+        """``hvpr K 20; hvpr-fused K 200, λ 0.25``: each HVPR method's settings among ``names`` (``top_k``,
+        ``fuse_top_k``, ``fuse_weight``) under this configuration."""
+        said = []
+        for m in (parse_method(n) for n in self.methods or ()):
+            if m.kind == "hvpr":
+                k = f"K {self.shortlist_size(m)}" if {"top_k", "fuse_top_k"} & set(names) else ""
+                lam = f"λ {self.weight(m):g}" if m.fused and "fuse_weight" in names else ""
+                said.append(f"{m.name} {', '.join(v for v in (k, lam) if v)}")
+        return "; ".join(said) or f"K {self.top_k}"
+
     def weight(self, m: Method) -> float:
         """λ of method ``m``'s fused score: its own (``method_fuse_weight``), else ``fuse_weight``, for
         ``hvpr-fused``; 0 (the matcher alone) for any other method."""

@@ -248,10 +248,10 @@ def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: E
     if split == "val":
         return conf, None
     if "val" not in (ds.splits or {}):  # nothing to choose on: the defaults kept, said (they can cap an HVPR)
-        flags = "/".join(FLAGS[c] for c in choose)
+        flags, kept = "/".join("--" + c.replace("_", "-") for c in choose), conf.hvpr_settings(choose)
         return conf, {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen: dataset {ds.name!r} has "
-                                    f"no val split to choose them on, so the defaults are kept ({kept(conf, choose)}; "
-                                    f"hint: give {flags} yourself, or rebuild the dataset with --split val=A:B)"}}
+                                    f"no val split to choose them on, so the defaults are kept ({kept}; hint: give "
+                                    f"{flags} yourself, or rebuild the dataset with --split val=A:B)"}}
     if holds_val_queries(ds, split):
         return conf, {"selection": {"hvpr": [], "not_chosen": f"HVPR settings not chosen on the val split: the "
                                     f"evaluated split {split!r} holds val queries, which would score their own "
@@ -272,20 +272,6 @@ def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: E
                 "or give --top-k / --fuse-top-k / --fuse-weight yourself")
         return conf, {"selection": {"hvpr": [c.to_dict() for c in choices], "warning": said, **leak}}
     return conf, ({"selection": {"hvpr": [c.to_dict() for c in choices], **leak}} if choices else None)
-
-
-FLAGS = {"top_k": "--top-k", "fuse_top_k": "--fuse-top-k", "fuse_weight": "--fuse-weight"}  # of SELECTABLE
-
-
-def kept(conf: EvalConfig, choose: Sequence[str]) -> str:
-    """``hvpr K 20; hvpr-fused K 200, λ 0.25``: each HVPR method's settings of ``choose`` under ``conf``."""
-    said = []
-    for m in (parse_method(n) for n in conf.methods or ()):
-        if m.kind == "hvpr":
-            k = f"K {conf.shortlist_size(m)}" if {"top_k", "fuse_top_k"} & set(choose) else ""
-            lam = f"λ {conf.weight(m):g}" if m.fused and "fuse_weight" in choose else ""
-            said.append(f"{m.name} {', '.join(v for v in (k, lam) if v)}")
-    return "; ".join(said) or "K " + str(conf.top_k)
 
 
 def against(choice: Choice, evaluated: Dataset, models: Mapping[str, SeqNet], conf: EvalConfig) -> Choice:
