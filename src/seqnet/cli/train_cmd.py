@@ -145,8 +145,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _reduced(args: argparse.Namespace, conf: TrainConfig) -> str:
-    """``--pca D``: the dataset reduced by a PCA fitted on the train split (:mod:`seqnet.pipelines.pca`), after the
-    checks that can refuse the run on its positions and run directory (nothing written before them)."""
+    """``--pca D``: the dataset reduced by a PCA fitted on the train split (:mod:`seqnet.pipelines.pca`; what it
+    costs ``conf``'s val split measured and said), after the checks that can refuse the run on its positions and run
+    directory (nothing written before them)."""
     if args.resume:
         raise ConfigError("--pca applies when a run starts; a resumed run continues on the dataset it recorded "
                           "(drop --pca)")
@@ -158,7 +159,7 @@ def _reduced(args: argparse.Namespace, conf: TrainConfig) -> str:
     check_splits(load_dataset(args.dataset), conf)
     if args.out is not None:
         check_new(Path(args.out))
-    return str(reduce_main(args.dataset, args.pca, args.train_split or _D.train_split))
+    return str(reduce_main(args.dataset, args.pca, args.train_split or _D.train_split, conf))
 
 
 def _run_joint(args: argparse.Namespace, changes: dict) -> int:

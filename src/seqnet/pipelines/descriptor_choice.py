@@ -93,14 +93,15 @@ def proxy_scores(val: Dataset, seq_len: int, device: str = "auto", recall_denomi
 
 
 def choose_on_val(candidates: Mapping[str, DescribeConfig], score: Callable[[DescribeConfig], dict[str, Any]],
-                  where: str, final_fit: Callable[[DescribeConfig], int] | None = None
+                  where: str, final_fit: Callable[[DescribeConfig], int] | None = None, note: str = ""
                   ) -> tuple[DescribeConfig, dict[str, Any]]:
     """The candidate (``{name: settings}``) whose ``score(settings)`` (:func:`proxy_scores` of the val split it
     describes, with ``"fit_images"``: how many images its state was fitted on) is best, and the record of the choice
     (``{"chosen", "describe", "scores", "skipped", "reason"}``); ``where`` names the val split in the reason.
     Candidates that cannot run are skipped (said). ``final_fit(settings)``: how many images the final descriptors'
     state is fitted on; when the chosen one's differs from the proxy's, the reason says that its figures are the
-    proxy's (an evaluation of the final descriptors on the same split gives others)."""
+    proxy's (an evaluation of the final descriptors on the same split gives others). ``note``: appended to the
+    reason (e.g. that its figures come before a ``--pca``)."""
     scores, skipped = {}, {}
     for name, dconf in candidates.items():
         why = runnable(dconf)
@@ -120,7 +121,7 @@ def choose_on_val(candidates: Mapping[str, DescribeConfig], score: Callable[[Des
               f"val proxy's model-free {PROXY_METHODS[0]} R@1 {scores[best][PROXY_METHODS[0]]:.3f} "
               f"(single {scores[best]['single']:.3f})" + (f" against {others}" if others else "")
               + proxy_fit_note(scores[best].get("fit_images"), final_fit(candidates[best]) if final_fit else None)
-              + (f"; not tried: {', '.join(skipped)}" if skipped else ""))
+              + (f"; not tried: {', '.join(skipped)}" if skipped else "") + note)
     logger.info("%s", reason)
     record = {"chosen": best, "describe": candidates[best].to_dict(), "scores": scores, "skipped": skipped,
               "reason": reason}

@@ -195,7 +195,11 @@ def choose_describer(conf: FromImagesConfig, images: tuple[ImageList, ImageList]
 
     (a, b), (c, d) = rng["reference"], rng["query"]
     where = f"val queries {c}:{d} against reference {a}:{b}"
-    return choose_on_val({n: candidate_describe(conf.describe, n) for n in conf.candidates}, score, where, final_fit)
+    before = (f"; these figures are before --pca {conf.pca} (the dataset written is reduced: what the PCA costs the "
+              "chosen descriptor is measured after it is described)") if conf.pca is not None else ""
+    dconf, record = choose_on_val({n: candidate_describe(conf.describe, n) for n in conf.candidates}, score, where,
+                                  final_fit, before)
+    return dconf, record | ({"before_pca": conf.pca} if conf.pca is not None else {})
 
 
 def _proxy_fit(conf: FromImagesConfig, images: tuple[ImageList, ImageList], base: Dataset) -> list:
@@ -280,7 +284,7 @@ def write_dataset(conf: FromImagesConfig, images: tuple[ImageList, ImageList],
                    **(extra or {})})
         review(ds)  # the images' names were checked before describing; here the descriptors, splits, positions
         if conf.pca is not None:
-            from .pca import reduce_dataset, save_reduced
+            from .pca import reduce_measured, save_reduced
 
-            return save_reduced(*reduce_dataset(ds, conf.pca, "train"), out, overwrite=overwrite, quiet=True)
+            return save_reduced(*reduce_measured(ds, conf.pca), out, overwrite=overwrite, quiet=True)
         return save_dataset(ds, out, overwrite=overwrite, quiet=True)  # the command says it, with more

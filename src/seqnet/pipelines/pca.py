@@ -16,6 +16,12 @@ describe further images alike (``seqnet describe --dim``'s sidecar format).
 
 ``seqnet train --pca D`` writes the reduced dataset beside the given one, ``<DATASET>-pca<D>`` (reused when
 it is already that reduction of that dataset: :func:`main`), and trains on it; evaluate with it.
+
+What the PCA costs is measured when it is written (:func:`reduce_measured`): the model-free methods' val R@1
+before and after the very PCA written (:func:`seqnet.train.pca_cost.cost_of`, time bounded), said in one line (a
+WARNING when it loses queries, with whether training needs the PCA for memory: :func:`memory_note`; INFO when it
+costs nothing) and recorded as ``extra["pca"]["cost"]`` (dataset.json), so eval and the report can show it. It is
+never refused: the user asked for it.
 """
 
 from __future__ import annotations
@@ -32,6 +38,8 @@ from ..core.provenance import make as make_provenance
 from ..data.io import load_dataset, save_dataset
 from ..data.traverse import Dataset, Traverse
 from ..describe.pca import PCA, check_fit_rows, dataset_pca_path, fit_pca, reduced_dataset_path, unreduced_source
+from ..train.config import TrainConfig
+from ..train.pca_cost import PcaCost, cost_of
 
 FIT_MAX = 20000  # frames a PCA is fitted on at most (evenly spaced): [N, D] float64 in memory
 BLOCK = 4096  # frames projected at a time
@@ -102,6 +110,56 @@ def reduce_dataset(ds: Dataset, dims: int, split: str = "train") -> tuple[Datase
     return dataclasses.replace(ds, reference=side(ds.reference), query=side(ds.query), extra=extra), pca
 
 
+def reduce_measured(ds: Dataset, dims: int, conf: TrainConfig | None = None) -> tuple[Dataset, PCA]:
+    """:func:`reduce_dataset` on ``conf.train_split`` (default: :class:`~seqnet.train.TrainConfig`'s), with what
+    the PCA costs measured on ``ds`` (:func:`seqnet.train.pca_cost.cost_of`), said (:func:`say_cost`) and recorded
+    in ``extra["pca"]["cost"]`` (:func:`cost_record`; absent when it could not be measured)."""
+    conf = conf or TrainConfig()
+    reduced, pca = reduce_dataset(ds, dims, conf.train_split)
+    part = ds.split(conf.train_split)
+    total = len(part.reference) + len(part.query)
+    cost = cost_of(ds, conf, pca, min(total, FIT_MAX), total)
+    if cost is None:
+        return reduced, pca
+    record = cost_record(cost, memory_note(ds, conf))
+    say_cost(record)
+    return dataclasses.replace(reduced, extra={**reduced.extra, "pca": {**reduced.extra["pca"], "cost": record}}), pca
+
+
+def cost_record(cost: PcaCost, memory: str) -> dict:
+    """What dataset.json records of ``cost`` (``memory``: :func:`memory_note`): the split, the val R@1 of each
+    measured method before and after, the queries, whether it loses any (``lost``) and the line said (``text``)."""
+    line = f"--pca {cost.dims} {'keeps' if cost.cheap else 'lowers'} {cost.text()}"
+    if not cost.cheap:
+        line += f"; hint: drop --pca, or a larger D (below {cost.in_dims})" + (f"; {memory}" if memory else "")
+    return {"split": cost.split, "before": cost.before, "after": cost.after, "queries": cost.queries,
+            "cut": cost.cut or None, "fitted": cost.fitted, "lost": not cost.cheap, "text": line}
+
+
+def say_cost(record: dict) -> None:
+    """Say the recorded cost (:func:`cost_record`): a WARNING when the PCA loses queries, else INFO."""
+    logger.log(30 if record.get("lost") else 20, "%s", record["text"])
+
+
+def memory_note(ds: Dataset, conf: TrainConfig) -> str:
+    """Whether training ``conf`` on ``ds``'s unreduced descriptors needs the PCA for memory here: the training
+    guide's estimate (:func:`seqnet.train.memory.train_bytes`, the mining cache in memory) against what the
+    process may allocate ("" when that is unknown)."""
+    from ..core.memory import available_bytes, human_bytes, rss_bytes
+    from ..train.memory import train_bytes
+
+    free, held = available_bytes(), rss_bytes()
+    if free is None:
+        return ""
+    d = ds.query.dim
+    n_train = len(ds.split(conf.train_split).query) if conf.train_split in ds.splits else len(ds.query)
+    need = held + train_bytes(conf, d, len(ds.reference), len(ds.query), False, n_train)
+    said = f"training S_{conf.seq_len} on it: about {human_bytes(need)} of {human_bytes(held + free)} here"
+    if need <= (held + free) / 2:
+        return f"D={d} needs no PCA for memory here ({said})"
+    return f"D={d} may need fewer dimensions for memory ({said})"
+
+
 def pca_path(dataset_dir: str | Path) -> Path:
     """Where the PCA of a reduced dataset directory is saved: ``<DIR>.pca.npz`` beside it (one convention:
     :func:`seqnet.describe.pca.dataset_pca_path`, which ``seqnet localize`` reads)."""
@@ -117,9 +175,11 @@ def save_reduced(ds: Dataset, pca: PCA, out: str | Path, overwrite: bool = False
     return root
 
 
-def main(dataset: str | Path, dims: int, split: str = "train") -> Path:
+def main(dataset: str | Path, dims: int, split: str = "train", conf: TrainConfig | None = None) -> Path:
     """``seqnet train --pca D``: the dataset ``dataset`` reduced to ``dims`` by a PCA fitted on ``split``, in
-    ``<dataset>-pca<dims>`` beside it (written, or reused when it is that reduction of that dataset)."""
+    ``<dataset>-pca<dims>`` beside it (written, its cost measured for training ``conf``: :func:`reduce_measured`;
+    or reused when it is that reduction of that dataset, its recorded cost said again)."""
+    conf = (conf or TrainConfig()).merge(train_split=split)
     src = load_dataset(dataset)
     out = reduced_dataset_path(dataset, dims)
     warn_reduced(dataset, src, dims)
@@ -132,8 +192,10 @@ def main(dataset: str | Path, dims: int, split: str = "train") -> Path:
                               "(hint: remove or rename it)")
         logger.info("reusing %s (%s reduced to %d dimensions by a PCA fitted on its %s split)", out, dataset, dims,
                     split)
+        if isinstance(made.get("cost"), dict) and made["cost"].get("text"):
+            say_cost(made["cost"])
         return out
-    reduced, pca = reduce_dataset(src, dims, split)
+    reduced, pca = reduce_measured(src, dims, conf)
     save_reduced(dataclasses.replace(reduced, name=f"{src.name}-pca{dims}"), pca, out)
     logger.info("wrote %s: %s reduced from %d to %d dimensions by a PCA fitted on its %s split only (the "
                 "projection: %s); train and evaluate on it", out, dataset, src.query.dim, dims, split, pca_path(out))

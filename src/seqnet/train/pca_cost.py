@@ -129,23 +129,33 @@ def pca_cost(dataset: Dataset, conf: TrainConfig, dims: int) -> PcaCost | None:
     """:class:`PcaCost` of a PCA to ``dims`` fitted on ``conf.train_split`` of ``dataset`` (see the module
     docstring); None when it cannot be measured (no such split, too few frames, ``dims`` not below D; said at
     DEBUG)."""
-    t0 = time.perf_counter()
     try:
         frames, total = fit_rows(dataset, conf.train_split)
         if not 1 <= dims < min(len(frames), dataset.query.dim):
             return None
         pca = fit_pca(frames, dims)
         del frames
+    except SeqnetError as e:
+        logger.debug("not measuring what --pca %d costs: %s", dims, e)
+        return None
+    return cost_of(dataset, conf, pca, min(total, FIT_MOST), total)
+
+
+def cost_of(dataset: Dataset, conf: TrainConfig, pca: PCA, fitted: int, frames: int) -> PcaCost | None:
+    """:class:`PcaCost` of the PCA ``pca`` (fitted on ``fitted`` of the train split's ``frames`` frames; the one
+    ``--pca`` wrote, or :func:`pca_cost`'s) on ``dataset`` (see the module docstring: the val split, or the train
+    split without validation; time bounded); None when it cannot be measured (said at DEBUG)."""
+    t0 = time.perf_counter()
+    try:
         name = conf.val_split if conf.validates and dataset.ranges(conf.val_split) is not None else conf.train_split
         part, cut = bounded(dataset, name)
         before, queries = _recalls(part, conf)
         after, _ = _recalls(projected(part, pca), conf)
     except SeqnetError as e:
-        logger.debug("not measuring what --pca %d costs: %s", dims, e)
+        logger.debug("not measuring what --pca %d costs: %s", pca.dims, e)
         return None
-    logger.debug("measured what --pca %d costs in %.1f s", dims, time.perf_counter() - t0)
-    return PcaCost(dims, dataset.query.dim, dataset.name, name, before, after, queries,
-                   min(total, FIT_MOST), total, cut)
+    logger.debug("measured what --pca %d costs in %.1f s", pca.dims, time.perf_counter() - t0)
+    return PcaCost(pca.dims, dataset.query.dim, dataset.name, name, before, after, queries, fitted, frames, cut)
 
 
 def fit_rows(dataset: Dataset, split: str) -> tuple[np.ndarray, int]:

@@ -60,8 +60,8 @@ def register_from_images(dsub: argparse._SubParsersAction, parse_splits) -> None
     p.add_argument("--pos-radius", type=positive_float, help="training positive radius (stored as metadata)")
     p.add_argument("--neg-radius", type=positive_float, help="training negative radius (stored as metadata)")
     p.add_argument("--pca", type=positive_int, metavar="D", help="reduce the descriptors to D dimensions by a PCA "
-                   "fitted on the train split only (needs --split train=...; the projection is saved as DIR.pca.npz; "
-                   "advised when D > 4096 or above the training frames)")
+                   "fitted on the train split only (needs --split train=...; saved as DIR.pca.npz; its cost in "
+                   "model-free val R@1 is measured and said: seqnet train advises one only where it keeps them)")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if seqnet wrote it")
     add_describe_options(p, fit=False)
     add_device(p)
@@ -106,9 +106,8 @@ def run_from_images(args: argparse.Namespace, parse_splits) -> int:  # noqa: ANN
     print(f"{written(out, meta)}: ground truth {label}, radius {meta['radius']:g} {meta['position_unit']}, "
           f"descriptors {described_text(meta['provenance']['reference'])} "
           f"(provenance {meta['provenance']['reference']['id']})")
-    pca = meta.get("pca")
-    if pca:
-        print(f"PCA {pca['input_dim']} -> {pca['dims']} fitted on the {pca['fit_split']} split only: {pca['file']}")
+    if meta.get("pca"):
+        print(pca_line(meta["pca"]))
     print(f"next: seqnet eval --dataset {out}")
     return 0
 
@@ -120,3 +119,12 @@ def written(out: Path, meta: dict) -> str:
     ref, qry = (len(load_descriptors(out / side)[0]) for side in ("reference", "query"))  # memory-mapped: the shape
     named = "" if meta.get("name") == out.name else f", named {meta.get('name')!r}"
     return f"wrote dataset {out} (reference {ref}, query {qry} images{named})"
+
+
+def pca_line(pca: dict) -> str:
+    """``PCA 2048 -> 256 fitted on the train split only: FILE``, and what it costs when it loses val queries (its
+    recorded ``cost``: :func:`seqnet.pipelines.pca.cost_record`)."""
+    cost = pca.get("cost") or {}
+    lost = ("; it lowers " + ", ".join(f"{m} {cost['split']} R@1 {cost['before'][m]:.3f} -> {cost['after'][m]:.3f}"
+                                       for m in cost["before"]) + " (warned above)") if cost.get("lost") else ""
+    return f"PCA {pca['input_dim']} -> {pca['dims']} fitted on the {pca['fit_split']} split only: {pca['file']}{lost}"
