@@ -209,8 +209,14 @@ def test_a_track_whole_hours_off_names_the_zone_or_the_video_clock(tmp_path):
     gpx = read_track(write_gpx(tmp_path / "a.gpx", T0, times, lat, lon))  # zoned times; the video's clock 5:30 off
     with pytest.raises(DatasetError, match=r"5.5 h before .* \(hint: --video-start 2024-05-01T10:00:00Z"):
         video_times(gpx, T0 + datetime.timedelta(hours=5, minutes=30), 60.0)
-    with pytest.raises(DatasetError, match=r"UTC \(hint: --video-start if the video's clock is wrong\)"):
+    with pytest.raises(DatasetError, match=r"UTC \(hint: --video-start ISO if the video's clock is wrong\)"):
         video_times(gpx, T0 + datetime.timedelta(hours=2, minutes=10), 60.0)  # not whole hours: as before
+    # of a two-video build, the side is named and the hint sets that video's start only (--video-start set both:
+    # following it, the other video's track no longer overlapped)
+    with pytest.raises(DatasetError, match=r"does not overlap the query video: .* 5.5 h before the query video's .* "
+                                           r"\(hint: --video-start query=2024-05-01T10:00:00Z, or correct the "
+                                           r"track's times\)"):
+        video_times(gpx, T0 + datetime.timedelta(hours=5, minutes=30), 60.0, side="query")
     np.testing.assert_allclose(video_times(gpx, T0, 60.0), times)  # a right track: placed, nothing said
 
 

@@ -39,7 +39,8 @@ class FromVideoConfig(Config):
         every_metres: one frame kept per this many metres travelled (needs positions).
         aligned: without positions: query frame i shows the place of reference frame i (radius in frames).
         radius: localisation radius (metres with positions, frames when aligned); inclusive.
-        video_start: when both videos' first frames were recorded, overriding their ``creation_time`` (ISO-8601).
+        video_start: when both videos' first frames were recorded, overriding their ``creation_time`` (ISO-8601);
+            ``reference=ISO`` / ``query=ISO`` (comma-separated) for one video or each its own.
         max_gap: seconds between two track samples a frame may be interpolated across.
         fit_on: ``reference`` or ``both``: where PCA / NetVLAD clusters are fitted.
         splits: named half-open ranges of the kept frames ``{name: {"reference": (a, b), "query": (c, d)}}``
@@ -71,10 +72,26 @@ class FromVideoConfig(Config):
             raise ConfigError(f"--fit-on {self.fit_on!r} is not one of {', '.join(FIT_ON)}")
 
 
-def _start(conf: FromVideoConfig) -> datetime.datetime | None:
+SIDES = ("reference", "query")
+
+
+def _starts(conf: FromVideoConfig) -> dict[str, datetime.datetime | None]:
+    """Each video's start as ``--video-start`` gives it: ``ISO`` (both videos), or ``reference=ISO`` / ``query=ISO``
+    (comma-separated for both; a side not named keeps its container's ``creation_time``)."""
     from ..sources.tracks.clock import parse_start
 
-    return None if conf.video_start is None else parse_start(conf.video_start)
+    text = conf.video_start
+    if text is None:
+        return dict.fromkeys(SIDES)
+    parts = [p.strip() for p in text.split(",")]
+    named = [p.partition("=") for p in parts if p.split("=", 1)[0] in SIDES and "=" in p]
+    if not named:
+        return dict.fromkeys(SIDES, parse_start(text))
+    if len(named) != len(parts) or len({side for side, _, _ in named}) != len(named):
+        raise ConfigError(f"--video-start {text[:80]!r}: give one ISO-8601 time for both videos, or reference=ISO "
+                          "and/or query=ISO, comma-separated, each side once")
+    given = {side: parse_start(iso) for side, _, iso in named}
+    return {side: given.get(side) for side in SIDES}
 
 
 def place_both(conf: FromVideoConfig, videos: tuple[str | Path, str | Path],
@@ -90,10 +107,12 @@ def place_both(conf: FromVideoConfig, videos: tuple[str | Path, str | Path],
     if positions[0] is not None and conf.aligned:
         raise ConfigError("--aligned is for videos without positions; with --ref-positions / --query-positions the "
                           "frames are placed by them")
-    kw = {"fps": conf.fps, "every_metres": conf.every_metres, "video_start": _start(conf), "max_gap": conf.max_gap}
-    ref = place_video(videos[0], positions[0], stream=conf.streams[0], flag="--ref-stream", **kw)
+    kw = {"fps": conf.fps, "every_metres": conf.every_metres, "max_gap": conf.max_gap}
+    start = _starts(conf)
+    ref = place_video(videos[0], positions[0], stream=conf.streams[0], flag="--ref-stream", side="reference",
+                      video_start=start["reference"], **kw)
     qry = place_video(videos[1], positions[1], zone=frame_zone(ref.frame), stream=conf.streams[1],
-                      flag="--query-stream", **kw)
+                      flag="--query-stream", side="query", video_start=start["query"], **kw)
     if ref.frame != qry.frame:
         raise ConfigError(mixed_frames(str(ref.frame), str(qry.frame)))
     if conf.aligned and len(ref.frames) != len(qry.frames):

@@ -56,12 +56,12 @@ class JoinedTrack:
 
 
 def join_track(positions: str | Path, start: datetime.datetime | None, duration: float,
-               zone: tuple[int, str] | None = None) -> JoinedTrack:
+               zone: tuple[int, str] | None = None, side: str | None = None) -> JoinedTrack:
     """The track in ``positions`` on the clock of a video recorded from ``start``, ``duration`` s long, in metres
-    (UTM ``zone`` when given)."""
+    (UTM ``zone`` when given); ``side``: which video of a two-video build, named in its refusals."""
     track = read_track(positions)
     xy, frame = to_metres(track, zone)
-    return JoinedTrack(video_times(track, start, duration), xy, frame, track.geographic, track.absolute)
+    return JoinedTrack(video_times(track, start, duration, side), xy, frame, track.geographic, track.absolute)
 
 
 def track_positions(positions: str | Path, times: np.ndarray, start: datetime.datetime | None, duration: float,
@@ -76,17 +76,18 @@ def track_positions(positions: str | Path, times: np.ndarray, start: datetime.da
 def place_video(path: str | Path, positions: str | Path | None = None, fps: float | None = None,
                 every_metres: float | None = None, video_start: datetime.datetime | None = None,
                 zone: tuple[int, str] | None = None, max_gap: float = DEFAULT_MAX_GAP, stream: int | None = None,
-                flag: str = "--stream") -> Placed:
+                flag: str = "--stream", side: str | None = None) -> Placed:
     """The frames of the video ``path`` kept and placed (see the module docstring); ``video_start`` overrides the
     container's ``creation_time``; ``zone``: the UTM zone positions are computed in (default: the track's);
-    ``stream``: which of its video streams (:func:`~seqnet.sources.video.choose_stream`, ``flag`` names it)."""
+    ``stream``: which of its video streams (:func:`~seqnet.sources.video.choose_stream`, ``flag`` names it);
+    ``side``: which video of a two-video build (named in the clock's refusals)."""
     if every_metres is not None and positions is None:
         raise ConfigError("--every-metres needs positions (--ref-positions / --query-positions FILE)")
     video = VideoFile(path, stream, flag)
     idx = np.arange(len(video))
     xy, frame, kind = None, None, None
     if positions is not None:
-        joined = join_track(positions, video_start or video.start, video.duration, zone)
+        joined = join_track(positions, video_start or video.start, video.duration, zone, side)
         xy, inside = joined.at(video.times, max_gap)
         frame, placed = joined.frame, int(inside.sum())
         kind = "absolute" if joined.absolute else "seconds"

@@ -18,7 +18,8 @@ def add_video_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fps", type=positive_float, metavar="F", help="frames kept per second of video time (default: "
                    "every frame)")
     p.add_argument("--video-start", metavar="ISO", help="when the video's first frame was recorded (ISO-8601, "
-                   "e.g. 2024-05-01T10:00:00Z), overriding its creation_time: joins tracks of absolute times")
+                   "e.g. 2024-05-01T10:00:00Z), overriding its creation_time: joins tracks of absolute times; with "
+                   "two videos, query=ISO and/or reference=ISO (comma-separated) sets one video's, ISO both")
 
 
 def register_from_video(dsub: argparse._SubParsersAction) -> None:

@@ -37,31 +37,40 @@ def _utc(seconds: float) -> str:
     return datetime.datetime.fromtimestamp(seconds, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
 
 
-def video_times(track: Track, start: datetime.datetime | None, duration: float) -> np.ndarray:
+def _video(side: str | None) -> tuple[str, str]:
+    """``("the query video", "--video-start query=")`` of a two-video build's ``side``; ``("the video",
+    "--video-start ")`` for one video."""
+    return ("the video", "--video-start ") if side is None else (f"the {side} video", f"--video-start {side}=")
+
+
+def video_times(track: Track, start: datetime.datetime | None, duration: float,
+                side: str | None = None) -> np.ndarray:
     """``[S]`` the track's times in seconds since the video's first frame (``start``: when it was recorded;
     ``duration``: seconds of video). :class:`ConfigError` when absolute times meet a video without a start;
-    :class:`DatasetError` when the track does not overlap the video (another day: by its date)."""
+    :class:`DatasetError` when the track does not overlap the video (another day: by its date). ``side``: which
+    video of a two-video build (``"reference"``, ``"query"``), named in the messages and their hints."""
+    noun, flag = _video(side)
     if not track.absolute:
         return track.times
     if start is None:
         kind = f" (Unix epoch {track.epoch}: {_utc(track.times[0])} UTC on)" if track.epoch else ""
-        raise ConfigError(f"{shown(track.source)} has absolute times{kind}, but the video records no creation_time; "
-                          "give its start with --video-start ISO-8601 (e.g. 2024-05-01T10:00:00Z)")
+        raise ConfigError(f"{shown(track.source)} has absolute times{kind}, but {noun} records no creation_time; "
+                          f"give its start with {flag}ISO-8601 (e.g. {flag}2024-05-01T10:00:00Z)")
     t0 = start.timestamp()
     times = track.times
     if not track.dated:  # NMEA GGA only: times of day, taken on the video's (UTC) day
         times = times + (t0 - t0 % DAY)
     rel = times - t0
     if rel[-1] < 0 or rel[0] > duration:
-        _refuse_hours_off(track, rel, start, duration)
+        _refuse_hours_off(track, rel, start, duration, side)
         day_t, day_v = _utc(times[0])[:10], _utc(t0)[:10]
         if day_t != day_v and _utc(times[-1])[:10] != day_v:
-            raise DatasetError(f"{shown(track.source)} is a track of {day_t} (UTC), the video was recorded on {day_v}: "
-                               "a track of another day is refused, not shifted (hint: --video-start if the video's "
-                               "clock is wrong)")
-        raise DatasetError(f"{shown(track.source)} does not overlap the video: the track spans {_utc(times[0])} .. "
-                           f"{_utc(times[-1])} UTC, the video {_utc(t0)} .. {_utc(t0 + duration)} UTC (hint: "
-                           "--video-start if the video's clock is wrong)")
+            raise DatasetError(f"{shown(track.source)} is a track of {day_t} (UTC), {noun} was recorded on {day_v}: "
+                               f"a track of another day is refused, not shifted (hint: {flag}ISO if {noun}'s clock "
+                               "is wrong)")
+        raise DatasetError(f"{shown(track.source)} does not overlap {noun}: the track spans {_utc(times[0])} .. "
+                           f"{_utc(times[-1])} UTC, {noun} {_utc(t0)} .. {_utc(t0 + duration)} UTC (hint: "
+                           f"{flag}ISO if {noun}'s clock is wrong)")
     return rel
 
 
@@ -75,23 +84,25 @@ def hours_off(rel: np.ndarray, duration: float) -> float | None:
     return k / 3600.0 if rel[-1] - k >= 0 and rel[0] - k <= duration else None
 
 
-def _refuse_hours_off(track: Track, rel: np.ndarray, start: datetime.datetime, duration: float) -> None:
+def _refuse_hours_off(track: Track, rel: np.ndarray, start: datetime.datetime, duration: float,
+                      side: str | None = None) -> None:
     """Refuse (:class:`DatasetError`) a track a whole number of hours off the video, naming the likely fix: the
-    zone of a track written in local time without one, else the video's clock (``--video-start``)."""
+    zone of a track written in local time without one, else the video's clock (``--video-start``, of ``side``)."""
+    noun, flag = _video(side)
     h = hours_off(rel, duration)
     if h is None:
         return
     way = "after" if h > 0 else "before"
-    said = (f"{shown(track.source)} does not overlap the video: the track spans {_utc(track.times[0])} .. "
-            f"{_utc(track.times[-1])} UTC, {abs(h):g} h {way} the video's {_utc(start.timestamp())} .. "
+    said = (f"{shown(track.source)} does not overlap {noun}: the track spans {_utc(track.times[0])} .. "
+            f"{_utc(track.times[-1])} UTC, {abs(h):g} h {way} {noun}'s {_utc(start.timestamp())} .. "
             f"{_utc(start.timestamp() + duration)} UTC")
     if not track.zoned:
         zone = f"{'+' if h > 0 else '-'}{int(abs(h)):02d}:{round(abs(h) % 1 * 60):02d}"
         raise DatasetError(f"{said}: local time? its times name no zone and are read as UTC (hint: write them with "
                            f"their zone, e.g. {_utc(track.times[0]).replace(' ', 'T')}{zone})")
     fixed = datetime.datetime.fromtimestamp(start.timestamp() + h * 3600.0, datetime.timezone.utc)
-    raise DatasetError(f"{said}: the video's clock in another time zone? (hint: --video-start "
-                       f"{fixed.strftime('%Y-%m-%dT%H:%M:%S')}Z if the track's times are right)")
+    raise DatasetError(f"{said}: {noun}'s clock in another time zone, or the track's times written as UTC while "
+                       f"local? (hint: {flag}{fixed.strftime('%Y-%m-%dT%H:%M:%S')}Z, or correct the track's times)")
 
 
 def in_milliseconds(track_times: np.ndarray, duration: float) -> bool:
