@@ -81,3 +81,20 @@ def test_eval_says_a_query_track_a_constant_time_off():
     assert dataset_offset_note(_video_dataset(1.5, videos=False), q, r, top) is None  # not from videos
     rng = np.random.default_rng(0)
     assert dataset_offset_note(_video_dataset(1.5), q, r, rng.integers(0, 200, 200)) is None  # random answers
+
+
+def test_estimates_off_a_short_track_are_not_timed_by_it():
+    """A query track kept for 3 s (15 frames) while the answers sit 37 s along the route: every estimate's nearest
+    fix is the track's end, so 'the track runs 1.4 s late' was said beside the exact 185-frame shift; with the
+    radius as ``max_dist`` nothing is said (the estimates lie off the track)."""
+    import numpy as np
+
+    from seqnet.sources.tracks.offset import clock_offset
+
+    t = np.arange(15) / 5.0  # 15 frames at 5 fps
+    track_xy = np.stack([t * 50.0, np.zeros_like(t)], axis=1)  # 10 m per frame
+    est = np.stack([(t + 37.0) * 50.0, np.zeros_like(t)], axis=1)  # 37 s along the route
+    assert clock_offset(t, est, t, track_xy) is not None  # the old reading: a figure from the track's end
+    assert clock_offset(t, est, t, track_xy, max_dist=10.0) is None
+    near = np.stack([(t + 1.0) * 50.0, np.zeros_like(t)], axis=1)  # 1 s along: on the track, timed
+    assert clock_offset(t[:10], near[:10], t, track_xy, max_dist=10.0) == pytest.approx(1.0)

@@ -17,17 +17,21 @@ WRONG_SHARE = 0.2  # the offset is looked for when fewer answers than this share
 
 
 def clock_offset(frame_t: np.ndarray, est_xy: np.ndarray, track_t: np.ndarray, track_xy: np.ndarray,
-                 min_frames: int = 10) -> float | None:
+                 min_frames: int = 10, max_dist: float | None = None) -> float | None:
     """The time offset (s) by which the estimates ``est_xy [N, 2]`` of the frames at ``frame_t [N]`` lag the track
     (fixes ``track_t [S]`` at ``track_xy [S, 2]``; negative: the estimates sit where the track was earlier), when
     it is near-constant: each estimate's nearest fix gives its track time, and their offsets from the frame times
-    agree within a quarter of their median (and 1 s). None when too few frames or no common offset."""
+    agree within a quarter of their median (and 1 s). None when too few frames or no common offset, or (``max_dist``)
+    when most estimates lie farther than that from every fix: off the track, so its times cannot measure them (a
+    query track kept for 15 frames, 3 s, gave "1.4 s" for answers 37 s along the route)."""
     ok = np.isfinite(est_xy).all(axis=1)
     if ok.sum() < min_frames or len(track_t) < 2:
         return None
     from scipy.spatial import cKDTree
 
-    _, near = cKDTree(track_xy).query(est_xy[ok], k=1)
+    dist, near = cKDTree(track_xy).query(est_xy[ok], k=1)
+    if max_dist is not None and not np.median(dist) <= max_dist:
+        return None
     off = track_t[near] - frame_t[ok]
     med = float(np.median(off))
     spread = float(np.median(np.abs(off - med)))
@@ -77,7 +81,7 @@ def dataset_offset_note(ds: Any, q_items: np.ndarray, r_items: np.ndarray, top1:
     except ValueError:
         return None
     order = np.argsort(q_times, kind="stable")
-    offset = clock_offset(q_times, est_xy, q_times[order], q_xy[order])
+    offset = clock_offset(q_times, est_xy, q_times[order], q_xy[order], max_dist=ds.radius)
     if offset is None:
         return None
     d = abs(offset)
