@@ -46,6 +46,7 @@ from .copies import CopyWatch, reference_rows
 from .describing import check_not_dataset
 from .frames import Frames, descriptor_frames, image_frames
 from .localizer import Estimate, traverse_reference
+from .order import order_note, short_query_note
 from .replay import frame_truth, summarize
 from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
 from .truth import MapFrame, check_frame, query_positions
@@ -193,6 +194,9 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
+    warnings = _notices(loc, est, conf.method, len(ref_map.positions))
+    if warnings:
+        record["warnings"] = warnings
     truth = FrameTruth.of(q_pos, loc.r_pos, best, frame.unit)
     if truth is not None:
         record["truth"] = truth.record()
@@ -203,6 +207,16 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
         on_track(TrackView.of(ref_map.positions, loc.r_pos, best, np.array([e.confidence for e in est]), q_pos,
                               correct, has, frame.unit, radius))
     return Written(out, record)
+
+
+def _notices(loc: Any, est: Sequence[Estimate], name: str, map_frames: int) -> list[str]:
+    """What the estimates of a sequence method say about the query (:mod:`seqnet.localize.order`): shorter than
+    its window, or not in capture order; each line logged once as a warning."""
+    lines = [line for line in (short_query_note(est, loc.method, name, loc.windows.longest),
+                               order_note(est, loc.method, loc.seq_len, map_frames)) if line]
+    for line in lines:
+        logger.warning("%s", line)
+    return lines
 
 
 def _known(q_pos: np.ndarray | None) -> np.ndarray | None:
