@@ -3,6 +3,7 @@ order (the estimates jump around the map), and fewer frames than the method's wi
 
 from __future__ import annotations
 
+import csv
 import json
 
 import numpy as np
@@ -51,3 +52,14 @@ def test_a_query_shorter_than_the_window_is_said(synth_dataset, synth_dir, tmp_p
     assert record["summary"]["answered"] == 0
     record, said = localize(synth_dir, q, tmp_path, "single", caplog)  # answers every frame: nothing to say
     assert record["summary"]["answered"] == 3 and not record.get("warnings")
+
+
+def test_estimates_that_jump_on_a_query_in_order_are_not_called_disorder(synth_dataset, synth_dir, tmp_path, caplog):
+    """The synthetic query's first 40 frames, in order: raw+vseqmatch (L=3) answers them jumping around the map (a
+    noisy map), but consecutive query frames are alike: no word of capture order."""
+    q = query_file(synth_dataset, tmp_path, np.arange(40))
+    caplog.clear()
+    out = stream(LocalizeConfig(method="raw+vseqmatch", seq_len=3), synth_dir, Query(q), tmp_path / "t.csv")
+    est = [int(r["estimate"]) for r in csv.DictReader((tmp_path / "t.csv").open())]
+    assert np.median(np.abs(np.diff([e for e in est if e >= 0]))) > 10  # the estimates do jump
+    assert "jump around" not in caplog.text and not out.data.get("warnings")
