@@ -147,7 +147,7 @@ def test_cli_build_and_eval(synth_dir, map_models, tmp_path, capsys):
     assert "hvpr" in text and "shortlist_recall@20" in text
     assert json.loads(res_json.read_text())["config"]["index"] == str(out)
     one_line_error(capsys, ["index", "build", "--dataset", str(synth_dir), "--out", str(tmp_path / "m2")],
-                   "needs an S_1 model")
+                   "--shortlist single (or delta) --rerank raw+seqmatch")
     one_line_error(capsys, ["index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank",
                             "raw+seqmatch", "--index", "ivf-pq", "--pq-m", "5", "--out", str(tmp_path / "m3")],
                    "pq_m dividing D=16")

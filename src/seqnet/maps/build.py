@@ -43,7 +43,9 @@ def check_models(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> 
     if missing:
         need = " and ".join("an S_1 model (--model S1.pt)" if r == "s1" else "an S_L model (--model SL.pt)"
                             for r in sorted(missing))
-        raise ConfigError(f"map {conf.method.name} (shortlist {conf.shortlist}, re-rank {conf.rerank}) needs {need}")
+        raise ConfigError(f"map {conf.method.name} (shortlist {conf.shortlist}, re-rank {conf.rerank}) needs {need}; "
+                          "hint: train them (seqnet train), or build a map that needs no model: --shortlist single "
+                          "(or delta) --rerank raw+seqmatch")
     check_model_inputs(models, ds.reference.dim, ds.reference.provenance, f"dataset {ds.name!r}", conf.windows.seq_len,
                  conf.allow_mismatch, use="the map uses")
     w = conf.windows
