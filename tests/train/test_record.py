@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from seqnet.core.errors import ConfigError
+from seqnet.core.errors import CheckpointError, ConfigError
 from seqnet.data.io import save_dataset
 from seqnet.data.synth import make_synthetic
 from seqnet.sequence.checkpoints import read_checkpoint
@@ -49,8 +49,8 @@ def test_resume_on_descriptors_of_another_d_says_so_first(tmp_path):
     run = main(FAST, data, tmp_path / "run")
     other = save_dataset(make_synthetic(places=200, dim=16), tmp_path / "ds16")
     for allow in (False, True):
-        with pytest.raises(ConfigError) as e:
+        with pytest.raises(CheckpointError) as e:
             main(FAST.replace(epochs=2), other, None, resume=run, allow_mismatch=allow)
         assert str(e.value).startswith(f"the run in {run} trained on D=8 descriptors and dataset ")
-        assert "has D=16: another dataset, or another PCA of it; hint: resume on the dataset the run trained on" \
-            in str(e.value) and "rebuilt since" not in str(e.value)
+        assert ("has D=16: another dataset, or another PCA of it, which the checkpoint does not fit; hint: resume on "
+                "the dataset the run trained on") in str(e.value) and "rebuilt since" not in str(e.value)

@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.errors import ConfigError
+from ..core.errors import CheckpointError, ConfigError
 from ..data.traverse import Dataset
 from ..methods.trained import descriptor_digests, names_digest
 from .config import TrainConfig
@@ -88,9 +88,10 @@ def check_dim(payload: Mapping[str, Any], dataset: Dataset, run: Path) -> None:
     if type(was) is not int or was == dataset.query.dim:
         return
     where = payload.get("dataset_path")
-    raise ConfigError(f"the run in {run} trained on D={was} descriptors and dataset {dataset.name!r} has D="
-                      f"{dataset.query.dim}: another dataset, or another PCA of it; hint: resume on the dataset the "
-                      f"run trained on{f' ({where})' if isinstance(where, str) else ''}, or start a new run (--out)")
+    where = f" ({where})" if isinstance(where, str) else ""
+    raise CheckpointError(f"the run in {run} trained on D={was} descriptors and dataset {dataset.name!r} has D="
+                          f"{dataset.query.dim}: another dataset, or another PCA of it, which the checkpoint does not "
+                          f"fit; hint: resume on the dataset the run trained on{where}, or start a new run (--out)")
 
 
 def check_resumed(payload: Mapping[str, Any], dataset: Dataset, dataset_path: str | Path | None, run: Path,
