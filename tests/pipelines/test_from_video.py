@@ -4,6 +4,7 @@ the same frames give as PNG files; frames outside a track are dropped; --every-m
 from __future__ import annotations
 
 import datetime
+import logging
 
 import numpy as np
 import pytest
@@ -82,11 +83,15 @@ def test_nmea_and_csv_place_frames_as_gpx_does(drives):
     np.testing.assert_allclose(steps, 10.0, rtol=0.02)  # each frame at its place (video times in ms), speed varying
 
 
-def test_every_metres_and_frames_outside_the_track(drives, tmp_path):
+def test_every_metres_and_frames_outside_the_track(drives, tmp_path, caplog):
     lat, lon = route(N)
     half = write_gpx(tmp_path / "half.gpx", T_REF, np.arange(N // 2) / 10, lat[: N // 2], lon[: N // 2])
-    out = main(FromVideoConfig(describe=PIXELS, every_metres=20.0), drives["summer"], drives["winter"],
-               tmp_path / "ds", (half, drives["winter.gpx"]))
+    with caplog.at_level(logging.WARNING, logger="seqnet"):
+        out = main(FromVideoConfig(describe=PIXELS, every_metres=20.0), drives["summer"], drives["winter"],
+                   tmp_path / "ds", (half, drives["winter.gpx"]))
+    (said,) = [r.getMessage() for r in caplog.records if "outside the track" in r.getMessage()]
+    assert said.endswith(f"dropped (the track covers 0.0 .. {(N // 2 - 1) / 10:.1f} s of the video's 0 .. "
+                         f"{N / 10:.1f} s)"), said  # which part: it said only how many
     ds = load_dataset(out)
     assert len(ds.reference) == N // 4 and len(ds.query) == N // 2  # 10 m spacing, one frame per 20 m
     assert ds.extra["videos"]["reference"]["frames"] == {"total": N, "outside": N // 2, "kept": N // 4}

@@ -101,8 +101,9 @@ def place_video(path: str | Path, positions: str | Path | None = None, fps: floa
         idx = idx[every_seconds(video.times[idx], fps)]
     counts = {"total": len(video), "outside": 0 if xy is None else int(len(video) - inside.sum()), "kept": len(idx)}
     if counts["outside"]:
-        logger.warning("%s: %d of %d frames lie outside the track %s (no position): dropped", path,
-                       counts["outside"], counts["total"], positions)
+        logger.warning("%s: %d of %d frames lie outside the track %s (no position): dropped (the track covers %.1f .. "
+                       "%.1f s of the video's 0 .. %.1f s)", path, counts["outside"], counts["total"], positions,
+                       joined.times[0], joined.times[-1], video.duration)
     frames = [VideoFrame(video, int(i)) for i in idx]
     return Placed(frames, [f.name for f in frames], None if xy is None else xy[idx], frame, counts,
                   video.stream_number, kind)
