@@ -165,7 +165,19 @@ def test_a_vpr_bench_precomputed_file_is_read_as_its_score_matrix(synth_dataset,
     assert figures and all({k: got["pre"][m][k] for k in f} == f for m, f in figures.items())
     capsys.readouterr()
     assert cli(["eval", "--dataset", str(synth_dir), "--distances", str(tmp_path / "pre.npy")]) == 2
-    assert "add --similarity" in capsys.readouterr().err
+    assert "add --similarity" in (err := capsys.readouterr().err) and "--no-similarity" in err
+    # a VPR-Bench file whose matrix holds distances: the sense check said "drop --similarity", which was refused, so
+    # its right figures could not be reached; --no-similarity reads it as distances
+    dist = np.empty(6, dtype=object)
+    dist[:] = [np.arange(len(s)), s.argmax(1), s.max(1), 1 - s, 0.01, 0.02]
+    np.save(tmp_path / "dist.npy", dist, allow_pickle=True)
+    assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--distances", str(tmp_path / "dist.npy"),
+                "--similarity"]) == 0
+    assert "--no-similarity for a VPR-Bench file" in capsys.readouterr().err
+    assert cli(["eval", "--dataset", str(synth_dir), "--seq-len", "4", "--distances", str(tmp_path / "dist.npy"),
+                "--no-similarity", "--json", str(tmp_path / "dist.json")]) == 0
+    read = json.loads((tmp_path / "dist.json").read_text())["methods"]
+    assert {m: read[m]["recall@1"] for m in got["s"]} == {m: got["s"][m]["recall@1"] for m in got["s"]}
     other = np.empty(2, dtype=object)
     other[:] = [1, "x"]
     np.save(tmp_path / "other.npy", other, allow_pickle=True)

@@ -136,7 +136,9 @@ def add_distances(p: argparse.ArgumentParser, use: str) -> None:
                    f"matrix of the dataset (from VPR-Bench, VPR_Tutorial, any tool) instead of descriptors, {use}; "
                    "methods: single, raw+seqmatch(-rev), raw+vseqmatch(-rev), raw+graph, "
                    "hvpr-single:raw+seqmatch(-rev)")
-    p.add_argument("--similarity", action="store_true", help="--distances holds similarities (higher is closer)")
+    p.add_argument("--similarity", action=argparse.BooleanOptionalAction, default=None,
+                   help="--distances holds similarities (higher is closer); --no-similarity: distances, said for a "
+                   "VPR-Bench file, whose matrix holds similarities unless you say otherwise")
     p.add_argument("--transposed", action="store_true", help="--distances is [N_reference, N_query], one row per "
                    "reference frame (VPR_Tutorial's S)")
 

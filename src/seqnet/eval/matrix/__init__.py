@@ -50,7 +50,7 @@ class ReadMatrix(np.ndarray):
         self.reading = getattr(obj, "reading", None)
 
 
-def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: str | None = "all",
+def read_matrix(path: str | Path, ds: Dataset, similarity: bool | None = None, split: str | None = "all",
                 transposed: bool = False) -> ReadMatrix:
     """The ``[Nq, Nr]`` matrix of ``path`` (``.npy``, one row per query and one column per reference frame of
     the whole dataset ``ds``; ``transposed``: one row per reference, ``[Nr, Nq]``, as VPR_Tutorial's ``S``),
@@ -66,7 +66,7 @@ def read_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: 
     return out
 
 
-def open_matrix(path: str | Path, ds: Dataset, similarity: bool = False, split: str | None = "all",
+def open_matrix(path: str | Path, ds: Dataset, similarity: bool | None = None, split: str | None = "all",
                 transposed: bool = False) -> GivenMatrix:
     """The matrix of ``path`` as :func:`read_matrix` describes it, as a :class:`seqnet.search.given.GivenMatrix`
     over the (memory-mapped) file in its own dtype: nothing is converted or copied. When the split is a part
@@ -104,10 +104,12 @@ def _holds_objects(path: str | Path) -> bool:
             return False  # read_npy says what is wrong
 
 
-def _vpr_bench_scores(path: str | Path, similarity: bool) -> np.ndarray:
+def _vpr_bench_scores(path: str | Path, similarity: bool | None) -> np.ndarray:
     """The score matrix ``[Nq, Nr]`` (element 3, higher is better) of VPR-Bench's ``precomputed_data_corrected.npy``
     (an object array: query indices, best references, best scores, scores, encode and match times), read with
-    seqnet's data-only unpickler; any other pickled ``.npy`` is refused."""
+    seqnet's data-only unpickler; any other pickled ``.npy`` is refused. ``similarity`` must be said: True (as
+    VPR-Bench writes it), or False for a file whose matrix holds distances (``--no-similarity``: the sense check's
+    hint could not be followed before, dropping --similarity was refused)."""
     from ...security.unpickle import load_npy_objects
 
     x = load_npy_objects(path, "--distances", ConfigError)
@@ -115,9 +117,10 @@ def _vpr_bench_scores(path: str | Path, similarity: bool) -> np.ndarray:
     if m is None or m.ndim != 2 or m.dtype.kind not in "fiu":
         raise ConfigError(f"distance matrix {path}: holds Python objects, not a matrix of numbers (VPR-Bench's "
                           "precomputed_data_corrected.npy is read; this is not one)")
-    if not similarity:
+    if similarity is None:
         raise ConfigError(f"distance matrix {path}: a VPR-Bench precomputed file holds similarities (higher is "
-                          "better): add --similarity (similarity=True in Python)")
+                          "better): add --similarity (similarity=True in Python); if its matrix holds distances, "
+                          "--no-similarity (similarity=False)")
     return m
 
 
@@ -260,7 +263,7 @@ def _matrix_group(ds: Dataset, d: GivenMatrix, methods: list[Method], windows: W
 
 
 def main(conf: EvalConfig, dataset: str | Path, distances: str | Path, out: str | Path | None,
-         similarity: bool = False, per_query: str | Path | None = None, report: Any = None, figures: bool = False,
+         similarity: bool | None = None, per_query: str | Path | None = None, report: Any = None, figures: bool = False,
          overwrite: bool = False, json: str | Path | None = None, transposed: bool = False) -> Written:
     """Stage: evaluate ``conf.split`` of the dataset directory ``dataset`` on the matrix file ``distances``
     (``similarity``: higher is closer; ``transposed``: one row per reference); writes ``out/results.json``

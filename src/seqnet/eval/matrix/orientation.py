@@ -116,7 +116,7 @@ def _warn_reading(best: str, r1: dict[str, float], similarity: bool, transposed:
     given, sense = r1["as given"], "similarities" if similarity else "distances"
     other = "distances" if similarity else "similarities"
     rows, turned_rows = ("reference", "query") if transposed else ("query", "reference")
-    flag = ("drop --similarity (similarity=False in Python)" if similarity else
+    flag = ("drop --similarity (similarity=False in Python; --no-similarity for a VPR-Bench file)" if similarity else
             "pass --similarity (similarity=True in Python)")
     turn = ("drop --transposed (transposed=False)" if transposed else
             "pass --transposed (transposed=True in Python; one row per reference, as VPR_Tutorial's S)")
