@@ -238,6 +238,26 @@ def test_utm_names_cli(tmp_path, rng):
     assert ds.query.positions[2].tolist() == [500007.0, 4000000.0]
 
 
+def test_swapped_descriptor_files_are_said_to_be_swapped(tmp_path, rng, capsys):
+    """--ref-desc and --query-desc given the other way round (40 database, 30 query images): the error was '40 names
+    for 30 descriptors ... hint: put a list file at ...'; the crossing counts are said first."""
+    for side, n, tag in (("r", 40, "x"), ("q", 30, "y")):
+        np.save(tmp_path / f"{side}.npy", rng.random((n, 4), dtype=np.float32))
+        (tmp_path / f"{side}.txt").write_text("\n".join(f"@{500000 + 3 * i:.2f}@4000000.00@17@T@{tag}.jpg"
+                                                        for i in range(n)))
+    args = ["dataset", "from-utm-names", "--radius", "25", "--ref-names", str(tmp_path / "r.txt"),
+            "--query-names", str(tmp_path / "q.txt"), "--out", str(tmp_path / "o")]
+    assert main([*args, "--ref-desc", str(tmp_path / "q.npy"), "--query-desc", str(tmp_path / "r.npy")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"seqnet dataset from-utm-names: error: --ref-desc and --query-desc swapped? "
+                          f"{tmp_path / 'r.npy'} (--query-desc) has 40 descriptors, one per reference name here, and "
+                          "these names have 30 descriptors; ") and "40 names for 30 descriptors" in err
+    np.save(tmp_path / "odd.npy", rng.random((35, 4), dtype=np.float32))  # another count: no swap to tell
+    assert main([*args, "--ref-desc", str(tmp_path / "odd.npy"), "--query-desc", str(tmp_path / "q.npy")]) == 2
+    assert "--query-desc swapped?" not in capsys.readouterr().err
+    assert main([*args, "--ref-desc", str(tmp_path / "r.npy"), "--query-desc", str(tmp_path / "q.npy")]) == 0
+
+
 def test_missing_radius_is_an_error(tmp_path, rng, capsys):
     np.save(tmp_path / "r.npy", rng.random((3, 4), dtype=np.float32))
     (tmp_path / "r.txt").write_text("@1@2@a\n@3@4@b\n@5@6@c\n")

@@ -19,6 +19,15 @@ class DatasetError(SeqnetError):
     """A dataset directory, traverse or descriptor file is missing, malformed or inconsistent."""
 
 
+class CountError(DatasetError):
+    """Two counts of one traverse's files that must agree do not (names against descriptors): ``counts`` holds
+    them, ``(names, rows)``, for a caller that can tell why (both sides' files given the other way round)."""
+
+    def __init__(self, message: str, counts: tuple[int, int]) -> None:
+        super().__init__(message)
+        self.counts = counts
+
+
 class ConfigError(SeqnetError, ValueError):
     """A parameter (sequence length, radius, method name, ...) is out of its valid range."""
 

@@ -1,7 +1,6 @@
 """Reading the files a user brings: descriptor files (``.npy``, HDF5), image-name lists, positions.
 
-One reader per kind of file, used by the dataset directory format and by every converter, so the
-rules are the same everywhere:
+One reader per kind of file, used by the dataset directory format and by every converter (one rule everywhere):
 
 * descriptors ``[N, D]``: ``.npy`` (memory-mapped when already native float32) or HDF5 (dataset
   ``descriptors``, never a guessed other one, or hloc's global features; optional ``names``; read in the
@@ -20,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import DatasetError
+from ..core.errors import CountError, DatasetError
 from ..core.log import logger
 from ..core.provenance import BOUND_KEY, MAX_SIDECAR, REPLACES_KEY, sidecar
 from ..security.arrays import read_npy as read_array
@@ -78,8 +77,9 @@ def read_descriptor_file(path: str | Path, names_file: str | Path | None = None,
         names, src = found
         logger.debug("%s: image names from %s", p, src)
     if names is not None and len(names) != desc.shape[0]:
-        raise DatasetError(f"{src}: {len(names)} names for {desc.shape[0]} descriptors in {p} (must be equal)"
-                           f"{transposed_hint(len(names), desc)}{_folder_hint(Path(names_file)) if names_file else ''}")
+        raise CountError(f"{src}: {len(names)} names for {desc.shape[0]} descriptors in {p} (must be equal)"
+                         f"{transposed_hint(len(names), desc)}{_folder_hint(Path(names_file)) if names_file else ''}",
+                         (len(names), int(desc.shape[0])))
     return desc, names
 
 

@@ -157,8 +157,12 @@ def run_from_csv(args: argparse.Namespace) -> int:
         unit_r = unit_q = "metres"
         extra["positions_frame"] = f"UTM zone {zone_r}"  # localize --positions-topic checks its positions against it
     else:
-        ref, unit_r = traverse_from_csv(args.ref_csv, args.ref_desc, args.ref_names, "reference")
-        qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
+        from ...data.convert.swapped import told_swapped
+
+        with told_swapped("reference", args.query_desc):
+            ref, unit_r = traverse_from_csv(args.ref_csv, args.ref_desc, args.ref_names, "reference")
+        with told_swapped("query", args.ref_desc):
+            qry, unit_q = traverse_from_csv(args.query_csv, args.query_desc, args.query_names, "query")
     if unit_r != unit_q:
         from ...data.utm import mixed_frames
 
@@ -176,10 +180,12 @@ def run_from_utm(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ...data.convert import assemble_dataset, read_seq_bounds, traverse_from_utm_names
+    from ...data.convert.swapped import told_swapped
 
     sides = []
     for side, label in (("ref", "reference"), ("query", "query")):
-        t = traverse_from_utm_names(getattr(args, f"{side}_desc"), getattr(args, f"{side}_names"), label)
+        with told_swapped(label, getattr(args, f"{'query' if side == 'ref' else 'ref'}_desc")):
+            t = traverse_from_utm_names(getattr(args, f"{side}_desc"), getattr(args, f"{side}_names"), label)
         bounds = getattr(args, f"{side}_seq_bounds")
         if bounds:
             t = dataclasses.replace(t, seq_bounds=read_seq_bounds(bounds, len(t)))
