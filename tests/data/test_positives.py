@@ -222,6 +222,13 @@ def test_vpr_bench_ground_truth_new(tmp_path):
     np.save(tmp_path / "dup.npy", rows, allow_pickle=True)
     with pytest.raises(DatasetError, match="every query 0..2 once"):
         read_positives(tmp_path / "dup.npy")
+    with pytest.raises(DatasetError, match="every query 0..2 once") as e:
+        read_positives(tmp_path / "dup.npy")
+    assert "count from 1" not in str(e.value)
+    rows[:, 0] = [2, 1, 3]  # queries numbered from 1: the 'subtract 1' hint the CSV and JSON routes give
+    np.save(tmp_path / "one.npy", rows, allow_pickle=True)
+    with pytest.raises(DatasetError, match=r"every query 0..2 once .*seems to count from 1.*subtract 1"):
+        read_positives(tmp_path / "one.npy")
 
 
 def test_vpr_tutorial_gt_npz(tmp_path):

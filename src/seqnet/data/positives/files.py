@@ -16,7 +16,7 @@ from ...security.inputs import open_input
 from ...security.jsonfile import parse_json
 from ...security.limits import INDEX_MAX
 from ..readers import field_separator, read_text
-from .csr import Positives
+from .csr import ONE_BASED, Positives
 
 INTEGER = re.compile(r"-?[0-9]{1,19}")  # an index of a text file: ASCII digits ("²".isdigit() is True)
 
@@ -196,8 +196,10 @@ def _vpr_bench(arr: np.ndarray, p: Path) -> Positives:
     order = np.array([int(q) for q in arr[:, 0]])
     if sorted(order.tolist()) != list(range(len(order))):
         missing = sorted(set(range(len(order))) - set(order.tolist()))
+        one_based = sorted(order.tolist()) == list(range(1, len(order) + 1))
         raise DatasetError(f"{p}: VPR-Bench ground truth must list every query 0..{len(order) - 1} once "
-                           f"(first missing or repeated near query {missing[0] if missing else int(order[0])})")
+                           f"(first missing or repeated near query {missing[0] if missing else int(order[0])})"
+                           f"{ONE_BASED if one_based else ''}")
     lists: list = [None] * len(order)
     for q, refs in zip(order, arr[:, 1], strict=True):
         lists[q] = np.atleast_1d(np.asarray(refs)).ravel()
