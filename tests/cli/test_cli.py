@@ -110,7 +110,7 @@ def test_count_mismatch_and_nan(ds_copy, capsys):
     d = np.load(ds_copy / "reference" / "descriptors.npy")
     d[4, 0] = np.nan
     np.save(ds_copy / "reference" / "descriptors.npy", d)
-    run_error(capsys, ["eval", "--dataset", str(ds_copy)], "NaN or inf (first at row 4)")
+    run_error(capsys, ["eval", "--dataset", str(ds_copy)], "NaN or inf (first at row 4, image reference_000004.png)")
     d[4, 0] = 0.0
     np.save(ds_copy / "reference" / "descriptors.npy", d[:-1])
     run_error(capsys, ["eval", "--dataset", str(ds_copy)], "positions for")

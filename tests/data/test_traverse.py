@@ -174,6 +174,7 @@ def test_nan_and_inf_descriptors(ds_dir):
     np.save(ds_dir / "query" / "descriptors.npy", d)
     msg = expect(ds_dir, "NaN or inf")
     assert "row 7" in msg and "query" in msg
+    assert "(first at row 7, image query7.png): a descriptor that failed; hint: describe that image again" in msg
     d[7, 1] = 0
     d[3, 0] = np.inf
     np.save(ds_dir / "query" / "descriptors.npy", d)

@@ -67,7 +67,10 @@ def _check_finite(a: np.ndarray, what: str, chunk_bytes: int = MEMORY_BLOCK // 4
         block = np.asarray(read_rows(a, s, s + chunk))
         if not np.isfinite(block).all():
             row = s + int(np.flatnonzero(~np.isfinite(block).all(axis=1))[0])
-            raise DatasetError(f"{what} contain NaN or inf (first at row {row})")
+            image = f", image {names[row]}" if names is not None and row < len(names) else ""
+            fix = ("a descriptor that failed; hint: describe that image again, or remove it" if nonzero else
+                   "a position missing; hint: give it, or remove that image")
+            raise DatasetError(f"{what} contain NaN or inf (first at row {row}{image}): {fix}")
         if nonzero and block.size:
             zero = ~block.any(axis=1)
             if zero.any():
