@@ -30,7 +30,6 @@ from .config import EvalConfig
 from .evaluation import Evaluation
 from .notices import (
     add_warnings,
-    calibration_leakage,
     default_ks_note,
     leakages,
     one_retrieved,
@@ -227,11 +226,11 @@ def say_notices(ev: Evaluation, ds: Dataset, split: str, conf: EvalConfig, model
                       trivial_ks(ev, conf.ks), video_clock_note(ev),
                       calibration_on_test(ds, conf.calibrate_split if calibrated else None, split),
                       *selection_leakage(models, dataset, ds, split, conf.query_every)])
-    leaks = leakages(models, dataset, ds, split, conf)
+    evaluated, calibration = leakages(models, dataset, ds, split, conf)
+    leaks = [*evaluated, *calibration]
     if leaks:
         ev.results["leakage"] = leaks
-        trained = bool(calibration_leakage(models, dataset, ds, split, conf))  # the below-target note names it
-        ev.results["config"]["calibrated_on_training_queries"] = trained
+        ev.results["config"]["calibrated_on_training_queries"] = bool(calibration)  # the below-target note names it
         for line in leaks:
             logger.warning("%s", shown(line))  # it names checkpoints' records: text from files
     unreduced_counterparts(ev, ds, split, conf, source)  # a --pca dataset: the counterparts on its unreduced one

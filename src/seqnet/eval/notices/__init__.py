@@ -64,13 +64,14 @@ def scored_notices(given: str | None, ds: Dataset, split: str, models: Mapping[s
     return [line for line in lines if line]
 
 
-def leakages(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str, conf: EvalConfig) -> list[str]:
-    """:func:`seqnet.methods.checks.leakage` of the evaluated ``split`` and, with ``conf.target_precision``, of the
-    calibration split, counting the queries ``conf`` keeps (``--resample-every``)."""
+def leakages(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
+             conf: EvalConfig) -> tuple[list[str], list[str]]:
+    """:func:`seqnet.methods.checks.leakage` of the evaluated ``split`` and (:func:`calibration_leakage`) of the
+    calibration split, counting the queries ``conf`` keeps (``--resample-every``): the two lists, each read once."""
     from ...methods.checks import leakage
 
-    return [*leakage(models, dataset, ds, split, every=conf.query_every),
-            *calibration_leakage(models, dataset, ds, split, conf)]
+    return (leakage(models, dataset, ds, split, every=conf.query_every),
+            calibration_leakage(models, dataset, ds, split, conf))
 
 
 def calibration_leakage(models: Mapping[str, SeqNet], dataset: str | Path, ds: Dataset, split: str,
