@@ -27,6 +27,7 @@ torch = lazy_module("torch")
 
 UNIT_TOL = 1e-2  # |‖row‖ − 1| above this: far from unit norm (float16 rounding of unit rows stays well inside)
 UNIT_SAMPLES = 4096  # rows checked, evenly spaced (a large memory map is not read whole for a warning)
+NARROW_SAMPLES = 256  # rows whose direction spread is measured per call (real rows spread 30x the bound: enough)
 CHECK_BYTES = 1 << 24  # rows read at a time by :func:`row_checks` (a memory map's pages are released after each)
 
 
@@ -83,11 +84,12 @@ def narrow_notice(pair: tuple[ArrayLike, ArrayLike], sides: tuple[str, str], cal
     (:func:`seqnet.core.tensors.direction_spread` below :data:`~seqnet.core.tensors.NARROW_SPREAD`: a common offset
     hundreds of times their spread), where float32 distances lose what tells them apart; else None."""
     for x, side in zip(pair, sides, strict=True):
-        if (isinstance(x, torch.Tensor) or x.dtype.kind in "fiu") and direction_spread(x) < NARROW_SPREAD:
+        s = direction_spread(x, NARROW_SAMPLES) if isinstance(x, torch.Tensor) or x.dtype.kind in "fiu" else 1.0
+        if s < NARROW_SPREAD:
             return (f"{caller}: the {side} rows point nearly the same way once L2-normalised (directions spread "
-                    f"{direction_spread(x):.2g}; distinct places spread 0.3 or more): a common offset far larger than "
-                    "what tells them apart, which float32 distances lose (R@1 0.99 -> 0.75 at an offset 1000 times "
-                    "the spread) (hint: subtract a common mean from both sides, e.g. m = ref.mean(axis=0); "
+                    f"{s:.2g}; distinct places spread 0.3 or more): a common offset far larger than what tells them "
+                    "apart, which float32 distances lose (R@1 0.99 -> 0.75 at an offset 1000 times the spread) "
+                    "(hint: subtract a common mean from both sides, e.g. m = ref.mean(axis=0); "
                     f"{caller}(query - m, ref - m, ...))")
     return None
 
