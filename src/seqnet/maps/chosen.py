@@ -39,10 +39,9 @@ def choose_for_map(conf: MapConfig, ds: Dataset, split: str, models: Mapping[str
                        device=conf.device, allow_mismatch=conf.allow_mismatch)
     _, found = choose_on_val(ds, split, models, econf, SELECTABLE, dataset)
     sel = dict((found or {}).get("selection") or {})
-    if not sel.get("hvpr") and not sel.get("not_chosen"):
-        why = ("the map is of the val split itself" if split == "val" else
-               f"dataset {ds.name} has no val split")
-        sel["not_chosen"] = f"HVPR settings not chosen on a val split: {why} (the defaults kept)"
+    if not sel.get("hvpr") and not sel.get("not_chosen"):  # choose_on_val says nothing of the val split itself
+        sel["not_chosen"] = "HVPR settings not chosen on a val split: the map is of the val split itself (the " \
+            "defaults kept)"
     settings = {k: v for c in sel.get("hvpr", []) for k, v in c["settings"].items()}
     record = {"method": method, "split": "val", "settings": settings, **sel}
     logger.info("%s", shown(build_line(record)))

@@ -172,9 +172,8 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
             "provenance": provenance, "models": {r: f"models/{r}.pt" for r in models}, "source": info}
     if pca is not None:
         meta["pca"] = PCA_FILE
-    if info.get("selection") is not None:  # HVPR's settings chosen on val (seqnet.maps.chosen)
-        meta["selection"] = info.pop("selection")
-    info.pop("selection", None)
+    if (selection := info.pop("selection", None)) is not None:  # HVPR's settings chosen on val (seqnet.maps.chosen)
+        meta["selection"] = selection
     write_json_atomic(root / MAP_JSON, meta)
     write_manifest(root, "map", [p for p in root.rglob("*") if p.is_file()])
 
