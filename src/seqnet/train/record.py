@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.errors import CheckpointError, ConfigError
+from ..core.errors import ConfigError
 from ..data.traverse import Dataset
 from ..methods.trained import descriptor_digests, names_digest
 from .config import TrainConfig
@@ -79,27 +79,11 @@ def _spec(payload: Mapping[str, Any], name: str, n_refs: int) -> str:
     return _shown(q) if whole else f"{_shown(r)},{_shown(q)}"
 
 
-def check_dim(payload: Mapping[str, Any], dataset: Dataset, run: Path) -> None:
-    """A run resumed on descriptors of another D than it trained on: another dataset (or another PCA of it), said
-    first and plainly (the descriptor checks said "the dataset was rebuilt since", and after --allow-mismatch the
-    architecture check "the checkpoint does not fit")."""
-    model = payload.get("model")
-    was = model.get("in_dims") if isinstance(model, Mapping) else None
-    if type(was) is not int or was == dataset.query.dim:
-        return
-    where = payload.get("dataset_path")
-    where = f" ({where})" if isinstance(where, str) else ""
-    raise CheckpointError(f"the run in {run} trained on D={was} descriptors and dataset {dataset.name!r} has D="
-                          f"{dataset.query.dim}: another dataset, or another PCA of it, which the checkpoint does not "
-                          f"fit; hint: resume on the dataset the run trained on{where}, or start a new run (--out)")
-
-
 def check_resumed(payload: Mapping[str, Any], dataset: Dataset, dataset_path: str | Path | None, run: Path,
                   conf: TrainConfig, allow_mismatch: bool = False) -> None:
     """Everything a resumed run checks of the dataset before any epoch: descriptors made alike (provenance; the
     recorded hashes of the dataset directory ``dataset_path``: ``allow_mismatch`` makes either a warning) and the
     train and val ranges the run recorded (:func:`check_splits`)."""
-    check_dim(payload, dataset, run)
     check_descriptors(payload, dataset.reference.provenance, dataset.query.dim, run, dataset.name, allow_mismatch)
     if dataset_path is not None:  # the dataset given is that directory's: its recorded hashes
         check_digests(payload, descriptor_digests(dataset_path), run, dataset.name, allow_mismatch)

@@ -107,10 +107,17 @@ def check_descriptors(payload: Mapping[str, Any], provenance: dict | None, dim: 
     """The run in ``run`` (its ``last.pt``, ``payload``) resumed on the descriptors of the dataset named
     ``dataset``, of ``dim`` made as ``provenance``:
     a :class:`~seqnet.core.provenance.ProvenanceError` naming the difference when the run's descriptors were
-    made otherwise (a dataset rebuilt since; ``allow``: a warning). Another D is left to the architecture
-    check (:func:`restore`), which says the checkpoint does not fit."""
+    made otherwise (a dataset rebuilt since; ``allow``: a warning); descriptors of another D, a
+    :class:`CheckpointError` saying so first (another dataset, or another PCA of it: the provenance said "the dataset
+    was rebuilt since", and after --allow-mismatch the architecture check "the checkpoint does not fit")."""
     model = payload.get("model")
-    if isinstance(model, Mapping) and model.get("in_dims") == dim:
+    was = model.get("in_dims") if isinstance(model, Mapping) else None
+    if type(was) is int and was != dim:
+        where = f" ({payload['dataset_path']})" if isinstance(payload.get("dataset_path"), str) else ""
+        raise CheckpointError(f"the run in {run} trained on D={was} descriptors and dataset {dataset!r} has D={dim}: "
+                              "another dataset, or another PCA of it, which the checkpoint does not fit; hint: resume "
+                              f"on the dataset the run trained on{where}, or start a new run (--out)")
+    if was == dim:
         check_same(payload.get("provenance"), provenance, f"the descriptors the run in {run} was trained on",
                    f"the descriptors of dataset {dataset!r}", allow)
 
