@@ -7,6 +7,7 @@ import math
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from ..security.jsonfile import read_json_object
 TAG_KEY = "seqnet_tag"  # provenance string stored by PCA.save(tag=...)
 
 PAPER_PCA_DIM = 4096  # the SeqNet paper reduces its descriptors (NetVLAD 32768-D) to 4096 with PCA
+BLOCK = 4096  # rows projected at a time (PCA.transform_blocks)
 
 
 @dataclasses.dataclass
@@ -47,6 +49,14 @@ class PCA:
     def input_dim(self) -> int:
         """Input dimension D."""
         return int(self.components.shape[1])
+
+    def transform_blocks(self, desc: np.ndarray) -> np.ndarray:
+        """``[N, D]`` → ``[N, dims]`` float32 (:meth:`transform`), :data:`BLOCK` rows at a time (a memory map is
+        read in blocks)."""
+        out = np.empty((len(desc), self.dims), np.float32)
+        for a in range(0, len(desc), BLOCK):
+            out[a : a + BLOCK] = self.transform(np.asarray(desc[a : a + BLOCK], np.float32))
+        return out
 
     def transform(self, x: np.ndarray, l2: bool | None = None) -> np.ndarray:
         """Project ``[N, D]`` to ``[N, dims]`` float32 (L2-normalised rows when ``l2``, default ``self.l2``)."""
@@ -173,6 +183,16 @@ def load_dataset_pca(path: str | os.PathLike[str], provenance: dict) -> PCA:
                           f"{pca.dims} dimensions, the map's provenance {provenance.get('id')!r} and "
                           f"{provenance.get('dim')}); hint: rebuild the dataset with --pca")
     return pca
+
+
+def spread_frames(part: Any, most: int) -> tuple[np.ndarray, int]:
+    """``([n, D] float32, N)``: at most ``most`` of the ``N`` frames of both traverses of ``part`` (a dataset or
+    its split), evenly spaced, reference first: the rows a dataset PCA is fitted on."""
+    n_r, n_q = len(part.reference), len(part.query)
+    rows = np.unique(np.linspace(0, n_r + n_q - 1, min(n_r + n_q, most)).round().astype(np.int64))
+    ref, qry = rows[rows < n_r], rows[rows >= n_r] - n_r
+    return np.concatenate([np.asarray(part.reference.descriptors[ref], np.float32),
+                           np.asarray(part.query.descriptors[qry], np.float32)]), n_r + n_q
 
 
 def suggested_pca_dims(rows: int, in_dims: int | None = None) -> int:

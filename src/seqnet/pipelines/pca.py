@@ -37,12 +37,19 @@ from ..core.provenance import fit_digest, image_size_of
 from ..core.provenance import make as make_provenance
 from ..data.io import load_dataset, save_dataset
 from ..data.traverse import Dataset, Traverse
-from ..describe.pca import PCA, check_fit_rows, dataset_pca_path, fit_pca, reduced_dataset_path, unreduced_source
+from ..describe.pca import (
+    PCA,
+    check_fit_rows,
+    dataset_pca_path,
+    fit_pca,
+    reduced_dataset_path,
+    spread_frames,
+    unreduced_source,
+)
 from ..train.config import TrainConfig
 from ..train.pca_cost import PcaCost, cost_of
 
 FIT_MAX = 20000  # frames a PCA is fitted on at most (evenly spaced): [N, D] float64 in memory
-BLOCK = 4096  # frames projected at a time
 
 
 def split_frames(ds: Dataset, split: str) -> np.ndarray:
@@ -53,13 +60,7 @@ def split_frames(ds: Dataset, split: str) -> np.ndarray:
         raise ConfigError(f"--pca fits the PCA on the {split!r} split only (never val or test), but dataset "
                           f"{ds.name!r} has no such split (its splits: {have}); hint: --split {split}=A:B[,C:D] "
                           "when building the dataset, or --train-split NAME")
-    part = ds.split(split)
-    n_r, n_q = len(part.reference), len(part.query)
-    take = min(n_r + n_q, FIT_MAX)
-    rows = np.unique(np.linspace(0, n_r + n_q - 1, take).round().astype(np.int64))
-    ref, qry = rows[rows < n_r], rows[rows >= n_r] - n_r
-    return np.concatenate([np.asarray(part.reference.descriptors[ref], np.float32),
-                           np.asarray(part.query.descriptors[qry], np.float32)])
+    return spread_frames(ds.split(split), FIT_MAX)[0]
 
 
 def check_fit_frames(dims: int, frames: int, split: str = "train") -> None:
@@ -80,14 +81,6 @@ def fit_on_split(ds: Dataset, dims: int, split: str = "train") -> PCA:
     return fit_pca(frames, dims)
 
 
-def project(pca: PCA, desc: np.ndarray) -> np.ndarray:
-    """``[N, D]`` → ``[N, dims]`` float32, :data:`BLOCK` rows at a time (a memory map is read in blocks)."""
-    out = np.empty((len(desc), pca.dims), np.float32)
-    for a in range(0, len(desc), BLOCK):
-        out[a : a + BLOCK] = pca.transform(np.asarray(desc[a : a + BLOCK], np.float32))
-    return out
-
-
 def reduce_dataset(ds: Dataset, dims: int, split: str = "train") -> tuple[Dataset, PCA]:
     """``ds`` with its descriptors projected by a PCA fitted on ``split`` only, and that PCA; the provenance and
     ``extra["pca"]`` say so (see the module docstring)."""
@@ -100,7 +93,7 @@ def reduce_dataset(ds: Dataset, dims: int, split: str = "train") -> tuple[Datase
     def side(t: Traverse) -> Traverse:  # one id; each side keeps the size its images were described at
         prov = make_provenance(source.get("kind") or "external", settings, dim=dims, fit=fit,
                                image_size=image_size_of(t.provenance))
-        return dataclasses.replace(t, descriptors=project(pca, t.descriptors), provenance=prov)
+        return dataclasses.replace(t, descriptors=pca.transform_blocks(t.descriptors), provenance=prov)
 
     before = ds.extra.get("pca") if isinstance(ds.extra.get("pca"), dict) else None  # a chain: said by localize
     chain = {"input_pca": {k: before.get(k) for k in ("dims", "input_dim", "source")}} if before else {}

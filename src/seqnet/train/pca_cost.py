@@ -19,19 +19,16 @@ import dataclasses
 import time
 from pathlib import Path
 
-import numpy as np
-
 from ..core.errors import SeqnetError
 from ..core.log import logger
 from ..data.traverse import Dataset
-from ..describe.pca import PCA, fit_pca, unreduced_source
+from ..describe.pca import PCA, fit_pca, spread_frames, unreduced_source
 from .config import TrainConfig
 
 MEASURED = ("single", "raw+seqmatch")  # the model-free methods measured before and after the PCA
 FIT_MOST = 4000  # train frames the measured PCA is fitted on at most (evenly spaced, as --pca picks its 20000)
 SCORE_MACS = 2e10  # query x reference x D multiply-adds of one measurement at most (fewer queries beyond)
 MIN_QUERIES = 50  # queries measured at least (when the split has them)
-BLOCK = 4096  # rows projected at a time
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,7 +127,7 @@ def pca_cost(dataset: Dataset, conf: TrainConfig, dims: int) -> PcaCost | None:
     docstring); None when it cannot be measured (no such split, too few frames, ``dims`` not below D; said at
     DEBUG)."""
     try:
-        frames, total = fit_rows(dataset, conf.train_split)
+        frames, total = spread_frames(dataset.split(conf.train_split), FIT_MOST)
         if not 1 <= dims < min(len(frames), dataset.query.dim):
             return None
         pca = fit_pca(frames, dims)
@@ -158,18 +155,6 @@ def cost_of(dataset: Dataset, conf: TrainConfig, pca: PCA, fitted: int, frames: 
     return PcaCost(pca.dims, dataset.query.dim, dataset.name, name, before, after, queries, fitted, frames, cut)
 
 
-def fit_rows(dataset: Dataset, split: str) -> tuple[np.ndarray, int]:
-    """``([n, D] float32, N)``: at most :data:`FIT_MOST` of the ``N`` frames of both traverses of ``split``, evenly
-    spaced, reference first (the rows ``--pca`` fits on: :func:`seqnet.pipelines.pca.split_frames`, up to its
-    cap)."""
-    part = dataset.split(split)
-    n_r, n_q = len(part.reference), len(part.query)
-    rows = np.unique(np.linspace(0, n_r + n_q - 1, min(n_r + n_q, FIT_MOST)).round().astype(np.int64))
-    ref, qry = rows[rows < n_r], rows[rows >= n_r] - n_r
-    return np.concatenate([np.asarray(part.reference.descriptors[ref], np.float32),
-                           np.asarray(part.query.descriptors[qry], np.float32)]), n_r + n_q
-
-
 def bounded(dataset: Dataset, split: str) -> tuple[Dataset, str]:
     """The split ``split`` of ``dataset``, its queries cut to the first ones when scoring them all would take
     more than :data:`SCORE_MACS` multiply-adds (at least :data:`MIN_QUERIES`); and the query range kept when
@@ -184,15 +169,8 @@ def bounded(dataset: Dataset, split: str) -> tuple[Dataset, str]:
 
 def projected(ds: Dataset, pca: PCA) -> Dataset:
     """``ds`` with both traverses' descriptors projected by ``pca`` (L2-normalised, as ``--pca`` writes them)."""
-
-    def side(desc: np.ndarray) -> np.ndarray:
-        out = np.empty((len(desc), pca.dims), np.float32)
-        for a in range(0, len(desc), BLOCK):
-            out[a : a + BLOCK] = pca.transform(np.asarray(desc[a : a + BLOCK], np.float32))
-        return out
-
-    return dataclasses.replace(ds, reference=ds.reference.with_descriptors(side(ds.reference.descriptors)),
-                               query=ds.query.with_descriptors(side(ds.query.descriptors)))
+    ref, qry = (t.with_descriptors(pca.transform_blocks(t.descriptors)) for t in (ds.reference, ds.query))
+    return dataclasses.replace(ds, reference=ref, query=qry)
 
 
 def _recalls(ds: Dataset, conf: TrainConfig) -> tuple[dict[str, float], dict[str, int]]:
