@@ -156,10 +156,11 @@ def _reduced(args: argparse.Namespace, conf: TrainConfig) -> str:
     from ..data.io import load_dataset
     from ..pipelines.pca import main as reduce_main
 
-    check_splits(load_dataset(args.dataset), conf)
+    src = load_dataset(args.dataset)
+    check_splits(src, conf)
     if args.out is not None:
         check_new(Path(args.out))
-    return str(reduce_main(args.dataset, args.pca, args.train_split or _D.train_split, conf))
+    return str(reduce_main(args.dataset, args.pca, args.train_split or _D.train_split, conf, src))
 
 
 def _run_joint(args: argparse.Namespace, changes: dict) -> int:

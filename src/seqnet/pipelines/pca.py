@@ -168,12 +168,14 @@ def save_reduced(ds: Dataset, pca: PCA, out: str | Path, overwrite: bool = False
     return root
 
 
-def main(dataset: str | Path, dims: int, split: str = "train", conf: TrainConfig | None = None) -> Path:
+def main(dataset: str | Path, dims: int, split: str = "train", conf: TrainConfig | None = None,
+         src: Dataset | None = None) -> Path:
     """``seqnet train --pca D``: the dataset ``dataset`` reduced to ``dims`` by a PCA fitted on ``split``, in
     ``<dataset>-pca<dims>`` beside it (written, its cost measured for training ``conf``: :func:`reduce_measured`;
-    or reused when it is that reduction of that dataset, its recorded cost said again)."""
+    or reused when it is that reduction of that dataset, its recorded cost said again). ``src``: ``dataset`` as
+    the caller loaded it (not read and hashed again)."""
     conf = (conf or TrainConfig()).merge(train_split=split)
-    src = load_dataset(dataset)
+    src = load_dataset(dataset) if src is None else src
     out = reduced_dataset_path(dataset, dims)
     warn_reduced(dataset, src, dims)
     if out.exists():
