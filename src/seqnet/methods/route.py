@@ -17,6 +17,7 @@ from ..data.sanity import copied_queries, duplicated_rows, real_positions, route
 from ..data.sanity.positions import copied_positions
 from ..data.sanity.revisits import revisited_reference
 from ..data.sanity.route import route_checks
+from ..data.sanity.spaces import foreign_spaces
 from ..data.sanity.truth import degree_positions
 from ..data.sanity.values import narrow_directions
 from ..data.spacing import RATE_RATIO, step_rates, unequal_steps
@@ -195,7 +196,8 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
     sequence method is evaluated), duplicated rows of either side, queries that are copies of references,
     positions in degrees taken as metres, the reference's positions given for the query, a reference that passes
     places twice unknown to the ground truth, square descriptors that may be transposed (of the whole dataset the
-    split is of), rows sharing a common offset far beyond their spread (:mod:`seqnet.data.sanity`: said at build,
+    split is of), rows sharing a common offset far beyond their spread, a query not comparable with the reference
+    (two models, a PCA per traverse) (:mod:`seqnet.data.sanity`: said at build,
     and here for a dataset built before or by other means)."""
     methods = list(methods)
     if ds is None:
@@ -214,7 +216,7 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
     found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
               copied_queries(ds), None if found[1] else degree_positions(ds), copied_positions(ds),
               revisited_reference(ds), *transposed_descriptors(ds.source[0] if ds.source is not None else ds),
-              narrow_directions(ds)]
+              narrow_directions(ds), foreign_spaces(ds)]
     found += route_checks(ds, truth.radius, any(not m.single_frame for m in parsed), view=True)  # stops, jumps
     return [line for line in found if line]
 
