@@ -16,7 +16,14 @@ import pytest
 from seqnet.data.io import save_dataset
 from seqnet.data.positives import Positives
 from seqnet.data.sanity import dataset_warnings
-from seqnet.data.sanity.spaces import FOREIGN_SHARE, foreign_spaces, own_place_share, route_share
+from seqnet.data.sanity.spaces import (
+    FOREIGN_SHARE,
+    foreign_spaces,
+    own_pca,
+    own_place_share,
+    route_share,
+    separate_pcas,
+)
 from seqnet.data.traverse import Dataset, Traverse
 
 SHARED = Path(os.environ.get("SEQNET_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
@@ -40,7 +47,7 @@ def rotated(x: np.ndarray) -> np.ndarray:
     return x @ q
 
 
-def own_pca(x: np.ndarray) -> np.ndarray:
+def self_pca(x: np.ndarray) -> np.ndarray:
     """The query reduced by its own PCA, the reference (below) by another: axes reordered and sign-flipped."""
     c = x - x.mean(axis=0)
     return c @ np.linalg.svd(c, full_matrices=False)[2].T
@@ -66,7 +73,7 @@ def test_a_pca_per_traverse_is_said():
     ds = route(d=16, change=0.3)
     c = ds.reference.descriptors - ds.reference.descriptors.mean(axis=0)
     ref = (c @ np.linalg.svd(c, full_matrices=False)[2].T).astype(np.float32)
-    flipped = own_pca(ds.query.descriptors)
+    flipped = self_pca(ds.query.descriptors)
     flipped[:, ::2] *= -1  # SVD's signs are arbitrary per traverse
     ds = Dataset(ds.reference.with_descriptors(ref), ds.query.with_descriptors(flipped.astype(np.float32)), 12.0,
                  name="d")
@@ -82,7 +89,7 @@ def naive_share(ds: Dataset, clear: float) -> float:
             pos = ds.positives.of(i)
             if not len(pos):
                 continue
-            own = int(pos[0])
+            own = int(pos[len(pos) // 2])
             others = [j for j in range(len(ds.reference)) if min(abs(j - p) for p in pos) > clear * len(pos)]
         else:
             gaps = np.linalg.norm(ds.reference.positions - ds.query.positions[i], axis=1)
@@ -163,3 +170,57 @@ def test_route_share_vs_a_loop():
     bounds = np.array([[0, 35]] * 35 + [[35, 70]] * 35)  # row 34 ends its sequence: no next row there
     cut = Traverse(t.descriptors, t.positions, seq_bounds=bounds, name="query")
     assert abs(route_share(cut, samples=500) - np.median(shares[:34] + shares[35:])) < 1e-9
+
+
+def pca_fit(x: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, components [k, D]) of the rows ``x``."""
+    mean = x.mean(axis=0)
+    return mean, np.linalg.svd(x - mean, full_matrices=False)[2][:k]
+
+
+def reduced(ds: Dataset, fit: str) -> Dataset:
+    """``ds`` reduced to 16 dims by a PCA fitted on each side (``"each"``), on both, or on the reference."""
+    r, q = (np.asarray(t.descriptors, np.float64) for t in (ds.reference, ds.query))
+    if fit == "each":
+        (mr, cr), (mq, cq) = pca_fit(r), pca_fit(q)
+    else:
+        mr, cr = pca_fit(np.concatenate([r, q]) if fit == "both" else r)
+        mq, cq = mr, cr
+    return Dataset(ds.reference.with_descriptors(((r - mr) @ cr.T).astype(np.float32)),
+                   ds.query.with_descriptors(((q - mq) @ cq.T).astype(np.float32)), 12.0, name="d")
+
+
+def test_a_pca_fitted_on_each_side_is_said_before_the_share():
+    each = reduced(route(change=0.4), "each")
+    [line] = [w for w in dataset_warnings(each) if "PCA" in w]
+    assert line.startswith("d: each side's descriptors look reduced by a PCA of its own (the leading columns of each "
+                           "side exactly centred, uncorrelated and in decreasing variance)")
+    assert "comparable" not in " ".join(dataset_warnings(each))  # one line for one mistake
+    for fit in ("both", "reference"):  # one PCA applied to each side: silent
+        assert separate_pcas(reduced(route(change=0.4), fit)) is None
+        assert dataset_warnings(reduced(route(change=0.4), fit)) == []
+
+
+def test_own_pca_needs_every_sign_of_one():
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((200, 8)) @ rng.standard_normal((8, 8))
+    mean, comp = pca_fit(x, 8)
+    y = (x - mean) @ comp.T
+    assert own_pca(y.astype(np.float32))
+    assert not own_pca(x)  # raw rows: correlated, not centred
+    assert not own_pca(y[:, ::-1])  # increasing variance: not a PCA's order
+    assert not own_pca(y + 0.1 * y.std(axis=0))  # off-centre
+    assert not own_pca(y / np.linalg.norm(y, axis=1, keepdims=True))  # L2-normalised after: not exact any more
+    assert not own_pca(y[:15])  # too few rows for 8 columns
+
+
+def test_positives_of_a_place_and_its_neighbours_take_the_place_itself():
+    """Positives written p-1, p, p+1 (docs/own_data.md's form): the query's own place is p, not p-1, which can look
+    no more like it than any other (hunt 6, F2: 46% said of descriptors that match, 7% by the radius)."""
+    rng = np.random.default_rng(4)
+    place = rng.standard_normal((150, 32))  # neighbours as unlike as any two places
+    side = [Traverse((place + 0.5 * rng.standard_normal(place.shape)).astype(np.float32),
+                     np.c_[np.arange(150.0)], name=n) for n in ("reference", "query")]
+    lists = [sorted({max(i - 1, 0), i, min(i + 1, 149)}) for i in range(150)]
+    explicit = Dataset(*side, 1.0, positives=Positives.from_lists(lists), position_unit="frames", name="d")
+    assert own_place_share(explicit) < 0.05

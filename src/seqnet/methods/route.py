@@ -17,7 +17,7 @@ from ..data.sanity import copied_queries, duplicated_rows, real_positions, route
 from ..data.sanity.positions import copied_positions
 from ..data.sanity.revisits import revisited_reference
 from ..data.sanity.route import route_checks
-from ..data.sanity.spaces import foreign_spaces
+from ..data.sanity.spaces import foreign_spaces, separate_pcas
 from ..data.sanity.truth import degree_positions
 from ..data.sanity.values import narrow_directions
 from ..data.spacing import RATE_RATIO, step_rates, unequal_steps
@@ -216,7 +216,7 @@ def route_warnings(ds: Any, truth: Any, items: np.ndarray, methods: Iterable[str
     found += [duplicated_rows(q.descriptors, "query"), duplicated_rows(r.descriptors, "reference"),
               copied_queries(ds), None if found[1] else degree_positions(ds), copied_positions(ds),
               revisited_reference(ds), *transposed_descriptors(ds.source[0] if ds.source is not None else ds),
-              narrow_directions(ds), foreign_spaces(ds)]
+              narrow_directions(ds), separate_pcas(ds) or foreign_spaces(ds)]
     found += route_checks(ds, truth.radius, any(not m.single_frame for m in parsed), view=True)  # stops, jumps
     return [line for line in found if line]
 

@@ -16,7 +16,7 @@
   radius below the reference's frame spacing (:func:`.route.route_checks`), square descriptors that may be
   ``[D, N]`` (:func:`transposed_descriptors`), rows that share a common offset far beyond their spread
   (:func:`.values.narrow_directions`), a query whose descriptors are not comparable with the reference's (two
-  models, a PCA per traverse: :func:`.spaces.foreign_spaces`). One line each.
+  models, a PCA per traverse: :func:`.spaces.separate_pcas`, :func:`.spaces.foreign_spaces`). One line each.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from .copies import copied_queries, duplicated_rows
 from .positions import copied_positions
 from .revisits import revisited_reference
 from .route import route_checks
-from .spaces import foreign_spaces
+from .spaces import foreign_spaces, separate_pcas
 from .truth import (
     constant_positions,
     degree_positions,
@@ -110,7 +110,7 @@ def dataset_warnings(ds: Dataset) -> list[str]:
              duplicated_rows(ds.query.descriptors, "query"), duplicated_rows(ds.reference.descriptors, "reference"),
              transposed_positives(ds), wide_frame_radius(ds), degree_positions(ds), unmatched_splits(ds),
              matrix_as_descriptors(ds), *transposed_descriptors(ds), *frozen(ds), copied_positions(ds),
-             revisited_reference(ds), *route_checks(ds), narrow_directions(ds), foreign_spaces(ds)]
+             revisited_reference(ds), *route_checks(ds), narrow_directions(ds), separate_pcas(ds) or foreign_spaces(ds)]
     return [f"{ds.name}: {line}" for line in found if line]
 
 

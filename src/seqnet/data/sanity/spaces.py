@@ -22,7 +22,7 @@ SPACES_HINT = ("hint: describe both traverses with one describer in one run (seq
 
 def foreign_spaces(ds: Dataset, samples: int = 200) -> str | None:
     """One line when the query's descriptors look made in another space than the reference's: for the median of
-    ``samples`` evenly spaced queries with a correct reference (its first explicit positive, or the nearest reference
+    ``samples`` evenly spaced queries with a correct reference (its middle explicit positive, or the nearest reference
     by position when within the radius), at least :data:`FOREIGN_SHARE` of ``samples`` evenly spaced references of
     other places are nearer to it (L2-normalised) than its own. A random ranking gives 0.5; one describer on both
     sides gave 0.00–0.01 on the whole Nordland64 route (summer/winter, pixels and NetVLAD) and 0.21–0.22 on a
@@ -94,12 +94,12 @@ def route_share(t: Traverse, samples: int = 200) -> float | None:
 
 
 def _own_places(ds: Dataset, items: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(reference [S], found [S] bool)``: each query item's correct reference (its first positive, or the nearest
+    """``(reference [S], found [S] bool)``: each query item's correct reference (its middle positive, or the nearest
     reference by position, found when within the radius)."""
-    if ds.positives is not None:
+    if ds.positives is not None:  # the middle positive: positives listed as a place and its neighbours (p-1, p, p+1)
         counts = ds.positives.counts()[items]
-        first = ds.positives.indices[np.minimum(ds.positives.indptr[items], max(len(ds.positives.indices) - 1, 0))]
-        return np.where(counts > 0, first, 0), counts > 0
+        at = np.minimum(ds.positives.indptr[items] + counts // 2, max(len(ds.positives.indices) - 1, 0))
+        return np.where(counts > 0, ds.positives.indices[at], 0), counts > 0
     r_pos, q_pos = np.asarray(ds.reference.positions, np.float64), np.asarray(ds.query.positions, np.float64)
     dist = np.empty(len(items))
     near = np.empty(len(items), np.int64)
@@ -124,3 +124,35 @@ def _other_places(ds: Dataset, items: np.ndarray, refs: np.ndarray) -> np.ndarra
     q_pos = np.asarray(ds.query.positions, np.float64)[items]
     r_pos = np.asarray(ds.reference.positions, np.float64)[refs]
     return np.sqrt(np.square(q_pos[:, None, :] - r_pos[None, :, :]).sum(axis=2)) > CLEAR * ds.radius
+
+
+OWN_PCA_COLUMNS = 32  # the leading columns looked at
+OWN_PCA_TOL = 1e-3  # column means within this share of their spread, correlations within it: exact to float32
+
+
+def separate_pcas(ds: Dataset) -> str | None:
+    """One line when each side of ``ds`` looks reduced by a PCA of its own (:func:`own_pca`): the two sides then have
+    different axes (each axis's sign and order are the fit's), and R@1 falls without a word (0.90 -> 0.09 on a
+    300-frame route, hunt F4). A PCA fitted on one side, or on both together, and applied to each leaves at most
+    one side exactly centred; None then, or when the sides differ in D."""
+    if ds.query.dim != ds.reference.dim or not (own_pca(ds.reference.descriptors) and own_pca(ds.query.descriptors)):
+        return None
+    return ("each side's descriptors look reduced by a PCA of its own (the leading columns of each side exactly "
+            "centred, uncorrelated and in decreasing variance): PCAs fitted on each traverse separately give the two "
+            f"sides different axes (signs, order), so distances across them mean little; {SPACES_HINT}")
+
+
+def own_pca(x: np.ndarray) -> bool:
+    """Whether the rows ``x [N, D]`` look like the output of a PCA fitted on themselves: their leading (up to
+    :data:`OWN_PCA_COLUMNS`) columns centred and uncorrelated to :data:`OWN_PCA_TOL` (of their spread), in
+    decreasing variance, with at least two columns and more rows than columns looked at."""
+    k = min(x.shape[1], OWN_PCA_COLUMNS)
+    if x.ndim != 2 or k < 2 or len(x) <= 2 * k:
+        return False
+    cols = np.asarray(x[:, :k], np.float64)
+    mean, std = cols.mean(axis=0), cols.std(axis=0)
+    if not np.all(std > 0) or np.any(np.abs(mean) > OWN_PCA_TOL * std):
+        return False
+    corr = np.corrcoef(cols, rowvar=False)
+    off = np.abs(corr - np.eye(k)).max()
+    return bool(off < OWN_PCA_TOL and np.all(np.diff(std) <= OWN_PCA_TOL * std[:-1]))
