@@ -173,13 +173,15 @@ def print_results(res: dict) -> None:
     fate = 'counted as failures' if cfg.get('recall_denominator') == 'all' else 'left out'
     counts: dict[tuple, list[str]] = {}  # methods evaluated on the same queries share a line
     for name, r in res["methods"].items():
-        counts.setdefault((r["queries"], r["no_full_window"], r["no_positive"], r.get("no_full_window_reason")),
-                          []).append(name)
+        counts.setdefault((r["queries"], r["no_full_window"], r["no_positive"], r.get("no_full_window_reason"),
+                           r.get("positive_not_indexed", 0)), []).append(name)
     lacking = "a positive" if cfg.get("ground_truth") == "explicit positives" else "a reference within the radius"
-    for (queries, no_window, no_positive, why), names in counts.items():
+    for (queries, no_window, no_positive, why, unindexed), names in counts.items():
         who = "" if len(counts) == 1 else f"{', '.join(names)}: "
         print(f"{who}{counted(queries, 'query', 'queries')} evaluated; {no_window} without a full window"
-              f"{f' ({why})' if why else ''}, {no_positive} without {lacking} ({fate})")
+              f"{f' ({why})' if why else ''}, {no_positive} without {lacking} ({fate})"
+              + (f"; {unindexed} whose correct references all lie where no full window fits (a reference sequence "
+                 "shorter than L, or its ends), counted as failures" if unindexed else ""))
     print_calibration(res)
     selection = res.get("selection", {})
     for line in [c["reason"] for c in selection.get("hvpr", [])] + [selection.get("not_chosen") or ""]:

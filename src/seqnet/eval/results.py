@@ -39,6 +39,8 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     rec = recall(ranked, truth, ks, denominator)
     entry: dict[str, Any] = {k: v for k, v in rec.items() if k.startswith("recall@")}
     entry.update(queries=rec["queries"], no_positive=rec["no_positive"], recall_denominator=denominator)
+    if rec.get("positive_not_indexed"):  # correct references only where no full window fits: failures
+        entry["positive_not_indexed"] = rec["positive_not_indexed"]
     confidence, correct = top1_confidence(scores, ranked, truth, order)
     scored = slice(None) if ranked.shape[1] >= 2 else slice(0)  # one retrieved: no other place to compare with
     precision, rec, thresholds = precision_recall(confidence[scored], correct[scored], truth.has_positive())

@@ -11,6 +11,7 @@ within the radius). See :mod:`seqnet.eval.evaluation`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -24,7 +25,7 @@ from ..data.traverse import Dataset, Traverse
 from ..methods.checks import check_inputs, model_lengths
 from ..methods.grammar import Method, parse_method
 from ..methods.trained import holds_training_data
-from ..metrics.recall import GroundTruth, ground_truth
+from ..metrics.recall import GroundTruth, ground_truth, has_positive
 from ..reference.plain import PlainReference, runs_plain
 from ..reference.traverse import TraverseReference
 from ..report.guidance import model_entries
@@ -149,10 +150,19 @@ def _evaluate_group(ds: Dataset, methods: list[Method], windows: Windows, conf: 
 
 def dataset_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius: float) -> GroundTruth:
     """What is correct for the query items ``q_items`` among the reference items ``r_items`` of ``ds``: its
-    explicit positives, else the radius."""
+    explicit positives, else the radius; a query whose correct references are all frames of ``ds`` outside
+    ``r_items`` (no full window fits there) is kept, as a failure (:attr:`GroundTruth.matched`)."""
     positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
-    return ground_truth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives, ds.name,
-                        ds.position_unit)
+    truth = ground_truth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives, ds.name,
+                         ds.position_unit)
+    if len(r_items) == len(ds.reference):  # every frame is an item: nothing can be matched outside them
+        return truth
+    if ds.positives is not None:
+        matched = ds.positives.counts()[q_items] > 0
+    else:
+        matched = has_positive(np.asarray(ds.query.positions[q_items]), np.asarray(ds.reference.positions),
+                               truth.radius)
+    return dataclasses.replace(truth, matched=matched)
 
 
 def item_names(t: Traverse, items: np.ndarray) -> list[str] | None:

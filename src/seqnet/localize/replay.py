@@ -25,7 +25,7 @@ from ..data.traverse import Dataset, default_split
 from ..eval.calibrated import check_calibration_split
 from ..metrics.calibration import accepted, apply_threshold, calibrate
 from ..metrics.precision_recall import pr_summary, precision_recall
-from ..metrics.recall import ground_truth
+from ..metrics.recall import ground_truth, has_positive
 from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
 from ..security.locks import locked
@@ -57,9 +57,15 @@ def replay_query(loc: Localizer, ds: Dataset, frames: np.ndarray | None = None) 
 
 
 def track_truth(ds: Dataset, ref_items: np.ndarray, radius: float, best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(correct [Nq], has_positive [Nq])`` of the top-1 reference items ``best`` (-1: none) of every query frame."""
+    """``(correct [Nq], has_positive [Nq])`` of the top-1 reference items ``best`` (-1: none) of every query frame; a
+    frame whose correct references are all reference frames outside ``ref_items`` (no full window fits there) has
+    one, and its answer is wrong (as the evaluation counts it: :attr:`seqnet.metrics.recall.GroundTruth.matched`)."""
     positives = ds.positives.select(np.arange(len(ds.query)), ref_items) if ds.positives is not None else None
-    return frame_truth(ds.query.positions, ds.reference.positions[ref_items], radius, best, positives)
+    correct, has = frame_truth(ds.query.positions, ds.reference.positions[ref_items], radius, best, positives)
+    if len(ref_items) < len(ds.reference):
+        has = has | (ds.positives.counts() > 0 if ds.positives is not None else
+                     has_positive(np.asarray(ds.query.positions), np.asarray(ds.reference.positions), radius))
+    return correct, has
 
 
 def frame_truth(q_pos: np.ndarray, r_pos: np.ndarray, radius: float, best: np.ndarray,

@@ -104,12 +104,17 @@ class GroundTruth:
         radius: localisation radius (same unit as positions); a reference within it is correct.
         positives: explicit positives over the items (query m ↔ reference items), used instead of
             the radius when given.
+        matched: ``[M]`` bool, optional: whether each query has a correct reference among every reference frame,
+            also those that are no item (a frame where no full window fits: a reference sequence shorter than L, or
+            its ends). Such a query counts (a failure: no item is correct) instead of being left out as one without a
+            correct reference, which would lift the sequence methods' R@K (hunt 6: 0.617 where 0.337 is right).
     """
 
     q_pos: np.ndarray
     r_pos: np.ndarray
     radius: float
     positives: Positives | None = None
+    matched: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.radius = check_radius(self.radius)
@@ -119,9 +124,17 @@ class GroundTruth:
                               f"{self.r_pos.shape[1]}-D")
         if self.positives is not None:
             self.positives.check(len(self.q_pos), len(self.r_pos), "positives over the evaluated items")
+        if self.matched is not None:
+            self.matched = np.asarray(self.matched, dtype=bool)
+            if self.matched.shape != (len(self.q_pos),):
+                raise ConfigError(f"matched must be [M] = [{len(self.q_pos)}] bool, got shape {self.matched.shape}")
 
     def has_positive(self) -> np.ndarray:
-        """``[M]`` bool: whether the query has any correct reference."""
+        """``[M]`` bool: whether the query has any correct reference (an item, or a frame of :attr:`matched`)."""
+        return self.item_positive() | (self.matched if self.matched is not None else False)
+
+    def item_positive(self) -> np.ndarray:
+        """``[M]`` bool: whether the query has a correct reference among the items."""
         if self.positives is not None:
             return self.positives.counts() > 0
         return has_positive(self.q_pos, self.r_pos, self.radius)
@@ -149,11 +162,11 @@ class GroundTruth:
         reference positions only (the query's own positions need not be comparable with the reference's: two
         traverses of different lengths, each numbered by frame). A query without a positive keeps none."""
         if self.positives is None:
-            return GroundTruth(self.q_pos, self.r_pos, radius)
+            return GroundTruth(self.q_pos, self.r_pos, radius, matched=self.matched)
         radius = check_radius(radius)
         blocks = list(near_pairs(*self.positives.pairs(), self.r_pos, radius))
         q, r = (np.concatenate(x) for x in zip(*blocks, strict=True)) if blocks else (np.zeros(0, np.int64),) * 2
-        return GroundTruth(self.q_pos, self.r_pos, radius, Positives.from_pairs(q, r, len(self.q_pos)))
+        return GroundTruth(self.q_pos, self.r_pos, radius, Positives.from_pairs(q, r, len(self.q_pos)), self.matched)
 
     def hits(self, retrieved: np.ndarray) -> np.ndarray:
         """``[M, K]`` bool: whether ``retrieved[m, k]`` (a reference item, -1 = none) is correct."""
@@ -198,7 +211,8 @@ def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] | int = 
     over the queries with a correct reference (``denominator="positives"``) or over all M (``"all"``).
 
     Returns ``{"recall@K": value, ..., "queries": the denominator (the queries with a correct reference, or all M),
-    "no_positive": the queries without one}``; recall is ``nan`` when no query has a correct reference. K larger
+    "no_positive": the queries without one}`` (and ``"positive_not_indexed"``: the queries whose correct references
+    are all frames of ``truth.matched`` outside the items, counted as failures, when there are any); recall is ``nan`` when no query has a correct reference. K larger
     than the list length uses the whole list (as the evaluation scores a reference of fewer than K items:
     every one retrieved); :func:`recall_at_k` refuses it otherwise.
     """
@@ -222,6 +236,8 @@ def recall(retrieved: np.ndarray, truth: GroundTruth, ks: Sequence[int] | int = 
             out[f"recall@{k}"] = float(found.mean() if denominator == "positives" else found.sum() / len(pos))
     out["queries"] = n if denominator == "positives" else int(len(pos))  # the denominator the user asked for
     out["no_positive"] = int(len(pos) - n)
+    if truth.matched is not None and (unindexed := int((pos & ~truth.item_positive()).sum())):
+        out["positive_not_indexed"] = unindexed  # counted, as failures: their correct references are no items
     return out
 
 
