@@ -1,6 +1,8 @@
-"""Two sides whose descriptors are not comparable (:func:`foreign_spaces`): made by two different models, reduced by
-a PCA fitted on each traverse separately, or preprocessed differently. Every search ranks such descriptors, and
-R@K comes out low but above chance, without a word: a query is then no nearer to its own place than to others."""
+"""Two sides whose descriptors are not comparable: made by two different models, reduced by a PCA fitted on each
+traverse separately, or preprocessed differently. Every search ranks such descriptors, and R@K comes out low but
+above chance, without a word. :func:`separate_pcas` reads a PCA of each side's own in the values (exactly centred,
+uncorrelated columns on both sides); :func:`foreign_spaces` reads any cause in the ground truth: each side follows
+its route, but a query is no nearer to its own place than to others."""
 
 from __future__ import annotations
 
@@ -51,8 +53,8 @@ def foreign_spaces(ds: Dataset, samples: int = 200) -> str | None:
 
 def own_place_share(ds: Dataset, samples: int = 200) -> float | None:
     """The median, over up to ``samples`` evenly spaced queries with a correct reference, of the share of
-    ``samples`` evenly spaced references of other places (not positives; farther than the radius) that are nearer
-    to the query than its correct one; None with fewer than :data:`FOREIGN_MIN` such queries."""
+    ``samples`` evenly spaced references of other places (clear of its neighbourhood: :func:`_other_places`) that
+    are nearer to the query than its correct one; None with fewer than :data:`FOREIGN_MIN` such queries."""
     items = spread(len(ds.query), samples)
     own, keep = _own_places(ds, items)
     items, own = items[keep], own[keep]
