@@ -226,3 +226,40 @@ def test_correct_drives_that_change_speed_stop_or_cross_a_tunnel_are_not_out_of_
         for pos in (drive(speeds), drive(speeds, 1.0)):
             assert len(crossing_steps(pos, None)[0]) == 0
             assert out_of_order(pos, None, 12.0, "metres", "query") is None
+
+
+def grid(i: np.ndarray) -> np.ndarray:
+    """``[N, 2]`` frames exactly 10 m apart on a straight diagonal route, stored to the millimetre (as a CSV)."""
+    i = np.asarray(i, np.float64)[:, None]
+    return np.round([500000.0, 7000000.0] + 10.0 * i * [np.cos(0.5), np.sin(0.5)], 3)
+
+
+def test_a_radius_at_the_frame_spacing_is_said_when_rounding_decides_the_positives():
+    """Hunt 6 F4: frames exactly 10 m apart, queries on the reference's frames: radius 9.99 / 10 / 10.01 gave 1 /
+    1-3 / 3 positives per query (single R@1 0.216 / 0.231 / 0.261 in the report) and nothing said; now one line
+    at build, check and eval, with a radius between multiples of the spacing as the hint (twice the spacing too);
+    15 m, 1 m GPS noise, queries between frames and frame radii stay silent."""
+    r = grid(np.arange(300))
+    q = r[20:200]
+    positives = {rad: set(np.bincount(GroundTruth(q, r, rad).pairs()[0]).tolist()) for rad in (9.99, 10.0, 10.01)}
+    assert positives[9.99] == {1} and positives[10.01] == {3} and len(positives[10.0]) > 1  # by the millimetre
+    for rad in (9.99, 10.0, 10.01):
+        [line] = dataset_warnings(dataset(q, r, radius=rad))
+        assert line == (f"d: the radius {rad:g} metres matches the reference's frame spacing (10 metres between "
+                        f"neighbouring frames, median) and 100% of the queries have a reference at the radius itself "
+                        f"({rad - 0.1:.4g}..{rad + 0.1:.4g} metres away): whether it is a positive hangs on the "
+                        "positions' rounding (1 to 3 positives per query across that band; hint: a radius between "
+                        "whole multiples of the spacing, e.g. --radius 15)")
+    [line] = route_checks(dataset(q, r, radius=20.0))
+    assert "matches twice the reference's frame spacing" in line and line.endswith("e.g. --radius 25)")
+    [said] = route_warnings(dataset(q, r, radius=15.0), GroundTruth(q, r, 10.0), np.arange(len(q)), ["single"])
+    assert said.startswith("the radius 10 metres matches the reference's frame spacing")  # the radius evaluated
+    for rad in (12.0, 15.0, 30.5):
+        assert route_checks(dataset(q, r, radius=rad)) == [], rad
+    for seed in range(5):  # 1 m GPS noise on both sides: 8-15% of the queries at the radius, by chance
+        for rad in (10.0, 20.0):
+            assert route_checks(dataset(noisy(q, 1.0, seed), noisy(r, 1.0, seed + 50), radius=rad)) == [], (seed, rad)
+    assert route_checks(dataset(grid(np.arange(20, 200) + 0.45), r, radius=10.0)) == []  # between frames
+    frames = np.arange(300.0)[:, None]
+    ones = np.ones((300, 2), np.float32)
+    assert route_checks(Dataset(Traverse(ones, frames), Traverse(ones, frames), 1.0, "frames")) == []

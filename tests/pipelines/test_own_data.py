@@ -98,6 +98,12 @@ def test_one_fit_for_both_traverses(route, tmp_path):
 
 @pytest.mark.parametrize(("zones", "error"), [(("32V", "32V"), None), (("32V", "?"), None),
                                               (("32V", "33V"), "UTM zone 32V, query positions in 33V"),
+                                              (("UTM zone 32V", "UTM zone ?"), None),  # a log's frame, zone unknown
+                                              (("UTM zone 32V", "UTM zone 33V"), r"UTM zone 32V, query positions in "
+                                                                                 r"33V; positions in two zones"),
+                                              (("odometry frame 'odom'", "odometry frame 'map'"),
+                                               r"in odometry frame 'odom', query positions in odometry frame 'map'; "
+                                               r"positions in two frames are not comparable$"),
                                               (("32V", None), "are metres in 32V and the query positions easting"),
                                               ((None, None), None)])
 def test_both_sides_positions_are_in_one_frame(monkeypatch, zones, error):

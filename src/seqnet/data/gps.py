@@ -4,12 +4,19 @@ One table, :data:`POSITION_LOGS`, of the logs seqnet reads (``--positions-format
 
 * ``robotcar-ins``: Oxford RobotCar ``gps/ins.csv`` (robotcar-dataset-sdk: ``timestamp, ins_status,
   latitude, longitude, altitude, northing, easting, down, utm_zone, velocity_north, ...``; ``gps.csv``
-  too), timestamps in microseconds; its ``easting, northing`` (UTM metres) are used, else
-  ``latitude, longitude`` through ``utm``. An image's time is its file name (``<timestamp>.png``).
+  too: ``timestamp, num_satellites, latitude, longitude, altitude, latitude_sigma, longitude_sigma,
+  altitude_sigma, northing, easting, down, utm_zone``), timestamps in microseconds; its ``easting,
+  northing`` (UTM metres, in its ``utm_zone``) are used, else ``latitude, longitude``. An image's time
+  is its file name (``<timestamp>.png``).
 * ``kitti-oxts``: a KITTI raw drive's ``oxts/`` folder: ``data/0000000000.txt`` (one line of 30
   numbers: lat, lon, alt, roll, pitch, yaw, ...) and ``timestamps.txt`` (one
-  ``YYYY-MM-DD HH:MM:SS.fffffffff`` line per file); lat / lon become UTM metres with ``utm``. An
-  image's time is its line in ``image_0x/timestamps.txt`` (the image ``image_0x/data/<frame>.png``).
+  ``YYYY-MM-DD HH:MM:SS.fffffffff`` line per file): lat / lon. An image's time is its line in
+  ``image_0x/timestamps.txt`` (the image ``image_0x/data/<frame>.png``).
+
+Latitude / longitude are kept as degrees here: the two traverses' become UTM metres together, the query in the
+reference's zone (:func:`seqnet.data.utm.latlon_pair`, as for a positions CSV), so two drives on either side of a
+zone boundary compare. Logged easting / northing stay in the log's zone: two logs in two zones are refused
+(:func:`check_zones`, with the way out: :data:`ZONE_HINT`).
 
 Every image takes the position of the nearest log sample; an image farther than the tolerance
 (``max_gap`` seconds) from every sample is refused by name, never given a far position.
@@ -35,20 +42,24 @@ from .convert import names_flag, read_csv_rows
 from .readers import read_descriptor_file, read_provenance, read_text
 from .timematch import gap_hint, nearest_within
 from .traverse import Traverse
-from .utm import latlon_to_utm
+from .utm import check_latlon
 
 DEFAULT_MAX_GAP = 0.1  # seconds: RobotCar's INS logs at 50 Hz, KITTI's oxts at 10 Hz (synced) or 100 Hz
 DIGITS = re.compile(r"[0-9]{1,18}")  # a timestamp or frame number: ASCII digits, within int64 ("²".isdigit())
 UTM_ZONE = re.compile(r"[0-9]{1,2}[C-HJ-NP-Xc-hj-np-x]?")  # "30U": zone number and latitude band
+ZONE_HINT = ("hint: a log without easting, northing columns is read by its latitude, longitude, placed in the "
+             "reference's zone: rename those two columns in the logs' headers (e.g. to easting_utm, northing_utm)")
 
 
 @dataclasses.dataclass(frozen=True)
 class Samples:
-    """A position log: ``times [S]`` (seconds, sorted), ``xy [S, 2]`` (easting, northing, metres), UTM zone."""
+    """A position log: ``times [S]`` (seconds, sorted), ``positions [S, 2]`` in ``unit``: ``metres`` (easting,
+    northing in UTM ``zone``, ``"?"`` when the log names none) or ``degrees`` (latitude, longitude; zone ``"?"``)."""
 
     times: np.ndarray
-    xy: np.ndarray
+    positions: np.ndarray
     zone: str
+    unit: str = "metres"
 
 
 def _times_of(fields: list[str], what: str) -> float:
@@ -73,13 +84,15 @@ def _zone(header: list[str], rows: list[tuple[int, list[str]]], p: Path) -> str:
         if z not in zones and not UTM_ZONE.fullmatch(z):
             raise DatasetError(f"{p}, line {line}: utm_zone {_short(z)} is not a UTM zone (e.g. 30U)")
         zones.setdefault(z, line)
-    if len(zones) > 1:
-        raise DatasetError(f"{p}: samples in {len(zones)} UTM zones ({', '.join(sorted(zones))}); one drive, one zone")
+    if len(zones) > 1:  # its easting jumps by hundreds of km where the zone changes
+        raise DatasetError(f"{p}: easting/northing in {len(zones)} UTM zones ({', '.join(sorted(zones))}), which do "
+                           f"not compare; {ZONE_HINT}")
     return next(iter(zones), "?")
 
 
 def read_robotcar_ins(path: str | Path) -> Samples:
-    """RobotCar ``ins.csv`` / ``gps.csv``: times (s), easting/northing (metres) and the UTM zone."""
+    """RobotCar ``ins.csv`` / ``gps.csv``: times (s) and easting/northing (metres) in its one UTM zone, else (no
+    easting, northing columns) latitude/longitude (degrees)."""
     p = Path(path)
     header, rows = read_csv_rows(p)
     has_en = "easting" in header and "northing" in header
@@ -101,17 +114,15 @@ def read_robotcar_ins(path: str | Path) -> Samples:
         if not np.isfinite(vals[i, 1:]).all():
             raise DatasetError(f"{p}, line {line}: {'/'.join(wanted[1:])} must be numbers (finite), got "
                                f"{', '.join(_short(r[c]) for c in col[1:])}")
-    zone = _zone(header, rows, p)
     if has_en:
-        xy = vals[:, 1:]
-    else:
-        xy, zone = latlon_to_utm(vals[:, 1], vals[:, 2], str(p))
-    return _sorted(vals[:, 0], xy, zone)
+        return _sorted(vals[:, 0], vals[:, 1:], _zone(header, rows, p))
+    check_latlon(vals[:, 1:], str(p), [line for line, _ in rows])
+    return _sorted(vals[:, 0], vals[:, 1:], "?", "degrees")
 
 
-def _sorted(times: np.ndarray, xy: np.ndarray, zone: str) -> Samples:
+def _sorted(times: np.ndarray, positions: np.ndarray, zone: str, unit: str = "metres") -> Samples:
     order = np.argsort(times, kind="stable")
-    return Samples(times=times[order], xy=np.asarray(xy, dtype=np.float64)[order], zone=zone)
+    return Samples(times=times[order], positions=np.asarray(positions, dtype=np.float64)[order], zone=zone, unit=unit)
 
 
 def parse_kitti_time(text: str, where: str) -> float:
@@ -143,7 +154,7 @@ def _frame(path: Path, n: int, what: str) -> int:
 
 
 def read_kitti_oxts(path: str | Path) -> Samples:
-    """A KITTI ``oxts/`` folder (or the drive folder holding it): times, UTM easting/northing, zone."""
+    """A KITTI ``oxts/`` folder (or the drive folder holding it): times and latitude/longitude (degrees)."""
     p = Path(path)
     p = p / "oxts" if (p / "oxts").is_dir() else p
     files = sorted((p / "data").glob("*.txt")) if (p / "data").is_dir() else []
@@ -166,8 +177,8 @@ def read_kitti_oxts(path: str | Path) -> Samples:
             ll[i] = float(vals[0]), float(vals[1])
         except ValueError as err:
             raise DatasetError(f"{f}: lat/lon {[_short(v) for v in vals[:2]]} are not numbers") from err
-    xy, zone = latlon_to_utm(ll[:, 0], ll[:, 1], str(p))
-    return _sorted(times[frames], xy, zone)
+    check_latlon(ll, str(p / "data"))
+    return _sorted(times[frames], ll, "?", "degrees")
 
 
 def robotcar_image_times(paths: list[Path], root: Path | None = None) -> np.ndarray:
@@ -227,9 +238,10 @@ def nearest_samples(image_times: np.ndarray, log: Samples, names: list[str], max
 
 
 def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Path] | None = None,
-                  max_gap: float = DEFAULT_MAX_GAP) -> tuple[np.ndarray, str]:
-    """``([N, 2] easting/northing, UTM zone)`` of the images ``names`` (files ``paths``, else the names under
-    the log's image root) from the position log ``source`` of kind ``fmt`` (:data:`POSITION_LOGS`)."""
+                  max_gap: float = DEFAULT_MAX_GAP) -> tuple[np.ndarray, str, str]:
+    """``([N, 2] positions, unit, UTM zone)`` of the images ``names`` (files ``paths``, else the names under the
+    log's image root) from the position log ``source`` of kind ``fmt`` (:data:`POSITION_LOGS`): easting/northing
+    (unit ``metres``) or latitude/longitude (``degrees``, zone ``"?"``), as :class:`Samples`."""
     src = POSITION_LOGS[fmt]
     log = src.read(Path(source))
     root = None
@@ -238,25 +250,32 @@ def log_positions(fmt: str, source: str | Path, names: list[str], paths: list[Pa
         paths = [root / n for n in names]
     idx = nearest_samples(src.image_times(paths, root), log, names, max_gap, f"{source} ({fmt})", src.other,
                           src.unit)
-    logger.info("%s: %d images placed from %d %s samples (UTM zone %s)", source, len(names), len(log.times), fmt,
-                log.zone)
-    return log.xy[idx], log.zone
+    logger.info("%s: %d images placed from %d %s samples (%s)", source, len(names), len(log.times), fmt,
+                f"UTM zone {log.zone}" if log.unit == "metres" else "latitude / longitude")
+    return log.positions[idx], log.unit, log.zone
 
 
-def check_zones(ref_zone: str, query_zone: str) -> None:
-    """Both traverses' positions are in one UTM zone (else their metres do not compare)."""
-    if ref_zone != query_zone and "?" not in (ref_zone, query_zone):
-        raise DatasetError(f"reference positions are in UTM zone {ref_zone}, query positions in {query_zone}; "
-                           "positions in two zones are not comparable")
+def check_zones(ref_zone: str, query_zone: str, hint: str | None = None) -> None:
+    """Both traverses' positions are in one UTM zone (``32V``, or a positions frame: ``UTM zone 32V``, a bag's
+    ``odometry frame 'odom'``; an unknown zone, ``"?"``, is let through), else refused (with ``hint``, e.g.
+    :data:`ZONE_HINT` for position logs): their metres do not compare."""
+    ref, query = (z.removeprefix("UTM zone ") for z in (ref_zone, query_zone))
+    if ref == query or "?" in (ref, query):
+        return
+    said = f"UTM zone {ref}, query positions in {query}; positions in two zones"
+    if not (UTM_ZONE.fullmatch(ref) and UTM_ZONE.fullmatch(query)):
+        said = f"{ref_zone}, query positions in {query_zone}; positions in two frames"
+    raise DatasetError(f"reference positions are in {said} are not comparable" + (f"; {hint}" if hint else ""))
 
 
 def traverse_from_log(fmt: str, source: str | Path, desc_path: str | Path, names_file: str | Path | None,
-                      name: str, max_gap: float = DEFAULT_MAX_GAP) -> tuple[Traverse, str]:
-    """A traverse from a descriptor file (with image names) placed by a position log; also the UTM zone."""
+                      name: str, max_gap: float = DEFAULT_MAX_GAP) -> tuple[Traverse, str, str]:
+    """A traverse from a descriptor file (with image names) placed by a position log; also its positions' unit and
+    UTM zone (:func:`log_positions`)."""
     desc, names = read_descriptor_file(desc_path, names_file, beside=True)
     if names is None:
         raise DatasetError(f"{desc_path}: no image names to time the images by; give {names_flag(name)} FILE, an "
                            "HDF5 file with 'names', or a .npy with its names file beside it (FILE.names.txt)")
-    xy, zone = log_positions(fmt, source, names, None, max_gap)
-    return Traverse(descriptors=desc, positions=xy, names=names, name=name,
-                    provenance=read_provenance(desc_path)), zone
+    positions, unit, zone = log_positions(fmt, source, names, None, max_gap)
+    return Traverse(descriptors=desc, positions=positions, names=names, name=name,
+                    provenance=read_provenance(desc_path)), unit, zone

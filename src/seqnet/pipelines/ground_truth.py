@@ -13,7 +13,7 @@ import numpy as np
 from ..core.errors import ConfigError, DatasetError
 from ..core.log import logger
 from ..data.convert import agreed_kinds, match_names, read_positions_table, sequence_bounds, warn_reordered
-from ..data.gps import check_zones, log_positions
+from ..data.gps import ZONE_HINT, check_zones, log_positions
 from ..data.imagefolders import utm_positions
 from ..data.sanity import check_frame_aligned
 from ..data.sanity.route import radius_hint, spacing_share
@@ -31,8 +31,9 @@ def _csv_positions(conf: Any, images: ImageList, source: str | Path, given: str 
     if given is None:
         raise ConfigError(f"ground truth 'csv' needs a positions CSV for the {side} (--{side[:3]}-csv FILE)")
     if conf.positions_format != "csv":  # a drive's position log (RobotCar ins.csv, KITTI oxts)
-        xy, zone = log_positions(conf.positions_format, given, images.names, list(images.paths), conf.max_time_gap)
-        return xy, None, "metres", f"UTM zone {zone}"
+        pos, unit, zone = log_positions(conf.positions_format, given, images.names, list(images.paths),
+                                        conf.max_time_gap)  # lat/lon: made metres with the other side's, below
+        return pos, None, unit, f"UTM zone {zone}" if unit == "metres" else None
     table = read_positions_table(given, kind)  # kind: of positions, both CSVs' one (agreed_kinds)
     idx = match_names(images.names, table.names, f"{given} vs the {side} images")  # each image's CSV row
     warn_reordered(idx, images.names, table.names, f"the order of the {side} images of {source}",
@@ -84,13 +85,14 @@ def both_positions(conf: Any, images: tuple[ImageList, ImageList], sources: tupl
         kinds = agreed_kinds((str(given[0]), str(given[1])))  # lat/lon and x/y in one CSV: the kind both have
     ref, qry = (GROUND_TRUTH_SOURCES[conf.ground_truth](conf, im, src, g, side, *([k] if k else []))
                 for im, src, g, side, k in zip(images, sources, given, ("reference", "query"), kinds, strict=True))
-    if ref[2] == qry[2] == "degrees":  # lat/lon CSVs: UTM metres, the query in the reference's zone
+    if ref[2] == qry[2] == "degrees":  # lat/lon CSVs or logs: UTM metres, the query in the reference's zone
         r, q, frame = latlon_pair(ref[0], qry[0], (str(given[0]), str(given[1])))
         ref, qry = (r, ref[1], "metres", frame), (q, qry[1], "metres", frame)
     if ref[2] != qry[2] or (ref[3] is None) != (qry[3] is None):
         raise ConfigError(mixed_frames(ref[3] or ref[2], qry[3] or qry[2], "positions sources"))
     if ref[3] is not None:
-        check_zones(ref[3], qry[3])  # one UTM zone (an unknown zone, '?', is let through)
+        logs = conf.ground_truth == "csv" and conf.positions_format != "csv"  # position logs: their way out
+        check_zones(ref[3], qry[3], ZONE_HINT if logs else None)  # one UTM zone (an unknown zone, '?', let through)
     if conf.ground_truth == "csv" and ref[2] == qry[2] == "frames" and len(ref[0]) and len(qry[0]):
         frame_starts(float(ref[0].min()), float(qry[0].min()), (str(given[0]), str(given[1])))
     return ref, qry

@@ -144,18 +144,19 @@ def run_from_csv(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ...data.convert import assemble_dataset, traverse_from_csv, traverses_in_metres
-    from ...data.gps import DEFAULT_MAX_GAP, check_zones, traverse_from_log
+    from ...data.gps import DEFAULT_MAX_GAP, ZONE_HINT, check_zones, traverse_from_log
 
     extra = _extra(args)
     if args.positions_format != "csv":
         gap = args.max_time_gap or DEFAULT_MAX_GAP
-        ref, zone_r = traverse_from_log(args.positions_format, args.ref_csv, args.ref_desc, args.ref_names,
-                                        "reference", gap)
-        qry, zone_q = traverse_from_log(args.positions_format, args.query_csv, args.query_desc, args.query_names,
-                                        "query", gap)
-        check_zones(zone_r, zone_q)
-        unit_r = unit_q = "metres"
-        extra["positions_frame"] = f"UTM zone {zone_r}"  # localize --positions-topic checks its positions against it
+        ref, unit_r, zone_r = traverse_from_log(args.positions_format, args.ref_csv, args.ref_desc, args.ref_names,
+                                                "reference", gap)
+        qry, unit_q, zone_q = traverse_from_log(args.positions_format, args.query_csv, args.query_desc,
+                                                args.query_names, "query", gap)
+        if unit_r == unit_q == "metres":  # logged easting/northing; lat/lon: below, as a CSV's
+            check_zones(zone_r, zone_q, ZONE_HINT)
+            zone = zone_q if zone_r == "?" else zone_r
+            extra["positions_frame"] = f"UTM zone {zone}"  # localize --positions-topic checks its positions against it
     else:
         from ...data.convert.swapped import told_swapped
 
@@ -166,7 +167,7 @@ def run_from_csv(args: argparse.Namespace) -> int:
     if unit_r != unit_q:
         from ...data.utm import mixed_frames
 
-        raise ConfigError(mixed_frames(unit_r, unit_q, "CSVs"))
+        raise ConfigError(mixed_frames(unit_r, unit_q, "CSVs" if args.positions_format == "csv" else "logs"))
     if unit_r == "degrees":  # lat/lon columns: UTM metres, the query in the reference's zone
         ref, qry, extra["positions_frame"] = traverses_in_metres(ref, qry, (args.ref_csv, args.query_csv))
         unit_r = "metres"

@@ -13,7 +13,8 @@
   (:func:`.truth.frozen_positions`), the reference's positions given for the query too
   (:func:`.positions.copied_positions`), a reference that passes places twice unknown to the ground truth
   (:func:`.revisits.revisited_reference`), a vehicle standing still, positions that jump inside a sequence and a
-  radius below the reference's frame spacing (:func:`.route.route_checks`), square descriptors that may be
+  radius below the reference's frame spacing or at a multiple of it that rounding decides
+  (:func:`.route.route_checks`), square descriptors that may be
   ``[D, N]`` (:func:`transposed_descriptors`), rows that share a common offset far beyond their spread
   (:func:`.values.narrow_directions`), a query whose descriptors are not comparable with the reference's (two
   models, a PCA per traverse: :func:`.spaces.separate_pcas`, :func:`.spaces.foreign_spaces`). One line each.

@@ -8,7 +8,10 @@ split by ``seqnet eval``):
   logger outage), so sequence windows straddle the jump (for a side in route order: rows out of it are
   :func:`seqnet.data.spacing.out_of_order`'s);
 * :func:`sparse_reference`: a radius below the reference's frame spacing (each query has at most one correct
-  reference, one between two frames none).
+  reference, one between two frames none);
+* :func:`radius_at_spacing`: a radius at a whole multiple of that spacing while the positions are so regular that
+  many queries have a reference at the radius itself: whether it is a positive is decided by the positions'
+  rounding.
 
 Steps come from :mod:`seqnet.data.spacing`; every check is vectorised numpy, O(N) in the rows."""
 
@@ -27,6 +30,10 @@ STILL_STEPS = 1.0  # ... this many usual steps (under a tenth of the usual speed
 STILL_SHARE = 0.1  # standing rows above this share of a traverse or of a split's rows are warned (R@K moves by it)
 JUMP_STEPS = 10.0  # a step of more than this many usual steps inside one sequence is a jump
 SPARSE = 0.9  # a radius below this share of the reference's spacing is warned (GPS noise moves the spacing a little)
+AT_MULTIPLE = 0.02  # a radius within this share of the spacing from 1 or 2 times the reference's spacing ...
+EDGE = 0.01  # ... with a reference within this share of the spacing from the radius (either side) ...
+EDGE_SHARE = 0.5  # ... for at least this share of the queries is warned (1 m GPS noise on 10 m steps: 8-15%;
+#                   frames exactly 10 m apart, stored to the millimetre: 100%)
 
 
 def every_step(positions: np.ndarray, bounds: np.ndarray | None, lag: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -188,6 +195,34 @@ def radius_hint(gap: float) -> str:
     return f"hint: a radius of at least the spacing is usual, e.g. --radius {math.ceil(float(f'{gap:.2g}')):g} or more"
 
 
+def radius_at_spacing(reference: np.ndarray, query: np.ndarray, radius: float, unit: str) -> str | None:
+    """Why the positives at ``radius`` hang on rounding: it lies within :data:`AT_MULTIPLE` times the frame spacing
+    ``gap`` of ``reference [N, P]`` from 1 or 2 times ``gap``, and at least :data:`EDGE_SHARE` of ``query [M, P]``
+    have a reference within :data:`EDGE` ``gap`` of the radius (frames on a regular grid: the neighbour sits at the
+    radius itself, in or out by a millimetre); None otherwise, and for frame numbers (whose radii are whole frames by
+    design)."""
+    gap = spacing(reference)
+    if unit == "frames" or not (radius > 0 and np.isfinite(gap) and gap > 0) or not len(query):
+        return None
+    times = round(radius / gap)
+    if times not in (1, 2) or abs(radius - times * gap) > AT_MULTIPLE * gap:
+        return None
+    from scipy.spatial import cKDTree
+
+    tree, q = cKDTree(np.asarray(reference, np.float64)), np.asarray(query, np.float64)
+    lo, hi = radius - EDGE * gap, radius + EDGE * gap
+    inner, outer = (tree.query_ball_point(q, r, return_length=True) for r in (lo, hi))
+    at = outer > inner
+    edge = float(np.mean(at))
+    if edge < EDGE_SHARE:
+        return None
+    return (f"the radius {radius:g} {unit} matches {('', 'twice ')[times - 1]}the reference's frame spacing "
+            f"({gap:.4g} {unit} between neighbouring frames, median) and {edge:.0%} of the queries have a reference "
+            f"at the radius itself ({lo:.4g}..{hi:.4g} {unit} away): whether it is a positive hangs on the positions' "
+            f"rounding ({int(inner[at].min())} to {int(outer[at].max())} positives per query across that band; hint: "
+            f"a radius between whole multiples of the spacing, e.g. --radius {(times + 0.5) * gap:.3g})")
+
+
 def route_checks(ds: Dataset, radius: float | None = None, sequence: bool = True, view: bool = False) -> list[str]:
     """The lines of this module's checks on ``ds`` (``radius``: the one evaluated, default ``ds.radius``; ``view``:
     ``ds`` is an evaluated split, its rows numbered from the split's first, which the lines say), for real
@@ -195,7 +230,8 @@ def route_checks(ds: Dataset, radius: float | None = None, sequence: bool = True
     named split), jumps inside a sequence (only when ``sequence`` methods are concerned), both for a side in route
     order (:func:`seqnet.data.spacing.out_of_order` says the other) without a frozen GPS fix (whose catch-up is no
     gap: :func:`seqnet.data.sanity.truth.frozen_positions` says it) and in distance units (frame numbers skip frames
-    without moving: Nordland's stops left out), a radius below the reference's spacing (without explicit positives)."""
+    without moving: Nordland's stops left out), a radius below the reference's spacing or at a multiple of it
+    (without explicit positives)."""
     if ds.positives is not None and ds.position_unit == "frames":
         return []
     unit, name = ds.position_unit, ds.name if view else ""
@@ -208,5 +244,7 @@ def route_checks(ds: Dataset, radius: float | None = None, sequence: bool = True
             found += [standstill(t, unit, side, parts, thin_hint(ds), name),
                       position_jumps(t, unit, side, name) if sequence else None]
     if ds.positives is None:
-        found.append(sparse_reference(ds.reference.positions, ds.radius if radius is None else radius, unit))
+        r = ds.radius if radius is None else radius
+        found += [sparse_reference(ds.reference.positions, r, unit),
+                  radius_at_spacing(ds.reference.positions, ds.query.positions, r, unit)]
     return [line for line in found if line]
