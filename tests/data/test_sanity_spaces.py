@@ -105,9 +105,9 @@ def naive_share(ds: Dataset, clear: float) -> float:
 
 @pytest.mark.parametrize("explicit", [False, True])
 def test_share_vs_a_loop(explicit):
-    ds = route(n=90, query=rotated)
+    ds = route(n=130, query=rotated)
     if explicit:  # each query's place and its neighbours, one query with none
-        lists = [sorted({max(i - 1, 0), i, min(i + 1, 89)}) if i != 7 else [] for i in range(90)]
+        lists = [sorted({max(i - 1, 0), i, min(i + 1, 129)}) if i != 7 else [] for i in range(130)]
         ds = Dataset(ds.reference, ds.query, 12.0, positives=Positives.from_lists(lists), name="d")
     assert abs(own_place_share(ds, samples=500) - naive_share(ds, 3)) < 1e-9
 
@@ -224,3 +224,24 @@ def test_positives_of_a_place_and_its_neighbours_take_the_place_itself():
     lists = [sorted({max(i - 1, 0), i, min(i + 1, 149)}) for i in range(150)]
     explicit = Dataset(*side, 1.0, positives=Positives.from_lists(lists), position_unit="frames", name="d")
     assert own_place_share(explicit) < 0.05
+
+
+def test_positives_without_a_pair_say_nothing_and_do_not_crash():
+    ds = route()
+    empty = Dataset(ds.reference, ds.query, 12.0, positives=Positives.from_lists([[] for _ in range(120)]), name="d")
+    assert own_place_share(empty) is None and foreign_spaces(empty) is None
+
+
+def test_a_few_dozen_queries_say_nothing():
+    """Below 100 queries the share is noise (one describer on 30-60 Nordland64 frames read up to 0.73): silent."""
+    assert foreign_spaces(route(n=60, query=rotated)) is None and foreign_spaces(route(n=120, query=rotated))
+
+
+def test_the_reference_rows_as_the_query_are_not_two_pcas():
+    """One PCA of the reference applied to both sides, the query being those rows reversed (the route driven back
+    from the same frames): both sides exactly centred and uncorrelated, yet one PCA (copied_queries says the rest)."""
+    ds = reduced(route(change=0.4), "reference")
+    rev = Dataset(ds.reference, Traverse(ds.reference.descriptors[::-1], ds.query.positions[::-1], name="query"),
+                  12.0, name="d")
+    assert own_pca(rev.query.descriptors) and separate_pcas(rev) is None
+    assert not own_pca(np.zeros(5))  # not rows: no PCA of its own

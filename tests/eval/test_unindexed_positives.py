@@ -59,3 +59,18 @@ def test_a_single_drive_reads_as_before():
     one = Dataset(Traverse(ds.reference.descriptors, ds.reference.positions, name="reference"), ds.query, 4.0, name="d")
     seq = score(one, EvalConfig(methods=("raw+seqmatch",), ks=(1,))).results["methods"]["raw+seqmatch"]
     assert seq["queries"] == 66 and seq["no_positive"] == 0 and "positive_not_indexed" not in seq
+
+
+def test_an_extra_radius_matches_the_frames_anew():
+    """At a smaller ``--extra-radius`` a query with no reference frame within it is left out, not counted as one
+    whose reference lies where no window fits (review: raw+seqmatch 0.5 on 96 queries, 48 'not indexed')."""
+    rng = np.random.default_rng(0)
+    place = rng.standard_normal((100, 16))
+    ref, qry = ((place + 0.3 * rng.standard_normal(place.shape)).astype(np.float32) for _ in range(2))
+    pos = np.c_[10.0 * np.arange(100), np.zeros(100)]
+    off = np.where(np.arange(100) % 2 == 0, 1.0, 3.0)  # half the queries 1 m from their frame, half 3 m
+    ds = Dataset(Traverse(ref, pos, name="reference"), Traverse(qry, pos + np.c_[off, np.zeros(100)], name="query"),
+                 4.0, name="d")
+    ev = score(ds, EvalConfig(methods=("single", "raw+seqmatch"), ks=(1,), extra_radii=(2.0,)))
+    single, seq = (ev.results["methods"][m]["radii"]["2.0"] for m in ("single", "raw+seqmatch"))
+    assert single["queries"] == 50 and seq["queries"] == 48 and "positive_not_indexed" not in seq

@@ -25,7 +25,7 @@ from ..data.traverse import Dataset, Traverse
 from ..methods.checks import check_inputs, model_lengths
 from ..methods.grammar import Method, parse_method
 from ..methods.trained import holds_training_data
-from ..metrics.recall import GroundTruth, ground_truth, has_positive
+from ..metrics.recall import GroundTruth, ground_truth
 from ..reference.plain import PlainReference, runs_plain
 from ..reference.traverse import TraverseReference
 from ..report.guidance import model_entries
@@ -158,11 +158,8 @@ def dataset_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius:
     if len(r_items) == len(ds.reference):  # every frame is an item: nothing can be matched outside them
         return truth
     if ds.positives is not None:
-        matched = ds.positives.counts()[q_items] > 0
-    else:
-        matched = has_positive(np.asarray(ds.query.positions[q_items]), np.asarray(ds.reference.positions),
-                               truth.radius)
-    return dataclasses.replace(truth, matched=matched)
+        return dataclasses.replace(truth, matched=ds.positives.counts()[q_items] > 0)
+    return dataclasses.replace(truth, frames=np.asarray(ds.reference.positions))
 
 
 def item_names(t: Traverse, items: np.ndarray) -> list[str] | None:

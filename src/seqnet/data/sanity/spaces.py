@@ -14,8 +14,10 @@ from .revisits import unit_rows
 
 FOREIGN_SHARE = 0.4  # the median query's share of other places nearer than its own, at least: near random
 CLEAR = 3  # other places: beyond this many radii (or positives' counts) of the query's own
-FOREIGN_MIN = 20  # queries with an own place and enough other places, at least, before the share says anything
+FOREIGN_MIN = 100  # queries with an own place and enough other places, at least, before the share says anything
+#                   (one describer on 30-60 Nordland64 frames read up to 0.73 on 1 stretch in 36; none from 100)
 OTHERS_MIN = 10  # other places' references per query, at least
+ROUTE_MIN = 20  # rows followed by one of their sequence, at least, before route_share says anything
 ROUTE_SHARE = 0.25  # each side's route_share, at most: its rows follow a route (unrelated rows, e.g. noise: 0.5)
 SPACES_HINT = ("hint: describe both traverses with one describer in one run (seqnet dataset from-images REF QUERY "
                "...), fit one PCA on both sides and apply it to each (seqnet describe --dim, or seqnet train --pca), "
@@ -77,7 +79,7 @@ def route_share(t: Traverse, samples: int = 200) -> float | None:
     """How much a traverse's descriptors follow its route: the median, over up to ``samples`` evenly spaced rows i
     followed by a row of the same sequence, of the share of ``samples`` evenly spaced rows more than :data:`CLEAR`
     rows away that are nearer to row i (L2-normalised) than row i + 1. Near 0 for images of a route (the next frame
-    looks like this one), near 0.5 for unrelated rows (noise); None with fewer than :data:`FOREIGN_MIN` such rows."""
+    looks like this one), near 0.5 for unrelated rows (noise); None with fewer than :data:`ROUTE_MIN` such rows."""
     n = len(t)
     if n < 2:
         return None
@@ -87,7 +89,7 @@ def route_share(t: Traverse, samples: int = 200) -> float | None:
     j = spread(n, samples)
     far = np.abs(i[:, None] - j[None, :]) > CLEAR
     ok = far.sum(axis=1) >= OTHERS_MIN
-    if ok.sum() < FOREIGN_MIN:
+    if ok.sum() < ROUTE_MIN:
         return None
     x, nxt, other = (unit_rows(np.asarray(t.descriptors[k])) for k in (i, i + 1, j))
     d_next = np.linalg.norm(x - nxt, axis=1)
@@ -99,6 +101,8 @@ def _own_places(ds: Dataset, items: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     """``(reference [S], found [S] bool)``: each query item's correct reference (its middle positive, or the nearest
     reference by position, found when within the radius)."""
     if ds.positives is not None:  # the middle positive: positives listed as a place and its neighbours (p-1, p, p+1)
+        if not len(ds.positives.indices):  # no pair at all: no query has a place to compare with
+            return np.zeros(len(items), np.int64), np.zeros(len(items), bool)
         counts = ds.positives.counts()[items]
         at = np.minimum(ds.positives.indptr[items] + counts // 2, max(len(ds.positives.indices) - 1, 0))
         return np.where(counts > 0, ds.positives.indices[at], 0), counts > 0
@@ -136,9 +140,14 @@ def separate_pcas(ds: Dataset) -> str | None:
     """One line when each side of ``ds`` looks reduced by a PCA of its own (:func:`own_pca`): the two sides then have
     different axes (each axis's sign and order are the fit's), and R@1 falls without a word (0.90 -> 0.09 on a
     300-frame route, hunt F4). A PCA fitted on one side, or on both together, and applied to each leaves at most
-    one side exactly centred; None then, or when the sides differ in D."""
+    one side exactly centred; None then, when the sides differ in D, or when both have the same spread on every
+    axis (the query made of the reference's own rows, reordered: one PCA fitted on them)."""
     if ds.query.dim != ds.reference.dim or not (own_pca(ds.reference.descriptors) and own_pca(ds.query.descriptors)):
         return None
+    k = min(ds.query.dim, OWN_PCA_COLUMNS)
+    spreads = [np.asarray(t.descriptors[:, :k], np.float64).std(axis=0) for t in (ds.reference, ds.query)]
+    if np.allclose(spreads[0], spreads[1], rtol=OWN_PCA_TOL, atol=0):
+        return None  # the same spread on every axis: the query is the reference's rows (copied_queries says it)
     return ("each side's descriptors look reduced by a PCA of its own (the leading columns of each side exactly "
             "centred, uncorrelated and in decreasing variance): PCAs fitted on each traverse separately give the two "
             f"sides different axes (signs, order), so distances across them mean little; {SPACES_HINT}")
@@ -148,9 +157,9 @@ def own_pca(x: np.ndarray) -> bool:
     """Whether the rows ``x [N, D]`` look like the output of a PCA fitted on themselves: their leading (up to
     :data:`OWN_PCA_COLUMNS`) columns centred and uncorrelated to :data:`OWN_PCA_TOL` (of their spread), in
     decreasing variance, with at least two columns and more rows than columns looked at."""
-    k = min(x.shape[1], OWN_PCA_COLUMNS)
-    if x.ndim != 2 or k < 2 or len(x) <= 2 * k:
+    if x.ndim != 2 or min(x.shape[1], OWN_PCA_COLUMNS) < 2 or len(x) <= 2 * min(x.shape[1], OWN_PCA_COLUMNS):
         return False
+    k = min(x.shape[1], OWN_PCA_COLUMNS)
     cols = np.asarray(x[:, :k], np.float64)
     mean, std = cols.mean(axis=0), cols.std(axis=0)
     if not np.all(std > 0) or np.any(np.abs(mean) > OWN_PCA_TOL * std):

@@ -94,6 +94,9 @@ class GroundTruth:
             also those that are no item (a frame where no full window fits: a reference sequence shorter than L, or
             its ends). Such a query counts (a failure: no item is correct) instead of being left out as one without a
             correct reference, which would lift the sequence methods' R@K (hunt 6: 0.617 where 0.337 is right).
+        frames: ``[R_all, P]``, optional, radius ground truth: the positions of every reference frame, items or
+            not; :attr:`matched` is then the queries within the radius of one, at this radius and at each of
+            :meth:`within`.
     """
 
     q_pos: np.ndarray
@@ -101,6 +104,7 @@ class GroundTruth:
     radius: float
     positives: Positives | None = None
     matched: np.ndarray | None = None
+    frames: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.radius = check_radius(self.radius)
@@ -110,6 +114,9 @@ class GroundTruth:
                               f"{self.r_pos.shape[1]}-D")
         if self.positives is not None:
             self.positives.check(len(self.q_pos), len(self.r_pos), "positives over the evaluated items")
+        if self.frames is not None and self.positives is None:
+            self.frames = positions_array(self.frames, "reference frames")
+            self.matched = has_positive(self.q_pos, self.frames, self.radius)
         if self.matched is not None:
             self.matched = np.asarray(self.matched, dtype=bool)
             if self.matched.shape != (len(self.q_pos),):
@@ -147,8 +154,8 @@ class GroundTruth:
         positives, the references within ``radius`` of one of the query's positives, measured between
         reference positions only (the query's own positions need not be comparable with the reference's: two
         traverses of different lengths, each numbered by frame). A query without a positive keeps none."""
-        if self.positives is None:
-            return GroundTruth(self.q_pos, self.r_pos, radius, matched=self.matched)
+        if self.positives is None:  # matched anew at that radius (a query may have no frame within a smaller one)
+            return GroundTruth(self.q_pos, self.r_pos, radius, frames=self.frames)
         radius = check_radius(radius)
         blocks = list(near_pairs(*self.positives.pairs(), self.r_pos, radius))
         q, r = (np.concatenate(x) for x in zip(*blocks, strict=True)) if blocks else (np.zeros(0, np.int64),) * 2
