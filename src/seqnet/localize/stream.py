@@ -81,9 +81,11 @@ def load_reference(path: str | Path, models: Mapping[str, SeqNet],
 
 
 def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
-    """An index map checked for the localiser (causal windows, ``conf``'s method, L and L_m), with its radius
-    (``conf.radius``, else the radius of the dataset it was built from)."""
+    """An index map checked for the localiser (causal windows, ``conf``'s method, L and L_m), as that method
+    searches it (:meth:`seqnet.maps.Map.for_method`: a single-frame method searches every reference frame), with its
+    radius (``conf.radius``, else the radius of the dataset it was built from)."""
     from ..maps.evaluate import check_conf
+    from ..methods.grammar import parse_method
 
     if mp.config.window != "causal":
         raise ConfigError(f"map {mp.path} was built with {mp.config.window} windows; the online localiser needs "
@@ -94,7 +96,8 @@ def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
     radius = conf.radius or source.get("radius")
     if radius is None:
         raise ConfigError(f"map {mp.path} records no localisation radius; give one (--radius)")
-    return mp, float(number(radius, f"map {mp.path}: radius", 1e-300, 1e300, ConfigError, integer=False))
+    return mp.for_method(parse_method(conf.method)), float(number(radius, f"map {mp.path}: radius", 1e-300, 1e300,
+                                                                  ConfigError, integer=False))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,6 +12,7 @@ from ..core.devices import get_device
 from ..core.errors import CheckpointError, ConfigError, WindowsTooLongError
 from ..core.log import logger
 from ..core.memory import check_fits, model_bytes, workspace_bytes
+from ..core.tensors import ArrayLike
 from ..data.io import load_dataset
 from ..data.traverse import Dataset, default_split
 from ..describe.pca import PCA, dataset_pca_path, load_dataset_pca
@@ -21,9 +22,11 @@ from ..reference.traverse import TraverseReference
 from ..search.ann import index_bytes, make_index, train_sample_bytes
 from ..security.ownership import check_replaceable
 from ..sequence.checkpoints import load_models
+from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import Windows
 from .chosen import choose_for_map
 from .config import MapConfig
+from .edges import edge_frames, edge_rows
 from .shards import check_ivf, split_rows
 from .store import MapArrays, is_map_file, write_map
 
@@ -87,6 +90,17 @@ def dataset_pca(dataset: str | Path, provenance: dict | None) -> PCA | None:
         return None
 
 
+def edge_shortlist(conf: MapConfig, ref: TraverseReference) -> ArrayLike | None:
+    """``[E, D1]`` the shortlist descriptors of the reference frames that are no item, when the shortlist is a
+    single-frame descriptor that the stored frames are not (its k-NN searches every frame:
+    :mod:`seqnet.maps.edges`); None otherwise."""
+    edges = edge_frames(ref.items, len(ref.positions))
+    if not SEQUENCE_DESCRIPTORS[conf.shortlist].single_frame or conf.frames_descriptor == conf.shortlist \
+            or not len(edges):
+        return None
+    return edge_rows(ref.described.frames(conf.shortlist), edges)
+
+
 def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = ()) -> Path:
     """Describe the reference side of ``conf.split`` of the dataset directory ``dataset`` with the model
     checkpoints ``models`` (S_L and/or S_1, by their stored role) and write the map to ``out``."""
@@ -108,7 +122,7 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
     logger.info("described %d reference items / %d frames in %.1f s", len(ref.items), len(sub.reference),
                 sum(ref.described.ms.values()) / 1e3)
     arrays = MapArrays(shortlist, frames, ref.items, ref.match_starts, sub.reference.positions, sub.reference.names,
-                       sub.reference.seq_bounds)
+                       sub.reference.seq_bounds, edge_shortlist(conf, ref))
     a, b = ds.splits[split]["reference"] if split != "all" else (0, len(ds.reference))
     info = {"dataset": ds.name, "dataset_path": str(Path(dataset).resolve()), "split": split,
             "reference_range": [int(a), int(b)], "radius": ds.radius, "position_unit": ds.position_unit,
