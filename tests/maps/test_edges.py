@@ -43,8 +43,8 @@ def test_a_map_of_four_sequences_equals_the_dataset_for_single(synth_dataset, sy
     econf = EvalConfig(methods=methods, seq_len=4, ks=(1, 5), window="causal", split="all")
     exact = json.loads((eval_main(econf, synth_dir, tmp_path / "e", used).path).read_text())["methods"]
     mapped = json.loads((evaluate_main(econf, synth_dir, mp.path, tmp_path / "m").path).read_text())["methods"]
-    for name in methods[1:]:
-        for key in ("recall@1", "recall@5", "queries"):
+    for name in methods:
+        for key in ("recall@1", "recall@5", "queries", "no_positive"):
             assert mapped[name][key] == pytest.approx(exact[name][key]), (name, key)
     assert mapped["single"]["queries"] == len(synth_dataset.query)  # every query frame, as seqnet eval
     lconf = LocalizeConfig(method="single", k=7, device="cpu", split="all")
@@ -74,3 +74,30 @@ def test_a_map_without_the_edge_descriptors_says_to_rebuild(synth_dir, map_model
     with pytest.raises(MapError, match=r"not of the 3 frames where no window fits.*rebuild it"):
         mp.for_method(parse_method("single"))
     assert mp.for_method(mp.config.method) is mp
+
+
+@pytest.mark.parametrize("explicit", [False, True])
+def test_eval_index_counts_queries_correct_only_where_no_window_fits(tmp_path, explicit):
+    """As ``seqnet eval`` (hunt 6 F1): a query whose correct references are all frames without an item is a failure
+    of a sequence method on a map too, not a query left out without a positive."""
+    from seqnet.data.io import save_dataset
+    from seqnet.data.positives import Positives
+    from seqnet.data.traverse import Dataset, Traverse
+
+    rng = np.random.default_rng(0)
+    place = rng.standard_normal((70, 16))
+    ref, qry = ((place + 0.4 * rng.standard_normal(place.shape)).astype(np.float32) for _ in range(2))
+    bounds = np.array([[0, 40]] * 40 + [[s, s + 3] for s in range(40, 70, 3) for _ in range(3)])  # 3-frame drives
+    pos = np.c_[10.0 * np.arange(70), np.zeros(70)]
+    positives = Positives.from_lists([[i] for i in range(70)]) if explicit else None
+    ds = save_dataset(Dataset(Traverse(ref, pos, seq_bounds=bounds, name="reference"),
+                              Traverse(qry, pos + 1.0, name="query"), 4.0, positives=positives, name="d"),
+                      tmp_path / "ds")
+    mp = build(MapConfig(shortlist="single", rerank="raw+seqmatch", seq_len=5, split="all"), ds, tmp_path / "map")
+    econf = EvalConfig(methods=("hvpr-single:raw+seqmatch", "single"), seq_len=5, ks=(1, 5), split="all")
+    exact = json.loads(eval_main(econf, ds, tmp_path / "e").path.read_text())["methods"]
+    mapped = json.loads(evaluate_main(econf, ds, mp, tmp_path / "m").path.read_text())["methods"]
+    assert mapped["hvpr-single:raw+seqmatch"]["positive_not_indexed"] == 30
+    for name in econf.methods:
+        for key in ("recall@1", "recall@5", "queries", "no_positive"):
+            assert mapped[name][key] == pytest.approx(exact[name][key]), (name, key)

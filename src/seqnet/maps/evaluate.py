@@ -29,7 +29,7 @@ from ..eval.notices import add_warnings, radius_ignored, shift_notice, split_not
 from ..eval.outputs import EvalOutputs
 from ..eval.runner import run
 from ..methods.grammar import Method, parse_method
-from ..metrics.recall import ground_truth
+from ..metrics.recall import ground_truth, has_positive
 from ..report.guidance import learned_below_baseline, note_entries
 from ..search.ann import shortlist_recall
 from .load import load_map
@@ -115,8 +115,9 @@ def _same_reference(mp: Map, q: QueryData) -> bool:
     return names_ok and pos.shape == mp.positions.shape and bool(np.array_equal(pos, mp.positions))
 
 
-def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
-    """Explicit positives of the dataset over the map's items (only for a map built from this dataset and split)."""
+def _positives(mp: Map, q: QueryData, q_items: np.ndarray, r_frames: np.ndarray | None = None) -> Positives | None:
+    """Explicit positives of the dataset over the map's items (``r_frames``: those map frames instead; only for a map
+    built from this dataset and split)."""
     if not (q.root / POSITIVES_FILE).is_file():
         return None
     src = mp.meta.get("source") or {}
@@ -125,7 +126,8 @@ def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
                           f"{mp.path} was built from {src.get('dataset_path')} [{src.get('split')}]; hint: build "
                           "the map from this dataset and split")
     ra = int(src["reference_range"][0])
-    return load_positives(q.root / POSITIVES_FILE).select(q.query_range[0] + q_items, ra + mp.items)
+    return load_positives(q.root / POSITIVES_FILE).select(q.query_range[0] + q_items,
+                                                           ra + (mp.items if r_frames is None else r_frames))
 
 
 def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
@@ -200,6 +202,10 @@ def _evaluate_group(mp: Map, ref: Map, q: QueryData, methods: list[Method], conf
     positives = _positives(ref, q, items)
     truth = ground_truth(q.traverse.positions[items], ref.positions[ref.items], conf.radius, positives,
                          f"{q.name} against map {mp.path}", q.unit)
+    if len(ref.items) < len(ref.positions):  # a query correct only at frames without a window counts, as a failure
+        every = _positives(ref, q, items, np.arange(len(ref.positions)))
+        truth = dataclasses.replace(truth, matched=every.counts() > 0 if every is not None else has_positive(
+            np.asarray(q.traverse.positions[items]), np.asarray(ref.positions), truth.radius))
     c = mp.config
 
     def info(m: Method) -> dict[str, Any]:
