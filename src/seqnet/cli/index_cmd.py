@@ -6,6 +6,7 @@ import argparse
 
 from ..maps import MapConfig, build, load_map
 from ..maps.config import DTYPES
+from ..maps.coverage import coverage_line
 from ..methods.grammar import FRAME_FEATURES
 from ..search.ann import ANN_INDEXES, AnnConfig
 from ..sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS
@@ -94,5 +95,8 @@ def run_build(args: argparse.Namespace) -> int:
     path = build(map_config(args), args.dataset, args.out, args.model)
     mp = load_map(path, "cpu")
     print(mp.describe_info())
+    said = coverage_line(mp.meta, args.split is not None)
+    if said:
+        print(said)
     print(f"{mp.nbytes / 2**20:.1f} MiB; evaluate with: seqnet eval --index {path} --dataset {args.dataset}")
     return 0

@@ -199,7 +199,7 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    record.update(_notices(loc, est, conf.method, len(ref_map.positions), order))
+    record.update(_notices(loc, est, conf.method, len(ref_map.positions), order, getattr(ref_map, "meta", None)))
     truth = FrameTruth.of(q_pos, loc.r_pos, best, frame.unit)
     if truth is not None:
         record["truth"] = truth.record()
@@ -212,11 +212,17 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     return Written(out, record)
 
 
-def _notices(loc: Any, est: Sequence[Estimate], name: str, map_frames: int, order: QueryOrder) -> dict[str, Any]:
+def _notices(loc: Any, est: Sequence[Estimate], name: str, map_frames: int, order: QueryOrder,
+             meta: dict[str, Any] | None = None) -> dict[str, Any]:
     """What the estimates of a sequence method say about the query (:mod:`seqnet.localize.order`): shorter than
-    its window, or not in capture order; each line logged once as a warning, the summary's ``warnings``."""
+    its window, or not in capture order; and a query far longer than an index map (``meta``: its ``map.json``) of
+    part of its dataset's route (:func:`seqnet.maps.coverage.partial_map_note`); each line logged once as a
+    warning, the summary's ``warnings``."""
+    from ..maps.coverage import partial_map_note
+
     lines = [line for line in (short_query_note(est, loc.method, name, loc.windows.longest),
-                               order_note(est, loc.method, loc.seq_len, map_frames, order)) if line]
+                               order_note(est, loc.method, loc.seq_len, map_frames, order),
+                               partial_map_note(meta, loc.ref.name, len(est))) if line]
     for line in lines:
         logger.warning("%s", line)
     return {"warnings": lines} if lines else {}

@@ -125,8 +125,8 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
                        sub.reference.seq_bounds, edge_shortlist(conf, ref))
     a, b = ds.splits[split]["reference"] if split != "all" else (0, len(ds.reference))
     info = {"dataset": ds.name, "dataset_path": str(Path(dataset).resolve()), "split": split,
-            "reference_range": [int(a), int(b)], "radius": ds.radius, "position_unit": ds.position_unit,
-            "positions_frame": ds.extra.get("positions_frame"),
+            "reference_range": [int(a), int(b)], "dataset_reference_frames": len(ds.reference), "radius": ds.radius,
+            "position_unit": ds.position_unit, "positions_frame": ds.extra.get("positions_frame"),
             "sampling": ds.extra.get("sampling"),
             "explicit_positives": ds.positives is not None, "input_dim": ds.reference.dim,
             "model_seq_len": model_lengths(loaded),
