@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import shlex
+from pathlib import Path
 
 from ..maps import MapConfig, build, load_map
 from ..maps.config import DTYPES
@@ -98,5 +100,19 @@ def run_build(args: argparse.Namespace) -> int:
     said = coverage_line(mp.meta, args.split is not None)
     if said:
         print(said)
-    print(f"{mp.nbytes / 2**20:.1f} MiB; evaluate with: seqnet eval --index {path} --dataset {args.dataset}")
+    print(f"{mp.nbytes / 2**20:.1f} MiB; evaluate with: {eval_command(mp.meta, path, args.dataset)}")
     return 0
+
+
+def eval_command(meta: dict, path: str | Path, dataset: str | Path) -> str:
+    """The ``seqnet eval --index`` command that evaluates the map as built: its window mode (a causal map refuses
+    the default centred windows), and its split when the default (test) would not be it: a train or val map, or a
+    map of all frames of a dataset of explicit positives (those apply to the map's own split only)."""
+    conf, src = meta.get("config") or {}, meta.get("source") or {}
+    argv = ["seqnet", "eval", "--index", str(path), "--dataset", str(dataset)]
+    if conf.get("window", "centred") != "centred":
+        argv += ["--window", str(conf["window"])]
+    split = src.get("split")
+    if split not in (None, "test", "all") or (split == "all" and src.get("explicit_positives")):
+        argv += ["--split", str(split)]
+    return shlex.join(argv)
