@@ -66,3 +66,35 @@ def test_a_map_without_the_record_keeps_the_default(synth_dir, built, tmp_path):
     query = synth_dir / "query" / "descriptors.npy"
     assert cli(["-q", "localize", "--map", str(built), "--query", str(query), "--out", str(tmp_path / "t.csv")]) == 0
     assert _k(tmp_path / "t.json") == 20
+
+
+def test_a_whole_route_map_says_why_and_takes_its_k_at_build(synth_dir, tmp_path, capsys):
+    """hunt 5 F7: a map of --split all gets no K chosen on val; the line spoke of an 'evaluated split' (index build
+    evaluates nothing) and hinted --top-k, which index build refused. It takes --top-k now, stored and said."""
+    flags = ["index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank", "raw+graph",
+             "--seq-len", "4", "--window", "causal", "--split", "all"]
+    assert cli([*flags, "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert "the map's split 'all' holds the val queries" in err and "evaluated split" not in err, err
+    assert "seqnet index build --top-k" in err
+    assert cli([*flags, "--top-k", "10", "--out", str(tmp_path / "b")]) == 0
+    assert "K 10 as given (--top-k); stored in the map" in capsys.readouterr().err
+    sel = json.loads((tmp_path / "b" / "map.json").read_text())["selection"]
+    assert sel["settings"] == {"top_k": 10} and sel["given"] == {"top_k": 10}
+    query = synth_dir / "query" / "descriptors.npy"
+    assert cli(["localize", "--map", str(tmp_path / "b"), "--query", str(query), "--out", str(tmp_path / "t.csv")]) == 0
+    assert _k(tmp_path / "t.json") == 10
+    assert "K 10, the map's (given to seqnet index build)" in "".join(capsys.readouterr())
+    assert cli(["-q", "eval", "--index", str(tmp_path / "b"), "--dataset", str(synth_dir), "--window", "causal",
+                "--json", str(tmp_path / "r.json")]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["methods"][METHOD]["method"]["top_k"] == 10
+
+
+def test_a_setting_the_maps_method_does_not_take_is_refused(synth_dir, tmp_path):
+    from seqnet.core.errors import ConfigError
+    from seqnet.maps import MapConfig, build
+
+    with pytest.raises(ConfigError, match="--fuse-weight is not a setting of the map's method .* it takes --top-k"):
+        build(MapConfig(shortlist="delta", rerank="raw+graph", seq_len=4), synth_dir, tmp_path / "m",
+              settings={"fuse_weight": 0.5})
+    assert not (tmp_path / "m").exists()

@@ -6,7 +6,7 @@ import os
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..core.devices import get_device
 from ..core.errors import CheckpointError, ConfigError, WindowsTooLongError
@@ -24,7 +24,7 @@ from ..security.ownership import check_replaceable
 from ..sequence.checkpoints import load_models
 from ..sequence.descriptors import SEQUENCE_DESCRIPTORS
 from ..sequence.windows import Windows
-from .chosen import choose_for_map
+from .chosen import check_given, choose_for_map
 from .config import MapConfig
 from .edges import edge_frames, edge_rows
 from .shards import check_ivf, split_rows
@@ -101,10 +101,14 @@ def edge_shortlist(conf: MapConfig, ref: TraverseReference) -> ArrayLike | None:
     return edge_rows(ref.described.frames(conf.shortlist), edges)
 
 
-def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = ()) -> Path:
+def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequence[str | Path] = (),
+          settings: Mapping[str, Any] | None = None) -> Path:
     """Describe the reference side of ``conf.split`` of the dataset directory ``dataset`` with the model
-    checkpoints ``models`` (S_L and/or S_1, by their stored role) and write the map to ``out``."""
+    checkpoints ``models`` (S_L and/or S_1, by their stored role) and write the map to ``out``. ``settings``: HVPR
+    settings stored in the map as given (``{"top_k": K}``, ``hvpr-fused``'s ``fuse_top_k`` / ``fuse_weight``), the
+    others chosen on the val split (:mod:`seqnet.maps.chosen`)."""
     t0 = time.perf_counter()
+    settings = check_given(conf.method, settings or {})
     ds = load_dataset(dataset)
     split = default_split(conf.split, ds.splits)
     loaded = load_models(models, seq_len=conf.seq_len)
@@ -131,5 +135,5 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
             "explicit_positives": ds.positives is not None, "input_dim": ds.reference.dim,
             "model_seq_len": model_lengths(loaded),
             "describe_seconds": round(time.perf_counter() - t0, 3),
-            "selection": choose_for_map(conf, ds, split, loaded, dataset)}  # map.json's "selection"
+            "selection": choose_for_map(conf, ds, split, loaded, dataset, settings)}  # map.json's "selection"
     return write_map(out, conf, arrays, loaded, ds.reference.provenance, info, pca)
