@@ -98,3 +98,25 @@ def test_a_setting_the_maps_method_does_not_take_is_refused(synth_dir, tmp_path)
         build(MapConfig(shortlist="delta", rerank="raw+graph", seq_len=4), synth_dir, tmp_path / "m",
               settings={"fuse_weight": 0.5})
     assert not (tmp_path / "m").exists()
+
+
+def test_the_python_route_uses_the_maps_k_as_the_cli_does(synth_dir, built, tmp_path):
+    """hunt 5 F4: docs/scale.md's Python equivalent of localize --map used K 20 whatever the map stored."""
+    import csv
+
+    import numpy as np
+
+    from seqnet.localize.config import LocalizeConfig
+    from seqnet.localize.stream import index_reference
+    from seqnet.maps import load_map
+
+    query = synth_dir / "query" / "descriptors.npy"
+    assert cli(["-q", "localize", "--map", str(built), "--query", str(query), "--out", str(tmp_path / "t.csv")]) == 0
+    by_cli = [(int(r["estimate"]), r["confidence"]) for r in csv.DictReader((tmp_path / "t.csv").open())]
+    conf = LocalizeConfig(method=METHOD)  # K not given: the map's
+    loc = conf.localizer(*index_reference(load_map(built), conf))
+    assert loc.top_k == 10 == conf.for_reference(loc.ref).top_k
+    est = [loc.step(x) for x in np.load(query)]
+    assert [e.ref_frame for e in est] == [e for e, _ in by_cli]
+    assert [f"{e.confidence:.6f}" for e in est] == [c for _, c in by_cli]
+    assert LocalizeConfig(method=METHOD, top_k=20).localizer(*index_reference(load_map(built), conf)).top_k == 20

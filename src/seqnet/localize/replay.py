@@ -30,7 +30,7 @@ from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
 from ..security.locks import locked
 from ..security.text import shown
-from .config import LocalizeConfig
+from .config import TOP_K, LocalizeConfig
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
 from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
 
@@ -181,7 +181,8 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     if calibration is not None:
         replayed = _replay_split(conf, full.split(calibration[1]), full, calibration[1], loaded, distances, reading)
         accept, summary["calibrated"] = _calibrated(replayed[1:3], (est, correct, has), *calibration)
-    record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
+    record = {"summary": summary, "config": {**conf.for_reference(loc.ref).to_dict(), "split": split,
+                                             "seq_len": loc.seq_len,
                                              "match_len": loc.match_len, "radius": radius,
                                              "ground_truth": "explicit positives" if ds.positives is not None
                                              else "radius", "model_seq_len": model_lengths(loaded)},
@@ -218,7 +219,7 @@ def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mappi
     if not choose or online_method(conf.method).kind != "hvpr":
         return conf, None
     econf = EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, match_len=conf.match_len, window="causal",
-                       radius=conf.radius, top_k=conf.top_k, fuse_weight=conf.fuse_weight,
+                       radius=conf.radius, top_k=conf.top_k or TOP_K, fuse_weight=conf.fuse_weight,
                        fuse_top_k=conf.fuse_top_k, device=conf.device, allow_mismatch=conf.allow_mismatch)
     _, found = choose_on_val(full, split, loaded, econf, choose, dataset)
     if found is None:
