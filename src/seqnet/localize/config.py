@@ -71,7 +71,9 @@ class LocalizeConfig(Config):
             self._set("top_k", check_int("top_k", self.top_k, 1))
         if isinstance(self.k, int) and not isinstance(self.k, bool) and self.k == 1:
             raise ConfigError("k = 1 ranks one reference per frame: the confidence compares the top-1 with the best "
-                              "other place ranked, so it would be 1 for every frame; give --k 2 or more (default 20)")
+                              "other place ranked (else, as a lower bound, with the last ranked), so it would be 0 "
+                              "for every frame; give --k 2 or more (default 20: the more ranked, the more often "
+                              "another place is among them)")
         self._set("k", check_int("k", self.k, 1))
         check_choice("anchor", self.anchor, ANCHORS)
         if self.radius is not None:
