@@ -120,3 +120,24 @@ def test_the_python_route_uses_the_maps_k_as_the_cli_does(synth_dir, built, tmp_
     assert [e.ref_frame for e in est] == [e for e, _ in by_cli]
     assert [f"{e.confidence:.6f}" for e in est] == [c for _, c in by_cli]
     assert LocalizeConfig(method=METHOD, top_k=20).localizer(*index_reference(load_map(built), conf)).top_k == 20
+
+
+def test_a_given_top_k_is_not_called_the_defaults(synth_dir, tmp_path, capsys):
+    """hunt 5 F6: --top-k given (and used) against a map without a stored K, or a dataset split holding the val
+    queries, was said to be 'the defaults' / '(the defaults kept)'."""
+    mp = tmp_path / "a"
+    assert cli(["-q", "index", "build", "--dataset", str(synth_dir), "--shortlist", "delta", "--rerank", "raw+graph",
+                "--seq-len", "4", "--window", "causal", "--split", "all", "--out", str(mp)]) == 0
+    query = synth_dir / "query" / "descriptors.npy"
+    capsys.readouterr()
+    assert cli(["localize", "--map", str(mp), "--query", str(query), "--top-k", "10", "--out",
+                str(tmp_path / "t.csv")]) == 0
+    said = "".join(capsys.readouterr())
+    assert f"{METHOD}: --top-k 10 as given (the map stores none:" in said and ": the defaults (" not in said, said
+    assert _k(tmp_path / "t.json") == 10
+    assert cli(["localize", "--dataset", str(synth_dir), "--split", "all", "--method", METHOD, "--seq-len", "4",
+                "--top-k", "10", "--out", str(tmp_path / "d.csv")]) == 0
+    said = "".join(capsys.readouterr())
+    assert "defaults kept" not in said, said
+    record = json.loads((tmp_path / "d.json").read_text())
+    assert record["config"]["top_k"] == 10 and "selection" not in record

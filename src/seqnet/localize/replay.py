@@ -216,7 +216,9 @@ def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mappi
     from ..eval.config import EvalConfig
     from ..eval.select import choose_on_val
 
-    if not choose or online_method(conf.method).kind != "hvpr":
+    m = online_method(conf.method)
+    choose = [c for c in choose if c in (("fuse_top_k", "fuse_weight") if m.fused else ("top_k",))]
+    if not choose or m.kind != "hvpr":  # nothing of this method's left to choose (given, e.g. --top-k): nothing said
         return conf, None
     econf = EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, match_len=conf.match_len, window="causal",
                        radius=conf.radius, top_k=conf.top_k or TOP_K, fuse_weight=conf.fuse_weight,

@@ -115,7 +115,12 @@ def settings_to_use(meta: Mapping[str, Any] | None, method: str,
     if rec is None or rec.get("method") != method:
         return {}, None
     if not have:
-        return {}, f"{method}: the defaults ({shown(str(rec.get('not_chosen') or 'nothing chosen on val'))})"
+        why = shown(str(rec.get("not_chosen") or "nothing chosen on val"))
+        own = {k: v for k, v in given.items() if v is not None}
+        if own:  # the flags given are used: not the defaults
+            return {}, f"{method}: " + ", ".join(f"{FLAGS[k]} {v:g}" for k, v in own.items()) + \
+                f" as given (the map stores none: {why})"
+        return {}, f"{method}: the defaults ({why})"
     use = {k: v for k, v in have.items() if given.get(k) is None}
     over = {k: given[k] for k in have if given.get(k) is not None}
     built = rec.get("given") if isinstance(rec.get("given"), dict) else {}
