@@ -75,19 +75,20 @@ def check_index(conf: MapConfig, ds: Dataset, models: Mapping[str, SeqNet]) -> N
                "dimensions (--dim, PCA, --out-dims)")
 
 
-def dataset_pca(dataset: str | Path, provenance: dict | None) -> PCA | None:
-    """The train-split PCA (``<DATASET>.pca.npz``) that reduced the dataset's descriptors (``--pca D``), copied into
-    the map so that localize and serve reduce query images alike wherever the map is; None when no PCA reduced
-    them, or (with a warning: the map then localises descriptor files, not images) when it is missing or foreign."""
+def dataset_pca(dataset: str | Path, provenance: dict | None) -> tuple[PCA | None, str | None]:
+    """``(pca, problem)``: the train-split PCA (``<DATASET>.pca.npz``) that reduced the dataset's descriptors
+    (``--pca D``), copied into the map so that localize and serve reduce query images alike wherever the map is;
+    ``(None, None)`` when no PCA reduced them; ``(None, why)`` (with a warning: the map then localises descriptor
+    files, not images) when it is missing or foreign (recorded in the map: ``source.pca_not_copied``)."""
     settings = (provenance or {}).get("settings")
     if not isinstance(settings, dict) or settings.get("pca_on") is None:
-        return None
+        return None, None
     try:
-        return load_dataset_pca(dataset_pca_path(dataset), provenance or {})
+        return load_dataset_pca(dataset_pca_path(dataset), provenance or {}), None
     except (ConfigError, CheckpointError) as e:
         logger.warning("the map is written without its dataset's PCA, so it cannot localise query images (only "
                        "descriptor files): %s", e)
-        return None
+        return None, str(e)
 
 
 def edge_shortlist(conf: MapConfig, ref: TraverseReference) -> ArrayLike | None:
@@ -117,7 +118,7 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
     check_models(conf, sub, loaded)
     check_index(conf, sub, loaded)
     check_replaceable(out, "map", is_map_file)  # before any work
-    pca = dataset_pca(dataset, ds.reference.provenance)
+    pca, no_pca = dataset_pca(dataset, ds.reference.provenance)
     dev = get_device(conf.device)
     for model in loaded.values():
         model.to(dev).eval()
@@ -136,4 +137,6 @@ def build(conf: MapConfig, dataset: str | Path, out: str | Path, models: Sequenc
             "model_seq_len": model_lengths(loaded),
             "describe_seconds": round(time.perf_counter() - t0, 3),
             "selection": choose_for_map(conf, ds, split, loaded, dataset, settings)}  # map.json's "selection"
+    if no_pca is not None:  # localize says why the map has no pca.npz (not an older map: this one tried)
+        info["pca_not_copied"] = no_pca
     return write_map(out, conf, arrays, loaded, ds.reference.provenance, info, pca)
