@@ -54,9 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--shards", type=positive_int, help="IVF indexes only: train one coarse quantizer, build the "
                    "inverted lists of N contiguous shards of the items in parallel and merge them on disk "
                    "(index.ivfdata, opened memory-mapped); same results as one index (default 1)")
-    b.add_argument("--top-k", type=positive_int, help="HVPR shortlist size K stored in the map for localize --map, "
-                   "serve and eval --index (default: chosen on the dataset's val split, as seqnet eval chooses it; "
-                   "the default 20 when it cannot be: no val split, or a map of --split all)")
+    b.add_argument("--top-k", type=positive_int, help="HVPR K stored in the map for localize --map, serve, eval "
+                   "--index (default: chosen on val as seqnet eval does; 20 without val, or for --split all)")
     b.add_argument("--dtype", choices=DTYPES, help=f"storage of the descriptors (default {_D.dtype})")
     b.add_argument("--out", required=True, metavar="MAP", help="map directory to write (replaced only when it "
                    "holds nothing but a seqnet map)")

@@ -194,8 +194,7 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     if vq is not None:
         summary.update(vq.summary(np.array([e.latency_ms for e in est])))
     record = {"summary": summary, "config": {**conf.for_reference(ref_map).to_dict(), "seq_len": loc.seq_len,
-                                             "match_len": loc.match_len,
-                                             "radius": radius},
+                                             "match_len": loc.match_len, "radius": radius},
               "inputs": {"map": str(Path(map_dir).resolve()), **_query_inputs(q, images),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,
