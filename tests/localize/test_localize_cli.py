@@ -163,12 +163,12 @@ def test_an_unused_model_is_named_by_the_path_given(synth_dir, map_models, tmp_p
 
 
 def test_one_ranked_reference_is_refused(synth_dir, capsys):
-    """With one reference ranked per frame every confidence would be 1: refused, saying why."""
+    """With one reference ranked per frame there is nothing to compare the top-1 with: refused, saying why."""
     from seqnet.cli import main as cli_main
     from seqnet.core.errors import ConfigError
     from seqnet.localize.config import LocalizeConfig
 
-    with pytest.raises(ConfigError, match="it would be 1 for every frame"):
+    with pytest.raises(ConfigError, match="it would be 0 for every frame"):
         LocalizeConfig(k=1)
     assert cli_main(["localize", "--dataset", str(synth_dir), "--method", "single", "--k", "1", "--out",
                      str(synth_dir.parent / "t.csv")]) == 2
@@ -194,3 +194,20 @@ def test_explicit_positives_are_named_as_such(synth_dir, tmp_path, capsys):
         assert json.loads(out.with_suffix(".json").read_text())["config"]["ground_truth"] == name
         assert ("with a positive)" in said) == (name != "radius")
         assert ("within the radius" in said) == (name == "radius")
+
+
+def test_two_ranked_references_of_one_place_claim_no_certainty(synth_dir, tmp_path):
+    """hunt 5 F5: with --k 2 both ranked references were often the same place and the confidence 1.000, wrong answers
+    too; it is now a lower bound from the last ranked, never above what more ranked references give."""
+    import csv
+
+    from seqnet.cli import main as cli_main
+
+    conf = {}
+    for k in (2, 50):
+        out = tmp_path / f"t{k}.csv"
+        assert cli_main(["-q", "localize", "--dataset", str(synth_dir), "--method", "single", "--k", str(k),
+                         "--out", str(out)]) == 0
+        conf[k] = [float(r["confidence"]) for r in csv.DictReader(out.open())]
+    assert max(conf[2]) < 1.0
+    assert all(a <= b + 1e-6 for a, b in zip(conf[2], conf[50], strict=True))

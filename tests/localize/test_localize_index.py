@@ -39,6 +39,11 @@ def assert_same_track(a, b):
     (MapConfig(shortlist="delta", rerank="raw+graph", seq_len=4, match_len=5, window="causal"),
      "hvpr-delta:raw+graph", False),
     (MapConfig(shortlist="delta", rerank="raw+vseqmatch", seq_len=4, window="causal"), "raw+vseqmatch", False),
+    # a single-frame method searches every reference frame, the first L-1 of each sequence too (hunt 5 F1): from the
+    # stored frames, or from the map's edge_shortlist.npy when the frames are another descriptor
+    (MapConfig(shortlist="single", rerank="raw+seqmatch", seq_len=4, window="causal"), "single", False),
+    (MapConfig(shortlist="single", seq_len=4, window="causal"), "single", True),
+    (MapConfig(shortlist="s1", rerank="raw+seqmatch", seq_len=4, window="causal"), "s1", True),
 ])
 def test_flat_index_map_equals_the_dataset_localizer(synth_dataset, synth_dir, map_models, tmp_path, conf, method,
                                                      with_models):

@@ -205,9 +205,15 @@ def test_a_map_from_a_dataset_whose_pca_is_missing_is_built_with_a_warning(pca_d
     assert _build_map(tmp_path / "ds", tmp_path / "map") == 0
     assert "written without its dataset's PCA" in caplog.text and not (tmp_path / "map" / "pca.npz").exists()
     assert "pca" not in json.loads((tmp_path / "map" / "map.json").read_text())
+    assert json.loads((tmp_path / "map" / "map.json").read_text())["source"]["pca_not_copied"]
     capsys.readouterr()
+    caplog.clear()
     assert _localize("--map", tmp_path / "map", "--query", pca_dataset / "q.txt", "--out", tmp_path / "t.csv") == 2
     assert "(--pca), which is missing" in capsys.readouterr().err
+    # hunt 5 F8: not 'built before seqnet index build copied it ... (rebuild the map to carry it)': this map tried
+    said = caplog.text
+    assert "built before" not in said and "ds.pca.npz was missing or not that PCA when the map was built" in said
+    assert "put the dataset's own ds.pca.npz back and rebuild the map" in said, said
 
 
 def test_descriptor_files_against_a_pca_map_are_sent_to_query_images(pca_dataset, tmp_path, capsys):

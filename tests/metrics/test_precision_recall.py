@@ -21,13 +21,17 @@ def test_ratio_confidence_vs_loop(rng):
         top = r_pos[ranked[i, 0], 0]
         others = [scores[i, j] for j in range(k)
                   if abs(r_pos[ranked[i, j], 0] - top) > 5.0 and np.isfinite(scores[i, j])]
-        want = 1.0 if not others else max(0.0, 1.0 - scores[i, 0] / min(others))
+        last = max(scores[i, j] for j in range(k) if np.isfinite(scores[i, j]))  # no other place: a lower bound
+        want = max(0.0, 1.0 - scores[i, 0] / (min(others) if others else last))
         assert got[i] == pytest.approx(want)
 
 
 def test_confidence_edge_cases():
     r_pos = np.array([[0.0], [1.0], [50.0]])
-    assert ratio_confidence(np.array([[1.0, 2.0]]), np.array([[0, 1]]), r_pos, 5.0)[0] == 1.0  # same place only
+    # the same place only (hunt 5 F5: 1.0, so --k 2 gave wrong answers full confidence): bounded by the last score
+    assert ratio_confidence(np.array([[1.0, 2.0]]), np.array([[0, 1]]), r_pos, 5.0)[0] == 0.5
+    assert ratio_confidence(np.array([[1.0, np.inf]]), np.array([[0, 2]]), r_pos, 5.0)[0] == 0.0  # one scored
+    assert ratio_confidence(np.array([[1.0]]), np.array([[0]]), r_pos, 5.0)[0] == 0.0
     assert ratio_confidence(np.array([[1.0, 1.0]]), np.array([[0, 2]]), r_pos, 5.0)[0] == 0.0  # tie with another
     assert ratio_confidence(np.array([[0.0, 0.0]]), np.array([[0, 2]]), r_pos, 5.0)[0] == 0.0
     assert ratio_confidence(np.zeros((2, 0)), np.zeros((2, 0), int), r_pos, 5.0).tolist() == [0.0, 0.0]

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import shlex
+from pathlib import Path
 
 from ..maps import MapConfig, build, load_map
 from ..maps.config import DTYPES
+from ..maps.coverage import coverage_line
 from ..methods.grammar import FRAME_FEATURES
 from ..search.ann import ANN_INDEXES, AnnConfig
 from ..sequence.descriptors import DESCRIPTOR_ALIASES, SEQUENCE_DESCRIPTORS
@@ -51,6 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--shards", type=positive_int, help="IVF indexes only: train one coarse quantizer, build the "
                    "inverted lists of N contiguous shards of the items in parallel and merge them on disk "
                    "(index.ivfdata, opened memory-mapped); same results as one index (default 1)")
+    b.add_argument("--top-k", type=positive_int, help="HVPR K stored in the map for localize --map, serve, eval "
+                   "--index (default: chosen on val as seqnet eval does; 20 without val, or for --split all)")
     b.add_argument("--dtype", choices=DTYPES, help=f"storage of the descriptors (default {_D.dtype})")
     b.add_argument("--out", required=True, metavar="MAP", help="map directory to write (replaced only when it "
                    "holds nothing but a seqnet map)")
@@ -91,8 +96,26 @@ def map_config(args: argparse.Namespace) -> MapConfig:
 
 
 def run_build(args: argparse.Namespace) -> int:
-    path = build(map_config(args), args.dataset, args.out, args.model)
+    path = build(map_config(args), args.dataset, args.out, args.model,
+                 {"top_k": args.top_k})
     mp = load_map(path, "cpu")
     print(mp.describe_info())
-    print(f"{mp.nbytes / 2**20:.1f} MiB; evaluate with: seqnet eval --index {path} --dataset {args.dataset}")
+    said = coverage_line(mp.meta, args.split is not None)
+    if said:
+        print(said)
+    print(f"{mp.nbytes / 2**20:.1f} MiB; evaluate with: {eval_command(mp.meta, path, args.dataset)}")
     return 0
+
+
+def eval_command(meta: dict, path: str | Path, dataset: str | Path) -> str:
+    """The ``seqnet eval --index`` command that evaluates the map as built: its window mode (a causal map refuses
+    the default centred windows), and its split when the default (test) would not be it: a train or val map, or a
+    map of all frames of a dataset of explicit positives (those apply to the map's own split only)."""
+    conf, src = meta.get("config") or {}, meta.get("source") or {}
+    argv = ["seqnet", "eval", "--index", str(path), "--dataset", str(dataset)]
+    if conf.get("window", "centred") != "centred":
+        argv += ["--window", str(conf["window"])]
+    split = src.get("split")
+    if split not in (None, "test", "all") or (split == "all" and src.get("explicit_positives")):
+        argv += ["--split", str(split)]
+    return shlex.join(argv)

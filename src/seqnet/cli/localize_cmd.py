@@ -9,7 +9,7 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from ..core.stage import Written
 from ..eval.select import SELECTABLE
-from ..localize.config import LocalizeConfig, map_settings
+from ..localize.config import TOP_K, LocalizeConfig, map_settings
 from ..localize.replay import main
 from ..localize.stream import Query, stream
 from ..localize.trackfile import TRACK_COLUMNS
@@ -86,7 +86,8 @@ def add_localizer_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seq-len", type=positive_int, help="window length L (default: the S_L model's, else 5)")
     p.add_argument("--match-len", "--rerank-seq-len", dest="match_len", type=positive_int,
                    help="length L_m of the sequence matchers (default: L; --rerank-seq-len: its earlier name)")
-    p.add_argument("--top-k", type=positive_int, help=f"HVPR shortlist size (default {_D.top_k})")
+    p.add_argument("--top-k", type=positive_int, help="HVPR shortlist size (default: an index map's stored K, "
+                   f"chosen on val or given at build; with --dataset chosen on its val split; else {TOP_K})")
     p.add_argument("--k", type=positive_int, help=f"references ranked per frame, for the confidence (default {_D.k})")
     p.add_argument("--anchor", choices=ANCHORS, help=f"pivot step of vseqmatch / graph (default {_D.anchor}: the "
                    "newest frame, as seqnet eval --window causal)")

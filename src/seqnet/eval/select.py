@@ -269,7 +269,7 @@ def choose_on_val(ds: Dataset, split: str, models: Mapping[str, SeqNet], conf: E
     if few < VAL_MIN:  # chosen all the same, as training chooses its epoch: said (once evaluated), with the remedy
         said = (f"HVPR settings chosen on {few} val quer{'y' if few == 1 else 'ies'} (1 query = "
                 f"{1 / max(few, 1):.2f} of R@1): the choice is mostly chance; about {VAL_MIN} or more are needed, "
-                "or give --top-k / --fuse-top-k / --fuse-weight yourself")
+                f"or give {' / '.join('--' + c.replace('_', '-') for c in choose)} yourself")
         return conf, {"selection": {"hvpr": [c.to_dict() for c in choices], "warning": said, **leak}}
     return conf, ({"selection": {"hvpr": [c.to_dict() for c in choices], **leak}} if choices else None)
 

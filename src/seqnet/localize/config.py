@@ -22,6 +22,8 @@ from .localizer import Localizer, online_method
 if TYPE_CHECKING:
     from ..sequence.model import SeqNet
 
+TOP_K = 20  # HVPR's shortlist size K when none is given, chosen or stored in a map
+
 
 @dataclasses.dataclass(frozen=True)
 class LocalizeConfig(Config):
@@ -30,7 +32,9 @@ class LocalizeConfig(Config):
     Attributes:
         method: a method name (:mod:`seqnet.methods.grammar`; not ``grh``).
         seq_len: L (None: the S_L model's, else 5); match_len: L_m (None: L).
-        top_k: HVPR shortlist size K; k: references ranked per frame (for the confidence).
+        top_k: HVPR shortlist size K (None: an index map's stored K, chosen on val or given when it was built, as
+            ``seqnet localize --map`` uses it; else :data:`TOP_K`); k: references ranked per frame (for the
+            confidence).
         anchor: pivot step of the variable-speed matchers (``end``: as ``seqnet eval --window causal``).
         split: the split replayed (None: test when defined, else all).
         radius: localisation radius (None: the dataset's): correctness and the confidence.
@@ -43,7 +47,7 @@ class LocalizeConfig(Config):
     method: str = "hvpr"
     seq_len: int | None = None
     match_len: int | None = None
-    top_k: int = 20
+    top_k: int | None = None
     k: int = 20
     anchor: str = "end"
     split: str | None = None
@@ -63,10 +67,13 @@ class LocalizeConfig(Config):
         for key in ("seq_len", "match_len"):
             if getattr(self, key) is not None:
                 self._set(key, check_int(key, getattr(self, key), 1))
-        self._set("top_k", check_int("top_k", self.top_k, 1))
+        if self.top_k is not None:
+            self._set("top_k", check_int("top_k", self.top_k, 1))
         if isinstance(self.k, int) and not isinstance(self.k, bool) and self.k == 1:
             raise ConfigError("k = 1 ranks one reference per frame: the confidence compares the top-1 with the best "
-                              "other place ranked, so it would be 1 for every frame; give --k 2 or more (default 20)")
+                              "other place ranked (else, as a lower bound, with the last ranked), so it would be 0 "
+                              "for every frame; give --k 2 or more (default 20: the more ranked, the more often "
+                              "another place is among them)")
         self._set("k", check_int("k", self.k, 1))
         check_choice("anchor", self.anchor, ANCHORS)
         if self.radius is not None:
@@ -83,10 +90,23 @@ class LocalizeConfig(Config):
                                   getattr(models.get("seqnet"), "seq_len", None), self.anchor)
         return single_windows(windows) if online_method(self.method).single_frame else windows
 
+    def for_reference(self, reference: Reference) -> LocalizeConfig:
+        """These settings with K resolved for ``reference``: ``top_k`` as given, else the K an index map stores for
+        the method (:func:`seqnet.maps.chosen.stored`: what ``seqnet localize --map`` and ``serve`` use), else
+        :data:`TOP_K`."""
+        if self.top_k is not None:
+            return self
+        from ..maps.chosen import stored
+
+        have = stored(getattr(reference, "meta", None), self.method)
+        return self.merge(top_k=int(have.get("top_k", TOP_K)))
+
     def localizer(self, reference: Reference, radius: float, exact: bool = False) -> Localizer:
-        """The :class:`Localizer` of these settings over ``reference`` (described before ``precision`` applies)."""
+        """The :class:`Localizer` of these settings over ``reference`` (described before ``precision`` applies; K
+        resolved by :meth:`for_reference`)."""
         half = precision_dtype(self.precision) if self.precision != "float32" else None
-        loc = Localizer(reference, self.method, radius, self.top_k, self.k, self.fuse_weight, self.fuse_top_k, exact,
+        top_k = self.for_reference(reference).top_k
+        loc = Localizer(reference, self.method, radius, top_k, self.k, self.fuse_weight, self.fuse_top_k, exact,
                         precision=half)
         for model in loc.models.values():
             if half is not None:

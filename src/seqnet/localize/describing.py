@@ -187,11 +187,18 @@ def dataset_pca(ref_map: Reference, map_dir: str | Path | None, prov: dict) -> P
     if dataset is None:
         raise ConfigError("the map's descriptors were reduced by a dataset's PCA (--pca), but the map names no "
                           "dataset to read it from; describe the query images yourself and pass the file as --query")
-    if isinstance(meta, dict):
+    source = meta.get("source") if isinstance(meta, dict) and isinstance(meta.get("source"), dict) else None
+    missing = dataset_pca_path(dataset)
+    if source is not None and source.get("pca_not_copied"):  # this map tried: the file was missing or foreign
+        logger.warning("map %s holds no copy of its dataset's PCA: %s.pca.npz was missing or not that PCA when the "
+                       "map was built; reading it beside the dataset again, %s (hint: put the dataset's own "
+                       "%s back and rebuild the map to carry it, or give --query a descriptor file described as "
+                       "the map's)", getattr(ref_map, "path", map_dir), Path(dataset).name, missing, missing.name)
+    elif source is not None:
         logger.info("map %s holds no copy of its dataset's PCA (built before seqnet index build copied it): reading "
                     "it beside the dataset it was built from, %s (rebuild the map to carry it)",
                     getattr(ref_map, "path", map_dir), dataset)
-    return load_dataset_pca(dataset_pca_path(dataset), prov)
+    return load_dataset_pca(missing, prov)
 
 
 def query_provenance(conf: DescribeConfig, pca: PCA | None, pca_on: str | None, prov: dict,

@@ -30,7 +30,7 @@ from ..security.digests import file_digest
 from ..security.dirs import remove_dead_temps
 from ..security.locks import locked
 from ..security.text import shown
-from .config import LocalizeConfig
+from .config import TOP_K, LocalizeConfig
 from .localizer import Estimate, Localizer, online_method, replay, traverse_reference
 from .trackfile import FrameTruth, check_output, sidecar_of, track_rows, write_track
 
@@ -181,7 +181,8 @@ def _main(conf: LocalizeConfig, dataset: str | Path, out: Path, models: Sequence
     if calibration is not None:
         replayed = _replay_split(conf, full.split(calibration[1]), full, calibration[1], loaded, distances, reading)
         accept, summary["calibrated"] = _calibrated(replayed[1:3], (est, correct, has), *calibration)
-    record = {"summary": summary, "config": {**conf.to_dict(), "split": split, "seq_len": loc.seq_len,
+    record = {"summary": summary, "config": {**conf.for_reference(loc.ref).to_dict(), "split": split,
+                                             "seq_len": loc.seq_len,
                                              "match_len": loc.match_len, "radius": radius,
                                              "ground_truth": "explicit positives" if ds.positives is not None
                                              else "radius", "model_seq_len": model_lengths(loaded)},
@@ -215,10 +216,12 @@ def chosen_on_val(conf: LocalizeConfig, full: Dataset, split: str, loaded: Mappi
     from ..eval.config import EvalConfig
     from ..eval.select import choose_on_val
 
-    if not choose or online_method(conf.method).kind != "hvpr":
+    m = online_method(conf.method)
+    choose = [c for c in choose if c in (("fuse_top_k", "fuse_weight") if m.fused else ("top_k",))]
+    if not choose or m.kind != "hvpr":  # nothing of this method's left to choose (given, e.g. --top-k): nothing said
         return conf, None
     econf = EvalConfig(methods=(conf.method,), seq_len=conf.seq_len, match_len=conf.match_len, window="causal",
-                       radius=conf.radius, top_k=conf.top_k, fuse_weight=conf.fuse_weight,
+                       radius=conf.radius, top_k=conf.top_k or TOP_K, fuse_weight=conf.fuse_weight,
                        fuse_top_k=conf.fuse_top_k, device=conf.device, allow_mismatch=conf.allow_mismatch)
     _, found = choose_on_val(full, split, loaded, econf, choose, dataset)
     if found is None:

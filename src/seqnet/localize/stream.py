@@ -81,9 +81,11 @@ def load_reference(path: str | Path, models: Mapping[str, SeqNet],
 
 
 def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
-    """An index map checked for the localiser (causal windows, ``conf``'s method, L and L_m), with its radius
-    (``conf.radius``, else the radius of the dataset it was built from)."""
+    """An index map checked for the localiser (causal windows, ``conf``'s method, L and L_m), as that method
+    searches it (:meth:`seqnet.maps.Map.for_method`: a single-frame method searches every reference frame), with its
+    radius (``conf.radius``, else the radius of the dataset it was built from)."""
     from ..maps.evaluate import check_conf
+    from ..methods.grammar import parse_method
 
     if mp.config.window != "causal":
         raise ConfigError(f"map {mp.path} was built with {mp.config.window} windows; the online localiser needs "
@@ -94,7 +96,8 @@ def index_reference(mp: Map, conf: LocalizeConfig) -> tuple[Map, float]:
     radius = conf.radius or source.get("radius")
     if radius is None:
         raise ConfigError(f"map {mp.path} records no localisation radius; give one (--radius)")
-    return mp, float(number(radius, f"map {mp.path}: radius", 1e-300, 1e300, ConfigError, integer=False))
+    return mp.for_method(parse_method(conf.method)), float(number(radius, f"map {mp.path}: radius", 1e-300, 1e300,
+                                                                  ConfigError, integer=False))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -190,13 +193,13 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
         summary["describe_ms"] = {"mean": float(np.mean(describe_ms)), "median": float(np.median(describe_ms))}
     if vq is not None:
         summary.update(vq.summary(np.array([e.latency_ms for e in est])))
-    record = {"summary": summary, "config": {**conf.to_dict(), "seq_len": loc.seq_len, "match_len": loc.match_len,
-                                             "radius": radius},
+    record = {"summary": summary, "config": {**conf.for_reference(ref_map).to_dict(), "seq_len": loc.seq_len,
+                                             "match_len": loc.match_len, "radius": radius},
               "inputs": {"map": str(Path(map_dir).resolve()), **_query_inputs(q, images),
                          "models": [str(Path(p).resolve()) for p in (*models, shortlist_model, rerank_model) if p]},
               "provenance": {"map": ref_map.provenance,
                              "models": {r: m.provenance for r, m in loaded.items()}}}
-    record.update(_notices(loc, est, conf.method, len(ref_map.positions), order))
+    record.update(_notices(loc, est, conf.method, len(ref_map.positions), order, getattr(ref_map, "meta", None)))
     truth = FrameTruth.of(q_pos, loc.r_pos, best, frame.unit)
     if truth is not None:
         record["truth"] = truth.record()
@@ -209,11 +212,17 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     return Written(out, record)
 
 
-def _notices(loc: Any, est: Sequence[Estimate], name: str, map_frames: int, order: QueryOrder) -> dict[str, Any]:
+def _notices(loc: Any, est: Sequence[Estimate], name: str, map_frames: int, order: QueryOrder,
+             meta: dict[str, Any] | None = None) -> dict[str, Any]:
     """What the estimates of a sequence method say about the query (:mod:`seqnet.localize.order`): shorter than
-    its window, or not in capture order; each line logged once as a warning, the summary's ``warnings``."""
+    its window, or not in capture order; and a query far longer than an index map (``meta``: its ``map.json``) of
+    part of its dataset's route (:func:`seqnet.maps.coverage.partial_map_note`); each line logged once as a
+    warning, the summary's ``warnings``."""
+    from ..maps.coverage import partial_map_note
+
     lines = [line for line in (short_query_note(est, loc.method, name, loc.windows.longest),
-                               order_note(est, loc.method, loc.seq_len, map_frames, order)) if line]
+                               order_note(est, loc.method, loc.seq_len, map_frames, order),
+                               partial_map_note(meta, loc.ref.name, len(est))) if line]
     for line in lines:
         logger.warning("%s", line)
     return {"warnings": lines} if lines else {}

@@ -24,12 +24,12 @@ from ..data.io import POSITIVES_FILE, load_positives, load_traverse
 from ..data.positives import Positives
 from ..data.traverse import Traverse, default_split
 from ..eval.evaluate import EvalConfig, Evaluation
-from ..eval.evaluation import side_record
+from ..eval.evaluation import merge, method_windows, side_record
 from ..eval.notices import add_warnings, radius_ignored, shift_notice, split_note, trivial_ks
 from ..eval.outputs import EvalOutputs
 from ..eval.runner import run
 from ..methods.grammar import Method, parse_method
-from ..metrics.recall import ground_truth
+from ..metrics.recall import ground_truth, has_positive
 from ..report.guidance import learned_below_baseline, note_entries
 from ..search.ann import shortlist_recall
 from .load import load_map
@@ -115,8 +115,9 @@ def _same_reference(mp: Map, q: QueryData) -> bool:
     return names_ok and pos.shape == mp.positions.shape and bool(np.array_equal(pos, mp.positions))
 
 
-def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
-    """Explicit positives of the dataset over the map's items (only for a map built from this dataset and split)."""
+def _positives(mp: Map, q: QueryData, q_items: np.ndarray, r_frames: np.ndarray | None = None) -> Positives | None:
+    """Explicit positives of the dataset over the map's items (``r_frames``: those map frames instead; only for a map
+    built from this dataset and split)."""
     if not (q.root / POSITIVES_FILE).is_file():
         return None
     src = mp.meta.get("source") or {}
@@ -125,7 +126,8 @@ def _positives(mp: Map, q: QueryData, q_items: np.ndarray) -> Positives | None:
                           f"{mp.path} was built from {src.get('dataset_path')} [{src.get('split')}]; hint: build "
                           "the map from this dataset and split")
     ra = int(src["reference_range"][0])
-    return load_positives(q.root / POSITIVES_FILE).select(q.query_range[0] + q_items, ra + mp.items)
+    return load_positives(q.root / POSITIVES_FILE).select(q.query_range[0] + q_items,
+                                                           ra + (mp.items if r_frames is None else r_frames))
 
 
 def check_conf(mp: Map, conf: EvalConfig) -> list[Method]:
@@ -164,31 +166,23 @@ def _shortlist_recall(mp: Map, q_short: np.ndarray, top_k: int) -> Callable[[Met
 
 def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evaluation:
     """Evaluate the query side ``q`` against the map ``mp`` (methods: :meth:`Map.served`): the
-    evaluation loop of :func:`seqnet.eval.runner.run` with the map as the reference."""
+    evaluation loop of :func:`seqnet.eval.runner.run` with the map as the reference, a single-frame method on every
+    frame of both sides (:meth:`Map.for_method`), as ``seqnet eval`` scores it."""
     conf = conf or EvalConfig()
     methods = check_conf(mp, conf)
     mp.check_query(q.traverse.dim, q.traverse.provenance, conf.allow_mismatch)
     check_source(mp, q)
-    radius = conf.radius or q.radius
-    query = mp.describe(q.traverse)
-    items = query.side.items
-    positives = _positives(mp, q, items)
-    truth = ground_truth(q.traverse.positions[items], mp.positions[mp.items], radius, positives,
-                         f"{q.name} against map {mp.path}", q.unit)
     c = mp.config
-    conf = conf.merge(seq_len=c.windows.seq_len, match_len=c.windows.match_len, radius=radius)
-
-    def info(m: Method) -> dict[str, Any]:
-        return {**m.summary(), "seq_len": c.windows.seq_len, "match_len": c.windows.match_len,
-                "top_k": conf.shortlist_size(m), "index": c.ann.kind}
-
-    extra = _shortlist_recall(mp, query.items(c.shortlist), conf.shortlist_size(c.method))
-    ev = run(methods, query, mp, truth, conf, len(q.traverse), info, extra)
+    conf = conf.merge(seq_len=c.windows.seq_len, match_len=c.windows.match_len, radius=conf.radius or q.radius)
+    groups = method_windows(methods, mp.windows, conf.common_queries)
+    ev = merge([_evaluate_group(mp, mp if w == mp.windows else mp.for_method(ms[0]), q, ms, conf)
+                for w, ms in groups.items()], [m.name for m in methods])
+    positives = (q.root / POSITIVES_FILE).is_file()
     ev.results["config"] = {**conf.to_dict(), "methods": [m.name for m in methods], "split": q.split,
                             "query_range": list(q.query_range),  # the per-query files' numbering (VME)
                             "dataset": q.name, "device": str(mp.device), "index": str(mp.path),
                             "map": mp.meta["config"],
-                            "ground_truth": "explicit positives" if positives is not None else "radius"}
+                            "ground_truth": "explicit positives" if positives else "radius"}
     same = (mp.meta.get("source") or {}).get("dataset_path") in (None, str(q.root.resolve()))
     if same and (mp.meta.get("source") or {}).get("reference_range"):  # --per-query: the dataset's reference rows
         ev.results["config"]["reference_range"] = list(mp.meta["source"]["reference_range"])
@@ -196,9 +190,33 @@ def evaluate_map(mp: Map, q: QueryData, conf: EvalConfig | None = None) -> Evalu
     ev.results["descriptors"] = {  # as seqnet eval's (eval.evaluation.descriptor_record): the dataset's records too
         "reference": side_record(mp.provenance, mp.input_dim, ref_records.get("describe"), ref_records.get("pca")),
         "query": side_record(q.traverse.provenance, q.traverse.dim, q.records.get("describe"), q.records.get("pca"))}
-    ev.query_names = [q.traverse.names[i] for i in items] if q.traverse.names else None
-    ev.reference_names = [mp.names[i] for i in mp.items] if mp.names else None
     ev.frame_names = (q.traverse.names, mp.names)
+    return ev
+
+
+def _evaluate_group(mp: Map, ref: Map, q: QueryData, methods: list[Method], conf: EvalConfig) -> Evaluation:
+    """The ``methods`` that search ``ref`` (the map, or its view of every frame for a single-frame method), on its
+    windows' query items."""
+    query = ref.describe(q.traverse)
+    items = query.side.items
+    positives = _positives(ref, q, items)
+    truth = ground_truth(q.traverse.positions[items], ref.positions[ref.items], conf.radius, positives,
+                         f"{q.name} against map {mp.path}", q.unit)
+    if len(ref.items) < len(ref.positions):  # a query correct only at frames without a window counts, as a failure
+        every = _positives(ref, q, items, np.arange(len(ref.positions)))
+        truth = dataclasses.replace(truth, matched=every.counts() > 0 if every is not None else has_positive(
+            np.asarray(q.traverse.positions[items]), np.asarray(ref.positions), truth.radius))
+    c = mp.config
+
+    def info(m: Method) -> dict[str, Any]:
+        return {**m.summary(), "seq_len": c.windows.seq_len, "match_len": c.windows.match_len,
+                "top_k": conf.shortlist_size(m), "index": c.ann.kind}
+
+    extra = _shortlist_recall(ref, query.items(c.shortlist), conf.shortlist_size(c.method))
+    ev = run(methods, query, ref, truth, conf, len(q.traverse), info, extra,
+             windows=None if ref is mp else ref.windows)
+    ev.query_names = [q.traverse.names[i] for i in items] if q.traverse.names else None
+    ev.reference_names = [ref.names[i] for i in ref.items] if ref.names else None
     return ev
 
 

@@ -18,6 +18,7 @@ from ..security.inputs import inside
 from ..security.limits import DIM_MAX, INDEX_MAX, number
 from ..sequence.checkpoints import load_model
 from .config import MapConfig
+from .edges import EDGE_FILE
 from .map import Map, MapError, read_meta
 from .store import INDEX_FILE
 
@@ -55,6 +56,8 @@ def _load_map(path: Path, device: str | None, anchor: str) -> Map:
                               "match_starts": _array(path / "match_starts.npy", (r,), "iu"),
                               "positions": _array(path / "positions.npy", None, "f")}
     check_arrays(path, arrays, nr)
+    if (path / EDGE_FILE).is_file():
+        arrays["edge_shortlist"] = _array(path / EDGE_FILE, (nr - r, d1), "f")
     if (path / "seq_bounds.npy").is_file():
         arrays["seq_bounds"] = _array(path / "seq_bounds.npy", (nr, 2), "iu")
     if (path / "names.txt").is_file():

@@ -9,6 +9,7 @@ matcher over the whole map.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,6 +34,7 @@ from ..security.jsonfile import read_json
 from ..sequence.described import Described
 from ..sequence.windows import Windows, window_offset
 from .config import MapConfig
+from .edges import edge_frames, edge_rows, search_every_frame
 from .store import MAP_FORMAT, MAP_JSON, PCA_FILE
 
 torch = lazy_module("torch")
@@ -54,6 +56,8 @@ class Map:
         path: the directory; config: its :class:`MapConfig`; meta: ``map.json``; windows: its windows.
         shortlist: ``[R, D1]`` memory map; frames: ``[Nr, D2]`` memory map (float32 or float16).
         items, match_starts: ``[R]``; positions: ``[Nr, P]``; names: ``Nr`` names or None.
+        edge_shortlist: ``[E, D1]`` shortlist descriptors of the frames that are no item, when the map stores them
+            (:mod:`seqnet.maps.edges`), else None.
         index: the FAISS index (None for ``flat``: exact search over ``shortlist``).
         models: the models stored with the map, by role; device: torch device of the computations.
     """
@@ -66,6 +70,8 @@ class Map:
         self.items, self.match_starts = np.asarray(arrays["items"]), np.asarray(arrays["match_starts"])
         self.positions, self.seq_bounds = np.asarray(arrays["positions"]), arrays.get("seq_bounds")
         self.names: list[str] | None = arrays.get("names")
+        self.edge_shortlist = arrays.get("edge_shortlist")
+        self._every_frame: tuple[np.ndarray, np.ndarray, ArrayLike] | None = None  # a single-frame view's search
         self.index, self.models, self.device = index, models, get_device(device)
         self.block_bytes = BLOCK_BYTES
         self.name = str(path.name)
@@ -146,10 +152,43 @@ class Map:
         if descriptor != self.config.shortlist:
             raise ConfigError(f"map {self.path} stores {self.config.shortlist!r} shortlist descriptors, not "
                               f"{descriptor!r}")
+        if self._every_frame is not None:  # a single-frame method's view: items merged with the other frames
+            items, edges, rows = self._every_frame
+            return search_every_frame(items, edges, lambda n: self._search_items(query, n, exact),
+                                      lambda n: self.exact_search(rows).search(query, n), k)
+        return self._search_items(query, k, exact)
+
+    def _search_items(self, query: ArrayLike, k: int, exact: bool) -> tuple[np.ndarray, np.ndarray]:
         if exact or self.index is None:
             return self.exact_search(self.shortlist).search(query, k)
         q = query.cpu().numpy() if isinstance(query, torch.Tensor) else query
         return ann_search(self.index, q, k)
+
+    def for_method(self, m: Method) -> Map:
+        """The map as ``m`` searches it: itself, or for a single-frame method (``single``, ``s1``: no window) a view
+        whose items are every reference frame and whose windows are one frame, as a dataset's reference is for that
+        method (:mod:`seqnet.maps.edges`); :class:`MapError` when the map lacks the descriptors of its frames that
+        are no item (a map built before seqnet stored them)."""
+        self.check_method(m)
+        if not m.single_frame:
+            return self
+        edges = edge_frames(self.items, len(self.frames))
+        rows = self.edge_shortlist
+        if rows is None and len(edges) and self.config.frames_descriptor == self.config.shortlist:
+            rows = edge_rows(self.frames, edges)  # the stored frames are the shortlist descriptor
+        if rows is None and len(edges):
+            raise MapError(f"map {self.path} stores the {self.config.shortlist!r} descriptors of its {len(self.items)} "
+                           f"items only, not of the {len(edges)} frames where no window fits, which {m.name!r} "
+                           "searches too (a map built before seqnet stored them); rebuild it with seqnet index build")
+        view = copy.copy(self)
+        view.windows = Windows(1, 1, self.windows.mode, self.windows.anchor)
+        view.items = view.match_starts = np.arange(len(self.frames), dtype=np.int64)
+        view._exact = {}
+        if self.index is None and self.config.frames_descriptor == self.config.shortlist:
+            view.shortlist = self.frames  # exact search over the stored frames: every frame, one search
+        else:
+            view._every_frame = (self.items, edges, rows if rows is not None else self.shortlist[:0])
+        return view
 
     def exact_search(self, ref: ArrayLike) -> ExactIndex:
         """The exact index of one of the map's arrays (``shortlist`` or ``frames``; its norms are kept)."""

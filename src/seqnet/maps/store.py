@@ -7,6 +7,8 @@ Layout of a map directory ``MAP/`` (format ``seqnet-map/1``)::
     frames.npy          [Nr, D2] re-ranking frame descriptor of every reference frame
     items.npy           [R]      frame of each item;  match_starts.npy [R]: its L_m-window start
     positions.npy       [Nr, P]  positions of the frames;  names.txt, seq_bounds.npy (optional)
+    edge_shortlist.npy  [E, D1]  shortlist descriptor of the frames that are no item, for a single-frame shortlist
+                        whose stored frames are another descriptor (:mod:`seqnet.maps.edges`; optional)
     index.faiss         ANN index over shortlist.npy (absent for ``flat``: exact search over the file)
     models/<role>.pt    the models the descriptors were made with (the map is self-contained)
     pca.npz             a ``--pca D`` dataset's train-split PCA, which reduces query images' descriptors as the
@@ -56,7 +58,7 @@ MAP_FORMAT = "seqnet-map/1"
 MAP_JSON = "map.json"
 INDEX_FILE = "index.faiss"
 PCA_FILE = "pca.npz"
-ARRAY_FILES = ("shortlist", "frames", "items", "match_starts", "positions", "seq_bounds")
+ARRAY_FILES = ("shortlist", "frames", "items", "match_starts", "positions", "seq_bounds", "edge_shortlist")
 CHUNK_BYTES = MEMORY_BLOCK // 2  # rows written per chunk
 
 
@@ -78,6 +80,8 @@ class MapArrays:
         frames: ``[Nr, D2]`` re-ranking frame descriptors.
         items: ``[R]`` frame of each item; match_starts: ``[R]`` first frame of its L_m-window.
         positions: ``[Nr, P]``; names: ``Nr`` image names or None; seq_bounds: ``[Nr, 2]`` or None.
+        edge_shortlist: ``[E, D1]`` shortlist descriptors of the ``E = Nr - R`` frames that are no item, in frame
+            order (:mod:`seqnet.maps.edges`), or None.
     """
 
     shortlist: ArrayLike
@@ -87,6 +91,7 @@ class MapArrays:
     positions: np.ndarray
     names: list[str] | None = None
     seq_bounds: np.ndarray | None = None
+    edge_shortlist: ArrayLike | None = None
 
     def check(self, match_len: int) -> None:
         """:class:`ConfigError` naming the first inconsistency."""
@@ -101,6 +106,10 @@ class MapArrays:
             raise ConfigError(f"items must be frames in 0..{nr - 1} and positions [{nr}, P]")
         if self.names is not None and len(self.names) != nr:
             raise ConfigError(f"{len(self.names)} names for {nr} frames")
+        e = self.edge_shortlist
+        if e is not None and tuple(e.shape) != (nr - r, self.shortlist.shape[1]):
+            raise ConfigError(f"edge_shortlist must be [{nr - r}, {self.shortlist.shape[1]}] (a row per frame that "
+                              f"is no item), got {tuple(e.shape)}")
 
 
 def save_array(path: Path, array: ArrayLike, dtype: str, name: str) -> Path:
@@ -146,6 +155,8 @@ def _write(root: Path, conf: MapConfig, a: MapArrays, models: dict[str, SeqNet],
            info: dict[str, Any], pca: PCA | None) -> None:
     shortlist = save_array(root / "shortlist.npy", a.shortlist, conf.dtype, "shortlist")
     save_array(root / "frames.npy", a.frames, conf.dtype, "frame")
+    if a.edge_shortlist is not None:
+        save_array(root / "edge_shortlist.npy", a.edge_shortlist, conf.dtype, "shortlist")
     for name in ("items", "match_starts"):
         save_npy_atomic(root / f"{name}.npy", np.asarray(getattr(a, name), dtype=np.int64))
     save_npy_atomic(root / "positions.npy", np.asarray(a.positions, dtype=np.float64).reshape(len(a.frames), -1))

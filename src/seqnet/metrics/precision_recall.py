@@ -8,8 +8,11 @@ the localisation radius from that best one (a second, different place): lower sc
 
 which is the classic ratio test ``1 − s_best / s_other`` for distances (scores ≥ 0) and stays defined for
 scores of any sign and scale (a negated similarity matrix, ``--similarity``): scaling the scores does not
-change it, and it grows with the margin between the two places. It is 1 when no other place is among the
-retrieved, 0 when the other place scores as well. Thresholding it trades recall for
+change it, and it grows with the margin between the two places; 0 when the other place scores as well. When no
+other place is among the retrieved (all within the radius of the best: a small ``--k``, or a dense reference), the
+last retrieved score stands in for ``s_other``: any other place ranks after it, so this is a lower bound of the
+confidence, never 1 from one place alone (it was 1: ``--k 2`` gave wrong answers confidence 1.000, hunt 5); one
+retrieved reference gives 0. Thresholding it trades recall for
 precision: :func:`precision_recall` gives the curve over all thresholds (top-1 correctness, recall
 relative to the queries that have a correct reference), :func:`pr_summary` its area (average
 precision) and the recall at 100 % precision, and :func:`thresholds_for` the threshold that reaches a
@@ -25,7 +28,8 @@ def ratio_confidence(scores: np.ndarray, ranked: np.ndarray, r_pos: np.ndarray, 
     """``[M]`` confidence of each query's top-1 from its ranked ``scores [M, K]`` / items ``ranked [M, K]``.
 
     ``r_pos [R, P]`` are the reference item positions; items within ``radius`` of the top-1 count as
-    the same place. Non-finite scores (not scored, e.g. beyond an HVPR shortlist) are ignored.
+    the same place. Non-finite scores (not scored, e.g. beyond an HVPR shortlist) are ignored. Without another
+    place among them, the last scored one bounds it (a lower bound of the confidence; see the module).
     """
     scores, ranked = np.asarray(scores, dtype=np.float64), np.asarray(ranked, dtype=np.int64)
     m = len(ranked)
@@ -35,8 +39,11 @@ def ratio_confidence(scores: np.ndarray, ranked: np.ndarray, r_pos: np.ndarray, 
     pos = pos[:, None] if pos.ndim == 1 else pos
     cand = pos[ranked.clip(0)]  # [M, K, P]
     far = np.sqrt(np.square(cand - cand[:, :1]).sum(axis=-1)) > radius  # [M, K]: another place than the top-1
-    other = np.where(far & np.isfinite(scores) & (ranked >= 0), scores, np.inf).min(axis=1)
-    conf = np.ones(m)  # no other place among the retrieved: full confidence
+    scored = np.isfinite(scores) & (ranked >= 0)
+    other = np.where(far & scored, scores, np.inf).min(axis=1)
+    last = np.where(scored, scores, -np.inf).max(axis=1)  # any other place ranks after the last one scored
+    other = np.where(np.isfinite(other), other, last)
+    conf = np.zeros(m)
     some = np.isfinite(other) & np.isfinite(scores[:, 0])
     best, second = scores[some, 0], other[some]
     den = np.maximum(np.maximum(np.abs(best), np.abs(second)), second - best)
