@@ -101,3 +101,20 @@ def test_hvpr_settings_chosen_on_training_queries_are_warned_as_eval_warns(tmp_p
     assert any("the choice is mostly chance" in w for w in said), said
     logged = [r.getMessage() for r in caplog.records]
     assert all(logged.count(w) == 1 for w in said), logged  # each said once
+
+
+def test_a_frame_whose_place_has_no_window_in_the_map_is_a_wrong_answer():
+    """localize --map scored against positions (a bag's topic, a video's track): a query frame whose correct map
+    frames all lie where no window fits is counted, as a wrong answer, as the evaluation counts it."""
+    import numpy as np
+
+    from seqnet.localize.replay import frame_truth
+
+    frames = np.c_[10.0 * np.arange(10), np.zeros(10)]  # the map's frames; items: 2..7 (centred L = 5)
+    items = np.arange(2, 8)
+    q_pos = np.array([[0.5, 0.0], [40.5, 0.0], [500.0, 0.0]])  # at frame 0 (no window), at frame 4, nowhere
+    best = np.array([0, 2, 1])  # items 2, 4, 3 answered
+    correct, has = frame_truth(q_pos, frames[items], 4.0, best)
+    assert has.tolist() == [False, True, False] and correct.tolist() == [False, True, False]
+    correct, has = frame_truth(q_pos, frames[items], 4.0, best, frames=frames)
+    assert has.tolist() == [True, True, False] and correct.tolist() == [False, True, False]

@@ -109,10 +109,11 @@ class VideoQuery:
 
         return parse_start(self.opts.video_start) if self.opts.video_start else self.source.start
 
-    def truth(self, mf: MapFrame, map_path: str | Path, r_pos: np.ndarray, radius: float,
-              best: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    def truth(self, mf: MapFrame, map_path: str | Path, r_pos: np.ndarray, radius: float, best: np.ndarray,
+              frames: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
         """``(correct [N], has_positive [N], positions [N, 2])`` of the frames localised (None without
-        ``positions``); a frame outside the track has no positive (and a NaN position). A near-constant time
+        ``positions``; ``frames``: every map frame's position, :func:`.replay.frame_truth`'s); a frame outside the
+        track has no positive (and a NaN position). A near-constant time
         offset between the estimates and the track when most frames are wrong is warned (:func:`clock_offset`)."""
         if self.opts.positions is None:
             return None, None, None
@@ -129,7 +130,7 @@ class VideoQuery:
             q_pos, inside = self.track.at(times)
         correct, has = np.zeros(len(times), bool), np.zeros(len(times), bool)
         if inside.any():
-            correct[inside], has[inside] = frame_truth(q_pos[inside], r_pos, radius, best[inside])
+            correct[inside], has[inside] = frame_truth(q_pos[inside], r_pos, radius, best[inside], frames=frames)
         self.counts["outside"] = int((~inside).sum())
         from ..data.trajectory import answer_positions
         from ..sources.tracks.offset import clock_offset, mostly_wrong, offset_note
