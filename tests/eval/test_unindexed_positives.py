@@ -74,3 +74,19 @@ def test_an_extra_radius_matches_the_frames_anew():
     ev = score(ds, EvalConfig(methods=("single", "raw+seqmatch"), ks=(1,), extra_radii=(2.0,)))
     single, seq = (ev.results["methods"][m]["radii"]["2.0"] for m in ("single", "raw+seqmatch"))
     assert single["queries"] == 50 and seq["queries"] == 48 and "positive_not_indexed" not in seq
+
+
+def test_an_extra_radius_without_any_match_is_null_not_a_crash(tmp_path, capsys):
+    """--extra-radius below every query's distance to the reference: R@K is undefined there, written as null and
+    printed as '-' (it was NaN, and writing results.json was refused as 'a bug')."""
+    import json
+
+    from seqnet.cli import main
+    from seqnet.data.io import save_dataset
+
+    save_dataset(drives(), tmp_path / "ds")
+    assert main(["eval", "--dataset", str(tmp_path / "ds"), "--method", "single", "--extra-radius", "0.5",
+                 "--json", str(tmp_path / "r.json")]) == 0
+    at = json.loads((tmp_path / "r.json").read_text())["methods"]["single"]["radii"]["0.5"]
+    assert at["recall@1"] is None and at["queries"] == 0
+    assert "single: R@1 -, R@5 -" in capsys.readouterr().out

@@ -94,10 +94,13 @@ def test_eval_index_counts_queries_correct_only_where_no_window_fits(tmp_path, e
                               Traverse(qry, pos + 1.0, name="query"), 4.0, positives=positives, name="d"),
                       tmp_path / "ds")
     mp = build(MapConfig(shortlist="single", rerank="raw+seqmatch", seq_len=5, split="all"), ds, tmp_path / "map")
-    econf = EvalConfig(methods=("hvpr-single:raw+seqmatch", "single"), seq_len=5, ks=(1, 5), split="all")
+    econf = EvalConfig(methods=("hvpr-single:raw+seqmatch", "single"), seq_len=5, ks=(1, 5), split="all",
+                       extra_radii=(1.0, 12.0))  # 1 m: no query has a frame that near (each is 1.4 m off)
     exact = json.loads(eval_main(econf, ds, tmp_path / "e").path.read_text())["methods"]
     mapped = json.loads(evaluate_main(econf, ds, mp, tmp_path / "m").path.read_text())["methods"]
     assert mapped["hvpr-single:raw+seqmatch"]["positive_not_indexed"] == 30
     for name in econf.methods:
         for key in ("recall@1", "recall@5", "queries", "no_positive"):
             assert mapped[name][key] == pytest.approx(exact[name][key]), (name, key)
+        for r in ("1.0", "12.0"):
+            assert mapped[name]["radii"][r] == pytest.approx(exact[name]["radii"][r]), (name, r)

@@ -208,8 +208,10 @@ def print_extra_radii(res: dict) -> None:
               else f"within radius {radius:g} (--extra-radius):")
         for name, r in res["methods"].items():
             at = (r.get("radii") or {}).get(str(float(radius))) or (r.get("radii") or {}).get(str(radius)) or {}
-            recalls = ", ".join(f"R@{k.split('@')[1]} {v:.3f}" for k, v in at.items() if k.startswith("recall@"))
-            print(f"  {shown(name)}: {recalls or '-'}")
+            recalls = ", ".join(f"R@{k.split('@')[1]} {'-' if v is None else f'{v:.3f}'}" for k, v in at.items()
+                                if k.startswith("recall@"))
+            none = " (no query has a correct reference this near)" if at and at.get("queries") == 0 else ""
+            print(f"  {shown(name)}: {recalls or '-'}{none}")
 
 
 def print_calibration(res: dict) -> None:

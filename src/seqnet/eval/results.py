@@ -49,7 +49,8 @@ def method_results(scores: np.ndarray, ranked: np.ndarray, truth: GroundTruth, k
     if not len(precision):  # nothing to summarise: null in results.json (NaN is not JSON)
         entry.update({"auc": None, "recall@100p": None})
     if extra_radii:
-        entry["radii"] = {str(r): recall(ranked, truth.within(r), ks, denominator)
+        entry["radii"] = {str(r): {k: None if isinstance(v, float) and np.isnan(v) else v  # no query within r: null
+                                   for k, v in recall(ranked, truth.within(r), ks, denominator).items()}
                           for r in extra_radii}
     return entry, confidence
 

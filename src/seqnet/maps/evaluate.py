@@ -29,7 +29,7 @@ from ..eval.notices import add_warnings, radius_ignored, shift_notice, split_not
 from ..eval.outputs import EvalOutputs
 from ..eval.runner import run
 from ..methods.grammar import Method, parse_method
-from ..metrics.recall import ground_truth, has_positive
+from ..metrics.recall import ground_truth
 from ..report.guidance import learned_below_baseline, note_entries
 from ..search.ann import shortlist_recall
 from .load import load_map
@@ -204,8 +204,8 @@ def _evaluate_group(mp: Map, ref: Map, q: QueryData, methods: list[Method], conf
                          f"{q.name} against map {mp.path}", q.unit)
     if len(ref.items) < len(ref.positions):  # a query correct only at frames without a window counts, as a failure
         every = _positives(ref, q, items, np.arange(len(ref.positions)))
-        truth = dataclasses.replace(truth, matched=every.counts() > 0 if every is not None else has_positive(
-            np.asarray(q.traverse.positions[items]), np.asarray(ref.positions), truth.radius))
+        truth = dataclasses.replace(truth, **({"matched": every.counts() > 0} if every is not None else
+                                              {"frames": np.asarray(ref.positions)}))  # radius: anew at each radius
     c = mp.config
 
     def info(m: Method) -> dict[str, Any]:
