@@ -183,11 +183,10 @@ def _stream(conf: LocalizeConfig, map_dir: str | Path, q: Query, out: Path, mode
     order = QueryOrder()
     est, describe_ms = _localise(loc, order.watch(frames), n, conf.method,
                                  lambda e: _write_partial(out, e, names, ref_map))
-    best = np.array([e.ref_index for e in est], dtype=np.int64)
-    correct, has = (None, None) if q_pos is None else frame_truth(q_pos, loc.r_pos, radius, best,
-                                                                  frames=ref_map.positions)
+    best, every = np.array([e.ref_index for e in est], dtype=np.int64), ref_map.positions  # every: all map frames
+    correct, has = (None, None) if q_pos is None else frame_truth(q_pos, loc.r_pos, radius, best, None, every)
     if vq is not None:
-        correct, has, q_pos = vq.truth(frame, map_dir, loc.r_pos, radius, best, ref_map.positions)
+        correct, has, q_pos = vq.truth(frame, map_dir, loc.r_pos, radius, best, every)
     known = _known(q_pos)
     summary = summarize(est, correct, has, known)
     if not is_file and describe_ms:
