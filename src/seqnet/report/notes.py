@@ -15,11 +15,14 @@ from .markup import Section, table_html
 
 def choices_section(results: Any) -> list[Section]:
     """A ``choices`` section saying what was chosen on val and why (the descriptor, HVPR's K and λ, or why
-    nothing was), with each grid; none when nothing was left to choose."""
+    nothing was; its warning unless the Warnings section says it already), with each grid; none when nothing was
+    left to choose."""
     sel = results.get("selection") or {}
     picks = ([sel["descriptor"]] if isinstance(sel.get("descriptor"), dict) else []) + list(sel.get("hvpr") or [])
     items = [f"<li>{html.escape(str(c.get('reason', '')))}</li>" for c in picks]
-    items += [f"<li>{html.escape(str(sel[k]))}</li>" for k in ("not_chosen", "warning") if sel.get(k)]
+    warned = {str(w) for key in ("leakage", "warnings") for w in (results.get(key) or [])}  # said in Warnings
+    items += [f"<li>{html.escape(str(sel[k]))}</li>" for k in ("not_chosen", "warning")
+              if sel.get(k) and str(sel[k]) not in warned]
     if not items:
         return []
     grids = "".join(f"<details><summary>{html.escape(str(c.get('method', 'descriptor')))}: every setting scored"
