@@ -38,3 +38,28 @@ def test_a_selection_warning_is_said_once():
     res["warnings"] = [said]
     (warned,), (choices,) = warnings_section(res), choices_section(res)
     assert said in warned.body and said not in choices.body and "K 20 chosen" in choices.body
+
+
+def test_the_summary_says_the_ground_truth_in_the_datasets_unit():
+    """Session 54, a frame-aligned dataset from 300 Nordland64 images: the Summary read 'radius 1.0', no unit and
+    no word of what is correct; now the row names the frame alignment and the radius in frames."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from seqnet.report.html import ReportConfig, summary_section
+
+    res = {"methods": {"single": {"queries": 60}}, "config": {"dataset": "ds[test]", "radius": 1.0,
+                                                              "ground_truth": "radius"}}
+    ev = SimpleNamespace(results=res, r_items=np.arange(3))
+    aligned = SimpleNamespace(position_unit="frames", extra={"ground_truth": "frames"})
+    body = summary_section(ev, ReportConfig(), aligned).body
+    assert ("<td>ground truth</td><td>frame-aligned (query frame i shows the place of reference frame i): a "
+            "reference within 1 frame of it is correct</td>") in body, body
+    metres = SimpleNamespace(position_unit="metres", extra={})
+    res["config"]["radius"] = 25.0
+    assert "<td>radius</td><td>25 metres: a reference at most this far from the query&#x27;s position is correct" \
+        in summary_section(ev, ReportConfig(), metres).body
+    assert "<td>radius</td><td>25</td>" in summary_section(ev, ReportConfig()).body  # no dataset: no unit known
+    res["config"]["ground_truth"] = "explicit positives"
+    assert "<td>ground truth</td><td>explicit positives</td>" in summary_section(ev, ReportConfig(), metres).body

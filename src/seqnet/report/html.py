@@ -40,7 +40,7 @@ from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .guidance import learned_below_baseline, row_marks
 from .markup import SORT_JS, Section, png_tag, table_html
-from .notes import calibration_section, choices_section, notes_section, radii_section, warnings_section
+from .notes import calibration_section, choices_section, notes_section, radii_section, truth_fact, warnings_section
 from .sources import swapped_sources
 from .styles import method_family
 from .tables import descriptors_text, figure_png, pr_figure, recall_figure, results_rows
@@ -91,12 +91,11 @@ class ReportConfig(Config):
                 self._set(key, str(getattr(self, key)))
 
 
-def summary_section(ev: Any, conf: ReportConfig) -> Section:
-    """What was evaluated, on what, and the resolved configuration."""
+def summary_section(ev: Any, conf: ReportConfig, ds: Dataset | None = None) -> Section:
+    """What was evaluated, on what (the ground truth in ``ds``'s unit), and the resolved configuration."""
     cfg = ev.results["config"]
     first = next(iter(ev.results["methods"].values()))
-    truth = ("ground truth", "explicit positives") if cfg.get("ground_truth") == "explicit positives" else \
-        ("radius", cfg.get("radius", ""))
+    truth = truth_fact(cfg, ds)
     counts = sorted({r.get("queries") for r in ev.results["methods"].values() if isinstance(r.get("queries"), int)})
     queries = (f"{counts[0]}–{counts[-1]} (by method: the results table's column)" if len(counts) > 1 else
                first.get("queries", ""))
@@ -184,7 +183,7 @@ def evaluation_sections(ev: Any, ds: Dataset | None, conf: ReportConfig) -> list
     kind = kind if kind in CONFIDENCES else "ratio"
     pr = pr_figure(ev.results["methods"], f"precision–recall ({kind} confidence)")
     return [
-        summary_section(ev, conf),
+        summary_section(ev, conf, ds),
         results_section(ev),
         *warnings_section(ev.results),
         *choices_section(ev.results),

@@ -6,11 +6,29 @@ was chosen on val and why (:func:`choices_section`), the learned methods below t
 from __future__ import annotations
 
 import html
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from .guidance import learned_below_baseline
 from .markup import Section, table_html
+
+ALIGNED = ("frames", "aligned")  # a dataset's "ground_truth" when query frame i shows reference frame i's place
+
+
+def truth_fact(cfg: Mapping[str, Any], ds: Any = None) -> tuple[str, str]:
+    """The Summary's ground-truth row: explicit positives, or the radius in the dataset ``ds``'s position unit
+    (``"1 frame"``, ``"25 metres"``), saying what it counts as correct (frame-aligned traverses: query frame i at
+    reference frame i); the bare radius without a dataset (a map, a matrix)."""
+    if cfg.get("ground_truth") == "explicit positives":
+        return "ground truth", "explicit positives"
+    radius, unit = cfg.get("radius", ""), getattr(ds, "position_unit", None)
+    if not isinstance(radius, (int, float)) or not unit:
+        return "radius", f"{radius:g}" if isinstance(radius, (int, float)) else str(radius)
+    said = f"{radius:g} {unit[:-1] if radius == 1 and unit.endswith('s') else unit}"
+    if (getattr(ds, "extra", None) or {}).get("ground_truth") in ALIGNED:
+        return "ground truth", (f"frame-aligned (query frame i shows the place of reference frame i): a reference "
+                                f"within {said} of it is correct")
+    return "radius", f"{said}: a reference at most this far from the query's position is correct"
 
 
 def choices_section(results: Any) -> list[Section]:
