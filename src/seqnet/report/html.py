@@ -41,7 +41,7 @@ from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, win
 from .guidance import learned_below_baseline, row_marks
 from .markup import SORT_JS, Section, png_tag, table_html
 from .notes import calibration_section, choices_section, notes_section, radii_section, truth_fact, warnings_section
-from .sources import swapped_sources
+from .sources import inside_name, swapped_sources
 from .styles import method_family
 from .tables import descriptors_text, figure_png, pr_figure, recall_figure, results_rows
 
@@ -149,17 +149,21 @@ def gallery_section(ev: Any, ds: Dataset, conf: ReportConfig) -> Section:
         notes: list[str] = []
         png = gallery_png(item, Path(conf.query_images), Path(conf.ref_images), notes=notes) \
             if item.ref_frames else None
-        cells.append(gallery_cell(item, png, notes[0] if notes else ""))
+        cells.append(gallery_cell(item, png, notes[0] if notes else "", (conf.query_images, conf.ref_images)))
     head = (f"<p>Method <b>{html.escape(name)}</b>: each example shows the query window (top row) above the "
             f"top-1 reference window (bottom row), {length} frame(s); green: correct, red: wrong.</p>")
     return Section("gallery", "Example queries", head + "".join(cells))
 
 
-def gallery_cell(item: GalleryItem, png: bytes | None, note: str = "") -> str:
-    """One example of the gallery (``note``: why its pictures are left out)."""
+def gallery_cell(item: GalleryItem, png: bytes | None, note: str = "",
+                 folders: tuple[str | None, str | None] = (None, None)) -> str:
+    """One example of the gallery (``note``: why its pictures are left out), its images named within the query's
+    and the reference's image ``folders`` where they lie inside them."""
     status = "correct" if item.correct else "wrong"
-    text = (f"<p>{status}: query {html.escape(item.query_frames[len(item.query_frames) // 2])} → "
-            f"{html.escape(item.ref_frames[len(item.ref_frames) // 2]) if item.ref_frames else 'none'}"
+    query, ref = item.query_frames[len(item.query_frames) // 2], \
+        item.ref_frames[len(item.ref_frames) // 2] if item.ref_frames else None
+    text = (f"<p>{status}: query {html.escape(inside_name(query, folders[0]))} → "
+            f"{html.escape(inside_name(ref, folders[1])) if ref is not None else 'none'}"
             f" (confidence {item.confidence:.2f})</p>")
     why = f": {note[:500]}" if note else ""
     image = png_tag(png, f"query {item.query}") if png is not None else \
