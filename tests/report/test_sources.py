@@ -57,3 +57,20 @@ def test_eval_report_with_swapped_folders_warns_and_says_it_in_the_report(tmp_pa
     assert f"--images-query {ref} is the dataset's reference source" in capsys.readouterr().err
     text = (tmp_path / "bad" / "report.html").read_text()
     assert "Picture sources" in text and "the report&#x27;s pictures would show the wrong traverse" in text
+
+
+def test_an_example_names_its_images_within_the_folders(tmp_path):
+    """Session 54, a dataset from list files of absolute paths: each example's caption read 'query
+    /work/shared/data/nordland64/winter/images-12420.png → /work/shared/data/nordland64/summer/images-12420.png',
+    five lines a cell; inside the given folders the names are read within them (a name elsewhere stays whole)."""
+    from seqnet.report.figures import GalleryItem
+    from seqnet.report.html import gallery_cell
+
+    winter, summer = tmp_path / "winter", tmp_path / "summer"
+    item = GalleryItem(0, [str(winter / "images-12420.png")], [str(summer / "sub" / "images-12420.png")], True, 0.11)
+    text = gallery_cell(item, None, folders=(str(winter), str(summer)))
+    assert "correct: query images-12420.png → sub/images-12420.png (confidence 0.11)" in text, text
+    assert str(tmp_path) not in text
+    elsewhere = GalleryItem(0, ["images-12420.png"], ["/elsewhere/x.png"], False, 0.5)
+    assert "query images-12420.png → /elsewhere/x.png" in gallery_cell(elsewhere, None, folders=(str(winter),
+                                                                                                  str(summer)))

@@ -40,8 +40,8 @@ from ..security.files import write_text_atomic
 from .figures import GalleryItem, gallery_png, matrix_figure, pick_examples, window_names
 from .guidance import learned_below_baseline, row_marks
 from .markup import SORT_JS, Section, png_tag, table_html
-from .notes import calibration_section, choices_section, notes_section, radii_section, warnings_section
-from .sources import swapped_sources
+from .notes import calibration_section, choices_section, notes_section, radii_section, truth_fact, warnings_section
+from .sources import inside_name, swapped_sources
 from .styles import method_family
 from .tables import descriptors_text, figure_png, pr_figure, recall_figure, results_rows
 
@@ -91,12 +91,11 @@ class ReportConfig(Config):
                 self._set(key, str(getattr(self, key)))
 
 
-def summary_section(ev: Any, conf: ReportConfig) -> Section:
-    """What was evaluated, on what, and the resolved configuration."""
+def summary_section(ev: Any, conf: ReportConfig, ds: Dataset | None = None) -> Section:
+    """What was evaluated, on what (the ground truth in ``ds``'s unit), and the resolved configuration."""
     cfg = ev.results["config"]
     first = next(iter(ev.results["methods"].values()))
-    truth = ("ground truth", "explicit positives") if cfg.get("ground_truth") == "explicit positives" else \
-        ("radius", cfg.get("radius", ""))
+    truth = truth_fact(cfg, ds)
     counts = sorted({r.get("queries") for r in ev.results["methods"].values() if isinstance(r.get("queries"), int)})
     queries = (f"{counts[0]}–{counts[-1]} (by method: the results table's column)" if len(counts) > 1 else
                first.get("queries", ""))
@@ -150,17 +149,21 @@ def gallery_section(ev: Any, ds: Dataset, conf: ReportConfig) -> Section:
         notes: list[str] = []
         png = gallery_png(item, Path(conf.query_images), Path(conf.ref_images), notes=notes) \
             if item.ref_frames else None
-        cells.append(gallery_cell(item, png, notes[0] if notes else ""))
+        cells.append(gallery_cell(item, png, notes[0] if notes else "", (conf.query_images, conf.ref_images)))
     head = (f"<p>Method <b>{html.escape(name)}</b>: each example shows the query window (top row) above the "
             f"top-1 reference window (bottom row), {length} frame(s); green: correct, red: wrong.</p>")
     return Section("gallery", "Example queries", head + "".join(cells))
 
 
-def gallery_cell(item: GalleryItem, png: bytes | None, note: str = "") -> str:
-    """One example of the gallery (``note``: why its pictures are left out)."""
+def gallery_cell(item: GalleryItem, png: bytes | None, note: str = "",
+                 folders: tuple[str | None, str | None] = (None, None)) -> str:
+    """One example of the gallery (``note``: why its pictures are left out), its images named within the query's
+    and the reference's image ``folders`` where they lie inside them."""
     status = "correct" if item.correct else "wrong"
-    text = (f"<p>{status}: query {html.escape(item.query_frames[len(item.query_frames) // 2])} → "
-            f"{html.escape(item.ref_frames[len(item.ref_frames) // 2]) if item.ref_frames else 'none'}"
+    query, ref = item.query_frames[len(item.query_frames) // 2], \
+        item.ref_frames[len(item.ref_frames) // 2] if item.ref_frames else None
+    text = (f"<p>{status}: query {html.escape(inside_name(query, folders[0]))} → "
+            f"{html.escape(inside_name(ref, folders[1])) if ref is not None else 'none'}"
             f" (confidence {item.confidence:.2f})</p>")
     why = f": {note[:500]}" if note else ""
     image = png_tag(png, f"query {item.query}") if png is not None else \
@@ -184,7 +187,7 @@ def evaluation_sections(ev: Any, ds: Dataset | None, conf: ReportConfig) -> list
     kind = kind if kind in CONFIDENCES else "ratio"
     pr = pr_figure(ev.results["methods"], f"precision–recall ({kind} confidence)")
     return [
-        summary_section(ev, conf),
+        summary_section(ev, conf, ds),
         results_section(ev),
         *warnings_section(ev.results),
         *choices_section(ev.results),

@@ -6,20 +6,41 @@ was chosen on val and why (:func:`choices_section`), the learned methods below t
 from __future__ import annotations
 
 import html
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from .guidance import learned_below_baseline
 from .markup import Section, table_html
 
+ALIGNED = ("frames", "aligned")  # a dataset's "ground_truth" when query frame i shows reference frame i's place
+
+
+def truth_fact(cfg: Mapping[str, Any], ds: Any = None) -> tuple[str, str]:
+    """The Summary's ground-truth row: explicit positives, or the radius in the dataset ``ds``'s position unit
+    (``"1 frame"``, ``"25 metres"``), saying what it counts as correct (frame-aligned traverses: query frame i at
+    reference frame i); the bare radius without a dataset (a map, a matrix)."""
+    if cfg.get("ground_truth") == "explicit positives":
+        return "ground truth", "explicit positives"
+    radius, unit = cfg.get("radius", ""), getattr(ds, "position_unit", None)
+    if not isinstance(radius, (int, float)) or not unit:
+        return "radius", f"{radius:g}" if isinstance(radius, (int, float)) else str(radius)
+    said = f"{radius:g} {unit[:-1] if radius == 1 and unit.endswith('s') else unit}"
+    if (getattr(ds, "extra", None) or {}).get("ground_truth") in ALIGNED:
+        return "ground truth", (f"frame-aligned (query frame i shows the place of reference frame i): a reference "
+                                f"within {said} of it is correct")
+    return "radius", f"{said}: a reference at most this far from the query's position is correct"
+
 
 def choices_section(results: Any) -> list[Section]:
     """A ``choices`` section saying what was chosen on val and why (the descriptor, HVPR's K and λ, or why
-    nothing was), with each grid; none when nothing was left to choose."""
+    nothing was; its warning unless the Warnings section says it already), with each grid; none when nothing was
+    left to choose."""
     sel = results.get("selection") or {}
     picks = ([sel["descriptor"]] if isinstance(sel.get("descriptor"), dict) else []) + list(sel.get("hvpr") or [])
     items = [f"<li>{html.escape(str(c.get('reason', '')))}</li>" for c in picks]
-    items += [f"<li>{html.escape(str(sel[k]))}</li>" for k in ("not_chosen", "warning") if sel.get(k)]
+    warned = {str(w) for key in ("leakage", "warnings") for w in (results.get(key) or [])}  # said in Warnings
+    items += [f"<li>{html.escape(str(sel[k]))}</li>" for k in ("not_chosen", "warning")
+              if sel.get(k) and str(sel[k]) not in warned]
     if not items:
         return []
     grids = "".join(f"<details><summary>{html.escape(str(c.get('method', 'descriptor')))}: every setting scored"

@@ -1,7 +1,8 @@
 """Whether the report's picture sources (``eval --report --images-query/--images-ref``) are the dataset's own,
 the right way round: ``dataset.json`` records the image folders (``"images": {"reference", "query"}``) or the
 videos (``"videos": {side: {"path"}}``) it was built from, and a folder given for the other side would show the
-wrong pictures beside every example without any error."""
+wrong pictures beside every example without any error; and the examples' image names as read within those folders
+(:func:`inside_name`)."""
 
 from __future__ import annotations
 
@@ -50,3 +51,15 @@ def swapped_sources(extra: Mapping[str, Any], query_images: str | None, ref_imag
         f"{FLAGS[s]} {shown(recorded[s])}" for s in FLAGS if s in recorded)
     return (f"{said} (as dataset.json records it): the report's pictures would show the wrong traverse beside each "
             f"example; hint: {fix}")
+
+
+def inside_name(name: str, folder: str | None) -> str:
+    """``name`` relative to the image ``folder`` when it lies inside it (a list file's absolute path
+    ``/data/winter/images-12420.png`` in ``/data/winter``: ``images-12420.png``), else ``name`` as the dataset
+    has it."""
+    if folder is None:
+        return name
+    try:
+        return Path(os.path.abspath(name)).relative_to(os.path.abspath(folder)).as_posix()
+    except ValueError:
+        return name

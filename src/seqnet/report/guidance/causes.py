@@ -210,8 +210,9 @@ def barely_trained(models: Mapping[str, Any], narrow: bool = False) -> str | Non
 
 def shortlist_capped(name: str, entry: Mapping[str, Any], baseline: float | None = None) -> str | None:
     """Why an HVPR's R@1 cannot rise: its shortlist of K holds a correct reference for at most one query more than
-    its R@1 counts (the entry's ``shortlist_recall``), so the re-ranking is not what loses; or that recall is below
-    the model-free ``baseline`` R@1 by a query or more, so no re-ranking of that shortlist reaches it (the
+    its R@1 counts (the entry's ``shortlist_recall``) and less than the model-free ``baseline`` R@1 (when given: a
+    shortlist that reaches it leaves the loss to the re-ranking), so the re-ranking is not what loses; or that recall
+    is below the model-free ``baseline`` R@1 by a query or more, so no re-ranking of that shortlist reaches it (the
     re-ranking may lose too: said beside the other causes). None when the shortlist leaves room, or is not
     recorded."""
     cap, r1, queries = entry.get("shortlist_recall"), entry.get("recall@1"), entry.get("queries")
@@ -220,7 +221,8 @@ def shortlist_capped(name: str, entry: Mapping[str, Any], baseline: float | None
     held = f"its shortlist ({parse_method(name).shortlist} top-{cap['k']}) holds a correct reference for only " \
         f"{cap['recall']:.3f} of the queries"
     hint = "a larger --top-k (or a better shortlist)"
-    if queries_apart(float(r1), cap["recall"], queries) <= 1:
+    reaches = baseline is not None and queries_apart(cap["recall"], baseline, queries) < 1  # room up to the baseline
+    if queries_apart(float(r1), cap["recall"], queries) <= 1 and not reaches:
         return f"{held}, which caps its R@1: the re-ranking is not what loses; {hint}"
     if baseline is not None and queries_apart(cap["recall"], baseline, queries) >= 1:
         return f"{held}, below the model-free {baseline:.3f}: no re-ranking of it reaches that; {hint}"
