@@ -245,6 +245,19 @@ def test_the_results_table_wraps_and_scrolls_in_its_own_box():
     assert "#results td:nth-child(2){white-space:normal" in CSS  # the family column wraps too
 
 
+def test_the_results_table_says_what_its_columns_mean():
+    """R@K, PR AUC and R@100P are said under the table (the page left them unexplained)."""
+    from types import SimpleNamespace
+
+    from seqnet.report.html import results_section
+
+    res = {"methods": {"single": {"recall@1": 0.5, "queries": 10}}, "config": {"ks": [1]}}
+    body = results_section(SimpleNamespace(results=res)).body
+    for said in ("R@K: the share of queries", "PR AUC: the area under the precision–recall curve",
+                 "R@100P: the largest share", "(recall at 100 % precision)", "Click a column's heading"):
+        assert said in body, said
+
+
 def test_the_summary_names_the_descriptors_evaluated(tmp_path, synth_dataset):
     """Which descriptors were compared (method, views, PCA, D, provenance id) is in the results and the Summary."""
     import dataclasses

@@ -112,6 +112,13 @@ def summary_section(ev: Any, conf: ReportConfig, ds: Dataset | None = None) -> S
                    + f"<details><summary>resolved configuration</summary><pre>{config}</pre></details>")
 
 
+COLUMNS_NOTE = ("R@K: the share of queries with a correct reference that have one among the top K retrieved. PR AUC: "
+                "the area under the precision–recall curve of the top-1 answers thresholded by their confidence "
+                "(average precision). R@100P: the largest share of those queries that a confidence threshold "
+                "accepts while every accepted answer is correct (recall at 100 % precision). Click a column's "
+                "heading to sort by it (again: the other way).")
+
+
 def results_section(ev: Any) -> Section:
     """The results table: Recall@K, AUC, R@100P, queries, time."""
     ks = ev.results["config"].get("ks", [1, 5, 10, 20])
@@ -122,8 +129,7 @@ def results_section(ev: Any) -> Section:
         row.insert(1, method_family(name))
         row.append(marks.get(name, ""))
     table = table_html([header[0], "family", *header[1:], "PR AUC", "R@100P", "note"], rows, sortable=True)
-    return Section("results", "Results", f'<div class="wide">{table}</div>'
-                   + "<p>Click a column's heading to sort by it (again: the other way).</p>")
+    return Section("results", "Results", f'<div class="wide">{table}</div>' + f"<p>{COLUMNS_NOTE}</p>")
 
 
 def gallery_section(ev: Any, ds: Dataset, conf: ReportConfig) -> Section:
