@@ -11,7 +11,6 @@ within the radius). See :mod:`seqnet.eval.evaluation`.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -153,13 +152,10 @@ def dataset_truth(ds: Dataset, q_items: np.ndarray, r_items: np.ndarray, radius:
     explicit positives, else the radius; a query whose correct references are all frames of ``ds`` outside
     ``r_items`` (no full window fits there) is kept, as a failure (:attr:`GroundTruth.matched`)."""
     positives = ds.positives.select(q_items, r_items) if ds.positives is not None else None
-    truth = ground_truth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives, ds.name,
-                         ds.position_unit)
-    if len(r_items) == len(ds.reference):  # every frame is an item: nothing can be matched outside them
-        return truth
-    if ds.positives is not None:
-        return dataclasses.replace(truth, matched=ds.positives.counts()[q_items] > 0)
-    return dataclasses.replace(truth, frames=np.asarray(ds.reference.positions))
+    outside = len(r_items) < len(ds.reference) and ds.positives is not None  # explicit positives of frames no item
+    return ground_truth(ds.query.positions[q_items], ds.reference.positions[r_items], radius, positives, ds.name,
+                        ds.position_unit, frames=ds.reference.positions,
+                        matched=ds.positives.counts()[q_items] > 0 if outside else None)
 
 
 def item_names(t: Traverse, items: np.ndarray) -> list[str] | None:

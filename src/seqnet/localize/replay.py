@@ -8,7 +8,6 @@ per-frame latency).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -62,22 +61,20 @@ def track_truth(ds: Dataset, ref_items: np.ndarray, radius: float, best: np.ndar
     frame whose correct references are all reference frames outside ``ref_items`` (no full window fits there) has
     one, and its answer is wrong (as the evaluation counts it: :attr:`seqnet.metrics.recall.GroundTruth.matched`)."""
     positives = ds.positives.select(np.arange(len(ds.query)), ref_items) if ds.positives is not None else None
-    correct, has = frame_truth(ds.query.positions, ds.reference.positions[ref_items], radius, best, positives,
-                               frames=ds.reference.positions)
-    if ds.positives is not None and len(ref_items) < len(ds.reference):
-        has = has | (ds.positives.counts() > 0)
-    return correct, has
+    outside = ds.positives is not None and len(ref_items) < len(ds.reference)  # explicit positives of frames no item
+    return frame_truth(ds.query.positions, ds.reference.positions[ref_items], radius, best, positives,
+                       frames=ds.reference.positions, matched=ds.positives.counts() > 0 if outside else None)
 
 
 def frame_truth(q_pos: np.ndarray, r_pos: np.ndarray, radius: float, best: np.ndarray,
-                positives: Positives | None = None, frames: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                positives: Positives | None = None, frames: np.ndarray | None = None,
+                matched: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(correct [Nq], has_positive [Nq])`` of the top-1 reference items ``best`` (-1: none; indices into the
     reference items at ``r_pos [Nr, P]``) of the query frames at ``q_pos [Nq, P]``, within ``radius``; ``frames
-    [R_all, P]``: the positions of every reference frame (a map's), so that a frame whose correct references are
-    all frames without a window has one, and its answer is wrong (as the evaluation counts it)."""
-    truth = ground_truth(q_pos, r_pos, radius, positives, require=False)
-    if frames is not None and positives is None and len(frames) > len(r_pos):
-        truth = dataclasses.replace(truth, frames=np.asarray(frames))
+    [R_all, P]`` (every reference frame's position, a map's) or ``matched`` (explicit positives): a frame whose
+    correct references are all frames without a window has one, and its answer is wrong (as the evaluation counts
+    it: :func:`seqnet.metrics.recall.ground_truth`)."""
+    truth = ground_truth(q_pos, r_pos, radius, positives, require=False, frames=frames, matched=matched)
     return truth.hits(best[:, None])[:, 0], truth.has_positive()
 
 

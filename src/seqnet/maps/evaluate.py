@@ -200,12 +200,11 @@ def _evaluate_group(mp: Map, ref: Map, q: QueryData, methods: list[Method], conf
     query = ref.describe(q.traverse)
     items = query.side.items
     positives = _positives(ref, q, items)
+    # a query correct only at frames without a window counts, as a failure: its explicit positives over every frame
+    every = _positives(ref, q, items, np.arange(len(ref.positions))) if len(ref.items) < len(ref.positions) else None
     truth = ground_truth(q.traverse.positions[items], ref.positions[ref.items], conf.radius, positives,
-                         f"{q.name} against map {mp.path}", q.unit)
-    if len(ref.items) < len(ref.positions):  # a query correct only at frames without a window counts, as a failure
-        every = _positives(ref, q, items, np.arange(len(ref.positions)))
-        truth = dataclasses.replace(truth, **({"matched": every.counts() > 0} if every is not None else
-                                              {"frames": np.asarray(ref.positions)}))  # radius: anew at each radius
+                         f"{q.name} against map {mp.path}", q.unit, frames=ref.positions,
+                         matched=None if every is None else every.counts() > 0)
     c = mp.config
 
     def info(m: Method) -> dict[str, Any]:

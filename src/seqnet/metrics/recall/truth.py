@@ -199,9 +199,13 @@ class GroundTruth:
 
 
 def ground_truth(q_pos: np.ndarray, r_pos: np.ndarray, radius: float, positives: Positives | None = None,
-                 name: str = "the dataset", unit: str = "m", require: bool = True) -> GroundTruth:
+                 name: str = "the dataset", unit: str = "m", require: bool = True, *, frames: np.ndarray | None = None,
+                 matched: np.ndarray | None = None) -> GroundTruth:
     """The one ground truth of evaluated items (evaluation, maps, the localiser); with ``require`` a
-    :class:`ConfigError` when no query has a correct reference (Recall@K would be undefined)."""
+    :class:`ConfigError` when no query has a correct reference among the items (Recall@K would be undefined).
+    The reference frames that are no item (where no full window fits) are given as ``frames`` (the positions of every
+    reference frame; radius only, used when more than the items) or ``matched`` (``[M]``: the queries with a positive
+    among them, explicit positives): :attr:`GroundTruth.matched`."""
     truth = GroundTruth(q_pos, r_pos, radius, positives)
     if require and not truth.has_positive().any():
         what = ("any of its explicit positives among the indexed references" if positives is not None else
@@ -212,4 +216,6 @@ def ground_truth(q_pos: np.ndarray, r_pos: np.ndarray, radius: float, positives:
                 "share one coordinate frame")
         raise ConfigError(f"none of the {len(q_pos)} evaluated queries of {name!r} has {what}, so Recall@K is "
                           f"undefined; hint: {hint}")
-    return truth
+    if frames is not None and positives is None and len(frames) > len(truth.r_pos):
+        return dataclasses.replace(truth, frames=np.asarray(frames))
+    return truth if matched is None else dataclasses.replace(truth, matched=matched)
