@@ -172,22 +172,23 @@ class Map:
         self.check_method(m)
         if not m.single_frame:
             return self
-        edges = edge_frames(self.items, len(self.frames))
-        rows = self.edge_shortlist
-        if rows is None and len(edges) and self.config.frames_descriptor == self.config.shortlist:
-            rows = edge_rows(self.frames, edges)  # the stored frames are the shortlist descriptor
-        if rows is None and len(edges):
-            raise MapError(f"map {self.path} stores the {self.config.shortlist!r} descriptors of its {len(self.items)} "
-                           f"items only, not of the {len(edges)} frames where no window fits, which {m.name!r} "
-                           "searches too (a map built before seqnet stored them); rebuild it with seqnet index build")
+        same = self.config.frames_descriptor == self.config.shortlist  # the stored frames are the shortlist's
         view = copy.copy(self)
         view.windows = Windows(1, 1, self.windows.mode, self.windows.anchor)
         view.items = view.match_starts = np.arange(len(self.frames), dtype=np.int64)
         view._exact = {}
-        if self.index is None and self.config.frames_descriptor == self.config.shortlist:
+        if self.index is None and same:
             view.shortlist = self.frames  # exact search over the stored frames: every frame, one search
-        else:
-            view._every_frame = (self.items, edges, rows if rows is not None else self.shortlist[:0])
+            return view
+        edges = edge_frames(self.items, len(self.frames))
+        rows = self.edge_shortlist
+        if rows is None and len(edges) and same:
+            rows = edge_rows(self.frames, edges)
+        if rows is None and len(edges):
+            raise MapError(f"map {self.path} stores the {self.config.shortlist!r} descriptors of its {len(self.items)} "
+                           f"items only, not of the {len(edges)} frames where no window fits, which {m.name!r} "
+                           "searches too (a map built before seqnet stored them); rebuild it with seqnet index build")
+        view._every_frame = (self.items, edges, rows if rows is not None else self.shortlist[:0])
         return view
 
     def exact_search(self, ref: ArrayLike) -> ExactIndex:
