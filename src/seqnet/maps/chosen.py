@@ -51,14 +51,15 @@ def check_given(method: Method, given: Mapping[str, Any]) -> dict[str, Any]:
 def choose_for_map(conf: MapConfig, ds: Dataset, split: str, models: Mapping[str, SeqNet],
                    dataset: str | Path, given: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The ``"selection"`` record of a map of ``split`` of ``ds`` (the dataset directory ``dataset``) with the
-    resolved ``conf``: the map's HVPR settings ``given`` to ``seqnet index build`` (``"given"``), the others chosen
-    on the val split (:func:`seqnet.eval.select.choose_on_val`), with the val R@1 of each choice; ``"not_chosen"``
+    resolved ``conf``: the map's HVPR settings ``given`` to ``seqnet index build`` (``"given"``; checked by
+    :func:`check_given` before any work), the others chosen on the val split
+    (:func:`seqnet.eval.select.choose_on_val`), with the val R@1 of each choice; ``"not_chosen"``
     says why none was chosen (no val split, the map's split is val or holds val queries, no val query to score).
     Said in one line."""
     from ..eval.config import EvalConfig
     from ..eval.select import choose_on_val, holds_val_queries
 
-    method, given = conf.method, check_given(conf.method, given or {})
+    method, given = conf.method, dict(given or {})
     free = [k for k in settings_of(method) if k not in given]
     econf = EvalConfig(methods=(method.name,), seq_len=conf.seq_len, match_len=conf.match_len, window=conf.window,
                        device=conf.device, allow_mismatch=conf.allow_mismatch, **given)
