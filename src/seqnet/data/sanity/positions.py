@@ -7,7 +7,7 @@ import numpy as np
 
 from ...core.tensors import spread
 from ..traverse import Dataset
-from .revisits import unit_rows
+from .revisits import nearer_share
 from .truth import constant_positions
 
 SAME_MIN = 10  # rows, at least, before equal positions say anything
@@ -41,15 +41,6 @@ def own_row_rank(ds: Dataset, samples: int = 200) -> float | None:
     with too few such rows."""
     n = min(len(ds.query), len(ds.reference))
     i, j = spread(n, samples), spread(len(ds.reference), samples)
-    q, own, other = (unit_rows(a) for a in (ds.query.descriptors[i], ds.reference.descriptors[i],
-                                                                ds.reference.descriptors[j]))
-    d_own = np.linalg.norm(q - own, axis=1)  # [S]
-    d = np.sqrt(np.maximum(2.0 - 2.0 * (q @ other.T), 0.0))  # [S, S]: unit rows (zero rows: as far as any)
     pos_i, pos_j = np.asarray(ds.query.positions[i], np.float64), np.asarray(ds.reference.positions[j], np.float64)
     far = np.linalg.norm(pos_i[:, None, :] - pos_j[None, :, :], axis=2) > ds.radius
-    count = far.sum(axis=1)
-    ok = count >= 5
-    if ok.sum() < 5:
-        return None
-    share = ((d < d_own[:, None]) & far).sum(axis=1)[ok] / count[ok]
-    return float(np.median(share))
+    return nearer_share(ds.query.descriptors[i], ds.reference.descriptors[i], ds.reference.descriptors[j], far, 5, 5)

@@ -59,6 +59,22 @@ def unit_rows(a: np.ndarray) -> np.ndarray:
     return a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
 
 
+def nearer_share(x: np.ndarray, own: np.ndarray, other: np.ndarray, far: np.ndarray, min_others: int,
+                 min_rows: int) -> float | None:
+    """The median, over the rows of ``x [S, D]`` with at least ``min_others`` rows of ``other [S', D]`` marked in
+    ``far [S, S']`` (another place), of the share of those that are nearer to the row (L2-normalised) than its own
+    row of ``own [S, D]``: near 0 when each row's own is its place, near 0.5 when it is any; None with fewer than
+    ``min_rows`` such rows."""
+    count = far.sum(axis=1)
+    ok = count >= min_others
+    if ok.sum() < min_rows:
+        return None
+    x, own, other = unit_rows(x), unit_rows(own), unit_rows(other)
+    d_own = np.linalg.norm(x - own, axis=1)  # [S]
+    d = np.sqrt(np.maximum(2.0 - 2.0 * (x @ other.T), 0.0))  # [S, S']: unit rows (zero rows: as far as any)
+    return float(np.median(((d < d_own[:, None]) & far).sum(axis=1)[ok] / count[ok]))
+
+
 def _in_view(desc: np.ndarray, i: np.ndarray, typical: np.ndarray) -> int:
     """Frames one place stays in view: the smallest of :data:`LAGS` at which the median row of ``i [S]`` is farther
     from the frame that lag later than :data:`REVISIT_LEFT` of its ``typical [S]`` distance (high frame rates: many

@@ -10,7 +10,7 @@ import numpy as np
 
 from ...core.tensors import spread
 from ..traverse import Dataset, Traverse
-from .revisits import unit_rows
+from .revisits import nearer_share
 
 FOREIGN_SHARE = 0.4  # the median query's share of other places nearer than its own, at least: near random
 CLEAR = 3  # other places: beyond this many radii (or positives' counts) of the query's own
@@ -63,16 +63,8 @@ def own_place_share(ds: Dataset, samples: int = 200) -> float | None:
     if len(items) < FOREIGN_MIN:
         return None
     j = spread(len(ds.reference), samples)
-    far = _other_places(ds, items, j)  # [S, S'] bool
-    q, mine, other = (unit_rows(np.asarray(a)) for a in (ds.query.descriptors[items], ds.reference.descriptors[own],
-                                                          ds.reference.descriptors[j]))
-    d_own = np.linalg.norm(q - mine, axis=1)  # [S]
-    d = np.sqrt(np.maximum(2.0 - 2.0 * (q @ other.T), 0.0))  # [S, S']
-    count = far.sum(axis=1)
-    ok = count >= OTHERS_MIN
-    if ok.sum() < FOREIGN_MIN:
-        return None
-    return float(np.median(((d < d_own[:, None]) & far).sum(axis=1)[ok] / count[ok]))
+    return nearer_share(ds.query.descriptors[items], ds.reference.descriptors[own], ds.reference.descriptors[j],
+                        _other_places(ds, items, j), OTHERS_MIN, FOREIGN_MIN)
 
 
 def route_share(t: Traverse, samples: int = 200) -> float | None:
@@ -87,14 +79,8 @@ def route_share(t: Traverse, samples: int = 200) -> float | None:
     if t.seq_bounds is not None:
         i = i[np.asarray(t.seq_bounds)[i, 1] > i + 1]  # row i + 1 in the same sequence
     j = spread(n, samples)
-    far = np.abs(i[:, None] - j[None, :]) > CLEAR
-    ok = far.sum(axis=1) >= OTHERS_MIN
-    if ok.sum() < ROUTE_MIN:
-        return None
-    x, nxt, other = (unit_rows(np.asarray(t.descriptors[k])) for k in (i, i + 1, j))
-    d_next = np.linalg.norm(x - nxt, axis=1)
-    d = np.sqrt(np.maximum(2.0 - 2.0 * (x @ other.T), 0.0))
-    return float(np.median(((d < d_next[:, None]) & far).sum(axis=1)[ok] / far.sum(axis=1)[ok]))
+    far = np.abs(i[:, None] - j[None, :]) > CLEAR  # [S, S'] rows of other places
+    return nearer_share(t.descriptors[i], t.descriptors[i + 1], t.descriptors[j], far, OTHERS_MIN, ROUTE_MIN)
 
 
 def _own_places(ds: Dataset, items: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
