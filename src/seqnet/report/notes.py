@@ -9,10 +9,9 @@ import html
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from ..data.sanity import ALIGNED_TRUTHS
 from .guidance import learned_below_baseline
 from .markup import Section, table_html
-
-ALIGNED = ("frames", "aligned")  # a dataset's "ground_truth" when query frame i shows reference frame i's place
 
 
 def truth_fact(cfg: Mapping[str, Any], ds: Any = None) -> tuple[str, str]:
@@ -25,7 +24,7 @@ def truth_fact(cfg: Mapping[str, Any], ds: Any = None) -> tuple[str, str]:
     if not isinstance(radius, (int, float)) or not unit:
         return "radius", f"{radius:g}" if isinstance(radius, (int, float)) else str(radius)
     said = f"{radius:g} {unit[:-1] if radius == 1 and unit.endswith('s') else unit}"
-    if (getattr(ds, "extra", None) or {}).get("ground_truth") in ALIGNED:
+    if (getattr(ds, "extra", None) or {}).get("ground_truth") in ALIGNED_TRUTHS:
         return "ground truth", (f"frame-aligned (query frame i shows the place of reference frame i): a reference "
                                 f"within {said} of it is correct")
     return "radius", f"{said}: a reference at most this far from the query's position is correct"
